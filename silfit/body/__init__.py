@@ -1,0 +1,15 @@
+"""The SMPL body model in torch: functional core (:mod:`.lbs`), file loading (:mod:`.io`)
+and the ``nn.Module`` wrapper (:mod:`.model`)."""
+from .io import OPEN_BODY_PATH, SMPL_JOINT_NAMES, SMPL_PARENTS, ModelArrays, load_model_arrays
+from .model import BodyModel, BodyOutput, load_body_model
+
+__all__ = [
+    "BodyModel",
+    "BodyOutput",
+    "ModelArrays",
+    "OPEN_BODY_PATH",
+    "SMPL_JOINT_NAMES",
+    "SMPL_PARENTS",
+    "load_body_model",
+    "load_model_arrays",
+]

@@ -1,0 +1,159 @@
+"""Functional core of the SMPL body model: pure, batched, differentiable torch functions.
+
+Shapes use ``B`` for the batch, ``V`` vertices, ``J`` joints and ``L`` shape
+directions. Every function works in float32 and float64 and on any device.
+"""
+from __future__ import annotations
+
+from typing import Optional, Sequence
+
+import torch
+
+__all__ = [
+    "skew",
+    "axis_angle_to_matrix",
+    "blend_shapes",
+    "pose_feature",
+    "vertices_to_joints",
+    "kinematic_levels",
+    "forward_kinematics",
+    "skin_vertices",
+    "lbs",
+]
+
+
+def skew(v: torch.Tensor) -> torch.Tensor:
+    """Cross-product matrices ``[..., 3, 3]`` of vectors ``[..., 3]``."""
+    x, y, z = v.unbind(-1)
+    o = torch.zeros_like(x)
+    return torch.stack([o, -z, y, z, o, -x, -y, x, o], dim=-1).reshape(v.shape[:-1] + (3, 3))
+
+
+def axis_angle_to_matrix(axis_angle: torch.Tensor) -> torch.Tensor:
+    """Rodrigues' formula, ``[..., 3]`` -> ``[..., 3, 3]``.
+
+    Written as ``R = I + a(t) K + b(t) K^2`` with ``K`` the cross-product matrix of the
+    (unnormalised) axis-angle vector, ``a = sin(t)/t`` and ``b = (1 - cos t)/t^2``; both
+    are replaced by their Taylor series near ``t = 0`` so values *and* gradients are
+    exact and finite at the zero rotation (where SMPL's rest pose lives).
+    """
+    theta2 = (axis_angle * axis_angle).sum(-1)
+    small = theta2 < 1e-6
+    safe2 = torch.where(small, torch.ones_like(theta2), theta2)
+    theta = safe2.sqrt()
+    a = torch.where(small, 1.0 - theta2 / 6.0 + theta2 * theta2 / 120.0, torch.sin(theta) / theta)
+    b = torch.where(small, 0.5 - theta2 / 24.0 + theta2 * theta2 / 720.0, (1.0 - torch.cos(theta)) / safe2)
+    K = skew(axis_angle)
+    eye = torch.eye(3, dtype=axis_angle.dtype, device=axis_angle.device)
+    return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+
+
+def blend_shapes(betas: torch.Tensor, shapedirs: torch.Tensor) -> torch.Tensor:
+    """Shape offsets ``[B, V, 3]`` from ``betas [B, L]`` and ``shapedirs [V, 3, L]``."""
+    return torch.einsum("bl,vcl->bvc", betas, shapedirs[..., : betas.shape[-1]])
+
+
+def pose_feature(rot_mats: torch.Tensor) -> torch.Tensor:
+    """SMPL's pose-corrective feature: ``(R_j - I)`` of the non-root joints, ``[B, (J-1)*9]``."""
+    eye = torch.eye(3, dtype=rot_mats.dtype, device=rot_mats.device)
+    return (rot_mats[:, 1:] - eye).flatten(1)
+
+
+def vertices_to_joints(regressor: torch.Tensor, vertices: torch.Tensor) -> torch.Tensor:
+    """Joints ``[B, J, 3]`` regressed from ``vertices [B, V, 3]`` with ``regressor [J, V]``."""
+    return torch.einsum("jv,bvc->bjc", regressor, vertices)
+
+
+def kinematic_levels(parents: Sequence[int]) -> list[list[int]]:
+    """Group joints by depth in the kinematic tree (root first) so forward kinematics
+    can process one level at a time; a joint's parent is always in an earlier level."""
+    depth: list[int] = []
+    for j, p in enumerate(parents):
+        if p < 0:
+            depth.append(0)
+        else:
+            if p >= j:
+                raise ValueError(f"kinematic tree: joint {j} has parent {p}; parents must precede children")
+            depth.append(depth[p] + 1)
+    levels: list[list[int]] = [[] for _ in range(max(depth) + 1)]
+    for j, d in enumerate(depth):
+        levels[d].append(j)
+    return levels
+
+
+def forward_kinematics(
+    rot_mats: torch.Tensor,
+    joints: torch.Tensor,
+    parents: Sequence[int],
+    levels: Optional[list[list[int]]] = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Chain local rotations down the kinematic tree.
+
+    ``rot_mats [B, J, 3, 3]`` are local joint rotations (about each joint's rest
+    position), ``joints [B, J, 3]`` rest joint positions. Returns the posed joints
+    ``[B, J, 3]`` and the skinning transforms ``[B, J, 4, 4]`` that map a rest-pose
+    point rigidly attached to joint ``j`` to its posed position.
+    """
+    if levels is None:
+        levels = kinematic_levels(parents)
+    B, J = joints.shape[:2]
+    parents_t = torch.as_tensor([max(p, 0) for p in parents], device=joints.device)
+    rel = joints - torch.where(
+        (torch.as_tensor(parents, device=joints.device) >= 0)[None, :, None], joints[:, parents_t], torch.zeros_like(joints)
+    )
+    local = torch.cat([rot_mats, rel[..., None]], dim=-1)  # [B, J, 3, 4]
+    bottom = joints.new_tensor([0.0, 0.0, 0.0, 1.0]).expand(B, J, 1, 4)
+    local = torch.cat([local, bottom], dim=-2)  # [B, J, 4, 4]
+
+    world = [None] * J
+    for level in levels:
+        if parents[level[0]] < 0:  # depth 0: the roots
+            for j in level:
+                world[j] = local[:, j]
+            continue
+        idx = torch.as_tensor(level, device=joints.device)
+        par = torch.stack([world[parents[j]] for j in level], dim=1)  # [B, n, 4, 4]
+        chained = par @ local[:, idx]
+        for k, j in enumerate(level):
+            world[j] = chained[:, k]
+    world_t = torch.stack(world, dim=1)  # [B, J, 4, 4]
+    posed_joints = world_t[..., :3, 3]
+    # Remove the rest joint position so the transform applies to rest-pose points.
+    offset = (world_t[..., :3, :3] @ joints[..., None])[..., 0]
+    skinning = world_t.clone()
+    skinning[..., :3, 3] = posed_joints - offset
+    return posed_joints, skinning
+
+
+def skin_vertices(vertices: torch.Tensor, transforms: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """Linear blend skinning of rest vertices ``[B, V, 3]`` with per-joint transforms
+    ``[B, J, 4, 4]`` and skinning weights ``[V, J]``."""
+    T = torch.einsum("vj,bjrc->bvrc", weights, transforms[..., :3, :])  # [B, V, 3, 4]
+    return (T[..., :3] @ vertices[..., None])[..., 0] + T[..., 3]
+
+
+def lbs(
+    betas: torch.Tensor,
+    full_pose: torch.Tensor,
+    v_template: torch.Tensor,
+    shapedirs: torch.Tensor,
+    posedirs: Optional[torch.Tensor],
+    J_regressor: torch.Tensor,
+    parents: Sequence[int],
+    weights: torch.Tensor,
+    levels: Optional[list[list[int]]] = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The SMPL function: ``(betas [B, L], full_pose [B, J*3] axis-angle)`` to posed
+    vertices ``[B, V, 3]`` and joints ``[B, J, 3]`` (before any global translation).
+
+    ``posedirs [(J-1)*9, V*3]`` may be ``None`` for a model without pose correctives.
+    """
+    B = betas.shape[0]
+    v_shaped = v_template[None] + blend_shapes(betas, shapedirs)
+    rest_joints = vertices_to_joints(J_regressor, v_shaped)
+    rot_mats = axis_angle_to_matrix(full_pose.reshape(B, -1, 3))
+    v_posed = v_shaped
+    if posedirs is not None:
+        v_posed = v_shaped + (pose_feature(rot_mats) @ posedirs).reshape(B, -1, 3)
+    joints, transforms = forward_kinematics(rot_mats, rest_joints, parents, levels)
+    return skin_vertices(v_posed, transforms, weights), joints

@@ -1,0 +1,168 @@
+"""Pinhole cameras and the one camera convention of the whole project.
+
+Convention (OpenCV, shared by projection, the Mitsuba silhouette renderer, the
+offscreen rasteriser, the synthetic generator and every file silfit writes):
+
+* Camera coordinates: x to the right, y down, z forward (into the scene), metres.
+* Pixel coordinates: ``u`` to the right, ``v`` down. Pixel centres lie on integer
+  coordinates, so the top-left pixel's centre is ``(0, 0)`` and the image spans
+  ``[-0.5, W - 0.5] x [-0.5, H - 0.5]``.
+* Intrinsics ``fx, fy, cx, cy`` in pixels:  ``u = fx * x / z + cx``,
+  ``v = fy * y / z + cy``.
+* The body's ``global_orient`` and ``transl`` act as the extrinsics: the body model's
+  output (vertices, joints) *is* in camera coordinates, so a fit's ``params.npz``
+  fed to any SMPL implementation reproduces ``mesh.obj`` vertex for vertex.  The
+  model's rest frame has Y up and the body facing +Z; a person standing upright and
+  facing the camera therefore has ``global_orient`` = axis-angle ``(pi, 0, 0)``
+  (:data:`UPRIGHT_FACING_CAMERA`), and one seen from behind ``(0, 0, pi)``.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import asdict, dataclass
+from typing import Union
+
+import torch
+
+__all__ = [
+    "Camera",
+    "DEFAULT_FOCAL_FACTOR",
+    "default_focal",
+    "project_points",
+    "weak_perspective_project",
+    "UPRIGHT_FACING_CAMERA",
+    "UPRIGHT_BACK_TO_CAMERA",
+    "load_camera",
+    "save_camera",
+]
+
+#: Default focal length (pixels) = factor * max(width, height) when no intrinsics are
+#: given: about a 53 degree field of view across the longer side, typical of phone and
+#: consumer cameras (SMPLify's fixed 5000 px instead assumes a far, nearly orthographic
+#: camera, which is wrong for most photographs).
+DEFAULT_FOCAL_FACTOR = 1.0
+
+#: ``global_orient`` (axis-angle) of a person standing upright and facing the camera.
+UPRIGHT_FACING_CAMERA = (math.pi, 0.0, 0.0)
+#: ``global_orient`` (axis-angle) of a person standing upright with their back to the camera.
+UPRIGHT_BACK_TO_CAMERA = (0.0, 0.0, math.pi)
+
+_FIELDS = ("fx", "fy", "cx", "cy", "width", "height")
+
+
+def default_focal(width: int, height: int, factor: float = DEFAULT_FOCAL_FACTOR) -> float:
+    """The documented default focal length for an image of the given size."""
+    return float(factor) * float(max(width, height))
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera in the project's OpenCV convention (see the module docstring)."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    def __post_init__(self):
+        for name in _FIELDS:
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+                raise ValueError(f"camera field '{name}' must be a finite number, got {value!r}")
+        if self.fx <= 0 or self.fy <= 0:
+            raise ValueError(f"camera focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+        if int(self.width) != self.width or int(self.height) != self.height or self.width <= 0 or self.height <= 0:
+            raise ValueError(f"camera width/height must be positive integers, got {self.width}x{self.height}")
+        object.__setattr__(self, "width", int(self.width))
+        object.__setattr__(self, "height", int(self.height))
+        for name in ("fx", "fy", "cx", "cy"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+
+    @classmethod
+    def from_image_size(cls, width: int, height: int, focal: float | None = None) -> "Camera":
+        """Centred principal point and the default (or given) focal length."""
+        f = default_focal(width, height) if focal is None else float(focal)
+        return cls(fx=f, fy=f, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, width=width, height=height)
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return self.width, self.height
+
+    def K(self, dtype=torch.float32, device=None) -> torch.Tensor:
+        """The 3x3 intrinsic matrix."""
+        return torch.tensor(
+            [[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]], dtype=dtype, device=device
+        )
+
+    def crop(self, x0: float, y0: float, width: int, height: int, scale: float = 1.0) -> "Camera":
+        """The camera of the window ``[x0, x0+width/scale) x [y0, y0+height/scale)`` of this
+        image (pixel-edge coordinates of the original), resampled by ``scale``."""
+        s = float(scale)
+        return Camera(
+            fx=self.fx * s,
+            fy=self.fy * s,
+            cx=(self.cx + 0.5 - x0) * s - 0.5,
+            cy=(self.cy + 0.5 - y0) * s - 0.5,
+            width=int(width),
+            height=int(height),
+        )
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def project_points(points: torch.Tensor, camera: Union[Camera, torch.Tensor], eps: float = 1e-6) -> torch.Tensor:
+    """Perspective projection of camera-frame points ``[..., N, 3]`` to pixels ``[..., N, 2]``.
+
+    ``camera`` is a :class:`Camera` or a tensor ``[..., 4]`` of ``(fx, fy, cx, cy)``
+    (one row per batch element) so focal lengths can be optimised or batched.
+    Depths are clamped to ``eps`` so points behind the camera do not produce infinities.
+    """
+    if isinstance(camera, Camera):
+        fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+    else:
+        intr = camera.to(points.dtype)
+        fx, fy, cx, cy = (intr[..., i, None] for i in range(4))
+    z = points[..., 2].clamp(min=eps)
+    u = fx * points[..., 0] / z + cx
+    v = fy * points[..., 1] / z + cy
+    return torch.stack([u, v], dim=-1)
+
+
+def weak_perspective_project(points: torch.Tensor, scale: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
+    """Weak-perspective (scaled orthographic) projection ``u = s * x + t``.
+
+    ``points [..., N, 3]`` in camera axes, ``scale [...]`` in pixels per metre,
+    ``offset [..., 2]`` in pixels.
+    """
+    return scale[..., None, None] * points[..., :2] + offset[..., None, :]
+
+
+def load_camera(path: Union[str, os.PathLike]) -> Camera:
+    """Read ``camera.json`` (``fx, fy, cx, cy, width, height``), naming the file and field on error."""
+    path = os.fspath(path)
+    try:
+        with open(path, "r", encoding="utf-8") as fh:
+            data = json.load(fh)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: camera file not found") from None
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}: not valid JSON ({err})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a JSON object with fields {', '.join(_FIELDS)}")
+    missing = [name for name in _FIELDS if name not in data]
+    if missing:
+        raise ValueError(f"{path}: camera field(s) missing: {', '.join(missing)} (expected {', '.join(_FIELDS)})")
+    try:
+        return Camera(**{name: data[name] for name in _FIELDS})
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from None
+
+
+def save_camera(camera: Camera, path: Union[str, os.PathLike]) -> None:
+    with open(path, "w", encoding="utf-8") as fh:
+        json.dump(camera.to_dict(), fh, indent=2)

@@ -1,0 +1,52 @@
+"""The ``silfit`` command line: one entry point, one module per subcommand.
+
+Each subcommand lives in ``silfit/cli/<name>.py`` and exposes
+``register(subparsers)``, which adds its parser and sets ``func`` (a callable taking
+the parsed ``argparse.Namespace`` and returning an exit code).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import sys
+
+#: Subcommands in the order ``silfit --help`` lists them.
+SUBCOMMANDS = ("demo", "fit", "synth", "eval", "render")
+
+
+class CLIError(Exception):
+    """An error the CLI reports as one clear line (no traceback), exit code 2."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from .. import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="silfit",
+        description="Recover SMPL pose, shape and camera from 2D keypoints and a person silhouette.",
+    )
+    parser.add_argument("--version", action="version", version=f"silfit {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in SUBCOMMANDS:
+        if importlib.util.find_spec(f"{__name__}.{name}") is None:
+            continue
+        importlib.import_module(f"{__name__}.{name}").register(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 0 if args.command is None else 2
+    try:
+        return int(args.func(args) or 0)
+    except (CLIError, FileNotFoundError, ValueError) as err:
+        print(f"silfit {args.command}: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,215 @@
+"""2D keypoint layouts (OpenPose BODY_25, COCO-17), their 3D sources on the body model,
+and the keypoint files silfit reads and writes.
+
+A layout keypoint comes either from a model joint (the skeleton's joint centres, as
+SMPLify and SMPLify-X match them) or from a surface landmark (a vertex-weight row of
+the model: nose, eyes, ears, toes and heels, which have no joint).
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Optional, Union
+
+import numpy as np
+import torch
+
+__all__ = [
+    "BODY25_NAMES",
+    "COCO17_NAMES",
+    "LAYOUTS",
+    "TORSO_NAMES",
+    "KeypointSet",
+    "keypoint_sources",
+    "model_keypoints",
+    "read_keypoints",
+    "write_openpose_json",
+]
+
+BODY25_NAMES = (
+    "nose", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder", "left_elbow",
+    "left_wrist", "mid_hip", "right_hip", "right_knee", "right_ankle", "left_hip", "left_knee",
+    "left_ankle", "right_eye", "left_eye", "right_ear", "left_ear", "left_big_toe", "left_small_toe",
+    "left_heel", "right_big_toe", "right_small_toe", "right_heel",
+)  # fmt: skip
+COCO17_NAMES = (
+    "nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",
+    "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip", "left_knee",
+    "right_knee", "left_ankle", "right_ankle",
+)  # fmt: skip
+LAYOUTS = {"body25": BODY25_NAMES, "coco17": COCO17_NAMES}
+#: Keypoints that define the torso (used to place the body before posing it).
+TORSO_NAMES = ("left_shoulder", "right_shoulder", "left_hip", "right_hip")
+
+#: Keypoint name -> SMPL joint name, where a joint is the source.
+_JOINT_SOURCES = {
+    "neck": "neck", "mid_hip": "pelvis",
+    "left_shoulder": "left_shoulder", "right_shoulder": "right_shoulder",
+    "left_elbow": "left_elbow", "right_elbow": "right_elbow",
+    "left_wrist": "left_wrist", "right_wrist": "right_wrist",
+    "left_hip": "left_hip", "right_hip": "right_hip",
+    "left_knee": "left_knee", "right_knee": "right_knee",
+    "left_ankle": "left_ankle", "right_ankle": "right_ankle",
+}  # fmt: skip
+
+
+def keypoint_sources(model, layout: str = "body25", prefer_landmarks: bool = False) -> list[tuple[str, int]]:
+    """For each keypoint of ``layout``: ``("joint", j)`` or ``("landmark", k)`` on ``model``.
+
+    With ``prefer_landmarks`` the surface landmarks (where people annotate shoulders,
+    hips, ... on the skin) are used wherever the model has them, else joint centres.
+    """
+    names = _layout_names(layout)
+    joint_index = {n: i for i, n in enumerate(model.joint_names)}
+    landmark_index = {n: i for i, n in enumerate(model.landmark_names)}
+    sources = []
+    for name in names:
+        if prefer_landmarks and name in landmark_index:
+            sources.append(("landmark", landmark_index[name]))
+        elif name in _JOINT_SOURCES and _JOINT_SOURCES[name] in joint_index:
+            sources.append(("joint", joint_index[_JOINT_SOURCES[name]]))
+        elif name in landmark_index:
+            sources.append(("landmark", landmark_index[name]))
+        else:
+            raise ValueError(f"{model.source}: the model has no joint or landmark for keypoint '{name}' ({layout})")
+    return sources
+
+
+def model_keypoints(model, output, layout: str = "body25", prefer_landmarks: bool = False) -> torch.Tensor:
+    """3D keypoints ``[B, K, 3]`` of a body-model output in the order of ``layout``."""
+    sources = keypoint_sources(model, layout, prefer_landmarks)
+    J = output.joints.shape[1]
+    stacked = output.joints
+    if any(kind == "landmark" for kind, _ in sources):
+        stacked = torch.cat([output.joints, model.landmarks(output.vertices)], dim=1)
+    index = torch.as_tensor([i if kind == "joint" else J + i for kind, i in sources], device=stacked.device)
+    return stacked[:, index]
+
+
+def _layout_names(layout: str) -> tuple:
+    try:
+        return LAYOUTS[layout.lower()]
+    except KeyError:
+        raise ValueError(f"unknown keypoint layout {layout!r} (expected one of {', '.join(LAYOUTS)})") from None
+
+
+class KeypointSet:
+    """Detected 2D keypoints of one person: ``xy [K, 2]`` pixels, ``conf [K]`` in [0, 1]."""
+
+    def __init__(self, xy, conf, layout: str, source: str = "<array>"):
+        names = _layout_names(layout)
+        xy = np.asarray(xy, dtype=np.float64)
+        conf = np.asarray(conf, dtype=np.float64)
+        if xy.shape != (len(names), 2) or conf.shape != (len(names),):
+            raise ValueError(
+                f"{source}: keypoints have shape {xy.shape} with {conf.shape} confidences, expected "
+                f"{len(names)} points of [x, y, confidence] for layout {layout}"
+            )
+        bad = ~np.isfinite(xy).all(axis=1) | ~np.isfinite(conf)
+        if bad.any():
+            raise ValueError(f"{source}: keypoint(s) {', '.join(names[i] for i in np.flatnonzero(bad))} are NaN or infinite")
+        if (conf < 0).any():
+            raise ValueError(f"{source}: negative confidence for {', '.join(names[i] for i in np.flatnonzero(conf < 0))}")
+        if not (conf > 0).any():
+            raise ValueError(f"{source}: all keypoint confidences are zero: no person to fit")
+        self.xy, self.conf, self.layout, self.source = xy, conf, layout.lower(), source
+
+    @property
+    def names(self) -> tuple:
+        return LAYOUTS[self.layout]
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def as_array(self) -> np.ndarray:
+        """``[K, 3]`` rows of ``x, y, confidence``."""
+        return np.concatenate([self.xy, self.conf[:, None]], axis=1)
+
+    def visible_area(self) -> float:
+        vis = self.xy[self.conf > 0]
+        return float(np.prod(vis.max(0) - vis.min(0) + 1.0)) if len(vis) else 0.0
+
+
+def _triplets(values, source: str, field: str) -> np.ndarray:
+    arr = np.asarray(values, dtype=np.float64)
+    if arr.ndim == 1:
+        if arr.size % 3:
+            raise ValueError(f"{source}: field '{field}' holds {arr.size} numbers, not a multiple of 3 (x, y, confidence)")
+        arr = arr.reshape(-1, 3)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{source}: field '{field}' must be a list of [x, y, confidence], got shape {arr.shape}")
+    return arr
+
+
+def _layout_for_count(count: int, source: str, field: str) -> str:
+    for name, names in LAYOUTS.items():
+        if len(names) == count:
+            return name
+    raise ValueError(
+        f"{source}: field '{field}' has {count} keypoints; expected 25 (OpenPose BODY_25) or 17 (COCO-17)"
+    )
+
+
+def read_keypoints(path: Union[str, os.PathLike], person: Union[int, str] = "largest") -> KeypointSet:
+    """Read a keypoint file: OpenPose JSON (``people[i].pose_keypoints_2d``, 25 or 17 points), a COCO annotation (``keypoints`` flat list of 17 x 3,
+    or a list of such annotations), or a plain JSON list of 25/17 ``[x, y, score]``.
+
+    ``person`` picks one of several people: an index or ``"largest"`` (largest extent
+    of its confident keypoints).
+    """
+    source = os.fspath(path)
+    try:
+        with open(source, "r", encoding="utf-8") as fh:
+            data = json.load(fh)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{source}: keypoint file not found") from None
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{source}: not valid JSON ({err})") from None
+
+    candidates: list[tuple[str, np.ndarray]] = []
+    if isinstance(data, dict) and "people" in data:
+        people = data["people"]
+        if not isinstance(people, list) or not people:
+            raise ValueError(f"{source}: field 'people' is empty: no person detected")
+        for i, p in enumerate(people):
+            if not isinstance(p, dict) or "pose_keypoints_2d" not in p:
+                raise ValueError(f"{source}: field 'people[{i}].pose_keypoints_2d' is missing")
+            candidates.append((f"people[{i}].pose_keypoints_2d", _triplets(p["pose_keypoints_2d"], source, f"people[{i}].pose_keypoints_2d")))
+    elif isinstance(data, dict) and "keypoints" in data:
+        candidates.append(("keypoints", _triplets(data["keypoints"], source, "keypoints")))
+    elif isinstance(data, list) and data and isinstance(data[0], dict):
+        for i, ann in enumerate(data):
+            if "keypoints" not in ann:
+                raise ValueError(f"{source}: field '[{i}].keypoints' is missing")
+            candidates.append((f"[{i}].keypoints", _triplets(ann["keypoints"], source, f"[{i}].keypoints")))
+    elif isinstance(data, list):
+        candidates.append(("<list>", _triplets(data, source, "<top-level list>")))
+    else:
+        raise ValueError(f"{source}: no keypoints found (expected OpenPose 'people', COCO 'keypoints' or a list)")
+
+    sets = []
+    for field, arr in candidates:
+        layout = _layout_for_count(arr.shape[0], source, field)
+        sets.append(KeypointSet(arr[:, :2], arr[:, 2], layout, source=f"{source} ({field})"))
+    if person == "largest":
+        return max(sets, key=lambda s: s.visible_area())
+    index = int(person)
+    if not 0 <= index < len(sets):
+        raise ValueError(f"{source}: person {index} requested, the file holds {len(sets)}")
+    return sets[index]
+
+
+def write_openpose_json(path: Union[str, os.PathLike], keypoints: np.ndarray, extra: Optional[dict] = None) -> None:
+    """Write ``[K, 3]`` keypoints (x, y, confidence) as OpenPose JSON with one person.
+    Non-finite coordinates are written as zeros with zero confidence, as OpenPose does."""
+    kp = np.asarray(keypoints, dtype=np.float64).copy()
+    missing = ~np.isfinite(kp).all(axis=1)
+    kp[missing] = 0.0
+    person = {"person_id": [-1], "pose_keypoints_2d": [round(float(v), 4) for v in kp.reshape(-1)]}
+    person.update(extra or {})
+    payload = {"version": 1.3, "people": [person]}
+    tmp = Path(f"{os.fspath(path)}.tmp")
+    tmp.write_text(json.dumps(payload))
+    os.replace(tmp, path)
+

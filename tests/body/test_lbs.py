@@ -1,0 +1,118 @@
+"""The functional SMPL core against hand-computed examples and finite differences."""
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from silfit.body.io import ModelArrays
+from silfit.body.lbs import axis_angle_to_matrix, forward_kinematics, kinematic_levels, lbs
+from silfit.body.model import BodyModel
+
+
+def test_axis_angle_known_rotations():
+    R = axis_angle_to_matrix(torch.tensor([[0.0, 0.0, math.pi / 2], [math.pi, 0.0, 0.0], [0.0, 0.0, 0.0]]))
+    expected = torch.tensor(
+        [
+            [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
+            [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]],
+            torch.eye(3).tolist(),
+        ]
+    )
+    assert torch.allclose(R, expected, atol=1e-6)
+
+
+@pytest.mark.parametrize("scale", [0.0, 1e-5, 1e-2, 1.0, 3.0])
+def test_axis_angle_matches_matrix_exponential(scale):
+    aa = torch.randn(8, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(1)) * scale
+    K = torch.zeros(8, 3, 3, dtype=torch.float64)
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -aa[:, 2], aa[:, 1], -aa[:, 0]
+    K = K - K.transpose(1, 2)
+    assert torch.allclose(axis_angle_to_matrix(aa), torch.linalg.matrix_exp(K), atol=1e-12)
+
+
+def test_axis_angle_gradcheck_including_zero():
+    for aa in (torch.zeros(2, 3, dtype=torch.float64), torch.randn(4, 3, dtype=torch.float64)):
+        assert torch.autograd.gradcheck(axis_angle_to_matrix, (aa.requires_grad_(),))
+
+
+def test_kinematic_levels_rejects_child_before_parent():
+    assert kinematic_levels([-1, 0, 0, 1]) == [[0], [1, 2], [3]]
+    with pytest.raises(ValueError, match="parent"):
+        kinematic_levels([-1, 2, 0])
+
+
+def chain_model(dtype=torch.float64) -> BodyModel:
+    """Three joints on the x axis at 0, 1, 2; one vertex rigidly on each joint, offset +y by 0.5,
+    plus one vertex half on joint 1 and half on joint 2. Joints are regressed from the
+    vertices (regressor picks the vertex and removes its offset via a twin vertex)."""
+    verts = np.array([[0, 0.5, 0], [1, 0.5, 0], [2, 0.5, 0], [1.5, 0, 0], [0, -0.5, 0], [1, -0.5, 0], [2, -0.5, 0]], float)
+    regressor = np.zeros((3, 7))
+    for j in range(3):  # mean of the +y and -y vertex of each joint = the joint
+        regressor[j, j] = regressor[j, j + 4] = 0.5
+    weights = np.zeros((7, 3))
+    for j in range(3):
+        weights[j, j] = weights[j + 4, j] = 1.0
+    weights[3, 1] = weights[3, 2] = 0.5
+    arrays = ModelArrays(
+        v_template=verts,
+        faces=np.array([[0, 1, 2]]),
+        shapedirs=np.zeros((7, 3, 1)),
+        posedirs=None,
+        J_regressor=regressor,
+        weights=weights,
+        parents=(-1, 0, 1),
+        joint_names=("a", "b", "c"),
+    )
+    return BodyModel(arrays, dtype=dtype)
+
+
+def test_skinning_three_joint_chain_by_hand():
+    model = chain_model()
+    # Joint b turns 90 degrees about z; joint c turns a further 90 degrees about z.
+    body_pose = torch.tensor([[0.0, 0.0, math.pi / 2, 0.0, 0.0, math.pi / 2]], dtype=torch.float64)
+    out = model(body_pose=body_pose, transl=torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64))
+    # By hand: b stays at (1,0); c = b + Rz(90)(1,0) = (1,1); c's vertex offset (0,.5) is
+    # turned 180 degrees: (1,1) + (0,-.5) = (1,.5). b's vertex: (1,0) + Rz90 (0,.5) = (.5,0).
+    # The blended vertex (1.5,0): under b -> (1,.5); under c -> c + R180 (1.5-2, 0) = (1.5,1); mean (1.25,.75).
+    expected_joints = torch.tensor([[0, 0, 1], [1, 0, 1], [1, 1, 1]], dtype=torch.float64)
+    expected_verts = torch.tensor(
+        [[0, 0.5, 1], [0.5, 0, 1], [1, 0.5, 1], [1.25, 0.75, 1], [0, -0.5, 1], [1.5, 0, 1], [1, 1.5, 1]],
+        dtype=torch.float64,
+    )
+    assert torch.allclose(out.joints[0], expected_joints, atol=1e-12)
+    assert torch.allclose(out.vertices[0], expected_verts, atol=1e-12)
+
+
+def test_root_rotation_moves_everything_rigidly():
+    model = chain_model()
+    rest = model().vertices
+    R = axis_angle_to_matrix(torch.tensor([0.3, -0.7, 0.2], dtype=torch.float64))
+    out = model(global_orient=torch.tensor([[0.3, -0.7, 0.2]], dtype=torch.float64))
+    assert torch.allclose(out.vertices[0], rest[0] @ R.T, atol=1e-12)
+
+
+def test_forward_kinematics_batches_independently():
+    model = chain_model()
+    poses = torch.randn(4, 6, dtype=torch.float64)
+    batched = model(body_pose=poses).vertices
+    single = torch.cat([model(body_pose=p[None]).vertices for p in poses])
+    assert torch.allclose(batched, single, atol=1e-12)
+
+
+def test_pose_correctives_are_added():
+    model = chain_model()
+    posedirs = torch.zeros(18, 7 * 3, dtype=torch.float64)
+    posedirs[0, 0] = 1.0  # first pose-feature entry moves vertex 0 in x
+    model.posedirs = posedirs
+    pose = torch.tensor([[0.0, 0.0, 0.5, 0.0, 0.0, 0.0]], dtype=torch.float64)
+    R = axis_angle_to_matrix(pose[:, :3])[0]
+    out = model(body_pose=pose)
+    base = chain_model()(body_pose=pose)
+    assert torch.allclose(out.vertices[0, 0, 0] - base.vertices[0, 0, 0], R[0, 0] - 1.0, atol=1e-12)
+
+
+def test_lbs_float32_and_float64_agree():
+    m64, m32 = chain_model(torch.float64), chain_model(torch.float32)
+    pose = torch.randn(2, 6, dtype=torch.float64)
+    assert torch.allclose(m64(body_pose=pose).vertices.float(), m32(body_pose=pose.float()).vertices, atol=1e-5)
