@@ -1,0 +1,69 @@
+"""The camera convention: projection, crops, defaults and camera files."""
+import json
+import math
+
+import pytest
+import torch
+
+from silfit.camera import Camera, default_focal, load_camera, project_points, save_camera, weak_perspective_project
+
+
+def test_projection_follows_opencv_pixel_centres():
+    cam = Camera(fx=100.0, fy=120.0, cx=31.5, cy=47.0, width=64, height=96)
+    pts = torch.tensor([[[0.0, 0.0, 2.0], [1.0, -0.5, 2.0]]])
+    uv = project_points(pts, cam)
+    assert torch.allclose(uv, torch.tensor([[[31.5, 47.0], [81.5, 17.0]]]))
+    # The same through a batched intrinsics tensor.
+    intr = torch.tensor([[100.0, 120.0, 31.5, 47.0]])
+    assert torch.allclose(project_points(pts, intr), uv)
+
+
+def test_centred_default_camera():
+    cam = Camera.from_image_size(640, 480)
+    assert cam.fx == cam.fy == default_focal(640, 480) == 640.0
+    assert (cam.cx, cam.cy) == (319.5, 239.5)
+    fov = 2 * math.degrees(math.atan(640 / (2 * cam.fx)))
+    assert 50 < fov < 56
+
+
+def test_crop_maps_pixels_consistently():
+    cam = Camera(fx=500.0, fy=500.0, cx=300.0, cy=200.0, width=640, height=480)
+    pts = torch.tensor([[0.1, 0.2, 3.0], [-0.3, 0.05, 2.0]])
+    full = project_points(pts, cam)
+    crop = cam.crop(100.0, 50.0, 128, 128, scale=0.5)
+    # Pixel-edge coordinates scale: (u + 0.5 - x0) * s - 0.5.
+    expected = (full + 0.5 - torch.tensor([100.0, 50.0])) * 0.5 - 0.5
+    assert torch.allclose(project_points(pts, crop), expected, atol=1e-4)
+
+
+def test_weak_perspective():
+    pts = torch.tensor([[[1.0, 2.0, 5.0]]])
+    out = weak_perspective_project(pts, torch.tensor([10.0]), torch.tensor([[3.0, 4.0]]))
+    assert torch.allclose(out, torch.tensor([[[13.0, 24.0]]]))
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(fx=0.0), "focal"),
+        (dict(fy=-1.0), "focal"),
+        (dict(width=0), "width"),
+        (dict(cx=float("nan")), "cx"),
+    ],
+)
+def test_bad_cameras_are_rejected(kwargs, message):
+    fields = dict(fx=100.0, fy=100.0, cx=10.0, cy=10.0, width=20, height=20)
+    fields.update(kwargs)
+    with pytest.raises(ValueError, match=message):
+        Camera(**fields)
+
+
+def test_camera_file_round_trip_and_errors(tmp_path):
+    cam = Camera(fx=400.0, fy=410.0, cx=100.0, cy=120.5, width=200, height=240)
+    save_camera(cam, tmp_path / "camera.json")
+    assert load_camera(tmp_path / "camera.json") == cam
+    (tmp_path / "bad.json").write_text(json.dumps({"fx": 1, "fy": 1, "cx": 0, "width": 10, "height": 10}))
+    with pytest.raises(ValueError, match=r"bad\.json.*cy"):
+        load_camera(tmp_path / "bad.json")
+    with pytest.raises(FileNotFoundError, match="missing.json"):
+        load_camera(tmp_path / "missing.json")
