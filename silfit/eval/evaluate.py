@@ -1,0 +1,418 @@
+"""Scoring fits against ground truth over a dataset: ``silfit eval``.
+
+Layout of the fit outputs this module reads (``FITS`` defaults to ``<DATASET>/fits``)::
+
+    FITS/<subject>/<method>/params.npz     one folder per method, e.g. keypoints/, silhouette/
+    FITS/<subject>/<method>/metrics.json   optional: {"timings": {stage: seconds, ...}, ...}
+    FITS/<subject>/params.npz              a single unnamed method (reported as "fit")
+
+``params.npz`` holds the SMPL parameters ``betas [L], body_pose [69], global_orient [3],
+transl [3]`` (a leading batch dimension of 1 is accepted) whose model output is in the
+camera frame, and optionally ``camera_intrinsics [fx, fy, cx, cy]`` + ``image_size [W, H]``
+(the camera the fit used; default: the subject's ``camera.json``). This is what
+``silfit fit --out <dir>`` and :meth:`silfit.fitting.KeypointFitResult.save` write. Stage
+times are read from ``metrics.json`` (``timings`` / ``time_per_stage`` / ``stage_times``,
+or a ``time_s`` total) or else from ``params.json``'s ``timings``.
+
+Metrics per subject and method (lengths in mm): ``mpjpe`` (24 SMPL joints, pelvis-aligned),
+``pa_mpjpe`` (similarity Procrustes), ``pve`` (pelvis-aligned per-vertex error), ``shape_pve``
+(PVE of the T-posed bodies: the shape error alone), ``transl_err`` (pelvis position error in
+the camera frame), ``reproj_px`` (fitted BODY_25 keypoints under the fit's camera vs the
+noise-free ground-truth projections, over in-image keypoints), ``iou`` (rendered fitted mask
+vs ``mask.png``) and ``time_s`` (+ ``time_<stage>``).
+
+A subject whose files are missing or malformed is skipped with its path and field in the
+report's ``skipped`` list; the others are still scored.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, Iterable, List, Optional, Sequence
+
+import numpy as np
+import torch
+
+from ..camera import Camera, project_points
+from ..dataset import SubjectError, list_subjects, load_subject
+from ..keypoints import model_keypoints
+from .metrics import mask_iou, mpjpe, pa_mpjpe, pve, reprojection_error, shape_pve, translation_error
+
+__all__ = [
+    "METRICS",
+    "PARAM_FIELDS",
+    "FitParams",
+    "read_fit",
+    "find_fits",
+    "score_fit",
+    "evaluate_dataset",
+    "run_fitter",
+    "summarise",
+    "markdown_table",
+    "plot_errors",
+    "FitterUnavailable",
+]
+
+PARAM_FIELDS = {"betas": None, "body_pose": 69, "global_orient": 3, "transl": 3}
+#: Metric key -> (label, unit, lower is better).
+METRICS = {
+    "mpjpe": ("MPJPE", "mm", True),
+    "pa_mpjpe": ("PA-MPJPE", "mm", True),
+    "pve": ("PVE", "mm", True),
+    "shape_pve": ("Shape PVE (T-pose)", "mm", True),
+    "transl_err": ("Translation error", "mm", True),
+    "reproj_px": ("2D reprojection error", "px", True),
+    "iou": ("Silhouette IoU", "", False),
+    "time_s": ("Time", "s", True),
+}
+#: Preferred method order in tables and plots.
+METHOD_ORDER = ("keypoints", "silhouette", "fit")
+
+
+class FitterUnavailable(RuntimeError):
+    """The fitter (``silfit.fitting``) cannot run the requested method here."""
+
+
+@dataclass
+class FitParams:
+    betas: np.ndarray
+    body_pose: np.ndarray
+    global_orient: np.ndarray
+    transl: np.ndarray
+    camera: Optional[Camera] = None
+    timings: Dict[str, float] = field(default_factory=dict)
+    path: Optional[Path] = None
+
+
+# ----------------------------------------------------------------------------- reading fits
+def read_fit(folder: os.PathLike) -> FitParams:
+    """Read ``params.npz`` (+ ``metrics.json`` / ``params.json`` timings) of one fit folder."""
+    folder = Path(folder)
+    f = folder / "params.npz"
+    if not f.is_file():
+        raise FileNotFoundError(f"{f}: fit parameters not found")
+    try:
+        with np.load(f, allow_pickle=False) as data:
+            raw = {k: np.asarray(data[k]) for k in data.files}
+    except Exception as err:  # noqa: BLE001 - any unreadable archive
+        raise SubjectError(f, "<file>", f"not a readable .npz archive ({err})") from None
+    vals = {}
+    for name, width in PARAM_FIELDS.items():
+        if name not in raw:
+            raise SubjectError(f, name, "missing")
+        a = raw[name]
+        if a.dtype.kind not in "fiu":
+            raise SubjectError(f, name, f"must be numeric, got dtype {a.dtype}")
+        a = a.astype(np.float64)
+        if a.ndim == 2 and a.shape[0] == 1:
+            a = a[0]
+        if a.ndim != 1 or (width is not None and a.shape[0] != width):
+            raise SubjectError(f, name, f"has shape {list(a.shape)}, expected [{width or 'L'}]")
+        if not np.isfinite(a).all():
+            raise SubjectError(f, name, "holds NaN or infinite values")
+        vals[name] = a
+    camera = None
+    if "camera_intrinsics" in raw and "image_size" in raw:
+        try:
+            fx, fy, cx, cy = np.asarray(raw["camera_intrinsics"], dtype=np.float64).reshape(4).tolist()
+            w, h = np.asarray(raw["image_size"]).reshape(2).tolist()
+            camera = Camera(fx=fx, fy=fy, cx=cx, cy=cy, width=int(w), height=int(h))
+        except (ValueError, TypeError) as err:
+            raise SubjectError(f, "camera_intrinsics", str(err)) from None
+    return FitParams(**vals, camera=camera, timings=_read_timings(folder), path=folder)
+
+
+def _read_timings(folder: Path) -> Dict[str, float]:
+    for name in ("metrics.json", "params.json"):
+        f = folder / name
+        if not f.is_file():
+            continue
+        try:
+            data = json.loads(f.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, OSError):
+            continue
+        if not isinstance(data, dict):
+            continue
+        for key in ("timings", "time_per_stage", "stage_times", "times"):
+            t = data.get(key)
+            if isinstance(t, dict):
+                out = {str(k): float(v) for k, v in t.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
+                if out:
+                    return out
+        for key in ("time_s", "total_time_s", "seconds"):
+            if isinstance(data.get(key), (int, float)):
+                return {"total": float(data[key])}
+    return {}
+
+
+def find_fits(fits_root: os.PathLike, subject: str) -> Dict[str, Path]:
+    """``{method: folder}`` of the fits of one subject (see the module docstring)."""
+    d = Path(fits_root) / subject
+    if not d.is_dir():
+        return {}
+    found = {p.name: p for p in sorted(d.iterdir()) if p.is_dir() and (p / "params.npz").is_file()}
+    if (d / "params.npz").is_file():
+        found["fit"] = d
+    return dict(sorted(found.items(), key=lambda kv: (_method_rank(kv[0]), kv[0])))
+
+
+def _method_rank(m: str) -> int:
+    return METHOD_ORDER.index(m) if m in METHOD_ORDER else len(METHOD_ORDER)
+
+
+# ----------------------------------------------------------------------------- scoring
+def score_fit(model, subject, fit: FitParams, iou: bool = True) -> Dict[str, float]:
+    """All metrics of one fit against one subject's ground truth (see the module docstring)."""
+    gt = subject.gt
+    if gt is None:
+        raise SubjectError(subject.file("gt"), "<file>", "ground truth (gt.npz) is needed to score a fit")
+    camera = fit.camera or subject.camera
+    dt = model.dtype
+    t = lambda a: torch.as_tensor(np.asarray(a)[None], dtype=dt, device=model.device)  # noqa: E731
+    nb = model.num_betas
+    betas = fit.betas[:nb]
+    with torch.no_grad():
+        out = model(betas=t(betas), body_pose=t(fit.body_pose), global_orient=t(fit.global_orient), transl=t(fit.transl))
+        kp = model_keypoints(model, out, "body25")[0]
+        kp2d = project_points(kp.double(), camera).cpu().numpy()
+    verts = out.vertices[0].cpu().double().numpy()
+    joints = out.joints[0].cpu().double().numpy()
+
+    m: Dict[str, float] = {}
+    gj = gt.joints
+    if gj.shape == joints.shape:
+        m["mpjpe"] = 1000 * mpjpe(joints, gj)
+        m["pa_mpjpe"] = 1000 * pa_mpjpe(joints, gj)
+        m["transl_err"] = 1000 * translation_error(joints[0], gj[0])
+    if gt.vertices.shape == verts.shape:
+        m["pve"] = 1000 * pve(verts, gt.vertices, joints[0], gj[0])
+    m["shape_pve"] = 1000 * shape_pve(model, np.pad(betas, (0, nb - len(betas))), gt.betas[:nb])
+
+    clean = gt.extras.get("keypoints_2d_clean")
+    if clean is not None and clean.shape == kp2d.shape:
+        vis = gt.extras.get("keypoints_visibility")
+        valid = (np.asarray(vis) > 0) if vis is not None else np.ones(len(clean), bool)
+        m["reproj_px"] = reprojection_error(kp2d, clean, valid)
+    elif subject.keypoints is not None and subject.keypoints.xy.shape == kp2d.shape:
+        m["reproj_px"] = reprojection_error(kp2d, subject.keypoints.xy, subject.keypoints.conf > 0)
+
+    if iou and subject.mask is not None:
+        try:
+            from renderers.offscreen import render_mask
+
+            cam = camera if (camera.width, camera.height) == subject.mask.shape[::-1] else subject.camera
+            m["iou"] = mask_iou(render_mask(verts.astype(np.float32), model.faces.cpu().numpy(), cam), subject.mask)
+        except ImportError:  # no offscreen renderer: IoU not available
+            pass
+
+    if fit.timings:
+        total = fit.timings.get("total", sum(v for k, v in fit.timings.items() if k != "total"))
+        m["time_s"] = float(total)
+        for k, v in fit.timings.items():
+            if k != "total":
+                m[f"time_{k}"] = float(v)
+    return {k: float(v) for k, v in m.items()}
+
+
+# ----------------------------------------------------------------------------- the fitter
+def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str], model, progress: bool = False) -> Dict[str, str]:
+    """Run ``silfit.fitting`` over loaded subjects, writing ``fits_root/<subject>/<method>/``.
+    Returns ``{method: status}``; raises :class:`FitterUnavailable` when nothing can run."""
+    try:
+        import silfit.fitting as fitting
+    except ImportError as err:
+        raise FitterUnavailable(f"the fitter (silfit.fitting) is not available: {err}") from None
+    status = {}
+    for method in methods:
+        if method == "keypoints":
+            fit_fn = getattr(fitting, "fit_keypoints", None)
+            if fit_fn is None:
+                status[method] = "unavailable: silfit.fitting has no fit_keypoints"
+                continue
+            t0 = time.perf_counter()
+            result = fit_fn([s.keypoints for s in subjects], [s.camera for s in subjects], model=model, progress=progress)
+            elapsed = time.perf_counter() - t0
+            for i, s in enumerate(subjects):
+                d = Path(fits_root) / s.name / method
+                result[i].save(d)
+                timings = {k: float(v) / len(subjects) for k, v in result.timings.items()}
+                timings.setdefault("total", elapsed / len(subjects))
+                (d / "metrics.json").write_text(json.dumps({"timings": timings, "batched_over": len(subjects)}, indent=2))
+            status[method] = f"ran on {len(subjects)} subjects in {elapsed:.1f} s (batched; per-subject times are batch averages)"
+        else:
+            fit_fn = getattr(fitting, "fit_subject", None)
+            if fit_fn is None:
+                status[method] = f"unavailable: silfit.fitting has no fit_subject(subject_dir, out_dir, method='{method}')"
+                continue
+            for s in subjects:
+                d = Path(fits_root) / s.name / method
+                fit_fn(s.path, d, method=method)
+            status[method] = f"ran on {len(subjects)} subjects"
+    if not any(v.startswith("ran") for v in status.values()):
+        raise FitterUnavailable("; ".join(f"{k}: {v}" for k, v in status.items()) or "no method requested")
+    return status
+
+
+# ----------------------------------------------------------------------------- a dataset
+def evaluate_dataset(
+    dataset: os.PathLike,
+    fits: Optional[os.PathLike] = None,
+    model=None,
+    run: bool = False,
+    methods: Sequence[str] = ("keypoints", "silhouette"),
+    iou: bool = True,
+    progress: bool = False,
+) -> dict:
+    """Score the fits of every subject of ``dataset``; with ``run`` (or when ``fits`` holds no
+    fit at all) run the fitter first. Returns the report (JSON-ready dict)."""
+    dataset = Path(dataset)
+    fits_root = Path(fits) if fits is not None else dataset / "fits"
+    if model is None:
+        from ..body import load_body_model
+
+        model = load_body_model()
+    subject_dirs = list_subjects(dataset)
+    if not subject_dirs:
+        raise FileNotFoundError(f"{dataset}: no subject folders found (expected index.json or sub-folders with keypoints.json)")
+
+    skipped: List[dict] = []
+    loaded = []
+    for d in subject_dirs:
+        try:
+            s = load_subject(d, require=("keypoints", "camera", "gt"))
+        except (SubjectError, ValueError, FileNotFoundError) as err:
+            skipped.append({"subject": d.name, "path": str(d), "error": str(err), **_field_of(err)})
+            continue
+        loaded.append(s)
+
+    fitter_status = {}
+    have_any = any(find_fits(fits_root, s.name) for s in loaded)
+    if (run or not have_any) and loaded:
+        fitter_status = run_fitter(loaded, fits_root, methods, model, progress=progress)
+
+    rows: List[dict] = []
+    missing: List[str] = []
+    for s in loaded:
+        found = find_fits(fits_root, s.name)
+        if not found:
+            missing.append(s.name)
+            continue
+        for method, folder in found.items():
+            try:
+                fit = read_fit(folder)
+                metrics = score_fit(model, s, fit, iou=iou)
+            except (SubjectError, ValueError, FileNotFoundError) as err:
+                skipped.append({"subject": s.name, "method": method, "path": str(folder), "error": str(err), **_field_of(err)})
+                continue
+            rows.append({"subject": s.name, "method": method, **metrics})
+
+    report = {
+        "dataset": str(dataset),
+        "fits": str(fits_root),
+        "units": {k: u for k, (_, u, _) in METRICS.items()},
+        "methods": sorted({r["method"] for r in rows}, key=lambda m: (_method_rank(m), m)),
+        "num_subjects": len(subject_dirs),
+        "num_scored": len({r["subject"] for r in rows}),
+        "summary": summarise(rows),
+        "results": rows,
+        "skipped": skipped,
+        "missing_fits": missing,
+    }
+    if fitter_status:
+        report["fitter"] = fitter_status
+    return report
+
+
+def _field_of(err: Exception) -> dict:
+    if isinstance(err, SubjectError):
+        return {"file": err.path, "field": err.field}
+    return {}
+
+
+def summarise(rows: Iterable[dict]) -> Dict[str, Dict[str, dict]]:
+    """``{method: {metric: {"mean", "median", "n"}}}`` over the result rows (NaNs ignored)."""
+    rows = list(rows)
+    out: Dict[str, Dict[str, dict]] = {}
+    for method in sorted({r["method"] for r in rows}, key=lambda m: (_method_rank(m), m)):
+        mrows = [r for r in rows if r["method"] == method]
+        keys = [k for k in METRICS if any(k in r for r in mrows)]
+        keys += sorted({k for r in mrows for k in r if k.startswith("time_") and k != "time_s"})
+        out[method] = {}
+        for k in keys:
+            vals = np.array([r[k] for r in mrows if k in r and np.isfinite(r[k])], dtype=np.float64)
+            if len(vals):
+                out[method][k] = {"mean": float(vals.mean()), "median": float(np.median(vals)), "n": int(len(vals))}
+    return out
+
+
+def markdown_table(report: dict) -> str:
+    """A Markdown table: one row per metric, mean and median per method."""
+    summary = report["summary"]
+    methods = report.get("methods") or list(summary)
+    if not methods:
+        return "_no fits were scored_"
+    keys = [k for k in METRICS if any(k in summary[m] for m in methods)]
+    keys += sorted({k for m in methods for k in summary[m] if k.startswith("time_") and k != "time_s"})
+    head = "| metric | " + " | ".join(f"{m} mean | {m} median" for m in methods) + " |"
+    sep = "|---|" + "---:|---:|" * len(methods)
+    lines = [head, sep]
+    for k in keys:
+        if k in METRICS:
+            label, unit, _ = METRICS[k]
+        else:
+            label, unit = f"Time: {k[5:]}", "s"
+        label = f"{label} ({unit})" if unit else label
+        cells = []
+        for m in methods:
+            s = summary[m].get(k)
+            cells += ["-", "-"] if s is None else [_fmt(s["mean"], k), _fmt(s["median"], k)]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    n = ", ".join(f"{m}: {len({r['subject'] for r in report['results'] if r['method'] == m})}" for m in methods)
+    lines.append("")
+    lines.append(f"Subjects scored per method: {n}. Skipped: {len(report['skipped'])}.")
+    return "\n".join(lines)
+
+
+def _fmt(v: float, key: str) -> str:
+    if key == "iou":
+        return f"{v:.3f}"
+    if key.startswith("time"):
+        return f"{v:.2f}"
+    return f"{v:.1f}"
+
+
+def plot_errors(report: dict, path: os.PathLike, metrics: Sequence[str] = ("mpjpe", "pa_mpjpe", "pve", "iou")) -> Path:
+    """Per-subject bars of a few metrics, one colour per method, saved as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = report["results"]
+    methods = report.get("methods") or sorted({r["method"] for r in rows})
+    subjects = list(dict.fromkeys(r["subject"] for r in rows))
+    metrics = [k for k in metrics if any(k in r for r in rows)] or ["mpjpe"]
+    fig, axes = plt.subplots(len(metrics), 1, figsize=(max(6.0, 0.45 * len(subjects) + 2), 2.4 * len(metrics)), squeeze=False)
+    width = 0.8 / max(1, len(methods))
+    x = np.arange(len(subjects))
+    for ax, k in zip(axes[:, 0], metrics):
+        label, unit, _ = METRICS.get(k, (k, "", True))
+        for j, m in enumerate(methods):
+            by = {r["subject"]: r.get(k, np.nan) for r in rows if r["method"] == m}
+            ax.bar(x + (j - (len(methods) - 1) / 2) * width, [by.get(s, np.nan) for s in subjects], width, label=m)
+        ax.set_ylabel(f"{label} ({unit})" if unit else label, fontsize=8)
+        ax.grid(axis="y", alpha=0.3)
+        ax.set_xticks(x)
+        ax.set_xticklabels([s.replace("subject_", "") for s in subjects], fontsize=7, rotation=90 if len(subjects) > 30 else 0)
+    axes[0, 0].legend(fontsize=8)
+    axes[0, 0].set_title(f"Per-subject errors: {Path(report['dataset']).name}", fontsize=9)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

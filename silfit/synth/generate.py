@@ -1,0 +1,380 @@
+"""Synthetic subjects with known ground truth, written in the format of :mod:`silfit.dataset`.
+
+One subject = a sampled library pose, a shape from the prior, a camera and placement; the
+body is rendered offscreen (pyrender on OSMesa, :mod:`renderers.offscreen`) for the shaded
+``image.png`` and the binary ``mask.png``; BODY_25 keypoints are the projections of the
+model's keypoints (:func:`silfit.keypoints.model_keypoints`), with
+
+* visibility: 0 outside the image, 1 self-occluded (the rendered depth at the keypoint's
+  pixel is nearer than the keypoint by more than a per-keypoint tolerance: joint centres
+  lie inside the body, so their tolerance is about the limb's half thickness), 2 visible;
+* confidences: uniform in ``conf_visible`` for visible points, ``conf_occluded`` for
+  self-occluded ones, 0 (and coordinates 0, 0, as OpenPose writes) outside the image or
+  dropped (probability ``drop_prob`` per in-image point);
+* Gaussian pixel noise of ``noise_px`` (standard deviation per coordinate) on the kept points.
+
+The dataset is deterministic for a seed: subject ``i`` uses ``numpy.random.default_rng([seed, i])``
+and every file is written without timestamps.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+import torch
+
+from .. import __version__
+from ..camera import Camera, project_points, save_camera
+from ..dataset import INDEX_NAME, save_npz, write_png
+from ..keypoints import BODY25_NAMES, COCO17_NAMES, model_keypoints, write_openpose_json
+from .poses import FRONTAL_POSES, POSE_LIBRARY
+from .sampler import global_orientation, place_body, sample_betas, sample_intrinsics, sample_pose
+
+__all__ = ["SynthConfig", "SubjectRecord", "generate_subject", "generate_dataset", "FORMAT_VERSION", "KEYPOINT_DEPTH_TOLERANCE"]
+
+FORMAT_VERSION = 1
+
+#: How far (metres) behind the rendered surface a keypoint may lie and still count as
+#: visible: surface landmarks 3 cm; joint centres their measured depth below the skin
+#: (the larger of front and back views, over betas -2..2 on the open body model: neck 9.5,
+#: shoulders 7.9, elbows 5.9, wrists 3.4, pelvis 14.4, hips 12.8, knees 7.0, ankles 6.0 cm)
+#: plus 1.5-2.5 cm.
+KEYPOINT_DEPTH_TOLERANCE = {
+    "nose": 0.03, "neck": 0.11, "right_shoulder": 0.10, "right_elbow": 0.075, "right_wrist": 0.05,
+    "left_shoulder": 0.10, "left_elbow": 0.075, "left_wrist": 0.05, "mid_hip": 0.17, "right_hip": 0.15,
+    "right_knee": 0.09, "right_ankle": 0.075, "left_hip": 0.15, "left_knee": 0.09, "left_ankle": 0.075,
+    "right_eye": 0.03, "left_eye": 0.03, "right_ear": 0.03, "left_ear": 0.03, "left_big_toe": 0.03,
+    "left_small_toe": 0.03, "left_heel": 0.03, "right_big_toe": 0.03, "right_small_toe": 0.03, "right_heel": 0.03,
+}  # fmt: skip
+
+
+@dataclass
+class SynthConfig:
+    """Generator settings (all recorded in ``index.json``)."""
+
+    seed: int = 0
+    size: int = 512  # image width = height, pixels
+    noise_px: float = 2.0  # keypoint noise (std. dev. per coordinate, pixels)
+    clean: int = 0  # the first `clean` subjects get no noise and no dropped keypoints
+    drop_prob: float = 0.0  # probability of dropping each in-image keypoint
+    conf_visible: Tuple[float, float] = (0.6, 1.0)
+    conf_occluded: Tuple[float, float] = (0.1, 0.3)
+    fov_deg: Tuple[float, float] = (45.0, 65.0)  # across the image (square images)
+    fill: Tuple[float, float] = (0.55, 0.85)  # longest side of the body's box / image size
+    elevation_deg: float = 15.0  # camera elevation uniform in +-this
+    roll_deg: float = 5.0  # camera roll uniform in +-this
+    yaw_range_deg: Tuple[float, float] = (-180.0, 180.0)  # body yaw (0 = facing the camera)
+    truncation_prob: float = 0.0  # probability of a partly truncated body
+    beta_truncation: float = 2.5
+    perturb_deg: float = 6.0
+    blend_prob: float = 0.5
+    mirror_prob: float = 0.5
+    background: str = "mixed"  # plain | textured | mixed
+    frontal_first: bool = True  # subject 0: a clearly human, front-facing pose, uncropped
+    coco: bool = False  # also write keypoints_coco17.json
+
+    def validate(self) -> "SynthConfig":
+        if self.size < 16:
+            raise ValueError(f"--size must be at least 16 pixels, got {self.size}")
+        if self.noise_px < 0:
+            raise ValueError(f"--noise-px must be >= 0, got {self.noise_px}")
+        for name in ("drop_prob", "truncation_prob", "blend_prob", "mirror_prob"):
+            v = getattr(self, name)
+            if not 0.0 <= v <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {v}")
+        if self.background not in ("plain", "textured", "mixed"):
+            raise ValueError(f"background must be plain, textured or mixed, got {self.background!r}")
+        if not (0 < self.fov_deg[0] <= self.fov_deg[1] < 170):
+            raise ValueError(f"field-of-view range must be within (0, 170) degrees, got {self.fov_deg}")
+        if not (0 < self.fill[0] <= self.fill[1]):
+            raise ValueError(f"fill range must be positive, got {self.fill}")
+        return self
+
+    def to_dict(self) -> dict:
+        return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v) for f in fields(self)}
+
+
+@dataclass
+class SubjectRecord:
+    """What ``index.json`` says about one subject (besides its files)."""
+
+    name: str
+    pose: str
+    description: str
+    blend: Optional[str]
+    blend_weight: float
+    mirrored: bool
+    yaw_deg: float
+    elevation_deg: float
+    roll_deg: float
+    fov_deg: float
+    focal_px: float
+    distance_m: float  # depth (z) of the pelvis joint
+    stature_m: float  # height of the T-posed body
+    fill: float
+    truncated: bool
+    noise_px: float
+    keypoints_visible: int
+    keypoints_occluded: int
+    keypoints_outside: int
+    keypoints_dropped: int
+    background: str
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        for k, v in d.items():
+            if isinstance(v, float):
+                d[k] = round(v, 4)
+        return d
+
+
+# ----------------------------------------------------------------------------- pieces
+def _background(rng: np.random.Generator, kind: str, h: int, w: int) -> Tuple[np.ndarray, str]:
+    if kind == "mixed":
+        kind = "plain" if rng.random() < 0.4 else "textured"
+    base = rng.uniform(0.35, 0.95, 3)
+    if kind == "plain":
+        img = np.broadcast_to(base, (h, w, 3)).copy()
+        return (img * 255).round().astype(np.uint8), "plain"
+    style = int(rng.integers(3))
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    other = rng.uniform(0.2, 0.9, 3)
+    if style == 0:  # vertical gradient (wall to floor)
+        t = (yy / max(h - 1, 1))[..., None]
+        img = base * (1 - t) + other * t
+        label = "gradient"
+    elif style == 1:  # checker / tiles
+        period = rng.uniform(0.06, 0.2) * max(h, w)
+        ang = rng.uniform(0, math.pi)
+        u = xx * math.cos(ang) + yy * math.sin(ang)
+        v = -xx * math.sin(ang) + yy * math.cos(ang)
+        t = ((np.floor(u / period) + np.floor(v / period)) % 2)[..., None]
+        img = base * (1 - 0.35 * t) + other * 0.35 * t
+        label = "tiles"
+    else:  # smooth blobs (low-frequency noise from a coarse grid)
+        g = rng.uniform(0, 1, (6, 6, 3))
+        from PIL import Image
+
+        coarse = Image.fromarray((g * 255).astype(np.uint8)).resize((w, h), Image.BICUBIC)
+        t = np.asarray(coarse, dtype=np.float64) / 255.0
+        img = base * 0.7 + t * 0.3
+        label = "blobs"
+    img = img + rng.normal(0, 0.01, img.shape)  # a little sensor-like grain
+    return (np.clip(img, 0, 1) * 255).round().astype(np.uint8), label
+
+
+_BODY_COLOURS = (
+    (0.80, 0.62, 0.50), (0.62, 0.45, 0.35), (0.45, 0.32, 0.25), (0.90, 0.74, 0.62),
+    (0.55, 0.60, 0.75), (0.70, 0.45, 0.45), (0.50, 0.65, 0.55), (0.62, 0.68, 0.78),
+)  # fmt: skip
+
+
+def _render(vertices: np.ndarray, faces: np.ndarray, camera: Camera, colour):
+    from renderers.offscreen import render_mesh
+
+    return render_mesh(vertices, faces, camera, color=colour)
+
+
+def keypoint_visibility(
+    points_3d: np.ndarray, points_2d: np.ndarray, depth: np.ndarray, names: Sequence[str], tolerance: Optional[Dict[str, float]] = None
+) -> np.ndarray:
+    """``int8 [K]``: 0 outside the image (or behind the camera), 1 self-occluded, 2 visible,
+    by comparing each keypoint's depth with the rendered ``depth [H, W]`` (0 = background):
+    occluded when even the farthest surface in the 3x3 pixels around it is nearer than the
+    keypoint by more than its tolerance (:data:`KEYPOINT_DEPTH_TOLERANCE`)."""
+    tol = KEYPOINT_DEPTH_TOLERANCE if tolerance is None else tolerance
+    H, W = depth.shape
+    vis = np.zeros(len(names), dtype=np.int8)
+    for k, name in enumerate(names):
+        u, v = points_2d[k]
+        z = points_3d[k, 2]
+        if not (np.isfinite(u) and np.isfinite(v)) or z <= 0 or not (-0.5 <= u < W - 0.5 and -0.5 <= v < H - 0.5):
+            continue
+        r, c = int(round(v)), int(round(u))
+        # The farthest surface in the 3x3 neighbourhood: an occluder must cover all of it, so
+        # edge pixels and coarse images do not produce false occlusions.
+        d = depth[max(r - 1, 0) : r + 2, max(c - 1, 0) : c + 2].max()
+        vis[k] = 1 if (d > 0 and z - d > tol.get(name, 0.05)) else 2
+    return vis
+
+
+def noisy_keypoints(
+    rng: np.random.Generator, clean_2d: np.ndarray, visibility: np.ndarray, noise_px: float, drop_prob: float,
+    conf_visible=(0.6, 1.0), conf_occluded=(0.1, 0.3),
+) -> Tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """``(keypoints [K, 3], dropped bool [K])`` from clean projections and visibility codes."""
+    K = len(clean_2d)
+    # Draw every random number for every point (fixed count): results do not depend on which are visible.
+    noise = rng.normal(0.0, 1.0, (K, 2)) * noise_px
+    c_vis = rng.uniform(*conf_visible, K)
+    c_occ = rng.uniform(*conf_occluded, K)
+    drop = rng.random(K) < drop_prob
+    kp = np.zeros((K, 3))
+    keep = (visibility > 0) & ~drop
+    kp[keep, :2] = clean_2d[keep] + noise[keep]
+    kp[keep, 2] = np.where(visibility[keep] == 2, c_vis[keep], c_occ[keep])
+    return kp, drop & (visibility > 0)
+
+
+# ----------------------------------------------------------------------------- one subject
+def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> SubjectRecord:
+    """Sample, render and write subject ``index`` of a dataset into ``out_dir`` (created)."""
+    cfg = config
+    rng = np.random.default_rng([int(cfg.seed), int(index)])
+    frontal = cfg.frontal_first and index == 0
+    clean = index < cfg.clean
+    noise_px = 0.0 if clean else float(cfg.noise_px)
+    drop_prob = 0.0 if clean else float(cfg.drop_prob)
+    W = H = int(cfg.size)
+
+    # Pose, shape, orientation.
+    if frontal:
+        ps = sample_pose(rng, names=FRONTAL_POSES, perturb_deg=min(cfg.perturb_deg, 4.0), blend_prob=0.0)
+        yaw = float(rng.uniform(-20, 20))
+        elev = float(rng.uniform(-5, 5))
+        roll = 0.0
+    else:
+        ps = sample_pose(rng, perturb_deg=cfg.perturb_deg, blend_prob=cfg.blend_prob, mirror_prob=cfg.mirror_prob)
+        yaw = float(rng.uniform(*cfg.yaw_range_deg))
+        elev = float(rng.uniform(-cfg.elevation_deg, cfg.elevation_deg))
+        roll = float(rng.uniform(-cfg.roll_deg, cfg.roll_deg))
+    betas = sample_betas(rng, model.num_betas, cfg.beta_truncation)
+    global_orient = global_orientation(yaw, elev, roll, root=ps.root)
+    camera, fov = sample_intrinsics(rng, W, H, cfg.fov_deg)
+
+    dtype = model.dtype
+    as_t = lambda a: torch.as_tensor(np.asarray(a)[None], dtype=dtype, device=model.device)  # noqa: E731
+    with torch.no_grad():
+        out0 = model(betas=as_t(betas), body_pose=as_t(ps.body_pose), global_orient=as_t(global_orient))
+        place = place_body(
+            rng, out0.vertices[0].double().cpu().numpy(), camera, fill=cfg.fill,
+            truncation_prob=0.0 if frontal else cfg.truncation_prob,
+        )  # fmt: skip
+        # Store the parameters at the precision they are written with, then evaluate once more,
+        # so gt.npz's vertices are exactly model(params) for the stored params.
+        params = {
+            "betas": betas.astype(np.float32), "body_pose": ps.body_pose.astype(np.float32),
+            "global_orient": global_orient.astype(np.float32), "transl": place.transl.astype(np.float32),
+        }  # fmt: skip
+        out = model(**{k: as_t(v) for k, v in params.items()})
+        kp3d = model_keypoints(model, out, "body25")[0]
+        kp2d = project_points(kp3d.double(), camera).cpu().numpy()
+        coco3d = model_keypoints(model, out, "coco17")[0]
+        coco2d = project_points(coco3d.double(), camera).cpu().numpy()
+        rest = model.rest_vertices(as_t(betas))[0]
+    vertices = out.vertices[0].cpu().numpy().astype(np.float32)
+    joints = out.joints[0].cpu().numpy().astype(np.float32)
+    kp3d = kp3d.cpu().numpy().astype(np.float64)
+    coco3d = coco3d.cpu().numpy().astype(np.float64)
+    stature = float(rest[:, 1].max() - rest[:, 1].min())
+
+    # Render.
+    colour = _BODY_COLOURS[int(rng.integers(len(_BODY_COLOURS)))]
+    bg, bg_label = _background(rng, cfg.background, H, W)
+    faces = model.faces.cpu().numpy()
+    r = _render(vertices, faces, camera, colour)
+    mask = r.mask
+    image = np.where(mask[..., None], r.color, bg).astype(np.uint8)
+
+    # Keypoints.
+    vis = keypoint_visibility(kp3d, kp2d, r.depth, BODY25_NAMES)
+    kp, dropped = noisy_keypoints(rng, kp2d, vis, noise_px, drop_prob, cfg.conf_visible, cfg.conf_occluded)
+    coco_vis = keypoint_visibility(coco3d, coco2d, r.depth, COCO17_NAMES)
+    coco_kp, coco_dropped = noisy_keypoints(rng, coco2d, coco_vis, noise_px, drop_prob, cfg.conf_visible, cfg.conf_occluded)
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_png(out_dir / "image.png", image)
+    write_png(out_dir / "mask.png", mask)
+    write_openpose_json(out_dir / "keypoints.json", kp)
+    if cfg.coco:
+        write_openpose_json(out_dir / "keypoints_coco17.json", coco_kp)
+    save_camera(camera, out_dir / "camera.json")
+    save_npz(out_dir / "gt.npz", {
+        **params,
+        "vertices": vertices, "joints": joints,
+        "keypoints_3d": kp3d.astype(np.float32), "keypoints_2d_clean": kp2d.astype(np.float64),
+        "keypoints_visibility": vis, "keypoints_dropped": dropped,
+        "coco17_3d": coco3d.astype(np.float32), "coco17_2d_clean": coco2d.astype(np.float64),
+        "coco17_visibility": coco_vis,
+        "stature": np.float64(stature), "noise_px": np.float64(noise_px),
+    })  # fmt: skip
+
+    pelvis_z = float(joints[0, 2])
+    return SubjectRecord(
+        name=out_dir.name, pose=ps.name, description=ps.describe() + f"; yaw {yaw:.0f} deg",
+        blend=ps.blend, blend_weight=ps.blend_weight, mirrored=ps.mirrored,
+        yaw_deg=yaw, elevation_deg=elev, roll_deg=roll, fov_deg=fov, focal_px=camera.fx,
+        distance_m=pelvis_z, stature_m=stature, fill=place.fill, truncated=place.truncated, noise_px=noise_px,
+        keypoints_visible=int((vis == 2).sum()), keypoints_occluded=int((vis == 1).sum()),
+        keypoints_outside=int((vis == 0).sum()), keypoints_dropped=int(dropped.sum()), background=bg_label,
+    )  # fmt: skip
+
+
+# ----------------------------------------------------------------------------- a dataset
+def subject_name(index: int) -> str:
+    return f"subject_{index:03d}"
+
+
+def generate_dataset(
+    out: os.PathLike,
+    n: int,
+    config: Optional[SynthConfig] = None,
+    model=None,
+    progress: bool = False,
+    command: Optional[str] = None,
+) -> dict:
+    """Generate ``n`` subjects into ``out`` (``out/subject_000`` ...) and write ``out/index.json``;
+    returns the index. ``model`` defaults to the shipped open body model."""
+    cfg = (config or SynthConfig()).validate()
+    if int(n) <= 0:
+        raise ValueError(f"--n must be a positive number of subjects, got {n}")
+    if model is None:
+        from ..body import load_body_model
+
+        model = load_body_model()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    records: List[SubjectRecord] = []
+    iterator = range(int(n))
+    if progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(iterator, desc="silfit synth", unit="subject")
+    for i in iterator:
+        records.append(generate_subject(model, i, cfg, out / subject_name(i)))
+    index = {
+        "format": "silfit-synthetic",
+        "version": FORMAT_VERSION,
+        "silfit_version": __version__,
+        "generator": {
+            **cfg.to_dict(),
+            "n": int(n),
+            "body_model": {"file": Path(str(model.source)).name, "vertices": int(model.num_vertices), "betas": int(model.num_betas)},
+            "keypoints": "OpenPose BODY_25" + (" + COCO-17" if cfg.coco else ""),
+            **({"command": command} if command else {}),
+        },
+        "subjects": [r.to_dict() for r in records],
+    }
+    (out / INDEX_NAME).write_text(json.dumps(index, indent=2) + "\n", encoding="utf-8")
+    return index
+
+
+def dataset_summary(index: dict) -> dict:
+    """Distribution (min, median, max, mean) of statures, distances, yaws and fills of an index."""
+    subs = index["subjects"]
+    summary = {}
+    for key in ("stature_m", "distance_m", "yaw_deg", "fov_deg", "fill"):
+        vals = np.array([s[key] for s in subs], dtype=np.float64)
+        summary[key] = {
+            "min": round(float(vals.min()), 3), "median": round(float(np.median(vals)), 3),
+            "max": round(float(vals.max()), 3), "mean": round(float(vals.mean()), 3),
+        }  # fmt: skip
+    summary["back_facing"] = int(sum(abs(s["yaw_deg"]) > 90 for s in subs))
+    summary["truncated"] = int(sum(bool(s["truncated"]) for s in subs))
+    return summary
