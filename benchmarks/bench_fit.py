@@ -1,0 +1,154 @@
+"""Benchmark of the fitting stages on synthetic subjects; prints Markdown tables.
+
+Sets: the shipped synthetic set (``data/synthetic/<subject>/``, if present) and a set
+generated here: the open body model in random poses inside the joint limits (arms
+lowered at random, limbs bent), betas ~ N(0, 0.5^2), yaw uniform over all 360 degrees,
+keypoints (BODY_25) projected with a 512x512 default camera plus 2 px Gaussian noise.
+
+Metrics per method: median reprojection error (px, against the given keypoints), MPJPE
+and PVE after pelvis alignment, PA-MPJPE (similarity Procrustes), facing correct (the
+fitted body-forward vector within 90 degrees of the true one, in the ground plane),
+seconds per image fitted one by one and in batches of ``--batch``.
+
+    python benchmarks/bench_fit.py --subjects 50 --singles 5
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from scipy.spatial.transform import Rotation
+
+from silfit import load_body_model
+from silfit.camera import Camera, load_camera, project_points
+from silfit.fitting import KeypointFitter
+from silfit.keypoints import model_keypoints, read_keypoints
+from silfit.priors import clamp_to_limits
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def generate(model, n, seed=0, noise_px=2.0, size=512):
+    g = torch.Generator().manual_seed(seed)
+    pose = torch.randn(n, 69, generator=g) * 0.2
+    # Arms lowered by a random amount, elbows and knees bent the natural way.
+    pose[:, 3 * 15 + 2] += -1.3 * torch.rand(n, generator=g)  # left shoulder z
+    pose[:, 3 * 16 + 2] += 1.3 * torch.rand(n, generator=g)  # right shoulder z
+    pose[:, 3 * 17 + 1] += -1.2 * torch.rand(n, generator=g)  # left elbow y
+    pose[:, 3 * 18 + 1] += 1.2 * torch.rand(n, generator=g)  # right elbow y
+    pose[:, 3 * 3] += 0.8 * torch.rand(n, generator=g)  # knees
+    pose[:, 3 * 4] += 0.8 * torch.rand(n, generator=g)
+    pose[:, 0] -= 0.5 * torch.rand(n, generator=g)  # hips flexed
+    pose[:, 3] -= 0.5 * torch.rand(n, generator=g)
+    pose[:, [60, 61, 62, 63, 64, 65, 66, 67, 68]] *= 0.3  # wrists/hands: small
+    pose = clamp_to_limits(pose)
+    yaw = torch.rand(n, generator=g).numpy() * 2 * math.pi
+    orient = np.stack([(Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, y, 0])).as_rotvec() for y in yaw])
+    betas = torch.randn(n, 10, generator=g) * 0.5
+    transl = torch.stack([torch.rand(n, generator=g) * 0.4 - 0.2, torch.rand(n, generator=g) * 0.2, 3.0 + torch.rand(n, generator=g)], 1)
+    gt = dict(betas=betas, body_pose=pose, global_orient=torch.tensor(orient, dtype=torch.float32), transl=transl)
+    with torch.no_grad():
+        out = model(**gt)
+        cam = Camera.from_image_size(size, size)
+        xy = project_points(model_keypoints(model, out, "body25"), cam)
+    xy = xy + noise_px * torch.randn(xy.shape, generator=g)
+    kps = [np.concatenate([xy[i].numpy(), np.ones((25, 1))], 1) for i in range(n)]
+    return dict(keypoints=kps, cameras=[cam] * n, joints=out.joints.numpy(), vertices=out.vertices.numpy(),
+                global_orient=orient)  # fmt: skip
+
+
+def load_shipped():
+    subjects = sorted(p.parent for p in (ROOT / "data" / "synthetic").glob("*/gt.npz"))
+    if not subjects:
+        return None
+    kps, cams, joints, verts, orients = [], [], [], [], []
+    for d in subjects:
+        ks = read_keypoints(d / "keypoints.json")
+        kps.append(ks.as_array())
+        cams.append(load_camera(d / "camera.json"))
+        gt = np.load(d / "gt.npz")
+        joints.append(gt["joints"].reshape(-1, 24, 3)[0])
+        verts.append(gt["vertices"].reshape(1, -1, 3)[0])
+        orients.append(gt["global_orient"].reshape(-1)[:3])
+    return dict(keypoints=kps, cameras=cams, joints=np.stack(joints), vertices=np.stack(verts),
+                global_orient=np.stack(orients), names=[d.name for d in subjects])  # fmt: skip
+
+
+def procrustes_error(X, Y):
+    X0, Y0 = X - X.mean(0), Y - Y.mean(0)
+    U, S, Vt = np.linalg.svd(X0.T @ Y0)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    s = (S * np.diag(D)).sum() / (X0**2).sum()
+    return float(np.linalg.norm(s * X0 @ (U @ D @ Vt) - Y0, axis=1).mean())
+
+
+def metrics(res, data):
+    n = len(res)
+    out = {k: [] for k in ("reproj", "mpjpe", "pa", "pve", "facing")}
+    for i in range(n):
+        J, Jg = res.joints[i], data["joints"][i]
+        out["reproj"].append(float(res.reprojection_error[i]))
+        out["mpjpe"].append(float(np.linalg.norm((J - J[0]) - (Jg - Jg[0]), axis=1).mean()))
+        out["pa"].append(procrustes_error(J, Jg))
+        V, Vg = res.vertices[i], data["vertices"][i]
+        out["pve"].append(float(np.linalg.norm((V - J[0]) - (Vg - Jg[0]), axis=1).mean()))
+        f = Rotation.from_rotvec(res.global_orient[i].astype(np.float64)).apply([0, 0, 1.0])
+        fg = Rotation.from_rotvec(np.asarray(data["global_orient"][i], np.float64)).apply([0, 0, 1.0])
+        out["facing"].append(float(f[0] * fg[0] + f[2] * fg[2] > 0))
+    return out
+
+
+def run_set(name, data, fitter, batch, singles):
+    n = len(data["keypoints"])
+    t0 = time.perf_counter()
+    parts = []
+    for s in range(0, n, batch):
+        parts.append(fitter.fit(np.stack(data["keypoints"][s : s + batch]), data["cameras"][s : s + batch], progress=False))
+    t_batch = (time.perf_counter() - t0) / n
+    m = {k: [] for k in ("reproj", "mpjpe", "pa", "pve", "facing")}
+    for k, r in enumerate(parts):
+        sub = {key: (v[k * batch : k * batch + len(r)] if key != "cameras" else None) for key, v in data.items()}
+        for key, vals in metrics(r, sub).items():
+            m[key] += vals
+    t_single = []
+    for i in range(min(singles, n)):
+        t = time.perf_counter()
+        fitter.fit(data["keypoints"][i], data["cameras"][i], progress=False)
+        t_single.append(time.perf_counter() - t)
+    return m, (float(np.mean(t_single)) if t_single else float("nan")), t_batch
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--subjects", type=int, default=50)
+    ap.add_argument("--batch", type=int, default=32)
+    ap.add_argument("--singles", type=int, default=5, help="subjects also fitted one by one for the timing")
+    ap.add_argument("--noise", type=float, default=2.0)
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+
+    model = load_body_model()
+    fitter = KeypointFitter(model)
+    sets = []
+    shipped = load_shipped()
+    if shipped is not None:
+        sets.append((f"shipped synthetic ({len(shipped['keypoints'])})", shipped))
+    sets.append((f"generated ({args.subjects}, {args.noise:g} px noise)", generate(model, args.subjects, args.seed, args.noise)))
+
+    print("| set | method | reproj px (mean/median) | MPJPE mm | PA-MPJPE mm | PVE mm | facing correct | s/image single | s/image batch %d |" % args.batch)
+    print("|---|---|---|---|---|---|---|---|---|")
+    for name, data in sets:
+        m, t1, tb = run_set(name, data, fitter, args.batch, args.singles)
+        mm = lambda k: f"{1000 * np.mean(m[k]):.1f} / {1000 * np.median(m[k]):.1f}"  # noqa: E731
+        print(
+            f"| {name} | keypoints | {np.mean(m['reproj']):.2f} / {np.median(m['reproj']):.2f} | {mm('mpjpe')} | "
+            f"{mm('pa')} | {mm('pve')} | {100 * np.mean(m['facing']):.0f} % | {t1:.2f} | {tb:.2f} |"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,88 @@
+"""Renderers for silfit: differentiable Mitsuba 3 silhouettes and pyrender offscreen images.
+
+Both follow the project's one camera convention (:mod:`silfit.camera`): meshes in OpenCV
+camera coordinates (x right, y down, z forward), pixel centres on integer coordinates,
+``u = fx * x / z + cx``.  Rendered silhouettes, masks and :func:`silfit.camera.project_points`
+agree to sub-pixel precision.
+
+* :mod:`renderers.silhouette` - :class:`SilhouetteRenderer`, :func:`render_silhouette`
+  (Mitsuba 3 ``prb_projective``; torch in, torch out; gradients include the visibility
+  edge term; region-of-interest mode).  Imports Mitsuba/Dr.Jit on first use.
+* :mod:`renderers.offscreen` - :func:`render_mesh`, :func:`render_mask`,
+  :func:`render_depth`, :func:`overlay`, :func:`render_views`, :func:`framing_camera`
+  (pyrender on OSMesa).  Imports pyrender on first use.
+* :mod:`renderers._llvm` - libLLVM discovery and Mitsuba variant selection.
+
+Names are resolved lazily, so ``import renderers`` loads neither Mitsuba nor pyrender.
+"""
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+_EXPORTS = {
+    # silhouette (Mitsuba / Dr.Jit; Mitsuba itself is imported when a renderer is built)
+    "SilhouetteRenderer": "silhouette",
+    "RoiWindow": "silhouette",
+    "render_silhouette": "silhouette",
+    "roi_window": "silhouette",
+    "paste_roi": "silhouette",
+    "check_camera": "silhouette",
+    "check_mesh": "silhouette",
+    # offscreen (pyrender / OSMesa)
+    "BODY_COLOR": "offscreen",
+    "Rendering": "offscreen",
+    "OffscreenRenderer": "offscreen",
+    "render_mesh": "offscreen",
+    "render_mask": "offscreen",
+    "render_depth": "offscreen",
+    "overlay": "offscreen",
+    "render_views": "offscreen",
+    "framing_camera": "offscreen",
+    "view_angles": "offscreen",
+    # bootstrap
+    "import_mitsuba": "_llvm",
+    "configure_libllvm": "_llvm",
+    "select_variant": "_llvm",
+    "LibLLVMNotFoundError": "_llvm",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'renderers' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
+
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ._llvm import LibLLVMNotFoundError, configure_libllvm, import_mitsuba, select_variant
+    from .offscreen import (
+        BODY_COLOR,
+        OffscreenRenderer,
+        Rendering,
+        framing_camera,
+        overlay,
+        render_depth,
+        render_mask,
+        render_mesh,
+        render_views,
+        view_angles,
+    )
+    from .silhouette import (
+        RoiWindow,
+        SilhouetteRenderer,
+        check_camera,
+        check_mesh,
+        paste_roi,
+        render_silhouette,
+        roi_window,
+    )

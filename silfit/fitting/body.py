@@ -1,0 +1,83 @@
+"""A reduced SMPL forward for fitting: joints, skinning transforms and only the surface
+vertices the keypoints need (the full mesh is posed once, at the end of a fit)."""
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from ..body.lbs import axis_angle_to_matrix, forward_kinematics, pose_feature
+from ..keypoints import keypoint_sources
+
+__all__ = ["KeypointBody", "body_transforms"]
+
+
+class KeypointBody(nn.Module):
+    """Keypoints ``[B, K, 3]`` (camera frame) of a layout, computed from SMPL parameters
+    without skinning the whole mesh."""
+
+    def __init__(self, model, layout: str = "body25", prefer_landmarks: bool = False):
+        super().__init__()
+        self.model_source = model.source
+        self.parents = tuple(model.parents)
+        self.levels = model._levels
+        sources = keypoint_sources(model, layout, prefer_landmarks)
+        self.layout = layout
+        L = model.num_betas
+        self.num_betas = L
+        self.register_buffer("J_template", model.J_regressor @ model.v_template)
+        self.register_buffer("J_shapedirs", torch.einsum("jv,vcl->jcl", model.J_regressor, model.shapedirs))
+        lm_used = sorted({i for kind, i in sources if kind == "landmark"})
+        J = model.num_joints
+        if lm_used:
+            R = model.landmark_regressor[lm_used]  # [k, V]
+            support = (R.abs() > 0).any(0).nonzero().squeeze(1)
+            self.register_buffer("lm_regressor", R[:, support])
+            self.register_buffer("lm_template", model.v_template[support])
+            self.register_buffer("lm_shapedirs", model.shapedirs[support])
+            self.register_buffer("lm_weights", model.lbs_weights[support])
+            if model.posedirs is not None:
+                V = model.num_vertices
+                pd = model.posedirs.reshape(-1, V, 3)[:, support].reshape(model.posedirs.shape[0], -1)
+                self.register_buffer("lm_posedirs", pd)
+            else:
+                self.lm_posedirs = None
+            lm_pos = {i: k for k, i in enumerate(lm_used)}
+        else:
+            self.lm_regressor = None
+            lm_pos = {}
+        index = [i if kind == "joint" else J + lm_pos[i] for kind, i in sources]
+        self.register_buffer("kp_index", torch.as_tensor(index, dtype=torch.long))
+
+    def shaped_joints(self, betas: torch.Tensor) -> torch.Tensor:
+        return self.J_template + torch.einsum("bl,jcl->bjc", betas, self.J_shapedirs[..., : betas.shape[-1]])
+
+    def forward(self, betas, global_orient, body_pose, transl):
+        """Returns ``(keypoints [B, K, 3], joints [B, J, 3], transforms [B, J, 4, 4])``
+        in camera coordinates (transforms exclude ``transl``)."""
+        B = betas.shape[0]
+        rest_joints = self.shaped_joints(betas)
+        full = torch.cat([global_orient, body_pose], dim=1).reshape(B, -1, 3)
+        rot = axis_angle_to_matrix(full)
+        joints, T = forward_kinematics(rot, rest_joints, self.parents, self.levels)
+        pts = joints
+        if self.lm_regressor is not None:
+            v = self.lm_template + torch.einsum("bl,vcl->bvc", betas, self.lm_shapedirs[..., : betas.shape[-1]])
+            if self.lm_posedirs is not None:
+                v = v + (pose_feature(rot) @ self.lm_posedirs).reshape(B, -1, 3)
+            A = torch.einsum("vj,bjrc->bvrc", self.lm_weights, T[..., :3, :])
+            v = (A[..., :3] @ v[..., None])[..., 0] + A[..., 3]
+            lm = torch.einsum("kv,bvc->bkc", self.lm_regressor, v)
+            pts = torch.cat([joints, lm], dim=1)
+        kp = pts[:, self.kp_index] + transl[:, None]
+        return kp, joints + transl[:, None], T
+
+
+def body_transforms(model, betas, global_orient, body_pose):
+    """Skinning transforms ``[B, J, 4, 4]`` (rest point -> posed point, no translation)."""
+    B = betas.shape[0]
+    rest_joints = model.J_regressor @ (
+        model.v_template + torch.einsum("bl,vcl->bvc", betas, model.shapedirs[..., : betas.shape[-1]])
+    )
+    full = torch.cat([global_orient, body_pose], dim=1).reshape(B, -1, 3)
+    _, T = forward_kinematics(axis_angle_to_matrix(full), rest_joints, model.parents, model._levels)
+    return T

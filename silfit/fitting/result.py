@@ -1,0 +1,126 @@
+"""``KeypointFitResult``: SMPL parameters, camera, mesh and fit diagnostics; save/load."""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import List, Optional, Union
+
+import numpy as np
+
+from ..camera import Camera
+
+__all__ = ["KeypointFitResult", "PARAM_NAMES"]
+
+PARAM_NAMES = ("betas", "body_pose", "global_orient", "transl")
+
+
+@dataclass
+class KeypointFitResult:
+    """Batched result (leading dimension ``B``; numpy arrays, float32).
+
+    ``betas [B, L]``, ``body_pose [B, 69]``, ``global_orient [B, 3]``, ``transl [B, 3]``
+    are SMPL parameters whose model output is in the camera frame of ``cameras[b]``.
+    ``vertices [B, V, 3]``, ``joints [B, 24, 3]``, ``keypoints_2d [B, K, 2]`` (projected
+    fitted keypoints), ``energies`` (stage name -> ``[B]`` final energy), ``timings``
+    (stage name -> seconds for the whole batch), ``flipped [B]`` (the 180-degree flipped
+    initial orientation was kept), ``reprojection_error [B]`` (median px over keypoints
+    with confidence > 0).
+    """
+
+    betas: np.ndarray
+    body_pose: np.ndarray
+    global_orient: np.ndarray
+    transl: np.ndarray
+    cameras: List[Camera]
+    vertices: Optional[np.ndarray] = None
+    joints: Optional[np.ndarray] = None
+    keypoints_2d: Optional[np.ndarray] = None
+    layout: str = "body25"
+    energies: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+    flipped: Optional[np.ndarray] = None
+    reprojection_error: Optional[np.ndarray] = None
+
+    def __len__(self) -> int:
+        return self.betas.shape[0]
+
+    @property
+    def camera(self) -> Camera:
+        return self.cameras[0]
+
+    def params(self, i: int = 0) -> dict:
+        return {name: getattr(self, name)[i] for name in PARAM_NAMES}
+
+    def __getitem__(self, i: int) -> "KeypointFitResult":
+        """The single-sample result ``i`` (a batch of one)."""
+        sl = slice(i, i + 1)
+        pick = lambda a: None if a is None else a[sl]  # noqa: E731
+        return KeypointFitResult(
+            betas=self.betas[sl], body_pose=self.body_pose[sl], global_orient=self.global_orient[sl],
+            transl=self.transl[sl], cameras=[self.cameras[i]], vertices=pick(self.vertices),
+            joints=pick(self.joints), keypoints_2d=pick(self.keypoints_2d), layout=self.layout,
+            energies={k: v[sl] for k, v in self.energies.items()}, timings=dict(self.timings),
+            flipped=pick(self.flipped), reprojection_error=pick(self.reprojection_error),
+        )  # fmt: skip
+
+    # ------------------------------------------------------------------ I/O
+    def save(self, directory: Union[str, os.PathLike], index: int = 0) -> Path:
+        """Write sample ``index`` as ``params.npz`` and ``params.json`` (SMPL parameter
+        names, one sample, no batch dimension) into ``directory``."""
+        out = Path(directory)
+        out.mkdir(parents=True, exist_ok=True)
+        cam = self.cameras[index]
+        arrays = {name: np.asarray(getattr(self, name)[index], dtype=np.float32) for name in PARAM_NAMES}
+        extra = {
+            "camera_intrinsics": np.array([cam.fx, cam.fy, cam.cx, cam.cy], dtype=np.float64),
+            "image_size": np.array([cam.width, cam.height], dtype=np.int64),
+        }
+        for name in ("vertices", "joints", "keypoints_2d"):
+            if getattr(self, name) is not None:
+                extra[name] = np.asarray(getattr(self, name)[index], dtype=np.float32)
+        np.savez(out / "params.npz", **arrays, **extra)
+        payload = {name: arrays[name].astype(float).tolist() for name in PARAM_NAMES}
+        payload["camera"] = cam.to_dict()
+        payload["layout"] = self.layout
+        payload["energies"] = {k: float(v[index]) for k, v in self.energies.items()}
+        payload["timings"] = {k: float(v) for k, v in self.timings.items()}
+        if self.flipped is not None:
+            payload["flipped"] = bool(self.flipped[index])
+        if self.reprojection_error is not None:
+            payload["reprojection_error_px"] = float(self.reprojection_error[index])
+        (out / "params.json").write_text(json.dumps(payload, indent=2))
+        return out
+
+    @classmethod
+    def load(cls, path: Union[str, os.PathLike]) -> "KeypointFitResult":
+        """Read ``params.npz`` or ``params.json`` (a file or the folder holding them)."""
+        p = Path(path)
+        if p.is_dir():
+            p = p / "params.npz" if (p / "params.npz").exists() else p / "params.json"
+        if not p.exists():
+            raise FileNotFoundError(f"{p}: fit result not found")
+        if p.suffix == ".npz":
+            data = dict(np.load(p))
+            missing = [n for n in PARAM_NAMES if n not in data]
+            if missing:
+                raise ValueError(f"{p}: field(s) missing: {', '.join(missing)}")
+            fx, fy, cx, cy = data["camera_intrinsics"].tolist()
+            w, h = data["image_size"].tolist()
+            cam = Camera(fx=fx, fy=fy, cx=cx, cy=cy, width=int(w), height=int(h))
+            get = lambda n: data[n][None] if n in data else None  # noqa: E731
+            return cls(
+                **{n: data[n][None].astype(np.float32) for n in PARAM_NAMES}, cameras=[cam],
+                vertices=get("vertices"), joints=get("joints"), keypoints_2d=get("keypoints_2d"),
+            )  # fmt: skip
+        data = json.loads(p.read_text())
+        missing = [n for n in PARAM_NAMES + ("camera",) if n not in data]
+        if missing:
+            raise ValueError(f"{p}: field(s) missing: {', '.join(missing)}")
+        return cls(
+            **{n: np.asarray(data[n], dtype=np.float32)[None] for n in PARAM_NAMES},
+            cameras=[Camera(**data["camera"])], layout=data.get("layout", "body25"),
+            energies={k: np.array([v]) for k, v in data.get("energies", {}).items()},
+            timings=data.get("timings", {}),
+        )  # fmt: skip

@@ -1,0 +1,33 @@
+"""Writing meshes: Wavefront OBJ and PLY (ASCII), vertex order preserved."""
+from __future__ import annotations
+
+import os
+from typing import Optional
+
+import numpy as np
+
+__all__ = ["write_obj", "write_ply"]
+
+
+def write_obj(path: os.PathLike, vertices: np.ndarray, faces: np.ndarray, comment: Optional[str] = None) -> None:
+    """``vertices [V, 3]`` (metres) and 0-based ``faces [F, 3]`` as OBJ (1-based indices)."""
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(f"# {comment or 'silfit: posed body in camera coordinates (OpenCV axes, metres)'}\n")
+        np.savetxt(fh, np.asarray(vertices, dtype=np.float64), fmt="v %.6f %.6f %.6f")
+        np.savetxt(fh, np.asarray(faces, dtype=np.int64) + 1, fmt="f %d %d %d")
+
+
+def write_ply(path: os.PathLike, vertices: np.ndarray, faces: np.ndarray, colors: Optional[np.ndarray] = None) -> None:
+    """ASCII PLY with optional per-vertex ``colors [V, 3]`` (uint8)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(f"ply\nformat ascii 1.0\nelement vertex {len(v)}\nproperty float x\nproperty float y\nproperty float z\n")
+        if colors is not None:
+            fh.write("property uchar red\nproperty uchar green\nproperty uchar blue\n")
+        fh.write(f"element face {len(f)}\nproperty list uchar int vertex_indices\nend_header\n")
+        if colors is None:
+            np.savetxt(fh, v, fmt="%.6f %.6f %.6f")
+        else:
+            np.savetxt(fh, np.hstack([v, np.asarray(colors)[:, :3]]), fmt="%.6f %.6f %.6f %d %d %d")
+        np.savetxt(fh, np.hstack([np.full((len(f), 1), 3), f]), fmt="%d %d %d %d")

@@ -1,0 +1,228 @@
+"""The whole fit of one image: keypoint stage, then silhouette stage; results in memory
+(:func:`fit`) and on disk (:func:`save_fit`).
+
+Output folder written by :func:`save_fit` (and ``silfit fit``)::
+
+    params.npz, params.json    final SMPL parameters (betas, body_pose, global_orient, transl),
+                               camera_intrinsics, image_size, vertices, joints, keypoints_2d
+    mesh.obj                   the posed body in camera coordinates (OpenCV axes, metres,
+                               the model's vertex order)
+    overlay.png                the final body over the image (or a grey canvas) + keypoints
+    silhouette.png             final silhouette vs the mask (white: both, red: body only,
+                               blue: mask only)            [with a mask]
+    iou_curve.png              IoU and energy per silhouette step   [with a mask]
+    metrics.json               timings per stage, reprojection error, IoU before/after, warnings
+    stages/keypoints/          the keypoint stage's params.npz, params.json and overlay.png
+
+Everything is written into a temporary folder beside the target and moved into place at
+the end, so a failed run leaves nothing half-written.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Optional, Union
+
+import numpy as np
+import torch
+
+from .camera import Camera, project_points
+from .fitting.keypoint_stage import KeypointFitConfig, KeypointFitter, prepare_keypoints
+from .fitting.result import PARAM_NAMES, KeypointFitResult
+from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult, fit_silhouette
+from .keypoints import KeypointSet, model_keypoints
+from .silhouette.losses import binary_iou
+from .silhouette.masks import validate_mask
+
+__all__ = ["FitResult", "fit", "refine", "save_fit", "body_mask"]
+
+
+@dataclass
+class FitResult:
+    """One image's fit: the keypoint stage's result, the silhouette stage's (if a mask was
+    given), and the final parameters, mesh and metrics (numpy, no batch dimension)."""
+
+    camera: Camera
+    layout: str
+    keypoint: KeypointFitResult
+    silhouette: Optional[SilhouetteFitResult]
+    params: dict
+    vertices: np.ndarray
+    joints: np.ndarray
+    keypoints_2d: np.ndarray
+    metrics: dict = field(default_factory=dict)
+
+    @property
+    def final(self) -> KeypointFitResult:
+        """The final parameters in the keypoint result's form (for saving and loading)."""
+        return replace(
+            self.keypoint,
+            **{k: np.asarray(v, dtype=np.float32)[None] for k, v in self.params.items()},
+            vertices=self.vertices[None], joints=self.joints[None], keypoints_2d=self.keypoints_2d[None],
+            reprojection_error=np.array([self.metrics.get("reprojection_error_px", np.nan)]),
+        )  # fmt: skip
+
+
+def body_mask(vertices: np.ndarray, faces: np.ndarray, camera: Camera) -> np.ndarray:
+    """Binary mask of a camera-frame mesh (offscreen rasteriser, pixel-centre coverage)."""
+    from renderers.offscreen import render_mask
+
+    return render_mask(vertices, faces, camera)
+
+
+def _pose(model, params: dict, layout: str, camera: Camera):
+    t = {k: torch.as_tensor(np.asarray(v), dtype=model.dtype).reshape(1, -1) for k, v in params.items()}
+    with torch.no_grad():
+        out = model(**t)
+        kp2d = project_points(model_keypoints(model, out, layout)[0], camera)
+    return out.vertices[0].numpy(), out.joints[0].numpy(), kp2d.numpy()
+
+
+def _median_reprojection(kp2d: np.ndarray, keypoints: KeypointSet) -> float:
+    err = np.linalg.norm(kp2d - keypoints.xy, axis=1)
+    return float(np.median(err[keypoints.conf > 0]))
+
+
+def refine(
+    model,
+    keypoint_result: KeypointFitResult,
+    keypoints: KeypointSet,
+    mask: np.ndarray,
+    config: Optional[SilhouetteFitConfig] = None,
+    pose_prior=None,
+    renderer=None,
+    progress: bool = True,
+    mask_source: str = "mask",
+) -> FitResult:
+    """The silhouette stage on top of a single-sample keypoint result (see :func:`fit`)."""
+    camera = keypoint_result.camera
+    validate_mask(mask, mask_source, size=(camera.width, camera.height))
+    faces = model.faces.cpu().numpy()
+    kp_vertices, _, _ = _pose(model, keypoint_result.params(0), keypoints.layout, camera)
+    iou_before = binary_iou(body_mask(kp_vertices, faces, camera), mask)
+    if iou_before == 0.0:
+        raise ValueError(
+            f"{mask_source}: the mask does not overlap the body fitted to the keypoints at all "
+            "(wrong mask, or keypoints of another image?)"
+        )
+    sil = fit_silhouette(
+        model, keypoint_result.params(0), camera, mask, keypoints.as_array(), layout=keypoints.layout,
+        config=config, pose_prior=pose_prior, renderer=renderer, progress=progress,
+    )  # fmt: skip
+    params = sil.params()
+    vertices, joints, kp2d = _pose(model, params, keypoints.layout, camera)
+    iou_after = binary_iou(body_mask(vertices, faces, camera), mask)
+    warnings = list(sil.warnings)
+    if iou_after < iou_before - 0.02:
+        warnings.append(f"silhouette stage lowered the IoU ({iou_before:.3f} -> {iou_after:.3f}); kept its result")
+    metrics = {
+        "stages": ["keypoints", "silhouette"],
+        "timings_s": {**{f"keypoints.{k}": float(v) for k, v in keypoint_result.timings.items()},
+                      "keypoints": float(sum(keypoint_result.timings.values())), "silhouette": sil.seconds},
+        "reprojection_error_px_keypoint_stage": float(keypoint_result.reprojection_error[0]),
+        "reprojection_error_px": _median_reprojection(kp2d, keypoints),
+        "iou_keypoint_stage": iou_before,
+        "iou": iou_after,
+        "silhouette_steps": sil.steps,
+        "warnings": warnings,
+    }  # fmt: skip
+    return FitResult(camera, keypoints.layout, keypoint_result, sil, params, vertices, joints, kp2d, metrics)
+
+
+def fit(
+    keypoints: Union[KeypointSet, np.ndarray],
+    mask: Optional[np.ndarray] = None,
+    camera: Optional[Camera] = None,
+    *,
+    image_size: Optional[tuple] = None,
+    focal: Optional[float] = None,
+    model=None,
+    pose_prior=None,
+    keypoint_config: Optional[KeypointFitConfig] = None,
+    silhouette_config: Optional[SilhouetteFitConfig] = None,
+    progress: bool = True,
+) -> FitResult:
+    """Fit SMPL to one image: keypoints (a :class:`KeypointSet` or ``[K, 3]`` array), then,
+    if ``mask [H, W]`` (bool) is given, refine against the silhouette.
+
+    ``camera`` or ``image_size=(W, H)`` (+ optional ``focal``) define the camera, as for
+    :func:`silfit.fit_keypoints`. ``model`` defaults to the shipped open body model.
+    """
+    if model is None:
+        from .body import load_body_model
+
+        model = load_body_model()
+    sets = prepare_keypoints(keypoints)
+    if len(sets) != 1:
+        raise ValueError(f"fit() takes one person's keypoints, got {len(sets)}; use fit_keypoints for batches")
+    if mask is not None and camera is None and image_size is None:
+        image_size = (mask.shape[1], mask.shape[0])
+    fitter = KeypointFitter(model, sets[0].layout, keypoint_config, pose_prior)
+    kp_result = fitter.fit(sets, camera, image_size=image_size, focal=focal, progress=progress)
+    if mask is not None:
+        return refine(model, kp_result, sets[0], np.asarray(mask, dtype=bool), silhouette_config,
+                      fitter.pose_prior, progress=progress)  # fmt: skip
+    vertices, joints, kp2d = _pose(model, kp_result.params(0), sets[0].layout, kp_result.camera)
+    metrics = {
+        "stages": ["keypoints"],
+        "timings_s": {**{f"keypoints.{k}": float(v) for k, v in kp_result.timings.items()},
+                      "keypoints": float(sum(kp_result.timings.values()))},
+        "reprojection_error_px": _median_reprojection(kp2d, sets[0]),
+        "warnings": [],
+    }  # fmt: skip
+    return FitResult(kp_result.camera, sets[0].layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d, metrics)
+
+
+def save_fit(
+    result: FitResult,
+    out: Union[str, os.PathLike],
+    faces: np.ndarray,
+    keypoints: Optional[KeypointSet] = None,
+    image: Optional[np.ndarray] = None,
+    mask: Optional[np.ndarray] = None,
+    extra_metrics: Optional[dict] = None,
+    overwrite: bool = False,
+) -> Path:
+    """Write the output folder described in the module docstring, atomically."""
+    from . import figures
+    from .meshio import write_obj
+
+    out = Path(out)
+    if out.exists() and not overwrite and (not out.is_dir() or any(out.iterdir())):
+        raise FileExistsError(f"{out}: output folder exists and is not empty (use --overwrite)")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        result.final.save(tmp)
+        write_obj(tmp / "mesh.obj", result.vertices, faces)
+        kp_xy = None if keypoints is None else keypoints.xy
+        kp_conf = None if keypoints is None else keypoints.conf
+        figures.write_png(tmp / "overlay.png", figures.fit_overlay(
+            image, result.vertices, faces, result.camera, kp_xy, result.keypoints_2d, kp_conf))  # fmt: skip
+        stage_dir = tmp / "stages" / "keypoints"
+        result.keypoint.save(stage_dir)
+        if result.silhouette is not None:
+            kp_verts = result.keypoint.vertices[0]
+            figures.write_png(stage_dir / "overlay.png", figures.fit_overlay(
+                image, kp_verts, faces, result.camera, kp_xy, result.keypoint.keypoints_2d[0], kp_conf))  # fmt: skip
+            if mask is not None:
+                figures.write_png(tmp / "silhouette.png",
+                                  figures.silhouette_comparison(body_mask(result.vertices, faces, result.camera), mask))
+            figures.iou_curve(result.silhouette.history, tmp / "iou_curve.png")
+        metrics = dict(result.metrics)
+        metrics["camera"] = result.camera.to_dict()
+        metrics["layout"] = result.layout
+        metrics.update(extra_metrics or {})
+        (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out
+

@@ -1,0 +1,201 @@
+"""Pose priors over SMPL's 69 ``body_pose`` values (global orientation excluded).
+
+* :class:`MaxMixturePrior` reads SMPLify's Gaussian-mixture file (``gmm_08.pkl``: a
+  pickled dict with ``means [K, 69]``, ``covars [K, 69, 69]``, ``weights [K]``, written
+  by Python 2, so it is read with ``encoding='latin1'``) and scores a pose by the
+  negative log-likelihood of its best component, as SMPLify does.
+* :class:`LibraryMixturePrior` is the prior silfit ships and uses by default (no
+  download): a :class:`MaxMixturePrior` read from ``priors/data/pose_mixture.npz``,
+  fitted (by ``tools/build_pose_prior.py``, see :mod:`silfit.priors.library_prior`) to
+  perturbed, mirrored and blended samples of silfit's **hand-authored** pose library
+  (:data:`silfit.synth.poses.POSE_LIBRARY`, 38 poses), not to motion capture. See its
+  docstring for what that means for evaluation (the synthetic generator draws from the
+  same library).
+* :class:`LimitsPrior` (``load_pose_prior("limits")``, the default before the library
+  mixture) needs no data at all. No motion-capture data
+  can be shipped with the project, so it is **not learnt from data**: it is a
+  hand-set "split normal" per axis-angle component, with its mode at the rest pose
+  (zero) and a different spread on either side, chosen so that each component's
+  anatomical limit (:mod:`silfit.priors.limits`) lies at ``limit_sigmas`` standard
+  deviations. It therefore prefers small rotations, is much stiffer in directions
+  where a joint barely moves (knee/elbow hyperextension, sideways knee bending) and
+  knows nothing about correlations between joints (a mocap-trained GMM does).
+  The hard part of the limits is enforced separately by
+  :func:`silfit.priors.limits.limit_violation`.
+
+Both return energies ``[B]`` that are zero at their best pose and differentiable.
+"""
+from __future__ import annotations
+
+import math
+import os
+import pickle
+from typing import Union
+
+import numpy as np
+import torch
+from torch import nn
+
+from .limits import limit_bounds
+
+__all__ = [
+    "MaxMixturePrior", "LibraryMixturePrior", "LimitsPrior", "load_pose_prior", "default_pose_prior",
+    "DEFAULT_MIXTURE_PATH",
+]
+
+#: The shipped library mixture (built by ``tools/build_pose_prior.py``).
+DEFAULT_MIXTURE_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "pose_mixture.npz")
+
+
+def _check_pose(body_pose: torch.Tensor, dim: int) -> torch.Tensor:
+    if body_pose.ndim == 1:
+        body_pose = body_pose[None]
+    if body_pose.ndim != 2 or body_pose.shape[1] != dim:
+        raise ValueError(f"body_pose has shape {tuple(body_pose.shape)}, expected [B, {dim}]")
+    return body_pose
+
+
+class MaxMixturePrior(nn.Module):
+    """SMPLify's pose prior: ``min_k [0.5 (x - mu_k)^T S_k^-1 (x - mu_k) - log w_k + 0.5 log det S_k]``
+    minus the smallest constant over components (so the energy is 0 at the mean of the
+    most probable component and ``>= 0`` everywhere)."""
+
+    def __init__(self, means, covars, weights, source: str = "<arrays>", dtype=torch.float32):
+        super().__init__()
+        means = np.asarray(means, dtype=np.float64)
+        covars = np.asarray(covars, dtype=np.float64)
+        weights = np.asarray(weights, dtype=np.float64).reshape(-1)
+        if means.ndim != 2:
+            raise ValueError(f"{source}: field 'means' must be [K, D], got shape {means.shape}")
+        K, D = means.shape
+        if covars.shape != (K, D, D):
+            raise ValueError(f"{source}: field 'covars' has shape {covars.shape}, expected {(K, D, D)}")
+        if weights.shape != (K,):
+            raise ValueError(f"{source}: field 'weights' has shape {weights.shape}, expected ({K},)")
+        for name, arr in (("means", means), ("covars", covars), ("weights", weights)):
+            if not np.isfinite(arr).all():
+                raise ValueError(f"{source}: field '{name}' holds NaN or infinite values")
+        if (weights <= 0).any():
+            raise ValueError(f"{source}: field 'weights' must be positive")
+        try:
+            chol = np.linalg.cholesky(covars)
+        except np.linalg.LinAlgError:
+            raise ValueError(f"{source}: field 'covars' is not positive definite") from None
+        precisions = np.linalg.inv(covars)
+        precisions = 0.5 * (precisions + np.transpose(precisions, (0, 2, 1)))
+        logdet = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(-1)
+        const = -np.log(weights / weights.sum()) + 0.5 * logdet
+        self.source = source
+        self.num_components, self.dim = K, D
+        self.register_buffer("means", torch.as_tensor(means, dtype=dtype))
+        self.register_buffer("precisions", torch.as_tensor(precisions, dtype=dtype))
+        self.register_buffer("constants", torch.as_tensor(const - const.min(), dtype=dtype))
+
+    @classmethod
+    def from_pickle(cls, path: Union[str, os.PathLike], dtype=torch.float32) -> "MaxMixturePrior":
+        path = os.fspath(path)
+        try:
+            with open(path, "rb") as fh:
+                data = pickle.load(fh, encoding="latin1")
+        except FileNotFoundError:
+            raise FileNotFoundError(f"{path}: pose prior file not found") from None
+        except Exception as err:  # unpickling errors of all kinds
+            raise ValueError(f"{path}: not a readable pickle ({type(err).__name__}: {err})") from None
+        if not isinstance(data, dict):
+            raise ValueError(f"{path}: expected a dict with fields means, covars, weights")
+        missing = [k for k in ("means", "covars", "weights") if k not in data]
+        if missing:
+            raise ValueError(f"{path}: field(s) missing: {', '.join(missing)}")
+        return cls(data["means"], data["covars"], data["weights"], source=path, dtype=dtype)
+
+    def component_energies(self, body_pose: torch.Tensor) -> torch.Tensor:
+        """``[B, K]`` energy of each component."""
+        x = _check_pose(body_pose, self.dim)
+        d = x[:, None, :] - self.means.to(x.dtype)  # [B, K, D]
+        maha = torch.einsum("bki,kij,bkj->bk", d, self.precisions.to(x.dtype), d)
+        return 0.5 * maha + self.constants.to(x.dtype)
+
+    def forward(self, body_pose: torch.Tensor) -> torch.Tensor:
+        return self.component_energies(body_pose).min(dim=1).values
+
+
+class LibraryMixturePrior(MaxMixturePrior):
+    """silfit's default pose prior: SMPLify's best-component Gaussian-mixture NLL, with the
+    mixture fitted to samples around silfit's own hand-authored pose library.
+
+    **What it is and is not.** No motion-capture data could be used, so this is *not* a
+    learnt model of how people move: it encodes the 38 library poses (standing, walking,
+    running, sitting, squatting, kneeling, lunging, reaching, waving, pointing, throwing,
+    kicking, jumping, lying, ...), their mirror images, blends between them and noise
+    around them (about 10 degrees, more at shoulders/elbows/hips/knees), with a
+    covariance floor of ``reg_deg`` (6 degrees) per component and shrinkage towards the
+    pooled covariance so that poses outside the library cost more but are not forbidden.
+    Its main job is to break the 2D depth ambiguity the way people usually stand: arms
+    in front of the body rather than behind it, elbows and knees bent the natural way.
+
+    **Circularity.** The synthetic data generator (:mod:`silfit.synth`) poses its
+    subjects from the same library, so accuracy measured on synthetic data with this
+    prior is optimistic: it is partly "recognising" the library. Expect a smaller gain
+    on real photos, and worse fits for poses unlike any library pose (e.g. dance,
+    acrobatics, sports-specific poses) than a mocap-trained prior would give.
+    ``benchmarks/bench_fit.py --holdout`` measures the effect with a prior built from
+    half the library on subjects posed from the other half. Users with SMPLify's
+    ``gmm_08.pkl`` (CMU mocap) can pass it instead (``load_pose_prior(path)``).
+    """
+
+    @classmethod
+    def from_npz(cls, path: Union[str, os.PathLike, None] = None, dtype=torch.float32) -> "LibraryMixturePrior":
+        path = os.fspath(DEFAULT_MIXTURE_PATH if path is None else path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                data = {k: z[k] for k in z.files}
+        except FileNotFoundError:
+            raise FileNotFoundError(f"{path}: pose prior file not found") from None
+        except Exception as err:
+            raise ValueError(f"{path}: not a readable .npz file ({type(err).__name__}: {err})") from None
+        missing = [k for k in ("means", "covars", "weights") if k not in data]
+        if missing:
+            raise ValueError(f"{path}: field(s) missing: {', '.join(missing)}")
+        prior = cls(data["means"], data["covars"], data["weights"], source=path, dtype=dtype)
+        prior.settings = {k[len("setting_"):]: float(v) for k, v in data.items() if k.startswith("setting_")}
+        prior.pose_names = [str(n) for n in data.get("pose_names", [])]
+        return prior
+
+
+class LimitsPrior(nn.Module):
+    """The data-free pose prior (the default before :class:`LibraryMixturePrior`; see the module docstring): energy
+    ``0.5 * sum_i (x_i / s_i(x_i))^2`` with ``s_i = |limit_i| / limit_sigmas`` on the side
+    of zero ``x_i`` lies on (limits closer than ``min_sigma * limit_sigmas`` to zero are
+    treated as that far, so no direction is infinitely stiff)."""
+
+    def __init__(self, limit_sigmas: float = 2.0, min_sigma: float = 0.05, dtype=torch.float32):
+        super().__init__()
+        lo, hi = limit_bounds(torch.float64)
+        self.source = "silfit default (joint-limit split normal)"
+        self.dim = 69
+        self.register_buffer("sigma_neg", (lo.abs() / limit_sigmas).clamp(min=min_sigma).to(dtype))
+        self.register_buffer("sigma_pos", (hi.abs() / limit_sigmas).clamp(min=min_sigma).to(dtype))
+
+    def forward(self, body_pose: torch.Tensor) -> torch.Tensor:
+        x = _check_pose(body_pose, self.dim)
+        s = torch.where(x < 0, self.sigma_neg.to(x.dtype), self.sigma_pos.to(x.dtype))
+        return 0.5 * ((x / s) ** 2).sum(-1)
+
+
+def default_pose_prior(dtype=torch.float32) -> LibraryMixturePrior:
+    """The shipped :class:`LibraryMixturePrior` (``priors/data/pose_mixture.npz``)."""
+    return LibraryMixturePrior.from_npz(None, dtype=dtype)
+
+
+def load_pose_prior(path: Union[str, os.PathLike, None] = None, dtype=torch.float32) -> nn.Module:
+    """``None``, ``"default"`` or ``"library"``: the shipped :class:`LibraryMixturePrior`;
+    ``"limits"``: the data-free :class:`LimitsPrior`; a path ending in ``.npz``: a mixture
+    in the shipped file's layout (``means``, ``covars``, ``weights``; e.g. one rebuilt by
+    ``tools/build_pose_prior.py``); any other path: a ``gmm_08.pkl``-style pickle."""
+    if path is None or (isinstance(path, str) and path in ("default", "library")):
+        return default_pose_prior(dtype)
+    if isinstance(path, str) and path == "limits":
+        return LimitsPrior(dtype=dtype)
+    if os.fspath(path).endswith(".npz"):
+        return LibraryMixturePrior.from_npz(path, dtype=dtype)
+    return MaxMixturePrior.from_pickle(path, dtype=dtype)

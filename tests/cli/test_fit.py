@@ -1,0 +1,83 @@
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fitting"))
+from silfit_toy_body import toy_model, write_toy_npz  # noqa: E402
+
+from silfit.camera import Camera, project_points, save_camera  # noqa: E402
+from silfit.cli import main  # noqa: E402
+from silfit.keypoints import model_keypoints, write_openpose_json  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    import torch
+
+    d = tmp_path_factory.mktemp("fit_in")
+    model_path = write_toy_npz(d / "toy.npz")
+    m = toy_model()
+    out = m(global_orient=torch.tensor([[np.pi, 0, 0]]), transl=torch.tensor([[0.0, 0.2, 3.0]]))
+    cam = Camera.from_image_size(320, 240)
+    xy = project_points(model_keypoints(m, out, "body25"), cam)[0].numpy()
+    write_openpose_json(d / "kp.json", np.concatenate([xy, np.ones((25, 1))], 1))
+    save_camera(cam, d / "camera.json")
+    return d, model_path
+
+
+FAST = ["--quiet"]
+
+
+def test_fit_writes_all_outputs(inputs, tmp_path):
+    d, model = inputs
+    out = tmp_path / "fit"
+    rc = main(["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
+               "--no-silhouette", "--out", str(out)] + FAST)  # fmt: skip
+    assert rc == 0
+    for f in ("params.npz", "params.json", "mesh.obj", "overlay.png", "metrics.json"):
+        assert (out / f).exists(), f
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["reprojection_error_median_px"] < 2.0
+    lines = (out / "mesh.obj").read_text().splitlines()
+    assert sum(ln.startswith("v ") for ln in lines) == toy_model().num_vertices
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".fit.")]
+
+
+def test_fit_with_image_size_and_focal(inputs, tmp_path):
+    d, model = inputs
+    rc = main(["fit", "--keypoints", str(d / "kp.json"), "--image-size", "320x240", "--focal", "320", "--model",
+               str(model), "--no-silhouette", "--out", str(tmp_path / "o")] + FAST)  # fmt: skip
+    assert rc == 0
+
+
+@pytest.mark.parametrize("case", ["camera_field", "no_camera", "mask", "bad_keypoints"])
+def test_fit_errors_are_one_line_and_leave_nothing(inputs, tmp_path, capsys, case):
+    d, model = inputs
+    kp, cam = d / "kp.json", d / "camera.json"
+    extra = []
+    if case == "camera_field":
+        bad = tmp_path / "cam.json"
+        bad.write_text(json.dumps({"fx": 1.0, "fy": 1.0, "cx": 0.0, "cy": 0.0, "width": 320}))
+        cam, expect = bad, "height"
+    elif case == "no_camera":
+        cam, expect = None, "no camera"
+    elif case == "mask":
+        (tmp_path / "m.png").write_bytes(b"x")
+        extra, expect = ["--mask", str(tmp_path / "m.png")], "silhouette"
+    else:
+        kp = tmp_path / "kp.json"
+        kp.write_text(json.dumps({"people": [{"pose_keypoints_2d": [1.0] * 30}]}))
+        expect = "10 keypoints"
+    args = ["fit", "--keypoints", str(kp), "--model", str(model), "--out", str(tmp_path / "out")] + FAST + extra
+    if cam is not None:
+        args += ["--camera", str(cam)]
+    if case != "mask":
+        args.append("--no-silhouette")
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert expect in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out.")]

@@ -1,0 +1,137 @@
+"""``silfit render``: PNG outputs, sizes, centring, errors without partial files."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from silfit.cli import main
+
+
+def _png(path):
+    with Image.open(path) as im:
+        return np.asarray(im)
+
+
+def _centroid(mask):
+    ys, xs = np.nonzero(mask)
+    return np.array([xs.mean(), ys.mean()])
+
+
+@pytest.fixture(scope="module")
+def params_json(tmp_path_factory):
+    path = tmp_path_factory.mktemp("fit") / "params.json"
+    path.write_text(json.dumps({"global_orient": [math.pi, 0.0, 0.0], "transl": [0.0, 0.2, 3.0], "betas": [0.5] + [0.0] * 9}))
+    return path
+
+
+@pytest.fixture(scope="module")
+def box_obj(tmp_path_factory):
+    path = tmp_path_factory.mktemp("mesh") / "box.obj"
+    m = trimesh.creation.box(extents=(0.5, 1.6, 0.3))
+    m.apply_translation([0.2, -0.1, 3.0])  # a person-sized box in front of the camera, off-centre
+    m.export(path)
+    return path
+
+
+def test_views_and_mask_from_params(params_json, tmp_path):
+    out = tmp_path / "out"
+    assert main(["render", str(params_json), "--views", "front,side,back", "--mask", "--size", "96x128", "--out", str(out)]) == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["mask.png", "view_back.png", "view_front.png", "view_side.png"]
+    for name in names:
+        img = _png(out / name)
+        assert img.shape[:2] == (128, 96) and (out / name).stat().st_size > 100
+    front = (_png(out / "view_front.png") < 250).any(axis=2)
+    assert front.sum() > 500 and np.abs(_centroid(front) - [47.5, 63.5]).max() < 8
+    mask = _png(out / "mask.png") > 127
+    assert np.abs(_centroid(mask) - [47.5, 63.5]).max() < 8
+
+
+def test_mesh_turntable_camera_overlay(box_obj, tmp_path):
+    cam = {"fx": 60.0, "fy": 60.0, "cx": 39.5, "cy": 29.5, "width": 80, "height": 60}
+    (tmp_path / "camera.json").write_text(json.dumps(cam))
+    Image.fromarray(np.full((60, 80, 3), 30, dtype=np.uint8)).save(tmp_path / "image.png")
+    out = tmp_path / "out"
+    rc = main(["render", str(box_obj), "--turntable", "3", "--size", "64", "--camera", str(tmp_path / "camera.json"),
+               "--overlay", str(tmp_path / "image.png"), "--mask", "--out", str(out)])  # fmt: skip
+    assert rc == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["camera.png", "mask.png", "overlay.png", "view_turn000.png", "view_turn001.png", "view_turn002.png"]
+    assert _png(out / "view_turn000.png").shape == (64, 64, 3)
+    front = (_png(out / "view_turn000.png") < 250).any(axis=2)
+    assert np.abs(_centroid(front) - [31.5, 31.5]).max() < 3  # framed: the body in the centre
+    mask = _png(out / "mask.png") > 127
+    assert mask.shape == (60, 80)
+    # under the given camera the box sits where its centre projects: u = 60*0.2/3 + 39.5
+    assert np.abs(_centroid(mask) - [43.5, 27.5]).max() < 1.5
+    overlay = _png(out / "overlay.png")
+    assert overlay.shape == (60, 80, 3) and (overlay[~mask] == 30).all() and (overlay[mask] > 30).all()
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--views", "front,top"], "unknown view"),
+        (["--turntable", "0"], "turntable"),
+        (["--size", "0x10"], "--size"),
+        (["--camera", "CAMERA_BAD_FOCAL"], "focal"),
+        (["--camera", "CAMERA_ZERO_WIDTH"], "width/height"),
+        (["--overlay", "missing.png"], "not found"),
+    ],
+)
+def test_bad_options_leave_no_png(params_json, tmp_path, capsys, args, message):
+    bad_focal = {"fx": 0.0, "fy": 50.0, "cx": 10.0, "cy": 10.0, "width": 20, "height": 20}
+    zero_w = {"fx": 50.0, "fy": 50.0, "cx": 10.0, "cy": 10.0, "width": 0, "height": 20}
+    (tmp_path / "bad_focal.json").write_text(json.dumps(bad_focal))
+    (tmp_path / "zero_w.json").write_text(json.dumps(zero_w))
+    args = [a.replace("CAMERA_BAD_FOCAL", str(tmp_path / "bad_focal.json")).replace("CAMERA_ZERO_WIDTH", str(tmp_path / "zero_w.json")) for a in args]
+    args = [str(tmp_path / a) if a == "missing.png" else a for a in args]
+    out = tmp_path / "out"
+    assert main(["render", str(params_json), "--out", str(out), "--mask", *args]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists() or not any(out.iterdir())
+
+
+@pytest.mark.parametrize("kind", ["nan_params", "empty_mesh", "nan_mesh", "unknown_suffix"])
+def test_bad_inputs_leave_no_png(tmp_path, capsys, kind):
+    if kind == "nan_params":
+        path = tmp_path / "params.json"
+        path.write_text(json.dumps({"transl": [0.0, float("nan"), 3.0]}).replace("NaN", "NaN"))
+        message = "NaN"
+    elif kind == "empty_mesh":
+        path = tmp_path / "empty.obj"
+        path.write_text("# nothing\n")
+        message = "empty mesh"
+    elif kind == "nan_mesh":
+        path = tmp_path / "nan.obj"
+        path.write_text("v 0 0 3\nv 1 0 3\nv nan 1 3\nf 1 2 3\n")
+        message = "NaN"
+    else:
+        path = tmp_path / "params.txt"
+        path.write_text("1 2 3")
+        message = "unsupported input"
+    out = tmp_path / "out"
+    assert main(["render", str(path), "--out", str(out)]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_write_failure_leaves_no_partial_png(params_json, tmp_path, monkeypatch):
+    """An error while encoding removes the temporary file and leaves no PNG."""
+    from silfit.cli import render as render_cli
+
+    def boom(self, fh, *a, **k):
+        fh.write(b"\x89PNG partial")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(Image.Image, "save", boom)
+    out = tmp_path / "out"
+    out.mkdir()
+    with pytest.raises(OSError, match="disk full"):
+        render_cli.write_png(out / "view_front.png", np.zeros((4, 4, 3), dtype=np.uint8))
+    assert list(out.iterdir()) == []
