@@ -220,40 +220,48 @@ def score_fit(model, subject, fit: FitParams, iou: bool = True) -> Dict[str, flo
 
 # ----------------------------------------------------------------------------- the fitter
 def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str], model, progress: bool = False) -> Dict[str, str]:
-    """Run ``silfit.fitting`` over loaded subjects, writing ``fits_root/<subject>/<method>/``.
-    Returns ``{method: status}``; raises :class:`FitterUnavailable` when nothing can run."""
-    try:
-        import silfit.fitting as fitting
-    except ImportError as err:
-        raise FitterUnavailable(f"the fitter (silfit.fitting) is not available: {err}") from None
+    """Run the fitter over loaded subjects, writing ``fits_root/<subject>/<method>/``.
+
+    ``keypoints``: the keypoint stage, batched over all subjects. ``silhouette``: the
+    silhouette stage per subject, starting from the keypoint stage's result (run once and
+    shared when both methods are asked for). Returns ``{method: status}``; raises
+    :class:`FitterUnavailable` when nothing can run."""
+    from ..fitting import fit_keypoints
+    from ..pipeline import refine, save_fit
+
+    unknown = [m for m in methods if m not in ("keypoints", "silhouette")]
+    if unknown:
+        raise FitterUnavailable(f"unknown method(s) {', '.join(unknown)} (expected keypoints, silhouette)")
     status = {}
-    for method in methods:
-        if method == "keypoints":
-            fit_fn = getattr(fitting, "fit_keypoints", None)
-            if fit_fn is None:
-                status[method] = "unavailable: silfit.fitting has no fit_keypoints"
+    t0 = time.perf_counter()
+    result = fit_keypoints([s.keypoints for s in subjects], [s.camera for s in subjects], model=model, progress=progress)
+    kp_elapsed = time.perf_counter() - t0
+    kp_timings = {k: float(v) / len(subjects) for k, v in result.timings.items()}
+    kp_timings.setdefault("total", kp_elapsed / len(subjects))
+    if "keypoints" in methods:
+        for i, s in enumerate(subjects):
+            d = Path(fits_root) / s.name / "keypoints"
+            result[i].save(d)
+            (d / "metrics.json").write_text(json.dumps({"timings": kp_timings, "batched_over": len(subjects)}, indent=2))
+        status["keypoints"] = f"ran on {len(subjects)} subjects in {kp_elapsed:.1f} s (batched; per-subject times are batch averages)"
+    if "silhouette" in methods:
+        faces = model.faces.cpu().numpy()
+        ran, failed = 0, []
+        for i, s in enumerate(subjects):
+            if s.mask is None:
+                failed.append(f"{s.name}: no mask")
                 continue
-            t0 = time.perf_counter()
-            result = fit_fn([s.keypoints for s in subjects], [s.camera for s in subjects], model=model, progress=progress)
-            elapsed = time.perf_counter() - t0
-            for i, s in enumerate(subjects):
-                d = Path(fits_root) / s.name / method
-                result[i].save(d)
-                timings = {k: float(v) / len(subjects) for k, v in result.timings.items()}
-                timings.setdefault("total", elapsed / len(subjects))
-                (d / "metrics.json").write_text(json.dumps({"timings": timings, "batched_over": len(subjects)}, indent=2))
-            status[method] = f"ran on {len(subjects)} subjects in {elapsed:.1f} s (batched; per-subject times are batch averages)"
-        else:
-            fit_fn = getattr(fitting, "fit_subject", None)
-            if fit_fn is None:
-                status[method] = f"unavailable: silfit.fitting has no fit_subject(subject_dir, out_dir, method='{method}')"
+            try:
+                fitted = refine(model, result[i], s.keypoints, s.mask, progress=progress, mask_source=str(s.file("mask")))
+            except ValueError as err:
+                failed.append(f"{s.name}: {err}")
                 continue
-            for s in subjects:
-                d = Path(fits_root) / s.name / method
-                fit_fn(s.path, d, method=method)
-            status[method] = f"ran on {len(subjects)} subjects"
-    if not any(v.startswith("ran") for v in status.values()):
-        raise FitterUnavailable("; ".join(f"{k}: {v}" for k, v in status.items()) or "no method requested")
+            timings = {"keypoints": kp_timings["total"], "silhouette": fitted.silhouette.seconds}
+            timings["total"] = sum(timings.values())
+            save_fit(fitted, Path(fits_root) / s.name / "silhouette", faces, s.keypoints, s.image, s.mask,
+                     {"timings": timings}, overwrite=True)  # fmt: skip
+            ran += 1
+        status["silhouette"] = f"ran on {ran} subjects" + (f"; failed: {'; '.join(failed)}" if failed else "")
     return status
 
 

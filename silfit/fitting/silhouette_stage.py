@@ -39,6 +39,7 @@ from ..priors import angle_prior, limit_violation, load_pose_prior, shape_prior
 from ..silhouette.losses import MaskTarget, silhouette_energy, soft_iou
 from .body import KeypointBody
 from .losses import gmof
+from .threads import torch_threads
 
 __all__ = ["SilhouetteFitConfig", "SilhouetteFitResult", "SilhouetteWindow", "fit_silhouette", "window_target"]
 
@@ -65,11 +66,13 @@ class SilhouetteFitConfig:
     w_angle: float = 0.001
     w_shape: float = 0.005
     w_stay: float = 0.05
+    warmup: int = 5  # steps of linear learning-rate warm-up per level
     plateau_window: int = 12  # steps compared for the plateau test
     plateau_rtol: float = 0.003  # relative energy improvement below which a level stops
     iou_collapse: float = 0.15  # IoU drop (vs best) that counts as divergence
     optimise: tuple = PARAMS
     seed: Optional[int] = 0  # base seed of the renderer's sampling (None: fresh seeds)
+    threads: Optional[int] = 1  # torch threads during the stage (see silfit.fitting.threads)
 
 
 @dataclass
@@ -142,6 +145,13 @@ def window_target(mask: np.ndarray, window: SilhouetteWindow, supersample: int =
     return MaskTarget.from_mask(binary), coverage
 
 
+def _learning_rate_factor(step: int, steps: int, warmup: int) -> float:
+    """Linear warm-up over ``warmup`` steps (Adam's first steps are full-size sign steps),
+    then a cosine decay to 10 % at the end of the level."""
+    ramp = min(1.0, (step + 1) / max(warmup, 1))
+    return ramp * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * step / max(steps, 1))))
+
+
 class _Plateau:
     """Stops a level when the running mean energy stops improving by ``rtol``."""
 
@@ -175,12 +185,18 @@ def fit_silhouette(
 
     ``init``: SMPL parameters (arrays ``[1, n]`` or ``[n]``) from the keypoint stage,
     in ``camera``'s frame. ``keypoints [K, 3]`` (x, y, confidence in image pixels) keep
-    the keypoint term on; ``None`` fits the silhouette and priors alone.
+    the keypoint term on; ``None`` fits the silhouette and priors alone. ``callback(step,
+    info)`` is called every step with the level, energy and IoU.
     """
+    cfg = config or SilhouetteFitConfig()
+    with torch_threads(cfg.threads):
+        return _fit_silhouette(model, init, camera, mask, keypoints, layout, cfg, pose_prior, renderer, progress, callback)
+
+
+def _fit_silhouette(model, init, camera, mask, keypoints, layout, cfg, pose_prior, renderer, progress, callback):
     from renderers.silhouette import SilhouetteRenderer
     from tqdm.auto import tqdm
 
-    cfg = config or SilhouetteFitConfig()
     mask = np.asarray(mask, dtype=bool)
     if mask.shape != (camera.height, camera.width):
         raise ValueError(f"mask is {mask.shape[1]}x{mask.shape[0]} pixels, the camera {camera.width}x{camera.height}")
@@ -216,8 +232,9 @@ def fit_silhouette(
         plateau = _Plateau(cfg.plateau_window, cfg.plateau_rtol)
         best["energy"] = math.inf  # energies of different resolutions are not comparable
         for i in range(int(iters)):
-            for g, lr0 in zip(optimiser.param_groups, base_lrs):  # cosine decay within the level
-                g["lr"] = lr0 * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * i / max(int(iters), 1))))
+            schedule = _learning_rate_factor(i, int(iters), cfg.warmup)
+            for g, lr0 in zip(optimiser.param_groups, base_lrs):
+                g["lr"] = lr0 * schedule
             out = model(**params)
             seed = None if cfg.seed is None else int(cfg.seed) * 100003 + step
             sil = renderer(out.vertices[0], window.camera, seed=seed)

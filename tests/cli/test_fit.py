@@ -40,7 +40,7 @@ def test_fit_writes_all_outputs(inputs, tmp_path):
     for f in ("params.npz", "params.json", "mesh.obj", "overlay.png", "metrics.json"):
         assert (out / f).exists(), f
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["reprojection_error_median_px"] < 2.0
+    assert metrics["reprojection_error_px"] < 2.0
     lines = (out / "mesh.obj").read_text().splitlines()
     assert sum(ln.startswith("v ") for ln in lines) == toy_model().num_vertices
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".fit.")]
@@ -66,7 +66,7 @@ def test_fit_errors_are_one_line_and_leave_nothing(inputs, tmp_path, capsys, cas
         cam, expect = None, "no camera"
     elif case == "mask":
         (tmp_path / "m.png").write_bytes(b"x")
-        extra, expect = ["--mask", str(tmp_path / "m.png")], "silhouette"
+        extra, expect = ["--mask", str(tmp_path / "m.png")], "m.png"
     else:
         kp = tmp_path / "kp.json"
         kp.write_text(json.dumps({"people": [{"pose_keypoints_2d": [1.0] * 30}]}))
@@ -81,3 +81,38 @@ def test_fit_errors_are_one_line_and_leave_nothing(inputs, tmp_path, capsys, cas
     assert expect in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out.")]
+
+
+SUBJECT = Path(__file__).resolve().parents[2] / "data" / "synthetic" / "subject_000"
+SMALL_SILHOUETTE = ["--silhouette-resolutions", "64", "--silhouette-iterations", "6"]
+
+
+def test_fit_with_mask_writes_the_silhouette_outputs(tmp_path):
+    out = tmp_path / "fit"
+    rc = main(["fit", "--keypoints", str(SUBJECT / "keypoints.json"), "--camera", str(SUBJECT / "camera.json"),
+               "--mask", str(SUBJECT / "mask.png"), "--image", str(SUBJECT / "image.png"), "--out", str(out)]
+              + FAST + SMALL_SILHOUETTE)  # fmt: skip
+    assert rc == 0
+    for f in ("params.npz", "params.json", "mesh.obj", "overlay.png", "silhouette.png", "iou_curve.png",
+              "metrics.json", "stages/keypoints/params.npz", "stages/keypoints/overlay.png"):  # fmt: skip
+        assert (out / f).is_file() and (out / f).stat().st_size > 0, f
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["stages"] == ["keypoints", "silhouette"]
+    assert 0.5 < metrics["iou_keypoint_stage"] <= 1 and 0.5 < metrics["iou"] <= 1
+    assert set(metrics["timings_s"]) >= {"keypoints", "silhouette"}
+
+
+@pytest.mark.parametrize("problem", ["size", "empty", "colour"])
+def test_malformed_masks_are_clear_errors(tmp_path, capsys, problem):
+    import cv2
+
+    mask = cv2.imread(str(SUBJECT / "mask.png"), cv2.IMREAD_UNCHANGED)
+    bad = {"size": mask[:100], "empty": np.zeros_like(mask),
+           "colour": np.dstack([mask, np.zeros_like(mask), mask // 3])}[problem]  # fmt: skip
+    cv2.imwrite(str(tmp_path / "bad_mask.png"), bad)
+    rc = main(["fit", "--keypoints", str(SUBJECT / "keypoints.json"), "--camera", str(SUBJECT / "camera.json"),
+               "--mask", str(tmp_path / "bad_mask.png"), "--out", str(tmp_path / "out")] + FAST)  # fmt: skip
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "bad_mask.png" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()

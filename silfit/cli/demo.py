@@ -1,0 +1,29 @@
+"""``silfit demo``: fit a shipped synthetic subject end to end (see :mod:`silfit.demo`)."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "demo", help="fit a shipped synthetic subject (keypoints, then silhouette) and write pictures and a table"
+    )
+    p.add_argument("--out", default="silfit-demo", help="output folder (default: ./silfit-demo)")
+    p.add_argument("--subject", help="a subject folder in the synthetic format (default: the shipped subject_000)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..demo import run_demo
+
+    t0 = time.perf_counter()
+    out = Path(args.out)
+    report = run_demo(out, Path(args.subject) if args.subject else None, progress=not args.quiet)
+    print(f"silfit demo: {report['subject']}\n")
+    print(report["table"])
+    for warning in report["warnings"]:
+        print(f"warning: {warning}")
+    print(f"\npictures and report in {out}/ (open summary.png first); took {time.perf_counter() - t0:.0f} s")
+    return 0

@@ -1,0 +1,164 @@
+"""The demo: fit a shipped synthetic subject end to end and show what the silhouette adds.
+
+Writes into the output folder::
+
+    01_input.png               the image with its (noisy) keypoints
+    02_mask.png                the person mask given to the fit
+    03_keypoint_fit.png        keypoint-stage body over the image
+    04_silhouette_fit.png      keypoint + silhouette body over the image
+    05_silhouette_match.png    silhouette vs mask before | after (white both, red body only, blue mask only)
+    06_iou_curve.png           IoU and energy per silhouette step
+    07_vertex_error.png        per-vertex error against the ground truth, both methods, front and side
+    summary.png                all of the above on one sheet
+    report.md, report.json     the keypoint-only vs keypoint+silhouette table against ground truth
+    fit/                       the full fit output (as ``silfit fit`` writes it)
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+__all__ = ["default_subject", "run_demo"]
+
+#: The shipped synthetic set, beside the package in a source checkout.
+SHIPPED_SET = Path(__file__).resolve().parents[1] / "data" / "synthetic"
+
+ROWS = (
+    ("mpjpe", "MPJPE (mm)"),
+    ("pa_mpjpe", "PA-MPJPE (mm)"),
+    ("pve", "PVE (mm)"),
+    ("shape_pve", "shape-only PVE (mm)"),
+    ("transl_err", "translation error (mm)"),
+    ("reproj_px", "2D reprojection error (px)"),
+    ("iou", "silhouette IoU"),
+    ("time_s", "time (s)"),
+)
+
+
+def default_subject(out: Path, name: str = "subject_000") -> Path:
+    """The shipped subject ``name``; without a source checkout (a pip install), the same
+    kind of subject is generated into ``out`` with a fixed seed."""
+    shipped = SHIPPED_SET / name
+    if (shipped / "keypoints.json").is_file():
+        return shipped
+    from .body import load_body_model
+    from .synth import SynthConfig, generate_dataset
+
+    target = out / "generated_subject"
+    generate_dataset(target, 1, SynthConfig(seed=2024, size=256, noise_px=0.0), load_body_model(), progress=False)
+    return target / "subject_000"
+
+
+def _score(model, subject, params: dict, camera, seconds: float) -> dict:
+    from .eval.evaluate import FitParams, score_fit
+
+    fit = FitParams(**{k: np.asarray(v).reshape(-1) for k, v in params.items()}, camera=camera)
+    scores = score_fit(model, subject, fit, iou=True)
+    scores["time_s"] = seconds
+    return scores
+
+
+def _table(before: dict, after: dict) -> str:
+    lines = ["| metric | keypoints only | keypoints + silhouette | change |", "|---|---:|---:|---:|"]
+    for key, label in ROWS:
+        if key in before and key in after:
+            a, b = before[key], after[key]
+            change = f"{100 * (b - a) / a:+.0f} %" if a else "-"
+            fmt = "{:.3f}" if key == "iou" else "{:.2f}" if key in ("reproj_px", "time_s") else "{:.1f}"
+            lines.append(f"| {label} | {fmt.format(a)} | {fmt.format(b)} | {change} |")
+    return "\n".join(lines)
+
+
+def _person_box(mask: np.ndarray, meshes, faces, camera, margin: float = 0.12) -> tuple:
+    """``(x0, y0, x1, y1)``: a square around the mask and the fitted bodies, for close-ups."""
+    from .pipeline import body_mask
+
+    covered = mask.copy()
+    for v in meshes:
+        covered |= body_mask(v, faces, camera)
+    ys, xs = np.nonzero(covered)
+    cx, cy = (xs.min() + xs.max()) / 2, (ys.min() + ys.max()) / 2
+    half = (1 + 2 * margin) * max(xs.max() - xs.min(), ys.max() - ys.min()) / 2
+    H, W = mask.shape
+    x0, y0 = int(max(0, cx - half)), int(max(0, cy - half))
+    return x0, y0, int(min(W, cx + half + 1)), int(min(H, cy + half + 1))
+
+
+def _crop(image: np.ndarray, box: tuple) -> np.ndarray:
+    x0, y0, x1, y1 = box
+    return image[y0:y1, x0:x1]
+
+
+def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = True, silhouette_config=None) -> dict:
+    """Run the demo into ``out`` (see the module docstring); returns the report."""
+    from . import figures
+    from .body import load_body_model
+    from .dataset import load_subject, read_image
+    from .fitting import KeypointFitter, prepare_keypoints
+    from .pipeline import body_mask, refine, save_fit
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    subject = load_subject(subject_dir or default_subject(out), require=("keypoints", "camera", "mask", "gt"))
+    model = load_body_model()
+    faces = model.faces.cpu().numpy()
+    cam, kps = subject.camera, subject.keypoints
+
+    t0 = time.perf_counter()
+    fitter = KeypointFitter(model, kps.layout)
+    kp_result = fitter.fit(prepare_keypoints(kps), cam, progress=progress)
+    kp_seconds = time.perf_counter() - t0
+    result = refine(model, kp_result, kps, subject.mask, silhouette_config, fitter.pose_prior, progress=progress,
+                    mask_source=str(subject.file("mask")))  # fmt: skip
+    save_fit(result, out / "fit", faces, kps, subject.image, subject.mask, overwrite=True)
+
+    before = _score(model, subject, kp_result.params(0), cam, kp_seconds)
+    after = _score(model, subject, result.params, cam, kp_seconds + result.silhouette.seconds)
+    table = _table(before, after)
+
+    kp_vertices = kp_result.vertices[0]
+    box = _person_box(subject.mask, [kp_vertices, result.vertices], faces, cam)
+    close = lambda image: _crop(image, box)  # noqa: E731  (close-ups around the person)
+    match = lambda v: close(figures.silhouette_comparison(body_mask(v, faces, cam), subject.mask))  # noqa: E731
+    pictures = {
+        "01_input.png": close(figures.draw_keypoints(subject.image, kps.xy, figures.DETECTED, kps.conf)),
+        "02_mask.png": close(np.repeat(subject.mask[..., None].astype(np.uint8) * 255, 3, axis=2)),
+        "03_keypoint_fit.png": close(figures.fit_overlay(subject.image, kp_vertices, faces, cam, kps.xy, None, kps.conf)),
+        "04_silhouette_fit.png": close(figures.fit_overlay(subject.image, result.vertices, faces, cam, kps.xy, None,
+                                                           kps.conf)),  # fmt: skip
+        "05_silhouette_match.png": np.hstack([match(kp_vertices), np.full((box[3] - box[1], 4, 3), 128, np.uint8),
+                                              match(result.vertices)]),  # fmt: skip
+    }
+    for name, image in pictures.items():
+        figures.write_png(out / name, image)
+    figures.iou_curve(result.silhouette.history, out / "06_iou_curve.png")
+    gt_v = subject.gt.vertices
+    pelvis = lambda v, j: v - j[0]  # noqa: E731  (PVE is pelvis-aligned)
+    gt_j = subject.gt.joints
+    errors = [
+        1000 * np.linalg.norm(pelvis(kp_vertices, kp_result.joints[0]) - pelvis(gt_v, gt_j), axis=1),
+        1000 * np.linalg.norm(pelvis(result.vertices, result.joints) - pelvis(gt_v, gt_j), axis=1),
+    ]
+    figures.error_heatmap(gt_v, faces, errors, ["keypoints only", "keypoints + silhouette"], out / "07_vertex_error.png")
+
+    sheet = [read_image(out / n) for n in sorted(pictures)] + [
+        read_image(out / "06_iou_curve.png"), read_image(out / "07_vertex_error.png")]  # fmt: skip
+    titles = ["input + keypoints", "mask", "keypoint fit", "keypoint + silhouette fit",
+              "silhouette before | after", "silhouette stage", "per-vertex error (mm)"]  # fmt: skip
+    figures.contact_sheet(sheet, titles, out / "summary.png", columns=4)
+
+    report = {
+        "subject": str(subject.path),
+        "keypoints_only": before,
+        "keypoints_plus_silhouette": after,
+        "silhouette_steps": result.silhouette.steps,
+        "warnings": result.metrics.get("warnings", []),
+    }
+    (out / "report.json").write_text(json.dumps(report, indent=2))
+    (out / "report.md").write_text(f"# silfit demo: {subject.path.name}\n\n{table}\n")
+    report["table"] = table
+    return report
