@@ -136,7 +136,7 @@ def window_target(mask: np.ndarray, window: SilhouetteWindow, supersample: int =
     M = np.array([[1.0 / s, 0.0, window.x0 + 0.5 / s - 0.5], [0.0, 1.0 / s, window.y0 + 0.5 / s - 0.5]])
     fine = cv2.warpAffine(
         mask.astype(np.float32), M, (cam.width * ss, cam.height * ss),
-        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0,
+        flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0,
     )  # fmt: skip
     coverage = cv2.resize(fine, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
     binary = coverage > 0.5

@@ -1,0 +1,79 @@
+"""The silhouette stage on the open body model with the real Mitsuba renderer."""
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from renderers.offscreen import render_mask
+from silfit.camera import Camera, project_points
+from silfit.fitting.silhouette_stage import (
+    SilhouetteFitConfig,
+    choose_window,
+    fit_silhouette,
+    window_target,
+)
+from silfit.silhouette import binary_iou
+
+CAMERA = Camera.from_image_size(160, 160)
+POSE = {
+    "betas": np.zeros((1, 10), np.float32),
+    "body_pose": np.zeros((1, 69), np.float32),
+    "global_orient": np.array([[math.pi, 0.0, 0.0]], np.float32),
+    "transl": np.array([[0.0, 0.15, 3.0]], np.float32),
+}
+FAST = SilhouetteFitConfig(resolutions=(64,), iterations=(30,), optimise=("transl",), w_keypoints=0.0, warmup=2,
+                           plateau_window=100, lr={"betas": 0.0, "body_pose": 0.0, "global_orient": 0.0, "transl": 0.01})
+
+
+def vertices(model, params):
+    t = {k: torch.as_tensor(v) for k, v in params.items()}
+    with torch.no_grad():
+        return model(**t).vertices[0].numpy()
+
+
+@pytest.fixture(scope="module")
+def target_mask(open_model):
+    shifted = dict(POSE, transl=POSE["transl"] + np.array([[0.08, 0.0, 0.0]], np.float32))
+    return render_mask(vertices(open_model, shifted), open_model.faces.numpy(), CAMERA)
+
+
+def test_window_target_matches_the_mask_at_scale_one():
+    mask = np.zeros((40, 60), bool)
+    mask[10:30, 20:35] = True
+    from silfit.fitting.silhouette_stage import SilhouetteWindow
+
+    window = SilhouetteWindow(0.0, 0.0, 1.0, Camera(fx=50, fy=50, cx=29.5, cy=19.5, width=60, height=40))
+    target, coverage = window_target(mask, window)
+    assert np.array_equal(target.mask.numpy() > 0.5, mask)
+    assert np.allclose(coverage, mask, atol=1e-6)
+
+
+def test_window_covers_mask_and_body(open_model, target_mask):
+    uv = project_points(torch.as_tensor(vertices(open_model, POSE)), CAMERA).numpy()
+    window = choose_window(target_mask, uv, CAMERA, 64, margin=0.1)
+    assert max(window.camera.width, window.camera.height) == 64
+    # Every mask pixel and every projected vertex falls inside the window.
+    ys, xs = np.nonzero(target_mask)
+    for u, v in np.concatenate([np.stack([xs, ys], 1), uv]):
+        wu, wv = (u + 0.5 - window.x0) * window.scale, (v + 0.5 - window.y0) * window.scale
+        assert 0 <= wu <= window.camera.width and 0 <= wv <= window.camera.height
+
+
+def test_gradient_moves_a_shifted_body_toward_a_shifted_mask(open_model, target_mask):
+    iou_before = binary_iou(render_mask(vertices(open_model, POSE), open_model.faces.numpy(), CAMERA), target_mask)
+    result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=FAST, progress=False)
+    moved = result.transl[0, 0] - POSE["transl"][0, 0]
+    assert 0.04 < moved < 0.12, moved  # the truth is +0.08 m
+    iou_after = binary_iou(render_mask(vertices(open_model, result.params()), open_model.faces.numpy(), CAMERA), target_mask)
+    assert iou_after > iou_before + 0.1
+    assert len(result.history["iou"]) == result.steps and result.iou_end > result.iou_start
+
+
+def test_divergence_keeps_the_best_parameters(open_model, target_mask):
+    wild = replace(FAST, iterations=(8,), lr={"betas": 0.0, "body_pose": 0.0, "global_orient": 0.0, "transl": 5.0},
+                   iou_collapse=0.05, warmup=1)  # fmt: skip
+    result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=wild, progress=False)
+    assert result.warnings and "IoU collapsed" in result.warnings[0]
+    assert np.all(np.isfinite(result.transl)) and abs(result.transl[0, 0] - POSE["transl"][0, 0]) < 1.0
