@@ -148,19 +148,16 @@ def save_npz(path: PathLike, arrays: Mapping[str, np.ndarray], compress: bool = 
 
 # ----------------------------------------------------------------------------- readers
 def read_mask(path: PathLike, size: Optional[Sequence[int]] = None) -> np.ndarray:
-    """Read a person mask as ``bool [H, W]`` (pixels > 127 of the first channel / grey level).
-    ``size = (width, height)`` checks the image size."""
-    arr = _read_png(path, "mask")
-    if arr.ndim == 3:
-        if arr.shape[2] == 4:  # RGBA: use alpha when the colour is uniform, else the grey value
-            arr = arr[..., 3] if np.ptp(arr[..., :3]) == 0 else arr[..., :3].max(-1)
-        else:
-            arr = arr[..., :3].max(-1)
-    _check_size(path, "mask", arr, size)
-    mask = arr > (127 if arr.dtype == np.uint8 else (np.iinfo(arr.dtype).max // 2 if arr.dtype.kind in "ui" else 0.5))
-    if not mask.any():
-        raise SubjectError(path, "mask", "the mask is empty (no person pixels)")
-    return mask
+    """Read a person mask as ``bool [H, W]`` with :func:`silfit.silhouette.read_mask`'s rules;
+    ``size = (width, height)`` checks the image size. Errors are :class:`SubjectError`."""
+    from .silhouette.masks import read_mask as read_person_mask
+
+    try:
+        return read_person_mask(path, size)
+    except (ValueError, FileNotFoundError) as err:
+        message = str(err)
+        prefix = f"{os.fspath(path)}: "
+        raise SubjectError(path, "mask", message[len(prefix):] if message.startswith(prefix) else message) from None
 
 
 def read_image(path: PathLike, size: Optional[Sequence[int]] = None) -> np.ndarray:

@@ -35,7 +35,7 @@ from .fitting.keypoint_stage import KeypointFitConfig, KeypointFitter, prepare_k
 from .fitting.result import PARAM_NAMES, KeypointFitResult
 from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult, fit_silhouette
 from .keypoints import KeypointSet, model_keypoints
-from .silhouette.losses import binary_iou
+from .eval.metrics import mask_iou
 from .silhouette.masks import validate_mask
 
 __all__ = ["FitResult", "fit", "refine", "save_fit", "body_mask"]
@@ -103,7 +103,7 @@ def refine(
     validate_mask(mask, mask_source, size=(camera.width, camera.height))
     faces = model.faces.cpu().numpy()
     kp_vertices, _, _ = _pose(model, keypoint_result.params(0), keypoints.layout, camera)
-    iou_before = binary_iou(body_mask(kp_vertices, faces, camera), mask)
+    iou_before = mask_iou(body_mask(kp_vertices, faces, camera), mask)
     if iou_before == 0.0:
         raise ValueError(
             f"{mask_source}: the mask does not overlap the body fitted to the keypoints at all "
@@ -115,7 +115,7 @@ def refine(
     )  # fmt: skip
     params = sil.params()
     vertices, joints, kp2d = _pose(model, params, keypoints.layout, camera)
-    iou_after = binary_iou(body_mask(vertices, faces, camera), mask)
+    iou_after = mask_iou(body_mask(vertices, faces, camera), mask)
     warnings = list(sil.warnings)
     if iou_after < iou_before - 0.02:
         warnings.append(f"silhouette stage lowered the IoU ({iou_before:.3f} -> {iou_after:.3f}); kept its result")

@@ -78,7 +78,7 @@ def test_gt_fields_are_validated(tmp_path):
 def test_mask_size_and_content_checked(tmp_path):
     d = make_subject(tmp_path / "a")
     write_png(d / "mask.png", np.ones((10, 10), bool))
-    with pytest.raises(SubjectError, match=r"mask\.png: field 'mask': image is 10x10 pixels but camera.json says 40x30"):
+    with pytest.raises(SubjectError, match=r"mask\.png: field 'mask': mask is 10x10 pixels but the image/camera is 40x30"):
         load_subject(d)
     write_png(d / "mask.png", np.zeros((30, 40), bool))
     with pytest.raises(SubjectError, match="empty"):

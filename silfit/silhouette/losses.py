@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-__all__ = ["MaskTarget", "distance_transforms", "silhouette_energy", "soft_iou", "binary_iou"]
+__all__ = ["MaskTarget", "distance_transforms", "silhouette_energy", "soft_iou"]
 
 
 def distance_transforms(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -80,9 +80,3 @@ def soft_iou(silhouette: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     union = torch.maximum(silhouette, mask).sum(dim=(-2, -1))
     return inter / union.clamp(min=1e-9)
 
-
-def binary_iou(a: np.ndarray, b: np.ndarray) -> float:
-    """``|A n B| / |A u B|`` of two boolean masks (1.0 when both are empty)."""
-    a, b = np.asarray(a, dtype=bool), np.asarray(b, dtype=bool)
-    union = np.count_nonzero(a | b)
-    return 1.0 if union == 0 else float(np.count_nonzero(a & b)) / union

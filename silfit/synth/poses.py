@@ -27,6 +27,8 @@ from typing import Dict, Iterable, Optional, Sequence, Tuple
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..body.io import SMPL_JOINT_NAMES
+
 __all__ = [
     "BODY_JOINTS",
     "LibraryPose",
@@ -42,12 +44,7 @@ __all__ = [
 ]
 
 #: The 23 joints of ``body_pose`` in SMPL order (joint 1..23).
-BODY_JOINTS = (
-    "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
-    "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot", "neck",
-    "left_collar", "right_collar", "head", "left_shoulder", "right_shoulder",
-    "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hand", "right_hand",
-)  # fmt: skip
+BODY_JOINTS = SMPL_JOINT_NAMES[1:]
 _INDEX = {name: i for i, name in enumerate(BODY_JOINTS)}
 
 D = math.radians

@@ -14,7 +14,7 @@ from silfit.fitting.silhouette_stage import (
     fit_silhouette,
     window_target,
 )
-from silfit.silhouette import binary_iou
+from silfit.eval.metrics import mask_iou
 
 CAMERA = Camera.from_image_size(160, 160)
 POSE = {
@@ -62,11 +62,11 @@ def test_window_covers_mask_and_body(open_model, target_mask):
 
 
 def test_gradient_moves_a_shifted_body_toward_a_shifted_mask(open_model, target_mask):
-    iou_before = binary_iou(render_mask(vertices(open_model, POSE), open_model.faces.numpy(), CAMERA), target_mask)
+    iou_before = mask_iou(render_mask(vertices(open_model, POSE), open_model.faces.numpy(), CAMERA), target_mask)
     result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=FAST, progress=False)
     moved = result.transl[0, 0] - POSE["transl"][0, 0]
     assert 0.04 < moved < 0.12, moved  # the truth is +0.08 m
-    iou_after = binary_iou(render_mask(vertices(open_model, result.params()), open_model.faces.numpy(), CAMERA), target_mask)
+    iou_after = mask_iou(render_mask(vertices(open_model, result.params()), open_model.faces.numpy(), CAMERA), target_mask)
     assert iou_after > iou_before + 0.1
     assert len(result.history["iou"]) == result.steps and result.iou_end > result.iou_start
 

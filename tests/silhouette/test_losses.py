@@ -2,7 +2,7 @@
 import numpy as np
 import torch
 
-from silfit.silhouette import MaskTarget, binary_iou, distance_transforms, silhouette_energy, soft_iou
+from silfit.silhouette import MaskTarget, distance_transforms, silhouette_energy, soft_iou
 
 
 def disc(size=64, centre=(32, 32), radius=12):
@@ -51,11 +51,3 @@ def test_window_matches_cropping_and_extends_beyond_the_image():
     assert beyond.mask.shape == (20, 20) and beyond.mask[:5].sum() == 0
     assert beyond.dt_out[0, 0] > target.dt_out[0, 0]
 
-
-def test_binary_iou_of_known_masks():
-    a = np.zeros((10, 10), bool)
-    b = np.zeros((10, 10), bool)
-    a[:, :5] = True
-    b[:, 3:8] = True  # overlap 2 columns, union 8 columns
-    assert binary_iou(a, b) == 0.25
-    assert binary_iou(a, a) == 1.0
