@@ -84,7 +84,7 @@ def test_mask_size_and_content_checked(tmp_path):
     with pytest.raises(SubjectError, match="empty"):
         read_mask(d / "mask.png")
     (d / "mask.png").write_text("not a png")
-    with pytest.raises(SubjectError, match="not a readable image"):
+    with pytest.raises(SubjectError, match="cannot read the mask"):
         load_subject(d)
 
 
