@@ -65,12 +65,17 @@ class KeypointFitConfig:
     robust: bool = True  # False: plain L2 data term (for comparisons)
     camera_iters: int = 30
     pose_iters: Sequence[int] = (30, 30, 40)
-    pose_prior_weights: Sequence[float] = (200.0, 40.0, 8.0)
+    #: Annealed pose-prior weights, tuned for the shipped library mixture
+    #: (:class:`~silfit.priors.LibraryMixturePrior`; about 10x the weights that suited the
+    #: old split-normal default, whose energies are on a similar scale but which needed less
+    #: pull; see ``benchmarks/bench_fit.py``). With ``pose_prior="limits"`` or SMPLify's
+    #: ``gmm_08.pkl`` consider lower weights (the old defaults were 200, 40, 8 and 4).
+    pose_prior_weights: Sequence[float] = (2000.0, 400.0, 80.0)
     angle_prior_weights: Sequence[float] = (10.0, 5.0, 2.0)
     shape_iters: int = 20
     shape_weight: float = 20.0
     final_iters: int = 40
-    final_pose_prior_weight: float = 4.0
+    final_pose_prior_weight: float = 40.0
     final_angle_prior_weight: float = 1.0
     final_shape_weight: float = 5.0
     limit_weight: float = 1e4

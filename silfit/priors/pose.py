@@ -111,9 +111,13 @@ class MaxMixturePrior(nn.Module):
     def component_energies(self, body_pose: torch.Tensor) -> torch.Tensor:
         """``[B, K]`` energy of each component."""
         x = _check_pose(body_pose, self.dim)
-        d = x[:, None, :] - self.means.to(x.dtype)  # [B, K, D]
-        maha = torch.einsum("bki,kij,bkj->bk", d, self.precisions.to(x.dtype), d)
-        return 0.5 * maha + self.constants.to(x.dtype)
+        # Evaluated in float64 whatever the input's dtype: with a sharp mixture and a large
+        # prior weight, float32 rounding (which depends on the batch size) would otherwise
+        # make a batched fit drift away from the same fit done one sample at a time.
+        xd = x.double()
+        d = xd[:, None, :] - self.means.double()  # [B, K, D]
+        maha = torch.einsum("bki,kij,bkj->bk", d, self.precisions.double(), d)
+        return (0.5 * maha + self.constants.double()).to(x.dtype)
 
     def forward(self, body_pose: torch.Tensor) -> torch.Tensor:
         return self.component_energies(body_pose).min(dim=1).values

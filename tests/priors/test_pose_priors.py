@@ -70,8 +70,8 @@ def test_gmm_file_errors_name_the_file_and_field(tmp_path):
         MaxMixturePrior.from_pickle(tmp_path / "junk.pkl")
 
 
-def test_default_prior_shape():
-    prior = load_pose_prior()
+def test_limits_prior_shape():
+    prior = load_pose_prior("limits")
     assert isinstance(prior, LimitsPrior)
     z = torch.zeros(2, 69)
     assert prior(z).tolist() == [0.0, 0.0]
