@@ -36,7 +36,8 @@ def register(subparsers) -> None:
     p.add_argument("--no-silhouette", action="store_true", help="stop after the keypoint stage")
     p.add_argument("--model", help="SMPL model file or folder (default: the shipped open body model)")
     p.add_argument("--gender", default="neutral", help="model gender when --model is a folder")
-    p.add_argument("--pose-prior", help="SMPLify gmm_08.pkl (default: the shipped prior)")
+    p.add_argument("--pose-prior", help="pose prior: SMPLify gmm_08.pkl, a mixture .npz, or 'limits' "
+                   "(default: the shipped pose-library mixture)")
     p.add_argument("--silhouette-resolutions", type=_int_list, metavar="R1,R2",
                    help="silhouette window sizes per level, coarse to fine (default 128,224)")
     p.add_argument("--silhouette-iterations", type=_int_list, metavar="N1,N2",
