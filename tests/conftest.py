@@ -16,3 +16,9 @@ def open_model64():
     from silfit import load_body_model
 
     return load_body_model(dtype=torch.float64)
+
+
+@pytest.fixture(scope="session")
+def body_model(open_model):
+    """The shipped open body model (the name the fitting and prior tests use)."""
+    return open_model

@@ -41,6 +41,7 @@ from .body import KeypointBody
 from .losses import reprojection_energy
 from .optim import batched_lbfgs
 from .result import KeypointFitResult
+from .threads import torch_threads
 
 __all__ = ["KeypointFitConfig", "KeypointFitter", "fit_keypoints", "prepare_keypoints"]
 
@@ -195,13 +196,8 @@ class KeypointFitter:
 
     # ------------------------------------------------------------------ fit
     def fit(self, keypoints, cameras=None, *, image_size=None, focal=None, progress: bool = True) -> KeypointFitResult:
-        threads = torch.get_num_threads()
-        if self.config.threads:
-            torch.set_num_threads(self.config.threads)
-        try:
+        with torch_threads(self.config.threads):
             return self._fit(keypoints, cameras, image_size, focal, progress)
-        finally:
-            torch.set_num_threads(threads)
 
     def _fit(self, keypoints, cameras, image_size, focal, progress) -> KeypointFitResult:
         cfg = self.config

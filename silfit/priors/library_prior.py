@@ -49,13 +49,6 @@ BUILD_DEFAULTS = dict(
     em_iters=60,
 )
 
-# Per-joint scale of the perturbation (1 = perturb_deg), SMPL body joints 1..23.
-_SCALE = {
-    "left_hip": 1.0, "right_hip": 1.0, "spine1": 0.6, "left_knee": 1.0, "right_knee": 1.0, "spine2": 0.5,
-    "left_ankle": 0.8, "right_ankle": 0.8, "spine3": 0.5, "left_foot": 0.3, "right_foot": 0.3, "neck": 0.8,
-    "left_collar": 0.4, "right_collar": 0.4, "head": 1.0, "left_shoulder": 1.5, "right_shoulder": 1.5,
-    "left_elbow": 1.5, "right_elbow": 1.5, "left_wrist": 1.2, "right_wrist": 1.2, "left_hand": 0.5, "right_hand": 0.5,
-}  # fmt: skip
 
 
 def split_library(seed: int = 0):
@@ -92,6 +85,7 @@ def sample_library_poses(
     import torch
 
     from ..synth.poses import BODY_JOINTS, POSE_LIBRARY, mirror_pose
+    from ..synth.sampler import PERTURB_SCALE
     from .limits import clamp_to_limits
 
     names = list(POSE_LIBRARY) if names is None else list(names)
@@ -99,7 +93,7 @@ def sample_library_poses(
     if unknown or not names:
         raise ValueError(f"unknown or no pose names: {unknown}")
     rng = np.random.default_rng(seed)
-    sigma = np.repeat([_SCALE[j] for j in BODY_JOINTS], 3) * math.radians(perturb_deg)
+    sigma = np.repeat([PERTURB_SCALE[j] for j in BODY_JOINTS], 3) * math.radians(perturb_deg)
     out = np.empty((int(n), 69))
     for i in range(int(n)):
         pose = POSE_LIBRARY[names[rng.integers(len(names))]].body_pose.copy()

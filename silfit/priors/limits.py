@@ -29,6 +29,8 @@ from typing import Dict, Tuple
 
 import torch
 
+from ..body.io import SMPL_JOINT_NAMES
+
 __all__ = [
     "BODY_JOINT_NAMES",
     "JOINT_LIMITS",
@@ -40,12 +42,7 @@ __all__ = [
 ]
 
 #: The 23 joints of ``body_pose`` (SMPL joints 1..23, pelvis excluded), in order.
-BODY_JOINT_NAMES = (
-    "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
-    "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot", "neck",
-    "left_collar", "right_collar", "head", "left_shoulder", "right_shoulder",
-    "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hand", "right_hand",
-)  # fmt: skip
+BODY_JOINT_NAMES = SMPL_JOINT_NAMES[1:]
 
 Bounds = Tuple[Tuple[float, float], Tuple[float, float], Tuple[float, float]]
 

@@ -25,16 +25,17 @@ __all__ = [
     "global_orientation",
     "sample_intrinsics",
     "place_body",
+    "PERTURB_SCALE",
 ]
 
 # Per-joint scale of the random perturbation (1 = the configured sigma).
-_PERTURB_SCALE = {
+PERTURB_SCALE = {
     "left_hip": 1.0, "right_hip": 1.0, "spine1": 0.6, "left_knee": 1.0, "right_knee": 1.0, "spine2": 0.5,
     "left_ankle": 0.8, "right_ankle": 0.8, "spine3": 0.5, "left_foot": 0.3, "right_foot": 0.3, "neck": 0.8,
     "left_collar": 0.4, "right_collar": 0.4, "head": 1.0, "left_shoulder": 1.5, "right_shoulder": 1.5,
     "left_elbow": 1.5, "right_elbow": 1.5, "left_wrist": 1.2, "right_wrist": 1.2, "left_hand": 0.5, "right_hand": 0.5,
 }  # fmt: skip
-_SIGMA = np.repeat(np.array([_PERTURB_SCALE[n] for n in BODY_JOINTS]), 3)
+_SIGMA = np.repeat(np.array([PERTURB_SCALE[n] for n in BODY_JOINTS]), 3)
 
 
 @dataclass
