@@ -39,9 +39,9 @@ def register(subparsers) -> None:
     p.add_argument("--pose-prior", help="pose prior: SMPLify gmm_08.pkl, a mixture .npz, or 'limits' "
                    "(default: the shipped pose-library mixture)")
     p.add_argument("--silhouette-resolutions", type=_int_list, metavar="R1,R2",
-                   help="silhouette window sizes per level, coarse to fine (default 128,224)")
+                   help="silhouette window sizes per level, coarse to fine (default 128,256)")
     p.add_argument("--silhouette-iterations", type=_int_list, metavar="N1,N2",
-                   help="silhouette steps per level (default 50,40)")
+                   help="silhouette steps per level (default 60,50)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bars")

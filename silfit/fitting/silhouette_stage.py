@@ -15,8 +15,8 @@ Energy (per step, one subject)::
 * ``E_kp`` is the confidence-weighted Geman-McClure reprojection error of the keypoints
   in window pixels, averaged over keypoints, so the silhouette cannot drag limbs away
   from where the detector saw them.
-* Priors as in the keypoint stage keep the pose plausible; ``w_stay`` is a weak pull
-  toward the keypoint-stage pose that stops noise-driven drift of unconstrained joints.
+* Priors as in the keypoint stage keep the pose plausible; ``w_stay`` (off by default:
+  it cost accuracy on the synthetic set) can add a pull toward the keypoint-stage pose.
 
 The renderer's gradients are stochastic (Monte Carlo pixels and edges), so the
 optimiser is Adam with per-parameter learning rates and a cosine decay per level,
@@ -50,13 +50,13 @@ PARAMS = ("betas", "body_pose", "global_orient", "transl")
 class SilhouetteFitConfig:
     """Settings of the silhouette stage (defaults tuned on the synthetic set)."""
 
-    resolutions: tuple = (128, 224)  # window's longer side in pixels, per level
-    iterations: tuple = (50, 40)  # Adam steps per level (upper bounds: plateaus stop earlier)
+    resolutions: tuple = (128, 256)  # window's longer side in pixels, per level
+    iterations: tuple = (60, 50)  # Adam steps per level (upper bounds: plateaus stop earlier)
     spp: int = 4  # primal samples per pixel
     edge_spp: int = 1  # visibility-edge samples per pixel (projective integrator's sppp)
     margin: float = 0.12  # window margin, fraction of the box on each side
     lr: dict = field(
-        default_factory=lambda: {"betas": 0.05, "body_pose": 0.015, "global_orient": 0.01, "transl": 0.005}
+        default_factory=lambda: {"betas": 0.1, "body_pose": 0.03, "global_orient": 0.02, "transl": 0.01}
     )
     w_silhouette: float = 1.0
     w_keypoints: float = 0.02
@@ -65,7 +65,7 @@ class SilhouetteFitConfig:
     w_limits: float = 1.0
     w_angle: float = 0.001
     w_shape: float = 0.005
-    w_stay: float = 0.05
+    w_stay: float = 0.0
     warmup: int = 5  # steps of linear learning-rate warm-up per level
     plateau_window: int = 12  # steps compared for the plateau test
     plateau_rtol: float = 0.003  # relative energy improvement below which a level stops
