@@ -25,7 +25,15 @@ a :class:`~silfit.fitting.KeypointFitConfig` field (lists comma-separated).
 default prior is built from, so the default prior's numbers on them are optimistic;
 the generated (random poses) and ``--holdout`` sets are the fairer checks.
 
+**Silhouette stage.** ``--silhouette N`` generates N subjects with silfit's generator
+(images, masks, keypoints with ``--noise`` px noise, all yaws; ``--size`` pixels) and runs
+both methods through the evaluator (:func:`silfit.eval.evaluate.evaluate_dataset`):
+keypoint-only (batched) vs keypoint + silhouette (per subject, starting from the
+keypoint fit). It prints mean/median IoU, PVE, shape-only PVE, PA-MPJPE and seconds per
+stage, and the relative change against the issue's targets.
+
     python benchmarks/bench_fit.py --subjects 50 --singles 5
+    python benchmarks/bench_fit.py --subjects 0 --no-shipped --silhouette 30 --seed 1
     python benchmarks/bench_fit.py --subjects 20 --synth 24 --holdout 24 --prior default --prior limits
 """
 from __future__ import annotations
@@ -196,6 +204,47 @@ def parse_set(items):
     return out
 
 
+SILHOUETTE_TARGETS = (  # (metric, label, target relative change or absolute floor)
+    ("iou", "mean IoU after refinement >= 0.93", 0.93),
+    ("pve", "PVE >= 20 % lower", -0.20),
+    ("shape_pve", "shape-only PVE >= 30 % lower", -0.30),
+)
+
+
+def run_silhouette_benchmark(model, n, seed, noise_px, size, keep=None):
+    """Keypoint-only vs keypoint + silhouette on a fresh synthetic set (see the docstring)."""
+    import tempfile
+
+    from silfit.eval.evaluate import evaluate_dataset, markdown_table
+    from silfit.synth import generate_dataset
+    from silfit.synth.generate import SynthConfig
+
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(keep or tmp)
+        t0 = time.perf_counter()
+        generate_dataset(root, n, SynthConfig(seed=seed, size=size, noise_px=noise_px), model=model, progress=True)
+        print(f"generated {n} subjects ({size}x{size}, {noise_px:g} px noise, seed {seed}) in {time.perf_counter() - t0:.0f} s\n")
+        report = evaluate_dataset(root, model=model, run=True, methods=("keypoints", "silhouette"))
+    print(markdown_table(report))
+    summary = report["summary"]
+    kp, sil = summary.get("keypoints", {}), summary.get("silhouette", {})
+    print("\n| target | keypoints | keypoints + silhouette | change | met |")
+    print("|---|---:|---:|---:|---|")
+    for key, label, target in SILHOUETTE_TARGETS:
+        if key not in kp or key not in sil:
+            continue
+        a, b = kp[key]["mean"], sil[key]["mean"]
+        change = (b - a) / a
+        met = b >= target if key == "iou" else change <= target
+        print(f"| {label} | {a:.3f} | {b:.3f} | {100 * change:+.1f} % | {'yes' if met else 'no'} |")
+    if "time_silhouette" in sil:
+        t = sil["time_silhouette"]["mean"]
+        print(f"| silhouette stage < 10 s per subject | - | {t:.1f} s | - | {'yes' if t < 10 else 'no'} |")
+    if report.get("skipped"):
+        print(f"\nskipped: {report['skipped']}")
+    return report
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--subjects", type=int, default=50, help="generated subjects in random poses (0: none)")
@@ -208,6 +257,9 @@ def main(argv=None):
     ap.add_argument("--singles", type=int, default=5, help="subjects also fitted one by one for the timing")
     ap.add_argument("--noise", type=float, default=2.0)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--silhouette", type=int, default=0, help="keypoint-only vs keypoint+silhouette on N fresh subjects")
+    ap.add_argument("--size", type=int, default=512, help="image size of the --silhouette set")
+    ap.add_argument("--keep", help="keep the --silhouette dataset and its fits in this folder")
     args = ap.parse_args(argv)
 
     from silfit.fitting import KeypointFitConfig
@@ -217,6 +269,8 @@ def main(argv=None):
     config = KeypointFitConfig(**parse_set(args.set))
     priors = args.prior or ["default"]
     fitters = {p: KeypointFitter(model, config=config, pose_prior=load_pose_prior(None if p == "default" else p, dtype=model.dtype)) for p in priors}  # fmt: skip
+    if args.silhouette:
+        run_silhouette_benchmark(model, args.silhouette, args.seed, args.noise, args.size, args.keep)
     sets = []  # (name, data, {method: fitter})
     shipped = None if args.no_shipped else load_shipped()
     if shipped is not None:
