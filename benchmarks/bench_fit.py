@@ -208,6 +208,7 @@ SILHOUETTE_TARGETS = (  # (metric, label, target relative change or absolute flo
     ("iou", "mean IoU after refinement >= 0.93", 0.93),
     ("pve", "PVE >= 20 % lower", -0.20),
     ("shape_pve", "shape-only PVE >= 30 % lower", -0.30),
+    ("shape_pve_scaled", "(for reference) shape-only PVE, stature aligned", -0.30),
 )
 
 
@@ -293,6 +294,8 @@ def main(argv=None):
         }
         sets.append((f"held-out: poses from library half B only ({args.holdout})", generate_holdout(model, args.holdout, half_b, args.seed, args.noise), hf))  # fmt: skip
 
+    if not sets:
+        return
     print("| set | prior | reproj px (mean/median) | MPJPE mm | PA-MPJPE mm | PVE mm | facing correct | s/image single | s/image batch %d |" % args.batch)
     print("|---|---|---|---|---|---|---|---|---|")
     for name, data, fits in sets:

@@ -88,9 +88,13 @@ def _person_box(mask: np.ndarray, meshes, faces, camera, margin: float = 0.12) -
     return x0, y0, int(min(W, cx + half + 1)), int(min(H, cy + half + 1))
 
 
-def _crop(image: np.ndarray, box: tuple) -> np.ndarray:
+def _crop(image: np.ndarray, box: tuple, min_size: int = 400) -> np.ndarray:
+    """The box of ``image``, enlarged by a whole factor (nearest neighbour, so pixels stay
+    visible) until its longer side is at least ``min_size``."""
     x0, y0, x1, y1 = box
-    return image[y0:y1, x0:x1]
+    crop = image[y0:y1, x0:x1]
+    factor = max(1, int(np.ceil(min_size / max(crop.shape[:2]))))
+    return np.repeat(np.repeat(crop, factor, axis=0), factor, axis=1)
 
 
 def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = True, silhouette_config=None) -> dict:
@@ -130,9 +134,9 @@ def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = Tru
         "03_keypoint_fit.png": close(figures.fit_overlay(subject.image, kp_vertices, faces, cam, kps.xy, None, kps.conf)),
         "04_silhouette_fit.png": close(figures.fit_overlay(subject.image, result.vertices, faces, cam, kps.xy, None,
                                                            kps.conf)),  # fmt: skip
-        "05_silhouette_match.png": np.hstack([match(kp_vertices), np.full((box[3] - box[1], 4, 3), 128, np.uint8),
-                                              match(result.vertices)]),  # fmt: skip
     }
+    match_kp, match_sil = match(kp_vertices), match(result.vertices)
+    pictures["05_silhouette_match.png"] = np.hstack([match_kp, np.full((match_kp.shape[0], 6, 3), 128, np.uint8), match_sil])
     for name, image in pictures.items():
         figures.write_png(out / name, image)
     figures.iou_curve(result.silhouette.history, out / "06_iou_curve.png")

@@ -64,6 +64,7 @@ METRICS = {
     "pa_mpjpe": ("PA-MPJPE", "mm", True),
     "pve": ("PVE", "mm", True),
     "shape_pve": ("Shape PVE (T-pose)", "mm", True),
+    "shape_pve_scaled": ("Shape PVE, stature aligned", "mm", True),
     "transl_err": ("Translation error", "mm", True),
     "reproj_px": ("2D reprojection error", "px", True),
     "iou": ("Silhouette IoU", "", False),
@@ -190,7 +191,9 @@ def score_fit(model, subject, fit: FitParams, iou: bool = True) -> Dict[str, flo
         m["transl_err"] = 1000 * translation_error(joints[0], gj[0])
     if gt.vertices.shape == verts.shape:
         m["pve"] = 1000 * pve(verts, gt.vertices, joints[0], gj[0])
-    m["shape_pve"] = 1000 * shape_pve(model, np.pad(betas, (0, nb - len(betas))), gt.betas[:nb])
+    fit_betas = np.pad(betas, (0, nb - len(betas)))
+    m["shape_pve"] = 1000 * shape_pve(model, fit_betas, gt.betas[:nb])
+    m["shape_pve_scaled"] = 1000 * shape_pve(model, fit_betas, gt.betas[:nb], scale=True)
 
     clean = gt.extras.get("keypoints_2d_clean")
     if clean is not None and clean.shape == kp2d.shape:

@@ -100,8 +100,12 @@ def pve(pred_vertices, gt_vertices, pred_root=None, gt_root=None, align: bool = 
     return _out(np.linalg.norm(pred - gt, axis=-1).mean(-1))
 
 
-def shape_pve(model, pred_betas, gt_betas) -> float:
-    """PVE of the T-posed (zero-pose) bodies of two shapes, each centred on its rest pelvis."""
+def shape_pve(model, pred_betas, gt_betas, scale: bool = False) -> float:
+    """PVE of the T-posed (zero-pose) bodies of two shapes, each centred on its rest pelvis.
+
+    With ``scale`` the predicted body is first scaled uniformly about its pelvis to fit the
+    true one (least squares): what is left is the error of the body's proportions and
+    build, without its stature, which one image cannot tell apart from distance."""
     import torch
 
     def rest(betas):
@@ -119,6 +123,10 @@ def shape_pve(model, pred_betas, gt_betas) -> float:
     gb = np.pad(gb, [(0, 0)] * (gb.ndim - 1) + [(0, n - gb.shape[-1])])
     pv, pj = rest(pb)
     gv, gj = rest(gb)
+    if scale:
+        pc, gc = pv - pj[:, None], gv - gj[:, None]
+        s = (pc * gc).sum(axis=(1, 2)) / np.maximum((pc * pc).sum(axis=(1, 2)), 1e-12)
+        pv = pj[:, None] + s[:, None, None] * pc
     err = pve(pv, gv, pj, gj, align=True)
     return float(np.asarray(err).reshape(-1)[0]) if np.ndim(pred_betas) == 1 else err
 

@@ -70,3 +70,17 @@ def test_mask_iou_of_known_masks():
     assert mask_iou(a.astype(np.uint8) * 255, b.astype(np.float32)) == pytest.approx(1 / 3)
     with pytest.raises(ValueError):
         mask_iou(a, np.zeros((5, 5)))
+
+
+def test_shape_pve_is_zero_for_the_same_shape_and_stature_alignment_removes_scale(open_model):
+    from silfit.eval.metrics import shape_pve
+
+    betas = np.zeros(10)
+    taller = betas.copy()
+    taller[0] = 2.0  # beta0 is mostly stature
+    assert shape_pve(open_model, betas, betas) == pytest.approx(0.0, abs=1e-9)
+    plain = shape_pve(open_model, taller, betas)
+    scaled = shape_pve(open_model, taller, betas, scale=True)
+    print(f"beta0 = 2 vs 0: shape PVE {1000 * plain:.1f} mm, stature aligned {1000 * scaled:.1f} mm")
+    assert plain > 0.03 and scaled < 0.5 * plain
+
