@@ -32,6 +32,7 @@ ROWS = (
     ("pa_mpjpe", "PA-MPJPE (mm)"),
     ("pve", "PVE (mm)"),
     ("shape_pve", "shape-only PVE (mm)"),
+    ("shape_pve_scaled", "shape-only PVE, stature aligned (mm)"),
     ("transl_err", "translation error (mm)"),
     ("reproj_px", "2D reprojection error (px)"),
     ("iou", "silhouette IoU"),
