@@ -61,7 +61,13 @@ class KeypointFitConfig:
     keypoint_weights: dict = field(default_factory=dict)  # name -> extra weight
     prefer_landmarks: bool = False
     flip_test: bool = True
-    #: after which pose sub-stage (0-based) each sample keeps the better of its two starts
+    #: initial body poses tried per sample (and per facing): the zero pose, then the pose
+    #: prior's most probable mixture means; all run as one batch and the lowest energy is
+    #: kept. 4 starts cut the median PA-MPJPE on library-posed synthetic subjects from 95
+    #: to 62 mm (benchmarks/bench_fit.py, 30 subjects) at about 2.5x the batched cost; set
+    #: 1 for the fastest batched throughput.
+    init_poses: int = 4
+    #: after which pose sub-stage (0-based) each sample keeps the best of its starts
     flip_decision_stage: int = 0
     robust: bool = True  # False: plain L2 data term (for comparisons)
     camera_iters: int = 30
@@ -194,6 +200,15 @@ class KeypointFitter:
         transl = target - R.apply(c3)
         return R.as_rotvec(), transl, z0
 
+    def _initial_poses(self, count: int) -> list:
+        """The zero pose, then the pose prior's most probable mixture means (if it has any)."""
+        poses = [torch.zeros(69, dtype=self.dtype)]
+        means = getattr(self.pose_prior, "means", None)
+        if means is not None and count > 1:
+            constants = getattr(self.pose_prior, "constants", torch.zeros(len(means)))
+            poses += [means[i].detach() for i in torch.argsort(constants)[: count - 1].tolist()]
+        return poses[: max(1, count)]
+
     # ------------------------------------------------------------------ fit
     def fit(self, keypoints, cameras=None, *, image_size=None, focal=None, progress: bool = True) -> KeypointFitResult:
         with torch_threads(self.config.threads):
@@ -209,13 +224,14 @@ class KeypointFitter:
         cams = _resolve_cameras(sets, cameras, image_size, focal)
         B = len(sets)
         dt = self.dtype
-        starts = (False, True) if cfg.flip_test else (False,)
+        init_poses = self._initial_poses(cfg.init_poses)
+        starts = [(flip, h) for h in range(len(init_poses)) for flip in ((False, True) if cfg.flip_test else (False,))]
         S = len(starts)
         N = B * S
         xy = np.stack([ks.xy for ks in sets])
         conf = np.stack([ks.conf for ks in sets])
         orient, transl, z0 = np.zeros((N, 3)), np.zeros((N, 3)), np.zeros(N)
-        for s, flip in enumerate(starts):
+        for s, (flip, _) in enumerate(starts):
             for b in range(B):
                 orient[s * B + b], transl[s * B + b], z0[s * B + b] = self._initial_placement(xy[b], conf[b], cams[b], flip)
         rep = lambda a: np.concatenate([a] * S, 0)  # noqa: E731
@@ -234,7 +250,7 @@ class KeypointFitter:
         state = {
             "betas": torch.zeros(N, self.model.num_betas, dtype=dt),
             "global_orient": T(orient),
-            "body_pose": torch.zeros(N, 69, dtype=dt),
+            "body_pose": torch.cat([init_poses[h].to(dt).expand(B, -1) for _, h in starts], 0),
             "transl": T(transl),
         }
         energies, timings = {}, {}
@@ -274,15 +290,14 @@ class KeypointFitter:
         flipped = np.zeros(B, dtype=bool)
         for i, (it, wp, wa) in enumerate(zip(cfg.pose_iters, cfg.pose_prior_weights, cfg.angle_prior_weights)):
             f = run(f"pose_{i + 1}", pose_free, {"pose": wp, "angle": wa, "limits": cfg.limit_weight}, it)
-            if i == min(cfg.flip_decision_stage, len(cfg.pose_iters) - 1) and S == 2:
-                self.last_flip_energies = f.view(S, B).clone()
-                fb = f.view(S, B)
-                choose = fb[1] < fb[0]
-                flipped = choose.numpy().copy()
-                keep = torch.arange(B) + B * choose.long()
+            if i == min(cfg.flip_decision_stage, len(cfg.pose_iters) - 1) and S > 1:
+                self.last_start_energies = f.view(S, B).clone()
+                choose = f.view(S, B).argmin(0)
+                flipped = np.array([starts[c][0] for c in choose.tolist()], dtype=bool)
+                keep = torch.arange(B) + B * choose
                 state = {k: v[keep] for k, v in state.items()}
                 data = {k: v[keep] for k, v in data.items()}
-                energies = {k: v.view(S, B)[choose.long(), torch.arange(B)] for k, v in energies.items()}
+                energies = {k: v.view(S, B)[choose, torch.arange(B)] for k, v in energies.items()}
         if cfg.shape_iters:
             run("shape", ("betas", "transl"), {"shape": cfg.shape_weight}, cfg.shape_iters)
         if cfg.final_iters:
