@@ -27,6 +27,7 @@ def register(subparsers) -> None:
     p.add_argument("--plot", default=None, help="per-subject error plot PNG (default: next to --out, *_errors.png)")
     p.add_argument("--no-iou", action="store_true", help="skip the silhouette IoU (no rendering)")
     p.add_argument("--model", default=None, help="body model file (default: the shipped open body model)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars while fitting")
     p.set_defaults(func=run)
 
 
@@ -40,7 +41,8 @@ def run(args: argparse.Namespace) -> int:
         model = load_body_model(args.model)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     try:
-        report = evaluate_dataset(args.dataset, fits=args.fits, model=model, run=args.run, methods=methods, iou=not args.no_iou)
+        report = evaluate_dataset(args.dataset, fits=args.fits, model=model, run=args.run, methods=methods, iou=not args.no_iou,
+                                  progress=not args.quiet)  # fmt: skip
     except FitterUnavailable as err:
         raise CLIError(f"{err}; pass --fits DIR with existing fit outputs (FITS/<subject>/<method>/params.npz)") from None
     out = Path(args.out)

@@ -248,14 +248,16 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
             (d / "metrics.json").write_text(json.dumps({"timings": kp_timings, "batched_over": len(subjects)}, indent=2))
         status["keypoints"] = f"ran on {len(subjects)} subjects in {kp_elapsed:.1f} s (batched; per-subject times are batch averages)"
     if "silhouette" in methods:
+        from tqdm.auto import tqdm
+
         faces = model.faces.cpu().numpy()
         ran, failed = 0, []
-        for i, s in enumerate(subjects):
+        for i, s in enumerate(tqdm(subjects, desc="silhouette stage", unit="subject", disable=not progress)):
             if s.mask is None:
                 failed.append(f"{s.name}: no mask")
                 continue
             try:
-                fitted = refine(model, result[i], s.keypoints, s.mask, progress=progress, mask_source=str(s.file("mask")))
+                fitted = refine(model, result[i], s.keypoints, s.mask, progress=False, mask_source=str(s.file("mask")))
             except ValueError as err:
                 failed.append(f"{s.name}: {err}")
                 continue
