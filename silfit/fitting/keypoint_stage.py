@@ -9,9 +9,12 @@ Stages (each an independent per-sample L-BFGS, see :mod:`silfit.fitting.optim`):
 2. ``camera``: ``global_orient`` and ``transl`` on the torso keypoints, with a depth
    regulariser towards the similar-triangles depth.
 3. ``pose_1..3``: ``body_pose`` (+ orientation, translation) on all keypoints with the
-   pose prior weight annealed from high to low. After ``pose_1`` each sample keeps
-   whichever start (facing / flipped) has the lower energy: the torso alone cannot tell a
-   side view's facing, the nose, ears and feet can.
+   pose prior weight annealed from high to low. ``pose_1`` starts every placed start
+   (facing / flipped) from several initial body poses (the zero pose and the pose prior's
+   most probable means, ``init_poses``), all in one batch; after ``decision_iters`` steps
+   each sample keeps the start with the lowest energy: the torso alone cannot tell a side
+   view's facing, the nose, ears and feet can, and a good initial pose avoids the wrong
+   branch of the depth ambiguity of bent limbs.
 4. ``shape``: ``betas`` (+ translation) with the L2 shape prior.
 5. ``final``: everything together with the interpenetration penalty on.
 
@@ -62,13 +65,16 @@ class KeypointFitConfig:
     prefer_landmarks: bool = False
     flip_test: bool = True
     #: initial body poses tried per sample (and per facing): the zero pose, then the pose
-    #: prior's most probable mixture means; all run as one batch and the lowest energy is
-    #: kept. 4 starts cut the median PA-MPJPE on library-posed synthetic subjects from 95
-    #: to 62 mm (benchmarks/bench_fit.py, 30 subjects) at about 2.5x the batched cost; set
-    #: 1 for the fastest batched throughput.
+    #: prior's most probable mixture means; all run as one batch (the camera stage is shared
+    #: by a facing's starts) and the lowest energy is kept. 4 starts cut the median PA-MPJPE
+    #: on 30 library-posed synthetic subjects from 95 to 66 mm (benchmarks/bench_fit.py) at
+    #: about 1.5x the batched cost; set 1 for the fastest batched throughput.
     init_poses: int = 4
     #: after which pose sub-stage (0-based) each sample keeps the best of its starts
     flip_decision_stage: int = 0
+    #: steps of that sub-stage run with every start before choosing (0: the whole sub-stage);
+    #: its remaining steps continue from the chosen start only
+    decision_iters: int = 20
     robust: bool = True  # False: plain L2 data term (for comparisons)
     camera_iters: int = 30
     pose_iters: Sequence[int] = (30, 30, 40)
@@ -224,17 +230,20 @@ class KeypointFitter:
         cams = _resolve_cameras(sets, cameras, image_size, focal)
         B = len(sets)
         dt = self.dtype
+        # Starts: each facing (and the 180-degree flip) is placed by the camera stage, then
+        # every placed start is combined with each initial body pose for the first pose stage.
+        facings = (False, True) if cfg.flip_test else (False,)
         init_poses = self._initial_poses(cfg.init_poses)
-        starts = [(flip, h) for h in range(len(init_poses)) for flip in ((False, True) if cfg.flip_test else (False,))]
-        S = len(starts)
-        N = B * S
+        starts = [(flip, h) for h in range(len(init_poses)) for flip in facings]
+        F, S = len(facings), len(starts)
+        N = B * F
         xy = np.stack([ks.xy for ks in sets])
         conf = np.stack([ks.conf for ks in sets])
         orient, transl, z0 = np.zeros((N, 3)), np.zeros((N, 3)), np.zeros(N)
-        for s, (flip, _) in enumerate(starts):
+        for f, flip in enumerate(facings):
             for b in range(B):
-                orient[s * B + b], transl[s * B + b], z0[s * B + b] = self._initial_placement(xy[b], conf[b], cams[b], flip)
-        rep = lambda a: np.concatenate([a] * S, 0)  # noqa: E731
+                orient[f * B + b], transl[f * B + b], z0[f * B + b] = self._initial_placement(xy[b], conf[b], cams[b], flip)
+        rep = lambda a: np.concatenate([a] * F, 0)  # noqa: E731
         T = lambda a: torch.as_tensor(a, dtype=dt)  # noqa: E731
         extent = []
         for b in range(B):
@@ -250,7 +259,7 @@ class KeypointFitter:
         state = {
             "betas": torch.zeros(N, self.model.num_betas, dtype=dt),
             "global_orient": T(orient),
-            "body_pose": torch.cat([init_poses[h].to(dt).expand(B, -1) for _, h in starts], 0),
+            "body_pose": torch.zeros(N, 69, dtype=dt),
             "transl": T(transl),
         }
         energies, timings = {}, {}
@@ -287,17 +296,30 @@ class KeypointFitter:
         t_all = time.perf_counter()
         pose_free = ("global_orient", "transl", "body_pose")
         run("camera", ("global_orient", "transl"), {"depth": cfg.depth_weight}, cfg.camera_iters, torso_only=True)
+        H = len(init_poses)
+        if H > 1:  # row (h * F + f) * B + b: placed start f of sample b with initial pose h
+            state = {k: v.repeat(H, *([1] * (v.dim() - 1))) for k, v in state.items()}
+            state["body_pose"] = torch.cat([p.to(dt).expand(N, -1) for p in init_poses], 0)
+            data = {k: v.repeat(H, *([1] * (v.dim() - 1))) for k, v in data.items()}
+            energies = {k: v.repeat(H) for k, v in energies.items()}
         flipped = np.zeros(B, dtype=bool)
+        decide = min(cfg.flip_decision_stage, len(cfg.pose_iters) - 1) if S > 1 else -1
         for i, (it, wp, wa) in enumerate(zip(cfg.pose_iters, cfg.pose_prior_weights, cfg.angle_prior_weights)):
-            f = run(f"pose_{i + 1}", pose_free, {"pose": wp, "angle": wa, "limits": cfg.limit_weight}, it)
-            if i == min(cfg.flip_decision_stage, len(cfg.pose_iters) - 1) and S > 1:
-                self.last_start_energies = f.view(S, B).clone()
-                choose = f.view(S, B).argmin(0)
-                flipped = np.array([starts[c][0] for c in choose.tolist()], dtype=bool)
-                keep = torch.arange(B) + B * choose
-                state = {k: v[keep] for k, v in state.items()}
-                data = {k: v[keep] for k, v in data.items()}
-                energies = {k: v.view(S, B)[choose, torch.arange(B)] for k, v in energies.items()}
+            weights = {"pose": wp, "angle": wa, "limits": cfg.limit_weight}
+            if i != decide:
+                run(f"pose_{i + 1}", pose_free, weights, it)
+                continue
+            together = cfg.decision_iters if 0 < cfg.decision_iters < it else it
+            f = run(f"pose_{i + 1}", pose_free, weights, together)  # every start
+            self.last_start_energies = f.view(S, B).clone()
+            choose = f.view(S, B).argmin(0)
+            flipped = np.array([starts[c][0] for c in choose.tolist()], dtype=bool)
+            keep = torch.arange(B) + B * choose
+            state = {k: v[keep] for k, v in state.items()}
+            data = {k: v[keep] for k, v in data.items()}
+            energies = {k: v.view(S, B)[choose, torch.arange(B)] for k, v in energies.items()}
+            if it > together:  # the rest of the sub-stage from the chosen start only
+                run(f"pose_{i + 1}_chosen", pose_free, weights, it - together)
         if cfg.shape_iters:
             run("shape", ("betas", "transl"), {"shape": cfg.shape_weight}, cfg.shape_iters)
         if cfg.final_iters:
