@@ -68,7 +68,7 @@ def generate(model, n, seed=0, noise_px=2.0, size=512):
     pose[:, 3 * 4] += 0.8 * torch.rand(n, generator=g)
     pose[:, 0] -= 0.5 * torch.rand(n, generator=g)  # hips flexed
     pose[:, 3] -= 0.5 * torch.rand(n, generator=g)
-    pose[:, [60, 61, 62, 63, 64, 65, 66, 67, 68]] *= 0.3  # wrists/hands: small
+    pose[:, 57:69] *= 0.3  # wrists and hands (SMPL joints 20-23): small
     pose = clamp_to_limits(pose)
     yaw = torch.rand(n, generator=g).numpy() * 2 * math.pi
     orient = np.stack([(Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, y, 0])).as_rotvec() for y in yaw])

@@ -54,6 +54,7 @@ __all__ = [
     "SilhouetteRenderer",
     "RoiWindow",
     "render_silhouette",
+    "get_silhouette_renderer",
     "roi_window",
     "paste_roi",
     "check_camera",
@@ -369,6 +370,22 @@ class SilhouetteRenderer:
 _DEFAULT_RENDERERS: "OrderedDict[str, SilhouetteRenderer]" = OrderedDict()
 
 
+def get_silhouette_renderer(faces) -> SilhouetteRenderer:
+    """A shared :class:`SilhouetteRenderer` per faces topology (its compiled scenes are kept
+    across calls and fits; samples per pixel are chosen per call)."""
+    f = faces.detach().cpu().numpy() if isinstance(faces, torch.Tensor) else np.asarray(faces)
+    key = faces_key(f)
+    renderer = _DEFAULT_RENDERERS.get(key)
+    if renderer is None:
+        renderer = SilhouetteRenderer(f)
+        _DEFAULT_RENDERERS[key] = renderer
+        while len(_DEFAULT_RENDERERS) > 4:
+            _DEFAULT_RENDERERS.popitem(last=False)
+    else:
+        _DEFAULT_RENDERERS.move_to_end(key)
+    return renderer
+
+
 def render_silhouette(
     vertices: torch.Tensor,
     faces,
@@ -380,14 +397,7 @@ def render_silhouette(
     """Functional form: silhouette of ``vertices`` with ``faces`` under ``camera``.
     Renderers (and their compiled scenes) are cached per faces topology."""
     vertices, f = check_mesh(vertices, faces)
-    key = faces_key(f)
-    renderer = _DEFAULT_RENDERERS.get(key)
-    if renderer is None:
-        renderer = SilhouetteRenderer(f, spp=spp, edge_spp=edge_spp)
-        _DEFAULT_RENDERERS[key] = renderer
-        while len(_DEFAULT_RENDERERS) > 4:
-            _DEFAULT_RENDERERS.popitem(last=False)
-    return renderer(vertices, camera, spp=spp, edge_spp=edge_spp, seed=seed)
+    return get_silhouette_renderer(f)(vertices, camera, spp=spp, edge_spp=edge_spp, seed=seed)
 
 
 def _fresh_seed() -> int:

@@ -164,5 +164,8 @@ def load_camera(path: Union[str, os.PathLike]) -> Camera:
 
 
 def save_camera(camera: Camera, path: Union[str, os.PathLike]) -> None:
-    with open(path, "w", encoding="utf-8") as fh:
+    """Write ``camera.json`` atomically (a temporary file renamed into place)."""
+    tmp = f"{os.fspath(path)}.tmp"
+    with open(tmp, "w", encoding="utf-8") as fh:
         json.dump(camera.to_dict(), fh, indent=2)
+    os.replace(tmp, path)

@@ -119,7 +119,7 @@ class Subject:
 # ----------------------------------------------------------------------------- writers
 def write_png(path: PathLike, array: np.ndarray) -> None:
     """Write a uint8 grey ``[H, W]`` or RGB ``[H, W, 3]`` PNG with no metadata (byte-identical for
-    identical pixels)."""
+    identical pixels), atomically (a temporary file renamed into place)."""
     from PIL import Image
 
     arr = np.ascontiguousarray(array)
@@ -127,7 +127,12 @@ def write_png(path: PathLike, array: np.ndarray) -> None:
         arr = arr.astype(np.uint8) * 255
     if arr.dtype != np.uint8:
         raise ValueError(f"{os.fspath(path)}: PNG data must be uint8 or bool, got {arr.dtype}")
-    Image.fromarray(arr).save(os.fspath(path), format="PNG", optimize=False, compress_level=6)
+    tmp = Path(f"{os.fspath(path)}.tmp")
+    try:
+        Image.fromarray(arr).save(tmp, format="PNG", optimize=False, compress_level=6)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def save_npz(path: PathLike, arrays: Mapping[str, np.ndarray], compress: bool = True) -> None:

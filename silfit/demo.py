@@ -74,13 +74,11 @@ def _table(before: dict, after: dict) -> str:
     return "\n".join(lines)
 
 
-def _person_box(mask: np.ndarray, meshes, faces, camera, margin: float = 0.12) -> tuple:
-    """``(x0, y0, x1, y1)``: a square around the mask and the fitted bodies, for close-ups."""
-    from .pipeline import body_mask
-
-    covered = mask.copy()
-    for v in meshes:
-        covered |= body_mask(v, faces, camera)
+def _person_box(masks, margin: float = 0.12) -> tuple:
+    """``(x0, y0, x1, y1)``: a square around the given masks (the person's and the fitted
+    bodies'), for close-ups."""
+    covered = np.logical_or.reduce(masks)
+    mask = masks[0]
     ys, xs = np.nonzero(covered)
     cx, cy = (xs.min() + xs.max()) / 2, (ys.min() + ys.max()) / 2
     half = (1 + 2 * margin) * max(xs.max() - xs.min(), ys.max() - ys.min()) / 2
@@ -104,7 +102,7 @@ def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = Tru
     from .body import load_body_model
     from .dataset import load_subject, read_image
     from .fitting import KeypointFitter, prepare_keypoints
-    from .pipeline import body_mask, refine, save_fit
+    from .pipeline import refine, save_fit
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -126,9 +124,9 @@ def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = Tru
     table = _table(before, after)
 
     kp_vertices = kp_result.vertices[0]
-    box = _person_box(subject.mask, [kp_vertices, result.vertices], faces, cam)
+    box = _person_box([subject.mask, result.masks["keypoint_stage"], result.masks["final"]])
     close = lambda image: _crop(image, box)  # noqa: E731  (close-ups around the person)
-    match = lambda v: close(figures.silhouette_comparison(body_mask(v, faces, cam), subject.mask))  # noqa: E731
+    match = lambda body: close(figures.silhouette_comparison(body, subject.mask))  # noqa: E731
     pictures = {
         "01_input.png": close(figures.draw_keypoints(subject.image, kps.xy, figures.DETECTED, kps.conf)),
         "02_mask.png": close(np.repeat(subject.mask[..., None].astype(np.uint8) * 255, 3, axis=2)),
@@ -136,7 +134,7 @@ def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = Tru
         "04_silhouette_fit.png": close(figures.fit_overlay(subject.image, result.vertices, faces, cam, kps.xy, None,
                                                            kps.conf)),  # fmt: skip
     }
-    match_kp, match_sil = match(kp_vertices), match(result.vertices)
+    match_kp, match_sil = match(result.masks["keypoint_stage"]), match(result.masks["final"])
     pictures["05_silhouette_match.png"] = np.hstack([match_kp, np.full((match_kp.shape[0], 6, 3), 128, np.uint8), match_sil])
     for name, image in pictures.items():
         figures.write_png(out / name, image)
@@ -150,7 +148,7 @@ def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = Tru
     ]
     figures.error_heatmap(gt_v, faces, errors, ["keypoints only", "keypoints + silhouette"], out / "07_vertex_error.png")
 
-    sheet = [read_image(out / n) for n in sorted(pictures)] + [
+    sheet = [pictures[n] for n in sorted(pictures)] + [
         read_image(out / "06_iou_curve.png"), read_image(out / "07_vertex_error.png")]  # fmt: skip
     titles = ["input + keypoints", "mask", "keypoint fit", "keypoint + silhouette fit",
               "silhouette before | after", "silhouette stage", "per-vertex error (mm)"]  # fmt: skip

@@ -55,6 +55,9 @@ class FitResult:
     joints: np.ndarray
     keypoints_2d: np.ndarray
     metrics: dict = field(default_factory=dict)
+    #: rendered body masks ``[H, W]`` (bool) of the keypoint stage and of the final body,
+    #: when a silhouette was fitted
+    masks: dict = field(default_factory=dict)
 
     @property
     def final(self) -> KeypointFitResult:
@@ -102,8 +105,8 @@ def refine(
     camera = keypoint_result.camera
     validate_mask(mask, mask_source, size=(camera.width, camera.height))
     faces = model.faces.cpu().numpy()
-    kp_vertices, _, _ = _pose(model, keypoint_result.params(0), keypoints.layout, camera)
-    iou_before = mask_iou(body_mask(kp_vertices, faces, camera), mask)
+    kp_mask = body_mask(keypoint_result.vertices[0], faces, camera)
+    iou_before = mask_iou(kp_mask, mask)
     if iou_before == 0.0:
         raise ValueError(
             f"{mask_source}: the mask does not overlap the body fitted to the keypoints at all "
@@ -115,7 +118,8 @@ def refine(
     )  # fmt: skip
     params = sil.params()
     vertices, joints, kp2d = _pose(model, params, keypoints.layout, camera)
-    iou_after = mask_iou(body_mask(vertices, faces, camera), mask)
+    final_mask = body_mask(vertices, faces, camera)
+    iou_after = mask_iou(final_mask, mask)
     warnings = list(sil.warnings)
     if iou_after < iou_before - 0.02:
         warnings.append(f"silhouette stage lowered the IoU ({iou_before:.3f} -> {iou_after:.3f}); kept its result")
@@ -130,7 +134,8 @@ def refine(
         "silhouette_steps": sil.steps,
         "warnings": warnings,
     }  # fmt: skip
-    return FitResult(camera, keypoints.layout, keypoint_result, sil, params, vertices, joints, kp2d, metrics)
+    return FitResult(camera, keypoints.layout, keypoint_result, sil, params, vertices, joints, kp2d, metrics,
+                     masks={"keypoint_stage": kp_mask, "final": final_mask})  # fmt: skip
 
 
 def fit(
@@ -210,8 +215,7 @@ def save_fit(
             figures.write_png(stage_dir / "overlay.png", figures.fit_overlay(
                 image, kp_verts, faces, result.camera, kp_xy, result.keypoint.keypoints_2d[0], kp_conf))  # fmt: skip
             if mask is not None:
-                figures.write_png(tmp / "silhouette.png",
-                                  figures.silhouette_comparison(body_mask(result.vertices, faces, result.camera), mask))
+                figures.write_png(tmp / "silhouette.png", figures.silhouette_comparison(result.masks["final"], mask))
             figures.iou_curve(result.silhouette.history, tmp / "iou_curve.png")
         metrics = dict(result.metrics)
         metrics["camera"] = result.camera.to_dict()

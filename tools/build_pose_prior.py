@@ -19,6 +19,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from silfit.dataset import save_npz  # noqa: E402
 from silfit.priors.library_prior import BUILD_DEFAULTS, build_library_mixture, split_library  # noqa: E402
 
 
@@ -37,9 +38,8 @@ def main(argv=None):
     settings = {k: getattr(args, k) for k in BUILD_DEFAULTS}
     data = build_library_mixture(names, **settings)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_name(args.out.stem + ".tmp.npz")
-    np.savez_compressed(tmp, **{k: (v.astype(np.float32) if k in ("means", "covars", "weights") else v) for k, v in data.items()})
-    tmp.replace(args.out)
+    # Deterministic (fixed zip timestamps) and atomic: the same settings give the same bytes.
+    save_npz(args.out, {k: (v.astype(np.float32) if k in ("means", "covars", "weights") else v) for k, v in data.items()})
     print(f"wrote {args.out} ({args.out.stat().st_size / 1024:.0f} KiB): {data['means'].shape[0]} components, "
           f"{len(data['pose_names'])} library poses, mean log-likelihood {float(data['loglik']):.2f}")
 

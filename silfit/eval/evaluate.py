@@ -229,7 +229,7 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
     silhouette stage per subject, starting from the keypoint stage's result (run once and
     shared when both methods are asked for). Returns ``{method: status}``; raises
     :class:`FitterUnavailable` when nothing can run."""
-    from ..fitting import fit_keypoints
+    from ..fitting import KeypointFitter, prepare_keypoints
     from ..pipeline import refine, save_fit
 
     unknown = [m for m in methods if m not in ("keypoints", "silhouette")]
@@ -237,7 +237,9 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
         raise FitterUnavailable(f"unknown method(s) {', '.join(unknown)} (expected keypoints, silhouette)")
     status = {}
     t0 = time.perf_counter()
-    result = fit_keypoints([s.keypoints for s in subjects], [s.camera for s in subjects], model=model, progress=progress)
+    sets = prepare_keypoints([s.keypoints for s in subjects])
+    fitter = KeypointFitter(model, sets[0].layout)
+    result = fitter.fit(sets, [s.camera for s in subjects], progress=progress)
     kp_elapsed = time.perf_counter() - t0
     kp_timings = {k: float(v) / len(subjects) for k, v in result.timings.items()}
     kp_timings.setdefault("total", kp_elapsed / len(subjects))
@@ -257,7 +259,8 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
                 failed.append(f"{s.name}: no mask")
                 continue
             try:
-                fitted = refine(model, result[i], s.keypoints, s.mask, progress=False, mask_source=str(s.file("mask")))
+                fitted = refine(model, result[i], s.keypoints, s.mask, pose_prior=fitter.pose_prior, progress=False,
+                                mask_source=str(s.file("mask")))  # fmt: skip
             except ValueError as err:
                 failed.append(f"{s.name}: {err}")
                 continue

@@ -37,7 +37,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from ..camera import Camera, project_points
+from ..camera import UPRIGHT_BACK_TO_CAMERA, UPRIGHT_FACING_CAMERA, Camera, project_points
 from ..keypoints import LAYOUTS, KeypointSet
 from ..priors import SphereCollisionModel, angle_prior, limit_violation, load_pose_prior, shape_prior
 from .body import KeypointBody
@@ -198,7 +198,7 @@ class KeypointFitter:
         z0 = 0.5 * (cam.fx + cam.fy) * h3 / h2
         u = (up2 - low2) / h2
         roll = math.atan2(u[0], -u[1])
-        base = Rotation.from_rotvec([0.0, 0.0, math.pi] if flipped else [math.pi, 0.0, 0.0])
+        base = Rotation.from_rotvec(UPRIGHT_BACK_TO_CAMERA if flipped else UPRIGHT_FACING_CAMERA)
         R = Rotation.from_rotvec([0.0, 0.0, roll]) * base
         c2 = 0.5 * (up2 + low2)
         c3 = 0.5 * (up3 + low3)
@@ -311,7 +311,6 @@ class KeypointFitter:
                 continue
             together = cfg.decision_iters if 0 < cfg.decision_iters < it else it
             f = run(f"pose_{i + 1}", pose_free, weights, together)  # every start
-            self.last_start_energies = f.view(S, B).clone()
             choose = f.view(S, B).argmin(0)
             flipped = np.array([starts[c][0] for c in choose.tolist()], dtype=bool)
             keep = torch.arange(B) + B * choose

@@ -76,6 +76,7 @@ class KeypointFitResult:
         extra = {
             "camera_intrinsics": np.array([cam.fx, cam.fy, cam.cx, cam.cy], dtype=np.float64),
             "image_size": np.array([cam.width, cam.height], dtype=np.int64),
+            "layout": np.array(self.layout),
         }
         for name in ("vertices", "joints", "keypoints_2d"):
             if getattr(self, name) is not None:
@@ -113,6 +114,7 @@ class KeypointFitResult:
             return cls(
                 **{n: data[n][None].astype(np.float32) for n in PARAM_NAMES}, cameras=[cam],
                 vertices=get("vertices"), joints=get("joints"), keypoints_2d=get("keypoints_2d"),
+                layout=str(data["layout"]) if "layout" in data else "body25",
             )  # fmt: skip
         data = json.loads(p.read_text())
         missing = [n for n in PARAM_NAMES + ("camera",) if n not in data]

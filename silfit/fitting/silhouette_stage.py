@@ -35,13 +35,13 @@ import numpy as np
 import torch
 
 from ..camera import Camera, project_points
+from ..keypoints import model_keypoints
 from ..priors import angle_prior, limit_violation, load_pose_prior, shape_prior
 from ..silhouette.losses import MaskTarget, silhouette_energy, soft_iou
-from .body import KeypointBody
 from .losses import gmof
 from .threads import torch_threads
 
-__all__ = ["SilhouetteFitConfig", "SilhouetteFitResult", "SilhouetteWindow", "fit_silhouette", "window_target"]
+__all__ = ["SilhouetteFitConfig", "SilhouetteFitResult", "choose_window", "fit_silhouette", "window_target"]
 
 PARAMS = ("betas", "body_pose", "global_orient", "transl")
 
@@ -76,17 +76,6 @@ class SilhouetteFitConfig:
 
 
 @dataclass
-class SilhouetteWindow:
-    """The rendered window: pixels ``[x0, x0 + width/scale) x [y0, y0 + height/scale)`` of the
-    image (pixel-edge coordinates), i.e. ``camera`` = the image camera cropped and scaled."""
-
-    x0: float
-    y0: float
-    scale: float
-    camera: Camera
-
-
-@dataclass
 class SilhouetteFitResult:
     """Refined SMPL parameters (numpy, batch of one) and the stage's diagnostics."""
 
@@ -105,11 +94,12 @@ class SilhouetteFitResult:
         return {name: getattr(self, name) for name in PARAMS}
 
 
-def choose_window(
-    mask: np.ndarray, uv: np.ndarray, camera: Camera, resolution: int, margin: float
-) -> SilhouetteWindow:
-    """A window covering the mask's box and the projected body ``uv [N, 2]`` with ``margin``,
-    rendered with ``resolution`` pixels along its longer side (aspect ratio kept)."""
+def choose_window(mask: np.ndarray, uv: np.ndarray, camera: Camera, resolution: int, margin: float):
+    """A :class:`renderers.silhouette.RoiWindow` covering the mask's box and the projected
+    body ``uv [N, 2]`` with ``margin``, rendered with ``resolution`` pixels along its longer
+    side (aspect ratio kept)."""
+    from renderers.silhouette import RoiWindow
+
     ys, xs = np.nonzero(mask)
     lo = np.minimum([xs.min() - 0.5, ys.min() - 0.5], uv.min(0) - 0.5)
     hi = np.maximum([xs.max() + 0.5, ys.max() + 0.5], uv.max(0) + 0.5)
@@ -118,11 +108,11 @@ def choose_window(
     scale = resolution / float(extent.max())
     width, height = (max(8, int(round(e * scale))) for e in extent)
     x0, y0 = (float(c) for c in (lo + hi) / 2 - np.array([width, height]) / scale / 2)
-    return SilhouetteWindow(x0, y0, scale, camera.crop(x0, y0, width, height, scale))
+    return RoiWindow(x0, y0, scale, camera.crop(x0, y0, width, height, scale))
 
 
-def window_target(mask: np.ndarray, window: SilhouetteWindow, supersample: int = 4) -> tuple[MaskTarget, np.ndarray]:
-    """The mask resampled into the window: ``(MaskTarget of the binarised coverage, coverage)``.
+def window_target(mask: np.ndarray, window, supersample: int = 4) -> tuple[MaskTarget, np.ndarray]:
+    """The mask resampled into a ``RoiWindow``: ``(MaskTarget of the binarised coverage, coverage)``.
 
     Coverage is the fraction of each window pixel inside the mask (supersampled, then
     area-averaged); pixels outside the image are background. Distances are in window pixels.
@@ -194,7 +184,7 @@ def fit_silhouette(
 
 
 def _fit_silhouette(model, init, camera, mask, keypoints, layout, cfg, pose_prior, renderer, progress, callback):
-    from renderers.silhouette import SilhouetteRenderer
+    from renderers.silhouette import get_silhouette_renderer
     from tqdm.auto import tqdm
 
     mask = np.asarray(mask, dtype=bool)
@@ -206,13 +196,12 @@ def _fit_silhouette(model, init, camera, mask, keypoints, layout, cfg, pose_prio
     optimiser = torch.optim.Adam([{"params": [params[k]], "lr": cfg.lr[k]} for k in PARAMS if k in cfg.optimise])
     base_lrs = [g["lr"] for g in optimiser.param_groups]
     prior = load_pose_prior(pose_prior, dtype=dtype) if not isinstance(pose_prior, torch.nn.Module) else pose_prior
-    renderer = renderer or SilhouetteRenderer(model.faces, spp=cfg.spp, edge_spp=cfg.edge_spp)
-    kp_body = KeypointBody(model, layout) if keypoints is not None else None
-    if keypoints is not None:
+    renderer = renderer or get_silhouette_renderer(model.faces)
+    use_keypoints = keypoints is not None
+    if use_keypoints:
         kp = torch.as_tensor(np.asarray(keypoints, dtype=np.float64), dtype=dtype)
         kp_xy, kp_conf = kp[:, :2], kp[:, 2].clamp(min=0)
-        if not bool((kp_conf > 0).any()):
-            kp_body = None
+        use_keypoints = bool((kp_conf > 0).any())
 
     history = {k: [] for k in ("level", "energy", "silhouette", "keypoints", "iou")}
     warnings: list = []
@@ -237,13 +226,12 @@ def _fit_silhouette(model, init, camera, mask, keypoints, layout, cfg, pose_prio
                 g["lr"] = lr0 * schedule
             out = model(**params)
             seed = None if cfg.seed is None else int(cfg.seed) * 100003 + step
-            sil = renderer(out.vertices[0], window.camera, seed=seed)
+            sil = renderer(out.vertices[0], window.camera, spp=cfg.spp, edge_spp=cfg.edge_spp, seed=seed)
             e_sil = silhouette_energy(sil, target)
             energy = cfg.w_silhouette * e_sil
             e_kp = torch.zeros((), dtype=dtype)
-            if kp_body is not None:
-                kp3, _, _ = kp_body(params["betas"], params["global_orient"], params["body_pose"], params["transl"])
-                residual = (project_points(kp3[0], camera) - kp_xy) * to_window
+            if use_keypoints:  # from the same posed body as the silhouette
+                residual = (project_points(model_keypoints(model, out, layout)[0], camera) - kp_xy) * to_window
                 e_kp = (kp_conf * gmof(residual, cfg.kp_sigma)).sum() / kp_conf.sum()
                 energy = energy + cfg.w_keypoints * e_kp
             pose = params["body_pose"]

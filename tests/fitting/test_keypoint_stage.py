@@ -136,6 +136,10 @@ def test_result_saves_and_loads(toy_body, tmp_path):
         for name in ("betas", "body_pose", "global_orient", "transl"):
             np.testing.assert_allclose(getattr(back, name), getattr(res, name), atol=1e-6)
         assert back.camera == CAM
+        assert back.layout == res.layout
+    res.layout = "coco17"  # the layout travels with both files
+    res.save(tmp_path)
+    assert {KeypointFitResult.load(tmp_path / f).layout for f in ("params.npz", "params.json")} == {"coco17"}
     with np.load(tmp_path / "params.npz") as z:
         assert z["body_pose"].shape == (69,) and z["betas"].shape == (10,)
 

@@ -42,9 +42,9 @@ def target_mask(open_model):
 def test_window_target_matches_the_mask_at_scale_one():
     mask = np.zeros((40, 60), bool)
     mask[10:30, 20:35] = True
-    from silfit.fitting.silhouette_stage import SilhouetteWindow
+    from renderers.silhouette import RoiWindow
 
-    window = SilhouetteWindow(0.0, 0.0, 1.0, Camera(fx=50, fy=50, cx=29.5, cy=19.5, width=60, height=40))
+    window = RoiWindow(0.0, 0.0, 1.0, Camera(fx=50, fy=50, cx=29.5, cy=19.5, width=60, height=40))
     target, coverage = window_target(mask, window)
     assert np.array_equal(target.mask.numpy() > 0.5, mask)
     assert np.allclose(coverage, mask, atol=1e-6)
