@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ..body.lbs import axis_angle_to_matrix, forward_kinematics, pose_feature
+from ..body.lbs import axis_angle_to_matrix, blend_shapes, forward_kinematics, pose_feature, skin_vertices, vertices_to_joints
 from ..keypoints import keypoint_sources
 
 __all__ = ["KeypointBody", "body_transforms"]
@@ -49,7 +49,7 @@ class KeypointBody(nn.Module):
         self.register_buffer("kp_index", torch.as_tensor(index, dtype=torch.long))
 
     def shaped_joints(self, betas: torch.Tensor) -> torch.Tensor:
-        return self.J_template + torch.einsum("bl,jcl->bjc", betas, self.J_shapedirs[..., : betas.shape[-1]])
+        return self.J_template + blend_shapes(betas, self.J_shapedirs)
 
     def forward(self, betas, global_orient, body_pose, transl):
         """Returns ``(keypoints [B, K, 3], joints [B, J, 3], transforms [B, J, 4, 4])``
@@ -61,12 +61,10 @@ class KeypointBody(nn.Module):
         joints, T = forward_kinematics(rot, rest_joints, self.parents, self.levels)
         pts = joints
         if self.lm_regressor is not None:
-            v = self.lm_template + torch.einsum("bl,vcl->bvc", betas, self.lm_shapedirs[..., : betas.shape[-1]])
+            v = self.lm_template + blend_shapes(betas, self.lm_shapedirs)
             if self.lm_posedirs is not None:
                 v = v + (pose_feature(rot) @ self.lm_posedirs).reshape(B, -1, 3)
-            A = torch.einsum("vj,bjrc->bvrc", self.lm_weights, T[..., :3, :])
-            v = (A[..., :3] @ v[..., None])[..., 0] + A[..., 3]
-            lm = torch.einsum("kv,bvc->bkc", self.lm_regressor, v)
+            lm = vertices_to_joints(self.lm_regressor, skin_vertices(v, T, self.lm_weights))
             pts = torch.cat([joints, lm], dim=1)
         kp = pts[:, self.kp_index] + transl[:, None]
         return kp, joints + transl[:, None], T
@@ -75,9 +73,7 @@ class KeypointBody(nn.Module):
 def body_transforms(model, betas, global_orient, body_pose):
     """Skinning transforms ``[B, J, 4, 4]`` (rest point -> posed point, no translation)."""
     B = betas.shape[0]
-    rest_joints = model.J_regressor @ (
-        model.v_template + torch.einsum("bl,vcl->bvc", betas, model.shapedirs[..., : betas.shape[-1]])
-    )
+    rest_joints = vertices_to_joints(model.J_regressor, model.v_template + blend_shapes(betas, model.shapedirs))
     full = torch.cat([global_orient, body_pose], dim=1).reshape(B, -1, 3)
     _, T = forward_kinematics(axis_angle_to_matrix(full), rest_joints, model.parents, model._levels)
     return T
