@@ -114,12 +114,6 @@ def _save_figure(fig, path: os.PathLike) -> None:
     write_png(path, rgb)
 
 
-def _rotate_y(vertices: np.ndarray, degrees: float, centre: np.ndarray) -> np.ndarray:
-    a = np.radians(degrees)
-    R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
-    return (vertices - centre) @ R.T + centre
-
-
 def error_heatmap(
     vertices: np.ndarray,
     faces: np.ndarray,
@@ -141,6 +135,8 @@ def error_heatmap(
     import matplotlib.pyplot as plt
     from matplotlib.collections import PolyCollection
 
+    from renderers.offscreen import rotate_about_vertical
+
     vmax = vmax or float(max(np.percentile(e, 99) for e in errors_mm))
     centre = vertices.mean(0)
     fig, axes = plt.subplots(len(views), len(errors_mm), figsize=(2.6 * len(errors_mm) + 0.8, 3.6 * len(views)), dpi=100,
@@ -149,7 +145,7 @@ def error_heatmap(
     for c, (err, title) in enumerate(zip(errors_mm, titles)):
         face_err = np.asarray(err)[faces].mean(1)
         for r, deg in enumerate(views):
-            v = _rotate_y(vertices, deg, centre)
+            v = rotate_about_vertical(vertices, deg, centre).astype(np.float64)
             tri = v[faces]
             order = np.argsort(-tri[:, :, 2].mean(1))  # far to near
             normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])

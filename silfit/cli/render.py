@@ -28,9 +28,9 @@ from typing import Optional
 
 import numpy as np
 
+from ..fitting.result import PARAM_NAMES
 from . import CLIError
 
-PARAM_NAMES = ("betas", "body_pose", "global_orient", "transl")
 MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
 
 
