@@ -29,6 +29,8 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -244,10 +246,15 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
     kp_timings = {k: float(v) / len(subjects) for k, v in result.timings.items()}
     kp_timings.setdefault("total", kp_elapsed / len(subjects))
     if "keypoints" in methods:
-        for i, s in enumerate(subjects):
+        for i, s in enumerate(subjects):  # each fit folder is written beside its place, then moved in
             d = Path(fits_root) / s.name / "keypoints"
-            result[i].save(d)
-            (d / "metrics.json").write_text(json.dumps({"timings": kp_timings, "batched_over": len(subjects)}, indent=2))
+            d.parent.mkdir(parents=True, exist_ok=True)
+            tmp = Path(tempfile.mkdtemp(prefix=".keypoints.", dir=d.parent))
+            result[i].save(tmp)
+            (tmp / "metrics.json").write_text(json.dumps({"timings": kp_timings, "batched_over": len(subjects)}, indent=2))
+            if d.exists():
+                shutil.rmtree(d)
+            os.replace(tmp, d)
         status["keypoints"] = f"ran on {len(subjects)} subjects in {kp_elapsed:.1f} s (batched; per-subject times are batch averages)"
     if "silhouette" in methods:
         from tqdm.auto import tqdm
