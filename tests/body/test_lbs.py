@@ -116,3 +116,11 @@ def test_lbs_float32_and_float64_agree():
     m64, m32 = chain_model(torch.float64), chain_model(torch.float32)
     pose = torch.randn(2, 6, dtype=torch.float64)
     assert torch.allclose(m64(body_pose=pose).vertices.float(), m32(body_pose=pose.float()).vertices, atol=1e-5)
+
+
+def test_axis_angle_agrees_with_kornia():
+    """An independent implementation (kornia) as the reference for Rodrigues' formula."""
+    from kornia.geometry.conversions import axis_angle_to_rotation_matrix
+
+    aa = torch.randn(64, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(7)) * 1.5
+    assert torch.allclose(axis_angle_to_matrix(aa), axis_angle_to_rotation_matrix(aa), atol=1e-10)
