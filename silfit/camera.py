@@ -88,6 +88,16 @@ class Camera:
         f = default_focal(width, height) if focal is None else float(focal)
         return cls(fx=f, fy=f, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, width=width, height=height)
 
+    @classmethod
+    def from_intrinsics(cls, intrinsics, image_size) -> "Camera":
+        """From ``(fx, fy, cx, cy)`` and ``(width, height)``, as fits store them in ``params.npz``
+        (``camera_intrinsics``, ``image_size``)."""
+        fx, fy, cx, cy = (float(v) for v in list(intrinsics))
+        width, height = (v for v in list(image_size))
+        if int(width) != width or int(height) != height:
+            raise ValueError(f"camera width/height must be positive integers, got {width}x{height}")
+        return cls(fx=fx, fy=fy, cx=cx, cy=cy, width=int(width), height=int(height))
+
     @property
     def size(self) -> tuple[int, int]:
         return self.width, self.height

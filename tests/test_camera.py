@@ -67,3 +67,12 @@ def test_camera_file_round_trip_and_errors(tmp_path):
         load_camera(tmp_path / "bad.json")
     with pytest.raises(FileNotFoundError, match="missing.json"):
         load_camera(tmp_path / "missing.json")
+
+
+def test_camera_from_stored_intrinsics():
+    import numpy as np
+
+    cam = Camera.from_intrinsics(np.array([500.0, 510.0, 320.0, 240.5]), np.array([640, 480]))
+    assert cam == Camera(fx=500.0, fy=510.0, cx=320.0, cy=240.5, width=640, height=480)
+    with pytest.raises(ValueError, match="width"):
+        Camera.from_intrinsics([500.0, 500.0, 1.0, 1.0], [640.5, 480])

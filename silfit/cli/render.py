@@ -74,9 +74,7 @@ def read_params(path: Path) -> tuple[dict, Optional[object]]:
             raise ValueError(f"{path}: not a readable .npz file ({err})") from None
         camera = None
         if "camera_intrinsics" in raw and "image_size" in raw:
-            fx, fy, cx, cy = raw["camera_intrinsics"].astype(float).tolist()
-            w, h = raw["image_size"].astype(int).tolist()
-            camera = Camera(fx=fx, fy=fy, cx=cx, cy=cy, width=w, height=h)
+            camera = Camera.from_intrinsics(raw["camera_intrinsics"], raw["image_size"])
     else:
         try:
             raw = json.loads(path.read_text(encoding="utf-8"))

@@ -121,9 +121,8 @@ def read_fit(folder: os.PathLike) -> FitParams:
     camera = None
     if "camera_intrinsics" in raw and "image_size" in raw:
         try:
-            fx, fy, cx, cy = np.asarray(raw["camera_intrinsics"], dtype=np.float64).reshape(4).tolist()
-            w, h = np.asarray(raw["image_size"]).reshape(2).tolist()
-            camera = Camera(fx=fx, fy=fy, cx=cx, cy=cy, width=int(w), height=int(h))
+            intrinsics, size = np.asarray(raw["camera_intrinsics"]).reshape(4), np.asarray(raw["image_size"]).reshape(2)
+            camera = Camera.from_intrinsics(intrinsics, size)
         except (ValueError, TypeError) as err:
             raise SubjectError(f, "camera_intrinsics", str(err)) from None
     return FitParams(**vals, camera=camera, timings=_read_timings(folder), path=folder)

@@ -107,9 +107,7 @@ class KeypointFitResult:
             missing = [n for n in PARAM_NAMES if n not in data]
             if missing:
                 raise ValueError(f"{p}: field(s) missing: {', '.join(missing)}")
-            fx, fy, cx, cy = data["camera_intrinsics"].tolist()
-            w, h = data["image_size"].tolist()
-            cam = Camera(fx=fx, fy=fy, cx=cx, cy=cy, width=int(w), height=int(h))
+            cam = Camera.from_intrinsics(data["camera_intrinsics"], data["image_size"])
             get = lambda n: data[n][None] if n in data else None  # noqa: E731
             return cls(
                 **{n: data[n][None].astype(np.float32) for n in PARAM_NAMES}, cameras=[cam],
