@@ -19,7 +19,6 @@ __all__ = [
     "BODY25_NAMES",
     "COCO17_NAMES",
     "LAYOUTS",
-    "TORSO_NAMES",
     "KeypointSet",
     "keypoint_sources",
     "model_keypoints",
@@ -39,8 +38,6 @@ COCO17_NAMES = (
     "right_knee", "left_ankle", "right_ankle",
 )  # fmt: skip
 LAYOUTS = {"body25": BODY25_NAMES, "coco17": COCO17_NAMES}
-#: Keypoints that define the torso (used to place the body before posing it).
-TORSO_NAMES = ("left_shoulder", "right_shoulder", "left_hip", "right_hip")
 
 #: Keypoint name -> SMPL joint name, where a joint is the source.
 _JOINT_SOURCES = {

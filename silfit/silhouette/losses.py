@@ -33,7 +33,7 @@ def distance_transforms(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass
 class MaskTarget:
-    """A target mask with its distance transforms, as tensors, croppable to a window."""
+    """A target mask with its distance transforms, as tensors."""
 
     mask: torch.Tensor  # [H, W] float (0/1)
     dt_out: torch.Tensor  # [H, W]
@@ -45,25 +45,6 @@ class MaskTarget:
         dt_out, dt_in = distance_transforms(mask)
         as_t = lambda a: torch.as_tensor(a, dtype=dtype, device=device)  # noqa: E731
         return cls(as_t(np.asarray(mask, dtype=np.float32)), as_t(dt_out), as_t(dt_in), float(np.count_nonzero(mask)))
-
-    def window(self, x0: int, y0: int, width: int, height: int) -> "MaskTarget":
-        """The target restricted to pixels ``[x0, x0+width) x [y0, y0+height)``; pixels outside
-        the image count as background (their outside distance measured to the mask)."""
-        H, W = self.mask.shape
-        if x0 >= 0 and y0 >= 0 and x0 + width <= W and y0 + height <= H:
-            sl = (slice(y0, y0 + height), slice(x0, x0 + width))
-            return MaskTarget(self.mask[sl], self.dt_out[sl], self.dt_in[sl], self.area)
-        ys = torch.arange(y0, y0 + height, device=self.mask.device)
-        xs = torch.arange(x0, x0 + width, device=self.mask.device)
-        gy, gx = torch.meshgrid(ys, xs, indexing="ij")
-        inside = (gy >= 0) & (gy < H) & (gx >= 0) & (gx < W)
-        cy, cx = gy.clamp(0, H - 1), gx.clamp(0, W - 1)
-        # Outside the image: distance to the mask >= distance to the nearest border pixel's value.
-        extra = torch.sqrt(((gy - cy) ** 2 + (gx - cx) ** 2).to(self.dt_out.dtype))
-        mask = torch.where(inside, self.mask[cy, cx], torch.zeros_like(self.mask[cy, cx]))
-        dt_out = torch.where(inside, self.dt_out[cy, cx], self.dt_out[cy, cx] + extra)
-        dt_in = torch.where(inside, self.dt_in[cy, cx], torch.zeros_like(extra))
-        return MaskTarget(mask, dt_out, dt_in, self.area)
 
 
 def silhouette_energy(silhouette: torch.Tensor, target: MaskTarget) -> torch.Tensor:

@@ -41,13 +41,3 @@ def test_gradient_moves_a_shifted_blob_toward_the_mask():
         loss.backward()
         opt.step()
     assert abs(cx.item() - 30.0) < 1.0
-
-
-def test_window_matches_cropping_and_extends_beyond_the_image():
-    target = MaskTarget.from_mask(disc(centre=(10, 10), radius=6))
-    win = target.window(2, 3, 20, 20)
-    assert torch.equal(win.mask, target.mask[3:23, 2:22]) and torch.equal(win.dt_out, target.dt_out[3:23, 2:22])
-    beyond = target.window(-5, -5, 20, 20)
-    assert beyond.mask.shape == (20, 20) and beyond.mask[:5].sum() == 0
-    assert beyond.dt_out[0, 0] > target.dt_out[0, 0]
-
