@@ -213,7 +213,7 @@ def _fit_silhouette(model, init, camera, mask, keypoints, layout, cfg, pose_prio
     bar = tqdm(total=total_steps, desc="silhouette", disable=not progress, leave=False)
     for level, (resolution, iters) in enumerate(zip(cfg.resolutions, cfg.iterations)):
         with torch.no_grad():
-            verts = model(**{k: v for k, v in params.items()}).vertices[0]
+            verts = model(**params).vertices[0]
             uv = project_points(verts, camera).numpy()
         window = choose_window(mask, uv, camera, int(resolution), cfg.margin)
         target, _ = window_target(mask, window)
