@@ -85,6 +85,24 @@ class BodyModel(nn.Module):
     def num_body_pose(self) -> int:
         return (self.num_joints - 1) * 3
 
+    #: which layout this model has: ``"smpl"`` here (``"smplx"`` for the whole-body model)
+    kind = "smpl"
+
+    @property
+    def parameter_sizes(self) -> dict:
+        """The model's parameters in call order: name -> width (``betas`` first, ``transl`` last).
+
+        Fitting code takes its parameter set from here, so any model kind goes through it."""
+        return {"betas": self.num_betas, "global_orient": 3, "body_pose": self.num_body_pose, "transl": 3}
+
+    @property
+    def parameter_names(self) -> tuple:
+        return tuple(self.parameter_sizes)
+
+    def zero_params(self, batch: int = 1) -> dict:
+        """Zero parameters ``{name: [batch, width]}`` in the model's dtype and device."""
+        return {n: torch.zeros(batch, w, dtype=self.dtype, device=self.device) for n, w in self.parameter_sizes.items()}
+
     @property
     def dtype(self) -> torch.dtype:
         return self.v_template.dtype
