@@ -32,7 +32,7 @@ import torch
 
 from .camera import Camera, project_points
 from .fitting.keypoint_stage import KeypointFitConfig, KeypointFitter, prepare_keypoints
-from .fitting.result import PARAM_NAMES, KeypointFitResult
+from .fitting.result import KeypointFitResult
 from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult, fit_silhouette
 from .keypoints import KeypointSet, model_keypoints
 from .eval.metrics import mask_iou
@@ -85,6 +85,16 @@ def _pose(model, params: dict, layout: str, camera: Camera):
     return out.vertices[0].numpy(), out.joints[0].numpy(), kp2d.numpy()
 
 
+def _run_record(keypoint_result: KeypointFitResult, silhouette: Optional[SilhouetteFitResult] = None) -> dict:
+    """Each stage's term energies and the run's configuration, for ``metrics.json``."""
+    terms = {f"keypoints.{stage}": {t: float(v[0]) for t, v in d.items()} for stage, d in keypoint_result.term_energies.items()}
+    config = {"keypoint_stage": keypoint_result.config}
+    if silhouette is not None:
+        terms["silhouette"] = dict(silhouette.terms)
+        config["silhouette_stage"] = silhouette.config
+    return {"energy_terms": terms, "config": config}
+
+
 def _median_reprojection(kp2d: np.ndarray, keypoints: KeypointSet) -> float:
     err = np.linalg.norm(kp2d - keypoints.xy, axis=1)
     return float(np.median(err[keypoints.conf > 0]))
@@ -133,6 +143,7 @@ def refine(
         "iou": iou_after,
         "silhouette_steps": sil.steps,
         "warnings": warnings,
+        **_run_record(keypoint_result, sil),
     }  # fmt: skip
     return FitResult(camera, keypoints.layout, keypoint_result, sil, params, vertices, joints, kp2d, metrics,
                      masks={"keypoint_stage": kp_mask, "final": final_mask})  # fmt: skip
@@ -178,6 +189,7 @@ def fit(
                       "keypoints": float(sum(kp_result.timings.values()))},
         "reprojection_error_px": _median_reprojection(kp2d, sets[0]),
         "warnings": [],
+        **_run_record(kp_result),
     }  # fmt: skip
     return FitResult(kp_result.camera, sets[0].layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d, metrics)
 

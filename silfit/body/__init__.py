@@ -1,7 +1,7 @@
 """The SMPL body model in torch: functional core (:mod:`.lbs`), file loading (:mod:`.io`)
 and the ``nn.Module`` wrapper (:mod:`.model`)."""
 from .io import OPEN_BODY_PATH, SMPL_JOINT_NAMES, SMPL_PARENTS, ModelArrays, load_model_arrays
-from .model import BodyModel, BodyOutput, load_body_model
+from .model import SMPL_PARAMETER_NAMES, BodyModel, BodyOutput, load_body_model
 
 __all__ = [
     "BodyModel",
@@ -9,6 +9,7 @@ __all__ = [
     "ModelArrays",
     "OPEN_BODY_PATH",
     "SMPL_JOINT_NAMES",
+    "SMPL_PARAMETER_NAMES",
     "SMPL_PARENTS",
     "load_body_model",
     "load_model_arrays",

@@ -12,7 +12,10 @@ from torch import nn
 from .io import ModelArrays, load_model_arrays
 from .lbs import kinematic_levels, lbs
 
-__all__ = ["BodyModel", "BodyOutput", "load_body_model"]
+__all__ = ["BodyModel", "BodyOutput", "SMPL_PARAMETER_NAMES", "load_body_model"]
+
+#: SMPL's parameter names in call order (the one list; a model's own set is ``model.parameter_sizes``)
+SMPL_PARAMETER_NAMES = ("betas", "global_orient", "body_pose", "transl")
 
 
 @dataclass
@@ -93,7 +96,8 @@ class BodyModel(nn.Module):
         """The model's parameters in call order: name -> width (``betas`` first, ``transl`` last).
 
         Fitting code takes its parameter set from here, so any model kind goes through it."""
-        return {"betas": self.num_betas, "global_orient": 3, "body_pose": self.num_body_pose, "transl": 3}
+        widths = (self.num_betas, 3, self.num_body_pose, 3)
+        return dict(zip(SMPL_PARAMETER_NAMES, widths))
 
     @property
     def parameter_names(self) -> tuple:

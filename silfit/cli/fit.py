@@ -97,13 +97,15 @@ def run(args) -> int:
         raise CLIError("no camera: give --camera C.json, or --image / --image-size / --mask for the default camera")
 
     model = load_body_model(args.model, gender=args.gender) if args.model else load_body_model()
-    sil_config = SilhouetteFitConfig()
+    levels = {}
     if args.silhouette_resolutions:
-        sil_config = replace(sil_config, resolutions=args.silhouette_resolutions)
+        levels["resolutions"] = tuple(args.silhouette_resolutions)
     if args.silhouette_iterations:
-        sil_config = replace(sil_config, iterations=args.silhouette_iterations)
-    if len(sil_config.resolutions) != len(sil_config.iterations):
-        raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels")
+        levels["iterations"] = tuple(args.silhouette_iterations)
+    try:
+        sil_config = replace(SilhouetteFitConfig(), **levels)
+    except ValueError:
+        raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels") from None
     result = fit(keypoints, mask, camera, image_size=size, focal=args.focal, model=model,
                  pose_prior=args.pose_prior, silhouette_config=sil_config, progress=not args.quiet)  # fmt: skip
     extra = {"keypoints": os.fspath(args.keypoints), "mask": args.mask, "image": args.image, "model": model.source}

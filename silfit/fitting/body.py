@@ -1,6 +1,15 @@
-"""A reduced SMPL forward for fitting: joints, skinning transforms and only the surface
-vertices the keypoints need (the full mesh is posed once, at the end of a fit)."""
+"""Body evaluators for fitting, keyed by the model's own parameter names.
+
+:class:`KeypointBody` is a reduced forward: joints, skinning transforms and only the
+surface vertices the keypoints need (the full mesh is posed once, at the end of a fit).
+:class:`MeshBody` poses the whole mesh (for the silhouette stage). Both take the
+parameters by name (``body(**params)``, rows ``[R, width]``) and return a
+:class:`BodyState`, so the energy terms do not depend on the model kind.
+"""
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
 
 import torch
 from torch import nn
@@ -8,7 +17,26 @@ from torch import nn
 from ..body.lbs import axis_angle_to_matrix, blend_shapes, forward_kinematics, pose_feature, skin_vertices, vertices_to_joints
 from ..keypoints import keypoint_sources
 
-__all__ = ["KeypointBody", "body_transforms"]
+__all__ = ["BodyState", "KeypointBody", "MeshBody", "body_transforms", "pose_parameter_names"]
+
+
+@dataclass
+class BodyState:
+    """A body evaluated for rows of parameters (world frame, metres): ``keypoints [R, K, 3]``
+    of the fitter's layout, ``joints [R, J, 3]``, skinning ``transforms [R, J, 4, 4]``
+    (without ``transl``; ``None`` where the evaluator does not give them) and, for the
+    mesh evaluator, ``vertices [R, V, 3]``."""
+
+    keypoints: torch.Tensor
+    joints: torch.Tensor
+    transforms: Optional[torch.Tensor] = None
+    vertices: Optional[torch.Tensor] = None
+
+
+def pose_parameter_names(model) -> tuple:
+    """The model's rotation parameters in kinematic-tree order (``global_orient`` first),
+    which concatenated give the full axis-angle pose ``[B, J * 3]``."""
+    return tuple(n for n in model.parameter_sizes if n == "global_orient" or n.endswith("_pose"))
 
 
 class KeypointBody(nn.Module):
@@ -18,6 +46,7 @@ class KeypointBody(nn.Module):
     def __init__(self, model, layout: str = "body25", prefer_landmarks: bool = False):
         super().__init__()
         self.model_source = model.source
+        self.pose_names = pose_parameter_names(model)
         self.parents = tuple(model.parents)
         self.levels = model._levels
         sources = keypoint_sources(model, layout, prefer_landmarks)
@@ -51,12 +80,13 @@ class KeypointBody(nn.Module):
     def shaped_joints(self, betas: torch.Tensor) -> torch.Tensor:
         return self.J_template + blend_shapes(betas, self.J_shapedirs)
 
-    def forward(self, betas, global_orient, body_pose, transl):
-        """Returns ``(keypoints [B, K, 3], joints [B, J, 3], transforms [B, J, 4, 4])``
-        in camera coordinates (transforms exclude ``transl``)."""
+    def forward(self, **params) -> BodyState:
+        """Keypoints, joints and transforms of parameter rows given by name (``betas``,
+        the pose parameters, ``transl``)."""
+        betas, transl = params["betas"], params["transl"]
         B = betas.shape[0]
         rest_joints = self.shaped_joints(betas)
-        full = torch.cat([global_orient, body_pose], dim=1).reshape(B, -1, 3)
+        full = torch.cat([params[n] for n in self.pose_names], dim=1).reshape(B, -1, 3)
         rot = axis_angle_to_matrix(full)
         joints, T = forward_kinematics(rot, rest_joints, self.parents, self.levels)
         pts = joints
@@ -67,7 +97,24 @@ class KeypointBody(nn.Module):
             lm = vertices_to_joints(self.lm_regressor, skin_vertices(v, T, self.lm_weights))
             pts = torch.cat([joints, lm], dim=1)
         kp = pts[:, self.kp_index] + transl[:, None]
-        return kp, joints + transl[:, None], T
+        return BodyState(kp, joints + transl[:, None], T)
+
+
+class MeshBody(nn.Module):
+    """The whole posed mesh and the layout's keypoints from it (silhouette stage)."""
+
+    def __init__(self, model, layout: str = "body25", prefer_landmarks: bool = False):
+        super().__init__()
+        self.model = model
+        self.layout = layout
+        self.prefer_landmarks = prefer_landmarks
+
+    def forward(self, **params) -> BodyState:
+        from ..keypoints import model_keypoints
+
+        out = self.model(**params)
+        kp = model_keypoints(self.model, out, self.layout, self.prefer_landmarks)
+        return BodyState(kp, out.joints, None, out.vertices)
 
 
 def body_transforms(model, betas, global_orient, body_pose):

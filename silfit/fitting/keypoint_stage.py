@@ -37,13 +37,14 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from ..camera import UPRIGHT_BACK_TO_CAMERA, UPRIGHT_FACING_CAMERA, Camera, project_points
+from ..camera import UPRIGHT_BACK_TO_CAMERA, UPRIGHT_FACING_CAMERA, Camera
 from ..keypoints import LAYOUTS, KeypointSet
 from ..priors import SphereCollisionModel, angle_prior, limit_violation, load_pose_prior, shape_prior
 from .body import KeypointBody
-from .losses import reprojection_energy
-from .optim import batched_lbfgs
+from .problem import ParameterLayout, Problem, stack_views
 from .result import KeypointFitResult
+from .stages import Stage, check_stages, run_lbfgs_stage, stage_to_dict
+from .terms import DepthTerm, Energy, InterpenetrationTerm, KeypointTerm, PriorTerm, evaluate
 from .threads import torch_threads
 
 __all__ = ["KeypointFitConfig", "KeypointFitter", "fit_keypoints", "prepare_keypoints"]
@@ -98,6 +99,50 @@ class KeypointFitConfig:
     #: torch threads during the fit (the per-iteration tensors are small, so one thread
     #: avoids synchronisation overhead; ``None`` leaves torch's setting alone).
     threads: Optional[int] = 1
+    #: an explicit list of :class:`~silfit.fitting.stages.Stage` replacing the schedule
+    #: the fields above describe (see :meth:`stages`)
+    schedule: Optional[Sequence[Stage]] = None
+
+    def __post_init__(self):
+        n = len(self.pose_iters)
+        if not (len(self.pose_prior_weights) == len(self.angle_prior_weights) == n) or n == 0:
+            raise ValueError(
+                f"KeypointFitConfig: pose_iters ({n}), pose_prior_weights ({len(self.pose_prior_weights)}) and "
+                f"angle_prior_weights ({len(self.angle_prior_weights)}) must have the same non-zero length"
+            )
+        if not 0 <= int(self.flip_decision_stage) < n:
+            raise ValueError(f"KeypointFitConfig: flip_decision_stage {self.flip_decision_stage} is not a pose stage (0..{n - 1})")
+        if int(self.init_poses) < 1:
+            raise ValueError(f"KeypointFitConfig: init_poses must be at least 1, got {self.init_poses}")
+
+    def stages(self) -> tuple:
+        """The schedule as data: camera, pose_1..n (annealed priors; the best start of each
+        sample is kept ``decision_iters`` steps into pose stage ``flip_decision_stage``),
+        shape, final (everything, with interpenetration)."""
+        if self.schedule is not None:
+            return tuple(self.schedule)
+        pose_free = ("global_orient", "transl", "body_pose")
+        out = [Stage("camera", ("global_orient", "transl"), {"torso": 1.0, "depth": self.depth_weight}, self.camera_iters)]
+        for i, (it, wp, wa) in enumerate(zip(self.pose_iters, self.pose_prior_weights, self.angle_prior_weights)):
+            opts = {"decide_after": int(self.decision_iters)} if i == self.flip_decision_stage else {}
+            weights = {"keypoints": 1.0, "pose": wp, "angle": wa, "limits": self.limit_weight}
+            out.append(Stage(f"pose_{i + 1}", pose_free, weights, int(it), options=opts))
+        if self.shape_iters:
+            out.append(Stage("shape", ("betas", "transl"), {"keypoints": 1.0, "shape": self.shape_weight}, self.shape_iters))
+        if self.final_iters:
+            w = {
+                "keypoints": 1.0, "pose": self.final_pose_prior_weight, "angle": self.final_angle_prior_weight,
+                "limits": self.limit_weight, "shape": self.final_shape_weight,
+                "interpenetration": self.interpenetration_weight,
+            }  # fmt: skip
+            out.append(Stage("final", ("betas",) + pose_free, w, self.final_iters))
+        return tuple(out)
+
+    def to_dict(self) -> dict:
+        """The settings and the resulting schedule (saved with every fit)."""
+        d = {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items() if k != "schedule"}
+        d["stages"] = [stage_to_dict(s) for s in self.stages()]
+        return d
 
 
 def _names(layout):
@@ -152,9 +197,21 @@ def _resolve_cameras(sets, cameras, image_size, focal) -> list:
     return cams
 
 
+def best_per_group(energy: torch.Tensor, group: torch.Tensor, groups: int) -> torch.Tensor:
+    """For each group ``g < groups`` the row index of its lowest finite energy (rows with
+    non-finite energies lose to any finite one)."""
+    f = torch.where(torch.isfinite(energy), energy, torch.full_like(energy, math.inf))
+    out = torch.empty(groups, dtype=torch.long)
+    for g in range(groups):
+        rows = (group == g).nonzero().squeeze(1)
+        out[g] = rows[torch.argmin(f[rows])]
+    return out
+
+
 class KeypointFitter:
-    """Holds the model-derived pieces (reduced keypoint body, priors, collision spheres)
-    so many batches can be fitted without rebuilding them."""
+    """Holds the model-derived pieces (reduced keypoint body, priors, collision spheres,
+    the energy's terms and the validated schedule) so many batches can be fitted
+    without rebuilding them."""
 
     def __init__(self, model=None, layout: str = "body25", config: Optional[KeypointFitConfig] = None, pose_prior=None):
         from ..body import load_body_model
@@ -168,6 +225,7 @@ class KeypointFitter:
             pose_prior = load_pose_prior(pose_prior, dtype=self.dtype)
         self.pose_prior = pose_prior
         self.collisions = SphereCollisionModel(self.model)
+        self.params = ParameterLayout.of(self.model)
         names = _names(layout)
         w = np.ones(len(names))
         for i, n in enumerate(names):
@@ -176,11 +234,17 @@ class KeypointFitter:
             w[i] *= self.config.keypoint_weights.get(n, 1.0)
         self.kp_weights = torch.as_tensor(w, dtype=self.dtype)
         self.torso_mask = torch.as_tensor([n in _TORSO_ALL for n in names], dtype=self.dtype)
+        sigma = self.config.sigma if self.config.robust else None
+        self.energy = Energy([
+            KeypointTerm("keypoints", sigma), KeypointTerm("torso", sigma, mask=self.torso_mask), DepthTerm(),
+            PriorTerm("pose", self.pose_prior, "body_pose"), PriorTerm("angle", angle_prior, "body_pose"),
+            PriorTerm("limits", limit_violation, "body_pose"), PriorTerm("shape", shape_prior, "betas"),
+            InterpenetrationTerm(self.collisions),
+        ])  # fmt: skip
+        self.stages = self.config.stages()
+        check_stages(self.stages, self.energy, self.params)
         with torch.no_grad():
-            z = torch.zeros(1, 3, dtype=self.dtype)
-            kp, _, _ = self.body(
-                torch.zeros(1, self.model.num_betas, dtype=self.dtype), z, torch.zeros(1, 69, dtype=self.dtype), z
-            )
+            kp = self.body(**self.model.zero_params(1)).keypoints
         self.rest_keypoints = kp[0].double().numpy()
 
     # ------------------------------------------------------------------ init
@@ -208,160 +272,136 @@ class KeypointFitter:
 
     def _initial_poses(self, count: int) -> list:
         """The zero pose, then the pose prior's most probable mixture means (if it has any)."""
-        poses = [torch.zeros(69, dtype=self.dtype)]
+        poses = [torch.zeros(self.model.num_body_pose, dtype=self.dtype)]
         means = getattr(self.pose_prior, "means", None)
         if means is not None and count > 1:
             constants = getattr(self.pose_prior, "constants", torch.zeros(len(means)))
             poses += [means[i].detach() for i in torch.argsort(constants)[: count - 1].tolist()]
         return poses[: max(1, count)]
 
+    def _problem_data(self, problems, flips):
+        """Data and views ``[P, F, 1, ...]`` of single-view problems, and the initial state
+        for each facing in ``flips`` (rows ordered facing-major: row ``f * B + b``)."""
+        cfg, dt = self.config, self.dtype
+        T = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64), dtype=dt)  # noqa: E731
+        F = problems[0].num_frames
+        target, weights, scale, z0, orient, transl = [], [], [], [], [], []
+        for flip in flips:
+            for p in problems:
+                grid = p.grid()
+                if len(grid[0]) != 1:
+                    raise ValueError("the keypoint stage fits single-view problems (one camera per frame)")
+                rows = [cell[0] for cell in grid]
+                target.append([[o.keypoints.xy] for o in rows])
+                weights.append([[o.keypoints.conf] for o in rows])
+                ext = []
+                for o in rows:
+                    vis = o.keypoints.xy[o.keypoints.conf > 0]
+                    ext.append([cfg.norm_extent / max(float((vis.max(0) - vis.min(0)).max()), 1.0)])
+                scale.append(ext)
+                placed = [self._initial_placement(o.keypoints.xy, o.keypoints.conf, o.view.camera, flip) for o in rows]
+                orient.append([q[0] for q in placed])
+                transl.append([q[1] for q in placed])
+                z0.append([[q[2]] for q in placed])
+        data = {"target": T(target), "weights": T(weights) * self.kp_weights, "scale": T(scale), "z0": T(z0)}
+        views = stack_views(problems * len(flips), dt)
+        state = ParameterLayout(self.params.sizes, self.params.shared, F).zeros(len(target), dt)
+        state["global_orient"], state["transl"] = T(orient), T(transl)
+        return data, views, state
+
     # ------------------------------------------------------------------ fit
     def fit(self, keypoints, cameras=None, *, image_size=None, focal=None, progress: bool = True) -> KeypointFitResult:
-        with torch_threads(self.config.threads):
-            return self._fit(keypoints, cameras, image_size, focal, progress)
-
-    def _fit(self, keypoints, cameras, image_size, focal, progress) -> KeypointFitResult:
-        cfg = self.config
         sets = prepare_keypoints(keypoints, self.layout)
         for ks in sets:
             if ks.layout != self.layout:
                 raise ValueError(f"{ks.source}: keypoints are {ks.layout}, this fitter was built for {self.layout}")
             _check_torso(ks)
         cams = _resolve_cameras(sets, cameras, image_size, focal)
-        B = len(sets)
-        dt = self.dtype
+        problems = [Problem.single(ks, cam) for ks, cam in zip(sets, cams)]
+        with torch_threads(self.config.threads):
+            state, info = self.fit_problems(problems, progress=progress)
+        return self._result(state, info, sets, cams)
+
+    def fit_problems(self, problems: Sequence[Problem], progress: bool = False):
+        """Run the schedule on single-view problems of equal frame count.
+
+        Returns ``(state, info)``: the parameters (shared ``[B, w]``, per-frame
+        ``[B, F, w]``) and a dict with per-stage ``energies`` and ``terms`` ``[B]``,
+        ``timings`` (seconds), ``flipped [B]`` and the data and views used."""
+        cfg, dt = self.config, self.dtype
+        B = len(problems)
+        frames = {p.num_frames for p in problems}
+        if len(frames) != 1:
+            raise ValueError(f"problems of one batch must have the same number of frames, got {sorted(frames)}")
+        layout = ParameterLayout(self.params.sizes, self.params.shared, frames.pop())
         # Starts: each facing (and the 180-degree flip) is placed by the camera stage, then
-        # every placed start is combined with each initial body pose for the first pose stage.
+        # every placed start is combined with each initial body pose in the decision stage.
         facings = (False, True) if cfg.flip_test else (False,)
         init_poses = self._initial_poses(cfg.init_poses)
-        starts = [(flip, h) for h in range(len(init_poses)) for flip in facings]
-        F, S = len(facings), len(starts)
-        N = B * F
-        xy = np.stack([ks.xy for ks in sets])
-        conf = np.stack([ks.conf for ks in sets])
-        orient, transl, z0 = np.zeros((N, 3)), np.zeros((N, 3)), np.zeros(N)
-        for f, flip in enumerate(facings):
-            for b in range(B):
-                orient[f * B + b], transl[f * B + b], z0[f * B + b] = self._initial_placement(xy[b], conf[b], cams[b], flip)
-        rep = lambda a: np.concatenate([a] * F, 0)  # noqa: E731
-        T = lambda a: torch.as_tensor(a, dtype=dt)  # noqa: E731
-        extent = []
-        for b in range(B):
-            vis = xy[b][conf[b] > 0]
-            extent.append(max(float((vis.max(0) - vis.min(0)).max()), 1.0))
-        data = {
-            "target": T(rep(xy)),
-            "weights": T(rep(conf)) * self.kp_weights,
-            "scale": T(rep(cfg.norm_extent / np.asarray(extent))),
-            "intr": T(rep(np.array([[c.fx, c.fy, c.cx, c.cy] for c in cams]))),
-            "z0": T(z0),
-        }
-        state = {
-            "betas": torch.zeros(N, self.model.num_betas, dtype=dt),
-            "global_orient": T(orient),
-            "body_pose": torch.zeros(N, 69, dtype=dt),
-            "transl": T(transl),
-        }
-        energies, timings = {}, {}
-        sigma = cfg.sigma if cfg.robust else None
-
-        def run(name, free, weights, iters, torso_only=False):
-            nonlocal state
-            t0 = time.perf_counter()
-            widths = [state[n].shape[1] for n in free]
-            x0 = torch.cat([state[n] for n in free], 1)
-            kp_mask = self.torso_mask if torso_only else None
-
-            def fun(x, idx):
-                p = {n: v[idx] for n, v in state.items()}
-                for n, part in zip(free, torch.split(x, widths, dim=1)):
-                    p[n] = part
-                return self._energy(p, {k: v[idx] for k, v in data.items()}, weights, kp_mask, sigma)
-
-            bar = None
-            if progress:
-                from tqdm.auto import tqdm
-
-                bar = tqdm(total=iters, desc=f"keypoint fit: {name}", leave=False)
-            cb = (lambda it, f: bar.update(1)) if bar is not None else None
-            x, f, _ = batched_lbfgs(fun, x0, max_iter=iters, history=cfg.history, callback=cb)
-            if bar is not None:
-                bar.close()
-            for n, part in zip(free, torch.split(x, widths, dim=1)):
-                state[n] = part.detach()
-            energies[name] = f.detach().clone()
-            timings[name] = time.perf_counter() - t0
-            return f
-
+        data, views, state = self._problem_data(problems, facings)
+        start_flip = torch.as_tensor(np.repeat(facings, B), dtype=torch.bool)
+        group = torch.arange(B).repeat(len(facings))
+        energies, terms, timings = {}, {}, {}
+        decided = len(facings) * len(init_poses) == 1
         t_all = time.perf_counter()
-        pose_free = ("global_orient", "transl", "body_pose")
-        run("camera", ("global_orient", "transl"), {"depth": cfg.depth_weight}, cfg.camera_iters, torso_only=True)
-        H = len(init_poses)
-        if H > 1:  # row (h * F + f) * B + b: placed start f of sample b with initial pose h
-            state = {k: v.repeat(H, *([1] * (v.dim() - 1))) for k, v in state.items()}
-            state["body_pose"] = torch.cat([p.to(dt).expand(N, -1) for p in init_poses], 0)
-            data = {k: v.repeat(H, *([1] * (v.dim() - 1))) for k, v in data.items()}
-            energies = {k: v.repeat(H) for k, v in energies.items()}
-        flipped = np.zeros(B, dtype=bool)
-        decide = min(cfg.flip_decision_stage, len(cfg.pose_iters) - 1) if S > 1 else -1
-        for i, (it, wp, wa) in enumerate(zip(cfg.pose_iters, cfg.pose_prior_weights, cfg.angle_prior_weights)):
-            weights = {"pose": wp, "angle": wa, "limits": cfg.limit_weight}
-            if i != decide:
-                run(f"pose_{i + 1}", pose_free, weights, it)
-                continue
-            together = cfg.decision_iters if 0 < cfg.decision_iters < it else it
-            f = run(f"pose_{i + 1}", pose_free, weights, together)  # every start
-            choose = f.view(S, B).argmin(0)
-            flipped = np.array([starts[c][0] for c in choose.tolist()], dtype=bool)
-            keep = torch.arange(B) + B * choose
-            state = {k: v[keep] for k, v in state.items()}
-            data = {k: v[keep] for k, v in data.items()}
-            energies = {k: v.view(S, B)[choose, torch.arange(B)] for k, v in energies.items()}
-            if it > together:  # the rest of the sub-stage from the chosen start only
-                run(f"pose_{i + 1}_chosen", pose_free, weights, it - together)
-        if cfg.shape_iters:
-            run("shape", ("betas", "transl"), {"shape": cfg.shape_weight}, cfg.shape_iters)
-        if cfg.final_iters:
-            w = {
-                "pose": cfg.final_pose_prior_weight, "angle": cfg.final_angle_prior_weight,
-                "limits": cfg.limit_weight, "shape": cfg.final_shape_weight,
-                "interpenetration": cfg.interpenetration_weight,
-            }  # fmt: skip
-            run("final", ("betas",) + pose_free, w, cfg.final_iters)
-        timings["total"] = time.perf_counter() - t_all
 
+        def record(name, run):
+            energies[name], terms[name], timings[name] = run.energy, run.terms, run.seconds
+            return run.energy
+
+        def take(rows):
+            nonlocal state, data, views, start_flip, group
+            pick = lambda d: {k: v[rows] for k, v in d.items()}  # noqa: E731
+            state, data, views = pick(state), pick(data), pick(views)
+            start_flip, group = start_flip[rows], group[rows]
+            for d in (energies, terms):
+                for k in list(d):
+                    d[k] = d[k][rows] if isinstance(d[k], torch.Tensor) else {t: v[rows] for t, v in d[k].items()}
+
+        def run(stage, iters=None, name=None):
+            r = run_lbfgs_stage(stage, state, layout, self.energy, self.body, views, data, iters, cfg.history, progress)
+            return record(name or stage.name, r)
+
+        for stage in self.stages:
+            decide_after = stage.options.get("decide_after") if not decided else None
+            if decide_after is None:
+                run(stage)
+                continue
+            H = len(init_poses)
+            if H > 1:  # row h * N + r: placed start r with initial pose h
+                N = state["body_pose"].shape[0]
+                take(torch.arange(N).repeat(H))
+                state["body_pose"] = torch.cat([p.to(dt).expand(N, layout.frames, -1) for p in init_poses], 0)
+            together = decide_after if 0 < decide_after < stage.iterations else stage.iterations
+            f = run(stage, together)  # every start
+            take(best_per_group(f, group, B))
+            decided = True
+            if stage.iterations > together:  # the rest of the stage from the chosen start only
+                run(stage, stage.iterations - together, f"{stage.name}_chosen")
+        if not decided:  # a schedule without a decision stage: keep the best start at the end
+            take(best_per_group(energies[self.stages[-1].name], group, B))
+        timings["total"] = time.perf_counter() - t_all
+        info = {"energies": energies, "terms": terms, "timings": timings, "flipped": start_flip.numpy(),
+                "data": data, "views": views, "layout": layout}  # fmt: skip
+        return state, info
+
+    def _result(self, state, info, sets, cams) -> KeypointFitResult:
+        layout = info["layout"]
+        rows = layout.rows(state)  # one frame per problem here
         with torch.no_grad():
-            out = self.model(**state)
-            kp3, _, _ = self.body(state["betas"], state["global_orient"], state["body_pose"], state["transl"])
-            proj = project_points(kp3, data["intr"])
-            err = (proj - data["target"]).norm(dim=-1).numpy()
-        reproj = np.array([np.median(err[b][conf[b] > 0]) for b in range(B)])
+            out = self.model(**rows)
+            ev = evaluate(self.body, layout, state, info["views"], info["data"])
+            proj = ev.keypoints_2d[:, 0, 0]
+            err = (proj - info["data"]["target"][:, 0, 0]).norm(dim=-1).numpy()
+        reproj = np.array([np.median(err[b][ks.conf > 0]) for b, ks in enumerate(sets)])
         np_ = lambda t: t.detach().cpu().numpy().astype(np.float32)  # noqa: E731
         return KeypointFitResult(
-            betas=np_(state["betas"]), body_pose=np_(state["body_pose"]), global_orient=np_(state["global_orient"]),
-            transl=np_(state["transl"]), cameras=cams, vertices=np_(out.vertices), joints=np_(out.joints),
-            keypoints_2d=np_(proj), layout=self.layout, energies={k: np_(v) for k, v in energies.items()},
-            timings=timings, flipped=flipped, reprojection_error=reproj,
+            **{n: np_(rows[n]) for n in layout.sizes}, cameras=cams, vertices=np_(out.vertices),
+            joints=np_(out.joints), keypoints_2d=np_(proj), layout=self.layout,
+            energies={k: np_(v) for k, v in info["energies"].items()},
+            term_energies={s: {t: np_(v) for t, v in d.items()} for s, d in info["terms"].items()},
+            timings=info["timings"], flipped=info["flipped"], reprojection_error=reproj, config=self.config.to_dict(),
         )  # fmt: skip
-
-    def _energy(self, p, d, w, kp_mask, sigma):
-        kp3, _, transforms = self.body(p["betas"], p["global_orient"], p["body_pose"], p["transl"])
-        proj = project_points(kp3, d["intr"])
-        weights = d["weights"] if kp_mask is None else d["weights"] * kp_mask
-        e = reprojection_energy(proj, d["target"], weights, d["scale"], sigma)
-        if w.get("depth"):
-            e = e + w["depth"] * (p["transl"][:, 2] - d["z0"]) ** 2
-        if w.get("pose"):
-            e = e + w["pose"] * self.pose_prior(p["body_pose"])
-        if w.get("angle"):
-            e = e + w["angle"] * angle_prior(p["body_pose"])
-        if w.get("limits"):
-            e = e + w["limits"] * limit_violation(p["body_pose"])
-        if w.get("shape"):
-            e = e + w["shape"] * shape_prior(p["betas"])
-        if w.get("interpenetration"):
-            e = e + w["interpenetration"] * self.collisions(p["betas"], transforms)
-        return e
 
 
 def fit_keypoints(

@@ -9,11 +9,10 @@ from typing import List, Optional, Union
 
 import numpy as np
 
+from ..body.model import SMPL_PARAMETER_NAMES as PARAM_NAMES
 from ..camera import Camera
 
 __all__ = ["KeypointFitResult", "PARAM_NAMES"]
-
-PARAM_NAMES = ("betas", "body_pose", "global_orient", "transl")
 
 
 @dataclass
@@ -26,7 +25,9 @@ class KeypointFitResult:
     fitted keypoints), ``energies`` (stage name -> ``[B]`` final energy), ``timings``
     (stage name -> seconds for the whole batch), ``flipped [B]`` (the 180-degree flipped
     initial orientation was kept), ``reprojection_error [B]`` (median px over keypoints
-    with confidence > 0).
+    with confidence > 0), ``term_energies`` (stage name -> term name -> ``[B]``, each
+    term's unweighted value at the stage's end) and ``config`` (the run's settings and
+    schedule).
     """
 
     betas: np.ndarray
@@ -42,6 +43,8 @@ class KeypointFitResult:
     timings: dict = field(default_factory=dict)
     flipped: Optional[np.ndarray] = None
     reprojection_error: Optional[np.ndarray] = None
+    term_energies: dict = field(default_factory=dict)
+    config: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return self.betas.shape[0]
@@ -63,6 +66,8 @@ class KeypointFitResult:
             joints=pick(self.joints), keypoints_2d=pick(self.keypoints_2d), layout=self.layout,
             energies={k: v[sl] for k, v in self.energies.items()}, timings=dict(self.timings),
             flipped=pick(self.flipped), reprojection_error=pick(self.reprojection_error),
+            term_energies={s: {t: v[sl] for t, v in d.items()} for s, d in self.term_energies.items()},
+            config=self.config,
         )  # fmt: skip
 
     # ------------------------------------------------------------------ I/O
@@ -87,6 +92,10 @@ class KeypointFitResult:
         payload["layout"] = self.layout
         payload["energies"] = {k: float(v[index]) for k, v in self.energies.items()}
         payload["timings"] = {k: float(v) for k, v in self.timings.items()}
+        if self.term_energies:
+            payload["energy_terms"] = {s: {t: float(v[index]) for t, v in d.items()} for s, d in self.term_energies.items()}
+        if self.config:
+            payload["config"] = self.config
         if self.flipped is not None:
             payload["flipped"] = bool(self.flipped[index])
         if self.reprojection_error is not None:

@@ -1,10 +1,13 @@
-"""The silhouette stage: refine a keypoint fit so the body's rendered silhouette matches
-the person's mask.
+"""The silhouette stage: refine keypoint fits so each body's rendered silhouette matches
+its person's mask. A batch of subjects (problems) runs together, each with its own
+window, target, learning-rate schedule, plateau stop and divergence handling, and no
+cross-talk: a batch gives what the subjects give one at a time.
 
-Energy (per step, one subject)::
+Energy (per subject, the named terms of :mod:`silfit.fitting.terms` plus the silhouette)::
 
-    E = w_sil * E_sil(S) + w_kp * E_kp + w_pose * prior(pose) + w_limits * limits(pose)
-        + w_angle * angle(pose) + w_shape * |betas|^2 + w_stay * |theta - theta_kp|^2
+    E = w_silhouette * E_sil(S) + w_keypoints * E_kp + w_pose * prior(pose)
+        + w_limits * limits(pose) + w_angle * angle(pose) + w_shape * |betas|^2
+        + w_stay * |theta - theta_kp|^2
 
 * ``S`` is the Mitsuba silhouette (projective sampling, so the gradient includes the
   visibility-edge term) rendered in a *window* around the person (region of interest:
@@ -12,38 +15,45 @@ Energy (per step, one subject)::
   number of pixels, so the cost follows the chosen resolution and not the image's.
 * ``E_sil`` is the two-sided distance-transform energy of :mod:`silfit.silhouette.losses`
   in window pixels, normalised by the mask's area (an average distance in pixels).
-* ``E_kp`` is the confidence-weighted Geman-McClure reprojection error of the keypoints
-  in window pixels, averaged over keypoints, so the silhouette cannot drag limbs away
-  from where the detector saw them.
+* ``E_kp`` is the keypoint stage's robust reprojection term (:class:`KeypointTerm`) with
+  this stage's data: residuals in window pixels, weights the confidences normalised to
+  sum 1, Geman-McClure scale ``kp_sigma``; so the silhouette cannot drag limbs away from
+  where the detector saw them.
 * Priors as in the keypoint stage keep the pose plausible; ``w_stay`` (off by default:
   it cost accuracy on the synthetic set) can add a pull toward the keypoint-stage pose.
 
-The renderer's gradients are stochastic (Monte Carlo pixels and edges), so the
-optimiser is Adam with per-parameter learning rates and a cosine decay per level,
-coarse to fine (``resolutions``); a level stops early on an energy plateau. Steps with
-non-finite energy, or whose IoU collapses, are detected and the best parameters so far
-are kept (``warnings`` in the result).
+Levels are stages (:meth:`SilhouetteFitConfig.stages`): coarse to fine window
+resolutions, each run with Adam (the renderer's gradients are stochastic; per-subject
+moments and step counts), linear warm-up and cosine decay; a level stops early for a
+subject on an energy plateau. Steps with non-finite energy, or whose IoU collapses, stop
+that subject and keep its best parameters so far (``warnings`` in its result).
 """
 from __future__ import annotations
 
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Optional
+from typing import Callable, List, Optional, Sequence
 
 import numpy as np
 import torch
 
 from ..camera import Camera, project_points
-from ..keypoints import model_keypoints
 from ..priors import angle_prior, limit_violation, load_pose_prior, shape_prior
 from ..silhouette.losses import MaskTarget, silhouette_energy, soft_iou
-from .losses import gmof
+from .body import MeshBody
+from .problem import ParameterLayout, Problem, stack_views, world_to_camera
+from .stages import Stage, check_stages, stage_to_dict
+from .terms import Energy, Evaluation, KeypointTerm, PriorTerm, StayTerm, Term, evaluate
 from .threads import torch_threads
 
-__all__ = ["SilhouetteFitConfig", "SilhouetteFitResult", "choose_window", "fit_silhouette", "window_target"]
+__all__ = [
+    "SilhouetteFitConfig", "SilhouetteFitResult", "SilhouetteTerm", "choose_window", "fit_silhouette",
+    "fit_silhouettes", "window_target",
+]  # fmt: skip
 
-PARAMS = ("betas", "body_pose", "global_orient", "transl")
+#: SMPL's parameters, the default free set (a model's own set is ``model.parameter_names``)
+from ..body.model import SMPL_PARAMETER_NAMES as PARAMS  # noqa: E402
 
 
 @dataclass
@@ -74,10 +84,39 @@ class SilhouetteFitConfig:
     seed: Optional[int] = 0  # base seed of the renderer's sampling (None: fresh seeds)
     threads: Optional[int] = 1  # torch threads during the stage (see silfit.fitting.threads)
 
+    def __post_init__(self):
+        if len(self.resolutions) != len(self.iterations) or not self.resolutions:
+            raise ValueError(
+                f"SilhouetteFitConfig: resolutions ({len(self.resolutions)}) and iterations ({len(self.iterations)}) "
+                "must have the same non-zero length"
+            )
+        missing = [n for n in self.optimise if n not in self.lr]
+        if missing:
+            raise ValueError(f"SilhouetteFitConfig: no learning rate (lr) for optimised parameter(s) {', '.join(missing)}")
+
+    def weights(self) -> dict:
+        return {
+            "silhouette": self.w_silhouette, "keypoints": self.w_keypoints, "pose": self.w_pose,
+            "limits": self.w_limits, "angle": self.w_angle, "shape": self.w_shape, "stay": self.w_stay,
+        }  # fmt: skip
+
+    def stages(self) -> tuple:
+        """One Adam stage per window resolution (coarse to fine)."""
+        return tuple(
+            Stage(f"silhouette_{int(r)}", tuple(self.optimise), self.weights(), int(it), "adam",
+                  {"resolution": int(r), "lr": {k: self.lr[k] for k in self.optimise}})  # fmt: skip
+            for r, it in zip(self.resolutions, self.iterations)
+        )
+
+    def to_dict(self) -> dict:
+        d = {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
+        d["stages"] = [stage_to_dict(s) for s in self.stages()]
+        return d
+
 
 @dataclass
 class SilhouetteFitResult:
-    """Refined SMPL parameters (numpy, batch of one) and the stage's diagnostics."""
+    """Refined parameters of one subject (numpy, batch of one) and the stage's diagnostics."""
 
     betas: np.ndarray
     body_pose: np.ndarray
@@ -89,6 +128,9 @@ class SilhouetteFitResult:
     seconds: float
     steps: int
     warnings: list
+    #: each term's unweighted value at the kept step of the last level
+    terms: dict = field(default_factory=dict)
+    config: dict = field(default_factory=dict)
 
     def params(self) -> dict:
         return {name: getattr(self, name) for name in PARAMS}
@@ -158,6 +200,65 @@ class _Plateau:
         return (before - now) < self.rtol * abs(before)
 
 
+class SilhouetteTerm(Term):
+    """Two-sided distance-transform energy of each observation's rendered silhouette,
+    summed over observations; leaves the soft IoU per problem in ``ev.extras['iou']``.
+
+    Reads ``ev.data``: ``windows`` and ``targets`` (per problem, lists over its
+    observations of :class:`renderers.silhouette.RoiWindow` and :class:`MaskTarget`) and
+    ``seeds`` (per problem, the renderer seed of this step or ``None``)."""
+
+    name = "silhouette"
+
+    def __init__(self, renderer, spp: int, edge_spp: int):
+        self.renderer, self.spp, self.edge_spp = renderer, int(spp), int(edge_spp)
+
+    def __call__(self, ev: Evaluation) -> torch.Tensor:
+        V = ev.body.vertices
+        verts = V.reshape(ev.P, ev.F, 1, *V.shape[1:]).expand(ev.P, ev.F, ev.C, *V.shape[1:])
+        cams = world_to_camera(verts, ev.data["R"].to(V.dtype), ev.data["t"].to(V.dtype))
+        energies, ious = [], []
+        for p in range(ev.P):
+            e_p, iou_p = 0.0, []
+            for o, (window, target) in enumerate(zip(ev.data["windows"][p], ev.data["targets"][p])):
+                f, c = divmod(o, ev.C)
+                sil = self.renderer(cams[p, f, c], window.camera, spp=self.spp, edge_spp=self.edge_spp,
+                                    seed=ev.data["seeds"][p])  # fmt: skip
+                e_p = e_p + silhouette_energy(sil, target)
+                with torch.no_grad():
+                    iou_p.append(float(soft_iou(sil.detach(), target.mask)))
+            energies.append(e_p)
+            ious.append(float(np.mean(iou_p)))
+        ev.extras["iou"] = ious
+        return torch.stack([torch.as_tensor(e, dtype=V.dtype) for e in energies])
+
+
+class _Adam:
+    """Adam with per-problem step counts, updating only the rows it is told to (so a
+    subject that stopped is left exactly as it is, and a batch equals single runs)."""
+
+    def __init__(self, params: dict, lr: dict, betas=(0.9, 0.999), eps: float = 1e-8):
+        self.params, self.lr, self.b1, self.b2, self.eps = params, lr, betas[0], betas[1], eps
+        P = next(iter(params.values())).shape[0]
+        self.t = torch.zeros(P, dtype=torch.long)
+        self.m = {k: torch.zeros_like(v) for k, v in params.items()}
+        self.v = {k: torch.zeros_like(v) for k, v in params.items()}
+
+    def step(self, rows: torch.Tensor, factor: float) -> None:
+        self.t[rows] += 1
+        t = self.t[rows].to(torch.float64)
+        with torch.no_grad():
+            for k, p in self.params.items():
+                g = p.grad[rows]
+                m = self.m[k][rows].mul_(self.b1).add_(g, alpha=1 - self.b1)
+                v = self.v[k][rows].mul_(self.b2).addcmul_(g, g, value=1 - self.b2)
+                self.m[k][rows], self.v[k][rows] = m, v
+                shape = (-1,) + (1,) * (p.dim() - 1)
+                bc1 = (1 - self.b1 ** t).to(p.dtype).reshape(shape)
+                bc2 = (1 - self.b2 ** t).sqrt().to(p.dtype).reshape(shape)
+                p[rows] -= (self.lr[k] * factor / bc1) * m / (v.sqrt() / bc2 + self.eps)
+
+
 def fit_silhouette(
     model,
     init: dict,
@@ -171,112 +272,191 @@ def fit_silhouette(
     progress: bool = True,
     callback: Optional[Callable[[int, dict], None]] = None,
 ) -> SilhouetteFitResult:
-    """Refine one subject's SMPL parameters against its person ``mask [H, W]`` (bool).
+    """Refine one subject's parameters against its person ``mask [H, W]`` (bool).
 
-    ``init``: SMPL parameters (arrays ``[1, n]`` or ``[n]``) from the keypoint stage,
-    in ``camera``'s frame. ``keypoints [K, 3]`` (x, y, confidence in image pixels) keep
-    the keypoint term on; ``None`` fits the silhouette and priors alone. ``callback(step,
+    ``init``: parameters (arrays ``[1, n]`` or ``[n]``) from the keypoint stage, in
+    ``camera``'s frame. ``keypoints [K, 3]`` (x, y, confidence in image pixels) keep the
+    keypoint term on; ``None`` fits the silhouette and priors alone. ``callback(step,
     info)`` is called every step with the level, energy and IoU.
     """
+    return fit_silhouettes(model, [init], [camera], [mask], [keypoints], layout, config, pose_prior, renderer,
+                           progress, callback)[0]  # fmt: skip
+
+
+def fit_silhouettes(
+    model,
+    inits: Sequence[dict],
+    cameras: Sequence[Camera],
+    masks: Sequence[np.ndarray],
+    keypoints: Optional[Sequence[Optional[np.ndarray]]] = None,
+    layout: str = "body25",
+    config: Optional[SilhouetteFitConfig] = None,
+    pose_prior=None,
+    renderer=None,
+    progress: bool = True,
+    callback: Optional[Callable[[int, dict], None]] = None,
+) -> List[SilhouetteFitResult]:
+    """The silhouette stage for a batch of subjects (one camera and mask each), as
+    :func:`fit_silhouette` per subject; ``callback(step, info)`` gets ``info['subject']``."""
     cfg = config or SilhouetteFitConfig()
+    keypoints = list(keypoints) if keypoints is not None else [None] * len(inits)
+    if not (len(inits) == len(cameras) == len(masks) == len(keypoints)):
+        raise ValueError(f"{len(inits)} starts, {len(cameras)} cameras, {len(masks)} masks, {len(keypoints)} keypoint sets")
     with torch_threads(cfg.threads):
-        return _fit_silhouette(model, init, camera, mask, keypoints, layout, cfg, pose_prior, renderer, progress, callback)
+        return _fit_silhouettes(model, inits, cameras, masks, keypoints, layout, cfg, pose_prior, renderer, progress,
+                                callback)  # fmt: skip
 
 
-def _fit_silhouette(model, init, camera, mask, keypoints, layout, cfg, pose_prior, renderer, progress, callback):
+def _fit_silhouettes(model, inits, cameras, masks, keypoints, layout, cfg, pose_prior, renderer, progress, callback):
     from renderers.silhouette import get_silhouette_renderer
     from tqdm.auto import tqdm
 
-    mask = np.asarray(mask, dtype=bool)
-    if mask.shape != (camera.height, camera.width):
-        raise ValueError(f"mask is {mask.shape[1]}x{mask.shape[0]} pixels, the camera {camera.width}x{camera.height}")
     dtype = model.dtype
-    start = {k: torch.as_tensor(np.asarray(init[k]), dtype=dtype).reshape(1, -1) for k in PARAMS}
+    P = len(inits)
+    masks = [np.asarray(m, dtype=bool) for m in masks]
+    for m, cam in zip(masks, cameras):
+        if m.shape != (cam.height, cam.width):
+            raise ValueError(f"mask is {m.shape[1]}x{m.shape[0]} pixels, the camera {cam.width}x{cam.height}")
+    params_layout = ParameterLayout.of(model)
+    names = params_layout.sizes
+    # State: shared [P, w], per-frame [P, 1, w] (one frame, one view per subject here).
+    start = {}
+    for n in names:
+        rows = [torch.as_tensor(np.asarray(init[n]), dtype=dtype).reshape(1, -1) for init in inits]
+        v = torch.cat(rows, 0)
+        start[n] = v if params_layout.is_shared(n) else v[:, None]
     params = {k: v.clone().requires_grad_(k in cfg.optimise) for k, v in start.items()}
-    optimiser = torch.optim.Adam([{"params": [params[k]], "lr": cfg.lr[k]} for k in PARAMS if k in cfg.optimise])
-    base_lrs = [g["lr"] for g in optimiser.param_groups]
+    free = {k: params[k] for k in cfg.optimise}
+    optimiser = _Adam(free, {k: cfg.lr[k] for k in cfg.optimise})
     prior = load_pose_prior(pose_prior, dtype=dtype) if not isinstance(pose_prior, torch.nn.Module) else pose_prior
     renderer = renderer or get_silhouette_renderer(model.faces)
-    use_keypoints = keypoints is not None
-    if use_keypoints:
-        kp = torch.as_tensor(np.asarray(keypoints, dtype=np.float64), dtype=dtype)
-        kp_xy, kp_conf = kp[:, :2], kp[:, 2].clamp(min=0)
-        use_keypoints = bool((kp_conf > 0).any())
+    energy = Energy([
+        SilhouetteTerm(renderer, cfg.spp, cfg.edge_spp), KeypointTerm("keypoints", cfg.kp_sigma),
+        PriorTerm("pose", prior, "body_pose"), PriorTerm("limits", limit_violation, "body_pose"),
+        PriorTerm("angle", angle_prior, "body_pose"), PriorTerm("shape", shape_prior, "betas"),
+        StayTerm("body_pose"),
+    ])  # fmt: skip
+    stages = cfg.stages()
+    check_stages(stages, energy, params_layout)
+    body = MeshBody(model, layout)
+    problems = [Problem.single(None, cam) for cam in cameras]
+    views = stack_views(problems, dtype)
 
-    history = {k: [] for k in ("level", "energy", "silhouette", "keypoints", "iou")}
-    warnings: list = []
-    best = {"energy": math.inf, "iou": float("nan"), "params": {k: v.detach().clone() for k, v in params.items()}}
-    best_iou_seen = -1.0
+    K = None
+    kp_xy, kp_w = [], []
+    for kp in keypoints:
+        if kp is None:
+            kp_xy.append(None)
+            kp_w.append(None)
+            continue
+        kp = torch.as_tensor(np.asarray(kp, dtype=np.float64), dtype=dtype)
+        K = kp.shape[0]
+        conf = kp[:, 2].clamp(min=0)
+        kp_xy.append(kp[:, :2])
+        kp_w.append(conf / conf.sum() if bool((conf > 0).any()) else torch.zeros_like(conf))
+    K = K or 1
+    target_xy = torch.stack([x if x is not None else torch.zeros(K, 2, dtype=dtype) for x in kp_xy])
+    target_w = torch.stack([w if w is not None else torch.zeros(K, dtype=dtype) for w in kp_w])
+    data = {
+        "target": target_xy[:, None, None], "weights": target_w[:, None, None], "scale": torch.ones(P, 1, 1, dtype=dtype),
+        "start_body_pose": start["body_pose"], "R": views["R"], "t": views["t"],
+        "windows": [None] * P, "targets": [None] * P, "seeds": [None] * P,
+    }  # fmt: skip
+    if all(x is None for x in kp_xy):  # no keypoints at all: the term is off
+        stages = tuple(Stage(s.name, s.free, {**s.weights, "keypoints": 0.0}, s.iterations, s.optimiser, s.options)
+                       for s in stages)  # fmt: skip
+
+    history = [{k: [] for k in ("level", "energy", "silhouette", "keypoints", "iou")} for _ in range(P)]
+    warnings: list = [[] for _ in range(P)]
+    best_params = [{k: v[p].detach().clone() for k, v in params.items()} for p in range(P)]
+    best_iou = [float("nan")] * P
+    best_terms: list = [{} for _ in range(P)]
+    best_iou_seen = [-1.0] * P
+    steps = [0] * P
+    failed = [False] * P
     t0 = time.perf_counter()
-    step = 0
-    total_steps = int(sum(cfg.iterations))
-    bar = tqdm(total=total_steps, desc="silhouette", disable=not progress, leave=False)
-    for level, (resolution, iters) in enumerate(zip(cfg.resolutions, cfg.iterations)):
+    bar = tqdm(total=int(sum(cfg.iterations)) * P, desc="silhouette", disable=not progress, leave=False)
+
+    def select(d, rows):
+        return {k: (v[rows] if isinstance(v, torch.Tensor) else [v[i] for i in rows.tolist()]) for k, v in d.items()}
+
+    for level, stage in enumerate(stages):
+        resolution, iters = int(stage.options["resolution"]), int(stage.iterations)
         with torch.no_grad():
-            verts = model(**params).vertices[0]
-            uv = project_points(verts, camera).numpy()
-        window = choose_window(mask, uv, camera, int(resolution), cfg.margin)
-        target, _ = window_target(mask, window)
-        to_window = window.scale
-        plateau = _Plateau(cfg.plateau_window, cfg.plateau_rtol)
-        best["energy"] = math.inf  # energies of different resolutions are not comparable
-        for i in range(int(iters)):
-            schedule = _learning_rate_factor(i, int(iters), cfg.warmup)
-            for g, lr0 in zip(optimiser.param_groups, base_lrs):
-                g["lr"] = lr0 * schedule
-            out = model(**params)
-            seed = None if cfg.seed is None else int(cfg.seed) * 100003 + step
-            sil = renderer(out.vertices[0], window.camera, spp=cfg.spp, edge_spp=cfg.edge_spp, seed=seed)
-            e_sil = silhouette_energy(sil, target)
-            energy = cfg.w_silhouette * e_sil
-            e_kp = torch.zeros((), dtype=dtype)
-            if use_keypoints:  # from the same posed body as the silhouette
-                residual = (project_points(model_keypoints(model, out, layout)[0], camera) - kp_xy) * to_window
-                e_kp = (kp_conf * gmof(residual, cfg.kp_sigma)).sum() / kp_conf.sum()
-                energy = energy + cfg.w_keypoints * e_kp
-            pose = params["body_pose"]
-            energy = energy + cfg.w_pose * prior(pose).sum() + cfg.w_limits * limit_violation(pose).sum()
-            energy = energy + cfg.w_angle * angle_prior(pose).sum() + cfg.w_shape * shape_prior(params["betas"]).sum()
-            energy = energy + cfg.w_stay * (pose - start["body_pose"]).square().sum()
-            with torch.no_grad():
-                iou = float(soft_iou(sil.detach(), target.mask))
-            e_value = float(energy.detach())
-            if not math.isfinite(e_value) or iou < best_iou_seen - cfg.iou_collapse:
-                warnings.append(
-                    f"step {step}: {'non-finite energy' if not math.isfinite(e_value) else f'IoU collapsed to {iou:.3f}'};"
-                    " kept the best parameters so far"
-                )
+            verts = model(**params_layout.rows({k: v.detach() for k, v in params.items()})).vertices
+        for p in range(P):
+            if failed[p]:
+                continue
+            uv = project_points(verts[p], cameras[p]).numpy()
+            window = choose_window(masks[p], uv, cameras[p], resolution, cfg.margin)
+            data["windows"][p] = [window]
+            data["targets"][p] = [window_target(masks[p], window)[0]]
+        data["scale"] = torch.as_tensor([w[0].scale if w is not None else 1.0 for w in data["windows"]],
+                                        dtype=dtype).reshape(P, 1, 1)  # fmt: skip
+        plateaus = [_Plateau(cfg.plateau_window, cfg.plateau_rtol) for _ in range(P)]
+        best_energy = [math.inf] * P  # energies of different resolutions are not comparable
+        active = [not f for f in failed]
+        for i in range(iters):
+            rows = torch.as_tensor([p for p in range(P) if active[p]], dtype=torch.long)
+            if rows.numel() == 0:
                 break
-            for key, value in (("level", level), ("energy", e_value), ("silhouette", float(e_sil.detach())),
-                               ("keypoints", float(e_kp.detach())), ("iou", iou)):  # fmt: skip
-                history[key].append(value)
-            if e_value < best["energy"]:
-                best = {"energy": e_value, "iou": iou, "params": {k: v.detach().clone() for k, v in params.items()}}
-            best_iou_seen = max(best_iou_seen, iou)
-            if callback is not None:
-                callback(step, {"level": level, "energy": e_value, "iou": iou})
-            optimiser.zero_grad(set_to_none=True)
-            energy.backward()
-            optimiser.step()
-            step += 1
-            bar.update(1)
-            bar.set_postfix(iou=f"{iou:.3f}", res=resolution)
-            if plateau.update(e_value):
-                break
-        if warnings:
-            break
+            factor = _learning_rate_factor(i, iters, cfg.warmup)
+            data["seeds"] = [None if cfg.seed is None else int(cfg.seed) * 100003 + steps[p] for p in range(P)]
+            sub = {k: v[rows] for k, v in params.items()}
+            ev = evaluate(body, params_layout, sub, {k: v[rows] for k, v in views.items()}, select(data, rows))
+            total, parts = energy(ev, stage.weights)
+            ious = ev.extras["iou"]
+            keep = []
+            for j, p in enumerate(rows.tolist()):
+                e_value, iou = float(total[j].detach()), ious[j]
+                if not math.isfinite(e_value) or iou < best_iou_seen[p] - cfg.iou_collapse:
+                    why = "non-finite energy" if not math.isfinite(e_value) else f"IoU collapsed to {iou:.3f}"
+                    warnings[p].append(f"step {steps[p]}: {why}; kept the best parameters so far")
+                    failed[p], active[p] = True, False
+                    continue
+                h = history[p]
+                term_values = {k: float(v[j].detach()) for k, v in parts.items()}
+                for key, value in (("level", level), ("energy", e_value), ("silhouette", term_values.get("silhouette", 0.0)),
+                                   ("keypoints", term_values.get("keypoints", 0.0)), ("iou", iou)):  # fmt: skip
+                    h[key].append(value)
+                if e_value < best_energy[p]:
+                    best_energy[p], best_iou[p], best_terms[p] = e_value, iou, term_values
+                    best_params[p] = {k: v[p].detach().clone() for k, v in params.items()}
+                best_iou_seen[p] = max(best_iou_seen[p], iou)
+                if callback is not None:
+                    callback(steps[p], {"level": level, "energy": e_value, "iou": iou, "subject": p})
+                keep.append(j)
+            if keep:
+                keep_t = torch.as_tensor(keep, dtype=torch.long)
+                for v in free.values():
+                    v.grad = None
+                total[keep_t].sum().backward()
+                optimiser.step(rows[keep_t], factor)
+                for j in keep:
+                    p = int(rows[j])
+                    steps[p] += 1
+                    bar.update(1)
+                    if plateaus[p].update(float(total[j].detach())):
+                        active[p] = False
+                bar.set_postfix(iou=f"{np.mean([ious[j] for j in keep]):.3f}", res=resolution)
         # The next level restarts from the best parameters found so far.
         with torch.no_grad():
-            for k in params:
-                params[k].copy_(best["params"][k])
+            for p in range(P):
+                for k in params:
+                    params[k][p].copy_(best_params[p][k])
     bar.close()
-    final = {k: v.detach().cpu().numpy().astype(np.float32) for k, v in best["params"].items()}
-    return SilhouetteFitResult(
-        **final,
-        history=history,
-        iou_start=history["iou"][0] if history["iou"] else float("nan"),
-        iou_end=float(best["iou"]) if history["iou"] else float("nan"),
-        seconds=time.perf_counter() - t0,
-        steps=step,
-        warnings=warnings,
-    )
+    seconds = (time.perf_counter() - t0) / max(P, 1)
+    config = cfg.to_dict()
+    results = []
+    for p in range(P):
+        final = {}
+        for k, v in best_params[p].items():
+            final[k] = v.detach().cpu().numpy().astype(np.float32).reshape(1, -1)
+        h = history[p]
+        results.append(SilhouetteFitResult(
+            **{k: final[k] for k in PARAMS}, history=h,
+            iou_start=h["iou"][0] if h["iou"] else float("nan"),
+            iou_end=float(best_iou[p]) if h["iou"] else float("nan"),
+            seconds=seconds, steps=steps[p], warnings=warnings[p], terms=best_terms[p], config=config,
+        ))  # fmt: skip
+    return results

@@ -1,0 +1,186 @@
+"""Energy terms: small named objects, each returning one energy per problem ``[P]``.
+
+A fit's energy is ``sum_t w_t * term_t`` over the named terms of :class:`Energy`, with
+the weights of the current stage (:mod:`silfit.fitting.stages`). Every term reads an
+:class:`Evaluation`: the body evaluated for the problems' parameter rows, its keypoints
+projected into every observation's camera, and the observations' data tensors (all
+indexed ``[P, F, C, ...]``: problem, frame, view). Terms over frames or views sum them,
+so a problem's energy is one number whatever its number of frames and views.
+
+Data each term expects in ``Evaluation.data``:
+
+* :class:`KeypointTerm`: ``target [P,F,C,K,2]`` pixels, ``weights [P,F,C,K]``
+  (confidence x per-keypoint weight, already normalised as the stage wants),
+  ``scale [P,F,C]`` (pixels -> the stage's residual units);
+* :class:`DepthTerm`: ``z0 [P,F,C]``, the depth the root should have in each camera;
+* :class:`StayTerm`: ``start_<param>`` (the parameters to stay near).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Dict, Iterable, Mapping, Optional
+
+import torch
+
+from ..camera import project_points
+from .losses import reprojection_energy
+from .problem import ParameterLayout, world_to_camera
+
+__all__ = [
+    "DepthTerm",
+    "Energy",
+    "Evaluation",
+    "InterpenetrationTerm",
+    "KeypointTerm",
+    "PriorTerm",
+    "StayTerm",
+    "Term",
+    "evaluate",
+]
+
+
+@dataclass
+class Evaluation:
+    """What the terms read; ``P`` problems, ``F`` frames, ``C`` views."""
+
+    P: int
+    F: int
+    C: int
+    params: Dict[str, torch.Tensor]  # shared [P, w], per-frame [P, F, w]
+    rows: Dict[str, torch.Tensor]  # per body row [P * F, w]
+    body: object  # BodyState of the rows (world frame)
+    keypoints_2d: torch.Tensor  # [P, F, C, K, 2]
+    root_camera: torch.Tensor  # [P, F, C, 3]: transl in each camera's frame
+    data: Dict[str, torch.Tensor]
+    extras: dict = field(default_factory=dict)  # diagnostics terms leave behind (e.g. IoU)
+
+    def per_problem(self, values: torch.Tensor) -> torch.Tensor:
+        """Sum ``[P]``, ``[P * F]``, ``[P, F]`` or ``[P, F, C]`` values per problem."""
+        return values.reshape(self.P, -1).sum(1)
+
+
+def evaluate(body, layout: ParameterLayout, params: Dict[str, torch.Tensor], views: Dict[str, torch.Tensor], data) -> Evaluation:
+    """Evaluate ``body`` (a :mod:`silfit.fitting.body` evaluator) for the problems' parameters
+    and project its keypoints into every view (``views``: ``intr, R, t [P, F, C, ...]``)."""
+    rows = layout.rows(params)
+    state = body(**rows)
+    P, F, C = views["intr"].shape[:3]
+    kp = state.keypoints.reshape(P, F, 1, *state.keypoints.shape[1:]).expand(P, F, C, *state.keypoints.shape[1:])
+    R, t = views["R"].to(kp.dtype), views["t"].to(kp.dtype)
+    kp_cam = world_to_camera(kp, R, t)
+    proj = project_points(kp_cam, views["intr"])
+    root = rows["transl"].reshape(P, F, 1, 3)
+    root_cam = torch.einsum("pfcij,pfcj->pfci", R, root.expand(P, F, C, 3)) + t
+    return Evaluation(P, F, C, params, rows, state, proj, root_cam, data)
+
+
+class Term:
+    """A named energy term: ``term(evaluation) -> [P]``."""
+
+    name: str = ""
+
+    def __call__(self, ev: Evaluation) -> torch.Tensor:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+class KeypointTerm(Term):
+    """Robust reprojection: ``sum_k w_k * rho(scale * (proj_k - target_k))`` per observation
+    (Geman-McClure with ``sigma``, or plain L2 with ``sigma=None``), summed over
+    observations. ``mask [K]`` restricts it to some keypoints (e.g. the torso)."""
+
+    def __init__(self, name: str = "keypoints", sigma: Optional[float] = 100.0, mask: Optional[torch.Tensor] = None):
+        self.name, self.sigma, self.mask = name, sigma, mask
+
+    def __call__(self, ev: Evaluation) -> torch.Tensor:
+        d = ev.data
+        K = ev.keypoints_2d.shape[-2]
+        weights = d["weights"] if self.mask is None else d["weights"] * self.mask.to(d["weights"].dtype)
+        e = reprojection_energy(
+            ev.keypoints_2d.reshape(-1, K, 2), d["target"].reshape(-1, K, 2), weights.reshape(-1, K),
+            d["scale"].reshape(-1), self.sigma,
+        )  # fmt: skip
+        return ev.per_problem(e)
+
+
+class DepthTerm(Term):
+    """``(z_root - z0)^2`` per observation: the root's depth in the camera against a guess
+    (the similar-triangles depth of the initialisation)."""
+
+    name = "depth"
+
+    def __call__(self, ev: Evaluation) -> torch.Tensor:
+        return ev.per_problem((ev.root_camera[..., 2] - ev.data["z0"]) ** 2)
+
+
+class PriorTerm(Term):
+    """``fn(parameter) -> [rows]`` summed per problem: pose, angle, limit and shape priors."""
+
+    def __init__(self, name: str, fn: Callable[[torch.Tensor], torch.Tensor], parameter: str):
+        self.name, self.fn, self.parameter = name, fn, parameter
+
+    def __call__(self, ev: Evaluation) -> torch.Tensor:
+        value = ev.params[self.parameter]
+        return ev.per_problem(self.fn(value.reshape(-1, value.shape[-1])))
+
+
+class InterpenetrationTerm(Term):
+    """Self-intersection of the posed body (``collisions(betas, transforms) -> [rows]``)."""
+
+    name = "interpenetration"
+
+    def __init__(self, collisions):
+        self.collisions = collisions
+
+    def __call__(self, ev: Evaluation) -> torch.Tensor:
+        return ev.per_problem(self.collisions(ev.rows["betas"], ev.body.transforms))
+
+
+class StayTerm(Term):
+    """``|param - start|^2``: a pull toward given parameters (``data['start_<param>']``)."""
+
+    def __init__(self, parameter: str = "body_pose", name: str = "stay"):
+        self.name, self.parameter = name, parameter
+
+    def __call__(self, ev: Evaluation) -> torch.Tensor:
+        diff = ev.params[self.parameter] - ev.data[f"start_{self.parameter}"]
+        return ev.per_problem(diff.reshape(ev.P, -1).square())
+
+
+class Energy:
+    """A sum of named terms with per-stage weights.
+
+    ``energy(ev, weights) -> (total [P], parts {name: [P]})``; a term whose weight is zero
+    or absent is not evaluated. Weight names that are not terms are an error (a
+    misspelled weight must not silently drop a term)."""
+
+    def __init__(self, terms: Iterable[Term]):
+        self.terms: Dict[str, Term] = {}
+        for t in terms:
+            if not t.name or t.name in self.terms:
+                raise ValueError(f"energy terms need distinct names, got {t.name!r} twice or empty")
+            self.terms[t.name] = t
+
+    @property
+    def names(self) -> tuple:
+        return tuple(self.terms)
+
+    def check(self, weights: Mapping[str, float], where: str = "stage") -> None:
+        unknown = sorted(set(weights) - set(self.terms))
+        if unknown:
+            raise ValueError(f"{where}: unknown energy term(s) {', '.join(unknown)} (known: {', '.join(self.terms)})")
+        bad = [k for k, v in weights.items() if not isinstance(v, (int, float)) or v != v or v < 0]
+        if bad:
+            raise ValueError(f"{where}: weight(s) of {', '.join(bad)} must be non-negative numbers")
+
+    def __call__(self, ev: Evaluation, weights: Mapping[str, float]):
+        total = None
+        parts = {}
+        for name, w in weights.items():
+            if not w:
+                continue
+            value = self.terms[name](ev)
+            parts[name] = value
+            total = w * value if total is None else total + w * value
+        if total is None:
+            total = torch.zeros(ev.P, dtype=ev.keypoints_2d.dtype)
+        return total, parts
