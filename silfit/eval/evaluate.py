@@ -42,7 +42,7 @@ import torch
 from ..camera import Camera, project_points
 from ..dataset import SubjectError, list_subjects, load_subject
 from ..keypoints import model_keypoints
-from .metrics import mask_iou, mpjpe, pa_mpjpe, pve, reprojection_error, shape_pve, translation_error
+from .metrics import mask_iou, mpjpe, pa_mpjpe, pa_pve, pve, reprojection_error, shape_pve, translation_error
 
 __all__ = [
     "METRICS",
@@ -65,13 +65,19 @@ METRICS = {
     "mpjpe": ("MPJPE", "mm", True),
     "pa_mpjpe": ("PA-MPJPE", "mm", True),
     "pve": ("PVE", "mm", True),
+    "pa_pve": ("PA-PVE", "mm", True),
     "shape_pve": ("Shape PVE (T-pose)", "mm", True),
     "shape_pve_scaled": ("Shape PVE, stature aligned", "mm", True),
     "transl_err": ("Translation error", "mm", True),
     "reproj_px": ("2D reprojection error", "px", True),
     "iou": ("Silhouette IoU", "", False),
+    "energy_fit": ("Keypoint-stage energy at the fit", "", True),
+    "energy_truth": ("Keypoint-stage energy at the truth", "", True),
+    "search_failure": ("Search failures (fit energy above the truth's)", "%", True),
     "time_s": ("Time", "s", True),
 }
+#: a fit whose keypoint-stage energy exceeds the truth's by more than this share is a search failure
+SEARCH_FAILURE_RTOL = 1e-4
 #: Preferred method order in tables and plots.
 METHOD_ORDER = ("keypoints", "silhouette", "fit")
 
@@ -192,6 +198,8 @@ def score_fit(model, subject, fit: FitParams, iou: bool = True) -> Dict[str, flo
         m["transl_err"] = 1000 * translation_error(joints[0], gj[0])
     if gt.vertices.shape == verts.shape:
         m["pve"] = 1000 * pve(verts, gt.vertices, joints[0], gj[0])
+        m["pa_pve"] = 1000 * pa_pve(verts, gt.vertices)
+    m.update(_search_gap(fit.path))
     fit_betas = np.pad(betas, (0, nb - len(betas)))
     m["shape_pve"] = 1000 * shape_pve(model, fit_betas, gt.betas[:nb])
     m["shape_pve_scaled"] = 1000 * shape_pve(model, fit_betas, gt.betas[:nb], scale=True)
@@ -222,6 +230,25 @@ def score_fit(model, subject, fit: FitParams, iou: bool = True) -> Dict[str, flo
     return {k: float(v) for k, v in m.items()}
 
 
+def search_gap(energy_fit: float, energy_truth: float) -> Dict[str, float]:
+    """The keypoint-stage energies at the fit and at the truth, and whether the search failed
+    (the fit's energy above the truth's: the optimiser missed a better minimum)."""
+    fail = energy_fit > energy_truth + SEARCH_FAILURE_RTOL * abs(energy_truth)
+    return {"energy_fit": float(energy_fit), "energy_truth": float(energy_truth), "search_failure": 100.0 * float(fail)}
+
+
+def _search_gap(folder: Optional[Path]) -> Dict[str, float]:
+    """The search gap a fit's ``metrics.json`` records (``search``: energies at fit and truth)."""
+    f = None if folder is None else Path(folder) / "metrics.json"
+    if f is None or not f.is_file():
+        return {}
+    try:
+        rec = json.loads(f.read_text(encoding="utf-8")).get("search")
+        return search_gap(float(rec["energy_fit"]), float(rec["energy_truth"]))
+    except (ValueError, TypeError, KeyError, AttributeError, json.JSONDecodeError):
+        return {}
+
+
 # ----------------------------------------------------------------------------- the fitter
 def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str], model, progress: bool = False) -> Dict[str, str]:
     """Run the fitter over loaded subjects, writing ``fits_root/<subject>/<method>/``.
@@ -244,13 +271,20 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
     kp_elapsed = time.perf_counter() - t0
     kp_timings = {k: float(v) / len(subjects) for k, v in result.timings.items()}
     kp_timings.setdefault("total", kp_elapsed / len(subjects))
+    search = [None] * len(subjects)
+    if all(s.gt is not None for s in subjects):  # the keypoint-stage energy at the truth vs at the fit
+        truth = {k: np.stack([s.gt.params()[k][0] for s in subjects]) for k in model.parameter_names}
+        e_truth, _ = fitter.energy_at(truth, sets, [s.camera for s in subjects])
+        e_fit = result.energies[fitter.stages[-1].name]
+        search = [{"energy_fit": float(a), "energy_truth": float(b)} for a, b in zip(e_fit, e_truth)]
     if "keypoints" in methods:
         for i, s in enumerate(subjects):  # each fit folder is written beside its place, then moved in
             d = Path(fits_root) / s.name / "keypoints"
             d.parent.mkdir(parents=True, exist_ok=True)
             tmp = Path(tempfile.mkdtemp(prefix=".keypoints.", dir=d.parent))
             result[i].save(tmp)
-            (tmp / "metrics.json").write_text(json.dumps({"timings": kp_timings, "batched_over": len(subjects)}, indent=2))
+            record = {"timings": kp_timings, "batched_over": len(subjects), "search": search[i]}
+            (tmp / "metrics.json").write_text(json.dumps(record, indent=2))
             if d.exists():
                 shutil.rmtree(d)
             os.replace(tmp, d)
@@ -273,7 +307,7 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
             timings = {"keypoints": kp_timings["total"], "silhouette": fitted.silhouette.seconds}
             timings["total"] = sum(timings.values())
             save_fit(fitted, Path(fits_root) / s.name / "silhouette", faces, s.keypoints, s.image, s.mask,
-                     {"timings": timings}, overwrite=True)  # fmt: skip
+                     {"timings": timings, "search": search[i]}, overwrite=True)  # fmt: skip
             ran += 1
         status["silhouette"] = f"ran on {ran} subjects" + (f"; failed: {'; '.join(failed)}" if failed else "")
     return status
@@ -400,6 +434,8 @@ def markdown_table(report: dict) -> str:
 
 
 def _fmt(v: float, key: str) -> str:
+    if key.startswith("energy"):
+        return f"{v:.4g}"
     if key == "iou":
         return f"{v:.3f}"
     if key.startswith("time"):

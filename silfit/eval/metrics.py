@@ -87,6 +87,12 @@ def pa_mpjpe(pred, gt) -> float:
     return _out(np.linalg.norm(procrustes_align(pred, gt) - gt, axis=-1).mean(-1))
 
 
+def pa_pve(pred_vertices, gt_vertices) -> float:
+    """Mean per-vertex error after similarity Procrustes alignment of the meshes."""
+    pred, gt = _pair(pred_vertices, gt_vertices)
+    return _out(np.linalg.norm(procrustes_align(pred, gt) - gt, axis=-1).mean(-1))
+
+
 def pve(pred_vertices, gt_vertices, pred_root=None, gt_root=None, align: bool = True) -> float:
     """Mean per-vertex error. With ``align`` each mesh is shifted so that its root (``pred_root``
     / ``gt_root``, e.g. the pelvis joint, ``[..., 3]``; default: the vertex centroid) is at the

@@ -41,6 +41,7 @@ from ..camera import UPRIGHT_BACK_TO_CAMERA, UPRIGHT_FACING_CAMERA, Camera
 from ..keypoints import LAYOUTS, KeypointSet
 from ..priors import SphereCollisionModel, angle_prior, limit_violation, load_pose_prior, shape_prior
 from .body import KeypointBody
+from .branches import limb_hypotheses
 from .problem import ParameterLayout, Problem, stack_views
 from .result import KeypointFitResult
 from .stages import Stage, check_stages, run_lbfgs_stage, stage_to_dict
@@ -99,6 +100,18 @@ class KeypointFitConfig:
     #: torch threads during the fit (the per-iteration tensors are small, so one thread
     #: avoids synchronisation overhead; ``None`` leaves torch's setting alone).
     threads: Optional[int] = 1
+    #: limb-branch search (:mod:`silfit.fitting.branches`): after pose stage
+    #: ``branch_after_stage`` (0-based), every segment pointing out of the image plane by at
+    #: least ``branch_min_depth_ratio`` (|cos| to the ray) is mirrored in depth (alone, and
+    #: per whole limb), each hypothesis runs ``branch_iters`` L-BFGS steps with that pose
+    #: stage's weights plus interpenetration, and each sample keeps its lowest energy;
+    #: ``branch_rounds`` repeats the search from the kept pose.
+    branch_search: bool = True
+    branch_after_stage: int = 1
+    branch_iters: int = 20
+    branch_min_depth_ratio: float = 0.3
+    branch_whole_limbs: bool = True
+    branch_rounds: int = 1
     #: an explicit list of :class:`~silfit.fitting.stages.Stage` replacing the schedule
     #: the fields above describe (see :meth:`stages`)
     schedule: Optional[Sequence[Stage]] = None
@@ -127,6 +140,11 @@ class KeypointFitConfig:
             opts = {"decide_after": int(self.decision_iters)} if i == self.flip_decision_stage else {}
             weights = {"keypoints": 1.0, "pose": wp, "angle": wa, "limits": self.limit_weight}
             out.append(Stage(f"pose_{i + 1}", pose_free, weights, int(it), options=opts))
+            if self.branch_search and i == min(self.branch_after_stage, len(self.pose_iters) - 1):
+                for r in range(int(self.branch_rounds)):
+                    opts = {"branches": {"min_depth_ratio": self.branch_min_depth_ratio, "whole_limbs": self.branch_whole_limbs}}
+                    w = {**weights, "interpenetration": self.interpenetration_weight}
+                    out.append(Stage(f"branches_{r + 1}", pose_free, w, int(self.branch_iters), options=opts))
         if self.shape_iters:
             out.append(Stage("shape", ("betas", "transl"), {"keypoints": 1.0, "shape": self.shape_weight}, self.shape_iters))
         if self.final_iters:
@@ -322,8 +340,11 @@ class KeypointFitter:
             state, info = self.fit_problems(problems, progress=progress)
         return self._result(state, info, sets, cams)
 
-    def fit_problems(self, problems: Sequence[Problem], progress: bool = False):
+    def fit_problems(self, problems: Sequence[Problem], progress: bool = False, init: Optional[dict] = None):
         """Run the schedule on single-view problems of equal frame count.
+
+        ``init`` (``{name: [B, w]}`` or ``[B, F, w]``) replaces the initial placement's
+        values of the parameters it names (all starts begin there).
 
         Returns ``(state, info)``: the parameters (shared ``[B, w]``, per-frame
         ``[B, F, w]``) and a dict with per-stage ``energies`` and ``terms`` ``[B]``,
@@ -339,6 +360,10 @@ class KeypointFitter:
         facings = (False, True) if cfg.flip_test else (False,)
         init_poses = self._initial_poses(cfg.init_poses)
         data, views, state = self._problem_data(problems, facings)
+        for n, v in (init or {}).items():
+            v = torch.as_tensor(np.asarray(v, dtype=np.float64), dtype=dt)
+            shape = state[n].shape[1:]
+            state[n] = v.reshape(B, *shape).repeat(len(facings), *([1] * len(shape)))
         start_flip = torch.as_tensor(np.repeat(facings, B), dtype=torch.bool)
         group = torch.arange(B).repeat(len(facings))
         energies, terms, timings = {}, {}, {}
@@ -362,7 +387,25 @@ class KeypointFitter:
             r = run_lbfgs_stage(stage, state, layout, self.energy, self.body, views, data, iters, cfg.history, progress)
             return record(name or stage.name, r)
 
+        chosen_branches = [[] for _ in range(B)]
         for stage in self.stages:
+            if "branches" in stage.options:
+                if not decided or layout.frames != 1:
+                    raise ValueError(f"stage '{stage.name}': the branch search needs one frame and a decided start")
+                opts = stage.options["branches"]
+                hyps = limb_hypotheses(self.body, layout.rows(state), self.model.joint_names, self.model.parents,
+                                       opts.get("min_depth_ratio", 0.3), opts.get("whole_limbs", True))  # fmt: skip
+                labels = ["keep"] * B + [h[1] for h in hyps]
+                take(torch.cat([torch.arange(B), torch.as_tensor([h[0] for h in hyps], dtype=torch.long)]))
+                if hyps:
+                    state["body_pose"][B:, 0] = torch.stack([h[2] for h in hyps]).to(dt)
+                f = run(stage)
+                keep = best_per_group(f, group, B)
+                for b, k in enumerate(keep.tolist()):
+                    if labels[k] != "keep":
+                        chosen_branches[b].append(labels[k])
+                take(keep)
+                continue
             decide_after = stage.options.get("decide_after") if not decided else None
             if decide_after is None:
                 run(stage)
@@ -381,9 +424,31 @@ class KeypointFitter:
         if not decided:  # a schedule without a decision stage: keep the best start at the end
             take(best_per_group(energies[self.stages[-1].name], group, B))
         timings["total"] = time.perf_counter() - t_all
-        info = {"energies": energies, "terms": terms, "timings": timings, "flipped": start_flip.numpy(),
+        info = {"energies": energies, "terms": terms, "timings": timings, "flipped": start_flip.numpy(), "branches": chosen_branches,
                 "data": data, "views": views, "layout": layout}  # fmt: skip
         return state, info
+
+    def energy_at(self, params: dict, keypoints, cameras=None, *, image_size=None, focal=None, stage: str = "final"):
+        """The energy of stage ``stage`` (default: the last, full one) at given parameters
+        (``{name: [B, w]}``, e.g. the ground truth), per sample ``[B]``, with its terms.
+
+        With the fit's own value (``result.energies[stage]``) this tells a search failure
+        (the fit's energy above the truth's) from an energy whose minimum is wrong."""
+        sets = prepare_keypoints(keypoints, self.layout)
+        cams = _resolve_cameras(sets, cameras, image_size, focal)
+        problems = [Problem.single(ks, cam) for ks, cam in zip(sets, cams)]
+        data, views, _ = self._problem_data(problems, (False,))
+        by_name = {s.name: s for s in self.stages}
+        if stage not in by_name:
+            raise ValueError(f"no stage {stage!r} in the schedule ({', '.join(by_name)})")
+        state = {}
+        for n in self.params.sizes:
+            v = torch.as_tensor(np.asarray(params[n], dtype=np.float64), dtype=self.dtype).reshape(len(sets), -1)
+            state[n] = v if self.params.is_shared(n) else v[:, None]
+        with torch.no_grad(), torch_threads(self.config.threads):
+            ev = evaluate(self.body, self.params, state, views, data)
+            total, parts = self.energy(ev, by_name[stage].weights)
+        return total.numpy(), {k: v.numpy() for k, v in parts.items()}
 
     def _result(self, state, info, sets, cams) -> KeypointFitResult:
         layout = info["layout"]
@@ -401,6 +466,7 @@ class KeypointFitter:
             energies={k: np_(v) for k, v in info["energies"].items()},
             term_energies={s: {t: np_(v) for t, v in d.items()} for s, d in info["terms"].items()},
             timings=info["timings"], flipped=info["flipped"], reprojection_error=reproj, config=self.config.to_dict(),
+            branches=info["branches"],
         )  # fmt: skip
 
 

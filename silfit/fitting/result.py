@@ -45,6 +45,8 @@ class KeypointFitResult:
     reprojection_error: Optional[np.ndarray] = None
     term_energies: dict = field(default_factory=dict)
     config: dict = field(default_factory=dict)
+    #: per sample, the limb-branch flips the search kept (e.g. ``["left_shin"]``)
+    branches: Optional[list] = None
 
     def __len__(self) -> int:
         return self.betas.shape[0]
@@ -67,7 +69,7 @@ class KeypointFitResult:
             energies={k: v[sl] for k, v in self.energies.items()}, timings=dict(self.timings),
             flipped=pick(self.flipped), reprojection_error=pick(self.reprojection_error),
             term_energies={s: {t: v[sl] for t, v in d.items()} for s, d in self.term_energies.items()},
-            config=self.config,
+            config=self.config, branches=None if self.branches is None else [self.branches[i]],
         )  # fmt: skip
 
     # ------------------------------------------------------------------ I/O
@@ -96,6 +98,8 @@ class KeypointFitResult:
             payload["energy_terms"] = {s: {t: float(v[index]) for t, v in d.items()} for s, d in self.term_energies.items()}
         if self.config:
             payload["config"] = self.config
+        if self.branches is not None:
+            payload["branches"] = list(self.branches[index])
         if self.flipped is not None:
             payload["flipped"] = bool(self.flipped[index])
         if self.reprojection_error is not None:

@@ -10,9 +10,11 @@ from silfit.fitting.stages import Stage
 
 def test_keypoint_schedule_is_data_with_the_decision_in_the_first_pose_stage():
     stages = KeypointFitConfig().stages()
-    assert [s.name for s in stages] == ["camera", "pose_1", "pose_2", "pose_3", "shape", "final"]
+    assert [s.name for s in stages] == ["camera", "pose_1", "pose_2", "branches_1", "pose_3", "shape", "final"]
     assert stages[1].options == {"decide_after": 20} and not stages[2].options
     assert stages[0].weights == {"torso": 1.0, "depth": 1e3}
+    assert "branches" in stages[3].options and stages[3].weights["interpenetration"] == 1e5
+    assert [s.name for s in KeypointFitConfig(branch_search=False).stages()][3] == "pose_3"
     assert stages[-1].weights["interpenetration"] == 1e5 and "betas" in stages[-1].free
 
 

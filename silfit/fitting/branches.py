@@ -1,0 +1,118 @@
+"""Limb-branch hypotheses: the depth ambiguity of a limb segment, as alternative poses.
+
+Seen by one camera, a limb segment from joint ``p`` to joint ``d`` and its mirror image
+through the plane that contains ``p`` and is perpendicular to the viewing ray project to
+(nearly: exactly under weak perspective) the same 2D segment, one pointing toward the
+camera and one away. Keypoints cannot tell them apart; a fit started on the wrong side
+stays there. :func:`flip_segment` builds the mirrored branch as a pose: the proximal
+joint's rotation is composed with the smallest rotation taking ``d - p`` to its mirror
+image, so the segment and everything below it turn rigidly. :func:`limb_hypotheses`
+proposes, per sample, the flips of the segments that point far enough out of the image
+plane to matter (``min_depth_ratio``), singly and per whole limb.
+
+Pure functions of joint positions and rotations (no gradients): the keypoint stage runs
+a short L-BFGS from each hypothesis and keeps the lowest energy per sample.
+"""
+from __future__ import annotations
+
+from typing import Dict, List, Sequence, Tuple
+
+import numpy as np
+import torch
+from scipy.spatial.transform import Rotation
+
+__all__ = ["LIMB_SEGMENTS", "LIMBS", "flip_segment", "limb_hypotheses", "mirror_rotation"]
+
+#: (segment, rotated joint, distal joint), SMPL joint names
+LIMB_SEGMENTS: Tuple[Tuple[str, str, str], ...] = (
+    ("left_thigh", "left_hip", "left_knee"),
+    ("left_shin", "left_knee", "left_ankle"),
+    ("right_thigh", "right_hip", "right_knee"),
+    ("right_shin", "right_knee", "right_ankle"),
+    ("left_upper_arm", "left_shoulder", "left_elbow"),
+    ("left_forearm", "left_elbow", "left_wrist"),
+    ("right_upper_arm", "right_shoulder", "right_elbow"),
+    ("right_forearm", "right_elbow", "right_wrist"),
+)
+#: whole limbs: (upper segment, lower segment)
+LIMBS = (("left_thigh", "left_shin"), ("right_thigh", "right_shin"),
+         ("left_upper_arm", "left_forearm"), ("right_upper_arm", "right_forearm"))  # fmt: skip
+
+
+def mirror_rotation(v: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Smallest rotations ``[R, 3, 3]`` taking segments ``v [R, 3]`` to their mirror images
+    through the planes of unit normals ``n [R, 3]``."""
+    w = v - 2.0 * (v * n).sum(-1, keepdims=True) * n
+    axis = np.cross(v, w)
+    s = np.linalg.norm(axis, axis=-1)
+    c = (v * w).sum(-1)
+    angle = np.arctan2(s, c)
+    unit = axis / np.maximum(s, 1e-12)[:, None]
+    rv = np.where((s > 1e-9)[:, None], unit * angle[:, None], 0.0)
+    return Rotation.from_rotvec(rv).as_matrix()
+
+
+def _pose_state(body, rows: Dict[str, torch.Tensor]):
+    with torch.no_grad():
+        st = body(**rows)
+    return st.joints.double().numpy(), st.transforms[..., :3, :3].double().numpy()
+
+
+def flip_segment(body, rows: Dict[str, torch.Tensor], segment: str, joint_names: Sequence[str], parents) -> torch.Tensor:
+    """``body_pose [R, 3 * (J - 1)]`` with ``segment`` mirrored in depth (camera frame,
+    perspective: the mirror plane is perpendicular to the ray through the segment's middle).
+
+    ``body`` is a :class:`~silfit.fitting.body.KeypointBody`-like evaluator (joints and
+    transforms of parameter rows); ``rows`` holds parameter rows in the camera frame."""
+    _, proximal, distal = next(s for s in LIMB_SEGMENTS if s[0] == segment)
+    j, c = joint_names.index(proximal), joint_names.index(distal)
+    joints, G = _pose_state(body, rows)
+    p, d = joints[:, j], joints[:, c]
+    ray = 0.5 * (p + d)
+    n = ray / np.linalg.norm(ray, axis=-1, keepdims=True)
+    fix = mirror_rotation(d - p, n)
+    Gp = G[:, parents[j]]
+    Gj = G[:, j]
+    local = np.einsum("rji,rjk,rkl->ril", Gp, fix, Gj)  # Gp^T @ fix @ Gj
+    pose = rows["body_pose"].detach().clone()
+    pose[:, 3 * (j - 1) : 3 * j] = torch.as_tensor(Rotation.from_matrix(local).as_rotvec(), dtype=pose.dtype)
+    return pose
+
+
+def depth_ratios(body, rows, joint_names) -> Dict[str, np.ndarray]:
+    """Per segment, ``|cos|`` of the angle between the segment and the image plane's normal
+    (the ray): 0 for a segment in the image plane (nothing to flip), 1 along the ray."""
+    joints, _ = _pose_state(body, rows)
+    out = {}
+    for name, proximal, distal in LIMB_SEGMENTS:
+        p, d = joints[:, joint_names.index(proximal)], joints[:, joint_names.index(distal)]
+        ray = 0.5 * (p + d)
+        v = d - p
+        out[name] = np.abs((v * ray).sum(-1)) / np.maximum(np.linalg.norm(v, axis=-1) * np.linalg.norm(ray, axis=-1), 1e-12)
+    return out
+
+
+def limb_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, min_depth_ratio: float = 0.3,
+                    whole_limbs: bool = True) -> List[Tuple[int, str, torch.Tensor]]:  # fmt: skip
+    """Hypotheses ``(row, label, body_pose [3 * (J - 1)])``: each segment whose depth
+    ratio is at least ``min_depth_ratio`` flipped alone and, with ``whole_limbs``, each limb
+    with both segments flipped (the upper first, then the lower from its new place)."""
+    ratios = depth_ratios(body, rows, joint_names)
+    flipped = {name: flip_segment(body, rows, name, joint_names, parents) for name, _, _ in LIMB_SEGMENTS}
+    out = []
+    R = rows["body_pose"].shape[0]
+    for name, _, _ in LIMB_SEGMENTS:
+        for r in np.nonzero(ratios[name] >= min_depth_ratio)[0].tolist():
+            out.append((r, name, flipped[name][r]))
+    if whole_limbs:
+        for upper, lower in LIMBS:
+            sel = np.nonzero((ratios[upper] >= min_depth_ratio) | (ratios[lower] >= min_depth_ratio))[0]
+            if not len(sel):
+                continue
+            sub = {k: v[sel] for k, v in rows.items()}
+            sub["body_pose"] = flipped[upper][sel]
+            both = flip_segment(body, sub, lower, joint_names, parents)
+            for k, r in enumerate(sel.tolist()):
+                out.append((r, f"{upper}+{lower}", both[k]))
+    assert all(0 <= r < R for r, _, _ in out)
+    return out
