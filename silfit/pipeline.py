@@ -25,7 +25,7 @@ import shutil
 import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Optional, Union
+from typing import List, Optional, Sequence, Union
 
 import numpy as np
 import torch
@@ -33,12 +33,12 @@ import torch
 from .camera import Camera, project_points
 from .fitting.keypoint_stage import KeypointFitConfig, KeypointFitter, prepare_keypoints
 from .fitting.result import KeypointFitResult
-from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult, fit_silhouette
+from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult, fit_silhouettes
 from .keypoints import KeypointSet, model_keypoints
 from .eval.metrics import mask_iou
 from .silhouette.masks import validate_mask
 
-__all__ = ["FitResult", "fit", "refine", "save_fit", "body_mask"]
+__all__ = ["FitResult", "fit", "refine", "refine_batch", "save_fit", "body_mask"]
 
 
 @dataclass
@@ -112,41 +112,71 @@ def refine(
     mask_source: str = "mask",
 ) -> FitResult:
     """The silhouette stage on top of a single-sample keypoint result (see :func:`fit`)."""
-    camera = keypoint_result.camera
-    validate_mask(mask, mask_source, size=(camera.width, camera.height))
+    return refine_batch(model, keypoint_result, [keypoints], [mask], config, pose_prior, renderer, progress,
+                        [mask_source])[0]  # fmt: skip
+
+
+def refine_batch(
+    model,
+    keypoint_result: KeypointFitResult,
+    keypoints: Sequence[KeypointSet],
+    masks: Sequence[np.ndarray],
+    config: Optional[SilhouetteFitConfig] = None,
+    pose_prior=None,
+    renderer=None,
+    progress: bool = True,
+    mask_sources: Optional[Sequence[str]] = None,
+) -> List[FitResult]:
+    """The silhouette stage on a batch of keypoint results (sample ``i`` of
+    ``keypoint_result`` with ``keypoints[i]`` and ``masks[i]``), all subjects refined
+    together (:func:`~silfit.fitting.silhouette_stage.fit_silhouettes`)."""
+    n = len(keypoints)
+    if len(keypoint_result) != n or len(masks) != n:
+        raise ValueError(f"{len(keypoint_result)} keypoint results, {n} keypoint sets and {len(masks)} masks")
+    mask_sources = list(mask_sources or ["mask"] * n)
     faces = model.faces.cpu().numpy()
-    kp_mask = body_mask(keypoint_result.vertices[0], faces, camera)
-    iou_before = mask_iou(kp_mask, mask)
-    if iou_before == 0.0:
-        raise ValueError(
-            f"{mask_source}: the mask does not overlap the body fitted to the keypoints at all "
-            "(wrong mask, or keypoints of another image?)"
-        )
-    sil = fit_silhouette(
-        model, keypoint_result.params(0), camera, mask, keypoints.as_array(), layout=keypoints.layout,
-        config=config, pose_prior=pose_prior, renderer=renderer, progress=progress,
+    masks = [np.asarray(m, dtype=bool) for m in masks]
+    cameras = keypoint_result.cameras
+    kp_masks, ious_before = [], []
+    for i in range(n):
+        camera = cameras[i]
+        validate_mask(masks[i], mask_sources[i], size=(camera.width, camera.height))
+        kp_masks.append(body_mask(keypoint_result.vertices[i], faces, camera))
+        ious_before.append(mask_iou(kp_masks[i], masks[i]))
+        if ious_before[i] == 0.0:
+            raise ValueError(
+                f"{mask_sources[i]}: the mask does not overlap the body fitted to the keypoints at all "
+                "(wrong mask, or keypoints of another image?)"
+            )
+    sils = fit_silhouettes(
+        model, [keypoint_result.params(i) for i in range(n)], cameras, masks, [k.as_array() for k in keypoints],
+        layout=keypoints[0].layout, config=config, pose_prior=pose_prior, renderer=renderer, progress=progress,
     )  # fmt: skip
-    params = sil.params()
-    vertices, joints, kp2d = _pose(model, params, keypoints.layout, camera)
-    final_mask = body_mask(vertices, faces, camera)
-    iou_after = mask_iou(final_mask, mask)
-    warnings = list(sil.warnings)
-    if iou_after < iou_before - 0.02:
-        warnings.append(f"silhouette stage lowered the IoU ({iou_before:.3f} -> {iou_after:.3f}); kept its result")
-    metrics = {
-        "stages": ["keypoints", "silhouette"],
-        "timings_s": {**{f"keypoints.{k}": float(v) for k, v in keypoint_result.timings.items()},
-                      "keypoints": float(sum(keypoint_result.timings.values())), "silhouette": sil.seconds},
-        "reprojection_error_px_keypoint_stage": float(keypoint_result.reprojection_error[0]),
-        "reprojection_error_px": _median_reprojection(kp2d, keypoints),
-        "iou_keypoint_stage": iou_before,
-        "iou": iou_after,
-        "silhouette_steps": sil.steps,
-        "warnings": warnings,
-        **_run_record(keypoint_result, sil),
-    }  # fmt: skip
-    return FitResult(camera, keypoints.layout, keypoint_result, sil, params, vertices, joints, kp2d, metrics,
-                     masks={"keypoint_stage": kp_mask, "final": final_mask})  # fmt: skip
+    out = []
+    for i, sil in enumerate(sils):
+        one = keypoint_result[i]
+        params = sil.params()
+        vertices, joints, kp2d = _pose(model, params, keypoints[i].layout, cameras[i])
+        final_mask = body_mask(vertices, faces, cameras[i])
+        iou_after = mask_iou(final_mask, masks[i])
+        warnings = list(sil.warnings)
+        if iou_after < ious_before[i] - 0.02:
+            warnings.append(f"silhouette stage lowered the IoU ({ious_before[i]:.3f} -> {iou_after:.3f}); kept its result")
+        metrics = {
+            "stages": ["keypoints", "silhouette"],
+            "timings_s": {**{f"keypoints.{k}": float(v) for k, v in one.timings.items()},
+                          "keypoints": float(sum(one.timings.values())), "silhouette": sil.seconds},
+            "reprojection_error_px_keypoint_stage": float(one.reprojection_error[0]),
+            "reprojection_error_px": _median_reprojection(kp2d, keypoints[i]),
+            "iou_keypoint_stage": ious_before[i],
+            "iou": iou_after,
+            "silhouette_steps": sil.steps,
+            "warnings": warnings,
+            **_run_record(one, sil),
+        }  # fmt: skip
+        out.append(FitResult(cameras[i], keypoints[i].layout, one, sil, params, vertices, joints, kp2d, metrics,
+                             masks={"keypoint_stage": kp_masks[i], "final": final_mask}))  # fmt: skip
+    return out
 
 
 def fit(

@@ -74,6 +74,7 @@ METRICS = {
     "energy_fit": ("Keypoint-stage energy at the fit", "", True),
     "energy_truth": ("Keypoint-stage energy at the truth", "", True),
     "search_failure": ("Search failures (fit energy above the truth's)", "%", True),
+    "facing_ok": ("Facing correct (within 90 degrees)", "%", False),
     "time_s": ("Time", "s", True),
 }
 #: a fit whose keypoint-stage energy exceeds the truth's by more than this share is a search failure
@@ -200,6 +201,7 @@ def score_fit(model, subject, fit: FitParams, iou: bool = True) -> Dict[str, flo
         m["pve"] = 1000 * pve(verts, gt.vertices, joints[0], gj[0])
         m["pa_pve"] = 1000 * pa_pve(verts, gt.vertices)
     m.update(_search_gap(fit.path))
+    m["facing_ok"] = 100.0 * float(_facing_agrees(fit.global_orient, gt.global_orient))
     fit_betas = np.pad(betas, (0, nb - len(betas)))
     m["shape_pve"] = 1000 * shape_pve(model, fit_betas, gt.betas[:nb])
     m["shape_pve_scaled"] = 1000 * shape_pve(model, fit_betas, gt.betas[:nb], scale=True)
@@ -230,6 +232,16 @@ def score_fit(model, subject, fit: FitParams, iou: bool = True) -> Dict[str, flo
     return {k: float(v) for k, v in m.items()}
 
 
+def _facing_agrees(orient, gt_orient) -> bool:
+    """Whether the body's forward direction (rest +Z) is within 90 degrees of the truth's,
+    in the camera's ground plane (x, z)."""
+    from scipy.spatial.transform import Rotation
+
+    f = Rotation.from_rotvec(np.asarray(orient, np.float64).reshape(3)).apply([0.0, 0.0, 1.0])
+    g = Rotation.from_rotvec(np.asarray(gt_orient, np.float64).reshape(3)).apply([0.0, 0.0, 1.0])
+    return bool(f[0] * g[0] + f[2] * g[2] > 0)
+
+
 def search_gap(energy_fit: float, energy_truth: float) -> Dict[str, float]:
     """The keypoint-stage energies at the fit and at the truth, and whether the search failed
     (the fit's energy above the truth's: the optimiser missed a better minimum)."""
@@ -250,7 +262,8 @@ def _search_gap(folder: Optional[Path]) -> Dict[str, float]:
 
 
 # ----------------------------------------------------------------------------- the fitter
-def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str], model, progress: bool = False) -> Dict[str, str]:
+def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str], model, progress: bool = False,
+               silhouette_batch: int = 8) -> Dict[str, str]:  # fmt: skip
     """Run the fitter over loaded subjects, writing ``fits_root/<subject>/<method>/``.
 
     ``keypoints``: the keypoint stage, batched over all subjects. ``silhouette``: the
@@ -258,7 +271,8 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
     shared when both methods are asked for). Returns ``{method: status}``; raises
     :class:`FitterUnavailable` when nothing can run."""
     from ..fitting import KeypointFitter, prepare_keypoints
-    from ..pipeline import refine, save_fit
+    from ..pipeline import body_mask, refine_batch, save_fit
+    from ..silhouette.masks import validate_mask
 
     unknown = [m for m in methods if m not in ("keypoints", "silhouette")]
     if unknown:
@@ -290,25 +304,33 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
             os.replace(tmp, d)
         status["keypoints"] = f"ran on {len(subjects)} subjects in {kp_elapsed:.1f} s (batched; per-subject times are batch averages)"
     if "silhouette" in methods:
-        from tqdm.auto import tqdm
-
         faces = model.faces.cpu().numpy()
         ran, failed = 0, []
-        for i, s in enumerate(tqdm(subjects, desc="silhouette stage", unit="subject", disable=not progress)):
+        todo = []
+        for i, s in enumerate(subjects):
             if s.mask is None:
                 failed.append(f"{s.name}: no mask")
                 continue
-            try:
-                fitted = refine(model, result[i], s.keypoints, s.mask, pose_prior=fitter.pose_prior, progress=False,
-                                mask_source=str(s.file("mask")))  # fmt: skip
+            try:  # the checks refine_batch makes, per subject, so one bad mask fails one subject
+                validate_mask(s.mask, str(s.file("mask")), size=(s.camera.width, s.camera.height))
+                if mask_iou(body_mask(result.vertices[i], faces, result.cameras[i]), s.mask) == 0.0:
+                    raise ValueError(f"{s.file('mask')}: the mask does not overlap the body fitted to the keypoints at all")
             except ValueError as err:
                 failed.append(f"{s.name}: {err}")
                 continue
-            timings = {"keypoints": kp_timings["total"], "silhouette": fitted.silhouette.seconds}
-            timings["total"] = sum(timings.values())
-            save_fit(fitted, Path(fits_root) / s.name / "silhouette", faces, s.keypoints, s.image, s.mask,
-                     {"timings": timings, "search": search[i]}, overwrite=True)  # fmt: skip
-            ran += 1
+            todo.append(i)
+        for start in range(0, len(todo), max(1, int(silhouette_batch))):
+            idx = todo[start : start + max(1, int(silhouette_batch))]
+            chunk = [subjects[i] for i in idx]
+            fitted_all = refine_batch(model, result.select(idx), [s.keypoints for s in chunk], [s.mask for s in chunk],
+                                      pose_prior=fitter.pose_prior, progress=progress,
+                                      mask_sources=[str(s.file("mask")) for s in chunk])  # fmt: skip
+            for i, s, fitted in zip(idx, chunk, fitted_all):
+                timings = {"keypoints": kp_timings["total"], "silhouette": fitted.silhouette.seconds}
+                timings["total"] = sum(timings.values())
+                save_fit(fitted, Path(fits_root) / s.name / "silhouette", faces, s.keypoints, s.image, s.mask,
+                         {"timings": timings, "search": search[i]}, overwrite=True)  # fmt: skip
+                ran += 1
         status["silhouette"] = f"ran on {ran} subjects" + (f"; failed: {'; '.join(failed)}" if failed else "")
     return status
 

@@ -60,16 +60,20 @@ class KeypointFitResult:
 
     def __getitem__(self, i: int) -> "KeypointFitResult":
         """The single-sample result ``i`` (a batch of one)."""
-        sl = slice(i, i + 1)
-        pick = lambda a: None if a is None else a[sl]  # noqa: E731
+        return self.select([i])
+
+    def select(self, indices) -> "KeypointFitResult":
+        """The samples ``indices`` (in that order) as a batched result."""
+        idx = [int(i) for i in indices]
+        pick = lambda a: None if a is None else a[idx]  # noqa: E731
         return KeypointFitResult(
-            betas=self.betas[sl], body_pose=self.body_pose[sl], global_orient=self.global_orient[sl],
-            transl=self.transl[sl], cameras=[self.cameras[i]], vertices=pick(self.vertices),
+            betas=self.betas[idx], body_pose=self.body_pose[idx], global_orient=self.global_orient[idx],
+            transl=self.transl[idx], cameras=[self.cameras[i] for i in idx], vertices=pick(self.vertices),
             joints=pick(self.joints), keypoints_2d=pick(self.keypoints_2d), layout=self.layout,
-            energies={k: v[sl] for k, v in self.energies.items()}, timings=dict(self.timings),
+            energies={k: v[idx] for k, v in self.energies.items()}, timings=dict(self.timings),
             flipped=pick(self.flipped), reprojection_error=pick(self.reprojection_error),
-            term_energies={s: {t: v[sl] for t, v in d.items()} for s, d in self.term_energies.items()},
-            config=self.config, branches=None if self.branches is None else [self.branches[i]],
+            term_energies={s: {t: v[idx] for t, v in d.items()} for s, d in self.term_energies.items()},
+            config=self.config, branches=None if self.branches is None else [self.branches[i] for i in idx],
         )  # fmt: skip
 
     # ------------------------------------------------------------------ I/O
