@@ -246,6 +246,33 @@ def run_silhouette_benchmark(model, n, seed, noise_px, size, keep=None):
     return report
 
 
+def depth_branch_table(report, label):
+    """The limb-branch table (issue targets): PA-PVE / PA-MPJPE mean, median, 90th
+    percentile, subjects above 150 mm PA-PVE, search failures, facing correct, seconds."""
+    rows = report["results"]
+    print(f"\n{label}\n")
+    print("| method | PA-PVE mean / median / p90 (mm) | PA-MPJPE mean / median / p90 (mm) | > 150 mm | search failures | facing correct | IoU | s/image |")
+    print("|---|---|---|---:|---:|---:|---:|---:|")
+    for method in report["methods"]:
+        r = [x for x in rows if x["method"] == method]
+        col = lambda k: np.array([x[k] for x in r if k in x], dtype=np.float64)  # noqa: E731
+        stats = lambda a: f"{a.mean():.1f} / {np.median(a):.1f} / {np.percentile(a, 90):.1f}" if len(a) else "-"  # noqa: E731
+        pa = col("pa_pve")
+        fail, facing, iou, t = col("search_failure"), col("facing_ok"), col("iou"), col("time_s")
+        print(f"| {method} | {stats(pa)} | {stats(col('pa_mpjpe'))} | {int((pa > 150).sum())} of {len(pa)} | "
+              f"{fail.mean() if len(fail) else float('nan'):.0f} % | {facing.mean():.0f} % | "
+              f"{iou.mean() if len(iou) else float('nan'):.3f} | {t.mean() if len(t) else float('nan'):.2f} |")
+
+
+def run_dataset_benchmark(model, root, methods, label):
+    """Both methods on an existing dataset in silfit's synthetic format (e.g. the hard set)."""
+    from silfit.eval.evaluate import evaluate_dataset
+
+    report = evaluate_dataset(root, fits=Path(root) / "fits", model=model, run=True, methods=methods)
+    depth_branch_table(report, label)
+    return report
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--subjects", type=int, default=50, help="generated subjects in random poses (0: none)")
@@ -261,6 +288,8 @@ def main(argv=None):
     ap.add_argument("--silhouette", type=int, default=0, help="keypoint-only vs keypoint+silhouette on N fresh subjects")
     ap.add_argument("--size", type=int, default=512, help="image size of the --silhouette set")
     ap.add_argument("--keep", help="keep the --silhouette dataset and its fits in this folder")
+    ap.add_argument("--dataset", action="append", default=[], help="also score both methods on this synthetic-format dataset (repeatable)")
+    ap.add_argument("--keypoints-only", action="store_true", help="--dataset: the keypoint stage only")
     args = ap.parse_args(argv)
 
     from silfit.fitting import KeypointFitConfig
@@ -271,7 +300,11 @@ def main(argv=None):
     priors = args.prior or ["default"]
     fitters = {p: KeypointFitter(model, config=config, pose_prior=load_pose_prior(None if p == "default" else p, dtype=model.dtype)) for p in priors}  # fmt: skip
     if args.silhouette:
-        run_silhouette_benchmark(model, args.silhouette, args.seed, args.noise, args.size, args.keep)
+        report = run_silhouette_benchmark(model, args.silhouette, args.seed, args.noise, args.size, args.keep)
+        depth_branch_table(report, f"silhouette set ({args.silhouette} subjects, seed {args.seed})")
+    for root in args.dataset:
+        methods = ("keypoints",) if args.keypoints_only else ("keypoints", "silhouette")
+        run_dataset_benchmark(model, root, methods, f"dataset {root}")
     sets = []  # (name, data, {method: fitter})
     shipped = None if args.no_shipped else load_shipped()
     if shipped is not None:
