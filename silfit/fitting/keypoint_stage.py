@@ -112,6 +112,11 @@ class KeypointFitConfig:
     branch_min_depth_ratio: float = 0.3
     branch_whole_limbs: bool = True
     branch_rounds: int = 1
+    #: hypotheses drop early: after ``branch_screen_iters`` steps only each sample's
+    #: ``branch_survivors`` lowest-energy hypotheses (the unflipped pose among them or not)
+    #: run the remaining steps (0: all run every step)
+    branch_screen_iters: int = 6
+    branch_survivors: int = 2
     #: an explicit list of :class:`~silfit.fitting.stages.Stage` replacing the schedule
     #: the fields above describe (see :meth:`stages`)
     schedule: Optional[Sequence[Stage]] = None
@@ -142,7 +147,10 @@ class KeypointFitConfig:
             out.append(Stage(f"pose_{i + 1}", pose_free, weights, int(it), options=opts))
             if self.branch_search and i == min(self.branch_after_stage, len(self.pose_iters) - 1):
                 for r in range(int(self.branch_rounds)):
-                    opts = {"branches": {"min_depth_ratio": self.branch_min_depth_ratio, "whole_limbs": self.branch_whole_limbs}}
+                    opts = {"branches": {
+                        "min_depth_ratio": self.branch_min_depth_ratio, "whole_limbs": self.branch_whole_limbs,
+                        "screen_after": self.branch_screen_iters, "survivors": self.branch_survivors,
+                    }}  # fmt: skip
                     w = {**weights, "interpenetration": self.interpenetration_weight}
                     out.append(Stage(f"branches_{r + 1}", pose_free, w, int(self.branch_iters), options=opts))
         if self.shape_iters:
@@ -215,15 +223,16 @@ def _resolve_cameras(sets, cameras, image_size, focal) -> list:
     return cams
 
 
-def best_per_group(energy: torch.Tensor, group: torch.Tensor, groups: int) -> torch.Tensor:
-    """For each group ``g < groups`` the row index of its lowest finite energy (rows with
+def best_per_group(energy: torch.Tensor, group: torch.Tensor, groups: int, count: int = 1) -> torch.Tensor:
+    """Row indices of the lowest finite energies of each group ``g < groups``: one per group
+    in group order (``count=1``), or up to ``count`` per group, groups in order (rows with
     non-finite energies lose to any finite one)."""
     f = torch.where(torch.isfinite(energy), energy, torch.full_like(energy, math.inf))
-    out = torch.empty(groups, dtype=torch.long)
+    out = []
     for g in range(groups):
         rows = (group == g).nonzero().squeeze(1)
-        out[g] = rows[torch.argmin(f[rows])]
-    return out
+        out.append(rows[torch.argsort(f[rows], stable=True)[: max(1, int(count))]])
+    return torch.cat(out)
 
 
 class KeypointFitter:
@@ -399,7 +408,15 @@ class KeypointFitter:
                 take(torch.cat([torch.arange(B), torch.as_tensor([h[0] for h in hyps], dtype=torch.long)]))
                 if hyps:
                     state["body_pose"][B:, 0] = torch.stack([h[2] for h in hyps]).to(dt)
-                f = run(stage)
+                screen, survivors = int(opts.get("screen_after", 0)), int(opts.get("survivors", 2))
+                if 0 < screen < stage.iterations and hyps:  # a few steps for all, then the best few go on
+                    f = run(stage, screen, f"{stage.name}_screen")
+                    rows = best_per_group(f, group, B, survivors)
+                    labels = [labels[r] for r in rows.tolist()]
+                    take(rows)
+                    f = run(stage, stage.iterations - screen)
+                else:
+                    f = run(stage)
                 keep = best_per_group(f, group, B)
                 for b, k in enumerate(keep.tolist()):
                     if labels[k] != "keep":
