@@ -2,6 +2,7 @@
 and the ``nn.Module`` wrapper (:mod:`.model`)."""
 from .io import OPEN_BODY_PATH, SMPL_JOINT_NAMES, SMPL_PARENTS, ModelArrays, load_model_arrays
 from .model import BodyModel, BodyOutput, load_body_model
+from .smplx import SMPLXModel, SMPLXOutput
 
 __all__ = [
     "BodyModel",
@@ -10,6 +11,8 @@ __all__ = [
     "OPEN_BODY_PATH",
     "SMPL_JOINT_NAMES",
     "SMPL_PARENTS",
+    "SMPLXModel",
+    "SMPLXOutput",
     "load_body_model",
     "load_model_arrays",
 ]
