@@ -23,7 +23,7 @@ from typing import Optional, Union
 import numpy as np
 import torch
 
-from .keypoints import BODY25_NAMES, KeypointSet, model_keypoints
+from .keypoints import BODY25_NAMES, KeypointSet, _triplets, model_keypoints
 
 __all__ = [
     "FINGERS",
@@ -104,15 +104,9 @@ class WholeBodyKeypoints:
 def _part_array(values, count: int, source: str, field: str) -> Optional[np.ndarray]:
     if values is None:
         return None
-    arr = np.asarray(values, dtype=np.float64)
-    if arr.size == 0:
+    if np.asarray(values).size == 0:
         return None  # OpenPose writes [] for a part it was not asked to detect
-    if arr.ndim == 1:
-        if arr.size % 3:
-            raise ValueError(f"{source}: field '{field}' holds {arr.size} numbers, not a multiple of 3 (x, y, confidence)")
-        arr = arr.reshape(-1, 3)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"{source}: field '{field}' must be a list of [x, y, confidence], got shape {arr.shape}")
+    arr = _triplets(values, source, field)
     if arr.shape[0] != count:
         raise ValueError(f"{source}: field '{field}' has {arr.shape[0]} keypoints, expected {count}")
     bad = ~np.isfinite(arr).all(axis=1)

