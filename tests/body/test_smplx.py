@@ -13,7 +13,7 @@ from silfit.body.smplx import SMPLXModel, dynamic_contour_bin
 V, J, F = 60, 55, 80
 
 
-def official_smplx_arrays(seed=0, num_betas=300, num_expression=100, with_landmarks=True):
+def official_smplx_arrays(seed=0, num_betas=300, num_expression=100, with_landmarks=True, V=V):
     """Random arrays in the official SMPL-X file layout (as SMPLX_NEUTRAL.npz holds them)."""
     rng = np.random.default_rng(seed)
     regressor = rng.random((J, V))
@@ -151,7 +151,7 @@ def test_gradcheck_through_the_whole_model_float64(smplx_file):
         out = m(**dict(zip(names, xs)))
         return torch.stack([(out.vertices[0] * probe).sum(), out.joints[0, 30:40].sum(), m.face_landmarks(out)[0, 20:].sum()])
 
-    assert torch.autograd.gradcheck(f, inputs, eps=1e-6, atol=1e-6)
+    assert torch.autograd.gradcheck(f, inputs, eps=1e-6, atol=1e-6, fast_mode=True)
 
 
 def test_bad_smplx_files_fail_clearly(tmp_path):
@@ -174,3 +174,22 @@ def test_bad_smplx_files_fail_clearly(tmp_path):
         load_body_model(tmp_path / "c.npz", kind="smpl")
     with pytest.raises(ValueError, match="apply to SMPL-X models only"):
         load_body_model(None, use_pca=True)
+
+
+def test_whole_body_keypoints_of_an_official_topology_file(tmp_path):
+    """On SMPL-X's own mesh (10475 vertices) the fingertips and BODY_25 extras are the smplx package's
+    vertex ids and the face comes from the landmark embedding with its dynamic contour."""
+    from silfit.body.io import SMPLX_LANDMARK_VERTICES
+    from silfit.wholebody import wholebody_keypoints
+
+    arrays = official_smplx_arrays(num_betas=10, num_expression=10, V=10475)
+    del arrays["posedirs"]  # 10475 x 3 x 486 random numbers would only slow the test down
+    np.savez(tmp_path / "SMPLX_FEMALE.npz", **arrays)
+    m = load_body_model(tmp_path, gender="female", dtype=torch.float64)
+    out = m(body_pose=torch.randn(1, 63, dtype=torch.float64) * 0.2)
+    kp = wholebody_keypoints(m, out)
+    v = out.vertices[0]
+    assert torch.equal(kp["hand_left"][0, 4], v[SMPLX_LANDMARK_VERTICES["left_thumb_tip"]])
+    assert torch.equal(kp["hand_right"][0, 20], v[SMPLX_LANDMARK_VERTICES["right_pinky_tip"]])
+    assert torch.equal(kp["body"][0, 0], v[SMPLX_LANDMARK_VERTICES["nose"]])
+    assert torch.allclose(kp["face"][0, :68], m.face_landmarks(out)[0])
