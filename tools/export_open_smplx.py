@@ -383,7 +383,8 @@ def export(args) -> None:
     mean_fit = fit_jaw(mean_verts[0], mean_open)
     log(f"jaw: jawOpen moves the chin by up to {mean_fit['max_mm']:.1f} mm; rigid fit on {mean_fit['strong']} vertices: "
         f"{np.degrees(np.linalg.norm(mean_fit['rotvec'])):.2f} deg about axis {np.round(mean_fit['axis'], 3).tolist()}, "
-        f"pivot {np.round(mean_fit['pivot'], 4).tolist()} m; pivots over bodies: x spread {pivots[:, 0].std() * 1e3:.2f} mm")
+        f"pivot {np.round(mean_fit['pivot'], 4).tolist()} m; jaw joint over the {len(pivots)} sample bodies: "
+        f"height sd {pivots[:, 1].std() * 1e3:.1f} mm, depth sd {pivots[:, 2].std() * 1e3:.1f} mm")
 
     # ---- joints ----
     joints = joint_targets(rest_h, bones, pivots)  # [N, 55, 3]

@@ -13,6 +13,14 @@ model's keypoints (:func:`silfit.keypoints.model_keypoints`), with
   dropped (probability ``drop_prob`` per in-image point);
 * Gaussian pixel noise of ``noise_px`` (standard deviation per coordinate) on the kept points.
 
+With ``whole_body`` (an SMPL-X-layout model) a subject also gets library hand poses
+(:mod:`.hands`), an expression, a jaw opening and eye rotations, and ``keypoints.json`` holds
+OpenPose's whole-body parts (:mod:`silfit.wholebody`): hands with ``hand_noise_scale`` and the
+face with ``face_noise_scale`` times the body's pixel noise (detectors locate these small, sharp
+features more precisely in pixels), visibility from the rendered depth with the tolerances of
+:data:`WHOLEBODY_DEPTH_TOLERANCE`; ``gt.npz`` adds every parameter, the finger angles and each
+part's 3D points, clean projections, visibility and drop flags.
+
 The dataset is deterministic for a seed: subject ``i`` uses ``numpy.random.default_rng([seed, i])``
 and every file is written without timestamps.
 """
