@@ -7,6 +7,7 @@ import torch
 
 from silfit import load_body_model
 from silfit.camera import load_camera, project_points
+from silfit.dataset import load_subject
 from silfit.synth.generate import WHOLEBODY_PARTS, SynthConfig, generate_dataset
 from silfit.synth.hands import hand_axes, hand_pose_to_axis_angle, within_limits
 from silfit.wholebody import read_wholebody, wholebody_keypoints
@@ -32,8 +33,10 @@ def check_subject(wb, folder: Path):
     gt = np.load(folder / "gt.npz")
     cam = load_camera(folder / "camera.json")
     assert set(PARAMS) <= set(gt.files)
+    params = load_subject(folder, require=("gt",)).gt.params()  # the dataset reader gives SMPL-X's parameters
+    assert set(params) == set(PARAMS)
     with torch.no_grad():
-        out = wb(**{k: torch.as_tensor(gt[k][None]) for k in PARAMS})
+        out = wb(**{k: torch.as_tensor(v) for k, v in params.items()})
         kp = wholebody_keypoints(wb, out)
     assert np.abs(out.vertices[0].numpy() - gt["vertices"]).max() < 1e-5
     stored = read_wholebody(folder / "keypoints.json", require=("body",))
