@@ -29,6 +29,7 @@ __all__ = [
     "SMPLX_PARENTS",
     "is_smplx_layout",
     "read_smplx_extras",
+    "find_smplx_file",
 ]
 
 #: The shipped open body model (package data).
@@ -392,6 +393,17 @@ def read_smplx_extras(raw: dict, path: Path, arrays: ModelArrays) -> ModelArrays
         _append_landmarks(arrays, tuple(SMPLX_LANDMARK_VERTICES), rows)
     arrays.kind, arrays.extras = "smplx", extras
     return arrays
+
+
+def find_smplx_file(folder: Path, gender: str = "neutral") -> Path:
+    """The SMPL-X file of ``gender`` in a folder (``SMPLX_<GENDER>.npz`` or ``.pkl``, also under smplx/)."""
+    folder = Path(folder).expanduser()
+    names = [f"SMPLX_{gender.upper()}.npz", f"SMPLX_{gender.upper()}.pkl"]
+    for name in names:
+        for candidate in (folder / name, folder / "smplx" / name):
+            if candidate.is_file():
+                return candidate
+    raise FileNotFoundError(f"{folder}: no {gender} SMPL-X model file in this folder (looked for {', '.join(names)}, also under smplx/)")
 
 
 def _append_landmarks(arrays: ModelArrays, names: tuple, rows: np.ndarray) -> None:

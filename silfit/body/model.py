@@ -206,6 +206,10 @@ def load_body_model(
         if not OPEN_SMPLX_PATH.is_file():
             raise FileNotFoundError(f"{OPEN_SMPLX_PATH}: the shipped open whole-body model is missing from the installation")
         path = OPEN_SMPLX_PATH
+    elif kind == "smplx" and os.path.isdir(os.path.expanduser(os.fspath(path))):
+        from .io import find_smplx_file
+
+        path = find_smplx_file(path, gender)  # a folder may hold SMPL and SMPL-X files: take SMPL-X's
     arrays = load_model_arrays(path, gender)
     if kind is not None and arrays.kind != kind:
         raise ValueError(f"{arrays.source}: a {arrays.kind.upper()}-layout model file, not {kind.upper()} as requested")

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from silfit import load_body_model
-from silfit.body.io import SMPLX_JOINT_NAMES, SMPLX_PARENTS, load_model_arrays
+from silfit.body.io import SMPL_PARENTS, SMPLX_JOINT_NAMES, SMPLX_PARENTS, load_model_arrays
 from silfit.body.smplx import SMPLXModel, dynamic_contour_bin
 
 V, J, F = 60, 55, 80
@@ -57,7 +57,12 @@ def test_official_npz_and_pickle_load_as_smplx(smplx_file, tmp_path):
         pickle.dump(raw, fh, protocol=2)
     a = load_body_model(smplx_file, dtype=torch.float64)
     b = load_body_model(tmp_path / "SMPLX_NEUTRAL.pkl", dtype=torch.float64)
+    smpl = {k: raw[k] for k in ("v_template", "f")}  # an SMPL file beside the SMPL-X one in the same folder
+    smpl.update(shapedirs=raw["shapedirs"][..., :10], J_regressor=raw["J_regressor"][:24], weights=np.full((V, 24), 1 / 24),
+                kintree_table=np.stack([np.array(SMPL_PARENTS) % (2**32), np.arange(24)]))
+    np.savez(smplx_file.parent / "SMPL_NEUTRAL.npz", **smpl)
     c = load_body_model(smplx_file.parent, gender="neutral", dtype=torch.float64, kind="smplx")
+    assert load_body_model(smplx_file.parent).kind == "smpl"
     assert all(isinstance(m, SMPLXModel) and m.kind == "smplx" for m in (a, b, c))
     assert a.joint_names == SMPLX_JOINT_NAMES and a.parents == SMPLX_PARENTS and a.num_joints == 55
     # official 300 + 100 space: the first 10 of each by default, as the smplx package does
