@@ -1,6 +1,6 @@
 #!/usr/bin/env python
-"""Contact sheet of the open whole-body model (``docs/open_smplx_sheet.png``): the hand pose library,
-expressions and jaw opening, the face and hand keypoints, and (with ``--reference``, the exporter's
+"""Contact sheet of the open whole-body model (``docs/open_smplx_sheet.png``): the left hand in each
+library pose seen from the back (with its 21 keypoints) and from the palm, expressions and jaw opening, the face and hand keypoints, and (with ``--reference``, the exporter's
 posed meshes) our skinning next to anny's own posing.
 
     PYTHONPATH=. .venv/bin/python tools/open_smplx_sheet.py --reference /tmp/open_smplx_sheet.npz
@@ -23,6 +23,7 @@ from silfit.wholebody import wholebody_keypoints
 TILE = 220
 TOP = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])  # camera axes (rows) in body axes: looking down
 FRONT = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])  # looking at the face
+BELOW = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # looking up at the palm
 
 
 def view(points: np.ndarray, R: np.ndarray, centre: np.ndarray, distance: float) -> np.ndarray:
@@ -57,13 +58,14 @@ def main(argv=None) -> None:
     rows = []
 
     hand_c = J[names.index("left_middle1")] + np.array([0.0, 0.0, 0.0])
-    row = []
+    row, palms = [], []
     for pose in HAND_LIBRARY.values():
         hp = hand_pose_to_axis_angle(pose.flex, pose.spread, axes)
         out = m(left_hand_pose=torch.as_tensor(hp)[None])
         kp = wholebody_keypoints(m, out)["hand_left"][0].numpy()
-        row.append(tile(out.vertices[0].numpy(), faces, TOP, hand_c, 0.55, pose.name, kp))
-    rows.append(row)
+        row.append(tile(out.vertices[0].numpy(), faces, TOP, hand_c, 0.55, f"{pose.name} (back, 21 kps)", kp))
+        palms.append(tile(out.vertices[0].numpy(), faces, BELOW, hand_c, 0.45, f"{pose.name} (palm)"))
+    rows += [row, palms]
 
     head_c = J[names.index("jaw")] + np.array([0.0, 0.01, 0.0])
     row = []

@@ -63,8 +63,8 @@ HAND_LIBRARY: Dict[str, HandPose] = {p.name: p for p in (
              (40, 15, 0, -12, -25)),
     HandPose("fist", "a closed fist, the thumb across the fingers", ((40, 45, 50), _FIST, _FIST, _FIST, _FIST), (0, 0, 0, 0, 0)),
     HandPose("pointing", "index finger straight, the others in a fist", ((40, 45, 50), (0, 0, 0), _FIST, _FIST, _FIST), (0,) * 5),
-    HandPose("pinch", "thumb and index tips together, the other fingers relaxed",
-             ((35, 30, 30), (45, 55, 40), (30, 35, 20), (30, 40, 25), (30, 45, 30)), (30, 0, 0, 0, 0)),
+    HandPose("pinch", "thumb and index tips together (about 1 cm apart on the open model), the others relaxed",
+             ((10, 30, 80), (60, 40, 20), (30, 35, 20), (30, 40, 25), (30, 45, 30)), (20, 0, 0, 0, 0)),
     HandPose("grasp", "holding a cylinder: all fingers half closed, the thumb opposed",
              ((30, 20, 20), (50, 60, 40), (50, 65, 40), (50, 65, 40), (50, 65, 40)), (35, 0, 0, 0, 0)),
     HandPose("peace", "index and middle straight and apart, the others in a fist",
@@ -98,9 +98,13 @@ def hand_axes(rest_joints: np.ndarray, joint_names, side: str) -> Dict[str, np.n
     for f in FINGERS:
         pts = [j[f"{side}_{f}{k}"] for k in (1, 2, 3)]
         segs = [pts[1] - pts[0], pts[2] - pts[1], pts[2] - pts[1]]
-        # fingers curl towards the palm; the thumb towards the palm and across it (to the little finger)
-        towards = normal if f != "thumb" else (normal - thumb_side) / np.linalg.norm(normal - thumb_side)
-        flex = np.stack([np.cross(s, towards) / np.linalg.norm(np.cross(s, towards)) for s in segs])
+        # fingers curl towards the palm; the thumb's base (CMC) towards the palm, its MCP and IP joints across
+        # it, towards the little finger (the thumb's nail faces sideways)
+        if f == "thumb":
+            towards = [normal - 0.5 * thumb_side, 0.5 * normal - thumb_side, 0.5 * normal - thumb_side]
+        else:
+            towards = [normal] * 3
+        flex = np.stack([np.cross(s, t) / np.linalg.norm(np.cross(s, t)) for s, t in zip(segs, towards)])
         d = segs[0] / np.linalg.norm(segs[0])
         spread = normal.copy()
         if np.dot(np.cross(spread, d), thumb_side) < 0:

@@ -50,3 +50,9 @@ def test_poses_curl_the_right_fingers_towards_the_palm(wb, side):
     assert np.all(kp_fist[[6, 10, 14, 18], 1] < kp_flat[[5, 9, 13, 17], 1] - 0.015)
     outwards = np.sign(kp_flat[9, 0] - kp_flat[0, 0])
     assert np.all(outwards * (kp_fist[[8, 12, 16, 20], 0] - kp_flat[[5, 9, 13, 17], 0]) < 0.01)
+
+
+def test_pinch_brings_thumb_and_index_tips_together(wb):
+    _, kp = tips_to_wrist(wb, "left", "pinch")
+    _, flat = tips_to_wrist(wb, "left", "flat")
+    assert np.linalg.norm(kp[4] - kp[8]) < 0.02 < np.linalg.norm(flat[4] - flat[8])
