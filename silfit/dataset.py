@@ -16,6 +16,9 @@ A **subject** is one folder::
                        keypoints_2d_clean [25, 2] (noise-free projections), keypoints_visibility [25]
                        (2 visible, 1 self-occluded, 0 outside the image), keypoints_dropped [25]
                        (bool), coco17_2d_clean [17, 2], stature (m) and the subject's noise_px.
+                       Whole-body subjects (``silfit synth --whole-body``): body_pose [63], joints
+                       [55, 3], SMPL-X's expression, jaw/eye and hand poses, the finger angles, and
+                       hand_left/hand_right/face _3d, _2d_clean, _visibility, _dropped.
 
 A **dataset** is a folder of subject folders, optionally with ``index.json``
 (``{"format": "silfit-synthetic", "version": 1, "generator": {...}, "subjects": [{"name": ..., ...}]}``);
@@ -68,12 +71,14 @@ SUBJECT_FILES = {
 #: Required fields of ``gt.npz`` and their shapes (``None``: any size along that axis).
 GT_FIELDS = {
     "betas": (None,),
-    "body_pose": (69,),
+    "body_pose": (None,),  # 69 (SMPL) or 63 (SMPL-X, whole-body subjects)
     "global_orient": (3,),
     "transl": (3,),
     "vertices": (None, 3),
     "joints": (None, 3),
 }
+#: The SMPL-X parameters a whole-body subject's gt.npz adds (kept in ``GroundTruth.extras``).
+WHOLEBODY_GT_PARAMS = ("expression", "jaw_pose", "leye_pose", "reye_pose", "left_hand_pose", "right_hand_pose")
 INDEX_NAME = "index.json"
 
 
@@ -98,8 +103,11 @@ class GroundTruth:
     extras: Dict[str, np.ndarray] = field(default_factory=dict)
 
     def params(self) -> Dict[str, np.ndarray]:
-        """The SMPL parameters as ``[1, n]`` arrays, ready for ``model(**params)``."""
-        return {k: getattr(self, k)[None].astype(np.float32) for k in ("betas", "body_pose", "global_orient", "transl")}
+        """The SMPL (or, for whole-body subjects, SMPL-X) parameters as ``[1, n]`` arrays, ready for
+        ``model(**params)``."""
+        params = {k: getattr(self, k)[None].astype(np.float32) for k in ("betas", "body_pose", "global_orient", "transl")}
+        params.update({k: self.extras[k][None].astype(np.float32) for k in WHOLEBODY_GT_PARAMS if k in self.extras})
+        return params
 
 
 @dataclass
@@ -230,6 +238,8 @@ def read_gt(path: PathLike, fields: Iterable[str] = tuple(GT_FIELDS)) -> GroundT
             if arr.ndim != len(expected) or any(e is not None and e != s for e, s in zip(expected, arr.shape)):
                 shape = "[" + ", ".join("N" if e is None else str(e) for e in expected) + "]"
                 raise SubjectError(path, name, f"has shape {list(arr.shape)}, expected {shape}")
+        if name == "body_pose" and arr.shape[0] not in (63, 69):
+            raise SubjectError(path, name, f"has {arr.shape[0]} values, expected 69 (SMPL) or 63 (SMPL-X)")
         if not np.isfinite(arr).all():
             raise SubjectError(path, name, "holds NaN or infinite values")
         out[name] = arr

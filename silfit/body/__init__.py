@@ -1,16 +1,23 @@
-"""The SMPL body model in torch: functional core (:mod:`.lbs`), file loading (:mod:`.io`)
-and the ``nn.Module`` wrapper (:mod:`.model`)."""
-from .io import OPEN_BODY_PATH, SMPL_JOINT_NAMES, SMPL_PARENTS, ModelArrays, load_model_arrays
+"""The SMPL body model in torch: functional core (:mod:`.lbs`), file loading (:mod:`.io`), the
+``nn.Module`` wrapper (:mod:`.model`) and the SMPL-X whole-body model (:mod:`.smplx`)."""
+from .io import (OPEN_BODY_PATH, OPEN_SMPLX_PATH, SMPL_JOINT_NAMES, SMPL_PARENTS, SMPLX_JOINT_NAMES, SMPLX_PARENTS,
+                 ModelArrays, load_model_arrays)
 from .model import SMPL_PARAMETER_NAMES, BodyModel, BodyOutput, load_body_model
+from .smplx import SMPLXModel, SMPLXOutput
 
 __all__ = [
     "BodyModel",
     "BodyOutput",
     "ModelArrays",
     "OPEN_BODY_PATH",
+    "OPEN_SMPLX_PATH",
     "SMPL_JOINT_NAMES",
     "SMPL_PARAMETER_NAMES",
     "SMPL_PARENTS",
+    "SMPLX_JOINT_NAMES",
+    "SMPLX_PARENTS",
+    "SMPLXModel",
+    "SMPLXOutput",
     "load_body_model",
     "load_model_arrays",
 ]

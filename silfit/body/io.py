@@ -24,10 +24,19 @@ __all__ = [
     "resolve_model_path",
     "SMPL_JOINT_NAMES",
     "SMPL_PARENTS",
+    "OPEN_SMPLX_PATH",
+    "SMPLX_JOINT_NAMES",
+    "SMPLX_PARENTS",
+    "is_smplx_layout",
+    "read_smplx_extras",
+    "find_smplx_file",
 ]
 
 #: The shipped open body model (package data).
 OPEN_BODY_PATH = Path(__file__).resolve().parent / "data" / "open_body.npz"
+
+#: The shipped open whole-body model in SMPL-X's layout (package data).
+OPEN_SMPLX_PATH = Path(__file__).resolve().parent / "data" / "open_smplx.npz"
 
 REQUIRED_KEYS = ("v_template", "f", "shapedirs", "J_regressor", "weights", "kintree_table")
 
@@ -48,11 +57,11 @@ SMPL_LANDMARK_VERTICES = {
 
 _FILE_NAMES = {
     "neutral": ("SMPL_NEUTRAL.pkl", "SMPL_NEUTRAL.npz", "basicmodel_neutral_lbs_10_207_0_v1.1.0.pkl",
-                "basicModel_neutral_lbs_10_207_0_v1.0.0.pkl"),
+                "basicModel_neutral_lbs_10_207_0_v1.0.0.pkl", "SMPLX_NEUTRAL.npz", "SMPLX_NEUTRAL.pkl"),
     "male": ("SMPL_MALE.pkl", "SMPL_MALE.npz", "basicmodel_m_lbs_10_207_0_v1.1.0.pkl",
-             "basicModel_m_lbs_10_207_0_v1.0.0.pkl"),
+             "basicModel_m_lbs_10_207_0_v1.0.0.pkl", "SMPLX_MALE.npz", "SMPLX_MALE.pkl"),
     "female": ("SMPL_FEMALE.pkl", "SMPL_FEMALE.npz", "basicmodel_f_lbs_10_207_0_v1.1.0.pkl",
-               "basicModel_f_lbs_10_207_0_v1.0.0.pkl"),
+               "basicModel_f_lbs_10_207_0_v1.0.0.pkl", "SMPLX_FEMALE.npz", "SMPLX_FEMALE.pkl"),
 }  # fmt: skip
 
 
@@ -72,6 +81,8 @@ class ModelArrays:
     landmark_regressor: Optional[np.ndarray] = None  # [K, V]
     source: str = ""
     meta: dict = field(default_factory=dict)
+    kind: str = "smpl"  # "smplx" for SMPL-X's layout (55 joints); then ``extras`` holds its extra arrays
+    extras: dict = field(default_factory=dict)
 
     @property
     def num_vertices(self) -> int:
@@ -138,12 +149,12 @@ def resolve_model_path(path: Union[str, os.PathLike, None], gender: str = "neutr
         raise ValueError(f"gender must be one of {', '.join(_FILE_NAMES)}, got {gender!r}")
     if path.is_dir():
         for name in _FILE_NAMES[gender]:
-            for candidate in (path / name, path / "smpl" / name):
+            for candidate in (path / name, path / "smpl" / name, path / "smplx" / name):
                 if candidate.is_file():
                     return candidate
         raise FileNotFoundError(
             f"{path}: no {gender} SMPL model file in this folder (looked for {', '.join(_FILE_NAMES[gender])}, "
-            "also under smpl/). Download SMPL from its website and pass the .pkl/.npz file or its folder."
+            "also under smpl/ and smplx/). Download SMPL from its website and pass the .pkl/.npz file or its folder."
         )
     if not path.exists():
         raise FileNotFoundError(f"{path}: body model file not found")
@@ -239,6 +250,8 @@ def load_model_arrays(path: Union[str, os.PathLike, None] = None, gender: str = 
         joint_names = tuple(str(n) for n in np.asarray(raw["joint_names"]).tolist())
     elif J == len(SMPL_JOINT_NAMES):
         joint_names = SMPL_JOINT_NAMES
+    elif parents == SMPLX_PARENTS:
+        joint_names = SMPLX_JOINT_NAMES
     else:
         joint_names = tuple(f"joint_{j}" for j in range(J))
     if len(joint_names) != J:
@@ -255,7 +268,7 @@ def load_model_arrays(path: Union[str, os.PathLike, None] = None, gender: str = 
         landmark_regressor = np.zeros((len(landmark_names), V))
         landmark_regressor[np.arange(len(landmark_names)), list(SMPL_LANDMARK_VERTICES.values())] = 1.0
 
-    return ModelArrays(
+    arrays = ModelArrays(
         v_template=v_template,
         faces=faces,
         shapedirs=shapedirs,
@@ -269,3 +282,133 @@ def load_model_arrays(path: Union[str, os.PathLike, None] = None, gender: str = 
         source=str(path),
         meta=meta,
     )
+    if is_smplx_layout(parents, meta):
+        read_smplx_extras(raw, path, arrays)
+    return arrays
+
+
+# ---------------------------------------------------------------------------------------------- SMPL-X
+SMPLX_JOINT_NAMES = SMPL_JOINT_NAMES[:22] + (
+    "jaw", "left_eye_smplhf", "right_eye_smplhf",
+    *(f"left_{f}{k}" for f in ("index", "middle", "pinky", "ring", "thumb") for k in (1, 2, 3)),
+    *(f"right_{f}{k}" for f in ("index", "middle", "pinky", "ring", "thumb") for k in (1, 2, 3)),
+)  # fmt: skip
+SMPLX_PARENTS = SMPL_PARENTS[:22] + (15, 15, 15) + tuple(
+    p for wrist in (20, 21) for base in range(25 + 15 * (wrist - 20), 40 + 15 * (wrist - 20), 3)
+    for p in (wrist, base, base + 1)
+)
+
+#: SMPL-X's shape space: ``shapedirs`` holds 300 shape then 100 expression directions (v1.1);
+#: the v1.0 files hold 10 + 10.
+SMPLX_SHAPE_SPACE_DIM = 300
+
+#: Extra keypoints on the official SMPL-X mesh (10475 vertices), as vertex ids (as the ``smplx``
+#: package's ``vertex_ids['smplx']``).
+SMPLX_LANDMARK_VERTICES = {
+    "nose": 9120, "right_eye": 9929, "left_eye": 9448, "right_ear": 616, "left_ear": 6,
+    "left_big_toe": 5770, "left_small_toe": 5780, "left_heel": 8846,
+    "right_big_toe": 8463, "right_small_toe": 8474, "right_heel": 8635,
+    "left_thumb_tip": 5361, "left_index_tip": 4933, "left_middle_tip": 5058, "left_ring_tip": 5169,
+    "left_pinky_tip": 5286, "right_thumb_tip": 8079, "right_index_tip": 7669, "right_middle_tip": 7794,
+    "right_ring_tip": 7905, "right_pinky_tip": 8022,
+}  # fmt: skip
+
+
+def is_smplx_layout(parents: tuple, meta: Optional[dict] = None) -> bool:
+    """Whether a model file is in SMPL-X's layout: SMPL-X's 55-joint tree, or declared so in its meta.
+    (Other trees load as generic SMPL-like models.)"""
+    return tuple(parents) == SMPLX_PARENTS or (meta or {}).get("kind") == "smplx"
+
+
+def _shape_expression_split(raw: dict, path: Path, total: int, meta: dict) -> int:
+    """How many of ``shapedirs``' columns are shape (the rest are expression)."""
+    if "shape_space_dim" in meta:
+        n = int(meta["shape_space_dim"])
+    elif total > SMPLX_SHAPE_SPACE_DIM:
+        n = SMPLX_SHAPE_SPACE_DIM
+    else:  # SMPL-X v1.0 layout: 10 shape + 10 expression
+        n = min(10, total)
+    if not 0 < n <= total:
+        raise ValueError(f"{path}: field 'shapedirs' has {total} columns, fewer than its {n} shape directions")
+    return n
+
+
+def read_smplx_extras(raw: dict, path: Path, arrays: ModelArrays) -> ModelArrays:
+    """Fill ``arrays.extras`` (and set ``kind``) from SMPL-X's extra fields, validated:
+
+    ``shapedirs`` split into shape and ``exprdirs [V, 3, M]`` (expression) parts; hand PCA
+    ``hands_componentsl/r [C, 45]`` and ``hands_meanl/r [45]`` where present; the face landmark
+    embedding ``lmk_faces_idx [K]`` / ``lmk_bary_coords [K, 3]`` (static, as vertex-weight rows appended
+    to the landmark regressor as ``face_17`` ... ``face_67``) and the dynamic contour
+    ``dynamic_lmk_faces_idx [79, 17]`` / ``dynamic_lmk_bary_coords [79, 17, 3]``."""
+    V, J = arrays.num_vertices, arrays.num_joints
+    if J != len(SMPLX_JOINT_NAMES):
+        raise ValueError(f"{path}: an SMPL-X model needs {len(SMPLX_JOINT_NAMES)} joints, field 'J_regressor' has {J}")
+    if tuple(arrays.parents) != SMPLX_PARENTS:
+        raise ValueError(f"{path}: field 'kintree_table' is not SMPL-X's kinematic tree")
+    extras: dict = {}
+    total = arrays.shapedirs.shape[-1]
+    n = _shape_expression_split(raw, path, total, arrays.meta)
+    extras["exprdirs"] = arrays.shapedirs[:, :, n:]
+    arrays.shapedirs = arrays.shapedirs[:, :, :n]
+    for side in ("l", "r"):
+        comp_key, mean_key = f"hands_components{side}", f"hands_mean{side}"
+        if comp_key in raw:
+            comps = _array(raw, comp_key, path, np.float64)
+            _check_shape(path, comp_key, comps, (None, 45))
+            extras[comp_key] = comps
+        if mean_key in raw:
+            mean = _array(raw, mean_key, path, np.float64).reshape(-1)
+            _check_shape(path, mean_key, mean, (45,))
+            extras[mean_key] = mean
+    if ("hands_componentsl" in extras) != ("hands_componentsr" in extras):
+        raise ValueError(f"{path}: fields 'hands_componentsl' and 'hands_componentsr' must come together")
+    faces = arrays.faces
+    if "lmk_faces_idx" in raw:
+        if "lmk_bary_coords" not in raw:
+            raise ValueError(f"{path}: field 'lmk_bary_coords' is missing (needed with 'lmk_faces_idx')")
+        idx = _array(raw, "lmk_faces_idx", path, np.int64).reshape(-1)
+        bary = _array(raw, "lmk_bary_coords", path, np.float64)
+        _check_shape(path, "lmk_bary_coords", bary, (idx.size, 3))
+        if idx.size and (idx.min() < 0 or idx.max() >= len(faces)):
+            raise ValueError(f"{path}: field 'lmk_faces_idx' indexes triangles outside 0..{len(faces) - 1}")
+        rows = np.zeros((idx.size, V))
+        np.add.at(rows, (np.repeat(np.arange(idx.size), 3), faces[idx].reshape(-1)), bary.reshape(-1))
+        first = 68 - idx.size  # 51 static landmarks are the 68-point layout's points 17..67
+        names = tuple(f"face_{first + k:02d}" for k in range(idx.size))
+        _append_landmarks(arrays, names, rows)
+    if "dynamic_lmk_faces_idx" in raw:
+        didx = _array(raw, "dynamic_lmk_faces_idx", path, np.int64)
+        _check_shape(path, "dynamic_lmk_faces_idx", didx, (None, None))
+        if "dynamic_lmk_bary_coords" not in raw:
+            raise ValueError(f"{path}: field 'dynamic_lmk_bary_coords' is missing (needed with 'dynamic_lmk_faces_idx')")
+        dbary = _array(raw, "dynamic_lmk_bary_coords", path, np.float64)
+        _check_shape(path, "dynamic_lmk_bary_coords", dbary, didx.shape + (3,))
+        if didx.size and (didx.min() < 0 or didx.max() >= len(faces)):
+            raise ValueError(f"{path}: field 'dynamic_lmk_faces_idx' indexes triangles outside 0..{len(faces) - 1}")
+        extras["dynamic_lmk_faces_idx"], extras["dynamic_lmk_bary_coords"] = didx, dbary
+    if V == 10475 and not set(SMPLX_LANDMARK_VERTICES) & set(arrays.landmark_names):
+        rows = np.zeros((len(SMPLX_LANDMARK_VERTICES), V))
+        rows[np.arange(len(rows)), list(SMPLX_LANDMARK_VERTICES.values())] = 1.0
+        _append_landmarks(arrays, tuple(SMPLX_LANDMARK_VERTICES), rows)
+    arrays.kind, arrays.extras = "smplx", extras
+    return arrays
+
+
+def find_smplx_file(folder: Path, gender: str = "neutral") -> Path:
+    """The SMPL-X file of ``gender`` in a folder (``SMPLX_<GENDER>.npz`` or ``.pkl``, also under smplx/)."""
+    folder = Path(folder).expanduser()
+    names = [f"SMPLX_{gender.upper()}.npz", f"SMPLX_{gender.upper()}.pkl"]
+    for name in names:
+        for candidate in (folder / name, folder / "smplx" / name):
+            if candidate.is_file():
+                return candidate
+    raise FileNotFoundError(f"{folder}: no {gender} SMPL-X model file in this folder (looked for {', '.join(names)}, also under smplx/)")
+
+
+def _append_landmarks(arrays: ModelArrays, names: tuple, rows: np.ndarray) -> None:
+    if arrays.landmark_regressor is None:
+        arrays.landmark_names, arrays.landmark_regressor = tuple(names), rows
+    else:
+        arrays.landmark_names = tuple(arrays.landmark_names) + tuple(names)
+        arrays.landmark_regressor = np.concatenate([arrays.landmark_regressor, rows])

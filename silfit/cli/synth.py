@@ -29,10 +29,15 @@ def register(subparsers) -> None:
     p.add_argument("--fill", type=float, nargs=2, default=(0.55, 0.85), metavar=("MIN", "MAX"),
                    help="share of the frame the body's box fills (default 0.55 0.85)")
     p.add_argument("--elevation", type=float, default=15.0, help="camera elevation range +-degrees (default 15)")
+    p.add_argument("--yaw", type=float, nargs=2, default=(-180.0, 180.0), metavar=("MIN", "MAX"),
+                   help="body yaw range, degrees (0 = facing the camera; default -180 180)")
     p.add_argument("--roll", type=float, default=5.0, help="camera roll range +-degrees (default 5)")
     p.add_argument("--perturb", type=float, default=6.0, help="pose perturbation std. dev., degrees (default 6)")
     p.add_argument("--background", choices=("plain", "textured", "mixed"), default="mixed")
     p.add_argument("--coco", action="store_true", help="also write keypoints_coco17.json")
+    p.add_argument("--whole-body", action="store_true",
+                   help="SMPL-X-layout subjects (default model: the shipped open whole-body model) with library hand "
+                        "poses, expressions and OpenPose whole-body keypoints (body, hands, face) in keypoints.json")
     p.add_argument("--model", default=None, help="body model file (default: the shipped open body model)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -44,8 +49,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = SynthConfig(
         seed=args.seed, size=args.size, noise_px=args.noise_px, clean=args.clean, drop_prob=args.drop,
         truncation_prob=args.truncation, fov_deg=tuple(args.fov), fill=tuple(args.fill),
-        elevation_deg=args.elevation, roll_deg=args.roll, perturb_deg=args.perturb,
-        background=args.background, coco=args.coco,
+        elevation_deg=args.elevation, roll_deg=args.roll, perturb_deg=args.perturb, yaw_range_deg=tuple(args.yaw),
+        background=args.background, coco=args.coco, whole_body=args.whole_body,
     ).validate()  # fmt: skip
     model = None
     if args.model is not None:
@@ -63,8 +68,12 @@ def run(args: argparse.Namespace) -> int:
         argv += ["--fov", *map(str, args.fov)]
     if tuple(args.fill) != (0.55, 0.85):
         argv += ["--fill", *map(str, args.fill)]
+    if tuple(args.yaw) != (-180.0, 180.0):
+        argv += ["--yaw", *map(str, args.yaw)]
     if args.coco:
         argv.append("--coco")
+    if args.whole_body:
+        argv.append("--whole-body")
     index = generate_dataset(args.out, args.n, cfg, model=model, progress=not args.no_progress, command=shlex.join(argv))
     s = dataset_summary(index)
     print(f"wrote {len(index['subjects'])} subjects to {args.out} (seed {args.seed}, {args.size}x{args.size}, noise {args.noise_px} px)")

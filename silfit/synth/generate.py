@@ -13,6 +13,14 @@ model's keypoints (:func:`silfit.keypoints.model_keypoints`), with
   dropped (probability ``drop_prob`` per in-image point);
 * Gaussian pixel noise of ``noise_px`` (standard deviation per coordinate) on the kept points.
 
+With ``whole_body`` (an SMPL-X-layout model) a subject also gets library hand poses
+(:mod:`.hands`), an expression, a jaw opening and eye rotations, and ``keypoints.json`` holds
+OpenPose's whole-body parts (:mod:`silfit.wholebody`): hands with ``hand_noise_scale`` and the
+face with ``face_noise_scale`` times the body's pixel noise (detectors locate these small, sharp
+features more precisely in pixels), visibility from the rendered depth with the tolerances of
+:data:`WHOLEBODY_DEPTH_TOLERANCE`; ``gt.npz`` adds every parameter, the finger angles and each
+part's 3D points, clean projections, visibility and drop flags.
+
 The dataset is deterministic for a seed: subject ``i`` uses ``numpy.random.default_rng([seed, i])``
 and every file is written without timestamps.
 """
@@ -32,6 +40,8 @@ from .. import __version__
 from ..camera import Camera, project_points, save_camera
 from ..dataset import INDEX_NAME, save_npz, write_png
 from ..keypoints import BODY25_NAMES, COCO17_NAMES, model_keypoints, write_openpose_json
+from ..wholebody import FACE70_NAMES, hand_names, wholebody_keypoints, write_wholebody_json
+from .hands import hand_axes, hand_pose_to_axis_angle, sample_hand_pose
 from .poses import FRONTAL_POSES, POSE_LIBRARY
 from .sampler import global_orientation, place_body, sample_betas, sample_intrinsics, sample_pose
 
@@ -77,6 +87,12 @@ class SynthConfig:
     background: str = "mixed"  # plain | textured | mixed
     frontal_first: bool = True  # subject 0: a clearly human, front-facing pose, uncropped
     coco: bool = False  # also write keypoints_coco17.json
+    whole_body: bool = False  # SMPL-X-layout model: hand poses, expressions, OpenPose whole-body keypoints
+    hand_perturb_deg: float = 8.0  # finger-angle perturbation of the library hand poses
+    hand_noise_scale: float = 0.5  # hand keypoint noise = this x noise_px
+    face_noise_scale: float = 0.4  # face keypoint noise = this x noise_px
+    expression_std: float = 0.7  # expression coefficients ~ N(0, std^2), clipped to +-2
+    jaw_open_max_deg: float = 25.0  # jaw opening uniform in [0, this] (half the subjects keep it closed)
 
     def validate(self) -> "SynthConfig":
         if self.size < 16:
@@ -91,8 +107,13 @@ class SynthConfig:
             raise ValueError(f"background must be plain, textured or mixed, got {self.background!r}")
         if not (0 < self.fov_deg[0] <= self.fov_deg[1] < 170):
             raise ValueError(f"field-of-view range must be within (0, 170) degrees, got {self.fov_deg}")
+        if not (-180.0 <= self.yaw_range_deg[0] <= self.yaw_range_deg[1] <= 180.0):
+            raise ValueError(f"yaw range must be within -180..180 degrees, low first, got {self.yaw_range_deg}")
         if not (0 < self.fill[0] <= self.fill[1]):
             raise ValueError(f"fill range must be positive, got {self.fill}")
+        for name in ("hand_perturb_deg", "hand_noise_scale", "face_noise_scale", "expression_std", "jaw_open_max_deg"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         return self
 
     def to_dict(self) -> dict:
@@ -124,13 +145,54 @@ class SubjectRecord:
     keypoints_outside: int
     keypoints_dropped: int
     background: str
+    hand_left: Optional[str] = None  # whole-body subjects: the library hand poses
+    hand_right: Optional[str] = None
 
     def to_dict(self) -> dict:
-        d = asdict(self)
+        d = {k: v for k, v in asdict(self).items() if not (k in ("hand_left", "hand_right") and v is None)}
         for k, v in d.items():
             if isinstance(v, float):
                 d[k] = round(v, 4)
         return d
+
+
+WHOLEBODY_PARTS = ("hand_left", "hand_right", "face")
+#: Whole-body keypoints: how far behind the rendered surface still counts as visible (metres): finger
+#: joints lie about 6-10 mm under the skin, the wrist about 2.5 cm, the pupils (eyeball centres) 12 mm.
+WHOLEBODY_DEPTH_TOLERANCE = {
+    **{n: 0.015 for side in ("left", "right") for n in hand_names(side)},
+    **{f"{side}_wrist": 0.04 for side in ("left", "right")},
+    **{n: 0.01 for n in FACE70_NAMES}, "right_pupil": 0.025, "left_pupil": 0.025,
+}  # fmt: skip
+
+
+def wholebody_names(part: str) -> tuple:
+    return FACE70_NAMES if part == "face" else hand_names(part.split("_")[1])
+
+
+def sample_wholebody_params(rng: np.random.Generator, model, cfg: SynthConfig):
+    """Hand poses (a library pose per hand, perturbed within the finger limits), an expression, a jaw
+    opening (half the subjects) and small eye rotations. Returns ``(params, finger_angles, hand_names)``:
+    model parameters ``{name: array}``, ``{"left_hand_flex": [5, 3], "left_hand_spread": [5], ...}``
+    and the two library pose names."""
+    if model.use_pca:
+        raise ValueError(f"{model.source}: whole-body synthesis poses hands joint by joint: load the model without use_pca")
+    with torch.no_grad():
+        joints = model(**model.zero_params(1)).joints[0].double().cpu().numpy()
+    mean = model.pose_mean.double().cpu().numpy()  # the model adds its mean hand pose (flat_hand_mean=False)
+    params, angles, names = {}, {}, []
+    for side, start in (("left", 75), ("right", 120)):
+        name, flex, spread = sample_hand_pose(rng, perturb_deg=cfg.hand_perturb_deg)
+        aa = hand_pose_to_axis_angle(flex, spread, hand_axes(joints, model.joint_names, side))
+        params[f"{side}_hand_pose"] = aa - mean[start : start + 45]
+        angles[f"{side}_hand_flex"], angles[f"{side}_hand_spread"] = flex, spread
+        names.append(name)
+    params["expression"] = np.clip(rng.normal(0.0, cfg.expression_std, model.num_expression), -2.0, 2.0)
+    jaw = np.radians(rng.uniform(0.0, cfg.jaw_open_max_deg)) if rng.random() < 0.5 else 0.0
+    params["jaw_pose"] = np.array([jaw, 0.0, 0.0])
+    gaze = np.radians(rng.uniform(-8.0, 8.0, 2))
+    params["leye_pose"] = params["reye_pose"] = np.array([gaze[0], gaze[1], 0.0])
+    return params, angles, tuple(names)
 
 
 # ----------------------------------------------------------------------------- pieces
@@ -246,11 +308,16 @@ def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> S
     betas = sample_betas(rng, model.num_betas, cfg.beta_truncation)
     global_orient = global_orientation(yaw, elev, roll, root=ps.root)
     camera, fov = sample_intrinsics(rng, W, H, cfg.fov_deg)
+    body_pose = ps.body_pose[: model.num_body_pose]  # SMPL-X: joints 1..21 (no SMPL hand joints)
+    extra, angles, hands = {}, {}, (None, None)
+    if cfg.whole_body:
+        extra, angles, hands = sample_wholebody_params(rng, model, cfg)
 
     dtype = model.dtype
     as_t = lambda a: torch.as_tensor(np.asarray(a)[None], dtype=dtype, device=model.device)  # noqa: E731
     with torch.no_grad():
-        out0 = model(betas=as_t(betas), body_pose=as_t(ps.body_pose), global_orient=as_t(global_orient))
+        out0 = model(betas=as_t(betas), body_pose=as_t(body_pose), global_orient=as_t(global_orient),
+                     **{k: as_t(v) for k, v in extra.items()})
         place = place_body(
             rng, out0.vertices[0].double().cpu().numpy(), camera, fill=cfg.fill,
             truncation_prob=0.0 if frontal else cfg.truncation_prob,
@@ -258,8 +325,9 @@ def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> S
         # Store the parameters at the precision they are written with, then evaluate once more,
         # so gt.npz's vertices are exactly model(params) for the stored params.
         params = {
-            "betas": betas.astype(np.float32), "body_pose": ps.body_pose.astype(np.float32),
+            "betas": betas.astype(np.float32), "body_pose": body_pose.astype(np.float32),
             "global_orient": global_orient.astype(np.float32), "transl": place.transl.astype(np.float32),
+            **{k: v.astype(np.float32) for k, v in extra.items()},
         }  # fmt: skip
         out = model(**{k: as_t(v) for k, v in params.items()})
         kp3d = model_keypoints(model, out, "body25")[0]
@@ -267,6 +335,12 @@ def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> S
         coco3d = model_keypoints(model, out, "coco17")[0]
         coco2d = project_points(coco3d.double(), camera).cpu().numpy()
         rest = model.rest_vertices(as_t(betas))[0]
+        parts3d = {}
+        if cfg.whole_body:
+            wb = wholebody_keypoints(model, out)
+            parts3d = {p: wb[p][0].double() for p in WHOLEBODY_PARTS}
+            parts2d = {p: project_points(v, camera).cpu().numpy() for p, v in parts3d.items()}
+            parts3d = {p: v.cpu().numpy() for p, v in parts3d.items()}
     vertices = out.vertices[0].cpu().numpy().astype(np.float32)
     joints = out.joints[0].cpu().numpy().astype(np.float32)
     kp3d = kp3d.cpu().numpy().astype(np.float64)
@@ -287,11 +361,26 @@ def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> S
     coco_vis = keypoint_visibility(coco3d, coco2d, r.depth, COCO17_NAMES)
     coco_kp, coco_dropped = noisy_keypoints(rng, coco2d, coco_vis, noise_px, drop_prob, cfg.conf_visible, cfg.conf_occluded)
 
+    wb_arrays, wb_kp = {}, {}
+    for part in parts3d:
+        names = wholebody_names(part)
+        scale = cfg.hand_noise_scale if part.startswith("hand") else cfg.face_noise_scale
+        pvis = keypoint_visibility(parts3d[part], parts2d[part], r.depth, names, WHOLEBODY_DEPTH_TOLERANCE)
+        pkp, pdrop = noisy_keypoints(rng, parts2d[part], pvis, noise_px * scale, drop_prob, cfg.conf_visible, cfg.conf_occluded)
+        wb_kp[part] = pkp
+        wb_arrays.update({
+            f"{part}_3d": parts3d[part].astype(np.float32), f"{part}_2d_clean": parts2d[part].astype(np.float64),
+            f"{part}_visibility": pvis, f"{part}_dropped": pdrop,
+        })  # fmt: skip
+
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     write_png(out_dir / "image.png", image)
     write_png(out_dir / "mask.png", mask)
-    write_openpose_json(out_dir / "keypoints.json", kp)
+    if cfg.whole_body:
+        write_wholebody_json(out_dir / "keypoints.json", kp, wb_kp["hand_left"], wb_kp["hand_right"], wb_kp["face"])
+    else:
+        write_openpose_json(out_dir / "keypoints.json", kp)
     if cfg.coco:
         write_openpose_json(out_dir / "keypoints_coco17.json", coco_kp)
     save_camera(camera, out_dir / "camera.json")
@@ -303,6 +392,7 @@ def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> S
         "coco17_3d": coco3d.astype(np.float32), "coco17_2d_clean": coco2d.astype(np.float64),
         "coco17_visibility": coco_vis,
         "stature": np.float64(stature), "noise_px": np.float64(noise_px),
+        **wb_arrays, **{k: v.astype(np.float32) for k, v in angles.items()},
     })  # fmt: skip
 
     pelvis_z = float(joints[0, 2])
@@ -313,6 +403,7 @@ def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> S
         distance_m=pelvis_z, stature_m=stature, fill=place.fill, truncated=place.truncated, noise_px=noise_px,
         keypoints_visible=int((vis == 2).sum()), keypoints_occluded=int((vis == 1).sum()),
         keypoints_outside=int((vis == 0).sum()), keypoints_dropped=int(dropped.sum()), background=bg_label,
+        hand_left=hands[0], hand_right=hands[1],
     )  # fmt: skip
 
 
@@ -337,7 +428,9 @@ def generate_dataset(
     if model is None:
         from ..body import load_body_model
 
-        model = load_body_model()
+        model = load_body_model(kind="smplx" if cfg.whole_body else None)
+    if cfg.whole_body and getattr(model, "kind", "smpl") != "smplx":
+        raise ValueError(f"{model.source}: --whole-body needs an SMPL-X-layout model (this one is {model.kind})")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     records: List[SubjectRecord] = []
@@ -355,8 +448,10 @@ def generate_dataset(
         "generator": {
             **cfg.to_dict(),
             "n": int(n),
-            "body_model": {"file": Path(str(model.source)).name, "vertices": int(model.num_vertices), "betas": int(model.num_betas)},
-            "keypoints": "OpenPose BODY_25" + (" + COCO-17" if cfg.coco else ""),
+            "body_model": {"file": Path(str(model.source)).name, "vertices": int(model.num_vertices), "betas": int(model.num_betas),
+                           "kind": getattr(model, "kind", "smpl")},
+            "keypoints": "OpenPose BODY_25" + (" + hands 2x21 + face 70 (OpenPose whole-body)" if cfg.whole_body else "")
+            + (" + COCO-17" if cfg.coco else ""),
             **({"command": command} if command else {}),
         },
         "subjects": [r.to_dict() for r in records],

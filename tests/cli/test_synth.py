@@ -22,3 +22,13 @@ def test_synth_bad_arguments_are_one_line_errors(tmp_path, capsys):
     assert "error: --n must be a positive" in capsys.readouterr().err
     assert main(["synth", "--n", "1", "--out", str(tmp_path / "x"), "--noise-px", "-1"]) == 2
     assert "--noise-px must be >= 0" in capsys.readouterr().err
+
+
+def test_synth_whole_body_with_a_body_only_model_is_a_one_line_error(tmp_path, capsys):
+    from silfit.body.io import OPEN_BODY_PATH
+
+    out = tmp_path / "wb"
+    assert main(["synth", "--whole-body", "--n", "1", "--out", str(out), "--model", str(OPEN_BODY_PATH), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "--whole-body needs an SMPL-X-layout model" in err and len(err.strip().splitlines()) == 1
+    assert not (out / "subject_000").exists()

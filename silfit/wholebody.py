@@ -1,0 +1,187 @@
+"""Whole-body 2D keypoints: OpenPose's whole-body layout (BODY_25 + 2 x 21 hand + 70 face points), its
+sources on an SMPL-X-layout model, and reading / writing / validating OpenPose whole-body JSON.
+
+Sources on the model (:func:`wholebody_sources`):
+
+* hands (OpenPose order: wrist, then thumb, index, middle, ring, pinky, four points each from the base to
+  the tip): the wrist joint, the finger joints (``<side>_<finger>1..3``; the thumb's first is its CMC
+  joint, as SMPL-X and SMPLify-X take it) and a fingertip surface landmark (``<side>_<finger>_tip``);
+* face: the 68-point layout from :meth:`~silfit.body.smplx.SMPLXModel.face_landmarks` (landmark rows
+  ``face_00`` .. ``face_67``, or the official file's embedding with its dynamic contour), and the two
+  pupils (68 = right, 69 = left) at the eye joints (eyeball centres: the pupils' projection in views
+  towards the face);
+* body: BODY_25 as :func:`silfit.keypoints.model_keypoints` gives it.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional, Union
+
+import numpy as np
+import torch
+
+from .keypoints import BODY25_NAMES, KeypointSet, _triplets, model_keypoints
+
+__all__ = [
+    "FINGERS",
+    "HAND21_NAMES",
+    "FACE70_NAMES",
+    "PART_FIELDS",
+    "WholeBodyKeypoints",
+    "hand_names",
+    "wholebody_keypoints",
+    "read_wholebody",
+    "write_wholebody_json",
+]
+
+FINGERS = ("thumb", "index", "middle", "ring", "pinky")
+HAND21_NAMES = ("wrist",) + tuple(f"{f}{k}" for f in FINGERS for k in (1, 2, 3, 4))
+FACE70_NAMES = tuple(f"face_{k:02d}" for k in range(68)) + ("right_pupil", "left_pupil")
+#: OpenPose JSON field -> (part name, point count)
+PART_FIELDS = {
+    "pose_keypoints_2d": ("body", len(BODY25_NAMES)),
+    "hand_left_keypoints_2d": ("hand_left", len(HAND21_NAMES)),
+    "hand_right_keypoints_2d": ("hand_right", len(HAND21_NAMES)),
+    "face_keypoints_2d": ("face", len(FACE70_NAMES)),
+}
+
+
+def hand_names(side: str) -> tuple:
+    return tuple(f"{side}_{n}" for n in HAND21_NAMES)
+
+
+def _hand_points(model, output, side: str) -> torch.Tensor:
+    joint = {n: i for i, n in enumerate(model.joint_names)}
+    lmk = {n: i for i, n in enumerate(model.landmark_names)}
+    tips = [f"{side}_{f}_tip" for f in FINGERS]
+    missing = [n for n in tips if n not in lmk] + [
+        f"{side}_{f}{k}" for f in FINGERS for k in (1, 2, 3) if f"{side}_{f}{k}" not in joint
+    ]
+    if missing:
+        raise ValueError(f"{model.source}: the model has no joint or landmark for hand keypoint(s) {', '.join(missing[:4])}")
+    landmarks = model.landmarks(output.vertices)
+    cols = [output.joints[:, joint[f"{side}_wrist"]]]
+    for f in FINGERS:
+        cols += [output.joints[:, joint[f"{side}_{f}{k}"]] for k in (1, 2, 3)]
+        cols.append(landmarks[:, lmk[f"{side}_{f}_tip"]])
+    return torch.stack(cols, dim=1)
+
+
+def wholebody_keypoints(model, output) -> dict:
+    """3D whole-body keypoints of a whole-body model output: ``{"body": [B, 25, 3], "hand_left":
+    [B, 21, 3], "hand_right": [B, 21, 3], "face": [B, 70, 3]}`` in OpenPose's orders."""
+    if getattr(model, "kind", "smpl") != "smplx":
+        raise ValueError(f"{model.source}: whole-body keypoints need an SMPL-X-layout model (this one is {model.kind})")
+    joint = {n: i for i, n in enumerate(model.joint_names)}
+    face = model.face_landmarks(output)
+    pupils = output.joints[:, [joint["right_eye_smplhf"], joint["left_eye_smplhf"]]]
+    return {
+        "body": model_keypoints(model, output, "body25"),
+        "hand_left": _hand_points(model, output, "left"),
+        "hand_right": _hand_points(model, output, "right"),
+        "face": torch.cat([face, pupils], dim=1),
+    }
+
+
+@dataclass
+class WholeBodyKeypoints:
+    """One person's whole-body detections: ``body`` (a BODY_25 :class:`KeypointSet`) and, per part,
+    ``[K, 3]`` rows of x, y, confidence, or ``None`` where the file has no such part."""
+
+    body: KeypointSet
+    hand_left: Optional[np.ndarray]
+    hand_right: Optional[np.ndarray]
+    face: Optional[np.ndarray]
+    source: str = "<array>"
+
+    def part(self, name: str) -> Optional[np.ndarray]:
+        return self.body.as_array() if name == "body" else getattr(self, name)
+
+
+def _part_array(values, count: int, source: str, field: str) -> Optional[np.ndarray]:
+    if values is None:
+        return None
+    if np.asarray(values).size == 0:
+        return None  # OpenPose writes [] for a part it was not asked to detect
+    arr = _triplets(values, source, field)
+    if arr.shape[0] != count:
+        raise ValueError(f"{source}: field '{field}' has {arr.shape[0]} keypoints, expected {count}")
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        raise ValueError(f"{source}: field '{field}' has NaN or infinite values at point(s) {', '.join(map(str, np.flatnonzero(bad)[:5]))}")
+    if (arr[:, 2] < 0).any():
+        raise ValueError(f"{source}: field '{field}' has negative confidences")
+    return arr
+
+
+def validate_wholebody(kp: WholeBodyKeypoints, require=("body",)) -> WholeBodyKeypoints:
+    """Every part in ``require`` present with at least one confident point, else a clear error."""
+    fields = {part: field for field, (part, _) in PART_FIELDS.items()}
+    for part in require:
+        arr = kp.part(part)
+        if arr is None:
+            raise ValueError(f"{kp.source}: field '{fields[part]}' is missing or empty")
+        if not (arr[:, 2] > 0).any():
+            raise ValueError(f"{kp.source}: field '{fields[part]}': all keypoint confidences are zero")
+    return kp
+
+
+def read_wholebody(path: Union[str, os.PathLike], person: Union[int, str] = "largest", require=("body",)) -> WholeBodyKeypoints:
+    """Read OpenPose whole-body JSON (``people[i]`` with ``pose_keypoints_2d`` (BODY_25),
+    ``hand_left_keypoints_2d`` / ``hand_right_keypoints_2d`` (21 each) and ``face_keypoints_2d`` (70)).
+    Parts that are absent or ``[]`` are ``None``; the parts in ``require`` must be present with a
+    confident point. ``person``: an index or ``"largest"`` (by the body's confident extent)."""
+    source = os.fspath(path)
+    try:
+        with open(source, "r", encoding="utf-8") as fh:
+            data = json.load(fh)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{source}: keypoint file not found") from None
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{source}: not valid JSON ({err})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("people"), list):
+        raise ValueError(f"{source}: not OpenPose JSON (no 'people' list)")
+    if not data["people"]:
+        raise ValueError(f"{source}: field 'people' is empty: no person detected")
+    people = []
+    for i, p in enumerate(data["people"]):
+        if not isinstance(p, dict) or "pose_keypoints_2d" not in p:
+            raise ValueError(f"{source}: field 'people[{i}].pose_keypoints_2d' is missing")
+        parts = {}
+        for field, (part, count) in PART_FIELDS.items():
+            parts[part] = _part_array(p.get(field), count, source, f"people[{i}].{field}")
+        if parts["body"] is None:
+            raise ValueError(f"{source}: field 'people[{i}].pose_keypoints_2d' is empty")
+        body = KeypointSet(parts["body"][:, :2], parts["body"][:, 2], "body25", source=f"{source} (people[{i}].pose_keypoints_2d)")
+        people.append(WholeBodyKeypoints(body, parts["hand_left"], parts["hand_right"], parts["face"], source=f"{source} (people[{i}])"))
+    if person == "largest":
+        chosen = max(people, key=lambda k: k.body.visible_area())
+    else:
+        index = int(person)
+        if not 0 <= index < len(people):
+            raise ValueError(f"{source}: person {index} requested, the file holds {len(people)}")
+        chosen = people[index]
+    return validate_wholebody(chosen, require)
+
+
+def write_wholebody_json(path: Union[str, os.PathLike], body: np.ndarray, hand_left=None, hand_right=None, face=None) -> None:
+    """Write one person's whole-body keypoints (``[K, 3]`` x, y, confidence per part; ``None`` parts
+    are written as ``[]``) as OpenPose JSON. Non-finite points become zeros with zero confidence."""
+    person = {"person_id": [-1]}
+    for (field, (part, count)), arr in zip(PART_FIELDS.items(), (body, hand_left, hand_right, face)):
+        if arr is None:
+            person[field] = []
+            continue
+        kp = np.asarray(arr, dtype=np.float64).copy()
+        if kp.shape != (count, 3):
+            raise ValueError(f"{os.fspath(path)}: {part} keypoints have shape {kp.shape}, expected ({count}, 3)")
+        kp[~np.isfinite(kp).all(axis=1)] = 0.0
+        person[field] = [round(float(v), 4) for v in kp.reshape(-1)]
+    for field in ("pose_keypoints_3d", "face_keypoints_3d", "hand_left_keypoints_3d", "hand_right_keypoints_3d"):
+        person[field] = []
+    tmp = Path(f"{os.fspath(path)}.tmp")
+    tmp.write_text(json.dumps({"version": 1.3, "people": [person]}))
+    os.replace(tmp, path)
