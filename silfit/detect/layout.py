@@ -1,0 +1,62 @@
+"""BlazePose's 33 landmarks and their conversion to the layouts silfit fits and writes
+(OpenPose BODY_25, COCO-17).
+
+BODY_25 from BlazePose: the 17 points both share are copied; ``neck`` is the shoulders'
+midpoint and ``mid_hip`` the hips' (with the lower of the two confidences);
+``big_toe`` is BlazePose's ``foot_index`` (the tip of the foot) and ``heel`` its heel.
+``small_toe`` has no BlazePose counterpart and is left undetected (confidence 0).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..keypoints import BODY25_NAMES, COCO17_NAMES
+
+__all__ = ["BLAZEPOSE33_NAMES", "blazepose_to_layout", "LOWER_BODY"]
+
+BLAZEPOSE33_NAMES = (
+    "nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye", "right_eye_outer",
+    "left_ear", "right_ear", "mouth_left", "mouth_right", "left_shoulder", "right_shoulder", "left_elbow",
+    "right_elbow", "left_wrist", "right_wrist", "left_pinky", "right_pinky", "left_index", "right_index",
+    "left_thumb", "right_thumb", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
+    "left_heel", "right_heel", "left_foot_index", "right_foot_index",
+)  # fmt: skip
+
+#: Target keypoint name -> the BlazePose landmarks it is the mean of (names not listed
+#: are taken by the same name; an empty tuple: not detected).
+_DERIVED = {
+    "neck": ("left_shoulder", "right_shoulder"),
+    "mid_hip": ("left_hip", "right_hip"),
+    "left_big_toe": ("left_foot_index",),
+    "right_big_toe": ("right_foot_index",),
+    "left_small_toe": (),
+    "right_small_toe": (),
+}
+
+#: BlazePose landmarks below the hips (reported when a person's lower body is not visible).
+LOWER_BODY = ("left_knee", "right_knee", "left_ankle", "right_ankle", "left_heel", "right_heel",
+              "left_foot_index", "right_foot_index")  # fmt: skip
+
+_TARGETS = {"body25": BODY25_NAMES, "coco17": COCO17_NAMES}
+
+
+def blazepose_to_layout(xy: np.ndarray, conf: np.ndarray, layout: str = "body25") -> np.ndarray:
+    """``[K, 3]`` keypoints (x, y, confidence) of ``layout`` from BlazePose's ``xy [33, 2]``
+    and per-landmark confidences ``conf [33]``; undetected points are ``(0, 0, 0)``."""
+    try:
+        names = _TARGETS[layout.lower()]
+    except KeyError:
+        raise ValueError(f"unknown keypoint layout {layout!r} (expected one of {', '.join(_TARGETS)})") from None
+    xy = np.asarray(xy, dtype=np.float64).reshape(len(BLAZEPOSE33_NAMES), 2)
+    conf = np.asarray(conf, dtype=np.float64).reshape(len(BLAZEPOSE33_NAMES))
+    index = {n: i for i, n in enumerate(BLAZEPOSE33_NAMES)}
+    out = np.zeros((len(names), 3))
+    for k, name in enumerate(names):
+        src = [index[s] for s in _DERIVED.get(name, (name,))]
+        if not src:
+            continue
+        c = float(conf[src].min())
+        if c > 0:
+            out[k, :2] = xy[src].mean(axis=0)
+            out[k, 2] = c
+    return out
