@@ -198,14 +198,16 @@ def read_keypoints(path: Union[str, os.PathLike], person: Union[int, str] = "lar
 
 
 def write_openpose_json(path: Union[str, os.PathLike], keypoints: np.ndarray, extra: Optional[dict] = None) -> None:
-    """Write ``[K, 3]`` keypoints (x, y, confidence) as OpenPose JSON with one person.
+    """Write ``[K, 3]`` keypoints (x, y, confidence) as OpenPose JSON with one person, or
+    ``[P, K, 3]`` with P people (``extra`` is added to each person's entry).
     Non-finite coordinates are written as zeros with zero confidence, as OpenPose does."""
     kp = np.asarray(keypoints, dtype=np.float64).copy()
-    missing = ~np.isfinite(kp).all(axis=1)
+    kp = kp[None] if kp.ndim == 2 else kp
+    missing = ~np.isfinite(kp).all(axis=2)
     kp[missing] = 0.0
-    person = {"person_id": [-1], "pose_keypoints_2d": [round(float(v), 4) for v in kp.reshape(-1)]}
-    person.update(extra or {})
-    payload = {"version": 1.3, "people": [person]}
+    people = [{"person_id": [-1], "pose_keypoints_2d": [round(float(v), 4) for v in k.reshape(-1)], **(extra or {})}
+              for k in kp]  # fmt: skip
+    payload = {"version": 1.3, "people": people}
     tmp = Path(f"{os.fspath(path)}.tmp")
     tmp.write_text(json.dumps(payload))
     os.replace(tmp, path)
