@@ -1,0 +1,40 @@
+import numpy as np
+import pytest
+
+from silfit.detect.layout import BLAZEPOSE33_NAMES, blazepose_to_layout
+from silfit.keypoints import BODY25_NAMES, COCO17_NAMES
+
+
+def _landmarks():
+    xy = np.arange(66, dtype=np.float64).reshape(33, 2)
+    conf = np.linspace(0.2, 1.0, 33)
+    return xy, conf
+
+
+def test_body25_from_blazepose():
+    xy, conf = _landmarks()
+    kp = blazepose_to_layout(xy, conf, "body25")
+    assert kp.shape == (25, 3)
+    b = {n: i for i, n in enumerate(BLAZEPOSE33_NAMES)}
+    o = {n: i for i, n in enumerate(BODY25_NAMES)}
+    for name in ("nose", "left_wrist", "right_knee", "left_ear", "right_heel"):
+        np.testing.assert_allclose(kp[o[name]], [*xy[b[name]], conf[b[name]]])
+    ls, rs = b["left_shoulder"], b["right_shoulder"]
+    np.testing.assert_allclose(kp[o["neck"]], [*(xy[ls] + xy[rs]) / 2, min(conf[ls], conf[rs])])
+    lh, rh = b["left_hip"], b["right_hip"]
+    np.testing.assert_allclose(kp[o["mid_hip"], :2], (xy[lh] + xy[rh]) / 2)
+    np.testing.assert_allclose(kp[o["left_big_toe"]], [*xy[b["left_foot_index"]], conf[b["left_foot_index"]]])
+    assert (kp[o["left_small_toe"]] == 0).all() and (kp[o["right_small_toe"]] == 0).all()
+
+
+def test_coco17_and_undetected_points():
+    xy, conf = _landmarks()
+    conf[BLAZEPOSE33_NAMES.index("left_ankle")] = 0.0
+    kp = blazepose_to_layout(xy, conf, "coco17")
+    assert kp.shape == (17, 3)
+    for k, name in enumerate(COCO17_NAMES):
+        i = BLAZEPOSE33_NAMES.index(name)
+        expected = [0, 0, 0] if name == "left_ankle" else [*xy[i], conf[i]]
+        np.testing.assert_allclose(kp[k], expected)
+    with pytest.raises(ValueError, match="unknown keypoint layout"):
+        blazepose_to_layout(xy, conf, "body135")
