@@ -20,7 +20,9 @@ def register(subparsers) -> None:
     p.add_argument("--layout", choices=("body25", "coco17"), default="body25", help="keypoint layout written")
     p.add_argument("--people", type=_positive_int, default=1, metavar="N",
                    help="detect up to N people, one after another (default 1)")
-    p.add_argument("--min-score", type=float, default=0.5, help="person detector score threshold (default 0.5)")
+    p.add_argument("--min-score", type=float, default=0.5,
+                   help="person detector score threshold (default 0.5; lower finds more people seen from behind, "
+                   "and more things that are not people)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=run)

@@ -11,8 +11,9 @@ Steps, as MediaPipe's pose graphs run them:
 3. the landmark model on that region (if it sees no pose there, on a wider one:
    ``retry_scales``), then on the region its own auxiliary hip-centre and scale
    landmarks give (``passes``), keeping the last pass that saw a pose;
-4. each person in turn (best detector score first), up to ``max_people``; a second
-   detection of a person already found (landmark boxes overlapping by IoU > 0.5) is skipped.
+4. each person in turn, up to ``max_people``, the most confident first (detector score
+   times pose presence); a second reading of a person already found (masks overlapping
+   by IoU > 0.5) is dropped.
 """
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ from .geometry import ROI, roi_from_alignment_points, warp_to_crop
 from .landmarks import NUM_LANDMARKS, ROI_SCALE, mask_in_image, roi_from_landmarks, run_landmark_model
 from .layout import BLAZEPOSE33_NAMES, LOWER_BODY, blazepose_to_layout
 from .models import load_model
-from .nms import box_iou, weighted_nms
+from .nms import weighted_nms
 
 __all__ = ["DetectConfig", "DetectionError", "Person", "detect_people", "detect_candidates"]
 
@@ -37,7 +38,11 @@ class DetectionError(ValueError):
 
 @dataclass(frozen=True)
 class DetectConfig:
-    min_score: float = 0.5  # detector score threshold (MediaPipe's min_detection_confidence)
+    #: detector score threshold (MediaPipe's min_detection_confidence). Lower finds more
+    #: people seen from behind or very close (on 32 renders: 0.5 missed 5, 0.3 missed 2) but
+    #: lets non-people through: at 0.3 the scikit-image logo (a snake) passes as a person,
+    #: with pose presence 1.0, so the landmark model's check does not catch it
+    min_score: float = 0.5
     nms_iou: float = 0.3
     min_presence: float = 0.5  # landmark model's pose presence (min_tracking_confidence)
     passes: int = 2  # landmark passes per person
@@ -196,8 +201,38 @@ def detect_candidates(image: np.ndarray, config: Optional[DetectConfig] = None):
     return scores, kps_img
 
 
+def _person_from_detection(img: np.ndarray, score: float, kp: np.ndarray, cfg: DetectConfig) -> Optional[Person]:
+    """The landmark passes on one detection; ``None`` when the landmark model sees no pose."""
+    H, W = img.shape[:2]
+    for scale in (ROI_SCALE,) + tuple(cfg.retry_scales):
+        det_roi = roi_from_alignment_points(kp[0], kp[1], scale)
+        lm = run_landmark_model(img, det_roi, refine=cfg.refine_heatmap)
+        if lm.presence_score >= cfg.min_presence:
+            break
+    else:
+        return None
+    for _ in range(max(1, cfg.passes) - 1):
+        again = run_landmark_model(img, roi_from_landmarks(lm), refine=cfg.refine_heatmap)
+        if again.presence_score < cfg.min_presence:
+            break
+        lm = again
+    n = NUM_LANDMARKS
+    return Person(
+        score=score, presence_score=lm.presence_score, detector_roi=det_roi, roi=lm.roi,
+        xy=lm.xy[:n], z=lm.z[:n], visibility=lm.visibility[:n], presence=lm.presence[:n], world=lm.world,
+        mask_prob=mask_in_image(lm, W, H), image_size=(W, H), config=cfg,
+    )  # fmt: skip
+
+
+def _same_person(a: Person, b: Person, min_iou: float = 0.5) -> bool:
+    ma, mb = a.mask(), b.mask()
+    union = np.logical_or(ma, mb).sum()
+    return bool(union) and np.logical_and(ma, mb).sum() / union > min_iou
+
+
 def detect_people(image: np.ndarray, config: Optional[DetectConfig] = None, source: str = "<image>") -> List[Person]:
-    """Every person found (up to ``config.max_people``), best detector score first.
+    """Every person found (up to ``config.max_people``), the most confident first
+    (detector score times the landmark model's pose presence).
 
     Raises :class:`DetectionError` when nobody is found or everyone found is smaller
     than ``config.min_person_px``.
@@ -208,29 +243,19 @@ def detect_people(image: np.ndarray, config: Optional[DetectConfig] = None, sour
     scores, kps = detect_candidates(img, cfg)
     if not len(scores):
         raise DetectionError(f"{source}: no person found (no detection scored >= {cfg.min_score})")
+    # Each candidate in turn (a few more than asked for: one person can give two
+    # detections, e.g. upright and upside down, that NMS keeps apart).
+    candidates: List[Person] = []
+    for score, kp in list(zip(scores, kps))[: 2 * max(cfg.max_people, 1) + 1 if cfg.max_people else None]:
+        person = _person_from_detection(img, float(score), kp, cfg)
+        if person is not None:
+            candidates.append(person)
+    # The same person twice (masks overlapping): keep the more confident reading.
+    candidates.sort(key=lambda p: -p.score * p.presence_score)
     people: List[Person] = []
     too_small = []
-    for score, kp in zip(scores, kps):
-        lm = None
-        for scale in (ROI_SCALE,) + tuple(cfg.retry_scales):
-            det_roi = roi_from_alignment_points(kp[0], kp[1], scale)
-            lm = run_landmark_model(img, det_roi, refine=cfg.refine_heatmap)
-            if lm.presence_score >= cfg.min_presence:
-                break
-        if lm.presence_score < cfg.min_presence:
-            continue
-        for _ in range(max(1, cfg.passes) - 1):
-            again = run_landmark_model(img, roi_from_landmarks(lm), refine=cfg.refine_heatmap)
-            if again.presence_score < cfg.min_presence:
-                break
-            lm = again
-        n = NUM_LANDMARKS
-        person = Person(
-            score=float(score), presence_score=lm.presence_score, detector_roi=det_roi, roi=lm.roi,
-            xy=lm.xy[:n], z=lm.z[:n], visibility=lm.visibility[:n], presence=lm.presence[:n], world=lm.world,
-            mask_prob=mask_in_image(lm, W, H), image_size=(W, H), config=cfg,
-        )  # fmt: skip
-        if any(box_iou(person.box(), p.box()[None])[0] > 0.5 for p in people):
+    for person in candidates:
+        if any(_same_person(person, p) for p in people):
             continue
         if person.extent_px() < cfg.min_person_px:
             too_small.append(person.extent_px())

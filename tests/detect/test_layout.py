@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from silfit.detect.layout import BLAZEPOSE33_NAMES, blazepose_to_layout
+from silfit.detect.layout import BLAZEPOSE33_NAMES, NECK_ABOVE_SHOULDERS, blazepose_to_layout
 from silfit.keypoints import BODY25_NAMES, COCO17_NAMES
 
 
@@ -19,10 +19,11 @@ def test_body25_from_blazepose():
     o = {n: i for i, n in enumerate(BODY25_NAMES)}
     for name in ("nose", "left_wrist", "right_knee", "left_ear", "right_heel"):
         np.testing.assert_allclose(kp[o[name]], [*xy[b[name]], conf[b[name]]])
-    ls, rs = b["left_shoulder"], b["right_shoulder"]
-    np.testing.assert_allclose(kp[o["neck"]], [*(xy[ls] + xy[rs]) / 2, min(conf[ls], conf[rs])])
-    lh, rh = b["left_hip"], b["right_hip"]
-    np.testing.assert_allclose(kp[o["mid_hip"], :2], (xy[lh] + xy[rh]) / 2)
+    ls, rs, lh, rh = b["left_shoulder"], b["right_shoulder"], b["left_hip"], b["right_hip"]
+    shoulders, hips = (xy[ls] + xy[rs]) / 2, (xy[lh] + xy[rh]) / 2
+    neck = shoulders + NECK_ABOVE_SHOULDERS * (shoulders - hips)
+    np.testing.assert_allclose(kp[o["neck"]], [*neck, min(conf[ls], conf[rs])])
+    np.testing.assert_allclose(kp[o["mid_hip"], :2], hips)
     np.testing.assert_allclose(kp[o["left_big_toe"]], [*xy[b["left_foot_index"]], conf[b["left_foot_index"]]])
     assert (kp[o["left_small_toe"]] == 0).all() and (kp[o["right_small_toe"]] == 0).all()
 

@@ -31,9 +31,9 @@ def test_detection_finds_each_subject_with_accurate_keypoints_and_mask(subjects)
         assert len(err) >= 15, s.name  # most of the 23 BODY_25 points BlazePose has are found
         medians.append(np.median(err))
         ious.append(mask_iou(person.mask(), s.mask))
-    # Measured on the 12 shipped subjects: median error per subject 0.9-8.5 px (subject_007, a
-    # bent-over pose, is the worst), 3.3 px on average; mask IoU 0.966-0.988, 0.978 on average.
-    assert max(medians) < 12.0 and np.mean(medians) < 5.0, np.round(medians, 1)
+    # Measured on the 12 shipped subjects: median error per subject 0.9-6.1 px (subject_007, a
+    # bent-over pose, is the worst), 3.0 px on average; mask IoU 0.966-0.988, 0.979 on average.
+    assert max(medians) < 10.0 and np.mean(medians) < 4.5, np.round(medians, 1)
     assert min(ious) > 0.94 and np.mean(ious) > 0.965, np.round(ious, 3)
 
 
