@@ -118,3 +118,23 @@ def test_bad_photos_exit_2_with_one_line(case, tmp_path, capsys):
 def test_fit_needs_keypoints_or_an_image(tmp_path, capsys):
     assert main(["fit", "--image-size", "64x64", "--out", str(tmp_path / "o")]) == 2
     assert "give --keypoints" in capsys.readouterr().err
+
+
+def test_detect_several_people(tmp_path):
+    a = np.asarray(Image.open(SUBJECT / "image.png"))
+    b = np.asarray(Image.open(SUBJECT.parent / "subject_004" / "image.png"))
+    image = tmp_path / "two.png"
+    Image.fromarray(np.concatenate([a, b], axis=1)).save(image)
+    out = tmp_path / "det"
+    assert main(["detect", str(image), "--people", "3", "--out", str(out), "--quiet"]) == 0
+    assert {p.name for p in out.iterdir()} >= {"mask.png", "mask_1.png", "keypoints.json"}
+    people = json.loads((out / "keypoints.json").read_text())["people"]
+    assert len(people) == 2
+    # Largest first, as read_keypoints(person="largest") picks.
+    assert read_keypoints(out / "keypoints.json", person=0).visible_area() >= read_keypoints(
+        out / "keypoints.json", person=1).visible_area()  # fmt: skip
+    masks = [read_mask(out / m, size=(512, 256)) for m in ("mask.png", "mask_1.png")]
+    assert not (masks[0] & masks[1]).any()
+    with pytest.raises(SystemExit) as exit_:  # argparse rejects it: usage line, status 2
+        main(["detect", str(image), "--people", "0", "--out", str(tmp_path / "x")])
+    assert exit_.value.code == 2 and not (tmp_path / "x").exists()
