@@ -17,7 +17,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("detect", help="detect people in a photo: OpenPose keypoints JSON + mask PNG")
     p.add_argument("image", help="the photo (JPEG, PNG, ...)")
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--layout", choices=("body25", "coco17"), default="body25", help="keypoint layout written")
+    p.add_argument("--layout", choices=("body25", "coco17", "blazepose33"), default="body25",
+                   help="keypoint layout written (default body25, what silfit fit uses)")
     p.add_argument("--people", type=_positive_int, default=1, metavar="N",
                    help="detect up to N people, one after another (default 1)")
     p.add_argument("--min-score", type=float, default=0.5,

@@ -1,5 +1,6 @@
-"""BlazePose's 33 landmarks and their conversion to the layouts silfit fits and writes
-(OpenPose BODY_25, COCO-17).
+"""BlazePose's 33 landmarks (layout ``blazepose33``, defined with the others in
+:mod:`silfit.keypoints`, where their sources on the body model are) and their conversion
+to the other layouts silfit fits and writes (OpenPose BODY_25, COCO-17).
 
 BODY_25 from BlazePose: the 17 points both share are copied; ``mid_hip`` is the hips'
 midpoint (with the lower of the two confidences); ``big_toe`` is BlazePose's
@@ -17,17 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..keypoints import BODY25_NAMES, COCO17_NAMES
+from ..keypoints import BLAZEPOSE33_NAMES, BODY25_NAMES, COCO17_NAMES
 
 __all__ = ["BLAZEPOSE33_NAMES", "blazepose_to_layout", "LOWER_BODY"]
-
-BLAZEPOSE33_NAMES = (
-    "nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye", "right_eye_outer",
-    "left_ear", "right_ear", "mouth_left", "mouth_right", "left_shoulder", "right_shoulder", "left_elbow",
-    "right_elbow", "left_wrist", "right_wrist", "left_pinky", "right_pinky", "left_index", "right_index",
-    "left_thumb", "right_thumb", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
-    "left_heel", "right_heel", "left_foot_index", "right_foot_index",
-)  # fmt: skip
 
 #: Target keypoint name -> the BlazePose landmarks it is the mean of (names not listed
 #: are taken by the same name; an empty tuple: not detected).
@@ -46,7 +39,7 @@ NECK_ABOVE_SHOULDERS = 0.15
 LOWER_BODY = ("left_knee", "right_knee", "left_ankle", "right_ankle", "left_heel", "right_heel",
               "left_foot_index", "right_foot_index")  # fmt: skip
 
-_TARGETS = {"body25": BODY25_NAMES, "coco17": COCO17_NAMES}
+_TARGETS = {"body25": BODY25_NAMES, "coco17": COCO17_NAMES, "blazepose33": BLAZEPOSE33_NAMES}
 
 
 def blazepose_to_layout(xy: np.ndarray, conf: np.ndarray, layout: str = "body25") -> np.ndarray:

@@ -2,7 +2,7 @@
 (:func:`save_detection`)::
 
     keypoints.json    OpenPose JSON, one entry in ``people`` per person (largest first),
-                      ``pose_keypoints_2d`` in BODY_25 (or COCO-17 with layout="coco17")
+                      ``pose_keypoints_2d`` in BODY_25 (or layout="coco17" / "blazepose33")
     mask.png          the first (largest) person's mask, 8-bit grey 0/255
     mask_<i>.png      the masks of people 1, 2, ... (with several people)
     detection.json    per person: detector score, regions, the 33 BlazePose landmarks with

@@ -39,3 +39,21 @@ def test_coco17_and_undetected_points():
         np.testing.assert_allclose(kp[k], expected)
     with pytest.raises(ValueError, match="unknown keypoint layout"):
         blazepose_to_layout(xy, conf, "body135")
+
+
+def test_blazepose33_layout_has_sources_on_the_body_model(open_model, tmp_path):
+    from silfit.keypoints import keypoint_sources, read_keypoints, write_openpose_json
+
+    xy, conf = _landmarks()
+    np.testing.assert_allclose(blazepose_to_layout(xy, conf, "blazepose33"), np.concatenate([xy, conf[:, None]], 1))
+    sources = dict(zip(BLAZEPOSE33_NAMES, keypoint_sources(open_model, "blazepose33")))
+    joints, landmarks = list(open_model.joint_names), list(open_model.landmark_names)
+    assert sources["left_index"] == sources["left_thumb"] == ("joint", joints.index("left_hand"))
+    assert sources["right_pinky"] == ("joint", joints.index("right_hand"))
+    assert sources["left_shoulder"] == ("joint", joints.index("left_shoulder"))
+    assert sources["mouth_left"] == ("landmark", landmarks.index("nose"))
+    assert sources["right_eye_outer"] == sources["right_eye"] == ("landmark", landmarks.index("right_eye"))
+    assert sources["left_foot_index"] == ("landmark", landmarks.index("left_big_toe"))
+    # 33-point OpenPose files read back as this layout.
+    write_openpose_json(tmp_path / "kp.json", np.concatenate([xy, conf[:, None]], 1))
+    assert read_keypoints(tmp_path / "kp.json").layout == "blazepose33"
