@@ -1,4 +1,4 @@
-"""2D keypoint layouts (OpenPose BODY_25, COCO-17), their 3D sources on the body model,
+"""2D keypoint layouts (OpenPose BODY_25, COCO-17, BlazePose-33), their 3D sources on the body model,
 and the keypoint files silfit reads and writes.
 
 A layout keypoint comes either from a model joint (the skeleton's joint centres, as
@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 __all__ = [
+    "BLAZEPOSE33_NAMES",
     "BODY25_NAMES",
     "COCO17_NAMES",
     "LAYOUTS",
@@ -37,7 +38,15 @@ COCO17_NAMES = (
     "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip", "left_knee",
     "right_knee", "left_ankle", "right_ankle",
 )  # fmt: skip
-LAYOUTS = {"body25": BODY25_NAMES, "coco17": COCO17_NAMES}
+#: MediaPipe BlazePose's 33 landmarks, as :mod:`silfit.detect` finds them.
+BLAZEPOSE33_NAMES = (
+    "nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye", "right_eye_outer",
+    "left_ear", "right_ear", "mouth_left", "mouth_right", "left_shoulder", "right_shoulder", "left_elbow",
+    "right_elbow", "left_wrist", "right_wrist", "left_pinky", "right_pinky", "left_index", "right_index",
+    "left_thumb", "right_thumb", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
+    "left_heel", "right_heel", "left_foot_index", "right_foot_index",
+)  # fmt: skip
+LAYOUTS = {"body25": BODY25_NAMES, "coco17": COCO17_NAMES, "blazepose33": BLAZEPOSE33_NAMES}
 
 #: Keypoint name -> SMPL joint name, where a joint is the source.
 _JOINT_SOURCES = {
@@ -48,6 +57,18 @@ _JOINT_SOURCES = {
     "left_hip": "left_hip", "right_hip": "right_hip",
     "left_knee": "left_knee", "right_knee": "right_knee",
     "left_ankle": "left_ankle", "right_ankle": "right_ankle",
+    # BlazePose's hand points: the model has no finger landmarks; SMPL's hand joint (at the
+    # knuckles) is the nearest point to all three.
+    "left_pinky": "left_hand", "left_index": "left_hand", "left_thumb": "left_hand",
+    "right_pinky": "right_hand", "right_index": "right_hand", "right_thumb": "right_hand",
+}  # fmt: skip
+#: Keypoint name -> the model landmark it is fitted to, where the model has no landmark of
+#: that name (BlazePose's points): the nearest one (eye corners -> the eye, mouth corners
+#: -> the nose, a few cm above them; the foot's tip -> the big toe).
+_LANDMARK_ALIASES = {
+    "left_eye_inner": "left_eye", "left_eye_outer": "left_eye", "right_eye_inner": "right_eye",
+    "right_eye_outer": "right_eye", "mouth_left": "nose", "mouth_right": "nose",
+    "left_foot_index": "left_big_toe", "right_foot_index": "right_big_toe",
 }  # fmt: skip
 
 
@@ -62,6 +83,7 @@ def keypoint_sources(model, layout: str = "body25", prefer_landmarks: bool = Fal
     landmark_index = {n: i for i, n in enumerate(model.landmark_names)}
     sources = []
     for name in names:
+        name = name if name in landmark_index else _LANDMARK_ALIASES.get(name, name)
         if prefer_landmarks and name in landmark_index:
             sources.append(("landmark", landmark_index[name]))
         elif name in _JOINT_SOURCES and _JOINT_SOURCES[name] in joint_index:
@@ -144,7 +166,7 @@ def _layout_for_count(count: int, source: str, field: str) -> str:
         if len(names) == count:
             return name
     raise ValueError(
-        f"{source}: field '{field}' has {count} keypoints; expected 25 (OpenPose BODY_25) or 17 (COCO-17)"
+        f"{source}: field '{field}' has {count} keypoints; expected 25 (OpenPose BODY_25), 17 (COCO-17) or 33 (BlazePose)"
     )
 
 
@@ -198,14 +220,16 @@ def read_keypoints(path: Union[str, os.PathLike], person: Union[int, str] = "lar
 
 
 def write_openpose_json(path: Union[str, os.PathLike], keypoints: np.ndarray, extra: Optional[dict] = None) -> None:
-    """Write ``[K, 3]`` keypoints (x, y, confidence) as OpenPose JSON with one person.
+    """Write ``[K, 3]`` keypoints (x, y, confidence) as OpenPose JSON with one person, or
+    ``[P, K, 3]`` with P people (``extra`` is added to each person's entry).
     Non-finite coordinates are written as zeros with zero confidence, as OpenPose does."""
     kp = np.asarray(keypoints, dtype=np.float64).copy()
-    missing = ~np.isfinite(kp).all(axis=1)
+    kp = kp[None] if kp.ndim == 2 else kp
+    missing = ~np.isfinite(kp).all(axis=2)
     kp[missing] = 0.0
-    person = {"person_id": [-1], "pose_keypoints_2d": [round(float(v), 4) for v in kp.reshape(-1)]}
-    person.update(extra or {})
-    payload = {"version": 1.3, "people": [person]}
+    people = [{"person_id": [-1], "pose_keypoints_2d": [round(float(v), 4) for v in k.reshape(-1)], **(extra or {})}
+              for k in kp]  # fmt: skip
+    payload = {"version": 1.3, "people": people}
     tmp = Path(f"{os.fspath(path)}.tmp")
     tmp.write_text(json.dumps(payload))
     os.replace(tmp, path)

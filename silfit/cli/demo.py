@@ -11,6 +11,8 @@ def register(subparsers) -> None:
     )
     p.add_argument("--out", default="silfit-demo", help="output folder (default: ./silfit-demo)")
     p.add_argument("--subject", help="a subject folder in the synthetic format (default: the shipped subject_000)")
+    p.add_argument("--photo", nargs="?", const="", metavar="PATH",
+                   help="fit a photograph instead: detect the person, fit, draw (default: the shipped sample photo)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
@@ -20,8 +22,22 @@ def run(args) -> int:
 
     t0 = time.perf_counter()
     out = Path(args.out)
+    if args.photo is not None:
+        return _run_photo(args, out, t0)
     report = run_demo(out, Path(args.subject) if args.subject else None, progress=not args.quiet)
     print(f"silfit demo: {report['subject']}\n")
+    print(report["table"])
+    for warning in report["warnings"]:
+        print(f"warning: {warning}")
+    print(f"\npictures and report in {out}/ (open summary.png first); took {time.perf_counter() - t0:.0f} s")
+    return 0
+
+
+def _run_photo(args, out: Path, t0: float) -> int:
+    from ..detect.demo import run_photo_demo
+
+    report = run_photo_demo(out, Path(args.photo) if args.photo else None, progress=not args.quiet)
+    print(f"silfit demo --photo: {report['photo']}\n")
     print(report["table"])
     for warning in report["warnings"]:
         print(f"warning: {warning}")

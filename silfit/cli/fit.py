@@ -25,13 +25,15 @@ def _int_list(text: str) -> tuple:
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("fit", help="fit SMPL to an image's 2D keypoints and person mask")
-    p.add_argument("--keypoints", required=True, help="OpenPose BODY_25 / COCO-17 keypoint JSON")
+    p.add_argument("--keypoints", help="OpenPose BODY_25 / COCO-17 keypoint JSON (default: detected in --image, "
+                   "with its mask unless --mask is given)")
     p.add_argument("--person", default="largest", help="person index in the keypoint file, or 'largest'")
     p.add_argument("--mask", help="person silhouette PNG (enables the silhouette stage)")
     cam = p.add_mutually_exclusive_group()
     cam.add_argument("--camera", help="camera.json with fx, fy, cx, cy, width, height")
     cam.add_argument("--focal", type=float, help="focal length in pixels (default: max(width, height))")
-    p.add_argument("--image", help="the image (for its size and the overlay)")
+    p.add_argument("--image", help="the image (its size, EXIF focal length and the overlay; keypoints and mask "
+                   "are detected in it when --keypoints is not given)")
     p.add_argument("--image-size", help="WxH when neither --camera, --image nor --mask gives the size")
     p.add_argument("--no-silhouette", action="store_true", help="stop after the keypoint stage")
     p.add_argument("--model", help="SMPL model file or folder (default: the shipped open body model)")
@@ -83,8 +85,16 @@ def run(args) -> int:
     if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
         raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
     person = args.person if args.person == "largest" else int(args.person)
-    keypoints = read_keypoints(args.keypoints, person=person)
-    image, size = _image_size(args)
+    # From a photo (silfit.detect): EXIF focal length; keypoints and mask when not given.
+    photo = None
+    if args.image:
+        from .detect import photo_inputs
+
+        photo = photo_inputs(args.image, person, not args.keypoints, not (args.mask or args.no_silhouette))
+    elif not args.keypoints:
+        raise CLIError("no keypoints: give --keypoints KP.json, or --image PHOTO to detect them")
+    keypoints = read_keypoints(args.keypoints, person=person) if args.keypoints else photo["keypoints"]
+    image, size = (photo["image"], photo["size"]) if photo else _image_size(args)
     camera = load_camera(args.camera) if args.camera else None
     if camera is not None and size is not None and tuple(size) != (camera.width, camera.height):
         raise CLIError(f"{args.camera}: camera is {camera.width}x{camera.height} but the image is {size[0]}x{size[1]}")
@@ -93,6 +103,11 @@ def run(args) -> int:
         expected = (camera.width, camera.height) if camera is not None else size
         mask = read_mask(args.mask, size=expected)
         size = size or (mask.shape[1], mask.shape[0])
+    elif photo and photo["mask"] is not None:
+        mask = photo["mask"]
+    focal, camera_source = args.focal, "camera file" if camera else ("--focal" if args.focal else "default max(W, H)")
+    if camera is None and focal is None and photo and photo["focal"]:
+        focal, camera_source = photo["focal"], photo["focal_source"]
     if camera is None and size is None:
         raise CLIError("no camera: give --camera C.json, or --image / --image-size / --mask for the default camera")
 
@@ -106,9 +121,13 @@ def run(args) -> int:
         sil_config = replace(SilhouetteFitConfig(), **levels)
     except ValueError:
         raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels") from None
-    result = fit(keypoints, mask, camera, image_size=size, focal=args.focal, model=model,
+    result = fit(keypoints, mask, camera, image_size=size, focal=focal, model=model,
                  pose_prior=args.pose_prior, silhouette_config=sil_config, progress=not args.quiet)  # fmt: skip
-    extra = {"keypoints": os.fspath(args.keypoints), "mask": args.mask, "image": args.image, "model": model.source}
+    extra = {"keypoints": args.keypoints and os.fspath(args.keypoints), "mask": args.mask, "image": args.image,
+             "model": model.source, "camera_source": camera_source}  # fmt: skip
+    if photo and photo["metrics"]:
+        extra.update(photo["metrics"], warnings=photo["warnings"] + result.metrics.get("warnings", []))
+        result.metrics["warnings"] = extra["warnings"]
     save_fit(result, out, model.faces.cpu().numpy(), keypoints, image, mask, extra, overwrite=args.overwrite)
     if not args.quiet:
         m = result.metrics

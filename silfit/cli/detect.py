@@ -1,0 +1,78 @@
+"""``silfit detect``: person keypoints (OpenPose JSON) and mask (PNG) from a photo, with
+the shipped BlazePose models; writes the folder described in :mod:`silfit.detect.output`."""
+from __future__ import annotations
+
+from . import CLIError
+
+
+def _positive_int(text: str) -> int:
+    import argparse
+
+    if not text.strip().isdigit() or int(text) <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return int(text)
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("detect", help="detect people in a photo: OpenPose keypoints JSON + mask PNG")
+    p.add_argument("image", help="the photo (JPEG, PNG, ...)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--layout", choices=("body25", "coco17", "blazepose33"), default="body25",
+                   help="keypoint layout written (default body25, what silfit fit uses)")
+    p.add_argument("--people", type=_positive_int, default=1, metavar="N",
+                   help="detect up to N people, one after another (default 1)")
+    p.add_argument("--min-score", type=float, default=0.5,
+                   help="person detector score threshold (default 0.5; lower finds more people seen from behind, "
+                   "and more things that are not people)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from ..detect import DetectConfig
+    from ..detect.output import detect_photo, save_detection
+
+    out = Path(args.out)
+    if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
+        raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
+    if not 0.0 < args.min_score < 1.0:
+        raise CLIError(f"--min-score {args.min_score}: expected a value between 0 and 1")
+    photo, people = detect_photo(args.image, DetectConfig(min_score=args.min_score, max_people=args.people))
+    save_detection(out, photo, people, layout=args.layout, overwrite=args.overwrite)
+    if not args.quiet:
+        print(f"wrote {out}: {len(people)} person(s) in {args.image} ({photo.size[0]}x{photo.size[1]})")
+        for i, p in enumerate(people):
+            for warning in p.warnings():
+                print(f"warning: person {i}: {warning}")
+    return 0
+
+
+def photo_inputs(image_path: str, person, detect: bool, want_mask: bool) -> dict:
+    """What ``silfit fit --image`` takes from the photo: its pixels (upright), the EXIF focal
+    length and, when ``detect`` (no ``--keypoints``), the detected person's BODY_25
+    keypoints, mask (if ``want_mask``), detection summary and warnings."""
+    from ..detect import DetectConfig
+    from ..detect.output import detect_photo
+    from ..detect.photo import read_photo
+
+    out = {"keypoints": None, "mask": None, "warnings": [], "metrics": {}}
+    if detect:
+        index = None if person == "largest" else int(person)
+        photo, people = detect_photo(image_path, DetectConfig(max_people=3 if index is None else index + 1))
+        if index is not None and index >= len(people):
+            raise CLIError(f"{image_path}: person {index} requested, {len(people)} detected")
+        chosen = people[index or 0]
+        out["keypoints"] = chosen.keypoint_set("body25", source=f"{image_path} (detected keypoints)")
+        out["mask"] = chosen.mask() if want_mask else None
+        out["warnings"] = [f"detection: {w}" for w in chosen.warnings()]
+        summary = chosen.to_dict()
+        summary.pop("landmarks")
+        out["metrics"]["detection"] = {"people_found": len(people), "person": index or 0, **summary}
+    else:
+        photo = read_photo(image_path)
+    out["image"], out["size"] = photo.image, photo.size
+    out["focal"], out["focal_source"] = photo.focal()
+    return out

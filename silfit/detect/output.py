@@ -1,0 +1,72 @@
+"""A photo in, people out: :func:`detect_photo`, and the folder ``silfit detect`` writes
+(:func:`save_detection`)::
+
+    keypoints.json    OpenPose JSON, one entry in ``people`` per person (largest first),
+                      ``pose_keypoints_2d`` in BODY_25 (or layout="coco17" / "blazepose33")
+    mask.png          the first (largest) person's mask, 8-bit grey 0/255
+    mask_<i>.png      the masks of people 1, 2, ... (with several people)
+    detection.json    per person: detector score, regions, the 33 BlazePose landmarks with
+                      visibility / presence / confidence, what is not visible, warnings;
+                      plus the image size and the EXIF focal length (if any)
+    detection.png     the image with masks, regions and skeletons drawn
+
+Written into a temporary folder beside the target and moved into place at the end, so
+a failed run leaves nothing half-written.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import List, Optional, Tuple
+
+import numpy as np
+
+from .person import DetectConfig, Person, detect_people
+from .photo import Photo, read_photo
+
+__all__ = ["detect_photo", "save_detection"]
+
+
+def detect_photo(path: os.PathLike, config: Optional[DetectConfig] = None) -> Tuple[Photo, List[Person]]:
+    """Read ``path`` and detect its people, ordered largest first (the extent of their
+    confident keypoints, as ``read_keypoints(person="largest")`` ranks them)."""
+    photo = read_photo(path)
+    people = detect_people(photo.image, config, source=photo.path)
+    people.sort(key=lambda p: -p.keypoint_set().visible_area())
+    return photo, people
+
+
+def save_detection(out: os.PathLike, photo: Photo, people: List[Person], layout: str = "body25",
+                   overwrite: bool = False) -> Path:  # fmt: skip
+    from ..dataset import write_png
+    from ..keypoints import write_openpose_json
+    from .draw import detection_overlay
+
+    out = Path(out)
+    if out.exists() and not overwrite and (not out.is_dir() or any(out.iterdir())):
+        raise FileExistsError(f"{out}: output folder exists and is not empty (use --overwrite)")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        write_openpose_json(tmp / "keypoints.json", np.stack([p.keypoints(layout) for p in people]))
+        for i, p in enumerate(people):
+            write_png(tmp / ("mask.png" if i == 0 else f"mask_{i}.png"), p.mask())
+        write_png(tmp / "detection.png", detection_overlay(photo.image, people))
+        focal, focal_source = photo.focal()
+        report = {
+            "image": photo.path, "width": photo.size[0], "height": photo.size[1], "layout": layout,
+            "focal_px": focal, "focal_source": focal_source,
+            "models": "MediaPipe BlazePose GHUM pose_detection + pose_landmark_full (mediapipe 0.10.21)",
+            "people": [p.to_dict() for p in people],
+        }  # fmt: skip
+        (tmp / "detection.json").write_text(json.dumps(report, indent=2))
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out

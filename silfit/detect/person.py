@@ -1,0 +1,271 @@
+"""People in a photo: the BlazePose person detector, then the landmark model on each
+person's rotated region, twice (the second region comes from the first pass's
+landmarks), with landmarks and the person mask mapped back to image pixels.
+
+Steps, as MediaPipe's pose graphs run them:
+
+1. the whole image, letterboxed into the detector's 224 x 224 input (values in [-1, 1]);
+   SSD decoding (:mod:`.anchors`), score >= ``min_score``, weighted NMS (:mod:`.nms`);
+2. per detection, the region from its hip centre and full-body scale point (side: twice
+   their distance, times 1.25; rotated so the body is upright in the crop);
+3. the landmark model on that region (if it sees no pose there, on a wider one:
+   ``retry_scales``), then on the region its own auxiliary hip-centre and scale
+   landmarks give (``passes``), keeping the last pass that saw a pose;
+4. each person in turn, up to ``max_people``, the most confident first (detector score
+   times pose presence); a second reading of a person already found (masks overlapping
+   by IoU > 0.5) is dropped.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import List, Optional
+
+import numpy as np
+
+from .anchors import DETECTOR_INPUT, decode_detections
+from .geometry import ROI, roi_from_alignment_points, warp_to_crop
+from .landmarks import NUM_LANDMARKS, ROI_SCALE, mask_in_image, roi_from_landmarks, run_landmark_model
+from .layout import BLAZEPOSE33_NAMES, LOWER_BODY, blazepose_to_layout
+from .models import load_model
+from .nms import weighted_nms
+
+__all__ = ["DetectConfig", "DetectionError", "Person", "detect_people", "detect_candidates"]
+
+
+class DetectionError(ValueError):
+    """No usable person in the image (the message says why)."""
+
+
+@dataclass(frozen=True)
+class DetectConfig:
+    #: detector score threshold (MediaPipe's min_detection_confidence). Lower finds more
+    #: people seen from behind or very close (on 32 renders: 0.5 missed 5, 0.3 missed 2) but
+    #: lets non-people through: at 0.3 the scikit-image logo (a snake) passes as a person,
+    #: with pose presence 1.0, so the landmark model's check does not catch it
+    min_score: float = 0.5
+    nms_iou: float = 0.3
+    min_presence: float = 0.5  # landmark model's pose presence (min_tracking_confidence)
+    passes: int = 2  # landmark passes per person
+    #: wider first regions tried (as multiples of the detector's scale-point radius) when
+    #: the landmark model sees no pose in the standard one (unusual poses, e.g. bent over)
+    retry_scales: tuple = (1.6,)
+    refine_heatmap: bool = True
+    max_people: int = 1
+    #: a person whose landmarks span fewer pixels (longest side of their box) is too small
+    min_person_px: float = 40.0
+    #: confidence below which a landmark counts as not visible
+    visible_threshold: float = 0.5
+    #: confidence of landmarks the model extrapolates outside the image: 0 drops them,
+    #: except the hips, which keep this much so that a fit of a truncated torso can proceed
+    outside_hip_conf: float = 0.2
+
+
+@dataclass
+class Person:
+    """One detected person; coordinates in image pixels (pixel centres on integers)."""
+
+    score: float  # detector score
+    presence_score: float  # landmark model's pose presence on the final region
+    detector_roi: ROI
+    roi: ROI
+    xy: np.ndarray  # [33, 2]
+    z: np.ndarray  # [33]
+    visibility: np.ndarray  # [33]
+    presence: np.ndarray  # [33]
+    world: np.ndarray  # [33, 3]
+    mask_prob: np.ndarray  # [H, W] float32
+    image_size: tuple  # (W, H)
+    config: DetectConfig = field(default_factory=DetectConfig, repr=False)
+
+    @property
+    def names(self) -> tuple:
+        return BLAZEPOSE33_NAMES
+
+    def in_image(self) -> np.ndarray:
+        W, H = self.image_size
+        x, y = self.xy[:, 0], self.xy[:, 1]
+        return (x >= -0.5) & (x <= W - 0.5) & (y >= -0.5) & (y <= H - 0.5)
+
+    def confidence(self) -> np.ndarray:
+        """Per-landmark confidence for fitting ``[33]``: the model's visibility where the
+        landmark lies in the image (floored at 0.1: an occluded landmark the model still
+        places is weak evidence, not none), 0 outside it except the hips (see
+        :attr:`DetectConfig.outside_hip_conf`)."""
+        inside = self.in_image()
+        conf = np.where(inside, np.maximum(self.visibility, 0.1), 0.0)
+        for name in ("left_hip", "right_hip"):
+            i = BLAZEPOSE33_NAMES.index(name)
+            if not inside[i]:
+                conf[i] = self.config.outside_hip_conf
+        return conf
+
+    def keypoints(self, layout: str = "body25") -> np.ndarray:
+        """``[K, 3]`` (x, y, confidence) in ``layout`` (``body25`` or ``coco17``)."""
+        return blazepose_to_layout(self.xy, self.confidence(), layout)
+
+    def keypoint_set(self, layout: str = "body25", source: str = "<detected>"):
+        from ..keypoints import KeypointSet
+
+        kp = self.keypoints(layout)
+        return KeypointSet(kp[:, :2], kp[:, 2], layout, source=source)
+
+    def mask(self, threshold: float = 0.5) -> np.ndarray:
+        """The person mask ``bool [H, W]``."""
+        return self.mask_prob > threshold
+
+    def extent_px(self) -> float:
+        """Longest side of the box of the landmarks inside the image."""
+        pts = self.xy[self.in_image() & (self.visibility > 0.1)]
+        return float((pts.max(0) - pts.min(0)).max()) if len(pts) >= 2 else 0.0
+
+    def box(self) -> np.ndarray:
+        """``[4]`` x_min, y_min, x_max, y_max of all 33 landmarks."""
+        return np.concatenate([self.xy.min(0), self.xy.max(0)])
+
+    def not_visible(self) -> List[str]:
+        """Landmarks outside the image or below the visibility threshold."""
+        vis = self.in_image() & (self.visibility >= self.config.visible_threshold)
+        return [n for n, v in zip(BLAZEPOSE33_NAMES, vis) if not v]
+
+    def lower_body_visible(self) -> bool:
+        hidden = set(self.not_visible())
+        return not all(n in hidden for n in LOWER_BODY)
+
+    def cut_off_edges(self) -> List[str]:
+        """Image edges that landmarks lie beyond (the person is cut off there)."""
+        W, H = self.image_size
+        x, y = self.xy[:, 0], self.xy[:, 1]
+        edges = {"left": x < -0.5, "right": x > W - 0.5, "top": y < -0.5, "bottom": y > H - 0.5}
+        return [e for e, m in edges.items() if m.any()]
+
+    def warnings(self) -> List[str]:
+        out = []
+        edges = self.cut_off_edges()
+        if edges:
+            outside = [n for n, i in zip(BLAZEPOSE33_NAMES, self.in_image()) if not i]
+            out.append(f"person cut off at the image's {' and '.join(edges)} edge: {', '.join(outside)} outside the image")
+        if not self.lower_body_visible():
+            out.append("lower body not visible (knees, ankles and feet outside the image or occluded): "
+                       "the fit follows the visible part only")  # fmt: skip
+        return out
+
+    def to_dict(self) -> dict:
+        """A JSON-ready summary (landmarks with visibility/presence, regions, warnings)."""
+        conf = self.confidence()
+        return {
+            "score": round(float(self.score), 4),
+            "presence": round(float(self.presence_score), 4),
+            "detector_roi": self.detector_roi.to_dict(),
+            "roi": self.roi.to_dict(),
+            "extent_px": round(self.extent_px(), 1),
+            "mask_area_px": int(self.mask().sum()),
+            "landmarks": {
+                name: {"x": round(float(self.xy[i, 0]), 2), "y": round(float(self.xy[i, 1]), 2),
+                       "z": round(float(self.z[i]), 2), "visibility": round(float(self.visibility[i]), 4),
+                       "presence": round(float(self.presence[i]), 4), "confidence": round(float(conf[i]), 4)}
+                for i, name in enumerate(BLAZEPOSE33_NAMES)
+            },  # fmt: skip
+            "not_visible": self.not_visible(),
+            "lower_body_visible": self.lower_body_visible(),
+            "warnings": self.warnings(),
+        }
+
+
+def _as_rgb(image: np.ndarray, source: str) -> np.ndarray:
+    img = np.asarray(image)
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=2)
+    if img.ndim != 3 or img.shape[2] not in (3, 4) or img.shape[0] == 0 or img.shape[1] == 0:
+        raise ValueError(f"{source}: expected an RGB image [H, W, 3], got shape {img.shape}")
+    img = img[..., :3]
+    if img.dtype != np.uint8:
+        if np.issubdtype(img.dtype, np.floating):
+            img = (np.clip(img, 0.0, 1.0) * 255.0).round()
+        img = img.astype(np.uint8)
+    return np.ascontiguousarray(img)
+
+
+def detect_candidates(image: np.ndarray, config: Optional[DetectConfig] = None):
+    """The person detector alone: ``(scores [M], keypoints [M, 4, 2])`` in image pixels after
+    weighted NMS, best first (keypoints: hip centre, full-body scale point, shoulder
+    centre, upper-body scale point)."""
+    cfg = config or DetectConfig()
+    H, W = image.shape[:2]
+    letterbox = ROI((W - 1) / 2.0, (H - 1) / 2.0, float(max(W, H)), 0.0)
+    tensor = warp_to_crop(image, letterbox, DETECTOR_INPUT).astype(np.float32) / 127.5 - 1.0
+    outputs = load_model("pose_detection")(tensor[None])
+    boxes_raw, scores_raw = sorted(outputs, key=lambda t: t.shape[-1], reverse=True)
+    scores, boxes, kps = decode_detections(boxes_raw, scores_raw)
+    scores, boxes, kps = weighted_nms(scores, boxes, kps, cfg.min_score, cfg.nms_iou)
+    kps_img = letterbox.crop_to_image(kps.reshape(-1, 2)).reshape(kps.shape)
+    return scores, kps_img
+
+
+def _person_from_detection(img: np.ndarray, score: float, kp: np.ndarray, cfg: DetectConfig) -> Optional[Person]:
+    """The landmark passes on one detection; ``None`` when the landmark model sees no pose."""
+    H, W = img.shape[:2]
+    for scale in (ROI_SCALE,) + tuple(cfg.retry_scales):
+        det_roi = roi_from_alignment_points(kp[0], kp[1], scale)
+        lm = run_landmark_model(img, det_roi, refine=cfg.refine_heatmap)
+        if lm.presence_score >= cfg.min_presence:
+            break
+    else:
+        return None
+    for _ in range(max(1, cfg.passes) - 1):
+        again = run_landmark_model(img, roi_from_landmarks(lm), refine=cfg.refine_heatmap)
+        if again.presence_score < cfg.min_presence:
+            break
+        lm = again
+    n = NUM_LANDMARKS
+    return Person(
+        score=score, presence_score=lm.presence_score, detector_roi=det_roi, roi=lm.roi,
+        xy=lm.xy[:n], z=lm.z[:n], visibility=lm.visibility[:n], presence=lm.presence[:n], world=lm.world,
+        mask_prob=mask_in_image(lm, W, H), image_size=(W, H), config=cfg,
+    )  # fmt: skip
+
+
+def _same_person(a: Person, b: Person, min_iou: float = 0.5) -> bool:
+    ma, mb = a.mask(), b.mask()
+    union = np.logical_or(ma, mb).sum()
+    return bool(union) and np.logical_and(ma, mb).sum() / union > min_iou
+
+
+def detect_people(image: np.ndarray, config: Optional[DetectConfig] = None, source: str = "<image>") -> List[Person]:
+    """Every person found (up to ``config.max_people``), the most confident first
+    (detector score times the landmark model's pose presence).
+
+    Raises :class:`DetectionError` when nobody is found or everyone found is smaller
+    than ``config.min_person_px``.
+    """
+    cfg = config or DetectConfig()
+    img = _as_rgb(image, source)
+    H, W = img.shape[:2]
+    scores, kps = detect_candidates(img, cfg)
+    if not len(scores):
+        raise DetectionError(f"{source}: no person found (no detection scored >= {cfg.min_score})")
+    # Each candidate in turn (a few more than asked for: one person can give two
+    # detections, e.g. upright and upside down, that NMS keeps apart).
+    candidates: List[Person] = []
+    for score, kp in list(zip(scores, kps))[: 2 * max(cfg.max_people, 1) + 1 if cfg.max_people else None]:
+        person = _person_from_detection(img, float(score), kp, cfg)
+        if person is not None:
+            candidates.append(person)
+    # The same person twice (masks overlapping): keep the more confident reading.
+    candidates.sort(key=lambda p: -p.score * p.presence_score)
+    people: List[Person] = []
+    too_small = []
+    for person in candidates:
+        if any(_same_person(person, p) for p in people):
+            continue
+        if person.extent_px() < cfg.min_person_px:
+            too_small.append(person.extent_px())
+            continue
+        people.append(person)
+        if cfg.max_people and len(people) >= cfg.max_people:
+            break
+    if not people:
+        if too_small:
+            raise DetectionError(f"{source}: person too small: the largest found spans {max(too_small):.0f} px, "
+                                 f"need at least {cfg.min_person_px:.0f}")  # fmt: skip
+        raise DetectionError(f"{source}: no person found (the landmark model saw no pose in {len(scores)} detection(s))")
+    return people

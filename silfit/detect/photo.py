@@ -1,0 +1,106 @@
+"""Photos: the pixels (upright, per the EXIF orientation) and the focal length the EXIF
+data gives, in pixels.
+
+Focal length, in order of preference:
+
+1. ``FocalLengthIn35mmFilm``: the 35 mm equivalent, converted through the diagonal
+   (a 36 x 24 mm frame's diagonal is 43.27 mm, so ``f_px = f35 * diagonal_px / 43.27``),
+   which is how the equivalent focal length is defined (equal diagonal angle of view);
+2. ``FocalLength`` (mm) with ``FocalPlaneXResolution`` / ``FocalPlaneResolutionUnit``
+   (sensor pixels per unit), rescaled when the image is smaller than ``PixelXDimension``;
+3. none: the caller's default (silfit's ``max(W, H)``).
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from typing import Optional, Tuple
+
+import numpy as np
+
+__all__ = ["Photo", "read_photo", "focal_from_exif", "FULL_FRAME_DIAGONAL_MM"]
+
+FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
+_EXIF_IFD = 0x8769
+_TAGS = {
+    "FocalLength": 0x920A,
+    "FocalLengthIn35mmFilm": 0xA405,
+    "FocalPlaneXResolution": 0xA20E,
+    "FocalPlaneResolutionUnit": 0xA210,
+    "PixelXDimension": 0xA002,
+}
+_UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0, 5: 0.001}  # inch, cm, mm, micrometre
+
+
+@dataclass
+class Photo:
+    image: np.ndarray  # uint8 [H, W, 3] RGB, upright
+    path: str
+    exif: dict = field(default_factory=dict)  # the focal-related tags found (name -> float)
+    stored_width: int = 0  # width as stored in the file (before the EXIF rotation)
+
+    @property
+    def size(self) -> Tuple[int, int]:
+        return self.image.shape[1], self.image.shape[0]
+
+    def focal(self) -> Tuple[Optional[float], str]:
+        """``(focal_px or None, how it was found)``."""
+        return focal_from_exif(self.exif, self.size, self.stored_width)
+
+
+def _number(value) -> Optional[float]:
+    try:
+        v = float(value[0]) / float(value[1]) if isinstance(value, tuple) else float(value)
+    except (TypeError, ValueError, ZeroDivisionError):
+        return None
+    return v if math.isfinite(v) and v > 0 else None
+
+
+def read_photo(path: os.PathLike) -> Photo:
+    """Read a photo (any format Pillow reads) as upright RGB, with its focal-length EXIF tags.
+    Errors name the file: not found, not a readable image, no pixels."""
+    from PIL import Image, ImageOps, UnidentifiedImageError
+
+    source = os.fspath(path)
+    if not os.path.isfile(source):
+        raise FileNotFoundError(f"{source}: image not found")
+    try:
+        with Image.open(source) as im:
+            im.load()
+            stored_width = im.size[0]
+            exif = {}
+            try:
+                raw = im.getexif()
+                ifd = raw.get_ifd(_EXIF_IFD)
+                for name, tag in _TAGS.items():
+                    v = _number(ifd.get(tag, raw.get(tag)))
+                    if v is not None:
+                        exif[name] = v
+            except Exception:  # malformed EXIF is not an unreadable image
+                exif = {}
+            im = ImageOps.exif_transpose(im)
+            arr = np.asarray(im.convert("RGB"))
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as err:
+        raise ValueError(f"{source}: not a readable image ({err})") from None
+    if arr.ndim != 3 or arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise ValueError(f"{source}: the image is empty ({arr.shape[1] if arr.ndim > 1 else 0}x{arr.shape[0]} pixels)")
+    return Photo(image=np.ascontiguousarray(arr), path=source, exif=exif, stored_width=stored_width)
+
+
+def focal_from_exif(exif: dict, size: Tuple[int, int], stored_width: int = 0) -> Tuple[Optional[float], str]:
+    """The focal length in pixels from EXIF tags (see the module docstring) for an image of
+    ``size = (W, H)``; ``(None, reason)`` when the tags do not give one."""
+    W, H = size
+    f35 = exif.get("FocalLengthIn35mmFilm")
+    if f35:
+        return f35 * math.hypot(W, H) / FULL_FRAME_DIAGONAL_MM, f"EXIF FocalLengthIn35mmFilm ({f35:g} mm)"
+    f_mm, xres, unit = exif.get("FocalLength"), exif.get("FocalPlaneXResolution"), exif.get("FocalPlaneResolutionUnit", 2)
+    if f_mm and xres and int(unit) in _UNIT_MM:
+        px_per_mm = xres / _UNIT_MM[int(unit)]
+        stored = stored_width or W
+        scale = stored / exif["PixelXDimension"] if exif.get("PixelXDimension") else 1.0
+        return f_mm * px_per_mm * scale, f"EXIF FocalLength ({f_mm:g} mm) and FocalPlaneXResolution"
+    if f_mm:
+        return None, f"EXIF FocalLength ({f_mm:g} mm) without the sensor size"
+    return None, "no focal length in EXIF"
