@@ -8,6 +8,9 @@ agree to sub-pixel precision.
 * :mod:`renderers.silhouette` - :class:`SilhouetteRenderer`, :func:`render_silhouette`
   (Mitsuba 3 ``prb_projective``; torch in, torch out; gradients include the visibility
   edge term; region-of-interest mode).  Imports Mitsuba/Dr.Jit on first use.
+* :mod:`renderers.proxy` - :class:`RenderProxy`, :func:`get_proxy`, :func:`build_proxy`:
+  a decimated mesh whose vertices are fixed affine combinations of the body's (for fast
+  silhouettes).  Needs no Mitsuba.
 * :mod:`renderers.offscreen` - :func:`render_mesh`, :func:`render_mask`,
   :func:`render_depth`, :func:`overlay`, :func:`render_views`, :func:`framing_camera`
   (pyrender on OSMesa).  Imports pyrender on first use.
@@ -30,6 +33,11 @@ _EXPORTS = {
     "paste_roi": "silhouette",
     "check_camera": "silhouette",
     "check_mesh": "silhouette",
+    # render proxy (numpy / torch only)
+    "RenderProxy": "proxy",
+    "get_proxy": "proxy",
+    "build_proxy": "proxy",
+    "DEFAULT_PROXY_FACES": "proxy",
     # offscreen (pyrender / OSMesa)
     "BODY_COLOR": "offscreen",
     "Rendering": "offscreen",
@@ -78,6 +86,7 @@ if TYPE_CHECKING:  # pragma: no cover
         render_views,
         view_angles,
     )
+    from .proxy import DEFAULT_PROXY_FACES, RenderProxy, build_proxy, get_proxy
     from .silhouette import (
         RoiWindow,
         SilhouetteRenderer,
