@@ -8,6 +8,8 @@ agree to sub-pixel precision.
 * :mod:`renderers.silhouette` - :class:`SilhouetteRenderer`, :func:`render_silhouette`
   (Mitsuba 3 ``prb_projective``; torch in, torch out; gradients include the visibility
   edge term; region-of-interest mode).  Imports Mitsuba/Dr.Jit on first use.
+* :mod:`renderers.batch` - :class:`BatchSilhouetteRenderer`, :func:`render_batch`: several
+  subjects' silhouettes (own vertices, own window camera) in tiles of one film per call.
 * :mod:`renderers.proxy` - :class:`RenderProxy`, :func:`get_proxy`, :func:`build_proxy`:
   a decimated mesh whose vertices are fixed affine combinations of the body's (for fast
   silhouettes).  Needs no Mitsuba.
@@ -33,6 +35,10 @@ _EXPORTS = {
     "paste_roi": "silhouette",
     "check_camera": "silhouette",
     "check_mesh": "silhouette",
+    # batched silhouettes (tiles of one film)
+    "BatchSilhouetteRenderer": "batch",
+    "render_batch": "batch",
+    "get_batch_renderer": "batch",
     # render proxy (numpy / torch only)
     "RenderProxy": "proxy",
     "get_proxy": "proxy",
@@ -86,6 +92,7 @@ if TYPE_CHECKING:  # pragma: no cover
         render_views,
         view_angles,
     )
+    from .batch import BatchSilhouetteRenderer, get_batch_renderer, render_batch
     from .proxy import DEFAULT_PROXY_FACES, RenderProxy, build_proxy, get_proxy
     from .silhouette import (
         RoiWindow,
