@@ -22,8 +22,9 @@ Names are resolved lazily, so ``import renderers`` loads neither Mitsuba nor pyr
 """
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING
+
+from silfit._lazy import lazy_exports
 
 _EXPORTS = {
     # silhouette (Mitsuba / Dr.Jit; Mitsuba itself is imported when a renderer is built)
@@ -65,17 +66,7 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str):
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'renderers' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())
 
 
 if TYPE_CHECKING:  # pragma: no cover

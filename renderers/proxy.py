@@ -39,7 +39,7 @@ from typing import Optional
 import numpy as np
 import torch
 
-__all__ = ["DEFAULT_PROXY_FACES", "RenderProxy", "build_proxy", "get_proxy", "proxy_cache_dir"]
+__all__ = ["DEFAULT_PROXY_FACES", "ProxySilhouetteRenderer", "RenderProxy", "proxy_renderer", "build_proxy", "get_proxy", "proxy_cache_dir"]
 
 #: Proxy size that keeps the open body's silhouette IoU >= 0.995 against the full mesh
 #: (10,000 of 26,692 faces; see benchmarks/bench_render.py --proxy).
@@ -283,3 +283,34 @@ def _save(path: Path, proxy: RenderProxy) -> None:
         os.replace(tmp, path)
     except OSError:
         pass  # the cache is an optimisation; a read-only home still works
+
+
+# --------------------------------------------------------------------------- renderer
+class ProxySilhouetteRenderer:
+    """Drop-in for :class:`renderers.silhouette.SilhouetteRenderer` (e.g. the ``renderer``
+    argument of ``fit_silhouette``): ``renderer(vertices [V,3] or [B,V,3], camera, ...)``
+    renders the proxy of the model's vertices; gradients reach the model's vertices."""
+
+    def __init__(self, proxy: RenderProxy, **renderer_options):
+        from .silhouette import SilhouetteRenderer
+
+        self.proxy = proxy
+        self.renderer = SilhouetteRenderer(proxy.faces, **renderer_options)
+        self.faces = self.renderer.faces
+
+    def __call__(self, vertices: torch.Tensor, camera, **kwargs) -> torch.Tensor:
+        return self.renderer(self.proxy(vertices), camera, **kwargs)
+
+    def render_roi(self, vertices: torch.Tensor, camera, **kwargs):
+        return self.renderer.render_roi(self.proxy(vertices), camera, **kwargs)
+
+
+def proxy_renderer(model, n_faces: int = DEFAULT_PROXY_FACES) -> ProxySilhouetteRenderer:
+    """A cached :class:`ProxySilhouetteRenderer` of ``model`` (``v_template``, ``faces``)."""
+    proxy = get_proxy(model.v_template, model.faces, n_faces)
+    key = ("renderer", id(proxy))
+    with _LOCK:
+        r = _MEMORY.get(key)
+        if r is None:
+            r = _MEMORY[key] = ProxySilhouetteRenderer(proxy)
+        return r

@@ -144,6 +144,28 @@ def test_gradient_matches_finite_differences(capsule, capsule_renderer, cam64, e
     assert max(rel) < 0.03, f"AD {ad.tolist()} vs FD {fd.tolist()} (relative {rel})"
 
 
+def test_interleaved_renders_keep_their_own_gradients(capsule, capsule_renderer, cam64):
+    """Two renders through one cached scene, then one backward pass: each render's
+    gradient is the one it has alone (the scene holds only the last vertices, so the
+    earlier render's edge term must be recomputed with its own), and a [B, V, 3] batch
+    gives every element its gradient."""
+    v, _ = capsule
+    w = torch.arange(64.0)
+    alone = []
+    for shift, seed in ((0.0, 1), (0.1, 2)):
+        x = (v + CENTRE).clone().requires_grad_()
+        (capsule_renderer(x + torch.tensor([shift, 0.0, 0.0]), cam64, seed=seed) * w).sum().backward()
+        alone.append(x.grad.clone())
+    a, b = (v + CENTRE).clone().requires_grad_(), (v + CENTRE).clone().requires_grad_()
+    sa = capsule_renderer(a, cam64, seed=1)
+    sb = capsule_renderer(b + torch.tensor([0.1, 0.0, 0.0]), cam64, seed=2)
+    ((sa + sb) * w).sum().backward()
+    assert torch.allclose(a.grad, alone[0]) and torch.allclose(b.grad, alone[1])
+    batch = torch.stack([v + CENTRE, v + CENTRE + torch.tensor([0.1, 0.0, 0.0])]).requires_grad_()
+    (capsule_renderer(batch, cam64, seed=1) * w).sum().backward()
+    assert torch.allclose(batch.grad[0], alone[0]) and batch.grad[1, :, 0].sum() > 0
+
+
 # --------------------------------------------------------------------------- ROI
 def test_roi_equals_window_of_full_render(capsule, capsule_renderer):
     v, _ = capsule

@@ -140,3 +140,18 @@ def test_proxy_gradient_matches_finite_differences(model, proxy, edge_gradient_c
     ad, fd, rel = edge_gradient_check(lambda v, **kw: renderer(v, cam, **kw), verts, loss, p0, steps)
     assert all(abs(x) > 10 for x in fd.tolist())
     assert max(rel) < 0.03, f"AD {ad.tolist()} vs FD {fd.tolist()} (relative {rel})"
+
+
+def test_proxy_renderer_is_a_drop_in(model, proxy):
+    from renderers.proxy import ProxySilhouetteRenderer
+
+    v = _posed(model, seed=4)
+    cam = roi_window(v, Camera(fx=1000.0, fy=1000.0, cx=511.5, cy=511.5, width=1024, height=1024), size=48).camera
+    r = ProxySilhouetteRenderer(proxy)
+    x = v.clone().requires_grad_()
+    s = r(x, cam, seed=3)
+    assert torch.equal(s, r.renderer(proxy(v), cam, seed=3))
+    (s * torch.arange(48.0)).sum().backward()
+    assert x.grad[:, 0].sum() > 0  # the gradient reaches the model's vertices
+    roi, window = r.render_roi(v, cam, size=32, seed=1)
+    assert roi.shape == (32, 32) and roi.sum() > 0
