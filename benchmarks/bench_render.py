@@ -233,39 +233,40 @@ def bench_batch(args) -> None:
     batches = [int(x) for x in args.batches.split(",")]
     model, verts, cams = library_subjects(max(batches))
     proxy = get_proxy(model.v_template, model.faces, DEFAULT_PROXY_FACES)
-    print(f"\n### Batched subjects, 128x128 windows, spp 4, edge spp 1 (best of {args.repeats}; ms)\n")
-    print("| mesh | subjects | fwd: N single calls | fwd: one tiled call | fwd+bwd: N single calls | fwd+bwd: one tiled call | fwd+bwd per subject, single / tiled | fallbacks |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    print(f"\n### Batched subjects, 128x128 windows, spp 4, edge spp 1 (best of {args.repeats}; ms per call, per subject in brackets)\n")
+    print("N subjects rendered then one backward pass: *shared scene* = one cached scene re-used for every subject "
+          "(each earlier subject's backward then rebuilds its BVH); *scene per subject* = `mode='separate'`; "
+          "*tiles* = `mode='tiled'`, all subjects in one film.\n")
+    print("| mesh | N | fwd: scene per subject | fwd: tiles | fwd+bwd: shared scene | fwd+bwd: scene per subject | fwd+bwd: tiles |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
     for label, faces, vs in (("full", model.faces, verts), (f"proxy {proxy.n_faces:,}", proxy.faces, [proxy(v) for v in verts])):
-        br = BatchSilhouetteRenderer(faces)
+        tiled, separate = BatchSilhouetteRenderer(faces, mode="tiled"), BatchSilhouetteRenderer(faces, mode="separate")
         for n in batches:
             sub_v, sub_c = vs[:n], cams[:n]
             with torch.no_grad():
-                targets = [(s > 0.5).float() for s in br(sub_v, sub_c, spp=16, seed=0)]
+                targets = [(s > 0.5).float() for s in tiled(sub_v, sub_c, spp=16, seed=0)]
 
-            def single():
+            def shared():
                 xs = [v.clone().requires_grad_() for v in sub_v]
-                loss = sum(((br.single(x, c) - t) ** 2).sum() for x, c, t in zip(xs, sub_c, targets))
-                loss.backward()
+                sum(((tiled.single(x, c) - t) ** 2).sum() for x, c, t in zip(xs, sub_c, targets)).backward()
 
-            def tiled():
-                xs = [v.clone().requires_grad_() for v in sub_v]
-                loss = sum(((s - t) ** 2).sum() for s, t in zip(br(xs, sub_c), targets))
-                loss.backward()
+            def fwd_bwd(r):
+                def run():
+                    xs = [v.clone().requires_grad_() for v in sub_v]
+                    sum(((s - t) ** 2).sum() for s, t in zip(r(xs, sub_c), targets)).backward()
 
-            def single_fwd():
-                with torch.no_grad():
-                    for v, c in zip(sub_v, sub_c):
-                        br.single(v, c)
+                return run
 
-            def tiled_fwd():
-                with torch.no_grad():
-                    br(sub_v, sub_c)
+            def fwd(r):
+                def run():
+                    with torch.no_grad():
+                        r(sub_v, sub_c)
+
+                return run
 
             reps = max(3, args.repeats // max(1, n // 4))
-            f_s, f_t = median_ms(single_fwd, reps, 1, True), median_ms(tiled_fwd, reps, 1, True)
-            t_s, t_t = median_ms(single, reps, 1, True), median_ms(tiled, reps, 1, True)
-            print(f"| {label} | {n} | {f_s:.0f} | {f_t:.0f} | {t_s:.0f} | {t_t:.0f} | {t_s / n:.1f} / {t_t / n:.1f} | {br.last_fallbacks} |", flush=True)
+            cells = [median_ms(f, reps, 1, True) for f in (fwd(separate), fwd(tiled), shared, fwd_bwd(separate), fwd_bwd(tiled))]
+            print(f"| {label} | {n} | " + " | ".join(f"{c:.0f} ({c / n:.0f})" for c in cells) + " |", flush=True)
 
 
 def bench_breakdown(args) -> None:

@@ -63,14 +63,31 @@ def tile_layout(cameras: Sequence[Camera], gap: int = 4) -> TileLayout:
 
 
 class BatchSilhouetteRenderer:
-    """Silhouettes of several subjects of one topology per Mitsuba call (module docstring).
+    """Silhouettes of several subjects of one topology (module docstring).
 
+    ``mode='tiled'`` renders all subjects in tiles of one film per Mitsuba call;
+    ``'separate'`` renders each subject with its own cached scene (one call each, the
+    same results and gradients); ``'auto'`` is the faster one measured (tiles).
     ``renderer(vertices, cameras)`` with ``vertices`` a list of ``[V, 3]`` tensors (or a
     ``[B, V, 3]`` tensor) and one camera per subject returns a list of ``[h_i, w_i]``
     silhouettes whose gradients reach each subject's vertices."""
 
-    def __init__(self, faces, spp: int = 4, edge_spp: int = 1, gap: int = 4, variant: Optional[str] = None):
+    def __init__(
+        self,
+        faces,
+        spp: int = 4,
+        edge_spp: int = 1,
+        gap: int = 4,
+        variant: Optional[str] = None,
+        mode: str = "auto",
+    ):
+        if mode not in ("auto", "tiled", "separate"):
+            raise ValueError(f"mode must be 'auto', 'tiled' or 'separate', got {mode!r}")
         self.single = SilhouetteRenderer(faces, spp=spp, edge_spp=edge_spp, variant=variant)
+        # 'auto': tiles (measured faster on the CPU from 8 subjects on, equal at 4: see
+        # benchmarks/bench_render.py --only batch; not measured on a GPU yet)
+        self.mode = "tiled" if mode == "auto" else mode
+        self._slots: List[SilhouetteRenderer] = [self.single]
         self.faces, self.spp, self.edge_spp = self.single.faces, self.single.spp, self.single.edge_spp
         if int(gap) < 0:
             raise ValueError(f"gap must be >= 0 pixels, got {gap}")
@@ -79,6 +96,14 @@ class BatchSilhouetteRenderer:
         self._tiled: dict = {}
         self._lock = threading.Lock()
         self.last_fallbacks = 0  # subjects rendered alone in the last call (spill)
+
+    def _slot(self, i: int) -> SilhouetteRenderer:
+        """Subject ``i``'s own renderer (own scenes), so that each subject's scene still
+        holds its vertices at the backward pass (no BVH rebuild there)."""
+        with self._lock:
+            while len(self._slots) <= i:
+                self._slots.append(SilhouetteRenderer(self.faces, spp=self.spp, edge_spp=self.edge_spp, variant=self.variant))
+            return self._slots[i]
 
     def _tiled_renderer(self, n: int) -> SilhouetteRenderer:
         with self._lock:
@@ -109,13 +134,16 @@ class BatchSilhouetteRenderer:
             raise ValueError("all subjects must have the same number of vertices")
         seed = _fresh_seed() if seed is None else int(seed)
         kw = dict(spp=spp, edge_spp=edge_spp, sampler=sampler)
+        if self.mode == "separate":
+            self.last_fallbacks = 0
+            return [self._slot(i)(v, c, seed=seed + i, **kw) for i, (v, c) in enumerate(zip(verts, cameras))]
         layout = tile_layout(cameras, self.gap)
         inside = [_stays_in_window(v, c, self.gap) for v, c in zip(verts, cameras)]
         tiled = [i for i, ok in enumerate(inside) if ok]
         out: List[Optional[torch.Tensor]] = [None] * len(verts)
         self.last_fallbacks = len(verts) - len(tiled)
         for i in (i for i, ok in enumerate(inside) if not ok):
-            out[i] = self.single(verts[i], cameras[i], seed=seed + 1 + i, **kw)
+            out[i] = self._slot(i)(verts[i], cameras[i], seed=seed + 1 + i, **kw)
         if len(tiled) == 1:
             i = tiled[0]
             out[i] = self.single(verts[i], cameras[i], seed=seed, **kw)
@@ -159,13 +187,13 @@ def _stays_in_window(vertices: torch.Tensor, camera: Camera, gap: int) -> bool:
 _BATCH_RENDERERS: dict = {}
 
 
-def get_batch_renderer(faces) -> BatchSilhouetteRenderer:
+def get_batch_renderer(faces, mode: str = "auto") -> BatchSilhouetteRenderer:
     """A shared :class:`BatchSilhouetteRenderer` per faces topology."""
     f = faces.detach().cpu().numpy() if isinstance(faces, torch.Tensor) else np.asarray(faces)
-    key = faces_key(f)
+    key = (faces_key(f), mode)
     r = _BATCH_RENDERERS.get(key)
     if r is None:
-        r = _BATCH_RENDERERS[key] = BatchSilhouetteRenderer(f)
+        r = _BATCH_RENDERERS[key] = BatchSilhouetteRenderer(f, mode=mode)
     return r
 
 
@@ -176,6 +204,7 @@ def render_batch(
     spp: int = 4,
     edge_spp: int = 1,
     seed: Optional[int] = None,
+    mode: str = "auto",
 ) -> List[torch.Tensor]:
     """Functional form of :class:`BatchSilhouetteRenderer` (renderers cached per topology)."""
-    return get_batch_renderer(faces)(vertices, cameras, spp=spp, edge_spp=edge_spp, seed=seed)
+    return get_batch_renderer(faces, mode)(vertices, cameras, spp=spp, edge_spp=edge_spp, seed=seed)
