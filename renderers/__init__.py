@@ -8,6 +8,11 @@ agree to sub-pixel precision.
 * :mod:`renderers.silhouette` - :class:`SilhouetteRenderer`, :func:`render_silhouette`
   (Mitsuba 3 ``prb_projective``; torch in, torch out; gradients include the visibility
   edge term; region-of-interest mode).  Imports Mitsuba/Dr.Jit on first use.
+* :mod:`renderers.batch` - :class:`BatchSilhouetteRenderer`, :func:`render_batch`: several
+  subjects' silhouettes (own vertices, own window camera) in tiles of one film per call.
+* :mod:`renderers.proxy` - :class:`RenderProxy`, :func:`get_proxy`, :func:`build_proxy`:
+  a decimated mesh whose vertices are fixed affine combinations of the body's (for fast
+  silhouettes).  Needs no Mitsuba.
 * :mod:`renderers.offscreen` - :func:`render_mesh`, :func:`render_mask`,
   :func:`render_depth`, :func:`overlay`, :func:`render_views`, :func:`framing_camera`
   (pyrender on OSMesa).  Imports pyrender on first use.
@@ -17,8 +22,9 @@ Names are resolved lazily, so ``import renderers`` loads neither Mitsuba nor pyr
 """
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING
+
+from silfit._lazy import lazy_exports
 
 _EXPORTS = {
     # silhouette (Mitsuba / Dr.Jit; Mitsuba itself is imported when a renderer is built)
@@ -30,6 +36,15 @@ _EXPORTS = {
     "paste_roi": "silhouette",
     "check_camera": "silhouette",
     "check_mesh": "silhouette",
+    # batched silhouettes (tiles of one film)
+    "BatchSilhouetteRenderer": "batch",
+    "render_batch": "batch",
+    "get_batch_renderer": "batch",
+    # render proxy (numpy / torch only)
+    "RenderProxy": "proxy",
+    "get_proxy": "proxy",
+    "build_proxy": "proxy",
+    "DEFAULT_PROXY_FACES": "proxy",
     # offscreen (pyrender / OSMesa)
     "BODY_COLOR": "offscreen",
     "Rendering": "offscreen",
@@ -51,17 +66,7 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str):
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'renderers' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())
 
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -78,6 +83,8 @@ if TYPE_CHECKING:  # pragma: no cover
         render_views,
         view_angles,
     )
+    from .batch import BatchSilhouetteRenderer, get_batch_renderer, render_batch
+    from .proxy import DEFAULT_PROXY_FACES, RenderProxy, build_proxy, get_proxy
     from .silhouette import (
         RoiWindow,
         SilhouetteRenderer,

@@ -33,6 +33,14 @@ A ``constant`` environment of radiance 1 behind the mesh, the mesh a black occlu
 so ``d silhouette / d vertices`` moves the outline.  The scene is built once per (faces
 topology, resolution, spp, edge spp) and cached; only vertex positions change between
 calls (keep those fixed within a fit: Dr.Jit recompiles when a scene's structure changes).
+
+Torch bridge: a ``torch.autograd.Function`` (not ``dr.wrap``).  A scene holds one set of
+vertex positions and Mitsuba's backward pass renders the edge term with whatever the scene
+holds at that time, so a render whose scene has since rendered other vertices (a batch,
+several subjects per step, a target in between) puts its own vertices back and calls the
+integrator's ``render_backward`` itself: every render gets its own gradient, whatever the
+order of renders and ``backward()`` calls.  (With ``dr.wrap`` the earlier renders got no
+gradient and the last one got theirs as well.)
 """
 from __future__ import annotations
 
@@ -206,6 +214,7 @@ class _SilhouetteScene:
         sampler: str = "independent",
     ):
         self.width, self.height, self.spp, self.edge_spp = width, height, spp, edge_spp
+        self.lock = threading.RLock()
         mesh = mi.Mesh("body", n_vertices, faces.shape[0], has_vertex_normals=False)
         mesh_params = mi.traverse(mesh)
         mesh_params["faces"] = mi.UInt32(faces.reshape(-1).astype(np.uint32))
@@ -239,19 +248,76 @@ class _SilhouetteScene:
         )
         self.params = mi.traverse(self.scene)
         self.params.keep(["body.vertex_positions"])
-        params, scene = self.params, self.scene
-
-        @dr.wrap(source="torch", target="drjit")
-        def _render(verts, seed):
-            params["body.vertex_positions"] = verts.array
-            params.update()
-            img = mi.render(scene, params, spp=0, seed=seed)
-            return 1.0 - img[..., 0]
-
-        self._render = _render
+        self.mi, self.dr = mi, dr
+        self.generation = 0  # bumped whenever the scene's vertex positions change
 
     def render(self, verts: torch.Tensor, seed: int) -> torch.Tensor:
-        return self._render(verts, int(seed))
+        """Silhouette ``[H, W]`` of ``verts [V, 3]`` (canonical frame, float32, contiguous);
+        differentiable in torch when ``verts`` requires grad."""
+        if torch.is_grad_enabled() and verts.requires_grad:
+            return _RenderFunction.apply(verts, self, int(seed))
+        self._set_vertices(verts, grad=False)
+        img = self.mi.render(self.scene, spp=0, seed=int(seed))
+        return 1.0 - img.torch()[..., 0]
+
+    # The scene holds one set of vertex positions, and Mitsuba's backward pass renders the
+    # edge term with whatever the scene holds *then*.  So the AD graph of a render is used
+    # only while the scene still holds that render's vertices; after another render (a
+    # batch, several subjects, a target rendered in between) the backward pass puts this
+    # render's vertices back and calls the integrator's render_backward itself.
+    def _set_vertices(self, verts: torch.Tensor, grad: bool):
+        x = self.mi.Float(verts.detach().reshape(-1))
+        if grad:
+            self.dr.enable_grad(x)
+        self.params["body.vertex_positions"] = x
+        self.params.update()
+        self.generation += 1
+        return x
+
+    def _forward(self, verts: torch.Tensor, seed: int):
+        x = self._set_vertices(verts, grad=True)
+        seed_grad = _grad_seed(seed)
+        img = self.mi.render(self.scene, self.params, spp=0, seed=seed, seed_grad=seed_grad)
+        return img, x, self.generation, seed_grad
+
+    def _vertex_grad(self, state, verts: torch.Tensor, grad_sil: torch.Tensor) -> torch.Tensor:
+        img, x, generation, seed_grad = state
+        dr, mi = self.dr, self.mi
+        grad_img = mi.TensorXf((-grad_sil).to(torch.float32).contiguous().reshape(*grad_sil.shape, 1))
+        if generation == self.generation:  # the scene still holds these vertices
+            dr.set_grad(img, grad_img)
+            dr.enqueue(dr.ADMode.Backward, img)
+            dr.traverse(dr.ADMode.Backward)
+        else:
+            x = self._set_vertices(verts, grad=True)
+            self.scene.integrator().render_backward(self.scene, self.params, grad_img, seed=seed_grad, spp=0)
+        g = dr.grad(x)
+        return g.torch().reshape(verts.shape)
+
+
+class _RenderFunction(torch.autograd.Function):
+    """``silhouette = render(verts)`` with the vertex gradient from Mitsuba (see
+    :meth:`_SilhouetteScene._vertex_grad`)."""
+
+    @staticmethod
+    def forward(ctx, verts, scene, seed):
+        img, x, generation, seed_grad = scene._forward(verts, seed)
+        ctx.scene, ctx.state = scene, (img, x, generation, seed_grad)
+        ctx.save_for_backward(verts)
+        return 1.0 - img.torch()[..., 0]
+
+    @staticmethod
+    def backward(ctx, grad_sil):
+        (verts,) = ctx.saved_tensors
+        with ctx.scene.lock:
+            g = ctx.scene._vertex_grad(ctx.state, verts, grad_sil)
+        ctx.state = None
+        return g.to(device=verts.device, dtype=verts.dtype), None, None
+
+
+def _grad_seed(seed: int) -> int:
+    """The seed of the edge (backward) pass: decorrelated from the primal seed."""
+    return (int(seed) * 0x9E3779B1 + 0x7F4A7C15) % (2**32 - 1) + 1
 
 
 # --------------------------------------------------------------------------- renderer
@@ -339,7 +405,8 @@ class SilhouetteRenderer:
             if device.type != "cuda" or not self.variant.startswith("cuda"):
                 mapped = mapped.cpu()
             s = _fresh_seed() if seed is None else int(seed) + i
-            img = scene.render(mapped, s)
+            with scene.lock:
+                img = scene.render(mapped, s)
             images.append(img.to(device=device, dtype=out_dtype))
         out = torch.stack(images)
         return out if batched else out[0]

@@ -3,23 +3,38 @@
 ``load_body_model`` gives the body model, ``fit_keypoints`` the keypoint stage (batched),
 ``fit`` the whole fit of one image (keypoints, then silhouette) and ``save_fit`` its
 output folder.
+
+Names are resolved on first use (PEP 562), so ``import silfit`` (and ``silfit --help``,
+``silfit synth``) does not pay for torch, scipy and the fitting code until they are needed.
 """
-from .body import BodyModel, BodyOutput, load_body_model
-from .camera import Camera
-from .fitting import KeypointFitResult, fit_keypoints
-from .pipeline import FitResult, fit, save_fit
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from ._lazy import lazy_exports
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "BodyModel",
-    "BodyOutput",
-    "Camera",
-    "FitResult",
-    "KeypointFitResult",
-    "fit",
-    "fit_keypoints",
-    "load_body_model",
-    "save_fit",
-    "__version__",
-]
+_EXPORTS = {
+    "BodyModel": "body",
+    "BodyOutput": "body",
+    "load_body_model": "body",
+    "Camera": "camera",
+    "KeypointFitResult": "fitting",
+    "fit_keypoints": "fitting",
+    "FitResult": "pipeline",
+    "fit": "pipeline",
+    "save_fit": "pipeline",
+}
+
+__all__ = sorted(_EXPORTS) + ["__version__"]
+
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())
+
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .body import BodyModel, BodyOutput, load_body_model
+    from .camera import Camera
+    from .fitting import KeypointFitResult, fit_keypoints
+    from .pipeline import FitResult, fit, save_fit

@@ -5,6 +5,7 @@ All functions return or write RGB ``uint8`` images; nothing here changes a fit.
 from __future__ import annotations
 
 import os
+import sys
 from typing import Optional, Sequence
 
 import numpy as np
@@ -15,6 +16,7 @@ from .dataset import write_png
 __all__ = [
     "write_png",
     "fit_overlay",
+    "paint_mesh",
     "draw_keypoints",
     "silhouette_comparison",
     "iou_curve",
@@ -58,14 +60,67 @@ def fit_overlay(
     alpha: float = 0.65,
 ) -> np.ndarray:
     """The shaded body over the image (a light grey canvas without one), with the given
-    keypoints in green and the fitted body's keypoints in red."""
-    from renderers.offscreen import overlay
+    keypoints in green and the fitted body's keypoints in red.
 
-    out = overlay(_canvas(image, camera), vertices, faces, camera, alpha=alpha)
+    The body comes from the offscreen GL renderer when this process has already loaded it
+    (then it costs a few ms), else it is painted with OpenCV (:func:`paint_mesh`; no
+    pyrender import and GL context, about 1-2 s, for a picture every ``silfit fit``
+    writes)."""
+    canvas = _canvas(image, camera)
+    if not 0.0 <= alpha <= 1.0:
+        raise ValueError(f"alpha must be in [0, 1], got {alpha}")
+    if "pyrender" in sys.modules:
+        from renderers.offscreen import overlay
+
+        out = overlay(canvas, vertices, faces, camera, alpha=alpha)
+    else:
+        rgba = paint_mesh(vertices, faces, camera)
+        a = (rgba[..., 3:].astype(np.float32) / 255.0) * float(alpha)
+        out = canvas.astype(np.float32) * (1.0 - a) + rgba[..., :3].astype(np.float32) * a
+        out = np.clip(out + 0.5, 0, 255).astype(np.uint8)
     if keypoints_xy is not None:
         out = draw_keypoints(out, keypoints_xy, DETECTED, conf)
     if fitted_xy is not None:
         out = draw_keypoints(out, fitted_xy, FITTED, conf, radius=max(1, round(max(out.shape[:2]) / 256)))
+    return out
+
+
+BODY_RGB = (0.58, 0.64, 0.74)  # the offscreen renderer's clay colour (linear RGB)
+
+
+def paint_mesh(vertices, faces, camera: Camera, color=BODY_RGB) -> np.ndarray:
+    """``[H, W, 4]`` uint8 RGBA of a closed camera-frame mesh: the faces turned towards the
+    camera painted far to near (painter's algorithm) with flat shading ``0.3 + 0.7 |cos|``
+    of the angle to the viewing ray; alpha 255 where a face touches the pixel (the
+    outline is about half a pixel wider than pixel-centre coverage)."""
+    import cv2
+
+    v = np.asarray(vertices.detach().cpu().numpy() if hasattr(vertices, "detach") else vertices, dtype=np.float64)
+    f = np.asarray(faces.detach().cpu().numpy() if hasattr(faces, "detach") else faces, dtype=np.int64)
+    out = np.zeros((camera.height, camera.width, 4), np.uint8)
+    tri = v[f]
+    keep = (tri[:, :, 2] > 1e-3).all(1)
+    tri = tri[keep]
+    if tri.shape[0] == 0:
+        return out
+    z = tri[:, :, 2]
+    uv = np.stack([camera.fx * tri[:, :, 0] / z + camera.cx, camera.fy * tri[:, :, 1] / z + camera.cy], axis=-1)
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    centre = tri.mean(1)
+    facing = (normal * centre).sum(1)
+    # a closed mesh's outward side: the sign of its signed volume; drop faces turned away
+    outward = np.sign(np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum()) or 1.0
+    front = facing * outward < 0
+    tri, uv, z, normal, centre, facing = tri[front], uv[front], z[front], normal[front], centre[front], facing[front]
+    cos = np.abs(facing) / np.maximum(np.linalg.norm(normal, axis=1) * np.linalg.norm(centre, axis=1), 1e-20)
+    rgb = (np.clip(np.asarray(color, dtype=np.float64)[None] * (0.3 + 0.7 * cos[:, None]), 0, 1) ** (1 / 2.2)) * 255
+    lo, hi = uv.min(1), uv.max(1)
+    onscreen = (hi[:, 0] >= -1) & (hi[:, 1] >= -1) & (lo[:, 0] <= camera.width) & (lo[:, 1] <= camera.height)
+    shift = 4  # sub-pixel vertex positions (1/16 px)
+    pts = np.round(uv * (1 << shift)).astype(np.int32)
+    colours = np.concatenate([np.round(rgb), np.full((len(rgb), 1), 255.0)], axis=1).astype(int).tolist()
+    for i in np.flatnonzero(onscreen)[np.argsort(-z[onscreen].mean(1), kind="stable")]:
+        cv2.fillConvexPoly(out, pts[i], colours[i], lineType=cv2.LINE_8, shift=shift)
     return out
 
 
@@ -80,29 +135,60 @@ def silhouette_comparison(body: np.ndarray, mask: np.ndarray) -> np.ndarray:
 
 
 def iou_curve(history: dict, path: os.PathLike, title: str = "silhouette stage") -> None:
-    """IoU (window, soft) and energy per step; dashed lines where the resolution changes."""
-    import matplotlib
+    """IoU (window, soft; left axis) and energy (log scale; right axis) per step; dashed
+    lines where the resolution changes.  Drawn with OpenCV (no matplotlib import: this
+    picture is written by every ``silfit fit`` with a silhouette stage)."""
+    import cv2
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    W, H, left, right, top, bottom = 600, 340, 62, 70, 34, 44
+    img = np.full((H, W, 3), 255, np.uint8)
+    x0, x1, y0, y1 = left, W - right, top, H - bottom  # plot box (y0 top)
+    iou = np.asarray(history.get("iou", []), dtype=np.float64)
+    energy = np.asarray(history.get("energy", []), dtype=np.float64)
+    n = max(len(iou), 2)
+    font, blue, orange, grey = cv2.FONT_HERSHEY_SIMPLEX, (31, 119, 180), (255, 127, 14), (150, 150, 150)
 
-    steps = np.arange(len(history["iou"]))
-    fig, ax = plt.subplots(figsize=(6, 3.4), dpi=100)
-    ax.plot(steps, history["iou"], color="tab:blue", label="IoU")
-    ax.set_xlabel("step")
-    ax.set_ylabel("IoU", color="tab:blue")
-    ax.set_ylim(min(0.5, min(history["iou"], default=0.5)), 1.0)
-    ax.grid(alpha=0.3)
-    twin = ax.twinx()
-    twin.plot(steps, history["energy"], color="tab:orange", alpha=0.8, label="energy")
-    twin.set_ylabel("energy", color="tab:orange")
-    twin.set_yscale("log")
+    def px(i):
+        return x0 + (x1 - x0) * np.asarray(i, dtype=np.float64) / (n - 1)
+
+    def text(s, org, color=(0, 0, 0), scale=0.4, anchor="left"):
+        (tw, th), _ = cv2.getTextSize(s, font, scale, 1)
+        x = org[0] - (tw if anchor == "right" else tw // 2 if anchor == "centre" else 0)
+        cv2.putText(img, s, (int(x), int(org[1] + th / 2)), font, scale, color, 1, cv2.LINE_AA)
+
+    lo = min(0.5, float(iou.min()) if iou.size else 0.5)
+    for k in range(6):  # IoU grid and ticks
+        v = lo + (1.0 - lo) * k / 5
+        y = int(round(y1 - (y1 - y0) * k / 5))
+        cv2.line(img, (x0, y), (x1, y), (230, 230, 230), 1)
+        text(f"{v:.2f}", (x0 - 6, y), blue, anchor="right")
+    for k in range(6):  # step ticks
+        step = int(round((n - 1) * k / 5))
+        text(str(step), (int(px(step)), y1 + 12), anchor="centre")
     levels = np.asarray(history.get("level", []))
     for s in np.flatnonzero(np.diff(levels)) + 1:
-        ax.axvline(s, color="grey", ls="--", lw=0.8)
-    ax.set_title(title)
-    fig.tight_layout()
-    _save_figure(fig, path)
+        x = int(round(px(s)))
+        for ya in range(y0, y1, 8):
+            cv2.line(img, (x, ya), (x, min(ya + 4, y1)), grey, 1)
+    finite = energy[np.isfinite(energy) & (energy > 0)]
+    if finite.size:
+        e_lo, e_hi = np.log10(finite.min()), np.log10(finite.max())
+        e_hi = e_hi if e_hi > e_lo else e_lo + 1.0
+        for k in range(3):
+            v = e_lo + (e_hi - e_lo) * k / 2
+            text(f"{10 ** v:.3g}", (x1 + 6, int(round(y1 - (y1 - y0) * k / 2))), orange)
+        pts = [(px(i), y1 - (y1 - y0) * (np.log10(e) - e_lo) / (e_hi - e_lo)) for i, e in enumerate(energy) if e > 0 and np.isfinite(e)]
+        if len(pts) > 1:
+            cv2.polylines(img, [np.round(np.array(pts)).astype(np.int32)], False, orange, 1, cv2.LINE_AA)
+    if iou.size > 1:
+        pts = np.stack([px(np.arange(len(iou))), y1 - (y1 - y0) * (iou - lo) / (1.0 - lo)], axis=1)
+        cv2.polylines(img, [np.round(pts).astype(np.int32)], False, blue, 2, cv2.LINE_AA)
+    cv2.rectangle(img, (x0, y0), (x1, y1), (0, 0, 0), 1)
+    text(title, (W // 2, top // 2), scale=0.5, anchor="centre")
+    text("step", ((x0 + x1) // 2, H - 14), anchor="centre")
+    text("IoU", (8, top - 14), blue)
+    text("energy", (x1 + 6, top - 14), orange)
+    write_png(path, img)
 
 
 def _save_figure(fig, path: os.PathLike) -> None:

@@ -28,7 +28,6 @@ from typing import Optional
 
 import numpy as np
 
-from ..fitting.result import PARAM_NAMES
 from . import CLIError
 
 MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
@@ -65,6 +64,7 @@ def parse_size(text: str) -> tuple[int, int]:
 def read_params(path: Path) -> tuple[dict, Optional[object]]:
     """SMPL parameters (numpy, batch of one) and the camera stored with them, if any."""
     from silfit.camera import Camera
+    from silfit.fitting.result import PARAM_NAMES
 
     if path.suffix == ".npz":
         try:
