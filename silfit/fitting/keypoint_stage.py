@@ -115,8 +115,8 @@ class KeypointFitConfig:
     #: hypotheses drop early: after ``branch_screen_iters`` steps only each sample's
     #: ``branch_survivors`` lowest-energy hypotheses (the unflipped pose among them or not)
     #: run the remaining steps (0: all run every step)
-    branch_screen_iters: int = 6
-    branch_survivors: int = 2
+    branch_screen_iters: int = 10
+    branch_survivors: int = 3
     #: an explicit list of :class:`~silfit.fitting.stages.Stage` replacing the schedule
     #: the fields above describe (see :meth:`stages`)
     schedule: Optional[Sequence[Stage]] = None

@@ -82,6 +82,12 @@ class SilhouetteFitConfig:
     iou_collapse: float = 0.15  # IoU drop (vs best) that counts as divergence
     optimise: tuple = PARAMS
     seed: Optional[int] = 0  # base seed of the renderer's sampling (None: fresh seeds)
+    #: render a coarser proxy mesh with this many faces (vertices a fixed linear map of the
+    #: model's, :mod:`renderers.proxy`; IoU >= 0.995 against the full mesh at 10,000 faces);
+    #: ``None`` renders the full mesh
+    proxy_faces: Optional[int] = 10000
+    #: a batch's subjects rendered together in tiles of one film (:mod:`renderers.batch`)
+    batch_render: bool = True
     threads: Optional[int] = 1  # torch threads during the stage (see silfit.fitting.threads)
 
     def __post_init__(self):
@@ -204,33 +210,43 @@ class SilhouetteTerm(Term):
     """Two-sided distance-transform energy of each observation's rendered silhouette,
     summed over observations; leaves the soft IoU per problem in ``ev.extras['iou']``.
 
+    ``proxy`` (a :class:`renderers.proxy.RenderProxy`) maps the body's vertices to the
+    render proxy first; ``batch_renderer`` renders several observations in one call.
     Reads ``ev.data``: ``windows`` and ``targets`` (per problem, lists over its
     observations of :class:`renderers.silhouette.RoiWindow` and :class:`MaskTarget`) and
     ``seeds`` (per problem, the renderer seed of this step or ``None``)."""
 
     name = "silhouette"
 
-    def __init__(self, renderer, spp: int, edge_spp: int):
+    def __init__(self, renderer, spp: int, edge_spp: int, proxy=None, batch_renderer=None):
         self.renderer, self.spp, self.edge_spp = renderer, int(spp), int(edge_spp)
+        self.proxy, self.batch_renderer = proxy, batch_renderer
 
     def __call__(self, ev: Evaluation) -> torch.Tensor:
         V = ev.body.vertices
+        if self.proxy is not None:
+            V = self.proxy(V)
         verts = V.reshape(ev.P, ev.F, 1, *V.shape[1:]).expand(ev.P, ev.F, ev.C, *V.shape[1:])
         cams = world_to_camera(verts, ev.data["R"].to(V.dtype), ev.data["t"].to(V.dtype))
-        energies, ious = [], []
-        for p in range(ev.P):
-            e_p, iou_p = 0.0, []
-            for o, (window, target) in enumerate(zip(ev.data["windows"][p], ev.data["targets"][p])):
-                f, c = divmod(o, ev.C)
-                sil = self.renderer(cams[p, f, c], window.camera, spp=self.spp, edge_spp=self.edge_spp,
-                                    seed=ev.data["seeds"][p])  # fmt: skip
-                e_p = e_p + silhouette_energy(sil, target)
-                with torch.no_grad():
-                    iou_p.append(float(soft_iou(sil.detach(), target.mask)))
-            energies.append(e_p)
-            ious.append(float(np.mean(iou_p)))
-        ev.extras["iou"] = ious
-        return torch.stack([torch.as_tensor(e, dtype=V.dtype) for e in energies])
+        jobs = [(p, o) for p in range(ev.P) for o in range(len(ev.data["windows"][p]))]
+        if self.batch_renderer is not None and len(jobs) > 1:
+            seeds = [ev.data["seeds"][p] for p, _ in jobs]
+            seed = None if seeds[0] is None else int(seeds[0])
+            sils = self.batch_renderer([cams[p, o // ev.C, o % ev.C] for p, o in jobs],
+                                       [ev.data["windows"][p][o].camera for p, o in jobs],
+                                       spp=self.spp, edge_spp=self.edge_spp, seed=seed)  # fmt: skip
+        else:
+            sils = [self.renderer(cams[p, o // ev.C, o % ev.C], ev.data["windows"][p][o].camera, spp=self.spp,
+                                  edge_spp=self.edge_spp, seed=ev.data["seeds"][p]) for p, o in jobs]  # fmt: skip
+        energies = [torch.zeros((), dtype=V.dtype) for _ in range(ev.P)]
+        ious = [[] for _ in range(ev.P)]
+        for (p, o), sil in zip(jobs, sils):
+            target = ev.data["targets"][p][o]
+            energies[p] = energies[p] + silhouette_energy(sil, target)
+            with torch.no_grad():
+                ious[p].append(float(soft_iou(sil.detach(), target.mask)))
+        ev.extras["iou"] = [float(np.mean(i)) if i else float("nan") for i in ious]
+        return torch.stack(energies)
 
 
 class _Adam:
@@ -329,9 +345,21 @@ def _fit_silhouettes(model, inits, cameras, masks, keypoints, layout, cfg, pose_
     free = {k: params[k] for k in cfg.optimise}
     optimiser = _Adam(free, {k: cfg.lr[k] for k in cfg.optimise})
     prior = load_pose_prior(pose_prior, dtype=dtype) if not isinstance(pose_prior, torch.nn.Module) else pose_prior
-    renderer = renderer or get_silhouette_renderer(model.faces)
+    proxy = batch = None
+    if renderer is None:
+        faces = model.faces
+        if cfg.proxy_faces:
+            from renderers.proxy import get_proxy
+
+            proxy = get_proxy(model.v_template, model.faces, int(cfg.proxy_faces))
+            faces = proxy.faces
+        renderer = get_silhouette_renderer(faces)
+        if cfg.batch_render:
+            from renderers.batch import get_batch_renderer
+
+            batch = get_batch_renderer(faces)
     energy = Energy([
-        SilhouetteTerm(renderer, cfg.spp, cfg.edge_spp), KeypointTerm("keypoints", cfg.kp_sigma),
+        SilhouetteTerm(renderer, cfg.spp, cfg.edge_spp, proxy, batch), KeypointTerm("keypoints", cfg.kp_sigma),
         PriorTerm("pose", prior, "body_pose"), PriorTerm("limits", limit_violation, "body_pose"),
         PriorTerm("angle", angle_prior, "body_pose"), PriorTerm("shape", shape_prior, "betas"),
         StayTerm("body_pose"),
