@@ -246,6 +246,35 @@ def run_silhouette_benchmark(model, n, seed, noise_px, size, keep=None):
     return report
 
 
+def silhouette_timing(model, batches, n=16, seed=11, size=512, config=None):
+    """Seconds per subject of the silhouette stage run alone (batch 1) and in batches."""
+    import tempfile
+
+    from silfit.dataset import list_subjects, load_subject
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig, fit_silhouettes
+    from silfit.synth import generate_dataset
+    from silfit.synth.generate import SynthConfig
+
+    with tempfile.TemporaryDirectory() as tmp:
+        generate_dataset(tmp, n, SynthConfig(seed=seed, size=size, noise_px=2.0), model=model)
+        subjects = [load_subject(p) for p in list_subjects(tmp)]
+    fitter = KeypointFitter(model)
+    kp = fitter.fit([s.keypoints for s in subjects], [s.camera for s in subjects], progress=False)
+    print(f"\nsilhouette stage timing ({n} subjects {size}x{size}, seed {seed})\n")
+    print("| batch | s/subject | mean IoU (window) | steps/subject |")
+    print("|---:|---:|---:|---:|")
+    for b in batches:
+        t0 = time.perf_counter()
+        res = []
+        for i in range(0, n, b):
+            chunk = list(range(i, min(n, i + b)))
+            res += fit_silhouettes(model, [kp.params(j) for j in chunk], [subjects[j].camera for j in chunk],
+                                   [subjects[j].mask for j in chunk], [subjects[j].keypoints.as_array() for j in chunk],
+                                   config=config or SilhouetteFitConfig(), pose_prior=fitter.pose_prior, progress=False)  # fmt: skip
+        dt = (time.perf_counter() - t0) / n
+        print(f"| {b} | {dt:.2f} | {np.mean([r.iou_end for r in res]):.3f} | {np.mean([r.steps for r in res]):.0f} |", flush=True)
+
+
 def depth_branch_table(report, label):
     """The limb-branch table (issue targets): PA-PVE / PA-MPJPE mean, median, 90th
     percentile, subjects above 150 mm PA-PVE, search failures, facing correct, seconds."""
@@ -290,6 +319,8 @@ def main(argv=None):
     ap.add_argument("--keep", help="keep the --silhouette dataset and its fits in this folder")
     ap.add_argument("--dataset", action="append", default=[], help="also score both methods on this synthetic-format dataset (repeatable)")
     ap.add_argument("--keypoints-only", action="store_true", help="--dataset: the keypoint stage only")
+    ap.add_argument("--silhouette-batches", help="time the silhouette stage alone and in batches, e.g. 1,8,16")
+    ap.add_argument("--full-mesh", action="store_true", help="silhouette timing: render the full mesh, no proxy")
     args = ap.parse_args(argv)
 
     from silfit.fitting import KeypointFitConfig
@@ -302,6 +333,11 @@ def main(argv=None):
     if args.silhouette:
         report = run_silhouette_benchmark(model, args.silhouette, args.seed, args.noise, args.size, args.keep)
         depth_branch_table(report, f"silhouette set ({args.silhouette} subjects, seed {args.seed})")
+    if args.silhouette_batches:
+        from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+
+        cfg = SilhouetteFitConfig(proxy_faces=None, batch_render=False) if args.full_mesh else SilhouetteFitConfig()
+        silhouette_timing(model, [int(b) for b in args.silhouette_batches.split(",")], config=cfg)
     for root in args.dataset:
         methods = ("keypoints",) if args.keypoints_only else ("keypoints", "silhouette")
         run_dataset_benchmark(model, root, methods, f"dataset {root}")
