@@ -240,3 +240,26 @@ def test_search_gap_is_zero_when_the_fit_starts_and_stays_at_the_truth(body_mode
     assert set(terms) == {"keypoints", "pose", "angle", "limits", "shape", "interpenetration"}
     # and a fit that ends above the truth's energy counts as a failure
     assert search_gap(float(e_truth[0]) * 1.01 + 1.0, float(e_truth[0]))["search_failure"] == 100.0
+
+
+def test_low_confidence_keypoints_count_less(toy_body):
+    """The data term weighs each keypoint by its confidence: at fixed parameters, one
+    keypoint 30 px off with confidence 0.2 adds exactly 0.2x the energy it adds at 1.0."""
+    kp, out = subject(toy_body, yaw_deg=20.0)
+    truth = {"betas": np.zeros((1, 10)), "body_pose": np.zeros((1, 69)), "transl": np.array([[0.05, 0.15, 3.5]]),
+             "global_orient": (Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, math.radians(20.0), 0])).as_rotvec()[None]}  # fmt: skip
+    for j, v in POSE.items():
+        truth["body_pose"][0, 3 * (j - 1) : 3 * j] = v
+    fitter = KeypointFitter(toy_body, config=FAST)
+    k = BODY25_NAMES.index("left_wrist")
+    added = {}
+    for conf in (0.2, 1.0):
+        moved = kp.copy()
+        moved[k] = (kp[k, 0] + 30.0, kp[k, 1], conf)
+        clean = kp.copy()
+        clean[k, 2] = conf
+        e_moved = fitter.energy_at(truth, moved, CAM, stage="final")[1]["keypoints"][0]
+        e_clean = fitter.energy_at(truth, clean, CAM, stage="final")[1]["keypoints"][0]
+        added[conf] = e_moved - e_clean
+    assert added[1.0] > 1.0, added  # the 30 px residual costs something
+    assert added[0.2] == pytest.approx(0.2 * added[1.0], rel=1e-4), added
