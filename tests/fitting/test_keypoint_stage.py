@@ -122,9 +122,11 @@ def test_batch_equals_single_fits(toy_body):
         assert batch.flipped[i] == single.flipped[0]
         # float32 rounding differs between batch sizes; depth is the least constrained.
         rel_b, rel_s = batch.joints[i] - batch.joints[i, :1], single.joints[0] - single.joints[0, :1]
-        np.testing.assert_allclose(rel_b, rel_s, atol=5e-3)
-        np.testing.assert_allclose(batch.joints[i], single.joints[0], atol=1e-2)
-        np.testing.assert_allclose(batch.energies["final"][i], single.energies["final"][0], rtol=1e-2, atol=1e-2)
+        # Measured (max over joints): root-relative 0.06 / 0.63 / 0 mm, absolute 0.08 / 0.87 / 0 mm,
+        # final energies 0.008 / 0.24 / 0 % apart for the three subjects.
+        np.testing.assert_allclose(rel_b, rel_s, atol=1.5e-3)
+        np.testing.assert_allclose(batch.joints[i], single.joints[0], atol=2e-3)
+        np.testing.assert_allclose(batch.energies["final"][i], single.energies["final"][0], rtol=5e-3)
 
 
 def test_result_saves_and_loads(toy_body, tmp_path):

@@ -64,10 +64,16 @@ def test_window_covers_mask_and_body(open_model, target_mask):
 def test_gradient_moves_a_shifted_body_toward_a_shifted_mask(open_model, target_mask):
     iou_before = mask_iou(render_mask(vertices(open_model, POSE), open_model.faces.numpy(), CAMERA), target_mask)
     result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=FAST, progress=False)
-    moved = result.transl[0, 0] - POSE["transl"][0, 0]
-    assert 0.04 < moved < 0.12, moved  # the truth is +0.08 m
+    dx, dy, dz = result.transl[0] - POSE["transl"][0]
+    # The truth is (+0.08, 0, 0) m. Measured (deterministic renderer): 0.0846, -0.0026, +0.053 m.
+    # The depth drifts because at this window's scale (0.54 px per image px) the energy's own
+    # minimum lies beyond +0.06 m in depth (see the closing note of issue 18); the bound
+    # is 1.5x the measured drift, so a larger bias or a stage that stops moving fails.
+    assert 0.075 < dx < 0.095, dx
+    assert abs(dy) < 0.006, dy
+    assert -0.01 < dz < 0.08, dz
     iou_after = mask_iou(render_mask(vertices(open_model, result.params()), open_model.faces.numpy(), CAMERA), target_mask)
-    assert iou_after > iou_before + 0.1
+    assert iou_before < 0.45 and iou_after > 0.92, (iou_before, iou_after)  # measured 0.443 -> 0.943
     assert len(result.history["iou"]) == result.steps and result.iou_end > result.iou_start
 
 
