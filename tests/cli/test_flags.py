@@ -129,3 +129,21 @@ def test_synth_truncation_truncates(tmp_path):
         mask = np.asarray(Image.open(out / s["name"] / "mask.png")) > 127
         border = np.concatenate([mask[0], mask[-1], mask[:, 0], mask[:, -1]])
         assert border.any(), s["name"]  # the body is cut by the image's edge
+
+
+
+def test_eval_fits_and_plot_name_their_folders(tmp_path, open_model):
+    from silfit.synth.generate import SynthConfig, generate_dataset
+
+    data, elsewhere = tmp_path / "data", tmp_path / "elsewhere"
+    generate_dataset(data, 2, SynthConfig(seed=8, size=96, noise_px=0.0), model=open_model)
+    for name in ("subject_000", "subject_001"):  # the truth as the "fit", outside DIR/fits
+        with np.load(data / name / "gt.npz") as gt:
+            (elsewhere / name / "keypoints").mkdir(parents=True)
+            np.savez(elsewhere / name / "keypoints" / "params.npz", **{k: gt[k] for k in ("betas", "body_pose", "global_orient", "transl")})
+    report_path, plot = tmp_path / "report.json", tmp_path / "plots" / "errors.png"
+    plot.parent.mkdir()
+    assert main(["eval", str(data), "--fits", str(elsewhere), "--plot", str(plot), "--out", str(report_path), "--no-iou"]) == 0
+    report = json.loads(report_path.read_text())
+    assert report["num_scored"] == 2 and report["missing_fits"] == []
+    assert plot.is_file() and not (tmp_path / "report_errors.png").exists()
