@@ -1,4 +1,5 @@
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -66,6 +67,7 @@ def test_back_facing_subject_is_fitted_facing_away(body_model, yaw):
     fwd = forward_dir(res.global_orient[0])
     assert fwd[2] > 0.5, f"body forward {fwd} should point away from the camera (+z)"
     assert fwd @ forward_dir(out.global_orient[0].numpy()) > 0.8
+    assert bool(res.flipped[0])  # the kept start is the flip test's 180-degree one (measured: both yaws)
 
 
 SYNTH = sorted(Path(__file__).resolve().parents[2].glob("data/synthetic/*/gt.npz"))
@@ -99,6 +101,12 @@ def test_outlier_moves_the_robust_fit_far_less_than_l2(toy_body):
         others = [i for i in range(24) if i not in (18, 20, 22)]  # all but the left forearm and hand
         shift[robust] = np.linalg.norm(a.joints[0, others] - b.joints[0, others], axis=1).mean()
     assert shift[True] < 0.5 * shift[False], shift
+
+
+def test_flip_test_off_tries_the_facing_start_only(toy_body):
+    kp, _ = subject(toy_body, yaw_deg=180.0)
+    res = fit_keypoints(kp, CAM, toy_body, config=replace(FAST, flip_test=False), progress=False)
+    assert not res.flipped.any() and res.config["flip_test"] is False
 
 
 def test_zero_confidence_keypoints_have_no_influence(toy_body):
