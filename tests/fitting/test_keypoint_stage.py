@@ -273,3 +273,27 @@ def test_low_confidence_keypoints_count_less(toy_body):
         added[conf] = e_moved - e_clean
     assert added[1.0] > 1.0, added  # the 30 px residual costs something
     assert added[0.2] == pytest.approx(0.2 * added[1.0], rel=1e-4), added
+
+
+def test_coco17_keypoints_are_fitted_end_to_end(body_model):
+    kp25, out = subject(body_model, yaw_deg=30.0)
+    xy = project_points(model_keypoints(body_model, out, "coco17"), CAM)[0].numpy()
+    kp = np.concatenate([xy, np.ones((17, 1))], 1)
+    res = fit_keypoints(kp, CAM, body_model, config=FAST, progress=False)  # layout inferred from K = 17
+    assert res.layout == "coco17" and res.keypoints_2d.shape == (1, 17, 2)
+    err = pa_mpjpe(res.joints[0], out.joints[0].numpy())
+    assert res.reprojection_error[0] < 0.8  # measured 0.39 px
+    assert err < 0.045  # measured 29.3 mm
+
+
+def test_per_sample_cameras(toy_body):
+    kp, out = subject(toy_body, yaw_deg=10.0)
+    other = Camera(fx=700.0, fy=700.0, cx=300.0, cy=220.0, width=640, height=480)
+    with torch.no_grad():
+        xy = project_points(model_keypoints(toy_body, out, "body25"), other)[0].numpy()
+    kp2 = np.concatenate([xy, np.ones((25, 1))], 1)
+    res = fit_keypoints(np.stack([kp, kp2]), [CAM, other], toy_body, config=FAST, progress=False)
+    assert res.cameras == [CAM, other]
+    assert (res.reprojection_error < 0.6).all(), res.reprojection_error  # measured 0.15, 0.28 px
+    # the same body seen through each camera: the same place in space
+    np.testing.assert_allclose(res.transl[0], res.transl[1], atol=0.003)  # measured 1.3 mm apart
