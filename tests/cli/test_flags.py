@@ -147,3 +147,17 @@ def test_eval_fits_and_plot_name_their_folders(tmp_path, open_model):
     report = json.loads(report_path.read_text())
     assert report["num_scored"] == 2 and report["missing_fits"] == []
     assert plot.is_file() and not (tmp_path / "report_errors.png").exists()
+
+
+def test_render_model_changes_the_body(tmp_path):
+    from silfit_toy_body import write_toy_npz
+
+    toy = write_toy_npz(tmp_path / "toy.npz")
+    path = tmp_path / "params.json"
+    path.write_text(json.dumps({"global_orient": [math.pi, 0.0, 0.0], "transl": [0.0, 0.2, 3.0]}))
+    masks = {}
+    for name, extra in (("default", []), ("toy", ["--model", str(toy)])):
+        assert main(["render", str(path), "--views", "front", "--mask", "--size", "64", "--out", str(tmp_path / name), *extra]) == 0
+        masks[name] = np.asarray(Image.open(tmp_path / name / "mask.png")) > 127
+    assert masks["default"].any() and masks["toy"].any()
+    assert (masks["default"] != masks["toy"]).mean() > 0.02  # another body, another silhouette
