@@ -268,9 +268,9 @@ class SilhouetteRenderer:
     alone). The pool is process-wide and stays so (the gradient is computed later, inside
     torch's autograd). With one thread the backward pass's scatter-adds accumulate in a
     fixed order, so a fixed seed gives bit-identical gradients and fits; with several,
-    the same seed gave silhouette fits whose PA-MPJPE spread 1.4 mm over 5 runs of 20 steps
-    (tools/repro_silhouette.py). Measured on the 2-core dev machine (loaded), one thread
-    was no slower.
+    the same seed gave silhouette fits of PA-MPJPE 12.3-19.9 mm over 5 runs of 40 steps
+    (tools/repro_silhouette.py). On the 2-core dev machine (loaded, noisy timings) one
+    thread was no slower: 8-10 s against 12-19 s per fit.
     """
 
     def __init__(
