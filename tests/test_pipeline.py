@@ -43,3 +43,28 @@ def test_mask_that_misses_the_body_is_an_error(open_model, subject):
 def test_mask_of_another_size_is_an_error(open_model, subject):
     with pytest.raises(ValueError, match="256x128.*256x256"):
         fit(subject.keypoints, subject.mask[:128], subject.camera, model=open_model, progress=False)
+
+
+def test_save_fit_leaves_nothing_when_a_write_fails(open_model, subject, tmp_path, monkeypatch):
+    from silfit import figures
+    from silfit.fitting import KeypointFitConfig
+    from silfit.pipeline import save_fit
+
+    cfg = KeypointFitConfig(camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branch_search=False)
+    result = fit(subject.keypoints, camera=subject.camera, model=open_model, keypoint_config=cfg, progress=False)
+    faces = open_model.faces.numpy()
+    old = tmp_path / "old"
+    save_fit(result, old, faces, subject.keypoints)
+    before = sorted(p.relative_to(old) for p in old.rglob("*"))
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(figures, "write_png", broken)  # fails after params.npz and mesh.obj are written
+    with pytest.raises(RuntimeError, match="disk full"):
+        save_fit(result, tmp_path / "new", faces, subject.keypoints)
+    with pytest.raises(RuntimeError, match="disk full"):
+        save_fit(result, old, faces, subject.keypoints, overwrite=True)
+    assert not (tmp_path / "new").exists()
+    assert sorted(p.relative_to(old) for p in old.rglob("*")) == before  # the earlier output is intact
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old"]  # no temporary folders left

@@ -48,9 +48,16 @@ def test_fit_writes_all_outputs(inputs, tmp_path):
 
 def test_fit_with_image_size_and_focal(inputs, tmp_path):
     d, model = inputs
-    rc = main(["fit", "--keypoints", str(d / "kp.json"), "--image-size", "320x240", "--focal", "320", "--model",
+    # 500 px, not the default max(W, H) = 320: ignoring --focal changes the camera and the fitted depth
+    rc = main(["fit", "--keypoints", str(d / "kp.json"), "--image-size", "320x240", "--focal", "500", "--model",
                str(model), "--no-silhouette", "--out", str(tmp_path / "o")] + FAST)  # fmt: skip
     assert rc == 0
+    metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert metrics["camera"]["fx"] == metrics["camera"]["fy"] == 500.0
+    assert (metrics["camera"]["width"], metrics["camera"]["height"]) == (320, 240)
+    params = json.loads((tmp_path / "o" / "params.json").read_text())
+    # the keypoints came from a body 3.0 m away under f = 320: under f = 500 it fits 500/320 as far
+    assert params["transl"][2] == pytest.approx(3.0 * 500 / 320, rel=0.03), params["transl"]
 
 
 @pytest.mark.parametrize("case", ["camera_field", "no_camera", "mask", "bad_keypoints"])

@@ -1,4 +1,5 @@
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -66,6 +67,7 @@ def test_back_facing_subject_is_fitted_facing_away(body_model, yaw):
     fwd = forward_dir(res.global_orient[0])
     assert fwd[2] > 0.5, f"body forward {fwd} should point away from the camera (+z)"
     assert fwd @ forward_dir(out.global_orient[0].numpy()) > 0.8
+    assert bool(res.flipped[0])  # the kept start is the flip test's 180-degree one (measured: both yaws)
 
 
 SYNTH = sorted(Path(__file__).resolve().parents[2].glob("data/synthetic/*/gt.npz"))
@@ -101,6 +103,12 @@ def test_outlier_moves_the_robust_fit_far_less_than_l2(toy_body):
     assert shift[True] < 0.5 * shift[False], shift
 
 
+def test_flip_test_off_tries_the_facing_start_only(toy_body):
+    kp, _ = subject(toy_body, yaw_deg=180.0)
+    res = fit_keypoints(kp, CAM, toy_body, config=replace(FAST, flip_test=False), progress=False)
+    assert not res.flipped.any() and res.config["flip_test"] is False
+
+
 def test_zero_confidence_keypoints_have_no_influence(toy_body):
     kp, _ = subject(toy_body, yaw_deg=-20.0)
     a, b = kp.copy(), kp.copy()
@@ -122,9 +130,11 @@ def test_batch_equals_single_fits(toy_body):
         assert batch.flipped[i] == single.flipped[0]
         # float32 rounding differs between batch sizes; depth is the least constrained.
         rel_b, rel_s = batch.joints[i] - batch.joints[i, :1], single.joints[0] - single.joints[0, :1]
-        np.testing.assert_allclose(rel_b, rel_s, atol=5e-3)
-        np.testing.assert_allclose(batch.joints[i], single.joints[0], atol=1e-2)
-        np.testing.assert_allclose(batch.energies["final"][i], single.energies["final"][0], rtol=1e-2, atol=1e-2)
+        # Measured (max over joints): root-relative 0.06 / 0.63 / 0 mm, absolute 0.08 / 0.87 / 0 mm,
+        # final energies 0.008 / 0.24 / 0 % apart for the three subjects.
+        np.testing.assert_allclose(rel_b, rel_s, atol=1.5e-3)
+        np.testing.assert_allclose(batch.joints[i], single.joints[0], atol=2e-3)
+        np.testing.assert_allclose(batch.energies["final"][i], single.energies["final"][0], rtol=5e-3)
 
 
 def test_result_saves_and_loads(toy_body, tmp_path):
@@ -240,3 +250,50 @@ def test_search_gap_is_zero_when_the_fit_starts_and_stays_at_the_truth(body_mode
     assert set(terms) == {"keypoints", "pose", "angle", "limits", "shape", "interpenetration"}
     # and a fit that ends above the truth's energy counts as a failure
     assert search_gap(float(e_truth[0]) * 1.01 + 1.0, float(e_truth[0]))["search_failure"] == 100.0
+
+
+def test_low_confidence_keypoints_count_less(toy_body):
+    """The data term weighs each keypoint by its confidence: at fixed parameters, one
+    keypoint 30 px off with confidence 0.2 adds exactly 0.2x the energy it adds at 1.0."""
+    kp, out = subject(toy_body, yaw_deg=20.0)
+    truth = {"betas": np.zeros((1, 10)), "body_pose": np.zeros((1, 69)), "transl": np.array([[0.05, 0.15, 3.5]]),
+             "global_orient": (Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, math.radians(20.0), 0])).as_rotvec()[None]}  # fmt: skip
+    for j, v in POSE.items():
+        truth["body_pose"][0, 3 * (j - 1) : 3 * j] = v
+    fitter = KeypointFitter(toy_body, config=FAST)
+    k = BODY25_NAMES.index("left_wrist")
+    added = {}
+    for conf in (0.2, 1.0):
+        moved = kp.copy()
+        moved[k] = (kp[k, 0] + 30.0, kp[k, 1], conf)
+        clean = kp.copy()
+        clean[k, 2] = conf
+        e_moved = fitter.energy_at(truth, moved, CAM, stage="final")[1]["keypoints"][0]
+        e_clean = fitter.energy_at(truth, clean, CAM, stage="final")[1]["keypoints"][0]
+        added[conf] = e_moved - e_clean
+    assert added[1.0] > 1.0, added  # the 30 px residual costs something
+    assert added[0.2] == pytest.approx(0.2 * added[1.0], rel=1e-4), added
+
+
+def test_coco17_keypoints_are_fitted_end_to_end(body_model):
+    kp25, out = subject(body_model, yaw_deg=30.0)
+    xy = project_points(model_keypoints(body_model, out, "coco17"), CAM)[0].numpy()
+    kp = np.concatenate([xy, np.ones((17, 1))], 1)
+    res = fit_keypoints(kp, CAM, body_model, config=FAST, progress=False)  # layout inferred from K = 17
+    assert res.layout == "coco17" and res.keypoints_2d.shape == (1, 17, 2)
+    err = pa_mpjpe(res.joints[0], out.joints[0].numpy())
+    assert res.reprojection_error[0] < 0.8  # measured 0.39 px
+    assert err < 0.045  # measured 29.3 mm
+
+
+def test_per_sample_cameras(toy_body):
+    kp, out = subject(toy_body, yaw_deg=10.0)
+    other = Camera(fx=700.0, fy=700.0, cx=300.0, cy=220.0, width=640, height=480)
+    with torch.no_grad():
+        xy = project_points(model_keypoints(toy_body, out, "body25"), other)[0].numpy()
+    kp2 = np.concatenate([xy, np.ones((25, 1))], 1)
+    res = fit_keypoints(np.stack([kp, kp2]), [CAM, other], toy_body, config=FAST, progress=False)
+    assert res.cameras == [CAM, other]
+    assert (res.reprojection_error < 0.6).all(), res.reprojection_error  # measured 0.15, 0.28 px
+    # the same body seen through each camera: the same place in space
+    np.testing.assert_allclose(res.transl[0], res.transl[1], atol=0.003)  # measured 1.3 mm apart

@@ -64,10 +64,16 @@ def test_window_covers_mask_and_body(open_model, target_mask):
 def test_gradient_moves_a_shifted_body_toward_a_shifted_mask(open_model, target_mask):
     iou_before = mask_iou(render_mask(vertices(open_model, POSE), open_model.faces.numpy(), CAMERA), target_mask)
     result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=FAST, progress=False)
-    moved = result.transl[0, 0] - POSE["transl"][0, 0]
-    assert 0.04 < moved < 0.12, moved  # the truth is +0.08 m
+    dx, dy, dz = result.transl[0] - POSE["transl"][0]
+    # The truth is (+0.08, 0, 0) m. Measured (deterministic renderer): 0.0846, -0.0026, +0.053 m.
+    # The depth drifts because at this window's scale (0.54 px per image px) the energy's own
+    # minimum lies beyond +0.06 m in depth (see the closing note of issue 18); the bound
+    # is 1.5x the measured drift, so a larger bias or a stage that stops moving fails.
+    assert 0.075 < dx < 0.095, dx
+    assert abs(dy) < 0.006, dy
+    assert -0.01 < dz < 0.08, dz
     iou_after = mask_iou(render_mask(vertices(open_model, result.params()), open_model.faces.numpy(), CAMERA), target_mask)
-    assert iou_after > iou_before + 0.1
+    assert iou_before < 0.45 and iou_after > 0.92, (iou_before, iou_after)  # measured 0.443 -> 0.943
     assert len(result.history["iou"]) == result.steps and result.iou_end > result.iou_start
 
 
@@ -77,3 +83,31 @@ def test_divergence_keeps_the_best_parameters(open_model, target_mask):
     result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=wild, progress=False)
     assert result.warnings and "IoU collapsed" in result.warnings[0]
     assert np.all(np.isfinite(result.transl)) and abs(result.transl[0, 0] - POSE["transl"][0, 0]) < 1.0
+
+
+def test_plateau_stops_a_level_early(open_model, target_mask):
+    # an improvement threshold no step can meet: the level stops after 2 x window steps
+    cfg = replace(FAST, plateau_window=3, plateau_rtol=10.0)
+    result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=cfg, progress=False)
+    assert result.steps == 6 and len(result.history["energy"]) == 6
+
+
+def test_keypoint_term_is_off_without_keypoints(open_model, target_mask):
+    cfg = replace(FAST, iterations=(2,), w_keypoints=0.02)
+    kp = np.concatenate([project_points(torch.as_tensor(vertices(open_model, POSE))[:25], CAMERA).numpy(),
+                         np.ones((25, 1))], 1)  # fmt: skip
+    with_kp = fit_silhouette(open_model, POSE, CAMERA, target_mask, keypoints=kp, config=cfg, progress=False)
+    without = fit_silhouette(open_model, POSE, CAMERA, target_mask, keypoints=None, config=cfg, progress=False)
+    assert "keypoints" in with_kp.terms and with_kp.terms["keypoints"] > 0
+    assert "keypoints" not in without.terms and set(without.history["keypoints"]) == {0.0}
+
+
+def test_non_finite_energy_stops_and_keeps_the_start(open_model, target_mask):
+    def nan_renderer(verts, camera, **kwargs):  # a renderer whose output is NaN (e.g. a degenerate mesh)
+        return torch.full((camera.height, camera.width), float("nan")) + 0.0 * verts.sum()
+
+    result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=FAST, renderer=nan_renderer, progress=False)
+    assert result.warnings == ["step 0: non-finite energy; kept the best parameters so far"]
+    assert result.steps == 0
+    for name, value in POSE.items():
+        np.testing.assert_array_equal(getattr(result, name), value)

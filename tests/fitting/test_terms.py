@@ -68,3 +68,13 @@ def test_energy_weights_terms_and_refuses_unknown_names():
         energy.check({"shape": -1.0})
     with pytest.raises(ValueError, match="distinct names"):
         Energy([StayTerm("betas", name="a"), StayTerm("body_pose", name="a")])
+
+
+def test_interpenetration_term_sums_the_collision_penalty_per_problem():
+    from silfit.fitting.terms import InterpenetrationTerm
+
+    layout = ParameterLayout(SIZES, ("betas",), 2)
+    params = layout.zeros(2)
+    ev = evaluation(P=2, F=2, params=params)
+    penalty = lambda betas, transforms: torch.tensor([1.0, 2.0, 3.0, 4.0], dtype=torch.float64)  # noqa: E731
+    assert InterpenetrationTerm(penalty)(ev).tolist() == pytest.approx([3.0, 7.0])  # rows [P * F] summed per problem

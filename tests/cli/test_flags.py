@@ -1,0 +1,163 @@
+"""Each CLI flag changes the output in a way checked here (a test fails when the flag is ignored).
+
+Cheap: the toy body of ``tests/fitting`` for ``fit`` (keypoint stage only), tiny images for
+``synth`` and ``render``.
+"""
+import json
+import math
+import shutil
+
+import numpy as np
+import pytest
+from PIL import Image
+from test_fit import FAST, inputs  # noqa: F401  (the module fixture: toy model, keypoints, camera)
+
+from silfit.cli import main
+
+
+def fit_args(d, model, out, *extra):
+    return ["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
+            "--no-silhouette", "--out", str(out), *FAST, *extra]  # fmt: skip
+
+
+def params(out):
+    return {k: np.asarray(v) for k, v in json.loads((out / "params.json").read_text()).items() if k != "camera"}
+
+
+def test_version_prints_the_package_version(capsys):
+    import silfit
+
+    with pytest.raises(SystemExit) as stop:
+        main(["--version"])
+    assert stop.value.code == 0 and capsys.readouterr().out.strip() == f"silfit {silfit.__version__}"
+
+
+def test_fit_person_picks_that_person(inputs, tmp_path):  # noqa: F811
+    d, model = inputs
+    doc = json.loads((d / "kp.json").read_text())
+    first = doc["people"][0]
+    kp = np.asarray(first["pose_keypoints_2d"]).reshape(-1, 3)
+    shifted = kp.copy()
+    shifted[:, 0] += 40.0  # the same body 40 px to the right: 40 * 3.0 / 320 = 0.375 m at 3 m (f = 320)
+    doc["people"] = [first, {**first, "pose_keypoints_2d": [round(float(v), 4) for v in shifted.reshape(-1)]}]
+    two = tmp_path / "two.json"
+    two.write_text(json.dumps(doc))
+    xs = []
+    for person in ("0", "1"):
+        out = tmp_path / f"p{person}"
+        args = fit_args(d, model, out, "--person", person)
+        args[args.index("--keypoints") + 1] = str(two)
+        assert main(args) == 0
+        xs.append(float(params(out)["transl"].reshape(-1)[0]))
+    assert xs[1] - xs[0] == pytest.approx(0.375, rel=0.05), xs
+
+
+def test_fit_overwrite_replaces_the_folder(inputs, tmp_path, capsys):  # noqa: F811
+    d, model = inputs
+    out = tmp_path / "fit"
+    out.mkdir()
+    (out / "stale.txt").write_text("from an earlier run")
+    assert main(fit_args(d, model, out)) == 2
+    assert "use --overwrite" in capsys.readouterr().err and (out / "stale.txt").exists()
+    assert main(fit_args(d, model, out, "--overwrite")) == 0
+    assert not (out / "stale.txt").exists() and (out / "params.json").is_file()
+
+
+def test_fit_gender_selects_the_file_in_a_model_folder(inputs, tmp_path, capsys):  # noqa: F811
+    d, model = inputs
+    folder = tmp_path / "models"
+    folder.mkdir()
+    shutil.copy(model, folder / "SMPL_FEMALE.npz")  # only a female model in the folder
+    args = fit_args(d, folder, tmp_path / "neutral")
+    assert main(args) == 2 and "no neutral SMPL model file" in capsys.readouterr().err
+    assert main(fit_args(d, folder, tmp_path / "female", "--gender", "female")) == 0
+    assert json.loads((tmp_path / "female" / "metrics.json").read_text())["model"].endswith("SMPL_FEMALE.npz")
+
+
+def test_fit_pose_prior_changes_the_fit(inputs, tmp_path):  # noqa: F811
+    d, model = inputs
+    assert main(fit_args(d, model, tmp_path / "default")) == 0
+    assert main(fit_args(d, model, tmp_path / "limits", "--pose-prior", "limits")) == 0
+    a, b = params(tmp_path / "default")["body_pose"], params(tmp_path / "limits")["body_pose"]
+    assert np.abs(a - b).max() > 1e-3  # a different prior, a different optimum
+
+
+def test_render_alpha_blends_the_overlay(tmp_path):
+    path = tmp_path / "params.json"
+    path.write_text(json.dumps({"global_orient": [math.pi, 0.0, 0.0], "transl": [0.0, 0.2, 3.0]}))
+    cam = {"fx": 60.0, "fy": 60.0, "cx": 39.5, "cy": 29.5, "width": 80, "height": 60}
+    (tmp_path / "camera.json").write_text(json.dumps(cam))
+    Image.fromarray(np.full((60, 80, 3), 30, dtype=np.uint8)).save(tmp_path / "image.png")
+    body = {}
+    for alpha in ("0.2", "0.9"):
+        out = tmp_path / f"a{alpha}"
+        assert main(["render", str(path), "--camera", str(tmp_path / "camera.json"), "--overlay",
+                     str(tmp_path / "image.png"), "--mask", "--alpha", alpha, "--out", str(out)]) == 0  # fmt: skip
+        mask = np.asarray(Image.open(out / "mask.png")) > 127
+        overlay = np.asarray(Image.open(out / "overlay.png")).astype(float)
+        body[alpha] = overlay[mask].mean() - 30.0  # how far the body pixels are from the image
+    # a blend: the body's contribution scales with alpha (0.9 / 0.2 = 4.5)
+    assert body["0.9"] / body["0.2"] == pytest.approx(4.5, rel=0.1), body
+
+
+def synth(tmp_path, name, *extra):
+    out = tmp_path / name
+    assert main(["synth", "--n", "3", "--seed", "3", "--out", str(out), "--size", "64", "--no-progress", *extra]) == 0
+    return out, json.loads((out / "index.json").read_text())["subjects"]
+
+
+def test_synth_camera_and_framing_flags(tmp_path):
+    out, subs = synth(tmp_path, "ds", "--fov", "30", "30", "--fill", "0.4", "0.4", "--elevation", "0.5", "--roll", "0.5")
+    for s in subs:
+        cam = json.loads((out / s["name"] / "camera.json").read_text())
+        assert cam["fx"] == pytest.approx(32.0 / math.tan(math.radians(15.0)), rel=1e-6)  # a 30-degree field of view
+        mask = np.asarray(Image.open(out / s["name"] / "mask.png")) > 127
+        ys, xs = np.nonzero(mask)
+        fill = max(np.ptp(xs) + 1, np.ptp(ys) + 1) / 64.0
+        assert fill == pytest.approx(0.4, abs=2.5 / 64)  # the body's box fills 40 % of the frame (pixel rounding)
+    for s in subs[1:]:  # the first subject is the frontal one, always within +-5 degrees elevation and no roll
+        assert abs(s["elevation_deg"]) <= 0.5 and abs(s["roll_deg"]) <= 0.5
+    # under the defaults (+-15 and +-5 degrees) this seed draws larger angles
+    _, default = synth(tmp_path, "default")
+    assert max(abs(s["elevation_deg"]) for s in default[1:]) > 2.0 and max(abs(s["roll_deg"]) for s in default[1:]) > 1.0
+
+
+def test_synth_truncation_truncates(tmp_path):
+    out, subs = synth(tmp_path, "trunc", "--truncation", "1.0")
+    assert [bool(s["truncated"]) for s in subs] == [False, True, True]  # the first subject is the frontal, whole one
+    for s in subs[1:]:
+        mask = np.asarray(Image.open(out / s["name"] / "mask.png")) > 127
+        border = np.concatenate([mask[0], mask[-1], mask[:, 0], mask[:, -1]])
+        assert border.any(), s["name"]  # the body is cut by the image's edge
+
+
+
+def test_eval_fits_and_plot_name_their_folders(tmp_path, open_model):
+    from silfit.synth.generate import SynthConfig, generate_dataset
+
+    data, elsewhere = tmp_path / "data", tmp_path / "elsewhere"
+    generate_dataset(data, 2, SynthConfig(seed=8, size=96, noise_px=0.0), model=open_model)
+    for name in ("subject_000", "subject_001"):  # the truth as the "fit", outside DIR/fits
+        with np.load(data / name / "gt.npz") as gt:
+            (elsewhere / name / "keypoints").mkdir(parents=True)
+            np.savez(elsewhere / name / "keypoints" / "params.npz", **{k: gt[k] for k in ("betas", "body_pose", "global_orient", "transl")})
+    report_path, plot = tmp_path / "report.json", tmp_path / "plots" / "errors.png"
+    plot.parent.mkdir()
+    assert main(["eval", str(data), "--fits", str(elsewhere), "--plot", str(plot), "--out", str(report_path), "--no-iou"]) == 0
+    report = json.loads(report_path.read_text())
+    assert report["num_scored"] == 2 and report["missing_fits"] == []
+    assert plot.is_file() and not (tmp_path / "report_errors.png").exists()
+
+
+def test_render_model_changes_the_body(tmp_path):
+    from silfit_toy_body import write_toy_npz
+
+    toy = write_toy_npz(tmp_path / "toy.npz")
+    path = tmp_path / "params.json"
+    path.write_text(json.dumps({"global_orient": [math.pi, 0.0, 0.0], "transl": [0.0, 0.2, 3.0]}))
+    masks = {}
+    for name, extra in (("default", []), ("toy", ["--model", str(toy)])):
+        assert main(["render", str(path), "--views", "front", "--mask", "--size", "64", "--out", str(tmp_path / name), *extra]) == 0
+        masks[name] = np.asarray(Image.open(tmp_path / name / "mask.png")) > 127
+    assert masks["default"].any() and masks["toy"].any()
+    assert (masks["default"] != masks["toy"]).mean() > 0.02  # another body, another silhouette
