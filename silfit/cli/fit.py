@@ -52,19 +52,41 @@ def _image_size(args):
     if args.image:
         import cv2
 
-        if not os.path.exists(args.image):
-            raise FileNotFoundError(f"{args.image}: image not found")
+        from ..input_limits import image_file_size
+
+        image_file_size(args.image, "image")  # exists, is an image, within the size limits
         img = cv2.imread(args.image, cv2.IMREAD_COLOR)
         if img is None:
             raise ValueError(f"{args.image}: not a readable image")
         return cv2.cvtColor(img, cv2.COLOR_BGR2RGB), (img.shape[1], img.shape[0])
     if args.image_size:
+        from ..input_limits import check_image_size
+
         try:
             w, h = (int(v) for v in args.image_size.lower().split("x"))
         except ValueError:
             raise CLIError(f"--image-size {args.image_size!r}: expected WxH, e.g. 640x480") from None
+        check_image_size(w, h, "--image-size", field="image size")
         return None, (w, h)
     return None, None
+
+
+def _person(text: str):
+    if text == "largest":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise CLIError(f"--person {text!r}: expected a person index (0, 1, ...) or 'largest'") from None
+
+
+def _missing_folders(path: Path) -> list:
+    """``path``'s ancestors that do not exist yet, deepest first (removed again on failure)."""
+    missing, parent = [], path.absolute().parent
+    while not parent.exists():
+        missing.append(parent)
+        parent = parent.parent
+    return missing
 
 
 def run(args) -> int:
@@ -82,8 +104,7 @@ def run(args) -> int:
     out = Path(args.out)
     if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
         raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
-    person = args.person if args.person == "largest" else int(args.person)
-    keypoints = read_keypoints(args.keypoints, person=person)
+    keypoints = read_keypoints(args.keypoints, person=_person(args.person))
     image, size = _image_size(args)
     camera = load_camera(args.camera) if args.camera else None
     if camera is not None and size is not None and tuple(size) != (camera.width, camera.height):
@@ -107,7 +128,14 @@ def run(args) -> int:
     result = fit(keypoints, mask, camera, image_size=size, focal=args.focal, model=model,
                  pose_prior=args.pose_prior, silhouette_config=sil_config, progress=not args.quiet)  # fmt: skip
     extra = {"keypoints": os.fspath(args.keypoints), "mask": args.mask, "image": args.image, "model": model.source}
-    save_fit(result, out, model.faces.cpu().numpy(), keypoints, image, mask, extra, overwrite=args.overwrite)
+    created = _missing_folders(out)
+    try:
+        save_fit(result, out, model.faces.cpu().numpy(), keypoints, image, mask, extra, overwrite=args.overwrite)
+    except BaseException:  # an error or an interrupt: leave no folder behind that this run created
+        for folder in created:
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
+        raise
     if not args.quiet:
         m = result.metrics
         line = f"wrote {out}: median reprojection error {m['reprojection_error_px']:.2f} px"
