@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from typing import Union
 
 from .errors import InputError
@@ -66,8 +67,10 @@ def image_file_size(path: Union[str, os.PathLike], what: str = "image") -> tuple
     if not os.path.isfile(source):
         raise FileNotFoundError(f"{source}: {what} file not found")
     try:
-        with Image.open(source) as im:
-            width, height = im.size
+        with warnings.catch_warnings():  # PIL warns about odd metadata; the decoder reports real problems
+            warnings.simplefilter("ignore")
+            with Image.open(source) as im:
+                width, height = im.size
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as err:
         raise InputError(source, f"cannot read the {what} as an image ({type(err).__name__}: {err})") from None
     except Image.DecompressionBombError as err:

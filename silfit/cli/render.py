@@ -87,7 +87,8 @@ def read_params(path: Path) -> tuple[dict, Optional[object]]:
     for name in PARAM_NAMES:
         if name in raw:
             try:
-                arr = np.asarray(raw[name], dtype=np.float32)
+                with np.errstate(over="ignore", invalid="ignore"):  # out-of-range values become inf: refused below
+                    arr = np.asarray(raw[name], dtype=np.float32)
             except (TypeError, ValueError, OverflowError):
                 raise InputError(path, f"field '{name}' is not numeric", field=name) from None
             if not np.all(np.isfinite(arr)):
