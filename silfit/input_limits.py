@@ -2,8 +2,8 @@
 allocated (every error is an :class:`~silfit.errors.InputError` naming the file or argument).
 
 * Images, masks and cameras: at most :data:`MAX_IMAGE_SIDE` pixels per side and
-  :data:`MAX_IMAGE_PIXELS` pixels in all (an image's size is read from its header, before
-  it is decoded).
+  :data:`MAX_IMAGE_PIXELS` pixels in all (:mod:`silfit.imagefile` reads an image's size
+  from its header, before it is decoded).
 * Text files (keypoint JSON, ``camera.json``, ``params.json``): at most
   :data:`MAX_JSON_BYTES`.
 
@@ -14,14 +14,13 @@ from __future__ import annotations
 
 import json
 import os
-import warnings
 from typing import Union
 
 from .errors import InputError
 
 __all__ = [
     "MAX_IMAGE_SIDE", "MAX_IMAGE_PIXELS", "MAX_JSON_BYTES",
-    "image_size_problem", "check_image_size", "check_file_size", "image_file_size", "read_json",
+    "image_size_problem", "check_image_size", "check_file_size", "read_json",
 ]  # fmt: skip
 
 #: Largest image/mask/camera side, pixels.
@@ -56,27 +55,6 @@ def check_file_size(path: Union[str, os.PathLike], limit: int = MAX_JSON_BYTES, 
     size = os.path.getsize(path)
     if size > limit:
         raise InputError(path, f"{what} is {size / 1024**2:.0f} MiB, more than the {limit / 1024**2:.0f} MiB silfit reads")
-
-
-def image_file_size(path: Union[str, os.PathLike], what: str = "image") -> tuple[int, int]:
-    """``(width, height)`` from an image file's header (nothing is decoded), checked
-    against the limits. Raises ``FileNotFoundError`` or :class:`InputError`."""
-    from PIL import Image, UnidentifiedImageError
-
-    source = os.fspath(path)
-    if not os.path.isfile(source):
-        raise FileNotFoundError(f"{source}: {what} file not found")
-    try:
-        with warnings.catch_warnings():  # PIL warns about odd metadata; the decoder reports real problems
-            warnings.simplefilter("ignore")
-            with Image.open(source) as im:
-                width, height = im.size
-    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as err:
-        raise InputError(source, f"cannot read the {what} as an image ({type(err).__name__}: {err})") from None
-    except Image.DecompressionBombError as err:
-        raise InputError(source, f"{what} is larger than silfit accepts ({err})") from None
-    check_image_size(width, height, source, field=f"{what} size")
-    return width, height
 
 
 def read_json(path: Union[str, os.PathLike], what: str):

@@ -232,6 +232,8 @@ def load_npz(path: Union[str, os.PathLike], what: str = "this file", allow_objec
     if not os.path.isfile(source):
         raise FileNotFoundError(f"{source}: file not found")
     _check_size(source)
+    if not zipfile.is_zipfile(source):
+        raise InputError(source, "not a .npz file (not a zip archive of arrays)")
     out = {}
     try:
         with np.load(source, allow_pickle=False) as data, zipfile.ZipFile(source) as zf:

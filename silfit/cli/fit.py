@@ -8,18 +8,25 @@ Runs :func:`silfit.pipeline.fit` and writes the output folder described in
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Optional
+
+import numpy as np
 
 from . import CLIError
 
 
 def _int_list(text: str) -> tuple:
+    """An argparse type: raises ``ArgumentTypeError``, which argparse reports as a usage error (exit 2)."""
+    import argparse
+
     try:
         values = tuple(int(v) for v in text.split(","))
     except ValueError:
-        raise CLIError(f"expected comma-separated integers, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
     if not values or min(values) <= 0:
-        raise CLIError(f"expected positive integers, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected positive integers, got {text!r}")
     return values
 
 
@@ -45,20 +52,17 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--check-only", action="store_true",
+                   help="read and check every input (files, sizes, keypoint plausibility), fit and write nothing")
     p.set_defaults(func=run)
 
 
 def _image_size(args):
     if args.image:
-        import cv2
+        from ..imagefile import read_rgb
 
-        from ..input_limits import image_file_size
-
-        image_file_size(args.image, "image")  # exists, is an image, within the size limits
-        img = cv2.imread(args.image, cv2.IMREAD_COLOR)
-        if img is None:
-            raise ValueError(f"{args.image}: not a readable image")
-        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB), (img.shape[1], img.shape[0])
+        img = read_rgb(args.image, "image")
+        return img, (img.shape[1], img.shape[0])
     if args.image_size:
         from ..input_limits import check_image_size
 
@@ -89,14 +93,29 @@ def _missing_folders(path: Path) -> list:
     return missing
 
 
-def run(args) -> int:
-    from dataclasses import replace
+@dataclass
+class FitInputs:
+    """Everything ``silfit fit`` reads, validated (see :func:`load_inputs`)."""
 
+    keypoints: object
+    image: Optional[np.ndarray]
+    size: Optional[tuple]
+    camera: object
+    mask: Optional[np.ndarray]
+    model: object
+    pose_prior: object
+    silhouette_config: object
+
+
+def load_inputs(args) -> FitInputs:
+    """Read and check every input file and option of ``silfit fit`` (nothing is fitted or
+    written): keypoints, image, camera, mask, body model, pose prior, silhouette settings."""
     from .. import load_body_model
-    from ..camera import load_camera
+    from ..camera import Camera, camera_from_dict, load_camera
+    from ..errors import InputError
     from ..fitting.silhouette_stage import SilhouetteFitConfig
     from ..keypoints import read_keypoints
-    from ..pipeline import fit, save_fit
+    from ..priors import load_pose_prior
     from ..silhouette.masks import read_mask
 
     if args.mask and args.no_silhouette:
@@ -116,8 +135,15 @@ def run(args) -> int:
         size = size or (mask.shape[1], mask.shape[0])
     if camera is None and size is None:
         raise CLIError("no camera: give --camera C.json, or --image / --image-size / --mask for the default camera")
+    if args.focal is not None:  # the same plausibility bounds as a camera file's focal length
+        base = camera or Camera.from_image_size(*size)
+        camera_from_dict({**base.to_dict(), "fx": args.focal, "fy": args.focal}, "--focal")
 
     model = load_body_model(args.model, gender=args.gender) if args.model else load_body_model()
+    pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
+    if getattr(pose_prior, "dim", model.num_body_pose) != model.num_body_pose:
+        raise InputError(args.pose_prior, f"the pose prior is over {pose_prior.dim} values, the model's body_pose has "
+                         f"{model.num_body_pose}", field="means")  # fmt: skip
     sil_config = SilhouetteFitConfig()
     if args.silhouette_resolutions:
         sil_config = replace(sil_config, resolutions=args.silhouette_resolutions)
@@ -125,8 +151,24 @@ def run(args) -> int:
         sil_config = replace(sil_config, iterations=args.silhouette_iterations)
     if len(sil_config.resolutions) != len(sil_config.iterations):
         raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels")
-    result = fit(keypoints, mask, camera, image_size=size, focal=args.focal, model=model,
-                 pose_prior=args.pose_prior, silhouette_config=sil_config, progress=not args.quiet)  # fmt: skip
+    return FitInputs(keypoints, image, size, camera, mask, model, pose_prior, sil_config)
+
+
+def run(args) -> int:
+    from ..pipeline import fit, save_fit
+
+    inp = load_inputs(args)
+    if args.check_only:
+        from ..plausibility import check_keypoints
+
+        _, warnings = check_keypoints(inp.keypoints, inp.camera.size if inp.camera else inp.size)
+        for warning in warnings:
+            print(f"warning: {warning}")
+        print("inputs OK")
+        return 0
+    out, model, keypoints, image, mask = Path(args.out), inp.model, inp.keypoints, inp.image, inp.mask
+    result = fit(keypoints, mask, inp.camera, image_size=inp.size, focal=args.focal, model=model,
+                 pose_prior=inp.pose_prior, silhouette_config=inp.silhouette_config, progress=not args.quiet)  # fmt: skip
     extra = {"keypoints": os.fspath(args.keypoints), "mask": args.mask, "image": args.image, "model": model.source}
     created = _missing_folders(out)
     try:

@@ -135,16 +135,9 @@ def load_vertices(args) -> tuple[np.ndarray, np.ndarray, Optional[object]]:
 
 
 def read_image(path: str) -> np.ndarray:
-    from PIL import Image
+    from silfit.imagefile import read_rgb
 
-    from silfit.input_limits import image_file_size
-
-    image_file_size(path, "image")  # exists, is an image, within the size limits
-    try:
-        with Image.open(path) as im:
-            return np.asarray(im.convert("RGB"))
-    except Exception as err:  # noqa: BLE001 - PIL raises many kinds
-        raise ValueError(f"{path}: not a readable image ({err})") from None
+    return read_rgb(path, "image")
 
 
 # --------------------------------------------------------------------------- outputs

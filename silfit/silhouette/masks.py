@@ -6,7 +6,7 @@ colour), and greyscale or RGB with an alpha channel whose alpha is opaque everyw
 Everything else (colour masks, palettes with several colours) is rejected with a message
 naming the file. A mask is foreground where it is above half its type's range. Its size
 is read from the file's header and checked against :mod:`silfit.input_limits` before the
-pixels are decoded.
+pixels are decoded (by :mod:`silfit.imagefile`).
 """
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from typing import Optional, Union
 import numpy as np
 
 from ..errors import InputError
-from ..input_limits import image_file_size
+from ..imagefile import image_file_size, read_pixels
 
 __all__ = ["read_mask", "validate_mask"]
 
@@ -64,18 +64,9 @@ def validate_mask(mask: np.ndarray, source: str, size: Optional[tuple[int, int]]
 
 def read_mask(path: Union[str, os.PathLike], size: Optional[tuple[int, int]] = None) -> np.ndarray:
     """Read a person mask as a boolean array ``[H, W]`` (see the module docstring)."""
-    import cv2
-
     source = os.fspath(path)
     if not os.path.isfile(source):
         raise FileNotFoundError(f"{source}: mask file not found")
     _check_size(*image_file_size(source, "mask"), source, size)
-    try:
-        raw = cv2.imread(source, cv2.IMREAD_UNCHANGED)
-    except cv2.error as err:
-        raise InputError(source, f"cannot read the mask as an image ({' '.join(str(err).split())})") from None
-    if raw is None:
-        raise InputError(source, "cannot read the mask as an image")
-    if raw.dtype not in (np.uint8, np.uint16):
-        raise InputError(source, f"unsupported mask pixel type {raw.dtype} (expected 8- or 16-bit)")
+    raw = read_pixels(source, "mask")
     return validate_mask(_to_binary(raw, source), source, size)

@@ -160,3 +160,15 @@ def test_hostile_and_broken_inputs_exit_2_with_one_line(inputs, tmp_path, capsys
     assert not (tmp_path / "new").exists()
     if case == "hostile_model":
         assert not (tmp_path / "ran").exists()
+
+
+def test_check_only_reads_everything_and_writes_nothing(inputs, tmp_path, capsys):
+    d, model = inputs
+    args = ["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
+            "--out", str(tmp_path / "out"), "--check-only"]  # fmt: skip
+    assert main(args) == 0
+    assert "inputs OK" in capsys.readouterr().out and not (tmp_path / "out").exists()
+    (tmp_path / "prior.pkl").write_bytes(b"cos\nsystem\n(Vtouch " + str(tmp_path / "ran").encode() + b"\ntR.")
+    assert main(args + ["--pose-prior", str(tmp_path / "prior.pkl")]) == 2
+    assert "prior.pkl: refused to unpickle 'os.system'" in capsys.readouterr().err
+    assert not (tmp_path / "ran").exists()
