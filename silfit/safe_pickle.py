@@ -7,11 +7,13 @@ the official files need and refuses everything else **before it is called**, wit
 :class:`~silfit.errors.UnsafeFileError` naming the file and the class:
 
 * numpy's array reconstruction (``_reconstruct``, ``_frombuffer``, ``scalar``,
-  ``ndarray``, ``dtype``; under ``numpy.core`` and ``numpy._core``);
+  ``ndarray``, ``dtype``; under ``numpy.core`` and ``numpy._core``), with ``ndarray``
+  usable only as ``_reconstruct``'s argument and ``_reconstruct`` only at shape ``(0,)``,
+  so a file cannot allocate more memory than it holds data for;
 * ``copyreg._reconstructor`` (how protocol-2 pickles rebuild objects; it can only
   rebuild allowed classes, since its arguments come through the same check);
 * ``_codecs.encode`` for latin-1 only (how Python 3 writes ``bytes`` at protocol 2);
-* a few inert builtins (``object``, ``set``, ``frozenset``, ``complex``, ``bytearray``);
+* a few inert builtins (``object``, ``set``, ``frozenset``, ``complex``);
 * scipy's sparse matrices (``csc``, ``csr``, ``coo``; ``*_matrix`` and ``*_array``) and
   every chumpy class: both become *stand-ins* that only keep the pickled state;
   :func:`to_numpy` turns them into dense arrays (the sparse ones through scipy's own
@@ -109,14 +111,29 @@ def _latin1_encode(text, encoding="latin1", errors="strict"):
 
 
 def _numpy_core(submodule: str, name: str):
-    def resolve():
-        try:
-            module = importlib.import_module(f"numpy._core.{submodule}")
-        except ImportError:  # numpy 1.x
-            module = importlib.import_module(f"numpy.core.{submodule}")
-        return getattr(module, name)
+    try:
+        module = importlib.import_module(f"numpy._core.{submodule}")
+    except ImportError:  # numpy 1.x
+        module = importlib.import_module(f"numpy.core.{submodule}")
+    return getattr(module, name)
 
-    return resolve
+
+class _NdarrayType:
+    """Stands for ``numpy.ndarray`` where a pickle names it: as the argument of
+    ``_reconstruct`` (how numpy pickles arrays). Calling it (which would allocate an array
+    of any shape the file asks for) is refused."""
+
+    def __new__(cls, *args, **kwargs):
+        raise pickle.UnpicklingError("numpy.ndarray may only appear as the argument of numpy's _reconstruct")
+
+
+def _reconstruct(subtype, shape, dtype):
+    """numpy's ``_reconstruct`` for plain arrays only, always at shape ``(0,)`` (numpy
+    pickles give ``(0,)``; the real shape arrives with the data, and numpy checks the
+    two agree), so a file cannot make it allocate more than it holds."""
+    if subtype is not _NdarrayType:
+        raise pickle.UnpicklingError(f"_reconstruct of {getattr(subtype, '__name__', subtype)!r} is not allowed")
+    return _numpy_core("multiarray", "_reconstruct")(np.ndarray, (0,), dtype)
 
 
 def _allowed() -> dict:
@@ -124,17 +141,17 @@ def _allowed() -> dict:
     import copyreg
 
     table = {
-        ("copyreg", "_reconstructor"): lambda: copyreg._reconstructor,
-        ("_codecs", "encode"): lambda: _latin1_encode,
-        ("numpy", "ndarray"): lambda: np.ndarray,
-        ("numpy", "dtype"): lambda: np.dtype,
+        ("copyreg", "_reconstructor"): copyreg._reconstructor,
+        ("_codecs", "encode"): _latin1_encode,
+        ("numpy", "ndarray"): _NdarrayType,
+        ("numpy", "dtype"): np.dtype,
     }
     for core in ("numpy.core", "numpy._core"):
-        table[(f"{core}.multiarray", "_reconstruct")] = _numpy_core("multiarray", "_reconstruct")
+        table[(f"{core}.multiarray", "_reconstruct")] = _reconstruct
         table[(f"{core}.multiarray", "scalar")] = _numpy_core("multiarray", "scalar")
         table[(f"{core}.numeric", "_frombuffer")] = _numpy_core("numeric", "_frombuffer")
-    for name in ("object", "set", "frozenset", "complex", "bytearray"):
-        table[("builtins", name)] = (lambda n: lambda: getattr(builtins, n))(name)
+    for name in ("object", "set", "frozenset", "complex"):
+        table[("builtins", name)] = getattr(builtins, name)
     return table
 
 
@@ -162,7 +179,7 @@ class RestrictedUnpickler(pickle.Unpickler):
         if module.split(".")[:2] == ["scipy", "sparse"] and name[:3] in _SPARSE and name[3:] in ("_matrix", "_array"):
             return _SPARSE[name[:3]]
         if (module, name) in _ALLOWED:
-            return _ALLOWED[(module, name)]()
+            return _ALLOWED[(module, name)]
         raise UnsafeFileError(
             self.source,
             f"refused to unpickle '{module}.{name}': not one of the classes {self.what} needs "
@@ -180,7 +197,7 @@ def _check_size(path: str) -> None:
         raise InputError(path, f"file is {size / 1024**3:.1f} GiB, more than the {MAX_FILE_BYTES / 1024**3:.0f} GiB silfit reads")
 
 
-def load_pickle(path: Union[str, os.PathLike], what: str = "this file") -> Any:
+def load_pickle(path: Union[str, os.PathLike], what: str = "silfit input") -> Any:
     """Unpickle ``path`` with :class:`RestrictedUnpickler` (latin-1 for Python 2 pickles).
 
     Raises :class:`UnsafeFileError` for a refused class, :class:`InputError` for any other
@@ -224,7 +241,7 @@ def _npz_member_with_objects(zf: zipfile.ZipFile, key: str, source: str, what: s
     return value
 
 
-def load_npz(path: Union[str, os.PathLike], what: str = "this file", allow_objects: bool = False) -> dict:
+def load_npz(path: Union[str, os.PathLike], what: str = "silfit input", allow_objects: bool = False) -> dict:
     """All arrays of a ``.npz`` file as a dict. Object arrays (pickles inside the archive)
     are refused unless ``allow_objects``, and then read only through
     :class:`RestrictedUnpickler`. Errors name the file (and the field)."""

@@ -174,3 +174,21 @@ def test_malformed_sparse_state_is_a_clean_error(tmp_path):
 def _savez(path, arrays):
     np.savez(path, **arrays)
     return path
+
+
+def test_a_pickle_cannot_allocate_more_than_it_holds(tmp_path):
+    """``numpy.ndarray(shape)`` and ``_reconstruct(ndarray, shape, ...)`` would allocate any
+    shape the file names; the first is refused, the second always starts at shape (0,)."""
+    path = tmp_path / "big.pkl"
+    path.write_bytes(b"\x80\x02cnumpy\nndarray\nJ\x00\xe1\xf5\x05J\x00\xe1\xf5\x05\x86\x85R.")  # ndarray((1e8, 1e8))
+    with pytest.raises(InputError, match=r"big\.pkl.*ndarray may only appear"):
+        load_pickle(path)
+    path.write_bytes(b"\x80\x02cnumpy._core.multiarray\n_reconstruct\ncnumpy\nndarray\nJ\x00\xe1\xf5\x05\x85C\x01b\x87R.")
+    assert load_pickle(path).shape == (0,)
+    path.write_bytes(b"\x80\x02c__builtin__\nbytearray\nJ\x00\xca\x9a;\x85R.")  # bytearray(10**9)
+    with pytest.raises(UnsafeFileError, match="builtins.bytearray"):
+        load_pickle(path)
+    for protocol in (2, 4, 5):  # while real arrays of every protocol still load
+        path.write_bytes(pickle.dumps({"a": np.arange(12.0).reshape(3, 4), "s": np.float32(2)}, protocol=protocol))
+        value = load_pickle(path)
+        assert np.array_equal(value["a"], np.arange(12.0).reshape(3, 4)) and value["s"] == 2
