@@ -17,7 +17,7 @@ class InputError(ValueError):
     argument) and ``field`` the field inside it, where there is one."""
 
     def __init__(self, source: Union[str, os.PathLike], message: str, field: Optional[str] = None):
-        self.source = os.fspath(source)
+        self.source = os.fspath(source) if isinstance(source, (str, os.PathLike)) else str(source)
         self.field = field
         text = " ".join(str(message).split())  # one line, whatever the message held
         super().__init__(f"{self.source}: {text}")

@@ -142,7 +142,7 @@ def load_inputs(args) -> FitInputs:
     model = load_body_model(args.model, gender=args.gender) if args.model else load_body_model()
     pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
     if getattr(pose_prior, "dim", model.num_body_pose) != model.num_body_pose:
-        raise InputError(args.pose_prior, f"the pose prior is over {pose_prior.dim} values, the model's body_pose has "
+        raise InputError(args.pose_prior or "--pose-prior (default)", f"the pose prior is over {pose_prior.dim} values, the model's body_pose has "
                          f"{model.num_body_pose}", field="means")  # fmt: skip
     sil_config = SilhouetteFitConfig()
     if args.silhouette_resolutions:
