@@ -26,8 +26,10 @@ from __future__ import annotations
 
 import _compat_pickle
 import importlib
+import io
 import os
 import pickle
+import pickletools
 import zipfile
 from typing import Any, Union
 
@@ -207,6 +209,19 @@ def load_pickle(path: Union[str, os.PathLike], what: str = "silfit input") -> An
         raise FileNotFoundError(f"{source}: file not found")
     _check_size(source)
     with open(source, "rb") as fh:
+        data = fh.read()
+    return _unpickle(data, source, what)
+
+
+def _unpickle(data: bytes, source: str, what: str) -> Any:
+    """Check the opcodes (every length prefix within the data, so nothing is allocated
+    for more bytes than the file holds), then unpickle with :class:`RestrictedUnpickler`."""
+    try:
+        for _ in pickletools.genops(data):
+            pass
+    except Exception as err:  # noqa: BLE001 - ValueError / EOF of every kind: not a well-formed pickle
+        raise InputError(source, f"cannot read this pickle as {what} (malformed: {err})") from None
+    with io.BytesIO(data) as fh:
         try:
             return RestrictedUnpickler(fh, source, what).load()
         except UnsafeFileError:
@@ -222,7 +237,10 @@ def load_pickle(path: Union[str, os.PathLike], what: str = "silfit input") -> An
 def _npz_member_with_objects(zf: zipfile.ZipFile, key: str, source: str, what: str) -> np.ndarray:
     """An object array of a ``.npz`` (numpy stores it as a pickle after the ``.npy`` header),
     read through :class:`RestrictedUnpickler`."""
-    with zf.open(f"{key}.npy") as fh:
+    info = zf.getinfo(f"{key}.npy")
+    if info.file_size > MAX_FILE_BYTES:
+        raise InputError(source, f"field '{key}' unpacks to {info.file_size / 1024**3:.1f} GiB", field=key)
+    with zf.open(info) as fh:
         version = np.lib.format.read_magic(fh)
         if version == (1, 0):
             np.lib.format.read_array_header_1_0(fh)
@@ -230,12 +248,8 @@ def _npz_member_with_objects(zf: zipfile.ZipFile, key: str, source: str, what: s
             np.lib.format.read_array_header_2_0(fh)
         else:
             raise InputError(source, f"field '{key}' uses .npy format {version}, which silfit does not read", field=key)
-        try:
-            value = RestrictedUnpickler(fh, f"{source} (field '{key}')", what).load()
-        except UnsafeFileError:
-            raise
-        except Exception as err:  # noqa: BLE001
-            raise InputError(source, f"field '{key}' is an unreadable object array ({type(err).__name__}: {err})", key) from None
+        data = fh.read()
+    value = _unpickle(data, f"{source} (field '{key}')", what)
     if not isinstance(value, np.ndarray):
         raise InputError(source, f"field '{key}' holds a pickled {type(value).__name__}, not an array", field=key)
     return value

@@ -188,6 +188,9 @@ def test_a_pickle_cannot_allocate_more_than_it_holds(tmp_path):
     path.write_bytes(b"\x80\x02c__builtin__\nbytearray\nJ\x00\xca\x9a;\x85R.")  # bytearray(10**9)
     with pytest.raises(UnsafeFileError, match="builtins.bytearray"):
         load_pickle(path)
+    path.write_bytes(b"\x80\x05\x96" + (2**40).to_bytes(8, "little") + b".")  # a 1 TiB bytearray8 in 12 bytes
+    with pytest.raises(InputError, match=r"big\.pkl.*malformed"):
+        load_pickle(path)
     for protocol in (2, 4, 5):  # while real arrays of every protocol still load
         path.write_bytes(pickle.dumps({"a": np.arange(12.0).reshape(3, 4), "s": np.float32(2)}, protocol=protocol))
         value = load_pickle(path)
