@@ -9,7 +9,7 @@
    body with 2 px noise, 512x512 default camera) and ``silfit.save_fit`` (params,
    mesh, overlay with pyrender, metrics) into a temporary folder that is then deleted.
    ``--iters-scale`` shrinks the keypoint stage's iteration counts (default 1: the real
-   stage).
+   stage); ``--no-save`` leaves ``save_fit`` out.
 
 RSS (``/proc/self/status`` VmRSS) is printed every ``--every`` renders / ``--every-fit``
 fits. The target is flat after warm-up: the drift from the end of warm-up (the first
@@ -72,7 +72,7 @@ def soak_renders(model, n: int, size: int, every: int, rows: list) -> None:
             print(f"  render {i:5d}  {rows[-1][2]:7.1f} s  RSS {rows[-1][3]:8.1f} MB", file=sys.stderr, flush=True)
 
 
-def soak_fits(model, n: int, iters_scale: float, every: int, rows: list) -> None:
+def soak_fits(model, n: int, iters_scale: float, every: int, rows: list, save: bool = True) -> None:
     from bench_fit import generate
 
     import silfit
@@ -96,8 +96,8 @@ def soak_fits(model, n: int, iters_scale: float, every: int, rows: list) -> None
             kp = KeypointSet(arr[:, :2], arr[:, 2], "body25", source=f"subject {i}")
             result = silfit.fit(kp, camera=subjects["cameras"][i - 1], model=model, keypoint_config=cfg, progress=False)
             warnings += len(result.metrics["warnings"])
-            out = silfit.save_fit(result, work / "fit", faces, kp)
-            shutil.rmtree(out)
+            if save:
+                shutil.rmtree(silfit.save_fit(result, work / "fit", faces, kp))
             del result
             if i % every == 0 or i == 1:
                 rows.append(("fit", i, time.perf_counter() - t0, rss_mb()))
@@ -124,6 +124,7 @@ def main(argv=None) -> int:
     ap.add_argument("--iters-scale", type=float, default=1.0, help="scale the keypoint stage's iteration counts")
     ap.add_argument("--every", type=int, default=100, help="RSS every N renders (default 100)")
     ap.add_argument("--every-fit", type=int, default=20, help="RSS every N fits (default 20)")
+    ap.add_argument("--no-save", action="store_true", help="fit only, no save_fit (to tell the fit's memory from the output's)")
     args = ap.parse_args(argv)
 
     import silfit
@@ -135,9 +136,9 @@ def main(argv=None) -> int:
         soak_renders(model, args.renders, args.size, args.every, rows)
     gc.collect()
     if args.subjects:
-        soak_fits(model, args.subjects, args.iters_scale, args.every_fit, rows)
+        soak_fits(model, args.subjects, args.iters_scale, args.every_fit, rows, save=not args.no_save)
     print(f"Soak: {args.renders} silhouettes ({args.size}x{args.size} window, 4 spp, forward+backward) and "
-          f"{args.subjects} fits (keypoint stage, iterations x{args.iters_scale:g}, + save_fit) in one process; "
+          f"{args.subjects} fits (keypoint stage, iterations x{args.iters_scale:g}{'' if args.no_save else ', + save_fit'}) in one process; "
           f"torch threads {torch.get_num_threads()}.\n")
     print("| phase | step | elapsed (s) | RSS (MB) |\n|---|---:|---:|---:|")
     for phase, i, t, mb in rows:
