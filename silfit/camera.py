@@ -24,7 +24,11 @@ import os
 from dataclasses import asdict, dataclass
 from typing import Union
 
+import numpy as np
 import torch
+
+from .errors import InputError
+from .input_limits import image_size_problem, read_json
 
 __all__ = [
     "Camera",
@@ -34,6 +38,7 @@ __all__ = [
     "weak_perspective_project",
     "UPRIGHT_FACING_CAMERA",
     "UPRIGHT_BACK_TO_CAMERA",
+    "camera_from_dict",
     "load_camera",
     "save_camera",
 ]
@@ -50,6 +55,23 @@ UPRIGHT_FACING_CAMERA = (math.pi, 0.0, 0.0)
 UPRIGHT_BACK_TO_CAMERA = (0.0, 0.0, math.pi)
 
 _FIELDS = ("fx", "fy", "cx", "cy", "width", "height")
+#: A camera file's focal lengths must lie within these multiples of the image's longer side
+#: (a 0.06-degree telephoto to a 177-degree wide angle), its principal point within
+#: :data:`MAX_PRINCIPAL_OFFSET` image sizes of the image centre.
+FOCAL_RANGE = (0.01, 1000.0)
+MAX_PRINCIPAL_OFFSET = 10.0
+
+
+def _finite(value) -> bool:
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an int beyond float range
+        return False
+
+
+def _short(value, limit: int = 40) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def default_focal(width: int, height: int, factor: float = DEFAULT_FOCAL_FACTOR) -> float:
@@ -71,12 +93,15 @@ class Camera:
     def __post_init__(self):
         for name in _FIELDS:
             value = getattr(self, name)
-            if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
-                raise ValueError(f"camera field '{name}' must be a finite number, got {value!r}")
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or not _finite(value):
+                raise ValueError(f"camera field '{name}' must be a finite number, got {_short(value)}")
         if self.fx <= 0 or self.fy <= 0:
             raise ValueError(f"camera focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
         if int(self.width) != self.width or int(self.height) != self.height or self.width <= 0 or self.height <= 0:
             raise ValueError(f"camera width/height must be positive integers, got {self.width}x{self.height}")
+        problem = image_size_problem(int(self.width), int(self.height))
+        if problem:
+            raise ValueError(f"camera width/height: {problem}")
         object.__setattr__(self, "width", int(self.width))
         object.__setattr__(self, "height", int(self.height))
         for name in ("fx", "fy", "cx", "cy"):
@@ -92,9 +117,15 @@ class Camera:
     def from_intrinsics(cls, intrinsics, image_size) -> "Camera":
         """From ``(fx, fy, cx, cy)`` and ``(width, height)``, as fits store them in ``params.npz``
         (``camera_intrinsics``, ``image_size``)."""
-        fx, fy, cx, cy = (float(v) for v in list(intrinsics))
-        width, height = (v for v in list(image_size))
-        if int(width) != width or int(height) != height:
+        try:
+            fx, fy, cx, cy = (float(v) for v in np.asarray(intrinsics, dtype=np.float64).reshape(-1))
+        except (TypeError, ValueError):
+            raise ValueError(f"camera_intrinsics must be 4 numbers (fx, fy, cx, cy), got {_short(intrinsics)}") from None
+        try:
+            width, height = (float(v) for v in np.asarray(image_size, dtype=np.float64).reshape(-1))
+        except (TypeError, ValueError):
+            raise ValueError(f"image_size must be 2 numbers (width, height), got {_short(image_size)}") from None
+        if not (_finite(width) and _finite(height)) or int(width) != width or int(height) != height:
             raise ValueError(f"camera width/height must be positive integers, got {width}x{height}")
         return cls(fx=fx, fy=fy, cx=cx, cy=cy, width=int(width), height=int(height))
 
@@ -152,25 +183,37 @@ def weak_perspective_project(points: torch.Tensor, scale: torch.Tensor, offset: 
     return scale[..., None, None] * points[..., :2] + offset[..., None, :]
 
 
-def load_camera(path: Union[str, os.PathLike]) -> Camera:
-    """Read ``camera.json`` (``fx, fy, cx, cy, width, height``), naming the file and field on error."""
-    path = os.fspath(path)
-    try:
-        with open(path, "r", encoding="utf-8") as fh:
-            data = json.load(fh)
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: camera file not found") from None
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{path}: not valid JSON ({err})") from None
+def camera_from_dict(data, source: str) -> Camera:
+    """A :class:`Camera` from a JSON object with ``fx, fy, cx, cy, width, height``, with
+    plausible intrinsics (:data:`FOCAL_RANGE`, :data:`MAX_PRINCIPAL_OFFSET`); errors are
+    :class:`~silfit.errors.InputError` naming ``source`` and the field."""
     if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected a JSON object with fields {', '.join(_FIELDS)}")
+        raise InputError(source, f"expected a JSON object with fields {', '.join(_FIELDS)}")
     missing = [name for name in _FIELDS if name not in data]
     if missing:
-        raise ValueError(f"{path}: camera field(s) missing: {', '.join(missing)} (expected {', '.join(_FIELDS)})")
+        raise InputError(source, f"camera field(s) missing: {', '.join(missing)} (expected {', '.join(_FIELDS)})")
     try:
-        return Camera(**{name: data[name] for name in _FIELDS})
+        camera = Camera(**{name: data[name] for name in _FIELDS})
     except ValueError as err:
-        raise ValueError(f"{path}: {err}") from None
+        raise InputError(source, str(err)) from None
+    side = max(camera.width, camera.height)
+    for name in ("fx", "fy"):
+        ratio = getattr(camera, name) / side
+        if not FOCAL_RANGE[0] <= ratio <= FOCAL_RANGE[1]:
+            raise InputError(
+                source, f"camera field '{name}' = {getattr(camera, name):g} px is {ratio:g} times the image's longer "
+                f"side; expected {FOCAL_RANGE[0]:g} to {FOCAL_RANGE[1]:g} times (is it in pixels?)", field=name,
+            )  # fmt: skip
+    for name, centre, size in (("cx", camera.width / 2, camera.width), ("cy", camera.height / 2, camera.height)):
+        if abs(getattr(camera, name) - centre) > MAX_PRINCIPAL_OFFSET * size:
+            raise InputError(source, f"camera field '{name}' = {getattr(camera, name):g} lies far outside the "
+                             f"{camera.width}x{camera.height} image", field=name)  # fmt: skip
+    return camera
+
+
+def load_camera(path: Union[str, os.PathLike]) -> Camera:
+    """Read ``camera.json`` (``fx, fy, cx, cy, width, height``), naming the file and field on error."""
+    return camera_from_dict(read_json(path, "camera"), os.fspath(path))
 
 
 def save_camera(camera: Camera, path: Union[str, os.PathLike]) -> None:

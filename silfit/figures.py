@@ -38,13 +38,14 @@ def _canvas(image: Optional[np.ndarray], camera: Camera) -> np.ndarray:
 
 
 def draw_keypoints(image: np.ndarray, xy: np.ndarray, color, conf: Optional[np.ndarray] = None, radius: int = 0) -> np.ndarray:
-    """Dots at ``xy [K, 2]`` (skipping zero-confidence ones), radius scaled to the image."""
+    """Dots at ``xy [K, 2]`` (skipping zero-confidence ones and those off the image), radius scaled to the image."""
     import cv2
 
     out = np.ascontiguousarray(image.copy())
     r = radius or max(2, round(max(out.shape[:2]) / 160))
+    h, w = out.shape[:2]
     for k, (x, y) in enumerate(np.asarray(xy, dtype=np.float64)):
-        if (conf is None or conf[k] > 0) and np.isfinite(x) and np.isfinite(y):
+        if (conf is None or conf[k] > 0) and -r <= x <= w + r and -r <= y <= h + r:  # (False for NaN)
             cv2.circle(out, (int(round(x)), int(round(y))), r, tuple(int(c) for c in color), -1, lineType=cv2.LINE_AA)
     return out
 

@@ -15,6 +15,9 @@ from typing import Optional, Union
 import numpy as np
 import torch
 
+from .errors import InputError
+from .input_limits import read_json
+
 __all__ = [
     "BLAZEPOSE33_NAMES",
     "BODY25_NAMES",
@@ -121,17 +124,17 @@ class KeypointSet:
         xy = np.asarray(xy, dtype=np.float64)
         conf = np.asarray(conf, dtype=np.float64)
         if xy.shape != (len(names), 2) or conf.shape != (len(names),):
-            raise ValueError(
-                f"{source}: keypoints have shape {xy.shape} with {conf.shape} confidences, expected "
+            raise InputError(
+                source, f"keypoints have shape {xy.shape} with {conf.shape} confidences, expected "
                 f"{len(names)} points of [x, y, confidence] for layout {layout}"
             )
         bad = ~np.isfinite(xy).all(axis=1) | ~np.isfinite(conf)
         if bad.any():
-            raise ValueError(f"{source}: keypoint(s) {', '.join(names[i] for i in np.flatnonzero(bad))} are NaN or infinite")
+            raise InputError(source, f"keypoint(s) {', '.join(names[i] for i in np.flatnonzero(bad))} are NaN or infinite")
         if (conf < 0).any():
-            raise ValueError(f"{source}: negative confidence for {', '.join(names[i] for i in np.flatnonzero(conf < 0))}")
+            raise InputError(source, f"negative confidence for {', '.join(names[i] for i in np.flatnonzero(conf < 0))}")
         if not (conf > 0).any():
-            raise ValueError(f"{source}: all keypoint confidences are zero: no person to fit")
+            raise InputError(source, "all keypoint confidences are zero: no person to fit")
         self.xy, self.conf, self.layout, self.source = xy, conf, layout.lower(), source
 
     @property
@@ -150,23 +153,42 @@ class KeypointSet:
         return float(np.prod(vis.max(0) - vis.min(0) + 1.0)) if len(vis) else 0.0
 
 
+def _number(value) -> bool:
+    """A JSON number, or null (read as NaN, which :class:`KeypointSet` then reports by name)."""
+    return value is None or (isinstance(value, (int, float)) and not isinstance(value, bool))
+
+
 def _triplets(values, source: str, field: str) -> np.ndarray:
-    arr = np.asarray(values, dtype=np.float64)
-    if arr.ndim == 1:
-        if arr.size % 3:
-            raise ValueError(f"{source}: field '{field}' holds {arr.size} numbers, not a multiple of 3 (x, y, confidence)")
-        arr = arr.reshape(-1, 3)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"{source}: field '{field}' must be a list of [x, y, confidence], got shape {arr.shape}")
-    return arr
+    """``[K, 3]`` from a flat list of numbers or a list of ``[x, y, confidence]`` lists;
+    anything else (strings, booleans, nesting, ragged rows) is refused naming the field."""
+    if not isinstance(values, list):
+        raise InputError(source, f"field '{field}' must be a list of numbers, got {type(values).__name__}", field=field)
+    if values and all(isinstance(v, list) for v in values):
+        for i, row in enumerate(values):
+            if len(row) != 3:
+                raise InputError(source, f"field '{field}[{i}]' has {len(row)} values, expected [x, y, confidence]", field)
+        flat = [v for row in values for v in row]
+    else:
+        flat = values
+    for i, v in enumerate(flat):
+        if not _number(v):
+            shown = repr(v) if not isinstance(v, (list, dict)) else type(v).__name__
+            raise InputError(source, f"field '{field}' value {i} is {shown}, expected a number", field=field)
+    if len(flat) % 3:
+        raise InputError(source, f"field '{field}' holds {len(flat)} numbers, not a multiple of 3 (x, y, confidence)", field)
+    try:
+        return np.asarray([np.nan if v is None else v for v in flat], dtype=np.float64).reshape(-1, 3)
+    except OverflowError:  # an integer beyond float range
+        raise InputError(source, f"field '{field}' holds a number too large for a pixel coordinate", field=field) from None
 
 
 def _layout_for_count(count: int, source: str, field: str) -> str:
     for name, names in LAYOUTS.items():
         if len(names) == count:
             return name
-    raise ValueError(
-        f"{source}: field '{field}' has {count} keypoints; expected 25 (OpenPose BODY_25), 17 (COCO-17) or 33 (BlazePose)"
+    raise InputError(
+        source, f"field '{field}' has {count} keypoints; expected 25 (OpenPose BODY_25), 17 (COCO-17) or 33 (BlazePose)",
+        field,
     )
 
 
@@ -178,34 +200,29 @@ def read_keypoints(path: Union[str, os.PathLike], person: Union[int, str] = "lar
     of its confident keypoints).
     """
     source = os.fspath(path)
-    try:
-        with open(source, "r", encoding="utf-8") as fh:
-            data = json.load(fh)
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{source}: keypoint file not found") from None
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{source}: not valid JSON ({err})") from None
+    data = read_json(source, "keypoint")
 
     candidates: list[tuple[str, np.ndarray]] = []
     if isinstance(data, dict) and "people" in data:
         people = data["people"]
         if not isinstance(people, list) or not people:
-            raise ValueError(f"{source}: field 'people' is empty: no person detected")
+            raise InputError(source, "field 'people' is empty: no person detected", field="people")
         for i, p in enumerate(people):
+            field = f"people[{i}].pose_keypoints_2d"
             if not isinstance(p, dict) or "pose_keypoints_2d" not in p:
-                raise ValueError(f"{source}: field 'people[{i}].pose_keypoints_2d' is missing")
-            candidates.append((f"people[{i}].pose_keypoints_2d", _triplets(p["pose_keypoints_2d"], source, f"people[{i}].pose_keypoints_2d")))
+                raise InputError(source, f"field '{field}' is missing", field=field)
+            candidates.append((field, _triplets(p["pose_keypoints_2d"], source, field)))
     elif isinstance(data, dict) and "keypoints" in data:
         candidates.append(("keypoints", _triplets(data["keypoints"], source, "keypoints")))
     elif isinstance(data, list) and data and isinstance(data[0], dict):
         for i, ann in enumerate(data):
-            if "keypoints" not in ann:
-                raise ValueError(f"{source}: field '[{i}].keypoints' is missing")
+            if not isinstance(ann, dict) or "keypoints" not in ann:
+                raise InputError(source, f"field '[{i}].keypoints' is missing", field=f"[{i}].keypoints")
             candidates.append((f"[{i}].keypoints", _triplets(ann["keypoints"], source, f"[{i}].keypoints")))
     elif isinstance(data, list):
         candidates.append(("<list>", _triplets(data, source, "<top-level list>")))
     else:
-        raise ValueError(f"{source}: no keypoints found (expected OpenPose 'people', COCO 'keypoints' or a list)")
+        raise InputError(source, "no keypoints found (expected OpenPose 'people', COCO 'keypoints' or a list)")
 
     sets = []
     for field, arr in candidates:
@@ -215,7 +232,7 @@ def read_keypoints(path: Union[str, os.PathLike], person: Union[int, str] = "lar
         return max(sets, key=lambda s: s.visible_area())
     index = int(person)
     if not 0 <= index < len(sets):
-        raise ValueError(f"{source}: person {index} requested, the file holds {len(sets)}")
+        raise InputError(source, f"person {index} requested, the file holds {len(sets)}", field="people")
     return sets[index]
 
 

@@ -35,6 +35,7 @@ from .fitting.keypoint_stage import KeypointFitConfig, KeypointFitter, prepare_k
 from .fitting.result import KeypointFitResult
 from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult, fit_silhouettes
 from .keypoints import KeypointSet, model_keypoints
+from .plausibility import check_keypoints, fit_warnings
 from .eval.metrics import mask_iou
 from .silhouette.masks import validate_mask
 
@@ -207,6 +208,14 @@ def fit(
         raise ValueError(f"fit() takes one person's keypoints, got {len(sets)}; use fit_keypoints for batches")
     if mask is not None and camera is None and image_size is None:
         image_size = (mask.shape[1], mask.shape[0])
+    # plausibility (silfit.plausibility): drop far-outside keypoints, refuse degenerate sets, warn about the result
+    sets[0], plausibility_warnings = check_keypoints(sets[0], (camera.width, camera.height) if camera else image_size)
+    result = _fit(sets, mask, camera, image_size, focal, model, pose_prior, keypoint_config, silhouette_config, progress)
+    result.metrics["warnings"] += plausibility_warnings + fit_warnings(result.metrics, sets[0], result.vertices)
+    return result
+
+
+def _fit(sets, mask, camera, image_size, focal, model, pose_prior, keypoint_config, silhouette_config, progress):
     fitter = KeypointFitter(model, sets[0].layout, keypoint_config, pose_prior)
     kp_result = fitter.fit(sets, camera, image_size=image_size, focal=focal, progress=progress)
     if mask is not None:

@@ -76,3 +76,41 @@ def test_camera_from_stored_intrinsics():
     assert cam == Camera(fx=500.0, fy=510.0, cx=320.0, cy=240.5, width=640, height=480)
     with pytest.raises(ValueError, match="width"):
         Camera.from_intrinsics([500.0, 500.0, 1.0, 1.0], [640.5, 480])
+
+
+# --------------------------------------------------------------------------- hostile / broken files
+@pytest.mark.parametrize(
+    "change,expect",
+    [
+        ({"fx": "500"}, r"'fx' must be a finite number, got '500'"),
+        ({"width": 100000, "height": 100000, "cx": 5e4, "cy": 5e4}, r"100000x100000 pixels is larger than silfit accepts"),
+        ({"width": 9000, "height": 9000, "cx": 4500, "cy": 4500}, r"megapixels"),
+        ({"width": 10**400}, r"'width' must be a finite number"),
+        ({"fx": 1e-3}, r"'fx' = 0\.001 px .* times the image's longer side"),
+        ({"cy": 1e9}, r"'cy' = 1e\+09 lies far outside"),
+        ({"width": 64.5}, r"positive integers"),
+    ],
+    ids=["string", "huge", "megapixels", "big-int", "tiny-focal", "far-principal-point", "fractional"],
+)
+def test_bad_camera_files_name_file_and_field(tmp_path, change, expect):
+    from silfit.errors import InputError
+
+    data = dict(fx=500.0, fy=500.0, cx=319.5, cy=239.5, width=640, height=480)
+    data.update(change)
+    path = tmp_path / "camera.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(InputError, match=expect) as info:
+        load_camera(path)
+    assert str(info.value).startswith(str(path))
+
+
+def test_camera_size_limit_applies_to_every_camera():
+    from silfit.input_limits import MAX_IMAGE_SIDE
+
+    with pytest.raises(ValueError, match="larger than silfit accepts"):
+        Camera.from_image_size(MAX_IMAGE_SIDE + 1, 10)
+    assert Camera.from_image_size(MAX_IMAGE_SIDE, 100).width == MAX_IMAGE_SIDE
+    with pytest.raises(ValueError, match="camera_intrinsics must be 4 numbers"):
+        Camera.from_intrinsics([1.0, 2.0, 3.0], [10, 10])
+    with pytest.raises(ValueError, match="image_size must be 2 numbers"):
+        Camera.from_intrinsics([1.0, 1.0, 3.0, 3.0], ["a", "b"])

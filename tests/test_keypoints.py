@@ -65,3 +65,44 @@ def test_nan_keypoints_are_named(tmp_path):
     (tmp_path / "nan.json").write_text(json.dumps({"people": [{"pose_keypoints_2d": [None if np.isnan(v) else v for v in kp.reshape(-1)]}]}))
     with pytest.raises(ValueError, match="right_wrist"):
         read_keypoints(tmp_path / "nan.json")
+
+
+# --------------------------------------------------------------------------- hostile / broken files
+@pytest.mark.parametrize(
+    "payload,expect",
+    [
+        ({"people": [{"pose_keypoints_2d": ["1.0"] * 75}]}, r"people\[0\]\.pose_keypoints_2d.*value 0 is '1\.0'"),
+        ({"people": [{"pose_keypoints_2d": [True] * 75}]}, r"pose_keypoints_2d.*value 0 is True"),
+        ({"people": [{"pose_keypoints_2d": [[1, 2, 3]] * 24 + [[1, 2]]}]}, r"pose_keypoints_2d\[24\].*2 values"),
+        ({"people": [{"pose_keypoints_2d": {"x": 1}}]}, r"pose_keypoints_2d.*must be a list"),
+        ({"people": [{"pose_keypoints_2d": [10**400] * 75}]}, r"pose_keypoints_2d.*too large"),
+        ([{"keypoints": [1.0] * 51}, 7], r"\[1\]\.keypoints.*missing"),
+        ({"people": "nobody"}, r"'people' is empty"),
+        ({"people": [{"pose_keypoints_2d": [[1.0, 2.0, [3.0]]] * 25}]}, r"value 2 is list"),
+    ],
+    ids=["strings", "booleans", "ragged", "dict", "huge-int", "non-dict-annotation", "people-string", "nested"],
+)
+def test_malformed_keypoint_files_name_file_and_field(tmp_path, payload, expect):
+    from silfit.errors import InputError
+
+    path = tmp_path / "kp.json"
+    path.write_text(json.dumps(payload))
+    with pytest.raises(InputError, match=expect) as info:
+        read_keypoints(path)
+    assert str(info.value).startswith(str(path)) and "\n" not in str(info.value)
+
+
+def test_binary_deep_and_oversized_files_are_clean_errors(tmp_path, monkeypatch):
+    from silfit import input_limits
+    from silfit.errors import InputError
+
+    (tmp_path / "bin.json").write_bytes(bytes(range(256)) * 4)
+    with pytest.raises(InputError, match=r"bin\.json.*binary"):
+        read_keypoints(tmp_path / "bin.json")
+    (tmp_path / "deep.json").write_text("[" * 100000 + "]" * 100000)
+    with pytest.raises(InputError, match=r"deep\.json.*nested too deeply"):
+        read_keypoints(tmp_path / "deep.json")
+    write_openpose_json(tmp_path / "big.json", body25())
+    monkeypatch.setattr(input_limits, "MAX_JSON_BYTES", 100)
+    with pytest.raises(InputError, match=r"big\.json.*more than"):
+        read_keypoints(tmp_path / "big.json")

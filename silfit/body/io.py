@@ -1,20 +1,24 @@
 """Reading body-model files: official SMPL ``.pkl``/``.npz`` and the shipped open model.
 
 The official SMPL pickles were written with chumpy (a Python 2 autodiff library)
-inside; :class:`_LenientUnpickler` replaces every chumpy class by a stand-in that keeps
-the pickled state, so the arrays can be read without chumpy installed. Sparse joint
-regressors (scipy) are densified.
+inside. They are read with :mod:`silfit.safe_pickle`'s restricted unpickler, which
+allows only numpy arrays, scipy sparse matrices and chumpy classes (replaced by
+stand-ins that keep the pickled state, so the arrays can be read without chumpy
+installed) and refuses any other class before it runs. Sparse joint regressors are
+densified. ``.npz`` files with object arrays go through the same unpickler.
 """
 from __future__ import annotations
 
 import json
 import os
-import pickle
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Union
 
 import numpy as np
+
+from ..errors import InputError
+from ..safe_pickle import load_npz, load_pickle, to_numpy
 
 __all__ = [
     "ModelArrays",
@@ -93,46 +97,6 @@ class ModelArrays:
         return self.J_regressor.shape[0]
 
 
-class _ChumpyStandIn:
-    """Replaces any chumpy class while unpickling; keeps the pickled state."""
-
-    def __init__(self, *args, **kwargs):
-        self._args = args
-
-    def __setstate__(self, state):
-        self.__dict__["_state"] = state
-
-    def to_array(self) -> np.ndarray:
-        state = self.__dict__.get("_state")
-        if isinstance(state, dict):
-            for key in ("x", "a", "r"):
-                if key in state:
-                    return np.asarray(state[key])
-        raise ValueError("a chumpy object in the file holds no array ('x') this loader can read")
-
-
-class _LenientUnpickler(pickle.Unpickler):
-    def find_class(self, module: str, name: str):
-        if module.split(".")[0] == "chumpy":
-            return _ChumpyStandIn
-        if module.startswith("scipy.sparse"):
-            import scipy.sparse
-
-            try:
-                return super().find_class(module, name)
-            except (ImportError, AttributeError):
-                return getattr(scipy.sparse, name)
-        return super().find_class(module, name)
-
-
-def _to_numpy(value: Any) -> Any:
-    if isinstance(value, _ChumpyStandIn):
-        return value.to_array()
-    if hasattr(value, "toarray") and hasattr(value, "tocsr"):  # scipy sparse
-        return np.asarray(value.toarray())
-    return value
-
-
 def resolve_model_path(path: Union[str, os.PathLike, None], gender: str = "neutral") -> Path:
     """The model file to load: ``None`` gives the shipped open model, a directory is
     searched for the official SMPL file names of ``gender``."""
@@ -159,43 +123,31 @@ def resolve_model_path(path: Union[str, os.PathLike, None], gender: str = "neutr
     if not path.exists():
         raise FileNotFoundError(f"{path}: body model file not found")
     if path.suffix.lower() not in (".pkl", ".npz"):
-        raise ValueError(f"{path}: unsupported body model file type {path.suffix!r} (expected .pkl or .npz)")
+        raise InputError(path, f"unsupported body model file type {path.suffix!r} (expected .pkl or .npz)")
     return path
 
 
 def _read_raw(path: Path) -> dict:
     if path.suffix.lower() == ".npz":
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                return {k: data[k] for k in data.files}
-        except ValueError:  # object arrays inside (some converted official files)
-            with np.load(path, allow_pickle=True, encoding="latin1") as data:
-                return {k: data[k] for k in data.files}
-    with open(path, "rb") as fh:
-        try:
-            raw = _LenientUnpickler(fh, encoding="latin1").load()
-        except Exception as err:  # noqa: BLE001 - any unpickling failure is a bad file
-            raise ValueError(f"{path}: cannot read this pickle as an SMPL model ({type(err).__name__}: {err})") from None
+        return load_npz(path, what="an SMPL model", allow_objects=True)
+    raw = load_pickle(path, what="an SMPL model")
     if not isinstance(raw, dict):
-        raise ValueError(f"{path}: expected a pickled dict of model arrays, got {type(raw).__name__}")
+        raise InputError(path, f"expected a pickled dict of model arrays, got {type(raw).__name__}")
     return raw
 
 
 def _array(raw: dict, key: str, path: Path, dtype) -> np.ndarray:
     try:
-        value = _to_numpy(raw[key])
-        if isinstance(value, np.ndarray) and value.dtype == object and value.shape == ():
-            value = _to_numpy(value.item())
-        return np.asarray(value, dtype=dtype)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{path}: field '{key}' is not a numeric array ({err})") from None
+        return np.asarray(to_numpy(raw[key]), dtype=dtype)
+    except (TypeError, ValueError, OverflowError, RecursionError) as err:
+        raise InputError(path, f"field '{key}' is not a numeric array ({err})", field=key) from None
 
 
 def _check_shape(path: Path, key: str, arr: np.ndarray, expected: tuple) -> None:
     ok = arr.ndim == len(expected) and all(e is None or e == s for e, s in zip(expected, arr.shape))
     if not ok:
         shown = "x".join("?" if e is None else str(e) for e in expected)
-        raise ValueError(f"{path}: field '{key}' has shape {tuple(arr.shape)}, expected {shown}")
+        raise InputError(path, f"field '{key}' has shape {tuple(arr.shape)}, expected {shown}")
 
 
 def load_model_arrays(path: Union[str, os.PathLike, None] = None, gender: str = "neutral") -> ModelArrays:
@@ -204,29 +156,31 @@ def load_model_arrays(path: Union[str, os.PathLike, None] = None, gender: str = 
     raw = _read_raw(path)
     missing = [k for k in REQUIRED_KEYS if k not in raw]
     if missing:
-        raise ValueError(
-            f"{path}: not an SMPL-layout model file: field(s) missing: {', '.join(missing)} "
+        raise InputError(
+            path, f"not an SMPL-layout model file: field(s) missing: {', '.join(missing)} "
             f"(found: {', '.join(sorted(map(str, raw))) or 'nothing'})"
         )
     v_template = _array(raw, "v_template", path, np.float64)
     _check_shape(path, "v_template", v_template, (None, 3))
     V = v_template.shape[0]
     if V == 0:
-        raise ValueError(f"{path}: field 'v_template' holds no vertices")
+        raise InputError(path, "field 'v_template' holds no vertices")
     faces = _array(raw, "f", path, np.int64)
     _check_shape(path, "f", faces, (None, 3))
     if faces.size and (faces.min() < 0 or faces.max() >= V):
-        raise ValueError(f"{path}: field 'f' indexes vertices outside 0..{V - 1}")
+        raise InputError(path, f"field 'f' indexes vertices outside 0..{V - 1}")
     J_regressor = _array(raw, "J_regressor", path, np.float64)
     _check_shape(path, "J_regressor", J_regressor, (None, V))
     J = J_regressor.shape[0]
+    if J == 0:
+        raise InputError(path, "field 'J_regressor' has no joints", field="J_regressor")
     kintree = _array(raw, "kintree_table", path, np.int64)
     _check_shape(path, "kintree_table", kintree, (2, J))
     parents = kintree[0].copy()
     parents[(parents < 0) | (parents >= J)] = -1  # official files store 2**32-1 for the root
     parents = tuple(int(p) for p in parents)
     if parents[0] != -1 or any(p >= j for j, p in enumerate(parents) if j > 0) or -1 in parents[1:]:
-        raise ValueError(f"{path}: field 'kintree_table' is not a tree rooted at joint 0 with parents before children")
+        raise InputError(path, "field 'kintree_table' is not a tree rooted at joint 0 with parents before children")
     weights = _array(raw, "weights", path, np.float64)
     _check_shape(path, "weights", weights, (V, J))
     shapedirs = _array(raw, "shapedirs", path, np.float64)
@@ -239,15 +193,21 @@ def load_model_arrays(path: Union[str, os.PathLike, None] = None, gender: str = 
         if not np.any(posedirs):
             posedirs = None  # all zero: skip the pose-corrective product entirely
 
+    for key, arr in (("v_template", v_template), ("J_regressor", J_regressor), ("weights", weights),
+                     ("shapedirs", shapedirs), ("posedirs", posedirs)):  # fmt: skip
+        if arr is not None and not np.isfinite(arr).all():
+            raise InputError(path, f"field '{key}' holds NaN or infinite values", field=key)
+
     meta = {}
     if "meta_json" in raw:
         try:
             meta = json.loads(str(raw["meta_json"]))
-        except json.JSONDecodeError:
+        except (json.JSONDecodeError, RecursionError):
             meta = {}
+        meta = meta if isinstance(meta, dict) else {}
 
     if "joint_names" in raw:
-        joint_names = tuple(str(n) for n in np.asarray(raw["joint_names"]).tolist())
+        joint_names = tuple(str(n) for n in np.atleast_1d(to_numpy(raw["joint_names"])).tolist())
     elif J == len(SMPL_JOINT_NAMES):
         joint_names = SMPL_JOINT_NAMES
     elif parents == SMPLX_PARENTS:
@@ -255,13 +215,13 @@ def load_model_arrays(path: Union[str, os.PathLike, None] = None, gender: str = 
     else:
         joint_names = tuple(f"joint_{j}" for j in range(J))
     if len(joint_names) != J:
-        raise ValueError(f"{path}: field 'joint_names' has {len(joint_names)} names for {J} joints")
+        raise InputError(path, f"field 'joint_names' has {len(joint_names)} names for {J} joints")
 
     landmark_names: tuple = ()
     landmark_regressor = None
     if "landmark_regressor" in raw:
         landmark_regressor = _array(raw, "landmark_regressor", path, np.float64)
-        landmark_names = tuple(str(n) for n in np.asarray(raw.get("landmark_names", [])).tolist())
+        landmark_names = tuple(str(n) for n in np.atleast_1d(to_numpy(raw.get("landmark_names", []))).tolist())
         _check_shape(path, "landmark_regressor", landmark_regressor, (len(landmark_names), V))
     elif V == 6890:  # official SMPL topology: the vertex ids of the field's extra keypoints
         landmark_names = tuple(SMPL_LANDMARK_VERTICES)

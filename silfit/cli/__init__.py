@@ -41,11 +41,20 @@ def main(argv=None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 0 if args.command is None else 2
-    try:
-        return int(args.func(args) or 0)
-    except (CLIError, FileNotFoundError, ValueError) as err:
-        print(f"silfit {args.command}: error: {err}", file=sys.stderr)
-        return 2
+    from .interrupts import Interrupted, interrupts_raise
+
+    with interrupts_raise():
+        try:
+            return int(args.func(args) or 0)
+        except (CLIError, OSError, ValueError) as err:  # bad input: silfit.errors.InputError is a ValueError
+            print(f"silfit {args.command}: error: {' '.join(str(err).split())}", file=sys.stderr)
+            return 2
+        except MemoryError:
+            print(f"silfit {args.command}: error: out of memory (is an input far larger than intended?)", file=sys.stderr)
+            return 2
+        except Interrupted as stop:
+            print(f"silfit {args.command}: interrupted ({stop})", file=sys.stderr)
+            return stop.exit_code
 
 
 if __name__ == "__main__":

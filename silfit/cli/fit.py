@@ -8,18 +8,25 @@ Runs :func:`silfit.pipeline.fit` and writes the output folder described in
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Optional
+
+import numpy as np
 
 from . import CLIError
 
 
 def _int_list(text: str) -> tuple:
+    """An argparse type: raises ``ArgumentTypeError``, which argparse reports as a usage error (exit 2)."""
+    import argparse
+
     try:
         values = tuple(int(v) for v in text.split(","))
     except ValueError:
-        raise CLIError(f"expected comma-separated integers, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
     if not values or min(values) <= 0:
-        raise CLIError(f"expected positive integers, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected positive integers, got {text!r}")
     return values
 
 
@@ -47,36 +54,73 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--check-only", action="store_true",
+                   help="read and check every input (files, sizes, keypoint plausibility), fit and write nothing")
     p.set_defaults(func=run)
 
 
 def _image_size(args):
     if args.image:
-        import cv2
+        from ..imagefile import read_rgb
 
-        if not os.path.exists(args.image):
-            raise FileNotFoundError(f"{args.image}: image not found")
-        img = cv2.imread(args.image, cv2.IMREAD_COLOR)
-        if img is None:
-            raise ValueError(f"{args.image}: not a readable image")
-        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB), (img.shape[1], img.shape[0])
+        img = read_rgb(args.image, "image")
+        return img, (img.shape[1], img.shape[0])
     if args.image_size:
+        from ..input_limits import check_image_size
+
         try:
             w, h = (int(v) for v in args.image_size.lower().split("x"))
         except ValueError:
             raise CLIError(f"--image-size {args.image_size!r}: expected WxH, e.g. 640x480") from None
+        check_image_size(w, h, "--image-size", field="image size")
         return None, (w, h)
     return None, None
 
 
-def run(args) -> int:
-    from dataclasses import replace
+def _person(text: str):
+    if text == "largest":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise CLIError(f"--person {text!r}: expected a person index (0, 1, ...) or 'largest'") from None
 
+
+def _missing_folders(path: Path) -> list:
+    """``path``'s ancestors that do not exist yet, deepest first (removed again on failure)."""
+    missing, parent = [], path.absolute().parent
+    while not parent.exists():
+        missing.append(parent)
+        parent = parent.parent
+    return missing
+
+
+@dataclass
+class FitInputs:
+    """Everything ``silfit fit`` reads, validated (see :func:`load_inputs`)."""
+
+    keypoints: object
+    image: Optional[np.ndarray]
+    size: Optional[tuple]
+    camera: object
+    mask: Optional[np.ndarray]
+    model: object
+    pose_prior: object
+    silhouette_config: object
+    focal: Optional[float] = None
+    camera_source: str = "default max(W, H)"
+    photo: Optional[dict] = None
+
+
+def load_inputs(args) -> FitInputs:
+    """Read and check every input file and option of ``silfit fit`` (nothing is fitted or
+    written): keypoints, image, camera, mask, body model, pose prior, silhouette settings."""
     from .. import load_body_model
-    from ..camera import load_camera
+    from ..camera import Camera, camera_from_dict, load_camera
+    from ..errors import InputError
     from ..fitting.silhouette_stage import SilhouetteFitConfig
     from ..keypoints import read_keypoints
-    from ..pipeline import fit, save_fit
+    from ..priors import load_pose_prior
     from ..silhouette.masks import read_mask
 
     if args.mask and args.no_silhouette:
@@ -84,7 +128,7 @@ def run(args) -> int:
     out = Path(args.out)
     if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
         raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
-    person = args.person if args.person == "largest" else int(args.person)
+    person = _person(args.person)
     # From a photo (silfit.detect): EXIF focal length; keypoints and mask when not given.
     photo = None
     if args.image:
@@ -110,8 +154,15 @@ def run(args) -> int:
         focal, camera_source = photo["focal"], photo["focal_source"]
     if camera is None and size is None:
         raise CLIError("no camera: give --camera C.json, or --image / --image-size / --mask for the default camera")
+    if args.focal is not None:  # the same plausibility bounds as a camera file's focal length
+        base = camera or Camera.from_image_size(*size)
+        camera_from_dict({**base.to_dict(), "fx": args.focal, "fy": args.focal}, "--focal")
 
     model = load_body_model(args.model, gender=args.gender) if args.model else load_body_model()
+    pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
+    if getattr(pose_prior, "dim", model.num_body_pose) != model.num_body_pose:
+        raise InputError(args.pose_prior or "--pose-prior (default)", f"the pose prior is over {pose_prior.dim} values, the model's body_pose has "
+                         f"{model.num_body_pose}", field="means")  # fmt: skip
     levels = {}
     if args.silhouette_resolutions:
         levels["resolutions"] = tuple(args.silhouette_resolutions)
@@ -121,14 +172,38 @@ def run(args) -> int:
         sil_config = replace(SilhouetteFitConfig(), **levels)
     except ValueError:
         raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels") from None
-    result = fit(keypoints, mask, camera, image_size=size, focal=focal, model=model,
-                 pose_prior=args.pose_prior, silhouette_config=sil_config, progress=not args.quiet)  # fmt: skip
+    return FitInputs(keypoints, image, size, camera, mask, model, pose_prior, sil_config, focal, camera_source, photo)
+
+
+def run(args) -> int:
+    from ..pipeline import fit, save_fit
+
+    inp = load_inputs(args)
+    if args.check_only:
+        from ..plausibility import check_keypoints
+
+        _, warnings = check_keypoints(inp.keypoints, inp.camera.size if inp.camera else inp.size)
+        for warning in warnings:
+            print(f"warning: {warning}")
+        print("inputs OK")
+        return 0
+    out, model, keypoints, image, mask = Path(args.out), inp.model, inp.keypoints, inp.image, inp.mask
+    result = fit(keypoints, mask, inp.camera, image_size=inp.size, focal=inp.focal, model=model,
+                 pose_prior=inp.pose_prior, silhouette_config=inp.silhouette_config, progress=not args.quiet)  # fmt: skip
     extra = {"keypoints": args.keypoints and os.fspath(args.keypoints), "mask": args.mask, "image": args.image,
-             "model": model.source, "camera_source": camera_source}  # fmt: skip
+             "model": model.source, "camera_source": inp.camera_source}  # fmt: skip
+    photo = inp.photo
     if photo and photo["metrics"]:
         extra.update(photo["metrics"], warnings=photo["warnings"] + result.metrics.get("warnings", []))
         result.metrics["warnings"] = extra["warnings"]
-    save_fit(result, out, model.faces.cpu().numpy(), keypoints, image, mask, extra, overwrite=args.overwrite)
+    created = _missing_folders(out)
+    try:
+        save_fit(result, out, model.faces.cpu().numpy(), keypoints, image, mask, extra, overwrite=args.overwrite)
+    except BaseException:  # an error or an interrupt: leave no folder behind that this run created
+        for folder in created:
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
+        raise
     if not args.quiet:
         m = result.metrics
         line = f"wrote {out}: median reprojection error {m['reprojection_error_px']:.2f} px"

@@ -63,38 +63,39 @@ def parse_size(text: str) -> tuple[int, int]:
 
 def read_params(path: Path) -> tuple[dict, Optional[object]]:
     """SMPL parameters (numpy, batch of one) and the camera stored with them, if any."""
-    from silfit.camera import Camera
+    from silfit.camera import Camera, camera_from_dict
     from silfit.fitting.result import PARAM_NAMES
+    from silfit.errors import InputError
+    from silfit.input_limits import read_json
+    from silfit.safe_pickle import load_npz
 
+    camera = None
     if path.suffix == ".npz":
-        try:
-            with np.load(path) as data:
-                raw = {k: np.asarray(data[k]) for k in data.files}
-        except Exception as err:  # noqa: BLE001 - any unreadable archive
-            raise ValueError(f"{path}: not a readable .npz file ({err})") from None
-        camera = None
+        raw = load_npz(path, what="fit parameters")
         if "camera_intrinsics" in raw and "image_size" in raw:
-            camera = Camera.from_intrinsics(raw["camera_intrinsics"], raw["image_size"])
+            try:
+                camera = Camera.from_intrinsics(raw["camera_intrinsics"], raw["image_size"])
+            except ValueError as err:
+                raise InputError(path, f"fields 'camera_intrinsics'/'image_size': {err}") from None
     else:
-        try:
-            raw = json.loads(path.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as err:
-            raise ValueError(f"{path}: not valid JSON ({err})") from None
+        raw = read_json(path, "fit parameters")
         if not isinstance(raw, dict):
-            raise ValueError(f"{path}: expected a JSON object with {', '.join(PARAM_NAMES)}")
-        camera = Camera(**raw["camera"]) if isinstance(raw.get("camera"), dict) else None
+            raise InputError(path, f"expected a JSON object with {', '.join(PARAM_NAMES)}")
+        if "camera" in raw:
+            camera = camera_from_dict(raw["camera"], f"{path} (field 'camera')")
     params = {}
     for name in PARAM_NAMES:
         if name in raw:
             try:
-                arr = np.asarray(raw[name], dtype=np.float32)
-            except (TypeError, ValueError):
-                raise ValueError(f"{path}: field '{name}' is not numeric") from None
+                with np.errstate(over="ignore", invalid="ignore"):  # out-of-range values become inf: refused below
+                    arr = np.asarray(raw[name], dtype=np.float32)
+            except (TypeError, ValueError, OverflowError):
+                raise InputError(path, f"field '{name}' is not numeric", field=name) from None
             if not np.all(np.isfinite(arr)):
-                raise ValueError(f"{path}: field '{name}' contains NaN or infinite values")
+                raise InputError(path, f"field '{name}' contains NaN or infinite values", field=name)
             params[name] = arr.reshape(1, -1)
     if not params:
-        raise ValueError(f"{path}: none of the SMPL fields {', '.join(PARAM_NAMES)} found")
+        raise InputError(path, f"none of the SMPL fields {', '.join(PARAM_NAMES)} found")
     return params, camera
 
 
@@ -109,8 +110,14 @@ def load_vertices(args) -> tuple[np.ndarray, np.ndarray, Optional[object]]:
 
         from silfit import load_body_model
 
+        from silfit.errors import InputError
+
         params, camera = read_params(path)
         model = load_body_model(args.model) if args.model else load_body_model()
+        for name, value in params.items():
+            width = model.parameter_sizes[name]
+            if value.shape[1] != width and not (name == "betas" and value.shape[1] <= width):
+                raise InputError(path, f"field '{name}' has {value.shape[1]} values, the model takes {width}", field=name)
         with torch.no_grad():
             out = model(**{k: torch.as_tensor(v, dtype=model.dtype) for k, v in params.items()})
         return out.vertices[0].float().numpy(), model.faces.numpy(), camera
@@ -128,15 +135,9 @@ def load_vertices(args) -> tuple[np.ndarray, np.ndarray, Optional[object]]:
 
 
 def read_image(path: str) -> np.ndarray:
-    from PIL import Image
+    from silfit.imagefile import read_rgb
 
-    if not os.path.exists(path):
-        raise FileNotFoundError(f"{path}: image not found")
-    try:
-        with Image.open(path) as im:
-            return np.asarray(im.convert("RGB"))
-    except Exception as err:  # noqa: BLE001 - PIL raises many kinds
-        raise ValueError(f"{path}: not a readable image ({err})") from None
+    return read_rgb(path, "image")
 
 
 # --------------------------------------------------------------------------- outputs

@@ -29,13 +29,14 @@ from __future__ import annotations
 
 import math
 import os
-import pickle
 from typing import Union
 
 import numpy as np
 import torch
 from torch import nn
 
+from ..errors import InputError
+from ..safe_pickle import load_npz, load_pickle
 from .limits import limit_bounds
 
 __all__ = [
@@ -62,25 +63,29 @@ class MaxMixturePrior(nn.Module):
 
     def __init__(self, means, covars, weights, source: str = "<arrays>", dtype=torch.float32):
         super().__init__()
-        means = np.asarray(means, dtype=np.float64)
-        covars = np.asarray(covars, dtype=np.float64)
-        weights = np.asarray(weights, dtype=np.float64).reshape(-1)
-        if means.ndim != 2:
-            raise ValueError(f"{source}: field 'means' must be [K, D], got shape {means.shape}")
+        arrays = {}
+        for name, value in (("means", means), ("covars", covars), ("weights", weights)):
+            try:
+                arrays[name] = np.asarray(value, dtype=np.float64)
+            except (TypeError, ValueError, OverflowError) as err:
+                raise InputError(source, f"field '{name}' is not a numeric array ({err})", field=name) from None
+        means, covars, weights = arrays["means"], arrays["covars"], arrays["weights"].reshape(-1)
+        if means.ndim != 2 or 0 in means.shape:
+            raise InputError(source, f"field 'means' must be [K, D], got shape {means.shape}", field="means")
         K, D = means.shape
         if covars.shape != (K, D, D):
-            raise ValueError(f"{source}: field 'covars' has shape {covars.shape}, expected {(K, D, D)}")
+            raise InputError(source, f"field 'covars' has shape {covars.shape}, expected {(K, D, D)}", field="covars")
         if weights.shape != (K,):
-            raise ValueError(f"{source}: field 'weights' has shape {weights.shape}, expected ({K},)")
+            raise InputError(source, f"field 'weights' has shape {weights.shape}, expected ({K},)", field="weights")
         for name, arr in (("means", means), ("covars", covars), ("weights", weights)):
             if not np.isfinite(arr).all():
-                raise ValueError(f"{source}: field '{name}' holds NaN or infinite values")
+                raise InputError(source, f"field '{name}' holds NaN or infinite values", field=name)
         if (weights <= 0).any():
-            raise ValueError(f"{source}: field 'weights' must be positive")
+            raise InputError(source, "field 'weights' must be positive", field="weights")
         try:
             chol = np.linalg.cholesky(covars)
         except np.linalg.LinAlgError:
-            raise ValueError(f"{source}: field 'covars' is not positive definite") from None
+            raise InputError(source, "field 'covars' is not positive definite", field="covars") from None
         precisions = np.linalg.inv(covars)
         precisions = 0.5 * (precisions + np.transpose(precisions, (0, 2, 1)))
         logdet = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(-1)
@@ -94,18 +99,14 @@ class MaxMixturePrior(nn.Module):
     @classmethod
     def from_pickle(cls, path: Union[str, os.PathLike], dtype=torch.float32) -> "MaxMixturePrior":
         path = os.fspath(path)
-        try:
-            with open(path, "rb") as fh:
-                data = pickle.load(fh, encoding="latin1")
-        except FileNotFoundError:
-            raise FileNotFoundError(f"{path}: pose prior file not found") from None
-        except Exception as err:  # unpickling errors of all kinds
-            raise ValueError(f"{path}: not a readable pickle ({type(err).__name__}: {err})") from None
+        if not os.path.isfile(path):
+            raise FileNotFoundError(f"{path}: pose prior file not found")
+        data = load_pickle(path, what="a pose prior (gmm_08.pkl)")
         if not isinstance(data, dict):
-            raise ValueError(f"{path}: expected a dict with fields means, covars, weights")
+            raise InputError(path, "expected a dict with fields means, covars, weights")
         missing = [k for k in ("means", "covars", "weights") if k not in data]
         if missing:
-            raise ValueError(f"{path}: field(s) missing: {', '.join(missing)}")
+            raise InputError(path, f"field(s) missing: {', '.join(missing)}")
         return cls(data["means"], data["covars"], data["weights"], source=path, dtype=dtype)
 
     def component_energies(self, body_pose: torch.Tensor) -> torch.Tensor:
@@ -150,19 +151,18 @@ class LibraryMixturePrior(MaxMixturePrior):
     @classmethod
     def from_npz(cls, path: Union[str, os.PathLike, None] = None, dtype=torch.float32) -> "LibraryMixturePrior":
         path = os.fspath(DEFAULT_MIXTURE_PATH if path is None else path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-        except FileNotFoundError:
-            raise FileNotFoundError(f"{path}: pose prior file not found") from None
-        except Exception as err:
-            raise ValueError(f"{path}: not a readable .npz file ({type(err).__name__}: {err})") from None
+        if not os.path.isfile(path):
+            raise FileNotFoundError(f"{path}: pose prior file not found")
+        data = load_npz(path, what="a pose prior")
         missing = [k for k in ("means", "covars", "weights") if k not in data]
         if missing:
-            raise ValueError(f"{path}: field(s) missing: {', '.join(missing)}")
+            raise InputError(path, f"field(s) missing: {', '.join(missing)}")
         prior = cls(data["means"], data["covars"], data["weights"], source=path, dtype=dtype)
-        prior.settings = {k[len("setting_"):]: float(v) for k, v in data.items() if k.startswith("setting_")}
-        prior.pose_names = [str(n) for n in data.get("pose_names", [])]
+        try:
+            prior.settings = {k[len("setting_"):]: float(v) for k, v in data.items() if k.startswith("setting_")}
+            prior.pose_names = [str(n) for n in np.atleast_1d(data.get("pose_names", []))]
+        except (TypeError, ValueError) as err:
+            raise InputError(path, f"a 'setting_*' or 'pose_names' field is malformed ({err})") from None
         return prior
 
 

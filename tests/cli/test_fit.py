@@ -123,3 +123,59 @@ def test_malformed_masks_are_clear_errors(tmp_path, capsys, problem):
     err = capsys.readouterr().err
     assert "bad_mask.png" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("case", ["binary_keypoints", "string_numbers", "huge_camera", "huge_image_size", "person",
+                                  "hostile_model", "directory_as_keypoints", "huge_image"])  # fmt: skip
+def test_hostile_and_broken_inputs_exit_2_with_one_line(inputs, tmp_path, capsys, case):
+    import pickle
+
+    d, model = inputs
+    kp, cam, extra, expect = d / "kp.json", ["--camera", str(d / "camera.json")], [], None
+    if case == "binary_keypoints":
+        kp = tmp_path / "kp.json"
+        kp.write_bytes(bytes(range(256)))
+        expect = "kp.json: not a text"
+    elif case == "string_numbers":
+        kp = tmp_path / "kp.json"
+        kp.write_text(json.dumps({"people": [{"pose_keypoints_2d": ["12.5"] * 75}]}))
+        expect = "field 'people[0].pose_keypoints_2d' value 0 is '12.5'"
+    elif case == "huge_camera":
+        (tmp_path / "cam.json").write_text(json.dumps(dict(fx=1e5, fy=1e5, cx=5e4, cy=5e4, width=100000, height=100000)))
+        cam, expect = ["--camera", str(tmp_path / "cam.json")], "cam.json: camera width/height: 100000x100000"
+    elif case == "huge_image_size":
+        cam, expect = ["--image-size", "100000x100000"], "--image-size: image size 100000x100000 pixels is larger"
+    elif case == "person":
+        extra, expect = ["--person", "first"], "--person 'first'"
+    elif case == "hostile_model":
+        marker = tmp_path / "ran"
+        evil = tmp_path / "SMPL_NEUTRAL.pkl"
+        evil.write_bytes(b"cos\nsystem\n(V" + f"touch {marker}".encode() + b"\ntR.")
+        model, expect = evil, "refused to unpickle 'os.system'"
+    elif case == "directory_as_keypoints":
+        kp, expect = tmp_path, "keypoint file not found"
+    else:
+        from PIL import Image
+
+        Image.new("L", (20000, 8)).save(tmp_path / "wide.png")
+        cam, expect = ["--image", str(tmp_path / "wide.png")], "wide.png: image size 20000x8 pixels is larger"
+    out = tmp_path / "new" / "out"
+    rc = main(["fit", "--keypoints", str(kp), "--model", str(model), "--no-silhouette", "--out", str(out)] + cam + extra + FAST)
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert expect in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert not (tmp_path / "new").exists()
+    if case == "hostile_model":
+        assert not (tmp_path / "ran").exists()
+
+
+def test_check_only_reads_everything_and_writes_nothing(inputs, tmp_path, capsys):
+    d, model = inputs
+    args = ["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
+            "--out", str(tmp_path / "out"), "--check-only"]  # fmt: skip
+    assert main(args) == 0
+    assert "inputs OK" in capsys.readouterr().out and not (tmp_path / "out").exists()
+    (tmp_path / "prior.pkl").write_bytes(b"cos\nsystem\n(Vtouch " + str(tmp_path / "ran").encode() + b"\ntR.")
+    assert main(args + ["--pose-prior", str(tmp_path / "prior.pkl")]) == 2
+    assert "prior.pkl: refused to unpickle 'os.system'" in capsys.readouterr().err
+    assert not (tmp_path / "ran").exists()

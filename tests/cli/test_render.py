@@ -135,3 +135,32 @@ def test_write_failure_leaves_no_partial_png(params_json, tmp_path, monkeypatch)
     with pytest.raises(OSError, match="disk full"):
         render_cli.write_png(out / "view_front.png", np.zeros((4, 4, 3), dtype=np.uint8))
     assert list(out.iterdir()) == []
+
+
+@pytest.mark.parametrize("kind", ["object_array", "bad_intrinsics", "camera_keys", "wrong_width", "binary_json"])
+def test_hostile_fit_files_are_one_line_errors(tmp_path, capsys, kind):
+    if kind == "object_array":
+        path = tmp_path / "params.npz"
+        np.savez(path, transl=np.array([{"x": 1}], dtype=object))
+        message = "params.npz: field 'transl' holds Python objects"
+    elif kind == "bad_intrinsics":
+        path = tmp_path / "params.npz"
+        np.savez(path, transl=np.array([0.0, 0.0, 3.0]), camera_intrinsics=np.ones(3), image_size=np.array([64, 64]))
+        message = "camera_intrinsics must be 4 numbers"
+    elif kind == "camera_keys":
+        path = tmp_path / "params.json"
+        path.write_text(json.dumps({"transl": [0, 0, 3], "camera": {"fx": 1, "evil": 2}}))
+        message = "(field 'camera'): camera field(s) missing"
+    elif kind == "wrong_width":
+        path = tmp_path / "params.json"
+        path.write_text(json.dumps({"transl": [0, 0, 3], "body_pose": [0.0] * 72}))
+        message = "params.json: field 'body_pose' has 72 values, the model takes 69"
+    else:
+        path = tmp_path / "params.json"
+        path.write_bytes(b"\xff\xfe\x00" * 50)
+        message = "params.json: not a text"
+    out = tmp_path / "out"
+    assert main(["render", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()

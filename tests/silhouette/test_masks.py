@@ -52,3 +52,60 @@ def test_bad_masks_name_the_file(tmp_path):
     (tmp_path / "junk.png").write_bytes(b"junk")
     with pytest.raises(ValueError, match="junk.png"):
         read_mask(tmp_path / "junk.png")
+
+
+# --------------------------------------------------------------------------- odd files
+def _png_header_only(path, width, height):
+    """A PNG whose header claims ``width x height`` (with almost no pixel data)."""
+    import struct
+    import zlib
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\x00" * 16)) + chunk(b"IEND", b""))
+
+
+def test_huge_mask_is_refused_from_its_header(tmp_path):
+    from silfit.errors import InputError
+
+    _png_header_only(tmp_path / "huge.png", 100000, 100000)
+    with pytest.raises(InputError, match=r"huge\.png.*larger than silfit accepts"):
+        read_mask(tmp_path / "huge.png")
+    _png_header_only(tmp_path / "wide.png", 20000, 10)  # under PIL's own limit: silfit's per-side one
+    with pytest.raises(InputError, match=r"wide\.png.*20000x10 pixels is larger than silfit accepts"):
+        read_mask(tmp_path / "wide.png")
+    _png_header_only(tmp_path / "trunc.png", 64, 48)  # a plausible size, but no pixels
+    with pytest.raises(InputError, match=r"trunc\.png"):
+        read_mask(tmp_path / "trunc.png")
+
+
+@pytest.mark.parametrize("mode", ["1", "P", "LA", "I", "F", "CMYK", "I;16"])
+def test_odd_png_modes_are_read_or_refused_cleanly(tmp_path, mode):
+    from PIL import Image
+
+    from silfit.errors import InputError
+
+    grey = Image.fromarray(person())
+    img = grey.convert(mode) if mode not in ("I;16",) else Image.fromarray(person().astype(np.uint16) * 257)
+    suffix = ".tif" if mode in ("F", "CMYK", "I") else ".png"
+    path = tmp_path / f"m{suffix}"
+    img.save(path)
+    try:
+        mask = read_mask(path, size=(32, 48))
+    except InputError as err:
+        assert str(err).startswith(str(path)) and "\n" not in str(err)
+    else:
+        assert np.array_equal(mask, person() > 0)
+
+
+def test_mask_size_is_checked_before_decoding(tmp_path):
+    from silfit.errors import InputError
+
+    cv2.imwrite(str(tmp_path / "m.png"), person())
+    with pytest.raises(InputError, match=r"m\.png: mask is 32x48 pixels but the image/camera is 64x48"):
+        read_mask(tmp_path / "m.png", size=(64, 48))
+    (tmp_path / "text.png").write_text("not an image")
+    with pytest.raises(InputError, match=r"text\.png.*cannot read the mask"):
+        read_mask(tmp_path / "text.png")

@@ -1,0 +1,120 @@
+"""Plausibility of a fit's input and output: pure functions, no fitting.
+
+* :func:`check_keypoints` runs before a fit. Keypoints lying more than
+  :data:`OUTSIDE_MARGIN` image sizes outside the image are **treated as missing**
+  (confidence 0, coordinates 0) with a warning; degenerate sets are **refused** with an
+  :class:`~silfit.errors.InputError`: every keypoint at (nearly) one place, a person
+  less than :data:`MIN_PERSON_PX` pixels tall, a torso (shoulder/neck centre to hip
+  centre) shorter than :data:`MIN_TORSO_FRACTION` of the person.
+* :func:`fit_warnings` runs after a fit and returns warnings (strings) for results that
+  are probably wrong: a final silhouette IoU below :data:`MIN_IOU` or far below the
+  keypoint stage's (:data:`IOU_DROP`), a body at an absurd depth (outside
+  :data:`DEPTH_RANGE_M`, or partly behind the camera), a median reprojection error above
+  :data:`MAX_REPROJECTION_FRACTION` of the person's height in the image.
+"""
+from __future__ import annotations
+
+from typing import Optional, Sequence
+
+import numpy as np
+
+from .errors import InputError
+from .keypoints import KeypointSet
+
+__all__ = ["check_keypoints", "fit_warnings", "person_extent"]
+
+#: Keypoints farther than this many image widths/heights outside the image are dropped.
+OUTSIDE_MARGIN = 1.0
+#: The confident keypoints must span at least this many pixels (the longer side of their box).
+MIN_PERSON_PX = 16.0
+#: Shoulder/neck centre to hip centre must be at least this share of the person's extent.
+MIN_TORSO_FRACTION = 0.05
+#: Final silhouette IoU below this is reported.
+MIN_IOU = 0.5
+#: A final IoU this much below the keypoint stage's is reported.
+IOU_DROP = 0.1
+#: Plausible camera-to-body distances, metres.
+DEPTH_RANGE_M = (0.3, 100.0)
+#: Median reprojection error above this share of the person's extent is reported.
+MAX_REPROJECTION_FRACTION = 0.15
+
+_UPPER = ("neck", "left_shoulder", "right_shoulder")
+_LOWER = ("mid_hip", "left_hip", "right_hip")
+
+
+def person_extent(keypoints: KeypointSet) -> float:
+    """The longer side (pixels) of the box around the keypoints with confidence > 0."""
+    vis = keypoints.xy[keypoints.conf > 0]
+    return float((vis.max(0) - vis.min(0)).max()) if len(vis) else 0.0
+
+
+def _centre(keypoints: KeypointSet, names: Sequence[str]) -> Optional[np.ndarray]:
+    idx = [keypoints.names.index(n) for n in names if n in keypoints.names]
+    idx = [i for i in idx if keypoints.conf[i] > 0]
+    return keypoints.xy[idx].mean(0) if idx else None
+
+
+def check_keypoints(keypoints: KeypointSet, image_size: Optional[tuple] = None) -> tuple[KeypointSet, list]:
+    """``(keypoints, warnings)``: far-outside points dropped (see the module docstring),
+    degenerate sets refused with :class:`~silfit.errors.InputError`. ``image_size`` is
+    ``(W, H)``; without it the outside check is skipped."""
+    source = keypoints.source
+    warnings = []
+    xy, conf = keypoints.xy.copy(), keypoints.conf.copy()
+    if image_size is not None:
+        w, h = float(image_size[0]), float(image_size[1])
+        outside = (
+            (xy[:, 0] < -OUTSIDE_MARGIN * w) | (xy[:, 0] > (1 + OUTSIDE_MARGIN) * w)
+            | (xy[:, 1] < -OUTSIDE_MARGIN * h) | (xy[:, 1] > (1 + OUTSIDE_MARGIN) * h)
+        ) & (conf > 0)  # fmt: skip
+        if not (conf[~outside] > 0).any():
+            raise InputError(source, f"every keypoint lies far outside the {w:.0f}x{h:.0f} image: no person to fit")
+        if outside.any():
+            names = ", ".join(keypoints.names[i] for i in np.flatnonzero(outside))
+            warnings.append(f"{source}: keypoint(s) {names} lie more than {OUTSIDE_MARGIN:g} image size(s) outside "
+                            f"the {w:.0f}x{h:.0f} image; treated as missing")  # fmt: skip
+            xy[outside], conf[outside] = 0.0, 0.0
+            keypoints = KeypointSet(xy, conf, keypoints.layout, source=source)
+    extent = person_extent(keypoints)
+    if extent < MIN_PERSON_PX:
+        raise InputError(
+            source, f"the keypoints span only {extent:.1f} px (all at nearly one place?); silfit needs a person at "
+            f"least {MIN_PERSON_PX:g} px tall",
+        )  # fmt: skip
+    upper, lower = _centre(keypoints, _UPPER), _centre(keypoints, _LOWER)
+    if upper is not None and lower is not None:
+        torso = float(np.linalg.norm(upper - lower))
+        if torso < MIN_TORSO_FRACTION * extent:
+            raise InputError(
+                source, f"the torso (shoulders/neck to hips) is {torso:.1f} px long, under {MIN_TORSO_FRACTION:.0%} "
+                f"of the person's {extent:.0f} px: degenerate keypoints",
+            )  # fmt: skip
+    return keypoints, warnings
+
+
+def fit_warnings(metrics: dict, keypoints: KeypointSet, vertices: np.ndarray) -> list:
+    """Warnings for an implausible fit, from its ``metrics`` (``iou``,
+    ``iou_keypoint_stage``, ``reprojection_error_px``), the keypoints it was fitted to and
+    the final ``vertices [V, 3]`` (camera coordinates, metres)."""
+    warnings = []
+    iou, iou_kp = metrics.get("iou"), metrics.get("iou_keypoint_stage")
+    if iou is not None:
+        if iou < MIN_IOU:
+            warnings.append(f"final silhouette IoU is only {iou:.3f}: the mask and the body disagree "
+                            "(a wrong, noisy or partial mask?)")  # fmt: skip
+        if iou_kp is not None and iou < iou_kp - IOU_DROP:
+            warnings.append(f"final silhouette IoU {iou:.3f} is far below the keypoint fit's {iou_kp:.3f}")
+    z = np.asarray(vertices, dtype=np.float64)[:, 2]
+    depth = float(np.median(z))
+    if not np.isfinite(z).all():
+        warnings.append("the fitted body has non-finite vertices")
+    elif (z <= 0).any():
+        warnings.append(f"part of the fitted body lies behind the camera (nearest vertex at z = {z.min():.2f} m)")
+    elif not DEPTH_RANGE_M[0] <= depth <= DEPTH_RANGE_M[1]:
+        warnings.append(f"the fitted body is {depth:.2f} m from the camera, outside the plausible "
+                        f"{DEPTH_RANGE_M[0]:g}-{DEPTH_RANGE_M[1]:g} m (wrong focal length or keypoint scale?)")  # fmt: skip
+    err, extent = metrics.get("reprojection_error_px"), person_extent(keypoints)
+    if err is not None and extent > 0 and not err <= MAX_REPROJECTION_FRACTION * extent:
+        warnings.append(f"median reprojection error {err:.1f} px is {err / extent:.0%} of the person's {extent:.0f} px "
+                        "extent: the body does not match the keypoints")  # fmt: skip
+    return warnings

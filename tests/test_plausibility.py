@@ -1,0 +1,97 @@
+"""Plausibility: degenerate keypoints refused, far-outside keypoints dropped, implausible
+fits reported as warnings (unit tests of the pure functions, and through ``silfit fit``)."""
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from silfit.errors import InputError
+from silfit.keypoints import KeypointSet, read_keypoints
+from silfit.plausibility import MIN_PERSON_PX, check_keypoints, fit_warnings
+
+SUBJECT = Path(__file__).resolve().parent.parent / "data" / "synthetic" / "subject_000"
+
+
+@pytest.fixture
+def kp():
+    return read_keypoints(SUBJECT / "keypoints.json")
+
+
+def _with(kp, xy=None, conf=None):
+    return KeypointSet(kp.xy if xy is None else xy, kp.conf if conf is None else conf, kp.layout, source="kp.json")
+
+
+def test_a_real_person_passes_unchanged(kp):
+    out, warnings = check_keypoints(kp, (512, 512))
+    assert out is kp and warnings == []
+
+
+def test_far_outside_keypoints_are_treated_as_missing(kp):
+    xy = kp.xy.copy()
+    wrist = kp.names.index("right_wrist")
+    xy[wrist] = (1e30, -1e30)
+    out, warnings = check_keypoints(_with(kp, xy), (512, 512))
+    assert out.conf[wrist] == 0 and np.all(out.xy[wrist] == 0)
+    assert np.array_equal(np.delete(out.conf, wrist), np.delete(kp.conf, wrist))
+    assert len(warnings) == 1 and "right_wrist" in warnings[0] and "treated as missing" in warnings[0]
+    xy[:] = 1e9
+    with pytest.raises(InputError, match="every keypoint lies far outside"):
+        check_keypoints(_with(kp, xy), (512, 512))
+
+
+@pytest.mark.parametrize("case", ["one_place", "few_pixels", "zero_torso"])
+def test_degenerate_keypoints_are_refused(kp, case):
+    xy = kp.xy.copy()
+    if case == "one_place":
+        xy[:] = (100.0, 120.0)
+        expect = "span only 0.0 px"
+    elif case == "few_pixels":
+        centre = xy[kp.conf > 0].mean(0)
+        xy = centre + (xy - centre) * (0.5 * MIN_PERSON_PX / np.ptp(xy[kp.conf > 0], axis=0).max())
+        expect = "needs a person at least"
+    else:
+        hips = [kp.names.index(n) for n in ("mid_hip", "left_hip", "right_hip")]
+        for n in ("neck", "left_shoulder", "right_shoulder"):
+            xy[kp.names.index(n)] = xy[hips].mean(0)
+        expect = "torso .* px long"
+    with pytest.raises(InputError, match=expect):
+        check_keypoints(_with(kp, xy), (512, 512))
+
+
+def test_fit_warnings(kp):
+    ok_vertices = np.random.default_rng(0).normal([0, 0, 3], 0.3, size=(100, 3))
+    good = {"iou": 0.95, "iou_keypoint_stage": 0.9, "reprojection_error_px": 2.0}
+    assert fit_warnings(good, kp, ok_vertices) == []
+    noise = fit_warnings(dict(good, iou=0.06, iou_keypoint_stage=0.8), kp, ok_vertices)
+    assert any("only 0.060" in w for w in noise) and any("far below the keypoint fit's 0.800" in w for w in noise)
+    assert "500.0" in fit_warnings(good, kp, ok_vertices + [0, 0, 497])[0]
+    assert "behind the camera" in fit_warnings(good, kp, ok_vertices - [0, 0, 3])[0]
+    far = fit_warnings(dict(good, reprojection_error_px=100.0), kp, ok_vertices)
+    assert len(far) == 1 and "reprojection error 100.0 px" in far[0]
+    assert "non-finite" in fit_warnings(good, kp, ok_vertices * np.nan)[0]
+
+
+def test_through_silfit_fit(tmp_path, capsys):
+    sys.path.insert(0, str(Path(__file__).resolve().parent / "fitting"))
+    from silfit_toy_body import write_toy_npz
+
+    from silfit.cli import main
+
+    model = write_toy_npz(tmp_path / "toy.npz")
+    data = json.loads((SUBJECT / "keypoints.json").read_text())
+    values = data["people"][0]["pose_keypoints_2d"]
+    values[4 * 3: 4 * 3 + 2] = [1e30, 1e30]  # right wrist
+    (tmp_path / "kp.json").write_text(json.dumps(data))
+    args = ["fit", "--keypoints", str(tmp_path / "kp.json"), "--camera", str(SUBJECT / "camera.json"), "--model",
+            str(model), "--no-silhouette"]  # fmt: skip
+    assert main(args + ["--out", str(tmp_path / "a")]) == 0
+    out = capsys.readouterr().out
+    warnings = json.loads((tmp_path / "a" / "metrics.json").read_text())["warnings"]
+    assert any("right_wrist" in w and "treated as missing" in w for w in warnings)
+    assert "warning:" in out and "right_wrist" in out
+    data["people"][0]["pose_keypoints_2d"] = [200.0, 200.0, 1.0] * 25
+    (tmp_path / "kp.json").write_text(json.dumps(data))
+    assert main(args + ["--out", str(tmp_path / "b"), "--quiet"]) == 2
+    assert "span only 0.0 px" in capsys.readouterr().err and not (tmp_path / "b").exists()
