@@ -3,7 +3,7 @@ camera samplers and the dataset generator behind ``silfit synth``.
 
 The rendering pieces (pyrender) are imported only when a subject is generated.
 """
-from .poses import FRONTAL_POSES, POSE_LIBRARY, LibraryPose, get_pose, mirror_pose, pose_names
+from ..poses.library import FRONTAL_POSES, POSE_LIBRARY, LibraryPose, get_pose, mirror_pose, pose_names
 from .sampler import (
     Placement,
     PoseSample,

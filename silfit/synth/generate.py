@@ -32,7 +32,7 @@ from .. import __version__
 from ..camera import Camera, project_points, save_camera
 from ..dataset import INDEX_NAME, save_npz, write_png
 from ..keypoints import BODY25_NAMES, COCO17_NAMES, model_keypoints, write_openpose_json
-from .poses import FRONTAL_POSES, POSE_LIBRARY
+from ..poses.library import FRONTAL_POSES, POSE_LIBRARY
 from .sampler import global_orientation, place_body, sample_betas, sample_intrinsics, sample_pose
 
 __all__ = ["SynthConfig", "SubjectRecord", "generate_subject", "generate_dataset", "FORMAT_VERSION", "KEYPOINT_DEPTH_TOLERANCE"]
