@@ -43,6 +43,14 @@ __all__ = [
     "leg",
     "axis_rot",
     "PERTURB_SCALE",
+    "build_pose",
+    "blend_poses",
+    "elbow",
+    "knee",
+    "ankle",
+    "trunk",
+    "collar",
+    "wrist",
 ]
 
 #: The 23 joints of ``body_pose`` in SMPL order (joint 1..23).
@@ -163,7 +171,8 @@ class LibraryPose:
         return {"name": self.name, "description": self.description}
 
 
-def _build(spec: Dict[str, np.ndarray]) -> np.ndarray:
+def build_pose(spec: Dict[str, np.ndarray]) -> np.ndarray:
+    """``body_pose [69]`` from ``{joint name: axis-angle}`` (other joints at rest)."""
     pose = np.zeros((23, 3))
     for name, rv in spec.items():
         if name not in _INDEX:
@@ -198,7 +207,7 @@ _POSES: list[LibraryPose] = []
 
 
 def _add(name: str, description: str, spec: dict, root=(0.0, 0.0, 0.0), frontal: bool = False) -> None:
-    _POSES.append(LibraryPose(name, description, _build(spec), np.asarray(root, dtype=np.float64), frontal))
+    _POSES.append(LibraryPose(name, description, build_pose(spec), np.asarray(root, dtype=np.float64), frontal))
 
 
 # ----------------------------------------------------------------------------- the library
@@ -505,6 +514,14 @@ def get_pose(name: str) -> LibraryPose:
         return POSE_LIBRARY[name]
     except KeyError:
         raise KeyError(f"unknown pose {name!r}; the library has: {', '.join(POSE_LIBRARY)}") from None
+
+
+def blend_poses(a, b, w: float) -> np.ndarray:
+    """Per-joint geodesic interpolation of axis-angle rows (``[..., 3]`` or flat ``[69]``):
+    ``a`` at ``w = 0``, ``b`` at ``w = 1``."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    ra, rb = Rotation.from_rotvec(a.reshape(-1, 3)), Rotation.from_rotvec(b.reshape(-1, 3))
+    return (ra * Rotation.from_rotvec((ra.inv() * rb).as_rotvec() * w)).as_rotvec().reshape(a.shape)
 
 
 def mirror_pose(body_pose) -> np.ndarray:

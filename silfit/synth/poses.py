@@ -2,4 +2,3 @@
 ``from silfit.synth.poses import ...`` keeps working."""
 from ..poses.library import *  # noqa: F401,F403
 from ..poses.library import __all__  # noqa: F401
-from ..poses.library import ankle, collar, elbow, knee, trunk, wrist  # noqa: F401  (helpers outside __all__)
