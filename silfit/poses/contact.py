@@ -71,7 +71,7 @@ def part_contact(
     return Contact(gap=float(d.min()), depth=float(depth.max()), inside=int((depth > tol).sum()))
 
 
-def settle_contact(model, apart, through, pairs: Sequence[Tuple[Sequence[str], Sequence[str]]], tol: float = 0.005, steps: int = 10, betas=None) -> np.ndarray:
+def settle_contact(model, apart, through, pairs: Sequence[Tuple[Sequence[str], Sequence[str]]], tol: float = 0.005, steps: int = 8, betas=None) -> np.ndarray:
     """The pose on the geodesic blend from ``apart`` (no group of ``pairs`` ``[(a, b), ...]``
     inside its partner) toward ``through`` (intersecting) nearest ``through`` whose
     penetrations all stay within ``tol``: the parts touch there."""

@@ -77,6 +77,7 @@ class SynthConfig:
     background: str = "mixed"  # plain | textured | mixed
     frontal_first: bool = True  # subject 0: a clearly human, front-facing pose, uncropped
     coco: bool = False  # also write keypoints_coco17.json
+    poses: str = "library"  # library (sampled around the pose library) | hard (silfit.poses.sampler, see synth.hard)
 
     def validate(self) -> "SynthConfig":
         if self.size < 16:
@@ -87,6 +88,8 @@ class SynthConfig:
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {v}")
+        if self.poses not in ("library", "hard"):
+            raise ValueError(f"poses must be library or hard, got {self.poses!r}")
         if self.background not in ("plain", "textured", "mixed"):
             raise ValueError(f"background must be plain, textured or mixed, got {self.background!r}")
         if not (0 < self.fov_deg[0] <= self.fov_deg[1] < 170):
@@ -239,8 +242,13 @@ def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> S
         elev = float(rng.uniform(-5, 5))
         roll = 0.0
     else:
-        ps = sample_pose(rng, perturb_deg=cfg.perturb_deg, blend_prob=cfg.blend_prob, mirror_prob=cfg.mirror_prob)
-        yaw = float(rng.uniform(*cfg.yaw_range_deg))
+        if cfg.poses == "hard":
+            from .hard import hard_pose_and_yaw
+
+            ps, yaw = hard_pose_and_yaw(model, rng, cfg.yaw_range_deg)
+        else:
+            ps = sample_pose(rng, perturb_deg=cfg.perturb_deg, blend_prob=cfg.blend_prob, mirror_prob=cfg.mirror_prob)
+            yaw = float(rng.uniform(*cfg.yaw_range_deg))
         elev = float(rng.uniform(-cfg.elevation_deg, cfg.elevation_deg))
         roll = float(rng.uniform(-cfg.roll_deg, cfg.roll_deg))
     betas = sample_betas(rng, model.num_betas, cfg.beta_truncation)
