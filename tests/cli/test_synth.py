@@ -22,3 +22,13 @@ def test_synth_bad_arguments_are_one_line_errors(tmp_path, capsys):
     assert "error: --n must be a positive" in capsys.readouterr().err
     assert main(["synth", "--n", "1", "--out", str(tmp_path / "x"), "--noise-px", "-1"]) == 2
     assert "--noise-px must be >= 0" in capsys.readouterr().err
+
+
+def test_synth_hard_poses(tmp_path, capsys):
+    out = tmp_path / "hard"
+    assert main(["synth", "--poses", "hard", "--n", "1", "--seed", "3", "--out", str(out), "--size", "64", "--no-progress"]) == 0
+    index = json.loads((out / "index.json").read_text())
+    assert index["generator"]["poses"] == "hard" and "--poses hard" in index["generator"]["command"]
+    from silfit.poses.sampler import ARCHETYPES
+
+    assert index["subjects"][0]["pose"] in ARCHETYPES
