@@ -30,8 +30,8 @@ for a batch of 32 about 20 ms on one thread (the former term: about 70 ms).
 """
 from __future__ import annotations
 
-import weakref
-from typing import Optional
+import hashlib
+from typing import Dict, Optional
 
 import numpy as np
 import torch
@@ -251,24 +251,32 @@ def build_spheres(
     }  # fmt: skip
 
 
-_CACHE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_CACHE: Dict[tuple, dict] = {}
+
+
+def _model_key(model) -> str:
+    """A digest of the arrays the spheres are built from (the same model loaded twice hits the cache)."""
+    h = hashlib.blake2b(digest_size=16)
+    for name in ("v_template", "shapedirs", "lbs_weights", "J_regressor", "faces_tensor"):
+        h.update(np.ascontiguousarray(getattr(model, name).detach().cpu().numpy()).tobytes())
+    h.update(repr(tuple(model.parents)).encode())
+    return h.hexdigest()
 
 
 class SphereCollisionModel(nn.Module):
     """``SphereCollisionModel(model)(betas [B, L], transforms [B, J, 4, 4]) -> [B]``; see the
-    module docstring. The sphere set is built once per body model object (cached)."""
+    module docstring. The sphere set is built once per body model (cached by content)."""
 
     def __init__(self, model, margin: float = 0.004, **settings):
         super().__init__()
-        key = (float(margin), tuple(sorted(settings.items())))
-        per_model = _CACHE.setdefault(model, {})
-        if key not in per_model:
-            per_model[key] = build_spheres(model, margin=margin, **settings)
-        arrays = per_model[key]
+        key = (_model_key(model), float(margin), tuple(sorted(settings.items())))
+        if key not in _CACHE:
+            _CACHE[key] = build_spheres(model, margin=margin, **settings)
+        arrays = _CACHE[key]
         dtype = model.v_template.dtype
         for name, value in arrays.items():
             t = torch.as_tensor(np.ascontiguousarray(value))
-            self.register_buffer(name, t.long() if name in ("pair_a", "pair_b", "sphere_part") else t.to(dtype))
+            self.register_buffer(name, (t.long() if name in ("pair_a", "pair_b", "sphere_part") else t.to(dtype)).clone())
         self.num_spheres = S = len(arrays["centre_template"])
         mask = torch.zeros(S, S, dtype=dtype)
         mask[self.pair_a, self.pair_b] = 1.0
