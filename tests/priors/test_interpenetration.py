@@ -7,8 +7,8 @@ Measured on the open body model, mean shape (energy in m^2; the fitter weighs it
 
 | pose                            | gap cm | depth cm | old x 1e5 | new x 1e5 |
 |---------------------------------|-------:|---------:|----------:|----------:|
-| arms hanging against the sides  | 0.54   | 0        | 426       | 0         |
-| hand resting on the head        | 0.45   | 0        | 115       | 0         |
+| arms hanging against the sides  | 0.57   | 0        | 426       | 0         |
+| hand resting on the head        | 0.57   | 0        | 115       | 0         |
 | seated, hands on the thighs     | 0.56   | 0        | 347       | 0         |
 | arms crossed, touching          | 0.02   | 0.50     | 118       | 0         |
 | arms crossed through the chest  | 0.25   | 6.0      | 1737      | 21871     |
