@@ -349,11 +349,13 @@ class PoseSampler:
         return settled, round(c.gap * 100, 2)
 
     def sample(self, rng, archetype: Optional[str] = None) -> SampledPose:
-        """One pose (``archetype`` or drawn by weight), redrawn while it self-intersects."""
+        """One pose of ``archetype`` (default: drawn by weight), redrawn while it self-intersects
+        (the least intersecting of ``max_tries`` draws if all do)."""
         rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
         best = None
+        # The archetype is drawn once, so ones that are often redrawn keep their share.
+        name = archetype or self.names[int(rng.choice(len(self.names), p=self.weights))]
         for k in range(self.max_tries):
-            name = archetype or self.names[int(rng.choice(len(self.names), p=self.weights))]
             s = self._draw(rng, name)
             s.interpenetration, s.tries = self.interpenetration(s.body_pose), k + 1
             if s.interpenetration <= self.max_interpenetration:
