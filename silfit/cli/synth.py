@@ -38,6 +38,9 @@ def register(subparsers) -> None:
     p.add_argument("--whole-body", action="store_true",
                    help="SMPL-X-layout subjects (default model: the shipped open whole-body model) with library hand "
                         "poses, expressions and OpenPose whole-body keypoints (body, hands, face) in keypoints.json")
+    p.add_argument("--poses", choices=("library", "hard"), default="library",
+                   help="library: around the hand-authored pose library (default); hard: silfit.poses.sampler's squats, "
+                        "kneeling, running, lunges, hands at the face/head/hip, front and back views over-represented")
     p.add_argument("--model", default=None, help="body model file (default: the shipped open body model)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -50,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed, size=args.size, noise_px=args.noise_px, clean=args.clean, drop_prob=args.drop,
         truncation_prob=args.truncation, fov_deg=tuple(args.fov), fill=tuple(args.fill),
         elevation_deg=args.elevation, roll_deg=args.roll, perturb_deg=args.perturb, yaw_range_deg=tuple(args.yaw),
-        background=args.background, coco=args.coco, whole_body=args.whole_body,
+        background=args.background, coco=args.coco, whole_body=args.whole_body, poses=args.poses,
+        frontal_first=args.poses == "library",
     ).validate()  # fmt: skip
     model = None
     if args.model is not None:
@@ -74,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
         argv.append("--coco")
     if args.whole_body:
         argv.append("--whole-body")
+    if args.poses != "library":
+        argv += ["--poses", args.poses]
     index = generate_dataset(args.out, args.n, cfg, model=model, progress=not args.no_progress, command=shlex.join(argv))
     s = dataset_summary(index)
     print(f"wrote {len(index['subjects'])} subjects to {args.out} (seed {args.seed}, {args.size}x{args.size}, noise {args.noise_px} px)")

@@ -4,7 +4,7 @@ No motion-capture data can be downloaded or shipped with silfit, so the default 
 prior (:class:`silfit.priors.pose.LibraryMixturePrior`, file ``priors/data/pose_mixture.npz``)
 is a Gaussian mixture in SMPLify's form (best-component negative log-likelihood over
 the 69 ``body_pose`` values) fitted to many samples drawn around the **hand-authored**
-poses of :data:`silfit.synth.poses.POSE_LIBRARY`:
+poses of :data:`silfit.poses.library.POSE_LIBRARY`:
 
 * a library pose (uniform over the chosen names), mirrored left-right with probability
   ``mirror_prob``;
@@ -54,7 +54,7 @@ BUILD_DEFAULTS = dict(
 def split_library(seed: int = 0):
     """A deterministic split of the library's pose names into two halves ``(a, b)``
     (for the held-out check). ``t_pose`` is always in ``a``."""
-    from ..synth.poses import POSE_LIBRARY
+    from ..poses.library import POSE_LIBRARY
 
     names = [n for n in POSE_LIBRARY if n != "t_pose"]
     order = np.random.default_rng(seed).permutation(len(names))
@@ -84,8 +84,7 @@ def sample_library_poses(
     see the module docstring. Blend partners are drawn from ``names`` too."""
     import torch
 
-    from ..synth.poses import BODY_JOINTS, POSE_LIBRARY, mirror_pose
-    from ..synth.sampler import PERTURB_SCALE
+    from ..poses.library import BODY_JOINTS, PERTURB_SCALE, POSE_LIBRARY, mirror_pose
     from .limits import clamp_to_limits
 
     names = list(POSE_LIBRARY) if names is None else list(names)
@@ -174,7 +173,7 @@ def build_library_mixture(names: Optional[Sequence[str]] = None, **settings) -> 
     gmm = fit_gaussian_mixture(
         X, s["components"], seed=s["seed"], reg=math.radians(s["reg_deg"]) ** 2, shrink=s["shrink"], iters=s["em_iters"]
     )
-    from ..synth.poses import POSE_LIBRARY
+    from ..poses.library import POSE_LIBRARY
 
     used = list(POSE_LIBRARY) if names is None else list(names)
     meta = {f"setting_{k}": np.float64(v) for k, v in s.items()}

@@ -8,7 +8,7 @@
   download): a :class:`MaxMixturePrior` read from ``priors/data/pose_mixture.npz``,
   fitted (by ``tools/build_pose_prior.py``, see :mod:`silfit.priors.library_prior`) to
   perturbed, mirrored and blended samples of silfit's **hand-authored** pose library
-  (:data:`silfit.synth.poses.POSE_LIBRARY`, 38 poses), not to motion capture. See its
+  (:data:`silfit.poses.library.POSE_LIBRARY`, 38 poses), not to motion capture. See its
   docstring for what that means for evaluation (the synthetic generator draws from the
   same library).
 * :class:`LimitsPrior` (``load_pose_prior("limits")``, the default before the library

@@ -3,7 +3,7 @@ camera samplers and the dataset generator behind ``silfit synth``.
 
 The rendering pieces (pyrender) are imported only when a subject is generated.
 """
-from .poses import FRONTAL_POSES, POSE_LIBRARY, LibraryPose, get_pose, mirror_pose, pose_names
+from ..poses.library import FRONTAL_POSES, POSE_LIBRARY, LibraryPose, get_pose, mirror_pose, pose_names
 from .sampler import (
     Placement,
     PoseSample,
@@ -23,6 +23,7 @@ __all__ = [
     "SynthConfig",
     "dataset_summary",
     "generate_dataset",
+    "generate_hard_dataset",
     "generate_subject",
     "get_pose",
     "global_orientation",
@@ -40,4 +41,8 @@ def __getattr__(name):
         from . import generate
 
         return getattr(generate, name)
+    if name == "generate_hard_dataset":
+        from .hard import generate_hard_dataset
+
+        return generate_hard_dataset
     raise AttributeError(f"module 'silfit.synth' has no attribute {name!r}")

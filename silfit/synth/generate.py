@@ -42,7 +42,7 @@ from ..dataset import INDEX_NAME, save_npz, write_png
 from ..keypoints import BODY25_NAMES, COCO17_NAMES, model_keypoints, write_openpose_json
 from ..wholebody import FACE70_NAMES, hand_names, wholebody_keypoints, write_wholebody_json
 from .hands import hand_axes, hand_pose_to_axis_angle, sample_hand_pose
-from .poses import FRONTAL_POSES, POSE_LIBRARY
+from ..poses.library import FRONTAL_POSES, POSE_LIBRARY
 from .sampler import global_orientation, place_body, sample_betas, sample_intrinsics, sample_pose
 
 __all__ = ["SynthConfig", "SubjectRecord", "generate_subject", "generate_dataset", "FORMAT_VERSION", "KEYPOINT_DEPTH_TOLERANCE"]
@@ -93,6 +93,7 @@ class SynthConfig:
     face_noise_scale: float = 0.4  # face keypoint noise = this x noise_px
     expression_std: float = 0.7  # expression coefficients ~ N(0, std^2), clipped to +-2
     jaw_open_max_deg: float = 25.0  # jaw opening uniform in [0, this] (half the subjects keep it closed)
+    poses: str = "library"  # library (sampled around the pose library) | hard (silfit.poses.sampler, see synth.hard)
 
     def validate(self) -> "SynthConfig":
         if self.size < 16:
@@ -103,6 +104,8 @@ class SynthConfig:
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {v}")
+        if self.poses not in ("library", "hard"):
+            raise ValueError(f"poses must be library or hard, got {self.poses!r}")
         if self.background not in ("plain", "textured", "mixed"):
             raise ValueError(f"background must be plain, textured or mixed, got {self.background!r}")
         if not (0 < self.fov_deg[0] <= self.fov_deg[1] < 170):
@@ -301,8 +304,13 @@ def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> S
         elev = float(rng.uniform(-5, 5))
         roll = 0.0
     else:
-        ps = sample_pose(rng, perturb_deg=cfg.perturb_deg, blend_prob=cfg.blend_prob, mirror_prob=cfg.mirror_prob)
-        yaw = float(rng.uniform(*cfg.yaw_range_deg))
+        if cfg.poses == "hard":
+            from .hard import hard_pose_and_yaw
+
+            ps, yaw = hard_pose_and_yaw(model, rng, cfg.yaw_range_deg)
+        else:
+            ps = sample_pose(rng, perturb_deg=cfg.perturb_deg, blend_prob=cfg.blend_prob, mirror_prob=cfg.mirror_prob)
+            yaw = float(rng.uniform(*cfg.yaw_range_deg))
         elev = float(rng.uniform(-cfg.elevation_deg, cfg.elevation_deg))
         roll = float(rng.uniform(-cfg.roll_deg, cfg.roll_deg))
     betas = sample_betas(rng, model.num_betas, cfg.beta_truncation)

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from ..camera import UPRIGHT_FACING_CAMERA, Camera, project_points
 from ..priors.limits import clamp_to_limits
-from .poses import BODY_JOINTS, FRONTAL_POSES, POSE_LIBRARY, LibraryPose, mirror_pose, mirror_rotvec
+from ..poses.library import BODY_JOINTS, FRONTAL_POSES, PERTURB_SCALE, POSE_LIBRARY, LibraryPose, mirror_pose, mirror_rotvec
 
 __all__ = [
     "PoseSample",
@@ -28,13 +28,6 @@ __all__ = [
     "PERTURB_SCALE",
 ]
 
-# Per-joint scale of the random perturbation (1 = the configured sigma).
-PERTURB_SCALE = {
-    "left_hip": 1.0, "right_hip": 1.0, "spine1": 0.6, "left_knee": 1.0, "right_knee": 1.0, "spine2": 0.5,
-    "left_ankle": 0.8, "right_ankle": 0.8, "spine3": 0.5, "left_foot": 0.3, "right_foot": 0.3, "neck": 0.8,
-    "left_collar": 0.4, "right_collar": 0.4, "head": 1.0, "left_shoulder": 1.5, "right_shoulder": 1.5,
-    "left_elbow": 1.5, "right_elbow": 1.5, "left_wrist": 1.2, "right_wrist": 1.2, "left_hand": 0.5, "right_hand": 0.5,
-}  # fmt: skip
 _SIGMA = np.repeat(np.array([PERTURB_SCALE[n] for n in BODY_JOINTS]), 3)
 
 

@@ -32,3 +32,13 @@ def test_synth_whole_body_with_a_body_only_model_is_a_one_line_error(tmp_path, c
     err = capsys.readouterr().err
     assert "--whole-body needs an SMPL-X-layout model" in err and len(err.strip().splitlines()) == 1
     assert not (out / "subject_000").exists()
+
+
+def test_synth_hard_poses(tmp_path, capsys):
+    out = tmp_path / "hard"
+    assert main(["synth", "--poses", "hard", "--n", "1", "--seed", "3", "--out", str(out), "--size", "64", "--no-progress"]) == 0
+    index = json.loads((out / "index.json").read_text())
+    assert index["generator"]["poses"] == "hard" and "--poses hard" in index["generator"]["command"]
+    from silfit.poses.sampler import ARCHETYPES
+
+    assert index["subjects"][0]["pose"] in ARCHETYPES

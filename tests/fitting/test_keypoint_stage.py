@@ -179,7 +179,9 @@ def test_single_image_fits_equal_those_of_the_code_before_the_fitting_core():
     """``data/keypoint_fit_reference.npz`` holds fits of three shipped subjects made by the
     pre-core keypoint stage (commit a3c52e2) with the short schedule below. The core gives
     the same energies on the same parameters; the optimiser's path differs only by float32
-    rounding (measured: joints 0.006-0.12 mm, energies 0.003-0.1 % apart)."""
+    rounding (measured: joints 0.006-0.12 mm, energies 0.003-0.1 % apart). Rewritten by
+    ``tools/keypoint_fit_reference.py`` when the interpenetration term changed to inscribed
+    spheres (branch hardposes)."""
     from silfit.dataset import list_subjects, load_subject
 
     ref = np.load(Path(__file__).parent / "data" / "keypoint_fit_reference.npz")
