@@ -62,9 +62,12 @@ def read_photo(path: os.PathLike) -> Photo:
     Errors name the file: not found, not a readable image, no pixels."""
     from PIL import Image, ImageOps, UnidentifiedImageError
 
+    from ..imagefile import image_file_size
+
     source = os.fspath(path)
     if not os.path.isfile(source):
         raise FileNotFoundError(f"{source}: image not found")
+    image_file_size(source, "image")  # the size limits, from the header, before any pixel is decoded
     try:
         with Image.open(source) as im:
             im.load()
