@@ -20,7 +20,6 @@ temporary file and renamed, so an error leaves no partial PNG behind.
 """
 from __future__ import annotations
 
-import json
 import os
 import tempfile
 from pathlib import Path
@@ -28,7 +27,6 @@ from typing import Optional
 
 import numpy as np
 
-from ..fitting.result import PARAM_NAMES
 from . import CLIError
 
 MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
@@ -63,39 +61,12 @@ def parse_size(text: str) -> tuple[int, int]:
 
 
 def read_params(path: Path) -> tuple[dict, Optional[object]]:
-    """SMPL parameters (numpy, batch of one) and the camera stored with them, if any."""
-    from silfit.camera import Camera
+    """SMPL parameters (numpy ``[1, n]``; the ones present, the model zeroes the rest) and the
+    camera stored with them, if any, read with :func:`silfit.fitio.read_fit`."""
+    from silfit.fitio import read_fit
 
-    if path.suffix == ".npz":
-        try:
-            with np.load(path) as data:
-                raw = {k: np.asarray(data[k]) for k in data.files}
-        except Exception as err:  # noqa: BLE001 - any unreadable archive
-            raise ValueError(f"{path}: not a readable .npz file ({err})") from None
-        camera = None
-        if "camera_intrinsics" in raw and "image_size" in raw:
-            camera = Camera.from_intrinsics(raw["camera_intrinsics"], raw["image_size"])
-    else:
-        try:
-            raw = json.loads(path.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as err:
-            raise ValueError(f"{path}: not valid JSON ({err})") from None
-        if not isinstance(raw, dict):
-            raise ValueError(f"{path}: expected a JSON object with {', '.join(PARAM_NAMES)}")
-        camera = Camera(**raw["camera"]) if isinstance(raw.get("camera"), dict) else None
-    params = {}
-    for name in PARAM_NAMES:
-        if name in raw:
-            try:
-                arr = np.asarray(raw[name], dtype=np.float32)
-            except (TypeError, ValueError):
-                raise ValueError(f"{path}: field '{name}' is not numeric") from None
-            if not np.all(np.isfinite(arr)):
-                raise ValueError(f"{path}: field '{name}' contains NaN or infinite values")
-            params[name] = arr.reshape(1, -1)
-    if not params:
-        raise ValueError(f"{path}: none of the SMPL fields {', '.join(PARAM_NAMES)} found")
-    return params, camera
+    fit = read_fit(path, require=())
+    return {k: v.astype(np.float32).reshape(1, -1) for k, v in fit.params.items()}, fit.camera
 
 
 def load_vertices(args) -> tuple[np.ndarray, np.ndarray, Optional[object]]:
