@@ -12,7 +12,7 @@ import importlib.util
 import sys
 
 #: Subcommands in the order ``silfit --help`` lists them.
-SUBCOMMANDS = ("demo", "fit", "synth", "eval", "render")
+SUBCOMMANDS = ("demo", "fit", "synth", "eval", "render", "fit_dataset")
 
 
 class CLIError(Exception):
