@@ -150,9 +150,10 @@ def _largest(people: List[KeypointSet]) -> int:
     return max(range(len(people)), key=lambda i: people[i].visible_area())
 
 
-def load_item(item: Item) -> LoadedItem:
+def load_item(item: Item, read_masks: bool = True) -> LoadedItem:
     """Read and check one item's keypoints, camera, mask and image (:class:`ItemError` on
-    the first problem, naming the file and field)."""
+    the first problem, naming the file and field); ``read_masks=False`` (keypoint-only runs)
+    finds the person's mask file but does not read it."""
     if item.error:
         raise ItemError(item.error.get("file"), item.error.get("field", "input"), item.error.get("message", ""))
     people = _reading("keypoints", item.keypoints, read_people, item.keypoints)
@@ -169,7 +170,9 @@ def load_item(item: Item) -> LoadedItem:
     image = _reading("image", item.image, read_image, item.image, size) if item.image else None
     if size is None and image is not None:
         size = (image.shape[1], image.shape[0])
-    mask = _reading("mask", mask_file, read_mask, mask_file, size) if mask_file else None
+    mask = _reading("mask", mask_file, read_mask, mask_file, size) if mask_file and read_masks else None
+    if camera is None and image is None and mask is None and mask_file:
+        mask = _reading("mask", mask_file, read_mask, mask_file, size)  # the only source of the image size
     if camera is None:
         ref = image if image is not None else mask
         if ref is None:

@@ -123,7 +123,7 @@ class DatasetFitter:
         for it in items:
             t0 = time.perf_counter()
             try:
-                loaded.append(load_item(it))
+                loaded.append(load_item(it, read_masks=self.options.silhouette))
             except ItemError as err:
                 records[it.key] = _failed(it, "load", err)
             times[it.key] = {"load": time.perf_counter() - t0}
@@ -192,7 +192,7 @@ class DatasetFitter:
         the stage off) keep their keypoint result. The one place a batched stage would go."""
         out = []
         for li, res in jobs:
-            if li.mask is None or not self.options.silhouette:
+            if li.mask is None or not self.options.silhouette:  # (masks are not read without the stage)
                 out.append(res)
                 continue
             t0 = time.perf_counter()

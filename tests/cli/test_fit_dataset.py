@@ -34,9 +34,10 @@ def test_failures_are_isolated_and_runs_resume(tmp_path, capsys):
     data = synthetic_copy(tmp_path / "data", names)
     (data / "subject_001" / "keypoints.json").write_text("{broken")
     (data / "subject_002" / "camera.json").write_text('{"fx": 100, "fy": 100, "cx": 10, "cy": 10, "width": -5, "height": 4}')
-    from PIL import Image
-
-    Image.fromarray(np.zeros((10, 12), np.uint8)).save(data / "subject_003" / "mask.png")
+    # without camera.json and image.png a keypoint-only run reads the mask for the image size
+    (data / "subject_003" / "mask.png").write_bytes(b"not a png")
+    (data / "subject_003" / "camera.json").unlink()
+    (data / "subject_003" / "image.png").unlink()
     out = tmp_path / "out"
     args = ["fit-dataset", str(data), "--out", str(out), "--no-silhouette", "--batch-size", "4", "--quiet", *FAST]
     assert main(args) == 13  # 10 + 3 failed

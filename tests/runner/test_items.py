@@ -90,6 +90,9 @@ def test_synthetic_dataset_and_item_errors(tmp_path):
             load_item(it)
         assert info.value.file == str(root / file) and info.value.field == field, info.value
         assert info.value.message and "\n" not in info.value.message
+    # a keypoint-only run finds the mask but does not read it
+    li = load_item(items[3], read_masks=False)
+    assert li.mask is None and li.mask_file == str(root / "subject_003" / "mask.png")
     # with --people all the unreadable file is still one (failing) item
     every = list_items(root, "all")
     assert [it.key for it in every] == ["subject_000_0", "subject_001", "subject_002_0", "subject_003_0"]
