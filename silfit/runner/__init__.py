@@ -39,6 +39,8 @@ def fit_dataset(
     from .run import run_local
     from .summary import plot_summary, summarise, summary_table
 
+    if Path(out).exists() and not Path(out).is_dir():
+        raise InputError(f"{out}: output path exists and is not a folder")
     items = list_items(input, people, masks=masks, images=images, camera=camera)
     options = options or FitOptions()
     from .worker import keypoint_config

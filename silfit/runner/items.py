@@ -45,6 +45,8 @@ __all__ = ["InputError", "ItemError", "Item", "LoadedItem", "list_items", "load_
 KEYPOINT_SUFFIX = "_keypoints.json"
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 MANIFEST_COLUMNS = ("id", "keypoints", "mask", "image", "camera", "person")
+#: names an item cannot have (the run's own files in OUT)
+RESERVED = ("", "..", "results.jsonl", "failures.jsonl", "summary.md", "summary.json", "summary.png")
 #: key of :attr:`Item.masks` for the mask of the largest (or only) person
 LARGEST = "largest"
 
@@ -350,7 +352,7 @@ def _unique(source: Path, items: List[Item]) -> List[Item]:
         if it.key in seen:
             raise InputError(f"{source}: two items would write the same output folder {it.key!r} "
                              f"({seen[it.key]} and {it.keypoints}); give them distinct ids")  # fmt: skip
-        if it.key.startswith(".") or "/" in it.key or it.key in ("", "..", "results.jsonl", "failures.jsonl"):
+        if it.key.startswith(".") or "/" in it.key or it.key in RESERVED:
             raise InputError(f"{source}: item name {it.key!r} cannot be an output folder name")
         seen[it.key] = it.keypoints
     return items

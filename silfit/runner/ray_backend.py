@@ -1,7 +1,8 @@
 """``silfit fit-dataset --ray``: the same job on a Ray cluster with Ray Data.
 
 The pending items become a dataset (one JSON row each); ``map_batches`` sends batches of
-``batch_size`` items to a fixed pool of actors (:class:`FitActor`), each holding a
+``batch_size`` items (fewer when there are fewer than ``actors x batch_size`` items, so every
+actor gets work) to a fixed pool of actors (:class:`FitActor`), each holding a
 :class:`~silfit.runner.worker.DatasetFitter` (model, prior, keypoint fitter, renderer built
 once per actor) with ``num_cpus`` / ``num_gpus`` reserved per actor. Each actor writes its
 items' folders under ``OUT`` itself (atomically, so ``OUT`` must be a path every node sees
@@ -14,6 +15,7 @@ with one (``auto``, ``ray://host:10001`` or ``host:6379``) the job joins that cl
 from __future__ import annotations
 
 import json
+import logging
 import os
 from typing import List, Optional, Sequence
 
@@ -47,9 +49,10 @@ def _init(address: Optional[str], local_cpus: int):
         return False
     env = {"env_vars": {k: os.environ[k] for k in ("PYTHONPATH", "DRJIT_LIBLLVM_PATH", "PYOPENGL_PLATFORM") if k in os.environ}}
     if address:
-        ray.init(address=address, runtime_env=env, log_to_driver=False)
+        ray.init(address=address, runtime_env=env, log_to_driver=False, logging_level=logging.WARNING)
     else:
-        ray.init(num_cpus=local_cpus, include_dashboard=False, runtime_env=env, log_to_driver=False)
+        ray.init(num_cpus=local_cpus, include_dashboard=False, runtime_env=env, log_to_driver=False,
+                 logging_level=logging.WARNING)  # fmt: skip
     return True
 
 
@@ -76,6 +79,8 @@ def run_ray(
         ctx = ray.data.DataContext.get_current()
         ctx.enable_progress_bars = False
         ctx.print_on_execution_start = False
+        # every actor gets work even when there are fewer than actors x batch_size items
+        batch_size = max(1, min(int(batch_size), -(-len(pending) // max(1, actors))))
         rows = [{"item": json.dumps(it.to_dict())} for it in pending]
         ds = ray.data.from_items(rows, override_num_blocks=max(1, -(-len(rows) // batch_size)))
         fitted = ds.map_batches(

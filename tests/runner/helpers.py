@@ -4,7 +4,7 @@ import json
 import shutil
 from pathlib import Path
 
-import numpy as np
+from silfit.synth.people import bystander
 
 SYNTHETIC = Path(__file__).resolve().parents[2] / "data" / "synthetic"
 #: keypoint-stage options that keep a fit to about 0.1 s (tests check plumbing, not accuracy)
@@ -17,14 +17,6 @@ def subject_people(name: str) -> list:
     return json.loads((SYNTHETIC / name / "keypoints.json").read_text())["people"]
 
 
-def second_person(person: dict, dx: float = 60.0, scale: float = 0.6) -> dict:
-    """A smaller copy of ``person`` moved right (a second, keypoint-only person)."""
-    kp = np.asarray(person["pose_keypoints_2d"], dtype=float).reshape(-1, 3)
-    centre = kp[kp[:, 2] > 0, :2].mean(0)
-    kp[:, :2] = np.where(kp[:, 2:] > 0, (kp[:, :2] - centre) * scale + centre + [dx, 0.0], 0.0)
-    return {"person_id": [-1], "pose_keypoints_2d": kp.reshape(-1).round(3).tolist()}
-
-
 def openpose_folder(root: Path, names=("subject_000", "subject_001", "subject_002"), two_people=("subject_001",)):
     """``root/kp/<stem>_keypoints.json`` (two people for ``two_people``), ``root/masks/<stem>_0.png``
     (person 0's mask), ``root/images/<stem>.png`` and ``root/cameras/<stem>.json``."""
@@ -33,7 +25,7 @@ def openpose_folder(root: Path, names=("subject_000", "subject_001", "subject_00
     for name in names:
         people = subject_people(name)
         if name in two_people:
-            people.append(second_person(people[0]))
+            people.append(bystander(people[0]))
         (root / "kp" / f"{name}_keypoints.json").write_text(json.dumps({"version": 1.3, "people": people}))
         shutil.copy(SYNTHETIC / name / "mask.png", root / "masks" / f"{name}_0.png")
         shutil.copy(SYNTHETIC / name / "image.png", root / "images" / f"{name}.png")
