@@ -43,9 +43,10 @@ def fit_dataset(
         raise InputError(f"{out}: output path exists and is not a folder")
     items = list_items(input, people, masks=masks, images=images, camera=camera)
     options = options or FitOptions()
-    from .worker import keypoint_config
+    from .worker import keypoint_config, silhouette_config
 
-    keypoint_config(options.keypoint_options)  # a bad option fails here, before any work
+    keypoint_config(options.keypoint_options)  # bad options fail here, before any output
+    silhouette_config(options)
     keys = [it.key for it in items]
     store = RunStore.open(out, keys, retry_failed=retry_failed)
     pending = [it for it in items if not store.done(it.key)]

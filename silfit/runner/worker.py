@@ -23,7 +23,7 @@ from ..fitting.silhouette_stage import SilhouetteFitConfig
 from ..pipeline import FitResult, refine, save_fit
 from .items import Item, ItemError, LoadedItem, item_error, load_item
 
-__all__ = ["FitOptions", "DatasetFitter", "keypoint_config"]
+__all__ = ["FitOptions", "DatasetFitter", "keypoint_config", "silhouette_config"]
 
 SILHOUETTE_FITTED = "fitted"
 SILHOUETTE_NO_MASK = "keypoints only: no mask for this person"
@@ -76,6 +76,19 @@ def keypoint_config(options: Dict[str, object]) -> KeypointFitConfig:
     return replace(base, **values)
 
 
+def silhouette_config(options: FitOptions) -> SilhouetteFitConfig:
+    """The silhouette stage's settings with the options' levels (``ValueError`` if they do not pair)."""
+    levels = {}
+    if options.silhouette_resolutions:
+        levels["resolutions"] = tuple(options.silhouette_resolutions)
+    if options.silhouette_iterations:
+        levels["iterations"] = tuple(options.silhouette_iterations)
+    base = SilhouetteFitConfig()
+    if len(levels.get("resolutions", base.resolutions)) != len(levels.get("iterations", base.iterations)):
+        raise ValueError("--silhouette-resolutions and --silhouette-iterations need the same number of levels")
+    return replace(base, **levels)
+
+
 class DatasetFitter:
     """The per-process fitting state (see the module docstring)."""
 
@@ -89,14 +102,7 @@ class DatasetFitter:
         self.faces = self.model.faces.cpu().numpy()
         self.config = keypoint_config(options.keypoint_options)
         self.pose_prior = load_pose_prior(options.pose_prior, dtype=self.model.dtype)
-        sil = SilhouetteFitConfig()
-        if options.silhouette_resolutions:
-            sil = replace(sil, resolutions=tuple(options.silhouette_resolutions))
-        if options.silhouette_iterations:
-            sil = replace(sil, iterations=tuple(options.silhouette_iterations))
-        if len(sil.resolutions) != len(sil.iterations):
-            raise ValueError("silhouette resolutions and iterations need the same number of levels")
-        self.silhouette_config = sil
+        self.silhouette_config = silhouette_config(options)
         self._fitters: Dict[str, KeypointFitter] = {}
         self._renderer = None
 

@@ -98,6 +98,10 @@ def test_bad_command_is_one_line_exit_2(tmp_path, capsys):
     assert main(["fit-dataset", str(SYNTHETIC), "--out", str(tmp_path / "o"), "--keypoint-option", "nope=1"]) == 2
     assert "unknown keypoint-stage option 'nope'" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+    assert main(["fit-dataset", str(SYNTHETIC), "--out", str(tmp_path / "o"), "--silhouette-resolutions", "64",
+                 "--silhouette-iterations", "5,5"]) == 2
+    assert "same number of levels" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
     (tmp_path / "file").write_text("x")
     assert main(["fit-dataset", str(SYNTHETIC), "--out", str(tmp_path / "file")]) == 2
     assert "exists and is not a folder" in capsys.readouterr().err
