@@ -60,12 +60,13 @@ def parse_size(text: str) -> tuple[int, int]:
     return parts[0], parts[1]
 
 
-def read_params(path: Path) -> tuple[dict, Optional[object]]:
-    """SMPL parameters (numpy ``[1, n]``; the ones present, the model zeroes the rest) and the
-    camera stored with them, if any, read with :func:`silfit.fitio.read_fit`."""
+def read_params(path: Path, sizes: Optional[dict] = None) -> tuple[dict, Optional[object]]:
+    """Model parameters (numpy ``[1, n]``; the ones present, the model zeroes the rest) and the
+    camera stored with them, if any, read with :func:`silfit.fitio.read_fit`; ``sizes``:
+    the model's parameter name -> width (default SMPL's)."""
     from silfit.fitio import read_fit
 
-    fit = read_fit(path, require=())
+    fit = read_fit(path, require=(), sizes=sizes)
     return {k: v.astype(np.float32).reshape(1, -1) for k, v in fit.params.items()}, fit.camera
 
 
@@ -80,8 +81,8 @@ def load_vertices(args) -> tuple[np.ndarray, np.ndarray, Optional[object]]:
 
         from silfit import load_body_model
 
-        params, camera = read_params(path)
         model = load_body_model(args.model) if args.model else load_body_model()
+        params, camera = read_params(path, {**model.parameter_sizes, "betas": None})
         with torch.no_grad():
             out = model(**{k: torch.as_tensor(v, dtype=model.dtype) for k, v in params.items()})
         return out.vertices[0].float().numpy(), model.faces.numpy(), camera
