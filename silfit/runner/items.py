@@ -124,6 +124,9 @@ def item_error(err: BaseException, file: Optional[str], component: str) -> ItemE
     message = str(err).splitlines()[0] if str(err) else type(err).__name__
     if file and message.startswith(f"{file}"):
         message = re.sub(r"^\s*(\([^)]*\))?:\s*", lambda m: f"{m.group(1)}: " if m.group(1) else "", message[len(file):])
+    named = getattr(err, "field", None)  # errors that carry their field (silfit's InputError)
+    if isinstance(named, str) and named:
+        return ItemError(file, named, message)
     found = re.search(r"field(?:\(s\))? '([^']+)'", message) or re.search(r"\((people\[\d+\][^)]*)\)", message)
     return ItemError(file, found.group(1) if found else component, message)
 
