@@ -12,7 +12,7 @@ import importlib.util
 import sys
 
 #: Subcommands in the order ``silfit --help`` lists them.
-SUBCOMMANDS = ("demo", "fit", "detect", "synth", "eval", "render")
+SUBCOMMANDS = ("demo", "fit", "detect", "synth", "eval", "render", "fit-dataset")
 
 
 class CLIError(Exception):
@@ -29,9 +29,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"silfit {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in SUBCOMMANDS:
-        if importlib.util.find_spec(f"{__name__}.{name}") is None:
+        module = f"{__name__}.{name.replace('-', '_')}"  # fit-dataset -> fit_dataset.py
+        if importlib.util.find_spec(module) is None:
             continue
-        importlib.import_module(f"{__name__}.{name}").register(sub)
+        importlib.import_module(module).register(sub)
     return parser
 
 

@@ -20,7 +20,6 @@ temporary file and renamed, so an error leaves no partial PNG behind.
 """
 from __future__ import annotations
 
-import json
 import os
 import tempfile
 from pathlib import Path
@@ -61,42 +60,14 @@ def parse_size(text: str) -> tuple[int, int]:
     return parts[0], parts[1]
 
 
-def read_params(path: Path) -> tuple[dict, Optional[object]]:
-    """SMPL parameters (numpy, batch of one) and the camera stored with them, if any."""
-    from silfit.camera import Camera, camera_from_dict
-    from silfit.fitting.result import PARAM_NAMES
-    from silfit.errors import InputError
-    from silfit.input_limits import read_json
-    from silfit.safe_pickle import load_npz
+def read_params(path: Path, sizes: Optional[dict] = None) -> tuple[dict, Optional[object]]:
+    """Model parameters (numpy ``[1, n]``; the ones present, the model zeroes the rest) and the
+    camera stored with them, if any, read with :func:`silfit.fitio.read_fit`; ``sizes``:
+    the model's parameter name -> width (default SMPL's)."""
+    from silfit.fitio import read_fit
 
-    camera = None
-    if path.suffix == ".npz":
-        raw = load_npz(path, what="fit parameters")
-        if "camera_intrinsics" in raw and "image_size" in raw:
-            try:
-                camera = Camera.from_intrinsics(raw["camera_intrinsics"], raw["image_size"])
-            except ValueError as err:
-                raise InputError(path, f"fields 'camera_intrinsics'/'image_size': {err}") from None
-    else:
-        raw = read_json(path, "fit parameters")
-        if not isinstance(raw, dict):
-            raise InputError(path, f"expected a JSON object with {', '.join(PARAM_NAMES)}")
-        if "camera" in raw:
-            camera = camera_from_dict(raw["camera"], f"{path} (field 'camera')")
-    params = {}
-    for name in PARAM_NAMES:
-        if name in raw:
-            try:
-                with np.errstate(over="ignore", invalid="ignore"):  # out-of-range values become inf: refused below
-                    arr = np.asarray(raw[name], dtype=np.float32)
-            except (TypeError, ValueError, OverflowError):
-                raise InputError(path, f"field '{name}' is not numeric", field=name) from None
-            if not np.all(np.isfinite(arr)):
-                raise InputError(path, f"field '{name}' contains NaN or infinite values", field=name)
-            params[name] = arr.reshape(1, -1)
-    if not params:
-        raise InputError(path, f"none of the SMPL fields {', '.join(PARAM_NAMES)} found")
-    return params, camera
+    fit = read_fit(path, require=(), sizes=sizes)
+    return {k: v.astype(np.float32).reshape(1, -1) for k, v in fit.params.items()}, fit.camera
 
 
 def load_vertices(args) -> tuple[np.ndarray, np.ndarray, Optional[object]]:
@@ -110,14 +81,8 @@ def load_vertices(args) -> tuple[np.ndarray, np.ndarray, Optional[object]]:
 
         from silfit import load_body_model
 
-        from silfit.errors import InputError
-
-        params, camera = read_params(path)
         model = load_body_model(args.model) if args.model else load_body_model()
-        for name, value in params.items():
-            width = model.parameter_sizes[name]
-            if value.shape[1] != width and not (name == "betas" and value.shape[1] <= width):
-                raise InputError(path, f"field '{name}' has {value.shape[1]} values, the model takes {width}", field=name)
+        params, camera = read_params(path, {**model.parameter_sizes, "betas": None})
         with torch.no_grad():
             out = model(**{k: torch.as_tensor(v, dtype=model.dtype) for k, v in params.items()})
         return out.vertices[0].float().numpy(), model.faces.numpy(), camera

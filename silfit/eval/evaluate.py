@@ -41,6 +41,8 @@ import torch
 
 from ..camera import Camera, project_points
 from ..dataset import SubjectError, list_subjects, load_subject
+from ..fitio import PARAM_SIZES as PARAM_FIELDS
+from ..fitio import read_fit as read_fit_file
 from ..keypoints import model_keypoints
 from .metrics import mask_iou, mpjpe, pa_mpjpe, pa_pve, pve, reprojection_error, shape_pve, translation_error
 
@@ -59,7 +61,6 @@ __all__ = [
     "FitterUnavailable",
 ]
 
-PARAM_FIELDS = {"betas": None, "body_pose": 69, "global_orient": 3, "transl": 3}
 #: Metric key -> (label, unit, lower is better).
 METRICS = {
     "mpjpe": ("MPJPE", "mm", True),
@@ -100,39 +101,11 @@ class FitParams:
 
 # ----------------------------------------------------------------------------- reading fits
 def read_fit(folder: os.PathLike) -> FitParams:
-    """Read ``params.npz`` (+ ``metrics.json`` / ``params.json`` timings) of one fit folder."""
+    """Read ``params.npz`` (with :func:`silfit.fitio.read_fit`) + ``metrics.json`` /
+    ``params.json`` timings of one fit folder."""
     folder = Path(folder)
-    f = folder / "params.npz"
-    if not f.is_file():
-        raise FileNotFoundError(f"{f}: fit parameters not found")
-    try:
-        with np.load(f, allow_pickle=False) as data:
-            raw = {k: np.asarray(data[k]) for k in data.files}
-    except Exception as err:  # noqa: BLE001 - any unreadable archive
-        raise SubjectError(f, "<file>", f"not a readable .npz archive ({err})") from None
-    vals = {}
-    for name, width in PARAM_FIELDS.items():
-        if name not in raw:
-            raise SubjectError(f, name, "missing")
-        a = raw[name]
-        if a.dtype.kind not in "fiu":
-            raise SubjectError(f, name, f"must be numeric, got dtype {a.dtype}")
-        a = a.astype(np.float64)
-        if a.ndim == 2 and a.shape[0] == 1:
-            a = a[0]
-        if a.ndim != 1 or (width is not None and a.shape[0] != width):
-            raise SubjectError(f, name, f"has shape {list(a.shape)}, expected [{width or 'L'}]")
-        if not np.isfinite(a).all():
-            raise SubjectError(f, name, "holds NaN or infinite values")
-        vals[name] = a
-    camera = None
-    if "camera_intrinsics" in raw and "image_size" in raw:
-        try:
-            intrinsics, size = np.asarray(raw["camera_intrinsics"]).reshape(4), np.asarray(raw["image_size"]).reshape(2)
-            camera = Camera.from_intrinsics(intrinsics, size)
-        except (ValueError, TypeError) as err:
-            raise SubjectError(f, "camera_intrinsics", str(err)) from None
-    return FitParams(**vals, camera=camera, timings=_read_timings(folder), path=folder)
+    fit = read_fit_file(folder / "params.npz")
+    return FitParams(**fit.params, camera=fit.camera, timings=_read_timings(folder), path=folder)
 
 
 def _read_timings(folder: Path) -> Dict[str, float]:

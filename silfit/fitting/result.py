@@ -113,31 +113,17 @@ class KeypointFitResult:
 
     @classmethod
     def load(cls, path: Union[str, os.PathLike]) -> "KeypointFitResult":
-        """Read ``params.npz`` or ``params.json`` (a file or the folder holding them)."""
-        p = Path(path)
-        if p.is_dir():
-            p = p / "params.npz" if (p / "params.npz").exists() else p / "params.json"
-        if not p.exists():
-            raise FileNotFoundError(f"{p}: fit result not found")
-        if p.suffix == ".npz":
-            data = dict(np.load(p))
-            missing = [n for n in PARAM_NAMES if n not in data]
-            if missing:
-                raise ValueError(f"{p}: field(s) missing: {', '.join(missing)}")
-            cam = Camera.from_intrinsics(data["camera_intrinsics"], data["image_size"])
-            get = lambda n: data[n][None] if n in data else None  # noqa: E731
-            return cls(
-                **{n: data[n][None].astype(np.float32) for n in PARAM_NAMES}, cameras=[cam],
-                vertices=get("vertices"), joints=get("joints"), keypoints_2d=get("keypoints_2d"),
-                layout=str(data["layout"]) if "layout" in data else "body25",
-            )  # fmt: skip
-        data = json.loads(p.read_text())
-        missing = [n for n in PARAM_NAMES + ("camera",) if n not in data]
-        if missing:
-            raise ValueError(f"{p}: field(s) missing: {', '.join(missing)}")
+        """Read ``params.npz`` or ``params.json`` (a file or the folder holding them) with
+        :func:`silfit.fitio.read_fit` (all four parameters and the camera are required)."""
+        from ..fitio import read_fit
+
+        fit = read_fit(path, require=PARAM_NAMES, require_camera=True)
+        get = lambda n: fit.arrays[n][None].astype(np.float32) if n in fit.arrays else None  # noqa: E731
         return cls(
-            **{n: np.asarray(data[n], dtype=np.float32)[None] for n in PARAM_NAMES},
-            cameras=[Camera(**data["camera"])], layout=data.get("layout", "body25"),
-            energies={k: np.array([v]) for k, v in data.get("energies", {}).items()},
-            timings=data.get("timings", {}),
+            **{n: fit.params[n][None].astype(np.float32) for n in PARAM_NAMES}, cameras=[fit.camera],
+            vertices=get("vertices"), joints=get("joints"), keypoints_2d=get("keypoints_2d"),
+            layout=fit.layout or "body25", energies={k: np.array([v]) for k, v in fit.energies.items()},
+            timings=dict(fit.timings),
+            flipped=None if fit.flipped is None else np.array([fit.flipped]),
+            reprojection_error=None if fit.reprojection_error is None else np.array([fit.reprojection_error]),
         )  # fmt: skip

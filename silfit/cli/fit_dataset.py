@@ -1,0 +1,110 @@
+"""``silfit fit-dataset INPUT --out OUT``: fit every image (and person) of a dataset.
+
+INPUT is an OpenPose output folder, a manifest (``.jsonl`` / ``.csv``) or a dataset in
+silfit's synthetic format (see :mod:`silfit.runner.items`). OUT gets one folder per
+(image, person) in ``silfit fit``'s layout, ``results.jsonl``, ``failures.jsonl``,
+``summary.md``, ``summary.json`` and ``summary.png`` (see :mod:`silfit.runner.store`).
+Rerunning with the same OUT skips finished items (``--retry-failed`` retries the failed).
+
+Exit status: 0 every item fitted; 2 the command or the input as a whole is wrong (nothing
+is fitted); ``10 + n`` when ``n`` items failed (``n`` capped at 100, so 110 means 100 or
+more); ``failures.jsonl`` says which and why.
+"""
+from __future__ import annotations
+
+import sys
+
+from . import CLIError
+
+#: Exit status offset for failed items: status = FAILED_BASE + min(failed, FAILED_CAP).
+FAILED_BASE, FAILED_CAP = 10, 100
+
+
+def exit_status(failed: int) -> int:
+    return 0 if failed == 0 else FAILED_BASE + min(int(failed), FAILED_CAP)
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "fit-dataset", help="fit a whole dataset: OpenPose folder, manifest or synthetic set (resumable; local or Ray)",
+        description=__doc__.split("\n\n", 1)[1], epilog="exit status: 0 all fitted, 2 bad command/input, 10+n n items failed (n<=100)",
+    )  # fmt: skip
+    p.add_argument("input", help="OpenPose folder (*_keypoints.json), manifest (.jsonl/.csv) or synthetic dataset folder")
+    p.add_argument("--out", required=True, help="output folder (created; an existing one is resumed)")
+    p.add_argument("--people", default="largest", help="largest (default), all, or a person index K")
+    p.add_argument("--masks", help="OpenPose input: folder of <stem>.png / <stem>_<k>.png masks")
+    p.add_argument("--images", help="OpenPose input: folder of <stem>.png/.jpg images")
+    p.add_argument("--camera", help="OpenPose input: a shared camera.json, or a folder of <stem>.json")
+    p.add_argument("--focal", type=float, help="focal length in pixels for every item (overrides the cameras')")
+    p.add_argument("--batch-size", type=int, default=8, help="items per keypoint-stage batch (default 8)")
+    p.add_argument("--no-silhouette", action="store_true", help="keypoint stage only, even where masks exist")
+    p.add_argument("--retry-failed", action="store_true", help="fit again the items failed in a previous run")
+    p.add_argument("--model", help="SMPL model file or folder (default: the shipped open body model)")
+    p.add_argument("--gender", default="neutral", help="model gender when --model is a folder")
+    p.add_argument("--pose-prior", help="pose prior: gmm_08.pkl, a mixture .npz, or 'limits' (default: shipped)")
+    p.add_argument("--keypoint-option", action="append", default=[], metavar="NAME=VALUE",
+                   help="override a KeypointFitConfig field, e.g. init_poses=1 or pose_iters=10,10,10 (repeatable)")
+    p.add_argument("--silhouette-resolutions", metavar="R1,R2", help="silhouette window sizes per level (default 128,256)")
+    p.add_argument("--silhouette-iterations", metavar="N1,N2", help="silhouette steps per level (default 60,50)")
+    p.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
+                   help="run on Ray: no ADDRESS starts a local Ray, else join that cluster (e.g. auto, ray://head:10001)")
+    p.add_argument("--actors", type=int, default=2, help="Ray: fitting actors (default 2)")
+    p.add_argument("--num-cpus", type=float, default=1.0, help="Ray: CPUs reserved per actor (default 1)")
+    p.add_argument("--num-gpus", type=float, default=0.0, help="Ray: GPUs reserved per actor (default 0)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar and no summary table")
+    p.set_defaults(func=run)
+
+
+def _ints(text, option):
+    if text is None:
+        return None
+    try:
+        values = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise CLIError(f"{option} {text!r}: expected comma-separated integers") from None
+    if not values or min(values) <= 0:
+        raise CLIError(f"{option} {text!r}: expected positive integers")
+    return values
+
+
+def run(args) -> int:
+    from ..runner import FitOptions, InputError, fit_dataset
+    from ..runner.items import parse_people
+    from ..runner.worker import keypoint_config
+
+    if args.batch_size < 1:
+        raise CLIError(f"--batch-size {args.batch_size}: expected 1 or more")
+    if args.ray is None and (args.actors != 2 or args.num_cpus != 1.0 or args.num_gpus != 0.0):
+        raise CLIError("--actors, --num-cpus and --num-gpus are Ray options: add --ray")
+    overrides = {}
+    for text in args.keypoint_option:
+        name, sep, value = text.partition("=")
+        if not sep or not name:
+            raise CLIError(f"--keypoint-option {text!r}: expected NAME=VALUE")
+        overrides[name.strip()] = value.strip()
+    try:
+        people = parse_people(args.people)
+        keypoint_config(overrides)
+    except (InputError, ValueError) as err:
+        raise CLIError(str(err)) from None
+    options = FitOptions(
+        model=args.model, gender=args.gender, pose_prior=args.pose_prior, silhouette=not args.no_silhouette,
+        focal=args.focal, keypoint_options=overrides,
+        silhouette_resolutions=_ints(args.silhouette_resolutions, "--silhouette-resolutions"),
+        silhouette_iterations=_ints(args.silhouette_iterations, "--silhouette-iterations"),
+    )  # fmt: skip
+    try:
+        summary = fit_dataset(
+            args.input, args.out, people=people, masks=args.masks, images=args.images, camera=args.camera,
+            options=options, batch_size=args.batch_size, retry_failed=args.retry_failed,
+            ray=args.ray is not None, ray_address=args.ray or None, actors=args.actors,
+            num_cpus=args.num_cpus, num_gpus=args.num_gpus, progress=not args.quiet,
+        )  # fmt: skip
+    except InputError as err:
+        raise CLIError(str(err)) from None
+    if not args.quiet:
+        print(summary["table"])
+    if summary["failed"]:
+        print(f"silfit fit-dataset: {summary['failed']} of {summary['items']} items failed; see {args.out}/failures.jsonl",
+              file=sys.stderr)  # fmt: skip
+    return exit_status(summary["failed"])

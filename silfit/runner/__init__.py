@@ -1,0 +1,69 @@
+"""Fitting whole datasets (``silfit fit-dataset``): inputs (:mod:`.items`), the output folder
+and resuming (:mod:`.store`), the per-process fitter (:mod:`.worker`), local and Ray
+execution (:mod:`.run`, :mod:`.ray_backend`) and the end-of-run summary (:mod:`.summary`).
+:func:`fit_dataset` ties them together."""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Optional, Union
+
+from .items import InputError, Item, list_items
+from .store import RunStore
+from .worker import FitOptions
+
+__all__ = ["FitOptions", "InputError", "Item", "fit_dataset", "list_items"]
+
+
+def fit_dataset(
+    input: Union[str, os.PathLike],
+    out: Union[str, os.PathLike],
+    *,
+    people="largest",
+    masks: Optional[str] = None,
+    images: Optional[str] = None,
+    camera: Optional[str] = None,
+    options: Optional[FitOptions] = None,
+    batch_size: int = 8,
+    retry_failed: bool = False,
+    ray: bool = False,
+    ray_address: Optional[str] = None,
+    actors: int = 2,
+    num_cpus: float = 1.0,
+    num_gpus: float = 0.0,
+    progress: bool = True,
+) -> dict:
+    """Fit every (image, person) of ``input`` into ``out`` (resuming a previous run there);
+    returns the summary (see :func:`silfit.runner.summary.summarise`) with ``records``."""
+    from .run import run_local
+    from .summary import plot_summary, summarise, summary_table
+
+    if Path(out).exists() and not Path(out).is_dir():
+        raise InputError(f"{out}: output path exists and is not a folder")
+    items = list_items(input, people, masks=masks, images=images, camera=camera)
+    options = options or FitOptions()
+    from .worker import keypoint_config, silhouette_config
+
+    keypoint_config(options.keypoint_options)  # bad options fail here, before any output
+    silhouette_config(options)
+    keys = [it.key for it in items]
+    store = RunStore.open(out, keys, retry_failed=retry_failed)
+    pending = [it for it in items if not store.done(it.key)]
+    if ray:
+        from .ray_backend import run_ray
+
+        wall = run_ray(store, pending, options, batch_size, ray_address, actors, num_cpus, num_gpus, progress=progress)
+    else:
+        wall = run_local(store, pending, options, batch_size, progress=progress)
+    records = store.for_keys(keys)
+    summary = summarise(records, wall, len(pending))
+    table = summary_table(summary)
+    out = Path(out)
+    (out / "summary.md").write_text(table + "\n")
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    plot_summary(records, out / "summary.png")
+    summary["table"] = table
+    summary["records"] = records
+    summary["pending"] = len(pending)
+    return summary

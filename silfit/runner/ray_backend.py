@@ -1,0 +1,99 @@
+"""``silfit fit-dataset --ray``: the same job on a Ray cluster with Ray Data.
+
+The pending items become a dataset (one JSON row each); ``map_batches`` sends batches of
+``batch_size`` items (fewer when there are fewer than ``actors x batch_size`` items, so every
+actor gets work) to a fixed pool of actors (:class:`FitActor`), each holding a
+:class:`~silfit.runner.worker.DatasetFitter` (model, prior, keypoint fitter, renderer built
+once per actor) with ``num_cpus`` / ``num_gpus`` reserved per actor. Each actor writes its
+items' folders under ``OUT`` itself (atomically, so ``OUT`` must be a path every node sees
+at the same place) and returns the records; the driver streams them into
+``results.jsonl`` as batches finish, so a killed run resumes like a local one.
+
+Without an address a local Ray is started (``ray.init(num_cpus=..., include_dashboard=False)``);
+with one (``auto``, ``ray://host:10001`` or ``host:6379``) the job joins that cluster.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+from typing import List, Optional, Sequence
+
+import numpy as np
+
+from .items import Item
+from .run import drive
+from .store import RunStore
+from .worker import DatasetFitter, FitOptions
+
+__all__ = ["FitActor", "run_ray"]
+
+
+class FitActor:
+    """A Ray Data actor: builds the fitter once, then fits the batches it is given."""
+
+    def __init__(self, options: dict, out: str):
+        self.fitter = DatasetFitter(FitOptions(**options))
+        self.out = out
+
+    def __call__(self, batch: dict) -> dict:
+        items = [Item.from_dict(json.loads(s)) for s in batch["item"]]
+        records = self.fitter.run_batch(items, self.out)
+        return {"record": np.array([json.dumps(r) for r in records], dtype=object)}
+
+
+def _init(address: Optional[str], local_cpus: int):
+    import ray
+
+    if ray.is_initialized():
+        return False
+    env = {"env_vars": {k: os.environ[k] for k in ("PYTHONPATH", "DRJIT_LIBLLVM_PATH", "PYOPENGL_PLATFORM") if k in os.environ}}
+    if address:
+        ray.init(address=address, runtime_env=env, log_to_driver=False, logging_level=logging.WARNING)
+    else:
+        ray.init(num_cpus=local_cpus, include_dashboard=False, runtime_env=env, log_to_driver=False,
+                 logging_level=logging.WARNING)  # fmt: skip
+    return True
+
+
+def run_ray(
+    store: RunStore,
+    pending: Sequence[Item],
+    options: FitOptions,
+    batch_size: int,
+    address: Optional[str] = None,
+    actors: int = 2,
+    num_cpus: float = 1.0,
+    num_gpus: float = 0.0,
+    local_cpus: int = 2,
+    progress: bool = True,
+) -> float:
+    """Fit ``pending`` on Ray (see the module docstring); the wall time in seconds."""
+    if not pending:
+        return 0.0
+    import ray
+    import ray.data
+
+    started = _init(address, local_cpus)
+    try:
+        ctx = ray.data.DataContext.get_current()
+        ctx.enable_progress_bars = False
+        ctx.print_on_execution_start = False
+        # every actor gets work even when there are fewer than actors x batch_size items
+        batch_size = max(1, min(int(batch_size), -(-len(pending) // max(1, actors))))
+        rows = [{"item": json.dumps(it.to_dict())} for it in pending]
+        ds = ray.data.from_items(rows, override_num_blocks=max(1, -(-len(rows) // batch_size)))
+        fitted = ds.map_batches(
+            FitActor, fn_constructor_kwargs={"options": options.to_dict(), "out": os.fspath(store.out.resolve())},
+            batch_size=batch_size, compute=ray.data.ActorPoolStrategy(size=max(1, actors)),
+            num_cpus=num_cpus, num_gpus=num_gpus or None, batch_format="numpy",
+        )  # fmt: skip
+
+        def stream():
+            for batch in fitted.iter_batches(batch_size=None, batch_format="numpy"):
+                yield [json.loads(s) for s in batch["record"]]
+
+        return drive(store, stream(), len(pending), progress)
+    finally:
+        if started:
+            ray.shutdown()

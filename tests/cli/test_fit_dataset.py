@@ -1,0 +1,161 @@
+"""``silfit fit-dataset`` end to end: layouts, failures, resuming (also after SIGKILL) and Ray."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from runner.helpers import FAST, SYNTHETIC, openpose_folder, synthetic_copy
+from silfit.cli import main
+from silfit.fitting.result import KeypointFitResult
+from silfit.runner.store import read_jsonl
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _files(folder: Path) -> list:
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
+
+
+def _by_item(out: Path) -> dict:
+    rows = read_jsonl(out / "results.jsonl")
+    keys = [r["item"] for r in rows]
+    assert len(keys) == len(set(keys)), f"an item recorded twice: {keys}"
+    return {r["item"]: r for r in rows}
+
+
+def test_failures_are_isolated_and_runs_resume(tmp_path, capsys):
+    names = [f"subject_{i:03d}" for i in range(5)]
+    data = synthetic_copy(tmp_path / "data", names)
+    (data / "subject_001" / "keypoints.json").write_text("{broken")
+    (data / "subject_002" / "camera.json").write_text('{"fx": 100, "fy": 100, "cx": 10, "cy": 10, "width": -5, "height": 4}')
+    # without camera.json and image.png a keypoint-only run reads the mask for the image size
+    (data / "subject_003" / "mask.png").write_bytes(b"not a png")
+    (data / "subject_003" / "camera.json").unlink()
+    (data / "subject_003" / "image.png").unlink()
+    out = tmp_path / "out"
+    args = ["fit-dataset", str(data), "--out", str(out), "--no-silhouette", "--batch-size", "4", "--quiet", *FAST]
+    assert main(args) == 13  # 10 + 3 failed
+    assert "3 of 5 items failed" in capsys.readouterr().err
+    records = _by_item(out)
+    assert {k for k, r in records.items() if r["status"] == "ok"} == {"subject_000", "subject_004"}
+    fails = {f["item"]: f for f in read_jsonl(out / "failures.jsonl")}
+    assert fails["subject_001"]["file"] == str(data / "subject_001" / "keypoints.json")
+    assert fails["subject_002"]["file"] == str(data / "subject_002" / "camera.json")
+    assert fails["subject_003"]["file"] == str(data / "subject_003" / "mask.png") and fails["subject_003"]["field"] == "mask"
+    assert all(f["message"] and "\n" not in f["message"] for f in fails.values())
+    assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ["subject_000", "subject_004"]
+    for f in ("summary.md", "summary.png", "summary.json"):
+        assert (out / f).is_file()
+    fit = KeypointFitResult.load(out / "subject_000")
+    assert fit.camera.fx == pytest.approx(json.loads((data / "subject_000" / "camera.json").read_text())["fx"])
+    assert records["subject_000"]["reprojection_error_px"] < 10
+
+    # a rerun fits nothing again; --retry-failed retries the failed ones only
+    stamp = (out / "subject_000" / "params.npz").stat().st_mtime_ns
+    assert main(args) == 13
+    assert (out / "subject_000" / "params.npz").stat().st_mtime_ns == stamp
+    (data / "subject_001" / "keypoints.json").write_text((SYNTHETIC / "subject_001" / "keypoints.json").read_text())
+    assert main(args + ["--retry-failed"]) == 12
+    records = _by_item(out)
+    assert records["subject_001"]["status"] == "ok" and len(records) == 5
+    assert (out / "subject_000" / "params.npz").stat().st_mtime_ns == stamp
+    assert [f["item"] for f in read_jsonl(out / "failures.jsonl")] == ["subject_002", "subject_003"]
+
+
+def test_openpose_people_all_matches_silfit_fit_layout(tmp_path):
+    root = openpose_folder(tmp_path / "in", names=("subject_000", "subject_001"), two_people=("subject_001",))
+    out = tmp_path / "out"
+    sil = ["--silhouette-resolutions", "48", "--silhouette-iterations", "4"]
+    rc = main(["fit-dataset", str(root / "kp"), "--out", str(out), "--people", "all", "--masks", str(root / "masks"),
+               "--images", str(root / "images"), "--camera", str(root / "cameras"), "--quiet", *FAST, *sil])  # fmt: skip
+    assert rc == 0
+    records = _by_item(out)
+    assert sorted(records) == ["subject_000_0", "subject_001_0", "subject_001_1"]
+    with_mask, without = records["subject_001_0"], records["subject_001_1"]
+    assert with_mask["stages"] == ["keypoints", "silhouette"] and 0 < with_mask["iou"] <= 1
+    assert without["stages"] == ["keypoints"] and "iou" not in without and "no mask" in without["silhouette_stage"]
+    assert json.loads((out / "subject_001_1" / "metrics.json").read_text())["silhouette_stage"] == without["silhouette_stage"]
+    # the same files as `silfit fit` writes for one image with (and without) a mask
+    single = tmp_path / "single"
+    assert main(["fit", "--keypoints", str(root / "kp" / "subject_001_keypoints.json"), "--person", "0",
+                 "--mask", str(root / "masks" / "subject_001_0.png"), "--image", str(root / "images" / "subject_001.png"),
+                 "--camera", str(root / "cameras" / "subject_001.json"), "--out", str(single), "--quiet", *sil]) == 0  # fmt: skip
+    assert _files(out / "subject_001_0") == _files(single)
+    kp_only = set(_files(single)) - {"silhouette.png", "iou_curve.png", "stages/keypoints/overlay.png"}
+    assert set(_files(out / "subject_001_1")) == kp_only
+
+
+def test_bad_command_is_one_line_exit_2(tmp_path, capsys):
+    assert main(["fit-dataset", str(tmp_path / "none"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "dataset input not found" in err and len(err.splitlines()) == 1
+    assert main(["fit-dataset", str(SYNTHETIC), "--out", str(tmp_path / "o"), "--keypoint-option", "nope=1"]) == 2
+    assert "unknown keypoint-stage option 'nope'" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+    assert main(["fit-dataset", str(SYNTHETIC), "--out", str(tmp_path / "o"), "--silhouette-resolutions", "64",
+                 "--silhouette-iterations", "5,5"]) == 2
+    assert "same number of levels" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+    (tmp_path / "file").write_text("x")
+    assert main(["fit-dataset", str(SYNTHETIC), "--out", str(tmp_path / "file")]) == 2
+    assert "exists and is not a folder" in capsys.readouterr().err
+
+
+def _cli(*args):
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.Popen([sys.executable, "-m", "silfit", "fit-dataset", *args], cwd=ROOT, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)  # fmt: skip
+
+
+def test_sigkill_mid_run_then_restart_finishes_each_item_once(tmp_path):
+    names = [f"subject_{i:03d}" for i in range(8)]
+    data, out = synthetic_copy(tmp_path / "data", names), tmp_path / "out"
+    args = [str(data), "--out", str(out), "--no-silhouette", "--batch-size", "1", "--quiet", *FAST,
+            "--keypoint-option", "pose_iters=25,25,25"]  # fmt: skip
+    proc = _cli(*args)
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None:
+        done = len(read_jsonl(out / "results.jsonl"))
+        if done >= 2:
+            break
+        time.sleep(0.05)
+    assert proc.poll() is None, "the run ended before it could be killed"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    killed_at = len(read_jsonl(out / "results.jsonl"))
+    assert 2 <= killed_at < len(names)
+    proc = _cli(*args)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err.decode()[-2000:]
+    records = _by_item(out)
+    assert sorted(records) == names
+    assert all(r["status"] == "ok" for r in records.values())
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".")]  # no partial folder left
+    for key in records:
+        KeypointFitResult.load(out / key)
+
+
+def test_ray_run_matches_local_run(tmp_path):
+    pytest.importorskip("ray")
+    common = [str(SYNTHETIC), "--no-silhouette", "--batch-size", "4", "--quiet", *FAST]
+    assert main(["fit-dataset", "--out", str(tmp_path / "local"), *common]) == 0
+    assert main(["fit-dataset", "--out", str(tmp_path / "ray"), "--ray", "--actors", "2", *common]) == 0
+    local, ray = _by_item(tmp_path / "local"), _by_item(tmp_path / "ray")
+    assert sorted(local) == sorted(ray) == [f"subject_{i:03d}" for i in range(12)]
+    for key in local:
+        a, b = ({k: v for k, v in r.items() if k != "timings_s"} for r in (local[key], ray[key]))
+        assert a.keys() == b.keys()
+        for k in a:
+            if isinstance(a[k], float):
+                assert a[k] == pytest.approx(b[k], abs=1e-3), (key, k)
+            else:
+                assert a[k] == b[k], (key, k)
+        pa, pb = (KeypointFitResult.load(tmp_path / d / key) for d in ("local", "ray"))
+        for name in ("betas", "body_pose", "global_orient", "transl"):
+            np.testing.assert_allclose(getattr(pa, name), getattr(pb, name), atol=1e-4)
