@@ -255,7 +255,7 @@ def _load(path: Path, n_model_vertices: int) -> Optional[RenderProxy]:
                 weights=z["weights"].astype(np.float32),
                 n_model_vertices=int(z["n_model_vertices"]),
             )
-    except (OSError, KeyError, ValueError):
+    except Exception:  # noqa: BLE001 - any unreadable cache file (truncated zip, EOF, ...) is rebuilt
         return None
     ok = (
         proxy.n_model_vertices == n_model_vertices

@@ -39,6 +39,8 @@ from typing import Dict, Iterable, List, Mapping, Optional, Sequence, Union
 
 import numpy as np
 
+from .errors import InputError
+
 from .camera import Camera, load_camera
 from .keypoints import KeypointSet, read_keypoints
 
@@ -82,14 +84,13 @@ WHOLEBODY_GT_PARAMS = ("expression", "jaw_pose", "leye_pose", "reye_pose", "left
 INDEX_NAME = "index.json"
 
 
-class SubjectError(ValueError):
+class SubjectError(InputError):
     """A malformed subject file: ``path`` and ``field`` name what is wrong."""
 
     def __init__(self, path: PathLike, field: str, message: str):
         self.path = os.fspath(path)
-        self.field = field
         self.message = message
-        super().__init__(f"{self.path}: field '{field}': {message}")
+        super().__init__(self.path, message if field == "<file>" else f"field '{field}': {message}", field)
 
 
 @dataclass
@@ -186,19 +187,17 @@ def read_image(path: PathLike, size: Optional[Sequence[int]] = None) -> np.ndarr
 
 
 def _read_png(path: PathLike, what: str) -> np.ndarray:
-    from PIL import Image, UnidentifiedImageError
+    """The shared image reader (:mod:`silfit.imagefile`: size limits from the header, every
+    decoding error one line), its errors as :class:`SubjectError`."""
+    from .imagefile import read_pixels
 
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise FileNotFoundError(f"{path}: {what} file not found")
     try:
-        with Image.open(path) as im:
-            im.load()
-            if im.mode in ("P", "PA", "LA", "1", "CMYK", "YCbCr", "HSV"):
-                im = im.convert("RGBA" if "A" in im.mode else ("L" if im.mode == "1" else "RGB"))
-            arr = np.asarray(im)
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as err:
-        raise SubjectError(path, what, f"not a readable image ({err})") from None
+        arr = read_pixels(path, what)
+    except InputError as err:
+        raise SubjectError(path, what, str(err).partition(": ")[2]) from None
     if arr.ndim not in (2, 3) or arr.size == 0:
         raise SubjectError(path, what, f"unexpected image shape {arr.shape}")
     return arr

@@ -141,21 +141,41 @@ def read_fit(
 
 
 # ----------------------------------------------------------------------------- helpers
+def _as_subject_error(f: Path, err) -> SubjectError:
+    """A shared reader's :class:`~silfit.errors.InputError` as this reader's error type."""
+    msg = str(err).partition(": ")[2]
+    if err.field and msg.startswith(f"field '{err.field}'"):
+        msg = msg[len(f"field '{err.field}'"):].lstrip(": ").strip()
+    return SubjectError(f, err.field or "<file>", msg)
+
+
+
 def _read_npz(f: Path) -> dict:
     """Through :func:`silfit.safe_pickle.load_npz`: size limits, no pickled objects."""
+    from .errors import InputError
     from .safe_pickle import load_npz
 
     try:
         return load_npz(f, what="fit parameters")
+    except SubjectError:
+        raise
+    except InputError as err:
+        raise _as_subject_error(f, err) from None
     except (zipfile.BadZipFile, EOFError, KeyError) as err:
         raise SubjectError(f, "<file>", f"not a readable .npz archive ({err})") from None
 
 
 def _read_json(f: Path) -> dict:
     """Through :func:`silfit.input_limits.read_json`: size and nesting limits."""
+    from .errors import InputError
     from .input_limits import read_json
 
-    raw = read_json(f, "fit parameters")
+    try:
+        raw = read_json(f, "fit parameters")
+    except InputError as err:
+        if isinstance(err, SubjectError):
+            raise
+        raise _as_subject_error(f, err) from None
     if not isinstance(raw, dict):
         raise SubjectError(f, "<file>", f"expected a JSON object with {', '.join(PARAM_SIZES)}")
     return raw
@@ -206,8 +226,12 @@ def _json_camera(f: Path, raw: dict) -> Optional[Camera]:
     if "camera" not in raw:
         return None
     from .camera import camera_from_dict
+    from .errors import InputError
 
-    return camera_from_dict(raw["camera"], f"{f} (field 'camera')")
+    try:
+        return camera_from_dict(raw["camera"], "camera")
+    except InputError as err:
+        raise SubjectError(f, "camera", str(err).partition(": ")[2]) from None
 
 
 def _scalars(f: Path, name: str, value) -> Dict[str, float]:

@@ -22,3 +22,12 @@ def open_model64():
 def body_model(open_model):
     """The shipped open body model (the name the fitting and prior tests use)."""
     return open_model
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _silfit_cache(tmp_path_factory):
+    """Caches (the render proxy) go to a temporary folder, not the home directory."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("SILFIT_CACHE_DIR", str(tmp_path_factory.mktemp("silfit-cache")))
+    yield
+    mp.undo()

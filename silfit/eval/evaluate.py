@@ -379,8 +379,10 @@ def evaluate_dataset(
 
 
 def _field_of(err: Exception) -> dict:
-    if isinstance(err, SubjectError):
-        return {"file": err.path, "field": err.field}
+    from ..errors import InputError
+
+    if isinstance(err, InputError):
+        return {"file": err.source, "field": err.field}
     return {}
 
 

@@ -48,7 +48,11 @@ def mirror_rotation(v: np.ndarray, n: np.ndarray) -> np.ndarray:
     c = (v * w).sum(-1)
     angle = np.arctan2(s, c)
     unit = axis / np.maximum(s, 1e-12)[:, None]
-    rv = np.where((s > 1e-9)[:, None], unit * angle[:, None], 0.0)
+    # v and its mirror image (anti)parallel: along the normal a half turn about any axis
+    # perpendicular to v; in the plane nothing to turn
+    perp = np.cross(v, np.where(np.abs(v[:, :1]) < 0.9 * np.linalg.norm(v, axis=-1, keepdims=True), [[1.0, 0, 0]], [[0, 1.0, 0]]))
+    perp = perp / np.maximum(np.linalg.norm(perp, axis=-1, keepdims=True), 1e-12)
+    rv = np.where((s > 1e-9)[:, None], unit * angle[:, None], np.where((c < 0)[:, None], np.pi * perp, 0.0))
     return Rotation.from_rotvec(rv).as_matrix()
 
 

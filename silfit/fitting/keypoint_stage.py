@@ -132,6 +132,14 @@ class KeypointFitConfig:
             raise ValueError(f"KeypointFitConfig: flip_decision_stage {self.flip_decision_stage} is not a pose stage (0..{n - 1})")
         if int(self.init_poses) < 1:
             raise ValueError(f"KeypointFitConfig: init_poses must be at least 1, got {self.init_poses}")
+        starts = (2 if self.flip_test else 1) * int(self.init_poses)
+        if self.branch_search and starts > 1 and min(self.branch_after_stage, n - 1) < self.flip_decision_stage:
+            raise ValueError(
+                f"KeypointFitConfig: the branch search (after pose stage {self.branch_after_stage}) needs the start "
+                f"decided first (flip_decision_stage {self.flip_decision_stage})"
+            )
+        if self.schedule is not None and not all(isinstance(s, Stage) for s in self.schedule):
+            raise ValueError("KeypointFitConfig: schedule must be a list of silfit.fitting.stages.Stage")
 
     def stages(self) -> tuple:
         """The schedule as data: camera, pose_1..n (annealed priors; the best start of each
@@ -244,6 +252,11 @@ class KeypointFitter:
         from ..body import load_body_model
 
         self.model = load_body_model() if model is None else model
+        if getattr(self.model, "kind", "smpl") != "smpl":
+            raise ValueError(
+                f"{self.model.source}: the keypoint stage fits SMPL-layout models; whole-body ({self.model.kind}) "
+                "fitting is not available yet"
+            )
         self.config = config or KeypointFitConfig()
         self.layout = layout
         self.dtype = self.model.dtype

@@ -204,7 +204,7 @@ class DatasetFitter:
             t0 = time.perf_counter()
             try:
                 out.append(refine(self.model, res.keypoint, li.keypoints, li.mask, self.silhouette_config,
-                                  self.pose_prior, renderer=self.renderer, progress=False, mask_source=li.mask_file))  # fmt: skip
+                                  self.pose_prior, progress=False, mask_source=li.mask_file))  # fmt: skip
             except Exception as err:  # noqa: BLE001 - one item's failure
                 out.append(item_error(err, li.mask_file, "mask"))
             times[li.item.key]["silhouette"] = time.perf_counter() - t0

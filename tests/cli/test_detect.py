@@ -110,7 +110,7 @@ def test_bad_photos_exit_2_with_one_line(case, tmp_path, capsys):
         assert main(command + ["--out", str(out)]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and str(image) in err, err
-        expected = {"missing": "image not found", "empty": "not a readable image", "no_person": "no person found"}[case]
+        expected = {"missing": "image not found", "empty": "cannot read the image", "no_person": "no person found"}[case]
         assert expected in err
         assert not out.exists()
 

@@ -102,7 +102,7 @@ def test_bad_inputs_leave_no_png(tmp_path, capsys, kind):
     if kind == "nan_params":
         path = tmp_path / "params.json"
         path.write_text(json.dumps({"transl": [0.0, float("nan"), 3.0]}))  # json writes the NaN literal
-        message = "field 'transl' contains NaN"
+        message = "field 'transl': holds NaN or infinite values"
     elif kind == "empty_mesh":
         path = tmp_path / "empty.obj"
         path.write_text("# nothing\n")
@@ -142,19 +142,19 @@ def test_hostile_fit_files_are_one_line_errors(tmp_path, capsys, kind):
     if kind == "object_array":
         path = tmp_path / "params.npz"
         np.savez(path, transl=np.array([{"x": 1}], dtype=object))
-        message = "params.npz: field 'transl' holds Python objects"
+        message = "params.npz: field 'transl': holds Python objects"
     elif kind == "bad_intrinsics":
         path = tmp_path / "params.npz"
         np.savez(path, transl=np.array([0.0, 0.0, 3.0]), camera_intrinsics=np.ones(3), image_size=np.array([64, 64]))
-        message = "camera_intrinsics must be 4 numbers"
+        message = "field 'camera_intrinsics': has 3 values, expected [fx, fy, cx, cy]"
     elif kind == "camera_keys":
         path = tmp_path / "params.json"
         path.write_text(json.dumps({"transl": [0, 0, 3], "camera": {"fx": 1, "evil": 2}}))
-        message = "(field 'camera'): camera field(s) missing"
+        message = "field 'camera': camera field(s) missing"
     elif kind == "wrong_width":
         path = tmp_path / "params.json"
         path.write_text(json.dumps({"transl": [0, 0, 3], "body_pose": [0.0] * 72}))
-        message = "params.json: field 'body_pose' has 72 values, the model takes 69"
+        message = "params.json: field 'body_pose': has shape [72], expected [69]"
     else:
         path = tmp_path / "params.json"
         path.write_bytes(b"\xff\xfe\x00" * 50)
