@@ -273,9 +273,13 @@ def save_fit(
         metrics["layout"] = result.layout
         metrics.update(extra_metrics or {})
         (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        if out.exists():
-            shutil.rmtree(out)
+        old = None
+        if out.exists():  # set the old output aside first, so a crash here never loses both
+            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
+            os.replace(out, old / out.name)
         os.replace(tmp, out)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

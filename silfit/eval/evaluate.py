@@ -295,10 +295,24 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
         for start in range(0, len(todo), max(1, int(silhouette_batch))):
             idx = todo[start : start + max(1, int(silhouette_batch))]
             chunk = [subjects[i] for i in idx]
-            fitted_all = refine_batch(model, result.select(idx), [s.keypoints for s in chunk], [s.mask for s in chunk],
-                                      pose_prior=fitter.pose_prior, progress=progress,
-                                      mask_sources=[str(s.file("mask")) for s in chunk])  # fmt: skip
+            def refine_some(rows):
+                return refine_batch(model, result.select(rows), [subjects[i].keypoints for i in rows],
+                                    [subjects[i].mask for i in rows], pose_prior=fitter.pose_prior, progress=progress,
+                                    mask_sources=[str(subjects[i].file("mask")) for i in rows])  # fmt: skip
+
+            try:
+                fitted_all = refine_some(idx)
+            except ValueError:  # one subject's problem: refine them one by one, so it fails alone
+                fitted_all = []
+                for i in idx:
+                    try:
+                        fitted_all += refine_some([i])
+                    except ValueError as err:
+                        failed.append(f"{subjects[i].name}: {err}")
+                        fitted_all.append(None)
             for i, s, fitted in zip(idx, chunk, fitted_all):
+                if fitted is None:
+                    continue
                 timings = {"keypoints": kp_timings["total"], "silhouette": fitted.silhouette.seconds}
                 timings["total"] = sum(timings.values())
                 save_fit(fitted, Path(fits_root) / s.name / "silhouette", faces, s.keypoints, s.image, s.mask,

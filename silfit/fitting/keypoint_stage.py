@@ -197,7 +197,7 @@ def prepare_keypoints(keypoints, layout: Optional[str] = None) -> list:
     if layout is None:
         matches = [n for n, names in LAYOUTS.items() if len(names) == arr.shape[1]]
         if not matches:
-            raise ValueError(f"keypoints array has {arr.shape[1]} points; expected 25 (body25) or 17 (coco17)")
+            raise ValueError(f"keypoints array has {arr.shape[1]} points; expected 25 (body25), 17 (coco17) or 33 (blazepose33)")
         layout = matches[0]
     return [KeypointSet(a[:, :2], a[:, 2], layout, source=f"<array>[{i}]") for i, a in enumerate(arr)]
 
@@ -380,7 +380,8 @@ class KeypointFitter:
         # Starts: each facing (and the 180-degree flip) is placed by the camera stage, then
         # every placed start is combined with each initial body pose in the decision stage.
         facings = (False, True) if cfg.flip_test else (False,)
-        init_poses = self._initial_poses(cfg.init_poses)
+        # a given body pose is the one start pose (with both facings when flip_test is on)
+        init_poses = self._initial_poses(1 if init and "body_pose" in init else cfg.init_poses)
         data, views, state = self._problem_data(problems, facings)
         for n, v in (init or {}).items():
             v = torch.as_tensor(np.asarray(v, dtype=np.float64), dtype=dt)
