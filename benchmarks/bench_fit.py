@@ -35,6 +35,8 @@ stage, and the relative change against the issue's targets.
     python benchmarks/bench_fit.py --subjects 50 --singles 5
     python benchmarks/bench_fit.py --subjects 0 --no-shipped --silhouette 30 --seed 1
     python benchmarks/bench_fit.py --subjects 20 --synth 24 --holdout 24 --prior default --prior limits
+    python benchmarks/bench_fit.py --subjects 0 --no-shipped --hard 60 --seed 101      # the hard set (issue 9's table)
+    python benchmarks/bench_fit.py --subjects 0 --no-shipped --silhouette-batches 1,8,16
 """
 from __future__ import annotations
 
@@ -318,7 +320,8 @@ def main(argv=None):
     ap.add_argument("--size", type=int, default=512, help="image size of the --silhouette set")
     ap.add_argument("--keep", help="keep the --silhouette dataset and its fits in this folder")
     ap.add_argument("--dataset", action="append", default=[], help="also score both methods on this synthetic-format dataset (repeatable)")
-    ap.add_argument("--keypoints-only", action="store_true", help="--dataset: the keypoint stage only")
+    ap.add_argument("--keypoints-only", action="store_true", help="--dataset / --hard: the keypoint stage only")
+    ap.add_argument("--hard", type=int, default=0, help="also N fresh hard-pose subjects (silfit synth --poses hard, seed --seed)")
     ap.add_argument("--silhouette-batches", help="time the silhouette stage alone and in batches, e.g. 1,8,16")
     ap.add_argument("--full-mesh", action="store_true", help="silhouette timing: render the full mesh, no proxy")
     args = ap.parse_args(argv)
@@ -338,6 +341,16 @@ def main(argv=None):
 
         cfg = SilhouetteFitConfig(proxy_faces=None, batch_render=False) if args.full_mesh else SilhouetteFitConfig()
         silhouette_timing(model, [int(b) for b in args.silhouette_batches.split(",")], config=cfg)
+    if args.hard:
+        import tempfile
+
+        from silfit.synth import generate_hard_dataset
+
+        methods = ("keypoints",) if args.keypoints_only else ("keypoints", "silhouette")
+        with tempfile.TemporaryDirectory() as tmp:
+            root = Path(args.keep or tmp) / "hard"
+            generate_hard_dataset(root, args.hard, seed=args.seed, size=args.size, noise_px=args.noise, model=model)
+            run_dataset_benchmark(model, root, methods, f"hard set ({args.hard} subjects, seed {args.seed}, {args.noise:g} px noise)")
     for root in args.dataset:
         methods = ("keypoints",) if args.keypoints_only else ("keypoints", "silhouette")
         run_dataset_benchmark(model, root, methods, f"dataset {root}")
