@@ -41,6 +41,9 @@ def test_fit_writes_all_outputs(inputs, tmp_path):
         assert (out / f).exists(), f
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["reprojection_error_px"] < 2.0
+    t = metrics["timings_s"]  # the stage's total, not total + its parts
+    assert t["keypoints"] == pytest.approx(t["keypoints.total"])
+    assert t["keypoints"] < sum(v for k, v in t.items() if k.startswith("keypoints.") and k != "keypoints.total") * 1.5
     lines = (out / "mesh.obj").read_text().splitlines()
     assert sum(ln.startswith("v ") for ln in lines) == toy_model().num_vertices
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".fit.")]
