@@ -21,8 +21,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import List, Optional, Sequence, Union
@@ -35,6 +33,7 @@ from .fitting.keypoint_stage import KeypointFitConfig, KeypointFitter, prepare_k
 from .fitting.result import KeypointFitResult
 from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult, fit_silhouettes
 from .keypoints import KeypointSet, model_keypoints
+from .outfolder import atomic_folder
 from .plausibility import check_keypoints, fit_warnings
 from .eval.metrics import mask_iou
 from .silhouette.masks import validate_mask
@@ -253,11 +252,7 @@ def save_fit(
     from .meshio import write_obj
 
     out = Path(out)
-    if out.exists() and not overwrite and (not out.is_dir() or any(out.iterdir())):
-        raise FileExistsError(f"{out}: output folder exists and is not empty (use --overwrite)")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
+    with atomic_folder(out, overwrite) as tmp:
         result.final.save(tmp)
         write_obj(tmp / "mesh.obj", result.vertices, faces)
         kp_xy = None if keypoints is None else keypoints.xy
@@ -278,15 +273,5 @@ def save_fit(
         metrics["layout"] = result.layout
         metrics.update(extra_metrics or {})
         (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        old = None
-        if out.exists():  # set the old output aside first, so a crash here never loses both
-            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
-            os.replace(out, old / out.name)
-        os.replace(tmp, out)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out
 

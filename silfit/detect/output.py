@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import tempfile
 from pathlib import Path
 from typing import List, Optional, Tuple
 
@@ -43,14 +41,11 @@ def save_detection(out: os.PathLike, photo: Photo, people: List[Person], layout:
                    overwrite: bool = False) -> Path:  # fmt: skip
     from ..dataset import write_png
     from ..keypoints import write_openpose_json
+    from ..outfolder import atomic_folder
     from .draw import detection_overlay
 
     out = Path(out)
-    if out.exists() and not overwrite and (not out.is_dir() or any(out.iterdir())):
-        raise FileExistsError(f"{out}: output folder exists and is not empty (use --overwrite)")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
+    with atomic_folder(out, overwrite) as tmp:
         write_openpose_json(tmp / "keypoints.json", np.stack([p.keypoints(layout) for p in people]))
         for i, p in enumerate(people):
             write_png(tmp / ("mask.png" if i == 0 else f"mask_{i}.png"), p.mask())
@@ -63,10 +58,4 @@ def save_detection(out: os.PathLike, photo: Photo, people: List[Person], layout:
             "people": [p.to_dict() for p in people],
         }  # fmt: skip
         (tmp / "detection.json").write_text(json.dumps(report, indent=2))
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out

@@ -29,8 +29,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -244,6 +242,7 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
     shared when both methods are asked for). Returns ``{method: status}``; raises
     :class:`FitterUnavailable` when nothing can run."""
     from ..fitting import KeypointFitter, prepare_keypoints
+    from ..outfolder import atomic_folder
     from ..pipeline import body_mask, refine_batch, save_fit
     from ..silhouette.masks import validate_mask
 
@@ -266,15 +265,10 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
         search = [{"energy_fit": float(a), "energy_truth": float(b)} for a, b in zip(e_fit, e_truth)]
     if "keypoints" in methods:
         for i, s in enumerate(subjects):  # each fit folder is written beside its place, then moved in
-            d = Path(fits_root) / s.name / "keypoints"
-            d.parent.mkdir(parents=True, exist_ok=True)
-            tmp = Path(tempfile.mkdtemp(prefix=".keypoints.", dir=d.parent))
-            result[i].save(tmp)
-            record = {"timings": kp_timings, "batched_over": len(subjects), "search": search[i]}
-            (tmp / "metrics.json").write_text(json.dumps(record, indent=2))
-            if d.exists():
-                shutil.rmtree(d)
-            os.replace(tmp, d)
+            with atomic_folder(Path(fits_root) / s.name / "keypoints", overwrite=True) as tmp:
+                result[i].save(tmp)
+                record = {"timings": kp_timings, "batched_over": len(subjects), "search": search[i]}
+                (tmp / "metrics.json").write_text(json.dumps(record, indent=2))
         status["keypoints"] = f"ran on {len(subjects)} subjects in {kp_elapsed:.1f} s (batched; per-subject times are batch averages)"
     if "silhouette" in methods:
         faces = model.faces.cpu().numpy()

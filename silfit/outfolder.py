@@ -1,0 +1,38 @@
+"""Output folders written atomically: everything goes into a temporary folder beside the
+target, which replaces the target only once it is complete. An earlier output is set
+aside before the swap and removed after it, so a crash at any point leaves either the old
+folder or the new one, never neither and never a half-written one."""
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator, Union
+
+__all__ = ["atomic_folder"]
+
+
+@contextmanager
+def atomic_folder(out: Union[str, os.PathLike], overwrite: bool = False) -> Iterator[Path]:
+    """``with atomic_folder(out) as tmp:`` write into ``tmp``; on a clean exit ``tmp``
+    becomes ``out``, on an error or interrupt it is removed. ``out`` that exists and is not
+    an empty folder is refused unless ``overwrite``."""
+    out = Path(out)
+    if out.exists() and not overwrite and (not out.is_dir() or any(out.iterdir())):
+        raise FileExistsError(f"{out}: output folder exists and is not empty (use --overwrite)")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        yield tmp
+        old = None
+        if out.exists():  # set the old output aside first, so a crash here never loses both
+            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
+            os.replace(out, old / out.name)
+        os.replace(tmp, out)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
