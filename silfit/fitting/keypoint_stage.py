@@ -45,7 +45,9 @@ from .branches import limb_hypotheses
 from .problem import ParameterLayout, Problem, stack_views
 from .result import KeypointFitResult
 from .stages import Stage, check_stages, run_lbfgs_stage, stage_to_dict
-from .terms import DepthTerm, Energy, InterpenetrationTerm, KeypointTerm, PriorTerm, evaluate
+from .terms import (
+    DepthTerm, Energy, InterpenetrationTerm, JointSmoothnessTerm, KeypointTerm, PriorTerm, RootSmoothnessTerm, evaluate,
+)  # fmt: skip
 from .threads import torch_threads
 
 __all__ = ["KeypointFitConfig", "KeypointFitter", "fit_keypoints", "prepare_keypoints"]
@@ -117,6 +119,11 @@ class KeypointFitConfig:
     #: run the remaining steps (0: all run every step)
     branch_screen_iters: int = 10
     branch_survivors: int = 3
+    #: temporal terms (``smooth_joints``, ``smooth_root``; weight 0 in the single-image
+    #: schedule, used by :mod:`silfit.fitting.sequence`): robust scale in mm per frame^2
+    #: and the penalty (``charbonnier`` or ``gm``)
+    temporal_sigma: float = 10.0
+    temporal_robust: str = "charbonnier"
     #: an explicit list of :class:`~silfit.fitting.stages.Stage` replacing the schedule
     #: the fields above describe (see :meth:`stages`)
     schedule: Optional[Sequence[Stage]] = None
@@ -280,6 +287,8 @@ class KeypointFitter:
             PriorTerm("pose", self.pose_prior, "body_pose"), PriorTerm("angle", angle_prior, "body_pose"),
             PriorTerm("limits", limit_violation, "body_pose"), PriorTerm("shape", shape_prior, "betas"),
             InterpenetrationTerm(self.collisions),
+            JointSmoothnessTerm(sigma=self.config.temporal_sigma, kind=self.config.temporal_robust),
+            RootSmoothnessTerm(sigma=self.config.temporal_sigma, kind=self.config.temporal_robust),
         ])  # fmt: skip
         self.stages = self.config.stages()
         check_stages(self.stages, self.energy, self.params)

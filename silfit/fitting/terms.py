@@ -13,7 +13,9 @@ Data each term expects in ``Evaluation.data``:
   (confidence x per-keypoint weight, already normalised as the stage wants),
   ``scale [P,F,C]`` (pixels -> the stage's residual units);
 * :class:`DepthTerm`: ``z0 [P,F,C]``, the depth the root should have in each camera;
-* :class:`StayTerm`: ``start_<param>`` (the parameters to stay near).
+* :class:`StayTerm`: ``start_<param>`` (the parameters to stay near);
+* :class:`JointSmoothnessTerm`, :class:`RootSmoothnessTerm` (temporal, over a problem's
+  frames, no data; problems of fewer than three frames give 0).
 """
 from __future__ import annotations
 
@@ -31,11 +33,15 @@ __all__ = [
     "Energy",
     "Evaluation",
     "InterpenetrationTerm",
+    "JointSmoothnessTerm",
     "KeypointTerm",
     "PriorTerm",
+    "RootSmoothnessTerm",
     "StayTerm",
     "Term",
     "evaluate",
+    "robust_penalty",
+    "second_differences",
 ]
 
 
@@ -144,6 +150,70 @@ class StayTerm(Term):
     def __call__(self, ev: Evaluation) -> torch.Tensor:
         diff = ev.params[self.parameter] - ev.data[f"start_{self.parameter}"]
         return ev.per_problem(diff.reshape(ev.P, -1).square())
+
+
+def second_differences(x: torch.Tensor) -> torch.Tensor:
+    """``x[:, t+1] - 2 x[:, t] + x[:, t-1]`` along the frame axis 1: ``[P, F, ...] -> [P, F-2, ...]``
+    (the discrete acceleration per frame squared)."""
+    return x[:, 2:] - 2.0 * x[:, 1:-1] + x[:, :-2]
+
+
+def robust_penalty(sq: torch.Tensor, sigma: Optional[float], kind: str = "charbonnier") -> torch.Tensor:
+    """A robust penalty of squared residual norms ``sq``: ``"charbonnier"`` (pseudo-Huber,
+    ``2 sigma^2 (sqrt(1 + sq / sigma^2) - 1)``: quadratic below ``sigma``, linear above, so a
+    large true acceleration costs in proportion, not squared), ``"gm"`` (Geman-McClure,
+    ``sigma^2 sq / (sigma^2 + sq)``: bounded) or plain ``sq`` when ``sigma`` is ``None``.
+    All are ``~ sq`` for ``sq << sigma^2``."""
+    if sigma is None:
+        return sq
+    s2 = float(sigma) ** 2
+    if kind == "charbonnier":
+        return 2.0 * s2 * (torch.sqrt(1.0 + sq / s2) - 1.0)
+    if kind == "gm":
+        return s2 * sq / (s2 + sq)
+    raise ValueError(f"unknown robust penalty {kind!r} (expected charbonnier or gm)")
+
+
+class JointSmoothnessTerm(Term):
+    """Temporal smoothness of the joints' world positions: ``sum_t sum_j rho(|scale *
+    a_tj|^2)`` with ``a`` the second difference over frames (:func:`second_differences`) of
+    ``ev.body.joints`` (``[P*F, J, 3]``, metres; ``scale`` 1000: millimetres) and ``rho``
+    :func:`robust_penalty` with ``sigma`` (mm per frame^2) so a true fast motion (a swing, a
+    kick) is penalised linearly, not flattened."""
+
+    def __init__(self, name: str = "smooth_joints", sigma: Optional[float] = 10.0, kind: str = "charbonnier", scale: float = 1000.0):
+        self.name, self.sigma, self.kind, self.scale = name, sigma, kind, float(scale)
+
+    def __call__(self, ev: Evaluation) -> torch.Tensor:
+        joints = ev.body.joints
+        if ev.F < 3:
+            return joints.new_zeros(ev.P)
+        a = second_differences(joints.reshape(ev.P, ev.F, *joints.shape[1:])) * self.scale
+        return robust_penalty((a * a).sum(-1), self.sigma, self.kind).reshape(ev.P, -1).sum(1)
+
+
+class RootSmoothnessTerm(Term):
+    """Temporal smoothness of the root's motion: the second difference over frames of the
+    translation (``transl``, metres x ``scale``) and of the root orientation's rotation
+    matrix (``global_orient``; x ``rotation_scale``, i.e. the motion of points that far from
+    the root, in the same units), each through :func:`robust_penalty`."""
+
+    def __init__(self, name: str = "smooth_root", sigma: Optional[float] = 10.0, kind: str = "charbonnier",
+                 scale: float = 1000.0, rotation_scale: float = 500.0):  # fmt: skip
+        self.name, self.sigma, self.kind = name, sigma, kind
+        self.scale, self.rotation_scale = float(scale), float(rotation_scale)
+
+    def __call__(self, ev: Evaluation) -> torch.Tensor:
+        from ..body.lbs import axis_angle_to_matrix
+
+        transl, orient = ev.params["transl"], ev.params["global_orient"]  # [P, F, 3]
+        if ev.F < 3:
+            return transl.new_zeros(ev.P)
+        a = second_differences(transl) * self.scale
+        rot = axis_angle_to_matrix(orient.reshape(-1, 3)).reshape(ev.P, ev.F, 9)
+        b = second_differences(rot) * self.rotation_scale
+        e = robust_penalty((a * a).sum(-1), self.sigma, self.kind) + robust_penalty((b * b).sum(-1), self.sigma, self.kind)
+        return e.sum(1)
 
 
 class Energy:
