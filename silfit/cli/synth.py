@@ -41,12 +41,43 @@ def register(subparsers) -> None:
     p.add_argument("--poses", choices=("library", "hard"), default="library",
                    help="library: around the hand-authored pose library (default); hard: silfit.poses.sampler's squats, "
                         "kneeling, running, lunges, hands at the face/head/hip, front and back views over-represented")
+    p.add_argument("--sequence", action="store_true",
+                   help="--n short motions instead of single images (silfit.synth.motion: walk, run, squat, wave, turn; "
+                        "per-frame OpenPose JSON, masks, images and per-frame truth in one folder per sequence)")
+    p.add_argument("--frames", type=int, default=60, help="--sequence: frames per sequence (default 60)")
+    p.add_argument("--fps", type=float, default=30.0, help="--sequence: frame rate (default 30)")
+    p.add_argument("--motions", default=None, help="--sequence: comma-separated motions, cycled (default: all)")
+    p.add_argument("--orbit", type=float, default=0.0, help="--sequence: camera orbit over the clip, degrees (default 0)")
+    p.add_argument("--drop-frames", type=float, default=0.0,
+                   help="--sequence: probability of a frame with no person detected (default 0)")
     p.add_argument("--model", default=None, help="body model file (default: the shipped open body model)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
+def run_sequence(args: argparse.Namespace, model) -> int:
+    from ..synth.motion import MOTIONS, SequenceConfig, generate_sequence_dataset
+
+    motions = tuple(m.strip() for m in args.motions.split(",") if m.strip()) if args.motions else tuple(MOTIONS)
+    cfg = SequenceConfig(seed=args.seed, frames=args.frames, fps=args.fps, size=args.size, noise_px=args.noise_px,
+                         drop_prob=args.drop, drop_frames=args.drop_frames, motions=motions, orbit_deg=args.orbit,
+                         fov_deg=tuple(args.fov), background=args.background).validate()  # fmt: skip
+    index = generate_sequence_dataset(args.out, args.n, cfg, model=model, progress=not args.no_progress,
+                                      command=shlex.join(["silfit", "synth", *sys.argv[2:]]))  # fmt: skip
+    seqs = index["sequences"]
+    print(f"wrote {len(seqs)} sequences of {args.frames} frames to {args.out} (seed {args.seed}, {args.size}x{args.size}, "
+          f"noise {args.noise_px} px): {', '.join(s['name'] + ' ' + s['motion'] for s in seqs)}")  # fmt: skip
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.sequence:
+        model = None
+        if args.model is not None:
+            from ..body import load_body_model
+
+            model = load_body_model(args.model)
+        return run_sequence(args, model)
     from ..synth.generate import SynthConfig, dataset_summary, generate_dataset
 
     cfg = SynthConfig(

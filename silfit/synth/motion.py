@@ -1,0 +1,273 @@
+"""Short synthetic motions with per-frame ground truth (``silfit synth --sequence``).
+
+A motion is a cycle of key poses from the pose library (:mod:`silfit.poses.library`),
+interpolated by a periodic cubic spline of every joint's axis-angle components (smooth to
+the second derivative, so the truth's acceleration is well defined), plus a root motion in
+a Y-up world: a heading (yaw) over time and a speed along it. The feet are kept on the
+ground (each frame is lifted or lowered so its lowest vertex stays at the standing
+height), and an optional camera orbit turns the world about the trajectory's centre.
+
+Motions (:data:`MOTIONS`): ``walk``, ``run``, ``squat``, ``wave``, ``turn``.
+
+A sequence folder (one camera)::
+
+    seq_000/
+      camera.json
+      keypoints/seq_000_000000000000_keypoints.json ...   OpenPose JSON per frame, named as
+                                                          OpenPose names a video's frames
+      masks/seq_000_000000000000.png ...                  person masks
+      images/seq_000_000000000000.png ...                 renders
+      gt.npz   betas [10]; per frame: body_pose [F, 69], global_orient [F, 3], transl [F, 3],
+               joints [F, 24, 3], keypoints_3d [F, 25, 3], keypoints_2d_clean [F, 25, 2],
+               keypoints_visibility [F, 25], keypoints_dropped [F, 25], frame_dropped [F]
+               (whole frames written with no person), fps, noise_px
+
+and the dataset's ``index.json`` has ``"format": "silfit-synthetic-sequence"``.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+import torch
+from scipy.interpolate import CubicSpline
+from scipy.spatial.transform import Rotation
+
+from .. import __version__
+from ..camera import UPRIGHT_FACING_CAMERA, project_points, save_camera
+from ..dataset import INDEX_NAME, save_npz, write_png
+from ..keypoints import BODY25_NAMES, model_keypoints, write_openpose_json
+from ..poses.library import BODY_JOINTS, get_pose, mirror_pose
+from .generate import _BODY_COLOURS, _background, _render, keypoint_visibility, noisy_keypoints
+from .sampler import place_body, sample_betas, sample_intrinsics
+
+__all__ = [
+    "MOTIONS", "SEQUENCE_FORMAT", "SequenceConfig", "frame_stem", "generate_sequence", "generate_sequence_dataset",
+    "motion_trajectory",
+]  # fmt: skip
+
+SEQUENCE_FORMAT = "silfit-synthetic-sequence"
+
+
+@dataclass(frozen=True)
+class Motion:
+    """Key poses of one cycle (library names; ``~name`` is the mirrored pose; ``name@k``
+    changes the right elbow's flexion by ``k`` degrees), the cycle's period (s), the speed
+    along the heading (m/s) and the heading's total turn over the clip (degrees)."""
+
+    keys: Tuple[str, ...]
+    period: float
+    speed: float = 0.0
+    turn_deg: float = 0.0
+
+
+MOTIONS: Dict[str, Motion] = {
+    "walk": Motion(("walk_left_heel_strike", "walk_right_midswing", "~walk_left_heel_strike", "~walk_right_midswing"), 1.1, 0.6),
+    "run": Motion(("run_stance", "run_flight", "~run_stance", "~run_flight"), 0.7, 1.0),
+    "squat": Motion(("stand_relaxed", "squat_half", "squat_deep", "squat_half"), 2.0),
+    "wave": Motion(("wave_right@-35", "wave_right@25"), 0.8),
+    "turn": Motion(("stand_relaxed", "stand_contrapposto", "stand_relaxed", "~stand_contrapposto"), 1.6, 0.0, 150.0),
+}
+
+
+def _key_pose(spec: str) -> np.ndarray:
+    bend = 0.0
+    if "@" in spec:
+        spec, k = spec.split("@")
+        bend = float(k)
+    mirrored = spec.startswith("~")
+    pose = get_pose(spec.lstrip("~")).body_pose.copy()
+    if mirrored:
+        pose = mirror_pose(pose)
+    if bend:
+        i = BODY_JOINTS.index("right_elbow")
+        pose[3 * i + 1] += math.radians(bend)  # the right elbow flexes about +Y (library.elbow, mirrored)
+    return pose
+
+
+def motion_trajectory(name: str, frames: int, fps: float, phase: float = 0.0) -> Dict[str, np.ndarray]:
+    """``body_pose [F, 69]``, heading ``yaw [F]`` (degrees, relative to the start) and the
+    distance travelled along it ``distance [F]`` (m) of motion ``name`` over ``frames``
+    frames at ``fps``; ``phase`` (0..1) shifts the cycle's start."""
+    if name not in MOTIONS:
+        raise ValueError(f"unknown motion {name!r}; expected one of {', '.join(MOTIONS)}")
+    m = MOTIONS[name]
+    keys = np.stack([_key_pose(k) for k in m.keys])
+    n = len(keys)
+    knots = np.linspace(0.0, m.period, n + 1)
+    spline = CubicSpline(knots, np.concatenate([keys, keys[:1]]), axis=0, bc_type="periodic")
+    t = np.arange(int(frames)) / float(fps)
+    pose = spline((t + phase * m.period) % m.period)
+    u = t / max(t[-1], 1e-9)
+    yaw = m.turn_deg * (0.5 - 0.5 * np.cos(math.pi * u))  # eased turn
+    return {"body_pose": pose, "yaw": yaw, "distance": m.speed * t}
+
+
+@dataclass
+class SequenceConfig:
+    """Settings of ``silfit synth --sequence`` (recorded in ``index.json``)."""
+
+    seed: int = 0
+    frames: int = 60
+    fps: float = 30.0
+    size: int = 512
+    noise_px: float = 2.0
+    drop_prob: float = 0.0  # per keypoint and frame
+    drop_frames: float = 0.0  # probability of a frame with no person detected (never the first or last)
+    motions: Tuple[str, ...] = tuple(MOTIONS)  # sequence i gets motions[i % len]
+    orbit_deg: float = 0.0  # camera orbit about the trajectory's centre over the clip
+    fov_deg: Tuple[float, float] = (45.0, 65.0)
+    fill: Tuple[float, float] = (0.6, 0.85)  # the whole trajectory's box / image
+    elevation_deg: float = 10.0
+    perturb_deg: float = 4.0  # one perturbation of the joints for the whole clip
+    background: str = "mixed"
+    conf_visible: Tuple[float, float] = (0.6, 1.0)
+    conf_occluded: Tuple[float, float] = (0.1, 0.3)
+
+    def validate(self) -> "SequenceConfig":
+        if self.frames < 3:
+            raise ValueError(f"--frames must be at least 3, got {self.frames}")
+        if self.fps <= 0:
+            raise ValueError(f"--fps must be positive, got {self.fps}")
+        if self.size < 16:
+            raise ValueError(f"--size must be at least 16 pixels, got {self.size}")
+        if self.noise_px < 0:
+            raise ValueError(f"--noise-px must be >= 0, got {self.noise_px}")
+        for name in ("drop_prob", "drop_frames"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        unknown = [m for m in self.motions if m not in MOTIONS]
+        if unknown or not self.motions:
+            raise ValueError(f"unknown motion(s) {', '.join(unknown) or '(none)'}; expected some of {', '.join(MOTIONS)}")
+        return self
+
+    def to_dict(self) -> dict:
+        return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v) for f in fields(self)}
+
+
+def frame_stem(sequence: str, frame: int) -> str:
+    """OpenPose's name of a video frame: ``<video>_<frame, 12 digits>``."""
+    return f"{sequence}_{int(frame):012d}"
+
+
+def _perturbation(rng, deg: float) -> np.ndarray:
+    from ..poses.library import PERTURB_SCALE
+
+    scale = np.repeat([PERTURB_SCALE.get(j, 1.0) for j in BODY_JOINTS], 3)
+    return rng.normal(0.0, math.radians(deg), 69) * scale
+
+
+def generate_sequence(model, index: int, cfg: SequenceConfig, out_dir: Path) -> dict:
+    """Sample, render and write sequence ``index`` into ``out_dir``; returns its index record."""
+    rng = np.random.default_rng([int(cfg.seed), int(index), 7])
+    F, W = int(cfg.frames), int(cfg.size)
+    motion = cfg.motions[index % len(cfg.motions)]
+    traj = motion_trajectory(motion, F, cfg.fps, phase=float(rng.uniform()))
+    body_pose = traj["body_pose"] + _perturbation(rng, cfg.perturb_deg)
+    betas = sample_betas(rng, model.num_betas, 2.0)
+    yaw0 = float(rng.uniform(-180.0, 180.0))
+    elev = float(rng.uniform(-cfg.elevation_deg, cfg.elevation_deg))
+    camera, fov = sample_intrinsics(rng, W, W, cfg.fov_deg)
+    orbit = cfg.orbit_deg * np.linspace(0.0, 1.0, F)
+
+    # World (Y up): heading yaw0 + yaw(t), position along it; the orbit turns the world about
+    # the trajectory's centre (a camera circling the subject).
+    yaw = yaw0 + traj["yaw"]
+    heading = np.stack([np.sin(np.radians(yaw)), np.zeros(F), np.cos(np.radians(yaw))], 1)
+    step = np.diff(traj["distance"], prepend=0.0)[:, None] * heading
+    pos = np.cumsum(step, 0)
+    pos -= pos.mean(0)
+    R_world = Rotation.from_rotvec(np.radians(yaw - orbit)[:, None] * np.array([0.0, 1.0, 0.0]))
+    pos = Rotation.from_rotvec(-np.radians(orbit)[:, None] * np.array([0.0, 1.0, 0.0])).apply(pos)
+    C = Rotation.from_rotvec([math.radians(elev), 0.0, 0.0]) * Rotation.from_rotvec(UPRIGHT_FACING_CAMERA)
+
+    dtype = model.dtype
+    T = lambda a: torch.as_tensor(np.asarray(a), dtype=dtype, device=model.device)  # noqa: E731
+    zeros = np.zeros((F, 3))
+    betas_f = np.repeat(betas[None], F, 0)
+    with torch.no_grad():
+        out_w = model(betas=T(betas_f), body_pose=T(body_pose), global_orient=T(R_world.as_rotvec()), transl=T(zeros))
+        v_w = out_w.vertices.double().cpu().numpy()
+        rest = model(betas=T(betas[None]), body_pose=T(np.zeros((1, 69))), global_orient=T(np.zeros((1, 3))),
+                     transl=T(np.zeros((1, 3))))  # fmt: skip
+    j0 = rest.joints[0, 0].double().cpu().numpy()  # the shaped pelvis: the centre of the root rotation
+    # feet on the ground: the lowest vertex of each frame at the first frame's height
+    low = v_w[..., 1].min(1)
+    T_w = pos + np.stack([np.zeros(F), low[0] - low, np.zeros(F)], 1)
+    v_cam = C.apply((v_w + T_w[:, None]).reshape(-1, 3)).reshape(v_w.shape)
+    place = place_body(rng, v_cam[:, ::20].reshape(-1, 3), camera, fill=cfg.fill)
+    orient_c = (C * R_world).as_rotvec()
+    transl_c = C.apply(j0 + T_w) + place.transl - j0
+    params = {"betas": betas.astype(np.float32), "body_pose": body_pose.astype(np.float32),
+              "global_orient": orient_c.astype(np.float32), "transl": transl_c.astype(np.float32)}  # fmt: skip
+    with torch.no_grad():
+        out = model(betas=T(np.repeat(params["betas"][None], F, 0)), body_pose=T(params["body_pose"]),
+                    global_orient=T(params["global_orient"]), transl=T(params["transl"]))  # fmt: skip
+        kp3d = model_keypoints(model, out, "body25").double()
+        kp2d = project_points(kp3d, camera).cpu().numpy()
+    vertices = out.vertices.cpu().numpy().astype(np.float32)
+    joints = out.joints.cpu().numpy().astype(np.float32)
+    kp3d = kp3d.cpu().numpy()
+
+    colour = _BODY_COLOURS[int(rng.integers(len(_BODY_COLOURS)))]
+    bg, _ = _background(rng, cfg.background, W, W)
+    faces = model.faces.cpu().numpy()
+    frame_dropped = rng.random(F) < cfg.drop_frames
+    frame_dropped[[0, -1]] = False
+    out_dir = Path(out_dir)
+    for sub in ("keypoints", "masks", "images"):
+        (out_dir / sub).mkdir(parents=True, exist_ok=True)
+    vis_all, drop_all = np.zeros((F, 25), np.int8), np.zeros((F, 25), bool)
+    name = out_dir.name
+    for f in range(F):
+        r = _render(vertices[f], faces, camera, colour)
+        vis = keypoint_visibility(kp3d[f], kp2d[f], r.depth, BODY25_NAMES)
+        kp, dropped = noisy_keypoints(rng, kp2d[f], vis, cfg.noise_px, cfg.drop_prob, cfg.conf_visible, cfg.conf_occluded)
+        vis_all[f], drop_all[f] = vis, dropped
+        stem = frame_stem(name, f)
+        write_openpose_json(out_dir / "keypoints" / f"{stem}_keypoints.json", np.zeros((0, 25, 3)) if frame_dropped[f] else kp)
+        write_png(out_dir / "masks" / f"{stem}.png", r.mask)
+        write_png(out_dir / "images" / f"{stem}.png", np.where(r.mask[..., None], r.color, bg).astype(np.uint8))
+    save_camera(camera, out_dir / "camera.json")
+    save_npz(out_dir / "gt.npz", {
+        **params, "joints": joints, "keypoints_3d": kp3d.astype(np.float32), "keypoints_2d_clean": kp2d,
+        "keypoints_visibility": vis_all, "keypoints_dropped": drop_all, "frame_dropped": frame_dropped,
+        "fps": np.float64(cfg.fps), "noise_px": np.float64(cfg.noise_px),
+    })  # fmt: skip
+    return {
+        "name": name, "motion": motion, "frames": F, "fps": cfg.fps, "yaw_deg": round(yaw0, 2), "elevation_deg": round(elev, 2),
+        "fov_deg": round(fov, 3), "orbit_deg": cfg.orbit_deg, "frames_dropped": int(frame_dropped.sum()),
+        "keypoints_dropped": int(drop_all.sum()), "distance_m": round(float(joints[:, 0, 2].mean()), 3),
+    }  # fmt: skip
+
+
+def generate_sequence_dataset(out: os.PathLike, n: int, config: Optional[SequenceConfig] = None, model=None,
+                              progress: bool = False, command: Optional[str] = None) -> dict:  # fmt: skip
+    """Generate ``n`` sequences into ``out/seq_000`` ... and write ``out/index.json``."""
+    cfg = (config or SequenceConfig()).validate()
+    if int(n) <= 0:
+        raise ValueError(f"--n must be a positive number of sequences, got {n}")
+    if model is None:
+        from ..body import load_body_model
+
+        model = load_body_model()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    iterator = range(int(n))
+    if progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(iterator, desc="silfit synth --sequence", unit="sequence")
+    records: List[dict] = [generate_sequence(model, i, cfg, out / f"seq_{i:03d}") for i in iterator]
+    index = {
+        "format": SEQUENCE_FORMAT, "version": 1, "silfit_version": __version__,
+        "generator": {**cfg.to_dict(), "n": int(n), **({"command": command} if command else {})},
+        "sequences": records,
+    }  # fmt: skip
+    (out / INDEX_NAME).write_text(json.dumps(index, indent=2) + "\n", encoding="utf-8")
+    return index
