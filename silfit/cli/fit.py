@@ -51,6 +51,15 @@ def register(subparsers) -> None:
                    help="silhouette window sizes per level, coarse to fine (default 128,256)")
     p.add_argument("--silhouette-iterations", type=_int_list, metavar="N1,N2",
                    help="silhouette steps per level (default 60,50)")
+    seq = p.add_argument_group("videos (silfit.fitting.sequence)")
+    seq.add_argument("--sequence", metavar="DIR", help="fit a video: a folder of per-frame OpenPose JSON files "
+                     "(<video>_<frame 12 digits>_keypoints.json, or DIR/keypoints/ with masks/, images/, camera.json beside)")
+    seq.add_argument("--masks", metavar="DIR", help="--sequence: per-frame masks, matched by frame number")
+    seq.add_argument("--images", metavar="DIR", help="--sequence: per-frame images (overlays), matched by frame number")
+    seq.add_argument("--meshes", action="store_true", help="--sequence: also write meshes/frame_<n>.obj")
+    seq.add_argument("--fps", type=float, default=30.0, help="--sequence: frame rate of overlay.gif (default 30)")
+    seq.add_argument("--no-video", action="store_true", help="--sequence: only strip.png, no overlay.gif")
+    seq.add_argument("--sequence-iterations", type=int, help="--sequence: joint refinement steps (default 100)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -176,6 +185,10 @@ def load_inputs(args) -> FitInputs:
 
 
 def run(args) -> int:
+    if args.sequence:
+        from .sequence import run_sequence
+
+        return run_sequence(args)
     from ..pipeline import fit, save_fit
 
     inp = load_inputs(args)

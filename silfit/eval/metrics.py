@@ -14,6 +14,9 @@ Conventions (as in the SMPLify / SPIN / HMR literature):
   (the placement error: depth dominates it).
 * **Reprojection error**: mean 2D distance in pixels over the keypoints that are marked valid.
 * **IoU**: ``|A and B| / |A or B|`` of two binary masks.
+* **Acceleration error** (sequences, the jitter metric): mean over frames and joints of
+  ``|a_pred - a_gt|`` with ``a`` the second difference over frames of the pelvis-aligned
+  joints (metres per frame^2; ``root=None``: of the raw positions).
 
 Every function takes arrays ``[..., N, 3]`` (a leading batch is allowed) and returns a
 float (or ``[...]`` array for batched input).
@@ -33,6 +36,7 @@ __all__ = [
     "translation_error",
     "reprojection_error",
     "mask_iou",
+    "acceleration_error",
 ]
 
 
@@ -172,3 +176,16 @@ def mask_iou(a, b) -> float:
     if union == 0:
         return 1.0
     return float(np.logical_and(a, b).sum() / union)
+
+
+def acceleration_error(pred, gt, root: Optional[int] = 0) -> float:
+    """Mean ``|second difference of pred - of gt|`` over frames and joints; ``pred, gt
+    [F, J, 3]`` (``F >= 3``), each aligned at joint ``root`` first (``None``: no alignment)."""
+    pred, gt = _pair(pred, gt)
+    if pred.shape[0] < 3:
+        raise ValueError(f"acceleration error needs at least 3 frames, got {pred.shape[0]}")
+    if root is not None:
+        pred = pred - pred[:, root : root + 1]
+        gt = gt - gt[:, root : root + 1]
+    acc = lambda x: x[2:] - 2.0 * x[1:-1] + x[:-2]  # noqa: E731
+    return float(np.linalg.norm(acc(pred) - acc(gt), axis=-1).mean())

@@ -371,11 +371,14 @@ class KeypointFitter:
             state, info = self.fit_problems(problems, progress=progress)
         return self._result(state, info, sets, cams)
 
-    def fit_problems(self, problems: Sequence[Problem], progress: bool = False, init: Optional[dict] = None):
+    def fit_problems(self, problems: Sequence[Problem], progress: bool = False, init: Optional[dict] = None,
+                     frame_weights=None):  # fmt: skip
         """Run the schedule on single-view problems of equal frame count.
 
         ``init`` (``{name: [B, w]}`` or ``[B, F, w]``) replaces the initial placement's
-        values of the parameters it names (all starts begin there).
+        values of the parameters it names (all starts begin there). ``frame_weights``
+        (``[B, F]``, optional) scales each frame's keypoint data (0: a frame bridged by the
+        temporal terms alone).
 
         Returns ``(state, info)``: the parameters (shared ``[B, w]``, per-frame
         ``[B, F, w]``) and a dict with per-stage ``energies`` and ``terms`` ``[B]``,
@@ -392,6 +395,9 @@ class KeypointFitter:
         # a given body pose is the one start pose (with both facings when flip_test is on)
         init_poses = self._initial_poses(1 if init and "body_pose" in init else cfg.init_poses)
         data, views, state = self._problem_data(problems, facings)
+        if frame_weights is not None:
+            fw = torch.as_tensor(np.asarray(frame_weights, dtype=np.float64), dtype=dt).reshape(B, layout.frames)
+            data["weights"] = data["weights"] * fw.repeat(len(facings), 1)[:, :, None, None]
         for n, v in (init or {}).items():
             v = torch.as_tensor(np.asarray(v, dtype=np.float64), dtype=dt)
             shape = state[n].shape[1:]

@@ -1,0 +1,74 @@
+"""``silfit fit --sequence DIR``: one person over a video's frames (per-frame OpenPose JSON).
+
+Reads the frames (:func:`silfit.video.read_sequence`), fits them
+(:func:`silfit.fitting.sequence.fit_sequence`: per-frame fits, consistent facings, a
+joint refinement with one shape and temporal smoothness; frames without usable keypoints
+bridged by their neighbours) and writes the folder of :func:`silfit.video.save_sequence_fit`.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from . import CLIError
+
+
+def _camera(args, seq):
+    from ..camera import Camera, camera_from_dict, load_camera
+    from ..imagefile import image_file_size
+
+    if args.camera or seq.camera:
+        return load_camera(args.camera or seq.camera), "camera file"
+    size = None
+    if args.image_size:
+        try:
+            size = tuple(int(v) for v in args.image_size.lower().split("x"))
+        except ValueError:
+            raise CLIError(f"--image-size {args.image_size!r}: expected WxH, e.g. 640x480") from None
+    else:
+        for files, what in ((seq.images, "image"), (seq.masks, "mask")):
+            if files:
+                size = image_file_size(next(iter(files.values())), what)
+                break
+    if size is None:
+        raise CLIError("no camera: give --camera C.json, or --images / --masks / --image-size for the default camera")
+    cam = Camera.from_image_size(*size)
+    if args.focal is not None:
+        cam = camera_from_dict({**cam.to_dict(), "fx": args.focal, "fy": args.focal}, "--focal")
+    return cam, "--focal" if args.focal else "default max(W, H)"
+
+
+def run_sequence(args) -> int:
+    from .. import load_body_model
+    from ..fitting.sequence import SequenceFitConfig, fit_sequence
+    from ..priors import load_pose_prior
+    from ..video import read_sequence, save_sequence_fit
+
+    for flag in ("keypoints", "mask", "image"):
+        if getattr(args, flag, None):
+            raise CLIError(f"--{flag} is for one image; with --sequence give the folders (--masks, --images)")
+    out = Path(args.out)
+    if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
+        raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
+    seq = read_sequence(args.sequence, masks=args.masks, images=args.images, person=args.person)
+    camera, camera_source = _camera(args, seq)
+    model = load_body_model(args.model, gender=args.gender) if args.model else load_body_model()
+    pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
+    if args.check_only:
+        print(f"inputs OK: {len(seq.numbers)} frames ({seq.detected} with a person), {len(seq.masks)} masks, "
+              f"{len(seq.images)} images")  # fmt: skip
+        return 0
+    cfg = SequenceFitConfig()
+    if args.sequence_iterations is not None:
+        cfg.iterations = int(args.sequence_iterations)
+    result = fit_sequence(seq.frames, camera, model, config=cfg, pose_prior=pose_prior, progress=not args.quiet)
+    extra = {"sequence": str(args.sequence), "model": model.source, "camera_source": camera_source,
+             "silhouette": "not run (the sequence silhouette stage is not available yet)" if seq.masks else None}  # fmt: skip
+    save_sequence_fit(result, out, model, seq, meshes=args.meshes, video=not args.no_video, fps=args.fps,
+                      extra_metrics=extra, overwrite=args.overwrite)  # fmt: skip
+    if not args.quiet:
+        t = result.timings
+        print(f"wrote {out}: {result.num_frames} frames, {int(result.bridged.sum())} bridged, "
+              f"{t['seconds_per_frame']:.2f} s per frame")  # fmt: skip
+        for warning in result.warnings:
+            print(f"warning: {warning}")
+    return 0

@@ -1,0 +1,406 @@
+"""Fitting a video: one person over ``F`` frames of one camera, one shape for all frames.
+
+:func:`fit_sequence` runs
+
+1. **checks and bridging**: a frame with no keypoints, too few confident torso keypoints
+   (as the single-image fit needs) or mostly outlier keypoints is *bridged*; a single
+   keypoint that jumps away from its two neighbours' midpoint (by more than
+   ``outlier_jump`` of the person's extent, while the neighbours agree) is dropped
+   (:func:`keypoint_outliers`);
+2. **per-frame initialisation**: the single-image keypoint stage on the usable frames as
+   one batch (every ``init_stride``-th of them; the others are interpolated);
+3. **consistent facings**: each frame's body-forward direction in the ground plane is
+   compared along the sequence; the fewest frames whose facing contradicts their
+   neighbours' (a 180-degree flip, the single image's classic ambiguity) are re-initialised
+   from their neighbours (:func:`consistent_facings`, a two-label dynamic programme);
+4. **joint refinement**: one :class:`~silfit.fitting.problem.Problem` of ``F`` frames with
+   one shared ``betas``: keypoints, pose / angle / limit / shape priors and the temporal
+   terms of :mod:`silfit.fitting.terms` (robust smoothness of the joints and of the
+   root), started from the per-frame fits (bridged frames: interpolated from their
+   neighbours, with data weight ``bridge_weight``), in the keypoint stage's own loop
+   (:meth:`KeypointFitter.fit_problems` with an explicit schedule).
+
+A problem's L-BFGS row holds ``10 + F * 75`` numbers and one iteration evaluates the
+reduced body ``F`` times, so memory and time grow linearly with ``F``; ``window`` splits a
+long sequence into overlapping windows fitted as a batch of problems (each window's own
+``betas``; the sequence's is their frame-weighted mean, then held fixed in a second pass).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from typing import Dict, List, Optional, Sequence
+
+import numpy as np
+import torch
+from scipy.spatial.transform import Rotation, Slerp
+
+from ..camera import Camera
+from ..keypoints import KeypointSet
+from .keypoint_stage import KeypointFitConfig, KeypointFitter, _check_torso
+from .problem import Observation, Problem, View
+from .stages import Stage
+from .threads import torch_threads
+
+__all__ = [
+    "SequenceFitConfig", "SequenceFitResult", "consistent_facings", "fit_sequence", "interpolate_frames",
+    "keypoint_outliers",
+]  # fmt: skip
+
+ROTATIONS = ("global_orient", "body_pose")
+
+
+@dataclass
+class SequenceFitConfig:
+    """Settings of :func:`fit_sequence` (defaults tuned on ``silfit synth --sequence`` data,
+    see ``benchmarks/bench_sequence.py``)."""
+
+    #: the per-frame initialisation (the single-image keypoint stage)
+    keypoint: KeypointFitConfig = field(default_factory=lambda: KeypointFitConfig(init_poses=2))
+    init_stride: int = 1  # fit every n-th usable frame alone; interpolate the others
+    iterations: int = 100  # joint refinement, L-BFGS steps
+    joint_smooth_weight: float = 1.0
+    root_smooth_weight: float = 1.0
+    pose_prior_weight: float = 40.0
+    angle_prior_weight: float = 1.0
+    limit_weight: float = 1e4
+    shape_weight: float = 5.0
+    interpenetration_weight: float = 0.0
+    temporal_sigma: float = 10.0  # mm per frame^2 (Charbonnier)
+    bridge_weight: float = 0.0  # data weight of bridged frames
+    outlier_jump: float = 0.2  # share of the person's extent
+    outlier_frame_share: float = 0.5  # a frame with more outlier keypoints than this is bridged
+    facing_jump_cost: float = 10.0  # per 180-degree jump between neighbouring frames (vs 1 per re-initialised frame)
+    window: int = 0  # frames per window (0: the whole sequence as one problem)
+    overlap: int = 10
+    window_pose_iterations: int = 40  # second pass (shared betas fixed) in windowed mode
+
+    def stages(self, free_betas: bool = True, iterations: Optional[int] = None) -> tuple:
+        w = {"keypoints": 1.0, "pose": self.pose_prior_weight, "angle": self.angle_prior_weight, "limits": self.limit_weight,
+             "smooth_joints": self.joint_smooth_weight, "smooth_root": self.root_smooth_weight}  # fmt: skip
+        if free_betas:
+            w["shape"] = self.shape_weight
+        if self.interpenetration_weight:
+            w["interpenetration"] = self.interpenetration_weight
+        free = (("betas",) if free_betas else ()) + ("global_orient", "transl", "body_pose")
+        return (Stage("sequence", free, w, int(self.iterations if iterations is None else iterations)),)
+
+    def to_dict(self) -> dict:
+        d = {k: v for k, v in self.__dict__.items() if k != "keypoint"}
+        d["keypoint"] = self.keypoint.to_dict()
+        return d
+
+
+@dataclass
+class SequenceFitResult:
+    """Per-frame SMPL parameters of one camera's frames (camera coordinates, numpy
+    float32): ``betas [L]`` (one shape), ``body_pose [F, 69]``, ``global_orient [F, 3]``,
+    ``transl [F, 3]``, ``joints [F, 24, 3]``, ``keypoints_2d [F, K, 2]``; ``bridged [F]``
+    (frames fitted from their neighbours), ``refaced [F]`` (facing re-initialised),
+    ``outliers [F, K]`` (keypoints dropped as outliers), ``reprojection_error [F]``
+    (median px, NaN for frames without keypoints), ``per_frame`` (the initialisation's
+    parameters, the per-frame fit), ``timings`` (seconds) and ``config``."""
+
+    betas: np.ndarray
+    body_pose: np.ndarray
+    global_orient: np.ndarray
+    transl: np.ndarray
+    camera: Camera
+    joints: np.ndarray
+    keypoints_2d: np.ndarray
+    bridged: np.ndarray
+    refaced: np.ndarray
+    outliers: np.ndarray
+    reprojection_error: np.ndarray
+    per_frame: Dict[str, np.ndarray]
+    timings: Dict[str, float]
+    layout: str = "body25"
+    config: dict = field(default_factory=dict)
+    warnings: List[str] = field(default_factory=list)
+
+    @property
+    def num_frames(self) -> int:
+        return self.body_pose.shape[0]
+
+    def params(self) -> Dict[str, np.ndarray]:
+        """SMPL parameter names: ``betas [L]``, the rest ``[F, w]``."""
+        return {"betas": self.betas, "body_pose": self.body_pose, "global_orient": self.global_orient, "transl": self.transl}
+
+    def frame_params(self, f: int) -> Dict[str, np.ndarray]:
+        return {"betas": self.betas, "body_pose": self.body_pose[f], "global_orient": self.global_orient[f], "transl": self.transl[f]}
+
+
+# ----------------------------------------------------------------------------- pure pieces
+def _extent(xy: np.ndarray, conf: np.ndarray) -> float:
+    vis = xy[conf > 0]
+    return float((vis.max(0) - vis.min(0)).max()) if len(vis) > 1 else 0.0
+
+
+def keypoint_outliers(xy: np.ndarray, conf: np.ndarray, jump: float = 0.2) -> np.ndarray:
+    """``bool [F, K]``: keypoint ``k`` of frame ``f`` is an outlier when it lies more than
+    ``jump`` times the person's extent from the midpoint of frames ``f-1`` and ``f+1``
+    while those two agree (are within ``jump`` of each other); needs both neighbours
+    confident. ``xy [F, K, 2]``, ``conf [F, K]`` (0: missing)."""
+    F, K = conf.shape
+    out = np.zeros((F, K), dtype=bool)
+    ext = np.array([_extent(xy[f], conf[f]) for f in range(F)])
+    for f in range(1, F - 1):
+        scale = max(ext[f - 1], ext[f + 1], 1.0)
+        ok = (conf[f] > 0) & (conf[f - 1] > 0) & (conf[f + 1] > 0)
+        mid = 0.5 * (xy[f - 1] + xy[f + 1])
+        dev = np.linalg.norm(xy[f] - mid, axis=-1) / scale
+        agree = np.linalg.norm(xy[f - 1] - xy[f + 1], axis=-1) / scale < jump
+        out[f] = ok & agree & (dev > jump)
+    return out
+
+
+def interpolate_frames(params: Dict[str, np.ndarray], known: np.ndarray) -> Dict[str, np.ndarray]:
+    """Per-frame parameters ``{name: [F, w]}`` with the frames where ``known`` is False
+    replaced: rotations (``global_orient``, ``body_pose``, per joint) by spherical
+    interpolation between the nearest known frames, others linearly; before the first and
+    after the last known frame, that frame's values."""
+    known = np.asarray(known, dtype=bool)
+    idx = np.flatnonzero(known)
+    if len(idx) == 0:
+        raise ValueError("no frame to interpolate from")
+    F = len(known)
+    t = np.clip(np.arange(F, dtype=np.float64), idx[0], idx[-1])
+    out = {}
+    for name, v in params.items():
+        v = np.asarray(v, dtype=np.float64)
+        if v.ndim == 1 or len(idx) == F:
+            out[name] = v.copy()
+            continue
+        if len(idx) == 1:
+            out[name] = np.repeat(v[idx], F, 0)
+            continue
+        if name in ROTATIONS:
+            J = v.shape[1] // 3
+            res = np.empty((F, J, 3))
+            for j in range(J):
+                res[:, j] = Slerp(idx, Rotation.from_rotvec(v[idx, 3 * j : 3 * j + 3]))(t).as_rotvec()
+            res = res.reshape(F, -1)
+        else:
+            res = np.stack([np.interp(t, idx, v[idx, c]) for c in range(v.shape[1])], 1)
+        res[known] = v[known]
+        out[name] = res
+    return out
+
+
+def body_forward(global_orient: np.ndarray) -> np.ndarray:
+    """``[F, 2]``: the body's forward direction (+Z of SMPL's rest frame) in the camera's
+    ground plane (x, z), unit length."""
+    f = Rotation.from_rotvec(np.asarray(global_orient, dtype=np.float64).reshape(-1, 3)).apply([0.0, 0.0, 1.0])[:, [0, 2]]
+    return f / np.maximum(np.linalg.norm(f, axis=1, keepdims=True), 1e-9)
+
+
+def consistent_facings(forward: np.ndarray, valid: np.ndarray, jump_cost: float = 10.0) -> np.ndarray:
+    """``bool [F]``: frames whose facing to re-initialise, the fewest that make the sequence's
+    facing continuous. A dynamic programme over two labels per valid frame (keep, or
+    turn by 180 degrees: cost 1), consecutive valid frames paying ``jump_cost *
+    (1 - cos(angle)) / 2`` for the angle between their (label-adjusted) forward vectors."""
+    idx = np.flatnonzero(valid)
+    out = np.zeros(len(valid), dtype=bool)
+    if len(idx) < 2:
+        return out
+    sign = np.array([1.0, -1.0])
+    cost = np.array([0.0, 1.0])
+    back = np.zeros((len(idx), 2), dtype=np.int64)
+    for n in range(1, len(idx)):
+        d = float(forward[idx[n - 1]] @ forward[idx[n]])
+        pair = jump_cost * (1.0 - sign[:, None] * sign[None, :] * d) / 2.0  # [previous label, label]
+        total = cost[:, None] + pair
+        back[n] = total.argmin(0)
+        cost = total.min(0) + np.array([0.0, 1.0])
+    label = int(cost.argmin())
+    for n in range(len(idx) - 1, -1, -1):
+        out[idx[n]] = bool(label)
+        label = int(back[n, label])
+    return out
+
+
+def _windows(F: int, window: int, overlap: int) -> List[int]:
+    """Start frames of windows of ``window`` frames covering ``F`` frames, overlapping by
+    at least ``overlap``; all windows have the same length (the last starts at ``F - window``)."""
+    if window <= 0 or window >= F:
+        return [0]
+    step = max(window - overlap, 1)
+    starts = list(range(0, F - window, step)) + [F - window]
+    return sorted(set(starts))
+
+
+# ----------------------------------------------------------------------------- the fit
+def _frame_sets(frames: Sequence[Optional[KeypointSet]], layout: str, cfg: SequenceFitConfig):
+    """Keypoint arrays with outliers dropped, and which frames are usable."""
+    F = len(frames)
+    K = len(next(ks for ks in frames if ks is not None).names)
+    xy, conf = np.zeros((F, K, 2)), np.zeros((F, K))
+    for f, ks in enumerate(frames):
+        if ks is None:
+            continue
+        if ks.layout != layout:
+            raise ValueError(f"{ks.source}: keypoints are {ks.layout}, the sequence's first frame is {layout}")
+        xy[f], conf[f] = ks.xy, ks.conf
+    outliers = keypoint_outliers(xy, conf, cfg.outlier_jump)
+    conf_clean = np.where(outliers, 0.0, conf)
+    usable = np.zeros(F, dtype=bool)
+    for f, ks in enumerate(frames):
+        if ks is None:
+            continue
+        n = max(int((conf[f] > 0).sum()), 1)
+        if outliers[f].sum() / n > cfg.outlier_frame_share:
+            continue
+        try:
+            _check_torso(KeypointSet(xy[f], conf_clean[f], layout, source=ks.source))
+        except ValueError:
+            continue
+        usable[f] = True
+    return xy, conf_clean, outliers, usable
+
+
+def _bridge_keypoints(xy, conf, usable) -> List[tuple]:
+    """Keypoints for every frame: usable frames their own; the others the nearest usable
+    frames' keypoints, interpolated (only for the initial placement: their data weight is
+    ``bridge_weight``)."""
+    idx = np.flatnonzero(usable)
+    out = []
+    for f in range(len(usable)):
+        if usable[f]:
+            out.append((xy[f], conf[f]))
+            continue
+        before, after = idx[idx < f], idx[idx > f]
+        if len(before) and len(after):
+            a, b = before[-1], after[0]
+            w = (f - a) / (b - a)
+            both = (conf[a] > 0) & (conf[b] > 0)
+            out.append(((1 - w) * xy[a] + w * xy[b], np.where(both, 1.0, 0.0)))
+        else:
+            g = before[-1] if len(before) else after[0]
+            out.append((xy[g], conf[g]))
+    return out
+
+
+def fit_sequence(
+    frames: Sequence[Optional[KeypointSet]],
+    camera: Camera,
+    model=None,
+    *,
+    config: Optional[SequenceFitConfig] = None,
+    pose_prior=None,
+    progress: bool = False,
+) -> SequenceFitResult:
+    """Fit one person over a sequence of frames of one camera (module docstring).
+
+    ``frames``: one :class:`~silfit.keypoints.KeypointSet` per frame, ``None`` where no
+    person was detected; at least one frame must have usable keypoints."""
+    from ..body import load_body_model
+
+    cfg = config or SequenceFitConfig()
+    model = load_body_model() if model is None else model
+    if not frames or all(ks is None for ks in frames):
+        raise ValueError("the sequence has no frame with keypoints")
+    layout = next(ks for ks in frames if ks is not None).layout
+    F = len(frames)
+    t0 = time.perf_counter()
+    xy, conf, outliers, usable = _frame_sets(frames, layout, cfg)
+    if not usable.any():
+        raise ValueError(f"no frame of the sequence has enough confident torso keypoints (of {F} frames)")
+    init_frames = np.flatnonzero(usable)[:: max(int(cfg.init_stride), 1)]
+    if usable.any() and np.flatnonzero(usable)[-1] not in init_frames:
+        init_frames = np.append(init_frames, np.flatnonzero(usable)[-1])
+
+    # 2. per-frame initialisation, the usable frames as one batch
+    fitter = KeypointFitter(model, layout, cfg.keypoint, pose_prior)
+    names = tuple(fitter.params.sizes)
+    probs = [Problem.single(KeypointSet(xy[f], conf[f], layout), camera) for f in init_frames]
+    with torch_threads(cfg.keypoint.threads):
+        state, _ = fitter.fit_problems(probs, progress=progress)
+    per = {n: np.zeros((F, fitter.params.sizes[n])) for n in names}
+    for n in names:
+        v = state[n].double().numpy().reshape(len(init_frames), -1)
+        per[n][init_frames] = v
+    t_init = time.perf_counter() - t0
+    known = np.zeros(F, dtype=bool)
+    known[init_frames] = True
+
+    # 3. consistent facings
+    refaced = consistent_facings(body_forward(per["global_orient"]), known, cfg.facing_jump_cost)
+    betas0 = np.median(per["betas"][known], 0)
+    per_frame = interpolate_frames(per, known)  # the per-frame fit (betas per frame too)
+    start = interpolate_frames({n: per[n] for n in names if n != "betas"}, known & ~refaced)
+
+    # 4. joint refinement
+    bridged = ~usable
+    kps = _bridge_keypoints(xy, conf, usable)
+    weights = np.where(usable, 1.0, float(cfg.bridge_weight))
+    refiner_cfg = replace(cfg.keypoint, flip_test=False, init_poses=1, branch_search=False, temporal_sigma=cfg.temporal_sigma,
+                          schedule=cfg.stages())  # fmt: skip
+    refiner = KeypointFitter(model, layout, refiner_cfg, fitter.pose_prior)
+    t1 = time.perf_counter()
+    starts = _windows(F, int(cfg.window), int(cfg.overlap))
+    L = F if len(starts) == 1 else int(cfg.window)
+
+    def problems_and_init(betas):
+        probs, init, fw = [], {n: [] for n in names}, []
+        for s in starts:
+            obs = [Observation(View(camera), KeypointSet(*kps[f], layout), frame=f - s) for f in range(s, s + L)]
+            probs.append(Problem(obs))
+            for n in names:
+                init[n].append(betas if n == "betas" else start[n][s : s + L])
+            fw.append(weights[s : s + L])
+        return probs, {n: np.stack(v) for n, v in init.items()}, np.stack(fw)
+
+    with torch_threads(cfg.keypoint.threads):
+        probs, init, fw = problems_and_init(betas0)
+        state, info = refiner.fit_problems(probs, progress=progress, init=init, frame_weights=fw)
+        if len(starts) > 1:  # one shape: the windows' mean (by frames), then the poses again with it fixed
+            betas0 = state["betas"].double().numpy().mean(0)
+            refiner.stages = cfg.stages(free_betas=False, iterations=cfg.window_pose_iterations)
+            merged = _merge_windows({n: state[n].double().numpy() for n in names if n != "betas"}, starts, F)
+            start = merged
+            probs, init, fw = problems_and_init(betas0)
+            state, info = refiner.fit_problems(probs, progress=progress, init=init, frame_weights=fw)
+    t_refine = time.perf_counter() - t1
+    final = _merge_windows({n: state[n].double().numpy() for n in names if n != "betas"}, starts, F)
+    final["betas"] = state["betas"].double().numpy().mean(0) if len(starts) == 1 else betas0
+
+    # outputs
+    T = lambda a: torch.as_tensor(np.asarray(a), dtype=model.dtype)  # noqa: E731
+    with torch.no_grad():
+        rows = {n: T(np.repeat(final[n][None], F, 0) if n == "betas" else final[n]) for n in names}
+        body = refiner.body(**rows)
+        from ..camera import project_points
+
+        kp2d = project_points(body.keypoints.double(), camera).numpy()
+    err = np.linalg.norm(kp2d - xy, axis=-1)
+    reproj = np.array([np.median(err[f][conf[f] > 0]) if (conf[f] > 0).any() and usable[f] else np.nan for f in range(F)])
+    warnings = []
+    if bridged.any():
+        warnings.append(f"{int(bridged.sum())} of {F} frame(s) bridged from their neighbours (no usable keypoints): "
+                        f"{', '.join(map(str, np.flatnonzero(bridged)[:10]))}{' ...' if bridged.sum() > 10 else ''}")  # fmt: skip
+    if refaced.any():
+        warnings.append(f"{int(refaced.sum())} frame(s) had their facing re-initialised from their neighbours")
+    f32 = lambda a: np.asarray(a, dtype=np.float32)  # noqa: E731
+    return SequenceFitResult(
+        betas=f32(final["betas"]), body_pose=f32(final["body_pose"]), global_orient=f32(final["global_orient"]),
+        transl=f32(final["transl"]), camera=camera, joints=f32(body.joints.numpy()), keypoints_2d=f32(kp2d),
+        bridged=bridged, refaced=refaced, outliers=outliers, reprojection_error=reproj,
+        per_frame={n: f32(v) for n, v in per_frame.items()},
+        timings={"per_frame_init": t_init, "refine": t_refine, "total": time.perf_counter() - t0, "frames": F,
+                 "seconds_per_frame": (time.perf_counter() - t0) / F},
+        layout=layout, config=cfg.to_dict(), warnings=warnings,
+    )  # fmt: skip
+
+
+def _merge_windows(params: Dict[str, np.ndarray], starts: List[int], F: int) -> Dict[str, np.ndarray]:
+    """Per-frame values ``[F, w]`` from windows ``[P, L, w]``: each frame from the window in
+    which it lies farthest from an edge."""
+    L = next(iter(params.values())).shape[1]
+    owner, where, best = np.zeros(F, dtype=np.int64), np.zeros(F, dtype=np.int64), np.full(F, -1.0)
+    for p, s in enumerate(starts):
+        for i in range(L):  # distance to the window's nearest inner edge (a sequence end is no edge)
+            margin = min(i if s > 0 else math.inf, L - 1 - i if s + L < F else math.inf)
+            if margin > best[s + i]:
+                best[s + i], owner[s + i], where[s + i] = margin, p, i
+    return {n: v[owner, where] for n, v in params.items()}

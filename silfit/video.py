@@ -1,0 +1,210 @@
+"""Reading a video's per-frame files: OpenPose's JSON per frame, optional masks and images.
+
+OpenPose run on a video writes one file per frame, ``<video>_<frame, 12 digits>_keypoints.json``
+(``--write_json``). :func:`read_sequence` reads such a folder (or, when the folder holds a
+``keypoints/`` sub-folder, that one; ``masks/``, ``images/`` and ``camera.json`` beside it
+are then picked up too, the layout ``silfit synth --sequence`` writes). Frames are ordered by
+the number in their names; a number missing between the first and the last is a frame
+with no detection, as is a file whose ``people`` list is empty (OpenPose writes those when
+nobody is seen). Masks and images are matched to frames by the same number (the last run
+of digits in their name).
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, List, Optional, Union
+
+import numpy as np
+
+from .errors import InputError
+from .keypoints import KeypointSet, read_keypoints
+
+__all__ = ["SequenceInput", "frame_number", "read_sequence", "save_sequence_fit", "write_overlay_video"]
+
+_KEYPOINTS = re.compile(r"^(?P<stem>.*?)_?(?P<num>\d+)?_keypoints\.json$")
+_DIGITS = re.compile(r"(\d+)(?!.*\d)")
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+MAX_FRAMES = 100_000
+
+
+def frame_number(name: str) -> Optional[int]:
+    """The frame number of a file name: the last run of digits before ``_keypoints.json``
+    or the extension (``None`` if there is none)."""
+    m = _KEYPOINTS.match(name)
+    if m:
+        return int(m.group("num")) if m.group("num") else None
+    m = _DIGITS.search(Path(name).stem)
+    return int(m.group(1)) if m else None
+
+
+@dataclass
+class SequenceInput:
+    """Frames ``frames[i]`` (frame number ``numbers[i]``): a :class:`KeypointSet` or ``None``
+    (no detection); ``masks`` / ``images``: frame number -> path; ``camera``: a
+    ``camera.json`` found beside the keypoints (or ``None``)."""
+
+    folder: Path
+    numbers: List[int]
+    frames: List[Optional[KeypointSet]]
+    files: List[Optional[Path]]
+    masks: Dict[int, Path] = field(default_factory=dict)
+    images: Dict[int, Path] = field(default_factory=dict)
+    camera: Optional[Path] = None
+
+    @property
+    def detected(self) -> int:
+        return sum(ks is not None for ks in self.frames)
+
+
+def _numbered(folder: Path, what: str) -> Dict[int, Path]:
+    out: Dict[int, Path] = {}
+    for p in sorted(folder.iterdir()):
+        if p.suffix.lower() not in IMAGE_EXTENSIONS or not p.is_file():
+            continue
+        n = frame_number(p.name)
+        if n is None:
+            raise InputError(p, f"{what} file name has no frame number (expected e.g. video_000000000012.png)")
+        if n in out:
+            raise InputError(p, f"two {what} files for frame {n}: {out[n].name} and {p.name}")
+        out[n] = p
+    return out
+
+
+def read_sequence(folder: Union[str, os.PathLike], masks: Optional[Union[str, os.PathLike]] = None,
+                  images: Optional[Union[str, os.PathLike]] = None, person: Union[int, str] = "largest") -> SequenceInput:  # fmt: skip
+    """Read a folder of per-frame OpenPose JSON files (module docstring); ``masks`` and
+    ``images`` are folders (default: ``masks/`` and ``images/`` beside a ``keypoints/``
+    sub-folder, when present)."""
+    root = Path(folder)
+    if not root.is_dir():
+        raise FileNotFoundError(f"{root}: no such folder")
+    kp_dir = root / "keypoints" if (root / "keypoints").is_dir() else root
+    files = sorted(p for p in kp_dir.iterdir() if p.name.endswith("_keypoints.json") and p.is_file())
+    if not files:
+        raise InputError(kp_dir, "no OpenPose per-frame files (*_keypoints.json) in the folder")
+    numbered = {}
+    for i, p in enumerate(files):
+        n = frame_number(p.name)
+        n = i if n is None else n
+        if n in numbered:
+            raise InputError(p, f"two keypoint files for frame {n}: {numbered[n].name} and {p.name}")
+        numbered[n] = p
+    first, last = min(numbered), max(numbered)
+    if last - first + 1 > MAX_FRAMES:
+        raise InputError(kp_dir, f"frames {first}..{last}: more than {MAX_FRAMES} frames")
+    numbers = list(range(first, last + 1))
+    frames: List[Optional[KeypointSet]] = []
+    for n in numbers:
+        p = numbered.get(n)
+        if p is None:
+            frames.append(None)
+            continue
+        try:
+            frames.append(read_keypoints(p, person=person))
+        except InputError as err:
+            if err.field == "people" and "empty" in str(err):  # OpenPose: nobody seen in this frame
+                frames.append(None)
+            else:
+                raise
+    if not any(ks is not None for ks in frames):
+        raise InputError(kp_dir, f"no person detected in any of the {len(files)} frames")
+    layouts = {ks.layout for ks in frames if ks is not None}
+    if len(layouts) > 1:
+        raise InputError(kp_dir, f"frames mix keypoint layouts ({', '.join(sorted(layouts))})")
+    side = kp_dir.parent if kp_dir != root else None
+    mdir = Path(masks) if masks else (side / "masks" if side and (side / "masks").is_dir() else None)
+    idir = Path(images) if images else (side / "images" if side and (side / "images").is_dir() else None)
+    for d, what in ((mdir, "masks"), (idir, "images")):
+        if d is not None and not d.is_dir():
+            raise FileNotFoundError(f"{d}: no such folder ({what})")
+    cam = side / "camera.json" if side and (side / "camera.json").is_file() else None
+    return SequenceInput(root, numbers, frames, [numbered.get(n) for n in numbers],
+                         _numbered(mdir, "mask") if mdir else {}, _numbered(idir, "image") if idir else {}, cam)  # fmt: skip
+
+
+# ----------------------------------------------------------------------------- writing a sequence fit
+def _frame_pictures(result, numbers, model, images, masks, stride: int = 1):
+    """Overlay pictures (body and keypoints over each frame's image) of every ``stride``-th frame."""
+    import torch
+
+    from . import figures
+    from .imagefile import read_rgb
+
+    faces = model.faces.cpu().numpy()
+    pics = []
+    for f in range(0, result.num_frames, stride):
+        p = result.frame_params(f)
+        with torch.no_grad():
+            out = model(**{k: torch.as_tensor(np.asarray(v)[None], dtype=model.dtype) for k, v in p.items()})
+        img = read_rgb(images[numbers[f]], "image") if numbers[f] in images else None
+        pics.append(figures.fit_overlay(img, out.vertices[0].numpy(), faces, result.camera, None, result.keypoints_2d[f]))
+    return pics
+
+
+def write_overlay_video(path: Path, pictures, fps: float) -> Optional[Path]:
+    """An animated GIF of ``pictures`` with imageio (when installed); ``None`` without it."""
+    try:
+        import imageio.v3 as iio
+    except ImportError:
+        return None
+    iio.imwrite(path, np.stack(pictures), extension=".gif", duration=1000.0 / fps, loop=0)
+    return path
+
+
+def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: bool = False, video: bool = True,
+                      fps: float = 30.0, extra_metrics: Optional[dict] = None, overwrite: bool = False) -> Path:  # fmt: skip
+    """Write a :class:`~silfit.fitting.sequence.SequenceFitResult` atomically: ``params.npz``
+    / ``params.json`` (SMPL names: one ``betas [L]``, ``body_pose [F, 69]``, ``global_orient
+    [F, 3]``, ``transl [F, 3]``; ``frames [F]`` the frame numbers, ``bridged [F]``, the
+    camera), ``stages/per_frame/params.npz`` (the per-frame fits), ``metrics.json``,
+    ``strip.png`` (a frame strip of overlays), ``overlay.gif`` (every frame; with imageio)
+    and with ``meshes`` ``meshes/<frame>.obj``."""
+    import torch
+
+    from . import figures
+    from .meshio import write_obj
+    from .outfolder import atomic_folder
+
+    numbers = list(sequence.numbers)
+    cam = result.camera
+    camera_arrays = {"camera_intrinsics": np.array([cam.fx, cam.fy, cam.cx, cam.cy]), "image_size": np.array([cam.width, cam.height])}
+    with atomic_folder(out, overwrite) as tmp:
+        arrays = {**{k: np.asarray(v, np.float32) for k, v in result.params().items()}, "frames": np.asarray(numbers),
+                  "bridged": result.bridged, "refaced": result.refaced, "joints": result.joints,
+                  "keypoints_2d": result.keypoints_2d, "reprojection_error": result.reprojection_error,
+                  "layout": np.array(result.layout), **camera_arrays}  # fmt: skip
+        np.savez(tmp / "params.npz", **arrays)
+        payload = {k: np.asarray(v).astype(float).tolist() for k, v in result.params().items()}
+        payload.update(frames=numbers, bridged=result.bridged.tolist(), camera=cam.to_dict(), layout=result.layout)
+        (tmp / "params.json").write_text(json.dumps(payload))
+        (tmp / "stages" / "per_frame").mkdir(parents=True)
+        np.savez(tmp / "stages" / "per_frame" / "params.npz", **{k: np.asarray(v, np.float32) for k, v in result.per_frame.items()},
+                 frames=np.asarray(numbers), **camera_arrays)  # fmt: skip
+        if meshes:
+            (tmp / "meshes").mkdir()
+            faces = model.faces.cpu().numpy()
+            for f in range(result.num_frames):
+                with torch.no_grad():
+                    v = model(**{k: torch.as_tensor(np.asarray(a)[None], dtype=model.dtype) for k, a in result.frame_params(f).items()})
+                write_obj(tmp / "meshes" / f"frame_{numbers[f]:012d}.obj", v.vertices[0].numpy(), faces)
+        strip_stride = max(1, -(-result.num_frames // 8))
+        pics = _frame_pictures(result, numbers, model, sequence.images, sequence.masks, 1 if video else strip_stride)
+        strip = pics[::strip_stride] if video else pics
+        figures.write_png(tmp / "strip.png", np.concatenate(strip, axis=1))
+        gif = write_overlay_video(tmp / "overlay.gif", pics, fps) if video else None
+        finite = result.reprojection_error[np.isfinite(result.reprojection_error)]
+        metrics = {
+            "frames": len(numbers), "first_frame": numbers[0], "last_frame": numbers[-1],
+            "bridged_frames": [numbers[i] for i in np.flatnonzero(result.bridged)],
+            "refaced_frames": [numbers[i] for i in np.flatnonzero(result.refaced)],
+            "outlier_keypoints": int(result.outliers.sum()),
+            "reprojection_error_px": float(np.median(finite)) if len(finite) else None,
+            "timings": result.timings, "warnings": list(result.warnings), "camera": cam.to_dict(),
+            "overlay_video": gif.name if gif else None, "config": result.config, **(extra_metrics or {}),
+        }  # fmt: skip
+        (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2, default=float))
+    return Path(out)
