@@ -1,0 +1,116 @@
+"""Sequence fitting: bridging, consistent facings, one shape, and recovery of a short motion."""
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from silfit.camera import Camera, project_points
+from silfit.eval.metrics import acceleration_error, pa_mpjpe
+from silfit.fitting import KeypointFitConfig
+from silfit.fitting.sequence import (
+    SequenceFitConfig, _merge_windows, _windows, body_forward, consistent_facings, fit_sequence, interpolate_frames,
+    keypoint_outliers,
+)  # fmt: skip
+from silfit.keypoints import KeypointSet, model_keypoints
+from silfit.synth.motion import motion_trajectory
+
+CAM = Camera.from_image_size(256, 256)
+
+
+def test_keypoint_outliers_flag_a_jump_but_not_smooth_motion():
+    F, K = 5, 4
+    xy = np.stack([np.stack([np.full(K, 100.0 + 3 * f), 50.0 + 40 * np.arange(K)], 1) for f in range(F)])
+    conf = np.ones((F, K))
+    assert not keypoint_outliers(xy, conf).any()  # steady motion of 3 px per frame
+    xy[2, 1] += 60.0  # a 60 px jump: 0.5 of the 120 px extent
+    out = keypoint_outliers(xy, conf, jump=0.2)
+    assert out.sum() == 1 and out[2, 1]
+    conf[1, 1] = 0.0  # a neighbour missing: no judgement
+    assert not keypoint_outliers(xy, conf)[2, 1]
+
+
+def test_interpolate_frames_slerps_rotations_and_holds_the_ends():
+    orient = np.zeros((5, 3))
+    orient[1] = [0.0, 0.4, 0.0]
+    orient[3] = [0.0, 1.2, 0.0]
+    transl = np.arange(15, dtype=float).reshape(5, 3)
+    known = np.array([False, True, False, True, False])
+    out = interpolate_frames({"global_orient": orient, "transl": transl}, known)
+    assert out["global_orient"][2] == pytest.approx([0.0, 0.8, 0.0])
+    assert out["global_orient"][0] == pytest.approx(orient[1]) and out["global_orient"][4] == pytest.approx(orient[3])
+    assert out["transl"][2] == pytest.approx(0.5 * (transl[1] + transl[3]))
+    assert out["transl"][1] == pytest.approx(transl[1])
+
+
+def test_consistent_facings_flag_the_fewest_flipped_frames_and_allow_a_slow_turn():
+    yaw = np.radians(np.linspace(0, 150, 12))  # a slow turn: no jump
+    orient = np.stack([(Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, y, 0])).as_rotvec() for y in yaw])
+    valid = np.ones(12, dtype=bool)
+    assert not consistent_facings(body_forward(orient), valid).any()
+    flipped = orient.copy()
+    for f in (4, 5):  # two frames fitted facing the other way
+        flipped[f] = (Rotation.from_rotvec(orient[f]) * Rotation.from_rotvec([0, math.pi, 0])).as_rotvec()
+    assert np.flatnonzero(consistent_facings(body_forward(flipped), valid)).tolist() == [4, 5]
+    valid[5] = False  # an invalid frame is neither judged nor a neighbour
+    assert np.flatnonzero(consistent_facings(body_forward(flipped), valid)).tolist() == [4]
+
+
+def test_windows_cover_the_sequence_and_merge_from_their_middles():
+    assert _windows(10, 0, 2) == [0] and _windows(10, 20, 2) == [0]
+    starts = _windows(25, 10, 4)
+    assert starts[0] == 0 and starts[-1] == 15 and all(b - a <= 6 for a, b in zip(starts, starts[1:]))
+    v = np.stack([np.full((10, 1), p, dtype=float) for p in range(len(starts))])
+    owner = _merge_windows({"x": v}, starts, 25)["x"][:, 0].astype(int)
+    assert owner[0] == 0 and owner[-1] == len(starts) - 1
+    for f in range(25):  # each frame comes from a window that holds it
+        s = starts[owner[f]]
+        assert s <= f < s + 10
+
+
+def motion_keypoints(model, F=8):
+    """A noise-free walk seen from the front-left, BODY_25 projections, and the truth."""
+    traj = motion_trajectory("walk", F, 30.0)
+    pose = torch.as_tensor(traj["body_pose"], dtype=model.dtype)
+    betas = torch.tensor([[0.8, -0.6] + [0.0] * 8], dtype=model.dtype).expand(F, 10)
+    orient = torch.as_tensor((Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, 0.5, 0])).as_rotvec(), dtype=model.dtype)
+    transl = torch.stack([torch.linspace(-0.1, 0.1, F), torch.full((F,), 0.2), torch.full((F,), 3.2)], 1).to(model.dtype)
+    with torch.no_grad():
+        out = model(betas=betas, body_pose=pose, global_orient=orient.expand(F, 3), transl=transl)
+        uv = project_points(model_keypoints(model, out, "body25").double(), CAM).numpy()
+    sets = [KeypointSet(uv[f], np.ones(25), "body25") for f in range(F)]
+    return sets, out.joints.double().numpy(), betas[0].numpy()
+
+
+FAST_INIT = KeypointFitConfig(camera_iters=15, pose_iters=(15, 15, 15), shape_iters=8, final_iters=15, init_poses=1,
+                              branch_search=False)  # fmt: skip
+
+
+def test_a_dropped_frame_is_bridged_and_the_sequence_has_one_shape(open_model):
+    sets, joints, betas = motion_keypoints(open_model)
+    sets[3] = None  # no detection in frame 3
+    torso_only = sets[5].conf.copy()
+    torso_only[:] = 0.0
+    torso_only[[1, 2]] = 1.0  # neck and a shoulder only: too few torso points
+    sets[5] = KeypointSet(sets[5].xy, torso_only, "body25")
+    cfg = SequenceFitConfig(keypoint=FAST_INIT, iterations=60)
+    r = fit_sequence(sets, CAM, open_model, config=cfg)
+    assert r.betas.shape == (10,) and r.body_pose.shape == (8, 69) and r.transl.shape == (8, 3)
+    assert r.bridged.tolist() == [False, False, False, True, False, True, False, False]
+    assert np.isnan(r.reprojection_error[3]) and np.isfinite(r.reprojection_error[0])
+    err = pa_mpjpe(r.joints, joints) * 1000  # mm per frame
+    assert err[3] < 40.0 and err[5] < 40.0, err  # the bridged frames' poses follow their neighbours
+    assert err.mean() < 35.0, err
+    # the bridged frame lies near its neighbours' midpoint (true motion there: about 5 mm off it)
+    mid = 0.5 * (r.joints[2] + r.joints[4]) - 0.5 * (r.joints[2, :1] + r.joints[4, :1])
+    assert np.linalg.norm((r.joints[3] - r.joints[3, :1]) - mid, axis=-1).mean() < 0.02
+    # the joint refinement is smoother than the per-frame fits, against the truth
+    with torch.no_grad():
+        pf = open_model(**{k: torch.as_tensor(v, dtype=open_model.dtype) for k, v in r.per_frame.items()}).joints.numpy()
+    assert acceleration_error(r.joints, joints) < acceleration_error(pf, joints)
+
+
+def test_fit_sequence_refuses_a_sequence_without_usable_frames(open_model):
+    with pytest.raises(ValueError, match="no frame"):
+        fit_sequence([None, None], CAM, open_model)
