@@ -16,7 +16,9 @@ def register(subparsers) -> None:
             "Score existing fit outputs (FITS/<subject>/<method>/params.npz, default FITS = DATASET/fits) against "
             "every subject's gt.npz, or run the fitter first (--run, or automatically when no fit exists). Prints "
             "a Markdown table (mean and median per metric per method), writes the JSON report and a per-subject "
-            "error plot. Malformed subjects are skipped and listed with their path and field."
+            "error plot. Malformed subjects are skipped and listed with their path and field. A sequence dataset "
+            "(silfit synth --sequence) is scored per frame and with the temporal refinement: PA-MPJPE, MPJPE, "
+            "acceleration error, shape error, seconds per frame."
         ),
     )
     p.add_argument("dataset", metavar="DIR", help="dataset folder (subject folders, optionally index.json)")
@@ -31,6 +33,21 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
+def run_sequences(args: argparse.Namespace, model) -> int:
+    """A ``silfit synth --sequence`` dataset: per-frame vs temporal fits (silfit.eval.sequence)."""
+    from ..eval.sequence import evaluate_sequences, sequence_table
+
+    report = evaluate_sequences(args.dataset, fits=args.fits, model=model, run=args.run, progress=not args.quiet)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    print(sequence_table(report))
+    for s in report["skipped"]:
+        print(f"skipped {s['subject']}: {s['error']}")
+    print(f"report: {out}")
+    return 0 if report["results"] else 1
+
+
 def run(args: argparse.Namespace) -> int:
     from ..eval.evaluate import FitterUnavailable, evaluate_dataset, markdown_table, plot_errors
 
@@ -39,6 +56,10 @@ def run(args: argparse.Namespace) -> int:
         from ..body import load_body_model
 
         model = load_body_model(args.model)
+    from ..eval.sequence import is_sequence_dataset
+
+    if is_sequence_dataset(args.dataset):
+        return run_sequences(args, model)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     try:
         report = evaluate_dataset(args.dataset, fits=args.fits, model=model, run=args.run, methods=methods, iou=not args.no_iou,
