@@ -206,5 +206,8 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
             "timings": result.timings, "warnings": list(result.warnings), "camera": cam.to_dict(),
             "overlay_video": gif.name if gif else None, "config": result.config, **(extra_metrics or {}),
         }  # fmt: skip
+        if result.silhouette_iou is not None:
+            metrics["silhouette_iou_start"] = result.silhouette_iou_start
+            metrics["silhouette_iou"] = [None if not np.isfinite(v) else float(v) for v in result.silhouette_iou]
         (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2, default=float))
     return Path(out)

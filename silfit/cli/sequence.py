@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from . import CLIError
 
 
@@ -60,15 +62,37 @@ def run_sequence(args) -> int:
     cfg = SequenceFitConfig()
     if args.sequence_iterations is not None:
         cfg.iterations = int(args.sequence_iterations)
+    masks = None
+    if seq.masks and not args.no_silhouette:
+        from ..silhouette.masks import read_mask
+
+        masks = [read_mask(seq.masks[n], size=(camera.width, camera.height)) if n in seq.masks else None for n in seq.numbers]
     result = fit_sequence(seq.frames, camera, model, config=cfg, pose_prior=pose_prior, progress=not args.quiet)
+    if masks is not None:
+        from ..fitting.sequence import refine_sequence_silhouettes
+        from ..fitting.silhouette_stage import SilhouetteFitConfig
+
+        levels = {}
+        if args.silhouette_resolutions:
+            levels["resolutions"] = tuple(args.silhouette_resolutions)
+        if args.silhouette_iterations:
+            levels["iterations"] = tuple(args.silhouette_iterations)
+        try:
+            sil_config = SilhouetteFitConfig(**levels)
+        except ValueError:
+            raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels") from None
+        result = refine_sequence_silhouettes(model, result, seq.frames, masks, config=sil_config, pose_prior=pose_prior,
+                                             progress=not args.quiet)  # fmt: skip
     extra = {"sequence": str(args.sequence), "model": model.source, "camera_source": camera_source,
-             "silhouette": "not run (the sequence silhouette stage is not available yet)" if seq.masks else None}  # fmt: skip
+             "silhouette": "run" if masks is not None else "not run (no masks)" if not seq.masks else "not run (--no-silhouette)"}  # fmt: skip
     save_sequence_fit(result, out, model, seq, meshes=args.meshes, video=not args.no_video, fps=args.fps,
                       extra_metrics=extra, overwrite=args.overwrite)  # fmt: skip
     if not args.quiet:
         t = result.timings
-        print(f"wrote {out}: {result.num_frames} frames, {int(result.bridged.sum())} bridged, "
-              f"{t['seconds_per_frame']:.2f} s per frame")  # fmt: skip
+        line = f"wrote {out}: {result.num_frames} frames, {int(result.bridged.sum())} bridged, {t['seconds_per_frame']:.2f} s per frame"
+        if result.silhouette_iou is not None:
+            line += f", silhouette IoU {result.silhouette_iou_start:.3f} -> {float(np.nanmean(result.silhouette_iou)):.3f}"
+        print(line)
         for warning in result.warnings:
             print(f"warning: {warning}")
     return 0

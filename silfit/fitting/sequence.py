@@ -45,7 +45,7 @@ from .threads import torch_threads
 
 __all__ = [
     "SequenceFitConfig", "SequenceFitResult", "consistent_facings", "fit_sequence", "interpolate_frames",
-    "keypoint_outliers",
+    "keypoint_outliers", "refine_sequence_silhouettes",
 ]  # fmt: skip
 
 ROTATIONS = ("global_orient", "body_pose")
@@ -118,6 +118,9 @@ class SequenceFitResult:
     layout: str = "body25"
     config: dict = field(default_factory=dict)
     warnings: List[str] = field(default_factory=list)
+    #: after :func:`refine_sequence_silhouettes`: soft IoU per frame (NaN without a mask) and at its start
+    silhouette_iou: Optional[np.ndarray] = None
+    silhouette_iou_start: Optional[float] = None
 
     @property
     def num_frames(self) -> int:
@@ -404,3 +407,72 @@ def _merge_windows(params: Dict[str, np.ndarray], starts: List[int], F: int) -> 
             if margin > best[s + i]:
                 best[s + i], owner[s + i], where[s + i] = margin, p, i
     return {n: v[owner, where] for n, v in params.items()}
+
+
+# ----------------------------------------------------------------------------- silhouettes
+#: weights of the temporal terms in the silhouette stage's energy (its terms are in window
+#: pixels with normalised keypoint weights: about 1/20,000 of the keypoint stage's scale,
+#: as its pose-prior weight is)
+SILHOUETTE_TEMPORAL_WEIGHT = 5e-5
+
+
+def refine_sequence_silhouettes(
+    model,
+    result: SequenceFitResult,
+    frames: Sequence[Optional[KeypointSet]],
+    masks: Sequence[Optional[np.ndarray]],
+    *,
+    config=None,
+    temporal_weight: float = SILHOUETTE_TEMPORAL_WEIGHT,
+    pose_prior=None,
+    progress: bool = False,
+) -> SequenceFitResult:
+    """The silhouette stage on a sequence fit: one problem of ``F`` frames (one shared
+    ``betas``), each frame's mask (``None``: no silhouette term there) and keypoints
+    (outliers and bridged frames left out), with the temporal terms of the keypoint
+    refinement (weight ``temporal_weight``) in its energy
+    (:func:`~silfit.fitting.silhouette_stage.fit_silhouette_problems`). Returns a copy of
+    ``result`` with the refined parameters and joints; ``per_frame`` is kept, and
+    ``timings["silhouette"]`` and ``silhouette_iou`` (per frame, NaN without a mask) are added."""
+    from .silhouette_stage import SilhouetteFitConfig, fit_silhouette_problems
+    from .terms import JointSmoothnessTerm, RootSmoothnessTerm
+
+    F = result.num_frames
+    if len(masks) != F or len(frames) != F:
+        raise ValueError(f"{len(masks)} masks and {len(frames)} keypoint frames for a fit of {F} frames")
+    if all(m is None for m in masks):
+        raise ValueError("the sequence's silhouette stage needs at least one mask")
+    cfg = config or SilhouetteFitConfig()
+    if cfg.proxy_faces and int(cfg.proxy_faces) >= int(model.faces.shape[0]):  # a small model: render it whole
+        cfg = replace(cfg, proxy_faces=None)
+    sigma = result.config.get("temporal_sigma", 10.0)
+    obs = []
+    for f in range(F):
+        ks = frames[f]
+        if ks is not None and not result.bridged[f]:
+            conf = np.where(result.outliers[f], 0.0, ks.conf)
+            ks = KeypointSet(ks.xy, conf, ks.layout, ks.source) if (conf > 0).any() else None
+        else:
+            ks = None
+        obs.append(Observation(View(result.camera), ks, masks[f], frame=f))
+    init = {"betas": result.betas, "body_pose": result.body_pose, "global_orient": result.global_orient, "transl": result.transl}
+    t0 = time.perf_counter()
+    (sil,) = fit_silhouette_problems(
+        model, [Problem(obs)], [init], layout=result.layout, config=cfg, pose_prior=pose_prior, progress=progress,
+        terms=(JointSmoothnessTerm(sigma=sigma), RootSmoothnessTerm(sigma=sigma)),
+        weights={"smooth_joints": temporal_weight, "smooth_root": temporal_weight},
+    )  # fmt: skip
+    seconds = time.perf_counter() - t0
+    p = sil.params()
+    betas = np.asarray(p["betas"], dtype=np.float32).reshape(-1)
+    T = lambda a: torch.as_tensor(np.asarray(a), dtype=model.dtype)  # noqa: E731
+    with torch.no_grad():
+        joints = model(betas=T(np.repeat(betas[None], F, 0)), body_pose=T(p["body_pose"]), global_orient=T(p["global_orient"]),
+                       transl=T(p["transl"])).joints.numpy()  # fmt: skip
+    timings = dict(result.timings, silhouette=seconds, total=result.timings["total"] + seconds)
+    timings["seconds_per_frame"] = timings["total"] / F
+    out = replace(result, betas=betas, body_pose=np.asarray(p["body_pose"], np.float32),
+                  global_orient=np.asarray(p["global_orient"], np.float32), transl=np.asarray(p["transl"], np.float32),
+                  joints=np.asarray(joints, np.float32), timings=timings, warnings=list(result.warnings) + list(sil.warnings))  # fmt: skip
+    out.silhouette_iou, out.silhouette_iou_start = np.array([row[0] for row in sil.ious], dtype=np.float64), float(sil.iou_start)
+    return out

@@ -1,0 +1,64 @@
+"""``silfit fit --sequence`` and ``silfit synth --sequence`` end to end on a tiny sequence (toy body)."""
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fitting"))
+from silfit_toy_body import toy_model, write_toy_npz  # noqa: E402
+
+from silfit.cli import main  # noqa: E402
+from silfit.synth.motion import SequenceConfig, generate_sequence_dataset  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory):
+    d = tmp_path_factory.mktemp("seq_in")
+    model_path = write_toy_npz(d / "toy.npz")
+    cfg = SequenceConfig(seed=3, frames=5, size=64, noise_px=0.5, motions=("walk",))
+    generate_sequence_dataset(d / "data", 1, cfg, model=toy_model())
+    seq = d / "data" / "seq_000"
+    # frame 2: OpenPose saw nobody
+    (seq / "keypoints" / "seq_000_000000000002_keypoints.json").write_text(json.dumps({"version": 1.3, "people": []}))
+    return seq, model_path
+
+
+def test_synth_sequence_writes_per_frame_files_and_truth(sequence):
+    seq, _ = sequence
+    assert len(list((seq / "keypoints").glob("*_keypoints.json"))) == 5
+    assert len(list((seq / "masks").glob("*.png"))) == 5 and (seq / "camera.json").is_file()
+    gt = np.load(seq / "gt.npz")
+    assert gt["betas"].shape == (10,) and gt["body_pose"].shape == (5, 69) and gt["joints"].shape == (5, 24, 3)
+    index = json.loads((seq.parent / "index.json").read_text())
+    assert index["format"] == "silfit-synthetic-sequence" and index["sequences"][0]["motion"] == "walk"
+
+
+def test_fit_sequence_writes_one_shape_and_per_frame_outputs(sequence, tmp_path, capsys):
+    seq, model = sequence
+    out = tmp_path / "fit"
+    rc = main(["fit", "--sequence", str(seq), "--model", str(model), "--out", str(out), "--meshes", "--sequence-iterations", "10",
+               "--silhouette-resolutions", "32", "--silhouette-iterations", "3"])  # fmt: skip
+    assert rc == 0, capsys.readouterr().err
+    p = np.load(out / "params.npz")
+    assert p["betas"].shape == (10,) and p["body_pose"].shape == (5, 69) and p["transl"].shape == (5, 3)
+    assert p["frames"].tolist() == [0, 1, 2, 3, 4] and p["bridged"].tolist() == [False, False, True, False, False]
+    assert np.isfinite(p["body_pose"]).all()
+    assert sorted(f.name for f in (out / "meshes").iterdir()) == [f"frame_{i:012d}.obj" for i in range(5)]
+    for f in ("params.json", "metrics.json", "strip.png", "overlay.gif", "stages/per_frame/params.npz"):
+        assert (out / f).is_file(), f
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["bridged_frames"] == [2] and m["silhouette"] == "run" and len(m["silhouette_iou"]) == 5
+    assert "bridged" in capsys.readouterr().out
+
+
+def test_fit_sequence_bad_input_is_one_line(tmp_path, capsys):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["fit", "--sequence", str(empty), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "no OpenPose per-frame files" in err and not (tmp_path / "o").exists()
+    (empty / "v_000000000000_keypoints.json").write_text("{not json")
+    assert main(["fit", "--sequence", str(empty), "--out", str(tmp_path / "o")]) == 2
+    assert "v_000000000000_keypoints.json" in capsys.readouterr().err and not (tmp_path / "o").exists()
