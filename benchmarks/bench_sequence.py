@@ -16,7 +16,14 @@ PA-MPJPE cut >= 20 %, per-frame cost of a sequence <= the batched single-image c
 ``--baseline K`` runs the default per-frame fits on the first K sequences only (the
 comparison rows then use those K).
 
+``--silhouette N`` runs, instead, the silhouette stage on the first ``--silhouette-frames``
+frames of the first N sequences (the stage renders every frame at every step, so 600
+frames do not fit a short run): the keypoint refinement, then the silhouette stage with the
+temporal terms and without them (weight 0), with PA-MPJPE, acceleration error, shape
+error, the mean silhouette IoU and seconds per frame.
+
     python benchmarks/bench_sequence.py --n 10 --frames 60 --seed 2027
+    python benchmarks/bench_sequence.py --n 10 --frames 60 --seed 2027 --silhouette 2 --silhouette-frames 20
 """
 from __future__ import annotations
 
@@ -39,6 +46,10 @@ def main(argv=None):
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--baseline", type=int, default=None, help="default per-frame fits on the first K sequences (default all)")
     ap.add_argument("--keep", help="keep the dataset here")
+    ap.add_argument("--silhouette", type=int, default=0, help="the silhouette stage on the first N sequences instead")
+    ap.add_argument("--silhouette-frames", type=int, default=20, help="frames of each (from the first)")
+    ap.add_argument("--silhouette-levels", default=None, metavar="R:N,...",
+                    help="silhouette levels as resolution:steps (default: the stage's own, 128:60,256:50)")
     args = ap.parse_args(argv)
 
     from silfit import load_body_model
@@ -58,6 +69,13 @@ def main(argv=None):
                                                                noise_px=args.noise, drop_prob=args.drop))  # fmt: skip
     print(f"dataset: {root} ({args.n} x {args.frames} frames, {time.perf_counter() - t0:.0f} s to generate)", flush=True)
     index = __import__("json").loads((root / "index.json").read_text())
+    if args.silhouette:
+        from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+
+        levels = [tuple(int(x) for x in lv.split(":")) for lv in args.silhouette_levels.split(",")] if args.silhouette_levels else None
+        sil = SilhouetteFitConfig(**({} if levels is None else {"resolutions": tuple(r for r, _ in levels),
+                                                                "iterations": tuple(n for _, n in levels)}))  # fmt: skip
+        return silhouette_benchmark(model, root, index["sequences"][: args.silhouette], args.silhouette_frames, sil)
     fitter = KeypointFitter(model)
     K = args.n if args.baseline is None else min(args.baseline, args.n)
     rows = {"per-frame": [], "per-frame init": [], "temporal": []}
@@ -118,6 +136,43 @@ def main(argv=None):
     acc = mean("per-frame init", "accel") / mean("temporal", "accel")
     pa = 1 - mean("temporal", "pa_mpjpe") / mean("per-frame init", "pa_mpjpe")
     print(f"against its own per-frame initialisation (all {args.n}): acceleration error cut {acc:.1f}x, PA-MPJPE cut {pa:.0%}")
+
+
+def silhouette_benchmark(model, root, records, frames, config):
+    from silfit.camera import load_camera
+    from silfit.eval.sequence import score_sequence
+    from silfit.fitting.sequence import fit_sequence, refine_sequence_silhouettes
+    from silfit.silhouette.masks import read_mask
+    from silfit.video import read_sequence
+
+    rows = {"keypoints (temporal)": [], "+ silhouette, temporal terms": [], "+ silhouette, no temporal terms": []}
+    for rec in records:
+        d = root / rec["name"]
+        seq = read_sequence(d)
+        cam = load_camera(d / "camera.json")
+        gt = {k: (v[:frames] if np.ndim(v) and k not in ("betas",) else v) for k, v in np.load(d / "gt.npz").items()}
+        kps = seq.frames[:frames]
+        masks = [read_mask(seq.masks[n]) for n in seq.numbers[:frames]]
+        t = time.perf_counter()
+        r = fit_sequence(kps, cam, model)
+        t_kp = time.perf_counter() - t
+        rows["keypoints (temporal)"].append({**score_sequence(model, gt, r.params()), "seconds_per_frame": t_kp / frames})
+        for label, w in (("+ silhouette, temporal terms", None), ("+ silhouette, no temporal terms", 0.0)):
+            t = time.perf_counter()
+            s = refine_sequence_silhouettes(model, r, kps, masks, config=config, **({} if w is None else {"temporal_weight": w}))
+            dt = time.perf_counter() - t
+            rows[label].append({**score_sequence(model, gt, s.params()), "iou": float(np.nanmean(s.silhouette_iou)),
+                                "iou_start": s.silhouette_iou_start, "seconds_per_frame": (t_kp + dt) / frames})  # fmt: skip
+        print(rec["name"], rec["motion"], {m: {k: round(v, 3) for k, v in r_[-1].items()} for m, r_ in rows.items()}, flush=True)
+    load = os.getloadavg()
+    print(f"\nsilhouette stage (levels {list(zip(config.resolutions, config.iterations))}) on the first {frames} frames "
+          f"of {len(records)} sequences; load average {load[0]:.1f} {load[1]:.1f} {load[2]:.1f}\n")
+    print("| method | PA-MPJPE (mm) | acceleration error (mm/frame^2) | shape error (mm) | silhouette IoU | seconds per frame |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for m, rs in rows.items():
+        mean = lambda k: float(np.mean([r[k] for r in rs])) if rs and k in rs[0] else float("nan")  # noqa: E731
+        iou = f"{mean('iou_start'):.3f} -> {mean('iou'):.3f}" if "iou" in rs[0] else "-"
+        print(f"| {m} | {mean('pa_mpjpe'):.1f} | {mean('accel'):.1f} | {mean('shape'):.1f} | {iou} | {mean('seconds_per_frame'):.2f} |")
 
 
 if __name__ == "__main__":

@@ -2,7 +2,8 @@
 
 ``load_body_model`` gives the body model, ``fit_keypoints`` the keypoint stage (batched),
 ``fit`` the whole fit of one image (keypoints, then silhouette) and ``save_fit`` its
-output folder.
+output folder; ``read_sequence``, ``fit_sequence`` and ``save_sequence_fit`` the same for a
+video's frames.
 
 Names are resolved on first use (PEP 562), so ``import silfit`` (and ``silfit --help``,
 ``silfit synth``) does not pay for torch, scipy and the fitting code until they are needed.
@@ -25,6 +26,9 @@ _EXPORTS = {
     "FitResult": "pipeline",
     "fit": "pipeline",
     "save_fit": "pipeline",
+    "fit_sequence": "fitting.sequence",
+    "read_sequence": "video",
+    "save_sequence_fit": "video",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__"]
@@ -37,4 +41,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from .body import BodyModel, BodyOutput, load_body_model
     from .camera import Camera
     from .fitting import KeypointFitResult, fit_keypoints
+    from .fitting.sequence import fit_sequence
     from .pipeline import FitResult, fit, save_fit
+    from .video import read_sequence, save_sequence_fit
