@@ -32,8 +32,6 @@ def test_truth_scores_zero_and_a_jittered_fit_does_not(sequence_dataset, open_mo
     gt = dict(np.load(sequence_dataset / "seq_000" / "gt.npz"))
     row = score_sequence(open_model, gt, gt)
     assert row["pa_mpjpe"] < 1e-3 and row["accel"] < 1e-3 and row["shape"] < 1e-3
-
-
     pose = gt["body_pose"].copy()
     pose[2] += 0.1
     bad = score_sequence(open_model, gt, dict(gt, body_pose=pose), bridged=[False, False, True, False, False])
