@@ -114,3 +114,12 @@ def test_a_dropped_frame_is_bridged_and_the_sequence_has_one_shape(open_model):
 def test_fit_sequence_refuses_a_sequence_without_usable_frames(open_model):
     with pytest.raises(ValueError, match="no frame"):
         fit_sequence([None, None], CAM, open_model)
+
+
+def test_windowed_refinement_keeps_one_shape(open_model):
+    sets, joints, _ = motion_keypoints(open_model)
+    cfg = SequenceFitConfig(keypoint=FAST_INIT, iterations=40, window=5, overlap=2, window_pose_iterations=20)
+    r = fit_sequence(sets, CAM, open_model, config=cfg)
+    assert r.betas.shape == (10,) and r.body_pose.shape == (8, 69)
+    err = pa_mpjpe(r.joints, joints) * 1000
+    assert err.mean() < 35.0 and err.max() < 60.0, err
