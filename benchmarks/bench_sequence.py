@@ -46,6 +46,7 @@ def main(argv=None):
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--baseline", type=int, default=None, help="default per-frame fits on the first K sequences (default all)")
     ap.add_argument("--keep", help="keep the dataset here")
+    ap.add_argument("--from", dest="start", type=int, default=0, help="fit sequences from this index on (to split a run)")
     ap.add_argument("--silhouette", type=int, default=0, help="the silhouette stage on the first N sequences instead")
     ap.add_argument("--silhouette-frames", type=int, default=20, help="frames of each (from the first)")
     ap.add_argument("--silhouette-levels", default=None, metavar="R:N,...",
@@ -80,6 +81,9 @@ def main(argv=None):
     K = args.n if args.baseline is None else min(args.baseline, args.n)
     rows = {"per-frame": [], "per-frame init": [], "temporal": []}
     for i, rec in enumerate(index["sequences"]):
+        if i < args.start:
+            continue
+        i -= args.start
         d = root / rec["name"]
         seq = read_sequence(d)
         cam = load_camera(d / "camera.json")
