@@ -277,10 +277,11 @@ def _bridge_keypoints(xy, conf, usable) -> List[tuple]:
             a, b = before[-1], after[0]
             w = (f - a) / (b - a)
             both = (conf[a] > 0) & (conf[b] > 0)
-            out.append(((1 - w) * xy[a] + w * xy[b], np.where(both, 1.0, 0.0)))
-        else:
-            g = before[-1] if len(before) else after[0]
-            out.append((xy[g], conf[g]))
+            if both.sum() >= 2:
+                out.append(((1 - w) * xy[a] + w * xy[b], np.where(both, 1.0, 0.0)))
+                continue
+        g = before[-1] if len(before) and (not len(after) or f - before[-1] <= after[0] - f) else after[0]
+        out.append((xy[g], conf[g]))
     return out
 
 
@@ -310,7 +311,7 @@ def fit_sequence(
     if not usable.any():
         raise ValueError(f"no frame of the sequence has enough confident torso keypoints (of {F} frames)")
     init_frames = np.flatnonzero(usable)[:: max(int(cfg.init_stride), 1)]
-    if usable.any() and np.flatnonzero(usable)[-1] not in init_frames:
+    if np.flatnonzero(usable)[-1] not in init_frames:
         init_frames = np.append(init_frames, np.flatnonzero(usable)[-1])
 
     # 2. per-frame initialisation, the usable frames as one batch
