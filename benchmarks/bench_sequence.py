@@ -122,7 +122,7 @@ def main(argv=None):
         return float(np.mean(vals)) if vals else float("nan")
 
     load = os.getloadavg()
-    print(f"\n{args.n} sequences x {args.frames} frames, {args.noise} px noise, {args.drop:.0%} keypoints dropped, seed "
+    print(f"\n{len(rows['temporal'])} sequences x {args.frames} frames, {args.noise} px noise, {args.drop:.0%} keypoints dropped, seed "
           f"{args.seed}; load average {load[0]:.1f} {load[1]:.1f} {load[2]:.1f} (2-core CPU, shared)\n")  # fmt: skip
     keys = (("pa_mpjpe", "PA-MPJPE (mm)"), ("mpjpe", "MPJPE (mm)"), ("accel", "acceleration error (mm/frame^2)"),
             ("shape", "shape error, T-pose PVE (mm)"), ("seconds_per_frame", "seconds per frame"))  # fmt: skip
@@ -139,7 +139,7 @@ def main(argv=None):
               f"PA-MPJPE cut {pa:.0%} (target >= 20 %), per-frame cost {cost:.2f}x the batched single-image cost (target <= 1)")  # fmt: skip
     acc = mean("per-frame init", "accel") / mean("temporal", "accel")
     pa = 1 - mean("temporal", "pa_mpjpe") / mean("per-frame init", "pa_mpjpe")
-    print(f"against its own per-frame initialisation (all {args.n}): acceleration error cut {acc:.1f}x, PA-MPJPE cut {pa:.0%}")
+    print(f"against its own per-frame initialisation (all {len(rows['temporal'])}): acceleration error cut {acc:.1f}x, PA-MPJPE cut {pa:.0%}")
 
 
 def silhouette_benchmark(model, root, records, frames, config):
