@@ -32,6 +32,9 @@ def _int_list(text: str) -> tuple:
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("fit", help="fit SMPL to an image's 2D keypoints and person mask")
+    p.add_argument("--rig", metavar="DIR", help="a calibrated camera rig: cameras.json (or EasyMocap intri.yml + "
+                   "extri.yml, or one sub-folder per view with camera.json incl. R, t) and per view keypoints.json, "
+                   "optional mask.png, image.png; fits in world coordinates (see README: Camera rigs)")
     p.add_argument("--keypoints", help="OpenPose BODY_25 / COCO-17 keypoint JSON (default: detected in --image, "
                    "with its mask unless --mask is given)")
     p.add_argument("--person", default="largest", help="person index in the keypoint file, or 'largest'")
@@ -178,6 +181,10 @@ def load_inputs(args) -> FitInputs:
 def run(args) -> int:
     from ..pipeline import fit, save_fit
 
+    if getattr(args, "rig", None):
+        from .fit_rig import run_rig
+
+        return run_rig(args)
     inp = load_inputs(args)
     if args.check_only:
         from ..plausibility import check_keypoints
