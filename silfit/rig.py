@@ -42,6 +42,8 @@ __all__ = [
     "RigView",
     "extrinsics_from_dict",
     "load_rig",
+    "project_world",
+    "to_camera",
     "read_cameras_json",
     "read_easymocap",
     "read_view_camera",
@@ -295,6 +297,20 @@ def load_rig(folder: PathLike) -> List[RigView]:
         v.mask = v.mask if v.mask is not None and v.mask.is_file() else None
         v.image = v.image if v.image is not None and v.image.is_file() else None
     return views
+
+
+def to_camera(points: np.ndarray, view: View) -> np.ndarray:
+    """World points ``[N, 3]`` in a view's camera frame, ``R x + t``."""
+    R, t = view.extrinsics()
+    return np.asarray(points, np.float64) @ R.T + t
+
+
+def project_world(points: np.ndarray, view: View) -> np.ndarray:
+    """Pixels ``[N, 2]`` of world points ``[N, 3]`` in a view (OpenCV pinhole)."""
+    c = to_camera(points, view)
+    cam = view.camera
+    z = np.maximum(c[:, 2], 1e-6)
+    return np.stack([cam.fx * c[:, 0] / z + cam.cx, cam.fy * c[:, 1] / z + cam.cy], 1)
 
 
 def camera_centre(view: View) -> np.ndarray:

@@ -31,7 +31,7 @@ from .eval.metrics import mask_iou
 from .fitting.rig_fit import RigFit, fit_rig_keypoints
 from .outfolder import atomic_folder
 
-__all__ = ["RigResult", "fit_rig", "save_rig_fit", "view_vertices"]
+__all__ = ["RigResult", "fit_rig", "refine_rig_fits", "save_rig_fit", "view_vertices"]
 
 
 @dataclass
@@ -51,8 +51,9 @@ class RigResult:
 
 def view_vertices(vertices: np.ndarray, view) -> np.ndarray:
     """World-frame vertices in a view's camera frame (``R x + t``)."""
-    R, t = view.extrinsics()
-    return (np.asarray(vertices, np.float64) @ R.T + t).astype(np.float32)
+    from .rig import to_camera
+
+    return to_camera(vertices, view).astype(np.float32)
 
 
 def _view_ious(vertices, faces, problem, names):
@@ -67,9 +68,22 @@ def _view_ious(vertices, faces, problem, names):
     return ious, masks
 
 
+def _keypoint_metrics(kp: RigFit, problem, names, faces) -> RigResult:
+    ious, masks = _view_ious(kp.vertices, faces, problem, names)
+    per_view = {n: {"reprojection_error_px": float(e)} for n, e in zip(names, kp.reprojection_error)}
+    for n, v in ious.items():
+        per_view[n]["iou_keypoint_stage"] = v
+    metrics = {"views": per_view, "timings": {"keypoints": float(kp.timings["total"])},
+               "reprojection_error_px": float(np.nanmedian(kp.reprojection_error))}  # fmt: skip
+    if ious:
+        metrics["iou_mean"] = float(np.mean(list(ious.values())))
+    return RigResult(list(names), dict(kp.params), kp.vertices, kp.joints, kp, None, metrics, masks)
+
+
 def fit_rig(problem, names, model=None, pose_prior=None, keypoint_config=None, silhouette: bool = True,
             silhouette_config=None, progress: bool = False) -> RigResult:  # fmt: skip
-    """Fit one rig problem (:func:`silfit.fitting.rig_fit.rig_problem`); ``names`` the views' names."""
+    """Fit one rig problem (:func:`silfit.fitting.rig_fit.rig_problem`); ``names`` the views'
+    names. With ``silhouette`` and at least one mask, the silhouette stage follows."""
     from .body import load_body_model
     from .fitting.keypoint_stage import KeypointFitter
 
@@ -77,25 +91,59 @@ def fit_rig(problem, names, model=None, pose_prior=None, keypoint_config=None, s
     layout = problem.observations[0].keypoints.layout
     fitter = KeypointFitter(model, layout, keypoint_config, pose_prior)
     kp = fit_rig_keypoints(fitter, [problem], progress=progress)[0]
+    if silhouette and any(o.mask is not None for o in problem.observations):
+        return refine_rig_fits(model, [(names, problem, kp)], silhouette_config, fitter.pose_prior, progress)[0]
+    return _keypoint_metrics(kp, problem, names, model.faces.cpu().numpy())
+
+
+def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool = False) -> List[RigResult]:
+    """The silhouette stage on rig problems, every view with a mask rendered
+    (:func:`~silfit.fitting.silhouette_stage.fit_silhouette_problems`), from their keypoint
+    fits: ``items`` are ``(view names, problem, RigFit)`` with equal view counts."""
+    import torch
+
+    from .fitting.silhouette_stage import fit_silhouette_problems
+    from .keypoints import model_keypoints
+    from .rig import project_world
+
     faces = model.faces.cpu().numpy()
-    ious, masks = _view_ious(kp.vertices, faces, problem, names)
-    per_view = {n: {"reprojection_error_px": float(e)} for n, e in zip(names, kp.reprojection_error)}
-    for n, v in ious.items():
-        per_view[n]["iou_keypoint_stage"] = v
-    metrics = {"views": per_view, "timings": {"keypoints": float(kp.timings["total"])},
-               "reprojection_error_px": float(np.nanmedian(kp.reprojection_error))}  # fmt: skip
-    result = RigResult(list(names), dict(kp.params), kp.vertices, kp.joints, kp, None, metrics, masks)
-    if silhouette and ious:
-        _refine(result, model, problem, silhouette_config, progress)
-    if ious:
-        result.metrics["iou_mean"] = float(np.mean([v.get("iou", v.get("iou_keypoint_stage")) for v in per_view.values()
-                                                    if "iou_keypoint_stage" in v]))  # fmt: skip
-    return result
-
-
-def _refine(result: RigResult, model, problem, config, progress) -> None:
-    """The silhouette stage over every view with a mask (needs the problem-level silhouette stage)."""
-    raise NotImplementedError("the silhouette stage for rigs is not available in this version")
+    before = [_keypoint_metrics(kp, p, names, faces) for names, p, kp in items]
+    for (names, p, _), b in zip(items, before):
+        zero = [n for n in names if b.metrics["views"][n].get("iou_keypoint_stage", 1.0) == 0.0]
+        if zero:
+            raise ValueError(f"view(s) {', '.join(zero)}: the mask does not overlap the body fitted to the keypoints at all")
+    layout = items[0][1].observations[0].keypoints.layout
+    sils = fit_silhouette_problems(model, [p for _, p, _ in items], [dict(kp.params) for _, _, kp in items], layout=layout,
+                                   config=config, pose_prior=pose_prior, progress=progress)  # fmt: skip
+    out = []
+    for (names, p, kp), b, sil in zip(items, before, sils):
+        params = {n: np.asarray(v, np.float32).reshape(-1) for n, v in sil.parameters.items()}
+        t = lambda a: torch.as_tensor(np.asarray(a, np.float64)[None], dtype=model.dtype)  # noqa: E731
+        with torch.no_grad():
+            body = model(**{n: t(v) for n, v in params.items()})
+            kp3 = model_keypoints(model, body, layout)[0].double().numpy()
+        vertices = body.vertices[0].numpy().astype(np.float32)
+        proj, errs = [], []
+        for o in p.grid()[0]:
+            uv = project_world(kp3, o.view)
+            proj.append(uv)
+            ok = o.keypoints.conf > 0
+            errs.append(float(np.median(np.linalg.norm(uv - o.keypoints.xy, axis=1)[ok])) if ok.any() else float("nan"))
+        ious, masks = _view_ious(vertices, faces, p, names)
+        metrics = b.metrics
+        for n, e in zip(names, errs):
+            metrics["views"][n]["reprojection_error_px_keypoint_stage"] = metrics["views"][n]["reprojection_error_px"]
+            metrics["views"][n]["reprojection_error_px"] = e
+        for n, v in ious.items():
+            metrics["views"][n]["iou"] = v
+        metrics.update(
+            iou_mean_keypoint_stage=metrics.pop("iou_mean"), iou_mean=float(np.mean(list(ious.values()))),
+            reprojection_error_px=float(np.nanmedian(errs)), keypoints_2d=np.asarray(proj), warnings=list(sil.warnings),
+            silhouette_steps=sil.steps,
+        )  # fmt: skip
+        metrics["timings"]["silhouette"] = float(sil.seconds)
+        out.append(RigResult(list(names), params, vertices, body.joints[0].numpy().astype(np.float32), kp, sil, metrics, masks))
+    return out
 
 
 def save_rig_fit(result: RigResult, out: Union[str, os.PathLike], faces: np.ndarray, problem, images=None,

@@ -45,6 +45,7 @@ def _load(subject_dir: Path):
 def score_rig_fit(model, views, problem, gt: dict, params: dict, iou: bool = True, timings=None) -> dict:
     """The metrics of one rig fit (world-frame ``params``) against the subject's truth."""
     from ..pipeline import body_mask
+    from ..rig import project_world
     from ..rig_pipeline import view_vertices
 
     t = lambda a: torch.as_tensor(np.asarray(a, np.float64)[None], dtype=model.dtype)  # noqa: E731
@@ -63,10 +64,8 @@ def score_rig_fit(model, views, problem, gt: dict, params: dict, iou: bool = Tru
     reproj, ious = [], []
     faces = model.faces.cpu().numpy()
     for c, o in enumerate(problem.grid()[0]):
-        R, tt = o.view.extrinsics()
         cam = o.view.camera
-        k = kp @ R.T + tt
-        uv = np.stack([cam.fx * k[:, 0] / k[:, 2] + cam.cx, cam.fy * k[:, 1] / k[:, 2] + cam.cy], 1)
+        uv = project_world(kp, o.view)
         vis = gt["keypoints_visibility"][c] > 0
         if vis.any():
             reproj.append(reprojection_error(uv, gt["keypoints_2d_clean"][c], vis))
