@@ -45,7 +45,7 @@ from .branches import limb_hypotheses
 from .problem import ParameterLayout, Problem, stack_views
 from .result import KeypointFitResult
 from .stages import Stage, check_stages, run_lbfgs_stage, stage_to_dict
-from .triangulate import projection_matrices, robust_triangulate, torso_placement
+from .triangulate import placement_to_world, projection_matrices, robust_triangulate, torso_placement
 from .terms import DepthTerm, Energy, InterpenetrationTerm, KeypointTerm, PriorTerm, evaluate
 from .threads import torch_threads
 
@@ -337,8 +337,12 @@ class KeypointFitter:
         w = (conf[:, torso] * inliers).sum(0) * self.kp_weights.numpy()[torso]
         try:
             orient, transl = torso_placement(self.rest_keypoints[torso], X, w, self.rest_pelvis)
-        except ValueError as err:
-            raise ValueError(f"{row[0].keypoints.source}: {err}") from None
+        except ValueError:  # torso not triangulated: place it from the view that sees it best, as one image
+            c = int(np.argmax([(conf[v, torso] > 0).sum() + conf[v, torso].sum() * 1e-3 for v in range(len(row))]))
+            o = row[c]
+            _check_torso(o.keypoints)
+            orient, transl, _ = self._initial_placement(o.keypoints.xy, o.keypoints.conf, o.view.camera, False)
+            orient, transl = placement_to_world(orient, transl, *ext[c], self.rest_pelvis)
         z0 = [float((R @ transl + t)[2]) for R, t in ext]
         return orient, transl, z0
 

@@ -18,8 +18,9 @@ import numpy as np
 import torch
 
 from ..keypoints import read_keypoints
-from .problem import Observation, Problem
+from .problem import Observation, Problem, stack_views
 from .terms import evaluate
+from .triangulate import placement_to_world
 from .threads import torch_threads
 
 __all__ = ["RigFit", "fit_rig_keypoints", "rig_problem"]
@@ -63,12 +64,35 @@ def _median_errors(proj: np.ndarray, problem: Problem) -> np.ndarray:
     return np.asarray(out)
 
 
+def camera_to_world(model, rows: Dict[str, torch.Tensor], views) -> Dict[str, torch.Tensor]:
+    """Parameter rows of bodies placed in their view's camera frame, placed in the world
+    frame instead (``views``: one :class:`~silfit.fitting.problem.View` per row; see
+    :func:`~silfit.fitting.triangulate.placement_to_world`)."""
+    with torch.no_grad():
+        j = model(betas=rows["betas"]).joints[:, 0].double().numpy()
+    placed = [placement_to_world(rows["global_orient"][b].double().numpy(), rows["transl"][b].double().numpy(),
+                                 *view.extrinsics(), j[b]) for b, view in enumerate(views)]  # fmt: skip
+    T = lambda a: torch.as_tensor(np.asarray(a), dtype=rows["transl"].dtype)  # noqa: E731
+    return {**rows, "global_orient": T([q[0] for q in placed]), "transl": T([q[1] for q in placed])}
+
+
 def fit_rig_keypoints(fitter, problems: Sequence[Problem], progress: bool = False) -> List[RigFit]:
-    """The keypoint stage on one-frame rig problems of equal view counts (one batch)."""
+    """The keypoint stage on one-frame rig problems of equal view counts (one batch).
+
+    A one-view rig is fitted in its camera's frame as a single image (similar-triangles
+    placement, flip test, branch search: all assume the camera at the origin), then
+    placed in the world by the view's extrinsics (:func:`camera_to_world`)."""
+    problems = list(problems)
+    single = problems[0].num_views == 1
+    run = [Problem.single(p.observations[0].keypoints, p.observations[0].view.camera) for p in problems] if single else problems
     with torch_threads(fitter.config.threads):
-        state, info = fitter.fit_problems(list(problems), progress=progress)
+        state, info = fitter.fit_problems(run, progress=progress)
         layout = info["layout"]
         rows = layout.rows(state)
+        if single:
+            rows = camera_to_world(fitter.model, rows, [p.observations[0].view for p in problems])
+            state = {n: (v if layout.is_shared(n) else v[:, None]) for n, v in rows.items()}
+            info["views"] = stack_views(problems, fitter.dtype)
         with torch.no_grad():
             out = fitter.model(**rows)
             ev = evaluate(fitter.body, layout, state, info["views"], info["data"])

@@ -27,7 +27,7 @@ from typing import Optional, Sequence, Tuple
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["dlt", "projection_matrices", "reprojection_errors", "robust_triangulate", "torso_placement", "kabsch"]
+__all__ = ["dlt", "placement_to_world", "projection_matrices", "reprojection_errors", "robust_triangulate", "torso_placement", "kabsch"]
 
 
 def projection_matrices(intr: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -142,3 +142,13 @@ def torso_placement(rest_points: np.ndarray, points: np.ndarray, weights: np.nda
     # The model maps a rest point p to R (p - pelvis) + pelvis + transl; here R p + c.
     transl = c + R @ pelvis - pelvis
     return Rotation.from_matrix(R).as_rotvec(), transl
+
+
+def placement_to_world(orient: np.ndarray, transl: np.ndarray, R: np.ndarray, t: np.ndarray, pelvis: np.ndarray):
+    """A body placed in a camera's frame (``global_orient``, ``transl``) placed in the world
+    frame of that camera's extrinsics ``R, t``: the model maps a rest point ``p`` to
+    ``G (p - j) + j + transl`` (``j``: the shaped rest pelvis), so in the world ``R^T G``
+    and ``R^T (j + transl - t) - j``."""
+    G = Rotation.from_rotvec(np.asarray(orient, np.float64)).as_matrix()
+    j = np.asarray(pelvis, np.float64)
+    return Rotation.from_matrix(R.T @ G).as_rotvec(), R.T @ (j + np.asarray(transl, np.float64) - t) - j
