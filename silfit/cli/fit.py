@@ -115,13 +115,27 @@ class FitInputs:
     photo: Optional[dict] = None
 
 
+def silhouette_config(args):
+    """The silhouette stage's settings from ``--silhouette-resolutions`` / ``--silhouette-iterations``."""
+    from ..fitting.silhouette_stage import SilhouetteFitConfig
+
+    levels = {}
+    if args.silhouette_resolutions:
+        levels["resolutions"] = tuple(args.silhouette_resolutions)
+    if args.silhouette_iterations:
+        levels["iterations"] = tuple(args.silhouette_iterations)
+    try:
+        return replace(SilhouetteFitConfig(), **levels)
+    except ValueError:
+        raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels") from None
+
+
 def load_inputs(args) -> FitInputs:
     """Read and check every input file and option of ``silfit fit`` (nothing is fitted or
     written): keypoints, image, camera, mask, body model, pose prior, silhouette settings."""
     from .. import load_body_model
     from ..camera import Camera, camera_from_dict, load_camera
     from ..errors import InputError
-    from ..fitting.silhouette_stage import SilhouetteFitConfig
     from ..keypoints import read_keypoints
     from ..priors import load_pose_prior
     from ..silhouette.masks import read_mask
@@ -166,15 +180,7 @@ def load_inputs(args) -> FitInputs:
     if getattr(pose_prior, "dim", model.num_body_pose) != model.num_body_pose:
         raise InputError(args.pose_prior or "--pose-prior (default)", f"the pose prior is over {pose_prior.dim} values, the model's body_pose has "
                          f"{model.num_body_pose}", field="means")  # fmt: skip
-    levels = {}
-    if args.silhouette_resolutions:
-        levels["resolutions"] = tuple(args.silhouette_resolutions)
-    if args.silhouette_iterations:
-        levels["iterations"] = tuple(args.silhouette_iterations)
-    try:
-        sil_config = replace(SilhouetteFitConfig(), **levels)
-    except ValueError:
-        raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels") from None
+    sil_config = silhouette_config(args)
     return FitInputs(keypoints, image, size, camera, mask, model, pose_prior, sil_config, focal, camera_source, photo)
 
 

@@ -19,7 +19,7 @@ def run_rig(args) -> int:
     from ..priors import load_pose_prior
     from ..rig import load_rig
     from ..rig_pipeline import fit_rig, save_rig_fit
-    from .fit import _missing_folders
+    from .fit import _missing_folders, silhouette_config
 
     for flag in ("keypoints", "mask", "camera", "focal", "image", "image_size"):
         if getattr(args, flag, None):
@@ -48,7 +48,8 @@ def run_rig(args) -> int:
         print(f"inputs OK ({len(views)} views)")
         return 0
     names = [v.name for v in views]
-    result = fit_rig(problem, names, model, pose_prior, silhouette=not args.no_silhouette, progress=not args.quiet)
+    result = fit_rig(problem, names, model, pose_prior, silhouette=not args.no_silhouette,
+                     silhouette_config=silhouette_config(args), progress=not args.quiet)  # fmt: skip
     extra = {"rig": str(args.rig), "model": model.source, "warnings": warnings + result.metrics.get("warnings", [])}
     created = _missing_folders(out)
     try:

@@ -9,9 +9,9 @@ Pure numpy functions:
 * :func:`reprojection_errors`: pixel distance of 3D points' projections to the 2D points.
 * :func:`robust_triangulate`: per keypoint, every pair of views that sees it proposes a
   point (exhaustive RANSAC over view pairs, at most 28 pairs for 8 views); the proposal
-  with the largest confidence-weighted set of views reprojecting within a gate (a share
-  of the person's extent in that view, at least ``min_gate_px``) wins, and its inliers are
-  triangulated again together. One wrong view (a mislabelled keypoint, another person, a
+  with the most views reprojecting within a gate (a share of the person's extent in that
+  view, at least ``min_gate_px``) wins, ties going to the smaller mean error, and its
+  inliers are triangulated again together (confidence-weighted). One wrong view (a mislabelled keypoint, another person, a
   bad detection) is left out as long as two other views agree. With two views there is
   no majority: both are kept unless the point lands behind a camera.
 * :func:`torso_placement`: the rotation and translation (no scale) taking the model's
@@ -106,7 +106,9 @@ def robust_triangulate(
         err, _ = reprojection_errors(P, X, xy)
         ok = seen & (err < thr)
         ok &= ok[a] & ok[b]  # the pair itself must agree (both in front, both within the gate)
-        score = (conf * ok).sum(0)
+        # most agreeing views first; among as many, the smallest mean error (in gates)
+        mean_err = (np.where(ok, err, 0.0) / thr).sum(0) / np.maximum(ok.sum(0), 1)
+        score = ok.sum(0) - 0.5 * np.clip(mean_err, 0.0, 1.0)
         better = score > best_score + 1e-12
         best_score = np.where(better, score, best_score)
         inliers[:, better] = ok[:, better]

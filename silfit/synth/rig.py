@@ -11,7 +11,7 @@
 World frame: y down (OpenCV-like, gravity along +y), the body's pelvis at the origin,
 upright, turned by a random yaw. Cameras (:func:`rig_layout`): a ring around the body,
 evenly spaced in azimuth from a random start (plus a few degrees of jitter), at heights
-varied between ``heights_m`` (relative to the pelvis), looking at the pelvis, each at the
+varied between ``heights_m`` (relative to the pelvis; two cameras: 90 degrees apart), looking at the pelvis, each at the
 distance that makes the body fill a share ``fill`` of its frame; or the cameras of a given
 ``cameras.json`` (``layout``). Keypoints, visibility, noise and dropping per view as in
 :mod:`silfit.synth.generate`; subject ``i`` uses ``default_rng([seed, i])``.
@@ -68,7 +68,8 @@ def rig_layout(rng: np.random.Generator, vertices: np.ndarray, cfg: SynthConfig,
     out = []
     for i in range(n):
         cam, _ = sample_intrinsics(rng, cfg.size, cfg.size, cfg.fov_deg)
-        az = math.radians(start + 360.0 * i / n + rng.uniform(-rig.azimuth_jitter_deg, rig.azimuth_jitter_deg))
+        spacing = 90.0 if n == 2 else 360.0 / n  # two opposite cameras would see the body along one line
+        az = math.radians(start + spacing * i + rng.uniform(-rig.azimuth_jitter_deg, rig.azimuth_jitter_deg))
         h = rng.uniform(*rig.heights_m)
         fill = rng.uniform(*cfg.fill)
         target = np.array([0.0, rng.uniform(-0.1, 0.1), 0.0])
