@@ -75,7 +75,7 @@ def _matrix(value, shape, source, name) -> np.ndarray:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise InputError(source, f"camera field '{name}' must be numbers of shape {shape}", field=name) from None
-    if arr.dtype == object or arr.size != int(np.prod(shape)) or (arr.shape != shape and arr.ndim > 1 and arr.shape != shape):
+    if arr.size != int(np.prod(shape)):
         raise InputError(source, f"camera field '{name}' must have shape {shape}, got {arr.shape}", field=name)
     if isinstance(value, (list, tuple)) and any(isinstance(v, bool) for v in np.ravel(np.asarray(value, dtype=object))):
         raise InputError(source, f"camera field '{name}' must be numbers, not booleans", field=name)

@@ -172,3 +172,19 @@ def test_fit_rig_cli_bad_camera_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and "cam1/camera.json" in err and "'R'" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_load_rig_reads_an_easymocap_folder(tmp_path):
+    from silfit.dataset import write_png
+
+    K = np.array([[500.0, 0, 63.5], [0, 500.0, 63.5], [0, 0, 1]])
+    _write_easymocap(tmp_path, ["c1", "c2"], K, [[0, 0, 0], [0, 1.5, 0]], [[0, 0, 3], [0, 0, 3]])
+    for n in ("c1", "c2"):
+        (tmp_path / n).mkdir()
+        write_openpose_json(tmp_path / n / "keypoints.json", np.ones((25, 3)))
+        mask = np.zeros((100, 128), bool)
+        mask[20:80, 40:90] = True
+        write_png(tmp_path / n / "mask.png", mask)
+    views = load_rig(tmp_path)
+    assert [v.name for v in views] == ["c1", "c2"]
+    assert views[0].view.camera.size == (128, 100) and views[1].mask == tmp_path / "c2" / "mask.png"
