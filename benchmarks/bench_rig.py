@@ -46,7 +46,7 @@ def subset(problem: Problem, idx) -> Problem:
 
 def table(rows, title):
     keys = [("pa_pve", "PA-PVE"), ("pve_world", "PVE world"), ("shape_pve", "shape"), ("iou", "IoU"),
-            ("iou_worst", "IoU worst view"), ("reproj_px", "reproj px")]  # fmt: skip
+            ("iou_worst", "IoU worst view"), ("reproj_px", "reproj px"), ("facing_ok", "facing ok %")]  # fmt: skip
     print(f"\n### {title}\n")
     print("| views | method | subjects | " + " | ".join(f"{k} mean / median" for _, k in keys) + " | s / subject |")
     print("|---:|---|---:|" + "---:|" * (len(keys) + 1))

@@ -4,7 +4,8 @@ Fit outputs: ``FITS/<subject>/<method>/params.npz`` in world coordinates, as ``s
 --rig`` writes them (methods ``keypoints`` and ``silhouette``). Metrics per subject and
 method (mm): ``pve_world`` (per-vertex error in world coordinates, no alignment at all:
 placement, orientation, pose and shape together), ``pve`` (pelvis-aligned), ``pa_pve``,
-``mpjpe``, ``pa_mpjpe``, ``transl_err`` (pelvis position, world), ``shape_pve``; ``reproj_px``
+``mpjpe``, ``pa_mpjpe``, ``transl_err`` (pelvis position, world), ``shape_pve``, ``facing_ok``
+(the body's forward direction within 90 degrees of the truth's in the ground plane); ``reproj_px``
 (mean over views of the fitted keypoints' error against the clean projections), ``iou``
 (mean over the views of the rendered body against each view's mask), ``iou_worst`` (the
 worst view), ``iou_views`` (every view's, a list) and ``time_s``.
@@ -22,7 +23,7 @@ import torch
 from ..dataset import read_index
 from ..fitio import read_fit
 from ..keypoints import model_keypoints
-from .evaluate import METRICS, find_fits, markdown_table, summarise  # noqa: F401  (markdown_table: re-exported)
+from .evaluate import METRICS, _facing_agrees, find_fits, markdown_table, summarise  # noqa: F401  (markdown_table: re-exported)
 from .metrics import mask_iou, mpjpe, pa_mpjpe, pa_pve, pve, reprojection_error, shape_pve, translation_error
 
 __all__ = ["evaluate_rig_dataset", "is_rig_dataset", "run_rig_fitter", "score_rig_fit"]
@@ -60,6 +61,7 @@ def score_rig_fit(model, views, problem, gt: dict, params: dict, iou: bool = Tru
         "pa_pve": 1000 * pa_pve(verts, gv), "mpjpe": 1000 * mpjpe(joints, gj), "pa_mpjpe": 1000 * pa_mpjpe(joints, gj),
         "transl_err": 1000 * translation_error(joints[0], gj[0]),
         "shape_pve": 1000 * shape_pve(model, params["betas"], gt["betas"]),
+        "facing_ok": 100.0 * float(_facing_agrees(params["global_orient"], gt["global_orient"])),  # world y is down
     }  # fmt: skip
     reproj, ious = [], []
     faces = model.faces.cpu().numpy()
