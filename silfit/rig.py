@@ -70,6 +70,14 @@ class RigView:
     warnings: List[str] = field(default_factory=list)
 
 
+def _leaves(value):
+    if isinstance(value, (list, tuple)):
+        for v in value:
+            yield from _leaves(v)
+    else:
+        yield value
+
+
 def _matrix(value, shape, source, name) -> np.ndarray:
     try:
         arr = np.asarray(value, dtype=np.float64)
@@ -77,8 +85,9 @@ def _matrix(value, shape, source, name) -> np.ndarray:
         raise InputError(source, f"camera field '{name}' must be numbers of shape {shape}", field=name) from None
     if arr.size != int(np.prod(shape)):
         raise InputError(source, f"camera field '{name}' must have shape {shape}, got {arr.shape}", field=name)
-    if isinstance(value, (list, tuple)) and any(isinstance(v, bool) for v in np.ravel(np.asarray(value, dtype=object))):
-        raise InputError(source, f"camera field '{name}' must be numbers, not booleans", field=name)
+    if not isinstance(value, (list, tuple)) or any(isinstance(v, (bool, str)) for v in _leaves(value)):
+        raise InputError(source, f"camera field '{name}' must be a list of numbers of shape {shape} (no booleans "
+                         "or strings)", field=name)  # fmt: skip
     arr = arr.reshape(shape)
     if not np.all(np.isfinite(arr)):
         raise InputError(source, f"camera field '{name}' holds NaN or infinity", field=name)

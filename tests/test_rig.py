@@ -4,6 +4,8 @@ import json
 import cv2
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from silfit.camera import Camera
@@ -188,3 +190,29 @@ def test_load_rig_reads_an_easymocap_folder(tmp_path):
     views = load_rig(tmp_path)
     assert [v.name for v in views] == ["c1", "c2"]
     assert views[0].view.camera.size == (128, 100) and views[1].mask == tmp_path / "c2" / "mask.png"
+
+
+_values = st.recursive(
+    st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-(10**30), 10**30), st.booleans(), st.none(),
+              st.text(max_size=4)),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=4), inner, max_size=3), max_leaves=20,
+)  # fmt: skip
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck), database=None)
+@given(R=st.one_of(st.just(R0.tolist()), _values), t=st.one_of(st.just(T0), _values), manifest=st.booleans(),
+       drop=st.sampled_from([None, "R", "t", "fx"]))  # fmt: skip
+def test_fuzzed_extrinsics_are_read_or_refused_cleanly(tmp_path_factory, R, t, manifest, drop):
+    doc = {**CAM, "R": R, "t": t}
+    if drop:
+        doc.pop(drop)
+    d = tmp_path_factory.mktemp("fuzz")
+    path = d / ("cameras.json" if manifest else "camera.json")
+    write(path, {"views": [{"name": "a", **doc}]} if manifest else doc)
+    try:
+        view = read_cameras_json(path)[0].view if manifest else read_view_camera(path)
+    except InputError as err:
+        assert str(err).startswith(str(path)) and "\n" not in str(err)
+        return
+    R_, t_ = view.extrinsics()
+    assert np.isfinite(R_).all() and np.isfinite(t_).all() and np.allclose(R_ @ R_.T, np.eye(3), atol=1e-2)
