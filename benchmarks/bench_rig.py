@@ -12,7 +12,8 @@ one render per view and step). Metrics (:func:`silfit.eval.rig.score_rig_fit`, m
 PA-PVE, PVE in world coordinates without any alignment, shape error (T-posed PVE), mean
 and worst-view IoU, seconds per subject.
 
-    python benchmarks/bench_rig.py --subjects 30 --silhouette 4 --seed 1515
+    python benchmarks/bench_rig.py --subjects 30 --silhouette 4 --seed 1515 --keep /tmp/rig30
+    python benchmarks/bench_rig.py --subjects 30 --silhouette 0 --seed 1515 --keep /tmp/rig30   # keypoints only, same set
 """
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from silfit import load_body_model
-from silfit.eval.rig import score_rig_fit
+from silfit.eval.rig import score_rig_fit, subset_truth
 from silfit.fitting.keypoint_stage import KeypointFitter
 from silfit.fitting.problem import Problem
 from silfit.fitting.rig_fit import fit_rig_keypoints, rig_problem
@@ -67,13 +68,14 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=1515)
     ap.add_argument("--noise", type=float, default=2.0)
     ap.add_argument("--size", type=int, default=512)
-    ap.add_argument("--keep", help="keep the generated rig dataset in this folder")
+    ap.add_argument("--keep", help="keep the generated rig dataset in this folder (reused when it holds one)")
     args = ap.parse_args(argv)
     model = load_body_model()
     root = Path(args.keep or tempfile.mkdtemp(prefix="bench_rig_"))
     t0 = time.perf_counter()
-    generate_rig_dataset(root, args.subjects, SynthConfig(seed=args.seed, size=args.size, noise_px=args.noise),
-                         RigConfig(views=8), model=model)  # fmt: skip
+    if not (args.keep and (root / "index.json").is_file()):  # else: the kept set of an earlier run
+        generate_rig_dataset(root, args.subjects, SynthConfig(seed=args.seed, size=args.size, noise_px=args.noise),
+                             RigConfig(views=8), model=model)  # fmt: skip
     print(f"generated {args.subjects} rigs of 8 views in {time.perf_counter() - t0:.0f} s ({root})")
     subjects = []
     for i in range(args.subjects):
@@ -87,11 +89,12 @@ def main(argv=None):
         idx = SUBSETS[C]
         probs = [subset(p, idx) for _, p, _ in subjects]
         vsel = [[v[i] for i in idx] for v, _, _ in subjects]
+        truth = [subset_truth(g, idx) for _, _, g in subjects]
         t = time.perf_counter()
         fits = fit_rig_keypoints(fitter, probs)
         kp_s = (time.perf_counter() - t) / len(probs)
         rows[(C, "keypoints")] = {"seconds": kp_s, "metrics": [
-            score_rig_fit(model, v, p, g, f.params) for v, p, f, (_, _, g) in zip(vsel, probs, fits, subjects)]}
+            score_rig_fit(model, v, p, g, f.params) for v, p, f, g in zip(vsel, probs, fits, truth)]}
         n = min(args.silhouette, len(probs))
         if n:
             t = time.perf_counter()
@@ -100,7 +103,7 @@ def main(argv=None):
             sil_s = (time.perf_counter() - t) / n
             rows[(C, "keypoints (same subjects)")] = {"seconds": kp_s, "metrics": rows[(C, "keypoints")]["metrics"][:n]}
             rows[(C, "+ silhouette")] = {"seconds": kp_s + sil_s, "metrics": [
-                score_rig_fit(model, v, p, g, r.params) for v, p, r, (_, _, g) in zip(vsel, probs, res, subjects)]}
+                score_rig_fit(model, v, p, g, r.params) for v, p, r, g in zip(vsel, probs, res, truth)]}
         print(f"{C} views done ({time.perf_counter() - t0:.0f} s)", flush=True)
     table(rows, f"Rigs: {args.subjects} subjects (seed {args.seed}, {args.noise} px noise, {args.size} px), "
                 f"silhouette stage on {min(args.silhouette, args.subjects)}")  # fmt: skip

@@ -26,7 +26,7 @@ from ..keypoints import model_keypoints
 from .evaluate import METRICS, _facing_agrees, find_fits, markdown_table, summarise  # noqa: F401  (markdown_table: re-exported)
 from .metrics import mask_iou, mpjpe, pa_mpjpe, pa_pve, pve, reprojection_error, shape_pve, translation_error
 
-__all__ = ["evaluate_rig_dataset", "is_rig_dataset", "run_rig_fitter", "score_rig_fit"]
+__all__ = ["evaluate_rig_dataset", "is_rig_dataset", "run_rig_fitter", "score_rig_fit", "subset_truth"]
 
 
 def is_rig_dataset(dataset) -> bool:
@@ -41,6 +41,11 @@ def _load(subject_dir: Path):
     views = load_rig(subject_dir)
     gt = np.load(subject_dir / "gt.npz", allow_pickle=False)
     return views, rig_problem(views), {k: gt[k] for k in gt.files}
+
+
+def subset_truth(gt: dict, idx) -> dict:
+    """The truth of a rig subject seen by its views ``idx`` only (per-view arrays subset)."""
+    return {**gt, **{k: gt[k][list(idx)] for k in ("keypoints_2d_clean", "keypoints_visibility")}}
 
 
 def score_rig_fit(model, views, problem, gt: dict, params: dict, iou: bool = True, timings=None) -> dict:
@@ -168,7 +173,8 @@ def evaluate_rig_dataset(dataset, fits=None, model=None, run: bool = False, meth
         for method, folder in found.items():
             try:
                 fit = read_fit(folder)
-                m = score_rig_fit(model, rig_views[: views or None], _subset(problem, views), gt, fit.params, iou,
+                g = subset_truth(gt, range(views)) if views else gt
+                m = score_rig_fit(model, rig_views[: views or None], _subset(problem, views), g, fit.params, iou,
                                   _timings(folder))  # fmt: skip
             except (ValueError, FileNotFoundError) as err:
                 skipped.append({"subject": d.name, "method": method, "path": str(folder), "error": str(err)})
