@@ -61,8 +61,11 @@ def run(args: argparse.Namespace) -> int:
     if is_sequence_dataset(args.dataset):
         return run_sequences(args, model)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    from ..eval.rig import evaluate_rig_dataset, is_rig_dataset
+
+    rig = is_rig_dataset(args.dataset)  # silfit synth --views: world-frame metrics, IoU per view
     try:
-        report = evaluate_dataset(args.dataset, fits=args.fits, model=model, run=args.run, methods=methods, iou=not args.no_iou,
+        report = (evaluate_rig_dataset if rig else evaluate_dataset)(args.dataset, fits=args.fits, model=model, run=args.run, methods=methods, iou=not args.no_iou,
                                   progress=not args.quiet)  # fmt: skip
     except FitterUnavailable as err:
         raise CLIError(f"{err}; pass --fits DIR with existing fit outputs (FITS/<subject>/<method>/params.npz)") from None

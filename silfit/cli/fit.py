@@ -32,6 +32,9 @@ def _int_list(text: str) -> tuple:
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("fit", help="fit SMPL to an image's 2D keypoints and person mask")
+    p.add_argument("--rig", metavar="DIR", help="a calibrated camera rig: cameras.json (or EasyMocap intri.yml + "
+                   "extri.yml, or one sub-folder per view with camera.json incl. R, t) and per view keypoints.json, "
+                   "optional mask.png, image.png; fits in world coordinates (see README: Camera rigs)")
     p.add_argument("--keypoints", help="OpenPose BODY_25 / COCO-17 keypoint JSON (default: detected in --image, "
                    "with its mask unless --mask is given)")
     p.add_argument("--person", default="largest", help="person index in the keypoint file, or 'largest'")
@@ -121,13 +124,27 @@ class FitInputs:
     photo: Optional[dict] = None
 
 
+def silhouette_config(args):
+    """The silhouette stage's settings from ``--silhouette-resolutions`` / ``--silhouette-iterations``."""
+    from ..fitting.silhouette_stage import SilhouetteFitConfig
+
+    levels = {}
+    if args.silhouette_resolutions:
+        levels["resolutions"] = tuple(args.silhouette_resolutions)
+    if args.silhouette_iterations:
+        levels["iterations"] = tuple(args.silhouette_iterations)
+    try:
+        return replace(SilhouetteFitConfig(), **levels)
+    except ValueError:
+        raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels") from None
+
+
 def load_inputs(args) -> FitInputs:
     """Read and check every input file and option of ``silfit fit`` (nothing is fitted or
     written): keypoints, image, camera, mask, body model, pose prior, silhouette settings."""
     from .. import load_body_model
     from ..camera import Camera, camera_from_dict, load_camera
     from ..errors import InputError
-    from ..fitting.silhouette_stage import SilhouetteFitConfig
     from ..keypoints import read_keypoints
     from ..priors import load_pose_prior
     from ..silhouette.masks import read_mask
@@ -172,25 +189,23 @@ def load_inputs(args) -> FitInputs:
     if getattr(pose_prior, "dim", model.num_body_pose) != model.num_body_pose:
         raise InputError(args.pose_prior or "--pose-prior (default)", f"the pose prior is over {pose_prior.dim} values, the model's body_pose has "
                          f"{model.num_body_pose}", field="means")  # fmt: skip
-    levels = {}
-    if args.silhouette_resolutions:
-        levels["resolutions"] = tuple(args.silhouette_resolutions)
-    if args.silhouette_iterations:
-        levels["iterations"] = tuple(args.silhouette_iterations)
-    try:
-        sil_config = replace(SilhouetteFitConfig(), **levels)
-    except ValueError:
-        raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels") from None
+    sil_config = silhouette_config(args)
     return FitInputs(keypoints, image, size, camera, mask, model, pose_prior, sil_config, focal, camera_source, photo)
 
 
 def run(args) -> int:
+    if args.sequence and getattr(args, "rig", None):
+        raise ValueError("--sequence with --rig: fitting a rig's video is not available; choose one")
     if args.sequence:
         from .sequence import run_sequence
 
         return run_sequence(args)
     from ..pipeline import fit, save_fit
 
+    if getattr(args, "rig", None):
+        from .fit_rig import run_rig
+
+        return run_rig(args)
     inp = load_inputs(args)
     if args.check_only:
         from ..plausibility import check_keypoints

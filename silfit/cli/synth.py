@@ -50,6 +50,12 @@ def register(subparsers) -> None:
     p.add_argument("--orbit", type=float, default=0.0, help="--sequence: camera orbit over the clip, degrees (default 0)")
     p.add_argument("--drop-frames", type=float, default=0.0,
                    help="--sequence: probability of a frame with no person detected (default 0)")
+    p.add_argument("--views", type=int, default=None, metavar="N",
+                   help="a calibrated rig per subject: N cameras on a ring around the body (varied heights), per-view "
+                        "folders view_<i>/ (image, mask, keypoints, camera.json with R, t), cameras.json and one gt.npz "
+                        "in world coordinates (see README: Camera rigs)")
+    p.add_argument("--layout", default=None, metavar="CAMERAS.json",
+                   help="with --views: the rig's cameras from this cameras.json instead of the ring")
     p.add_argument("--model", default=None, help="body model file (default: the shipped open body model)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -71,6 +77,8 @@ def run_sequence(args: argparse.Namespace, model) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.sequence and (args.views is not None or args.layout is not None):
+        raise ValueError("--sequence with --views/--layout: synthetic rig sequences are not available; choose one")
     if args.sequence:
         model = None
         if args.model is not None:
@@ -111,6 +119,8 @@ def run(args: argparse.Namespace) -> int:
         argv.append("--whole-body")
     if args.poses != "library":
         argv += ["--poses", args.poses]
+    if args.views is not None or args.layout is not None:
+        return _run_rig(args, cfg, model, argv)
     index = generate_dataset(args.out, args.n, cfg, model=model, progress=not args.no_progress, command=shlex.join(argv))
     s = dataset_summary(index)
     print(f"wrote {len(index['subjects'])} subjects to {args.out} (seed {args.seed}, {args.size}x{args.size}, noise {args.noise_px} px)")
@@ -120,4 +130,19 @@ def run(args: argparse.Namespace) -> int:
         f"yaw {s['yaw_deg']['min']:.0f}..{s['yaw_deg']['max']:.0f} deg, {s['back_facing']} back-facing; "
         f"{s['truncated']} truncated"
     )
+    return 0
+
+
+def _run_rig(args, cfg, model, argv) -> int:
+    from ..rig import read_cameras_json
+    from ..synth.rig import RigConfig, generate_rig_dataset
+
+    if args.whole_body or args.poses != "library":
+        raise ValueError("--views: rigs use the library poses and the SMPL-layout model (no --whole-body, --poses hard)")
+    layout = [v.view for v in read_cameras_json(args.layout)] if args.layout else None
+    rig = RigConfig(views=args.views or (len(layout) if layout else 4), layout=layout)
+    argv += ["--views", str(rig.views)] + (["--layout", args.layout] if args.layout else [])
+    index = generate_rig_dataset(args.out, args.n, cfg, rig, model=model, progress=not args.no_progress, command=shlex.join(argv))
+    print(f"wrote {len(index['subjects'])} rig subjects ({index['rig']} views each) to {args.out} (seed {args.seed}, "
+          f"{args.size}x{args.size}, noise {args.noise_px} px)")
     return 0

@@ -64,12 +64,14 @@ METRICS = {
     "mpjpe": ("MPJPE", "mm", True),
     "pa_mpjpe": ("PA-MPJPE", "mm", True),
     "pve": ("PVE", "mm", True),
+    "pve_world": ("PVE, world frame, no alignment (rigs)", "mm", True),
     "pa_pve": ("PA-PVE", "mm", True),
     "shape_pve": ("Shape PVE (T-pose)", "mm", True),
     "shape_pve_scaled": ("Shape PVE, stature aligned", "mm", True),
     "transl_err": ("Translation error", "mm", True),
     "reproj_px": ("2D reprojection error", "px", True),
     "iou": ("Silhouette IoU", "", False),
+    "iou_worst": ("Silhouette IoU, worst view (rigs)", "", False),
     "energy_fit": ("Keypoint-stage energy at the fit", "", True),
     "energy_truth": ("Keypoint-stage energy at the truth", "", True),
     "search_failure": ("Search failures (fit energy above the truth's)", "%", True),
@@ -441,7 +443,7 @@ def markdown_table(report: dict) -> str:
 def _fmt(v: float, key: str) -> str:
     if key.startswith("energy"):
         return f"{v:.4g}"
-    if key == "iou":
+    if key.startswith("iou"):
         return f"{v:.3f}"
     if key.startswith("time"):
         return f"{v:.2f}"

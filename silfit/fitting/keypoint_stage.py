@@ -48,6 +48,7 @@ from .stages import Stage, check_stages, run_lbfgs_stage, stage_to_dict
 from .terms import (
     DepthTerm, Energy, InterpenetrationTerm, JointSmoothnessTerm, KeypointTerm, PriorTerm, RootSmoothnessTerm, evaluate,
 )  # fmt: skip
+from .triangulate import placement_to_world, projection_matrices, robust_triangulate, torso_placement
 from .threads import torch_threads
 
 __all__ = ["KeypointFitConfig", "KeypointFitter", "fit_keypoints", "prepare_keypoints"]
@@ -294,6 +295,7 @@ class KeypointFitter:
         check_stages(self.stages, self.energy, self.params)
         with torch.no_grad():
             kp = self.body(**self.model.zero_params(1)).keypoints
+            self.rest_pelvis = self.model(**self.model.zero_params(1)).joints[0, 0].double().numpy()
         self.rest_keypoints = kp[0].double().numpy()
 
     # ------------------------------------------------------------------ init
@@ -328,31 +330,65 @@ class KeypointFitter:
             poses += [means[i].detach() for i in torch.argsort(constants)[: count - 1].tolist()]
         return poses[: max(1, count)]
 
+    def _rig_placement(self, row):
+        """``(global_orient, transl, z0 [C])`` of one frame seen by several calibrated views:
+        the torso triangulated (:mod:`silfit.fitting.triangulate`) and the rest torso
+        rotated onto it; ``z0`` the root's depth in each camera."""
+        names = _names(self.layout)
+        views = [o.view for o in row]
+        ext = [v.extrinsics() for v in views]
+        P = projection_matrices([[v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy] for v in views],
+                                [e[0] for e in ext], [e[1] for e in ext])  # fmt: skip
+        xy = np.stack([o.keypoints.xy for o in row])
+        conf = np.stack([o.keypoints.conf for o in row])
+        torso = [names.index(n) for n in _TORSO_ALL if n in names]
+        X, inliers, _ = robust_triangulate(P[:, :, :], xy[:, torso], conf[:, torso])
+        w = (conf[:, torso] * inliers).sum(0) * self.kp_weights.numpy()[torso]
+        try:
+            orient, transl = torso_placement(self.rest_keypoints[torso], X, w, self.rest_pelvis)
+        except ValueError:  # torso not triangulated: place it from the view that sees it best, as one image
+            c = int(np.argmax([(conf[v, torso] > 0).sum() + conf[v, torso].sum() * 1e-3 for v in range(len(row))]))
+            o = row[c]
+            _check_torso(o.keypoints)
+            orient, transl, _ = self._initial_placement(o.keypoints.xy, o.keypoints.conf, o.view.camera, False)
+            orient, transl = placement_to_world(orient, transl, *ext[c], self.rest_pelvis)
+        z0 = [float((R @ transl + t)[2]) for R, t in ext]
+        return orient, transl, z0
+
     def _problem_data(self, problems, flips):
-        """Data and views ``[P, F, 1, ...]`` of single-view problems, and the initial state
-        for each facing in ``flips`` (rows ordered facing-major: row ``f * B + b``)."""
+        """Data and views ``[P, F, C, ...]`` of problems with ``C`` views, and the initial
+        state for each facing in ``flips`` (rows ordered facing-major: row ``f * B + b``).
+        One view: similar-triangles placement; several: triangulated (:meth:`_rig_placement`).
+        The keypoint weights are divided by ``C`` (the data term is the views' mean)."""
         cfg, dt = self.config, self.dtype
         T = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64), dtype=dt)  # noqa: E731
-        F = problems[0].num_frames
+        F, C = problems[0].num_frames, problems[0].num_views
         target, weights, scale, z0, orient, transl = [], [], [], [], [], []
         for flip in flips:
             for p in problems:
                 grid = p.grid()
-                if len(grid[0]) != 1:
-                    raise ValueError("the keypoint stage fits single-view problems (one camera per frame)")
-                rows = [cell[0] for cell in grid]
-                target.append([[o.keypoints.xy] for o in rows])
-                weights.append([[o.keypoints.conf] for o in rows])
+                if len(grid[0]) != C:
+                    raise ValueError(f"problems of one batch must have the same number of views, got {C} and {len(grid[0])}")
+                target.append([[o.keypoints.xy for o in row] for row in grid])
+                weights.append([[o.keypoints.conf for o in row] for row in grid])
                 ext = []
-                for o in rows:
-                    vis = o.keypoints.xy[o.keypoints.conf > 0]
-                    ext.append([cfg.norm_extent / max(float((vis.max(0) - vis.min(0)).max()), 1.0)])
+                for row in grid:
+                    ext.append([])
+                    for o in row:
+                        vis = o.keypoints.xy[o.keypoints.conf > 0]
+                        size = float((vis.max(0) - vis.min(0)).max()) if len(vis) else 1.0
+                        ext[-1].append(cfg.norm_extent / max(size, 1.0))
                 scale.append(ext)
-                placed = [self._initial_placement(o.keypoints.xy, o.keypoints.conf, o.view.camera, flip) for o in rows]
+                if C == 1:
+                    placed = [self._initial_placement(row[0].keypoints.xy, row[0].keypoints.conf, row[0].view.camera, flip)
+                              for row in grid]  # fmt: skip
+                    placed = [(q[0], q[1], [q[2]]) for q in placed]
+                else:
+                    placed = [self._rig_placement(row) for row in grid]
                 orient.append([q[0] for q in placed])
                 transl.append([q[1] for q in placed])
-                z0.append([[q[2]] for q in placed])
-        data = {"target": T(target), "weights": T(weights) * self.kp_weights, "scale": T(scale), "z0": T(z0)}
+                z0.append([q[2] for q in placed])
+        data = {"target": T(target), "weights": T(weights) * self.kp_weights / C, "scale": T(scale), "z0": T(z0)}
         views = stack_views(problems * len(flips), dt)
         state = ParameterLayout(self.params.sizes, self.params.shared, F).zeros(len(target), dt)
         state["global_orient"], state["transl"] = T(orient), T(transl)
@@ -373,7 +409,8 @@ class KeypointFitter:
 
     def fit_problems(self, problems: Sequence[Problem], progress: bool = False, init: Optional[dict] = None,
                      frame_weights=None):  # fmt: skip
-        """Run the schedule on single-view problems of equal frame count.
+        """Run the schedule on problems of equal frame and view counts (several views: the
+        placement is triangulated, no flip test, no branch search).
 
         ``init`` (``{name: [B, w]}`` or ``[B, F, w]``) replaces the initial placement's
         values of the parameters it names (all starts begin there). ``frame_weights``
@@ -391,7 +428,9 @@ class KeypointFitter:
         layout = ParameterLayout(self.params.sizes, self.params.shared, frames.pop())
         # Starts: each facing (and the 180-degree flip) is placed by the camera stage, then
         # every placed start is combined with each initial body pose in the decision stage.
-        facings = (False, True) if cfg.flip_test else (False,)
+        # (several calibrated views: the triangulated torso gives the facing, no flip)
+        views_per_frame = problems[0].num_views
+        facings = (False, True) if cfg.flip_test and views_per_frame == 1 else (False,)
         # a given body pose is the one start pose (with both facings when flip_test is on)
         init_poses = self._initial_poses(1 if init and "body_pose" in init else cfg.init_poses)
         data, views, state = self._problem_data(problems, facings)
@@ -428,6 +467,8 @@ class KeypointFitter:
         chosen_branches = [[] for _ in range(B)]
         for stage in self.stages:
             if "branches" in stage.options:
+                if views_per_frame > 1:  # the views' data fixes the limbs' depth: no search (docs: rigs)
+                    continue
                 if not decided or layout.frames != 1:
                     raise ValueError(f"stage '{stage.name}': the branch search needs one frame and a decided start")
                 opts = stage.options["branches"]

@@ -1,0 +1,119 @@
+"""Benchmark of rig fitting: one body seen by 1, 2, 4 and 8 calibrated cameras; prints Markdown tables.
+
+One synthetic set of ``--subjects`` rig subjects (:mod:`silfit.synth.rig`: library poses,
+all yaws, shape from the prior, 8 cameras on a ring at varied heights, ``--noise`` px
+keypoint noise, ``--size`` px images; seed ``--seed``, which no test uses). Each view
+count uses evenly spread cameras of the same rig (1: view 0; 2: views 0, 2 (90 degrees
+apart); 4: views 0, 2, 4, 6; 8: all), so every row sees the same bodies.
+
+Per view count: the keypoint stage on all subjects (one batch), then the silhouette stage
+(every view with its mask rendered) on the first ``--silhouette`` subjects (it costs about
+one render per view and step). Metrics (:func:`silfit.eval.rig.score_rig_fit`, mm):
+PA-PVE, PVE in world coordinates without any alignment, shape error (T-posed PVE), mean
+and worst-view IoU, seconds per subject.
+
+    python benchmarks/bench_rig.py --subjects 30 --silhouette 4 --seed 1515 --keep /tmp/rig30
+    python benchmarks/bench_rig.py --subjects 30 --silhouette 0 --seed 1515 --keep /tmp/rig30   # keypoints only, same set
+"""
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from silfit import load_body_model
+from silfit.eval.rig import score_rig_fit, subset_truth
+from silfit.fitting.keypoint_stage import KeypointFitter
+from silfit.fitting.problem import Problem
+from silfit.fitting.rig_fit import fit_rig_keypoints, rig_problem
+from silfit.rig import load_rig
+from silfit.rig_pipeline import refine_rig_fits
+from silfit.synth.generate import SynthConfig
+from silfit.synth.rig import RigConfig, generate_rig_dataset
+
+SUBSETS = {1: [0], 2: [0, 2], 4: [0, 2, 4, 6], 8: list(range(8))}
+TARGETS = {"pve_world": 25.0, "shape_pve": 10.0}  # 4 views (issue 15)
+
+
+def subset(problem: Problem, idx) -> Problem:
+    obs = [o for o in problem.observations if o.view_index in idx]
+    from dataclasses import replace
+
+    return Problem([replace(o, view_index=idx.index(o.view_index)) for o in obs], problem.shared)
+
+
+def table(rows, title):
+    keys = [("pa_pve", "PA-PVE"), ("pve_world", "PVE world"), ("shape_pve", "shape"), ("iou", "IoU"),
+            ("iou_worst", "IoU worst view"), ("reproj_px", "reproj px"), ("facing_ok", "facing ok %")]  # fmt: skip
+    print(f"\n### {title}\n")
+    print("| views | method | subjects | " + " | ".join(f"{k} mean / median" for _, k in keys) + " | s / subject |")
+    print("|---:|---|---:|" + "---:|" * (len(keys) + 1))
+    for (C, method), rs in rows.items():
+        cells = []
+        for k, _ in keys:
+            v = np.array([r[k] for r in rs["metrics"] if k in r])
+            fmt = "{:.3f}" if k.startswith("iou") else "{:.1f}"
+            cells.append(f"{fmt.format(v.mean())} / {fmt.format(np.median(v))}" if len(v) else "-")
+        print(f"| {C} | {method} | {len(rs['metrics'])} | " + " | ".join(cells) + f" | {rs['seconds']:.1f} |")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--subjects", type=int, default=30)
+    ap.add_argument("--silhouette", type=int, default=4, help="subjects also refined by the silhouette stage (0: none)")
+    ap.add_argument("--views", default="1,2,4,8")
+    ap.add_argument("--seed", type=int, default=1515)
+    ap.add_argument("--noise", type=float, default=2.0)
+    ap.add_argument("--size", type=int, default=512)
+    ap.add_argument("--keep", help="keep the generated rig dataset in this folder (reused when it holds one)")
+    args = ap.parse_args(argv)
+    model = load_body_model()
+    root = Path(args.keep or tempfile.mkdtemp(prefix="bench_rig_"))
+    t0 = time.perf_counter()
+    if not (args.keep and (root / "index.json").is_file()):  # else: the kept set of an earlier run
+        generate_rig_dataset(root, args.subjects, SynthConfig(seed=args.seed, size=args.size, noise_px=args.noise),
+                             RigConfig(views=8), model=model)  # fmt: skip
+    print(f"generated {args.subjects} rigs of 8 views in {time.perf_counter() - t0:.0f} s ({root})")
+    subjects = []
+    for i in range(args.subjects):
+        d = root / f"subject_{i:03d}"
+        views = load_rig(d)
+        gt = np.load(d / "gt.npz")
+        subjects.append((views, rig_problem(views), {k: gt[k] for k in gt.files}))
+    fitter = KeypointFitter(model)
+    rows = {}
+    for C in (int(c) for c in args.views.split(",")):
+        idx = SUBSETS[C]
+        probs = [subset(p, idx) for _, p, _ in subjects]
+        vsel = [[v[i] for i in idx] for v, _, _ in subjects]
+        truth = [subset_truth(g, idx) for _, _, g in subjects]
+        t = time.perf_counter()
+        fits = fit_rig_keypoints(fitter, probs)
+        kp_s = (time.perf_counter() - t) / len(probs)
+        rows[(C, "keypoints")] = {"seconds": kp_s, "metrics": [
+            score_rig_fit(model, v, p, g, f.params) for v, p, f, g in zip(vsel, probs, fits, truth)]}
+        n = min(args.silhouette, len(probs))
+        if n:
+            t = time.perf_counter()
+            res = refine_rig_fits(model, [([x.name for x in v], p, f) for v, p, f in zip(vsel[:n], probs[:n], fits[:n])],
+                                  pose_prior=fitter.pose_prior)  # fmt: skip
+            sil_s = (time.perf_counter() - t) / n
+            rows[(C, "keypoints (same subjects)")] = {"seconds": kp_s, "metrics": rows[(C, "keypoints")]["metrics"][:n]}
+            rows[(C, "+ silhouette")] = {"seconds": kp_s + sil_s, "metrics": [
+                score_rig_fit(model, v, p, g, r.params) for v, p, r, g in zip(vsel, probs, res, truth)]}
+        print(f"{C} views done ({time.perf_counter() - t0:.0f} s)", flush=True)
+    table(rows, f"Rigs: {args.subjects} subjects (seed {args.seed}, {args.noise} px noise, {args.size} px), "
+                f"silhouette stage on {min(args.silhouette, args.subjects)}")  # fmt: skip
+    if (4, "keypoints") in rows:
+        for method in ("keypoints", "+ silhouette"):
+            if (4, method) in rows:
+                ms = rows[(4, method)]["metrics"]
+                parts = [f"{k} mean {np.mean([m[k] for m in ms]):.1f} mm (target <= {v:g})" for k, v in TARGETS.items()]
+                print(f"4 views, {method}: " + "; ".join(parts))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,70 @@
+"""``silfit fit --rig DIR``: one body seen by a calibrated rig, fitted in world coordinates.
+
+``DIR`` is a rig folder as :func:`silfit.rig.load_rig` reads it (a ``cameras.json``
+manifest, EasyMocap's ``intri.yml`` + ``extri.yml``, or one sub-folder per view with its
+``camera.json``); each view holds ``keypoints.json`` and optionally ``mask.png`` and
+``image.png``. Output: :func:`silfit.rig_pipeline.save_rig_fit`.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from . import CLIError
+
+
+def run_rig(args) -> int:
+    from ..body import load_body_model
+    from ..fitting.rig_fit import rig_problem
+    from ..imagefile import read_rgb
+    from ..priors import load_pose_prior
+    from ..rig import load_rig
+    from ..rig_pipeline import fit_rig, save_rig_fit
+    from .fit import _missing_folders, silhouette_config
+
+    for flag in ("keypoints", "mask", "camera", "focal", "image", "image_size"):
+        if getattr(args, flag, None):
+            raise CLIError(f"--rig reads every view's files from the rig folder; --{flag.replace('_', '-')} is not used with it")
+    out = Path(args.out)
+    if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
+        raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
+    views = load_rig(args.rig)
+    person = "largest" if args.person == "largest" else int(args.person)
+    problem = rig_problem(views, person=person)
+    images = {}
+    for v in views:
+        if v.image is not None:
+            img = read_rgb(v.image, "image")
+            cam = v.view.camera
+            if (img.shape[1], img.shape[0]) != (cam.width, cam.height):
+                raise CLIError(f"{v.image}: image is {img.shape[1]}x{img.shape[0]} but view {v.name}'s camera is "
+                               f"{cam.width}x{cam.height}")  # fmt: skip
+            images[v.name] = img
+    model = load_body_model(args.model, gender=args.gender) if args.model else load_body_model()
+    pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
+    warnings = [w for v in views for w in v.warnings]
+    if args.check_only:
+        for w in warnings:
+            print(f"warning: {w}")
+        print(f"inputs OK ({len(views)} views)")
+        return 0
+    names = [v.name for v in views]
+    result = fit_rig(problem, names, model, pose_prior, silhouette=not args.no_silhouette,
+                     silhouette_config=silhouette_config(args), progress=not args.quiet)  # fmt: skip
+    extra = {"rig": str(args.rig), "model": model.source, "warnings": warnings + result.metrics.get("warnings", [])}
+    created = _missing_folders(out)
+    try:
+        save_rig_fit(result, out, model.faces.cpu().numpy(), problem, images, extra, overwrite=args.overwrite)
+    except BaseException:
+        for folder in created:
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
+        raise
+    if not args.quiet:
+        m = result.metrics
+        line = f"wrote {out}: {len(views)} views, median reprojection error {m['reprojection_error_px']:.2f} px"
+        if "iou_mean" in m:
+            line += f", mean IoU {m['iou_mean']:.3f}"
+        print(line)
+        for w in extra["warnings"]:
+            print(f"warning: {w}")
+    return 0

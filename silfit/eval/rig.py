@@ -1,0 +1,200 @@
+"""Scoring rig fits (``silfit synth --views N`` datasets) against their world-frame truth.
+
+Fit outputs: ``FITS/<subject>/<method>/params.npz`` in world coordinates, as ``silfit fit
+--rig`` writes them (methods ``keypoints`` and ``silhouette``). Metrics per subject and
+method (mm): ``pve_world`` (per-vertex error in world coordinates, no alignment at all:
+placement, orientation, pose and shape together), ``pve`` (pelvis-aligned), ``pa_pve``,
+``mpjpe``, ``pa_mpjpe``, ``transl_err`` (pelvis position, world), ``shape_pve``, ``facing_ok``
+(the body's forward direction within 90 degrees of the truth's in the ground plane); ``reproj_px``
+(mean over views of the fitted keypoints' error against the clean projections), ``iou``
+(mean over the views of the rendered body against each view's mask), ``iou_worst`` (the
+worst view), ``iou_views`` (every view's, a list) and ``time_s``.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import List, Optional, Sequence
+
+import numpy as np
+import torch
+
+from ..dataset import read_index
+from ..fitio import read_fit
+from ..keypoints import model_keypoints
+from .evaluate import METRICS, _facing_agrees, find_fits, markdown_table, summarise  # noqa: F401  (markdown_table: re-exported)
+from .metrics import mask_iou, mpjpe, pa_mpjpe, pa_pve, pve, reprojection_error, shape_pve, translation_error
+
+__all__ = ["evaluate_rig_dataset", "is_rig_dataset", "run_rig_fitter", "score_rig_fit", "subset_truth"]
+
+
+def is_rig_dataset(dataset) -> bool:
+    index = read_index(dataset)
+    return bool(index and index.get("rig"))
+
+
+def _load(subject_dir: Path):
+    from ..fitting.rig_fit import rig_problem
+    from ..rig import load_rig
+
+    views = load_rig(subject_dir)
+    gt = np.load(subject_dir / "gt.npz", allow_pickle=False)
+    return views, rig_problem(views), {k: gt[k] for k in gt.files}
+
+
+def subset_truth(gt: dict, idx) -> dict:
+    """The truth of a rig subject seen by its views ``idx`` only (per-view arrays subset)."""
+    return {**gt, **{k: gt[k][list(idx)] for k in ("keypoints_2d_clean", "keypoints_visibility")}}
+
+
+def score_rig_fit(model, views, problem, gt: dict, params: dict, iou: bool = True, timings=None) -> dict:
+    """The metrics of one rig fit (world-frame ``params``) against the subject's truth."""
+    from ..pipeline import body_mask
+    from ..rig import project_world
+    from ..rig_pipeline import view_vertices
+
+    t = lambda a: torch.as_tensor(np.asarray(a, np.float64)[None], dtype=model.dtype)  # noqa: E731
+    with torch.no_grad():
+        out = model(**{k: t(params[k]) for k in ("betas", "body_pose", "global_orient", "transl")})
+        kp = model_keypoints(model, out, "body25")[0].double().numpy()
+    verts = out.vertices[0].double().numpy()
+    joints = out.joints[0].double().numpy()
+    gv, gj = gt["vertices"].astype(np.float64), gt["joints"].astype(np.float64)
+    m = {
+        "pve_world": 1000 * pve(verts, gv, align=False), "pve": 1000 * pve(verts, gv, joints[0], gj[0]),
+        "pa_pve": 1000 * pa_pve(verts, gv), "mpjpe": 1000 * mpjpe(joints, gj), "pa_mpjpe": 1000 * pa_mpjpe(joints, gj),
+        "transl_err": 1000 * translation_error(joints[0], gj[0]),
+        "shape_pve": 1000 * shape_pve(model, params["betas"], gt["betas"]),
+        "facing_ok": 100.0 * float(_facing_agrees(params["global_orient"], gt["global_orient"])),  # world y is down
+    }  # fmt: skip
+    reproj, ious = [], []
+    faces = model.faces.cpu().numpy()
+    for c, o in enumerate(problem.grid()[0]):
+        cam = o.view.camera
+        uv = project_world(kp, o.view)
+        vis = gt["keypoints_visibility"][c] > 0
+        if vis.any():
+            reproj.append(reprojection_error(uv, gt["keypoints_2d_clean"][c], vis))
+        if iou and o.mask is not None:
+            ious.append(float(mask_iou(body_mask(view_vertices(verts, o.view), faces, cam), o.mask)))
+    m["reproj_px"] = float(np.mean(reproj)) if reproj else float("nan")
+    if ious:
+        m["iou"], m["iou_worst"] = float(np.mean(ious)), float(np.min(ious))
+    if timings:
+        m["time_s"] = float(timings.get("total", sum(timings.values())))
+    out = {k: float(v) for k, v in m.items()}
+    if ious:
+        out["iou_views"] = ious
+    return out
+
+
+def run_rig_fitter(subject_dirs: Sequence[Path], fits_root: Path, methods: Sequence[str], model, views: Optional[int] = None,
+                   progress: bool = False) -> dict:  # fmt: skip
+    """Fit every rig subject (the keypoint stage batched over subjects; ``views``: only the
+    first ``views`` cameras), write ``fits_root/<subject>/<method>/``; returns a status."""
+    from ..fitting.keypoint_stage import KeypointFitter
+    from ..fitting.problem import Problem
+    from ..fitting.rig_fit import fit_rig_keypoints, rig_problem
+    from ..rig import load_rig
+    from ..rig_pipeline import RigResult, save_rig_fit
+
+    unknown = [m for m in methods if m not in ("keypoints", "silhouette")]
+    if unknown:
+        raise ValueError(f"unknown method(s) {', '.join(unknown)} (expected keypoints, silhouette)")
+    loaded = []
+    for d in subject_dirs:
+        v = load_rig(d)[: views or None]
+        loaded.append((d, v, rig_problem(v)))
+    fitter = KeypointFitter(model)
+    t0 = time.perf_counter()
+    fits = fit_rig_keypoints(fitter, [p for _, _, p in loaded], progress=progress)
+    per = (time.perf_counter() - t0) / len(loaded)
+    faces = model.faces.cpu().numpy()
+    for (d, v, p), f in zip(loaded, fits):
+        names = [x.name for x in v]
+        res = RigResult(names, f.params, f.vertices, f.joints, f, None, {"timings": {"keypoints": per, "total": per}})
+        if "keypoints" in methods:
+            save_rig_fit(res, fits_root / d.name / "keypoints", faces, p, overwrite=True)
+    status = {"keypoints": f"ran on {len(loaded)} subjects in {per * len(loaded):.1f} s (batched)"}
+    if "silhouette" in methods:
+        status["silhouette"] = _run_silhouettes(loaded, fits, fits_root, model, fitter, per, progress)
+    return status
+
+
+def _run_silhouettes(loaded, fits, fits_root, model, fitter, kp_seconds, progress) -> str:
+    from ..rig_pipeline import refine_rig_fits, save_rig_fit
+
+    faces = model.faces.cpu().numpy()
+    results = refine_rig_fits(model, [(v, p, f) for (_, v, p), f in zip(loaded, fits)], pose_prior=fitter.pose_prior,
+                              progress=progress)  # fmt: skip
+    for (d, v, p), r in zip(loaded, results):
+        r.metrics["timings"] = {"keypoints": kp_seconds, "silhouette": r.metrics["timings"]["silhouette"],
+                                "total": kp_seconds + r.metrics["timings"]["silhouette"]}  # fmt: skip
+        save_rig_fit(r, fits_root / d.name / "silhouette", faces, p, overwrite=True)
+    return f"ran on {len(results)} subjects"
+
+
+def _timings(folder: Path) -> dict:
+    f = folder / "metrics.json"
+    try:
+        return {k: float(v) for k, v in json.loads(f.read_text()).get("timings", {}).items()}
+    except (OSError, ValueError, AttributeError):
+        return {}
+
+
+def evaluate_rig_dataset(dataset, fits=None, model=None, run: bool = False, methods=("keypoints", "silhouette"),
+                         iou: bool = True, views: Optional[int] = None, progress: bool = False) -> dict:  # fmt: skip
+    """Score (and with ``run``, or when there are no fits, first run) every rig subject."""
+    from ..dataset import list_subjects
+
+    dataset = Path(dataset)
+    fits_root = Path(fits) if fits is not None else dataset / "fits"
+    if model is None:
+        from ..body import load_body_model
+
+        model = load_body_model()
+    dirs = list_subjects(dataset)
+    status = {}
+    if run or not any(find_fits(fits_root, d.name) for d in dirs):
+        status = run_rig_fitter(dirs, fits_root, methods, model, views, progress)
+    rows: List[dict] = []
+    skipped, missing = [], []
+    for d in dirs:
+        found = find_fits(fits_root, d.name)
+        if not found:
+            missing.append(d.name)
+            continue
+        try:
+            rig_views, problem, gt = _load(d)
+        except (ValueError, FileNotFoundError, KeyError) as err:
+            skipped.append({"subject": d.name, "path": str(d), "error": str(err)})
+            continue
+        for method, folder in found.items():
+            try:
+                fit = read_fit(folder)
+                g = subset_truth(gt, range(views)) if views else gt
+                m = score_rig_fit(model, rig_views[: views or None], _subset(problem, views), g, fit.params, iou,
+                                  _timings(folder))  # fmt: skip
+            except (ValueError, FileNotFoundError) as err:
+                skipped.append({"subject": d.name, "method": method, "path": str(folder), "error": str(err)})
+                continue
+            rows.append({"subject": d.name, "method": method, **m})
+    report = {
+        "dataset": str(dataset), "fits": str(fits_root), "rig": True,
+        "units": {k: u for k, (_, u, _) in METRICS.items()},
+        "methods": sorted({r["method"] for r in rows}), "num_subjects": len(dirs),
+        "num_scored": len({r["subject"] for r in rows}), "summary": summarise(rows), "results": rows,
+        "skipped": skipped, "missing_fits": missing,
+    }  # fmt: skip
+    if status:
+        report["fitter"] = status
+    return report
+
+
+def _subset(problem, views):
+    from ..fitting.problem import Problem
+
+    if not views:
+        return problem
+    return Problem([o for o in problem.observations if o.view_index < views], problem.shared)

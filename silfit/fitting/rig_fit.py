@@ -1,0 +1,110 @@
+"""Fitting one body seen by a calibrated rig: the problem from a rig folder, the keypoint
+stage over all views in the world frame, and the per-view diagnostics.
+
+The keypoint stage is :class:`~silfit.fitting.keypoint_stage.KeypointFitter` run on problems
+with ``C`` views (one frame): the body is placed by triangulating its torso
+(:mod:`silfit.fitting.triangulate`), every view's keypoints enter the data term (each
+view normalised by the person's extent in it, the views averaged), the depth term pulls
+the root toward its triangulated depth in every camera. There is no flip test (the
+triangulated shoulders and hips give the facing) and no limb-branch search (several views
+fix a limb's depth). Parameters and meshes are in the world frame of the rig's extrinsics.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Sequence
+
+import numpy as np
+import torch
+
+from ..keypoints import read_keypoints
+from .problem import Observation, Problem, stack_views
+from .terms import evaluate
+from .triangulate import placement_to_world
+from .threads import torch_threads
+
+__all__ = ["RigFit", "fit_rig_keypoints", "rig_problem"]
+
+
+@dataclass
+class RigFit:
+    """One rig subject's fit: world-frame SMPL parameters (``[w]`` each), vertices ``[V, 3]``,
+    joints, and per view: projected keypoints ``[C, K, 2]``, median reprojection error ``[C]`` px."""
+
+    params: Dict[str, np.ndarray]
+    vertices: np.ndarray
+    joints: np.ndarray
+    keypoints_2d: np.ndarray
+    reprojection_error: np.ndarray
+    energies: Dict[str, float] = field(default_factory=dict)
+    timings: Dict[str, float] = field(default_factory=dict)
+
+
+def rig_problem(views, person="largest", with_masks: bool = True) -> Problem:
+    """A one-frame :class:`Problem` from :func:`silfit.rig.load_rig`'s views: each view's
+    keypoints (OpenPose) and, when present and ``with_masks``, its mask (checked against the
+    camera's size)."""
+    from ..silhouette.masks import read_mask
+
+    obs = []
+    for c, v in enumerate(views):
+        ks = read_keypoints(v.keypoints, person=person)
+        cam = v.view.camera
+        mask = read_mask(v.mask, size=(cam.width, cam.height)) if (with_masks and v.mask is not None) else None
+        obs.append(Observation(v.view, ks, mask, frame=0, view_index=c))
+    return Problem(obs)
+
+
+def _median_errors(proj: np.ndarray, problem: Problem) -> np.ndarray:
+    out = []
+    for c, o in enumerate(problem.grid()[0]):
+        ok = o.keypoints.conf > 0
+        err = np.linalg.norm(proj[c] - o.keypoints.xy, axis=-1)
+        out.append(float(np.median(err[ok])) if ok.any() else float("nan"))
+    return np.asarray(out)
+
+
+def camera_to_world(model, rows: Dict[str, torch.Tensor], views) -> Dict[str, torch.Tensor]:
+    """Parameter rows of bodies placed in their view's camera frame, placed in the world
+    frame instead (``views``: one :class:`~silfit.fitting.problem.View` per row; see
+    :func:`~silfit.fitting.triangulate.placement_to_world`)."""
+    with torch.no_grad():
+        j = model(betas=rows["betas"]).joints[:, 0].double().numpy()
+    placed = [placement_to_world(rows["global_orient"][b].double().numpy(), rows["transl"][b].double().numpy(),
+                                 *view.extrinsics(), j[b]) for b, view in enumerate(views)]  # fmt: skip
+    T = lambda a: torch.as_tensor(np.asarray(a), dtype=rows["transl"].dtype)  # noqa: E731
+    return {**rows, "global_orient": T([q[0] for q in placed]), "transl": T([q[1] for q in placed])}
+
+
+def fit_rig_keypoints(fitter, problems: Sequence[Problem], progress: bool = False) -> List[RigFit]:
+    """The keypoint stage on one-frame rig problems of equal view counts (one batch).
+
+    A one-view rig is fitted in its camera's frame as a single image (similar-triangles
+    placement, flip test, branch search: all assume the camera at the origin), then
+    placed in the world by the view's extrinsics (:func:`camera_to_world`)."""
+    problems = list(problems)
+    single = problems[0].num_views == 1
+    run = [Problem.single(p.observations[0].keypoints, p.observations[0].view.camera) for p in problems] if single else problems
+    with torch_threads(fitter.config.threads):
+        state, info = fitter.fit_problems(run, progress=progress)
+        layout = info["layout"]
+        rows = layout.rows(state)
+        if single:
+            rows = camera_to_world(fitter.model, rows, [p.observations[0].view for p in problems])
+            state = {n: (v if layout.is_shared(n) else v[:, None]) for n, v in rows.items()}
+            info["views"] = stack_views(problems, fitter.dtype)
+        with torch.no_grad():
+            out = fitter.model(**rows)
+            ev = evaluate(fitter.body, layout, state, info["views"], info["data"])
+    proj = ev.keypoints_2d[:, 0].numpy()  # [B, C, K, 2]
+    last = list(info["energies"])[-1]
+    fits = []
+    for b, p in enumerate(problems):
+        fits.append(RigFit(
+            params={n: rows[n][b].numpy().astype(np.float32) for n in layout.sizes},
+            vertices=out.vertices[b].numpy().astype(np.float32), joints=out.joints[b].numpy().astype(np.float32),
+            keypoints_2d=proj[b].astype(np.float32), reprojection_error=_median_errors(proj[b], p),
+            energies={k: float(v[b]) for k, v in info["energies"].items()},
+            timings={**info["timings"], "final_stage": last},
+        ))  # fmt: skip
+    return fits

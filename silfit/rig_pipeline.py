@@ -1,0 +1,188 @@
+"""The whole fit of one body seen by a calibrated rig (``silfit fit --rig``): the keypoint
+stage over all views in the world frame (:mod:`silfit.fitting.rig_fit`), then, when the
+views have masks, the silhouette stage rendering every view; results in memory
+(:func:`fit_rig`) and on disk (:func:`save_rig_fit`).
+
+Output folder (world coordinates: the frame of the rig's extrinsics)::
+
+    params.npz, params.json   betas, body_pose, global_orient, transl (the body in the world
+                              frame), vertices, joints, layout, frame = "world"
+    mesh.obj                  the posed body in world coordinates (metres)
+    cameras.json              the rig's cameras (silfit.rig manifest: intrinsics, R, t)
+    metrics.json              per view: median reprojection error (px), IoU of the keypoint
+                              stage and of the final body (views with masks); timings
+    views/<name>/overlay.png  the final body over each view's image (or a grey canvas)
+    views/<name>/silhouette.png   final silhouette vs the view's mask   [with a mask]
+    stages/keypoints/params.npz   the keypoint stage's parameters         [with masks]
+
+Written atomically (:func:`silfit.outfolder.atomic_folder`).
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import List, Optional, Union
+
+import numpy as np
+
+from .eval.metrics import mask_iou
+from .fitting.rig_fit import RigFit, fit_rig_keypoints
+from .outfolder import atomic_folder
+
+__all__ = ["RigResult", "fit_rig", "refine_rig_fits", "save_rig_fit", "view_vertices"]
+
+
+@dataclass
+class RigResult:
+    """A rig fit: final world-frame parameters and mesh, the keypoint stage's fit, the
+    per-view metrics, and the silhouette stage's result (``None`` without masks)."""
+
+    names: List[str]
+    params: dict
+    vertices: np.ndarray
+    joints: np.ndarray
+    keypoint: RigFit
+    silhouette: object = None
+    metrics: dict = field(default_factory=dict)
+    masks: dict = field(default_factory=dict)  # view name -> rendered final mask
+
+
+def view_vertices(vertices: np.ndarray, view) -> np.ndarray:
+    """World-frame vertices in a view's camera frame (``R x + t``)."""
+    from .rig import to_camera
+
+    return to_camera(vertices, view).astype(np.float32)
+
+
+def _view_ious(vertices, faces, problem, names):
+    from .pipeline import body_mask
+
+    ious, masks = {}, {}
+    for name, o in zip(names, problem.grid()[0]):
+        if o.mask is None:
+            continue
+        m = body_mask(view_vertices(vertices, o.view), faces, o.view.camera)
+        masks[name], ious[name] = m, float(mask_iou(m, o.mask))
+    return ious, masks
+
+
+def _keypoint_metrics(kp: RigFit, problem, names, faces) -> RigResult:
+    ious, masks = _view_ious(kp.vertices, faces, problem, names)
+    per_view = {n: {"reprojection_error_px": float(e)} for n, e in zip(names, kp.reprojection_error)}
+    for n, v in ious.items():
+        per_view[n]["iou_keypoint_stage"] = v
+    metrics = {"views": per_view, "timings": {"keypoints": float(kp.timings["total"])},
+               "reprojection_error_px": float(np.nanmedian(kp.reprojection_error))}  # fmt: skip
+    if ious:
+        metrics["iou_mean"] = float(np.mean(list(ious.values())))
+    return RigResult(list(names), dict(kp.params), kp.vertices, kp.joints, kp, None, metrics, masks)
+
+
+def fit_rig(problem, names, model=None, pose_prior=None, keypoint_config=None, silhouette: bool = True,
+            silhouette_config=None, progress: bool = False) -> RigResult:  # fmt: skip
+    """Fit one rig problem (:func:`silfit.fitting.rig_fit.rig_problem`); ``names`` the views'
+    names. With ``silhouette`` and at least one mask, the silhouette stage follows."""
+    from .body import load_body_model
+    from .fitting.keypoint_stage import KeypointFitter
+
+    model = load_body_model() if model is None else model
+    layout = problem.observations[0].keypoints.layout
+    fitter = KeypointFitter(model, layout, keypoint_config, pose_prior)
+    kp = fit_rig_keypoints(fitter, [problem], progress=progress)[0]
+    if silhouette and any(o.mask is not None for o in problem.observations):
+        return refine_rig_fits(model, [(names, problem, kp)], silhouette_config, fitter.pose_prior, progress)[0]
+    return _keypoint_metrics(kp, problem, names, model.faces.cpu().numpy())
+
+
+def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool = False) -> List[RigResult]:
+    """The silhouette stage on rig problems, every view with a mask rendered
+    (:func:`~silfit.fitting.silhouette_stage.fit_silhouette_problems`), from their keypoint
+    fits: ``items`` are ``(view names, problem, RigFit)`` with equal view counts."""
+    import torch
+
+    from .fitting.silhouette_stage import fit_silhouette_problems
+    from .keypoints import model_keypoints
+    from .rig import project_world
+
+    faces = model.faces.cpu().numpy()
+    before = [_keypoint_metrics(kp, p, names, faces) for names, p, kp in items]
+    for (names, p, _), b in zip(items, before):
+        zero = [n for n in names if b.metrics["views"][n].get("iou_keypoint_stage", 1.0) == 0.0]
+        if zero:
+            raise ValueError(f"view(s) {', '.join(zero)}: the mask does not overlap the body fitted to the keypoints at all")
+    layout = items[0][1].observations[0].keypoints.layout
+    sils = fit_silhouette_problems(model, [p for _, p, _ in items], [dict(kp.params) for _, _, kp in items], layout=layout,
+                                   config=config, pose_prior=pose_prior, progress=progress)  # fmt: skip
+    out = []
+    for (names, p, kp), b, sil in zip(items, before, sils):
+        params = {n: np.asarray(v, np.float32).reshape(-1) for n, v in sil.parameters.items()}
+        t = lambda a: torch.as_tensor(np.asarray(a, np.float64)[None], dtype=model.dtype)  # noqa: E731
+        with torch.no_grad():
+            body = model(**{n: t(v) for n, v in params.items()})
+            kp3 = model_keypoints(model, body, layout)[0].double().numpy()
+        vertices = body.vertices[0].numpy().astype(np.float32)
+        proj, errs = [], []
+        for o in p.grid()[0]:
+            uv = project_world(kp3, o.view)
+            proj.append(uv)
+            ok = o.keypoints.conf > 0
+            errs.append(float(np.median(np.linalg.norm(uv - o.keypoints.xy, axis=1)[ok])) if ok.any() else float("nan"))
+        ious, masks = _view_ious(vertices, faces, p, names)
+        metrics = b.metrics
+        for n, e in zip(names, errs):
+            metrics["views"][n]["reprojection_error_px_keypoint_stage"] = metrics["views"][n]["reprojection_error_px"]
+            metrics["views"][n]["reprojection_error_px"] = e
+        for n, v in ious.items():
+            metrics["views"][n]["iou"] = v
+        metrics.update(
+            iou_mean_keypoint_stage=metrics.pop("iou_mean"), iou_mean=float(np.mean(list(ious.values()))),
+            reprojection_error_px=float(np.nanmedian(errs)), keypoints_2d=np.asarray(proj), warnings=list(sil.warnings),
+            silhouette_steps=sil.steps,
+        )  # fmt: skip
+        metrics["timings"]["silhouette"] = float(sil.seconds)
+        out.append(RigResult(list(names), params, vertices, body.joints[0].numpy().astype(np.float32), kp, sil, metrics, masks))
+    return out
+
+
+def save_rig_fit(result: RigResult, out: Union[str, os.PathLike], faces: np.ndarray, problem, images=None,
+                 extra_metrics: Optional[dict] = None, overwrite: bool = False) -> Path:  # fmt: skip
+    """Write the output folder described in the module docstring, atomically."""
+    from . import figures
+    from .meshio import write_obj
+    from .rig import write_cameras_json
+
+    out = Path(out)
+    images = images or {}
+    grid = problem.grid()[0]
+    layout = grid[0].keypoints.layout
+
+    def write_params(folder: Path, params: dict, vertices, joints, extra=None):
+        folder.mkdir(parents=True, exist_ok=True)
+        arrays = {k: np.asarray(v, np.float32) for k, v in params.items()}
+        np.savez(folder / "params.npz", **arrays, vertices=np.asarray(vertices, np.float32),
+                 joints=np.asarray(joints, np.float32), layout=np.array(layout), frame=np.array("world"))  # fmt: skip
+        payload = {k: v.astype(float).tolist() for k, v in arrays.items()}
+        (folder / "params.json").write_text(json.dumps({**payload, "layout": layout, "frame": "world", **(extra or {})}, indent=2))
+
+    with atomic_folder(out, overwrite) as tmp:
+        write_params(tmp, result.params, result.vertices, result.joints, {"views": result.names})
+        write_obj(tmp / "mesh.obj", result.vertices, faces, "silfit: posed body in world coordinates (rig extrinsics, metres)")
+        write_cameras_json(tmp / "cameras.json", [(n, o.view) for n, o in zip(result.names, grid)])
+        if result.silhouette is not None:
+            kp = result.keypoint
+            write_params(tmp / "stages" / "keypoints", kp.params, kp.vertices, kp.joints)
+        proj = result.metrics.get("keypoints_2d", result.keypoint.keypoints_2d)
+        for c, (name, o) in enumerate(zip(result.names, grid)):
+            folder = tmp / "views" / name
+            folder.mkdir(parents=True, exist_ok=True)
+            figures.write_png(folder / "overlay.png", figures.fit_overlay(
+                images.get(name), view_vertices(result.vertices, o.view), faces, o.view.camera, o.keypoints.xy,
+                np.asarray(proj)[c], o.keypoints.conf))  # fmt: skip
+            if o.mask is not None and name in result.masks:
+                figures.write_png(folder / "silhouette.png", figures.silhouette_comparison(result.masks[name], o.mask))
+        metrics = {k: v for k, v in result.metrics.items() if k != "keypoints_2d"}
+        metrics.update(extra_metrics or {})
+        (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    return out

@@ -1,0 +1,174 @@
+"""Synthetic camera rigs: one body seen by ``N`` calibrated cameras, with shared ground truth.
+
+``silfit synth --views N`` writes, per subject::
+
+    subject_000/cameras.json        the rig (silfit.rig's manifest: intrinsics, R, t per view)
+    subject_000/gt.npz              the truth in world coordinates (params, vertices, joints,
+                                    keypoints_3d) + per-view clean projections and visibility
+    subject_000/view_0/             image.png, mask.png, keypoints.json, camera.json (with R, t)
+    ...
+
+World frame: y down (OpenCV-like, gravity along +y), the body's pelvis at the origin,
+upright, turned by a random yaw. Cameras (:func:`rig_layout`): a ring around the body,
+evenly spaced in azimuth from a random start (plus a few degrees of jitter), at heights
+varied between ``heights_m`` (relative to the pelvis; two cameras: 90 degrees apart), looking at the pelvis, each at the
+distance that makes the body fill a share ``fill`` of its frame; or the cameras of a given
+``cameras.json`` (``layout``). Keypoints, visibility, noise and dropping per view as in
+:mod:`silfit.synth.generate`; subject ``i`` uses ``default_rng([seed, i])``.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import List, Optional, Sequence, Tuple
+
+import numpy as np
+import torch
+
+from ..camera import Camera, project_points
+from ..dataset import save_npz, write_png
+from ..fitting.problem import View
+from ..keypoints import BODY25_NAMES, model_keypoints, write_openpose_json
+from ..rig import look_at, view_to_dict, write_cameras_json
+from .generate import SynthConfig, _background, _BODY_COLOURS, _render, keypoint_visibility, noisy_keypoints
+from .sampler import global_orientation, sample_betas, sample_intrinsics, sample_pose
+
+__all__ = ["RigConfig", "generate_rig_dataset", "generate_rig_subject", "rig_layout", "view_name"]
+
+
+@dataclass
+class RigConfig:
+    """Camera placement of a synthetic rig (the rest comes from :class:`SynthConfig`)."""
+
+    views: int = 4
+    heights_m: Tuple[float, float] = (-0.3, 1.0)  # camera heights relative to the pelvis
+    azimuth_jitter_deg: float = 10.0
+    layout: Optional[List[View]] = None  # fixed cameras (from a cameras.json) instead of the ring
+
+    def validate(self) -> "RigConfig":
+        if self.layout is None and not 1 <= int(self.views) <= 64:
+            raise ValueError(f"--views must be 1..64, got {self.views}")
+        if self.heights_m[0] > self.heights_m[1]:
+            raise ValueError(f"camera height range must be low first, got {self.heights_m}")
+        return self
+
+
+def view_name(i: int) -> str:
+    return f"view_{i}"
+
+
+def rig_layout(rng: np.random.Generator, vertices: np.ndarray, cfg: SynthConfig, rig: RigConfig) -> List[View]:
+    """``rig.views`` cameras around world-frame ``vertices`` (see the module docstring)."""
+    n = int(rig.views)
+    start = rng.uniform(0.0, 360.0)
+    lo, hi = vertices.min(0), vertices.max(0)
+    height = float(hi[1] - lo[1])
+    out = []
+    for i in range(n):
+        cam, _ = sample_intrinsics(rng, cfg.size, cfg.size, cfg.fov_deg)
+        spacing = 90.0 if n == 2 else 360.0 / n  # two opposite cameras would see the body along one line
+        az = math.radians(start + spacing * i + rng.uniform(-rig.azimuth_jitter_deg, rig.azimuth_jitter_deg))
+        h = rng.uniform(*rig.heights_m)
+        fill = rng.uniform(*cfg.fill)
+        target = np.array([0.0, rng.uniform(-0.1, 0.1), 0.0])
+        dist = cam.fy * height / (fill * cfg.size) + 0.3
+        horiz = math.sqrt(max(dist**2 - h**2, 0.25))
+        centre = np.array([horiz * math.sin(az), -h, -horiz * math.cos(az)])
+        R, t = look_at(centre, target)
+        out.append(View(cam, R, t))
+    return out
+
+
+def generate_rig_subject(model, index: int, config: SynthConfig, rig: RigConfig, out_dir: Path) -> dict:
+    """Sample, render (every view) and write rig subject ``index`` into ``out_dir``; returns its record."""
+    cfg = config
+    rng = np.random.default_rng([int(cfg.seed), int(index)])
+    clean = index < cfg.clean
+    noise_px = 0.0 if clean else float(cfg.noise_px)
+    drop_prob = 0.0 if clean else float(cfg.drop_prob)
+    ps = sample_pose(rng, perturb_deg=cfg.perturb_deg, blend_prob=cfg.blend_prob, mirror_prob=cfg.mirror_prob)
+    yaw = float(rng.uniform(*cfg.yaw_range_deg))
+    betas = sample_betas(rng, model.num_betas, cfg.beta_truncation)
+    global_orient = global_orientation(yaw, 0.0, 0.0, root=ps.root)
+    body_pose = ps.body_pose[: model.num_body_pose]
+    as_t = lambda a: torch.as_tensor(np.asarray(a)[None], dtype=model.dtype, device=model.device)  # noqa: E731
+    with torch.no_grad():
+        out0 = model(betas=as_t(betas), body_pose=as_t(body_pose), global_orient=as_t(global_orient))
+        transl = -out0.joints[0, 0].double().cpu().numpy()
+        params = {"betas": betas.astype(np.float32), "body_pose": body_pose.astype(np.float32),
+                  "global_orient": global_orient.astype(np.float32), "transl": transl.astype(np.float32)}  # fmt: skip
+        out = model(**{k: as_t(v) for k, v in params.items()})
+        kp3d = model_keypoints(model, out, "body25")[0].double().cpu().numpy()
+        rest = model.rest_vertices(as_t(betas))[0]
+    vertices = out.vertices[0].double().cpu().numpy()
+    joints = out.joints[0].cpu().numpy().astype(np.float32)
+    stature = float(rest[:, 1].max() - rest[:, 1].min())
+    views = rig.layout if rig.layout is not None else rig_layout(rng, vertices, cfg, rig)
+    faces = model.faces.cpu().numpy()
+    colour = _BODY_COLOURS[int(rng.integers(len(_BODY_COLOURS)))]
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    clean2d, visibility, counts = [], [], []
+    for c, view in enumerate(views):
+        R, t = view.extrinsics()
+        cam = view.camera
+        v_cam = vertices @ R.T + t
+        k_cam = kp3d @ R.T + t
+        kp2d = project_points(torch.as_tensor(k_cam), cam).numpy()
+        r = _render(v_cam.astype(np.float32), faces, cam, colour)
+        bg, _ = _background(rng, cfg.background, cam.height, cam.width)
+        image = np.where(r.mask[..., None], r.color, bg).astype(np.uint8)
+        vis = keypoint_visibility(k_cam, kp2d, r.depth, BODY25_NAMES)
+        kp, _ = noisy_keypoints(rng, kp2d, vis, noise_px, drop_prob, cfg.conf_visible, cfg.conf_occluded)
+        folder = out_dir / view_name(c)
+        folder.mkdir(exist_ok=True)
+        write_png(folder / "image.png", image)
+        write_png(folder / "mask.png", r.mask)
+        write_openpose_json(folder / "keypoints.json", kp)
+        (folder / "camera.json").write_text(json.dumps(view_to_dict(view), indent=2) + "\n", encoding="utf-8")
+        clean2d.append(kp2d)
+        visibility.append(vis)
+        counts.append(int((vis == 2).sum()))
+    write_cameras_json(out_dir / "cameras.json", [(view_name(c), v) for c, v in enumerate(views)])
+    save_npz(out_dir / "gt.npz", {
+        **params, "vertices": vertices.astype(np.float32), "joints": joints, "keypoints_3d": kp3d.astype(np.float32),
+        "keypoints_2d_clean": np.asarray(clean2d), "keypoints_visibility": np.asarray(visibility, np.int8),
+        "stature": np.float64(stature), "noise_px": np.float64(noise_px), "views": np.int64(len(views)),
+    })  # fmt: skip
+    return {"name": out_dir.name, "pose": ps.name, "yaw_deg": round(yaw, 4), "stature_m": round(stature, 4),
+            "views": len(views), "noise_px": noise_px, "keypoints_visible_per_view": counts}  # fmt: skip
+
+
+def generate_rig_dataset(out, n: int, config: SynthConfig, rig: RigConfig, model=None, progress=False, command=None) -> dict:
+    """``n`` rig subjects into ``out`` and ``out/index.json`` (``"rig": views``)."""
+
+    from .. import __version__
+    from ..dataset import INDEX_NAME
+    from .generate import subject_name
+
+    cfg, rig = config.validate(), rig.validate()
+    if int(n) <= 0:
+        raise ValueError(f"--n must be a positive number of subjects, got {n}")
+    if model is None:
+        from ..body import load_body_model
+
+        model = load_body_model()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    it: Sequence[int] = range(int(n))
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(it, desc="silfit synth --views", unit="subject")
+    records = [generate_rig_subject(model, i, cfg, rig, out / subject_name(i)) for i in it]
+    views = len(rig.layout) if rig.layout is not None else int(rig.views)
+    index = {
+        "format": "silfit-synthetic-rig", "version": 1, "silfit_version": __version__, "rig": views,
+        "generator": {**cfg.to_dict(), "n": int(n), "views": views, "heights_m": list(rig.heights_m),
+                      "layout": rig.layout is not None, **({"command": command} if command else {})},
+        "subjects": records,
+    }  # fmt: skip
+    (out / INDEX_NAME).write_text(json.dumps(index, indent=2) + "\n", encoding="utf-8")
+    return index
