@@ -113,14 +113,21 @@ class DepthTerm(Term):
 
 
 class PriorTerm(Term):
-    """``fn(parameter) -> [rows]`` summed per problem: pose, angle, limit and shape priors."""
+    """``fn(parameter) -> [rows]`` summed per problem: pose, angle, limit and shape priors.
 
-    def __init__(self, name: str, fn: Callable[[torch.Tensor], torch.Tensor], parameter: str):
+    ``parameter`` may be a tuple of names with ``fn`` a tuple of as many functions (e.g. one prior
+    per hand): their sum."""
+
+    def __init__(self, name: str, fn, parameter):
         self.name, self.fn, self.parameter = name, fn, parameter
 
     def __call__(self, ev: Evaluation) -> torch.Tensor:
-        value = ev.params[self.parameter]
-        return ev.per_problem(self.fn(value.reshape(-1, value.shape[-1])))
+        names, fns = (self.parameter, self.fn) if isinstance(self.parameter, tuple) else ((self.parameter,), (self.fn,))
+        total = 0
+        for n, fn in zip(names, fns):
+            value = ev.params[n]
+            total = total + ev.per_problem(fn(value.reshape(-1, value.shape[-1])))
+        return total
 
 
 class InterpenetrationTerm(Term):

@@ -1,0 +1,75 @@
+"""Whole-body pieces of the fitting core: the hand and face terms of the energy and the per-problem
+gates that hold absent parts at rest.
+
+The ``wholebody`` keypoint layout (:data:`silfit.keypoints.WHOLEBODY_NAMES`) is one keypoint vector
+per observation (body, left hand, right hand, face), so the parts are :class:`KeypointTerm` s over
+masks of it: ``keypoints`` (the body's 25, as for BODY_25), ``hands`` (both hands' 42) and ``face``
+(70), each with its own robust scale. Their priors are :class:`PriorTerm` s: ``hand_pose``
+(:class:`~silfit.priors.wholebody.HandPosePrior` per hand), ``jaw`` and ``expression`` (L2).
+"""
+from __future__ import annotations
+
+from typing import Dict, List
+
+import torch
+
+from ..priors.wholebody import HandPosePrior, l2
+from ..wholebody import part_slices
+from .terms import KeypointTerm, PriorTerm, Term
+
+__all__ = ["GATED_PARTS", "hand_priors", "part_gates", "part_masks", "wholebody_terms"]
+
+#: parameter -> the keypoint part whose confident points free it
+GATED_PARTS = {"left_hand_pose": "hand_left", "right_hand_pose": "hand_right", "jaw_pose": "face", "expression": "face"}
+
+_PRIORS: Dict[tuple, tuple] = {}
+
+
+def hand_priors(model, dtype) -> tuple:
+    """The left and right :class:`HandPosePrior` of ``model`` (built once per model file and setting)."""
+    key = (model.source, bool(getattr(model, "use_pca", False)), getattr(model, "num_pca_comps", 45), dtype)
+    if key not in _PRIORS:
+        _PRIORS[key] = tuple(HandPosePrior(model, side, dtype=dtype) for side in ("left", "right"))
+    return _PRIORS[key]
+
+
+def part_masks(dtype=torch.float64) -> Dict[str, torch.Tensor]:
+    """``{part: [137]}`` 0/1 masks of the ``wholebody`` layout (``hands``: both hands)."""
+    sl = part_slices()
+    K = sl["face"].stop
+    out = {}
+    for name, parts in (("body", ("body",)), ("hands", ("hand_left", "hand_right")), ("face", ("face",))):
+        m = torch.zeros(K, dtype=dtype)
+        for p in parts:
+            m[sl[p]] = 1.0
+        out[name] = m
+    return out
+
+
+def wholebody_terms(model, terms: List[Term], sigma, config, dtype) -> List[Term]:
+    """The body terms (``keypoints`` restricted to the body's points) plus the hand and face terms."""
+    masks = part_masks(dtype)
+    robust = sigma is not None
+    out = [KeypointTerm("keypoints", sigma, mask=masks["body"]) if t.name == "keypoints" else t for t in terms]
+    left, right = hand_priors(model, dtype)
+    out += [
+        KeypointTerm("hands", config.hand_sigma if robust else None, mask=masks["hands"]),
+        KeypointTerm("face", config.face_sigma if robust else None, mask=masks["face"]),
+        PriorTerm("hand_pose", (left, right), ("left_hand_pose", "right_hand_pose")),
+        PriorTerm("jaw", l2, "jaw_pose"), PriorTerm("expression", l2, "expression"),
+    ]  # fmt: skip
+    return out
+
+
+def part_gates(weights: torch.Tensor) -> Dict[str, torch.Tensor]:
+    """``{"gate_<param>": [P, F, 1]}`` from the keypoint weights ``[P, F, C, 137]``: 1 where any view
+    of the frame has a confident point of the part that frees the parameter, else 0 (held at rest)."""
+    sl = part_slices()
+    present = {p: (weights[..., sl[p]] > 0).any(-1).any(-1) for p in set(GATED_PARTS.values())}
+    return {f"gate_{n}": present[p].to(weights.dtype)[..., None] for n, p in GATED_PARTS.items()}
+
+
+def parts_fitted(gates: Dict[str, torch.Tensor]) -> List[dict]:
+    """Per problem: ``{param: bool}`` whether the parameter was fitted (not held at rest)."""
+    P = next(iter(gates.values())).shape[0]
+    return [{k[len("gate_"):]: bool(v[b].any()) for k, v in gates.items()} for b in range(P)]
