@@ -51,7 +51,7 @@ from ..keypoints import LAYOUTS, KeypointSet
 from ..priors import SphereCollisionModel, angle_prior, limit_violation, load_pose_prior, shape_prior
 from ..priors.wholebody import body_prior_for, padded
 from .body import KeypointBody
-from .wholebody import part_gates, wholebody_terms
+from .wholebody import choose_hand_starts, part_gates, wholebody_terms
 from .branches import limb_hypotheses
 from .problem import ParameterLayout, Problem, stack_views
 from .result import PARAM_NAMES, KeypointFitResult
@@ -200,6 +200,8 @@ class KeypointFitConfig:
         for i, (it, wp, wa) in enumerate(zip(self.pose_iters, self.pose_prior_weights, self.angle_prior_weights)):
             opts = {"decide_after": int(self.decision_iters)} if i == self.flip_decision_stage else {}
             weights = {"keypoints": 1.0, "pose": wp, "angle": wa, "limits": self.limit_weight}
+            if hw[i] and not any(hw[:i]):
+                opts = {**opts, "hand_starts": True}  # hands start from their best library pose
             part_w, part_free = self.part_weights(hw[i], fw[i])
             weights.update(part_w)
             out.append(Stage(f"pose_{i + 1}", pose_free + part_free, weights, int(it), options=opts))
@@ -470,6 +472,8 @@ class KeypointFitter:
 
         chosen_branches = [[] for _ in range(B)]
         for stage in self.stages:
+            if stage.options.get("hand_starts") and self.whole_body:
+                state = choose_hand_starts(self.model, self.body, layout, state, views, data, self.config.hand_sigma)
             if "branches" in stage.options:
                 if not decided or layout.frames != 1:
                     raise ValueError(f"stage '{stage.name}': the branch search needs one frame and a decided start")

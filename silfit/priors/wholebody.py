@@ -120,3 +120,19 @@ class HandPosePrior(nn.Module):
             raise ValueError(f"{self.side} hand pose has {hand_pose.shape[-1]} values, the prior is over {self.dim}")
         d = hand_pose - self.mean.to(hand_pose.dtype)
         return 0.5 * torch.einsum("bi,ij,bj->b", d, self.precision.to(hand_pose.dtype), d)
+
+
+def library_hand_set(model, side: str) -> torch.Tensor:
+    """``[N, w]`` the hand-pose library's named poses (unperturbed) in ``model``'s hand parameter
+    space (axis-angle minus the mean hand, or PCA coefficients with ``use_pca``)."""
+    from ..synth.hands import HAND_LIBRARY, hand_axes, hand_pose_to_axis_angle
+
+    with torch.no_grad():
+        joints = model(**model.zero_params(1)).joints[0].double().cpu().numpy()
+    axes = hand_axes(joints, model.joint_names, side)
+    start = 75 if side == "left" else 120
+    mean = model.pose_mean.double().cpu().numpy()[start : start + 45]
+    poses = np.stack([hand_pose_to_axis_angle(p.flex, p.spread, axes) - mean for p in HAND_LIBRARY.values()])
+    if getattr(model, "use_pca", False):
+        poses = poses @ np.linalg.pinv(getattr(model, f"hand_components_{side[0]}").double().cpu().numpy())
+    return torch.as_tensor(poses, dtype=model.dtype)
