@@ -62,9 +62,10 @@ class FitResult:
     @property
     def final(self) -> KeypointFitResult:
         """The final parameters in the keypoint result's form (for saving and loading)."""
+        arr = {k: np.asarray(v, dtype=np.float32)[None] for k, v in self.params.items()}
+        smpl = {k: v for k, v in arr.items() if k in ("betas", "body_pose", "global_orient", "transl")}
         return replace(
-            self.keypoint,
-            **{k: np.asarray(v, dtype=np.float32)[None] for k, v in self.params.items()},
+            self.keypoint, **smpl, extra_params={k: v for k, v in arr.items() if k not in smpl},
             vertices=self.vertices[None], joints=self.joints[None], keypoints_2d=self.keypoints_2d[None],
             reprojection_error=np.array([self.metrics.get("reprojection_error_px", np.nan)]),
         )  # fmt: skip
@@ -222,6 +223,14 @@ def fit(
 def _fit(sets, mask, camera, image_size, focal, model, pose_prior, keypoint_config, silhouette_config, progress):
     fitter = KeypointFitter(model, sets[0].layout, keypoint_config, pose_prior)
     kp_result = fitter.fit(sets, camera, image_size=image_size, focal=focal, progress=progress)
+    notes = []
+    if fitter.whole_body:
+        from .fitting.wholebody import wholebody_summary
+
+        whole_body, notes = wholebody_summary(sets[0])
+    if mask is not None and fitter.whole_body:
+        notes.append("the silhouette stage does not fit whole-body (SMPL-X-layout) models yet: keypoint stage only")
+        mask = None
     if mask is not None:
         return refine(model, kp_result, sets[0], np.asarray(mask, dtype=bool), silhouette_config,
                       fitter.pose_prior, progress=progress)  # fmt: skip
@@ -231,9 +240,11 @@ def _fit(sets, mask, camera, image_size, focal, model, pose_prior, keypoint_conf
         "timings_s": {**{f"keypoints.{k}": float(v) for k, v in kp_result.timings.items()},
                       "keypoints": _stage_seconds(kp_result.timings)},
         "reprojection_error_px": _median_reprojection(kp2d, sets[0]),
-        "warnings": [],
+        "warnings": notes,
         **_run_record(kp_result),
     }  # fmt: skip
+    if fitter.whole_body:
+        metrics["whole_body"] = whole_body
     return FitResult(kp_result.camera, sets[0].layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d, metrics)
 
 

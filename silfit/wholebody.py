@@ -252,3 +252,40 @@ def write_wholebody_json(path: Union[str, os.PathLike], body: np.ndarray, hand_l
     tmp = Path(f"{os.fspath(path)}.tmp")
     tmp.write_text(json.dumps({"version": 1.3, "people": [person]}))
     os.replace(tmp, path)
+
+
+def read_wholebody_parts(path, person: Union[int, str] = "largest") -> Optional[WholeBodyKeypoints]:
+    """The file's whole-body parts when it is OpenPose JSON with ``pose_keypoints_2d`` of BODY_25
+    (hand / face fields may be absent), else ``None`` (another format: read it with
+    :func:`silfit.keypoints.read_keypoints`)."""
+    from .errors import InputError
+
+    try:
+        with open(os.fspath(path), "r", encoding="utf-8") as fh:
+            data = json.load(fh)
+    except (OSError, ValueError):
+        return None  # read_keypoints reports unreadable files
+    people = data.get("people") if isinstance(data, dict) else None
+    if not isinstance(people, list) or not people or not all(isinstance(p, dict) for p in people):
+        return None
+    if any(len(p.get("pose_keypoints_2d") or []) != 3 * len(BODY25_NAMES) for p in people):
+        return None
+    try:
+        return read_wholebody(path, person)
+    except ValueError as err:
+        raise InputError(os.fspath(path), str(err).split(": ", 1)[-1]) from None
+
+
+def choose_fit_keypoints(keypoints: KeypointSet, wholebody: Optional[WholeBodyKeypoints], model) -> tuple:
+    """``(keypoints, note)`` to fit ``model`` with: the ``wholebody`` layout for an SMPL-X-layout
+    model (a body-only file: hands and face at confidence 0, so they stay at rest), the body part
+    for an SMPL-layout model (a note says that hands and face are not fitted)."""
+    if getattr(model, "kind", "smpl") == "smplx":
+        if keypoints.layout != "body25":
+            raise ValueError(f"{keypoints.source}: an SMPL-X-layout model is fitted to OpenPose BODY_25 / whole-body "
+                             f"keypoints, not {keypoints.layout}")  # fmt: skip
+        wb = wholebody or WholeBodyKeypoints(keypoints, None, None, None, source=keypoints.source)
+        return wb.as_keypoint_set(), None
+    if wholebody is not None and wholebody.has_parts:
+        return keypoints, f"{model.source} is an SMPL-layout model: hand and face keypoints are not fitted"
+    return keypoints, None

@@ -106,3 +106,17 @@ def choose_hand_starts(model, body, layout, state, views, data, sigma) -> dict:
         gate = data.get(f"gate_{n}")
         out[n] = chosen if gate is None else state[n] + gate.to(chosen.dtype) * (chosen - state[n])
     return out
+
+
+def wholebody_summary(keypoints) -> tuple:
+    """``(summary, notes)`` for a fit's metrics: which parts had confident points, which parameters
+    were fitted and which were held at rest, and a line for each part held at rest."""
+    sl = part_slices()
+    present = {p: bool((keypoints.conf[sl[p]] > 0).any()) for p in sl}
+    fitted = {n: present[p] for n, p in GATED_PARTS.items()}
+    rest = [n for n, f in fitted.items() if not f]
+    notes = []
+    for part, params in (("hand_left", "left_hand_pose"), ("hand_right", "right_hand_pose"), ("face", "jaw_pose and expression")):
+        if not present[part]:
+            notes.append(f"no {part.replace('_', ' ')} keypoints: {params} left at rest")
+    return {"parts_present": present, "parameters_fitted": fitted, "held_at_rest": rest}, notes
