@@ -141,6 +141,9 @@ class KeypointFitConfig:
     final_face_weight: float = 2.0
     hand_sigma: float = 50.0
     face_sigma: float = 50.0
+    #: L-BFGS steps of the hands alone (the body held) when the hand terms switch on, from each
+    #: hand's best library pose (0: no such stage, the hands start in the joint stage)
+    hand_iters: int = 30
     #: priors of the parts, on wherever the parts are free
     hand_prior_weight: float = 2.0
     jaw_weight: float = 50.0
@@ -200,8 +203,13 @@ class KeypointFitConfig:
         for i, (it, wp, wa) in enumerate(zip(self.pose_iters, self.pose_prior_weights, self.angle_prior_weights)):
             opts = {"decide_after": int(self.decision_iters)} if i == self.flip_decision_stage else {}
             weights = {"keypoints": 1.0, "pose": wp, "angle": wa, "limits": self.limit_weight}
-            if hw[i] and not any(hw[:i]):
-                opts = {**opts, "hand_starts": True}  # hands start from their best library pose
+            if hw[i] and not any(hw[:i]):  # hands start from their best library pose, fitted alone first
+                if self.hand_iters:  # the body free too (the wrists turn), held by its keypoints and priors
+                    w = {**weights, "hands": hw[i], "hand_pose": self.hand_prior_weight}
+                    out.append(Stage("hands", pose_free + WHOLEBODY_HAND_PARAMS, w, int(self.hand_iters),
+                                     options={"hand_starts": True}))  # fmt: skip
+                else:
+                    opts = {**opts, "hand_starts": True}
             part_w, part_free = self.part_weights(hw[i], fw[i])
             weights.update(part_w)
             out.append(Stage(f"pose_{i + 1}", pose_free + part_free, weights, int(it), options=opts))

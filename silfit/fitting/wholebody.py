@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Dict, List
 
+import numpy as np
 import torch
 
 from ..priors.wholebody import HandPosePrior, l2, library_hand_set
@@ -76,35 +77,82 @@ def parts_fitted(gates: Dict[str, torch.Tensor]) -> List[dict]:
     return [{k[len("gate_"):]: bool(v[b].any()) for k, v in gates.items()} for b in range(P)]
 
 
+#: wrist offsets tried by :func:`choose_hand_starts` (degrees): twist about the forearm, then flexion
+WRIST_TWIST_DEG = (-135.0, -90.0, -45.0, 0.0, 45.0, 90.0, 135.0, 180.0)
+WRIST_FLEX_DEG = (-40.0, 0.0, 40.0)
+
+
+def _wrist_offsets(side: str, dtype) -> torch.Tensor:
+    """``[R, 3, 3]`` local wrist rotations: twists about the rest forearm axis (+-X) times flexions
+    about the rest palm's side axis (Z), in the joint's rest frame (SMPL-X's rest hands are flat, palm down)."""
+    from scipy.spatial.transform import Rotation
+
+    sign = 1.0 if side == "left" else -1.0
+    mats = [(Rotation.from_rotvec([sign * np.radians(t), 0, 0]) * Rotation.from_rotvec([0, 0, sign * np.radians(f)])).as_matrix()
+            for t in WRIST_TWIST_DEG for f in WRIST_FLEX_DEG]  # fmt: skip
+    return torch.as_tensor(np.stack(mats), dtype=dtype)
+
+
+def _compose_wrist(body_pose: torch.Tensor, j: int, offset: torch.Tensor) -> torch.Tensor:
+    """``body_pose`` with joint ``j``'s rotation ``R`` replaced by ``R @ offset``."""
+    from scipy.spatial.transform import Rotation
+
+    shape = body_pose.shape
+    flat = body_pose.reshape(-1, shape[-1]).clone()
+    sl = slice(3 * (j - 1), 3 * j)
+    R = Rotation.from_rotvec(flat[:, sl].double().numpy()) * Rotation.from_matrix(offset.double().numpy())
+    flat[:, sl] = torch.as_tensor(R.as_rotvec(), dtype=body_pose.dtype)
+    return flat.reshape(shape)
+
+
 @torch.no_grad()
 def choose_hand_starts(model, body, layout, state, views, data, sigma) -> dict:
-    """Each problem's hands started from the library pose (or its current pose) whose keypoints fit
-    that hand's 2D points best, each hand on its own (one batched evaluation per candidate); hands
-    without confident points keep their value. Returns the new state (hand poses replaced)."""
+    """Each problem's hands started from the library pose (or its current pose) and the wrist
+    rotation (the current one turned by :data:`WRIST_TWIST_DEG` x :data:`WRIST_FLEX_DEG`) whose
+    keypoints fit that hand's 2D points best, each hand on its own (one batched evaluation per
+    candidate); hands without confident points keep their values. Returns the new state."""
     from .losses import reprojection_energy
 
     sl = part_slices()
-    libs = dict(zip(("left_hand_pose", "right_hand_pose"), hand_priors(model, state["body_pose"].dtype)[2:]))
-    cands = {n: [state[n]] + [lib[h].expand_as(state[n]) for h in range(len(lib))] for n, lib in libs.items()}
-    H = len(cands["left_hand_pose"])
+    dt = state["body_pose"].dtype
+    sides = (("left", "left_hand_pose", "hand_left"), ("right", "right_hand_pose", "hand_right"))
+    libs = dict(zip(("left_hand_pose", "right_hand_pose"), hand_priors(model, dt)[2:]))
+    joint = {side: model.joint_names.index(f"{side}_wrist") for side, _, _ in sides}
+    offsets = {side: _wrist_offsets(side, dt) for side, _, _ in sides}
     P = state["body_pose"].shape[0]
-    scores = {n: [] for n in libs}
-    for h in range(H):
-        trial = {**state, **{n: cands[n][h] for n in libs}}
-        ev = evaluate(body, layout, trial, views, data)
-        for n, part in (("left_hand_pose", "hand_left"), ("right_hand_pose", "hand_right")):
-            k = sl[part]
-            K = k.stop - k.start
-            e = reprojection_energy(ev.keypoints_2d[..., k, :].reshape(-1, K, 2), data["target"][..., k, :].reshape(-1, K, 2),
-                                    data["weights"][..., k].reshape(-1, K), data["scale"].reshape(-1), sigma)  # fmt: skip
-            scores[n].append(e.reshape(P, -1).sum(1))
+    hands = {n: [state[n]] + [lib[h].expand_as(state[n]) for h in range(len(lib))] for n, lib in libs.items()}
+    wrists = {side: [_compose_wrist(state["body_pose"], joint[side], o) for o in offsets[side]] for side, _, _ in sides}
+    best = {side: (torch.full((P,), float("inf"), dtype=dt), torch.zeros(P, dtype=torch.long), torch.zeros(P, dtype=torch.long))
+            for side, _, _ in sides}  # fmt: skip
+    for r in range(len(offsets["left"])):
+        pose = wrists["left"][r].clone()
+        right_sl = slice(3 * (joint["right"] - 1), 3 * joint["right"])
+        pose[..., right_sl] = wrists["right"][r][..., right_sl]
+        for h in range(len(hands["left_hand_pose"])):
+            trial = {**state, "body_pose": pose, **{n: hands[n][h] for n in libs}}
+            ev = evaluate(body, layout, trial, views, data)
+            for side, n, part in sides:
+                k = sl[part]
+                K = k.stop - k.start
+                e = reprojection_energy(ev.keypoints_2d[..., k, :].reshape(-1, K, 2), data["target"][..., k, :].reshape(-1, K, 2),
+                                        data["weights"][..., k].reshape(-1, K), data["scale"].reshape(-1), sigma)  # fmt: skip
+                e = e.reshape(P, -1).sum(1)
+                val, bh, br = best[side]
+                better = e < val
+                best[side] = (torch.where(better, e, val), torch.where(better, h, bh), torch.where(better, r, br))
     out = dict(state)
-    for n in libs:
-        best = torch.stack(scores[n], 1).argmin(1)  # [P]
-        stacked = torch.stack(cands[n], 0)  # [H, P, F, w]
-        chosen = stacked[best, torch.arange(P)]
+    body_pose = state["body_pose"].clone()
+    for side, n, _ in sides:
+        _, bh, br = best[side]
         gate = data.get(f"gate_{n}")
-        out[n] = chosen if gate is None else state[n] + gate.to(chosen.dtype) * (chosen - state[n])
+        keep = torch.ones(P, dtype=torch.bool) if gate is None else gate.reshape(P, -1)[:, 0] > 0
+        rows = torch.arange(P)
+        chosen = torch.stack(hands[n], 0)[bh, rows]
+        wsl = slice(3 * (joint[side] - 1), 3 * joint[side])
+        wrist = torch.stack(wrists[side], 0)[br, rows][..., wsl]
+        out[n] = torch.where(keep.view(P, *[1] * (chosen.ndim - 1)), chosen, state[n])
+        body_pose[..., wsl] = torch.where(keep.view(P, *[1] * (wrist.ndim - 1)), wrist, body_pose[..., wsl])
+    out["body_pose"] = body_pose
     return out
 
 
