@@ -49,7 +49,7 @@ from .threads import torch_threads
 
 __all__ = [
     "SilhouetteFitConfig", "SilhouetteFitResult", "SilhouetteTerm", "choose_window", "fit_silhouette",
-    "fit_silhouettes", "window_target",
+    "fit_silhouette_problems", "fit_silhouettes", "window_target",
 ]  # fmt: skip
 
 #: SMPL's parameters, the default free set (a model's own set is ``model.parameter_names``)
@@ -124,24 +124,33 @@ class SilhouetteFitConfig:
 
 @dataclass
 class SilhouetteFitResult:
-    """Refined parameters of one subject (numpy, batch of one) and the stage's diagnostics."""
+    """Refined parameters of one problem (numpy) and the stage's diagnostics.
 
-    betas: np.ndarray
-    body_pose: np.ndarray
-    global_orient: np.ndarray
-    transl: np.ndarray
+    ``parameters``: the model's parameters by name, per-frame ones ``[F, w]`` and shared
+    ones (``betas``) ``[1, w]``; one image is ``F = 1``, so every array is ``[1, w]``.
+    The parameter names are also attributes (``result.betas``, ``result.body_pose``...)."""
+
+    parameters: dict
     history: dict  # per step: level, energy, silhouette, keypoints, iou (lists)
-    iou_start: float  # soft IoU in the window, first step
-    iou_end: float  # soft IoU in the window at the kept (lowest-energy) step
+    iou_start: float  # soft IoU in the windows (mean over masked observations), first step
+    iou_end: float  # the same at the kept (lowest-energy) step
     seconds: float
     steps: int
     warnings: list
     #: each term's unweighted value at the kept step of the last level
     terms: dict = field(default_factory=dict)
     config: dict = field(default_factory=dict)
+    #: soft IoU per observation ``[F][C]`` at the kept step of the last level (NaN: no mask)
+    ious: list = field(default_factory=list)
 
     def params(self) -> dict:
-        return {name: getattr(self, name) for name in PARAMS}
+        return dict(self.parameters)
+
+    def __getattr__(self, name):
+        parameters = self.__dict__.get("parameters")
+        if parameters is not None and name in parameters:
+            return parameters[name]
+        raise AttributeError(name)
 
 
 def choose_window(mask: np.ndarray, uv: np.ndarray, camera: Camera, resolution: int, margin: float):
@@ -210,7 +219,9 @@ class _Plateau:
 
 class SilhouetteTerm(Term):
     """Two-sided distance-transform energy of each observation's rendered silhouette,
-    summed over observations; leaves the soft IoU per problem in ``ev.extras['iou']``.
+    summed over observations (those with a window; observations without a mask have
+    none); leaves the soft IoU per problem (mean over its masks) in ``ev.extras['iou']``
+    and per observation in ``ev.extras['iou_observations']``.
 
     ``proxy`` (a :class:`renderers.proxy.RenderProxy`) maps the body's vertices to the
     render proxy first; ``batch_renderer`` renders several observations in one call.
@@ -230,24 +241,25 @@ class SilhouetteTerm(Term):
             V = self.proxy(V)
         verts = V.reshape(ev.P, ev.F, 1, *V.shape[1:]).expand(ev.P, ev.F, ev.C, *V.shape[1:])
         cams = world_to_camera(verts, ev.data["R"].to(V.dtype), ev.data["t"].to(V.dtype))
-        jobs = [(p, o) for p in range(ev.P) for o in range(len(ev.data["windows"][p]))]
+        windows = ev.data["windows"]
+        jobs = [(p, o) for p in range(ev.P) for o, w in enumerate(windows[p]) if w is not None]
+        seeds = [None if ev.data["seeds"][p] is None else int(ev.data["seeds"][p]) + 7919 * o for p, o in jobs]
         if self.batch_renderer is not None and len(jobs) > 1:
-            seeds = [ev.data["seeds"][p] for p, _ in jobs]
-            seed = None if seeds[0] is None else int(seeds[0])
             sils = self.batch_renderer([cams[p, o // ev.C, o % ev.C] for p, o in jobs],
-                                       [ev.data["windows"][p][o].camera for p, o in jobs],
-                                       spp=self.spp, edge_spp=self.edge_spp, seed=seed)  # fmt: skip
+                                       [windows[p][o].camera for p, o in jobs],
+                                       spp=self.spp, edge_spp=self.edge_spp, seed=seeds[0])  # fmt: skip
         else:
-            sils = [self.renderer(cams[p, o // ev.C, o % ev.C], ev.data["windows"][p][o].camera, spp=self.spp,
-                                  edge_spp=self.edge_spp, seed=ev.data["seeds"][p]) for p, o in jobs]  # fmt: skip
+            sils = [self.renderer(cams[p, o // ev.C, o % ev.C], windows[p][o].camera, spp=self.spp,
+                                  edge_spp=self.edge_spp, seed=seed) for (p, o), seed in zip(jobs, seeds)]  # fmt: skip
         energies = [torch.zeros((), dtype=V.dtype) for _ in range(ev.P)]
-        ious = [[] for _ in range(ev.P)]
+        ious = [[float("nan")] * len(windows[p]) for p in range(ev.P)]
         for (p, o), sil in zip(jobs, sils):
             target = ev.data["targets"][p][o]
             energies[p] = energies[p] + silhouette_energy(sil, target)
             with torch.no_grad():
-                ious[p].append(float(soft_iou(sil.detach(), target.mask)))
-        ev.extras["iou"] = [float(np.mean(i)) if i else float("nan") for i in ious]
+                ious[p][o] = float(soft_iou(sil.detach(), target.mask))
+        ev.extras["iou_observations"] = ious
+        ev.extras["iou"] = [float(np.nanmean(i)) if any(x == x for x in i) else float("nan") for i in ious]
         return torch.stack(energies)
 
 
@@ -314,38 +326,142 @@ def fit_silhouettes(
     progress: bool = True,
     callback: Optional[Callable[[int, dict], None]] = None,
 ) -> List[SilhouetteFitResult]:
-    """The silhouette stage for a batch of subjects (one camera and mask each), as
+    """The silhouette stage for a batch of single images (one camera and mask each), as
     :func:`fit_silhouette` per subject; ``callback(step, info)`` gets ``info['subject']``."""
-    cfg = config or SilhouetteFitConfig()
     keypoints = list(keypoints) if keypoints is not None else [None] * len(inits)
     if not (len(inits) == len(cameras) == len(masks) == len(keypoints)):
         raise ValueError(f"{len(inits)} starts, {len(cameras)} cameras, {len(masks)} masks, {len(keypoints)} keypoint sets")
+    problems = [Problem.single(kp, cam, mask) for kp, cam, mask in zip(keypoints, cameras, masks)]
+    return fit_silhouette_problems(model, problems, inits, layout, config, pose_prior, renderer, progress, callback)
+
+
+def fit_silhouette_problems(
+    model,
+    problems: Sequence[Problem],
+    inits: Sequence[dict],
+    layout: str = "body25",
+    config: Optional[SilhouetteFitConfig] = None,
+    pose_prior=None,
+    renderer=None,
+    progress: bool = True,
+    callback: Optional[Callable[[int, dict], None]] = None,
+    terms: Sequence[Term] = (),
+    weights: Optional[dict] = None,
+    data: Optional[dict] = None,
+) -> List[SilhouetteFitResult]:
+    """The silhouette stage on problems: bodies seen in ``F`` frames by ``C`` views
+    (:class:`~silfit.fitting.problem.Problem`; every problem of a batch has the same
+    ``F`` and ``C``). Each observation's ``mask [H, W]`` (bool, or ``None``: no silhouette
+    term for it) is matched in its camera (extrinsics ``R, t`` from its view), its
+    ``keypoints`` (a :class:`~silfit.keypoints.KeypointSet`, an array ``[K, 3]`` or
+    ``None``) keep the keypoint term; all observations' terms are summed per problem.
+
+    ``inits``: one dict per problem of the model's parameters by name, per-frame ones
+    ``[F, w]`` (``[w]`` when ``F = 1``) and shared ones (``problem.shared``, e.g.
+    ``betas``) ``[w]``; absent names start at zero (rest). ``terms``/``weights`` add
+    named energy terms (e.g. temporal ones) with their weight in every level; ``data``
+    (tensors with a leading problem axis ``[P, ...]``) is what they read from
+    ``Evaluation.data``.
+
+    Returns one :class:`SilhouetteFitResult` per problem (per-frame arrays ``[F, w]``)."""
+    cfg = config or SilhouetteFitConfig()
+    problems = list(problems)
+    if len(inits) != len(problems):
+        raise ValueError(f"{len(inits)} starts for {len(problems)} problems")
+    if not problems:
+        return []
+    shapes = {(p.num_frames, p.num_views) for p in problems}
+    if len(shapes) != 1:
+        raise ValueError(f"problems of one batch must have the same frames and views, got {sorted(shapes)}")
+    if len({tuple(p.shared) for p in problems}) != 1:
+        raise ValueError("problems of one batch must share the same parameters across frames")
     with torch_threads(cfg.threads):
-        return _fit_silhouettes(model, inits, cameras, masks, keypoints, layout, cfg, pose_prior, renderer, progress,
-                                callback)  # fmt: skip
+        return _fit_problems(model, problems, list(inits), layout, cfg, pose_prior, renderer, progress, callback,
+                             tuple(terms), dict(weights or {}), dict(data or {}))  # fmt: skip
 
 
-def _fit_silhouettes(model, inits, cameras, masks, keypoints, layout, cfg, pose_prior, renderer, progress, callback):
+def _keypoint_array(keypoints) -> Optional[np.ndarray]:
+    """``[K, 3]`` (x, y, confidence) of an observation's keypoints, or ``None``."""
+    if keypoints is None:
+        return None
+    if hasattr(keypoints, "xy") and hasattr(keypoints, "conf"):
+        return np.concatenate([np.asarray(keypoints.xy, dtype=np.float64), np.asarray(keypoints.conf)[:, None]], 1)
+    arr = np.asarray(keypoints, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"keypoints of an observation have shape {arr.shape}, expected [K, 3]")
+    return arr
+
+
+def _keypoint_data(grids, dtype) -> tuple:
+    """``target [P, F, C, K, 2]`` and ``weights [P, F, C, K]`` (each observation's
+    confidences normalised to sum 1; zero where it has none) of the problems' grids."""
+    arrays = [[[_keypoint_array(o.keypoints) for o in row] for row in grid] for grid in grids]
+    counts = {a.shape[0] for g in arrays for row in g for a in row if a is not None}
+    if len(counts) > 1:
+        raise ValueError(f"observations of one batch have different keypoint counts {sorted(counts)}")
+    K = counts.pop() if counts else 1
+    target = torch.zeros((len(grids), len(grids[0]), len(grids[0][0]), K, 2), dtype=dtype)
+    weights = torch.zeros(target.shape[:-1], dtype=dtype)
+    for p, g in enumerate(arrays):
+        for f, row in enumerate(g):
+            for c, a in enumerate(row):
+                if a is None:
+                    continue
+                a = torch.as_tensor(a, dtype=dtype)
+                conf = a[:, 2].clamp(min=0)  # normalised in the model's dtype
+                target[p, f, c] = a[:, :2]
+                if bool((conf > 0).any()):
+                    weights[p, f, c] = conf / conf.sum()
+    return target, weights, any(a is not None for g in arrays for row in g for a in row)
+
+
+def _observation_window(mask, uv: np.ndarray, camera: Camera, resolution: int, margin: float):
+    """``(window, target)`` of an observation with a mask, or ``(None, scale)`` without one
+    (the pixels-to-window scale a window around the projected body would have)."""
+    if mask is not None:
+        window = choose_window(mask, uv, camera, resolution, margin)
+        return window, window_target(mask, window)[0]
+    extent = float((uv.max(0) - uv.min(0)).max()) * (1 + 2 * margin) + 1.0
+    return None, resolution / extent
+
+
+def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, progress, callback, extra_terms,
+                  extra_weights, extra_data):  # fmt: skip
     from renderers.silhouette import get_silhouette_renderer
     from tqdm.auto import tqdm
 
     dtype = model.dtype
-    P = len(inits)
-    masks = [np.asarray(m, dtype=bool) for m in masks]
-    for m, cam in zip(masks, cameras):
-        if m.shape != (cam.height, cam.width):
-            raise ValueError(f"mask is {m.shape[1]}x{m.shape[0]} pixels, the camera {cam.width}x{cam.height}")
-    params_layout = ParameterLayout.of(model)
-    names = params_layout.sizes
-    # State: shared [P, w], per-frame [P, 1, w] (one frame, one view per subject here).
+    P, F, C = len(problems), problems[0].num_frames, problems[0].num_views
+    grids = [p.grid() for p in problems]
+    masks = [[[None if o.mask is None else np.asarray(o.mask, dtype=bool) for o in row] for row in g] for g in grids]
+    for p, g in enumerate(grids):
+        for f, row in enumerate(g):
+            for c, o in enumerate(row):
+                m, cam = masks[p][f][c], o.view.camera
+                if m is None:
+                    continue
+                if m.shape != (cam.height, cam.width):
+                    raise ValueError(f"mask is {m.shape[1]}x{m.shape[0]} pixels, the camera {cam.width}x{cam.height}")
+                if not m.any():
+                    raise ValueError(f"problem {p}, frame {f}, view {c}: the mask is empty")
+    if not any(m is not None for g in masks for row in g for m in row):
+        raise ValueError("the silhouette stage needs at least one mask")
+    params_layout = ParameterLayout.of(model, problems[0].shared, F)
+    sizes = params_layout.sizes
+    # State: shared [P, w], per-frame [P, F, w].
     start = {}
-    for n in names:
-        rows = [torch.as_tensor(np.asarray(init[n]), dtype=dtype).reshape(1, -1) for init in inits]
-        v = torch.cat(rows, 0)
-        start[n] = v if params_layout.is_shared(n) else v[:, None]
-    params = {k: v.clone().requires_grad_(k in cfg.optimise) for k, v in start.items()}
-    free = {k: params[k] for k in cfg.optimise}
-    optimiser = _Adam(free, {k: cfg.lr[k] for k in cfg.optimise})
+    for n, w in sizes.items():
+        rows = []
+        for init in inits:
+            v = init.get(n)
+            v = np.zeros(w if params_layout.is_shared(n) else (F, w)) if v is None else np.asarray(v, dtype=np.float64)
+            rows.append(torch.as_tensor(v, dtype=dtype).reshape(w) if params_layout.is_shared(n)
+                        else torch.as_tensor(v, dtype=dtype).reshape(F, w))  # fmt: skip
+        start[n] = torch.stack(rows)
+    free_names = tuple(n for n in cfg.optimise if n in sizes)
+    params = {k: v.clone().requires_grad_(k in free_names) for k, v in start.items()}
+    free = {k: params[k] for k in free_names}
+    optimiser = _Adam(free, {k: cfg.lr[k] for k in free_names})
     prior = load_pose_prior(pose_prior, dtype=dtype) if not isinstance(pose_prior, torch.nn.Module) else pose_prior
     proxy = batch = None
     if renderer is None:
@@ -364,42 +480,31 @@ def _fit_silhouettes(model, inits, cameras, masks, keypoints, layout, cfg, pose_
         SilhouetteTerm(renderer, cfg.spp, cfg.edge_spp, proxy, batch), KeypointTerm("keypoints", cfg.kp_sigma),
         PriorTerm("pose", prior, "body_pose"), PriorTerm("limits", limit_violation, "body_pose"),
         PriorTerm("angle", angle_prior, "body_pose"), PriorTerm("shape", shape_prior, "betas"),
-        StayTerm("body_pose"),
+        StayTerm("body_pose"), *extra_terms,
     ])  # fmt: skip
-    stages = cfg.stages()
+    target_xy, target_w, any_keypoints = _keypoint_data(grids, dtype)
+    stages = tuple(
+        Stage(s.name, free_names, {**s.weights, **extra_weights, **({} if any_keypoints else {"keypoints": 0.0})},
+              s.iterations, s.optimiser, s.options)  # fmt: skip
+        for s in cfg.stages()
+    )
     check_stages(stages, energy, params_layout)
     body = MeshBody(model, layout)
-    problems = [Problem.single(None, cam) for cam in cameras]
     views = stack_views(problems, dtype)
-
-    K = None
-    kp_xy, kp_w = [], []
-    for kp in keypoints:
-        if kp is None:
-            kp_xy.append(None)
-            kp_w.append(None)
-            continue
-        kp = torch.as_tensor(np.asarray(kp, dtype=np.float64), dtype=dtype)
-        K = kp.shape[0]
-        conf = kp[:, 2].clamp(min=0)
-        kp_xy.append(kp[:, :2])
-        kp_w.append(conf / conf.sum() if bool((conf > 0).any()) else torch.zeros_like(conf))
-    K = K or 1
-    target_xy = torch.stack([x if x is not None else torch.zeros(K, 2, dtype=dtype) for x in kp_xy])
-    target_w = torch.stack([w if w is not None else torch.zeros(K, dtype=dtype) for w in kp_w])
+    for k, v in extra_data.items():
+        if isinstance(v, torch.Tensor) and v.shape[:1] != (P,):
+            raise ValueError(f"data[{k!r}] has shape {tuple(v.shape)}; expected a leading problem axis of {P}")
     data = {
-        "target": target_xy[:, None, None], "weights": target_w[:, None, None], "scale": torch.ones(P, 1, 1, dtype=dtype),
+        **extra_data, "target": target_xy, "weights": target_w, "scale": torch.ones(P, F, C, dtype=dtype),
         "start_body_pose": start["body_pose"], "R": views["R"], "t": views["t"],
         "windows": [None] * P, "targets": [None] * P, "seeds": [None] * P,
     }  # fmt: skip
-    if all(x is None for x in kp_xy):  # no keypoints at all: the term is off
-        stages = tuple(Stage(s.name, s.free, {**s.weights, "keypoints": 0.0}, s.iterations, s.optimiser, s.options)
-                       for s in stages)  # fmt: skip
 
     history = [{k: [] for k in ("level", "energy", "silhouette", "keypoints", "iou")} for _ in range(P)]
     warnings: list = [[] for _ in range(P)]
     best_params = [{k: v[p].detach().clone() for k, v in params.items()} for p in range(P)]
     best_iou = [float("nan")] * P
+    best_obs_iou: list = [[] for _ in range(P)]
     best_terms: list = [{} for _ in range(P)]
     best_iou_seen = [-1.0] * P
     steps = [0] * P
@@ -414,15 +519,23 @@ def _fit_silhouettes(model, inits, cameras, masks, keypoints, layout, cfg, pose_
         resolution, iters = int(stage.options["resolution"]), int(stage.iterations)
         with torch.no_grad():
             verts = model(**params_layout.rows({k: v.detach() for k, v in params.items()})).vertices
+            verts = verts.reshape(P, F, *verts.shape[1:])
+        scale = torch.ones(P, F, C, dtype=dtype)
         for p in range(P):
             if failed[p]:
                 continue
-            uv = project_points(verts[p], cameras[p]).numpy()
-            window = choose_window(masks[p], uv, cameras[p], resolution, cfg.margin)
-            data["windows"][p] = [window]
-            data["targets"][p] = [window_target(masks[p], window)[0]]
-        data["scale"] = torch.as_tensor([w[0].scale if w is not None else 1.0 for w in data["windows"]],
-                                        dtype=dtype).reshape(P, 1, 1)  # fmt: skip
+            windows, targets = [], []
+            for f in range(F):
+                for c in range(C):
+                    cam_pts = world_to_camera(verts[p, f], views["R"][p, f, c].to(verts.dtype), views["t"][p, f, c].to(verts.dtype))
+                    cam = grids[p][f][c].view.camera
+                    window, target = _observation_window(masks[p][f][c], project_points(cam_pts, cam).numpy(), cam,
+                                                         resolution, cfg.margin)  # fmt: skip
+                    windows.append(window)
+                    targets.append(target if window is not None else None)
+                    scale[p, f, c] = window.scale if window is not None else target
+            data["windows"][p], data["targets"][p] = windows, targets
+        data["scale"] = scale
         plateaus = [_Plateau(cfg.plateau_window, cfg.plateau_rtol) for _ in range(P)]
         best_energy = [math.inf] * P  # energies of different resolutions are not comparable
         active = [not f for f in failed]
@@ -435,7 +548,7 @@ def _fit_silhouettes(model, inits, cameras, masks, keypoints, layout, cfg, pose_
             sub = {k: v[rows] for k, v in params.items()}
             ev = evaluate(body, params_layout, sub, {k: v[rows] for k, v in views.items()}, select(data, rows))
             total, parts = energy(ev, stage.weights)
-            ious = ev.extras["iou"]
+            ious, obs_ious = ev.extras["iou"], ev.extras["iou_observations"]
             keep = []
             for j, p in enumerate(rows.tolist()):
                 e_value, iou = float(total[j].detach()), ious[j]
@@ -451,6 +564,7 @@ def _fit_silhouettes(model, inits, cameras, masks, keypoints, layout, cfg, pose_
                     h[key].append(value)
                 if e_value < best_energy[p]:
                     best_energy[p], best_iou[p], best_terms[p] = e_value, iou, term_values
+                    best_obs_iou[p] = obs_ious[j]
                     best_params[p] = {k: v[p].detach().clone() for k, v in params.items()}
                 best_iou_seen[p] = max(best_iou_seen[p], iou)
                 if callback is not None:
@@ -481,12 +595,16 @@ def _fit_silhouettes(model, inits, cameras, masks, keypoints, layout, cfg, pose_
     for p in range(P):
         final = {}
         for k, v in best_params[p].items():
-            final[k] = v.detach().cpu().numpy().astype(np.float32).reshape(1, -1)
+            final[k] = v.detach().cpu().numpy().astype(np.float32).reshape(-1 if params_layout.is_shared(k) else F, sizes[k])
+            if params_layout.is_shared(k):
+                final[k] = final[k].reshape(1, -1)
         h = history[p]
+        obs = best_obs_iou[p] or [float("nan")] * (F * C)
         results.append(SilhouetteFitResult(
-            **{k: final[k] for k in PARAMS}, history=h,
+            parameters=final, history=h,
             iou_start=h["iou"][0] if h["iou"] else float("nan"),
             iou_end=float(best_iou[p]) if h["iou"] else float("nan"),
             seconds=seconds, steps=steps[p], warnings=warnings[p], terms=best_terms[p], config=config,
+            ious=[list(obs[f * C:(f + 1) * C]) for f in range(F)],
         ))  # fmt: skip
     return results
