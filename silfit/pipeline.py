@@ -154,10 +154,21 @@ def refine_batch(
                 f"{mask_sources[i]}: the mask does not overlap the body fitted to the keypoints at all "
                 "(wrong mask, or keypoints of another image?)"
             )
-    sils = fit_silhouettes(
-        model, [keypoint_result.params(i) for i in range(n)], cameras, masks, [k.as_array() for k in keypoints],
-        layout=keypoints[0].layout, config=config, pose_prior=pose_prior, renderer=renderer, progress=progress,
-    )  # fmt: skip
+    inits = [keypoint_result.params(i) for i in range(n)]
+    if keypoints[0].layout == "wholebody":  # the whole-body mesh, hand and face keypoints kept
+        from .fitting.problem import Problem
+        from .fitting.silhouette_stage import fit_silhouette_problems
+        from .fitting.wholebody import wholebody_silhouette_inputs
+
+        cfg, body_sets, terms, weights, data = wholebody_silhouette_inputs(model, keypoints, config or SilhouetteFitConfig(), model.dtype)
+        problems = [Problem.single(k, cam, m) for k, cam, m in zip(body_sets, cameras, masks)]
+        sils = fit_silhouette_problems(model, problems, inits, "wholebody", cfg, pose_prior, renderer, progress,
+                                       terms=terms, weights=weights, data=data)  # fmt: skip
+    else:
+        sils = fit_silhouettes(
+            model, inits, cameras, masks, [k.as_array() for k in keypoints],
+            layout=keypoints[0].layout, config=config, pose_prior=pose_prior, renderer=renderer, progress=progress,
+        )  # fmt: skip
     out = []
     for i, sil in enumerate(sils):
         one = keypoint_result[i]
@@ -223,29 +234,27 @@ def fit(
 def _fit(sets, mask, camera, image_size, focal, model, pose_prior, keypoint_config, silhouette_config, progress):
     fitter = KeypointFitter(model, sets[0].layout, keypoint_config, pose_prior)
     kp_result = fitter.fit(sets, camera, image_size=image_size, focal=focal, progress=progress)
-    notes = []
-    if fitter.whole_body:
+    if mask is not None:
+        result = refine(model, kp_result, sets[0], np.asarray(mask, dtype=bool), silhouette_config,
+                        fitter.pose_prior, progress=progress)  # fmt: skip
+    else:
+        vertices, joints, kp2d = _pose(model, kp_result.params(0), sets[0].layout, kp_result.camera)
+        metrics = {
+            "stages": ["keypoints"],
+            "timings_s": {**{f"keypoints.{k}": float(v) for k, v in kp_result.timings.items()},
+                          "keypoints": _stage_seconds(kp_result.timings)},
+            "reprojection_error_px": _median_reprojection(kp2d, sets[0]),
+            "warnings": [],
+            **_run_record(kp_result),
+        }  # fmt: skip
+        result = FitResult(kp_result.camera, sets[0].layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d,
+                           metrics)  # fmt: skip
+    if fitter.whole_body:  # which parts were fitted, which held at rest
         from .fitting.wholebody import wholebody_summary
 
-        whole_body, notes = wholebody_summary(sets[0])
-    if mask is not None and fitter.whole_body:
-        notes.append("the silhouette stage does not fit whole-body (SMPL-X-layout) models yet: keypoint stage only")
-        mask = None
-    if mask is not None:
-        return refine(model, kp_result, sets[0], np.asarray(mask, dtype=bool), silhouette_config,
-                      fitter.pose_prior, progress=progress)  # fmt: skip
-    vertices, joints, kp2d = _pose(model, kp_result.params(0), sets[0].layout, kp_result.camera)
-    metrics = {
-        "stages": ["keypoints"],
-        "timings_s": {**{f"keypoints.{k}": float(v) for k, v in kp_result.timings.items()},
-                      "keypoints": _stage_seconds(kp_result.timings)},
-        "reprojection_error_px": _median_reprojection(kp2d, sets[0]),
-        "warnings": notes,
-        **_run_record(kp_result),
-    }  # fmt: skip
-    if fitter.whole_body:
-        metrics["whole_body"] = whole_body
-    return FitResult(kp_result.camera, sets[0].layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d, metrics)
+        result.metrics["whole_body"], notes = wholebody_summary(sets[0])
+        result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
+    return result
 
 
 def save_fit(

@@ -49,7 +49,7 @@ from scipy.spatial.transform import Rotation
 from ..camera import UPRIGHT_BACK_TO_CAMERA, UPRIGHT_FACING_CAMERA, Camera
 from ..keypoints import LAYOUTS, KeypointSet
 from ..priors import SphereCollisionModel, angle_prior, limit_violation, load_pose_prior, shape_prior
-from ..priors.wholebody import body_prior_for, padded
+from ..priors.wholebody import body_prior_for
 from .body import KeypointBody
 from .wholebody import choose_hand_starts, part_gates, wholebody_terms
 from .branches import limb_hypotheses
@@ -337,11 +337,10 @@ class KeypointFitter:
         self.kp_weights = torch.as_tensor(w, dtype=self.dtype) * self.body.kp_valid.to(self.dtype)
         self.torso_mask = torch.as_tensor([n in _TORSO_ALL for n in names], dtype=self.dtype)
         sigma = self.config.sigma if self.config.robust else None
-        limits = limit_violation if self.model.num_body_pose == 69 else padded(limit_violation)
         terms = [
             KeypointTerm("keypoints", sigma), KeypointTerm("torso", sigma, mask=self.torso_mask), DepthTerm(),
             PriorTerm("pose", self.pose_prior, "body_pose"), PriorTerm("angle", angle_prior, "body_pose"),
-            PriorTerm("limits", limits, "body_pose"), PriorTerm("shape", shape_prior, "betas"),
+            PriorTerm("limits", limit_violation, "body_pose"), PriorTerm("shape", shape_prior, "betas"),
             InterpenetrationTerm(self.collisions),
         ]  # fmt: skip
         if self.whole_body:

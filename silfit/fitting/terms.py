@@ -88,13 +88,15 @@ class KeypointTerm(Term):
     (Geman-McClure with ``sigma``, or plain L2 with ``sigma=None``), summed over
     observations. ``mask [K]`` restricts it to some keypoints (e.g. the torso)."""
 
-    def __init__(self, name: str = "keypoints", sigma: Optional[float] = 100.0, mask: Optional[torch.Tensor] = None):
-        self.name, self.sigma, self.mask = name, sigma, mask
+    def __init__(self, name: str = "keypoints", sigma: Optional[float] = 100.0, mask: Optional[torch.Tensor] = None,
+                 weights_key: str = "weights"):  # fmt: skip
+        self.name, self.sigma, self.mask, self.weights_key = name, sigma, mask, weights_key
 
     def __call__(self, ev: Evaluation) -> torch.Tensor:
         d = ev.data
         K = ev.keypoints_2d.shape[-2]
-        weights = d["weights"] if self.mask is None else d["weights"] * self.mask.to(d["weights"].dtype)
+        w = d[self.weights_key]  # ``weights``, or another key of the same shape (a part's own weights)
+        weights = w if self.mask is None else w * self.mask.to(w.dtype)
         e = reprojection_energy(
             ev.keypoints_2d.reshape(-1, K, 2), d["target"].reshape(-1, K, 2), weights.reshape(-1, K),
             d["scale"].reshape(-1), self.sigma,

@@ -168,3 +168,49 @@ def wholebody_summary(keypoints) -> tuple:
         if not present[part]:
             notes.append(f"no {part.replace('_', ' ')} keypoints: {params} left at rest")
     return {"parts_present": present, "parameters_fitted": fitted, "held_at_rest": rest}, notes
+
+
+#: the silhouette stage's whole-body additions, relative to its weights: the hand and face keypoint terms
+#: (x its keypoint weight), their priors (absolute; the stage's keypoint energies are about 1.6e-4 x the
+#: keypoint stage's, so these are the keypoint stage's final prior weights scaled by that) and learning rates
+SILHOUETTE_PART_WEIGHTS = {"hands": 2.0, "face": 2.0}
+SILHOUETTE_PRIOR_WEIGHTS = {"hand_pose": 3e-4, "jaw": 8e-3, "expression": 3e-4}
+SILHOUETTE_PART_LR = {"left_hand_pose": 0.01, "right_hand_pose": 0.01, "jaw_pose": 0.005, "expression": 0.02}
+
+
+def wholebody_silhouette_inputs(model, keypoints, config, dtype) -> tuple:
+    """What the silhouette stage (:func:`~silfit.fitting.silhouette_stage.fit_silhouette_problems`)
+    needs to fit a whole-body mesh to one image per problem, keeping the hand and face keypoints:
+    ``(config, body_keypoints, terms, weights, data)``. The stage's own keypoint term sees the body
+    points (the parts' confidences zeroed, so its normalisation is the body's); ``hands`` and ``face``
+    terms read ``part_weights`` (confidence / the observation's body confidence sum). The parts are
+    optimised only when every problem of the batch has them (a part that is absent anywhere stays
+    where the keypoint stage left it: at rest for the problems without it)."""
+    from dataclasses import replace
+
+    from ..keypoints import KeypointSet
+
+    sl = part_slices()
+    conf = torch.as_tensor(np.stack([k.conf for k in keypoints]), dtype=dtype)  # [P, K]
+    body = conf.clone()
+    body[:, sl["body"].stop :] = 0.0
+    body_sum = body.sum(1, keepdim=True).clamp(min=1e-12)
+    part = conf.clone()
+    part[:, sl["body"]] = 0.0
+    body_sets = [KeypointSet(k.xy, b.numpy(), k.layout, k.source) for k, b in zip(keypoints, body.double())]
+    present = {p: bool((conf[:, sl[p]] > 0).any(1).all()) for p in ("hand_left", "hand_right", "face")}
+    free = tuple(n for n, p in GATED_PARTS.items() if present[p])
+    cfg = replace(config, optimise=tuple(config.optimise) + tuple(n for n in free if n not in config.optimise),
+                  lr={**SILHOUETTE_PART_LR, **config.lr})  # fmt: skip
+    masks = part_masks(dtype)
+    left, right = hand_priors(model, dtype)[:2]
+    terms = [
+        KeypointTerm("hands", config.kp_sigma, mask=masks["hands"], weights_key="part_weights"),
+        KeypointTerm("face", config.kp_sigma, mask=masks["face"], weights_key="part_weights"),
+        PriorTerm("hand_pose", (left, right), ("left_hand_pose", "right_hand_pose")),
+        PriorTerm("jaw", l2, "jaw_pose"), PriorTerm("expression", l2, "expression"),
+    ]  # fmt: skip
+    weights = {k: v * config.w_keypoints for k, v in SILHOUETTE_PART_WEIGHTS.items()}
+    weights.update(SILHOUETTE_PRIOR_WEIGHTS)
+    data = {"part_weights": (part / body_sum)[:, None, None]}  # [P, F=1, C=1, K]
+    return cfg, body_sets, terms, weights, data
