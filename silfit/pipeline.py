@@ -62,7 +62,7 @@ class FitResult:
     @property
     def final(self) -> KeypointFitResult:
         """The final parameters in the keypoint result's form (for saving and loading)."""
-        arr = {k: np.asarray(v, dtype=np.float32)[None] for k, v in self.params.items()}
+        arr = {k: np.asarray(v, dtype=np.float32).reshape(1, -1) for k, v in self.params.items()}  # [1, w] (one image)
         smpl = {k: v for k, v in arr.items() if k in ("betas", "body_pose", "global_orient", "transl")}
         return replace(
             self.keypoint, **smpl, extra_params={k: v for k, v in arr.items() if k not in smpl},

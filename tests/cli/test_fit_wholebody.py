@@ -20,7 +20,8 @@ def subject(tmp_path_factory):
 def test_whole_body_fit_end_to_end(subject, tmp_path, capsys):
     out = tmp_path / "fit"
     rc = main(["fit", "--keypoints", str(subject / "keypoints.json"), "--camera", str(subject / "camera.json"),
-               "--image", str(subject / "image.png"), "--mask", str(subject / "mask.png"), "--out", str(out)])  # fmt: skip
+               "--image", str(subject / "image.png"), "--mask", str(subject / "mask.png"), "--out", str(out),
+               "--silhouette-resolutions", "64", "--silhouette-iterations", "8"])  # fmt: skip
     assert rc == 0
     assert "shipped open whole-body model" in capsys.readouterr().out
     params = np.load(out / "params.npz")
@@ -31,6 +32,8 @@ def test_whole_body_fit_end_to_end(subject, tmp_path, capsys):
     assert metrics["layout"] == "wholebody"
     assert metrics["whole_body"]["held_at_rest"] == []
     assert metrics["reprojection_error_px"] < 3.0
+    assert metrics["stages"] == ["keypoints", "silhouette"] and metrics["iou"] > 0.5  # the whole-body mesh refined
+    assert (out / "silhouette.png").exists() and (out / "stages" / "keypoints" / "params.npz").exists()
     lines = (out / "mesh.obj").read_text().splitlines()
     assert sum(ln.startswith("v ") for ln in lines) == 13348
     payload = json.loads((out / "params.json").read_text())

@@ -143,3 +143,21 @@ def test_whole_body_recovery_body_only_and_missing_hand(smplx):
     assert np.abs(r.extra_params["right_hand_pose"][2]).max() > 0.05
     one = wholebody_errors(smplx, {"vertices": r.vertices[2], "joints": r.joints[2]}, truth)
     assert one["hand_right_pa_mm"] < 8.0, one
+
+
+def test_silhouette_inputs_keep_body_normalisation_and_part_weights(smplx):
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+    from silfit.fitting.wholebody import wholebody_silhouette_inputs
+
+    conf = np.zeros(137)
+    conf[:25] = 0.5  # body: sum 12.5
+    conf[25:46] = 1.0  # left hand
+    conf[100] = 0.25  # a face point; no right hand
+    ks = KeypointSet(np.zeros((137, 2)), conf, "wholebody")
+    cfg, body_sets, terms, weights, data = wholebody_silhouette_inputs(smplx, [ks], SilhouetteFitConfig(), torch.float64)
+    assert np.all(body_sets[0].conf[25:] == 0) and np.all(body_sets[0].conf[:25] == 0.5)
+    pw = data["part_weights"][0, 0, 0]
+    assert pw[30].item() == pytest.approx(1.0 / 12.5) and pw[100].item() == pytest.approx(0.25 / 12.5) and pw[:25].abs().sum() == 0
+    # the right hand is absent: not optimised; the left hand, jaw and expression are
+    assert "right_hand_pose" not in cfg.optimise and {"left_hand_pose", "jaw_pose", "expression"} <= set(cfg.optimise)
+    assert {t.name for t in terms} == {"hands", "face", "hand_pose", "jaw", "expression"} and set(weights) == {t.name for t in terms}
