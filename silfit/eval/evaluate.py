@@ -320,7 +320,7 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
             idx = todo[start : start + max(1, int(silhouette_batch))]
             chunk = [subjects[i] for i in idx]
             def refine_some(rows):
-                return refine_batch(model, result.select(rows), [subjects[i].keypoints for i in rows],
+                return refine_batch(model, result.select(rows), [sets[i] for i in rows],
                                     [subjects[i].mask for i in rows], pose_prior=fitter.pose_prior, progress=progress,
                                     mask_sources=[str(subjects[i].file("mask")) for i in rows])  # fmt: skip
 
@@ -339,7 +339,7 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
                     continue
                 timings = {"keypoints": kp_timings["total"], "silhouette": fitted.silhouette.seconds}
                 timings["total"] = sum(timings.values())
-                save_fit(fitted, Path(fits_root) / s.name / "silhouette", faces, s.keypoints, s.image, s.mask,
+                save_fit(fitted, Path(fits_root) / s.name / "silhouette", faces, sets[i], s.image, s.mask,
                          {"timings": timings, "search": search[i]}, overwrite=True)  # fmt: skip
                 ran += 1
         status["silhouette"] = f"ran on {ran} subjects" + (f"; failed: {'; '.join(failed)}" if failed else "")
