@@ -44,3 +44,27 @@ def test_errors_of_moved_parts(posed):
     assert e["face_pa_mm"] == pytest.approx(0.0, abs=1e-6)
     assert e["expression_err"] == pytest.approx(0.5)
     assert e["pa_pve_mm"] > 0.5
+
+
+def test_eval_scores_a_whole_body_fit_folder(tmp_path):
+    """A fit folder holding the ground truth's SMPL-X parameters scores zero hand/face/expression error;
+    the same fit with the hands at rest does not."""
+    from pathlib import Path
+
+    from silfit.dataset import load_subject
+    from silfit.eval.evaluate import evaluate_dataset, read_fit, score_fit
+    from silfit.fitting.result import KeypointFitResult
+
+    src = Path(__file__).resolve().parents[2] / "data" / "synthetic_wholebody" / "subject_000"
+    subject = load_subject(src, require=("keypoints", "camera", "gt"))
+    m = load_body_model(kind="smplx")
+    gt = subject.gt.params()
+    smpl = {k: gt[k] for k in ("betas", "body_pose", "global_orient", "transl")}
+    extra = {k: v for k, v in gt.items() if k not in smpl}
+    KeypointFitResult(**smpl, cameras=[subject.camera], extra_params=extra).save(tmp_path / "truth")
+    at_rest = {**extra, "left_hand_pose": np.zeros_like(extra["left_hand_pose"]), "right_hand_pose": np.zeros_like(extra["right_hand_pose"])}
+    KeypointFitResult(**smpl, cameras=[subject.camera], extra_params=at_rest).save(tmp_path / "rest")
+    good = score_fit(m, subject, read_fit(tmp_path / "truth", m), iou=False)
+    bad = score_fit(m, subject, read_fit(tmp_path / "rest", m), iou=False)
+    assert good["hand_pa"] < 1e-3 and good["face_pa"] < 1e-3 and good["expression_err"] < 1e-6 and good["pa_pve"] < 1e-3
+    assert bad["hand_pa"] > 3.0 and bad["face_pa"] < 1e-3
