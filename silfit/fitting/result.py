@@ -128,9 +128,10 @@ class KeypointFitResult:
         :func:`silfit.fitio.read_fit` (all four parameters and the camera are required)."""
         from ..fitio import read_fit
 
-        fit = read_fit(path, require=PARAM_NAMES, require_camera=True)
+        sizes = {"betas": None, "body_pose": None, "global_orient": 3, "transl": 3, **dict.fromkeys(WHOLEBODY_EXTRA_NAMES)}
+        fit = read_fit(path, require=PARAM_NAMES, require_camera=True, sizes=sizes)  # SMPL or SMPL-X parameters
         get = lambda n: fit.arrays[n][None].astype(np.float32) if n in fit.arrays else None  # noqa: E731
-        extra = {n: get(n) for n in WHOLEBODY_EXTRA_NAMES if get(n) is not None}
+        extra = {n: fit.params[n][None].astype(np.float32) for n in WHOLEBODY_EXTRA_NAMES if n in fit.params}
         return cls(
             **{n: fit.params[n][None].astype(np.float32) for n in PARAM_NAMES}, cameras=[fit.camera],
             vertices=get("vertices"), joints=get("joints"), keypoints_2d=get("keypoints_2d"),

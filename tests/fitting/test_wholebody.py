@@ -161,3 +161,15 @@ def test_silhouette_inputs_keep_body_normalisation_and_part_weights(smplx):
     # the right hand is absent: not optimised; the left hand, jaw and expression are
     assert "right_hand_pose" not in cfg.optimise and {"left_hand_pose", "jaw_pose", "expression"} <= set(cfg.optimise)
     assert {t.name for t in terms} == {"hands", "face", "hand_pose", "jaw", "expression"} and set(weights) == {t.name for t in terms}
+
+
+def test_whole_body_result_saves_and_loads_smplx_names(tmp_path, smplx):
+    from silfit.fitting.result import KeypointFitResult
+
+    z = lambda w: np.full((1, w), 0.1, np.float32)  # noqa: E731
+    r = KeypointFitResult(betas=z(10), body_pose=z(63), global_orient=z(3), transl=z(3), cameras=[Camera.from_image_size(64, 64)],
+                          extra_params={"expression": z(16), "jaw_pose": z(3), "left_hand_pose": z(45)})  # fmt: skip
+    r.save(tmp_path)
+    back = KeypointFitResult.load(tmp_path)
+    assert back.body_pose.shape == (1, 63) and set(back.extra_params) == {"expression", "jaw_pose", "left_hand_pose"}
+    assert np.allclose(back.params(0)["left_hand_pose"], 0.1)
