@@ -128,8 +128,20 @@ class KeypointFitResult:
         :func:`silfit.fitio.read_fit` (all four parameters and the camera are required)."""
         from ..fitio import read_fit
 
-        sizes = {"betas": None, "body_pose": None, "global_orient": 3, "transl": 3, **dict.fromkeys(WHOLEBODY_EXTRA_NAMES)}
-        fit = read_fit(path, require=PARAM_NAMES, require_camera=True, sizes=sizes)  # SMPL or SMPL-X parameters
+        from ..fitio import PARAM_SIZES, SubjectError
+
+        sizes = {**PARAM_SIZES, **dict.fromkeys(WHOLEBODY_EXTRA_NAMES)}
+        try:
+            fit = read_fit(path, require=PARAM_NAMES, require_camera=True, sizes=sizes)
+        except SubjectError as err:  # SMPL-X's 21-joint body_pose, in a whole-body fit only
+            if err.field != "body_pose":
+                raise
+            try:
+                fit = read_fit(path, require=PARAM_NAMES, require_camera=True, sizes={**sizes, "body_pose": 63})
+            except SubjectError:
+                raise err from None
+            if not any(n in fit.params for n in WHOLEBODY_EXTRA_NAMES):
+                raise err from None
         get = lambda n: fit.arrays[n][None].astype(np.float32) if n in fit.arrays else None  # noqa: E731
         extra = {n: fit.params[n][None].astype(np.float32) for n in WHOLEBODY_EXTRA_NAMES if n in fit.params}
         return cls(
