@@ -173,3 +173,17 @@ def test_whole_body_result_saves_and_loads_smplx_names(tmp_path, smplx):
     back = KeypointFitResult.load(tmp_path)
     assert back.body_pose.shape == (1, 63) and set(back.extra_params) == {"expression", "jaw_pose", "left_hand_pose"}
     assert np.allclose(back.params(0)["left_hand_pose"], 0.1)
+
+
+def test_hand_prior_lives_in_the_pca_space_when_the_model_has_one():
+    from silfit.priors.wholebody import HandPosePrior, library_hand_set
+
+    pca = load_body_model(kind="smplx", dtype=torch.float64, use_pca=True, num_pca_comps=12)
+    prior = HandPosePrior(pca, "right", count=200)
+    assert prior.dim == 12 and "PCA" in prior.space
+    lib = library_hand_set(pca, "right")
+    assert lib.shape[1] == 12
+    # the library's poses in PCA coefficients reproduce their axis-angle poses to the components' accuracy
+    full = library_hand_set(load_body_model(kind="smplx", dtype=torch.float64), "right")
+    recon = lib @ pca.hand_components_r
+    assert torch.linalg.norm(recon - full, dim=1).max() < 0.25 * torch.linalg.norm(full, dim=1).max()
