@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 
 
-def _errors(model, res, gts, i):
+def _errors(model, res, i, gt):
     from silfit.eval.wholebody import wholebody_errors
 
     pred = {"vertices": res.vertices[i], "joints": res.joints[i]}
     if "expression" in res.extra_params:
         pred["expression"] = res.extra_params["expression"][i]
-    return wholebody_errors(model, pred, gts[i])
+    return wholebody_errors(model, pred, gt)
 
 
 def _fit(fitter, sets, cams, batch):
@@ -76,7 +76,7 @@ def run_wholebody_benchmark(n=30, seed=41, noise=2.0, size=512, batch=16, single
                 if fitter is fb:
                     errs.append({"pa_pve_mm": 1000 * pa_pve(r.vertices[i].astype(np.float64), g["vertices"].astype(np.float64))})
                 else:
-                    errs.append(_errors(smplx, r, [g] * len(r), i))
+                    errs.append(_errors(smplx, r, i, g))
         rows[label] = (errs, t_single, t_batch)
     print(f"\nWhole-body keypoint stage: {len(dirs)} fresh subjects (silfit synth --whole-body --seed {seed}, {size} px, "
           f"all yaws, body noise {noise:g} px, hands {0.5 * noise:g} px, face {0.4 * noise:g} px), CPU, load {os.getloadavg()[0]:.1f}")  # fmt: skip
