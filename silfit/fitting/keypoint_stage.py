@@ -21,7 +21,8 @@ Stages (each an independent per-sample L-BFGS, see :mod:`silfit.fitting.optim`):
 Whole-body fitting (an SMPL-X-layout model and the ``wholebody`` keypoint layout, SMPLify-X's
 schedule): the body stages as above, the hand and face keypoint terms (``hands``, ``face``, each
 its own robust scale) weigh nothing while the body is placed and are switched on and raised over
-the later stages (``hand_weights``/``face_weights`` per pose stage, then the final weights); the
+the later stages (``hand_weights``/``face_weights`` per pose stage, then the final weights; a
+``hands`` stage first starts each hand from its best library pose and wrist turn); the
 hand poses, jaw and expression are free where their terms are on, with their priors (``hand_pose``:
 :class:`~silfit.priors.wholebody.HandPosePrior`; ``jaw``, ``expression``: L2). A part with no
 confident point (a missing hand, a body-only file) is held at rest in every stage by a gate
@@ -141,8 +142,10 @@ class KeypointFitConfig:
     final_face_weight: float = 2.0
     hand_sigma: float = 50.0
     face_sigma: float = 50.0
-    #: L-BFGS steps of the hands alone (the body held) when the hand terms switch on, from each
-    #: hand's best library pose (0: no such stage, the hands start in the joint stage)
+    #: L-BFGS steps of a ``hands`` stage before the first pose stage with hand terms: the hands
+    #: start from their best library pose and wrist turn (:func:`~silfit.fitting.wholebody.choose_hand_starts`)
+    #: and are fitted with the body (held by its keypoints and priors; 0: no such stage, the hands start
+    #: in that pose stage)
     hand_iters: int = 30
     #: priors of the parts, on wherever the parts are free
     hand_prior_weight: float = 2.0
