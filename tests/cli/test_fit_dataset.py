@@ -144,7 +144,15 @@ def test_sigkill_mid_run_then_restart_finishes_each_item_once(tmp_path):
 def test_ray_run_matches_local_run(tmp_path):
     pytest.importorskip("ray")
     common = [str(SYNTHETIC), "--no-silhouette", "--batch-size", "4", "--quiet", *FAST]
-    assert main(["fit-dataset", "--out", str(tmp_path / "local"), *common]) == 0
+    # The local run in the numeric environment Ray gives its one-CPU actors (OMP_NUM_THREADS=1
+    # at process start): float32 kernels chosen under another OMP setting round differently,
+    # and the optimiser amplifies that (measured here: params up to 1 rad apart on one subject
+    # between OMP_NUM_THREADS=2 and 1, on an AVX-512 CPU; identical with both at 1).
+    root = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+    done = subprocess.run([sys.executable, "-m", "silfit", "fit-dataset", "--out", str(tmp_path / "local"), *common],
+                          env=env, capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
     assert main(["fit-dataset", "--out", str(tmp_path / "ray"), "--ray", "--actors", "2", *common]) == 0
     local, ray = _by_item(tmp_path / "local"), _by_item(tmp_path / "ray")
     assert sorted(local) == sorted(ray) == [f"subject_{i:03d}" for i in range(12)]

@@ -38,7 +38,8 @@ def check_subject(wb, folder: Path):
     with torch.no_grad():
         out = wb(**{k: torch.as_tensor(v) for k, v in params.items()})
         kp = wholebody_keypoints(wb, out)
-    assert np.abs(out.vertices[0].numpy() - gt["vertices"]).max() < 1e-5
+    # float32 forward passes: measured 2e-5 m apart between two CPUs (AVX2 / AVX-512 kernels)
+    assert np.abs(out.vertices[0].numpy() - gt["vertices"]).max() < 1e-4
     stored = read_wholebody(folder / "keypoints.json", require=("body",))
     for part in WHOLEBODY_PARTS:
         clean = gt[f"{part}_2d_clean"]
@@ -58,7 +59,9 @@ def check_subject(wb, folder: Path):
         flex, spread = gt[f"{side}_hand_flex"].astype(np.float64), gt[f"{side}_hand_spread"].astype(np.float64)
         assert within_limits(flex, spread, atol=1e-6)
         aa = hand_pose_to_axis_angle(flex, spread, hand_axes(J, wb.joint_names, side))
-        assert np.abs(aa - gt[f"{side}_hand_pose"]).max() < 1e-5  # flat_hand_mean: the open model's mean is zero
+        # flat_hand_mean: the open model's mean is zero; the axes come from the float32 joints
+        # (measured 2.2e-5 rad apart between two CPUs)
+        assert np.abs(aa - gt[f"{side}_hand_pose"]).max() < 1e-4
     return gt
 
 
