@@ -53,3 +53,16 @@ def test_body_only_file_with_the_whole_body_model(subject, tmp_path):
     assert sorted(metrics["whole_body"]["held_at_rest"]) == ["expression", "jaw_pose", "left_hand_pose", "right_hand_pose"]
     params = np.load(out / "params.npz")
     assert not params["left_hand_pose"].any() and not params["expression"].any()
+
+
+def test_bad_hand_field_is_one_line_naming_file_and_field(subject, tmp_path, capsys):
+    kp = json.loads((subject / "keypoints.json").read_text())
+    kp["people"][0]["hand_right_keypoints_2d"] = kp["people"][0]["hand_right_keypoints_2d"][:30]
+    bad = tmp_path / "kp.json"
+    bad.write_text(json.dumps(kp))
+    out = tmp_path / "fit"
+    rc = main(["fit", "--keypoints", str(bad), "--camera", str(subject / "camera.json"), "--no-silhouette",
+               "--out", str(out), "--quiet"])  # fmt: skip
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and not out.exists()
+    assert str(bad) in err and "hand_right_keypoints_2d" in err and len(err.splitlines()) == 1
