@@ -324,7 +324,14 @@ def main(argv=None):
     ap.add_argument("--hard", type=int, default=0, help="also N fresh hard-pose subjects (silfit synth --poses hard, seed --seed)")
     ap.add_argument("--silhouette-batches", help="time the silhouette stage alone and in batches, e.g. 1,8,16")
     ap.add_argument("--full-mesh", action="store_true", help="silhouette timing: render the full mesh, no proxy")
+    ap.add_argument("--whole-body", type=int, default=0, metavar="N",
+                    help="only the whole-body table (bench_wholebody.py) on N fresh whole-body subjects (seed --seed)")
     args = ap.parse_args(argv)
+    if args.whole_body:
+        from bench_wholebody import run_wholebody_benchmark
+
+        run_wholebody_benchmark(args.whole_body, args.seed, args.noise, args.size, min(args.batch, 16), args.singles, args.keep)
+        return
 
     from silfit.fitting import KeypointFitConfig
     from silfit.priors import load_pose_prior

@@ -23,6 +23,7 @@ __all__ = [
     "BODY25_NAMES",
     "COCO17_NAMES",
     "LAYOUTS",
+    "WHOLEBODY_NAMES",
     "KeypointSet",
     "keypoint_sources",
     "model_keypoints",
@@ -49,7 +50,15 @@ BLAZEPOSE33_NAMES = (
     "left_thumb", "right_thumb", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
     "left_heel", "right_heel", "left_foot_index", "right_foot_index",
 )  # fmt: skip
-LAYOUTS = {"body25": BODY25_NAMES, "coco17": COCO17_NAMES, "blazepose33": BLAZEPOSE33_NAMES}
+_HAND_POINTS = ("wrist",) + tuple(f"{f}{k}" for f in ("thumb", "index", "middle", "ring", "pinky") for k in (1, 2, 3, 4))
+#: OpenPose's whole-body layout as one list (137 points, :mod:`silfit.wholebody`): BODY_25, the left and
+#: right hand (21 each, ``left_hand_wrist``, ``left_hand_thumb1`` ...), the face (``face_00`` .. ``face_67``,
+#: ``right_pupil``, ``left_pupil``); sources on an SMPL-X-layout model only.
+WHOLEBODY_NAMES = (
+    BODY25_NAMES + tuple(f"left_hand_{n}" for n in _HAND_POINTS) + tuple(f"right_hand_{n}" for n in _HAND_POINTS)
+    + tuple(f"face_{k:02d}" for k in range(68)) + ("right_pupil", "left_pupil")
+)  # fmt: skip
+LAYOUTS = {"body25": BODY25_NAMES, "coco17": COCO17_NAMES, "blazepose33": BLAZEPOSE33_NAMES, "wholebody": WHOLEBODY_NAMES}
 
 #: Keypoint name -> SMPL joint name, where a joint is the source.
 _JOINT_SOURCES = {
@@ -80,8 +89,14 @@ def keypoint_sources(model, layout: str = "body25", prefer_landmarks: bool = Fal
 
     With ``prefer_landmarks`` the surface landmarks (where people annotate shoulders,
     hips, ... on the skin) are used wherever the model has them, else joint centres.
+    The ``wholebody`` layout (SMPL-X-layout models) also has ``("none", 0)``: a point the model
+    cannot place statically (an official SMPL-X file's dynamic jaw contour), fitted with weight 0.
     """
     names = _layout_names(layout)
+    if layout.lower() == "wholebody":
+        from .wholebody import wholebody_sources
+
+        return wholebody_sources(model, prefer_landmarks)
     joint_index = {n: i for i, n in enumerate(model.joint_names)}
     landmark_index = {n: i for i, n in enumerate(model.landmark_names)}
     sources = []
@@ -100,6 +115,11 @@ def keypoint_sources(model, layout: str = "body25", prefer_landmarks: bool = Fal
 
 def model_keypoints(model, output, layout: str = "body25", prefer_landmarks: bool = False) -> torch.Tensor:
     """3D keypoints ``[B, K, 3]`` of a body-model output in the order of ``layout``."""
+    if layout.lower() == "wholebody":
+        from .wholebody import WHOLEBODY_PARTS, wholebody_keypoints
+
+        wb = wholebody_keypoints(model, output, prefer_landmarks)
+        return torch.cat([wb[p] for p in WHOLEBODY_PARTS], dim=1)
     sources = keypoint_sources(model, layout, prefer_landmarks)
     J = output.joints.shape[1]
     stacked = output.joints

@@ -62,9 +62,10 @@ class FitResult:
     @property
     def final(self) -> KeypointFitResult:
         """The final parameters in the keypoint result's form (for saving and loading)."""
+        arr = {k: np.asarray(v, dtype=np.float32).reshape(1, -1) for k, v in self.params.items()}  # [1, w] (one image)
+        smpl = {k: v for k, v in arr.items() if k in ("betas", "body_pose", "global_orient", "transl")}
         return replace(
-            self.keypoint,
-            **{k: np.asarray(v, dtype=np.float32)[None] for k, v in self.params.items()},
+            self.keypoint, **smpl, extra_params={k: v for k, v in arr.items() if k not in smpl},
             vertices=self.vertices[None], joints=self.joints[None], keypoints_2d=self.keypoints_2d[None],
             reprojection_error=np.array([self.metrics.get("reprojection_error_px", np.nan)]),
         )  # fmt: skip
@@ -153,10 +154,21 @@ def refine_batch(
                 f"{mask_sources[i]}: the mask does not overlap the body fitted to the keypoints at all "
                 "(wrong mask, or keypoints of another image?)"
             )
-    sils = fit_silhouettes(
-        model, [keypoint_result.params(i) for i in range(n)], cameras, masks, [k.as_array() for k in keypoints],
-        layout=keypoints[0].layout, config=config, pose_prior=pose_prior, renderer=renderer, progress=progress,
-    )  # fmt: skip
+    inits = [keypoint_result.params(i) for i in range(n)]
+    if keypoints[0].layout == "wholebody":  # the whole-body mesh, hand and face keypoints kept
+        from .fitting.problem import Problem
+        from .fitting.silhouette_stage import fit_silhouette_problems
+        from .fitting.wholebody import wholebody_silhouette_inputs
+
+        cfg, body_sets, terms, weights, data = wholebody_silhouette_inputs(model, keypoints, config or SilhouetteFitConfig(), model.dtype)
+        problems = [Problem.single(k, cam, m) for k, cam, m in zip(body_sets, cameras, masks)]
+        sils = fit_silhouette_problems(model, problems, inits, "wholebody", cfg, pose_prior, renderer, progress,
+                                       terms=terms, weights=weights, data=data)  # fmt: skip
+    else:
+        sils = fit_silhouettes(
+            model, inits, cameras, masks, [k.as_array() for k in keypoints],
+            layout=keypoints[0].layout, config=config, pose_prior=pose_prior, renderer=renderer, progress=progress,
+        )  # fmt: skip
     out = []
     for i, sil in enumerate(sils):
         one = keypoint_result[i]
@@ -223,18 +235,26 @@ def _fit(sets, mask, camera, image_size, focal, model, pose_prior, keypoint_conf
     fitter = KeypointFitter(model, sets[0].layout, keypoint_config, pose_prior)
     kp_result = fitter.fit(sets, camera, image_size=image_size, focal=focal, progress=progress)
     if mask is not None:
-        return refine(model, kp_result, sets[0], np.asarray(mask, dtype=bool), silhouette_config,
-                      fitter.pose_prior, progress=progress)  # fmt: skip
-    vertices, joints, kp2d = _pose(model, kp_result.params(0), sets[0].layout, kp_result.camera)
-    metrics = {
-        "stages": ["keypoints"],
-        "timings_s": {**{f"keypoints.{k}": float(v) for k, v in kp_result.timings.items()},
-                      "keypoints": _stage_seconds(kp_result.timings)},
-        "reprojection_error_px": _median_reprojection(kp2d, sets[0]),
-        "warnings": [],
-        **_run_record(kp_result),
-    }  # fmt: skip
-    return FitResult(kp_result.camera, sets[0].layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d, metrics)
+        result = refine(model, kp_result, sets[0], np.asarray(mask, dtype=bool), silhouette_config,
+                        fitter.pose_prior, progress=progress)  # fmt: skip
+    else:
+        vertices, joints, kp2d = _pose(model, kp_result.params(0), sets[0].layout, kp_result.camera)
+        metrics = {
+            "stages": ["keypoints"],
+            "timings_s": {**{f"keypoints.{k}": float(v) for k, v in kp_result.timings.items()},
+                          "keypoints": _stage_seconds(kp_result.timings)},
+            "reprojection_error_px": _median_reprojection(kp2d, sets[0]),
+            "warnings": [],
+            **_run_record(kp_result),
+        }  # fmt: skip
+        result = FitResult(kp_result.camera, sets[0].layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d,
+                           metrics)  # fmt: skip
+    if fitter.whole_body:  # which parts were fitted, which held at rest
+        from .fitting.wholebody import wholebody_summary
+
+        result.metrics["whole_body"], notes = wholebody_summary(sets[0])
+        result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
+    return result
 
 
 def save_fit(

@@ -23,13 +23,16 @@ from typing import Optional, Union
 import numpy as np
 import torch
 
-from .keypoints import BODY25_NAMES, KeypointSet, _triplets, model_keypoints
+from .keypoints import BODY25_NAMES, WHOLEBODY_NAMES, KeypointSet, _triplets, keypoint_sources, model_keypoints
 
 __all__ = [
     "FINGERS",
     "HAND21_NAMES",
     "FACE70_NAMES",
     "PART_FIELDS",
+    "WHOLEBODY_PARTS",
+    "part_slices",
+    "wholebody_sources",
     "WholeBodyKeypoints",
     "hand_names",
     "wholebody_keypoints",
@@ -47,6 +50,54 @@ PART_FIELDS = {
     "hand_right_keypoints_2d": ("hand_right", len(HAND21_NAMES)),
     "face_keypoints_2d": ("face", len(FACE70_NAMES)),
 }
+
+
+#: The parts in the order of the ``wholebody`` keypoint layout (:data:`silfit.keypoints.WHOLEBODY_NAMES`).
+WHOLEBODY_PARTS = ("body", "hand_left", "hand_right", "face")
+assert WHOLEBODY_NAMES[25:46] == tuple(f"left_hand_{n}" for n in HAND21_NAMES) and WHOLEBODY_NAMES[67:] == FACE70_NAMES
+
+
+def part_slices() -> dict:
+    """``{part: slice}`` of each part's points in the ``wholebody`` layout."""
+    out, start = {}, 0
+    for (part, count) in PART_FIELDS.values():
+        out[part] = slice(start, start + count)
+        start += count
+    return out
+
+
+def wholebody_sources(model, prefer_landmarks: bool = False) -> list:
+    """``(kind, index)`` on ``model`` for each point of the ``wholebody`` layout (see
+    :func:`silfit.keypoints.keypoint_sources`): body as BODY_25, hands (wrist and finger joints, fingertip
+    landmarks), face (landmark rows ``face_NN``; ``("none", 0)`` for the jaw contour of a model whose
+    contour is dynamic) and the pupils (eye joints)."""
+    if getattr(model, "kind", "smpl") != "smplx":
+        raise ValueError(f"{model.source}: whole-body keypoints need an SMPL-X-layout model (this one is {model.kind})")
+    joint = {n: i for i, n in enumerate(model.joint_names)}
+    lmk = {n: i for i, n in enumerate(model.landmark_names)}
+    out = list(keypoint_sources(model, "body25", prefer_landmarks))
+    for side in ("left", "right"):
+        out.append(("joint", joint[f"{side}_wrist"]))
+        for f in FINGERS:
+            for k in (1, 2, 3):
+                name = f"{side}_{f}{k}"
+                if name not in joint:
+                    raise ValueError(f"{model.source}: the model has no joint for hand keypoint {name}")
+                out.append(("joint", joint[name]))
+            tip = f"{side}_{f}_tip"
+            if tip not in lmk:
+                raise ValueError(f"{model.source}: the model has no landmark for hand keypoint {tip}")
+            out.append(("landmark", lmk[tip]))
+    for k in range(68):
+        name = f"face_{k:02d}"
+        if name in lmk:
+            out.append(("landmark", lmk[name]))
+        elif k < 17 and getattr(model, "dynamic_lmk_faces_idx", None) is not None:
+            out.append(("none", 0))
+        else:
+            raise ValueError(f"{model.source}: this model has no face landmark {name}")
+    out += [("joint", joint["right_eye_smplhf"]), ("joint", joint["left_eye_smplhf"])]
+    return out
 
 
 def hand_names(side: str) -> tuple:
@@ -70,7 +121,7 @@ def _hand_points(model, output, side: str) -> torch.Tensor:
     return torch.stack(cols, dim=1)
 
 
-def wholebody_keypoints(model, output) -> dict:
+def wholebody_keypoints(model, output, prefer_landmarks: bool = False) -> dict:
     """3D whole-body keypoints of a whole-body model output: ``{"body": [B, 25, 3], "hand_left":
     [B, 21, 3], "hand_right": [B, 21, 3], "face": [B, 70, 3]}`` in OpenPose's orders."""
     if getattr(model, "kind", "smpl") != "smplx":
@@ -79,7 +130,7 @@ def wholebody_keypoints(model, output) -> dict:
     face = model.face_landmarks(output)
     pupils = output.joints[:, [joint["right_eye_smplhf"], joint["left_eye_smplhf"]]]
     return {
-        "body": model_keypoints(model, output, "body25"),
+        "body": model_keypoints(model, output, "body25", prefer_landmarks),
         "hand_left": _hand_points(model, output, "left"),
         "hand_right": _hand_points(model, output, "right"),
         "face": torch.cat([face, pupils], dim=1),
@@ -99,6 +150,22 @@ class WholeBodyKeypoints:
 
     def part(self, name: str) -> Optional[np.ndarray]:
         return self.body.as_array() if name == "body" else getattr(self, name)
+
+    def present(self) -> dict:
+        """``{part: bool}``: the part is in the file with at least one confident point."""
+        return {p: (a := self.part(p)) is not None and bool((a[:, 2] > 0).any()) for p in WHOLEBODY_PARTS}
+
+    @property
+    def has_parts(self) -> bool:
+        """Hand or face points are present (a whole-body file, not a body-only one)."""
+        pres = self.present()
+        return pres["hand_left"] or pres["hand_right"] or pres["face"]
+
+    def as_keypoint_set(self) -> KeypointSet:
+        """One :class:`KeypointSet` of the ``wholebody`` layout (absent parts: confidence 0)."""
+        rows = [self.part(p) if self.part(p) is not None else np.zeros((n, 3)) for p, (_, n) in zip(WHOLEBODY_PARTS, PART_FIELDS.values())]
+        arr = np.concatenate(rows, 0)
+        return KeypointSet(arr[:, :2], arr[:, 2], "wholebody", source=self.source)
 
 
 def _part_array(values, count: int, source: str, field: str) -> Optional[np.ndarray]:
@@ -185,3 +252,40 @@ def write_wholebody_json(path: Union[str, os.PathLike], body: np.ndarray, hand_l
     tmp = Path(f"{os.fspath(path)}.tmp")
     tmp.write_text(json.dumps({"version": 1.3, "people": [person]}))
     os.replace(tmp, path)
+
+
+def read_wholebody_parts(path, person: Union[int, str] = "largest") -> Optional[WholeBodyKeypoints]:
+    """The file's whole-body parts when it is OpenPose JSON with ``pose_keypoints_2d`` of BODY_25
+    (hand / face fields may be absent), else ``None`` (another format: read it with
+    :func:`silfit.keypoints.read_keypoints`)."""
+    from .errors import InputError
+
+    try:
+        with open(os.fspath(path), "r", encoding="utf-8") as fh:
+            data = json.load(fh)
+    except (OSError, ValueError):
+        return None  # read_keypoints reports unreadable files
+    people = data.get("people") if isinstance(data, dict) else None
+    if not isinstance(people, list) or not people or not all(isinstance(p, dict) for p in people):
+        return None
+    if any(len(p.get("pose_keypoints_2d") or []) != 3 * len(BODY25_NAMES) for p in people):
+        return None
+    try:
+        return read_wholebody(path, person)
+    except ValueError as err:
+        raise InputError(os.fspath(path), str(err).split(": ", 1)[-1]) from None
+
+
+def choose_fit_keypoints(keypoints: KeypointSet, wholebody: Optional[WholeBodyKeypoints], model) -> tuple:
+    """``(keypoints, note)`` to fit ``model`` with: the ``wholebody`` layout for an SMPL-X-layout
+    model (a body-only file: hands and face at confidence 0, so they stay at rest), the body part
+    for an SMPL-layout model (a note says that hands and face are not fitted)."""
+    if getattr(model, "kind", "smpl") == "smplx":
+        if keypoints.layout != "body25":
+            raise ValueError(f"{keypoints.source}: an SMPL-X-layout model is fitted to OpenPose BODY_25 / whole-body "
+                             f"keypoints, not {keypoints.layout}")  # fmt: skip
+        wb = wholebody or WholeBodyKeypoints(keypoints, None, None, None, source=keypoints.source)
+        return wb.as_keypoint_set(), None
+    if wholebody is not None and wholebody.has_parts:
+        return keypoints, f"{model.source} is an SMPL-layout model: hand and face keypoints are not fitted"
+    return keypoints, None

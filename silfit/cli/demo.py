@@ -13,6 +13,9 @@ def register(subparsers) -> None:
     p.add_argument("--subject", help="a subject folder in the synthetic format (default: the shipped subject_000)")
     p.add_argument("--photo", nargs="?", const="", metavar="PATH",
                    help="fit a photograph instead: detect the person, fit, draw (default: the shipped sample photo)")
+    p.add_argument("--whole-body", action="store_true",
+                   help="a shipped whole-body subject: hands and face close up, body-only vs whole-body fit "
+                        "(--subject: a whole-body subject folder)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
@@ -24,6 +27,16 @@ def run(args) -> int:
     out = Path(args.out)
     if args.photo is not None:
         return _run_photo(args, out, t0)
+    if args.whole_body:
+        from ..demo_wholebody import run_wholebody_demo
+
+        report = run_wholebody_demo(out, Path(args.subject) if args.subject else None, progress=not args.quiet)
+        print(f"silfit demo --whole-body: {report['subject']}\n")
+        print(report["table"])
+        for warning in report["warnings"]:
+            print(f"warning: {warning}")
+        print(f"\npictures and report in {out}/ (open closeups.png first); took {time.perf_counter() - t0:.0f} s")
+        return 0
     report = run_demo(out, Path(args.subject) if args.subject else None, progress=not args.quiet)
     print(f"silfit demo: {report['subject']}\n")
     print(report["table"])

@@ -35,8 +35,9 @@ def register(subparsers) -> None:
     p.add_argument("--rig", metavar="DIR", help="a calibrated camera rig: cameras.json (or EasyMocap intri.yml + "
                    "extri.yml, or one sub-folder per view with camera.json incl. R, t) and per view keypoints.json, "
                    "optional mask.png, image.png; fits in world coordinates (see README: Camera rigs)")
-    p.add_argument("--keypoints", help="OpenPose BODY_25 / COCO-17 keypoint JSON (default: detected in --image, "
-                   "with its mask unless --mask is given)")
+    p.add_argument("--keypoints", help="OpenPose BODY_25 / COCO-17 keypoint JSON, or OpenPose whole-body JSON (hands "
+                   "and face: fitted with an SMPL-X-layout model) (default: detected in --image, with its mask unless "
+                   "--mask is given)")
     p.add_argument("--person", default="largest", help="person index in the keypoint file, or 'largest'")
     p.add_argument("--mask", help="person silhouette PNG (enables the silhouette stage)")
     cam = p.add_mutually_exclusive_group()
@@ -46,7 +47,9 @@ def register(subparsers) -> None:
                    "are detected in it when --keypoints is not given)")
     p.add_argument("--image-size", help="WxH when neither --camera, --image nor --mask gives the size")
     p.add_argument("--no-silhouette", action="store_true", help="stop after the keypoint stage")
-    p.add_argument("--model", help="SMPL model file or folder (default: the shipped open body model)")
+    p.add_argument("--model", help="SMPL or SMPL-X model file or folder, or 'open-smplx' for the shipped open whole-body "
+                   "model (default: the shipped open body model; for keypoints with hands or face the shipped open "
+                   "whole-body model)")
     p.add_argument("--gender", default="neutral", help="model gender when --model is a folder")
     p.add_argument("--pose-prior", help="pose prior: SMPLify gmm_08.pkl, a mixture .npz, or 'limits' "
                    "(default: the shipped pose-library mixture)")
@@ -146,6 +149,7 @@ def load_inputs(args) -> FitInputs:
     from ..camera import Camera, camera_from_dict, load_camera
     from ..errors import InputError
     from ..keypoints import read_keypoints
+    from ..wholebody import read_wholebody_parts
     from ..priors import load_pose_prior
     from ..silhouette.masks import read_mask
 
@@ -184,9 +188,23 @@ def load_inputs(args) -> FitInputs:
         base = camera or Camera.from_image_size(*size)
         camera_from_dict({**base.to_dict(), "fx": args.focal, "fy": args.focal}, "--focal")
 
-    model = load_body_model(args.model, gender=args.gender) if args.model else load_body_model()
+    from ..wholebody import choose_fit_keypoints
+
+    wholebody = read_wholebody_parts(args.keypoints, person) if args.keypoints else None
+    if args.model == "open-smplx":
+        model = load_body_model(kind="smplx")
+    else:
+        model = load_body_model(args.model, gender=args.gender) if args.model else None
+    if model is None and wholebody is not None and wholebody.has_parts:
+        model = load_body_model(kind="smplx")
+        if not args.quiet:
+            print(f"keypoints have hand/face points and no --model: using the shipped open whole-body model ({model.source})")
+    model = model or load_body_model()
+    keypoints, note = choose_fit_keypoints(keypoints, wholebody, model)
+    if note and not args.quiet:
+        print(note)
     pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
-    if getattr(pose_prior, "dim", model.num_body_pose) != model.num_body_pose:
+    if getattr(pose_prior, "dim", model.num_body_pose) < model.num_body_pose:
         raise InputError(args.pose_prior or "--pose-prior (default)", f"the pose prior is over {pose_prior.dim} values, the model's body_pose has "
                          f"{model.num_body_pose}", field="means")  # fmt: skip
     sil_config = silhouette_config(args)

@@ -39,7 +39,8 @@ def register(subparsers) -> None:
     p.add_argument("--batch-size", type=int, default=8, help="items per keypoint-stage batch (default 8)")
     p.add_argument("--no-silhouette", action="store_true", help="keypoint stage only, even where masks exist")
     p.add_argument("--retry-failed", action="store_true", help="fit again the items failed in a previous run")
-    p.add_argument("--model", help="SMPL model file or folder (default: the shipped open body model)")
+    p.add_argument("--model", help="SMPL or SMPL-X model file or folder, or 'open-smplx' (the shipped open whole-body "
+                   "model: hands and face of OpenPose whole-body files are fitted) (default: the shipped open body model)")
     p.add_argument("--gender", default="neutral", help="model gender when --model is a folder")
     p.add_argument("--pose-prior", help="pose prior: gmm_08.pkl, a mixture .npz, or 'limits' (default: shipped)")
     p.add_argument("--keypoint-option", action="append", default=[], metavar="NAME=VALUE",

@@ -21,6 +21,11 @@ the camera frame), ``reproj_px`` (fitted BODY_25 keypoints under the fit's camer
 noise-free ground-truth projections, over in-image keypoints), ``iou`` (rendered fitted mask
 vs ``mask.png``) and ``time_s`` (+ ``time_<stage>``).
 
+Whole-body sets (an SMPL-X-layout model; subjects whose ``gt.npz`` holds the SMPL-X parameters) add
+(:mod:`silfit.eval.wholebody`): ``hand_pa`` / ``hand_wrist`` (each hand's vertices after Procrustes /
+after aligning its wrist), ``face_pa`` and ``expression_err``. ``evaluate_dataset`` picks the shipped
+open whole-body model for a dataset whose keypoint files hold hand or face points.
+
 A subject whose files are missing or malformed is skipped with its path and field in the
 report's ``skipped`` list; the others are still scored.
 """
@@ -38,7 +43,7 @@ import numpy as np
 import torch
 
 from ..camera import Camera, project_points
-from ..dataset import SubjectError, list_subjects, load_subject
+from ..dataset import SUBJECT_FILES, SubjectError, list_subjects, load_subject
 from ..fitio import PARAM_SIZES as PARAM_FIELDS
 from ..fitio import read_fit as read_fit_file
 from ..keypoints import model_keypoints
@@ -59,6 +64,7 @@ __all__ = [
     "FitterUnavailable",
 ]
 
+SMPL_NAMES = ("betas", "body_pose", "global_orient", "transl")
 #: Metric key -> (label, unit, lower is better).
 METRICS = {
     "mpjpe": ("MPJPE", "mm", True),
@@ -76,6 +82,10 @@ METRICS = {
     "energy_truth": ("Keypoint-stage energy at the truth", "", True),
     "search_failure": ("Search failures (fit energy above the truth's)", "%", True),
     "facing_ok": ("Facing correct (within 90 degrees)", "%", False),
+    "hand_pa": ("Hand error, Procrustes", "mm", True),
+    "hand_wrist": ("Hand error, wrist-aligned", "mm", True),
+    "face_pa": ("Face error, Procrustes", "mm", True),
+    "expression_err": ("Expression error (RMS coefficient)", "", True),
     "time_s": ("Time", "s", True),
 }
 #: a fit whose keypoint-stage energy exceeds the truth's by more than this share is a search failure
@@ -97,15 +107,20 @@ class FitParams:
     camera: Optional[Camera] = None
     timings: Dict[str, float] = field(default_factory=dict)
     path: Optional[Path] = None
+    #: a whole-body fit's other SMPL-X parameters (``expression``, ``jaw_pose``, hand poses, ...)
+    extra: Dict[str, np.ndarray] = field(default_factory=dict)
 
 
 # ----------------------------------------------------------------------------- reading fits
-def read_fit(folder: os.PathLike) -> FitParams:
-    """Read ``params.npz`` (with :func:`silfit.fitio.read_fit`) + ``metrics.json`` /
-    ``params.json`` timings of one fit folder."""
+def read_fit(folder: os.PathLike, model=None) -> FitParams:
+    """Read ``params.npz`` (with :func:`silfit.fitio.read_fit`; the parameters of ``model``, default
+    SMPL's) + ``metrics.json`` / ``params.json`` timings of one fit folder."""
     folder = Path(folder)
-    fit = read_fit_file(folder / "params.npz")
-    return FitParams(**fit.params, camera=fit.camera, timings=_read_timings(folder), path=folder)
+    sizes = None if model is None else {**model.parameter_sizes, "betas": None}
+    fit = read_fit_file(folder / "params.npz", require=SMPL_NAMES, sizes=sizes)
+    smpl = {k: v for k, v in fit.params.items() if k in SMPL_NAMES}
+    extra = {k: v for k, v in fit.params.items() if k not in SMPL_NAMES}
+    return FitParams(**smpl, camera=fit.camera, timings=_read_timings(folder), path=folder, extra=extra)
 
 
 def _read_timings(folder: Path) -> Dict[str, float]:
@@ -157,8 +172,10 @@ def score_fit(model, subject, fit: FitParams, iou: bool = True) -> Dict[str, flo
     t = lambda a: torch.as_tensor(np.asarray(a)[None], dtype=dt, device=model.device)  # noqa: E731
     nb = model.num_betas
     betas = fit.betas[:nb]
+    extra = {k: t(v) for k, v in fit.extra.items() if k in model.parameter_sizes}
     with torch.no_grad():
-        out = model(betas=t(betas), body_pose=t(fit.body_pose), global_orient=t(fit.global_orient), transl=t(fit.transl))
+        out = model(betas=t(betas), body_pose=t(fit.body_pose), global_orient=t(fit.global_orient), transl=t(fit.transl),
+                    **extra)  # fmt: skip
         kp = model_keypoints(model, out, "body25")[0]
         kp2d = project_points(kp.double(), camera).cpu().numpy()
     verts = out.vertices[0].cpu().double().numpy()
@@ -173,6 +190,14 @@ def score_fit(model, subject, fit: FitParams, iou: bool = True) -> Dict[str, flo
     if gt.vertices.shape == verts.shape:
         m["pve"] = 1000 * pve(verts, gt.vertices, joints[0], gj[0])
         m["pa_pve"] = 1000 * pa_pve(verts, gt.vertices)
+    if getattr(model, "kind", "smpl") == "smplx" and gt.vertices.shape == verts.shape and gj.shape == joints.shape:
+        from .wholebody import wholebody_errors
+
+        e = wholebody_errors(model, {"vertices": verts, "joints": joints, "expression": fit.extra.get("expression")},
+                             {"vertices": gt.vertices, "joints": gj, "expression": gt.extras.get("expression")})  # fmt: skip
+        m.update({k[: -len("_mm")]: v for k, v in e.items() if k in ("hand_pa_mm", "hand_wrist_mm", "face_pa_mm")})
+        if "expression_err" in e:
+            m["expression_err"] = e["expression_err"]
     m.update(_search_gap(fit.path))
     m["facing_ok"] = 100.0 * float(_facing_agrees(fit.global_orient, gt.global_orient))
     fit_betas = np.pad(betas, (0, nb - len(betas)))
@@ -253,7 +278,12 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
         raise FitterUnavailable(f"unknown method(s) {', '.join(unknown)} (expected keypoints, silhouette)")
     status = {}
     t0 = time.perf_counter()
-    sets = prepare_keypoints([s.keypoints for s in subjects])
+    if getattr(model, "kind", "smpl") == "smplx":  # whole-body: hands and face from the same files
+        from ..wholebody import choose_fit_keypoints, read_wholebody_parts
+
+        sets = [choose_fit_keypoints(s.keypoints, read_wholebody_parts(s.file("keypoints"), 0), model)[0] for s in subjects]
+    else:
+        sets = prepare_keypoints([s.keypoints for s in subjects])
     fitter = KeypointFitter(model, sets[0].layout)
     result = fitter.fit(sets, [s.camera for s in subjects], progress=progress)
     kp_elapsed = time.perf_counter() - t0
@@ -292,7 +322,7 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
             idx = todo[start : start + max(1, int(silhouette_batch))]
             chunk = [subjects[i] for i in idx]
             def refine_some(rows):
-                return refine_batch(model, result.select(rows), [subjects[i].keypoints for i in rows],
+                return refine_batch(model, result.select(rows), [sets[i] for i in rows],
                                     [subjects[i].mask for i in rows], pose_prior=fitter.pose_prior, progress=progress,
                                     mask_sources=[str(subjects[i].file("mask")) for i in rows])  # fmt: skip
 
@@ -311,7 +341,7 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
                     continue
                 timings = {"keypoints": kp_timings["total"], "silhouette": fitted.silhouette.seconds}
                 timings["total"] = sum(timings.values())
-                save_fit(fitted, Path(fits_root) / s.name / "silhouette", faces, s.keypoints, s.image, s.mask,
+                save_fit(fitted, Path(fits_root) / s.name / "silhouette", faces, sets[i], s.image, s.mask,
                          {"timings": timings, "search": search[i]}, overwrite=True)  # fmt: skip
                 ran += 1
         status["silhouette"] = f"ran on {ran} subjects" + (f"; failed: {'; '.join(failed)}" if failed else "")
@@ -332,11 +362,11 @@ def evaluate_dataset(
     fit at all) run the fitter first. Returns the report (JSON-ready dict)."""
     dataset = Path(dataset)
     fits_root = Path(fits) if fits is not None else dataset / "fits"
+    subject_dirs = list_subjects(dataset)
     if model is None:
         from ..body import load_body_model
 
-        model = load_body_model()
-    subject_dirs = list_subjects(dataset)
+        model = load_body_model(kind="smplx" if _whole_body_dataset(subject_dirs) else None)
     if not subject_dirs:
         raise FileNotFoundError(f"{dataset}: no subject folders found (expected index.json or sub-folders with keypoints.json)")
 
@@ -364,7 +394,7 @@ def evaluate_dataset(
             continue
         for method, folder in found.items():
             try:
-                fit = read_fit(folder)
+                fit = read_fit(folder, model)
                 metrics = score_fit(model, s, fit, iou=iou)
             except (SubjectError, ValueError, FileNotFoundError) as err:
                 skipped.append({"subject": s.name, "method": method, "path": str(folder), "error": str(err), **_field_of(err)})
@@ -386,6 +416,19 @@ def evaluate_dataset(
     if fitter_status:
         report["fitter"] = fitter_status
     return report
+
+
+def _whole_body_dataset(subject_dirs) -> bool:
+    """The first subject's keypoint file holds hand or face points (OpenPose whole-body JSON)."""
+    from ..wholebody import read_wholebody_parts
+
+    for d in subject_dirs[:1]:
+        try:
+            wb = read_wholebody_parts(Path(d) / SUBJECT_FILES["keypoints"], 0)
+        except ValueError:
+            return False
+        return wb is not None and wb.has_parts
+    return False
 
 
 def _field_of(err: Exception) -> dict:

@@ -74,8 +74,23 @@ class KeypointBody(nn.Module):
         else:
             self.lm_regressor = None
             lm_pos = {}
-        index = [i if kind == "joint" else J + lm_pos[i] for kind, i in sources]
+        index = [i if kind in ("joint", "none") else J + lm_pos[i] for kind, i in sources]
         self.register_buffer("kp_index", torch.as_tensor(index, dtype=torch.long))
+        #: 1 where the model places the keypoint, 0 for ``("none", 0)`` sources (weight them 0)
+        self.register_buffer("kp_valid", torch.as_tensor([kind != "none" for kind, _ in sources], dtype=model.dtype))
+        # Whole-body (SMPL-X-layout) models blend [betas, expression] and may take hand poses as PCA
+        # coefficients plus a mean hand (their forward's conventions, repeated here on the reduced body).
+        self.expression = "expression" in model.parameter_sizes
+        if getattr(model, "use_pca", False):
+            self.register_buffer("hand_components_l", model.hand_components_l)
+            self.register_buffer("hand_components_r", model.hand_components_r)
+        pose_mean = getattr(model, "pose_mean", None)
+        self.register_buffer("pose_mean", None if pose_mean is None or not bool(pose_mean.abs().any()) else pose_mean)
+
+    def _pose_value(self, name: str, value: torch.Tensor) -> torch.Tensor:
+        if name in ("left_hand_pose", "right_hand_pose") and getattr(self, "hand_components_l", None) is not None:
+            return value @ (self.hand_components_l if name[0] == "l" else self.hand_components_r)
+        return value
 
     def shaped_joints(self, betas: torch.Tensor) -> torch.Tensor:
         return self.J_template + blend_shapes(betas, self.J_shapedirs)
@@ -85,8 +100,13 @@ class KeypointBody(nn.Module):
         the pose parameters, ``transl``)."""
         betas, transl = params["betas"], params["transl"]
         B = betas.shape[0]
+        if self.expression:
+            betas = torch.cat([betas, params["expression"]], dim=1)
         rest_joints = self.shaped_joints(betas)
-        full = torch.cat([params[n] for n in self.pose_names], dim=1).reshape(B, -1, 3)
+        full = torch.cat([self._pose_value(n, params[n]) for n in self.pose_names], dim=1)
+        if self.pose_mean is not None:
+            full = full + self.pose_mean
+        full = full.reshape(B, -1, 3)
         rot = axis_angle_to_matrix(full)
         joints, T = forward_kinematics(rot, rest_joints, self.parents, self.levels)
         pts = joints

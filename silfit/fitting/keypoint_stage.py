@@ -18,6 +18,16 @@ Stages (each an independent per-sample L-BFGS, see :mod:`silfit.fitting.optim`):
 4. ``shape``: ``betas`` (+ translation) with the L2 shape prior.
 5. ``final``: everything together with the interpenetration penalty on.
 
+Whole-body fitting (an SMPL-X-layout model and the ``wholebody`` keypoint layout, SMPLify-X's
+schedule): the body stages as above, the hand and face keypoint terms (``hands``, ``face``, each
+its own robust scale) weigh nothing while the body is placed and are switched on and raised over
+the later stages (``hand_weights``/``face_weights`` per pose stage, then the final weights; a
+``hands`` stage first starts each hand from its best library pose and wrist turn); the
+hand poses, jaw and expression are free where their terms are on, with their priors (``hand_pose``:
+:class:`~silfit.priors.wholebody.HandPosePrior`; ``jaw``, ``expression``: L2). A part with no
+confident point (a missing hand, a body-only file) is held at rest in every stage by a gate
+(:func:`~silfit.fitting.stages.gated`).
+
 Data term: Geman-McClure (SMPLify's robust penalty, ``sigma`` = 100) on residuals in
 *normalised pixels*: each sample's residuals are scaled so the extent of its confident
 keypoints is ``norm_extent`` (500) pixels, which makes the weights independent of the
@@ -40,10 +50,12 @@ from scipy.spatial.transform import Rotation
 from ..camera import UPRIGHT_BACK_TO_CAMERA, UPRIGHT_FACING_CAMERA, Camera
 from ..keypoints import LAYOUTS, KeypointSet
 from ..priors import SphereCollisionModel, angle_prior, limit_violation, load_pose_prior, shape_prior
+from ..priors.wholebody import body_prior_for
 from .body import KeypointBody
+from .wholebody import choose_hand_starts, part_gates, wholebody_terms
 from .branches import limb_hypotheses
 from .problem import ParameterLayout, Problem, stack_views
-from .result import KeypointFitResult
+from .result import PARAM_NAMES, KeypointFitResult
 from .stages import Stage, check_stages, run_lbfgs_stage, stage_to_dict
 from .terms import (
     DepthTerm, Energy, InterpenetrationTerm, JointSmoothnessTerm, KeypointTerm, PriorTerm, RootSmoothnessTerm, evaluate,
@@ -57,6 +69,10 @@ _UPPER = ("left_shoulder", "right_shoulder", "neck")
 _LOWER = ("left_hip", "right_hip", "mid_hip")
 _TORSO_ALL = _UPPER + _LOWER
 MIN_TORSO_KEYPOINTS = 3
+#: the whole-body parameters the hand and face terms free (the eyes stay at rest: no keypoint sees
+#: their rotation, only the eyeball centres)
+WHOLEBODY_HAND_PARAMS = ("left_hand_pose", "right_hand_pose")
+WHOLEBODY_FACE_PARAMS = ("jaw_pose", "expression")
 
 
 @dataclass
@@ -125,6 +141,24 @@ class KeypointFitConfig:
     #: and the penalty (``charbonnier`` or ``gm``)
     temporal_sigma: float = 10.0
     temporal_robust: str = "charbonnier"
+    #: whole-body fitting (see the module docstring): hand / face keypoint weights per pose stage
+    #: (``None``: 0 in all but the last pose stage, 1 there), in the shape stage and the final stage;
+    #: robust scales (Geman-McClure sigma, normalised pixels) of the hand and face terms
+    hand_weights: Optional[Sequence[float]] = None
+    face_weights: Optional[Sequence[float]] = None
+    final_hand_weight: float = 2.0
+    final_face_weight: float = 2.0
+    hand_sigma: float = 50.0
+    face_sigma: float = 50.0
+    #: L-BFGS steps of a ``hands`` stage before the first pose stage with hand terms: the hands
+    #: start from their best library pose and wrist turn (:func:`~silfit.fitting.wholebody.choose_hand_starts`)
+    #: and are fitted with the body (held by its keypoints and priors; 0: no such stage, the hands start
+    #: in that pose stage)
+    hand_iters: int = 30
+    #: priors of the parts, on wherever the parts are free
+    hand_prior_weight: float = 2.0
+    jaw_weight: float = 50.0
+    expression_weight: float = 2.0
     #: an explicit list of :class:`~silfit.fitting.stages.Stage` replacing the schedule
     #: the fields above describe (see :meth:`stages`)
     schedule: Optional[Sequence[Stage]] = None
@@ -146,21 +180,50 @@ class KeypointFitConfig:
                 f"KeypointFitConfig: the branch search (after pose stage {self.branch_after_stage}) needs the start "
                 f"decided first (flip_decision_stage {self.flip_decision_stage})"
             )
+        for name in ("hand_weights", "face_weights"):
+            v = getattr(self, name)
+            if v is not None and len(v) != n:
+                raise ValueError(f"KeypointFitConfig: {name} has {len(v)} values, pose_iters {n}")
         if self.schedule is not None and not all(isinstance(s, Stage) for s in self.schedule):
             raise ValueError("KeypointFitConfig: schedule must be a list of silfit.fitting.stages.Stage")
 
-    def stages(self) -> tuple:
+    def part_weights(self, hands: float, face: float) -> tuple:
+        """``(weights, free)`` the hand and face parts add to a stage with these keypoint weights."""
+        w, free = {}, ()
+        if hands:
+            w.update(hands=hands, hand_pose=self.hand_prior_weight)
+            free += WHOLEBODY_HAND_PARAMS
+        if face:
+            w.update(face=face, jaw=self.jaw_weight, expression=self.expression_weight)
+            free += WHOLEBODY_FACE_PARAMS
+        return w, free
+
+    def stages(self, whole_body: bool = False) -> tuple:
         """The schedule as data: camera, pose_1..n (annealed priors; the best start of each
         sample is kept ``decision_iters`` steps into pose stage ``flip_decision_stage``),
-        shape, final (everything, with interpenetration)."""
+        shape, final (everything, with interpenetration); with ``whole_body`` the hand and
+        face terms and parameters join as the module docstring says."""
         if self.schedule is not None:
             return tuple(self.schedule)
+        n = len(self.pose_iters)
+        ramp = tuple(0.0 if i < n - 1 else 1.0 for i in range(n))
+        hw = tuple(self.hand_weights if self.hand_weights is not None else ramp) if whole_body else (0.0,) * n
+        fw = tuple(self.face_weights if self.face_weights is not None else ramp) if whole_body else (0.0,) * n
         pose_free = ("global_orient", "transl", "body_pose")
         out = [Stage("camera", ("global_orient", "transl"), {"torso": 1.0, "depth": self.depth_weight}, self.camera_iters)]
         for i, (it, wp, wa) in enumerate(zip(self.pose_iters, self.pose_prior_weights, self.angle_prior_weights)):
             opts = {"decide_after": int(self.decision_iters)} if i == self.flip_decision_stage else {}
             weights = {"keypoints": 1.0, "pose": wp, "angle": wa, "limits": self.limit_weight}
-            out.append(Stage(f"pose_{i + 1}", pose_free, weights, int(it), options=opts))
+            if hw[i] and not any(hw[:i]):  # hands start from their best library pose, fitted alone first
+                if self.hand_iters:  # the body free too (the wrists turn), held by its keypoints and priors
+                    w = {**weights, "hands": hw[i], "hand_pose": self.hand_prior_weight}
+                    out.append(Stage("hands", pose_free + WHOLEBODY_HAND_PARAMS, w, int(self.hand_iters),
+                                     options={"hand_starts": True}))  # fmt: skip
+                else:
+                    opts = {**opts, "hand_starts": True}
+            part_w, part_free = self.part_weights(hw[i], fw[i])
+            weights.update(part_w)
+            out.append(Stage(f"pose_{i + 1}", pose_free + part_free, weights, int(it), options=opts))
             if self.branch_search and i == min(self.branch_after_stage, len(self.pose_iters) - 1):
                 for r in range(int(self.branch_rounds)):
                     opts = {"branches": {
@@ -168,22 +231,26 @@ class KeypointFitConfig:
                         "screen_after": self.branch_screen_iters, "survivors": self.branch_survivors,
                     }}  # fmt: skip
                     w = {**weights, "interpenetration": self.interpenetration_weight}
-                    out.append(Stage(f"branches_{r + 1}", pose_free, w, int(self.branch_iters), options=opts))
+                    out.append(Stage(f"branches_{r + 1}", pose_free + part_free, w, int(self.branch_iters), options=opts))
+        final_parts = (self.final_hand_weight, self.final_face_weight) if whole_body else (0.0, 0.0)
         if self.shape_iters:
-            out.append(Stage("shape", ("betas", "transl"), {"keypoints": 1.0, "shape": self.shape_weight}, self.shape_iters))
+            w = {"keypoints": 1.0, "shape": self.shape_weight}
+            w.update({k: v for k, v in zip(("hands", "face"), final_parts) if v})
+            out.append(Stage("shape", ("betas", "transl"), w, self.shape_iters))
         if self.final_iters:
             w = {
                 "keypoints": 1.0, "pose": self.final_pose_prior_weight, "angle": self.final_angle_prior_weight,
                 "limits": self.limit_weight, "shape": self.final_shape_weight,
                 "interpenetration": self.interpenetration_weight,
             }  # fmt: skip
-            out.append(Stage("final", ("betas",) + pose_free, w, self.final_iters))
+            part_w, part_free = self.part_weights(*final_parts)
+            out.append(Stage("final", ("betas",) + pose_free + part_free, {**w, **part_w}, self.final_iters))
         return tuple(out)
 
-    def to_dict(self) -> dict:
+    def to_dict(self, whole_body: bool = False) -> dict:
         """The settings and the resulting schedule (saved with every fit)."""
         d = {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items() if k != "schedule"}
-        d["stages"] = [stage_to_dict(s) for s in self.stages()]
+        d["stages"] = [stage_to_dict(s) for s in self.stages(whole_body)]
         return d
 
 
@@ -259,19 +326,17 @@ class KeypointFitter:
     def __init__(self, model=None, layout: str = "body25", config: Optional[KeypointFitConfig] = None, pose_prior=None):
         from ..body import load_body_model
 
-        self.model = load_body_model() if model is None else model
-        if getattr(self.model, "kind", "smpl") != "smpl":
-            raise ValueError(
-                f"{self.model.source}: the keypoint stage fits SMPL-layout models; whole-body ({self.model.kind}) "
-                "fitting is not available yet"
-            )
+        if model is None:
+            model = load_body_model(kind="smplx" if layout == "wholebody" else None)
+        self.model = model
         self.config = config or KeypointFitConfig()
         self.layout = layout
+        self.whole_body = layout == "wholebody"  # an SMPL-layout model refuses the layout (keypoint_sources)
         self.dtype = self.model.dtype
         self.body = KeypointBody(self.model, layout, self.config.prefer_landmarks)
         if pose_prior is None or isinstance(pose_prior, str):
             pose_prior = load_pose_prior(pose_prior, dtype=self.dtype)
-        self.pose_prior = pose_prior
+        self.pose_prior = body_prior_for(self.model, pose_prior)  # SMPL-X: the marginal over its 21 body joints
         self.collisions = SphereCollisionModel(self.model)
         self.params = ParameterLayout.of(self.model)
         names = _names(layout)
@@ -280,18 +345,21 @@ class KeypointFitter:
             if n.endswith("hip"):
                 w[i] = self.config.hip_weight
             w[i] *= self.config.keypoint_weights.get(n, 1.0)
-        self.kp_weights = torch.as_tensor(w, dtype=self.dtype)
+        self.kp_weights = torch.as_tensor(w, dtype=self.dtype) * self.body.kp_valid.to(self.dtype)
         self.torso_mask = torch.as_tensor([n in _TORSO_ALL for n in names], dtype=self.dtype)
         sigma = self.config.sigma if self.config.robust else None
-        self.energy = Energy([
+        terms = [
             KeypointTerm("keypoints", sigma), KeypointTerm("torso", sigma, mask=self.torso_mask), DepthTerm(),
             PriorTerm("pose", self.pose_prior, "body_pose"), PriorTerm("angle", angle_prior, "body_pose"),
             PriorTerm("limits", limit_violation, "body_pose"), PriorTerm("shape", shape_prior, "betas"),
             InterpenetrationTerm(self.collisions),
             JointSmoothnessTerm(sigma=self.config.temporal_sigma, kind=self.config.temporal_robust),
             RootSmoothnessTerm(sigma=self.config.temporal_sigma, kind=self.config.temporal_robust),
-        ])  # fmt: skip
-        self.stages = self.config.stages()
+        ]  # fmt: skip
+        if self.whole_body:
+            terms = wholebody_terms(self.model, terms, sigma, self.config, self.dtype)
+        self.energy = Energy(terms)
+        self.stages = self.config.stages(self.whole_body)
         check_stages(self.stages, self.energy, self.params)
         with torch.no_grad():
             kp = self.body(**self.model.zero_params(1)).keypoints
@@ -437,6 +505,8 @@ class KeypointFitter:
         if frame_weights is not None:
             fw = torch.as_tensor(np.asarray(frame_weights, dtype=np.float64), dtype=dt).reshape(B, layout.frames)
             data["weights"] = data["weights"] * fw.repeat(len(facings), 1)[:, :, None, None]
+        if self.whole_body:
+            data.update(part_gates(data["weights"]))
         for n, v in (init or {}).items():
             v = torch.as_tensor(np.asarray(v, dtype=np.float64), dtype=dt)
             shape = state[n].shape[1:]
@@ -466,6 +536,8 @@ class KeypointFitter:
 
         chosen_branches = [[] for _ in range(B)]
         for stage in self.stages:
+            if stage.options.get("hand_starts") and self.whole_body:
+                state = choose_hand_starts(self.model, self.body, layout, state, views, data, self.config.hand_sigma)
             if "branches" in stage.options:
                 if views_per_frame > 1:  # the views' data fixes the limbs' depth: no search (docs: rigs)
                     continue
@@ -525,6 +597,8 @@ class KeypointFitter:
         cams = _resolve_cameras(sets, cameras, image_size, focal)
         problems = [Problem.single(ks, cam) for ks, cam in zip(sets, cams)]
         data, views, _ = self._problem_data(problems, (False,))
+        if self.whole_body:
+            data.update(part_gates(data["weights"]))
         by_name = {s.name: s for s in self.stages}
         if stage not in by_name:
             raise ValueError(f"no stage {stage!r} in the schedule ({', '.join(by_name)})")
@@ -547,12 +621,14 @@ class KeypointFitter:
             err = (proj - info["data"]["target"][:, 0, 0]).norm(dim=-1).numpy()
         reproj = np.array([np.median(err[b][ks.conf > 0]) for b, ks in enumerate(sets)])
         np_ = lambda t: t.detach().cpu().numpy().astype(np.float32)  # noqa: E731
+        extra = {n: np_(rows[n]) for n in layout.sizes if n not in PARAM_NAMES}
         return KeypointFitResult(
-            **{n: np_(rows[n]) for n in layout.sizes}, cameras=cams, vertices=np_(out.vertices),
+            **{n: np_(rows[n]) for n in PARAM_NAMES}, extra_params=extra, cameras=cams, vertices=np_(out.vertices),
             joints=np_(out.joints), keypoints_2d=np_(proj), layout=self.layout,
             energies={k: np_(v) for k, v in info["energies"].items()},
             term_energies={s: {t: np_(v) for t, v in d.items()} for s, d in info["terms"].items()},
-            timings=info["timings"], flipped=info["flipped"], reprojection_error=reproj, config=self.config.to_dict(),
+            timings=info["timings"], flipped=info["flipped"], reprojection_error=reproj,
+            config=self.config.to_dict(self.whole_body),
             branches=info["branches"],
         )  # fmt: skip
 

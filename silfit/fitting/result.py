@@ -12,7 +12,10 @@ import numpy as np
 from ..body.model import SMPL_PARAMETER_NAMES as PARAM_NAMES
 from ..camera import Camera
 
-__all__ = ["KeypointFitResult", "PARAM_NAMES"]
+__all__ = ["KeypointFitResult", "PARAM_NAMES", "WHOLEBODY_EXTRA_NAMES"]
+
+#: SMPL-X's parameters besides SMPL's four
+WHOLEBODY_EXTRA_NAMES = ("expression", "jaw_pose", "leye_pose", "reye_pose", "left_hand_pose", "right_hand_pose")
 
 
 @dataclass
@@ -47,6 +50,9 @@ class KeypointFitResult:
     config: dict = field(default_factory=dict)
     #: per sample, the limb-branch flips the search kept (e.g. ``["left_shin"]``)
     branches: Optional[list] = None
+    #: a whole-body (SMPL-X-layout) model's other parameters by their SMPL-X names
+    #: (``expression``, ``jaw_pose``, ``leye_pose``, ``reye_pose``, ``left_hand_pose``, ``right_hand_pose``), ``[B, w]``
+    extra_params: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return self.betas.shape[0]
@@ -56,7 +62,11 @@ class KeypointFitResult:
         return self.cameras[0]
 
     def params(self, i: int = 0) -> dict:
-        return {name: getattr(self, name)[i] for name in PARAM_NAMES}
+        return {**{name: getattr(self, name)[i] for name in PARAM_NAMES}, **{k: v[i] for k, v in self.extra_params.items()}}
+
+    @property
+    def parameter_names(self) -> tuple:
+        return PARAM_NAMES + tuple(self.extra_params)
 
     def __getitem__(self, i: int) -> "KeypointFitResult":
         """The single-sample result ``i`` (a batch of one)."""
@@ -74,6 +84,7 @@ class KeypointFitResult:
             flipped=pick(self.flipped), reprojection_error=pick(self.reprojection_error),
             term_energies={s: {t: v[idx] for t, v in d.items()} for s, d in self.term_energies.items()},
             config=self.config, branches=None if self.branches is None else [self.branches[i] for i in idx],
+            extra_params={k: v[idx] for k, v in self.extra_params.items()},
         )  # fmt: skip
 
     # ------------------------------------------------------------------ I/O
@@ -83,7 +94,7 @@ class KeypointFitResult:
         out = Path(directory)
         out.mkdir(parents=True, exist_ok=True)
         cam = self.cameras[index]
-        arrays = {name: np.asarray(getattr(self, name)[index], dtype=np.float32) for name in PARAM_NAMES}
+        arrays = {name: np.asarray(self.params(index)[name], dtype=np.float32) for name in self.parameter_names}
         extra = {
             "camera_intrinsics": np.array([cam.fx, cam.fy, cam.cx, cam.cy], dtype=np.float64),
             "image_size": np.array([cam.width, cam.height], dtype=np.int64),
@@ -93,7 +104,7 @@ class KeypointFitResult:
             if getattr(self, name) is not None:
                 extra[name] = np.asarray(getattr(self, name)[index], dtype=np.float32)
         np.savez(out / "params.npz", **arrays, **extra)
-        payload = {name: arrays[name].astype(float).tolist() for name in PARAM_NAMES}
+        payload = {name: arrays[name].astype(float).tolist() for name in self.parameter_names}
         payload["camera"] = cam.to_dict()
         payload["layout"] = self.layout
         payload["energies"] = {k: float(v[index]) for k, v in self.energies.items()}
@@ -117,8 +128,22 @@ class KeypointFitResult:
         :func:`silfit.fitio.read_fit` (all four parameters and the camera are required)."""
         from ..fitio import read_fit
 
-        fit = read_fit(path, require=PARAM_NAMES, require_camera=True)
+        from ..fitio import PARAM_SIZES, SubjectError
+
+        sizes = {**PARAM_SIZES, **dict.fromkeys(WHOLEBODY_EXTRA_NAMES)}
+        try:
+            fit = read_fit(path, require=PARAM_NAMES, require_camera=True, sizes=sizes)
+        except SubjectError as err:  # SMPL-X's 21-joint body_pose, in a whole-body fit only
+            if err.field != "body_pose":
+                raise
+            try:
+                fit = read_fit(path, require=PARAM_NAMES, require_camera=True, sizes={**sizes, "body_pose": 63})
+            except SubjectError:
+                raise err from None
+            if not any(n in fit.params for n in WHOLEBODY_EXTRA_NAMES):
+                raise err from None
         get = lambda n: fit.arrays[n][None].astype(np.float32) if n in fit.arrays else None  # noqa: E731
+        extra = {n: fit.params[n][None].astype(np.float32) for n in WHOLEBODY_EXTRA_NAMES if n in fit.params}
         return cls(
             **{n: fit.params[n][None].astype(np.float32) for n in PARAM_NAMES}, cameras=[fit.camera],
             vertices=get("vertices"), joints=get("joints"), keypoints_2d=get("keypoints_2d"),
@@ -126,4 +151,5 @@ class KeypointFitResult:
             timings=dict(fit.timings),
             flipped=None if fit.flipped is None else np.array([fit.flipped]),
             reprojection_error=None if fit.reprojection_error is None else np.array([fit.reprojection_error]),
+            extra_params=extra,
         )  # fmt: skip

@@ -18,7 +18,7 @@ from .optim import batched_lbfgs
 from .problem import ParameterLayout
 from .terms import Energy, evaluate
 
-__all__ = ["Stage", "StageRun", "check_stages", "run_lbfgs_stage", "stage_to_dict"]
+__all__ = ["Stage", "StageRun", "check_stages", "gated", "run_lbfgs_stage", "stage_to_dict"]
 
 OPTIMISERS = ("lbfgs", "adam")
 
@@ -65,6 +65,19 @@ def check_stages(stages: Sequence[Stage], energy: Energy, layout: ParameterLayou
             raise ValueError(f"{where}: iterations must be a non-negative integer, got {s.iterations!r}")
 
 
+def gated(values: Dict[str, torch.Tensor], start: Dict[str, torch.Tensor], data: Mapping[str, torch.Tensor]) -> dict:
+    """Free parameters with per-problem gates applied: where ``data`` holds ``gate_<name>`` (1 free,
+    0 held; broadcastable to the parameter, e.g. ``[P, F, 1]``), a held problem's value stays at
+    ``start`` exactly, so no term (a prior, the interpenetration) and no optimiser step moves a part
+    that has no observations (a hand with all-zero confidences)."""
+    out = dict(values)
+    for n, v in values.items():
+        g = data.get(f"gate_{n}")
+        if g is not None:
+            out[n] = start[n] + g.to(v.dtype) * (v - start[n])
+    return out
+
+
 @dataclass
 class StageRun:
     """What a stage run leaves: final energy ``[P]``, per-term energies, seconds, steps."""
@@ -97,7 +110,7 @@ def run_lbfgs_stage(
 
     def params_at(x, idx):
         p = {n: v[idx] for n, v in state.items()}
-        p.update(layout.unpack(x, free))
+        p.update(gated(layout.unpack(x, free), p, {k: v[idx] for k, v in data.items()}))
         return p
 
     def fun(x, idx):
@@ -114,7 +127,7 @@ def run_lbfgs_stage(
     x, f, its = batched_lbfgs(fun, x0, max_iter=iters, history=history, callback=cb)
     if bar is not None:
         bar.close()
-    for n, v in layout.unpack(x, free).items():
+    for n, v in gated(layout.unpack(x, free), state, data).items():
         state[n] = v.detach()
     with torch.no_grad():
         idx = torch.arange(x.shape[0])

@@ -94,13 +94,15 @@ class KeypointTerm(Term):
     (Geman-McClure with ``sigma``, or plain L2 with ``sigma=None``), summed over
     observations. ``mask [K]`` restricts it to some keypoints (e.g. the torso)."""
 
-    def __init__(self, name: str = "keypoints", sigma: Optional[float] = 100.0, mask: Optional[torch.Tensor] = None):
-        self.name, self.sigma, self.mask = name, sigma, mask
+    def __init__(self, name: str = "keypoints", sigma: Optional[float] = 100.0, mask: Optional[torch.Tensor] = None,
+                 weights_key: str = "weights"):  # fmt: skip
+        self.name, self.sigma, self.mask, self.weights_key = name, sigma, mask, weights_key
 
     def __call__(self, ev: Evaluation) -> torch.Tensor:
         d = ev.data
         K = ev.keypoints_2d.shape[-2]
-        weights = d["weights"] if self.mask is None else d["weights"] * self.mask.to(d["weights"].dtype)
+        w = d[self.weights_key]  # ``weights``, or another key of the same shape (a part's own weights)
+        weights = w if self.mask is None else w * self.mask.to(w.dtype)
         e = reprojection_energy(
             ev.keypoints_2d.reshape(-1, K, 2), d["target"].reshape(-1, K, 2), weights.reshape(-1, K),
             d["scale"].reshape(-1), self.sigma,
@@ -119,14 +121,21 @@ class DepthTerm(Term):
 
 
 class PriorTerm(Term):
-    """``fn(parameter) -> [rows]`` summed per problem: pose, angle, limit and shape priors."""
+    """``fn(parameter) -> [rows]`` summed per problem: pose, angle, limit and shape priors.
 
-    def __init__(self, name: str, fn: Callable[[torch.Tensor], torch.Tensor], parameter: str):
+    ``parameter`` may be a tuple of names with ``fn`` a tuple of as many functions (e.g. one prior
+    per hand): their sum."""
+
+    def __init__(self, name: str, fn, parameter):
         self.name, self.fn, self.parameter = name, fn, parameter
 
     def __call__(self, ev: Evaluation) -> torch.Tensor:
-        value = ev.params[self.parameter]
-        return ev.per_problem(self.fn(value.reshape(-1, value.shape[-1])))
+        names, fns = (self.parameter, self.fn) if isinstance(self.parameter, tuple) else ((self.parameter,), (self.fn,))
+        total = 0
+        for n, fn in zip(names, fns):
+            value = ev.params[n]
+            total = total + ev.per_problem(fn(value.reshape(-1, value.shape[-1])))
+        return total
 
 
 class InterpenetrationTerm(Term):

@@ -157,7 +157,10 @@ def _skinning_transforms(model, body_pose: torch.Tensor) -> torch.Tensor:
     from ..body.lbs import axis_angle_to_matrix, forward_kinematics, vertices_to_joints
 
     joints = vertices_to_joints(model.J_regressor.double(), model.v_template.double()[None])
-    full = torch.cat([torch.zeros(len(body_pose), 3, dtype=torch.float64), body_pose], 1).reshape(len(body_pose), -1, 3)
+    full = torch.cat([torch.zeros(len(body_pose), 3, dtype=torch.float64), body_pose], 1)
+    # a whole-body model: SMPL's first 21 joints are its body, the rest (jaw, eyes, fingers) at rest
+    full = torch.cat([full[:, : 3 * model.num_joints], full.new_zeros(len(full), max(0, 3 * model.num_joints - full.shape[1]))], 1)
+    full = full.reshape(len(body_pose), -1, 3)
     _, T = forward_kinematics(axis_angle_to_matrix(full), joints.expand(len(body_pose), -1, -1), model.parents, model._levels)
     return T
 
@@ -186,7 +189,7 @@ def _posed_scale(model, centres, radii, weights, own, chunk: int = 16) -> np.nda
     rest radius)``: a sphere that the skinned surface around it would cut in some pose
     (near a joint) is shrunk to stay inside. The calibration poses are not mirrored; the
     scale is made symmetric by taking the smaller of a sphere's and its mirror image's."""
-    poses = torch.as_tensor(calibration_poses(), dtype=torch.float64)
+    poses = torch.as_tensor(calibration_poses(), dtype=torch.float64)[:, : model.num_body_pose]
     dt = model.dtype
     c, w = torch.as_tensor(centres, dtype=dt), torch.as_tensor(weights, dtype=dt)
     with torch.no_grad():

@@ -129,7 +129,10 @@ def _check(body_pose: torch.Tensor) -> torch.Tensor:
 
 def limit_violation(body_pose: torch.Tensor) -> torch.Tensor:
     """Soft joint-limit penalty ``[B]``: sum of squared excess (radians^2) beyond the
-    bounds; zero inside, differentiable everywhere."""
+    bounds; zero inside, differentiable everywhere. SMPL-X's 21-joint ``body_pose [B, 63]``
+    is accepted too (its joints are SMPL's first 21)."""
+    if torch.is_tensor(body_pose) and body_pose.ndim == 2 and body_pose.shape[1] == 63:
+        body_pose = torch.cat([body_pose, body_pose.new_zeros(body_pose.shape[0], 6)], 1)
     body_pose = _check(body_pose)
     lo, hi = limit_bounds(body_pose.dtype, body_pose.device)
     below = torch.relu(lo - body_pose)

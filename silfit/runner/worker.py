@@ -21,7 +21,7 @@ import numpy as np
 from ..fitting.keypoint_stage import KeypointFitConfig, KeypointFitter
 from ..fitting.silhouette_stage import SilhouetteFitConfig
 from ..pipeline import FitResult, refine, save_fit
-from .items import Item, ItemError, LoadedItem, item_error, load_item
+from .items import Item, ItemError, LoadedItem, _reading, item_error, load_item
 
 __all__ = ["FitOptions", "DatasetFitter", "keypoint_config", "silhouette_config"]
 
@@ -98,7 +98,10 @@ class DatasetFitter:
 
         options = FitOptions(**options) if isinstance(options, dict) else (options or FitOptions())
         self.options = options
-        self.model = load_body_model(options.model, gender=options.gender) if options.model else load_body_model()
+        if options.model == "open-smplx":  # the shipped open whole-body model: whole-body OpenPose items
+            self.model = load_body_model(kind="smplx")
+        else:
+            self.model = load_body_model(options.model, gender=options.gender) if options.model else load_body_model()
         self.faces = self.model.faces.cpu().numpy()
         self.config = keypoint_config(options.keypoint_options)
         self.pose_prior = load_pose_prior(options.pose_prior, dtype=self.model.dtype)
@@ -129,7 +132,13 @@ class DatasetFitter:
         for it in items:
             t0 = time.perf_counter()
             try:
-                loaded.append(load_item(it, read_masks=self.options.silhouette))
+                li = load_item(it, read_masks=self.options.silhouette)
+                if getattr(self.model, "kind", "smpl") == "smplx":  # hands and face from the same file
+                    from ..wholebody import choose_fit_keypoints, read_wholebody_parts
+
+                    parts = _reading("keypoints", it.keypoints, read_wholebody_parts, it.keypoints, li.person)
+                    li.keypoints = _reading("keypoints", it.keypoints, choose_fit_keypoints, li.keypoints, parts, self.model)[0]
+                loaded.append(li)
             except ItemError as err:
                 records[it.key] = _failed(it, "load", err)
             times[it.key] = {"load": time.perf_counter() - t0}
@@ -217,11 +226,16 @@ class DatasetFitter:
         return SILHOUETTE_FITTED if li.mask is not None else SILHOUETTE_NO_MASK
 
     def _extra(self, li: LoadedItem, batch: int) -> dict:
-        return {
+        extra = {
             "item": li.item.key, "keypoints": li.item.keypoints, "person": li.person, "people_in_file": li.people,
             "mask": li.mask_file, "image": li.item.image, "camera_file": li.item.camera, "model": self.model.source,
             "silhouette_stage": self._silhouette_status(li), "keypoint_batch_size": batch,
         }  # fmt: skip
+        if li.keypoints.layout == "wholebody":  # which parts were fitted, which held at rest
+            from ..fitting.wholebody import wholebody_summary
+
+            extra["whole_body"] = wholebody_summary(li.keypoints)[0]
+        return extra
 
     def _record(self, li: LoadedItem, res: FitResult, batch: int) -> dict:
         m = res.metrics
