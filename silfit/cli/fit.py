@@ -127,19 +127,6 @@ class FitInputs:
     photo: Optional[dict] = None
 
 
-
-def write_cleanly(out: Path, write) -> None:
-    """``write()`` an output folder; on an error or an interrupt, remove the (empty) parent
-    folders this run created for it, so nothing is left behind."""
-    created = _missing_folders(out)
-    try:
-        write()
-    except BaseException:
-        for folder in created:
-            if folder.is_dir() and not any(folder.iterdir()):
-                folder.rmdir()
-        raise
-
 def silhouette_config(args):
     """The silhouette stage's settings from ``--silhouette-resolutions`` / ``--silhouette-iterations``."""
     from ..fitting.silhouette_stage import SilhouetteFitConfig
@@ -255,8 +242,14 @@ def run(args) -> int:
     if photo and photo["metrics"]:
         extra.update(photo["metrics"], warnings=photo["warnings"] + result.metrics.get("warnings", []))
         result.metrics["warnings"] = extra["warnings"]
-    write_cleanly(out, lambda: save_fit(result, out, model.faces.cpu().numpy(), keypoints, image, mask, extra,
-                                        overwrite=args.overwrite))  # fmt: skip
+    created = _missing_folders(out)
+    try:
+        save_fit(result, out, model.faces.cpu().numpy(), keypoints, image, mask, extra, overwrite=args.overwrite)
+    except BaseException:  # an error or an interrupt: leave no folder behind that this run created
+        for folder in created:
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
+        raise
     if not args.quiet:
         m = result.metrics
         line = f"wrote {out}: median reprojection error {m['reprojection_error_px']:.2f} px"

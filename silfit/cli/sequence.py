@@ -70,9 +70,17 @@ def run_sequence(args) -> int:
     result = fit_sequence(seq.frames, camera, model, config=cfg, pose_prior=pose_prior, progress=not args.quiet)
     if masks is not None:
         from ..fitting.sequence import refine_sequence_silhouettes
-        from .fit import silhouette_config
+        from ..fitting.silhouette_stage import SilhouetteFitConfig
 
-        sil_config = silhouette_config(args)
+        levels = {}
+        if args.silhouette_resolutions:
+            levels["resolutions"] = tuple(args.silhouette_resolutions)
+        if args.silhouette_iterations:
+            levels["iterations"] = tuple(args.silhouette_iterations)
+        try:
+            sil_config = SilhouetteFitConfig(**levels)
+        except ValueError:
+            raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels") from None
         result = refine_sequence_silhouettes(model, result, seq.frames, masks, config=sil_config, pose_prior=pose_prior,
                                              progress=not args.quiet)  # fmt: skip
     extra = {"sequence": str(args.sequence), "model": model.source, "camera_source": camera_source,
