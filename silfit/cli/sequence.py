@@ -55,6 +55,11 @@ def run_sequence(args) -> int:
     camera, camera_source = _camera(args, seq)
     model = load_body_model(args.model, gender=args.gender) if args.model else load_body_model()
     pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
+    masks = None
+    if seq.masks and not args.no_silhouette:  # read (and checked) before --check-only answers
+        from ..silhouette.masks import read_mask
+
+        masks = [read_mask(seq.masks[n], size=(camera.width, camera.height)) if n in seq.masks else None for n in seq.numbers]
     if args.check_only:
         print(f"inputs OK: {len(seq.numbers)} frames ({seq.detected} with a person), {len(seq.masks)} masks, "
               f"{len(seq.images)} images")  # fmt: skip
@@ -62,11 +67,6 @@ def run_sequence(args) -> int:
     cfg = SequenceFitConfig()
     if args.sequence_iterations is not None:
         cfg.iterations = int(args.sequence_iterations)
-    masks = None
-    if seq.masks and not args.no_silhouette:
-        from ..silhouette.masks import read_mask
-
-        masks = [read_mask(seq.masks[n], size=(camera.width, camera.height)) if n in seq.masks else None for n in seq.numbers]
     result = fit_sequence(seq.frames, camera, model, config=cfg, pose_prior=pose_prior, progress=not args.quiet)
     if masks is not None:
         from ..fitting.sequence import refine_sequence_silhouettes

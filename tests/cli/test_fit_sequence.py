@@ -62,3 +62,16 @@ def test_fit_sequence_bad_input_is_one_line(tmp_path, capsys):
     (empty / "v_000000000000_keypoints.json").write_text("{not json")
     assert main(["fit", "--sequence", str(empty), "--out", str(tmp_path / "o")]) == 2
     assert "v_000000000000_keypoints.json" in capsys.readouterr().err and not (tmp_path / "o").exists()
+
+
+def test_fit_sequence_check_only_reads_the_masks(sequence, tmp_path, capsys):
+    import shutil
+
+    seq, model = sequence
+    copy = tmp_path / "seq"
+    shutil.copytree(seq, copy)
+    bad = sorted((copy / "masks").glob("*.png"))[1]
+    bad.write_bytes(b"not a png")
+    assert main(["fit", "--sequence", str(copy), "--model", str(model), "--out", str(tmp_path / "o"), "--check-only"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and bad.name in err and not (tmp_path / "o").exists()
