@@ -44,6 +44,7 @@ def run_sequence(args) -> int:
     from ..fitting.sequence import SequenceFitConfig, fit_sequence
     from ..priors import load_pose_prior
     from ..video import read_sequence, save_sequence_fit
+    from .fit import silhouette_config
 
     for flag in ("keypoints", "mask", "image"):
         if getattr(args, flag, None):
@@ -51,6 +52,7 @@ def run_sequence(args) -> int:
     out = Path(args.out)
     if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
         raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
+    sil_config = silhouette_config(args)  # a bad flag is reported before any fitting
     seq = read_sequence(args.sequence, masks=args.masks, images=args.images, person=args.person)
     camera, camera_source = _camera(args, seq)
     model = load_body_model(args.model, gender=args.gender) if args.model else load_body_model()
@@ -70,17 +72,7 @@ def run_sequence(args) -> int:
     result = fit_sequence(seq.frames, camera, model, config=cfg, pose_prior=pose_prior, progress=not args.quiet)
     if masks is not None:
         from ..fitting.sequence import refine_sequence_silhouettes
-        from ..fitting.silhouette_stage import SilhouetteFitConfig
 
-        levels = {}
-        if args.silhouette_resolutions:
-            levels["resolutions"] = tuple(args.silhouette_resolutions)
-        if args.silhouette_iterations:
-            levels["iterations"] = tuple(args.silhouette_iterations)
-        try:
-            sil_config = SilhouetteFitConfig(**levels)
-        except ValueError:
-            raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels") from None
         result = refine_sequence_silhouettes(model, result, seq.frames, masks, config=sil_config, pose_prior=pose_prior,
                                              progress=not args.quiet)  # fmt: skip
     extra = {"sequence": str(args.sequence), "model": model.source, "camera_source": camera_source,

@@ -75,3 +75,18 @@ def test_fit_sequence_check_only_reads_the_masks(sequence, tmp_path, capsys):
     assert main(["fit", "--sequence", str(copy), "--model", str(model), "--out", str(tmp_path / "o"), "--check-only"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and bad.name in err and not (tmp_path / "o").exists()
+
+
+def test_fit_sequence_mismatched_silhouette_levels_fail_before_fitting(sequence, tmp_path, capsys, monkeypatch):
+    import silfit.fitting.sequence
+
+    def no_fit(*a, **k):
+        raise AssertionError("the flags must be checked before the sequence is fitted")
+
+    monkeypatch.setattr(silfit.fitting.sequence, "fit_sequence", no_fit)
+    seq, model = sequence
+    rc = main(["fit", "--sequence", str(seq), "--model", str(model), "--out", str(tmp_path / "o"),
+               "--silhouette-resolutions", "32,64", "--silhouette-iterations", "3"])  # fmt: skip
+    assert rc == 2
+    captured = capsys.readouterr()
+    assert "same number of levels" in captured.err and "wrote" not in captured.out and not (tmp_path / "o").exists()
