@@ -110,6 +110,19 @@ def _missing_folders(path: Path) -> list:
     return missing
 
 
+def save_leaving_nothing_on_error(out: Path, save) -> None:
+    """``save()`` (writes the folder ``out``); on an error or an interrupt, the parent folders
+    this run created are removed again (the writers themselves are atomic)."""
+    created = _missing_folders(out)
+    try:
+        save()
+    except BaseException:
+        for folder in created:
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
+        raise
+
+
 @dataclass
 class FitInputs:
     """Everything ``silfit fit`` reads, validated (see :func:`load_inputs`)."""
@@ -251,14 +264,8 @@ def run(args) -> int:
     if photo and photo["metrics"]:
         extra.update(photo["metrics"], warnings=photo["warnings"] + result.metrics.get("warnings", []))
         result.metrics["warnings"] = extra["warnings"]
-    created = _missing_folders(out)
-    try:
-        save_fit(result, out, model.faces.cpu().numpy(), keypoints, image, mask, extra, overwrite=args.overwrite)
-    except BaseException:  # an error or an interrupt: leave no folder behind that this run created
-        for folder in created:
-            if folder.is_dir() and not any(folder.iterdir()):
-                folder.rmdir()
-        raise
+    save_leaving_nothing_on_error(
+        out, lambda: save_fit(result, out, model.faces.cpu().numpy(), keypoints, image, mask, extra, overwrite=args.overwrite))
     if not args.quiet:
         m = result.metrics
         line = f"wrote {out}: median reprojection error {m['reprojection_error_px']:.2f} px"

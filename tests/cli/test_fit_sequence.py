@@ -90,3 +90,19 @@ def test_fit_sequence_mismatched_silhouette_levels_fail_before_fitting(sequence,
     assert rc == 2
     captured = capsys.readouterr()
     assert "same number of levels" in captured.err and "wrote" not in captured.out and not (tmp_path / "o").exists()
+
+
+def test_fit_sequence_failing_write_leaves_no_parent_folder(sequence, tmp_path, capsys, monkeypatch):
+    import silfit.video
+
+    def failing_save(result, out, *a, **k):  # the writer made the parents, then failed
+        out.parent.mkdir(parents=True)
+        raise OSError(f"{out}: disk full")
+
+    monkeypatch.setattr(silfit.video, "save_sequence_fit", failing_save)
+    seq, model = sequence
+    out = tmp_path / "new" / "deeper" / "fit"
+    rc = main(["fit", "--sequence", str(seq), "--model", str(model), "--out", str(out), "--sequence-iterations", "2",
+               "--no-silhouette", "--quiet"])  # fmt: skip
+    assert rc == 2 and "disk full" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()
