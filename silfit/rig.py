@@ -200,12 +200,17 @@ def _fs_open(path: Path):
 
 
 def _fs_matrix(fs, path: Path, key: str, sizes) -> np.ndarray:
+    import cv2
+
     node = fs.getNode(key)
     if node.empty() or node.isNone():
         raise InputError(path, f"field '{key}' missing", field=key)
-    mat = node.mat()
+    try:  # a scalar, a string or a matrix whose data does not match rows x cols makes OpenCV assert
+        mat = node.mat() if node.isMap() else None
+    except cv2.error:
+        mat = None
     if mat is None:
-        raise InputError(path, f"field '{key}' is not an opencv-matrix", field=key)
+        raise InputError(path, f"field '{key}' is not an opencv-matrix (rows, cols, dt, data of rows x cols numbers)", field=key)
     mat = np.asarray(mat, dtype=np.float64)
     if mat.size not in sizes:
         raise InputError(path, f"field '{key}' has {mat.size} values, expected {' or '.join(map(str, sizes))}", field=key)

@@ -106,7 +106,8 @@ def read_sequence(folder: Union[str, os.PathLike], masks: Optional[Union[str, os
         try:
             frames.append(read_keypoints(p, person=person))
         except InputError as err:
-            if err.field == "people" and "empty" in str(err):  # OpenPose: nobody seen in this frame
+            # OpenPose: nobody seen in this frame (no people, or a person with every confidence 0)
+            if (err.field == "people" and "empty" in str(err)) or "all keypoint confidences are zero" in str(err):
                 frames.append(None)
             else:
                 raise

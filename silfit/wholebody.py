@@ -201,14 +201,10 @@ def read_wholebody(path: Union[str, os.PathLike], person: Union[int, str] = "lar
     ``hand_left_keypoints_2d`` / ``hand_right_keypoints_2d`` (21 each) and ``face_keypoints_2d`` (70)).
     Parts that are absent or ``[]`` are ``None``; the parts in ``require`` must be present with a
     confident point. ``person``: an index or ``"largest"`` (by the body's confident extent)."""
+    from .input_limits import read_json
+
     source = os.fspath(path)
-    try:
-        with open(source, "r", encoding="utf-8") as fh:
-            data = json.load(fh)
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{source}: keypoint file not found") from None
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{source}: not valid JSON ({err})") from None
+    data = read_json(source, "keypoint")  # size limit, UTF-8, nesting depth: one line naming the file
     if not isinstance(data, dict) or not isinstance(data.get("people"), list):
         raise ValueError(f"{source}: not OpenPose JSON (no 'people' list)")
     if not data["people"]:
@@ -260,9 +256,10 @@ def read_wholebody_parts(path, person: Union[int, str] = "largest") -> Optional[
     :func:`silfit.keypoints.read_keypoints`)."""
     from .errors import InputError
 
+    from .input_limits import read_json
+
     try:
-        with open(os.fspath(path), "r", encoding="utf-8") as fh:
-            data = json.load(fh)
+        data = read_json(path, "keypoint")
     except (OSError, ValueError):
         return None  # read_keypoints reports unreadable files
     people = data.get("people") if isinstance(data, dict) else None

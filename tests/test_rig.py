@@ -115,6 +115,19 @@ def test_easymocap_bad_files(tmp_path):
         read_easymocap(tmp_path / "intri.yml", tmp_path / "extri.yml", sizes={"a": (128, 128)})
 
 
+@pytest.mark.parametrize("node", ["T_a: 3", 'T_a: "abc"', "T_a: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ 1., 2. ]",
+                                  "T_a: !!opencv-matrix\n   rows: 300000000\n   cols: 1\n   dt: d\n   data: [ 1., 2., 3. ]"])
+def test_easymocap_malformed_matrix_is_an_input_error(tmp_path, node):
+    # OpenCV asserts (cv2.error) on a scalar node's or a mis-sized matrix's .mat(): one InputError instead
+    K = np.array([[500.0, 0, 63.5], [0, 500.0, 63.5], [0, 0, 1]])
+    _write_easymocap(tmp_path, ["a"], K, [[0, 0, 0]], [[0, 0, 3]])
+    (tmp_path / "extri.yml").write_text("%YAML:1.0\n---\nnames:\n   - a\nR_a: !!opencv-matrix\n   rows: 3\n   cols: 1\n"
+                                        f"   dt: d\n   data: [ 0., 0., 0. ]\n{node}\n")
+    with pytest.raises(InputError, match="opencv-matrix") as err:
+        read_easymocap(tmp_path / "intri.yml", tmp_path / "extri.yml", sizes={"a": (128, 128)})
+    assert err.value.field == "T_a"
+
+
 def test_easymocap_yaml_is_parsed_not_executed(tmp_path):
     # A PyYAML-style object tag must not construct anything: OpenCV's parser refuses it.
     marker = tmp_path / "marker"

@@ -41,3 +41,11 @@ def test_read_sequence_errors_name_the_file(tmp_path):
     (tmp_path / "v_000000000000_keypoints.json").write_text(json.dumps({"people": []}))
     with pytest.raises(InputError, match="no person detected in any"):
         read_sequence(tmp_path)
+
+
+def test_a_frame_whose_person_has_no_confident_point_is_a_frame_without_detection(tmp_path):
+    for n in (0, 2):
+        write_openpose_json(tmp_path / f"v_{n:012d}_keypoints.json", kp(n))
+    (tmp_path / "v_000000000001_keypoints.json").write_text(json.dumps({"people": [{"pose_keypoints_2d": [0.0] * 75}]}))
+    seq = read_sequence(tmp_path)
+    assert [ks is None for ks in seq.frames] == [False, True, False]

@@ -79,3 +79,16 @@ def test_bad_files_fail_clearly(tmp_path, edit, message):
     with pytest.raises(ValueError, match=message) as err:
         read_wholebody(tmp_path / "bad.json", require=("body", "hand_left", "hand_right", "face"))
     assert "bad.json" in str(err.value)
+
+
+def test_unreadable_whole_body_files_are_one_input_error(tmp_path):
+    # the same reader checks as every JSON input (silfit.input_limits.read_json): not UTF-8, nested too deeply
+    from silfit.errors import InputError
+
+    (tmp_path / "bin.json").write_bytes(b"\xff\xfe\x00garbage")
+    (tmp_path / "deep.json").write_text("[" * 100000 + "]" * 100000)
+    for name, words in (("bin.json", "not a text"), ("deep.json", "nested too deeply")):
+        with pytest.raises(InputError, match=words):
+            read_wholebody(tmp_path / name)
+    with pytest.raises(FileNotFoundError, match="keypoint file not found"):
+        read_wholebody(tmp_path / "none.json")

@@ -110,6 +110,19 @@ def _missing_folders(path: Path) -> list:
     return missing
 
 
+def save_leaving_nothing_on_error(out: Path, save) -> None:
+    """``save()`` (writes the folder ``out``); on an error or an interrupt, the parent folders
+    this run created are removed again (the writers themselves are atomic)."""
+    created = _missing_folders(out)
+    try:
+        save()
+    except BaseException:
+        for folder in created:
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
+        raise
+
+
 @dataclass
 class FitInputs:
     """Everything ``silfit fit`` reads, validated (see :func:`load_inputs`)."""
@@ -146,7 +159,7 @@ def load_inputs(args) -> FitInputs:
     """Read and check every input file and option of ``silfit fit`` (nothing is fitted or
     written): keypoints, image, camera, mask, body model, pose prior, silhouette settings."""
     from .. import load_body_model
-    from ..camera import Camera, camera_from_dict, load_camera
+    from ..camera import Camera, camera_from_dict
     from ..errors import InputError
     from ..keypoints import read_keypoints
     from ..wholebody import read_wholebody_parts
@@ -169,7 +182,14 @@ def load_inputs(args) -> FitInputs:
         raise CLIError("no keypoints: give --keypoints KP.json, or --image PHOTO to detect them")
     keypoints = read_keypoints(args.keypoints, person=person) if args.keypoints else photo["keypoints"]
     image, size = (photo["image"], photo["size"]) if photo else _image_size(args)
-    camera = load_camera(args.camera) if args.camera else None
+    camera, extrinsics_note = None, ""
+    if args.camera:  # R, t (optional) checked as for rigs; one image is fitted in its camera's frame
+        from ..rig import read_view_camera
+
+        view = read_view_camera(args.camera)
+        camera, (R, t) = view.camera, view.extrinsics()
+        if view.R is not None and (np.abs(R - np.eye(3)).max() > 1e-9 or np.abs(t).max() > 1e-9):
+            extrinsics_note = " (its R, t not applied: one image is fitted in the camera's frame; --rig fits in the world frame)"
     if camera is not None and size is not None and tuple(size) != (camera.width, camera.height):
         raise CLIError(f"{args.camera}: camera is {camera.width}x{camera.height} but the image is {size[0]}x{size[1]}")
     mask = None
@@ -179,7 +199,9 @@ def load_inputs(args) -> FitInputs:
         size = size or (mask.shape[1], mask.shape[0])
     elif photo and photo["mask"] is not None:
         mask = photo["mask"]
-    focal, camera_source = args.focal, "camera file" if camera else ("--focal" if args.focal else "default max(W, H)")
+    focal, camera_source = args.focal, "camera file" + extrinsics_note if camera else ("--focal" if args.focal else "default max(W, H)")
+    if extrinsics_note and not args.quiet:
+        print(f"warning: {args.camera}: camera R, t not applied: one image is fitted in the camera's frame")
     if camera is None and focal is None and photo and photo["focal"]:
         focal, camera_source = photo["focal"], photo["focal_source"]
     if camera is None and size is None:
@@ -242,14 +264,8 @@ def run(args) -> int:
     if photo and photo["metrics"]:
         extra.update(photo["metrics"], warnings=photo["warnings"] + result.metrics.get("warnings", []))
         result.metrics["warnings"] = extra["warnings"]
-    created = _missing_folders(out)
-    try:
-        save_fit(result, out, model.faces.cpu().numpy(), keypoints, image, mask, extra, overwrite=args.overwrite)
-    except BaseException:  # an error or an interrupt: leave no folder behind that this run created
-        for folder in created:
-            if folder.is_dir() and not any(folder.iterdir()):
-                folder.rmdir()
-        raise
+    save_leaving_nothing_on_error(
+        out, lambda: save_fit(result, out, model.faces.cpu().numpy(), keypoints, image, mask, extra, overwrite=args.overwrite))
     if not args.quiet:
         m = result.metrics
         line = f"wrote {out}: median reprojection error {m['reprojection_error_px']:.2f} px"

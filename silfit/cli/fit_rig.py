@@ -19,7 +19,7 @@ def run_rig(args) -> int:
     from ..priors import load_pose_prior
     from ..rig import load_rig
     from ..rig_pipeline import fit_rig, save_rig_fit
-    from .fit import _missing_folders, silhouette_config
+    from .fit import save_leaving_nothing_on_error, silhouette_config
 
     for flag in ("keypoints", "mask", "camera", "focal", "image", "image_size"):
         if getattr(args, flag, None):
@@ -51,14 +51,8 @@ def run_rig(args) -> int:
     result = fit_rig(problem, names, model, pose_prior, silhouette=not args.no_silhouette,
                      silhouette_config=silhouette_config(args), progress=not args.quiet)  # fmt: skip
     extra = {"rig": str(args.rig), "model": model.source, "warnings": warnings + result.metrics.get("warnings", [])}
-    created = _missing_folders(out)
-    try:
-        save_rig_fit(result, out, model.faces.cpu().numpy(), problem, images, extra, overwrite=args.overwrite)
-    except BaseException:
-        for folder in created:
-            if folder.is_dir() and not any(folder.iterdir()):
-                folder.rmdir()
-        raise
+    save_leaving_nothing_on_error(
+        out, lambda: save_rig_fit(result, out, model.faces.cpu().numpy(), problem, images, extra, overwrite=args.overwrite))
     if not args.quiet:
         m = result.metrics
         line = f"wrote {out}: {len(views)} views, median reprojection error {m['reprojection_error_px']:.2f} px"

@@ -44,6 +44,7 @@ def run_sequence(args) -> int:
     from ..fitting.sequence import SequenceFitConfig, fit_sequence
     from ..priors import load_pose_prior
     from ..video import read_sequence, save_sequence_fit
+    from .fit import save_leaving_nothing_on_error, silhouette_config
 
     for flag in ("keypoints", "mask", "image"):
         if getattr(args, flag, None):
@@ -51,10 +52,16 @@ def run_sequence(args) -> int:
     out = Path(args.out)
     if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
         raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
+    sil_config = silhouette_config(args)  # a bad flag is reported before any fitting
     seq = read_sequence(args.sequence, masks=args.masks, images=args.images, person=args.person)
     camera, camera_source = _camera(args, seq)
     model = load_body_model(args.model, gender=args.gender) if args.model else load_body_model()
     pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
+    masks = None
+    if seq.masks and not args.no_silhouette:  # read (and checked) before --check-only answers
+        from ..silhouette.masks import read_mask
+
+        masks = [read_mask(seq.masks[n], size=(camera.width, camera.height)) if n in seq.masks else None for n in seq.numbers]
     if args.check_only:
         print(f"inputs OK: {len(seq.numbers)} frames ({seq.detected} with a person), {len(seq.masks)} masks, "
               f"{len(seq.images)} images")  # fmt: skip
@@ -62,31 +69,17 @@ def run_sequence(args) -> int:
     cfg = SequenceFitConfig()
     if args.sequence_iterations is not None:
         cfg.iterations = int(args.sequence_iterations)
-    masks = None
-    if seq.masks and not args.no_silhouette:
-        from ..silhouette.masks import read_mask
-
-        masks = [read_mask(seq.masks[n], size=(camera.width, camera.height)) if n in seq.masks else None for n in seq.numbers]
     result = fit_sequence(seq.frames, camera, model, config=cfg, pose_prior=pose_prior, progress=not args.quiet)
     if masks is not None:
         from ..fitting.sequence import refine_sequence_silhouettes
-        from ..fitting.silhouette_stage import SilhouetteFitConfig
 
-        levels = {}
-        if args.silhouette_resolutions:
-            levels["resolutions"] = tuple(args.silhouette_resolutions)
-        if args.silhouette_iterations:
-            levels["iterations"] = tuple(args.silhouette_iterations)
-        try:
-            sil_config = SilhouetteFitConfig(**levels)
-        except ValueError:
-            raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels") from None
         result = refine_sequence_silhouettes(model, result, seq.frames, masks, config=sil_config, pose_prior=pose_prior,
                                              progress=not args.quiet)  # fmt: skip
     extra = {"sequence": str(args.sequence), "model": model.source, "camera_source": camera_source,
              "silhouette": "run" if masks is not None else "not run (no masks)" if not seq.masks else "not run (--no-silhouette)"}  # fmt: skip
-    save_sequence_fit(result, out, model, seq, meshes=args.meshes, video=not args.no_video, fps=args.fps,
-                      extra_metrics=extra, overwrite=args.overwrite)  # fmt: skip
+    save_leaving_nothing_on_error(out, lambda: save_sequence_fit(
+        result, out, model, seq, meshes=args.meshes, video=not args.no_video, fps=args.fps, extra_metrics=extra,
+        overwrite=args.overwrite))  # fmt: skip
     if not args.quiet:
         t = result.timings
         line = f"wrote {out}: {result.num_frames} frames, {int(result.bridged.sum())} bridged, {t['seconds_per_frame']:.2f} s per frame"

@@ -73,7 +73,8 @@ def score_sequence(model, gt: Dict[str, np.ndarray], params: Dict[str, np.ndarra
     betas = np.asarray(params["betas"])
     shape = shape_pve(model, betas, gt["betas"]) if betas.ndim == 1 else np.mean(shape_pve(model, betas, np.repeat(gt["betas"][None], F, 0)))
     row = {"pa_mpjpe": float(pa.mean()), "mpjpe": float(np.mean(mpjpe(pred, true)) * 1000),
-           "accel": acceleration_error(pred, true) * 1000, "shape": float(shape) * 1000}  # fmt: skip
+           "accel": acceleration_error(pred, true) * 1000 if F >= 3 else float("nan"),  # needs 3 frames
+           "shape": float(shape) * 1000}  # fmt: skip
     if bridged is not None and np.any(bridged):
         row["pa_mpjpe_bridged"] = float(pa[np.asarray(bridged, dtype=bool)].mean())
     return row

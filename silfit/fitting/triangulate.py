@@ -48,7 +48,14 @@ def dlt(P: np.ndarray, xy: np.ndarray, weights: np.ndarray) -> np.ndarray:
     C, K = w.shape
     # Rows x * P3 - P1 and y * P3 - P2, divided by the focal length so they are in
     # (approximately) normalised image units: every view's pixel residual weighs the same.
-    f = np.sqrt(np.abs(P[:, 0, 0] * P[:, 1, 1]) / np.maximum(np.linalg.norm(P[:, 2, :3], axis=1) ** 2, 1e-12))
+    # The focal lengths come from M M^T = l^2 K K^T (M = P[:, :3] = l K R, zero skew), not from
+    # P[0, 0] = l (fx R00 + cx R20), which depends on the camera's rotation (and can be 0).
+    M = P[:, :, :3]
+    S = M @ M.transpose(0, 2, 1)
+    s22 = np.maximum(S[:, 2, 2], 1e-24)
+    fx2 = S[:, 0, 0] / s22 - (S[:, 0, 2] / s22) ** 2
+    fy2 = S[:, 1, 1] / s22 - (S[:, 1, 2] / s22) ** 2
+    f = np.sqrt(s22) * np.sqrt(np.sqrt(np.clip(fx2, 0.0, None) * np.clip(fy2, 0.0, None)))
     r1 = xy[..., 0, None] * P[:, None, 2] - P[:, None, 0]  # [C, K, 4]
     r2 = xy[..., 1, None] * P[:, None, 2] - P[:, None, 1]
     scale = (w / np.maximum(f, 1e-12)[:, None])[..., None]

@@ -182,3 +182,19 @@ def test_check_only_reads_everything_and_writes_nothing(inputs, tmp_path, capsys
     assert main(args + ["--pose-prior", str(tmp_path / "prior.pkl")]) == 2
     assert "prior.pkl: refused to unpickle 'os.system'" in capsys.readouterr().err
     assert not (tmp_path / "ran").exists()
+
+
+def test_fit_camera_extrinsics_are_checked_and_reported(inputs, tmp_path, capsys):
+    # one image: camera.json's R, t are validated as for rigs and said not to be applied
+    d, model = inputs
+    cam = json.loads((d / "camera.json").read_text())
+    c, s = np.cos(0.3), np.sin(0.3)
+    (tmp_path / "rt.json").write_text(json.dumps({**cam, "R": [[c, 0, s], [0, 1, 0], [-s, 0, c]], "t": [0.1, 0, 0]}))
+    (tmp_path / "bad.json").write_text(json.dumps({**cam, "R": [[1, 0, 0], [0, 1, 0], [0, 0, 2]], "t": [0, 0, 0]}))
+    args = ["fit", "--keypoints", str(d / "kp.json"), "--model", str(model), "--no-silhouette"]
+    assert main(args + ["--camera", str(tmp_path / "bad.json"), "--out", str(tmp_path / "o_bad")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "bad.json" in err and "'R'" in err and not (tmp_path / "o_bad").exists()
+    assert main(args + ["--camera", str(tmp_path / "rt.json"), "--out", str(tmp_path / "o")]) == 0
+    assert "R, t not applied" in capsys.readouterr().out
+    assert "R, t not applied" in json.loads((tmp_path / "o" / "metrics.json").read_text())["camera_source"]

@@ -62,3 +62,47 @@ def test_fit_sequence_bad_input_is_one_line(tmp_path, capsys):
     (empty / "v_000000000000_keypoints.json").write_text("{not json")
     assert main(["fit", "--sequence", str(empty), "--out", str(tmp_path / "o")]) == 2
     assert "v_000000000000_keypoints.json" in capsys.readouterr().err and not (tmp_path / "o").exists()
+
+
+def test_fit_sequence_check_only_reads_the_masks(sequence, tmp_path, capsys):
+    import shutil
+
+    seq, model = sequence
+    copy = tmp_path / "seq"
+    shutil.copytree(seq, copy)
+    bad = sorted((copy / "masks").glob("*.png"))[1]
+    bad.write_bytes(b"not a png")
+    assert main(["fit", "--sequence", str(copy), "--model", str(model), "--out", str(tmp_path / "o"), "--check-only"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and bad.name in err and not (tmp_path / "o").exists()
+
+
+def test_fit_sequence_mismatched_silhouette_levels_fail_before_fitting(sequence, tmp_path, capsys, monkeypatch):
+    import silfit.fitting.sequence
+
+    def no_fit(*a, **k):
+        raise AssertionError("the flags must be checked before the sequence is fitted")
+
+    monkeypatch.setattr(silfit.fitting.sequence, "fit_sequence", no_fit)
+    seq, model = sequence
+    rc = main(["fit", "--sequence", str(seq), "--model", str(model), "--out", str(tmp_path / "o"),
+               "--silhouette-resolutions", "32,64", "--silhouette-iterations", "3"])  # fmt: skip
+    assert rc == 2
+    captured = capsys.readouterr()
+    assert "same number of levels" in captured.err and "wrote" not in captured.out and not (tmp_path / "o").exists()
+
+
+def test_fit_sequence_failing_write_leaves_no_parent_folder(sequence, tmp_path, capsys, monkeypatch):
+    import silfit.video
+
+    def failing_save(result, out, *a, **k):  # the writer made the parents, then failed
+        out.parent.mkdir(parents=True)
+        raise OSError(f"{out}: disk full")
+
+    monkeypatch.setattr(silfit.video, "save_sequence_fit", failing_save)
+    seq, model = sequence
+    out = tmp_path / "new" / "deeper" / "fit"
+    rc = main(["fit", "--sequence", str(seq), "--model", str(model), "--out", str(out), "--sequence-iterations", "2",
+               "--no-silhouette", "--quiet"])  # fmt: skip
+    assert rc == 2 and "disk full" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()

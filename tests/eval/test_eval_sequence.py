@@ -38,6 +38,14 @@ def test_truth_scores_zero_and_a_jittered_fit_does_not(sequence_dataset, open_mo
     assert bad["accel"] > 1.0 and bad["pa_mpjpe_bridged"] > bad["pa_mpjpe"]
 
 
+def test_a_two_frame_sequence_scores_without_acceleration(sequence_dataset, open_model):
+    gt = {k: (v[:2] if k != "betas" and np.ndim(v) > 1 else v) for k, v in np.load(sequence_dataset / "seq_000" / "gt.npz").items()}
+    pose = gt["body_pose"].copy()
+    pose[1] += 0.1
+    row = score_sequence(open_model, gt, dict(gt, body_pose=pose))
+    assert np.isnan(row["accel"]) and row["pa_mpjpe"] > 1.0
+
+
 def test_evaluate_sequences_scores_existing_fits(sequence_dataset, open_model, tmp_path):
     assert is_sequence_dataset(sequence_dataset) and not is_sequence_dataset(tmp_path)
     gt = dict(np.load(sequence_dataset / "seq_000" / "gt.npz"))

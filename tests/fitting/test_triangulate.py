@@ -32,6 +32,24 @@ def test_dlt_is_exact_on_noise_free_points(views):
     assert np.abs(Y - X).max() < 1e-9 and inliers.all() and err.max() < 1e-6
 
 
+def test_dlt_weighs_views_independently_of_the_world_frame():
+    # Rotating the world (every camera's R by the same Q) rotates the noisy DLT solution by Q:
+    # the per-view normalisation must use the focal length, not P[0, 0] (which mixes in R).
+    rng = np.random.default_rng(5)
+    ext = ring_layout(3, 3.0, [0.0, 0.4, 0.8], start_deg=20.0)
+    intr = np.array([[1000.0, 1000.0, 500.0, 400.0]] * 3)
+    R = np.stack([e[0] for e in ext])
+    t = np.stack([e[1] for e in ext])
+    X = rng.normal(0, 0.3, (40, 3))
+    P = projection_matrices(intr, R, t)
+    xy = project(P, X) + rng.normal(0, 3.0, (3, 40, 2))
+    conf = rng.uniform(0.3, 1.0, (3, 40))
+    for angle in (30.0, 63.43494882292201, 120.0):  # 63.43 deg: P[0, 0] = fx R00 + cx R20 = 0 for one view
+        Q = Rotation.from_euler("y", angle, degrees=True).as_matrix()
+        Y = dlt(projection_matrices(intr, R @ Q.T, t), xy, conf)
+        assert np.abs(Y - dlt(P, xy, conf) @ Q.T).max() < 1e-6
+
+
 def test_points_seen_by_one_view_are_not_triangulated():
     P = rig(3)
     X = np.zeros((2, 3))
