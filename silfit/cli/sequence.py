@@ -61,7 +61,8 @@ def run_sequence(args) -> int:
     if seq.masks and not args.no_silhouette:  # read (and checked) before --check-only answers
         from ..silhouette.masks import read_mask
 
-        masks = [read_mask(seq.masks[n], size=(camera.width, camera.height)) if n in seq.masks else None for n in seq.numbers]
+        masks = [read_mask(seq.masks[n], size=(camera.width, camera.height), allow_empty=True) if n in seq.masks else None
+                 for n in seq.numbers]  # fmt: skip
     if args.check_only:
         print(f"inputs OK: {len(seq.numbers)} frames ({seq.detected} with a person), {len(seq.masks)} masks, "
               f"{len(seq.images)} images")  # fmt: skip

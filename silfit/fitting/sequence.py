@@ -441,8 +441,11 @@ def refine_sequence_silhouettes(
     F = result.num_frames
     if len(masks) != F or len(frames) != F:
         raise ValueError(f"{len(masks)} masks and {len(frames)} keypoint frames for a fit of {F} frames")
+    # an empty mask (the person not segmented in that frame) is a frame without a silhouette term
+    empty = [f for f, m in enumerate(masks) if m is not None and not np.any(m)]
+    masks = [None if f in empty else m for f, m in enumerate(masks)]
     if all(m is None for m in masks):
-        raise ValueError("the sequence's silhouette stage needs at least one mask")
+        raise ValueError("the sequence's silhouette stage needs at least one non-empty mask")
     cfg = config or SilhouetteFitConfig()
     if cfg.proxy_faces and int(cfg.proxy_faces) >= int(model.faces.shape[0]):  # a small model: render it whole
         cfg = replace(cfg, proxy_faces=None)
@@ -474,6 +477,8 @@ def refine_sequence_silhouettes(
     timings["seconds_per_frame"] = timings["total"] / F
     out = replace(result, betas=betas, body_pose=np.asarray(p["body_pose"], np.float32),
                   global_orient=np.asarray(p["global_orient"], np.float32), transl=np.asarray(p["transl"], np.float32),
-                  joints=np.asarray(joints, np.float32), timings=timings, warnings=list(result.warnings) + list(sil.warnings))  # fmt: skip
+                  joints=np.asarray(joints, np.float32), timings=timings,
+                  warnings=list(result.warnings) + list(sil.warnings)
+                  + ([f"{len(empty)} frame(s) with an empty mask had no silhouette term: {empty[:10]}"] if empty else []))  # fmt: skip
     out.silhouette_iou, out.silhouette_iou_start = np.array([row[0] for row in sil.ious], dtype=np.float64), float(sil.iou_start)
     return out

@@ -52,21 +52,23 @@ def _check_size(width: int, height: int, source: str, size: Optional[tuple[int, 
         raise InputError(source, f"mask is {width}x{height} pixels but the image/camera is {size[0]}x{size[1]}")
 
 
-def validate_mask(mask: np.ndarray, source: str, size: Optional[tuple[int, int]] = None) -> np.ndarray:
-    """Check a boolean mask ``[H, W]``: not empty, not all foreground, of ``size = (W, H)``."""
+def validate_mask(mask: np.ndarray, source: str, size: Optional[tuple[int, int]] = None, allow_empty: bool = False) -> np.ndarray:
+    """Check a boolean mask ``[H, W]``: not empty (unless ``allow_empty``), not all foreground,
+    of ``size = (W, H)``."""
     _check_size(mask.shape[1], mask.shape[0], source, size)
-    if not mask.any():
+    if not mask.any() and not allow_empty:
         raise InputError(source, "mask is empty (no foreground pixel)")
     if mask.all():
         raise InputError(source, "mask is foreground everywhere (all white); expected the person's silhouette")
     return mask
 
 
-def read_mask(path: Union[str, os.PathLike], size: Optional[tuple[int, int]] = None) -> np.ndarray:
-    """Read a person mask as a boolean array ``[H, W]`` (see the module docstring)."""
+def read_mask(path: Union[str, os.PathLike], size: Optional[tuple[int, int]] = None, allow_empty: bool = False) -> np.ndarray:
+    """Read a person mask as a boolean array ``[H, W]`` (see the module docstring); ``allow_empty``
+    accepts a mask without foreground (a video frame where the person was not segmented)."""
     source = os.fspath(path)
     if not os.path.isfile(source):
         raise FileNotFoundError(f"{source}: mask file not found")
     _check_size(*image_file_size(source, "mask"), source, size)
     raw = read_pixels(source, "mask")
-    return validate_mask(_to_binary(raw, source), source, size)
+    return validate_mask(_to_binary(raw, source), source, size, allow_empty)

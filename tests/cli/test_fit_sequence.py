@@ -106,3 +106,25 @@ def test_fit_sequence_failing_write_leaves_no_parent_folder(sequence, tmp_path, 
                "--no-silhouette", "--quiet"])  # fmt: skip
     assert rc == 2 and "disk full" in capsys.readouterr().err
     assert not (tmp_path / "new").exists()
+
+
+def test_fit_sequence_frame_with_an_empty_mask_has_no_silhouette_term(sequence, tmp_path, capsys):
+    import shutil
+
+    from PIL import Image
+
+    seq, model = sequence
+    copy = tmp_path / "seq"
+    shutil.copytree(seq, copy)
+    masks = sorted((copy / "masks").glob("*.png"))
+    size = Image.open(masks[3]).size
+    Image.new("L", size, 0).save(masks[3])  # frame 3: the person was not segmented
+    out = tmp_path / "fit"
+    rc = main(["fit", "--sequence", str(copy), "--model", str(model), "--out", str(out), "--no-video", "--quiet",
+               "--sequence-iterations", "5", "--silhouette-resolutions", "32", "--silhouette-iterations", "2"])  # fmt: skip
+    assert rc == 0, capsys.readouterr().err
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["silhouette"] == "run"
+    iou = [float("nan") if v is None else v for v in m["silhouette_iou"]]
+    assert np.isnan(iou[3]) and all(np.isfinite(iou[f]) for f in (0, 1, 4)), iou
+    assert any("empty mask" in w and "[3]" in w for w in m["warnings"]), m["warnings"]
