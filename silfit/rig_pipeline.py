@@ -68,13 +68,27 @@ def _view_ious(vertices, faces, problem, names):
     return ious, masks
 
 
+def disagreeing_views(names, errors, factor: float = 4.0, floor_px: float = 10.0) -> List[str]:
+    """Warnings for views whose median reprojection error is ``factor`` times the views'
+    median and above ``floor_px``: a view the fit could not agree with (a wrong calibration,
+    another person's keypoints), which the robust data term only damps."""
+    errors = np.asarray(errors, dtype=np.float64)
+    if np.isfinite(errors).sum() < 2:
+        return []
+    median = float(np.nanmedian(errors))
+    return [f"view {n}: median reprojection error {e:.1f} px against {median:.1f} px over the views; check its "
+            "calibration and that its keypoints are this person's" for n, e in zip(names, errors)
+            if np.isfinite(e) and e > max(factor * median, floor_px)]  # fmt: skip
+
+
 def _keypoint_metrics(kp: RigFit, problem, names, faces) -> RigResult:
     ious, masks = _view_ious(kp.vertices, faces, problem, names)
     per_view = {n: {"reprojection_error_px": float(e)} for n, e in zip(names, kp.reprojection_error)}
     for n, v in ious.items():
         per_view[n]["iou_keypoint_stage"] = v
     metrics = {"views": per_view, "timings": {"keypoints": float(kp.timings["total"])},
-               "reprojection_error_px": float(np.nanmedian(kp.reprojection_error))}  # fmt: skip
+               "reprojection_error_px": float(np.nanmedian(kp.reprojection_error)),
+               "warnings": disagreeing_views(names, kp.reprojection_error)}  # fmt: skip
     if ious:
         metrics["iou_mean"] = float(np.mean(list(ious.values())))
     return RigResult(list(names), dict(kp.params), kp.vertices, kp.joints, kp, None, metrics, masks)
@@ -138,7 +152,8 @@ def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool =
             metrics["views"][n]["iou"] = v
         metrics.update(
             iou_mean_keypoint_stage=metrics.pop("iou_mean"), iou_mean=float(np.mean(list(ious.values()))),
-            reprojection_error_px=float(np.nanmedian(errs)), keypoints_2d=np.asarray(proj), warnings=list(sil.warnings),
+            reprojection_error_px=float(np.nanmedian(errs)), keypoints_2d=np.asarray(proj),
+            warnings=list(sil.warnings) + disagreeing_views(names, errs),
             silhouette_steps=sil.steps,
         )  # fmt: skip
         metrics["timings"]["silhouette"] = float(sil.seconds)

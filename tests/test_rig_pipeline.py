@@ -1,0 +1,14 @@
+"""silfit.rig_pipeline's pure parts."""
+import math
+
+from silfit.rig_pipeline import disagreeing_views
+
+
+def test_a_view_the_fit_cannot_agree_with_is_named():
+    names = ["cam0", "cam1", "cam2", "cam3"]
+    assert disagreeing_views(names, [1.2, 0.9, 1.5, 1.1]) == []
+    (warning,) = disagreeing_views(names, [1.2, 0.9, 38.0, 1.1])
+    assert warning.startswith("view cam2: median reprojection error 38.0 px")
+    # below the floor a large ratio is noise, not a wrong view; one finite view has nothing to compare with
+    assert disagreeing_views(names, [0.5, 0.4, 6.0, 0.5]) == []
+    assert disagreeing_views(names, [math.nan, math.nan, 40.0, math.nan]) == []
