@@ -30,19 +30,15 @@ def run(args) -> int:
     if args.whole_body:
         from ..demo_wholebody import run_wholebody_demo
 
-        report = run_wholebody_demo(out, Path(args.subject) if args.subject else None, progress=not args.quiet)
-        print(f"silfit demo --whole-body: {report['subject']}\n")
-        print(report["table"])
-        for warning in report["warnings"]:
-            print(f"warning: {warning}")
-        print(f"\npictures and report in {out}/ (open closeups.png first); took {time.perf_counter() - t0:.0f} s")
-        return 0
-    report = run_demo(out, Path(args.subject) if args.subject else None, progress=not args.quiet)
-    print(f"silfit demo: {report['subject']}\n")
+        demo, label, first = run_wholebody_demo, "silfit demo --whole-body", "closeups.png"
+    else:
+        demo, label, first = run_demo, "silfit demo", "summary.png"
+    report = demo(out, Path(args.subject) if args.subject else None, progress=not args.quiet)
+    print(f"{label}: {report['subject']}\n")
     print(report["table"])
     for warning in report["warnings"]:
         print(f"warning: {warning}")
-    print(f"\npictures and report in {out}/ (open summary.png first); took {time.perf_counter() - t0:.0f} s")
+    print(f"\npictures and report in {out}/ (open {first} first); took {time.perf_counter() - t0:.0f} s")
     return 0
 
 
