@@ -128,3 +128,21 @@ def test_fit_sequence_frame_with_an_empty_mask_has_no_silhouette_term(sequence, 
     iou = [float("nan") if v is None else v for v in m["silhouette_iou"]]
     assert np.isnan(iou[3]) and all(np.isfinite(iou[f]) for f in (0, 1, 4)), iou
     assert any("empty mask" in w and "[3]" in w for w in m["warnings"]), m["warnings"]
+
+
+def test_synth_sequence_flags_reach_the_generator(tmp_path):
+    d = tmp_path / "in"
+    d.mkdir()
+    model = write_toy_npz(d / "toy.npz")
+    out = tmp_path / "motions"
+    rc = main(["synth", "--sequence", "--n", "2", "--frames", "6", "--fps", "12", "--motions", "squat,wave", "--orbit", "40",
+               "--drop-frames", "0.99", "--size", "48", "--seed", "5", "--model", str(model), "--out", str(out),
+               "--no-progress"])  # fmt: skip
+    assert rc == 0
+    seqs = json.loads((out / "index.json").read_text())["sequences"]
+    assert [s["motion"] for s in seqs] == ["squat", "wave"]
+    assert all(s["frames"] == 6 and s["fps"] == 12 and s["orbit_deg"] == 40 for s in seqs)
+    # nearly every frame dropped, never the first or the last
+    assert all(s["frames_dropped"] == 4 for s in seqs), seqs
+    gt = np.load(out / seqs[0]["name"] / "gt.npz")
+    assert gt["body_pose"].shape == (6, 69) and float(gt["fps"]) == 12
