@@ -12,7 +12,11 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from ._lazy import lazy_exports
+from .kernels import pin_kernels
+
+pin_kernels()  # before anything loads torch or numpy (silfit.kernels)
+
+from ._lazy import lazy_exports  # noqa: E402
 
 __version__ = "0.1.0"
 

@@ -1,5 +1,7 @@
 """Shared fixtures. The shipped open body model is loaded once per session."""
-import pytest
+import silfit  # noqa: F401  (first: pins the CPU kernels before torch and numpy load, silfit.kernels)
+
+import pytest  # noqa: E402
 
 
 @pytest.fixture(scope="session")

@@ -2,7 +2,7 @@
 ``nn.Module`` wrapper (:mod:`.model`) and the SMPL-X whole-body model (:mod:`.smplx`)."""
 from .io import (OPEN_BODY_PATH, OPEN_SMPLX_PATH, SMPL_JOINT_NAMES, SMPL_PARENTS, SMPLX_JOINT_NAMES, SMPLX_PARENTS,
                  ModelArrays, load_model_arrays)
-from .model import SMPL_PARAMETER_NAMES, BodyModel, BodyOutput, load_body_model
+from .model import SMPL_PARAMETER_NAMES, BodyModel, BodyOutput, load_body_model, model_in_dtype
 from .smplx import SMPLXModel, SMPLXOutput
 
 __all__ = [
@@ -19,5 +19,6 @@ __all__ = [
     "SMPLXModel",
     "SMPLXOutput",
     "load_body_model",
+    "model_in_dtype",
     "load_model_arrays",
 ]

@@ -1,7 +1,9 @@
 """``BodyModel``: a thin ``nn.Module`` over the functional SMPL core in :mod:`.lbs`."""
 from __future__ import annotations
 
+import copy
 import os
+import weakref
 from dataclasses import dataclass
 from typing import Optional, Union
 
@@ -10,9 +12,9 @@ import torch
 from torch import nn
 
 from .io import ModelArrays, load_model_arrays
-from .lbs import kinematic_levels, lbs
+from .lbs import kinematic_levels, lbs, vertices_to_joints
 
-__all__ = ["BodyModel", "BodyOutput", "SMPL_PARAMETER_NAMES", "load_body_model"]
+__all__ = ["BodyModel", "BodyOutput", "SMPL_PARAMETER_NAMES", "load_body_model", "model_in_dtype"]
 
 #: SMPL's parameter names in call order (the one list; a model's own set is ``model.parameter_sizes``)
 SMPL_PARAMETER_NAMES = ("betas", "global_orient", "body_pose", "transl")
@@ -168,7 +170,7 @@ class BodyModel(nn.Module):
         """Surface landmarks ``[B, K, 3]`` (names in ``landmark_names``) of posed vertices."""
         if self.landmark_regressor is None:
             raise ValueError(f"{self.source}: this model has no landmark (extra keypoint) regressor")
-        return torch.einsum("kv,bvc->bkc", self.landmark_regressor.to(vertices.dtype), vertices)
+        return vertices_to_joints(self.landmark_regressor.to(vertices.dtype), vertices)
 
     def rest_vertices(self, betas: torch.Tensor) -> torch.Tensor:
         """T-posed (zero pose) vertices ``[B, V, 3]`` of the given shapes, no translation."""
@@ -228,3 +230,17 @@ def load_body_model(
     if device is not None:
         model = model.to(device)
     return model
+
+
+_CONVERTED: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def model_in_dtype(model: BodyModel, dtype: torch.dtype) -> BodyModel:
+    """``model`` itself if it is in ``dtype``, else a copy in ``dtype`` (made once per model and
+    dtype, kept while ``model`` lives; the caller's model is never changed)."""
+    if model.dtype == dtype:
+        return model
+    copies = _CONVERTED.setdefault(model, {})
+    if dtype not in copies:
+        copies[dtype] = copy.deepcopy(model).to(dtype)
+    return copies[dtype]

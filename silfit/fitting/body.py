@@ -14,7 +14,9 @@ from typing import Optional
 import torch
 from torch import nn
 
-from ..body.lbs import axis_angle_to_matrix, blend_shapes, forward_kinematics, pose_feature, skin_vertices, vertices_to_joints
+from ..body.lbs import (
+    axis_angle_to_matrix, blend_shapes, forward_kinematics, per_row, pose_feature, vertices_to_joints,
+)  # fmt: skip
 from ..keypoints import keypoint_sources
 
 __all__ = ["BodyState", "KeypointBody", "MeshBody", "body_transforms", "pose_parameter_names"]
@@ -58,21 +60,10 @@ class KeypointBody(nn.Module):
         lm_used = sorted({i for kind, i in sources if kind == "landmark"})
         J = model.num_joints
         if lm_used:
-            R = model.landmark_regressor[lm_used]  # [k, V]
-            support = (R.abs() > 0).any(0).nonzero().squeeze(1)
-            self.register_buffer("lm_regressor", R[:, support])
-            self.register_buffer("lm_template", model.v_template[support])
-            self.register_buffer("lm_shapedirs", model.shapedirs[support])
-            self.register_buffer("lm_weights", model.lbs_weights[support])
-            if model.posedirs is not None:
-                V = model.num_vertices
-                pd = model.posedirs.reshape(-1, V, 3)[:, support].reshape(model.posedirs.shape[0], -1)
-                self.register_buffer("lm_posedirs", pd)
-            else:
-                self.lm_posedirs = None
+            self._reduce_landmarks(model, lm_used)
             lm_pos = {i: k for k, i in enumerate(lm_used)}
         else:
-            self.lm_regressor = None
+            self.lm_count = 0
             lm_pos = {}
         index = [i if kind in ("joint", "none") else J + lm_pos[i] for kind, i in sources]
         self.register_buffer("kp_index", torch.as_tensor(index, dtype=torch.long))
@@ -87,9 +78,54 @@ class KeypointBody(nn.Module):
         pose_mean = getattr(model, "pose_mean", None)
         self.register_buffer("pose_mean", None if pose_mean is None or not bool(pose_mean.abs().any()) else pose_mean)
 
+    def _reduce_landmarks(self, model, used: list) -> None:
+        """Precompute the landmarks' skinning, exactly. A landmark is a fixed mix of vertices,
+        ``l_k = sum_v R_kv sum_j w_vj (A_j v_v + b_j)`` with ``v_v`` linear in the shape (and in
+        the pose feature, where the model has pose correctives), so it is
+        ``l_k = sum_j A_j M_kj + c_kj b_j`` with ``c_kj = sum_v R_kv w_vj`` and
+        ``M_kj = sum_v R_kv w_vj v_v`` linear in the same coefficients: the fit poses a few dozen
+        (landmark, joint) pairs instead of the thousands of vertices under the landmarks."""
+        dt = model.dtype
+        R = model.landmark_regressor[used].double()  # [k, V]
+        W = model.lbs_weights.double()
+        V = model.num_vertices
+        pd = None if model.posedirs is None else model.posedirs.double().reshape(-1, V, 3)  # [P, V, 3]
+        pk, pj, c, M0, Ms, Mp = [], [], [], [], [], []
+        for k in range(len(used)):
+            sup = (R[k].abs() > 0).nonzero().squeeze(1)
+            Rw = R[k, sup, None] * W[sup]  # [s, J]
+            for j in (Rw.abs() > 0).any(0).nonzero().squeeze(1).tolist():
+                r = Rw[:, j]
+                pk.append(k)
+                pj.append(j)
+                c.append(r.sum())
+                M0.append(r @ model.v_template.double()[sup])
+                Ms.append(torch.einsum("s,scl->cl", r, model.shapedirs.double()[sup]))
+                if pd is not None:
+                    Mp.append(torch.einsum("s,psc->cp", r, pd[:, sup]))
+        self.lm_count = len(used)
+        self.register_buffer("lm_pair_landmark", torch.as_tensor(pk, dtype=torch.long))
+        self.register_buffer("lm_pair_joint", torch.as_tensor(pj, dtype=torch.long))
+        self.register_buffer("lm_pair_weight", torch.stack(c).to(dt))  # c [Q]
+        self.register_buffer("lm_pair_template", torch.stack(M0).to(dt))  # [Q, 3]
+        self.register_buffer("lm_pair_shapedirs", torch.stack(Ms).to(dt))  # [Q, 3, L]
+        self.register_buffer("lm_pair_posedirs", torch.stack(Mp).to(dt) if Mp else None)  # [Q, 3, P]
+
+    def _landmarks(self, betas: torch.Tensor, rot: torch.Tensor, T: torch.Tensor) -> torch.Tensor:
+        """Landmarks ``[B, k, 3]`` (no translation) from the precomputed pairs (:meth:`_reduce_landmarks`)."""
+        B = betas.shape[0]
+        M = self.lm_pair_template + blend_shapes(betas, self.lm_pair_shapedirs)  # [B, Q, 3]
+        if self.lm_pair_posedirs is not None:
+            dirs = self.lm_pair_posedirs
+            M = M + per_row(lambda f: torch.einsum("bp,qcp->bqc", f, dirs), pose_feature(rot))
+        Tq = T[:, self.lm_pair_joint, :3]  # [B, Q, 3, 4]
+        part = (Tq[..., :3] * M[:, :, None, :]).sum(-1) + self.lm_pair_weight[:, None] * Tq[..., 3]
+        out = torch.zeros(B, self.lm_count, 3, dtype=part.dtype, device=part.device)
+        return out.index_add(1, self.lm_pair_landmark, part)
+
     def _pose_value(self, name: str, value: torch.Tensor) -> torch.Tensor:
         if name in ("left_hand_pose", "right_hand_pose") and getattr(self, "hand_components_l", None) is not None:
-            return value @ (self.hand_components_l if name[0] == "l" else self.hand_components_r)
+            return per_row(lambda v: v @ (self.hand_components_l if name[0] == "l" else self.hand_components_r), value)
         return value
 
     def shaped_joints(self, betas: torch.Tensor) -> torch.Tensor:
@@ -110,12 +146,8 @@ class KeypointBody(nn.Module):
         rot = axis_angle_to_matrix(full)
         joints, T = forward_kinematics(rot, rest_joints, self.parents, self.levels)
         pts = joints
-        if self.lm_regressor is not None:
-            v = self.lm_template + blend_shapes(betas, self.lm_shapedirs)
-            if self.lm_posedirs is not None:
-                v = v + (pose_feature(rot) @ self.lm_posedirs).reshape(B, -1, 3)
-            lm = vertices_to_joints(self.lm_regressor, skin_vertices(v, T, self.lm_weights))
-            pts = torch.cat([joints, lm], dim=1)
+        if self.lm_count:
+            pts = torch.cat([joints, self._landmarks(betas, rot, T)], dim=1)
         kp = pts[:, self.kp_index] + transl[:, None]
         return BodyState(kp, joints + transl[:, None], T)
 

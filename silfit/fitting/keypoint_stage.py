@@ -116,6 +116,13 @@ class KeypointFitConfig:
     interpenetration_weight: float = 1e5
     depth_weight: float = 1e3
     history: int = 10
+    #: the floating-point type the stage computes in (``None``: the model's own). float64 by
+    #: default: in float32 the rounding of the batch's shape, the thread count or the CPU's SIMD
+    #: kernels (1e-7) is amplified by the optimiser into a different local minimum wherever two
+    #: are close (one subject 19 vs 125 mm PA-PVE with batch 1 vs 4); in float64 a fit does not
+    #: depend on how it was run (README, "Same inputs, same fit"), at about 1.1-1.3x the cost
+    #: (``benchmarks/bench_reproducible.py``). Results are returned in float32 either way.
+    dtype: Optional[str] = "float64"
     #: torch threads during the fit (the per-iteration tensors are small, so one thread
     #: avoids synchronisation overhead; ``None`` leaves torch's setting alone).
     threads: Optional[int] = 1
@@ -184,6 +191,8 @@ class KeypointFitConfig:
             v = getattr(self, name)
             if v is not None and len(v) != n:
                 raise ValueError(f"KeypointFitConfig: {name} has {len(v)} values, pose_iters {n}")
+        if self.dtype not in (None, "float32", "float64"):
+            raise ValueError(f"KeypointFitConfig: dtype must be 'float32', 'float64' or None, got {self.dtype!r}")
         if self.schedule is not None and not all(isinstance(s, Stage) for s in self.schedule):
             raise ValueError("KeypointFitConfig: schedule must be a list of silfit.fitting.stages.Stage")
 
@@ -306,15 +315,27 @@ def _resolve_cameras(sets, cameras, image_size, focal) -> list:
     return cams
 
 
-def best_per_group(energy: torch.Tensor, group: torch.Tensor, groups: int, count: int = 1) -> torch.Tensor:
+#: energies of one sample's starts or hypotheses closer than this (relative to the lowest) count as
+#: tied, and the earlier row wins: a choice between two starts that ended in the same minimum must
+#: not follow the last bits of the arithmetic (another CPU's kernels), only the order of the starts
+DECISION_RTOL = 1e-6
+
+
+def best_per_group(energy: torch.Tensor, group: torch.Tensor, groups: int, count: int = 1,
+                   rtol: float = DECISION_RTOL) -> torch.Tensor:  # fmt: skip
     """Row indices of the lowest finite energies of each group ``g < groups``: one per group
     in group order (``count=1``), or up to ``count`` per group, groups in order (rows with
-    non-finite energies lose to any finite one)."""
-    f = torch.where(torch.isfinite(energy), energy, torch.full_like(energy, math.inf))
+    non-finite energies lose to any finite one). Energies are compared in steps of ``rtol``
+    times the group's lowest (at least 1): within a step the earlier row ranks first."""
+    f = torch.where(torch.isfinite(energy), energy.double(), torch.full_like(energy, math.inf, dtype=torch.float64))
     out = []
     for g in range(groups):
         rows = (group == g).nonzero().squeeze(1)
-        out.append(rows[torch.argsort(f[rows], stable=True)[: max(1, int(count))]])
+        fg = f[rows]
+        low = fg.min()
+        step = rtol * max(abs(float(low)), 1.0) if math.isfinite(float(low)) else 1.0
+        key = torch.where(torch.isfinite(fg), torch.floor((fg - low) / step), fg)
+        out.append(rows[torch.argsort(key, stable=True)[: max(1, int(count))]])
     return torch.cat(out)
 
 
@@ -324,12 +345,13 @@ class KeypointFitter:
     without rebuilding them."""
 
     def __init__(self, model=None, layout: str = "body25", config: Optional[KeypointFitConfig] = None, pose_prior=None):
-        from ..body import load_body_model
+        from ..body import load_body_model, model_in_dtype
 
         if model is None:
             model = load_body_model(kind="smplx" if layout == "wholebody" else None)
-        self.model = model
         self.config = config or KeypointFitConfig()
+        #: the model the stage computes with: the caller's, or its copy in ``config.dtype``
+        self.model = model if self.config.dtype is None else model_in_dtype(model, getattr(torch, self.config.dtype))
         self.layout = layout
         self.whole_body = layout == "wholebody"  # an SMPL-layout model refuses the layout (keypoint_sources)
         self.dtype = self.model.dtype

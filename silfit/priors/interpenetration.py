@@ -37,6 +37,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from ..body.lbs import blend_shapes, per_row
+
 __all__ = ["SphereCollisionModel", "tree_distances", "vertex_normals"]
 
 
@@ -195,8 +197,8 @@ def _posed_scale(model, centres, radii, weights, own, chunk: int = 16) -> np.nda
     with torch.no_grad():
         verts = torch.cat([model(body_pose=poses[s : s + chunk].to(dt)).vertices for s in range(0, len(poses), chunk)])
         T = _skinning_transforms(model, poses).to(dt)
-        R = torch.einsum("sj,pjxy->psxy", w, T[..., :3, :3])
-        t = torch.einsum("sj,pjx->psx", w, T[..., :3, 3])
+        R = per_row(lambda m: torch.einsum("sj,pjxy->psxy", w, m), T[..., :3, :3])
+        t = per_row(lambda m: torch.einsum("sj,pjx->psx", w, m), T[..., :3, 3])
         pc = (R @ c[..., None])[..., 0] + t  # [P, S, 3]
         best = torch.empty(len(centres), dtype=dt)
         # Spheres with the same own surface share one distance computation.
@@ -289,10 +291,9 @@ class SphereCollisionModel(nn.Module):
     def rest_spheres(self, betas: torch.Tensor, dtype: Optional[torch.dtype] = None):
         """Rest-pose centres ``[B, S, 3]`` and radii ``[B, S]`` for ``betas [B, L]``."""
         dtype = dtype or betas.dtype
-        L = betas.shape[-1]
         b = betas.to(dtype)
-        c = self.centre_template.to(dtype) + torch.einsum("bl,scl->bsc", b, self.centre_dirs[..., :L].to(dtype))
-        nv = self.neighbour_template.to(dtype) + torch.einsum("bl,skcl->bskc", b, self.neighbour_dirs[..., :L].to(dtype))
+        c = self.centre_template.to(dtype) + blend_shapes(b, self.centre_dirs.to(dtype))
+        nv = self.neighbour_template.to(dtype) + blend_shapes(b, self.neighbour_dirs.to(dtype))
         d2 = ((nv - c[:, :, None]) ** 2).sum(-1)  # [B, S, K]
         r = self.radius_scale.to(dtype) * (d2.amin(-1) + 1e-12).sqrt() - self.margin
         return c, r
@@ -302,8 +303,9 @@ class SphereCollisionModel(nn.Module):
         (rest point -> posed point) of :func:`silfit.body.lbs.forward_kinematics`."""
         c, r = self.rest_spheres(betas, transforms.dtype)
         w = self.sphere_weights.to(transforms.dtype)
-        R = torch.einsum("sj,bjxy->bsxy", w, transforms[..., :3, :3])
-        t = torch.einsum("sj,bjx->bsx", w, transforms[..., :3, 3])
+        # the spheres' blended transforms as a product and a sum over the joints: batch-invariant (body.lbs)
+        Tw = (w[None, :, :, None, None] * transforms[:, None, :, :3, :]).sum(2)  # [B, S, 3, 4]
+        R, t = Tw[..., :3], Tw[..., 3]
         posed = (R @ c[..., None])[..., 0] + t
         if transl is not None:
             posed = posed + transl[:, None]
@@ -312,7 +314,7 @@ class SphereCollisionModel(nn.Module):
     def penalty(self, centres: torch.Tensor, radii: torch.Tensor) -> torch.Tensor:
         """``[B]`` sum of squared overlaps (m^2) over the tested sphere pairs (computed densely:
         all pairwise distances, then masked, which is faster than gathering the pairs)."""
-        d = torch.cdist(centres, centres)
+        d = torch.cdist(centres, centres, compute_mode="donot_use_mm_for_euclid_dist")
         overlap = torch.relu(radii[:, :, None] + radii[:, None, :] - d) * self.pair_mask.to(centres.dtype)
         return (overlap * overlap).sum((-2, -1))
 

@@ -48,6 +48,14 @@ __all__ = [
 DEFAULT_MIXTURE_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "pose_mixture.npz")
 
 
+
+def quadratic_forms(d: torch.Tensor, P: torch.Tensor) -> torch.Tensor:
+    """``d^T P d`` over the last axis: ``d [B, ..., D]``, ``P [..., D, D]`` -> ``[B, ...]``.
+
+    A broadcast product and sums, not a GEMM: a row's value and gradient do not depend on the
+    other rows of the batch, their number or its position (see :mod:`silfit.body.lbs`)."""
+    return (d * (P * d[..., None, :]).sum(-1)).sum(-1)
+
 def _check_pose(body_pose: torch.Tensor, dim: int) -> torch.Tensor:
     if body_pose.ndim == 1:
         body_pose = body_pose[None]
@@ -117,7 +125,7 @@ class MaxMixturePrior(nn.Module):
         # make a batched fit drift away from the same fit done one sample at a time.
         xd = x.double()
         d = xd[:, None, :] - self.means.double()  # [B, K, D]
-        maha = torch.einsum("bki,kij,bkj->bk", d, self.precisions.double(), d)
+        maha = quadratic_forms(d, self.precisions.double())
         return (0.5 * maha + self.constants.double()).to(x.dtype)
 
     def forward(self, body_pose: torch.Tensor) -> torch.Tensor:

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from .pose import MaxMixturePrior
+from .pose import MaxMixturePrior, quadratic_forms
 
 __all__ = ["HandPosePrior", "body_prior_for", "l2", "padded"]
 
@@ -119,7 +119,7 @@ class HandPosePrior(nn.Module):
         if hand_pose.shape[-1] != self.dim:
             raise ValueError(f"{self.side} hand pose has {hand_pose.shape[-1]} values, the prior is over {self.dim}")
         d = hand_pose - self.mean.to(hand_pose.dtype)
-        return 0.5 * torch.einsum("bi,ij,bj->b", d, self.precision.to(hand_pose.dtype), d)
+        return 0.5 * quadratic_forms(d, self.precision.to(hand_pose.dtype))
 
 
 def library_hand_set(model, side: str) -> torch.Tensor:

@@ -124,3 +124,45 @@ def test_axis_angle_agrees_with_kornia():
 
     aa = torch.randn(64, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(7)) * 1.5
     assert torch.allclose(axis_angle_to_matrix(aa), axis_angle_to_rotation_matrix(aa), atol=1e-10)
+
+
+def _row_alone_and_in_batches(fn, rows, dtype):
+    """``fn``'s value and gradient for ``rows[0]`` computed alone, then at each position of
+    batches of 2 to 8 (the other rows different each time): all must be the same bits."""
+    out = []
+    for B in (1, 2, 3, 8):
+        for pos in sorted({0, B // 2, B - 1}):
+            x = rows[1 : B + 1].clone()
+            x[pos] = rows[0]
+            x = x.to(dtype).requires_grad_(True)
+            y = fn(x)
+            w = torch.linspace(0.5, 1.5, y[0].numel(), dtype=dtype).reshape(y.shape[1:])
+            (g,) = torch.autograd.grad((y[pos] * w).sum(), x)
+            out.append((B, pos, y[pos].detach(), g[pos]))
+    return out
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_a_body_does_not_depend_on_the_rest_of_its_batch(open_model, dtype):
+    """Batch invariance (silfit.body.lbs): a GEMM over a batch rounds differently with its row count,
+    and a fit's optimiser amplifies a last-bit difference into another fit (issue 22), so a body's
+    vertices, joints and gradients are the same bits alone and anywhere in any batch."""
+    from silfit.body import model_in_dtype
+
+    model = model_in_dtype(open_model, dtype)
+    gen = torch.Generator().manual_seed(3)
+    V = model.num_vertices
+    posedirs = 1e-3 * torch.randn(207, V * 3, generator=gen, dtype=torch.float64)  # pose correctives too
+    widths = dict(betas=10, body_pose=69, global_orient=3)
+    rows = torch.randn(9, sum(widths.values()), generator=gen, dtype=torch.float64) * 0.4
+
+    def body(x):
+        b, p, o = x.split(tuple(widths.values()), dim=1)
+        v, j = lbs(b, torch.cat([o, p], 1), model.v_template, model.shapedirs, posedirs.to(dtype), model.J_regressor,
+                   model.parents, model.lbs_weights, model._levels)  # fmt: skip
+        return torch.cat([v, j], 1)
+
+    runs = _row_alone_and_in_batches(body, rows, dtype)
+    _, _, y0, g0 = runs[0]
+    for B, pos, y, g in runs[1:]:
+        assert torch.equal(y, y0) and torch.equal(g, g0), f"row at position {pos} of a batch of {B} differs"

@@ -27,7 +27,7 @@ def test_reduced_body_matches_the_mesh_keypoints(smplx):
     torch.manual_seed(0)
     p = {n: 0.3 * torch.randn(2, w, dtype=torch.float64) for n, w in smplx.parameter_sizes.items()}
     body = KeypointBody(smplx, "wholebody")
-    assert body.lm_regressor.shape[1] < smplx.num_vertices  # only the landmarks' support vertices
+    assert body.lm_pair_joint.numel() < 400  # (landmark, joint) pairs, not the landmarks' support vertices (162)
     ref = model_keypoints(smplx, smplx(**p), "wholebody")
     assert torch.allclose(body(**p).keypoints, ref, atol=1e-6)
 

@@ -1,0 +1,79 @@
+"""The CPU kernels silfit's arithmetic runs on, chosen before torch and numpy load theirs.
+
+A fit's optimiser amplifies differences in the last bits of its arithmetic into millimetres
+(measured: keypoints moved by 1e-12 px move a fit's vertices by 6-20 mm; README, "Same inputs,
+same fit"). The libraries under silfit pick their kernels by the processor: torch's SIMD level
+(AVX2 or AVX-512: 4 or 8 lanes, so another order of partial sums), MKL's GEMM branch, OpenBLAS's
+core type (Haswell, Zen, SkylakeX). So on an x86-64 processor with AVX2 silfit asks each for its
+AVX2 kernels, which every such processor (AMD or Intel, with or without AVX-512) runs the same way:
+
+* ``ATEN_CPU_CAPABILITY=avx2`` (torch's vectorised kernels),
+* ``MKL_CBWR=AVX2`` (MKL's conditional numerical reproducibility on its AVX2 branch),
+* ``OPENBLAS_CORETYPE=Haswell`` (numpy's and scipy's OpenBLAS).
+
+Each is set only where the environment does not set it already (an explicit choice wins), and
+only when neither torch nor numpy has been imported yet: they read these variables once, when
+they load. ``import silfit`` does this first thing, so the command line, Ray workers (which
+inherit the driver's environment) and scripts that import silfit before torch all get it.
+``SILFIT_KERNELS=native`` turns it off. :func:`kernel_report` says what a process runs on.
+"""
+from __future__ import annotations
+
+import os
+import platform
+import sys
+from typing import Dict, MutableMapping, Optional
+
+__all__ = ["KERNEL_PINS", "cpu_flags", "kernel_report", "pin_kernels"]
+
+#: environment variable -> value asked for on an x86-64 CPU with AVX2 and FMA
+KERNEL_PINS: Dict[str, str] = {"ATEN_CPU_CAPABILITY": "avx2", "MKL_CBWR": "AVX2", "OPENBLAS_CORETYPE": "Haswell"}
+
+#: what :func:`pin_kernels` did in this process (``None``: not run yet)
+PINNED: Optional[Dict[str, str]] = None
+
+
+def cpu_flags() -> set:
+    """The CPU's feature flags (``/proc/cpuinfo``; empty where it cannot be read)."""
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
+            for line in fh:
+                if line.startswith("flags"):
+                    return set(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    return set()
+
+
+def pin_kernels(environ: Optional[MutableMapping[str, str]] = None, flags: Optional[set] = None,
+                loaded: Optional[bool] = None) -> Dict[str, str]:  # fmt: skip
+    """Set the :data:`KERNEL_PINS` that ``environ`` (default ``os.environ``) does not set yet, where
+    the CPU has AVX2 and FMA, ``SILFIT_KERNELS`` is not ``native`` and torch and numpy are not loaded
+    (``loaded``: override that check). Returns the variables it set."""
+    global PINNED
+    env = os.environ if environ is None else environ
+    flags = cpu_flags() if flags is None else flags
+    if loaded is None:
+        loaded = "torch" in sys.modules or "numpy" in sys.modules
+    done: Dict[str, str] = {}
+    x86 = platform.machine().lower() in ("x86_64", "amd64")
+    if env.get("SILFIT_KERNELS", "").lower() != "native" and not loaded and x86 and {"avx2", "fma"} <= flags:
+        for k, v in KERNEL_PINS.items():
+            if k not in env:
+                env[k] = v
+                done[k] = v
+    if environ is None:
+        PINNED = done
+    return done
+
+
+def kernel_report() -> Dict[str, object]:
+    """What this process computes with: torch's SIMD level, the pins silfit set, the variables as
+    they stand (for ``metrics.json`` and bug reports)."""
+    out: Dict[str, object] = {"machine": platform.machine(), "pinned_by_silfit": dict(PINNED or {})}
+    out["environment"] = {k: os.environ.get(k) for k in (*KERNEL_PINS, "OMP_NUM_THREADS", "MKL_ENABLE_INSTRUCTIONS")}
+    if "torch" in sys.modules:
+        import torch
+
+        out["torch_cpu_capability"] = torch.backends.cpu.get_cpu_capability()
+    return out
