@@ -6,7 +6,8 @@ directions. Every function works in float32 and float64 and on any device.
 **Batch invariance.** A matrix product over a batch is one GEMM whose blocking, and so whose
 rounding, depends on how many rows it holds: a body computed alone and the same body in a batch
 of 8 differed in the last bits, which a fit's optimiser amplifies into a different fit. The
-large contractions (:func:`pose_correctives`, :func:`vertices_to_joints`) therefore go through
+large contractions (:func:`pose_correctives`, :func:`vertices_to_joints`, the blending of
+:func:`skin_vertices`) therefore go through
 :func:`per_row`: each batch row is its own product; the short ones (:func:`blend_shapes`) are a
 broadcast product and a sum. Either way a row's values (and gradients) do not depend on the other
 rows, their number or its position (``tests/body/test_lbs.py``). The small per-joint products
@@ -59,15 +60,30 @@ def axis_angle_to_matrix(axis_angle: torch.Tensor) -> torch.Tensor:
     return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
 
 
+class _OwnGradient(torch.autograd.Function):
+    """The identity, whose gradient is handed on as a fresh copy: a slice of a batch's gradient
+    starts wherever its row does, and a BLAS may take another path (another rounding) for data
+    that is not aligned as a fresh allocation is."""
+
+    @staticmethod
+    def forward(ctx, x):
+        return x.clone()
+
+    @staticmethod
+    def backward(ctx, grad):
+        return grad.clone(memory_format=torch.contiguous_format)
+
+
 def per_row(fn, x: torch.Tensor, *args) -> torch.Tensor:
     """``fn(x, *args)`` computed for each row of ``x``'s leading (batch) axis on its own and
     concatenated: the same bits for a row whatever else is in the batch (module docstring).
     ``fn`` maps ``[1, ...]`` to ``[1, ...]``."""
     if x.shape[0] == 1:
         return fn(x, *args)
-    # each row copied to its own allocation: a BLAS may take another path for data that starts off
-    # its alignment, and a slice's start depends on the row's position
-    return torch.cat([fn(x[i : i + 1].clone(), *args) for i in range(x.shape[0])])
+    # each row, and its gradient, in its own allocation (_OwnGradient): a slice's start depends on
+    # the row's position and on the batch
+    own = _OwnGradient.apply
+    return torch.cat([own(fn(own(x[i : i + 1]), *args)) for i in range(x.shape[0])])
 
 
 def blend_shapes(betas: torch.Tensor, shapedirs: torch.Tensor) -> torch.Tensor:
@@ -160,8 +176,8 @@ def forward_kinematics(
 def skin_vertices(vertices: torch.Tensor, transforms: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
     """Linear blend skinning of rest vertices ``[B, V, 3]`` with per-joint transforms
     ``[B, J, 4, 4]`` and skinning weights ``[V, J]``."""
-    T = torch.einsum("vj,bjrc->bvrc", weights, transforms[..., :3, :])  # [B, V, 3, 4]
-    return (T[..., :3] @ vertices[..., None])[..., 0] + T[..., 3]
+    T = per_row(lambda t: torch.einsum("vj,bjrc->bvrc", weights, t), transforms[..., :3, :])  # [B, V, 3, 4]
+    return (T[..., :3] * vertices[..., None, :]).sum(-1) + T[..., 3]
 
 
 def lbs(

@@ -2,14 +2,11 @@
 
 ``data/synthetic/subject_000`` has noise-free keypoints (``noise_px`` 0; they equal the
 projected truth to 5e-5 px) and its rendered mask. The keypoint stage runs a short
-schedule, the silhouette stage one 96-pixel level of 40 steps from its result; both are
-deterministic (the silhouette renderer runs Dr.Jit with one thread, see
-``renderers/silhouette.py``), so the measured values below are what this code gives, and
-the bounds are about 1.5-2x them. The silhouette stage must also beat the keypoint stage by
-stated margins on pose (PA-MPJPE), mesh (PVE) and shape, so a silhouette stage that stops
-refining the pose or the shape fails (measured with the stage restricted, from a batched
-keypoint start: translation only -> PA 30.4 mm, shape 6.76 mm; no betas -> shape 6.76 mm,
-root z -44 mm; no pose -> PA 30.6 mm).
+schedule; the silhouette stage one 96-pixel level of 40 steps from a fixed perturbation of
+the truth (:func:`perturbed_truth`). Both are deterministic on one machine; the bounds hold
+with margin over the spread that starts moved by 1e-9 give (other CPUs' rounding). The
+silhouette stage must beat its start by stated margins on pose (PA-MPJPE), mesh (PVE) and
+shape, so a silhouette stage that stops refining the pose or the shape fails.
 """
 from pathlib import Path
 
@@ -41,10 +38,16 @@ def errors(model, params, gt) -> dict:
     }
 
 
-#: a deliberately short keypoint fit (no branch search, one start, few steps) for the silhouette
-#: stage to start from, so what the silhouette stage adds is large and measurable
-WEAK_KEYPOINT_CONFIG = KeypointFitConfig(branch_search=False, init_poses=1, camera_iters=20, pose_iters=(10, 10, 10),
-                                         shape_iters=5, final_iters=10)  # fmt: skip
+def perturbed_truth(gt) -> dict:
+    """The silhouette stage's start: the truth with every joint turned by about 7 degrees (seeded
+    noise), a wider, shorter shape and the body 12 cm too far and off to one side. A fixed start,
+    not a keypoint fit's: the keypoint optimiser's path is chaotic (1e-12 px on the keypoints moves
+    its fits by millimetres), and a start that moved with it made this test follow float rounding."""
+    p = {k: np.asarray(getattr(gt, k), np.float64).reshape(-1) for k in ("betas", "body_pose", "global_orient", "transl")}
+    p["body_pose"] = p["body_pose"] + np.random.default_rng(7).normal(0.0, 0.12, p["body_pose"].shape)
+    p["betas"] = p["betas"] + np.r_[0.6, -0.4, np.zeros(len(p["betas"]) - 2)]
+    p["transl"] = p["transl"] + np.array([0.02, -0.015, 0.12])
+    return p
 
 
 @pytest.fixture(scope="module")
@@ -52,12 +55,12 @@ def fits(open_model):
     s = load_subject(SUBJECT)
     assert float(s.gt.extras["noise_px"]) == 0.0
     kp = fit_keypoints(s.keypoints, s.camera, open_model, config=KEYPOINT_CONFIG, progress=False)
-    weak = fit_keypoints(s.keypoints, s.camera, open_model, config=WEAK_KEYPOINT_CONFIG, progress=False)
-    sil = fit_silhouette(open_model, weak.params(0), s.camera, s.mask, s.keypoints.as_array(), config=SILHOUETTE_CONFIG,
+    start = perturbed_truth(s.gt)
+    sil = fit_silhouette(open_model, start, s.camera, s.mask, s.keypoints.as_array(), config=SILHOUETTE_CONFIG,
                          progress=False)  # fmt: skip
-    e_kp, e_weak, e_sil = (errors(open_model, p, s.gt) for p in (kp.params(0), weak.params(0), sil.params()))
-    print(f"\nkeypoint stage {e_kp}\nshort keypoint stage {e_weak}\nsilhouette stage {e_sil}")
-    return kp, sil, e_kp, e_weak, e_sil
+    e_kp, e_start, e_sil = (errors(open_model, p, s.gt) for p in (kp.params(0), start, sil.params()))
+    print(f"\nkeypoint stage {e_kp}\nsilhouette start {e_start}\nsilhouette stage {e_sil}")
+    return kp, sil, e_kp, e_start, e_sil
 
 
 def test_keypoint_stage_recovers_the_truth(fits):
@@ -74,18 +77,14 @@ def test_keypoint_stage_recovers_the_truth(fits):
 
 
 def test_silhouette_stage_recovers_the_truth(fits):
-    # From the short keypoint fit (PA-MPJPE 42.9, PVE 73.3, shape 6.7 mm) one 96 px level of 40 steps
-    # gives (measured) PA-MPJPE 34.2, PVE 46.1, shape 4.5 mm, root -1.5 / -1.4 / -6.7 mm, IoU 0.871 -> 0.915.
-    # A stage restricted to the translation leaves PA-MPJPE and shape where the keypoint fit put them.
-    _, sil, _, e_kp, e = fits
-    assert not sil.warnings and sil.iou_end > sil.iou_start + 0.02
-    assert e["pa_mpjpe"] < 40.0
-    assert e["pve"] < 60.0
-    assert e["shape"] < 6.0
-    dx, dy, dz = e["root"]
-    assert abs(dx) < 4.0 and abs(dy) < 4.0
-    assert abs(dz) < 12.0
-    # The silhouette refines pose, mesh and shape beyond its start (measured margins 8.7, 27.2, 2.2 mm).
-    assert e["pa_mpjpe"] < e_kp["pa_mpjpe"] - 4.0
-    assert e["pve"] < e_kp["pve"] - 10.0
-    assert e["shape"] < e_kp["shape"] - 1.0
+    # From the perturbed truth (PA-MPJPE 67.7, PVE 144.2, shape 25.2 mm, root 20 / 24 / 116 mm,
+    # IoU 0.632) one 96 px level of 40 steps gives (measured; in brackets the range over three
+    # starts moved by 1e-9, the spread float rounding elsewhere would give) PA-MPJPE 36.8 [36.8-37.7],
+    # PVE 55.0 [55.0-56.3], shape 21.8 [21.8-22.2] mm, root x 9.7 [8.0-9.7] mm, IoU 0.907 [0.905-0.908].
+    # A stage restricted to the translation would leave PA-MPJPE and shape at the start's.
+    _, sil, _, start, e = fits
+    assert not sil.warnings and sil.iou_start < 0.65 and sil.iou_end > 0.88
+    assert e["pa_mpjpe"] < 45.0 and e["pa_mpjpe"] < start["pa_mpjpe"] - 20.0
+    assert e["pve"] < 70.0 and e["pve"] < start["pve"] - 60.0
+    assert e["shape"] < start["shape"] - 1.5  # the shape moves toward the truth (3.0-3.4 mm measured)
+    assert abs(e["root"][0]) < 15.0  # across the image: from 20 mm (depth stays: one view)
