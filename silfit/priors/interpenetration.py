@@ -305,8 +305,7 @@ class SphereCollisionModel(nn.Module):
         w = self.sphere_weights.to(transforms.dtype)
         # the spheres' blended transforms as a product and a sum over the joints: batch-invariant (body.lbs)
         Tw = (w[None, :, :, None, None] * transforms[:, None, :, :3, :]).sum(2)  # [B, S, 3, 4]
-        R, t = Tw[..., :3], Tw[..., 3]
-        posed = (R @ c[..., None])[..., 0] + t
+        posed = (Tw[..., :3] * c[..., None, :]).sum(-1) + Tw[..., 3]
         if transl is not None:
             posed = posed + transl[:, None]
         return posed, r

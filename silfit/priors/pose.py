@@ -48,13 +48,13 @@ __all__ = [
 DEFAULT_MIXTURE_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "pose_mixture.npz")
 
 
-
 def quadratic_forms(d: torch.Tensor, P: torch.Tensor) -> torch.Tensor:
     """``d^T P d`` over the last axis: ``d [B, ..., D]``, ``P [..., D, D]`` -> ``[B, ...]``.
 
     A broadcast product and sums, not a GEMM: a row's value and gradient do not depend on the
     other rows of the batch, their number or its position (see :mod:`silfit.body.lbs`)."""
     return (d * (P * d[..., None, :]).sum(-1)).sum(-1)
+
 
 def _check_pose(body_pose: torch.Tensor, dim: int) -> torch.Tensor:
     if body_pose.ndim == 1:
