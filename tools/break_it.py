@@ -42,6 +42,8 @@ SIL = "silfit/fitting/silhouette_stage.py"
 OPTIM = "silfit/fitting/optim.py"
 TERMS = "silfit/fitting/terms.py"
 KP = "silfit/fitting/keypoint_stage.py"
+SEQ = "silfit/fitting/sequence.py"
+TRI = "silfit/fitting/triangulate.py"
 
 BREAKAGES = (
     Breakage(
@@ -91,6 +93,33 @@ BREAKAGES = (
         "flip_off", "flip test off by default (KeypointFitConfig.flip_test = False)",
         ((KP, "flip_test: bool = True", "flip_test: bool = False"),),
         ("tests/fitting/test_keypoint_stage.py::test_back_facing_subject_is_fitted_facing_away",),
+    ),
+    # issue 22: breakages that passed every behaviour test before these tests (each runs only its new test)
+    Breakage(
+        "temporal_off", "sequence refinement's temporal smoothness terms off (joint and root smoothness weights 0)",
+        ((SEQ, "joint_smooth_weight: float = 1.0", "joint_smooth_weight: float = 0.0"),
+         (SEQ, "root_smooth_weight: float = 1.0", "root_smooth_weight: float = 0.0")),
+        ("tests/fitting/test_sequence.py::test_temporal_terms_smooth_a_noisy_sequence",),
+    ),
+    Breakage(
+        "dlt_unweighted", "triangulation (DLT) ignores the confidences (every seeing view weighted 1)",
+        ((TRI, "w = np.asarray(weights, np.float64)", "w = (np.asarray(weights, np.float64) > 0).astype(np.float64)"),),
+        ("tests/fitting/test_triangulate.py::test_dlt_trusts_the_confident_views",),
+    ),
+    Breakage(
+        "interpenetration_off", "interpenetration off in the keypoint stage (KeypointFitConfig.interpenetration_weight = 0)",
+        ((KP, "interpenetration_weight: float = 1e5", "interpenetration_weight: float = 0.0"),),
+        ("tests/fitting/test_keypoint_stage.py::test_self_contact_poses_are_fitted_without_the_arms_inside_the_body",),
+    ),
+    Breakage(
+        "camera_depth_nothing", "the camera stage's depth term scaled to nothing (weight x 1e-9)",
+        ((KP, '{"torso": 1.0, "depth": self.depth_weight}', '{"torso": 1.0, "depth": 1e-9 * self.depth_weight}'),),
+        ("tests/fitting/test_keypoint_stage.py::test_camera_stage_keeps_the_root_near_the_similar_triangles_depth",),
+    ),
+    Breakage(
+        "shape_prior_zero", "the shape prior returns 0",
+        (("silfit/priors/simple.py", "return (betas * betas).sum(-1)", "return 0.0 * (betas * betas).sum(-1)"),),
+        ("tests/fitting/test_keypoint_stage.py::test_shape_prior_keeps_the_shape_bounded_on_noisy_keypoints",),
     ),
 )
 
