@@ -117,11 +117,11 @@ class KeypointFitConfig:
     depth_weight: float = 1e3
     history: int = 10
     #: the floating-point type the stage computes in (``None``: the model's own). float64 by
-    #: default: in float32 the rounding of the batch's shape, the thread count or the CPU's SIMD
-    #: kernels (1e-7) is amplified by the optimiser into a different local minimum wherever two
-    #: are close (one subject 19 vs 125 mm PA-PVE with batch 1 vs 4); in float64 a fit does not
-    #: depend on how it was run (README, "Same inputs, same fit"), at about 1.1-1.3x the cost
-    #: (``benchmarks/bench_reproducible.py``). Results are returned in float32 either way.
+    #: default: the optimiser amplifies last-bit differences (other SIMD kernels) into millimetres,
+    #: and in float64 they are rarer and smaller (2 of 30 fits moved, by up to 4.1 mm, against 5 of
+    #: 30 and 12.4 mm in float32; README, "Same inputs, same fit"), at about 1.2x float32's CPU
+    #: time batched and 0.67x the old float32 stage's (``benchmarks/bench_reproducible.py``).
+    #: Results are returned in float32 either way.
     dtype: Optional[str] = "float64"
     #: torch threads during the fit (the per-iteration tensors are small, so one thread
     #: avoids synchronisation overhead; ``None`` leaves torch's setting alone).
