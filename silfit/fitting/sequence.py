@@ -419,7 +419,7 @@ def _refit_from_neighbours(model, layout, config, fitter, probs, state, info, pr
     src = np.concatenate(src)
     again = KeypointFitter(model, layout, replace(config, flip_test=False, init_poses=1, branch_search=False), fitter.pose_prior)
     start = {k: v[torch.as_tensor(src)].double().numpy() for k, v in state.items()}
-    nb_state, nb_info = again.fit_problems([probs[i] for i in src % n], progress=progress, init=start)
+    nb_state, nb_info = again.fit_problems([probs[i] for i in src], progress=progress, init=start)
     last = fitter.stages[-1].name
     energy = torch.cat([info["energies"][last], nb_info["energies"][again.stages[-1].name]])
     rows = best_per_group(energy, torch.arange(n).repeat(1 + len(src) // n), n)
