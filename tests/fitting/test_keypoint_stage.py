@@ -420,3 +420,19 @@ def test_shape_prior_keeps_the_shape_bounded_on_noisy_keypoints(body_model):
     # ATEN_CPU_CAPABILITY=default and SILFIT_KERNELS=native. Without the prior: mean 15.1 (6.6-20.2)
     assert norm.mean() < 3.5 and norm.max() < 4.5, norm
     assert off.mean() > 7.0, off  # the case needs the prior
+
+
+def test_the_stage_computes_in_its_configured_dtype_without_changing_the_callers_model():
+    from silfit_toy_body import toy_model
+
+    model = toy_model()
+    assert model.dtype == torch.float32
+    assert KeypointFitter(model).dtype == torch.float64  # the default: float64 (issue 22)
+    assert KeypointFitter(model, config=KeypointFitConfig(dtype="float32")).dtype == torch.float32
+    assert KeypointFitter(model, config=KeypointFitConfig(dtype=None)).dtype == torch.float32  # the model's own
+    assert KeypointFitter(model).model is KeypointFitter(model).model  # converted once per model
+    assert model.dtype == torch.float32 and model.v_template.dtype == torch.float32
+    res = KeypointFitter(model, config=FAST).fit(subject(model)[0], CAM, progress=False)
+    assert res.vertices.dtype == np.float32  # results in float32 either way
+    with pytest.raises(ValueError, match="dtype"):
+        KeypointFitConfig(dtype="float16")
