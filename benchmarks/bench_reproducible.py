@@ -34,15 +34,10 @@ import silfit  # noqa: F401  (first: the CPU kernels are chosen before numpy and
 
 import numpy as np  # noqa: E402
 
+from silfit.kernels import cpu_flags  # noqa: E402
+
 HERE = Path(__file__).resolve().parent
 PARAMS = ("betas", "global_orient", "body_pose", "transl")
-
-
-def cpu_has(flag: str) -> bool:
-    try:
-        return flag in Path("/proc/cpuinfo").read_text().split()
-    except OSError:
-        return False
 
 
 def settings(quick: bool) -> list:
@@ -54,7 +49,7 @@ def settings(quick: bool) -> list:
             ("batch 8, OMP 1", 8, {"OMP_NUM_THREADS": "1"}), ("batch 8, OMP 2", 8, {"OMP_NUM_THREADS": "2"}),
             ("batch 8, ATEN default", 8, {"ATEN_CPU_CAPABILITY": "default"}),
             ("batch 8, ATEN avx2", 8, {"ATEN_CPU_CAPABILITY": "avx2"})]  # fmt: skip
-    if cpu_has("avx512f"):
+    if "avx512f" in cpu_flags():
         runs.append(("batch 8, ATEN avx512", 8, {"ATEN_CPU_CAPABILITY": "avx512"}))
     return runs
 

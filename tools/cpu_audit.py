@@ -28,20 +28,13 @@ import xml.etree.ElementTree as ET
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+from silfit.kernels import cpu_flags  # (importing silfit pins this process's kernels: CONTROLLED are reset per setting)
+
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_TESTS = ["tests/fitting", "tests/eval", "tests/body", "tests/priors"]
 #: environment variables a setting controls (unset unless the setting names them)
-CONTROLLED = ("ATEN_CPU_CAPABILITY", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "MKL_ENABLE_INSTRUCTIONS", "MKL_CBWR")
-
-
-def cpu_flags() -> set:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("flags"):
-                return set(line.split(":", 1)[1].split())
-    except OSError:
-        pass
-    return set()
+CONTROLLED = ("ATEN_CPU_CAPABILITY", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "MKL_ENABLE_INSTRUCTIONS", "MKL_CBWR",
+              "OPENBLAS_CORETYPE")
 
 
 def all_settings() -> dict:
