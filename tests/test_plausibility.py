@@ -87,10 +87,10 @@ def test_through_silfit_fit(tmp_path, capsys):
     args = ["fit", "--keypoints", str(tmp_path / "kp.json"), "--camera", str(SUBJECT / "camera.json"), "--model",
             str(model), "--no-silhouette"]  # fmt: skip
     assert main(args + ["--out", str(tmp_path / "a")]) == 0
-    out = capsys.readouterr().out
+    err = capsys.readouterr().err
     warnings = json.loads((tmp_path / "a" / "metrics.json").read_text())["warnings"]
     assert any("right_wrist" in w and "treated as missing" in w for w in warnings)
-    assert "warning:" in out and "right_wrist" in out
+    assert "warning:" in err and "right_wrist" in err
     data["people"][0]["pose_keypoints_2d"] = [200.0, 200.0, 1.0] * 25
     (tmp_path / "kp.json").write_text(json.dumps(data))
     assert main(args + ["--out", str(tmp_path / "b"), "--quiet"]) == 2

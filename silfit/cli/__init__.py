@@ -15,8 +15,20 @@ import sys
 SUBCOMMANDS = ("demo", "fit", "detect", "synth", "eval", "render", "fit-dataset")
 
 
-class CLIError(Exception):
-    """An error the CLI reports as one clear line (no traceback), exit code 2."""
+from ..errors import InputError
+
+#: A bad command line: the one input-error type (one clear line, no traceback, exit code 2).
+CLIError = InputError
+
+
+def warn(text: str) -> None:
+    """A warning about a fit or an input, on standard error (``--quiet`` hides progress only)."""
+    print(f"warning: {text}", file=sys.stderr)
+
+
+def note(text: str) -> None:
+    """A note on a choice silfit made for the user (a model, a camera), on standard error."""
+    print(text, file=sys.stderr)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -40,14 +52,14 @@ def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
-        parser.print_help()
-        return 0 if args.command is None else 2
+        parser.print_help(sys.stderr)  # no subcommand: a usage error, as argparse treats one
+        return 2
     from .interrupts import Interrupted, interrupts_raise
 
     with interrupts_raise():
         try:
             return int(args.func(args) or 0)
-        except (CLIError, OSError, ValueError) as err:  # bad input: silfit.errors.InputError is a ValueError
+        except (OSError, ValueError) as err:  # bad input: silfit.errors.InputError (CLIError) is a ValueError
             print(f"silfit {args.command}: error: {' '.join(str(err).split())}", file=sys.stderr)
             return 2
         except MemoryError:

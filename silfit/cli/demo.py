@@ -4,6 +4,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from . import warn
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -37,7 +39,7 @@ def run(args) -> int:
     print(f"{label}: {report['subject']}\n")
     print(report["table"])
     for warning in report["warnings"]:
-        print(f"warning: {warning}")
+        warn(warning)
     print(f"\npictures and report in {out}/ (open {first} first); took {time.perf_counter() - t0:.0f} s")
     return 0
 
@@ -49,6 +51,6 @@ def _run_photo(args, out: Path, t0: float) -> int:
     print(f"silfit demo --photo: {report['photo']}\n")
     print(report["table"])
     for warning in report["warnings"]:
-        print(f"warning: {warning}")
+        warn(warning)
     print(f"\npictures and report in {out}/ (open summary.png first); took {time.perf_counter() - t0:.0f} s")
     return 0

@@ -2,7 +2,7 @@
 the shipped BlazePose models; writes the folder described in :mod:`silfit.detect.output`."""
 from __future__ import annotations
 
-from . import CLIError
+from . import CLIError, warn
 
 
 def _positive_int(text: str) -> int:
@@ -42,11 +42,10 @@ def run(args) -> int:
         raise CLIError(f"--min-score {args.min_score}: expected a value between 0 and 1")
     photo, people = detect_photo(args.image, DetectConfig(min_score=args.min_score, max_people=args.people))
     save_detection(out, photo, people, layout=args.layout, overwrite=args.overwrite)
-    if not args.quiet:
-        print(f"wrote {out}: {len(people)} person(s) in {args.image} ({photo.size[0]}x{photo.size[1]})")
-        for i, p in enumerate(people):
-            for warning in p.warnings():
-                print(f"warning: person {i}: {warning}")
+    print(f"wrote {out}: {len(people)} person(s) in {args.image} ({photo.size[0]}x{photo.size[1]})")
+    for i, p in enumerate(people):
+        for warning in p.warnings():
+            warn(f"person {i}: {warning}")
     return 0
 
 

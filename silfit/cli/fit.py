@@ -14,7 +14,7 @@ from typing import Optional
 
 import numpy as np
 
-from . import CLIError
+from . import CLIError, note, warn
 
 
 def _int_list(text: str) -> tuple:
@@ -200,8 +200,8 @@ def load_inputs(args) -> FitInputs:
     elif photo and photo["mask"] is not None:
         mask = photo["mask"]
     focal, camera_source = args.focal, "camera file" + extrinsics_note if camera else ("--focal" if args.focal else "default max(W, H)")
-    if extrinsics_note and not args.quiet:
-        print(f"warning: {args.camera}: camera R, t not applied: one image is fitted in the camera's frame")
+    if extrinsics_note:
+        warn(f"{args.camera}: camera R, t not applied: one image is fitted in the camera's frame")
     if camera is None and focal is None and photo and photo["focal"]:
         focal, camera_source = photo["focal"], photo["focal_source"]
     if camera is None and size is None:
@@ -219,12 +219,11 @@ def load_inputs(args) -> FitInputs:
         model = load_body_model(args.model, gender=args.gender) if args.model else None
     if model is None and wholebody is not None and wholebody.has_parts:
         model = load_body_model(kind="smplx")
-        if not args.quiet:
-            print(f"keypoints have hand/face points and no --model: using the shipped open whole-body model ({model.source})")
+        note(f"keypoints have hand/face points and no --model: using the shipped open whole-body model ({model.source})")
     model = model or load_body_model()
-    keypoints, note = choose_fit_keypoints(keypoints, wholebody, model)
-    if note and not args.quiet:
-        print(note)
+    keypoints, choice_note = choose_fit_keypoints(keypoints, wholebody, model)
+    if choice_note:
+        note(choice_note)
     pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
     if getattr(pose_prior, "dim", model.num_body_pose) < model.num_body_pose:
         raise InputError(args.pose_prior or "--pose-prior (default)", f"the pose prior is over {pose_prior.dim} values, the model's body_pose has "
@@ -252,7 +251,7 @@ def run(args) -> int:
 
         _, warnings = check_keypoints(inp.keypoints, inp.camera.size if inp.camera else inp.size)
         for warning in warnings:
-            print(f"warning: {warning}")
+            warn(warning)
         print("inputs OK")
         return 0
     out, model, keypoints, image, mask = Path(args.out), inp.model, inp.keypoints, inp.image, inp.mask
@@ -266,12 +265,11 @@ def run(args) -> int:
         result.metrics["warnings"] = extra["warnings"]
     save_leaving_nothing_on_error(
         out, lambda: save_fit(result, out, model.faces.cpu().numpy(), keypoints, image, mask, extra, overwrite=args.overwrite))
-    if not args.quiet:
-        m = result.metrics
-        line = f"wrote {out}: median reprojection error {m['reprojection_error_px']:.2f} px"
-        if "iou" in m:
-            line += f", IoU {m['iou_keypoint_stage']:.3f} -> {m['iou']:.3f}"
-        print(line)
-        for warning in m.get("warnings", []):
-            print(f"warning: {warning}")
+    m = result.metrics
+    line = f"wrote {out}: median reprojection error {m['reprojection_error_px']:.2f} px"
+    if "iou" in m:
+        line += f", IoU {m['iou_keypoint_stage']:.3f} -> {m['iou']:.3f}"
+    print(line)
+    for warning in m.get("warnings", []):
+        warn(warning)
     return 0

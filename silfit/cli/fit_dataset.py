@@ -103,8 +103,7 @@ def run(args) -> int:
         )  # fmt: skip
     except InputError as err:
         raise CLIError(str(err)) from None
-    if not args.quiet:
-        print(summary["table"])
+    print(summary["table"])
     if summary["failed"]:
         print(f"silfit fit-dataset: {summary['failed']} of {summary['items']} items failed; see {args.out}/failures.jsonl",
               file=sys.stderr)  # fmt: skip

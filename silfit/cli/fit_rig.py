@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from . import CLIError
+from . import CLIError, warn
 
 
 def run_rig(args) -> int:
@@ -44,7 +44,7 @@ def run_rig(args) -> int:
     warnings = [w for v in views for w in v.warnings]
     if args.check_only:
         for w in warnings:
-            print(f"warning: {w}")
+            warn(w)
         print(f"inputs OK ({len(views)} views)")
         return 0
     names = [v.name for v in views]
@@ -53,12 +53,11 @@ def run_rig(args) -> int:
     extra = {"rig": str(args.rig), "model": model.source, "warnings": warnings + result.metrics.get("warnings", [])}
     save_leaving_nothing_on_error(
         out, lambda: save_rig_fit(result, out, model.faces.cpu().numpy(), problem, images, extra, overwrite=args.overwrite))
-    if not args.quiet:
-        m = result.metrics
-        line = f"wrote {out}: {len(views)} views, median reprojection error {m['reprojection_error_px']:.2f} px"
-        if "iou_mean" in m:
-            line += f", mean IoU {m['iou_mean']:.3f}"
-        print(line)
-        for w in extra["warnings"]:
-            print(f"warning: {w}")
+    m = result.metrics
+    line = f"wrote {out}: {len(views)} views, median reprojection error {m['reprojection_error_px']:.2f} px"
+    if "iou_mean" in m:
+        line += f", mean IoU {m['iou_mean']:.3f}"
+    print(line)
+    for w in extra["warnings"]:
+        warn(w)
     return 0

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import CLIError
+from . import CLIError, warn
 
 
 def _camera(args, seq):
@@ -81,12 +81,11 @@ def run_sequence(args) -> int:
     save_leaving_nothing_on_error(out, lambda: save_sequence_fit(
         result, out, model, seq, meshes=args.meshes, video=not args.no_video, fps=args.fps, extra_metrics=extra,
         overwrite=args.overwrite))  # fmt: skip
-    if not args.quiet:
-        t = result.timings
-        line = f"wrote {out}: {result.num_frames} frames, {int(result.bridged.sum())} bridged, {t['seconds_per_frame']:.2f} s per frame"
-        if result.silhouette_iou is not None:
-            line += f", silhouette IoU {result.silhouette_iou_start:.3f} -> {float(np.nanmean(result.silhouette_iou)):.3f}"
-        print(line)
-        for warning in result.warnings:
-            print(f"warning: {warning}")
+    t = result.timings
+    line = f"wrote {out}: {result.num_frames} frames, {int(result.bridged.sum())} bridged, {t['seconds_per_frame']:.2f} s per frame"
+    if result.silhouette_iou is not None:
+        line += f", silhouette IoU {result.silhouette_iou_start:.3f} -> {float(np.nanmean(result.silhouette_iou)):.3f}"
+    print(line)
+    for warning in result.warnings:
+        warn(warning)
     return 0

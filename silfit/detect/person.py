@@ -22,6 +22,7 @@ from typing import List, Optional
 
 import numpy as np
 
+from ..errors import InputError
 from .anchors import DETECTOR_INPUT, decode_detections
 from .geometry import ROI, roi_from_alignment_points, warp_to_crop
 from .landmarks import NUM_LANDMARKS, ROI_SCALE, mask_in_image, roi_from_landmarks, run_landmark_model
@@ -32,7 +33,7 @@ from .nms import weighted_nms
 __all__ = ["DetectConfig", "DetectionError", "Person", "detect_people", "detect_candidates"]
 
 
-class DetectionError(ValueError):
+class DetectionError(InputError):
     """No usable person in the image (the message says why)."""
 
 

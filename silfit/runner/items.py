@@ -37,6 +37,7 @@ from typing import Dict, List, Optional, Union
 import numpy as np
 
 from ..camera import Camera, load_camera
+from ..errors import InputError  # the dataset input as a whole is unusable
 from ..dataset import SUBJECT_FILES, SubjectError, list_subjects, read_image, read_mask
 from ..keypoints import KeypointSet, read_keypoints
 
@@ -49,10 +50,6 @@ MANIFEST_COLUMNS = ("id", "keypoints", "mask", "image", "camera", "person")
 RESERVED = ("", "..", "results.jsonl", "failures.jsonl", "summary.md", "summary.json", "summary.png")
 #: key of :attr:`Item.masks` for the mask of the largest (or only) person
 LARGEST = "largest"
-
-
-class InputError(ValueError):
-    """The dataset input as a whole is unusable (reported as one line, exit status 2)."""
 
 
 class ItemError(Exception):

@@ -161,3 +161,25 @@ def test_render_model_changes_the_body(tmp_path):
         masks[name] = np.asarray(Image.open(tmp_path / name / "mask.png")) > 127
     assert masks["default"].any() and masks["toy"].any()
     assert (masks["default"] != masks["toy"]).mean() > 0.02  # another body, another silhouette
+
+
+def test_no_subcommand_prints_help_and_exits_2(capsys):
+    assert main([]) == 2
+    err = capsys.readouterr().err
+    assert "usage: silfit" in err and "fit-dataset" in err
+
+
+def test_quiet_hides_progress_only_and_warnings_go_to_stderr(inputs, tmp_path, capsys):  # noqa: F811
+    d, model = inputs
+    doc = json.loads((d / "kp.json").read_text())
+    kp = np.asarray(doc["people"][0]["pose_keypoints_2d"], dtype=float).reshape(-1, 3)
+    kp[4] = [1e6, 1e6, 0.9]  # a far-outside wrist: dropped with a warning
+    doc["people"][0]["pose_keypoints_2d"] = kp.reshape(-1).tolist()
+    bad = tmp_path / "far.json"
+    bad.write_text(json.dumps(doc))
+    args = fit_args(d, model, tmp_path / "q", "--quiet")
+    args[args.index("--keypoints") + 1] = str(bad)
+    assert main(args) == 0
+    cap = capsys.readouterr()
+    assert cap.out.startswith("wrote ") and "median reprojection error" in cap.out  # the result line stays
+    assert "warning:" not in cap.out and "warning:" in cap.err  # warnings on standard error, also with --quiet
