@@ -22,7 +22,7 @@ import json
 import math
 import os
 from dataclasses import asdict, dataclass
-from typing import Union
+from typing import Optional, Tuple, Union
 
 import numpy as np
 import torch
@@ -39,7 +39,9 @@ __all__ = [
     "UPRIGHT_FACING_CAMERA",
     "UPRIGHT_BACK_TO_CAMERA",
     "camera_from_dict",
+    "extrinsics_from_dict",
     "load_camera",
+    "read_camera_file",
     "save_camera",
 ]
 
@@ -211,9 +213,78 @@ def camera_from_dict(data, source: str) -> Camera:
     return camera
 
 
+#: a rotation's ``R R^T`` may differ from the identity by this much (and ``det R`` from 1)
+ROTATION_TOL = 1e-3
+#: camera centres must lie within this many metres of the world origin
+MAX_TRANSLATION_M = 1e4
+
+def _leaves(value):
+    if isinstance(value, (list, tuple)):
+        for v in value:
+            yield from _leaves(v)
+    else:
+        yield value
+
+
+def _matrix(value, shape, source, name) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(source, f"camera field '{name}' must be numbers of shape {shape}", field=name) from None
+    if arr.size != int(np.prod(shape)):
+        raise InputError(source, f"camera field '{name}' must have shape {shape}, got {arr.shape}", field=name)
+    if not isinstance(value, (list, tuple)) or any(isinstance(v, (bool, str)) for v in _leaves(value)):
+        raise InputError(source, f"camera field '{name}' must be a list of numbers of shape {shape} (no booleans "
+                         "or strings)", field=name)  # fmt: skip
+    arr = arr.reshape(shape)
+    if not np.all(np.isfinite(arr)):
+        raise InputError(source, f"camera field '{name}' holds NaN or infinity", field=name)
+    return arr
+
+
+def check_rotation(R: np.ndarray, source: str, name: str = "R") -> np.ndarray:
+    """``R`` as a proper rotation matrix, or an :class:`InputError` naming the field."""
+    err = float(np.abs(R @ R.T - np.eye(3)).max())
+    if err > ROTATION_TOL or abs(float(np.linalg.det(R)) - 1.0) > ROTATION_TOL:
+        raise InputError(source, f"camera field '{name}' is not a rotation matrix (|R R^T - I| = {err:.3g}, "
+                         f"det {np.linalg.det(R):.3g}); expected world-to-camera R, OpenCV convention", field=name)  # fmt: skip
+    return R
+
+
+def _check_t(t: np.ndarray, source: str, name: str = "t") -> np.ndarray:
+    if float(np.abs(t).max()) > MAX_TRANSLATION_M:
+        raise InputError(source, f"camera field '{name}' = {t.tolist()} is beyond {MAX_TRANSLATION_M:g} m "
+                         "(is it in metres?)", field=name)  # fmt: skip
+    return t
+
+
+def extrinsics_from_dict(data: dict, source: str) -> Tuple[Optional[np.ndarray], Optional[np.ndarray]]:
+    """Optional ``R`` (3x3 world to camera) and ``t`` (metres) of a camera object; both or neither."""
+    has_R, has_t = "R" in data, "t" in data
+    if has_R != has_t:
+        missing = "t" if has_R else "R"
+        raise InputError(source, f"camera field '{missing}' missing: give both R (3x3) and t (3), or neither", field=missing)
+    if not has_R:
+        return None, None
+    R = check_rotation(_matrix(data["R"], (3, 3), source, "R"), source)
+    t = _check_t(_matrix(data["t"], (3,), source, "t"), source)
+    return R, t
+
+
+def read_camera_file(path: Union[str, os.PathLike]) -> Tuple[Camera, Optional[np.ndarray], Optional[np.ndarray]]:
+    """The one reader of ``camera.json``: ``(camera, R, t)`` from ``fx, fy, cx, cy, width,
+    height`` and the optional world-to-camera extrinsics ``R`` (3x3), ``t`` (metres; both or
+    neither, ``None`` without them), every field checked, errors naming the file and field."""
+    data = read_json(path, "camera")
+    source = os.fspath(path)
+    camera = camera_from_dict(data, source)
+    R, t = extrinsics_from_dict(data, source)
+    return camera, R, t
+
+
 def load_camera(path: Union[str, os.PathLike]) -> Camera:
-    """Read ``camera.json`` (``fx, fy, cx, cy, width, height``), naming the file and field on error."""
-    return camera_from_dict(read_json(path, "camera"), os.fspath(path))
+    """The intrinsics of a ``camera.json`` (:func:`read_camera_file`; its ``R``, ``t`` are checked too)."""
+    return read_camera_file(path)[0]
 
 
 def save_camera(camera: Camera, path: Union[str, os.PathLike]) -> None:

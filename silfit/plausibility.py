@@ -21,7 +21,7 @@ import numpy as np
 from .errors import InputError
 from .keypoints import KeypointSet
 
-__all__ = ["check_keypoints", "fit_warnings", "person_extent"]
+__all__ = ["check_frames", "check_keypoints", "fit_warnings", "person_extent"]
 
 #: Keypoints farther than this many image widths/heights outside the image are dropped.
 OUTSIDE_MARGIN = 1.0
@@ -90,6 +90,44 @@ def check_keypoints(keypoints: KeypointSet, image_size: Optional[tuple] = None) 
                 f"of the person's {extent:.0f} px: degenerate keypoints",
             )  # fmt: skip
     return keypoints, warnings
+
+
+def check_frames(frames: Sequence[Optional[KeypointSet]], image_size: Optional[tuple] = None,
+                 numbers: Optional[Sequence[int]] = None) -> tuple[list, list]:
+    """:func:`check_keypoints` for each frame of a video: far-outside points dropped, and a
+    frame whose keypoints would be refused becomes a frame without a detection (``None``: the
+    sequence fit bridges it from its neighbours). Returns ``(frames, warnings)``, one warning
+    per kind of finding with the frame numbers (``numbers``, default the indices)."""
+    numbers = list(range(len(frames))) if numbers is None else list(numbers)
+    out, dropped, refused = [], [], []
+    for n, ks in zip(numbers, frames):
+        if ks is None:
+            out.append(None)
+            continue
+        try:
+            ks, notes = check_keypoints(ks, image_size)
+        except InputError as err:
+            refused.append((n, str(err)))
+            out.append(None)
+            continue
+        if notes:
+            dropped.append(n)
+        out.append(ks)
+    if not any(ks is not None for ks in out) and refused:
+        raise InputError(refused[0][1].partition(": ")[0], f"no frame has usable keypoints; frame {refused[0][0]}: "
+                         f"{refused[0][1].partition(': ')[2]}")  # fmt: skip
+    warnings = []
+    if dropped:
+        warnings.append(f"frame(s) {_frame_list(dropped)}: keypoint(s) more than {OUTSIDE_MARGIN:g} image size(s) outside "
+                        "the image treated as missing")  # fmt: skip
+    if refused:
+        warnings.append(f"frame(s) {_frame_list([n for n, _ in refused])}: unusable keypoints, fitted as frames without "
+                        f"a detection (first: {refused[0][1]})")  # fmt: skip
+    return out, warnings
+
+
+def _frame_list(numbers: Sequence[int], limit: int = 10) -> str:
+    return ", ".join(map(str, numbers[:limit])) + (f" ... ({len(numbers)} in all)" if len(numbers) > limit else "")
 
 
 def fit_warnings(metrics: dict, keypoints: KeypointSet, vertices: np.ndarray) -> list:

@@ -33,7 +33,9 @@ from typing import List, Optional, Tuple, Union
 
 import numpy as np
 
-from .camera import Camera, camera_from_dict
+from .camera import (  # noqa: F401  (extrinsics_from_dict: re-exported, rig manifests name it)
+    _check_t, camera_from_dict, check_rotation, extrinsics_from_dict, read_camera_file,
+)
 from .errors import InputError
 from .fitting.problem import View
 from .input_limits import check_file_size, read_json
@@ -51,10 +53,6 @@ __all__ = [
     "write_cameras_json",
 ]
 
-#: a rotation's ``R R^T`` may differ from the identity by this much (and ``det R`` from 1)
-ROTATION_TOL = 1e-3
-#: camera centres must lie within this many metres of the world origin
-MAX_TRANSLATION_M = 1e4
 PathLike = Union[str, os.PathLike]
 
 
@@ -70,59 +68,6 @@ class RigView:
     warnings: List[str] = field(default_factory=list)
 
 
-def _leaves(value):
-    if isinstance(value, (list, tuple)):
-        for v in value:
-            yield from _leaves(v)
-    else:
-        yield value
-
-
-def _matrix(value, shape, source, name) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(source, f"camera field '{name}' must be numbers of shape {shape}", field=name) from None
-    if arr.size != int(np.prod(shape)):
-        raise InputError(source, f"camera field '{name}' must have shape {shape}, got {arr.shape}", field=name)
-    if not isinstance(value, (list, tuple)) or any(isinstance(v, (bool, str)) for v in _leaves(value)):
-        raise InputError(source, f"camera field '{name}' must be a list of numbers of shape {shape} (no booleans "
-                         "or strings)", field=name)  # fmt: skip
-    arr = arr.reshape(shape)
-    if not np.all(np.isfinite(arr)):
-        raise InputError(source, f"camera field '{name}' holds NaN or infinity", field=name)
-    return arr
-
-
-def check_rotation(R: np.ndarray, source: str, name: str = "R") -> np.ndarray:
-    """``R`` as a proper rotation matrix, or an :class:`InputError` naming the field."""
-    err = float(np.abs(R @ R.T - np.eye(3)).max())
-    if err > ROTATION_TOL or abs(float(np.linalg.det(R)) - 1.0) > ROTATION_TOL:
-        raise InputError(source, f"camera field '{name}' is not a rotation matrix (|R R^T - I| = {err:.3g}, "
-                         f"det {np.linalg.det(R):.3g}); expected world-to-camera R, OpenCV convention", field=name)  # fmt: skip
-    return R
-
-
-def _check_t(t: np.ndarray, source: str, name: str = "t") -> np.ndarray:
-    if float(np.abs(t).max()) > MAX_TRANSLATION_M:
-        raise InputError(source, f"camera field '{name}' = {t.tolist()} is beyond {MAX_TRANSLATION_M:g} m "
-                         "(is it in metres?)", field=name)  # fmt: skip
-    return t
-
-
-def extrinsics_from_dict(data: dict, source: str) -> Tuple[Optional[np.ndarray], Optional[np.ndarray]]:
-    """Optional ``R`` (3x3 world to camera) and ``t`` (metres) of a camera object; both or neither."""
-    has_R, has_t = "R" in data, "t" in data
-    if has_R != has_t:
-        missing = "t" if has_R else "R"
-        raise InputError(source, f"camera field '{missing}' missing: give both R (3x3) and t (3), or neither", field=missing)
-    if not has_R:
-        return None, None
-    R = check_rotation(_matrix(data["R"], (3, 3), source, "R"), source)
-    t = _check_t(_matrix(data["t"], (3,), source, "t"), source)
-    return R, t
-
-
 def view_from_dict(data, source: str) -> View:
     """A :class:`~silfit.fitting.problem.View` from a camera object with optional ``R``/``t``."""
     camera = camera_from_dict(data, source)
@@ -131,8 +76,9 @@ def view_from_dict(data, source: str) -> View:
 
 
 def read_view_camera(path: PathLike) -> View:
-    """Read a ``camera.json`` with optional extrinsics ``R``, ``t`` (identity without them)."""
-    return view_from_dict(read_json(path, "camera"), os.fspath(path))
+    """Read a ``camera.json`` with optional extrinsics ``R``, ``t`` (identity without them),
+    with the one camera-file reader :func:`silfit.camera.read_camera_file`."""
+    return View(*read_camera_file(path))
 
 
 def view_to_dict(view: View) -> dict:

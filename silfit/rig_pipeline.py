@@ -5,8 +5,9 @@ views have masks, the silhouette stage rendering every view; results in memory
 
 Output folder (world coordinates: the frame of the rig's extrinsics)::
 
-    params.npz, params.json   betas, body_pose, global_orient, transl (the body in the world
-                              frame), vertices, joints, layout, frame = "world"
+    params.npz, params.json   the fit file (silfit.fitio: one frame, the rig's views with their
+                              R, t; coordinates = "world"): parameters, vertices, joints,
+                              keypoints_2d and reprojection error per view, the model
     mesh.obj                  the posed body in world coordinates (metres)
     cameras.json              the rig's cameras (silfit.rig manifest: intrinsics, R, t)
     metrics.json              per view: median reprojection error (px), IoU of the keypoint
@@ -81,6 +82,18 @@ def disagreeing_views(names, errors, factor: float = 4.0, floor_px: float = 10.0
             if np.isfinite(e) and e > max(factor * median, floor_px)]  # fmt: skip
 
 
+def view_warnings(names, problem, vertices, per_view: dict) -> List[str]:
+    """One image's fit warnings (:func:`silfit.plausibility.fit_warnings`: IoU, depth,
+    reprojection error) for each view of a rig fit, from its metrics in ``per_view``."""
+    from .plausibility import fit_warnings
+
+    out = []
+    for name, o in zip(names, problem.grid()[0]):
+        for w in fit_warnings(per_view[name], o.keypoints, view_vertices(vertices, o.view)):
+            out.append(f"view {name}: {w}")
+    return out
+
+
 def _keypoint_metrics(kp: RigFit, problem, names, faces) -> RigResult:
     ious, masks = _view_ious(kp.vertices, faces, problem, names)
     per_view = {n: {"reprojection_error_px": float(e)} for n, e in zip(names, kp.reprojection_error)}
@@ -88,7 +101,8 @@ def _keypoint_metrics(kp: RigFit, problem, names, faces) -> RigResult:
         per_view[n]["iou_keypoint_stage"] = v
     metrics = {"views": per_view, "timings": {"keypoints": float(kp.timings["total"])},
                "reprojection_error_px": float(np.nanmedian(kp.reprojection_error)),
-               "warnings": disagreeing_views(names, kp.reprojection_error)}  # fmt: skip
+               "warnings": disagreeing_views(names, kp.reprojection_error)
+               + view_warnings(names, problem, kp.vertices, per_view)}  # fmt: skip
     if ious:
         metrics["iou_mean"] = float(np.mean(list(ious.values())))
     return RigResult(list(names), dict(kp.params), kp.vertices, kp.joints, kp, None, metrics, masks)
@@ -153,7 +167,7 @@ def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool =
         metrics.update(
             iou_mean_keypoint_stage=metrics.pop("iou_mean"), iou_mean=float(np.mean(list(ious.values()))),
             reprojection_error_px=float(np.nanmedian(errs)), keypoints_2d=np.asarray(proj),
-            warnings=list(sil.warnings) + disagreeing_views(names, errs),
+            warnings=list(sil.warnings) + disagreeing_views(names, errs) + view_warnings(names, p, vertices, metrics["views"]),
             silhouette_steps=sil.steps,
         )  # fmt: skip
         metrics["timings"]["silhouette"] = float(sil.seconds)
@@ -162,8 +176,10 @@ def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool =
 
 
 def save_rig_fit(result: RigResult, out: Union[str, os.PathLike], faces: np.ndarray, problem, images=None,
-                 extra_metrics: Optional[dict] = None, overwrite: bool = False) -> Path:  # fmt: skip
-    """Write the output folder described in the module docstring, atomically."""
+                 extra_metrics: Optional[dict] = None, overwrite: bool = False, model=None) -> Path:  # fmt: skip
+    """Write the output folder described in the module docstring, atomically (``model``: the
+    body model, recorded in ``params.npz``)."""
+    from .fitio import write_fit
     from . import figures
     from .meshio import write_obj
     from .rig import write_cameras_json
@@ -173,22 +189,25 @@ def save_rig_fit(result: RigResult, out: Union[str, os.PathLike], faces: np.ndar
     grid = problem.grid()[0]
     layout = grid[0].keypoints.layout
 
-    def write_params(folder: Path, params: dict, vertices, joints, extra=None):
-        folder.mkdir(parents=True, exist_ok=True)
-        arrays = {k: np.asarray(v, np.float32) for k, v in params.items()}
-        np.savez(folder / "params.npz", **arrays, vertices=np.asarray(vertices, np.float32),
-                 joints=np.asarray(joints, np.float32), layout=np.array(layout), frame=np.array("world"))  # fmt: skip
-        payload = {k: v.astype(float).tolist() for k, v in arrays.items()}
-        (folder / "params.json").write_text(json.dumps({**payload, "layout": layout, "frame": "world", **(extra or {})}, indent=2))
+    cameras = [o.view.camera for o in grid]
+    extrinsics = [o.view.extrinsics() for o in grid]
+
+    def write_params(folder: Path, params: dict, vertices, joints, proj, errors, record=None):
+        write_fit(folder, params, cameras, layout=layout, model=model, coordinates="world", extrinsics=extrinsics,
+                  views=result.names, vertices=vertices, joints=joints, keypoints_2d=np.asarray(proj)[None],
+                  reprojection_error=np.asarray(errors, np.float32)[None], record=record)  # fmt: skip
 
     with atomic_folder(out, overwrite) as tmp:
-        write_params(tmp, result.params, result.vertices, result.joints, {"views": result.names})
+        proj = result.metrics.get("keypoints_2d", result.keypoint.keypoints_2d)
+        views = result.metrics.get("views")
+        errors = [views[n]["reprojection_error_px"] for n in result.names] if views else result.keypoint.reprojection_error
+        write_params(tmp, result.params, result.vertices, result.joints, proj, errors,
+                     {"timings": result.metrics.get("timings", {})})
         write_obj(tmp / "mesh.obj", result.vertices, faces, "silfit: posed body in world coordinates (rig extrinsics, metres)")
         write_cameras_json(tmp / "cameras.json", [(n, o.view) for n, o in zip(result.names, grid)])
         if result.silhouette is not None:
             kp = result.keypoint
-            write_params(tmp / "stages" / "keypoints", kp.params, kp.vertices, kp.joints)
-        proj = result.metrics.get("keypoints_2d", result.keypoint.keypoints_2d)
+            write_params(tmp / "stages" / "keypoints", kp.params, kp.vertices, kp.joints, kp.keypoints_2d, kp.reprojection_error)
         for c, (name, o) in enumerate(zip(result.names, grid)):
             folder = tmp / "views" / name
             folder.mkdir(parents=True, exist_ok=True)

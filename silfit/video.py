@@ -2,8 +2,9 @@
 
 OpenPose run on a video writes one file per frame, ``<video>_<frame, 12 digits>_keypoints.json``
 (``--write_json``). :func:`read_sequence` reads such a folder (or, when the folder holds a
-``keypoints/`` sub-folder, that one; ``masks/``, ``images/`` and ``camera.json`` beside it
-are then picked up too, the layout ``silfit synth --sequence`` writes). Frames are ordered by
+``keypoints/`` or ``openpose/`` sub-folder, that one; ``masks/``, ``images/`` and
+``camera.json`` beside it are then picked up too, the layout ``silfit synth --sequence``
+writes; a ``camera.json`` among the keypoint files is picked up as well). Frames are ordered by
 the number in their names; a number missing between the first and the last is a frame
 with no detection, as is a file whose ``people`` list is empty (OpenPose writes those when
 nobody is seen). Masks and images are matched to frames by the same number (the last run
@@ -29,6 +30,8 @@ _KEYPOINTS = re.compile(r"^(?P<stem>.*?)_?(?P<num>\d+)?_keypoints\.json$")
 _DIGITS = re.compile(r"(\d+)(?!.*\d)")
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 MAX_FRAMES = 100_000
+#: Sub-folders of a video folder that hold the per-frame keypoint files, in order of preference.
+KEYPOINT_FOLDERS = ("keypoints", "openpose")
 
 
 def frame_number(name: str) -> Optional[int]:
@@ -82,7 +85,7 @@ def read_sequence(folder: Union[str, os.PathLike], masks: Optional[Union[str, os
     root = Path(folder)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: no such folder")
-    kp_dir = root / "keypoints" if (root / "keypoints").is_dir() else root
+    kp_dir = next((root / d for d in KEYPOINT_FOLDERS if (root / d).is_dir()), root)
     files = sorted(p for p in kp_dir.iterdir() if p.name.endswith("_keypoints.json") and p.is_file())
     if not files:
         raise InputError(kp_dir, "no OpenPose per-frame files (*_keypoints.json) in the folder")
@@ -122,7 +125,7 @@ def read_sequence(folder: Union[str, os.PathLike], masks: Optional[Union[str, os
     for d, what in ((mdir, "masks"), (idir, "images")):
         if d is not None and not d.is_dir():
             raise FileNotFoundError(f"{d}: no such folder ({what})")
-    cam = side / "camera.json" if side and (side / "camera.json").is_file() else None
+    cam = next((d / "camera.json" for d in (kp_dir, side) if d is not None and (d / "camera.json").is_file()), None)
     return SequenceInput(root, numbers, frames, [numbered.get(n) for n in numbers],
                          _numbered(mdir, "mask") if mdir else {}, _numbered(idir, "image") if idir else {}, cam)  # fmt: skip
 
@@ -156,35 +159,36 @@ def write_overlay_video(path: Path, pictures, fps: float) -> Optional[Path]:
     return path
 
 
+def _median(values) -> Optional[float]:
+    finite = np.asarray(values, dtype=np.float64)
+    finite = finite[np.isfinite(finite)]
+    return float(np.median(finite)) if finite.size else None
+
+
 def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: bool = False, video: bool = True,
                       fps: float = 30.0, extra_metrics: Optional[dict] = None, overwrite: bool = False) -> Path:  # fmt: skip
     """Write a :class:`~silfit.fitting.sequence.SequenceFitResult` atomically: ``params.npz``
-    / ``params.json`` (SMPL names: one ``betas [L]``, ``body_pose [F, 69]``, ``global_orient
-    [F, 3]``, ``transl [F, 3]``; ``frames [F]`` the frame numbers, ``bridged [F]``, the
-    camera), ``stages/per_frame/params.npz`` (the per-frame fits), ``metrics.json``,
+    / ``params.json`` (the fit file of :mod:`silfit.fitio`: ``F`` frames, one view, ``frames``
+    the frame numbers; ``params.json`` adds ``bridged`` and ``refaced`` per frame),
+    ``stages/per_frame/params.npz`` (the per-frame fits), ``metrics.json``,
     ``strip.png`` (a frame strip of overlays), ``overlay.gif`` (every frame; with imageio)
     and with ``meshes`` ``meshes/<frame>.obj``."""
     import torch
 
     from . import figures
+    from .fitio import write_fit
     from .meshio import write_obj
     from .outfolder import atomic_folder
 
     numbers = list(sequence.numbers)
     cam = result.camera
-    camera_arrays = {"camera_intrinsics": np.array([cam.fx, cam.fy, cam.cx, cam.cy]), "image_size": np.array([cam.width, cam.height])}
+    flags = {"bridged": result.bridged.tolist(), "refaced": result.refaced.tolist()}
     with atomic_folder(out, overwrite) as tmp:
-        arrays = {**{k: np.asarray(v, np.float32) for k, v in result.params().items()}, "frames": np.asarray(numbers),
-                  "bridged": result.bridged, "refaced": result.refaced, "joints": result.joints,
-                  "keypoints_2d": result.keypoints_2d, "reprojection_error": result.reprojection_error,
-                  "layout": np.array(result.layout), **camera_arrays}  # fmt: skip
-        np.savez(tmp / "params.npz", **arrays)
-        payload = {k: np.asarray(v).astype(float).tolist() for k, v in result.params().items()}
-        payload.update(frames=numbers, bridged=result.bridged.tolist(), camera=cam.to_dict(), layout=result.layout)
-        (tmp / "params.json").write_text(json.dumps(payload))
-        (tmp / "stages" / "per_frame").mkdir(parents=True)
-        np.savez(tmp / "stages" / "per_frame" / "params.npz", **{k: np.asarray(v, np.float32) for k, v in result.per_frame.items()},
-                 frames=np.asarray(numbers), **camera_arrays)  # fmt: skip
+        write_fit(tmp, result.params(), [cam], layout=result.layout, model=model, frame_numbers=numbers,
+                  joints=result.joints, keypoints_2d=result.keypoints_2d[:, None],
+                  reprojection_error=result.reprojection_error[:, None], record=flags)  # fmt: skip
+        write_fit(tmp / "stages" / "per_frame", result.per_frame, [cam], layout=result.layout, model=model,
+                  frame_numbers=numbers)  # fmt: skip
         if meshes:
             (tmp / "meshes").mkdir()
             faces = model.faces.cpu().numpy()
@@ -204,6 +208,8 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
             "refaced_frames": [numbers[i] for i in np.flatnonzero(result.refaced)],
             "outlier_keypoints": int(result.outliers.sum()),
             "reprojection_error_px": float(np.median(finite)) if len(finite) else None,
+            **({"reprojection_error_px_keypoint_stage": _median(result.reprojection_error_keypoint_stage)}
+               if result.reprojection_error_keypoint_stage is not None else {}),
             "timings": result.timings, "warnings": list(result.warnings), "camera": cam.to_dict(),
             "overlay_video": gif.name if gif else None, "config": result.config, **(extra_metrics or {}),
         }  # fmt: skip

@@ -1,4 +1,4 @@
-"""The one reader of fit outputs: round trip with KeypointFitResult.save, and its checks."""
+"""The one reader and writer of fit files: round trips for one image, a video and a rig, and the checks."""
 import json
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 
 from silfit.camera import Camera
 from silfit.dataset import SubjectError
-from silfit.fitio import read_fit
+from silfit.fitio import SCHEMA, model_record, read_fit, write_fit
 from silfit.fitting.result import KeypointFitResult
 
 CAM = Camera(fx=300.0, fy=310.0, cx=63.5, cy=60.0, width=128, height=120)
@@ -33,7 +33,7 @@ def test_round_trip_both_files(tmp_path):
             np.testing.assert_allclose(getattr(back, p), getattr(res, p), atol=1e-6)
         assert back.camera == CAM and back.layout == "coco17"
     npz = read_fit(tmp_path)  # a folder: params.npz preferred
-    assert npz.path.name == "params.npz" and npz.arrays["vertices"].shape == (50, 3)
+    assert npz.path.name == "params.npz" and npz.arrays["vertices"].shape == (1, 50, 3)
     js = KeypointFitResult.load(tmp_path / "params.json")
     assert js.flipped[0] and js.reprojection_error[0] == 2.5 and js.timings == {"final": 0.25}
 
@@ -57,7 +57,7 @@ def _npz(tmp_path, **fields):
         ({"image_size": None}, "image_size", "missing"),
         ({"camera_intrinsics": np.array([-1.0, 300, 63.5, 60])}, "camera_intrinsics", "positive"),
         ({"layout": np.array("body99")}, "layout", "unknown keypoint layout"),
-        ({"joints": np.zeros((24, 4))}, "joints", "expected [N, 3]"),
+        ({"joints": np.zeros((24, 4))}, "joints", "expected [1, ..., 3]"),
     ],
 )
 def test_npz_checks_name_file_and_field(tmp_path, fields, field, words):
@@ -87,3 +87,48 @@ def test_json_checks_and_partial_reads(tmp_path):
         read_fit(f, require=())
     with pytest.raises(FileNotFoundError, match="fit result not found"):
         read_fit(tmp_path / "nowhere")
+
+
+def test_video_and_rig_fits_keep_their_frame_and_view_axes(tmp_path):
+    rng = np.random.default_rng(1)
+    F, C, K = 4, 2, 25
+    params = {"betas": rng.normal(size=10), "body_pose": rng.normal(size=(F, 69)), "global_orient": rng.normal(size=(F, 3)),
+              "transl": rng.normal(size=(F, 3))}  # fmt: skip
+    R = [np.eye(3), np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]])]
+    t = [np.zeros(3), np.array([0.5, 0.0, 3.0])]
+    write_fit(tmp_path, params, [CAM, CAM], layout="body25", coordinates="world", extrinsics=list(zip(R, t)),
+              views=["left", "right"], frame_numbers=[10, 11, 12, 14], keypoints_2d=rng.normal(size=(F, C, K, 2)),
+              reprojection_error=np.full((F, C), np.nan), record={"timings": {"total": 1.0}})  # fmt: skip
+    for name in ("params.npz", "params.json"):
+        fit = read_fit(tmp_path / name)
+        assert fit.num_frames == F and fit.params["betas"].shape == (F, 10) and fit.coordinates == "world"
+        assert fit.views == ["left", "right"] and len(fit.cameras) == C
+        np.testing.assert_allclose(fit.extrinsics[1][0], R[1]) and np.testing.assert_allclose(fit.extrinsics[1][1], t[1])
+        np.testing.assert_allclose(fit.frame(2)["body_pose"], params["body_pose"][2], atol=1e-6)
+        np.testing.assert_allclose(fit.frame(3)["betas"], params["betas"], atol=1e-6)  # shared: repeated
+        assert fit.model["kind"] == "smpl"
+    fit = read_fit(tmp_path)
+    assert fit.arrays["keypoints_2d"].shape == (F, C, K, 2) and list(fit.frame_numbers) == [10, 11, 12, 14]
+    assert str(np.load(tmp_path / "params.npz")["schema"]) == SCHEMA
+    with pytest.raises(SubjectError, match="frame 4 asked for; the fit has 4 frame"):
+        fit.frame(4)
+    with pytest.raises(SubjectError) as info:  # a one-image reader refuses a video, naming the file
+        KeypointFitResult.load(tmp_path)
+    assert info.value.field == "frames" and "4 frame(s)" in str(info.value)
+
+
+def test_frame_counts_must_agree_and_the_model_decides_the_widths(tmp_path, open_model):
+    f = _npz(tmp_path, body_pose=np.zeros((3, 69)), transl=np.zeros((2, 3)))
+    with pytest.raises(SubjectError) as info:
+        read_fit(f)
+    assert info.value.field in ("transl", "body_pose") and "frames" in str(info.value)
+    from silfit import load_body_model
+
+    smplx = load_body_model(kind="smplx")
+    rec = model_record(smplx)
+    assert rec["kind"] == "smplx" and len(rec["sha256"]) == 64 and rec["source"].endswith("open_smplx.npz")
+    params = {n: np.zeros(w) for n, w in smplx.parameter_sizes.items()}
+    write_fit(tmp_path / "wb", params, [CAM], layout="wholebody", model=smplx)
+    fit = read_fit(tmp_path / "wb")  # 63-wide body_pose and the hands read as SMPL-X's, from the record
+    assert fit.params["body_pose"].shape == (1, 63) and fit.params["left_hand_pose"].shape == (1, 45)
+    assert KeypointFitResult.load(tmp_path / "wb").model == rec

@@ -95,3 +95,18 @@ def test_through_silfit_fit(tmp_path, capsys):
     (tmp_path / "kp.json").write_text(json.dumps(data))
     assert main(args + ["--out", str(tmp_path / "b"), "--quiet"]) == 2
     assert "span only 0.0 px" in capsys.readouterr().err and not (tmp_path / "b").exists()
+
+
+def test_video_frames_get_the_checks_of_one_image(kp):
+    from silfit.plausibility import check_frames
+
+    wrist = kp.names.index("right_wrist")
+    one_far = kp.xy.copy()
+    one_far[wrist] = (1e30, 1e30)
+    frames = [kp, None, _with(kp, one_far), _with(kp, np.full_like(kp.xy, 1e30)), kp]
+    out, warnings = check_frames(frames, (512, 512), numbers=[10, 11, 12, 13, 14])
+    assert out[0] is kp and out[1] is None and out[4] is kp
+    assert out[2].conf[wrist] == 0 and out[3] is None  # refused keypoints: a frame without a detection (bridged)
+    assert len(warnings) == 2 and warnings[0].startswith("frame(s) 12:") and warnings[1].startswith("frame(s) 13:")
+    with pytest.raises(InputError, match="no frame has usable keypoints; frame 13"):
+        check_frames([None, frames[3]], (512, 512), numbers=[12, 13])

@@ -8,13 +8,14 @@ Runs :func:`silfit.pipeline.fit` and writes the output folder described in
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
 import numpy as np
 
 from . import CLIError, note, warn
+from .common import save_leaving_nothing_on_error, silhouette_config  # noqa: F401  (also used by fit_rig, sequence)
 
 
 def _int_list(text: str) -> tuple:
@@ -35,6 +36,7 @@ def register(subparsers) -> None:
     p.add_argument("--rig", metavar="DIR", help="a calibrated camera rig: cameras.json (or EasyMocap intri.yml + "
                    "extri.yml, or one sub-folder per view with camera.json incl. R, t) and per view keypoints.json, "
                    "optional mask.png, image.png; fits in world coordinates (see README: Camera rigs)")
+    p.add_argument("--views", metavar="A,B", help="--rig: fit only these views (names as in the rig), e.g. cam0,cam2")
     p.add_argument("--keypoints", help="OpenPose BODY_25 / COCO-17 keypoint JSON, or OpenPose whole-body JSON (hands "
                    "and face: fitted with an SMPL-X-layout model) (default: detected in --image, with its mask unless "
                    "--mask is given)")
@@ -42,7 +44,8 @@ def register(subparsers) -> None:
     p.add_argument("--mask", help="person silhouette PNG (enables the silhouette stage)")
     cam = p.add_mutually_exclusive_group()
     cam.add_argument("--camera", help="camera.json with fx, fy, cx, cy, width, height")
-    cam.add_argument("--focal", type=float, help="focal length in pixels (default: max(width, height))")
+    cam.add_argument("--focal", type=float, help="focal length in pixels (default: max(width, height); with --sequence "
+                     "it replaces the focal length of a camera.json found beside the frames)")
     p.add_argument("--image", help="the image (its size, EXIF focal length and the overlay; keypoints and mask "
                    "are detected in it when --keypoints is not given)")
     p.add_argument("--image-size", help="WxH when neither --camera, --image nor --mask gives the size")
@@ -59,7 +62,8 @@ def register(subparsers) -> None:
                    help="silhouette steps per level (default 60,50)")
     seq = p.add_argument_group("videos (silfit.fitting.sequence)")
     seq.add_argument("--sequence", metavar="DIR", help="fit a video: a folder of per-frame OpenPose JSON files "
-                     "(<video>_<frame 12 digits>_keypoints.json, or DIR/keypoints/ with masks/, images/, camera.json beside)")
+                     "(<video>_<frame 12 digits>_keypoints.json, or DIR/keypoints/ or DIR/openpose/ with masks/, images/, "
+                     "camera.json beside)")
     seq.add_argument("--masks", metavar="DIR", help="--sequence: per-frame masks, matched by frame number")
     seq.add_argument("--images", metavar="DIR", help="--sequence: per-frame images (overlays), matched by frame number")
     seq.add_argument("--meshes", action="store_true", help="--sequence: also write meshes/frame_<n>.obj")
@@ -101,28 +105,6 @@ def _person(text: str):
         raise CLIError(f"--person {text!r}: expected a person index (0, 1, ...) or 'largest'") from None
 
 
-def _missing_folders(path: Path) -> list:
-    """``path``'s ancestors that do not exist yet, deepest first (removed again on failure)."""
-    missing, parent = [], path.absolute().parent
-    while not parent.exists():
-        missing.append(parent)
-        parent = parent.parent
-    return missing
-
-
-def save_leaving_nothing_on_error(out: Path, save) -> None:
-    """``save()`` (writes the folder ``out``); on an error or an interrupt, the parent folders
-    this run created are removed again (the writers themselves are atomic)."""
-    created = _missing_folders(out)
-    try:
-        save()
-    except BaseException:
-        for folder in created:
-            if folder.is_dir() and not any(folder.iterdir()):
-                folder.rmdir()
-        raise
-
-
 @dataclass
 class FitInputs:
     """Everything ``silfit fit`` reads, validated (see :func:`load_inputs`)."""
@@ -138,21 +120,6 @@ class FitInputs:
     focal: Optional[float] = None
     camera_source: str = "default max(W, H)"
     photo: Optional[dict] = None
-
-
-def silhouette_config(args):
-    """The silhouette stage's settings from ``--silhouette-resolutions`` / ``--silhouette-iterations``."""
-    from ..fitting.silhouette_stage import SilhouetteFitConfig
-
-    levels = {}
-    if args.silhouette_resolutions:
-        levels["resolutions"] = tuple(args.silhouette_resolutions)
-    if args.silhouette_iterations:
-        levels["iterations"] = tuple(args.silhouette_iterations)
-    try:
-        return replace(SilhouetteFitConfig(), **levels)
-    except ValueError:
-        raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels") from None
 
 
 def load_inputs(args) -> FitInputs:
@@ -184,11 +151,10 @@ def load_inputs(args) -> FitInputs:
     image, size = (photo["image"], photo["size"]) if photo else _image_size(args)
     camera, extrinsics_note = None, ""
     if args.camera:  # R, t (optional) checked as for rigs; one image is fitted in its camera's frame
-        from ..rig import read_view_camera
+        from ..camera import read_camera_file
 
-        view = read_view_camera(args.camera)
-        camera, (R, t) = view.camera, view.extrinsics()
-        if view.R is not None and (np.abs(R - np.eye(3)).max() > 1e-9 or np.abs(t).max() > 1e-9):
+        camera, R, t = read_camera_file(args.camera)
+        if R is not None and (np.abs(R - np.eye(3)).max() > 1e-9 or np.abs(t).max() > 1e-9):
             extrinsics_note = " (its R, t not applied: one image is fitted in the camera's frame; --rig fits in the world frame)"
     if camera is not None and size is not None and tuple(size) != (camera.width, camera.height):
         raise CLIError(f"{args.camera}: camera is {camera.width}x{camera.height} but the image is {size[0]}x{size[1]}")
@@ -233,6 +199,8 @@ def load_inputs(args) -> FitInputs:
 
 
 def run(args) -> int:
+    if getattr(args, "views", None) and not getattr(args, "rig", None):
+        raise CLIError("--views picks cameras of a rig; give --rig DIR")
     if args.sequence and getattr(args, "rig", None):
         raise ValueError("--sequence with --rig: fitting a rig's video is not available; choose one")
     if args.sequence:

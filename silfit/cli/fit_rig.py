@@ -14,12 +14,12 @@ from . import CLIError, warn
 
 def run_rig(args) -> int:
     from ..body import load_body_model
-    from ..fitting.rig_fit import rig_problem
+    from ..fitting.rig_fit import rig_problem, usable_views
     from ..imagefile import read_rgb
     from ..priors import load_pose_prior
     from ..rig import load_rig
     from ..rig_pipeline import fit_rig, save_rig_fit
-    from .fit import save_leaving_nothing_on_error, silhouette_config
+    from .common import save_leaving_nothing_on_error, silhouette_config
 
     for flag in ("keypoints", "mask", "camera", "focal", "image", "image_size"):
         if getattr(args, flag, None):
@@ -27,8 +27,8 @@ def run_rig(args) -> int:
     out = Path(args.out)
     if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
         raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
-    views = load_rig(args.rig)
     person = "largest" if args.person == "largest" else int(args.person)
+    views, set_aside = usable_views(load_rig(args.rig), person, args.views.split(",") if args.views else None)
     problem = rig_problem(views, person=person)
     images = {}
     for v in views:
@@ -41,7 +41,7 @@ def run_rig(args) -> int:
             images[v.name] = img
     model = load_body_model(args.model, gender=args.gender) if args.model else load_body_model()
     pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
-    warnings = [w for v in views for w in v.warnings]
+    warnings = set_aside + [w for v in views for w in v.warnings]
     if args.check_only:
         for w in warnings:
             warn(w)
@@ -52,7 +52,8 @@ def run_rig(args) -> int:
                      silhouette_config=silhouette_config(args), progress=not args.quiet)  # fmt: skip
     extra = {"rig": str(args.rig), "model": model.source, "warnings": warnings + result.metrics.get("warnings", [])}
     save_leaving_nothing_on_error(
-        out, lambda: save_rig_fit(result, out, model.faces.cpu().numpy(), problem, images, extra, overwrite=args.overwrite))
+        out, lambda: save_rig_fit(result, out, model.faces.cpu().numpy(), problem, images, extra, overwrite=args.overwrite,
+                                  model=model))
     m = result.metrics
     line = f"wrote {out}: {len(views)} views, median reprojection error {m['reprojection_error_px']:.2f} px"
     if "iou_mean" in m:

@@ -19,7 +19,12 @@ def _camera(args, seq):
     from ..imagefile import image_file_size
 
     if args.camera or seq.camera:
-        return load_camera(args.camera or seq.camera), "camera file"
+        path = args.camera or seq.camera
+        cam = load_camera(path)
+        if args.focal is None:
+            return cam, f"camera file {path}"
+        cam = camera_from_dict({**cam.to_dict(), "fx": args.focal, "fy": args.focal}, "--focal")
+        return cam, f"camera file {path} with --focal {args.focal:g}"
     size = None
     if args.image_size:
         try:
@@ -36,7 +41,7 @@ def _camera(args, seq):
     cam = Camera.from_image_size(*size)
     if args.focal is not None:
         cam = camera_from_dict({**cam.to_dict(), "fx": args.focal, "fy": args.focal}, "--focal")
-    return cam, "--focal" if args.focal else "default max(W, H)"
+    return cam, f"--focal {args.focal:g}" if args.focal else "default focal max(W, H)"
 
 
 def run_sequence(args) -> int:
@@ -44,7 +49,7 @@ def run_sequence(args) -> int:
     from ..fitting.sequence import SequenceFitConfig, fit_sequence
     from ..priors import load_pose_prior
     from ..video import read_sequence, save_sequence_fit
-    from .fit import save_leaving_nothing_on_error, silhouette_config
+    from .common import save_leaving_nothing_on_error, silhouette_config
 
     for flag in ("keypoints", "mask", "image"):
         if getattr(args, flag, None):
@@ -55,6 +60,9 @@ def run_sequence(args) -> int:
     sil_config = silhouette_config(args)  # a bad flag is reported before any fitting
     seq = read_sequence(args.sequence, masks=args.masks, images=args.images, person=args.person)
     camera, camera_source = _camera(args, seq)
+    from ..plausibility import check_frames
+
+    seq.frames, input_warnings = check_frames(seq.frames, camera.size, seq.numbers)  # as one image's keypoints are checked
     model = load_body_model(args.model, gender=args.gender) if args.model else load_body_model()
     pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
     masks = None
@@ -64,8 +72,10 @@ def run_sequence(args) -> int:
         masks = [read_mask(seq.masks[n], size=(camera.width, camera.height), allow_empty=True) if n in seq.masks else None
                  for n in seq.numbers]  # fmt: skip
     if args.check_only:
+        for warning in input_warnings:
+            warn(warning)
         print(f"inputs OK: {len(seq.numbers)} frames ({seq.detected} with a person), {len(seq.masks)} masks, "
-              f"{len(seq.images)} images")  # fmt: skip
+              f"{len(seq.images)} images; camera: {camera_source} (fx {camera.fx:g}, {camera.width}x{camera.height})")  # fmt: skip
         return 0
     cfg = SequenceFitConfig()
     if args.sequence_iterations is not None:
@@ -76,6 +86,7 @@ def run_sequence(args) -> int:
 
         result = refine_sequence_silhouettes(model, result, seq.frames, masks, config=sil_config, pose_prior=pose_prior,
                                              progress=not args.quiet)  # fmt: skip
+    result.warnings = input_warnings + list(result.warnings)
     extra = {"sequence": str(args.sequence), "model": model.source, "camera_source": camera_source,
              "silhouette": "run" if masks is not None else "not run (no masks)" if not seq.masks else "not run (--no-silhouette)"}  # fmt: skip
     save_leaving_nothing_on_error(out, lambda: save_sequence_fit(

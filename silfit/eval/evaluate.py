@@ -11,7 +11,7 @@ transl [3]`` (a leading batch dimension of 1 is accepted) whose model output is 
 camera frame, and optionally ``camera_intrinsics [fx, fy, cx, cy]`` + ``image_size [W, H]``
 (the camera the fit used; default: the subject's ``camera.json``). This is what
 ``silfit fit --out <dir>`` and :meth:`silfit.fitting.KeypointFitResult.save` write. Stage
-times are read from ``metrics.json`` (``timings`` / ``time_per_stage`` / ``stage_times``,
+times are read from ``metrics.json`` (``timings`` / ``timings_s`` (``silfit fit``'s) / ``time_per_stage`` / ``stage_times``,
 or a ``time_s`` total) or else from ``params.json``'s ``timings``.
 
 Metrics per subject and method (lengths in mm): ``mpjpe`` (24 SMPL joints, pelvis-aligned),
@@ -118,8 +118,11 @@ def read_fit(folder: os.PathLike, model=None) -> FitParams:
     folder = Path(folder)
     sizes = None if model is None else {**model.parameter_sizes, "betas": None}
     fit = read_fit_file(folder / "params.npz", require=SMPL_NAMES, sizes=sizes)
-    smpl = {k: v for k, v in fit.params.items() if k in SMPL_NAMES}
-    extra = {k: v for k, v in fit.params.items() if k not in SMPL_NAMES}
+    if fit.num_frames != 1:
+        raise SubjectError(fit.path, "frames", f"holds {fit.num_frames} frames; score videos with silfit eval on a sequence dataset")
+    params = fit.frame(0)
+    smpl = {k: v for k, v in params.items() if k in SMPL_NAMES}
+    extra = {k: v for k, v in params.items() if k not in SMPL_NAMES}
     return FitParams(**smpl, camera=fit.camera, timings=_read_timings(folder), path=folder, extra=extra)
 
 
@@ -134,10 +137,12 @@ def _read_timings(folder: Path) -> Dict[str, float]:
             continue
         if not isinstance(data, dict):
             continue
-        for key in ("timings", "time_per_stage", "stage_times", "times"):
+        for key in ("timings", "timings_s", "time_per_stage", "stage_times", "times"):
             t = data.get(key)
             if isinstance(t, dict):
                 out = {str(k): float(v) for k, v in t.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
+                if key == "timings_s":  # silfit fit's metrics.json: whole stages, not their "keypoints.<stage>" parts
+                    out = {k: v for k, v in out.items() if "." not in k}
                 if out:
                     return out
         for key in ("time_s", "total_time_s", "seconds"):

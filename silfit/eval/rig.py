@@ -115,7 +115,7 @@ def run_rig_fitter(subject_dirs: Sequence[Path], fits_root: Path, methods: Seque
         names = [x.name for x in v]
         res = RigResult(names, f.params, f.vertices, f.joints, f, None, {"timings": {"keypoints": per, "total": per}})
         if "keypoints" in methods:
-            save_rig_fit(res, fits_root / d.name / "keypoints", faces, p, overwrite=True)
+            save_rig_fit(res, fits_root / d.name / "keypoints", faces, p, overwrite=True, model=model)
     status = {"keypoints": f"ran on {len(loaded)} subjects in {per * len(loaded):.1f} s (batched)"}
     if "silhouette" in methods:
         status["silhouette"] = _run_silhouettes(loaded, fits, fits_root, model, fitter, per, progress)
@@ -131,7 +131,7 @@ def _run_silhouettes(loaded, fits, fits_root, model, fitter, kp_seconds, progres
     for (d, v, p), r in zip(loaded, results):
         r.metrics["timings"] = {"keypoints": kp_seconds, "silhouette": r.metrics["timings"]["silhouette"],
                                 "total": kp_seconds + r.metrics["timings"]["silhouette"]}  # fmt: skip
-        save_rig_fit(r, fits_root / d.name / "silhouette", faces, p, overwrite=True)
+        save_rig_fit(r, fits_root / d.name / "silhouette", faces, p, overwrite=True, model=model)
     return f"ran on {len(results)} subjects"
 
 
@@ -174,7 +174,7 @@ def evaluate_rig_dataset(dataset, fits=None, model=None, run: bool = False, meth
             try:
                 fit = read_fit(folder)
                 g = subset_truth(gt, range(views)) if views else gt
-                m = score_rig_fit(model, rig_views[: views or None], _subset(problem, views), g, fit.params, iou,
+                m = score_rig_fit(model, rig_views[: views or None], _subset(problem, views), g, fit.frame(0), iou,
                                   _timings(folder))  # fmt: skip
             except (ValueError, FileNotFoundError) as err:
                 skipped.append({"subject": d.name, "method": method, "path": str(folder), "error": str(err)})

@@ -99,6 +99,8 @@ def evaluate_sequences(dataset: os.PathLike, fits: Optional[os.PathLike] = None,
     index = _index(root)
     if not is_sequence_dataset(root):
         raise InputError(root / "index.json", "not a sequence dataset (expected format silfit-synthetic-sequence)", field="format")
+    from ..fitio import read_fit
+
     model = load_body_model() if model is None else model
     fits_root = Path(fits) if fits else root / "fits"
     rows: List[dict] = []
@@ -119,14 +121,16 @@ def evaluate_sequences(dataset: os.PathLike, fits: Optional[os.PathLike] = None,
                 r = fit_sequence(seq.frames, load_camera(d / "camera.json"), model, config=config)
                 save_sequence_fit(r, out, model, seq, video=False, overwrite=True)
             metrics = json.loads((out / "metrics.json").read_text(encoding="utf-8"))
-            fit = _load_npz(out / "params.npz")
-            per = _load_npz(out / "stages" / "per_frame" / "params.npz")
+            fit = read_fit(out, sizes={**model.parameter_sizes, "betas": None})
+            per = read_fit(out / "stages" / "per_frame", sizes={**model.parameter_sizes, "betas": None})
         except (ValueError, OSError) as err:
             skipped.append({"subject": name, "error": " ".join(str(err).split())})
             continue
-        t, F = metrics.get("timings", {}), len(fit["frames"])
-        for method, params, seconds in (("per_frame", per, t.get("per_frame_init")), ("temporal", fit, t.get("total"))):
-            row = {"subject": name, "method": method, **score_sequence(model, gt, params, fit.get("bridged"))}
+        t, F = metrics.get("timings", {}), fit.num_frames
+        bridged = np.isin(fit.frame_numbers, metrics.get("bridged_frames", []))
+        every = lambda f: {n: np.repeat(v, F, 0) if v.shape[0] == 1 else v for n, v in f.params.items()}  # noqa: E731
+        for method, params, seconds in (("per_frame", every(per), t.get("per_frame_init")), ("temporal", every(fit), t.get("total"))):
+            row = {"subject": name, "method": method, **score_sequence(model, gt, params, bridged)}
             if seconds is not None:
                 row["seconds_per_frame"] = float(seconds) / F
             rows.append(row)

@@ -48,6 +48,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from ..camera import UPRIGHT_BACK_TO_CAMERA, UPRIGHT_FACING_CAMERA, Camera
+from ..fitio import model_record
 from ..keypoints import LAYOUTS, KeypointSet
 from ..priors import SphereCollisionModel, angle_prior, limit_violation, load_pose_prior, shape_prior
 from ..priors.wholebody import body_prior_for
@@ -651,7 +652,7 @@ class KeypointFitter:
             term_energies={s: {t: np_(v) for t, v in d.items()} for s, d in info["terms"].items()},
             timings=info["timings"], flipped=info["flipped"], reprojection_error=reproj,
             config=self.config.to_dict(self.whole_body),
-            branches=info["branches"],
+            branches=info["branches"], model=model_record(self.model),
         )  # fmt: skip
 
 

@@ -1,7 +1,6 @@
 """``KeypointFitResult``: SMPL parameters, camera, mesh and fit diagnostics; save/load."""
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,6 +52,8 @@ class KeypointFitResult:
     #: a whole-body (SMPL-X-layout) model's other parameters by their SMPL-X names
     #: (``expression``, ``jaw_pose``, ``leye_pose``, ``reye_pose``, ``left_hand_pose``, ``right_hand_pose``), ``[B, w]``
     extra_params: dict = field(default_factory=dict)
+    #: the body model's record (:func:`silfit.fitio.model_record`: kind, source, sha256)
+    model: Optional[dict] = None
 
     def __len__(self) -> int:
         return self.betas.shape[0]
@@ -84,72 +85,55 @@ class KeypointFitResult:
             flipped=pick(self.flipped), reprojection_error=pick(self.reprojection_error),
             term_energies={s: {t: v[idx] for t, v in d.items()} for s, d in self.term_energies.items()},
             config=self.config, branches=None if self.branches is None else [self.branches[i] for i in idx],
-            extra_params={k: v[idx] for k, v in self.extra_params.items()},
+            extra_params={k: v[idx] for k, v in self.extra_params.items()}, model=self.model,
         )  # fmt: skip
 
     # ------------------------------------------------------------------ I/O
     def save(self, directory: Union[str, os.PathLike], index: int = 0) -> Path:
-        """Write sample ``index`` as ``params.npz`` and ``params.json`` (SMPL parameter
-        names, one sample, no batch dimension) into ``directory``."""
-        out = Path(directory)
-        out.mkdir(parents=True, exist_ok=True)
-        cam = self.cameras[index]
-        arrays = {name: np.asarray(self.params(index)[name], dtype=np.float32) for name in self.parameter_names}
-        extra = {
-            "camera_intrinsics": np.array([cam.fx, cam.fy, cam.cx, cam.cy], dtype=np.float64),
-            "image_size": np.array([cam.width, cam.height], dtype=np.int64),
-            "layout": np.array(self.layout),
-        }
-        for name in ("vertices", "joints", "keypoints_2d"):
-            if getattr(self, name) is not None:
-                extra[name] = np.asarray(getattr(self, name)[index], dtype=np.float32)
-        np.savez(out / "params.npz", **arrays, **extra)
-        payload = {name: arrays[name].astype(float).tolist() for name in self.parameter_names}
-        payload["camera"] = cam.to_dict()
-        payload["layout"] = self.layout
-        payload["energies"] = {k: float(v[index]) for k, v in self.energies.items()}
-        payload["timings"] = {k: float(v) for k, v in self.timings.items()}
+        """Write sample ``index`` as ``params.npz`` and ``params.json`` into ``directory`` with
+        :func:`silfit.fitio.write_fit` (one frame, one view; the schema is described there)."""
+        from ..fitio import write_fit
+
+        record = {"energies": {k: float(v[index]) for k, v in self.energies.items()},
+                  "timings": {k: float(v) for k, v in self.timings.items()}}  # fmt: skip
         if self.term_energies:
-            payload["energy_terms"] = {s: {t: float(v[index]) for t, v in d.items()} for s, d in self.term_energies.items()}
+            record["energy_terms"] = {s: {t: float(v[index]) for t, v in d.items()} for s, d in self.term_energies.items()}
         if self.config:
-            payload["config"] = self.config
+            record["config"] = self.config
         if self.branches is not None:
-            payload["branches"] = list(self.branches[index])
+            record["branches"] = list(self.branches[index])
         if self.flipped is not None:
-            payload["flipped"] = bool(self.flipped[index])
+            record["flipped"] = bool(self.flipped[index])
         if self.reprojection_error is not None:
-            payload["reprojection_error_px"] = float(self.reprojection_error[index])
-        (out / "params.json").write_text(json.dumps(payload, indent=2))
-        return out
+            record["reprojection_error_px"] = float(self.reprojection_error[index])
+        pick = lambda name: None if getattr(self, name) is None else getattr(self, name)[index]  # noqa: E731
+        return write_fit(
+            directory, {name: self.params(index)[name] for name in self.parameter_names}, [self.cameras[index]],
+            layout=self.layout, model=self.model, vertices=pick("vertices"), joints=pick("joints"),
+            keypoints_2d=pick("keypoints_2d"), record=record,
+        )  # fmt: skip
 
     @classmethod
     def load(cls, path: Union[str, os.PathLike]) -> "KeypointFitResult":
-        """Read ``params.npz`` or ``params.json`` (a file or the folder holding them) with
-        :func:`silfit.fitio.read_fit` (all four parameters and the camera are required)."""
+        """Read one image's fit (``params.npz`` or ``params.json``, a file or the folder holding
+        them) with :func:`silfit.fitio.read_fit` (all four parameters and the camera are required)."""
+        from ..dataset import SubjectError
         from ..fitio import read_fit
 
-        from ..fitio import PARAM_SIZES, SubjectError
-
-        sizes = {**PARAM_SIZES, **dict.fromkeys(WHOLEBODY_EXTRA_NAMES)}
-        try:
-            fit = read_fit(path, require=PARAM_NAMES, require_camera=True, sizes=sizes)
-        except SubjectError as err:  # SMPL-X's 21-joint body_pose, in a whole-body fit only
-            if err.field != "body_pose":
-                raise
-            try:
-                fit = read_fit(path, require=PARAM_NAMES, require_camera=True, sizes={**sizes, "body_pose": 63})
-            except SubjectError:
-                raise err from None
-            if not any(n in fit.params for n in WHOLEBODY_EXTRA_NAMES):
-                raise err from None
-        get = lambda n: fit.arrays[n][None].astype(np.float32) if n in fit.arrays else None  # noqa: E731
-        extra = {n: fit.params[n][None].astype(np.float32) for n in WHOLEBODY_EXTRA_NAMES if n in fit.params}
+        fit = read_fit(path, require=PARAM_NAMES, require_camera=True)
+        if fit.num_frames != 1 or len(fit.cameras) != 1:
+            raise SubjectError(fit.path, "frames", f"holds {fit.num_frames} frame(s) x {len(fit.cameras)} view(s); "
+                               "a KeypointFitResult is one image's fit")  # fmt: skip
+        params = fit.frame(0)
+        get = lambda n: fit.arrays[n][0].astype(np.float32)[None] if n in fit.arrays else None  # noqa: E731
+        kp2d = get("keypoints_2d")
         return cls(
-            **{n: fit.params[n][None].astype(np.float32) for n in PARAM_NAMES}, cameras=[fit.camera],
-            vertices=get("vertices"), joints=get("joints"), keypoints_2d=get("keypoints_2d"),
+            **{n: params[n][None].astype(np.float32) for n in PARAM_NAMES}, cameras=[fit.camera],
+            vertices=get("vertices"), joints=get("joints"), keypoints_2d=None if kp2d is None else kp2d[:, 0],
             layout=fit.layout or "body25", energies={k: np.array([v]) for k, v in fit.energies.items()},
             timings=dict(fit.timings),
             flipped=None if fit.flipped is None else np.array([fit.flipped]),
             reprojection_error=None if fit.reprojection_error is None else np.array([fit.reprojection_error]),
-            extra_params=extra,
+            extra_params={n: params[n][None].astype(np.float32) for n in WHOLEBODY_EXTRA_NAMES if n in params},
+            model=fit.model,
         )  # fmt: skip

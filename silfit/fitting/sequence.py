@@ -41,8 +41,8 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation, Slerp
 
-from ..camera import Camera
-from ..keypoints import KeypointSet
+from ..camera import Camera, project_points
+from ..keypoints import KeypointSet, model_keypoints
 from .keypoint_stage import KeypointFitConfig, KeypointFitter, _check_torso
 from .problem import Observation, Problem, View
 from .stages import Stage
@@ -128,6 +128,8 @@ class SequenceFitResult:
     #: after :func:`refine_sequence_silhouettes`: soft IoU per frame (NaN without a mask) and at its start
     silhouette_iou: Optional[np.ndarray] = None
     silhouette_iou_start: Optional[float] = None
+    #: after :func:`refine_sequence_silhouettes`: the keypoint stage's ``reprojection_error [F]``
+    reprojection_error_keypoint_stage: Optional[np.ndarray] = None
 
     @property
     def num_frames(self) -> int:
@@ -383,8 +385,6 @@ def fit_sequence(
     with torch.no_grad():
         rows = {n: T(np.repeat(final[n][None], F, 0) if n == "betas" else final[n]) for n in names}
         body = refiner.body(**rows)
-        from ..camera import project_points
-
         kp2d = project_points(body.keypoints.double(), camera).numpy()
     err = np.linalg.norm(kp2d - xy, axis=-1)
     reproj = np.array([np.median(err[f][conf[f] > 0]) if (conf[f] > 0).any() and usable[f] else np.nan for f in range(F)])
@@ -462,7 +462,8 @@ def refine_sequence_silhouettes(
     (outliers and bridged frames left out), with the temporal terms of the keypoint
     refinement (weight ``temporal_weight``) in its energy
     (:func:`~silfit.fitting.silhouette_stage.fit_silhouette_problems`). Returns a copy of
-    ``result`` with the refined parameters and joints; ``per_frame`` is kept, and
+    ``result`` with the refined parameters, joints, projected keypoints and reprojection
+    errors (the keypoint stage's kept in ``reprojection_error_keypoint_stage``); ``per_frame`` is kept, and
     ``timings["silhouette"]`` and ``silhouette_iou`` (per frame, NaN without a mask) are added."""
     from .silhouette_stage import SilhouetteFitConfig, fit_silhouette_problems
     from .terms import JointSmoothnessTerm, RootSmoothnessTerm
@@ -500,13 +501,21 @@ def refine_sequence_silhouettes(
     betas = np.asarray(p["betas"], dtype=np.float32).reshape(-1)
     T = lambda a: torch.as_tensor(np.asarray(a), dtype=model.dtype)  # noqa: E731
     with torch.no_grad():
-        joints = model(betas=T(np.repeat(betas[None], F, 0)), body_pose=T(p["body_pose"]), global_orient=T(p["global_orient"]),
-                       transl=T(p["transl"])).joints.numpy()  # fmt: skip
+        body = model(betas=T(np.repeat(betas[None], F, 0)), body_pose=T(p["body_pose"]), global_orient=T(p["global_orient"]),
+                     transl=T(p["transl"]))  # fmt: skip
+        joints = body.joints.numpy()
+        kp2d = project_points(model_keypoints(model, body, result.layout).double(), result.camera).numpy()
+    reproj = np.full(F, np.nan)  # against the keypoints the fit used (outliers and bridged frames left out)
+    for f, o in enumerate(obs):
+        if o.keypoints is not None:
+            ok = o.keypoints.conf > 0
+            reproj[f] = np.median(np.linalg.norm(kp2d[f] - o.keypoints.xy, axis=-1)[ok])
     timings = dict(result.timings, silhouette=seconds, total=result.timings["total"] + seconds)
     timings["seconds_per_frame"] = timings["total"] / F
     out = replace(result, betas=betas, body_pose=np.asarray(p["body_pose"], np.float32),
                   global_orient=np.asarray(p["global_orient"], np.float32), transl=np.asarray(p["transl"], np.float32),
-                  joints=np.asarray(joints, np.float32), timings=timings,
+                  joints=np.asarray(joints, np.float32), keypoints_2d=np.asarray(kp2d, np.float32),
+                  reprojection_error=reproj, reprojection_error_keypoint_stage=result.reprojection_error, timings=timings,
                   warnings=list(result.warnings) + list(sil.warnings)
                   + ([f"{len(empty)} frame(s) with an empty mask had no silhouette term: {empty[:10]}"] if empty else []))  # fmt: skip
     out.silhouette_iou, out.silhouette_iou_start = np.array([row[0] for row in sil.ious], dtype=np.float64), float(sil.iou_start)

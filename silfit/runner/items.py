@@ -95,6 +95,8 @@ class LoadedItem:
     mask: Optional[np.ndarray] = None
     mask_file: Optional[str] = None
     image: Optional[np.ndarray] = None
+    #: what the input checks found (keypoints treated as missing, ...)
+    warnings: List[str] = field(default_factory=list)
 
 
 def parse_people(text: str) -> Union[int, str]:

@@ -21,6 +21,7 @@ import numpy as np
 from ..fitting.keypoint_stage import KeypointFitConfig, KeypointFitter
 from ..fitting.silhouette_stage import SilhouetteFitConfig
 from ..pipeline import FitResult, refine, save_fit
+from ..plausibility import check_keypoints, fit_warnings
 from .items import Item, ItemError, LoadedItem, _reading, item_error, load_item
 
 __all__ = ["FitOptions", "DatasetFitter", "keypoint_config", "silhouette_config"]
@@ -138,6 +139,8 @@ class DatasetFitter:
 
                     parts = _reading("keypoints", it.keypoints, read_wholebody_parts, it.keypoints, li.person)
                     li.keypoints = _reading("keypoints", it.keypoints, choose_fit_keypoints, li.keypoints, parts, self.model)[0]
+                # the checks every input gets (silfit.plausibility), as for one image
+                li.keypoints, li.warnings = _reading("keypoints", it.keypoints, check_keypoints, li.keypoints, li.camera.size)
                 loaded.append(li)
             except ItemError as err:
                 records[it.key] = _failed(it, "load", err)
@@ -155,6 +158,7 @@ class DatasetFitter:
             if isinstance(res, ItemError):
                 records[key] = _failed(li.item, "silhouette", res)
                 continue
+            res.metrics["warnings"] = li.warnings + res.metrics.get("warnings", []) + fit_warnings(res.metrics, li.keypoints, res.vertices)
             t0 = time.perf_counter()
             try:
                 save_fit(res, out / key, self.faces, li.keypoints, li.image, li.mask, self._extra(li, len(loaded)), overwrite=True)

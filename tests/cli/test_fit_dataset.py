@@ -168,3 +168,25 @@ def test_ray_run_matches_local_run(tmp_path):
         pa, pb = (KeypointFitResult.load(tmp_path / d / key) for d in ("local", "ray"))
         for name in ("betas", "body_pose", "global_orient", "transl", "vertices"):
             np.testing.assert_array_equal(getattr(pa, name), getattr(pb, name), err_msg=f"{key} {name}")
+
+
+def test_dataset_items_get_the_checks_of_one_image(tmp_path):
+    """Keypoints at 1e30 fail the item (named file and field), one far-off wrist is dropped with a warning, as
+    ``silfit fit`` does for one image (silfit.plausibility); a fit gets the same warnings."""
+    data = synthetic_copy(tmp_path / "data", ["subject_000", "subject_001"])
+    doc = json.loads((data / "subject_000" / "keypoints.json").read_text())
+    values = np.asarray(doc["people"][0]["pose_keypoints_2d"], dtype=float).reshape(-1, 3)
+    far = values.copy()
+    far[:, :2] = 1e30
+    (data / "subject_000" / "keypoints.json").write_text(json.dumps({**doc, "people": [{"pose_keypoints_2d": far.ravel().tolist()}]}))
+    wrist = values.copy()
+    wrist[4, :2] = 1e30
+    (data / "subject_001" / "keypoints.json").write_text(json.dumps({**doc, "people": [{"pose_keypoints_2d": wrist.ravel().tolist()}]}))
+    out = tmp_path / "out"
+    assert main(["fit-dataset", str(data), "--out", str(out), "--no-silhouette", "--quiet", *FAST]) == 11
+    fail = read_jsonl(out / "failures.jsonl")[0]
+    assert fail["item"] == "subject_000" and fail["field"] in ("keypoints", "people[0].pose_keypoints_2d") and "far outside" in fail["message"]
+    ok = _by_item(out)["subject_001"]
+    assert ok["status"] == "ok" and any("right_wrist" in w and "treated as missing" in w for w in ok["warnings"])
+    metrics = json.loads((out / "subject_001" / "metrics.json").read_text())
+    assert metrics["warnings"] == ok["warnings"]

@@ -29,9 +29,10 @@ def test_fit_rig_writes_world_outputs_and_per_view_overlays(rigs, tmp_path):
         assert v["reprojection_error_px"] < 3.0 and 0.5 < v["iou"] <= 1.0 and "iou_keypoint_stage" in v
     assert m["timings"]["silhouette"] > 0
     p = np.load(out / "params.npz")
-    assert str(p["frame"]) == "world"
+    assert str(p["coordinates"]) == "world" and str(p["model"]) == "smpl" and p["camera_R"].shape == (2, 3, 3)
     gt = np.load(rigs / "subject_000" / "gt.npz")
-    assert np.linalg.norm(p["joints"][0] - gt["joints"][0]) < 0.1  # the pelvis, in world coordinates
+    assert np.linalg.norm(p["joints"][0, 0] - gt["joints"][0]) < 0.1  # the pelvis, in world coordinates
+    assert p["keypoints_2d"].shape[:2] == (1, 2) and p["reprojection_error"].shape == (1, 2)
     # the rig's cameras come back out, readable as a rig manifest
     from silfit.rig import read_cameras_json
 
@@ -58,3 +59,42 @@ def test_eval_scores_a_rig_dataset(rigs, tmp_path, capsys):
     row = r["results"][0]
     assert row["method"] == "keypoints" and len(row["iou_views"]) == 2
     assert row["pve_world"] < 60.0 and row["pa_pve"] <= row["pve_world"] + 1e-6
+
+
+def test_fit_rig_views_and_unusable_views_are_set_aside(rigs, tmp_path, capsys):
+    import shutil
+
+    rig = tmp_path / "rig"
+    shutil.copytree(rigs / "subject_000", rig)
+    base = ["fit", "--rig", str(rig), "--check-only", "--out", str(tmp_path / "x")]
+    assert main(base + ["--views", "view_1"]) == 0
+    assert "inputs OK (1 views)" in capsys.readouterr().out
+    assert main(base + ["--views", "view_1,cam9"]) == 2
+    assert "unknown view(s) cam9 (the rig has view_0, view_1)" in capsys.readouterr().err
+    assert main(["fit", "--views", "view_1", "--keypoints", "kp.json", "--out", str(tmp_path / "y")]) == 2
+    assert "give --rig DIR" in capsys.readouterr().err
+    kp_file = next(p for p in (rig / "view_0").iterdir() if p.name.startswith("keypoints"))
+    doc = json.loads(kp_file.read_text())
+    values = np.asarray(doc["people"][0]["pose_keypoints_2d"], dtype=float).reshape(-1, 3)
+    values[:, :2] = 1e30  # this view's keypoints are garbage: the view is set aside, not fitted
+    doc["people"][0]["pose_keypoints_2d"] = values.ravel().tolist()
+    kp_file.write_text(json.dumps(doc))
+    assert main(base) == 0
+    cap = capsys.readouterr()
+    assert "inputs OK (1 views)" in cap.out and "view view_0 set aside" in cap.err and "far outside" in cap.err
+
+
+def test_rig_fits_get_one_image_warnings_per_view(rigs):
+    from silfit.fitting.rig_fit import rig_problem
+    from silfit.rig import load_rig
+    from silfit.rig_pipeline import view_warnings
+
+    views = load_rig(rigs / "subject_000")
+    problem = rig_problem(views)
+    gt = np.load(rigs / "subject_000" / "gt.npz")
+    per_view = {"view_0": {"reprojection_error_px": 1.0, "iou": 0.45, "iou_keypoint_stage": 0.8},
+                "view_1": {"reprojection_error_px": 1.0, "iou": 0.9}}  # fmt: skip
+    warnings = view_warnings(["view_0", "view_1"], problem, gt["vertices"], per_view)
+    assert any(w.startswith("view view_0: final silhouette IoU is only 0.450") for w in warnings), warnings
+    assert any(w.startswith("view view_0: final silhouette IoU 0.450 is far below") for w in warnings)
+    assert not any(w.startswith("view view_1") for w in warnings)

@@ -42,15 +42,31 @@ def test_fit_sequence_writes_one_shape_and_per_frame_outputs(sequence, tmp_path,
                "--silhouette-resolutions", "32", "--silhouette-iterations", "3"])  # fmt: skip
     assert rc == 0, capsys.readouterr().err
     p = np.load(out / "params.npz")
-    assert p["betas"].shape == (10,) and p["body_pose"].shape == (5, 69) and p["transl"].shape == (5, 3)
-    assert p["frames"].tolist() == [0, 1, 2, 3, 4] and p["bridged"].tolist() == [False, False, True, False, False]
+    assert p["betas"].shape == (5, 10) and (p["betas"] == p["betas"][0]).all()  # one shape, repeated per frame
+    assert p["body_pose"].shape == (5, 69) and p["transl"].shape == (5, 3)
+    assert p["frames"].tolist() == [0, 1, 2, 3, 4]
+    assert json.loads((out / "params.json").read_text())["bridged"] == [False, False, True, False, False]
     assert np.isfinite(p["body_pose"]).all()
+    # the written keypoints are the final (silhouette-stage) body's, not the keypoint stage's
+    import torch
+
+    from silfit import load_body_model
+    from silfit.camera import Camera, project_points
+    from silfit.keypoints import model_keypoints
+
+    body = load_body_model(model)
+    T = lambda n: torch.as_tensor(p[n], dtype=body.dtype)  # noqa: E731
+    with torch.no_grad():
+        kp3 = model_keypoints(body, body(**{n: T(n) for n in ("betas", "body_pose", "global_orient", "transl")}), "body25")
+    cam = Camera.from_intrinsics(p["camera_intrinsics"][0], p["image_size"][0])
+    np.testing.assert_allclose(p["keypoints_2d"][:, 0], project_points(kp3.double(), cam).numpy(), atol=0.05)
     assert sorted(f.name for f in (out / "meshes").iterdir()) == [f"frame_{i:012d}.obj" for i in range(5)]
     for f in ("params.json", "metrics.json", "strip.png", "overlay.gif", "stages/per_frame/params.npz"):
         assert (out / f).is_file(), f
     m = json.loads((out / "metrics.json").read_text())
     assert m["bridged_frames"] == [2] and m["silhouette"] == "run" and len(m["silhouette_iou"]) == 5
-    assert "bridged" in capsys.readouterr().out
+    assert m["reprojection_error_px_keypoint_stage"] > 0 and m["reprojection_error_px"] > 0
+    assert "bridged" in capsys.readouterr().err  # a warning, on standard error
 
 
 def test_fit_sequence_bad_input_is_one_line(tmp_path, capsys):
@@ -75,6 +91,26 @@ def test_fit_sequence_check_only_reads_the_masks(sequence, tmp_path, capsys):
     assert main(["fit", "--sequence", str(copy), "--model", str(model), "--out", str(tmp_path / "o"), "--check-only"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and bad.name in err and not (tmp_path / "o").exists()
+
+
+def test_fit_sequence_finds_openpose_folders_and_cameras_beside_the_frames(sequence, tmp_path, capsys):
+    import shutil
+
+    seq, model = sequence
+    flat = tmp_path / "flat"  # the keypoint files and camera.json in one folder, as OpenPose users keep them
+    shutil.copytree(seq / "keypoints", flat)
+    shutil.copy(seq / "camera.json", flat / "camera.json")
+    fx = json.loads((seq / "camera.json").read_text())["fx"]
+    base = ["fit", "--model", str(model), "--out", str(tmp_path / "o"), "--check-only"]
+    assert main(base + ["--sequence", str(flat)]) == 0
+    out = capsys.readouterr().out
+    assert f"camera: camera file {flat / 'camera.json'} (fx {fx:g}" in out, out
+    nested = tmp_path / "nested"  # DIR/openpose/ with camera.json beside it
+    shutil.copytree(seq / "keypoints", nested / "openpose")
+    shutil.copy(seq / "camera.json", nested / "camera.json")
+    assert main(base + ["--sequence", str(nested), "--focal", "700"]) == 0
+    out = capsys.readouterr().out
+    assert "5 frames" in out and f"camera file {nested / 'camera.json'} with --focal 700 (fx 700" in out, out
 
 
 def test_fit_sequence_mismatched_silhouette_levels_fail_before_fitting(sequence, tmp_path, capsys, monkeypatch):

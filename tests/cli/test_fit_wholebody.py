@@ -23,11 +23,11 @@ def test_whole_body_fit_end_to_end(subject, tmp_path, capsys):
                "--image", str(subject / "image.png"), "--mask", str(subject / "mask.png"), "--out", str(out),
                "--silhouette-resolutions", "64", "--silhouette-iterations", "8"])  # fmt: skip
     assert rc == 0
-    assert "shipped open whole-body model" in capsys.readouterr().out
+    assert "shipped open whole-body model" in capsys.readouterr().err  # a note, on standard error
     params = np.load(out / "params.npz")
     for name, width in (("body_pose", 63), ("left_hand_pose", 45), ("right_hand_pose", 45), ("jaw_pose", 3), ("expression", 16)):
-        assert params[name].shape == (width,), name
-    assert params["keypoints_2d"].shape == (137, 2)
+        assert params[name].shape == (1, width), name  # [frames, width]
+    assert params["keypoints_2d"].shape == (1, 1, 137, 2) and str(params["model"]) == "smplx"
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["layout"] == "wholebody"
     assert metrics["whole_body"]["held_at_rest"] == []
@@ -37,7 +37,7 @@ def test_whole_body_fit_end_to_end(subject, tmp_path, capsys):
     lines = (out / "mesh.obj").read_text().splitlines()
     assert sum(ln.startswith("v ") for ln in lines) == 13348
     payload = json.loads((out / "params.json").read_text())
-    assert len(payload["left_hand_pose"]) == 45
+    assert len(payload["left_hand_pose"]) == 1 and len(payload["left_hand_pose"][0]) == 45
 
 
 def test_body_only_file_with_the_whole_body_model(subject, tmp_path):

@@ -164,3 +164,59 @@ def test_hostile_fit_files_are_one_line_errors(tmp_path, capsys, kind):
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1, err
     assert not out.exists()
+
+
+def _fit_file(folder, model, frames, **kw):
+    """A fit file of ``frames`` frames for ``model`` through the one writer (silfit.fitio)."""
+    from silfit.camera import Camera
+    from silfit.fitio import write_fit
+
+    params = {n: np.zeros((frames, w)) for n, w in model.parameter_sizes.items()}
+    params["global_orient"][:, 0] = math.pi
+    params["transl"][:] = [0.0, 0.2, 3.0]
+    params["transl"][:, 0] = np.linspace(-0.4, 0.4, frames)  # the body moves to the right over the frames
+    return write_fit(folder, params, [Camera.from_image_size(96, 96)], layout="body25", model=model, **kw)
+
+
+def test_render_draws_whole_body_fits_with_the_recorded_model(tmp_path, capsys):
+    from silfit import load_body_model
+
+    smplx = load_body_model(kind="smplx")
+    fit = _fit_file(tmp_path / "wb", smplx, 1)
+    assert main(["render", str(fit / "params.npz"), "--size", "64", "--mask", "--out", str(tmp_path / "r")]) == 0
+    assert _png(tmp_path / "r" / "view_front.png").shape == (64, 64, 3)
+    # the SMPL model cannot draw it: a clear error naming the field
+    assert main(["render", str(fit / "params.npz"), "--model", str(load_body_model().source), "--out", str(tmp_path / "x")]) == 2
+    assert "body_pose" in capsys.readouterr().err and not (tmp_path / "x").exists()
+
+
+def test_render_draws_a_chosen_frame_or_every_frame_of_a_video_fit(tmp_path, capsys, open_model):
+    fit = _fit_file(tmp_path / "video", open_model, 5, frame_numbers=[3, 4, 5, 6, 7])
+    cam = tmp_path / "camera.json"
+    cam.write_text(json.dumps(json.loads((fit / "params.json").read_text())["camera"]))
+    xs = []
+    for f in ("0", "4"):
+        out = tmp_path / f"f{f}"
+        assert main(["render", str(fit / "params.npz"), "--frame", f, "--camera", str(cam), "--out", str(out)]) == 0
+        camera_mask = _png(out / "camera.png").min(axis=-1) < 250  # under the stored camera: the body moves
+        xs.append(_centroid(camera_mask)[0])
+    assert xs[1] > xs[0] + 10, xs
+    out = tmp_path / "all"
+    assert main(["render", str(fit / "params.npz"), "--frame", "all", "--camera", str(cam), "--size", "48", "--out", str(out)]) == 0
+    with Image.open(out / "camera.gif") as gif:
+        assert gif.n_frames == 5
+    assert main(["render", str(fit / "params.npz"), "--frame", "5", "--out", str(tmp_path / "bad")]) == 2
+    assert "holds 5 frame(s)" in capsys.readouterr().err
+
+
+def test_render_moves_a_rig_fit_into_its_first_view(tmp_path, open_model):
+    R = np.array([[0.0, 0, -1], [0, 1, 0], [1, 0, 0]])  # the first view looks along world +x
+    t = np.array([0.0, 0.0, 3.0])
+    fit = _fit_file(tmp_path / "rig", open_model, 1, coordinates="world", extrinsics=[(R, t)])
+    params = dict(np.load(fit / "params.npz"))
+    params["transl"] = np.array([[0.0, 0.2, 0.0]], np.float32)  # at the world origin: 3 m in front of the view
+    np.savez(fit / "params.npz", **params)
+    cam = tmp_path / "camera.json"
+    cam.write_text(json.dumps(json.loads((fit / "params.json").read_text())["camera"]))
+    assert main(["render", str(fit / "params.npz"), "--camera", str(cam), "--size", "48", "--out", str(tmp_path / "r")]) == 0
+    assert (_png(tmp_path / "r" / "camera.png").min(axis=-1) < 250).sum() > 50  # the body is in the view

@@ -64,3 +64,14 @@ def test_read_fit_validates_fields(tmp_path):
              transl=np.zeros(3), camera_intrinsics=np.array([100.0, 100, 50, 50]), image_size=np.array([101, 101]))  # fmt: skip
     fit = read_fit(tmp_path)
     assert fit.betas.shape == (10,) and fit.camera.width == 101 and fit.timings == {}
+
+
+def test_read_fit_takes_silfit_fits_stage_seconds(tmp_path):
+    """``silfit fit`` records its stages in metrics.json's ``timings_s`` (keypoint stage parts as
+    ``keypoints.<stage>``): eval reads the whole stages, the silhouette stage included."""
+    import json
+
+    np.savez(tmp_path / "params.npz", betas=np.zeros(10), body_pose=np.zeros(69), global_orient=np.zeros(3), transl=np.zeros(3))
+    (tmp_path / "params.json").write_text(json.dumps({"timings": {"final": 1.0}}))
+    (tmp_path / "metrics.json").write_text(json.dumps({"timings_s": {"keypoints.camera": 0.5, "keypoints": 2.0, "silhouette": 6.0}}))
+    assert read_fit(tmp_path).timings == {"keypoints": 2.0, "silhouette": 6.0}

@@ -1,0 +1,45 @@
+"""What several ``silfit fit`` modes share on the command line: the silhouette stage's
+flags and writing an output folder that leaves nothing behind on failure."""
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+from . import CLIError
+
+
+def silhouette_config(args):
+    """The silhouette stage's settings from ``--silhouette-resolutions`` / ``--silhouette-iterations``."""
+    from ..fitting.silhouette_stage import SilhouetteFitConfig
+
+    levels = {}
+    if args.silhouette_resolutions:
+        levels["resolutions"] = tuple(args.silhouette_resolutions)
+    if args.silhouette_iterations:
+        levels["iterations"] = tuple(args.silhouette_iterations)
+    try:
+        return replace(SilhouetteFitConfig(), **levels)
+    except ValueError:
+        raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels") from None
+
+
+def _missing_folders(path: Path) -> list:
+    """``path``'s ancestors that do not exist yet, deepest first (removed again on failure)."""
+    missing, parent = [], path.absolute().parent
+    while not parent.exists():
+        missing.append(parent)
+        parent = parent.parent
+    return missing
+
+
+def save_leaving_nothing_on_error(out: Path, save) -> None:
+    """``save()`` (writes the folder ``out``); on an error or an interrupt, the parent folders
+    this run created are removed again (the writers themselves are atomic)."""
+    created = _missing_folders(out)
+    try:
+        save()
+    except BaseException:
+        for folder in created:
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
+        raise
