@@ -17,7 +17,9 @@ Schema (``schema = "silfit-fit/2"``): one body over ``F`` frames seen by ``C`` v
     params.json   the same parameters as nested lists, ``cameras`` (one object per view:
                   fx, fy, cx, cy, width, height, R, t, name) and ``camera`` (the first view),
                   model, layout, coordinates, frames, and the run's record (energies,
-                  timings, flipped, branches, reprojection_error_px, ...)
+                  timings, start_flipped (the flipped start won), faces_camera (the
+                  final body faces the camera), branches, branch_search (the depth
+                  hypotheses tried and their energies), reprojection_error_px, ...)
 
 Older files (silfit-fit/1: one image's parameters without the frame axis, ``camera_intrinsics
 [4]``; videos with ``betas [L]``) read the same way. One set of checks: a field the caller
@@ -196,10 +198,11 @@ def read_fit(
     if f.suffix == ".json":
         out.energies = _scalars(f, "energies", raw.get("energies", {}))
         out.timings = _scalars(f, "timings", raw.get("timings", {}))
-        if "flipped" in raw:
-            if not isinstance(raw["flipped"], bool):
-                raise SubjectError(f, "flipped", f"must be true or false, got {raw['flipped']!r}")
-            out.flipped = raw["flipped"]
+        key = "start_flipped" if "start_flipped" in raw else "flipped"  # silfit-fit/1 called it "flipped"
+        if key in raw:
+            if not isinstance(raw[key], bool):
+                raise SubjectError(f, key, f"must be true or false, got {raw[key]!r}")
+            out.flipped = raw[key]
         if "reprojection_error_px" in raw:
             out.reprojection_error = _scalars(f, "reprojection_error_px", {"v": raw["reprojection_error_px"]})["v"]
     return out

@@ -34,7 +34,7 @@ from .fitting.result import KeypointFitResult
 from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult, fit_silhouettes
 from .keypoints import KeypointSet, model_keypoints
 from .outfolder import atomic_folder
-from .plausibility import check_keypoints, fit_warnings
+from .plausibility import check_keypoints, fit_warnings, mask_warnings
 from .eval.metrics import mask_iou
 from .silhouette.masks import validate_mask
 
@@ -176,7 +176,7 @@ def refine_batch(
         vertices, joints, kp2d = _pose(model, params, keypoints[i].layout, cameras[i])
         final_mask = body_mask(vertices, faces, cameras[i])
         iou_after = mask_iou(final_mask, masks[i])
-        warnings = list(sil.warnings)
+        warnings = mask_warnings(masks[i], mask_sources[i]) + list(sil.warnings)
         if iou_after < ious_before[i] - 0.02:
             warnings.append(f"silhouette stage lowered the IoU ({ious_before[i]:.3f} -> {iou_after:.3f}); kept its result")
         metrics = {
@@ -227,7 +227,7 @@ def fit(
     # plausibility (silfit.plausibility): drop far-outside keypoints, refuse degenerate sets, warn about the result
     sets[0], plausibility_warnings = check_keypoints(sets[0], (camera.width, camera.height) if camera else image_size)
     result = _fit(sets, mask, camera, image_size, focal, model, pose_prior, keypoint_config, silhouette_config, progress)
-    result.metrics["warnings"] += plausibility_warnings + fit_warnings(result.metrics, sets[0], result.vertices)
+    result.metrics["warnings"] += plausibility_warnings + fit_warnings(result.metrics, sets[0], result.vertices, result.params.get("betas"))
     return result
 
 

@@ -10,7 +10,11 @@
   are probably wrong: a final silhouette IoU below :data:`MIN_IOU` or far below the
   keypoint stage's (:data:`IOU_DROP`), a body at an absurd depth (outside
   :data:`DEPTH_RANGE_M`, or partly behind the camera), a median reprojection error above
-  :data:`MAX_REPROJECTION_FRACTION` of the person's height in the image.
+  :data:`MAX_REPROJECTION_FRACTION` of the person's height in the image, a silhouette stage
+  that moved the body away from the keypoints (its reprojection error above
+  :data:`MAX_REPROJECTION_RISE` times the keypoint stage's and :data:`MIN_REPROJECTION_RISE_PX`
+  more), a shape outside the shape space's plausible range (:data:`MAX_ABS_BETA`).
+* :func:`mask_warnings`: a mask that runs out of the image (the person cut off).
 """
 from __future__ import annotations
 
@@ -21,7 +25,7 @@ import numpy as np
 from .errors import InputError
 from .keypoints import KeypointSet
 
-__all__ = ["check_frames", "check_keypoints", "fit_warnings", "person_extent"]
+__all__ = ["branch_gap", "check_frames", "check_keypoints", "fit_warnings", "mask_warnings", "person_extent", "reprojection_rise_warnings", "shape_warnings"]
 
 #: Keypoints farther than this many image widths/heights outside the image are dropped.
 OUTSIDE_MARGIN = 1.0
@@ -37,6 +41,15 @@ IOU_DROP = 0.1
 DEPTH_RANGE_M = (0.3, 100.0)
 #: Median reprojection error above this share of the person's extent is reported.
 MAX_REPROJECTION_FRACTION = 0.15
+
+#: A silhouette stage whose median reprojection error is this many times the keypoint stage's ...
+MAX_REPROJECTION_RISE = 2.0
+#: ... and at least this many pixels more is reported (it traded the keypoints for the mask).
+MIN_REPROJECTION_RISE_PX = 3.0
+#: A mask covering at least this share of an image side runs out of the image there.
+MIN_BORDER_RUN = 0.02
+#: Shape coefficients beyond this many standard deviations are reported.
+MAX_ABS_BETA = 3.0
 
 _UPPER = ("neck", "left_shoulder", "right_shoulder")
 _LOWER = ("mid_hip", "left_hip", "right_hip")
@@ -130,10 +143,11 @@ def _frame_list(numbers: Sequence[int], limit: int = 10) -> str:
     return ", ".join(map(str, numbers[:limit])) + (f" ... ({len(numbers)} in all)" if len(numbers) > limit else "")
 
 
-def fit_warnings(metrics: dict, keypoints: KeypointSet, vertices: np.ndarray) -> list:
+def fit_warnings(metrics: dict, keypoints: KeypointSet, vertices: np.ndarray, betas=None) -> list:
     """Warnings for an implausible fit, from its ``metrics`` (``iou``,
-    ``iou_keypoint_stage``, ``reprojection_error_px``), the keypoints it was fitted to and
-    the final ``vertices [V, 3]`` (camera coordinates, metres)."""
+    ``iou_keypoint_stage``, ``reprojection_error_px``, ``reprojection_error_px_keypoint_stage``),
+    the keypoints it was fitted to, the final ``vertices [V, 3]`` (camera coordinates, metres)
+    and, when given, its shape ``betas``."""
     warnings = []
     iou, iou_kp = metrics.get("iou"), metrics.get("iou_keypoint_stage")
     if iou is not None:
@@ -155,4 +169,52 @@ def fit_warnings(metrics: dict, keypoints: KeypointSet, vertices: np.ndarray) ->
     if err is not None and extent > 0 and not err <= MAX_REPROJECTION_FRACTION * extent:
         warnings.append(f"median reprojection error {err:.1f} px is {err / extent:.0%} of the person's {extent:.0f} px "
                         "extent: the body does not match the keypoints")  # fmt: skip
-    return warnings
+    return warnings + reprojection_rise_warnings(metrics.get("reprojection_error_px_keypoint_stage"), err) + shape_warnings(betas)
+
+
+def reprojection_rise_warnings(before: Optional[float], after: Optional[float]) -> list:
+    """A warning when the silhouette stage's median reprojection error ``after`` is above
+    :data:`MAX_REPROJECTION_RISE` times the keypoint stage's ``before`` and
+    :data:`MIN_REPROJECTION_RISE_PX` more (none when either is missing)."""
+    if before is None or after is None or not (after > MAX_REPROJECTION_RISE * before and after > before + MIN_REPROJECTION_RISE_PX):
+        return []
+    return [f"the silhouette stage moved the body away from the keypoints (median reprojection error {before:.1f} -> "
+            f"{after:.1f} px): the mask may hold clothing, objects or other people, or the person is cut off by the image "
+            "border; compare with stages/keypoints"]
+
+
+def mask_warnings(mask: np.ndarray, source: str = "mask") -> list:
+    """A warning when the person's mask runs along the image border (at least
+    :data:`MIN_BORDER_RUN` of a side): the person is cut off there, and the silhouette stage
+    reads the border as where the body ends (issue: truncation-aware silhouettes)."""
+    m = np.asarray(mask, dtype=bool)
+    sides = {"top": m[0], "bottom": m[-1], "left": m[:, 0], "right": m[:, -1]}
+    cut = [name for name, row in sides.items() if row.mean() >= MIN_BORDER_RUN]
+    if not cut:
+        return []
+    return [f"{source}: the person runs out of the image at the {' and '.join(cut)} edge(s) (cut off): the silhouette "
+            "stage takes the border for the body's end and may pull limbs into the frame; check the side view"]
+
+
+def branch_gap(search) -> Optional[float]:
+    """The relative energy gap ``(E_other - E_kept) / E_kept`` between the hypothesis the
+    branch search kept and the best other one, smallest over its stages (``search``: a
+    :attr:`~silfit.fitting.KeypointFitResult.branch_search` entry; ``None`` when no other
+    hypothesis ran to the end)."""
+    gaps = []
+    for stage in search or []:
+        tried = stage["tried"]
+        kept = next(t["energy"] for t in tried if t["flip"] == stage["kept"])
+        others = [t["energy"] for t in tried if t["flip"] != stage["kept"]]
+        if others:
+            gaps.append((min(others) - kept) / max(abs(kept), 1e-12))
+    return min(gaps) if gaps else None
+
+
+def shape_warnings(betas) -> list:
+    """A warning for shape coefficients beyond :data:`MAX_ABS_BETA` (none for ``None``)."""
+    b = np.abs(np.asarray([] if betas is None else betas, dtype=np.float64)).reshape(-1)
+    if not b.size or b.max() <= MAX_ABS_BETA:
+        return []
+    return [f"implausible body shape: |betas| up to {b.max():.1f} (beyond {MAX_ABS_BETA:g} standard deviations of the "
+            "shape space)"]

@@ -82,16 +82,16 @@ def disagreeing_views(names, errors, factor: float = 4.0, floor_px: float = 10.0
             if np.isfinite(e) and e > max(factor * median, floor_px)]  # fmt: skip
 
 
-def view_warnings(names, problem, vertices, per_view: dict) -> List[str]:
+def view_warnings(names, problem, vertices, per_view: dict, betas=None) -> List[str]:
     """One image's fit warnings (:func:`silfit.plausibility.fit_warnings`: IoU, depth,
     reprojection error) for each view of a rig fit, from its metrics in ``per_view``."""
-    from .plausibility import fit_warnings
+    from .plausibility import fit_warnings, shape_warnings
 
     out = []
     for name, o in zip(names, problem.grid()[0]):
         for w in fit_warnings(per_view[name], o.keypoints, view_vertices(vertices, o.view)):
             out.append(f"view {name}: {w}")
-    return out
+    return out + shape_warnings(betas)
 
 
 def _keypoint_metrics(kp: RigFit, problem, names, faces) -> RigResult:
@@ -102,7 +102,7 @@ def _keypoint_metrics(kp: RigFit, problem, names, faces) -> RigResult:
     metrics = {"views": per_view, "timings": {"keypoints": float(kp.timings["total"])},
                "reprojection_error_px": float(np.nanmedian(kp.reprojection_error)),
                "warnings": disagreeing_views(names, kp.reprojection_error)
-               + view_warnings(names, problem, kp.vertices, per_view)}  # fmt: skip
+               + view_warnings(names, problem, kp.vertices, per_view, kp.params.get("betas"))}  # fmt: skip
     if ious:
         metrics["iou_mean"] = float(np.mean(list(ious.values())))
     return RigResult(list(names), dict(kp.params), kp.vertices, kp.joints, kp, None, metrics, masks)
@@ -132,6 +132,7 @@ def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool =
 
     from .fitting.silhouette_stage import fit_silhouette_problems
     from .keypoints import model_keypoints
+    from .plausibility import mask_warnings
     from .rig import project_world
 
     faces = model.faces.cpu().numpy()
@@ -167,7 +168,8 @@ def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool =
         metrics.update(
             iou_mean_keypoint_stage=metrics.pop("iou_mean"), iou_mean=float(np.mean(list(ious.values()))),
             reprojection_error_px=float(np.nanmedian(errs)), keypoints_2d=np.asarray(proj),
-            warnings=list(sil.warnings) + disagreeing_views(names, errs) + view_warnings(names, p, vertices, metrics["views"]),
+            warnings=[w for n, o in zip(names, p.grid()[0]) if o.mask is not None for w in mask_warnings(o.mask, f"view {n}")]
+            + list(sil.warnings) + disagreeing_views(names, errs) + view_warnings(names, p, vertices, metrics["views"], params.get("betas")),
             silhouette_steps=sil.steps,
         )  # fmt: skip
         metrics["timings"]["silhouette"] = float(sil.seconds)

@@ -159,12 +159,6 @@ def write_overlay_video(path: Path, pictures, fps: float) -> Optional[Path]:
     return path
 
 
-def _median(values) -> Optional[float]:
-    finite = np.asarray(values, dtype=np.float64)
-    finite = finite[np.isfinite(finite)]
-    return float(np.median(finite)) if finite.size else None
-
-
 def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: bool = False, video: bool = True,
                       fps: float = 30.0, extra_metrics: Optional[dict] = None, overwrite: bool = False) -> Path:  # fmt: skip
     """Write a :class:`~silfit.fitting.sequence.SequenceFitResult` atomically: ``params.npz``
@@ -177,6 +171,7 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
 
     from . import figures
     from .fitio import write_fit
+    from .fitting.sequence import finite_median
     from .meshio import write_obj
     from .outfolder import atomic_folder
 
@@ -208,7 +203,7 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
             "refaced_frames": [numbers[i] for i in np.flatnonzero(result.refaced)],
             "outlier_keypoints": int(result.outliers.sum()),
             "reprojection_error_px": float(np.median(finite)) if len(finite) else None,
-            **({"reprojection_error_px_keypoint_stage": _median(result.reprojection_error_keypoint_stage)}
+            **({"reprojection_error_px_keypoint_stage": finite_median(result.reprojection_error_keypoint_stage)}
                if result.reprojection_error_keypoint_stage is not None else {}),
             "timings": result.timings, "warnings": list(result.warnings), "camera": cam.to_dict(),
             "overlay_video": gif.name if gif else None, "config": result.config, **(extra_metrics or {}),

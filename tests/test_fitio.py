@@ -36,6 +36,17 @@ def test_round_trip_both_files(tmp_path):
     assert npz.path.name == "params.npz" and npz.arrays["vertices"].shape == (1, 50, 3)
     js = KeypointFitResult.load(tmp_path / "params.json")
     assert js.flipped[0] and js.reprojection_error[0] == 2.5 and js.timings == {"final": 0.25}
+    payload = json.loads((tmp_path / "params.json").read_text())
+    assert payload["start_flipped"] is True and payload["faces_camera"] is True  # global_orient turns +Z toward -Z here
+
+
+def test_faces_camera_follows_the_body_not_the_start():
+    from silfit.fitting.result import faces_camera
+
+    from silfit.camera import UPRIGHT_BACK_TO_CAMERA, UPRIGHT_FACING_CAMERA
+
+    assert faces_camera(UPRIGHT_FACING_CAMERA, [0.0, 0.2, 3.0]) and not faces_camera(UPRIGHT_BACK_TO_CAMERA, [0.0, 0.2, 3.0])
+    assert not faces_camera(UPRIGHT_FACING_CAMERA, [0.0, 0.2, -3.0])  # behind the camera, its front away from it
 
 
 def _npz(tmp_path, **fields):

@@ -110,3 +110,36 @@ def test_video_frames_get_the_checks_of_one_image(kp):
     assert len(warnings) == 2 and warnings[0].startswith("frame(s) 12:") and warnings[1].startswith("frame(s) 13:")
     with pytest.raises(InputError, match="no frame has usable keypoints; frame 13"):
         check_frames([None, frames[3]], (512, 512), numbers=[12, 13])
+
+
+def test_a_silhouette_stage_that_leaves_the_keypoints_or_the_shape_space_is_reported(kp):
+    verts = np.array([[0.0, 0.0, 3.0], [0.1, 0.5, 3.1]])
+    drift = fit_warnings({"reprojection_error_px": 11.6, "reprojection_error_px_keypoint_stage": 1.9}, kp, verts)
+    assert len(drift) == 1 and "1.9 -> 11.6 px" in drift[0] and "stages/keypoints" in drift[0]
+    assert fit_warnings({"reprojection_error_px": 3.0, "reprojection_error_px_keypoint_stage": 1.0}, kp, verts) == []  # +2 px only
+    shape = fit_warnings({}, kp, verts, betas=np.array([0.5, -4.4, 0.0]))
+    assert len(shape) == 1 and "|betas| up to 4.4" in shape[0]
+    assert fit_warnings({}, kp, verts, betas=np.array([2.9, -2.0])) == []
+
+
+def test_branch_gap_is_the_kept_hypothesis_margin():
+    from silfit.plausibility import branch_gap
+
+    search = [{"stage": "branches_1", "kept": "left_shin",
+               "tried": [{"flip": "left_shin", "energy": 100.0}, {"flip": "keep", "energy": 103.0},
+                         {"flip": "right_thigh", "energy": 150.0}]},
+              {"stage": "branches_2", "kept": "keep", "tried": [{"flip": "keep", "energy": 90.0}, {"flip": "left_arm", "energy": 99.0}]}]
+    assert branch_gap(search) == pytest.approx(0.03)  # the smaller of 3 % and 10 %
+    assert branch_gap([{"stage": "b", "kept": "keep", "tried": [{"flip": "keep", "energy": 5.0}]}]) is None
+    assert branch_gap(None) is None
+
+
+def test_a_mask_that_runs_out_of_the_image_is_reported():
+    from silfit.plausibility import mask_warnings
+
+    m = np.zeros((100, 80), bool)
+    m[20:80, 30:50] = True
+    assert mask_warnings(m) == []
+    m[20:, 30:50] = True  # cut at the bottom: 20 of 80 border pixels
+    w = mask_warnings(m, "person.png")
+    assert len(w) == 1 and w[0].startswith("person.png:") and "bottom edge" in w[0]

@@ -558,6 +558,7 @@ class KeypointFitter:
             return record(name or stage.name, r)
 
         chosen_branches = [[] for _ in range(B)]
+        searched = [[] for _ in range(B)]  # per problem and branch stage: the hypotheses that ran to its end
         for stage in self.stages:
             if stage.options.get("hand_starts") and self.whole_body:
                 state = choose_hand_starts(self.model, self.body, layout, state, views, data, self.config.hand_sigma)
@@ -586,6 +587,9 @@ class KeypointFitter:
                 for b, k in enumerate(keep.tolist()):
                     if labels[k] != "keep":
                         chosen_branches[b].append(labels[k])
+                    tried = [(labels[r], float(f[r])) for r in torch.nonzero(group == b).flatten().tolist()]
+                    searched[b].append({"stage": stage.name, "kept": labels[k],
+                                        "tried": [{"flip": lab, "energy": e} for lab, e in sorted(tried, key=lambda x: x[1])]})
                 take(keep)
                 continue
             decide_after = stage.options.get("decide_after") if not decided else None
@@ -607,6 +611,7 @@ class KeypointFitter:
             take(best_per_group(energies[self.stages[-1].name], group, B))
         timings["total"] = time.perf_counter() - t_all
         info = {"energies": energies, "terms": terms, "timings": timings, "flipped": start_flip.numpy(), "branches": chosen_branches,
+                "branch_search": searched,
                 "data": data, "views": views, "layout": layout}  # fmt: skip
         return state, info
 
@@ -652,7 +657,7 @@ class KeypointFitter:
             term_energies={s: {t: np_(v) for t, v in d.items()} for s, d in info["terms"].items()},
             timings=info["timings"], flipped=info["flipped"], reprojection_error=reproj,
             config=self.config.to_dict(self.whole_body),
-            branches=info["branches"], model=model_record(self.model),
+            branches=info["branches"], branch_search=info["branch_search"], model=model_record(self.model),
         )  # fmt: skip
 
 

@@ -11,10 +11,19 @@ import numpy as np
 from ..body.model import SMPL_PARAMETER_NAMES as PARAM_NAMES
 from ..camera import Camera
 
-__all__ = ["KeypointFitResult", "PARAM_NAMES", "WHOLEBODY_EXTRA_NAMES"]
+__all__ = ["KeypointFitResult", "PARAM_NAMES", "WHOLEBODY_EXTRA_NAMES", "faces_camera"]
 
 #: SMPL-X's parameters besides SMPL's four
 WHOLEBODY_EXTRA_NAMES = ("expression", "jaw_pose", "leye_pose", "reye_pose", "left_hand_pose", "right_hand_pose")
+
+
+def faces_camera(global_orient, transl) -> bool:
+    """Whether a body (camera-frame ``global_orient [3]``, ``transl [3]``) faces the camera:
+    its forward axis (+Z of the model) points toward the camera centre rather than away."""
+    from scipy.spatial.transform import Rotation
+
+    forward = Rotation.from_rotvec(np.asarray(global_orient, dtype=np.float64).reshape(3)).apply([0.0, 0.0, 1.0])
+    return float(forward @ -np.asarray(transl, dtype=np.float64).reshape(3)) > 0.0
 
 
 @dataclass
@@ -25,8 +34,9 @@ class KeypointFitResult:
     are SMPL parameters whose model output is in the camera frame of ``cameras[b]``.
     ``vertices [B, V, 3]``, ``joints [B, 24, 3]``, ``keypoints_2d [B, K, 2]`` (projected
     fitted keypoints), ``energies`` (stage name -> ``[B]`` final energy), ``timings``
-    (stage name -> seconds for the whole batch), ``flipped [B]`` (the 180-degree flipped
-    initial orientation was kept), ``reprojection_error [B]`` (median px over keypoints
+    (stage name -> seconds for the whole batch), ``flipped [B]`` (the start from the
+    180-degree flipped orientation won; ``start_flipped`` in ``params.json``, which also
+    records ``faces_camera``: whether the final body faces the camera, see :func:`faces_camera`), ``reprojection_error [B]`` (median px over keypoints
     with confidence > 0), ``term_energies`` (stage name -> term name -> ``[B]``, each
     term's unweighted value at the stage's end) and ``config`` (the run's settings and
     schedule).
@@ -54,6 +64,9 @@ class KeypointFitResult:
     extra_params: dict = field(default_factory=dict)
     #: the body model's record (:func:`silfit.fitio.model_record`: kind, source, sha256)
     model: Optional[dict] = None
+    #: per sample, each branch-search stage's hypotheses that ran to its end and their final
+    #: energies (``[{"stage", "kept", "tried": [{"flip", "energy"}, ...]}]``, lowest first)
+    branch_search: Optional[list] = None
 
     def __len__(self) -> int:
         return self.betas.shape[0]
@@ -86,6 +99,7 @@ class KeypointFitResult:
             term_energies={s: {t: v[idx] for t, v in d.items()} for s, d in self.term_energies.items()},
             config=self.config, branches=None if self.branches is None else [self.branches[i] for i in idx],
             extra_params={k: v[idx] for k, v in self.extra_params.items()}, model=self.model,
+            branch_search=None if self.branch_search is None else [self.branch_search[i] for i in idx],
         )  # fmt: skip
 
     # ------------------------------------------------------------------ I/O
@@ -103,7 +117,10 @@ class KeypointFitResult:
         if self.branches is not None:
             record["branches"] = list(self.branches[index])
         if self.flipped is not None:
-            record["flipped"] = bool(self.flipped[index])
+            record["start_flipped"] = bool(self.flipped[index])
+        record["faces_camera"] = bool(faces_camera(self.global_orient[index], self.transl[index]))
+        if self.branch_search is not None:
+            record["branch_search"] = self.branch_search[index]
         if self.reprojection_error is not None:
             record["reprojection_error_px"] = float(self.reprojection_error[index])
         pick = lambda name: None if getattr(self, name) is None else getattr(self, name)[index]  # noqa: E731

@@ -446,6 +446,13 @@ def _merge_windows(params: Dict[str, np.ndarray], starts: List[int], F: int) -> 
 SILHOUETTE_TEMPORAL_WEIGHT = 5e-5
 
 
+def finite_median(values) -> Optional[float]:
+    """The median of the finite values (``None`` when there is none)."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if v.size else None
+
+
 def refine_sequence_silhouettes(
     model,
     result: SequenceFitResult,
@@ -465,6 +472,7 @@ def refine_sequence_silhouettes(
     ``result`` with the refined parameters, joints, projected keypoints and reprojection
     errors (the keypoint stage's kept in ``reprojection_error_keypoint_stage``); ``per_frame`` is kept, and
     ``timings["silhouette"]`` and ``silhouette_iou`` (per frame, NaN without a mask) are added."""
+    from ..plausibility import reprojection_rise_warnings, shape_warnings
     from .silhouette_stage import SilhouetteFitConfig, fit_silhouette_problems
     from .terms import JointSmoothnessTerm, RootSmoothnessTerm
 
@@ -517,6 +525,7 @@ def refine_sequence_silhouettes(
                   joints=np.asarray(joints, np.float32), keypoints_2d=np.asarray(kp2d, np.float32),
                   reprojection_error=reproj, reprojection_error_keypoint_stage=result.reprojection_error, timings=timings,
                   warnings=list(result.warnings) + list(sil.warnings)
+                  + reprojection_rise_warnings(finite_median(result.reprojection_error), finite_median(reproj)) + shape_warnings(betas)
                   + ([f"{len(empty)} frame(s) with an empty mask had no silhouette term: {empty[:10]}"] if empty else []))  # fmt: skip
     out.silhouette_iou, out.silhouette_iou_start = np.array([row[0] for row in sil.ious], dtype=np.float64), float(sil.iou_start)
     return out

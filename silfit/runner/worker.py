@@ -158,7 +158,7 @@ class DatasetFitter:
             if isinstance(res, ItemError):
                 records[key] = _failed(li.item, "silhouette", res)
                 continue
-            res.metrics["warnings"] = li.warnings + res.metrics.get("warnings", []) + fit_warnings(res.metrics, li.keypoints, res.vertices)
+            res.metrics["warnings"] = li.warnings + res.metrics.get("warnings", []) + fit_warnings(res.metrics, li.keypoints, res.vertices, res.params.get("betas"))
             t0 = time.perf_counter()
             try:
                 save_fit(res, out / key, self.faces, li.keypoints, li.image, li.mask, self._extra(li, len(loaded)), overwrite=True)
