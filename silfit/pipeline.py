@@ -34,7 +34,7 @@ from .fitting.result import KeypointFitResult
 from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult, fit_silhouettes
 from .keypoints import KeypointSet, model_keypoints
 from .outfolder import atomic_folder
-from .plausibility import check_keypoints, fit_warnings, mask_warnings
+from .plausibility import ambiguity_warnings, check_keypoints, fit_warnings, mask_warnings
 from .eval.metrics import mask_iou
 from .silhouette.masks import validate_mask
 
@@ -227,7 +227,8 @@ def fit(
     # plausibility (silfit.plausibility): drop far-outside keypoints, refuse degenerate sets, warn about the result
     sets[0], plausibility_warnings = check_keypoints(sets[0], (camera.width, camera.height) if camera else image_size)
     result = _fit(sets, mask, camera, image_size, focal, model, pose_prior, keypoint_config, silhouette_config, progress)
-    result.metrics["warnings"] += plausibility_warnings + fit_warnings(result.metrics, sets[0], result.vertices, result.params.get("betas"))
+    result.metrics["warnings"] += plausibility_warnings + fit_warnings(result.metrics, sets[0], result.vertices, result.params.get("betas")) \
+        + ambiguity_warnings((result.keypoint.branch_search or [None])[0])
     return result
 
 

@@ -14,7 +14,8 @@
   that moved the body away from the keypoints (its reprojection error above
   :data:`MAX_REPROJECTION_RISE` times the keypoint stage's and :data:`MIN_REPROJECTION_RISE_PX`
   more), a shape outside the shape space's plausible range (:data:`MAX_ABS_BETA`).
-* :func:`mask_warnings`: a mask that runs out of the image (the person cut off).
+* :func:`mask_warnings`: a mask that runs out of the image (the person cut off);
+  :func:`ambiguity_warnings`: a depth branch the keypoints cannot decide.
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ import numpy as np
 from .errors import InputError
 from .keypoints import KeypointSet
 
-__all__ = ["branch_gap", "check_frames", "check_keypoints", "fit_warnings", "mask_warnings", "person_extent", "reprojection_rise_warnings", "shape_warnings"]
+__all__ = ["ambiguity_warnings", "branch_gap", "check_frames", "check_keypoints", "fit_warnings", "mask_warnings", "person_extent", "reprojection_rise_warnings", "shape_warnings"]
 
 #: Keypoints farther than this many image widths/heights outside the image are dropped.
 OUTSIDE_MARGIN = 1.0
@@ -48,6 +49,8 @@ MAX_REPROJECTION_RISE = 2.0
 MIN_REPROJECTION_RISE_PX = 3.0
 #: A mask covering at least this share of an image side runs out of the image there.
 MIN_BORDER_RUN = 0.02
+#: Another depth hypothesis within this relative energy of the kept one is reported as ambiguous.
+AMBIGUOUS_GAP = 0.02
 #: Shape coefficients beyond this many standard deviations are reported.
 MAX_ABS_BETA = 3.0
 
@@ -209,6 +212,27 @@ def branch_gap(search) -> Optional[float]:
         if others:
             gaps.append((min(others) - kept) / max(abs(kept), 1e-12))
     return min(gaps) if gaps else None
+
+
+def ambiguity_warnings(search) -> list:
+    """A warning when another limb-branch hypothesis fits the keypoints almost as well as the
+    kept one (:func:`branch_gap` below :data:`AMBIGUOUS_GAP`): the keypoints cannot tell which
+    way the limb points in depth. On the hard set (``benchmarks/bench_ambiguity.py``) this
+    fires on about a third of the fits; it says the depth is undetermined, not that the fit is wrong."""
+    gap = branch_gap(search)
+    if gap is None or gap >= AMBIGUOUS_GAP:
+        return []
+    stage = min(search, key=lambda s: _stage_gap(s))
+    other = next(t["flip"] for t in stage["tried"] if t["flip"] != stage["kept"])
+    name = lambda label: "the pose as fitted" if label == "keep" else f"{label} flipped in depth"  # noqa: E731
+    return [f"depth ambiguous: {name(other)} fits the keypoints almost as well as {name(stage['kept'])} (energy "
+            f"{gap:.1%} higher); the keypoints cannot tell which way it points: check a side view (branch_search in "
+            "params.json)"]
+
+
+def _stage_gap(stage) -> float:
+    gap = branch_gap([stage])
+    return float("inf") if gap is None else gap
 
 
 def shape_warnings(betas) -> list:

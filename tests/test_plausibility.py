@@ -143,3 +143,14 @@ def test_a_mask_that_runs_out_of_the_image_is_reported():
     m[20:, 30:50] = True  # cut at the bottom: 20 of 80 border pixels
     w = mask_warnings(m, "person.png")
     assert len(w) == 1 and w[0].startswith("person.png:") and "bottom edge" in w[0]
+
+
+def test_a_depth_branch_the_keypoints_cannot_decide_is_reported():
+    from silfit.plausibility import ambiguity_warnings
+
+    close = [{"stage": "branches_1", "kept": "keep",
+              "tried": [{"flip": "keep", "energy": 100.0}, {"flip": "left_upper_arm", "energy": 101.0}]}]
+    w = ambiguity_warnings(close)
+    assert len(w) == 1 and "left_upper_arm flipped in depth" in w[0] and "1.0% higher" in w[0]
+    far = [{"stage": "branches_1", "kept": "keep", "tried": [{"flip": "keep", "energy": 100.0}, {"flip": "left_shin", "energy": 110.0}]}]
+    assert ambiguity_warnings(far) == [] and ambiguity_warnings(None) == []

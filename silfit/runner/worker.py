@@ -21,7 +21,7 @@ import numpy as np
 from ..fitting.keypoint_stage import KeypointFitConfig, KeypointFitter
 from ..fitting.silhouette_stage import SilhouetteFitConfig
 from ..pipeline import FitResult, refine, save_fit
-from ..plausibility import check_keypoints, fit_warnings
+from ..plausibility import ambiguity_warnings, check_keypoints, fit_warnings
 from .items import Item, ItemError, LoadedItem, _reading, item_error, load_item
 
 __all__ = ["FitOptions", "DatasetFitter", "keypoint_config", "silhouette_config"]
@@ -158,7 +158,8 @@ class DatasetFitter:
             if isinstance(res, ItemError):
                 records[key] = _failed(li.item, "silhouette", res)
                 continue
-            res.metrics["warnings"] = li.warnings + res.metrics.get("warnings", []) + fit_warnings(res.metrics, li.keypoints, res.vertices, res.params.get("betas"))
+            res.metrics["warnings"] = li.warnings + res.metrics.get("warnings", []) + fit_warnings(res.metrics, li.keypoints, res.vertices, res.params.get("betas")) \
+                + ambiguity_warnings((res.keypoint.branch_search or [None])[0])
             t0 = time.perf_counter()
             try:
                 save_fit(res, out / key, self.faces, li.keypoints, li.image, li.mask, self._extra(li, len(loaded)), overwrite=True)
