@@ -20,10 +20,17 @@ from test_io import official_arrays  # noqa: E402
 
 from silfit.body.io import load_model_arrays  # noqa: E402
 from silfit.camera import Camera, load_camera  # noqa: E402
-from silfit.cli.render import read_params  # noqa: E402
+from silfit.fitio import read_fit  # noqa: E402
 from silfit.errors import InputError  # noqa: E402
 from silfit.keypoints import KeypointSet, read_keypoints  # noqa: E402
 from silfit.silhouette import read_mask  # noqa: E402
+
+
+def read_params(path):
+    """The fit-file reader as ``silfit render`` uses it: any parameters present, and the stored camera."""
+    fit = read_fit(path, require=())
+    return fit.params, fit.camera
+
 
 #: Examples per reader (kept small for CI; SILFIT_FUZZ_EXAMPLES=2000 for a long local run).
 FUZZ = settings(max_examples=int(os.environ.get("SILFIT_FUZZ_EXAMPLES", "60")), deadline=None, suppress_health_check=list(HealthCheck), database=None)

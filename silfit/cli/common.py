@@ -43,3 +43,19 @@ def save_leaving_nothing_on_error(out: Path, save) -> None:
             if folder.is_dir() and not any(folder.iterdir()):
                 folder.rmdir()
         raise
+
+
+def choose_model(choice, gender: str, has_parts: bool):
+    """``(model, note)``: ``--model`` (a file or folder, or ``open-smplx``), else the shipped open
+    whole-body model when the keypoints have hand or face points (with a note saying so), else the
+    shipped open body model."""
+    from .. import load_body_model
+
+    if choice == "open-smplx":
+        return load_body_model(kind="smplx"), None
+    if choice:
+        return load_body_model(choice, gender=gender), None
+    if has_parts:
+        model = load_body_model(kind="smplx")
+        return model, f"keypoints have hand/face points and no --model: using the shipped open whole-body model ({model.source})"
+    return load_body_model(), None

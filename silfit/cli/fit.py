@@ -15,7 +15,7 @@ from typing import Optional
 import numpy as np
 
 from . import CLIError, note, warn
-from .common import save_leaving_nothing_on_error, silhouette_config  # noqa: F401  (also used by fit_rig, sequence)
+from .common import choose_model, save_leaving_nothing_on_error, silhouette_config  # noqa: F401  (also used by fit_rig, sequence)
 
 
 def _int_list(text: str) -> tuple:
@@ -125,7 +125,6 @@ class FitInputs:
 def load_inputs(args) -> FitInputs:
     """Read and check every input file and option of ``silfit fit`` (nothing is fitted or
     written): keypoints, image, camera, mask, body model, pose prior, silhouette settings."""
-    from .. import load_body_model
     from ..camera import Camera, camera_from_dict
     from ..errors import InputError
     from ..keypoints import read_keypoints
@@ -179,14 +178,9 @@ def load_inputs(args) -> FitInputs:
     from ..wholebody import choose_fit_keypoints
 
     wholebody = read_wholebody_parts(args.keypoints, person) if args.keypoints else None
-    if args.model == "open-smplx":
-        model = load_body_model(kind="smplx")
-    else:
-        model = load_body_model(args.model, gender=args.gender) if args.model else None
-    if model is None and wholebody is not None and wholebody.has_parts:
-        model = load_body_model(kind="smplx")
-        note(f"keypoints have hand/face points and no --model: using the shipped open whole-body model ({model.source})")
-    model = model or load_body_model()
+    model, model_note = choose_model(args.model, args.gender, wholebody is not None and wholebody.has_parts)
+    if model_note:
+        note(model_note)
     keypoints, choice_note = choose_fit_keypoints(keypoints, wholebody, model)
     if choice_note:
         note(choice_note)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import CLIError, warn
+from . import CLIError, note, warn
 
 
 def _camera(args, seq):
@@ -45,11 +45,10 @@ def _camera(args, seq):
 
 
 def run_sequence(args) -> int:
-    from .. import load_body_model
     from ..fitting.sequence import SequenceFitConfig, fit_sequence
     from ..priors import load_pose_prior
     from ..video import read_sequence, save_sequence_fit
-    from .common import save_leaving_nothing_on_error, silhouette_config
+    from .common import choose_model, save_leaving_nothing_on_error, silhouette_config
 
     for flag in ("keypoints", "mask", "image"):
         if getattr(args, flag, None):
@@ -63,7 +62,15 @@ def run_sequence(args) -> int:
     from ..plausibility import check_frames
 
     seq.frames, input_warnings = check_frames(seq.frames, camera.size, seq.numbers)  # as one image's keypoints are checked
-    model = load_body_model(args.model, gender=args.gender) if args.model else load_body_model()
+    # whole body: the frames' hand and face points decide the model (as for one image) and are fitted with it
+    from ..wholebody import choose_fit_keypoints, read_wholebody_parts
+
+    person = args.person if args.person == "largest" else int(args.person)
+    parts = [read_wholebody_parts(p, person) if ks is not None else None for ks, p in zip(seq.frames, seq.files)]
+    model, model_note = choose_model(args.model, args.gender, any(w is not None and w.has_parts for w in parts))
+    if model_note:
+        note(model_note)
+    seq.frames = [None if ks is None else choose_fit_keypoints(ks, w, model)[0] for ks, w in zip(seq.frames, parts)]
     pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
     masks = None
     if seq.masks and not args.no_silhouette:  # read (and checked) before --check-only answers

@@ -130,17 +130,22 @@ class SequenceFitResult:
     silhouette_iou_start: Optional[float] = None
     #: after :func:`refine_sequence_silhouettes`: the keypoint stage's ``reprojection_error [F]``
     reprojection_error_keypoint_stage: Optional[np.ndarray] = None
+    #: a whole-body (SMPL-X-layout) model's other parameters per frame ``[F, w]`` (hands and
+    #: face from the per-frame fits, interpolated over frames without them, held in the refinement)
+    extra: Dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def num_frames(self) -> int:
         return self.body_pose.shape[0]
 
     def params(self) -> Dict[str, np.ndarray]:
-        """SMPL parameter names: ``betas [L]``, the rest ``[F, w]``."""
-        return {"betas": self.betas, "body_pose": self.body_pose, "global_orient": self.global_orient, "transl": self.transl}
+        """The model's parameter names: ``betas [L]``, the rest ``[F, w]`` (a whole-body model's
+        hands, face and expression included)."""
+        return {"betas": self.betas, "body_pose": self.body_pose, "global_orient": self.global_orient, "transl": self.transl,
+                **self.extra}  # fmt: skip
 
     def frame_params(self, f: int) -> Dict[str, np.ndarray]:
-        return {"betas": self.betas, "body_pose": self.body_pose[f], "global_orient": self.global_orient[f], "transl": self.transl[f]}
+        return {n: v if n == "betas" else v[f] for n, v in self.params().items()}
 
 
 # ----------------------------------------------------------------------------- pure pieces
@@ -400,6 +405,7 @@ def fit_sequence(
         transl=f32(final["transl"]), camera=camera, joints=f32(body.joints.numpy()), keypoints_2d=f32(kp2d),
         bridged=bridged, refaced=refaced, outliers=outliers, reprojection_error=reproj,
         per_frame={n: f32(v) for n, v in per_frame.items()},
+        extra={n: f32(final[n]) for n in names if n not in ("betas", "body_pose", "global_orient", "transl")},
         timings={"per_frame_init": t_init, "refine": t_refine, "total": time.perf_counter() - t0, "frames": F,
                  "seconds_per_frame": (time.perf_counter() - t0) / F},
         layout=layout, config=cfg.to_dict(), warnings=warnings,
@@ -493,11 +499,16 @@ def refine_sequence_silhouettes(
         ks = frames[f]
         if ks is not None and not result.bridged[f]:
             conf = np.where(result.outliers[f], 0.0, ks.conf)
+            if ks.layout == "wholebody":  # hands and face stay as the keypoint fit left them (not optimised here)
+                from ..wholebody import part_slices
+
+                conf = conf.copy()
+                conf[part_slices()["body"].stop:] = 0.0
             ks = KeypointSet(ks.xy, conf, ks.layout, ks.source) if (conf > 0).any() else None
         else:
             ks = None
         obs.append(Observation(View(result.camera), ks, masks[f], frame=f))
-    init = {"betas": result.betas, "body_pose": result.body_pose, "global_orient": result.global_orient, "transl": result.transl}
+    init = result.params()
     t0 = time.perf_counter()
     (sil,) = fit_silhouette_problems(
         model, [Problem(obs)], [init], layout=result.layout, config=cfg, pose_prior=pose_prior, progress=progress,
@@ -509,8 +520,7 @@ def refine_sequence_silhouettes(
     betas = np.asarray(p["betas"], dtype=np.float32).reshape(-1)
     T = lambda a: torch.as_tensor(np.asarray(a), dtype=model.dtype)  # noqa: E731
     with torch.no_grad():
-        body = model(betas=T(np.repeat(betas[None], F, 0)), body_pose=T(p["body_pose"]), global_orient=T(p["global_orient"]),
-                     transl=T(p["transl"]))  # fmt: skip
+        body = model(**{n: T(np.repeat(betas[None], F, 0) if n == "betas" else p[n]) for n in init})
         joints = body.joints.numpy()
         kp2d = project_points(model_keypoints(model, body, result.layout).double(), result.camera).numpy()
     reproj = np.full(F, np.nan)  # against the keypoints the fit used (outliers and bridged frames left out)
@@ -521,6 +531,7 @@ def refine_sequence_silhouettes(
     timings = dict(result.timings, silhouette=seconds, total=result.timings["total"] + seconds)
     timings["seconds_per_frame"] = timings["total"] / F
     out = replace(result, betas=betas, body_pose=np.asarray(p["body_pose"], np.float32),
+                  extra={n: np.asarray(p[n], np.float32) for n in result.extra},
                   global_orient=np.asarray(p["global_orient"], np.float32), transl=np.asarray(p["transl"], np.float32),
                   joints=np.asarray(joints, np.float32), keypoints_2d=np.asarray(kp2d, np.float32),
                   reprojection_error=reproj, reprojection_error_keypoint_stage=result.reprojection_error, timings=timings,

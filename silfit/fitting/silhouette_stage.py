@@ -375,6 +375,10 @@ def fit_silhouette_problems(
         raise ValueError(f"problems of one batch must have the same frames and views, got {sorted(shapes)}")
     if len({tuple(p.shared) for p in problems}) != 1:
         raise ValueError("problems of one batch must share the same parameters across frames")
+    if pose_prior is not None:  # an SMPL-X-layout model: the prior's marginal over its body joints
+        from ..priors.wholebody import body_prior_for
+
+        pose_prior = body_prior_for(model, pose_prior)
     with torch_threads(cfg.threads):
         return _fit_problems(model, problems, list(inits), layout, cfg, pose_prior, renderer, progress, callback,
                              tuple(terms), dict(weights or {}), dict(data or {}))  # fmt: skip

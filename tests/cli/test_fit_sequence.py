@@ -182,3 +182,35 @@ def test_synth_sequence_flags_reach_the_generator(tmp_path):
     assert all(s["frames_dropped"] == 4 for s in seqs), seqs
     gt = np.load(out / seqs[0]["name"] / "gt.npz")
     assert gt["body_pose"].shape == (6, 69) and float(gt["fps"]) == 12
+
+
+def test_a_whole_body_video_fits_hands_and_face_with_the_whole_body_model(tmp_path, capsys):
+    """Per-frame OpenPose whole-body JSON (hands and face): the shipped SMPL-X-layout model is chosen as
+    for one image, every frame's hands and face are fitted, and the fit file and render carry them."""
+    src = Path(__file__).resolve().parents[2] / "data" / "synthetic_wholebody" / "subject_000"
+    video = tmp_path / "video"
+    video.mkdir()
+    doc = json.loads((src / "keypoints.json").read_text())
+    for f in range(3):  # the person walks 4 px to the right per frame
+        person = dict(doc["people"][0])
+        for field in ("pose_keypoints_2d", "hand_left_keypoints_2d", "hand_right_keypoints_2d", "face_keypoints_2d"):
+            v = np.asarray(person[field], dtype=float).reshape(-1, 3)
+            v[:, 0] += 4.0 * f * (v[:, 2] > 0)
+            person[field] = v.ravel().tolist()
+        (video / f"clip_{f:012d}_keypoints.json").write_text(json.dumps({**doc, "people": [person]}))
+    (video / "camera.json").write_text((src / "camera.json").read_text())
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    for f in range(3):
+        (masks / f"clip_{f:012d}.png").write_bytes((src / "mask.png").read_bytes())
+    out = tmp_path / "fit"
+    rc = main(["fit", "--sequence", str(video), "--masks", str(masks), "--out", str(out), "--sequence-iterations", "5",
+               "--silhouette-resolutions", "32", "--silhouette-iterations", "2", "--no-video", "--quiet"])  # fmt: skip
+    assert rc == 0, capsys.readouterr().err
+    assert "shipped open whole-body model" in capsys.readouterr().err
+    p = np.load(out / "params.npz")
+    assert str(p["model"]) == "smplx" and p["body_pose"].shape == (3, 63)
+    assert p["left_hand_pose"].shape == (3, 45) and np.abs(p["left_hand_pose"]).max() > 0.05  # fitted, not at rest
+    assert p["keypoints_2d"].shape == (3, 1, 137, 2)
+    assert json.loads((out / "metrics.json").read_text())["silhouette"] == "run"  # the silhouette stage on SMPL-X too
+    assert main(["render", str(out / "params.npz"), "--frame", "2", "--size", "48", "--out", str(tmp_path / "r")]) == 0
