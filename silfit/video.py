@@ -16,7 +16,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Union
+from typing import Dict, List, Optional, Sequence, Union
 
 import numpy as np
 
@@ -157,13 +157,16 @@ def write_overlay_video(path: Path, pictures, fps: float) -> Optional[Path]:
 
 
 def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: bool = False, video: bool = True,
-                      fps: float = 30.0, extra_metrics: Optional[dict] = None, overwrite: bool = False) -> Path:  # fmt: skip
+                      fps: float = 30.0, extra_metrics: Optional[dict] = None, overwrite: bool = False,
+                      exports: Sequence[str] = ()) -> Path:  # fmt: skip
     """Write a :class:`~silfit.fitting.sequence.SequenceFitResult` atomically: ``params.npz``
     / ``params.json`` (SMPL names: one ``betas [L]``, ``body_pose [F, 69]``, ``global_orient
     [F, 3]``, ``transl [F, 3]``; ``frames [F]`` the frame numbers, ``bridged [F]``, the
     camera), ``stages/per_frame/params.npz`` (the per-frame fits), ``metrics.json``,
     ``strip.png`` (a frame strip of overlays), ``overlay.gif`` (every frame; with imageio)
-    and with ``meshes`` ``meshes/<frame>.obj``."""
+    and with ``meshes`` ``meshes/<frame>.obj``; ``exports`` (``"glb"``, ``"ply"``) adds
+    ``animation.glb`` (every frame, one animated glTF) / ``meshes/<frame>.ply`` in the upright
+    world frame of :mod:`silfit.outputs.export`."""
     import torch
 
     from . import figures
@@ -185,13 +188,21 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
         (tmp / "stages" / "per_frame").mkdir(parents=True)
         np.savez(tmp / "stages" / "per_frame" / "params.npz", **{k: np.asarray(v, np.float32) for k, v in result.per_frame.items()},
                  frames=np.asarray(numbers), **camera_arrays)  # fmt: skip
-        if meshes:
-            (tmp / "meshes").mkdir()
+        if meshes or exports:
             faces = model.faces.cpu().numpy()
+            posed = []
             for f in range(result.num_frames):
                 with torch.no_grad():
                     v = model(**{k: torch.as_tensor(np.asarray(a)[None], dtype=model.dtype) for k, a in result.frame_params(f).items()})
-                write_obj(tmp / "meshes" / f"frame_{numbers[f]:012d}.obj", v.vertices[0].numpy(), faces)
+                posed.append(v.vertices[0].numpy())
+            if meshes:
+                (tmp / "meshes").mkdir()
+                for f, v in enumerate(posed):
+                    write_obj(tmp / "meshes" / f"frame_{numbers[f]:012d}.obj", v, faces)
+            if exports:
+                from .outputs.export import write_sequence_exports
+
+                write_sequence_exports(tmp, np.stack(posed), faces, cam, exports, numbers, fps)
         strip_stride = max(1, -(-result.num_frames // 8))
         pics = _frame_pictures(result, numbers, model, sequence.images, sequence.masks, 1 if video else strip_stride)
         strip = pics[::strip_stride] if video else pics

@@ -66,6 +66,9 @@ def register(subparsers) -> None:
     seq.add_argument("--fps", type=float, default=30.0, help="--sequence: frame rate of overlay.gif (default 30)")
     seq.add_argument("--no-video", action="store_true", help="--sequence: only strip.png, no overlay.gif")
     seq.add_argument("--sequence-iterations", type=int, help="--sequence: joint refinement steps (default 100)")
+    p.add_argument("--export", metavar="glb,ply", help="also write mesh.glb / mesh.ply (with --sequence: animation.glb, one "
+                   "animated glTF of every frame / meshes/frame_<n>.ply): the body upright (x right, y up, z toward the "
+                   "viewer: the camera frame turned 180 deg about x), vertex normals, the camera in the glTF")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -233,7 +236,20 @@ def load_inputs(args) -> FitInputs:
     return FitInputs(keypoints, image, size, camera, mask, model, pose_prior, sil_config, focal, camera_source, photo)
 
 
+def export_formats(args) -> tuple:
+    """``--export``'s formats (``CLIError`` for an unknown one)."""
+    from ..outputs.export import parse_formats
+
+    try:
+        return parse_formats(getattr(args, "export", None))
+    except ValueError as err:
+        raise CLIError(str(err)) from None
+
+
 def run(args) -> int:
+    if getattr(args, "export", None) and getattr(args, "rig", None):
+        raise CLIError("--export with --rig: not available (a rig's world frame has no fixed up axis); mesh.obj holds the body")
+    export_formats(args)
     if args.sequence and getattr(args, "rig", None):
         raise ValueError("--sequence with --rig: fitting a rig's video is not available; choose one")
     if args.sequence:
@@ -265,7 +281,8 @@ def run(args) -> int:
         extra.update(photo["metrics"], warnings=photo["warnings"] + result.metrics.get("warnings", []))
         result.metrics["warnings"] = extra["warnings"]
     save_leaving_nothing_on_error(
-        out, lambda: save_fit(result, out, model.faces.cpu().numpy(), keypoints, image, mask, extra, overwrite=args.overwrite))
+        out, lambda: save_fit(result, out, model.faces.cpu().numpy(), keypoints, image, mask, extra, overwrite=args.overwrite,
+                             exports=export_formats(args)))
     if not args.quiet:
         m = result.metrics
         line = f"wrote {out}: median reprojection error {m['reprojection_error_px']:.2f} px"

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-smplx = pytest.importorskip("smplx")
+import smplx  # noqa: E402  (pinned in the test extra)
 from smplx.vertex_joint_selector import VertexJointSelector  # noqa: E402
 
 from silfit import load_body_model  # noqa: E402
