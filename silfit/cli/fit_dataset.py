@@ -3,7 +3,8 @@
 INPUT is an OpenPose output folder, a manifest (``.jsonl`` / ``.csv``) or a dataset in
 silfit's synthetic format (see :mod:`silfit.runner.items`). OUT gets one folder per
 (image, person) in ``silfit fit``'s layout, ``results.jsonl``, ``failures.jsonl``,
-``summary.md``, ``summary.json`` and ``summary.png`` (see :mod:`silfit.runner.store`).
+``summary.md``, ``summary.json``, ``summary.png`` (see :mod:`silfit.runner.store`) and
+``report/index.html`` (a gallery of the fits, :mod:`silfit.outputs.report`; not with ``--no-report``).
 Rerunning with the same OUT skips finished items (``--retry-failed`` retries the failed).
 
 Exit status: 0 every item fitted; 2 the command or the input as a whole is wrong (nothing
@@ -116,9 +117,13 @@ def run(args) -> int:
     if not args.no_report:
         from ..outputs.report import write_report
 
-        index = write_report(args.out)
-        if not args.quiet:
-            print(f"wrote {index} (open it in a browser)")
+        try:
+            index = write_report(args.out)
+        except (OSError, ValueError) as err:  # the fits are written; a report that cannot be is a warning
+            print(f"silfit fit-dataset: warning: no report: {' '.join(str(err).split())}", file=sys.stderr)
+        else:
+            if not args.quiet:
+                print(f"wrote {index} (open it in a browser)")
     if not args.quiet:
         print(summary["table"])
     if summary["failed"]:

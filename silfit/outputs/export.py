@@ -83,10 +83,8 @@ class _Buffer:
             view["target"] = target
         self.blob += data
         self.views.append(view)
-        acc = {"bufferView": len(self.views) - 1, "componentType": component,
-               "count": int(array.shape[0]) if kind != "SCALAR" or array.ndim else 1, "type": kind}  # fmt: skip
-        if kind == "SCALAR":
-            acc["count"] = int(array.size)
+        count = int(array.size) if kind == "SCALAR" else int(array.shape[0])
+        acc = {"bufferView": len(self.views) - 1, "componentType": component, "count": count, "type": kind}
         if bounds:
             flat = array.reshape(array.shape[0], -1) if kind != "SCALAR" else array.reshape(-1, 1)
             acc["min"] = [float(x) for x in flat.min(0)]

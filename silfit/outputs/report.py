@@ -207,7 +207,7 @@ h1{font-size:1.3em;margin:0}
 .pics img.overlay{max-width:200px;max-height:200px}
 .pics img.side{max-width:120px;max-height:200px}
 table{border-collapse:collapse}th{text-align:left;font-weight:normal;color:#666;padding-right:8px}
-.warnings{color:#a60;margin:4px 0 0;padding-left:18px}.error{color:#c33}
+.warnings{color:#a60;margin:4px 0 0;padding-left:18px}.error{color:#c33;overflow-wrap:anywhere}
 """
 
 _JS = """

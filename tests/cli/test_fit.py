@@ -225,3 +225,5 @@ def test_fit_export_writes_upright_glb_and_ply(inputs, tmp_path, capsys):
                  "--no-silhouette", "--export", "obj", "--out", str(tmp_path / "bad")] + FAST) == 2  # fmt: skip
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "--export 'obj'" in err and not (tmp_path / "bad").exists()
+    assert main(["fit", "--rig", str(d), "--export", "glb", "--out", str(tmp_path / "rig")] + FAST) == 2
+    assert "--export with --rig" in capsys.readouterr().err and not (tmp_path / "rig").exists()

@@ -1,6 +1,7 @@
 """``silfit report`` / the report at the end of ``fit-dataset``: the gallery renders in a real headless
 Chromium (Debian's ``chromium``, installed by tools/setup.sh), whose JavaScript sorts the cards."""
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -70,6 +71,14 @@ def test_report_screenshot_shows_the_cards(dataset_run, tmp_path):
     failed_border = (np.abs(img.astype(int) - [0xCC, 0x33, 0x33]).sum(-1) < 30).sum()
     body_grey = (np.abs(img.astype(int) - [235, 235, 235]).sum(-1) < 4).sum()  # the side views' canvas
     assert failed_border > 200 and body_grey > 5000  # the failed card's red frame and the side views are drawn
+
+
+def test_report_out_and_no_side_views(dataset_run, tmp_path):
+    assert main(["report", str(dataset_run), "--out", str(tmp_path / "plain"), "--no-side-views"]) == 0
+    page = (tmp_path / "plain" / "index.html").read_text()
+    assert 'class="side"' not in page and not list((tmp_path / "plain" / "side").glob("*.png"))
+    assert f'src="{os.path.relpath(dataset_run / "subject_000" / "overlay.png", tmp_path / "plain")}"' in page
+    assert 'class="side"' in (dataset_run / "report" / "index.html").read_text()
 
 
 def _fake_fit(folder: Path, name: str, metrics: dict) -> None:
