@@ -19,13 +19,23 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["run_wholebody_demo"]
+__all__ = ["run_wholebody_demo", "summary_panels"]
 
 SHIPPED_WHOLEBODY = Path(__file__).resolve().parents[1] / "data" / "synthetic_wholebody"
 ROWS = (("hand_pa_mm", "hand error, Procrustes (mm)"), ("hand_wrist_mm", "hand error, wrist-aligned (mm)"),
         ("face_pa_mm", "face error, Procrustes (mm)"), ("expression_err", "expression error (RMS)"),
         ("pa_pve_mm", "body PA-PVE (mm)"), ("time_s", "time (s)"))  # fmt: skip
 METHODS = ("body keypoints only", "whole-body keypoints", "whole-body + silhouette")
+WHOLE_TITLES = ("input + whole-body keypoints", METHODS[0], METHODS[2])
+
+
+def summary_panels(whole: list, closeups: list, closeup_titles: list, columns: int = 4) -> tuple:
+    """``summary.png``'s cells and titles, as many of one as of the other: the whole-body pictures
+    (:data:`WHOLE_TITLES`) on the first row, empty cells to the row's end, then the close-ups."""
+    if len(whole) != len(WHOLE_TITLES) or len(closeups) != len(closeup_titles):
+        raise ValueError(f"{len(whole)} + {len(closeups)} pictures for {len(WHOLE_TITLES)} + {len(closeup_titles)} titles")
+    pad = -len(whole) % columns
+    return list(whole) + [None] * pad + list(closeups), list(WHOLE_TITLES) + [""] * pad + list(closeup_titles)
 
 
 def _subject_dir(out: Path, subject_dir: Optional[Path]) -> Path:
@@ -129,8 +139,7 @@ def run_wholebody_demo(out: Path, subject_dir: Optional[Path] = None, progress: 
     whole = [figures.draw_keypoints(image, kps.xy, figures.DETECTED, kps.conf),
              figures.fit_overlay(image, fits[METHODS[0]][0], faces, cam),
              figures.fit_overlay(image, result.vertices, faces, cam)]  # fmt: skip
-    figures.contact_sheet(whole + sheet, ["input + whole-body keypoints", METHODS[0], METHODS[2], ""] + titles,
-                          out / "summary.png", columns=4)  # fmt: skip
+    figures.contact_sheet(*summary_panels(whole, sheet, titles), out / "summary.png", columns=4)
 
     lines = ["| metric | " + " | ".join(METHODS) + " |", "|---|" + "---:|" * len(METHODS)]
     for key, label in ROWS:

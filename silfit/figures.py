@@ -250,10 +250,12 @@ def error_heatmap(
     _save_figure(fig, path)
 
 
-def contact_sheet(images: Sequence[np.ndarray], titles: Sequence[str], path: os.PathLike, columns: int = 3) -> None:
-    """A titled grid of RGB images (resized to a common height)."""
+def contact_sheet(images: Sequence[Optional[np.ndarray]], titles: Sequence[str], path: os.PathLike, columns: int = 3) -> None:
+    """A titled grid of RGB images, one title per image (``None``: an empty cell)."""
     import matplotlib
 
+    if len(images) != len(titles):
+        raise ValueError(f"contact_sheet: {len(images)} images but {len(titles)} titles")
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -262,6 +264,8 @@ def contact_sheet(images: Sequence[np.ndarray], titles: Sequence[str], path: os.
     for ax in axes.ravel():
         ax.axis("off")
     for ax, img, title in zip(axes.ravel(), images, titles):
+        if img is None:
+            continue
         ax.imshow(img)
         ax.set_title(title, fontsize=10)
     fig.tight_layout()

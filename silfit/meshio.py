@@ -17,17 +17,25 @@ def write_obj(path: os.PathLike, vertices: np.ndarray, faces: np.ndarray, commen
         np.savetxt(fh, np.asarray(faces, dtype=np.int64) + 1, fmt="f %d %d %d")
 
 
-def write_ply(path: os.PathLike, vertices: np.ndarray, faces: np.ndarray, colors: Optional[np.ndarray] = None) -> None:
-    """ASCII PLY with optional per-vertex ``colors [V, 3]`` (uint8)."""
+def write_ply(path: os.PathLike, vertices: np.ndarray, faces: np.ndarray, colors: Optional[np.ndarray] = None,
+              normals: Optional[np.ndarray] = None, comment: Optional[str] = None) -> None:
+    """ASCII PLY with optional per-vertex ``colors [V, 3]`` (uint8), ``normals [V, 3]`` and a header comment."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
+    columns, fmt = [v], ["%.6f %.6f %.6f"]
     with open(path, "w", encoding="utf-8") as fh:
-        fh.write(f"ply\nformat ascii 1.0\nelement vertex {len(v)}\nproperty float x\nproperty float y\nproperty float z\n")
+        fh.write("ply\nformat ascii 1.0\n")
+        if comment:
+            fh.write("".join(f"comment {line}\n" for line in comment.splitlines()))
+        fh.write(f"element vertex {len(v)}\nproperty float x\nproperty float y\nproperty float z\n")
+        if normals is not None:
+            fh.write("property float nx\nproperty float ny\nproperty float nz\n")
+            columns.append(np.asarray(normals, dtype=np.float64))
+            fmt.append("%.6f %.6f %.6f")
         if colors is not None:
             fh.write("property uchar red\nproperty uchar green\nproperty uchar blue\n")
+            columns.append(np.asarray(colors)[:, :3])
+            fmt.append("%d %d %d")
         fh.write(f"element face {len(f)}\nproperty list uchar int vertex_indices\nend_header\n")
-        if colors is None:
-            np.savetxt(fh, v, fmt="%.6f %.6f %.6f")
-        else:
-            np.savetxt(fh, np.hstack([v, np.asarray(colors)[:, :3]]), fmt="%.6f %.6f %.6f %d %d %d")
+        np.savetxt(fh, np.hstack(columns), fmt=" ".join(fmt))
         np.savetxt(fh, np.hstack([np.full((len(f), 1), 3), f]), fmt="%d %d %d %d")

@@ -5,8 +5,10 @@ Output folder written by :func:`save_fit` (and ``silfit fit``)::
 
     params.npz, params.json    final SMPL parameters (betas, body_pose, global_orient, transl),
                                camera_intrinsics, image_size, vertices, joints, keypoints_2d
-    mesh.obj                   the posed body in camera coordinates (OpenCV axes, metres,
-                               the model's vertex order)
+    mesh.obj                   the posed body in camera coordinates (OpenCV axes: x right, y down,
+                               z forward, metres, the model's vertex order)
+    mesh.glb, mesh.ply         with ``exports``: the body upright (x right, y up, z toward the
+                               viewer), normals, the camera in the glTF (silfit.outputs.export)
     overlay.png                the final body over the image (or a grey canvas) + keypoints
     silhouette.png             final silhouette vs the mask (white: both, red: body only,
                                blue: mask only)            [with a mask]
@@ -267,8 +269,11 @@ def save_fit(
     mask: Optional[np.ndarray] = None,
     extra_metrics: Optional[dict] = None,
     overwrite: bool = False,
+    exports: Sequence[str] = (),
 ) -> Path:
-    """Write the output folder described in the module docstring, atomically."""
+    """Write the output folder described in the module docstring, atomically; ``exports``
+    (``"glb"``, ``"ply"``) adds ``mesh.glb`` / ``mesh.ply`` in the upright world frame of
+    :mod:`silfit.outputs.export`."""
     from . import figures
     from .meshio import write_obj
 
@@ -276,6 +281,10 @@ def save_fit(
     with atomic_folder(out, overwrite) as tmp:
         result.final.save(tmp)
         write_obj(tmp / "mesh.obj", result.vertices, faces)
+        if exports:
+            from .outputs.export import write_fit_exports
+
+            write_fit_exports(tmp, result.vertices, faces, result.camera, exports)
         kp_xy = None if keypoints is None else keypoints.xy
         kp_conf = None if keypoints is None else keypoints.conf
         figures.write_png(tmp / "overlay.png", figures.fit_overlay(

@@ -17,7 +17,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Union
+from typing import Dict, List, Optional, Sequence, Union
 
 import numpy as np
 
@@ -160,13 +160,16 @@ def write_overlay_video(path: Path, pictures, fps: float) -> Optional[Path]:
 
 
 def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: bool = False, video: bool = True,
-                      fps: float = 30.0, extra_metrics: Optional[dict] = None, overwrite: bool = False) -> Path:  # fmt: skip
+                      fps: float = 30.0, extra_metrics: Optional[dict] = None, overwrite: bool = False,
+                      exports: Sequence[str] = ()) -> Path:  # fmt: skip
     """Write a :class:`~silfit.fitting.sequence.SequenceFitResult` atomically: ``params.npz``
     / ``params.json`` (the fit file of :mod:`silfit.fitio`: ``F`` frames, one view, ``frames``
     the frame numbers; ``params.json`` adds ``bridged`` and ``refaced`` per frame),
     ``stages/per_frame/params.npz`` (the per-frame fits), ``metrics.json``,
     ``strip.png`` (a frame strip of overlays), ``overlay.gif`` (every frame; with imageio)
-    and with ``meshes`` ``meshes/<frame>.obj``."""
+    and with ``meshes`` ``meshes/<frame>.obj``; ``exports`` (``"glb"``, ``"ply"``) adds
+    ``animation.glb`` (every frame, one animated glTF) / ``meshes/<frame>.ply`` in the upright
+    world frame of :mod:`silfit.outputs.export`."""
     import torch
 
     from . import figures
@@ -184,13 +187,21 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
                   reprojection_error=result.reprojection_error[:, None], record=flags)  # fmt: skip
         write_fit(tmp / "stages" / "per_frame", result.per_frame, [cam], layout=result.layout, model=model,
                   frame_numbers=numbers)  # fmt: skip
-        if meshes:
-            (tmp / "meshes").mkdir()
+        if meshes or exports:
             faces = model.faces.cpu().numpy()
+            posed = []
             for f in range(result.num_frames):
                 with torch.no_grad():
                     v = model(**{k: torch.as_tensor(np.asarray(a)[None], dtype=model.dtype) for k, a in result.frame_params(f).items()})
-                write_obj(tmp / "meshes" / f"frame_{numbers[f]:012d}.obj", v.vertices[0].numpy(), faces)
+                posed.append(v.vertices[0].numpy())
+            if meshes:
+                (tmp / "meshes").mkdir()
+                for f, v in enumerate(posed):
+                    write_obj(tmp / "meshes" / f"frame_{numbers[f]:012d}.obj", v, faces)
+            if exports:
+                from .outputs.export import write_sequence_exports
+
+                write_sequence_exports(tmp, np.stack(posed), faces, cam, exports, numbers, fps)
         strip_stride = max(1, -(-result.num_frames // 8))
         pics = _frame_pictures(result, numbers, model, sequence.images, sequence.masks, 1 if video else strip_stride)
         strip = pics[::strip_stride] if video else pics

@@ -49,3 +49,15 @@ def test_overlay_and_iou_curve(tmp_path):
     blue = (img[..., 2] > 150) & (img[..., 0] < 80)
     assert blue.sum() > 200  # the IoU line was drawn
     iou_curve({"iou": [], "energy": [], "level": []}, tmp_path / "empty.png")  # no steps: still a picture
+
+
+def test_contact_sheet_needs_one_title_per_picture(tmp_path):
+    import pytest
+
+    from silfit.figures import contact_sheet
+
+    img = np.zeros((8, 8, 3), np.uint8)
+    with pytest.raises(ValueError, match="3 images but 4 titles"):
+        contact_sheet([img, img, img], ["a", "b", "c", ""], tmp_path / "s.png", columns=4)
+    contact_sheet([img, None, img], ["a", "", "c"], tmp_path / "s.png", columns=2)  # None: an empty cell
+    assert (tmp_path / "s.png").is_file()

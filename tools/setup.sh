@@ -1,14 +1,15 @@
 #!/usr/bin/env bash
 # Install everything silfit needs on a Debian machine (run as root, or with sudo available):
-#   - system packages: libllvm19 (Dr.Jit's CPU backend; Mesa's libLLVM 15 crashes it) and
-#     libosmesa6 (offscreen OpenGL for pyrender),
+#   - system packages: libllvm19 (Dr.Jit's CPU backend; Mesa's libLLVM 15 crashes it),
+#     libosmesa6 (offscreen OpenGL for pyrender) and chromium (the tests open `silfit report`'s
+#     HTML gallery in headless Chromium),
 #   - a virtual environment in .venv with torch 2.13.0 (CPU wheel) and silfit installed editable.
 # Idempotent: a second run checks and returns in a second or two.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 missing=()
-for pkg in libllvm19 libosmesa6; do
+for pkg in libllvm19 libosmesa6 chromium; do
   dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing+=("$pkg")
 done
 if ((${#missing[@]})); then

@@ -12,7 +12,7 @@ import importlib.util
 import sys
 
 #: Subcommands in the order ``silfit --help`` lists them.
-SUBCOMMANDS = ("demo", "fit", "detect", "synth", "eval", "render", "fit-dataset")
+SUBCOMMANDS = ("demo", "fit", "detect", "synth", "eval", "render", "fit-dataset", "export-model", "report")
 
 
 from ..errors import InputError

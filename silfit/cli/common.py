@@ -59,3 +59,13 @@ def choose_model(choice, gender: str, has_parts: bool):
         model = load_body_model(kind="smplx")
         return model, f"keypoints have hand/face points and no --model: using the shipped open whole-body model ({model.source})"
     return load_body_model(), None
+
+
+def export_formats(args) -> tuple:
+    """``--export``'s formats (``CLIError`` for an unknown one)."""
+    from ..outputs.export import parse_formats
+
+    try:
+        return parse_formats(getattr(args, "export", None))
+    except ValueError as err:
+        raise CLIError(str(err)) from None

@@ -15,7 +15,7 @@ from typing import Optional
 import numpy as np
 
 from . import CLIError, note, warn
-from .common import choose_model, save_leaving_nothing_on_error, silhouette_config  # noqa: F401  (also used by fit_rig, sequence)
+from .common import choose_model, export_formats, save_leaving_nothing_on_error, silhouette_config  # noqa: F401
 
 
 def _int_list(text: str) -> tuple:
@@ -70,6 +70,9 @@ def register(subparsers) -> None:
     seq.add_argument("--fps", type=float, default=30.0, help="--sequence: frame rate of overlay.gif (default 30)")
     seq.add_argument("--no-video", action="store_true", help="--sequence: only strip.png, no overlay.gif")
     seq.add_argument("--sequence-iterations", type=int, help="--sequence: joint refinement steps (default 100)")
+    p.add_argument("--export", metavar="glb,ply", help="also write mesh.glb / mesh.ply (with --sequence: animation.glb, one "
+                   "animated glTF of every frame / meshes/frame_<n>.ply): the body upright (x right, y up, z toward the "
+                   "viewer: the camera frame turned 180 deg about x), vertex normals, the camera in the glTF")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -195,6 +198,9 @@ def load_inputs(args) -> FitInputs:
 def run(args) -> int:
     if getattr(args, "views", None) and not getattr(args, "rig", None):
         raise CLIError("--views picks cameras of a rig; give --rig DIR")
+    if getattr(args, "export", None) and getattr(args, "rig", None):
+        raise CLIError("--export with --rig: not available (a rig's world frame has no fixed up axis); mesh.obj holds the body")
+    export_formats(args)
     if args.sequence and getattr(args, "rig", None):
         raise ValueError("--sequence with --rig: fitting a rig's video is not available; choose one")
     if args.sequence:
@@ -226,7 +232,8 @@ def run(args) -> int:
         extra.update(photo["metrics"], warnings=photo["warnings"] + result.metrics.get("warnings", []))
         result.metrics["warnings"] = extra["warnings"]
     save_leaving_nothing_on_error(
-        out, lambda: save_fit(result, out, model.faces.cpu().numpy(), keypoints, image, mask, extra, overwrite=args.overwrite))
+        out, lambda: save_fit(result, out, model.faces.cpu().numpy(), keypoints, image, mask, extra, overwrite=args.overwrite,
+                             exports=export_formats(args)))
     m = result.metrics
     line = f"wrote {out}: median reprojection error {m['reprojection_error_px']:.2f} px"
     if "iou" in m:

@@ -3,7 +3,8 @@
 INPUT is an OpenPose output folder, a manifest (``.jsonl`` / ``.csv``) or a dataset in
 silfit's synthetic format (see :mod:`silfit.runner.items`). OUT gets one folder per
 (image, person) in ``silfit fit``'s layout, ``results.jsonl``, ``failures.jsonl``,
-``summary.md``, ``summary.json`` and ``summary.png`` (see :mod:`silfit.runner.store`).
+``summary.md``, ``summary.json``, ``summary.png`` (see :mod:`silfit.runner.store`) and
+``report/index.html`` (a gallery of the fits, :mod:`silfit.outputs.report`; not with ``--no-report``).
 Rerunning with the same OUT skips finished items (``--retry-failed`` retries the failed).
 
 Exit status: 0 every item fitted; 2 the command or the input as a whole is wrong (nothing
@@ -52,6 +53,10 @@ def register(subparsers) -> None:
     p.add_argument("--actors", type=int, default=2, help="Ray: fitting actors (default 2)")
     p.add_argument("--num-cpus", type=float, default=1.0, help="Ray: CPUs reserved per actor (default 1)")
     p.add_argument("--num-gpus", type=float, default=0.0, help="Ray: GPUs reserved per actor (default 0)")
+    p.add_argument("--export", metavar="glb,ply", help="also write mesh.glb / mesh.ply per item: the body upright "
+                   "(x right, y up, z toward the viewer), normals, the camera in the glTF")
+    p.add_argument("--no-report", action="store_true", help="do not write report/index.html (the gallery of "
+                   "`silfit report`) at the end")
     p.add_argument("--quiet", action="store_true", help="no progress bar and no summary table")
     p.set_defaults(func=run)
 
@@ -88,8 +93,14 @@ def run(args) -> int:
         keypoint_config(overrides)
     except (InputError, ValueError) as err:
         raise CLIError(str(err)) from None
+    from ..outputs.export import parse_formats
+
+    try:
+        exports = parse_formats(args.export)
+    except ValueError as err:
+        raise CLIError(str(err)) from None
     options = FitOptions(
-        model=args.model, gender=args.gender, pose_prior=args.pose_prior, silhouette=not args.no_silhouette,
+        exports=list(exports), model=args.model, gender=args.gender, pose_prior=args.pose_prior, silhouette=not args.no_silhouette,
         focal=args.focal, keypoint_options=overrides,
         silhouette_resolutions=_ints(args.silhouette_resolutions, "--silhouette-resolutions"),
         silhouette_iterations=_ints(args.silhouette_iterations, "--silhouette-iterations"),
@@ -103,6 +114,15 @@ def run(args) -> int:
         )  # fmt: skip
     except InputError as err:
         raise CLIError(str(err)) from None
+    if not args.no_report:
+        from ..outputs.report import write_report
+
+        try:
+            index = write_report(args.out)
+        except (OSError, ValueError) as err:  # the fits are written; a report that cannot be is a warning
+            print(f"silfit fit-dataset: warning: no report: {' '.join(str(err).split())}", file=sys.stderr)
+        else:
+            print(f"wrote {index} (open it in a browser)")
     print(summary["table"])
     if summary["failed"]:
         print(f"silfit fit-dataset: {summary['failed']} of {summary['items']} items failed; see {args.out}/failures.jsonl",

@@ -48,7 +48,7 @@ def run_sequence(args) -> int:
     from ..fitting.sequence import SequenceFitConfig, fit_sequence
     from ..priors import load_pose_prior
     from ..video import read_sequence, save_sequence_fit
-    from .common import choose_model, save_leaving_nothing_on_error, silhouette_config
+    from .common import choose_model, export_formats, save_leaving_nothing_on_error, silhouette_config
 
     for flag in ("keypoints", "mask", "image"):
         if getattr(args, flag, None):
@@ -98,7 +98,7 @@ def run_sequence(args) -> int:
              "silhouette": "run" if masks is not None else "not run (no masks)" if not seq.masks else "not run (--no-silhouette)"}  # fmt: skip
     save_leaving_nothing_on_error(out, lambda: save_sequence_fit(
         result, out, model, seq, meshes=args.meshes, video=not args.no_video, fps=args.fps, extra_metrics=extra,
-        overwrite=args.overwrite))  # fmt: skip
+        overwrite=args.overwrite, exports=export_formats(args)))  # fmt: skip
     t = result.timings
     line = f"wrote {out}: {result.num_frames} frames, {int(result.bridged.sum())} bridged, {t['seconds_per_frame']:.2f} s per frame"
     if result.silhouette_iou is not None:

@@ -43,6 +43,7 @@ class FitOptions:
     keypoint_options: Dict[str, object] = field(default_factory=dict)  # KeypointFitConfig field -> value
     silhouette_resolutions: Optional[Sequence[int]] = None
     silhouette_iterations: Optional[Sequence[int]] = None
+    exports: Sequence[str] = ()  # "glb", "ply": mesh.glb / mesh.ply per item (silfit.outputs.export)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -162,7 +163,8 @@ class DatasetFitter:
                 + ambiguity_warnings((res.keypoint.branch_search or [None])[0])
             t0 = time.perf_counter()
             try:
-                save_fit(res, out / key, self.faces, li.keypoints, li.image, li.mask, self._extra(li, len(loaded)), overwrite=True)
+                save_fit(res, out / key, self.faces, li.keypoints, li.image, li.mask, self._extra(li, len(loaded)), overwrite=True,
+                         exports=tuple(self.options.exports))
             except (OSError, ValueError) as err:
                 records[key] = _failed(li.item, "save", item_error(err, os.fspath(out / key), "output"))
                 continue

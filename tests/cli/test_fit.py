@@ -198,3 +198,32 @@ def test_fit_camera_extrinsics_are_checked_and_reported(inputs, tmp_path, capsys
     assert main(args + ["--camera", str(tmp_path / "rt.json"), "--out", str(tmp_path / "o")]) == 0
     assert "warning:" in (err := capsys.readouterr().err) and "R, t not applied" in err
     assert "R, t not applied" in json.loads((tmp_path / "o" / "metrics.json").read_text())["camera_source"]
+
+
+def test_fit_export_writes_upright_glb_and_ply(inputs, tmp_path, capsys):
+    import trimesh
+
+    from silfit.outputs.export import to_upright
+
+    d, model = inputs
+    out = tmp_path / "fit"
+    rc = main(["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
+               "--no-silhouette", "--export", "glb,ply", "--out", str(out)] + FAST)  # fmt: skip
+    assert rc == 0, capsys.readouterr().err
+    params = np.load(out / "params.npz")  # the camera frame (as mesh.obj), as documented
+    joints, vertices = params["joints"].reshape(-1, 24, 3)[0], params["vertices"].reshape(-1, toy_model().num_vertices, 3)[0]
+    assert joints[15, 1] < joints[7, 1]  # camera frame: the head (joint 15) above the ankle (7) means smaller y
+    for name in ("mesh.glb", "mesh.ply"):
+        loaded = trimesh.load(out / name, process=False)
+        mesh = loaded.geometry["body"] if isinstance(loaded, trimesh.Scene) else loaded
+        assert np.allclose(mesh.vertices, to_upright(vertices), atol=1e-5), name
+        head, foot = to_upright(joints[15]), to_upright(joints[7])
+        assert head[1] > foot[1], name
+        top = mesh.vertices[:, 1].argmax()
+        assert np.linalg.norm(mesh.vertices[top, [0, 2]] - head[[0, 2]]) < 0.3, name  # the highest point is the head's
+    assert main(["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
+                 "--no-silhouette", "--export", "obj", "--out", str(tmp_path / "bad")] + FAST) == 2  # fmt: skip
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--export 'obj'" in err and not (tmp_path / "bad").exists()
+    assert main(["fit", "--rig", str(d), "--export", "glb", "--out", str(tmp_path / "rig")] + FAST) == 2
+    assert "--export with --rig" in capsys.readouterr().err and not (tmp_path / "rig").exists()

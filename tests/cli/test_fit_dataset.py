@@ -49,7 +49,8 @@ def test_failures_are_isolated_and_runs_resume(tmp_path, capsys):
     assert fails["subject_002"]["file"] == str(data / "subject_002" / "camera.json")
     assert fails["subject_003"]["file"] == str(data / "subject_003" / "mask.png") and fails["subject_003"]["field"] == "mask"
     assert all(f["message"] and "\n" not in f["message"] for f in fails.values())
-    assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ["subject_000", "subject_004"]
+    assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ["report", "subject_000", "subject_004"]
+    assert (out / "report" / "index.html").is_file()  # the gallery (tests/outputs/test_report.py opens it)
     for f in ("summary.md", "summary.png", "summary.json"):
         assert (out / f).is_file()
     fit = KeypointFitResult.load(out / "subject_000")
@@ -190,3 +191,21 @@ def test_dataset_items_get_the_checks_of_one_image(tmp_path):
     assert ok["status"] == "ok" and any("right_wrist" in w and "treated as missing" in w for w in ok["warnings"])
     metrics = json.loads((out / "subject_001" / "metrics.json").read_text())
     assert metrics["warnings"] == ok["warnings"]
+
+
+def test_export_and_no_report(tmp_path):
+    import trimesh
+
+    data = synthetic_copy(tmp_path / "data", ["subject_000", "subject_002"])
+    out = tmp_path / "out"
+    assert main(["fit-dataset", str(data), "--out", str(out), "--no-silhouette", "--export", "glb,ply", "--no-report",
+                 "--quiet", *FAST]) == 0  # fmt: skip
+    assert not (out / "report").exists()
+    for item in ("subject_000", "subject_002"):
+        joints = np.load(out / item / "params.npz")["joints"].reshape(-1, 3)
+        glb = trimesh.load(out / item / "mesh.glb", process=False).geometry["body"]
+        ply = trimesh.load(out / item / "mesh.ply", process=False)
+        assert np.allclose(glb.vertices, ply.vertices, atol=1e-5)
+        assert -joints[15, 1] > -joints[7, 1] and glb.vertices[:, 1].max() > -joints[15, 1]  # upright: head +Y
+    assert main(["fit-dataset", str(data), "--out", str(tmp_path / "o2"), "--export", "fbx", "--quiet"]) == 2
+    assert not (tmp_path / "o2").exists()

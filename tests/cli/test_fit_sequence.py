@@ -214,3 +214,32 @@ def test_a_whole_body_video_fits_hands_and_face_with_the_whole_body_model(tmp_pa
     assert p["keypoints_2d"].shape == (3, 1, 137, 2)
     assert json.loads((out / "metrics.json").read_text())["silhouette"] == "run"  # the silhouette stage on SMPL-X too
     assert main(["render", str(out / "params.npz"), "--frame", "2", "--size", "48", "--out", str(tmp_path / "r")]) == 0
+
+
+def test_fit_sequence_export_writes_one_animated_gltf(sequence, tmp_path, capsys):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "outputs"))
+    from test_export import accessor, glb_json_and_blob
+
+    from silfit.outputs.export import to_upright
+
+    seq, model = sequence
+    out = tmp_path / "fit"
+    rc = main(["fit", "--sequence", str(seq), "--model", str(model), "--out", str(out), "--meshes", "--no-silhouette",
+               "--sequence-iterations", "3", "--export", "glb,ply", "--fps", "5", "--quiet"])  # fmt: skip
+    assert rc == 0, capsys.readouterr().err
+    assert (out / "overlay.gif").is_file()
+    gltf, blob = glb_json_and_blob(out / "animation.glb")
+    prim = gltf["meshes"][0]["primitives"][0]
+    assert len(prim["targets"]) == 5 and gltf["meshes"][0]["extras"]["targetNames"][-1] == "frame_4"
+    assert np.allclose(accessor(gltf, blob, gltf["animations"][0]["samplers"][0]["input"]), np.arange(5) / 5)
+    import trimesh
+
+    base = accessor(gltf, blob, prim["attributes"]["POSITION"])
+    for k in range(5):
+        lines = (out / "meshes" / f"frame_{k:012d}.obj").read_text().splitlines()
+        obj = np.array([[float(x) for x in ln.split()[1:]] for ln in lines if ln.startswith("v ")])  # every vertex
+        shown = base + accessor(gltf, blob, prim["targets"][k]["POSITION"])
+        assert np.allclose(shown, to_upright(obj), atol=1e-5), k
+        ply = trimesh.load(out / "meshes" / f"frame_{k:012d}.ply", process=False)
+        assert np.allclose(ply.vertices, to_upright(obj), atol=1e-5), k
+        assert shown[:, 1].max() > shown[:, 1].min() + 1.0
