@@ -96,3 +96,26 @@ def test_export_model_rejects_an_unknown_kind(tmp_path, capsys):
     with pytest.raises(SystemExit) as stop:
         main(["export-model", "smplh", str(tmp_path)])
     assert stop.value.code == 2 and not any(tmp_path.iterdir())
+
+
+def test_a_fitted_whole_body_params_file_goes_through_smplx_as_it_is(exported, tmp_path):
+    """The fit file (silfit.fitio: every parameter ``[frames, w]``, SMPL-X names) of a whole-body fit feeds
+    ``smplx.SMPLX(...)(**params)`` with no reshaping, and gives the fit's own mesh."""
+    from silfit.camera import Camera
+    from silfit.fitio import write_fit
+
+    ours = load_body_model(kind="smplx", dtype=torch.float64)
+    rng = np.random.default_rng(4)
+    fitted = {n: rng.normal(scale=0.2, size=(2, w)) for n, w in ours.parameter_sizes.items()}  # two frames
+    fitted["transl"] = np.array([[0.0, 0.2, 3.0], [0.1, 0.2, 3.0]])
+    with torch.no_grad():
+        verts = ours(**{n: torch.as_tensor(v) for n, v in fitted.items()}).vertices.numpy()
+    write_fit(tmp_path, fitted, [Camera.from_image_size(64, 64)], layout="wholebody", model=ours, vertices=verts)
+    npz = np.load(tmp_path / "params.npz")
+    names = [n for n in npz.files if n in ours.parameter_sizes]
+    assert str(npz["model"]) == "smplx" and sorted(names) == sorted(ours.parameter_sizes)
+    params = {n: torch.as_tensor(npz[n], dtype=torch.float64) for n in names}
+    theirs = smplx.SMPLX(str(exported / "smplx"), dtype=torch.float64, use_pca=False, num_expression_coeffs=16,
+                         num_betas=10, batch_size=2)  # fmt: skip
+    out = theirs(**params)
+    assert (out.vertices - torch.as_tensor(npz["vertices"], dtype=torch.float64)).abs().max() < 1e-4  # float32 file
