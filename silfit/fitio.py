@@ -13,7 +13,10 @@ Schema (``schema = "silfit-fit/2"``): one body over ``F`` frames seen by ``C`` v
                   camera_intrinsics [C, 4] (fx, fy, cx, cy), image_size [C, 2] (W, H),
                   camera_R [C, 3, 3], camera_t [C, 3] (world to camera, x_cam = R x + t),
                   vertices [F, V, 3], joints [F, J, 3], keypoints_2d [F, C, K, 2] (the fitted
-                  keypoints projected into each view), reprojection_error [F, C] (median px)
+                  keypoints projected into each view), reprojection_error [F, C] (median px);
+                  with a hand PCA in the model file, left_hand_pca / right_hand_pca [F, k]: the
+                  hand poses as the coefficients smplx takes with use_pca=True and
+                  num_pca_comps=k (the 45-D poses are for use_pca=False)
     params.json   the same parameters as nested lists, ``cameras`` (one object per view:
                   fx, fy, cx, cy, width, height, R, t, name) and ``camera`` (the first view),
                   model, layout, coordinates, frames, and the run's record (energies,
@@ -30,6 +33,7 @@ the file and the field) or ``FileNotFoundError``.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -232,6 +236,20 @@ def _file_sha256(source: str) -> str:
 _HASHES: Dict[tuple, str] = {}
 
 
+@functools.lru_cache(maxsize=4)
+def _hand_pca(source: str, sha256: str) -> Optional[Dict[str, np.ndarray]]:
+    """The model file's hand PCA, side -> components ``[k, 45]`` (``None`` without one or without
+    the file); ``sha256`` keys the cache to the file's content."""
+    if not sha256:
+        return None
+    from .body.io import load_model_arrays
+
+    extras = load_model_arrays(source).extras
+    if "hands_componentsl" not in extras:
+        return None
+    return {side: np.asarray(extras[f"hands_components{c}"], dtype=np.float64) for side, c in (("left", "l"), ("right", "r"))}
+
+
 def write_fit(
     folder: PathLike,
     params: Mapping[str, np.ndarray],
@@ -276,6 +294,11 @@ def write_fit(
             "frames": numbers, "views": np.array(names),
             "camera_intrinsics": np.array([[c.fx, c.fy, c.cx, c.cy] for c in cameras], np.float64),
             "image_size": np.array([[c.width, c.height] for c in cameras], np.int64), "camera_R": R, "camera_t": t}  # fmt: skip
+    pca = _hand_pca(rec["source"], rec["sha256"]) if "left_hand_pose" in rows else None
+    if pca:  # the hand poses also as the coefficients smplx's use_pca=True takes
+        for side, comps in pca.items():
+            coeffs = np.linalg.lstsq(comps.T, rows[f"{side}_hand_pose"].astype(np.float64).T, rcond=None)[0].T
+            meta[f"{side}_hand_pca"] = coeffs.astype(np.float32)  # [F, k]: coeffs @ components = the pose
     per_frame = {}
     for name, value, rank in (("vertices", vertices, 2), ("joints", joints, 2), ("keypoints_2d", keypoints_2d, 3),
                               ("reprojection_error", reprojection_error, 1)):  # fmt: skip

@@ -119,3 +119,10 @@ def test_a_fitted_whole_body_params_file_goes_through_smplx_as_it_is(exported, t
                          num_betas=10, batch_size=2)  # fmt: skip
     out = theirs(**params)
     assert (out.vertices - torch.as_tensor(npz["vertices"], dtype=torch.float64)).abs().max() < 1e-4  # float32 file
+    # the hands also as smplx's default PCA coefficients (all 45 components: exact)
+    assert npz["left_hand_pca"].shape == (2, 45) and npz["right_hand_pca"].shape == (2, 45)
+    pca = smplx.SMPLX(str(exported / "smplx"), dtype=torch.float64, use_pca=True, num_pca_comps=45,
+                      num_expression_coeffs=16, batch_size=2)  # fmt: skip
+    hands = {"left_hand_pose": torch.as_tensor(npz["left_hand_pca"], dtype=torch.float64),
+             "right_hand_pose": torch.as_tensor(npz["right_hand_pca"], dtype=torch.float64)}  # fmt: skip
+    assert (pca(**{**params, **hands}).vertices - out.vertices).abs().max() < 1e-4
