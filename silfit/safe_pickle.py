@@ -30,8 +30,9 @@ import io
 import os
 import pickle
 import pickletools
+import warnings
 import zipfile
-from typing import Any, Union
+from typing import Any, Optional, Union
 
 import numpy as np
 
@@ -41,6 +42,13 @@ __all__ = ["ChumpyStandIn", "SparseStandIn", "RestrictedUnpickler", "load_pickle
 
 #: Largest pickle or ``.npz`` file read (bytes). Official SMPL-X pickles are a few hundred MB.
 MAX_FILE_BYTES = 4 * 1024**3
+#: Most nesting of objects in a pickle (official model files: under 10).
+MAX_DEPTH = 32
+#: A pickle may unpack to at most ``MAX_EXPANSION`` times its size plus ``MAX_EXPANSION_EXTRA``
+#: bytes, every reference to a shared (memo) object counted again and every number and
+#: object 8 bytes: what a consumer that copies the value (``numpy.asarray``) allocates.
+MAX_EXPANSION = 8
+MAX_EXPANSION_EXTRA = 64 * 1024**2
 
 
 class _StandIn:
@@ -213,14 +221,185 @@ def load_pickle(path: Union[str, os.PathLike], what: str = "silfit input") -> An
     return _unpickle(data, source, what)
 
 
-def _unpickle(data: bytes, source: str, what: str) -> Any:
-    """Check the opcodes (every length prefix within the data, so nothing is allocated
-    for more bytes than the file holds), then unpickle with :class:`RestrictedUnpickler`."""
+class _Node:
+    """A container or object the pickle builds, as :func:`_measure` sees it: its own bytes
+    and what it holds (leaves are plain ints: their bytes)."""
+
+    __slots__ = ("own", "kids", "kind", "text")
+
+    def __init__(self, own: int, kids: list, kind: str, text: Optional[str] = None):
+        self.own, self.kids, self.kind, self.text = own, kids, kind, text
+
+
+_MARK = object()
+#: Opcodes that add what they pop to the object below them (the same object stays on the stack).
+_IN_PLACE = {"APPEND", "APPENDS", "SETITEM", "SETITEMS", "ADDITEMS", "BUILD"}
+_GETS = {"GET", "BINGET", "LONG_BINGET"}
+_PUTS = {"PUT", "BINPUT", "LONG_BINPUT"}
+#: What opcodes push that holds nothing else (a leaf of the value).
+_SCALARS = {"int", "int_or_bool", "bytes_or_str", "bytes", "bytearray", "None", "bool", "str", "float"}
+
+
+def _effect(op) -> tuple:
+    """(items popped below the MARK or None when it takes no MARK, items popped, whether it
+    pushes, whether what it pushes is a scalar)."""
+    before = [s.name for s in op.stack_before]
+    after = [s.name for s in op.stack_after]
+    return (before.index("mark") if "mark" in before else None, len(before), bool(after), bool(after) and after[0] in _SCALARS)
+
+
+_EFFECTS = {op.name: _effect(op) for op in pickletools.opcodes}
+
+
+def _leaf_bytes(arg) -> int:
+    return 8 + (len(arg) if isinstance(arg, (str, bytes, bytearray)) else 0)
+
+
+def _simulate(data: bytes) -> Any:
+    """Run the pickle's opcodes on a model of its stack and memo (nothing is built): the
+    value the pickle would return, as :class:`_Node` objects and leaf sizes, with every
+    memo reference pointing at the same node. Raises ``ValueError`` for a malformed pickle."""
+    stack: list = []
+    memo: dict = {}
+
+    def pop_to_mark() -> list:
+        for i in range(len(stack) - 1, -1, -1):
+            if stack[i] is _MARK:
+                items = stack[i + 1 :]
+                del stack[i:]
+                return items
+        raise ValueError("no MARK on the stack")
+
+    def pop(n: int) -> list:
+        if n > len(stack) or any(x is _MARK for x in stack[len(stack) - n :]):
+            raise ValueError("stack underflow")
+        items = stack[len(stack) - n :]
+        del stack[len(stack) - n :]
+        return items
+
+    with warnings.catch_warnings():  # protocol 0's string escapes, read once here and again by the unpickler
+        warnings.simplefilter("ignore", DeprecationWarning)
+        for op, arg, _pos in pickletools.genops(data):
+            name = op.name
+            if name == "MARK":
+                stack.append(_MARK)
+            elif name in _PUTS or name == "MEMOIZE":
+                if not stack or stack[-1] is _MARK:
+                    raise ValueError("memo store with an empty stack")
+                memo[len(memo) if name == "MEMOIZE" else arg] = stack[-1]
+            elif name in _GETS:
+                if arg not in memo:
+                    raise ValueError(f"memo key {arg} not found")
+                stack.append(memo[arg])
+            elif name == "DUP":
+                stack.extend(pop(1) * 2)
+            elif name == "STOP":
+                (root,) = pop(1)
+                return root
+            elif name in ("PROTO", "FRAME", "READONLY_BUFFER"):
+                continue
+            else:
+                below_mark, count, pushes, scalar = _EFFECTS[name]
+                if below_mark is None:
+                    taken = pop(count)
+                else:
+                    sliced = pop_to_mark()
+                    taken = pop(below_mark) + sliced
+                if name in _IN_PLACE:
+                    target = taken[0]
+                    if not isinstance(target, _Node):
+                        raise ValueError(f"{name} on a number or string")
+                    target.kids.extend(taken[1:])
+                    stack.append(target)
+                elif not pushes:
+                    continue  # POP, POP_MARK
+                elif taken or not scalar:
+                    stack.append(_Node(_leaf_bytes(arg), taken, name))
+                elif isinstance(arg, str) and len(arg) <= 64:
+                    stack.append(_Node(_leaf_bytes(arg), [], "str", arg))  # a possible dict key
+                else:
+                    stack.append(_leaf_bytes(arg))
+    raise ValueError("no STOP opcode")
+
+
+def _expanded(root) -> dict:
+    """Bytes and depth of every node below ``root``, each reference to a shared (memo)
+    object counted again, as a consumer that copies the value (``numpy.asarray`` on
+    nested lists) would; a reference back into a cycle counts 8 bytes. Iterative: the
+    nesting may be deep."""
+    sizes: dict = {}  # id(node) -> (bytes, depth); None while being visited
+    todo = [root]
+    while todo:
+        node = todo[-1]
+        key = id(node)
+        if key in sizes and sizes[key] is not None:
+            todo.pop()
+            continue
+        if key not in sizes:
+            sizes[key] = None
+            todo.extend(k for k in node.kids if isinstance(k, _Node) and id(k) not in sizes)
+            continue
+        total, depth = node.own, 0
+        for k in node.kids:
+            if isinstance(k, _Node):
+                got = sizes.get(id(k))
+                k_bytes, k_depth = got if got is not None else (8, 0)
+            else:
+                k_bytes, k_depth = k, 0
+            total += k_bytes
+            depth = max(depth, k_depth)
+        sizes[key] = (total, depth + 1)
+        todo.pop()
+    return sizes
+
+
+def _too_large_field(root, sizes: dict) -> Optional[str]:
+    """The top-level dict key whose value is largest (for the error message)."""
+    if not isinstance(root, _Node) or root.kind not in ("EMPTY_DICT", "DICT"):
+        return None
+    best, name = -1, None
+    for k, v in zip(root.kids[0::2], root.kids[1::2]):
+        size = sizes[id(v)][0] if isinstance(v, _Node) else v
+        if isinstance(k, _Node) and k.text is not None and size > best:
+            best, name = size, k.text
+    return name
+
+
+def expansion_limit(data_bytes: int) -> int:
+    """Most bytes a pickle of ``data_bytes`` may unpack to (see :data:`MAX_EXPANSION`)."""
+    return MAX_EXPANSION * data_bytes + MAX_EXPANSION_EXTRA
+
+
+def _check_bounds(data: bytes, source: str, what: str) -> None:
+    """Refuse, before anything is unpickled, a pickle that is malformed (every length
+    prefix must lie within the data), nested deeper than :data:`MAX_DEPTH`, or whose value,
+    counting each reference to a shared object again, exceeds :func:`expansion_limit`."""
     try:
-        for _ in pickletools.genops(data):
-            pass
+        root = _simulate(data)
     except Exception as err:  # noqa: BLE001 - ValueError / EOF of every kind: not a well-formed pickle
         raise InputError(source, f"cannot read this pickle as {what} (malformed: {err})") from None
+    if not isinstance(root, _Node):
+        return
+    sizes = _expanded(root)
+    total, depth = sizes[id(root)]
+    field = _too_large_field(root, sizes)
+    where = f", most of it field '{field}'" if field else ""
+    if depth > MAX_DEPTH:
+        raise InputError(source, f"refused this pickle as {what}: objects nested {depth} deep, more than the {MAX_DEPTH} silfit reads", field=field)
+    limit = expansion_limit(len(data))
+    if total > limit:
+        raise InputError(
+            source,
+            f"refused this pickle as {what}: it would unpack to {total / 1024**2:,.0f} MiB{where} (shared objects "
+            f"counted at every reference), more than the {limit / 1024**2:,.0f} MiB silfit allows for a {len(data):,}-byte pickle",
+            field=field,
+        )
+
+
+def _unpickle(data: bytes, source: str, what: str) -> Any:
+    """Check the opcodes and bound what they build (:func:`_check_bounds`), then unpickle
+    with :class:`RestrictedUnpickler`."""
+    _check_bounds(data, source, what)
     with io.BytesIO(data) as fh:
         try:
             return RestrictedUnpickler(fh, source, what).load()
