@@ -66,6 +66,8 @@ def run_sequence(args) -> int:
     if args.check_only:
         print(f"inputs OK: {len(seq.numbers)} frames ({seq.detected} with a person), {len(seq.masks)} masks, "
               f"{len(seq.images)} images")  # fmt: skip
+        for warning in seq.warnings:
+            print(f"warning: {warning}")
         return 0
     cfg = SequenceFitConfig()
     if args.sequence_iterations is not None:
@@ -77,7 +79,8 @@ def run_sequence(args) -> int:
         result = refine_sequence_silhouettes(model, result, seq.frames, masks, config=sil_config, pose_prior=pose_prior,
                                              progress=not args.quiet)  # fmt: skip
     extra = {"sequence": str(args.sequence), "model": model.source, "camera_source": camera_source,
-             "silhouette": "run" if masks is not None else "not run (no masks)" if not seq.masks else "not run (--no-silhouette)"}  # fmt: skip
+             "silhouette": "run" if masks is not None else "not run (no masks)" if not seq.masks else "not run (--no-silhouette)",
+             "warnings": [*seq.warnings, *result.warnings]}  # fmt: skip
     save_leaving_nothing_on_error(out, lambda: save_sequence_fit(
         result, out, model, seq, meshes=args.meshes, video=not args.no_video, fps=args.fps, extra_metrics=extra,
         overwrite=args.overwrite))  # fmt: skip
@@ -87,6 +90,6 @@ def run_sequence(args) -> int:
         if result.silhouette_iou is not None:
             line += f", silhouette IoU {result.silhouette_iou_start:.3f} -> {float(np.nanmean(result.silhouette_iou)):.3f}"
         print(line)
-        for warning in result.warnings:
+        for warning in extra["warnings"]:
             print(f"warning: {warning}")
     return 0
