@@ -27,7 +27,7 @@ from typing import Union
 import numpy as np
 import torch
 
-from .errors import InputError
+from .errors import InputError, quoted
 from .input_limits import image_size_problem, read_json
 
 __all__ = [
@@ -69,9 +69,8 @@ def _finite(value) -> bool:
         return False
 
 
-def _short(value, limit: int = 40) -> str:
-    text = repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
+def _short(value) -> str:
+    return quoted(value)
 
 
 def default_focal(width: int, height: int, factor: float = DEFAULT_FOCAL_FACTOR) -> float:

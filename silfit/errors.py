@@ -9,7 +9,10 @@ from __future__ import annotations
 import os
 from typing import Optional, Union
 
-__all__ = ["InputError", "UnsafeFileError"]
+__all__ = ["InputError", "UnsafeFileError", "quoted", "QUOTE_CHARS"]
+
+#: Most characters of a value read from a file that an error message quotes.
+QUOTE_CHARS = 24
 
 
 class InputError(ValueError):
@@ -26,3 +29,17 @@ class InputError(ValueError):
 class UnsafeFileError(InputError):
     """A file asked to run code or build an object silfit does not allow (a pickle
     naming a class outside the allow-list of :mod:`silfit.safe_pickle`)."""
+
+
+def quoted(value, limit: int = QUOTE_CHARS) -> str:
+    """A value read from a file, as an error message may quote it: at most ``limit``
+    characters of its text, escaped (``ascii``: no control characters, no non-ASCII), with
+    the length of what was left out. Messages end up in logs and ``failures.jsonl``, and a
+    file may hold anything (a manifest may name any file on the machine)."""
+    if isinstance(value, (bytes, bytearray, str)):
+        head = ascii(value[:limit])
+        return head if len(value) <= limit else f"{head[:-1]}...{head[-1]} ({len(value)} characters)"
+    if isinstance(value, (list, tuple, dict, set)):
+        return f"a {type(value).__name__} of {len(value)}"
+    text = ascii(value)
+    return text if len(text) <= limit else f"{text[:limit]}..."

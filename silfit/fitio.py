@@ -29,6 +29,7 @@ from typing import Dict, Iterable, Mapping, Optional, Union
 import numpy as np
 
 from .camera import Camera
+from .errors import quoted
 from .dataset import SubjectError
 
 __all__ = ["FIT_FILES", "PARAM_SIZES", "FitFile", "read_fit", "find_fit_file"]
@@ -118,7 +119,7 @@ def read_fit(
         from .keypoints import LAYOUTS
 
         if layout not in LAYOUTS:
-            raise SubjectError(f, "layout", f"unknown keypoint layout {layout!r} (expected {', '.join(LAYOUTS)})")
+            raise SubjectError(f, "layout", f"unknown keypoint layout {quoted(layout)} (expected {', '.join(LAYOUTS)})")
         out.layout = layout
     for name, last in ARRAY_FIELDS.items():
         if name in raw:
@@ -133,7 +134,7 @@ def read_fit(
         out.timings = _scalars(f, "timings", raw.get("timings", {}))
         if "flipped" in raw:
             if not isinstance(raw["flipped"], bool):
-                raise SubjectError(f, "flipped", f"must be true or false, got {raw['flipped']!r}")
+                raise SubjectError(f, "flipped", f"must be true or false, got {quoted(raw['flipped'])}")
             out.flipped = raw["flipped"]
         if "reprojection_error_px" in raw:
             out.reprojection_error = _scalars(f, "reprojection_error_px", {"v": raw["reprojection_error_px"]})["v"]
@@ -240,6 +241,6 @@ def _scalars(f: Path, name: str, value) -> Dict[str, float]:
     out = {}
     for k, v in value.items():
         if isinstance(v, bool) or not isinstance(v, (int, float)):  # NaN is allowed: a stage may not have run
-            raise SubjectError(f, f"{name}.{k}" if name != "reprojection_error_px" else name, f"must be a number, got {v!r}")
+            raise SubjectError(f, f"{name}.{k}" if name != "reprojection_error_px" else name, f"must be a number, got {quoted(v)}")
         out[str(k)] = float(v)
     return out

@@ -34,7 +34,7 @@ from typing import List, Optional, Tuple, Union
 import numpy as np
 
 from .camera import Camera, camera_from_dict
-from .errors import InputError
+from .errors import InputError, quoted
 from .fitting.problem import View
 from .input_limits import check_file_size, read_json
 
@@ -164,9 +164,9 @@ def read_cameras_json(path: PathLike) -> List[RigView]:
             raise InputError(where, "expected a JSON object", field=f"views[{i}]")
         name = v.get("name", f"view_{i}")
         if not isinstance(name, str) or not name or "/" in name or name in (".", ".."):
-            raise InputError(where, f"field 'name' must be a plain folder name, got {name!r}", field="name")
+            raise InputError(where, f"field 'name' must be a plain folder name, got {quoted(name)}", field="name")
         if name in names:
-            raise InputError(where, f"two views named {name!r}", field="name")
+            raise InputError(where, f"two views named {quoted(name)}", field="name")
         names.add(name)
         files = {}
         for key, default in (("keypoints", "keypoints.json"), ("mask", "mask.png"), ("image", "image.png")):

@@ -36,7 +36,7 @@ from typing import Any, Optional, Union
 
 import numpy as np
 
-from .errors import InputError, UnsafeFileError
+from .errors import InputError, UnsafeFileError, quoted
 
 __all__ = ["ChumpyStandIn", "SparseStandIn", "RestrictedUnpickler", "load_pickle", "load_npz", "to_numpy"]
 
@@ -116,7 +116,7 @@ def _latin1_encode(text, encoding="latin1", errors="strict"):
     """``_codecs.encode`` as protocol-2 pickles use it (``bytes`` objects), latin-1 only."""
     name = encoding.replace("-", "").replace("_", "").lower() if isinstance(encoding, str) else None
     if name not in ("latin1", "iso88591") or not isinstance(text, str):
-        raise pickle.UnpicklingError(f"_codecs.encode with encoding {encoding!r} is not allowed")
+        raise pickle.UnpicklingError(f"_codecs.encode with encoding {quoted(encoding)} is not allowed")
     return text.encode("latin1", errors)
 
 
