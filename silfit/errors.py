@@ -7,9 +7,10 @@ naming the field where there is one. The command line prints it and exits with s
 from __future__ import annotations
 
 import os
+import re
 from typing import Optional, Union
 
-__all__ = ["InputError", "UnsafeFileError", "quoted", "QUOTE_CHARS"]
+__all__ = ["InputError", "UnsafeFileError", "quoted", "cut_quotes", "QUOTE_CHARS"]
 
 #: Most characters of a value read from a file that an error message quotes.
 QUOTE_CHARS = 24
@@ -43,3 +44,17 @@ def quoted(value, limit: int = QUOTE_CHARS) -> str:
         return f"a {type(value).__name__} of {len(value)}"
     text = ascii(value)
     return text if len(text) <= limit else f"{text[:limit]}..."
+
+
+_QUOTE = re.compile(r"'((?:[^'\\]|\\.)*)'")  # a string as repr() writes it, as library messages quote values
+
+
+def cut_quotes(message: str, limit: int = QUOTE_CHARS) -> str:
+    """A library's message (numpy's "could not convert string to float: '...'") with every
+    quoted string cut to ``limit`` characters, as :func:`quoted` cuts silfit's own quotes."""
+
+    def cut(m):
+        body = m.group(1)
+        return m.group(0) if len(body) <= limit else f"'{body[:limit]}...' ({len(body)} characters)"
+
+    return _QUOTE.sub(cut, message)

@@ -19,6 +19,13 @@ the official files need and refuses everything else **before it is called**, wit
   :func:`to_numpy` turns them into dense arrays (the sparse ones through scipy's own
   format checks). No scipy or chumpy object is ever built from a file's state.
 
+Before anything is unpickled, :func:`_check_bounds` runs the opcodes on a model of the
+unpickler's stack and memo (building nothing) and refuses a pickle whose value, counting
+every reference to a shared object again (as ``numpy.asarray`` on nested lists would copy
+it), exceeds ``MAX_EXPANSION`` times its size plus ``MAX_EXPANSION_EXTRA`` bytes, or
+whose objects nest more than ``MAX_DEPTH`` deep: a 1 KB pickle of lists nested 10 deep
+through memo references (10**10 floats) is refused, naming the file and the field.
+
 Python 2 names (``copy_reg``, ``__builtin__``) are mapped to their Python 3 names first,
 as the standard unpickler does.
 """
@@ -36,7 +43,7 @@ from typing import Any, Optional, Union
 
 import numpy as np
 
-from .errors import InputError, UnsafeFileError, quoted
+from .errors import InputError, UnsafeFileError, cut_quotes, quoted
 
 __all__ = ["ChumpyStandIn", "SparseStandIn", "RestrictedUnpickler", "load_pickle", "load_npz", "to_numpy"]
 
@@ -222,13 +229,18 @@ def load_pickle(path: Union[str, os.PathLike], what: str = "silfit input") -> An
 
 
 class _Node:
-    """A container or object the pickle builds, as :func:`_measure` sees it: its own bytes
-    and what it holds (leaves are plain ints: their bytes)."""
+    """A container or object the pickle builds, as :func:`_check_bounds` sees it: its own
+    bytes, what it holds and the opcode that made it. Leaves are not nodes: a short string
+    is itself (a possible dict key, for the message), anything else an int (its bytes)."""
 
-    __slots__ = ("own", "kids", "kind", "text")
+    __slots__ = ("own", "kids", "kind")
 
-    def __init__(self, own: int, kids: list, kind: str, text: Optional[str] = None):
-        self.own, self.kids, self.kind, self.text = own, kids, kind, text
+    def __init__(self, own: int, kids: list, kind: str):
+        self.own, self.kids, self.kind = own, kids, kind
+
+
+def _leaf_size(leaf) -> int:
+    return 8 + len(leaf) if isinstance(leaf, str) else leaf
 
 
 _MARK = object()
@@ -316,7 +328,7 @@ def _simulate(data: bytes) -> Any:
                 elif taken or not scalar:
                     stack.append(_Node(_leaf_bytes(arg), taken, name))
                 elif isinstance(arg, str) and len(arg) <= 64:
-                    stack.append(_Node(_leaf_bytes(arg), [], "str", arg))  # a possible dict key
+                    stack.append(arg)  # a possible dict key (the str genops made: nothing new is kept)
                 else:
                     stack.append(_leaf_bytes(arg))
     raise ValueError("no STOP opcode")
@@ -345,7 +357,7 @@ def _expanded(root) -> dict:
                 got = sizes.get(id(k))
                 k_bytes, k_depth = got if got is not None else (8, 0)
             else:
-                k_bytes, k_depth = k, 0
+                k_bytes, k_depth = _leaf_size(k), 0
             total += k_bytes
             depth = max(depth, k_depth)
         sizes[key] = (total, depth + 1)
@@ -353,15 +365,16 @@ def _expanded(root) -> dict:
     return sizes
 
 
-def _too_large_field(root, sizes: dict) -> Optional[str]:
-    """The top-level dict key whose value is largest (for the error message)."""
+def _top_field(root, sizes: dict, measure: int) -> Optional[str]:
+    """The top-level dict key whose value is largest (``measure`` 0) or deepest (1), for
+    the error message; ``None`` when the value is not a dict with string keys."""
     if not isinstance(root, _Node) or root.kind not in ("EMPTY_DICT", "DICT"):
         return None
     best, name = -1, None
     for k, v in zip(root.kids[0::2], root.kids[1::2]):
-        size = sizes[id(v)][0] if isinstance(v, _Node) else v
-        if isinstance(k, _Node) and k.text is not None and size > best:
-            best, name = size, k.text
+        size = sizes[id(v)][measure] if isinstance(v, _Node) else (_leaf_size(v), 0)[measure]
+        if isinstance(k, str) and size > best:
+            best, name = size, k
     return name
 
 
@@ -377,16 +390,19 @@ def _check_bounds(data: bytes, source: str, what: str) -> None:
     try:
         root = _simulate(data)
     except Exception as err:  # noqa: BLE001 - ValueError / EOF of every kind: not a well-formed pickle
-        raise InputError(source, f"cannot read this pickle as {what} (malformed: {err})") from None
+        raise InputError(source, f"cannot read this pickle as {what} (malformed: {cut_quotes(str(err))})") from None
     if not isinstance(root, _Node):
         return
     sizes = _expanded(root)
     total, depth = sizes[id(root)]
-    field = _too_large_field(root, sizes)
-    where = f", most of it field '{field}'" if field else ""
     if depth > MAX_DEPTH:
-        raise InputError(source, f"refused this pickle as {what}: objects nested {depth} deep, more than the {MAX_DEPTH} silfit reads", field=field)
+        field = _top_field(root, sizes, 1)
+        where = f" (field '{field}')" if field else ""
+        raise InputError(source, f"refused this pickle as {what}: objects nested {depth} deep{where}, more than the "
+                         f"{MAX_DEPTH} silfit reads", field=field)  # fmt: skip
     limit = expansion_limit(len(data))
+    field = _top_field(root, sizes, 0)
+    where = f", most of it field '{field}'" if field else ""
     if total > limit:
         raise InputError(
             source,
@@ -410,7 +426,7 @@ def _unpickle(data: bytes, source: str, what: str) -> Any:
         except MemoryError:
             raise InputError(source, f"cannot read this pickle as {what} (it asks for more memory than there is)") from None
         except Exception as err:  # noqa: BLE001 - any other unpickling failure is a bad file
-            raise InputError(source, f"cannot read this pickle as {what} ({type(err).__name__}: {err})") from None
+            raise InputError(source, f"cannot read this pickle as {what} ({type(err).__name__}: {cut_quotes(str(err))})") from None
 
 
 def _npz_member_with_objects(zf: zipfile.ZipFile, key: str, source: str, what: str) -> np.ndarray:

@@ -37,7 +37,7 @@ from typing import Dict, List, Optional, Union
 import numpy as np
 
 from ..camera import Camera, load_camera
-from ..errors import QUOTE_CHARS, quoted
+from ..errors import cut_quotes, quoted
 from ..errors import InputError as BaseInputError
 from ..dataset import SUBJECT_FILES, SubjectError, list_subjects, read_image, read_mask
 from ..keypoints import KeypointSet, read_keypoints
@@ -59,23 +59,16 @@ class InputError(ValueError):
 
 #: Longest message recorded for an item (``failures.jsonl``).
 MAX_MESSAGE_CHARS = 300
-_QUOTE = re.compile(r"'([^'\\]|\\.)*'")  # a repr'd string, as library messages quote values
 
 
 def short_message(message: str, library: bool = False) -> str:
     """``message`` on one line, at most :data:`MAX_MESSAGE_CHARS` characters. A
     ``library`` message (not silfit's own, whose readers quote what a file holds through
-    :func:`silfit.errors.quoted`) has every quoted string cut the same way, e.g. numpy's
-    "could not convert string to float: '...'": a manifest may name any file."""
+    :func:`silfit.errors.quoted`) has its quoted strings cut too
+    (:func:`silfit.errors.cut_quotes`): a manifest may name any file."""
     text = " ".join(str(message).split())
-    if library:
-        text = _QUOTE.sub(lambda m: _cut(m.group(0)[1:-1]), text)
+    text = cut_quotes(text) if library else text
     return text if len(text) <= MAX_MESSAGE_CHARS else text[: MAX_MESSAGE_CHARS - 3] + "..."
-
-
-def _cut(body: str) -> str:
-    """A quoted string of a library's message (already escaped, as ``repr`` writes it), cut."""
-    return f"'{body}'" if len(body) <= QUOTE_CHARS else f"'{body[:QUOTE_CHARS]}...' ({len(body)} characters)"
 
 
 class ItemError(Exception):
