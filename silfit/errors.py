@@ -40,8 +40,6 @@ def quoted(value, limit: int = QUOTE_CHARS) -> str:
     if isinstance(value, (bytes, bytearray, str)):
         head = ascii(value[:limit])
         return head if len(value) <= limit else f"{head[:-1]}...{head[-1]} ({len(value)} characters)"
-    if isinstance(value, (list, tuple, dict, set)):
-        return f"a {type(value).__name__} of {len(value)}"
     text = ascii(value)
     return text if len(text) <= limit else f"{text[:limit]}..."
 

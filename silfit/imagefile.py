@@ -23,7 +23,7 @@ import numpy as np
 from .errors import InputError
 from .input_limits import check_image_size
 
-__all__ = ["image_file_size", "read_pixels", "read_rgb", "to_rgb8"]
+__all__ = ["image_file_size", "pixels_to_rgb8", "read_pixels", "read_rgb", "to_rgb8"]
 
 _NATIVE = ("L", "LA", "RGB", "RGBA")
 _SIXTEEN_BIT = ("I;16", "I;16L", "I;16B", "I;16N")
@@ -96,7 +96,12 @@ def to_rgb8(im, source: str, what: str = "image") -> np.ndarray:
     reads, 16-bit values scaled (not clipped) to 8 bits; other modes refused (naming ``source``)."""
     if im.mode == "CMYK":
         raise InputError(source, f"{what} is in CMYK; silfit reads greyscale, RGB and RGBA images (convert it to RGB first)")
-    arr = _native(im, source, what)
+    return pixels_to_rgb8(_native(im, source, what))
+
+
+def pixels_to_rgb8(arr: np.ndarray) -> np.ndarray:
+    """:func:`read_pixels`' layouts as RGB ``uint8 [H, W, 3]`` (grey repeated, alpha
+    dropped, 16-bit values scaled: ``v / 257``, rounded)."""
     if arr.dtype == np.uint16:
         arr = ((arr.astype(np.uint32) * 255 + 32767) // 65535).astype(np.uint8)  # v / 257, rounded: 65535 -> 255
     if arr.ndim == 2:

@@ -57,7 +57,8 @@ class Photo:
     def warnings(self) -> List[str]:
         """What was ignored in the file: a malformed EXIF block, an implausible focal length."""
         focal, source = self.focal()
-        return self.notes + ([f"{self.path}: {source}"] if focal is None and _IGNORED in source else [])
+        ignored = focal is None and _exif_focal(self.exif, self.size, self.stored_width)[0] is not None
+        return self.notes + ([f"{self.path}: {source}"] if ignored else [])
 
 
 def _number(value) -> Optional[float]:
@@ -122,9 +123,6 @@ def _focal_tags(im, problems: list) -> dict:
     return exif
 
 
-_IGNORED = "ignored, the default focal length max(W, H) used"
-
-
 def focal_from_exif(exif: dict, size: Tuple[int, int], stored_width: int = 0) -> Tuple[Optional[float], str]:
     """The focal length in pixels from EXIF tags (see the module docstring) for an image of
     ``size = (W, H)``; ``(None, reason)`` when the tags do not give one or it lies outside
@@ -135,7 +133,7 @@ def focal_from_exif(exif: dict, size: Tuple[int, int], stored_width: int = 0) ->
     side = max(size)
     if focal is not None and not FOCAL_RANGE[0] * side <= focal <= FOCAL_RANGE[1] * side:
         return None, (f"{source} gives {focal:.4g} px, {focal / side:.3g} times the image's longer side (expected "
-                      f"{FOCAL_RANGE[0]:g} to {FOCAL_RANGE[1]:g} times, as for a camera file): {_IGNORED}")  # fmt: skip
+                      f"{FOCAL_RANGE[0]:g} to {FOCAL_RANGE[1]:g} times, as for a camera file): ignored, the default focal length max(W, H) used")  # fmt: skip
     return focal, source
 
 

@@ -303,11 +303,9 @@ def _synthetic_items(subjects: List[Path], people):
 
 
 def _manifest_rows(path: Path) -> List[dict]:
-    from ..input_limits import MAX_JSON_BYTES
+    from ..input_limits import MAX_JSON_BYTES, check_file_size
 
-    size = path.stat().st_size
-    if size > MAX_JSON_BYTES:
-        raise InputError(f"{path}: the manifest is {size / 1024**2:.0f} MiB, more than the {MAX_JSON_BYTES / 1024**2:.0f} MiB silfit reads")
+    check_file_size(path, MAX_JSON_BYTES, "the manifest")
     data = path.read_bytes()
     try:
         text = data.decode("utf-8")
