@@ -269,10 +269,20 @@ def _leaf_bytes(arg) -> int:
 
 def _simulate(data: bytes) -> Any:
     """Run the pickle's opcodes on a model of its stack and memo (nothing is built): the
-    value the pickle would return, as :class:`_Node` objects and leaf sizes, with every
-    memo reference pointing at the same node. Raises ``ValueError`` for a malformed pickle."""
+    value the pickle would return, as :class:`_Node` objects and leaves, with every memo
+    reference pointing at the same node. Raises ``ValueError`` for a malformed pickle."""
     stack: list = []
     memo: dict = {}
+    push = stack.append
+
+    def pop(n: int) -> list:
+        if n > len(stack):
+            raise ValueError("stack underflow")
+        items = stack[len(stack) - n :]
+        del stack[len(stack) - n :]
+        if _MARK in items:
+            raise ValueError("a MARK where an object was expected")
+        return items
 
     def pop_to_mark() -> list:
         for i in range(len(stack) - 1, -1, -1):
@@ -282,19 +292,18 @@ def _simulate(data: bytes) -> Any:
                 return items
         raise ValueError("no MARK on the stack")
 
-    def pop(n: int) -> list:
-        if n > len(stack) or any(x is _MARK for x in stack[len(stack) - n :]):
-            raise ValueError("stack underflow")
-        items = stack[len(stack) - n :]
-        del stack[len(stack) - n :]
-        return items
-
     with warnings.catch_warnings():  # protocol 0's string escapes, read once here and again by the unpickler
         warnings.simplefilter("ignore", DeprecationWarning)
         for op, arg, _pos in pickletools.genops(data):
             name = op.name
-            if name == "MARK":
-                stack.append(_MARK)
+            below_mark, count, pushes, scalar = _EFFECTS[name]
+            if scalar and not count:  # a number or a string: the commonest opcodes
+                if type(arg) is str and len(arg) <= 64:
+                    push(arg)  # a possible dict key (the str genops made: nothing new is kept)
+                else:
+                    push(8 + len(arg) if isinstance(arg, (str, bytes, bytearray)) else 8)
+            elif name == "MARK":
+                push(_MARK)
             elif name in _PUTS or name == "MEMOIZE":
                 if not stack or stack[-1] is _MARK:
                     raise ValueError("memo store with an empty stack")
@@ -302,7 +311,7 @@ def _simulate(data: bytes) -> Any:
             elif name in _GETS:
                 if arg not in memo:
                     raise ValueError(f"memo key {arg} not found")
-                stack.append(memo[arg])
+                push(memo[arg])
             elif name == "DUP":
                 stack.extend(pop(1) * 2)
             elif name == "STOP":
@@ -311,7 +320,6 @@ def _simulate(data: bytes) -> Any:
             elif name in ("PROTO", "FRAME", "READONLY_BUFFER"):
                 continue
             else:
-                below_mark, count, pushes, scalar = _EFFECTS[name]
                 if below_mark is None:
                     taken = pop(count)
                 else:
@@ -322,15 +330,9 @@ def _simulate(data: bytes) -> Any:
                     if not isinstance(target, _Node):
                         raise ValueError(f"{name} on a number or string")
                     target.kids.extend(taken[1:])
-                    stack.append(target)
-                elif not pushes:
-                    continue  # POP, POP_MARK
-                elif taken or not scalar:
-                    stack.append(_Node(_leaf_bytes(arg), taken, name))
-                elif isinstance(arg, str) and len(arg) <= 64:
-                    stack.append(arg)  # a possible dict key (the str genops made: nothing new is kept)
-                else:
-                    stack.append(_leaf_bytes(arg))
+                    push(target)
+                elif pushes:  # (POP and POP_MARK push nothing)
+                    push(_Node(_leaf_bytes(arg), taken, name))
     raise ValueError("no STOP opcode")
 
 
@@ -344,22 +346,27 @@ def _expanded(root) -> dict:
     while todo:
         node = todo[-1]
         key = id(node)
-        if key in sizes and sizes[key] is not None:
-            todo.pop()
-            continue
-        if key not in sizes:
+        if key not in sizes:  # first visit: its nodes first
             sizes[key] = None
-            todo.extend(k for k in node.kids if isinstance(k, _Node) and id(k) not in sizes)
+            todo.extend(k for k in node.kids if type(k) is _Node and id(k) not in sizes)
+            continue
+        if sizes[key] is not None:  # reached again through another reference: done
+            todo.pop()
             continue
         total, depth = node.own, 0
         for k in node.kids:
-            if isinstance(k, _Node):
-                got = sizes.get(id(k))
-                k_bytes, k_depth = got if got is not None else (8, 0)
+            kind = type(k)
+            if kind is int:
+                total += k
+            elif kind is str:
+                total += 8 + len(k)
             else:
-                k_bytes, k_depth = _leaf_size(k), 0
-            total += k_bytes
-            depth = max(depth, k_depth)
+                got = sizes.get(id(k))
+                if got is None:  # a reference back into a cycle
+                    total += 8
+                else:
+                    total += got[0]
+                    depth = max(depth, got[1])
         sizes[key] = (total, depth + 1)
         todo.pop()
     return sizes
