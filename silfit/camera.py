@@ -27,7 +27,7 @@ from typing import Optional, Tuple, Union
 import numpy as np
 import torch
 
-from .errors import InputError
+from .errors import InputError, quoted
 from .input_limits import image_size_problem, read_json
 
 __all__ = [
@@ -71,11 +71,6 @@ def _finite(value) -> bool:
         return False
 
 
-def _short(value, limit: int = 40) -> str:
-    text = repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
 def default_focal(width: int, height: int, factor: float = DEFAULT_FOCAL_FACTOR) -> float:
     """The documented default focal length for an image of the given size."""
     return float(factor) * float(max(width, height))
@@ -96,7 +91,7 @@ class Camera:
         for name in _FIELDS:
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not _finite(value):
-                raise ValueError(f"camera field '{name}' must be a finite number, got {_short(value)}")
+                raise ValueError(f"camera field '{name}' must be a finite number, got {quoted(value)}")
         if self.fx <= 0 or self.fy <= 0:
             raise ValueError(f"camera focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
         if int(self.width) != self.width or int(self.height) != self.height or self.width <= 0 or self.height <= 0:
@@ -122,11 +117,11 @@ class Camera:
         try:
             fx, fy, cx, cy = (float(v) for v in np.asarray(intrinsics, dtype=np.float64).reshape(-1))
         except (TypeError, ValueError):
-            raise ValueError(f"camera_intrinsics must be 4 numbers (fx, fy, cx, cy), got {_short(intrinsics)}") from None
+            raise ValueError(f"camera_intrinsics must be 4 numbers (fx, fy, cx, cy), got {quoted(intrinsics)}") from None
         try:
             width, height = (float(v) for v in np.asarray(image_size, dtype=np.float64).reshape(-1))
         except (TypeError, ValueError):
-            raise ValueError(f"image_size must be 2 numbers (width, height), got {_short(image_size)}") from None
+            raise ValueError(f"image_size must be 2 numbers (width, height), got {quoted(image_size)}") from None
         if not (_finite(width) and _finite(height)) or int(width) != width or int(height) != height:
             raise ValueError(f"camera width/height must be positive integers, got {width}x{height}")
         return cls(fx=fx, fy=fy, cx=cx, cy=cy, width=int(width), height=int(height))

@@ -176,12 +176,9 @@ def read_mask(path: PathLike, size: Optional[Sequence[int]] = None) -> np.ndarra
 
 def read_image(path: PathLike, size: Optional[Sequence[int]] = None) -> np.ndarray:
     """Read an image as ``uint8 [H, W, 3]`` RGB."""
-    arr = _read_png(path, "image")
-    if arr.ndim == 2:
-        arr = np.repeat(arr[..., None], 3, axis=2)
-    arr = arr[..., :3]
-    if arr.dtype != np.uint8:
-        arr = (arr.astype(np.float64) / np.iinfo(arr.dtype).max * 255).round().astype(np.uint8)
+    from .imagefile import pixels_to_rgb8
+
+    arr = pixels_to_rgb8(_read_png(path, "image"))
     _check_size(path, "image", arr, size)
     return arr
 

@@ -7,9 +7,13 @@ naming the field where there is one. The command line prints it and exits with s
 from __future__ import annotations
 
 import os
+import re
 from typing import Optional, Union
 
-__all__ = ["InputError", "UnsafeFileError"]
+__all__ = ["InputError", "UnsafeFileError", "quoted", "cut_quotes", "QUOTE_CHARS"]
+
+#: Most characters of a value read from a file that an error message quotes.
+QUOTE_CHARS = 24
 
 # Every bad input silfit reports is an InputError: files and fields (here), command-line
 # options (silfit.cli.CLIError is this class), dataset inputs (silfit.runner), subject
@@ -33,3 +37,29 @@ class InputError(ValueError):
 class UnsafeFileError(InputError):
     """A file asked to run code or build an object silfit does not allow (a pickle
     naming a class outside the allow-list of :mod:`silfit.safe_pickle`)."""
+
+
+def quoted(value, limit: int = QUOTE_CHARS) -> str:
+    """A value read from a file, as an error message may quote it: at most ``limit``
+    characters of its text, escaped (``ascii``: no control characters, no non-ASCII), with
+    the length of what was left out. Messages end up in logs and ``failures.jsonl``, and a
+    file may hold anything (a manifest may name any file on the machine)."""
+    if isinstance(value, (bytes, bytearray, str)):
+        head = ascii(value[:limit])
+        return head if len(value) <= limit else f"{head[:-1]}...{head[-1]} ({len(value)} characters)"
+    text = ascii(value)
+    return text if len(text) <= limit else f"{text[:limit]}..."
+
+
+_QUOTE = re.compile(r"'((?:[^'\\]|\\.)*)'")  # a string as repr() writes it, as library messages quote values
+
+
+def cut_quotes(message: str, limit: int = QUOTE_CHARS) -> str:
+    """A library's message (numpy's "could not convert string to float: '...'") with every
+    quoted string cut to ``limit`` characters, as :func:`quoted` cuts silfit's own quotes."""
+
+    def cut(m):
+        body = m.group(1)
+        return m.group(0) if len(body) <= limit else f"'{body[:limit]}...' ({len(body)} characters)"
+
+    return _QUOTE.sub(cut, message)

@@ -45,6 +45,7 @@ from typing import Dict, Iterable, List, Mapping, Optional, Sequence, Tuple, Uni
 import numpy as np
 
 from .camera import Camera
+from .errors import quoted
 from .dataset import SubjectError
 
 __all__ = ["FIT_FILES", "PARAM_SIZES", "SCHEMA", "FitFile", "find_fit_file", "model_record", "read_fit", "write_fit"]
@@ -181,13 +182,13 @@ def read_fit(
         from .keypoints import LAYOUTS
 
         if layout not in LAYOUTS:
-            raise SubjectError(f, "layout", f"unknown keypoint layout {layout!r} (expected {', '.join(LAYOUTS)})")
+            raise SubjectError(f, "layout", f"unknown keypoint layout {quoted(layout)} (expected {', '.join(LAYOUTS)})")
         out.layout = layout
     for key in ("coordinates", "frame"):  # "frame": silfit-fit/1's name (rig fits)
         if key in raw:
             value = _text(raw[key])
             if value not in COORDINATES:
-                raise SubjectError(f, key, f"expected one of {', '.join(COORDINATES)}, got {value[:40]!r}")
+                raise SubjectError(f, key, f"expected one of {', '.join(COORDINATES)}, got {quoted(value)}")
             out.coordinates = value
             break
     if "frames" in raw:
@@ -205,7 +206,7 @@ def read_fit(
         key = "start_flipped" if "start_flipped" in raw else "flipped"  # silfit-fit/1 called it "flipped"
         if key in raw:
             if not isinstance(raw[key], bool):
-                raise SubjectError(f, key, f"must be true or false, got {raw[key]!r}")
+                raise SubjectError(f, key, f"must be true or false, got {quoted(raw[key])}")
             out.flipped = raw[key]
         if "reprojection_error_px" in raw:
             out.reprojection_error = _scalars(f, "reprojection_error_px", {"v": raw["reprojection_error_px"]})["v"]
@@ -434,7 +435,7 @@ def _model(f: Path, raw: dict) -> Optional[dict]:
     else:
         rec = {"kind": _text(m), "source": _text(raw.get("model_source", "")), "sha256": _text(raw.get("model_sha256", ""))}
     if rec["kind"] not in ("smpl", "smplx"):
-        raise SubjectError(f, "model", f"unknown model kind {rec['kind'][:40]!r} (expected smpl or smplx)")
+        raise SubjectError(f, "model", f"unknown model kind {quoted(rec['kind'])} (expected smpl or smplx)")
     return rec
 
 
@@ -501,6 +502,6 @@ def _scalars(f: Path, name: str, value) -> Dict[str, float]:
     out = {}
     for k, v in value.items():
         if isinstance(v, bool) or not isinstance(v, (int, float)):  # NaN is allowed: a stage may not have run
-            raise SubjectError(f, f"{name}.{k}" if name != "reprojection_error_px" else name, f"must be a number, got {v!r}")
+            raise SubjectError(f, f"{name}.{k}" if name != "reprojection_error_px" else name, f"must be a number, got {quoted(v)}")
         out[str(k)] = float(v)
     return out

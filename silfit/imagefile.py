@@ -8,7 +8,9 @@ decoder chatter on stderr.
 :func:`read_pixels` keeps the file's own layout (greyscale ``[H, W]``, grey+alpha
 ``[H, W, 2]``, RGB ``[H, W, 3]``, RGBA ``[H, W, 4]``; ``uint8``, or ``uint16`` for 16-bit
 greyscale); palettes become RGB(A); 32-bit integer greyscale is accepted when its values
-fit 16 bits. Float, CMYK and other colour spaces are refused.
+fit 16 bits. Float, CMYK and other colour spaces are refused. :func:`read_rgb` (and
+:func:`to_rgb8`, for an image already open) takes the same modes to RGB ``uint8``, 16-bit
+values scaled to 8 bits (``v / 257``, so 65535 is 255), not clipped.
 """
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ import numpy as np
 from .errors import InputError
 from .input_limits import check_image_size
 
-__all__ = ["image_file_size", "read_pixels", "read_rgb"]
+__all__ = ["image_file_size", "pixels_to_rgb8", "read_pixels", "read_rgb", "to_rgb8"]
 
 _NATIVE = ("L", "LA", "RGB", "RGBA")
 _SIXTEEN_BIT = ("I;16", "I;16L", "I;16B", "I;16N")
@@ -89,6 +91,27 @@ def read_pixels(path: Union[str, os.PathLike], what: str = "image") -> np.ndarra
     return _decoded(path, what)
 
 
+def to_rgb8(im, source: str, what: str = "image") -> np.ndarray:
+    """An open Pillow image as RGB ``uint8 [H, W, 3]``: the modes :func:`read_pixels`
+    reads, 16-bit values scaled (not clipped) to 8 bits; other modes refused (naming ``source``)."""
+    if im.mode == "CMYK":
+        raise InputError(source, f"{what} is in CMYK; silfit reads greyscale, RGB and RGBA images (convert it to RGB first)")
+    return pixels_to_rgb8(_native(im, source, what))
+
+
+def pixels_to_rgb8(arr: np.ndarray) -> np.ndarray:
+    """:func:`read_pixels`' layouts as RGB ``uint8 [H, W, 3]`` (grey repeated, alpha
+    dropped, 16-bit values scaled: ``v / 257``, rounded)."""
+    if arr.dtype == np.uint16:
+        arr = ((arr.astype(np.uint32) * 255 + 32767) // 65535).astype(np.uint8)  # v / 257, rounded: 65535 -> 255
+    if arr.ndim == 2:
+        arr = arr[..., None]
+    if arr.shape[2] in (1, 2):  # grey, grey + alpha
+        arr = np.repeat(arr[..., :1], 3, axis=2)
+    return np.ascontiguousarray(arr[..., :3])
+
+
 def read_rgb(path: Union[str, os.PathLike], what: str = "image") -> np.ndarray:
-    """The decoded image as RGB ``uint8 [H, W, 3]``."""
-    return _decoded(path, what, convert=lambda im: np.asarray(im.convert("RGB")))
+    """The decoded image as RGB ``uint8 [H, W, 3]`` (see :func:`to_rgb8`)."""
+    source = os.fspath(path)
+    return _decoded(path, what, convert=lambda im: to_rgb8(im, source, what))

@@ -15,7 +15,7 @@ from typing import Optional, Union
 import numpy as np
 import torch
 
-from .errors import InputError
+from .errors import InputError, quoted
 from .input_limits import read_json
 
 __all__ = [
@@ -192,7 +192,7 @@ def _triplets(values, source: str, field: str) -> np.ndarray:
         flat = values
     for i, v in enumerate(flat):
         if not _number(v):
-            shown = repr(v) if not isinstance(v, (list, dict)) else type(v).__name__
+            shown = quoted(v) if not isinstance(v, (list, dict)) else type(v).__name__
             raise InputError(source, f"field '{field}' value {i} is {shown}, expected a number", field=field)
     if len(flat) % 3:
         raise InputError(source, f"field '{field}' holds {len(flat)} numbers, not a multiple of 3 (x, y, confidence)", field)

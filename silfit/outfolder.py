@@ -29,8 +29,18 @@ def atomic_folder(out: Union[str, os.PathLike], overwrite: bool = False) -> Iter
         old = None
         if out.exists():  # set the old output aside first, so a crash here never loses both
             old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
-            os.replace(out, old / out.name)
-        os.replace(tmp, out)
+            try:
+                os.replace(out, old / out.name)
+            except OSError as err:  # e.g. a read-only folder (moving a folder writes its '..')
+                old.rmdir()
+                raise OSError(err.errno, f"{err.strerror}: cannot replace the existing output folder (read-only?)", str(out)) from None
+        try:
+            os.replace(tmp, out)
+        except OSError:
+            if old is not None:  # put the earlier output back
+                os.replace(old / out.name, out)
+                old.rmdir()
+            raise
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
     except BaseException:

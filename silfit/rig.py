@@ -36,7 +36,7 @@ import numpy as np
 from .camera import (  # noqa: F401  (extrinsics_from_dict: re-exported, rig manifests name it)
     _check_t, camera_from_dict, check_rotation, extrinsics_from_dict, read_camera_file,
 )
-from .errors import InputError
+from .errors import InputError, quoted
 from .fitting.problem import View
 from .input_limits import check_file_size, read_json
 
@@ -110,9 +110,9 @@ def read_cameras_json(path: PathLike) -> List[RigView]:
             raise InputError(where, "expected a JSON object", field=f"views[{i}]")
         name = v.get("name", f"view_{i}")
         if not isinstance(name, str) or not name or "/" in name or name in (".", ".."):
-            raise InputError(where, f"field 'name' must be a plain folder name, got {name!r}", field="name")
+            raise InputError(where, f"field 'name' must be a plain folder name, got {quoted(name)}", field="name")
         if name in names:
-            raise InputError(where, f"two views named {name!r}", field="name")
+            raise InputError(where, f"two views named {quoted(name)}", field="name")
         names.add(name)
         files = {}
         for key, default in (("keypoints", "keypoints.json"), ("mask", "mask.png"), ("image", "image.png")):

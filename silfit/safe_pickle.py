@@ -19,6 +19,13 @@ the official files need and refuses everything else **before it is called**, wit
   :func:`to_numpy` turns them into dense arrays (the sparse ones through scipy's own
   format checks). No scipy or chumpy object is ever built from a file's state.
 
+Before anything is unpickled, :func:`_check_bounds` runs the opcodes on a model of the
+unpickler's stack and memo (building nothing) and refuses a pickle whose value, counting
+every reference to a shared object again (as ``numpy.asarray`` on nested lists would copy
+it), exceeds ``MAX_EXPANSION`` times its size plus ``MAX_EXPANSION_EXTRA`` bytes, or
+whose objects nest more than ``MAX_DEPTH`` deep: a 1 KB pickle of lists nested 10 deep
+through memo references (10**10 floats) is refused, naming the file and the field.
+
 Python 2 names (``copy_reg``, ``__builtin__``) are mapped to their Python 3 names first,
 as the standard unpickler does.
 """
@@ -30,17 +37,25 @@ import io
 import os
 import pickle
 import pickletools
+import warnings
 import zipfile
-from typing import Any, Union
+from typing import Any, Optional, Union
 
 import numpy as np
 
-from .errors import InputError, UnsafeFileError
+from .errors import InputError, UnsafeFileError, cut_quotes, quoted
 
 __all__ = ["ChumpyStandIn", "SparseStandIn", "RestrictedUnpickler", "load_pickle", "load_npz", "to_numpy"]
 
 #: Largest pickle or ``.npz`` file read (bytes). Official SMPL-X pickles are a few hundred MB.
 MAX_FILE_BYTES = 4 * 1024**3
+#: Most nesting of objects in a pickle (official model files: under 10).
+MAX_DEPTH = 32
+#: A pickle may unpack to at most ``MAX_EXPANSION`` times its size plus ``MAX_EXPANSION_EXTRA``
+#: bytes, every reference to a shared (memo) object counted again and every number and
+#: object 8 bytes: what a consumer that copies the value (``numpy.asarray``) allocates.
+MAX_EXPANSION = 8
+MAX_EXPANSION_EXTRA = 64 * 1024**2
 
 
 class _StandIn:
@@ -108,7 +123,7 @@ def _latin1_encode(text, encoding="latin1", errors="strict"):
     """``_codecs.encode`` as protocol-2 pickles use it (``bytes`` objects), latin-1 only."""
     name = encoding.replace("-", "").replace("_", "").lower() if isinstance(encoding, str) else None
     if name not in ("latin1", "iso88591") or not isinstance(text, str):
-        raise pickle.UnpicklingError(f"_codecs.encode with encoding {encoding!r} is not allowed")
+        raise pickle.UnpicklingError(f"_codecs.encode with encoding {quoted(encoding)} is not allowed")
     return text.encode("latin1", errors)
 
 
@@ -213,14 +228,201 @@ def load_pickle(path: Union[str, os.PathLike], what: str = "silfit input") -> An
     return _unpickle(data, source, what)
 
 
-def _unpickle(data: bytes, source: str, what: str) -> Any:
-    """Check the opcodes (every length prefix within the data, so nothing is allocated
-    for more bytes than the file holds), then unpickle with :class:`RestrictedUnpickler`."""
+class _Node:
+    """A container or object the pickle builds, as :func:`_check_bounds` sees it: its own
+    bytes, what it holds and the opcode that made it. Leaves are not nodes: a short string
+    is itself (a possible dict key, for the message), anything else an int (its bytes)."""
+
+    __slots__ = ("own", "kids", "kind")
+
+    def __init__(self, own: int, kids: list, kind: str):
+        self.own, self.kids, self.kind = own, kids, kind
+
+
+def _leaf_size(leaf) -> int:
+    return 8 + len(leaf) if isinstance(leaf, str) else leaf
+
+
+_MARK = object()
+#: Opcodes that add what they pop to the object below them (the same object stays on the stack).
+_IN_PLACE = {"APPEND", "APPENDS", "SETITEM", "SETITEMS", "ADDITEMS", "BUILD"}
+_GETS = {"GET", "BINGET", "LONG_BINGET"}
+_PUTS = {"PUT", "BINPUT", "LONG_BINPUT"}
+#: What opcodes push that holds nothing else (a leaf of the value).
+_SCALARS = {"int", "int_or_bool", "bytes_or_str", "bytes", "bytearray", "None", "bool", "str", "float"}
+
+
+def _effect(op) -> tuple:
+    """(items popped below the MARK or None when it takes no MARK, items popped, whether it
+    pushes, whether what it pushes is a scalar)."""
+    before = [s.name for s in op.stack_before]
+    after = [s.name for s in op.stack_after]
+    return (before.index("mark") if "mark" in before else None, len(before), bool(after), bool(after) and after[0] in _SCALARS)
+
+
+_EFFECTS = {op.name: _effect(op) for op in pickletools.opcodes}
+
+
+def _leaf_bytes(arg) -> int:
+    return 8 + (len(arg) if isinstance(arg, (str, bytes, bytearray)) else 0)
+
+
+def _simulate(data: bytes) -> Any:
+    """Run the pickle's opcodes on a model of its stack and memo (nothing is built): the
+    value the pickle would return, as :class:`_Node` objects and leaves, with every memo
+    reference pointing at the same node. Raises ``ValueError`` for a malformed pickle."""
+    stack: list = []
+    memo: dict = {}
+    push = stack.append
+
+    def pop(n: int) -> list:
+        if n > len(stack):
+            raise ValueError("stack underflow")
+        items = stack[len(stack) - n :]
+        del stack[len(stack) - n :]
+        if _MARK in items:
+            raise ValueError("a MARK where an object was expected")
+        return items
+
+    def pop_to_mark() -> list:
+        for i in range(len(stack) - 1, -1, -1):
+            if stack[i] is _MARK:
+                items = stack[i + 1 :]
+                del stack[i:]
+                return items
+        raise ValueError("no MARK on the stack")
+
+    with warnings.catch_warnings():  # protocol 0's string escapes, read once here and again by the unpickler
+        warnings.simplefilter("ignore", DeprecationWarning)
+        for op, arg, _pos in pickletools.genops(data):
+            name = op.name
+            below_mark, count, pushes, scalar = _EFFECTS[name]
+            if scalar and not count:  # a number or a string: the commonest opcodes
+                if type(arg) is str and len(arg) <= 64:
+                    push(arg)  # a possible dict key (the str genops made: nothing new is kept)
+                else:
+                    push(8 + len(arg) if isinstance(arg, (str, bytes, bytearray)) else 8)
+            elif name == "MARK":
+                push(_MARK)
+            elif name in _PUTS or name == "MEMOIZE":
+                if not stack or stack[-1] is _MARK:
+                    raise ValueError("memo store with an empty stack")
+                memo[len(memo) if name == "MEMOIZE" else arg] = stack[-1]
+            elif name in _GETS:
+                if arg not in memo:
+                    raise ValueError(f"memo key {arg} not found")
+                push(memo[arg])
+            elif name == "DUP":
+                stack.extend(pop(1) * 2)
+            elif name == "STOP":
+                (root,) = pop(1)
+                return root
+            elif name in ("PROTO", "FRAME", "READONLY_BUFFER"):
+                continue
+            else:
+                if below_mark is None:
+                    taken = pop(count)
+                else:
+                    sliced = pop_to_mark()
+                    taken = pop(below_mark) + sliced
+                if name in _IN_PLACE:
+                    target = taken[0]
+                    if not isinstance(target, _Node):
+                        raise ValueError(f"{name} on a number or string")
+                    target.kids.extend(taken[1:])
+                    push(target)
+                elif pushes:  # (POP and POP_MARK push nothing)
+                    push(_Node(_leaf_bytes(arg), taken, name))
+    raise ValueError("no STOP opcode")
+
+
+def _expanded(root) -> dict:
+    """Bytes and depth of every node below ``root``, each reference to a shared (memo)
+    object counted again, as a consumer that copies the value (``numpy.asarray`` on
+    nested lists) would; a reference back into a cycle counts 8 bytes. Iterative: the
+    nesting may be deep."""
+    sizes: dict = {}  # id(node) -> (bytes, depth); None while being visited
+    todo = [root]
+    while todo:
+        node = todo[-1]
+        key = id(node)
+        if key not in sizes:  # first visit: its nodes first
+            sizes[key] = None
+            todo.extend(k for k in node.kids if type(k) is _Node and id(k) not in sizes)
+            continue
+        if sizes[key] is not None:  # reached again through another reference: done
+            todo.pop()
+            continue
+        total, depth = node.own, 0
+        for k in node.kids:
+            kind = type(k)
+            if kind is int:
+                total += k
+            elif kind is str:
+                total += 8 + len(k)
+            else:
+                got = sizes.get(id(k))
+                if got is None:  # a reference back into a cycle
+                    total += 8
+                else:
+                    total += got[0]
+                    depth = max(depth, got[1])
+        sizes[key] = (total, depth + 1)
+        todo.pop()
+    return sizes
+
+
+def _top_field(root, sizes: dict, measure: int) -> Optional[str]:
+    """The top-level dict key whose value is largest (``measure`` 0) or deepest (1), for
+    the error message; ``None`` when the value is not a dict with string keys."""
+    if not isinstance(root, _Node) or root.kind not in ("EMPTY_DICT", "DICT"):
+        return None
+    best, name = -1, None
+    for k, v in zip(root.kids[0::2], root.kids[1::2]):
+        size = sizes[id(v)][measure] if isinstance(v, _Node) else (_leaf_size(v), 0)[measure]
+        if isinstance(k, str) and size > best:
+            best, name = size, k
+    return name
+
+
+def expansion_limit(data_bytes: int) -> int:
+    """Most bytes a pickle of ``data_bytes`` may unpack to (see :data:`MAX_EXPANSION`)."""
+    return MAX_EXPANSION * data_bytes + MAX_EXPANSION_EXTRA
+
+
+def _check_bounds(data: bytes, source: str, what: str) -> None:
+    """Refuse, before anything is unpickled, a pickle that is malformed (every length
+    prefix must lie within the data), nested deeper than :data:`MAX_DEPTH`, or whose value,
+    counting each reference to a shared object again, exceeds :func:`expansion_limit`."""
     try:
-        for _ in pickletools.genops(data):
-            pass
+        root = _simulate(data)
     except Exception as err:  # noqa: BLE001 - ValueError / EOF of every kind: not a well-formed pickle
-        raise InputError(source, f"cannot read this pickle as {what} (malformed: {err})") from None
+        raise InputError(source, f"cannot read this pickle as {what} (malformed: {cut_quotes(str(err))})") from None
+    if not isinstance(root, _Node):
+        return
+    sizes = _expanded(root)
+    total, depth = sizes[id(root)]
+    if depth > MAX_DEPTH:
+        field = _top_field(root, sizes, 1)
+        where = f" (field '{field}')" if field else ""
+        raise InputError(source, f"refused this pickle as {what}: objects nested {depth} deep{where}, more than the "
+                         f"{MAX_DEPTH} silfit reads", field=field)  # fmt: skip
+    limit = expansion_limit(len(data))
+    field = _top_field(root, sizes, 0)
+    where = f", most of it field '{field}'" if field else ""
+    if total > limit:
+        raise InputError(
+            source,
+            f"refused this pickle as {what}: it would unpack to {total / 1024**2:,.0f} MiB{where} (shared objects "
+            f"counted at every reference), more than the {limit / 1024**2:,.0f} MiB silfit allows for a {len(data):,}-byte pickle",
+            field=field,
+        )
+
+
+def _unpickle(data: bytes, source: str, what: str) -> Any:
+    """Check the opcodes and bound what they build (:func:`_check_bounds`), then unpickle
+    with :class:`RestrictedUnpickler`."""
+    _check_bounds(data, source, what)
     with io.BytesIO(data) as fh:
         try:
             return RestrictedUnpickler(fh, source, what).load()
@@ -231,7 +433,7 @@ def _unpickle(data: bytes, source: str, what: str) -> Any:
         except MemoryError:
             raise InputError(source, f"cannot read this pickle as {what} (it asks for more memory than there is)") from None
         except Exception as err:  # noqa: BLE001 - any other unpickling failure is a bad file
-            raise InputError(source, f"cannot read this pickle as {what} ({type(err).__name__}: {err})") from None
+            raise InputError(source, f"cannot read this pickle as {what} ({type(err).__name__}: {cut_quotes(str(err))})") from None
 
 
 def _npz_member_with_objects(zf: zipfile.ZipFile, key: str, source: str, what: str) -> np.ndarray:

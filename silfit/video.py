@@ -9,6 +9,15 @@ the number in their names; a number missing between the first and the last is a 
 with no detection, as is a file whose ``people`` list is empty (OpenPose writes those when
 nobody is seen). Masks and images are matched to frames by the same number (the last run
 of digits in their name).
+
+Refused (an :class:`~silfit.errors.InputError` naming the file): a keypoint, mask or image
+file with no frame number in its name; files of two videos in one folder (two name stems,
+e.g. ``a_000000000000_keypoints.json`` and ``b_000000000000_keypoints.json``); more than
+:data:`MAX_GAP` frame numbers missing in a row (a stray file from elsewhere would otherwise
+make the sequence, and the memory it takes, as long as its number: fit the parts
+separately); no mask or image matching any frame. Warned of
+(:attr:`SequenceInput.warnings`): frames with a person but no mask, masks and images for
+frame numbers the keypoints do not have (ignored).
 """
 from __future__ import annotations
 
@@ -32,6 +41,8 @@ IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 MAX_FRAMES = 100_000
 #: Sub-folders of a video folder that hold the per-frame keypoint files, in order of preference.
 KEYPOINT_FOLDERS = ("keypoints", "openpose")
+#: Most frame numbers missing in a row (frames without detection, bridged by the fit).
+MAX_GAP = 100
 
 
 def frame_number(name: str) -> Optional[int]:
@@ -57,10 +68,32 @@ class SequenceInput:
     masks: Dict[int, Path] = field(default_factory=dict)
     images: Dict[int, Path] = field(default_factory=dict)
     camera: Optional[Path] = None
+    warnings: List[str] = field(default_factory=list)
 
     @property
     def detected(self) -> int:
         return sum(ks is not None for ks in self.frames)
+
+
+def _name_stem(name: str) -> str:
+    """What a per-frame file's name holds besides its frame number (the video's name)."""
+    m = _KEYPOINTS.match(name)
+    if m:
+        return m.group("stem")
+    stem = Path(name).stem
+    m = _DIGITS.search(stem)
+    return stem[: m.start()].rstrip("_-. ") if m else stem
+
+
+def _one_video(files: Dict[int, Path], what: str, folder: Path) -> None:
+    """Refuse the per-frame files of two videos in one folder (two name stems)."""
+    stems: Dict[str, List[int]] = {}
+    for n, p in sorted(files.items()):
+        stems.setdefault(_name_stem(p.name), []).append(n)
+    if len(stems) > 1:
+        (a, fa), (b, fb), *_ = sorted(stems.items(), key=lambda kv: -len(kv[1]))
+        raise InputError(folder, f"{what} files of {len(stems)} videos in one folder: '{a}' (frames {fa[0]}..{fa[-1]}) and "
+                         f"'{b}' (frames {fb[0]}..{fb[-1]}); give each video's files their own folder")  # fmt: skip
 
 
 def _numbered(folder: Path, what: str) -> Dict[int, Path]:
@@ -74,7 +107,41 @@ def _numbered(folder: Path, what: str) -> Dict[int, Path]:
         if n in out:
             raise InputError(p, f"two {what} files for frame {n}: {out[n].name} and {p.name}")
         out[n] = p
+    _one_video(out, what, folder)
     return out
+
+
+def _check_gaps(numbered: Dict[int, Path], folder: Path) -> None:
+    """Refuse a run of more than :data:`MAX_GAP` missing frame numbers (naming the file after it)."""
+    ordered = sorted(numbered)
+    for before, after in zip(ordered, ordered[1:]):
+        if after - before - 1 > MAX_GAP:
+            raise InputError(numbered[after], f"frame {after} comes {after - before - 1} missing frames after frame {before} "
+                             f"(at most {MAX_GAP} are bridged); is it from another video? Fit the parts separately")  # fmt: skip
+    if ordered[-1] - ordered[0] + 1 > MAX_FRAMES:
+        raise InputError(folder, f"frames {ordered[0]}..{ordered[-1]}: more than {MAX_FRAMES} frames")
+
+
+def _match(files: Dict[int, Path], numbers: List[int], frames: list, what: str, folder: Path) -> List[str]:
+    """Warnings for per-frame ``files`` (masks or images) that do not match the frames;
+    an error when none does."""
+    if not files:
+        return []
+    have = set(numbers)
+    extra = sorted(set(files) - have)
+    if len(extra) == len(files):
+        raise InputError(folder, f"no {what} file matches a frame: {what}s for frames {extra[0]}..{extra[-1]}, keypoints "
+                         f"for {numbers[0]}..{numbers[-1]} (is it another video's folder?)")  # fmt: skip
+    out = [f"{folder}: {len(extra)} {what}(s) for frames the keypoints do not have, ignored: {_listed(extra)}"] if extra else []
+    missing = [n for n, ks in zip(numbers, frames) if ks is not None and n not in files]
+    if missing:
+        effect = "no silhouette term there" if what == "mask" else "drawn without the image"
+        out.append(f"{folder}: no {what} for {len(missing)} frame(s) with a person ({effect}): {_listed(missing)}")
+    return out
+
+
+def _listed(numbers: List[int], most: int = 10) -> str:
+    return ", ".join(map(str, numbers[:most])) + (f", ... ({len(numbers) - most} more)" if len(numbers) > most else "")
 
 
 def read_sequence(folder: Union[str, os.PathLike], masks: Optional[Union[str, os.PathLike]] = None,
@@ -90,15 +157,17 @@ def read_sequence(folder: Union[str, os.PathLike], masks: Optional[Union[str, os
     if not files:
         raise InputError(kp_dir, "no OpenPose per-frame files (*_keypoints.json) in the folder")
     numbered = {}
-    for i, p in enumerate(files):
+    for p in files:
         n = frame_number(p.name)
-        n = i if n is None else n
+        if n is None:
+            raise InputError(p, "keypoint file name has no frame number (expected <video>_<frame, 12 digits>_keypoints.json, "
+                             "as OpenPose writes for a video)")  # fmt: skip
         if n in numbered:
             raise InputError(p, f"two keypoint files for frame {n}: {numbered[n].name} and {p.name}")
         numbered[n] = p
+    _one_video(numbered, "keypoint", kp_dir)
+    _check_gaps(numbered, kp_dir)
     first, last = min(numbered), max(numbered)
-    if last - first + 1 > MAX_FRAMES:
-        raise InputError(kp_dir, f"frames {first}..{last}: more than {MAX_FRAMES} frames")
     numbers = list(range(first, last + 1))
     frames: List[Optional[KeypointSet]] = []
     for n in numbers:
@@ -126,8 +195,9 @@ def read_sequence(folder: Union[str, os.PathLike], masks: Optional[Union[str, os
         if d is not None and not d.is_dir():
             raise FileNotFoundError(f"{d}: no such folder ({what})")
     cam = next((d / "camera.json" for d in (kp_dir, side) if d is not None and (d / "camera.json").is_file()), None)
-    return SequenceInput(root, numbers, frames, [numbered.get(n) for n in numbers],
-                         _numbered(mdir, "mask") if mdir else {}, _numbered(idir, "image") if idir else {}, cam)  # fmt: skip
+    mask_files, image_files = _numbered(mdir, "mask") if mdir else {}, _numbered(idir, "image") if idir else {}
+    warnings = _match(mask_files, numbers, frames, "mask", mdir) + _match(image_files, numbers, frames, "image", idir)
+    return SequenceInput(root, numbers, frames, [numbered.get(n) for n in numbers], mask_files, image_files, cam, warnings)
 
 
 # ----------------------------------------------------------------------------- writing a sequence fit

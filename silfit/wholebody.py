@@ -171,8 +171,8 @@ class WholeBodyKeypoints:
 def _part_array(values, count: int, source: str, field: str) -> Optional[np.ndarray]:
     if values is None:
         return None
-    if np.asarray(values).size == 0:
-        return None  # OpenPose writes [] for a part it was not asked to detect
+    if isinstance(values, list) and not values:
+        return None  # OpenPose writes [] for a part it was not asked to detect (anything else: _triplets checks it)
     arr = _triplets(values, source, field)
     if arr.shape[0] != count:
         raise ValueError(f"{source}: field '{field}' has {arr.shape[0]} keypoints, expected {count}")

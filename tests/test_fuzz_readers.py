@@ -23,6 +23,7 @@ from silfit.camera import Camera, load_camera  # noqa: E402
 from silfit.fitio import read_fit  # noqa: E402
 from silfit.errors import InputError  # noqa: E402
 from silfit.keypoints import KeypointSet, read_keypoints  # noqa: E402
+from silfit.safe_pickle import MAX_DEPTH, expansion_limit, load_pickle  # noqa: E402
 from silfit.silhouette import read_mask  # noqa: E402
 
 
@@ -214,6 +215,73 @@ def test_model_reader(replace, drop, as_pickle, flip, cut):
         arrays_out = _check_clean(lambda: load_model_arrays(path), path)
         if arrays_out is not None:
             assert np.isfinite(arrays_out.v_template).all() and arrays_out.num_joints >= 1
+
+
+def _expanded_size(value) -> tuple:
+    """Bytes (8 per number, string and container) and nesting of ``value``, every reference
+    to a shared object counted again (what ``numpy.asarray`` would copy); a reference back
+    into a cycle counts 8 bytes. An independent count, to check the unpickler's bound."""
+    done: dict = {}
+
+    def walk(v, path: frozenset) -> tuple:
+        if not isinstance(v, (list, tuple, dict, set, frozenset)):
+            return 8, 0
+        if id(v) in path:
+            return 8, 0
+        if id(v) in done:
+            return done[id(v)]
+        items = [x for kv in v.items() for x in kv] if isinstance(v, dict) else list(v)
+        inner = [walk(x, path | {id(v)}) for x in items]
+        done[id(v)] = result = (8 + sum(b for b, _ in inner), 1 + max((d for _, d in inner), default=0))
+        return result
+
+    return walk(value, frozenset())
+
+
+@st.composite
+def _object_graphs(draw):
+    """Lists that hold numbers and each other: shared (pickled as memo references), nested
+    in chains, in cycles; the first is the value pickled."""
+    n = draw(st.integers(1, 40))
+    nodes = [[] for _ in range(n)]
+    if draw(st.booleans()):  # a chain, each list holding the next ``width`` times: the issue's memory bomb
+        width = draw(st.integers(1, 12))
+        for i in range(n - 1):
+            nodes[i].extend([nodes[i + 1]] * width)
+        nodes[-1].extend([0.5] * width)
+        return nodes[0]
+    for i, node in enumerate(nodes):
+        for _ in range(draw(st.integers(0, 12))):
+            kind = draw(st.sampled_from(["number", "later", "later", "any"]))
+            if kind == "number" or (kind == "later" and i == n - 1):
+                node.append(draw(st.floats(allow_nan=False) | st.integers(-(2**40), 2**40)))
+            else:
+                low = i + 1 if kind == "later" else 0  # "later": a DAG (nesting, memo reuse); "any": cycles too
+                node.append(nodes[draw(st.integers(low, n - 1))])
+    if draw(st.booleans()):
+        nodes[0] = tuple(nodes[0]) if draw(st.booleans()) else {"v_template": nodes[0], "f": list(range(3))}
+    return nodes[0]
+
+
+@FUZZ
+@given(value=_object_graphs(), protocol=st.integers(0, 5), flip=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), max_size=2))
+def test_pickle_memo_and_nesting_are_bounded(value, protocol, flip):
+    """Whatever shared, nested or cyclic structure a pickle holds (and a few flipped bytes),
+    the restricted unpickler returns a value within its bounds, or refuses the file cleanly."""
+    data = bytearray(pickle.dumps(value, protocol=protocol))
+    for where, byte in flip:
+        data[int(where * (len(data) - 1))] = byte
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "model.pkl"
+        path.write_bytes(bytes(data))
+        result = _check_clean(lambda: load_pickle(path), path)
+    if result is not None:
+        size, depth = _expanded_size(result)
+        assert size <= expansion_limit(len(data)) and depth <= MAX_DEPTH
+    elif not flip:  # an intact pickle is refused only for its size or nesting
+        size, depth = _expanded_size(value)
+        assert size > expansion_limit(len(data)) or depth > MAX_DEPTH
+        event("refused: too large" if size > expansion_limit(len(data)) else "refused: nested too deeply")
 
 
 @pytest.mark.parametrize("reader", [read_keypoints, load_camera, read_mask, read_params, load_model_arrays])

@@ -195,3 +195,56 @@ def test_a_pickle_cannot_allocate_more_than_it_holds(tmp_path):
         path.write_bytes(pickle.dumps({"a": np.arange(12.0).reshape(3, 4), "s": np.float32(2)}, protocol=protocol))
         value = load_pickle(path)
         assert np.array_equal(value["a"], np.arange(12.0).reshape(3, 4)) and value["s"] == 2
+
+
+def _nested_by_memo(depth: int, width: int = 10):
+    """A list nested ``depth`` deep, each level holding the next ``width`` times: pickled as
+    one list and memo references, a few hundred bytes for ``width ** depth`` numbers."""
+    value = [0.0] * width
+    for _ in range(depth - 1):
+        value = [value] * width
+    return value
+
+
+def test_a_memo_bomb_is_refused_before_anything_is_unpickled(tmp_path, monkeypatch):
+    """The issue's model file: v_template nested 10 deep through memo references (10**10
+    floats in a 1 KB pickle) is refused with the file and the field, before unpickling."""
+    path = tmp_path / "SMPL_NEUTRAL.pkl"
+    path.write_bytes(pickle.dumps(dict(official_arrays(), v_template=_nested_by_memo(10)), protocol=2))
+    assert len(pickle.dumps(_nested_by_memo(10), protocol=2)) < 1024
+
+    def never(self):
+        raise AssertionError("unpickled a refused file")
+
+    monkeypatch.setattr(RestrictedUnpickler, "load", never)
+    with pytest.raises(InputError) as info:
+        load_body_model(path)
+    message = str(info.value)
+    assert message.startswith(str(path)) and "'v_template'" in message and "MiB" in message and "\n" not in message
+    assert info.value.field == "v_template"
+
+
+def test_memo_reuse_and_nesting_within_the_bounds_still_load(tmp_path):
+    path = tmp_path / "p.pkl"
+    shared = np.arange(6.0)
+    path.write_bytes(pickle.dumps({"a": shared, "b": shared, "n": _nested_by_memo(5)}, protocol=2))  # 10**5 floats
+    value = load_pickle(path)
+    assert value["a"] is value["b"] and np.asarray(value["n"]).shape == (10,) * 5
+    cyclic = [1.0]
+    cyclic.append(cyclic)
+    path.write_bytes(pickle.dumps(cyclic, protocol=2))
+    value = load_pickle(path)
+    assert value[1] is value  # a cycle is small; whoever reads it as an array gets numpy's own error
+
+
+def test_a_pickle_nested_too_deeply_is_refused(tmp_path):
+    from silfit.safe_pickle import MAX_DEPTH
+
+    path = tmp_path / "deep.pkl"
+    path.write_bytes(pickle.dumps({"v_template": _nested_by_memo(MAX_DEPTH + 5, width=1)}, protocol=2))
+    with pytest.raises(InputError, match=r"deep\.pkl.*nested 3\d deep.*more than the 32"):
+        load_pickle(path)
+    # and ten thousand levels (where a recursive reader would overflow its stack) the same way
+    path.write_bytes(b"\x80\x02" + b"]" * 10_000 + b"a" * 9_999 + b".")
+    with pytest.raises(InputError, match=r"deep\.pkl.*nested 10000 deep"):
+        load_pickle(path)

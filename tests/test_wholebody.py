@@ -68,6 +68,9 @@ def test_round_trip_and_absent_parts(tmp_path):
         (lambda p: p.update(face_keypoints_2d=[]), "'face_keypoints_2d' is missing or empty"),
         (lambda p: p.pop("pose_keypoints_2d"), r"'people\[0\].pose_keypoints_2d' is missing"),
         (lambda p: p["hand_left_keypoints_2d"].__setitem__(2, -0.5), "negative confidences"),
+        # a ragged nested array: numpy's "inhomogeneous shape" before, with neither file nor field
+        (lambda p: p["hand_left_keypoints_2d"].__setitem__(1, [1.0, [2.0, 3.0]]), r"'people\[0\].hand_left_keypoints_2d' value 1 is list"),
+        (lambda p: p.update(hand_left_keypoints_2d=[[1.0, 2.0, 0.5]] * 20 + [[1.0, 2.0]]), r"hand_left_keypoints_2d\[20\]' has 2 values"),
     ],
 )
 def test_bad_files_fail_clearly(tmp_path, edit, message):

@@ -7,8 +7,10 @@ the parsed ``argparse.Namespace`` and returning an exit code).
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import importlib.util
+import os
 import sys
 
 #: Subcommands in the order ``silfit --help`` lists them.
@@ -48,6 +50,22 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Errors only writing raises: with no file named, they concern the output folder.
+_WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS}
+
+
+def _describe(err: Exception, args) -> str:
+    """The error's line: an error of the system as ``<path>: <reason>`` (a full disk names
+    the output folder, the only place silfit writes)."""
+    if isinstance(err, OSError) and err.strerror:
+        path = err.filename
+        if path is None and err.errno in _WRITE_ERRNOS and getattr(args, "out", None):
+            return f"{args.out}: {err.strerror} (writing the output)"
+        if path is not None:
+            return f"{os.fspath(path)}: {err.strerror}"
+    return str(err)
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -60,7 +78,7 @@ def main(argv=None) -> int:
         try:
             return int(args.func(args) or 0)
         except (OSError, ValueError) as err:  # bad input: silfit.errors.InputError (CLIError) is a ValueError
-            print(f"silfit {args.command}: error: {' '.join(str(err).split())}", file=sys.stderr)
+            print(f"silfit {args.command}: error: {' '.join(_describe(err, args).split())}", file=sys.stderr)
             return 2
         except MemoryError:
             print(f"silfit {args.command}: error: out of memory (is an input far larger than intended?)", file=sys.stderr)

@@ -43,6 +43,8 @@ def run(args) -> int:
     photo, people = detect_photo(args.image, DetectConfig(min_score=args.min_score, max_people=args.people))
     save_detection(out, photo, people, layout=args.layout, overwrite=args.overwrite)
     print(f"wrote {out}: {len(people)} person(s) in {args.image} ({photo.size[0]}x{photo.size[1]})")
+    for warning in photo.warnings():
+        warn(warning)
     for i, p in enumerate(people):
         for warning in p.warnings():
             warn(f"person {i}: {warning}")
@@ -72,6 +74,7 @@ def photo_inputs(image_path: str, person, detect: bool, want_mask: bool) -> dict
         out["metrics"]["detection"] = {"people_found": len(people), "person": index or 0, **summary}
     else:
         photo = read_photo(image_path)
+    out["warnings"] = [*photo.warnings(), *out["warnings"]]
     out["image"], out["size"] = photo.image, photo.size
     out["focal"], out["focal_source"] = photo.focal()
     return out

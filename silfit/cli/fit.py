@@ -218,7 +218,7 @@ def run(args) -> int:
         from ..plausibility import check_keypoints
 
         _, warnings = check_keypoints(inp.keypoints, inp.camera.size if inp.camera else inp.size)
-        for warning in warnings:
+        for warning in (inp.photo["warnings"] if inp.photo else []) + warnings:
             warn(warning)
         print("inputs OK")
         return 0
@@ -228,7 +228,7 @@ def run(args) -> int:
     extra = {"keypoints": args.keypoints and os.fspath(args.keypoints), "mask": args.mask, "image": args.image,
              "model": model.source, "camera_source": inp.camera_source}  # fmt: skip
     photo = inp.photo
-    if photo and photo["metrics"]:
+    if photo and (photo["metrics"] or photo["warnings"]):
         extra.update(photo["metrics"], warnings=photo["warnings"] + result.metrics.get("warnings", []))
         result.metrics["warnings"] = extra["warnings"]
     save_leaving_nothing_on_error(

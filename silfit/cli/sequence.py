@@ -83,6 +83,8 @@ def run_sequence(args) -> int:
             warn(warning)
         print(f"inputs OK: {len(seq.numbers)} frames ({seq.detected} with a person), {len(seq.masks)} masks, "
               f"{len(seq.images)} images; camera: {camera_source} (fx {camera.fx:g}, {camera.width}x{camera.height})")  # fmt: skip
+        for warning in seq.warnings:
+            warn(warning)
         return 0
     cfg = SequenceFitConfig()
     if args.sequence_iterations is not None:
@@ -93,9 +95,10 @@ def run_sequence(args) -> int:
 
         result = refine_sequence_silhouettes(model, result, seq.frames, masks, config=sil_config, pose_prior=pose_prior,
                                              progress=not args.quiet)  # fmt: skip
-    result.warnings = input_warnings + list(result.warnings)
+    result.warnings = list(seq.warnings) + input_warnings + list(result.warnings)
     extra = {"sequence": str(args.sequence), "model": model.source, "camera_source": camera_source,
-             "silhouette": "run" if masks is not None else "not run (no masks)" if not seq.masks else "not run (--no-silhouette)"}  # fmt: skip
+             "silhouette": "run" if masks is not None else "not run (no masks)" if not seq.masks else "not run (--no-silhouette)",
+             "warnings": [*seq.warnings, *result.warnings]}  # fmt: skip
     save_leaving_nothing_on_error(out, lambda: save_sequence_fit(
         result, out, model, seq, meshes=args.meshes, video=not args.no_video, fps=args.fps, extra_metrics=extra,
         overwrite=args.overwrite, exports=export_formats(args)))  # fmt: skip

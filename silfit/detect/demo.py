@@ -58,7 +58,7 @@ def run_photo_demo(out: Path, photo_path: Optional[Path] = None, progress: bool 
     faces = model.faces.cpu().numpy()
     result = fit(keypoints, mask, None, image_size=photo.size, focal=focal, model=model,
                  silhouette_config=silhouette_config, progress=progress)  # fmt: skip
-    warnings = [f"detection: {w}" for w in person.warnings()] + result.metrics.get("warnings", [])
+    warnings = photo.warnings() + [f"detection: {w}" for w in person.warnings()] + result.metrics.get("warnings", [])
     extra = {"image": str(path), "camera_source": focal_source if focal else "default max(W, H)", "warnings": warnings}
     save_fit(result, out / "fit", faces, keypoints, photo.image, mask, extra, overwrite=True)
 

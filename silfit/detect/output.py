@@ -7,7 +7,9 @@
     mask_<i>.png      the masks of people 1, 2, ... (with several people)
     detection.json    per person: detector score, regions, the 33 BlazePose landmarks with
                       visibility / presence / confidence, what is not visible, warnings;
-                      plus the image size and the EXIF focal length (if any)
+                      plus the image size, the EXIF focal length (if any, within the
+                      camera file's bounds) and the photo's warnings (an EXIF focal
+                      length out of bounds or malformed EXIF data, ignored)
     detection.png     the image with masks, regions and skeletons drawn
 
 Written into a temporary folder beside the target and moved into place at the end, so
@@ -53,7 +55,7 @@ def save_detection(out: os.PathLike, photo: Photo, people: List[Person], layout:
         focal, focal_source = photo.focal()
         report = {
             "image": photo.path, "width": photo.size[0], "height": photo.size[1], "layout": layout,
-            "focal_px": focal, "focal_source": focal_source,
+            "focal_px": focal, "focal_source": focal_source, "warnings": photo.warnings(),
             "models": "MediaPipe BlazePose GHUM pose_detection + pose_landmark_full (mediapipe 0.10.21)",
             "people": [p.to_dict() for p in people],
         }  # fmt: skip

@@ -47,6 +47,9 @@ def fit_dataset(
 
     keypoint_config(options.keypoint_options)  # bad options fail here, before any output
     silhouette_config(options)
+    from .worker import DatasetFitter
+
+    fitter = DatasetFitter(options)  # so do the model and the pose prior (read and checked here)
     keys = [it.key for it in items]
     store = RunStore.open(out, keys, retry_failed=retry_failed)
     pending = [it for it in items if not store.done(it.key)]
@@ -55,7 +58,7 @@ def fit_dataset(
 
         wall = run_ray(store, pending, options, batch_size, ray_address, actors, num_cpus, num_gpus, progress=progress)
     else:
-        wall = run_local(store, pending, options, batch_size, progress=progress)
+        wall = run_local(store, pending, options, batch_size, progress=progress, fitter=fitter)
     records = store.for_keys(keys)
     summary = summarise(records, wall, len(pending))
     table = summary_table(summary)

@@ -37,7 +37,7 @@ from typing import Dict, List, Optional, Union
 import numpy as np
 
 from ..camera import Camera, load_camera
-from ..errors import InputError  # the dataset input as a whole is unusable
+from ..errors import InputError, cut_quotes, quoted  # InputError: the dataset input as a whole is unusable
 from ..dataset import SUBJECT_FILES, SubjectError, list_subjects, read_image, read_mask
 from ..keypoints import KeypointSet, read_keypoints
 
@@ -52,11 +52,26 @@ RESERVED = ("", "..", "results.jsonl", "failures.jsonl", "summary.md", "summary.
 LARGEST = "largest"
 
 
+#: Longest message recorded for an item (``failures.jsonl``).
+MAX_MESSAGE_CHARS = 300
+
+
+def short_message(message: str, library: bool = False) -> str:
+    """``message`` on one line, at most :data:`MAX_MESSAGE_CHARS` characters. A
+    ``library`` message (not silfit's own, whose readers quote what a file holds through
+    :func:`silfit.errors.quoted`) has its quoted strings cut too
+    (:func:`silfit.errors.cut_quotes`): a manifest may name any file."""
+    text = " ".join(str(message).split())
+    text = cut_quotes(text) if library else text
+    return text if len(text) <= MAX_MESSAGE_CHARS else text[: MAX_MESSAGE_CHARS - 3] + "..."
+
+
 class ItemError(Exception):
-    """One item's failure: the ``file`` and ``field`` at fault and a one-line ``message``."""
+    """One item's failure: the ``file`` and ``field`` at fault and a one-line ``message``
+    (at most :data:`MAX_MESSAGE_CHARS` characters: :func:`short_message`)."""
 
     def __init__(self, file: Optional[str], field: str, message: str):
-        self.file, self.field, self.message = file, field, message
+        self.file, self.field, self.message = file, field, short_message(message)
         super().__init__(f"{file}: field '{field}': {message}" if file else message)
 
     def to_dict(self) -> dict:
@@ -121,6 +136,8 @@ def item_error(err: BaseException, file: Optional[str], component: str) -> ItemE
     if isinstance(err, SubjectError):
         return ItemError(err.path, err.field, err.message)
     message = str(err).splitlines()[0] if str(err) else type(err).__name__
+    if not isinstance(err, (InputError, FileNotFoundError)):
+        message = short_message(message, library=True)
     if file and message.startswith(f"{file}"):
         message = re.sub(r"^\s*(\([^)]*\))?:\s*", lambda m: f"{m.group(1)}: " if m.group(1) else "", message[len(file):])
     named = getattr(err, "field", None)  # errors that carry their field (silfit's InputError)
@@ -283,7 +300,15 @@ def _synthetic_items(subjects: List[Path], people):
 
 
 def _manifest_rows(path: Path) -> List[dict]:
-    text = path.read_text(encoding="utf-8")
+    from ..input_limits import MAX_JSON_BYTES, check_file_size
+
+    check_file_size(path, MAX_JSON_BYTES, "the manifest")
+    data = path.read_bytes()
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = data.count(b"\n", 0, err.start) + 1
+        raise InputError(f"{path}: line {line}: not UTF-8 text (byte 0x{data[err.start]:02x}); is it a binary file?") from None
     if path.suffix.lower() == ".csv":
         reader = csv.DictReader(text.splitlines())
         if not reader.fieldnames or "keypoints" not in reader.fieldnames:
@@ -318,7 +343,7 @@ def _manifest_items(path: Path, people):
             raise InputError(f"{path}: line {n}: field '{unknown[0]}': unknown column (expected {', '.join(MANIFEST_COLUMNS)})")
         for col, value in row.items():
             if value is not None and not isinstance(value, (str, int)) or isinstance(value, bool):
-                raise InputError(f"{path}: line {n}: field '{col}': expected a string, got {value!r}")
+                raise InputError(f"{path}: line {n}: field '{col}': expected a string, got {quoted(value)}")
         get = lambda c: (str(row[c]).strip() or None) if row.get(c) not in (None, "") else None  # noqa: E731
         resolve = lambda c: os.fspath(base / get(c)) if get(c) else None  # noqa: E731
         if not get("keypoints"):
@@ -330,7 +355,7 @@ def _manifest_items(path: Path, people):
             try:
                 person = parse_people(get("person"))
             except InputError:
-                raise InputError(f"{path}: line {n}: field 'person': expected largest, all or an index, got {get('person')!r}") from None
+                raise InputError(f"{path}: line {n}: field 'person': expected largest, all or an index, got {quoted(get('person'))}") from None
         masks = {}
         if get("mask"):
             masks[str(person) if isinstance(person, int) else LARGEST] = resolve("mask")

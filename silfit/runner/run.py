@@ -4,7 +4,7 @@ finished batch (:class:`silfit.runner.store.RunStore`) and shows a progress bar.
 from __future__ import annotations
 
 import time
-from typing import Callable, Iterable, List, Sequence
+from typing import Callable, Iterable, List, Optional, Sequence
 
 from .items import Item
 from .store import RunStore
@@ -46,9 +46,11 @@ def drive(store: RunStore, results: Iterable[List[dict]], total: int, progress: 
     return time.perf_counter() - t0
 
 
-def run_local(store: RunStore, pending: Sequence[Item], options: FitOptions, batch_size: int, progress: bool = True) -> float:
-    """Fit ``pending`` in this process, ``batch_size`` items per keypoint-stage call."""
+def run_local(store: RunStore, pending: Sequence[Item], options: FitOptions, batch_size: int, progress: bool = True,
+              fitter: Optional[DatasetFitter] = None) -> float:  # fmt: skip
+    """Fit ``pending`` in this process, ``batch_size`` items per keypoint-stage call (with
+    ``fitter``, already built from ``options``, when given)."""
     if not pending:
         return 0.0
-    fitter = DatasetFitter(options)
+    fitter = fitter or DatasetFitter(options)
     return drive(store, (fitter.run_batch(b, store.out) for b in batches(pending, batch_size)), len(pending), progress)

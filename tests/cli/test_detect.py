@@ -140,3 +140,31 @@ def test_detect_several_people(tmp_path):
     with pytest.raises(SystemExit) as exit_:  # argparse rejects it: usage line, status 2
         main(["detect", str(image), "--people", "0", "--out", str(tmp_path / "x")])
     assert exit_.value.code == 2 and not (tmp_path / "x").exists()
+
+
+def test_detect_does_not_write_an_exif_focal_outside_the_bounds(tmp_path, capsys):
+    photo = tmp_path / "photo.jpg"
+    exif = Image.Exif()
+    exif.get_ifd(0x8769)[0xA405] = 65535  # fx = 1.1e6 px on this 256 px image: the body 1.7 km away
+    Image.open(SUBJECT / "image.png").save(photo, quality=95, exif=exif.tobytes())
+    assert main(["detect", str(photo), "--out", str(tmp_path / "det")]) == 0
+    printed = capsys.readouterr().out
+    report = json.loads((tmp_path / "det" / "detection.json").read_text())
+    assert report["focal_px"] is None and "ignored" in report["focal_source"]
+    assert len(report["warnings"]) == 1 and "FocalLengthIn35mmFilm (65535 mm)" in report["warnings"][0]
+    assert f"warning: {report['warnings'][0]}" in printed
+    # silfit fit says so too (and, in silfit/cli/fit.py, falls back to the default focal: photo.focal() is None)
+    kp = SUBJECT / "keypoints.json"
+    assert main(["fit", "--keypoints", str(kp), "--image", str(photo), "--out", str(tmp_path / "fit"), "--check-only"]) == 0
+    assert f"warning: {report['warnings'][0]}" in capsys.readouterr().out
+
+
+def test_a_16_bit_greyscale_photo_is_read_and_a_cmyk_one_refused(tmp_path, capsys):
+    grey = np.asarray(Image.open(SUBJECT / "image.png").convert("L")).astype(np.uint16) * 257
+    Image.fromarray(grey).save(tmp_path / "grey16.png")  # decoded 90 % white before: "no person found"
+    assert main(["detect", str(tmp_path / "grey16.png"), "--out", str(tmp_path / "det"), "--quiet"]) == 0
+    assert read_keypoints(tmp_path / "det" / "keypoints.json").conf.max() > 0.5
+    Image.open(SUBJECT / "image.png").convert("CMYK").save(tmp_path / "cmyk.jpg")
+    assert main(["detect", str(tmp_path / "cmyk.jpg"), "--out", str(tmp_path / "det2"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "cmyk.jpg: image is in CMYK" in err and not (tmp_path / "det2").exists()

@@ -106,6 +106,12 @@ def test_bad_command_is_one_line_exit_2(tmp_path, capsys):
     (tmp_path / "file").write_text("x")
     assert main(["fit-dataset", str(SYNTHETIC), "--out", str(tmp_path / "file")]) == 2
     assert "exists and is not a folder" in capsys.readouterr().err
+    # a model or pose prior that cannot be read is refused before anything is written (results.jsonl was left)
+    for flag in ("--model", "--pose-prior"):
+        assert main(["fit-dataset", str(SYNTHETIC), "--out", str(tmp_path / "o"), flag, "EVIL"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "EVIL" in err, err
+        assert not (tmp_path / "o").exists()
 
 
 def _cli(*args):

@@ -155,6 +155,7 @@ def test_fit_sequence_frame_with_an_empty_mask_has_no_silhouette_term(sequence, 
     masks = sorted((copy / "masks").glob("*.png"))
     size = Image.open(masks[3]).size
     Image.new("L", size, 0).save(masks[3])  # frame 3: the person was not segmented
+    shutil.copy(masks[0], masks[0].with_name(masks[0].name.replace("000000000000", "000000000009")))  # not a frame
     out = tmp_path / "fit"
     rc = main(["fit", "--sequence", str(copy), "--model", str(model), "--out", str(out), "--no-video", "--quiet",
                "--sequence-iterations", "5", "--silhouette-resolutions", "32", "--silhouette-iterations", "2"])  # fmt: skip
@@ -164,6 +165,7 @@ def test_fit_sequence_frame_with_an_empty_mask_has_no_silhouette_term(sequence, 
     iou = [float("nan") if v is None else v for v in m["silhouette_iou"]]
     assert np.isnan(iou[3]) and all(np.isfinite(iou[f]) for f in (0, 1, 4)), iou
     assert any("empty mask" in w and "[3]" in w for w in m["warnings"]), m["warnings"]
+    assert any("1 mask(s) for frames the keypoints do not have, ignored: 9" in w for w in m["warnings"]), m["warnings"]
 
 
 def test_synth_sequence_flags_reach_the_generator(tmp_path):
@@ -243,3 +245,15 @@ def test_fit_sequence_export_writes_one_animated_gltf(sequence, tmp_path, capsys
         ply = trimesh.load(out / "meshes" / f"frame_{k:012d}.ply", process=False)
         assert np.allclose(ply.vertices, to_upright(obj), atol=1e-5), k
         assert shown[:, 1].max() > shown[:, 1].min() + 1.0
+
+
+def test_fit_sequence_says_which_frames_have_no_mask(sequence, tmp_path, capsys):
+    import shutil
+
+    seq, model = sequence
+    copy = tmp_path / "seq"
+    shutil.copytree(seq, copy)
+    sorted((copy / "masks").glob("*.png"))[1].unlink()
+    assert main(["fit", "--sequence", str(copy), "--model", str(model), "--out", str(tmp_path / "o"), "--check-only"]) == 0
+    out = capsys.readouterr().out
+    assert "warning:" in out and "no mask for 1 frame(s) with a person (no silhouette term there): 1" in out, out

@@ -61,10 +61,11 @@ def test_manifest_jsonl_and_csv(tmp_path):
         ('{"keypoints": "a.json"}\nnot json\n', "line 2: not valid JSON"),
         ('{"keypoints": "a.json"}\n{"keypoints": "b/a.json"}\n', "same output folder 'a'"),
         ('{"keypoints": "a.json", "person": "two"}\n', "field 'person'"),
+        (b'{"keypoints": "a.json"}\n\x00\xc2\x01\xff binary', "line 2: not UTF-8 text (byte 0xc2); is it a binary file?"),
     ],
 )
 def test_bad_manifest_is_one_clear_error(tmp_path, text, words):
-    (tmp_path / "m.jsonl").write_text(text)
+    (tmp_path / "m.jsonl").write_bytes(text.encode("utf-8") if isinstance(text, str) else text)
     with pytest.raises(InputError) as info:
         list_items(tmp_path / "m.jsonl")
     assert words in str(info.value) and str(tmp_path / "m.jsonl") in str(info.value)
@@ -108,3 +109,31 @@ def test_whole_input_errors(tmp_path):
     root = openpose_folder(tmp_path / "op", names=("subject_000",))
     with pytest.raises(InputError, match="--masks folder not found"):
         list_items(root / "kp", masks=str(tmp_path / "nowhere"))
+
+
+def test_failure_messages_quote_only_a_short_prefix_of_what_a_file_holds(tmp_path):
+    """A manifest may name any file: an item's message quotes at most a short, escaped
+    prefix of a string read from it (silfit's readers and library messages alike)."""
+    import json
+
+    from silfit.errors import QUOTE_CHARS
+    from silfit.runner.items import item_error
+
+    secret = "SECRET\n\x1b[31m" + "x" * 300 + "END"
+    kp = {"people": [{"pose_keypoints_2d": [10.0] * 4 + [secret] + [1.0] * 70}]}
+    (tmp_path / "kp.json").write_text(json.dumps(kp))
+    (tmp_path / "cam.json").write_text(json.dumps({"fx": secret, "fy": 1, "cx": 1, "cy": 1, "width": 9, "height": 9}))
+    (tmp_path / "m.jsonl").write_text('{"id": "a", "keypoints": "kp.json"}\n{"id": "b", "keypoints": "kp.json", "camera": "cam.json"}\n')
+    messages = []
+    for it in list_items(tmp_path / "m.jsonl"):
+        with pytest.raises(ItemError) as info:
+            load_item(it)
+        messages.append(info.value.message)
+    try:  # a library's message that quotes the value
+        float(secret)
+    except ValueError as err:
+        messages.append(item_error(err, str(tmp_path / "kp.json"), "keypoints").message)
+    for message in messages:
+        assert "END" not in message and "\x1b" not in message and "\n" not in message, message
+        assert "SECRET\\n\\x1b[31m" in message and " characters)" in message, message
+        assert len(message) < 200 and QUOTE_CHARS <= 32
