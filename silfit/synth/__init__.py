@@ -42,7 +42,7 @@ def __getattr__(name):
 
         return getattr(generate, name)
     if name == "generate_hard_dataset":
-        from .hard import generate_hard_dataset
+        from .generate import generate_hard_dataset
 
         return generate_hard_dataset
     raise AttributeError(f"module 'silfit.synth' has no attribute {name!r}")

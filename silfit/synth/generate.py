@@ -481,3 +481,12 @@ def dataset_summary(index: dict) -> dict:
     summary["back_facing"] = int(sum(abs(s["yaw_deg"]) > 90 for s in subs))
     summary["truncated"] = int(sum(bool(s["truncated"]) for s in subs))
     return summary
+
+
+def generate_hard_dataset(
+    out: os.PathLike, n: int, seed: int = 0, size: int = 512, noise_px: float = 2.0, model=None, progress: bool = False, **settings
+) -> dict:
+    """Write ``n`` hard subjects into ``out`` (``silfit synth --poses hard``); returns the index.
+    ``settings`` are further :class:`silfit.synth.generate.SynthConfig` fields."""
+    cfg = SynthConfig(seed=seed, size=size, noise_px=noise_px, poses="hard", frontal_first=False, **settings)
+    return generate_dataset(out, n, cfg, model=model, progress=progress)

@@ -9,17 +9,17 @@ jitter of ``yaw_jitter_deg``; otherwise (and for the other archetypes) it is uni
 the configured range. Everything else (shape, camera, rendering, keypoint noise and
 occlusion-aware confidences, the file format) is :mod:`silfit.synth.generate`'s.
 
+The set itself is written by :func:`silfit.synth.generate.generate_hard_dataset`.
 This set is for measuring: the shipped pose prior is fitted to the library only
 (:mod:`silfit.priors.library_prior`) and must not be refitted to it.
 """
 from __future__ import annotations
 
-import os
-from typing import Optional, Tuple
+from typing import Tuple
 
 import numpy as np
 
-__all__ = ["hard_pose_and_yaw", "hard_yaw", "generate_hard_dataset", "FRONTAL_BACK_PROB", "YAW_JITTER_DEG"]
+__all__ = ["hard_pose_and_yaw", "hard_yaw", "FRONTAL_BACK_PROB", "YAW_JITTER_DEG"]
 
 FRONTAL_BACK_PROB = 0.7
 YAW_JITTER_DEG = 15.0
@@ -42,14 +42,3 @@ def hard_pose_and_yaw(model, rng: np.random.Generator, yaw_range_deg: Tuple[floa
 
     ps = PoseSampler(model).sample(rng)
     return ps, hard_yaw(rng, ps.archetype, yaw_range_deg)
-
-
-def generate_hard_dataset(
-    out: os.PathLike, n: int, seed: int = 0, size: int = 512, noise_px: float = 2.0, model=None, progress: bool = False, **settings
-) -> dict:
-    """Write ``n`` hard subjects into ``out`` (``silfit synth --poses hard``); returns the index.
-    ``settings`` are further :class:`silfit.synth.generate.SynthConfig` fields."""
-    from .generate import SynthConfig, generate_dataset
-
-    cfg = SynthConfig(seed=seed, size=size, noise_px=noise_px, poses="hard", frontal_first=False, **settings)
-    return generate_dataset(out, n, cfg, model=model, progress=progress)
