@@ -64,11 +64,11 @@ from ..body.model import SMPL_PARAMETER_NAMES as PARAMS  # noqa: E402
 class SilhouetteFitConfig:
     """Settings of the silhouette stage (defaults tuned on the synthetic set)."""
 
-    resolutions: tuple = (256,)  # window's longer side in pixels, per rendered level
-    iterations: tuple = (20,)  # Adam steps per rendered level (upper bounds: plateaus stop earlier)
+    resolutions: tuple = (128, 256)  # window's longer side in pixels, per rendered level
+    iterations: tuple = (40, 25)  # Adam steps per rendered level (upper bounds: plateaus stop earlier)
     #: L-BFGS iterations of the contour level (no rendering: :class:`ContourInsideTerm` and
     #: :class:`ContourCoverTerm`) run before the rendered levels; 0: none (:meth:`legacy`)
-    contour_iterations: int = 30
+    contour_iterations: int = 20
     contour_resolution: int = 256  # the contour level's window (its distance transform's pixels)
     contour_points: int = 256  # mask outline points per observation in the contour level
     #: surface points the contour level poses and projects (model vertices spread over the
@@ -79,6 +79,10 @@ class SilhouetteFitConfig:
     spp: int = 4  # primal samples per pixel
     edge_spp: int = 1  # visibility-edge samples per pixel (projective integrator's sppp)
     margin: float = 0.12  # window margin, fraction of the box on each side
+    #: window sides rounded up to a multiple of this many pixels: few distinct window sizes,
+    #: so few compiled render kernels (a new size costs Dr.Jit a trace and, the first time on
+    #: a machine, an LLVM compile of seconds)
+    window_multiple: int = 16
     lr: dict = field(
         default_factory=lambda: {"betas": 0.1, "body_pose": 0.03, "global_orient": 0.02, "transl": 0.01}
     )
@@ -122,7 +126,8 @@ class SilhouetteFitConfig:
     def legacy(cls, **changes) -> "SilhouetteFitConfig":
         """The schedule before the contour level (issue 24): rendered Adam levels only, 60
         steps at 128 px and 50 at 256 px (the benchmark's "before")."""
-        return cls(**{"resolutions": (128, 256), "iterations": (60, 50), "contour_iterations": 0, **changes})
+        return cls(**{"resolutions": (128, 256), "iterations": (60, 50), "contour_iterations": 0, "window_multiple": 1,
+                      **changes})  # fmt: skip
 
     def weights(self) -> dict:
         """The rendered levels' weights."""
@@ -189,10 +194,11 @@ class SilhouetteFitResult:
         raise AttributeError(name)
 
 
-def choose_window(mask: np.ndarray, uv: np.ndarray, camera: Camera, resolution: int, margin: float):
+def choose_window(mask: np.ndarray, uv: np.ndarray, camera: Camera, resolution: int, margin: float, multiple: int = 1):
     """A :class:`renderers.silhouette.RoiWindow` covering the mask's box and the projected
     body ``uv [N, 2]`` with ``margin``, rendered with ``resolution`` pixels along its longer
-    side (aspect ratio kept)."""
+    side (aspect ratio kept); the shorter side is rounded up to a ``multiple`` of pixels (more
+    margin), so windows come in a few sizes and the renderer reuses its compiled kernels."""
     from renderers.silhouette import RoiWindow
 
     ys, xs = np.nonzero(mask)
@@ -202,6 +208,8 @@ def choose_window(mask: np.ndarray, uv: np.ndarray, camera: Camera, resolution: 
     extent = hi - lo
     scale = resolution / float(extent.max())
     width, height = (max(8, int(round(e * scale))) for e in extent)
+    m = max(1, int(multiple))
+    width, height = (max(v, min(-(-v // m) * m, int(resolution))) for v in (width, height))
     x0, y0 = (float(c) for c in (lo + hi) / 2 - np.array([width, height]) / scale / 2)
     return RoiWindow(x0, y0, scale, camera.crop(x0, y0, width, height, scale))
 
@@ -562,11 +570,11 @@ def _keypoint_data(grids, dtype) -> tuple:
     return target, weights, any(a is not None for g in arrays for row in g for a in row)
 
 
-def _observation_window(mask, uv: np.ndarray, camera: Camera, resolution: int, margin: float):
+def _observation_window(mask, uv: np.ndarray, camera: Camera, resolution: int, margin: float, multiple: int = 1):
     """``(window, target)`` of an observation with a mask, or ``(None, scale)`` without one
     (the pixels-to-window scale a window around the projected body would have)."""
     if mask is not None:
-        window = choose_window(mask, uv, camera, resolution, margin)
+        window = choose_window(mask, uv, camera, resolution, margin, multiple)
         return window, window_target(mask, window)[0]
     extent = float((uv.max(0) - uv.min(0)).max()) * (1 + 2 * margin) + 1.0
     return None, resolution / extent
@@ -701,7 +709,7 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
                     cam_pts = world_to_camera(verts[p, f], views["R"][p, f, c].to(verts.dtype), views["t"][p, f, c].to(verts.dtype))
                     cam = grids[p][f][c].view.camera
                     window, target = _observation_window(masks[p][f][c], project_points(cam_pts, cam).numpy(), cam,
-                                                         resolution, cfg.margin)  # fmt: skip
+                                                         resolution, cfg.margin, cfg.window_multiple)  # fmt: skip
                     windows.append(window)
                     targets.append(target if window is not None else None)
                     scale[p, f, c] = window.scale if window is not None else target

@@ -27,7 +27,7 @@ POSE = {
 # the rendered level alone (no contour level), as the bounds below were measured
 FAST = SilhouetteFitConfig(resolutions=(64,), iterations=(30,), optimise=("transl",), w_keypoints=0.0, warmup=2,
                            plateau_window=100, lr={"betas": 0.0, "body_pose": 0.0, "global_orient": 0.0, "transl": 0.01},
-                           contour_iterations=0)  # fmt: skip
+                           contour_iterations=0, window_multiple=1)  # fmt: skip
 
 
 def vertices(model, params):
@@ -62,6 +62,21 @@ def test_window_covers_mask_and_body(open_model, target_mask):
     for u, v in np.concatenate([np.stack([xs, ys], 1), uv]):
         wu, wv = (u + 0.5 - window.x0) * window.scale, (v + 0.5 - window.y0) * window.scale
         assert 0 <= wu <= window.camera.width and 0 <= wv <= window.camera.height
+
+
+def test_window_sides_come_in_multiples():
+    mask = np.zeros((160, 160), bool)
+    mask[20:140, 60:99] = True  # a standing person's box: 39 x 120 pixels
+    uv = np.array([[62.0, 25.0], [95.0, 135.0]])
+    plain = choose_window(mask, uv, CAMERA, 96, margin=0.1)
+    window = choose_window(mask, uv, CAMERA, 96, margin=0.1, multiple=16)
+    cam = window.camera
+    assert (plain.camera.width, plain.camera.height) == (31, 96)
+    assert (cam.width, cam.height) == (32, 96) and window.scale == plain.scale  # only more margin
+    ys, xs = np.nonzero(mask)
+    for u, v in np.stack([xs, ys], 1):
+        wu, wv = (u + 0.5 - window.x0) * window.scale, (v + 0.5 - window.y0) * window.scale
+        assert 0 <= wu <= cam.width and 0 <= wv <= cam.height
 
 
 def test_gradient_moves_a_shifted_body_toward_a_shifted_mask(open_model, target_mask):
