@@ -22,7 +22,16 @@ Energy (per subject, the named terms of :mod:`silfit.fitting.terms` plus the sil
 * Priors as in the keypoint stage keep the pose plausible; ``w_stay`` (off by default:
   it cost accuracy on the synthetic set) can add a pull toward the keypoint-stage pose.
 
-Levels are stages (:meth:`SilhouetteFitConfig.stages`): coarse to fine window
+The contour level (issue 24) comes first when ``contour_iterations`` > 0: no rendering;
+``E_sil`` is replaced by two named terms on projected points (:class:`ContourInsideTerm`:
+vertices against the mask's outside distance transform; :class:`ContourCoverTerm`: the
+mask's outline points against the nearest projected vertex), the body posed only at about
+``contour_vertices`` surface vertices (:class:`ContourBody`), minimised by the project's
+batched L-BFGS (:func:`~silfit.fitting.stages.run_lbfgs_stage`, one deterministic row per
+subject). It does the coarse moves in a fraction of a rendered step's time each; the
+rendered levels then finish, so the final IoU is the renderer's.
+
+Rendered levels are stages (:meth:`SilhouetteFitConfig.stages`): coarse to fine window
 resolutions, each run with Adam (the renderer's gradients are stochastic; per-subject
 moments and step counts), linear warm-up and cosine decay; a level stops early for a
 subject on an energy plateau. Steps with non-finite energy, or whose IoU collapses, stop
@@ -371,7 +380,24 @@ def _window_points(ev: Evaluation, proxy) -> dict:
     return out
 
 
-class ContourInsideTerm(Term):
+class _ContourTerm(Term):
+    """A contour-level term: ``observation_energy`` of each observation with a window, from
+    the (proxy's) vertices projected into it (window pixels), summed per problem."""
+
+    def __init__(self, proxy=None):
+        self.proxy = proxy
+
+    def observation_energy(self, uv: torch.Tensor, ev: Evaluation, p: int, o: int) -> torch.Tensor:  # pragma: no cover
+        raise NotImplementedError
+
+    def __call__(self, ev: Evaluation) -> torch.Tensor:
+        energies = [torch.zeros((), dtype=ev.keypoints_2d.dtype) for _ in range(ev.P)]
+        for (p, o), uv in _window_points(ev, self.proxy).items():
+            energies[p] = energies[p] + self.observation_energy(uv, ev, p, o)
+        return torch.stack(energies)
+
+
+class ContourInsideTerm(_ContourTerm):
     """The contour level's "body outside the mask" term: per observation with a window, the
     mean squared distance (window pixels) from the projected vertices to the mask
     (:func:`~silfit.silhouette.losses.outside_distance_energy`), summed per problem. Reads
@@ -379,17 +405,11 @@ class ContourInsideTerm(Term):
 
     name = "contour_inside"
 
-    def __init__(self, proxy=None):
-        self.proxy = proxy
-
-    def __call__(self, ev: Evaluation) -> torch.Tensor:
-        energies = [torch.zeros((), dtype=ev.keypoints_2d.dtype) for _ in range(ev.P)]
-        for (p, o), uv in _window_points(ev, self.proxy).items():
-            energies[p] = energies[p] + outside_distance_energy(uv, ev.data["targets"][p][o].dt_out)
-        return torch.stack(energies)
+    def observation_energy(self, uv, ev, p, o):
+        return outside_distance_energy(uv, ev.data["targets"][p][o].dt_out)
 
 
-class ContourCoverTerm(Term):
+class ContourCoverTerm(_ContourTerm):
     """The contour level's "mask not covered" term: per observation with a window, the mean
     over the mask's outline points of the squared distance (window pixels) to the nearest
     projected vertex (:func:`~silfit.silhouette.losses.cover_energy`), summed per problem.
@@ -398,14 +418,8 @@ class ContourCoverTerm(Term):
 
     name = "contour_cover"
 
-    def __init__(self, proxy=None):
-        self.proxy = proxy
-
-    def __call__(self, ev: Evaluation) -> torch.Tensor:
-        energies = [torch.zeros((), dtype=ev.keypoints_2d.dtype) for _ in range(ev.P)]
-        for (p, o), uv in _window_points(ev, self.proxy).items():
-            energies[p] = energies[p] + cover_energy(uv, ev.data["contours"][p][o])
-        return torch.stack(energies)
+    def observation_energy(self, uv, ev, p, o):
+        return cover_energy(uv, ev.data["contours"][p][o])
 
 
 class _PerProblem(list):
