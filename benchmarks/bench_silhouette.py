@@ -66,7 +66,7 @@ def table(title, rows, unit="image"):
     base = rows.get("before")
     for name, r in rows.items():
         a = {k: np.array(v, dtype=np.float64) for k, v in r.items()}
-        ratio = f" ({base['stage'] and np.mean(base['stage']) / a['stage'].mean():.1f}x)" if base and name != "before" else ""
+        ratio = f" ({np.mean(base['stage']) / a['stage'].mean():.1f}x)" if base and name != "before" and a["stage"].mean() > 0 else ""
         print(f"| {name} | {a['stage'].mean():.2f}{ratio} | {a['wall'].mean():.2f} | {a['steps'].mean():.0f} | "
               f"{a['contour'].mean():.0f} | {a['iou'].mean():.4f} | {a['pve'].mean():.2f} | "
               f"{a['pa_pve'].mean():.2f} / {np.median(a['pa_pve']):.2f} |")
