@@ -5,4 +5,7 @@ from .losses import (
 )  # fmt: skip
 from .masks import read_mask, validate_mask
 
-__all__ = ["MaskTarget", "distance_transforms", "read_mask", "silhouette_energy", "soft_iou", "validate_mask"]
+__all__ = [
+    "MaskTarget", "contour_points", "cover_energy", "distance_transforms", "outside_distance_energy", "read_mask",
+    "silhouette_energy", "soft_iou", "validate_mask",
+]  # fmt: skip
