@@ -59,7 +59,7 @@ def register(subparsers) -> None:
     p.add_argument("--silhouette-resolutions", type=_int_list, metavar="R1,R2",
                    help="silhouette window sizes per level, coarse to fine (default 128,256)")
     p.add_argument("--silhouette-iterations", type=_int_list, metavar="N1,N2",
-                   help="silhouette steps per level (default 60,50)")
+                   help="silhouette rendered steps per level (default 40,25, after the contour level)")
     seq = p.add_argument_group("videos (silfit.fitting.sequence)")
     seq.add_argument("--sequence", metavar="DIR", help="fit a video: a folder of per-frame OpenPose JSON files "
                      "(<video>_<frame 12 digits>_keypoints.json, or DIR/keypoints/ or DIR/openpose/ with masks/, images/, "

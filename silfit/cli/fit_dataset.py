@@ -47,7 +47,7 @@ def register(subparsers) -> None:
     p.add_argument("--keypoint-option", action="append", default=[], metavar="NAME=VALUE",
                    help="override a KeypointFitConfig field, e.g. init_poses=1 or pose_iters=10,10,10 (repeatable)")
     p.add_argument("--silhouette-resolutions", metavar="R1,R2", help="silhouette window sizes per level (default 128,256)")
-    p.add_argument("--silhouette-iterations", metavar="N1,N2", help="silhouette steps per level (default 60,50)")
+    p.add_argument("--silhouette-iterations", metavar="N1,N2", help="silhouette rendered steps per level (default 40,25, after the contour level)")
     p.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
                    help="run on Ray: no ADDRESS starts a local Ray, else join that cluster (e.g. auto, ray://head:10001)")
     p.add_argument("--actors", type=int, default=2, help="Ray: fitting actors (default 2)")

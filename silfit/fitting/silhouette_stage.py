@@ -22,7 +22,16 @@ Energy (per subject, the named terms of :mod:`silfit.fitting.terms` plus the sil
 * Priors as in the keypoint stage keep the pose plausible; ``w_stay`` (off by default:
   it cost accuracy on the synthetic set) can add a pull toward the keypoint-stage pose.
 
-Levels are stages (:meth:`SilhouetteFitConfig.stages`): coarse to fine window
+The contour level (issue 24) comes first when ``contour_iterations`` > 0: no rendering;
+``E_sil`` is replaced by two named terms on projected points (:class:`ContourInsideTerm`:
+vertices against the mask's outside distance transform; :class:`ContourCoverTerm`: the
+mask's outline points against the nearest projected vertex), the body posed only at about
+``contour_vertices`` surface vertices (:class:`ContourBody`), minimised by the project's
+batched L-BFGS (:func:`~silfit.fitting.stages.run_lbfgs_stage`, one deterministic row per
+subject). It does the coarse moves in a fraction of a rendered step's time each; the
+rendered levels then finish, so the final IoU is the renderer's.
+
+Rendered levels are stages (:meth:`SilhouetteFitConfig.stages`): coarse to fine window
 resolutions, each run with Adam (the renderer's gradients are stochastic; per-subject
 moments and step counts), linear warm-up and cosine decay; a level stops early for a
 subject on an energy plateau. Steps with non-finite energy, or whose IoU collapses, stop
@@ -40,15 +49,19 @@ import torch
 
 from ..camera import Camera, project_points
 from ..priors import angle_prior, limit_violation, load_pose_prior, shape_prior
-from ..silhouette.losses import MaskTarget, silhouette_energy, soft_iou
-from .body import MeshBody
+from ..silhouette.losses import (
+    MaskTarget, contour_points, cover_energy, outside_distance_energy, silhouette_energy, soft_iou,
+)  # fmt: skip
+from ..body.lbs import axis_angle_to_matrix, blend_shapes, pose_correctives, skin_vertices
+from .body import BodyState, KeypointBody, MeshBody, pose_parameter_names
 from .problem import ParameterLayout, Problem, stack_views, world_to_camera
-from .stages import Stage, check_stages, stage_to_dict
+from .stages import Stage, check_stages, run_lbfgs_stage, stage_to_dict
 from .terms import Energy, Evaluation, KeypointTerm, PriorTerm, StayTerm, Term, evaluate
 from .threads import torch_threads
 
 __all__ = [
-    "SilhouetteFitConfig", "SilhouetteFitResult", "SilhouetteTerm", "choose_window", "fit_silhouette",
+    "ContourCoverTerm", "ContourInsideTerm", "SilhouetteFitConfig", "SilhouetteFitResult", "SilhouetteTerm",
+    "choose_window", "fit_silhouette",
     "fit_silhouette_problems", "fit_silhouettes", "window_target",
 ]  # fmt: skip
 
@@ -60,11 +73,25 @@ from ..body.model import SMPL_PARAMETER_NAMES as PARAMS  # noqa: E402
 class SilhouetteFitConfig:
     """Settings of the silhouette stage (defaults tuned on the synthetic set)."""
 
-    resolutions: tuple = (128, 256)  # window's longer side in pixels, per level
-    iterations: tuple = (60, 50)  # Adam steps per level (upper bounds: plateaus stop earlier)
+    resolutions: tuple = (128, 256)  # window's longer side in pixels, per rendered level
+    iterations: tuple = (40, 25)  # Adam steps per rendered level (upper bounds: plateaus stop earlier)
+    #: L-BFGS iterations of the contour level (no rendering: :class:`ContourInsideTerm` and
+    #: :class:`ContourCoverTerm`) run before the rendered levels; 0: none (:meth:`legacy`)
+    contour_iterations: int = 20
+    contour_resolution: int = 256  # the contour level's window (its distance transform's pixels)
+    contour_points: int = 256  # mask outline points per observation in the contour level
+    #: surface points the contour level poses and projects (model vertices spread over the
+    #: surface, :func:`contour_vertex_index`); ``None``: all (the render proxy's, if any)
+    contour_vertices: Optional[int] = 2000
+    w_contour_inside: float = 0.05
+    w_contour_cover: float = 0.05
     spp: int = 4  # primal samples per pixel
     edge_spp: int = 1  # visibility-edge samples per pixel (projective integrator's sppp)
     margin: float = 0.12  # window margin, fraction of the box on each side
+    #: window sides rounded up to a multiple of this many pixels: few distinct window sizes,
+    #: so few compiled render kernels (a new size costs Dr.Jit a trace and, the first time on
+    #: a machine, an LLVM compile of seconds)
+    window_multiple: int = 16
     lr: dict = field(
         default_factory=lambda: {"betas": 0.1, "body_pose": 0.03, "global_orient": 0.02, "transl": 0.01}
     )
@@ -98,19 +125,40 @@ class SilhouetteFitConfig:
                 f"SilhouetteFitConfig: resolutions ({len(self.resolutions)}) and iterations ({len(self.iterations)}) "
                 "must have the same non-zero length"
             )
+        if int(self.contour_iterations) != self.contour_iterations or self.contour_iterations < 0:
+            raise ValueError(f"SilhouetteFitConfig: contour_iterations must be a non-negative integer, got {self.contour_iterations!r}")
         missing = [n for n in self.optimise if n not in self.lr]
         if missing:
             raise ValueError(f"SilhouetteFitConfig: no learning rate (lr) for optimised parameter(s) {', '.join(missing)}")
 
+    @classmethod
+    def legacy(cls, **changes) -> "SilhouetteFitConfig":
+        """The schedule before the contour level (issue 24): rendered Adam levels only, 60
+        steps at 128 px and 50 at 256 px (the benchmark's "before")."""
+        return cls(**{"resolutions": (128, 256), "iterations": (60, 50), "contour_iterations": 0, "window_multiple": 1,
+                      **changes})  # fmt: skip
+
     def weights(self) -> dict:
+        """The rendered levels' weights."""
         return {
             "silhouette": self.w_silhouette, "keypoints": self.w_keypoints, "pose": self.w_pose,
             "limits": self.w_limits, "angle": self.w_angle, "shape": self.w_shape, "stay": self.w_stay,
         }  # fmt: skip
 
+    def contour_weights(self) -> dict:
+        """The contour level's weights: the rendered silhouette's place taken by the two
+        contour terms, the other terms as in the rendered levels."""
+        w = {k: v for k, v in self.weights().items() if k != "silhouette"}
+        return {"contour_inside": self.w_contour_inside, "contour_cover": self.w_contour_cover, **w}
+
     def stages(self) -> tuple:
-        """One Adam stage per window resolution (coarse to fine)."""
-        return tuple(
+        """The contour level (L-BFGS, when ``contour_iterations``), then one Adam stage per
+        rendered window resolution (coarse to fine)."""
+        contour = ()
+        if self.contour_iterations:
+            contour = (Stage("contour", tuple(self.optimise), self.contour_weights(), int(self.contour_iterations),
+                             "lbfgs", {"resolution": int(self.contour_resolution)}),)  # fmt: skip
+        return contour + tuple(
             Stage(f"silhouette_{int(r)}", tuple(self.optimise), self.weights(), int(it), "adam",
                   {"resolution": int(r), "lr": {k: self.lr[k] for k in self.optimise}})  # fmt: skip
             for r, it in zip(self.resolutions, self.iterations)
@@ -142,6 +190,8 @@ class SilhouetteFitResult:
     config: dict = field(default_factory=dict)
     #: soft IoU per observation ``[F][C]`` at the kept step of the last level (NaN: no mask)
     ious: list = field(default_factory=list)
+    #: L-BFGS iterations of the contour level (``steps`` counts the rendered levels' steps)
+    contour_iterations: int = 0
 
     def params(self) -> dict:
         return dict(self.parameters)
@@ -153,10 +203,11 @@ class SilhouetteFitResult:
         raise AttributeError(name)
 
 
-def choose_window(mask: np.ndarray, uv: np.ndarray, camera: Camera, resolution: int, margin: float):
+def choose_window(mask: np.ndarray, uv: np.ndarray, camera: Camera, resolution: int, margin: float, multiple: int = 1):
     """A :class:`renderers.silhouette.RoiWindow` covering the mask's box and the projected
     body ``uv [N, 2]`` with ``margin``, rendered with ``resolution`` pixels along its longer
-    side (aspect ratio kept)."""
+    side (aspect ratio kept); the shorter side is rounded up to a ``multiple`` of pixels (more
+    margin), so windows come in a few sizes and the renderer reuses its compiled kernels."""
     from renderers.silhouette import RoiWindow
 
     ys, xs = np.nonzero(mask)
@@ -166,6 +217,8 @@ def choose_window(mask: np.ndarray, uv: np.ndarray, camera: Camera, resolution: 
     extent = hi - lo
     scale = resolution / float(extent.max())
     width, height = (max(8, int(round(e * scale))) for e in extent)
+    m = max(1, int(multiple))
+    width, height = (max(v, min(-(-v // m) * m, int(resolution))) for v in (width, height))
     x0, y0 = (float(c) for c in (lo + hi) / 2 - np.array([width, height]) / scale / 2)
     return RoiWindow(x0, y0, scale, camera.crop(x0, y0, width, height, scale))
 
@@ -261,6 +314,122 @@ class SilhouetteTerm(Term):
         ev.extras["iou_observations"] = ious
         ev.extras["iou"] = [float(np.nanmean(i)) if any(x == x for x in i) else float("nan") for i in ious]
         return torch.stack(energies)
+
+
+def contour_vertex_index(model, count: int) -> np.ndarray:
+    """About ``count`` model vertices spread evenly over the surface (sorted indices): each
+    vertex of a render proxy of ``2 * count`` faces (:func:`renderers.proxy.get_proxy`)
+    replaced by the model vertex that weighs most in it."""
+    from renderers.proxy import get_proxy
+
+    proxy = get_proxy(model.v_template, model.faces, 2 * int(count))
+    dominant = proxy.indices[np.arange(len(proxy.indices)), np.argmax(proxy.weights, axis=1)]
+    return np.unique(dominant)
+
+
+class ContourBody(torch.nn.Module):
+    """The contour level's body evaluator: the keypoint stage's reduced forward
+    (:class:`~silfit.fitting.body.KeypointBody`: keypoints, joints, skinning transforms)
+    plus linear blend skinning of the model vertices ``vertex_index`` only (``vertices
+    [R, len(vertex_index), 3]``), the same function of the parameters as the full mesh's
+    vertices. For SMPL-layout models (pose parameters are axis-angle rotations)."""
+
+    def __init__(self, model, layout: str, vertex_index):
+        super().__init__()
+        self.keypoint_body = KeypointBody(model, layout)
+        self.pose_names = pose_parameter_names(model)
+        idx = torch.as_tensor(np.asarray(vertex_index), dtype=torch.long)
+        self.register_buffer("v_template", model.v_template[idx])
+        self.register_buffer("shapedirs", model.shapedirs[idx])
+        self.register_buffer("lbs_weights", model.lbs_weights[idx])
+        posedirs = getattr(model, "posedirs", None)
+        cols = (3 * idx[:, None] + torch.arange(3)).reshape(-1)
+        self.register_buffer("posedirs", None if posedirs is None else posedirs[:, cols])
+
+    def forward(self, **params) -> BodyState:
+        state = self.keypoint_body(**params)
+        betas = params["betas"]
+        v = self.v_template + blend_shapes(betas, self.shapedirs)
+        if self.posedirs is not None:
+            full = torch.cat([params[n] for n in self.pose_names], dim=1).reshape(betas.shape[0], -1, 3)
+            v = v + pose_correctives(axis_angle_to_matrix(full), self.posedirs)
+        verts = skin_vertices(v, state.transforms, self.lbs_weights) + params["transl"][:, None]
+        return BodyState(state.keypoints, state.joints, state.transforms, verts)
+
+
+def _window_points(ev: Evaluation, proxy) -> dict:
+    """``{(problem, observation): uv [V, 2]}``: the (proxy's) vertices projected into each
+    observation's window (window pixels), for the observations with a window; computed
+    once per evaluation and shared by the contour terms."""
+    cached = ev.extras.get("window_points")
+    if cached is not None:
+        return cached
+    V = ev.body.vertices
+    if proxy is not None:
+        V = proxy(V)
+    V = V.reshape(ev.P, ev.F, *V.shape[1:])
+    R, t = ev.data["R"].to(V.dtype), ev.data["t"].to(V.dtype)
+    out = {}
+    for p, windows in enumerate(ev.data["windows"]):
+        for o, w in enumerate(windows):
+            if w is None:
+                continue
+            f, c = divmod(o, ev.C)
+            out[(p, o)] = project_points(world_to_camera(V[p, f], R[p, f, c], t[p, f, c]), w.camera)
+    ev.extras["window_points"] = out
+    return out
+
+
+class _ContourTerm(Term):
+    """A contour-level term: ``observation_energy`` of each observation with a window, from
+    the (proxy's) vertices projected into it (window pixels), summed per problem."""
+
+    def __init__(self, proxy=None):
+        self.proxy = proxy
+
+    def observation_energy(self, uv: torch.Tensor, ev: Evaluation, p: int, o: int) -> torch.Tensor:  # pragma: no cover
+        raise NotImplementedError
+
+    def __call__(self, ev: Evaluation) -> torch.Tensor:
+        energies = [torch.zeros((), dtype=ev.keypoints_2d.dtype) for _ in range(ev.P)]
+        for (p, o), uv in _window_points(ev, self.proxy).items():
+            energies[p] = energies[p] + self.observation_energy(uv, ev, p, o)
+        return torch.stack(energies)
+
+
+class ContourInsideTerm(_ContourTerm):
+    """The contour level's "body outside the mask" term: per observation with a window, the
+    mean squared distance (window pixels) from the projected vertices to the mask
+    (:func:`~silfit.silhouette.losses.outside_distance_energy`), summed per problem. Reads
+    ``ev.data['windows']`` and ``ev.data['targets']`` (as :class:`SilhouetteTerm`)."""
+
+    name = "contour_inside"
+
+    def observation_energy(self, uv, ev, p, o):
+        return outside_distance_energy(uv, ev.data["targets"][p][o].dt_out)
+
+
+class ContourCoverTerm(_ContourTerm):
+    """The contour level's "mask not covered" term: per observation with a window, the mean
+    over the mask's outline points of the squared distance (window pixels) to the nearest
+    projected vertex (:func:`~silfit.silhouette.losses.cover_energy`), summed per problem.
+    Reads ``ev.data['windows']`` and ``ev.data['contours']`` (per problem, lists over its
+    observations of outline points ``[B, 2]`` in window pixels, or ``None``)."""
+
+    name = "contour_cover"
+
+    def observation_energy(self, uv, ev, p, o):
+        return cover_energy(uv, ev.data["contours"][p][o])
+
+
+class _PerProblem(list):
+    """A list with one entry per problem that a tensor of problem indices selects from
+    (``rows[idx]``), as the data of :func:`~silfit.fitting.stages.run_lbfgs_stage` is."""
+
+    def __getitem__(self, index):
+        if isinstance(index, torch.Tensor):
+            return _PerProblem(list.__getitem__(self, int(i)) for i in index.reshape(-1).tolist())
+        return list.__getitem__(self, index)
 
 
 class _Adam:
@@ -419,14 +588,31 @@ def _keypoint_data(grids, dtype) -> tuple:
     return target, weights, any(a is not None for g in arrays for row in g for a in row)
 
 
-def _observation_window(mask, uv: np.ndarray, camera: Camera, resolution: int, margin: float):
+def _observation_window(mask, uv: np.ndarray, camera: Camera, resolution: int, margin: float, multiple: int = 1):
     """``(window, target)`` of an observation with a mask, or ``(None, scale)`` without one
     (the pixels-to-window scale a window around the projected body would have)."""
     if mask is not None:
-        window = choose_window(mask, uv, camera, resolution, margin)
+        window = choose_window(mask, uv, camera, resolution, margin, multiple)
         return window, window_target(mask, window)[0]
     extent = float((uv.max(0) - uv.min(0)).max()) * (1 + 2 * margin) + 1.0
     return None, resolution / extent
+
+
+def _contour_level(stage, params, layout, energy, body, views, data, failed, contour_steps) -> None:
+    """Run the contour level (:func:`~silfit.fitting.stages.run_lbfgs_stage`, one L-BFGS row
+    per problem) on the problems that have not failed; writes the result into ``params``
+    and each problem's iteration count into ``contour_steps``."""
+    rows = torch.as_tensor([p for p in range(len(failed)) if not failed[p]], dtype=torch.long)
+    if rows.numel() == 0:
+        return
+    state = {k: v.detach()[rows].clone() for k, v in params.items()}
+    sub = {k: (v[rows] if isinstance(v, (torch.Tensor, _PerProblem)) else v) for k, v in data.items()}
+    run = run_lbfgs_stage(stage, state, layout, energy, body, {k: v[rows] for k, v in views.items()}, sub)
+    with torch.no_grad():
+        for k in stage.free:
+            params[k][rows] = state[k].to(params[k].dtype)
+    for j, p in enumerate(rows.tolist()):
+        contour_steps[p] += int(run.iterations[j])
 
 
 def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, progress, callback, extra_terms,
@@ -467,24 +653,30 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
     free = {k: params[k] for k in free_names}
     optimiser = _Adam(free, {k: cfg.lr[k] for k in free_names})
     prior = load_pose_prior(pose_prior, dtype=dtype) if not isinstance(pose_prior, torch.nn.Module) else pose_prior
-    proxy = batch = None
+    proxy = batch = contour_proxy = None
+    if cfg.proxy_faces:
+        from renderers.proxy import get_proxy
+
+        contour_proxy = get_proxy(model.v_template, model.faces, int(cfg.proxy_faces))
     if renderer is None:
         faces = model.faces
         if cfg.proxy_faces:
-            from renderers.proxy import get_proxy
-
-            proxy = get_proxy(model.v_template, model.faces, int(cfg.proxy_faces))
+            proxy = contour_proxy
             faces = proxy.faces
         renderer = get_silhouette_renderer(faces)
         if cfg.batch_render:
             from renderers.batch import get_batch_renderer
 
             batch = get_batch_renderer(faces)
+    body = MeshBody(model, layout)
+    contour_body, contour_points_map = body, contour_proxy  # the contour level's evaluator and its vertices' map
+    if cfg.contour_iterations and cfg.contour_vertices and getattr(model, "kind", "smpl") == "smpl":
+        contour_body, contour_points_map = ContourBody(model, layout, contour_vertex_index(model, cfg.contour_vertices)), None
     energy = Energy([
         SilhouetteTerm(renderer, cfg.spp, cfg.edge_spp, proxy, batch), KeypointTerm("keypoints", cfg.kp_sigma),
         PriorTerm("pose", prior, "body_pose"), PriorTerm("limits", limit_violation, "body_pose"),
         PriorTerm("angle", angle_prior, "body_pose"), PriorTerm("shape", shape_prior, "betas"),
-        StayTerm("body_pose"), *extra_terms,
+        StayTerm("body_pose"), ContourInsideTerm(contour_points_map), ContourCoverTerm(contour_points_map), *extra_terms,
     ])  # fmt: skip
     target_xy, target_w, any_keypoints = _keypoint_data(grids, dtype)
     stages = tuple(
@@ -493,7 +685,6 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
         for s in cfg.stages()
     )
     check_stages(stages, energy, params_layout)
-    body = MeshBody(model, layout)
     views = stack_views(problems, dtype)
     for k, v in extra_data.items():
         if isinstance(v, torch.Tensor) and v.shape[:1] != (P,):
@@ -501,7 +692,8 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
     data = {
         **extra_data, "target": target_xy, "weights": target_w, "scale": torch.ones(P, F, C, dtype=dtype),
         "start_body_pose": start["body_pose"], "R": views["R"], "t": views["t"],
-        "windows": [None] * P, "targets": [None] * P, "seeds": [None] * P,
+        "windows": _PerProblem([None] * P), "targets": _PerProblem([None] * P), "seeds": _PerProblem([None] * P),
+        "contours": _PerProblem([None] * P),
     }  # fmt: skip
 
     history = [{k: [] for k in ("level", "energy", "silhouette", "keypoints", "iou")} for _ in range(P)]
@@ -512,6 +704,7 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
     best_terms: list = [{} for _ in range(P)]
     best_iou_seen = [-1.0] * P
     steps = [0] * P
+    contour_steps = [0] * P
     failed = [False] * P
     t0 = time.perf_counter()
     bar = tqdm(total=int(sum(cfg.iterations)) * P, desc="silhouette", disable=not progress, leave=False)
@@ -528,18 +721,29 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
         for p in range(P):
             if failed[p]:
                 continue
-            windows, targets = [], []
+            windows, targets, contours = [], [], []
             for f in range(F):
                 for c in range(C):
                     cam_pts = world_to_camera(verts[p, f], views["R"][p, f, c].to(verts.dtype), views["t"][p, f, c].to(verts.dtype))
                     cam = grids[p][f][c].view.camera
                     window, target = _observation_window(masks[p][f][c], project_points(cam_pts, cam).numpy(), cam,
-                                                         resolution, cfg.margin)  # fmt: skip
+                                                         resolution, cfg.margin, cfg.window_multiple)  # fmt: skip
                     windows.append(window)
                     targets.append(target if window is not None else None)
                     scale[p, f, c] = window.scale if window is not None else target
-            data["windows"][p], data["targets"][p] = windows, targets
+                    if window is not None and stage.optimiser == "lbfgs":
+                        pts = contour_points(target.mask.numpy() > 0.5, cfg.contour_points)
+                        contours.append(torch.as_tensor(pts, dtype=dtype))
+                    else:
+                        contours.append(None)
+            data["windows"][p], data["targets"][p], data["contours"][p] = windows, targets, contours
         data["scale"] = scale
+        if stage.optimiser == "lbfgs":  # the contour level: deterministic, no rendering
+            _contour_level(stage, params, params_layout, energy, contour_body, views, data, failed, contour_steps)
+            for p in range(P):
+                if not failed[p]:
+                    best_params[p] = {k: v[p].detach().clone() for k, v in params.items()}
+            continue
         plateaus = [_Plateau(cfg.plateau_window, cfg.plateau_rtol) for _ in range(P)]
         best_energy = [math.inf] * P  # energies of different resolutions are not comparable
         active = [not f for f in failed]
@@ -609,6 +813,7 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
             iou_start=h["iou"][0] if h["iou"] else float("nan"),
             iou_end=float(best_iou[p]) if h["iou"] else float("nan"),
             seconds=seconds, steps=steps[p], warnings=warnings[p], terms=best_terms[p], config=config,
+            contour_iterations=contour_steps[p],
             ious=[list(obs[f * C:(f + 1) * C]) for f in range(F)],
         ))  # fmt: skip
     return results

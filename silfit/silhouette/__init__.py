@@ -1,5 +1,11 @@
 """Silhouette side of the fit: reading person masks and the distance-transform losses."""
-from .losses import MaskTarget, distance_transforms, silhouette_energy, soft_iou
+from .losses import (
+    MaskTarget, contour_points, cover_energy, distance_transforms, outside_distance_energy, silhouette_energy,
+    soft_iou,
+)  # fmt: skip
 from .masks import read_mask, validate_mask
 
-__all__ = ["MaskTarget", "distance_transforms", "read_mask", "silhouette_energy", "soft_iou", "validate_mask"]
+__all__ = [
+    "MaskTarget", "contour_points", "cover_energy", "distance_transforms", "outside_distance_energy", "read_mask",
+    "silhouette_energy", "soft_iou", "validate_mask",
+]  # fmt: skip

@@ -10,6 +10,17 @@ and a two-sided energy whose gradient flows through the rendered silhouette only
 
 Both are exact Euclidean transforms from OpenCV (``DIST_MASK_PRECISE``); ``E = 0`` when
 the rendered silhouette equals the mask.
+
+The contour surrogate (no rendering; the silhouette stage's coarse level) compares points
+instead of pixels, in the same pixel units:
+
+* :func:`outside_distance_energy`: projected body vertices against ``DT_out`` (bilinear):
+  every vertex of a body that matches the mask projects inside it;
+* :func:`cover_energy`: the mask's contour points (:func:`contour_points`) against the
+  nearest projected vertex: every part of the mask's outline has body next to it.
+
+Both are means of squared pixel distances (smooth at zero, so a quasi-Newton method can
+use them); neither needs the body's own outline, so no visibility is computed.
 """
 from __future__ import annotations
 
@@ -18,7 +29,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-__all__ = ["MaskTarget", "distance_transforms", "silhouette_energy", "soft_iou"]
+__all__ = [
+    "MaskTarget", "contour_points", "cover_energy", "distance_transforms", "outside_distance_energy",
+    "silhouette_energy", "soft_iou",
+]  # fmt: skip
 
 
 def distance_transforms(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -61,3 +75,55 @@ def soft_iou(silhouette: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     union = torch.maximum(silhouette, mask).sum(dim=(-2, -1))
     return inter / union.clamp(min=1e-9)
 
+
+
+def contour_points(mask: np.ndarray, count: int) -> np.ndarray:
+    """Up to ``count`` points ``[B, 2]`` (x, y pixel centres, float64) spread evenly along the
+    outlines of a boolean mask (outer outlines and holes, OpenCV's contour order; the
+    same mask gives the same points)."""
+    import cv2
+
+    if int(count) <= 0:
+        raise ValueError(f"contour point count must be positive, got {count}")
+    contours, _ = cv2.findContours(np.asarray(mask, dtype=np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return np.zeros((0, 2))
+    pts = np.concatenate([c.reshape(-1, 2) for c in contours]).astype(np.float64)
+    if len(pts) > count:
+        pts = pts[np.linspace(0, len(pts) - 1, int(count)).round().astype(np.int64)]
+    return pts
+
+
+def _bilinear(image: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+    """``image [H, W]`` at points ``uv [N, 2]`` (x, y on pixel centres), bilinear; points
+    outside the image take the border's value plus their distance to the image."""
+    H, W = image.shape
+    x = uv[:, 0].clamp(0, W - 1)
+    y = uv[:, 1].clamp(0, H - 1)
+    beyond = (uv[:, 0] - x).abs() + (uv[:, 1] - y).abs()
+    x0 = x.detach().floor().clamp(max=W - 2).long() if W > 1 else torch.zeros_like(x, dtype=torch.long)
+    y0 = y.detach().floor().clamp(max=H - 2).long() if H > 1 else torch.zeros_like(y, dtype=torch.long)
+    fx, fy = x - x0.to(x.dtype), y - y0.to(y.dtype)
+    x1, y1 = (x0 + 1).clamp(max=W - 1), (y0 + 1).clamp(max=H - 1)
+    img = image.to(uv.dtype)
+    top = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
+    bottom = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
+    return top * (1 - fy) + bottom * fy + beyond
+
+
+def outside_distance_energy(uv: torch.Tensor, dt_out: torch.Tensor) -> torch.Tensor:
+    """Mean squared distance (pixels) from the projected points ``uv [N, 2]`` to the mask
+    whose outside distance transform is ``dt_out [H, W]`` (0 inside the mask)."""
+    return _bilinear(dt_out, uv).square().mean()
+
+
+def cover_energy(uv: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Mean over the mask's contour ``points [B, 2]`` of the squared distance (pixels) to the
+    nearest projected point ``uv [N, 2]`` (the gradient reaches each point's nearest one)."""
+    if points.shape[0] == 0:
+        return uv.new_zeros(())
+    pts = points.to(uv.dtype)
+    with torch.no_grad():  # the nearest point of each contour point: |p|^2 - 2 p.u + |u|^2 (one product)
+        u = uv.detach()
+        nearest = torch.addmm((u * u).sum(-1)[None, :], pts, u.T, alpha=-2.0).argmin(dim=1)  # [B]
+    return (pts - uv[nearest]).square().sum(-1).mean()

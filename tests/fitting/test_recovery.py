@@ -82,8 +82,11 @@ def test_silhouette_stage_recovers_the_truth(fits):
     # starts moved by 1e-9, the spread float rounding elsewhere would give) PA-MPJPE 36.8 [36.8-37.7],
     # PVE 55.0 [55.0-56.3], shape 21.8 [21.8-22.2] mm, root x 9.7 [8.0-9.7] mm, IoU 0.907 [0.905-0.908].
     # A stage restricted to the translation would leave PA-MPJPE and shape at the start's.
+    # Since issue 24 the default stage runs its contour level (20 L-BFGS iterations, no rendering)
+    # before the rendered level, so the first rendered step (``iou_start``) already sees 0.909 and the
+    # stage ends at PA-MPJPE 11.3, PVE 26.5, shape 17.2 mm, root x -0.6 mm (aten-default: 11.0, 26.6, 16.6, -0.7).
     _, sil, _, start, e = fits
-    assert not sil.warnings and sil.iou_start < 0.65 and sil.iou_end > 0.88
+    assert not sil.warnings and sil.contour_iterations > 0 and sil.iou_end > 0.88
     assert e["pa_mpjpe"] < 45.0 and e["pa_mpjpe"] < start["pa_mpjpe"] - 20.0
     assert e["pve"] < 70.0 and e["pve"] < start["pve"] - 60.0
     assert e["shape"] < start["shape"] - 1.5  # the shape moves toward the truth (3.0-3.4 mm measured)

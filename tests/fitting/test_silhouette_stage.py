@@ -24,8 +24,10 @@ POSE = {
     "global_orient": np.array([[math.pi, 0.0, 0.0]], np.float32),
     "transl": np.array([[0.0, 0.15, 3.0]], np.float32),
 }
+# the rendered level alone (no contour level), as the bounds below were measured
 FAST = SilhouetteFitConfig(resolutions=(64,), iterations=(30,), optimise=("transl",), w_keypoints=0.0, warmup=2,
-                           plateau_window=100, lr={"betas": 0.0, "body_pose": 0.0, "global_orient": 0.0, "transl": 0.01})
+                           plateau_window=100, lr={"betas": 0.0, "body_pose": 0.0, "global_orient": 0.0, "transl": 0.01},
+                           contour_iterations=0, window_multiple=1)  # fmt: skip
 
 
 def vertices(model, params):
@@ -60,6 +62,21 @@ def test_window_covers_mask_and_body(open_model, target_mask):
     for u, v in np.concatenate([np.stack([xs, ys], 1), uv]):
         wu, wv = (u + 0.5 - window.x0) * window.scale, (v + 0.5 - window.y0) * window.scale
         assert 0 <= wu <= window.camera.width and 0 <= wv <= window.camera.height
+
+
+def test_window_sides_come_in_multiples():
+    mask = np.zeros((160, 160), bool)
+    mask[20:140, 60:99] = True  # a standing person's box: 39 x 120 pixels
+    uv = np.array([[62.0, 25.0], [95.0, 135.0]])
+    plain = choose_window(mask, uv, CAMERA, 96, margin=0.1)
+    window = choose_window(mask, uv, CAMERA, 96, margin=0.1, multiple=16)
+    cam = window.camera
+    assert (plain.camera.width, plain.camera.height) == (31, 96)
+    assert (cam.width, cam.height) == (32, 96) and window.scale == plain.scale  # only more margin
+    ys, xs = np.nonzero(mask)
+    for u, v in np.stack([xs, ys], 1):
+        wu, wv = (u + 0.5 - window.x0) * window.scale, (v + 0.5 - window.y0) * window.scale
+        assert 0 <= wu <= cam.width and 0 <= wv <= cam.height
 
 
 def test_gradient_moves_a_shifted_body_toward_a_shifted_mask(open_model, target_mask):
@@ -230,3 +247,65 @@ def test_extra_terms_and_their_data_join_the_energy(open_model, target_mask):
     with pytest.raises(ValueError, match="leading problem axis"):
         fit_silhouette_problems(open_model, [problem], [POSE], config=FAST, progress=False, terms=[GoalTerm()],
                                 weights={"goal": 1.0}, data={"goal": goal.repeat(2, 1)})  # fmt: skip
+
+
+# ----------------------------------------------------------------------------- the contour level (issue 24)
+from silfit.fitting.body import MeshBody  # noqa: E402
+from silfit.fitting.silhouette_stage import ContourBody, contour_vertex_index  # noqa: E402
+
+# the contour level alone: L-BFGS on the contour terms, no rendered step after it
+CONTOUR = replace(FAST, iterations=(0,), contour_iterations=15, contour_resolution=64)
+
+
+def test_contour_body_poses_the_same_vertices_as_the_mesh(open_model):
+    idx = contour_vertex_index(open_model, 500)
+    assert 400 < len(idx) < 800 and np.all(np.diff(idx) > 0)
+    g = torch.Generator().manual_seed(3)
+    params = {"betas": torch.randn(2, 10, generator=g), "body_pose": 0.3 * torch.randn(2, 69, generator=g),
+              "global_orient": torch.randn(2, 3, generator=g), "transl": torch.randn(2, 3, generator=g)}  # fmt: skip
+    with torch.no_grad():
+        sub = ContourBody(open_model, "body25", idx)(**params)
+        full = MeshBody(open_model, "body25")(**params)
+    np.testing.assert_allclose(sub.vertices.numpy(), full.vertices[:, idx].numpy(), atol=2e-5)
+    np.testing.assert_allclose(sub.keypoints.numpy(), full.keypoints.numpy(), atol=2e-4)  # landmarks: another path
+
+
+def test_contour_level_moves_a_shifted_body_without_rendering(open_model, target_mask):
+    def no_renderer(*args, **kwargs):  # the contour level renders nothing
+        raise AssertionError("the contour level rendered")
+
+    result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=CONTOUR, renderer=no_renderer, progress=False)
+    assert result.steps == 0 and 0 < result.contour_iterations <= 15
+    dx, dy, _ = result.transl[0] - POSE["transl"][0]
+    # the truth is +0.08 m across; measured +0.078 and -0.001 m
+    assert 0.06 < dx < 0.1 and abs(dy) < 0.01, (dx, dy)
+
+
+def test_contour_level_then_rendered_level(open_model, target_mask):
+    cfg = replace(FAST, iterations=(6,), contour_iterations=15, contour_resolution=64)
+    result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=cfg, progress=False)
+    assert result.steps == 6 and result.contour_iterations > 0 and len(result.history["iou"]) == 6
+    # the rendered level starts where the contour level left the body: already near the mask
+    # (measured soft IoU 0.93 at the first rendered step, against 0.44 at the start)
+    assert result.iou_start > 0.85 and abs(result.transl[0, 0] - POSE["transl"][0, 0] - 0.08) < 0.015
+
+
+def test_a_batch_with_the_contour_level_equals_single_runs(open_model):
+    cfg = replace(FAST, iterations=(3,), contour_iterations=8, contour_resolution=64)
+    masks = [mask_of(open_model, s) for s in SHIFTS]
+    results = fit_silhouettes(open_model, [POSE] * 3, [CAMERA] * 3, masks, config=cfg, progress=False)
+    for mask, r in zip(masks, results):
+        alone = fit_silhouette(open_model, POSE, CAMERA, mask, config=cfg, progress=False)
+        for name in ("betas", "body_pose", "global_orient", "transl"):
+            np.testing.assert_array_equal(getattr(alone, name), getattr(r, name), err_msg=name)
+        assert alone.contour_iterations == r.contour_iterations and alone.steps == r.steps
+
+
+def test_legacy_schedule_has_no_contour_level():
+    legacy = SilhouetteFitConfig.legacy()
+    assert [s.name for s in legacy.stages()] == ["silhouette_128", "silhouette_256"]
+    stages = SilhouetteFitConfig().stages()
+    assert stages[0].name == "contour" and stages[0].optimiser == "lbfgs" and "silhouette" not in stages[0].weights
+    assert all(s.optimiser == "adam" for s in stages[1:])
+    with pytest.raises(ValueError, match="contour_iterations"):
+        SilhouetteFitConfig(contour_iterations=-1)

@@ -45,4 +45,6 @@ def test_config_is_recorded_with_its_schedule():
     d = replace(KeypointFitConfig(), camera_iters=7).to_dict()
     assert d["camera_iters"] == 7 and d["stages"][0]["iterations"] == 7 and d["stages"][0]["name"] == "camera"
     s = SilhouetteFitConfig().to_dict()
-    assert [st["options"]["resolution"] for st in s["stages"]] == [128, 256]
+    assert [st["name"] for st in s["stages"]] == ["contour", "silhouette_128", "silhouette_256"]
+    assert [st["options"]["resolution"] for st in s["stages"]] == [256, 128, 256]
+    assert [st["optimiser"] for st in s["stages"]] == ["lbfgs", "adam", "adam"] and s["contour_iterations"] == 20

@@ -41,3 +41,36 @@ def test_gradient_moves_a_shifted_blob_toward_the_mask():
         loss.backward()
         opt.step()
     assert abs(cx.item() - 30.0) < 1.0
+
+
+def test_contour_points_lie_on_the_outline_evenly():
+    from silfit.silhouette import contour_points
+
+    mask = disc()
+    pts = contour_points(mask, 40)
+    assert pts.shape == (40, 2)
+    r = np.hypot(pts[:, 0] - 32, pts[:, 1] - 32)
+    assert np.all(np.abs(r - 12) < 1.0)  # outline pixels of a radius-12 disc
+    angles = np.sort(np.arctan2(pts[:, 1] - 32, pts[:, 0] - 32))
+    assert np.diff(angles).max() < 2.5 * (2 * np.pi / 40)  # spread around, not bunched
+    assert len(contour_points(mask, 10_000)) < 200  # never more than the outline has
+    assert np.array_equal(contour_points(mask, 40), pts)
+
+
+def test_contour_energies_are_zero_on_a_match_and_pull_toward_the_mask():
+    from silfit.silhouette import contour_points, cover_energy, outside_distance_energy
+
+    mask = disc()
+    target = MaskTarget.from_mask(mask)
+    outline = torch.as_tensor(contour_points(mask, 64))
+    inside = torch.tensor([[32.0, 32.0], [30.0, 35.0]])
+    assert outside_distance_energy(inside, target.dt_out).item() == 0.0
+    assert cover_energy(outline.clone(), outline).item() == 0.0
+    # points shifted right by 5 px: the gradients of both terms point left (back onto the mask)
+    uv = (outline + torch.tensor([5.0, 0.0])).requires_grad_(True)
+    for energy in (outside_distance_energy(uv, target.dt_out), cover_energy(uv, outline)):
+        (g,) = torch.autograd.grad(energy, uv)
+        assert energy.item() > 0 and g[:, 0].sum() > 0 and abs(g[:, 1].sum()) < 0.2 * g[:, 0].sum()
+    # a point outside the image costs its distance to the image on top of the border's value
+    far = outside_distance_energy(torch.tensor([[-10.0, 32.0]]), target.dt_out).sqrt().item()
+    assert abs(far - (float(target.dt_out[32, 0]) + 10.0)) < 1e-5

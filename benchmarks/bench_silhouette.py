@@ -1,0 +1,236 @@
+"""The silhouette stage before and after issue 24, measured in one run; prints Markdown tables.
+
+"before" is :meth:`SilhouetteFitConfig.legacy` (rendered Adam levels only: 60 steps at
+128 px, 50 at 256 px); "after" is the default (a contour level: L-BFGS on the contour
+surrogate, no rendering, then a short rendered level). Both start from the same keypoint
+fits of fresh synthetic subjects (``--seed``; not the seeds the defaults were tuned on:
+4242) and run in this process, one after the other.
+
+Sets:
+
+* ``--single N``: N single-image subjects (:func:`silfit.synth.generate_dataset`, ``--size``
+  px, 2 px keypoint noise), one silhouette-stage call per subject;
+* ``--rig N``: N 4-view rigs (:mod:`silfit.synth.rig`, views 0, 2, 4, 6 of an 8-camera
+  ring), one call per rig (every view's mask rendered);
+* ``--kornia``: the mask distance transform with kornia against OpenCV's exact one.
+
+Per method: seconds per image (or rig) in the stage (in-process, ``time.perf_counter``
+around the call) and the wall time of the whole fit per image (keypoint stage share +
+silhouette stage + windows/targets), rendered steps and contour iterations per call,
+full-image mask IoU (the fit rendered with pyrender/OSMesa against the mask; mean over
+views for rigs), PVE (root-aligned) and PA-PVE in mm against the truth.
+
+The machine is shared: compare the rows of one run (ratios), not runs.
+
+    python benchmarks/bench_silhouette.py --single 30 --rig 10 --seed 9100
+    python benchmarks/bench_silhouette.py --single 4 --seed 9100 --methods after   # a quick look
+"""
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from silfit import load_body_model
+from silfit.fitting.silhouette_stage import SilhouetteFitConfig, fit_silhouette, fit_silhouette_problems
+
+METHODS = {"before": SilhouetteFitConfig.legacy, "after": SilhouetteFitConfig}
+
+
+def body(model, params):
+    t = {k: torch.as_tensor(np.asarray(v, np.float32).reshape(1, -1)) for k, v in params.items()}
+    with torch.no_grad():
+        out = model(**t)
+    return out.vertices[0].double().numpy(), out.joints[0].double().numpy()
+
+
+def single_scores(model, params, s) -> dict:
+    from renderers.offscreen import render_mask
+    from silfit.eval.metrics import mask_iou, pa_pve, pve
+
+    V, J = body(model, params)
+    mask = render_mask(V.astype(np.float32), model.faces.numpy(), s.camera)
+    return {"iou": mask_iou(mask, s.mask), "pve": 1000 * pve(V, s.gt.vertices, J[0], s.gt.joints[0]),
+            "pa_pve": 1000 * pa_pve(V, s.gt.vertices)}  # fmt: skip
+
+
+def table(title, rows, unit="image"):
+    print(f"\n### {title}\n")
+    print(f"| method | s/{unit} stage (in-process) | s/{unit} wall (whole fit) | rendered steps | contour iterations | "
+          "IoU mean | PVE mm mean | PA-PVE mm mean / median |")
+    print("|---|---:|---:|---:|---:|---:|---:|---|")
+    base = rows.get("before")
+    for name, r in rows.items():
+        a = {k: np.array(v, dtype=np.float64) for k, v in r.items()}
+        ratio = f" ({np.mean(base['stage']) / a['stage'].mean():.1f}x)" if base and name != "before" and a["stage"].mean() > 0 else ""
+        print(f"| {name} | {a['stage'].mean():.2f}{ratio} | {a['wall'].mean():.2f} | {a['steps'].mean():.0f} | "
+              f"{a['contour'].mean():.0f} | {a['iou'].mean():.4f} | {a['pve'].mean():.2f} | "
+              f"{a['pa_pve'].mean():.2f} / {np.median(a['pa_pve']):.2f} |")
+    if base and len(rows) > 1:
+        for name, r in rows.items():
+            if name == "before":
+                continue
+            d_iou = np.array(r["iou"]) - np.array(base["iou"])
+            d_pa = np.array(r["pa_pve"]) - np.array(base["pa_pve"])
+            print(f"\n{name} - before, per {unit}: IoU {d_iou.mean():+.4f} (min {d_iou.min():+.4f}), "
+                  f"PA-PVE {d_pa.mean():+.2f} mm (max {d_pa.max():+.2f})")
+
+
+def run_single(model, n, seed, size, methods):
+    from silfit.dataset import list_subjects, load_subject
+    from silfit.fitting import KeypointFitter
+    from silfit.synth import generate_dataset
+    from silfit.synth.generate import SynthConfig
+
+    with tempfile.TemporaryDirectory() as tmp:
+        generate_dataset(tmp, n, SynthConfig(seed=seed, size=size, noise_px=2.0), model=model)
+        subjects = [load_subject(p) for p in list_subjects(tmp)]
+    fitter = KeypointFitter(model)
+    t0 = time.perf_counter()
+    kp = fitter.fit([s.keypoints for s in subjects], [s.camera for s in subjects], progress=False)
+    kp_share = (time.perf_counter() - t0) / n
+    rows = {"keypoints only": {"stage": [0.0] * n, "wall": [kp_share] * n, "steps": [0] * n, "contour": [0] * n}}
+    for k, v in zip(("iou", "pve", "pa_pve"), zip(*[single_scores(model, kp.params(i), s).values() for i, s in enumerate(subjects)])):
+        rows["keypoints only"][k] = list(v)
+    for name in methods:
+        cfg = METHODS[name]()
+        r = {k: [] for k in ("stage", "wall", "steps", "contour", "iou", "pve", "pa_pve")}
+        for i, s in enumerate(subjects):
+            t = time.perf_counter()
+            res = fit_silhouette(model, kp.params(i), s.camera, s.mask, s.keypoints.as_array(), config=cfg,
+                                 pose_prior=fitter.pose_prior, progress=False)  # fmt: skip
+            dt = time.perf_counter() - t
+            r["stage"].append(res.seconds)
+            r["wall"].append(kp_share + dt)
+            r["steps"].append(res.steps)
+            r["contour"].append(res.contour_iterations)
+            for k, v in single_scores(model, res.params(), s).items():
+                r[k].append(v)
+        rows[name] = r
+        print(f"single images: {name} done", flush=True)
+    table(f"Single images: {n} subjects, {size} px, seed {seed}", rows)
+    return rows
+
+
+def run_rig(model, n, seed, size, methods):
+    from silfit.eval.rig import score_rig_fit, subset_truth
+    from silfit.fitting.keypoint_stage import KeypointFitter
+    from silfit.fitting.problem import Problem
+    from silfit.fitting.rig_fit import fit_rig_keypoints, rig_problem
+    from silfit.rig import load_rig
+    from silfit.synth.generate import SynthConfig
+    from silfit.synth.rig import RigConfig, generate_rig_dataset
+    from dataclasses import replace
+
+    idx = [0, 2, 4, 6]
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        generate_rig_dataset(root, n, SynthConfig(seed=seed, size=size, noise_px=2.0), RigConfig(views=8), model=model)
+        subjects = []
+        for i in range(n):
+            d = root / f"subject_{i:03d}"
+            views = load_rig(d)
+            gt = np.load(d / "gt.npz")
+            problem = rig_problem(views)
+            obs = [o for o in problem.observations if o.view_index in idx]
+            problem = Problem([replace(o, view_index=idx.index(o.view_index)) for o in obs], problem.shared)
+            subjects.append(([views[j] for j in idx], problem, subset_truth({k: gt[k] for k in gt.files}, idx)))
+    fitter = KeypointFitter(model)
+    t0 = time.perf_counter()
+    fits = fit_rig_keypoints(fitter, [p for _, p, _ in subjects])
+    kp_share = (time.perf_counter() - t0) / n
+
+    def scores(views, problem, truth, params):
+        m = score_rig_fit(model, views, problem, truth, params)
+        return {"iou": m["iou"], "pve": m["pve_world"], "pa_pve": m["pa_pve"]}
+
+    rows = {"keypoints only": {"stage": [0.0] * n, "wall": [kp_share] * n, "steps": [0] * n, "contour": [0] * n}}
+    for k in ("iou", "pve", "pa_pve"):
+        rows["keypoints only"][k] = [scores(v, p, g, f.params)[k] for (v, p, g), f in zip(subjects, fits)]
+    for name in methods:
+        cfg = METHODS[name]()
+        r = {k: [] for k in ("stage", "wall", "steps", "contour", "iou", "pve", "pa_pve")}
+        for (views, problem, truth), f in zip(subjects, fits):
+            t = time.perf_counter()
+            (res,) = fit_silhouette_problems(model, [problem], [dict(f.params)], config=cfg, pose_prior=fitter.pose_prior,
+                                             progress=False)  # fmt: skip
+            dt = time.perf_counter() - t
+            r["stage"].append(res.seconds)
+            r["wall"].append(kp_share + dt)
+            r["steps"].append(res.steps)
+            r["contour"].append(res.contour_iterations)
+            params = {k: np.asarray(v).reshape(-1) for k, v in res.parameters.items()}
+            for k, v in scores(views, problem, truth, params).items():
+                r[k].append(v)
+        rows[name] = r
+        print(f"rigs: {name} done", flush=True)
+    table(f"4-view rigs: {n} rigs, {size} px, seed {seed} (PVE: world, no alignment)", rows, unit="rig")
+    return rows
+
+
+def run_kornia(size=512, repeats=5):
+    """kornia's distance transform against OpenCV's exact Euclidean one on a body mask."""
+    import cv2
+
+    from renderers.offscreen import render_mask
+    from silfit.camera import Camera
+
+    model = load_body_model()
+    with torch.no_grad():
+        v = model(transl=torch.tensor([[0.0, 0.2, 3.0]]), global_orient=torch.tensor([[np.pi, 0.0, 0.0]])).vertices[0]
+    mask = render_mask(v.numpy(), model.faces.numpy(), Camera.from_image_size(size, size))
+    out = ~mask
+
+    def best(fn):
+        ts = []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            r = fn()
+            ts.append(time.perf_counter() - t)
+        return r, 1000 * min(ts)
+
+    exact, t_cv = best(lambda: cv2.distanceTransform(out.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE))
+    print(f"\n### Distance transform of a {size}x{size} body mask\n")
+    print("| method | ms | max abs error vs exact (px) | mean abs error (px) |")
+    print("|---|---:|---:|---:|")
+    print(f"| OpenCV DIST_L2 / DIST_MASK_PRECISE | {t_cv:.1f} | 0 | 0 |")
+    try:
+        import kornia
+    except ImportError:
+        print("| kornia | not installed | | |")
+        return
+    img = torch.as_tensor(mask, dtype=torch.float32)[None, None]
+    k, t_k = best(lambda: kornia.contrib.distance_transform(img)[0, 0].numpy())
+    err = np.abs(k - exact)
+    print(f"| kornia.contrib.distance_transform {kornia.__version__} | {t_k:.1f} | {err.max():.1f} | {err.mean():.2f} |")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--single", type=int, default=0, help="single-image subjects")
+    ap.add_argument("--rig", type=int, default=0, help="4-view rigs")
+    ap.add_argument("--seed", type=int, default=9100)
+    ap.add_argument("--size", type=int, default=512)
+    ap.add_argument("--methods", default="before,after", help="comma-separated: before, after")
+    ap.add_argument("--kornia", action="store_true", help="also time kornia's distance transform against OpenCV's")
+    args = ap.parse_args(argv)
+    methods = [m for m in args.methods.split(",") if m]
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise SystemExit(f"--methods: unknown {unknown} (known: {', '.join(METHODS)})")
+    torch.manual_seed(0)
+    model = load_body_model()
+    if args.single:
+        run_single(model, args.single, args.seed, args.size, methods)
+    if args.rig:
+        run_rig(model, args.rig, args.seed + 1, args.size, methods)
+    if args.kornia:
+        run_kornia(args.size)
+
+
+if __name__ == "__main__":
+    main()
