@@ -148,7 +148,7 @@ def test_detect_does_not_write_an_exif_focal_outside_the_bounds(tmp_path, capsys
     exif.get_ifd(0x8769)[0xA405] = 65535  # fx = 1.1e6 px on this 256 px image: the body 1.7 km away
     Image.open(SUBJECT / "image.png").save(photo, quality=95, exif=exif.tobytes())
     assert main(["detect", str(photo), "--out", str(tmp_path / "det")]) == 0
-    printed = capsys.readouterr().out
+    printed = capsys.readouterr().err  # warnings: standard error
     report = json.loads((tmp_path / "det" / "detection.json").read_text())
     assert report["focal_px"] is None and "ignored" in report["focal_source"]
     assert len(report["warnings"]) == 1 and "FocalLengthIn35mmFilm (65535 mm)" in report["warnings"][0]
@@ -156,7 +156,7 @@ def test_detect_does_not_write_an_exif_focal_outside_the_bounds(tmp_path, capsys
     # silfit fit says so too (and, in silfit/cli/fit.py, falls back to the default focal: photo.focal() is None)
     kp = SUBJECT / "keypoints.json"
     assert main(["fit", "--keypoints", str(kp), "--image", str(photo), "--out", str(tmp_path / "fit"), "--check-only"]) == 0
-    assert f"warning: {report['warnings'][0]}" in capsys.readouterr().out
+    assert f"warning: {report['warnings'][0]}" in capsys.readouterr().err
 
 
 def test_a_16_bit_greyscale_photo_is_read_and_a_cmyk_one_refused(tmp_path, capsys):

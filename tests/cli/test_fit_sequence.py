@@ -255,5 +255,5 @@ def test_fit_sequence_says_which_frames_have_no_mask(sequence, tmp_path, capsys)
     shutil.copytree(seq, copy)
     sorted((copy / "masks").glob("*.png"))[1].unlink()
     assert main(["fit", "--sequence", str(copy), "--model", str(model), "--out", str(tmp_path / "o"), "--check-only"]) == 0
-    out = capsys.readouterr().out
+    out = capsys.readouterr().err  # warnings: standard error
     assert "warning:" in out and "no mask for 1 frame(s) with a person (no silhouette term there): 1" in out, out
