@@ -319,9 +319,12 @@ class SilhouetteTerm(Term):
 def contour_vertex_index(model, count: int) -> np.ndarray:
     """About ``count`` model vertices spread evenly over the surface (sorted indices): each
     vertex of a render proxy of ``2 * count`` faces (:func:`renderers.proxy.get_proxy`)
-    replaced by the model vertex that weighs most in it."""
+    replaced by the model vertex that weighs most in it; every vertex of a model with no more
+    than ``2 * count`` faces (nothing to reduce)."""
     from renderers.proxy import get_proxy
 
+    if 2 * int(count) >= int(model.faces.shape[0]):
+        return np.arange(int(model.v_template.shape[0]))
     proxy = get_proxy(model.v_template, model.faces, 2 * int(count))
     dominant = proxy.indices[np.arange(len(proxy.indices)), np.argmax(proxy.weights, axis=1)]
     return np.unique(dominant)
