@@ -92,6 +92,9 @@ class SilhouetteFitConfig:
     #: so few compiled render kernels (a new size costs Dr.Jit a trace and, the first time on
     #: a machine, an LLVM compile of seconds)
     window_multiple: int = 16
+    #: what lies outside the image is unknown, not background (:mod:`silfit.silhouette.losses`:
+    #: truncation); ``False``: the border is background, as before issue 23
+    truncation_aware: bool = True
     lr: dict = field(
         default_factory=lambda: {"betas": 0.1, "body_pose": 0.03, "global_orient": 0.02, "transl": 0.01}
     )
@@ -223,11 +226,13 @@ def choose_window(mask: np.ndarray, uv: np.ndarray, camera: Camera, resolution: 
     return RoiWindow(x0, y0, scale, camera.crop(x0, y0, width, height, scale))
 
 
-def window_target(mask: np.ndarray, window, supersample: int = 4) -> tuple[MaskTarget, np.ndarray]:
+def window_target(mask: np.ndarray, window, supersample: int = 4, truncation_aware: bool = True) -> tuple[MaskTarget, np.ndarray]:
     """The mask resampled into a ``RoiWindow``: ``(MaskTarget of the binarised coverage, coverage)``.
 
     Coverage is the fraction of each window pixel inside the mask (supersampled, then
-    area-averaged); pixels outside the image are background. Distances are in window pixels.
+    area-averaged). Pixels outside the image are unknown, not background: the target's
+    ``valid`` map marks the image's pixels (:mod:`silfit.silhouette.losses`: truncation).
+    Distances are in window pixels.
     """
     import cv2
 
@@ -236,15 +241,15 @@ def window_target(mask: np.ndarray, window, supersample: int = 4) -> tuple[MaskT
     s = window.scale * ss
     # Output (supersampled) pixel centre i -> image pixel-centre coordinate x0 + (i + 0.5)/s - 0.5.
     M = np.array([[1.0 / s, 0.0, window.x0 + 0.5 / s - 0.5], [0.0, 1.0 / s, window.y0 + 0.5 / s - 0.5]])
-    fine = cv2.warpAffine(
-        mask.astype(np.float32), M, (cam.width * ss, cam.height * ss),
-        flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0,
-    )  # fmt: skip
-    coverage = cv2.resize(fine, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
+    warp = lambda img: cv2.resize(cv2.warpAffine(  # noqa: E731
+        img, M, (cam.width * ss, cam.height * ss), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_CONSTANT, borderValue=0.0), (cam.width, cam.height), interpolation=cv2.INTER_AREA)  # fmt: skip
+    coverage = warp(mask.astype(np.float32))
     binary = coverage > 0.5
     if not binary.any():
         raise ValueError("the mask vanishes at the silhouette stage's resolution; raise the resolution")
-    return MaskTarget.from_mask(binary), coverage
+    seen = warp(np.ones(mask.shape, np.float32)) > 0.5  # the window's pixels inside the image
+    return MaskTarget.from_mask(binary, valid=None if seen.all() or not truncation_aware else seen), coverage
 
 
 def _learning_rate_factor(step: int, steps: int, warmup: int) -> float:
@@ -310,7 +315,7 @@ class SilhouetteTerm(Term):
             target = ev.data["targets"][p][o]
             energies[p] = energies[p] + silhouette_energy(sil, target)
             with torch.no_grad():
-                ious[p][o] = float(soft_iou(sil.detach(), target.mask))
+                ious[p][o] = float(soft_iou(sil.detach(), target.mask, target.valid))
         ev.extras["iou_observations"] = ious
         ev.extras["iou"] = [float(np.nanmean(i)) if any(x == x for x in i) else float("nan") for i in ious]
         return torch.stack(energies)
@@ -319,9 +324,12 @@ class SilhouetteTerm(Term):
 def contour_vertex_index(model, count: int) -> np.ndarray:
     """About ``count`` model vertices spread evenly over the surface (sorted indices): each
     vertex of a render proxy of ``2 * count`` faces (:func:`renderers.proxy.get_proxy`)
-    replaced by the model vertex that weighs most in it."""
+    replaced by the model vertex that weighs most in it; every vertex of a model with no more
+    than ``2 * count`` faces (nothing to reduce)."""
     from renderers.proxy import get_proxy
 
+    if 2 * int(count) >= int(model.faces.shape[0]):
+        return np.arange(int(model.v_template.shape[0]))
     proxy = get_proxy(model.v_template, model.faces, 2 * int(count))
     dominant = proxy.indices[np.arange(len(proxy.indices)), np.argmax(proxy.weights, axis=1)]
     return np.unique(dominant)
@@ -588,12 +596,13 @@ def _keypoint_data(grids, dtype) -> tuple:
     return target, weights, any(a is not None for g in arrays for row in g for a in row)
 
 
-def _observation_window(mask, uv: np.ndarray, camera: Camera, resolution: int, margin: float, multiple: int = 1):
+def _observation_window(mask, uv: np.ndarray, camera: Camera, resolution: int, margin: float, multiple: int = 1,
+                        truncation_aware: bool = True):  # fmt: skip
     """``(window, target)`` of an observation with a mask, or ``(None, scale)`` without one
     (the pixels-to-window scale a window around the projected body would have)."""
     if mask is not None:
         window = choose_window(mask, uv, camera, resolution, margin, multiple)
-        return window, window_target(mask, window)[0]
+        return window, window_target(mask, window, truncation_aware=truncation_aware)[0]
     extent = float((uv.max(0) - uv.min(0)).max()) * (1 + 2 * margin) + 1.0
     return None, resolution / extent
 
@@ -727,12 +736,13 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
                     cam_pts = world_to_camera(verts[p, f], views["R"][p, f, c].to(verts.dtype), views["t"][p, f, c].to(verts.dtype))
                     cam = grids[p][f][c].view.camera
                     window, target = _observation_window(masks[p][f][c], project_points(cam_pts, cam).numpy(), cam,
-                                                         resolution, cfg.margin, cfg.window_multiple)  # fmt: skip
+                                                         resolution, cfg.margin, cfg.window_multiple, cfg.truncation_aware)  # fmt: skip
                     windows.append(window)
                     targets.append(target if window is not None else None)
                     scale[p, f, c] = window.scale if window is not None else target
                     if window is not None and stage.optimiser == "lbfgs":
-                        pts = contour_points(target.mask.numpy() > 0.5, cfg.contour_points)
+                        seen = None if target.valid is None else target.valid.numpy() > 0.5
+                        pts = contour_points(target.mask.numpy() > 0.5, cfg.contour_points, seen)
                         contours.append(torch.as_tensor(pts, dtype=dtype))
                     else:
                         contours.append(None)
