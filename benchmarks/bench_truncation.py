@@ -1,14 +1,17 @@
-"""Cut-off people: the silhouette stage with and without truncation-aware silhouettes (issue 23).
+"""Real-photo conditions: the silhouette stage before and after issue 23, in one run.
 
-Subjects from silfit's generator (fully visible, all yaws) have their image cut at mid-thigh
-(the rows below the midpoint of the projected hips and knees removed: mask, keypoints below the
-cut at confidence 0, the same camera with a shorter image). Each is fitted once by the keypoint
-stage, then by the silhouette stage twice in the same run: ``truncation_aware=False`` (the
-border is background, as before) and ``True`` (what lies outside the image is unknown). Printed:
-PA-PVE and PVE (mm, against the whole true body), median reprojection error (px, visible
-keypoints), max |beta|, IoU (inside the image) and the stage's seconds; mean and worst.
+Subjects from silfit's generator (fully visible, all yaws) under four conditions:
+``clean`` masks; ``cut``: the image cut at mid-thigh (rows below the midpoint of the projected
+hips and knees removed: mask, keypoints below the cut at confidence 0, the same camera with a
+shorter image); ``clothing``: the mask dilated by 4 % of the person's height (loose clothes,
+hair); ``leak``: a block as wide as 30 % of the person's height joined to the mask's side at the
+hips (a segmentation leak into an object). Each subject is fitted once by the keypoint stage,
+then by the silhouette stage twice: *before* (``truncation_aware=False``, no keypoint trust
+region, no bound on |beta|) and *after* (the defaults). Printed per condition: PA-PVE and PVE
+(mm, against the whole true body), median reprojection error (px, visible keypoints), max |beta|,
+IoU with the given mask (inside the image) and the stage's seconds; mean and worst.
 
-    python benchmarks/bench_truncation.py --n 8 --seed 23
+    python benchmarks/bench_truncation.py --n 4 --seed 23
 """
 from __future__ import annotations
 
@@ -47,6 +50,36 @@ def cut_subject(d: Path):
     return KeypointSet(kp.xy, conf, kp.layout, source=str(d)), mask, short, gt
 
 
+def grow(mask: np.ndarray, px: int) -> np.ndarray:
+    import cv2
+
+    k = 2 * int(px) + 1
+    return cv2.dilate(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))).astype(bool)
+
+
+def leak(mask: np.ndarray, kp: KeypointSet) -> np.ndarray:
+    ys, xs = np.nonzero(mask)
+    height = ys.max() - ys.min()
+    hip_y = int(kp.xy[kp.names.index("mid_hip"), 1])
+    out = mask.copy()
+    x0 = xs.max() - 2
+    out[max(hip_y - height // 10, 0): hip_y + height // 10, x0: x0 + int(0.3 * height)] = True
+    return out
+
+
+def conditions(d: Path):
+    """{condition: (keypoints, mask, camera)} and the truth of subject folder ``d``."""
+    gt = read_gt(d / "gt.npz")
+    kp, mask, cam = read_keypoints(d / "keypoints.json"), read_mask(d / "mask.png"), load_camera(d / "camera.json")
+    height = np.ptp(np.nonzero(mask)[0])
+    kc, mc, cc, _ = cut_subject(d)
+    return {"clean": (kp, mask, cam), "cut": (kc, mc, cc), "clothing": (kp, grow(mask, max(1, int(0.04 * height))), cam),
+            "leak": (kp, leak(mask, kp), cam)}, gt  # fmt: skip
+
+
+BEFORE = dict(truncation_aware=False, w_trust=0.0, w_beta_bound=0.0)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=8)
@@ -60,27 +93,23 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         generate_dataset(Path(tmp) / "d", args.n, SynthConfig(seed=args.seed, size=args.size, noise_px=1.0), model=model)
         dirs = sorted(p for p in (Path(tmp) / "d").iterdir() if (p / "gt.npz").is_file())
-        subjects = [cut_subject(d) for d in dirs]
-    sets, masks, cams, gts = (list(x) for x in zip(*subjects))
+        subjects = [conditions(d) for d in dirs]
     fitter = KeypointFitter(model)
-    kp = fitter.fit(sets, cams, progress=False)
-    faces = model.faces
-    rows = {}
-    for name, aware in (("border = background (before)", False), ("truncation-aware (after)", True)):
-        cfg = replace(SilhouetteFitConfig(), truncation_aware=aware)
-        t0 = time.perf_counter()
-        fits = refine_batch(model, kp, sets, masks, cfg, fitter.pose_prior, progress=False)
-        seconds = (time.perf_counter() - t0) / len(fits)
-        rows[name] = [_score(model, f.params, g, f) for f, g in zip(fits, gts)], seconds
-    kp_rows = []
-    for i, g in enumerate(gts):
-        kp_rows.append(_score(model, kp.params(i), g, None, reproj=float(kp.reprojection_error[i])))
-    print(f"# Image cut at mid-thigh: {len(gts)} subjects (seed {args.seed}, {args.size} px), faces {faces.shape[0]}\n")
-    print("| method | PA-PVE mean / worst (mm) | PVE mean (mm) | reprojection median px (mean / worst) | max abs beta (worst) | IoU mean | s per image |")
-    print("|---|---|---:|---|---:|---:|---:|")
-    _row("keypoints only", kp_rows, None)
-    for name, (r, s) in rows.items():
-        _row(name, r, s)
+    print(f"# Real-photo conditions: {len(subjects)} subjects per condition (seed {args.seed}, {args.size} px)\n")
+    print("| condition | method | PA-PVE mean / worst (mm) | PVE mean (mm) | reprojection median px (mean / worst) | max abs beta | IoU mean | s per image |")
+    print("|---|---|---|---:|---|---:|---:|---:|")
+    for cond in ("clean", "cut", "clothing", "leak"):
+        sets, masks, cams = (list(x) for x in zip(*[c[cond] for c, _ in subjects]))
+        gts = [g for _, g in subjects]
+        kp = fitter.fit(sets, cams, progress=False)
+        _row(cond, "keypoints only", [_score(model, kp.params(i), g, None, reproj=float(kp.reprojection_error[i]))
+                                      for i, g in enumerate(gts)], None)  # fmt: skip
+        for name, changes in (("before", BEFORE), ("after", {})):
+            cfg = replace(SilhouetteFitConfig(), **changes)
+            t0 = time.perf_counter()
+            fits = refine_batch(model, kp, sets, masks, cfg, fitter.pose_prior, progress=False)
+            seconds = (time.perf_counter() - t0) / len(fits)
+            _row(cond, name, [_score(model, f.params, g, f) for f, g in zip(fits, gts)], seconds)
 
 
 def _score(model, params, gt, fit, reproj=None) -> dict:
@@ -94,10 +123,10 @@ def _score(model, params, gt, fit, reproj=None) -> dict:
             "iou": m.get("iou", float("nan"))}  # fmt: skip
 
 
-def _row(name, rows, seconds) -> None:
+def _row(cond, name, rows, seconds) -> None:
     get = lambda k: np.array([r[k] for r in rows], dtype=np.float64)  # noqa: E731
     pa, rp = get("pa"), get("reproj")
-    print(f"| {name} | {pa.mean():.1f} / {pa.max():.1f} | {get('pve').mean():.1f} | {rp.mean():.1f} / {rp.max():.1f} | "
+    print(f"| {cond} | {name} | {pa.mean():.1f} / {pa.max():.1f} | {get('pve').mean():.1f} | {rp.mean():.1f} / {rp.max():.1f} | "
           f"{get('beta').max():.2f} | {np.nanmean(get('iou')) if np.isfinite(get('iou')).any() else float('nan'):.3f} | "
           f"{'' if seconds is None else f'{seconds:.1f}'} |")
 

@@ -106,6 +106,14 @@ class SilhouetteFitConfig:
     w_angle: float = 0.001
     w_shape: float = 0.005
     w_stay: float = 0.0
+    #: trust region on the keypoints (:class:`KeypointTrustTerm`): a confident keypoint's projection
+    #: may move up to ``trust_fraction`` of the window's longer side (about that share of the person)
+    #: from its detection at no cost, beyond it quadratically; 0: off (before issue 23)
+    w_trust: float = 0.05
+    trust_fraction: float = 0.03
+    #: shape held in the plausible range: ``(|beta| - max_abs_beta)^2`` beyond it (:func:`beta_bound`)
+    w_beta_bound: float = 10.0
+    max_abs_beta: float = 2.5
     warmup: int = 5  # steps of linear learning-rate warm-up per level
     plateau_window: int = 12  # steps compared for the plateau test
     plateau_rtol: float = 0.003  # relative energy improvement below which a level stops
@@ -146,6 +154,7 @@ class SilhouetteFitConfig:
         return {
             "silhouette": self.w_silhouette, "keypoints": self.w_keypoints, "pose": self.w_pose,
             "limits": self.w_limits, "angle": self.w_angle, "shape": self.w_shape, "stay": self.w_stay,
+            "keypoint_trust": self.w_trust, "beta_bound": self.w_beta_bound,
         }  # fmt: skip
 
     def contour_weights(self) -> dict:
@@ -319,6 +328,30 @@ class SilhouetteTerm(Term):
         ev.extras["iou_observations"] = ious
         ev.extras["iou"] = [float(np.nanmean(i)) if any(x == x for x in i) else float("nan") for i in ious]
         return torch.stack(energies)
+
+
+class KeypointTrustTerm(Term):
+    """A trust region on the keypoints: per observation, ``sum_k w_k relu(|proj_k - target_k| -
+    tau)^2 / sum_k w_k`` in window pixels (``tau = data['trust_px']``), summed per problem. The
+    robust keypoint term saturates, so alone it lets the silhouette stage trade keypoints for mask
+    (clothing, leaks, cut-off people); this one does not saturate beyond ``tau``."""
+
+    name = "keypoint_trust"
+
+    def __call__(self, ev: Evaluation) -> torch.Tensor:
+        d = ev.data
+        K = ev.keypoints_2d.shape[-2]
+        scale = d["scale"].reshape(-1, 1).to(ev.keypoints_2d.dtype)
+        dist = (ev.keypoints_2d.reshape(-1, K, 2) - d["target"].reshape(-1, K, 2)).norm(dim=-1) * scale
+        w = d["weights"].reshape(-1, K).to(dist.dtype)
+        tau = d["trust_px"].to(dist.dtype).repeat_interleave(ev.F * ev.C)[:, None]  # [P] -> per observation
+        excess = torch.relu(dist - tau)
+        return ev.per_problem((w * excess.square()).sum(-1) / w.sum(-1).clamp(min=1e-9))
+
+
+def beta_bound(betas: torch.Tensor, limit: float) -> torch.Tensor:
+    """``sum relu(|beta| - limit)^2`` per row: nothing inside the shape space's plausible range."""
+    return torch.relu(betas.abs() - float(limit)).square().sum(-1)
 
 
 def contour_vertex_index(model, count: int) -> np.ndarray:
@@ -685,11 +718,12 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
         SilhouetteTerm(renderer, cfg.spp, cfg.edge_spp, proxy, batch), KeypointTerm("keypoints", cfg.kp_sigma),
         PriorTerm("pose", prior, "body_pose"), PriorTerm("limits", limit_violation, "body_pose"),
         PriorTerm("angle", angle_prior, "body_pose"), PriorTerm("shape", shape_prior, "betas"),
-        StayTerm("body_pose"), ContourInsideTerm(contour_points_map), ContourCoverTerm(contour_points_map), *extra_terms,
+        StayTerm("body_pose"), ContourInsideTerm(contour_points_map), ContourCoverTerm(contour_points_map),
+        KeypointTrustTerm(), PriorTerm("beta_bound", lambda b: beta_bound(b, cfg.max_abs_beta), "betas"), *extra_terms,
     ])  # fmt: skip
     target_xy, target_w, any_keypoints = _keypoint_data(grids, dtype)
     stages = tuple(
-        Stage(s.name, free_names, {**s.weights, **extra_weights, **({} if any_keypoints else {"keypoints": 0.0})},
+        Stage(s.name, free_names, {**s.weights, **extra_weights, **({} if any_keypoints else {"keypoints": 0.0, "keypoint_trust": 0.0})},
               s.iterations, s.optimiser, s.options)  # fmt: skip
         for s in cfg.stages()
     )
@@ -702,7 +736,7 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
         **extra_data, "target": target_xy, "weights": target_w, "scale": torch.ones(P, F, C, dtype=dtype),
         "start_body_pose": start["body_pose"], "R": views["R"], "t": views["t"],
         "windows": _PerProblem([None] * P), "targets": _PerProblem([None] * P), "seeds": _PerProblem([None] * P),
-        "contours": _PerProblem([None] * P),
+        "contours": _PerProblem([None] * P), "trust_px": torch.zeros(P, dtype=dtype),
     }  # fmt: skip
 
     history = [{k: [] for k in ("level", "energy", "silhouette", "keypoints", "iou")} for _ in range(P)]
@@ -748,6 +782,7 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
                         contours.append(None)
             data["windows"][p], data["targets"][p], data["contours"][p] = windows, targets, contours
         data["scale"] = scale
+        data["trust_px"] = torch.full((P,), float(cfg.trust_fraction) * resolution, dtype=dtype)
         if stage.optimiser == "lbfgs":  # the contour level: deterministic, no rendering
             _contour_level(stage, params, params_layout, energy, contour_body, views, data, failed, contour_steps)
             for p in range(P):
