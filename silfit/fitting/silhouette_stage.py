@@ -92,6 +92,9 @@ class SilhouetteFitConfig:
     #: so few compiled render kernels (a new size costs Dr.Jit a trace and, the first time on
     #: a machine, an LLVM compile of seconds)
     window_multiple: int = 16
+    #: what lies outside the image is unknown, not background (:mod:`silfit.silhouette.losses`:
+    #: truncation); ``False``: the border is background, as before issue 23
+    truncation_aware: bool = True
     lr: dict = field(
         default_factory=lambda: {"betas": 0.1, "body_pose": 0.03, "global_orient": 0.02, "transl": 0.01}
     )
@@ -103,6 +106,14 @@ class SilhouetteFitConfig:
     w_angle: float = 0.001
     w_shape: float = 0.005
     w_stay: float = 0.0
+    #: trust region on the keypoints (:class:`KeypointTrustTerm`): a confident keypoint's projection
+    #: may move up to ``trust_fraction`` of the window's longer side (about that share of the person)
+    #: from its detection at no cost, beyond it quadratically; 0: off (before issue 23)
+    w_trust: float = 0.05
+    trust_fraction: float = 0.03
+    #: shape held in the plausible range: ``(|beta| - max_abs_beta)^2`` beyond it (:func:`beta_bound`)
+    w_beta_bound: float = 10.0
+    max_abs_beta: float = 2.5
     warmup: int = 5  # steps of linear learning-rate warm-up per level
     plateau_window: int = 12  # steps compared for the plateau test
     plateau_rtol: float = 0.003  # relative energy improvement below which a level stops
@@ -143,6 +154,7 @@ class SilhouetteFitConfig:
         return {
             "silhouette": self.w_silhouette, "keypoints": self.w_keypoints, "pose": self.w_pose,
             "limits": self.w_limits, "angle": self.w_angle, "shape": self.w_shape, "stay": self.w_stay,
+            "keypoint_trust": self.w_trust, "beta_bound": self.w_beta_bound,
         }  # fmt: skip
 
     def contour_weights(self) -> dict:
@@ -223,11 +235,13 @@ def choose_window(mask: np.ndarray, uv: np.ndarray, camera: Camera, resolution: 
     return RoiWindow(x0, y0, scale, camera.crop(x0, y0, width, height, scale))
 
 
-def window_target(mask: np.ndarray, window, supersample: int = 4) -> tuple[MaskTarget, np.ndarray]:
+def window_target(mask: np.ndarray, window, supersample: int = 4, truncation_aware: bool = True) -> tuple[MaskTarget, np.ndarray]:
     """The mask resampled into a ``RoiWindow``: ``(MaskTarget of the binarised coverage, coverage)``.
 
     Coverage is the fraction of each window pixel inside the mask (supersampled, then
-    area-averaged); pixels outside the image are background. Distances are in window pixels.
+    area-averaged). Pixels outside the image are unknown, not background: the target's
+    ``valid`` map marks the image's pixels (:mod:`silfit.silhouette.losses`: truncation).
+    Distances are in window pixels.
     """
     import cv2
 
@@ -236,15 +250,15 @@ def window_target(mask: np.ndarray, window, supersample: int = 4) -> tuple[MaskT
     s = window.scale * ss
     # Output (supersampled) pixel centre i -> image pixel-centre coordinate x0 + (i + 0.5)/s - 0.5.
     M = np.array([[1.0 / s, 0.0, window.x0 + 0.5 / s - 0.5], [0.0, 1.0 / s, window.y0 + 0.5 / s - 0.5]])
-    fine = cv2.warpAffine(
-        mask.astype(np.float32), M, (cam.width * ss, cam.height * ss),
-        flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0,
-    )  # fmt: skip
-    coverage = cv2.resize(fine, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
+    warp = lambda img: cv2.resize(cv2.warpAffine(  # noqa: E731
+        img, M, (cam.width * ss, cam.height * ss), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_CONSTANT, borderValue=0.0), (cam.width, cam.height), interpolation=cv2.INTER_AREA)  # fmt: skip
+    coverage = warp(mask.astype(np.float32))
     binary = coverage > 0.5
     if not binary.any():
         raise ValueError("the mask vanishes at the silhouette stage's resolution; raise the resolution")
-    return MaskTarget.from_mask(binary), coverage
+    seen = warp(np.ones(mask.shape, np.float32)) > 0.5  # the window's pixels inside the image
+    return MaskTarget.from_mask(binary, valid=None if seen.all() or not truncation_aware else seen), coverage
 
 
 def _learning_rate_factor(step: int, steps: int, warmup: int) -> float:
@@ -310,10 +324,34 @@ class SilhouetteTerm(Term):
             target = ev.data["targets"][p][o]
             energies[p] = energies[p] + silhouette_energy(sil, target)
             with torch.no_grad():
-                ious[p][o] = float(soft_iou(sil.detach(), target.mask))
+                ious[p][o] = float(soft_iou(sil.detach(), target.mask, target.valid))
         ev.extras["iou_observations"] = ious
         ev.extras["iou"] = [float(np.nanmean(i)) if any(x == x for x in i) else float("nan") for i in ious]
         return torch.stack(energies)
+
+
+class KeypointTrustTerm(Term):
+    """A trust region on the keypoints: per observation, ``sum_k w_k relu(|proj_k - target_k| -
+    tau)^2 / sum_k w_k`` in window pixels (``tau = data['trust_px']``), summed per problem. The
+    robust keypoint term saturates, so alone it lets the silhouette stage trade keypoints for mask
+    (clothing, leaks, cut-off people); this one does not saturate beyond ``tau``."""
+
+    name = "keypoint_trust"
+
+    def __call__(self, ev: Evaluation) -> torch.Tensor:
+        d = ev.data
+        K = ev.keypoints_2d.shape[-2]
+        scale = d["scale"].reshape(-1, 1).to(ev.keypoints_2d.dtype)
+        dist = (ev.keypoints_2d.reshape(-1, K, 2) - d["target"].reshape(-1, K, 2)).norm(dim=-1) * scale
+        w = d["weights"].reshape(-1, K).to(dist.dtype)
+        tau = d["trust_px"].to(dist.dtype).repeat_interleave(ev.F * ev.C)[:, None]  # [P] -> per observation
+        excess = torch.relu(dist - tau)
+        return ev.per_problem((w * excess.square()).sum(-1) / w.sum(-1).clamp(min=1e-9))
+
+
+def beta_bound(betas: torch.Tensor, limit: float) -> torch.Tensor:
+    """``sum relu(|beta| - limit)^2`` per row: nothing inside the shape space's plausible range."""
+    return torch.relu(betas.abs() - float(limit)).square().sum(-1)
 
 
 def contour_vertex_index(model, count: int) -> np.ndarray:
@@ -591,12 +629,13 @@ def _keypoint_data(grids, dtype) -> tuple:
     return target, weights, any(a is not None for g in arrays for row in g for a in row)
 
 
-def _observation_window(mask, uv: np.ndarray, camera: Camera, resolution: int, margin: float, multiple: int = 1):
+def _observation_window(mask, uv: np.ndarray, camera: Camera, resolution: int, margin: float, multiple: int = 1,
+                        truncation_aware: bool = True):  # fmt: skip
     """``(window, target)`` of an observation with a mask, or ``(None, scale)`` without one
     (the pixels-to-window scale a window around the projected body would have)."""
     if mask is not None:
         window = choose_window(mask, uv, camera, resolution, margin, multiple)
-        return window, window_target(mask, window)[0]
+        return window, window_target(mask, window, truncation_aware=truncation_aware)[0]
     extent = float((uv.max(0) - uv.min(0)).max()) * (1 + 2 * margin) + 1.0
     return None, resolution / extent
 
@@ -679,11 +718,12 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
         SilhouetteTerm(renderer, cfg.spp, cfg.edge_spp, proxy, batch), KeypointTerm("keypoints", cfg.kp_sigma),
         PriorTerm("pose", prior, "body_pose"), PriorTerm("limits", limit_violation, "body_pose"),
         PriorTerm("angle", angle_prior, "body_pose"), PriorTerm("shape", shape_prior, "betas"),
-        StayTerm("body_pose"), ContourInsideTerm(contour_points_map), ContourCoverTerm(contour_points_map), *extra_terms,
+        StayTerm("body_pose"), ContourInsideTerm(contour_points_map), ContourCoverTerm(contour_points_map),
+        KeypointTrustTerm(), PriorTerm("beta_bound", lambda b: beta_bound(b, cfg.max_abs_beta), "betas"), *extra_terms,
     ])  # fmt: skip
     target_xy, target_w, any_keypoints = _keypoint_data(grids, dtype)
     stages = tuple(
-        Stage(s.name, free_names, {**s.weights, **extra_weights, **({} if any_keypoints else {"keypoints": 0.0})},
+        Stage(s.name, free_names, {**s.weights, **extra_weights, **({} if any_keypoints else {"keypoints": 0.0, "keypoint_trust": 0.0})},
               s.iterations, s.optimiser, s.options)  # fmt: skip
         for s in cfg.stages()
     )
@@ -696,7 +736,7 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
         **extra_data, "target": target_xy, "weights": target_w, "scale": torch.ones(P, F, C, dtype=dtype),
         "start_body_pose": start["body_pose"], "R": views["R"], "t": views["t"],
         "windows": _PerProblem([None] * P), "targets": _PerProblem([None] * P), "seeds": _PerProblem([None] * P),
-        "contours": _PerProblem([None] * P),
+        "contours": _PerProblem([None] * P), "trust_px": torch.zeros(P, dtype=dtype),
     }  # fmt: skip
 
     history = [{k: [] for k in ("level", "energy", "silhouette", "keypoints", "iou")} for _ in range(P)]
@@ -730,17 +770,19 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
                     cam_pts = world_to_camera(verts[p, f], views["R"][p, f, c].to(verts.dtype), views["t"][p, f, c].to(verts.dtype))
                     cam = grids[p][f][c].view.camera
                     window, target = _observation_window(masks[p][f][c], project_points(cam_pts, cam).numpy(), cam,
-                                                         resolution, cfg.margin, cfg.window_multiple)  # fmt: skip
+                                                         resolution, cfg.margin, cfg.window_multiple, cfg.truncation_aware)  # fmt: skip
                     windows.append(window)
                     targets.append(target if window is not None else None)
                     scale[p, f, c] = window.scale if window is not None else target
                     if window is not None and stage.optimiser == "lbfgs":
-                        pts = contour_points(target.mask.numpy() > 0.5, cfg.contour_points)
+                        seen = None if target.valid is None else target.valid.numpy() > 0.5
+                        pts = contour_points(target.mask.numpy() > 0.5, cfg.contour_points, seen)
                         contours.append(torch.as_tensor(pts, dtype=dtype))
                     else:
                         contours.append(None)
             data["windows"][p], data["targets"][p], data["contours"][p] = windows, targets, contours
         data["scale"] = scale
+        data["trust_px"] = torch.full((P,), float(cfg.trust_fraction) * resolution, dtype=dtype)
         if stage.optimiser == "lbfgs":  # the contour level: deterministic, no rendering
             _contour_level(stage, params, params_layout, energy, contour_body, views, data, failed, contour_steps)
             for p in range(P):

@@ -11,6 +11,14 @@ and a two-sided energy whose gradient flows through the rendered silhouette only
 Both are exact Euclidean transforms from OpenCV (``DIST_MASK_PRECISE``); ``E = 0`` when
 the rendered silhouette equals the mask.
 
+**Truncation.** Where a target has a ``valid`` map (the pixels inside the image; a silhouette
+window may reach beyond the image's border), what lies outside the image is unknown, not
+background: ``DT_out`` is 0 there (a body that continues beyond the border costs nothing for
+the part outside), ``DT_in`` measures the distance to the *visible* background only (the
+border where the mask is cut is not the body's edge), the outline points of the cover term
+leave out the cut (:func:`contour_points` with ``valid``), and the IoU counts the image's
+pixels only.
+
 The contour surrogate (no rendering; the silhouette stage's coarse level) compares points
 instead of pixels, in the same pixel units:
 
@@ -25,6 +33,7 @@ use them); neither needs the body's own outline, so no visibility is computed.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 import torch
@@ -35,13 +44,17 @@ __all__ = [
 ]  # fmt: skip
 
 
-def distance_transforms(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(DT_out, DT_in)`` float32 ``[H, W]`` of a boolean mask (see the module docstring)."""
+def distance_transforms(mask: np.ndarray, valid=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(DT_out, DT_in)`` float32 ``[H, W]`` of a boolean mask (see the module docstring);
+    ``valid`` (bool ``[H, W]``, default everywhere): the pixels that were seen (the image)."""
     import cv2
 
     mask = np.asarray(mask, dtype=bool)
+    unseen = np.zeros_like(mask) if valid is None else ~np.asarray(valid, dtype=bool)
     outside = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    inside = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    inside = cv2.distanceTransform((mask | unseen).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    outside[unseen] = 0.0  # unknown: a body there costs nothing
+    inside[~mask] = 0.0
     return outside.astype(np.float32), inside.astype(np.float32)
 
 
@@ -53,12 +66,16 @@ class MaskTarget:
     dt_out: torch.Tensor  # [H, W]
     dt_in: torch.Tensor  # [H, W]
     area: float
+    #: [H, W] float (0/1): the pixels inside the image (``None``: all of them)
+    valid: Optional[torch.Tensor] = None
 
     @classmethod
-    def from_mask(cls, mask: np.ndarray, device=None, dtype=torch.float32) -> "MaskTarget":
-        dt_out, dt_in = distance_transforms(mask)
+    def from_mask(cls, mask: np.ndarray, device=None, dtype=torch.float32, valid=None) -> "MaskTarget":
+        """``valid``: bool ``[H, W]``, the pixels inside the image (module docstring: truncation)."""
+        dt_out, dt_in = distance_transforms(mask, valid)
         as_t = lambda a: torch.as_tensor(a, dtype=dtype, device=device)  # noqa: E731
-        return cls(as_t(np.asarray(mask, dtype=np.float32)), as_t(dt_out), as_t(dt_in), float(np.count_nonzero(mask)))
+        seen = None if valid is None else as_t(np.asarray(valid, dtype=np.float32))
+        return cls(as_t(np.asarray(mask, dtype=np.float32)), as_t(dt_out), as_t(dt_in), float(np.count_nonzero(mask)), seen)
 
 
 def silhouette_energy(silhouette: torch.Tensor, target: MaskTarget) -> torch.Tensor:
@@ -69,26 +86,38 @@ def silhouette_energy(silhouette: torch.Tensor, target: MaskTarget) -> torch.Ten
     return (over + under) / max(target.area, 1.0)
 
 
-def soft_iou(silhouette: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """IoU of a soft silhouette with a 0/1 mask: ``sum(min) / sum(max)``."""
+def soft_iou(silhouette: torch.Tensor, mask: torch.Tensor, valid: Optional[torch.Tensor] = None) -> torch.Tensor:
+    """IoU of a soft silhouette with a 0/1 mask: ``sum(min) / sum(max)``, over the ``valid``
+    pixels only when given (the image's: what lies beyond it is unknown)."""
+    if valid is not None:
+        silhouette = silhouette * valid
     inter = torch.minimum(silhouette, mask).sum(dim=(-2, -1))
     union = torch.maximum(silhouette, mask).sum(dim=(-2, -1))
     return inter / union.clamp(min=1e-9)
 
 
 
-def contour_points(mask: np.ndarray, count: int) -> np.ndarray:
+def contour_points(mask: np.ndarray, count: int, valid=None) -> np.ndarray:
     """Up to ``count`` points ``[B, 2]`` (x, y pixel centres, float64) spread evenly along the
     outlines of a boolean mask (outer outlines and holes, OpenCV's contour order; the
-    same mask gives the same points)."""
+    same mask gives the same points). With ``valid`` (bool ``[H, W]``: the image's pixels)
+    the outline where the mask is cut by the image's border is left out: it is not the body's."""
     import cv2
 
     if int(count) <= 0:
         raise ValueError(f"contour point count must be positive, got {count}")
-    contours, _ = cv2.findContours(np.asarray(mask, dtype=np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+    m = np.asarray(mask, dtype=bool)
+    seen = None if valid is None else np.asarray(valid, dtype=bool)
+    if seen is not None:
+        m = m | ~seen  # the unseen region joins the mask: no outline along the cut
+    contours, _ = cv2.findContours(m.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
     if not contours:
         return np.zeros((0, 2))
-    pts = np.concatenate([c.reshape(-1, 2) for c in contours]).astype(np.float64)
+    pts = np.concatenate([c.reshape(-1, 2) for c in contours]).astype(np.int64)
+    if seen is not None:  # keep outline points in the image whose 3x3 neighbourhood is all seen
+        near = cv2.erode(seen.astype(np.uint8), np.ones((3, 3), np.uint8), borderValue=0).astype(bool)
+        pts = pts[near[pts[:, 1], pts[:, 0]]]
+    pts = pts.astype(np.float64)
     if len(pts) > count:
         pts = pts[np.linspace(0, len(pts) - 1, int(count)).round().astype(np.int64)]
     return pts

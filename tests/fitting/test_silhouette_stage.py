@@ -309,3 +309,26 @@ def test_legacy_schedule_has_no_contour_level():
     assert all(s.optimiser == "adam" for s in stages[1:])
     with pytest.raises(ValueError, match="contour_iterations"):
         SilhouetteFitConfig(contour_iterations=-1)
+
+
+def test_keypoint_trust_region_is_free_inside_and_quadratic_beyond():
+    """Issue 23: the silhouette stage may move a confident keypoint's projection by up to ``tau``
+    window pixels for nothing; beyond that it pays quadratically (a robust term alone saturates)."""
+    from types import SimpleNamespace
+
+    from silfit.fitting.silhouette_stage import KeypointTrustTerm, beta_bound
+
+    P, F, C, K = 2, 1, 1, 3
+    target = torch.zeros(P, F, C, K, 2, dtype=torch.float64)
+    proj = target.clone()
+    proj[0, 0, 0, 0, 0] = 4.0  # 4 image px = 8 window px at scale 2: inside tau = 10
+    proj[1, 0, 0, 1, 0] = 10.0  # 20 window px: 10 beyond tau
+    data = {"target": target, "weights": torch.tensor([1.0, 1.0, 0.0], dtype=torch.float64).expand(P, F, C, K),
+            "scale": torch.full((P, F, C), 2.0, dtype=torch.float64), "trust_px": torch.full((P,), 10.0, dtype=torch.float64)}  # fmt: skip
+    ev = SimpleNamespace(keypoints_2d=proj, data=data, F=F, C=C, per_problem=lambda v: v.reshape(P, -1).sum(1))
+    e = KeypointTrustTerm()(ev)
+    assert e[0].item() == 0.0 and e[1].item() == pytest.approx(100.0 / 2.0)  # (20 - 10)^2 over the 2 weighted points
+    proj[1, 0, 0, 2, 0] = 1e3  # a point with confidence 0 costs nothing
+    assert KeypointTrustTerm()(ev)[1].item() == pytest.approx(50.0)
+    b = torch.tensor([[0.5, -2.5, 1.0], [3.5, 0.0, -4.5]], dtype=torch.float64)
+    assert beta_bound(b, 2.5).tolist() == pytest.approx([0.0, 1.0 + 4.0])

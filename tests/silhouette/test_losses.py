@@ -1,5 +1,6 @@
 """Distance-transform silhouette energy and IoU."""
 import numpy as np
+import pytest
 import torch
 
 from silfit.silhouette import MaskTarget, distance_transforms, silhouette_energy, soft_iou
@@ -74,3 +75,26 @@ def test_contour_energies_are_zero_on_a_match_and_pull_toward_the_mask():
     # a point outside the image costs its distance to the image on top of the border's value
     far = outside_distance_energy(torch.tensor([[-10.0, 32.0]]), target.dt_out).sqrt().item()
     assert abs(far - (float(target.dt_out[32, 0]) + 10.0)) < 1e-5
+
+
+def test_outside_the_image_is_unknown_not_background():
+    """Truncation (issue 23): a mask cut by the image's border. Beyond the border a body costs nothing,
+    the cut is not an outline, and the distance inside the mask is to the visible background only."""
+    from silfit.silhouette.losses import contour_points, distance_transforms
+
+    valid = np.zeros((40, 30), bool)
+    valid[:30] = True  # rows 30.. lie below the image
+    mask = np.zeros((40, 30), bool)
+    mask[10:30, 10:20] = True  # the person runs out of the image at its bottom
+    dt_out, dt_in = distance_transforms(mask, valid)
+    plain_out, plain_in = distance_transforms(mask)
+    assert (dt_out[30:] == 0).all() and plain_out[35, 15] > 0  # a leg below the border: free with valid
+    assert dt_in[29, 15] > plain_in[29, 15] and dt_in[29, 15] == pytest.approx(5.0)  # the sides are the edge, not the cut
+    pts = contour_points(mask, 500, valid)
+    bottom = (pts[:, 1] >= 27) & (pts[:, 0] > 10) & (pts[:, 0] < 19)
+    assert len(pts) and pts[:, 1].max() < 29 and not bottom.any()  # the sides only: no outline along the cut
+    assert contour_points(mask, 500)[:, 1].max() >= 29
+    body = torch.zeros(40, 30)
+    body[10:40, 10:20] = 1.0  # the true body continues below the image
+    assert soft_iou(body, torch.as_tensor(mask, dtype=torch.float32), torch.as_tensor(valid, dtype=torch.float32)) == 1.0
+    assert soft_iou(body, torch.as_tensor(mask, dtype=torch.float32)) < 0.7

@@ -1,0 +1,135 @@
+"""Real-photo conditions: the silhouette stage before and after issue 23, in one run.
+
+Subjects from silfit's generator (fully visible, all yaws) under four conditions:
+``clean`` masks; ``cut``: the image cut at mid-thigh (rows below the midpoint of the projected
+hips and knees removed: mask, keypoints below the cut at confidence 0, the same camera with a
+shorter image); ``clothing``: the mask dilated by 4 % of the person's height (loose clothes,
+hair); ``leak``: a block as wide as 30 % of the person's height joined to the mask's side at the
+hips (a segmentation leak into an object). Each subject is fitted once by the keypoint stage,
+then by the silhouette stage twice: *before* (``truncation_aware=False``, no keypoint trust
+region, no bound on |beta|) and *after* (the defaults). Printed per condition: PA-PVE and PVE
+(mm, against the whole true body), median reprojection error (px, visible keypoints), max |beta|,
+IoU with the given mask (inside the image) and the stage's seconds; mean and worst.
+
+    python benchmarks/bench_truncation.py --n 4 --seed 23
+"""
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from silfit import load_body_model
+from silfit.camera import Camera, load_camera, project_points
+from silfit.dataset import read_gt, read_mask
+from silfit.eval.metrics import procrustes_align
+from silfit.fitting import KeypointFitter
+from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+from silfit.keypoints import KeypointSet, read_keypoints
+from silfit.pipeline import refine_batch
+
+
+def cut_subject(d: Path):
+    """(keypoints, mask, camera, gt) of subject folder ``d`` with the image cut at mid-thigh."""
+    gt = read_gt(d / "gt.npz")
+    cam = load_camera(d / "camera.json")
+    uv = project_points(torch.as_tensor(gt.joints), cam).numpy()
+    kp = read_keypoints(d / "keypoints.json")
+    hips = [kp.names.index(n) for n in ("mid_hip", "left_hip", "right_hip")]
+    cut = int(round(0.5 * (uv[[1, 2], 1].mean() + uv[[4, 5], 1].mean())))
+    cut = max(cut, int(np.ceil(kp.xy[hips, 1].max())) + 4)  # the hips stay in the image (a torso to fit)
+    cut = min(max(cut, 16), cam.height - 1)
+    conf = np.where(kp.xy[:, 1] < cut - 0.5, kp.conf, 0.0)
+    short = Camera(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cut)
+    mask = read_mask(d / "mask.png")[:cut]
+    return KeypointSet(kp.xy, conf, kp.layout, source=str(d)), mask, short, gt
+
+
+def grow(mask: np.ndarray, px: int) -> np.ndarray:
+    import cv2
+
+    k = 2 * int(px) + 1
+    return cv2.dilate(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))).astype(bool)
+
+
+def leak(mask: np.ndarray, kp: KeypointSet) -> np.ndarray:
+    ys, xs = np.nonzero(mask)
+    height = ys.max() - ys.min()
+    hip_y = int(kp.xy[kp.names.index("mid_hip"), 1])
+    out = mask.copy()
+    x0 = xs.max() - 2
+    out[max(hip_y - height // 10, 0): hip_y + height // 10, x0: x0 + int(0.3 * height)] = True
+    return out
+
+
+def conditions(d: Path):
+    """{condition: (keypoints, mask, camera)} and the truth of subject folder ``d``."""
+    gt = read_gt(d / "gt.npz")
+    kp, mask, cam = read_keypoints(d / "keypoints.json"), read_mask(d / "mask.png"), load_camera(d / "camera.json")
+    height = np.ptp(np.nonzero(mask)[0])
+    kc, mc, cc, _ = cut_subject(d)
+    return {"clean": (kp, mask, cam), "cut": (kc, mc, cc), "clothing": (kp, grow(mask, max(1, int(0.04 * height))), cam),
+            "leak": (kp, leak(mask, kp), cam)}, gt  # fmt: skip
+
+
+BEFORE = dict(truncation_aware=False, w_trust=0.0, w_beta_bound=0.0)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=8)
+    ap.add_argument("--seed", type=int, default=23)
+    ap.add_argument("--size", type=int, default=256)
+    args = ap.parse_args()
+
+    from silfit.synth.generate import SynthConfig, generate_dataset
+
+    model = load_body_model()
+    with tempfile.TemporaryDirectory() as tmp:
+        generate_dataset(Path(tmp) / "d", args.n, SynthConfig(seed=args.seed, size=args.size, noise_px=1.0), model=model)
+        dirs = sorted(p for p in (Path(tmp) / "d").iterdir() if (p / "gt.npz").is_file())
+        subjects = [conditions(d) for d in dirs]
+    fitter = KeypointFitter(model)
+    print(f"# Real-photo conditions: {len(subjects)} subjects per condition (seed {args.seed}, {args.size} px)\n")
+    print("| condition | method | PA-PVE mean / worst (mm) | PVE mean (mm) | reprojection median px (mean / worst) | max abs beta | IoU mean | s per image |")
+    print("|---|---|---|---:|---|---:|---:|---:|")
+    for cond in ("clean", "cut", "clothing", "leak"):
+        sets, masks, cams = (list(x) for x in zip(*[c[cond] for c, _ in subjects]))
+        gts = [g for _, g in subjects]
+        kp = fitter.fit(sets, cams, progress=False)
+        _row(cond, "keypoints only", [_score(model, kp.params(i), g, None, reproj=float(kp.reprojection_error[i]))
+                                      for i, g in enumerate(gts)], None)  # fmt: skip
+        for name, changes in (("before", BEFORE), ("after", {})):
+            cfg = replace(SilhouetteFitConfig(), **changes)
+            t0 = time.perf_counter()
+            fits = refine_batch(model, kp, sets, masks, cfg, fitter.pose_prior, progress=False)
+            seconds = (time.perf_counter() - t0) / len(fits)
+            _row(cond, name, [_score(model, f.params, g, f) for f, g in zip(fits, gts)], seconds)
+
+
+def _score(model, params, gt, fit, reproj=None) -> dict:
+    T = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64).reshape(1, -1), dtype=model.dtype)  # noqa: E731
+    with torch.no_grad():
+        v = model(**{k: T(params[k]) for k in ("betas", "body_pose", "global_orient", "transl")}).vertices[0].double().numpy()
+    pa = 1000 * np.linalg.norm(procrustes_align(v, gt.vertices) - gt.vertices, axis=-1).mean()
+    pve = 1000 * np.linalg.norm(v - gt.vertices, axis=-1).mean()
+    m = fit.metrics if fit is not None else {}
+    return {"pa": pa, "pve": pve, "reproj": m.get("reprojection_error_px", reproj), "beta": float(np.abs(params["betas"]).max()),
+            "iou": m.get("iou", float("nan"))}  # fmt: skip
+
+
+def _row(cond, name, rows, seconds) -> None:
+    get = lambda k: np.array([r[k] for r in rows], dtype=np.float64)  # noqa: E731
+    pa, rp = get("pa"), get("reproj")
+    print(f"| {cond} | {name} | {pa.mean():.1f} / {pa.max():.1f} | {get('pve').mean():.1f} | {rp.mean():.1f} / {rp.max():.1f} | "
+          f"{get('beta').max():.2f} | {np.nanmean(get('iou')) if np.isfinite(get('iou')).any() else float('nan'):.3f} | "
+          f"{'' if seconds is None else f'{seconds:.1f}'} |")
+
+
+if __name__ == "__main__":
+    main()
