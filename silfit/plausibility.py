@@ -188,15 +188,16 @@ def reprojection_rise_warnings(before: Optional[float], after: Optional[float]) 
 
 def mask_warnings(mask: np.ndarray, source: str = "mask") -> list:
     """A warning when the person's mask runs along the image border (at least
-    :data:`MIN_BORDER_RUN` of a side): the person is cut off there, and the silhouette stage
-    reads the border as where the body ends (issue: truncation-aware silhouettes)."""
+    :data:`MIN_BORDER_RUN` of a side): the person is cut off there; the silhouette stage treats
+    what lies beyond as unknown (:mod:`silfit.silhouette.losses`), so that part of the body rests
+    on the keypoints and priors only."""
     m = np.asarray(mask, dtype=bool)
     sides = {"top": m[0], "bottom": m[-1], "left": m[:, 0], "right": m[:, -1]}
     cut = [name for name, row in sides.items() if row.mean() >= MIN_BORDER_RUN]
     if not cut:
         return []
-    return [f"{source}: the person runs out of the image at the {' and '.join(cut)} edge(s) (cut off): the silhouette "
-            "stage takes the border for the body's end and may pull limbs into the frame; check the side view"]
+    return [f"{source}: the person runs out of the image at the {' and '.join(cut)} edge(s) (cut off): the body beyond "
+            "the border is fitted from the keypoints and priors alone; check the side view"]
 
 
 def branch_gap(search) -> Optional[float]:
