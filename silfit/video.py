@@ -220,11 +220,15 @@ def _frame_pictures(result, numbers, model, images, masks, stride: int = 1):
 
 
 def write_overlay_video(path: Path, pictures, fps: float) -> Optional[Path]:
-    """An animated GIF of ``pictures`` with imageio (when installed); ``None`` without it."""
+    """An animated GIF of ``pictures`` (with imageio when installed, else with Pillow)."""
     try:
         import imageio.v3 as iio
     except ImportError:
-        return None
+        from PIL import Image
+
+        frames = [Image.fromarray(np.asarray(p, dtype=np.uint8)) for p in pictures]
+        frames[0].save(path, format="GIF", save_all=True, append_images=frames[1:], duration=int(round(1000.0 / fps)), loop=0)
+        return path
     iio.imwrite(path, np.stack(pictures), extension=".gif", duration=1000.0 / fps, loop=0)
     return path
 

@@ -154,3 +154,15 @@ def test_a_depth_branch_the_keypoints_cannot_decide_is_reported():
     assert len(w) == 1 and "left_upper_arm flipped in depth" in w[0] and "1.0% higher" in w[0]
     far = [{"stage": "branches_1", "kept": "keep", "tried": [{"flip": "keep", "energy": 100.0}, {"flip": "left_shin", "energy": 110.0}]}]
     assert ambiguity_warnings(far) == [] and ambiguity_warnings(None) == []
+
+
+def test_video_frames_whose_mask_runs_out_of_the_image_are_named():
+    from silfit.fitting.sequence import _cut_off_frames
+
+    inside = np.zeros((60, 40), bool)
+    inside[10:50, 10:30] = True
+    cut = inside.copy()
+    cut[10:, 10:30] = True
+    w = _cut_off_frames([inside, None, cut, cut])
+    assert len(w) == 1 and w[0].startswith("frame(s) 2, 3:") and "cut off" in w[0]
+    assert _cut_off_frames([inside, None]) == []

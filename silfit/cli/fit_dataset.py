@@ -57,7 +57,7 @@ def register(subparsers) -> None:
                    "(x right, y up, z toward the viewer), normals, the camera in the glTF")
     p.add_argument("--no-report", action="store_true", help="do not write report/index.html (the gallery of "
                    "`silfit report`) at the end")
-    p.add_argument("--quiet", action="store_true", help="no progress bar and no summary table")
+    p.add_argument("--quiet", action="store_true", help="no progress bar (the summary table and warnings are still printed)")
     p.set_defaults(func=run)
 
 

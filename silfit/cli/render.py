@@ -1,8 +1,8 @@
 """``silfit render``: offscreen images of a fitted body or a mesh (pyrender on OSMesa).
 
 Input is a fit file (``params.npz`` / ``params.json`` of any mode, read with
-:func:`silfit.fitio.read_fit`; evaluated with the body model the file records, or
-``--model``) or a mesh file (OBJ/PLY/...; read with trimesh). Vertices are drawn in the
+:func:`silfit.fitio.read_fit`; evaluated with the shipped open model of the kind the file
+records, or ``--model`` for the model file the fit was made with) or a mesh file (OBJ/PLY/...; read with trimesh). Vertices are drawn in the
 camera frame of the project's convention (OpenCV axes, see :mod:`silfit.camera`): a rig's
 world-frame fit is moved into its first view's camera frame. A video's fit draws frame
 ``--frame N`` (default 0), or with ``--frame all`` every frame into animated GIFs.

@@ -59,9 +59,6 @@ def run_sequence(args) -> int:
     sil_config = silhouette_config(args)  # a bad flag is reported before any fitting
     seq = read_sequence(args.sequence, masks=args.masks, images=args.images, person=args.person)
     camera, camera_source = _camera(args, seq)
-    from ..plausibility import check_frames
-
-    seq.frames, input_warnings = check_frames(seq.frames, camera.size, seq.numbers)  # as one image's keypoints are checked
     # whole body: the frames' hand and face points decide the model (as for one image) and are fitted with it
     from ..wholebody import choose_fit_keypoints, read_wholebody_parts
 
@@ -71,6 +68,10 @@ def run_sequence(args) -> int:
     if model_note:
         note(model_note)
     seq.frames = [None if ks is None else choose_fit_keypoints(ks, w, model)[0] for ks, w in zip(seq.frames, parts)]
+    from ..plausibility import check_frames
+
+    # the keypoints the fit will use get the checks of one image's (hands and face too)
+    seq.frames, input_warnings = check_frames(seq.frames, camera.size, seq.numbers)
     pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
     masks = None
     if seq.masks and not args.no_silhouette:  # read (and checked) before --check-only answers
@@ -98,7 +99,7 @@ def run_sequence(args) -> int:
     result.warnings = list(seq.warnings) + input_warnings + list(result.warnings)
     extra = {"sequence": str(args.sequence), "model": model.source, "camera_source": camera_source,
              "silhouette": "run" if masks is not None else "not run (no masks)" if not seq.masks else "not run (--no-silhouette)",
-             "warnings": [*seq.warnings, *result.warnings]}  # fmt: skip
+             "warnings": list(result.warnings)}  # fmt: skip
     save_leaving_nothing_on_error(out, lambda: save_sequence_fit(
         result, out, model, seq, meshes=args.meshes, video=not args.no_video, fps=args.fps, extra_metrics=extra,
         overwrite=args.overwrite, exports=export_formats(args)))  # fmt: skip

@@ -452,6 +452,17 @@ def _merge_windows(params: Dict[str, np.ndarray], starts: List[int], F: int) -> 
 SILHOUETTE_TEMPORAL_WEIGHT = 5e-5
 
 
+def _cut_off_frames(masks) -> List[str]:
+    """One warning naming the frames whose mask runs out of the image (:func:`silfit.plausibility.mask_warnings`)."""
+    from ..plausibility import mask_warnings
+
+    cut = [f for f, m in enumerate(masks) if m is not None and mask_warnings(m)]
+    if not cut:
+        return []
+    return [f"frame(s) {', '.join(map(str, cut[:10]))}{' ...' if len(cut) > 10 else ''}: the person runs out of the image "
+            "(cut off); the body beyond the border rests on the keypoints and priors only"]
+
+
 def finite_median(values) -> Optional[float]:
     """The median of the finite values (``None`` when there is none)."""
     v = np.asarray(values, dtype=np.float64)
@@ -537,6 +548,7 @@ def refine_sequence_silhouettes(
                   reprojection_error=reproj, reprojection_error_keypoint_stage=result.reprojection_error, timings=timings,
                   warnings=list(result.warnings) + list(sil.warnings)
                   + reprojection_rise_warnings(finite_median(result.reprojection_error), finite_median(reproj)) + shape_warnings(betas)
+                  + _cut_off_frames(masks)
                   + ([f"{len(empty)} frame(s) with an empty mask had no silhouette term: {empty[:10]}"] if empty else []))  # fmt: skip
     out.silhouette_iou, out.silhouette_iou_start = np.array([row[0] for row in sil.ious], dtype=np.float64), float(sil.iou_start)
     return out
