@@ -31,16 +31,16 @@ import numpy as np
 import torch
 
 from .camera import Camera, project_points
-from .fitting.keypoint_stage import KeypointFitConfig, KeypointFitter, prepare_keypoints
+from .fitting.keypoint_stage import KeypointFitConfig, KeypointFitter
 from .fitting.result import KeypointFitResult
 from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult, fit_silhouettes
 from .keypoints import KeypointSet, model_keypoints
 from .outfolder import atomic_folder
-from .plausibility import ambiguity_warnings, check_keypoints, fit_warnings, mask_warnings
+from .plausibility import ambiguity_warnings, fit_warnings, mask_warnings
 from .eval.metrics import mask_iou
 from .silhouette.masks import validate_mask
 
-__all__ = ["FitResult", "fit", "refine", "refine_batch", "save_fit", "body_mask"]
+__all__ = ["FitResult", "fit", "fit_problem", "refine", "refine_batch", "save_fit", "body_mask"]
 
 
 @dataclass
@@ -215,48 +215,46 @@ def fit(
     if ``mask [H, W]`` (bool) is given, refine against the silhouette.
 
     ``camera`` or ``image_size=(W, H)`` (+ optional ``focal``) define the camera, as for
-    :func:`silfit.fit_keypoints`. ``model`` defaults to the shipped open body model.
+    :func:`silfit.fit_keypoints`. ``model`` defaults to the shipped open body model. The same
+    path as every other mode (:func:`silfit.run.run` on :func:`silfit.run.image_job`).
     """
-    if model is None:
-        from .body import load_body_model
+    from .run import image_job, run
 
-        model = load_body_model()
-    sets = prepare_keypoints(keypoints)
-    if len(sets) != 1:
-        raise ValueError(f"fit() takes one person's keypoints, got {len(sets)}; use fit_keypoints for batches")
-    if mask is not None and camera is None and image_size is None:
-        image_size = (mask.shape[1], mask.shape[0])
-    # plausibility (silfit.plausibility): drop far-outside keypoints, refuse degenerate sets, warn about the result
-    sets[0], plausibility_warnings = check_keypoints(sets[0], (camera.width, camera.height) if camera else image_size)
-    result = _fit(sets, mask, camera, image_size, focal, model, pose_prior, keypoint_config, silhouette_config, progress)
-    result.metrics["warnings"] += plausibility_warnings + fit_warnings(result.metrics, sets[0], result.vertices, result.params.get("betas")) \
-        + ambiguity_warnings((result.keypoint.branch_search or [None])[0])
-    return result
+    job = image_job(keypoints, mask, camera, image_size=image_size, focal=focal, model=model, pose_prior=pose_prior,
+                    keypoint_config=keypoint_config, silhouette_config=silhouette_config, progress=progress)  # fmt: skip
+    return run(job).stage
 
 
-def _fit(sets, mask, camera, image_size, focal, model, pose_prior, keypoint_config, silhouette_config, progress):
-    fitter = KeypointFitter(model, sets[0].layout, keypoint_config, pose_prior)
-    kp_result = fitter.fit(sets, camera, image_size=image_size, focal=focal, progress=progress)
-    if mask is not None:
-        result = refine(model, kp_result, sets[0], np.asarray(mask, dtype=bool), silhouette_config,
-                        fitter.pose_prior, progress=progress)  # fmt: skip
+def fit_problem(model, keypoints: KeypointSet, camera: Camera, mask: Optional[np.ndarray] = None, *, pose_prior=None,
+                keypoint_config=None, silhouette_config=None, silhouette: bool = True, progress: bool = True,
+                mask_source: str = "mask") -> FitResult:  # fmt: skip
+    """One image's core, keypoints already checked (:func:`silfit.run.check`): the keypoint
+    stage, the silhouette stage when there is a ``mask`` (and ``silhouette``), the image's
+    plausibility warnings (:func:`silfit.plausibility.fit_warnings`, depth ambiguity)."""
+    fitter = KeypointFitter(model, keypoints.layout, keypoint_config, pose_prior)
+    kp_result = fitter.fit([keypoints], camera, progress=progress)
+    if mask is not None and silhouette:
+        result = refine(model, kp_result, keypoints, np.asarray(mask, dtype=bool), silhouette_config,
+                        fitter.pose_prior, progress=progress, mask_source=mask_source)  # fmt: skip
     else:
-        vertices, joints, kp2d = _pose(model, kp_result.params(0), sets[0].layout, kp_result.camera)
+        vertices, joints, kp2d = _pose(model, kp_result.params(0), keypoints.layout, kp_result.camera)
         metrics = {
             "stages": ["keypoints"],
             "timings_s": {**{f"keypoints.{k}": float(v) for k, v in kp_result.timings.items()},
                           "keypoints": _stage_seconds(kp_result.timings)},
-            "reprojection_error_px": _median_reprojection(kp2d, sets[0]),
+            "reprojection_error_px": _median_reprojection(kp2d, keypoints),
             "warnings": [],
             **_run_record(kp_result),
         }  # fmt: skip
-        result = FitResult(kp_result.camera, sets[0].layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d,
+        result = FitResult(kp_result.camera, keypoints.layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d,
                            metrics)  # fmt: skip
     if fitter.whole_body:  # which parts were fitted, which held at rest
         from .fitting.wholebody import wholebody_summary
 
-        result.metrics["whole_body"], notes = wholebody_summary(sets[0])
+        result.metrics["whole_body"], notes = wholebody_summary(keypoints)
         result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
+    result.metrics["warnings"] += fit_warnings(result.metrics, keypoints, result.vertices, result.params.get("betas")) \
+        + ambiguity_warnings((result.keypoint.branch_search or [None])[0])
     return result
 
 
