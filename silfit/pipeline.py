@@ -225,37 +225,104 @@ def fit(
     return run(job).stage
 
 
-def fit_problem(model, keypoints: KeypointSet, camera: Camera, mask: Optional[np.ndarray] = None, *, pose_prior=None,
-                keypoint_config=None, silhouette_config=None, silhouette: bool = True, progress: bool = True,
-                mask_source: str = "mask") -> FitResult:  # fmt: skip
-    """One image's core, keypoints already checked (:func:`silfit.run.check`): the keypoint
-    stage, the silhouette stage when there is a ``mask`` (and ``silhouette``), the image's
-    plausibility warnings (:func:`silfit.plausibility.fit_warnings`, depth ambiguity)."""
-    fitter = KeypointFitter(model, keypoints.layout, keypoint_config, pose_prior)
-    kp_result = fitter.fit([keypoints], camera, progress=progress)
-    if mask is not None and silhouette:
-        result = refine(model, kp_result, keypoints, np.asarray(mask, dtype=bool), silhouette_config,
-                        fitter.pose_prior, progress=progress, mask_source=mask_source)  # fmt: skip
-    else:
-        vertices, joints, kp2d = _pose(model, kp_result.params(0), keypoints.layout, kp_result.camera)
-        metrics = {
-            "stages": ["keypoints"],
-            "timings_s": {**{f"keypoints.{k}": float(v) for k, v in kp_result.timings.items()},
-                          "keypoints": _stage_seconds(kp_result.timings)},
-            "reprojection_error_px": _median_reprojection(kp2d, keypoints),
-            "warnings": [],
-            **_run_record(kp_result),
-        }  # fmt: skip
-        result = FitResult(kp_result.camera, keypoints.layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d,
-                           metrics)  # fmt: skip
-    if fitter.whole_body:  # which parts were fitted, which held at rest
-        from .fitting.wholebody import wholebody_summary
-
-        result.metrics["whole_body"], notes = wholebody_summary(keypoints)
-        result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
-    result.metrics["warnings"] += fit_warnings(result.metrics, keypoints, result.vertices, result.params.get("betas")) \
-        + ambiguity_warnings((result.keypoint.branch_search or [None])[0])
+def fit_problem(model, keypoints: KeypointSet, camera: Camera, mask: Optional[np.ndarray] = None, **options) -> FitResult:
+    """One image's core (:func:`fit_problems` for one image; a failure raises)."""
+    (result,) = fit_problems(model, [keypoints], [camera], [mask], **options)
+    if isinstance(result, Exception):
+        raise result
     return result
+
+
+class StageFailure(Exception):
+    """One image of a batch failed in ``stage`` (``"keypoints"`` or ``"silhouette"``): the
+    original error is ``error`` (and ``__cause__``)."""
+
+    def __init__(self, stage: str, error: Exception):
+        super().__init__(str(error))
+        self.stage, self.error = stage, error
+
+
+def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Camera], masks: Sequence[Optional[np.ndarray]],
+                 *, pose_prior=None, keypoint_config=None, silhouette_config=None, silhouette: bool = True,
+                 progress: bool = True, mask_sources: Optional[Sequence[str]] = None,
+                 isolate: bool = False) -> List[Union[FitResult, StageFailure]]:  # fmt: skip
+    """Images' cores, keypoints already checked (:func:`silfit.run.check`), one layout: the
+    keypoint stage batched over all images, the silhouette stage batched over those with a mask
+    (and ``silhouette``), each image's plausibility warnings
+    (:func:`silfit.plausibility.fit_warnings`, depth ambiguity). With ``isolate``, a failing
+    batch is fitted again image by image, and an image that still fails gets a
+    :class:`StageFailure` in its place; without, the first error raises."""
+    n = len(keypoints)
+    mask_sources = list(mask_sources or ["mask"] * n)
+    fitter = KeypointFitter(model, keypoints[0].layout, keypoint_config, pose_prior)
+    out: List[Union[FitResult, StageFailure, None]] = [None] * n
+
+    def each(rows, call, stage):
+        """``call(rows)`` -> one result per row; isolated: again row by row where the batch fails."""
+        try:
+            return list(zip(rows, call(rows)))
+        except Exception as err:  # noqa: BLE001 - which row failed is found by fitting them alone
+            if not isolate:
+                raise
+            if len(rows) == 1:
+                return [(rows[0], StageFailure(stage, err))]
+            return [pair for r in rows for pair in each([r], call, stage)]
+
+    def keypoint_stage(rows):  # per row: (the batch's result, its index there); timings shared out
+        kp = fitter.fit([keypoints[i] for i in rows], [cameras[i] for i in rows], progress=progress)
+        kp.timings = {k: float(v) / len(rows) for k, v in kp.timings.items()}
+        return [(kp, j) for j in range(len(rows))]
+
+    kp_results = dict(each(list(range(n)), keypoint_stage, "keypoints"))
+    ok = [i for i in range(n) if not isinstance(kp_results[i], StageFailure)]
+    sil = [i for i in ok if masks[i] is not None and silhouette]
+
+    def silhouette_stage(rows):
+        groups: dict = {}  # rows fitted in one keypoint batch are refined as one
+        for i in rows:
+            groups.setdefault(id(kp_results[i][0]), []).append(i)
+        done = {}
+        for group in groups.values():
+            batch = kp_results[group[0]][0].select([kp_results[i][1] for i in group])
+            fitted = refine_batch(model, batch, [keypoints[i] for i in group], [np.asarray(masks[i], dtype=bool) for i in group],
+                                  silhouette_config, fitter.pose_prior, progress=progress,
+                                  mask_sources=[mask_sources[i] for i in group])  # fmt: skip
+            done.update(zip(group, fitted))
+        return [done[i] for i in rows]
+
+    refined = dict(each(sil, silhouette_stage, "silhouette")) if sil else {}
+    for i in range(n):
+        kp = kp_results[i]
+        if isinstance(kp, StageFailure):
+            out[i] = kp
+            continue
+        result = refined[i] if i in refined else _keypoint_only(model, kp[0][kp[1]], keypoints[i])
+        if isinstance(result, StageFailure):
+            out[i] = result
+            continue
+        if fitter.whole_body:  # which parts were fitted, which held at rest
+            from .fitting.wholebody import wholebody_summary
+
+            result.metrics["whole_body"], notes = wholebody_summary(keypoints[i])
+            result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
+        result.metrics["warnings"] += fit_warnings(result.metrics, keypoints[i], result.vertices, result.params.get("betas")) \
+            + ambiguity_warnings((result.keypoint.branch_search or [None])[0])
+        out[i] = result
+    return out  # type: ignore[return-value]
+
+
+def _keypoint_only(model, kp_result: KeypointFitResult, keypoints: KeypointSet) -> FitResult:
+    """The :class:`FitResult` of a one-image keypoint-stage result (no silhouette stage)."""
+    vertices, joints, kp2d = _pose(model, kp_result.params(0), keypoints.layout, kp_result.camera)
+    metrics = {
+        "stages": ["keypoints"],
+        "timings_s": {**{f"keypoints.{k}": float(v) for k, v in kp_result.timings.items()},
+                      "keypoints": _stage_seconds(kp_result.timings)},
+        "reprojection_error_px": _median_reprojection(kp2d, keypoints),
+        "warnings": [],
+        **_run_record(kp_result),
+    }  # fmt: skip
+    return FitResult(kp_result.camera, keypoints.layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d, metrics)
 
 
 def save_fit(

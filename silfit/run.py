@@ -22,14 +22,15 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Sequence
+from typing import Any, Dict, List, Optional, Sequence, Union
 
 import numpy as np
 
 from .errors import InputError
 from .fitting.problem import Observation, Problem
+from .pipeline import StageFailure
 
-__all__ = ["Job", "Fit", "check", "run", "write", "image_job"]
+__all__ = ["Job", "Fit", "StageFailure", "check", "run", "run_batch", "write", "image_job"]
 
 
 @dataclass
@@ -209,18 +210,56 @@ def check(job: Job) -> Job:
 
 def run(job: Job) -> Fit:
     """Fit a job (module docstring): checks, keypoint stage, silhouette stage, warnings."""
-    if job.model is None:
-        from dataclasses import replace
-
-        from .body import load_body_model
-
-        job = replace(job, model=load_body_model())
-    job = check(job)
-    fit = {"image": _run_image, "rig": _run_rig, "video": _run_video}[job.mode](job)
-    fit.metrics["warnings"] = _dedupe(list(job.warnings) + list(fit.metrics.get("warnings", [])))
-    if job.record:
-        fit.metrics.update({k: v for k, v in job.record.items() if k != "warnings"})
+    (fit,) = run_batch([job])
+    if isinstance(fit, Exception):
+        raise fit.error if isinstance(fit, StageFailure) else fit
     return fit
+
+
+def run_batch(jobs: Sequence[Job], isolate: bool = False) -> List[Union[Fit, Exception]]:
+    """Fit several jobs, one :class:`Fit` each, in order: one-image jobs that share a layout,
+    model and settings go through the keypoint stage as one batch and through the silhouette
+    stage as one batch (as ``fit-dataset`` and ``eval`` feed them); rigs and videos one by one.
+    With ``isolate``, a job that fails (its checks, or a stage:
+    :class:`~silfit.pipeline.StageFailure`) gets its error in its place and the others go on;
+    without, the first error raises."""
+    out: List[Union[Fit, Exception, None]] = [None] * len(jobs)
+    checked: Dict[int, Job] = {}
+    for i, job in enumerate(jobs):
+        try:
+            if job.model is None:
+                from dataclasses import replace
+
+                from .body import load_body_model
+
+                job = replace(job, model=load_body_model())
+            checked[i] = check(job)
+        except InputError as err:
+            if not isolate:
+                raise
+            out[i] = err
+    groups: Dict[tuple, List[int]] = {}
+    for i, job in checked.items():
+        key = ("image", job.layout, id(job.model), id(job.pose_prior), id(job.keypoint_config), id(job.silhouette_config),
+               job.silhouette, job.progress) if job.mode == "image" else (job.mode, i)  # fmt: skip
+        groups.setdefault(key, []).append(i)
+    for key, rows in groups.items():
+        if key[0] == "image":
+            results = _run_images([checked[i] for i in rows], isolate)
+        else:
+            try:
+                results = [{"rig": _run_rig, "video": _run_video}[key[0]](checked[rows[0]])]
+            except Exception as err:  # noqa: BLE001 - one job's failure, kept in its place
+                if not isolate:
+                    raise
+                results = [err]
+        for i, fit in zip(rows, results):
+            if isinstance(fit, Fit):
+                job = fit.job
+                fit.metrics["warnings"] = _dedupe(list(job.warnings) + list(fit.metrics.get("warnings", [])))
+                fit.metrics.update({k: v for k, v in job.record.items() if k != "warnings"})
+            out[i] = fit
+    return out  # type: ignore[return-value]
 
 
 def _arr(v) -> np.ndarray:
@@ -232,17 +271,26 @@ def _params_per_frame(params: dict, F: int) -> Dict[str, np.ndarray]:
     return {n: _arr(v).reshape(-1) if n == "betas" else _arr(v).reshape(F, -1) for n, v in params.items()}
 
 
-def _run_image(job: Job) -> Fit:
-    from .pipeline import fit_problem
+def _run_images(jobs: Sequence[Job], isolate: bool) -> list:
+    """One-image jobs of one layout, model and settings, batched (:func:`silfit.pipeline.fit_problems`)."""
+    from .pipeline import fit_problems
 
-    o = job.problem.observations[0]
-    r = fit_problem(job.model, o.keypoints, o.view.camera, o.mask, pose_prior=job.pose_prior,
-                    keypoint_config=job.keypoint_config, silhouette_config=job.silhouette_config, silhouette=job.silhouette,
-                    progress=job.progress, mask_source=job.mask_sources.get((0, 0), "mask"))  # fmt: skip
-    m = r.metrics
-    return Fit(job, _params_per_frame(r.params, 1), _arr(r.vertices)[None], _arr(r.joints)[None], _arr(r.keypoints_2d)[None, None],
-               np.array([[m.get("reprojection_error_px", np.nan)]], dtype=np.float64),
-               np.array([[m.get("iou", np.nan)]], dtype=np.float64), "camera", m, r)  # fmt: skip
+    first = jobs[0]
+    obs = [job.problem.observations[0] for job in jobs]
+    results = fit_problems(first.model, [o.keypoints for o in obs], [o.view.camera for o in obs], [o.mask for o in obs],
+                           pose_prior=first.pose_prior, keypoint_config=first.keypoint_config,
+                           silhouette_config=first.silhouette_config, silhouette=first.silhouette, progress=first.progress,
+                           mask_sources=[job.mask_sources.get((0, 0), "mask") for job in jobs], isolate=isolate)  # fmt: skip
+    out = []
+    for job, r in zip(jobs, results):
+        if isinstance(r, Exception):
+            out.append(r)
+            continue
+        m = r.metrics
+        out.append(Fit(job, _params_per_frame(r.params, 1), _arr(r.vertices)[None], _arr(r.joints)[None],
+                       _arr(r.keypoints_2d)[None, None], np.array([[m.get("reprojection_error_px", np.nan)]], dtype=np.float64),
+                       np.array([[m.get("iou", np.nan)]], dtype=np.float64), "camera", m, r))  # fmt: skip
+    return out
 
 
 def _run_rig(job: Job) -> Fit:
