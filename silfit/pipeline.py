@@ -235,11 +235,12 @@ def fit_problem(model, keypoints: KeypointSet, camera: Camera, mask: Optional[np
 
 class StageFailure(Exception):
     """One image of a batch failed in ``stage`` (``"keypoints"`` or ``"silhouette"``): the
-    original error is ``error`` (and ``__cause__``)."""
+    original error is ``error``; after a failed silhouette stage, ``partial`` holds the keypoint
+    stage's :class:`FitResult`."""
 
-    def __init__(self, stage: str, error: Exception):
+    def __init__(self, stage: str, error: Exception, partial=None):
         super().__init__(str(error))
-        self.stage, self.error = stage, error
+        self.stage, self.error, self.partial = stage, error, partial
 
 
 def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Camera], masks: Sequence[Optional[np.ndarray]],
@@ -298,6 +299,7 @@ def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Came
             continue
         result = refined[i] if i in refined else _keypoint_only(model, kp[0][kp[1]], keypoints[i])
         if isinstance(result, StageFailure):
+            result.partial = _keypoint_only(model, kp[0][kp[1]], keypoints[i])
             out[i] = result
             continue
         if fitter.whole_body:  # which parts were fitted, which held at rest

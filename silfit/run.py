@@ -240,15 +240,15 @@ def run_batch(jobs: Sequence[Job], isolate: bool = False) -> List[Union[Fit, Exc
             out[i] = err
     groups: Dict[tuple, List[int]] = {}
     for i, job in checked.items():
-        key = ("image", job.layout, id(job.model), id(job.pose_prior), id(job.keypoint_config), id(job.silhouette_config),
-               job.silhouette, job.progress) if job.mode == "image" else (job.mode, i)  # fmt: skip
+        key = (job.mode, job.layout, id(job.model), id(job.pose_prior), id(job.keypoint_config), id(job.silhouette_config),
+               job.silhouette, job.progress) if job.mode in ("image", "rig") else (job.mode, i)  # fmt: skip
         groups.setdefault(key, []).append(i)
     for key, rows in groups.items():
-        if key[0] == "image":
-            results = _run_images([checked[i] for i in rows], isolate)
+        if key[0] in ("image", "rig"):
+            results = (_run_images if key[0] == "image" else _run_rigs)([checked[i] for i in rows], isolate)
         else:
             try:
-                results = [{"rig": _run_rig, "video": _run_video}[key[0]](checked[rows[0]])]
+                results = [_run_video(checked[rows[0]])]
             except Exception as err:  # noqa: BLE001 - one job's failure, kept in its place
                 if not isolate:
                     raise
@@ -293,17 +293,29 @@ def _run_images(jobs: Sequence[Job], isolate: bool) -> list:
     return out
 
 
-def _run_rig(job: Job) -> Fit:
-    from .rig_pipeline import fit_rig
+def _run_rigs(jobs: Sequence[Job], isolate: bool) -> list:
+    """Rig jobs of one layout, model and settings, batched (:func:`silfit.rig_pipeline.fit_rigs`);
+    isolated: a failing batch again job by job."""
+    from .rig_pipeline import fit_rigs
 
-    names = list(job.view_names)
-    r = fit_rig(job.problem, names, job.model, job.pose_prior, job.keypoint_config, silhouette=job.silhouette,
-                silhouette_config=job.silhouette_config, progress=job.progress)  # fmt: skip
-    views = r.metrics["views"]
-    proj = r.metrics.get("keypoints_2d", r.keypoint.keypoints_2d)
-    return Fit(job, _params_per_frame(r.params, 1), _arr(r.vertices)[None], _arr(r.joints)[None], _arr(proj)[None],
-               np.array([[views[n].get("reprojection_error_px", np.nan) for n in names]], dtype=np.float64),
-               np.array([[views[n].get("iou", np.nan) for n in names]], dtype=np.float64), "world", r.metrics, r)  # fmt: skip
+    first = jobs[0]
+    try:
+        results = fit_rigs([job.problem for job in jobs], [list(job.view_names) for job in jobs], first.model, first.pose_prior,
+                           first.keypoint_config, silhouette=first.silhouette, silhouette_config=first.silhouette_config,
+                           progress=first.progress)  # fmt: skip
+    except Exception as err:  # noqa: BLE001 - which job failed is found by fitting them alone
+        if not isolate:
+            raise
+        return [err] if len(jobs) == 1 else [r for job in jobs for r in _run_rigs([job], isolate)]
+    out = []
+    for job, r in zip(jobs, results):
+        names = list(job.view_names)
+        views = r.metrics["views"]
+        proj = r.metrics.get("keypoints_2d", r.keypoint.keypoints_2d)
+        out.append(Fit(job, _params_per_frame(r.params, 1), _arr(r.vertices)[None], _arr(r.joints)[None], _arr(proj)[None],
+                       np.array([[views[n].get("reprojection_error_px", np.nan) for n in names]], dtype=np.float64),
+                       np.array([[views[n].get("iou", np.nan) for n in names]], dtype=np.float64), "world", r.metrics, r))  # fmt: skip
+    return out
 
 
 def _run_video(job: Job) -> Fit:
