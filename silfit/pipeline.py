@@ -1,5 +1,6 @@
-"""The whole fit of one image: keypoint stage, then silhouette stage; results in memory
-(:func:`fit`) and on disk (:func:`save_fit`).
+"""One image's core below :func:`silfit.run.run` (which :func:`silfit.fit` calls): keypoint
+stage, then silhouette stage, batched over images (:func:`fit_problems`); results in memory
+(:class:`FitResult`) and on disk (:func:`save_fit`).
 
 Output folder written by :func:`save_fit` (and ``silfit fit``)::
 
@@ -31,7 +32,7 @@ import numpy as np
 import torch
 
 from .camera import Camera, project_points
-from .fitting.keypoint_stage import KeypointFitConfig, KeypointFitter
+from .fitting.keypoint_stage import KeypointFitter
 from .fitting.result import KeypointFitResult
 from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult, fit_silhouettes
 from .keypoints import KeypointSet, model_keypoints
@@ -40,7 +41,7 @@ from .plausibility import ambiguity_warnings, fit_warnings, mask_warnings
 from .eval.metrics import mask_iou
 from .silhouette.masks import validate_mask
 
-__all__ = ["FitResult", "fit", "fit_problem", "refine", "refine_batch", "save_fit", "body_mask"]
+__all__ = ["FitResult", "fit_problem", "fit_problems", "StageFailure", "refine", "refine_batch", "save_fit", "body_mask"]
 
 
 @dataclass
@@ -196,33 +197,6 @@ def refine_batch(
         out.append(FitResult(cameras[i], keypoints[i].layout, one, sil, params, vertices, joints, kp2d, metrics,
                              masks={"keypoint_stage": kp_masks[i], "final": final_mask}))  # fmt: skip
     return out
-
-
-def fit(
-    keypoints: Union[KeypointSet, np.ndarray],
-    mask: Optional[np.ndarray] = None,
-    camera: Optional[Camera] = None,
-    *,
-    image_size: Optional[tuple] = None,
-    focal: Optional[float] = None,
-    model=None,
-    pose_prior=None,
-    keypoint_config: Optional[KeypointFitConfig] = None,
-    silhouette_config: Optional[SilhouetteFitConfig] = None,
-    progress: bool = True,
-) -> FitResult:
-    """Fit SMPL to one image: keypoints (a :class:`KeypointSet` or ``[K, 3]`` array), then,
-    if ``mask [H, W]`` (bool) is given, refine against the silhouette.
-
-    ``camera`` or ``image_size=(W, H)`` (+ optional ``focal``) define the camera, as for
-    :func:`silfit.fit_keypoints`. ``model`` defaults to the shipped open body model. The same
-    path as every other mode (:func:`silfit.run.run` on :func:`silfit.run.image_job`).
-    """
-    from .run import image_job, run
-
-    job = image_job(keypoints, mask, camera, image_size=image_size, focal=focal, model=model, pose_prior=pose_prior,
-                    keypoint_config=keypoint_config, silhouette_config=silhouette_config, progress=progress)  # fmt: skip
-    return run(job).stage
 
 
 def fit_problem(model, keypoints: KeypointSet, camera: Camera, mask: Optional[np.ndarray] = None, **options) -> FitResult:

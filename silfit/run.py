@@ -30,7 +30,7 @@ from .errors import InputError
 from .fitting.problem import Observation, Problem
 from .pipeline import StageFailure
 
-__all__ = ["Job", "Fit", "StageFailure", "check", "run", "run_batch", "write", "image_job"]
+__all__ = ["Job", "Fit", "StageFailure", "check", "fit", "run", "run_batch", "write", "image_job"]
 
 
 @dataclass
@@ -410,6 +410,21 @@ def write(fit: Fit, out, *, overwrite: bool = False, exports: Sequence[str] = ()
 
 
 # -------------------------------------------------------------------------------- builders for Python callers
+
+
+def fit(keypoints, mask: Optional[np.ndarray] = None, camera=None, *, image_size: Optional[tuple] = None,
+        focal: Optional[float] = None, model=None, pose_prior=None, keypoint_config=None, silhouette_config=None,
+        progress: bool = True):  # fmt: skip
+    """Fit SMPL to one image (a :class:`~silfit.pipeline.FitResult`): keypoints (a :class:`KeypointSet` or ``[K, 3]`` array), then,
+    if ``mask [H, W]`` (bool) is given, refine against the silhouette.
+
+    ``camera`` or ``image_size=(W, H)`` (+ optional ``focal``) define the camera, as for
+    :func:`silfit.fit_keypoints`. ``model`` defaults to the shipped open body model. The same
+    path as every other mode (:func:`run` on :func:`image_job`).
+    """
+    job = image_job(keypoints, mask, camera, image_size=image_size, focal=focal, model=model, pose_prior=pose_prior,
+                    keypoint_config=keypoint_config, silhouette_config=silhouette_config, progress=progress)  # fmt: skip
+    return run(job).stage
 
 
 def image_job(keypoints, mask=None, camera=None, *, image_size=None, focal=None, model=None, pose_prior=None,
