@@ -103,8 +103,12 @@ def load_vertices(args) -> tuple[list, np.ndarray, Optional[object]]:
 
         from silfit.fitio import read_fit
 
-        model = fit_model(None if args.model else read_fit(path, require=()), args.model)
-        fit = read_fit(path, require=(), sizes={**model.parameter_sizes, "betas": None})
+        if args.model:  # the file read once, checked against the model given
+            model = fit_model(None, args.model)
+            fit = read_fit(path, require=(), sizes={**model.parameter_sizes, "betas": None})
+        else:  # checked against the model it records
+            fit = read_fit(path, require=())
+            model = fit_model(fit, None)
         frames = _frames(args.frame, fit.num_frames, path)
         R, t = fit.extrinsics[0] if fit.extrinsics else (np.eye(3), np.zeros(3))
         out = []

@@ -534,11 +534,14 @@ def refine_sequence_silhouettes(
         body = model(**{n: T(np.repeat(betas[None], F, 0) if n == "betas" else p[n]) for n in init})
         joints = body.joints.numpy()
         kp2d = project_points(model_keypoints(model, body, result.layout).double(), result.camera).numpy()
-    reproj = np.full(F, np.nan)  # against the keypoints the fit used (outliers and bridged frames left out)
-    for f, o in enumerate(obs):
-        if o.keypoints is not None:
-            ok = o.keypoints.conf > 0
-            reproj[f] = np.median(np.linalg.norm(kp2d[f] - o.keypoints.xy, axis=-1)[ok])
+    # against the keypoints the keypoint stage's error was measured on (outliers and bridged frames left
+    # out; a whole-body fit's hands and face too, though held here), so before and after compare alike
+    reproj = np.full(F, np.nan)
+    for f, ks in enumerate(frames):
+        if ks is not None and not result.bridged[f]:
+            ok = (ks.conf > 0) & ~result.outliers[f]
+            if ok.any():
+                reproj[f] = np.median(np.linalg.norm(kp2d[f] - ks.xy, axis=-1)[ok])
     timings = dict(result.timings, silhouette=seconds, total=result.timings["total"] + seconds)
     timings["seconds_per_frame"] = timings["total"] / F
     out = replace(result, betas=betas, body_pose=np.asarray(p["body_pose"], np.float32),
