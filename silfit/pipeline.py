@@ -34,7 +34,7 @@ import torch
 from .camera import Camera, project_points
 from .fitting.keypoint_stage import KeypointFitter
 from .fitting.result import KeypointFitResult
-from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult, fit_silhouettes
+from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult
 from .keypoints import KeypointSet, model_keypoints
 from .outfolder import atomic_folder
 from .plausibility import ambiguity_warnings, fit_warnings, mask_warnings
@@ -158,20 +158,15 @@ def refine_batch(
                 "(wrong mask, or keypoints of another image?)"
             )
     inits = [keypoint_result.params(i) for i in range(n)]
-    if keypoints[0].layout == "wholebody":  # the whole-body mesh, hand and face keypoints kept
-        from .fitting.problem import Problem
-        from .fitting.silhouette_stage import fit_silhouette_problems
-        from .fitting.wholebody import wholebody_silhouette_inputs
+    from .fitting.problem import Problem
+    from .fitting.silhouette_stage import fit_silhouette_problems
+    from .fitting.wholebody import silhouette_inputs
 
-        cfg, body_sets, terms, weights, data = wholebody_silhouette_inputs(model, keypoints, config or SilhouetteFitConfig(), model.dtype)
-        problems = [Problem.single(k, cam, m) for k, cam, m in zip(body_sets, cameras, masks)]
-        sils = fit_silhouette_problems(model, problems, inits, "wholebody", cfg, pose_prior, renderer, progress,
-                                       terms=terms, weights=weights, data=data)  # fmt: skip
-    else:
-        sils = fit_silhouettes(
-            model, inits, cameras, masks, [k.as_array() for k in keypoints],
-            layout=keypoints[0].layout, config=config, pose_prior=pose_prior, renderer=renderer, progress=progress,
-        )  # fmt: skip
+    # the layout decides the terms (a whole-body mesh keeps its hand and face keypoints)
+    cfg, sets, terms, weights, data = silhouette_inputs(model, list(keypoints), config or SilhouetteFitConfig(), model.dtype)
+    problems = [Problem.single(k, cam, m) for k, cam, m in zip(sets, cameras, masks)]
+    sils = fit_silhouette_problems(model, problems, inits, keypoints[0].layout, cfg, pose_prior, renderer, progress,
+                                   terms=terms, weights=weights, data=data)  # fmt: skip
     out = []
     for i, sil in enumerate(sils):
         one = keypoint_result[i]

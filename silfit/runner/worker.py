@@ -185,10 +185,6 @@ class DatasetFitter:
             "mask": li.mask_file, "image": li.item.image, "camera_file": li.item.camera, "model": self.model.source,
             "silhouette_stage": self._silhouette_status(li), "keypoint_batch_size": batch,
         }  # fmt: skip
-        if li.keypoints.layout == "wholebody":  # which parts were fitted, which held at rest
-            from ..fitting.wholebody import wholebody_summary
-
-            extra["whole_body"] = wholebody_summary(li.keypoints)[0]
         return extra
 
     def _record(self, li: LoadedItem, res: FitResult, batch: int) -> dict:
