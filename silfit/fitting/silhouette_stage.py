@@ -5,7 +5,7 @@ cross-talk: a batch gives what the subjects give one at a time.
 
 Energy (per subject, the named terms of :mod:`silfit.fitting.terms` plus the silhouette)::
 
-    E = w_silhouette * E_sil(S) + w_keypoints * E_kp + w_pose * prior(pose)
+    E = w_silhouette * E_sil(S) + w_keypoints * E_kp + pose_weight * prior(pose)
         + w_limits * limits(pose) + w_angle * angle(pose) + w_shape * |betas|^2
         + w_stay * |theta - theta_kp|^2
 
@@ -57,6 +57,7 @@ from ..silhouette.losses import (
 from ..body.lbs import axis_angle_to_matrix, blend_shapes, pose_correctives, skin_vertices
 from .body import BodyState, KeypointBody, MeshBody, pose_parameter_names
 from .problem import ParameterLayout, Problem, stack_views, world_to_camera
+from .aliases import Alias, renamed_fields
 from .stages import AdamSettings, PerRow as _PerProblem, Stage, check_stages, run_schedule, stage_to_dict
 from .terms import Energy, Evaluation, KeypointTerm, PriorTerm, StayTerm, Term
 from .threads import torch_threads
@@ -71,6 +72,7 @@ __all__ = [
 from ..body.model import SMPL_PARAMETER_NAMES as PARAMS  # noqa: E402
 
 
+@renamed_fields(w_pose=Alias("pose_weight"))
 @dataclass
 class SilhouetteFitConfig:
     """Settings of the silhouette stage (defaults tuned on the synthetic set)."""
@@ -103,7 +105,7 @@ class SilhouetteFitConfig:
     w_silhouette: float = 1.0
     w_keypoints: float = 0.02
     kp_sigma: float = 20.0  # Geman-McClure scale, window pixels
-    w_pose: float = 0.002
+    pose_weight: float = 0.002  # the pose prior's (one name in every config, issue 26; old name ``w_pose``)
     w_limits: float = 1.0
     w_angle: float = 0.001
     w_shape: float = 0.005
@@ -154,7 +156,7 @@ class SilhouetteFitConfig:
     def weights(self) -> dict:
         """The rendered levels' weights."""
         return {
-            "silhouette": self.w_silhouette, "keypoints": self.w_keypoints, "pose": self.w_pose,
+            "silhouette": self.w_silhouette, "keypoints": self.w_keypoints, "pose": self.pose_weight,
             "limits": self.w_limits, "angle": self.w_angle, "shape": self.w_shape, "stay": self.w_stay,
             "keypoint_trust": self.w_trust, "beta_bound": self.w_beta_bound,
         }  # fmt: skip
