@@ -58,7 +58,7 @@ from ..body.lbs import axis_angle_to_matrix, blend_shapes, pose_correctives, ski
 from .body import BodyState, KeypointBody, MeshBody, pose_parameter_names
 from .problem import ParameterLayout, Problem, stack_views, world_to_camera
 from .aliases import Alias, renamed_fields
-from .stages import AdamSettings, PerRow as _PerProblem, Stage, check_stages, run_schedule, stage_to_dict
+from .stages import AdamSettings, PerRow, Stage, check_stages, run_schedule, stage_to_dict
 from .terms import Energy, Evaluation, KeypointTerm, PriorTerm, StayTerm, Term
 from .threads import torch_threads
 
@@ -662,8 +662,8 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
     data = {
         **extra_data, "target": target_xy, "weights": target_w, "scale": torch.ones(P, F, C, dtype=dtype),
         "start_body_pose": start["body_pose"], "R": views["R"], "t": views["t"],
-        "windows": _PerProblem([None] * P), "targets": _PerProblem([None] * P), "seeds": _PerProblem([None] * P),
-        "contours": _PerProblem([None] * P), "trust_px": torch.zeros(P, dtype=dtype),
+        "windows": PerRow([None] * P), "targets": PerRow([None] * P), "seeds": PerRow([None] * P),
+        "contours": PerRow([None] * P), "trust_px": torch.zeros(P, dtype=dtype),
     }  # fmt: skip
 
     history = [{k: [] for k in ("level", "energy", "silhouette", "keypoints", "iou")} for _ in range(P)]

@@ -31,7 +31,7 @@ from .problem import ParameterLayout
 from .terms import Energy, evaluate
 
 __all__ = [
-    "AdamSettings", "PerRow", "Stage", "StageRun", "check_stages", "gated", "run_lbfgs_stage", "run_schedule",
+    "AdamSettings", "PerRow", "Stage", "StageRun", "check_stages", "gated", "run_adam_stage", "run_lbfgs_stage", "run_schedule",
     "run_stage", "stage_to_dict",
 ]  # fmt: skip
 
