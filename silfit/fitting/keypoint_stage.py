@@ -231,7 +231,8 @@ class KeypointFitConfig:
         """The schedule as data: camera, pose_1..n (annealed priors; the best start of each
         sample is kept ``decision_iters`` steps into pose stage ``flip_decision_stage``),
         shape, final (everything, with interpenetration); with ``whole_body`` the hand and
-        face terms and parameters join as the module docstring says."""
+        face terms and parameters join as the module docstring says. The defaults give the literal
+        tables :data:`~silfit.fitting.schedules.KEYPOINT_SCHEDULE` and ``WHOLEBODY_KEYPOINT_SCHEDULE``."""
         if self.schedule is not None:
             return tuple(self.schedule)
         n = len(self.pose_iters)

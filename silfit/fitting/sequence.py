@@ -86,6 +86,8 @@ class SequenceFitConfig:
     window_pose_iterations: int = 40  # second pass (shared betas fixed) in windowed mode
 
     def stages(self, free_betas: bool = True, iterations: Optional[int] = None) -> tuple:
+        """The joint refinement's one stage (``free_betas=False``: the windowed mode's second pass, the
+        shape held); the defaults give the literal table :data:`~silfit.fitting.schedules.SEQUENCE_SCHEDULE`."""
         w = {"keypoints": 1.0, "pose": self.pose_weight, "angle": self.angle_prior_weight, "limits": self.limit_weight,
              "smooth_joints": self.joint_smooth_weight, "smooth_root": self.root_smooth_weight}  # fmt: skip
         if free_betas:

@@ -169,7 +169,8 @@ class SilhouetteFitConfig:
 
     def stages(self) -> tuple:
         """The contour level (L-BFGS, when ``contour_iterations``), then one Adam stage per
-        rendered window resolution (coarse to fine)."""
+        rendered window resolution (coarse to fine); the defaults give the literal table
+        :data:`~silfit.fitting.schedules.SILHOUETTE_SCHEDULE`."""
         contour = ()
         if self.contour_iterations:
             contour = (Stage("contour", tuple(self.optimise), self.contour_weights(), int(self.contour_iterations),
