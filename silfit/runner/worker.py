@@ -52,7 +52,7 @@ def keypoint_config(options: Dict[str, object]) -> KeypointFitConfig:
     """A :class:`KeypointFitConfig` with ``options`` (field name -> value; strings are parsed
     by the type of the field's default, tuples comma-separated)."""
     base = KeypointFitConfig()
-    names = {f.name for f in fields(base)}
+    names = {f.name for f in fields(base)} | set(getattr(KeypointFitConfig, "renamed_fields", {}))  # old names too
     values = {}
     for key, value in options.items():
         if key not in names:
