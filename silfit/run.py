@@ -30,7 +30,7 @@ from .errors import InputError
 from .fitting.problem import Observation, Problem
 from .pipeline import StageFailure
 
-__all__ = ["Job", "Fit", "StageFailure", "check", "fit", "run", "run_batch", "write", "image_job"]
+__all__ = ["Job", "Fit", "StageFailure", "check", "fit", "run", "run_batch", "write", "image_job", "video_job"]
 
 
 @dataclass
@@ -451,3 +451,19 @@ def image_job(keypoints, mask=None, camera=None, *, image_size=None, focal=None,
     mask = None if mask is None else np.asarray(mask, dtype=bool)
     return Job(Problem.single(sets[0], camera, mask), model, pose_prior=pose_prior, keypoint_config=keypoint_config,
                silhouette_config=silhouette_config, progress=progress, images={} if image is None else {(0, 0): image})  # fmt: skip
+
+
+def video_job(frames, camera, model=None, *, masks=None, config=None, silhouette_config=None, pose_prior=None,
+              progress: bool = True, numbers=None, inputs=None, warnings=(), record=None) -> Job:  # fmt: skip
+    """A job for one camera's video: ``frames`` one :class:`~silfit.keypoints.KeypointSet` (or
+    ``None``: no detection) per frame, ``masks`` one mask or ``None`` per frame, ``config`` a
+    :class:`~silfit.fitting.sequence.SequenceFitConfig`; ``numbers`` the frame numbers and
+    ``inputs`` the reader's :class:`~silfit.video.SequenceInput` (for the writer's pictures)."""
+    from .fitting.problem import View
+
+    masks = list(masks) if masks is not None else [None] * len(frames)
+    view = View(camera)
+    return Job(Problem([Observation(view, ks, m, f) for f, (ks, m) in enumerate(zip(frames, masks))]), model,
+               pose_prior=pose_prior, silhouette_config=silhouette_config, sequence_config=config, progress=progress,
+               frame_numbers=None if numbers is None else list(numbers), warnings=list(warnings), inputs=inputs,
+               record=dict(record or {}))  # fmt: skip

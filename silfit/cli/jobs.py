@@ -11,8 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fitting.problem import Observation, Problem, View
+from ..fitting.problem import Observation, Problem
 from ..run import Job
+from ..run import video_job as make_video_job
 from . import CLIError, note, warn
 from .common import choose_model, silhouette_config
 
@@ -243,14 +244,13 @@ def video_job(args) -> Job:
     cfg = SequenceFitConfig()
     if args.sequence_iterations is not None:
         cfg.iterations = int(args.sequence_iterations)
-    view = View(camera)
     silhouette = "run" if any(m is not None for m in masks) else "not run (no masks)" if not seq.masks else "not run (--no-silhouette)"
-    return Job(Problem([Observation(view, ks, m, f) for f, (ks, m) in enumerate(zip(frames, masks))]), model,
-               pose_prior=_pose_prior(args, model), silhouette_config=sil_config, sequence_config=cfg,
-               silhouette=not args.no_silhouette, progress=not args.quiet, frame_numbers=list(seq.numbers),
-               warnings=list(seq.warnings), inputs=seq,
-               record={"sequence": str(args.sequence), "model": model.source, "camera_source": camera_source,
-                       "silhouette": silhouette})  # fmt: skip
+    job = make_video_job(frames, camera, model, masks=masks, config=cfg, silhouette_config=sil_config,
+                         pose_prior=_pose_prior(args, model), progress=not args.quiet, numbers=seq.numbers, inputs=seq,
+                         warnings=seq.warnings, record={"sequence": str(args.sequence), "model": model.source,
+                                                        "camera_source": camera_source, "silhouette": silhouette})  # fmt: skip
+    job.silhouette = not args.no_silhouette
+    return job
 
 
 def describe_inputs(job: Job) -> str:
