@@ -120,8 +120,18 @@ def fit_rig(problem, names, model=None, pose_prior=None, keypoint_config=None, s
     fitter = KeypointFitter(model, layout, keypoint_config, pose_prior)
     kp = fit_rig_keypoints(fitter, [problem], progress=progress)[0]
     if silhouette and any(o.mask is not None for o in problem.observations):
-        return refine_rig_fits(model, [(names, problem, kp)], silhouette_config, fitter.pose_prior, progress)[0]
-    return _keypoint_metrics(kp, problem, names, model.faces.cpu().numpy())
+        result = refine_rig_fits(model, [(names, problem, kp)], silhouette_config, fitter.pose_prior, progress)[0]
+    else:
+        result = _keypoint_metrics(kp, problem, names, model.faces.cpu().numpy())
+    if fitter.whole_body:  # which parts were fitted (seen in any view), which held at rest
+        from .fitting.wholebody import wholebody_summary
+        from .keypoints import KeypointSet
+
+        ks = [o.keypoints for o in problem.grid()[0]]
+        seen = KeypointSet(ks[0].xy, np.max([k.conf for k in ks], 0), ks[0].layout, ks[0].source)
+        result.metrics["whole_body"], notes = wholebody_summary(seen)
+        result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
+    return result
 
 
 def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool = False) -> List[RigResult]:
@@ -142,8 +152,15 @@ def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool =
         if zero:
             raise ValueError(f"view(s) {', '.join(zero)}: the mask does not overlap the body fitted to the keypoints at all")
     layout = items[0][1].observations[0].keypoints.layout
-    sils = fit_silhouette_problems(model, [p for _, p, _ in items], [dict(kp.params) for _, _, kp in items], layout=layout,
-                                   config=config, pose_prior=pose_prior, progress=progress)  # fmt: skip
+    problems, extra = [p for _, p, _ in items], {}
+    if layout == "wholebody":  # the whole-body mesh; hand and face keypoints kept (as for one image)
+        from .fitting.rig_fit import wholebody_problem_inputs
+        from .fitting.silhouette_stage import SilhouetteFitConfig
+
+        config, problems, *rest = wholebody_problem_inputs(model, problems, config or SilhouetteFitConfig())
+        extra = dict(zip(("terms", "weights", "data"), rest))
+    sils = fit_silhouette_problems(model, problems, [dict(kp.params) for _, _, kp in items], layout=layout,
+                                   config=config, pose_prior=pose_prior, progress=progress, **extra)  # fmt: skip
     out = []
     for (names, p, kp), b, sil in zip(items, before, sils):
         params = {n: np.asarray(v, np.float32).reshape(-1) for n, v in sil.parameters.items()}

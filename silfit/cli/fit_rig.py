@@ -9,17 +9,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from . import CLIError, warn
+from . import CLIError, note, warn
 
 
 def run_rig(args) -> int:
-    from ..body import load_body_model
-    from ..fitting.rig_fit import rig_problem, usable_views
+    from ..fitting.rig_fit import has_wholebody_parts, rig_problem, usable_views
     from ..imagefile import read_rgb
     from ..priors import load_pose_prior
     from ..rig import load_rig
     from ..rig_pipeline import fit_rig, save_rig_fit
-    from .common import save_leaving_nothing_on_error, silhouette_config
+    from .common import choose_model, save_leaving_nothing_on_error, silhouette_config
 
     for flag in ("keypoints", "mask", "camera", "focal", "image", "image_size"):
         if getattr(args, flag, None):
@@ -29,7 +28,11 @@ def run_rig(args) -> int:
         raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
     person = "largest" if args.person == "largest" else int(args.person)
     views, set_aside = usable_views(load_rig(args.rig), person, args.views.split(",") if args.views else None)
-    problem = rig_problem(views, person=person)
+    # whole body: the views' hand and face points decide the model (as for one image) and are fitted with it
+    model, model_note = choose_model(args.model, args.gender, has_wholebody_parts([v.keypoints for v in views], person))
+    if model_note:
+        note(model_note)
+    problem = rig_problem(views, person=person, model=model)
     images = {}
     for v in views:
         if v.image is not None:
@@ -39,7 +42,6 @@ def run_rig(args) -> int:
                 raise CLIError(f"{v.image}: image is {img.shape[1]}x{img.shape[0]} but view {v.name}'s camera is "
                                f"{cam.width}x{cam.height}")  # fmt: skip
             images[v.name] = img
-    model = load_body_model(args.model, gender=args.gender) if args.model else load_body_model()
     pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
     warnings = set_aside + [w for v in views for w in v.warnings]
     if args.check_only:

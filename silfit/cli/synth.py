@@ -53,7 +53,8 @@ def register(subparsers) -> None:
     p.add_argument("--views", type=int, default=None, metavar="N",
                    help="a calibrated rig per subject: N cameras on a ring around the body (varied heights), per-view "
                         "folders view_<i>/ (image, mask, keypoints, camera.json with R, t), cameras.json and one gt.npz "
-                        "in world coordinates (see README: Camera rigs)")
+                        "in world coordinates (see README: Camera rigs); with --whole-body, OpenPose whole-body "
+                        "keypoints per view")
     p.add_argument("--layout", default=None, metavar="CAMERAS.json",
                    help="with --views: the rig's cameras from this cameras.json instead of the ring")
     p.add_argument("--model", default=None, help="body model file (default: the shipped open body model)")
@@ -137,8 +138,8 @@ def _run_rig(args, cfg, model, argv) -> int:
     from ..rig import read_cameras_json
     from ..synth.rig import RigConfig, generate_rig_dataset
 
-    if args.whole_body or args.poses != "library":
-        raise ValueError("--views: rigs use the library poses and the SMPL-layout model (no --whole-body, --poses hard)")
+    if args.poses != "library":
+        raise ValueError("--views: rigs use the library poses (no --poses hard)")
     layout = [v.view for v in read_cameras_json(args.layout)] if args.layout else None
     rig = RigConfig(views=args.views or (len(layout) if layout else 4), layout=layout)
     argv += ["--views", str(rig.views)] + (["--layout", args.layout] if args.layout else [])
