@@ -312,16 +312,23 @@ class RigSequence:
         return [files.get(n) for n in self.numbers]
 
 
-def load_rig_sequence(folder: PathLike, person: Union[int, str] = "largest") -> RigSequence:
+def load_rig_sequence(folder: PathLike, person: Union[int, str] = "largest", names=None) -> RigSequence:
     """A rig video (the rig folder of :func:`load_rig`: ``cameras.json``, EasyMocap's calibration or
     sub-folders with ``camera.json``) whose views' folders are video folders as
     :func:`silfit.video.read_sequence` reads them (per-frame OpenPose JSON, optional ``masks/`` and
     ``images/``; the layout ``silfit synth --sequence --views N`` writes). Frames are matched across
-    views by their number; a view without a frame's number has no detection there."""
+    views by their number; a view without a frame's number has no detection there. ``names``: only
+    these views (in the rig's order; an unknown name is an :class:`~silfit.errors.InputError`)."""
     from .video import MAX_GAP, read_sequence
 
     folder = Path(folder)
     views = _rig_views(folder)
+    if names:
+        known = [v.name for v in views]
+        unknown = [n for n in names if n not in known]
+        if unknown:
+            raise InputError("--views", f"unknown view(s) {', '.join(unknown)} (the rig has {', '.join(known)})")
+        views = [v for v in views if v.name in names]
     videos = []
     for v in views:
         d = video_folder(v)

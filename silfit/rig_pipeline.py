@@ -17,6 +17,10 @@ Output folder (world coordinates: the frame of the rig's extrinsics)::
     stages/keypoints/params.npz   the keypoint stage's parameters         [with masks]
 
 Written atomically (:func:`silfit.outfolder.atomic_folder`).
+
+A rig video (:func:`fit_rig_sequence`, ``silfit fit --rig DIR`` on a rig whose views are video
+folders, :func:`silfit.rig.load_rig_sequence`): the sequence fit of :mod:`silfit.fitting.sequence`
+over frames x views in the world frame, written by :func:`silfit.video.save_sequence_fit`.
 """
 from __future__ import annotations
 
@@ -32,7 +36,8 @@ from .eval.metrics import mask_iou
 from .fitting.rig_fit import RigFit, fit_rig_keypoints
 from .outfolder import atomic_folder
 
-__all__ = ["RigResult", "fit_rig", "refine_rig_fits", "save_rig_fit", "view_vertices"]
+__all__ = ["RigResult", "check_rig_sequence", "fit_rig", "fit_rig_sequence", "read_rig_sequence_masks", "refine_rig_fits",
+           "save_rig_fit", "view_vertices"]
 
 
 @dataclass
@@ -239,3 +244,77 @@ def save_rig_fit(result: RigResult, out: Union[str, os.PathLike], faces: np.ndar
         metrics.update(extra_metrics or {})
         (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return out
+
+
+# ----------------------------------------------------------------------------- rig videos
+def check_rig_sequence(seq, model, person="largest") -> tuple:
+    """``(seq, warnings)``: a :class:`silfit.rig.RigSequence` with the keypoints ``model`` is fitted to
+    (the ``wholebody`` layout for an SMPL-X-layout model, as :func:`silfit.wholebody.choose_fit_keypoints`
+    picks for one image) and each view's frames checked as a video's are
+    (:func:`silfit.plausibility.check_frames`); a view with no usable frame is set aside with a warning
+    (if none is left, the first view's error is raised)."""
+    from dataclasses import replace
+
+    from .errors import InputError
+    from .plausibility import check_frames
+    from .wholebody import choose_fit_keypoints, read_wholebody_parts
+
+    kept, warnings, first, columns = [], [], None, []
+    for c, view in enumerate(seq.views):
+        column = []
+        for ks, path in zip((row[c] for row in seq.frames), seq.files(c)):
+            if ks is not None and getattr(model, "kind", "smpl") == "smplx":
+                ks = choose_fit_keypoints(ks, read_wholebody_parts(path, person), model)[0]
+            column.append(ks)
+        try:
+            column, notes = check_frames(column, view.view.camera.size, seq.numbers)
+        except InputError as err:
+            first = first or err
+            warnings.append(f"view {view.name} set aside: {err}")
+            continue
+        kept.append(c)
+        columns.append(column)
+        warnings += [f"view {view.name}: {n}" for n in notes]
+    if not kept:
+        raise first
+    frames = [[col[f] for col in columns] for f in range(len(seq.numbers))]
+    out = replace(seq, views=[seq.views[c] for c in kept], videos=[seq.videos[c] for c in kept], frames=frames)
+    return out, warnings
+
+
+def read_rig_sequence_masks(seq) -> Optional[list]:
+    """``masks[f][c]`` (bool ``[H, W]``, or ``None`` where the view has no mask for the frame; empty
+    masks allowed: no silhouette term there) of a rig video, each checked against its camera's size;
+    ``None`` when no view has masks."""
+    from .silhouette.masks import read_mask
+
+    if not any(v.masks for v in seq.videos):
+        return None
+    columns = []
+    for c, view in enumerate(seq.views):
+        cam = view.view.camera
+        columns.append([None if p is None else read_mask(p, size=(cam.width, cam.height), allow_empty=True)
+                        for p in seq.per_view(c, "masks")])  # fmt: skip
+    return [[col[f] for col in columns] for f in range(len(seq.numbers))]
+
+
+def fit_rig_sequence(seq, model=None, masks=None, *, config=None, pose_prior=None, silhouette_config=None,
+                     progress: bool = False):  # fmt: skip
+    """Fit a rig video (a :class:`silfit.rig.RigSequence`, its keypoints as :func:`check_rig_sequence`
+    leaves them): :func:`silfit.fitting.sequence.fit_sequence` over its views in the world frame, then,
+    with ``masks`` (:func:`read_rig_sequence_masks`), the silhouette stage over every frame and view
+    (:func:`~silfit.fitting.sequence.refine_sequence_silhouettes`). Returns the
+    :class:`~silfit.fitting.sequence.SequenceFitResult` (``views`` set; the inputs' warnings first)."""
+    from .body import load_body_model
+    from .fitting.sequence import fit_sequence, refine_sequence_silhouettes
+
+    model = load_body_model() if model is None else model
+    views = [v.view for v in seq.views]
+    result = fit_sequence(seq.frames, views, model, config=config, pose_prior=pose_prior, progress=progress)
+    if masks is not None:
+        result = refine_sequence_silhouettes(model, result, seq.frames, masks, config=silhouette_config,
+                                             pose_prior=pose_prior, progress=progress)  # fmt: skip
+    errors = result.reprojection_error  # [F, C]
+    median = [float(np.median(e[np.isfinite(e)])) if np.isfinite(e).any() else float("nan") for e in errors.T]
+    result.warnings = list(seq.warnings) + list(result.warnings) + disagreeing_views(seq.names, median)
+    return result

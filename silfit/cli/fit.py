@@ -202,7 +202,7 @@ def run(args) -> int:
         raise CLIError("--export with --rig: not available (a rig's world frame has no fixed up axis); mesh.obj holds the body")
     export_formats(args)
     if args.sequence and getattr(args, "rig", None):
-        raise ValueError("--sequence with --rig: fitting a rig's video is not available; choose one")
+        raise ValueError("--sequence with --rig: a rig video is --rig DIR alone (its views' folders hold the per-frame files)")
     if args.sequence:
         from .sequence import run_sequence
 

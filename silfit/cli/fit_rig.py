@@ -3,7 +3,8 @@
 ``DIR`` is a rig folder as :func:`silfit.rig.load_rig` reads it (a ``cameras.json``
 manifest, EasyMocap's ``intri.yml`` + ``extri.yml``, or one sub-folder per view with its
 ``camera.json``); each view holds ``keypoints.json`` and optionally ``mask.png`` and
-``image.png``. Output: :func:`silfit.rig_pipeline.save_rig_fit`.
+``image.png``. Output: :func:`silfit.rig_pipeline.save_rig_fit`. A rig whose views hold
+per-frame keypoints instead (video folders) is a rig video: :func:`silfit.cli.sequence.run_rig_sequence`.
 """
 from __future__ import annotations
 
@@ -23,6 +24,12 @@ def run_rig(args) -> int:
     for flag in ("keypoints", "mask", "camera", "focal", "image", "image_size"):
         if getattr(args, flag, None):
             raise CLIError(f"--rig reads every view's files from the rig folder; --{flag.replace('_', '-')} is not used with it")
+    from ..rig import is_rig_video
+
+    if is_rig_video(args.rig):  # the views hold per-frame keypoints: a rig video
+        from .sequence import run_rig_sequence
+
+        return run_rig_sequence(args)
     out = Path(args.out)
     if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
         raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")

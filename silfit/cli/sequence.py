@@ -111,3 +111,59 @@ def run_sequence(args) -> int:
     for warning in result.warnings:
         warn(warning)
     return 0
+
+
+def run_rig_sequence(args) -> int:
+    """``silfit fit --rig DIR`` on a rig whose views are video folders (:func:`silfit.rig.load_rig_sequence`):
+    :func:`silfit.rig_pipeline.fit_rig_sequence`, written by :func:`silfit.video.save_sequence_fit`."""
+    from ..fitting.rig_fit import has_wholebody_parts
+    from ..fitting.sequence import SequenceFitConfig
+    from ..priors import load_pose_prior
+    from ..rig import load_rig_sequence
+    from ..rig_pipeline import check_rig_sequence, fit_rig_sequence, read_rig_sequence_masks
+    from ..video import save_sequence_fit
+    from .common import choose_model, save_leaving_nothing_on_error, silhouette_config
+
+    for flag in ("masks", "images", "export"):
+        if getattr(args, flag, None):
+            raise CLIError(f"--{flag} with a rig video: each view's folder holds its frames' files (no exports: a rig's "
+                           "world frame has no fixed up axis)")  # fmt: skip
+    out = Path(args.out)
+    if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
+        raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
+    sil_config = silhouette_config(args)
+    person = args.person if args.person == "largest" else int(args.person)
+    seq = load_rig_sequence(args.rig, person, args.views.split(",") if args.views else None)
+    files = [p for c in range(len(seq.views)) for p in seq.files(c) if p is not None]
+    model, model_note = choose_model(args.model, args.gender, has_wholebody_parts(files, person))
+    if model_note:
+        note(model_note)
+    seq, input_warnings = check_rig_sequence(seq, model, person)
+    pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
+    masks = None if args.no_silhouette else read_rig_sequence_masks(seq)
+    if args.check_only:
+        for warning in list(seq.warnings) + input_warnings:
+            warn(warning)
+        print(f"inputs OK: a rig video of {len(seq.numbers)} frames seen by {len(seq.views)} views "
+              f"({', '.join(seq.names)}), masks {'read' if masks is not None else 'none'}")  # fmt: skip
+        return 0
+    cfg = SequenceFitConfig()
+    if args.sequence_iterations is not None:
+        cfg.iterations = int(args.sequence_iterations)
+    result = fit_rig_sequence(seq, model, masks, config=cfg, pose_prior=pose_prior, silhouette_config=sil_config,
+                              progress=not args.quiet)  # fmt: skip
+    result.warnings = input_warnings + list(result.warnings)
+    extra = {"rig": str(args.rig), "model": model.source,
+             "silhouette": "run" if masks is not None else "not run (--no-silhouette)" if args.no_silhouette else "not run (no masks)",
+             "warnings": list(result.warnings)}  # fmt: skip
+    save_leaving_nothing_on_error(out, lambda: save_sequence_fit(
+        result, out, model, seq, meshes=args.meshes, video=not args.no_video, fps=args.fps, extra_metrics=extra,
+        overwrite=args.overwrite))  # fmt: skip
+    line = (f"wrote {out}: a rig video of {result.num_frames} frames x {len(seq.views)} views, {int(result.bridged.sum())} "
+            f"bridged, {result.timings['seconds_per_frame']:.2f} s per frame")  # fmt: skip
+    if result.silhouette_iou is not None:
+        line += f", silhouette IoU {result.silhouette_iou_start:.3f} -> {float(np.nanmean(result.silhouette_iou)):.3f}"
+    print(line)
+    for warning in result.warnings:
+        warn(warning)
+    return 0
