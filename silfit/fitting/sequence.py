@@ -31,7 +31,8 @@ rig's world frame: checks and outliers per view (a frame is bridged when no view
 keypoints; a view without usable keypoints in a frame others see has no data there), each frame
 initialised by the rig's keypoint stage (:func:`~silfit.fitting.rig_fit.fit_rig_keypoints`: the
 triangulated torso gives the facing, so no neighbour starts and, with several views, no facing
-repair), and one refinement problem of ``F`` frames x ``C`` views.
+repair; a frame seen by one view only starts, as bridged frames do, from its neighbours'
+interpolation, and keeps its data), and one refinement problem of ``F`` frames x ``C`` views.
 
 A problem's L-BFGS row holds ``10 + F * 75`` numbers and one iteration evaluates the
 reduced body ``F`` times, so memory and time grow linearly with ``F``; ``window`` splits a
@@ -345,6 +346,17 @@ def _view_keypoints(xy, conf, usable) -> List[List[tuple]]:
     return out
 
 
+def _keypoint_set(xy, conf, layout: str) -> KeypointSet:
+    """A :class:`KeypointSet`, or for a view with no detection in a frame (every confidence 0, which
+    :class:`KeypointSet` refuses) a set of that layout with zero confidences: no data there."""
+    if np.any(np.asarray(conf) > 0):
+        return KeypointSet(xy, conf, layout)
+    empty = KeypointSet.__new__(KeypointSet)
+    empty.xy, empty.conf = np.asarray(xy, np.float64), np.zeros(len(conf))
+    empty.layout, empty.source = layout, "<no detection>"
+    return empty
+
+
 def _project_views(points: torch.Tensor, views, rig: bool) -> np.ndarray:
     """``[F, C, K, 2]``: points ``[F, K, 3]`` (camera frame for one camera's video, else world) in each view."""
     if not rig:
@@ -391,9 +403,12 @@ def fit_sequence(
     usable = usable_v.any(1)
     if not usable.any():
         raise ValueError(f"no frame of the sequence has enough confident torso keypoints (of {F} frames)")
-    init_frames = np.flatnonzero(usable)[:: max(int(cfg.init_stride), 1)]
-    if np.flatnonzero(usable)[-1] not in init_frames:
-        init_frames = np.append(init_frames, np.flatnonzero(usable)[-1])
+    # a rig's frames seen by one view only are monocular: they start from the frames seen by several
+    seen = usable_v.sum(1) >= min(2, C) if rig else usable
+    seen = seen if seen.any() else usable
+    init_frames = np.flatnonzero(seen)[:: max(int(cfg.init_stride), 1)]
+    if np.flatnonzero(seen)[-1] not in init_frames:
+        init_frames = np.append(init_frames, np.flatnonzero(seen)[-1])
 
     # 2. per-frame initialisation, the usable frames as one batch
     fitter = KeypointFitter(model, layout, cfg.keypoint, pose_prior)
@@ -402,7 +417,7 @@ def fit_sequence(
         if rig:  # each frame as a one-frame rig (world frame); the triangulated torso starts it: no neighbour starts
             from .rig_fit import fit_rig_keypoints
 
-            probs = [Problem([Observation(v, KeypointSet(xy_v[f, c], conf_v[f, c] * usable_v[f, c], layout), frame=0, view_index=c)
+            probs = [Problem([Observation(v, _keypoint_set(xy_v[f, c], conf_v[f, c] * usable_v[f, c], layout), frame=0, view_index=c)
                               for c, v in enumerate(views)]) for f in init_frames]  # fmt: skip
             fits = fit_rig_keypoints(fitter, probs, progress=progress)
             state = {n: torch.as_tensor(np.stack([fit.params[n] for fit in fits])) for n in names}
@@ -444,7 +459,7 @@ def fit_sequence(
     def problems_and_init(betas):
         probs, init, fw = [], {n: [] for n in names}, []
         for s in starts:
-            obs = [Observation(v, KeypointSet(*kps[f][c], layout), frame=f - s, view_index=c)
+            obs = [Observation(v, _keypoint_set(*kps[f][c], layout), frame=f - s, view_index=c)
                    for f in range(s, s + L) for c, v in enumerate(views)]  # fmt: skip
             probs.append(Problem(obs))
             for n in names:
