@@ -125,3 +125,27 @@ def test_a_whole_body_rig_fits_hands_and_face_in_every_view(tmp_path, capsys):
         assert v["reprojection_error_px"] < 3.0 and 0.5 < v["iou"] <= 1.0
     assert main(["render", str(out / "params.npz"), "--size", "48", "--out", str(tmp_path / "r")]) == 0
     assert (tmp_path / "r" / "view_front.png").is_file()
+
+
+def test_a_whole_body_rig_video_fits_hands_and_face_over_frames_and_views(tmp_path, capsys):
+    """A rig video whose views hold per-frame whole-body keypoints: the whole-body model, hands and face
+    from each frame's rig fit, one world-frame fit file of frames x views."""
+    import shutil
+
+    data = tmp_path / "data"
+    assert main(["synth", "--n", "1", "--views", "2", "--whole-body", "--size", "64", "--seed", "6", "--noise-px", "0",
+                 "--out", str(data), "--no-progress"]) == 0  # fmt: skip
+    video = tmp_path / "video"
+    video.mkdir()
+    shutil.copy(data / "subject_000" / "cameras.json", video)
+    for v in ("view_0", "view_1"):
+        (video / v / "keypoints").mkdir(parents=True)
+        for f in range(2):
+            shutil.copy(data / "subject_000" / v / "keypoints.json", video / v / "keypoints" / f"{v}_{f:012d}_keypoints.json")
+    out = tmp_path / "fit"
+    rc = main(["fit", "--rig", str(video), "--out", str(out), "--sequence-iterations", "3", "--no-video", "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    p = np.load(out / "params.npz")
+    assert str(p["model"]) == "smplx" and str(p["coordinates"]) == "world" and p["keypoints_2d"].shape == (2, 2, 137, 2)
+    assert p["left_hand_pose"].shape == (2, 45) and np.abs(p["left_hand_pose"]).max() > 0.05
+    assert np.nanmax(p["reprojection_error"]) < 3.0
