@@ -36,7 +36,10 @@ def run_rig(args) -> int:
     person = "largest" if args.person == "largest" else int(args.person)
     views, set_aside = usable_views(load_rig(args.rig), person, args.views.split(",") if args.views else None)
     # whole body: the views' hand and face points decide the model (as for one image) and are fitted with it
-    model, model_note = choose_model(args.model, args.gender, has_wholebody_parts([v.keypoints for v in views], person))
+    parts = has_wholebody_parts([v.keypoints for v in views], person)
+    model, model_note = choose_model(args.model, args.gender, parts)
+    if parts and getattr(model, "kind", "smpl") != "smplx":
+        model_note = f"{model.source} is an SMPL-layout model: hand and face keypoints are not fitted"
     if model_note:
         note(model_note)
     problem = rig_problem(views, person=person, model=model)

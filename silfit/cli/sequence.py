@@ -135,7 +135,10 @@ def run_rig_sequence(args) -> int:
     person = args.person if args.person == "largest" else int(args.person)
     seq = load_rig_sequence(args.rig, person, args.views.split(",") if args.views else None)
     files = [p for c in range(len(seq.views)) for p in seq.files(c) if p is not None]
-    model, model_note = choose_model(args.model, args.gender, has_wholebody_parts(files, person))
+    parts = has_wholebody_parts(files, person)
+    model, model_note = choose_model(args.model, args.gender, parts)
+    if parts and getattr(model, "kind", "smpl") != "smplx":
+        model_note = f"{model.source} is an SMPL-layout model: hand and face keypoints are not fitted"
     if model_note:
         note(model_note)
     seq, input_warnings = check_rig_sequence(seq, model, person)
