@@ -32,7 +32,9 @@ keypoints; a view without usable keypoints in a frame others see has no data the
 initialised by the rig's keypoint stage (:func:`~silfit.fitting.rig_fit.fit_rig_keypoints`: the
 triangulated torso gives the facing, so no neighbour starts and, with several views, no facing
 repair; a frame seen by one view only starts, as bridged frames do, from its neighbours'
-interpolation, and keeps its data), and one refinement problem of ``F`` frames x ``C`` views.
+interpolation, and keeps its data), and one refinement problem of ``F`` frames x ``C`` views (the
+temporal weights scaled by ``views_smooth_scale``: the views fix the depth the smoothing resolves for
+one camera).
 
 A problem's L-BFGS row holds ``10 + F * 75`` numbers and one iteration evaluates the
 reduced body ``F`` times, so memory and time grow linearly with ``F``; ``window`` splits a
@@ -91,10 +93,15 @@ class SequenceFitConfig:
     window: int = 0  # frames per window (0: the whole sequence as one problem)
     overlap: int = 10
     window_pose_iterations: int = 40  # second pass (shared betas fixed) in windowed mode
+    #: several calibrated views (a rig video): the temporal weights times this; the views fix the depth
+    #: the smoothing resolves for one camera, and at full weight it flattens a run's bounce (world MPJPE
+    #: 17 -> 41 mm on benchmarks/bench_rig_sequence.py's run, 16 at 0.1)
+    views_smooth_scale: float = 0.1
 
-    def stages(self, free_betas: bool = True, iterations: Optional[int] = None) -> tuple:
+    def stages(self, free_betas: bool = True, iterations: Optional[int] = None, views: int = 1) -> tuple:
+        k = 1.0 if views <= 1 else self.views_smooth_scale
         w = {"keypoints": 1.0, "pose": self.pose_prior_weight, "angle": self.angle_prior_weight, "limits": self.limit_weight,
-             "smooth_joints": self.joint_smooth_weight, "smooth_root": self.root_smooth_weight}  # fmt: skip
+             "smooth_joints": k * self.joint_smooth_weight, "smooth_root": k * self.root_smooth_weight}  # fmt: skip
         if free_betas:
             w["shape"] = self.shape_weight
         if self.interpenetration_weight:
@@ -450,7 +457,7 @@ def fit_sequence(
     kps = _view_keypoints(xy_v, conf_v, usable_v)
     weights = np.where(usable, 1.0, float(cfg.bridge_weight))
     refiner_cfg = replace(cfg.keypoint, flip_test=False, init_poses=1, branch_search=False, temporal_sigma=cfg.temporal_sigma,
-                          schedule=cfg.stages())  # fmt: skip
+                          schedule=cfg.stages(views=C))  # fmt: skip
     refiner = KeypointFitter(model, layout, refiner_cfg, fitter.pose_prior)
     t1 = time.perf_counter()
     starts = _windows(F, int(cfg.window), int(cfg.overlap))
@@ -472,7 +479,7 @@ def fit_sequence(
         state, info = refiner.fit_problems(probs, progress=progress, init=init, frame_weights=fw)
         if len(starts) > 1:  # one shape: the windows' mean (by frames), then the poses again with it fixed
             betas0 = state["betas"].double().numpy().mean(0)
-            refiner.stages = cfg.stages(free_betas=False, iterations=cfg.window_pose_iterations)
+            refiner.stages = cfg.stages(free_betas=False, iterations=cfg.window_pose_iterations, views=C)
             merged = _merge_windows({n: state[n].double().numpy() for n in names if n != "betas"}, starts, F)
             start = merged
             probs, init, fw = problems_and_init(betas0)
@@ -610,6 +617,8 @@ def refine_sequence_silhouettes(
     if all(m is None for row in mgrid for m in row):
         raise ValueError("the sequence's silhouette stage needs at least one non-empty mask")
     outliers = result.outliers if rig else result.outliers[:, None]
+    if C > 1:  # several views: the keypoint refinement's scale of the temporal weights (SequenceFitConfig)
+        temporal_weight = temporal_weight * float(result.config.get("views_smooth_scale", 1.0))
     cfg = config or SilhouetteFitConfig()
     if cfg.proxy_faces and int(cfg.proxy_faces) >= int(model.faces.shape[0]):  # a small model: render it whole
         cfg = replace(cfg, proxy_faces=None)
