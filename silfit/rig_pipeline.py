@@ -17,6 +17,10 @@ Output folder (world coordinates: the frame of the rig's extrinsics)::
     stages/keypoints/params.npz   the keypoint stage's parameters         [with masks]
 
 Written atomically (:func:`silfit.outfolder.atomic_folder`).
+
+A rig video (:func:`fit_rig_sequence`, ``silfit fit --rig DIR`` on a rig whose views are video
+folders, :func:`silfit.rig.load_rig_sequence`): the sequence fit of :mod:`silfit.fitting.sequence`
+over frames x views in the world frame, written by :func:`silfit.video.save_sequence_fit`.
 """
 from __future__ import annotations
 
@@ -33,7 +37,7 @@ from .eval.metrics import mask_iou
 from .fitting.rig_fit import RigFit, fit_rig_keypoints
 from .outfolder import atomic_folder
 
-__all__ = ["RigResult", "fit_rig", "fit_rigs", "refine_rig_fits", "save_rig_fit", "view_vertices"]
+__all__ = ["RigResult", "fit_rig", "fit_rigs", "read_rig_sequence_masks", "refine_rig_fits", "save_rig_fit", "view_vertices"]
 
 
 @dataclass
@@ -140,6 +144,15 @@ def fit_rigs(problems, names, model=None, pose_prior=None, keypoint_config=None,
                                   progress)  # fmt: skip
         for i, r in zip(todo, refined):
             out[i] = r
+    if fitter.whole_body:  # which parts were fitted (seen in any view), which held at rest
+        from .fitting.wholebody import wholebody_summary
+        from .keypoints import KeypointSet
+
+        for problem, result in zip(problems, out):
+            ks = [o.keypoints for o in problem.grid()[0]]
+            seen = KeypointSet(ks[0].xy, np.max([k.conf for k in ks], 0), ks[0].layout, ks[0].source)
+            result.metrics["whole_body"], notes = wholebody_summary(seen)
+            result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
     return out
 
 
@@ -161,8 +174,15 @@ def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool =
         if zero:
             raise ValueError(f"view(s) {', '.join(zero)}: the mask does not overlap the body fitted to the keypoints at all")
     layout = items[0][1].observations[0].keypoints.layout
-    sils = fit_silhouette_problems(model, [p for _, p, _ in items], [dict(kp.params) for _, _, kp in items], layout=layout,
-                                   config=config, pose_prior=pose_prior, progress=progress)  # fmt: skip
+    problems, extra = [p for _, p, _ in items], {}
+    if layout == "wholebody":  # the whole-body mesh; hand and face keypoints kept (as for one image)
+        from .fitting.rig_fit import wholebody_problem_inputs
+        from .fitting.silhouette_stage import SilhouetteFitConfig
+
+        config, problems, *rest = wholebody_problem_inputs(model, problems, config or SilhouetteFitConfig())
+        extra = dict(zip(("terms", "weights", "data"), rest))
+    sils = fit_silhouette_problems(model, problems, [dict(kp.params) for _, _, kp in items], layout=layout,
+                                   config=config, pose_prior=pose_prior, progress=progress, **extra)  # fmt: skip
     out = []
     for (names, p, kp), b, sil in zip(items, before, sils):
         params = {n: np.asarray(v, np.float32).reshape(-1) for n, v in sil.parameters.items()}
@@ -241,3 +261,20 @@ def save_rig_fit(result: RigResult, out: Union[str, os.PathLike], faces: np.ndar
         metrics.update(extra_metrics or {})
         (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return out
+
+
+# ----------------------------------------------------------------------------- rig videos
+def read_rig_sequence_masks(seq) -> Optional[list]:
+    """``masks[f][c]`` (bool ``[H, W]``, or ``None`` where the view has no mask for the frame; empty
+    masks allowed: no silhouette term there) of a rig video, each checked against its camera's size;
+    ``None`` when no view has masks."""
+    from .silhouette.masks import read_mask
+
+    if not any(v.masks for v in seq.videos):
+        return None
+    columns = []
+    for c, view in enumerate(seq.views):
+        cam = view.view.camera
+        columns.append([None if p is None else read_mask(p, size=(cam.width, cam.height), allow_empty=True)
+                        for p in seq.per_view(c, "masks")])  # fmt: skip
+    return [[col[f] for col in columns] for f in range(len(seq.numbers))]

@@ -191,15 +191,30 @@ def check(job: Job) -> Job:
         names = [names[c] for c, _ in kept]
         images = {(0, i): job.images[(0, c)] for i, (c, _) in enumerate(kept) if (0, c) in job.images}
         sources = {(0, i): job.mask_sources[(0, c)] for i, (c, _) in enumerate(kept) if (0, c) in job.mask_sources}
-    else:
-        if C > 1:
-            raise InputError("job", f"{F} frames x {C} views: a rig's video is not fitted yet; fit its frames one by one")
+    else:  # a video (of one camera or a rig): each view's frames as a video's; a view with no usable frame set aside
         numbers = list(job.frame_numbers) if job.frame_numbers is not None else list(range(F))
-        frames, notes = check_frames([row[0].keypoints for row in grid], grid[0][0].view.camera.size, numbers)
-        warnings += notes
-        problem = Problem([Observation(row[0].view, ks, row[0].mask, f, 0) for f, (row, ks) in enumerate(zip(grid, frames))],
-                          job.problem.shared)  # fmt: skip
+        kept, first = [], None
+        for c in range(C):
+            try:
+                column, notes = check_frames([row[c].keypoints for row in grid], grid[0][c].view.camera.size, numbers)
+            except InputError as err:
+                if C == 1:
+                    raise
+                first = first or err
+                warnings.append(f"view {names[c]} set aside: {err}")
+                continue
+            warnings += [n if C == 1 else f"view {names[c]}: {n}" for n in notes]
+            kept.append((c, column))
+        if not kept:
+            raise first
+        problem = Problem([Observation(grid[f][c].view, column[f], grid[f][c].mask, f, i)
+                           for f in range(F) for i, (c, column) in enumerate(kept)], job.problem.shared)  # fmt: skip
+        names = [names[c] for c, _ in kept]
         images, sources = job.images, job.mask_sources
+        if len(kept) < C and hasattr(job.inputs, "select_views"):  # the reader's object follows (a rig video's)
+            from dataclasses import replace as _replace
+
+            job = _replace(job, inputs=job.inputs.select_views([c for c, _ in kept]))
     from dataclasses import replace
 
     return replace(job, problem=problem, view_names=names, warnings=_dedupe(warnings), images=images, mask_sources=sources)
@@ -319,33 +334,45 @@ def _run_rigs(jobs: Sequence[Job], isolate: bool) -> list:
 
 
 def _run_video(job: Job) -> Fit:
+    """A video of one camera (camera frame) or of a rig (world frame): the sequence fit
+    (:func:`~silfit.fitting.sequence.fit_sequence`) and, where masks exist, its silhouette stage."""
     import torch
 
     from .fitting.sequence import SequenceFitConfig, fit_sequence, refine_sequence_silhouettes
 
     grid = job.problem.grid()
-    frames = [row[0].keypoints for row in grid]
-    masks = [row[0].mask for row in grid]
-    camera = grid[0][0].view.camera
-    result = fit_sequence(frames, camera, job.model, config=job.sequence_config or SequenceFitConfig(),
+    rig = job.rig or len(grid[0]) > 1
+    frames = [[o.keypoints for o in row] for row in grid] if rig else [row[0].keypoints for row in grid]
+    masks = [[o.mask for o in row] for row in grid] if rig else [row[0].mask for row in grid]
+    cameras = [o.view for o in grid[0]] if rig else grid[0][0].view.camera
+    result = fit_sequence(frames, cameras, job.model, config=job.sequence_config or SequenceFitConfig(),
                           pose_prior=job.pose_prior, progress=job.progress)  # fmt: skip
-    silhouette = job.silhouette and any(m is not None for m in masks)
+    silhouette = job.silhouette and any(o.mask is not None for o in job.problem.observations)
     if silhouette:
         result = refine_sequence_silhouettes(job.model, result, frames, masks, config=job.silhouette_config,
                                              pose_prior=job.pose_prior, progress=job.progress)  # fmt: skip
-    F = result.num_frames
+    F, C = len(grid), len(grid[0])
     params = result.params()
     with torch.no_grad():
         T = lambda n, a: torch.as_tensor(np.repeat(np.asarray(a)[None], F, 0) if n == "betas" else np.asarray(a), dtype=job.model.dtype)  # noqa: E731
         vertices = job.model(**{n: T(n, a) for n, a in params.items()}).vertices.numpy()
-    iou = np.full((F, 1), np.nan) if result.silhouette_iou is None else np.asarray(result.silhouette_iou, np.float64)[:, None]
+    errors = np.asarray(result.reprojection_error, np.float64).reshape(F, C)
+    iou = np.full((F, C), np.nan) if result.silhouette_iou is None else np.broadcast_to(
+        np.asarray(result.silhouette_iou, np.float64).reshape(F, -1), (F, C)).copy()  # fmt: skip
     numbers = list(job.frame_numbers) if job.frame_numbers is not None else list(range(F))
-    warnings = list(result.warnings) + frame_warnings(frames, vertices, result.reprojection_error, numbers)
-    metrics = {"reprojection_error_px": _finite_median(result.reprojection_error), "warnings": _dedupe(warnings),
+    warnings = list(result.warnings)
+    if rig:  # a view the fit could not agree with (the rule of one frame's rig, on each view's median)
+        from .rig_pipeline import disagreeing_views
+
+        medians = [float(np.median(e[np.isfinite(e)])) if np.isfinite(e).any() else float("nan") for e in errors.T]
+        warnings += disagreeing_views(list(job.view_names), medians)
+    else:
+        warnings += frame_warnings(frames, vertices, errors[:, 0], numbers)
+    metrics = {"reprojection_error_px": _finite_median(errors), "warnings": _dedupe(warnings),
                "silhouette": "run" if silhouette else "not run"}  # fmt: skip
     result.warnings = metrics["warnings"]
-    return Fit(job, _params_per_frame(params, F), _arr(vertices), _arr(result.joints), _arr(result.keypoints_2d)[:, None],
-               np.asarray(result.reprojection_error, np.float64)[:, None], iou, "camera", metrics, result)  # fmt: skip
+    return Fit(job, _params_per_frame(params, F), _arr(vertices), _arr(result.joints),
+               _arr(result.keypoints_2d).reshape(F, C, -1, 2), errors, iou, "world" if rig else "camera", metrics, result)  # fmt: skip
 
 
 def _finite_median(values) -> Optional[float]:

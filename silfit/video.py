@@ -202,20 +202,33 @@ def read_sequence(folder: Union[str, os.PathLike], masks: Optional[Union[str, os
 
 # ----------------------------------------------------------------------------- writing a sequence fit
 def _frame_pictures(result, numbers, model, images, masks, stride: int = 1):
-    """Overlay pictures (body and keypoints over each frame's image) of every ``stride``-th frame."""
+    """Overlay pictures (body and keypoints over each frame's image) of every ``stride``-th frame; a rig
+    video's (``result.views``; ``images`` one ``{number: path}`` per view) with its views side by side."""
     import torch
 
     from . import figures
     from .imagefile import read_rgb
 
     faces = model.faces.cpu().numpy()
+    views = result.views
     pics = []
     for f in range(0, result.num_frames, stride):
         p = result.frame_params(f)
         with torch.no_grad():
             out = model(**{k: torch.as_tensor(np.asarray(v)[None], dtype=model.dtype) for k, v in p.items()})
-        img = read_rgb(images[numbers[f]], "image") if numbers[f] in images else None
-        pics.append(figures.fit_overlay(img, out.vertices[0].numpy(), faces, result.camera, None, result.keypoints_2d[f]))
+        vertices = out.vertices[0].numpy()
+        if views is None:
+            img = read_rgb(images[numbers[f]], "image") if numbers[f] in images else None
+            pics.append(figures.fit_overlay(img, vertices, faces, result.camera, None, result.keypoints_2d[f]))
+            continue
+        row = []
+        for c, view in enumerate(views):
+            R, t = view.extrinsics()
+            img = read_rgb(images[c][numbers[f]], "image") if numbers[f] in images[c] else None
+            row.append(figures.fit_overlay(img, (vertices @ R.T + t).astype(np.float32), faces, view.camera, None,
+                                           result.keypoints_2d[f, c]))  # fmt: skip
+        height = max(r.shape[0] for r in row)
+        pics.append(np.concatenate([np.pad(r, ((0, height - r.shape[0]), (0, 0), (0, 0))) for r in row], axis=1))
     return pics
 
 
@@ -243,7 +256,12 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
     ``strip.png`` (a frame strip of overlays), ``overlay.gif`` (every frame; with imageio)
     and with ``meshes`` ``meshes/<frame>.obj``; ``exports`` (``"glb"``, ``"ply"``) adds
     ``animation.glb`` (every frame, one animated glTF) / ``meshes/<frame>.ply`` in the upright
-    world frame of :mod:`silfit.outputs.export`."""
+    world frame of :mod:`silfit.outputs.export`.
+
+    A rig video (``result.views`` set, ``sequence`` a :class:`silfit.rig.RigSequence`): the fit file in
+    world coordinates with every view (``keypoints_2d [F, C, K, 2]``, ``reprojection_error [F, C]``),
+    ``cameras.json``, meshes in world coordinates, overlays with the views side by side; ``metrics.json``
+    has ``views``, ``cameras`` and ``silhouette_iou`` per frame and view; no exports."""
     import torch
 
     from . import figures
@@ -255,12 +273,23 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
     numbers = list(sequence.numbers)
     cam = result.camera
     flags = {"bridged": result.bridged.tolist(), "refaced": result.refaced.tolist()}
+    rig = result.views is not None  # a rig video: world coordinates, every view (silfit.rig.RigSequence)
+    if rig and exports:
+        raise ValueError("exports of a rig video: not available (a rig's world frame has no fixed up axis)")
+    names = list(sequence.names) if rig else None
+    where = dict(cameras=[v.camera for v in result.views], coordinates="world", extrinsics=[v.extrinsics() for v in result.views],
+                 views=names) if rig else dict(cameras=[cam])  # fmt: skip
+    per_view = (lambda a: a) if rig else (lambda a: a[:, None])  # noqa: E731  (one camera: no view axis)
     with atomic_folder(out, overwrite) as tmp:
-        write_fit(tmp, result.params(), [cam], layout=result.layout, model=model, frame_numbers=numbers,
-                  joints=result.joints, keypoints_2d=result.keypoints_2d[:, None],
-                  reprojection_error=result.reprojection_error[:, None], record=flags)  # fmt: skip
-        write_fit(tmp / "stages" / "per_frame", result.per_frame, [cam], layout=result.layout, model=model,
-                  frame_numbers=numbers)  # fmt: skip
+        write_fit(tmp, result.params(), layout=result.layout, model=model, frame_numbers=numbers,
+                  joints=result.joints, keypoints_2d=per_view(result.keypoints_2d),
+                  reprojection_error=per_view(result.reprojection_error), record=flags, **where)  # fmt: skip
+        write_fit(tmp / "stages" / "per_frame", result.per_frame, layout=result.layout, model=model,
+                  frame_numbers=numbers, **where)  # fmt: skip
+        if rig:
+            from .rig import write_cameras_json
+
+            write_cameras_json(tmp / "cameras.json", list(zip(names, result.views)))
         if meshes or exports:
             faces = model.faces.cpu().numpy()
             posed = []
@@ -277,7 +306,8 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
 
                 write_sequence_exports(tmp, np.stack(posed), faces, cam, exports, numbers, fps)
         strip_stride = max(1, -(-result.num_frames // 8))
-        pics = _frame_pictures(result, numbers, model, sequence.images, sequence.masks, 1 if video else strip_stride)
+        images = [v.images for v in sequence.videos] if rig else sequence.images
+        pics = _frame_pictures(result, numbers, model, images, None, 1 if video else strip_stride)
         strip = pics[::strip_stride] if video else pics
         figures.write_png(tmp / "strip.png", np.concatenate(strip, axis=1))
         gif = write_overlay_video(tmp / "overlay.gif", pics, fps) if video else None
@@ -290,11 +320,14 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
             "reprojection_error_px": float(np.median(finite)) if len(finite) else None,
             **({"reprojection_error_px_keypoint_stage": finite_median(result.reprojection_error_keypoint_stage)}
                if result.reprojection_error_keypoint_stage is not None else {}),
-            "timings": result.timings, "warnings": list(result.warnings), "camera": cam.to_dict(),
+            "timings": result.timings, "warnings": list(result.warnings),
+            **({"views": names, "cameras": [v.camera.to_dict() for v in result.views], "coordinates": "world"} if rig
+               else {"camera": cam.to_dict()}),
             "overlay_video": gif.name if gif else None, "config": result.config, **(extra_metrics or {}),
         }  # fmt: skip
         if result.silhouette_iou is not None:
             metrics["silhouette_iou_start"] = result.silhouette_iou_start
-            metrics["silhouette_iou"] = [None if not np.isfinite(v) else float(v) for v in result.silhouette_iou]
+            clean = lambda v: None if not np.isfinite(v) else float(v)  # noqa: E731
+            metrics["silhouette_iou"] = [[clean(v) for v in row] if rig else clean(row) for row in result.silhouette_iou]
         (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2, default=float))
     return Path(out)

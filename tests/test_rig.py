@@ -229,3 +229,46 @@ def test_fuzzed_extrinsics_are_read_or_refused_cleanly(tmp_path_factory, R, t, m
         return
     R_, t_ = view.extrinsics()
     assert np.isfinite(R_).all() and np.isfinite(t_).all() and np.allclose(R_ @ R_.T, np.eye(3), atol=1e-2)
+
+
+@pytest.mark.parametrize("layout", ["manifest", "subfolders", "easymocap"])
+def test_a_rig_video_aligns_each_views_frames_by_number(tmp_path, layout):
+    """A rig video: a rig folder (any of the three calibrations) whose views are video folders; frames are
+    matched across views by number, a view without a frame's number has no detection there."""
+    from silfit.dataset import write_png
+    from silfit.rig import is_rig_video, load_rig_sequence
+
+    views = _rig_folder(tmp_path, layout == "manifest")
+    if layout == "easymocap":
+        _write_easymocap(tmp_path, [n for n, _ in views], np.array([[500.0, 0, 63.5], [0, 500.0, 63.5], [0, 0, 1]]),
+                         [Rotation.from_matrix(v.extrinsics()[0]).as_rotvec() for _, v in views],
+                         [v.extrinsics()[1] for _, v in views])  # fmt: skip
+        for n, _ in views:
+            (tmp_path / n / "camera.json").unlink()
+    ranges = {"cam0": range(0, 3), "cam1": range(1, 4), "cam2": range(0, 4)}
+    for name, frames in ranges.items():
+        (tmp_path / name / "keypoints.json").unlink()
+        for sub in ("keypoints", "masks"):
+            (tmp_path / name / sub).mkdir()
+        for f in frames:
+            write_openpose_json(tmp_path / name / "keypoints" / f"{name}_{f:012d}_keypoints.json", np.full((25, 3), 1.0 + f))
+            write_png(tmp_path / name / "masks" / f"{name}_{f:012d}.png", np.ones((128, 128), bool))
+    assert is_rig_video(tmp_path)
+    with pytest.raises(InputError, match="keypoint file not found .its folder holds a video"):
+        load_rig(tmp_path)
+    seq = load_rig_sequence(tmp_path)
+    assert seq.names == ["cam0", "cam1", "cam2"] and seq.numbers == [0, 1, 2, 3]
+    assert [[ks is not None for ks in row] for row in seq.frames] == [[True, False, True], [True, True, True],
+                                                                       [True, True, True], [False, True, True]]  # fmt: skip
+    assert seq.frames[2][1].xy[0, 0] == 3.0  # cam1's frame 2 in row 2
+    assert seq.per_view(1, "masks")[0] is None and seq.per_view(1, "masks")[3].name == "cam1_000000000003.png"
+    assert np.allclose(seq.views[1].view.extrinsics()[0], views[1][1].extrinsics()[0])
+    two = load_rig_sequence(tmp_path, names=["cam2", "cam1"])
+    assert two.names == ["cam1", "cam2"] and two.numbers == [0, 1, 2, 3]
+    with pytest.raises(InputError, match="unknown view.s. cam9"):
+        load_rig_sequence(tmp_path, names=["cam9"])
+    with pytest.raises(InputError, match="no per-frame keypoints"):
+        for p in (tmp_path / "cam2" / "keypoints").iterdir():
+            p.unlink()
+        (tmp_path / "cam2" / "keypoints").rmdir()
+        load_rig_sequence(tmp_path)

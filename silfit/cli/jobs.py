@@ -69,13 +69,15 @@ def build_job(args) -> Job:
     if getattr(args, "views", None) and not getattr(args, "rig", None):
         raise CLIError("--views picks cameras of a rig; give --rig DIR")
     if args.sequence and getattr(args, "rig", None):
-        raise CLIError("--sequence with --rig: fitting a rig's video is not available; choose one")
+        raise CLIError("--sequence with --rig: a rig video is --rig DIR alone (its views' folders hold the per-frame files)")
     if getattr(args, "export", None) and getattr(args, "rig", None):
         raise CLIError("--export with --rig: not available (a rig's world frame has no fixed up axis); mesh.obj holds the body")
     if args.sequence:
         return video_job(args)
     if getattr(args, "rig", None):
-        return rig_job(args)
+        from ..rig import is_rig_video
+
+        return rig_video_job(args) if is_rig_video(args.rig) else rig_job(args)
     return image_job(args)
 
 
@@ -144,8 +146,8 @@ def rig_job(args) -> Job:
     ``camera.json``; each view holds ``keypoints.json`` and optionally ``mask.png`` and
     ``image.png``), fitted in world coordinates; ``--views`` picks cameras."""
     from ..errors import InputError
+    from ..fitting.rig_fit import fit_keypoints_of
     from ..imagefile import read_rgb
-    from ..keypoints import read_keypoints
     from ..rig import load_rig
     from ..silhouette.masks import read_mask
 
@@ -162,10 +164,12 @@ def rig_job(args) -> Job:
         if unknown:
             raise InputError("--views", f"unknown view(s) {', '.join(unknown)} (the rig has {', '.join(known)})")
         views = [v for v in views if v.name in names]
+    # whole body: the views' hand and face points decide the model (as for one image) and are fitted with it
+    model = _rig_model(args, [v.keypoints for v in views], person)
     obs, names, images, warnings, first = [], [], {}, [], None
     for v in views:
         try:
-            ks = read_keypoints(v.keypoints, person=person)
+            ks = fit_keypoints_of(v.keypoints, model, person)
         except InputError as err:  # a view without usable keypoints is set aside (as check() does with refused ones)
             first = first or err
             warnings.append(f"view {v.name} set aside: {err}")
@@ -183,10 +187,58 @@ def rig_job(args) -> Job:
         names.append(v.name)
     if not obs:
         raise first
-    model = choose_model(args.model, args.gender, False)[0]
     return Job(Problem(obs), model, names, pose_prior=_pose_prior(args, model), silhouette_config=silhouette_config(args),
                silhouette=not args.no_silhouette, progress=not args.quiet, warnings=warnings,
                record={"rig": str(args.rig), "model": model.source}, images=images, rig=True)  # fmt: skip
+
+
+def _rig_model(args, keypoint_files, person):
+    """The model of a rig (or rig video): ``--model``, else the shipped whole-body model when any view's
+    keypoint file has hand or face points (with a note), else the body model."""
+    from ..fitting.rig_fit import has_wholebody_parts
+
+    parts = has_wholebody_parts([f for f in keypoint_files if f is not None], person)
+    model, model_note = choose_model(args.model, args.gender, parts)
+    if parts and getattr(model, "kind", "smpl") != "smplx":
+        model_note = f"{model.source} is an SMPL-layout model: hand and face keypoints are not fitted"
+    if model_note:
+        note(model_note)
+    return model
+
+
+def rig_video_job(args) -> Job:
+    """A rig video: a rig folder whose views' folders are video folders (:func:`silfit.rig.load_rig_sequence`:
+    the rig's cameras, each view's per-frame OpenPose JSON with optional ``masks/`` and ``images/``,
+    frames matched across views by number), fitted over frames x views in the world frame."""
+    from ..fitting.sequence import SequenceFitConfig
+    from ..rig import load_rig_sequence
+    from ..rig_pipeline import read_rig_sequence_masks
+    from ..wholebody import choose_fit_keypoints, read_wholebody_parts
+
+    for flag in ("keypoints", "mask", "camera", "focal", "image", "image_size", "masks", "images"):
+        if getattr(args, flag, None):
+            raise CLIError(f"--{flag.replace('_', '-')} with a rig video: each view's folder holds its frames' files")
+    _check_out(args)
+    sil_config = silhouette_config(args)
+    person = _person(args.person)
+    seq = load_rig_sequence(args.rig, person, args.views.split(",") if args.views else None)
+    C = len(seq.views)
+    files = [seq.files(c) for c in range(C)]
+    model = _rig_model(args, [p for column in files for p in column], person)
+    frames = [[ks if ks is None or getattr(model, "kind", "smpl") != "smplx"
+               else choose_fit_keypoints(ks, read_wholebody_parts(files[c][f], person), model)[0]
+               for c, ks in enumerate(row)] for f, row in enumerate(seq.frames)]  # fmt: skip
+    masks = read_rig_sequence_masks(seq)  # [F][C] or None; read (and checked) before --check-only answers
+    cfg = SequenceFitConfig()
+    if args.sequence_iterations is not None:
+        cfg.iterations = int(args.sequence_iterations)
+    obs = [Observation(v.view, frames[f][c], None if masks is None else masks[f][c], f, c)
+           for f in range(len(frames)) for c, v in enumerate(seq.views)]  # fmt: skip
+    silhouette = "run" if masks is not None and not args.no_silhouette else "not run (--no-silhouette)" if args.no_silhouette else "not run (no masks)"
+    return Job(Problem(obs), model, seq.names, pose_prior=_pose_prior(args, model), silhouette_config=sil_config,
+               sequence_config=cfg, silhouette=not args.no_silhouette, progress=not args.quiet, frame_numbers=list(seq.numbers),
+               warnings=list(seq.warnings), inputs=seq, rig=True,
+               record={"rig": str(args.rig), "model": model.source, "silhouette": silhouette})  # fmt: skip
 
 
 def _video_camera(args, seq):
@@ -255,6 +307,9 @@ def video_job(args) -> Job:
 
 def describe_inputs(job: Job) -> str:
     """``--check-only``'s line: what will be fitted, with which camera."""
+    if job.mode == "video" and job.num_views > 1 or job.mode == "video" and job.rig:
+        return (f"inputs OK: a rig video of {job.num_frames} frames seen by {job.num_views} views "
+                f"({', '.join(job.view_names)}), masks {'read' if job.has_masks else 'none'}")  # fmt: skip
     if job.mode == "video":
         seq, cam = job.inputs, job.problem.observations[0].view.camera
         return (f"inputs OK: {len(seq.numbers)} frames ({seq.detected} with a person), {len(seq.masks)} masks, "

@@ -53,7 +53,9 @@ def register(subparsers) -> None:
     p.add_argument("--views", type=int, default=None, metavar="N",
                    help="a calibrated rig per subject: N cameras on a ring around the body (varied heights), per-view "
                         "folders view_<i>/ (image, mask, keypoints, camera.json with R, t), cameras.json and one gt.npz "
-                        "in world coordinates (see README: Camera rigs)")
+                        "in world coordinates (see README: Camera rigs); with --whole-body, OpenPose whole-body "
+                        "keypoints per view; with --sequence, each motion seen by N cameras (a rig video: per-view "
+                        "video folders)")
     p.add_argument("--layout", default=None, metavar="CAMERAS.json",
                    help="with --views: the rig's cameras from this cameras.json instead of the ring")
     p.add_argument("--model", default=None, help="body model file (default: the shipped open body model)")
@@ -69,16 +71,17 @@ def run_sequence(args: argparse.Namespace, model) -> int:
                          drop_prob=args.drop, drop_frames=args.drop_frames, motions=motions, orbit_deg=args.orbit,
                          fov_deg=tuple(args.fov), background=args.background).validate()  # fmt: skip
     index = generate_sequence_dataset(args.out, args.n, cfg, model=model, progress=not args.no_progress,
-                                      command=shlex.join(["silfit", "synth", *sys.argv[2:]]))  # fmt: skip
+                                      command=shlex.join(["silfit", "synth", *sys.argv[2:]]), views=args.views)  # fmt: skip
     seqs = index["sequences"]
-    print(f"wrote {len(seqs)} sequences of {args.frames} frames to {args.out} (seed {args.seed}, {args.size}x{args.size}, "
+    rig = f" seen by {args.views} cameras" if args.views else ""
+    print(f"wrote {len(seqs)} sequences of {args.frames} frames{rig} to {args.out} (seed {args.seed}, {args.size}x{args.size}, "
           f"noise {args.noise_px} px): {', '.join(s['name'] + ' ' + s['motion'] for s in seqs)}")  # fmt: skip
     return 0
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.sequence and (args.views is not None or args.layout is not None):
-        raise ValueError("--sequence with --views/--layout: synthetic rig sequences are not available; choose one")
+    if args.sequence and args.layout is not None:
+        raise ValueError("--sequence with --layout: rig sequences place their cameras on a ring (--views N)")
     if args.sequence:
         model = None
         if args.model is not None:
@@ -137,8 +140,8 @@ def _run_rig(args, cfg, model, argv) -> int:
     from ..rig import read_cameras_json
     from ..synth.rig import RigConfig, generate_rig_dataset
 
-    if args.whole_body or args.poses != "library":
-        raise ValueError("--views: rigs use the library poses and the SMPL-layout model (no --whole-body, --poses hard)")
+    if args.poses != "library":
+        raise ValueError("--views: rigs use the library poses (no --poses hard)")
     layout = [v.view for v in read_cameras_json(args.layout)] if args.layout else None
     rig = RigConfig(views=args.views or (len(layout) if layout else 4), layout=layout)
     argv += ["--views", str(rig.views)] + (["--layout", args.layout] if args.layout else [])

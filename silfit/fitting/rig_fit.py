@@ -23,7 +23,8 @@ from .terms import evaluate
 from .triangulate import placement_to_world
 from .threads import torch_threads
 
-__all__ = ["RigFit", "fit_rig_keypoints", "rig_problem"]
+__all__ = ["RigFit", "fit_keypoints_of", "fit_rig_keypoints", "has_wholebody_parts", "rig_problem",
+           "wholebody_problem_inputs"]
 
 
 @dataclass
@@ -40,18 +41,43 @@ class RigFit:
     timings: Dict[str, float] = field(default_factory=dict)
 
 
-def rig_problem(views, person="largest", with_masks: bool = True) -> Problem:
+def fit_keypoints_of(path, model=None, person="largest"):
+    """The keypoints ``model`` is fitted to from one OpenPose file: its body (BODY_25 / COCO-17) for
+    an SMPL-layout model (or no model), the ``wholebody`` layout (hands and face; absent parts at
+    confidence 0) for an SMPL-X-layout one (:func:`silfit.wholebody.choose_fit_keypoints`)."""
+    ks = read_keypoints(path, person=person)
+    if model is None or getattr(model, "kind", "smpl") != "smplx":
+        return ks
+    from ..wholebody import choose_fit_keypoints, read_wholebody_parts
+
+    return choose_fit_keypoints(ks, read_wholebody_parts(path, person), model)[0]
+
+
+def has_wholebody_parts(paths, person="largest") -> bool:
+    """Whether any of these OpenPose files holds confident hand or face points (they pick the
+    whole-body model when none is given, as for one image)."""
+    from ..wholebody import read_wholebody_parts
+
+    for path in paths:
+        parts = read_wholebody_parts(path, person)
+        if parts is not None and parts.has_parts:
+            return True
+    return False
+
+
+def rig_problem(views, person="largest", with_masks: bool = True, model=None) -> Problem:
     """A one-frame :class:`Problem` from :func:`silfit.rig.load_rig`'s views: each view's
     keypoints (OpenPose; checked as one image's are, :func:`silfit.plausibility.check_keypoints`,
     with the notes added to the view's warnings) and, when present and ``with_masks``, its mask
-    (checked against the camera's size)."""
+    (checked against the camera's size). With an SMPL-X-layout ``model`` the keypoints are the
+    ``wholebody`` layout (:func:`fit_keypoints_of`)."""
     from ..plausibility import check_keypoints
     from ..silhouette.masks import read_mask
 
     obs = []
     for c, v in enumerate(views):
         cam = v.view.camera
-        ks, notes = check_keypoints(read_keypoints(v.keypoints, person=person), cam.size)
+        ks, notes = check_keypoints(fit_keypoints_of(v.keypoints, model, person), cam.size)
         v.warnings.extend(n for n in notes if n not in v.warnings)
         mask = read_mask(v.mask, size=(cam.width, cam.height)) if (with_masks and v.mask is not None) else None
         obs.append(Observation(v.view, ks, mask, frame=0, view_index=c))
@@ -152,3 +178,32 @@ def fit_rig_keypoints(fitter, problems: Sequence[Problem], progress: bool = Fals
             timings={**info["timings"], "final_stage": last},
         ))  # fmt: skip
     return fits
+
+
+def wholebody_problem_inputs(model, problems: Sequence[Problem], config) -> tuple:
+    """What the silhouette stage needs to fit a whole-body mesh to problems of ``F`` frames x ``C``
+    views (every observation with keypoints of the ``wholebody`` layout), as
+    :func:`~silfit.fitting.wholebody.wholebody_silhouette_inputs` gives it for one image per problem:
+    ``(config, problems, terms, weights, data)``; the problems' keypoints are the body points
+    (the stage's own keypoint term), ``data["part_weights"]`` is ``[P, F, C, K]``. A part is
+    optimised when every frame of every problem has it in at least one view (else it stays where the
+    keypoint stage left it)."""
+    from .wholebody import GATED_PARTS, SILHOUETTE_PART_LR, wholebody_silhouette_inputs
+    from ..wholebody import part_slices
+
+    grids = [p.grid() for p in problems]
+    flat = [o for g in grids for row in g for o in row]
+    if any(o.keypoints is None for o in flat):
+        raise ValueError("a whole-body silhouette stage needs keypoints in every observation")
+    cfg, body_sets, terms, weights, data = wholebody_silhouette_inputs(model, [o.keypoints for o in flat], config, model.dtype)
+    P, F, C = len(problems), problems[0].num_frames, problems[0].num_views
+    data = {"part_weights": data["part_weights"].reshape(P, F, C, -1)}
+    sl = part_slices()
+    conf = np.stack([o.keypoints.conf for o in flat]).reshape(P, F, C, -1)
+    present = {part: bool((conf[..., sl[part]] > 0).any(-1).any(-1).all()) for part in ("hand_left", "hand_right", "face")}
+    free = tuple(n for n, part in GATED_PARTS.items() if present[part])
+    cfg = replace(cfg, optimise=tuple(n for n in cfg.optimise if n not in GATED_PARTS) + free,
+                  lr={**SILHOUETTE_PART_LR, **config.lr})  # fmt: skip
+    it = iter(body_sets)
+    out = [Problem([replace(o, keypoints=next(it)) for row in g for o in row], shared=p.shared) for p, g in zip(problems, grids)]
+    return cfg, out, terms, weights, data

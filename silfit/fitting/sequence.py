@@ -1,4 +1,5 @@
-"""Fitting a video: one person over ``F`` frames of one camera, one shape for all frames.
+"""Fitting a video: one person over ``F`` frames of one camera (or of a calibrated rig's ``C``
+cameras: a rig video), one shape for all frames.
 
 :func:`fit_sequence` runs
 
@@ -24,6 +25,16 @@
    root), started from the per-frame fits (bridged frames: interpolated from their
    neighbours, with data weight ``bridge_weight``), in the keypoint stage's own loop
    (:meth:`KeypointFitter.fit_problems` with an explicit schedule).
+
+A rig video (``fit_sequence`` given the rig's views, ``frames[f][c]``) runs the same steps in the
+rig's world frame: checks and outliers per view (a frame is bridged when no view has usable
+keypoints; a view without usable keypoints in a frame others see has no data there), each frame
+initialised by the rig's keypoint stage (:func:`~silfit.fitting.rig_fit.fit_rig_keypoints`: the
+triangulated torso gives the facing, so no neighbour starts and, with several views, no facing
+repair; a frame seen by one view only starts, as bridged frames do, from its neighbours'
+interpolation, and keeps its data), and one refinement problem of ``F`` frames x ``C`` views (the
+temporal weights scaled by ``views_smooth_scale``: the views fix the depth the smoothing resolves for
+one camera).
 
 A problem's L-BFGS row holds ``10 + F * 75`` numbers and one iteration evaluates the
 reduced body ``F`` times, so memory and time grow linearly with ``F``; ``window`` splits a
@@ -84,12 +95,18 @@ class SequenceFitConfig:
     window: int = 0  # frames per window (0: the whole sequence as one problem)
     overlap: int = 10
     window_pose_iterations: int = 40  # second pass (shared betas fixed) in windowed mode
+    #: several calibrated views (a rig video): the temporal weights times this; the views fix the depth
+    #: the smoothing resolves for one camera, and at full weight it flattens a run's bounce (world MPJPE
+    #: 17 -> 41 mm on benchmarks/bench_rig_sequence.py's run, 16 at 0.1)
+    views_smooth_scale: float = 0.1
 
-    def stages(self, free_betas: bool = True, iterations: Optional[int] = None) -> tuple:
+    def stages(self, free_betas: bool = True, iterations: Optional[int] = None, views: int = 1) -> tuple:
         """The joint refinement's one stage (``free_betas=False``: the windowed mode's second pass, the
-        shape held); the defaults give the literal table :data:`~silfit.fitting.schedules.SEQUENCE_SCHEDULE`."""
+        shape held; ``views``: a rig video's, the temporal weights scaled by ``views_smooth_scale``); the
+        defaults give the literal table :data:`~silfit.fitting.schedules.SEQUENCE_SCHEDULE`."""
+        k = 1.0 if views <= 1 else self.views_smooth_scale
         w = {"keypoints": 1.0, "pose": self.pose_weight, "angle": self.angle_prior_weight, "limits": self.limit_weight,
-             "smooth_joints": self.joint_smooth_weight, "smooth_root": self.root_smooth_weight}  # fmt: skip
+             "smooth_joints": k * self.joint_smooth_weight, "smooth_root": k * self.root_smooth_weight}  # fmt: skip
         if free_betas:
             w["shape"] = self.shape_weight
         if self.interpenetration_weight:
@@ -137,6 +154,10 @@ class SequenceFitResult:
     #: a whole-body (SMPL-X-layout) model's other parameters per frame ``[F, w]`` (hands and
     #: face from the per-frame fits, interpolated over frames without them, held in the refinement)
     extra: Dict[str, np.ndarray] = field(default_factory=dict)
+    #: a rig video (:func:`fit_sequence` given views): the rig's views (world frame; ``camera`` is the
+    #: first one's); then ``keypoints_2d`` is ``[F, C, K, 2]``, ``reprojection_error`` and
+    #: ``silhouette_iou`` ``[F, C]``, ``outliers`` ``[F, C, K]`` and the parameters are in world coordinates
+    views: Optional[list] = None
 
     @property
     def num_frames(self) -> int:
@@ -303,43 +324,120 @@ def _bridge_keypoints(xy, conf, usable) -> List[tuple]:
     return out
 
 
+def _view_columns(grid, layout: str, cfg: SequenceFitConfig):
+    """:func:`_frame_sets` for each view's column of ``grid [F][C]``: ``xy [F, C, K, 2]``, ``conf [F, C, K]``
+    (outliers dropped), ``outliers [F, C, K]``, ``usable [F, C]`` (a view without any keypoints: zeros)."""
+    F, C = len(grid), len(grid[0])
+    K = len(next(ks for row in grid for ks in row if ks is not None).names)
+    xy, conf = np.zeros((F, C, K, 2)), np.zeros((F, C, K))
+    outliers, usable = np.zeros((F, C, K), dtype=bool), np.zeros((F, C), dtype=bool)
+    for c in range(C):
+        column = [row[c] for row in grid]
+        if any(ks is not None for ks in column):
+            xy[:, c], conf[:, c], outliers[:, c], usable[:, c] = _frame_sets(column, layout, cfg)
+    return xy, conf, outliers, usable
+
+
+def _view_keypoints(xy, conf, usable) -> List[List[tuple]]:
+    """``[F][C]`` (xy, conf) for the refinement: a view's usable frames their own keypoints; in a frame
+    usable in another view, none (confidence 0); in a bridged frame (no usable view) each view's
+    :func:`_bridge_keypoints` from its own usable frames (only for the placement: data weight
+    ``bridge_weight``)."""
+    F, C = usable.shape
+    frame_ok = usable.any(1)
+    cols = [_bridge_keypoints(xy[:, c], conf[:, c], usable[:, c]) if usable[:, c].any() else None for c in range(C)]
+    out = []
+    for f in range(F):
+        row = []
+        for c in range(C):
+            if cols[c] is None or (frame_ok[f] and not usable[f, c]):
+                row.append((xy[f, c], np.zeros_like(conf[f, c])))
+            else:
+                row.append(cols[c][f])
+        out.append(row)
+    return out
+
+
+def _keypoint_set(xy, conf, layout: str) -> KeypointSet:
+    """A :class:`KeypointSet`, or for a view with no detection in a frame (every confidence 0, which
+    :class:`KeypointSet` refuses) a set of that layout with zero confidences: no data there."""
+    if np.any(np.asarray(conf) > 0):
+        return KeypointSet(xy, conf, layout)
+    empty = KeypointSet.__new__(KeypointSet)
+    empty.xy, empty.conf = np.asarray(xy, np.float64), np.zeros(len(conf))
+    empty.layout, empty.source = layout, "<no detection>"
+    return empty
+
+
+def _project_views(points: torch.Tensor, views, rig: bool) -> np.ndarray:
+    """``[F, C, K, 2]``: points ``[F, K, 3]`` (camera frame for one camera's video, else world) in each view."""
+    if not rig:
+        return project_points(points, views[0].camera).numpy()[:, None]
+    out = []
+    for v in views:
+        R, t = (torch.as_tensor(a, dtype=points.dtype) for a in v.extrinsics())
+        out.append(project_points(points @ R.T + t, v.camera).numpy())
+    return np.stack(out, 1)
+
+
 def fit_sequence(
-    frames: Sequence[Optional[KeypointSet]],
-    camera: Camera,
+    frames: Sequence,
+    camera,
     model=None,
     *,
     config: Optional[SequenceFitConfig] = None,
     pose_prior=None,
     progress: bool = False,
 ) -> SequenceFitResult:
-    """Fit one person over a sequence of frames of one camera (module docstring).
+    """Fit one person over a sequence of frames of one camera, or of a calibrated rig (module docstring).
 
-    ``frames``: one :class:`~silfit.keypoints.KeypointSet` per frame, ``None`` where no
-    person was detected; at least one frame must have usable keypoints."""
+    ``frames``: one :class:`~silfit.keypoints.KeypointSet` per frame, ``None`` where no person was
+    detected, with ``camera`` a :class:`~silfit.camera.Camera` (the fit in its frame); or, for a rig
+    video, ``frames[f][c]`` per view with ``camera`` a list of :class:`~silfit.fitting.problem.View` s
+    (the fit in their world frame: every frame's initialisation the rig's keypoint stage,
+    :func:`~silfit.fitting.rig_fit.fit_rig_keypoints`; the refinement over frames x views). At least
+    one frame must have usable keypoints (in some view)."""
     from ..body import load_body_model
 
     cfg = config or SequenceFitConfig()
     model = load_body_model() if model is None else model
-    if not frames or all(ks is None for ks in frames):
+    rig = not isinstance(camera, Camera)
+    views = list(camera) if rig else [View(camera)]
+    grid = [list(row) for row in frames] if rig else [[ks] for ks in frames]
+    if any(len(row) != len(views) for row in grid):
+        raise ValueError(f"every frame needs one entry per view ({len(views)})")
+    if not grid or all(ks is None for row in grid for ks in row):
         raise ValueError("the sequence has no frame with keypoints")
-    layout = next(ks for ks in frames if ks is not None).layout
-    F = len(frames)
+    layout = next(ks for row in grid for ks in row if ks is not None).layout
+    F, C = len(grid), len(views)
     t0 = time.perf_counter()
-    xy, conf, outliers, usable = _frame_sets(frames, layout, cfg)
+    xy_v, conf_v, outliers, usable_v = _view_columns(grid, layout, cfg)
+    usable = usable_v.any(1)
     if not usable.any():
         raise ValueError(f"no frame of the sequence has enough confident torso keypoints (of {F} frames)")
-    init_frames = np.flatnonzero(usable)[:: max(int(cfg.init_stride), 1)]
-    if np.flatnonzero(usable)[-1] not in init_frames:
-        init_frames = np.append(init_frames, np.flatnonzero(usable)[-1])
+    # a rig's frames seen by one view only are monocular: they start from the frames seen by several
+    seen = usable_v.sum(1) >= min(2, C) if rig else usable
+    seen = seen if seen.any() else usable
+    init_frames = np.flatnonzero(seen)[:: max(int(cfg.init_stride), 1)]
+    if np.flatnonzero(seen)[-1] not in init_frames:
+        init_frames = np.append(init_frames, np.flatnonzero(seen)[-1])
 
     # 2. per-frame initialisation, the usable frames as one batch
     fitter = KeypointFitter(model, layout, cfg.keypoint, pose_prior)
     names = tuple(fitter.params.sizes)
-    probs = [Problem.single(KeypointSet(xy[f], conf[f], layout), camera) for f in init_frames]
     with torch_threads(cfg.keypoint.threads):
-        state, info = fitter.fit_problems(probs, progress=progress)
-        if cfg.neighbour_starts and len(probs) > 1:
-            state = _refit_from_neighbours(model, layout, cfg.keypoint, fitter, probs, state, info, progress)
+        if rig:  # each frame as a one-frame rig (world frame); the triangulated torso starts it: no neighbour starts
+            from .rig_fit import fit_rig_keypoints
+
+            probs = [Problem([Observation(v, _keypoint_set(xy_v[f, c], conf_v[f, c] * usable_v[f, c], layout), frame=0, view_index=c)
+                              for c, v in enumerate(views)]) for f in init_frames]  # fmt: skip
+            fits = fit_rig_keypoints(fitter, probs, progress=progress)
+            state = {n: torch.as_tensor(np.stack([fit.params[n] for fit in fits])) for n in names}
+        else:
+            probs = [Problem.single(KeypointSet(xy_v[f, 0], conf_v[f, 0], layout), camera) for f in init_frames]
+            state, info = fitter.fit_problems(probs, progress=progress)
+            if cfg.neighbour_starts and len(probs) > 1:
+                state = _refit_from_neighbours(model, layout, cfg.keypoint, fitter, probs, state, info, progress)
     per = {n: np.zeros((F, fitter.params.sizes[n])) for n in names}
     for n in names:
         v = state[n].double().numpy().reshape(len(init_frames), -1)
@@ -348,18 +446,23 @@ def fit_sequence(
     known = np.zeros(F, dtype=bool)
     known[init_frames] = True
 
-    # 3. consistent facings
-    refaced = consistent_facings(body_forward(per["global_orient"]), known, cfg.facing_jump_cost)
+    # 3. consistent facings (one view; several: the triangulated torso gives each frame's facing)
+    refaced = np.zeros(F, dtype=bool)
+    if C == 1:
+        orient = per["global_orient"]
+        if rig:  # the facing as the view's camera sees it
+            orient = (Rotation.from_matrix(views[0].extrinsics()[0]) * Rotation.from_rotvec(orient)).as_rotvec()
+        refaced = consistent_facings(body_forward(orient), known, cfg.facing_jump_cost)
     betas0 = np.median(per["betas"][known], 0)
     per_frame = interpolate_frames(per, known)  # the per-frame fit (betas per frame too)
     start = interpolate_frames({n: per[n] for n in names if n != "betas"}, known & ~refaced)
 
     # 4. joint refinement
     bridged = ~usable
-    kps = _bridge_keypoints(xy, conf, usable)
+    kps = _view_keypoints(xy_v, conf_v, usable_v)
     weights = np.where(usable, 1.0, float(cfg.bridge_weight))
     refiner_cfg = replace(cfg.keypoint, flip_test=False, init_poses=1, branch_search=False, temporal_sigma=cfg.temporal_sigma,
-                          schedule=cfg.stages())  # fmt: skip
+                          schedule=cfg.stages(views=C))  # fmt: skip
     refiner = KeypointFitter(model, layout, refiner_cfg, fitter.pose_prior)
     t1 = time.perf_counter()
     starts = _windows(F, int(cfg.window), int(cfg.overlap))
@@ -368,7 +471,8 @@ def fit_sequence(
     def problems_and_init(betas):
         probs, init, fw = [], {n: [] for n in names}, []
         for s in starts:
-            obs = [Observation(View(camera), KeypointSet(*kps[f], layout), frame=f - s) for f in range(s, s + L)]
+            obs = [Observation(v, _keypoint_set(*kps[f][c], layout), frame=f - s, view_index=c)
+                   for f in range(s, s + L) for c, v in enumerate(views)]  # fmt: skip
             probs.append(Problem(obs))
             for n in names:
                 init[n].append(betas if n == "betas" else start[n][s : s + L])
@@ -380,7 +484,7 @@ def fit_sequence(
         state, info = refiner.fit_problems(probs, progress=progress, init=init, frame_weights=fw)
         if len(starts) > 1:  # one shape: the windows' mean (by frames), then the poses again with it fixed
             betas0 = state["betas"].double().numpy().mean(0)
-            refiner.stages = cfg.stages(free_betas=False, iterations=cfg.window_pose_iterations)
+            refiner.stages = cfg.stages(free_betas=False, iterations=cfg.window_pose_iterations, views=C)
             merged = _merge_windows({n: state[n].double().numpy() for n in names if n != "betas"}, starts, F)
             start = merged
             probs, init, fw = problems_and_init(betas0)
@@ -394,9 +498,12 @@ def fit_sequence(
     with torch.no_grad():
         rows = {n: T(np.repeat(final[n][None], F, 0) if n == "betas" else final[n]) for n in names}
         body = refiner.body(**rows)
-        kp2d = project_points(body.keypoints.double(), camera).numpy()
-    err = np.linalg.norm(kp2d - xy, axis=-1)
-    reproj = np.array([np.median(err[f][conf[f] > 0]) if (conf[f] > 0).any() and usable[f] else np.nan for f in range(F)])
+        kp2d = _project_views(body.keypoints.double(), views, rig)  # [F, C, K, 2]
+    err = np.linalg.norm(kp2d - xy_v, axis=-1)
+    reproj = np.array([[np.median(err[f, c][conf_v[f, c] > 0]) if (conf_v[f, c] > 0).any() and usable_v[f, c] else np.nan
+                        for c in range(C)] for f in range(F)])  # fmt: skip
+    if not rig:  # one camera's video: no view axis
+        kp2d, reproj, outliers = kp2d[:, 0], reproj[:, 0], outliers[:, 0]
     warnings = []
     if bridged.any():
         warnings.append(f"{int(bridged.sum())} of {F} frame(s) bridged from their neighbours (no usable keypoints): "
@@ -406,13 +513,13 @@ def fit_sequence(
     f32 = lambda a: np.asarray(a, dtype=np.float32)  # noqa: E731
     return SequenceFitResult(
         betas=f32(final["betas"]), body_pose=f32(final["body_pose"]), global_orient=f32(final["global_orient"]),
-        transl=f32(final["transl"]), camera=camera, joints=f32(body.joints.numpy()), keypoints_2d=f32(kp2d),
+        transl=f32(final["transl"]), camera=views[0].camera, joints=f32(body.joints.numpy()), keypoints_2d=f32(kp2d),
         bridged=bridged, refaced=refaced, outliers=outliers, reprojection_error=reproj,
         per_frame={n: f32(v) for n, v in per_frame.items()},
         extra={n: f32(final[n]) for n in names if n not in ("betas", "body_pose", "global_orient", "transl")},
         timings={"per_frame_init": t_init, "refine": t_refine, "total": time.perf_counter() - t0, "frames": F,
                  "seconds_per_frame": (time.perf_counter() - t0) / F},
-        layout=layout, config=cfg.to_dict(), warnings=warnings,
+        layout=layout, config=cfg.to_dict(), warnings=warnings, views=views if rig else None,
     )  # fmt: skip
 
 
@@ -456,11 +563,12 @@ def _merge_windows(params: Dict[str, np.ndarray], starts: List[int], F: int) -> 
 SILHOUETTE_TEMPORAL_WEIGHT = 5e-5
 
 
-def _cut_off_frames(masks) -> List[str]:
-    """One warning naming the frames whose mask runs out of the image (:func:`silfit.plausibility.mask_warnings`)."""
+def _cut_off_frames(masks, views: int = 1) -> List[str]:
+    """One warning naming the frames whose mask runs out of the image (:func:`silfit.plausibility.mask_warnings`);
+    ``masks`` frame-major over ``views`` views."""
     from ..plausibility import mask_warnings
 
-    cut = [f for f, m in enumerate(masks) if m is not None and mask_warnings(m)]
+    cut = sorted({i // views for i, m in enumerate(masks) if m is not None and mask_warnings(m)})
     if not cut:
         return []
     return [f"frame(s) {', '.join(map(str, cut[:10]))}{' ...' if len(cut) > 10 else ''}: the person runs out of the image "
@@ -492,7 +600,10 @@ def refine_sequence_silhouettes(
     (:func:`~silfit.fitting.silhouette_stage.fit_silhouette_problems`). Returns a copy of
     ``result`` with the refined parameters, joints, projected keypoints and reprojection
     errors (the keypoint stage's kept in ``reprojection_error_keypoint_stage``); ``per_frame`` is kept, and
-    ``timings["silhouette"]`` and ``silhouette_iou`` (per frame, NaN without a mask) are added."""
+    ``timings["silhouette"]`` and ``silhouette_iou`` (per frame, NaN without a mask) are added.
+
+    A rig video's fit (``result.views``): ``frames[f][c]`` and ``masks[f][c]`` per view, every view's
+    mask rendered in its camera (the keypoint stage's extrinsics), results per frame and view."""
     from ..plausibility import reprojection_rise_warnings, shape_warnings
     from .silhouette_stage import SilhouetteFitConfig, fit_silhouette_problems
     from .terms import JointSmoothnessTerm, RootSmoothnessTerm
@@ -500,29 +611,38 @@ def refine_sequence_silhouettes(
     F = result.num_frames
     if len(masks) != F or len(frames) != F:
         raise ValueError(f"{len(masks)} masks and {len(frames)} keypoint frames for a fit of {F} frames")
+    rig = result.views is not None
+    views = result.views if rig else [View(result.camera)]
+    C = len(views)
+    grid = [list(row) for row in frames] if rig else [[ks] for ks in frames]
+    mgrid = [list(row) for row in masks] if rig else [[m] for m in masks]
     # an empty mask (the person not segmented in that frame) is a frame without a silhouette term
-    empty = [f for f, m in enumerate(masks) if m is not None and not np.any(m)]
-    masks = [None if f in empty else m for f, m in enumerate(masks)]
-    if all(m is None for m in masks):
+    empty = sorted({f for f, row in enumerate(mgrid) for m in row if m is not None and not np.any(m)})
+    mgrid = [[None if (m is not None and not np.any(m)) else m for m in row] for row in mgrid]
+    if all(m is None for row in mgrid for m in row):
         raise ValueError("the sequence's silhouette stage needs at least one non-empty mask")
+    outliers = result.outliers if rig else result.outliers[:, None]
+    if C > 1:  # several views: the keypoint refinement's scale of the temporal weights (SequenceFitConfig)
+        temporal_weight = temporal_weight * float(result.config.get("views_smooth_scale", 1.0))
     cfg = config or SilhouetteFitConfig()
     if cfg.proxy_faces and int(cfg.proxy_faces) >= int(model.faces.shape[0]):  # a small model: render it whole
         cfg = replace(cfg, proxy_faces=None)
     sigma = result.config.get("temporal_sigma", 10.0)
     obs = []
     for f in range(F):
-        ks = frames[f]
-        if ks is not None and not result.bridged[f]:
-            conf = np.where(result.outliers[f], 0.0, ks.conf)
-            if ks.layout == "wholebody":  # hands and face stay as the keypoint fit left them (not optimised here)
-                from ..wholebody import part_slices
+        for c, view in enumerate(views):
+            ks = grid[f][c]
+            if ks is not None and not result.bridged[f]:
+                conf = np.where(outliers[f, c], 0.0, ks.conf)
+                if ks.layout == "wholebody":  # hands and face stay as the keypoint fit left them (not optimised here)
+                    from ..wholebody import part_slices
 
-                conf = conf.copy()
-                conf[part_slices()["body"].stop:] = 0.0
-            ks = KeypointSet(ks.xy, conf, ks.layout, ks.source) if (conf > 0).any() else None
-        else:
-            ks = None
-        obs.append(Observation(View(result.camera), ks, masks[f], frame=f))
+                    conf = conf.copy()
+                    conf[part_slices()["body"].stop:] = 0.0
+                ks = KeypointSet(ks.xy, conf, ks.layout, ks.source) if (conf > 0).any() else None
+            else:
+                ks = None
+            obs.append(Observation(view, ks, mgrid[f][c], frame=f, view_index=c))
     init = result.params()
     t0 = time.perf_counter()
     (sil,) = fit_silhouette_problems(
@@ -537,15 +657,19 @@ def refine_sequence_silhouettes(
     with torch.no_grad():
         body = model(**{n: T(np.repeat(betas[None], F, 0) if n == "betas" else p[n]) for n in init})
         joints = body.joints.numpy()
-        kp2d = project_points(model_keypoints(model, body, result.layout).double(), result.camera).numpy()
+        kp2d = _project_views(model_keypoints(model, body, result.layout).double(), views, rig)  # [F, C, K, 2]
     # against the keypoints the keypoint stage's error was measured on (outliers and bridged frames left
     # out; a whole-body fit's hands and face too, though held here), so before and after compare alike
-    reproj = np.full(F, np.nan)
-    for f, ks in enumerate(frames):
-        if ks is not None and not result.bridged[f]:
-            ok = (ks.conf > 0) & ~result.outliers[f]
-            if ok.any():
-                reproj[f] = np.median(np.linalg.norm(kp2d[f] - ks.xy, axis=-1)[ok])
+    reproj = np.full((F, C), np.nan)
+    for f in range(F):
+        for c in range(C):
+            ks = grid[f][c]
+            if ks is not None and not result.bridged[f]:
+                ok = (ks.conf > 0) & ~outliers[f, c]
+                if ok.any():
+                    reproj[f, c] = np.median(np.linalg.norm(kp2d[f, c] - ks.xy, axis=-1)[ok])
+    if not rig:
+        kp2d, reproj = kp2d[:, 0], reproj[:, 0]
     timings = dict(result.timings, silhouette=seconds, total=result.timings["total"] + seconds)
     timings["seconds_per_frame"] = timings["total"] / F
     out = replace(result, betas=betas, body_pose=np.asarray(p["body_pose"], np.float32),
@@ -555,7 +679,8 @@ def refine_sequence_silhouettes(
                   reprojection_error=reproj, reprojection_error_keypoint_stage=result.reprojection_error, timings=timings,
                   warnings=list(result.warnings) + list(sil.warnings)
                   + reprojection_rise_warnings(finite_median(result.reprojection_error), finite_median(reproj)) + shape_warnings(betas)
-                  + _cut_off_frames(masks)
+                  + _cut_off_frames([m for row in mgrid for m in row], C)
                   + ([f"{len(empty)} frame(s) with an empty mask had no silhouette term: {empty[:10]}"] if empty else []))  # fmt: skip
-    out.silhouette_iou, out.silhouette_iou_start = np.array([row[0] for row in sil.ious], dtype=np.float64), float(sil.iou_start)
+    ious = np.array(sil.ious, dtype=np.float64).reshape(F, C)
+    out.silhouette_iou, out.silhouette_iou_start = (ious if rig else ious[:, 0]), float(sil.iou_start)
     return out

@@ -23,6 +23,21 @@ A sequence folder (one camera)::
                (whole frames written with no person), fps, noise_px
 
 and the dataset's ``index.json`` has ``"format": "silfit-synthetic-sequence"``.
+
+A rig sequence (``silfit synth --sequence --views N``, :func:`generate_rig_sequence`): the same
+motion seen by ``N`` calibrated cameras on a ring (:func:`silfit.synth.rig.rig_layout`, placed so the
+whole trajectory fits their frames), a rig folder whose views are video folders::
+
+    seq_000/
+      cameras.json                                      the rig (intrinsics, R, t per view)
+      view_0/keypoints/view_0_000000000000_keypoints.json ...   per frame, as above
+      view_0/masks/ ..., view_0/images/ ..., view_0/camera.json
+      view_1/ ...
+      gt.npz   world coordinates (y down, the trajectory's mean pelvis at the origin): betas [10];
+               per frame body_pose, global_orient, transl, joints, keypoints_3d; per frame and view
+               keypoints_2d_clean [F, C, 25, 2], keypoints_visibility [F, C, 25], frame_dropped [F, C]
+
+(``index.json``: ``"format": "silfit-synthetic-sequence"``, ``"rig": N``).
 """
 from __future__ import annotations
 
@@ -47,8 +62,8 @@ from .generate import _BODY_COLOURS, _background, _render, keypoint_visibility, 
 from .sampler import place_body, sample_betas, sample_intrinsics
 
 __all__ = [
-    "MOTIONS", "SEQUENCE_FORMAT", "SequenceConfig", "frame_stem", "generate_sequence", "generate_sequence_dataset",
-    "motion_trajectory",
+    "MOTIONS", "SEQUENCE_FORMAT", "SequenceConfig", "frame_stem", "generate_rig_sequence", "generate_sequence",
+    "generate_sequence_dataset", "motion_trajectory",
 ]  # fmt: skip
 
 SEQUENCE_FORMAT = "silfit-synthetic-sequence"
@@ -162,19 +177,20 @@ def _perturbation(rng, deg: float) -> np.ndarray:
     return rng.normal(0.0, math.radians(deg), 69) * scale
 
 
-def generate_sequence(model, index: int, cfg: SequenceConfig, out_dir: Path) -> dict:
-    """Sample, render and write sequence ``index`` into ``out_dir``; returns its index record."""
-    rng = np.random.default_rng([int(cfg.seed), int(index), 7])
-    F, W = int(cfg.frames), int(cfg.size)
+def _world_motion(model, rng, cfg: SequenceConfig, index: int, orbit: Optional[np.ndarray] = None) -> dict:
+    """Sequence ``index``'s motion in a Y-up world (draws the phase, a perturbation, the shape and the
+    heading from ``rng``, in that order): ``motion``, ``betas [L]``, ``body_pose [F, 69]``, the root's
+    rotation ``R_world`` (``F`` rotations), ``T_w [F, 3]`` (translation of the body posed at the
+    origin: feet on the ground), ``v_w [F, V, 3]`` (vertices posed at the origin), ``j0`` (the shaped
+    pelvis: the centre of the root rotation) and ``yaw0``. ``orbit [F]`` (degrees) turns the world
+    about the trajectory's centre (a camera circling the subject)."""
+    F = int(cfg.frames)
     motion = cfg.motions[index % len(cfg.motions)]
     traj = motion_trajectory(motion, F, cfg.fps, phase=float(rng.uniform()))
     body_pose = traj["body_pose"] + _perturbation(rng, cfg.perturb_deg)
     betas = sample_betas(rng, model.num_betas, 2.0)
     yaw0 = float(rng.uniform(-180.0, 180.0))
-    elev = float(rng.uniform(-cfg.elevation_deg, cfg.elevation_deg))
-    camera, fov = sample_intrinsics(rng, W, W, cfg.fov_deg)
-    orbit = cfg.orbit_deg * np.linspace(0.0, 1.0, F)
-
+    orbit = np.zeros(F) if orbit is None else orbit
     # World (Y up): heading yaw0 + yaw(t), position along it; the orbit turns the world about
     # the trajectory's centre (a camera circling the subject).
     yaw = yaw0 + traj["yaw"]
@@ -184,14 +200,10 @@ def generate_sequence(model, index: int, cfg: SequenceConfig, out_dir: Path) -> 
     pos -= pos.mean(0)
     R_world = Rotation.from_rotvec(np.radians(yaw - orbit)[:, None] * np.array([0.0, 1.0, 0.0]))
     pos = Rotation.from_rotvec(-np.radians(orbit)[:, None] * np.array([0.0, 1.0, 0.0])).apply(pos)
-    C = Rotation.from_rotvec([math.radians(elev), 0.0, 0.0]) * Rotation.from_rotvec(UPRIGHT_FACING_CAMERA)
-
-    dtype = model.dtype
-    T = lambda a: torch.as_tensor(np.asarray(a), dtype=dtype, device=model.device)  # noqa: E731
-    zeros = np.zeros((F, 3))
-    betas_f = np.repeat(betas[None], F, 0)
+    T = lambda a: torch.as_tensor(np.asarray(a), dtype=model.dtype, device=model.device)  # noqa: E731
     with torch.no_grad():
-        out_w = model(betas=T(betas_f), body_pose=T(body_pose), global_orient=T(R_world.as_rotvec()), transl=T(zeros))
+        out_w = model(betas=T(np.repeat(betas[None], F, 0)), body_pose=T(body_pose), global_orient=T(R_world.as_rotvec()),
+                      transl=T(np.zeros((F, 3))))  # fmt: skip
         v_w = out_w.vertices.double().cpu().numpy()
         rest = model(betas=T(betas[None]), body_pose=T(np.zeros((1, 69))), global_orient=T(np.zeros((1, 3))),
                      transl=T(np.zeros((1, 3))))  # fmt: skip
@@ -199,6 +211,24 @@ def generate_sequence(model, index: int, cfg: SequenceConfig, out_dir: Path) -> 
     # feet on the ground: the lowest vertex of each frame at the first frame's height
     low = v_w[..., 1].min(1)
     T_w = pos + np.stack([np.zeros(F), low[0] - low, np.zeros(F)], 1)
+    return {"motion": motion, "betas": betas, "body_pose": body_pose, "R_world": R_world, "T_w": T_w, "v_w": v_w, "j0": j0,
+            "yaw0": yaw0}  # fmt: skip
+
+
+def generate_sequence(model, index: int, cfg: SequenceConfig, out_dir: Path) -> dict:
+    """Sample, render and write sequence ``index`` into ``out_dir``; returns its index record."""
+    rng = np.random.default_rng([int(cfg.seed), int(index), 7])
+    F, W = int(cfg.frames), int(cfg.size)
+    orbit = cfg.orbit_deg * np.linspace(0.0, 1.0, F)
+    wm = _world_motion(model, rng, cfg, index, orbit)
+    motion, betas, body_pose, yaw0 = wm["motion"], wm["betas"], wm["body_pose"], wm["yaw0"]
+    R_world, T_w, v_w, j0 = wm["R_world"], wm["T_w"], wm["v_w"], wm["j0"]
+    elev = float(rng.uniform(-cfg.elevation_deg, cfg.elevation_deg))
+    camera, fov = sample_intrinsics(rng, W, W, cfg.fov_deg)
+    C = Rotation.from_rotvec([math.radians(elev), 0.0, 0.0]) * Rotation.from_rotvec(UPRIGHT_FACING_CAMERA)
+
+    dtype = model.dtype
+    T = lambda a: torch.as_tensor(np.asarray(a), dtype=dtype, device=model.device)  # noqa: E731
     v_cam = C.apply((v_w + T_w[:, None]).reshape(-1, 3)).reshape(v_w.shape)
     place = place_body(rng, v_cam[:, ::20].reshape(-1, 3), camera, fill=cfg.fill)
     orient_c = (C * R_world).as_rotvec()
@@ -246,9 +276,77 @@ def generate_sequence(model, index: int, cfg: SequenceConfig, out_dir: Path) -> 
     }  # fmt: skip
 
 
+def generate_rig_sequence(model, index: int, cfg: SequenceConfig, views: int, out_dir: Path) -> dict:
+    """Sample, render and write rig sequence ``index`` (``views`` cameras, module docstring) into
+    ``out_dir``; returns its index record."""
+    from ..rig import view_to_dict, write_cameras_json
+    from .generate import SynthConfig
+    from .rig import RigConfig, rig_layout, view_name
+
+    rng = np.random.default_rng([int(cfg.seed), int(index), 11])
+    F, W = int(cfg.frames), int(cfg.size)
+    wm = _world_motion(model, rng, cfg, index)
+    # the rig's world: y down (the Y-up world turned 180 degrees about x), the mean pelvis at the origin
+    flip = Rotation.from_rotvec([math.pi, 0.0, 0.0])
+    j0 = wm["j0"]
+    orient = (flip * wm["R_world"]).as_rotvec()
+    transl = flip.apply(j0 + wm["T_w"]) - j0
+    transl -= transl.mean(0) + j0
+    dtype = model.dtype
+    T = lambda a: torch.as_tensor(np.asarray(a), dtype=dtype, device=model.device)  # noqa: E731
+    params = {"betas": wm["betas"].astype(np.float32), "body_pose": wm["body_pose"].astype(np.float32),
+              "global_orient": orient.astype(np.float32), "transl": transl.astype(np.float32)}  # fmt: skip
+    with torch.no_grad():
+        out = model(betas=T(np.repeat(params["betas"][None], F, 0)), body_pose=T(params["body_pose"]),
+                    global_orient=T(params["global_orient"]), transl=T(params["transl"]))  # fmt: skip
+        kp3d = model_keypoints(model, out, "body25").double().cpu().numpy()
+    vertices = out.vertices.double().cpu().numpy()
+    # cameras framing the whole trajectory: its box's largest side stands in for the body's height
+    box = vertices.reshape(-1, 3)
+    extent = float((box.max(0) - box.min(0)).max())
+    synth = SynthConfig(seed=cfg.seed, size=W, fov_deg=tuple(cfg.fov_deg), fill=tuple(cfg.fill))
+    layout = rig_layout(rng, np.array([[0.0, -extent / 2, 0.0], [0.0, extent / 2, 0.0]]), synth, RigConfig(views=views))
+    colour = _BODY_COLOURS[int(rng.integers(len(_BODY_COLOURS)))]
+    faces = model.faces.cpu().numpy()
+    out_dir = Path(out_dir)
+    C = len(layout)
+    clean, vis_all, dropped_frames = np.zeros((F, C, 25, 2)), np.zeros((F, C, 25), np.int8), np.zeros((F, C), bool)
+    for c, view in enumerate(layout):
+        name = view_name(c)
+        folder = out_dir / name
+        for sub in ("keypoints", "masks", "images"):
+            (folder / sub).mkdir(parents=True, exist_ok=True)
+        (folder / "camera.json").write_text(json.dumps(view_to_dict(view), indent=2) + "\n", encoding="utf-8")
+        R, t = view.extrinsics()
+        bg, _ = _background(rng, cfg.background, W, W)
+        drop = rng.random(F) < cfg.drop_frames
+        drop[[0, -1]] = False
+        dropped_frames[:, c] = drop
+        for f in range(F):
+            v_cam, k_cam = vertices[f] @ R.T + t, kp3d[f] @ R.T + t
+            kp2d = project_points(torch.as_tensor(k_cam), view.camera).numpy()
+            r = _render(v_cam.astype(np.float32), faces, view.camera, colour)
+            vis = keypoint_visibility(k_cam, kp2d, r.depth, BODY25_NAMES)
+            kp, _ = noisy_keypoints(rng, kp2d, vis, cfg.noise_px, cfg.drop_prob, cfg.conf_visible, cfg.conf_occluded)
+            clean[f, c], vis_all[f, c] = kp2d, vis
+            stem = frame_stem(name, f)
+            write_openpose_json(folder / "keypoints" / f"{stem}_keypoints.json", np.zeros((0, 25, 3)) if drop[f] else kp)
+            write_png(folder / "masks" / f"{stem}.png", r.mask)
+            write_png(folder / "images" / f"{stem}.png", np.where(r.mask[..., None], r.color, bg).astype(np.uint8))
+    write_cameras_json(out_dir / "cameras.json", [(view_name(c), v) for c, v in enumerate(layout)])
+    save_npz(out_dir / "gt.npz", {
+        **params, "joints": out.joints.cpu().numpy().astype(np.float32), "keypoints_3d": kp3d.astype(np.float32),
+        "keypoints_2d_clean": clean, "keypoints_visibility": vis_all, "frame_dropped": dropped_frames,
+        "fps": np.float64(cfg.fps), "noise_px": np.float64(cfg.noise_px), "views": np.int64(C),
+    })  # fmt: skip
+    return {"name": out_dir.name, "motion": wm["motion"], "frames": F, "fps": cfg.fps, "views": C,
+            "yaw_deg": round(wm["yaw0"], 2), "frames_dropped": int(dropped_frames.sum())}  # fmt: skip
+
+
 def generate_sequence_dataset(out: os.PathLike, n: int, config: Optional[SequenceConfig] = None, model=None,
-                              progress: bool = False, command: Optional[str] = None) -> dict:  # fmt: skip
-    """Generate ``n`` sequences into ``out/seq_000`` ... and write ``out/index.json``."""
+                              progress: bool = False, command: Optional[str] = None, views: Optional[int] = None) -> dict:  # fmt: skip
+    """Generate ``n`` sequences into ``out/seq_000`` ... and write ``out/index.json``; with ``views``,
+    rig sequences (:func:`generate_rig_sequence`)."""
     cfg = (config or SequenceConfig()).validate()
     if int(n) <= 0:
         raise ValueError(f"--n must be a positive number of sequences, got {n}")
@@ -263,9 +361,12 @@ def generate_sequence_dataset(out: os.PathLike, n: int, config: Optional[Sequenc
         from tqdm import tqdm
 
         iterator = tqdm(iterator, desc="silfit synth --sequence", unit="sequence")
-    records: List[dict] = [generate_sequence(model, i, cfg, out / f"seq_{i:03d}") for i in iterator]
+    if views is not None and not 1 <= int(views) <= 64:
+        raise ValueError(f"--views must be 1..64, got {views}")
+    records: List[dict] = [generate_sequence(model, i, cfg, out / f"seq_{i:03d}") if views is None
+                           else generate_rig_sequence(model, i, cfg, int(views), out / f"seq_{i:03d}") for i in iterator]  # fmt: skip
     index = {
-        "format": SEQUENCE_FORMAT, "version": 1, "silfit_version": __version__,
+        "format": SEQUENCE_FORMAT, "version": 1, "silfit_version": __version__, **({"rig": int(views)} if views else {}),
         "generator": {**cfg.to_dict(), "n": int(n), **({"command": command} if command else {})},
         "sequences": records,
     }  # fmt: skip

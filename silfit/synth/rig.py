@@ -14,7 +14,10 @@ evenly spaced in azimuth from a random start (plus a few degrees of jitter), at 
 varied between ``heights_m`` (relative to the pelvis; two cameras: 90 degrees apart), looking at the pelvis, each at the
 distance that makes the body fill a share ``fill`` of its frame; or the cameras of a given
 ``cameras.json`` (``layout``). Keypoints, visibility, noise and dropping per view as in
-:mod:`silfit.synth.generate`; subject ``i`` uses ``default_rng([seed, i])``.
+:mod:`silfit.synth.generate`; subject ``i`` uses ``default_rng([seed, i])``. With
+``SynthConfig.whole_body`` (an SMPL-X-layout model) the body also gets hand poses, an expression and a
+jaw as :func:`~silfit.synth.generate.sample_wholebody_params` draws them, and every view's
+``keypoints.json`` holds OpenPose whole-body parts (hands and face, each point's visibility per view).
 """
 from __future__ import annotations
 
@@ -32,7 +35,10 @@ from ..dataset import save_npz, write_png
 from ..fitting.problem import View
 from ..keypoints import BODY25_NAMES, model_keypoints, write_openpose_json
 from ..rig import look_at, view_to_dict, write_cameras_json
-from .generate import SynthConfig, _background, _BODY_COLOURS, _render, keypoint_visibility, noisy_keypoints
+from .generate import (
+    WHOLEBODY_DEPTH_TOLERANCE, WHOLEBODY_PARTS, SynthConfig, _background, _BODY_COLOURS, _render, keypoint_visibility,
+    noisy_keypoints, sample_wholebody_params, wholebody_names,
+)
 from .sampler import global_orientation, sample_betas, sample_intrinsics, sample_pose
 
 __all__ = ["RigConfig", "generate_rig_dataset", "generate_rig_subject", "rig_layout", "view_name"]
@@ -93,14 +99,23 @@ def generate_rig_subject(model, index: int, config: SynthConfig, rig: RigConfig,
     betas = sample_betas(rng, model.num_betas, cfg.beta_truncation)
     global_orient = global_orientation(yaw, 0.0, 0.0, root=ps.root)
     body_pose = ps.body_pose[: model.num_body_pose]
+    extra = sample_wholebody_params(rng, model, cfg)[0] if cfg.whole_body else {}  # drawn last: body-only rigs unchanged
     as_t = lambda a: torch.as_tensor(np.asarray(a)[None], dtype=model.dtype, device=model.device)  # noqa: E731
     with torch.no_grad():
-        out0 = model(betas=as_t(betas), body_pose=as_t(body_pose), global_orient=as_t(global_orient))
+        out0 = model(betas=as_t(betas), body_pose=as_t(body_pose), global_orient=as_t(global_orient),
+                     **{k: as_t(v) for k, v in extra.items()})  # fmt: skip
         transl = -out0.joints[0, 0].double().cpu().numpy()
         params = {"betas": betas.astype(np.float32), "body_pose": body_pose.astype(np.float32),
-                  "global_orient": global_orient.astype(np.float32), "transl": transl.astype(np.float32)}  # fmt: skip
+                  "global_orient": global_orient.astype(np.float32), "transl": transl.astype(np.float32),
+                  **{k: np.asarray(v, np.float32) for k, v in extra.items()}}  # fmt: skip
         out = model(**{k: as_t(v) for k, v in params.items()})
         kp3d = model_keypoints(model, out, "body25")[0].double().cpu().numpy()
+        parts3d = {}
+        if cfg.whole_body:
+            from ..wholebody import wholebody_keypoints
+
+            wb = wholebody_keypoints(model, out)
+            parts3d = {p: wb[p][0].double().cpu().numpy() for p in WHOLEBODY_PARTS}
         rest = model.rest_vertices(as_t(betas))[0]
     vertices = out.vertices[0].double().cpu().numpy()
     joints = out.joints[0].cpu().numpy().astype(np.float32)
@@ -110,7 +125,7 @@ def generate_rig_subject(model, index: int, config: SynthConfig, rig: RigConfig,
     colour = _BODY_COLOURS[int(rng.integers(len(_BODY_COLOURS)))]
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    clean2d, visibility, counts = [], [], []
+    clean2d, visibility, counts, wb_clean = [], [], [], {}
     for c, view in enumerate(views):
         R, t = view.extrinsics()
         cam = view.camera
@@ -122,11 +137,24 @@ def generate_rig_subject(model, index: int, config: SynthConfig, rig: RigConfig,
         image = np.where(r.mask[..., None], r.color, bg).astype(np.uint8)
         vis = keypoint_visibility(k_cam, kp2d, r.depth, BODY25_NAMES)
         kp, _ = noisy_keypoints(rng, kp2d, vis, noise_px, drop_prob, cfg.conf_visible, cfg.conf_occluded)
+        parts = {}
+        for part, p3 in parts3d.items():  # whole body: each part's points, visibility in this view
+            pc = p3 @ R.T + t
+            p2 = project_points(torch.as_tensor(pc), cam).numpy()
+            pvis = keypoint_visibility(pc, p2, r.depth, wholebody_names(part), WHOLEBODY_DEPTH_TOLERANCE)
+            scale = cfg.hand_noise_scale if part.startswith("hand") else cfg.face_noise_scale
+            parts[part] = noisy_keypoints(rng, p2, pvis, noise_px * scale, drop_prob, cfg.conf_visible, cfg.conf_occluded)[0]
+            wb_clean.setdefault(part, []).append(p2)
         folder = out_dir / view_name(c)
         folder.mkdir(exist_ok=True)
         write_png(folder / "image.png", image)
         write_png(folder / "mask.png", r.mask)
-        write_openpose_json(folder / "keypoints.json", kp)
+        if parts:
+            from ..wholebody import write_wholebody_json
+
+            write_wholebody_json(folder / "keypoints.json", kp, parts["hand_left"], parts["hand_right"], parts["face"])
+        else:
+            write_openpose_json(folder / "keypoints.json", kp)
         (folder / "camera.json").write_text(json.dumps(view_to_dict(view), indent=2) + "\n", encoding="utf-8")
         clean2d.append(kp2d)
         visibility.append(vis)
@@ -136,6 +164,8 @@ def generate_rig_subject(model, index: int, config: SynthConfig, rig: RigConfig,
         **params, "vertices": vertices.astype(np.float32), "joints": joints, "keypoints_3d": kp3d.astype(np.float32),
         "keypoints_2d_clean": np.asarray(clean2d), "keypoints_visibility": np.asarray(visibility, np.int8),
         "stature": np.float64(stature), "noise_px": np.float64(noise_px), "views": np.int64(len(views)),
+        **{f"{p}_3d": v.astype(np.float32) for p, v in parts3d.items()},
+        **{f"{p}_2d_clean": np.asarray(v) for p, v in wb_clean.items()},
     })  # fmt: skip
     return {"name": out_dir.name, "pose": ps.name, "yaw_deg": round(yaw, 4), "stature_m": round(stature, 4),
             "views": len(views), "noise_px": noise_px, "keypoints_visible_per_view": counts}  # fmt: skip
@@ -154,7 +184,9 @@ def generate_rig_dataset(out, n: int, config: SynthConfig, rig: RigConfig, model
     if model is None:
         from ..body import load_body_model
 
-        model = load_body_model()
+        model = load_body_model(kind="smplx" if cfg.whole_body else None)
+    if cfg.whole_body and getattr(model, "kind", "smpl") != "smplx":
+        raise ValueError(f"{model.source}: --whole-body needs an SMPL-X-layout model (this one is {model.kind})")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     it: Sequence[int] = range(int(n))

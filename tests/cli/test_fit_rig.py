@@ -98,3 +98,54 @@ def test_rig_fits_get_one_image_warnings_per_view(rigs):
     assert any(w.startswith("view view_0: final silhouette IoU is only 0.450") for w in warnings), warnings
     assert any(w.startswith("view view_0: final silhouette IoU 0.450 is far below") for w in warnings)
     assert not any(w.startswith("view view_1") for w in warnings)
+
+
+def test_a_whole_body_rig_fits_hands_and_face_in_every_view(tmp_path, capsys):
+    """Whole-body keypoints in every view of a rig pick the shipped SMPL-X-layout model (as for one image):
+    the keypoint stage over the views with the hands and face, the whole-body silhouette stage over every
+    view's mask, a world-frame fit file with the whole-body parameters that ``silfit render`` draws."""
+    data = tmp_path / "data"
+    assert main(["synth", "--n", "1", "--views", "2", "--whole-body", "--size", "96", "--seed", "4", "--noise-px", "0",
+                 "--out", str(data), "--no-progress"]) == 0  # fmt: skip
+    kp = json.loads((data / "subject_000" / "view_1" / "keypoints.json").read_text())["people"][0]
+    assert len(kp["hand_left_keypoints_2d"]) == 63 and len(kp["face_keypoints_2d"]) == 210
+    out = tmp_path / "fit"
+    assert main(["fit", "--rig", str(data / "subject_000"), "--out", str(out), "--quiet"] + SIL) == 0
+    assert "shipped open whole-body model" in capsys.readouterr().err
+    p = np.load(out / "params.npz")
+    assert str(p["model"]) == "smplx" and str(p["layout"]) == "wholebody" and str(p["coordinates"]) == "world"
+    assert p["body_pose"].shape == (1, 63) and p["left_hand_pose"].shape == (1, 45) and p["expression"].shape == (1, 16)
+    assert p["keypoints_2d"].shape == (1, 2, 137, 2) and p["camera_R"].shape == (2, 3, 3)
+    assert np.abs(p["left_hand_pose"]).max() > 0.05  # fitted, not at rest
+    gt = np.load(data / "subject_000" / "gt.npz")
+    assert np.linalg.norm(p["joints"][0, 0] - gt["joints"][0]) < 0.1  # the pelvis, in world coordinates
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["whole_body"]["held_at_rest"] == [] and m["timings"]["silhouette"] > 0
+    for v in m["views"].values():
+        assert v["reprojection_error_px"] < 3.0 and 0.5 < v["iou"] <= 1.0
+    assert main(["render", str(out / "params.npz"), "--size", "48", "--out", str(tmp_path / "r")]) == 0
+    assert (tmp_path / "r" / "view_front.png").is_file()
+
+
+def test_a_whole_body_rig_video_fits_hands_and_face_over_frames_and_views(tmp_path, capsys):
+    """A rig video whose views hold per-frame whole-body keypoints: the whole-body model, hands and face
+    from each frame's rig fit, one world-frame fit file of frames x views."""
+    import shutil
+
+    data = tmp_path / "data"
+    assert main(["synth", "--n", "1", "--views", "2", "--whole-body", "--size", "64", "--seed", "6", "--noise-px", "0",
+                 "--out", str(data), "--no-progress"]) == 0  # fmt: skip
+    video = tmp_path / "video"
+    video.mkdir()
+    shutil.copy(data / "subject_000" / "cameras.json", video)
+    for v in ("view_0", "view_1"):
+        (video / v / "keypoints").mkdir(parents=True)
+        for f in range(2):
+            shutil.copy(data / "subject_000" / v / "keypoints.json", video / v / "keypoints" / f"{v}_{f:012d}_keypoints.json")
+    out = tmp_path / "fit"
+    rc = main(["fit", "--rig", str(video), "--out", str(out), "--sequence-iterations", "3", "--no-video", "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    p = np.load(out / "params.npz")
+    assert str(p["model"]) == "smplx" and str(p["coordinates"]) == "world" and p["keypoints_2d"].shape == (2, 2, 137, 2)
+    assert p["left_hand_pose"].shape == (2, 45) and np.abs(p["left_hand_pose"]).max() > 0.05
+    assert np.nanmax(p["reprojection_error"]) < 3.0

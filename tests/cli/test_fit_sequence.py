@@ -257,3 +257,39 @@ def test_fit_sequence_says_which_frames_have_no_mask(sequence, tmp_path, capsys)
     assert main(["fit", "--sequence", str(copy), "--model", str(model), "--out", str(tmp_path / "o"), "--check-only"]) == 0
     out = capsys.readouterr().err  # warnings: standard error
     assert "warning:" in out and "no mask for 1 frame(s) with a person (no silhouette term there): 1" in out, out
+
+
+def test_a_rig_video_is_synthesised_fitted_over_every_view_and_rendered(sequence, tmp_path, capsys):
+    """``silfit synth --sequence --views 2`` writes a rig whose views are video folders; ``silfit fit --rig``
+    fits it as one video seen by every view (world frame, one shape, every view's masks) into one fit file
+    of frames x views that ``silfit render`` draws."""
+    _, model = sequence
+    data = tmp_path / "data"
+    assert main(["synth", "--sequence", "--views", "2", "--n", "1", "--frames", "3", "--size", "64", "--seed", "2",
+                 "--noise-px", "0", "--motions", "walk", "--model", str(model), "--out", str(data), "--no-progress"]) == 0
+    rig = data / "seq_000"
+    assert (rig / "cameras.json").is_file() and len(list((rig / "view_1" / "keypoints").glob("*_keypoints.json"))) == 3
+    gt = np.load(rig / "gt.npz")
+    assert gt["keypoints_2d_clean"].shape == (3, 2, 25, 2) and gt["joints"].shape == (3, 24, 3)
+    assert main(["fit", "--rig", str(rig), "--model", str(model), "--check-only", "--views", "view_1",
+                 "--out", str(tmp_path / "x")]) == 0  # fmt: skip
+    assert "a rig video of 3 frames seen by 1 views (view_1), masks read" in capsys.readouterr().out
+    out = tmp_path / "fit"
+    rc = main(["fit", "--rig", str(rig), "--model", str(model), "--out", str(out), "--sequence-iterations", "10",
+               "--silhouette-resolutions", "32", "--silhouette-iterations", "2", "--meshes", "--quiet"])  # fmt: skip
+    assert rc == 0, capsys.readouterr().err
+    assert "3 frames, 2 views" in capsys.readouterr().out  # the one summary line of silfit.run.Fit
+    p = np.load(out / "params.npz")
+    assert str(p["coordinates"]) == "world" and p["views"].tolist() == ["view_0", "view_1"]
+    assert p["betas"].shape == (3, 10) and (p["betas"] == p["betas"][0]).all()  # one shape
+    assert p["keypoints_2d"].shape == (3, 2, 25, 2) and p["reprojection_error"].shape == (3, 2)
+    assert p["camera_R"].shape == (2, 3, 3) and np.nanmax(p["reprojection_error"]) < 3.0
+    assert np.linalg.norm(p["joints"] - gt["joints"], axis=-1).mean() < 0.05  # world frame, no alignment
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["silhouette"] == "run" and np.asarray(m["silhouette_iou"]).shape == (3, 2) and m["coordinates"] == "world"
+    for f in ("cameras.json", "strip.png", "overlay.gif", "stages/per_frame/params.npz", "meshes/frame_000000000002.obj"):
+        assert (out / f).is_file(), f
+    assert main(["render", str(out / "params.npz"), "--frame", "all", "--size", "32", "--out", str(tmp_path / "r")]) == 0
+    assert (tmp_path / "r" / "view_front.gif").is_file()
+    assert main(["fit", "--rig", str(rig), "--sequence", str(rig), "--out", str(tmp_path / "y")]) == 2
+    assert "a rig video is --rig DIR alone" in capsys.readouterr().err

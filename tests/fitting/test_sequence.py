@@ -157,3 +157,35 @@ def test_temporal_terms_smooth_a_noisy_sequence(open_model):
     # SILFIT_KERNELS=native: 13.1, 131, 113 (worst ratio to the start 0.15, to the fit without the terms 0.17)
     assert acc < 30.0, (acc, acc_start, acc_off)
     assert acc < 0.3 * acc_start and acc < 0.3 * acc_off, (acc, acc_start, acc_off)
+
+
+def test_a_rig_video_is_fitted_over_frames_and_views_in_the_world_frame(open_model, tmp_path):
+    """A rig video (``fit_sequence`` given the rig's views, ``frames[f][c]``): each frame starts from the rig's
+    keypoint stage, the refinement sees every view; the fit is in the rig's world frame (no alignment), a
+    view missing in a frame leaves it fitted from the other view, a frame missing in every view is bridged."""
+    from silfit.fitting.sequence import refine_sequence_silhouettes
+    from silfit.rig import load_rig_sequence
+    from silfit.silhouette.masks import read_mask
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+    from silfit.synth.motion import SequenceConfig, generate_sequence_dataset
+
+    generate_sequence_dataset(tmp_path, 1, SequenceConfig(seed=5, frames=4, size=96, noise_px=0.0, motions=("walk",)),
+                              model=open_model, views=2)  # fmt: skip
+    seq = load_rig_sequence(tmp_path / "seq_000")
+    gt = np.load(tmp_path / "seq_000" / "gt.npz")
+    frames = [list(row) for row in seq.frames]
+    frames[1][0] = None  # view_0 saw nobody in frame 1
+    frames[2] = [None, None]  # nobody saw frame 2
+    views = [v.view for v in seq.views]
+    r = fit_sequence(frames, views, open_model, config=SequenceFitConfig(keypoint=FAST_INIT, iterations=30))
+    assert r.views is not None and r.keypoints_2d.shape == (4, 2, 25, 2) and r.reprojection_error.shape == (4, 2)
+    assert r.bridged.tolist() == [False, False, True, False] and r.betas.shape == (10,)
+    assert np.isnan(r.reprojection_error[1, 0]) and np.isfinite(r.reprojection_error[1, 1])
+    assert np.nanmax(r.reprojection_error) < 3.0, r.reprojection_error
+    err = 1000 * np.linalg.norm(r.joints - gt["joints"], axis=-1).mean(-1)  # mm per frame, world frame, no alignment
+    assert err.max() < 40.0 and err[[0, 1, 3]].mean() < 25.0, err
+    masks = [[read_mask(p) for p in row] for row in zip(*(seq.per_view(c, "masks") for c in range(2)))]
+    s = refine_sequence_silhouettes(open_model, r, frames, masks,
+                                    config=SilhouetteFitConfig(resolutions=(32,), iterations=(2,)))  # fmt: skip
+    assert s.silhouette_iou.shape == (4, 2) and s.keypoints_2d.shape == (4, 2, 25, 2) and s.views is r.views
+    assert np.nanmax(s.reprojection_error) < 4.0
