@@ -8,8 +8,9 @@ and a two-sided energy whose gradient flows through the rendered silhouette only
 * ``DT_in``: for pixels inside the mask, distance to the background; penalises mask
   pixels the body does not cover, most strongly deep inside the person.
 
-Both are exact Euclidean transforms from OpenCV (``DIST_MASK_PRECISE``); ``E = 0`` when
-the rendered silhouette equals the mask.
+Both are exact Euclidean transforms from OpenCV (``DIST_MASK_PRECISE``, without IPP: the same
+mask gives the same distances whatever its buffer's address); ``E = 0`` when the rendered
+silhouette equals the mask.
 
 **Truncation.** Where a target has a ``valid`` map (the pixels inside the image; a silhouette
 window may reach beyond the image's border), what lies outside the image is unknown, not
@@ -51,8 +52,16 @@ def distance_transforms(mask: np.ndarray, valid=None) -> tuple[np.ndarray, np.nd
 
     mask = np.asarray(mask, dtype=bool)
     unseen = np.zeros_like(mask) if valid is None else ~np.asarray(valid, dtype=bool)
-    outside = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    inside = cv2.distanceTransform((mask | unseen).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    # OpenCV's IPP path of the precise transform rounds by the input buffer's address (1-2 ulp:
+    # the same mask gave other distances, and fits other results, from one process to the next);
+    # its own implementation does not. The switch is per thread (OpenCV keeps it thread-local).
+    use_ipp = cv2.ipp.useIPP()
+    cv2.ipp.setUseIPP(False)
+    try:
+        outside = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        inside = cv2.distanceTransform((mask | unseen).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    finally:
+        cv2.ipp.setUseIPP(use_ipp)
     outside[unseen] = 0.0  # unknown: a body there costs nothing
     inside[~mask] = 0.0
     return outside.astype(np.float32), inside.astype(np.float32)

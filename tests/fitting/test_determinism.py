@@ -1,0 +1,97 @@
+"""Same inputs, same fit: the silhouette stage's contour level gives bit-identical results
+from one process to the next, and whatever else the process allocated before it.
+
+The cause it guards against: OpenCV's IPP path of the precise distance transform rounds by
+the output buffer's address (1-2 ulp), so the same target mask gave other distances, and
+L-BFGS other fits, with the heap's state (a batch of subjects more often than one)."""
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+
+# A child fits the contour level on a batch of 3 (160 px images, 64 px window, 6 iterations) ``REPEATS``
+# times, each after keeping a differently sized allocation alive (the heap's state differs,
+# so the buffers the fit allocates land elsewhere), and prints every result.
+CHILD = textwrap.dedent("""
+    import json, math, sys
+    import numpy as np, torch
+    from renderers.offscreen import render_mask
+    from silfit.body import load_body_model
+    from silfit.camera import Camera
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig, fit_silhouettes
+
+    model = load_body_model()
+    cam = Camera.from_image_size(160, 160)
+    pose = {"betas": np.zeros((1, 10), np.float32), "body_pose": np.zeros((1, 69), np.float32),
+            "global_orient": np.array([[math.pi, 0.0, 0.0]], np.float32), "transl": np.array([[0.0, 0.15, 3.0]], np.float32)}
+    masks = []
+    for dx, db in ((0.08, 0.0), (-0.05, 0.5), (0.03, -0.4)):
+        p = {k: torch.as_tensor(v) for k, v in pose.items()}
+        p["transl"] = p["transl"] + torch.tensor([[dx, 0.02, 0.0]])
+        p["betas"] = torch.full((1, 10), db)
+        p["body_pose"] = torch.zeros(1, 69)
+        p["body_pose"][0, 47] = -0.6  # a bent elbow
+        with torch.no_grad():
+            masks.append(render_mask(model(**p).vertices[0].numpy(), model.faces.numpy(), cam))
+    cfg = SilhouetteFitConfig(resolutions=(48,), iterations=(0,), contour_iterations=6, contour_resolution=64,
+                              contour_vertices=800, w_keypoints=0.0)
+    kept, out = [], []
+    for k in range(int(sys.argv[2])):
+        kept.append(np.ones(16384 + 16 * (int(sys.argv[1]) + 3 * k) + 8, np.uint8))
+        rs = fit_silhouettes(model, [pose] * 3, [cam] * 3, masks, config=cfg, progress=False)
+        out.append([{k: v.tolist() for k, v in r.parameters.items()} for r in rs])
+    print("RESULT " + json.dumps(out))
+""")
+REPEATS = 3
+
+
+def run_child(hash_seed: int, shift: int) -> list:
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    env = dict(os.environ, PYTHONHASHSEED=str(hash_seed), PYTHONPATH=os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")])))
+    done = subprocess.run([sys.executable, "-c", CHILD, str(shift), str(REPEATS)], env=env, cwd=root,
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    line = [s for s in done.stdout.splitlines() if s.startswith("RESULT ")][-1]
+    return json.loads(line[len("RESULT "):])
+
+
+def test_contour_level_of_a_batch_is_bit_identical_across_processes():
+    runs = run_child(0, 0) + run_child(1, 1)  # 2 processes x REPEATS fits, other hash seeds and heaps
+    first = runs[0]
+    for i, run in enumerate(runs[1:], 1):
+        for p, (a, b) in enumerate(zip(first, run)):
+            for name in a:
+                assert np.array_equal(np.asarray(a[name], np.float32), np.asarray(b[name], np.float32)), (
+                    f"fit {i}, subject {p}: {name} differs from the first fit's")  # fmt: skip
+
+
+def test_distance_transforms_do_not_depend_on_the_buffers_address(monkeypatch):
+    """The root cause directly: the same mask through OpenCV with its output buffer at
+    other addresses (offsets of 0-7 floats from a 64-byte boundary) gives the same distances."""
+    import cv2
+
+    from silfit.silhouette.losses import distance_transforms
+
+    yy, xx = np.mgrid[:61, :47]
+    mask = ((xx - 22.3) / 14.1) ** 2 + ((yy - 30.2) / 23.7) ** 2 < 1
+    valid = np.ones_like(mask)
+    valid[:, :3] = False
+    original = cv2.distanceTransform
+    results = []
+    for offset in range(8):
+        def at_offset(src, *args, offset=offset, **kwargs):
+            n = src.size * 4
+            buf = np.zeros(n + 128, np.uint8)
+            base = (-buf.ctypes.data) % 64 + 4 * offset
+            return original(src, *args, dst=buf[base:base + n].view(np.float32).reshape(src.shape), **kwargs)
+
+        monkeypatch.setattr(cv2, "distanceTransform", at_offset)
+        results.append(distance_transforms(mask, valid))
+    monkeypatch.setattr(cv2, "distanceTransform", original)
+    for outside, inside in results[1:]:
+        assert np.array_equal(outside, results[0][0]) and np.array_equal(inside, results[0][1])
+    # and they are the exact Euclidean distances (squares of integers' roots), to float32 rounding
+    assert abs(float(results[0][0].max()) - float(np.sqrt(np.round(results[0][0].max() ** 2)))) < 1e-5
