@@ -120,7 +120,7 @@ def refine(
     progress: bool = True,
     mask_source: str = "mask",
 ) -> FitResult:
-    """The silhouette stage on top of a single-sample keypoint result (see :func:`fit`)."""
+    """The silhouette stage on top of a single-sample keypoint result (see :func:`silfit.run.fit`)."""
     return refine_batch(model, keypoint_result, [keypoints], [mask], config, pose_prior, renderer, progress,
                         [mask_source])[0]  # fmt: skip
 

@@ -18,8 +18,8 @@ Output folder (world coordinates: the frame of the rig's extrinsics)::
 
 Written atomically (:func:`silfit.outfolder.atomic_folder`).
 
-A rig video (:func:`fit_rig_sequence`, ``silfit fit --rig DIR`` on a rig whose views are video
-folders, :func:`silfit.rig.load_rig_sequence`): the sequence fit of :mod:`silfit.fitting.sequence`
+A rig video (``silfit fit --rig DIR`` on a rig whose views are video folders,
+:func:`silfit.rig.load_rig_sequence`; fitted by :func:`silfit.run.run`): the sequence fit of :mod:`silfit.fitting.sequence`
 over frames x views in the world frame, written by :func:`silfit.video.save_sequence_fit`.
 """
 from __future__ import annotations
