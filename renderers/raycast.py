@@ -176,25 +176,32 @@ class RaycastScene:
         self.params.update()
         self._held = (v.clone(), None if faces is None else faces.clone())
 
-    def visible_faces(self, vc_list: Sequence[torch.Tensor]) -> Optional[torch.Tensor]:
-        """Indices of the faces that face at least one camera (``vc_list``: the vertices in
-        each camera's frame), or ``None`` (all faces) when culling is not exact: a ray from
-        outside a closed, consistently oriented mesh meets a face turned towards it first,
-        so the others never decide a hit. Nearly edge-on faces are kept."""
-        if not self.closed:
+    def visible_faces(self, towards: Sequence[torch.Tensor]) -> Optional[torch.Tensor]:
+        """Indices of the faces turned towards at least one camera (``towards``: per camera,
+        :meth:`_facing`'s values), or ``None`` (all faces) when culling is not exact: a ray
+        from outside a closed, consistently oriented mesh meets a face turned towards it
+        first, so the others never decide a hit. Nearly edge-on faces are kept."""
+        if not self.closed or not self.cull:
             return None
-        f = self.edges.faces
         keep = None
-        for vc in vc_list:
-            a, b, c = vc[f[:, 0]], vc[f[:, 1]], vc[f[:, 2]]
-            n = torch.linalg.cross(b - a, c - a)
-            orient = 1.0 if float(torch.linalg.det(torch.stack([a, b, c], 1)).sum()) > 0 else -1.0  # outward normals?
-            d = orient * (n * a).sum(-1)
-            front = d < 1e-3 * n.norm(dim=-1) * a.norm(dim=-1)
+        for d, scale in towards:
+            front = d < 1e-3 * scale
             keep = front if keep is None else keep | front
         if bool(keep.all()):
             return None
         return torch.nonzero(keep).squeeze(1)
+
+    def _facing(self, vc: torch.Tensor) -> tuple:
+        """``(d, scale)`` per face for vertices in a camera's frame: ``d < 0`` where the face
+        turns its outer side to the camera (orientation from the signed volume), ``scale =
+        |n| |a|`` (for the edge-on tolerance)."""
+        f = self.edges.faces
+        a, b, c = vc[f[:, 0]], vc[f[:, 1]], vc[f[:, 2]]
+        n = torch.linalg.cross(b - a, c - a)
+        d = (n * a).sum(-1)
+        if float(d.sum()) < 0:  # 6 x signed volume < 0: faces wound inwards
+            d = -d
+        return d, n.norm(dim=-1) * a.norm(dim=-1)
 
     def ray_test(self, origins: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
         """Whether each ray ``origins [N, 3] + s directions [N, 3]`` (s > 0) hits the mesh."""
@@ -225,11 +232,12 @@ class RaycastScene:
         with torch.no_grad():
             v64 = verts.detach().to(torch.float64)
             vcs = [v64 @ R.to(torch.float64).T + t.to(torch.float64) for _, R, t in views]
-            self.set_vertices(verts, self.visible_faces(vcs) if self.cull else None)
+            towards = [self._facing(vc) for vc in vcs]
+            self.set_vertices(verts, self.visible_faces(towards))
             plans, origins, directions = [], [], []
-            for (cam, R, t), seed, vc in zip(views, seeds, vcs):
+            for (cam, R, t), seed, vc, (d, _) in zip(views, seeds, vcs, towards):
                 R64, t64 = R.to(torch.float64), t.to(torch.float64)
-                plan, xy_cam = self._plan(vc, cam, spp, edge_spp, int(seed), stratified, need_grad)
+                plan, xy_cam = self._plan(vc, d < 0, cam, spp, edge_spp, int(seed), stratified, need_grad)
                 centre = -(R64.T @ t64)
                 d = _directions(xy_cam, cam) @ R64  # camera -> reference frame: R^T d
                 plans.append(plan)
@@ -245,12 +253,9 @@ class RaycastScene:
                 states.append(state)
         return images, states
 
-    def _plan(self, vc, cam: Camera, spp, edge_spp, seed, stratified, need_grad):
+    def _plan(self, vc, facing, cam: Camera, spp, edge_spp, seed, stratified, need_grad):
         E = self.edges
         W, H = cam.width, cam.height
-        f = E.faces
-        a, b, c = vc[f[:, 0]], vc[f[:, 1]], vc[f[:, 2]]
-        facing = (torch.linalg.cross(b - a, c - a) * a).sum(-1) < 0  # towards the camera at the origin
         fb = E.face_b.clamp(min=0)
         cand = (E.face_b < 0) | (facing[E.face_a] != facing[fb])
         p0, p1, q = vc[E.edges[:, 0]], vc[E.edges[:, 1]], vc[E.opposite_a]

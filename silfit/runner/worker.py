@@ -20,7 +20,8 @@ import numpy as np
 
 from ..fitting.keypoint_stage import KeypointFitConfig, KeypointFitter
 from ..fitting.silhouette_stage import SilhouetteFitConfig
-from ..pipeline import FitResult, refine, save_fit
+from ..fitting.result import KeypointFitResult
+from ..pipeline import FitResult, refine, refine_batch, save_fit
 from ..plausibility import ambiguity_warnings, check_keypoints, fit_warnings
 from .items import Item, ItemError, LoadedItem, _reading, item_error, load_item
 
@@ -211,19 +212,54 @@ class DatasetFitter:
     def silhouette_stage(self, jobs, times: Dict[str, dict]) -> list:
         """The silhouette stage of a batch (``jobs``: ``(LoadedItem, keypoint FitResult)``):
         refined :class:`FitResult` or :class:`ItemError` per job; items without a mask (or with
-        the stage off) keep their keypoint result. The one place a batched stage would go."""
-        out = []
-        for li, res in jobs:
-            if li.mask is None or not self.options.silhouette:  # (masks are not read without the stage)
-                out.append(res)
-                continue
+        the stage off) keep their keypoint result. The items with a mask are refined together,
+        one :func:`~silfit.pipeline.refine_batch` call per keypoint layout (the stage's torch work
+        batched, one L-BFGS row per item); if that call fails, they are refined one by one, so
+        only a bad item fails."""
+        out: list = [res for _, res in jobs]
+        groups: Dict[str, List[int]] = {}
+        for j, (li, _) in enumerate(jobs):
+            if li.mask is not None and self.options.silhouette:  # (masks are not read without the stage)
+                groups.setdefault(li.keypoints.layout, []).append(j)
+        for idx in groups.values():
             t0 = time.perf_counter()
-            try:
-                out.append(refine(self.model, res.keypoint, li.keypoints, li.mask, self.silhouette_config,
-                                  self.pose_prior, progress=False, mask_source=li.mask_file))  # fmt: skip
-            except Exception as err:  # noqa: BLE001 - one item's failure
-                out.append(item_error(err, li.mask_file, "mask"))
-            times[li.item.key]["silhouette"] = time.perf_counter() - t0
+            refined = None
+            if len(idx) > 1:
+                try:
+                    refined = self._refine_together([jobs[j] for j in idx])
+                except Exception:  # noqa: BLE001 - isolate the failing item(s) below
+                    refined = None
+            if refined is not None:
+                share = (time.perf_counter() - t0) / len(idx)
+                for j, res in zip(idx, refined):
+                    out[j] = res
+                    times[jobs[j][0].item.key]["silhouette"] = share
+                continue
+            for j in idx:
+                li, res = jobs[j]
+                t1 = time.perf_counter()
+                try:
+                    out[j] = refine(self.model, res.keypoint, li.keypoints, li.mask, self.silhouette_config,
+                                    self.pose_prior, progress=False, mask_source=li.mask_file)  # fmt: skip
+                except Exception as err:  # noqa: BLE001 - one item's failure
+                    out[j] = item_error(err, li.mask_file, "mask")
+                times[li.item.key]["silhouette"] = time.perf_counter() - t1
+        return out
+
+    def _refine_together(self, jobs) -> list:
+        """:func:`~silfit.pipeline.refine_batch` of jobs of one layout; each result keeps its own
+        keypoint-stage result (timings included)."""
+        kps = [res.keypoint for _, res in jobs]
+        batch = concat_keypoint_results(kps)
+        refined = refine_batch(self.model, batch, [li.keypoints for li, _ in jobs], [li.mask for li, _ in jobs],
+                               self.silhouette_config, self.pose_prior, progress=False,
+                               mask_sources=[li.mask_file for li, _ in jobs])  # fmt: skip
+        out = []
+        for res, kp in zip(refined, kps):
+            timings = {k: v for k, v in res.metrics["timings_s"].items() if not k.startswith("keypoints")}
+            res.metrics["timings_s"] = {**{f"keypoints.{k}": float(v) for k, v in kp.timings.items()},
+                                        "keypoints": float(kp.timings.get("total", sum(kp.timings.values()))), **timings}  # fmt: skip
+            out.append(replace(res, keypoint=kp))
         return out
 
     # ------------------------------------------------------------------ records
@@ -257,6 +293,34 @@ class DatasetFitter:
         rec["warnings"] = list(m.get("warnings", []))
         rec["keypoint_batch_size"] = batch
         return rec
+
+
+def concat_keypoint_results(results: Sequence[KeypointFitResult]) -> KeypointFitResult:
+    """Single-sample (or batched) keypoint results of one layout as one batched result (the
+    first one's timings, configuration and model record)."""
+    first = results[0]
+
+    def cat(name):
+        values = [getattr(r, name) for r in results]
+        return None if any(v is None for v in values) else np.concatenate(values)
+
+    def listed(name):
+        values = [getattr(r, name) for r in results]
+        return None if any(v is None for v in values) else [x for v in values for x in v]
+
+    return KeypointFitResult(
+        betas=cat("betas"), body_pose=cat("body_pose"), global_orient=cat("global_orient"), transl=cat("transl"),
+        cameras=[c for r in results for c in r.cameras], vertices=cat("vertices"), joints=cat("joints"),
+        keypoints_2d=cat("keypoints_2d"), layout=first.layout,
+        energies={k: np.concatenate([r.energies[k] for r in results]) for k in first.energies if all(k in r.energies for r in results)},
+        timings=dict(first.timings), flipped=cat("flipped"), reprojection_error=cat("reprojection_error"),
+        term_energies={s: {t: np.concatenate([r.term_energies[s][t] for r in results]) for t in d}
+                       for s, d in first.term_energies.items()
+                       if all(s in r.term_energies and all(t in r.term_energies[s] for t in d) for r in results)},
+        config=first.config, branches=listed("branches"),
+        extra_params={k: np.concatenate([r.extra_params[k] for r in results]) for k in first.extra_params},
+        model=first.model, branch_search=listed("branch_search"),
+    )  # fmt: skip
 
 
 def _round(v: float) -> float:
