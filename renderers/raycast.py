@@ -126,11 +126,31 @@ class _ViewRays:
     normals: torch.Tensor  # [Ec, 2] unit outward normal of each projected segment (window px)
     step: float  # image length per edge point (px)
     n_rays: int = 0
+    touched: Optional[torch.Tensor] = None  # [H, W] pixels some ray of the view passes through
 
 
 def _project(points: torch.Tensor, cam: Camera) -> torch.Tensor:
     z = points[..., 2]
     return torch.stack([cam.fx * points[..., 0] / z + cam.cx, cam.fy * points[..., 1] / z + cam.cy], -1)
+
+
+def _boxes_touch(vc: torch.Tensor, faces: torch.Tensor, cam: Camera, mask: torch.Tensor) -> torch.Tensor:
+    """Per face: whether its projected bounding box holds a pixel of ``mask [H, W]`` (any
+    face with a corner near or behind the camera counts)."""
+    H, W = mask.shape
+    z = vc[:, 2]
+    uv = _project(vc, cam)
+    c = uv[faces]  # [F, 3, 2]
+    lo = torch.floor(c.min(1).values + 0.5)
+    hi = torch.floor(c.max(1).values + 0.5)
+    x0, y0 = lo[:, 0].clamp(0, W - 1).to(torch.int64), lo[:, 1].clamp(0, H - 1).to(torch.int64)
+    x1, y1 = hi[:, 0].clamp(0, W - 1).to(torch.int64), hi[:, 1].clamp(0, H - 1).to(torch.int64)
+    sat = torch.zeros(H + 1, W + 1, dtype=torch.int64)
+    sat[1:, 1:] = mask.to(torch.int64).cumsum(0).cumsum(1)
+    count = sat[y1 + 1, x1 + 1] - sat[y0, x1 + 1] - sat[y1 + 1, x0] + sat[y0, x0]
+    inside = (hi[:, 0] >= 0) & (lo[:, 0] <= W - 1) & (hi[:, 1] >= 0) & (lo[:, 1] <= H - 1)
+    near = (z[faces] <= _NEAR).any(1)
+    return near | (inside & (count > 0))
 
 
 def _directions(xy: torch.Tensor, cam: Camera) -> torch.Tensor:
@@ -176,16 +196,22 @@ class RaycastScene:
         self.params.update()
         self._held = (v.clone(), None if faces is None else faces.clone())
 
-    def visible_faces(self, towards: Sequence[torch.Tensor]) -> Optional[torch.Tensor]:
-        """Indices of the faces turned towards at least one camera (``towards``: per camera,
-        :meth:`_facing`'s values), or ``None`` (all faces) when culling is not exact: a ray
+    def visible_faces(self, towards: Sequence[tuple], touched: Sequence[tuple] = ()) -> Optional[torch.Tensor]:
+        """Indices of the faces some ray of the call can meet first, or ``None`` (all): a ray
         from outside a closed, consistently oriented mesh meets a face turned towards it
-        first, so the others never decide a hit. Nearly edge-on faces are kept."""
+        first (``towards``: per camera, :meth:`_facing`'s values; nearly edge-on faces are
+        kept), and a ray through pixel ``p`` only meets faces whose image covers ``p``
+        (``touched``: per camera ``(vertices in its frame, camera, [H, W] pixels its rays
+        pass through)``; a face's bounding box is tested)."""
         if not self.closed or not self.cull:
             return None
         keep = None
-        for d, scale in towards:
+        f = self.edges.faces
+        for i, (d, scale) in enumerate(towards):
             front = d < 1e-3 * scale
+            if i < len(touched):
+                vc, cam, mask = touched[i]
+                front &= _boxes_touch(vc, f, cam, mask)
             keep = front if keep is None else keep | front
         if bool(keep.all()):
             return None
@@ -233,7 +259,6 @@ class RaycastScene:
             v64 = verts.detach().to(torch.float64)
             vcs = [v64 @ R.to(torch.float64).T + t.to(torch.float64) for _, R, t in views]
             towards = [self._facing(vc) for vc in vcs]
-            self.set_vertices(verts, self.visible_faces(towards))
             plans, origins, directions = [], [], []
             for (cam, R, t), seed, vc, (d, _) in zip(views, seeds, vcs, towards):
                 R64, t64 = R.to(torch.float64), t.to(torch.float64)
@@ -243,6 +268,7 @@ class RaycastScene:
                 plans.append(plan)
                 origins.append(centre.expand(d.shape[0], 3))
                 directions.append(d)
+            self.set_vertices(verts, self.visible_faces(towards, [(vc, p.camera, p.touched) for vc, p in zip(vcs, plans)]))
             hits = self.ray_test(torch.cat(origins), torch.cat(directions))
             images, states, start = [], [], 0
             for plan in plans:
@@ -323,6 +349,9 @@ class RaycastScene:
             step = 0.0
         xy = torch.cat([cover_xy, rep_xy, edge_xy])
         plan = _ViewRays(cam, edge_pixels, labels, n_comp, spp, e, t, pixel, idx, normal, step, xy.shape[0])
+        touched = marked.clone()
+        touched[reps] = True
+        plan.touched = touched.reshape(H, W)
         return plan, xy
 
     @staticmethod
@@ -337,8 +366,19 @@ class RaycastScene:
         if n <= 1:
             return lab, 0, torch.zeros(0, dtype=torch.int64)
         free = lab >= 0
+        # each component's representative: its first pixel next to an edge pixel (so the rays of
+        # a view only meet faces whose image touches the edge pixels or their one-pixel ring),
+        # else its first pixel
+        g = marked.reshape(1, 1, H, W).to(torch.float32)
+        ring = (torch.nn.functional.max_pool2d(g, 3, stride=1, padding=1) > 0).reshape(-1) & free
+        pix = torch.arange(H * W)
         reps = torch.full((n - 1,), H * W, dtype=torch.int64)
-        reps.scatter_reduce_(0, lab[free], torch.nonzero(free).squeeze(1), reduce="amin")  # each one's first pixel
+        reps.scatter_reduce_(0, lab[ring], pix[ring], reduce="amin")
+        lonely = reps == H * W
+        if bool(lonely.any()):
+            first = torch.full((n - 1,), H * W, dtype=torch.int64)
+            first.scatter_reduce_(0, lab[free], pix[free], reduce="amin")
+            reps = torch.where(lonely, first, reps)
         return lab, n - 1, reps
 
     def _finish(self, plan: _ViewRays, hits: torch.Tensor, need_grad: bool):
