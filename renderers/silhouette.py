@@ -27,7 +27,11 @@ the map in torch.
 
 Rendering
 ---------
-A ``constant`` environment of radiance 1 behind the mesh, the mesh a black occluder,
+Two methods (``SilhouetteRenderer(method=...)``): ``"raycast"``, the default, is
+:mod:`renderers.raycast` (Mitsuba/Embree answers ray tests; sampling, the visibility-edge
+integral and all sums in torch; deterministic for any thread count).  ``"projective"`` is
+the renderer described here:
+a ``constant`` environment of radiance 1 behind the mesh, the mesh a black occluder,
 ``prb_projective`` with ``max_depth=1, sppc=0, sppi=0, sppp=edge_spp``; silhouette
 ``= 1 - image``.  The projective integrator adds the visibility-discontinuity (edge) term,
 so ``d silhouette / d vertices`` moves the outline.  The scene is built once per (faces
@@ -330,13 +334,19 @@ class SilhouetteRenderer:
     (``sppp``) are defaults overridable per call; each call draws a fresh seed from
     torch's generator (reproducible under ``torch.manual_seed``) unless ``seed`` is given.
 
+    ``method``: ``"raycast"`` (default since issue 24, :mod:`renderers.raycast`: Mitsuba
+    answers ray tests, torch does the sampling, the edge integral and every sum) or
+    ``"projective"`` (Mitsuba's ``prb_projective`` integrator, the renderer before); a
+    mesh with an edge shared by more than two faces falls back to ``"projective"``.
+    :meth:`render_views` renders one body in several cameras (one acceleration-structure
+    build for all with the ray-cast method).
+
     ``threads``: Dr.Jit's thread-pool size, set before each render (``None``: leave it
-    alone). The pool is process-wide and stays so (the gradient is computed later, inside
-    torch's autograd). With one thread the backward pass's scatter-adds accumulate in a
-    fixed order, so a fixed seed gives bit-identical gradients and fits; with several,
-    the same seed gave silhouette fits of PA-MPJPE 12.3-19.9 mm over 5 runs of 40 steps
-    (tools/repro_silhouette.py). On the 2-core dev machine (loaded, noisy timings) one
-    thread was no slower: 8-10 s against 12-19 s per fit.
+    alone). The pool is process-wide and stays so. The ray-cast method gives bit-identical
+    silhouettes and gradients for any thread count (tested). With ``"projective"`` one
+    thread keeps the backward pass's scatter-adds in a fixed order, so a fixed seed gives
+    bit-identical gradients and fits; with several, the same seed gave silhouette fits of
+    PA-MPJPE 12.3-19.9 mm over 5 runs of 40 steps (tools/repro_silhouette.py).
     """
 
     def __init__(
