@@ -251,6 +251,7 @@ class RaycastScene:
         seeds: Sequence[int],
         stratified: bool,
         need_grad: bool,
+        systematic: bool = True,
     ):
         """Silhouettes of ``verts [V, 3]`` seen by ``views`` (``(camera, R [3,3], t [3])``:
         camera-frame points are ``R x + t``); returns ``(images, states)`` where each
@@ -262,7 +263,7 @@ class RaycastScene:
             plans, origins, directions = [], [], []
             for (cam, R, t), seed, vc, (d, _) in zip(views, seeds, vcs, towards):
                 R64, t64 = R.to(torch.float64), t.to(torch.float64)
-                plan, xy_cam = self._plan(vc, d < 0, cam, spp, edge_spp, int(seed), stratified, need_grad)
+                plan, xy_cam = self._plan(vc, d < 0, cam, spp, edge_spp, int(seed), stratified, need_grad, systematic)
                 centre = -(R64.T @ t64)
                 d = _directions(xy_cam, cam) @ R64  # camera -> reference frame: R^T d
                 plans.append(plan)
@@ -279,7 +280,7 @@ class RaycastScene:
                 states.append(state)
         return images, states
 
-    def _plan(self, vc, facing, cam: Camera, spp, edge_spp, seed, stratified, need_grad):
+    def _plan(self, vc, facing, cam: Camera, spp, edge_spp, seed, stratified, need_grad, systematic=True):
         E = self.edges
         W, H = cam.width, cam.height
         fb = E.face_b.clamp(min=0)
@@ -333,7 +334,10 @@ class RaycastScene:
             N = int(edge_spp) * W * H
             total = float(length.sum())
             cum = torch.cumsum(length, 0)
-            s = (torch.arange(N, dtype=torch.float64) + float(hash_uniform(seed, 3, torch.zeros(1, dtype=torch.int64)))) * (total / N)
+            if systematic:  # evenly spaced, one random offset
+                s = (torch.arange(N, dtype=torch.float64) + float(hash_uniform(seed, 3, torch.zeros(1, dtype=torch.int64)))) * (total / N)
+            else:  # independent uniform positions
+                s = hash_uniform(seed, 4, torch.arange(N)) * total
             e = torch.searchsorted(cum, s, right=True).clamp(max=idx.numel() - 1)
             t = ((s - (cum[e] - length[e])) / length[e]).clamp(0.0, 1.0)
             pts = u0[e] + t[:, None] * seg[e]
@@ -449,12 +453,12 @@ class RaycastRender(torch.autograd.Function):
 
 
 def render_views(scene: RaycastScene, verts: torch.Tensor, views: Sequence[tuple], spp: int, edge_spp: int,
-                 seeds: Sequence[int], stratified: bool) -> List[torch.Tensor]:  # fmt: skip
+                 seeds: Sequence[int], stratified: bool, systematic: bool = True) -> List[torch.Tensor]:  # fmt: skip
     """Silhouettes ``[H, W]`` (float32) of ``verts [V, 3]`` in each view ``(camera, R, t)``,
     differentiable with respect to ``verts`` when it requires grad."""
     need_grad = torch.is_grad_enabled() and verts.requires_grad
     with scene.lock:
-        images, states = scene.render(verts, views, spp, edge_spp, seeds, stratified, need_grad)
+        images, states = scene.render(verts, views, spp, edge_spp, seeds, stratified, need_grad, systematic)
     if not need_grad:
         return images
     out = RaycastRender.apply(verts, scene, list(views), states, *images)

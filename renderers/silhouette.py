@@ -359,6 +359,7 @@ class SilhouetteRenderer:
         sampler: Optional[str] = None,
         threads: Optional[int] = 1,
         method: str = "raycast",
+        edge_sampling: str = "systematic",
     ):
         f = faces.detach().cpu().numpy() if isinstance(faces, torch.Tensor) else np.asarray(faces)
         if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
@@ -377,6 +378,9 @@ class SilhouetteRenderer:
             except NonManifoldMeshError:
                 method = "projective"  # the ray-cast method needs a 2-manifold mesh
         self.method = method
+        if edge_sampling not in ("systematic", "random"):
+            raise ValueError(f"edge_sampling must be 'systematic' or 'random', got {edge_sampling!r}")
+        self.edge_sampling = edge_sampling  # ray-cast method: edge points evenly spaced (one offset) or independent
         self.sampler = _check_sampler(sampler or ("stratified" if method == "raycast" else "independent"))
         self.mi, self.dr = import_mitsuba(variant)
         self.variant = self.mi.variant()
@@ -509,7 +513,8 @@ class SilhouetteRenderer:
                  for cam, R, t in zip(cameras, rotations, translations)]  # fmt: skip
         self._set_threads()
         verts = vertices.cpu() if vertices.device.type != "cpu" else vertices
-        images = render_views(self._ray_scene(vertices.shape[0]), verts, views, spp, edge_spp, seeds, sampler != "independent")
+        images = render_views(self._ray_scene(vertices.shape[0]), verts, views, spp, edge_spp, seeds, sampler != "independent",
+                              self.edge_sampling == "systematic")  # fmt: skip
         return [img.to(device=device, dtype=out_dtype) for img in images]
 
     def render_roi(
