@@ -9,15 +9,15 @@ Silhouette (pixel coverage, box filter)
     The coverage of a closed mesh changes only across the image of its *contour
     candidates*: edges whose two faces face opposite ways seen from the camera (and
     boundary edges).  Those segments are projected in torch and every pixel they touch
-    (dilated by one pixel) is an *edge pixel*; it gets ``spp`` rays (stratified, or
-    independent with ``sampler="independent"``) through its square.  Every other pixel has
+    (dilated by one pixel) is an *edge pixel*; it gets ``spp`` rays (independent, or
+    stratified with a sampler other than ``"independent"``) through its square.  Every other pixel has
     constant coverage over its square and over its 4-connected component of such pixels,
     so one ray through one pixel of each component gives the exact value of all.
 
 Gradient (visibility-edge term)
     ``d sum(g * S) / d x = integral over the contour of g(p) (v(p) . n(p)) dl``: ``N =
-    edge_spp * W * H`` points are spread evenly (systematic sampling, one random offset)
-    along the projected candidate segments; a point counts where a ray just outside the
+    edge_spp * W * H`` points are drawn uniformly along the projected candidate segments
+    (independently, or evenly spaced with one random offset: ``edge_sampling="systematic"``); a point counts where a ray just outside the
     segment (``1e-4`` px from it, on the side away from its faces) misses the mesh, i.e.
     where the segment is the visible outline.  ``g`` is the loss's gradient at the pixel
     holding the point and ``v . n`` the outward normal speed of the segment's endpoints,
