@@ -20,7 +20,14 @@ silhouette stage + windows/targets), rendered steps and contour iterations per c
 full-image mask IoU (the fit rendered with pyrender/OSMesa against the mask; mean over
 views for rigs), PVE (root-aligned) and PA-PVE in mm against the truth.
 
+Renderer methods (issue 24, second part): ``head`` is the default schedule rendered with Mitsuba's
+``prb_projective`` integrator (the renderer at the commit before the ray-cast method); ``after`` uses the
+ray-cast renderer (:mod:`renderers.raycast`); ``after-2t``, ``after-stratified``, ``*-s1``: see ``RENDERERS``.
+Methods run interleaved per subject; ``--base`` names the row the ratios are taken against.
+
 The machine is shared: compare the rows of one run (ratios), not runs.
+
+    python benchmarks/bench_silhouette.py --single 6 --rig 4 --methods head,after --base head
 
     python benchmarks/bench_silhouette.py --single 30 --rig 10 --seed 9100
     python benchmarks/bench_silhouette.py --single 4 --seed 9100 --methods after   # a quick look
