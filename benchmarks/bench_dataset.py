@@ -99,22 +99,27 @@ def main() -> None:
     parser.add_argument("--sil-subset", type=int, default=10)
     parser.add_argument("--batches", default="1,8,32")
     parser.add_argument("--work", help="folder for the generated data and outputs (default: a temporary one)")
+    parser.add_argument("--no-ray", action="store_true", help="skip the Ray runs")
+    parser.add_argument("--silhouette-only", action="store_true", help="only the runs with the silhouette stage")
     args = parser.parse_args()
     root = Path(args.work or tempfile.mkdtemp(prefix="bench_dataset_"))
     root.mkdir(parents=True, exist_ok=True)
     data = build_dataset(root, args.n, args.size)
     rows = []
-    for b in (int(v) for v in args.batches.split(",")):
-        rows.append(run(data, root / f"out_kp_b{b}", False, b, False))
-        print(rows[-1], flush=True)
-    rows.append(run(data, root / "out_kp_ray", False, 8, True))
-    print(rows[-1], flush=True)
+    if not args.silhouette_only:
+        for b in (int(v) for v in args.batches.split(",")):
+            rows.append(run(data, root / f"out_kp_b{b}", False, b, False))
+            print(rows[-1], flush=True)
+        if not args.no_ray:
+            rows.append(run(data, root / "out_kp_ray", False, 8, True))
+            print(rows[-1], flush=True)
     if args.sil_subset:
         sub = subset(data, root, args.sil_subset)
         rows.append(run(sub, root / "out_sil_b8", True, 8, False))
         print(rows[-1], flush=True)
-        rows.append(run(sub, root / "out_sil_ray", True, 8, True))
-        print(rows[-1], flush=True)
+        if not args.no_ray:
+            rows.append(run(sub, root / "out_sil_ray", True, 8, True))
+            print(rows[-1], flush=True)
     print(f"\n{args.n} generated subjects ({args.size} px), every fifth with a second keypoint-only person, "
           f"3 corrupted files (keypoints of subject 10, camera of 21, mask of 3); --people all. Work: {root}\n")  # fmt: skip
     print("| run | batch | silhouette | images | items | failed | wall (s) | images/h | items/h "

@@ -20,7 +20,14 @@ silhouette stage + windows/targets), rendered steps and contour iterations per c
 full-image mask IoU (the fit rendered with pyrender/OSMesa against the mask; mean over
 views for rigs), PVE (root-aligned) and PA-PVE in mm against the truth.
 
+Renderer methods (issue 24, second part): ``head`` is the default schedule rendered with Mitsuba's
+``prb_projective`` integrator (the renderer at the commit before the ray-cast method); ``after`` uses the
+ray-cast renderer (:mod:`renderers.raycast`); ``after-2t``, ``after-stratified``, ``*-s1``: see ``RENDERERS``.
+Methods run interleaved per subject; ``--base`` names the row the ratios are taken against.
+
 The machine is shared: compare the rows of one run (ratios), not runs.
+
+    python benchmarks/bench_silhouette.py --single 6 --rig 4 --methods head,after --base head
 
     python benchmarks/bench_silhouette.py --single 30 --rig 10 --seed 9100
     python benchmarks/bench_silhouette.py --single 4 --seed 9100 --methods after   # a quick look
@@ -38,7 +45,28 @@ import torch
 from silfit import load_body_model
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig, fit_silhouette, fit_silhouette_problems
 
-METHODS = {"before": SilhouetteFitConfig.legacy, "after": SilhouetteFitConfig}
+METHODS = {"before": SilhouetteFitConfig.legacy, "after": SilhouetteFitConfig, "head": SilhouetteFitConfig,
+           "after-2t": SilhouetteFitConfig, "after-stratified": SilhouetteFitConfig,
+           "head-s1": lambda: SilhouetteFitConfig(seed=1), "after-s1": lambda: SilhouetteFitConfig(seed=1)}  # fmt: skip
+#: the renderer per method (``None``: the stage's default, the ray-cast method since issue 24's second part):
+#: ``head`` is the default schedule rendered with Mitsuba's ``prb_projective`` (the renderer before the ray-cast
+#: method), ``after-2t`` the ray-cast method with two Dr.Jit threads (bit-identical results, other timing),
+#: ``after-stratified`` with stratified pixel samples and evenly spaced edge points (lower noise, same expectation;
+#: measured worse on a 4-view rig: the stage's Adam settings were tuned with independent samples' noise);
+#: ``*-s1``: the renderer's base seed 1 instead of 0 (the spread a seed alone gives)
+RENDERERS = {"head": {"method": "projective"}, "head-s1": {"method": "projective"}, "after-2t": {"threads": 2},
+             "after-stratified": {"sampler": "stratified", "edge_sampling": "systematic"}}  # fmt: skip
+
+
+def renderer_for(model, name):
+    """The renderer of method ``name`` (a proxy renderer like the stage's default), or ``None``."""
+    options = RENDERERS.get(name)
+    if options is None:
+        return None
+    from renderers.proxy import ProxySilhouetteRenderer, get_proxy
+
+    cfg = METHODS[name]()
+    return ProxySilhouetteRenderer(get_proxy(model.v_template, model.faces, int(cfg.proxy_faces)), **options)
 
 
 def body(model, params):
@@ -58,25 +86,29 @@ def single_scores(model, params, s) -> dict:
             "pa_pve": 1000 * pa_pve(V, s.gt.vertices)}  # fmt: skip
 
 
+BASE = "before"
+
+
 def table(title, rows, unit="image"):
     print(f"\n### {title}\n")
     print(f"| method | s/{unit} stage (in-process) | s/{unit} wall (whole fit) | rendered steps | contour iterations | "
           "IoU mean | PVE mm mean | PA-PVE mm mean / median |")
     print("|---|---:|---:|---:|---:|---:|---:|---|")
-    base = rows.get("before")
+    base = rows.get(BASE) or rows.get("before")
     for name, r in rows.items():
         a = {k: np.array(v, dtype=np.float64) for k, v in r.items()}
-        ratio = f" ({np.mean(base['stage']) / a['stage'].mean():.1f}x)" if base and name != "before" and a["stage"].mean() > 0 else ""
-        print(f"| {name} | {a['stage'].mean():.2f}{ratio} | {a['wall'].mean():.2f} | {a['steps'].mean():.0f} | "
+        ratio = f" ({np.mean(base['stage']) / a['stage'].mean():.2f}x)" if base and a["stage"].mean() > 0 else ""
+        wall_ratio = f" ({np.mean(base['wall']) / a['wall'].mean():.2f}x)" if base else ""
+        print(f"| {name} | {a['stage'].mean():.2f}{ratio} | {a['wall'].mean():.2f}{wall_ratio} | {a['steps'].mean():.0f} | "
               f"{a['contour'].mean():.0f} | {a['iou'].mean():.4f} | {a['pve'].mean():.2f} | "
               f"{a['pa_pve'].mean():.2f} / {np.median(a['pa_pve']):.2f} |")
     if base and len(rows) > 1:
         for name, r in rows.items():
-            if name == "before":
+            if r is base or name == "keypoints only":
                 continue
             d_iou = np.array(r["iou"]) - np.array(base["iou"])
             d_pa = np.array(r["pa_pve"]) - np.array(base["pa_pve"])
-            print(f"\n{name} - before, per {unit}: IoU {d_iou.mean():+.4f} (min {d_iou.min():+.4f}), "
+            print(f"\n{name} - {BASE if BASE in rows else 'before'}, per {unit}: IoU {d_iou.mean():+.4f} (min {d_iou.min():+.4f}), "
                   f"PA-PVE {d_pa.mean():+.2f} mm (max {d_pa.max():+.2f})")
 
 
@@ -96,13 +128,16 @@ def run_single(model, n, seed, size, methods):
     rows = {"keypoints only": {"stage": [0.0] * n, "wall": [kp_share] * n, "steps": [0] * n, "contour": [0] * n}}
     for k, v in zip(("iou", "pve", "pa_pve"), zip(*[single_scores(model, kp.params(i), s).values() for i, s in enumerate(subjects)])):
         rows["keypoints only"][k] = list(v)
+    # methods interleaved per subject, so a change in the machine's load hits them alike
+    setups = {name: (METHODS[name](), renderer_for(model, name)) for name in methods}
     for name in methods:
-        cfg = METHODS[name]()
-        r = {k: [] for k in ("stage", "wall", "steps", "contour", "iou", "pve", "pa_pve")}
-        for i, s in enumerate(subjects):
+        rows[name] = {k: [] for k in ("stage", "wall", "steps", "contour", "iou", "pve", "pa_pve")}
+    for i, s in enumerate(subjects):
+        for name, (cfg, renderer) in setups.items():
+            r = rows[name]
             t = time.perf_counter()
             res = fit_silhouette(model, kp.params(i), s.camera, s.mask, s.keypoints.as_array(), config=cfg,
-                                 pose_prior=fitter.pose_prior, progress=False)  # fmt: skip
+                                 pose_prior=fitter.pose_prior, progress=False, renderer=renderer)  # fmt: skip
             dt = time.perf_counter() - t
             r["stage"].append(res.seconds)
             r["wall"].append(kp_share + dt)
@@ -110,8 +145,7 @@ def run_single(model, n, seed, size, methods):
             r["contour"].append(res.contour_iterations)
             for k, v in single_scores(model, res.params(), s).items():
                 r[k].append(v)
-        rows[name] = r
-        print(f"single images: {name} done", flush=True)
+        print(f"single images: subject {i + 1}/{n} done", flush=True)
     table(f"Single images: {n} subjects, {size} px, seed {seed}", rows)
     return rows
 
@@ -151,13 +185,15 @@ def run_rig(model, n, seed, size, methods):
     rows = {"keypoints only": {"stage": [0.0] * n, "wall": [kp_share] * n, "steps": [0] * n, "contour": [0] * n}}
     for k in ("iou", "pve", "pa_pve"):
         rows["keypoints only"][k] = [scores(v, p, g, f.params)[k] for (v, p, g), f in zip(subjects, fits)]
+    setups = {name: (METHODS[name](), renderer_for(model, name)) for name in methods}
     for name in methods:
-        cfg = METHODS[name]()
-        r = {k: [] for k in ("stage", "wall", "steps", "contour", "iou", "pve", "pa_pve")}
-        for (views, problem, truth), f in zip(subjects, fits):
+        rows[name] = {k: [] for k in ("stage", "wall", "steps", "contour", "iou", "pve", "pa_pve")}
+    for i, ((views, problem, truth), f) in enumerate(zip(subjects, fits)):
+        for name, (cfg, renderer) in setups.items():
+            r = rows[name]
             t = time.perf_counter()
             (res,) = fit_silhouette_problems(model, [problem], [dict(f.params)], config=cfg, pose_prior=fitter.pose_prior,
-                                             progress=False)  # fmt: skip
+                                             progress=False, renderer=renderer)  # fmt: skip
             dt = time.perf_counter() - t
             r["stage"].append(res.seconds)
             r["wall"].append(kp_share + dt)
@@ -166,8 +202,7 @@ def run_rig(model, n, seed, size, methods):
             params = {k: np.asarray(v).reshape(-1) for k, v in res.parameters.items()}
             for k, v in scores(views, problem, truth, params).items():
                 r[k].append(v)
-        rows[name] = r
-        print(f"rigs: {name} done", flush=True)
+        print(f"rigs: rig {i + 1}/{n} done", flush=True)
     table(f"4-view rigs: {n} rigs, {size} px, seed {seed} (PVE: world, no alignment)", rows, unit="rig")
     return rows
 
@@ -215,9 +250,12 @@ def main(argv=None):
     ap.add_argument("--rig", type=int, default=0, help="4-view rigs")
     ap.add_argument("--seed", type=int, default=9100)
     ap.add_argument("--size", type=int, default=512)
-    ap.add_argument("--methods", default="before,after", help="comma-separated: before, after")
+    ap.add_argument("--methods", default="before,after", help="comma-separated: " + ", ".join(METHODS))
+    ap.add_argument("--base", default="before", help="the method the ratios are taken against")
     ap.add_argument("--kornia", action="store_true", help="also time kornia's distance transform against OpenCV's")
     args = ap.parse_args(argv)
+    global BASE
+    BASE = args.base
     methods = [m for m in args.methods.split(",") if m]
     unknown = [m for m in methods if m not in METHODS]
     if unknown:

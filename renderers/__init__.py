@@ -8,6 +8,9 @@ agree to sub-pixel precision.
 * :mod:`renderers.silhouette` - :class:`SilhouetteRenderer`, :func:`render_silhouette`
   (Mitsuba 3 ``prb_projective``; torch in, torch out; gradients include the visibility
   edge term; region-of-interest mode).  Imports Mitsuba/Dr.Jit on first use.
+* :mod:`renderers.raycast` - the default silhouette method (issue 24): Mitsuba/Embree ray
+  tests, sampling and the visibility-edge integral in torch; bit-identical for any number
+  of Dr.Jit threads; one acceleration structure for all views of a body.
 * :mod:`renderers.batch` - :class:`BatchSilhouetteRenderer`, :func:`render_batch`: several
   subjects' silhouettes (own vertices, own window camera) in tiles of one film per call.
 * :mod:`renderers.proxy` - :class:`RenderProxy`, :func:`get_proxy`, :func:`build_proxy`:

@@ -301,6 +301,9 @@ class ProxySilhouetteRenderer:
     def __call__(self, vertices: torch.Tensor, camera, **kwargs) -> torch.Tensor:
         return self.renderer(self.proxy(vertices), camera, **kwargs)
 
+    def render_views(self, vertices: torch.Tensor, cameras, rotations, translations, **kwargs):
+        return self.renderer.render_views(self.proxy(vertices), cameras, rotations, translations, **kwargs)
+
     def render_roi(self, vertices: torch.Tensor, camera, **kwargs):
         return self.renderer.render_roi(self.proxy(vertices), camera, **kwargs)
 

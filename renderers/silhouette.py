@@ -27,7 +27,11 @@ the map in torch.
 
 Rendering
 ---------
-A ``constant`` environment of radiance 1 behind the mesh, the mesh a black occluder,
+Two methods (``SilhouetteRenderer(method=...)``): ``"raycast"``, the default, is
+:mod:`renderers.raycast` (Mitsuba/Embree answers ray tests; sampling, the visibility-edge
+integral and all sums in torch; deterministic for any thread count).  ``"projective"`` is
+the renderer described here:
+a ``constant`` environment of radiance 1 behind the mesh, the mesh a black occluder,
 ``prb_projective`` with ``max_depth=1, sppc=0, sppi=0, sppp=edge_spp``; silhouette
 ``= 1 - image``.  The projective integrator adds the visibility-discontinuity (edge) term,
 so ``d silhouette / d vertices`` moves the outline.  The scene is built once per (faces
@@ -330,13 +334,19 @@ class SilhouetteRenderer:
     (``sppp``) are defaults overridable per call; each call draws a fresh seed from
     torch's generator (reproducible under ``torch.manual_seed``) unless ``seed`` is given.
 
+    ``method``: ``"raycast"`` (default since issue 24, :mod:`renderers.raycast`: Mitsuba
+    answers ray tests, torch does the sampling, the edge integral and every sum) or
+    ``"projective"`` (Mitsuba's ``prb_projective`` integrator, the renderer before); a
+    mesh with an edge shared by more than two faces falls back to ``"projective"``.
+    :meth:`render_views` renders one body in several cameras (one acceleration-structure
+    build for all with the ray-cast method).
+
     ``threads``: Dr.Jit's thread-pool size, set before each render (``None``: leave it
-    alone). The pool is process-wide and stays so (the gradient is computed later, inside
-    torch's autograd). With one thread the backward pass's scatter-adds accumulate in a
-    fixed order, so a fixed seed gives bit-identical gradients and fits; with several,
-    the same seed gave silhouette fits of PA-MPJPE 12.3-19.9 mm over 5 runs of 40 steps
-    (tools/repro_silhouette.py). On the 2-core dev machine (loaded, noisy timings) one
-    thread was no slower: 8-10 s against 12-19 s per fit.
+    alone). The pool is process-wide and stays so. The ray-cast method gives bit-identical
+    silhouettes and gradients for any thread count (tested). With ``"projective"`` one
+    thread keeps the backward pass's scatter-adds in a fixed order, so a fixed seed gives
+    bit-identical gradients and fits; with several, the same seed gave silhouette fits of
+    PA-MPJPE 12.3-19.9 mm over 5 runs of 40 steps (tools/repro_silhouette.py).
     """
 
     def __init__(
@@ -346,8 +356,10 @@ class SilhouetteRenderer:
         edge_spp: int = 1,
         variant: Optional[str] = None,
         max_cached_scenes: int = 8,
-        sampler: str = "independent",
+        sampler: Optional[str] = None,
         threads: Optional[int] = 1,
+        method: str = "raycast",
+        edge_sampling: str = "random",
     ):
         f = faces.detach().cpu().numpy() if isinstance(faces, torch.Tensor) else np.asarray(faces)
         if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
@@ -356,13 +368,45 @@ class SilhouetteRenderer:
             raise ValueError("faces contain negative vertex indices")
         self.faces = np.ascontiguousarray(f, dtype=np.int32)
         self.spp, self.edge_spp = _positive_int(spp, "spp"), _positive_int(edge_spp, "edge_spp")
-        self.sampler = _check_sampler(sampler)
+        if method not in METHODS:
+            raise ValueError(f"unknown silhouette method {method!r}; choose one of {', '.join(METHODS)}")
+        if method == "raycast":
+            from .raycast import MeshEdges, NonManifoldMeshError
+
+            try:
+                MeshEdges(self.faces)
+            except NonManifoldMeshError:
+                method = "projective"  # the ray-cast method needs a 2-manifold mesh
+        self.method = method
+        if edge_sampling not in ("systematic", "random"):
+            raise ValueError(f"edge_sampling must be 'systematic' or 'random', got {edge_sampling!r}")
+        self.edge_sampling = edge_sampling  # ray-cast method: edge points independent, or evenly spaced (one offset)
+        # independent samples by default: the stage's Adam settings were tuned with this noise; the
+        # lower-noise stratified/systematic samples (same expectation) cost up to 6 mm PA-PVE on a
+        # 4-view rig of benchmarks/bench_silhouette.py (method after-noisy is the default now)
+        self.sampler = _check_sampler(sampler or "independent")
         self.mi, self.dr = import_mitsuba(variant)
         self.variant = self.mi.variant()
         self._scenes: "OrderedDict[tuple, _SilhouetteScene]" = OrderedDict()
         self._max_cached = int(max_cached_scenes)
         self._lock = threading.Lock()
         self.threads = None if threads is None else _positive_int(threads, "threads")
+        self._ray_scenes: dict = {}
+
+    def _ray_scene(self, n_vertices: int):
+        from .raycast import RaycastScene
+
+        with self._lock:
+            scene = self._ray_scenes.get(n_vertices)
+            if scene is None:
+                if self.mi.variant() != self.variant:
+                    self.mi.set_variant(self.variant)
+                scene = self._ray_scenes[n_vertices] = RaycastScene(self.mi, self.dr, self.faces, n_vertices)
+            return scene
+
+    def _set_threads(self) -> None:
+        if self.threads is not None and self.dr.thread_count() != self.threads:
+            self.dr.set_thread_count(self.threads)
 
     # ---- scenes
     def _scene(
@@ -404,8 +448,17 @@ class SilhouetteRenderer:
         spp = self.spp if spp is None else _positive_int(spp, "spp")
         edge_spp = self.edge_spp if edge_spp is None else _positive_int(edge_spp, "edge_spp")
         sampler = self.sampler if sampler is None else _check_sampler(sampler)
-        scene = self._scene(vertices.shape[-2], camera.width, camera.height, spp, edge_spp, sampler)
         batched = vertices.dim() == 3
+        if self.method == "raycast":
+            batch = vertices if batched else vertices[None]
+            eye, zero = torch.eye(3), torch.zeros(3)
+            out = torch.stack([
+                self.render_views(v, [camera], [eye], [zero], spp=spp, edge_spp=edge_spp,
+                                  seeds=[_fresh_seed() if seed is None else int(seed) + i], sampler=sampler)[0]
+                for i, v in enumerate(batch)
+            ])  # fmt: skip
+            return out if batched else out[0]
+        scene = self._scene(vertices.shape[-2], camera.width, camera.height, spp, edge_spp, sampler)
         batch = vertices if batched else vertices[None]
         out_dtype = vertices.dtype if vertices.is_floating_point() else torch.float32
         device = vertices.device
@@ -422,6 +475,50 @@ class SilhouetteRenderer:
             images.append(img.to(device=device, dtype=out_dtype))
         out = torch.stack(images)
         return out if batched else out[0]
+
+    def render_views(
+        self,
+        vertices: torch.Tensor,
+        cameras: Sequence[Camera],
+        rotations: Sequence[torch.Tensor],
+        translations: Sequence[torch.Tensor],
+        spp: Optional[int] = None,
+        edge_spp: Optional[int] = None,
+        seeds: Optional[Sequence[int]] = None,
+        sampler: Optional[str] = None,
+    ) -> list:
+        """Silhouettes of one body ``vertices [V, 3]`` (any reference frame, e.g. the world)
+        seen by several cameras with extrinsics ``R_i, t_i`` (camera-frame points ``R_i x +
+        t_i``): a list of ``[H_i, W_i]`` tensors whose gradients reach ``vertices``.  The
+        ray-cast method builds one acceleration structure for all views; the projective
+        method renders each view from its own mapped copy.  ``seeds[i]``: view ``i``'s seed."""
+        cameras = [check_camera(c) for c in cameras]
+        vertices, _ = check_mesh(vertices, self.faces)
+        if vertices.dim() != 2:
+            raise ValueError("render_views takes one vertex set [V, 3]")
+        if not (len(cameras) == len(rotations) == len(translations)):
+            raise ValueError(f"{len(cameras)} cameras, {len(rotations)} rotations, {len(translations)} translations")
+        spp = self.spp if spp is None else _positive_int(spp, "spp")
+        edge_spp = self.edge_spp if edge_spp is None else _positive_int(edge_spp, "edge_spp")
+        sampler = self.sampler if sampler is None else _check_sampler(sampler)
+        seeds = [_fresh_seed() for _ in cameras] if seeds is None else [(_fresh_seed() if s is None else int(s)) for s in seeds]
+        out_dtype = vertices.dtype if vertices.is_floating_point() else torch.float32
+        device = vertices.device
+        if self.method != "raycast":
+            out = []
+            for cam, R, t, s in zip(cameras, rotations, translations, seeds):
+                R, t = torch.as_tensor(R).to(vertices.dtype), torch.as_tensor(t).to(vertices.dtype)
+                out.append(self(vertices @ R.T + t, cam, spp=spp, edge_spp=edge_spp, seed=s, sampler=sampler))
+            return out
+        from .raycast import render_views
+
+        views = [(cam, torch.as_tensor(R).detach().to(torch.float64).cpu(), torch.as_tensor(t).detach().to(torch.float64).cpu())
+                 for cam, R, t in zip(cameras, rotations, translations)]  # fmt: skip
+        self._set_threads()
+        verts = vertices.cpu() if vertices.device.type != "cpu" else vertices
+        images = render_views(self._ray_scene(vertices.shape[0]), verts, views, spp, edge_spp, seeds, sampler != "independent",
+                              self.edge_sampling == "systematic")  # fmt: skip
+        return [img.to(device=device, dtype=out_dtype) for img in images]
 
     def render_roi(
         self,
@@ -444,6 +541,7 @@ class SilhouetteRenderer:
     def clear_cache(self) -> None:
         with self._lock:
             self._scenes.clear()
+            self._ray_scenes.clear()
 
 
 _DEFAULT_RENDERERS: "OrderedDict[str, SilhouetteRenderer]" = OrderedDict()
@@ -482,6 +580,10 @@ def render_silhouette(
 def _fresh_seed() -> int:
     return int(torch.randint(0, 2**31 - 1, (1,)).item())
 
+
+#: ``raycast``: rays through Mitsuba's acceleration structure, the rest in torch
+#: (:mod:`renderers.raycast`); ``projective``: Mitsuba's ``prb_projective`` integrator
+METHODS = ("raycast", "projective")
 
 _SAMPLERS = ("independent", "stratified", "multijitter", "ldsampler", "orthogonal")
 

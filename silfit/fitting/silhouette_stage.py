@@ -298,6 +298,17 @@ class SilhouetteTerm(Term):
             sils = self.batch_renderer([cams[p, o // ev.C, o % ev.C] for p, o in jobs],
                                        [windows[p][o].camera for p, o in jobs],
                                        spp=self.spp, edge_spp=self.edge_spp, seed=seeds[0])  # fmt: skip
+        elif hasattr(self.renderer, "render_views"):  # a body's views in one call (one BVH build per body)
+            Vb, R, t = V.reshape(ev.P, ev.F, *V.shape[1:]), ev.data["R"], ev.data["t"]
+            sils = [None] * len(jobs)
+            for key in dict.fromkeys((p, o // ev.C) for p, o in jobs):
+                js = [j for j, (p, o) in enumerate(jobs) if (p, o // ev.C) == key]
+                cs = [jobs[j][1] % ev.C for j in js]
+                imgs = self.renderer.render_views(Vb[key], [windows[key[0]][jobs[j][1]].camera for j in js],
+                                                  [R[key][c] for c in cs], [t[key][c] for c in cs], spp=self.spp,
+                                                  edge_spp=self.edge_spp, seeds=[seeds[j] for j in js])  # fmt: skip
+                for j, img in zip(js, imgs):
+                    sils[j] = img
         else:
             sils = [self.renderer(cams[p, o // ev.C, o % ev.C], windows[p][o].camera, spp=self.spp,
                                   edge_spp=self.edge_spp, seed=seed) for (p, o), seed in zip(jobs, seeds)]  # fmt: skip
