@@ -36,7 +36,9 @@ from .fitting.result import KeypointFitResult
 from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult, fit_silhouettes
 from .keypoints import KeypointSet, model_keypoints
 from .outfolder import atomic_folder
-from .plausibility import ambiguity_warnings, check_keypoints, fit_warnings, mask_warnings
+from .plausibility import (
+    ambiguity_warnings, body_stature, check_keypoints, fit_summary, fit_warnings, mask_warnings, silhouette_guard,
+)  # fmt: skip
 from .eval.metrics import mask_iou
 from .silhouette.masks import validate_mask
 
@@ -108,6 +110,22 @@ def _median_reprojection(kp2d: np.ndarray, keypoints: KeypointSet) -> float:
     return float(np.median(err[keypoints.conf > 0]))
 
 
+def _guard(model, start: dict, params: dict, keypoints: KeypointSet, camera: Camera, kp2d: np.ndarray, where: str):
+    """:func:`~silfit.plausibility.silhouette_guard` of one refined fit against the keypoint fit
+    ``start`` it began from (reprojection error, |betas|, stature)."""
+    _, _, kp2d_start = _pose(model, start, keypoints.layout, camera)
+
+    def stature(p):
+        try:
+            return body_stature(model, p["betas"])
+        except (AttributeError, KeyError, RuntimeError):  # a model without a shape space of that form
+            return None
+
+    before = fit_summary(_median_reprojection(kp2d_start, keypoints), start.get("betas"), stature(start))
+    after = fit_summary(_median_reprojection(kp2d, keypoints), params.get("betas"), stature(params))
+    return silhouette_guard(before, after, where)
+
+
 def refine(
     model,
     keypoint_result: KeypointFitResult,
@@ -176,9 +194,17 @@ def refine_batch(
         one = keypoint_result[i]
         params = sil.params()
         vertices, joints, kp2d = _pose(model, params, keypoints[i].layout, cameras[i])
-        final_mask = body_mask(vertices, faces, cameras[i])
-        iou_after = mask_iou(final_mask, masks[i])
         warnings = mask_warnings(masks[i], mask_sources[i]) + list(sil.warnings)
+        # the plausibility guard (silfit.plausibility.silhouette_guard): a refined fit less plausible
+        # than the keypoint fit is replaced by the keypoint fit, with a warning
+        guard = _guard(model, inits[i], params, keypoints[i], cameras[i], kp2d, mask_sources[i])
+        if guard.reverted and getattr(config, "plausibility_guard", True):
+            params = {k: np.asarray(v) for k, v in inits[i].items()}
+            vertices, joints, kp2d = _pose(model, params, keypoints[i].layout, cameras[i])
+            warnings += list(guard.warnings)
+        final_mask = kp_masks[i] if guard.reverted and getattr(config, "plausibility_guard", True) else \
+            body_mask(vertices, faces, cameras[i])  # fmt: skip
+        iou_after = mask_iou(final_mask, masks[i])
         if iou_after < ious_before[i] - 0.02:
             warnings.append(f"silhouette stage lowered the IoU ({ious_before[i]:.3f} -> {iou_after:.3f}); kept its result")
         metrics = {
@@ -190,6 +216,8 @@ def refine_batch(
             "iou_keypoint_stage": ious_before[i],
             "iou": iou_after,
             "silhouette_steps": sil.steps,
+            "silhouette_guard": {"kept": guard.keep if getattr(config, "plausibility_guard", True) else "silhouette",
+                                 "less_plausible": list(guard.reasons)},
             "warnings": warnings,
             **_run_record(one, sil),
         }  # fmt: skip

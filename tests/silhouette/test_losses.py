@@ -98,3 +98,51 @@ def test_outside_the_image_is_unknown_not_background():
     body[10:40, 10:20] = 1.0  # the true body continues below the image
     assert soft_iou(body, torch.as_tensor(mask, dtype=torch.float32), torch.as_tensor(valid, dtype=torch.float32)) == 1.0
     assert soft_iou(body, torch.as_tensor(mask, dtype=torch.float32)) < 0.7
+
+
+def test_cover_profile_is_shallow_within_the_margin_and_capped():
+    from silfit.silhouette import CoverProfile
+
+    p = CoverProfile(margin=4.0, inner=0.25, cap=6.0)
+    d = np.array([0.0, 2.0, 4.0, 5.0, 20.0])
+    assert np.allclose(p(d), [0.0, 0.5, 1.0, 2.0, 6.0])
+    assert torch.allclose(p(torch.as_tensor(d)), torch.as_tensor([0.0, 0.5, 1.0, 2.0, 6.0], dtype=torch.float64))
+    assert CoverProfile().plain and not p.plain
+    with pytest.raises(ValueError, match="CoverProfile"):
+        CoverProfile(inner=2.0)
+
+
+def test_a_grown_mask_pulls_the_body_outward_less_with_the_robust_profile():
+    """Clothing (issue 23): the mask is the body grown by 3 px. Growing the body to fill it lowers the
+    plain energy by much; with the robust profile (margin 4 px, inner 0.25) by a quarter as much
+    at most, while a body outside the mask still costs the same."""
+    from silfit.silhouette import CoverProfile
+
+    mask = disc(radius=15)
+    plain, robust = MaskTarget.from_mask(mask), MaskTarget.from_mask(mask, cover=CoverProfile(4.0, 0.25, 8.0))
+    assert robust.w_in is not None and (robust.w_in <= robust.dt_in + 1e-6).all() and robust.w_in.max() <= 8.0
+    body = torch.as_tensor(disc(radius=12), dtype=torch.float32)
+    full = torch.as_tensor(mask, dtype=torch.float32)
+    gain_plain = (silhouette_energy(body, plain) - silhouette_energy(full, plain)).item()
+    gain_robust = (silhouette_energy(body, robust) - silhouette_energy(full, robust)).item()
+    assert gain_plain > 0.5 and 0 < gain_robust <= 0.26 * gain_plain
+    too_big = torch.as_tensor(disc(radius=18), dtype=torch.float32)
+    assert silhouette_energy(too_big, robust).item() == pytest.approx(silhouette_energy(too_big, plain).item())
+
+
+def test_robust_cover_energy_ignores_an_outline_far_from_the_body():
+    """Contour level: outline points beyond the cap (a leak, an object) exert no pull; near ones do."""
+    from silfit.silhouette import CoverProfile, cover_energy
+
+    uv = torch.tensor([[10.0, 10.0], [12.0, 10.0]], requires_grad=True)
+    far = torch.tensor([[60.0, 10.0]])
+    near = torch.tensor([[15.0, 10.0]])
+    profile = CoverProfile(margin=1.0, inner=0.5, cap=10.0)
+    cover_energy(uv, far, profile).backward()
+    assert uv.grad.abs().max() == 0
+    uv.grad = None
+    cover_energy(uv, far).backward()
+    assert uv.grad.abs().max() > 0  # the plain energy pulls toward the far outline
+    uv.grad = None
+    cover_energy(uv, near, profile).backward()
+    assert uv.grad[1, 0] > 0 or uv.grad[1, 0] < 0
