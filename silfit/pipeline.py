@@ -10,6 +10,8 @@ Output folder written by :func:`save_fit` (and ``silfit fit``)::
     mesh.glb, mesh.ply         with ``exports``: the body upright (x right, y up, z toward the
                                viewer), normals, the camera in the glTF (silfit.outputs.export)
     overlay.png                the final body over the image (or a grey canvas) + keypoints
+    side.png                   the final body seen from the side, over the keypoint-stage body
+                               (orange) when a silhouette was fitted
     silhouette.png             final silhouette vs the mask (white: both, red: body only,
                                blue: mask only)            [with a mask]
     iou_curve.png              IoU and energy per silhouette step   [with a mask]
@@ -319,6 +321,8 @@ def save_fit(
             image, result.vertices, faces, result.camera, kp_xy, result.keypoints_2d, kp_conf))  # fmt: skip
         stage_dir = tmp / "stages" / "keypoints"
         result.keypoint.save(stage_dir)
+        reference = result.keypoint.vertices[0] if result.silhouette is not None else None
+        figures.write_png(tmp / "side.png", figures.side_view(result.vertices, faces, reference))
         if result.silhouette is not None:
             kp_verts = result.keypoint.vertices[0]
             figures.write_png(stage_dir / "overlay.png", figures.fit_overlay(
