@@ -120,8 +120,8 @@ def main() -> None:
     fitter = KeypointFitter(model)
     print(f"# Real-photo conditions: {len(subjects)} subjects per condition (seed {args.seed}, {args.size} px)"
           + (f"; after: {after}" if after else "") + "\n")  # fmt: skip
-    print("| condition | method | PA-PVE mean / worst (mm) | PVE mean (mm) | reprojection median px (mean / worst) | max abs beta | IoU mean | s per image |")
-    print("|---|---|---|---:|---|---:|---:|---:|")
+    print("| condition | method | PA-PVE mean / worst (mm) | PVE mean (mm) | reprojection median px (mean / worst) | max abs beta | IoU mean | s per image | trimmed / kept kp fit |")
+    print("|---|---|---|---:|---|---:|---:|---:|---:|")
     kp_cache = {}  # clean, clothing and leak share the keypoints: one keypoint fit
     for cond in args.conditions.split(","):
         sets, masks, cams = (list(x) for x in zip(*[c[cond] for c, _ in subjects]))
@@ -147,8 +147,10 @@ def _score(model, params, gt, fit, reproj=None) -> dict:
     pa = 1000 * np.linalg.norm(procrustes_align(v, gt.vertices) - gt.vertices, axis=-1).mean()
     pve = 1000 * np.linalg.norm(v - gt.vertices, axis=-1).mean()
     m = fit.metrics if fit is not None else {}
+    warnings = m.get("warnings", [])
     return {"pa": pa, "pve": pve, "reproj": m.get("reprojection_error_px", reproj), "beta": float(np.abs(params["betas"]).max()),
-            "iou": m.get("iou", float("nan"))}  # fmt: skip
+            "iou": m.get("iou", float("nan")), "trimmed": any("trimmed by" in w for w in warnings),
+            "kept_kp": m.get("silhouette_guard", {}).get("kept") == "keypoints"}  # fmt: skip
 
 
 def _row(cond, name, rows, seconds) -> None:
@@ -156,7 +158,7 @@ def _row(cond, name, rows, seconds) -> None:
     pa, rp = get("pa"), get("reproj")
     print(f"| {cond} | {name} | {pa.mean():.1f} / {pa.max():.1f} | {get('pve').mean():.1f} | {rp.mean():.1f} / {rp.max():.1f} | "
           f"{get('beta').max():.2f} | {np.nanmean(get('iou')) if np.isfinite(get('iou')).any() else float('nan'):.3f} | "
-          f"{'' if seconds is None else f'{seconds:.1f}'} |")
+          f"{'' if seconds is None else f'{seconds:.1f}'} | {int(get('trimmed').sum())} / {int(get('kept_kp').sum())} |")
 
 
 if __name__ == "__main__":

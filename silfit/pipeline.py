@@ -112,6 +112,27 @@ def _median_reprojection(kp2d: np.ndarray, keypoints: KeypointSet) -> float:
     return float(np.median(err[keypoints.conf > 0]))
 
 
+def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources):
+    """``(masks for the stage, notes per mask)``: a mask reaching beyond the keypoint fit's body
+    all around (clothing) trimmed by that thickness (``SilhouetteFitConfig.trim_clothing``)."""
+    from .silhouette.losses import clothing_thickness, trim_clothing
+
+    out, notes = [], []
+    for mask, body, source in zip(masks, body_masks, sources):
+        ys, xs = np.nonzero(mask)
+        extent = float(max(np.ptp(ys), np.ptp(xs))) if len(ys) else 0.0
+        t = clothing_thickness(mask, body) if getattr(cfg, "trim_clothing", False) and extent > 0 else 0.0
+        if t <= cfg.trim_min * extent:
+            out.append(mask)
+            notes.append([])
+            continue
+        t = min(t, cfg.trim_max * extent)
+        out.append(trim_clothing(mask, t))
+        notes.append([f"{source}: the mask reaches about {t:.0f} px beyond the keypoint fit's body all around (loose "
+                      "clothing, hair or a grown mask?): the silhouette stage fitted it trimmed by that much"])
+    return out, notes
+
+
 def _guard(model, start: dict, params: dict, keypoints: KeypointSet, camera: Camera, kp2d: np.ndarray, where: str):
     """:func:`~silfit.plausibility.silhouette_guard` of one refined fit against the keypoint fit
     ``start`` it began from (reprojection error, |betas|, stature)."""
@@ -176,6 +197,7 @@ def refine_batch(
                 f"{mask_sources[i]}: the mask does not overlap the body fitted to the keypoints at all "
                 "(wrong mask, or keypoints of another image?)"
             )
+    fit_masks, trim_notes = _trimmed_masks(masks, kp_masks, config or SilhouetteFitConfig(), mask_sources)
     inits = [keypoint_result.params(i) for i in range(n)]
     if keypoints[0].layout == "wholebody":  # the whole-body mesh, hand and face keypoints kept
         from .fitting.problem import Problem
@@ -183,12 +205,12 @@ def refine_batch(
         from .fitting.wholebody import wholebody_silhouette_inputs
 
         cfg, body_sets, terms, weights, data = wholebody_silhouette_inputs(model, keypoints, config or SilhouetteFitConfig(), model.dtype)
-        problems = [Problem.single(k, cam, m) for k, cam, m in zip(body_sets, cameras, masks)]
+        problems = [Problem.single(k, cam, m) for k, cam, m in zip(body_sets, cameras, fit_masks)]
         sils = fit_silhouette_problems(model, problems, inits, "wholebody", cfg, pose_prior, renderer, progress,
                                        terms=terms, weights=weights, data=data)  # fmt: skip
     else:
         sils = fit_silhouettes(
-            model, inits, cameras, masks, [k.as_array() for k in keypoints],
+            model, inits, cameras, fit_masks, [k.as_array() for k in keypoints],
             layout=keypoints[0].layout, config=config, pose_prior=pose_prior, renderer=renderer, progress=progress,
         )  # fmt: skip
     out = []
@@ -196,7 +218,7 @@ def refine_batch(
         one = keypoint_result[i]
         params = sil.params()
         vertices, joints, kp2d = _pose(model, params, keypoints[i].layout, cameras[i])
-        warnings = mask_warnings(masks[i], mask_sources[i]) + list(sil.warnings)
+        warnings = mask_warnings(masks[i], mask_sources[i]) + trim_notes[i] + list(sil.warnings)
         # the plausibility guard (silfit.plausibility.silhouette_guard): a refined fit less plausible
         # than the keypoint fit is replaced by the keypoint fit, with a warning
         guard = _guard(model, inits[i], params, keypoints[i], cameras[i], kp2d, mask_sources[i])

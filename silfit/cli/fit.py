@@ -41,6 +41,9 @@ def register(subparsers) -> None:
                    "and face: fitted with an SMPL-X-layout model) (default: detected in --image, with its mask unless "
                    "--mask is given)")
     p.add_argument("--person", default="largest", help="person index in the keypoint file, or 'largest'")
+    p.add_argument("--people", metavar="all", choices=("all",),
+                   help="--image without --keypoints: fit every person detected, each into OUT/person_<i>/ "
+                   "(largest first; OUT/people.json lists them)")
     p.add_argument("--mask", help="person silhouette PNG (enables the silhouette stage)")
     cam = p.add_mutually_exclusive_group()
     cam.add_argument("--camera", help="camera.json with fx, fy, cx, cy, width, height")
@@ -146,7 +149,8 @@ def load_inputs(args) -> FitInputs:
     if args.image:
         from .detect import photo_inputs
 
-        photo = photo_inputs(args.image, person, not args.keypoints, not (args.mask or args.no_silhouette))
+        photo = photo_inputs(args.image, person, not args.keypoints, not (args.mask or args.no_silhouette),
+                             getattr(args, "detected", None))  # fmt: skip
     elif not args.keypoints:
         raise CLIError("no keypoints: give --keypoints KP.json, or --image PHOTO to detect them")
     keypoints = read_keypoints(args.keypoints, person=person) if args.keypoints else photo["keypoints"]
@@ -213,6 +217,8 @@ def run(args) -> int:
         from .fit_rig import run_rig
 
         return run_rig(args)
+    if getattr(args, "people", None) == "all":
+        return _run_people(args)
     inp = load_inputs(args)
     if args.check_only:
         from ..plausibility import check_keypoints
@@ -242,3 +248,35 @@ def run(args) -> int:
     for warning in m.get("warnings", []):
         warn(warning)
     return 0
+
+
+def _run_people(args) -> int:
+    """``--people all``: detect every person once, then fit each into ``OUT/person_<i>/``."""
+    import copy
+    import json
+
+    if args.keypoints or not args.image:
+        raise CLIError("--people all detects the people in --image; give --image and no --keypoints")
+    if args.mask:
+        raise CLIError("--people all uses each detected person's own mask; drop --mask")
+    from ..detect import DetectConfig
+    from ..detect.output import detect_photo
+
+    out = Path(args.out)
+    if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
+        raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
+    detected = detect_photo(args.image, DetectConfig(max_people=0))
+    people = detected[1]
+    note(f"{len(people)} person(s) detected in {args.image}")
+    rows, status = [], 0
+    if not args.check_only:
+        out.mkdir(parents=True, exist_ok=True)
+    for i in range(len(people)):
+        one = copy.copy(args)
+        one.people, one.person, one.out, one.detected = None, str(i), str(out / f"person_{i}"), detected
+        rc = run(one)
+        status = status or rc
+        rows.append({"person": i, "folder": f"person_{i}", "status": rc})
+    if not args.check_only:
+        (out / "people.json").write_text(json.dumps({"image": args.image, "people": rows}, indent=2))
+    return status

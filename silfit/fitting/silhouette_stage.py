@@ -104,6 +104,13 @@ class SilhouetteFitConfig:
     cover_margin: float = 0.03
     cover_inner: float = 0.25
     cover_cap: float = 0.06
+    #: a mask that reaches beyond the keypoint fit's body all around (loose clothing, hair, a grown
+    #: segmentation: :func:`~silfit.silhouette.losses.clothing_thickness` above ``trim_min`` of the
+    #: mask's extent) is eroded by that thickness (at most ``trim_max``) before the stage
+    #: (:func:`~silfit.silhouette.losses.trim_clothing`; image path: silfit.pipeline.refine_batch)
+    trim_clothing: bool = True
+    trim_min: float = 0.015
+    trim_max: float = 0.08
     #: after the stage, a fit less plausible than the keypoint fit (silfit.plausibility.silhouette_guard)
     #: is replaced by the keypoint fit, with a warning (image path: silfit.pipeline.refine_batch)
     plausibility_guard: bool = True
