@@ -146,3 +146,44 @@ def test_robust_cover_energy_ignores_an_outline_far_from_the_body():
     uv.grad = None
     cover_energy(uv, near, profile).backward()
     assert uv.grad[1, 0] > 0 or uv.grad[1, 0] < 0
+
+
+def test_clothing_thickness_tells_a_grown_mask_from_a_leak_and_trim_undoes_it():
+    """A mask grown all around (clothing) is thick by the growth; a blob joined on one side (a
+    leak) or a matching mask is not; trimming the grown mask by its thickness gives the body back."""
+    import cv2
+
+    from silfit.silhouette import clothing_thickness, trim_clothing
+
+    body = np.zeros((120, 100), bool)
+    body[20:100, 40:60] = True  # a torso
+    body[30:36, 20:80] = True  # arms
+    grown = cv2.dilate(body.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (9, 9))).astype(bool)
+    leak = body.copy()
+    leak[50:70, 60:95] = True
+    assert clothing_thickness(body, body) == pytest.approx(0.0, abs=0.5)
+    assert clothing_thickness(grown, body) == pytest.approx(4.0, abs=1.0)
+    assert clothing_thickness(leak, body) < 1.0
+    trimmed = trim_clothing(grown, clothing_thickness(grown, body))
+    iou = (trimmed & body).sum() / (trimmed | body).sum()
+    assert iou > 0.85 and (trimmed & body).sum() / (grown & body).sum() > 0.85
+    cut = grown.copy()
+    cut[90:] = True  # runs out of the image at the bottom: the border is no edge
+    assert trim_clothing(cut, 4)[-1].sum() > 0.9 * cut[-1].sum()
+    assert trim_clothing(body, 0).sum() == body.sum()
+
+
+def test_the_stage_builds_robust_targets_and_the_plain_energy_stays_available():
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig, choose_window, window_target
+    from silfit.camera import Camera
+
+    mask = disc(size=96, centre=(48, 48), radius=20)
+    cam = Camera(100.0, 100.0, 47.5, 47.5, 96, 96)
+    uv = np.argwhere(mask)[:, ::-1].astype(float)
+    window = choose_window(mask, uv, cam, 64, 0.12)
+    cfg = SilhouetteFitConfig()
+    robust, _ = window_target(mask, window, cover=cfg.cover_profile(64))
+    plain, _ = window_target(mask, window, cover=SilhouetteFitConfig(robust_cover=False).cover_profile(64))
+    assert robust.cover is not None and robust.cover.margin == pytest.approx(cfg.cover_margin * 64)
+    assert plain.cover is None and plain.w_in is None
+    assert (robust.w_in <= plain.dt_in + 1e-6).all() and robust.w_in.sum() < 0.7 * plain.dt_in.sum()
