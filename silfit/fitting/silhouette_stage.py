@@ -13,8 +13,9 @@ Energy (per subject, the named terms of :mod:`silfit.fitting.terms` plus the sil
   visibility-edge term) rendered in a *window* around the person (region of interest:
   the union of the mask's box and the body's projection, plus a margin) at a fixed
   number of pixels, so the cost follows the chosen resolution and not the image's.
-* ``E_sil`` is the two-sided distance-transform energy of :mod:`silfit.silhouette.losses`
-  in window pixels, normalised by the mask's area (an average distance in pixels).
+* ``E_sil`` is the distance-transform energy of :mod:`silfit.silhouette.losses` in window
+  pixels, normalised by the mask's area (an average distance in pixels); its mask-not-covered
+  side has a robust, capped profile (``robust_cover``: masks are supersets of bodies).
 * ``E_kp`` is the keypoint stage's robust reprojection term (:class:`KeypointTerm`) with
   this stage's data: residuals in window pixels, weights the confidences normalised to
   sum 1, Geman-McClure scale ``kp_sigma``; so the silhouette cannot drag limbs away from

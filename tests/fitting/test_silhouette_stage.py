@@ -270,24 +270,29 @@ def test_contour_body_poses_the_same_vertices_as_the_mesh(open_model):
     np.testing.assert_allclose(sub.keypoints.numpy(), full.keypoints.numpy(), atol=2e-4)  # landmarks: another path
 
 
-def test_contour_level_moves_a_shifted_body_without_rendering(open_model, target_mask):
+@pytest.mark.parametrize("robust", [False, True])
+def test_contour_level_moves_a_shifted_body_without_rendering(open_model, target_mask, robust):
     def no_renderer(*args, **kwargs):  # the contour level renders nothing
         raise AssertionError("the contour level rendered")
 
-    result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=CONTOUR, renderer=no_renderer, progress=False)
+    cfg = replace(CONTOUR, robust_cover=robust)
+    result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=cfg, renderer=no_renderer, progress=False)
     assert result.steps == 0 and 0 < result.contour_iterations <= 15
     dx, dy, _ = result.transl[0] - POSE["transl"][0]
-    # the truth is +0.08 m across; measured +0.078 and -0.001 m
-    assert 0.06 < dx < 0.1 and abs(dy) < 0.01, (dx, dy)
+    # the truth is +0.08 m across; measured +0.078 and -0.001 m with the plain cover term, +0.085 and
+    # -0.016 m with the robust one (issue 23: its pull within the clothing margin is a sixteenth)
+    assert 0.06 < dx < 0.1 and abs(dy) < (0.025 if robust else 0.01), (dx, dy)
 
 
-def test_contour_level_then_rendered_level(open_model, target_mask):
-    cfg = replace(FAST, iterations=(6,), contour_iterations=15, contour_resolution=64)
+@pytest.mark.parametrize("robust", [False, True])
+def test_contour_level_then_rendered_level(open_model, target_mask, robust):
+    cfg = replace(FAST, iterations=(6,), contour_iterations=15, contour_resolution=64, robust_cover=robust)
     result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=cfg, progress=False)
     assert result.steps == 6 and result.contour_iterations > 0 and len(result.history["iou"]) == 6
     # the rendered level starts where the contour level left the body: already near the mask
-    # (measured soft IoU 0.93 at the first rendered step, against 0.44 at the start)
-    assert result.iou_start > 0.85 and abs(result.transl[0, 0] - POSE["transl"][0, 0] - 0.08) < 0.015
+    # (measured soft IoU 0.93 at the first rendered step with the plain cover term, 0.83 with the
+    # robust one, whose pull near the mask's edge is weaker; 0.44 at the start)
+    assert result.iou_start > (0.78 if robust else 0.85) and abs(result.transl[0, 0] - POSE["transl"][0, 0] - 0.08) < 0.015
 
 
 def test_a_batch_with_the_contour_level_equals_single_runs(open_model):
