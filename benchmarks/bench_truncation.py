@@ -8,9 +8,11 @@ hair); ``leak``: a block as wide as 30 % of the person's height joined to the ma
 hips (a segmentation leak into an object). Each subject is fitted once by the keypoint stage,
 then by the silhouette stage per method: *original* (before issue 23: ``truncation_aware=False``,
 no keypoint trust region, no bound on |beta|, the plain two-sided energy), *before* (issue 23's
-first part, the plain energy: ``robust_cover=False``) and *after* (the defaults: the
-clothing/leak-robust mask-not-covered side); ``--methods`` picks them, ``--set`` changes the
-after configuration (tuning). Printed per condition: PA-PVE and PVE
+first part, the plain energy, no clothing trim, no plausibility guard: HEAD before the second
+part) and *after* (the defaults: the robust, capped mask-not-covered side, the clothing trim and
+the plausibility guard); ``--methods`` picks them, ``--set`` changes the after configuration
+(tuning). The last column counts the subjects whose mask was trimmed as clothing and those
+whose fit the guard replaced by the keypoint fit. Printed per condition: PA-PVE and PVE
 (mm, against the whole true body), median reprojection error (px, visible keypoints), max |beta|,
 IoU with the given mask (inside the image) and the stage's seconds; mean and worst.
 
@@ -82,9 +84,10 @@ def conditions(d: Path):
 
 #: the silhouette stage before issue 23 (no truncation, no keypoint trust region, no bound on |beta|,
 #: the plain two-sided energy)
-ORIGINAL = dict(truncation_aware=False, w_trust=0.0, w_beta_bound=0.0, robust_cover=False, plausibility_guard=False)
+ORIGINAL = dict(truncation_aware=False, w_trust=0.0, w_beta_bound=0.0, robust_cover=False, trim_clothing=False,
+                plausibility_guard=False)
 #: before the clothing/leak-robust energy (issue 23's first part: truncation, trust region, beta bound)
-BEFORE = dict(robust_cover=False, plausibility_guard=False)
+BEFORE = dict(robust_cover=False, trim_clothing=False, plausibility_guard=False)
 METHODS = {"original": ORIGINAL, "before": BEFORE, "after": {}}
 
 
