@@ -20,7 +20,6 @@ side view over the keypoint fit in orange) goes to ``docs/photos_sheet.png`` (``
 from __future__ import annotations
 
 import argparse
-import io
 import tempfile
 import time
 import zipfile
@@ -99,7 +98,7 @@ def main() -> None:
     from silfit.fitting import KeypointFitter
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
     from silfit.pipeline import refine
-    from silfit.plausibility import body_stature, check_keypoints, fit_warnings, mask_warnings
+    from silfit.plausibility import body_stature, check_keypoints, fit_warnings
 
     import torch
 
