@@ -66,15 +66,13 @@ def test_contact_sheet_needs_one_title_per_picture(tmp_path):
 def test_side_view_shows_depth_and_the_keypoint_fit_behind():
     """The side view (issue 23): a body moved away from the camera appears shifted sideways, the
     reference (keypoint-stage body) is drawn in orange behind the final body."""
-    from silfit import figures
-    from silfit.dataset import load_subject
-
     from pathlib import Path
 
-    s = load_subject(Path(__file__).resolve().parents[1] / "data" / "synthetic" / "subject_000")
-    import silfit
+    from silfit import figures, load_body_model
+    from silfit.dataset import load_subject
 
-    faces = silfit.load_body_model().faces.numpy()
+    s = load_subject(Path(__file__).resolve().parents[1] / "data" / "synthetic" / "subject_000")
+    faces = load_body_model().faces.numpy()
     v = s.gt.vertices
     alone = figures.side_view(v, faces, size=(160, 200))
     both = figures.side_view(v, faces, v + np.array([0.0, 0.0, 0.4]), size=(160, 200))
