@@ -7,7 +7,8 @@ Steps, as MediaPipe's pose graphs run them:
 1. the whole image, letterboxed into the detector's 224 x 224 input (values in [-1, 1]);
    SSD decoding (:mod:`.anchors`), score >= ``min_score``, weighted NMS (:mod:`.nms`); with
    several people wanted also overlapping tiles (:func:`detector_regions`: the detector,
-   made for one dominant person, misses people small in the whole image), all merged by one NMS;
+   made for one dominant person, misses people small in the whole image), whose detections
+   overlapping none of the whole image's are added;
 2. per detection, the region from its hip centre and full-body scale point (side: twice
    their distance, times 1.25; rotated so the body is upright in the crop);
 3. the landmark model on that region (if it sees no pose there, on a wider one:
@@ -32,7 +33,7 @@ from .geometry import ROI, roi_from_alignment_points, warp_to_crop
 from .landmarks import NUM_LANDMARKS, ROI_SCALE, mask_in_image, roi_from_landmarks, run_landmark_model
 from .layout import BLAZEPOSE33_NAMES, LOWER_BODY, blazepose_to_layout
 from .models import load_model
-from .nms import weighted_nms
+from .nms import box_iou, weighted_nms
 
 __all__ = ["DetectConfig", "DetectionError", "Person", "detect_people", "detect_candidates", "detector_regions", "mask_in_box"]
 
@@ -224,25 +225,32 @@ def detect_candidates(image: np.ndarray, config: Optional[DetectConfig] = None):
     """The person detector alone: ``(scores [M], keypoints [M, 4, 2])`` in image pixels after
     weighted NMS, best first (keypoints: hip centre, full-body scale point, shoulder
     centre, upper-body scale point). With more than one person wanted (``max_people`` other
-    than 1) the detector also runs on tiles (:func:`detector_regions`) and the detections of
-    all regions are merged by one weighted NMS in image pixels."""
+    than 1) the detector also runs on tiles (:func:`detector_regions`): the whole image's
+    detections come first, exactly as without tiles, then the tiles' (merged by their own
+    weighted NMS, in image pixels) that overlap none of them."""
     cfg = config or DetectConfig()
     H, W = image.shape[:2]
     regions = detector_regions(W, H, cfg.tiles if cfg.max_people != 1 else ())
-    all_scores, all_boxes, all_kps = [], [], []
-    for roi in regions:
-        tensor = warp_to_crop(image, roi, DETECTOR_INPUT).astype(np.float32) / 127.5 - 1.0
-        outputs = load_model("pose_detection")(tensor[None])
-        boxes_raw, scores_raw = sorted(outputs, key=lambda t: t.shape[-1], reverse=True)
-        scores, boxes, kps = decode_detections(boxes_raw, scores_raw)
-        keep = scores >= cfg.min_score
-        scores, boxes, kps = scores[keep], boxes[keep], kps[keep]
-        all_scores.append(scores)
-        all_boxes.append(roi.crop_to_image(boxes.reshape(-1, 2)).reshape(-1, 4))  # axis-aligned regions: corners map
-        all_kps.append(roi.crop_to_image(kps.reshape(-1, 2)).reshape(kps.shape))
-    scores, _, kps_img = weighted_nms(np.concatenate(all_scores), np.concatenate(all_boxes), np.concatenate(all_kps),
-                                      cfg.min_score, cfg.nms_iou)  # fmt: skip
-    return scores, kps_img
+    found = [_detect_in(image, roi, cfg) for roi in regions]
+    scores, boxes, kps = weighted_nms(*found[0], cfg.min_score, cfg.nms_iou)  # the whole image: as without tiles
+    if len(found) > 1:  # tiles add the people the whole image's detections do not overlap
+        ts, tb, tk = weighted_nms(*(np.concatenate(x) for x in zip(*found[1:])), cfg.min_score, cfg.nms_iou)
+        new = [i for i in range(len(ts)) if not len(boxes) or box_iou(tb[i], boxes).max() <= cfg.nms_iou]
+        scores, kps = np.concatenate([scores, ts[new]]), np.concatenate([kps.reshape(-1, *tk.shape[1:]), tk[new]])
+    return scores, kps
+
+
+def _detect_in(image: np.ndarray, roi: ROI, cfg: DetectConfig):
+    """The detector on one square region: ``(scores, boxes [M, 4], keypoints [M, 4, 2])`` at
+    or above ``min_score``, in image pixels (before NMS)."""
+    tensor = warp_to_crop(image, roi, DETECTOR_INPUT).astype(np.float32) / 127.5 - 1.0
+    outputs = load_model("pose_detection")(tensor[None])
+    boxes_raw, scores_raw = sorted(outputs, key=lambda t: t.shape[-1], reverse=True)
+    scores, boxes, kps = decode_detections(boxes_raw, scores_raw)
+    keep = scores >= cfg.min_score
+    scores, boxes, kps = scores[keep], boxes[keep], kps[keep]
+    return (scores, roi.crop_to_image(boxes.reshape(-1, 2)).reshape(-1, 4),  # axis-aligned regions: corners map
+            roi.crop_to_image(kps.reshape(-1, 2)).reshape(kps.shape))  # fmt: skip
 
 
 def _person_from_detection(img: np.ndarray, score: float, kp: np.ndarray, cfg: DetectConfig) -> Optional[Person]:
