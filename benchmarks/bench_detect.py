@@ -135,7 +135,7 @@ def main():
     print(f"\n(keypoint stage batched: {t_kp:.0f} s for {len(detected)} subjects)")
 
     if args.silhouette:
-        from silfit.pipeline import fit
+        from silfit.run import fit
 
         k = min(args.silhouette, len(fit_subjects))
         res = {"detected": [], "true": [], "detected_kp": detected[:k], "true_kp": truth[:k]}

@@ -28,7 +28,7 @@ _EXPORTS = {
     "KeypointFitResult": "fitting",
     "fit_keypoints": "fitting",
     "FitResult": "pipeline",
-    "fit": "pipeline",
+    "fit": "run",
     "save_fit": "pipeline",
     "fit_sequence": "fitting.sequence",
     "read_sequence": "video",
@@ -46,5 +46,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from .camera import Camera
     from .fitting import KeypointFitResult, fit_keypoints
     from .fitting.sequence import fit_sequence
-    from .pipeline import FitResult, fit, save_fit
+    from .pipeline import FitResult, save_fit
+    from .run import fit
     from .video import read_sequence, save_sequence_fit

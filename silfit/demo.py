@@ -16,7 +16,6 @@ Writes into the output folder::
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 from typing import Optional
 
@@ -101,8 +100,8 @@ def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = Tru
     from . import figures
     from .body import load_body_model
     from .dataset import load_subject, read_image
-    from .fitting import KeypointFitter, prepare_keypoints
-    from .pipeline import refine, save_fit
+    from .pipeline import save_fit
+    from .run import image_job, run
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -111,12 +110,12 @@ def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = Tru
     faces = model.faces.cpu().numpy()
     cam, kps = subject.camera, subject.keypoints
 
-    t0 = time.perf_counter()
-    fitter = KeypointFitter(model, kps.layout)
-    kp_result = fitter.fit(prepare_keypoints(kps), cam, progress=progress)
-    kp_seconds = time.perf_counter() - t0
-    result = refine(model, kp_result, kps, subject.mask, silhouette_config, fitter.pose_prior, progress=progress,
-                    mask_source=str(subject.file("mask")))  # fmt: skip
+    job = image_job(kps, subject.mask, cam, model=model, silhouette_config=silhouette_config, progress=progress,
+                    image=subject.image)  # fmt: skip
+    job.mask_sources[(0, 0)] = str(subject.file("mask"))
+    result = run(job).stage  # the path every mode takes (silfit.run)
+    kp_result = result.keypoint
+    kp_seconds = float(result.metrics["timings_s"]["keypoints"])
     save_fit(result, out / "fit", faces, kps, subject.image, subject.mask, overwrite=True)
 
     before = _score(model, subject, kp_result.params(0), cam, kp_seconds)

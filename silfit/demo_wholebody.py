@@ -82,7 +82,8 @@ def run_wholebody_demo(out: Path, subject_dir: Optional[Path] = None, progress: 
     from .eval.wholebody import wholebody_errors
     from .fitting import KeypointFitter
     from .imagefile import read_rgb
-    from .pipeline import fit, save_fit
+    from .pipeline import save_fit
+    from .run import fit
     from .silhouette.masks import read_mask
     from .wholebody import WholeBodyKeypoints, part_slices, read_wholebody
 

@@ -1,10 +1,6 @@
-"""2D keypoint layouts (OpenPose BODY_25, COCO-17, BlazePose-33), their 3D sources on the body model,
-and the keypoint files silfit reads and writes.
-
-A layout keypoint comes either from a model joint (the skeleton's joint centres, as
-SMPLify and SMPLify-X match them) or from a surface landmark (a vertex-weight row of
-the model: nose, eyes, ears, toes and heels, which have no joint).
-"""
+"""2D keypoints of one person (:class:`KeypointSet`) and the body keypoint files silfit reads and
+writes (OpenPose BODY_25 / COCO-17 JSON). The layouts and their sources on a body model are in
+:mod:`silfit.layouts` (their names are kept here too)."""
 from __future__ import annotations
 
 import json
@@ -13,9 +9,12 @@ from pathlib import Path
 from typing import Optional, Union
 
 import numpy as np
-import torch
 
 from .errors import InputError, quoted
+from .layouts import (  # noqa: F401  (re-exported: silfit.keypoints's names kept)
+    BLAZEPOSE33_NAMES, BODY25_NAMES, COCO17_NAMES, LAYOUTS, WHOLEBODY_NAMES, _layout_names, keypoint_sources,
+    model_keypoints,
+)  # fmt: skip
 from .input_limits import read_json
 
 __all__ = [
@@ -30,111 +29,6 @@ __all__ = [
     "read_keypoints",
     "write_openpose_json",
 ]
-
-BODY25_NAMES = (
-    "nose", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder", "left_elbow",
-    "left_wrist", "mid_hip", "right_hip", "right_knee", "right_ankle", "left_hip", "left_knee",
-    "left_ankle", "right_eye", "left_eye", "right_ear", "left_ear", "left_big_toe", "left_small_toe",
-    "left_heel", "right_big_toe", "right_small_toe", "right_heel",
-)  # fmt: skip
-COCO17_NAMES = (
-    "nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",
-    "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip", "left_knee",
-    "right_knee", "left_ankle", "right_ankle",
-)  # fmt: skip
-#: MediaPipe BlazePose's 33 landmarks, as :mod:`silfit.detect` finds them.
-BLAZEPOSE33_NAMES = (
-    "nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye", "right_eye_outer",
-    "left_ear", "right_ear", "mouth_left", "mouth_right", "left_shoulder", "right_shoulder", "left_elbow",
-    "right_elbow", "left_wrist", "right_wrist", "left_pinky", "right_pinky", "left_index", "right_index",
-    "left_thumb", "right_thumb", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
-    "left_heel", "right_heel", "left_foot_index", "right_foot_index",
-)  # fmt: skip
-_HAND_POINTS = ("wrist",) + tuple(f"{f}{k}" for f in ("thumb", "index", "middle", "ring", "pinky") for k in (1, 2, 3, 4))
-#: OpenPose's whole-body layout as one list (137 points, :mod:`silfit.wholebody`): BODY_25, the left and
-#: right hand (21 each, ``left_hand_wrist``, ``left_hand_thumb1`` ...), the face (``face_00`` .. ``face_67``,
-#: ``right_pupil``, ``left_pupil``); sources on an SMPL-X-layout model only.
-WHOLEBODY_NAMES = (
-    BODY25_NAMES + tuple(f"left_hand_{n}" for n in _HAND_POINTS) + tuple(f"right_hand_{n}" for n in _HAND_POINTS)
-    + tuple(f"face_{k:02d}" for k in range(68)) + ("right_pupil", "left_pupil")
-)  # fmt: skip
-LAYOUTS = {"body25": BODY25_NAMES, "coco17": COCO17_NAMES, "blazepose33": BLAZEPOSE33_NAMES, "wholebody": WHOLEBODY_NAMES}
-
-#: Keypoint name -> SMPL joint name, where a joint is the source.
-_JOINT_SOURCES = {
-    "neck": "neck", "mid_hip": "pelvis",
-    "left_shoulder": "left_shoulder", "right_shoulder": "right_shoulder",
-    "left_elbow": "left_elbow", "right_elbow": "right_elbow",
-    "left_wrist": "left_wrist", "right_wrist": "right_wrist",
-    "left_hip": "left_hip", "right_hip": "right_hip",
-    "left_knee": "left_knee", "right_knee": "right_knee",
-    "left_ankle": "left_ankle", "right_ankle": "right_ankle",
-    # BlazePose's hand points: the model has no finger landmarks; SMPL's hand joint (at the
-    # knuckles) is the nearest point to all three.
-    "left_pinky": "left_hand", "left_index": "left_hand", "left_thumb": "left_hand",
-    "right_pinky": "right_hand", "right_index": "right_hand", "right_thumb": "right_hand",
-}  # fmt: skip
-#: Keypoint name -> the model landmark it is fitted to, where the model has no landmark of
-#: that name (BlazePose's points): the nearest one (eye corners -> the eye, mouth corners
-#: -> the nose, a few cm above them; the foot's tip -> the big toe).
-_LANDMARK_ALIASES = {
-    "left_eye_inner": "left_eye", "left_eye_outer": "left_eye", "right_eye_inner": "right_eye",
-    "right_eye_outer": "right_eye", "mouth_left": "nose", "mouth_right": "nose",
-    "left_foot_index": "left_big_toe", "right_foot_index": "right_big_toe",
-}  # fmt: skip
-
-
-def keypoint_sources(model, layout: str = "body25", prefer_landmarks: bool = False) -> list[tuple[str, int]]:
-    """For each keypoint of ``layout``: ``("joint", j)`` or ``("landmark", k)`` on ``model``.
-
-    With ``prefer_landmarks`` the surface landmarks (where people annotate shoulders,
-    hips, ... on the skin) are used wherever the model has them, else joint centres.
-    The ``wholebody`` layout (SMPL-X-layout models) also has ``("none", 0)``: a point the model
-    cannot place statically (an official SMPL-X file's dynamic jaw contour), fitted with weight 0.
-    """
-    names = _layout_names(layout)
-    if layout.lower() == "wholebody":
-        from .wholebody import wholebody_sources
-
-        return wholebody_sources(model, prefer_landmarks)
-    joint_index = {n: i for i, n in enumerate(model.joint_names)}
-    landmark_index = {n: i for i, n in enumerate(model.landmark_names)}
-    sources = []
-    for name in names:
-        name = name if name in landmark_index else _LANDMARK_ALIASES.get(name, name)
-        if prefer_landmarks and name in landmark_index:
-            sources.append(("landmark", landmark_index[name]))
-        elif name in _JOINT_SOURCES and _JOINT_SOURCES[name] in joint_index:
-            sources.append(("joint", joint_index[_JOINT_SOURCES[name]]))
-        elif name in landmark_index:
-            sources.append(("landmark", landmark_index[name]))
-        else:
-            raise ValueError(f"{model.source}: the model has no joint or landmark for keypoint '{name}' ({layout})")
-    return sources
-
-
-def model_keypoints(model, output, layout: str = "body25", prefer_landmarks: bool = False) -> torch.Tensor:
-    """3D keypoints ``[B, K, 3]`` of a body-model output in the order of ``layout``."""
-    if layout.lower() == "wholebody":
-        from .wholebody import WHOLEBODY_PARTS, wholebody_keypoints
-
-        wb = wholebody_keypoints(model, output, prefer_landmarks)
-        return torch.cat([wb[p] for p in WHOLEBODY_PARTS], dim=1)
-    sources = keypoint_sources(model, layout, prefer_landmarks)
-    J = output.joints.shape[1]
-    stacked = output.joints
-    if any(kind == "landmark" for kind, _ in sources):
-        stacked = torch.cat([output.joints, model.landmarks(output.vertices)], dim=1)
-    index = torch.as_tensor([i if kind == "joint" else J + i for kind, i in sources], device=stacked.device)
-    return stacked[:, index]
-
-
-def _layout_names(layout: str) -> tuple:
-    try:
-        return LAYOUTS[layout.lower()]
-    except KeyError:
-        raise ValueError(f"unknown keypoint layout {layout!r} (expected one of {', '.join(LAYOUTS)})") from None
-
 
 class KeypointSet:
     """Detected 2D keypoints of one person: ``xy [K, 2]`` pixels, ``conf [K]`` in [0, 1]."""

@@ -1,5 +1,6 @@
-"""The whole fit of one image: keypoint stage, then silhouette stage; results in memory
-(:func:`fit`) and on disk (:func:`save_fit`).
+"""One image's core below :func:`silfit.run.run` (which :func:`silfit.fit` calls): keypoint
+stage, then silhouette stage, batched over images (:func:`fit_problems`); results in memory
+(:class:`FitResult`) and on disk (:func:`save_fit`).
 
 Output folder written by :func:`save_fit` (and ``silfit fit``)::
 
@@ -33,18 +34,16 @@ import numpy as np
 import torch
 
 from .camera import Camera, project_points
-from .fitting.keypoint_stage import KeypointFitConfig, KeypointFitter, prepare_keypoints
+from .fitting.keypoint_stage import KeypointFitter
 from .fitting.result import KeypointFitResult
-from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult, fit_silhouettes
+from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult
 from .keypoints import KeypointSet, model_keypoints
 from .outfolder import atomic_folder
-from .plausibility import (
-    ambiguity_warnings, body_stature, check_keypoints, fit_summary, fit_warnings, mask_warnings, silhouette_guard,
-)  # fmt: skip
+from .plausibility import ambiguity_warnings, body_stature, fit_summary, fit_warnings, mask_warnings, silhouette_guard
 from .eval.metrics import mask_iou
 from .silhouette.masks import validate_mask
 
-__all__ = ["FitResult", "fit", "refine", "refine_batch", "save_fit", "body_mask"]
+__all__ = ["FitResult", "fit_problem", "fit_problems", "StageFailure", "refine", "refine_batch", "save_fit", "body_mask"]
 
 
 @dataclass
@@ -199,20 +198,15 @@ def refine_batch(
             )
     fit_masks, trim_notes = _trimmed_masks(masks, kp_masks, config or SilhouetteFitConfig(), mask_sources)
     inits = [keypoint_result.params(i) for i in range(n)]
-    if keypoints[0].layout == "wholebody":  # the whole-body mesh, hand and face keypoints kept
-        from .fitting.problem import Problem
-        from .fitting.silhouette_stage import fit_silhouette_problems
-        from .fitting.wholebody import wholebody_silhouette_inputs
+    from .fitting.problem import Problem
+    from .fitting.silhouette_stage import fit_silhouette_problems
+    from .fitting.wholebody import silhouette_inputs
 
-        cfg, body_sets, terms, weights, data = wholebody_silhouette_inputs(model, keypoints, config or SilhouetteFitConfig(), model.dtype)
-        problems = [Problem.single(k, cam, m) for k, cam, m in zip(body_sets, cameras, fit_masks)]
-        sils = fit_silhouette_problems(model, problems, inits, "wholebody", cfg, pose_prior, renderer, progress,
-                                       terms=terms, weights=weights, data=data)  # fmt: skip
-    else:
-        sils = fit_silhouettes(
-            model, inits, cameras, fit_masks, [k.as_array() for k in keypoints],
-            layout=keypoints[0].layout, config=config, pose_prior=pose_prior, renderer=renderer, progress=progress,
-        )  # fmt: skip
+    # the layout decides the terms (a whole-body mesh keeps its hand and face keypoints)
+    cfg, sets, terms, weights, data = silhouette_inputs(model, list(keypoints), config or SilhouetteFitConfig(), model.dtype)
+    problems = [Problem.single(k, cam, m) for k, cam, m in zip(sets, cameras, fit_masks)]
+    sils = fit_silhouette_problems(model, problems, inits, keypoints[0].layout, cfg, pose_prior, renderer, progress,
+                                   terms=terms, weights=weights, data=data)  # fmt: skip
     out = []
     for i, sil in enumerate(sils):
         one = keypoint_result[i]
@@ -250,66 +244,106 @@ def refine_batch(
     return out
 
 
-def fit(
-    keypoints: Union[KeypointSet, np.ndarray],
-    mask: Optional[np.ndarray] = None,
-    camera: Optional[Camera] = None,
-    *,
-    image_size: Optional[tuple] = None,
-    focal: Optional[float] = None,
-    model=None,
-    pose_prior=None,
-    keypoint_config: Optional[KeypointFitConfig] = None,
-    silhouette_config: Optional[SilhouetteFitConfig] = None,
-    progress: bool = True,
-) -> FitResult:
-    """Fit SMPL to one image: keypoints (a :class:`KeypointSet` or ``[K, 3]`` array), then,
-    if ``mask [H, W]`` (bool) is given, refine against the silhouette.
-
-    ``camera`` or ``image_size=(W, H)`` (+ optional ``focal``) define the camera, as for
-    :func:`silfit.fit_keypoints`. ``model`` defaults to the shipped open body model.
-    """
-    if model is None:
-        from .body import load_body_model
-
-        model = load_body_model()
-    sets = prepare_keypoints(keypoints)
-    if len(sets) != 1:
-        raise ValueError(f"fit() takes one person's keypoints, got {len(sets)}; use fit_keypoints for batches")
-    if mask is not None and camera is None and image_size is None:
-        image_size = (mask.shape[1], mask.shape[0])
-    # plausibility (silfit.plausibility): drop far-outside keypoints, refuse degenerate sets, warn about the result
-    sets[0], plausibility_warnings = check_keypoints(sets[0], (camera.width, camera.height) if camera else image_size)
-    result = _fit(sets, mask, camera, image_size, focal, model, pose_prior, keypoint_config, silhouette_config, progress)
-    result.metrics["warnings"] += plausibility_warnings + fit_warnings(result.metrics, sets[0], result.vertices, result.params.get("betas")) \
-        + ambiguity_warnings((result.keypoint.branch_search or [None])[0])
+def fit_problem(model, keypoints: KeypointSet, camera: Camera, mask: Optional[np.ndarray] = None, **options) -> FitResult:
+    """One image's core (:func:`fit_problems` for one image; a failure raises)."""
+    (result,) = fit_problems(model, [keypoints], [camera], [mask], **options)
+    if isinstance(result, Exception):
+        raise result
     return result
 
 
-def _fit(sets, mask, camera, image_size, focal, model, pose_prior, keypoint_config, silhouette_config, progress):
-    fitter = KeypointFitter(model, sets[0].layout, keypoint_config, pose_prior)
-    kp_result = fitter.fit(sets, camera, image_size=image_size, focal=focal, progress=progress)
-    if mask is not None:
-        result = refine(model, kp_result, sets[0], np.asarray(mask, dtype=bool), silhouette_config,
-                        fitter.pose_prior, progress=progress)  # fmt: skip
-    else:
-        vertices, joints, kp2d = _pose(model, kp_result.params(0), sets[0].layout, kp_result.camera)
-        metrics = {
-            "stages": ["keypoints"],
-            "timings_s": {**{f"keypoints.{k}": float(v) for k, v in kp_result.timings.items()},
-                          "keypoints": _stage_seconds(kp_result.timings)},
-            "reprojection_error_px": _median_reprojection(kp2d, sets[0]),
-            "warnings": [],
-            **_run_record(kp_result),
-        }  # fmt: skip
-        result = FitResult(kp_result.camera, sets[0].layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d,
-                           metrics)  # fmt: skip
-    if fitter.whole_body:  # which parts were fitted, which held at rest
-        from .fitting.wholebody import wholebody_summary
+class StageFailure(Exception):
+    """One image of a batch failed in ``stage`` (``"keypoints"`` or ``"silhouette"``): the
+    original error is ``error``; after a failed silhouette stage, ``partial`` holds the keypoint
+    stage's :class:`FitResult`."""
 
-        result.metrics["whole_body"], notes = wholebody_summary(sets[0])
-        result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
-    return result
+    def __init__(self, stage: str, error: Exception, partial=None):
+        super().__init__(str(error))
+        self.stage, self.error, self.partial = stage, error, partial
+
+
+def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Camera], masks: Sequence[Optional[np.ndarray]],
+                 *, pose_prior=None, keypoint_config=None, silhouette_config=None, silhouette: bool = True,
+                 progress: bool = True, mask_sources: Optional[Sequence[str]] = None,
+                 isolate: bool = False) -> List[Union[FitResult, StageFailure]]:  # fmt: skip
+    """Images' cores, keypoints already checked (:func:`silfit.run.check`), one layout: the
+    keypoint stage batched over all images, the silhouette stage batched over those with a mask
+    (and ``silhouette``), each image's plausibility warnings
+    (:func:`silfit.plausibility.fit_warnings`, depth ambiguity). With ``isolate``, a failing
+    batch is fitted again image by image, and an image that still fails gets a
+    :class:`StageFailure` in its place; without, the first error raises."""
+    n = len(keypoints)
+    mask_sources = list(mask_sources or ["mask"] * n)
+    fitter = KeypointFitter(model, keypoints[0].layout, keypoint_config, pose_prior)
+    out: List[Union[FitResult, StageFailure, None]] = [None] * n
+
+    def each(rows, call, stage):
+        """``call(rows)`` -> one result per row; isolated: again row by row where the batch fails."""
+        try:
+            return list(zip(rows, call(rows)))
+        except Exception as err:  # noqa: BLE001 - which row failed is found by fitting them alone
+            if not isolate:
+                raise
+            if len(rows) == 1:
+                return [(rows[0], StageFailure(stage, err))]
+            return [pair for r in rows for pair in each([r], call, stage)]
+
+    def keypoint_stage(rows):  # per row: (the batch's result, its index there); timings shared out
+        kp = fitter.fit([keypoints[i] for i in rows], [cameras[i] for i in rows], progress=progress)
+        kp.timings = {k: float(v) / len(rows) for k, v in kp.timings.items()}
+        return [(kp, j) for j in range(len(rows))]
+
+    kp_results = dict(each(list(range(n)), keypoint_stage, "keypoints"))
+    ok = [i for i in range(n) if not isinstance(kp_results[i], StageFailure)]
+    sil = [i for i in ok if masks[i] is not None and silhouette]
+
+    def silhouette_stage(rows):
+        groups: dict = {}  # rows fitted in one keypoint batch are refined as one
+        for i in rows:
+            groups.setdefault(id(kp_results[i][0]), []).append(i)
+        done = {}
+        for group in groups.values():
+            batch = kp_results[group[0]][0].select([kp_results[i][1] for i in group])
+            fitted = refine_batch(model, batch, [keypoints[i] for i in group], [np.asarray(masks[i], dtype=bool) for i in group],
+                                  silhouette_config, fitter.pose_prior, progress=progress,
+                                  mask_sources=[mask_sources[i] for i in group])  # fmt: skip
+            done.update(zip(group, fitted))
+        return [done[i] for i in rows]
+
+    refined = dict(each(sil, silhouette_stage, "silhouette")) if sil else {}
+    for i in range(n):
+        kp = kp_results[i]
+        if isinstance(kp, StageFailure):
+            out[i] = kp
+            continue
+        result = refined[i] if i in refined else _keypoint_only(model, kp[0][kp[1]], keypoints[i])
+        if isinstance(result, StageFailure):
+            result.partial = _keypoint_only(model, kp[0][kp[1]], keypoints[i])
+            out[i] = result
+            continue
+        if fitter.whole_body:  # which parts were fitted, which held at rest
+            from .fitting.wholebody import wholebody_summary
+
+            result.metrics["whole_body"], notes = wholebody_summary(keypoints[i])
+            result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
+        result.metrics["warnings"] += fit_warnings(result.metrics, keypoints[i], result.vertices, result.params.get("betas")) \
+            + ambiguity_warnings((result.keypoint.branch_search or [None])[0])
+        out[i] = result
+    return out  # type: ignore[return-value]
+
+
+def _keypoint_only(model, kp_result: KeypointFitResult, keypoints: KeypointSet) -> FitResult:
+    """The :class:`FitResult` of a one-image keypoint-stage result (no silhouette stage)."""
+    vertices, joints, kp2d = _pose(model, kp_result.params(0), keypoints.layout, kp_result.camera)
+    metrics = {
+        "stages": ["keypoints"],
+        "timings_s": {**{f"keypoints.{k}": float(v) for k, v in kp_result.timings.items()},
+                      "keypoints": _stage_seconds(kp_result.timings)},
+        "reprojection_error_px": _median_reprojection(kp2d, keypoints),
+        "warnings": [],
+        **_run_record(kp_result),
+    }  # fmt: skip
+    return FitResult(kp_result.camera, keypoints.layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d, metrics)
 
 
 def save_fit(

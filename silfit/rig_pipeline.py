@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import List, Optional, Union
@@ -32,7 +33,7 @@ from .eval.metrics import mask_iou
 from .fitting.rig_fit import RigFit, fit_rig_keypoints
 from .outfolder import atomic_folder
 
-__all__ = ["RigResult", "fit_rig", "refine_rig_fits", "save_rig_fit", "view_vertices"]
+__all__ = ["RigResult", "fit_rig", "fit_rigs", "refine_rig_fits", "save_rig_fit", "view_vertices"]
 
 
 @dataclass
@@ -112,16 +113,34 @@ def fit_rig(problem, names, model=None, pose_prior=None, keypoint_config=None, s
             silhouette_config=None, progress: bool = False) -> RigResult:  # fmt: skip
     """Fit one rig problem (:func:`silfit.fitting.rig_fit.rig_problem`); ``names`` the views'
     names. With ``silhouette`` and at least one mask, the silhouette stage follows."""
+    return fit_rigs([problem], [names], model, pose_prior, keypoint_config, silhouette, silhouette_config, progress)[0]
+
+
+def fit_rigs(problems, names, model=None, pose_prior=None, keypoint_config=None, silhouette: bool = True,
+             silhouette_config=None, progress: bool = False) -> List[RigResult]:  # fmt: skip
+    """Fit rig problems of one keypoint layout (``names[i]``: problem ``i``'s view names): the
+    keypoint stage batched over them, then the silhouette stage batched over those with a mask
+    (with ``silhouette``); a result per problem, ``keypoint`` holding its keypoint-stage fit."""
     from .body import load_body_model
     from .fitting.keypoint_stage import KeypointFitter
 
     model = load_body_model() if model is None else model
-    layout = problem.observations[0].keypoints.layout
+    layout = problems[0].observations[0].keypoints.layout
     fitter = KeypointFitter(model, layout, keypoint_config, pose_prior)
-    kp = fit_rig_keypoints(fitter, [problem], progress=progress)[0]
-    if silhouette and any(o.mask is not None for o in problem.observations):
-        return refine_rig_fits(model, [(names, problem, kp)], silhouette_config, fitter.pose_prior, progress)[0]
-    return _keypoint_metrics(kp, problem, names, model.faces.cpu().numpy())
+    t0 = time.perf_counter()
+    kps = fit_rig_keypoints(fitter, list(problems), progress=progress)
+    share = (time.perf_counter() - t0) / len(problems)
+    for kp in kps:  # the batch's seconds shared out
+        kp.timings = {**kp.timings, "total": share}
+    faces = model.faces.cpu().numpy()
+    out = [_keypoint_metrics(kp, p, n, faces) for kp, p, n in zip(kps, problems, names)]
+    todo = [i for i, p in enumerate(problems) if silhouette and any(o.mask is not None for o in p.observations)]
+    if todo:
+        refined = refine_rig_fits(model, [(names[i], problems[i], kps[i]) for i in todo], silhouette_config, fitter.pose_prior,
+                                  progress)  # fmt: skip
+        for i, r in zip(todo, refined):
+            out[i] = r
+    return out
 
 
 def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool = False) -> List[RigResult]:

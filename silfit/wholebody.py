@@ -1,17 +1,7 @@
-"""Whole-body 2D keypoints: OpenPose's whole-body layout (BODY_25 + 2 x 21 hand + 70 face points), its
-sources on an SMPL-X-layout model, and reading / writing / validating OpenPose whole-body JSON.
-
-Sources on the model (:func:`wholebody_sources`):
-
-* hands (OpenPose order: wrist, then thumb, index, middle, ring, pinky, four points each from the base to
-  the tip): the wrist joint, the finger joints (``<side>_<finger>1..3``; the thumb's first is its CMC
-  joint, as SMPL-X and SMPLify-X take it) and a fingertip surface landmark (``<side>_<finger>_tip``);
-* face: the 68-point layout from :meth:`~silfit.body.smplx.SMPLXModel.face_landmarks` (landmark rows
-  ``face_00`` .. ``face_67``, or the official file's embedding with its dynamic contour), and the two
-  pupils (68 = right, 69 = left) at the eye joints (eyeball centres: the pupils' projection in views
-  towards the face);
-* body: BODY_25 as :func:`silfit.keypoints.model_keypoints` gives it.
-"""
+"""Whole-body 2D keypoints (OpenPose's whole-body layout: BODY_25 + 2 x 21 hand + 70 face points):
+reading, writing and validating OpenPose whole-body JSON, and choosing which keypoints a fit uses.
+The layout's parts and their sources on an SMPL-X-layout model are in :mod:`silfit.layouts` (their
+names are kept here too)."""
 from __future__ import annotations
 
 import json
@@ -21,9 +11,12 @@ from pathlib import Path
 from typing import Optional, Union
 
 import numpy as np
-import torch
 
-from .keypoints import BODY25_NAMES, WHOLEBODY_NAMES, KeypointSet, _triplets, keypoint_sources, model_keypoints
+from .keypoints import KeypointSet, _triplets
+from .layouts import (  # noqa: F401  (re-exported: silfit.wholebody's names kept)
+    BODY25_NAMES, FACE70_NAMES, FINGERS, HAND21_NAMES, PART_FIELDS, WHOLEBODY_NAMES, WHOLEBODY_PARTS, hand_names,
+    part_slices, wholebody_keypoints, wholebody_sources,
+)  # fmt: skip
 
 __all__ = [
     "FINGERS",
@@ -39,103 +32,6 @@ __all__ = [
     "read_wholebody",
     "write_wholebody_json",
 ]
-
-FINGERS = ("thumb", "index", "middle", "ring", "pinky")
-HAND21_NAMES = ("wrist",) + tuple(f"{f}{k}" for f in FINGERS for k in (1, 2, 3, 4))
-FACE70_NAMES = tuple(f"face_{k:02d}" for k in range(68)) + ("right_pupil", "left_pupil")
-#: OpenPose JSON field -> (part name, point count)
-PART_FIELDS = {
-    "pose_keypoints_2d": ("body", len(BODY25_NAMES)),
-    "hand_left_keypoints_2d": ("hand_left", len(HAND21_NAMES)),
-    "hand_right_keypoints_2d": ("hand_right", len(HAND21_NAMES)),
-    "face_keypoints_2d": ("face", len(FACE70_NAMES)),
-}
-
-
-#: The parts in the order of the ``wholebody`` keypoint layout (:data:`silfit.keypoints.WHOLEBODY_NAMES`).
-WHOLEBODY_PARTS = ("body", "hand_left", "hand_right", "face")
-assert WHOLEBODY_NAMES[25:46] == tuple(f"left_hand_{n}" for n in HAND21_NAMES) and WHOLEBODY_NAMES[67:] == FACE70_NAMES
-
-
-def part_slices() -> dict:
-    """``{part: slice}`` of each part's points in the ``wholebody`` layout."""
-    out, start = {}, 0
-    for (part, count) in PART_FIELDS.values():
-        out[part] = slice(start, start + count)
-        start += count
-    return out
-
-
-def wholebody_sources(model, prefer_landmarks: bool = False) -> list:
-    """``(kind, index)`` on ``model`` for each point of the ``wholebody`` layout (see
-    :func:`silfit.keypoints.keypoint_sources`): body as BODY_25, hands (wrist and finger joints, fingertip
-    landmarks), face (landmark rows ``face_NN``; ``("none", 0)`` for the jaw contour of a model whose
-    contour is dynamic) and the pupils (eye joints)."""
-    if getattr(model, "kind", "smpl") != "smplx":
-        raise ValueError(f"{model.source}: whole-body keypoints need an SMPL-X-layout model (this one is {model.kind})")
-    joint = {n: i for i, n in enumerate(model.joint_names)}
-    lmk = {n: i for i, n in enumerate(model.landmark_names)}
-    out = list(keypoint_sources(model, "body25", prefer_landmarks))
-    for side in ("left", "right"):
-        out.append(("joint", joint[f"{side}_wrist"]))
-        for f in FINGERS:
-            for k in (1, 2, 3):
-                name = f"{side}_{f}{k}"
-                if name not in joint:
-                    raise ValueError(f"{model.source}: the model has no joint for hand keypoint {name}")
-                out.append(("joint", joint[name]))
-            tip = f"{side}_{f}_tip"
-            if tip not in lmk:
-                raise ValueError(f"{model.source}: the model has no landmark for hand keypoint {tip}")
-            out.append(("landmark", lmk[tip]))
-    for k in range(68):
-        name = f"face_{k:02d}"
-        if name in lmk:
-            out.append(("landmark", lmk[name]))
-        elif k < 17 and getattr(model, "dynamic_lmk_faces_idx", None) is not None:
-            out.append(("none", 0))
-        else:
-            raise ValueError(f"{model.source}: this model has no face landmark {name}")
-    out += [("joint", joint["right_eye_smplhf"]), ("joint", joint["left_eye_smplhf"])]
-    return out
-
-
-def hand_names(side: str) -> tuple:
-    return tuple(f"{side}_{n}" for n in HAND21_NAMES)
-
-
-def _hand_points(model, output, side: str) -> torch.Tensor:
-    joint = {n: i for i, n in enumerate(model.joint_names)}
-    lmk = {n: i for i, n in enumerate(model.landmark_names)}
-    tips = [f"{side}_{f}_tip" for f in FINGERS]
-    missing = [n for n in tips if n not in lmk] + [
-        f"{side}_{f}{k}" for f in FINGERS for k in (1, 2, 3) if f"{side}_{f}{k}" not in joint
-    ]
-    if missing:
-        raise ValueError(f"{model.source}: the model has no joint or landmark for hand keypoint(s) {', '.join(missing[:4])}")
-    landmarks = model.landmarks(output.vertices)
-    cols = [output.joints[:, joint[f"{side}_wrist"]]]
-    for f in FINGERS:
-        cols += [output.joints[:, joint[f"{side}_{f}{k}"]] for k in (1, 2, 3)]
-        cols.append(landmarks[:, lmk[f"{side}_{f}_tip"]])
-    return torch.stack(cols, dim=1)
-
-
-def wholebody_keypoints(model, output, prefer_landmarks: bool = False) -> dict:
-    """3D whole-body keypoints of a whole-body model output: ``{"body": [B, 25, 3], "hand_left":
-    [B, 21, 3], "hand_right": [B, 21, 3], "face": [B, 70, 3]}`` in OpenPose's orders."""
-    if getattr(model, "kind", "smpl") != "smplx":
-        raise ValueError(f"{model.source}: whole-body keypoints need an SMPL-X-layout model (this one is {model.kind})")
-    joint = {n: i for i, n in enumerate(model.joint_names)}
-    face = model.face_landmarks(output)
-    pupils = output.joints[:, [joint["right_eye_smplhf"], joint["left_eye_smplhf"]]]
-    return {
-        "body": model_keypoints(model, output, "body25", prefer_landmarks),
-        "hand_left": _hand_points(model, output, "left"),
-        "hand_right": _hand_points(model, output, "right"),
-        "face": torch.cat([face, pupils], dim=1),
-    }
-
 
 @dataclass
 class WholeBodyKeypoints:

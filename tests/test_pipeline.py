@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from silfit.dataset import load_subject
-from silfit.pipeline import fit
+from silfit.run import fit
 
 SHIPPED = Path(__file__).resolve().parents[1] / "data" / "synthetic"
 

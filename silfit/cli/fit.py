@@ -1,21 +1,17 @@
-"""``silfit fit``: SMPL from one image's keypoints, refined against its silhouette.
+"""``silfit fit``: SMPL / SMPL-X from keypoints (one image or photo, a calibrated rig, or a
+video), refined against the person's silhouettes.
 
-Runs :func:`silfit.pipeline.fit` and writes the output folder described in
-:mod:`silfit.pipeline` (``params.npz``, ``params.json``, ``mesh.obj``, ``overlay.png``,
-``silhouette.png``, ``iou_curve.png``, ``metrics.json``, ``stages/keypoints/``) into
-``--out``, atomically: a failed run leaves no half-written output.
+The flags make a job (:mod:`silfit.cli.jobs`), :func:`silfit.run.run` fits it and
+:func:`silfit.run.write` writes the output folder into ``--out`` atomically (a failed run
+leaves no half-written output): the one image's folder of :mod:`silfit.pipeline`, the rig's
+of :mod:`silfit.rig_pipeline`, the video's of :func:`silfit.video.save_sequence_fit`.
 """
 from __future__ import annotations
 
-import os
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
-
-import numpy as np
 
 from . import CLIError, note, warn
-from .common import choose_model, export_formats, save_leaving_nothing_on_error, silhouette_config  # noqa: F401
+from .common import export_formats, save_leaving_nothing_on_error
 
 
 def _int_list(text: str) -> tuple:
@@ -84,168 +80,27 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def _image_size(args):
-    if args.image:
-        from ..imagefile import read_rgb
-
-        img = read_rgb(args.image, "image")
-        return img, (img.shape[1], img.shape[0])
-    if args.image_size:
-        from ..input_limits import check_image_size
-
-        try:
-            w, h = (int(v) for v in args.image_size.lower().split("x"))
-        except ValueError:
-            raise CLIError(f"--image-size {args.image_size!r}: expected WxH, e.g. 640x480") from None
-        check_image_size(w, h, "--image-size", field="image size")
-        return None, (w, h)
-    return None, None
-
-
-def _person(text: str):
-    if text == "largest":
-        return text
-    try:
-        return int(text)
-    except ValueError:
-        raise CLIError(f"--person {text!r}: expected a person index (0, 1, ...) or 'largest'") from None
-
-
-@dataclass
-class FitInputs:
-    """Everything ``silfit fit`` reads, validated (see :func:`load_inputs`)."""
-
-    keypoints: object
-    image: Optional[np.ndarray]
-    size: Optional[tuple]
-    camera: object
-    mask: Optional[np.ndarray]
-    model: object
-    pose_prior: object
-    silhouette_config: object
-    focal: Optional[float] = None
-    camera_source: str = "default max(W, H)"
-    photo: Optional[dict] = None
-
-
-def load_inputs(args) -> FitInputs:
-    """Read and check every input file and option of ``silfit fit`` (nothing is fitted or
-    written): keypoints, image, camera, mask, body model, pose prior, silhouette settings."""
-    from ..camera import Camera, camera_from_dict
-    from ..errors import InputError
-    from ..keypoints import read_keypoints
-    from ..wholebody import read_wholebody_parts
-    from ..priors import load_pose_prior
-    from ..silhouette.masks import read_mask
-
-    if args.mask and args.no_silhouette:
-        raise CLIError("--mask and --no-silhouette contradict each other")
-    out = Path(args.out)
-    if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
-        raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
-    person = _person(args.person)
-    # From a photo (silfit.detect): EXIF focal length; keypoints and mask when not given.
-    photo = None
-    if args.image:
-        from .detect import photo_inputs
-
-        photo = photo_inputs(args.image, person, not args.keypoints, not (args.mask or args.no_silhouette),
-                             getattr(args, "detected", None))  # fmt: skip
-    elif not args.keypoints:
-        raise CLIError("no keypoints: give --keypoints KP.json, or --image PHOTO to detect them")
-    keypoints = read_keypoints(args.keypoints, person=person) if args.keypoints else photo["keypoints"]
-    image, size = (photo["image"], photo["size"]) if photo else _image_size(args)
-    camera, extrinsics_note = None, ""
-    if args.camera:  # R, t (optional) checked as for rigs; one image is fitted in its camera's frame
-        from ..camera import read_camera_file
-
-        camera, R, t = read_camera_file(args.camera)
-        if R is not None and (np.abs(R - np.eye(3)).max() > 1e-9 or np.abs(t).max() > 1e-9):
-            extrinsics_note = " (its R, t not applied: one image is fitted in the camera's frame; --rig fits in the world frame)"
-    if camera is not None and size is not None and tuple(size) != (camera.width, camera.height):
-        raise CLIError(f"{args.camera}: camera is {camera.width}x{camera.height} but the image is {size[0]}x{size[1]}")
-    mask = None
-    if args.mask:
-        expected = (camera.width, camera.height) if camera is not None else size
-        mask = read_mask(args.mask, size=expected)
-        size = size or (mask.shape[1], mask.shape[0])
-    elif photo and photo["mask"] is not None:
-        mask = photo["mask"]
-    focal, camera_source = args.focal, "camera file" + extrinsics_note if camera else ("--focal" if args.focal else "default max(W, H)")
-    if extrinsics_note:
-        warn(f"{args.camera}: camera R, t not applied: one image is fitted in the camera's frame")
-    if camera is None and focal is None and photo and photo["focal"]:
-        focal, camera_source = photo["focal"], photo["focal_source"]
-    if camera is None and size is None:
-        raise CLIError("no camera: give --camera C.json, or --image / --image-size / --mask for the default camera")
-    if args.focal is not None:  # the same plausibility bounds as a camera file's focal length
-        base = camera or Camera.from_image_size(*size)
-        camera_from_dict({**base.to_dict(), "fx": args.focal, "fy": args.focal}, "--focal")
-
-    from ..wholebody import choose_fit_keypoints
-
-    wholebody = read_wholebody_parts(args.keypoints, person) if args.keypoints else None
-    model, model_note = choose_model(args.model, args.gender, wholebody is not None and wholebody.has_parts)
-    if model_note:
-        note(model_note)
-    keypoints, choice_note = choose_fit_keypoints(keypoints, wholebody, model)
-    if choice_note:
-        note(choice_note)
-    pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
-    if getattr(pose_prior, "dim", model.num_body_pose) < model.num_body_pose:
-        raise InputError(args.pose_prior or "--pose-prior (default)", f"the pose prior is over {pose_prior.dim} values, the model's body_pose has "
-                         f"{model.num_body_pose}", field="means")  # fmt: skip
-    sil_config = silhouette_config(args)
-    return FitInputs(keypoints, image, size, camera, mask, model, pose_prior, sil_config, focal, camera_source, photo)
-
-
 def run(args) -> int:
-    if getattr(args, "views", None) and not getattr(args, "rig", None):
-        raise CLIError("--views picks cameras of a rig; give --rig DIR")
-    if getattr(args, "export", None) and getattr(args, "rig", None):
-        raise CLIError("--export with --rig: not available (a rig's world frame has no fixed up axis); mesh.obj holds the body")
-    export_formats(args)
-    if args.sequence and getattr(args, "rig", None):
-        raise ValueError("--sequence with --rig: fitting a rig's video is not available; choose one")
-    if args.sequence:
-        from .sequence import run_sequence
+    """Build the job (:mod:`silfit.cli.jobs`), check it, fit it (:func:`silfit.run.run`) and
+    write its folder (:func:`silfit.run.write`); the same for one image, a rig and a video."""
+    from ..run import check, run as run_job, write
+    from .jobs import build_job, describe_inputs
 
-        return run_sequence(args)
-    from ..pipeline import fit, save_fit
-
-    if getattr(args, "rig", None):
-        from .fit_rig import run_rig
-
-        return run_rig(args)
     if getattr(args, "people", None) == "all":
         return _run_people(args)
-    inp = load_inputs(args)
+    exports = export_formats(args)
+    job = build_job(args)
     if args.check_only:
-        from ..plausibility import check_keypoints
-
-        _, warnings = check_keypoints(inp.keypoints, inp.camera.size if inp.camera else inp.size)
-        for warning in (inp.photo["warnings"] if inp.photo else []) + warnings:
+        for warning in check(job).warnings:
             warn(warning)
-        print("inputs OK")
+        print(describe_inputs(check(job)))
         return 0
-    out, model, keypoints, image, mask = Path(args.out), inp.model, inp.keypoints, inp.image, inp.mask
-    result = fit(keypoints, mask, inp.camera, image_size=inp.size, focal=inp.focal, model=model,
-                 pose_prior=inp.pose_prior, silhouette_config=inp.silhouette_config, progress=not args.quiet)  # fmt: skip
-    extra = {"keypoints": args.keypoints and os.fspath(args.keypoints), "mask": args.mask, "image": args.image,
-             "model": model.source, "camera_source": inp.camera_source}  # fmt: skip
-    photo = inp.photo
-    if photo and (photo["metrics"] or photo["warnings"]):
-        extra.update(photo["metrics"], warnings=photo["warnings"] + result.metrics.get("warnings", []))
-        result.metrics["warnings"] = extra["warnings"]
-    save_leaving_nothing_on_error(
-        out, lambda: save_fit(result, out, model.faces.cpu().numpy(), keypoints, image, mask, extra, overwrite=args.overwrite,
-                             exports=export_formats(args)))
-    m = result.metrics
-    line = f"wrote {out}: median reprojection error {m['reprojection_error_px']:.2f} px"
-    if "iou" in m:
-        line += f", IoU {m['iou_keypoint_stage']:.3f} -> {m['iou']:.3f}"
-    print(line)
-    for warning in m.get("warnings", []):
+    fit = run_job(job)
+    out = Path(args.out)
+    save_leaving_nothing_on_error(out, lambda: write(fit, out, overwrite=args.overwrite, exports=exports, meshes=args.meshes,
+                                                     video=not args.no_video, fps=args.fps))  # fmt: skip
+    print(f"wrote {out}: {fit.summary()}")
+    for warning in fit.warnings:
         warn(warning)
     return 0
 

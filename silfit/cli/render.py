@@ -22,8 +22,6 @@ temporary file and renamed, so an error leaves no partial PNG behind.
 """
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 from typing import Optional
 
@@ -103,8 +101,12 @@ def load_vertices(args) -> tuple[list, np.ndarray, Optional[object]]:
 
         from silfit.fitio import read_fit
 
-        model = fit_model(None if args.model else read_fit(path, require=()), args.model)
-        fit = read_fit(path, require=(), sizes={**model.parameter_sizes, "betas": None})
+        if args.model:  # the file read once, checked against the model given
+            model = fit_model(None, args.model)
+            fit = read_fit(path, require=(), sizes={**model.parameter_sizes, "betas": None})
+        else:  # checked against the model it records
+            fit = read_fit(path, require=())
+            model = fit_model(fit, None)
         frames = _frames(args.frame, fit.num_frames, path)
         R, t = fit.extrinsics[0] if fit.extrinsics else (np.eye(3), np.zeros(3))
         out = []
@@ -135,27 +137,11 @@ def read_image(path: str) -> np.ndarray:
     return read_rgb(path, "image")
 
 
-# --------------------------------------------------------------------------- outputs
 def write_png(path: Path, image: np.ndarray) -> None:
-    """Write ``image`` to ``path`` through a temporary file in the same folder + rename."""
-    from PIL import Image
+    """The one PNG writer (:func:`silfit.dataset.write_png`: atomic, no partial file on error)."""
+    from silfit.dataset import write_png as write
 
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png.tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            Image.fromarray(image).save(fh, format="PNG")
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the usual mode
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+    write(path, image)
 
 
 def render_outputs(args) -> dict[str, np.ndarray]:

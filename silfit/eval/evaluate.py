@@ -274,9 +274,10 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
     shared when both methods are asked for). Returns ``{method: status}``; raises
     :class:`FitterUnavailable` when nothing can run."""
     from ..fitting import KeypointFitter, prepare_keypoints
+    from ..fitting.problem import Problem
     from ..outfolder import atomic_folder
-    from ..pipeline import body_mask, refine_batch, save_fit
-    from ..silhouette.masks import validate_mask
+    from ..pipeline import StageFailure, save_fit
+    from ..run import Job, run_batch
 
     unknown = [m for m in methods if m not in ("keypoints", "silhouette")]
     if unknown:
@@ -289,68 +290,56 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
         sets = [choose_fit_keypoints(s.keypoints, read_wholebody_parts(s.file("keypoints"), 0), model)[0] for s in subjects]
     else:
         sets = prepare_keypoints([s.keypoints for s in subjects])
-    fitter = KeypointFitter(model, sets[0].layout)
-    result = fitter.fit(sets, [s.camera for s in subjects], progress=progress)
-    kp_elapsed = time.perf_counter() - t0
-    kp_timings = {k: float(v) / len(subjects) for k, v in result.timings.items()}
-    kp_timings.setdefault("total", kp_elapsed / len(subjects))
+    # every subject through the one path (silfit.run): both stages batched, in chunks of silhouette_batch
+    chunk = max(1, int(silhouette_batch)) if "silhouette" in methods else len(subjects)
+    jobs = [Job(Problem.single(k, s.camera, s.mask), model, silhouette="silhouette" in methods, progress=progress,
+                mask_sources={(0, 0): str(s.file("mask"))}) for k, s in zip(sets, subjects)]  # fmt: skip
+    fits = [f for c in range(0, len(jobs), chunk) for f in run_batch(jobs[c : c + chunk], isolate=True)]
+    for f in fits:
+        if isinstance(f, StageFailure) and f.stage == "keypoints" or isinstance(f, Exception) and not isinstance(f, StageFailure):
+            raise f.error if isinstance(f, StageFailure) else f
+    elapsed = time.perf_counter() - t0
     search = [None] * len(subjects)
     if all(s.gt is not None for s in subjects):  # the keypoint-stage energy at the truth vs at the fit
+        fitter = KeypointFitter(model, sets[0].layout)
         truth = {k: np.stack([s.gt.params()[k][0] for s in subjects]) for k in model.parameter_names}
         e_truth, _ = fitter.energy_at(truth, sets, [s.camera for s in subjects])
-        e_fit = result.energies[fitter.stages[-1].name]
+        last = fitter.stages[-1].name
+        e_fit = [float(_keypoint_result(f).energies[last][0]) for f in fits]
         search = [{"energy_fit": float(a), "energy_truth": float(b)} for a, b in zip(e_fit, e_truth)]
     if "keypoints" in methods:
         for i, s in enumerate(subjects):  # each fit folder is written beside its place, then moved in
+            kp = _keypoint_result(fits[i])
             with atomic_folder(Path(fits_root) / s.name / "keypoints", overwrite=True) as tmp:
-                result[i].save(tmp)
-                record = {"timings": kp_timings, "batched_over": len(subjects), "search": search[i]}
+                kp.save(tmp)
+                record = {"timings": {k: float(v) for k, v in kp.timings.items()}, "batched_over": min(chunk, len(subjects)),
+                          "search": search[i]}  # fmt: skip
                 (tmp / "metrics.json").write_text(json.dumps(record, indent=2))
-        status["keypoints"] = f"ran on {len(subjects)} subjects in {kp_elapsed:.1f} s (batched; per-subject times are batch averages)"
+        status["keypoints"] = f"ran on {len(subjects)} subjects in {elapsed:.1f} s (batched; per-subject times are batch averages)"
     if "silhouette" in methods:
         faces = model.faces.cpu().numpy()
         ran, failed = 0, []
-        todo = []
-        for i, s in enumerate(subjects):
+        for i, (s, f) in enumerate(zip(subjects, fits)):
             if s.mask is None:
                 failed.append(f"{s.name}: no mask")
-                continue
-            try:  # the checks refine_batch makes, per subject, so one bad mask fails one subject
-                validate_mask(s.mask, str(s.file("mask")), size=(s.camera.width, s.camera.height))
-                if mask_iou(body_mask(result.vertices[i], faces, result.cameras[i]), s.mask) == 0.0:
-                    raise ValueError(f"{s.file('mask')}: the mask does not overlap the body fitted to the keypoints at all")
-            except ValueError as err:
-                failed.append(f"{s.name}: {err}")
-                continue
-            todo.append(i)
-        for start in range(0, len(todo), max(1, int(silhouette_batch))):
-            idx = todo[start : start + max(1, int(silhouette_batch))]
-            chunk = [subjects[i] for i in idx]
-            def refine_some(rows):
-                return refine_batch(model, result.select(rows), [sets[i] for i in rows],
-                                    [subjects[i].mask for i in rows], pose_prior=fitter.pose_prior, progress=progress,
-                                    mask_sources=[str(subjects[i].file("mask")) for i in rows])  # fmt: skip
-
-            try:
-                fitted_all = refine_some(idx)
-            except ValueError:  # one subject's problem: refine them one by one, so it fails alone
-                fitted_all = []
-                for i in idx:
-                    try:
-                        fitted_all += refine_some([i])
-                    except ValueError as err:
-                        failed.append(f"{subjects[i].name}: {err}")
-                        fitted_all.append(None)
-            for i, s, fitted in zip(idx, chunk, fitted_all):
-                if fitted is None:
-                    continue
-                timings = {"keypoints": kp_timings["total"], "silhouette": fitted.silhouette.seconds}
+            elif isinstance(f, StageFailure):
+                failed.append(f"{s.name}: {f.error}")
+            else:
+                kp_total = float(f.stage.keypoint.timings.get("total", 0.0))
+                timings = {"keypoints": kp_total, "silhouette": f.stage.silhouette.seconds}
                 timings["total"] = sum(timings.values())
-                save_fit(fitted, Path(fits_root) / s.name / "silhouette", faces, sets[i], s.image, s.mask,
+                save_fit(f.stage, Path(fits_root) / s.name / "silhouette", faces, sets[i], s.image, s.mask,
                          {"timings": timings, "search": search[i]}, overwrite=True)  # fmt: skip
                 ran += 1
         status["silhouette"] = f"ran on {ran} subjects" + (f"; failed: {'; '.join(failed)}" if failed else "")
     return status
+
+
+def _keypoint_result(fit):
+    """The keypoint stage's result of a :class:`silfit.run.Fit` (or of a failed silhouette stage)."""
+    from ..pipeline import StageFailure
+
+    return (fit.partial if isinstance(fit, StageFailure) else fit.stage).keypoint
 
 
 # ----------------------------------------------------------------------------- a dataset

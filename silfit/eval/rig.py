@@ -91,48 +91,41 @@ def score_rig_fit(model, views, problem, gt: dict, params: dict, iou: bool = Tru
 
 def run_rig_fitter(subject_dirs: Sequence[Path], fits_root: Path, methods: Sequence[str], model, views: Optional[int] = None,
                    progress: bool = False) -> dict:  # fmt: skip
-    """Fit every rig subject (the keypoint stage batched over subjects; ``views``: only the
-    first ``views`` cameras), write ``fits_root/<subject>/<method>/``; returns a status."""
-    from ..fitting.keypoint_stage import KeypointFitter
-    from ..fitting.problem import Problem
-    from ..fitting.rig_fit import fit_rig_keypoints, rig_problem
+    """Fit every rig subject through :func:`silfit.run.run_batch` (the keypoint stage batched
+    over subjects, then the silhouette stage; ``views``: only the first ``views`` cameras), write
+    ``fits_root/<subject>/<method>/`` (``keypoints``: the keypoint stage's fit, ``silhouette``:
+    the final one); returns a status."""
+    from ..fitting.rig_fit import rig_problem
     from ..rig import load_rig
-    from ..rig_pipeline import RigResult, save_rig_fit
+    from ..rig_pipeline import _keypoint_metrics, save_rig_fit
+    from ..run import Job, run_batch
 
     unknown = [m for m in methods if m not in ("keypoints", "silhouette")]
     if unknown:
         raise ValueError(f"unknown method(s) {', '.join(unknown)} (expected keypoints, silhouette)")
-    loaded = []
+    jobs = []
     for d in subject_dirs:
         v = load_rig(d)[: views or None]
-        loaded.append((d, v, rig_problem(v)))
-    fitter = KeypointFitter(model)
+        jobs.append(Job(rig_problem(v), model, [x.name for x in v], silhouette="silhouette" in methods, progress=progress,
+                        rig=True, record={"subject": d.name}))  # fmt: skip
     t0 = time.perf_counter()
-    fits = fit_rig_keypoints(fitter, [p for _, _, p in loaded], progress=progress)
-    per = (time.perf_counter() - t0) / len(loaded)
+    fits = run_batch(jobs)
     faces = model.faces.cpu().numpy()
-    for (d, v, p), f in zip(loaded, fits):
-        names = [x.name for x in v]
-        res = RigResult(names, f.params, f.vertices, f.joints, f, None, {"timings": {"keypoints": per, "total": per}})
+    for d, fit in zip(subject_dirs, fits):
+        r, p = fit.stage, fit.job.problem
+        per = float(r.keypoint.timings["total"])
         if "keypoints" in methods:
-            save_rig_fit(res, fits_root / d.name / "keypoints", faces, p, overwrite=True, model=model)
-    status = {"keypoints": f"ran on {len(loaded)} subjects in {per * len(loaded):.1f} s (batched)"}
+            kp = _keypoint_metrics(r.keypoint, p, list(fit.job.view_names), faces)
+            kp.metrics["timings"] = {"keypoints": per, "total": per}
+            save_rig_fit(kp, fits_root / d.name / "keypoints", faces, p, overwrite=True, model=model)
+        if "silhouette" in methods and r.silhouette is not None:
+            sil = float(r.metrics["timings"]["silhouette"])
+            r.metrics["timings"] = {"keypoints": per, "silhouette": sil, "total": per + sil}
+            save_rig_fit(r, fits_root / d.name / "silhouette", faces, p, overwrite=True, model=model)
+    status = {"keypoints": f"ran on {len(jobs)} subjects in {time.perf_counter() - t0:.1f} s (batched, both stages)"}
     if "silhouette" in methods:
-        status["silhouette"] = _run_silhouettes(loaded, fits, fits_root, model, fitter, per, progress)
+        status["silhouette"] = f"ran on {sum(f.stage.silhouette is not None for f in fits)} subjects"
     return status
-
-
-def _run_silhouettes(loaded, fits, fits_root, model, fitter, kp_seconds, progress) -> str:
-    from ..rig_pipeline import refine_rig_fits, save_rig_fit
-
-    faces = model.faces.cpu().numpy()
-    results = refine_rig_fits(model, [(v, p, f) for (_, v, p), f in zip(loaded, fits)], pose_prior=fitter.pose_prior,
-                              progress=progress)  # fmt: skip
-    for (d, v, p), r in zip(loaded, results):
-        r.metrics["timings"] = {"keypoints": kp_seconds, "silhouette": r.metrics["timings"]["silhouette"],
-                                "total": kp_seconds + r.metrics["timings"]["silhouette"]}  # fmt: skip
-        save_rig_fit(r, fits_root / d.name / "silhouette", faces, p, overwrite=True, model=model)
-    return f"ran on {len(results)} subjects"
 
 
 def _timings(folder: Path) -> dict:

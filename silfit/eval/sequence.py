@@ -92,8 +92,9 @@ def evaluate_sequences(dataset: os.PathLike, fits: Optional[os.PathLike] = None,
     exists: ``FITS/<seq>/temporal/``, written by :func:`silfit.video.save_sequence_fit`)."""
     from ..body import load_body_model
     from ..camera import load_camera
-    from ..fitting.sequence import fit_sequence
-    from ..video import read_sequence, save_sequence_fit
+    from ..run import run as run_job
+    from ..run import video_job, write
+    from ..video import read_sequence
 
     root = Path(dataset)
     index = _index(root)
@@ -117,9 +118,10 @@ def evaluate_sequences(dataset: os.PathLike, fits: Optional[os.PathLike] = None,
         try:
             gt = _load_npz(d / "gt.npz")
             if run or not (out / "params.npz").is_file():
-                seq = read_sequence(d)
-                r = fit_sequence(seq.frames, load_camera(d / "camera.json"), model, config=config)
-                save_sequence_fit(r, out, model, seq, video=False, overwrite=True)
+                seq = read_sequence(d)  # through the one path (silfit.run), as silfit fit --sequence
+                job = video_job(seq.frames, load_camera(d / "camera.json"), model, config=config, progress=False,
+                                numbers=seq.numbers, inputs=seq, warnings=seq.warnings)  # fmt: skip
+                write(run_job(job), out, video=False, overwrite=True)
             metrics = json.loads((out / "metrics.json").read_text(encoding="utf-8"))
             fit = read_fit(out, sizes={**model.parameter_sizes, "betas": None})
             per = read_fit(out / "stages" / "per_frame", sizes={**model.parameter_sizes, "betas": None})

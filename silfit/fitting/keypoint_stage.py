@@ -57,7 +57,8 @@ from .wholebody import choose_hand_starts, part_gates, wholebody_terms
 from .branches import limb_hypotheses
 from .problem import ParameterLayout, Problem, stack_views
 from .result import PARAM_NAMES, KeypointFitResult
-from .stages import Stage, check_stages, run_lbfgs_stage, stage_to_dict
+from .aliases import Alias, renamed_fields
+from .stages import Stage, check_stages, run_stage, stage_to_dict
 from .terms import (
     DepthTerm, Energy, InterpenetrationTerm, JointSmoothnessTerm, KeypointTerm, PriorTerm, RootSmoothnessTerm, evaluate,
 )  # fmt: skip
@@ -76,6 +77,20 @@ WHOLEBODY_HAND_PARAMS = ("left_hand_pose", "right_hand_pose")
 WHOLEBODY_FACE_PARAMS = ("jaw_pose", "expression")
 
 
+def _pose_stage_weights(current, value, keywords):
+    """``pose_prior_weights`` (the pose stages' pose-prior weights) onto ``pose_weight``."""
+    n = len(keywords.get("pose_iters", KeypointFitConfig.__dataclass_fields__["pose_iters"].default))
+    if len(value) != n:
+        angle = keywords.get("angle_prior_weights", KeypointFitConfig.__dataclass_fields__["angle_prior_weights"].default)
+        raise ValueError(f"KeypointFitConfig: pose_iters ({n}), pose_prior_weights ({len(value)}) and angle_prior_weights "
+                         f"({len(angle)}) must have the same non-zero length")  # fmt: skip
+    return tuple(value) + (tuple(current)[-1],)
+
+
+@renamed_fields(
+    pose_prior_weights=Alias("pose_weight", lambda w: tuple(w)[:-1], _pose_stage_weights),
+    final_pose_prior_weight=Alias("pose_weight", lambda w: tuple(w)[-1], lambda w, v, kw: tuple(w)[:-1] + (float(v),)),
+)
 @dataclass
 class KeypointFitConfig:
     """Weights and iteration counts of the keypoint stage (defaults tuned on synthetic data)."""
@@ -100,17 +115,20 @@ class KeypointFitConfig:
     robust: bool = True  # False: plain L2 data term (for comparisons)
     camera_iters: int = 30
     pose_iters: Sequence[int] = (30, 30, 40)
-    #: Annealed pose-prior weights, tuned for the shipped library mixture
+    #: Annealed pose-prior weights of the pose stages, tuned for the shipped library mixture
     #: (:class:`~silfit.priors.LibraryMixturePrior`; about 10x the weights that suited the
     #: old split-normal default, whose energies are on a similar scale but which needed less
     #: pull; see ``benchmarks/bench_fit.py``). With ``pose_prior="limits"`` or SMPLify's
     #: ``gmm_08.pkl`` consider lower weights (the old defaults were 200, 40, 8 and 4).
-    pose_prior_weights: Sequence[float] = (2000.0, 400.0, 80.0)
+    #: Then the final stage's (one name for the pose prior's weight, issue 26: ``pose_weight`` here,
+    #: in :class:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig` and in
+    #: :class:`~silfit.fitting.sequence.SequenceFitConfig`; the old ``pose_prior_weights`` (the pose
+    #: stages') and ``final_pose_prior_weight`` still work).
+    pose_weight: Sequence[float] = (2000.0, 400.0, 80.0, 40.0)
     angle_prior_weights: Sequence[float] = (10.0, 5.0, 2.0)
     shape_iters: int = 20
     shape_weight: float = 20.0
     final_iters: int = 40
-    final_pose_prior_weight: float = 40.0
     final_angle_prior_weight: float = 1.0
     final_shape_weight: float = 5.0
     limit_weight: float = 1e4
@@ -173,10 +191,11 @@ class KeypointFitConfig:
 
     def __post_init__(self):
         n = len(self.pose_iters)
-        if not (len(self.pose_prior_weights) == len(self.angle_prior_weights) == n) or n == 0:
+        self.pose_weight = tuple(float(w) for w in self.pose_weight)
+        if not (len(self.pose_weight) - 1 == len(self.angle_prior_weights) == n) or n == 0:
             raise ValueError(
-                f"KeypointFitConfig: pose_iters ({n}), pose_prior_weights ({len(self.pose_prior_weights)}) and "
-                f"angle_prior_weights ({len(self.angle_prior_weights)}) must have the same non-zero length"
+                f"KeypointFitConfig: pose_iters ({n}), pose_weight ({len(self.pose_weight)}: one per pose stage, then "
+                f"the final stage's) and angle_prior_weights ({len(self.angle_prior_weights)}) do not match"
             )
         if not 0 <= int(self.flip_decision_stage) < n:
             raise ValueError(f"KeypointFitConfig: flip_decision_stage {self.flip_decision_stage} is not a pose stage (0..{n - 1})")
@@ -212,7 +231,8 @@ class KeypointFitConfig:
         """The schedule as data: camera, pose_1..n (annealed priors; the best start of each
         sample is kept ``decision_iters`` steps into pose stage ``flip_decision_stage``),
         shape, final (everything, with interpenetration); with ``whole_body`` the hand and
-        face terms and parameters join as the module docstring says."""
+        face terms and parameters join as the module docstring says. The defaults give the literal
+        tables :data:`~silfit.fitting.schedules.KEYPOINT_SCHEDULE` and ``WHOLEBODY_KEYPOINT_SCHEDULE``."""
         if self.schedule is not None:
             return tuple(self.schedule)
         n = len(self.pose_iters)
@@ -221,7 +241,7 @@ class KeypointFitConfig:
         fw = tuple(self.face_weights if self.face_weights is not None else ramp) if whole_body else (0.0,) * n
         pose_free = ("global_orient", "transl", "body_pose")
         out = [Stage("camera", ("global_orient", "transl"), {"torso": 1.0, "depth": self.depth_weight}, self.camera_iters)]
-        for i, (it, wp, wa) in enumerate(zip(self.pose_iters, self.pose_prior_weights, self.angle_prior_weights)):
+        for i, (it, wp, wa) in enumerate(zip(self.pose_iters, self.pose_weight[:-1], self.angle_prior_weights)):
             opts = {"decide_after": int(self.decision_iters)} if i == self.flip_decision_stage else {}
             weights = {"keypoints": 1.0, "pose": wp, "angle": wa, "limits": self.limit_weight}
             if hw[i] and not any(hw[:i]):  # hands start from their best library pose, fitted alone first
@@ -249,7 +269,7 @@ class KeypointFitConfig:
             out.append(Stage("shape", ("betas", "transl"), w, self.shape_iters))
         if self.final_iters:
             w = {
-                "keypoints": 1.0, "pose": self.final_pose_prior_weight, "angle": self.final_angle_prior_weight,
+                "keypoints": 1.0, "pose": self.pose_weight[-1], "angle": self.final_angle_prior_weight,
                 "limits": self.limit_weight, "shape": self.final_shape_weight,
                 "interpenetration": self.interpenetration_weight,
             }  # fmt: skip
@@ -554,7 +574,8 @@ class KeypointFitter:
                     d[k] = d[k][rows] if isinstance(d[k], torch.Tensor) else {t: v[rows] for t, v in d[k].items()}
 
         def run(stage, iters=None, name=None):
-            r = run_lbfgs_stage(stage, state, layout, self.energy, self.body, views, data, iters, cfg.history, progress)
+            r = run_stage(stage, state, layout, self.energy, self.body, views, data, iterations=iters, history=cfg.history,
+                          progress=progress)  # fmt: skip
             return record(name or stage.name, r)
 
         chosen_branches = [[] for _ in range(B)]

@@ -1,4 +1,4 @@
-"""A batched L-BFGS with one independent optimiser per sample.
+"""Batched optimisers with one independent optimiser per sample (row): L-BFGS and Adam.
 
 ``torch.optim.LBFGS`` over a batch shares one line search and one curvature history
 between all samples, so a sample's trajectory depends on the others (and one hard
@@ -9,11 +9,13 @@ same result as fitting each sample alone, up to floating-point rounding.
 """
 from __future__ import annotations
 
-from typing import Callable, Optional
+import math
+from typing import Callable, Mapping, Optional
 
+import numpy as np
 import torch
 
-__all__ = ["batched_lbfgs"]
+__all__ = ["BatchedAdam", "Plateau", "batched_lbfgs", "learning_rate_factor"]
 
 Energy = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 
@@ -126,3 +128,58 @@ def batched_lbfgs(
         if callback is not None:
             callback(it, f)
     return x, f, iters
+
+
+class BatchedAdam:
+    """Adam with per-row step counts and moments over parameter groups ``params``
+    (``{name: [B, ...]}``, each with its own learning rate): :meth:`step` updates only the
+    rows it is told to, so a row that stopped is left exactly as it is, and a batch equals
+    single runs. The state lives as long as the object (a schedule's Adam stages can share it)."""
+
+    def __init__(self, params: dict, lr: Mapping[str, float], betas=(0.9, 0.999), eps: float = 1e-8):
+        self.params, self.lr, self.b1, self.b2, self.eps = params, dict(lr), betas[0], betas[1], eps
+        B = next(iter(params.values())).shape[0]
+        self.t = torch.zeros(B, dtype=torch.long)
+        self.m = {k: torch.zeros_like(v) for k, v in params.items()}
+        self.v = {k: torch.zeros_like(v) for k, v in params.items()}
+
+    def step(self, rows: torch.Tensor, factor: float = 1.0, lr: Optional[Mapping[str, float]] = None) -> None:
+        """One step of rows ``rows`` from the parameters' ``.grad``; learning rates ``lr`` (default:
+        the constructor's) times ``factor`` (a schedule's warm-up or decay)."""
+        lr = self.lr if lr is None else lr
+        self.t[rows] += 1
+        t = self.t[rows].to(torch.float64)
+        with torch.no_grad():
+            for k, p in self.params.items():
+                g = p.grad[rows]
+                m = self.m[k][rows].mul_(self.b1).add_(g, alpha=1 - self.b1)
+                v = self.v[k][rows].mul_(self.b2).addcmul_(g, g, value=1 - self.b2)
+                self.m[k][rows], self.v[k][rows] = m, v
+                shape = (-1,) + (1,) * (p.dim() - 1)
+                bc1 = (1 - self.b1 ** t).to(p.dtype).reshape(shape)
+                bc2 = (1 - self.b2 ** t).sqrt().to(p.dtype).reshape(shape)
+                p[rows] -= (lr[k] * factor / bc1) * m / (v.sqrt() / bc2 + self.eps)
+
+
+def learning_rate_factor(step: int, steps: int, warmup: int) -> float:
+    """Linear warm-up over ``warmup`` steps (Adam's first steps are full-size sign steps),
+    then a cosine decay to 10 % at the end of ``steps``."""
+    ramp = min(1.0, (step + 1) / max(warmup, 1))
+    return ramp * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * step / max(steps, 1))))
+
+
+class Plateau:
+    """Stops a row when the running mean of its energy stops improving: the mean of the last
+    ``window`` values against the ``window`` before them, by less than ``rtol`` (relative)."""
+
+    def __init__(self, window: int, rtol: float):
+        self.window, self.rtol, self.values = window, rtol, []
+
+    def update(self, value: float) -> bool:
+        self.values.append(value)
+        n = self.window
+        if len(self.values) < 2 * n:
+            return False
+        before = float(np.mean(self.values[-2 * n : -n]))
+        now = float(np.mean(self.values[-n:]))
+        return (before - now) < self.rtol * abs(before)

@@ -45,6 +45,7 @@ from ..camera import Camera, project_points
 from ..keypoints import KeypointSet, model_keypoints
 from .keypoint_stage import KeypointFitConfig, KeypointFitter, _check_torso
 from .problem import Observation, Problem, View
+from .aliases import Alias, renamed_fields
 from .stages import Stage
 from .threads import torch_threads
 
@@ -56,6 +57,7 @@ __all__ = [
 ROTATIONS = ("global_orient", "body_pose")
 
 
+@renamed_fields(pose_prior_weight=Alias("pose_weight"))
 @dataclass
 class SequenceFitConfig:
     """Settings of :func:`fit_sequence` (defaults tuned on ``silfit synth --sequence`` data,
@@ -67,7 +69,7 @@ class SequenceFitConfig:
     iterations: int = 100  # joint refinement, L-BFGS steps
     joint_smooth_weight: float = 1.0
     root_smooth_weight: float = 1.0
-    pose_prior_weight: float = 40.0
+    pose_weight: float = 40.0  # the pose prior's (one name in every config, issue 26; old name ``pose_prior_weight``)
     angle_prior_weight: float = 1.0
     limit_weight: float = 1e4
     shape_weight: float = 5.0
@@ -84,7 +86,9 @@ class SequenceFitConfig:
     window_pose_iterations: int = 40  # second pass (shared betas fixed) in windowed mode
 
     def stages(self, free_betas: bool = True, iterations: Optional[int] = None) -> tuple:
-        w = {"keypoints": 1.0, "pose": self.pose_prior_weight, "angle": self.angle_prior_weight, "limits": self.limit_weight,
+        """The joint refinement's one stage (``free_betas=False``: the windowed mode's second pass, the
+        shape held); the defaults give the literal table :data:`~silfit.fitting.schedules.SEQUENCE_SCHEDULE`."""
+        w = {"keypoints": 1.0, "pose": self.pose_weight, "angle": self.angle_prior_weight, "limits": self.limit_weight,
              "smooth_joints": self.joint_smooth_weight, "smooth_root": self.root_smooth_weight}  # fmt: skip
         if free_betas:
             w["shape"] = self.shape_weight
@@ -534,11 +538,14 @@ def refine_sequence_silhouettes(
         body = model(**{n: T(np.repeat(betas[None], F, 0) if n == "betas" else p[n]) for n in init})
         joints = body.joints.numpy()
         kp2d = project_points(model_keypoints(model, body, result.layout).double(), result.camera).numpy()
-    reproj = np.full(F, np.nan)  # against the keypoints the fit used (outliers and bridged frames left out)
-    for f, o in enumerate(obs):
-        if o.keypoints is not None:
-            ok = o.keypoints.conf > 0
-            reproj[f] = np.median(np.linalg.norm(kp2d[f] - o.keypoints.xy, axis=-1)[ok])
+    # against the keypoints the keypoint stage's error was measured on (outliers and bridged frames left
+    # out; a whole-body fit's hands and face too, though held here), so before and after compare alike
+    reproj = np.full(F, np.nan)
+    for f, ks in enumerate(frames):
+        if ks is not None and not result.bridged[f]:
+            ok = (ks.conf > 0) & ~result.outliers[f]
+            if ok.any():
+                reproj[f] = np.median(np.linalg.norm(kp2d[f] - ks.xy, axis=-1)[ok])
     timings = dict(result.timings, silhouette=seconds, total=result.timings["total"] + seconds)
     timings["seconds_per_frame"] = timings["total"] / F
     out = replace(result, betas=betas, body_pose=np.asarray(p["body_pose"], np.float32),

@@ -5,7 +5,7 @@ cross-talk: a batch gives what the subjects give one at a time.
 
 Energy (per subject, the named terms of :mod:`silfit.fitting.terms` plus the silhouette)::
 
-    E = w_silhouette * E_sil(S) + w_keypoints * E_kp + w_pose * prior(pose)
+    E = w_silhouette * E_sil(S) + w_keypoints * E_kp + pose_weight * prior(pose)
         + w_limits * limits(pose) + w_angle * angle(pose) + w_shape * |betas|^2
         + w_stay * |theta - theta_kp|^2
 
@@ -28,14 +28,16 @@ The contour level (issue 24) comes first when ``contour_iterations`` > 0: no ren
 vertices against the mask's outside distance transform; :class:`ContourCoverTerm`: the
 mask's outline points against the nearest projected vertex), the body posed only at about
 ``contour_vertices`` surface vertices (:class:`ContourBody`), minimised by the project's
-batched L-BFGS (:func:`~silfit.fitting.stages.run_lbfgs_stage`, one deterministic row per
+batched L-BFGS (:func:`~silfit.fitting.stages.run_stage`, one deterministic row per
 subject). It does the coarse moves in a fraction of a rendered step's time each; the
 rendered levels then finish, so the final IoU is the renderer's.
 
 Rendered levels are stages (:meth:`SilhouetteFitConfig.stages`): coarse to fine window
 resolutions, each run with Adam (the renderer's gradients are stochastic; per-subject
 moments and step counts), linear warm-up and cosine decay; a level stops early for a
-subject on an energy plateau. Steps with non-finite energy, or whose IoU collapses, stop
+subject on an energy plateau. All levels run in the project's one schedule runner
+(:func:`~silfit.fitting.stages.run_schedule`), this module's hooks preparing each level's
+windows and recording each step. Steps with non-finite energy, or whose IoU collapses, stop
 that subject and keep its best parameters so far (``warnings`` in its result).
 """
 from __future__ import annotations
@@ -56,8 +58,9 @@ from ..silhouette.losses import (
 from ..body.lbs import axis_angle_to_matrix, blend_shapes, pose_correctives, skin_vertices
 from .body import BodyState, KeypointBody, MeshBody, pose_parameter_names
 from .problem import ParameterLayout, Problem, stack_views, world_to_camera
-from .stages import Stage, check_stages, run_lbfgs_stage, stage_to_dict
-from .terms import Energy, Evaluation, KeypointTerm, PriorTerm, StayTerm, Term, evaluate
+from .aliases import Alias, renamed_fields
+from .stages import AdamSettings, PerRow, Stage, check_stages, run_schedule, stage_to_dict
+from .terms import Energy, Evaluation, KeypointTerm, PriorTerm, StayTerm, Term
 from .threads import torch_threads
 
 __all__ = [
@@ -70,6 +73,7 @@ __all__ = [
 from ..body.model import SMPL_PARAMETER_NAMES as PARAMS  # noqa: E402
 
 
+@renamed_fields(w_pose=Alias("pose_weight"))
 @dataclass
 class SilhouetteFitConfig:
     """Settings of the silhouette stage (defaults tuned on the synthetic set)."""
@@ -121,7 +125,7 @@ class SilhouetteFitConfig:
     w_silhouette: float = 1.0
     w_keypoints: float = 0.02
     kp_sigma: float = 20.0  # Geman-McClure scale, window pixels
-    w_pose: float = 0.002
+    pose_weight: float = 0.002  # the pose prior's (one name in every config, issue 26; old name ``w_pose``)
     w_limits: float = 1.0
     w_angle: float = 0.001
     w_shape: float = 0.005
@@ -180,7 +184,7 @@ class SilhouetteFitConfig:
     def weights(self) -> dict:
         """The rendered levels' weights."""
         return {
-            "silhouette": self.w_silhouette, "keypoints": self.w_keypoints, "pose": self.w_pose,
+            "silhouette": self.w_silhouette, "keypoints": self.w_keypoints, "pose": self.pose_weight,
             "limits": self.w_limits, "angle": self.w_angle, "shape": self.w_shape, "stay": self.w_stay,
             "keypoint_trust": self.w_trust, "beta_bound": self.w_beta_bound,
         }  # fmt: skip
@@ -193,14 +197,16 @@ class SilhouetteFitConfig:
 
     def stages(self) -> tuple:
         """The contour level (L-BFGS, when ``contour_iterations``), then one Adam stage per
-        rendered window resolution (coarse to fine)."""
+        rendered window resolution (coarse to fine); the defaults give the literal table
+        :data:`~silfit.fitting.schedules.SILHOUETTE_SCHEDULE`."""
         contour = ()
         if self.contour_iterations:
             contour = (Stage("contour", tuple(self.optimise), self.contour_weights(), int(self.contour_iterations),
                              "lbfgs", {"resolution": int(self.contour_resolution)}),)  # fmt: skip
         return contour + tuple(
             Stage(f"silhouette_{int(r)}", tuple(self.optimise), self.weights(), int(it), "adam",
-                  {"resolution": int(r), "lr": {k: self.lr[k] for k in self.optimise}})  # fmt: skip
+                  {"resolution": int(r), **AdamSettings({k: self.lr[k] for k in self.optimise}, int(self.warmup),
+                                                         int(self.plateau_window), float(self.plateau_rtol)).options()})  # fmt: skip
             for r, it in zip(self.resolutions, self.iterations)
         )
 
@@ -289,29 +295,6 @@ def window_target(mask: np.ndarray, window, supersample: int = 4, truncation_awa
         raise ValueError("the mask vanishes at the silhouette stage's resolution; raise the resolution")
     seen = warp(np.ones(mask.shape, np.float32)) > 0.5  # the window's pixels inside the image
     return MaskTarget.from_mask(binary, valid=None if seen.all() or not truncation_aware else seen, cover=cover), coverage
-
-
-def _learning_rate_factor(step: int, steps: int, warmup: int) -> float:
-    """Linear warm-up over ``warmup`` steps (Adam's first steps are full-size sign steps),
-    then a cosine decay to 10 % at the end of the level."""
-    ramp = min(1.0, (step + 1) / max(warmup, 1))
-    return ramp * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * step / max(steps, 1))))
-
-
-class _Plateau:
-    """Stops a level when the running mean energy stops improving by ``rtol``."""
-
-    def __init__(self, window: int, rtol: float):
-        self.window, self.rtol, self.values = window, rtol, []
-
-    def update(self, value: float) -> bool:
-        self.values.append(value)
-        n = self.window
-        if len(self.values) < 2 * n:
-            return False
-        before = float(np.mean(self.values[-2 * n : -n]))
-        now = float(np.mean(self.values[-n:]))
-        return (before - now) < self.rtol * abs(before)
 
 
 class SilhouetteTerm(Term):
@@ -494,42 +477,6 @@ class ContourCoverTerm(_ContourTerm):
         return cover_energy(uv, ev.data["contours"][p][o], ev.data["targets"][p][o].cover)
 
 
-class _PerProblem(list):
-    """A list with one entry per problem that a tensor of problem indices selects from
-    (``rows[idx]``), as the data of :func:`~silfit.fitting.stages.run_lbfgs_stage` is."""
-
-    def __getitem__(self, index):
-        if isinstance(index, torch.Tensor):
-            return _PerProblem(list.__getitem__(self, int(i)) for i in index.reshape(-1).tolist())
-        return list.__getitem__(self, index)
-
-
-class _Adam:
-    """Adam with per-problem step counts, updating only the rows it is told to (so a
-    subject that stopped is left exactly as it is, and a batch equals single runs)."""
-
-    def __init__(self, params: dict, lr: dict, betas=(0.9, 0.999), eps: float = 1e-8):
-        self.params, self.lr, self.b1, self.b2, self.eps = params, lr, betas[0], betas[1], eps
-        P = next(iter(params.values())).shape[0]
-        self.t = torch.zeros(P, dtype=torch.long)
-        self.m = {k: torch.zeros_like(v) for k, v in params.items()}
-        self.v = {k: torch.zeros_like(v) for k, v in params.items()}
-
-    def step(self, rows: torch.Tensor, factor: float) -> None:
-        self.t[rows] += 1
-        t = self.t[rows].to(torch.float64)
-        with torch.no_grad():
-            for k, p in self.params.items():
-                g = p.grad[rows]
-                m = self.m[k][rows].mul_(self.b1).add_(g, alpha=1 - self.b1)
-                v = self.v[k][rows].mul_(self.b2).addcmul_(g, g, value=1 - self.b2)
-                self.m[k][rows], self.v[k][rows] = m, v
-                shape = (-1,) + (1,) * (p.dim() - 1)
-                bc1 = (1 - self.b1 ** t).to(p.dtype).reshape(shape)
-                bc2 = (1 - self.b2 ** t).sqrt().to(p.dtype).reshape(shape)
-                p[rows] -= (self.lr[k] * factor / bc1) * m / (v.sqrt() / bc2 + self.eps)
-
-
 def fit_silhouette(
     model,
     init: dict,
@@ -671,23 +618,6 @@ def _observation_window(mask, uv: np.ndarray, camera: Camera, resolution: int, m
     return None, resolution / extent
 
 
-def _contour_level(stage, params, layout, energy, body, views, data, failed, contour_steps) -> None:
-    """Run the contour level (:func:`~silfit.fitting.stages.run_lbfgs_stage`, one L-BFGS row
-    per problem) on the problems that have not failed; writes the result into ``params``
-    and each problem's iteration count into ``contour_steps``."""
-    rows = torch.as_tensor([p for p in range(len(failed)) if not failed[p]], dtype=torch.long)
-    if rows.numel() == 0:
-        return
-    state = {k: v.detach()[rows].clone() for k, v in params.items()}
-    sub = {k: (v[rows] if isinstance(v, (torch.Tensor, _PerProblem)) else v) for k, v in data.items()}
-    run = run_lbfgs_stage(stage, state, layout, energy, body, {k: v[rows] for k, v in views.items()}, sub)
-    with torch.no_grad():
-        for k in stage.free:
-            params[k][rows] = state[k].to(params[k].dtype)
-    for j, p in enumerate(rows.tolist()):
-        contour_steps[p] += int(run.iterations[j])
-
-
 def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, progress, callback, extra_terms,
                   extra_weights, extra_data):  # fmt: skip
     from renderers.silhouette import get_silhouette_renderer
@@ -723,8 +653,6 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
         start[n] = torch.stack(rows)
     free_names = tuple(n for n in cfg.optimise if n in sizes)
     params = {k: v.clone().requires_grad_(k in free_names) for k, v in start.items()}
-    free = {k: params[k] for k in free_names}
-    optimiser = _Adam(free, {k: cfg.lr[k] for k in free_names})
     prior = load_pose_prior(pose_prior, dtype=dtype) if not isinstance(pose_prior, torch.nn.Module) else pose_prior
     proxy = batch = contour_proxy = None
     if cfg.proxy_faces:
@@ -766,8 +694,8 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
     data = {
         **extra_data, "target": target_xy, "weights": target_w, "scale": torch.ones(P, F, C, dtype=dtype),
         "start_body_pose": start["body_pose"], "R": views["R"], "t": views["t"],
-        "windows": _PerProblem([None] * P), "targets": _PerProblem([None] * P), "seeds": _PerProblem([None] * P),
-        "contours": _PerProblem([None] * P), "trust_px": torch.zeros(P, dtype=dtype),
+        "windows": PerRow([None] * P), "targets": PerRow([None] * P), "seeds": PerRow([None] * P),
+        "contours": PerRow([None] * P), "trust_px": torch.zeros(P, dtype=dtype),
     }  # fmt: skip
 
     history = [{k: [] for k in ("level", "energy", "silhouette", "keypoints", "iou")} for _ in range(P)]
@@ -777,17 +705,17 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
     best_obs_iou: list = [[] for _ in range(P)]
     best_terms: list = [{} for _ in range(P)]
     best_iou_seen = [-1.0] * P
+    best_energy = [math.inf] * P
     steps = [0] * P
     contour_steps = [0] * P
     failed = [False] * P
     t0 = time.perf_counter()
     bar = tqdm(total=int(sum(cfg.iterations)) * P, desc="silhouette", disable=not progress, leave=False)
 
-    def select(d, rows):
-        return {k: (v[rows] if isinstance(v, torch.Tensor) else [v[i] for i in rows.tolist()]) for k, v in d.items()}
-
-    for level, stage in enumerate(stages):
-        resolution, iters = int(stage.options["resolution"]), int(stage.iterations)
+    def prepare_level(level, stage):
+        """Each problem's windows and targets at the level's resolution (around the body as it
+        is now); the rows that run (those that have not failed) and the level's hooks."""
+        resolution = int(stage.options["resolution"])
         with torch.no_grad():
             verts = model(**params_layout.rows({k: v.detach() for k, v in params.items()})).vertices
             verts = verts.reshape(P, F, *verts.shape[1:])
@@ -815,32 +743,26 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
             data["windows"][p], data["targets"][p], data["contours"][p] = windows, targets, contours
         data["scale"] = scale
         data["trust_px"] = torch.full((P,), float(cfg.trust_fraction) * resolution, dtype=dtype)
+        rows = torch.as_tensor([p for p in range(P) if not failed[p]], dtype=torch.long)
         if stage.optimiser == "lbfgs":  # the contour level: deterministic, no rendering
-            _contour_level(stage, params, params_layout, energy, contour_body, views, data, failed, contour_steps)
-            for p in range(P):
-                if not failed[p]:
-                    best_params[p] = {k: v[p].detach().clone() for k, v in params.items()}
-            continue
-        plateaus = [_Plateau(cfg.plateau_window, cfg.plateau_rtol) for _ in range(P)]
-        best_energy = [math.inf] * P  # energies of different resolutions are not comparable
-        active = [not f for f in failed]
-        for i in range(iters):
-            rows = torch.as_tensor([p for p in range(P) if active[p]], dtype=torch.long)
-            if rows.numel() == 0:
-                break
-            factor = _learning_rate_factor(i, iters, cfg.warmup)
+            return {"rows": rows, "body": contour_body}
+        best_energy[:] = [math.inf] * P  # energies of different resolutions are not comparable
+        stepped_ious: dict = {}
+
+        def before_step(i, rows):
             data["seeds"] = [None if cfg.seed is None else int(cfg.seed) * 100003 + steps[p] for p in range(P)]
-            sub = {k: v[rows] for k, v in params.items()}
-            ev = evaluate(body, params_layout, sub, {k: v[rows] for k, v in views.items()}, select(data, rows))
-            total, parts = energy(ev, stage.weights)
+
+        def on_step(i, rows, total, parts, ev):
+            """Per row: stop on divergence (keeping the best so far), else record the step."""
             ious, obs_ious = ev.extras["iou"], ev.extras["iou_observations"]
-            keep = []
+            go = []
             for j, p in enumerate(rows.tolist()):
                 e_value, iou = float(total[j].detach()), ious[j]
                 if not math.isfinite(e_value) or iou < best_iou_seen[p] - cfg.iou_collapse:
                     why = "non-finite energy" if not math.isfinite(e_value) else f"IoU collapsed to {iou:.3f}"
                     warnings[p].append(f"step {steps[p]}: {why}; kept the best parameters so far")
-                    failed[p], active[p] = True, False
+                    failed[p] = True
+                    go.append(False)
                     continue
                 h = history[p]
                 term_values = {k: float(v[j].detach()) for k, v in parts.items()}
@@ -854,25 +776,34 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
                 best_iou_seen[p] = max(best_iou_seen[p], iou)
                 if callback is not None:
                     callback(steps[p], {"level": level, "energy": e_value, "iou": iou, "subject": p})
-                keep.append(j)
-            if keep:
-                keep_t = torch.as_tensor(keep, dtype=torch.long)
-                for v in free.values():
-                    v.grad = None
-                total[keep_t].sum().backward()
-                optimiser.step(rows[keep_t], factor)
-                for j in keep:
-                    p = int(rows[j])
-                    steps[p] += 1
-                    bar.update(1)
-                    if plateaus[p].update(float(total[j].detach())):
-                        active[p] = False
-                bar.set_postfix(iou=f"{np.mean([ious[j] for j in keep]):.3f}", res=resolution)
+                stepped_ious[p] = iou
+                go.append(True)
+            return go
+
+        def after_step(i, stepped, totals):
+            for p in stepped.tolist():
+                steps[p] += 1
+                bar.update(1)
+            bar.set_postfix(iou=f"{np.mean([stepped_ious[p] for p in stepped.tolist()]):.3f}", res=resolution)
+            stepped_ious.clear()
+
+        return {"rows": rows, "before_step": before_step, "on_step": on_step, "after_step": after_step}
+
+    def finish_level(level, stage, run):
+        if stage.optimiser == "lbfgs":
+            for p in range(P):
+                contour_steps[p] += int(run.iterations[p])
+                if not failed[p]:
+                    best_params[p] = {k: v[p].detach().clone() for k, v in params.items()}
+            return
         # The next level restarts from the best parameters found so far.
         with torch.no_grad():
             for p in range(P):
                 for k in params:
                     params[k][p].copy_(best_params[p][k])
+
+    run_schedule(stages, params, params_layout, energy, body, views, data, before_stage=prepare_level,
+                 after_stage=finish_level)  # fmt: skip
     bar.close()
     seconds = (time.perf_counter() - t0) / max(P, 1)
     config = cfg.to_dict()

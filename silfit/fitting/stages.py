@@ -1,24 +1,39 @@
-"""Stages as data, and the one loop that runs an L-BFGS stage on a batch of problems.
+"""Stages as data, and the one schedule runner.
 
 A :class:`Stage` names the free parameters, the energy terms' weights, the iteration
 count and the optimiser. A fit is a list of stages (the keypoint stage's schedule is
 built from :class:`~silfit.fitting.keypoint_stage.KeypointFitConfig`, the silhouette
 stage's levels from :class:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig`), checked
 once against the energy's terms and the model's parameters by :func:`check_stages`.
+
+:func:`run_stage` runs one stage on a batch of problems, dispatching on ``Stage.optimiser``;
+:func:`run_schedule` runs a list of them. Both optimisers are batched per row (one problem
+per row, its own optimiser state and stopping; a batch gives what its rows give alone):
+
+* ``"lbfgs"``: :func:`~silfit.fitting.optim.batched_lbfgs` (rows stop on convergence);
+* ``"adam"``: :class:`~silfit.fitting.optim.BatchedAdam` with the stage's
+  :class:`AdamSettings` (learning rate per parameter, warm-up and cosine decay, plateau
+  stop per row); hooks let a caller refresh data before each step (``before_step``: e.g.
+  renderer seeds), look at each step's rows (``on_step``: history, best parameters,
+  divergence; it says which rows take the step) and follow the steps taken (``after_step``).
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
-from typing import Dict, Mapping, Optional, Sequence
+from typing import Callable, Dict, List, Mapping, Optional, Sequence
 
 import torch
 
-from .optim import batched_lbfgs
+from .optim import BatchedAdam, Plateau, batched_lbfgs, learning_rate_factor
 from .problem import ParameterLayout
 from .terms import Energy, evaluate
 
-__all__ = ["Stage", "StageRun", "check_stages", "gated", "run_lbfgs_stage", "stage_to_dict"]
+__all__ = [
+    "AdamSettings", "PerRow", "Stage", "StageRun", "check_stages", "gated", "run_adam_stage", "run_lbfgs_stage", "run_schedule",
+    "run_stage", "stage_to_dict",
+]  # fmt: skip
 
 OPTIMISERS = ("lbfgs", "adam")
 
@@ -28,8 +43,9 @@ class Stage:
     """One stage of a fit.
 
     ``options`` holds optimiser- or stage-specific settings, e.g. ``decide_after`` (the
-    keypoint stage keeps each problem's best start after that many steps), or the
-    silhouette stage's ``resolution`` and per-parameter ``lr``."""
+    keypoint stage keeps each problem's best start after that many steps), the silhouette
+    stage's ``resolution``, or an Adam stage's :class:`AdamSettings` (``lr`` per parameter,
+    ``warmup``, ``plateau_window``, ``plateau_rtol``)."""
 
     name: str
     free: tuple
@@ -37,6 +53,32 @@ class Stage:
     iterations: int
     optimiser: str = "lbfgs"
     options: Mapping[str, object] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class AdamSettings:
+    """An Adam stage's settings, read from its ``options`` (:meth:`of`): a learning rate per
+    free parameter (``lr``), ``warmup`` steps of linear warm-up then a cosine decay to 10 %
+    over the stage (:func:`~silfit.fitting.optim.learning_rate_factor`), and a row's plateau
+    stop (:class:`~silfit.fitting.optim.Plateau`; ``plateau_window`` 0: none)."""
+
+    lr: Mapping[str, float]
+    warmup: int = 0
+    plateau_window: int = 0
+    plateau_rtol: float = 0.0
+
+    @classmethod
+    def of(cls, stage: "Stage") -> "AdamSettings":
+        o = stage.options
+        missing = [n for n in stage.free if n not in o.get("lr", {})]
+        if missing:
+            raise ValueError(f"stage '{stage.name}': no learning rate (options['lr']) for {', '.join(missing)}")
+        return cls(dict(o["lr"]), int(o.get("warmup", 0)), int(o.get("plateau_window", 0)), float(o.get("plateau_rtol", 0.0)))
+
+    def options(self) -> dict:
+        """The stage options that give these settings."""
+        return {"lr": dict(self.lr), "warmup": self.warmup, "plateau_window": self.plateau_window,
+                "plateau_rtol": self.plateau_rtol}  # fmt: skip
 
 
 def stage_to_dict(stage: Stage) -> dict:
@@ -61,6 +103,8 @@ def check_stages(stages: Sequence[Stage], energy: Energy, layout: ParameterLayou
             raise ValueError(f"{where}: {err}") from None
         if s.optimiser not in OPTIMISERS:
             raise ValueError(f"{where}: unknown optimiser {s.optimiser!r} (expected {', '.join(OPTIMISERS)})")
+        if s.optimiser == "adam":
+            AdamSettings.of(s)
         if int(s.iterations) != s.iterations or s.iterations < 0:
             raise ValueError(f"{where}: iterations must be a non-negative integer, got {s.iterations!r}")
 
@@ -78,14 +122,28 @@ def gated(values: Dict[str, torch.Tensor], start: Dict[str, torch.Tensor], data:
     return out
 
 
+class PerRow(list):
+    """A list with one entry per problem (row) that a tensor of row indices selects from
+    (``rows[idx]``), as tensors with a leading problem axis are: non-tensor data of a stage
+    (e.g. the silhouette stage's windows and targets)."""
+
+    def __getitem__(self, index):
+        if isinstance(index, torch.Tensor):
+            return PerRow(list.__getitem__(self, int(i)) for i in index.reshape(-1).tolist())
+        return list.__getitem__(self, index)
+
+
 @dataclass
 class StageRun:
-    """What a stage run leaves: final energy ``[P]``, per-term energies, seconds, steps."""
+    """What a stage run leaves: final energy ``[P]``, per-term energies, seconds, steps
+    ``[P]`` (rows not run: energy NaN, 0 steps); an Adam run also its optimiser (``adam``,
+    whose moments a following Adam stage may continue)."""
 
     energy: torch.Tensor
     terms: Dict[str, torch.Tensor]
     seconds: float
     iterations: torch.Tensor
+    adam: Optional[BatchedAdam] = None
 
 
 def run_lbfgs_stage(
@@ -134,3 +192,189 @@ def run_lbfgs_stage(
         ev = evaluate(body, layout, params_at(x, idx), views, data)
         _, parts = energy(ev, weights)
     return StageRun(f.detach().clone(), {k: v.detach() for k, v in parts.items()}, time.perf_counter() - t0, its)
+
+
+def _select(data: Mapping[str, object], rows: torch.Tensor) -> dict:
+    """Rows ``rows`` of a stage's data: tensors and :class:`PerRow` lists indexed, other values as they are."""
+    return {k: (v[rows] if isinstance(v, (torch.Tensor, PerRow)) else v) for k, v in data.items()}
+
+
+def _lbfgs_rows(stage, state, layout, energy, body, views, data, rows, iterations, history, progress) -> StageRun:
+    """:func:`run_lbfgs_stage` on rows ``rows`` of the batch only; the others are left as they are."""
+    P = next(iter(state.values())).shape[0]
+    if rows.numel() == 0:
+        return StageRun(torch.full((P,), float("nan")), {}, 0.0, torch.zeros(P, dtype=torch.long))
+    sub = {k: v.detach()[rows].clone() for k, v in state.items()}
+    run = run_lbfgs_stage(stage, sub, layout, energy, body, {k: v[rows] for k, v in views.items()}, _select(data, rows),
+                          iterations, history, progress)  # fmt: skip
+    with torch.no_grad():
+        for k in stage.free:
+            state[k][rows] = sub[k].to(state[k].dtype)
+    energy_all = torch.full((P,), float("nan"), dtype=run.energy.dtype)
+    energy_all[rows] = run.energy
+    terms = {}
+    for k, v in run.terms.items():
+        terms[k] = torch.full((P,), float("nan"), dtype=v.dtype)
+        terms[k][rows] = v
+    its = torch.zeros(P, dtype=torch.long)
+    its[rows] = run.iterations
+    return StageRun(energy_all, terms, run.seconds, its)
+
+
+def run_adam_stage(
+    stage: Stage,
+    state: Dict[str, torch.Tensor],
+    layout: ParameterLayout,
+    energy: Energy,
+    body,
+    views: Dict[str, torch.Tensor],
+    data: Dict[str, object],
+    rows: Optional[torch.Tensor] = None,
+    iterations: Optional[int] = None,
+    adam: Optional[BatchedAdam] = None,
+    before_step: Optional[Callable[[int, torch.Tensor], None]] = None,
+    on_step: Optional[Callable] = None,
+    after_step: Optional[Callable[[int, torch.Tensor, torch.Tensor], None]] = None,
+) -> StageRun:
+    """Adam over the stage's free parameters, one independent row per problem, in place on
+    ``state`` (the free parameters must be leaf tensors with ``requires_grad``).
+
+    Each step evaluates the active rows (``rows``, default all) at once; ``before_step(i,
+    active_rows)`` may first refresh ``data``; ``on_step(i, active_rows, total, parts, ev)``
+    returns per active row whether it takes the step (default: a finite energy); a row that
+    does not stops for the rest of the stage. The rows that take it step with their own
+    moments (``adam``: continued, or a fresh :class:`BatchedAdam`), learning rate ``lr *
+    learning_rate_factor(i, iterations, warmup)``; then a row whose energies plateau stops,
+    and ``after_step(i, stepped_rows, their_energies)`` is called."""
+    t0 = time.perf_counter()
+    settings = AdamSettings.of(stage)
+    iters = int(stage.iterations if iterations is None else iterations)
+    free = {k: state[k] for k in stage.free}
+    P = next(iter(state.values())).shape[0]
+    if adam is None:
+        adam = BatchedAdam(free, {k: settings.lr[k] for k in stage.free})
+    weights = dict(stage.weights)
+    rows = torch.arange(P) if rows is None else torch.as_tensor(rows, dtype=torch.long)
+    active = torch.zeros(P, dtype=torch.bool)
+    active[rows] = True
+    plateaus = [Plateau(settings.plateau_window, settings.plateau_rtol) for _ in range(P)]
+    its = torch.zeros(P, dtype=torch.long)
+    last = torch.full((P,), float("nan"), dtype=torch.float64)
+    last_terms: Dict[str, torch.Tensor] = {}
+
+    def select(d, rows):
+        return {k: (v[rows] if isinstance(v, torch.Tensor) else [v[i] for i in rows.tolist()]) for k, v in d.items()}
+
+    for i in range(iters):
+        rows = active.nonzero().squeeze(1)
+        if rows.numel() == 0:
+            break
+        factor = learning_rate_factor(i, iters, settings.warmup)
+        if before_step is not None:
+            before_step(i, rows)
+        sub = {k: v[rows] for k, v in state.items()}
+        data_rows = select(data, rows)
+        sub.update(gated({k: sub[k] for k in stage.free}, sub, data_rows))
+        ev = evaluate(body, layout, sub, {k: v[rows] for k, v in views.items()}, data_rows)
+        total, parts = energy(ev, weights)
+        if on_step is not None:
+            go = [bool(g) for g in on_step(i, rows, total, parts, ev)]
+        else:
+            go = [math.isfinite(float(e)) for e in total.detach()]
+        with torch.no_grad():
+            last[rows] = total.detach().to(last.dtype)
+            for k, v in parts.items():
+                last_terms.setdefault(k, torch.full((P,), float("nan"), dtype=torch.float64))[rows] = v.detach().to(torch.float64)
+        keep = [j for j, g in enumerate(go) if g]
+        active[rows[[j for j, g in enumerate(go) if not g]]] = False
+        if not keep:
+            continue
+        keep_t = torch.as_tensor(keep, dtype=torch.long)
+        for v in free.values():
+            v.grad = None
+        total[keep_t].sum().backward()
+        adam.step(rows[keep_t], factor, {k: settings.lr[k] for k in stage.free})
+        stepped = rows[keep_t]
+        its[stepped] += 1
+        if settings.plateau_window > 0:
+            for j in keep:
+                p = int(rows[j])
+                if plateaus[p].update(float(total[j].detach())):
+                    active[p] = False
+        if after_step is not None:
+            after_step(i, stepped, total[keep_t].detach())
+    for v in free.values():
+        v.grad = None
+    return StageRun(last, last_terms, time.perf_counter() - t0, its, adam)
+
+
+def run_stage(
+    stage: Stage,
+    state: Dict[str, torch.Tensor],
+    layout: ParameterLayout,
+    energy: Energy,
+    body,
+    views: Dict[str, torch.Tensor],
+    data: Dict[str, object],
+    *,
+    rows: Optional[torch.Tensor] = None,
+    iterations: Optional[int] = None,
+    history: int = 10,
+    progress: bool = False,
+    adam: Optional[BatchedAdam] = None,
+    before_step: Optional[Callable] = None,
+    on_step: Optional[Callable] = None,
+    after_step: Optional[Callable] = None,
+) -> StageRun:
+    """Run one stage on a batch of problems (``state``: shared ``[P, w]`` and per-frame ``[P,
+    F, w]`` parameters, updated in place), dispatching on ``stage.optimiser``: ``"lbfgs"``
+    (:func:`run_lbfgs_stage`; ``history`` and ``progress`` are its) or ``"adam"``
+    (:func:`run_adam_stage`; ``adam``, ``before_step``, ``on_step``, ``after_step`` are its).
+    ``rows`` (row indices, default all) are the problems that run; the others are left as
+    they are. ``iterations`` overrides the stage's count."""
+    if stage.optimiser == "lbfgs":
+        if rows is None and any(v.requires_grad for v in state.values()):  # leaves that other stages hold: in place
+            rows = torch.arange(next(iter(state.values())).shape[0])
+        if rows is None:
+            return run_lbfgs_stage(stage, state, layout, energy, body, views, data, iterations, history, progress)
+        return _lbfgs_rows(stage, state, layout, energy, body, views, data, torch.as_tensor(rows, dtype=torch.long),
+                           iterations, history, progress)  # fmt: skip
+    if stage.optimiser == "adam":
+        return run_adam_stage(stage, state, layout, energy, body, views, data, rows, iterations, adam, before_step,
+                              on_step, after_step)  # fmt: skip
+    raise ValueError(f"stage '{stage.name}': unknown optimiser {stage.optimiser!r} (expected {', '.join(OPTIMISERS)})")
+
+
+def run_schedule(
+    stages: Sequence[Stage],
+    state: Dict[str, torch.Tensor],
+    layout: ParameterLayout,
+    energy: Energy,
+    body,
+    views: Dict[str, torch.Tensor],
+    data: Dict[str, object],
+    *,
+    before_stage: Optional[Callable[[int, Stage], Optional[dict]]] = None,
+    after_stage: Optional[Callable[[int, Stage, StageRun], None]] = None,
+    **options,
+) -> List[StageRun]:
+    """Run ``stages`` in order with :func:`run_stage` (``options`` are its keywords). The Adam
+    stages of one schedule continue one :class:`BatchedAdam` (per-row moments and step counts
+    carry over). ``before_stage(index, stage)`` may prepare the stage's data and return
+    keywords of :func:`run_stage` for it (e.g. ``rows``, ``body``, ``on_step``);
+    ``after_stage(index, stage, run)`` sees what it left."""
+    runs: List[StageRun] = []
+    adam = options.pop("adam", None)
+    for i, stage in enumerate(stages):
+        kw = dict(options)
+        kw.update((before_stage(i, stage) if before_stage is not None else None) or {})
+        run_body = kw.pop("body", body)
+        if stage.optimiser == "adam":
+            kw["adam"] = adam
+        run = run_stage(stage, state, layout, energy, run_body, views, data, **kw)
+        if run.adam is not None:
+            adam = run.adam
+        runs.append(run)
+        if after_stage is not None:
+            after_stage(i, stage, run)
+    return runs

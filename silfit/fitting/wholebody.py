@@ -214,3 +214,14 @@ def wholebody_silhouette_inputs(model, keypoints, config, dtype) -> tuple:
     weights.update(SILHOUETTE_PRIOR_WEIGHTS)
     data = {"part_weights": (part / body_sum)[:, None, None]}  # [P, F=1, C=1, K]
     return cfg, body_sets, terms, weights, data
+
+
+def silhouette_inputs(model, keypoints, config, dtype) -> tuple:
+    """What the silhouette stage needs for the keypoint layout of ``keypoints`` (one
+    :class:`~silfit.keypoints.KeypointSet` per problem): ``(config, keypoint sets, terms,
+    weights, data)``, the whole-body terms for the ``wholebody`` layout
+    (:func:`wholebody_silhouette_inputs`), none beyond the stage's own for a body layout. The
+    one place the layout decides the silhouette stage's terms."""
+    if keypoints and keypoints[0].layout == "wholebody":
+        return wholebody_silhouette_inputs(model, keypoints, config, dtype)
+    return config, list(keypoints), (), {}, {}

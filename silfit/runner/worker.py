@@ -1,9 +1,9 @@
-"""Fitting batches of dataset items in one process (:class:`DatasetFitter`): the model,
-pose prior, keypoint fitter and silhouette renderer are built once; each batch is read
-item by item (a bad file fails only its item), fitted by one batched keypoint-stage call
-per keypoint layout, refined item by item against the masks (one call site,
-:meth:`DatasetFitter.silhouette_stage`), and written with :func:`silfit.save_fit`
-(atomically: a temporary folder renamed into place).
+"""Fitting batches of dataset items in one process (:class:`DatasetFitter`): the model and
+pose prior are built once; each batch is read item by item (a bad file fails only its item),
+each item made a :class:`silfit.run.Job`, the batch fitted by :func:`silfit.run.run_batch`
+(the path every mode takes: the checks, one batched keypoint stage per layout, the silhouette
+stage batched over the items with masks, the warnings; a failing item fails alone), and
+written with :func:`silfit.save_fit` (atomically: a temporary folder renamed into place).
 
 :meth:`DatasetFitter.run_batch` returns one JSON-ready record per item (``results.jsonl``'s
 lines, see :mod:`silfit.runner.store`); recording them is the caller's job.
@@ -18,10 +18,9 @@ from typing import Dict, List, Optional, Sequence, Union
 
 import numpy as np
 
-from ..fitting.keypoint_stage import KeypointFitConfig, KeypointFitter
+from ..fitting.keypoint_stage import KeypointFitConfig
 from ..fitting.silhouette_stage import SilhouetteFitConfig
-from ..pipeline import FitResult, refine, save_fit
-from ..plausibility import ambiguity_warnings, check_keypoints, fit_warnings
+from ..pipeline import FitResult, save_fit
 from .items import Item, ItemError, LoadedItem, _reading, item_error, load_item
 
 __all__ = ["FitOptions", "DatasetFitter", "keypoint_config", "silhouette_config"]
@@ -53,7 +52,7 @@ def keypoint_config(options: Dict[str, object]) -> KeypointFitConfig:
     """A :class:`KeypointFitConfig` with ``options`` (field name -> value; strings are parsed
     by the type of the field's default, tuples comma-separated)."""
     base = KeypointFitConfig()
-    names = {f.name for f in fields(base)}
+    names = {f.name for f in fields(base)} | set(getattr(KeypointFitConfig, "renamed_fields", {}))  # old names too
     values = {}
     for key, value in options.items():
         if key not in names:
@@ -108,25 +107,27 @@ class DatasetFitter:
         self.config = keypoint_config(options.keypoint_options)
         self.pose_prior = load_pose_prior(options.pose_prior, dtype=self.model.dtype)
         self.silhouette_config = silhouette_config(options)
-        self._fitters: Dict[str, KeypointFitter] = {}
-        self._renderer = None
-
-    def fitter(self, layout: str) -> KeypointFitter:
-        if layout not in self._fitters:
-            self._fitters[layout] = KeypointFitter(self.model, layout, self.config, self.pose_prior)
-        return self._fitters[layout]
-
-    @property
-    def renderer(self):
-        if self._renderer is None:
-            from renderers.silhouette import get_silhouette_renderer
-
-            self._renderer = get_silhouette_renderer(self.model.faces)
-        return self._renderer
 
     # ------------------------------------------------------------------ one batch
+    def job(self, li: LoadedItem):
+        """The :class:`silfit.run.Job` of a loaded item (one image; ``--focal`` applied)."""
+        from ..fitting.problem import Problem
+        from ..run import Job
+
+        camera = li.camera if self.options.focal is None else replace(li.camera, fx=float(self.options.focal),
+                                                                        fy=float(self.options.focal))  # fmt: skip
+        return Job(Problem.single(li.keypoints, camera, li.mask), self.model, pose_prior=self.pose_prior,
+                   keypoint_config=self.config, silhouette_config=self.silhouette_config, silhouette=self.options.silhouette,
+                   progress=False, warnings=list(li.warnings), images={} if li.image is None else {(0, 0): li.image},
+                   mask_sources={(0, 0): li.mask_file or "mask"})  # fmt: skip
+
     def run_batch(self, items: Sequence[Item], out: Union[str, os.PathLike]) -> List[dict]:
-        """Fit ``items`` and write their folders under ``out``; one record per item, in order."""
+        """Fit ``items`` (:func:`silfit.run.run_batch`: the checks, one batched keypoint stage per
+        layout, the silhouette stage batched over the items with masks, the warnings) and write
+        their folders under ``out``; one record per item, in order."""
+        from ..pipeline import StageFailure
+        from ..run import run_batch
+
         out = Path(out)
         records: Dict[str, dict] = {}
         loaded: List[LoadedItem] = []
@@ -140,31 +141,27 @@ class DatasetFitter:
 
                     parts = _reading("keypoints", it.keypoints, read_wholebody_parts, it.keypoints, li.person)
                     li.keypoints = _reading("keypoints", it.keypoints, choose_fit_keypoints, li.keypoints, parts, self.model)[0]
-                # the checks every input gets (silfit.plausibility), as for one image
-                li.keypoints, li.warnings = _reading("keypoints", it.keypoints, check_keypoints, li.keypoints, li.camera.size)
                 loaded.append(li)
             except ItemError as err:
                 records[it.key] = _failed(it, "load", err)
             times[it.key] = {"load": time.perf_counter() - t0}
-
-        fitted = self.keypoint_stage(loaded, times)
-        jobs = []
-        for li, res in zip(loaded, fitted):
-            if isinstance(res, ItemError):
-                records[li.item.key] = _failed(li.item, "keypoints", res)
-            else:
-                jobs.append((li, res))
-        for (li, _), res in zip(jobs, self.silhouette_stage(jobs, times)):
+        fits = run_batch([self.job(li) for li in loaded], isolate=True)
+        for li, fit in zip(loaded, fits):
             key = li.item.key
-            if isinstance(res, ItemError):
-                records[key] = _failed(li.item, "silhouette", res)
+            if isinstance(fit, Exception):  # the checks (as reading), or a stage
+                stage = fit.stage if isinstance(fit, StageFailure) else "load"
+                err = fit.error if isinstance(fit, StageFailure) else fit
+                source, component = (li.mask_file, "mask") if stage == "silhouette" else (li.item.keypoints, "keypoints")
+                records[key] = _failed(li.item, stage, item_error(err, source, component))
                 continue
-            res.metrics["warnings"] = li.warnings + res.metrics.get("warnings", []) + fit_warnings(res.metrics, li.keypoints, res.vertices, res.params.get("betas")) \
-                + ambiguity_warnings((res.keypoint.branch_search or [None])[0])
+            res = fit.stage
+            times[key]["keypoints"] = float(res.metrics["timings_s"]["keypoints"])
+            if res.silhouette is not None:
+                times[key]["silhouette"] = float(res.silhouette.seconds)
             t0 = time.perf_counter()
             try:
-                save_fit(res, out / key, self.faces, li.keypoints, li.image, li.mask, self._extra(li, len(loaded)), overwrite=True,
-                         exports=tuple(self.options.exports))
+                save_fit(res, out / key, self.faces, fit.job.problem.observations[0].keypoints, li.image, li.mask,
+                         self._extra(li, len(loaded)), overwrite=True, exports=tuple(self.options.exports))  # fmt: skip
             except (OSError, ValueError) as err:
                 records[key] = _failed(li.item, "save", item_error(err, os.fspath(out / key), "output"))
                 continue
@@ -175,56 +172,6 @@ class DatasetFitter:
             t["total"] = sum(t.values())
             records[it.key]["timings_s"] = {k: round(v, 4) for k, v in t.items()}
         return [records[it.key] for it in items]
-
-    def keypoint_stage(self, loaded: Sequence[LoadedItem], times: Dict[str, dict]) -> list:
-        """Keypoint-only :class:`FitResult` (or :class:`ItemError`) per item: one batched fit
-        per layout; if a batch fails, its items are fitted one by one so only the bad fail."""
-        results: list = [None] * len(loaded)
-        by_layout: Dict[str, List[int]] = {}
-        for i, li in enumerate(loaded):
-            by_layout.setdefault(li.keypoints.layout, []).append(i)
-        for layout, idx in by_layout.items():
-            fitter = self.fitter(layout)
-            t0 = time.perf_counter()
-            try:
-                batch = self._fit(fitter, [loaded[i] for i in idx])
-                singles = [(i, batch[j], len(idx)) for j, i in enumerate(idx)]
-            except Exception:  # noqa: BLE001 - isolate the failing item(s)
-                singles = []
-                for i in idx:
-                    try:
-                        singles.append((i, self._fit(fitter, [loaded[i]])[0], 1))
-                    except Exception as err:  # noqa: BLE001
-                        results[i] = item_error(err, loaded[i].item.keypoints, "keypoints")
-            share = (time.perf_counter() - t0) / len(idx)
-            for i, kp, n in singles:
-                scale = 1.0 / n
-                kp = replace(kp, timings={k: v * scale for k, v in kp.timings.items()})
-                results[i] = _keypoint_only(loaded[i], kp)
-            for i in idx:
-                times[loaded[i].item.key]["keypoints"] = share
-        return results
-
-    def _fit(self, fitter: KeypointFitter, batch: Sequence[LoadedItem]):
-        return fitter.fit([li.keypoints for li in batch], [li.camera for li in batch], focal=self.options.focal, progress=False)
-
-    def silhouette_stage(self, jobs, times: Dict[str, dict]) -> list:
-        """The silhouette stage of a batch (``jobs``: ``(LoadedItem, keypoint FitResult)``):
-        refined :class:`FitResult` or :class:`ItemError` per job; items without a mask (or with
-        the stage off) keep their keypoint result. The one place a batched stage would go."""
-        out = []
-        for li, res in jobs:
-            if li.mask is None or not self.options.silhouette:  # (masks are not read without the stage)
-                out.append(res)
-                continue
-            t0 = time.perf_counter()
-            try:
-                out.append(refine(self.model, res.keypoint, li.keypoints, li.mask, self.silhouette_config,
-                                  self.pose_prior, progress=False, mask_source=li.mask_file))  # fmt: skip
-            except Exception as err:  # noqa: BLE001 - one item's failure
-                out.append(item_error(err, li.mask_file, "mask"))
-            times[li.item.key]["silhouette"] = time.perf_counter() - t0
-        return out
 
     # ------------------------------------------------------------------ records
     def _silhouette_status(self, li: LoadedItem) -> str:
@@ -238,10 +185,6 @@ class DatasetFitter:
             "mask": li.mask_file, "image": li.item.image, "camera_file": li.item.camera, "model": self.model.source,
             "silhouette_stage": self._silhouette_status(li), "keypoint_batch_size": batch,
         }  # fmt: skip
-        if li.keypoints.layout == "wholebody":  # which parts were fitted, which held at rest
-            from ..fitting.wholebody import wholebody_summary
-
-            extra["whole_body"] = wholebody_summary(li.keypoints)[0]
         return extra
 
     def _record(self, li: LoadedItem, res: FitResult, batch: int) -> dict:
@@ -265,16 +208,3 @@ def _round(v: float) -> float:
 
 def _failed(item: Item, stage: str, err: ItemError) -> dict:
     return {"item": item.key, "status": "failed", "keypoints": item.keypoints, "stage": stage, "error": err.to_dict()}
-
-
-def _keypoint_only(li: LoadedItem, kp) -> FitResult:
-    """The one-image :class:`FitResult` of a keypoint-stage result (as :func:`silfit.fit`
-    gives without a mask)."""
-    metrics = {
-        "stages": ["keypoints"],
-        "timings_s": {**{f"keypoints.{k}": float(v) for k, v in kp.timings.items()}, "keypoints": float(kp.timings.get("total", 0.0))},
-        "reprojection_error_px": float(kp.reprojection_error[0]),
-        "warnings": [],
-    }  # fmt: skip
-    return FitResult(kp.camera, li.keypoints.layout, kp, None, kp.params(0), kp.vertices[0], kp.joints[0],
-                     kp.keypoints_2d[0], metrics)  # fmt: skip

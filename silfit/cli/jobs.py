@@ -1,0 +1,266 @@
+"""``silfit fit``'s input builders: the command line's files and flags -> one
+:class:`silfit.run.Job` (one image or photo, a rig, a video). Each reads and checks its files
+(one reader per format: :mod:`silfit.keypoints`, :mod:`silfit.silhouette.masks`,
+:mod:`silfit.camera`, :mod:`silfit.rig`, :mod:`silfit.video`, :mod:`silfit.imagefile`) and
+fits nothing; :func:`silfit.run.run` does the rest for all three.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..fitting.problem import Observation, Problem
+from ..run import Job
+from ..run import video_job as make_video_job
+from . import CLIError, note, warn
+from .common import choose_model, silhouette_config
+
+__all__ = ["build_job", "image_job", "rig_job", "video_job", "describe_inputs"]
+
+
+def _person(text: str):
+    if text == "largest":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise CLIError(f"--person {text!r}: expected a person index (0, 1, ...) or 'largest'") from None
+
+
+def _check_out(args) -> None:
+    out = Path(args.out)
+    if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
+        raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
+
+
+def _parse_size(text: str) -> tuple:
+    from ..input_limits import check_image_size
+
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise CLIError(f"--image-size {text!r}: expected WxH, e.g. 640x480") from None
+    check_image_size(w, h, "--image-size", field="image size")
+    return w, h
+
+
+def _pose_prior(args, model):
+    from ..errors import InputError
+    from ..priors import load_pose_prior
+
+    pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
+    if getattr(pose_prior, "dim", model.num_body_pose) < model.num_body_pose:
+        raise InputError(args.pose_prior or "--pose-prior (default)", f"the pose prior is over {pose_prior.dim} values, the "
+                         f"model's body_pose has {model.num_body_pose}", field="means")  # fmt: skip
+    return pose_prior
+
+
+def _with_focal(camera, focal: float, what: str = "--focal"):
+    """``camera`` with focal length ``focal`` (checked as a camera file's focal length is)."""
+    from ..camera import camera_from_dict
+
+    return camera_from_dict({**camera.to_dict(), "fx": focal, "fy": focal}, what)
+
+
+def build_job(args) -> Job:
+    """The job ``silfit fit``'s arguments describe (a video, a rig or one image)."""
+    if getattr(args, "views", None) and not getattr(args, "rig", None):
+        raise CLIError("--views picks cameras of a rig; give --rig DIR")
+    if args.sequence and getattr(args, "rig", None):
+        raise CLIError("--sequence with --rig: fitting a rig's video is not available; choose one")
+    if getattr(args, "export", None) and getattr(args, "rig", None):
+        raise CLIError("--export with --rig: not available (a rig's world frame has no fixed up axis); mesh.obj holds the body")
+    if args.sequence:
+        return video_job(args)
+    if getattr(args, "rig", None):
+        return rig_job(args)
+    return image_job(args)
+
+
+def image_job(args) -> Job:
+    """One image (or photo: keypoints, mask and EXIF focal length detected when not given)."""
+    from ..camera import Camera, read_camera_file
+    from ..keypoints import read_keypoints
+    from ..silhouette.masks import read_mask
+    from ..wholebody import choose_fit_keypoints, read_wholebody_parts
+
+    if args.mask and args.no_silhouette:
+        raise CLIError("--mask and --no-silhouette contradict each other")
+    _check_out(args)
+    person = _person(args.person)
+    photo = None
+    if args.image:
+        from .detect import photo_inputs
+
+        photo = photo_inputs(args.image, person, not args.keypoints, not (args.mask or args.no_silhouette),
+                             getattr(args, "detected", None))  # fmt: skip
+    elif not args.keypoints:
+        raise CLIError("no keypoints: give --keypoints KP.json, or --image PHOTO to detect them")
+    keypoints = read_keypoints(args.keypoints, person=person) if args.keypoints else photo["keypoints"]
+    image, size = (photo["image"], photo["size"]) if photo else (None, _parse_size(args.image_size) if args.image_size else None)
+    camera, warnings, camera_source = None, list(photo["warnings"]) if photo else [], None
+    if args.camera:  # R, t (optional) checked as for rigs; one image is fitted in its camera's frame
+        camera, R, t = read_camera_file(args.camera)
+        camera_source = "camera file"
+        if R is not None and (np.abs(R - np.eye(3)).max() > 1e-9 or np.abs(t).max() > 1e-9):
+            camera_source += " (its R, t not applied: one image is fitted in the camera's frame; --rig fits in the world frame)"
+            warn(f"{args.camera}: camera R, t not applied: one image is fitted in the camera's frame")
+        if size is not None and tuple(size) != (camera.width, camera.height):
+            raise CLIError(f"{args.camera}: camera is {camera.width}x{camera.height} but the image is {size[0]}x{size[1]}")
+    mask = None
+    if args.mask:
+        mask = read_mask(args.mask, size=(camera.width, camera.height) if camera is not None else size)
+        size = size or (mask.shape[1], mask.shape[0])
+    elif photo and photo["mask"] is not None:
+        mask = photo["mask"]
+    if camera is None:
+        if size is None:
+            raise CLIError("no camera: give --camera C.json, or --image / --image-size / --mask for the default camera")
+        camera = Camera.from_image_size(*size)
+        camera_source = "default max(W, H)"
+        if args.focal is not None:
+            camera, camera_source = _with_focal(camera, args.focal), "--focal"
+        elif photo and photo["focal"]:
+            camera, camera_source = _with_focal(camera, photo["focal"], photo["focal_source"]), photo["focal_source"]
+    wholebody = read_wholebody_parts(args.keypoints, person) if args.keypoints else None
+    model, model_note = choose_model(args.model, args.gender, wholebody is not None and wholebody.has_parts)
+    if model_note:
+        note(model_note)
+    keypoints, choice_note = choose_fit_keypoints(keypoints, wholebody, model)
+    if choice_note:
+        note(choice_note)
+    record = {"keypoints": args.keypoints and os.fspath(args.keypoints), "mask": args.mask, "image": args.image,
+              "model": model.source, "camera_source": camera_source, **(photo["metrics"] if photo else {})}  # fmt: skip
+    return Job(Problem.single(keypoints, camera, mask), model, pose_prior=_pose_prior(args, model),
+               silhouette_config=silhouette_config(args), silhouette=not args.no_silhouette, progress=not args.quiet,
+               warnings=warnings, record=record, images={} if image is None else {(0, 0): image},
+               mask_sources={(0, 0): args.mask or "mask"})  # fmt: skip
+
+
+def rig_job(args) -> Job:
+    """One body seen by a calibrated rig (:func:`silfit.rig.load_rig`: a ``cameras.json``
+    manifest, EasyMocap's ``intri.yml`` + ``extri.yml``, or one sub-folder per view with its
+    ``camera.json``; each view holds ``keypoints.json`` and optionally ``mask.png`` and
+    ``image.png``), fitted in world coordinates; ``--views`` picks cameras."""
+    from ..errors import InputError
+    from ..imagefile import read_rgb
+    from ..keypoints import read_keypoints
+    from ..rig import load_rig
+    from ..silhouette.masks import read_mask
+
+    for flag in ("keypoints", "mask", "camera", "focal", "image", "image_size"):
+        if getattr(args, flag, None):
+            raise CLIError(f"--rig reads every view's files from the rig folder; --{flag.replace('_', '-')} is not used with it")
+    _check_out(args)
+    person = _person(args.person)
+    views = load_rig(args.rig)
+    if args.views:
+        names = args.views.split(",")
+        known = [v.name for v in views]
+        unknown = [n for n in names if n not in known]
+        if unknown:
+            raise InputError("--views", f"unknown view(s) {', '.join(unknown)} (the rig has {', '.join(known)})")
+        views = [v for v in views if v.name in names]
+    obs, names, images, warnings, first = [], [], {}, [], None
+    for v in views:
+        try:
+            ks = read_keypoints(v.keypoints, person=person)
+        except InputError as err:  # a view without usable keypoints is set aside (as check() does with refused ones)
+            first = first or err
+            warnings.append(f"view {v.name} set aside: {err}")
+            continue
+        cam = v.view.camera
+        mask = read_mask(v.mask, size=(cam.width, cam.height)) if v.mask is not None else None  # IoU even without the stage
+        if v.image is not None:
+            img = read_rgb(v.image, "image")
+            if (img.shape[1], img.shape[0]) != (cam.width, cam.height):
+                raise CLIError(f"{v.image}: image is {img.shape[1]}x{img.shape[0]} but view {v.name}'s camera is "
+                               f"{cam.width}x{cam.height}")  # fmt: skip
+            images[(0, len(obs))] = img
+        warnings += list(v.warnings)
+        obs.append(Observation(v.view, ks, mask, 0, len(obs)))
+        names.append(v.name)
+    if not obs:
+        raise first
+    model = choose_model(args.model, args.gender, False)[0]
+    return Job(Problem(obs), model, names, pose_prior=_pose_prior(args, model), silhouette_config=silhouette_config(args),
+               silhouette=not args.no_silhouette, progress=not args.quiet, warnings=warnings,
+               record={"rig": str(args.rig), "model": model.source}, images=images, rig=True)  # fmt: skip
+
+
+def _video_camera(args, seq):
+    from ..camera import Camera, load_camera
+    from ..imagefile import image_file_size
+
+    if args.camera or seq.camera:
+        path = args.camera or seq.camera
+        cam = load_camera(path)
+        if args.focal is None:
+            return cam, f"camera file {path}"
+        return _with_focal(cam, args.focal), f"camera file {path} with --focal {args.focal:g}"
+    size = None
+    if args.image_size:
+        size = _parse_size(args.image_size)
+    else:
+        for files, what in ((seq.images, "image"), (seq.masks, "mask")):
+            if files:
+                size = image_file_size(next(iter(files.values())), what)
+                break
+    if size is None:
+        raise CLIError("no camera: give --camera C.json, or --images / --masks / --image-size for the default camera")
+    cam = Camera.from_image_size(*size)
+    if args.focal is not None:
+        cam = _with_focal(cam, args.focal)
+    return cam, f"--focal {args.focal:g}" if args.focal else "default focal max(W, H)"
+
+
+def video_job(args) -> Job:
+    """One person over a video's frames (:func:`silfit.video.read_sequence`: per-frame
+    OpenPose JSON, masks and images matched by frame number, a ``camera.json`` beside)."""
+    from ..fitting.sequence import SequenceFitConfig
+    from ..silhouette.masks import read_mask
+    from ..video import read_sequence
+    from ..wholebody import choose_fit_keypoints, read_wholebody_parts
+
+    for flag in ("keypoints", "mask", "image"):
+        if getattr(args, flag, None):
+            raise CLIError(f"--{flag} is for one image; with --sequence give the folders (--masks, --images)")
+    _check_out(args)
+    sil_config = silhouette_config(args)  # a bad flag is reported before any reading
+    seq = read_sequence(args.sequence, masks=args.masks, images=args.images, person=args.person)
+    camera, camera_source = _video_camera(args, seq)
+    # whole body: the frames' hand and face points decide the model (as for one image) and are fitted with it
+    person = _person(args.person)
+    parts = [read_wholebody_parts(p, person) if ks is not None else None for ks, p in zip(seq.frames, seq.files)]
+    model, model_note = choose_model(args.model, args.gender, any(w is not None and w.has_parts for w in parts))
+    if model_note:
+        note(model_note)
+    frames = [None if ks is None else choose_fit_keypoints(ks, w, model)[0] for ks, w in zip(seq.frames, parts)]
+    masks = [None] * len(frames)
+    if seq.masks and not args.no_silhouette:  # read (and checked) before --check-only answers
+        masks = [read_mask(seq.masks[n], size=(camera.width, camera.height), allow_empty=True) if n in seq.masks else None
+                 for n in seq.numbers]  # fmt: skip
+    cfg = SequenceFitConfig()
+    if args.sequence_iterations is not None:
+        cfg.iterations = int(args.sequence_iterations)
+    silhouette = "run" if any(m is not None for m in masks) else "not run (no masks)" if not seq.masks else "not run (--no-silhouette)"
+    job = make_video_job(frames, camera, model, masks=masks, config=cfg, silhouette_config=sil_config,
+                         pose_prior=_pose_prior(args, model), progress=not args.quiet, numbers=seq.numbers, inputs=seq,
+                         warnings=seq.warnings, record={"sequence": str(args.sequence), "model": model.source,
+                                                        "camera_source": camera_source, "silhouette": silhouette})  # fmt: skip
+    job.silhouette = not args.no_silhouette
+    return job
+
+
+def describe_inputs(job: Job) -> str:
+    """``--check-only``'s line: what will be fitted, with which camera."""
+    if job.mode == "video":
+        seq, cam = job.inputs, job.problem.observations[0].view.camera
+        return (f"inputs OK: {len(seq.numbers)} frames ({seq.detected} with a person), {len(seq.masks)} masks, "
+                f"{len(seq.images)} images; camera: {job.record['camera_source']} (fx {cam.fx:g}, {cam.width}x{cam.height})")  # fmt: skip
+    if job.mode == "rig":
+        return f"inputs OK ({job.num_views} views)"
+    cam = job.problem.observations[0].view.camera
+    return f"inputs OK; camera: {job.record.get('camera_source')} (fx {cam.fx:g}, {cam.width}x{cam.height})"

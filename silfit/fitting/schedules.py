@@ -1,0 +1,82 @@
+"""The default schedules, as literal stage tables: one row per stage, weights by energy term.
+
+These are what the configs' defaults give (:meth:`KeypointFitConfig.stages`,
+:meth:`SilhouetteFitConfig.stages`, :meth:`SequenceFitConfig.stages`; a test checks each table
+against its config), written out so a schedule reads at a glance. A table is also a valid
+``schedule`` to start from: ``KeypointFitConfig(schedule=[...])`` runs any list of stages.
+Every weight has one name, the term's (``pose``: the pose prior, whose config field is
+``pose_weight`` in every config). Each stage runs in :func:`~silfit.fitting.stages.run_stage`,
+which dispatches on the optimiser column.
+"""
+from __future__ import annotations
+
+from .stages import Stage
+
+__all__ = ["KEYPOINT_SCHEDULE", "SEQUENCE_SCHEDULE", "SILHOUETTE_SCHEDULE", "WHOLEBODY_KEYPOINT_SCHEDULE"]
+
+CAMERA = ("global_orient", "transl")
+POSE = ("global_orient", "transl", "body_pose")
+SHAPE = ("betas", "transl")
+ALL = ("betas",) + POSE
+HANDS = ("left_hand_pose", "right_hand_pose")
+FACE = ("jaw_pose", "expression")
+#: the keypoint stage's limb-branch search (:mod:`silfit.fitting.branches`)
+BRANCHES = {"branches": {"min_depth_ratio": 0.3, "whole_limbs": True, "screen_after": 10, "survivors": 3}}
+
+#: single image (and the per-frame start of a video), SMPL: :class:`~silfit.fitting.keypoint_stage.KeypointFitConfig`
+KEYPOINT_SCHEDULE = (
+    #     name          free    weights (term: weight)                                                          iterations
+    Stage("camera",     CAMERA, {"torso": 1.0, "depth": 1e3},                                                        30),
+    Stage("pose_1",     POSE,   {"keypoints": 1.0, "pose": 2000.0, "angle": 10.0, "limits": 1e4},                    30,
+          options={"decide_after": 20}),  # each problem keeps its best start (facing x initial pose) after 20 steps
+    Stage("pose_2",     POSE,   {"keypoints": 1.0, "pose": 400.0, "angle": 5.0, "limits": 1e4},                      30),
+    Stage("branches_1", POSE,   {"keypoints": 1.0, "pose": 400.0, "angle": 5.0, "limits": 1e4,
+                                 "interpenetration": 1e5},                                                           20,
+          options=BRANCHES),
+    Stage("pose_3",     POSE,   {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4},                       40),
+    Stage("shape",      SHAPE,  {"keypoints": 1.0, "shape": 20.0},                                                   20),
+    Stage("final",      ALL,    {"keypoints": 1.0, "pose": 40.0, "angle": 1.0, "limits": 1e4, "shape": 5.0,
+                                 "interpenetration": 1e5},                                                           40),
+)  # fmt: skip
+
+#: whole body (an SMPL-X-layout model, the ``wholebody`` keypoints): the body's schedule, the hands started
+#: from their best library pose (``hands``), then the hand and face terms on in the last pose stage and after
+WHOLEBODY_KEYPOINT_SCHEDULE = KEYPOINT_SCHEDULE[:4] + (
+    Stage("hands",      POSE + HANDS,        {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4,
+                                              "hands": 1.0, "hand_pose": 2.0},                                       30,
+          options={"hand_starts": True}),
+    Stage("pose_3",     POSE + HANDS + FACE, {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4,
+                                              "hands": 1.0, "hand_pose": 2.0, "face": 1.0, "jaw": 50.0,
+                                              "expression": 2.0},                                                    40),
+    Stage("shape",      SHAPE,               {"keypoints": 1.0, "shape": 20.0, "hands": 2.0, "face": 2.0},           20),
+    Stage("final",      ALL + HANDS + FACE,  {"keypoints": 1.0, "pose": 40.0, "angle": 1.0, "limits": 1e4,
+                                              "shape": 5.0, "interpenetration": 1e5, "hands": 2.0,
+                                              "hand_pose": 2.0, "face": 2.0, "jaw": 50.0, "expression": 2.0},        40),
+)  # fmt: skip
+
+SIL_FREE = ("betas", "global_orient", "body_pose", "transl")
+#: the silhouette stage's terms and weights other than the silhouette's own (every level)
+SIL_PRIORS = {"keypoints": 0.02, "pose": 0.002, "limits": 1.0, "angle": 0.001, "shape": 0.005, "stay": 0.0,
+              "keypoint_trust": 0.05, "beta_bound": 10.0}  # fmt: skip
+#: Adam's settings of the rendered levels (:class:`~silfit.fitting.stages.AdamSettings`)
+SIL_ADAM = {"lr": {"betas": 0.1, "global_orient": 0.02, "body_pose": 0.03, "transl": 0.01}, "warmup": 5,
+            "plateau_window": 12, "plateau_rtol": 0.003}  # fmt: skip
+
+#: the silhouette stage: :class:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig` (no rendering in the
+#: contour level; each rendered level's window has ``resolution`` pixels along its longer side)
+SILHOUETTE_SCHEDULE = (
+    #     name              free      weights                                                     iterations optimiser
+    Stage("contour",        SIL_FREE, {"contour_inside": 0.05, "contour_cover": 0.05, **SIL_PRIORS}, 20, "lbfgs",
+          {"resolution": 256}),
+    Stage("silhouette_128", SIL_FREE, {"silhouette": 1.0, **SIL_PRIORS},                             40, "adam",
+          {"resolution": 128, **SIL_ADAM}),
+    Stage("silhouette_256", SIL_FREE, {"silhouette": 1.0, **SIL_PRIORS},                             25, "adam",
+          {"resolution": 256, **SIL_ADAM}),
+)  # fmt: skip
+
+#: a video's joint refinement (one problem of F frames, one shape):
+#: :class:`~silfit.fitting.sequence.SequenceFitConfig` (windowed: a second pass of 40 steps with ``betas`` held)
+SEQUENCE_SCHEDULE = (
+    Stage("sequence", ALL, {"keypoints": 1.0, "pose": 40.0, "angle": 1.0, "limits": 1e4, "smooth_joints": 1.0,
+                            "smooth_root": 1.0, "shape": 5.0}, 100),
+)  # fmt: skip

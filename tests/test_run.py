@@ -1,0 +1,84 @@
+"""The one path (silfit.run): the checks every job gets, run_batch's batching and isolation,
+the one result type's shapes for an image, a rig and a video."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from silfit.dataset import load_subject
+from silfit.errors import InputError
+from silfit.fitting import KeypointFitConfig
+from silfit.fitting.problem import Observation, Problem, View
+from silfit.keypoints import KeypointSet
+from silfit.run import Job, StageFailure, check, image_job, run, run_batch
+
+SHIPPED = Path(__file__).resolve().parents[1] / "data" / "synthetic"
+FAST = KeypointFitConfig(camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branch_search=False)
+
+
+@pytest.fixture(scope="module")
+def subject():
+    return load_subject(SHIPPED / "subject_000")
+
+
+def _far(ks: KeypointSet, index: int) -> KeypointSet:
+    xy = ks.xy.copy()
+    xy[index] = [1e6, 1e6]
+    return KeypointSet(xy, ks.conf.copy(), ks.layout, ks.source)
+
+
+def _unusable(ks: KeypointSet) -> KeypointSet:
+    return KeypointSet(np.full_like(ks.xy, 1e30), ks.conf.copy(), ks.layout, ks.source)
+
+
+def test_check_drops_far_points_of_an_image_and_refuses_an_unusable_one(subject):
+    job = check(image_job(_far(subject.keypoints, 4), camera=subject.camera))
+    assert job.problem.observations[0].keypoints.conf[4] == 0 and any("outside" in w for w in job.warnings)
+    with pytest.raises(InputError):
+        check(image_job(_unusable(subject.keypoints), camera=subject.camera))
+
+
+def test_check_sets_a_rig_view_aside_and_a_video_frame_becomes_undetected(subject):
+    ks, cam = subject.keypoints, subject.camera
+    rig = Job(Problem([Observation(View(cam), ks, None, 0, 0), Observation(View(cam), _unusable(ks), None, 0, 1)]),
+              view_names=["a", "b"], rig=True)  # fmt: skip
+    checked = check(rig)
+    assert list(checked.view_names) == ["a"] and checked.num_views == 1 and checked.mode == "rig"
+    assert any(w.startswith("view b set aside") for w in checked.warnings)
+    video = Job(Problem([Observation(View(cam), k, None, f) for f, k in enumerate([ks, _unusable(ks), ks])]),
+                frame_numbers=[10, 11, 12])  # fmt: skip
+    checked = check(video)
+    assert checked.mode == "video" and checked.problem.grid()[1][0].keypoints is None
+    assert any("11" in w and "unusable" in w for w in checked.warnings)
+
+
+def test_run_batch_isolates_a_failing_silhouette_stage(open_model, subject):
+    far = np.zeros_like(subject.mask)
+    far[:10, :10] = True  # a mask far from the person: the silhouette stage refuses it
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+
+    sil = SilhouetteFitConfig(resolutions=(32,), iterations=(2,))
+    jobs = [image_job(subject.keypoints, mask, subject.camera, model=open_model, keypoint_config=FAST, silhouette_config=sil,
+                      progress=False) for mask in (far, None)]  # fmt: skip
+    bad, good = run_batch(jobs, isolate=True)
+    assert isinstance(bad, StageFailure) and bad.stage == "silhouette" and "does not overlap" in str(bad)
+    assert bad.partial is not None and bad.partial.silhouette is None  # the keypoint stage's fit is kept
+    assert good.vertices.shape == (1, open_model.num_vertices, 3) and good.keypoints_2d.shape[:2] == (1, 1)
+    # the same image alone: the batch changed nothing (rows are independent)
+    alone = run(image_job(subject.keypoints, None, subject.camera, model=open_model, keypoint_config=FAST, progress=False))
+    assert np.allclose(alone.params["body_pose"], good.params["body_pose"], atol=1e-5)
+    with pytest.raises(ValueError, match="does not overlap"):
+        run_batch(jobs[:1])
+
+
+def test_run_gives_one_result_type_for_a_video(open_model, subject):
+    from silfit.fitting.sequence import SequenceFitConfig
+
+    ks, cam = subject.keypoints, subject.camera
+    cfg = SequenceFitConfig(keypoint=FAST, iterations=3, neighbour_starts=False)
+    job = Job(Problem([Observation(View(cam), k, None, f) for f, k in enumerate([ks, None, ks])]), open_model,
+              sequence_config=cfg, progress=False)  # fmt: skip
+    fit = run(job)
+    assert fit.vertices.shape == (3, open_model.num_vertices, 3) and fit.reprojection_error.shape == (3, 1)
+    assert fit.params["betas"].ndim == 1 and fit.params["body_pose"].shape == (3, 69)
+    assert np.isnan(fit.reprojection_error[1, 0]) and any("bridged" in w for w in fit.warnings)
