@@ -6,12 +6,17 @@ hips and knees removed: mask, keypoints below the cut at confidence 0, the same 
 shorter image); ``clothing``: the mask dilated by 4 % of the person's height (loose clothes,
 hair); ``leak``: a block as wide as 30 % of the person's height joined to the mask's side at the
 hips (a segmentation leak into an object). Each subject is fitted once by the keypoint stage,
-then by the silhouette stage twice: *before* (``truncation_aware=False``, no keypoint trust
-region, no bound on |beta|) and *after* (the defaults). Printed per condition: PA-PVE and PVE
+then by the silhouette stage per method: *original* (before issue 23: ``truncation_aware=False``,
+no keypoint trust region, no bound on |beta|, the plain two-sided energy), *before* (issue 23's
+first part, the plain energy, no clothing trim, no plausibility guard: HEAD before the second
+part) and *after* (the defaults: the robust, capped mask-not-covered side, the clothing trim and
+the plausibility guard); ``--methods`` picks them, ``--set`` changes the after configuration
+(tuning). The last column counts the subjects whose mask was trimmed as clothing and those
+whose fit the guard replaced by the keypoint fit. Printed per condition: PA-PVE and PVE
 (mm, against the whole true body), median reprojection error (px, visible keypoints), max |beta|,
 IoU with the given mask (inside the image) and the stage's seconds; mean and worst.
 
-    python benchmarks/bench_truncation.py --n 4 --seed 23
+    python benchmarks/bench_truncation.py --n 6 --seed 101 --methods original,before,after
 """
 from __future__ import annotations
 
@@ -77,7 +82,22 @@ def conditions(d: Path):
             "leak": (kp, leak(mask, kp), cam)}, gt  # fmt: skip
 
 
-BEFORE = dict(truncation_aware=False, w_trust=0.0, w_beta_bound=0.0)
+#: the silhouette stage before issue 23 (no truncation, no keypoint trust region, no bound on |beta|,
+#: the plain two-sided energy)
+ORIGINAL = dict(truncation_aware=False, w_trust=0.0, w_beta_bound=0.0, robust_cover=False, trim_clothing=False,
+                plausibility_guard=False)
+#: before the clothing/leak-robust energy (issue 23's first part: truncation, trust region, beta bound)
+BEFORE = dict(robust_cover=False, trim_clothing=False, plausibility_guard=False)
+METHODS = {"original": ORIGINAL, "before": BEFORE, "after": {}}
+
+
+def _value(text: str):
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    return {"true": True, "false": False}.get(text.lower(), text)
 
 
 def main() -> None:
@@ -85,7 +105,13 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=8)
     ap.add_argument("--seed", type=int, default=23)
     ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--conditions", default="clean,cut,clothing,leak", help="comma-separated subset")
+    ap.add_argument("--methods", default="before,after", help=f"comma-separated, of {', '.join(METHODS)}")
+    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                    help="change a SilhouetteFitConfig field of 'after' (tuning), repeatable")
     args = ap.parse_args()
+    after = {k: _value(v) for k, v in (x.split("=", 1) for x in args.set)}
+    methods = {m: (after if m == "after" else METHODS[m]) for m in args.methods.split(",")}
 
     from silfit.synth.generate import SynthConfig, generate_dataset
 
@@ -95,16 +121,21 @@ def main() -> None:
         dirs = sorted(p for p in (Path(tmp) / "d").iterdir() if (p / "gt.npz").is_file())
         subjects = [conditions(d) for d in dirs]
     fitter = KeypointFitter(model)
-    print(f"# Real-photo conditions: {len(subjects)} subjects per condition (seed {args.seed}, {args.size} px)\n")
-    print("| condition | method | PA-PVE mean / worst (mm) | PVE mean (mm) | reprojection median px (mean / worst) | max abs beta | IoU mean | s per image |")
-    print("|---|---|---|---:|---|---:|---:|---:|")
-    for cond in ("clean", "cut", "clothing", "leak"):
+    print(f"# Real-photo conditions: {len(subjects)} subjects per condition (seed {args.seed}, {args.size} px)"
+          + (f"; after: {after}" if after else "") + "\n")  # fmt: skip
+    print("| condition | method | PA-PVE mean / worst (mm) | PVE mean (mm) | reprojection median px (mean / worst) | max abs beta | IoU mean | s per image | trimmed / kept kp fit |")
+    print("|---|---|---|---:|---|---:|---:|---:|---:|")
+    kp_cache = {}  # clean, clothing and leak share the keypoints: one keypoint fit
+    for cond in args.conditions.split(","):
         sets, masks, cams = (list(x) for x in zip(*[c[cond] for c, _ in subjects]))
         gts = [g for _, g in subjects]
-        kp = fitter.fit(sets, cams, progress=False)
+        key = "cut" if cond == "cut" else "full"
+        if key not in kp_cache:
+            kp_cache[key] = fitter.fit(sets, cams, progress=False)
+        kp = kp_cache[key]
         _row(cond, "keypoints only", [_score(model, kp.params(i), g, None, reproj=float(kp.reprojection_error[i]))
                                       for i, g in enumerate(gts)], None)  # fmt: skip
-        for name, changes in (("before", BEFORE), ("after", {})):
+        for name, changes in methods.items():
             cfg = replace(SilhouetteFitConfig(), **changes)
             t0 = time.perf_counter()
             fits = refine_batch(model, kp, sets, masks, cfg, fitter.pose_prior, progress=False)
@@ -119,8 +150,10 @@ def _score(model, params, gt, fit, reproj=None) -> dict:
     pa = 1000 * np.linalg.norm(procrustes_align(v, gt.vertices) - gt.vertices, axis=-1).mean()
     pve = 1000 * np.linalg.norm(v - gt.vertices, axis=-1).mean()
     m = fit.metrics if fit is not None else {}
+    warnings = m.get("warnings", [])
     return {"pa": pa, "pve": pve, "reproj": m.get("reprojection_error_px", reproj), "beta": float(np.abs(params["betas"]).max()),
-            "iou": m.get("iou", float("nan"))}  # fmt: skip
+            "iou": m.get("iou", float("nan")), "trimmed": any("trimmed by" in w for w in warnings),
+            "kept_kp": m.get("silhouette_guard", {}).get("kept") == "keypoints"}  # fmt: skip
 
 
 def _row(cond, name, rows, seconds) -> None:
@@ -128,7 +161,7 @@ def _row(cond, name, rows, seconds) -> None:
     pa, rp = get("pa"), get("reproj")
     print(f"| {cond} | {name} | {pa.mean():.1f} / {pa.max():.1f} | {get('pve').mean():.1f} | {rp.mean():.1f} / {rp.max():.1f} | "
           f"{get('beta').max():.2f} | {np.nanmean(get('iou')) if np.isfinite(get('iou')).any() else float('nan'):.3f} | "
-          f"{'' if seconds is None else f'{seconds:.1f}'} |")
+          f"{'' if seconds is None else f'{seconds:.1f}'} | {int(get('trimmed').sum())} / {int(get('kept_kp').sum())} |")
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ __all__ = [
     "iou_curve",
     "error_heatmap",
     "contact_sheet",
+    "side_view",
 ]
 
 DETECTED = (40, 200, 40)  # keypoints given to the fit
@@ -123,6 +124,51 @@ def paint_mesh(vertices, faces, camera: Camera, color=BODY_RGB) -> np.ndarray:
     for i in np.flatnonzero(onscreen)[np.argsort(-z[onscreen].mean(1), kind="stable")]:
         cv2.fillConvexPoly(out, pts[i], colours[i], lineType=cv2.LINE_8, shift=shift)
     return out
+
+
+REFERENCE_RGB = (0.95, 0.45, 0.10)  # the keypoint-stage body behind the final one in side views (linear RGB)
+
+
+def side_view(vertices: np.ndarray, faces: np.ndarray, reference: Optional[np.ndarray] = None, size: tuple = (320, 400),
+              degrees: float = 90.0, labels: tuple = ("final", "keypoint fit")) -> np.ndarray:  # fmt: skip
+    """The body seen from the side: camera-frame ``vertices [V, 3]`` (OpenCV axes) turned
+    ``degrees`` about the camera's vertical axis through the body's centre, painted (no GL,
+    :func:`paint_mesh`) over ``reference`` (the keypoint-stage body, same frame) in orange, both
+    framed by one camera so their placement in depth compares; the original camera looks from
+    the left (an arrow). Failures a front view hides show here: legs folded into the frame,
+    a body pushed in depth, a swollen belly. ``size`` is ``(W, H)``; RGB uint8."""
+    import cv2
+
+    from renderers.offscreen import framing_camera, rotate_about_vertical
+
+    v = np.asarray(vertices, dtype=np.float64)
+    centre = (v.min(0) + v.max(0)) / 2
+    meshes = [rotate_about_vertical(v, degrees, centre)]
+    if reference is not None:
+        meshes.append(rotate_about_vertical(np.asarray(reference, dtype=np.float64), degrees, centre))
+    union = np.concatenate(meshes).astype(np.float64)
+    W, H = int(size[0]), int(size[1])
+    camera, moved = framing_camera(union, W, H, fov_degrees=20.0, margin=0.1)
+    shift = moved[0].astype(np.float64) - union[0]
+    out = np.full((H, W, 3), 255.0, np.float32)
+    layers = [(meshes[1], REFERENCE_RGB, 0.55)] if reference is not None else []
+    for mesh, colour, alpha in layers + [(meshes[0], BODY_RGB, 0.8)]:
+        rgba = paint_mesh(mesh + shift, faces, camera, colour)
+        a = rgba[..., 3:].astype(np.float32) / 255.0 * alpha
+        out = out * (1 - a) + rgba[..., :3].astype(np.float32) * a
+    img = np.ascontiguousarray(np.clip(out + 0.5, 0, 255).astype(np.uint8))
+    font, scale = cv2.FONT_HERSHEY_SIMPLEX, max(0.35, H / 900)
+    y = int(18 * scale / 0.45)
+    (tw, _), _ = cv2.getTextSize("camera", font, scale, 1)
+    cv2.putText(img, "camera", (6, y + 4), font, scale, (90, 90, 90), 1, cv2.LINE_AA)
+    cv2.arrowedLine(img, (10 + tw, y), (int(10 + tw + W * 0.12), y), (90, 90, 90), 1, cv2.LINE_AA, tipLength=0.3)
+    legend = [(labels[0], BODY_RGB)] + ([(labels[1], REFERENCE_RGB)] if reference is not None else [])
+    for k, (text, colour) in enumerate(legend):
+        yy = H - 8 - int(k * 18 * scale / 0.45)
+        rgb = tuple(int(round(255 * c ** (1 / 2.2))) for c in colour)
+        cv2.rectangle(img, (6, yy - 9), (16, yy + 1), rgb, -1)
+        cv2.putText(img, text, (22, yy), font, scale, (40, 40, 40), 1, cv2.LINE_AA)
+    return img
 
 
 def silhouette_comparison(body: np.ndarray, mask: np.ndarray) -> np.ndarray:

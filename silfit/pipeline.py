@@ -11,6 +11,8 @@ Output folder written by :func:`save_fit` (and ``silfit fit``)::
     mesh.glb, mesh.ply         with ``exports``: the body upright (x right, y up, z toward the
                                viewer), normals, the camera in the glTF (silfit.outputs.export)
     overlay.png                the final body over the image (or a grey canvas) + keypoints
+    side.png                   the final body seen from the side, over the keypoint-stage body
+                               (orange) when a silhouette was fitted
     silhouette.png             final silhouette vs the mask (white: both, red: body only,
                                blue: mask only)            [with a mask]
     iou_curve.png              IoU and energy per silhouette step   [with a mask]
@@ -37,7 +39,7 @@ from .fitting.result import KeypointFitResult
 from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult
 from .keypoints import KeypointSet, model_keypoints
 from .outfolder import atomic_folder
-from .plausibility import ambiguity_warnings, fit_warnings, mask_warnings
+from .plausibility import ambiguity_warnings, body_stature, fit_summary, fit_warnings, mask_warnings, silhouette_guard
 from .eval.metrics import mask_iou
 from .silhouette.masks import validate_mask
 
@@ -109,6 +111,43 @@ def _median_reprojection(kp2d: np.ndarray, keypoints: KeypointSet) -> float:
     return float(np.median(err[keypoints.conf > 0]))
 
 
+def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources):
+    """``(masks for the stage, notes per mask)``: a mask reaching beyond the keypoint fit's body
+    all around (clothing) trimmed by that thickness (``SilhouetteFitConfig.trim_clothing``)."""
+    from .silhouette.losses import clothing_thickness, trim_clothing
+
+    out, notes = [], []
+    for mask, body, source in zip(masks, body_masks, sources):
+        ys, xs = np.nonzero(mask)
+        extent = float(max(np.ptp(ys), np.ptp(xs))) if len(ys) else 0.0
+        t = clothing_thickness(mask, body) if getattr(cfg, "trim_clothing", False) and extent > 0 else 0.0
+        if t <= cfg.trim_min * extent:
+            out.append(mask)
+            notes.append([])
+            continue
+        t = min(t, cfg.trim_max * extent)
+        out.append(trim_clothing(mask, t))
+        notes.append([f"{source}: the mask reaches about {t:.0f} px beyond the keypoint fit's body all around (loose "
+                      "clothing, hair or a grown mask?): the silhouette stage fitted it trimmed by that much"])
+    return out, notes
+
+
+def _guard(model, start: dict, params: dict, keypoints: KeypointSet, camera: Camera, kp2d: np.ndarray, where: str):
+    """:func:`~silfit.plausibility.silhouette_guard` of one refined fit against the keypoint fit
+    ``start`` it began from (reprojection error, |betas|, stature)."""
+    _, _, kp2d_start = _pose(model, start, keypoints.layout, camera)
+
+    def stature(p):
+        try:
+            return body_stature(model, p["betas"])
+        except (AttributeError, KeyError, RuntimeError):  # a model without a shape space of that form
+            return None
+
+    before = fit_summary(_median_reprojection(kp2d_start, keypoints), start.get("betas"), stature(start))
+    after = fit_summary(_median_reprojection(kp2d, keypoints), params.get("betas"), stature(params))
+    return silhouette_guard(before, after, where)
+
+
 def refine(
     model,
     keypoint_result: KeypointFitResult,
@@ -157,6 +196,7 @@ def refine_batch(
                 f"{mask_sources[i]}: the mask does not overlap the body fitted to the keypoints at all "
                 "(wrong mask, or keypoints of another image?)"
             )
+    fit_masks, trim_notes = _trimmed_masks(masks, kp_masks, config or SilhouetteFitConfig(), mask_sources)
     inits = [keypoint_result.params(i) for i in range(n)]
     from .fitting.problem import Problem
     from .fitting.silhouette_stage import fit_silhouette_problems
@@ -164,7 +204,7 @@ def refine_batch(
 
     # the layout decides the terms (a whole-body mesh keeps its hand and face keypoints)
     cfg, sets, terms, weights, data = silhouette_inputs(model, list(keypoints), config or SilhouetteFitConfig(), model.dtype)
-    problems = [Problem.single(k, cam, m) for k, cam, m in zip(sets, cameras, masks)]
+    problems = [Problem.single(k, cam, m) for k, cam, m in zip(sets, cameras, fit_masks)]
     sils = fit_silhouette_problems(model, problems, inits, keypoints[0].layout, cfg, pose_prior, renderer, progress,
                                    terms=terms, weights=weights, data=data)  # fmt: skip
     out = []
@@ -172,9 +212,17 @@ def refine_batch(
         one = keypoint_result[i]
         params = sil.params()
         vertices, joints, kp2d = _pose(model, params, keypoints[i].layout, cameras[i])
-        final_mask = body_mask(vertices, faces, cameras[i])
+        warnings = mask_warnings(masks[i], mask_sources[i]) + trim_notes[i] + list(sil.warnings)
+        # the plausibility guard (silfit.plausibility.silhouette_guard): a refined fit less plausible
+        # than the keypoint fit is replaced by the keypoint fit, with a warning
+        guard = _guard(model, inits[i], params, keypoints[i], cameras[i], kp2d, mask_sources[i])
+        if guard.reverted and getattr(config, "plausibility_guard", True):
+            params = {k: np.asarray(v) for k, v in inits[i].items()}
+            vertices, joints, kp2d = _pose(model, params, keypoints[i].layout, cameras[i])
+            warnings += list(guard.warnings)
+        final_mask = kp_masks[i] if guard.reverted and getattr(config, "plausibility_guard", True) else \
+            body_mask(vertices, faces, cameras[i])  # fmt: skip
         iou_after = mask_iou(final_mask, masks[i])
-        warnings = mask_warnings(masks[i], mask_sources[i]) + list(sil.warnings)
         if iou_after < ious_before[i] - 0.02:
             warnings.append(f"silhouette stage lowered the IoU ({ious_before[i]:.3f} -> {iou_after:.3f}); kept its result")
         metrics = {
@@ -186,6 +234,8 @@ def refine_batch(
             "iou_keypoint_stage": ious_before[i],
             "iou": iou_after,
             "silhouette_steps": sil.steps,
+            "silhouette_guard": {"kept": guard.keep if getattr(config, "plausibility_guard", True) else "silhouette",
+                                 "less_plausible": list(guard.reasons)},
             "warnings": warnings,
             **_run_record(one, sil),
         }  # fmt: skip
@@ -327,6 +377,8 @@ def save_fit(
             image, result.vertices, faces, result.camera, kp_xy, result.keypoints_2d, kp_conf))  # fmt: skip
         stage_dir = tmp / "stages" / "keypoints"
         result.keypoint.save(stage_dir)
+        reference = result.keypoint.vertices[0] if result.silhouette is not None else None
+        figures.write_png(tmp / "side.png", figures.side_view(result.vertices, faces, reference))
         if result.silhouette is not None:
             kp_verts = result.keypoint.vertices[0]
             figures.write_png(stage_dir / "overlay.png", figures.fit_overlay(

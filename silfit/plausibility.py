@@ -14,11 +14,18 @@
   that moved the body away from the keypoints (its reprojection error above
   :data:`MAX_REPROJECTION_RISE` times the keypoint stage's and :data:`MIN_REPROJECTION_RISE_PX`
   more), a shape outside the shape space's plausible range (:data:`MAX_ABS_BETA`).
+* :func:`silhouette_guard` runs after a silhouette stage: when the refined fit is less
+  plausible than the keypoint fit it started from (reprojection error above
+  :data:`GUARD_REPROJECTION_RISE` times the keypoint stage's, |betas| beyond
+  :data:`MAX_ABS_BETA`, a stature outside :data:`STATURE_RANGE_M`, each only where the keypoint
+  fit was not already so), it says to keep the keypoint fit, with a warning. The image, rig and
+  video paths call it with numbers (:func:`fit_summary` makes them), so it holds no model.
 * :func:`mask_warnings`: a mask that runs out of the image (the person cut off);
   :func:`ambiguity_warnings`: a depth branch the keypoints cannot decide.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Optional, Sequence
 
 import numpy as np
@@ -26,7 +33,10 @@ import numpy as np
 from .errors import InputError
 from .keypoints import KeypointSet
 
-__all__ = ["ambiguity_warnings", "branch_gap", "check_frames", "check_keypoints", "fit_warnings", "mask_warnings", "person_extent", "reprojection_rise_warnings", "shape_warnings"]
+__all__ = [
+    "GuardDecision", "ambiguity_warnings", "body_stature", "branch_gap", "check_frames", "check_keypoints", "fit_summary",
+    "fit_warnings", "mask_warnings", "person_extent", "reprojection_rise_warnings", "shape_warnings", "silhouette_guard",
+]  # fmt: skip
 
 #: Keypoints farther than this many image widths/heights outside the image are dropped.
 OUTSIDE_MARGIN = 1.0
@@ -53,6 +63,14 @@ MIN_BORDER_RUN = 0.02
 AMBIGUOUS_GAP = 0.02
 #: Shape coefficients beyond this many standard deviations are reported.
 MAX_ABS_BETA = 3.0
+
+#: The silhouette guard keeps the keypoint fit when the refined fit's reprojection error is
+#: above this many times the keypoint fit's ...
+GUARD_REPROJECTION_RISE = 1.5
+#: ... and at least this many pixels more (a rise within the keypoints' own noise is no sign).
+GUARD_MIN_RISE_PX = 1.0
+#: Plausible standing heights (metres) of an adult body in the shape space.
+STATURE_RANGE_M = (1.2, 2.1)
 
 _UPPER = ("neck", "left_shoulder", "right_shoulder")
 _LOWER = ("mid_hip", "left_hip", "right_hip")
@@ -243,3 +261,73 @@ def shape_warnings(betas) -> list:
         return []
     return [f"implausible body shape: |betas| up to {b.max():.1f} (beyond {MAX_ABS_BETA:g} standard deviations of the "
             "shape space)"]
+
+
+@dataclass(frozen=True)
+class GuardDecision:
+    """What :func:`silhouette_guard` decided: ``keep`` is ``"silhouette"`` (the refined fit)
+    or ``"keypoints"`` (the fit the stage started from); ``reasons`` say why the refined fit is
+    less plausible (empty when kept); ``warnings`` are for ``metrics.json`` and the console."""
+
+    keep: str
+    reasons: tuple = ()
+    warnings: tuple = ()
+
+    @property
+    def reverted(self) -> bool:
+        return self.keep == "keypoints"
+
+
+def body_stature(model, betas) -> float:
+    """Standing height (metres) of the body with shape ``betas`` in the rest pose: the
+    vertical extent of the shaped template (no pose, so no fitting is involved)."""
+    import torch
+
+    b = torch.as_tensor(np.asarray(betas, dtype=np.float64).reshape(1, -1), dtype=model.v_template.dtype)
+    dirs = model.shapedirs[..., : b.shape[1]]
+    v = model.v_template + torch.einsum("bl,vcl->bvc", b, dirs)[0]
+    y = v[:, 1].detach().cpu().numpy()
+    return float(y.max() - y.min())
+
+
+def fit_summary(reprojection_px, betas, stature_m) -> dict:
+    """The numbers :func:`silhouette_guard` compares, of one fit."""
+    b = np.abs(np.asarray([] if betas is None else betas, dtype=np.float64)).reshape(-1)
+    return {"reprojection_px": None if reprojection_px is None else float(reprojection_px),
+            "max_abs_beta": float(b.max()) if b.size else 0.0,
+            "stature_m": None if stature_m is None else float(stature_m)}  # fmt: skip
+
+
+def _implausible(s: dict) -> dict:
+    """{reason: text} of one fit summary's own implausibilities (shape and stature)."""
+    out = {}
+    if s["max_abs_beta"] > MAX_ABS_BETA:
+        out["betas"] = f"|betas| up to {s['max_abs_beta']:.1f} (beyond {MAX_ABS_BETA:g})"
+    h = s.get("stature_m")
+    if h is not None and not STATURE_RANGE_M[0] <= h <= STATURE_RANGE_M[1]:
+        out["stature"] = f"stature {h:.2f} m (outside {STATURE_RANGE_M[0]:g}-{STATURE_RANGE_M[1]:g} m)"
+    return out
+
+
+def silhouette_guard(keypoint_fit: dict, refined: dict, where: str = "") -> GuardDecision:
+    """Keep the silhouette stage's ``refined`` fit unless it is less plausible than the
+    ``keypoint_fit`` it started from (both :func:`fit_summary` dicts): its median reprojection
+    error above :data:`GUARD_REPROJECTION_RISE` times the keypoint fit's (and
+    :data:`GUARD_MIN_RISE_PX` more), |betas| beyond :data:`MAX_ABS_BETA` or a stature outside
+    :data:`STATURE_RANGE_M` where the keypoint fit had none of these. ``where`` names the
+    image, frame or view in the warning. A refined fit that is implausible in the same way as
+    the keypoint fit is kept (the keypoint fit is no better), with no warning here."""
+    reasons = []
+    before, after = keypoint_fit.get("reprojection_px"), refined.get("reprojection_px")
+    if before is not None and after is not None and np.isfinite(before) and (
+        not np.isfinite(after) or (after > GUARD_REPROJECTION_RISE * before and after > before + GUARD_MIN_RISE_PX)
+    ):
+        reasons.append(f"reprojection error {before:.1f} -> {after:.1f} px")
+    old = _implausible(keypoint_fit)
+    reasons += [text for key, text in _implausible(refined).items() if key not in old]
+    if not reasons:
+        return GuardDecision("silhouette")
+    at = f"{where}: " if where else ""
+    warning = (f"{at}the silhouette stage made the fit less plausible ({'; '.join(reasons)}): kept the keypoint fit "
+               "instead (the mask may hold clothing, objects or other people, or the person is cut off)")
+    return GuardDecision("keypoints", tuple(reasons), (warning,))

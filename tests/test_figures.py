@@ -61,3 +61,25 @@ def test_contact_sheet_needs_one_title_per_picture(tmp_path):
         contact_sheet([img, img, img], ["a", "b", "c", ""], tmp_path / "s.png", columns=4)
     contact_sheet([img, None, img], ["a", "", "c"], tmp_path / "s.png", columns=2)  # None: an empty cell
     assert (tmp_path / "s.png").is_file()
+
+
+def test_side_view_shows_depth_and_the_keypoint_fit_behind():
+    """The side view (issue 23): a body moved away from the camera appears shifted sideways, the
+    reference (keypoint-stage body) is drawn in orange behind the final body."""
+    from pathlib import Path
+
+    from silfit import figures, load_body_model
+    from silfit.dataset import load_subject
+
+    s = load_subject(Path(__file__).resolve().parents[1] / "data" / "synthetic" / "subject_000")
+    faces = load_body_model().faces.numpy()
+    v = s.gt.vertices
+    alone = figures.side_view(v, faces, size=(160, 200))
+    both = figures.side_view(v, faces, v + np.array([0.0, 0.0, 0.4]), size=(160, 200))
+    assert alone.shape == (200, 160, 3) and alone.dtype == np.uint8
+    warm = lambda img: img[..., 0].astype(int) - img[..., 2] > 60  # noqa: E731  (orange: red well above blue)
+    orange = warm(both)
+    assert orange.sum() > 500 and warm(alone).sum() < 50
+    cols = np.flatnonzero(orange.any(0))
+    grey = np.flatnonzero(((np.abs(both[..., 0].astype(int) - both[..., 2]) < 40) & (both[..., 0] < 230)).any(0))
+    assert cols.mean() > grey.mean()  # farther from the camera (which looks from the left): to the right

@@ -68,3 +68,33 @@ def test_save_fit_leaves_nothing_when_a_write_fails(open_model, subject, tmp_pat
     assert not (tmp_path / "new").exists()
     assert sorted(p.relative_to(old) for p in old.rglob("*")) == before  # the earlier output is intact
     assert sorted(p.name for p in tmp_path.iterdir()) == ["old"]  # no temporary folders left
+
+
+def test_the_guard_keeps_the_keypoint_fit_when_the_silhouette_fit_is_less_plausible(open_model, subject, monkeypatch):
+    """Issue 23's plausibility guard, wired in refine_batch: a refined fit the guard finds less
+    plausible is replaced by the keypoint fit, with the guard's warning in the metrics."""
+    import silfit.pipeline as pipeline
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+    from silfit.plausibility import GuardDecision
+
+    calls = []
+
+    def implausible(before, after, where=""):
+        calls.append((before, after))
+        return GuardDecision("keypoints", ("stature 2.40 m",), (f"{where}: made the fit less plausible: kept the keypoint fit",))
+
+    monkeypatch.setattr(pipeline, "silhouette_guard", implausible)
+    cfg = SilhouetteFitConfig(resolutions=(64,), iterations=(4,), contour_iterations=2)
+    result = fit(subject.keypoints, subject.mask, subject.camera, model=open_model, silhouette_config=cfg, progress=False)
+    m = result.metrics
+    assert calls and {"reprojection_px", "max_abs_beta", "stature_m"} <= set(calls[0][0])
+    assert m["silhouette_guard"] == {"kept": "keypoints", "less_plausible": ["stature 2.40 m"]}
+    assert any("kept the keypoint fit" in w for w in m["warnings"])
+    for k in ("betas", "body_pose", "transl"):
+        assert np.allclose(np.asarray(result.params[k]).reshape(-1), result.keypoint.params(0)[k].reshape(-1))
+    assert m["iou"] == m["iou_keypoint_stage"]
+    off = fit(subject.keypoints, subject.mask, subject.camera, model=open_model, progress=False,
+              silhouette_config=SilhouetteFitConfig(resolutions=(64,), iterations=(4,), contour_iterations=2,
+                                                    plausibility_guard=False))  # fmt: skip
+    assert off.metrics["silhouette_guard"]["kept"] == "silhouette"
+    assert not np.allclose(off.params["body_pose"], result.params["body_pose"])

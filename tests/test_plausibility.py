@@ -166,3 +166,32 @@ def test_video_frames_whose_mask_runs_out_of_the_image_are_named():
     w = _cut_off_frames([inside, None, cut, cut])
     assert len(w) == 1 and w[0].startswith("frame(s) 2, 3:") and "cut off" in w[0]
     assert _cut_off_frames([inside, None]) == []
+
+
+def test_silhouette_guard_keeps_the_keypoint_fit_when_the_refined_one_is_less_plausible():
+    from silfit.plausibility import fit_summary, silhouette_guard
+
+    kp = fit_summary(2.0, np.zeros(10), 1.70)
+    assert silhouette_guard(kp, fit_summary(2.5, np.full(10, 1.0), 1.75)).keep == "silhouette"
+    small = fit_summary(1.0, np.zeros(10), 1.70)
+    assert silhouette_guard(small, fit_summary(1.9, np.zeros(10), 1.70)).keep == "silhouette"  # 1.9x but 0.9 px more
+    rise = silhouette_guard(kp, fit_summary(4.0, np.zeros(10), 1.70), "photo.jpg")
+    assert rise.reverted and "2.0 -> 4.0 px" in rise.reasons[0] and rise.warnings[0].startswith("photo.jpg: ")
+    assert "kept the keypoint fit" in rise.warnings[0]
+    fat = silhouette_guard(kp, fit_summary(2.0, np.r_[3.4, np.zeros(9)], 1.70))
+    assert fat.reverted and "3.4" in fat.reasons[0]
+    assert silhouette_guard(kp, fit_summary(2.0, np.zeros(10), 2.30)).reverted  # a giant
+    assert silhouette_guard(kp, fit_summary(2.0, np.zeros(10), 1.10)).reverted
+    # implausible in the same way as the keypoint fit: that one is no better, keep the refined fit
+    odd = fit_summary(2.0, np.r_[3.5, np.zeros(9)], 1.70)
+    assert silhouette_guard(odd, fit_summary(2.0, np.r_[3.6, np.zeros(9)], 1.70)).keep == "silhouette"
+
+
+def test_body_stature_follows_the_shape(open_model):
+    from silfit.plausibility import STATURE_RANGE_M, body_stature
+
+    mean = body_stature(open_model, np.zeros(10))
+    assert STATURE_RANGE_M[0] < mean < STATURE_RANGE_M[1]
+    tall = body_stature(open_model, np.r_[3.0, np.zeros(9)])
+    short = body_stature(open_model, np.r_[-3.0, np.zeros(9)])
+    assert abs(tall - short) > 0.2

@@ -13,14 +13,22 @@ def _positive_int(text: str) -> int:
     return int(text)
 
 
+def people_count(text: str) -> int:
+    """``--people``: a positive integer, or ``all`` (0: every person found)."""
+    if text.strip().lower() == "all":
+        return 0
+    return _positive_int(text)
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser("detect", help="detect people in a photo: OpenPose keypoints JSON + mask PNG")
     p.add_argument("image", help="the photo (JPEG, PNG, ...)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--layout", choices=("body25", "coco17", "blazepose33"), default="body25",
                    help="keypoint layout written (default body25, what silfit fit uses)")
-    p.add_argument("--people", type=_positive_int, default=1, metavar="N",
-                   help="detect up to N people, one after another (default 1)")
+    p.add_argument("--people", type=people_count, default=1, metavar="N|all",
+                   help="detect up to N people, or every person found ('all': the detector also runs on tiles "
+                   "of the photo); default 1")
     p.add_argument("--min-score", type=float, default=0.5,
                    help="person detector score threshold (default 0.5; lower finds more people seen from behind, "
                    "and more things that are not people)")
@@ -51,10 +59,11 @@ def run(args) -> int:
     return 0
 
 
-def photo_inputs(image_path: str, person, detect: bool, want_mask: bool) -> dict:
+def photo_inputs(image_path: str, person, detect: bool, want_mask: bool, detected=None) -> dict:
     """What ``silfit fit --image`` takes from the photo: its pixels (upright), the EXIF focal
     length and, when ``detect`` (no ``--keypoints``), the detected person's BODY_25
-    keypoints, mask (if ``want_mask``), detection summary and warnings."""
+    keypoints, mask (if ``want_mask``), detection summary and warnings. ``detected``: the
+    ``(photo, people)`` of an earlier detection (``--people all``), reused."""
     from ..detect import DetectConfig
     from ..detect.output import detect_photo
     from ..detect.photo import read_photo
@@ -62,7 +71,7 @@ def photo_inputs(image_path: str, person, detect: bool, want_mask: bool) -> dict
     out = {"keypoints": None, "mask": None, "warnings": [], "metrics": {}}
     if detect:
         index = None if person == "largest" else int(person)
-        photo, people = detect_photo(image_path, DetectConfig(max_people=3 if index is None else index + 1))
+        photo, people = detected or detect_photo(image_path, DetectConfig(max_people=3 if index is None else index + 1))
         if index is not None and index >= len(people):
             raise CLIError(f"{image_path}: person {index} requested, {len(people)} detected")
         chosen = people[index or 0]

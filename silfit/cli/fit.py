@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from . import warn
+from . import CLIError, note, warn
 from .common import export_formats, save_leaving_nothing_on_error
 
 
@@ -37,6 +37,9 @@ def register(subparsers) -> None:
                    "and face: fitted with an SMPL-X-layout model) (default: detected in --image, with its mask unless "
                    "--mask is given)")
     p.add_argument("--person", default="largest", help="person index in the keypoint file, or 'largest'")
+    p.add_argument("--people", metavar="all", choices=("all",),
+                   help="--image without --keypoints: fit every person detected, each into OUT/person_<i>/ "
+                   "(largest first; OUT/people.json lists them)")
     p.add_argument("--mask", help="person silhouette PNG (enables the silhouette stage)")
     cam = p.add_mutually_exclusive_group()
     cam.add_argument("--camera", help="camera.json with fx, fy, cx, cy, width, height")
@@ -83,6 +86,8 @@ def run(args) -> int:
     from ..run import check, run as run_job, write
     from .jobs import build_job, describe_inputs
 
+    if getattr(args, "people", None) == "all":
+        return _run_people(args)
     exports = export_formats(args)
     job = build_job(args)
     if args.check_only:
@@ -98,3 +103,35 @@ def run(args) -> int:
     for warning in fit.warnings:
         warn(warning)
     return 0
+
+
+def _run_people(args) -> int:
+    """``--people all``: detect every person once, then fit each into ``OUT/person_<i>/``."""
+    import copy
+    import json
+
+    if args.keypoints or not args.image:
+        raise CLIError("--people all detects the people in --image; give --image and no --keypoints")
+    if args.mask:
+        raise CLIError("--people all uses each detected person's own mask; drop --mask")
+    from ..detect import DetectConfig
+    from ..detect.output import detect_photo
+
+    out = Path(args.out)
+    if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
+        raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
+    detected = detect_photo(args.image, DetectConfig(max_people=0))
+    people = detected[1]
+    note(f"{len(people)} person(s) detected in {args.image}")
+    rows, status = [], 0
+    if not args.check_only:
+        out.mkdir(parents=True, exist_ok=True)
+    for i in range(len(people)):
+        one = copy.copy(args)
+        one.people, one.person, one.out, one.detected = None, str(i), str(out / f"person_{i}"), detected
+        rc = run(one)
+        status = status or rc
+        rows.append({"person": i, "folder": f"person_{i}", "status": rc})
+    if not args.check_only:
+        (out / "people.json").write_text(json.dumps({"image": args.image, "people": rows}, indent=2))
+    return status

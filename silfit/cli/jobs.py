@@ -96,7 +96,8 @@ def image_job(args) -> Job:
     if args.image:
         from .detect import photo_inputs
 
-        photo = photo_inputs(args.image, person, not args.keypoints, not (args.mask or args.no_silhouette))
+        photo = photo_inputs(args.image, person, not args.keypoints, not (args.mask or args.no_silhouette),
+                             getattr(args, "detected", None))  # fmt: skip
     elif not args.keypoints:
         raise CLIError("no keypoints: give --keypoints KP.json, or --image PHOTO to detect them")
     keypoints = read_keypoints(args.keypoints, person=person) if args.keypoints else photo["keypoints"]

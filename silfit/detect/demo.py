@@ -4,7 +4,7 @@ Writes into the output folder::
 
     detection/        what ``silfit detect`` writes (keypoints.json, mask.png, detection.json/png)
     fit/              what ``silfit fit`` writes
-    summary.png       detection | keypoint fit | keypoint + silhouette fit | silhouette match
+    summary.png       detection | keypoint fit | keypoint + silhouette fit | silhouette match | side view
     report.md         detection and fit summary
 
 The default photo is ``data/photos/astronaut.jpg`` of a source checkout (NASA's public-domain
@@ -69,9 +69,11 @@ def run_photo_demo(out: Path, photo_path: Optional[Path] = None, progress: bool 
         figures.fit_overlay(photo.image, result.keypoint.vertices[0], faces, cam, keypoints.xy, None, keypoints.conf),
         figures.fit_overlay(photo.image, result.vertices, faces, cam, keypoints.xy, None, keypoints.conf),
         figures.silhouette_comparison(result.masks["final"], mask),
+        figures.side_view(result.vertices, faces, result.keypoint.vertices[0]),
     ]
-    titles = ["detection", "keypoint fit", "keypoint + silhouette fit", "silhouette vs detected mask"]
-    figures.contact_sheet(panels, titles, out / "summary.png", columns=4)
+    titles = ["detection", "keypoint fit", "keypoint + silhouette fit", "silhouette vs detected mask",
+              "side: final over keypoint fit"]  # fmt: skip
+    figures.contact_sheet(panels, titles, out / "summary.png", columns=5)
 
     m = result.metrics
     rows = [

@@ -5,7 +5,10 @@ landmarks), with landmarks and the person mask mapped back to image pixels.
 Steps, as MediaPipe's pose graphs run them:
 
 1. the whole image, letterboxed into the detector's 224 x 224 input (values in [-1, 1]);
-   SSD decoding (:mod:`.anchors`), score >= ``min_score``, weighted NMS (:mod:`.nms`);
+   SSD decoding (:mod:`.anchors`), score >= ``min_score``, weighted NMS (:mod:`.nms`); with
+   several people wanted also overlapping tiles (:func:`detector_regions`: the detector,
+   made for one dominant person, misses people small in the whole image), whose detections
+   overlapping none of the whole image's are added;
 2. per detection, the region from its hip centre and full-body scale point (side: twice
    their distance, times 1.25; rotated so the body is upright in the crop);
 3. the landmark model on that region (if it sees no pose there, on a wider one:
@@ -13,7 +16,9 @@ Steps, as MediaPipe's pose graphs run them:
    landmarks give (``passes``), keeping the last pass that saw a pose;
 4. each person in turn, up to ``max_people``, the most confident first (detector score
    times pose presence); a second reading of a person already found (masks overlapping
-   by IoU > 0.5) is dropped.
+   by IoU > 0.5, or lying mostly inside one person's or all kept people's masks:
+   ``max_contained``) is dropped, and so is a further reading whose mask spreads far beyond
+   its own landmarks (:func:`mask_in_box`: background clutter).
 """
 from __future__ import annotations
 
@@ -28,9 +33,9 @@ from .geometry import ROI, roi_from_alignment_points, warp_to_crop
 from .landmarks import NUM_LANDMARKS, ROI_SCALE, mask_in_image, roi_from_landmarks, run_landmark_model
 from .layout import BLAZEPOSE33_NAMES, LOWER_BODY, blazepose_to_layout
 from .models import load_model
-from .nms import weighted_nms
+from .nms import box_iou, weighted_nms
 
-__all__ = ["DetectConfig", "DetectionError", "Person", "detect_people", "detect_candidates"]
+__all__ = ["DetectConfig", "DetectionError", "Person", "detect_people", "detect_candidates", "detector_regions", "mask_in_box"]
 
 
 class DetectionError(InputError):
@@ -51,7 +56,17 @@ class DetectConfig:
     #: the landmark model sees no pose in the standard one (unusual poses, e.g. bent over)
     retry_scales: tuple = (1.6,)
     refine_heatmap: bool = True
+    #: people wanted (0: all found)
     max_people: int = 1
+    #: with more than one person wanted, the detector also runs on overlapping square tiles of
+    #: these sides (fractions of the image's longer side; three tiles per side length), so people
+    #: small in the letterboxed whole image are found; ``()``: the whole image only
+    tiles: tuple = (0.4, 0.6, 0.8)
+    #: a reading whose mask lies this much (share of its own area) inside a person already
+    #: kept is the same person (a part of them: legs, a second region)
+    max_contained: float = 0.6
+    #: a further person's mask must lie this much inside their landmarks' box (:func:`mask_in_box`)
+    min_mask_in_box: float = 0.7
     #: a person whose landmarks span fewer pixels (longest side of their box) is too small
     min_person_px: float = 40.0
     #: confidence below which a landmark counts as not visible
@@ -186,20 +201,56 @@ def _as_rgb(image: np.ndarray, source: str) -> np.ndarray:
     return np.ascontiguousarray(img)
 
 
+def detector_regions(width: int, height: int, tiles: tuple = ()) -> List[ROI]:
+    """The square regions the person detector runs on: the letterboxed whole image, then per
+    tile side (a fraction of the longer side) a grid of tiles a third of a side apart, reaching
+    a quarter of a side beyond the image along its longer axis (people at the edges)."""
+    W, H = int(width), int(height)
+    regions = [ROI((W - 1) / 2.0, (H - 1) / 2.0, float(max(W, H)), 0.0)]
+    for frac in tiles:
+        side = float(frac) * max(W, H)
+        step = side / 3.0
+
+        def centres(extent):
+            if extent <= side:
+                return [(extent - 1) / 2.0]
+            reach = side / 4.0 if extent == max(W, H) else 0.0
+            return list(np.arange(side / 2 - reach, extent - side / 2 + reach + 1e-6, step))
+
+        regions += [ROI(float(cx), float(cy), side, 0.0) for cx in centres(W) for cy in centres(H)]
+    return regions
+
+
 def detect_candidates(image: np.ndarray, config: Optional[DetectConfig] = None):
     """The person detector alone: ``(scores [M], keypoints [M, 4, 2])`` in image pixels after
     weighted NMS, best first (keypoints: hip centre, full-body scale point, shoulder
-    centre, upper-body scale point)."""
+    centre, upper-body scale point). With more than one person wanted (``max_people`` other
+    than 1) the detector also runs on tiles (:func:`detector_regions`): the whole image's
+    detections come first, exactly as without tiles, then the tiles' (merged by their own
+    weighted NMS, in image pixels) that overlap none of them."""
     cfg = config or DetectConfig()
     H, W = image.shape[:2]
-    letterbox = ROI((W - 1) / 2.0, (H - 1) / 2.0, float(max(W, H)), 0.0)
-    tensor = warp_to_crop(image, letterbox, DETECTOR_INPUT).astype(np.float32) / 127.5 - 1.0
+    regions = detector_regions(W, H, cfg.tiles if cfg.max_people != 1 else ())
+    found = [_detect_in(image, roi, cfg) for roi in regions]
+    scores, boxes, kps = weighted_nms(*found[0], cfg.min_score, cfg.nms_iou)  # the whole image: as without tiles
+    if len(found) > 1:  # tiles add the people the whole image's detections do not overlap
+        ts, tb, tk = weighted_nms(*(np.concatenate(x) for x in zip(*found[1:])), cfg.min_score, cfg.nms_iou)
+        new = [i for i in range(len(ts)) if not len(boxes) or box_iou(tb[i], boxes).max() <= cfg.nms_iou]
+        scores, kps = np.concatenate([scores, ts[new]]), np.concatenate([kps.reshape(-1, *tk.shape[1:]), tk[new]])
+    return scores, kps
+
+
+def _detect_in(image: np.ndarray, roi: ROI, cfg: DetectConfig):
+    """The detector on one square region: ``(scores, boxes [M, 4], keypoints [M, 4, 2])`` at
+    or above ``min_score``, in image pixels (before NMS)."""
+    tensor = warp_to_crop(image, roi, DETECTOR_INPUT).astype(np.float32) / 127.5 - 1.0
     outputs = load_model("pose_detection")(tensor[None])
     boxes_raw, scores_raw = sorted(outputs, key=lambda t: t.shape[-1], reverse=True)
     scores, boxes, kps = decode_detections(boxes_raw, scores_raw)
-    scores, boxes, kps = weighted_nms(scores, boxes, kps, cfg.min_score, cfg.nms_iou)
-    kps_img = letterbox.crop_to_image(kps.reshape(-1, 2)).reshape(kps.shape)
-    return scores, kps_img
+    keep = scores >= cfg.min_score
+    scores, boxes, kps = scores[keep], boxes[keep], kps[keep]
+    return (scores, roi.crop_to_image(boxes.reshape(-1, 2)).reshape(-1, 4),  # axis-aligned regions: corners map
+            roi.crop_to_image(kps.reshape(-1, 2)).reshape(kps.shape))  # fmt: skip
 
 
 def _person_from_detection(img: np.ndarray, score: float, kp: np.ndarray, cfg: DetectConfig) -> Optional[Person]:
@@ -225,10 +276,33 @@ def _person_from_detection(img: np.ndarray, score: float, kp: np.ndarray, cfg: D
     )  # fmt: skip
 
 
-def _same_person(a: Person, b: Person, min_iou: float = 0.5) -> bool:
+def _same_person(a: Person, b: Person, min_iou: float = 0.5, max_contained: float = 1.0) -> bool:
+    """``a`` is a second reading of ``b``: masks overlapping by IoU above ``min_iou``, or ``a``'s
+    mask lying inside ``b``'s by more than ``max_contained`` of its area."""
     ma, mb = a.mask(), b.mask()
     union = np.logical_or(ma, mb).sum()
-    return bool(union) and np.logical_and(ma, mb).sum() / union > min_iou
+    inter = np.logical_and(ma, mb).sum()
+    return bool(union) and (inter / union > min_iou or inter / max(ma.sum(), 1) > max_contained)
+
+
+def mask_in_box(person: Person, grow: float = 0.2) -> float:
+    """The share of ``person``'s mask inside the box of their landmarks (clipped to the image,
+    grown by ``grow`` of its size on each side): near 1 for a real person; low for a reading
+    of background clutter (a blurred crowd), whose mask spreads far from its landmarks."""
+    m = person.mask()
+    W, H = person.image_size
+    lo, hi = person.xy.min(0), person.xy.max(0)
+    pad = grow * (hi - lo)
+    x0, y0 = np.clip(np.floor(lo - pad), 0, [W, H]).astype(int)
+    x1, y1 = np.clip(np.ceil(hi + pad) + 1, 0, [W, H]).astype(int)
+    return float(m[y0:y1, x0:x1].sum() / max(m.sum(), 1))
+
+
+def _inside_union(person: Person, people: List[Person]) -> float:
+    """The share of ``person``'s mask that lies inside the masks of ``people``."""
+    m = person.mask()
+    union = np.logical_or.reduce([p.mask() for p in people])
+    return float(np.logical_and(m, union).sum() / max(m.sum(), 1))
 
 
 def detect_people(image: np.ndarray, config: Optional[DetectConfig] = None, source: str = "<image>") -> List[Person]:
@@ -256,7 +330,11 @@ def detect_people(image: np.ndarray, config: Optional[DetectConfig] = None, sour
     people: List[Person] = []
     too_small = []
     for person in candidates:
-        if any(_same_person(person, p) for p in people):
+        if any(_same_person(person, p, max_contained=cfg.max_contained) for p in people):
+            continue
+        if people and _inside_union(person, people) > cfg.max_contained:  # a reading spanning people already kept
+            continue
+        if people and mask_in_box(person) < cfg.min_mask_in_box:  # a further reading whose mask is not its body's
             continue
         if person.extent_px() < cfg.min_person_px:
             too_small.append(person.extent_px())

@@ -13,8 +13,9 @@ Energy (per subject, the named terms of :mod:`silfit.fitting.terms` plus the sil
   visibility-edge term) rendered in a *window* around the person (region of interest:
   the union of the mask's box and the body's projection, plus a margin) at a fixed
   number of pixels, so the cost follows the chosen resolution and not the image's.
-* ``E_sil`` is the two-sided distance-transform energy of :mod:`silfit.silhouette.losses`
-  in window pixels, normalised by the mask's area (an average distance in pixels).
+* ``E_sil`` is the distance-transform energy of :mod:`silfit.silhouette.losses` in window
+  pixels, normalised by the mask's area (an average distance in pixels); its mask-not-covered
+  side has a robust, capped profile (``robust_cover``: masks are supersets of bodies).
 * ``E_kp`` is the keypoint stage's robust reprojection term (:class:`KeypointTerm`) with
   this stage's data: residuals in window pixels, weights the confidences normalised to
   sum 1, Geman-McClure scale ``kp_sigma``; so the silhouette cannot drag limbs away from
@@ -52,7 +53,7 @@ import torch
 from ..camera import Camera, project_points
 from ..priors import angle_prior, limit_violation, load_pose_prior, shape_prior
 from ..silhouette.losses import (
-    MaskTarget, contour_points, cover_energy, outside_distance_energy, silhouette_energy, soft_iou,
+    CoverProfile, MaskTarget, contour_points, cover_energy, outside_distance_energy, silhouette_energy, soft_iou,
 )  # fmt: skip
 from ..body.lbs import axis_angle_to_matrix, blend_shapes, pose_correctives, skin_vertices
 from .body import BodyState, KeypointBody, MeshBody, pose_parameter_names
@@ -99,6 +100,25 @@ class SilhouetteFitConfig:
     #: what lies outside the image is unknown, not background (:mod:`silfit.silhouette.losses`:
     #: truncation); ``False``: the border is background, as before issue 23
     truncation_aware: bool = True
+    #: the "mask not covered" side's robust profile (:class:`~silfit.silhouette.losses.CoverProfile`:
+    #: masks are supersets of bodies: clothing, hair, leaks): slope ``cover_inner`` within
+    #: ``cover_margin`` of the mask's edge, full slope beyond, at most ``cover_cap`` per pixel; margin
+    #: and cap as fractions of the window's longer side; ``robust_cover=False``: the plain
+    #: two-sided energy (before issue 23's second part)
+    robust_cover: bool = True
+    cover_margin: float = 0.03
+    cover_inner: float = 0.25
+    cover_cap: float = 0.06
+    #: a mask that reaches beyond the keypoint fit's body all around (loose clothing, hair, a grown
+    #: segmentation: :func:`~silfit.silhouette.losses.clothing_thickness` above ``trim_min`` of the
+    #: mask's extent) is eroded by that thickness (at most ``trim_max``) before the stage
+    #: (:func:`~silfit.silhouette.losses.trim_clothing`; image path: silfit.pipeline.refine_batch)
+    trim_clothing: bool = True
+    trim_min: float = 0.015
+    trim_max: float = 0.08
+    #: after the stage, a fit less plausible than the keypoint fit (silfit.plausibility.silhouette_guard)
+    #: is replaced by the keypoint fit, with a warning (image path: silfit.pipeline.refine_batch)
+    plausibility_guard: bool = True
     lr: dict = field(
         default_factory=lambda: {"betas": 0.1, "body_pose": 0.03, "global_orient": 0.02, "transl": 0.01}
     )
@@ -152,6 +172,14 @@ class SilhouetteFitConfig:
         steps at 128 px and 50 at 256 px (the benchmark's "before")."""
         return cls(**{"resolutions": (128, 256), "iterations": (60, 50), "contour_iterations": 0, "window_multiple": 1,
                       **changes})  # fmt: skip
+
+    def cover_profile(self, resolution: int) -> Optional[CoverProfile]:
+        """The mask-not-covered profile in pixels of a window ``resolution`` pixels long
+        (``None``: plain, ``robust_cover=False``)."""
+        if not self.robust_cover:
+            return None
+        r = float(resolution)
+        return CoverProfile(float(self.cover_margin) * r, float(self.cover_inner), float(self.cover_cap) * r)
 
     def weights(self) -> dict:
         """The rendered levels' weights."""
@@ -241,13 +269,15 @@ def choose_window(mask: np.ndarray, uv: np.ndarray, camera: Camera, resolution: 
     return RoiWindow(x0, y0, scale, camera.crop(x0, y0, width, height, scale))
 
 
-def window_target(mask: np.ndarray, window, supersample: int = 4, truncation_aware: bool = True) -> tuple[MaskTarget, np.ndarray]:
+def window_target(mask: np.ndarray, window, supersample: int = 4, truncation_aware: bool = True,
+                  cover: Optional[CoverProfile] = None) -> tuple[MaskTarget, np.ndarray]:  # fmt: skip
     """The mask resampled into a ``RoiWindow``: ``(MaskTarget of the binarised coverage, coverage)``.
 
     Coverage is the fraction of each window pixel inside the mask (supersampled, then
     area-averaged). Pixels outside the image are unknown, not background: the target's
     ``valid`` map marks the image's pixels (:mod:`silfit.silhouette.losses`: truncation).
-    Distances are in window pixels.
+    Distances are in window pixels; ``cover`` (window pixels) is the mask-not-covered side's
+    robust profile (``None``: plain).
     """
     import cv2
 
@@ -264,7 +294,7 @@ def window_target(mask: np.ndarray, window, supersample: int = 4, truncation_awa
     if not binary.any():
         raise ValueError("the mask vanishes at the silhouette stage's resolution; raise the resolution")
     seen = warp(np.ones(mask.shape, np.float32)) > 0.5  # the window's pixels inside the image
-    return MaskTarget.from_mask(binary, valid=None if seen.all() or not truncation_aware else seen), coverage
+    return MaskTarget.from_mask(binary, valid=None if seen.all() or not truncation_aware else seen, cover=cover), coverage
 
 
 class SilhouetteTerm(Term):
@@ -447,14 +477,15 @@ class ContourInsideTerm(_ContourTerm):
 class ContourCoverTerm(_ContourTerm):
     """The contour level's "mask not covered" term: per observation with a window, the mean
     over the mask's outline points of the squared distance (window pixels) to the nearest
-    projected vertex (:func:`~silfit.silhouette.losses.cover_energy`), summed per problem.
+    projected vertex (:func:`~silfit.silhouette.losses.cover_energy`, with the target's robust
+    profile ``MaskTarget.cover`` when it has one), summed per problem.
     Reads ``ev.data['windows']`` and ``ev.data['contours']`` (per problem, lists over its
     observations of outline points ``[B, 2]`` in window pixels, or ``None``)."""
 
     name = "contour_cover"
 
     def observation_energy(self, uv, ev, p, o):
-        return cover_energy(uv, ev.data["contours"][p][o])
+        return cover_energy(uv, ev.data["contours"][p][o], ev.data["targets"][p][o].cover)
 
 
 def fit_silhouette(
@@ -588,12 +619,12 @@ def _keypoint_data(grids, dtype) -> tuple:
 
 
 def _observation_window(mask, uv: np.ndarray, camera: Camera, resolution: int, margin: float, multiple: int = 1,
-                        truncation_aware: bool = True):  # fmt: skip
+                        truncation_aware: bool = True, cover: Optional[CoverProfile] = None):  # fmt: skip
     """``(window, target)`` of an observation with a mask, or ``(None, scale)`` without one
     (the pixels-to-window scale a window around the projected body would have)."""
     if mask is not None:
         window = choose_window(mask, uv, camera, resolution, margin, multiple)
-        return window, window_target(mask, window, truncation_aware=truncation_aware)[0]
+        return window, window_target(mask, window, truncation_aware=truncation_aware, cover=cover)[0]
     extent = float((uv.max(0) - uv.min(0)).max()) * (1 + 2 * margin) + 1.0
     return None, resolution / extent
 
@@ -709,7 +740,8 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
                     cam_pts = world_to_camera(verts[p, f], views["R"][p, f, c].to(verts.dtype), views["t"][p, f, c].to(verts.dtype))
                     cam = grids[p][f][c].view.camera
                     window, target = _observation_window(masks[p][f][c], project_points(cam_pts, cam).numpy(), cam,
-                                                         resolution, cfg.margin, cfg.window_multiple, cfg.truncation_aware)  # fmt: skip
+                                                         resolution, cfg.margin, cfg.window_multiple, cfg.truncation_aware,
+                                                         cfg.cover_profile(resolution))  # fmt: skip
                     windows.append(window)
                     targets.append(target if window is not None else None)
                     scale[p, f, c] = window.scale if window is not None else target

@@ -140,6 +140,24 @@ def test_detect_several_people(tmp_path):
     with pytest.raises(SystemExit) as exit_:  # argparse rejects it: usage line, status 2
         main(["detect", str(image), "--people", "0", "--out", str(tmp_path / "x")])
     assert exit_.value.code == 2 and not (tmp_path / "x").exists()
+    assert main(["detect", str(image), "--people", "all", "--out", str(tmp_path / "all"), "--quiet"]) == 0
+    assert len(json.loads((tmp_path / "all" / "keypoints.json").read_text())["people"]) == 2
+
+
+def test_fit_every_person_of_a_photo(tmp_path):
+    """``silfit fit --image --people all``: each detected person into OUT/person_<i>/."""
+    a = np.asarray(Image.open(SUBJECT / "image.png"))
+    b = np.asarray(Image.open(SUBJECT.parent / "subject_004" / "image.png"))
+    image = tmp_path / "two.png"
+    Image.fromarray(np.concatenate([a, b], axis=1)).save(image)
+    out = tmp_path / "fits"
+    assert main(["fit", "--image", str(image), "--people", "all", "--no-silhouette", "--out", str(out), "--quiet"]) == 0
+    listed = json.loads((out / "people.json").read_text())["people"]
+    assert [p["folder"] for p in listed] == ["person_0", "person_1"]
+    xs = [json.loads((out / p["folder"] / "params.json").read_text()) for p in listed]
+    assert all((out / p["folder"] / "mesh.obj").is_file() for p in listed) and len(xs) == 2
+    assert main(["fit", "--image", str(image), "--people", "all", "--keypoints", str(SUBJECT / "keypoints.json"),
+                 "--out", str(tmp_path / "bad")]) == 2  # fmt: skip
 
 
 def test_detect_does_not_write_an_exif_focal_outside_the_bounds(tmp_path, capsys):

@@ -103,11 +103,12 @@ def test_fit_with_mask_writes_the_silhouette_outputs(tmp_path):
                "--mask", str(SUBJECT / "mask.png"), "--image", str(SUBJECT / "image.png"), "--out", str(out)]
               + FAST + SMALL_SILHOUETTE)  # fmt: skip
     assert rc == 0
-    for f in ("params.npz", "params.json", "mesh.obj", "overlay.png", "silhouette.png", "iou_curve.png",
+    for f in ("params.npz", "params.json", "mesh.obj", "overlay.png", "side.png", "silhouette.png", "iou_curve.png",
               "metrics.json", "stages/keypoints/params.npz", "stages/keypoints/overlay.png"):  # fmt: skip
         assert (out / f).is_file() and (out / f).stat().st_size > 0, f
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["stages"] == ["keypoints", "silhouette"]
+    assert metrics["silhouette_guard"]["kept"] in ("silhouette", "keypoints")
     assert 0.5 < metrics["iou_keypoint_stage"] <= 1 and 0.5 < metrics["iou"] <= 1
     assert set(metrics["timings_s"]) >= {"keypoints", "silhouette"}
 

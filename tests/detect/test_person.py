@@ -79,3 +79,43 @@ def test_truncated_subject_reports_what_is_cut_off(subjects):
     assert kp[9, 1] > 99.5 and kp[9, 2] == pytest.approx(DetectConfig().outside_hip_conf)  # right hip
     assert "left_ankle" in person.not_visible() and "nose" not in person.not_visible()
     assert len(names) == 33
+
+
+def test_every_person_with_tiles_where_the_whole_image_finds_one():
+    """The detector, made for one dominant person, sees one of two side-by-side people in the
+    letterboxed whole image; ``max_people=0`` (all) adds tiles and finds both, once each."""
+    from silfit.dataset import read_image
+
+    img = read_image(Path(__file__).resolve().parents[2] / "data" / "photos" / "astronaut.jpg")[..., :3]
+    two = np.ascontiguousarray(np.concatenate([img, img[:, ::-1]], axis=1))
+    assert len(detect_people(two)) == 1
+    people = detect_people(two, DetectConfig(max_people=0))
+    assert len(people) == 2
+    xs = sorted(float(np.median(np.nonzero(p.mask())[1])) for p in people)
+    assert xs[0] < 512 < xs[1]
+
+
+def test_detector_regions_cover_the_image_with_tiles():
+    from silfit.detect.person import detector_regions
+
+    (whole,) = detector_regions(300, 200)
+    assert whole.size == 300 and (whole.cx, whole.cy) == (149.5, 99.5)
+    regions = detector_regions(300, 200, (0.5,))
+    assert len(regions) > 3 and all(r.size == 150 for r in regions[1:])
+    xs = [r.cx for r in regions[1:]]
+    assert min(xs) < 75 and max(xs) > 225  # the tiles reach the left and right edges
+
+
+def test_a_reading_whose_mask_spreads_beyond_its_landmarks_is_clutter():
+    from silfit.detect.person import Person, mask_in_box
+    from silfit.detect.geometry import ROI
+
+    xy = np.stack([np.linspace(40, 60, 33), np.linspace(20, 80, 33)], axis=1)
+    prob = np.zeros((100, 200), np.float32)
+    prob[20:80, 40:60] = 1.0
+    kw = dict(score=0.9, presence_score=0.9, detector_roi=ROI(50, 50, 80), roi=ROI(50, 50, 80), xy=xy, z=np.zeros(33),
+              visibility=np.ones(33), presence=np.ones(33), world=np.zeros((33, 3)), image_size=(200, 100))
+    assert mask_in_box(Person(mask_prob=prob, **kw)) == 1.0
+    spread = prob.copy()
+    spread[:, 100:] = 1.0  # a blurred crowd beside the landmarks
+    assert mask_in_box(Person(mask_prob=spread, **kw)) < 0.3

@@ -79,9 +79,10 @@ def test_window_sides_come_in_multiples():
         assert 0 <= wu <= cam.width and 0 <= wv <= cam.height
 
 
-def test_gradient_moves_a_shifted_body_toward_a_shifted_mask(open_model, target_mask):
+@pytest.mark.parametrize("robust", [False, True])
+def test_gradient_moves_a_shifted_body_toward_a_shifted_mask(open_model, target_mask, robust):
     iou_before = mask_iou(render_mask(vertices(open_model, POSE), open_model.faces.numpy(), CAMERA), target_mask)
-    result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=FAST, progress=False)
+    result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=replace(FAST, robust_cover=robust), progress=False)
     dx, dy, dz = result.transl[0] - POSE["transl"][0]
     # The truth is (+0.08, 0, 0) m. Measured (deterministic renderer): 0.0846, -0.0026, +0.053 m.
     # The depth drifts because at this window's scale (0.54 px per image px) the energy's own
@@ -91,7 +92,9 @@ def test_gradient_moves_a_shifted_body_toward_a_shifted_mask(open_model, target_
     assert abs(dy) < 0.006, dy
     assert -0.01 < dz < 0.08, dz
     iou_after = mask_iou(render_mask(vertices(open_model, result.params()), open_model.faces.numpy(), CAMERA), target_mask)
-    assert iou_before < 0.45 and iou_after > 0.92, (iou_before, iou_after)  # measured 0.443 -> 0.943
+    # measured 0.443 -> 0.943 with the plain cover term; the robust one (issue 23: masks are supersets of
+    # bodies, an uncovered mask pixel near its edge pulls at a quarter) stops short: 0.902
+    assert iou_before < 0.45 and iou_after > (0.88 if robust else 0.92), (iou_before, iou_after)
     assert len(result.history["iou"]) == result.steps and result.iou_end > result.iou_start
 
 
@@ -270,25 +273,30 @@ def test_contour_body_poses_the_same_vertices_as_the_mesh(open_model):
     np.testing.assert_allclose(sub.keypoints.numpy(), full.keypoints.numpy(), atol=2e-4)  # landmarks: another path
 
 
-def test_contour_level_moves_a_shifted_body_without_rendering(open_model, target_mask):
+@pytest.mark.parametrize("robust", [False, True])
+def test_contour_level_moves_a_shifted_body_without_rendering(open_model, target_mask, robust):
     def no_renderer(*args, **kwargs):  # the contour level renders nothing
         raise AssertionError("the contour level rendered")
 
-    result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=CONTOUR, renderer=no_renderer, progress=False)
+    cfg = replace(CONTOUR, robust_cover=robust)
+    result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=cfg, renderer=no_renderer, progress=False)
     assert result.steps == 0 and 0 < result.contour_iterations <= 15
     dx, dy, _ = result.transl[0] - POSE["transl"][0]
-    # the truth is +0.08 m across; measured +0.078 and -0.001 m
-    assert 0.06 < dx < 0.1 and abs(dy) < 0.01, (dx, dy)
+    # the truth is +0.08 m across; measured +0.078 and -0.001 m with the plain cover term, +0.085 and
+    # -0.016 m with the robust one (issue 23: its pull within the clothing margin is a sixteenth)
+    assert 0.06 < dx < 0.1 and abs(dy) < (0.025 if robust else 0.01), (dx, dy)
 
 
-def test_contour_level_then_rendered_level(open_model, target_mask):
-    cfg = replace(FAST, iterations=(6,), contour_iterations=15, contour_resolution=64)
+@pytest.mark.parametrize("robust", [False, True])
+def test_contour_level_then_rendered_level(open_model, target_mask, robust):
+    cfg = replace(FAST, iterations=(6,), contour_iterations=15, contour_resolution=64, robust_cover=robust)
     result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=cfg, progress=False)
     assert result.steps == 6 and result.contour_iterations > 0 and len(result.history["iou"]) == 6
     # the rendered level starts where the contour level left the body: already near the mask
-    # (soft IoU at 64 px against 0.44 at the start; measured at the first rendered steps: 0.83-0.85
-    # with the prb_projective renderer, 0.837-0.843 with the ray-cast one; 0.85 was at that noise's edge)
-    assert result.iou_start > 0.8 and abs(result.transl[0, 0] - POSE["transl"][0, 0] - 0.08) < 0.015
+    # (soft IoU at 64 px against 0.44 at the start; measured at the first rendered steps with the plain cover
+    # term: 0.83-0.85 with the prb_projective renderer, 0.837-0.843 with the ray-cast one; with the robust
+    # cover term, whose pull near the mask's edge is weaker, 0.83 and below)
+    assert result.iou_start > (0.75 if robust else 0.8) and abs(result.transl[0, 0] - POSE["transl"][0, 0] - 0.08) < 0.015
 
 
 def test_a_batch_with_the_contour_level_equals_single_runs(open_model):

@@ -98,3 +98,92 @@ def test_outside_the_image_is_unknown_not_background():
     body[10:40, 10:20] = 1.0  # the true body continues below the image
     assert soft_iou(body, torch.as_tensor(mask, dtype=torch.float32), torch.as_tensor(valid, dtype=torch.float32)) == 1.0
     assert soft_iou(body, torch.as_tensor(mask, dtype=torch.float32)) < 0.7
+
+
+def test_cover_profile_is_shallow_within_the_margin_and_capped():
+    from silfit.silhouette import CoverProfile
+
+    p = CoverProfile(margin=4.0, inner=0.25, cap=6.0)
+    d = np.array([0.0, 2.0, 4.0, 5.0, 20.0])
+    assert np.allclose(p(d), [0.0, 0.5, 1.0, 2.0, 6.0])
+    assert torch.allclose(p(torch.as_tensor(d)), torch.as_tensor([0.0, 0.5, 1.0, 2.0, 6.0], dtype=torch.float64))
+    assert CoverProfile().plain and not p.plain
+    with pytest.raises(ValueError, match="CoverProfile"):
+        CoverProfile(inner=2.0)
+
+
+def test_a_grown_mask_pulls_the_body_outward_less_with_the_robust_profile():
+    """Clothing (issue 23): the mask is the body grown by 3 px. Growing the body to fill it lowers the
+    plain energy by much; with the robust profile (margin 4 px, inner 0.25) by a quarter as much
+    at most, while a body outside the mask still costs the same."""
+    from silfit.silhouette import CoverProfile
+
+    mask = disc(radius=15)
+    plain, robust = MaskTarget.from_mask(mask), MaskTarget.from_mask(mask, cover=CoverProfile(4.0, 0.25, 8.0))
+    assert robust.w_in is not None and (robust.w_in <= robust.dt_in + 1e-6).all() and robust.w_in.max() <= 8.0
+    body = torch.as_tensor(disc(radius=12), dtype=torch.float32)
+    full = torch.as_tensor(mask, dtype=torch.float32)
+    gain_plain = (silhouette_energy(body, plain) - silhouette_energy(full, plain)).item()
+    gain_robust = (silhouette_energy(body, robust) - silhouette_energy(full, robust)).item()
+    assert gain_plain > 0.5 and 0 < gain_robust <= 0.26 * gain_plain
+    too_big = torch.as_tensor(disc(radius=18), dtype=torch.float32)
+    assert silhouette_energy(too_big, robust).item() == pytest.approx(silhouette_energy(too_big, plain).item())
+
+
+def test_robust_cover_energy_ignores_an_outline_far_from_the_body():
+    """Contour level: outline points beyond the cap (a leak, an object) exert no pull; near ones do."""
+    from silfit.silhouette import CoverProfile, cover_energy
+
+    uv = torch.tensor([[10.0, 10.0], [12.0, 10.0]], requires_grad=True)
+    far = torch.tensor([[60.0, 10.0]])
+    near = torch.tensor([[15.0, 10.0]])
+    profile = CoverProfile(margin=1.0, inner=0.5, cap=10.0)
+    cover_energy(uv, far, profile).backward()
+    assert uv.grad.abs().max() == 0
+    uv.grad = None
+    cover_energy(uv, far).backward()
+    assert uv.grad.abs().max() > 0  # the plain energy pulls toward the far outline
+    uv.grad = None
+    cover_energy(uv, near, profile).backward()
+    assert uv.grad[1, 0] > 0 or uv.grad[1, 0] < 0
+
+
+def test_clothing_thickness_tells_a_grown_mask_from_a_leak_and_trim_undoes_it():
+    """A mask grown all around (clothing) is thick by the growth; a blob joined on one side (a
+    leak) or a matching mask is not; trimming the grown mask by its thickness gives the body back."""
+    import cv2
+
+    from silfit.silhouette import clothing_thickness, trim_clothing
+
+    body = np.zeros((120, 100), bool)
+    body[20:100, 40:60] = True  # a torso
+    body[30:36, 20:80] = True  # arms
+    grown = cv2.dilate(body.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (9, 9))).astype(bool)
+    leak = body.copy()
+    leak[50:70, 60:95] = True
+    assert clothing_thickness(body, body) == pytest.approx(0.0, abs=0.5)
+    assert clothing_thickness(grown, body) == pytest.approx(4.0, abs=1.0)
+    assert clothing_thickness(leak, body) < 1.0
+    trimmed = trim_clothing(grown, clothing_thickness(grown, body))
+    iou = (trimmed & body).sum() / (trimmed | body).sum()
+    assert iou > 0.85 and (trimmed & body).sum() / (grown & body).sum() > 0.85
+    cut = grown.copy()
+    cut[90:] = True  # runs out of the image at the bottom: the border is no edge
+    assert trim_clothing(cut, 4)[-1].sum() > 0.9 * cut[-1].sum()
+    assert trim_clothing(body, 0).sum() == body.sum()
+
+
+def test_the_stage_builds_robust_targets_and_the_plain_energy_stays_available():
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig, choose_window, window_target
+    from silfit.camera import Camera
+
+    mask = disc(size=96, centre=(48, 48), radius=20)
+    cam = Camera(100.0, 100.0, 47.5, 47.5, 96, 96)
+    uv = np.argwhere(mask)[:, ::-1].astype(float)
+    window = choose_window(mask, uv, cam, 64, 0.12)
+    cfg = SilhouetteFitConfig()
+    robust, _ = window_target(mask, window, cover=cfg.cover_profile(64))
+    plain, _ = window_target(mask, window, cover=SilhouetteFitConfig(robust_cover=False).cover_profile(64))
+    assert robust.cover is not None and robust.cover.margin == pytest.approx(cfg.cover_margin * 64)
+    assert plain.cover is None and plain.w_in is None
+    assert (robust.w_in <= plain.dt_in + 1e-6).all() and robust.w_in.sum() < 0.7 * plain.dt_in.sum()
