@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-__all__ = ["LIMB_SEGMENTS", "LIMBS", "flip_segment", "limb_hypotheses", "mirror_rotation"]
+__all__ = ["LIMB_SEGMENTS", "LIMBS", "align_segments", "flip_segment", "limb_hypotheses", "mirror_rotation", "rotation_between"]
 
 #: (segment, rotated joint, distal joint), SMPL joint names
 LIMB_SEGMENTS: Tuple[Tuple[str, str, str], ...] = (
@@ -42,7 +42,13 @@ LIMBS = (("left_thigh", "left_shin"), ("right_thigh", "right_shin"),
 def mirror_rotation(v: np.ndarray, n: np.ndarray) -> np.ndarray:
     """Smallest rotations ``[R, 3, 3]`` taking segments ``v [R, 3]`` to their mirror images
     through the planes of unit normals ``n [R, 3]``."""
-    w = v - 2.0 * (v * n).sum(-1, keepdims=True) * n
+    return rotation_between(v, v - 2.0 * (v * n).sum(-1, keepdims=True) * n)
+
+
+def rotation_between(v: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Smallest rotations ``[R, 3, 3]`` turning directions ``v [R, 3]`` onto ``w [R, 3]``
+    (lengths ignored; opposite directions: a half turn about an axis perpendicular to ``v``)."""
+    w = w * (np.linalg.norm(v, axis=-1, keepdims=True) / np.maximum(np.linalg.norm(w, axis=-1, keepdims=True), 1e-12))
     axis = np.cross(v, w)
     s = np.linalg.norm(axis, axis=-1)
     c = (v * w).sum(-1)
@@ -74,13 +80,45 @@ def flip_segment(body, rows: Dict[str, torch.Tensor], segment: str, joint_names:
     p, d = joints[:, j], joints[:, c]
     ray = 0.5 * (p + d)
     n = ray / np.linalg.norm(ray, axis=-1, keepdims=True)
-    fix = mirror_rotation(d - p, n)
-    Gp = G[:, parents[j]]
-    Gj = G[:, j]
+    return _turned(rows, G, j, parents, mirror_rotation(d - p, n))
+
+
+def _turned(rows, G, j, parents, fix, sel=None) -> torch.Tensor:
+    """``body_pose`` with joint ``j``'s global rotation ``G[:, j]`` turned by ``fix [R, 3, 3]``
+    (in the rows ``sel``, default all)."""
+    Gp, Gj = G[:, parents[j]], G[:, j]
     local = np.einsum("rji,rjk,rkl->ril", Gp, fix, Gj)  # Gp^T @ fix @ Gj
     pose = rows["body_pose"].detach().clone()
-    pose[:, 3 * (j - 1) : 3 * j] = torch.as_tensor(Rotation.from_matrix(local).as_rotvec(), dtype=pose.dtype)
+    sel = np.ones(len(local), bool) if sel is None else np.asarray(sel, bool)
+    new = torch.as_tensor(Rotation.from_matrix(local).as_rotvec(), dtype=pose.dtype)
+    pose[sel, 3 * (j - 1) : 3 * j] = new[sel]
     return pose
+
+
+def align_segments(body, rows: Dict[str, torch.Tensor], points: np.ndarray, weights: np.ndarray, joint_names,
+                   parents, keypoint_names) -> torch.Tensor:  # fmt: skip
+    """``body_pose [R, 3 * (J - 1)]`` with every limb segment turned (upper segments first, the
+    smallest rotation at its proximal joint) to point along the segment between its end
+    keypoints in ``points [R, K, 3]`` (the keypoints of ``keypoint_names``, in the rows' frame);
+    a segment whose end keypoints have a zero weight in ``weights [R, K]`` keeps its turn. A start
+    for fitting a body to 3D points (triangulated keypoints): the limbs' swing is then right
+    whatever the rest pose, and only their twist is left to the optimiser."""
+    rows = dict(rows)
+    names = list(keypoint_names)
+    for _, proximal, distal in LIMB_SEGMENTS:
+        if proximal not in names or distal not in names:
+            continue
+        a, b = names.index(proximal), names.index(distal)
+        sel = (weights[:, a] > 0) & (weights[:, b] > 0)
+        if not sel.any():
+            continue
+        with torch.no_grad():
+            st = body(**rows)
+        kp = st.keypoints.double().numpy()
+        G = st.transforms[..., :3, :3].double().numpy()
+        fix = rotation_between(kp[:, b] - kp[:, a], points[:, b] - points[:, a])
+        rows["body_pose"] = _turned(rows, G, joint_names.index(proximal), parents, fix, sel)
+    return rows["body_pose"]
 
 
 def depth_ratios(body, rows, joint_names) -> Dict[str, np.ndarray]:
