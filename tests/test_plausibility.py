@@ -166,3 +166,18 @@ def test_video_frames_whose_mask_runs_out_of_the_image_are_named():
     w = _cut_off_frames([inside, None, cut, cut])
     assert len(w) == 1 and w[0].startswith("frame(s) 2, 3:") and "cut off" in w[0]
     assert _cut_off_frames([inside, None]) == []
+
+
+def test_hypotheses_are_summarised_and_the_ambiguous_limbs_named():
+    from silfit.plausibility import hypothesis_summary, hypothesis_warnings
+
+    hyps = [{"label": "keep", "energy": 100.0, "differs": []},
+            {"label": "both_shins", "energy": 101.5, "differs": ["left_shin", "right_shin"]},
+            {"label": "left_forearm", "energy": 130.0, "differs": ["left_forearm"]}]  # fmt: skip
+    rows = hypothesis_summary(hyps)
+    assert [r["rank"] for r in rows] == [1, 2, 3] and rows[1]["gap"] == pytest.approx(0.015)
+    (warning,) = hypothesis_warnings(hyps)
+    assert warning.startswith("depth ambiguous for left_shin, right_shin: an alternative fit within 2% of the energy")
+    assert "hypotheses/2" in warning and "left_forearm" not in warning  # 30 % higher: not ambiguous
+    assert hypothesis_warnings(hyps[:1]) == [] and hypothesis_warnings(None) == []
+    assert "left_forearm" in hypothesis_warnings(hyps, margin=0.5)[0]

@@ -73,6 +73,10 @@ def register(subparsers) -> None:
     p.add_argument("--export", metavar="glb,ply", help="also write mesh.glb / mesh.ply (with --sequence: animation.glb, one "
                    "animated glTF of every frame / meshes/frame_<n>.ply): the body upright (x right, y up, z toward the "
                    "viewer: the camera frame turned 180 deg about x), vertex normals, the camera in the glTF")
+    p.add_argument("--hypotheses", type=int, default=1, metavar="K",
+                   help="also write the K best distinct keypoint-stage solutions of the limbs' depth branches to "
+                        "hypotheses/<k>/params.npz (1: the fit's own), their energies and differing segments in "
+                        "metrics.json (default 1: none)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -201,6 +205,8 @@ def run(args) -> int:
     if getattr(args, "export", None) and getattr(args, "rig", None):
         raise CLIError("--export with --rig: not available (a rig's world frame has no fixed up axis); mesh.obj holds the body")
     export_formats(args)
+    if getattr(args, "hypotheses", 1) != 1 and (args.sequence or getattr(args, "rig", None)):
+        raise CLIError("--hypotheses with --sequence/--rig: not available (one image's depth branches only)")
     if args.sequence and getattr(args, "rig", None):
         raise ValueError("--sequence with --rig: fitting a rig's video is not available; choose one")
     if args.sequence:
@@ -223,7 +229,14 @@ def run(args) -> int:
         print("inputs OK")
         return 0
     out, model, keypoints, image, mask = Path(args.out), inp.model, inp.keypoints, inp.image, inp.mask
-    result = fit(keypoints, mask, inp.camera, image_size=inp.size, focal=inp.focal, model=model,
+    kp_config = None
+    if getattr(args, "hypotheses", 1) != 1:
+        from ..fitting.keypoint_stage import KeypointFitConfig
+
+        if not 1 <= args.hypotheses <= 20:
+            raise CLIError(f"--hypotheses must be 1..20, got {args.hypotheses}")
+        kp_config = KeypointFitConfig(hypotheses=args.hypotheses)
+    result = fit(keypoints, mask, inp.camera, image_size=inp.size, focal=inp.focal, model=model, keypoint_config=kp_config,
                  pose_prior=inp.pose_prior, silhouette_config=inp.silhouette_config, progress=not args.quiet)  # fmt: skip
     extra = {"keypoints": args.keypoints and os.fspath(args.keypoints), "mask": args.mask, "image": args.image,
              "model": model.source, "camera_source": inp.camera_source}  # fmt: skip

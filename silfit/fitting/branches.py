@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-__all__ = ["LIMB_SEGMENTS", "LIMBS", "align_segments", "flip_segment", "limb_hypotheses", "mirror_rotation", "rotation_between"]
+__all__ = ["JOINT_HYPOTHESES", "LIMB_SEGMENTS", "LIMBS", "TORSO_SEGMENT", "align_segments", "flip_hip", "joint_hypotheses", "flip_segment", "limb_hypotheses", "mirror_rotation", "rotation_between"]
 
 #: (segment, rotated joint, distal joint), SMPL joint names
 LIMB_SEGMENTS: Tuple[Tuple[str, str, str], ...] = (
@@ -33,6 +33,27 @@ LIMB_SEGMENTS: Tuple[Tuple[str, str, str], ...] = (
     ("left_forearm", "left_elbow", "left_wrist"),
     ("right_upper_arm", "right_shoulder", "right_elbow"),
     ("right_forearm", "right_elbow", "right_wrist"),
+)
+#: the torso's lean: turned at the lowest spine joint, pelvis and legs unchanged
+TORSO_SEGMENT = ("torso", "spine1", "neck")
+#: joint hypotheses the single-segment search cannot reach (its screen keeps only the best few,
+#: and a pair of flips rarely wins one flip at a time): ``(label, parts)``, each part a tuple of
+#: segments flipped in order; it runs when every part has a segment pointing out of the image
+#: plane (``min_depth_ratio``). ``hip`` mirrors the pelvis-to-neck line at the root with the legs
+#: kept in place (the hip's tilt); ``torso`` bends at the spine
+JOINT_HYPOTHESES: Tuple[Tuple[str, Tuple[Tuple[str, ...], ...]], ...] = (
+    ("both_thighs", (("left_thigh",), ("right_thigh",))),
+    ("both_shins", (("left_shin",), ("right_shin",))),
+    ("both_legs", (("left_thigh", "left_shin"), ("right_thigh", "right_shin"))),
+    ("both_upper_arms", (("left_upper_arm",), ("right_upper_arm",))),
+    ("both_forearms", (("left_forearm",), ("right_forearm",))),
+    ("both_arms", (("left_upper_arm", "left_forearm"), ("right_upper_arm", "right_forearm"))),
+    ("torso", (("torso",),)),
+    ("hip", (("hip",),)),
+    ("torso+both_shins", (("torso",), ("left_shin",), ("right_shin",))),
+    ("torso+both_thighs", (("torso",), ("left_thigh",), ("right_thigh",))),
+    ("torso+both_legs", (("torso",), ("left_thigh", "left_shin"), ("right_thigh", "right_shin"))),
+    ("hip+torso", (("hip",), ("torso",))),
 )
 #: whole limbs: (upper segment, lower segment)
 LIMBS = (("left_thigh", "left_shin"), ("right_thigh", "right_shin"),
@@ -74,13 +95,59 @@ def flip_segment(body, rows: Dict[str, torch.Tensor], segment: str, joint_names:
 
     ``body`` is a :class:`~silfit.fitting.body.KeypointBody`-like evaluator (joints and
     transforms of parameter rows); ``rows`` holds parameter rows in the camera frame."""
-    _, proximal, distal = next(s for s in LIMB_SEGMENTS if s[0] == segment)
+    if segment == "hip":
+        return flip_hip(body, rows, joint_names)["body_pose"]
+    _, proximal, distal = next(s for s in LIMB_SEGMENTS + (TORSO_SEGMENT,) if s[0] == segment)
     j, c = joint_names.index(proximal), joint_names.index(distal)
     joints, G = _pose_state(body, rows)
     p, d = joints[:, j], joints[:, c]
     ray = 0.5 * (p + d)
     n = ray / np.linalg.norm(ray, axis=-1, keepdims=True)
     return _turned(rows, G, j, parents, mirror_rotation(d - p, n))
+
+
+def flip_hip(body, rows: Dict[str, torch.Tensor], joint_names: Sequence[str]) -> Dict[str, torch.Tensor]:
+    """``{global_orient, body_pose}`` with the pelvis-to-neck line mirrored in depth at the root
+    (through the pelvis) and the hips turned back, so the legs keep their place and direction."""
+    joints, G = _pose_state(body, rows)
+    p, d = joints[:, 0], joints[:, joint_names.index("neck")]
+    n = p / np.linalg.norm(p, axis=-1, keepdims=True)
+    fix = mirror_rotation(d - p, n)
+    G0 = G[:, 0]
+    orient = rows["global_orient"].detach().clone()
+    orient[:] = torch.as_tensor(Rotation.from_matrix(fix @ G0).as_rotvec(), dtype=orient.dtype)
+    back = np.einsum("rji,rkj,rkl->ril", G0, fix, G0)  # G0^T fix^T G0: the hips' world turn undone
+    pose = rows["body_pose"].detach().clone()
+    for hip in ("left_hip", "right_hip"):
+        j = joint_names.index(hip)
+        L = Rotation.from_rotvec(pose[:, 3 * (j - 1) : 3 * j].double().numpy()).as_matrix()
+        pose[:, 3 * (j - 1) : 3 * j] = torch.as_tensor(Rotation.from_matrix(back @ L).as_rotvec(), dtype=pose.dtype)
+    return {"global_orient": orient, "body_pose": pose}
+
+
+def joint_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, ratios: Dict[str, np.ndarray],
+                     min_depth_ratio: float = 0.3) -> List[Tuple[int, str, Dict[str, torch.Tensor]]]:  # fmt: skip
+    """Hypotheses ``(row, label, {parameter: value})`` of :data:`JOINT_HYPOTHESES` for the rows
+    where every part has a segment with a depth ratio of at least ``min_depth_ratio``
+    (``ratios``: :func:`depth_ratios`, with ``torso`` and ``hip``)."""
+    out = []
+    for label, parts in JOINT_HYPOTHESES:
+        ok = np.ones(rows["body_pose"].shape[0], bool)
+        for part in parts:
+            ok &= np.max([ratios[s] for s in part], axis=0) >= min_depth_ratio
+        sel = np.nonzero(ok)[0]
+        if not len(sel):
+            continue
+        sub = {k: v[sel] for k, v in rows.items()}
+        for part in parts:
+            for seg in part:
+                if seg == "hip":
+                    sub.update(flip_hip(body, sub, joint_names))
+                else:
+                    sub["body_pose"] = flip_segment(body, sub, seg, joint_names, parents)
+        for k, r in enumerate(sel.tolist()):
+            out.append((r, label, {"body_pose": sub["body_pose"][k], "global_orient": sub["global_orient"][k]}))
+    return out
 
 
 def _turned(rows, G, j, parents, fix, sel=None) -> torch.Tensor:
@@ -126,7 +193,7 @@ def depth_ratios(body, rows, joint_names) -> Dict[str, np.ndarray]:
     (the ray): 0 for a segment in the image plane (nothing to flip), 1 along the ray."""
     joints, _ = _pose_state(body, rows)
     out = {}
-    for name, proximal, distal in LIMB_SEGMENTS:
+    for name, proximal, distal in LIMB_SEGMENTS + (TORSO_SEGMENT, ("hip", "pelvis", "neck")):
         p, d = joints[:, joint_names.index(proximal)], joints[:, joint_names.index(distal)]
         ray = 0.5 * (p + d)
         v = d - p
@@ -135,10 +202,12 @@ def depth_ratios(body, rows, joint_names) -> Dict[str, np.ndarray]:
 
 
 def limb_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, min_depth_ratio: float = 0.3,
-                    whole_limbs: bool = True) -> List[Tuple[int, str, torch.Tensor]]:  # fmt: skip
+                    whole_limbs: bool = True, joint: bool = False) -> List[Tuple[int, str, torch.Tensor]]:  # fmt: skip
     """Hypotheses ``(row, label, body_pose [3 * (J - 1)])``: each segment whose depth
     ratio is at least ``min_depth_ratio`` flipped alone and, with ``whole_limbs``, each limb
-    with both segments flipped (the upper first, then the lower from its new place)."""
+    with both segments flipped (the upper first, then the lower from its new place); with
+    ``joint``, also :func:`joint_hypotheses`, whose third item is a dict (``body_pose`` and
+    ``global_orient``: the ``hip`` hypotheses turn the root)."""
     ratios = depth_ratios(body, rows, joint_names)
     flipped = {name: flip_segment(body, rows, name, joint_names, parents) for name, _, _ in LIMB_SEGMENTS}
     out = []
@@ -156,5 +225,7 @@ def limb_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, m
             both = flip_segment(body, sub, lower, joint_names, parents)
             for k, r in enumerate(sel.tolist()):
                 out.append((r, f"{upper}+{lower}", both[k]))
+    if joint:
+        out += joint_hypotheses(body, rows, joint_names, parents, ratios, min_depth_ratio)
     assert all(0 <= r < R for r, _, _ in out)
     return out

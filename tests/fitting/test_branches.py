@@ -49,3 +49,33 @@ def test_limbs_are_turned_onto_the_points_of_a_posed_body(body_model):
     assert cos(kp, target, *lw)[0] > 0.9999
     j = body_model.joint_names.index("left_elbow")
     assert torch.all(aligned[1, 3 * (j - 1) : 3 * j] == 0) and torch.any(aligned[0, 3 * (j - 1) : 3 * j] != 0)
+
+
+def test_joint_hypotheses_flip_pairs_and_the_hip_keeps_the_legs(body_model):
+    from silfit.fitting.branches import depth_ratios, flip_hip, joint_hypotheses
+
+    body = KeypointBody(body_model, "body25")
+    names, parents = body_model.joint_names, body_model.parents
+    pose = torch.zeros(1, 69, dtype=body_model.dtype)
+    for j, v in {1: (-1.2, 0, 0), 2: (-1.1, 0, 0), 4: (1.5, 0, 0), 5: (1.4, 0, 0), 3: (0.5, 0, 0)}.items():
+        pose[0, 3 * (j - 1) : 3 * j] = torch.tensor(v)  # both thighs forward (toward the camera), knees bent, a lean
+    rows = {"betas": torch.zeros(1, 10, dtype=pose.dtype), "body_pose": pose,
+            "global_orient": torch.tensor([[np.pi, 0.0, 0.0]], dtype=pose.dtype),
+            "transl": torch.tensor([[0.0, 0.2, 3.0]], dtype=pose.dtype)}  # fmt: skip
+    ratios = depth_ratios(body, rows, names)
+    hyps = {label: p for _, label, p in joint_hypotheses(body, rows, names, parents, ratios, 0.3)}
+    assert "both_thighs" in hyps and "both_legs" in hyps
+    with torch.no_grad():
+        j0 = body(**rows).joints[0].numpy()
+        j2 = body(**dict(rows, **{k: v[None] for k, v in hyps["both_thighs"].items()})).joints[0].numpy()
+    for hip, knee in (("left_hip", "left_knee"), ("right_hip", "right_knee")):
+        a, b = names.index(hip), names.index(knee)
+        assert np.sign(j0[b, 2] - j0[a, 2]) != np.sign(j2[b, 2] - j2[a, 2])  # each thigh now points the other way in depth
+        assert abs(np.linalg.norm(j2[b, :2] / j2[b, 2] - j0[b, :2] / j0[b, 2])) < 0.03  # and projects about where it did
+    hip = flip_hip(body, rows, names)
+    with torch.no_grad():
+        jh = body(**dict(rows, **hip)).joints[0].numpy()
+    ankles = [names.index(n) for n in ("left_ankle", "right_ankle")]
+    neck = names.index("neck")
+    assert np.abs(jh[ankles] - j0[ankles]).max() < 0.05  # the legs stay (the hips only move with the pelvis' turn)
+    assert np.sign(jh[neck, 2] - jh[0, 2]) != np.sign(j0[neck, 2] - j0[0, 2])  # the torso leans the other way
