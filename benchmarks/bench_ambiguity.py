@@ -51,7 +51,7 @@ def main() -> None:
 
     config = KeypointFitConfig(**{k: ast.literal_eval(v) for k, v in (a.split("=", 1) for a in args.set)})
 
-    from silfit.synth.hard import generate_hard_dataset
+    from silfit.synth.generate import generate_hard_dataset
 
     model = load_body_model()
     with tempfile.TemporaryDirectory() as tmp:
