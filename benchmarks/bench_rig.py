@@ -14,6 +14,11 @@ and worst-view IoU, seconds per subject.
 
     python benchmarks/bench_rig.py --subjects 30 --silhouette 4 --seed 1515 --keep /tmp/rig30
     python benchmarks/bench_rig.py --subjects 30 --silhouette 0 --seed 1515 --keep /tmp/rig30   # keypoints only, same set
+    python benchmarks/bench_rig.py --subjects 30 --silhouette 0 --views 2,4 --start rest,points   # issue 25: the 3D start
+
+``--start rest`` is the keypoint stage as it was before the start from the triangulated keypoints
+(:func:`silfit.fitting.rig_fit.pose_from_points`); the summary line gives the 2-view over 4-view
+ratio of the world PVE per start.
 """
 from __future__ import annotations
 
@@ -68,6 +73,9 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=1515)
     ap.add_argument("--noise", type=float, default=2.0)
     ap.add_argument("--size", type=int, default=512)
+    ap.add_argument("--start", default="points",
+                    help="comma-separated starts of the keypoint stage (silfit.fitting.rig_fit.fit_rig_keypoints: points, "
+                         "rest, both); the silhouette stage refines the last one's fits")
     ap.add_argument("--keep", help="keep the generated rig dataset in this folder (reused when it holds one)")
     args = ap.parse_args(argv)
     model = load_body_model()
@@ -90,23 +98,30 @@ def main(argv=None):
         probs = [subset(p, idx) for _, p, _ in subjects]
         vsel = [[v[i] for i in idx] for v, _, _ in subjects]
         truth = [subset_truth(g, idx) for _, _, g in subjects]
-        t = time.perf_counter()
-        fits = fit_rig_keypoints(fitter, probs)
-        kp_s = (time.perf_counter() - t) / len(probs)
-        rows[(C, "keypoints")] = {"seconds": kp_s, "metrics": [
-            score_rig_fit(model, v, p, g, f.params) for v, p, f, g in zip(vsel, probs, fits, truth)]}
+        for start in args.start.split(","):
+            t = time.perf_counter()
+            fits = fit_rig_keypoints(fitter, probs, start=start)
+            kp_s = (time.perf_counter() - t) / len(probs)
+            method = "keypoints" if start == "points" else f"keypoints ({start} start)"
+            rows[(C, method)] = {"seconds": kp_s, "metrics": [
+                score_rig_fit(model, v, p, g, f.params) for v, p, f, g in zip(vsel, probs, fits, truth)]}
         n = min(args.silhouette, len(probs))
         if n:
             t = time.perf_counter()
             res = refine_rig_fits(model, [([x.name for x in v], p, f) for v, p, f in zip(vsel[:n], probs[:n], fits[:n])],
                                   pose_prior=fitter.pose_prior)  # fmt: skip
             sil_s = (time.perf_counter() - t) / n
-            rows[(C, "keypoints (same subjects)")] = {"seconds": kp_s, "metrics": rows[(C, "keypoints")]["metrics"][:n]}
+            rows[(C, "keypoints (same subjects)")] = {"seconds": kp_s, "metrics": rows[(C, method)]["metrics"][:n]}
             rows[(C, "+ silhouette")] = {"seconds": kp_s + sil_s, "metrics": [
                 score_rig_fit(model, v, p, g, r.params) for v, p, r, g in zip(vsel, probs, res, truth)]}
         print(f"{C} views done ({time.perf_counter() - t0:.0f} s)", flush=True)
     table(rows, f"Rigs: {args.subjects} subjects (seed {args.seed}, {args.noise} px noise, {args.size} px), "
                 f"silhouette stage on {min(args.silhouette, args.subjects)}")  # fmt: skip
+    for start in args.start.split(","):
+        method = "keypoints" if start == "points" else f"keypoints ({start} start)"
+        if (2, method) in rows and (4, method) in rows:
+            two, four = (np.mean([m["pve_world"] for m in rows[(c, method)]["metrics"]]) for c in (2, 4))
+            print(f"{method}: PVE world 2 views {two:.1f} mm / 4 views {four:.1f} mm = {two / four:.2f}x (target <= 1.5x)")
     if (4, "keypoints") in rows:
         for method in ("keypoints", "+ silhouette"):
             if (4, method) in rows:

@@ -328,6 +328,14 @@ def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Came
             result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
         result.metrics["warnings"] += fit_warnings(result.metrics, keypoints[i], result.vertices, result.params.get("betas")) \
             + ambiguity_warnings((result.keypoint.branch_search or [None])[0])
+        if result.keypoint.branch_search:  # every hypothesis the branch search ran to its end, with its energy
+            result.metrics["branch_search"] = result.keypoint.branch_search[0]
+        hyps = (result.keypoint.hypotheses or [None])[0]
+        if hyps is not None:  # hypotheses=K: every alternative's energy and the limbs it turns (metrics.json)
+            from .plausibility import hypothesis_summary, hypothesis_warnings
+
+            result.metrics["hypotheses"] = hypothesis_summary(hyps)
+            result.metrics["warnings"] += hypothesis_warnings(hyps)
         out[i] = result
     return out  # type: ignore[return-value]
 
@@ -386,6 +394,11 @@ def save_fit(
             if mask is not None:
                 figures.write_png(tmp / "silhouette.png", figures.silhouette_comparison(result.masks["final"], mask))
             figures.iou_curve(result.silhouette.history, tmp / "iou_curve.png")
+        for k, h in enumerate((result.keypoint.hypotheses or [[]])[0], 1):  # --hypotheses K: hypotheses/k/params.npz
+            from .fitio import write_fit
+
+            write_fit(tmp / "hypotheses" / str(k), h["params"], [result.camera], layout=result.layout,
+                      model=result.keypoint.model, record={"label": h["label"], "energy": h["energy"], "differs": h["differs"]})  # fmt: skip
         metrics = dict(result.metrics)
         metrics["camera"] = result.camera.to_dict()
         metrics["layout"] = result.layout

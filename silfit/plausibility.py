@@ -35,8 +35,10 @@ from .keypoints import KeypointSet
 
 __all__ = [
     "GuardDecision", "ambiguity_warnings", "body_stature", "branch_gap", "check_frames", "check_keypoints", "fit_summary",
-    "fit_warnings", "mask_warnings", "person_extent", "reprojection_rise_warnings", "shape_warnings", "silhouette_guard",
+    "fit_warnings", "hypothesis_summary", "hypothesis_warnings", "mask_warnings", "person_extent", "reprojection_rise_warnings",
+    "shape_warnings", "silhouette_guard",
 ]  # fmt: skip
+
 
 #: Keypoints farther than this many image widths/heights outside the image are dropped.
 OUTSIDE_MARGIN = 1.0
@@ -247,6 +249,32 @@ def ambiguity_warnings(search) -> list:
     return [f"depth ambiguous: {name(other)} fits the keypoints almost as well as {name(stage['kept'])} (energy "
             f"{gap:.1%} higher); the keypoints cannot tell which way it points: check a side view (branch_search in "
             "params.json)"]
+
+
+def hypothesis_summary(hypotheses) -> list:
+    """``metrics.json``'s record of :attr:`~silfit.fitting.KeypointFitResult.hypotheses` (one
+    sample's): rank (``hypotheses/<rank>/``), the branch it started from, its final energy, its gap
+    to the best (relative) and the segments it turns away from the best."""
+    if not hypotheses:
+        return []
+    e0 = hypotheses[0]["energy"]
+    return [{"rank": k, "label": h["label"], "energy": float(h["energy"]),
+             "gap": float((h["energy"] - e0) / max(abs(e0), 1e-12)), "differs": list(h["differs"])}
+            for k, h in enumerate(hypotheses, 1)]  # fmt: skip
+
+
+def hypothesis_warnings(hypotheses, margin: float = AMBIGUOUS_GAP) -> list:
+    """A warning naming the limbs whose depth is ambiguous: the segments an alternative
+    (``silfit fit --hypotheses K``) turns away from the fit while its energy is within ``margin``
+    (relative) of the fit's."""
+    close = [(k, h) for k, h in enumerate(hypotheses or [], 1)
+             if k > 1 and h["differs"] and (h["energy"] - hypotheses[0]["energy"]) <= margin * abs(hypotheses[0]["energy"])]  # fmt: skip
+    if not close:
+        return []
+    segs = sorted({s for _, h in close for s in h["differs"]})
+    which = ", ".join(f"hypotheses/{k}" for k, _ in close)
+    return [f"depth ambiguous for {', '.join(segs)}: an alternative fit within {margin:.0%} of the energy turns "
+            f"{'it' if len(segs) == 1 else 'them'} the other way ({which}); the keypoints cannot tell which: check a side view"]
 
 
 def _stage_gap(stage) -> float:

@@ -75,16 +75,23 @@ def _view_ious(vertices, faces, problem, names):
 
 
 def disagreeing_views(names, errors, factor: float = 4.0, floor_px: float = 10.0) -> List[str]:
-    """Warnings for views whose median reprojection error is ``factor`` times the views'
+    """Warnings for views whose median reprojection error is ``factor`` times the other views'
     median and above ``floor_px``: a view the fit could not agree with (a wrong calibration,
     another person's keypoints), which the robust data term only damps."""
     errors = np.asarray(errors, dtype=np.float64)
     if np.isfinite(errors).sum() < 2:
         return []
-    median = float(np.nanmedian(errors))
-    return [f"view {n}: median reprojection error {e:.1f} px against {median:.1f} px over the views; check its "
-            "calibration and that its keypoints are this person's" for n, e in zip(names, errors)
-            if np.isfinite(e) and e > max(factor * median, floor_px)]  # fmt: skip
+    out = []
+    for i, (n, e) in enumerate(zip(names, errors)):
+        # against the other views' median: with two views the overall median is the mean of
+        # the culprit's error and the other's, which never exceeds it 4 times, and nothing fired
+        median = float(np.nanmedian(np.delete(errors, i)))
+        if np.isfinite(e) and np.isfinite(median) and e > max(factor * median, floor_px):
+            where = "in the other view" if len(errors) == 2 else "over the other views"
+            hint = " (with two views either may be the wrong one)" if len(errors) == 2 else ""
+            out.append(f"view {n}: median reprojection error {e:.1f} px against {median:.1f} px {where}; check its "
+                       f"calibration and that its keypoints are this person's{hint}")  # fmt: skip
+    return out
 
 
 def view_warnings(names, problem, vertices, per_view: dict, betas=None) -> List[str]:

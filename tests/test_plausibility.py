@@ -195,3 +195,17 @@ def test_body_stature_follows_the_shape(open_model):
     tall = body_stature(open_model, np.r_[3.0, np.zeros(9)])
     short = body_stature(open_model, np.r_[-3.0, np.zeros(9)])
     assert abs(tall - short) > 0.2
+
+def test_hypotheses_are_summarised_and_the_ambiguous_limbs_named():
+    from silfit.plausibility import hypothesis_summary, hypothesis_warnings
+
+    hyps = [{"label": "keep", "energy": 100.0, "differs": []},
+            {"label": "both_shins", "energy": 101.5, "differs": ["left_shin", "right_shin"]},
+            {"label": "left_forearm", "energy": 130.0, "differs": ["left_forearm"]}]  # fmt: skip
+    rows = hypothesis_summary(hyps)
+    assert [r["rank"] for r in rows] == [1, 2, 3] and rows[1]["gap"] == pytest.approx(0.015)
+    (warning,) = hypothesis_warnings(hyps)
+    assert warning.startswith("depth ambiguous for left_shin, right_shin: an alternative fit within 2% of the energy")
+    assert "hypotheses/2" in warning and "left_forearm" not in warning  # 30 % higher: not ambiguous
+    assert hypothesis_warnings(hyps[:1]) == [] and hypothesis_warnings(None) == []
+    assert "left_forearm" in hypothesis_warnings(hyps, margin=0.5)[0]

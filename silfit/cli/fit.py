@@ -72,6 +72,10 @@ def register(subparsers) -> None:
     p.add_argument("--export", metavar="glb,ply", help="also write mesh.glb / mesh.ply (with --sequence: animation.glb, one "
                    "animated glTF of every frame / meshes/frame_<n>.ply): the body upright (x right, y up, z toward the "
                    "viewer: the camera frame turned 180 deg about x), vertex normals, the camera in the glTF")
+    p.add_argument("--hypotheses", type=int, default=1, metavar="K",
+                   help="also write the K best distinct keypoint-stage solutions of the limbs' depth branches to "
+                        "hypotheses/<k>/params.npz (1: the fit's own), their energies and differing segments in "
+                        "metrics.json (default 1: none)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -70,6 +70,8 @@ def build_job(args) -> Job:
         raise CLIError("--views picks cameras of a rig; give --rig DIR")
     if args.sequence and getattr(args, "rig", None):
         raise CLIError("--sequence with --rig: a rig video is --rig DIR alone (its views' folders hold the per-frame files)")
+    if getattr(args, "hypotheses", 1) != 1 and (args.sequence or getattr(args, "rig", None)):
+        raise CLIError("--hypotheses with --sequence/--rig: not available (one image's depth branches only)")
     if getattr(args, "export", None) and getattr(args, "rig", None):
         raise CLIError("--export with --rig: not available (a rig's world frame has no fixed up axis); mesh.obj holds the body")
     if args.sequence:
@@ -135,8 +137,15 @@ def image_job(args) -> Job:
         note(choice_note)
     record = {"keypoints": args.keypoints and os.fspath(args.keypoints), "mask": args.mask, "image": args.image,
               "model": model.source, "camera_source": camera_source, **(photo["metrics"] if photo else {})}  # fmt: skip
+    keypoint_config = None
+    if getattr(args, "hypotheses", 1) != 1:  # the K best distinct depth-branch solutions (hypotheses/<k>/)
+        from ..fitting.keypoint_stage import KeypointFitConfig
+
+        if not 1 <= args.hypotheses <= 20:
+            raise CLIError(f"--hypotheses must be 1..20, got {args.hypotheses}")
+        keypoint_config = KeypointFitConfig(hypotheses=args.hypotheses)
     return Job(Problem.single(keypoints, camera, mask), model, pose_prior=_pose_prior(args, model),
-               silhouette_config=silhouette_config(args), silhouette=not args.no_silhouette, progress=not args.quiet,
+               keypoint_config=keypoint_config, silhouette_config=silhouette_config(args), silhouette=not args.no_silhouette, progress=not args.quiet,
                warnings=warnings, record=record, images={} if image is None else {(0, 0): image},
                mask_sources={(0, 0): args.mask or "mask"})  # fmt: skip
 

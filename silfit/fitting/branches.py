@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-__all__ = ["LIMB_SEGMENTS", "LIMBS", "flip_segment", "limb_hypotheses", "mirror_rotation"]
+__all__ = ["JOINT_HYPOTHESES", "LIMB_SEGMENTS", "LIMBS", "TORSO_SEGMENT", "align_segments", "flip_hip", "joint_hypotheses", "flip_segment", "limb_hypotheses", "mirror_rotation", "rotation_between"]
 
 #: (segment, rotated joint, distal joint), SMPL joint names
 LIMB_SEGMENTS: Tuple[Tuple[str, str, str], ...] = (
@@ -34,6 +34,27 @@ LIMB_SEGMENTS: Tuple[Tuple[str, str, str], ...] = (
     ("right_upper_arm", "right_shoulder", "right_elbow"),
     ("right_forearm", "right_elbow", "right_wrist"),
 )
+#: the torso's lean: turned at the lowest spine joint, pelvis and legs unchanged
+TORSO_SEGMENT = ("torso", "spine1", "neck")
+#: joint hypotheses the single-segment search cannot reach (its screen keeps only the best few,
+#: and a pair of flips rarely wins one flip at a time): ``(label, parts)``, each part a tuple of
+#: segments flipped in order; it runs when every part has a segment pointing out of the image
+#: plane (``min_depth_ratio``). ``hip`` mirrors the pelvis-to-neck line at the root with the legs
+#: kept in place (the hip's tilt); ``torso`` bends at the spine
+JOINT_HYPOTHESES: Tuple[Tuple[str, Tuple[Tuple[str, ...], ...]], ...] = (
+    ("both_thighs", (("left_thigh",), ("right_thigh",))),
+    ("both_shins", (("left_shin",), ("right_shin",))),
+    ("both_legs", (("left_thigh", "left_shin"), ("right_thigh", "right_shin"))),
+    ("both_upper_arms", (("left_upper_arm",), ("right_upper_arm",))),
+    ("both_forearms", (("left_forearm",), ("right_forearm",))),
+    ("both_arms", (("left_upper_arm", "left_forearm"), ("right_upper_arm", "right_forearm"))),
+    ("torso", (("torso",),)),
+    ("hip", (("hip",),)),
+    ("torso+both_shins", (("torso",), ("left_shin",), ("right_shin",))),
+    ("torso+both_thighs", (("torso",), ("left_thigh",), ("right_thigh",))),
+    ("torso+both_legs", (("torso",), ("left_thigh", "left_shin"), ("right_thigh", "right_shin"))),
+    ("hip+torso", (("hip",), ("torso",))),
+)
 #: whole limbs: (upper segment, lower segment)
 LIMBS = (("left_thigh", "left_shin"), ("right_thigh", "right_shin"),
          ("left_upper_arm", "left_forearm"), ("right_upper_arm", "right_forearm"))  # fmt: skip
@@ -42,7 +63,13 @@ LIMBS = (("left_thigh", "left_shin"), ("right_thigh", "right_shin"),
 def mirror_rotation(v: np.ndarray, n: np.ndarray) -> np.ndarray:
     """Smallest rotations ``[R, 3, 3]`` taking segments ``v [R, 3]`` to their mirror images
     through the planes of unit normals ``n [R, 3]``."""
-    w = v - 2.0 * (v * n).sum(-1, keepdims=True) * n
+    return rotation_between(v, v - 2.0 * (v * n).sum(-1, keepdims=True) * n)
+
+
+def rotation_between(v: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Smallest rotations ``[R, 3, 3]`` turning directions ``v [R, 3]`` onto ``w [R, 3]``
+    (lengths ignored; opposite directions: a half turn about an axis perpendicular to ``v``)."""
+    w = w * (np.linalg.norm(v, axis=-1, keepdims=True) / np.maximum(np.linalg.norm(w, axis=-1, keepdims=True), 1e-12))
     axis = np.cross(v, w)
     s = np.linalg.norm(axis, axis=-1)
     c = (v * w).sum(-1)
@@ -68,19 +95,97 @@ def flip_segment(body, rows: Dict[str, torch.Tensor], segment: str, joint_names:
 
     ``body`` is a :class:`~silfit.fitting.body.KeypointBody`-like evaluator (joints and
     transforms of parameter rows); ``rows`` holds parameter rows in the camera frame."""
-    _, proximal, distal = next(s for s in LIMB_SEGMENTS if s[0] == segment)
+    if segment == "hip":
+        return flip_hip(body, rows, joint_names)["body_pose"]
+    _, proximal, distal = next(s for s in LIMB_SEGMENTS + (TORSO_SEGMENT,) if s[0] == segment)
     j, c = joint_names.index(proximal), joint_names.index(distal)
     joints, G = _pose_state(body, rows)
     p, d = joints[:, j], joints[:, c]
     ray = 0.5 * (p + d)
     n = ray / np.linalg.norm(ray, axis=-1, keepdims=True)
+    return _turned(rows, G, j, parents, mirror_rotation(d - p, n))
+
+
+def flip_hip(body, rows: Dict[str, torch.Tensor], joint_names: Sequence[str]) -> Dict[str, torch.Tensor]:
+    """``{global_orient, body_pose}`` with the pelvis-to-neck line mirrored in depth at the root
+    (through the pelvis) and the hips turned back, so the legs keep their place and direction."""
+    joints, G = _pose_state(body, rows)
+    p, d = joints[:, 0], joints[:, joint_names.index("neck")]
+    n = p / np.linalg.norm(p, axis=-1, keepdims=True)
     fix = mirror_rotation(d - p, n)
-    Gp = G[:, parents[j]]
-    Gj = G[:, j]
+    G0 = G[:, 0]
+    orient = rows["global_orient"].detach().clone()
+    orient[:] = torch.as_tensor(Rotation.from_matrix(fix @ G0).as_rotvec(), dtype=orient.dtype)
+    back = np.einsum("rji,rkj,rkl->ril", G0, fix, G0)  # G0^T fix^T G0: the hips' world turn undone
+    pose = rows["body_pose"].detach().clone()
+    for hip in ("left_hip", "right_hip"):
+        j = joint_names.index(hip)
+        L = Rotation.from_rotvec(pose[:, 3 * (j - 1) : 3 * j].double().numpy()).as_matrix()
+        pose[:, 3 * (j - 1) : 3 * j] = torch.as_tensor(Rotation.from_matrix(back @ L).as_rotvec(), dtype=pose.dtype)
+    return {"global_orient": orient, "body_pose": pose}
+
+
+def joint_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, ratios: Dict[str, np.ndarray],
+                     min_depth_ratio: float = 0.3) -> List[Tuple[int, str, Dict[str, torch.Tensor]]]:  # fmt: skip
+    """Hypotheses ``(row, label, {parameter: value})`` of :data:`JOINT_HYPOTHESES` for the rows
+    where every part has a segment with a depth ratio of at least ``min_depth_ratio``
+    (``ratios``: :func:`depth_ratios`, with ``torso`` and ``hip``)."""
+    out = []
+    for label, parts in JOINT_HYPOTHESES:
+        ok = np.ones(rows["body_pose"].shape[0], bool)
+        for part in parts:
+            ok &= np.max([ratios[s] for s in part], axis=0) >= min_depth_ratio
+        sel = np.nonzero(ok)[0]
+        if not len(sel):
+            continue
+        sub = {k: v[sel] for k, v in rows.items()}
+        for part in parts:
+            for seg in part:
+                if seg == "hip":
+                    sub.update(flip_hip(body, sub, joint_names))
+                else:
+                    sub["body_pose"] = flip_segment(body, sub, seg, joint_names, parents)
+        for k, r in enumerate(sel.tolist()):
+            out.append((r, label, {"body_pose": sub["body_pose"][k], "global_orient": sub["global_orient"][k]}))
+    return out
+
+
+def _turned(rows, G, j, parents, fix, sel=None) -> torch.Tensor:
+    """``body_pose`` with joint ``j``'s global rotation ``G[:, j]`` turned by ``fix [R, 3, 3]``
+    (in the rows ``sel``, default all)."""
+    Gp, Gj = G[:, parents[j]], G[:, j]
     local = np.einsum("rji,rjk,rkl->ril", Gp, fix, Gj)  # Gp^T @ fix @ Gj
     pose = rows["body_pose"].detach().clone()
-    pose[:, 3 * (j - 1) : 3 * j] = torch.as_tensor(Rotation.from_matrix(local).as_rotvec(), dtype=pose.dtype)
+    sel = np.ones(len(local), bool) if sel is None else np.asarray(sel, bool)
+    new = torch.as_tensor(Rotation.from_matrix(local).as_rotvec(), dtype=pose.dtype)
+    pose[sel, 3 * (j - 1) : 3 * j] = new[sel]
     return pose
+
+
+def align_segments(body, rows: Dict[str, torch.Tensor], points: np.ndarray, weights: np.ndarray, joint_names,
+                   parents, keypoint_names) -> torch.Tensor:  # fmt: skip
+    """``body_pose [R, 3 * (J - 1)]`` with every limb segment turned (upper segments first, the
+    smallest rotation at its proximal joint) to point along the segment between its end
+    keypoints in ``points [R, K, 3]`` (the keypoints of ``keypoint_names``, in the rows' frame);
+    a segment whose end keypoints have a zero weight in ``weights [R, K]`` keeps its turn. A start
+    for fitting a body to 3D points (triangulated keypoints): the limbs' swing is then right
+    whatever the rest pose, and only their twist is left to the optimiser."""
+    rows = dict(rows)
+    names = list(keypoint_names)
+    for _, proximal, distal in LIMB_SEGMENTS:
+        if proximal not in names or distal not in names:
+            continue
+        a, b = names.index(proximal), names.index(distal)
+        sel = (weights[:, a] > 0) & (weights[:, b] > 0)
+        if not sel.any():
+            continue
+        with torch.no_grad():
+            st = body(**rows)
+        kp = st.keypoints.double().numpy()
+        G = st.transforms[..., :3, :3].double().numpy()
+        fix = rotation_between(kp[:, b] - kp[:, a], points[:, b] - points[:, a])
+        rows["body_pose"] = _turned(rows, G, joint_names.index(proximal), parents, fix, sel)
+    return rows["body_pose"]
 
 
 def depth_ratios(body, rows, joint_names) -> Dict[str, np.ndarray]:
@@ -88,7 +193,7 @@ def depth_ratios(body, rows, joint_names) -> Dict[str, np.ndarray]:
     (the ray): 0 for a segment in the image plane (nothing to flip), 1 along the ray."""
     joints, _ = _pose_state(body, rows)
     out = {}
-    for name, proximal, distal in LIMB_SEGMENTS:
+    for name, proximal, distal in LIMB_SEGMENTS + (TORSO_SEGMENT, ("hip", "pelvis", "neck")):
         p, d = joints[:, joint_names.index(proximal)], joints[:, joint_names.index(distal)]
         ray = 0.5 * (p + d)
         v = d - p
@@ -97,10 +202,12 @@ def depth_ratios(body, rows, joint_names) -> Dict[str, np.ndarray]:
 
 
 def limb_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, min_depth_ratio: float = 0.3,
-                    whole_limbs: bool = True) -> List[Tuple[int, str, torch.Tensor]]:  # fmt: skip
+                    whole_limbs: bool = True, joint: bool = False) -> List[Tuple[int, str, torch.Tensor]]:  # fmt: skip
     """Hypotheses ``(row, label, body_pose [3 * (J - 1)])``: each segment whose depth
     ratio is at least ``min_depth_ratio`` flipped alone and, with ``whole_limbs``, each limb
-    with both segments flipped (the upper first, then the lower from its new place)."""
+    with both segments flipped (the upper first, then the lower from its new place); with
+    ``joint``, also :func:`joint_hypotheses`, whose third item is a dict (``body_pose`` and
+    ``global_orient``: the ``hip`` hypotheses turn the root)."""
     ratios = depth_ratios(body, rows, joint_names)
     flipped = {name: flip_segment(body, rows, name, joint_names, parents) for name, _, _ in LIMB_SEGMENTS}
     out = []
@@ -118,5 +225,7 @@ def limb_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, m
             both = flip_segment(body, sub, lower, joint_names, parents)
             for k, r in enumerate(sel.tolist()):
                 out.append((r, f"{upper}+{lower}", both[k]))
+    if joint:
+        out += joint_hypotheses(body, rows, joint_names, parents, ratios, min_depth_ratio)
     assert all(0 <= r < R for r, _, _ in out)
     return out

@@ -156,6 +156,20 @@ class KeypointFitConfig:
     branch_iters: int = 20
     branch_min_depth_ratio: float = 0.3
     branch_whole_limbs: bool = True
+    #: also the joint hypotheses (:data:`~silfit.fitting.branches.JOINT_HYPOTHESES`: both legs,
+    #: both arms, the torso's lean with the legs, the hip's tilt), screened with the others. Off by
+    #: default: on 20 hard subjects (seed 4711, keypoint stage) they changed nothing alone (PA-PVE
+    #: 123.9 mm either way) and little with ``hypotheses=3`` (98.9 against 99.4 mm); on the tuning
+    #: set (seed 31) they made that worse (88.8 against 81.3 mm: lower energies, wrong poses)
+    branch_joint: bool = False
+    #: the last branch search keeps each sample's ``2 * hypotheses`` lowest-energy hypotheses (not
+    #: one) and runs the rest of the schedule on all of them; the lowest final energy is the fit,
+    #: the ``hypotheses`` best distinct ones (:func:`distinct_hypotheses`) are returned as
+    #: alternatives (``KeypointFitResult.hypotheses``; ``silfit fit --hypotheses K``). Choosing the
+    #: branch by the final energy, not the search stage's, is itself better: ``hypotheses=3`` lowered
+    #: the hard set's keypoint-stage PA-PVE from 123.9 to 99.4 mm (20 subjects, seed 4711; fits above
+    #: 150 mm 5 -> 3, search failures 5 -> 2) at about 1.3-3x the time (a loaded machine)
+    hypotheses: int = 1
     branch_rounds: int = 1
     #: hypotheses drop early: after ``branch_screen_iters`` steps only each sample's
     #: ``branch_survivors`` lowest-energy hypotheses (the unflipped pose among them or not)
@@ -258,6 +272,7 @@ class KeypointFitConfig:
                 for r in range(int(self.branch_rounds)):
                     opts = {"branches": {
                         "min_depth_ratio": self.branch_min_depth_ratio, "whole_limbs": self.branch_whole_limbs,
+                        "joint": self.branch_joint,
                         "screen_after": self.branch_screen_iters, "survivors": self.branch_survivors,
                     }}  # fmt: skip
                     w = {**weights, "interpenetration": self.interpenetration_weight}
@@ -358,6 +373,48 @@ def best_per_group(energy: torch.Tensor, group: torch.Tensor, groups: int, count
         key = torch.where(torch.isfinite(fg), torch.floor((fg - low) / step), fg)
         out.append(rows[torch.argsort(key, stable=True)[: max(1, int(count))]])
     return torch.cat(out)
+
+
+#: two refined hypotheses of a sample whose joints are this close (mean, metres) are one solution
+DISTINCT_JOINTS_M = 0.03
+#: a segment whose direction differs by more than this (degrees) between two hypotheses "differs"
+DIFFERS_DEG = 30.0
+
+
+def distinct_hypotheses(fitter, layout, state, energy, group, groups: int, labels, min_m: float = DISTINCT_JOINTS_M):
+    """``(hypotheses, best_rows)``: per sample ``b < groups``, its rows (``group == b``) refined to the
+    end, lowest ``energy`` first, without those whose joints are within ``min_m`` (mean) of a lower
+    one, as ``[{"label", "energy", "params": {name: [w]}, "differs": [segment, ...]}]`` (``differs``:
+    the limb and torso segments pointing more than :data:`DIFFERS_DEG` away from the best's); and the
+    best row of each sample."""
+    from .branches import LIMB_SEGMENTS, TORSO_SEGMENT
+
+    rows = layout.rows(state)
+    with torch.no_grad():
+        joints = fitter.body(**rows).joints.double().numpy()
+    names = fitter.model.joint_names
+    segs = [(n, names.index(p), names.index(d)) for n, p, d in LIMB_SEGMENTS + (TORSO_SEGMENT,)]
+    order = best_per_group(energy, group, groups, count=int(group.shape[0]))
+    out, best = [], []
+    for b in range(groups):
+        mine = [r for r in order.tolist() if int(group[r]) == b]
+        kept = []
+        for r in mine:
+            if all(np.linalg.norm(joints[r] - joints[k], axis=-1).mean() >= min_m for k in kept):
+                kept.append(r)
+        best.append(kept[0])
+        hyps = []
+        for r in kept:
+            differs = []
+            for n, a, c in segs:
+                u, v = joints[r, c] - joints[r, a], joints[kept[0], c] - joints[kept[0], a]
+                cos = float(u @ v / max(np.linalg.norm(u) * np.linalg.norm(v), 1e-12))
+                if math.degrees(math.acos(max(-1.0, min(1.0, cos)))) > DIFFERS_DEG:
+                    differs.append(n)
+            hyps.append({"label": labels[r], "energy": float(energy[r]), "differs": differs,
+                         "params": {n: v[r].detach().cpu().numpy().astype(np.float32) for n, v in rows.items()}})  # fmt: skip
+        out.append(hyps)
+    return out, torch.as_tensor(best, dtype=torch.long)
 
 
 class KeypointFitter:
@@ -578,9 +635,12 @@ class KeypointFitter:
                           progress=progress)  # fmt: skip
             return record(name or stage.name, r)
 
+        K = max(1, int(cfg.hypotheses))
+        last_search = max([i for i, s in enumerate(self.stages) if "branches" in s.options], default=-1)
+        row_labels = None  # with K > 1: each row's hypothesis after the last search
         chosen_branches = [[] for _ in range(B)]
         searched = [[] for _ in range(B)]  # per problem and branch stage: the hypotheses that ran to its end
-        for stage in self.stages:
+        for si, stage in enumerate(self.stages):
             if stage.options.get("hand_starts") and self.whole_body:
                 state = choose_hand_starts(self.model, self.body, layout, state, views, data, self.config.hand_sigma)
             if "branches" in stage.options:
@@ -590,12 +650,16 @@ class KeypointFitter:
                     raise ValueError(f"stage '{stage.name}': the branch search needs one frame and a decided start")
                 opts = stage.options["branches"]
                 hyps = limb_hypotheses(self.body, layout.rows(state), self.model.joint_names, self.model.parents,
-                                       opts.get("min_depth_ratio", 0.3), opts.get("whole_limbs", True))  # fmt: skip
+                                       opts.get("min_depth_ratio", 0.3), opts.get("whole_limbs", True),
+                                       opts.get("joint", False))  # fmt: skip
                 labels = ["keep"] * B + [h[1] for h in hyps]
                 take(torch.cat([torch.arange(B), torch.as_tensor([h[0] for h in hyps], dtype=torch.long)]))
-                if hyps:
-                    state["body_pose"][B:, 0] = torch.stack([h[2] for h in hyps]).to(dt)
+                for i, h in enumerate(hyps):  # a pose, or {parameter: value} (joint hypotheses)
+                    for n, v in (h[2] if isinstance(h[2], dict) else {"body_pose": h[2]}).items():
+                        state[n][B + i, 0] = v.to(dt)
                 screen, survivors = int(opts.get("screen_after", 0)), int(opts.get("survivors", 2))
+                if K > 1 and si == last_search:  # alternatives wanted: twice as many go on (some merge)
+                    survivors = max(survivors, 2 * K)
                 if 0 < screen < stage.iterations and hyps:  # a few steps for all, then the best few go on
                     f = run(stage, screen, f"{stage.name}_screen")
                     rows = best_per_group(f, group, B, survivors)
@@ -611,6 +675,9 @@ class KeypointFitter:
                     tried = [(labels[r], float(f[r])) for r in torch.nonzero(group == b).flatten().tolist()]
                     searched[b].append({"stage": stage.name, "kept": labels[k],
                                         "tried": [{"flip": lab, "energy": e} for lab, e in sorted(tried, key=lambda x: x[1])]})
+                if K > 1 and si == last_search:  # the K best of each sample go on to the end
+                    keep = best_per_group(f, group, B, count=2 * K)
+                    row_labels = [labels[r] for r in keep.tolist()]
                 take(keep)
                 continue
             decide_after = stage.options.get("decide_after") if not decided else None
@@ -630,9 +697,15 @@ class KeypointFitter:
                 run(stage, stage.iterations - together, f"{stage.name}_chosen")
         if not decided:  # a schedule without a decision stage: keep the best start at the end
             take(best_per_group(energies[self.stages[-1].name], group, B))
+        hypotheses = None
+        if row_labels is not None:  # the fit: each sample's lowest final energy; the others as alternatives
+            hypotheses, best = distinct_hypotheses(self, layout, state, energies[self.stages[-1].name], group, B,
+                                                   row_labels)  # fmt: skip
+            hypotheses = [h[:K] for h in hypotheses]
+            take(best)
         timings["total"] = time.perf_counter() - t_all
         info = {"energies": energies, "terms": terms, "timings": timings, "flipped": start_flip.numpy(), "branches": chosen_branches,
-                "branch_search": searched,
+                "branch_search": searched, "hypotheses": hypotheses,
                 "data": data, "views": views, "layout": layout}  # fmt: skip
         return state, info
 
@@ -679,6 +752,7 @@ class KeypointFitter:
             timings=info["timings"], flipped=info["flipped"], reprojection_error=reproj,
             config=self.config.to_dict(self.whole_body),
             branches=info["branches"], branch_search=info["branch_search"], model=model_record(self.model),
+            hypotheses=info.get("hypotheses"),
         )  # fmt: skip
 
 

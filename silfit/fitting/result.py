@@ -67,6 +67,9 @@ class KeypointFitResult:
     #: per sample, each branch-search stage's hypotheses that ran to its end and their final
     #: energies (``[{"stage", "kept", "tried": [{"flip", "energy"}, ...]}]``, lowest first)
     branch_search: Optional[list] = None
+    #: with ``KeypointFitConfig.hypotheses > 1``: per sample, the distinct hypotheses refined to the
+    #: end, lowest energy first (the first is the fit): ``[{"label", "energy", "params", "differs"}]``
+    hypotheses: Optional[list] = None
 
     def __len__(self) -> int:
         return self.betas.shape[0]
@@ -100,6 +103,7 @@ class KeypointFitResult:
             config=self.config, branches=None if self.branches is None else [self.branches[i] for i in idx],
             extra_params={k: v[idx] for k, v in self.extra_params.items()}, model=self.model,
             branch_search=None if self.branch_search is None else [self.branch_search[i] for i in idx],
+            hypotheses=None if self.hypotheses is None else [self.hypotheses[i] for i in idx],
         )  # fmt: skip
 
     # ------------------------------------------------------------------ I/O

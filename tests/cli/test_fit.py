@@ -228,3 +228,22 @@ def test_fit_export_writes_upright_glb_and_ply(inputs, tmp_path, capsys):
     assert err.count("\n") == 0 and "--export 'obj'" in err and not (tmp_path / "bad").exists()
     assert main(["fit", "--rig", str(d), "--export", "glb", "--out", str(tmp_path / "rig")] + FAST) == 2
     assert "--export with --rig" in capsys.readouterr().err and not (tmp_path / "rig").exists()
+
+
+def test_fit_hypotheses_writes_each_solution_and_records_them(inputs, tmp_path, capsys):
+    from silfit.fitio import read_fit
+
+    d, model = inputs
+    out = tmp_path / "fit"
+    rc = main(["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
+               "--no-silhouette", "--hypotheses", "2", "--out", str(out)] + FAST)  # fmt: skip
+    assert rc == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    hyps = metrics["hypotheses"]
+    assert 1 <= len(hyps) <= 2 and hyps[0]["rank"] == 1 and hyps[0]["gap"] == 0.0
+    assert all((out / "hypotheses" / str(h["rank"]) / "params.npz").is_file() for h in hyps)
+    assert not (out / "hypotheses" / str(len(hyps) + 1)).exists()
+    assert metrics["branch_search"][0]["tried"][0]["flip"] == metrics["branch_search"][0]["kept"]
+    best = read_fit(out / "hypotheses" / "1")  # the first is the fit itself
+    assert np.allclose(best.frame(0)["body_pose"], read_fit(out).frame(0)["body_pose"], atol=1e-5)
+    assert main(["fit", "--rig", str(d), "--hypotheses", "2", "--out", str(tmp_path / "rig")] + FAST) == 2

@@ -436,3 +436,39 @@ def test_the_stage_computes_in_its_configured_dtype_without_changing_the_callers
     assert res.vertices.dtype == np.float32  # results in float32 either way
     with pytest.raises(ValueError, match="dtype"):
         KeypointFitConfig(dtype="float16")
+
+
+def test_hypotheses_keep_the_best_distinct_branches_refined_to_the_end(body_model):
+    # A thigh pointing at the camera (the branch test's subject): with hypotheses=3 the search keeps
+    # several branches, refines them to the end and returns the distinct ones, lowest energy first;
+    # the fit is the first.
+    from silfit.fitting.branches import flip_segment
+    from silfit.fitting.problem import Problem
+    from silfit.fitting.stages import Stage
+    from silfit.keypoints import KeypointSet
+
+    pose = {**POSE, 4: (1.2, 0, 0), 1: (-0.9, 0, 0.05)}
+    kp, _ = subject(body_model, yaw_deg=0.0, pose=pose)
+    truth = {"betas": torch.zeros(1, 10), "global_orient": torch.tensor([[math.pi, 0.0, 0.0]]),
+             "body_pose": torch.zeros(1, 69), "transl": torch.tensor([[0.05, 0.15, 3.5]])}  # fmt: skip
+    for j, v in pose.items():
+        truth["body_pose"][0, 3 * (j - 1) : 3 * j] = torch.tensor(v)
+    w = {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4, "interpenetration": 1e5}
+    free = ("global_orient", "transl", "body_pose")
+    stages = [Stage("branches", free, w, 12, options={"branches": {"joint": True, "screen_after": 4, "survivors": 2}}),
+              Stage("final", free, w, 8)]  # fmt: skip
+    fitter = KeypointFitter(body_model, config=KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages, hypotheses=3))
+    start = dict(truth, body_pose=flip_segment(fitter.body, truth, "left_thigh", body_model.joint_names, body_model.parents))
+    ks = KeypointSet(kp[:, :2], kp[:, 2], "body25")
+    state, info = fitter.fit_problems([Problem.single(ks, CAM)], init={k: v.numpy() for k, v in start.items()})
+    (hyps,) = info["hypotheses"]
+    assert 1 <= len(hyps) <= 3
+    energies = [h["energy"] for h in hyps]
+    assert energies == sorted(energies)
+    assert energies[0] == pytest.approx(float(info["energies"]["final"][0]))
+    assert np.allclose(hyps[0]["params"]["body_pose"], state["body_pose"][0, 0].numpy(), atol=1e-6)
+    assert hyps[0]["differs"] == [] and all(isinstance(h["label"], str) for h in hyps)
+    # more rows ran the branch stage's end than one (2 K survivors), and the energies were recorded
+    assert len(info["branch_search"][0][0]["tried"]) >= 2
+    # the fit is back on the true branch: the thigh's flip won
+    assert "left_thigh" in hyps[0]["label"] or "left_thigh" in info["branches"][0]

@@ -1,0 +1,81 @@
+"""silfit.fitting.branches: rotations between directions and limbs turned onto 3D points."""
+import numpy as np
+import torch
+
+from silfit.fitting.body import KeypointBody
+from silfit.fitting.branches import align_segments, rotation_between
+from silfit.keypoints import BODY25_NAMES
+
+
+def test_rotation_between_turns_one_direction_onto_another():
+    rng = np.random.default_rng(3)
+    v, w = rng.normal(size=(20, 3)), rng.normal(size=(20, 3))
+    w[0] = -v[0]  # opposite: a half turn
+    w[1] = 2.0 * v[1]  # the same direction: no turn
+    R = rotation_between(v, w)
+    turned = np.einsum("rij,rj->ri", R, v)
+    unit = lambda a: a / np.linalg.norm(a, axis=-1, keepdims=True)  # noqa: E731
+    assert np.allclose(unit(turned), unit(w), atol=1e-9)
+    assert np.allclose(R[1], np.eye(3), atol=1e-9)
+    assert np.allclose(np.linalg.det(R), 1.0)
+
+
+def test_limbs_are_turned_onto_the_points_of_a_posed_body(body_model):
+    body = KeypointBody(body_model, "body25")
+    rng = np.random.default_rng(5)
+    pose = torch.zeros(2, 69, dtype=body_model.dtype)
+    for j in (1, 2, 4, 5, 16, 17, 18, 19):  # hips, knees, shoulders, elbows
+        pose[:, 3 * (j - 1) : 3 * j] = torch.as_tensor(rng.uniform(-0.8, 0.8, size=(2, 3)), dtype=pose.dtype)
+    rows = {"betas": torch.zeros(2, 10, dtype=pose.dtype), "global_orient": torch.zeros(2, 3, dtype=pose.dtype),
+            "transl": torch.zeros(2, 3, dtype=pose.dtype)}  # fmt: skip
+    with torch.no_grad():
+        target = body(**rows, body_pose=pose).keypoints.double().numpy()
+    w = np.ones(target.shape[:2])
+    w[1, BODY25_NAMES.index("left_wrist")] = 0.0  # not seen: that forearm keeps its turn
+    start = dict(rows, body_pose=torch.zeros_like(pose))
+    aligned = align_segments(body, start, target, w, body_model.joint_names, body_model.parents, BODY25_NAMES)
+    with torch.no_grad():
+        kp = body(**rows, body_pose=aligned).keypoints.double().numpy()
+
+    def cos(a, b, p, d):
+        u, v = a[:, d] - a[:, p], b[:, d] - b[:, p]
+        return (u * v).sum(-1) / np.linalg.norm(u, axis=-1) / np.linalg.norm(v, axis=-1)
+
+    I = BODY25_NAMES.index  # noqa: E741
+    for p, d in (("left_hip", "left_knee"), ("right_knee", "right_ankle"), ("left_shoulder", "left_elbow"),
+                 ("right_elbow", "right_wrist")):  # fmt: skip
+        assert (cos(kp, target, I(p), I(d)) > 0.9999).all(), (p, d)
+    lw = (I("left_elbow"), I("left_wrist"))
+    assert cos(kp, target, *lw)[0] > 0.9999
+    j = body_model.joint_names.index("left_elbow")
+    assert torch.all(aligned[1, 3 * (j - 1) : 3 * j] == 0) and torch.any(aligned[0, 3 * (j - 1) : 3 * j] != 0)
+
+
+def test_joint_hypotheses_flip_pairs_and_the_hip_keeps_the_legs(body_model):
+    from silfit.fitting.branches import depth_ratios, flip_hip, joint_hypotheses
+
+    body = KeypointBody(body_model, "body25")
+    names, parents = body_model.joint_names, body_model.parents
+    pose = torch.zeros(1, 69, dtype=body_model.dtype)
+    for j, v in {1: (-1.2, 0, 0), 2: (-1.1, 0, 0), 4: (1.5, 0, 0), 5: (1.4, 0, 0), 3: (0.5, 0, 0)}.items():
+        pose[0, 3 * (j - 1) : 3 * j] = torch.tensor(v)  # both thighs forward (toward the camera), knees bent, a lean
+    rows = {"betas": torch.zeros(1, 10, dtype=pose.dtype), "body_pose": pose,
+            "global_orient": torch.tensor([[np.pi, 0.0, 0.0]], dtype=pose.dtype),
+            "transl": torch.tensor([[0.0, 0.2, 3.0]], dtype=pose.dtype)}  # fmt: skip
+    ratios = depth_ratios(body, rows, names)
+    hyps = {label: p for _, label, p in joint_hypotheses(body, rows, names, parents, ratios, 0.3)}
+    assert "both_thighs" in hyps and "both_legs" in hyps
+    with torch.no_grad():
+        j0 = body(**rows).joints[0].numpy()
+        j2 = body(**dict(rows, **{k: v[None] for k, v in hyps["both_thighs"].items()})).joints[0].numpy()
+    for hip, knee in (("left_hip", "left_knee"), ("right_hip", "right_knee")):
+        a, b = names.index(hip), names.index(knee)
+        assert np.sign(j0[b, 2] - j0[a, 2]) != np.sign(j2[b, 2] - j2[a, 2])  # each thigh now points the other way in depth
+        assert abs(np.linalg.norm(j2[b, :2] / j2[b, 2] - j0[b, :2] / j0[b, 2])) < 0.03  # and projects about where it did
+    hip = flip_hip(body, rows, names)
+    with torch.no_grad():
+        jh = body(**dict(rows, **hip)).joints[0].numpy()
+    ankles = [names.index(n) for n in ("left_ankle", "right_ankle")]
+    neck = names.index("neck")
+    assert np.abs(jh[ankles] - j0[ankles]).max() < 0.05  # the legs stay (the hips only move with the pelvis' turn)
+    assert np.sign(jh[neck, 2] - jh[0, 2]) != np.sign(j0[neck, 2] - j0[0, 2])  # the torso leans the other way
