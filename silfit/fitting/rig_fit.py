@@ -56,10 +56,14 @@ def fit_keypoints_of(path, model=None, person="largest"):
 def has_wholebody_parts(paths, person="largest") -> bool:
     """Whether any of these OpenPose files holds confident hand or face points (they pick the
     whole-body model when none is given, as for one image)."""
+    from ..errors import InputError
     from ..wholebody import read_wholebody_parts
 
     for path in paths:
-        parts = read_wholebody_parts(path, person)
+        try:
+            parts = read_wholebody_parts(path, person)
+        except InputError:  # that view's keypoints are set aside when read (e.g. no person ``person`` there)
+            continue
         if parts is not None and parts.has_parts:
             return True
     return False
