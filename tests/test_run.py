@@ -105,3 +105,11 @@ def test_check_reindexes_a_rig_videos_pictures_when_a_view_is_set_aside(subject)
     checked = check(job)
     assert list(checked.view_names) == ["b"] and sorted(checked.images) == [(0, 0), (1, 0)]
     assert checked.images[(1, 0)][0, 0, 0] == 11 and checked.mask_sources == {(0, 0): "m01", (1, 0): "m11"}
+
+
+def test_the_old_home_of_fit_still_gives_it():
+    import silfit.pipeline
+    import silfit.run
+    from silfit.pipeline import fit
+
+    assert fit is silfit.run.fit is silfit.pipeline.fit
