@@ -406,3 +406,13 @@ def save_fit(
         (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return out
 
+
+
+def __getattr__(name: str):
+    """``silfit.pipeline.fit``, the old home of :func:`silfit.run.fit` (a thin alias, read lazily:
+    :mod:`silfit.run` imports this module)."""
+    if name == "fit":
+        from .run import fit
+
+        return fit
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -64,6 +64,8 @@ class Job:
     inputs: Any = None
     #: the views are a calibrated rig (fitted in its world frame), even when only one is left
     rig: bool = False
+    #: the frames are a video's (the sequence fit and the video's outputs), even when it has one frame
+    video: bool = False
 
     @property
     def num_frames(self) -> int:
@@ -84,7 +86,7 @@ class Job:
     @property
     def mode(self) -> str:
         """``"image"``, ``"rig"`` or ``"video"`` (what the frames x views shape is called)."""
-        return "video" if self.num_frames > 1 else "rig" if (self.rig or self.num_views > 1) else "image"
+        return "video" if (self.video or self.num_frames > 1) else "rig" if (self.rig or self.num_views > 1) else "image"
 
 
 @dataclass
@@ -172,7 +174,7 @@ def check(job: Job) -> Job:
     F, C = len(grid), len(grid[0])
     names = list(job.view_names) if len(job.view_names) == C else [str(c) for c in range(C)]
     warnings = list(job.warnings)
-    if F == 1:
+    if job.mode != "video":
         kept, first = [], None
         for c, o in enumerate(grid[0]):
             try:
@@ -210,7 +212,9 @@ def check(job: Job) -> Job:
         problem = Problem([Observation(grid[f][c].view, column[f], grid[f][c].mask, f, i)
                            for f in range(F) for i, (c, column) in enumerate(kept)], job.problem.shared)  # fmt: skip
         names = [names[c] for c, _ in kept]
-        images, sources = job.images, job.mask_sources
+        index = {c: i for i, (c, _) in enumerate(kept)}  # a view's pictures and mask sources follow it
+        images = {(f, index[c]): v for (f, c), v in job.images.items() if c in index}
+        sources = {(f, index[c]): v for (f, c), v in job.mask_sources.items() if c in index}
         if len(kept) < C and hasattr(job.inputs, "select_views"):  # the reader's object follows (a rig video's)
             from dataclasses import replace as _replace
 
@@ -370,6 +374,8 @@ def _run_video(job: Job) -> Fit:
         warnings += frame_warnings(frames, vertices, errors[:, 0], numbers)
     metrics = {"reprojection_error_px": _finite_median(errors), "warnings": _dedupe(warnings),
                "silhouette": "run" if silhouette else "not run"}  # fmt: skip
+    if silhouette and getattr(result, "silhouette_iou_start", None) is not None:  # the summary's "IoU a -> b"
+        metrics["silhouette_iou_start"] = float(result.silhouette_iou_start)
     result.warnings = metrics["warnings"]
     return Fit(job, _params_per_frame(params, F), _arr(vertices), _arr(result.joints),
                _arr(result.keypoints_2d).reshape(F, C, -1, 2), errors, iou, "world" if rig else "camera", metrics, result)  # fmt: skip
@@ -493,4 +499,4 @@ def video_job(frames, camera, model=None, *, masks=None, config=None, silhouette
     return Job(Problem([Observation(view, ks, m, f) for f, (ks, m) in enumerate(zip(frames, masks))]), model,
                pose_prior=pose_prior, silhouette_config=silhouette_config, sequence_config=config, progress=progress,
                frame_numbers=None if numbers is None else list(numbers), warnings=list(warnings), inputs=inputs,
-               record=dict(record or {}))  # fmt: skip
+               record=dict(record or {}), video=True)  # fmt: skip

@@ -10,7 +10,7 @@ from silfit.errors import InputError
 from silfit.fitting import KeypointFitConfig
 from silfit.fitting.problem import Observation, Problem, View
 from silfit.keypoints import KeypointSet
-from silfit.run import Job, StageFailure, check, image_job, run, run_batch
+from silfit.run import Job, StageFailure, check, image_job, run, run_batch, video_job
 
 SHIPPED = Path(__file__).resolve().parents[1] / "data" / "synthetic"
 FAST = KeypointFitConfig(camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branch_search=False)
@@ -82,3 +82,34 @@ def test_run_gives_one_result_type_for_a_video(open_model, subject):
     assert fit.vertices.shape == (3, open_model.num_vertices, 3) and fit.reprojection_error.shape == (3, 1)
     assert fit.params["betas"].ndim == 1 and fit.params["body_pose"].shape == (3, 69)
     assert np.isnan(fit.reprojection_error[1, 0]) and any("bridged" in w for w in fit.warnings)
+
+
+def test_a_one_frame_video_stays_a_video(open_model, subject):
+    """A video of one frame (or a rig video of one frame) is fitted and written as a video, not as one image."""
+    from silfit.fitting.sequence import SequenceFitConfig, SequenceFitResult
+
+    ks, cam = subject.keypoints, subject.camera
+    job = video_job([ks], cam, open_model, config=SequenceFitConfig(keypoint=FAST, iterations=3, neighbour_starts=False),
+                    progress=False, numbers=[7])  # fmt: skip
+    assert job.mode == "video" and check(job).mode == "video"
+    fit = run(job)
+    assert isinstance(fit.stage, SequenceFitResult) and fit.params["body_pose"].shape == (1, 69)
+
+
+def test_check_reindexes_a_rig_videos_pictures_when_a_view_is_set_aside(subject):
+    ks, cam = subject.keypoints, subject.camera
+    obs = [Observation(View(cam), k, None, f, c) for f in range(2) for c, k in enumerate([_unusable(ks), ks])]
+    pics = {(f, c): np.full((2, 2, 3), 10 * f + c, np.uint8) for f in range(2) for c in range(2)}
+    job = Job(Problem(obs), view_names=["a", "b"], rig=True, images=pics,
+              mask_sources={(f, c): f"m{f}{c}" for f in range(2) for c in range(2)})  # fmt: skip
+    checked = check(job)
+    assert list(checked.view_names) == ["b"] and sorted(checked.images) == [(0, 0), (1, 0)]
+    assert checked.images[(1, 0)][0, 0, 0] == 11 and checked.mask_sources == {(0, 0): "m01", (1, 0): "m11"}
+
+
+def test_the_old_home_of_fit_still_gives_it():
+    import silfit.pipeline
+    import silfit.run
+    from silfit.pipeline import fit
+
+    assert fit is silfit.run.fit is silfit.pipeline.fit

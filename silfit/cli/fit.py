@@ -95,9 +95,10 @@ def run(args) -> int:
     exports = export_formats(args)
     job = build_job(args)
     if args.check_only:
-        for warning in check(job).warnings:
+        checked = check(job)
+        for warning in checked.warnings:
             warn(warning)
-        print(describe_inputs(check(job)))
+        print(describe_inputs(checked))
         return 0
     fit = run_job(job)
     out = Path(args.out)

@@ -247,7 +247,7 @@ def rig_video_job(args) -> Job:
     silhouette = "run" if masks is not None and not args.no_silhouette else "not run (--no-silhouette)" if args.no_silhouette else "not run (no masks)"
     return Job(Problem(obs), model, seq.names, pose_prior=_pose_prior(args, model), silhouette_config=sil_config,
                sequence_config=cfg, silhouette=not args.no_silhouette, progress=not args.quiet, frame_numbers=list(seq.numbers),
-               warnings=list(seq.warnings), inputs=seq, rig=True,
+               warnings=list(seq.warnings), inputs=seq, rig=True, video=True,
                record={"rig": str(args.rig), "model": model.source, "silhouette": silhouette})  # fmt: skip
 
 

@@ -18,7 +18,7 @@ world frame of the rig's extrinsics.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, Sequence
 
 import numpy as np
 import torch
@@ -70,10 +70,14 @@ def fit_keypoints_of(path, model=None, person="largest"):
 def has_wholebody_parts(paths, person="largest") -> bool:
     """Whether any of these OpenPose files holds confident hand or face points (they pick the
     whole-body model when none is given, as for one image)."""
+    from ..errors import InputError
     from ..wholebody import read_wholebody_parts
 
     for path in paths:
-        parts = read_wholebody_parts(path, person)
+        try:
+            parts = read_wholebody_parts(path, person)
+        except InputError:  # that view's keypoints are set aside when read (e.g. no person ``person`` there)
+            continue
         if parts is not None and parts.has_parts:
             return True
     return False
@@ -96,34 +100,6 @@ def rig_problem(views, person="largest", with_masks: bool = True, model=None) ->
         mask = read_mask(v.mask, size=(cam.width, cam.height)) if (with_masks and v.mask is not None) else None
         obs.append(Observation(v.view, ks, mask, frame=0, view_index=c))
     return Problem(obs)
-
-
-def usable_views(views, person="largest", names: Optional[Sequence[str]] = None) -> Tuple[list, List[str]]:
-    """The views to fit and warnings: only ``names`` (in the rig's order; unknown names are an
-    :class:`~silfit.errors.InputError`) and, of those, the views whose keypoints pass the checks of
-    one image (a view whose keypoints are unusable, e.g. all far outside its image, is set aside
-    with a warning; if none is left, the first view's error is raised)."""
-    from ..errors import InputError
-    from ..plausibility import check_keypoints
-
-    if names:
-        known = [v.name for v in views]
-        unknown = [n for n in names if n not in known]
-        if unknown:
-            raise InputError("--views", f"unknown view(s) {', '.join(unknown)} (the rig has {', '.join(known)})")
-        views = [v for v in views if v.name in names]
-    kept, warnings, first = [], [], None
-    for v in views:
-        try:
-            check_keypoints(read_keypoints(v.keypoints, person=person), v.view.camera.size)
-        except InputError as err:
-            first = first or err
-            warnings.append(f"view {v.name} set aside: {err}")
-            continue
-        kept.append(v)
-    if not kept:
-        raise first
-    return kept, warnings
 
 
 def _median_errors(proj: np.ndarray, problem: Problem) -> np.ndarray:

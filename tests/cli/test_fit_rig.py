@@ -84,6 +84,22 @@ def test_fit_rig_views_and_unusable_views_are_set_aside(rigs, tmp_path, capsys):
     assert "inputs OK (1 views)" in cap.out and "view view_0 set aside" in cap.err and "far outside" in cap.err
 
 
+def test_a_view_without_the_person_asked_for_is_set_aside(rigs, tmp_path, capsys):
+    """``--person 1`` where only one view's file holds two people: the other view is set aside (the
+    whole-body model choice reads every view's file first and must not refuse the rig)."""
+    import shutil
+
+    rig = tmp_path / "rig"
+    shutil.copytree(rigs / "subject_000", rig)
+    kp_file = next(p for p in (rig / "view_0").iterdir() if p.name.startswith("keypoints"))
+    doc = json.loads(kp_file.read_text())
+    doc["people"].append(doc["people"][0])
+    kp_file.write_text(json.dumps(doc))
+    assert main(["fit", "--rig", str(rig), "--person", "1", "--check-only", "--out", str(tmp_path / "x")]) == 0
+    cap = capsys.readouterr()
+    assert "inputs OK (1 views)" in cap.out and "view view_1 set aside" in cap.err and "person 1" in cap.err
+
+
 def test_rig_fits_get_one_image_warnings_per_view(rigs):
     from silfit.fitting.rig_fit import rig_problem
     from silfit.rig import load_rig
