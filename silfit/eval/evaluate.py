@@ -295,9 +295,11 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
     jobs = [Job(Problem.single(k, s.camera, s.mask), model, silhouette="silhouette" in methods, progress=progress,
                 mask_sources={(0, 0): str(s.file("mask"))}) for k, s in zip(sets, subjects)]  # fmt: skip
     fits = [f for c in range(0, len(jobs), chunk) for f in run_batch(jobs[c : c + chunk], isolate=True)]
-    for f in fits:
-        if isinstance(f, StageFailure) and f.stage == "keypoints" or isinstance(f, Exception) and not isinstance(f, StageFailure):
-            raise f.error if isinstance(f, StageFailure) else f
+    # a subject whose keypoints are refused (silfit.run.check) or whose keypoint stage fails fails alone
+    bad = {i: (f.error if isinstance(f, StageFailure) else f) for i, f in enumerate(fits)
+           if isinstance(f, Exception) and not (isinstance(f, StageFailure) and f.stage == "silhouette")}  # fmt: skip
+    if len(bad) == len(fits):
+        raise next(iter(bad.values()))
     elapsed = time.perf_counter() - t0
     search = [None] * len(subjects)
     if all(s.gt is not None for s in subjects):  # the keypoint-stage energy at the truth vs at the fit
@@ -305,22 +307,27 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
         truth = {k: np.stack([s.gt.params()[k][0] for s in subjects]) for k in model.parameter_names}
         e_truth, _ = fitter.energy_at(truth, sets, [s.camera for s in subjects])
         last = fitter.stages[-1].name
-        e_fit = [float(_keypoint_result(f).energies[last][0]) for f in fits]
-        search = [{"energy_fit": float(a), "energy_truth": float(b)} for a, b in zip(e_fit, e_truth)]
+        search = [None if i in bad else {"energy_fit": float(_keypoint_result(f).energies[last][0]), "energy_truth": float(b)}
+                  for i, (f, b) in enumerate(zip(fits, e_truth))]  # fmt: skip
     if "keypoints" in methods:
         for i, s in enumerate(subjects):  # each fit folder is written beside its place, then moved in
+            if i in bad:
+                continue
             kp = _keypoint_result(fits[i])
             with atomic_folder(Path(fits_root) / s.name / "keypoints", overwrite=True) as tmp:
                 kp.save(tmp)
                 record = {"timings": {k: float(v) for k, v in kp.timings.items()}, "batched_over": min(chunk, len(subjects)),
                           "search": search[i]}  # fmt: skip
                 (tmp / "metrics.json").write_text(json.dumps(record, indent=2))
-        status["keypoints"] = f"ran on {len(subjects)} subjects in {elapsed:.1f} s (batched; per-subject times are batch averages)"
+        status["keypoints"] = (f"ran on {len(subjects) - len(bad)} subjects in {elapsed:.1f} s (batched; per-subject times are batch "
+                               "averages)" + (f"; failed: {'; '.join(f'{subjects[i].name}: {e}' for i, e in bad.items())}" if bad else ""))
     if "silhouette" in methods:
         faces = model.faces.cpu().numpy()
         ran, failed = 0, []
         for i, (s, f) in enumerate(zip(subjects, fits)):
-            if s.mask is None:
+            if i in bad:
+                failed.append(f"{s.name}: {bad[i]}")
+            elif s.mask is None:
                 failed.append(f"{s.name}: no mask")
             elif isinstance(f, StageFailure):
                 failed.append(f"{s.name}: {f.error}")

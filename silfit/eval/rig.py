@@ -109,9 +109,13 @@ def run_rig_fitter(subject_dirs: Sequence[Path], fits_root: Path, methods: Seque
         jobs.append(Job(rig_problem(v), model, [x.name for x in v], silhouette="silhouette" in methods, progress=progress,
                         rig=True, record={"subject": d.name}))  # fmt: skip
     t0 = time.perf_counter()
-    fits = run_batch(jobs)
+    fits = run_batch(jobs, isolate=True)  # a subject that fails fails alone
     faces = model.faces.cpu().numpy()
+    failed = []
     for d, fit in zip(subject_dirs, fits):
+        if isinstance(fit, Exception):
+            failed.append(f"{d.name}: {getattr(fit, 'error', fit)}")
+            continue
         r, p = fit.stage, fit.job.problem
         per = float(r.keypoint.timings["total"])
         if "keypoints" in methods:
@@ -122,9 +126,11 @@ def run_rig_fitter(subject_dirs: Sequence[Path], fits_root: Path, methods: Seque
             sil = float(r.metrics["timings"]["silhouette"])
             r.metrics["timings"] = {"keypoints": per, "silhouette": sil, "total": per + sil}
             save_rig_fit(r, fits_root / d.name / "silhouette", faces, p, overwrite=True, model=model)
-    status = {"keypoints": f"ran on {len(jobs)} subjects in {time.perf_counter() - t0:.1f} s (batched, both stages)"}
+    done = [f for f in fits if not isinstance(f, Exception)]
+    status = {"keypoints": f"ran on {len(done)} subjects in {time.perf_counter() - t0:.1f} s (batched, both stages)"
+              + (f"; failed: {'; '.join(failed)}" if failed else "")}  # fmt: skip
     if "silhouette" in methods:
-        status["silhouette"] = f"ran on {sum(f.stage.silhouette is not None for f in fits)} subjects"
+        status["silhouette"] = f"ran on {sum(f.stage.silhouette is not None for f in done)} subjects"
     return status
 
 

@@ -278,7 +278,8 @@ def test_a_rig_video_is_synthesised_fitted_over_every_view_and_rendered(sequence
     rc = main(["fit", "--rig", str(rig), "--model", str(model), "--out", str(out), "--sequence-iterations", "10",
                "--silhouette-resolutions", "32", "--silhouette-iterations", "2", "--meshes", "--quiet"])  # fmt: skip
     assert rc == 0, capsys.readouterr().err
-    assert "3 frames, 2 views" in capsys.readouterr().out  # the one summary line of silfit.run.Fit
+    line = capsys.readouterr().out  # the one summary line of silfit.run.Fit
+    assert "3 frames, 0 bridged" in line and "2 views" in line
     p = np.load(out / "params.npz")
     assert str(p["coordinates"]) == "world" and p["views"].tolist() == ["view_0", "view_1"]
     assert p["betas"].shape == (3, 10) and (p["betas"] == p["betas"][0]).all()  # one shape
