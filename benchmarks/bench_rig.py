@@ -1,6 +1,6 @@
 """Benchmark of rig fitting: one body seen by 1, 2, 4 and 8 calibrated cameras; prints Markdown tables.
 
-One synthetic set of ``--subjects`` rig subjects (:mod:`silfit.synth.rig`: library poses,
+One synthetic set of ``--subjects`` rig subjects (:mod:`silfit.synth.camera_rigs`: library poses,
 all yaws, shape from the prior, 8 cameras on a ring at varied heights, ``--noise`` px
 keypoint noise, ``--size`` px images; seed ``--seed``, which no test uses). Each view
 count uses evenly spread cameras of the same rig (1: view 0; 2: views 0, 2 (90 degrees
@@ -8,7 +8,7 @@ apart); 4: views 0, 2, 4, 6; 8: all), so every row sees the same bodies.
 
 Per view count: the keypoint stage on all subjects (one batch), then the silhouette stage
 (every view with its mask rendered) on the first ``--silhouette`` subjects (it costs about
-one render per view and step). Metrics (:func:`silfit.eval.rig.score_rig_fit`, mm):
+one render per view and step). Metrics (:func:`silfit.eval.score_rig.score_rig_fit`, mm):
 PA-PVE, PVE in world coordinates without any alignment, shape error (T-posed PVE), mean
 and worst-view IoU, seconds per subject.
 
@@ -30,14 +30,14 @@ from pathlib import Path
 import numpy as np
 
 from silfit import load_body_model
-from silfit.eval.rig import score_rig_fit, subset_truth
+from silfit.eval.score_rig import score_rig_fit, subset_truth
 from silfit.fitting.keypoint_stage import KeypointFitter
 from silfit.fitting.problem import Problem
 from silfit.fitting.rig_fit import fit_rig_keypoints, rig_problem
 from silfit.rig import load_rig
 from silfit.rig_pipeline import refine_rig_fits
 from silfit.synth.generate import SynthConfig
-from silfit.synth.rig import RigConfig, generate_rig_dataset
+from silfit.synth.camera_rigs import RigConfig, generate_rig_dataset
 
 SUBSETS = {1: [0], 2: [0, 2], 4: [0, 2, 4, 6], 8: list(range(8))}
 TARGETS = {"pve_world": 25.0, "shape_pve": 10.0}  # 4 views (issue 15)

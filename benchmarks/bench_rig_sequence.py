@@ -34,9 +34,9 @@ def main(argv=None):
     import torch
 
     from silfit import load_body_model
-    from silfit.eval.sequence import score_sequence
+    from silfit.eval.score_sequence import score_sequence
     from silfit.fitting.sequence import fit_sequence
-    from silfit.rig import load_rig_sequence
+    from silfit.video import load_rig_sequence
     from silfit.synth.motion import SequenceConfig, generate_sequence_dataset
 
     model = load_body_model()

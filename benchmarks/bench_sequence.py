@@ -55,7 +55,7 @@ def main(argv=None):
 
     from silfit import load_body_model
     from silfit.camera import load_camera
-    from silfit.eval.sequence import score_sequence
+    from silfit.eval.score_sequence import score_sequence
     from silfit.fitting import KeypointFitter
     from silfit.fitting.keypoint_stage import _check_torso
     from silfit.fitting.sequence import fit_sequence, interpolate_frames
@@ -144,7 +144,7 @@ def main(argv=None):
 
 def silhouette_benchmark(model, root, records, frames, config):
     from silfit.camera import load_camera
-    from silfit.eval.sequence import score_sequence
+    from silfit.eval.score_sequence import score_sequence
     from silfit.fitting.sequence import fit_sequence, refine_sequence_silhouettes
     from silfit.silhouette.masks import read_mask
     from silfit.video import read_sequence

@@ -10,7 +10,7 @@ Sets:
 
 * ``--single N``: N single-image subjects (:func:`silfit.synth.generate_dataset`, ``--size``
   px, 2 px keypoint noise), one silhouette-stage call per subject;
-* ``--rig N``: N 4-view rigs (:mod:`silfit.synth.rig`, views 0, 2, 4, 6 of an 8-camera
+* ``--rig N``: N 4-view rigs (:mod:`silfit.synth.camera_rigs`, views 0, 2, 4, 6 of an 8-camera
   ring), one call per rig (every view's mask rendered);
 * ``--kornia``: the mask distance transform with kornia against OpenCV's exact one.
 
@@ -151,13 +151,13 @@ def run_single(model, n, seed, size, methods):
 
 
 def run_rig(model, n, seed, size, methods):
-    from silfit.eval.rig import score_rig_fit, subset_truth
+    from silfit.eval.score_rig import score_rig_fit, subset_truth
     from silfit.fitting.keypoint_stage import KeypointFitter
     from silfit.fitting.problem import Problem
     from silfit.fitting.rig_fit import fit_rig_keypoints, rig_problem
     from silfit.rig import load_rig
     from silfit.synth.generate import SynthConfig
-    from silfit.synth.rig import RigConfig, generate_rig_dataset
+    from silfit.synth.camera_rigs import RigConfig, generate_rig_dataset
     from dataclasses import replace
 
     idx = [0, 2, 4, 6]

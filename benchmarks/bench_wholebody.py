@@ -5,7 +5,7 @@ keypoint noise ``noise`` px, hands 0.5x and face 0.4x that (the generator's defa
 uses. Rows: the whole-body fit (SMPL-X-layout open model, ``wholebody`` layout), the same model fitted
 to the body keypoints alone (hands, jaw, expression held at rest), and today's body-only fit (the open
 SMPL-layout model, BODY_25; same template and vertex order, so PA-PVE compares directly).
-Errors: :mod:`silfit.eval.wholebody` (mm; expression: RMS coefficient error).
+Errors: :mod:`silfit.eval.score_wholebody` (mm; expression: RMS coefficient error).
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ import numpy as np
 
 
 def _errors(model, res, i, gt):
-    from silfit.eval.wholebody import wholebody_errors
+    from silfit.eval.score_wholebody import wholebody_errors
 
     pred = {"vertices": res.vertices[i], "joints": res.joints[i]}
     if "expression" in res.extra_params:

@@ -27,9 +27,9 @@ _EXPORTS = {
     "Camera": "camera",
     "KeypointFitResult": "fitting",
     "fit_keypoints": "fitting",
-    "FitResult": "pipeline",
+    "FitResult": "image_fit",
     "fit": "run",
-    "save_fit": "pipeline",
+    "save_fit": "image_fit",
     "fit_sequence": "fitting.sequence",
     "read_sequence": "video",
     "save_sequence_fit": "video",
@@ -46,6 +46,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from .camera import Camera
     from .fitting import KeypointFitResult, fit_keypoints
     from .fitting.sequence import fit_sequence
-    from .pipeline import FitResult, save_fit
+    from .image_fit import FitResult, save_fit
     from .run import fit
     from .video import read_sequence, save_sequence_fit

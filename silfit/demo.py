@@ -100,7 +100,7 @@ def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = Tru
     from . import figures
     from .body import load_body_model
     from .dataset import load_subject, read_image
-    from .pipeline import save_fit
+    from .image_fit import save_fit
     from .run import image_job, run
 
     out = Path(out)

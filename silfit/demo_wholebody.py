@@ -79,10 +79,10 @@ def run_wholebody_demo(out: Path, subject_dir: Optional[Path] = None, progress: 
     from . import figures
     from .body import load_body_model
     from .camera import load_camera
-    from .eval.wholebody import wholebody_errors
+    from .eval.score_wholebody import wholebody_errors
     from .fitting import KeypointFitter
     from .imagefile import read_rgb
-    from .pipeline import save_fit
+    from .image_fit import save_fit
     from .run import fit
     from .silhouette.masks import read_mask
     from .wholebody import WholeBodyKeypoints, part_slices, read_wholebody

@@ -23,6 +23,9 @@ import numpy as np
 from .errors import InputError
 from .input_limits import check_image_size
 
+#: the image file names silfit lists in folders (video frames, masks, a rig view's images)
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+
 __all__ = ["image_file_size", "pixels_to_rgb8", "read_pixels", "read_rgb", "to_rgb8"]
 
 _NATIVE = ("L", "LA", "RGB", "RGBA")

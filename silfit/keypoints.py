@@ -17,6 +17,9 @@ from .layouts import (  # noqa: F401  (re-exported: silfit.keypoints's names kep
 )  # fmt: skip
 from .input_limits import read_json
 
+#: Sub-folders of a video folder (or a rig video's view) that hold per-frame OpenPose files, in order of preference.
+KEYPOINT_FOLDERS = ("keypoints", "openpose")
+
 __all__ = [
     "BLAZEPOSE33_NAMES",
     "BODY25_NAMES",

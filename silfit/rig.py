@@ -21,7 +21,7 @@ One reader per format:
 A rig folder (:func:`load_rig`) is one of: a ``cameras.json`` manifest; ``intri.yml`` +
 ``extri.yml`` with one sub-folder per camera name; or one sub-folder per view (sorted by
 name), each with ``camera.json``. A view's folder holds ``keypoints.json`` (OpenPose),
-optionally ``mask.png`` and ``image.png``; in a rig video (:func:`load_rig_sequence`) it is a video
+optionally ``mask.png`` and ``image.png``; in a rig video (:func:`silfit.video.load_rig_sequence`) it is a video
 folder instead (per-frame OpenPose JSON, ``masks/``, ``images/``: :func:`silfit.video.read_sequence`).
 """
 from __future__ import annotations
@@ -30,7 +30,7 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import List, Optional, Tuple, Union, Sequence
+from typing import List, Optional, Tuple, Union
 
 import numpy as np
 
@@ -40,12 +40,10 @@ from .camera import (  # noqa: F401  (extrinsics_from_dict: re-exported, rig man
 from .errors import InputError, quoted
 from .fitting.problem import View
 from .input_limits import check_file_size, read_json
+from .keypoints import KEYPOINT_FOLDERS
 
 __all__ = [
-    "RigSequence",
     "RigView",
-    "is_rig_video",
-    "load_rig_sequence",
     "video_folder",
     "extrinsics_from_dict",
     "load_rig",
@@ -197,7 +195,7 @@ def _image_size_of(folder: Path) -> Optional[Tuple[int, int]]:
         f = folder / name
         if f.is_file():
             return image_file_size(f, "image")
-    from .video import IMAGE_EXTENSIONS
+    from .imagefile import IMAGE_EXTENSIONS
 
     for sub in ("images", "masks"):  # a rig video's view: its first frame's image or mask
         if (folder / sub).is_dir():
@@ -247,6 +245,18 @@ def read_easymocap(intri: PathLike, extri: PathLike, sizes=None) -> List[RigView
 
 
 # ----------------------------------------------------------------------------- rig folders
+def video_folder(view: RigView) -> Path:
+    """A rig video's view folder: the view's ``keypoints`` entry when it names a folder, else the
+    folder its ``keypoints.json`` would be in (``<name>/``); read by :func:`read_sequence`."""
+    return view.keypoints if view.keypoints.is_dir() else view.keypoints.parent
+
+
+def _holds_video(folder: Path) -> bool:
+    if not folder.is_dir():
+        return False
+    return any((folder / d).is_dir() for d in KEYPOINT_FOLDERS) or any(folder.glob("*_keypoints.json"))
+
+
 def load_rig(folder: PathLike) -> List[RigView]:
     """The views of a rig folder (see the module docstring), files that do not exist set to ``None``
     (a view without ``keypoints.json`` is an error)."""
@@ -259,107 +269,6 @@ def load_rig(folder: PathLike) -> List[RigView]:
         v.mask = v.mask if v.mask is not None and v.mask.is_file() else None
         v.image = v.image if v.image is not None and v.image.is_file() else None
     return views
-
-
-def video_folder(view: RigView) -> Path:
-    """A rig video's view folder: the view's ``keypoints`` entry when it names a folder, else the
-    folder its ``keypoints.json`` would be in (``<name>/``); read by :func:`silfit.video.read_sequence`."""
-    return view.keypoints if view.keypoints.is_dir() else view.keypoints.parent
-
-
-def _holds_video(folder: Path) -> bool:
-    from .video import KEYPOINT_FOLDERS
-
-    if not folder.is_dir():
-        return False
-    return any((folder / d).is_dir() for d in KEYPOINT_FOLDERS) or any(folder.glob("*_keypoints.json"))
-
-
-def is_rig_video(folder: PathLike) -> bool:
-    """Whether a rig folder holds a video: its views' folders hold per-frame keypoints
-    (:func:`load_rig_sequence`) instead of one ``keypoints.json``."""
-    views = _rig_views(Path(folder))
-    return all(v.keypoints is not None and not v.keypoints.is_file() and _holds_video(video_folder(v)) for v in views)
-
-
-@dataclass
-class RigSequence:
-    """A rig video: the rig's views (cameras; :func:`video_folder` holds each one's frames), each
-    view's :class:`silfit.video.SequenceInput`, and the frames of all views aligned by number:
-    ``numbers [F]`` (every number from the first to the last of any view), ``frames[f][c]`` a
-    :class:`~silfit.keypoints.KeypointSet` or ``None`` (not detected in that view)."""
-
-    folder: Path
-    views: List[RigView]
-    videos: list
-    numbers: List[int]
-    frames: List[List[object]]
-    warnings: List[str] = field(default_factory=list)
-
-    @property
-    def names(self) -> List[str]:
-        return [v.name for v in self.views]
-
-    def files(self, c: int) -> List[Optional[Path]]:
-        """View ``c``'s keypoint file per frame (``None``: no file)."""
-        video = self.videos[c]
-        by_number = dict(zip(video.numbers, video.files))
-        return [by_number.get(n) for n in self.numbers]
-
-    def select_views(self, indices: Sequence[int]) -> "RigSequence":
-        """Only the views ``indices`` (in that order), e.g. after views were set aside."""
-        from dataclasses import replace
-
-        idx = list(indices)
-        return replace(self, views=[self.views[c] for c in idx], videos=[self.videos[c] for c in idx],
-                       frames=[[row[c] for c in idx] for row in self.frames])  # fmt: skip
-
-    def per_view(self, c: int, what: str) -> List[Optional[Path]]:
-        """View ``c``'s ``"masks"`` or ``"images"`` file per frame (``None``: none)."""
-        files = getattr(self.videos[c], what)
-        return [files.get(n) for n in self.numbers]
-
-
-def load_rig_sequence(folder: PathLike, person: Union[int, str] = "largest", names=None) -> RigSequence:
-    """A rig video (the rig folder of :func:`load_rig`: ``cameras.json``, EasyMocap's calibration or
-    sub-folders with ``camera.json``) whose views' folders are video folders as
-    :func:`silfit.video.read_sequence` reads them (per-frame OpenPose JSON, optional ``masks/`` and
-    ``images/``; the layout ``silfit synth --sequence --views N`` writes). Frames are matched across
-    views by their number; a view without a frame's number has no detection there. ``names``: only
-    these views (in the rig's order; an unknown name is an :class:`~silfit.errors.InputError`)."""
-    from .video import MAX_GAP, read_sequence
-
-    folder = Path(folder)
-    views = _rig_views(folder)
-    if names:
-        known = [v.name for v in views]
-        unknown = [n for n in names if n not in known]
-        if unknown:
-            raise InputError("--views", f"unknown view(s) {', '.join(unknown)} (the rig has {', '.join(known)})")
-        views = [v for v in views if v.name in names]
-    videos = []
-    for v in views:
-        d = video_folder(v)
-        if not _holds_video(d):
-            raise InputError(d, f"view {v.name}: no per-frame keypoints (*_keypoints.json, or keypoints/ or openpose/ "
-                             "with them) for a rig video", field="keypoints")  # fmt: skip
-        videos.append(read_sequence(d, person=person))
-    first, last = min(s.numbers[0] for s in videos), max(s.numbers[-1] for s in videos)
-    have = sorted({n for s in videos for n, ks in zip(s.numbers, s.frames)})
-    for a, b in zip(have, have[1:]):
-        if b - a - 1 > MAX_GAP:
-            raise InputError(folder, f"the views' frames {a} and {b} are {b - a - 1} frames apart (at most {MAX_GAP} are "
-                             "bridged); are all views of one recording?")  # fmt: skip
-    numbers = list(range(first, last + 1))
-    frames = []
-    for n in numbers:
-        row = []
-        for s in videos:
-            i = n - s.numbers[0]
-            row.append(s.frames[i] if 0 <= i < len(s.numbers) else None)
-        frames.append(row)
-    warnings = [w for v, s in zip(views, videos) for w in list(v.warnings) + list(s.warnings)]
-    return RigSequence(folder, views, videos, numbers, frames, warnings)
 
 
 def _rig_views(folder: Path) -> List[RigView]:

@@ -19,7 +19,7 @@ Output folder (world coordinates: the frame of the rig's extrinsics)::
 Written atomically (:func:`silfit.outfolder.atomic_folder`).
 
 A rig video (``silfit fit --rig DIR`` on a rig whose views are video folders,
-:func:`silfit.rig.load_rig_sequence`; fitted by :func:`silfit.run.run`): the sequence fit of :mod:`silfit.fitting.sequence`
+:func:`silfit.video.load_rig_sequence`; fitted by :func:`silfit.run.run`): the sequence fit of :mod:`silfit.fitting.sequence`
 over frames x views in the world frame, written by :func:`silfit.video.save_sequence_fit`.
 """
 from __future__ import annotations
@@ -63,7 +63,7 @@ def view_vertices(vertices: np.ndarray, view) -> np.ndarray:
 
 
 def _view_ious(vertices, faces, problem, names):
-    from .pipeline import body_mask
+    from .image_fit import body_mask
 
     ious, masks = {}, {}
     for name, o in zip(names, problem.grid()[0]):
@@ -152,7 +152,7 @@ def fit_rigs(problems, names, model=None, pose_prior=None, keypoint_config=None,
         for i, r in zip(todo, refined):
             out[i] = r
     if fitter.whole_body:  # which parts were fitted (seen in any view), which held at rest
-        from .fitting.wholebody import wholebody_summary
+        from .fitting.hands_face import wholebody_summary
         from .keypoints import KeypointSet
 
         for problem, result in zip(problems, out):

@@ -28,7 +28,7 @@ import numpy as np
 
 from .errors import InputError
 from .fitting.problem import Observation, Problem
-from .pipeline import StageFailure
+from .image_fit import StageFailure
 
 __all__ = ["Job", "Fit", "StageFailure", "check", "fit", "run", "run_batch", "write", "image_job", "video_job"]
 
@@ -242,7 +242,7 @@ def run_batch(jobs: Sequence[Job], isolate: bool = False) -> List[Union[Fit, Exc
     model and settings go through the keypoint stage as one batch and through the silhouette
     stage as one batch (as ``fit-dataset`` and ``eval`` feed them); rigs and videos one by one.
     With ``isolate``, a job that fails (its checks, or a stage:
-    :class:`~silfit.pipeline.StageFailure`) gets its error in its place and the others go on;
+    :class:`~silfit.image_fit.StageFailure`) gets its error in its place and the others go on;
     without, the first error raises."""
     out: List[Union[Fit, Exception, None]] = [None] * len(jobs)
     checked: Dict[int, Job] = {}
@@ -296,8 +296,8 @@ def _params_per_frame(params: dict, F: int) -> Dict[str, np.ndarray]:
 
 
 def _run_images(jobs: Sequence[Job], isolate: bool) -> list:
-    """One-image jobs of one layout, model and settings, batched (:func:`silfit.pipeline.fit_problems`)."""
-    from .pipeline import fit_problems
+    """One-image jobs of one layout, model and settings, batched (:func:`silfit.image_fit.fit_problems`)."""
+    from .image_fit import fit_problems
 
     first = jobs[0]
     obs = [job.problem.observations[0] for job in jobs]
@@ -430,7 +430,7 @@ def write(fit: Fit, out, *, overwrite: bool = False, exports: Sequence[str] = ()
     extra = {k: v for k, v in fit.metrics.items() if k in job.record}
     extra["warnings"] = list(fit.warnings)
     if job.mode == "image":
-        from .pipeline import save_fit
+        from .image_fit import save_fit
 
         o = job.problem.observations[0]
         return save_fit(fit.stage, out, faces, o.keypoints, job.images.get((0, 0)), o.mask, extra, overwrite=overwrite,
@@ -454,7 +454,7 @@ def write(fit: Fit, out, *, overwrite: bool = False, exports: Sequence[str] = ()
 def fit(keypoints, mask: Optional[np.ndarray] = None, camera=None, *, image_size: Optional[tuple] = None,
         focal: Optional[float] = None, model=None, pose_prior=None, keypoint_config=None, silhouette_config=None,
         progress: bool = True):  # fmt: skip
-    """Fit SMPL to one image (a :class:`~silfit.pipeline.FitResult`): keypoints (a :class:`KeypointSet` or ``[K, 3]`` array), then,
+    """Fit SMPL to one image (a :class:`~silfit.image_fit.FitResult`): keypoints (a :class:`KeypointSet` or ``[K, 3]`` array), then,
     if ``mask [H, W]`` (bool) is given, refine against the silhouette.
 
     ``camera`` or ``image_size=(W, H)`` (+ optional ``focal``) define the camera, as for

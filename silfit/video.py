@@ -31,16 +31,16 @@ from typing import Dict, List, Optional, Sequence, Union
 import numpy as np
 
 from .errors import InputError
-from .keypoints import KeypointSet, read_keypoints
+from .keypoints import KEYPOINT_FOLDERS, KeypointSet, read_keypoints
+from .rig import RigView, _holds_video, _rig_views, video_folder
 
-__all__ = ["SequenceInput", "frame_number", "read_sequence", "save_sequence_fit", "write_overlay_video"]
+__all__ = ["RigSequence", "SequenceInput", "frame_number", "is_rig_video", "load_rig_sequence", "read_sequence", "save_sequence_fit",
+           "write_overlay_video"]
 
 _KEYPOINTS = re.compile(r"^(?P<stem>.*?)_?(?P<num>\d+)?_keypoints\.json$")
 _DIGITS = re.compile(r"(\d+)(?!.*\d)")
-IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+from .imagefile import IMAGE_EXTENSIONS
 MAX_FRAMES = 100_000
-#: Sub-folders of a video folder that hold the per-frame keypoint files, in order of preference.
-KEYPOINT_FOLDERS = ("keypoints", "openpose")
 #: Most frame numbers missing in a row (frames without detection, bridged by the fit).
 MAX_GAP = 100
 
@@ -144,8 +144,8 @@ def _listed(numbers: List[int], most: int = 10) -> str:
     return ", ".join(map(str, numbers[:most])) + (f", ... ({len(numbers) - most} more)" if len(numbers) > most else "")
 
 
-def read_sequence(folder: Union[str, os.PathLike], masks: Optional[Union[str, os.PathLike]] = None,
-                  images: Optional[Union[str, os.PathLike]] = None, person: Union[int, str] = "largest") -> SequenceInput:  # fmt: skip
+def read_sequence(folder: Union[str, os.Union[str, os.PathLike]], masks: Optional[Union[str, os.Union[str, os.PathLike]]] = None,
+                  images: Optional[Union[str, os.Union[str, os.PathLike]]] = None, person: Union[int, str] = "largest") -> SequenceInput:  # fmt: skip
     """Read a folder of per-frame OpenPose JSON files (module docstring); ``masks`` and
     ``images`` are folders (default: ``masks/`` and ``images/`` beside a ``keypoints/``
     sub-folder, when present)."""
@@ -258,7 +258,7 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
     ``animation.glb`` (every frame, one animated glTF) / ``meshes/<frame>.ply`` in the upright
     world frame of :mod:`silfit.outputs.export`.
 
-    A rig video (``result.views`` set, ``sequence`` a :class:`silfit.rig.RigSequence`): the fit file in
+    A rig video (``result.views`` set, ``sequence`` a :class:`silfit.video.RigSequence`): the fit file in
     world coordinates with every view (``keypoints_2d [F, C, K, 2]``, ``reprojection_error [F, C]``),
     ``cameras.json``, meshes in world coordinates, overlays with the views side by side; ``metrics.json``
     has ``views``, ``cameras`` and ``silhouette_iou`` per frame and view; no exports."""
@@ -273,7 +273,7 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
     numbers = list(sequence.numbers)
     cam = result.camera
     flags = {"bridged": result.bridged.tolist(), "refaced": result.refaced.tolist()}
-    rig = result.views is not None  # a rig video: world coordinates, every view (silfit.rig.RigSequence)
+    rig = result.views is not None  # a rig video: world coordinates, every view (silfit.video.RigSequence)
     if rig and exports:
         raise ValueError("exports of a rig video: not available (a rig's world frame has no fixed up axis)")
     names = list(sequence.names) if rig else None
@@ -331,3 +331,93 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
             metrics["silhouette_iou"] = [[clean(v) for v in row] if rig else clean(row) for row in result.silhouette_iou]
         (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2, default=float))
     return Path(out)
+
+
+# ----------------------------------------------------------------------------- rig videos
+# A rig video is a video seen by a calibrated rig: the rig's cameras (silfit.rig's readers) and,
+# per view, a video folder as read_sequence reads it.
+
+
+def is_rig_video(folder: Union[str, os.PathLike]) -> bool:
+    """Whether a rig folder holds a video: its views' folders hold per-frame keypoints
+    (:func:`load_rig_sequence`) instead of one ``keypoints.json``."""
+    views = _rig_views(Path(folder))
+    return all(v.keypoints is not None and not v.keypoints.is_file() and _holds_video(video_folder(v)) for v in views)
+
+
+@dataclass
+class RigSequence:
+    """A rig video: the rig's views (cameras; :func:`video_folder` holds each one's frames), each
+    view's :class:`silfit.video.SequenceInput`, and the frames of all views aligned by number:
+    ``numbers [F]`` (every number from the first to the last of any view), ``frames[f][c]`` a
+    :class:`~silfit.keypoints.KeypointSet` or ``None`` (not detected in that view)."""
+
+    folder: Path
+    views: List[RigView]
+    videos: list
+    numbers: List[int]
+    frames: List[List[object]]
+    warnings: List[str] = field(default_factory=list)
+
+    @property
+    def names(self) -> List[str]:
+        return [v.name for v in self.views]
+
+    def files(self, c: int) -> List[Optional[Path]]:
+        """View ``c``'s keypoint file per frame (``None``: no file)."""
+        video = self.videos[c]
+        by_number = dict(zip(video.numbers, video.files))
+        return [by_number.get(n) for n in self.numbers]
+
+    def select_views(self, indices: Sequence[int]) -> "RigSequence":
+        """Only the views ``indices`` (in that order), e.g. after views were set aside."""
+        from dataclasses import replace
+
+        idx = list(indices)
+        return replace(self, views=[self.views[c] for c in idx], videos=[self.videos[c] for c in idx],
+                       frames=[[row[c] for c in idx] for row in self.frames])  # fmt: skip
+
+    def per_view(self, c: int, what: str) -> List[Optional[Path]]:
+        """View ``c``'s ``"masks"`` or ``"images"`` file per frame (``None``: none)."""
+        files = getattr(self.videos[c], what)
+        return [files.get(n) for n in self.numbers]
+
+
+def load_rig_sequence(folder: Union[str, os.PathLike], person: Union[int, str] = "largest", names=None) -> RigSequence:
+    """A rig video (the rig folder of :func:`load_rig`: ``cameras.json``, EasyMocap's calibration or
+    sub-folders with ``camera.json``) whose views' folders are video folders as
+    :func:`read_sequence` reads them (per-frame OpenPose JSON, optional ``masks/`` and
+    ``images/``; the layout ``silfit synth --sequence --views N`` writes). Frames are matched across
+    views by their number; a view without a frame's number has no detection there. ``names``: only
+    these views (in the rig's order; an unknown name is an :class:`~silfit.errors.InputError`)."""
+    folder = Path(folder)
+    views = _rig_views(folder)
+    if names:
+        known = [v.name for v in views]
+        unknown = [n for n in names if n not in known]
+        if unknown:
+            raise InputError("--views", f"unknown view(s) {', '.join(unknown)} (the rig has {', '.join(known)})")
+        views = [v for v in views if v.name in names]
+    videos = []
+    for v in views:
+        d = video_folder(v)
+        if not _holds_video(d):
+            raise InputError(d, f"view {v.name}: no per-frame keypoints (*_keypoints.json, or keypoints/ or openpose/ "
+                             "with them) for a rig video", field="keypoints")  # fmt: skip
+        videos.append(read_sequence(d, person=person))
+    first, last = min(s.numbers[0] for s in videos), max(s.numbers[-1] for s in videos)
+    have = sorted({n for s in videos for n, ks in zip(s.numbers, s.frames)})
+    for a, b in zip(have, have[1:]):
+        if b - a - 1 > MAX_GAP:
+            raise InputError(folder, f"the views' frames {a} and {b} are {b - a - 1} frames apart (at most {MAX_GAP} are "
+                             "bridged); are all views of one recording?")  # fmt: skip
+    numbers = list(range(first, last + 1))
+    frames = []
+    for n in numbers:
+        row = []
+        for s in videos:
+            i = n - s.numbers[0]
+            row.append(s.frames[i] if 0 <= i < len(s.numbers) else None)
+        frames.append(row)
+    warnings = [w for v, s in zip(views, videos) for w in list(v.warnings) + list(s.warnings)]
+    return RigSequence(folder, views, videos, numbers, frames, warnings)

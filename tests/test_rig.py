@@ -236,7 +236,7 @@ def test_a_rig_video_aligns_each_views_frames_by_number(tmp_path, layout):
     """A rig video: a rig folder (any of the three calibrations) whose views are video folders; frames are
     matched across views by number, a view without a frame's number has no detection there."""
     from silfit.dataset import write_png
-    from silfit.rig import is_rig_video, load_rig_sequence
+    from silfit.video import is_rig_video, load_rig_sequence
 
     views = _rig_folder(tmp_path, layout == "manifest")
     if layout == "easymocap":

@@ -34,8 +34,8 @@ def register(subparsers) -> None:
 
 
 def run_sequences(args: argparse.Namespace, model) -> int:
-    """A ``silfit synth --sequence`` dataset: per-frame vs temporal fits (silfit.eval.sequence)."""
-    from ..eval.sequence import evaluate_sequences, sequence_table
+    """A ``silfit synth --sequence`` dataset: per-frame vs temporal fits (silfit.eval.score_sequence)."""
+    from ..eval.score_sequence import evaluate_sequences, sequence_table
 
     report = evaluate_sequences(args.dataset, fits=args.fits, model=model, run=args.run, progress=not args.quiet)
     out = Path(args.out)
@@ -56,12 +56,12 @@ def run(args: argparse.Namespace) -> int:
         from ..body import load_body_model
 
         model = load_body_model(args.model)
-    from ..eval.sequence import is_sequence_dataset
+    from ..eval.score_sequence import is_sequence_dataset
 
     if is_sequence_dataset(args.dataset):
         return run_sequences(args, model)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    from ..eval.rig import evaluate_rig_dataset, is_rig_dataset
+    from ..eval.score_rig import evaluate_rig_dataset, is_rig_dataset
 
     rig = is_rig_dataset(args.dataset)  # silfit synth --views: world-frame metrics, IoU per view
     try:

@@ -3,7 +3,7 @@ video), refined against the person's silhouettes.
 
 The flags make a job (:mod:`silfit.cli.jobs`), :func:`silfit.run.run` fits it and
 :func:`silfit.run.write` writes the output folder into ``--out`` atomically (a failed run
-leaves no half-written output): the one image's folder of :mod:`silfit.pipeline`, the rig's
+leaves no half-written output): the one image's folder of :mod:`silfit.image_fit`, the rig's
 of :mod:`silfit.rig_pipeline`, the video's of :func:`silfit.video.save_sequence_fit`.
 """
 from __future__ import annotations

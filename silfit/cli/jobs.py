@@ -77,7 +77,7 @@ def build_job(args) -> Job:
     if args.sequence:
         return video_job(args)
     if getattr(args, "rig", None):
-        from ..rig import is_rig_video
+        from ..video import is_rig_video
 
         return rig_video_job(args) if is_rig_video(args.rig) else rig_job(args)
     return image_job(args)
@@ -217,11 +217,11 @@ def _rig_model(args, keypoint_files, person):
 
 
 def rig_video_job(args) -> Job:
-    """A rig video: a rig folder whose views' folders are video folders (:func:`silfit.rig.load_rig_sequence`:
+    """A rig video: a rig folder whose views' folders are video folders (:func:`silfit.video.load_rig_sequence`:
     the rig's cameras, each view's per-frame OpenPose JSON with optional ``masks/`` and ``images/``,
     frames matched across views by number), fitted over frames x views in the world frame."""
     from ..fitting.sequence import SequenceFitConfig
-    from ..rig import load_rig_sequence
+    from ..video import load_rig_sequence
     from ..rig_pipeline import read_rig_sequence_masks
     from ..wholebody import choose_fit_keypoints, read_wholebody_parts
 

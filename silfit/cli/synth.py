@@ -138,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_rig(args, cfg, model, argv) -> int:
     from ..rig import read_cameras_json
-    from ..synth.rig import RigConfig, generate_rig_dataset
+    from ..synth.camera_rigs import RigConfig, generate_rig_dataset
 
     if args.poses != "library":
         raise ValueError("--views: rigs use the library poses (no --poses hard)")

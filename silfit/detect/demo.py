@@ -41,7 +41,7 @@ def run_photo_demo(out: Path, photo_path: Optional[Path] = None, progress: bool 
     from .. import figures
     from ..body import load_body_model
     from ..dataset import read_image
-    from ..pipeline import save_fit
+    from ..image_fit import save_fit
     from ..run import fit
     from .output import detect_photo, save_detection
 

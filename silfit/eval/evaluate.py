@@ -22,7 +22,7 @@ noise-free ground-truth projections, over in-image keypoints), ``iou`` (rendered
 vs ``mask.png``) and ``time_s`` (+ ``time_<stage>``).
 
 Whole-body sets (an SMPL-X-layout model; subjects whose ``gt.npz`` holds the SMPL-X parameters) add
-(:mod:`silfit.eval.wholebody`): ``hand_pa`` / ``hand_wrist`` (each hand's vertices after Procrustes /
+(:mod:`silfit.eval.score_wholebody`): ``hand_pa`` / ``hand_wrist`` (each hand's vertices after Procrustes /
 after aligning its wrist), ``face_pa`` and ``expression_err``. ``evaluate_dataset`` picks the shipped
 open whole-body model for a dataset whose keypoint files hold hand or face points.
 
@@ -196,7 +196,7 @@ def score_fit(model, subject, fit: FitParams, iou: bool = True) -> Dict[str, flo
         m["pve"] = 1000 * pve(verts, gt.vertices, joints[0], gj[0])
         m["pa_pve"] = 1000 * pa_pve(verts, gt.vertices)
     if getattr(model, "kind", "smpl") == "smplx" and gt.vertices.shape == verts.shape and gj.shape == joints.shape:
-        from .wholebody import wholebody_errors
+        from .score_wholebody import wholebody_errors
 
         e = wholebody_errors(model, {"vertices": verts, "joints": joints, "expression": fit.extra.get("expression")},
                              {"vertices": gt.vertices, "joints": gj, "expression": gt.extras.get("expression")})  # fmt: skip
@@ -276,7 +276,7 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
     from ..fitting import KeypointFitter, prepare_keypoints
     from ..fitting.problem import Problem
     from ..outfolder import atomic_folder
-    from ..pipeline import StageFailure, save_fit
+    from ..image_fit import StageFailure, save_fit
     from ..run import Job, run_batch
 
     unknown = [m for m in methods if m not in ("keypoints", "silhouette")]
@@ -344,7 +344,7 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
 
 def _keypoint_result(fit):
     """The keypoint stage's result of a :class:`silfit.run.Fit` (or of a failed silhouette stage)."""
-    from ..pipeline import StageFailure
+    from ..image_fit import StageFailure
 
     return (fit.partial if isinstance(fit, StageFailure) else fit.stage).keypoint
 

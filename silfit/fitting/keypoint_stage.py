@@ -24,7 +24,7 @@ its own robust scale) weigh nothing while the body is placed and are switched on
 the later stages (``hand_weights``/``face_weights`` per pose stage, then the final weights; a
 ``hands`` stage first starts each hand from its best library pose and wrist turn); the
 hand poses, jaw and expression are free where their terms are on, with their priors (``hand_pose``:
-:class:`~silfit.priors.wholebody.HandPosePrior`; ``jaw``, ``expression``: L2). A part with no
+:class:`~silfit.priors.smplx_priors.HandPosePrior`; ``jaw``, ``expression``: L2). A part with no
 confident point (a missing hand, a body-only file) is held at rest in every stage by a gate
 (:func:`~silfit.fitting.stages.gated`).
 
@@ -51,9 +51,9 @@ from ..camera import UPRIGHT_BACK_TO_CAMERA, UPRIGHT_FACING_CAMERA, Camera
 from ..fitio import model_record
 from ..keypoints import LAYOUTS, KeypointSet
 from ..priors import SphereCollisionModel, angle_prior, limit_violation, load_pose_prior, shape_prior
-from ..priors.wholebody import body_prior_for
+from ..priors.smplx_priors import body_prior_for
 from .body import KeypointBody
-from .wholebody import choose_hand_starts, part_gates, wholebody_terms
+from .hands_face import choose_hand_starts, part_gates, wholebody_terms
 from .branches import limb_hypotheses
 from .problem import ParameterLayout, Problem, stack_views
 from .result import PARAM_NAMES, KeypointFitResult
@@ -191,7 +191,7 @@ class KeypointFitConfig:
     hand_sigma: float = 50.0
     face_sigma: float = 50.0
     #: L-BFGS steps of a ``hands`` stage before the first pose stage with hand terms: the hands
-    #: start from their best library pose and wrist turn (:func:`~silfit.fitting.wholebody.choose_hand_starts`)
+    #: start from their best library pose and wrist turn (:func:`~silfit.fitting.hands_face.choose_hand_starts`)
     #: and are fitted with the body (held by its keypoints and priors; 0: no such stage, the hands start
     #: in that pose stage)
     hand_iters: int = 30

@@ -18,7 +18,7 @@ world frame of the rig's extrinsics.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Dict, List, Sequence
+from typing import Dict, List, Sequence, Tuple
 
 import numpy as np
 import torch
@@ -177,12 +177,12 @@ def fit_rig_keypoints(fitter, problems: Sequence[Problem], progress: bool = Fals
 def wholebody_problem_inputs(model, problems: Sequence[Problem], config) -> tuple:
     """What the silhouette stage needs to fit a whole-body mesh to problems of ``F`` frames x ``C``
     views (every observation with keypoints of the ``wholebody`` layout), as
-    :func:`~silfit.fitting.wholebody.wholebody_silhouette_inputs` gives it for one image per problem:
+    :func:`~silfit.fitting.hands_face.wholebody_silhouette_inputs` gives it for one image per problem:
     ``(config, problems, terms, weights, data)``; the problems' keypoints are the body points
     (the stage's own keypoint term), ``data["part_weights"]`` is ``[P, F, C, K]``. A part is
     optimised when every frame of every problem has it in at least one view (else it stays where the
     keypoint stage left it)."""
-    from .wholebody import GATED_PARTS, SILHOUETTE_PART_LR, wholebody_silhouette_inputs
+    from .hands_face import GATED_PARTS, SILHOUETTE_PART_LR, wholebody_silhouette_inputs
     from ..wholebody import part_slices
 
     grids = [p.grid() for p in problems]

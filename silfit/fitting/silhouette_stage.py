@@ -112,12 +112,12 @@ class SilhouetteFitConfig:
     #: a mask that reaches beyond the keypoint fit's body all around (loose clothing, hair, a grown
     #: segmentation: :func:`~silfit.silhouette.losses.clothing_thickness` above ``trim_min`` of the
     #: mask's extent) is eroded by that thickness (at most ``trim_max``) before the stage
-    #: (:func:`~silfit.silhouette.losses.trim_clothing`; image path: silfit.pipeline.refine_batch)
+    #: (:func:`~silfit.silhouette.losses.trim_clothing`; image path: silfit.image_fit.refine_batch)
     trim_clothing: bool = True
     trim_min: float = 0.015
     trim_max: float = 0.08
     #: after the stage, a fit less plausible than the keypoint fit (silfit.plausibility.silhouette_guard)
-    #: is replaced by the keypoint fit, with a warning (image path: silfit.pipeline.refine_batch)
+    #: is replaced by the keypoint fit, with a warning (image path: silfit.image_fit.refine_batch)
     plausibility_guard: bool = True
     lr: dict = field(
         default_factory=lambda: {"betas": 0.1, "body_pose": 0.03, "global_orient": 0.02, "transl": 0.01}
@@ -575,7 +575,7 @@ def fit_silhouette_problems(
     if len({tuple(p.shared) for p in problems}) != 1:
         raise ValueError("problems of one batch must share the same parameters across frames")
     if pose_prior is not None:  # an SMPL-X-layout model: the prior's marginal over its body joints
-        from ..priors.wholebody import body_prior_for
+        from ..priors.smplx_priors import body_prior_for
 
         pose_prior = body_prior_for(model, pose_prior)
     with torch_threads(cfg.threads):

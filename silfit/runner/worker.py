@@ -20,7 +20,7 @@ import numpy as np
 
 from ..fitting.keypoint_stage import KeypointFitConfig
 from ..fitting.silhouette_stage import SilhouetteFitConfig
-from ..pipeline import FitResult, save_fit
+from ..image_fit import FitResult, save_fit
 from .items import Item, ItemError, LoadedItem, _reading, item_error, load_item
 
 __all__ = ["FitOptions", "DatasetFitter", "keypoint_config", "silhouette_config"]
@@ -125,7 +125,7 @@ class DatasetFitter:
         """Fit ``items`` (:func:`silfit.run.run_batch`: the checks, one batched keypoint stage per
         layout, the silhouette stage batched over the items with masks, the warnings) and write
         their folders under ``out``; one record per item, in order."""
-        from ..pipeline import StageFailure
+        from ..image_fit import StageFailure
         from ..run import run_batch
 
         out = Path(out)

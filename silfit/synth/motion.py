@@ -25,7 +25,7 @@ A sequence folder (one camera)::
 and the dataset's ``index.json`` has ``"format": "silfit-synthetic-sequence"``.
 
 A rig sequence (``silfit synth --sequence --views N``, :func:`generate_rig_sequence`): the same
-motion seen by ``N`` calibrated cameras on a ring (:func:`silfit.synth.rig.rig_layout`, placed so the
+motion seen by ``N`` calibrated cameras on a ring (:func:`silfit.synth.camera_rigs.rig_layout`, placed so the
 whole trajectory fits their frames), a rig folder whose views are video folders::
 
     seq_000/
@@ -281,7 +281,7 @@ def generate_rig_sequence(model, index: int, cfg: SequenceConfig, views: int, ou
     ``out_dir``; returns its index record."""
     from ..rig import view_to_dict, write_cameras_json
     from .generate import SynthConfig
-    from .rig import RigConfig, rig_layout, view_name
+    from .camera_rigs import RigConfig, rig_layout, view_name
 
     rng = np.random.default_rng([int(cfg.seed), int(index), 11])
     F, W = int(cfg.frames), int(cfg.size)

@@ -10,7 +10,7 @@ from silfit.fitting.problem import Problem, View
 from silfit.fitting.rig_fit import fit_rig_keypoints, rig_problem
 from silfit.rig import load_rig, look_at
 from silfit.synth.generate import SynthConfig
-from silfit.synth.rig import RigConfig, generate_rig_subject
+from silfit.synth.camera_rigs import RigConfig, generate_rig_subject
 
 FAST = KeypointFitConfig(camera_iters=20, pose_iters=(20, 20, 30), shape_iters=10, final_iters=20, init_poses=2)
 

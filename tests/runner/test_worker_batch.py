@@ -1,11 +1,11 @@
 """The dataset worker refines a batch's masked items in one silhouette-stage call (issue 24), through the
-one path (silfit.run.run_batch -> silfit.pipeline.fit_problems)."""
+one path (silfit.run.run_batch -> silfit.image_fit.fit_problems)."""
 import numpy as np
 
 from runner.helpers import SYNTHETIC, synthetic_copy
 from silfit.runner import FitOptions
 from silfit.runner.items import list_items
-from silfit import pipeline
+from silfit import image_fit
 from silfit.runner.worker import DatasetFitter
 
 KP_FAST = {"init_poses": "1", "camera_iters": "10", "pose_iters": "10,10,10", "shape_iters": "5", "final_iters": "10"}
@@ -19,13 +19,13 @@ def test_masked_items_are_refined_in_one_call(tmp_path, monkeypatch):
     data = synthetic_copy(tmp_path / "in", ["subject_000", "subject_001", "subject_002"])
     items = list_items(data)
     calls = []
-    real = pipeline.refine_batch
+    real = image_fit.refine_batch
 
     def counting(model, kp, keypoints, masks, *args, **kwargs):
         calls.append(len(masks))
         return real(model, kp, keypoints, masks, *args, **kwargs)
 
-    monkeypatch.setattr(pipeline, "refine_batch", counting)
+    monkeypatch.setattr(image_fit, "refine_batch", counting)
     records = _fitter().run_batch(items, tmp_path / "out")
     assert calls == [3]
     assert [r["status"] for r in records] == ["ok"] * 3

@@ -6,15 +6,15 @@ import torch
 
 from silfit.body import load_body_model
 from silfit.camera import Camera, project_points
-from silfit.eval.wholebody import wholebody_errors
+from silfit.eval.score_wholebody import wholebody_errors
 from silfit.fitting.body import KeypointBody
 from silfit.fitting.keypoint_stage import KeypointFitConfig, KeypointFitter
 from silfit.fitting.stages import gated
 from silfit.fitting.terms import PriorTerm
-from silfit.fitting.wholebody import part_gates
+from silfit.fitting.hands_face import part_gates
 from silfit.keypoints import KeypointSet, model_keypoints
 from silfit.poses.library import POSE_LIBRARY
-from silfit.priors.wholebody import l2, library_hand_set, padded
+from silfit.priors.smplx_priors import l2, library_hand_set, padded
 from silfit.wholebody import part_slices
 
 
@@ -64,7 +64,7 @@ def test_prior_term_over_two_parameters_and_padding():
 
 def test_marginal_pose_prior_matches_the_gaussian_block(smplx):
     from silfit.priors.pose import MaxMixturePrior
-    from silfit.priors.wholebody import marginal_mixture
+    from silfit.priors.smplx_priors import marginal_mixture
 
     rng = np.random.default_rng(0)
     A = rng.normal(size=(2, 4, 4))
@@ -84,7 +84,7 @@ def test_marginal_pose_prior_matches_the_gaussian_block(smplx):
 
 
 def test_hand_prior_is_zero_at_its_mean_and_a_quadratic(smplx):
-    from silfit.fitting.wholebody import hand_priors
+    from silfit.fitting.hands_face import hand_priors
 
     left = hand_priors(smplx, torch.float64)[0]
     assert left(left.mean[None]).item() == pytest.approx(0.0, abs=1e-12)
@@ -147,7 +147,7 @@ def test_whole_body_recovery_body_only_and_missing_hand(smplx):
 
 def test_silhouette_inputs_keep_body_normalisation_and_part_weights(smplx):
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
-    from silfit.fitting.wholebody import wholebody_silhouette_inputs
+    from silfit.fitting.hands_face import wholebody_silhouette_inputs
 
     conf = np.zeros(137)
     conf[:25] = 0.5  # body: sum 12.5
@@ -176,7 +176,7 @@ def test_whole_body_result_saves_and_loads_smplx_names(tmp_path, smplx):
 
 
 def test_hand_prior_lives_in_the_pca_space_when_the_model_has_one():
-    from silfit.priors.wholebody import HandPosePrior, library_hand_set
+    from silfit.priors.smplx_priors import HandPosePrior, library_hand_set
 
     pca = load_body_model(kind="smplx", dtype=torch.float64, use_pca=True, num_pca_comps=12)
     prior = HandPosePrior(pca, "right", count=200)

@@ -48,7 +48,7 @@ def test_mask_of_another_size_is_an_error(open_model, subject):
 def test_save_fit_leaves_nothing_when_a_write_fails(open_model, subject, tmp_path, monkeypatch):
     from silfit import figures
     from silfit.fitting import KeypointFitConfig
-    from silfit.pipeline import save_fit
+    from silfit.image_fit import save_fit
 
     cfg = KeypointFitConfig(camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branch_search=False)
     result = fit(subject.keypoints, camera=subject.camera, model=open_model, keypoint_config=cfg, progress=False)
@@ -73,7 +73,7 @@ def test_save_fit_leaves_nothing_when_a_write_fails(open_model, subject, tmp_pat
 def test_the_guard_keeps_the_keypoint_fit_when_the_silhouette_fit_is_less_plausible(open_model, subject, monkeypatch):
     """Issue 23's plausibility guard, wired in refine_batch: a refined fit the guard finds less
     plausible is replaced by the keypoint fit, with the guard's warning in the metrics."""
-    import silfit.pipeline as pipeline
+    import silfit.image_fit as pipeline
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
     from silfit.plausibility import GuardDecision
 

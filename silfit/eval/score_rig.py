@@ -50,7 +50,7 @@ def subset_truth(gt: dict, idx) -> dict:
 
 def score_rig_fit(model, views, problem, gt: dict, params: dict, iou: bool = True, timings=None) -> dict:
     """The metrics of one rig fit (world-frame ``params``) against the subject's truth."""
-    from ..pipeline import body_mask
+    from ..image_fit import body_mask
     from ..rig import project_world
     from ..rig_pipeline import view_vertices
 

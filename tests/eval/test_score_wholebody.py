@@ -5,7 +5,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from silfit.body import load_body_model
-from silfit.eval.wholebody import part_vertices, wholebody_errors
+from silfit.eval.score_wholebody import part_vertices, wholebody_errors
 
 
 @pytest.fixture(scope="module")

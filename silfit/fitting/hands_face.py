@@ -5,7 +5,7 @@ The ``wholebody`` keypoint layout (:data:`silfit.keypoints.WHOLEBODY_NAMES`) is 
 per observation (body, left hand, right hand, face), so the parts are :class:`KeypointTerm` s over
 masks of it: ``keypoints`` (the body's 25, as for BODY_25), ``hands`` (both hands' 42) and ``face``
 (70), each with its own robust scale. Their priors are :class:`PriorTerm` s: ``hand_pose``
-(:class:`~silfit.priors.wholebody.HandPosePrior` per hand), ``jaw`` and ``expression`` (L2).
+(:class:`~silfit.priors.smplx_priors.HandPosePrior` per hand), ``jaw`` and ``expression`` (L2).
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from typing import Dict, List
 import numpy as np
 import torch
 
-from ..priors.wholebody import HandPosePrior, l2, library_hand_set
+from ..priors.smplx_priors import HandPosePrior, l2, library_hand_set
 from ..wholebody import part_slices
 from .terms import KeypointTerm, PriorTerm, Term, evaluate
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from silfit.eval.metrics import acceleration_error
-from silfit.eval.sequence import evaluate_sequences, is_sequence_dataset, score_sequence, sequence_table
+from silfit.eval.score_sequence import evaluate_sequences, is_sequence_dataset, score_sequence, sequence_table
 
 
 def test_acceleration_error_by_hand():

@@ -1,0 +1,407 @@
+"""One image's core below :func:`silfit.run.run` (which :func:`silfit.fit` calls): keypoint
+stage, then silhouette stage, batched over images (:func:`fit_problems`); results in memory
+(:class:`FitResult`) and on disk (:func:`save_fit`).
+
+Output folder written by :func:`save_fit` (and ``silfit fit``)::
+
+    params.npz, params.json    final SMPL parameters (betas, body_pose, global_orient, transl),
+                               camera_intrinsics, image_size, vertices, joints, keypoints_2d
+    mesh.obj                   the posed body in camera coordinates (OpenCV axes: x right, y down,
+                               z forward, metres, the model's vertex order)
+    mesh.glb, mesh.ply         with ``exports``: the body upright (x right, y up, z toward the
+                               viewer), normals, the camera in the glTF (silfit.outputs.export)
+    overlay.png                the final body over the image (or a grey canvas) + keypoints
+    side.png                   the final body seen from the side, over the keypoint-stage body
+                               (orange) when a silhouette was fitted
+    silhouette.png             final silhouette vs the mask (white: both, red: body only,
+                               blue: mask only)            [with a mask]
+    iou_curve.png              IoU and energy per silhouette step   [with a mask]
+    metrics.json               timings per stage, reprojection error, IoU before/after, warnings
+    stages/keypoints/          the keypoint stage's params.npz, params.json and overlay.png
+
+Everything is written into a temporary folder beside the target and moved into place at
+the end, so a failed run leaves nothing half-written.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import List, Optional, Sequence, Union
+
+import numpy as np
+import torch
+
+from .camera import Camera, project_points
+from .fitting.keypoint_stage import KeypointFitter
+from .fitting.result import KeypointFitResult
+from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult
+from .keypoints import KeypointSet, model_keypoints
+from .outfolder import atomic_folder
+from .plausibility import ambiguity_warnings, body_stature, fit_summary, fit_warnings, mask_warnings, silhouette_guard
+from .eval.metrics import mask_iou
+from .silhouette.masks import validate_mask
+
+__all__ = ["FitResult", "fit_problem", "fit_problems", "StageFailure", "refine", "refine_batch", "save_fit", "body_mask"]
+
+
+@dataclass
+class FitResult:
+    """One image's fit: the keypoint stage's result, the silhouette stage's (if a mask was
+    given), and the final parameters, mesh and metrics (numpy, no batch dimension)."""
+
+    camera: Camera
+    layout: str
+    keypoint: KeypointFitResult
+    silhouette: Optional[SilhouetteFitResult]
+    params: dict
+    vertices: np.ndarray
+    joints: np.ndarray
+    keypoints_2d: np.ndarray
+    metrics: dict = field(default_factory=dict)
+    #: rendered body masks ``[H, W]`` (bool) of the keypoint stage and of the final body,
+    #: when a silhouette was fitted
+    masks: dict = field(default_factory=dict)
+
+    @property
+    def final(self) -> KeypointFitResult:
+        """The final parameters in the keypoint result's form (for saving and loading)."""
+        arr = {k: np.asarray(v, dtype=np.float32).reshape(1, -1) for k, v in self.params.items()}  # [1, w] (one image)
+        smpl = {k: v for k, v in arr.items() if k in ("betas", "body_pose", "global_orient", "transl")}
+        return replace(
+            self.keypoint, **smpl, extra_params={k: v for k, v in arr.items() if k not in smpl},
+            vertices=self.vertices[None], joints=self.joints[None], keypoints_2d=self.keypoints_2d[None],
+            reprojection_error=np.array([self.metrics.get("reprojection_error_px", np.nan)]),
+        )  # fmt: skip
+
+
+def body_mask(vertices: np.ndarray, faces: np.ndarray, camera: Camera) -> np.ndarray:
+    """Binary mask of a camera-frame mesh (offscreen rasteriser, pixel-centre coverage)."""
+    from renderers.offscreen import render_mask
+
+    return render_mask(vertices, faces, camera)
+
+
+def _pose(model, params: dict, layout: str, camera: Camera):
+    t = {k: torch.as_tensor(np.asarray(v), dtype=model.dtype).reshape(1, -1) for k, v in params.items()}
+    with torch.no_grad():
+        out = model(**t)
+        kp2d = project_points(model_keypoints(model, out, layout)[0], camera)
+    return out.vertices[0].numpy(), out.joints[0].numpy(), kp2d.numpy()
+
+
+def _run_record(keypoint_result: KeypointFitResult, silhouette: Optional[SilhouetteFitResult] = None) -> dict:
+    """Each stage's term energies and the run's configuration, for ``metrics.json``."""
+    terms = {f"keypoints.{stage}": {t: float(v[0]) for t, v in d.items()} for stage, d in keypoint_result.term_energies.items()}
+    config = {"keypoint_stage": keypoint_result.config}
+    if silhouette is not None:
+        terms["silhouette"] = dict(silhouette.terms)
+        config["silhouette_stage"] = silhouette.config
+    return {"energy_terms": terms, "config": config}
+
+
+def _stage_seconds(timings: dict) -> float:
+    """A stage's seconds: its ``total`` where it records one, else the sum of its parts."""
+    return float(timings["total"]) if "total" in timings else float(sum(timings.values()))
+
+
+def _median_reprojection(kp2d: np.ndarray, keypoints: KeypointSet) -> float:
+    err = np.linalg.norm(kp2d - keypoints.xy, axis=1)
+    return float(np.median(err[keypoints.conf > 0]))
+
+
+def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources):
+    """``(masks for the stage, notes per mask)``: a mask reaching beyond the keypoint fit's body
+    all around (clothing) trimmed by that thickness (``SilhouetteFitConfig.trim_clothing``)."""
+    from .silhouette.losses import clothing_thickness, trim_clothing
+
+    out, notes = [], []
+    for mask, body, source in zip(masks, body_masks, sources):
+        ys, xs = np.nonzero(mask)
+        extent = float(max(np.ptp(ys), np.ptp(xs))) if len(ys) else 0.0
+        t = clothing_thickness(mask, body) if getattr(cfg, "trim_clothing", False) and extent > 0 else 0.0
+        if t <= cfg.trim_min * extent:
+            out.append(mask)
+            notes.append([])
+            continue
+        t = min(t, cfg.trim_max * extent)
+        out.append(trim_clothing(mask, t))
+        notes.append([f"{source}: the mask reaches about {t:.0f} px beyond the keypoint fit's body all around (loose "
+                      "clothing, hair or a grown mask?): the silhouette stage fitted it trimmed by that much"])
+    return out, notes
+
+
+def _guard(model, start: dict, params: dict, keypoints: KeypointSet, camera: Camera, kp2d: np.ndarray, where: str):
+    """:func:`~silfit.plausibility.silhouette_guard` of one refined fit against the keypoint fit
+    ``start`` it began from (reprojection error, |betas|, stature)."""
+    _, _, kp2d_start = _pose(model, start, keypoints.layout, camera)
+
+    def stature(p):
+        try:
+            return body_stature(model, p["betas"])
+        except (AttributeError, KeyError, RuntimeError):  # a model without a shape space of that form
+            return None
+
+    before = fit_summary(_median_reprojection(kp2d_start, keypoints), start.get("betas"), stature(start))
+    after = fit_summary(_median_reprojection(kp2d, keypoints), params.get("betas"), stature(params))
+    return silhouette_guard(before, after, where)
+
+
+def refine(
+    model,
+    keypoint_result: KeypointFitResult,
+    keypoints: KeypointSet,
+    mask: np.ndarray,
+    config: Optional[SilhouetteFitConfig] = None,
+    pose_prior=None,
+    renderer=None,
+    progress: bool = True,
+    mask_source: str = "mask",
+) -> FitResult:
+    """The silhouette stage on top of a single-sample keypoint result (see :func:`silfit.run.fit`)."""
+    return refine_batch(model, keypoint_result, [keypoints], [mask], config, pose_prior, renderer, progress,
+                        [mask_source])[0]  # fmt: skip
+
+
+def refine_batch(
+    model,
+    keypoint_result: KeypointFitResult,
+    keypoints: Sequence[KeypointSet],
+    masks: Sequence[np.ndarray],
+    config: Optional[SilhouetteFitConfig] = None,
+    pose_prior=None,
+    renderer=None,
+    progress: bool = True,
+    mask_sources: Optional[Sequence[str]] = None,
+) -> List[FitResult]:
+    """The silhouette stage on a batch of keypoint results (sample ``i`` of
+    ``keypoint_result`` with ``keypoints[i]`` and ``masks[i]``), all subjects refined
+    together (:func:`~silfit.fitting.silhouette_stage.fit_silhouettes`)."""
+    n = len(keypoints)
+    if len(keypoint_result) != n or len(masks) != n:
+        raise ValueError(f"{len(keypoint_result)} keypoint results, {n} keypoint sets and {len(masks)} masks")
+    mask_sources = list(mask_sources or ["mask"] * n)
+    faces = model.faces.cpu().numpy()
+    masks = [np.asarray(m, dtype=bool) for m in masks]
+    cameras = keypoint_result.cameras
+    kp_masks, ious_before = [], []
+    for i in range(n):
+        camera = cameras[i]
+        validate_mask(masks[i], mask_sources[i], size=(camera.width, camera.height))
+        kp_masks.append(body_mask(keypoint_result.vertices[i], faces, camera))
+        ious_before.append(mask_iou(kp_masks[i], masks[i]))
+        if ious_before[i] == 0.0:
+            raise ValueError(
+                f"{mask_sources[i]}: the mask does not overlap the body fitted to the keypoints at all "
+                "(wrong mask, or keypoints of another image?)"
+            )
+    fit_masks, trim_notes = _trimmed_masks(masks, kp_masks, config or SilhouetteFitConfig(), mask_sources)
+    inits = [keypoint_result.params(i) for i in range(n)]
+    from .fitting.problem import Problem
+    from .fitting.silhouette_stage import fit_silhouette_problems
+    from .fitting.hands_face import silhouette_inputs
+
+    # the layout decides the terms (a whole-body mesh keeps its hand and face keypoints)
+    cfg, sets, terms, weights, data = silhouette_inputs(model, list(keypoints), config or SilhouetteFitConfig(), model.dtype)
+    problems = [Problem.single(k, cam, m) for k, cam, m in zip(sets, cameras, fit_masks)]
+    sils = fit_silhouette_problems(model, problems, inits, keypoints[0].layout, cfg, pose_prior, renderer, progress,
+                                   terms=terms, weights=weights, data=data)  # fmt: skip
+    out = []
+    for i, sil in enumerate(sils):
+        one = keypoint_result[i]
+        params = sil.params()
+        vertices, joints, kp2d = _pose(model, params, keypoints[i].layout, cameras[i])
+        warnings = mask_warnings(masks[i], mask_sources[i]) + trim_notes[i] + list(sil.warnings)
+        # the plausibility guard (silfit.plausibility.silhouette_guard): a refined fit less plausible
+        # than the keypoint fit is replaced by the keypoint fit, with a warning
+        guard = _guard(model, inits[i], params, keypoints[i], cameras[i], kp2d, mask_sources[i])
+        if guard.reverted and getattr(config, "plausibility_guard", True):
+            params = {k: np.asarray(v) for k, v in inits[i].items()}
+            vertices, joints, kp2d = _pose(model, params, keypoints[i].layout, cameras[i])
+            warnings += list(guard.warnings)
+        final_mask = kp_masks[i] if guard.reverted and getattr(config, "plausibility_guard", True) else \
+            body_mask(vertices, faces, cameras[i])  # fmt: skip
+        iou_after = mask_iou(final_mask, masks[i])
+        if iou_after < ious_before[i] - 0.02:
+            warnings.append(f"silhouette stage lowered the IoU ({ious_before[i]:.3f} -> {iou_after:.3f}); kept its result")
+        metrics = {
+            "stages": ["keypoints", "silhouette"],
+            "timings_s": {**{f"keypoints.{k}": float(v) for k, v in one.timings.items()},
+                          "keypoints": _stage_seconds(one.timings), "silhouette": sil.seconds},
+            "reprojection_error_px_keypoint_stage": float(one.reprojection_error[0]),
+            "reprojection_error_px": _median_reprojection(kp2d, keypoints[i]),
+            "iou_keypoint_stage": ious_before[i],
+            "iou": iou_after,
+            "silhouette_steps": sil.steps,
+            "silhouette_guard": {"kept": guard.keep if getattr(config, "plausibility_guard", True) else "silhouette",
+                                 "less_plausible": list(guard.reasons)},
+            "warnings": warnings,
+            **_run_record(one, sil),
+        }  # fmt: skip
+        out.append(FitResult(cameras[i], keypoints[i].layout, one, sil, params, vertices, joints, kp2d, metrics,
+                             masks={"keypoint_stage": kp_masks[i], "final": final_mask}))  # fmt: skip
+    return out
+
+
+def fit_problem(model, keypoints: KeypointSet, camera: Camera, mask: Optional[np.ndarray] = None, **options) -> FitResult:
+    """One image's core (:func:`fit_problems` for one image; a failure raises)."""
+    (result,) = fit_problems(model, [keypoints], [camera], [mask], **options)
+    if isinstance(result, Exception):
+        raise result
+    return result
+
+
+class StageFailure(Exception):
+    """One image of a batch failed in ``stage`` (``"keypoints"`` or ``"silhouette"``): the
+    original error is ``error``; after a failed silhouette stage, ``partial`` holds the keypoint
+    stage's :class:`FitResult`."""
+
+    def __init__(self, stage: str, error: Exception, partial=None):
+        super().__init__(str(error))
+        self.stage, self.error, self.partial = stage, error, partial
+
+
+def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Camera], masks: Sequence[Optional[np.ndarray]],
+                 *, pose_prior=None, keypoint_config=None, silhouette_config=None, silhouette: bool = True,
+                 progress: bool = True, mask_sources: Optional[Sequence[str]] = None,
+                 isolate: bool = False) -> List[Union[FitResult, StageFailure]]:  # fmt: skip
+    """Images' cores, keypoints already checked (:func:`silfit.run.check`), one layout: the
+    keypoint stage batched over all images, the silhouette stage batched over those with a mask
+    (and ``silhouette``), each image's plausibility warnings
+    (:func:`silfit.plausibility.fit_warnings`, depth ambiguity). With ``isolate``, a failing
+    batch is fitted again image by image, and an image that still fails gets a
+    :class:`StageFailure` in its place; without, the first error raises."""
+    n = len(keypoints)
+    mask_sources = list(mask_sources or ["mask"] * n)
+    fitter = KeypointFitter(model, keypoints[0].layout, keypoint_config, pose_prior)
+    out: List[Union[FitResult, StageFailure, None]] = [None] * n
+
+    def each(rows, call, stage):
+        """``call(rows)`` -> one result per row; isolated: again row by row where the batch fails."""
+        try:
+            return list(zip(rows, call(rows)))
+        except Exception as err:  # noqa: BLE001 - which row failed is found by fitting them alone
+            if not isolate:
+                raise
+            if len(rows) == 1:
+                return [(rows[0], StageFailure(stage, err))]
+            return [pair for r in rows for pair in each([r], call, stage)]
+
+    def keypoint_stage(rows):  # per row: (the batch's result, its index there); timings shared out
+        kp = fitter.fit([keypoints[i] for i in rows], [cameras[i] for i in rows], progress=progress)
+        kp.timings = {k: float(v) / len(rows) for k, v in kp.timings.items()}
+        return [(kp, j) for j in range(len(rows))]
+
+    kp_results = dict(each(list(range(n)), keypoint_stage, "keypoints"))
+    ok = [i for i in range(n) if not isinstance(kp_results[i], StageFailure)]
+    sil = [i for i in ok if masks[i] is not None and silhouette]
+
+    def silhouette_stage(rows):
+        groups: dict = {}  # rows fitted in one keypoint batch are refined as one
+        for i in rows:
+            groups.setdefault(id(kp_results[i][0]), []).append(i)
+        done = {}
+        for group in groups.values():
+            batch = kp_results[group[0]][0].select([kp_results[i][1] for i in group])
+            fitted = refine_batch(model, batch, [keypoints[i] for i in group], [np.asarray(masks[i], dtype=bool) for i in group],
+                                  silhouette_config, fitter.pose_prior, progress=progress,
+                                  mask_sources=[mask_sources[i] for i in group])  # fmt: skip
+            done.update(zip(group, fitted))
+        return [done[i] for i in rows]
+
+    refined = dict(each(sil, silhouette_stage, "silhouette")) if sil else {}
+    for i in range(n):
+        kp = kp_results[i]
+        if isinstance(kp, StageFailure):
+            out[i] = kp
+            continue
+        result = refined[i] if i in refined else _keypoint_only(model, kp[0][kp[1]], keypoints[i])
+        if isinstance(result, StageFailure):
+            result.partial = _keypoint_only(model, kp[0][kp[1]], keypoints[i])
+            out[i] = result
+            continue
+        if fitter.whole_body:  # which parts were fitted, which held at rest
+            from .fitting.hands_face import wholebody_summary
+
+            result.metrics["whole_body"], notes = wholebody_summary(keypoints[i])
+            result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
+        result.metrics["warnings"] += fit_warnings(result.metrics, keypoints[i], result.vertices, result.params.get("betas")) \
+            + ambiguity_warnings((result.keypoint.branch_search or [None])[0])
+        if result.keypoint.branch_search:  # every hypothesis the branch search ran to its end, with its energy
+            result.metrics["branch_search"] = result.keypoint.branch_search[0]
+        hyps = (result.keypoint.hypotheses or [None])[0]
+        if hyps is not None:  # hypotheses=K: every alternative's energy and the limbs it turns (metrics.json)
+            from .plausibility import hypothesis_summary, hypothesis_warnings
+
+            result.metrics["hypotheses"] = hypothesis_summary(hyps)
+            result.metrics["warnings"] += hypothesis_warnings(hyps)
+        out[i] = result
+    return out  # type: ignore[return-value]
+
+
+def _keypoint_only(model, kp_result: KeypointFitResult, keypoints: KeypointSet) -> FitResult:
+    """The :class:`FitResult` of a one-image keypoint-stage result (no silhouette stage)."""
+    vertices, joints, kp2d = _pose(model, kp_result.params(0), keypoints.layout, kp_result.camera)
+    metrics = {
+        "stages": ["keypoints"],
+        "timings_s": {**{f"keypoints.{k}": float(v) for k, v in kp_result.timings.items()},
+                      "keypoints": _stage_seconds(kp_result.timings)},
+        "reprojection_error_px": _median_reprojection(kp2d, keypoints),
+        "warnings": [],
+        **_run_record(kp_result),
+    }  # fmt: skip
+    return FitResult(kp_result.camera, keypoints.layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d, metrics)
+
+
+def save_fit(
+    result: FitResult,
+    out: Union[str, os.PathLike],
+    faces: np.ndarray,
+    keypoints: Optional[KeypointSet] = None,
+    image: Optional[np.ndarray] = None,
+    mask: Optional[np.ndarray] = None,
+    extra_metrics: Optional[dict] = None,
+    overwrite: bool = False,
+    exports: Sequence[str] = (),
+) -> Path:
+    """Write the output folder described in the module docstring, atomically; ``exports``
+    (``"glb"``, ``"ply"``) adds ``mesh.glb`` / ``mesh.ply`` in the upright world frame of
+    :mod:`silfit.outputs.export`."""
+    from . import figures
+    from .meshio import write_obj
+
+    out = Path(out)
+    with atomic_folder(out, overwrite) as tmp:
+        result.final.save(tmp)
+        write_obj(tmp / "mesh.obj", result.vertices, faces)
+        if exports:
+            from .outputs.export import write_fit_exports
+
+            write_fit_exports(tmp, result.vertices, faces, result.camera, exports)
+        kp_xy = None if keypoints is None else keypoints.xy
+        kp_conf = None if keypoints is None else keypoints.conf
+        figures.write_png(tmp / "overlay.png", figures.fit_overlay(
+            image, result.vertices, faces, result.camera, kp_xy, result.keypoints_2d, kp_conf))  # fmt: skip
+        stage_dir = tmp / "stages" / "keypoints"
+        result.keypoint.save(stage_dir)
+        reference = result.keypoint.vertices[0] if result.silhouette is not None else None
+        figures.write_png(tmp / "side.png", figures.side_view(result.vertices, faces, reference))
+        if result.silhouette is not None:
+            kp_verts = result.keypoint.vertices[0]
+            figures.write_png(stage_dir / "overlay.png", figures.fit_overlay(
+                image, kp_verts, faces, result.camera, kp_xy, result.keypoint.keypoints_2d[0], kp_conf))  # fmt: skip
+            if mask is not None:
+                figures.write_png(tmp / "silhouette.png", figures.silhouette_comparison(result.masks["final"], mask))
+            figures.iou_curve(result.silhouette.history, tmp / "iou_curve.png")
+        for k, h in enumerate((result.keypoint.hypotheses or [[]])[0], 1):  # --hypotheses K: hypotheses/k/params.npz
+            from .fitio import write_fit
+
+            write_fit(tmp / "hypotheses" / str(k), h["params"], [result.camera], layout=result.layout,
+                      model=result.keypoint.model, record={"label": h["label"], "energy": h["energy"], "differs": h["differs"]})  # fmt: skip
+        metrics = dict(result.metrics)
+        metrics["camera"] = result.camera.to_dict()
+        metrics["layout"] = result.layout
+        metrics.update(extra_metrics or {})
+        (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    return out
