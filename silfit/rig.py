@@ -44,6 +44,7 @@ from .keypoints import KEYPOINT_FOLDERS
 
 __all__ = [
     "RigView",
+    "select_views",
     "video_folder",
     "extrinsics_from_dict",
     "load_rig",
@@ -255,6 +256,18 @@ def _holds_video(folder: Path) -> bool:
     if not folder.is_dir():
         return False
     return any((folder / d).is_dir() for d in KEYPOINT_FOLDERS) or any(folder.glob("*_keypoints.json"))
+
+
+def select_views(views: List[RigView], names=None) -> List[RigView]:
+    """Only the views ``names`` (``--views``; in the rig's order; an unknown name is an
+    :class:`~silfit.errors.InputError` listing the rig's), all of them without ``names``."""
+    if not names:
+        return list(views)
+    known = [v.name for v in views]
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise InputError("--views", f"unknown view(s) {', '.join(unknown)} (the rig has {', '.join(known)})")
+    return [v for v in views if v.name in names]
 
 
 def load_rig(folder: PathLike) -> List[RigView]:

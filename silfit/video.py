@@ -32,7 +32,7 @@ import numpy as np
 
 from .errors import InputError
 from .keypoints import KEYPOINT_FOLDERS, KeypointSet, read_keypoints
-from .rig import RigView, _holds_video, _rig_views, video_folder
+from .rig import RigView, _holds_video, _rig_views, select_views, video_folder
 
 __all__ = ["RigSequence", "SequenceInput", "frame_number", "is_rig_video", "load_rig_sequence", "read_sequence", "save_sequence_fit",
            "write_overlay_video"]
@@ -391,13 +391,7 @@ def load_rig_sequence(folder: Union[str, os.PathLike], person: Union[int, str] =
     views by their number; a view without a frame's number has no detection there. ``names``: only
     these views (in the rig's order; an unknown name is an :class:`~silfit.errors.InputError`)."""
     folder = Path(folder)
-    views = _rig_views(folder)
-    if names:
-        known = [v.name for v in views]
-        unknown = [n for n in names if n not in known]
-        if unknown:
-            raise InputError("--views", f"unknown view(s) {', '.join(unknown)} (the rig has {', '.join(known)})")
-        views = [v for v in views if v.name in names]
+    views = select_views(_rig_views(folder), names)
     videos = []
     for v in views:
         d = video_folder(v)

@@ -158,7 +158,7 @@ def rig_job(args) -> Job:
     from ..errors import InputError
     from ..fitting.rig_fit import fit_keypoints_of
     from ..imagefile import read_rgb
-    from ..rig import load_rig
+    from ..rig import load_rig, select_views
     from ..silhouette.masks import read_mask
 
     for flag in ("keypoints", "mask", "camera", "focal", "image", "image_size"):
@@ -166,14 +166,7 @@ def rig_job(args) -> Job:
             raise CLIError(f"--rig reads every view's files from the rig folder; --{flag.replace('_', '-')} is not used with it")
     _check_out(args)
     person = _person(args.person)
-    views = load_rig(args.rig)
-    if args.views:
-        names = args.views.split(",")
-        known = [v.name for v in views]
-        unknown = [n for n in names if n not in known]
-        if unknown:
-            raise InputError("--views", f"unknown view(s) {', '.join(unknown)} (the rig has {', '.join(known)})")
-        views = [v for v in views if v.name in names]
+    views = select_views(load_rig(args.rig), args.views.split(",") if args.views else None)
     # whole body: the views' hand and face points decide the model (as for one image) and are fitted with it
     model = _rig_model(args, [v.keypoints for v in views], person)
     obs, names, images, warnings, first = [], [], {}, [], None
