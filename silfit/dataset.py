@@ -54,6 +54,7 @@ __all__ = [
     "read_mask",
     "read_image",
     "read_gt",
+    "read_truth",
     "read_index",
     "list_subjects",
     "write_png",
@@ -207,6 +208,22 @@ def _check_size(path, what, arr, size):
             raise SubjectError(
                 path, what, f"image is {arr.shape[1]}x{arr.shape[0]} pixels but camera.json says {w}x{h}"
             )
+
+
+def read_truth(path: PathLike) -> Dict[str, np.ndarray]:
+    """Every array of a ``gt.npz`` (any kind: one image's, a rig's, a sequence's), numeric and
+    read without pickles and within the size limits of :func:`silfit.safe_pickle.load_npz`; the one
+    reader of ground-truth files (:func:`read_gt` checks one image's fields on top)."""
+    from .safe_pickle import load_npz
+
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"{path}: ground-truth file not found")
+    raw = {k: np.asarray(v) for k, v in load_npz(path, what="ground truth").items()}
+    for name, arr in raw.items():
+        if arr.dtype.kind not in "fiub":
+            raise SubjectError(path, name, f"must be numeric, got dtype {arr.dtype}")
+    return raw
 
 
 def read_gt(path: PathLike, fields: Iterable[str] = tuple(GT_FIELDS)) -> GroundTruth:

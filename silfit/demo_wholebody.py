@@ -94,7 +94,9 @@ def run_wholebody_demo(out: Path, subject_dir: Optional[Path] = None, progress: 
     cam = load_camera(d / "camera.json")
     image = read_rgb(d / "image.png", "image")
     mask = read_mask(d / "mask.png", size=(cam.width, cam.height))
-    gt = dict(np.load(d / "gt.npz"))
+    from .dataset import read_truth
+
+    gt = read_truth(d / "gt.npz")
     model = load_body_model(kind="smplx")
     faces = model.faces.cpu().numpy()
     kps = wb.as_keypoint_set()

@@ -38,9 +38,10 @@ def _load(subject_dir: Path):
     from ..fitting.rig_fit import rig_problem
     from ..rig import load_rig
 
+    from ..dataset import read_truth
+
     views = load_rig(subject_dir)
-    gt = np.load(subject_dir / "gt.npz", allow_pickle=False)
-    return views, rig_problem(views), {k: gt[k] for k in gt.files}
+    return views, rig_problem(views), read_truth(subject_dir / "gt.npz")
 
 
 def subset_truth(gt: dict, idx) -> dict:

@@ -80,18 +80,13 @@ def score_sequence(model, gt: Dict[str, np.ndarray], params: Dict[str, np.ndarra
     return row
 
 
-def _load_npz(path: Path) -> Dict[str, np.ndarray]:
-    from ..safe_pickle import load_npz
-
-    return {k: np.asarray(v) for k, v in load_npz(path, what="sequence arrays").items()}
-
-
 def evaluate_sequences(dataset: os.PathLike, fits: Optional[os.PathLike] = None, model=None, run: bool = False,
                        progress: bool = False, config=None) -> dict:  # fmt: skip
     """Score every sequence of ``dataset`` (fitting it first with ``run`` or when no fit
     exists: ``FITS/<seq>/temporal/``, written by :func:`silfit.video.save_sequence_fit`)."""
     from ..body import load_body_model
     from ..camera import load_camera
+    from ..dataset import read_truth
     from ..run import run as run_job
     from ..run import video_job, write
     from ..video import read_sequence
@@ -116,7 +111,7 @@ def evaluate_sequences(dataset: os.PathLike, fits: Optional[os.PathLike] = None,
         d = root / name
         out = fits_root / name / "temporal"
         try:
-            gt = _load_npz(d / "gt.npz")
+            gt = read_truth(d / "gt.npz")
             if run or not (out / "params.npz").is_file():
                 seq = read_sequence(d)  # through the one path (silfit.run), as silfit fit --sequence
                 job = video_job(seq.frames, load_camera(d / "camera.json"), model, config=config, progress=False,
