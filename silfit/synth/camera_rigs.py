@@ -176,19 +176,10 @@ def generate_rig_dataset(out, n: int, config: SynthConfig, rig: RigConfig, model
 
     from .. import __version__
     from ..dataset import INDEX_NAME
-    from .generate import subject_name
+    from .generate import generation_start, subject_name
 
     cfg, rig = config.validate(), rig.validate()
-    if int(n) <= 0:
-        raise ValueError(f"--n must be a positive number of subjects, got {n}")
-    if model is None:
-        from ..body import load_body_model
-
-        model = load_body_model(kind="smplx" if cfg.whole_body else None)
-    if cfg.whole_body and getattr(model, "kind", "smpl") != "smplx":
-        raise ValueError(f"{model.source}: --whole-body needs an SMPL-X-layout model (this one is {model.kind})")
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    model, out = generation_start(cfg, n, model, out)
     it: Sequence[int] = range(int(n))
     if progress:
         from tqdm import tqdm

@@ -420,6 +420,23 @@ def subject_name(index: int) -> str:
     return f"subject_{index:03d}"
 
 
+def generation_start(cfg: "SynthConfig", n, model, out) -> tuple:
+    """The checks and set-up every generator shares: ``n`` positive, the model (the shipped open one of
+    the kind ``cfg`` needs when ``None``; a whole-body set needs an SMPL-X-layout one), the output
+    folder created. Returns ``(model, out)``."""
+    if int(n) <= 0:
+        raise ValueError(f"--n must be a positive number of subjects, got {n}")
+    if model is None:
+        from ..body import load_body_model
+
+        model = load_body_model(kind="smplx" if cfg.whole_body else None)
+    if cfg.whole_body and getattr(model, "kind", "smpl") != "smplx":
+        raise ValueError(f"{model.source}: --whole-body needs an SMPL-X-layout model (this one is {model.kind})")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    return model, out
+
+
 def generate_dataset(
     out: os.PathLike,
     n: int,
@@ -431,16 +448,7 @@ def generate_dataset(
     """Generate ``n`` subjects into ``out`` (``out/subject_000`` ...) and write ``out/index.json``;
     returns the index. ``model`` defaults to the shipped open body model."""
     cfg = (config or SynthConfig()).validate()
-    if int(n) <= 0:
-        raise ValueError(f"--n must be a positive number of subjects, got {n}")
-    if model is None:
-        from ..body import load_body_model
-
-        model = load_body_model(kind="smplx" if cfg.whole_body else None)
-    if cfg.whole_body and getattr(model, "kind", "smpl") != "smplx":
-        raise ValueError(f"{model.source}: --whole-body needs an SMPL-X-layout model (this one is {model.kind})")
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    model, out = generation_start(cfg, n, model, out)
     records: List[SubjectRecord] = []
     iterator = range(int(n))
     if progress:
