@@ -111,7 +111,9 @@ def run(args) -> int:
 
 
 def _run_people(args) -> int:
-    """``--people all``: detect every person once, then fit each into ``OUT/person_<i>/``."""
+    """``--people all``: detect every person once, build every person's job (a bad flag or input
+    stops here, before anything is written), fit them all, then write ``OUT/person_<i>/`` and
+    ``OUT/people.json`` as one folder (atomic: a failure leaves no output)."""
     import copy
     import json
 
@@ -119,24 +121,46 @@ def _run_people(args) -> int:
         raise CLIError("--people all detects the people in --image; give --image and no --keypoints")
     if args.mask:
         raise CLIError("--people all uses each detected person's own mask; drop --mask")
+    if args.sequence or getattr(args, "rig", None):
+        raise CLIError("--people all is for one photo (--image); not with --sequence or --rig")
     from ..detect import DetectConfig
     from ..detect.output import detect_photo
+    from ..outfolder import atomic_folder
+    from ..run import check, run as run_job, write
+    from .jobs import build_job, describe_inputs
 
+    exports = export_formats(args)
     out = Path(args.out)
     if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
         raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
     detected = detect_photo(args.image, DetectConfig(max_people=0))
     people = detected[1]
     note(f"{len(people)} person(s) detected in {args.image}")
-    rows, status = [], 0
-    if not args.check_only:
-        out.mkdir(parents=True, exist_ok=True)
+    jobs = []
     for i in range(len(people)):
         one = copy.copy(args)
         one.people, one.person, one.out, one.detected = None, str(i), str(out / f"person_{i}"), detected
-        rc = run(one)
-        status = status or rc
-        rows.append({"person": i, "folder": f"person_{i}", "status": rc})
-    if not args.check_only:
-        (out / "people.json").write_text(json.dumps({"image": args.image, "people": rows}, indent=2))
-    return status
+        one.overwrite = True  # OUT itself was checked above; its person_<i>/ are written afresh
+        jobs.append(build_job(one))
+    if args.check_only:
+        for i, job in enumerate(jobs):
+            checked = check(job)
+            for warning in checked.warnings:
+                warn(f"person {i}: {warning}")
+            print(f"person {i}: {describe_inputs(checked)}")
+        return 0
+    fits = [run_job(job) for job in jobs]
+
+    def save():
+        with atomic_folder(out, args.overwrite) as tmp:
+            for i, fit in enumerate(fits):
+                write(fit, tmp / f"person_{i}", exports=exports, meshes=args.meshes, video=not args.no_video, fps=args.fps)
+            rows = [{"person": i, "folder": f"person_{i}", "status": 0} for i in range(len(fits))]
+            (tmp / "people.json").write_text(json.dumps({"image": args.image, "people": rows}, indent=2))
+
+    save_leaving_nothing_on_error(out, save)
+    for i, fit in enumerate(fits):
+        print(f"wrote {out / f'person_{i}'}: {fit.summary()}")
+        for warning in fit.warnings:
+            warn(f"person {i}: {warning}")
+    return 0

@@ -144,7 +144,7 @@ def test_detect_several_people(tmp_path):
     assert len(json.loads((tmp_path / "all" / "keypoints.json").read_text())["people"]) == 2
 
 
-def test_fit_every_person_of_a_photo(tmp_path):
+def test_fit_every_person_of_a_photo(tmp_path, capsys):
     """``silfit fit --image --people all``: each detected person into OUT/person_<i>/."""
     a = np.asarray(Image.open(SUBJECT / "image.png"))
     b = np.asarray(Image.open(SUBJECT.parent / "subject_004" / "image.png"))
@@ -158,6 +158,15 @@ def test_fit_every_person_of_a_photo(tmp_path):
     assert all((out / p["folder"] / "mesh.obj").is_file() for p in listed) and len(xs) == 2
     assert main(["fit", "--image", str(image), "--people", "all", "--keypoints", str(SUBJECT / "keypoints.json"),
                  "--out", str(tmp_path / "bad")]) == 2  # fmt: skip
+    assert not (tmp_path / "bad").exists()
+    capsys.readouterr()
+    # a bad flag found once the people are detected (person 0's job) or before: one line, exit 2, no output folder
+    for flags in (["--hypotheses", "0"], ["--sequence", str(SUBJECT.parent)]):
+        bad = tmp_path / f"bad{flags[0]}"
+        assert main(["fit", "--image", str(image), "--people", "all", "--quiet", "--out", str(bad)] + flags) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len([line for line in err if "error" in line]) == 1 and "Traceback" not in "\n".join(err)
+        assert not bad.exists(), flags
 
 
 def test_detect_does_not_write_an_exif_focal_outside_the_bounds(tmp_path, capsys):
