@@ -246,4 +246,6 @@ def test_fit_hypotheses_writes_each_solution_and_records_them(inputs, tmp_path, 
     assert metrics["branch_search"][0]["tried"][0]["flip"] == metrics["branch_search"][0]["kept"]
     best = read_fit(out / "hypotheses" / "1")  # the first is the fit itself
     assert np.allclose(best.frame(0)["body_pose"], read_fit(out).frame(0)["body_pose"], atol=1e-5)
+    capsys.readouterr()
     assert main(["fit", "--rig", str(d), "--hypotheses", "2", "--out", str(tmp_path / "rig")] + FAST) == 2
+    assert "--hypotheses with --sequence/--rig" in capsys.readouterr().err  # refused for the flag, not for the folder
