@@ -196,6 +196,7 @@ def test_body_stature_follows_the_shape(open_model):
     short = body_stature(open_model, np.r_[-3.0, np.zeros(9)])
     assert abs(tall - short) > 0.2
 
+
 def test_hypotheses_are_summarised_and_the_ambiguous_limbs_named():
     from silfit.plausibility import hypothesis_summary, hypothesis_warnings
 

@@ -202,6 +202,7 @@ def wholebody_problem_inputs(model, problems: Sequence[Problem], config) -> tupl
     out = [Problem([replace(o, keypoints=next(it)) for row in g for o in row], shared=p.shared) for p, g in zip(problems, grids)]
     return cfg, out, terms, weights, data
 
+
 def triangulated_keypoints(problem: Problem, kp_weights: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
     """``(X [K, 3], w [K])``: every keypoint of a one-frame problem with several views
     triangulated from the views that agree (:func:`~silfit.fitting.triangulate.robust_triangulate`,
@@ -239,7 +240,6 @@ def pose_from_points(fitter, problems: Sequence[Problem], state: Dict[str, torch
     pts = [triangulated_keypoints(p, fitter.kp_weights.double().numpy()) for p in problems]
     X = torch.as_tensor(np.stack([q[0] for q in pts]), dtype=dt)
     w = torch.as_tensor(np.stack([q[1] for q in pts]), dtype=dt)
-    B = len(problems)
     base = {n: (v[:, 0] if v.dim() == 3 else v).detach().clone() for n, v in state.items()}
     free = ("global_orient", "transl", "body_pose")
     sizes = [base[n].shape[1] for n in free]
