@@ -248,7 +248,7 @@ def read_easymocap(intri: PathLike, extri: PathLike, sizes=None) -> List[RigView
 # ----------------------------------------------------------------------------- rig folders
 def video_folder(view: RigView) -> Path:
     """A rig video's view folder: the view's ``keypoints`` entry when it names a folder, else the
-    folder its ``keypoints.json`` would be in (``<name>/``); read by :func:`read_sequence`."""
+    folder its ``keypoints.json`` would be in (``<name>/``); read by :func:`silfit.video.read_sequence`."""
     return view.keypoints if view.keypoints.is_dir() else view.keypoints.parent
 
 

@@ -384,7 +384,7 @@ class RigSequence:
 
 
 def load_rig_sequence(folder: Union[str, os.PathLike], person: Union[int, str] = "largest", names=None) -> RigSequence:
-    """A rig video (the rig folder of :func:`load_rig`: ``cameras.json``, EasyMocap's calibration or
+    """A rig video (the rig folder of :func:`silfit.rig.load_rig`: ``cameras.json``, EasyMocap's calibration or
     sub-folders with ``camera.json``) whose views' folders are video folders as
     :func:`read_sequence` reads them (per-frame OpenPose JSON, optional ``masks/`` and
     ``images/``; the layout ``silfit synth --sequence --views N`` writes). Frames are matched across
