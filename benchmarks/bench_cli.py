@@ -36,7 +36,7 @@ from silfit import load_body_model
 from silfit.camera import load_camera
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig
 from silfit.keypoints import read_keypoints
-from silfit.pipeline import save_fit
+from silfit.image_fit import save_fit
 from silfit.run import fit
 from silfit.silhouette.masks import read_mask
 mark("import silfit (fitting, pipeline)")

@@ -97,7 +97,7 @@ def main() -> None:
     from silfit.errors import InputError
     from silfit.fitting import KeypointFitter
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
-    from silfit.pipeline import refine
+    from silfit.image_fit import refine
     from silfit.plausibility import body_stature, check_keypoints, fit_warnings
 
     import torch

@@ -36,7 +36,7 @@ from silfit.eval.metrics import procrustes_align
 from silfit.fitting import KeypointFitter
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig
 from silfit.keypoints import KeypointSet, read_keypoints
-from silfit.pipeline import refine_batch
+from silfit.image_fit import refine_batch
 
 
 def cut_subject(d: Path):
