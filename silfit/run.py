@@ -127,10 +127,10 @@ class Fit:
         """One line for the console: frames, views, reprojection error, IoU."""
         m = self.metrics
         parts = []
-        if self.num_frames > 1 or "bridged_frames" in m:
+        if self.num_frames > 1 or "bridged_count" in m:
             parts.append(f"{self.num_frames} frames")
-            if "bridged_frames" in m:
-                parts.append(f"{m['bridged_frames']} bridged, {m['seconds_per_frame']:.2f} s per frame")
+            if "bridged_count" in m:
+                parts.append(f"{m['bridged_count']} bridged, {m['seconds_per_frame']:.2f} s per frame")
         if self.iou.shape[1] > 1:
             parts.append(f"{self.iou.shape[1]} views")
         err = m.get("reprojection_error_px")
@@ -378,7 +378,7 @@ def _run_video(job: Job) -> Fit:
     else:
         warnings += frame_warnings(frames, vertices, errors[:, 0], numbers)
     metrics = {"reprojection_error_px": _finite_median(errors), "warnings": _dedupe(warnings),
-               "silhouette": "run" if silhouette else "not run", "bridged_frames": int(np.sum(result.bridged)),
+               "silhouette": "run" if silhouette else "not run", "bridged_count": int(np.sum(result.bridged)),
                "seconds_per_frame": float(result.timings["seconds_per_frame"])}  # fmt: skip
     if silhouette and getattr(result, "silhouette_iou_start", None) is not None:  # the summary's "IoU a -> b"
         metrics["silhouette_iou_start"] = float(result.silhouette_iou_start)

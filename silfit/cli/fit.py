@@ -74,8 +74,8 @@ def register(subparsers) -> None:
                    "viewer: the camera frame turned 180 deg about x), vertex normals, the camera in the glTF")
     p.add_argument("--hypotheses", type=int, default=1, metavar="K",
                    help="also write the K best distinct keypoint-stage solutions of the limbs' depth branches to "
-                        "hypotheses/<k>/params.npz (1: the fit's own), their energies and differing segments in "
-                        "metrics.json (default 1: none)")
+                        "hypotheses/<k>/params.npz (1: the keypoint stage's best, where the silhouette stage starts), "
+                        "their energies and differing segments in metrics.json (default 1: none)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bars")

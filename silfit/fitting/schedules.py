@@ -21,7 +21,7 @@ ALL = ("betas",) + POSE
 HANDS = ("left_hand_pose", "right_hand_pose")
 FACE = ("jaw_pose", "expression")
 #: the keypoint stage's limb-branch search (:mod:`silfit.fitting.branches`)
-BRANCHES = {"branches": {"min_depth_ratio": 0.3, "whole_limbs": True, "screen_after": 10, "survivors": 3}}
+BRANCHES = {"branches": {"min_depth_ratio": 0.3, "whole_limbs": True, "joint": False, "screen_after": 10, "survivors": 3}}
 
 #: single image (and the per-frame start of a video), SMPL: :class:`~silfit.fitting.keypoint_stage.KeypointFitConfig`
 KEYPOINT_SCHEDULE = (
