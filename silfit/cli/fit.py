@@ -112,8 +112,9 @@ def run(args) -> int:
 
 def _run_people(args) -> int:
     """``--people all``: detect every person once, build every person's job (a bad flag or input
-    stops here, before anything is written), fit them all, then write ``OUT/person_<i>/`` and
-    ``OUT/people.json`` as one folder (atomic: a failure leaves no output)."""
+    stops here, before anything is written), fit them as one batch (a person that fails is set aside
+    with a warning; all failing is an error), then write ``OUT/person_<i>/`` and ``OUT/people.json``
+    as one folder (atomic: a failure leaves no output)."""
     import copy
     import json
 
@@ -126,7 +127,7 @@ def _run_people(args) -> int:
     from ..detect import DetectConfig
     from ..detect.output import detect_photo
     from ..outfolder import atomic_folder
-    from ..run import check, run as run_job, write
+    from ..run import check, run_batch, write
     from .jobs import build_job, describe_inputs
 
     exports = export_formats(args)
@@ -149,18 +150,27 @@ def _run_people(args) -> int:
                 warn(f"person {i}: {warning}")
             print(f"person {i}: {describe_inputs(checked)}")
         return 0
-    fits = [run_job(job) for job in jobs]
+    # one batch through the one path (silfit.run.run_batch): a person whose keypoints are refused or whose fit
+    # fails is set aside with a warning (its row in people.json says why), as a rig sets a view aside
+    results = run_batch(jobs, isolate=True)
+    failed = {i: getattr(r, "error", r) for i, r in enumerate(results) if isinstance(r, Exception)}
+    if len(failed) == len(results):
+        raise next(iter(failed.values()))
+    fits = {i: r for i, r in enumerate(results) if i not in failed}
 
     def save():
         with atomic_folder(out, args.overwrite) as tmp:
-            for i, fit in enumerate(fits):
+            for i, fit in fits.items():
                 write(fit, tmp / f"person_{i}", exports=exports, meshes=args.meshes, video=not args.no_video, fps=args.fps)
-            rows = [{"person": i, "folder": f"person_{i}", "status": 0} for i in range(len(fits))]
+            rows = [{"person": i, "folder": f"person_{i}", "status": "ok"} if i in fits else
+                    {"person": i, "folder": None, "status": "failed", "error": str(failed[i])} for i in range(len(results))]
             (tmp / "people.json").write_text(json.dumps({"image": args.image, "people": rows}, indent=2))
 
     save_leaving_nothing_on_error(out, save)
-    for i, fit in enumerate(fits):
+    for i, fit in fits.items():
         print(f"wrote {out / f'person_{i}'}: {fit.summary()}")
         for warning in fit.warnings:
             warn(f"person {i}: {warning}")
+    for i, err in failed.items():
+        warn(f"person {i} set aside: {err}")
     return 0

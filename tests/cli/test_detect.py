@@ -195,3 +195,30 @@ def test_a_16_bit_greyscale_photo_is_read_and_a_cmyk_one_refused(tmp_path, capsy
     assert main(["detect", str(tmp_path / "cmyk.jpg"), "--out", str(tmp_path / "det2"), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "cmyk.jpg: image is in CMYK" in err and not (tmp_path / "det2").exists()
+
+
+def test_a_person_that_fails_is_set_aside_and_the_others_written(tmp_path, capsys, monkeypatch):
+    """``--people all`` fits the people as one batch (silfit.run.run_batch): a person whose keypoints are refused
+    is set aside with a warning and a failed row in people.json; the others are written."""
+    import silfit.run as run_module
+    from silfit.errors import InputError
+
+    a = np.asarray(Image.open(SUBJECT / "image.png"))
+    b = np.asarray(Image.open(SUBJECT.parent / "subject_004" / "image.png"))
+    image = tmp_path / "two.png"
+    Image.fromarray(np.concatenate([a, b], axis=1)).save(image)
+    real, calls = run_module.check, []
+
+    def refusing(job):  # the second person's keypoints refused, as check() refuses a degenerate set
+        calls.append(job)
+        if len(calls) == 2:
+            raise InputError(str(image), "too few confident keypoints (test)", field="keypoints")
+        return real(job)
+
+    monkeypatch.setattr(run_module, "check", refusing)
+    out = tmp_path / "fits"
+    assert main(["fit", "--image", str(image), "--people", "all", "--no-silhouette", "--out", str(out), "--quiet"]) == 0
+    rows = json.loads((out / "people.json").read_text())["people"]
+    assert [r["status"] for r in rows] == ["ok", "failed"] and "too few confident keypoints" in rows[1]["error"]
+    assert (out / "person_0" / "params.npz").is_file() and not (out / "person_1").exists()
+    assert "person 1 set aside" in capsys.readouterr().err
