@@ -19,8 +19,9 @@
   :data:`GUARD_REPROJECTION_RISE` times the keypoint stage's, |betas| beyond
   :data:`MAX_ABS_BETA`, a stature outside :data:`STATURE_RANGE_M`, each only where the keypoint
   fit was not already so), it says to keep the keypoint fit, with a warning. It takes numbers
-  (:func:`fit_summary` makes them) and holds no model; only the image path calls it
-  (:func:`silfit.image_fit.refine_batch`): rigs and videos are not guarded yet.
+  (:func:`fit_summary` makes them) and holds no model; images (:func:`silfit.image_fit.refine_batch`),
+  rigs (:func:`silfit.rig_pipeline.refine_rig_fits`) and videos
+  (:func:`silfit.fitting.sequence.refine_sequence_silhouettes`) all call it.
 * :func:`mask_warnings`: a mask that runs out of the image (the person cut off);
   :func:`ambiguity_warnings`: a depth branch the keypoints cannot decide.
 """

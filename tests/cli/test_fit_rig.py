@@ -165,3 +165,18 @@ def test_a_whole_body_rig_video_fits_hands_and_face_over_frames_and_views(tmp_pa
     assert str(p["model"]) == "smplx" and str(p["coordinates"]) == "world" and p["keypoints_2d"].shape == (2, 2, 137, 2)
     assert p["left_hand_pose"].shape == (2, 45) and np.abs(p["left_hand_pose"]).max() > 0.05
     assert np.nanmax(p["reprojection_error"]) < 3.0
+
+
+def test_a_rig_fit_the_silhouette_stage_made_less_plausible_keeps_the_keypoint_fit(rigs, tmp_path, capsys, monkeypatch):
+    """The plausibility guard (silfit.plausibility.silhouette_guard) holds for rigs as for one image."""
+    import silfit.plausibility as plausibility
+
+    def implausible(before, after, where=""):
+        return plausibility.GuardDecision("keypoints", ("stature 2.40 m",), (f"{where}: made the fit less plausible: kept the keypoint fit",))
+
+    monkeypatch.setattr(plausibility, "silhouette_guard", implausible)
+    out = tmp_path / "fit"
+    assert main(["fit", "--rig", str(rigs / "subject_000"), "--out", str(out), "--quiet"] + SIL) == 0, capsys.readouterr().err
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["silhouette_guard"]["kept"] == "keypoints" and any("kept the keypoint fit" in w for w in m["warnings"])
+    assert "iou" not in m["views"]["view_0"] and not (out / "stages").exists()  # the keypoint stage's fit is the fit

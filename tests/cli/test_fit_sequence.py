@@ -294,3 +294,29 @@ def test_a_rig_video_is_synthesised_fitted_over_every_view_and_rendered(sequence
     assert (tmp_path / "r" / "view_front.gif").is_file()
     assert main(["fit", "--rig", str(rig), "--sequence", str(rig), "--out", str(tmp_path / "y")]) == 2
     assert "a rig video is --rig DIR alone" in capsys.readouterr().err
+
+
+def test_a_video_the_silhouette_stage_made_less_plausible_keeps_the_keypoint_fit(sequence, tmp_path, capsys, monkeypatch):
+    """The plausibility guard (silfit.plausibility.silhouette_guard) holds for videos as for one image: a refined fit
+    judged less plausible is not kept, and the warning says so."""
+    import silfit.plausibility as plausibility
+
+    seq, model = sequence
+    real, seen = plausibility.silhouette_guard, []
+
+    def implausible(before, after, where=""):
+        seen.append(where)
+        decision = real(before, after, where)
+        return plausibility.GuardDecision("keypoints", ("stature 2.40 m",), (f"{where}: made the fit less plausible: kept the keypoint fit",)) \
+            if where == "video" else decision
+
+    monkeypatch.setattr(plausibility, "silhouette_guard", implausible)
+    args = ["fit", "--sequence", str(seq), "--model", str(model), "--no-video", "--quiet", "--sequence-iterations", "5",
+            "--silhouette-resolutions", "32", "--silhouette-iterations", "2"]  # fmt: skip
+    assert main(args + ["--out", str(tmp_path / "kp"), "--no-silhouette"]) == 0
+    assert main(args + ["--out", str(tmp_path / "fit")]) == 0, capsys.readouterr().err
+    assert "video" in seen
+    m = json.loads((tmp_path / "fit" / "metrics.json").read_text())
+    assert any("kept the keypoint fit" in w for w in m["warnings"]) and "silhouette_iou" not in m
+    a, b = (np.load(tmp_path / d / "params.npz") for d in ("kp", "fit"))
+    np.testing.assert_array_equal(a["body_pose"], b["body_pose"])  # the keypoint stage's fit, unchanged
