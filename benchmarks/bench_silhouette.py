@@ -1,6 +1,7 @@
 """The silhouette stage before and after issue 24, measured in one run; prints Markdown tables.
 
-"before" is :meth:`SilhouetteFitConfig.legacy` (rendered Adam levels only: 60 steps at
+"original" is the stage as issue 24 found it (:meth:`SilhouetteFitConfig.legacy` rendered with Mitsuba's
+``prb_projective``); "before" is :meth:`SilhouetteFitConfig.legacy` (rendered Adam levels only: 60 steps at
 128 px, 50 at 256 px); "after" is the default (a contour level: L-BFGS on the contour
 surrogate, no rendering, then a short rendered level). Both start from the same keypoint
 fits of fresh synthetic subjects (``--seed``; not the seeds the defaults were tuned on:
@@ -45,7 +46,8 @@ import torch
 from silfit import load_body_model
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig, fit_silhouette, fit_silhouette_problems
 
-METHODS = {"before": SilhouetteFitConfig.legacy, "after": SilhouetteFitConfig, "head": SilhouetteFitConfig,
+METHODS = {"original": SilhouetteFitConfig.legacy, "before": SilhouetteFitConfig.legacy, "after": SilhouetteFitConfig,
+           "head": SilhouetteFitConfig,
            "after-2t": SilhouetteFitConfig, "after-stratified": SilhouetteFitConfig,
            "head-s1": lambda: SilhouetteFitConfig(seed=1), "after-s1": lambda: SilhouetteFitConfig(seed=1)}  # fmt: skip
 #: the renderer per method (``None``: the stage's default, the ray-cast method since issue 24's second part):
@@ -54,7 +56,7 @@ METHODS = {"before": SilhouetteFitConfig.legacy, "after": SilhouetteFitConfig, "
 #: ``after-stratified`` with stratified pixel samples and evenly spaced edge points (lower noise, same expectation;
 #: measured worse on a 4-view rig: the stage's Adam settings were tuned with independent samples' noise);
 #: ``*-s1``: the renderer's base seed 1 instead of 0 (the spread a seed alone gives)
-RENDERERS = {"head": {"method": "projective"}, "head-s1": {"method": "projective"}, "after-2t": {"threads": 2},
+RENDERERS = {"original": {"method": "projective"}, "head": {"method": "projective"}, "head-s1": {"method": "projective"}, "after-2t": {"threads": 2},
              "after-stratified": {"sampler": "stratified", "edge_sampling": "systematic"}}  # fmt: skip
 
 
