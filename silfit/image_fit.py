@@ -39,7 +39,7 @@ from .fitting.result import KeypointFitResult
 from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult
 from .keypoints import KeypointSet, model_keypoints
 from .outfolder import atomic_folder
-from .plausibility import ambiguity_warnings, body_stature, fit_summary, fit_warnings, mask_warnings, silhouette_guard
+from .plausibility import ambiguity_warnings, fit_warnings, guard_fit, mask_warnings
 from .eval.metrics import mask_iou
 from .silhouette.masks import validate_mask
 
@@ -133,19 +133,11 @@ def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources):
 
 
 def _guard(model, start: dict, params: dict, keypoints: KeypointSet, camera: Camera, kp2d: np.ndarray, where: str):
-    """:func:`~silfit.plausibility.silhouette_guard` of one refined fit against the keypoint fit
-    ``start`` it began from (reprojection error, |betas|, stature)."""
+    """:func:`~silfit.plausibility.guard_fit` of one refined fit against the keypoint fit ``start`` it
+    began from (median reprojection error, |betas|, stature)."""
     _, _, kp2d_start = _pose(model, start, keypoints.layout, camera)
-
-    def stature(p):
-        try:
-            return body_stature(model, p["betas"])
-        except (AttributeError, KeyError, RuntimeError):  # a model without a shape space of that form
-            return None
-
-    before = fit_summary(_median_reprojection(kp2d_start, keypoints), start.get("betas"), stature(start))
-    after = fit_summary(_median_reprojection(kp2d, keypoints), params.get("betas"), stature(params))
-    return silhouette_guard(before, after, where)
+    return guard_fit(model, _median_reprojection(kp2d_start, keypoints), start.get("betas"),
+                     _median_reprojection(kp2d, keypoints), params.get("betas"), where)  # fmt: skip
 
 
 def refine(

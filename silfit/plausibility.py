@@ -37,7 +37,7 @@ from .keypoints import KeypointSet
 
 __all__ = [
     "GuardDecision", "ambiguity_warnings", "body_stature", "branch_gap", "check_frames", "check_keypoints", "fit_summary",
-    "fit_warnings", "hypothesis_summary", "hypothesis_warnings", "mask_warnings", "person_extent", "reprojection_rise_warnings",
+    "fit_warnings", "guard_fit", "hypothesis_summary", "hypothesis_warnings", "mask_warnings", "person_extent", "reprojection_rise_warnings",
     "shape_warnings", "silhouette_guard",
 ]  # fmt: skip
 
@@ -337,6 +337,23 @@ def _implausible(s: dict) -> dict:
     if h is not None and not STATURE_RANGE_M[0] <= h <= STATURE_RANGE_M[1]:
         out["stature"] = f"stature {h:.2f} m (outside {STATURE_RANGE_M[0]:g}-{STATURE_RANGE_M[1]:g} m)"
     return out
+
+
+def guard_fit(model, before_px, before_betas, after_px, after_betas, where: str = "") -> GuardDecision:
+    """:func:`silhouette_guard` of a refined fit against the keypoint fit it started from, given their
+    median reprojection errors and shapes (statures from ``model``'s shape space, :func:`body_stature`;
+    ``None`` for a model without one of that form): the one call images, rigs and videos make."""
+
+    def stature(betas):
+        if betas is None:
+            return None
+        try:
+            return body_stature(model, betas)
+        except (AttributeError, KeyError, RuntimeError):
+            return None
+
+    return silhouette_guard(fit_summary(before_px, before_betas, stature(before_betas)),
+                            fit_summary(after_px, after_betas, stature(after_betas)), where)  # fmt: skip
 
 
 def silhouette_guard(keypoint_fit: dict, refined: dict, where: str = "") -> GuardDecision:

@@ -345,16 +345,3 @@ def ring_layout(n: int, radius: float, heights=None, target=(0.0, 0.0, 0.0), sta
         centre = np.array([radius * math.sin(a), -heights[i], -radius * math.cos(a)]) + np.asarray(target, float)
         out.append(look_at(centre, target))
     return out
-
-
-#: names that moved to :mod:`silfit.video` (rig videos are read there; issue 26), kept here for
-#: callers: resolved on first use (PEP 562), so ``silfit.rig`` does not import ``silfit.video``
-_MOVED_TO_VIDEO = ("RigSequence", "is_rig_video", "load_rig_sequence")
-
-
-def __getattr__(name: str):
-    if name in _MOVED_TO_VIDEO:
-        from . import video
-
-        return getattr(video, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -171,7 +171,7 @@ def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool =
 
     from .fitting.silhouette_stage import fit_silhouette_problems
     from .keypoints import model_keypoints
-    from .plausibility import mask_warnings
+    from .plausibility import guard_fit, mask_warnings
     from .rig import project_world
 
     faces = model.faces.cpu().numpy()
@@ -206,7 +206,8 @@ def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool =
             errs.append(float(np.median(np.linalg.norm(uv - o.keypoints.xy, axis=1)[ok])) if ok.any() else float("nan"))
         # the plausibility guard, as for one image (silfit.plausibility.silhouette_guard): a refined fit less
         # plausible than the keypoint fit it started from is not kept
-        guard = _guard(model, kp.params, params, b.metrics["reprojection_error_px"], float(np.nanmedian(errs)))
+        guard = guard_fit(model, b.metrics["reprojection_error_px"], kp.params.get("betas"), float(np.nanmedian(errs)),
+                          params.get("betas"), "rig")  # fmt: skip
         if guard.reverted and getattr(config, "plausibility_guard", True):
             b.metrics["warnings"] = list(b.metrics["warnings"]) + list(sil.warnings) + list(guard.warnings)
             b.metrics["silhouette_guard"] = {"kept": "keypoints", "less_plausible": list(guard.reasons)}
@@ -231,16 +232,6 @@ def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool =
         metrics["timings"]["silhouette"] = float(sil.seconds)
         out.append(RigResult(list(names), params, vertices, body.joints[0].numpy().astype(np.float32), kp, sil, metrics, masks))
     return out
-
-
-def _guard(model, start: dict, params: dict, before_px: float, after_px: float):
-    """:func:`~silfit.plausibility.silhouette_guard` of a refined rig fit against its keypoint fit
-    (median reprojection error over the views, |betas|, stature)."""
-    from .plausibility import body_stature, fit_summary, silhouette_guard
-
-    stature = lambda q: body_stature(model, q["betas"]) if q.get("betas") is not None else None  # noqa: E731
-    return silhouette_guard(fit_summary(before_px, start.get("betas"), stature(start)),
-                            fit_summary(after_px, params.get("betas"), stature(params)), "rig")  # fmt: skip
 
 
 def save_rig_fit(result: RigResult, out: Union[str, os.PathLike], faces: np.ndarray, problem, images=None,

@@ -347,7 +347,7 @@ def _run_video(job: Job) -> Fit:
     (:func:`~silfit.fitting.sequence.fit_sequence`) and, where masks exist, its silhouette stage."""
     import torch
 
-    from .fitting.sequence import SequenceFitConfig, fit_sequence, refine_sequence_silhouettes
+    from .fitting.sequence import SequenceFitConfig, finite_median, fit_sequence, refine_sequence_silhouettes
 
     grid = job.problem.grid()
     rig = job.rig or len(grid[0]) > 1
@@ -377,7 +377,7 @@ def _run_video(job: Job) -> Fit:
         warnings += disagreeing_views(list(job.view_names), medians)
     else:
         warnings += frame_warnings(frames, vertices, errors[:, 0], numbers)
-    metrics = {"reprojection_error_px": _finite_median(errors), "warnings": _dedupe(warnings),
+    metrics = {"reprojection_error_px": finite_median(errors), "warnings": _dedupe(warnings),
                "silhouette": "run" if silhouette else "not run", "bridged_count": int(np.sum(result.bridged)),
                "seconds_per_frame": float(result.timings["seconds_per_frame"])}  # fmt: skip
     if silhouette and getattr(result, "silhouette_iou_start", None) is not None:  # the summary's "IoU a -> b"
@@ -385,12 +385,6 @@ def _run_video(job: Job) -> Fit:
     result.warnings = metrics["warnings"]
     return Fit(job, _params_per_frame(params, F), _arr(vertices), _arr(result.joints),
                _arr(result.keypoints_2d).reshape(F, C, -1, 2), errors, iou, "world" if rig else "camera", metrics, result)  # fmt: skip
-
-
-def _finite_median(values) -> Optional[float]:
-    a = np.asarray(values, dtype=np.float64)
-    a = a[np.isfinite(a)]
-    return float(np.median(a)) if a.size else None
 
 
 def frame_warnings(frames, vertices, errors, numbers) -> List[str]:

@@ -73,7 +73,7 @@ def test_save_fit_leaves_nothing_when_a_write_fails(open_model, subject, tmp_pat
 def test_the_guard_keeps_the_keypoint_fit_when_the_silhouette_fit_is_less_plausible(open_model, subject, monkeypatch):
     """Issue 23's plausibility guard, wired in refine_batch: a refined fit the guard finds less
     plausible is replaced by the keypoint fit, with the guard's warning in the metrics."""
-    import silfit.image_fit as pipeline
+    import silfit.plausibility as pipeline
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
     from silfit.plausibility import GuardDecision
 

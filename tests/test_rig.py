@@ -272,16 +272,3 @@ def test_a_rig_video_aligns_each_views_frames_by_number(tmp_path, layout):
             p.unlink()
         (tmp_path / "cam2" / "keypoints").rmdir()
         load_rig_sequence(tmp_path)
-
-
-def test_rig_video_names_stay_importable_from_silfit_rig():
-    """``silfit.rig.load_rig_sequence`` / ``is_rig_video`` / ``RigSequence`` moved to silfit.video; the
-    old names still resolve to the same objects (public API kept)."""
-    import silfit.rig
-    import silfit.video
-    from silfit.rig import RigSequence, is_rig_video, load_rig_sequence
-
-    assert (RigSequence, is_rig_video, load_rig_sequence) == (silfit.video.RigSequence, silfit.video.is_rig_video,
-                                                             silfit.video.load_rig_sequence)  # fmt: skip
-    with pytest.raises(AttributeError):
-        silfit.rig.no_such_name  # noqa: B018

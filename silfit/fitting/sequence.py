@@ -674,10 +674,9 @@ def refine_sequence_silhouettes(
     timings["seconds_per_frame"] = timings["total"] / F
     # the plausibility guard, as for one image (silfit.plausibility.silhouette_guard): a refined fit less plausible
     # than the keypoint fit it started from (median reprojection error over the frames, |betas|, stature) is not kept
-    from ..plausibility import body_stature, fit_summary, silhouette_guard
+    from ..plausibility import guard_fit
 
-    guard = silhouette_guard(fit_summary(finite_median(result.reprojection_error), result.betas, body_stature(model, result.betas)),
-                             fit_summary(finite_median(reproj), betas, body_stature(model, betas)), "video")  # fmt: skip
+    guard = guard_fit(model, finite_median(result.reprojection_error), result.betas, finite_median(reproj), betas, "video")
     if guard.reverted and getattr(cfg, "plausibility_guard", True):
         return replace(result, timings=timings, warnings=list(result.warnings) + list(sil.warnings) + list(guard.warnings))
     out = replace(result, betas=betas, body_pose=np.asarray(p["body_pose"], np.float32),
