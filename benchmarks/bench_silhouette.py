@@ -21,14 +21,19 @@ silhouette stage + windows/targets), rendered steps and contour iterations per c
 full-image mask IoU (the fit rendered with pyrender/OSMesa against the mask; mean over
 views for rigs), PVE (root-aligned) and PA-PVE in mm against the truth.
 
-Renderer methods (issue 24, second part): ``head`` is the default schedule rendered with Mitsuba's
-``prb_projective`` integrator (the renderer at the commit before the ray-cast method); ``after`` uses the
-ray-cast renderer (:mod:`renderers.raycast`); ``after-2t``, ``after-stratified``, ``*-s1``: see ``RENDERERS``.
+``head`` is the stage at main before issue 24's third part (``HEAD``: the ray-cast renderer, a short contour
+level, 65 rendered steps, the full mesh posed each step); ``after`` is the default (a longer contour level at
+higher weights, 50 rendered steps, the render proxy posed directly); ``head-projective`` is ``head`` rendered with
+Mitsuba's ``prb_projective`` integrator; ``after-2t``, ``after-stratified``, ``*-s1``: see ``RENDERERS``.
+``--video 60``: one 60-frame synthetic walk through the sequence's stage (``refine_sequence_silhouettes``: all
+frames one problem), seconds per frame (methods with their own renderer are skipped there).
 Methods run interleaved per subject; ``--base`` names the row the ratios are taken against.
 
 The machine is shared: compare the rows of one run (ratios), not runs.
 
     python benchmarks/bench_silhouette.py --single 6 --rig 4 --methods head,after --base head
+    python benchmarks/bench_silhouette.py --single 8 --rig 3 --video 60 --methods original,head,after \
+        --video-methods head,after --base original --seed 9700
 
     python benchmarks/bench_silhouette.py --single 30 --rig 10 --seed 9100
     python benchmarks/bench_silhouette.py --single 4 --seed 9100 --methods after   # a quick look
@@ -38,6 +43,7 @@ from __future__ import annotations
 import argparse
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -46,17 +52,21 @@ import torch
 from silfit import load_body_model
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig, fit_silhouette, fit_silhouette_problems
 
+#: the stage at main before issue 24's third part (a 20-iteration contour level at weights 0.05, then 40 + 25
+#: rendered steps, the full mesh posed each step and mapped to the render proxy)
+HEAD = {"iterations": (40, 25), "contour_iterations": 20, "w_contour_inside": 0.05, "w_contour_cover": 0.05,
+        "proxy_body": False}  # fmt: skip
 METHODS = {"original": SilhouetteFitConfig.legacy, "before": SilhouetteFitConfig.legacy, "after": SilhouetteFitConfig,
-           "head": SilhouetteFitConfig,
+           "head": lambda: SilhouetteFitConfig(**HEAD), "head-projective": lambda: SilhouetteFitConfig(**HEAD),
            "after-2t": SilhouetteFitConfig, "after-stratified": SilhouetteFitConfig,
-           "head-s1": lambda: SilhouetteFitConfig(seed=1), "after-s1": lambda: SilhouetteFitConfig(seed=1)}  # fmt: skip
+           "head-s1": lambda: SilhouetteFitConfig(**HEAD, seed=1), "after-s1": lambda: SilhouetteFitConfig(seed=1)}  # fmt: skip
 #: the renderer per method (``None``: the stage's default, the ray-cast method since issue 24's second part):
-#: ``head`` is the default schedule rendered with Mitsuba's ``prb_projective`` (the renderer before the ray-cast
+#: ``original`` and ``head-projective`` render with Mitsuba's ``prb_projective`` (the renderer before the ray-cast
 #: method), ``after-2t`` the ray-cast method with two Dr.Jit threads (bit-identical results, other timing),
 #: ``after-stratified`` with stratified pixel samples and evenly spaced edge points (lower noise, same expectation;
 #: measured worse on a 4-view rig: the stage's Adam settings were tuned with independent samples' noise);
 #: ``*-s1``: the renderer's base seed 1 instead of 0 (the spread a seed alone gives)
-RENDERERS = {"original": {"method": "projective"}, "head": {"method": "projective"}, "head-s1": {"method": "projective"}, "after-2t": {"threads": 2},
+RENDERERS = {"original": {"method": "projective"}, "head-projective": {"method": "projective"}, "after-2t": {"threads": 2},
              "after-stratified": {"sampler": "stratified", "edge_sampling": "systematic"}}  # fmt: skip
 
 
@@ -246,6 +256,51 @@ def run_kornia(size=512, repeats=5):
     print(f"| kornia.contrib.distance_transform {kornia.__version__} | {t_k:.1f} | {err.max():.1f} | {err.mean():.2f} |")
 
 
+def run_video(model, frames, seed, size, methods):
+    """One synthetic walk of ``frames`` frames: the temporal keypoint fit, then the sequence's silhouette
+    stage (:func:`silfit.fitting.sequence.refine_sequence_silhouettes`: one problem of all frames, one shape)
+    per method; seconds per frame of the stage, silhouette IoU, PA-MPJPE and acceleration error."""
+    from silfit.camera import load_camera
+    from silfit.eval.score_sequence import score_sequence
+    from silfit.fitting.sequence import fit_sequence, refine_sequence_silhouettes
+    from silfit.silhouette.masks import read_mask
+    from silfit.synth.motion import SequenceConfig, generate_sequence_dataset
+    from silfit.video import read_sequence
+
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        generate_sequence_dataset(root, 1, SequenceConfig(seed=seed, frames=frames, size=size, noise_px=2.0,
+                                                          drop_prob=0.1), model=model)  # fmt: skip
+        d = root / "seq_000"
+        seq = read_sequence(d)
+        cam = load_camera(d / "camera.json")
+        gt = dict(np.load(d / "gt.npz"))
+        masks = [read_mask(seq.masks[n]) for n in seq.numbers]
+    t = time.perf_counter()
+    fit = fit_sequence(seq.frames, cam, model)
+    kp_seconds = (time.perf_counter() - t) / frames
+    rows = {"keypoints only": {**score_sequence(model, gt, fit.params()), "stage": 0.0, "iou": float("nan")}}
+    for name in methods:
+        if name in RENDERERS:  # refine_sequence_silhouettes renders with the stage's default renderer only
+            print(f"video: {name} skipped (its renderer is not the stage's default)", flush=True)
+            continue
+        t = time.perf_counter()
+        r = refine_sequence_silhouettes(model, fit, seq.frames, masks, config=METHODS[name]())
+        dt = time.perf_counter() - t
+        rows[name] = {**score_sequence(model, gt, r.params()), "stage": dt / frames,
+                      "iou": float(np.nanmean(r.silhouette_iou))}  # fmt: skip
+        print(f"video: {name} done ({dt:.0f} s)", flush=True)
+    print(f"\n### Video: one {frames}-frame walk, {size} px, seed {seed} (keypoint fit {kp_seconds:.2f} s/frame)\n")
+    print("| method | s/frame stage (in-process) | silhouette IoU (window) | PA-MPJPE mm | acceleration error mm/frame^2 | "
+          "shape error mm |")
+    print("|---|---:|---:|---:|---:|---:|")
+    base = rows.get(BASE)
+    for name, r in rows.items():
+        ratio = f" ({base['stage'] / r['stage']:.2f}x)" if base and r["stage"] > 0 else ""
+        print(f"| {name} | {r['stage']:.2f}{ratio} | {r['iou']:.4f} | {r['pa_mpjpe']:.1f} | {r['accel']:.1f} | {r['shape']:.1f} |")
+    return rows
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--single", type=int, default=0, help="single-image subjects")
@@ -254,6 +309,9 @@ def main(argv=None):
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--methods", default="before,after", help="comma-separated: " + ", ".join(METHODS))
     ap.add_argument("--base", default="before", help="the method the ratios are taken against")
+    ap.add_argument("--video", type=int, default=0, metavar="FRAMES",
+                    help="a synthetic walk of FRAMES frames (60: the issue's video case) through the sequence's stage")
+    ap.add_argument("--video-methods", default=None, help="methods of the video case (default: --methods)")
     ap.add_argument("--kornia", action="store_true", help="also time kornia's distance transform against OpenCV's")
     args = ap.parse_args(argv)
     global BASE
@@ -268,6 +326,9 @@ def main(argv=None):
         run_single(model, args.single, args.seed, args.size, methods)
     if args.rig:
         run_rig(model, args.rig, args.seed + 1, args.size, methods)
+    if args.video:
+        vm = [m for m in (args.video_methods or args.methods).split(",") if m]
+        run_video(model, args.video, args.seed + 2, args.size, vm)
     if args.kornia:
         run_kornia(args.size)
 

@@ -66,11 +66,11 @@ SIL_ADAM = {"lr": {"betas": 0.1, "global_orient": 0.02, "body_pose": 0.03, "tran
 #: contour level; each rendered level's window has ``resolution`` pixels along its longer side)
 SILHOUETTE_SCHEDULE = (
     #     name              free      weights                                                     iterations optimiser
-    Stage("contour",        SIL_FREE, {"contour_inside": 0.05, "contour_cover": 0.05, **SIL_PRIORS}, 20, "lbfgs",
+    Stage("contour",        SIL_FREE, {"contour_inside": 0.2, "contour_cover": 0.2, **SIL_PRIORS},   40, "lbfgs",
           {"resolution": 256}),
-    Stage("silhouette_128", SIL_FREE, {"silhouette": 1.0, **SIL_PRIORS},                             40, "adam",
+    Stage("silhouette_128", SIL_FREE, {"silhouette": 1.0, **SIL_PRIORS},                             30, "adam",
           {"resolution": 128, **SIL_ADAM}),
-    Stage("silhouette_256", SIL_FREE, {"silhouette": 1.0, **SIL_PRIORS},                             25, "adam",
+    Stage("silhouette_256", SIL_FREE, {"silhouette": 1.0, **SIL_PRIORS},                             20, "adam",
           {"resolution": 256, **SIL_ADAM}),
 )  # fmt: skip
 

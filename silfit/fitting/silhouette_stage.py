@@ -79,17 +79,17 @@ class SilhouetteFitConfig:
     """Settings of the silhouette stage (defaults tuned on the synthetic set)."""
 
     resolutions: tuple = (128, 256)  # window's longer side in pixels, per rendered level
-    iterations: tuple = (40, 25)  # Adam steps per rendered level (upper bounds: plateaus stop earlier)
+    iterations: tuple = (30, 20)  # Adam steps per rendered level (upper bounds: plateaus stop earlier)
     #: L-BFGS iterations of the contour level (no rendering: :class:`ContourInsideTerm` and
     #: :class:`ContourCoverTerm`) run before the rendered levels; 0: none (:meth:`legacy`)
-    contour_iterations: int = 20
+    contour_iterations: int = 40
     contour_resolution: int = 256  # the contour level's window (its distance transform's pixels)
     contour_points: int = 256  # mask outline points per observation in the contour level
     #: surface points the contour level poses and projects (model vertices spread over the
     #: surface, :func:`contour_vertex_index`); ``None``: all (the render proxy's, if any)
     contour_vertices: Optional[int] = 2000
-    w_contour_inside: float = 0.05
-    w_contour_cover: float = 0.05
+    w_contour_inside: float = 0.2
+    w_contour_cover: float = 0.2
     spp: int = 4  # primal samples per pixel
     edge_spp: int = 1  # visibility-edge samples per pixel (projective integrator's sppp)
     margin: float = 0.12  # window margin, fraction of the box on each side
@@ -148,6 +148,10 @@ class SilhouetteFitConfig:
     #: model's, :mod:`renderers.proxy`; IoU >= 0.995 against the full mesh at 10,000 faces);
     #: ``None`` renders the full mesh
     proxy_faces: Optional[int] = 10000
+    #: pose the render proxy's vertices directly (:class:`ContourBody` of the proxy: its rest-pose mix
+    #: of the model, no full mesh per step) in the rendered levels of an SMPL-layout model; ``False``:
+    #: pose the full mesh, then map it to the proxy (before issue 24's third part)
+    proxy_body: bool = True
     #: a batch's subjects rendered together in tiles of one film (:mod:`renderers.batch`);
     #: off by default: with the deterministic one-thread renderer tiles measured no faster
     #: than one render per subject (6.8 vs 6.5 s per subject, batch of 8, this 2-core CPU)
@@ -393,23 +397,43 @@ def contour_vertex_index(model, count: int) -> np.ndarray:
 
 
 class ContourBody(torch.nn.Module):
-    """The contour level's body evaluator: the keypoint stage's reduced forward
+    """A reduced body evaluator: the keypoint stage's reduced forward
     (:class:`~silfit.fitting.body.KeypointBody`: keypoints, joints, skinning transforms)
-    plus linear blend skinning of the model vertices ``vertex_index`` only (``vertices
-    [R, len(vertex_index), 3]``), the same function of the parameters as the full mesh's
-    vertices. For SMPL-layout models (pose parameters are axis-angle rotations)."""
+    plus linear blend skinning of a few points only (``vertices [R, n, 3]``). For
+    SMPL-layout models (pose parameters are axis-angle rotations).
+
+    ``vertex_index``: model vertex indices ``[n]`` (the contour level: each point is a
+    model vertex, the same function of the parameters as the full mesh's vertices), or a
+    render proxy (:class:`renderers.proxy.RenderProxy`, the rendered levels): each point is
+    the proxy's fixed mix of model vertices taken in the rest pose (template, shape and pose
+    correctives mixed exactly, skinning weights mixed too), so the proxy's vertices are
+    posed directly, without the full mesh (its neighbours' transforms differ little: the
+    posed proxy moves well under a millimetre from the proxy of the posed mesh)."""
 
     def __init__(self, model, layout: str, vertex_index):
         super().__init__()
         self.keypoint_body = KeypointBody(model, layout)
         self.pose_names = pose_parameter_names(model)
-        idx = torch.as_tensor(np.asarray(vertex_index), dtype=torch.long)
-        self.register_buffer("v_template", model.v_template[idx])
-        self.register_buffer("shapedirs", model.shapedirs[idx])
-        self.register_buffer("lbs_weights", model.lbs_weights[idx])
+        if hasattr(vertex_index, "indices") and hasattr(vertex_index, "weights"):
+            idx = torch.as_tensor(np.asarray(vertex_index.indices), dtype=torch.long)  # [n, K]
+            w = torch.as_tensor(np.asarray(vertex_index.weights), dtype=torch.float64)
+        else:
+            idx = torch.as_tensor(np.asarray(vertex_index), dtype=torch.long)[:, None]
+            w = torch.ones(idx.shape, dtype=torch.float64)
+        dt = model.v_template.dtype
+
+        def mix(a: torch.Tensor) -> torch.Tensor:  # [V, ...] -> [n, ...]: sum_k w_k a[idx_k]
+            g = a.double()[idx.reshape(-1)].reshape(*idx.shape, *a.shape[1:])
+            return (g * w.reshape(*w.shape, *([1] * (a.ndim - 1)))).sum(1).to(dt)
+
+        self.register_buffer("v_template", mix(model.v_template))
+        self.register_buffer("shapedirs", mix(model.shapedirs))
+        self.register_buffer("lbs_weights", mix(model.lbs_weights))
         posedirs = getattr(model, "posedirs", None)
-        cols = (3 * idx[:, None] + torch.arange(3)).reshape(-1)
-        self.register_buffer("posedirs", None if posedirs is None else posedirs[:, cols])
+        if posedirs is not None:  # [P, V*3] -> [P, n*3]
+            pd = posedirs.reshape(posedirs.shape[0], -1, 3).transpose(0, 1)  # [V, P, 3]
+            posedirs = mix(pd).transpose(0, 1).reshape(posedirs.shape[0], -1).contiguous()
+        self.register_buffer("posedirs", posedirs)
 
     def forward(self, **params) -> BodyState:
         state = self.keypoint_body(**params)
@@ -681,8 +705,12 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
 
             batch = get_batch_renderer(faces)
     body = MeshBody(model, layout)
+    render_body = body  # the rendered levels' evaluator
+    smpl_layout = getattr(model, "kind", "smpl") == "smpl"
+    if proxy is not None and cfg.proxy_body and smpl_layout:
+        render_body, proxy = ContourBody(model, layout, proxy), None
     contour_body, contour_points_map = body, contour_proxy  # the contour level's evaluator and its vertices' map
-    if cfg.contour_iterations and cfg.contour_vertices and getattr(model, "kind", "smpl") == "smpl":
+    if cfg.contour_iterations and cfg.contour_vertices and smpl_layout:
         contour_body, contour_points_map = ContourBody(model, layout, contour_vertex_index(model, cfg.contour_vertices)), None
     energy = Energy([
         SilhouetteTerm(renderer, cfg.spp, cfg.edge_spp, proxy, batch), KeypointTerm("keypoints", cfg.kp_sigma),
@@ -798,7 +826,7 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
             bar.set_postfix(iou=f"{np.mean([stepped_ious[p] for p in stepped.tolist()]):.3f}", res=resolution)
             stepped_ious.clear()
 
-        return {"rows": rows, "before_step": before_step, "on_step": on_step, "after_step": after_step}
+        return {"rows": rows, "body": render_body, "before_step": before_step, "on_step": on_step, "after_step": after_step}
 
     def finish_level(level, stage, run):
         if stage.optimiser == "lbfgs":

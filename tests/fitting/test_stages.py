@@ -47,7 +47,7 @@ def test_config_is_recorded_with_its_schedule():
     s = SilhouetteFitConfig().to_dict()
     assert [st["name"] for st in s["stages"]] == ["contour", "silhouette_128", "silhouette_256"]
     assert [st["options"]["resolution"] for st in s["stages"]] == [256, 128, 256]
-    assert [st["optimiser"] for st in s["stages"]] == ["lbfgs", "adam", "adam"] and s["contour_iterations"] == 20
+    assert [st["optimiser"] for st in s["stages"]] == ["lbfgs", "adam", "adam"] and s["contour_iterations"] == 40
 
 
 # ----------------------------------------------------------------------------- the schedule runner
