@@ -273,6 +273,25 @@ def test_contour_body_poses_the_same_vertices_as_the_mesh(open_model):
     np.testing.assert_allclose(sub.keypoints.numpy(), full.keypoints.numpy(), atol=2e-4)  # landmarks: another path
 
 
+def test_proxy_body_poses_the_render_proxy(open_model):
+    """The rendered levels' evaluator (``proxy_body``): the render proxy's rest-pose mix of the
+    model, posed directly, stays within millimetres of the proxy of the posed mesh (mean well under
+    one); keypoints as the mesh's."""
+    from renderers.proxy import get_proxy
+
+    proxy = get_proxy(open_model.v_template, open_model.faces, 2000)
+    g = torch.Generator().manual_seed(4)
+    params = {"betas": torch.randn(2, 10, generator=g), "body_pose": 0.3 * torch.randn(2, 69, generator=g),
+              "global_orient": torch.randn(2, 3, generator=g), "transl": torch.randn(2, 3, generator=g)}  # fmt: skip
+    with torch.no_grad():
+        posed = ContourBody(open_model, "body25", proxy)(**params)
+        full = MeshBody(open_model, "body25")(**params)
+    gap = (posed.vertices - proxy(full.vertices)).norm(dim=-1)
+    assert posed.vertices.shape == (2, proxy.n_vertices, 3)
+    assert float(gap.mean()) < 5e-4 and float(gap.max()) < 1e-2, (float(gap.mean()), float(gap.max()))
+    np.testing.assert_allclose(posed.keypoints.numpy(), full.keypoints.numpy(), atol=2e-4)
+
+
 @pytest.mark.parametrize("robust", [False, True])
 def test_contour_level_moves_a_shifted_body_without_rendering(open_model, target_mask, robust):
     def no_renderer(*args, **kwargs):  # the contour level renders nothing
