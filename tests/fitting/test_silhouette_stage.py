@@ -260,12 +260,16 @@ from silfit.fitting.silhouette_stage import ContourBody, contour_vertex_index  #
 CONTOUR = replace(FAST, iterations=(0,), contour_iterations=15, contour_resolution=64)
 
 
+def random_params(seed: int, rows: int = 2) -> dict:
+    g = torch.Generator().manual_seed(seed)
+    return {"betas": torch.randn(rows, 10, generator=g), "body_pose": 0.3 * torch.randn(rows, 69, generator=g),
+            "global_orient": torch.randn(rows, 3, generator=g), "transl": torch.randn(rows, 3, generator=g)}  # fmt: skip
+
+
 def test_contour_body_poses_the_same_vertices_as_the_mesh(open_model):
     idx = contour_vertex_index(open_model, 500)
     assert 400 < len(idx) < 800 and np.all(np.diff(idx) > 0)
-    g = torch.Generator().manual_seed(3)
-    params = {"betas": torch.randn(2, 10, generator=g), "body_pose": 0.3 * torch.randn(2, 69, generator=g),
-              "global_orient": torch.randn(2, 3, generator=g), "transl": torch.randn(2, 3, generator=g)}  # fmt: skip
+    params = random_params(3)
     with torch.no_grad():
         sub = ContourBody(open_model, "body25", idx)(**params)
         full = MeshBody(open_model, "body25")(**params)
@@ -280,9 +284,7 @@ def test_proxy_body_poses_the_render_proxy(open_model):
     from renderers.proxy import get_proxy
 
     proxy = get_proxy(open_model.v_template, open_model.faces, 2000)
-    g = torch.Generator().manual_seed(4)
-    params = {"betas": torch.randn(2, 10, generator=g), "body_pose": 0.3 * torch.randn(2, 69, generator=g),
-              "global_orient": torch.randn(2, 3, generator=g), "transl": torch.randn(2, 3, generator=g)}  # fmt: skip
+    params = random_params(4)
     with torch.no_grad():
         posed = ContourBody(open_model, "body25", proxy)(**params)
         full = MeshBody(open_model, "body25")(**params)
