@@ -121,7 +121,7 @@ class SilhouetteFitConfig:
     #: ``hole_fraction`` of its area (segmentation gaps) are unknown, like the pixels beyond the
     #: image (:func:`~silfit.silhouette.losses.unknown_regions`; image path:
     #: silfit.image_fit.refine_batch); 0: off
-    leak_distance: float = 0.06
+    leak_distance: float = 0.03
     hole_fraction: float = 0.02
     #: after the stage, a fit less plausible than the keypoint fit (silfit.plausibility.silhouette_guard)
     #: is replaced by the keypoint fit, with a warning (image path: silfit.image_fit.refine_batch)
