@@ -12,7 +12,7 @@ the detector finds; their count is in the header). Each subject is fitted once b
 then by the silhouette stage per method: *original* (before issue 23: ``truncation_aware=False``,
 no keypoint trust region, no bound on |beta|, the plain two-sided energy), *before* (issue 23's
 first part, the plain energy, no clothing trim, no plausibility guard: HEAD before the second
-part) and *after* (the defaults: the robust, capped mask-not-covered side, the clothing trim and
+part) and *after* (the defaults: the robust, capped mask-not-covered side, the clothing trim, leaks and small holes unknown and
 the plausibility guard), *main* (the defaults before issue 23's third part: no leak or hole
 set aside as unknown, ``leak_distance=0, hole_fraction=0``); ``--methods`` picks them, ``--set`` changes the after configuration
 (tuning). The last column counts the subjects whose mask was trimmed as clothing and those
