@@ -73,7 +73,8 @@ def _short(warning: str) -> str:
     keys = [("kept the keypoint fit", "guard: kept kp fit"), ("person cut off", "cut off"), ("trimmed by", "clothing trimmed"),
             ("runs out of the image", "cut off"), ("lower body not visible", "lower body hidden"),
             ("depth ambiguous", "depth ambiguous"), ("moved the body away", "reprojection rise"),
-            ("implausible body shape", "|betas| > 3"), ("IoU", "low IoU")]  # fmt: skip
+            ("implausible body shape", "|betas| > 3"), ("far from the keypoint fit's body", "leak ignored"),
+            ("IoU", "low IoU")]  # fmt: skip
     for key, text in keys:
         if key in warning:
             return text

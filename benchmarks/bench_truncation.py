@@ -5,18 +5,22 @@ Subjects from silfit's generator (fully visible, all yaws) under four conditions
 hips and knees removed: mask, keypoints below the cut at confidence 0, the same camera with a
 shorter image); ``clothing``: the mask dilated by 4 % of the person's height (loose clothes,
 hair); ``leak``: a block as wide as 30 % of the person's height joined to the mask's side at the
-hips (a segmentation leak into an object). Each subject is fitted once by the keypoint stage,
+hips (a segmentation leak into an object) and three small holes (discs of 2.5 % of the height,
+deep inside the mask: segmentation gaps); ``detected``: keypoints and mask from
+:func:`silfit.detect.detect_people` on the rendered image instead of the renderer (the subjects
+the detector finds; their count is in the header). Each subject is fitted once by the keypoint stage,
 then by the silhouette stage per method: *original* (before issue 23: ``truncation_aware=False``,
 no keypoint trust region, no bound on |beta|, the plain two-sided energy), *before* (issue 23's
 first part, the plain energy, no clothing trim, no plausibility guard: HEAD before the second
-part) and *after* (the defaults: the robust, capped mask-not-covered side, the clothing trim and
-the plausibility guard); ``--methods`` picks them, ``--set`` changes the after configuration
+part) and *after* (the defaults: the robust, capped mask-not-covered side, the clothing trim, leaks and small holes unknown and
+the plausibility guard), *main* (the defaults before issue 23's third part: no leak or hole
+set aside as unknown, ``leak_distance=0, hole_fraction=0``); ``--methods`` picks them, ``--set`` changes the after configuration
 (tuning). The last column counts the subjects whose mask was trimmed as clothing and those
 whose fit the guard replaced by the keypoint fit. Printed per condition: PA-PVE and PVE
 (mm, against the whole true body), median reprojection error (px, visible keypoints), max |beta|,
 IoU with the given mask (inside the image) and the stage's seconds; mean and worst.
 
-    python benchmarks/bench_truncation.py --n 6 --seed 101 --methods original,before,after
+    python benchmarks/bench_truncation.py --n 6 --seed 101 --methods original,before,main,after
 """
 from __future__ import annotations
 
@@ -62,14 +66,41 @@ def grow(mask: np.ndarray, px: int) -> np.ndarray:
     return cv2.dilate(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))).astype(bool)
 
 
-def leak(mask: np.ndarray, kp: KeypointSet) -> np.ndarray:
+def leak(mask: np.ndarray, kp: KeypointSet, holes: int = 3) -> np.ndarray:
+    """A block joined to the mask's side at the hips and ``holes`` small holes (discs of 2.5 % of
+    the height, centred at the deepest mask pixels apart from one another: segmentation gaps)."""
+    import cv2
+
     ys, xs = np.nonzero(mask)
     height = ys.max() - ys.min()
     hip_y = int(kp.xy[kp.names.index("mid_hip"), 1])
     out = mask.copy()
     x0 = xs.max() - 2
     out[max(hip_y - height // 10, 0): hip_y + height // 10, x0: x0 + int(0.3 * height)] = True
+    r = max(1, int(round(0.025 * height)))
+    depth = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 3)
+    for _ in range(holes):
+        y, x = np.unravel_index(int(np.argmax(depth)), depth.shape)
+        if depth[y, x] <= r + 1:
+            break
+        cv2.circle(depth, (int(x), int(y)), 4 * r, 0.0, -1)  # the next hole elsewhere
+        hole = np.zeros(mask.shape, np.uint8)
+        cv2.circle(hole, (int(x), int(y)), r, 1, -1)
+        out &= ~hole.astype(bool)
     return out
+
+
+def detected(d: Path):
+    """(keypoints, mask) of subject folder ``d`` from :func:`silfit.detect.detect_people` on its
+    rendered image, or ``None`` when nobody is found."""
+    from silfit.dataset import read_image
+    from silfit.detect import DetectionError, detect_people
+
+    try:
+        person = detect_people(read_image(d / "image.png"), source=d.name)[0]
+    except DetectionError:
+        return None
+    return person.keypoint_set(source=str(d)), person.mask()
 
 
 def conditions(d: Path):
@@ -78,8 +109,12 @@ def conditions(d: Path):
     kp, mask, cam = read_keypoints(d / "keypoints.json"), read_mask(d / "mask.png"), load_camera(d / "camera.json")
     height = np.ptp(np.nonzero(mask)[0])
     kc, mc, cc, _ = cut_subject(d)
-    return {"clean": (kp, mask, cam), "cut": (kc, mc, cc), "clothing": (kp, grow(mask, max(1, int(0.04 * height))), cam),
-            "leak": (kp, leak(mask, kp), cam)}, gt  # fmt: skip
+    out = {"clean": (kp, mask, cam), "cut": (kc, mc, cc), "clothing": (kp, grow(mask, max(1, int(0.04 * height))), cam),
+           "leak": (kp, leak(mask, kp), cam)}  # fmt: skip
+    found = detected(d)
+    if found is not None:
+        out["detected"] = (found[0], found[1], cam)
+    return out, gt
 
 
 #: the silhouette stage before issue 23 (no truncation, no keypoint trust region, no bound on |beta|,
@@ -88,7 +123,9 @@ ORIGINAL = dict(truncation_aware=False, w_trust=0.0, w_beta_bound=0.0, robust_co
                 plausibility_guard=False)
 #: before the clothing/leak-robust energy (issue 23's first part: truncation, trust region, beta bound)
 BEFORE = dict(robust_cover=False, trim_clothing=False, plausibility_guard=False)
-METHODS = {"original": ORIGINAL, "before": BEFORE, "after": {}}
+#: main before the leak/hole handling (issue 23's third part): no unknown leaks or holes
+MAIN = dict(leak_distance=0.0, hole_fraction=0.0)
+METHODS = {"original": ORIGINAL, "before": BEFORE, "main": MAIN, "after": {}}
 
 
 def _value(text: str):
@@ -105,8 +142,8 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=8)
     ap.add_argument("--seed", type=int, default=23)
     ap.add_argument("--size", type=int, default=256)
-    ap.add_argument("--conditions", default="clean,cut,clothing,leak", help="comma-separated subset")
-    ap.add_argument("--methods", default="before,after", help=f"comma-separated, of {', '.join(METHODS)}")
+    ap.add_argument("--conditions", default="clean,cut,clothing,leak,detected", help="comma-separated subset")
+    ap.add_argument("--methods", default="main,after", help=f"comma-separated, of {', '.join(METHODS)}")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                     help="change a SilhouetteFitConfig field of 'after' (tuning), repeatable")
     args = ap.parse_args()
@@ -121,15 +158,20 @@ def main() -> None:
         dirs = sorted(p for p in (Path(tmp) / "d").iterdir() if (p / "gt.npz").is_file())
         subjects = [conditions(d) for d in dirs]
     fitter = KeypointFitter(model)
-    print(f"# Real-photo conditions: {len(subjects)} subjects per condition (seed {args.seed}, {args.size} px)"
+    found = sum("detected" in c for c, _ in subjects)
+    print(f"# Real-photo conditions: {len(subjects)} subjects per condition, detected: {found} found (seed {args.seed}, {args.size} px)"
           + (f"; after: {after}" if after else "") + "\n")  # fmt: skip
     print("| condition | method | PA-PVE mean / worst (mm) | PVE mean (mm) | reprojection median px (mean / worst) | max abs beta | IoU mean | s per image | trimmed / kept kp fit |")
     print("|---|---|---|---:|---|---:|---:|---:|---:|")
     kp_cache = {}  # clean, clothing and leak share the keypoints: one keypoint fit
     for cond in args.conditions.split(","):
-        sets, masks, cams = (list(x) for x in zip(*[c[cond] for c, _ in subjects]))
-        gts = [g for _, g in subjects]
-        key = "cut" if cond == "cut" else "full"
+        have = [(c, g) for c, g in subjects if cond in c]  # "detected": the subjects the detector found
+        if not have:
+            print(f"| {cond} | (no subject) | | | | | | | |")
+            continue
+        sets, masks, cams = (list(x) for x in zip(*[c[cond] for c, _ in have]))
+        gts = [g for _, g in have]
+        key = cond if cond in ("cut", "detected") else "full"
         if key not in kp_cache:
             kp_cache[key] = fitter.fit(sets, cams, progress=False)
         kp = kp_cache[key]

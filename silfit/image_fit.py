@@ -132,6 +132,26 @@ def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources):
     return out, notes
 
 
+def _known_pixels(masks, body_masks, cfg: SilhouetteFitConfig, sources, notes) -> list:
+    """Per mask, the pixels whose value the silhouette stage trusts (``None``: all): leaks far from
+    the keypoint fit's body and small holes are unknown (``SilhouetteFitConfig.leak_distance``,
+    ``hole_fraction``); a note in ``notes`` where a leak is set aside."""
+    from .silhouette.losses import unknown_regions
+
+    out = []
+    for mask, body, source, note in zip(masks, body_masks, sources, notes):
+        ys, xs = np.nonzero(mask)
+        extent = float(max(np.ptp(ys), np.ptp(xs))) if len(ys) else 0.0
+        known = unknown_regions(mask, body, float(getattr(cfg, "leak_distance", 0.0)) * extent,
+                                float(getattr(cfg, "hole_fraction", 0.0)))  # fmt: skip
+        far = 0 if known is None else int(np.count_nonzero(mask & ~known))
+        if far > 0.02 * len(ys):
+            note.append(f"{source}: {100 * far / len(ys):.0f} % of the mask lies far from the keypoint fit's body (a leak "
+                        "into an object or the background?): the silhouette stage ignored it")
+        out.append(known)
+    return out
+
+
 def _guard(model, start: dict, params: dict, keypoints: KeypointSet, camera: Camera, kp2d: np.ndarray, where: str):
     """:func:`~silfit.plausibility.guard_fit` of one refined fit against the keypoint fit ``start`` it
     began from (median reprojection error, |betas|, stature)."""
@@ -189,6 +209,7 @@ def refine_batch(
                 "(wrong mask, or keypoints of another image?)"
             )
     fit_masks, trim_notes = _trimmed_masks(masks, kp_masks, config or SilhouetteFitConfig(), mask_sources)
+    known = _known_pixels(fit_masks, kp_masks, config or SilhouetteFitConfig(), mask_sources, trim_notes)
     inits = [keypoint_result.params(i) for i in range(n)]
     from .fitting.problem import Problem
     from .fitting.silhouette_stage import fit_silhouette_problems
@@ -196,7 +217,7 @@ def refine_batch(
 
     # the layout decides the terms (a whole-body mesh keeps its hand and face keypoints)
     cfg, sets, terms, weights, data = silhouette_inputs(model, list(keypoints), config or SilhouetteFitConfig(), model.dtype)
-    problems = [Problem.single(k, cam, m) for k, cam, m in zip(sets, cameras, fit_masks)]
+    problems = [Problem.single(k, cam, m, kn) for k, cam, m, kn in zip(sets, cameras, fit_masks, known)]
     sils = fit_silhouette_problems(model, problems, inits, keypoints[0].layout, cfg, pose_prior, renderer, progress,
                                    terms=terms, weights=weights, data=data)  # fmt: skip
     out = []

@@ -98,3 +98,32 @@ def test_the_guard_keeps_the_keypoint_fit_when_the_silhouette_fit_is_less_plausi
                                                     plausibility_guard=False))  # fmt: skip
     assert off.metrics["silhouette_guard"]["kept"] == "silhouette"
     assert not np.allclose(off.params["body_pose"], result.params["body_pose"])
+
+
+def test_a_leak_far_from_the_body_is_set_aside_with_a_note(open_model, subject, monkeypatch):
+    """Issue 23: mask pixels far from the keypoint fit's body (a leak) reach the silhouette stage as
+    unknown (``Observation.known``), with a note in the warnings; a mask without one passes none."""
+    import silfit.fitting.silhouette_stage as stage
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+
+    seen = []
+    real = stage.fit_silhouette_problems
+
+    def spy(model, problems, *args, **kwargs):
+        seen.extend(o.known for p in problems for o in p.observations)
+        return real(model, problems, *args, **kwargs)
+
+    monkeypatch.setattr(stage, "fit_silhouette_problems", spy)
+    cfg = SilhouetteFitConfig(resolutions=(64,), iterations=(2,), contour_iterations=1)
+    mask = subject.mask.copy()
+    ys, xs = np.nonzero(mask)
+    h = int(np.ptp(ys))
+    y = int(ys.mean())
+    mask[y - h // 10: y + h // 10, xs.max() - 2: xs.max() + h // 3] = True  # a block joined at the side
+    leaky = fit(subject.keypoints, mask, subject.camera, model=open_model, silhouette_config=cfg, progress=False)
+    far = min(mask.shape[1] - 1, xs.max() + h // 3 - 2)
+    assert mask[y, far] and seen[-1] is not None and not seen[-1][y, far] and seen[-1][ys[0], xs[0]]
+    assert any("far from the keypoint fit's body" in w for w in leaky.metrics["warnings"])
+    off = SilhouetteFitConfig(resolutions=(64,), iterations=(2,), contour_iterations=1, leak_distance=0.0, hole_fraction=0.0)
+    fit(subject.keypoints, mask, subject.camera, model=open_model, silhouette_config=off, progress=False)
+    assert seen[-1] is None

@@ -44,13 +44,17 @@ class View:
 @dataclass
 class Observation:
     """What one view saw in one frame: 2D keypoints ``xy [K, 2]``, ``conf [K]`` (a
-    :class:`~silfit.keypoints.KeypointSet` or ``None``) and an optional mask ``[H, W]``."""
+    :class:`~silfit.keypoints.KeypointSet` or ``None``) and an optional mask ``[H, W]``;
+    ``known`` (bool ``[H, W]``, ``None``: everywhere): the pixels whose mask value is trusted;
+    the silhouette stage treats the others like those beyond the image: unknown, no cost either
+    way (:func:`silfit.silhouette.losses.unknown_regions`: leaks, small holes)."""
 
     view: View
     keypoints: object = None
     mask: Optional[np.ndarray] = None
     frame: int = 0
     view_index: int = 0
+    known: Optional[np.ndarray] = None
 
 
 @dataclass
@@ -62,9 +66,9 @@ class Problem:
     shared: Tuple[str, ...] = ("betas",)
 
     @classmethod
-    def single(cls, keypoints, camera: Camera, mask=None) -> "Problem":
+    def single(cls, keypoints, camera: Camera, mask=None, known=None) -> "Problem":
         """One image: one frame, one view, identity extrinsics."""
-        return cls([Observation(View(camera), keypoints, mask)])
+        return cls([Observation(View(camera), keypoints, mask, known=known)])
 
     @property
     def num_frames(self) -> int:

@@ -116,6 +116,13 @@ class SilhouetteFitConfig:
     trim_clothing: bool = True
     trim_min: float = 0.015
     trim_max: float = 0.08
+    #: mask pixels farther than ``leak_distance`` of the mask's extent from the keypoint fit's
+    #: silhouette (a leak into an object or the background) and the mask's holes smaller than
+    #: ``hole_fraction`` of its area (segmentation gaps) are unknown, like the pixels beyond the
+    #: image (:func:`~silfit.silhouette.losses.unknown_regions`; image path:
+    #: silfit.image_fit.refine_batch); 0: off
+    leak_distance: float = 0.03
+    hole_fraction: float = 0.02
     #: after the stage, a fit less plausible than the keypoint fit (silfit.plausibility.silhouette_guard)
     #: is replaced by the keypoint fit, with a warning (image path: silfit.image_fit.refine_batch)
     plausibility_guard: bool = True
@@ -274,14 +281,17 @@ def choose_window(mask: np.ndarray, uv: np.ndarray, camera: Camera, resolution: 
 
 
 def window_target(mask: np.ndarray, window, supersample: int = 4, truncation_aware: bool = True,
-                  cover: Optional[CoverProfile] = None) -> tuple[MaskTarget, np.ndarray]:  # fmt: skip
+                  cover: Optional[CoverProfile] = None, known: Optional[np.ndarray] = None) -> tuple[MaskTarget, np.ndarray]:  # fmt: skip
     """The mask resampled into a ``RoiWindow``: ``(MaskTarget of the binarised coverage, coverage)``.
 
     Coverage is the fraction of each window pixel inside the mask (supersampled, then
     area-averaged). Pixels outside the image are unknown, not background: the target's
     ``valid`` map marks the image's pixels (:mod:`silfit.silhouette.losses`: truncation).
     Distances are in window pixels; ``cover`` (window pixels) is the mask-not-covered side's
-    robust profile (``None``: plain).
+    robust profile (``None``: plain). ``known`` (bool, the image's ``[H, W]``; ``None``: all): the
+    image pixels whose mask value is trusted; the others (leaks, small holes:
+    :func:`~silfit.silhouette.losses.unknown_regions`) are unknown like those beyond the image,
+    whatever ``truncation_aware``.
     """
     import cv2
 
@@ -293,12 +303,20 @@ def window_target(mask: np.ndarray, window, supersample: int = 4, truncation_awa
     warp = lambda img: cv2.resize(cv2.warpAffine(  # noqa: E731
         img, M, (cam.width * ss, cam.height * ss), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
         borderMode=cv2.BORDER_CONSTANT, borderValue=0.0), (cam.width, cam.height), interpolation=cv2.INTER_AREA)  # fmt: skip
+    if known is not None:
+        known = np.asarray(known, dtype=bool)
+        mask = np.asarray(mask, dtype=bool) & known
     coverage = warp(mask.astype(np.float32))
     binary = coverage > 0.5
     if not binary.any():
         raise ValueError("the mask vanishes at the silhouette stage's resolution; raise the resolution")
     seen = warp(np.ones(mask.shape, np.float32)) > 0.5  # the window's pixels inside the image
-    return MaskTarget.from_mask(binary, valid=None if seen.all() or not truncation_aware else seen, cover=cover), coverage
+    valid = None if seen.all() or not truncation_aware else seen
+    if known is not None:  # the window's pixels whose mask value is known (inside the image, if truncation-aware)
+        trusted = warp(known.astype(np.float32)) > 0.5
+        valid = trusted if valid is None else valid & trusted
+        valid = None if valid.all() else valid
+    return MaskTarget.from_mask(binary, valid=valid, cover=cover), coverage
 
 
 class SilhouetteTerm(Term):
@@ -643,12 +661,12 @@ def _keypoint_data(grids, dtype) -> tuple:
 
 
 def _observation_window(mask, uv: np.ndarray, camera: Camera, resolution: int, margin: float, multiple: int = 1,
-                        truncation_aware: bool = True, cover: Optional[CoverProfile] = None):  # fmt: skip
+                        truncation_aware: bool = True, cover: Optional[CoverProfile] = None, known=None):  # fmt: skip
     """``(window, target)`` of an observation with a mask, or ``(None, scale)`` without one
     (the pixels-to-window scale a window around the projected body would have)."""
     if mask is not None:
-        window = choose_window(mask, uv, camera, resolution, margin, multiple)
-        return window, window_target(mask, window, truncation_aware=truncation_aware, cover=cover)[0]
+        window = choose_window(mask if known is None else mask & known, uv, camera, resolution, margin, multiple)
+        return window, window_target(mask, window, truncation_aware=truncation_aware, cover=cover, known=known)[0]
     extent = float((uv.max(0) - uv.min(0)).max()) * (1 + 2 * margin) + 1.0
     return None, resolution / extent
 
@@ -662,6 +680,8 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
     P, F, C = len(problems), problems[0].num_frames, problems[0].num_views
     grids = [p.grid() for p in problems]
     masks = [[[None if o.mask is None else np.asarray(o.mask, dtype=bool) for o in row] for row in g] for g in grids]
+    known = [[[None if o.mask is None or getattr(o, "known", None) is None else np.asarray(o.known, dtype=bool)
+               for o in row] for row in g] for g in grids]  # fmt: skip
     for p, g in enumerate(grids):
         for f, row in enumerate(g):
             for c, o in enumerate(row):
@@ -769,7 +789,7 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
                     cam = grids[p][f][c].view.camera
                     window, target = _observation_window(masks[p][f][c], project_points(cam_pts, cam).numpy(), cam,
                                                          resolution, cfg.margin, cfg.window_multiple, cfg.truncation_aware,
-                                                         cfg.cover_profile(resolution))  # fmt: skip
+                                                         cfg.cover_profile(resolution), known[p][f][c])  # fmt: skip
                     windows.append(window)
                     targets.append(target if window is not None else None)
                     scale[p, f, c] = window.scale if window is not None else target

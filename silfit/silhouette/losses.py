@@ -32,6 +32,13 @@ contour level's cover term has the same profile on its outline points' distances
 (:func:`cover_energy`); beyond the cap a point has no gradient, so an outline far from any body
 part (a thin leak, an object) is ignored.
 
+**Leaks and holes.** A mask pixel far from the body fitted to the keypoints (beyond a distance
+from its silhouette: an object or background joined to the person) and a small hole in the mask
+(a segmentation gap inside the person, not the real gap between limbs, which is larger or open
+to the background) are *unknown*, like the pixels beyond the image (:func:`unknown_regions`,
+:class:`~silfit.fitting.problem.Observation` ``known``): no pull to cover them, no cost for a body
+over them.
+
 The contour surrogate (no rendering; the silhouette stage's coarse level) compares points
 instead of pixels, in the same pixel units:
 
@@ -53,7 +60,7 @@ import numpy as np
 import torch
 
 __all__ = [
-    "CoverProfile", "MaskTarget", "clothing_thickness", "trim_clothing", "contour_points", "cover_energy", "cover_weights", "distance_transforms", "outside_distance_energy",
+    "CoverProfile", "MaskTarget", "clothing_thickness", "trim_clothing", "unknown_regions", "contour_points", "cover_energy", "cover_weights", "distance_transforms", "outside_distance_energy",
     "silhouette_energy", "soft_iou",
 ]  # fmt: skip
 
@@ -266,3 +273,27 @@ def trim_clothing(mask: np.ndarray, thickness: float) -> np.ndarray:
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
     out = cv2.erode(m.astype(np.uint8), k, borderType=cv2.BORDER_REPLICATE).astype(bool)
     return out if out.any() else m.copy()
+
+
+def unknown_regions(mask: np.ndarray, body: Optional[np.ndarray], far: float, hole_fraction: float) -> Optional[np.ndarray]:
+    """``known`` (bool ``[H, W]``) of a person ``mask``, or ``None`` when all of it is: the mask's
+    pixels farther than ``far`` pixels from ``body`` (the keypoint fit's silhouette; ``far <= 0`` or
+    ``body None``: none) and the mask's holes (background regions not touching the image's border)
+    smaller than ``hole_fraction`` of the mask's area (``<= 0``: none) are unknown."""
+    import cv2
+
+    m = np.asarray(mask, dtype=bool)
+    unknown = np.zeros_like(m)
+    if body is not None and far > 0 and np.asarray(body).any():
+        dist = cv2.distanceTransform((~np.asarray(body, dtype=bool)).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        unknown |= m & (dist > float(far))
+    if hole_fraction > 0 and m.any():
+        count, labels, stats, _ = cv2.connectedComponentsWithStats((~m).astype(np.uint8), connectivity=4)
+        H, W = m.shape
+        x, y, w, h, area = stats.T
+        small = (x > 0) & (y > 0) & (x + w < W) & (y + h < H) & (area < float(hole_fraction) * np.count_nonzero(m))
+        small[0] = False  # label 0: the mask itself
+        unknown |= small[labels]
+    if not unknown.any() or not (m & ~unknown).any():  # nothing unknown, or nothing known left: all of it
+        return None
+    return ~unknown

@@ -187,3 +187,48 @@ def test_the_stage_builds_robust_targets_and_the_plain_energy_stays_available():
     assert robust.cover is not None and robust.cover.margin == pytest.approx(cfg.cover_margin * 64)
     assert plain.cover is None and plain.w_in is None
     assert (robust.w_in <= plain.dt_in + 1e-6).all() and robust.w_in.sum() < 0.7 * plain.dt_in.sum()
+
+
+def test_leaks_far_from_the_body_and_small_holes_are_unknown():
+    from silfit.silhouette.losses import unknown_regions
+
+    body = disc(size=96, centre=(48, 48), radius=20)
+    mask = body.copy()
+    mask[44:52, 60:90] = True  # a leak running far from the body
+    mask[46:49, 46:49] = False  # a small hole
+    gap = np.zeros_like(mask)
+    gap[30:66, 40:43] = True  # a large hole: a real gap between limbs
+    mask &= ~gap
+    known = unknown_regions(mask, body, far=5.0, hole_fraction=0.02)
+    assert known is not None
+    assert not known[48, 85] and known[48, 62]  # far along the leak unknown, near the body kept
+    assert not known[47, 47]  # the small hole unknown
+    assert known[gap].all()  # the large one stays background
+    assert known[body & mask].all()
+    assert unknown_regions(body, body, far=5.0, hole_fraction=0.02) is None
+    assert unknown_regions(mask, body, far=0.0, hole_fraction=0.0) is None
+
+
+def test_unknown_pixels_cost_nothing_and_pull_nothing():
+    from silfit.fitting.silhouette_stage import choose_window, window_target
+    from silfit.camera import Camera
+
+    body = disc(size=96, centre=(48, 48), radius=20)
+    mask = body.copy()
+    mask[44:52, 60:90] = True
+    known = np.ones_like(mask)
+    known[:, 75:] = False
+    cam = Camera(100.0, 100.0, 47.5, 47.5, 96, 96)
+    uv = np.argwhere(mask)[:, ::-1].astype(float)
+    window = choose_window(mask, uv, cam, 96, 0.12)
+    with_leak, _ = window_target(mask, window)
+    trusted, _ = window_target(mask, window, known=known)
+    assert trusted.valid is not None and trusted.mask.sum() < with_leak.mask.sum()
+    sil_body, _ = window_target(body, window)
+    e_leak = silhouette_energy(sil_body.mask, with_leak).item()
+    e_trusted = silhouette_energy(sil_body.mask, trusted).item()
+    assert e_trusted < 0.5 * e_leak  # the far part of the leak no longer pulls
+    # a body over unknown pixels costs nothing there
+    over = sil_body.mask.clone()
+    over[(trusted.valid < 0.5)] = 1.0
+    assert silhouette_energy(over, trusted).item() == pytest.approx(e_trusted, abs=1e-5)
