@@ -21,7 +21,6 @@ from __future__ import annotations
 
 from typing import Sequence, Tuple
 
-import numpy as np
 import torch
 
 from ..layouts import KEYPOINT_DEPTH_TOLERANCE

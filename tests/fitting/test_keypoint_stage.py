@@ -438,6 +438,17 @@ def test_the_stage_computes_in_its_configured_dtype_without_changing_the_callers
         KeypointFitConfig(dtype="float16")
 
 
+def _thigh_subject(model):
+    """Keypoints ``[25, 3]`` and true parameters of a body whose left thigh points at the camera."""
+    pose = {**POSE, 4: (1.2, 0, 0), 1: (-0.9, 0, 0.05)}
+    kp, _ = subject(model, yaw_deg=0.0, pose=pose)
+    truth = {"betas": torch.zeros(1, 10), "global_orient": torch.tensor([[math.pi, 0.0, 0.0]]),
+             "body_pose": torch.zeros(1, 69), "transl": torch.tensor([[0.05, 0.15, 3.5]])}  # fmt: skip
+    for j, v in pose.items():
+        truth["body_pose"][0, 3 * (j - 1) : 3 * j] = torch.tensor(v)
+    return kp, truth
+
+
 def test_hypotheses_keep_the_best_distinct_branches_refined_to_the_end(body_model):
     # A thigh pointing at the camera (the branch test's subject): with hypotheses=3 the search keeps
     # several branches, refines them to the end and returns the distinct ones, lowest energy first;
@@ -447,12 +458,7 @@ def test_hypotheses_keep_the_best_distinct_branches_refined_to_the_end(body_mode
     from silfit.fitting.stages import Stage
     from silfit.keypoints import KeypointSet
 
-    pose = {**POSE, 4: (1.2, 0, 0), 1: (-0.9, 0, 0.05)}
-    kp, _ = subject(body_model, yaw_deg=0.0, pose=pose)
-    truth = {"betas": torch.zeros(1, 10), "global_orient": torch.tensor([[math.pi, 0.0, 0.0]]),
-             "body_pose": torch.zeros(1, 69), "transl": torch.tensor([[0.05, 0.15, 3.5]])}  # fmt: skip
-    for j, v in pose.items():
-        truth["body_pose"][0, 3 * (j - 1) : 3 * j] = torch.tensor(v)
+    kp, truth = _thigh_subject(body_model)
     w = {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4, "interpenetration": 1e5}
     free = ("global_orient", "transl", "body_pose")
     stages = [Stage("branches", free, w, 12, options={"branches": {"joint": True, "screen_after": 4, "survivors": 2}}),
@@ -486,13 +492,8 @@ def test_occlusion_cue_scores_the_hypotheses_when_on(body_model):
     assert all("occlusion" not in s.options.get("branches", {}) for s in KeypointFitConfig().stages())
     on = [s for s in KeypointFitConfig(occlusion_weight=0.05).stages() if "branches" in s.options]
     assert on and all(s.options["branches"]["occlusion"] == 0.05 for s in on)
-    pose = {**POSE, 4: (1.2, 0, 0), 1: (-0.9, 0, 0.05)}
-    kp, _ = subject(body_model, yaw_deg=0.0, pose=pose)
+    kp, truth = _thigh_subject(body_model)
     kp[[0, 15, 16], 2] = 0.2  # the face marked as hidden: the front-facing fits disagree there
-    truth = {"betas": torch.zeros(1, 10), "global_orient": torch.tensor([[math.pi, 0.0, 0.0]]),
-             "body_pose": torch.zeros(1, 69), "transl": torch.tensor([[0.05, 0.15, 3.5]])}  # fmt: skip
-    for j, v in pose.items():
-        truth["body_pose"][0, 3 * (j - 1) : 3 * j] = torch.tensor(v)
     w = {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4, "interpenetration": 1e5}
     free = ("global_orient", "transl", "body_pose")
     weight = 0.05
