@@ -40,6 +40,9 @@ from silfit.keypoints import read_keypoints
 from silfit.plausibility import branch_gap, depth_warnings
 
 
+MARGINS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=40)
@@ -88,7 +91,9 @@ def main() -> None:
                          "facing_ok": faces_camera(res.global_orient[j], res.transl[j]) == truth_faces,
                          "start_flipped_matches_back": bool(res.flipped[j]) == (not truth_faces), "pve": pve,
                          "best_of": best_of, "fail": bool(res.energies["final"][j] > e_truth[j] * (1 + 1e-3)),
-                         "warned": bool(depth_warnings(res.branch_search[j], res.hypotheses[j] if res.hypotheses else None))})  # fmt: skip
+                         "warned": bool(depth_warnings(res.branch_search[j], res.hypotheses[j] if res.hypotheses else None)),
+                         "warned_at": {m: bool(depth_warnings(res.branch_search[j], res.hypotheses[j] if res.hypotheses else None,
+                                                              margin=m, search_margin=m)) for m in MARGINS}})  # fmt: skip
     seconds = time.perf_counter() - t0
     gaps = np.array([r["gap"] if r["gap"] is not None else np.inf for r in rows])
     pa = np.array([r["pa"] for r in rows])
@@ -110,6 +115,13 @@ def main() -> None:
     mid = (pve >= 60) & (pve <= 150)
     print(f"| {warned.sum()}/{len(rows)} | {(warned & (pve > 150)).sum()}/{(pve > 150).sum()} | {(warned & mid).sum()}/{mid.sum()} "
           f"| {(warned & (pve < 60)).sum()}/{(pve < 60).sum()} |\n")
+    print("The same with other margins (refined hypotheses' and the branch search's alike):\n")
+    print("| margin | fits warned | fits > 150 mm warned | fits < 60 mm warned |")
+    print("|---:|---:|---:|---:|")
+    for m in MARGINS:
+        w = np.array([r["warned_at"][m] for r in rows])
+        print(f"| {m:g} | {w.sum()} | {(w & (pve > 150)).sum()}/{(pve > 150).sum()} | {(w & (pve < 60)).sum()}/{(pve < 60).sum()} |")
+    print()
     print("| gap (E_other - E_kept) / E_kept | fits | mean PA-MPJPE (mm) | bad (> %g mm) |" % args.bad_mm)
     print("|---|---:|---:|---:|")
     edges = [0.0, 0.02, 0.05, 0.1, 0.2, 0.5, np.inf]
