@@ -183,9 +183,10 @@ class KeypointFitConfig:
     #: disagrees with their confidence (a confident keypoint hidden behind the body, a low-confidence
     #: one in front: confidences at or below ``occlusion_conf[0]`` expect hidden, at or above
     #: ``occlusion_conf[1]`` visible). 0: off. Off by default: on 20 hard subjects (tuning seed 31,
-    #: keypoint stage, ``hypotheses=3``) 0.01 changed the choice of one fit (81.3 -> 78.6 mm PA-PVE);
-    #: used in the branch search's choice too it made the default fit worse (101.7 -> 109.6 mm: the
-    #: search's poses, 20 steps in, disagree at 5-6 keypoints each, the truth at about 1)
+    #: keypoint stage, ``hypotheses=3``) 0.01 changed the choice of one fit (81.3 -> 78.6 mm PA-PVE,
+    #: chosen offline), on 60 fresh ones (seed 8123) it made the mean worse (90.2 -> 90.6 mm); used in
+    #: the branch search's choice too it made the tuning set's default fit worse (101.7 -> 109.6 mm:
+    #: the search's poses, 20 steps in, disagree at 5-6 keypoints each, the truth at about 1)
     occlusion_weight: float = 0.0
     occlusion_conf: Sequence[float] = (0.3, 0.6)
     #: temporal terms (``smooth_joints``, ``smooth_root``; weight 0 in the single-image
