@@ -14,8 +14,10 @@ also checked).
     python benchmarks/bench_ambiguity.py --n 20 --seed 4711 --set hypotheses=3   # issue 25: K branches refined
 
 Also printed: the keypoint stage's PA-PVE (mean, fits above 150 mm), search failures (the fit's
-final energy above the truth's, :meth:`~silfit.fitting.KeypointFitter.energy_at`) and, with
-``--set hypotheses=K``, the best of the K hypotheses' PA-PVE (fits within 60 mm).
+final energy above the truth's, :meth:`~silfit.fitting.KeypointFitter.energy_at`), with
+``--set hypotheses=K`` the best of the K hypotheses' PA-PVE (fits within 60 mm), and how many fits
+carry the depth warning image fits emit (:func:`~silfit.plausibility.depth_warnings`) above 150 mm and
+below 60 mm (false alarms). ``--set occlusion_weight=0.01`` turns the occlusion cue on.
 """
 from __future__ import annotations
 
@@ -35,7 +37,10 @@ from silfit.fitting.keypoint_stage import KeypointFitConfig
 from silfit.fitting import KeypointFitter
 from silfit.fitting.result import faces_camera
 from silfit.keypoints import read_keypoints
-from silfit.plausibility import branch_gap
+from silfit.plausibility import branch_gap, depth_warnings
+
+
+MARGINS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
 
 
 def main() -> None:
@@ -85,7 +90,10 @@ def main() -> None:
             rows.append({"gap": branch_gap(res.branch_search[j]), "pa": float(err),
                          "facing_ok": faces_camera(res.global_orient[j], res.transl[j]) == truth_faces,
                          "start_flipped_matches_back": bool(res.flipped[j]) == (not truth_faces), "pve": pve,
-                         "best_of": best_of, "fail": bool(res.energies["final"][j] > e_truth[j] * (1 + 1e-3))})  # fmt: skip
+                         "best_of": best_of, "fail": bool(res.energies["final"][j] > e_truth[j] * (1 + 1e-3)),
+                         "warned": bool(depth_warnings(res.branch_search[j], res.hypotheses[j] if res.hypotheses else None)),
+                         "warned_at": {m: bool(depth_warnings(res.branch_search[j], res.hypotheses[j] if res.hypotheses else None,
+                                                              margin=m, search_margin=m)) for m in MARGINS}})  # fmt: skip
     seconds = time.perf_counter() - t0
     gaps = np.array([r["gap"] if r["gap"] is not None else np.inf for r in rows])
     pa = np.array([r["pa"] for r in rows])
@@ -100,6 +108,20 @@ def main() -> None:
     print("|---:|---:|---:|---:|---:|---:|")
     print(f"| {pve.mean():.1f} | {np.median(pve):.1f} | {(pve > 150).sum()}/{len(rows)} | {sum(r['fail'] for r in rows)}/{len(rows)} "
           f"| {best.mean():.1f} | {(best <= 60).sum()}/{len(rows)} |\n")
+    warned = np.array([r["warned"] for r in rows])
+    print("Depth warning (plausibility.depth_warnings, as image fits emit it):\n")
+    print("| fits warned | fits > 150 mm warned | fits 60-150 mm warned | fits < 60 mm warned (false alarms) |")
+    print("|---:|---:|---:|---:|")
+    mid = (pve >= 60) & (pve <= 150)
+    print(f"| {warned.sum()}/{len(rows)} | {(warned & (pve > 150)).sum()}/{(pve > 150).sum()} | {(warned & mid).sum()}/{mid.sum()} "
+          f"| {(warned & (pve < 60)).sum()}/{(pve < 60).sum()} |\n")
+    print("The same with other margins (refined hypotheses' and the branch search's alike):\n")
+    print("| margin | fits warned | fits > 150 mm warned | fits < 60 mm warned |")
+    print("|---:|---:|---:|---:|")
+    for m in MARGINS:
+        w = np.array([r["warned_at"][m] for r in rows])
+        print(f"| {m:g} | {w.sum()} | {(w & (pve > 150)).sum()}/{(pve > 150).sum()} | {(w & (pve < 60)).sum()}/{(pve < 60).sum()} |")
+    print()
     print("| gap (E_other - E_kept) / E_kept | fits | mean PA-MPJPE (mm) | bad (> %g mm) |" % args.bad_mm)
     print("|---|---:|---:|---:|")
     edges = [0.0, 0.02, 0.05, 0.1, 0.2, 0.5, np.inf]

@@ -39,7 +39,7 @@ from .fitting.result import KeypointFitResult
 from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult
 from .keypoints import KeypointSet, model_keypoints
 from .outfolder import atomic_folder
-from .plausibility import ambiguity_warnings, fit_warnings, guard_fit, mask_warnings
+from .plausibility import depth_warnings, fit_warnings, guard_fit, mask_warnings
 from .eval.metrics import mask_iou
 from .silhouette.masks import validate_mask
 
@@ -339,16 +339,16 @@ def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Came
 
             result.metrics["whole_body"], notes = wholebody_summary(keypoints[i])
             result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
-        result.metrics["warnings"] += fit_warnings(result.metrics, keypoints[i], result.vertices, result.params.get("betas")) \
-            + ambiguity_warnings((result.keypoint.branch_search or [None])[0])
-        if result.keypoint.branch_search:  # every hypothesis the branch search ran to its end, with its energy
-            result.metrics["branch_search"] = result.keypoint.branch_search[0]
         hyps = (result.keypoint.hypotheses or [None])[0]
+        search = (result.keypoint.branch_search or [None])[0]
+        result.metrics["warnings"] += fit_warnings(result.metrics, keypoints[i], result.vertices, result.params.get("betas")) \
+            + depth_warnings(search, hyps)
+        if search:  # every hypothesis the branch search ran to its end, with its energy
+            result.metrics["branch_search"] = search
         if hyps is not None:  # hypotheses=K: every alternative's energy and the limbs it turns (metrics.json)
-            from .plausibility import hypothesis_summary, hypothesis_warnings
+            from .plausibility import hypothesis_summary
 
             result.metrics["hypotheses"] = hypothesis_summary(hyps)
-            result.metrics["warnings"] += hypothesis_warnings(hyps)
         out[i] = result
     return out  # type: ignore[return-value]
 

@@ -23,10 +23,24 @@ from __future__ import annotations
 import torch
 
 __all__ = [
-    "BLAZEPOSE33_NAMES", "BODY25_NAMES", "COCO17_NAMES", "FACE70_NAMES", "FINGERS", "HAND21_NAMES", "LAYOUTS",
+    "BLAZEPOSE33_NAMES", "BODY25_NAMES", "COCO17_NAMES", "FACE70_NAMES", "FINGERS", "HAND21_NAMES", "KEYPOINT_DEPTH_TOLERANCE", "LAYOUTS",
     "PART_FIELDS", "WHOLEBODY_NAMES", "WHOLEBODY_PARTS", "hand_names", "keypoint_sources", "model_keypoints",
     "part_slices", "wholebody_keypoints", "wholebody_sources",
 ]  # fmt: skip
+
+#: How far (metres) behind the nearest surface along its camera ray a keypoint may lie and still count
+#: as visible (the synthetic data's visibility, :mod:`silfit.synth.generate`; the occlusion cue,
+#: :mod:`silfit.fitting.occlusion`): surface landmarks 3 cm; joint centres their measured depth below the skin
+#: (the larger of front and back views, over betas -2..2 on the open body model: neck 9.5,
+#: shoulders 7.9, elbows 5.9, wrists 3.4, pelvis 14.4, hips 12.8, knees 7.0, ankles 6.0 cm)
+#: plus 1.5-2.5 cm.
+KEYPOINT_DEPTH_TOLERANCE = {
+    "nose": 0.03, "neck": 0.11, "right_shoulder": 0.10, "right_elbow": 0.075, "right_wrist": 0.05,
+    "left_shoulder": 0.10, "left_elbow": 0.075, "left_wrist": 0.05, "mid_hip": 0.17, "right_hip": 0.15,
+    "right_knee": 0.09, "right_ankle": 0.075, "left_hip": 0.15, "left_knee": 0.09, "left_ankle": 0.075,
+    "right_eye": 0.03, "left_eye": 0.03, "right_ear": 0.03, "left_ear": 0.03, "left_big_toe": 0.03,
+    "left_small_toe": 0.03, "left_heel": 0.03, "right_big_toe": 0.03, "right_small_toe": 0.03, "right_heel": 0.03,
+}  # fmt: skip
 
 BODY25_NAMES = (
     "nose", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder", "left_elbow",

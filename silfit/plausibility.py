@@ -36,7 +36,7 @@ from .errors import InputError
 from .keypoints import KeypointSet
 
 __all__ = [
-    "GuardDecision", "ambiguity_warnings", "body_stature", "branch_gap", "check_frames", "check_keypoints", "fit_summary",
+    "GuardDecision", "ambiguity_warnings", "body_stature", "branch_gap", "depth_warnings", "check_frames", "check_keypoints", "fit_summary",
     "fit_warnings", "guard_fit", "hypothesis_summary", "hypothesis_warnings", "mask_warnings", "person_extent", "reprojection_rise_warnings",
     "shape_warnings", "silhouette_guard",
 ]  # fmt: skip
@@ -65,6 +65,13 @@ MIN_REPROJECTION_RISE_PX = 3.0
 MIN_BORDER_RUN = 0.02
 #: Another depth hypothesis within this relative energy of the kept one is reported as ambiguous.
 AMBIGUOUS_GAP = 0.02
+#: :func:`depth_warnings`: an alternative refined to the end (``--hypotheses K``) within this relative
+#: final energy of the fit ...
+HYPOTHESIS_MARGIN = 0.02
+#: ... or, where no distinct alternative was refined to the end, a branch-search survivor within this
+#: relative energy of the kept one (the search's energies are 20 steps in, much less decided: a wrong
+#: branch ended 8 % above the kept one on the tuning set, see :func:`depth_warnings`)
+SEARCH_MARGIN = 0.1
 #: Shape coefficients beyond this many standard deviations are reported.
 MAX_ABS_BETA = 3.0
 
@@ -265,18 +272,58 @@ def hypothesis_summary(hypotheses) -> list:
             for k, h in enumerate(hypotheses, 1)]  # fmt: skip
 
 
-def hypothesis_warnings(hypotheses, margin: float = AMBIGUOUS_GAP) -> list:
+def hypothesis_warnings(hypotheses, margin: float = HYPOTHESIS_MARGIN) -> list:
     """A warning naming the limbs whose depth is ambiguous: the segments an alternative
     (``silfit fit --hypotheses K``) turns away from the fit while its energy is within ``margin``
-    (relative) of the fit's."""
-    close = [(k, h) for k, h in enumerate(hypotheses or [], 1)
-             if k > 1 and h["differs"] and (h["energy"] - hypotheses[0]["energy"]) <= margin * abs(hypotheses[0]["energy"])]  # fmt: skip
+    (relative) of the fit's (:func:`depth_warnings` without the branch search)."""
+    return depth_warnings(None, hypotheses, margin=margin)
+
+
+def _segments(label: str) -> list:
+    """The limb and torso segments a hypothesis' label flips (``keep``: none)."""
+    from .fitting.branches import JOINT_HYPOTHESES
+
+    joint = dict(JOINT_HYPOTHESES)
+    if label in joint:
+        return [seg for part in joint[label] for seg in part]
+    return [seg for seg in label.split("+") if seg and seg != "keep"]
+
+
+def depth_warnings(search, hypotheses=None, margin: float = HYPOTHESIS_MARGIN, search_margin: float = SEARCH_MARGIN) -> list:
+    """One warning naming the limbs whose depth the keypoints cannot decide, or none.
+
+    An alternative is *close* when it lies within a relative energy margin of the fit: a hypothesis
+    refined to the end (``hypotheses``: one sample's :attr:`~silfit.fitting.KeypointFitResult.hypotheses`,
+    ``--hypotheses K``) within ``margin`` of the fit's final energy; where none of those is distinct
+    (or none was run: the default), a branch-search survivor (``search``: the sample's
+    :attr:`~silfit.fitting.KeypointFitResult.branch_search`) within ``search_margin`` of the kept one.
+    The limbs named are the segments the close alternatives turn away from the fit (``differs``), or
+    those their label flips (the kept one's, for an unflipped alternative). Measured on the generated
+    hard set (``benchmarks/bench_ambiguity.py``: fits above 150 mm warned, fits below 60 mm warned)."""
+    close, where = [], []
+    hyps = list(hypotheses or [])
+    if len(hyps) > 1:
+        e0 = hyps[0]["energy"]
+        for k, h in enumerate(hyps[1:], 2):
+            if h["energy"] - e0 <= margin * abs(e0):
+                segs = list(h.get("differs") or []) or _segments(h["label"]) or _segments(hyps[0]["label"])
+                close.append(segs)
+                where.append(f"hypotheses/{k}")
+        used = margin
+    else:
+        for stage in search or []:
+            kept = next(t["energy"] for t in stage["tried"] if t["flip"] == stage["kept"])
+            for t in stage["tried"]:
+                if t["flip"] != stage["kept"] and t["energy"] - kept <= search_margin * abs(kept):
+                    close.append(_segments(t["flip"]) or _segments(stage["kept"]))
+                    where.append(f"branch search: {t['flip']}")
+        used = search_margin
     if not close:
         return []
-    segs = sorted({s for _, h in close for s in h["differs"]})
-    which = ", ".join(f"hypotheses/{k}" for k, _ in close)
-    return [f"depth ambiguous for {', '.join(segs)}: an alternative fit within {margin:.0%} of the energy turns "
-            f"{'it' if len(segs) == 1 else 'them'} the other way ({which}); the keypoints cannot tell which: check a side view"]
+    segs = sorted({s for c in close for s in c}) or ["a limb"]
+    return [f"depth ambiguous for {', '.join(segs)}: an alternative fit within {used:.0%} of the energy turns "
+            f"{'it' if len(segs) == 1 else 'them'} the other way ({', '.join(where)}); the keypoints cannot tell which: "
+            "check a side view"]
 
 
 def _stage_gap(stage) -> float:

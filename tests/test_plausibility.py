@@ -210,3 +210,29 @@ def test_hypotheses_are_summarised_and_the_ambiguous_limbs_named():
     assert "hypotheses/2" in warning and "left_forearm" not in warning  # 30 % higher: not ambiguous
     assert hypothesis_warnings(hyps[:1]) == [] and hypothesis_warnings(None) == []
     assert "left_forearm" in hypothesis_warnings(hyps, margin=0.5)[0]
+
+
+def test_depth_warning_names_the_limbs_of_close_alternatives():
+    from silfit.plausibility import HYPOTHESIS_MARGIN, SEARCH_MARGIN, depth_warnings
+
+    def search(*tried, kept="keep"):
+        return [{"stage": "branches_1", "kept": kept, "tried": [{"flip": f, "energy": e} for f, e in tried]}]
+
+    # default fits (no hypotheses refined): the branch search's survivors within SEARCH_MARGIN
+    (w,) = depth_warnings(search(("keep", 100.0), ("both_shins", 100 * (1 + SEARCH_MARGIN) - 1), ("left_forearm", 150.0)))
+    assert w.startswith("depth ambiguous for left_shin, right_shin:") and "branch search: both_shins" in w
+    assert "left_forearm" not in w
+    assert depth_warnings(search(("keep", 100.0), ("left_forearm", 100 * (1 + SEARCH_MARGIN) + 1))) == []
+    # an unflipped alternative to a flipped fit: the fit's flipped segments are the ambiguous ones
+    (w,) = depth_warnings(search(("left_thigh+left_shin", 100.0), ("keep", 101.0), kept="left_thigh+left_shin"))
+    assert "left_shin, left_thigh" in w
+    assert depth_warnings(None) == [] and depth_warnings([]) == []
+    # refined hypotheses decide where there are distinct ones: their final energies, the tighter margin
+    hyps = [{"label": "keep", "energy": 100.0, "differs": []},
+            {"label": "right_upper_arm", "energy": 100 * (1 + HYPOTHESIS_MARGIN) - 0.5, "differs": []}]  # fmt: skip
+    close = search(("keep", 100.0), ("left_shin", 101.0))
+    (w,) = depth_warnings(close, hyps)
+    assert "right_upper_arm" in w and "hypotheses/2" in w and "left_shin" not in w
+    far = [hyps[0], dict(hyps[1], energy=110.0)]
+    assert depth_warnings(close, far) == []
+    assert depth_warnings(close, far[:1])  # no distinct alternative refined: the search decides

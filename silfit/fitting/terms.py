@@ -59,6 +59,7 @@ class Evaluation:
     root_camera: torch.Tensor  # [P, F, C, 3]: transl in each camera's frame
     data: Dict[str, torch.Tensor]
     extras: dict = field(default_factory=dict)  # diagnostics terms leave behind (e.g. IoU)
+    views: Optional[Dict[str, torch.Tensor]] = None  # the cameras: intr, R, t [P, F, C, ...]
 
     def per_problem(self, values: torch.Tensor) -> torch.Tensor:
         """Sum ``[P]``, ``[P * F]``, ``[P, F]`` or ``[P, F, C]`` values per problem."""
@@ -77,7 +78,7 @@ def evaluate(body, layout: ParameterLayout, params: Dict[str, torch.Tensor], vie
     proj = project_points(kp_cam, views["intr"])
     root = rows["transl"].reshape(P, F, 1, 3)
     root_cam = torch.einsum("pfcij,pfcj->pfci", R, root.expand(P, F, C, 3)) + t
-    return Evaluation(P, F, C, params, rows, state, proj, root_cam, data)
+    return Evaluation(P, F, C, params, rows, state, proj, root_cam, data, views=views)
 
 
 class Term:

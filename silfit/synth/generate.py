@@ -40,6 +40,7 @@ from .. import __version__
 from ..camera import Camera, project_points, save_camera
 from ..dataset import INDEX_NAME, save_npz, write_png
 from ..keypoints import BODY25_NAMES, COCO17_NAMES, model_keypoints, write_openpose_json
+from ..layouts import KEYPOINT_DEPTH_TOLERANCE
 from ..wholebody import FACE70_NAMES, hand_names, wholebody_keypoints, write_wholebody_json
 from .hands import hand_axes, hand_pose_to_axis_angle, sample_hand_pose
 from ..poses.library import FRONTAL_POSES, POSE_LIBRARY
@@ -48,19 +49,6 @@ from .sampler import global_orientation, place_body, sample_betas, sample_intrin
 __all__ = ["SynthConfig", "SubjectRecord", "generate_subject", "generate_dataset", "FORMAT_VERSION", "KEYPOINT_DEPTH_TOLERANCE"]
 
 FORMAT_VERSION = 1
-
-#: How far (metres) behind the rendered surface a keypoint may lie and still count as
-#: visible: surface landmarks 3 cm; joint centres their measured depth below the skin
-#: (the larger of front and back views, over betas -2..2 on the open body model: neck 9.5,
-#: shoulders 7.9, elbows 5.9, wrists 3.4, pelvis 14.4, hips 12.8, knees 7.0, ankles 6.0 cm)
-#: plus 1.5-2.5 cm.
-KEYPOINT_DEPTH_TOLERANCE = {
-    "nose": 0.03, "neck": 0.11, "right_shoulder": 0.10, "right_elbow": 0.075, "right_wrist": 0.05,
-    "left_shoulder": 0.10, "left_elbow": 0.075, "left_wrist": 0.05, "mid_hip": 0.17, "right_hip": 0.15,
-    "right_knee": 0.09, "right_ankle": 0.075, "left_hip": 0.15, "left_knee": 0.09, "left_ankle": 0.075,
-    "right_eye": 0.03, "left_eye": 0.03, "right_ear": 0.03, "left_ear": 0.03, "left_big_toe": 0.03,
-    "left_small_toe": 0.03, "left_heel": 0.03, "right_big_toe": 0.03, "right_small_toe": 0.03, "right_heel": 0.03,
-}  # fmt: skip
 
 
 @dataclass

@@ -438,6 +438,17 @@ def test_the_stage_computes_in_its_configured_dtype_without_changing_the_callers
         KeypointFitConfig(dtype="float16")
 
 
+def _thigh_subject(model):
+    """Keypoints ``[25, 3]`` and true parameters of a body whose left thigh points at the camera."""
+    pose = {**POSE, 4: (1.2, 0, 0), 1: (-0.9, 0, 0.05)}
+    kp, _ = subject(model, yaw_deg=0.0, pose=pose)
+    truth = {"betas": torch.zeros(1, 10), "global_orient": torch.tensor([[math.pi, 0.0, 0.0]]),
+             "body_pose": torch.zeros(1, 69), "transl": torch.tensor([[0.05, 0.15, 3.5]])}  # fmt: skip
+    for j, v in pose.items():
+        truth["body_pose"][0, 3 * (j - 1) : 3 * j] = torch.tensor(v)
+    return kp, truth
+
+
 def test_hypotheses_keep_the_best_distinct_branches_refined_to_the_end(body_model):
     # A thigh pointing at the camera (the branch test's subject): with hypotheses=3 the search keeps
     # several branches, refines them to the end and returns the distinct ones, lowest energy first;
@@ -447,12 +458,7 @@ def test_hypotheses_keep_the_best_distinct_branches_refined_to_the_end(body_mode
     from silfit.fitting.stages import Stage
     from silfit.keypoints import KeypointSet
 
-    pose = {**POSE, 4: (1.2, 0, 0), 1: (-0.9, 0, 0.05)}
-    kp, _ = subject(body_model, yaw_deg=0.0, pose=pose)
-    truth = {"betas": torch.zeros(1, 10), "global_orient": torch.tensor([[math.pi, 0.0, 0.0]]),
-             "body_pose": torch.zeros(1, 69), "transl": torch.tensor([[0.05, 0.15, 3.5]])}  # fmt: skip
-    for j, v in pose.items():
-        truth["body_pose"][0, 3 * (j - 1) : 3 * j] = torch.tensor(v)
+    kp, truth = _thigh_subject(body_model)
     w = {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4, "interpenetration": 1e5}
     free = ("global_orient", "transl", "body_pose")
     stages = [Stage("branches", free, w, 12, options={"branches": {"joint": True, "screen_after": 4, "survivors": 2}}),
@@ -472,3 +478,32 @@ def test_hypotheses_keep_the_best_distinct_branches_refined_to_the_end(body_mode
     assert len(info["branch_search"][0][0]["tried"]) >= 2
     # the fit is back on the true branch: the thigh's flip won
     assert "left_thigh" in hyps[0]["label"] or "left_thigh" in info["branches"][0]
+
+
+def test_occlusion_cue_scores_the_hypotheses_when_on(body_model):
+    # the branch test's subject with the occlusion cue on: every refined hypothesis carries its count
+    # of keypoints whose depth order disagrees with their confidence, and the fit is the lowest
+    # energy * (1 + w * count)
+    from silfit.fitting.branches import flip_segment
+    from silfit.fitting.problem import Problem
+    from silfit.fitting.stages import Stage
+    from silfit.keypoints import KeypointSet
+
+    assert all("occlusion" not in s.options.get("branches", {}) for s in KeypointFitConfig().stages())
+    on = [s for s in KeypointFitConfig(occlusion_weight=0.05).stages() if "branches" in s.options]
+    assert on and all(s.options["branches"]["occlusion"] == 0.05 for s in on)
+    kp, truth = _thigh_subject(body_model)
+    kp[[0, 15, 16], 2] = 0.2  # the face marked as hidden: the front-facing fits disagree there
+    w = {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4, "interpenetration": 1e5}
+    free = ("global_orient", "transl", "body_pose")
+    weight = 0.05
+    stages = [Stage("branches", free, w, 8, options={"branches": {"screen_after": 4, "survivors": 2, "occlusion": weight}}),
+              Stage("final", free, w, 4)]  # fmt: skip
+    fitter = KeypointFitter(body_model, config=KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages, hypotheses=2))
+    start = dict(truth, body_pose=flip_segment(fitter.body, truth, "left_thigh", body_model.joint_names, body_model.parents))
+    state, info = fitter.fit_problems([Problem.single(KeypointSet(kp[:, :2], kp[:, 2], "body25"), CAM)],
+                                      init={k: v.numpy() for k, v in start.items()})  # fmt: skip
+    (hyps,) = info["hypotheses"]
+    assert all(h["occlusion"] >= 3 - 1e-9 for h in hyps)  # nose and eyes visible, marked hidden
+    scores = [h["energy"] * (1 + weight * h["occlusion"]) for h in hyps]
+    assert scores[0] == pytest.approx(min(scores))
