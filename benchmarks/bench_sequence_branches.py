@@ -42,6 +42,7 @@ def main(argv=None):
     ap.add_argument("--keep", help="keep the dataset here")
     ap.add_argument("--methods", default="off,on", help="branch_dp settings to run (off, on)")
     ap.add_argument("--per-frame", action="store_true", help="print each frame's PA-MPJPE")
+    ap.add_argument("--only", help="fit only these sequences (comma-separated names)")
     args = ap.parse_args(argv)
 
     from silfit import load_body_model
@@ -60,6 +61,8 @@ def main(argv=None):
     methods = args.methods.split(",")
     table = []
     for rec in index["sequences"]:
+        if args.only and rec["name"] not in args.only.split(","):
+            continue
         d = root / rec["name"]
         seq = read_sequence(d)
         cam = load_camera(d / "camera.json")

@@ -102,6 +102,7 @@ class SequenceFitConfig:
     branch_hypotheses: int = 3
     branch_temporal_weight: float = 1.0
     branch_temporal_scale: float = 0.02
+    branch_rounds: int = 2
     window: int = 0  # frames per window (0: the whole sequence as one problem)
     overlap: int = 10
     window_pose_iterations: int = 40  # second pass (shared betas fixed) in windowed mode
@@ -630,9 +631,11 @@ def _refit_from_neighbours(model, layout, config, fitter, probs, state, info, pr
 def _choose_branches(model, layout, config, fitter, probs, state, info, cfg, frames, progress):
     """The branch over time: each frame's candidates are its hypotheses (``info["hypotheses"]``, or its
     fit) and, with ``cfg.neighbour_starts``, its refits from its neighbours' fits (:func:`_neighbour_fits`);
-    :func:`branch_path` picks one per frame (``frames``: the frames' indices, for the gaps). Returns the
-    chosen state (``{name: [n, w]}``) and ``rebranched [n]``: the frame's choice is not its
-    lowest-energy candidate (joints more than ``DISTINCT_JOINTS_M`` apart, mean)."""
+    :func:`branch_path` picks one per frame (``frames``: the frames' indices, for the gaps). Each further
+    round of ``cfg.branch_rounds`` refits every frame from its neighbours' chosen candidates, adds those to
+    the candidates and picks again (a right branch spreads one frame per round into a run of frames whose
+    own fits all took the wrong one). Returns the chosen state (``{name: [n, w]}``) and ``rebranched [n]``:
+    the frame's choice is not its lowest-energy candidate (joints more than ``DISTINCT_JOINTS_M`` apart, mean)."""
     from .keypoint_stage import DISTINCT_JOINTS_M
 
     n = len(probs)
@@ -640,40 +643,42 @@ def _choose_branches(model, layout, config, fitter, probs, state, info, cfg, fra
     rows = info["layout"].rows(state)
     cand = {k: [] for k in rows}
     energy, owner = [], []
-    for b in range(n):
-        hyps = (info.get("hypotheses") or [None] * n)[b]
-        if hyps:
-            for h in hyps:
-                for k in cand:
-                    cand[k].append(np.asarray(h["params"][k], dtype=np.float64).reshape(-1))
-                energy.append(float(h["energy"]))
-                owner.append(b)
-        else:
-            for k in cand:
-                cand[k].append(rows[k][b].double().numpy().reshape(-1))
-            energy.append(float(info["energies"][last][b]))
-            owner.append(b)
-    if cfg.neighbour_starts and n > 1:
-        own, nb_state, nb_energy = _neighbour_fits(model, layout, config, fitter, probs, state, progress)
+
+    def add(params, e, b):
+        for k in cand:
+            cand[k].append(np.asarray(params[k], dtype=np.float64).reshape(-1))
+        energy.append(float(e))
+        owner.append(int(b))
+
+    def add_refits(start):
+        own, nb_state, nb_energy = _neighbour_fits(model, layout, config, fitter, probs, start, progress)
         nb_rows = info["layout"].rows(nb_state)
         for m, b in enumerate(own.tolist()):
-            for k in cand:
-                cand[k].append(nb_rows[k][m].double().numpy().reshape(-1))
-            energy.append(float(nb_energy[m]))
-            owner.append(b)
-    cand = {k: np.stack(v) for k, v in cand.items()}
-    energy, owner = np.asarray(energy), np.asarray(owner)
-    with torch.no_grad():
-        joints = fitter.body(**{k: torch.as_tensor(v, dtype=fitter.dtype) for k, v in cand.items()}).joints.double().numpy()
-    energy = np.where(np.isfinite(energy), energy, np.inf)
-    per = [np.flatnonzero(owner == b) for b in range(n)]
+            add({k: v[m].double().numpy() for k, v in nb_rows.items()}, nb_energy[m], b)
+
+    for b in range(n):
+        hyps = (info.get("hypotheses") or [None] * n)[b]
+        for h in hyps or [{"params": {k: v[b].double().numpy() for k, v in rows.items()}, "energy": info["energies"][last][b]}]:
+            add(h["params"], h["energy"], b)
     gaps = np.r_[1, np.diff(np.asarray(frames))]
-    pick = branch_path([energy[r] for r in per], [joints[r] for r in per], gaps, cfg.branch_temporal_weight,
-                       cfg.branch_temporal_scale)  # fmt: skip
-    chosen = np.array([r[p] for r, p in zip(per, pick)])
-    lowest = np.array([r[int(np.argmin(energy[r]))] for r in per])  # the first of tied ones
+    rounds = max(int(cfg.branch_rounds), 1) if cfg.neighbour_starts and n > 1 else 1
+    if cfg.neighbour_starts and n > 1:
+        add_refits(state)
+    for r in range(rounds):
+        params = {k: np.stack(v) for k, v in cand.items()}
+        e, own = np.asarray(energy), np.asarray(owner)
+        with torch.no_grad():  # only the new candidates' joints would do; the sequence's are few enough
+            joints = fitter.body(**{k: torch.as_tensor(v, dtype=fitter.dtype) for k, v in params.items()}).joints.double().numpy()
+        per = [np.flatnonzero(own == b) for b in range(n)]
+        pick = branch_path([e[i] for i in per], [joints[i] for i in per], gaps, cfg.branch_temporal_weight,
+                           cfg.branch_temporal_scale)  # fmt: skip
+        chosen = np.array([i[p] for i, p in zip(per, pick)])
+        if r + 1 < rounds:
+            add_refits({k: torch.as_tensor(v[chosen]) for k, v in params.items()})
+    e = np.where(np.isfinite(e), e, np.inf)
+    lowest = np.array([i[int(np.argmin(e[i]))] for i in per])  # the first of tied ones
     moved = np.linalg.norm(joints[chosen] - joints[lowest], axis=-1).mean(-1)
-    return {k: torch.as_tensor(v[chosen]) for k, v in cand.items()}, moved > DISTINCT_JOINTS_M
+    return {k: torch.as_tensor(v[chosen]) for k, v in params.items()}, moved > DISTINCT_JOINTS_M
 
 
 def _merge_windows(params: Dict[str, np.ndarray], starts: List[int], F: int) -> Dict[str, np.ndarray]:
