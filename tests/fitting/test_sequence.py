@@ -147,6 +147,18 @@ def test_a_dropped_frame_is_bridged_and_the_sequence_has_one_shape(open_model):
     assert acceleration_error(r.joints, joints) < acceleration_error(pf, joints)
 
 
+def test_branch_choice_over_time_fits_the_walk_and_records_its_changes(open_model):
+    sets, joints, _ = motion_keypoints(open_model, F=6)
+    fast = replace(FAST_INIT, branch_search=True, branch_iters=8, branch_screen_iters=4)
+    cfg = SequenceFitConfig(keypoint=fast, iterations=40, branch_dp=True, branch_hypotheses=2)
+    r = fit_sequence(sets, CAM, open_model, config=cfg)
+    assert r.rebranched.shape == (6,) and r.rebranched.dtype == bool
+    assert r.config["branch_dp"] is True
+    err = pa_mpjpe(r.joints, joints) * 1000
+    assert err.mean() < 35.0 and err.max() < 60.0, err
+    assert any("depth branch" in w for w in r.warnings) == bool(r.rebranched.any())
+
+
 def test_fit_sequence_refuses_a_sequence_without_usable_frames(open_model):
     with pytest.raises(ValueError, match="no frame"):
         fit_sequence([None, None], CAM, open_model)
