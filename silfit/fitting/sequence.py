@@ -14,7 +14,9 @@ cameras: a rig video), one shape for all frames.
    frame's fit (one start each, one batch) and keeps the lowest final energy of its three
    fits (:func:`~silfit.fitting.keypoint_stage.best_per_group`: near-ties keep its own fit). A
    frame stuck alone in a poor local minimum seldom is when started from the frame beside it
-   (test subject: frame 0 at energy 1893 and 174 mm PA-MPJPE alone, 133 and 15 mm from frame 1);
+   (test subject: frame 0 at energy 1893 and 174 mm PA-MPJPE alone, 133 and 15 mm from frame 1).
+   With ``branch_dp`` each frame's hypotheses and neighbour refits are candidates and the branch is
+   chosen over time (:func:`branch_path`, a Viterbi programme; ``rebranched`` frames are recorded);
 3. **consistent facings**: each frame's body-forward direction in the ground plane is
    compared along the sequence; the fewest frames whose facing contradicts their
    neighbours' (a 180-degree flip, the single image's classic ambiguity) are re-initialised
