@@ -251,7 +251,7 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
                       exports: Sequence[str] = ()) -> Path:  # fmt: skip
     """Write a :class:`~silfit.fitting.sequence.SequenceFitResult` atomically: ``params.npz``
     / ``params.json`` (the fit file of :mod:`silfit.fitio`: ``F`` frames, one view, ``frames``
-    the frame numbers; ``params.json`` adds ``bridged`` and ``refaced`` per frame),
+    the frame numbers; ``params.json`` adds ``bridged``, ``refaced`` and ``rebranched`` per frame),
     ``stages/per_frame/params.npz`` (the per-frame fits), ``metrics.json``,
     ``strip.png`` (a frame strip of overlays), ``overlay.gif`` (every frame; with imageio)
     and with ``meshes`` ``meshes/<frame>.obj``; ``exports`` (``"glb"``, ``"ply"``) adds
@@ -273,6 +273,8 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
     numbers = list(sequence.numbers)
     cam = result.camera
     flags = {"bridged": result.bridged.tolist(), "refaced": result.refaced.tolist()}
+    if result.rebranched is not None:
+        flags["rebranched"] = result.rebranched.tolist()
     rig = result.views is not None  # a rig video: world coordinates, every view (silfit.video.RigSequence)
     if rig and exports:
         raise ValueError("exports of a rig video: not available (a rig's world frame has no fixed up axis)")
@@ -316,6 +318,8 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
             "frames": len(numbers), "first_frame": numbers[0], "last_frame": numbers[-1],
             "bridged_frames": [numbers[i] for i in np.flatnonzero(result.bridged)],
             "refaced_frames": [numbers[i] for i in np.flatnonzero(result.refaced)],
+            # the frames whose depth branch the choice over time changed (SequenceFitConfig.branch_dp)
+            "rebranched_frames": [numbers[i] for i in np.flatnonzero(result.rebranched)] if result.rebranched is not None else [],
             "outlier_keypoints": int(result.outliers.sum()),
             "reprojection_error_px": float(np.median(finite)) if len(finite) else None,
             **({"reprojection_error_px_keypoint_stage": finite_median(result.reprojection_error_keypoint_stage)}

@@ -14,7 +14,9 @@ cameras: a rig video), one shape for all frames.
    frame's fit (one start each, one batch) and keeps the lowest final energy of its three
    fits (:func:`~silfit.fitting.keypoint_stage.best_per_group`: near-ties keep its own fit). A
    frame stuck alone in a poor local minimum seldom is when started from the frame beside it
-   (test subject: frame 0 at energy 1893 and 174 mm PA-MPJPE alone, 133 and 15 mm from frame 1);
+   (test subject: frame 0 at energy 1893 and 174 mm PA-MPJPE alone, 133 and 15 mm from frame 1).
+   With ``branch_dp`` each frame's hypotheses and neighbour refits are candidates and the branch is
+   chosen over time (:func:`branch_path`, a Viterbi programme; ``rebranched`` frames are recorded);
 3. **consistent facings**: each frame's body-forward direction in the ground plane is
    compared along the sequence; the fewest frames whose facing contradicts their
    neighbours' (a 180-degree flip, the single image's classic ambiguity) are re-initialised
@@ -62,7 +64,7 @@ from .threads import torch_threads
 
 __all__ = [
     "SequenceFitConfig", "SequenceFitResult", "consistent_facings", "fit_sequence", "interpolate_frames",
-    "keypoint_outliers", "refine_sequence_silhouettes",
+    "keypoint_outliers", "refine_sequence_silhouettes", "viterbi", "pose_distances", "branch_path",
 ]  # fmt: skip
 
 ROTATIONS = ("global_orient", "body_pose")
@@ -92,6 +94,20 @@ class SequenceFitConfig:
     facing_jump_cost: float = 10.0  # per 180-degree jump between neighbouring frames (vs 1 per re-initialised frame)
     #: fit each initialised frame again from its neighbours' fits and keep the lowest energy (module docstring)
     neighbour_starts: bool = True
+    #: the branch over time: each frame's ``branch_hypotheses`` best distinct keypoint-stage hypotheses
+    #: (``KeypointFitConfig.hypotheses``) and its refits from its neighbours are its candidates, and a
+    #: dynamic programme picks one per frame (:func:`branch_path`: each candidate's energy above the frame's
+    #: lowest, over the sequence's typical energy, plus ``branch_temporal_weight`` times the root-relative
+    #: joint distance between consecutive frames' candidates over ``branch_temporal_scale`` metres per
+    #: frame) before the joint refinement, instead of each frame's lowest energy (one camera only).
+    #: Fresh seed 2031 (benchmarks/bench_sequence_branches.py, 60 frames), PA-MPJPE median / worst frame
+    #: against main's: squat 55.4 / 154 -> 28.8 / 92 mm, run 111 / 242 -> 57 / 124, walk 41.0 / 74 ->
+    #: 38.9 / 80; about 2x the wall time (loaded machine)
+    branch_dp: bool = True
+    branch_hypotheses: int = 3
+    branch_temporal_weight: float = 1.0
+    branch_temporal_scale: float = 0.02
+    branch_rounds: int = 2
     window: int = 0  # frames per window (0: the whole sequence as one problem)
     overlap: int = 10
     window_pose_iterations: int = 40  # second pass (shared betas fixed) in windowed mode
@@ -158,6 +174,9 @@ class SequenceFitResult:
     #: first one's); then ``keypoints_2d`` is ``[F, C, K, 2]``, ``reprojection_error`` and
     #: ``silhouette_iou`` ``[F, C]``, ``outliers`` ``[F, C, K]`` and the parameters are in world coordinates
     views: Optional[list] = None
+    #: frames whose per-frame start is not their lowest-energy hypothesis: the branch chosen over time
+    #: (``SequenceFitConfig.branch_dp``); all False without it
+    rebranched: Optional[np.ndarray] = None
 
     @property
     def num_frames(self) -> int:
@@ -260,6 +279,57 @@ def consistent_facings(forward: np.ndarray, valid: np.ndarray, jump_cost: float 
         out[idx[n]] = bool(label)
         label = int(back[n, label])
     return out
+
+
+def viterbi(unary: Sequence[np.ndarray], pairwise: Sequence[np.ndarray]) -> np.ndarray:
+    """The labels (one per step) of the lowest total cost ``sum_n unary[n][l_n] + sum_n
+    pairwise[n][l_{n-1}, l_n]``: ``unary[n]`` ``[H_n]`` (a step's own costs), ``pairwise[n]``
+    ``[H_{n-1}, H_n]`` for ``n >= 1`` (``pairwise[0]`` is not read). Ties go to the lower label
+    (deterministic). Returns ``int [N]`` (empty for no step)."""
+    N = len(unary)
+    if N == 0:
+        return np.zeros(0, dtype=np.int64)
+    cost = np.asarray(unary[0], dtype=np.float64)
+    back = [np.zeros(len(cost), dtype=np.int64)]
+    for n in range(1, N):
+        total = cost[:, None] + np.asarray(pairwise[n], dtype=np.float64)  # [previous, current]
+        back.append(total.argmin(0))
+        cost = total.min(0) + np.asarray(unary[n], dtype=np.float64)
+    labels = np.zeros(N, dtype=np.int64)
+    labels[-1] = int(cost.argmin())
+    for n in range(N - 1, 0, -1):
+        labels[n - 1] = int(back[n][labels[n]])
+    return labels
+
+
+def pose_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``[H_a, H_b]``: the mean distance between two sets of hypotheses' joints ``[H, J, 3]``, each
+    relative to its own root joint (the body's pose and facing, not its place)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    a, b = a - a[:, :1], b - b[:, :1]
+    return np.linalg.norm(a[:, None] - b[None], axis=-1).mean(-1)
+
+
+def branch_path(energies: Sequence[np.ndarray], joints: Sequence[np.ndarray], gaps: Sequence[int],
+                temporal_weight: float = 1.0, temporal_scale: float = 0.02) -> np.ndarray:  # fmt: skip
+    """Each frame's hypothesis (``int [N]``) chosen over time: :func:`viterbi` with unary = a frame's
+    hypothesis energies ``energies[n] [H_n]`` less the frame's lowest, over the sequence's median
+    lowest (so a unit is a typical frame's whole energy), and pairwise = ``temporal_weight`` times the
+    root-relative joint distance between consecutive frames' hypotheses (:func:`pose_distances`,
+    ``joints[n] [H_n, J, 3]``, metres) over ``temporal_scale`` (metres per frame) times their frame gap
+    ``gaps[n]`` (``gaps[0]`` not read)."""
+    N = len(energies)
+    if N == 0:
+        return np.zeros(0, dtype=np.int64)
+    energies = [np.asarray(e, dtype=np.float64) for e in energies]
+    low = np.array([e[np.isfinite(e)].min() if np.isfinite(e).any() else np.nan for e in energies])
+    scale = max(float(np.median(np.abs(low[np.isfinite(low)]))) if np.isfinite(low).any() else 1.0, 1e-12)
+    # a non-finite energy (a failed fit) is a candidate only when nothing else is left
+    unary = [np.where(np.isfinite(e), (e - (lo if np.isfinite(lo) else 0.0)) / scale, 1e12) for e, lo in zip(energies, low)]
+    pair = [None] + [temporal_weight * pose_distances(joints[n - 1], joints[n]) / (temporal_scale * max(int(gaps[n]), 1))
+                     for n in range(1, N)]  # fmt: skip
+    return viterbi(unary, pair)
 
 
 def _windows(F: int, window: int, overlap: int) -> List[int]:
@@ -423,6 +493,7 @@ def fit_sequence(
         init_frames = np.append(init_frames, np.flatnonzero(seen)[-1])
 
     # 2. per-frame initialisation, the usable frames as one batch
+    rebranched = np.zeros(F, dtype=bool)
     fitter = KeypointFitter(model, layout, cfg.keypoint, pose_prior)
     names = tuple(fitter.params.sizes)
     with torch_threads(cfg.keypoint.threads):
@@ -435,8 +506,14 @@ def fit_sequence(
             state = {n: torch.as_tensor(np.stack([fit.params[n] for fit in fits])) for n in names}
         else:
             probs = [Problem.single(KeypointSet(xy_v[f, 0], conf_v[f, 0], layout), camera) for f in init_frames]
+            if cfg.branch_dp:  # several hypotheses per frame; the branch is chosen over time
+                fitter = KeypointFitter(model, layout, replace(cfg.keypoint, hypotheses=max(int(cfg.branch_hypotheses), 1)),
+                                        fitter.pose_prior)  # fmt: skip
             state, info = fitter.fit_problems(probs, progress=progress)
-            if cfg.neighbour_starts and len(probs) > 1:
+            if cfg.branch_dp and len(probs) > 1:
+                state, rebranched[init_frames] = _choose_branches(model, layout, cfg.keypoint, fitter, probs, state, info,
+                                                                  cfg, init_frames, progress)  # fmt: skip
+            elif cfg.neighbour_starts and len(probs) > 1:
                 state = _refit_from_neighbours(model, layout, cfg.keypoint, fitter, probs, state, info, progress)
     per = {n: np.zeros((F, fitter.params.sizes[n])) for n in names}
     for n in names:
@@ -510,11 +587,15 @@ def fit_sequence(
                         f"{', '.join(map(str, np.flatnonzero(bridged)[:10]))}{' ...' if bridged.sum() > 10 else ''}")  # fmt: skip
     if refaced.any():
         warnings.append(f"{int(refaced.sum())} frame(s) had their facing re-initialised from their neighbours")
+    if rebranched.any():
+        warnings.append(f"{int(rebranched.sum())} frame(s) took another depth branch than their lowest-energy one, to agree "
+                        f"with their neighbours: {', '.join(map(str, np.flatnonzero(rebranched)[:10]))}"
+                        f"{' ...' if rebranched.sum() > 10 else ''}")  # fmt: skip
     f32 = lambda a: np.asarray(a, dtype=np.float32)  # noqa: E731
     return SequenceFitResult(
         betas=f32(final["betas"]), body_pose=f32(final["body_pose"]), global_orient=f32(final["global_orient"]),
         transl=f32(final["transl"]), camera=views[0].camera, joints=f32(body.joints.numpy()), keypoints_2d=f32(kp2d),
-        bridged=bridged, refaced=refaced, outliers=outliers, reprojection_error=reproj,
+        bridged=bridged, refaced=refaced, rebranched=rebranched, outliers=outliers, reprojection_error=reproj,
         per_frame={n: f32(v) for n, v in per_frame.items()},
         extra={n: f32(final[n]) for n in names if n not in ("betas", "body_pose", "global_orient", "transl")},
         timings={"per_frame_init": t_init, "refine": t_refine, "total": time.perf_counter() - t0, "frames": F,
@@ -523,24 +604,86 @@ def fit_sequence(
     )  # fmt: skip
 
 
-def _refit_from_neighbours(model, layout, config, fitter, probs, state, info, progress):
+def _neighbour_fits(model, layout, config, fitter, probs, state, progress):
     """Each frame fitted again from its previous and next frame's fit (the first frame from the next,
-    the last from the previous), one start each, all in one batch; each frame keeps the lowest final
-    energy of its own fit and these (near-ties: its own). Returns the kept state."""
-    from .keypoint_stage import best_per_group
-
+    the last from the previous), one start each, all in one batch: ``(frame [M], state, energy [M])``,
+    row ``m`` a fit of frame ``frame[m]``'s problem (energies of the final stage, as ``fitter``'s)."""
     n = len(probs)
     src = [np.r_[1, np.arange(n - 1)]]  # the previous frame (the first frame: the next)
     if n > 2:
         src.append(np.r_[np.arange(1, n), n - 2])  # the next frame (the last frame: the previous)
     src = np.concatenate(src)
-    again = KeypointFitter(model, layout, replace(config, flip_test=False, init_poses=1, branch_search=False), fitter.pose_prior)
+    own = np.tile(np.arange(n), len(src) // n)  # row m fits frame own[m], started from frame src[m]'s fit
+    again = KeypointFitter(model, layout, replace(config, flip_test=False, init_poses=1, branch_search=False, hypotheses=1),
+                           fitter.pose_prior)  # fmt: skip
     start = {k: v[torch.as_tensor(src)].double().numpy() for k, v in state.items()}
-    nb_state, nb_info = again.fit_problems([probs[i] for i in src], progress=progress, init=start)
-    last = fitter.stages[-1].name
-    energy = torch.cat([info["energies"][last], nb_info["energies"][again.stages[-1].name]])
-    rows = best_per_group(energy, torch.arange(n).repeat(1 + len(src) // n), n)
+    nb_state, nb_info = again.fit_problems([probs[i] for i in own], progress=progress, init=start)
+    return own, nb_state, nb_info["energies"][again.stages[-1].name]
+
+
+def _refit_from_neighbours(model, layout, config, fitter, probs, state, info, progress):
+    """Each frame fitted again from its previous and next frame's fit (:func:`_neighbour_fits`); each
+    frame keeps the lowest final energy of its own fit and these (near-ties: its own). Returns the kept state."""
+    from .keypoint_stage import best_per_group
+
+    n = len(probs)
+    own, nb_state, nb_energy = _neighbour_fits(model, layout, config, fitter, probs, state, progress)
+    energy = torch.cat([info["energies"][fitter.stages[-1].name], nb_energy])
+    rows = best_per_group(energy, torch.cat([torch.arange(n), torch.as_tensor(own)]), n)
     return {k: torch.cat([v, nb_state[k].to(v.dtype)])[rows] for k, v in state.items()}
+
+
+def _choose_branches(model, layout, config, fitter, probs, state, info, cfg, frames, progress):
+    """The branch over time: each frame's candidates are its hypotheses (``info["hypotheses"]``, or its
+    fit) and, with ``cfg.neighbour_starts``, its refits from its neighbours' fits (:func:`_neighbour_fits`);
+    :func:`branch_path` picks one per frame (``frames``: the frames' indices, for the gaps). Each further
+    round of ``cfg.branch_rounds`` refits every frame from its neighbours' chosen candidates, adds those to
+    the candidates and picks again (a right branch spreads one frame per round into a run of frames whose
+    own fits all took the wrong one). Returns the chosen state (``{name: [n, w]}``) and ``rebranched [n]``:
+    the frame's choice is not its lowest-energy candidate (joints more than ``DISTINCT_JOINTS_M`` apart, mean)."""
+    from .keypoint_stage import DISTINCT_JOINTS_M
+
+    n = len(probs)
+    last = fitter.stages[-1].name
+    rows = info["layout"].rows(state)
+    cand = {k: [] for k in rows}
+    energy, owner = [], []
+
+    def add(params, e, b):
+        for k in cand:
+            cand[k].append(np.asarray(params[k], dtype=np.float64).reshape(-1))
+        energy.append(float(e))
+        owner.append(int(b))
+
+    def add_refits(start):
+        own, nb_state, nb_energy = _neighbour_fits(model, layout, config, fitter, probs, start, progress)
+        nb_rows = info["layout"].rows(nb_state)
+        for m, b in enumerate(own.tolist()):
+            add({k: v[m].double().numpy() for k, v in nb_rows.items()}, nb_energy[m], b)
+
+    for b in range(n):
+        hyps = (info.get("hypotheses") or [None] * n)[b]
+        for h in hyps or [{"params": {k: v[b].double().numpy() for k, v in rows.items()}, "energy": info["energies"][last][b]}]:
+            add(h["params"], h["energy"], b)
+    gaps = np.r_[1, np.diff(np.asarray(frames))]
+    rounds = max(int(cfg.branch_rounds), 1) if cfg.neighbour_starts and n > 1 else 1
+    if cfg.neighbour_starts and n > 1:
+        add_refits(state)
+    for r in range(rounds):
+        params = {k: np.stack(v) for k, v in cand.items()}
+        e, own = np.asarray(energy), np.asarray(owner)
+        with torch.no_grad():  # only the new candidates' joints would do; the sequence's are few enough
+            joints = fitter.body(**{k: torch.as_tensor(v, dtype=fitter.dtype) for k, v in params.items()}).joints.double().numpy()
+        per = [np.flatnonzero(own == b) for b in range(n)]
+        pick = branch_path([e[i] for i in per], [joints[i] for i in per], gaps, cfg.branch_temporal_weight,
+                           cfg.branch_temporal_scale)  # fmt: skip
+        chosen = np.array([i[p] for i, p in zip(per, pick)])
+        if r + 1 < rounds:
+            add_refits({k: torch.as_tensor(v[chosen]) for k, v in params.items()})
+    e = np.where(np.isfinite(e), e, np.inf)
+    lowest = np.array([i[int(np.argmin(e[i]))] for i in per])  # the first of tied ones
+    moved = np.linalg.norm(joints[chosen] - joints[lowest], axis=-1).mean(-1)
+    return {k: torch.as_tensor(v[chosen]) for k, v in params.items()}, moved > DISTINCT_JOINTS_M
 
 
 def _merge_windows(params: Dict[str, np.ndarray], starts: List[int], F: int) -> Dict[str, np.ndarray]:

@@ -11,8 +11,8 @@ from silfit.camera import Camera, project_points
 from silfit.eval.metrics import acceleration_error, pa_mpjpe
 from silfit.fitting import KeypointFitConfig
 from silfit.fitting.sequence import (
-    SequenceFitConfig, _merge_windows, _windows, body_forward, consistent_facings, fit_sequence, interpolate_frames,
-    keypoint_outliers,
+    SequenceFitConfig, _merge_windows, _windows, body_forward, branch_path, consistent_facings, fit_sequence,
+    interpolate_frames, keypoint_outliers, pose_distances, viterbi,
 )  # fmt: skip
 from silfit.keypoints import KeypointSet, model_keypoints
 from silfit.synth.motion import motion_trajectory
@@ -56,6 +56,41 @@ def test_consistent_facings_flag_the_fewest_flipped_frames_and_allow_a_slow_turn
     assert np.flatnonzero(consistent_facings(body_forward(flipped), valid)).tolist() == [4, 5]
     valid[5] = False  # an invalid frame is neither judged nor a neighbour
     assert np.flatnonzero(consistent_facings(body_forward(flipped), valid)).tolist() == [4]
+
+
+def test_viterbi_pays_a_frames_own_cost_to_stay_continuous_and_not_beyond():
+    switch = np.array([[0.0, 10.0], [10.0, 0.0]])  # changing label between steps costs 10
+    unary = [np.array([0.0, 5.0]), np.array([3.0, 0.0]), np.array([3.0, 0.0]), np.array([0.0, 5.0])]
+    assert viterbi(unary, [None] + [switch] * 3).tolist() == [0, 0, 0, 0]  # two frames at 3 each < two switches
+    cheap = np.array([[0.0, 1.0], [1.0, 0.0]])
+    assert viterbi(unary, [None] + [cheap] * 3).tolist() == [0, 1, 1, 0]  # switching is cheaper than 3
+    assert viterbi([np.array([1.0, 1.0, 0.5])], [None]).tolist() == [2]
+    assert viterbi([np.array([1.0, 1.0])] * 2, [None, np.zeros((2, 2))]).tolist() == [0, 0]  # ties: the lower label
+    assert viterbi([], []).tolist() == []
+    ragged = viterbi([np.array([0.0]), np.array([2.0, 0.0, 1.0])], [None, np.array([[0.0, 5.0, 0.0]])])
+    assert ragged.tolist() == [0, 2]  # 1 + 0 beats 2 + 0 and 0 + 5
+
+
+def test_branch_path_prefers_the_continuous_branch_over_a_slightly_lower_energy():
+    rng = np.random.default_rng(0)
+    base = rng.normal(size=(24, 3)) * 0.3
+    flipped = base.copy()
+    flipped[1:4, 2] += 0.4  # a limb mirrored in depth: 0.4 m at 3 of 24 joints
+    assert pose_distances(base[None], np.stack([base, flipped]))[0] == pytest.approx([0.0, 0.05])
+    assert pose_distances(base[None], (base + 5.0)[None])[0, 0] == pytest.approx(0.0)  # relative to the root
+    joints = [np.stack([base, flipped])] * 5
+    energies = [np.array([100.0, 300.0])] * 2 + [np.array([100.0, 95.0])] + [np.array([100.0, 300.0])] * 2
+    gaps = [1] * 5
+    assert branch_path(energies, joints, gaps).tolist() == [0] * 5  # 5 % lower energy against two jumps of 2.5: stay
+    assert branch_path(energies, joints, gaps, temporal_weight=0.0).tolist() == [0, 0, 1, 0, 0]
+    energies[2] = np.array([800.0, 95.0])  # the continuous branch 7 typical frames worse: take the other
+    assert branch_path(energies, joints, gaps).tolist() == [0, 0, 1, 0, 0]
+    energies[2] = np.array([np.nan, 95.0])  # a failed candidate is never taken
+    assert branch_path(energies, joints, gaps).tolist() == [0, 0, 1, 0, 0]
+    # a wider gap between frames allows more motion
+    two = [np.array([100.0, 300.0]), np.array([150.0, 95.0])]  # the second frame: 0.55 typical energies lower on the other
+    assert branch_path(two, joints[:2], [1, 1]).tolist() == [0, 0]  # a jump of 2.5
+    assert branch_path(two, joints[:2], [1, 10]).tolist() == [0, 1]  # 10 frames apart: 0.25
 
 
 def test_windows_cover_the_sequence_and_merge_from_their_middles():
@@ -110,6 +145,18 @@ def test_a_dropped_frame_is_bridged_and_the_sequence_has_one_shape(open_model):
     with torch.no_grad():
         pf = open_model(**{k: torch.as_tensor(v, dtype=open_model.dtype) for k, v in r.per_frame.items()}).joints.numpy()
     assert acceleration_error(r.joints, joints) < acceleration_error(pf, joints)
+
+
+def test_branch_choice_over_time_fits_the_walk_and_records_its_changes(open_model):
+    sets, joints, _ = motion_keypoints(open_model, F=6)
+    fast = replace(FAST_INIT, branch_search=True, branch_iters=8, branch_screen_iters=4)
+    cfg = SequenceFitConfig(keypoint=fast, iterations=40, branch_dp=True, branch_hypotheses=2)
+    r = fit_sequence(sets, CAM, open_model, config=cfg)
+    assert r.rebranched.shape == (6,) and r.rebranched.dtype == bool
+    assert r.config["branch_dp"] is True
+    err = pa_mpjpe(r.joints, joints) * 1000
+    assert err.mean() < 35.0 and err.max() < 60.0, err
+    assert any("depth branch" in w for w in r.warnings) == bool(r.rebranched.any())
 
 
 def test_fit_sequence_refuses_a_sequence_without_usable_frames(open_model):

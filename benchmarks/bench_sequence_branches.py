@@ -1,0 +1,108 @@
+"""Benchmark of the branch choice over time in sequence fits (issue 25, videos).
+
+Generates fresh sequences of ``--motions`` (``silfit synth --sequence``; ``--frames`` frames at
+30 fps, ``--noise`` px keypoint noise, ``--drop`` of the keypoints dropped, seed ``--seed``) and fits
+each with :func:`silfit.fitting.sequence.fit_sequence` twice: ``branch_dp`` off (one per-frame answer
+refined) and on (a dynamic programme over each frame's hypotheses picks the branch sequence before the
+refinement). Prints per sequence the PA-MPJPE median and worst frame, the frames above 2x the
+sequence's median, the frames the programme changed, and the wall-time ratio (same run).
+
+    python benchmarks/bench_sequence_branches.py --motions squat,walk,run --seed 2031
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+
+def frame_errors(model, gt, params) -> np.ndarray:
+    """PA-MPJPE per frame (mm)."""
+    from silfit.eval.metrics import pa_mpjpe
+    from silfit.eval.score_sequence import _joints
+
+    F = int(np.asarray(gt["body_pose"]).shape[0])
+    return np.asarray(pa_mpjpe(_joints(model, params, F), np.asarray(gt["joints"], dtype=np.float64))) * 1000
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--motions", default="squat,walk,run")
+    ap.add_argument("--frames", type=int, default=60)
+    ap.add_argument("--seed", type=int, default=2031)
+    ap.add_argument("--noise", type=float, default=2.0)
+    ap.add_argument("--drop", type=float, default=0.1)
+    ap.add_argument("--size", type=int, default=512)
+    ap.add_argument("--keep", help="keep the dataset here")
+    ap.add_argument("--methods", default="off,on", help="branch_dp settings to run (off, on)")
+    ap.add_argument("--per-frame", action="store_true", help="print each frame's PA-MPJPE")
+    ap.add_argument("--only", help="fit only these sequences (comma-separated names)")
+    args = ap.parse_args(argv)
+
+    from silfit import load_body_model
+    from silfit.camera import load_camera
+    from silfit.fitting.sequence import SequenceFitConfig, fit_sequence
+    from silfit.synth.motion import SequenceConfig, generate_sequence_dataset
+    from silfit.video import read_sequence
+
+    model = load_body_model()
+    motions = tuple(args.motions.split(","))
+    root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="bench_seqdp_"))
+    if not (root / "index.json").is_file():
+        generate_sequence_dataset(root, len(motions), SequenceConfig(seed=args.seed, frames=args.frames, size=args.size,
+                                  noise_px=args.noise, drop_prob=args.drop, motions=motions))  # fmt: skip
+    index = json.loads((root / "index.json").read_text())
+    methods = args.methods.split(",")
+    table = []
+    for rec in index["sequences"]:
+        if args.only and rec["name"] not in args.only.split(","):
+            continue
+        d = root / rec["name"]
+        seq = read_sequence(d)
+        cam = load_camera(d / "camera.json")
+        gt = dict(np.load(d / "gt.npz"))
+        row = {"name": rec["name"], "motion": rec["motion"]}
+        for m in methods:
+            cfg = SequenceFitConfig()
+            if hasattr(cfg, "branch_dp"):
+                cfg = replace(cfg, branch_dp=(m == "on"))
+            elif m == "on":
+                raise SystemExit("this silfit has no SequenceFitConfig.branch_dp")
+            t = time.perf_counter()
+            r = fit_sequence(seq.frames, cam, model, config=cfg)
+            dt = time.perf_counter() - t
+            e = frame_errors(model, gt, r.params())
+            e0 = frame_errors(model, gt, r.per_frame)
+            med = float(np.median(e))
+            changed = getattr(r, "rebranched", None)
+            row[m] = {"median": med, "max": float(e.max()), "argmax": int(e.argmax()), "above": int((e > 2 * med).sum()),
+                      "seconds": dt, "changed": int(np.sum(changed)) if changed is not None else 0,
+                      "init_median": float(np.median(e0)), "init_max": float(e0.max())}  # fmt: skip
+            if args.per_frame:
+                print(f"{rec['name']} {rec['motion']} {m} final:", " ".join(f"{x:.0f}" for x in e))
+                print(f"{rec['name']} {rec['motion']} {m} init: ", " ".join(f"{x:.0f}" for x in e0))
+                if changed is not None:
+                    print(f"{rec['name']} {rec['motion']} {m} changed:", np.flatnonzero(changed).tolist())
+            print(rec["name"], rec["motion"], m, {k: round(v, 1) for k, v in row[m].items()}, flush=True)
+        table.append(row)
+    load = os.getloadavg()
+    print(f"\n{len(table)} sequences x {args.frames} frames, {args.noise} px noise, {args.drop:.0%} keypoints dropped, "
+          f"seed {args.seed}; load average {load[0]:.1f} {load[1]:.1f} {load[2]:.1f} (shared CPU)\n")  # fmt: skip
+    head = " | ".join(f"{m}: median / max (frame) / above 2x median / changed" for m in methods)
+    print(f"| sequence | {head} | wall time ratio |")
+    print("|---|" + "---|" * len(methods) + "---:|")
+    for row in table:
+        cells = " | ".join(f"{row[m]['median']:.1f} / {row[m]['max']:.1f} ({row[m]['argmax']}) / {row[m]['above']} / {row[m]['changed']}"
+                           for m in methods)  # fmt: skip
+        ratio = row[methods[-1]]["seconds"] / row[methods[0]]["seconds"] if len(methods) > 1 else 1.0
+        print(f"| {row['name']} {row['motion']} | {cells} | {ratio:.2f} |")
+
+
+if __name__ == "__main__":
+    main()
