@@ -82,12 +82,13 @@ def test_proxy_is_a_fixed_affine_map(model, proxy):
 
 def test_proxy_cache(model, proxy, monkeypatch, tmp_path):
     assert get_proxy(model.v_template, model.faces, DEFAULT_PROXY_FACES) is proxy  # memory
+    from renderers import proxy as module
+
     monkeypatch.setenv("SILFIT_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(module, "_MEMORY", {})  # built here, whatever earlier tests left in memory
     small = get_proxy(model.v_template, model.faces, 2000)
     files = list(proxy_cache_dir().glob("*.npz"))
     assert len(files) == 1
-    from renderers import proxy as module
-
     module._MEMORY.clear()
     again = get_proxy(model.v_template, model.faces, 2000)  # from disk
     assert again is not small and np.array_equal(again.faces, small.faces)
