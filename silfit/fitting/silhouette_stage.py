@@ -313,7 +313,7 @@ def window_target(mask: np.ndarray, window, supersample: int = 4, truncation_awa
     seen = warp(np.ones(mask.shape, np.float32)) > 0.5  # the window's pixels inside the image
     valid = None if seen.all() or not truncation_aware else seen
     if known is not None:  # the window's pixels whose mask value is known (inside the image, if truncation-aware)
-        trusted = warp(known.astype(np.float32)) > 0.5
+        trusted = (warp(known.astype(np.float32)) > 0.5) | ~seen  # beyond the image: truncation_aware decides
         valid = trusted if valid is None else valid & trusted
         valid = None if valid.all() else valid
     return MaskTarget.from_mask(binary, valid=valid, cover=cover), coverage
