@@ -692,6 +692,9 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
                     raise ValueError(f"mask is {m.shape[1]}x{m.shape[0]} pixels, the camera {cam.width}x{cam.height}")
                 if not m.any():
                     raise ValueError(f"problem {p}, frame {f}, view {c}: the mask is empty")
+                if known[p][f][c] is not None and known[p][f][c].shape != m.shape:
+                    raise ValueError(f"problem {p}, frame {f}, view {c}: known is {known[p][f][c].shape[1]}x"
+                                     f"{known[p][f][c].shape[0]} pixels, the mask {m.shape[1]}x{m.shape[0]}")
     if not any(m is not None for g in masks for row in g for m in row):
         raise ValueError("the silhouette stage needs at least one mask")
     params_layout = ParameterLayout.of(model, problems[0].shared, F)
