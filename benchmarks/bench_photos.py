@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-BEFORE = dict(robust_cover=False, trim_clothing=False, plausibility_guard=False)
+BEFORE = dict(robust_cover=False, trim_clothing=False, plausibility_guard=False, leak_distance=0.0, hole_fraction=0.0)
 
 
 def shipped_photos() -> list:

@@ -120,9 +120,9 @@ def conditions(d: Path):
 #: the silhouette stage before issue 23 (no truncation, no keypoint trust region, no bound on |beta|,
 #: the plain two-sided energy)
 ORIGINAL = dict(truncation_aware=False, w_trust=0.0, w_beta_bound=0.0, robust_cover=False, trim_clothing=False,
-                plausibility_guard=False)
+                plausibility_guard=False, leak_distance=0.0, hole_fraction=0.0)
 #: before the clothing/leak-robust energy (issue 23's first part: truncation, trust region, beta bound)
-BEFORE = dict(robust_cover=False, trim_clothing=False, plausibility_guard=False)
+BEFORE = dict(robust_cover=False, trim_clothing=False, plausibility_guard=False, leak_distance=0.0, hole_fraction=0.0)
 #: main before the leak/hole handling (issue 23's third part): no unknown leaks or holes
 MAIN = dict(leak_distance=0.0, hole_fraction=0.0)
 METHODS = {"original": ORIGINAL, "before": BEFORE, "main": MAIN, "after": {}}

@@ -23,7 +23,7 @@
   rigs (:func:`silfit.rig_pipeline.refine_rig_fits`) and videos
   (:func:`silfit.fitting.sequence.refine_sequence_silhouettes`) all call it.
 * :func:`mask_warnings`: a mask that runs out of the image (the person cut off);
-  :func:`ambiguity_warnings`: a depth branch the keypoints cannot decide.
+  :func:`depth_warnings`: a depth branch the keypoints cannot decide.
 """
 from __future__ import annotations
 
@@ -36,8 +36,8 @@ from .errors import InputError
 from .keypoints import KeypointSet
 
 __all__ = [
-    "GuardDecision", "ambiguity_warnings", "body_stature", "branch_gap", "depth_warnings", "check_frames", "check_keypoints", "fit_summary",
-    "fit_warnings", "guard_fit", "hypothesis_summary", "hypothesis_warnings", "mask_warnings", "person_extent", "reprojection_rise_warnings",
+    "GuardDecision", "body_stature", "branch_gap", "depth_warnings", "check_frames", "check_keypoints", "fit_summary",
+    "fit_warnings", "guard_fit", "hypothesis_summary", "mask_warnings", "person_extent", "reprojection_rise_warnings",
     "shape_warnings", "silhouette_guard",
 ]  # fmt: skip
 
@@ -63,8 +63,6 @@ MAX_REPROJECTION_RISE = 2.0
 MIN_REPROJECTION_RISE_PX = 3.0
 #: A mask covering at least this share of an image side runs out of the image there.
 MIN_BORDER_RUN = 0.02
-#: Another depth hypothesis within this relative energy of the kept one is reported as ambiguous.
-AMBIGUOUS_GAP = 0.02
 #: :func:`depth_warnings`: an alternative refined to the end (``--hypotheses K``) within this relative
 #: final energy of the fit ...
 HYPOTHESIS_MARGIN = 0.02
@@ -244,22 +242,6 @@ def branch_gap(search) -> Optional[float]:
     return min(gaps) if gaps else None
 
 
-def ambiguity_warnings(search) -> list:
-    """A warning when another limb-branch hypothesis fits the keypoints almost as well as the
-    kept one (:func:`branch_gap` below :data:`AMBIGUOUS_GAP`): the keypoints cannot tell which
-    way the limb points in depth. On the hard set (``benchmarks/bench_ambiguity.py``) this
-    fires on about a third of the fits; it says the depth is undetermined, not that the fit is wrong."""
-    gap = branch_gap(search)
-    if gap is None or gap >= AMBIGUOUS_GAP:
-        return []
-    stage = min(search, key=lambda s: _stage_gap(s))
-    other = next(t["flip"] for t in stage["tried"] if t["flip"] != stage["kept"])
-    name = lambda label: "the pose as fitted" if label == "keep" else f"{label} flipped in depth"  # noqa: E731
-    return [f"depth ambiguous: {name(other)} fits the keypoints almost as well as {name(stage['kept'])} (energy "
-            f"{gap:.1%} higher); the keypoints cannot tell which way it points: check a side view (branch_search in "
-            "params.json)"]
-
-
 def hypothesis_summary(hypotheses) -> list:
     """``metrics.json``'s record of :attr:`~silfit.fitting.KeypointFitResult.hypotheses` (one
     sample's): rank (``hypotheses/<rank>/``), the branch it started from, its final energy, its gap
@@ -270,13 +252,6 @@ def hypothesis_summary(hypotheses) -> list:
     return [{"rank": k, "label": h["label"], "energy": float(h["energy"]),
              "gap": float((h["energy"] - e0) / max(abs(e0), 1e-12)), "differs": list(h["differs"])}
             for k, h in enumerate(hypotheses, 1)]  # fmt: skip
-
-
-def hypothesis_warnings(hypotheses, margin: float = HYPOTHESIS_MARGIN) -> list:
-    """A warning naming the limbs whose depth is ambiguous: the segments an alternative
-    (``silfit fit --hypotheses K``) turns away from the fit while its energy is within ``margin``
-    (relative) of the fit's (:func:`depth_warnings` without the branch search)."""
-    return depth_warnings(None, hypotheses, margin=margin)
 
 
 def _segments(label: str) -> list:
@@ -324,11 +299,6 @@ def depth_warnings(search, hypotheses=None, margin: float = HYPOTHESIS_MARGIN, s
     return [f"depth ambiguous for {', '.join(segs)}: an alternative fit within {used:.0%} of the energy turns "
             f"{'it' if len(segs) == 1 else 'them'} the other way ({', '.join(where)}); the keypoints cannot tell which: "
             "check a side view"]
-
-
-def _stage_gap(stage) -> float:
-    gap = branch_gap([stage])
-    return float("inf") if gap is None else gap
 
 
 def shape_warnings(betas) -> list:

@@ -188,7 +188,7 @@ def check(job: Job) -> Job:
                 warnings.append(f"view {names[c]} set aside: {err}")
                 continue
             warnings += [n if job.mode == "image" else f"view {names[c]}: {n}" for n in notes]
-            kept.append((c, Observation(o.view, ks, o.mask, 0, len(kept))))
+            kept.append((c, Observation(o.view, ks, o.mask, 0, len(kept), known=o.known)))
         if not kept:
             raise first
         problem = Problem([o for _, o in kept], job.problem.shared)
@@ -211,7 +211,7 @@ def check(job: Job) -> Job:
             kept.append((c, column))
         if not kept:
             raise first
-        problem = Problem([Observation(grid[f][c].view, column[f], grid[f][c].mask, f, i)
+        problem = Problem([Observation(grid[f][c].view, column[f], grid[f][c].mask, f, i, known=grid[f][c].known)
                            for f in range(F) for i, (c, column) in enumerate(kept)], job.problem.shared)  # fmt: skip
         names = [names[c] for c, _ in kept]
         index = {c: i for i, (c, _) in enumerate(kept)}  # a view's pictures and mask sources follow it

@@ -146,14 +146,14 @@ def test_a_mask_that_runs_out_of_the_image_is_reported():
 
 
 def test_a_depth_branch_the_keypoints_cannot_decide_is_reported():
-    from silfit.plausibility import ambiguity_warnings
+    from silfit.plausibility import depth_warnings
 
     close = [{"stage": "branches_1", "kept": "keep",
               "tried": [{"flip": "keep", "energy": 100.0}, {"flip": "left_upper_arm", "energy": 101.0}]}]
-    w = ambiguity_warnings(close)
-    assert len(w) == 1 and "left_upper_arm flipped in depth" in w[0] and "1.0% higher" in w[0]
-    far = [{"stage": "branches_1", "kept": "keep", "tried": [{"flip": "keep", "energy": 100.0}, {"flip": "left_shin", "energy": 110.0}]}]
-    assert ambiguity_warnings(far) == [] and ambiguity_warnings(None) == []
+    (w,) = depth_warnings(close)
+    assert w.startswith("depth ambiguous for left_upper_arm:") and "branch search: left_upper_arm" in w
+    far = [{"stage": "branches_1", "kept": "keep", "tried": [{"flip": "keep", "energy": 100.0}, {"flip": "left_shin", "energy": 120.0}]}]
+    assert depth_warnings(far) == [] and depth_warnings(None) == []
 
 
 def test_video_frames_whose_mask_runs_out_of_the_image_are_named():
@@ -198,18 +198,18 @@ def test_body_stature_follows_the_shape(open_model):
 
 
 def test_hypotheses_are_summarised_and_the_ambiguous_limbs_named():
-    from silfit.plausibility import hypothesis_summary, hypothesis_warnings
+    from silfit.plausibility import depth_warnings, hypothesis_summary
 
     hyps = [{"label": "keep", "energy": 100.0, "differs": []},
             {"label": "both_shins", "energy": 101.5, "differs": ["left_shin", "right_shin"]},
             {"label": "left_forearm", "energy": 130.0, "differs": ["left_forearm"]}]  # fmt: skip
     rows = hypothesis_summary(hyps)
     assert [r["rank"] for r in rows] == [1, 2, 3] and rows[1]["gap"] == pytest.approx(0.015)
-    (warning,) = hypothesis_warnings(hyps)
+    (warning,) = depth_warnings(None, hyps)
     assert warning.startswith("depth ambiguous for left_shin, right_shin: an alternative fit within 2% of the energy")
     assert "hypotheses/2" in warning and "left_forearm" not in warning  # 30 % higher: not ambiguous
-    assert hypothesis_warnings(hyps[:1]) == [] and hypothesis_warnings(None) == []
-    assert "left_forearm" in hypothesis_warnings(hyps, margin=0.5)[0]
+    assert depth_warnings(None, hyps[:1]) == [] and depth_warnings(None, None) == []
+    assert "left_forearm" in depth_warnings(None, hyps, margin=0.5)[0]
 
 
 def test_depth_warning_names_the_limbs_of_close_alternatives():

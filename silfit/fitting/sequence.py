@@ -258,7 +258,7 @@ def body_forward(global_orient: np.ndarray) -> np.ndarray:
 
 def consistent_facings(forward: np.ndarray, valid: np.ndarray, jump_cost: float = 10.0) -> np.ndarray:
     """``bool [F]``: frames whose facing to re-initialise, the fewest that make the sequence's
-    facing continuous. A dynamic programme over two labels per valid frame (keep, or
+    facing continuous. A dynamic programme (:func:`viterbi`) over two labels per valid frame (keep, or
     turn by 180 degrees: cost 1), consecutive valid frames paying ``jump_cost *
     (1 - cos(angle)) / 2`` for the angle between their (label-adjusted) forward vectors."""
     idx = np.flatnonzero(valid)
@@ -266,18 +266,9 @@ def consistent_facings(forward: np.ndarray, valid: np.ndarray, jump_cost: float 
     if len(idx) < 2:
         return out
     sign = np.array([1.0, -1.0])
-    cost = np.array([0.0, 1.0])
-    back = np.zeros((len(idx), 2), dtype=np.int64)
-    for n in range(1, len(idx)):
-        d = float(forward[idx[n - 1]] @ forward[idx[n]])
-        pair = jump_cost * (1.0 - sign[:, None] * sign[None, :] * d) / 2.0  # [previous label, label]
-        total = cost[:, None] + pair
-        back[n] = total.argmin(0)
-        cost = total.min(0) + np.array([0.0, 1.0])
-    label = int(cost.argmin())
-    for n in range(len(idx) - 1, -1, -1):
-        out[idx[n]] = bool(label)
-        label = int(back[n, label])
+    pair = [None] + [jump_cost * (1.0 - sign[:, None] * sign[None, :] * float(forward[idx[n - 1]] @ forward[idx[n]])) / 2.0
+                     for n in range(1, len(idx))]  # [previous label, label]  # fmt: skip
+    out[idx] = viterbi([np.array([0.0, 1.0])] * len(idx), pair).astype(bool)
     return out
 
 

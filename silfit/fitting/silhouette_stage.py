@@ -313,7 +313,7 @@ def window_target(mask: np.ndarray, window, supersample: int = 4, truncation_awa
     seen = warp(np.ones(mask.shape, np.float32)) > 0.5  # the window's pixels inside the image
     valid = None if seen.all() or not truncation_aware else seen
     if known is not None:  # the window's pixels whose mask value is known (inside the image, if truncation-aware)
-        trusted = warp(known.astype(np.float32)) > 0.5
+        trusted = (warp(known.astype(np.float32)) > 0.5) | ~seen  # beyond the image: truncation_aware decides
         valid = trusted if valid is None else valid & trusted
         valid = None if valid.all() else valid
     return MaskTarget.from_mask(binary, valid=valid, cover=cover), coverage
@@ -692,6 +692,9 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
                     raise ValueError(f"mask is {m.shape[1]}x{m.shape[0]} pixels, the camera {cam.width}x{cam.height}")
                 if not m.any():
                     raise ValueError(f"problem {p}, frame {f}, view {c}: the mask is empty")
+                if known[p][f][c] is not None and known[p][f][c].shape != m.shape:
+                    raise ValueError(f"problem {p}, frame {f}, view {c}: known is {known[p][f][c].shape[1]}x"
+                                     f"{known[p][f][c].shape[0]} pixels, the mask {m.shape[1]}x{m.shape[0]}")
     if not any(m is not None for g in masks for row in g for m in row):
         raise ValueError("the silhouette stage needs at least one mask")
     params_layout = ParameterLayout.of(model, problems[0].shared, F)

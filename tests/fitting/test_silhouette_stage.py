@@ -362,3 +362,9 @@ def test_keypoint_trust_region_is_free_inside_and_quadratic_beyond():
     assert KeypointTrustTerm()(ev)[1].item() == pytest.approx(50.0)
     b = torch.tensor([[0.5, -2.5, 1.0], [3.5, 0.0, -4.5]], dtype=torch.float64)
     assert beta_bound(b, 2.5).tolist() == pytest.approx([0.0, 1.0 + 4.0])
+
+
+def test_known_pixels_of_another_size_are_refused(open_model, target_mask):
+    problem = Problem([Observation(View(CAMERA), None, target_mask, 0, 0, known=np.ones((10, 10), bool))])
+    with pytest.raises(ValueError, match="known is 10x10 pixels"):
+        fit_silhouette_problems(open_model, [problem], [POSE], config=FAST, progress=False)

@@ -232,3 +232,23 @@ def test_unknown_pixels_cost_nothing_and_pull_nothing():
     over = sil_body.mask.clone()
     over[(trusted.valid < 0.5)] = 1.0
     assert silhouette_energy(over, trusted).item() == pytest.approx(e_trusted, abs=1e-5)
+
+
+def test_unknown_pixels_do_not_switch_truncation_on():
+    # a person at the image's left edge: with truncation_aware=False the pixels beyond the image stay
+    # background (valid) whether or not some of the image's pixels are unknown
+    from silfit.camera import Camera
+    from silfit.fitting.silhouette_stage import choose_window, window_target
+
+    body = disc(size=96, centre=(10, 48), radius=20)
+    known = np.ones_like(body)
+    known[40:56, 16:28] = False  # inside the window
+    cam = Camera(100.0, 100.0, 47.5, 47.5, 96, 96)
+    window = choose_window(body, np.argwhere(body)[:, ::-1].astype(float), cam, 96, 0.12)
+    aware, _ = window_target(body, window)
+    assert aware.valid is not None and (aware.valid < 0.5).any()  # the window reaches beyond the image
+    beyond = aware.valid < 0.5
+    plain, _ = window_target(body, window, truncation_aware=False, known=known)
+    assert plain.valid is not None and (plain.valid < 0.5).any() and (plain.valid[beyond] > 0.5).all()
+    both, _ = window_target(body, window, known=known)
+    assert (both.valid[beyond] < 0.5).all()
