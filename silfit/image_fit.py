@@ -142,8 +142,7 @@ def _known_pixels(masks, body_masks, cfg: SilhouetteFitConfig, sources, notes) -
     for mask, body, source, note in zip(masks, body_masks, sources, notes):
         ys, xs = np.nonzero(mask)
         extent = float(max(np.ptp(ys), np.ptp(xs))) if len(ys) else 0.0
-        known = unknown_regions(mask, body, float(getattr(cfg, "leak_distance", 0.0)) * extent,
-                                float(getattr(cfg, "hole_fraction", 0.0)))  # fmt: skip
+        known = unknown_regions(mask, body, float(cfg.leak_distance) * extent, float(cfg.hole_fraction))
         far = 0 if known is None else int(np.count_nonzero(mask & ~known))
         if far > 0.02 * len(ys):
             note.append(f"{source}: {100 * far / len(ys):.0f} % of the mask lies far from the keypoint fit's body (a leak "
