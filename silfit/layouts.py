@@ -23,7 +23,7 @@ from __future__ import annotations
 import torch
 
 __all__ = [
-    "BLAZEPOSE33_NAMES", "BODY25_NAMES", "COCO17_NAMES", "FACE70_NAMES", "FINGERS", "HAND21_NAMES", "KEYPOINT_DEPTH_TOLERANCE", "LAYOUTS",
+    "BLAZEPOSE33_NAMES", "BODY25_NAMES", "COCO17_NAMES", "FACE70_NAMES", "FINGERS", "HAND21_NAMES", "DEFAULT_DEPTH_TOLERANCE", "KEYPOINT_DEPTH_TOLERANCE", "LAYOUTS",
     "PART_FIELDS", "WHOLEBODY_NAMES", "WHOLEBODY_PARTS", "hand_names", "keypoint_sources", "model_keypoints",
     "part_slices", "wholebody_keypoints", "wholebody_sources",
 ]  # fmt: skip
@@ -41,6 +41,8 @@ KEYPOINT_DEPTH_TOLERANCE = {
     "right_eye": 0.03, "left_eye": 0.03, "right_ear": 0.03, "left_ear": 0.03, "left_big_toe": 0.03,
     "left_small_toe": 0.03, "left_heel": 0.03, "right_big_toe": 0.03, "right_small_toe": 0.03, "right_heel": 0.03,
 }  # fmt: skip
+#: the depth tolerance (metres) of a keypoint not in :data:`KEYPOINT_DEPTH_TOLERANCE`
+DEFAULT_DEPTH_TOLERANCE = 0.05
 
 BODY25_NAMES = (
     "nose", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder", "left_elbow",

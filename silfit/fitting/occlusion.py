@@ -23,7 +23,7 @@ from typing import Sequence, Tuple
 
 import torch
 
-from ..layouts import KEYPOINT_DEPTH_TOLERANCE
+from ..layouts import DEFAULT_DEPTH_TOLERANCE, KEYPOINT_DEPTH_TOLERANCE
 from .problem import world_to_camera
 from .terms import Evaluation, Term
 
@@ -31,8 +31,6 @@ __all__ = ["OcclusionTerm", "hidden_keypoints", "occlusion_cost", "occlusion_par
 
 #: confidences at or below the first expect a hidden keypoint, at or above the second a visible one
 CONF_RANGE = (0.3, 0.6)
-#: tolerance (metres) of a keypoint not in :data:`~silfit.layouts.KEYPOINT_DEPTH_TOLERANCE`
-DEFAULT_TOLERANCE = 0.05
 
 
 def surface_depth(vertices: torch.Tensor, faces: torch.Tensor, points: torch.Tensor, offset: float = 0.0) -> torch.Tensor:
@@ -103,7 +101,7 @@ def occlusion_cost(hidden: torch.Tensor, conf: torch.Tensor, conf_range: Tuple[f
 
 
 def keypoint_tolerances(names: Sequence[str]) -> torch.Tensor:
-    return torch.as_tensor([KEYPOINT_DEPTH_TOLERANCE.get(n, DEFAULT_TOLERANCE) for n in names], dtype=torch.float64)
+    return torch.as_tensor([KEYPOINT_DEPTH_TOLERANCE.get(n, DEFAULT_DEPTH_TOLERANCE) for n in names], dtype=torch.float64)
 
 
 class OcclusionTerm(Term):

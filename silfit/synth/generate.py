@@ -40,7 +40,7 @@ from .. import __version__
 from ..camera import Camera, project_points, save_camera
 from ..dataset import INDEX_NAME, save_npz, write_png
 from ..keypoints import BODY25_NAMES, COCO17_NAMES, model_keypoints, write_openpose_json
-from ..layouts import KEYPOINT_DEPTH_TOLERANCE
+from ..layouts import DEFAULT_DEPTH_TOLERANCE, KEYPOINT_DEPTH_TOLERANCE
 from ..wholebody import FACE70_NAMES, hand_names, wholebody_keypoints, write_wholebody_json
 from .hands import hand_axes, hand_pose_to_axis_angle, sample_hand_pose
 from ..poses.library import FRONTAL_POSES, POSE_LIBRARY
@@ -252,7 +252,7 @@ def keypoint_visibility(
         # The farthest surface in the 3x3 neighbourhood: an occluder must cover all of it, so
         # edge pixels and coarse images do not produce false occlusions.
         d = depth[max(r - 1, 0) : r + 2, max(c - 1, 0) : c + 2].max()
-        vis[k] = 1 if (d > 0 and z - d > tol.get(name, 0.05)) else 2
+        vis[k] = 1 if (d > 0 and z - d > tol.get(name, DEFAULT_DEPTH_TOLERANCE)) else 2
     return vis
 
 
