@@ -22,8 +22,10 @@ full-image mask IoU (the fit rendered with pyrender/OSMesa against the mask; mea
 views for rigs), PVE (root-aligned) and PA-PVE in mm against the truth.
 
 ``head`` is the stage at main before issue 24's third part (``HEAD``: the ray-cast renderer, a short contour
-level, 65 rendered steps, the full mesh posed each step); ``after`` is the default (a longer contour level at
-higher weights, 50 rendered steps, the render proxy posed directly); ``head-projective`` is ``head`` rendered with
+level, 65 rendered steps, the full mesh posed each step); ``main`` is the stage before issue 24's fourth part
+(a longer contour level at higher weights, 50 rendered steps, the 10,000-face render proxy posed directly);
+``after`` is the default (``main`` with coarser render proxies per level, 3,000 faces at 128 px and 5,000 at
+256 px, a 10-step warm-up and half body_pose's learning rate); ``head-projective`` is ``head`` rendered with
 Mitsuba's ``prb_projective`` integrator; ``after-2t``, ``after-stratified``, ``*-s1``: see ``RENDERERS``.
 ``--video 60``: one 60-frame synthetic walk through the sequence's stage (``refine_sequence_silhouettes``: all
 frames one problem), seconds per frame (methods with their own renderer are skipped there).
@@ -49,14 +51,17 @@ import numpy as np
 import torch
 
 from silfit import load_body_model
-from silfit.fitting.silhouette_stage import SilhouetteFitConfig, fit_silhouette, fit_silhouette_problems
+from silfit.fitting.silhouette_stage import BEFORE_FOURTH_PART, SilhouetteFitConfig, fit_silhouette, fit_silhouette_problems
 
 #: the stage at main before issue 24's third part (a 20-iteration contour level at weights 0.05, then 40 + 25
 #: rendered steps, the full mesh posed each step and mapped to the render proxy)
 HEAD = {"iterations": (40, 25), "contour_iterations": 20, "w_contour_inside": 0.05, "w_contour_cover": 0.05,
-        "proxy_body": False}  # fmt: skip
+        "proxy_body": False, **BEFORE_FOURTH_PART}  # fmt: skip
+#: the stage at main before issue 24's fourth part (a 10,000-face proxy at both rendered levels, a 5-step warm-up,
+#: body_pose's learning rate 0.03): the third part's default
+MAIN = BEFORE_FOURTH_PART
 METHODS = {"original": SilhouetteFitConfig.legacy, "before": SilhouetteFitConfig.legacy, "after": SilhouetteFitConfig,
-           "head": lambda: SilhouetteFitConfig(**HEAD), "head-projective": lambda: SilhouetteFitConfig(**HEAD),
+           "head": lambda: SilhouetteFitConfig(**HEAD), "main": lambda: SilhouetteFitConfig(**MAIN), "head-projective": lambda: SilhouetteFitConfig(**HEAD),
            "after-2t": SilhouetteFitConfig, "after-stratified": SilhouetteFitConfig,
            "head-s1": lambda: SilhouetteFitConfig(**HEAD, seed=1), "after-s1": lambda: SilhouetteFitConfig(seed=1)}  # fmt: skip
 #: the renderer per method (``None``: the stage's default, the ray-cast method since issue 24's second part):

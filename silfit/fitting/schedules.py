@@ -59,19 +59,20 @@ SIL_FREE = ("betas", "global_orient", "body_pose", "transl")
 SIL_PRIORS = {"keypoints": 0.02, "pose": 0.002, "limits": 1.0, "angle": 0.001, "shape": 0.005, "stay": 0.0,
               "keypoint_trust": 0.05, "beta_bound": 10.0}  # fmt: skip
 #: Adam's settings of the rendered levels (:class:`~silfit.fitting.stages.AdamSettings`)
-SIL_ADAM = {"lr": {"betas": 0.1, "global_orient": 0.02, "body_pose": 0.03, "transl": 0.01}, "warmup": 5,
+SIL_ADAM = {"lr": {"betas": 0.1, "global_orient": 0.02, "body_pose": 0.015, "transl": 0.01}, "warmup": 10,
             "plateau_window": 12, "plateau_rtol": 0.003}  # fmt: skip
 
 #: the silhouette stage: :class:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig` (no rendering in the
-#: contour level; each rendered level's window has ``resolution`` pixels along its longer side)
+#: contour level; each rendered level's window has ``resolution`` pixels along its longer side and renders a
+#: ``proxy_faces``-face render proxy)
 SILHOUETTE_SCHEDULE = (
     #     name              free      weights                                                     iterations optimiser
     Stage("contour",        SIL_FREE, {"contour_inside": 0.2, "contour_cover": 0.2, **SIL_PRIORS},   40, "lbfgs",
           {"resolution": 256}),
     Stage("silhouette_128", SIL_FREE, {"silhouette": 1.0, **SIL_PRIORS},                             30, "adam",
-          {"resolution": 128, **SIL_ADAM}),
+          {"resolution": 128, "proxy_faces": 3000, **SIL_ADAM}),
     Stage("silhouette_256", SIL_FREE, {"silhouette": 1.0, **SIL_PRIORS},                             20, "adam",
-          {"resolution": 256, **SIL_ADAM}),
+          {"resolution": 256, "proxy_faces": 5000, **SIL_ADAM}),
 )  # fmt: skip
 
 #: a video's joint refinement (one problem of F frames, one shape):

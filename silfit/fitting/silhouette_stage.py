@@ -73,6 +73,12 @@ __all__ = [
 from ..body.model import SMPL_PARAMETER_NAMES as PARAMS  # noqa: E402
 
 
+#: the rendered levels' settings before issue 24's fourth part (one proxy for every level, a shorter warm-up,
+#: body_pose's learning rate twice today's): :meth:`SilhouetteFitConfig.legacy` and the benchmark's older methods
+BEFORE_FOURTH_PART = {"level_proxy_faces": {}, "warmup": 5,
+                      "lr": {"betas": 0.1, "body_pose": 0.03, "global_orient": 0.02, "transl": 0.01}}  # fmt: skip
+
+
 @renamed_fields(w_pose=Alias("pose_weight"))
 @dataclass
 class SilhouetteFitConfig:
@@ -126,8 +132,10 @@ class SilhouetteFitConfig:
     #: after the stage, a fit less plausible than the keypoint fit (silfit.plausibility.silhouette_guard)
     #: is replaced by the keypoint fit, with a warning (image path: silfit.image_fit.refine_batch)
     plausibility_guard: bool = True
+    #: Adam's learning rates (body_pose 0.03 before issue 24's fourth part: the first steps of a rendered level
+    #: knocked the contour level's IoU down)
     lr: dict = field(
-        default_factory=lambda: {"betas": 0.1, "body_pose": 0.03, "global_orient": 0.02, "transl": 0.01}
+        default_factory=lambda: {"betas": 0.1, "body_pose": 0.015, "global_orient": 0.02, "transl": 0.01}
     )
     w_silhouette: float = 1.0
     w_keypoints: float = 0.02
@@ -145,7 +153,7 @@ class SilhouetteFitConfig:
     #: shape held in the plausible range: ``(|beta| - max_abs_beta)^2`` beyond it (:func:`beta_bound`)
     w_beta_bound: float = 10.0
     max_abs_beta: float = 2.5
-    warmup: int = 5  # steps of linear learning-rate warm-up per level
+    warmup: int = 10  # steps of linear learning-rate warm-up per level (5 before issue 24's fourth part)
     plateau_window: int = 12  # steps compared for the plateau test
     plateau_rtol: float = 0.003  # relative energy improvement below which a level stops
     iou_collapse: float = 0.15  # IoU drop (vs best) that counts as divergence
@@ -155,6 +163,11 @@ class SilhouetteFitConfig:
     #: model's, :mod:`renderers.proxy`; IoU >= 0.995 against the full mesh at 10,000 faces);
     #: ``None`` renders the full mesh
     proxy_faces: Optional[int] = 10000
+    #: the render proxy's faces by rendered level resolution (window pixels -> faces, at most
+    #: ``proxy_faces``; a level not listed renders ``proxy_faces``; ignored with ``proxy_faces=None`` or a
+    #: caller's renderer): a window pixel spans 2-4 image pixels, so a coarser proxy does at a smaller
+    #: acceleration-structure build, ray plan and trace per step (issue 24's fourth part; ``{}``: before it)
+    level_proxy_faces: dict = field(default_factory=lambda: {128: 3000, 256: 5000})
     #: pose the render proxy's vertices directly (:class:`ContourBody` of the proxy: its rest-pose mix
     #: of the model, no full mesh per step) in the rendered levels of an SMPL-layout model; ``False``:
     #: pose the full mesh, then map it to the proxy (before issue 24's third part)
@@ -180,8 +193,10 @@ class SilhouetteFitConfig:
     @classmethod
     def legacy(cls, **changes) -> "SilhouetteFitConfig":
         """The schedule before the contour level (issue 24): rendered Adam levels only, 60
-        steps at 128 px and 50 at 256 px (the benchmark's "before")."""
+        steps at 128 px and 50 at 256 px, the rendered levels' settings before its fourth part
+        (:data:`BEFORE_FOURTH_PART`; the benchmark's "before")."""
         return cls(**{"resolutions": (128, 256), "iterations": (60, 50), "contour_iterations": 0, "window_multiple": 1,
+                      **{k: (dict(v) if isinstance(v, dict) else v) for k, v in BEFORE_FOURTH_PART.items()},
                       **changes})  # fmt: skip
 
     def cover_profile(self, resolution: int) -> Optional[CoverProfile]:
@@ -214,12 +229,22 @@ class SilhouetteFitConfig:
         if self.contour_iterations:
             contour = (Stage("contour", tuple(self.optimise), self.contour_weights(), int(self.contour_iterations),
                              "lbfgs", {"resolution": int(self.contour_resolution)}),)  # fmt: skip
+        faces = [self.level_faces(r) for r in self.resolutions]
         return contour + tuple(
             Stage(f"silhouette_{int(r)}", tuple(self.optimise), self.weights(), int(it), "adam",
-                  {"resolution": int(r), **AdamSettings({k: self.lr[k] for k in self.optimise}, int(self.warmup),
-                                                         int(self.plateau_window), float(self.plateau_rtol)).options()})  # fmt: skip
-            for r, it in zip(self.resolutions, self.iterations)
+                  {"resolution": int(r), **({} if f is None else {"proxy_faces": f}),
+                   **AdamSettings({k: self.lr[k] for k in self.optimise}, int(self.warmup),
+                                  int(self.plateau_window), float(self.plateau_rtol)).options()})  # fmt: skip
+            for r, it, f in zip(self.resolutions, self.iterations, faces)
         )
+
+    def level_faces(self, resolution: int) -> Optional[int]:
+        """The render proxy's faces of a rendered level at ``resolution`` when it is not ``proxy_faces``
+        (``level_proxy_faces``), else ``None``."""
+        faces = {int(k): v for k, v in (self.level_proxy_faces or {}).items()}.get(int(resolution))  # JSON: str keys
+        if not self.proxy_faces or faces is None or int(faces) >= int(self.proxy_faces):
+            return None
+        return int(faces)
 
     def to_dict(self) -> dict:
         d = {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
@@ -713,6 +738,7 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
     params = {k: v.clone().requires_grad_(k in free_names) for k, v in start.items()}
     prior = load_pose_prior(pose_prior, dtype=dtype) if not isinstance(pose_prior, torch.nn.Module) else pose_prior
     proxy = batch = contour_proxy = None
+    own_renderer = renderer is None
     if cfg.proxy_faces:
         from renderers.proxy import get_proxy
 
@@ -735,8 +761,30 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
     contour_body, contour_points_map = body, contour_proxy  # the contour level's evaluator and its vertices' map
     if cfg.contour_iterations and cfg.contour_vertices and smpl_layout:
         contour_body, contour_points_map = ContourBody(model, layout, contour_vertex_index(model, cfg.contour_vertices)), None
+    silhouette = SilhouetteTerm(renderer, cfg.spp, cfg.edge_spp, proxy, batch)
+    level_renders = {cfg.proxy_faces: (renderer, proxy, batch, render_body)}  # proxy faces -> a rendered level's setup
+
+    def level_render(n_faces):
+        """``(renderer, proxy map, batch renderer, body)`` of a rendered level whose proxy has ``n_faces``."""
+        if n_faces is None or not own_renderer or not cfg.proxy_faces:
+            n_faces = cfg.proxy_faces
+        if n_faces not in level_renders:
+            from renderers.proxy import get_proxy
+
+            level_proxy = get_proxy(model.v_template, model.faces, int(n_faces))
+            level_batch = None
+            if cfg.batch_render:
+                from renderers.batch import get_batch_renderer
+
+                level_batch = get_batch_renderer(level_proxy.faces)
+            level_body, level_map = body, level_proxy
+            if cfg.proxy_body and smpl_layout:
+                level_body, level_map = ContourBody(model, layout, level_proxy), None
+            level_renders[n_faces] = (get_silhouette_renderer(level_proxy.faces), level_map, level_batch, level_body)
+        return level_renders[n_faces]
+
     energy = Energy([
-        SilhouetteTerm(renderer, cfg.spp, cfg.edge_spp, proxy, batch), KeypointTerm("keypoints", cfg.kp_sigma),
+        silhouette, KeypointTerm("keypoints", cfg.kp_sigma),
         PriorTerm("pose", prior, "body_pose"), PriorTerm("limits", limit_violation, "body_pose"),
         PriorTerm("angle", angle_prior, "body_pose"), PriorTerm("shape", shape_prior, "betas"),
         StayTerm("body_pose"), ContourInsideTerm(contour_points_map), ContourCoverTerm(contour_points_map),
@@ -808,6 +856,7 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
         rows = torch.as_tensor([p for p in range(P) if not failed[p]], dtype=torch.long)
         if stage.optimiser == "lbfgs":  # the contour level: deterministic, no rendering
             return {"rows": rows, "body": contour_body}
+        silhouette.renderer, silhouette.proxy, silhouette.batch_renderer, level_body = level_render(stage.options.get("proxy_faces"))
         best_energy[:] = [math.inf] * P  # energies of different resolutions are not comparable
         stepped_ious: dict = {}
 
@@ -849,7 +898,7 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
             bar.set_postfix(iou=f"{np.mean([stepped_ious[p] for p in stepped.tolist()]):.3f}", res=resolution)
             stepped_ious.clear()
 
-        return {"rows": rows, "body": render_body, "before_step": before_step, "on_step": on_step, "after_step": after_step}
+        return {"rows": rows, "body": level_body, "before_step": before_step, "on_step": on_step, "after_step": after_step}
 
     def finish_level(level, stage, run):
         if stage.optimiser == "lbfgs":

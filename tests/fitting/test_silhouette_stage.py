@@ -368,3 +368,22 @@ def test_known_pixels_of_another_size_are_refused(open_model, target_mask):
     problem = Problem([Observation(View(CAMERA), None, target_mask, 0, 0, known=np.ones((10, 10), bool))])
     with pytest.raises(ValueError, match="known is 10x10 pixels"):
         fit_silhouette_problems(open_model, [problem], [POSE], config=FAST, progress=False)
+
+
+def test_level_proxy_faces_pick_each_rendered_levels_proxy(open_model, target_mask, monkeypatch):
+    """Issue 24's fourth part: a rendered level listed in ``level_proxy_faces`` renders that coarser
+    proxy (at most ``proxy_faces``; a level not listed, the legacy schedule and a full-mesh config: none)."""
+    import renderers.silhouette as rs
+
+    cfg = replace(FAST, iterations=(2,), proxy_faces=10000, level_proxy_faces={64: 2000})
+    assert [s.options.get("proxy_faces") for s in cfg.stages()] == [2000]
+    assert replace(cfg, level_proxy_faces={64: 20000}).stages()[0].options.get("proxy_faces") is None
+    assert replace(cfg, level_proxy_faces={"64": 2000}).stages()[0].options["proxy_faces"] == 2000  # read back from JSON
+    assert replace(cfg, proxy_faces=None).stages()[0].options.get("proxy_faces") is None
+    assert all("proxy_faces" not in s.options for s in SilhouetteFitConfig.legacy().stages())
+    assert [s.options.get("proxy_faces") for s in SilhouetteFitConfig().stages()[1:]] == [3000, 5000]
+    seen = []
+    real = rs.get_silhouette_renderer
+    monkeypatch.setattr(rs, "get_silhouette_renderer", lambda faces: seen.append(len(faces)) or real(faces))
+    result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=cfg, progress=False)
+    assert seen == [10000, 2000] and result.steps == 2 and math.isfinite(result.iou_end)
