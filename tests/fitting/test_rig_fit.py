@@ -123,7 +123,7 @@ def test_two_views_keep_a_limb_in_its_triangulated_depth_branch(body_model, limb
     assert err[0.0] > 50.0 and err[1.0] < 45.0, err
 
 
-def test_points_term_is_zero_without_points_and_robust_with_them(body_model):
+def test_points_term_is_zero_without_points_and_robust_with_them():
     import torch
 
     from silfit.fitting.terms import Evaluation, PointsTerm
