@@ -16,7 +16,7 @@ import torch
 
 from ..priors.smplx_priors import HandPosePrior, l2, library_hand_set
 from ..wholebody import part_slices
-from .terms import KeypointTerm, PriorTerm, Term, evaluate
+from .terms import KeypointTerm, PointsTerm, PriorTerm, Term, evaluate
 
 __all__ = ["GATED_PARTS", "choose_hand_starts", "hand_priors", "part_gates", "part_masks", "wholebody_terms"]
 
@@ -49,10 +49,12 @@ def part_masks(dtype=torch.float64) -> Dict[str, torch.Tensor]:
 
 
 def wholebody_terms(model, terms: List[Term], sigma, config, dtype) -> List[Term]:
-    """The body terms (``keypoints`` restricted to the body's points) plus the hand and face terms."""
+    """The body terms (``keypoints`` and ``points`` restricted to the body's points) plus the hand and face terms."""
     masks = part_masks(dtype)
     robust = sigma is not None
-    out = [KeypointTerm("keypoints", sigma, mask=masks["body"]) if t.name == "keypoints" else t for t in terms]
+    body = {"keypoints": KeypointTerm("keypoints", sigma, mask=masks["body"])}
+    body.update({t.name: PointsTerm(t.sigma, t.scale, mask=masks["body"]) for t in terms if t.name == "points"})
+    out = [body.get(t.name, t) for t in terms]
     left, right = hand_priors(model, dtype)[:2]
     out += [
         KeypointTerm("hands", config.hand_sigma if robust else None, mask=masks["hands"]),

@@ -5,15 +5,21 @@ The keypoint stage is :class:`~silfit.fitting.keypoint_stage.KeypointFitter` run
 with ``C`` views (one frame): the body is placed by triangulating its torso
 (:mod:`silfit.fitting.triangulate`), every view's keypoints enter the data term (each
 view normalised by the person's extent in it, the views averaged), the depth term pulls
-the root toward its triangulated depth in every camera. There is no flip test (the
+the root toward its triangulated depth in every camera and the points term the body's keypoints
+toward the triangulated ones. There is no flip test (the
 triangulated shoulders and hips give the facing) and no limb-branch search: several views
 fix a limb's depth, and the schedule starts from the body posed onto every triangulated
 keypoint (:func:`pose_from_points`) instead of the rest pose, so that no limb has to climb
 from the wrong depth branch (with two views the wrong branch could win: one view agrees with
 it, and the robust data term sets the other view's limb aside: on 30 ``silfit synth --views 2``
 subjects of seed 0, 3 fits of 45-98 mm world PVE, each with its energy above the truth's;
-``benchmarks/bench_rig.py --start rest,points`` compares). Parameters and meshes are in the
-world frame of the rig's extrinsics.
+``benchmarks/bench_rig.py --start rest,points`` compares). The start alone did not hold: the
+pose stages' strong prior (weight 2000 first) pulled a limb off its triangulated place and the
+2D terms of two views let it settle in the other branch (seed 0's subject 3: 35 mm at the start,
+127 mm after ``pose_1``, 67 mm at the end, the fit's energy above the truth's), so the stages
+keep the ``points`` term (:class:`~silfit.fitting.terms.PointsTerm`: the body's keypoints against
+the triangulated ones, ``KeypointFitConfig.points_weight`` and ``final_points_weight``) to the end.
+Parameters and meshes are in the world frame of the rig's extrinsics.
 """
 from __future__ import annotations
 
@@ -27,17 +33,16 @@ from ..keypoints import LAYOUTS, read_keypoints
 from .problem import Observation, Problem, View, stack_views
 from .terms import evaluate
 from .branches import align_segments
-from .triangulate import placement_to_world, projection_matrices, robust_triangulate
+from .triangulate import placement_to_world, triangulate_views
 from .threads import torch_threads
+from .keypoint_stage import POINTS_STATURE_M
 
 __all__ = ["RigFit", "fit_keypoints_of", "fit_rig_keypoints", "has_wholebody_parts", "pose_from_points", "rig_problem",
            "triangulated_keypoints", "wholebody_problem_inputs"]
 
 
-#: the 3D start (:func:`pose_from_points`): metres to normalised pixels (the data term's units:
-#: a person's extent of about 1.7 m is ``norm_extent`` pixels), and its L-BFGS rounds
-#: (pose-prior weight, steps), the prior annealed as in the keypoint stage's pose stages
-POINTS_STATURE_M = 1.7
+#: the 3D start (:func:`pose_from_points`): its L-BFGS rounds (pose-prior weight, steps), the prior
+#: annealed as in the keypoint stage's pose stages (metres to normalised pixels: ``POINTS_STATURE_M``)
 POINTS_ROUNDS = ((100.0, 60), (20.0, 60))
 
 
@@ -209,14 +214,10 @@ def triangulated_keypoints(problem: Problem, kp_weights: np.ndarray) -> Tuple[np
     in the problem's world frame), weighted by ``kp_weights [K]`` times the mean over the views of
     the confidence of the inlier views (0: not triangulated)."""
     row = problem.grid()[0]
-    ext = [o.view.extrinsics() for o in row]
-    P = projection_matrices([[o.view.camera.fx, o.view.camera.fy, o.view.camera.cx, o.view.camera.cy] for o in row],
-                            [e[0] for e in ext], [e[1] for e in ext])  # fmt: skip
-    xy = np.stack([o.keypoints.xy for o in row])
-    conf = np.stack([o.keypoints.conf for o in row])
-    X, inliers, _ = robust_triangulate(P, xy, conf)
-    w = (conf * inliers).sum(0) / len(row) * np.asarray(kp_weights, np.float64)
-    ok = np.isfinite(X).all(1) & (w > 0)
+    X, w = triangulate_views([o.view for o in row], np.stack([o.keypoints.xy for o in row]),
+                             np.stack([o.keypoints.conf for o in row]))  # fmt: skip
+    w = w * np.asarray(kp_weights, np.float64)
+    ok = w > 0
     return np.where(ok[:, None], X, 0.0), np.where(ok, w, 0.0)
 
 

@@ -23,33 +23,35 @@ FACE = ("jaw_pose", "expression")
 #: the keypoint stage's limb-branch search (:mod:`silfit.fitting.branches`)
 BRANCHES = {"branches": {"min_depth_ratio": 0.3, "whole_limbs": True, "joint": False, "screen_after": 10, "survivors": 3}}
 
-#: single image (and the per-frame start of a video), SMPL: :class:`~silfit.fitting.keypoint_stage.KeypointFitConfig`
+#: single image (and the per-frame start of a video), SMPL: :class:`~silfit.fitting.keypoint_stage.KeypointFitConfig`;
+#: ``points`` (the keypoints triangulated from several views) is 0 for one view
 KEYPOINT_SCHEDULE = (
     #     name          free    weights (term: weight)                                                          iterations
     Stage("camera",     CAMERA, {"torso": 1.0, "depth": 1e3},                                                        30),
-    Stage("pose_1",     POSE,   {"keypoints": 1.0, "pose": 2000.0, "angle": 10.0, "limits": 1e4},                    30,
+    Stage("pose_1",     POSE,   {"keypoints": 1.0, "points": 1.0, "pose": 2000.0, "angle": 10.0, "limits": 1e4},     30,
           options={"decide_after": 20}),  # each problem keeps its best start (facing x initial pose) after 20 steps
-    Stage("pose_2",     POSE,   {"keypoints": 1.0, "pose": 400.0, "angle": 5.0, "limits": 1e4},                      30),
-    Stage("branches_1", POSE,   {"keypoints": 1.0, "pose": 400.0, "angle": 5.0, "limits": 1e4,
+    Stage("pose_2",     POSE,   {"keypoints": 1.0, "points": 1.0, "pose": 400.0, "angle": 5.0, "limits": 1e4},       30),
+    Stage("branches_1", POSE,   {"keypoints": 1.0, "points": 1.0, "pose": 400.0, "angle": 5.0, "limits": 1e4,
                                  "interpenetration": 1e5},                                                           20,
           options=BRANCHES),
-    Stage("pose_3",     POSE,   {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4},                       40),
-    Stage("shape",      SHAPE,  {"keypoints": 1.0, "shape": 20.0},                                                   20),
-    Stage("final",      ALL,    {"keypoints": 1.0, "pose": 40.0, "angle": 1.0, "limits": 1e4, "shape": 5.0,
+    Stage("pose_3",     POSE,   {"keypoints": 1.0, "points": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4},        40),
+    Stage("shape",      SHAPE,  {"keypoints": 1.0, "points": 1.0, "shape": 20.0},                                    20),
+    Stage("final",      ALL,    {"keypoints": 1.0, "points": 1.0, "pose": 40.0, "angle": 1.0, "limits": 1e4, "shape": 5.0,
                                  "interpenetration": 1e5},                                                           40),
 )  # fmt: skip
 
 #: whole body (an SMPL-X-layout model, the ``wholebody`` keypoints): the body's schedule, the hands started
 #: from their best library pose (``hands``), then the hand and face terms on in the last pose stage and after
 WHOLEBODY_KEYPOINT_SCHEDULE = KEYPOINT_SCHEDULE[:4] + (
-    Stage("hands",      POSE + HANDS,        {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4,
+    Stage("hands",      POSE + HANDS,        {"keypoints": 1.0, "points": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4,
                                               "hands": 1.0, "hand_pose": 2.0},                                       30,
           options={"hand_starts": True}),
-    Stage("pose_3",     POSE + HANDS + FACE, {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4,
+    Stage("pose_3",     POSE + HANDS + FACE, {"keypoints": 1.0, "points": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4,
                                               "hands": 1.0, "hand_pose": 2.0, "face": 1.0, "jaw": 50.0,
                                               "expression": 2.0},                                                    40),
-    Stage("shape",      SHAPE,               {"keypoints": 1.0, "shape": 20.0, "hands": 2.0, "face": 2.0},           20),
-    Stage("final",      ALL + HANDS + FACE,  {"keypoints": 1.0, "pose": 40.0, "angle": 1.0, "limits": 1e4,
+    Stage("shape",      SHAPE,               {"keypoints": 1.0, "points": 1.0, "shape": 20.0, "hands": 2.0,
+                                              "face": 2.0},                                                          20),
+    Stage("final",      ALL + HANDS + FACE,  {"keypoints": 1.0, "points": 1.0, "pose": 40.0, "angle": 1.0, "limits": 1e4,
                                               "shape": 5.0, "interpenetration": 1e5, "hands": 2.0,
                                               "hand_pose": 2.0, "face": 2.0, "jaw": 50.0, "expression": 2.0},        40),
 )  # fmt: skip

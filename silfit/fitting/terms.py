@@ -13,6 +13,8 @@ Data each term expects in ``Evaluation.data``:
   (confidence x per-keypoint weight, already normalised as the stage wants),
   ``scale [P,F,C]`` (pixels -> the stage's residual units);
 * :class:`DepthTerm`: ``z0 [P,F,C]``, the depth the root should have in each camera;
+* :class:`PointsTerm`: ``points3d [P,F,K,3]`` (world, metres) and ``points3d_weights [P,F,K]``,
+  the keypoints triangulated from several views (absent: the term is 0);
 * :class:`StayTerm`: ``start_<param>`` (the parameters to stay near);
 * :class:`JointSmoothnessTerm`, :class:`RootSmoothnessTerm` (temporal, over a problem's
   frames, no data; problems of fewer than three frames give 0).
@@ -35,6 +37,7 @@ __all__ = [
     "InterpenetrationTerm",
     "JointSmoothnessTerm",
     "KeypointTerm",
+    "PointsTerm",
     "PriorTerm",
     "RootSmoothnessTerm",
     "StayTerm",
@@ -119,6 +122,30 @@ class DepthTerm(Term):
 
     def __call__(self, ev: Evaluation) -> torch.Tensor:
         return ev.per_problem((ev.root_camera[..., 2] - ev.data["z0"]) ** 2)
+
+
+class PointsTerm(Term):
+    """Robust distance of the body's keypoints to their triangulated 3D points:
+    ``sum_k w_k * rho(scale * |X_k - x_k|)`` per frame (Geman-McClure with ``sigma``, ``scale``
+    metres to the keypoint term's normalised pixels; ``mask [K]``: some keypoints only, e.g. the body's
+    of the whole-body layout), 0 for problems without ``points3d`` (one view).
+    Two views' 2D terms can settle with a limb in the wrong depth branch (one view agrees, the
+    other's residual is bounded by the robust penalty); the triangulated point has no such branch."""
+
+    name = "points"
+
+    def __init__(self, sigma: float = 100.0, scale: float = 500.0 / 1.7, mask: Optional[torch.Tensor] = None):
+        self.sigma, self.scale, self.mask = float(sigma), float(scale), mask
+
+    def __call__(self, ev: Evaluation) -> torch.Tensor:
+        if "points3d" not in ev.data:
+            return ev.keypoints_2d.new_zeros(ev.P)
+        X = ev.data["points3d"]
+        kp = ev.body.keypoints.reshape(X.shape)
+        d2 = ((kp - X) * self.scale).square().sum(-1)
+        s2 = self.sigma**2
+        w = ev.data["points3d_weights"] if self.mask is None else ev.data["points3d_weights"] * self.mask.to(d2.dtype)
+        return ev.per_problem(w * s2 * d2 / (d2 + s2))
 
 
 class PriorTerm(Term):

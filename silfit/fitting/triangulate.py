@@ -14,6 +14,8 @@ Pure numpy functions:
   inliers are triangulated again together (confidence-weighted). One wrong view (a mislabelled keypoint, another person, a
   bad detection) is left out as long as two other views agree. With two views there is
   no majority: both are kept unless the point lands behind a camera.
+* :func:`triangulate_views`: every keypoint of one frame seen by calibrated views
+  (:class:`~silfit.fitting.problem.View`), by :func:`robust_triangulate`, with a weight per point.
 * :func:`torso_placement`: the rotation and translation (no scale) taking the model's
   rest torso keypoints (shoulders, hips, neck, mid-hip) onto the triangulated ones
   (weighted Kabsch), as ``global_orient`` / ``transl`` for a body rotating about its
@@ -27,7 +29,8 @@ from typing import Optional, Sequence, Tuple
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["dlt", "placement_to_world", "projection_matrices", "reprojection_errors", "robust_triangulate", "torso_placement", "kabsch"]
+__all__ = ["dlt", "placement_to_world", "projection_matrices", "reprojection_errors", "robust_triangulate", "torso_placement",
+           "kabsch", "triangulate_views"]
 
 
 def projection_matrices(intr: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -126,6 +129,21 @@ def robust_triangulate(
     X = dlt(P, xy, conf * inliers)
     err, _ = reprojection_errors(P, X, xy)
     return X, inliers & np.isfinite(X).all(1)[None], err
+
+
+def triangulate_views(views, xy: np.ndarray, conf: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """``(X [K, 3], w [K])``: keypoints ``xy [C, K, 2]`` (confidences ``conf [C, K]``) seen by
+    ``views`` (``C`` :class:`~silfit.fitting.problem.View`, world frame) triangulated from the views
+    that agree (:func:`robust_triangulate`), each weighted by its inlier views' confidences summed
+    over the ``C`` views and divided by ``C`` (0, and ``X`` 0, where not triangulated)."""
+    ext = [v.extrinsics() for v in views]
+    P = projection_matrices([[v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy] for v in views],
+                            [e[0] for e in ext], [e[1] for e in ext])  # fmt: skip
+    conf = np.asarray(conf, np.float64)
+    X, inliers, _ = robust_triangulate(P, xy, conf)
+    w = (np.where(np.isfinite(conf), conf, 0.0) * inliers).sum(0) / len(views)
+    ok = np.isfinite(X).all(1) & (w > 0)
+    return np.where(ok[:, None], X, 0.0), np.where(ok, w, 0.0)
 
 
 def kabsch(src: np.ndarray, dst: np.ndarray, weights: Optional[np.ndarray] = None) -> Tuple[np.ndarray, np.ndarray]:

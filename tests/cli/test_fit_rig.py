@@ -58,7 +58,9 @@ def test_eval_scores_a_rig_dataset(rigs, tmp_path, capsys):
     r = json.loads(report.read_text())
     row = r["results"][0]
     assert row["method"] == "keypoints" and len(row["iou_views"]) == 2
-    assert row["pve_world"] < 60.0 and row["pa_pve"] <= row["pve_world"] + 1e-6
+    # Procrustes minimises the squared distances, not their mean: with a fit this close (about 13 mm)
+    # PA-PVE can exceed the unaligned PVE by a little
+    assert row["pve_world"] < 60.0 and row["pa_pve"] <= row["pve_world"] + 2.0
 
 
 def test_fit_rig_views_and_unusable_views_are_set_aside(rigs, tmp_path, capsys):
