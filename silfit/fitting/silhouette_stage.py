@@ -64,7 +64,7 @@ from .terms import Energy, Evaluation, KeypointTerm, PriorTerm, StayTerm, Term
 from .threads import torch_threads
 
 __all__ = [
-    "ContourCoverTerm", "ContourInsideTerm", "DepthTrustTerm", "OccludedBoneTerm", "SilhouetteFitConfig", "SilhouetteFitResult", "SilhouetteTerm",
+    "ContourCoverTerm", "ContourInsideTerm", "SilhouetteFitConfig", "SilhouetteFitResult", "SilhouetteTerm",
     "choose_window", "fit_silhouette",
     "fit_silhouette_problems", "fit_silhouettes", "window_target",
 ]  # fmt: skip
@@ -142,17 +142,6 @@ class SilhouetteFitConfig:
     #: from its detection at no cost, beyond it quadratically; 0: off (before issue 23)
     w_trust: float = 0.05
     trust_fraction: float = 0.03
-    #: trust region on the bones' depth (:class:`DepthTrustTerm`): a bone's direction along the camera
-    #: ray may change by up to ``depth_tolerance`` (a sine) from the keypoint fit's at no cost, beyond
-    #: it quadratically; 0: off
-    w_depth_trust: float = 0.0
-    depth_tolerance: float = 0.2
-    #: hold the limbs the detector is unsure of (:class:`OccludedBoneTerm`): a bone whose end
-    #: keypoint's confidence is below ``occluded_conf`` pays for turning (its unit direction moving
-    #: more than ``occluded_tolerance``) in proportion to how far below; 0: off
-    w_occluded: float = 0.0
-    occluded_conf: float = 0.5
-    occluded_tolerance: float = 0.1
     #: shape held in the plausible range: ``(|beta| - max_abs_beta)^2`` beyond it (:func:`beta_bound`)
     w_beta_bound: float = 10.0
     max_abs_beta: float = 2.5
@@ -208,8 +197,7 @@ class SilhouetteFitConfig:
         return {
             "silhouette": self.w_silhouette, "keypoints": self.w_keypoints, "pose": self.pose_weight,
             "limits": self.w_limits, "angle": self.w_angle, "shape": self.w_shape, "stay": self.w_stay,
-            "keypoint_trust": self.w_trust, "beta_bound": self.w_beta_bound, "depth_trust": self.w_depth_trust,
-            "occluded_bones": self.w_occluded,
+            "keypoint_trust": self.w_trust, "beta_bound": self.w_beta_bound,
         }  # fmt: skip
 
     def contour_weights(self) -> dict:
@@ -405,88 +393,6 @@ class KeypointTrustTerm(Term):
         tau = d["trust_px"].to(dist.dtype).repeat_interleave(ev.F * ev.C)[:, None]  # [P] -> per observation
         excess = torch.relu(dist - tau)
         return ev.per_problem((w * excess.square()).sum(-1) / w.sum(-1).clamp(min=1e-9))
-
-
-def bone_depth(joints: torch.Tensor, parents: torch.Tensor, R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-    """``[..., B]``: each bone's unit direction (parent joint to child, ``B = J - 1`` bones of the
-    kinematic tree ``parents [J]``, root excluded) projected on the camera ray through its parent
-    joint: ``+1`` pointing away from the camera, ``-1`` toward it, ``0`` across the image. ``joints
-    [..., J, 3]`` in the world frame, the camera's extrinsics ``R [..., 3, 3]`` and ``t [..., 3]``."""
-    cam = world_to_camera(joints, R, t)
-    child, parent = cam[..., 1:, :], cam[..., parents[1:], :]
-    bone = child - parent
-    ray = parent / parent.norm(dim=-1, keepdim=True).clamp(min=1e-9)
-    return (bone * ray).sum(-1) / bone.norm(dim=-1).clamp(min=1e-9)
-
-
-class DepthTrustTerm(Term):
-    """A trust region on the bones' depth: per observation, ``sum_b relu(|d_b - d_b0| - tol)^2``
-    where ``d_b`` is bone ``b``'s direction along the camera ray (:func:`bone_depth`) and ``d_b0``
-    the keypoint fit's (``data['start_bone_depth'] [P, F, C, B]``), ``tol = data['depth_tol']``
-    per problem ``[P]`` (a sine: 0.2 is about 12 degrees across the image), summed per problem. A mask carries the
-    body's outline, not which way a limb points along the ray: a limb that turns in depth to fill
-    a wrong (detected, grown) mask changes the 2D picture little; this term makes it pay for it."""
-
-    name = "depth_trust"
-
-    def __init__(self, parents):
-        self.parents = torch.as_tensor(np.asarray(parents), dtype=torch.long)
-
-    def __call__(self, ev: Evaluation) -> torch.Tensor:
-        J = len(self.parents)
-        joints = ev.body.joints[:, :J]
-        joints = joints.reshape(ev.P, ev.F, 1, J, 3).expand(ev.P, ev.F, ev.C, J, 3)
-        d = bone_depth(joints, self.parents, ev.data["R"].to(joints.dtype), ev.data["t"].to(joints.dtype))
-        tol = ev.data["depth_tol"].to(d.dtype).reshape(ev.P, 1, 1, 1)  # [P]: per problem
-        excess = torch.relu((d - ev.data["start_bone_depth"].to(d.dtype)).abs() - tol)
-        return ev.per_problem(excess.square().sum(-1))
-
-
-def bone_directions(joints: torch.Tensor, parents: torch.Tensor, R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-    """``[..., B, 3]``: each bone's unit direction (parent joint to child, root excluded) in the
-    camera's frame; arguments as :func:`bone_depth`."""
-    cam = world_to_camera(joints, R, t)
-    bone = cam[..., 1:, :] - cam[..., parents[1:], :]
-    return bone / bone.norm(dim=-1, keepdim=True).clamp(min=1e-9)
-
-
-def joint_confidence(model, layout: str, conf: np.ndarray) -> np.ndarray:
-    """``[J]``: each model joint's keypoint confidence (the keypoint whose source is the joint; the
-    largest where several are), a joint without one taking its parent's (the hands their wrists',
-    the feet their ankles'), the root 1 when it has none. ``conf [K]`` of ``layout``."""
-    from ..layouts import keypoint_sources
-
-    parents = list(model.parents)
-    own = np.full(len(parents), np.nan)
-    for (kind, j), c in zip(keypoint_sources(model, layout), np.asarray(conf, dtype=np.float64)):
-        if kind == "joint" and j < len(parents):
-            own[j] = c if np.isnan(own[j]) else max(own[j], c)
-    out = np.ones(len(parents))
-    for j, p in enumerate(parents):  # parents come before their children
-        out[j] = own[j] if not np.isnan(own[j]) else (out[p] if p >= 0 else 1.0)
-    return out
-
-
-class OccludedBoneTerm(Term):
-    """Hold the limbs the keypoints barely see: ``sum_b g_b relu(|u_b - u_b0| - tol)^2`` per observation,
-    ``u_b`` bone ``b``'s unit direction in the camera frame (:func:`bone_directions`), ``u_b0`` the
-    keypoint fit's (``data['start_bone_dir'] [P, F, C, B, 3]``), ``g_b = data['bone_doubt'] [P, F, C, B]``
-    (1 for a bone whose end keypoint has confidence 0, falling to 0 at the stage's ``occluded_conf``),
-    ``tol = data['bone_tol'] [P]``. A limb the detector calls unsure is mostly hidden (behind the body,
-    out of the mask's outline): the mask says nothing of it either, so the stage should not turn it."""
-
-    name = "occluded_bones"
-
-    def __init__(self, parents):
-        self.parents = torch.as_tensor(np.asarray(parents), dtype=torch.long)
-
-    def __call__(self, ev: Evaluation) -> torch.Tensor:
-        J = len(self.parents)
-        joints = ev.body.joints[:, :J].reshape(ev.P, ev.F, 1, J, 3).expand(ev.P, ev.F, ev.C, J, 3)
-        u = bone_directions(joints, self.parents, ev.data["R"].to(joints.dtype), ev.data["t"].to(joints.dtype))
-        tol = ev.data["bone_tol"].to(u.dtype).reshape(ev.P, 1, 1, 1)
-        excess = torch.relu((u - ev.data["start_bone_dir"].to(u.dtype)).norm(dim=-1) - tol)
-        return ev.per_problem((ev.data["bone_doubt"].to(u.dtype) * excess.square()).sum(-1))
 
 
 def beta_bound(betas: torch.Tensor, limit: float) -> torch.Tensor:
@@ -754,38 +660,6 @@ def _keypoint_data(grids, dtype) -> tuple:
     return target, weights, any(a is not None for g in arrays for row in g for a in row)
 
 
-def _bone_doubt(model, layout: str, grids, occluded_conf: float, dtype) -> torch.Tensor:
-    """``[P, F, C, B]``: each bone's doubt ``clamp(1 - c / occluded_conf, 0, 1)``, ``c`` its child
-    joint's confidence (:func:`joint_confidence`) in the observation; 0 without keypoints."""
-    J = len(model.parents)
-    P, F, C = len(grids), len(grids[0]), len(grids[0][0])
-    out = torch.zeros(P, F, C, J - 1, dtype=dtype)
-    if occluded_conf <= 0:
-        return out
-    for p, g in enumerate(grids):
-        for f, row in enumerate(g):
-            for c, o in enumerate(row):
-                a = _keypoint_array(o.keypoints)
-                if a is None:
-                    continue
-                conf = joint_confidence(model, layout, np.clip(a[:, 2], 0.0, None))
-                out[p, f, c] = torch.as_tensor(np.clip(1.0 - conf[1:] / float(occluded_conf), 0.0, 1.0), dtype=dtype)
-    return out
-
-
-def _start_bone_depth(model, params_layout, start: dict, views: dict, directions: bool = False) -> torch.Tensor:
-    """``[P, F, C, B]``: the start's (keypoint fit's) :func:`bone_depth` in every view
-    (``directions``: :func:`bone_directions`, ``[P, F, C, B, 3]``)."""
-    P, F, C = views["R"].shape[:3]
-    J = len(model.parents)
-    with torch.no_grad():
-        joints = model(**params_layout.rows(start)).joints[:, :J]
-    joints = joints.reshape(P, F, 1, J, 3).expand(P, F, C, J, 3)
-    parents = torch.as_tensor(np.asarray(model.parents), dtype=torch.long)
-    return (bone_directions if directions else bone_depth)(joints, parents, views["R"].to(joints.dtype),
-                                                          views["t"].to(joints.dtype))  # fmt: skip
-
-
 def _observation_window(mask, uv: np.ndarray, camera: Camera, resolution: int, margin: float, multiple: int = 1,
                         truncation_aware: bool = True, cover: Optional[CoverProfile] = None, known=None):  # fmt: skip
     """``(window, target)`` of an observation with a mask, or ``(None, scale)`` without one
@@ -866,7 +740,7 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
         PriorTerm("pose", prior, "body_pose"), PriorTerm("limits", limit_violation, "body_pose"),
         PriorTerm("angle", angle_prior, "body_pose"), PriorTerm("shape", shape_prior, "betas"),
         StayTerm("body_pose"), ContourInsideTerm(contour_points_map), ContourCoverTerm(contour_points_map),
-        KeypointTrustTerm(), DepthTrustTerm(model.parents), OccludedBoneTerm(model.parents), PriorTerm("beta_bound", lambda b: beta_bound(b, cfg.max_abs_beta), "betas"), *extra_terms,
+        KeypointTrustTerm(), PriorTerm("beta_bound", lambda b: beta_bound(b, cfg.max_abs_beta), "betas"), *extra_terms,
     ])  # fmt: skip
     target_xy, target_w, any_keypoints = _keypoint_data(grids, dtype)
     stages = tuple(
@@ -884,11 +758,6 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
         "start_body_pose": start["body_pose"], "R": views["R"], "t": views["t"],
         "windows": PerRow([None] * P), "targets": PerRow([None] * P), "seeds": PerRow([None] * P),
         "contours": PerRow([None] * P), "trust_px": torch.zeros(P, dtype=dtype),
-        "start_bone_depth": _start_bone_depth(model, params_layout, start, views),
-        "depth_tol": torch.full((P,), float(cfg.depth_tolerance), dtype=dtype),
-        "start_bone_dir": _start_bone_depth(model, params_layout, start, views, directions=True),
-        "bone_doubt": _bone_doubt(model, layout, grids, cfg.occluded_conf, dtype),
-        "bone_tol": torch.full((P,), float(cfg.occluded_tolerance), dtype=dtype),
     }  # fmt: skip
 
     history = [{k: [] for k in ("level", "energy", "silhouette", "keypoints", "iou")} for _ in range(P)]
