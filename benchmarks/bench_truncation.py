@@ -14,7 +14,8 @@ no keypoint trust region, no bound on |beta|, the plain two-sided energy), *befo
 first part, the plain energy, no clothing trim, no plausibility guard: HEAD before the second
 part) and *after* (the defaults: the robust, capped mask-not-covered side, the clothing trim, leaks and small holes unknown and
 the plausibility guard), *main* (the defaults before issue 23's third part: no leak or hole
-set aside as unknown, ``leak_distance=0, hole_fraction=0``); ``--methods`` picks them, ``--set`` changes the after configuration
+set aside as unknown, ``leak_distance=0, hole_fraction=0``), *tight* (the defaults before the detected-input change: the keypoint
+trust region at 3 % of the window, ``trust_fraction=0.03``); ``--methods`` picks them, ``--set`` changes the after configuration
 (tuning). The last column counts the subjects whose mask was trimmed as clothing and those
 whose fit the guard replaced by the keypoint fit. Printed per condition: PA-PVE and PVE
 (mm, against the whole true body), median reprojection error (px, visible keypoints), max |beta|,
@@ -125,7 +126,9 @@ ORIGINAL = dict(truncation_aware=False, w_trust=0.0, w_beta_bound=0.0, robust_co
 BEFORE = dict(robust_cover=False, trim_clothing=False, plausibility_guard=False, leak_distance=0.0, hole_fraction=0.0)
 #: main before the leak/hole handling (issue 23's third part): no unknown leaks or holes
 MAIN = dict(leak_distance=0.0, hole_fraction=0.0)
-METHODS = {"original": ORIGINAL, "before": BEFORE, "main": MAIN, "after": {}}
+#: the defaults before the detected-input change: the keypoint trust region at 3 % of the window
+TIGHT = dict(trust_fraction=0.03)
+METHODS = {"original": ORIGINAL, "before": BEFORE, "main": MAIN, "tight": TIGHT, "after": {}}
 
 
 def _value(text: str):
