@@ -191,7 +191,8 @@ class KeypointFitConfig:
     #: flip on top of another); a search at the final weights from the refined pose finds it. On 24
     #: hard subjects (tuning seed 31, keypoint stage) 30 steps with screening after 15 and 4 survivors
     #: (both searches) took search failures 4 -> 0, fits above 150 mm 4 -> 1, PA-PVE mean 105.9 ->
-    #: 80.3 mm at about 2.3x the CPU time; the fresh set's table is in README ("Depth ambiguity")
+    #: 80.3 mm at about 2.3x the CPU time; fresh seed 8500, 60 subjects: failures 16 -> 8, above
+    #: 150 mm 19 -> 11, mean 117.2 -> 99.7 mm at 2.0x (README, "Depth ambiguity: search failures")
     late_branch_iters: int = 30
     #: occlusion cue (:mod:`silfit.fitting.occlusion`, the ``occlusion`` term) in choosing among the
     #: hypotheses refined to the end (``hypotheses`` > 1; with one, nothing to choose): a hypothesis'
