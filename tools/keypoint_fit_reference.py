@@ -10,10 +10,12 @@ well under 0.1 mm.
 """
 from __future__ import annotations
 
-import json
-from pathlib import Path
+import silfit  # noqa: F401  (first: pins the CPU kernels before torch and numpy load, as the tests do: silfit.kernels)
 
-import numpy as np
+import json  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
 
 #: the short schedule of the reference fits
 CONFIG = {"camera_iters": 15, "pose_iters": [15, 15, 15], "shape_iters": 8, "final_iters": 15, "init_poses": 2,

@@ -21,10 +21,12 @@ ALL = ("betas",) + POSE
 HANDS = ("left_hand_pose", "right_hand_pose")
 FACE = ("jaw_pose", "expression")
 #: the keypoint stage's limb-branch search (:mod:`silfit.fitting.branches`)
-BRANCHES = {"branches": {"min_depth_ratio": 0.3, "whole_limbs": True, "joint": False, "screen_after": 10, "survivors": 3}}
+BRANCHES = {"branches": {"min_depth_ratio": 0.3, "whole_limbs": True, "joint": False, "screen_after": 15, "survivors": 4}}
 
-#: single image (and the per-frame start of a video), SMPL: :class:`~silfit.fitting.keypoint_stage.KeypointFitConfig`;
-#: ``points`` (the keypoints triangulated from several views) is 0 for one view
+#: the final stage's weights (also the late branch search's); ``points`` (the keypoints triangulated
+#: from several views) is 0 for one view
+FINAL = {"keypoints": 1.0, "points": 1.0, "pose": 40.0, "angle": 1.0, "limits": 1e4, "shape": 5.0, "interpenetration": 1e5}
+#: single image (and the per-frame start of a video), SMPL: :class:`~silfit.fitting.keypoint_stage.KeypointFitConfig`
 KEYPOINT_SCHEDULE = (
     #     name          free    weights (term: weight)                                                          iterations
     Stage("camera",     CAMERA, {"torso": 1.0, "depth": 1e3},                                                        30),
@@ -36,8 +38,10 @@ KEYPOINT_SCHEDULE = (
           options=BRANCHES),
     Stage("pose_3",     POSE,   {"keypoints": 1.0, "points": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4},        40),
     Stage("shape",      SHAPE,  {"keypoints": 1.0, "points": 1.0, "shape": 20.0},                                    20),
-    Stage("final",      ALL,    {"keypoints": 1.0, "points": 1.0, "pose": 40.0, "angle": 1.0, "limits": 1e4, "shape": 5.0,
-                                 "interpenetration": 1e5},                                                           40),
+    # the limb-branch search again, at the final weights from the refined pose (issue 25)
+    Stage("branches_late", ALL, FINAL,                                                                               30,
+          options=BRANCHES),
+    Stage("final",      ALL,    FINAL,                                                                               40),
 )  # fmt: skip
 
 #: whole body (an SMPL-X-layout model, the ``wholebody`` keypoints): the body's schedule, the hands started
@@ -51,9 +55,11 @@ WHOLEBODY_KEYPOINT_SCHEDULE = KEYPOINT_SCHEDULE[:4] + (
                                               "expression": 2.0},                                                    40),
     Stage("shape",      SHAPE,               {"keypoints": 1.0, "points": 1.0, "shape": 20.0, "hands": 2.0,
                                               "face": 2.0},                                                          20),
-    Stage("final",      ALL + HANDS + FACE,  {"keypoints": 1.0, "points": 1.0, "pose": 40.0, "angle": 1.0, "limits": 1e4,
-                                              "shape": 5.0, "interpenetration": 1e5, "hands": 2.0,
-                                              "hand_pose": 2.0, "face": 2.0, "jaw": 50.0, "expression": 2.0},        40),
+    Stage("branches_late", ALL + HANDS + FACE, {**FINAL, "hands": 2.0, "hand_pose": 2.0, "face": 2.0, "jaw": 50.0,
+                                                "expression": 2.0},                                                  30,
+          options=BRANCHES),
+    Stage("final",      ALL + HANDS + FACE,  {**FINAL, "hands": 2.0, "hand_pose": 2.0, "face": 2.0, "jaw": 50.0,
+                                              "expression": 2.0},                                                    40),
 )  # fmt: skip
 
 SIL_FREE = ("betas", "global_orient", "body_pose", "transl")

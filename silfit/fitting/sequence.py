@@ -77,7 +77,10 @@ class SequenceFitConfig:
     see ``benchmarks/bench_sequence.py``)."""
 
     #: the per-frame initialisation (the single-image keypoint stage)
-    keypoint: KeypointFitConfig = field(default_factory=lambda: KeypointFitConfig(init_poses=2))
+    #: (the single image's late branch search off and its first search's screen as before issue 25's
+    #: change: the branch over time was tuned on these per-frame hypotheses)
+    keypoint: KeypointFitConfig = field(default_factory=lambda: KeypointFitConfig(
+        init_poses=2, late_branch_iters=0, branch_screen_iters=10, branch_survivors=3))
     init_stride: int = 1  # fit every n-th usable frame alone; interpolate the others
     iterations: int = 100  # joint refinement, L-BFGS steps
     joint_smooth_weight: float = 1.0

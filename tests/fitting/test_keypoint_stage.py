@@ -509,3 +509,33 @@ def test_occlusion_cue_scores_the_hypotheses_when_on(body_model):
     assert all(h["occlusion"] >= 3 - 1e-9 for h in hyps)  # nose and eyes visible, marked hidden
     scores = [h["energy"] * (1 + weight * h["occlusion"]) for h in hyps]
     assert scores[0] == pytest.approx(min(scores))
+
+
+def test_branch_refine_chooses_by_the_final_energy_never_above_the_search_choice(body_model):
+    # branch_refine=3: the search's three best branches of each sample run to the end and the lowest
+    # final energy is the fit. The search's own choice is among them and each row runs as it would
+    # alone, so the fit's final energy is at most the one-branch fit's; no alternatives are returned
+    # (that is hypotheses > 1), and the branch recorded is the one chosen at the end
+    from silfit.fitting.branches import flip_segment
+    from silfit.fitting.problem import Problem
+    from silfit.fitting.stages import Stage
+    from silfit.keypoints import KeypointSet
+
+    kp, truth = _thigh_subject(body_model)
+    w = {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4, "interpenetration": 1e5}
+    free = ("global_orient", "transl", "body_pose")
+    stages = [Stage("branches", free, w, 8, options={"branches": {"screen_after": 4, "survivors": 2}}),
+              Stage("final", free, w, 6)]  # fmt: skip
+    ks = KeypointSet(kp[:, :2], kp[:, 2], "body25")
+    out = {}
+    for refine in (1, 3):
+        cfg = KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages, branch_refine=refine)
+        fitter = KeypointFitter(body_model, config=cfg)
+        start = dict(truth, body_pose=flip_segment(fitter.body, truth, "left_thigh", body_model.joint_names, body_model.parents))
+        out[refine] = fitter.fit_problems([Problem.single(ks, CAM)], init={k: v.numpy() for k, v in start.items()})[1]
+    assert out[3]["hypotheses"] is None
+    assert float(out[3]["energies"]["final"][0]) <= float(out[1]["energies"]["final"][0]) * (1 + 1e-9)
+    search = out[3]["branch_search"][0][-1]
+    assert len(search["tried"]) >= 3
+    kept = search["kept"]
+    assert out[3]["branches"][0] == ([] if kept == "keep" else [kept])
