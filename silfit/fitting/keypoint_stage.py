@@ -744,7 +744,9 @@ class KeypointFitter:
                 screen, survivors = int(opts.get("screen_after", 0)), int(opts.get("survivors", 2))
                 if carry > 1 and si == last_search:  # refined to the end: at least as many survive the screen
                     survivors = max(survivors, carry)
-                if 0 < screen < stage.iterations and hyps:  # a few steps for all, then the best few go on
+                # a few steps for all, then the best few go on; split even where no sample has hypotheses,
+                # so a sample's steps (two optimiser runs) never depend on the others in its batch
+                if 0 < screen < stage.iterations:
                     f = run(stage, screen, f"{stage.name}_screen")
                     rows = best_per_group(f, group, B, survivors)
                     labels = [labels[r] for r in rows.tolist()]
