@@ -10,7 +10,9 @@ from silfit.fitting.stages import Stage
 
 def test_keypoint_schedule_is_data_with_the_decision_in_the_first_pose_stage():
     stages = KeypointFitConfig().stages()
-    assert [s.name for s in stages] == ["camera", "pose_1", "pose_2", "branches_1", "pose_3", "shape", "final"]
+    assert [s.name for s in stages] == ["camera", "pose_1", "pose_2", "branches_1", "pose_3", "shape", "branches_late", "final"]
+    assert "branches" in stages[6].options and stages[6].weights == stages[7].weights  # the late search: final weights
+    assert "branches_late" not in [s.name for s in KeypointFitConfig(late_branch_iters=0).stages()]
     assert stages[1].options == {"decide_after": 20} and not stages[2].options
     assert stages[0].weights == {"torso": 1.0, "depth": 1e3}
     assert "branches" in stages[3].options and stages[3].weights["interpenetration"] == 1e5
