@@ -15,8 +15,16 @@ Stages (each an independent per-sample L-BFGS, see :mod:`silfit.fitting.optim`):
    each sample keeps the start with the lowest energy: the torso alone cannot tell a side
    view's facing, the nose, ears and feet can, and a good initial pose avoids the wrong
    branch of the depth ambiguity of bent limbs.
+   ``branches_1`` (after ``pose_2``, one view): the limb-branch search
+   (:mod:`silfit.fitting.branches`, ``branch_search``).
 4. ``shape``: ``betas`` (+ translation) with the L2 shape prior.
-5. ``final``: everything together with the interpenetration penalty on.
+5. ``branches_late`` (one view, ``late_branch_iters``): the limb-branch search again, at the
+   final stage's weights from the refined pose.
+6. ``final``: everything together with the interpenetration penalty on.
+
+Several calibrated views (rigs): the body is placed from the triangulated torso, there is no flip
+test and no branch search, and the ``points`` term (:class:`~silfit.fitting.terms.PointsTerm`, the
+keypoints triangulated from the views) joins the pose, shape and final stages.
 
 Whole-body fitting (an SMPL-X-layout model and the ``wholebody`` keypoint layout, SMPLify-X's
 schedule): the body stages as above, the hand and face keypoint terms (``hands``, ``face``, each
@@ -286,8 +294,9 @@ class KeypointFitConfig:
 
     def stages(self, whole_body: bool = False) -> tuple:
         """The schedule as data: camera, pose_1..n (annealed priors; the best start of each
-        sample is kept ``decision_iters`` steps into pose stage ``flip_decision_stage``),
-        shape, final (everything, with interpenetration); with ``whole_body`` the hand and
+        sample is kept ``decision_iters`` steps into pose stage ``flip_decision_stage``; the branch
+        search after pose stage ``branch_after_stage``), shape, ``branches_late`` (the search again at
+        the final weights, ``late_branch_iters``), final (everything, with interpenetration); with ``whole_body`` the hand and
         face terms and parameters join as the module docstring says. The defaults give the literal
         tables :data:`~silfit.fitting.schedules.KEYPOINT_SCHEDULE` and ``WHOLEBODY_KEYPOINT_SCHEDULE``."""
         if self.schedule is not None:
