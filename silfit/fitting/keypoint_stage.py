@@ -125,7 +125,7 @@ class KeypointFitConfig:
     #: steps of that sub-stage run with every start before choosing (0: the whole sub-stage);
     #: its remaining steps continue from the chosen start only
     decision_iters: int = 20
-    robust: bool = True  # False: plain L2 data term (for comparisons)
+    robust: bool = True  # False: plain L2 data terms (keypoints and, several views, points; for comparisons)
     camera_iters: int = 30
     pose_iters: Sequence[int] = (30, 30, 40)
     #: Annealed pose-prior weights of the pose stages, tuned for the shipped library mixture
@@ -523,7 +523,7 @@ class KeypointFitter:
         sigma = self.config.sigma if self.config.robust else None
         terms = [
             KeypointTerm("keypoints", sigma), KeypointTerm("torso", sigma, mask=self.torso_mask), DepthTerm(),
-            PointsTerm(self.config.sigma, self.config.norm_extent / POINTS_STATURE_M),
+            PointsTerm(sigma, self.config.norm_extent / POINTS_STATURE_M),  # L2 as the data term with robust=False
             PriorTerm("pose", self.pose_prior, "body_pose"), PriorTerm("angle", angle_prior, "body_pose"),
             PriorTerm("limits", limit_violation, "body_pose"), PriorTerm("shape", shape_prior, "betas"),
             OcclusionTerm(self.model, _names(layout), tuple(self.config.occlusion_conf)),
