@@ -324,15 +324,9 @@ class KeypointFitConfig:
             out.append(Stage(f"pose_{i + 1}", pose_free + part_free, weights, int(it), options=opts))
             if self.branch_search and i == min(self.branch_after_stage, len(self.pose_iters) - 1):
                 for r in range(int(self.branch_rounds)):
-                    opts = {"branches": {
-                        "min_depth_ratio": self.branch_min_depth_ratio, "whole_limbs": self.branch_whole_limbs,
-                        "joint": self.branch_joint,
-                        "screen_after": self.branch_screen_iters, "survivors": self.branch_survivors,
-                    }}  # fmt: skip
-                    if self.occlusion_weight:
-                        opts["branches"]["occlusion"] = float(self.occlusion_weight)
                     w = {**weights, "interpenetration": self.interpenetration_weight}
-                    out.append(Stage(f"branches_{r + 1}", pose_free + part_free, w, int(self.branch_iters), options=opts))
+                    out.append(Stage(f"branches_{r + 1}", pose_free + part_free, w, int(self.branch_iters),
+                                     options=self.branch_options()))  # fmt: skip
         final_parts = (self.final_hand_weight, self.final_face_weight) if whole_body else (0.0, 0.0)
         if self.shape_iters:
             w = {"keypoints": 1.0, "shape": self.shape_weight}
@@ -349,17 +343,21 @@ class KeypointFitConfig:
             w["points"] = float(self.final_points_weight)
         part_w, part_free = self.part_weights(*final_parts)
         if self.branch_search and self.late_branch_iters:
-            opts = {"branches": {
-                "min_depth_ratio": self.branch_min_depth_ratio, "whole_limbs": self.branch_whole_limbs,
-                "joint": self.branch_joint, "screen_after": self.branch_screen_iters, "survivors": self.branch_survivors,
-            }}  # fmt: skip
-            if self.occlusion_weight:
-                opts["branches"]["occlusion"] = float(self.occlusion_weight)
             out.append(Stage("branches_late", ("betas",) + pose_free + part_free, {**w, **part_w}, int(self.late_branch_iters),
-                             options=opts))  # fmt: skip
+                             options=self.branch_options()))  # fmt: skip
         if self.final_iters:
             out.append(Stage("final", ("betas",) + pose_free + part_free, {**w, **part_w}, self.final_iters))
         return tuple(out)
+
+    def branch_options(self) -> dict:
+        """A branch-search stage's options (both searches alike: :data:`~silfit.fitting.schedules.BRANCHES`)."""
+        opts = {"branches": {
+            "min_depth_ratio": self.branch_min_depth_ratio, "whole_limbs": self.branch_whole_limbs,
+            "joint": self.branch_joint, "screen_after": self.branch_screen_iters, "survivors": self.branch_survivors,
+        }}  # fmt: skip
+        if self.occlusion_weight:
+            opts["branches"]["occlusion"] = float(self.occlusion_weight)
+        return opts
 
     def to_dict(self, whole_body: bool = False) -> dict:
         """The settings and the resulting schedule (saved with every fit)."""
