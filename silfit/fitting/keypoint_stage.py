@@ -15,8 +15,16 @@ Stages (each an independent per-sample L-BFGS, see :mod:`silfit.fitting.optim`):
    each sample keeps the start with the lowest energy: the torso alone cannot tell a side
    view's facing, the nose, ears and feet can, and a good initial pose avoids the wrong
    branch of the depth ambiguity of bent limbs.
+   ``branches_1`` (after ``pose_2``, one view): the limb-branch search
+   (:mod:`silfit.fitting.branches`, ``branch_search``).
 4. ``shape``: ``betas`` (+ translation) with the L2 shape prior.
-5. ``final``: everything together with the interpenetration penalty on.
+5. ``branches_late`` (one view, ``late_branch_iters``): the limb-branch search again, at the
+   final stage's weights from the refined pose.
+6. ``final``: everything together with the interpenetration penalty on.
+
+Several calibrated views (rigs): the body is placed from the triangulated torso, there is no flip
+test and no branch search, and the ``points`` term (:class:`~silfit.fitting.terms.PointsTerm`, the
+keypoints triangulated from the views) joins the pose, shape and final stages.
 
 Whole-body fitting (an SMPL-X-layout model and the ``wholebody`` keypoint layout, SMPLify-X's
 schedule): the body stages as above, the hand and face keypoint terms (``hands``, ``face``, each
@@ -117,7 +125,7 @@ class KeypointFitConfig:
     #: steps of that sub-stage run with every start before choosing (0: the whole sub-stage);
     #: its remaining steps continue from the chosen start only
     decision_iters: int = 20
-    robust: bool = True  # False: plain L2 data term (for comparisons)
+    robust: bool = True  # False: plain L2 data terms (keypoints and, several views, points; for comparisons)
     camera_iters: int = 30
     pose_iters: Sequence[int] = (30, 30, 40)
     #: Annealed pose-prior weights of the pose stages, tuned for the shipped library mixture
@@ -286,8 +294,9 @@ class KeypointFitConfig:
 
     def stages(self, whole_body: bool = False) -> tuple:
         """The schedule as data: camera, pose_1..n (annealed priors; the best start of each
-        sample is kept ``decision_iters`` steps into pose stage ``flip_decision_stage``),
-        shape, final (everything, with interpenetration); with ``whole_body`` the hand and
+        sample is kept ``decision_iters`` steps into pose stage ``flip_decision_stage``; the branch
+        search after pose stage ``branch_after_stage``), shape, ``branches_late`` (the search again at
+        the final weights, ``late_branch_iters``), final (everything, with interpenetration); with ``whole_body`` the hand and
         face terms and parameters join as the module docstring says. The defaults give the literal
         tables :data:`~silfit.fitting.schedules.KEYPOINT_SCHEDULE` and ``WHOLEBODY_KEYPOINT_SCHEDULE``."""
         if self.schedule is not None:
@@ -315,15 +324,9 @@ class KeypointFitConfig:
             out.append(Stage(f"pose_{i + 1}", pose_free + part_free, weights, int(it), options=opts))
             if self.branch_search and i == min(self.branch_after_stage, len(self.pose_iters) - 1):
                 for r in range(int(self.branch_rounds)):
-                    opts = {"branches": {
-                        "min_depth_ratio": self.branch_min_depth_ratio, "whole_limbs": self.branch_whole_limbs,
-                        "joint": self.branch_joint,
-                        "screen_after": self.branch_screen_iters, "survivors": self.branch_survivors,
-                    }}  # fmt: skip
-                    if self.occlusion_weight:
-                        opts["branches"]["occlusion"] = float(self.occlusion_weight)
                     w = {**weights, "interpenetration": self.interpenetration_weight}
-                    out.append(Stage(f"branches_{r + 1}", pose_free + part_free, w, int(self.branch_iters), options=opts))
+                    out.append(Stage(f"branches_{r + 1}", pose_free + part_free, w, int(self.branch_iters),
+                                     options=self.branch_options()))  # fmt: skip
         final_parts = (self.final_hand_weight, self.final_face_weight) if whole_body else (0.0, 0.0)
         if self.shape_iters:
             w = {"keypoints": 1.0, "shape": self.shape_weight}
@@ -340,17 +343,21 @@ class KeypointFitConfig:
             w["points"] = float(self.final_points_weight)
         part_w, part_free = self.part_weights(*final_parts)
         if self.branch_search and self.late_branch_iters:
-            opts = {"branches": {
-                "min_depth_ratio": self.branch_min_depth_ratio, "whole_limbs": self.branch_whole_limbs,
-                "joint": self.branch_joint, "screen_after": self.branch_screen_iters, "survivors": self.branch_survivors,
-            }}  # fmt: skip
-            if self.occlusion_weight:
-                opts["branches"]["occlusion"] = float(self.occlusion_weight)
             out.append(Stage("branches_late", ("betas",) + pose_free + part_free, {**w, **part_w}, int(self.late_branch_iters),
-                             options=opts))  # fmt: skip
+                             options=self.branch_options()))  # fmt: skip
         if self.final_iters:
             out.append(Stage("final", ("betas",) + pose_free + part_free, {**w, **part_w}, self.final_iters))
         return tuple(out)
+
+    def branch_options(self) -> dict:
+        """A branch-search stage's options (both searches alike: :data:`~silfit.fitting.schedules.BRANCHES`)."""
+        opts = {"branches": {
+            "min_depth_ratio": self.branch_min_depth_ratio, "whole_limbs": self.branch_whole_limbs,
+            "joint": self.branch_joint, "screen_after": self.branch_screen_iters, "survivors": self.branch_survivors,
+        }}  # fmt: skip
+        if self.occlusion_weight:
+            opts["branches"]["occlusion"] = float(self.occlusion_weight)
+        return opts
 
     def to_dict(self, whole_body: bool = False) -> dict:
         """The settings and the resulting schedule (saved with every fit)."""
@@ -514,7 +521,7 @@ class KeypointFitter:
         sigma = self.config.sigma if self.config.robust else None
         terms = [
             KeypointTerm("keypoints", sigma), KeypointTerm("torso", sigma, mask=self.torso_mask), DepthTerm(),
-            PointsTerm(self.config.sigma, self.config.norm_extent / POINTS_STATURE_M),
+            PointsTerm(sigma, self.config.norm_extent / POINTS_STATURE_M),  # L2 as the data term with robust=False
             PriorTerm("pose", self.pose_prior, "body_pose"), PriorTerm("angle", angle_prior, "body_pose"),
             PriorTerm("limits", limit_violation, "body_pose"), PriorTerm("shape", shape_prior, "betas"),
             OcclusionTerm(self.model, _names(layout), tuple(self.config.occlusion_conf)),

@@ -740,51 +740,45 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
     free_names = tuple(n for n in cfg.optimise if n in sizes)
     params = {k: v.clone().requires_grad_(k in free_names) for k, v in start.items()}
     prior = load_pose_prior(pose_prior, dtype=dtype) if not isinstance(pose_prior, torch.nn.Module) else pose_prior
-    proxy = batch = contour_proxy = None
-    own_renderer = renderer is None
+    contour_proxy = None
     if cfg.proxy_faces:
         from renderers.proxy import get_proxy
 
         contour_proxy = get_proxy(model.v_template, model.faces, int(cfg.proxy_faces))
-    if renderer is None:
-        faces = model.faces
-        if cfg.proxy_faces:
-            proxy = contour_proxy
-            faces = proxy.faces
-        renderer = get_silhouette_renderer(faces)
-        if cfg.batch_render:
-            from renderers.batch import get_batch_renderer
-
-            batch = get_batch_renderer(faces)
     body = MeshBody(model, layout)
-    render_body = body  # the rendered levels' evaluator
     smpl_layout = getattr(model, "kind", "smpl") == "smpl"
-    if proxy is not None and cfg.proxy_body and smpl_layout:
-        render_body, proxy = ContourBody(model, layout, proxy), None
     contour_body, contour_points_map = body, contour_proxy  # the contour level's evaluator and its vertices' map
     if cfg.contour_iterations and cfg.contour_vertices and smpl_layout:
         contour_body, contour_points_map = ContourBody(model, layout, contour_vertex_index(model, cfg.contour_vertices)), None
-    silhouette = SilhouetteTerm(renderer, cfg.spp, cfg.edge_spp, proxy, batch)
-    level_renders = {cfg.proxy_faces: (renderer, proxy, batch, render_body)}  # proxy faces -> a rendered level's setup
+    # proxy faces (None: the full mesh) -> a rendered level's (renderer, proxy map, batch renderer, body);
+    # a caller's renderer renders the body's own vertices at every level
+    level_renders = {} if renderer is None else {"caller": (renderer, None, None, body)}
 
     def level_render(n_faces):
-        """``(renderer, proxy map, batch renderer, body)`` of a rendered level whose proxy has ``n_faces``."""
-        if n_faces is None or not own_renderer or not cfg.proxy_faces:
+        """``(renderer, proxy map, batch renderer, body)`` of a rendered level whose proxy has ``n_faces``
+        (``None``: ``proxy_faces``), built on first use."""
+        if level_renders.get("caller"):
+            return level_renders["caller"]
+        if n_faces is None or not cfg.proxy_faces:
             n_faces = cfg.proxy_faces
         if n_faces not in level_renders:
-            from renderers.proxy import get_proxy
+            level_proxy, faces, level_body = None, model.faces, body
+            if n_faces:
+                from renderers.proxy import get_proxy
 
-            level_proxy = get_proxy(model.v_template, model.faces, int(n_faces))
+                level_proxy = get_proxy(model.v_template, model.faces, int(n_faces))
+                faces = level_proxy.faces
             level_batch = None
             if cfg.batch_render:
                 from renderers.batch import get_batch_renderer
 
-                level_batch = get_batch_renderer(level_proxy.faces)
-            level_body, level_map = body, level_proxy
-            if cfg.proxy_body and smpl_layout:
-                level_body, level_map = ContourBody(model, layout, level_proxy), None
-            level_renders[n_faces] = (get_silhouette_renderer(level_proxy.faces), level_map, level_batch, level_body)
+                level_batch = get_batch_renderer(faces)
+            if level_proxy is not None and cfg.proxy_body and smpl_layout:
+                level_body, level_proxy = ContourBody(model, layout, level_proxy), None
+            level_renders[n_faces] = (get_silhouette_renderer(faces), level_proxy, level_batch, level_body)
         return level_renders[n_faces]
+
+    silhouette = SilhouetteTerm(None, cfg.spp, cfg.edge_spp)  # each rendered level sets its renderer (level_render)
 
     energy = Energy([
         silhouette, KeypointTerm("keypoints", cfg.kp_sigma),

@@ -126,7 +126,8 @@ class DepthTerm(Term):
 
 class PointsTerm(Term):
     """Robust distance of the body's keypoints to their triangulated 3D points:
-    ``sum_k w_k * rho(scale * |X_k - x_k|)`` per frame (Geman-McClure with ``sigma``, ``scale``
+    ``sum_k w_k * rho(scale * |X_k - x_k|)`` per frame (Geman-McClure with ``sigma``, plain L2 with
+    ``sigma=None`` as :class:`KeypointTerm`; ``scale``
     metres to the keypoint term's normalised pixels; ``mask [K]``: some keypoints only, e.g. the body's
     of the whole-body layout), 0 for problems without ``points3d`` (one view).
     Two views' 2D terms can settle with a limb in the wrong depth branch (one view agrees, the
@@ -134,8 +135,8 @@ class PointsTerm(Term):
 
     name = "points"
 
-    def __init__(self, sigma: float = 100.0, scale: float = 500.0 / 1.7, mask: Optional[torch.Tensor] = None):
-        self.sigma, self.scale, self.mask = float(sigma), float(scale), mask
+    def __init__(self, sigma: Optional[float] = 100.0, scale: float = 500.0 / 1.7, mask: Optional[torch.Tensor] = None):
+        self.sigma, self.scale, self.mask = None if sigma is None else float(sigma), float(scale), mask
 
     def __call__(self, ev: Evaluation) -> torch.Tensor:
         if "points3d" not in ev.data:
@@ -143,8 +144,10 @@ class PointsTerm(Term):
         X = ev.data["points3d"]
         kp = ev.body.keypoints.reshape(X.shape)
         d2 = ((kp - X) * self.scale).square().sum(-1)
-        s2 = self.sigma**2
         w = ev.data["points3d_weights"] if self.mask is None else ev.data["points3d_weights"] * self.mask.to(d2.dtype)
+        if self.sigma is None:
+            return ev.per_problem(w * d2)
+        s2 = self.sigma**2
         return ev.per_problem(w * s2 * d2 / (d2 + s2))
 
 

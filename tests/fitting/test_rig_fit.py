@@ -140,3 +140,24 @@ def test_points_term_is_zero_without_points_and_robust_with_them():
     assert float(term(ev)) == pytest.approx(2.0 * 1e4 * d2 / (d2 + 1e4), rel=1e-9)
     ev.data["points3d"][0, 0, 1, 0] = 100.0  # a point far off costs at most weight x sigma^2
     assert float(term(ev)) < 2.0 * 1e4 * d2 / (d2 + 1e4) + 1e4 + 1e-6
+
+
+def test_points_term_follows_the_data_terms_robust_setting(body_model):
+    # robust=False makes the data terms plain L2; the points term (a data term of rigs) was left
+    # Geman-McClure. Now: L2 with sigma=None, in the fitter's energy as in the keypoint term
+    import torch
+
+    from silfit.fitting.terms import Evaluation, PointsTerm
+
+    class Body:
+        keypoints = torch.tensor([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]], dtype=torch.float64)
+
+    ev = Evaluation(1, 1, 1, {}, {}, Body(), torch.zeros(1, 1, 1, 2, 2, dtype=torch.float64), None, {})
+    ev.data = {"points3d": torch.tensor([[[[0.5, 0.0, 0.0], [1.0, 0.0, 0.0]]]], dtype=torch.float64),
+               "points3d_weights": torch.tensor([[[2.0, 1.0]]], dtype=torch.float64)}  # fmt: skip
+    d2 = (0.5 * 500.0 / 1.7) ** 2
+    assert float(PointsTerm(sigma=None)(ev)) == pytest.approx(2.0 * d2, rel=1e-9)
+    assert float(PointsTerm(sigma=100.0)(ev)) < 2.0 * 1e4
+    for robust in (True, False):
+        fitter = KeypointFitter(body_model, config=replace(FAST, robust=robust))
+        assert fitter.energy.terms["points"].sigma == fitter.energy.terms["keypoints"].sigma

@@ -386,4 +386,8 @@ def test_level_proxy_faces_pick_each_rendered_levels_proxy(open_model, target_ma
     real = rs.get_silhouette_renderer
     monkeypatch.setattr(rs, "get_silhouette_renderer", lambda faces: seen.append(len(faces)) or real(faces))
     result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=cfg, progress=False)
-    assert seen == [10000, 2000] and result.steps == 2 and math.isfinite(result.iou_end)
+    # only the proxy a rendered level uses is built (not the 10,000-face one no level renders)
+    assert seen == [2000] and result.steps == 2 and math.isfinite(result.iou_end)
+    seen.clear()  # proxy_faces=None: the full mesh at every level
+    result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=replace(cfg, proxy_faces=None), progress=False)
+    assert seen == [len(open_model.faces)] and result.steps == 2
