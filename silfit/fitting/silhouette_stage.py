@@ -740,16 +740,15 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
     free_names = tuple(n for n in cfg.optimise if n in sizes)
     params = {k: v.clone().requires_grad_(k in free_names) for k, v in start.items()}
     prior = load_pose_prior(pose_prior, dtype=dtype) if not isinstance(pose_prior, torch.nn.Module) else pose_prior
-    contour_proxy = None
-    if cfg.proxy_faces:
-        from renderers.proxy import get_proxy
-
-        contour_proxy = get_proxy(model.v_template, model.faces, int(cfg.proxy_faces))
     body = MeshBody(model, layout)
     smpl_layout = getattr(model, "kind", "smpl") == "smpl"
-    contour_body, contour_points_map = body, contour_proxy  # the contour level's evaluator and its vertices' map
+    contour_body, contour_points_map = body, None  # the contour level's evaluator and its vertices' map
     if cfg.contour_iterations and cfg.contour_vertices and smpl_layout:
-        contour_body, contour_points_map = ContourBody(model, layout, contour_vertex_index(model, cfg.contour_vertices)), None
+        contour_body = ContourBody(model, layout, contour_vertex_index(model, cfg.contour_vertices))
+    elif cfg.proxy_faces:  # the full body, its points read at the proxy's vertices
+        from renderers.proxy import get_proxy
+
+        contour_points_map = get_proxy(model.v_template, model.faces, int(cfg.proxy_faces))
     # proxy faces (None: the full mesh) -> a rendered level's (renderer, proxy map, batch renderer, body);
     # a caller's renderer renders the body's own vertices at every level
     level_renders = {} if renderer is None else {"caller": (renderer, None, None, body)}
