@@ -797,7 +797,8 @@ class KeypointFitter:
             hypotheses, best = distinct_hypotheses(self, layout, state, final, group, B, row_labels, score=score,
                                                    occlusion=occ)  # fmt: skip
             for b, h in enumerate(hypotheses):  # the branch chosen by the final energy, not the search's
-                chosen_branches[b] = chosen_branches[b][:-1] if searched[b] and searched[b][-1]["kept"] != "keep" else chosen_branches[b]
+                if searched[b] and searched[b][-1]["kept"] != "keep":  # the search's pick, replaced below
+                    chosen_branches[b].pop()
                 if h[0]["label"] != "keep":
                     chosen_branches[b].append(h[0]["label"])
                 if searched[b]:
