@@ -74,8 +74,9 @@ from ..body.model import SMPL_PARAMETER_NAMES as PARAMS  # noqa: E402
 
 
 #: the rendered levels' settings before issue 24's fourth part (one proxy for every level, a shorter warm-up,
-#: body_pose's learning rate twice today's): :meth:`SilhouetteFitConfig.legacy` and the benchmark's older methods
-BEFORE_FOURTH_PART = {"level_proxy_faces": {}, "warmup": 5,
+#: body_pose's learning rate twice today's, edge_spp edge points per window pixel): :meth:`SilhouetteFitConfig.legacy`
+#: and the benchmark's older methods
+BEFORE_FOURTH_PART = {"level_proxy_faces": {}, "warmup": 5, "edge_density": None,
                       "lr": {"betas": 0.1, "body_pose": 0.03, "global_orient": 0.02, "transl": 0.01}}  # fmt: skip
 
 
