@@ -137,7 +137,8 @@ def main() -> None:
             print(rows[-1], flush=True)
     if args.sil_subset:
         sub = subset(data, root, args.sil_subset)
-        if args.main:
+        if args.main:  # a warm-up first (model, priors, proxies, renderers), so neither run pays it
+            run(subset(data, root, 2), root / "out_warmup", True, 8, False)
             with stage_changes(edge_density=None):
                 rows.append(run(sub, root / "out_sil_b8_main", True, 8, False, " (main: edge_density=None)"))
             print(rows[-1], flush=True)
