@@ -8,21 +8,25 @@ fitted with ``--people all``:
 * with the silhouette stage (default settings) on the first ``--sil-subset`` subjects
   (default 10: the stage costs seconds per item on this CPU), locally (batch 8) and via Ray.
 
-Prints a Markdown table: images and items (image, person) per hour, failures, and the time
+Prints a Markdown table: images and items (image, person) per hour, failures, the keypoint
+and silhouette stages' seconds per fitted item (mean of the records' ``timings_s``), and the time
 per item spent outside the fit (reading inputs, writing the output folder, and the rest:
 model building, Ray start-up and scheduling, recording). Timings on a shared 2-core
 machine are noisy.
 
     .venv/bin/python benchmarks/bench_dataset.py [--n 100] [--sil-subset 10] [--work DIR]
+    .venv/bin/python benchmarks/bench_dataset.py --n 12 --sil-subset 12 --silhouette-only --no-ray --main
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import shutil
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -70,7 +74,21 @@ def subset(data: Path, root: Path, k: int) -> Path:
     return sub
 
 
-def run(data: Path, out: Path, silhouette: bool, batch: int, ray: bool) -> dict:
+@contextlib.contextmanager
+def stage_changes(**changes):
+    """The silhouette stage's settings with ``changes`` in this process (local runs only: Ray
+    actors build their own)."""
+    from silfit.runner import worker
+
+    original = worker.silhouette_config
+    worker.silhouette_config = lambda options: replace(original(options), **changes)
+    try:
+        yield
+    finally:
+        worker.silhouette_config = original
+
+
+def run(data: Path, out: Path, silhouette: bool, batch: int, ray: bool, label: str = "") -> dict:
     shutil.rmtree(out, ignore_errors=True)
     t0 = time.perf_counter()
     s = fit_dataset(data, out, people="all", options=FitOptions(silhouette=silhouette), batch_size=batch,
@@ -85,10 +103,12 @@ def run(data: Path, out: Path, silhouette: bool, batch: int, ray: bool) -> dict:
     n = len(s["records"])
     other = (workers * wall - t("total").sum()) / n
     return {
-        "mode": "Ray, 2 actors" if ray else "local, 1 process", "batch": batch, "silhouette": silhouette,
+        "mode": ("Ray, 2 actors" if ray else "local, 1 process") + label, "batch": batch, "silhouette": silhouette,
         "items": n, "images": images, "ok": len(ok), "failed": s["failed"], "wall": wall,
         "images_h": 3600 * images / wall, "items_h": 3600 * n / wall, "fit": float(np.median(fit)),
         "io": float(np.median(io)), "other": other,
+        "kp_stage": float(t("keypoints").mean()) if ok else float("nan"),
+        "sil_stage": float(t("silhouette").mean()) if ok else float("nan"),
     }  # fmt: skip
 
 
@@ -101,6 +121,8 @@ def main() -> None:
     parser.add_argument("--work", help="folder for the generated data and outputs (default: a temporary one)")
     parser.add_argument("--no-ray", action="store_true", help="skip the Ray runs")
     parser.add_argument("--silhouette-only", action="store_true", help="only the runs with the silhouette stage")
+    parser.add_argument("--main", action="store_true",
+                        help="also the local silhouette run with edge_density=None (the stage before issue 24's speed part)")
     args = parser.parse_args()
     root = Path(args.work or tempfile.mkdtemp(prefix="bench_dataset_"))
     root.mkdir(parents=True, exist_ok=True)
@@ -115,6 +137,11 @@ def main() -> None:
             print(rows[-1], flush=True)
     if args.sil_subset:
         sub = subset(data, root, args.sil_subset)
+        if args.main:  # a warm-up first (model, priors, proxies, renderers), so neither run pays it
+            run(subset(data, root, 2), root / "out_warmup", True, 8, False)
+            with stage_changes(edge_density=None):
+                rows.append(run(sub, root / "out_sil_b8_main", True, 8, False, " (main: edge_density=None)"))
+            print(rows[-1], flush=True)
         rows.append(run(sub, root / "out_sil_b8", True, 8, False))
         print(rows[-1], flush=True)
         if not args.no_ray:
@@ -123,12 +150,13 @@ def main() -> None:
     print(f"\n{args.n} generated subjects ({args.size} px), every fifth with a second keypoint-only person, "
           f"3 corrupted files (keypoints of subject 10, camera of 21, mask of 3); --people all. Work: {root}\n")  # fmt: skip
     print("| run | batch | silhouette | images | items | failed | wall (s) | images/h | items/h "
-          "| fit s/item (median) | read+write s/item (median) | other s/item |")
-    print("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+          "| fit s/item (median) | keypoint stage s/item (mean) | silhouette stage s/item (mean) "
+          "| read+write s/item (median) | other s/item |")
+    print("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         print(f"| {r['mode']} | {r['batch']} | {'yes' if r['silhouette'] else 'no'} | {r['images']} | {r['items']} "
               f"| {r['failed']} | {r['wall']:.0f} | {r['images_h']:.0f} | {r['items_h']:.0f} | {r['fit']:.2f} "
-              f"| {r['io']:.2f} | {r['other']:.2f} |")  # fmt: skip
+              f"| {r['kp_stage']:.2f} | {r['sil_stage']:.2f} | {r['io']:.2f} | {r['other']:.2f} |")  # fmt: skip
 
 
 if __name__ == "__main__":

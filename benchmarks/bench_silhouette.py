@@ -22,10 +22,14 @@ full-image mask IoU (the fit rendered with pyrender/OSMesa against the mask; mea
 views for rigs), PVE (root-aligned) and PA-PVE in mm against the truth.
 
 ``head`` is the stage at main before issue 24's third part (``HEAD``: the ray-cast renderer, a short contour
-level, 65 rendered steps, the full mesh posed each step); ``main`` is the stage before issue 24's fourth part
-(a longer contour level at higher weights, 50 rendered steps, the 10,000-face render proxy posed directly);
-``after`` is the default (``main`` with coarser render proxies per level, 3,000 faces at 128 px and 5,000 at
-256 px, a 10-step warm-up and half body_pose's learning rate); ``head-projective`` is ``head`` rendered with
+level, 65 rendered steps, the full mesh posed each step); ``third`` is the stage before issue 24's fourth part
+(a longer contour level at higher weights, 50 rendered steps, the 10,000-face render proxy posed directly; this
+method was called ``main`` before the speed part); ``main`` is the default before issue 24's speed part
+(``edge_density=None``: ``edge_spp`` visibility-edge points per window pixel); ``after`` is the default
+(``edge_density=4``: 4 edge points per pixel of contour-candidate length; before it: coarser render proxies per
+level, 3,000 faces at 128 px and 5,000 at 256 px, a 10-step warm-up and half body_pose's learning rate);
+``--step`` times one render + backward of the default 256 px level per method (``main``/``after``'s edge points);
+``head-projective`` is ``head`` rendered with
 Mitsuba's ``prb_projective`` integrator; ``after-2t``, ``after-stratified``, ``*-s1``: see ``RENDERERS``.
 ``--video 60``: one 60-frame synthetic walk through the sequence's stage (``refine_sequence_silhouettes``: all
 frames one problem), seconds per frame (methods with their own renderer are skipped there).
@@ -33,6 +37,7 @@ Methods run interleaved per subject; ``--base`` names the row the ratios are tak
 
 The machine is shared: compare the rows of one run (ratios), not runs.
 
+    python benchmarks/bench_silhouette.py --single 4 --step --methods main,after --base main --seed 9300
     python benchmarks/bench_silhouette.py --single 6 --rig 4 --methods head,after --base head
     python benchmarks/bench_silhouette.py --single 8 --rig 3 --video 60 --methods original,head,after \
         --video-methods head,after --base original --seed 9700
@@ -59,9 +64,12 @@ HEAD = {"iterations": (40, 25), "contour_iterations": 20, "w_contour_inside": 0.
         "proxy_body": False, **BEFORE_FOURTH_PART}  # fmt: skip
 #: the stage at main before issue 24's fourth part (a 10,000-face proxy at both rendered levels, a 5-step warm-up,
 #: body_pose's learning rate 0.03): the third part's default
-MAIN = BEFORE_FOURTH_PART
+THIRD = BEFORE_FOURTH_PART
+#: the default before issue 24's speed part: edge_spp visibility-edge points per window pixel
+MAIN = {"edge_density": None}
 METHODS = {"original": SilhouetteFitConfig.legacy, "before": SilhouetteFitConfig.legacy, "after": SilhouetteFitConfig,
-           "head": lambda: SilhouetteFitConfig(**HEAD), "main": lambda: SilhouetteFitConfig(**MAIN), "head-projective": lambda: SilhouetteFitConfig(**HEAD),
+           "head": lambda: SilhouetteFitConfig(**HEAD), "third": lambda: SilhouetteFitConfig(**THIRD),
+           "main": lambda: SilhouetteFitConfig(**MAIN), "head-projective": lambda: SilhouetteFitConfig(**HEAD),
            "after-2t": SilhouetteFitConfig, "after-stratified": SilhouetteFitConfig,
            "head-s1": lambda: SilhouetteFitConfig(**HEAD, seed=1), "after-s1": lambda: SilhouetteFitConfig(seed=1)}  # fmt: skip
 #: the renderer per method (``None``: the stage's default, the ray-cast method since issue 24's second part):
@@ -223,6 +231,48 @@ def run_rig(model, n, seed, size, methods):
     return rows
 
 
+def run_step(model, methods, resolutions=(128, 256), repeats=15):
+    """One rendered step of each level (render + backward of a weighted coverage sum, the level's default
+    render proxy, a window of the level's size around a standing body, the stage's torch threads) per method,
+    methods interleaved: median milliseconds and edge points per call (the methods' ``edge_density``)."""
+    from renderers.proxy import get_proxy
+    from renderers.silhouette import get_silhouette_renderer, roi_window
+    from silfit.camera import Camera
+    from silfit.fitting.threads import torch_threads
+
+    cam = Camera.from_image_size(512, 512)
+    with torch.no_grad():
+        v = model(transl=torch.tensor([[0.0, 0.2, 3.0]]), global_orient=torch.tensor([[np.pi, 0.0, 0.0]])).vertices[0]
+    print(f"\n### One rendered step (render + backward), median of {repeats}, methods interleaved\n")
+    print("| method | level px | proxy faces | ms per step | ratio |")
+    print("|---|---:|---:|---:|---:|")
+    for res in resolutions:
+        setups = {}
+        for name in methods:
+            cfg = METHODS[name]()
+            proxy = get_proxy(model.v_template, model.faces, int(cfg.level_faces(res) or cfg.proxy_faces))
+            pv = proxy(v)
+            window = roi_window(pv, cam, size=res, margin=cfg.margin)
+            w = torch.linspace(-1.0, 1.0, window.camera.width)[None, :].expand(window.camera.height, -1)
+            setups[name] = (cfg, len(proxy.faces), pv, window.camera, get_silhouette_renderer(proxy.faces), w, [])
+        with torch_threads(METHODS[methods[0]]().threads):
+            for k in range(repeats + 2):
+                for name, (cfg, _, pv, wcam, r, w, ts) in setups.items():
+                    dens = {} if cfg.edge_density is None else {"edge_density": cfg.edge_density}
+                    x = pv.clone().requires_grad_()
+                    t = time.perf_counter()
+                    img = r.render_views(x, [wcam], [torch.eye(3)], [torch.zeros(3)], spp=cfg.spp,
+                                         edge_spp=cfg.edge_spp, seeds=[k], **dens)[0]  # fmt: skip
+                    (img * w).sum().backward()
+                    if k >= 2:
+                        ts.append(time.perf_counter() - t)
+        base_ms = None
+        for name, (cfg, n_faces, _, _, _, _, ts) in setups.items():
+            ms = 1000 * float(np.median(ts))
+            base_ms = base_ms or ms
+            print(f"| {name} | {res} | {n_faces} | {ms:.1f} | {base_ms / ms:.2f}x |")
+
+
 def run_kornia(size=512, repeats=5):
     """kornia's distance transform against OpenCV's exact Euclidean one on a body mask."""
     import cv2
@@ -317,6 +367,7 @@ def main(argv=None):
                     help="a synthetic walk of FRAMES frames (60: the issue's video case) through the sequence's stage")
     ap.add_argument("--video-methods", default=None, help="methods of the video case (default: --methods)")
     ap.add_argument("--kornia", action="store_true", help="also time kornia's distance transform against OpenCV's")
+    ap.add_argument("--step", action="store_true", help="also time one rendered step per level and method")
     args = ap.parse_args(argv)
     global BASE
     BASE = args.base
@@ -333,6 +384,8 @@ def main(argv=None):
     if args.video:
         vm = [m for m in (args.video_methods or args.methods).split(",") if m]
         run_video(model, args.video, args.seed + 2, args.size, vm)
+    if args.step:
+        run_step(model, methods)
     if args.kornia:
         run_kornia(args.size)
 

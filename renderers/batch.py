@@ -123,6 +123,7 @@ class BatchSilhouetteRenderer:
         edge_spp: Optional[int] = None,
         seed: Optional[int] = None,
         sampler: Optional[str] = None,
+        edge_density: Optional[float] = None,
     ) -> List[torch.Tensor]:
         verts = [check_mesh(v, self.faces)[0] for v in (list(vertices) if not isinstance(vertices, torch.Tensor) or vertices.dim() == 3 else [vertices])]
         cameras = [check_camera(c) for c in cameras]
@@ -134,6 +135,8 @@ class BatchSilhouetteRenderer:
             raise ValueError("all subjects must have the same number of vertices")
         seed = _fresh_seed() if seed is None else int(seed)
         kw = dict(spp=spp, edge_spp=edge_spp, sampler=sampler)
+        if edge_density is not None:  # the ray-cast method's edge points per pixel of contour length
+            kw["edge_density"] = edge_density
         if self.mode == "separate":
             self.last_fallbacks = 0
             return [self._slot(i)(v, c, seed=seed + i, **kw) for i, (v, c) in enumerate(zip(verts, cameras))]

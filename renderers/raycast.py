@@ -16,12 +16,16 @@ Silhouette (pixel coverage, box filter)
 
 Gradient (visibility-edge term)
     ``d sum(g * S) / d x = integral over the contour of g(p) (v(p) . n(p)) dl``: ``N =
-    edge_spp * W * H`` points are drawn uniformly along the projected candidate segments
+    edge_spp * W * H`` points (or, with ``edge_density``, ``ceil(edge_density * L)`` for
+    ``L`` pixels of candidate length: a fixed density along the contour, not a count per
+    image pixel) are drawn uniformly along the projected candidate segments
     (independently, or evenly spaced with one random offset: ``edge_sampling="systematic"``); a point counts where a ray just outside the
     segment (``1e-4`` px from it, on the side away from its faces) misses the mesh, i.e.
     where the segment is the visible outline.  ``g`` is the loss's gradient at the pixel
     holding the point and ``v . n`` the outward normal speed of the segment's endpoints,
     interpolated; torch's autograd takes it back to the vertices through the projection.
+    Each point weighs ``L / N`` (the same estimator for any ``N``: the density changes the
+    noise, not the expectation).
 
 All rays of a call (coverage and edge points, every view) go to one Embree query
 (``Scene.ray_test``), whose results do not depend on Dr.Jit's thread count or the order
@@ -153,6 +157,18 @@ def _boxes_touch(vc: torch.Tensor, faces: torch.Tensor, cam: Camera, mask: torch
     return near | (inside & (count > 0))
 
 
+def _dilate(mask: torch.Tensor) -> torch.Tensor:
+    """``mask [H, W]`` (bool) dilated by the 3x3 square (zero padding): the same bits as a
+    3x3 max-pool, with two separable passes of boolean slices."""
+    rows = mask.clone()
+    rows[1:] |= mask[:-1]
+    rows[:-1] |= mask[1:]
+    out = rows.clone()
+    out[:, 1:] |= rows[:, :-1]
+    out[:, :-1] |= rows[:, 1:]
+    return out
+
+
 def _directions(xy: torch.Tensor, cam: Camera) -> torch.Tensor:
     """Camera-frame unit directions of the rays through image points ``xy [N, 2]`` (float64)."""
     d = torch.stack([(xy[:, 0] - cam.cx) / cam.fx, (xy[:, 1] - cam.cy) / cam.fy, torch.ones_like(xy[:, 0])], -1)
@@ -252,6 +268,7 @@ class RaycastScene:
         stratified: bool,
         need_grad: bool,
         systematic: bool = True,
+        edge_density: Optional[float] = None,
     ):
         """Silhouettes of ``verts [V, 3]`` seen by ``views`` (``(camera, R [3,3], t [3])``:
         camera-frame points are ``R x + t``); returns ``(images, states)`` where each
@@ -263,7 +280,8 @@ class RaycastScene:
             plans, origins, directions = [], [], []
             for (cam, R, t), seed, vc, (d, _) in zip(views, seeds, vcs, towards):
                 R64, t64 = R.to(torch.float64), t.to(torch.float64)
-                plan, xy_cam = self._plan(vc, d < 0, cam, spp, edge_spp, int(seed), stratified, need_grad, systematic)
+                plan, xy_cam = self._plan(vc, d < 0, cam, spp, edge_spp, int(seed), stratified, need_grad, systematic,
+                                          edge_density)  # fmt: skip
                 centre = -(R64.T @ t64)
                 d = _directions(xy_cam, cam) @ R64  # camera -> reference frame: R^T d
                 plans.append(plan)
@@ -280,7 +298,8 @@ class RaycastScene:
                 states.append(state)
         return images, states
 
-    def _plan(self, vc, facing, cam: Camera, spp, edge_spp, seed, stratified, need_grad, systematic=True):
+    def _plan(self, vc, facing, cam: Camera, spp, edge_spp, seed, stratified, need_grad, systematic=True,
+              edge_density=None):  # fmt: skip
         E = self.edges
         W, H = cam.width, cam.height
         fb = E.face_b.clamp(min=0)
@@ -311,9 +330,7 @@ class RaycastScene:
             px = px[inside]
             grid = torch.zeros(H + 2, W + 2, dtype=torch.bool)
             grid[px[:, 1] + 1, px[:, 0] + 1] = True
-            g = grid[None, None].to(torch.float32)
-            g = torch.nn.functional.max_pool2d(g, 3, stride=1, padding=1)[0, 0, 1:-1, 1:-1] > 0
-            marked = g.reshape(-1)
+            marked = _dilate(grid)[1:-1, 1:-1].reshape(-1)
         edge_pixels = torch.nonzero(marked).squeeze(1)
         labels, n_comp, reps = self._components(marked, W, H)
 
@@ -331,8 +348,11 @@ class RaycastScene:
 
         # ---- edge points (gradient only)
         if need_grad and idx.numel():
-            N = int(edge_spp) * W * H
             total = float(length.sum())
+            if edge_density is None:  # a count per image pixel (before issue 24's speed part)
+                N = int(edge_spp) * W * H
+            else:  # a density along the candidate segments
+                N = max(1, math.ceil(float(edge_density) * total))
             cum = torch.cumsum(length, 0)
             if systematic:  # evenly spaced, one random offset
                 s = (torch.arange(N, dtype=torch.float64) + float(hash_uniform(seed, 3, torch.zeros(1, dtype=torch.int64)))) * (total / N)
@@ -373,8 +393,7 @@ class RaycastScene:
         # each component's representative: its first pixel next to an edge pixel (so the rays of
         # a view only meet faces whose image touches the edge pixels or their one-pixel ring),
         # else its first pixel
-        g = marked.reshape(1, 1, H, W).to(torch.float32)
-        ring = (torch.nn.functional.max_pool2d(g, 3, stride=1, padding=1) > 0).reshape(-1) & free
+        ring = _dilate(marked.reshape(H, W)).reshape(-1) & free
         pix = torch.arange(H * W)
         reps = torch.full((n - 1,), H * W, dtype=torch.int64)
         reps.scatter_reduce_(0, lab[ring], pix[ring], reduce="amin")
@@ -453,12 +472,17 @@ class RaycastRender(torch.autograd.Function):
 
 
 def render_views(scene: RaycastScene, verts: torch.Tensor, views: Sequence[tuple], spp: int, edge_spp: int,
-                 seeds: Sequence[int], stratified: bool, systematic: bool = True) -> List[torch.Tensor]:  # fmt: skip
+                 seeds: Sequence[int], stratified: bool, systematic: bool = True,
+                 edge_density: Optional[float] = None) -> List[torch.Tensor]:  # fmt: skip
     """Silhouettes ``[H, W]`` (float32) of ``verts [V, 3]`` in each view ``(camera, R, t)``,
-    differentiable with respect to ``verts`` when it requires grad."""
+    differentiable with respect to ``verts`` when it requires grad.  ``edge_density``: edge
+    points per pixel of contour-candidate length (``None``: ``edge_spp`` per image pixel);
+    it changes the gradient's noise only, never the image."""
+    if edge_density is not None and not (float(edge_density) > 0 and math.isfinite(float(edge_density))):
+        raise ValueError(f"edge_density must be a positive number or None, got {edge_density!r}")
     need_grad = torch.is_grad_enabled() and verts.requires_grad
     with scene.lock:
-        images, states = scene.render(verts, views, spp, edge_spp, seeds, stratified, need_grad, systematic)
+        images, states = scene.render(verts, views, spp, edge_spp, seeds, stratified, need_grad, systematic, edge_density)
     if not need_grad:
         return images
     out = RaycastRender.apply(verts, scene, list(views), states, *images)

@@ -437,12 +437,16 @@ class SilhouetteRenderer:
         edge_spp: Optional[int] = None,
         seed: Optional[int] = None,
         sampler: Optional[str] = None,
+        edge_density: Optional[float] = None,
     ) -> torch.Tensor:
         """Silhouette of ``vertices [V,3]`` or ``[B,V,3]`` (camera frame) under ``camera``.
 
         ``sampler`` is a Mitsuba sampler plugin (``independent`` by default; ``stratified``
         or ``multijitter`` give much lower noise for reference renders, e.g. finite
-        differences with a shared seed).  Batch element ``i`` uses ``seed + i``."""
+        differences with a shared seed).  Batch element ``i`` uses ``seed + i``.
+        ``edge_density``: the ray-cast method's edge points per pixel of contour-candidate
+        length instead of ``edge_spp`` per image pixel (:func:`renderers.raycast.render_views`;
+        ``None``: ``edge_spp``; the projective method ignores it)."""
         camera = check_camera(camera)
         vertices, _ = check_mesh(vertices, self.faces)
         spp = self.spp if spp is None else _positive_int(spp, "spp")
@@ -454,7 +458,8 @@ class SilhouetteRenderer:
             eye, zero = torch.eye(3), torch.zeros(3)
             out = torch.stack([
                 self.render_views(v, [camera], [eye], [zero], spp=spp, edge_spp=edge_spp,
-                                  seeds=[_fresh_seed() if seed is None else int(seed) + i], sampler=sampler)[0]
+                                  seeds=[_fresh_seed() if seed is None else int(seed) + i], sampler=sampler,
+                                  edge_density=edge_density)[0]
                 for i, v in enumerate(batch)
             ])  # fmt: skip
             return out if batched else out[0]
@@ -486,12 +491,14 @@ class SilhouetteRenderer:
         edge_spp: Optional[int] = None,
         seeds: Optional[Sequence[int]] = None,
         sampler: Optional[str] = None,
+        edge_density: Optional[float] = None,
     ) -> list:
         """Silhouettes of one body ``vertices [V, 3]`` (any reference frame, e.g. the world)
         seen by several cameras with extrinsics ``R_i, t_i`` (camera-frame points ``R_i x +
         t_i``): a list of ``[H_i, W_i]`` tensors whose gradients reach ``vertices``.  The
         ray-cast method builds one acceleration structure for all views; the projective
-        method renders each view from its own mapped copy.  ``seeds[i]``: view ``i``'s seed."""
+        method renders each view from its own mapped copy.  ``seeds[i]``: view ``i``'s seed;
+        ``edge_density``: as in :meth:`__call__`."""
         cameras = [check_camera(c) for c in cameras]
         vertices, _ = check_mesh(vertices, self.faces)
         if vertices.dim() != 2:
@@ -517,7 +524,7 @@ class SilhouetteRenderer:
         self._set_threads()
         verts = vertices.cpu() if vertices.device.type != "cpu" else vertices
         images = render_views(self._ray_scene(vertices.shape[0]), verts, views, spp, edge_spp, seeds, sampler != "independent",
-                              self.edge_sampling == "systematic")  # fmt: skip
+                              self.edge_sampling == "systematic", edge_density)  # fmt: skip
         return [img.to(device=device, dtype=out_dtype) for img in images]
 
     def render_roi(

@@ -74,8 +74,9 @@ from ..body.model import SMPL_PARAMETER_NAMES as PARAMS  # noqa: E402
 
 
 #: the rendered levels' settings before issue 24's fourth part (one proxy for every level, a shorter warm-up,
-#: body_pose's learning rate twice today's): :meth:`SilhouetteFitConfig.legacy` and the benchmark's older methods
-BEFORE_FOURTH_PART = {"level_proxy_faces": {}, "warmup": 5,
+#: body_pose's learning rate twice today's, edge_spp edge points per window pixel): :meth:`SilhouetteFitConfig.legacy`
+#: and the benchmark's older methods
+BEFORE_FOURTH_PART = {"level_proxy_faces": {}, "warmup": 5, "edge_density": None,
                       "lr": {"betas": 0.1, "body_pose": 0.03, "global_orient": 0.02, "transl": 0.01}}  # fmt: skip
 
 
@@ -98,6 +99,10 @@ class SilhouetteFitConfig:
     w_contour_cover: float = 0.2
     spp: int = 4  # primal samples per pixel
     edge_spp: int = 1  # visibility-edge samples per pixel (projective integrator's sppp)
+    #: the ray-cast renderer's visibility-edge points per pixel of contour-candidate length instead of
+    #: ``edge_spp`` per window pixel (renderers.raycast; same expected gradient, fewer rays); ``None``:
+    #: ``edge_spp`` per pixel (before issue 24's speed part)
+    edge_density: Optional[float] = 4.0
     margin: float = 0.12  # window margin, fraction of the box on each side
     #: window sides rounded up to a multiple of this many pixels: few distinct window sizes,
     #: so few compiled render kernels (a new size costs Dr.Jit a trace and, the first time on
@@ -361,9 +366,10 @@ class SilhouetteTerm(Term):
 
     name = "silhouette"
 
-    def __init__(self, renderer, spp: int, edge_spp: int, proxy=None, batch_renderer=None):
+    def __init__(self, renderer, spp: int, edge_spp: int, proxy=None, batch_renderer=None, edge_density=None):
         self.renderer, self.spp, self.edge_spp = renderer, int(spp), int(edge_spp)
         self.proxy, self.batch_renderer = proxy, batch_renderer
+        self.edge_density = None if edge_density is None else float(edge_density)
 
     def __call__(self, ev: Evaluation) -> torch.Tensor:
         V = ev.body.vertices
@@ -374,10 +380,12 @@ class SilhouetteTerm(Term):
         windows = ev.data["windows"]
         jobs = [(p, o) for p in range(ev.P) for o, w in enumerate(windows[p]) if w is not None]
         seeds = [None if ev.data["seeds"][p] is None else int(ev.data["seeds"][p]) + 7919 * o for p, o in jobs]
+        # edge_density only when set: a caller's renderer without the option still works with None
+        dens = {} if self.edge_density is None else {"edge_density": self.edge_density}
         if self.batch_renderer is not None and len(jobs) > 1:
             sils = self.batch_renderer([cams[p, o // ev.C, o % ev.C] for p, o in jobs],
                                        [windows[p][o].camera for p, o in jobs],
-                                       spp=self.spp, edge_spp=self.edge_spp, seed=seeds[0])  # fmt: skip
+                                       spp=self.spp, edge_spp=self.edge_spp, seed=seeds[0], **dens)  # fmt: skip
         elif hasattr(self.renderer, "render_views"):  # a body's views in one call (one BVH build per body)
             Vb, R, t = V.reshape(ev.P, ev.F, *V.shape[1:]), ev.data["R"], ev.data["t"]
             sils = [None] * len(jobs)
@@ -386,12 +394,12 @@ class SilhouetteTerm(Term):
                 cs = [jobs[j][1] % ev.C for j in js]
                 imgs = self.renderer.render_views(Vb[key], [windows[key[0]][jobs[j][1]].camera for j in js],
                                                   [R[key][c] for c in cs], [t[key][c] for c in cs], spp=self.spp,
-                                                  edge_spp=self.edge_spp, seeds=[seeds[j] for j in js])  # fmt: skip
+                                                  edge_spp=self.edge_spp, seeds=[seeds[j] for j in js], **dens)  # fmt: skip
                 for j, img in zip(js, imgs):
                     sils[j] = img
         else:
             sils = [self.renderer(cams[p, o // ev.C, o % ev.C], windows[p][o].camera, spp=self.spp,
-                                  edge_spp=self.edge_spp, seed=seed) for (p, o), seed in zip(jobs, seeds)]  # fmt: skip
+                                  edge_spp=self.edge_spp, seed=seed, **dens) for (p, o), seed in zip(jobs, seeds)]  # fmt: skip
         energies = [torch.zeros((), dtype=V.dtype) for _ in range(ev.P)]
         ious = [[float("nan")] * len(windows[p]) for p in range(ev.P)]
         for (p, o), sil in zip(jobs, sils):
@@ -777,7 +785,7 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
             level_renders[n_faces] = (get_silhouette_renderer(faces), level_proxy, level_batch, level_body)
         return level_renders[n_faces]
 
-    silhouette = SilhouetteTerm(None, cfg.spp, cfg.edge_spp)  # each rendered level sets its renderer (level_render)
+    silhouette = SilhouetteTerm(None, cfg.spp, cfg.edge_spp, edge_density=cfg.edge_density)  # each rendered level sets its renderer (level_render)
 
     energy = Energy([
         silhouette, KeypointTerm("keypoints", cfg.kp_sigma),

@@ -82,7 +82,11 @@ def test_window_sides_come_in_multiples():
 @pytest.mark.parametrize("robust", [False, True])
 def test_gradient_moves_a_shifted_body_toward_a_shifted_mask(open_model, target_mask, robust):
     iou_before = mask_iou(render_mask(vertices(open_model, POSE), open_model.faces.numpy(), CAMERA), target_mask)
-    result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=replace(FAST, robust_cover=robust), progress=False)
+    # edge points per window pixel (edge_density=None), the sampling the bounds were measured with: this 64 px,
+    # 30-step fit ends in one of two places by the seed's noise alone (IoU 0.94 or 0.90 with the plain cover term:
+    # seed 0 at 4 and at 16 edge points per contour pixel alike, seed 1 at 0.94), so the bounds hold one sampling
+    cfg = replace(FAST, robust_cover=robust, edge_density=None)
+    result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=cfg, progress=False)
     dx, dy, dz = result.transl[0] - POSE["transl"][0]
     # The truth is (+0.08, 0, 0) m. Measured (deterministic renderer): 0.0846, -0.0026, +0.053 m.
     # The depth drifts because at this window's scale (0.54 px per image px) the energy's own
