@@ -410,7 +410,7 @@ def save_fit(
             from .fitio import write_fit
 
             write_fit(tmp / "hypotheses" / str(k), h["params"], [result.camera], layout=result.layout,
-                      model=result.keypoint.model, record={"label": h["label"], "energy": h["energy"], "differs": h["differs"]})  # fmt: skip
+                      model=result.keypoint.model, record={k: h[k] for k in ("label", "energy", "differs", "refined", "shift_mm", "max_shift_mm") if k in h})  # fmt: skip
         metrics = dict(result.metrics)
         metrics["camera"] = result.camera.to_dict()
         metrics["layout"] = result.layout

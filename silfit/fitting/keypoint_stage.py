@@ -100,6 +100,15 @@ def _pose_stage_weights(current, value, keywords):
     return tuple(value) + (tuple(current)[-1],)
 
 
+#: two hypotheses of a sample whose joints are this close (mean, metres) are one solution ...
+DISTINCT_JOINTS_M = 0.03
+#: ... unless a single joint is farther apart than this (metres): a forearm or shin turned the other
+#: way in depth moves its end joint 0.2-0.5 m but the mean over 24 joints only 1-3 cm (issue 25)
+DISTINCT_JOINT_MAX_M = 0.10
+#: a segment whose direction differs by more than this (degrees) between two hypotheses "differs"
+DIFFERS_DEG = 30.0
+
+
 @renamed_fields(
     pose_prior_weights=Alias("pose_weight", lambda w: tuple(w)[:-1], _pose_stage_weights),
     final_pose_prior_weight=Alias("pose_weight", lambda w: tuple(w)[-1], lambda w, v, kw: tuple(w)[:-1] + (float(v),)),
@@ -192,6 +201,13 @@ class KeypointFitConfig:
     #: the hard set's keypoint-stage PA-PVE from 123.9 to 99.4 mm (20 subjects, seed 4711; fits above
     #: 150 mm 5 -> 3, search failures 5 -> 2) at about 1.3-3x the time (a loaded machine)
     hypotheses: int = 1
+    #: :func:`distinct_hypotheses`: two solutions are distinct when their joints are
+    #: :data:`DISTINCT_JOINTS_M` apart (mean) or any one joint more than this (metres; ``None``: the
+    #: mean alone, the rule before issue 25's warnings; videos' branch choice keeps that one) ...
+    hypothesis_joint_max_m: Optional[float] = DISTINCT_JOINT_MAX_M
+    #: ... and where fewer than ``hypotheses`` refined ones are distinct, the branch searches' other
+    #: survivors fill the list (``refined: False``; their energy is their search stage's, not final)
+    hypothesis_unrefined: bool = True
     #: each sample's lowest-energy hypotheses of the last branch search that run the rest of the
     #: schedule (at least ``2 * hypotheses`` with ``hypotheses`` > 1); the lowest final energy is the fit
     #: (1: the search's own choice)
@@ -442,45 +458,72 @@ def best_per_group(energy: torch.Tensor, group: torch.Tensor, groups: int, count
     return torch.cat(out)
 
 
-#: two refined hypotheses of a sample whose joints are this close (mean, metres) are one solution
-DISTINCT_JOINTS_M = 0.03
-#: a segment whose direction differs by more than this (degrees) between two hypotheses "differs"
-DIFFERS_DEG = 30.0
+def joint_shift_mm(joints, reference) -> tuple:
+    """``(mean, max)``: how far joints ``[J, 3]`` lie from ``reference`` ``[J, 3]`` (metres in,
+    millimetres out), the mean over joints and the largest single joint's."""
+    d = np.linalg.norm(np.asarray(joints, np.float64) - np.asarray(reference, np.float64), axis=-1)
+    return 1000.0 * float(d.mean()), 1000.0 * float(d.max())
+
+
+def is_distinct(joints, other, min_m: float = DISTINCT_JOINTS_M, max_m: Optional[float] = DISTINCT_JOINT_MAX_M) -> bool:
+    """Two solutions (joints ``[J, 3]``, metres) are distinct when their joints are at least ``min_m``
+    apart on average, or (``max_m`` not ``None``) any single joint is more than ``max_m`` apart."""
+    mean_mm, max_mm = joint_shift_mm(joints, other)
+    return mean_mm >= 1000.0 * min_m or (max_m is not None and max_mm > 1000.0 * max_m)
+
+
+def differing_segments(joints, reference, names) -> list:
+    """The limb and torso segments whose direction differs by more than :data:`DIFFERS_DEG`
+    between joints ``[J, 3]`` and ``reference`` (``names``: the model's joint names)."""
+    from .branches import LIMB_SEGMENTS, TORSO_SEGMENT
+
+    out = []
+    for n, p, d in LIMB_SEGMENTS + (TORSO_SEGMENT,):
+        a, c = names.index(p), names.index(d)
+        u, v = joints[c] - joints[a], reference[c] - reference[a]
+        cos = float(u @ v / max(np.linalg.norm(u) * np.linalg.norm(v), 1e-12))
+        if math.degrees(math.acos(max(-1.0, min(1.0, cos)))) > DIFFERS_DEG:
+            out.append(n)
+    return out
 
 
 def distinct_hypotheses(fitter, layout, state, energy, group, groups: int, labels, min_m: float = DISTINCT_JOINTS_M,
-                        score=None, occlusion=None):  # fmt: skip
+                        score=None, occlusion=None, max_m: Optional[float] = DISTINCT_JOINT_MAX_M, unrefined=None):  # fmt: skip
     """``(hypotheses, best_rows)``: per sample ``b < groups``, its rows (``group == b``) refined to the
-    end, lowest ``score`` (default: ``energy``) first, without those whose joints are within ``min_m``
-    (mean) of a lower one, as ``[{"label", "energy", "params": {name: [w]}, "differs": [segment, ...]}]``
-    (``differs``: the limb and torso segments pointing more than :data:`DIFFERS_DEG` away from the
-    best's; with ``occlusion [rows]``, also each one's ``occlusion`` count); and the best row of each
-    sample."""
-    from .branches import LIMB_SEGMENTS, TORSO_SEGMENT
-
+    end, lowest ``score`` (default: ``energy``) first, without those not distinct (:func:`is_distinct`,
+    ``min_m``, ``max_m``) from a lower one, as ``[{"label", "energy", "params": {name: [w]}, "differs":
+    [segment, ...], "refined", "shift_mm", "max_shift_mm"}]`` (``differs``: the limb and torso segments
+    pointing more than :data:`DIFFERS_DEG` away from the best's; ``shift_mm``/``max_shift_mm``: the
+    mean and largest joint distance to the best, :func:`joint_shift_mm`; with ``occlusion [rows]``, also
+    each refined one's ``occlusion`` count); then, with ``unrefined`` (per sample, branch-search rows that
+    did not run to the end: ``{"label", "energy", "gap", "stage", "params", "joints"}``), those distinct
+    from every one before, smallest ``gap`` first, with ``refined: False``; and the best row of each sample."""
     rows = layout.rows(state)
     with torch.no_grad():
         joints = fitter.body(**rows).joints.double().numpy()
     names = fitter.model.joint_names
-    segs = [(n, names.index(p), names.index(d)) for n, p, d in LIMB_SEGMENTS + (TORSO_SEGMENT,)]
     order = best_per_group(energy if score is None else score, group, groups, count=int(group.shape[0]))
     out, best = [], []
     for b in range(groups):
         mine = [r for r in order.tolist() if int(group[r]) == b]
-        kept = []
+        kept = []  # (joints, row or unrefined record)
         for r in mine:
-            if all(np.linalg.norm(joints[r] - joints[k], axis=-1).mean() >= min_m for k in kept):
-                kept.append(r)
-        best.append(kept[0])
+            if all(is_distinct(joints[r], j, min_m, max_m) for j, _ in kept):
+                kept.append((joints[r], r))
+        best.append(kept[0][1])
+        for x in sorted((unrefined or [[]] * groups)[b], key=lambda x: x["gap"]):
+            if all(is_distinct(x["joints"], j, min_m, max_m) for j, _ in kept):
+                kept.append((x["joints"], x))
         hyps = []
-        for r in kept:
-            differs = []
-            for n, a, c in segs:
-                u, v = joints[r, c] - joints[r, a], joints[kept[0], c] - joints[kept[0], a]
-                cos = float(u @ v / max(np.linalg.norm(u) * np.linalg.norm(v), 1e-12))
-                if math.degrees(math.acos(max(-1.0, min(1.0, cos)))) > DIFFERS_DEG:
-                    differs.append(n)
-            hyps.append({"label": labels[r], "energy": float(energy[r]), "differs": differs,
+        for j, r in kept:
+            mean_mm, max_mm = joint_shift_mm(j, kept[0][0])
+            common = {"differs": differing_segments(j, kept[0][0], names), "shift_mm": round(mean_mm, 1),
+                      "max_shift_mm": round(max_mm, 1)}  # fmt: skip
+            if isinstance(r, dict):
+                hyps.append({"label": r["label"], "energy": float(r["energy"]), **common, "params": r["params"],
+                             "refined": False, "stage": r["stage"], "gap": float(r["gap"])})  # fmt: skip
+                continue
+            hyps.append({"label": labels[r], "energy": float(energy[r]), **common, "refined": True,
                          "params": {n: v[r].detach().cpu().numpy().astype(np.float32) for n, v in rows.items()}})  # fmt: skip
             if occlusion is not None:
                 hyps[-1]["occlusion"] = float(occlusion[r])
@@ -731,6 +774,8 @@ class KeypointFitter:
         row_labels = None  # with carry > 1: each row's hypothesis after the last search
         chosen_branches = [[] for _ in range(B)]
         searched = [[] for _ in range(B)]  # per problem and branch stage: the hypotheses that ran to its end
+        search_rows = [[] for _ in range(B)]  # per problem: (tried entry, its joints at the search's end, ...)
+        unrefined = [[] for _ in range(B)]  # per problem: search rows not refined to the end (hypotheses > 1)
         for si, stage in enumerate(self.stages):
             if stage.options.get("hand_starts") and self.whole_body:
                 state = choose_hand_starts(self.model, self.body, layout, state, views, data, self.config.hand_sigma)
@@ -762,15 +807,28 @@ class KeypointFitter:
                 else:
                     f = run(stage)
                 keep = best_per_group(f, group, B)
+                with torch.no_grad():  # each row's joints (and parameters) at the search's end: how far from the fit
+                    now = layout.rows(state)
+                    row_joints = self.body(**now).joints.double().numpy()
                 for b, k in enumerate(keep.tolist()):
                     if labels[k] != "keep":
                         chosen_branches[b].append(labels[k])
-                    tried = [(labels[r], float(f[r])) for r in torch.nonzero(group == b).flatten().tolist()]
-                    searched[b].append({"stage": stage.name, "kept": labels[k],
-                                        "tried": [{"flip": lab, "energy": e} for lab, e in sorted(tried, key=lambda x: x[1])]})
+                    mine = sorted(torch.nonzero(group == b).flatten().tolist(), key=lambda r: float(f[r]))
+                    tried = [{"flip": labels[r], "energy": float(f[r])} for r in mine]
+                    searched[b].append({"stage": stage.name, "kept": labels[k], "tried": tried})
+                    search_rows[b] += [(t, row_joints[r], r, k, len(searched[b]) - 1) for t, r in zip(tried, mine)]
                 if carry > 1 and si == last_search:  # the best few of each sample go on to the end
                     keep = best_per_group(f, group, B, count=carry)
                     row_labels = [labels[r] for r in keep.tolist()]
+                if K > 1 and cfg.hypothesis_unrefined:  # the rows that stop here: alternatives not refined to the end
+                    going = set(keep.tolist())
+                    for b in range(B):
+                        for t, j, r, k, _ in search_rows[b][-len(searched[b][-1]["tried"]):]:
+                            if r not in going:
+                                unrefined[b].append({"label": t["flip"], "energy": t["energy"], "stage": stage.name,
+                                                     "gap": (t["energy"] - float(f[k])) / max(abs(float(f[k])), 1e-12),
+                                                     "joints": j, "params": {n: v[r].detach().cpu().numpy().astype(np.float32)
+                                                                             for n, v in now.items()}})  # fmt: skip
                 take(keep)
                 continue
             decide_after = stage.options.get("decide_after") if not decided else None
@@ -795,7 +853,8 @@ class KeypointFitter:
             final = energies[self.stages[-1].name]
             score, occ = choice(final)
             hypotheses, best = distinct_hypotheses(self, layout, state, final, group, B, row_labels, score=score,
-                                                   occlusion=occ)  # fmt: skip
+                                                   occlusion=occ, max_m=cfg.hypothesis_joint_max_m,
+                                                   unrefined=unrefined if cfg.hypothesis_unrefined else None)  # fmt: skip
             for b, h in enumerate(hypotheses):  # the branch chosen by the final energy, not the search's
                 if searched[b] and searched[b][-1]["kept"] != "keep":  # the search's pick, replaced below
                     chosen_branches[b].pop()
@@ -805,6 +864,11 @@ class KeypointFitter:
                     searched[b][-1]["kept"] = h[0]["label"]
             hypotheses = [h[:K] for h in hypotheses] if K > 1 else None
             take(best)
+        for b, entries in enumerate(search_rows):  # each search row's joint shift from the kept one at that
+            for t, j, _, _, st in entries:  # search's end (the fit's branch there; metrics.json, depth_warnings)
+                ref = next(jk for tk, jk, *_, sk in entries if sk == st and tk["flip"] == searched[b][st]["kept"])
+                mean_mm, max_mm = joint_shift_mm(j, ref)
+                t["shift_mm"], t["max_shift_mm"] = round(mean_mm, 1), round(max_mm, 1)
         timings["total"] = time.perf_counter() - t_all
         info = {"energies": energies, "terms": terms, "timings": timings, "flipped": start_flip.numpy(), "branches": chosen_branches,
                 "branch_search": searched, "hypotheses": hypotheses,

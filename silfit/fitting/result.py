@@ -65,10 +65,14 @@ class KeypointFitResult:
     #: the body model's record (:func:`silfit.fitio.model_record`: kind, source, sha256)
     model: Optional[dict] = None
     #: per sample, each branch-search stage's hypotheses that ran to its end and their final
-    #: energies (``[{"stage", "kept", "tried": [{"flip", "energy"}, ...]}]``, lowest first)
+    #: energies (``[{"stage", "kept", "tried": [{"flip", "energy", "shift_mm", "max_shift_mm"}, ...]}]``, lowest
+    #: first; ``shift_mm``/``max_shift_mm``: the mean and the largest joint distance, mm, to the kept row at
+    #: that search's end)
     branch_search: Optional[list] = None
     #: with ``KeypointFitConfig.hypotheses > 1``: per sample, the distinct hypotheses refined to the
-    #: end, lowest energy first (the first is the fit): ``[{"label", "energy", "params", "differs"}]``
+    #: end, lowest energy first (the first is the fit): ``[{"label", "energy", "params", "differs", "refined",
+    #: "shift_mm", "max_shift_mm"}]``, then branch-search survivors not refined (``refined: False``, with
+    #: ``stage`` and ``gap``) where fewer than K refined ones are distinct (:func:`~silfit.fitting.keypoint_stage.distinct_hypotheses`)
     hypotheses: Optional[list] = None
 
     def __len__(self) -> int:

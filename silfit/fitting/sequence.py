@@ -500,8 +500,10 @@ def fit_sequence(
             state = {n: torch.as_tensor(np.stack([fit.params[n] for fit in fits])) for n in names}
         else:
             probs = [Problem.single(KeypointSet(xy_v[f, 0], conf_v[f, 0], layout), camera) for f in init_frames]
-            if cfg.branch_dp:  # several hypotheses per frame; the branch is chosen over time
-                fitter = KeypointFitter(model, layout, replace(cfg.keypoint, hypotheses=max(int(cfg.branch_hypotheses), 1)),
+            if cfg.branch_dp:  # several hypotheses per frame; the branch is chosen over time (tuned on refined
+                # hypotheses distinct by the mean joint distance alone: the rule before issue 25's warnings)
+                fitter = KeypointFitter(model, layout, replace(cfg.keypoint, hypotheses=max(int(cfg.branch_hypotheses), 1),
+                                                               hypothesis_joint_max_m=None, hypothesis_unrefined=False),
                                         fitter.pose_prior)  # fmt: skip
             state, info = fitter.fit_problems(probs, progress=progress)
             if cfg.branch_dp and len(probs) > 1:

@@ -496,8 +496,12 @@ def test_hypotheses_keep_the_best_distinct_branches_refined_to_the_end(body_mode
     state, info = fitter.fit_problems([Problem.single(ks, CAM)], init={k: v.numpy() for k, v in start.items()})
     (hyps,) = info["hypotheses"]
     assert 1 <= len(hyps) <= 3
-    energies = [h["energy"] for h in hyps]
-    assert energies == sorted(energies)
+    energies = [h["energy"] for h in hyps if h["refined"]]  # unrefined ones (search energies) come last
+    assert energies == sorted(energies) and hyps[0]["refined"]
+    assert [h["refined"] for h in hyps] == sorted((h["refined"] for h in hyps), reverse=True)
+    assert hyps[0]["shift_mm"] == 0.0 and all(h["max_shift_mm"] >= h["shift_mm"] >= 0 for h in hyps)
+    # every search row records how far its joints lie from the fit (mean and largest joint, mm)
+    assert all(t["max_shift_mm"] >= t["shift_mm"] >= 0 for st in info["branch_search"][0] for t in st["tried"])
     assert energies[0] == pytest.approx(float(info["energies"]["final"][0]))
     assert np.allclose(hyps[0]["params"]["body_pose"], state["body_pose"][0, 0].numpy(), atol=1e-6)
     assert hyps[0]["differs"] == [] and all(isinstance(h["label"], str) for h in hyps)
@@ -564,3 +568,19 @@ def test_branch_refine_chooses_by_the_final_energy_never_above_the_search_choice
     assert len(search["tried"]) >= 3
     kept = search["kept"]
     assert out[3]["branches"][0] == ([] if kept == "keep" else [kept])
+
+
+def test_two_solutions_are_distinct_by_the_mean_joint_shift_or_one_joint_far():
+    # issue 25: a forearm turned in depth moves the wrist 0.3 m but 24 joints' mean little
+    from silfit.fitting.keypoint_stage import DISTINCT_JOINT_MAX_M, DISTINCT_JOINTS_M, is_distinct, joint_shift_mm
+
+    a = np.zeros((24, 3))
+    b = a.copy()
+    b[20, 2] = 0.3  # one joint 300 mm away
+    mean_mm, max_mm = joint_shift_mm(b, a)
+    assert mean_mm == pytest.approx(300 / 24) and max_mm == pytest.approx(300)
+    assert mean_mm < 1000 * DISTINCT_JOINTS_M and is_distinct(b, a) and not is_distinct(b, a, max_m=None)
+    c = a.copy()
+    c[20, 2] = 0.9 * DISTINCT_JOINT_MAX_M
+    assert not is_distinct(c, a)  # neither rule
+    assert is_distinct(a + [0.0, 0.0, 1.1 * DISTINCT_JOINTS_M], a, max_m=None)  # every joint 3.3 cm: the mean rule
