@@ -519,7 +519,7 @@ def fit_sequence(
             elif cfg.neighbour_starts and len(probs) > 1:
                 state, energy = _refit_from_neighbours(model, layout, cfg.keypoint, fitter, probs, state, info, progress)
             if cfg.branch_offsets and len(probs) > 1:
-                state = _refit_from_offsets(model, layout, cfg.keypoint, fitter, probs, info["layout"].rows(state), energy,
+                state, _ = _refit_from_offsets(model, layout, cfg.keypoint, fitter, probs, info["layout"].rows(state), energy,
                                             cfg.branch_offsets, progress)  # fmt: skip
     per = {n: np.zeros((F, fitter.params.sizes[n])) for n in names}
     for n in names:
@@ -660,19 +660,19 @@ def _neighbour_sources(i: int, n: int, offsets) -> List[int]:
 def _refit_from_offsets(model, layout, config, fitter, probs, state, energy, offsets, progress):
     """Each frame fitted again from the picks of the frames ``offsets`` away (:func:`_neighbour_sources`,
     one batch); each keeps the lowest final energy of its pick (``state`` ``{name: [n, w]}``, ``energy [n]``)
-    and these refits (near-ties: its pick). Returns the kept state ``{name: [n, w]}``."""
+    and these refits (near-ties: its pick). Returns the kept state ``{name: [n, w]}`` and its energies ``[n]``."""
     from .keypoint_stage import best_per_group
 
     n = len(probs)
     pairs = [(i, j) for i in range(n) for j in _neighbour_sources(i, n, offsets)]
     if not pairs:
-        return state
+        return state, torch.as_tensor(energy, dtype=torch.float64).reshape(-1)
     own, src = (np.array(a) for a in zip(*pairs))
     nb_state, nb_energy = _fits_from(model, layout, config, fitter, probs, state, own, src, progress)
     nb_rows = {k: v.reshape(len(own), -1) for k, v in nb_state.items()}
     energy = torch.cat([torch.as_tensor(energy, dtype=torch.float64).reshape(-1), nb_energy.double()])
     rows = best_per_group(energy, torch.cat([torch.arange(n), torch.as_tensor(own)]), n)
-    return {k: torch.cat([v.double().reshape(n, -1), nb_rows[k].double()])[rows] for k, v in state.items()}
+    return {k: torch.cat([v.double().reshape(n, -1), nb_rows[k].double()])[rows] for k, v in state.items()}, energy[rows]
 
 
 def _choose_branches(model, layout, config, fitter, probs, state, info, cfg, frames, progress):
