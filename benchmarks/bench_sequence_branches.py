@@ -2,12 +2,18 @@
 
 Generates fresh sequences of ``--motions`` (``silfit synth --sequence``; ``--frames`` frames at
 30 fps, ``--noise`` px keypoint noise, ``--drop`` of the keypoints dropped, seed ``--seed``) and fits
-each with :func:`silfit.fitting.sequence.fit_sequence` twice: ``branch_dp`` off (one per-frame answer
-refined) and on (a dynamic programme over each frame's hypotheses picks the branch sequence before the
-refinement). Prints per sequence the PA-MPJPE median and worst frame, the frames above 2x the
-sequence's median, the frames the programme changed, and the wall-time ratio (same run).
+each with :func:`silfit.fitting.sequence.fit_sequence` once per ``--methods`` entry:
 
-    python benchmarks/bench_sequence_branches.py --motions squat,walk,run --seed 2031
+* ``before`` / ``after``: the defaults without / with the offsets round (``branch_offsets=()`` / the
+  default ``(1, 2, 4)``: each frame refitted from the picks of the frames 1, 2 and 4 away); ``path``: that
+  round's choice by the branch path over time instead of each frame's lowest energy (``branch_offsets_path``);
+* ``off`` / ``on``: ``branch_dp`` off (one per-frame answer refined) / on (a dynamic programme over each
+  frame's hypotheses picks the branch sequence before the refinement), both without the offsets round.
+
+Prints per sequence the PA-MPJPE median and worst frame, the frames above 2x the sequence's median, the
+frames the programme changed, the CPU seconds of each fit, and the last method's CPU time over the first's.
+
+    python benchmarks/bench_sequence_branches.py --motions squat,walk,run --seed 2031 --methods before,after
 """
 from __future__ import annotations
 
@@ -40,7 +46,7 @@ def main(argv=None):
     ap.add_argument("--drop", type=float, default=0.1)
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--keep", help="keep the dataset here")
-    ap.add_argument("--methods", default="off,on", help="branch_dp settings to run (off, on)")
+    ap.add_argument("--methods", default="before,after", help="settings to run (before, after, path, off, on)")
     ap.add_argument("--per-frame", action="store_true", help="print each frame's PA-MPJPE")
     ap.add_argument("--only", help="fit only these sequences (comma-separated names)")
     args = ap.parse_args(argv)
@@ -70,19 +76,23 @@ def main(argv=None):
         row = {"name": rec["name"], "motion": rec["motion"]}
         for m in methods:
             cfg = SequenceFitConfig()
-            if hasattr(cfg, "branch_dp"):
-                cfg = replace(cfg, branch_dp=(m == "on"))
-            elif m == "on":
-                raise SystemExit("this silfit has no SequenceFitConfig.branch_dp")
-            t = time.perf_counter()
+            if m in ("off", "on"):
+                cfg = replace(cfg, branch_dp=(m == "on"), branch_offsets=())
+            elif m == "before":
+                cfg = replace(cfg, branch_offsets=())
+            elif m == "path":  # the offsets round's pick by the branch path (branch_offsets_path)
+                cfg = replace(cfg, branch_offsets_path=True)
+            elif m != "after":
+                raise SystemExit(f"unknown method {m!r} (before, after, path, off, on)")
+            t, c = time.perf_counter(), time.process_time()
             r = fit_sequence(seq.frames, cam, model, config=cfg)
-            dt = time.perf_counter() - t
+            dt, cpu = time.perf_counter() - t, time.process_time() - c
             e = frame_errors(model, gt, r.params())
             e0 = frame_errors(model, gt, r.per_frame)
             med = float(np.median(e))
             changed = getattr(r, "rebranched", None)
             row[m] = {"median": med, "max": float(e.max()), "argmax": int(e.argmax()), "above": int((e > 2 * med).sum()),
-                      "seconds": dt, "changed": int(np.sum(changed)) if changed is not None else 0,
+                      "seconds": dt, "cpu": cpu, "changed": int(np.sum(changed)) if changed is not None else 0,
                       "init_median": float(np.median(e0)), "init_max": float(e0.max())}  # fmt: skip
             if args.per_frame:
                 print(f"{rec['name']} {rec['motion']} {m} final:", " ".join(f"{x:.0f}" for x in e))
@@ -94,13 +104,13 @@ def main(argv=None):
     load = os.getloadavg()
     print(f"\n{len(table)} sequences x {args.frames} frames, {args.noise} px noise, {args.drop:.0%} keypoints dropped, "
           f"seed {args.seed}; load average {load[0]:.1f} {load[1]:.1f} {load[2]:.1f} (shared CPU)\n")  # fmt: skip
-    head = " | ".join(f"{m}: median / max (frame) / above 2x median / changed" for m in methods)
-    print(f"| sequence | {head} | wall time ratio |")
+    head = " | ".join(f"{m}: median / max (frame) / above 2x median / changed / CPU s" for m in methods)
+    print(f"| sequence | {head} | CPU time ratio |")
     print("|---|" + "---|" * len(methods) + "---:|")
     for row in table:
-        cells = " | ".join(f"{row[m]['median']:.1f} / {row[m]['max']:.1f} ({row[m]['argmax']}) / {row[m]['above']} / {row[m]['changed']}"
-                           for m in methods)  # fmt: skip
-        ratio = row[methods[-1]]["seconds"] / row[methods[0]]["seconds"] if len(methods) > 1 else 1.0
+        cells = " | ".join(f"{row[m]['median']:.1f} / {row[m]['max']:.1f} ({row[m]['argmax']}) / {row[m]['above']} / "
+                           f"{row[m]['changed']} / {row[m]['cpu']:.0f}" for m in methods)  # fmt: skip
+        ratio = row[methods[-1]]["cpu"] / row[methods[0]]["cpu"] if len(methods) > 1 else 1.0
         print(f"| {row['name']} {row['motion']} | {cells} | {ratio:.2f} |")
 
 

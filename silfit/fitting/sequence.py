@@ -111,6 +111,17 @@ class SequenceFitConfig:
     branch_temporal_weight: float = 1.0
     branch_temporal_scale: float = 0.02
     branch_rounds: int = 2
+    #: after the per-frame pass (and its neighbour refits or branch choice), one more round refits each
+    #: frame from the picks of the frames these many away, both directions (:func:`_neighbour_sources`),
+    #: and each frame keeps the lowest energy of its pick and these refits (near-ties: its pick): a right
+    #: branch a few frames away reaches a run of frames whose own fits all took the wrong one. ``()`` or
+    #: ``None``: no such round. Fresh seed 2077 (benchmarks/bench_sequence_branches.py --methods
+    #: offsets-off,offsets-on): run PA-MPJPE median 64.9 -> 46.3 mm, frames above 2x it 13 -> 4; squat
+    #: and walk about unchanged; 1.32x the CPU time
+    branch_offsets: Optional[tuple] = (1, 2, 4)
+    #: the offsets round's choice: each frame's lowest energy (False), or :func:`branch_path` over each
+    #: frame's pick and refits (True: the temporal cost of ``branch_dp`` also picks among them)
+    branch_offsets_path: bool = False
     window: int = 0  # frames per window (0: the whole sequence as one problem)
     overlap: int = 10
     window_pose_iterations: int = 40  # second pass (shared betas fixed) in windowed mode
@@ -506,11 +517,17 @@ def fit_sequence(
                                                                hypothesis_joint_max_m=None, hypothesis_unrefined=False),
                                         fitter.pose_prior)  # fmt: skip
             state, info = fitter.fit_problems(probs, progress=progress)
+            energy = info["energies"][fitter.stages[-1].name]
             if cfg.branch_dp and len(probs) > 1:
-                state, rebranched[init_frames] = _choose_branches(model, layout, cfg.keypoint, fitter, probs, state, info,
-                                                                  cfg, init_frames, progress)  # fmt: skip
+                state, rebranched[init_frames], energy = _choose_branches(model, layout, cfg.keypoint, fitter, probs, state,
+                                                                          info, cfg, init_frames, progress)  # fmt: skip
             elif cfg.neighbour_starts and len(probs) > 1:
-                state = _refit_from_neighbours(model, layout, cfg.keypoint, fitter, probs, state, info, progress)
+                state, energy = _refit_from_neighbours(model, layout, cfg.keypoint, fitter, probs, state, info, progress)
+            if cfg.branch_offsets and len(probs) > 1:
+                path = (cfg.branch_temporal_weight, cfg.branch_temporal_scale, np.r_[1, np.diff(init_frames)]) \
+                    if cfg.branch_offsets_path else None  # fmt: skip
+                state, _ = _refit_from_offsets(model, layout, cfg.keypoint, fitter, probs, info["layout"].rows(state), energy,
+                                               cfg.branch_offsets, progress, path)  # fmt: skip
     per = {n: np.zeros((F, fitter.params.sizes[n])) for n in names}
     for n in names:
         v = state[n].double().numpy().reshape(len(init_frames), -1)
@@ -600,6 +617,16 @@ def fit_sequence(
     )  # fmt: skip
 
 
+def _fits_from(model, layout, config, fitter, probs, state, own, src, progress):
+    """Frame ``own[m]``'s problem fitted from frame ``src[m]``'s parameters in ``state``, one start each,
+    all in one batch: ``(state, energy [M])`` (energies of the final stage, as ``fitter``'s)."""
+    again = KeypointFitter(model, layout, replace(config, flip_test=False, init_poses=1, branch_search=False, hypotheses=1),
+                           fitter.pose_prior)  # fmt: skip
+    start = {k: v[torch.as_tensor(src)].double().numpy() for k, v in state.items()}
+    nb_state, nb_info = again.fit_problems([probs[i] for i in own], progress=progress, init=start)
+    return nb_state, nb_info["energies"][again.stages[-1].name]
+
+
 def _neighbour_fits(model, layout, config, fitter, probs, state, progress):
     """Each frame fitted again from its previous and next frame's fit (the first frame from the next,
     the last from the previous), one start each, all in one batch: ``(frame [M], state, energy [M])``,
@@ -610,23 +637,60 @@ def _neighbour_fits(model, layout, config, fitter, probs, state, progress):
         src.append(np.r_[np.arange(1, n), n - 2])  # the next frame (the last frame: the previous)
     src = np.concatenate(src)
     own = np.tile(np.arange(n), len(src) // n)  # row m fits frame own[m], started from frame src[m]'s fit
-    again = KeypointFitter(model, layout, replace(config, flip_test=False, init_poses=1, branch_search=False, hypotheses=1),
-                           fitter.pose_prior)  # fmt: skip
-    start = {k: v[torch.as_tensor(src)].double().numpy() for k, v in state.items()}
-    nb_state, nb_info = again.fit_problems([probs[i] for i in own], progress=progress, init=start)
-    return own, nb_state, nb_info["energies"][again.stages[-1].name]
+    return (own, *_fits_from(model, layout, config, fitter, probs, state, own, src, progress))
 
 
 def _refit_from_neighbours(model, layout, config, fitter, probs, state, info, progress):
     """Each frame fitted again from its previous and next frame's fit (:func:`_neighbour_fits`); each
-    frame keeps the lowest final energy of its own fit and these (near-ties: its own). Returns the kept state."""
+    frame keeps the lowest final energy of its own fit and these (near-ties: its own). Returns the kept
+    state and its energies ``[n]``."""
     from .keypoint_stage import best_per_group
 
     n = len(probs)
     own, nb_state, nb_energy = _neighbour_fits(model, layout, config, fitter, probs, state, progress)
     energy = torch.cat([info["energies"][fitter.stages[-1].name], nb_energy])
     rows = best_per_group(energy, torch.cat([torch.arange(n), torch.as_tensor(own)]), n)
-    return {k: torch.cat([v, nb_state[k].to(v.dtype)])[rows] for k, v in state.items()}
+    return {k: torch.cat([v, nb_state[k].to(v.dtype)])[rows] for k, v in state.items()}, energy[rows]
+
+
+def _neighbour_sources(i: int, n: int, offsets) -> List[int]:
+    """The frames (of ``n``) whose picks start frame ``i``'s refits in the offsets round: ``i - o`` and
+    ``i + o`` for each offset ``o`` in order, those inside the sequence, each once, never ``i`` itself."""
+    out = []
+    for o in offsets or ():
+        for j in (i - int(o), i + int(o)):
+            if 0 <= j < n and j != i and j not in out:
+                out.append(j)
+    return out
+
+
+def _refit_from_offsets(model, layout, config, fitter, probs, state, energy, offsets, progress, path=None):
+    """Each frame fitted again from the picks of the frames ``offsets`` away (:func:`_neighbour_sources`,
+    one batch); each keeps the lowest final energy of its pick (``state`` ``{name: [n, w]}``, ``energy [n]``)
+    and these refits (near-ties: its pick), or with ``path`` (``(temporal_weight, temporal_scale, gaps [n])``)
+    the candidates :func:`branch_path` picks. Returns the kept state ``{name: [n, w]}`` and its energies ``[n]``."""
+    from .keypoint_stage import best_per_group
+
+    n = len(probs)
+    pairs = [(i, j) for i in range(n) for j in _neighbour_sources(i, n, offsets)]
+    if not pairs:
+        return state, torch.as_tensor(energy, dtype=torch.float64).reshape(-1)
+    own, src = (np.array(a) for a in zip(*pairs))
+    nb_state, nb_energy = _fits_from(model, layout, config, fitter, probs, state, own, src, progress)
+    nb_rows = {k: v.reshape(len(own), -1) for k, v in nb_state.items()}
+    energy = torch.cat([torch.as_tensor(energy, dtype=torch.float64).reshape(-1), nb_energy.double()])
+    group = torch.cat([torch.arange(n), torch.as_tensor(own)])
+    cand = {k: torch.cat([v.double().reshape(n, -1), nb_rows[k].double()]) for k, v in state.items()}
+    if path is None:
+        rows = best_per_group(energy, group, n)
+    else:
+        with torch.no_grad():
+            joints = fitter.body(**{k: v.to(fitter.dtype) for k, v in cand.items()}).joints.double().numpy()
+        per = [np.flatnonzero(group.numpy() == b) for b in range(n)]
+        e = energy.numpy()
+        pick = branch_path([e[i] for i in per], [joints[i] for i in per], path[2], path[0], path[1])
+        rows = torch.as_tensor(np.array([i[p] for i, p in zip(per, pick)]))
+    return {k: v[rows] for k, v in cand.items()}, energy[rows]
 
 
 def _choose_branches(model, layout, config, fitter, probs, state, info, cfg, frames, progress):
@@ -636,7 +700,8 @@ def _choose_branches(model, layout, config, fitter, probs, state, info, cfg, fra
     round of ``cfg.branch_rounds`` refits every frame from its neighbours' chosen candidates, adds those to
     the candidates and picks again (a right branch spreads one frame per round into a run of frames whose
     own fits all took the wrong one). Returns the chosen state (``{name: [n, w]}``) and ``rebranched [n]``:
-    the frame's choice is not its lowest-energy candidate (joints more than ``DISTINCT_JOINTS_M`` apart, mean)."""
+    the frame's choice is not its lowest-energy candidate (joints more than ``DISTINCT_JOINTS_M`` apart, mean),
+    and the chosen candidates' energies ``[n]``."""
     from .keypoint_stage import DISTINCT_JOINTS_M
 
     n = len(probs)
@@ -679,7 +744,7 @@ def _choose_branches(model, layout, config, fitter, probs, state, info, cfg, fra
     e = np.where(np.isfinite(e), e, np.inf)
     lowest = np.array([i[int(np.argmin(e[i]))] for i in per])  # the first of tied ones
     moved = np.linalg.norm(joints[chosen] - joints[lowest], axis=-1).mean(-1)
-    return {k: torch.as_tensor(v[chosen]) for k, v in params.items()}, moved > DISTINCT_JOINTS_M
+    return {k: torch.as_tensor(v[chosen]) for k, v in params.items()}, moved > DISTINCT_JOINTS_M, torch.as_tensor(e[chosen])
 
 
 def _merge_windows(params: Dict[str, np.ndarray], starts: List[int], F: int) -> Dict[str, np.ndarray]:

@@ -11,8 +11,8 @@ from silfit.camera import Camera, project_points
 from silfit.eval.metrics import acceleration_error, pa_mpjpe
 from silfit.fitting import KeypointFitConfig
 from silfit.fitting.sequence import (
-    SequenceFitConfig, _merge_windows, _windows, body_forward, branch_path, consistent_facings, fit_sequence,
-    interpolate_frames, keypoint_outliers, pose_distances, viterbi,
+    SequenceFitConfig, _fits_from, _merge_windows, _neighbour_sources, _refit_from_offsets, _windows, body_forward,
+    branch_path, consistent_facings, fit_sequence, interpolate_frames, keypoint_outliers, pose_distances, viterbi,
 )  # fmt: skip
 from silfit.keypoints import KeypointSet, model_keypoints
 from silfit.synth.motion import motion_trajectory
@@ -105,8 +105,9 @@ def test_windows_cover_the_sequence_and_merge_from_their_middles():
         assert s <= f < s + 10
 
 
-def motion_keypoints(model, F=8):
-    """A noise-free walk seen from the front-left, BODY_25 projections, and the truth."""
+def motion_keypoints(model, F=8, params=False):
+    """A noise-free walk seen from the front-left, BODY_25 projections, and the truth (``params``: and
+    its parameters ``{name: [F, w]}``)."""
     traj = motion_trajectory("walk", F, 30.0)
     pose = torch.as_tensor(traj["body_pose"], dtype=model.dtype)
     betas = torch.tensor([[0.8, -0.6] + [0.0] * 8], dtype=model.dtype).expand(F, 10)
@@ -116,6 +117,9 @@ def motion_keypoints(model, F=8):
         out = model(betas=betas, body_pose=pose, global_orient=orient.expand(F, 3), transl=transl)
         uv = project_points(model_keypoints(model, out, "body25").double(), CAM).numpy()
     sets = [KeypointSet(uv[f], np.ones(25), "body25") for f in range(F)]
+    if params:
+        truth = {"betas": betas, "body_pose": pose, "global_orient": orient.expand(F, 3), "transl": transl}
+        return sets, out.joints.double().numpy(), {k: v.double().clone() for k, v in truth.items()}
     return sets, out.joints.double().numpy(), betas[0].numpy()
 
 
@@ -157,6 +161,48 @@ def test_branch_choice_over_time_fits_the_walk_and_records_its_changes(open_mode
     err = pa_mpjpe(r.joints, joints) * 1000
     assert err.mean() < 35.0 and err.max() < 60.0, err
     assert any("depth branch" in w for w in r.warnings) == bool(r.rebranched.any())
+
+
+def test_neighbour_sources_are_the_frames_at_the_offsets_inside_the_sequence():
+    assert _neighbour_sources(5, 20, (1, 2, 4)) == [4, 6, 3, 7, 1, 9]
+    assert _neighbour_sources(0, 20, (1, 2, 4)) == [1, 2, 4]
+    assert _neighbour_sources(18, 20, (1, 2, 4)) == [17, 19, 16, 14]
+    assert _neighbour_sources(1, 3, (1, 2, 4)) == [0, 2]
+    assert _neighbour_sources(0, 1, (1, 2, 4)) == []
+    assert _neighbour_sources(2, 5, (1, 1)) == [1, 3]  # each source once
+    assert _neighbour_sources(2, 5, ()) == [] and _neighbour_sources(2, 5, None) == []
+
+
+def test_offsets_round_recovers_a_wrong_pick_and_never_raises_an_energy(open_model):
+    """Each frame's pick is its fit from the truth, but frame 2's from its pose negated (a wrong branch):
+    refitted from the picks 1, 2 and 4 frames away, frame 2 is recovered, and no frame's energy rises (each
+    keeps its pick unless a refit is lower). No offsets: no round."""
+    from silfit.fitting.keypoint_stage import KeypointFitter
+    from silfit.fitting.problem import Problem
+
+    F = 4
+    cheap = replace(FAST_INIT, camera_iters=10, pose_iters=(10, 10, 10), final_iters=10)
+    sets, joints, truth = motion_keypoints(open_model, F=F, params=True)
+    truth["body_pose"][2] = -truth["body_pose"][2]
+    fitter = KeypointFitter(open_model, "body25", cheap)
+    probs = [Problem.single(s, CAM) for s in sets]
+    state, energy = _fits_from(open_model, "body25", cheap, fitter, probs, truth, np.arange(F), np.arange(F), False)
+    picks = {k: v.double().reshape(F, -1) for k, v in state.items()}
+    energy = energy.double()
+
+    def errors(params):
+        with torch.no_grad():
+            out = fitter.body(**{k: v.to(fitter.dtype) for k, v in params.items()}).joints.double().numpy()
+        return pa_mpjpe(out, joints) * 1000
+
+    before = errors(picks)
+    assert before[2] > 80.0, before  # the wrong branch is wrong
+    kept, kept_energy = _refit_from_offsets(open_model, "body25", cheap, fitter, probs, picks, energy, (1, 2, 4), False)
+    assert np.all(kept_energy.numpy() <= energy.numpy() * (1 + 1e-6)), (energy, kept_energy)
+    after = errors(kept)
+    assert after[2] < 40.0 and after.max() < 40.0, (before, after)
+    same, same_energy = _refit_from_offsets(open_model, "body25", cheap, fitter, probs, picks, energy, (), False)
+    assert torch.equal(same_energy, energy) and all(torch.equal(same[k], picks[k]) for k in picks)
 
 
 def test_fit_sequence_refuses_a_sequence_without_usable_frames(open_model):
