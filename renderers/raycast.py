@@ -17,8 +17,8 @@ Silhouette (pixel coverage, box filter)
 Gradient (visibility-edge term)
     ``d sum(g * S) / d x = integral over the contour of g(p) (v(p) . n(p)) dl``: ``N =
     edge_spp * W * H`` points (or, with ``edge_density``, ``ceil(edge_density * L)`` for
-    ``L`` pixels of candidate length: a fixed density along the contour, not a count per
-    image pixel) are drawn uniformly along the projected candidate segments
+    ``L`` pixels of candidate length, at most ``edge_spp * W * H``: a fixed density along the
+    contour, not a count per image pixel) are drawn uniformly along the projected candidate segments
     (independently, or evenly spaced with one random offset: ``edge_sampling="systematic"``); a point counts where a ray just outside the
     segment (``1e-4`` px from it, on the side away from its faces) misses the mesh, i.e.
     where the segment is the visible outline.  ``g`` is the loss's gradient at the pixel
@@ -351,8 +351,8 @@ class RaycastScene:
             total = float(length.sum())
             if edge_density is None:  # a count per image pixel (before issue 24's speed part)
                 N = int(edge_spp) * W * H
-            else:  # a density along the candidate segments
-                N = max(1, math.ceil(float(edge_density) * total))
+            else:  # a density along the candidate segments, never more points than the count per pixel
+                N = max(1, min(math.ceil(float(edge_density) * total), int(edge_spp) * W * H))
             cum = torch.cumsum(length, 0)
             if systematic:  # evenly spaced, one random offset
                 s = (torch.arange(N, dtype=torch.float64) + float(hash_uniform(seed, 3, torch.zeros(1, dtype=torch.int64)))) * (total / N)

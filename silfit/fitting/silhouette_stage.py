@@ -100,7 +100,7 @@ class SilhouetteFitConfig:
     spp: int = 4  # primal samples per pixel
     edge_spp: int = 1  # visibility-edge samples per pixel (projective integrator's sppp)
     #: the ray-cast renderer's visibility-edge points per pixel of contour-candidate length instead of
-    #: ``edge_spp`` per window pixel (renderers.raycast; same expected gradient, fewer rays); ``None``:
+    #: ``edge_spp`` per window pixel (at most that many; renderers.raycast: same expected gradient, fewer rays); ``None``:
     #: ``edge_spp`` per pixel (before issue 24's speed part)
     edge_density: Optional[float] = 4.0
     margin: float = 0.12  # window margin, fraction of the box on each side
