@@ -9,7 +9,8 @@ hit. *Before* is the rule of main before issue 25's warnings (energy margins 0.0
 hypotheses and 0.1 for branch-search survivors, no joint-shift condition; hypotheses distinct by the
 mean joint distance alone, refined ones only); *after* is today's (margins
 :data:`~silfit.plausibility.HYPOTHESIS_MARGIN` and :data:`~silfit.plausibility.SEARCH_MARGIN`, an
-alternative must move a joint :data:`~silfit.plausibility.MIN_SHIFT_MM`; distinct by
+alternative must move a joint :data:`~silfit.plausibility.MIN_SHIFT_MM` or, a search survivor,
+:data:`~silfit.plausibility.SEARCH_MIN_SHIFT_MM`; distinct by
 :func:`~silfit.fitting.keypoint_stage.is_distinct`, unrefined search survivors filling the list). Both
 come from one fit per subject and schedule (the fits are the same; only the hypotheses kept and the
 warning differ), with the best of the K hypotheses within 60 mm.
@@ -41,7 +42,7 @@ from silfit.keypoints import read_keypoints
 from silfit.plausibility import depth_warnings
 
 NAMES = ("betas", "body_pose", "global_orient", "transl")
-BEFORE = {"margin": 0.02, "search_margin": 0.1, "min_shift_mm": 0.0}  # main's rule
+BEFORE = {"margin": 0.02, "search_margin": 0.1, "min_shift_mm": 0.0, "search_min_shift_mm": 0.0}  # main's rule
 
 
 def _fit(fitter, sets, cams, gts, model, batch):
@@ -117,11 +118,11 @@ def _table(rows, title, K):
 def _sweep(rows):
     pve = np.array([r["pve"] for r in rows])
     good, bad = pve < 60, pve > 150
-    print("| hypothesis margin | search margin | min shift (mm) | bad warned | good warned |")
+    print("| hypothesis margin | search margin | min shift (mm, both) | bad warned | good warned |")
     print("|---:|---:|---:|---:|---:|")
-    for m, sm in ((0.02, 0.1), (0.1, 0.1), (0.2, 0.2), (0.3, 0.2), (0.3, 0.3), (0.5, 0.3)):
-        for s in (0, 150, 200, 300, 400):
-            w = np.array([_warned(r, "after", margin=m, search_margin=sm, min_shift_mm=s) for r in rows])
+    for m, sm in ((0.02, 0.1), (0.1, 0.1), (0.2, 0.2), (0.3, 0.1), (0.3, 0.2), (0.5, 0.3)):
+        for s in (0, 150, 200, 300, 400, 500):
+            w = np.array([_warned(r, "after", margin=m, search_margin=sm, min_shift_mm=s, search_min_shift_mm=s) for r in rows])
             print(f"| {m:g} | {sm:g} | {s:g} | {(w & bad).sum()}/{bad.sum()} | {(w & good).sum()}/{good.sum()} |")
     print()
 

@@ -239,8 +239,11 @@ def test_depth_warning_names_the_limbs_of_close_alternatives():
 
 
 def test_an_alternative_that_moves_no_joint_far_is_no_depth_warning():
-    # issue 25: a close alternative warns only when it moves some joint MIN_SHIFT_MM from the fit
-    from silfit.plausibility import MIN_SHIFT_MM, depth_warnings, moves_a_joint
+    # issue 25: a close alternative warns only when it moves some joint far from the fit (MIN_SHIFT_MM for
+    # refined hypotheses, SEARCH_MIN_SHIFT_MM for branch-search survivors)
+    from silfit.plausibility import MIN_SHIFT_MM, SEARCH_MIN_SHIFT_MM, depth_warnings, moves_a_joint
+
+    assert SEARCH_MIN_SHIFT_MM < 450 and MIN_SHIFT_MM < 350
 
     assert moves_a_joint({"max_shift_mm": MIN_SHIFT_MM}) and not moves_a_joint({"max_shift_mm": MIN_SHIFT_MM - 1})
     assert moves_a_joint({})  # recorded before joint shifts were: the energy alone decides
@@ -250,8 +253,8 @@ def test_an_alternative_that_moves_no_joint_far_is_no_depth_warning():
     search = [{"stage": "branches_late", "kept": "keep", "tried": tried}]
     (w,) = depth_warnings(search)
     assert w.startswith("depth ambiguous for right_forearm:") and "0.45 m" in w and "left_shin" not in w
-    assert depth_warnings(search[:1], min_shift_mm=500) == []
-    assert "left_shin" in depth_warnings(search, min_shift_mm=0)[0]
+    assert depth_warnings(search[:1], search_min_shift_mm=500) == []
+    assert "left_shin" in depth_warnings(search, search_min_shift_mm=0)[0]
     # refined hypotheses likewise; unrefined ones (search energies) never count as refined alternatives
     hyps = [{"label": "keep", "energy": 100.0, "differs": [], "refined": True, "shift_mm": 0.0, "max_shift_mm": 0.0},
             {"label": "left_shin", "energy": 110.0, "differs": ["left_shin"], "refined": True, "shift_mm": 9.0,

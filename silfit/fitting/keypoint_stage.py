@@ -816,14 +816,14 @@ class KeypointFitter:
                     mine = sorted(torch.nonzero(group == b).flatten().tolist(), key=lambda r: float(f[r]))
                     tried = [{"flip": labels[r], "energy": float(f[r])} for r in mine]
                     searched[b].append({"stage": stage.name, "kept": labels[k], "tried": tried})
-                    search_rows[b] += [(t, row_joints[r], r, k, len(searched[b]) - 1) for t, r in zip(tried, mine)]
+                    search_rows[b] += [(t, row_joints[r], r, k) for t, r in zip(tried, mine)]
                 if carry > 1 and si == last_search:  # the best few of each sample go on to the end
                     keep = best_per_group(f, group, B, count=carry)
                     row_labels = [labels[r] for r in keep.tolist()]
                 if K > 1 and cfg.hypothesis_unrefined:  # the rows that stop here: alternatives not refined to the end
                     going = set(keep.tolist())
                     for b in range(B):
-                        for t, j, r, k, _ in search_rows[b][-len(searched[b][-1]["tried"]):]:
+                        for t, j, r, k in search_rows[b][-len(searched[b][-1]["tried"]):]:
                             if r not in going:
                                 unrefined[b].append({"label": t["flip"], "energy": t["energy"], "stage": stage.name,
                                                      "gap": (t["energy"] - float(f[k])) / max(abs(float(f[k])), 1e-12),
@@ -864,11 +864,13 @@ class KeypointFitter:
                     searched[b][-1]["kept"] = h[0]["label"]
             hypotheses = [h[:K] for h in hypotheses] if K > 1 else None
             take(best)
-        for b, entries in enumerate(search_rows):  # each search row's joint shift from the kept one at that
-            for t, j, _, _, st in entries:  # search's end (the fit's branch there; metrics.json, depth_warnings)
-                ref = next(jk for tk, jk, *_, sk in entries if sk == st and tk["flip"] == searched[b][st]["kept"])
-                mean_mm, max_mm = joint_shift_mm(j, ref)
-                t["shift_mm"], t["max_shift_mm"] = round(mean_mm, 1), round(max_mm, 1)
+        if any(search_rows):  # every search row's joint shift (at its search's end) from the fit (metrics.json;
+            with torch.no_grad():  # depth_warnings). Against the fit, not the search's kept row: a fit that moved
+                fit_joints = self.body(**layout.rows(state)).joints.double().numpy()  # far after a search is unsure too
+            for b, entries in enumerate(search_rows):
+                for t, j, *_ in entries:
+                    mean_mm, max_mm = joint_shift_mm(j, fit_joints[b])
+                    t["shift_mm"], t["max_shift_mm"] = round(mean_mm, 1), round(max_mm, 1)
         timings["total"] = time.perf_counter() - t_all
         info = {"energies": energies, "terms": terms, "timings": timings, "flipped": start_flip.numpy(), "branches": chosen_branches,
                 "branch_search": searched, "hypotheses": hypotheses,
