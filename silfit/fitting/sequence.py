@@ -115,9 +115,10 @@ class SequenceFitConfig:
     #: frame from the picks of the frames these many away, both directions (:func:`_neighbour_sources`),
     #: and each frame keeps the lowest energy of its pick and these refits (near-ties: its pick): a right
     #: branch a few frames away reaches a run of frames whose own fits all took the wrong one. ``()`` or
-    #: ``None``: no such round. Fresh seed 2077 (benchmarks/bench_sequence_branches.py --methods
-    #: offsets-off,offsets-on): run PA-MPJPE median 64.9 -> 46.3 mm, frames above 2x it 13 -> 4; squat
-    #: and walk about unchanged; 1.32x the CPU time
+    #: ``None``: no such round. Fresh seeds (benchmarks/bench_sequence_branches.py --methods before,after),
+    #: PA-MPJPE median and frames above 2x it: 2077 run 64.9 -> 46.3 mm, 13 -> 4, squat and walk about
+    #: unchanged, 1.32x the time; 2093 run 40.0 -> 37.9 mm, 1 -> 1, squat 33.2 -> 33.2, walk 56.4 ->
+    #: 55.8, 1.4x the CPU time
     branch_offsets: Optional[tuple] = (1, 2, 4)
     #: the offsets round's choice: each frame's lowest energy (False), or :func:`branch_path` over each
     #: frame's pick and refits (True: the temporal cost of ``branch_dp`` also picks among them)
