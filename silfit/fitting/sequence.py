@@ -521,7 +521,7 @@ def fit_sequence(
                 state, energy = _refit_from_neighbours(model, layout, cfg.keypoint, fitter, probs, state, info, progress)
             if cfg.branch_offsets and len(probs) > 1:
                 state, _ = _refit_from_offsets(model, layout, cfg.keypoint, fitter, probs, info["layout"].rows(state), energy,
-                                            cfg.branch_offsets, progress)  # fmt: skip
+                                           cfg.branch_offsets, progress)  # fmt: skip
     per = {n: np.zeros((F, fitter.params.sizes[n])) for n in names}
     for n in names:
         v = state[n].double().numpy().reshape(len(init_frames), -1)
