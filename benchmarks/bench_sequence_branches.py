@@ -5,8 +5,7 @@ Generates fresh sequences of ``--motions`` (``silfit synth --sequence``; ``--fra
 each with :func:`silfit.fitting.sequence.fit_sequence` once per ``--methods`` entry:
 
 * ``before`` / ``after``: the defaults without / with the offsets round (``branch_offsets=()`` / the
-  default ``(1, 2, 4)``: each frame refitted from the picks of the frames 1, 2 and 4 away); ``path``: that
-  round's choice by the branch path over time instead of each frame's lowest energy (``branch_offsets_path``);
+  default ``(1, 2, 4)``: each frame refitted from the picks of the frames 1, 2 and 4 away);
 * ``off`` / ``on``: ``branch_dp`` off (one per-frame answer refined) / on (a dynamic programme over each
   frame's hypotheses picks the branch sequence before the refinement), both without the offsets round.
 
@@ -46,7 +45,7 @@ def main(argv=None):
     ap.add_argument("--drop", type=float, default=0.1)
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--keep", help="keep the dataset here")
-    ap.add_argument("--methods", default="before,after", help="settings to run (before, after, path, off, on)")
+    ap.add_argument("--methods", default="before,after", help="settings to run (before, after, off, on)")
     ap.add_argument("--per-frame", action="store_true", help="print each frame's PA-MPJPE")
     ap.add_argument("--only", help="fit only these sequences (comma-separated names)")
     args = ap.parse_args(argv)
@@ -80,10 +79,8 @@ def main(argv=None):
                 cfg = replace(cfg, branch_dp=(m == "on"), branch_offsets=())
             elif m == "before":
                 cfg = replace(cfg, branch_offsets=())
-            elif m == "path":  # the offsets round's pick by the branch path (branch_offsets_path)
-                cfg = replace(cfg, branch_offsets_path=True)
             elif m != "after":
-                raise SystemExit(f"unknown method {m!r} (before, after, path, off, on)")
+                raise SystemExit(f"unknown method {m!r} (before, after, off, on)")
             t, c = time.perf_counter(), time.process_time()
             r = fit_sequence(seq.frames, cam, model, config=cfg)
             dt, cpu = time.perf_counter() - t, time.process_time() - c

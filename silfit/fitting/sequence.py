@@ -115,13 +115,11 @@ class SequenceFitConfig:
     #: frame from the picks of the frames these many away, both directions (:func:`_neighbour_sources`),
     #: and each frame keeps the lowest energy of its pick and these refits (near-ties: its pick): a right
     #: branch a few frames away reaches a run of frames whose own fits all took the wrong one. ``()`` or
-    #: ``None``: no such round. Fresh seed 2077 (benchmarks/bench_sequence_branches.py --methods
-    #: offsets-off,offsets-on): run PA-MPJPE median 64.9 -> 46.3 mm, frames above 2x it 13 -> 4; squat
-    #: and walk about unchanged; 1.32x the CPU time
+    #: ``None``: no such round. Fresh seeds (benchmarks/bench_sequence_branches.py --methods before,after),
+    #: PA-MPJPE median and frames above 2x it: 2077 run 64.9 -> 46.3 mm, 13 -> 4, squat and walk about
+    #: unchanged, 1.32x the time; 2093 run 40.0 -> 37.9 mm, 1 -> 1, squat 33.2 -> 33.2, walk 56.4 ->
+    #: 55.8, 1.4x the CPU time
     branch_offsets: Optional[tuple] = (1, 2, 4)
-    #: the offsets round's choice: each frame's lowest energy (False), or :func:`branch_path` over each
-    #: frame's pick and refits (True: the temporal cost of ``branch_dp`` also picks among them)
-    branch_offsets_path: bool = False
     window: int = 0  # frames per window (0: the whole sequence as one problem)
     overlap: int = 10
     window_pose_iterations: int = 40  # second pass (shared betas fixed) in windowed mode
@@ -524,10 +522,8 @@ def fit_sequence(
             elif cfg.neighbour_starts and len(probs) > 1:
                 state, energy = _refit_from_neighbours(model, layout, cfg.keypoint, fitter, probs, state, info, progress)
             if cfg.branch_offsets and len(probs) > 1:
-                path = (cfg.branch_temporal_weight, cfg.branch_temporal_scale, np.r_[1, np.diff(init_frames)]) \
-                    if cfg.branch_offsets_path else None  # fmt: skip
                 state, _ = _refit_from_offsets(model, layout, cfg.keypoint, fitter, probs, info["layout"].rows(state), energy,
-                                               cfg.branch_offsets, progress, path)  # fmt: skip
+                                           cfg.branch_offsets, progress)  # fmt: skip
     per = {n: np.zeros((F, fitter.params.sizes[n])) for n in names}
     for n in names:
         v = state[n].double().numpy().reshape(len(init_frames), -1)
@@ -664,11 +660,10 @@ def _neighbour_sources(i: int, n: int, offsets) -> List[int]:
     return out
 
 
-def _refit_from_offsets(model, layout, config, fitter, probs, state, energy, offsets, progress, path=None):
+def _refit_from_offsets(model, layout, config, fitter, probs, state, energy, offsets, progress):
     """Each frame fitted again from the picks of the frames ``offsets`` away (:func:`_neighbour_sources`,
     one batch); each keeps the lowest final energy of its pick (``state`` ``{name: [n, w]}``, ``energy [n]``)
-    and these refits (near-ties: its pick), or with ``path`` (``(temporal_weight, temporal_scale, gaps [n])``)
-    the candidates :func:`branch_path` picks. Returns the kept state ``{name: [n, w]}`` and its energies ``[n]``."""
+    and these refits (near-ties: its pick). Returns the kept state ``{name: [n, w]}`` and its energies ``[n]``."""
     from .keypoint_stage import best_per_group
 
     n = len(probs)
@@ -679,18 +674,8 @@ def _refit_from_offsets(model, layout, config, fitter, probs, state, energy, off
     nb_state, nb_energy = _fits_from(model, layout, config, fitter, probs, state, own, src, progress)
     nb_rows = {k: v.reshape(len(own), -1) for k, v in nb_state.items()}
     energy = torch.cat([torch.as_tensor(energy, dtype=torch.float64).reshape(-1), nb_energy.double()])
-    group = torch.cat([torch.arange(n), torch.as_tensor(own)])
-    cand = {k: torch.cat([v.double().reshape(n, -1), nb_rows[k].double()]) for k, v in state.items()}
-    if path is None:
-        rows = best_per_group(energy, group, n)
-    else:
-        with torch.no_grad():
-            joints = fitter.body(**{k: v.to(fitter.dtype) for k, v in cand.items()}).joints.double().numpy()
-        per = [np.flatnonzero(group.numpy() == b) for b in range(n)]
-        e = energy.numpy()
-        pick = branch_path([e[i] for i in per], [joints[i] for i in per], path[2], path[0], path[1])
-        rows = torch.as_tensor(np.array([i[p] for i, p in zip(per, pick)]))
-    return {k: v[rows] for k, v in cand.items()}, energy[rows]
+    rows = best_per_group(energy, torch.cat([torch.arange(n), torch.as_tensor(own)]), n)
+    return {k: torch.cat([v.double().reshape(n, -1), nb_rows[k].double()])[rows] for k, v in state.items()}, energy[rows]
 
 
 def _choose_branches(model, layout, config, fitter, probs, state, info, cfg, frames, progress):
