@@ -310,7 +310,7 @@ def cached_spheres(model, margin: float = 0.004, disk_cache: bool = True, **sett
     (:func:`sphere_cache_dir`; the arrays round-trip exactly, so a fit is the same bits either way).
     Building takes 10-15 s on a loaded 2-core CPU, once per process (each Ray actor, each
     ``silfit`` call) without the file."""
-    key = (_model_key(model), float(margin), tuple(sorted(settings.items())))
+    key = _cache_key(model, margin, settings)
     if key not in _CACHE:
         path = sphere_cache_dir() / f"{_disk_key(key)}.npz" if disk_cache else None
         arrays = _load_spheres(path) if path is not None else None
@@ -320,6 +320,10 @@ def cached_spheres(model, margin: float = 0.004, disk_cache: bool = True, **sett
                 _save_spheres(path, arrays)
         _CACHE[key] = arrays
     return _CACHE[key]
+
+
+def _cache_key(model, margin: float = 0.004, settings: Optional[dict] = None) -> tuple:
+    return (_model_key(model), float(margin), tuple(sorted((settings or {}).items())))
 
 
 def _model_key(model) -> str:

@@ -121,7 +121,7 @@ def test_sphere_set_round_trips_through_the_disk_cache_bit_for_bit(col, body_mod
     monkeypatch.setenv("SILFIT_CACHE_DIR", str(tmp_path))
     built = copy.copy(ip._CACHE)
     monkeypatch.setattr(ip, "_CACHE", {})
-    key = next(iter(built))
+    key = ip._cache_key(body_model)
     path = ip.sphere_cache_dir() / f"{ip._disk_key(key)}.npz"
     ip._save_spheres(path, built[key])
     monkeypatch.setattr(ip, "build_spheres", lambda *a, **k: pytest.fail("built although the file is there"))
