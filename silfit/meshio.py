@@ -13,8 +13,11 @@ def write_obj(path: os.PathLike, vertices: np.ndarray, faces: np.ndarray, commen
     """``vertices [V, 3]`` (metres) and 0-based ``faces [F, 3]`` as OBJ (1-based indices)."""
     with open(path, "w", encoding="utf-8") as fh:
         fh.write(f"# {comment or 'silfit: posed body in camera coordinates (OpenCV axes, metres)'}\n")
-        np.savetxt(fh, np.asarray(vertices, dtype=np.float64), fmt="v %.6f %.6f %.6f")
-        np.savetxt(fh, np.asarray(faces, dtype=np.int64) + 1, fmt="f %d %d %d")
+        # one formatting of all rows (the bytes np.savetxt writes row by row, at about a fifth of its time)
+        v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+        f = np.asarray(faces, dtype=np.int64).reshape(-1, 3) + 1
+        fh.write(("v %.6f %.6f %.6f\n" * len(v)) % tuple(v.ravel().tolist()))
+        fh.write(("f %d %d %d\n" * len(f)) % tuple(f.ravel().tolist()))
 
 
 def write_ply(path: os.PathLike, vertices: np.ndarray, faces: np.ndarray, colors: Optional[np.ndarray] = None,

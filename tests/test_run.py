@@ -113,3 +113,18 @@ def test_the_old_home_of_fit_still_gives_it():
     from silfit.pipeline import fit
 
     assert fit is silfit.run.fit is silfit.pipeline.fit
+
+
+def test_batches_with_the_same_settings_share_one_keypoint_fitter(open_model):
+    """fit-dataset's batches reuse the keypoint fitter (settings compared by value); other
+    settings, or the same settings object changed in place, get a fitter of their own."""
+    from dataclasses import replace
+
+    from silfit.image_fit import _keypoint_fitter
+
+    cfg = replace(FAST)
+    first = _keypoint_fitter(open_model, "body25", cfg, None)
+    assert _keypoint_fitter(open_model, "body25", replace(FAST), None) is first
+    cfg.final_iters = 3  # changed in place: not the fitter built for the old values
+    again = _keypoint_fitter(open_model, "body25", cfg, None)
+    assert again is not first and again.config.final_iters == 3

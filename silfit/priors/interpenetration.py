@@ -31,6 +31,8 @@ for a batch of 32 about 20 ms on one thread (the former term: about 70 ms).
 from __future__ import annotations
 
 import hashlib
+import os
+from pathlib import Path
 from typing import Dict, Optional
 
 import numpy as np
@@ -257,6 +259,71 @@ def build_spheres(
 
 
 _CACHE: Dict[tuple, dict] = {}
+#: the arrays :func:`build_spheres` returns (a cached file without one of them is rebuilt)
+_SPHERE_ARRAYS = ("centre_template", "centre_dirs", "neighbour_template", "neighbour_dirs", "sphere_weights",
+                  "radius_scale", "sphere_part", "pair_a", "pair_b")
+
+
+def sphere_cache_dir() -> Path:
+    """Where sphere sets are cached on disk: ``$SILFIT_CACHE_DIR/spheres`` (default
+    ``~/.cache/silfit/spheres``), beside the render proxies (:func:`renderers.proxy.proxy_cache_dir`)."""
+    root = os.environ.get("SILFIT_CACHE_DIR") or os.path.join(os.path.expanduser("~"), ".cache", "silfit")
+    return Path(root) / "spheres"
+
+
+def _disk_key(key: tuple) -> str:
+    """The cache file's name for the in-memory ``key``: also the code that builds the spheres (this
+    module and the body model's, so any change to them rebuilds) and torch's version."""
+    h = hashlib.blake2b(digest_size=16)
+    h.update(repr((key, torch.__version__)).encode())
+    from ..body import lbs, model as body_model
+
+    for module in (__file__, lbs.__file__, body_model.__file__):
+        h.update(Path(module).read_bytes())
+    return h.hexdigest()
+
+
+def _load_spheres(path: Path) -> Optional[dict]:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {name: np.asarray(z[name]) for name in _SPHERE_ARRAYS}
+    except Exception:  # noqa: BLE001 - any unreadable cache file (missing, truncated, ...) is rebuilt
+        return None
+    S = len(arrays["centre_template"])
+    ok = all(len(arrays[n]) == S for n in ("centre_dirs", "neighbour_template", "neighbour_dirs", "sphere_weights",
+                                           "radius_scale", "sphere_part")) and len(arrays["pair_a"]) == len(arrays["pair_b"])
+    return arrays if ok else None
+
+
+def _save_spheres(path: Path, arrays: dict) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
+        np.savez(tmp, **{name: arrays[name] for name in _SPHERE_ARRAYS})
+        os.replace(tmp, path)  # atomic: processes building the same set at once each write a whole file
+    except OSError:
+        pass  # the cache is an optimisation; a read-only home still works
+
+
+def cached_spheres(model, margin: float = 0.004, disk_cache: bool = True, **settings) -> dict:
+    """:func:`build_spheres` once per body model and settings: in memory, and on disk
+    (:func:`sphere_cache_dir`; the arrays round-trip exactly, so a fit is the same bits either way).
+    Building takes 10-15 s on a loaded 2-core CPU, once per process (each Ray actor, each
+    ``silfit`` call) without the file."""
+    key = _cache_key(model, margin, settings)
+    if key not in _CACHE:
+        path = sphere_cache_dir() / f"{_disk_key(key)}.npz" if disk_cache else None
+        arrays = _load_spheres(path) if path is not None else None
+        if arrays is None:
+            arrays = build_spheres(model, margin=margin, **settings)
+            if path is not None:
+                _save_spheres(path, arrays)
+        _CACHE[key] = arrays
+    return _CACHE[key]
+
+
+def _cache_key(model, margin: float = 0.004, settings: Optional[dict] = None) -> tuple:
+    return (_model_key(model), float(margin), tuple(sorted((settings or {}).items())))
 
 
 def _model_key(model) -> str:
@@ -270,14 +337,12 @@ def _model_key(model) -> str:
 
 class SphereCollisionModel(nn.Module):
     """``SphereCollisionModel(model)(betas [B, L], transforms [B, J, 4, 4]) -> [B]``; see the
-    module docstring. The sphere set is built once per body model (cached by content)."""
+    module docstring. The sphere set is built once per body model (cached by content, in memory
+    and on disk: :func:`cached_spheres`)."""
 
     def __init__(self, model, margin: float = 0.004, **settings):
         super().__init__()
-        key = (_model_key(model), float(margin), tuple(sorted(settings.items())))
-        if key not in _CACHE:
-            _CACHE[key] = build_spheres(model, margin=margin, **settings)
-        arrays = _CACHE[key]
+        arrays = cached_spheres(model, margin, **settings)
         dtype = model.v_template.dtype
         for name, value in arrays.items():
             t = torch.as_tensor(np.ascontiguousarray(value))

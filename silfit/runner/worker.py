@@ -124,7 +124,17 @@ class DatasetFitter:
     def run_batch(self, items: Sequence[Item], out: Union[str, os.PathLike]) -> List[dict]:
         """Fit ``items`` (:func:`silfit.run.run_batch`: the checks, one batched keypoint stage per
         layout, the silhouette stage batched over the items with masks, the warnings) and write
-        their folders under ``out``; one record per item, in order."""
+        their folders under ``out``; one record per item, in order. With one torch thread, as the
+        stages and Ray's one-CPU actors run (the same bits: ``tests/cli/test_fit_dataset.py``): the
+        small work between the stages (posing, masks, writing) gains nothing from a second thread,
+        and on a loaded CPU the pool's waiting made it about 20x slower (one body posed: 3-8 ms
+        quiet, 100 ms at load 6 on the 2-core machine)."""
+        from ..fitting.threads import torch_threads
+
+        with torch_threads(1):
+            return self._run_batch(items, out)
+
+    def _run_batch(self, items: Sequence[Item], out: Union[str, os.PathLike]) -> List[dict]:
         from ..image_fit import StageFailure
         from ..run import run_batch
 

@@ -111,3 +111,25 @@ def test_gradient_matches_finite_differences(col, open_model64):
     d[0, k] = h
     fd = (f(pose + d) - f(pose - d)) / (2 * h)
     assert abs(float(fd) - float(g[0, k])) < 1e-3 * abs(float(g[0, k])) + 1e-9
+
+
+def test_sphere_set_round_trips_through_the_disk_cache_bit_for_bit(col, body_model, tmp_path, monkeypatch):
+    """A process that finds the sphere set on disk (``$SILFIT_CACHE_DIR/spheres``) gets the very
+    buffers a fresh build gives (so a fit is the same bits), without building; a damaged file is rebuilt."""
+    from silfit.priors import interpenetration as ip
+
+    monkeypatch.setenv("SILFIT_CACHE_DIR", str(tmp_path))
+    built = copy.copy(ip._CACHE)
+    monkeypatch.setattr(ip, "_CACHE", {})
+    key = ip._cache_key(body_model)
+    path = ip.sphere_cache_dir() / f"{ip._disk_key(key)}.npz"
+    ip._save_spheres(path, built[key])
+    monkeypatch.setattr(ip, "build_spheres", lambda *a, **k: pytest.fail("built although the file is there"))
+    again = SphereCollisionModel(body_model)
+    for name, buf in col.named_buffers():
+        assert buf.dtype == getattr(again, name).dtype and torch.equal(buf, getattr(again, name)), name
+    path.write_bytes(b"not a zip")
+    monkeypatch.setattr(ip, "_CACHE", {})
+    monkeypatch.setattr(ip, "build_spheres", lambda *a, **k: built[key])
+    assert torch.equal(SphereCollisionModel(body_model).pair_mask, col.pair_mask)
+    assert ip._load_spheres(path) is not None  # rewritten whole
