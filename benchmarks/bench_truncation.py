@@ -128,7 +128,11 @@ BEFORE = dict(robust_cover=False, trim_clothing=False, plausibility_guard=False,
 MAIN = dict(leak_distance=0.0, hole_fraction=0.0)
 #: the defaults before the detected-input change: the keypoint trust region at 3 % of the window
 TIGHT = dict(trust_fraction=0.03)
-METHODS = {"original": ORIGINAL, "before": BEFORE, "main": MAIN, "tight": TIGHT, "after": {}}
+#: the concavities of the keypoint fit's silhouette unknown (clothing fills them), and not
+CONCAVE = dict(concave_radius=0.05)
+NOCONCAVE = dict(concave_radius=0.0)
+METHODS = {"original": ORIGINAL, "before": BEFORE, "main": MAIN, "tight": TIGHT, "concave": CONCAVE, "noconcave": NOCONCAVE,
+           "after": {}}
 
 
 def _value(text: str):

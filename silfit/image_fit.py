@@ -134,16 +134,17 @@ def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources):
 
 def _known_pixels(masks, body_masks, cfg: SilhouetteFitConfig, sources, notes) -> list:
     """Per mask, the pixels whose value the silhouette stage trusts (``None``: all): leaks far from
-    the keypoint fit's body and small holes are unknown (``SilhouetteFitConfig.leak_distance``,
-    ``hole_fraction``); a note in ``notes`` where a leak is set aside."""
-    from .silhouette.losses import unknown_regions
+    the keypoint fit's body, small holes and the concavities of its body are unknown
+    (``SilhouetteFitConfig.leak_distance``, ``hole_fraction``, ``concave_radius``); a note in ``notes`` where a leak is set aside."""
+    from .silhouette.losses import concave_region, unknown_regions
 
     out = []
     for mask, body, source, note in zip(masks, body_masks, sources, notes):
         ys, xs = np.nonzero(mask)
         extent = float(max(np.ptp(ys), np.ptp(xs))) if len(ys) else 0.0
-        known = unknown_regions(mask, body, float(cfg.leak_distance) * extent, float(cfg.hole_fraction))
-        far = 0 if known is None else int(np.count_nonzero(mask & ~known))
+        concave = float(getattr(cfg, "concave_radius", 0.0)) * extent
+        known = unknown_regions(mask, body, float(cfg.leak_distance) * extent, float(cfg.hole_fraction), concave)
+        far = 0 if known is None else int(np.count_nonzero(mask & ~known & ~concave_region(body, concave)))
         if far > 0.02 * len(ys):
             note.append(f"{source}: {100 * far / len(ys):.0f} % of the mask lies far from the keypoint fit's body (a leak "
                         "into an object or the background?): the silhouette stage ignored it")
