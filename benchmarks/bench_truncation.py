@@ -153,7 +153,10 @@ def main() -> None:
     ap.add_argument("--methods", default="main,after", help=f"comma-separated, of {', '.join(METHODS)}")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                     help="change a SilhouetteFitConfig field of 'after' (tuning), repeatable")
+    ap.add_argument("--per-subject", action="store_true", help="also print each subject's PA-PVE (mm) per row")
     args = ap.parse_args()
+    global _PER_SUBJECT
+    _PER_SUBJECT = args.per_subject
     after = {k: _value(v) for k, v in (x.split("=", 1) for x in args.set)}
     methods = {m: (after if m == "after" else METHODS[m]) for m in args.methods.split(",")}
 
@@ -205,9 +208,14 @@ def _score(model, params, gt, fit, reproj=None) -> dict:
             "kept_kp": m.get("silhouette_guard", {}).get("kept") == "keypoints"}  # fmt: skip
 
 
+_PER_SUBJECT = False
+
+
 def _row(cond, name, rows, seconds) -> None:
     get = lambda k: np.array([r[k] for r in rows], dtype=np.float64)  # noqa: E731
     pa, rp = get("pa"), get("reproj")
+    if _PER_SUBJECT:
+        print(f"<!-- {cond} / {name}: PA-PVE per subject {' '.join(f'{x:.1f}' for x in pa)} -->")
     print(f"| {cond} | {name} | {pa.mean():.1f} / {pa.max():.1f} | {get('pve').mean():.1f} | {rp.mean():.1f} / {rp.max():.1f} | "
           f"{get('beta').max():.2f} | {np.nanmean(get('iou')) if np.isfinite(get('iou')).any() else float('nan'):.3f} | "
           f"{'' if seconds is None else f'{seconds:.1f}'} | {int(get('trimmed').sum())} / {int(get('kept_kp').sum())} |")

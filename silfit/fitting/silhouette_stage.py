@@ -139,6 +139,9 @@ class SilhouetteFitConfig:
     #: between the thighs) are unknown (:func:`~silfit.silhouette.losses.concave_region`): loose
     #: clothing fills them, and a stage that covers them turns many joints a little; 0: off
     concave_radius: float = 0.0
+    #: the concavities unknown only in a mask trimmed as clothing (``trim_clothing``): a mask that
+    #: matches the body has no filled concavities, and there they are the only sign of a misplaced limb
+    concave_trimmed_only: bool = True
     #: after the stage, a fit less plausible than the keypoint fit (silfit.plausibility.silhouette_guard)
     #: is replaced by the keypoint fit, with a warning (image path: silfit.image_fit.refine_batch)
     plausibility_guard: bool = True
