@@ -15,7 +15,8 @@ first part, the plain energy, no clothing trim, no plausibility guard: HEAD befo
 part) and *after* (the defaults: the robust, capped mask-not-covered side, the clothing trim, leaks and small holes unknown and
 the plausibility guard), *main* (the defaults before issue 23's third part: no leak or hole
 set aside as unknown, ``leak_distance=0, hole_fraction=0``), *tight* (the defaults before the detected-input change: the keypoint
-trust region at 3 % of the window, ``trust_fraction=0.03``); ``--methods`` picks them, ``--set`` changes the after configuration
+trust region at 3 % of the window, ``trust_fraction=0.03``); *noconcave* (the defaults before the concavity change: ``concave_radius=0``), *concaveall* (the
+concavities unknown in every mask, ``concave_trimmed_only=False``); ``--methods`` picks them, ``--set`` changes the after configuration
 (tuning). The last column counts the subjects whose mask was trimmed as clothing and those
 whose fit the guard replaced by the keypoint fit. Printed per condition: PA-PVE and PVE
 (mm, against the whole true body), median reprojection error (px, visible keypoints), max |beta|,
@@ -128,11 +129,12 @@ BEFORE = dict(robust_cover=False, trim_clothing=False, plausibility_guard=False,
 MAIN = dict(leak_distance=0.0, hole_fraction=0.0)
 #: the defaults before the detected-input change: the keypoint trust region at 3 % of the window
 TIGHT = dict(trust_fraction=0.03)
-#: the concavities of the keypoint fit's silhouette unknown (clothing fills them), and not
-CONCAVE = dict(concave_radius=0.05)
+#: the defaults before the concavity change: no mask pixel in the keypoint fit's concavities unknown
 NOCONCAVE = dict(concave_radius=0.0)
-METHODS = {"original": ORIGINAL, "before": BEFORE, "main": MAIN, "tight": TIGHT, "concave": CONCAVE, "noconcave": NOCONCAVE,
-           "after": {}}
+#: the concavities unknown in every mask, not only in those trimmed as clothing
+CONCAVEALL = dict(concave_trimmed_only=False)
+METHODS = {"original": ORIGINAL, "before": BEFORE, "main": MAIN, "tight": TIGHT, "noconcave": NOCONCAVE,
+           "concaveall": CONCAVEALL, "after": {}}
 
 
 def _value(text: str):
