@@ -15,7 +15,8 @@ first part, the plain energy, no clothing trim, no plausibility guard: HEAD befo
 part) and *after* (the defaults: the robust, capped mask-not-covered side, the clothing trim, leaks and small holes unknown and
 the plausibility guard), *main* (the defaults before issue 23's third part: no leak or hole
 set aside as unknown, ``leak_distance=0, hole_fraction=0``), *tight* (the defaults before the detected-input change: the keypoint
-trust region at 3 % of the window, ``trust_fraction=0.03``); ``--methods`` picks them, ``--set`` changes the after configuration
+trust region at 3 % of the window, ``trust_fraction=0.03``); *noconcave* (the defaults before the concavity change: ``concave_radius=0``), *concaveall* (the
+concavities unknown in every mask, ``concave_trimmed_only=False``); ``--methods`` picks them, ``--set`` changes the after configuration
 (tuning). The last column counts the subjects whose mask was trimmed as clothing and those
 whose fit the guard replaced by the keypoint fit. Printed per condition: PA-PVE and PVE
 (mm, against the whole true body), median reprojection error (px, visible keypoints), max |beta|,
@@ -128,7 +129,12 @@ BEFORE = dict(robust_cover=False, trim_clothing=False, plausibility_guard=False,
 MAIN = dict(leak_distance=0.0, hole_fraction=0.0)
 #: the defaults before the detected-input change: the keypoint trust region at 3 % of the window
 TIGHT = dict(trust_fraction=0.03)
-METHODS = {"original": ORIGINAL, "before": BEFORE, "main": MAIN, "tight": TIGHT, "after": {}}
+#: the defaults before the concavity change: no mask pixel in the keypoint fit's concavities unknown
+NOCONCAVE = dict(concave_radius=0.0)
+#: the concavities unknown in every mask, not only in those trimmed as clothing
+CONCAVEALL = dict(concave_trimmed_only=False)
+METHODS = {"original": ORIGINAL, "before": BEFORE, "main": MAIN, "tight": TIGHT, "noconcave": NOCONCAVE,
+           "concaveall": CONCAVEALL, "after": {}}
 
 
 def _value(text: str):
@@ -149,7 +155,10 @@ def main() -> None:
     ap.add_argument("--methods", default="main,after", help=f"comma-separated, of {', '.join(METHODS)}")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                     help="change a SilhouetteFitConfig field of 'after' (tuning), repeatable")
+    ap.add_argument("--per-subject", action="store_true", help="also print each subject's PA-PVE (mm) per row")
     args = ap.parse_args()
+    global _PER_SUBJECT
+    _PER_SUBJECT = args.per_subject
     after = {k: _value(v) for k, v in (x.split("=", 1) for x in args.set)}
     methods = {m: (after if m == "after" else METHODS[m]) for m in args.methods.split(",")}
 
@@ -201,9 +210,14 @@ def _score(model, params, gt, fit, reproj=None) -> dict:
             "kept_kp": m.get("silhouette_guard", {}).get("kept") == "keypoints"}  # fmt: skip
 
 
+_PER_SUBJECT = False
+
+
 def _row(cond, name, rows, seconds) -> None:
     get = lambda k: np.array([r[k] for r in rows], dtype=np.float64)  # noqa: E731
     pa, rp = get("pa"), get("reproj")
+    if _PER_SUBJECT:
+        print(f"<!-- {cond} / {name}: PA-PVE per subject {' '.join(f'{x:.1f}' for x in pa)} -->")
     print(f"| {cond} | {name} | {pa.mean():.1f} / {pa.max():.1f} | {get('pve').mean():.1f} | {rp.mean():.1f} / {rp.max():.1f} | "
           f"{get('beta').max():.2f} | {np.nanmean(get('iou')) if np.isfinite(get('iou')).any() else float('nan'):.3f} | "
           f"{'' if seconds is None else f'{seconds:.1f}'} | {int(get('trimmed').sum())} / {int(get('kept_kp').sum())} |")

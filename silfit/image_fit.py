@@ -116,12 +116,13 @@ def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources):
     all around (clothing) trimmed by that thickness (``SilhouetteFitConfig.trim_clothing``)."""
     from .silhouette.losses import clothing_thickness, trim_clothing
 
-    out, notes = [], []
+    out, notes, trimmed = [], [], []
     for mask, body, source in zip(masks, body_masks, sources):
         ys, xs = np.nonzero(mask)
         extent = float(max(np.ptp(ys), np.ptp(xs))) if len(ys) else 0.0
         t = clothing_thickness(mask, body) if getattr(cfg, "trim_clothing", False) and extent > 0 else 0.0
-        if t <= cfg.trim_min * extent:
+        trimmed.append(t > cfg.trim_min * extent)
+        if not trimmed[-1]:
             out.append(mask)
             notes.append([])
             continue
@@ -129,21 +130,25 @@ def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources):
         out.append(trim_clothing(mask, t))
         notes.append([f"{source}: the mask reaches about {t:.0f} px beyond the keypoint fit's body all around (loose "
                       "clothing, hair or a grown mask?): the silhouette stage fitted it trimmed by that much"])
-    return out, notes
+    return out, notes, trimmed
 
 
-def _known_pixels(masks, body_masks, cfg: SilhouetteFitConfig, sources, notes) -> list:
+def _known_pixels(masks, body_masks, cfg: SilhouetteFitConfig, sources, notes, trimmed) -> list:
     """Per mask, the pixels whose value the silhouette stage trusts (``None``: all): leaks far from
-    the keypoint fit's body and small holes are unknown (``SilhouetteFitConfig.leak_distance``,
-    ``hole_fraction``); a note in ``notes`` where a leak is set aside."""
-    from .silhouette.losses import unknown_regions
+    the keypoint fit's body, small holes and the concavities of its body are unknown
+    (``SilhouetteFitConfig.leak_distance``, ``hole_fraction``, ``concave_radius``: only for the masks
+    ``trimmed`` as clothing with ``concave_trimmed_only``); a note in ``notes`` where a leak is set aside."""
+    from .silhouette.losses import concave_region, unknown_regions
 
     out = []
-    for mask, body, source, note in zip(masks, body_masks, sources, notes):
+    for mask, body, source, note, cloth in zip(masks, body_masks, sources, notes, trimmed):
         ys, xs = np.nonzero(mask)
         extent = float(max(np.ptp(ys), np.ptp(xs))) if len(ys) else 0.0
-        known = unknown_regions(mask, body, float(cfg.leak_distance) * extent, float(cfg.hole_fraction))
-        far = 0 if known is None else int(np.count_nonzero(mask & ~known))
+        concave = float(getattr(cfg, "concave_radius", 0.0)) * extent
+        if getattr(cfg, "concave_trimmed_only", True) and not cloth:
+            concave = 0.0
+        known = unknown_regions(mask, body, float(cfg.leak_distance) * extent, float(cfg.hole_fraction), concave)
+        far = 0 if known is None else int(np.count_nonzero(mask & ~known & ~concave_region(body, concave)))
         if far > 0.02 * len(ys):
             note.append(f"{source}: {100 * far / len(ys):.0f} % of the mask lies far from the keypoint fit's body (a leak "
                         "into an object or the background?): the silhouette stage ignored it")
@@ -207,8 +212,8 @@ def refine_batch(
                 f"{mask_sources[i]}: the mask does not overlap the body fitted to the keypoints at all "
                 "(wrong mask, or keypoints of another image?)"
             )
-    fit_masks, trim_notes = _trimmed_masks(masks, kp_masks, config or SilhouetteFitConfig(), mask_sources)
-    known = _known_pixels(fit_masks, kp_masks, config or SilhouetteFitConfig(), mask_sources, trim_notes)
+    fit_masks, trim_notes, trimmed = _trimmed_masks(masks, kp_masks, config or SilhouetteFitConfig(), mask_sources)
+    known = _known_pixels(fit_masks, kp_masks, config or SilhouetteFitConfig(), mask_sources, trim_notes, trimmed)
     inits = [keypoint_result.params(i) for i in range(n)]
     from .fitting.problem import Problem
     from .fitting.silhouette_stage import fit_silhouette_problems

@@ -130,3 +130,23 @@ def test_a_leak_far_from_the_body_is_set_aside_with_a_note(open_model, subject, 
     off = SilhouetteFitConfig(resolutions=(64,), iterations=(2,), contour_iterations=1, leak_distance=0.0, hole_fraction=0.0)
     fit(subject.keypoints, mask, subject.camera, model=open_model, silhouette_config=off, progress=False)
     assert seen[-1] is None
+
+
+def test_concavities_are_unknown_only_in_a_mask_trimmed_as_clothing():
+    """``SilhouetteFitConfig.concave_radius``: the keypoint fit's concavities are unknown in a mask
+    trimmed as clothing (pure: no fitting)."""
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+    from silfit.image_fit import _known_pixels
+
+    body = np.zeros((100, 100), bool)
+    body[10:90, 30:50] = True  # torso and an arm 5 px beside it
+    body[15:85, 55:62] = True
+    mask = body.copy()
+    mask[15:85, 50:55] = True  # clothing fills the gap
+    cfg = SilhouetteFitConfig(leak_distance=0.0, hole_fraction=0.0)
+    notes = [[], []]
+    trimmed, untouched = _known_pixels([mask, mask], [body, body], cfg, ["a", "b"], notes, [True, False])
+    assert trimmed is not None and not trimmed[20:80, 50:55].any() and trimmed[body].all()
+    assert untouched is None and notes == [[], []]
+    off = SilhouetteFitConfig(leak_distance=0.0, hole_fraction=0.0, concave_radius=0.0)
+    assert _known_pixels([mask], [body], off, ["a"], [[]], [True]) == [None]

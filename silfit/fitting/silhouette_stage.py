@@ -134,6 +134,16 @@ class SilhouetteFitConfig:
     #: silfit.image_fit.refine_batch); 0: off
     leak_distance: float = 0.03
     hole_fraction: float = 0.02
+    #: mask pixels in the concavities of the keypoint fit's silhouette (its closing by a disc of
+    #: ``concave_radius`` of the mask's extent, minus itself: armpits, between the arms and the torso,
+    #: between the thighs) are unknown (:func:`~silfit.silhouette.losses.concave_region`): loose
+    #: clothing fills them, and a stage that covers them turns many joints a little; 0: off (before
+    #: issue 23's concavity change; benchmarks/bench_truncation.py, clothing, tuning seeds 606, 808, 1234:
+    #: 96.2 -> 93.7, 57.0 -> 47.1 (at 0.05), 29.2 -> 25.8 mm)
+    concave_radius: float = 0.07
+    #: the concavities unknown only in a mask trimmed as clothing (``trim_clothing``): a mask that
+    #: matches the body has no filled concavities, and there they are the only sign of a misplaced limb
+    concave_trimmed_only: bool = True
     #: after the stage, a fit less plausible than the keypoint fit (silfit.plausibility.silhouette_guard)
     #: is replaced by the keypoint fit, with a warning (image path: silfit.image_fit.refine_batch)
     plausibility_guard: bool = True

@@ -60,7 +60,7 @@ import numpy as np
 import torch
 
 __all__ = [
-    "CoverProfile", "MaskTarget", "clothing_thickness", "trim_clothing", "unknown_regions", "contour_points", "cover_energy", "cover_weights", "distance_transforms", "outside_distance_energy",
+    "CoverProfile", "MaskTarget", "clothing_thickness", "trim_clothing", "unknown_regions", "concave_region", "contour_points", "cover_energy", "cover_weights", "distance_transforms", "outside_distance_energy",
     "silhouette_energy", "soft_iou",
 ]  # fmt: skip
 
@@ -275,15 +275,39 @@ def trim_clothing(mask: np.ndarray, thickness: float) -> np.ndarray:
     return out if out.any() else m.copy()
 
 
-def unknown_regions(mask: np.ndarray, body: Optional[np.ndarray], far: float, hole_fraction: float) -> Optional[np.ndarray]:
+def concave_region(body: np.ndarray, radius: float) -> np.ndarray:
+    """The concavities of a silhouette ``body`` (bool ``[H, W]``): its morphological closing by a
+    disc of ``radius`` pixels minus the body itself -- the armpits, the gaps between the arms and
+    the torso and between the thighs narrower than ``2 * radius``; empty for ``radius <= 0``.
+    Loose clothing (or a grown segmentation) fills exactly these in a person mask."""
+    import cv2
+
+    b = np.asarray(body, dtype=bool)
+    r = int(round(float(radius)))
+    if r <= 0 or not b.any():
+        return np.zeros_like(b)
+    # padded so that the closing does not glue the body to the image's border
+    pad = r + 1
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    padded = cv2.copyMakeBorder(b.astype(np.uint8), pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
+    closed = cv2.morphologyEx(padded, cv2.MORPH_CLOSE, k)[pad:-pad, pad:-pad].astype(bool)
+    return closed & ~b
+
+
+def unknown_regions(mask: np.ndarray, body: Optional[np.ndarray], far: float, hole_fraction: float,
+                    concave: float = 0.0) -> Optional[np.ndarray]:  # fmt: skip
     """``known`` (bool ``[H, W]``) of a person ``mask``, or ``None`` when all of it is: the mask's
     pixels farther than ``far`` pixels from ``body`` (the keypoint fit's silhouette; ``far <= 0`` or
-    ``body None``: none) and the mask's holes (background regions not touching the image's border)
-    smaller than ``hole_fraction`` of the mask's area (``<= 0``: none) are unknown."""
+    ``body None``: none), the mask's holes (background regions not touching the image's border)
+    smaller than ``hole_fraction`` of the mask's area (``<= 0``: none) and the mask's pixels in the
+    concavities of ``body`` (:func:`concave_region` with radius ``concave`` pixels; ``<= 0``: none:
+    clothing fills them, so a mask there says nothing about the body) are unknown."""
     import cv2
 
     m = np.asarray(mask, dtype=bool)
     unknown = np.zeros_like(m)
+    if body is not None and concave > 0:
+        unknown |= m & concave_region(body, concave)
     if body is not None and far > 0 and np.asarray(body).any():
         dist = cv2.distanceTransform((~np.asarray(body, dtype=bool)).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
         unknown |= m & (dist > float(far))

@@ -252,3 +252,30 @@ def test_unknown_pixels_do_not_switch_truncation_on():
     assert plain.valid is not None and (plain.valid < 0.5).any() and (plain.valid[beyond] > 0.5).all()
     both, _ = window_target(body, window, known=known)
     assert (both.valid[beyond] < 0.5).all()
+
+
+def test_the_concavities_of_the_body_are_unknown_when_a_grown_mask_fills_them():
+    from silfit.silhouette.losses import concave_region, unknown_regions
+
+    body = np.zeros((96, 96), bool)  # a torso with an arm hanging 4 px beside it, legs 6 px apart
+    body[10:60, 30:60] = True  # torso
+    body[14:58, 64:70] = True  # arm
+    body[10:16, 60:64] = True  # shoulder
+    body[60:90, 30:42] = True  # legs
+    body[60:90, 48:60] = True
+    region = concave_region(body, 5)
+    assert not (region & body).any()
+    assert region[30:50, 60:64].all()  # between the arm and the torso
+    assert region[62:70, 42:48].all()  # between the thighs, near the crotch
+    assert not region[:, :28].any() and not region[:, 72:].any()  # nothing outside the convexities
+    assert not region[92:].any()  # no closing against the image's border
+    assert not concave_region(body, 0).any()
+    assert not concave_region(body, 1)[30:50, 60:64].any()  # too small a disc to bridge a 4 px gap
+
+    grown = body | region
+    grown[5:10, 30:60] = True  # and a little above the head: clothing outside the concavities
+    known = unknown_regions(grown, body, far=0.0, hole_fraction=0.0, concave=5)
+    assert known is not None
+    assert not known[region].any() and known[body].all() and known[5:10, 30:60].all()
+    assert unknown_regions(grown, body, far=0.0, hole_fraction=0.0) is None  # off by default
+    assert unknown_regions(body, body, far=0.0, hole_fraction=0.0, concave=5) is None  # a clean mask: nothing unknown
