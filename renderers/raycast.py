@@ -178,6 +178,10 @@ def _directions(xy: torch.Tensor, cam: Camera) -> torch.Tensor:
 class RaycastScene:
     """One Mitsuba scene holding a mesh of fixed topology (module docstring)."""
 
+    #: the edge integral's vertex gradient from the projection's Jacobian at the used endpoints (``False``: torch's
+    #: autograd through the projection of every vertex, before issue 24's speed part; the same values up to rounding)
+    analytic_grad = True
+
     def __init__(self, mi, dr, faces: np.ndarray, n_vertices: int, cull: bool = True):
         self.mi, self.dr = mi, dr
         self.cull = bool(cull)
@@ -440,13 +444,24 @@ class RaycastScene:
         G1 = torch.zeros(n_c, 2, dtype=torch.float64).index_add_(0, state["edge"], (w * t_s)[:, None] * n_s)
         used = torch.unique(state["edge"])
         ends = self.edges.edges[state["candidates"][used]]  # [U, 2] vertex indices
-        with torch.enable_grad():
-            x = verts.detach().to(torch.float64).requires_grad_(True)
-            vc = x @ R.to(torch.float64).T + t.to(torch.float64)
-            cam = state["camera"]
-            s = (_project(vc[ends[:, 0]], cam) * G0[used]).sum() + (_project(vc[ends[:, 1]], cam) * G1[used]).sum()
-            (grad,) = torch.autograd.grad(s, x)
-        return grad
+        R64 = R.to(torch.float64)
+        if not self.analytic_grad:  # torch's autograd through the projection (before issue 24's speed part)
+            with torch.enable_grad():
+                x = verts.detach().to(torch.float64).requires_grad_(True)
+                vc = x @ R64.T + t.to(torch.float64)
+                cam = state["camera"]
+                s = (_project(vc[ends[:, 0]], cam) * G0[used]).sum() + (_project(vc[ends[:, 1]], cam) * G1[used]).sum()
+                (grad,) = torch.autograd.grad(s, x)
+            return grad
+        # the projection's Jacobian at the used endpoints only: d(G . proj(p)) / dp for p = R x + t
+        cam = state["camera"]
+        ends = ends.T.reshape(-1)  # [2U]: first endpoints, then second ones
+        G = torch.cat([G0[used], G1[used]])  # [2U, 2]
+        vc = verts.detach().to(torch.float64)[ends] @ R64.T + t.to(torch.float64)
+        inv_z = 1.0 / vc[:, 2]
+        gx, gy = G[:, 0] * cam.fx * inv_z, G[:, 1] * cam.fy * inv_z
+        d_vc = torch.stack([gx, gy, -(gx * vc[:, 0] + gy * vc[:, 1]) * inv_z], -1)  # [2U, 3]
+        return out.index_add_(0, ends, d_vc @ R64)
 
 
 class RaycastRender(torch.autograd.Function):
