@@ -29,7 +29,9 @@ method was called ``main`` before the speed part); ``main`` is the default befor
 (``edge_density=4``: 4 edge points per pixel of contour-candidate length; before it: coarser render proxies per
 level, 3,000 faces at 128 px and 5,000 at 256 px, a 10-step warm-up and half body_pose's learning rate);
 ``--step`` times one render + backward of the default 256 px level per method (``main``/``after``'s edge points);
-``head-projective`` is ``head`` rendered with
+``prev`` is the default before issue 24's sixth part (the same configuration and fits bit for bit as ``after``: the
+edge integral's vertex gradient by autograd over every vertex, the stage's reduced bodies rebuilt each call; methods
+older than ``after`` run so too, :data:`OLD_RUNTIME`); ``head-projective`` is ``head`` rendered with
 Mitsuba's ``prb_projective`` integrator; ``after-2t``, ``after-stratified``, ``*-s1``: see ``RENDERERS``.
 ``--video 60``: one 60-frame synthetic walk through the sequence's stage (``refine_sequence_silhouettes``: all
 frames one problem), seconds per frame (methods with their own renderer are skipped there).
@@ -50,6 +52,7 @@ from __future__ import annotations
 import argparse
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -71,7 +74,28 @@ METHODS = {"original": SilhouetteFitConfig.legacy, "before": SilhouetteFitConfig
            "head": lambda: SilhouetteFitConfig(**HEAD), "third": lambda: SilhouetteFitConfig(**THIRD),
            "main": lambda: SilhouetteFitConfig(**MAIN), "head-projective": lambda: SilhouetteFitConfig(**HEAD),
            "after-2t": SilhouetteFitConfig, "after-stratified": SilhouetteFitConfig,
-           "head-s1": lambda: SilhouetteFitConfig(**HEAD, seed=1), "after-s1": lambda: SilhouetteFitConfig(seed=1)}  # fmt: skip
+           "head-s1": lambda: SilhouetteFitConfig(**HEAD, seed=1), "after-s1": lambda: SilhouetteFitConfig(seed=1),
+           "prev": SilhouetteFitConfig}  # fmt: skip
+#: methods run as before issue 24's sixth part (the edge integral's vertex gradient by torch's autograd over every
+#: vertex, the stage's reduced bodies rebuilt each call): ``prev`` is the default so (the same fits bit for bit)
+OLD_RUNTIME = {"original", "before", "head", "third", "main", "head-projective", "head-s1", "prev"}
+
+
+@contextmanager
+def runtime(name):
+    """Method ``name``'s runtime: before issue 24's sixth part for :data:`OLD_RUNTIME` (no vertex-gradient
+    shortcut, no kept bodies), else today's."""
+    from renderers.raycast import RaycastScene
+    from silfit.fitting import silhouette_stage
+
+    old = name in OLD_RUNTIME
+    RaycastScene.analytic_grad = not old
+    if old:
+        silhouette_stage._CONTOUR_BODIES.clear()
+    try:
+        yield
+    finally:
+        RaycastScene.analytic_grad = True
 #: the renderer per method (``None``: the stage's default, the ray-cast method since issue 24's second part):
 #: ``original`` and ``head-projective`` render with Mitsuba's ``prb_projective`` (the renderer before the ray-cast
 #: method), ``after-2t`` the ray-cast method with two Dr.Jit threads (bit-identical results, other timing),
@@ -159,10 +183,11 @@ def run_single(model, n, seed, size, methods):
     for i, s in enumerate(subjects):
         for name, (cfg, renderer) in setups.items():
             r = rows[name]
-            t = time.perf_counter()
-            res = fit_silhouette(model, kp.params(i), s.camera, s.mask, s.keypoints.as_array(), config=cfg,
-                                 pose_prior=fitter.pose_prior, progress=False, renderer=renderer)  # fmt: skip
-            dt = time.perf_counter() - t
+            with runtime(name):
+                t = time.perf_counter()
+                res = fit_silhouette(model, kp.params(i), s.camera, s.mask, s.keypoints.as_array(), config=cfg,
+                                     pose_prior=fitter.pose_prior, progress=False, renderer=renderer)  # fmt: skip
+                dt = time.perf_counter() - t
             r["stage"].append(res.seconds)
             r["wall"].append(kp_share + dt)
             r["steps"].append(res.steps)
@@ -215,10 +240,11 @@ def run_rig(model, n, seed, size, methods):
     for i, ((views, problem, truth), f) in enumerate(zip(subjects, fits)):
         for name, (cfg, renderer) in setups.items():
             r = rows[name]
-            t = time.perf_counter()
-            (res,) = fit_silhouette_problems(model, [problem], [dict(f.params)], config=cfg, pose_prior=fitter.pose_prior,
-                                             progress=False, renderer=renderer)  # fmt: skip
-            dt = time.perf_counter() - t
+            with runtime(name):
+                t = time.perf_counter()
+                (res,) = fit_silhouette_problems(model, [problem], [dict(f.params)], config=cfg, pose_prior=fitter.pose_prior,
+                                                 progress=False, renderer=renderer)  # fmt: skip
+                dt = time.perf_counter() - t
             r["stage"].append(res.seconds)
             r["wall"].append(kp_share + dt)
             r["steps"].append(res.steps)
@@ -260,10 +286,11 @@ def run_step(model, methods, resolutions=(128, 256), repeats=15):
                 for name, (cfg, _, pv, wcam, r, w, ts) in setups.items():
                     dens = {} if cfg.edge_density is None else {"edge_density": cfg.edge_density}
                     x = pv.clone().requires_grad_()
-                    t = time.perf_counter()
-                    img = r.render_views(x, [wcam], [torch.eye(3)], [torch.zeros(3)], spp=cfg.spp,
-                                         edge_spp=cfg.edge_spp, seeds=[k], **dens)[0]  # fmt: skip
-                    (img * w).sum().backward()
+                    with runtime(name):
+                        t = time.perf_counter()
+                        img = r.render_views(x, [wcam], [torch.eye(3)], [torch.zeros(3)], spp=cfg.spp,
+                                             edge_spp=cfg.edge_spp, seeds=[k], **dens)[0]  # fmt: skip
+                        (img * w).sum().backward()
                     if k >= 2:
                         ts.append(time.perf_counter() - t)
         base_ms = None
@@ -338,9 +365,10 @@ def run_video(model, frames, seed, size, methods):
         if name in RENDERERS:  # refine_sequence_silhouettes renders with the stage's default renderer only
             print(f"video: {name} skipped (its renderer is not the stage's default)", flush=True)
             continue
-        t = time.perf_counter()
-        r = refine_sequence_silhouettes(model, fit, seq.frames, masks, config=METHODS[name]())
-        dt = time.perf_counter() - t
+        with runtime(name):
+            t = time.perf_counter()
+            r = refine_sequence_silhouettes(model, fit, seq.frames, masks, config=METHODS[name]())
+            dt = time.perf_counter() - t
         rows[name] = {**score_sequence(model, gt, r.params()), "stage": dt / frames,
                       "iou": float(np.nanmean(r.silhouette_iou))}  # fmt: skip
         print(f"video: {name} done ({dt:.0f} s)", flush=True)

@@ -43,7 +43,9 @@ that subject and keep its best parameters so far (``warnings`` in its result).
 from __future__ import annotations
 
 import math
+import threading
 import time
+import weakref
 from dataclasses import dataclass, field
 from typing import Callable, List, Optional, Sequence
 
@@ -68,6 +70,8 @@ __all__ = [
     "choose_window", "fit_silhouette",
     "fit_silhouette_problems", "fit_silhouettes", "window_target",
 ]  # fmt: skip
+
+_CONTOUR_LOCK = threading.Lock()
 
 #: SMPL's parameters, the default free set (a model's own set is ``model.parameter_names``)
 from ..body.model import SMPL_PARAMETER_NAMES as PARAMS  # noqa: E402
@@ -510,6 +514,24 @@ class ContourBody(torch.nn.Module):
         return BodyState(state.keypoints, state.joints, state.transforms, verts)
 
 
+#: model -> {(layout, what, model's dtype and template storage): ContourBody}: the reduced bodies of the stage
+#: (the contour level's points, each rendered level's proxy) kept from call to call (building one poses
+#: the landmarks' reduction and mixes the model's arrays: about 0.1 s per call before issue 24's speed part)
+_CONTOUR_BODIES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def cached_contour_body(model, layout: str, what: tuple, vertex_index: Callable) -> "ContourBody":
+    """The :class:`ContourBody` of ``model`` and ``layout`` at the points ``vertex_index()`` names
+    (``what``: their key, e.g. ``("proxy", faces)``), built once per model and kept while it lives."""
+    key = (layout, what, str(model.dtype), model.v_template.data_ptr(), tuple(model.v_template.shape))
+    with _CONTOUR_LOCK:
+        bodies = _CONTOUR_BODIES.setdefault(model, {})
+        body = bodies.get(key)
+        if body is None:
+            body = bodies[key] = ContourBody(model, layout, vertex_index())
+        return body
+
+
 def _window_points(ev: Evaluation, proxy) -> dict:
     """``{(problem, observation): uv [V, 2]}``: the (proxy's) vertices projected into each
     observation's window (window pixels), for the observations with a window; computed
@@ -762,7 +784,8 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
     smpl_layout = getattr(model, "kind", "smpl") == "smpl"
     contour_body, contour_points_map = body, None  # the contour level's evaluator and its vertices' map
     if cfg.contour_iterations and cfg.contour_vertices and smpl_layout:
-        contour_body = ContourBody(model, layout, contour_vertex_index(model, cfg.contour_vertices))
+        contour_body = cached_contour_body(model, layout, ("vertices", int(cfg.contour_vertices)),
+                                           lambda: contour_vertex_index(model, cfg.contour_vertices))  # fmt: skip
     elif cfg.proxy_faces:  # the full body, its points read at the proxy's vertices
         from renderers.proxy import get_proxy
 
@@ -791,7 +814,8 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
 
                 level_batch = get_batch_renderer(faces)
             if level_proxy is not None and cfg.proxy_body and smpl_layout:
-                level_body, level_proxy = ContourBody(model, layout, level_proxy), None
+                level_body = cached_contour_body(model, layout, ("proxy", int(n_faces)), lambda: level_proxy)
+                level_proxy = None
             level_renders[n_faces] = (get_silhouette_renderer(faces), level_proxy, level_batch, level_body)
         return level_renders[n_faces]
 
