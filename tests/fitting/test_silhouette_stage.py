@@ -281,6 +281,18 @@ def test_contour_body_poses_the_same_vertices_as_the_mesh(open_model):
     np.testing.assert_allclose(sub.keypoints.numpy(), full.keypoints.numpy(), atol=2e-4)  # landmarks: another path
 
 
+def test_contour_bodies_kept_per_model(open_model):
+    """The stage's reduced bodies are built once per model, layout and point set (issue 24's sixth part)."""
+    from silfit.fitting.silhouette_stage import cached_contour_body
+
+    made = []
+    make = lambda: made.append(1) or contour_vertex_index(open_model, 300)  # noqa: E731
+    a = cached_contour_body(open_model, "body25", ("vertices", 300), make)
+    assert cached_contour_body(open_model, "body25", ("vertices", 300), make) is a and len(made) == 1
+    assert cached_contour_body(open_model, "body25", ("vertices", 301), make) is not a and len(made) == 2
+    assert isinstance(a, ContourBody)
+
+
 def test_proxy_body_poses_the_render_proxy(open_model):
     """The rendered levels' evaluator (``proxy_body``): the render proxy's rest-pose mix of the
     model, posed directly, stays within millimetres of the proxy of the posed mesh (mean well under
