@@ -57,6 +57,7 @@ _NEAR = 1e-3  # metres: candidate segments with an endpoint nearer than this are
 _EDGE_EPS = 1e-4  # px: the outside ray's distance from the candidate segment (the bias, from contour folds
 # thinner than this counted twice, measured +0.8 % at 1e-3 px, +0.09 % at 1e-4 px)
 _MARK_SPACING = 0.5  # px between the points that mark a segment's pixels
+_EYE = torch.eye(3, dtype=torch.float64)
 
 
 class NonManifoldMeshError(ValueError):
@@ -287,7 +288,9 @@ class RaycastScene:
                 plan, xy_cam = self._plan(vc, d < 0, cam, spp, edge_spp, int(seed), stratified, need_grad, systematic,
                                           edge_density)  # fmt: skip
                 centre = -(R64.T @ t64)
-                d = _directions(xy_cam, cam) @ R64  # camera -> reference frame: R^T d
+                d = _directions(xy_cam, cam)
+                if not torch.equal(R64, _EYE):  # camera -> reference frame: R^T d (the identity: d as it is, bit for bit)
+                    d = d @ R64
                 plans.append(plan)
                 origins.append(centre.expand(d.shape[0], 3))
                 directions.append(d)
@@ -397,14 +400,14 @@ class RaycastScene:
         # each component's representative: its first pixel next to an edge pixel (so the rays of
         # a view only meet faces whose image touches the edge pixels or their one-pixel ring),
         # else its first pixel
-        ring = _dilate(marked.reshape(H, W)).reshape(-1) & free
-        pix = torch.arange(H * W)
+        ring = torch.nonzero(_dilate(marked.reshape(H, W)).reshape(-1) & free).squeeze(1)  # flat indices, ascending
         reps = torch.full((n - 1,), H * W, dtype=torch.int64)
-        reps.scatter_reduce_(0, lab[ring], pix[ring], reduce="amin")
+        reps.scatter_reduce_(0, lab[ring], ring, reduce="amin")
         lonely = reps == H * W
         if bool(lonely.any()):
             first = torch.full((n - 1,), H * W, dtype=torch.int64)
-            first.scatter_reduce_(0, lab[free], pix[free], reduce="amin")
+            pix = torch.nonzero(free).squeeze(1)
+            first.scatter_reduce_(0, lab[pix], pix, reduce="amin")
             reps = torch.where(lonely, first, reps)
         return lab, n - 1, reps
 
@@ -414,7 +417,7 @@ class RaycastScene:
         cover, rep, edge = hits[:n_cover], hits[n_cover : n_cover + plan.n_components], hits[n_cover + plan.n_components :]
         img = torch.zeros(cam.height * cam.width, dtype=torch.float32)
         if plan.n_components:
-            free = plan.labels >= 0
+            free = torch.nonzero(plan.labels >= 0).squeeze(1)
             img[free] = rep.to(torch.float32)[plan.labels[free]]
         if n_cover:
             img[plan.edge_pixels] = cover.reshape(-1, plan.spp).to(torch.float32).mean(1)
