@@ -29,7 +29,7 @@ method was called ``main`` before the speed part); ``main`` is the default befor
 (``edge_density=4``: 4 edge points per pixel of contour-candidate length; before it: coarser render proxies per
 level, 3,000 faces at 128 px and 5,000 at 256 px, a 10-step warm-up and half body_pose's learning rate);
 ``--step`` times one render + backward of the default 256 px level per method (``main``/``after``'s edge points);
-``prev`` is the default before issue 24's sixth part (the same configuration and fits bit for bit as ``after``: the
+``prev`` is the default before issue 24's runtime part (the same configuration and fits bit for bit as ``after``: the
 edge integral's vertex gradient by autograd over every vertex, the stage's reduced bodies rebuilt each call; methods
 older than ``after`` run so too, :data:`OLD_RUNTIME`); ``head-projective`` is ``head`` rendered with
 Mitsuba's ``prb_projective`` integrator; ``after-2t``, ``after-stratified``, ``*-s1``: see ``RENDERERS``.
@@ -76,14 +76,14 @@ METHODS = {"original": SilhouetteFitConfig.legacy, "before": SilhouetteFitConfig
            "after-2t": SilhouetteFitConfig, "after-stratified": SilhouetteFitConfig,
            "head-s1": lambda: SilhouetteFitConfig(**HEAD, seed=1), "after-s1": lambda: SilhouetteFitConfig(seed=1),
            "prev": SilhouetteFitConfig}  # fmt: skip
-#: methods run as before issue 24's sixth part (the edge integral's vertex gradient by torch's autograd over every
+#: methods run as before issue 24's runtime part (the edge integral's vertex gradient by torch's autograd over every
 #: vertex, the stage's reduced bodies rebuilt each call): ``prev`` is the default so (the same fits bit for bit)
 OLD_RUNTIME = {"original", "before", "head", "third", "main", "head-projective", "head-s1", "prev"}
 
 
 @contextmanager
 def runtime(name):
-    """Method ``name``'s runtime: before issue 24's sixth part for :data:`OLD_RUNTIME` (no vertex-gradient
+    """Method ``name``'s runtime: before issue 24's runtime part for :data:`OLD_RUNTIME` (no vertex-gradient
     shortcut, no kept bodies), else today's."""
     from renderers.raycast import RaycastScene
     from silfit.fitting import silhouette_stage

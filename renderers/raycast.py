@@ -448,7 +448,7 @@ class RaycastScene:
         used = torch.unique(state["edge"])
         ends = self.edges.edges[state["candidates"][used]]  # [U, 2] vertex indices
         R64 = R.to(torch.float64)
-        if not self.analytic_grad:  # torch's autograd through the projection (before issue 24's speed part)
+        if not self.analytic_grad:  # torch's autograd through the projection (before issue 24's runtime part)
             with torch.enable_grad():
                 x = verts.detach().to(torch.float64).requires_grad_(True)
                 vc = x @ R64.T + t.to(torch.float64)

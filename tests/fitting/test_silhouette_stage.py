@@ -282,7 +282,7 @@ def test_contour_body_poses_the_same_vertices_as_the_mesh(open_model):
 
 
 def test_contour_bodies_kept_per_model(open_model):
-    """The stage's reduced bodies are built once per model, layout and point set (issue 24's sixth part)."""
+    """The stage's reduced bodies are built once per model, layout and point set (issue 24's runtime part)."""
     from silfit.fitting.silhouette_stage import cached_contour_body
 
     made = []

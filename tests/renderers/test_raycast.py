@@ -62,7 +62,7 @@ def test_dilate_is_a_3x3_max_pool():
 
 def test_vertex_gradient_jacobian_matches_autograd(capsule, cam64):
     """The edge integral's vertex gradient from the projection's Jacobian at the used endpoints (issue 24's
-    sixth part) is the gradient torch's autograd gives through the projection of every vertex (rotated and
+    runtime part) is the gradient torch's autograd gives through the projection of every vertex (rotated and
     translated view, within 1e-6 of the largest component: float64 both ways, float32 out)."""
     from renderers.raycast import RaycastScene
 
