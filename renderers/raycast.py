@@ -180,7 +180,8 @@ class RaycastScene:
     """One Mitsuba scene holding a mesh of fixed topology (module docstring)."""
 
     #: the edge integral's vertex gradient from the projection's Jacobian at the used endpoints (``False``: torch's
-    #: autograd through the projection of every vertex, before issue 24's runtime part; the same gradients, bit for bit in the tests and fits measured)
+    #: autograd through the projection of every vertex, before issue 24's runtime part; the same gradients, bit for
+    #: bit in the fits measured)
     analytic_grad = True
 
     def __init__(self, mi, dr, faces: np.ndarray, n_vertices: int, cull: bool = True):
@@ -289,7 +290,7 @@ class RaycastScene:
                                           edge_density)  # fmt: skip
                 centre = -(R64.T @ t64)
                 d = _directions(xy_cam, cam)
-                if not torch.equal(R64, _EYE):  # camera -> reference frame: R^T d (the identity: d as it is, bit for bit)
+                if not torch.equal(R64, _EYE):  # camera -> reference frame: R^T d (the identity: d, bit for bit)
                     d = d @ R64
                 plans.append(plan)
                 origins.append(centre.expand(d.shape[0], 3))
