@@ -13,8 +13,13 @@ final stage's energy, term by term (weighted as in the final stage), at the fit 
   the term is the largest contributor to a truth costlier than the fit, and how often it alone
   decides (without it the truth would cost less).
 
-    python benchmarks/bench_energy_terms.py --n 20 --seed 8650
-    python benchmarks/bench_energy_terms.py --n 20 --seed 8650 --variants default final_pose10 limits
+    python benchmarks/bench_energy_terms.py --n 30 --seed 8950 --subjects
+    python benchmarks/bench_energy_terms.py --n 20 --seed 8650 --variants default final_pose10 limits /tmp/wider.npz
+
+(``/tmp/wider.npz``: e.g. ``tools/build_pose_prior.py --out /tmp/wider.npz --reg-deg 9``.) The raw truth's
+energy is not the right comparison (bench_ambiguity.py's "truth lower" uses it): the noise puts it far above
+its own basin's minimum; the refined truth's is. A refined truth costlier than the fit but within
+:data:`APART_MM` of it is the same pose with the shape prior not yet settled, not another branch.
 """
 from __future__ import annotations
 
