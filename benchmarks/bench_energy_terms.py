@@ -1,0 +1,194 @@
+"""Depth ambiguity: which energy term makes the truth cost more than a wrong-branch fit?
+
+Fits a generated hard set (``silfit synth --poses hard``) with the keypoint stage and evaluates the
+final stage's energy, term by term (weighted as in the final stage), at the fit and at the truth
+(:meth:`~silfit.fitting.KeypointFitter.energy_at`). The truth itself is not a minimum of the energy
+(the keypoints are noisy), so it is also refined: the final stage alone, started from the truth
+("truth refined"). Per variant (a pose prior and/or weights) it prints:
+
+* PA-PVE of the fit (mean, median, above 150 mm), search failures (the truth's or the refined truth's
+  energy below the fit's: a better search would find it) and "truth costlier" (the refined truth's
+  energy above the fit's: the energy prefers another basin, no search helps);
+* per term, the mean of ``w * (term at truth - term at fit)`` (raw truth and refined truth), how often
+  the term is the largest contributor to a truth costlier than the fit, and how often it alone
+  decides (without it the truth would cost less).
+
+    python benchmarks/bench_energy_terms.py --n 30 --seed 8950 --subjects
+    python benchmarks/bench_energy_terms.py --n 20 --seed 8650 --variants default final_pose10 limits /tmp/wider.npz
+
+(``/tmp/wider.npz``: e.g. ``tools/build_pose_prior.py --out /tmp/wider.npz --reg-deg 9``.) The raw truth's
+energy is not the right comparison (bench_ambiguity.py's "truth lower" uses it): the noise puts it far above
+its own basin's minimum; the refined truth's is. A refined truth costlier than the fit but within
+:data:`APART_MM` of it is the same pose with the shape prior not yet settled, not another branch.
+"""
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from silfit import load_body_model
+from silfit.camera import load_camera
+from silfit.dataset import read_gt
+from silfit.eval.metrics import pa_pve
+from silfit.fitting import KeypointFitter
+from silfit.fitting.keypoint_stage import KeypointFitConfig, prepare_keypoints
+from silfit.fitting.problem import Problem
+from silfit.keypoints import read_keypoints
+
+NAMES = ("betas", "body_pose", "global_orient", "transl")
+#: a refined truth this far (PA-PVE between the two meshes) from the fit is in another basin
+APART_MM = 50.0
+
+
+def _variants():
+    """name -> (config kwargs, pose prior (None: default)). Final-stage and pose-stage weights as listed."""
+    d = KeypointFitConfig().pose_weight
+    return {
+        "default": ({}, None),
+        "final_pose20": ({"pose_weight": d[:-1] + (20.0,)}, None),
+        "final_pose10": ({"pose_weight": d[:-1] + (10.0,)}, None),
+        "limits": ({"pose_weight": (200.0, 40.0, 8.0, 4.0)}, "limits"),
+    }
+
+
+def _fit_rows(fitter, sets, cams, gts, model, batch, refine):
+    T = lambda a: torch.as_tensor(np.asarray(a), dtype=model.dtype)  # noqa: E731
+
+    def pve(params, gt, j):
+        with torch.no_grad():
+            v = model(**{n: T(params[n][j]).reshape(1, -1) for n in NAMES}).vertices[0].numpy()
+        return 1000 * float(pa_pve(v.astype(np.float64), gt.vertices))
+
+    final = fitter.stages[-1]
+    weights = {k: float(v) for k, v in final.weights.items() if v}
+    refiner = None
+    if refine:
+        cfg = replace(fitter.config, schedule=[replace(final, iterations=refine)], flip_test=False, hypotheses=1,
+                      branch_refine=0)
+        refiner = KeypointFitter(model, config=cfg, pose_prior=fitter.pose_prior)
+    rows = []
+    for i in range(0, len(sets), batch):
+        s, c, g = sets[i: i + batch], cams[i: i + batch], gts[i: i + batch]
+        res = fitter.fit(s, c, progress=False)
+        fit_p = {n: getattr(res, n) for n in NAMES}
+        truth_p = {n: np.stack([getattr(x, n) for x in g]) for n in NAMES}
+        e_fit, t_fit = fitter.energy_at(fit_p, s, c)
+        e_tr, t_tr = fitter.energy_at(truth_p, s, c)
+        if refiner is not None:
+            problems = [Problem.single(k, cam) for k, cam in zip(prepare_keypoints(s, fitter.layout), res.cameras)]
+            state, _ = refiner.fit_problems(problems, init={n: truth_p[n] for n in NAMES})
+            ref_p = {n: (state[n][:, 0] if state[n].dim() == 3 else state[n]).detach().numpy() for n in NAMES}
+            e_ref, t_ref = fitter.energy_at(ref_p, s, c)
+        for j in range(len(s)):
+            r = {"pve": pve(fit_p, g[j], j), "e_fit": float(e_fit[j]), "e_truth": float(e_tr[j]),
+                 "fit": {k: weights[k] * float(t_fit[k][j]) for k in weights},
+                 "truth": {k: weights[k] * float(t_tr[k][j]) for k in weights}}  # fmt: skip
+            if refiner is not None:
+                r.update(e_ref=float(e_ref[j]), ref={k: weights[k] * float(t_ref[k][j]) for k in weights},
+                         pve_ref=pve(ref_p, g[j], j), apart=pve(ref_p, _Verts(res.vertices[j]), j))  # fmt: skip
+            rows.append(r)
+    return rows, list(weights)
+
+
+class _Verts:  # PA-PVE between two fits: the fit's vertices as the reference
+    def __init__(self, v):
+        self.vertices = np.asarray(v, dtype=np.float64)
+
+
+def _subjects(name, rows):
+    print(f"\n{name}: per subject (energies of the final stage; 'apart': PA-PVE between the fit and the refined truth)\n")
+    print("| subject | fit PA-PVE | refined truth PA-PVE | apart (mm) | fit energy | truth | refined truth | largest cause |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---|")
+    for i, r in enumerate(rows):
+        diffs = {k: r["ref"][k] - r["fit"][k] for k in r["fit"]}
+        cause = max(diffs, key=diffs.get) if r["e_ref"] > r["e_fit"] * (1 + 1e-3) else "-"
+        print(f"| {i} | {r['pve']:.0f} | {r['pve_ref']:.0f} | {r['apart']:.0f} | {r['e_fit']:.1f} | {r['e_truth']:.1f} "
+              f"| {r['e_ref']:.1f} | {cause} ({diffs.get(cause, 0):+.1f}) |")
+
+
+def _summary(name, rows, seconds):
+    pve = np.array([r["pve"] for r in rows])
+    fail = sum(r["e_truth"] < r["e_fit"] * (1 - 1e-3) or r.get("e_ref", np.inf) < r["e_fit"] * (1 - 1e-3) for r in rows)
+    costlier = sum(r.get("e_ref", r["e_truth"]) > r["e_fit"] * (1 + 1e-3) for r in rows)
+    other = sum(r.get("e_ref", r["e_truth"]) > r["e_fit"] * (1 + 1e-3) and r.get("apart", np.inf) > APART_MM for r in rows)
+    ref = np.array([r.get("pve_ref", np.nan) for r in rows])
+    return (f"| {name} | {pve.mean():.1f} | {np.median(pve):.1f} | {(pve > 150).sum()}/{len(rows)} | {fail}/{len(rows)} "
+            f"| {costlier}/{len(rows)} | {other}/{len(rows)} | {np.nanmean(ref):.1f} | {seconds / len(rows):.2f} |")
+
+
+def _terms(name, rows, terms, which):
+    """Per term: mean w*(which - fit), and among subjects where ``which`` costs more than the fit, how often the
+    term is the largest contributor and how often it alone decides."""
+    key_e = "e_ref" if which == "ref" else "e_truth"
+    print(f"\n{name}: per term, {'refined truth' if which == 'ref' else 'truth'} minus fit (weighted; "
+          f"costlier in {sum(r[key_e] > r['e_fit'] * (1 + 1e-3) for r in rows)}/{len(rows)})\n")
+    print("| term | mean | median | truth higher | largest cause | decides alone |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for t in terms:
+        d = np.array([r[which][t] - r["fit"][t] for r in rows])
+        largest = decides = 0
+        for r in rows:
+            D = r[key_e] - r["e_fit"]
+            if D <= abs(r["e_fit"]) * 1e-3:
+                continue
+            diffs = {k: r[which][k] - r["fit"][k] for k in terms}
+            largest += max(diffs, key=diffs.get) == t
+            decides += diffs[t] > D
+        print(f"| {t} | {d.mean():+.2f} | {np.median(d):+.2f} | {(d > 0).sum()}/{len(rows)} | {largest} | {decides} |")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=20)
+    ap.add_argument("--seed", type=int, default=8650)
+    ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--batch", type=int, default=10)
+    ap.add_argument("--variants", nargs="*", default=["default"], help=f"of {', '.join(_variants())}, or PATH.npz "
+                    "(a mixture prior at the default weights)")  # fmt: skip
+    ap.add_argument("--refine", type=int, default=100, help="L-BFGS steps of the final stage from the truth (0: none)")
+    ap.add_argument("--subjects", action="store_true", help="per-subject rows (the first variant)")
+    ap.add_argument("--terms", action="store_true", help="the per-term tables for every variant (default: the first)")
+    args = ap.parse_args()
+
+    from silfit.synth.generate import generate_hard_dataset
+
+    model = load_body_model()
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp) / "hard"
+        generate_hard_dataset(root, args.n, seed=args.seed, size=args.size, model=model, progress=False)
+        dirs = sorted(d for d in root.iterdir() if (d / "keypoints.json").is_file())
+        sets = [read_keypoints(d / "keypoints.json") for d in dirs]
+        cams = [load_camera(d / "camera.json") for d in dirs]
+        gts = [read_gt(d / "gt.npz") for d in dirs]
+    table = {}
+    known = _variants()
+    for v in args.variants:
+        kw, prior = known[v] if v in known else ({}, v)
+        t0 = time.process_time()
+        fitter = KeypointFitter(model, config=KeypointFitConfig(**kw), pose_prior=prior)
+        rows, terms = _fit_rows(fitter, sets, cams, gts, model, args.batch, args.refine)
+        table[v] = (rows, terms, time.process_time() - t0)
+        print(f"(done {v}: {time.process_time() - t0:.0f} CPU s)", flush=True)
+    print(f"\n# Energy terms at truth and fit, {len(sets)} hard subjects (seed {args.seed}), keypoint stage\n")
+    print(f"| variant | PA-PVE mean (mm) | median | > 150 mm | search failures | truth costlier | costlier, other basin "
+          f"(> {APART_MM:g} mm apart) | refined truth PA-PVE | CPU s / subject (fit + truth refine) |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for v, (rows, terms, sec) in table.items():
+        print(_summary(v, rows, sec))
+    for k, (v, (rows, terms, sec)) in enumerate(table.items()):
+        if k == 0 or args.terms:
+            _terms(v, rows, terms, "truth")
+            if args.refine:
+                _terms(v, rows, terms, "ref")
+            if args.refine and args.subjects and k == 0:
+                _subjects(v, rows)
+
+
+if __name__ == "__main__":
+    main()
