@@ -16,7 +16,8 @@ part) and *after* (the defaults: the robust, capped mask-not-covered side, the c
 the plausibility guard), *main* (the defaults before issue 23's third part: no leak or hole
 set aside as unknown, ``leak_distance=0, hole_fraction=0``), *tight* (the defaults before the detected-input change: the keypoint
 trust region at 3 % of the window, ``trust_fraction=0.03``); *noconcave* (the defaults before the concavity change: ``concave_radius=0``), *concaveall* (the
-concavities unknown in every mask, ``concave_trimmed_only=False``); ``--methods`` picks them, ``--set`` changes the after configuration
+concavities unknown in every mask, ``concave_trimmed_only=False``); *weakprior* (the defaults before the
+detected-input pose-prior change: ``pose_weight=0.002``); ``--methods`` picks them, ``--set`` changes the after configuration
 (tuning). The last column counts the subjects whose mask was trimmed as clothing and those
 whose fit the guard replaced by the keypoint fit. Printed per condition: PA-PVE and PVE
 (mm, against the whole true body), median reprojection error (px, visible keypoints), max |beta|,
@@ -133,8 +134,10 @@ TIGHT = dict(trust_fraction=0.03)
 NOCONCAVE = dict(concave_radius=0.0)
 #: the concavities unknown in every mask, not only in those trimmed as clothing
 CONCAVEALL = dict(concave_trimmed_only=False)
+#: the defaults before the detected-input change: the silhouette stage's pose prior at 0.002
+WEAKPRIOR = dict(pose_weight=0.002)
 METHODS = {"original": ORIGINAL, "before": BEFORE, "main": MAIN, "tight": TIGHT, "noconcave": NOCONCAVE,
-           "concaveall": CONCAVEALL, "after": {}}
+           "concaveall": CONCAVEALL, "weakprior": WEAKPRIOR, "after": {}}
 
 
 def _value(text: str):
