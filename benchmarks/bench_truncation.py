@@ -8,7 +8,9 @@ hair); ``leak``: a block as wide as 30 % of the person's height joined to the ma
 hips (a segmentation leak into an object) and three small holes (discs of 2.5 % of the height,
 deep inside the mask: segmentation gaps); ``detected``: keypoints and mask from
 :func:`silfit.detect.detect_people` on the rendered image instead of the renderer (the subjects
-the detector finds; their count is in the header). Each subject is fitted once by the keypoint stage,
+the detector finds; their count is in the header); not in the default list, ``detected_kp`` (the
+detector's keypoints with the true mask) and ``detected_mask`` (the true keypoints with the segmenter's
+mask) tell which detected input the stage suffers from. Each subject is fitted once by the keypoint stage,
 then by the silhouette stage per method: *original* (before issue 23: ``truncation_aware=False``,
 no keypoint trust region, no bound on |beta|, the plain two-sided energy), *before* (issue 23's
 first part, the plain energy, no clothing trim, no plausibility guard: HEAD before the second
@@ -117,6 +119,8 @@ def conditions(d: Path):
     found = detected(d)
     if found is not None:
         out["detected"] = (found[0], found[1], cam)
+        out["detected_kp"] = (found[0], mask, cam)  # which detected input costs: the keypoints with the true mask
+        out["detected_mask"] = (kp, found[1], cam)  # and the true keypoints with the segmenter's mask
     return out, gt
 
 
@@ -186,7 +190,8 @@ def main() -> None:
             continue
         sets, masks, cams = (list(x) for x in zip(*[c[cond] for c, _ in have]))
         gts = [g for _, g in have]
-        key = cond if cond in ("cut", "detected") else "full"
+        # the detected conditions hold the subjects the detector found only: a keypoint fit of their own
+        key = {"cut": "cut", "detected": "detected", "detected_kp": "detected", "detected_mask": "detected_mask"}.get(cond, "full")
         if key not in kp_cache:
             kp_cache[key] = fitter.fit(sets, cams, progress=False)
         kp = kp_cache[key]
