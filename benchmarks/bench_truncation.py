@@ -8,7 +8,9 @@ hair); ``leak``: a block as wide as 30 % of the person's height joined to the ma
 hips (a segmentation leak into an object) and three small holes (discs of 2.5 % of the height,
 deep inside the mask: segmentation gaps); ``detected``: keypoints and mask from
 :func:`silfit.detect.detect_people` on the rendered image instead of the renderer (the subjects
-the detector finds; their count is in the header). Each subject is fitted once by the keypoint stage,
+the detector finds; their count is in the header); not in the default list, ``detected_kp`` (the
+detector's keypoints with the true mask) and ``detected_mask`` (the true keypoints with the segmenter's
+mask) tell which detected input the stage suffers from. Each subject is fitted once by the keypoint stage,
 then by the silhouette stage per method: *original* (before issue 23: ``truncation_aware=False``,
 no keypoint trust region, no bound on |beta|, the plain two-sided energy), *before* (issue 23's
 first part, the plain energy, no clothing trim, no plausibility guard: HEAD before the second
@@ -16,7 +18,8 @@ part) and *after* (the defaults: the robust, capped mask-not-covered side, the c
 the plausibility guard), *main* (the defaults before issue 23's third part: no leak or hole
 set aside as unknown, ``leak_distance=0, hole_fraction=0``), *tight* (the defaults before the detected-input change: the keypoint
 trust region at 3 % of the window, ``trust_fraction=0.03``); *noconcave* (the defaults before the concavity change: ``concave_radius=0``), *concaveall* (the
-concavities unknown in every mask, ``concave_trimmed_only=False``); ``--methods`` picks them, ``--set`` changes the after configuration
+concavities unknown in every mask, ``concave_trimmed_only=False``); *weakprior* (the defaults before the
+detected-input pose-prior change: ``pose_weight=0.002``); ``--methods`` picks them, ``--set`` changes the after configuration
 (tuning). The last column counts the subjects whose mask was trimmed as clothing and those
 whose fit the guard replaced by the keypoint fit. Printed per condition: PA-PVE and PVE
 (mm, against the whole true body), median reprojection error (px, visible keypoints), max |beta|,
@@ -116,6 +119,8 @@ def conditions(d: Path):
     found = detected(d)
     if found is not None:
         out["detected"] = (found[0], found[1], cam)
+        out["detected_kp"] = (found[0], mask, cam)  # which detected input costs: the keypoints with the true mask
+        out["detected_mask"] = (kp, found[1], cam)  # and the true keypoints with the segmenter's mask
     return out, gt
 
 
@@ -133,8 +138,10 @@ TIGHT = dict(trust_fraction=0.03)
 NOCONCAVE = dict(concave_radius=0.0)
 #: the concavities unknown in every mask, not only in those trimmed as clothing
 CONCAVEALL = dict(concave_trimmed_only=False)
+#: the defaults before the detected-input change: the silhouette stage's pose prior at 0.002
+WEAKPRIOR = dict(pose_weight=0.002)
 METHODS = {"original": ORIGINAL, "before": BEFORE, "main": MAIN, "tight": TIGHT, "noconcave": NOCONCAVE,
-           "concaveall": CONCAVEALL, "after": {}}
+           "concaveall": CONCAVEALL, "weakprior": WEAKPRIOR, "after": {}}
 
 
 def _value(text: str):
@@ -183,7 +190,8 @@ def main() -> None:
             continue
         sets, masks, cams = (list(x) for x in zip(*[c[cond] for c, _ in have]))
         gts = [g for _, g in have]
-        key = cond if cond in ("cut", "detected") else "full"
+        # the detected conditions hold the subjects the detector found only: a keypoint fit of their own
+        key = {"cut": "cut", "detected": "detected", "detected_kp": "detected", "detected_mask": "detected_mask"}.get(cond, "full")
         if key not in kp_cache:
             kp_cache[key] = fitter.fit(sets, cams, progress=False)
         kp = kp_cache[key]
