@@ -110,7 +110,9 @@ def test_gradcheck_through_the_whole_model(open_model64):
         out = open_model64(betas=betas, body_pose=body_pose, global_orient=global_orient, transl=transl)
         return torch.cat([out.vertices[0, picks].flatten(), out.joints[0].flatten()])
 
-    assert torch.autograd.gradcheck(f, inputs, eps=1e-6, atol=1e-6)
+    # fast mode: finite differences along random input directions against the analytic Jacobian-vector
+    # products (one check per input tensor instead of one backward per output: 2 s instead of 25 s)
+    assert torch.autograd.gradcheck(f, inputs, eps=1e-6, atol=1e-6, fast_mode=True)
 
 
 def test_float32_and_float64_models_agree_for_any_batch(open_model, open_model64):

@@ -121,7 +121,7 @@ def _cli(*args):
 
 
 def test_sigkill_mid_run_then_restart_finishes_each_item_once(tmp_path):
-    names = [f"subject_{i:03d}" for i in range(8)]
+    names = [f"subject_{i:03d}" for i in range(5)]
     data, out = synthetic_copy(tmp_path / "data", names), tmp_path / "out"
     args = [str(data), "--out", str(out), "--no-silhouette", "--batch-size", "1", "--quiet", *FAST,
             "--keypoint-option", "pose_iters=25,25,25"]  # fmt: skip
@@ -154,7 +154,8 @@ def test_ray_run_matches_local_run(tmp_path):
     GEMMs, local and Ray runs agreed only with both at OMP_NUM_THREADS=1, and batch sizes 1 and 4
     changed all 12 fits, one by 106 mm PA-PVE.)"""
     pytest.importorskip("ray")
-    common = [str(SYNTHETIC), "--no-silhouette", "--quiet", *FAST]
+    names = [f"subject_{i:03d}" for i in range(8)]  # two batches of four: one per actor
+    common = [str(synthetic_copy(tmp_path / "data", names)), "--no-silhouette", "--quiet", *FAST]
     root = Path(__file__).resolve().parents[2]
     env = {**os.environ, "OMP_NUM_THREADS": "2", "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
     done = subprocess.run([sys.executable, "-m", "silfit", "fit-dataset", "--out", str(tmp_path / "local"), "--batch-size", "1",
@@ -163,7 +164,7 @@ def test_ray_run_matches_local_run(tmp_path):
     common += ["--batch-size", "4"]
     assert main(["fit-dataset", "--out", str(tmp_path / "ray"), "--ray", "--actors", "2", *common]) == 0
     local, ray = _by_item(tmp_path / "local"), _by_item(tmp_path / "ray")
-    assert sorted(local) == sorted(ray) == [f"subject_{i:03d}" for i in range(12)]
+    assert sorted(local) == sorted(ray) == names
     for key in local:
         a, b = ({k: v for k, v in r.items() if k not in ("timings_s", "keypoint_batch_size")} for r in (local[key], ray[key]))
         assert a.keys() == b.keys()
