@@ -32,7 +32,8 @@ level, 3,000 faces at 128 px and 5,000 at 256 px, a 10-step warm-up and half bod
 ``prev`` is the default before issue 24's runtime part (the same configuration and fits bit for bit as ``after``: the
 edge integral's vertex gradient by autograd over every vertex, the stage's reduced bodies rebuilt each call; methods
 older than ``after`` run so too, :data:`OLD_RUNTIME`); ``head-projective`` is ``head`` rendered with
-Mitsuba's ``prb_projective`` integrator; ``after-2t``, ``after-stratified``, ``*-s1``: see ``RENDERERS``.
+Mitsuba's ``prb_projective`` integrator; ``after-2t``, ``after-stratified``, ``*-s1``: see ``RENDERERS``; ``weakprior`` is the default with the stage's
+pose prior weight before issue 23's detected-inputs part (0.002, now 0.005).
 ``--video 60``: one 60-frame synthetic walk through the sequence's stage (``refine_sequence_silhouettes``: all
 frames one problem), seconds per frame (methods with their own renderer are skipped there).
 Methods run interleaved per subject; ``--base`` names the row the ratios are taken against.
@@ -75,7 +76,8 @@ METHODS = {"original": SilhouetteFitConfig.legacy, "before": SilhouetteFitConfig
            "main": lambda: SilhouetteFitConfig(**MAIN), "head-projective": lambda: SilhouetteFitConfig(**HEAD),
            "after-2t": SilhouetteFitConfig, "after-stratified": SilhouetteFitConfig,
            "head-s1": lambda: SilhouetteFitConfig(**HEAD, seed=1), "after-s1": lambda: SilhouetteFitConfig(seed=1),
-           "prev": SilhouetteFitConfig}  # fmt: skip
+           "prev": SilhouetteFitConfig,
+           "weakprior": lambda: SilhouetteFitConfig(pose_weight=0.002)}  # fmt: skip
 #: methods run as before issue 24's runtime part (the edge integral's vertex gradient by torch's autograd over every
 #: vertex, the stage's reduced bodies rebuilt each call): ``prev`` is the default so (the same fits bit for bit)
 OLD_RUNTIME = {"original", "before", "head", "third", "main", "head-projective", "head-s1", "prev"}
