@@ -54,6 +54,10 @@ def _variants():
         "final_pose20": ({"pose_weight": d[:-1] + (20.0,)}, None),
         "final_pose10": ({"pose_weight": d[:-1] + (10.0,)}, None),
         "limits": ({"pose_weight": (200.0, 40.0, 8.0, 4.0)}, "limits"),
+        "late2": ({"late_branch_rounds": 2}, None),
+        "yaw": ({"late_branch_turns": ("mirror",)}, None),
+        "turn30": ({"late_branch_turns": (30.0, -30.0)}, None),
+        "surv8": ({"late_branch_survivors": 8}, None),
     }
 
 
