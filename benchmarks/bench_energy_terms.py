@@ -94,11 +94,16 @@ def _fit_rows(fitter, sets, cams, gts, model, batch, refine, diagnose=False):
             e_ref, t_ref = fitter.energy_at(ref_p, s, c)
             mixed = {}
             if diagnose:  # the final stage from the fit with the truth's orientation, and from the truth's pose
-                for tag, take in (("orient", ("global_orient",)), ("pose", ("body_pose",))):
-                    init = {n: (truth_p[n] if n in take else fit_p[n]) for n in NAMES}
+                for tag, take in (("orient", ("global_orient",)), ("pose", ("body_pose",)), ("flips", None)):
+                    init = {n: (truth_p[n] if take and n in take else fit_p[n]) for n in NAMES}
+                    if take is None:  # the fit with the truth's depth branches: no truth pose
+                        init["body_pose"], flipped = truth_flips(fitter, fit_p, truth_p)
+                        for j, f_ in enumerate(flipped):
+                            mixed.setdefault("needed", {})[j] = f_
                     st, _ = refiner.fit_problems(problems, init=init)
                     p_ = {n: (st[n][:, 0] if st[n].dim() == 3 else st[n]).detach().numpy() for n in NAMES}
                     mixed[tag] = (fitter.energy_at(p_, s, c)[0], p_)
+                needed = mixed.pop("needed", {})
         for j in range(len(s)):
             r = {"pve": pve(fit_p, g[j], j), "e_fit": float(e_fit[j]), "e_truth": float(e_tr[j]),
                  "fit": {k: weights[k] * float(t_fit[k][j]) for k in weights},
@@ -108,8 +113,40 @@ def _fit_rows(fitter, sets, cams, gts, model, batch, refine, diagnose=False):
                          pve_ref=pve(ref_p, g[j], j), apart=pve(ref_p, _Verts(res.vertices[j]), j))  # fmt: skip
                 for tag, (e_, p_) in mixed.items():
                     r[f"e_{tag}"], r[f"pve_{tag}"] = float(e_[j]), pve(p_, g[j], j)
+                if mixed:
+                    r["needed"] = needed.get(j, [])
             rows.append(r)
     return rows, list(weights)
+
+
+def truth_flips(fitter, fit_p, truth_p, min_ratio=0.15):
+    """The fit's ``body_pose`` with every limb segment (upper first) flipped in depth
+    (:func:`~silfit.fitting.branches.flip_segment`) where it points to the other side of the image plane
+    than the truth's (the truth's depth ratio at least ``min_ratio``), and the flipped segments per subject."""
+    from silfit.fitting.branches import LIMB_SEGMENTS, flip_segment
+
+    body, names, parents = fitter.body, fitter.model.joint_names, fitter.model.parents
+    T = lambda a: torch.as_tensor(np.asarray(a), dtype=fitter.model.dtype)  # noqa: E731
+
+    def ratios(rows):
+        with torch.no_grad():
+            j = body(**rows).joints.double().numpy()
+        out = {}
+        for seg, p, d in LIMB_SEGMENTS:
+            a, b = j[:, names.index(p)], j[:, names.index(d)]
+            ray = 0.5 * (a + b)
+            out[seg] = ((b - a) * ray).sum(-1) / np.linalg.norm(b - a, axis=-1) / np.linalg.norm(ray, axis=-1)
+        return out
+
+    truth = ratios({n: T(v) for n, v in truth_p.items()})
+    rows = {n: T(v).clone() for n, v in fit_p.items()}
+    flipped = [[] for _ in range(rows["body_pose"].shape[0])]
+    for seg, _, _ in LIMB_SEGMENTS:
+        now = ratios(rows)[seg]
+        for k in np.nonzero((np.sign(now) != np.sign(truth[seg])) & (np.abs(truth[seg]) >= min_ratio))[0].tolist():
+            rows["body_pose"][k] = flip_segment(body, {n: v[k: k + 1] for n, v in rows.items()}, seg, names, parents)[0]
+            flipped[k].append(seg)
+    return rows["body_pose"].numpy(), flipped
 
 
 class _Verts:  # PA-PVE between two fits: the fit's vertices as the reference
@@ -121,14 +158,16 @@ def _subjects(name, rows):
     print(f"\n{name}: per subject (energies of the final stage; 'apart': PA-PVE between the fit and the refined truth)\n")
     diag = "e_orient" in rows[0]
     print("| subject | fit PA-PVE | refined truth PA-PVE | apart (mm) | fit energy | truth | refined truth | largest cause |"
-          + (" fit + truth's orient: energy, PA-PVE | fit + truth's pose: energy, PA-PVE |" if diag else ""))
-    print("|---:|---:|---:|---:|---:|---:|---:|---|" + ("---:|---:|" if diag else ""))
+          + (" fit + truth's orient: energy, PA-PVE | fit + truth's pose: energy, PA-PVE | fit + truth's flips: energy, "
+             "PA-PVE | flips needed |" if diag else ""))
+    print("|---:|---:|---:|---:|---:|---:|---:|---|" + ("---:|---:|---:|---|" if diag else ""))
     for i, r in enumerate(rows):
         diffs = {k: r["ref"][k] - r["fit"][k] for k in r["fit"]}
         cause = max(diffs, key=diffs.get) if r["e_ref"] > r["e_fit"] * (1 + 1e-3) else "-"
         print(f"| {i} | {r['pve']:.0f} | {r['pve_ref']:.0f} | {r['apart']:.0f} | {r['e_fit']:.1f} | {r['e_truth']:.1f} "
               f"| {r['e_ref']:.1f} | {cause} ({diffs.get(cause, 0):+.1f}) |"
-              + (f" {r['e_orient']:.1f}, {r['pve_orient']:.0f} | {r['e_pose']:.1f}, {r['pve_pose']:.0f} |" if diag else ""))
+              + (f" {r['e_orient']:.1f}, {r['pve_orient']:.0f} | {r['e_pose']:.1f}, {r['pve_pose']:.0f} | {r['e_flips']:.1f}, "
+                 f"{r['pve_flips']:.0f} | {'+'.join(r['needed']) or '-'} |" if diag else ""))
 
 
 def _summary(name, rows, seconds):
@@ -173,7 +212,8 @@ def main() -> None:
     ap.add_argument("--refine", type=int, default=100, help="L-BFGS steps of the final stage from the truth (0: none)")
     ap.add_argument("--subjects", action="store_true", help="per-subject rows (the first variant)")
     ap.add_argument("--diagnose", action="store_true", help="with --subjects: also the final stage (--refine steps) "
-                    "from the fit with the truth's global orientation, and from the fit with the truth's body pose")
+                    "from the fit with the truth's global orientation, with the truth's body pose, and with the truth's "
+                    "depth branches (the fit's limb segments flipped where the truth's point the other way)")
     ap.add_argument("--only", help="comma-separated indices of the generated subjects to fit (e.g. the failures)")
     ap.add_argument("--terms", action="store_true", help="the per-term tables for every variant (default: the first)")
     args = ap.parse_args()
