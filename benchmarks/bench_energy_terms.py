@@ -61,6 +61,8 @@ def _variants():
         "long60": ({"late_branch_iters": 60, "late_branch_survivors": 6}, None),
         "refine3": ({"branch_refine": 3}, None),
         "late2s6": ({"late_branch_rounds": 2, "late_branch_survivors": 6}, None),
+        "ratio15": ({"branch_min_depth_ratio": 0.15}, None),
+        "ratio15s6": ({"branch_min_depth_ratio": 0.15, "late_branch_survivors": 6}, None),
     }
 
 
