@@ -54,10 +54,19 @@ def _variants():
         "final_pose20": ({"pose_weight": d[:-1] + (20.0,)}, None),
         "final_pose10": ({"pose_weight": d[:-1] + (10.0,)}, None),
         "limits": ({"pose_weight": (200.0, 40.0, 8.0, 4.0)}, "limits"),
+        "late2": ({"late_branch_rounds": 2}, None),
+        "yaw": ({"late_branch_turns": ("mirror",)}, None),
+        "turn30": ({"late_branch_turns": (30.0, -30.0)}, None),
+        "surv8": ({"late_branch_survivors": 8}, None),
+        "long60": ({"late_branch_iters": 60, "late_branch_survivors": 6}, None),
+        "refine3": ({"branch_refine": 3}, None),
+        "late2s6": ({"late_branch_rounds": 2, "late_branch_survivors": 6}, None),
+        "ratio15": ({"branch_min_depth_ratio": 0.15}, None),
+        "ratio15s6": ({"branch_min_depth_ratio": 0.15, "late_branch_survivors": 6}, None),
     }
 
 
-def _fit_rows(fitter, sets, cams, gts, model, batch, refine):
+def _fit_rows(fitter, sets, cams, gts, model, batch, refine, diagnose=False):
     T = lambda a: torch.as_tensor(np.asarray(a), dtype=model.dtype)  # noqa: E731
 
     def pve(params, gt, j):
@@ -85,6 +94,18 @@ def _fit_rows(fitter, sets, cams, gts, model, batch, refine):
             state, _ = refiner.fit_problems(problems, init={n: truth_p[n] for n in NAMES})
             ref_p = {n: (state[n][:, 0] if state[n].dim() == 3 else state[n]).detach().numpy() for n in NAMES}
             e_ref, t_ref = fitter.energy_at(ref_p, s, c)
+            mixed = {}
+            if diagnose:  # the final stage from the fit with the truth's orientation, and from the truth's pose
+                for tag, take in (("orient", ("global_orient",)), ("pose", ("body_pose",)), ("flips", None)):
+                    init = {n: (truth_p[n] if take and n in take else fit_p[n]) for n in NAMES}
+                    if take is None:  # the fit with the truth's depth branches: no truth pose
+                        init["body_pose"], flipped = truth_flips(fitter, fit_p, truth_p)
+                        for j, f_ in enumerate(flipped):
+                            mixed.setdefault("needed", {})[j] = f_
+                    st, _ = refiner.fit_problems(problems, init=init)
+                    p_ = {n: (st[n][:, 0] if st[n].dim() == 3 else st[n]).detach().numpy() for n in NAMES}
+                    mixed[tag] = (fitter.energy_at(p_, s, c)[0], p_)
+                needed = mixed.pop("needed", {})
         for j in range(len(s)):
             r = {"pve": pve(fit_p, g[j], j), "e_fit": float(e_fit[j]), "e_truth": float(e_tr[j]),
                  "fit": {k: weights[k] * float(t_fit[k][j]) for k in weights},
@@ -92,8 +113,42 @@ def _fit_rows(fitter, sets, cams, gts, model, batch, refine):
             if refiner is not None:
                 r.update(e_ref=float(e_ref[j]), ref={k: weights[k] * float(t_ref[k][j]) for k in weights},
                          pve_ref=pve(ref_p, g[j], j), apart=pve(ref_p, _Verts(res.vertices[j]), j))  # fmt: skip
+                for tag, (e_, p_) in mixed.items():
+                    r[f"e_{tag}"], r[f"pve_{tag}"] = float(e_[j]), pve(p_, g[j], j)
+                if mixed:
+                    r["needed"] = needed.get(j, [])
             rows.append(r)
     return rows, list(weights)
+
+
+def truth_flips(fitter, fit_p, truth_p, min_ratio=0.15):
+    """The fit's ``body_pose`` with every limb segment (upper first) flipped in depth
+    (:func:`~silfit.fitting.branches.flip_segment`) where it points to the other side of the image plane
+    than the truth's (the truth's depth ratio at least ``min_ratio``), and the flipped segments per subject."""
+    from silfit.fitting.branches import LIMB_SEGMENTS, flip_segment
+
+    body, names, parents = fitter.body, fitter.model.joint_names, fitter.model.parents
+    T = lambda a: torch.as_tensor(np.asarray(a), dtype=fitter.model.dtype)  # noqa: E731
+
+    def ratios(rows):
+        with torch.no_grad():
+            j = body(**rows).joints.double().numpy()
+        out = {}
+        for seg, p, d in LIMB_SEGMENTS:
+            a, b = j[:, names.index(p)], j[:, names.index(d)]
+            ray = 0.5 * (a + b)
+            out[seg] = ((b - a) * ray).sum(-1) / np.linalg.norm(b - a, axis=-1) / np.linalg.norm(ray, axis=-1)
+        return out
+
+    truth = ratios({n: T(v) for n, v in truth_p.items()})
+    rows = {n: T(v).clone() for n, v in fit_p.items()}
+    flipped = [[] for _ in range(rows["body_pose"].shape[0])]
+    for seg, _, _ in LIMB_SEGMENTS:
+        now = ratios(rows)[seg]
+        for k in np.nonzero((np.sign(now) != np.sign(truth[seg])) & (np.abs(truth[seg]) >= min_ratio))[0].tolist():
+            rows["body_pose"][k] = flip_segment(body, {n: v[k: k + 1] for n, v in rows.items()}, seg, names, parents)[0]
+            flipped[k].append(seg)
+    return rows["body_pose"].numpy(), flipped
 
 
 class _Verts:  # PA-PVE between two fits: the fit's vertices as the reference
@@ -103,13 +158,18 @@ class _Verts:  # PA-PVE between two fits: the fit's vertices as the reference
 
 def _subjects(name, rows):
     print(f"\n{name}: per subject (energies of the final stage; 'apart': PA-PVE between the fit and the refined truth)\n")
-    print("| subject | fit PA-PVE | refined truth PA-PVE | apart (mm) | fit energy | truth | refined truth | largest cause |")
-    print("|---:|---:|---:|---:|---:|---:|---:|---|")
+    diag = "e_orient" in rows[0]
+    print("| subject | fit PA-PVE | refined truth PA-PVE | apart (mm) | fit energy | truth | refined truth | largest cause |"
+          + (" fit + truth's orient: energy, PA-PVE | fit + truth's pose: energy, PA-PVE | fit + truth's flips: energy, "
+             "PA-PVE | flips needed |" if diag else ""))
+    print("|---:|---:|---:|---:|---:|---:|---:|---|" + ("---:|---:|---:|---|" if diag else ""))
     for i, r in enumerate(rows):
         diffs = {k: r["ref"][k] - r["fit"][k] for k in r["fit"]}
         cause = max(diffs, key=diffs.get) if r["e_ref"] > r["e_fit"] * (1 + 1e-3) else "-"
         print(f"| {i} | {r['pve']:.0f} | {r['pve_ref']:.0f} | {r['apart']:.0f} | {r['e_fit']:.1f} | {r['e_truth']:.1f} "
-              f"| {r['e_ref']:.1f} | {cause} ({diffs.get(cause, 0):+.1f}) |")
+              f"| {r['e_ref']:.1f} | {cause} ({diffs.get(cause, 0):+.1f}) |"
+              + (f" {r['e_orient']:.1f}, {r['pve_orient']:.0f} | {r['e_pose']:.1f}, {r['pve_pose']:.0f} | {r['e_flips']:.1f}, "
+                 f"{r['pve_flips']:.0f} | {'+'.join(r['needed']) or '-'} |" if diag else ""))
 
 
 def _summary(name, rows, seconds):
@@ -153,6 +213,10 @@ def main() -> None:
                     "(a mixture prior at the default weights)")  # fmt: skip
     ap.add_argument("--refine", type=int, default=100, help="L-BFGS steps of the final stage from the truth (0: none)")
     ap.add_argument("--subjects", action="store_true", help="per-subject rows (the first variant)")
+    ap.add_argument("--diagnose", action="store_true", help="with --subjects: also the final stage (--refine steps) "
+                    "from the fit with the truth's global orientation, with the truth's body pose, and with the truth's "
+                    "depth branches (the fit's limb segments flipped where the truth's point the other way)")
+    ap.add_argument("--only", help="comma-separated indices of the generated subjects to fit (e.g. the failures)")
     ap.add_argument("--terms", action="store_true", help="the per-term tables for every variant (default: the first)")
     args = ap.parse_args()
 
@@ -166,13 +230,16 @@ def main() -> None:
         sets = [read_keypoints(d / "keypoints.json") for d in dirs]
         cams = [load_camera(d / "camera.json") for d in dirs]
         gts = [read_gt(d / "gt.npz") for d in dirs]
+    if args.only:  # a subset of the generated subjects (their indices among the n)
+        keep = [int(i) for i in args.only.split(",")]
+        sets, cams, gts = [sets[i] for i in keep], [cams[i] for i in keep], [gts[i] for i in keep]
     table = {}
     known = _variants()
     for v in args.variants:
         kw, prior = known[v] if v in known else ({}, v)
         t0 = time.process_time()
         fitter = KeypointFitter(model, config=KeypointFitConfig(**kw), pose_prior=prior)
-        rows, terms = _fit_rows(fitter, sets, cams, gts, model, args.batch, args.refine)
+        rows, terms = _fit_rows(fitter, sets, cams, gts, model, args.batch, args.refine, args.diagnose)
         table[v] = (rows, terms, time.process_time() - t0)
         print(f"(done {v}: {time.process_time() - t0:.0f} CPU s)", flush=True)
     print(f"\n# Energy terms at truth and fit, {len(sets)} hard subjects (seed {args.seed}), keypoint stage\n")

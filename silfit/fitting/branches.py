@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-__all__ = ["JOINT_HYPOTHESES", "LIMB_SEGMENTS", "LIMBS", "TORSO_SEGMENT", "align_segments", "flip_hip", "joint_hypotheses", "flip_segment", "limb_hypotheses", "mirror_rotation", "rotation_between"]
+__all__ = ["JOINT_HYPOTHESES", "LIMB_SEGMENTS", "LIMBS", "TORSO_SEGMENT", "align_segments", "flip_hip", "joint_hypotheses", "flip_segment", "limb_hypotheses", "mirror_rotation", "rotation_between", "turn_hypotheses", "turn_root"]
 
 #: (segment, rotated joint, distal joint), SMPL joint names
 LIMB_SEGMENTS: Tuple[Tuple[str, str, str], ...] = (
@@ -228,4 +228,43 @@ def limb_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, m
     if joint:
         out += joint_hypotheses(body, rows, joint_names, parents, ratios, min_depth_ratio)
     assert all(0 <= r < R for r, _, _ in out)
+    return out
+
+
+def turn_root(body, rows: Dict[str, torch.Tensor], joint_names, kind) -> Dict[str, torch.Tensor]:
+    """``{global_orient, body_pose}`` with the root turned about the torso's axis in the image
+    plane (through the pelvis: the body turns as a whole, the legs with it). ``kind``: ``"mirror"``
+    mirrors the torso's left-right line (hips and shoulders) in depth, a turn to the other side of
+    the image plane that projects (nearly) the same; a number turns by that many degrees."""
+    joints, G = _pose_state(body, rows)
+    J = lambda n: joints[:, joint_names.index(n)]  # noqa: E731
+    p = joints[:, 0]
+    n = p / np.linalg.norm(p, axis=-1, keepdims=True)
+    if kind == "mirror":
+        v = (J("right_hip") - J("left_hip")) + (J("right_shoulder") - J("left_shoulder"))
+        fix = mirror_rotation(v, n)
+    else:
+        up = J("neck") - p
+        up = up - (up * n).sum(-1, keepdims=True) * n
+        up = up / np.maximum(np.linalg.norm(up, axis=-1, keepdims=True), 1e-12)
+        fix = Rotation.from_rotvec(np.deg2rad(float(kind)) * up).as_matrix()
+    orient = rows["global_orient"].detach().clone()
+    orient[:] = torch.as_tensor(Rotation.from_matrix(fix @ G[:, 0]).as_rotvec(), dtype=orient.dtype)
+    return {"global_orient": orient, "body_pose": rows["body_pose"].detach().clone()}
+
+
+def turn_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, turns: Sequence, min_depth_ratio: float = 0.3,
+                    whole_limbs: bool = True) -> List[Tuple[int, str, Dict[str, torch.Tensor]]]:  # fmt: skip
+    """Hypotheses ``(row, label, {global_orient, body_pose})``: the root turned (:func:`turn_root`,
+    one per item of ``turns``), alone and with each limb flip of :func:`limb_hypotheses` proposed
+    from the turned pose (a wrong orientation and a wrong limb, which one flip at a time cannot fix)."""
+    out = []
+    for kind in turns:
+        t = turn_root(body, rows, joint_names, kind)
+        sub = {**rows, **t}
+        tag = "yaw" if kind == "mirror" else f"turn{float(kind):+g}"
+        for r in range(rows["body_pose"].shape[0]):
+            out.append((r, tag, {"body_pose": t["body_pose"][r], "global_orient": t["global_orient"][r]}))
+        for r, label, pose in limb_hypotheses(body, sub, joint_names, parents, min_depth_ratio, whole_limbs):
+            out.append((r, f"{tag}+{label}", {"body_pose": pose, "global_orient": t["global_orient"][r]}))
     return out

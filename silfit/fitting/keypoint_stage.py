@@ -63,7 +63,7 @@ from ..priors.smplx_priors import body_prior_for
 from .body import KeypointBody
 from .hands_face import choose_hand_starts, part_gates, wholebody_terms
 from .occlusion import OcclusionTerm
-from .branches import limb_hypotheses
+from .branches import limb_hypotheses, turn_hypotheses
 from .problem import ParameterLayout, Problem, stack_views
 from .result import PARAM_NAMES, KeypointFitResult
 from .aliases import Alias, renamed_fields
@@ -231,6 +231,14 @@ class KeypointFitConfig:
     #: 80.3 mm at about 2.3x the CPU time; fresh seed 8500, 60 subjects: failures 16 -> 8, above
     #: 150 mm 19 -> 11, mean 117.2 -> 99.7 mm at 2.0x (README, "Depth ambiguity: search failures")
     late_branch_iters: int = 30
+    #: late searches in a row (each from the one before's pick)
+    late_branch_rounds: int = 1
+    #: root-turn hypotheses in the late search(es) (:func:`~silfit.fitting.branches.turn_hypotheses`:
+    #: ``"mirror"`` the torso's yaw mirrored in depth, a number a turn in degrees), alone and with each
+    #: limb flip; empty: none
+    late_branch_turns: tuple = ()
+    #: survivors of the late search's screen (0: ``branch_survivors``)
+    late_branch_survivors: int = 0
     #: occlusion cue (:mod:`silfit.fitting.occlusion`, the ``occlusion`` term) in choosing among the
     #: hypotheses refined to the end (``hypotheses`` > 1; with one, nothing to choose): a hypothesis'
     #: final energy counts ``1 + occlusion_weight * n`` times, ``n`` the keypoints whose depth order
@@ -359,8 +367,14 @@ class KeypointFitConfig:
             w["points"] = float(self.final_points_weight)
         part_w, part_free = self.part_weights(*final_parts)
         if self.branch_search and self.late_branch_iters:
-            out.append(Stage("branches_late", ("betas",) + pose_free + part_free, {**w, **part_w}, int(self.late_branch_iters),
-                             options=self.branch_options()))  # fmt: skip
+            opts = self.branch_options()
+            if self.late_branch_turns:
+                opts["branches"]["turns"] = list(self.late_branch_turns)
+            if self.late_branch_survivors:
+                opts["branches"]["survivors"] = int(self.late_branch_survivors)
+            for r in range(max(1, int(self.late_branch_rounds))):
+                out.append(Stage("branches_late" if r == 0 else f"branches_late_{r + 1}", ("betas",) + pose_free + part_free,
+                                 {**w, **part_w}, int(self.late_branch_iters), options=opts))  # fmt: skip
         if self.final_iters:
             out.append(Stage("final", ("betas",) + pose_free + part_free, {**w, **part_w}, self.final_iters))
         return tuple(out)
@@ -788,6 +802,9 @@ class KeypointFitter:
                 hyps = limb_hypotheses(self.body, layout.rows(state), self.model.joint_names, self.model.parents,
                                        opts.get("min_depth_ratio", 0.3), opts.get("whole_limbs", True),
                                        opts.get("joint", False))  # fmt: skip
+                if opts.get("turns"):
+                    hyps += turn_hypotheses(self.body, layout.rows(state), self.model.joint_names, self.model.parents,
+                                            opts["turns"], opts.get("min_depth_ratio", 0.3), opts.get("whole_limbs", True))
                 labels = ["keep"] * B + [h[1] for h in hyps]
                 take(torch.cat([torch.arange(B), torch.as_tensor([h[0] for h in hyps], dtype=torch.long)]))
                 for i, h in enumerate(hyps):  # a pose, or {parameter: value} (joint hypotheses)

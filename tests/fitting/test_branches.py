@@ -79,3 +79,30 @@ def test_joint_hypotheses_flip_pairs_and_the_hip_keeps_the_legs(body_model):
     neck = names.index("neck")
     assert np.abs(jh[ankles] - j0[ankles]).max() < 0.05  # the legs stay (the hips only move with the pelvis' turn)
     assert np.sign(jh[neck, 2] - jh[0, 2]) != np.sign(j0[neck, 2] - j0[0, 2])  # the torso leans the other way
+
+
+def test_root_turns_mirror_the_torso_yaw_and_keep_the_pelvis(body_model):
+    from silfit.fitting.branches import turn_hypotheses, turn_root
+
+    body = KeypointBody(body_model, "body25")
+    names, parents = body_model.joint_names, body_model.parents
+    from scipy.spatial.transform import Rotation
+
+    yaw = 0.5  # turned 0.5 rad about the vertical (the camera frame is upside down: pi about x first)
+    orient = torch.tensor((Rotation.from_rotvec([0, yaw, 0]) * Rotation.from_rotvec([np.pi, 0, 0])).as_rotvec())
+    rows = {"betas": torch.zeros(1, 10, dtype=body_model.dtype), "body_pose": torch.zeros(1, 69, dtype=body_model.dtype),
+            "global_orient": orient[None].to(body_model.dtype), "transl": torch.tensor([[0.0, 0.2, 3.0]], dtype=body_model.dtype)}  # fmt: skip
+    with torch.no_grad():
+        j0 = body(**rows).joints[0].numpy()
+        jm = body(**dict(rows, **turn_root(body, rows, names, "mirror"))).joints[0].numpy()
+        jt = body(**dict(rows, **turn_root(body, rows, names, 30.0))).joints[0].numpy()
+    l, r = names.index("left_hip"), names.index("right_hip")
+    assert np.abs(jm[0] - j0[0]).max() < 1e-4 and np.abs(jt[0] - j0[0]).max() < 1e-4  # turned about the pelvis
+    assert np.sign(jm[r, 2] - jm[l, 2]) != np.sign(j0[r, 2] - j0[l, 2])  # the hips' line now points the other way in depth
+    proj = lambda j, k: j[k, :2] / j[k, 2]  # noqa: E731
+    assert abs(np.linalg.norm(proj(jm, r) - proj(jm, l)) - np.linalg.norm(proj(j0, r) - proj(j0, l))) < 0.01  # same width
+    v0, vt = j0[r] - j0[l], jt[r] - jt[l]
+    assert abs(np.degrees(np.arccos(v0 @ vt / np.linalg.norm(v0) / np.linalg.norm(vt))) - 30.0) < 1.0
+    hyps = turn_hypotheses(body, rows, names, parents, ["mirror", 30.0])
+    labels = [h[1] for h in hyps]
+    assert "yaw" in labels and "turn+30" in labels and all(set(h[2]) == {"body_pose", "global_orient"} for h in hyps)
