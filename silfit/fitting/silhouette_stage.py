@@ -535,7 +535,7 @@ def cached_contour_body(model, layout: str, what: tuple, vertex_index: Callable)
     (``what``: their key, e.g. ``("proxy", faces)``), built once per model and kept while it lives."""
     key = (layout, what, str(model.dtype))
     arrays = _mixed_arrays(model)
-    versions = tuple(a._version for a in arrays)
+    versions = tuple(None if a.is_inference() else a._version for a in arrays)  # inference tensors: no counter
     with _CONTOUR_LOCK:
         bodies = _CONTOUR_BODIES.setdefault(model, {})
         kept = bodies.get(key)
