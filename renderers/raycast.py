@@ -23,7 +23,8 @@ Gradient (visibility-edge term)
     segment (``1e-4`` px from it, on the side away from its faces) misses the mesh, i.e.
     where the segment is the visible outline.  ``g`` is the loss's gradient at the pixel
     holding the point and ``v . n`` the outward normal speed of the segment's endpoints,
-    interpolated; torch's autograd takes it back to the vertices through the projection.
+    interpolated; the projection's Jacobian at the segments' endpoints takes it back to the
+    vertices (``RaycastScene.analytic_grad = False``: torch's autograd through the projection).
     Each point weighs ``L / N`` (the same estimator for any ``N``: the density changes the
     noise, not the expectation).
 

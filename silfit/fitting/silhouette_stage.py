@@ -518,21 +518,32 @@ class ContourBody(torch.nn.Module):
         return BodyState(state.keypoints, state.joints, state.transforms, verts)
 
 
-#: model -> {(layout, what, model's dtype and template storage): ContourBody}: the reduced bodies of the stage
-#: (the contour level's points, each rendered level's proxy) kept from call to call (building one poses
-#: the landmarks' reduction and mixes the model's arrays: about 0.1 s per call before issue 24's speed part)
+#: model -> {(layout, what, model's dtype): (the model's arrays it mixes, their versions, ContourBody)}: the reduced
+#: bodies of the stage (the contour level's points, each rendered level's proxy) kept from call to call (building
+#: one poses the landmarks' reduction and mixes the model's arrays: about 0.1 s per call before issue 24's speed
+#: part); rebuilt when one of those arrays is another tensor or was written in place (its ``_version``)
 _CONTOUR_BODIES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _mixed_arrays(model) -> tuple:
+    names = ("v_template", "shapedirs", "posedirs", "lbs_weights", "J_regressor", "landmark_regressor")
+    return tuple(a for a in (getattr(model, n, None) for n in names) if isinstance(a, torch.Tensor))
 
 
 def cached_contour_body(model, layout: str, what: tuple, vertex_index: Callable) -> "ContourBody":
     """The :class:`ContourBody` of ``model`` and ``layout`` at the points ``vertex_index()`` names
     (``what``: their key, e.g. ``("proxy", faces)``), built once per model and kept while it lives."""
-    key = (layout, what, str(model.dtype), model.v_template.data_ptr(), tuple(model.v_template.shape))
+    key = (layout, what, str(model.dtype))
+    arrays = _mixed_arrays(model)
+    versions = tuple(None if a.is_inference() else a._version for a in arrays)  # inference tensors: no counter
     with _CONTOUR_LOCK:
         bodies = _CONTOUR_BODIES.setdefault(model, {})
-        body = bodies.get(key)
-        if body is None:
-            body = bodies[key] = ContourBody(model, layout, vertex_index())
+        kept = bodies.get(key)
+        if kept is not None and len(kept[0]) == len(arrays) and all(a is b for a, b in zip(kept[0], arrays)) \
+                and kept[1] == versions:  # fmt: skip
+            return kept[2]
+        body = ContourBody(model, layout, vertex_index())
+        bodies[key] = (arrays, versions, body)
         return body
 
 

@@ -282,7 +282,8 @@ def test_contour_body_poses_the_same_vertices_as_the_mesh(open_model):
 
 
 def test_contour_bodies_kept_per_model(open_model):
-    """The stage's reduced bodies are built once per model, layout and point set (issue 24's runtime part)."""
+    """The stage's reduced bodies are built once per model, layout and point set (issue 24's runtime part),
+    again when an array of the model they mix is written in place."""
     from silfit.fitting.silhouette_stage import cached_contour_body
 
     made = []
@@ -291,6 +292,9 @@ def test_contour_bodies_kept_per_model(open_model):
     assert cached_contour_body(open_model, "body25", ("vertices", 300), make) is a and len(made) == 1
     assert cached_contour_body(open_model, "body25", ("vertices", 301), make) is not a and len(made) == 2
     assert isinstance(a, ContourBody)
+    with torch.no_grad():
+        open_model.v_template.add_(0.0)  # written in place (values unchanged): the kept body is rebuilt
+    assert cached_contour_body(open_model, "body25", ("vertices", 300), make) is not a and len(made) == 3
 
 
 def test_proxy_body_poses_the_render_proxy(open_model):
