@@ -141,6 +141,21 @@ def _bad_fits(rows, title):
     print(f"\nAll subjects: truth energy above the fit's in {higher}/{len(rows)}\n")
 
 
+def hard_set(n: int, seed: int, size: int, model):
+    """``(keypoint sets, cameras, truths)`` of ``n`` generated hard subjects (``silfit synth --poses hard``,
+    written to a temporary folder and read back with silfit's readers); also :mod:`bench_energy_terms`."""
+    from silfit.synth.generate import generate_hard_dataset
+
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp) / "hard"
+        generate_hard_dataset(root, n, seed=seed, size=size, model=model, progress=False)
+        dirs = sorted(d for d in root.iterdir() if (d / "keypoints.json").is_file())
+        sets = [read_keypoints(d / "keypoints.json") for d in dirs]
+        cams = [load_camera(d / "camera.json") for d in dirs]
+        gts = [read_gt(d / "gt.npz") for d in dirs]
+    return sets, cams, gts
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=30)
@@ -151,16 +166,8 @@ def main() -> None:
     ap.add_argument("--sweep", action="store_true", help="also the after rule at other margins and shifts (tuning)")
     args = ap.parse_args()
 
-    from silfit.synth.generate import generate_hard_dataset
-
     model = load_body_model()
-    with tempfile.TemporaryDirectory() as tmp:
-        root = Path(tmp) / "hard"
-        generate_hard_dataset(root, args.n, seed=args.seed, size=args.size, model=model, progress=False)
-        dirs = sorted(d for d in root.iterdir() if (d / "keypoints.json").is_file())
-        sets = [read_keypoints(d / "keypoints.json") for d in dirs]
-        cams = [load_camera(d / "camera.json") for d in dirs]
-        gts = [read_gt(d / "gt.npz") for d in dirs]
+    sets, cams, gts = hard_set(args.n, args.seed, args.size, model)
     print(f"# Depth warning on {len(sets)} hard subjects (seed {args.seed}), keypoint stage\n")
     runs = [("default fit", KeypointFitConfig())]
     if args.k > 1:

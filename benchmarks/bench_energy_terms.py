@@ -24,22 +24,18 @@ its own basin's minimum; the refined truth's is. A refined truth costlier than t
 from __future__ import annotations
 
 import argparse
-import tempfile
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import torch
 
+from bench_ambiguity import hard_set  # noqa: E402 - benchmarks/ is the script's folder
 from silfit import load_body_model
-from silfit.camera import load_camera
-from silfit.dataset import read_gt
 from silfit.eval.metrics import pa_pve
 from silfit.fitting import KeypointFitter
 from silfit.fitting.keypoint_stage import KeypointFitConfig, prepare_keypoints
 from silfit.fitting.problem import Problem
-from silfit.keypoints import read_keypoints
 
 NAMES = ("betas", "body_pose", "global_orient", "transl")
 #: a refined truth this far (PA-PVE between the two meshes) from the fit is in another basin
@@ -220,16 +216,8 @@ def main() -> None:
     ap.add_argument("--terms", action="store_true", help="the per-term tables for every variant (default: the first)")
     args = ap.parse_args()
 
-    from silfit.synth.generate import generate_hard_dataset
-
     model = load_body_model()
-    with tempfile.TemporaryDirectory() as tmp:
-        root = Path(tmp) / "hard"
-        generate_hard_dataset(root, args.n, seed=args.seed, size=args.size, model=model, progress=False)
-        dirs = sorted(d for d in root.iterdir() if (d / "keypoints.json").is_file())
-        sets = [read_keypoints(d / "keypoints.json") for d in dirs]
-        cams = [load_camera(d / "camera.json") for d in dirs]
-        gts = [read_gt(d / "gt.npz") for d in dirs]
+    sets, cams, gts = hard_set(args.n, args.seed, args.size, model)
     if args.only:  # a subset of the generated subjects (their indices among the n)
         keep = [int(i) for i in args.only.split(",")]
         sets, cams, gts = [sets[i] for i in keep], [cams[i] for i in keep], [gts[i] for i in keep]
