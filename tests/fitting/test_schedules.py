@@ -62,3 +62,18 @@ def test_the_dataset_runners_options_take_the_old_name_too():
         warnings.simplefilter("ignore", DeprecationWarning)
         assert keypoint_config({"pose_prior_weights": "1,2,3"}).pose_weight == (1.0, 2.0, 3.0, 40.0)
     assert keypoint_config({"pose_weight": "1,2,3,4"}).pose_weight == (1.0, 2.0, 3.0, 4.0)
+
+
+def test_the_late_search_options_reach_its_stages():
+    """``late_branch_rounds``, ``late_branch_turns`` and ``late_branch_survivors`` (off by default, README
+    "Depth ambiguity: search failures") shape the late search's stages and their options."""
+    names = [s.name for s in KeypointFitConfig().stages()]
+    assert names.count("branches_late") == 1 and not any(n.startswith("branches_late_") for n in names)
+    late = [s for s in KeypointFitConfig(late_branch_rounds=2, late_branch_turns=("mirror", 30.0),
+                                         late_branch_survivors=6).stages() if s.name.startswith("branches_late")]  # fmt: skip
+    assert [s.name for s in late] == ["branches_late", "branches_late_2"]
+    for s in late:
+        assert s.options["branches"]["turns"] == ["mirror", 30.0] and s.options["branches"]["survivors"] == 6
+    default = next(s for s in KeypointFitConfig().stages() if s.name == "branches_late")
+    assert "turns" not in default.options["branches"]
+    assert default.options["branches"]["survivors"] == KeypointFitConfig().branch_survivors
