@@ -19,8 +19,9 @@ Stages (each an independent per-sample L-BFGS, see :mod:`silfit.fitting.optim`):
    (:mod:`silfit.fitting.branches`, ``branch_search``).
 4. ``shape``: ``betas`` (+ translation) with the L2 shape prior.
 5. ``branches_late`` (one view, ``late_branch_iters``): the limb-branch search again, at the
-   final stage's weights from the refined pose.
-6. ``final``: everything together with the interpenetration penalty on.
+   final stage's weights from the refined pose; its ``branch_refine`` (4) best go on.
+6. ``final``: everything together with the interpenetration penalty on (120 steps), on each
+   branch still in play; the lowest final energy is the fit.
 
 Several calibrated views (rigs): the body is placed from the triangulated torso, there is no flip
 test and no branch search, and the ``points`` term (:class:`~silfit.fitting.terms.PointsTerm`, the
@@ -150,7 +151,10 @@ class KeypointFitConfig:
     angle_prior_weights: Sequence[float] = (10.0, 5.0, 2.0)
     shape_iters: int = 20
     shape_weight: float = 20.0
-    final_iters: int = 40
+    #: the final stage's L-BFGS steps. 120 (was 40): issue 25's search failures were largely an
+    #: unconverged final stage; with ``branch_refine`` 4 the hypotheses are chosen by an energy near its
+    #: minimum (see ``branch_refine``)
+    final_iters: int = 120
     final_angle_prior_weight: float = 1.0
     final_shape_weight: float = 5.0
     limit_weight: float = 1e4
@@ -193,13 +197,14 @@ class KeypointFitConfig:
     #: 123.9 mm either way) and little with ``hypotheses=3`` (98.9 against 99.4 mm); on the tuning
     #: set (seed 31) they made that worse (88.8 against 81.3 mm: lower energies, wrong poses)
     branch_joint: bool = False
-    #: the last branch search keeps each sample's ``2 * hypotheses`` lowest-energy hypotheses (not
-    #: one) and runs the rest of the schedule on all of them; the lowest final energy is the fit,
+    #: the last branch search keeps each sample's ``max(branch_refine, 2 * hypotheses)`` lowest-energy
+    #: hypotheses and runs the rest of the schedule on all of them; the lowest final energy is the fit,
     #: the ``hypotheses`` best distinct ones (:func:`distinct_hypotheses`) are returned as
     #: alternatives (``KeypointFitResult.hypotheses``; ``silfit fit --hypotheses K``). Choosing the
     #: branch by the final energy, not the search stage's, is itself better: ``hypotheses=3`` lowered
     #: the hard set's keypoint-stage PA-PVE from 123.9 to 99.4 mm (20 subjects, seed 4711; fits above
-    #: 150 mm 5 -> 3, search failures 5 -> 2) at about 1.3-3x the time (a loaded machine)
+    #: 150 mm 5 -> 3, search failures 5 -> 2) at about 1.3-3x the time (a loaded machine; measured
+    #: with ``branch_refine`` 1, now 4: see there)
     hypotheses: int = 1
     #: :func:`distinct_hypotheses`: two solutions are distinct when their joints are
     #: :data:`DISTINCT_JOINTS_M` apart (mean) or any one joint more than this (metres; ``None``: the
@@ -210,8 +215,15 @@ class KeypointFitConfig:
     hypothesis_unrefined: bool = True
     #: each sample's lowest-energy hypotheses of the last branch search that run the rest of the
     #: schedule (at least ``2 * hypotheses`` with ``hypotheses`` > 1); the lowest final energy is the fit
-    #: (1: the search's own choice)
-    branch_refine: int = 1
+    #: (1: the search's own choice). 4 (was 1), with ``final_iters`` 120 (was 40): the search's energies
+    #: 30 steps in are far from converged (the final stage took one subject from 1738 to 1391), so
+    #: its choice followed how fast a branch converges, not where; four branches refined to near
+    #: their minima are chosen by the energy a fit is judged by. Hard set (``silfit synth --poses
+    #: hard``, keypoint stage, 30 subjects): tuning seed 8950 PA-PVE mean 112.9 -> 90.9 mm, above
+    #: 150 mm 7 -> 5 (``branch_refine`` 4 alone 106.4, ``final_iters`` 120 alone 108.8, 4 and 80
+    #: 99.9, 6 and 200 96.9); seed 9090 88.2 -> 77.3 mm, 4 -> 3; about 2x the CPU time on these
+    #: poses (README, "Depth ambiguity: a converged choice")
+    branch_refine: int = 4
     branch_rounds: int = 1
     #: hypotheses drop early: after ``branch_screen_iters`` steps only each sample's
     #: ``branch_survivors`` lowest-energy hypotheses (the unflipped pose among them or not)
@@ -240,7 +252,7 @@ class KeypointFitConfig:
     #: survivors of the late search's screen (0: ``branch_survivors``)
     late_branch_survivors: int = 0
     #: occlusion cue (:mod:`silfit.fitting.occlusion`, the ``occlusion`` term) in choosing among the
-    #: hypotheses refined to the end (``hypotheses`` > 1; with one, nothing to choose): a hypothesis'
+    #: hypotheses refined to the end (``branch_refine`` or ``2 * hypotheses`` of them): a hypothesis'
     #: final energy counts ``1 + occlusion_weight * n`` times, ``n`` the keypoints whose depth order
     #: disagrees with their confidence (a confident keypoint hidden behind the body, a low-confidence
     #: one in front: confidences at or below ``occlusion_conf[0]`` expect hidden, at or above

@@ -41,7 +41,7 @@ KEYPOINT_SCHEDULE = (
     # the limb-branch search again, at the final weights from the refined pose (issue 25)
     Stage("branches_late", ALL, FINAL,                                                                               30,
           options=BRANCHES),
-    Stage("final",      ALL,    FINAL,                                                                               40),
+    Stage("final",      ALL,    FINAL,                                                                              120),  # run by branch_refine (4) hypotheses
 )  # fmt: skip
 
 #: whole body (an SMPL-X-layout model, the ``wholebody`` keypoints): the body's schedule, the hands started
@@ -59,7 +59,7 @@ WHOLEBODY_KEYPOINT_SCHEDULE = KEYPOINT_SCHEDULE[:4] + (
                                                 "expression": 2.0},                                                  30,
           options=BRANCHES),
     Stage("final",      ALL + HANDS + FACE,  {**FINAL, "hands": 2.0, "hand_pose": 2.0, "face": 2.0, "jaw": 50.0,
-                                              "expression": 2.0},                                                    40),
+                                              "expression": 2.0},                                                   120),
 )  # fmt: skip
 
 SIL_FREE = ("betas", "global_orient", "body_pose", "transl")
