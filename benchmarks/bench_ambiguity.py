@@ -5,15 +5,15 @@ face; front and back views) with the keypoint stage, twice: the default schedule
 ``hypotheses=K`` (``silfit fit --hypotheses K``). For each it prints, by the fit's PA-PVE against
 the truth (good: below 60 mm, middling, bad: above 150 mm), how many fits carry the depth warning
 (:func:`~silfit.plausibility.depth_warnings`): on good fits a warning is a false alarm, on bad ones a
-hit. *Before* is the rule of main before issue 25's warnings (energy margins 0.02 for refined
-hypotheses and 0.1 for branch-search survivors, no joint-shift condition; hypotheses distinct by the
-mean joint distance alone, refined ones only); *after* is today's (margins
-:data:`~silfit.plausibility.HYPOTHESIS_MARGIN` and :data:`~silfit.plausibility.SEARCH_MARGIN`, an
-alternative must move a joint :data:`~silfit.plausibility.MIN_SHIFT_MM` or, a search survivor,
-:data:`~silfit.plausibility.SEARCH_MIN_SHIFT_MM`; distinct by
-:func:`~silfit.fitting.keypoint_stage.is_distinct`, unrefined search survivors filling the list). Both
-come from one fit per subject and schedule (the fits are the same; only the hypotheses kept and the
-warning differ), with the best of the K hypotheses within 60 mm.
+hit. *Before* is the rule of main 802356a (with one hypothesis, the branch search's survivors within
+:data:`~silfit.plausibility.SEARCH_MARGIN` of the kept one by the search's energies, moving a joint
+:data:`~silfit.plausibility.SEARCH_MIN_SHIFT_MM`); *after* is today's (the ``branch_refine`` branches
+refined to the end, by their final energies, within :data:`~silfit.plausibility.HYPOTHESIS_MARGIN`,
+moving a joint :data:`~silfit.plausibility.MIN_SHIFT_MM`, as with ``--hypotheses K``; or an earlier
+search's survivor within :data:`~silfit.plausibility.EARLY_SEARCH_MARGIN` moving a joint
+:data:`~silfit.plausibility.EARLY_SEARCH_MIN_SHIFT_MM`). Both come
+from one fit per subject and schedule (the fits are the same; only the warning differs), with the best
+of the K hypotheses within 60 mm.
 
 Per bad fit it prints whether the truth's energy is below the fit's (a search failure: a better
 optimiser would find it) or not (the energy prefers the wrong branch).
@@ -36,27 +36,16 @@ from silfit.camera import load_camera
 from silfit.dataset import read_gt
 from silfit.eval.metrics import pa_pve
 from silfit.fitting import KeypointFitter
-from silfit.fitting import keypoint_stage as ks
 from silfit.fitting.keypoint_stage import KeypointFitConfig
 from silfit.keypoints import read_keypoints
 from silfit.plausibility import depth_warnings
 
 NAMES = ("betas", "body_pose", "global_orient", "transl")
-BEFORE = {"margin": 0.02, "search_margin": 0.1, "min_shift_mm": 0.0, "search_min_shift_mm": 0.0}  # main's rule
 
 
 def _fit(fitter, sets, cams, gts, model, batch):
-    """Per subject: PA-PVE of the fit and of each hypothesis (after's and before's lists), the
-    search record, both hypothesis lists, fit and truth energies."""
-    original = ks.distinct_hypotheses
-    before_lists = []
-
-    def both(*a, **k):  # the hypotheses main would keep, from the same refined rows
-        k0 = dict(k, max_m=None, unrefined=None)
-        before_lists.extend(original(*a, **k0)[0])
-        return original(*a, **k)
-
-    ks.distinct_hypotheses = both
+    """Per subject: PA-PVE of the fit, the best of its hypotheses, the search record (with the refined
+    branches' entry), the hypotheses, fit and truth energies."""
     T = lambda a: torch.as_tensor(np.asarray(a), dtype=model.dtype)  # noqa: E731
 
     def pve(params, gt):
@@ -65,31 +54,30 @@ def _fit(fitter, sets, cams, gts, model, batch):
         return 1000 * float(pa_pve(v.astype(np.float64), gt.vertices))
 
     rows = []
-    try:
-        for i in range(0, len(sets), batch):
-            before_lists.clear()
-            res = fitter.fit(sets[i: i + batch], cams[i: i + batch], progress=False)
-            e_truth, _ = fitter.energy_at({n: np.stack([getattr(g, n) for g in gts[i: i + batch]]) for n in NAMES},
-                                          sets[i: i + batch], cams[i: i + batch])  # fmt: skip
-            K = max(1, int(fitter.config.hypotheses))
-            for j in range(len(res)):
-                gt = gts[i + j]
-                fit_pve = 1000 * float(pa_pve(res.vertices[j].astype(np.float64), gt.vertices))
-                after = res.hypotheses[j] if res.hypotheses else None
-                before = before_lists[j][:K] if before_lists else None
-                rows.append({"pve": fit_pve, "search": res.branch_search[j], "after": after, "before": before,
-                             "best_after": min([fit_pve] + [pve(h["params"], gt) for h in (after or [])[1:]]),
-                             "best_before": min([fit_pve] + [pve(h["params"], gt) for h in (before or [])[1:]]),
-                             "e_fit": float(res.energies["final"][j]), "e_truth": float(e_truth[j])})  # fmt: skip
-    finally:
-        ks.distinct_hypotheses = original
+    for i in range(0, len(sets), batch):
+        res = fitter.fit(sets[i: i + batch], cams[i: i + batch], progress=False)
+        e_truth, _ = fitter.energy_at({n: np.stack([getattr(g, n) for g in gts[i: i + batch]]) for n in NAMES},
+                                      sets[i: i + batch], cams[i: i + batch])  # fmt: skip
+        for j in range(len(res)):
+            gt = gts[i + j]
+            fit_pve = 1000 * float(pa_pve(res.vertices[j].astype(np.float64), gt.vertices))
+            hyps = res.hypotheses[j] if res.hypotheses else None
+            rows.append({"pve": fit_pve, "search": res.branch_search[j], "hyps": hyps,
+                         "best": min([fit_pve] + [pve(h["params"], gt) for h in (hyps or [])[1:]]),
+                         "e_fit": float(res.energies["final"][j]), "e_truth": float(e_truth[j]),
+                         "reproj": float(res.reprojection_error[j]),
+                         "terms": {t: float(v[j]) for t, v in res.term_energies["final"].items()}})  # fmt: skip
     return rows
 
 
+#: main 802356a's margins for refined hypotheses (``--hypotheses K``); its search rule is today's
+BEFORE = {"margin": 0.3, "min_shift_mm": 300.0}
+
+
 def _warned(r, which, **rule):
-    if which == "before":
-        return bool(depth_warnings(r["search"], r["before"], **{**BEFORE, **rule}))
-    return bool(depth_warnings(r["search"], r["after"], **rule))
+    if which == "before":  # main 802356a: the search's energies (no refined entry)
+        return bool(depth_warnings([s for s in r["search"] or [] if not s.get("refined")], r["hyps"], **BEFORE))
+    return bool(depth_warnings(r["search"], r["hyps"], **rule))
 
 
 def _table(rows, title, K):
@@ -107,9 +95,9 @@ def _table(rows, title, K):
         line = (f"| {which} | {w.sum()}/{len(rows)} | {(w & bad).sum()}/{bad.sum()} | {(w & mid).sum()}/{mid.sum()} "
                 f"| {(w & good).sum()}/{good.sum()} |")
         if K > 1:
-            best = np.array([r[f"best_{which}"] for r in rows])
-            offered = sum(len(r[which] or []) - 1 for r in rows)
-            unref = sum(not h.get("refined", True) for r in rows for h in (r[which] or []))
+            best = np.array([r["best"] for r in rows])
+            offered = sum(len(r["hyps"] or []) - 1 for r in rows)
+            unref = sum(not h.get("refined", True) for r in rows for h in (r["hyps"] or []))
             line += f" {(best <= 60).sum()}/{len(rows)} | {offered} ({unref}) |"
         print(line)
     print()
@@ -118,12 +106,15 @@ def _table(rows, title, K):
 def _sweep(rows):
     pve = np.array([r["pve"] for r in rows])
     good, bad = pve < 60, pve > 150
-    print("| hypothesis margin | search margin | min shift (mm, both) | bad warned | good warned |")
-    print("|---:|---:|---:|---:|---:|")
-    for m, sm in ((0.02, 0.1), (0.1, 0.1), (0.2, 0.2), (0.3, 0.1), (0.3, 0.2), (0.5, 0.3)):
-        for s in (0, 150, 200, 300, 400, 500):
-            w = np.array([_warned(r, "after", margin=m, search_margin=sm, min_shift_mm=s, search_min_shift_mm=s) for r in rows])
-            print(f"| {m:g} | {sm:g} | {s:g} | {(w & bad).sum()}/{bad.sum()} | {(w & good).sum()}/{good.sum()} |")
+    print("| refined margin | min shift (mm) | earlier search's margin | its min shift (mm) | bad warned | good warned |")
+    print("|---:|---:|---:|---:|---:|---:|")
+    for m in (0.05, 0.1, 0.2, 0.3):
+        for s in (300, 400):
+            for em in (0.0, 0.02, 0.05, 0.1):
+                for es in (300, 400, 500):
+                    w = np.array([_warned(r, "after", margin=m, min_shift_mm=s, early_margin=em, early_min_shift_mm=es)
+                                  for r in rows])  # fmt: skip
+                    print(f"| {m:g} | {s:g} | {em:g} | {es:g} | {(w & bad).sum()}/{bad.sum()} | {(w & good).sum()}/{good.sum()} |")
     print()
 
 
@@ -164,6 +155,7 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=8)
     ap.add_argument("--k", type=int, default=3, help="hypotheses of the second run (1: the default run only)")
     ap.add_argument("--sweep", action="store_true", help="also the after rule at other margins and shifts (tuning)")
+    ap.add_argument("--save", type=Path, help="write each run's per-subject rows here (pickle; for offline tuning)")
     args = ap.parse_args()
 
     model = load_body_model()
@@ -175,6 +167,11 @@ def main() -> None:
     for title, config in runs:
         t0 = time.perf_counter()
         rows = _fit(KeypointFitter(model, config=config), sets, cams, gts, model, args.batch)
+        if args.save:
+            import pickle
+
+            args.save.write_bytes(pickle.dumps({**(pickle.loads(args.save.read_bytes()) if args.save.is_file() else {}),
+                                                title: rows}))  # fmt: skip
         _table(rows, f"{title} ({time.perf_counter() - t0:.0f} s)", config.hypotheses)
         if args.sweep:
             _sweep(rows)

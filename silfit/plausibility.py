@@ -37,7 +37,7 @@ from .keypoints import KeypointSet
 
 __all__ = [
     "GuardDecision", "body_stature", "branch_gap", "depth_warnings", "check_frames", "check_keypoints", "fit_summary",
-    "SEARCH_MIN_SHIFT_MM", "fit_warnings", "guard_fit", "hypothesis_summary", "mask_warnings", "moves_a_joint", "person_extent", "reprojection_rise_warnings",
+    "EARLY_SEARCH_MARGIN", "EARLY_SEARCH_MIN_SHIFT_MM", "SEARCH_MIN_SHIFT_MM", "fit_warnings", "guard_fit", "hypothesis_summary", "mask_warnings", "moves_a_joint", "person_extent", "reprojection_rise_warnings",
     "shape_warnings", "silhouette_guard",
 ]  # fmt: skip
 
@@ -63,13 +63,23 @@ MAX_REPROJECTION_RISE = 2.0
 MIN_REPROJECTION_RISE_PX = 3.0
 #: A mask covering at least this share of an image side runs out of the image there.
 MIN_BORDER_RUN = 0.02
-#: :func:`depth_warnings`: an alternative refined to the end (``--hypotheses K``) within this relative
-#: final energy of the fit ...
-HYPOTHESIS_MARGIN = 0.3
+#: :func:`depth_warnings`: a branch refined to the end (``branch_refine``, ``--hypotheses K``) within this
+#: relative final energy of the fit ...
+HYPOTHESIS_MARGIN = 0.1
 #: ... that moves some joint at least this far from the fit (mm, its ``max_shift_mm``) ...
-MIN_SHIFT_MM = 300.0
-#: ... or, where fewer than two were refined to the end, a branch-search survivor within this relative
-#: energy of the kept one (its search stage's energies, 20-30 steps in) ...
+MIN_SHIFT_MM = 400.0
+#: ... or a survivor of an earlier branch search (one whose rows did not go on to the end) within this
+#: relative energy of its kept one ...
+EARLY_SEARCH_MARGIN = 0.05
+#: ... moving a joint this far from the fit: the refined branches all come from the last search, so a
+#: basin the first search weighed and dropped shows only there. Chosen on 120 hard subjects (seeds 8650,
+#: 8950, 9601, 9602, keypoint stage, ``bench_ambiguity.py --sweep``): fits above 150 mm warned 13 of 15,
+#: below 60 mm 20 of 52 (the rule before, search energies only: 12 of 15 and 29 of 52; the refined
+#: branches alone: 11 of 15 and 13 of 52)
+EARLY_SEARCH_MIN_SHIFT_MM = 500.0
+#: ... and where no branch was refined to the end (``branch_refine`` 1: a video's per-frame start), a
+#: branch-search survivor within this relative energy of the kept one (its search stage's energies,
+#: 20-30 steps in) ...
 SEARCH_MARGIN = 0.1
 #: ... whose joints at its search's end lie at least this far from the fit's (mm: the branch, and
 #: how far the fit moved after that search). Tuning seed 8650 (40 hard subjects, keypoint stage): the
@@ -290,48 +300,60 @@ def _segments(label: str) -> list:
 
 
 def depth_warnings(search, hypotheses=None, margin: float = HYPOTHESIS_MARGIN, search_margin: float = SEARCH_MARGIN,
-                   min_shift_mm: float = MIN_SHIFT_MM, search_min_shift_mm: float = SEARCH_MIN_SHIFT_MM) -> list:
+                   min_shift_mm: float = MIN_SHIFT_MM, search_min_shift_mm: float = SEARCH_MIN_SHIFT_MM,
+                   early_margin: float = EARLY_SEARCH_MARGIN, early_min_shift_mm: float = EARLY_SEARCH_MIN_SHIFT_MM) -> list:
     """One warning naming the limbs whose depth the keypoints cannot decide, or none.
 
     An alternative is *close* when it lies within a relative energy margin of the fit and moves some
-    joint far from it (:func:`moves_a_joint`): a hypothesis refined to the end (``hypotheses``: one
-    sample's :attr:`~silfit.fitting.KeypointFitResult.hypotheses`, ``--hypotheses K``) within ``margin``
-    of the fit's final energy, moving a joint ``min_shift_mm``; where fewer than two were refined (or none
-    was run: the default), a branch-search survivor (``search``: the sample's
-    :attr:`~silfit.fitting.KeypointFitResult.branch_search`) within ``search_margin`` of the kept one,
-    moving a joint ``search_min_shift_mm``.
+    joint far from it (:func:`moves_a_joint`):
+
+    - a branch refined to the end within ``margin`` of the fit's final energy, moving a joint
+      ``min_shift_mm``: ``hypotheses`` (one sample's :attr:`~silfit.fitting.KeypointFitResult.hypotheses`,
+      ``--hypotheses K``) where two or more were refined, else the ``"refined"`` entry of ``search`` (the
+      sample's :attr:`~silfit.fitting.KeypointFitResult.branch_search`: the ``branch_refine`` branches that
+      chose the fit by their final energies, the default);
+    - with refined branches, also a survivor of an earlier search (not the last, whose best rows were
+      refined) within ``early_margin`` of its kept row by that search's energies, moving a joint
+      ``early_min_shift_mm``;
+    - where no branch was refined (``branch_refine`` 1, results recorded before it), a survivor of any
+      search within ``search_margin`` of its kept row, moving a joint ``search_min_shift_mm``.
+
     The limbs named are the segments the close alternatives turn away from the fit (``differs``), or
     those their label flips (the kept one's, for an unflipped alternative). Measured on the generated
     hard set (``benchmarks/bench_ambiguity.py``: fits above 150 mm warned, fits below 60 mm warned)."""
-    close, where, shifts = [], [], []
+    close, where, shifts, used = [], [], [], []
     hyps = [h for h in hypotheses or [] if h.get("refined", True)]
-    if len(hyps) > 1:
-        e0 = hyps[0]["energy"]
-        for k, h in enumerate(hypotheses, 1):
-            if k == 1 or not h.get("refined", True):
-                continue
+    searches = [s for s in search or [] if not s.get("refined")]
+    refined = [s for s in search or [] if s.get("refined")]
+    if len(hyps) <= 1 and refined:  # the branches refined to choose the fit, as hypotheses
+        hyps = [{"label": t["flip"], "energy": t["energy"], "differs": t.get("differs"),
+                 "max_shift_mm": t.get("max_shift_mm"), "where": f"refined branch: {t['flip']}"}
+                for t in refined[-1]["tried"]]  # fmt: skip
+    if len(hyps) > 1 or refined:
+        e0 = hyps[0]["energy"] if hyps else 0.0
+        for k, h in enumerate(hyps[1:], 2):
             if h["energy"] - e0 <= margin * abs(e0) and moves_a_joint(h, min_shift_mm):
-                segs = list(h.get("differs") or []) or _segments(h["label"]) or _segments(hyps[0]["label"])
-                close.append(segs)
-                where.append(f"hypotheses/{k}")
+                close.append(list(h.get("differs") or []) or _segments(h["label"]) or _segments(hyps[0]["label"]))
+                where.append(h.get("where", f"hypotheses/{k}"))
                 shifts.append(h.get("max_shift_mm"))
-        used = margin
-    else:
-        for stage in search or []:
-            kept = next(t["energy"] for t in stage["tried"] if t["flip"] == stage["kept"])
-            for t in stage["tried"]:
-                if t["flip"] != stage["kept"] and t["energy"] - kept <= search_margin * abs(kept) \
-                        and moves_a_joint(t, search_min_shift_mm):
-                    close.append(_segments(t["flip"]) or _segments(stage["kept"]))
-                    where.append(f"branch search: {t['flip']}")
-                    shifts.append(t.get("max_shift_mm"))
-        used = search_margin
+                used.append(margin)
+        # the last search's best went on to the end; the earlier ones' survivors by their own rule
+        searches, search_margin, search_min_shift_mm = searches[:-1], early_margin, early_min_shift_mm
+    for stage in searches:
+        kept = next(t["energy"] for t in stage["tried"] if t["flip"] == stage["kept"])
+        for t in stage["tried"]:
+            if t["flip"] != stage["kept"] and t["energy"] - kept <= search_margin * abs(kept) \
+                    and moves_a_joint(t, search_min_shift_mm):
+                close.append(_segments(t["flip"]) or _segments(stage["kept"]))
+                where.append(f"branch search: {t['flip']}")
+                shifts.append(t.get("max_shift_mm"))
+                used.append(search_margin)
     if not close:
         return []
     segs = sorted({s for c in close for s in c}) or ["a limb"]
     moved = [float(m) for m in shifts if m is not None]
     by = f", moving a joint up to {max(moved) / 1000:.2f} m" if moved else ""
-    return [f"depth ambiguous for {', '.join(segs)}: an alternative fit within {used:.0%} of the energy turns "
+    return [f"depth ambiguous for {', '.join(segs)}: an alternative fit within {max(used):.0%} of the energy turns "
             f"{'it' if len(segs) == 1 else 'them'} the other way{by} ({', '.join(where)}); the keypoints cannot tell "
             "which: check a side view"]
 

@@ -127,23 +127,18 @@ def fit_rig(problem, names, model=None, pose_prior=None, keypoint_config=None, s
     return fit_rigs([problem], [names], model, pose_prior, keypoint_config, silhouette, silhouette_config, progress)[0]
 
 
-#: the keypoint stage's final steps for a rig (the single image's 120 serve issue 25's branch choice)
-RIG_FINAL_ITERS = 40
-
-
 def fit_rigs(problems, names, model=None, pose_prior=None, keypoint_config=None, silhouette: bool = True,
              silhouette_config=None, progress: bool = False) -> List[RigResult]:  # fmt: skip
     """Fit rig problems of one keypoint layout (``names[i]``: problem ``i``'s view names): the
     keypoint stage batched over them, then the silhouette stage batched over those with a mask
     (with ``silhouette``); a result per problem, ``keypoint`` holding its keypoint-stage fit."""
     from .body import load_body_model
-    from .fitting.keypoint_stage import KeypointFitConfig, KeypointFitter
+    from .fitting.keypoint_stage import KeypointFitter
 
     model = load_body_model() if model is None else model
     layout = problems[0].observations[0].keypoints.layout
-    if keypoint_config is None:  # the views fix the limbs' depth (no branch search, no branch to choose): the
-        keypoint_config = KeypointFitConfig(final_iters=RIG_FINAL_ITERS)  # final stage the rig numbers were measured with
-    fitter = KeypointFitter(model, layout, keypoint_config, pose_prior)
+    fitter = KeypointFitter(model, layout, keypoint_config, pose_prior)  # no branch search with several views:
+    # the final stage runs its ``unsearched_iterations`` (KeypointFitConfig.final_iters_unsearched)
     t0 = time.perf_counter()
     kps = fit_rig_keypoints(fitter, list(problems), progress=progress)
     share = (time.perf_counter() - t0) / len(problems)

@@ -25,8 +25,8 @@ def test_silhouette_stage_raises_iou_on_a_noise_free_subject(open_model, subject
     assert m["iou"] >= 0.9
     assert m["reprojection_error_px"] < 2.0  # the keypoints still hold
     assert result.vertices.shape == (open_model.num_vertices, 3)
-    # no warning but the depth one: without refined hypotheses it takes the branch search's survivors within
-    # plausibility.SEARCH_MARGIN that move a joint plausibility.MIN_SHIFT_MM (it may or may not fire here)
+    # no warning but the depth one: the branches refined to the end (branch_refine) within
+    # plausibility.HYPOTHESIS_MARGIN that move a joint plausibility.MIN_SHIFT_MM (it may or may not fire here)
     assert not [w for w in m["warnings"] if not w.startswith("depth ambiguous")], m["warnings"]
 
 

@@ -155,6 +155,10 @@ class KeypointFitConfig:
     #: unconverged final stage; with ``branch_refine`` 4 the hypotheses are chosen by an energy near its
     #: minimum (see ``branch_refine``)
     final_iters: int = 120
+    #: ... but at most this many where no branch search ran (several views fix the limbs' depth, or
+    #: ``branch_search`` off): no branches to choose among, and the rigs' numbers were measured with 40
+    #: (``None``: ``final_iters`` always)
+    final_iters_unsearched: Optional[int] = 40
     final_angle_prior_weight: float = 1.0
     final_shape_weight: float = 5.0
     limit_weight: float = 1e4
@@ -388,7 +392,9 @@ class KeypointFitConfig:
                 out.append(Stage("branches_late" if r == 0 else f"branches_late_{r + 1}", ("betas",) + pose_free + part_free,
                                  {**w, **part_w}, int(self.late_branch_iters), options=opts))  # fmt: skip
         if self.final_iters:
-            out.append(Stage("final", ("betas",) + pose_free + part_free, {**w, **part_w}, self.final_iters))
+            unsearched = self.final_iters_unsearched
+            opts = {} if unsearched is None or unsearched >= self.final_iters else {"unsearched_iterations": int(unsearched)}
+            out.append(Stage("final", ("betas",) + pose_free + part_free, {**w, **part_w}, self.final_iters, options=opts))
         return tuple(out)
 
     def branch_options(self) -> dict:
@@ -798,6 +804,7 @@ class KeypointFitter:
             return f * (1.0 + occlusion_weight * occ), occ
 
         row_labels = None  # with carry > 1: each row's hypothesis after the last search
+        searched_any = False  # whether a branch search ran (none with several views)
         chosen_branches = [[] for _ in range(B)]
         searched = [[] for _ in range(B)]  # per problem and branch stage: the hypotheses that ran to its end
         search_rows = [[] for _ in range(B)]  # per problem: (tried entry, its joints at the search's end, ...)
@@ -808,6 +815,7 @@ class KeypointFitter:
             if "branches" in stage.options:
                 if views_per_frame > 1:  # the views' data fixes the limbs' depth: no search (docs: rigs)
                     continue
+                searched_any = True
                 if not decided or layout.frames != 1:
                     raise ValueError(f"stage '{stage.name}': the branch search needs one frame and a decided start")
                 opts = stage.options["branches"]
@@ -861,8 +869,8 @@ class KeypointFitter:
                 take(keep)
                 continue
             decide_after = stage.options.get("decide_after") if not decided else None
-            if decide_after is None:
-                run(stage)
+            if decide_after is None:  # a final stage runs fewer steps where no search left branches to choose among
+                run(stage, None if searched_any else stage.options.get("unsearched_iterations"))
                 continue
             H = len(init_poses)
             if H > 1:  # row h * N + r: placed start r with initial pose h
@@ -891,6 +899,12 @@ class KeypointFitter:
                     chosen_branches[b].append(h[0]["label"])
                 if searched[b]:
                     searched[b][-1]["kept"] = h[0]["label"]
+                    # the distinct branches refined to the end, by their final energies: what chose the fit
+                    # (metrics.json; plausibility.depth_warnings reads these rather than the search's)
+                    searched[b].append({"stage": self.stages[-1].name, "kept": h[0]["label"], "refined": True,
+                                        "tried": [{"flip": x["label"], "energy": x["energy"], "differs": list(x["differs"]),
+                                                   "shift_mm": x["shift_mm"], "max_shift_mm": x["max_shift_mm"]}
+                                                  for x in h if x["refined"]]})  # fmt: skip
             hypotheses = [h[:K] for h in hypotheses] if K > 1 else None
             take(best)
         if any(search_rows):  # every search row's joint shift (at its search's end) from the fit (metrics.json;

@@ -64,10 +64,12 @@ class KeypointFitResult:
     extra_params: dict = field(default_factory=dict)
     #: the body model's record (:func:`silfit.fitio.model_record`: kind, source, sha256)
     model: Optional[dict] = None
-    #: per sample, each branch-search stage's hypotheses that ran to its end and their final
-    #: energies (``[{"stage", "kept", "tried": [{"flip", "energy", "shift_mm", "max_shift_mm"}, ...]}]``, lowest
-    #: first; ``shift_mm``/``max_shift_mm``: the mean and the largest joint distance, mm, to the kept row at
-    #: that search's end)
+    #: per sample, each branch-search stage's hypotheses that ran to its end and their energies at
+    #: its end (``[{"stage", "kept", "tried": [{"flip", "energy", "shift_mm", "max_shift_mm"}, ...]}]``, lowest
+    #: first; ``shift_mm``/``max_shift_mm``: the mean and the largest joint distance, mm, from the row at that
+    #: search's end to the fit); where the last search's best branches were refined to the end
+    #: (``branch_refine``), one more entry with ``"refined": True`` (``stage``: the last stage) lists the
+    #: distinct ones by their final energies (``tried`` entries also with ``differs``), the fit first
     branch_search: Optional[list] = None
     #: with ``KeypointFitConfig.hypotheses > 1``: per sample, the distinct hypotheses refined to the
     #: end, lowest energy first (the first is the fit): ``[{"label", "energy", "params", "differs", "refined",

@@ -41,7 +41,9 @@ KEYPOINT_SCHEDULE = (
     # the limb-branch search again, at the final weights from the refined pose (issue 25)
     Stage("branches_late", ALL, FINAL,                                                                               30,
           options=BRANCHES),
-    Stage("final",      ALL,    FINAL,                                                                              120),  # run by branch_refine (4) hypotheses
+    # run by branch_refine (4) hypotheses; 40 steps where no branch search ran (rigs, branch_search off)
+    Stage("final",      ALL,    FINAL,                                                                              120,
+          options={"unsearched_iterations": 40}),
 )  # fmt: skip
 
 #: whole body (an SMPL-X-layout model, the ``wholebody`` keypoints): the body's schedule, the hands started
@@ -59,7 +61,8 @@ WHOLEBODY_KEYPOINT_SCHEDULE = KEYPOINT_SCHEDULE[:4] + (
                                                 "expression": 2.0},                                                  30,
           options=BRANCHES),
     Stage("final",      ALL + HANDS + FACE,  {**FINAL, "hands": 2.0, "hand_pose": 2.0, "face": 2.0, "jaw": 50.0,
-                                              "expression": 2.0},                                                   120),
+                                              "expression": 2.0},                                                   120,
+          options={"unsearched_iterations": 40}),
 )  # fmt: skip
 
 SIL_FREE = ("betas", "global_orient", "body_pose", "transl")

@@ -564,10 +564,16 @@ def test_branch_refine_chooses_by_the_final_energy_never_above_the_search_choice
         out[refine] = fitter.fit_problems([Problem.single(ks, CAM)], init={k: v.numpy() for k, v in start.items()})[1]
     assert out[3]["hypotheses"] is None
     assert float(out[3]["energies"]["final"][0]) <= float(out[1]["energies"]["final"][0]) * (1 + 1e-9)
-    search = out[3]["branch_search"][0][-1]
-    assert len(search["tried"]) >= 3
+    search, refined = out[3]["branch_search"][0][-2:]
+    assert len(search["tried"]) >= 3 and not search.get("refined")
     kept = search["kept"]
     assert out[3]["branches"][0] == ([] if kept == "keep" else [kept])
+    # the refined branches by their final energies (what chose the fit, and what the depth warning reads)
+    assert refined["refined"] and refined["stage"] == "final" and refined["kept"] == kept
+    finals = [t["energy"] for t in refined["tried"]]
+    assert refined["tried"][0]["flip"] == kept and finals[0] == pytest.approx(float(out[3]["energies"]["final"][0]))
+    assert finals == sorted(finals) and refined["tried"][0]["max_shift_mm"] == 0.0
+    assert not any(s.get("refined") for s in out[1]["branch_search"][0])  # one branch: nothing refined to choose
 
 
 def test_two_solutions_are_distinct_by_the_mean_joint_shift_or_one_joint_far():
@@ -584,3 +590,31 @@ def test_two_solutions_are_distinct_by_the_mean_joint_shift_or_one_joint_far():
     c[20, 2] = 0.9 * DISTINCT_JOINT_MAX_M
     assert not is_distinct(c, a)  # neither rule
     assert is_distinct(a + [0.0, 0.0, 1.1 * DISTINCT_JOINTS_M], a, max_m=None)  # every joint 3.3 cm: the mean rule
+
+
+def test_the_final_stage_runs_fewer_steps_where_no_branch_search_ran(monkeypatch):
+    # final_iters serve the branch choice (issue 25); without a search (several views, or branch_search
+    # off) the final stage runs its unsearched_iterations, final_iters_unsearched
+    from silfit_toy_body import toy_model
+
+    from silfit.fitting import keypoint_stage as ks
+
+    ran = []
+    real = ks.run_stage
+    monkeypatch.setattr(ks, "run_stage", lambda stage, *a, iterations=None, **k: (
+        ran.append((stage.name, stage.iterations if iterations is None else iterations)),
+        real(stage, *a, iterations=iterations, **k))[1])  # fmt: skip
+    model = toy_model()
+    kp, _ = subject(model)
+    small = dict(camera_iters=3, pose_iters=(3, 3, 3), shape_iters=2, branch_iters=4, branch_screen_iters=2,
+                 late_branch_iters=4, final_iters=7, final_iters_unsearched=2, decision_iters=2)  # fmt: skip
+    finals = {}
+    for search in (True, False):
+        ran.clear()
+        KeypointFitter(model, config=KeypointFitConfig(**small, branch_search=search)).fit(kp[None], CAM, progress=False)
+        finals[search] = [n for name, n in ran if name == "final"]
+    assert finals == {True: [7], False: [2]}
+    stage = KeypointFitConfig(**small).stages()[-1]
+    assert stage.options == {"unsearched_iterations": 2}
+    assert KeypointFitConfig(**dict(small, final_iters_unsearched=None)).stages()[-1].options == {}
+    assert KeypointFitConfig(**dict(small, final_iters_unsearched=9)).stages()[-1].options == {}  # never more steps
