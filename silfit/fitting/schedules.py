@@ -41,9 +41,10 @@ KEYPOINT_SCHEDULE = (
     # the limb-branch search again, at the final weights from the refined pose (issue 25)
     Stage("branches_late", ALL, FINAL,                                                                               30,
           options=BRANCHES),
-    # run by branch_refine (4) hypotheses; 40 steps where no branch search ran (rigs, branch_search off)
+    # run by branch_refine (4) hypotheses; 40 steps where no branch search ran (rigs, branch_search off);
+    # a row stops once a step lowers its energy by less than 1e-4 (relative)
     Stage("final",      ALL,    FINAL,                                                                              120,
-          options={"unsearched_iterations": 40}),
+          options={"unsearched_iterations": 40, "tol_change": 1e-4}),
 )  # fmt: skip
 
 #: whole body (an SMPL-X-layout model, the ``wholebody`` keypoints): the body's schedule, the hands started
@@ -62,7 +63,7 @@ WHOLEBODY_KEYPOINT_SCHEDULE = KEYPOINT_SCHEDULE[:4] + (
           options=BRANCHES),
     Stage("final",      ALL + HANDS + FACE,  {**FINAL, "hands": 2.0, "hand_pose": 2.0, "face": 2.0, "jaw": 50.0,
                                               "expression": 2.0},                                                   120,
-          options={"unsearched_iterations": 40}),
+          options={"unsearched_iterations": 40, "tol_change": 1e-4}),
 )  # fmt: skip
 
 SIL_FREE = ("betas", "global_orient", "body_pose", "transl")

@@ -43,7 +43,8 @@ class Stage:
     """One stage of a fit.
 
     ``options`` holds optimiser- or stage-specific settings, e.g. ``decide_after`` (the
-    keypoint stage keeps each problem's best start after that many steps), the silhouette
+    keypoint stage keeps each problem's best start after that many steps), an L-BFGS stage's
+    ``tol_change`` (a row stops once a step lowers its energy by less than this, relative), the silhouette
     stage's ``resolution``, or an Adam stage's :class:`AdamSettings` (``lr`` per parameter,
     ``warmup``, ``plateau_window``, ``plateau_rtol``)."""
 
@@ -182,7 +183,8 @@ def run_lbfgs_stage(
 
         bar = tqdm(total=iters, desc=f"keypoint fit: {stage.name}", leave=False)
     cb = (lambda it, f: bar.update(1)) if bar is not None else None
-    x, f, its = batched_lbfgs(fun, x0, max_iter=iters, history=history, callback=cb)
+    tol = {"tol_change": float(stage.options["tol_change"])} if "tol_change" in stage.options else {}
+    x, f, its = batched_lbfgs(fun, x0, max_iter=iters, history=history, callback=cb, **tol)
     if bar is not None:
         bar.close()
     for n, v in gated(layout.unpack(x, free), state, data).items():

@@ -614,7 +614,27 @@ def test_the_final_stage_runs_fewer_steps_where_no_branch_search_ran(monkeypatch
         KeypointFitter(model, config=KeypointFitConfig(**small, branch_search=search)).fit(kp[None], CAM, progress=False)
         finals[search] = [n for name, n in ran if name == "final"]
     assert finals == {True: [7], False: [2]}
+    small["final_tol_change"] = None
     stage = KeypointFitConfig(**small).stages()[-1]
     assert stage.options == {"unsearched_iterations": 2}
     assert KeypointFitConfig(**dict(small, final_iters_unsearched=None)).stages()[-1].options == {}
     assert KeypointFitConfig(**dict(small, final_iters_unsearched=9)).stages()[-1].options == {}  # never more steps
+
+
+def test_a_stage_tolerance_stops_rows_once_converged():
+    # the final stage's rows stop once a step lowers their energy by less than tol_change (relative):
+    # fewer steps than the stage's, each row on its own (the same rows alone or together)
+    from silfit_toy_body import toy_model
+
+    model = toy_model()
+    kps = np.stack([subject(model, yaw_deg=y)[0] for y in (0.0, 40.0)])
+    its = {}
+    for tol in (None, 1e-3):
+        cfg = replace(FAST, final_iters=60, branch_search=False, final_iters_unsearched=None, final_tol_change=tol)
+        fitter = KeypointFitter(model, config=cfg)
+        both = fitter.fit(kps, CAM, progress=False)
+        alone = fitter.fit(kps[1:], CAM, progress=False)
+        np.testing.assert_array_equal(both.body_pose[1], alone.body_pose[0])
+        its[tol] = both
+    assert (its[1e-3].energies["final"] >= its[None].energies["final"] - 1e-6).all()
+    assert not np.array_equal(its[1e-3].body_pose, its[None].body_pose)  # some row stopped early
