@@ -250,6 +250,8 @@ def branch_gap(search) -> Optional[float]:
     hypothesis ran to the end)."""
     gaps = []
     for stage in search or []:
+        if stage.get("refined"):  # the refined branches' final energies: not a search's
+            continue
         tried = stage["tried"]
         kept = next(t["energy"] for t in tried if t["flip"] == stage["kept"])
         others = [t["energy"] for t in tried if t["flip"] != stage["kept"]]
@@ -308,10 +310,11 @@ def depth_warnings(search, hypotheses=None, margin: float = HYPOTHESIS_MARGIN, s
     joint far from it (:func:`moves_a_joint`):
 
     - a branch refined to the end within ``margin`` of the fit's final energy, moving a joint
-      ``min_shift_mm``: ``hypotheses`` (one sample's :attr:`~silfit.fitting.KeypointFitResult.hypotheses`,
-      ``--hypotheses K``) where two or more were refined, else the ``"refined"`` entry of ``search`` (the
-      sample's :attr:`~silfit.fitting.KeypointFitResult.branch_search`: the ``branch_refine`` branches that
-      chose the fit by their final energies, the default);
+      ``min_shift_mm``: the ``"refined"`` entry of ``search`` (the sample's
+      :attr:`~silfit.fitting.KeypointFitResult.branch_search`: every branch refined to choose the fit, by
+      its final energy; one also among ``hypotheses`` is named by its ``hypotheses/k`` folder), or, in
+      results without that entry, ``hypotheses`` (one sample's
+      :attr:`~silfit.fitting.KeypointFitResult.hypotheses`, ``--hypotheses K``) where two or more were refined;
     - with refined branches, also a survivor of an earlier search (not the last, whose best rows were
       refined) within ``early_margin`` of its kept row by that search's energies, moving a joint
       ``early_min_shift_mm``;
@@ -325,9 +328,10 @@ def depth_warnings(search, hypotheses=None, margin: float = HYPOTHESIS_MARGIN, s
     hyps = [h for h in hypotheses or [] if h.get("refined", True)]
     searches = [s for s in search or [] if not s.get("refined")]
     refined = [s for s in search or [] if s.get("refined")]
-    if len(hyps) <= 1 and refined:  # the branches refined to choose the fit, as hypotheses
-        hyps = [{"label": t["flip"], "energy": t["energy"], "differs": t.get("differs"),
-                 "max_shift_mm": t.get("max_shift_mm"), "where": f"refined branch: {t['flip']}"}
+    if refined:  # every branch refined to choose the fit (hypotheses keeps only K of them): named by its folder
+        rank = {h["label"]: k for k, h in enumerate(hypotheses or [], 1) if h.get("refined", True)}
+        hyps = [{"label": t["flip"], "energy": t["energy"], "differs": t.get("differs"), "max_shift_mm": t.get("max_shift_mm"),
+                 "where": f"hypotheses/{rank[t['flip']]}" if t["flip"] in rank else f"refined branch: {t['flip']}"}
                 for t in refined[-1]["tried"]]  # fmt: skip
     if len(hyps) > 1 or refined:
         e0 = hyps[0]["energy"] if hyps else 0.0

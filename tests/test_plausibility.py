@@ -311,8 +311,11 @@ def test_with_branches_refined_to_the_end_their_final_energies_decide_the_depth_
     assert depth_warnings([first_far, late, far]) == []
     first_near = searched("branches_1", "keep", ("keep", 200.0), ("right_forearm", 200.0), shift=EARLY_SEARCH_MIN_SHIFT_MM - 1)
     assert depth_warnings([first_near, late, far]) == []  # as close as can be, but no joint moves far
-    # hypotheses (--hypotheses K) are the same refined branches and take precedence over the record
+    # with --hypotheses K the record still decides (every refined branch; hypotheses keeps K of them), and
+    # a branch also among the hypotheses is named by its folder
     hyps = [{"label": "left_shin", "energy": 80.0, "differs": []},
-            {"label": "right_forearm", "energy": 81.0, "differs": ["right_forearm"], "max_shift_mm": 450.0}]  # fmt: skip
+            {"label": "keep", "energy": close["tried"][1]["energy"], "differs": ["left_shin"], "max_shift_mm": 500.0}]  # fmt: skip
     (w,) = depth_warnings([late, close], hyps)
-    assert "right_forearm" in w and "hypotheses/2" in w
+    assert "hypotheses/2" in w and "refined branch" not in w
+    assert "refined branch: keep" in depth_warnings([late, close], hyps[:1])[0]  # cut to K = 1: still read
+    assert depth_warnings([late, far], hyps) == []  # the record's final energies, not the hypotheses' list

@@ -20,7 +20,8 @@ Stages (each an independent per-sample L-BFGS, see :mod:`silfit.fitting.optim`):
 4. ``shape``: ``betas`` (+ translation) with the L2 shape prior.
 5. ``branches_late`` (one view, ``late_branch_iters``): the limb-branch search again, at the
    final stage's weights from the refined pose; its ``branch_refine`` (4) best go on.
-6. ``final``: everything together with the interpenetration penalty on (120 steps), on each
+6. ``final``: everything together with the interpenetration penalty on (120 steps, a row stopping
+   once a step lowers its energy by less than 1e-4; 40, every one run, where no search ran), on each
    branch still in play; the lowest final energy is the fit.
 
 Several calibrated views (rigs): the body is placed from the triangulated torso, there is no flip
@@ -155,11 +156,11 @@ class KeypointFitConfig:
     #: unconverged final stage; with ``branch_refine`` 4 the hypotheses are chosen by an energy near its
     #: minimum (see ``branch_refine``)
     final_iters: int = 120
-    #: ... but at most this many where no branch search ran (several views fix the limbs' depth, or
-    #: ``branch_search`` off): no branches to choose among, and the rigs' numbers were measured with 40
-    #: (``None``: ``final_iters`` always)
+    #: ... but at most this many, every one run (no ``final_tol_change``), where no branch search ran
+    #: (several views fix the limbs' depth, or ``branch_search`` off): no branches to choose among, and
+    #: the rigs' numbers were measured so (``None``: ``final_iters`` always)
     final_iters_unsearched: Optional[int] = 40
-    #: the final stage's rows stop once a step lowers their energy by less than this (relative; the
+    #: after a branch search, the final stage's rows stop once a step lowers their energy by less than this (relative; the
     #: optimiser's default, 1e-8, ran nearly every row all ``final_iters``). Simulated on the final
     #: stage's trajectories of 60 hard subjects (seeds 8950, 9090): 1e-4 runs 0.67 of its row-steps at
     #: PA-PVE mean 84.1 -> 82.7 mm (1e-5: 0.95, 84.1); ``None``: the optimiser's default
@@ -876,8 +877,13 @@ class KeypointFitter:
                 take(keep)
                 continue
             decide_after = stage.options.get("decide_after") if not decided else None
-            if decide_after is None:  # a final stage runs fewer steps where no search left branches to choose among
-                run(stage, None if searched_any else stage.options.get("unsearched_iterations"))
+            if decide_after is None:
+                if not searched_any and "unsearched_iterations" in stage.options:  # no branches to choose among:
+                    # fewer steps, every one run (the final stage as rigs were measured with)
+                    opts = {k: v for k, v in stage.options.items() if k not in ("unsearched_iterations", "tol_change")}
+                    stage = replace(stage, iterations=min(stage.iterations, int(stage.options["unsearched_iterations"])),
+                                    options=opts)  # fmt: skip
+                run(stage)
                 continue
             H = len(init_poses)
             if H > 1:  # row h * N + r: placed start r with initial pose h

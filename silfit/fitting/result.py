@@ -69,7 +69,8 @@ class KeypointFitResult:
     #: first; ``shift_mm``/``max_shift_mm``: the mean and the largest joint distance, mm, from the row at that
     #: search's end to the fit); where the last search's best branches were refined to the end
     #: (``branch_refine``), one more entry with ``"refined": True`` (``stage``: the last stage) lists the
-    #: distinct ones by their final energies (``tried`` entries also with ``differs``), the fit first
+    #: distinct ones with their final energies (``tried`` entries also with ``differs``), ordered by the
+    #: score that chose (the final energy; with the occlusion cue on, times its factor), the fit first
     branch_search: Optional[list] = None
     #: with ``KeypointFitConfig.hypotheses > 1``: per sample, the distinct hypotheses refined to the
     #: end, lowest energy first (the first is the fit): ``[{"label", "energy", "params", "differs", "refined",

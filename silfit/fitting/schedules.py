@@ -41,8 +41,8 @@ KEYPOINT_SCHEDULE = (
     # the limb-branch search again, at the final weights from the refined pose (issue 25)
     Stage("branches_late", ALL, FINAL,                                                                               30,
           options=BRANCHES),
-    # run by branch_refine (4) hypotheses; 40 steps where no branch search ran (rigs, branch_search off);
-    # a row stops once a step lowers its energy by less than 1e-4 (relative)
+    # run by branch_refine (4) hypotheses, a row stopping once a step lowers its energy by less than 1e-4
+    # (relative); where no branch search ran (rigs, branch_search off) 40 steps, every one run
     Stage("final",      ALL,    FINAL,                                                                              120,
           options={"unsearched_iterations": 40, "tol_change": 1e-4}),
 )  # fmt: skip

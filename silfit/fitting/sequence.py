@@ -619,8 +619,9 @@ def fit_sequence(
 def _fits_from(model, layout, config, fitter, probs, state, own, src, progress):
     """Frame ``own[m]``'s problem fitted from frame ``src[m]``'s parameters in ``state``, one start each,
     all in one batch: ``(state, energy [M])`` (energies of the final stage, as ``fitter``'s)."""
-    again = KeypointFitter(model, layout, replace(config, flip_test=False, init_poses=1, branch_search=False, hypotheses=1),
-                           fitter.pose_prior)  # fmt: skip
+    again = KeypointFitter(model, layout, replace(config, flip_test=False, init_poses=1, branch_search=False, hypotheses=1,
+                                                  final_iters_unsearched=None), fitter.pose_prior)  # fmt: skip
+    # (the final stage as the frames' own fits ran it, so their energies compare)
     start = {k: v[torch.as_tensor(src)].double().numpy() for k, v in state.items()}
     nb_state, nb_info = again.fit_problems([probs[i] for i in own], progress=progress, init=start)
     return nb_state, nb_info["energies"][again.stages[-1].name]

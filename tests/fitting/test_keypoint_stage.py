@@ -509,6 +509,13 @@ def test_hypotheses_keep_the_best_distinct_branches_refined_to_the_end(body_mode
     assert len(info["branch_search"][0][0]["tried"]) >= 2
     # the fit is back on the true branch: the thigh's flip won
     assert "left_thigh" in hyps[0]["label"] or "left_thigh" in info["branches"][0]
+    # the branch-search record's last entry: every distinct refined branch (the K hypotheses' refined ones
+    # first, in their order, with their energies; unrefined ones are not in it)
+    refined = info["branch_search"][0][-1]
+    assert refined["refined"] and refined["kept"] == hyps[0]["label"]
+    assert [(t["flip"], t["energy"]) for t in refined["tried"]][: len(energies)] == \
+        [(h["label"], h["energy"]) for h in hyps if h["refined"]]
+    assert len(refined["tried"]) >= len(energies)
 
 
 def test_occlusion_cue_scores_the_hypotheses_when_on(body_model):

@@ -161,3 +161,19 @@ def test_points_term_follows_the_data_terms_robust_setting(body_model):
     for robust in (True, False):
         fitter = KeypointFitter(body_model, config=replace(FAST, robust=robust))
         assert fitter.energy.terms["points"].sigma == fitter.energy.terms["keypoints"].sigma
+
+
+def test_a_rig_runs_the_final_stage_of_no_branch_search(body_model, two_views, monkeypatch):
+    # several views skip the branch search: the final stage runs final_iters_unsearched steps, every one
+    # (no tol_change), as the rigs' numbers were measured before the single image's converged choice
+    from silfit.fitting import keypoint_stage as ks
+
+    ran = []
+    real = ks.run_stage
+    monkeypatch.setattr(ks, "run_stage", lambda stage, *a, **k: (ran.append(stage), real(stage, *a, **k))[1])
+    small = KeypointFitConfig(camera_iters=3, pose_iters=(3, 3, 3), shape_iters=2, late_branch_iters=4, final_iters=7,
+                              final_iters_unsearched=2, final_tol_change=1e-4, init_poses=1)  # fmt: skip
+    fit_rig_keypoints(KeypointFitter(body_model, config=small), [rig_problem(load_rig(two_views[0]))])
+    (final,) = [s for s in ran if s.name == "final"]
+    assert final.iterations == 2 and final.options == {}
+    assert not [s for s in ran if "branches" in s.options]  # no search with two views
