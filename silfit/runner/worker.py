@@ -54,11 +54,14 @@ def keypoint_config(options: Dict[str, object]) -> KeypointFitConfig:
     base = KeypointFitConfig()
     names = {f.name for f in fields(base)} | set(getattr(KeypointFitConfig, "renamed_fields", {}))  # old names too
     values = {}
+    optional = {f.name for f in fields(base) if "Optional" in str(f.type)}  # these also take "none"
     for key, value in options.items():
         if key not in names:
             raise ValueError(f"unknown keypoint-stage option {key!r} (one of {', '.join(sorted(names))})")
         default = getattr(base, key)
-        if isinstance(value, str):
+        if isinstance(value, str) and key in optional and value.lower() == "none":
+            value = None
+        elif isinstance(value, str):
             try:
                 if isinstance(default, bool):
                     if value.lower() not in ("true", "false", "1", "0"):

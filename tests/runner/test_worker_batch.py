@@ -1,6 +1,7 @@
 """The dataset worker refines a batch's masked items in one silhouette-stage call (issue 24), through the
 one path (silfit.run.run_batch -> silfit.image_fit.fit_problems)."""
 import numpy as np
+import pytest
 
 from runner.helpers import SYNTHETIC, synthetic_copy
 from silfit.runner import FitOptions
@@ -44,3 +45,15 @@ def test_a_bad_mask_fails_alone(tmp_path):
     records = _fitter().run_batch(list_items(data), tmp_path / "out")
     assert records[0]["status"] == "ok" and records[0]["stages"] == ["keypoints", "silhouette"]
     assert records[1]["status"] == "failed" and records[1]["stage"] == "silhouette"
+
+
+def test_keypoint_options_parse_by_the_field_and_optional_ones_take_none():
+    from silfit.runner.worker import keypoint_config
+
+    cfg = keypoint_config({"final_tol_change": "none", "final_iters_unsearched": "None", "final_iters": "30",
+                           "pose_iters": "5,6,7", "branch_search": "false"})  # fmt: skip
+    assert cfg.final_tol_change is None and cfg.final_iters_unsearched is None
+    assert cfg.final_iters == 30 and cfg.pose_iters == (5, 6, 7) and cfg.branch_search is False
+    assert keypoint_config({"final_tol_change": "1e-3"}).final_tol_change == 1e-3
+    with pytest.raises(ValueError, match="final_iters='none'"):
+        keypoint_config({"final_iters": "none"})  # not optional
