@@ -32,7 +32,7 @@ level, 3,000 faces at 128 px and 5,000 at 256 px, a 10-step warm-up and half bod
 ``prev`` is the default before issue 24's runtime part (the same configuration and fits bit for bit as ``after``: the
 edge integral's vertex gradient by autograd over every vertex, the stage's reduced bodies rebuilt each call; methods
 older than ``after`` run so too, :data:`OLD_RUNTIME`); ``head-projective`` is ``head`` rendered with
-Mitsuba's ``prb_projective`` integrator; ``after-2t``, ``after-stratified``, ``*-s1``: see ``RENDERERS``; ``weakprior`` is the default with the stage's
+Mitsuba's ``prb_projective`` integrator; ``after-1t``: the default with one Dr.Jit thread (the same fits bit for bit; see ``ONE_THREAD``); ``after-stratified``, ``*-s1``: see ``RENDERERS``; ``weakprior`` is the default with the stage's
 pose prior weight before issue 23's detected-inputs part (0.002, now 0.005).
 ``--video 60``: one 60-frame synthetic walk through the sequence's stage (``refine_sequence_silhouettes``: all
 frames one problem), seconds per frame (methods with their own renderer are skipped there).
@@ -74,13 +74,17 @@ MAIN = {"edge_density": None}
 METHODS = {"original": SilhouetteFitConfig.legacy, "before": SilhouetteFitConfig.legacy, "after": SilhouetteFitConfig,
            "head": lambda: SilhouetteFitConfig(**HEAD), "third": lambda: SilhouetteFitConfig(**THIRD),
            "main": lambda: SilhouetteFitConfig(**MAIN), "head-projective": lambda: SilhouetteFitConfig(**HEAD),
-           "after-2t": SilhouetteFitConfig, "after-stratified": SilhouetteFitConfig,
+           "after-1t": SilhouetteFitConfig, "after-stratified": SilhouetteFitConfig,
            "head-s1": lambda: SilhouetteFitConfig(**HEAD, seed=1), "after-s1": lambda: SilhouetteFitConfig(seed=1),
            "prev": SilhouetteFitConfig,
            "weakprior": lambda: SilhouetteFitConfig(pose_weight=0.002)}  # fmt: skip
 #: methods run as before issue 24's runtime part (the edge integral's vertex gradient by torch's autograd over every
 #: vertex, the stage's reduced bodies rebuilt each call): ``prev`` is the default so (the same fits bit for bit)
 OLD_RUNTIME = {"original", "before", "head", "third", "main", "head-projective", "head-s1", "prev"}
+#: methods run with one Dr.Jit thread, as the ray-cast renderer did before issue 24's threads part (the same fits bit
+#: for bit); the others with Dr.Jit's whole pool (``--drjit-threads``, default: the host's cores)
+ONE_THREAD = OLD_RUNTIME | {"after-1t"}
+DRJIT_POOL = None  # set in main()
 
 
 @contextmanager
@@ -90,21 +94,25 @@ def runtime(name):
     from renderers.raycast import RaycastScene
     from silfit.fitting import silhouette_stage
 
+    from renderers._llvm import import_mitsuba
+
+    _, dr = import_mitsuba()
     old = name in OLD_RUNTIME
     RaycastScene.analytic_grad = not old
     if old:
         silhouette_stage._CONTOUR_BODIES.clear()
+    dr.set_thread_count(1 if name in ONE_THREAD else (DRJIT_POOL or dr.thread_count()))
     try:
         yield
     finally:
         RaycastScene.analytic_grad = True
 #: the renderer per method (``None``: the stage's default, the ray-cast method since issue 24's second part):
 #: ``original`` and ``head-projective`` render with Mitsuba's ``prb_projective`` (the renderer before the ray-cast
-#: method), ``after-2t`` the ray-cast method with two Dr.Jit threads (bit-identical results, other timing),
+#: method),
 #: ``after-stratified`` with stratified pixel samples and evenly spaced edge points (lower noise, same expectation;
 #: measured worse on a 4-view rig: the stage's Adam settings were tuned with independent samples' noise);
 #: ``*-s1``: the renderer's base seed 1 instead of 0 (the spread a seed alone gives)
-RENDERERS = {"original": {"method": "projective"}, "head-projective": {"method": "projective"}, "after-2t": {"threads": 2},
+RENDERERS = {"original": {"method": "projective"}, "head-projective": {"method": "projective"},
              "after-stratified": {"sampler": "stratified", "edge_sampling": "systematic"}}  # fmt: skip
 
 
@@ -398,9 +406,14 @@ def main(argv=None):
     ap.add_argument("--video-methods", default=None, help="methods of the video case (default: --methods)")
     ap.add_argument("--kornia", action="store_true", help="also time kornia's distance transform against OpenCV's")
     ap.add_argument("--step", action="store_true", help="also time one rendered step per level and method")
+    ap.add_argument("--drjit-threads", type=int, default=None,
+                    help="Dr.Jit's pool for the methods not in ONE_THREAD (default: as Dr.Jit starts, the host's cores)")
     args = ap.parse_args(argv)
-    global BASE
+    global BASE, DRJIT_POOL
     BASE = args.base
+    from renderers._llvm import import_mitsuba
+
+    DRJIT_POOL = args.drjit_threads or import_mitsuba()[1].thread_count()
     methods = [m for m in args.methods.split(",") if m]
     unknown = [m for m in methods if m not in METHODS]
     if unknown:

@@ -342,11 +342,14 @@ class SilhouetteRenderer:
     build for all with the ray-cast method).
 
     ``threads``: Dr.Jit's thread-pool size, set before each render (``None``: leave it
-    alone). The pool is process-wide and stays so. The ray-cast method gives bit-identical
-    silhouettes and gradients for any thread count (tested). With ``"projective"`` one
-    thread keeps the backward pass's scatter-adds in a fixed order, so a fixed seed gives
-    bit-identical gradients and fits; with several, the same seed gave silhouette fits of
-    PA-MPJPE 12.3-19.9 mm over 5 runs of 40 steps (tools/repro_silhouette.py).
+    alone). The pool is process-wide and stays so. ``"auto"`` (the default) is ``None`` for
+    the ray-cast method, which gives bit-identical silhouettes, gradients and fits for any
+    thread count (tested per render and per silhouette-stage fit), and ``1`` for
+    ``"projective"``: there one thread keeps the backward pass's scatter-adds in a fixed
+    order, so a fixed seed gives bit-identical gradients and fits; with several, the same
+    seed gave silhouette fits of PA-MPJPE 12.3-19.9 mm over 5 runs of 40 steps
+    (tools/repro_silhouette.py). Before issue 24's threads part the ray-cast method ran one
+    thread too.
     """
 
     def __init__(
@@ -357,7 +360,7 @@ class SilhouetteRenderer:
         variant: Optional[str] = None,
         max_cached_scenes: int = 8,
         sampler: Optional[str] = None,
-        threads: Optional[int] = 1,
+        threads: Union[int, None, str] = "auto",
         method: str = "raycast",
         edge_sampling: str = "random",
     ):
@@ -390,6 +393,8 @@ class SilhouetteRenderer:
         self._scenes: "OrderedDict[tuple, _SilhouetteScene]" = OrderedDict()
         self._max_cached = int(max_cached_scenes)
         self._lock = threading.Lock()
+        if threads == "auto":  # the ray-cast method's results do not depend on the thread count
+            threads = None if method == "raycast" else 1
         self.threads = None if threads is None else _positive_int(threads, "threads")
         self._ray_scenes: dict = {}
 

@@ -351,6 +351,33 @@ def test_a_batch_with_the_contour_level_equals_single_runs(open_model):
         assert alone.contour_iterations == r.contour_iterations and alone.steps == r.steps
 
 
+
+def test_a_fit_is_bit_identical_for_any_drjit_thread_count(open_model, target_mask):
+    """The stage's default (ray-cast) renderer leaves Dr.Jit's thread pool as the process has it,
+    and a fit is the same bits with one thread or two: Embree answers boolean ray tests and every
+    sum is torch's (issue 24's threads part)."""
+    from renderers._llvm import import_mitsuba
+
+    _, dr = import_mitsuba()
+    default = SilhouetteFitConfig()
+    cfg = replace(FAST, iterations=(6,), optimise=default.optimise, lr=default.lr, contour_iterations=6,
+                  contour_resolution=64)  # fmt: skip
+    previous = dr.thread_count()
+    results = []
+    try:
+        for count in (2, 1, 2):
+            dr.set_thread_count(count)
+            results.append(fit_silhouette(open_model, POSE, CAMERA, target_mask, config=cfg, progress=False))
+            assert dr.thread_count() == count  # the renderer left the pool alone
+    finally:
+        dr.set_thread_count(previous)
+    assert results[0].steps == 6 and results[0].contour_iterations > 0
+    for r in results[1:]:
+        for name in ("betas", "body_pose", "global_orient", "transl"):
+            np.testing.assert_array_equal(getattr(results[0], name), getattr(r, name), err_msg=name)
+    # and the fit moved (a test that cannot fail proves nothing)
+    assert abs(float(results[0].transl[0, 0]) - float(POSE["transl"][0, 0])) > 0.02
+
 def test_legacy_schedule_has_no_contour_level():
     legacy = SilhouetteFitConfig.legacy()
     assert [s.name for s in legacy.stages()] == ["silhouette_128", "silhouette_256"]
