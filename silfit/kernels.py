@@ -3,13 +3,21 @@
 A fit's optimiser amplifies differences in the last bits of its arithmetic into millimetres
 (measured: keypoints moved by 1e-12 px move a fit's vertices by 6-20 mm; README, "Same inputs,
 same fit"). The libraries under silfit pick their kernels by the processor: torch's SIMD level
-(AVX2 or AVX-512: 4 or 8 lanes, so another order of partial sums), MKL's GEMM branch, OpenBLAS's
-core type (Haswell, Zen, SkylakeX). So on an x86-64 processor with AVX2 silfit asks each for its
-AVX2 kernels, which every such processor (AMD or Intel, with or without AVX-512) runs the same way:
+(AVX2 or AVX-512: 4 or 8 lanes, so another order of partial sums), MKL's branch (its GEMMs, and the
+vector maths torch hands it: ``sin``, ``cos``, ``exp``, ``log``, ``sqrt``, ``tanh`` of a float tensor
+go to MKL's VML), OpenBLAS's core type (Haswell, Zen, SkylakeX). So on an x86-64 processor with AVX2
+silfit asks each for kernels every such processor (AMD or Intel, with or without AVX-512) runs the
+same way:
 
 * ``ATEN_CPU_CAPABILITY=avx2`` (torch's vectorised kernels),
-* ``MKL_CBWR=AVX2`` (MKL's conditional numerical reproducibility on its AVX2 branch),
+* ``MKL_CBWR=COMPATIBLE`` (MKL's conditional numerical reproducibility on the code path it runs on
+  every Intel and compatible processor; until 2026-12 ``AVX2``, MKL's AVX2 branch,
+  which it need not take on another maker's processor; on an Intel Xeon with AVX-512 the keypoint
+  stage's fits are the same bits with either, and differ with ``AVX512``),
 * ``OPENBLAS_CORETYPE=Haswell`` (numpy's and scipy's OpenBLAS).
+
+The body model and the keypoint stage use no BLAS (:mod:`silfit.body.lbs`, "No BLAS"): MKL's GEMMs
+changed with its thread count on an Intel Xeon, by 1.1 mm in a float64 keypoint fit.
 
 Each is set only where the environment does not set it already (an explicit choice wins), and
 only when neither torch nor numpy has been imported yet: they read these variables once, when
@@ -27,7 +35,7 @@ from typing import Dict, MutableMapping, Optional
 __all__ = ["KERNEL_PINS", "cpu_flags", "kernel_report", "pin_kernels"]
 
 #: environment variable -> value asked for on an x86-64 CPU with AVX2 and FMA
-KERNEL_PINS: Dict[str, str] = {"ATEN_CPU_CAPABILITY": "avx2", "MKL_CBWR": "AVX2", "OPENBLAS_CORETYPE": "Haswell"}
+KERNEL_PINS: Dict[str, str] = {"ATEN_CPU_CAPABILITY": "avx2", "MKL_CBWR": "COMPATIBLE", "OPENBLAS_CORETYPE": "Haswell"}
 
 #: what :func:`pin_kernels` did in this process (``None``: not run yet)
 PINNED: Optional[Dict[str, str]] = None

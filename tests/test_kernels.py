@@ -10,10 +10,10 @@ AVX2 = {"avx2", "fma", "sse4_2"}
 
 def test_pins_are_set_where_unset_on_an_avx2_cpu_before_torch_loads(monkeypatch):
     monkeypatch.setattr("platform.machine", lambda: "x86_64")
-    env = {"MKL_CBWR": "COMPATIBLE"}  # an explicit choice wins
+    env = {"MKL_CBWR": "AVX2"}  # an explicit choice wins
     done = pin_kernels(env, flags=AVX2, loaded=False)
     assert done == {"ATEN_CPU_CAPABILITY": "avx2", "OPENBLAS_CORETYPE": "Haswell"}
-    assert env == {**KERNEL_PINS, "MKL_CBWR": "COMPATIBLE"}
+    assert env == {**KERNEL_PINS, "MKL_CBWR": "AVX2"}
 
 
 def test_no_pins_when_turned_off_too_late_or_without_avx2(monkeypatch):

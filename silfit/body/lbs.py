@@ -11,10 +11,21 @@ large contractions (:func:`pose_correctives`, :func:`vertices_to_joints`, the bl
 :func:`per_row`: each batch row is its own product; the short ones (:func:`blend_shapes`) are a
 broadcast product and a sum. Either way a row's values (and gradients) do not depend on the other
 rows, their number or its position (``tests/body/test_lbs.py``). The small per-joint products
-(3x3) are per-row already.
+(3x3, 4x4) are per-row already.
+
+**No BLAS.** A GEMM's result also follows the BLAS library's choice of kernel, which changes with
+the processor (MKL on an Intel CPU with AVX-512 against an AMD one, even with ``MKL_CBWR=AVX2``) and
+with its thread count: on an Intel Xeon the same float64 keypoint fit moved 1.1 mm between one and
+two MKL threads and 1.4 mm against the AMD machine's. So the products here are torch's own
+elementwise kernels (a broadcast product and a sum, :func:`matmul` for the small matrices, the
+joint regressor over its nonzeros, :func:`sparse_contract`), whose order of operations silfit pins
+(:mod:`silfit.kernels`) and which split work across threads by output, never inside a sum. Two
+GEMMs remain, neither in the keypoint stage: an official model's pose correctives and the
+skinning of a whole mesh (:func:`skin_vertices`; over the weights' nonzeros it took 2x the time).
 """
 from __future__ import annotations
 
+import weakref
 from typing import Optional, Sequence
 
 import torch
@@ -23,6 +34,8 @@ __all__ = [
     "skew",
     "axis_angle_to_matrix",
     "per_row",
+    "matmul",
+    "sparse_contract",
     "blend_shapes",
     "pose_feature",
     "pose_correctives",
@@ -57,7 +70,7 @@ def axis_angle_to_matrix(axis_angle: torch.Tensor) -> torch.Tensor:
     b = torch.where(small, 0.5 - theta2 / 24.0 + theta2 * theta2 / 720.0, (1.0 - torch.cos(theta)) / safe2)
     K = skew(axis_angle)
     eye = torch.eye(3, dtype=axis_angle.dtype, device=axis_angle.device)
-    return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    return eye + a[..., None, None] * K + b[..., None, None] * matmul(K, K)
 
 
 class _OwnGradient(torch.autograd.Function):
@@ -72,6 +85,13 @@ class _OwnGradient(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad):
         return grad.clone(memory_format=torch.contiguous_format)
+
+
+def matmul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """``a @ b`` for small matrices ``[..., n, k] @ [..., k, m]`` (broadcast leading axes) as a
+    broadcast product and a sum over ``k``: torch's own kernels, not BLAS (module docstring), so the
+    same bits on every processor with silfit's pinned kernels and for any thread count."""
+    return (a[..., :, :, None] * b[..., None, :, :]).sum(-2)
 
 
 def per_row(fn, x: torch.Tensor, *args) -> torch.Tensor:
@@ -107,9 +127,69 @@ def pose_correctives(rot_mats: torch.Tensor, posedirs: torch.Tensor) -> torch.Te
     return per_row(lambda f: f @ posedirs, pose_feature(rot_mats)).reshape(B, -1, 3)
 
 
+_SPARSE: dict = {}  # id(matrix) -> (weak reference, version, the matrix's padded rows, its transpose's)
+
+
+def _padded(matrix: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(index [R, k], weight [R, k])``: the columns of each row of ``matrix [R, C]`` that hold a
+    nonzero, ascending, zero-padded to ``k``, the most any row holds."""
+    nz = matrix != 0
+    k = max(int(nz.sum(1).max()) if matrix.numel() else 0, 1)
+    index = torch.sort((~nz).to(torch.uint8), dim=1, stable=True).indices[:, :k].contiguous()
+    return index, matrix.gather(1, index).contiguous()  # the padding gathers zeros
+
+
+def sparse_rows(matrix: torch.Tensor) -> Optional[tuple]:
+    """The padded nonzeros of ``matrix [R, C]`` and of its transpose (``(index, weight)`` each, see
+    :func:`sparse_contract`), kept per tensor and its version; ``None`` where the matrix needs a
+    gradient (the dense product is used then). SMPL's joint regressor and skinning weights are
+    sparse (the open model: at most 300 vertices per joint, 7 joints per vertex), so the
+    contractions cost a fraction of the dense ones."""
+    if matrix.requires_grad or matrix.dim() != 2:
+        return None
+    key = id(matrix)
+    hit = _SPARSE.get(key)
+    if hit is not None and hit[0]() is matrix and hit[1] == matrix._version:
+        return hit[2]
+    value = (*_padded(matrix), *_padded(matrix.detach().T))
+    _SPARSE[key] = (weakref.ref(matrix, lambda _, key=key: _SPARSE.pop(key, None)), matrix._version, value)
+    return value
+
+
+class _SparseContract(torch.autograd.Function):
+    """``out[b, r] = sum_k weight[r, k] x[b, index[r, k]]``; the gradient is the same contraction
+    with the transpose's padded rows: gathers and sums both ways, never a scatter-add (whose order
+    of accumulation follows a sort) nor a GEMM."""
+
+    @staticmethod
+    def forward(ctx, x, index, weight, index_t, weight_t):
+        ctx.sparse = (index_t, weight_t, index, weight)
+        return _gather_sum(x, index, weight)
+
+    @staticmethod
+    def backward(ctx, grad):
+        return _SparseContract.apply(grad, *ctx.sparse), None, None, None, None
+
+
+def _gather_sum(x: torch.Tensor, index: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    w = weight.to(x.dtype).reshape(weight.shape + (1,) * (x.dim() - 2))
+    return (x[:, index] * w).sum(2)
+
+
+def sparse_contract(matrix: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """``einsum("rc,bc...->br...", matrix, x)`` over the matrix's nonzeros (:func:`sparse_rows`): per
+    output a product and a sum in a fixed order, the same bits on every processor, thread count and
+    batch (module docstring); the dense einsum (a GEMM per row) where the matrix needs a gradient."""
+    sparse = sparse_rows(matrix)
+    if sparse is None:
+        return per_row(lambda v: torch.einsum("rc,bc...->br...", matrix, v), x)
+    return _SparseContract.apply(x, *sparse)
+
+
 def vertices_to_joints(regressor: torch.Tensor, vertices: torch.Tensor) -> torch.Tensor:
-    """Joints ``[B, J, 3]`` regressed from ``vertices [B, V, 3]`` with ``regressor [J, V]``."""
-    return per_row(lambda v: torch.einsum("jv,bvc->bjc", regressor, v), vertices)
+    """Joints ``[B, J, 3]`` regressed from ``vertices [B, V, 3]`` with ``regressor [J, V]``: over
+    each joint's vertices, a product and a sum (not a GEMM: module docstring)."""
+    return sparse_contract(regressor, vertices)
 
 
 def kinematic_levels(parents: Sequence[int]) -> list[list[int]]:
@@ -161,13 +241,13 @@ def forward_kinematics(
             continue
         idx = torch.as_tensor(level, device=joints.device)
         par = torch.stack([world[parents[j]] for j in level], dim=1)  # [B, n, 4, 4]
-        chained = par @ local[:, idx]
+        chained = matmul(par, local[:, idx])
         for k, j in enumerate(level):
             world[j] = chained[:, k]
     world_t = torch.stack(world, dim=1)  # [B, J, 4, 4]
     posed_joints = world_t[..., :3, 3]
     # Remove the rest joint position so the transform applies to rest-pose points.
-    offset = (world_t[..., :3, :3] @ joints[..., None])[..., 0]
+    offset = (world_t[..., :3, :3] * joints[..., None, :]).sum(-1)
     skinning = world_t.clone()
     skinning[..., :3, 3] = posed_joints - offset
     return posed_joints, skinning
@@ -176,6 +256,8 @@ def forward_kinematics(
 def skin_vertices(vertices: torch.Tensor, transforms: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
     """Linear blend skinning of rest vertices ``[B, V, 3]`` with per-joint transforms
     ``[B, J, 4, 4]`` and skinning weights ``[V, J]``."""
+    # a GEMM per row (the keypoint stage skins no mesh; the silhouette stage runs one torch thread, so one
+    # MKL thread): over the weights' nonzeros (sparse_contract) forward and backward took 2x the time
     T = per_row(lambda t: torch.einsum("vj,bjrc->bvrc", weights, t), transforms[..., :3, :])  # [B, V, 3, 4]
     return (T[..., :3] * vertices[..., None, :]).sum(-1) + T[..., 3]
 

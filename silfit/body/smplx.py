@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from .io import ModelArrays
-from .lbs import axis_angle_to_matrix, lbs
+from .lbs import axis_angle_to_matrix, lbs, matmul
 from .model import BodyModel, BodyOutput
 
 __all__ = ["SMPLXModel", "SMPLXOutput", "HAND_JOINTS", "NECK_CHAIN", "dynamic_contour_bin"]
@@ -52,7 +52,7 @@ def dynamic_contour_bin(full_pose: torch.Tensor, chain=NECK_CHAIN) -> torch.Tens
     rots = axis_angle_to_matrix(full_pose.reshape(B, -1, 3)[:, list(chain)])
     rel = torch.eye(3, dtype=full_pose.dtype, device=full_pose.device).expand(B, 3, 3)
     for k in range(len(chain)):
-        rel = rots[:, k] @ rel
+        rel = matmul(rots[:, k], rel)  # not a GEMM (silfit.body.lbs)
     sy = torch.sqrt(rel[:, 0, 0] ** 2 + rel[:, 1, 0] ** 2)
     yaw = torch.round(torch.clamp(-torch.atan2(-rel[:, 2, 0], sy) * 180.0 / np.pi, max=39)).long()
     return torch.where(yaw < 0, torch.where(yaw < -39, torch.full_like(yaw, 78), 39 - yaw), yaw)
@@ -147,7 +147,7 @@ class SMPLXModel(BodyModel):
     def _hand(self, pose: torch.Tensor, side: str) -> torch.Tensor:
         if not self.use_pca:
             return pose
-        return pose @ getattr(self, f"hand_components_{side}")
+        return (pose[..., :, None] * getattr(self, f"hand_components_{side}")).sum(-2)  # not a GEMM (silfit.body.lbs)
 
     def forward(
         self, betas=None, body_pose=None, global_orient=None, transl=None, expression=None, jaw_pose=None,

@@ -55,8 +55,12 @@ class KeypointBody(nn.Module):
         self.layout = layout
         L = model.num_betas
         self.num_betas = L
-        self.register_buffer("J_template", model.J_regressor @ model.v_template)
-        self.register_buffer("J_shapedirs", torch.einsum("jv,vcl->jcl", model.J_regressor, model.shapedirs))
+        # sums over the vertices as broadcast products, not GEMMs (silfit.body.lbs, "No BLAS"): each
+        # joint's rest position and shape directions the same bits on every processor and thread count
+        Jr = model.J_regressor
+        self.register_buffer("J_template", torch.stack([(Jr[j, :, None] * model.v_template).sum(0) for j in range(Jr.shape[0])]))
+        self.register_buffer("J_shapedirs", torch.stack([(Jr[j, :, None, None] * model.shapedirs).sum(0)
+                                                         for j in range(Jr.shape[0])]))  # fmt: skip
         lm_used = sorted({i for kind, i in sources if kind == "landmark"})
         J = model.num_joints
         if lm_used:
@@ -99,10 +103,10 @@ class KeypointBody(nn.Module):
                 pk.append(k)
                 pj.append(j)
                 c.append(r.sum())
-                M0.append(r @ model.v_template.double()[sup])
-                Ms.append(torch.einsum("s,scl->cl", r, model.shapedirs.double()[sup]))
+                M0.append((r[:, None] * model.v_template.double()[sup]).sum(0))
+                Ms.append((r[:, None, None] * model.shapedirs.double()[sup]).sum(0))
                 if pd is not None:
-                    Mp.append(torch.einsum("s,psc->cp", r, pd[:, sup]))
+                    Mp.append((r[None, :, None] * pd[:, sup]).sum(1).T)
         self.lm_count = len(used)
         self.register_buffer("lm_pair_landmark", torch.as_tensor(pk, dtype=torch.long))
         self.register_buffer("lm_pair_joint", torch.as_tensor(pj, dtype=torch.long))
@@ -117,7 +121,7 @@ class KeypointBody(nn.Module):
         M = self.lm_pair_template + blend_shapes(betas, self.lm_pair_shapedirs)  # [B, Q, 3]
         if self.lm_pair_posedirs is not None:
             dirs = self.lm_pair_posedirs
-            M = M + per_row(lambda f: torch.einsum("bp,qcp->bqc", f, dirs), pose_feature(rot))
+            M = M + per_row(lambda f: (f[:, None, None, :] * dirs).sum(-1), pose_feature(rot))
         Tq = T[:, self.lm_pair_joint, :3]  # [B, Q, 3, 4]
         part = (Tq[..., :3] * M[:, :, None, :]).sum(-1) + self.lm_pair_weight[:, None] * Tq[..., 3]
         out = torch.zeros(B, self.lm_count, 3, dtype=part.dtype, device=part.device)
@@ -125,7 +129,8 @@ class KeypointBody(nn.Module):
 
     def _pose_value(self, name: str, value: torch.Tensor) -> torch.Tensor:
         if name in ("left_hand_pose", "right_hand_pose") and getattr(self, "hand_components_l", None) is not None:
-            return per_row(lambda v: v @ (self.hand_components_l if name[0] == "l" else self.hand_components_r), value)
+            comps = self.hand_components_l if name[0] == "l" else self.hand_components_r
+            return per_row(lambda v: (v[:, :, None] * comps).sum(1), value)
         return value
 
     def shaped_joints(self, betas: torch.Tensor) -> torch.Tensor:

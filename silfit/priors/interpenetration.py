@@ -199,9 +199,10 @@ def _posed_scale(model, centres, radii, weights, own, chunk: int = 16) -> np.nda
     with torch.no_grad():
         verts = torch.cat([model(body_pose=poses[s : s + chunk].to(dt)).vertices for s in range(0, len(poses), chunk)])
         T = _skinning_transforms(model, poses).to(dt)
-        R = per_row(lambda m: torch.einsum("sj,pjxy->psxy", w, m), T[..., :3, :3])
-        t = per_row(lambda m: torch.einsum("sj,pjx->psx", w, m), T[..., :3, 3])
-        pc = (R @ c[..., None])[..., 0] + t  # [P, S, 3]
+        # broadcast products, not GEMMs (silfit.body.lbs, "No BLAS"): the same spheres on every processor
+        R = per_row(lambda m: (w[None, :, :, None, None] * m[:, None]).sum(2), T[..., :3, :3])
+        t = per_row(lambda m: (w[None, :, :, None] * m[:, None]).sum(2), T[..., :3, 3])
+        pc = (R * c[:, None, :]).sum(-1) + t  # [P, S, 3]
         best = torch.empty(len(centres), dtype=dt)
         # Spheres with the same own surface share one distance computation.
         _, group = np.unique(own, axis=0, return_inverse=True)

@@ -95,3 +95,38 @@ def test_distance_transforms_do_not_depend_on_the_buffers_address(monkeypatch):
         assert np.array_equal(outside, results[0][0]) and np.array_equal(inside, results[0][1])
     # and they are the exact Euclidean distances (squares of integers' roots), to float32 rounding
     assert abs(float(results[0][0].max()) - float(np.sqrt(np.round(results[0][0].max() ** 2)))) < 1e-5
+
+
+# A child fits the third shipped subject (float64, a short schedule) and prints the parameters.
+KEYPOINT_CHILD = textwrap.dedent("""
+    import silfit  # first: the pinned kernels (silfit.kernels)
+    import json, sys
+    import numpy as np, torch
+    from silfit import load_body_model
+    from silfit.dataset import list_subjects, load_subject
+    from silfit.fitting import KeypointFitConfig
+    from silfit.fitting.keypoint_stage import fit_keypoints
+
+    s = load_subject(list_subjects(sys.argv[1])[2])
+    cfg = KeypointFitConfig(camera_iters=8, pose_iters=(8, 8, 8), shape_iters=5, final_iters=8, init_poses=2,
+                            decision_iters=5, branch_iters=6, branch_screen_iters=4)
+    r = fit_keypoints(s.keypoints, s.camera, load_body_model(dtype=torch.float64), config=cfg, progress=False)
+    print("RESULT " + json.dumps({k: np.asarray(v, np.float64).tolist() for k, v in r.params(0).items()}))
+""")
+
+
+def test_a_keypoint_fit_is_the_same_bits_with_one_or_two_threads():
+    """No BLAS in the body model and the keypoint stage (silfit.body.lbs): on an Intel Xeon MKL's
+    GEMMs gave another float64 fit with one thread than with two (1.1 mm), so the reference fits
+    failed there. Each setting in its own process (the libraries read these once)."""
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    results = []
+    for threads in ("2", "1"):
+        env = dict(os.environ, OMP_NUM_THREADS=threads, MKL_NUM_THREADS=threads,
+                   PYTHONPATH=os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")])))  # fmt: skip
+        done = subprocess.run([sys.executable, "-c", KEYPOINT_CHILD, os.path.join(root, "data", "synthetic")], env=env,
+                              cwd=root, capture_output=True, text=True, timeout=300)  # fmt: skip
+        assert done.returncode == 0, done.stderr[-3000:]
+        results.append(json.loads([s for s in done.stdout.splitlines() if s.startswith("RESULT ")][-1][len("RESULT "):]))
+    assert results[0] == results[1]
+    assert abs(results[0]["transl"][-1]) > 1.0  # a fitted body in front of the camera
