@@ -62,6 +62,11 @@ from silfit.camera import Camera
 
 from ._llvm import import_mitsuba
 
+#: Dr.Jit's thread count for ray-cast renderers made with ``threads="auto"`` (``None``: leave the pool as the
+#: process has it, by default one thread per core); a Ray actor that reserves ``num_cpus`` CPUs sets it to that
+#: (:class:`silfit.runner.ray_backend.FitActor`), so actors sharing a node do not each run a pool of every core
+AUTO_THREADS: Optional[int] = None
+
 __all__ = [
     "SilhouetteRenderer",
     "RoiWindow",
@@ -342,8 +347,8 @@ class SilhouetteRenderer:
     build for all with the ray-cast method).
 
     ``threads``: Dr.Jit's thread-pool size, set before each render (``None``: leave it
-    alone). The pool is process-wide and stays so. ``"auto"`` (the default) is ``None`` for
-    the ray-cast method, which gives bit-identical silhouettes, gradients and fits for any
+    alone). The pool is process-wide and stays so. ``"auto"`` (the default) is
+    :data:`AUTO_THREADS` (``None`` unless a Ray actor set it) for the ray-cast method, which gives bit-identical silhouettes, gradients and fits for any
     thread count (tested per render and per silhouette-stage fit), and ``1`` for
     ``"projective"``: there one thread keeps the backward pass's scatter-adds in a fixed
     order, so a fixed seed gives bit-identical gradients and fits; with several, the same
@@ -394,7 +399,7 @@ class SilhouetteRenderer:
         self._max_cached = int(max_cached_scenes)
         self._lock = threading.Lock()
         if threads == "auto":  # the ray-cast method's results do not depend on the thread count
-            threads = None if method == "raycast" else 1
+            threads = AUTO_THREADS if method == "raycast" else 1
         self.threads = None if threads is None else _positive_int(threads, "threads")
         self._ray_scenes: dict = {}
 

@@ -11,7 +11,7 @@ same way:
 
 * ``ATEN_CPU_CAPABILITY=avx2`` (torch's vectorised kernels),
 * ``MKL_CBWR=COMPATIBLE`` (MKL's conditional numerical reproducibility on the code path it runs on
-  every Intel and compatible processor; until 2026-12 ``AVX2``, MKL's AVX2 branch,
+  every Intel and compatible processor; before 2026-12-03 ``AVX2``, MKL's AVX2 branch,
   which it need not take on another maker's processor; on an Intel Xeon with AVX-512 the keypoint
   stage's fits are the same bits with either, and differ with ``AVX512``),
 * ``OPENBLAS_CORETYPE=Haswell`` (numpy's and scipy's OpenBLAS).

@@ -19,7 +19,8 @@ with its thread count: on an Intel Xeon the same float64 keypoint fit moved 1.1 
 two MKL threads and 1.4 mm against the AMD machine's. So the products here are torch's own
 elementwise kernels (a broadcast product and a sum, :func:`matmul` for the small matrices, the
 joint regressor over its nonzeros, :func:`sparse_contract`), whose order of operations silfit pins
-(:mod:`silfit.kernels`) and which split work across threads by output, never inside a sum. Two
+(:mod:`silfit.kernels`) and which split these sums across threads by output, never inside one
+(a sum down to a single value of more than 32,768 numbers does split by thread). Two
 GEMMs remain, neither in the keypoint stage: an official model's pose correctives and the
 skinning of a whole mesh (:func:`skin_vertices`; over the weights' nonzeros it took 2x the time).
 """
@@ -142,17 +143,19 @@ def _padded(matrix: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 def sparse_rows(matrix: torch.Tensor) -> Optional[tuple]:
     """The padded nonzeros of ``matrix [R, C]`` and of its transpose (``(index, weight)`` each, see
     :func:`sparse_contract`), kept per tensor and its version; ``None`` where the matrix needs a
-    gradient (the dense product is used then). SMPL's joint regressor and skinning weights are
-    sparse (the open model: at most 300 vertices per joint, 7 joints per vertex), so the
-    contractions cost a fraction of the dense ones."""
+    gradient (the dense product is used then). SMPL's joint regressor is sparse (the open model: at
+    most 300 of 13,348 vertices per joint), so the contraction costs a fraction of the dense one.
+    Writes that bypass the version counter (``matrix.data``, numpy memory shared with it) are not
+    seen: the model's buffers are never written."""
     if matrix.requires_grad or matrix.dim() != 2:
         return None
     key = id(matrix)
+    version = None if matrix.is_inference() else matrix._version  # inference tensors keep no version
     hit = _SPARSE.get(key)
-    if hit is not None and hit[0]() is matrix and hit[1] == matrix._version:
+    if hit is not None and hit[0]() is matrix and hit[1] == version:
         return hit[2]
     value = (*_padded(matrix), *_padded(matrix.detach().T))
-    _SPARSE[key] = (weakref.ref(matrix, lambda _, key=key: _SPARSE.pop(key, None)), matrix._version, value)
+    _SPARSE[key] = (weakref.ref(matrix, lambda _, key=key: _SPARSE.pop(key, None)), version, value)
     return value
 
 

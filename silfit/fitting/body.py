@@ -55,12 +55,11 @@ class KeypointBody(nn.Module):
         self.layout = layout
         L = model.num_betas
         self.num_betas = L
-        # sums over the vertices as broadcast products, not GEMMs (silfit.body.lbs, "No BLAS"): each
+        # the joint regressor over its nonzeros, as the model's own forward (silfit.body.lbs, "No BLAS"): each
         # joint's rest position and shape directions the same bits on every processor and thread count
-        Jr = model.J_regressor
-        self.register_buffer("J_template", torch.stack([(Jr[j, :, None] * model.v_template).sum(0) for j in range(Jr.shape[0])]))
-        self.register_buffer("J_shapedirs", torch.stack([(Jr[j, :, None, None] * model.shapedirs).sum(0)
-                                                         for j in range(Jr.shape[0])]))  # fmt: skip
+        Jr, V, L = model.J_regressor, model.num_vertices, model.shapedirs.shape[-1]
+        self.register_buffer("J_template", vertices_to_joints(Jr, model.v_template[None])[0])
+        self.register_buffer("J_shapedirs", vertices_to_joints(Jr, model.shapedirs.reshape(1, V, 3 * L))[0].reshape(-1, 3, L))
         lm_used = sorted({i for kind, i in sources if kind == "landmark"})
         J = model.num_joints
         if lm_used:

@@ -577,6 +577,12 @@ class KeypointFitter:
     without rebuilding them."""
 
     def __init__(self, model=None, layout: str = "body25", config: Optional[KeypointFitConfig] = None, pose_prior=None):
+        # the set-up's arithmetic (collision spheres, priors, the reduced body) with the stage's threads, so
+        # its bits do not follow the process's thread count either (silfit.body.lbs, "No BLAS")
+        with torch_threads((config or KeypointFitConfig()).threads):
+            self._setup(model, layout, config, pose_prior)
+
+    def _setup(self, model, layout: str, config: Optional[KeypointFitConfig], pose_prior) -> None:
         from ..body import load_body_model, model_in_dtype
 
         if model is None:

@@ -209,7 +209,7 @@ def _posed_scale(model, centres, radii, weights, own, chunk: int = 16) -> np.nda
         for g in np.unique(group):
             members = torch.as_tensor(np.flatnonzero(group == g))
             vi = torch.as_tensor(np.flatnonzero(own[int(members[0])]))
-            best[members] = torch.cdist(pc[:, members], verts[:, vi]).amin(-1).amin(0)
+            best[members] = torch.cdist(pc[:, members], verts[:, vi], compute_mode="donot_use_mm_for_euclid_dist").amin(-1).amin(0)
     scale = np.minimum(1.0, best.double().numpy() / np.maximum(radii, 1e-9))
     mirrored = centres * np.array([-1.0, 1.0, 1.0])
     partner, d = _nearest(mirrored, centres, 1)

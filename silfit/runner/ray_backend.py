@@ -32,7 +32,12 @@ __all__ = ["FitActor", "run_ray"]
 class FitActor:
     """A Ray Data actor: builds the fitter once, then fits the batches it is given."""
 
-    def __init__(self, options: dict, out: str):
+    def __init__(self, options: dict, out: str, render_threads: int = 1):
+        import renderers.silhouette
+
+        # Dr.Jit's pool as large as the CPUs the actor reserved, not every core of the node (the fits are
+        # the same bits for any count: renderers.silhouette.SilhouetteRenderer)
+        renderers.silhouette.AUTO_THREADS = max(1, int(render_threads))
         self.fitter = DatasetFitter(FitOptions(**options))
         self.out = out
 
@@ -84,7 +89,8 @@ def run_ray(
         rows = [{"item": json.dumps(it.to_dict())} for it in pending]
         ds = ray.data.from_items(rows, override_num_blocks=max(1, -(-len(rows) // batch_size)))
         fitted = ds.map_batches(
-            FitActor, fn_constructor_kwargs={"options": options.to_dict(), "out": os.fspath(store.out.resolve())},
+            FitActor, fn_constructor_kwargs={"options": options.to_dict(), "out": os.fspath(store.out.resolve()),
+                                             "render_threads": max(1, int(num_cpus))},
             batch_size=batch_size, compute=ray.data.ActorPoolStrategy(size=max(1, actors)),
             num_cpus=num_cpus, num_gpus=num_gpus or None, batch_format="numpy",
         )  # fmt: skip

@@ -351,7 +351,6 @@ def test_a_batch_with_the_contour_level_equals_single_runs(open_model):
         assert alone.contour_iterations == r.contour_iterations and alone.steps == r.steps
 
 
-
 def test_a_fit_is_bit_identical_for_any_drjit_thread_count(open_model, target_mask):
     """The stage's default (ray-cast) renderer leaves Dr.Jit's thread pool as the process has it,
     and a fit is the same bits with one thread or two: Embree answers boolean ray tests and every
@@ -377,6 +376,7 @@ def test_a_fit_is_bit_identical_for_any_drjit_thread_count(open_model, target_ma
             np.testing.assert_array_equal(getattr(results[0], name), getattr(r, name), err_msg=name)
     # and the fit moved (a test that cannot fail proves nothing)
     assert abs(float(results[0].transl[0, 0]) - float(POSE["transl"][0, 0])) > 0.02
+
 
 def test_legacy_schedule_has_no_contour_level():
     legacy = SilhouetteFitConfig.legacy()
