@@ -21,7 +21,7 @@ elementwise kernels (a broadcast product and a sum, :func:`matmul` for the small
 joint regressor over its nonzeros, :func:`sparse_contract`), whose order of operations silfit pins
 (:mod:`silfit.kernels`) and which split these sums across threads by output, never inside one
 (a sum down to a single value of more than 32,768 numbers does split by thread). Two
-GEMMs remain, neither in the keypoint stage: an official model's pose correctives and the
+GEMMs remain, neither in the keypoint stage's default energy: an official model's pose correctives and the
 skinning of a whole mesh (:func:`skin_vertices`; over the weights' nonzeros it took 2x the time).
 """
 from __future__ import annotations

@@ -292,6 +292,22 @@ def test_raycast_is_bit_identical_for_any_thread_count(capsule, cam64):
         assert torch.equal(s, out[0][0]) and torch.equal(g, out[0][1])
 
 
+
+def test_auto_threads_leave_the_pool_to_the_process_or_a_ray_actor(capsule, monkeypatch):
+    """``threads="auto"``: the ray-cast method takes ``AUTO_THREADS`` (``None``: Dr.Jit's pool as it is;
+    a Ray actor sets the CPUs it reserved), the projective method one thread."""
+    import renderers.silhouette as rs
+    from silfit.runner import ray_backend
+
+    f = capsule[1]
+    assert SilhouetteRenderer(f).threads is None and SilhouetteRenderer(f, method="projective").threads == 1
+    monkeypatch.setattr(ray_backend, "DatasetFitter", lambda options: None)
+    monkeypatch.setattr(ray_backend, "FitOptions", lambda **options: options)
+    monkeypatch.setattr(rs, "AUTO_THREADS", None)
+    ray_backend.FitActor({}, "out", render_threads=3)
+    assert rs.AUTO_THREADS == 3 and SilhouetteRenderer(f).threads == 3
+    assert SilhouetteRenderer(f, method="projective").threads == 1 and SilhouetteRenderer(f, threads=2).threads == 2
+
 def test_render_views_shares_one_body(capsule, cam64):
     """``render_views``: one vertex set, several extrinsics; each view equals a render of the
     mapped vertices, and the gradients of all views reach the one vertex set."""
