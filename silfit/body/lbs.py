@@ -259,8 +259,9 @@ def forward_kinematics(
 def skin_vertices(vertices: torch.Tensor, transforms: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
     """Linear blend skinning of rest vertices ``[B, V, 3]`` with per-joint transforms
     ``[B, J, 4, 4]`` and skinning weights ``[V, J]``."""
-    # a GEMM per row (the keypoint stage skins no mesh; the silhouette stage runs one torch thread, so one
-    # MKL thread): over the weights' nonzeros (sparse_contract) forward and backward took 2x the time
+    # a GEMM per row (the keypoint stage's default energy skins no mesh, and the stages and the keypoint
+    # fitter's set-up run one torch thread, so one MKL thread): over the weights' nonzeros (sparse_contract)
+    # forward and backward took 2x the time
     T = per_row(lambda t: torch.einsum("vj,bjrc->bvrc", weights, t), transforms[..., :3, :])  # [B, V, 3, 4]
     return (T[..., :3] * vertices[..., None, :]).sum(-1) + T[..., 3]
 

@@ -199,7 +199,8 @@ def _posed_scale(model, centres, radii, weights, own, chunk: int = 16) -> np.nda
     with torch.no_grad():
         verts = torch.cat([model(body_pose=poses[s : s + chunk].to(dt)).vertices for s in range(0, len(poses), chunk)])
         T = _skinning_transforms(model, poses).to(dt)
-        # broadcast products, not GEMMs (silfit.body.lbs, "No BLAS"): the same spheres on every processor
+        # broadcast products, not GEMMs (silfit.body.lbs, "No BLAS"; the posed vertices above are one skinning
+        # GEMM per pose, run with the keypoint fitter's one thread)
         R = per_row(lambda m: (w[None, :, :, None, None] * m[:, None]).sum(2), T[..., :3, :3])
         t = per_row(lambda m: (w[None, :, :, None] * m[:, None]).sum(2), T[..., :3, 3])
         pc = (R * c[:, None, :]).sum(-1) + t  # [P, S, 3]
