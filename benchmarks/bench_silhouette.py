@@ -91,17 +91,18 @@ DRJIT_POOL = None  # set in main()
 def runtime(name):
     """Method ``name``'s runtime: before issue 24's runtime part for :data:`OLD_RUNTIME` (no vertex-gradient
     shortcut, no kept bodies), else today's."""
+    global DRJIT_POOL
+    from renderers._llvm import import_mitsuba
     from renderers.raycast import RaycastScene
     from silfit.fitting import silhouette_stage
 
-    from renderers._llvm import import_mitsuba
-
     _, dr = import_mitsuba()
+    DRJIT_POOL = DRJIT_POOL or dr.thread_count()  # the pool as Dr.Jit started, before a method set it to one
     old = name in OLD_RUNTIME
     RaycastScene.analytic_grad = not old
     if old:
         silhouette_stage._CONTOUR_BODIES.clear()
-    dr.set_thread_count(1 if name in ONE_THREAD else (DRJIT_POOL or dr.thread_count()))
+    dr.set_thread_count(1 if name in ONE_THREAD else DRJIT_POOL)
     try:
         yield
     finally:

@@ -579,15 +579,16 @@ class KeypointFitter:
     def __init__(self, model=None, layout: str = "body25", config: Optional[KeypointFitConfig] = None, pose_prior=None):
         # the set-up's arithmetic (collision spheres, priors, the reduced body) with the stage's threads, so
         # its bits do not follow the process's thread count either (silfit.body.lbs, "No BLAS")
-        with torch_threads((config or KeypointFitConfig()).threads):
+        config = config or KeypointFitConfig()
+        with torch_threads(config.threads):
             self._setup(model, layout, config, pose_prior)
 
-    def _setup(self, model, layout: str, config: Optional[KeypointFitConfig], pose_prior) -> None:
+    def _setup(self, model, layout: str, config: KeypointFitConfig, pose_prior) -> None:
         from ..body import load_body_model, model_in_dtype
 
         if model is None:
             model = load_body_model(kind="smplx" if layout == "wholebody" else None)
-        self.config = config or KeypointFitConfig()
+        self.config = config
         #: the model the stage computes with: the caller's, or its copy in ``config.dtype``
         self.model = model if self.config.dtype is None else model_in_dtype(model, getattr(torch, self.config.dtype))
         self.layout = layout

@@ -80,7 +80,7 @@ def evaluate(body, layout: ParameterLayout, params: Dict[str, torch.Tensor], vie
     kp_cam = world_to_camera(kp, R, t)
     proj = project_points(kp_cam, views["intr"])
     root = rows["transl"].reshape(P, F, 1, 3)
-    root_cam = (R * root.expand(P, F, C, 3)[..., None, :]).sum(-1) + t  # not a GEMM (silfit.body.lbs)
+    root_cam = world_to_camera(root.expand(P, F, C, 3)[..., None, :], R, t)[..., 0, :]
     return Evaluation(P, F, C, params, rows, state, proj, root_cam, data, views=views)
 
 
