@@ -228,14 +228,14 @@ class RaycastScene:
         pass through)``; a face's bounding box is tested)."""
         if not self.closed or not self.cull:
             return None
-        keep = None
         f = self.edges.faces
+        keep = torch.zeros(f.shape[0], dtype=torch.bool)
         for i, (d, scale) in enumerate(towards):
-            front = d < 1e-3 * scale
-            if i < len(touched):
+            front = torch.nonzero(d < 1e-3 * scale).squeeze(1)
+            if i < len(touched):  # the boxes of the faces turned towards the camera only
                 vc, cam, mask = touched[i]
-                front &= _boxes_touch(vc, f, cam, mask)
-            keep = front if keep is None else keep | front
+                front = front[_boxes_touch(vc, f[front], cam, mask)]
+            keep[front] = True
         if bool(keep.all()):
             return None
         return torch.nonzero(keep).squeeze(1)
@@ -311,15 +311,16 @@ class RaycastScene:
               edge_density=None):  # fmt: skip
         E = self.edges
         W, H = cam.width, cam.height
-        fb = E.face_b.clamp(min=0)
-        cand = (E.face_b < 0) | (facing[E.face_a] != facing[fb])
-        p0, p1, q = vc[E.edges[:, 0]], vc[E.edges[:, 1]], vc[E.opposite_a]
-        cand &= (p0[:, 2] > _NEAR) & (p1[:, 2] > _NEAR) & (q[:, 2] > _NEAR)
-        idx = torch.nonzero(cand).squeeze(1)
-        u0, u1, uq = _project(p0[idx], cam), _project(p1[idx], cam), _project(q[idx], cam)
+        # the silhouette's candidates (faces facing opposite ways, or a boundary), then only their endpoints
+        # gathered: a few hundred of the mesh's thousands of edges
+        idx = torch.nonzero((E.face_b < 0) | (facing[E.face_a] != facing[E.face_b.clamp(min=0)])).squeeze(1)
+        p0, p1, q = vc[E.edges[idx, 0]], vc[E.edges[idx, 1]], vc[E.opposite_a[idx]]
+        front = torch.nonzero((p0[:, 2] > _NEAR) & (p1[:, 2] > _NEAR) & (q[:, 2] > _NEAR)).squeeze(1)
+        idx, p0, p1, q = idx[front], p0[front], p1[front], q[front]
+        u0, u1, uq = _project(p0, cam), _project(p1, cam), _project(q, cam)
         seg = u1 - u0
         length = seg.norm(dim=-1)
-        keep = length > 1e-9
+        keep = torch.nonzero(length > 1e-9).squeeze(1)
         idx, u0, u1, uq, seg, length = idx[keep], u0[keep], u1[keep], uq[keep], seg[keep], length[keep]
         normal = torch.stack([-seg[:, 1], seg[:, 0]], -1) / length[:, None]
         side = ((uq - u0) * normal).sum(-1)
@@ -371,7 +372,7 @@ class RaycastScene:
             t = ((s - (cum[e] - length[e])) / length[e]).clamp(0.0, 1.0)
             pts = u0[e] + t[:, None] * seg[e]
             px = torch.floor(pts + 0.5).to(torch.int64)
-            inside = (px[:, 0] >= 0) & (px[:, 0] < W) & (px[:, 1] >= 0) & (px[:, 1] < H)
+            inside = torch.nonzero((px[:, 0] >= 0) & (px[:, 0] < W) & (px[:, 1] >= 0) & (px[:, 1] < H)).squeeze(1)
             e, t, pts, px = e[inside], t[inside], pts[inside], px[inside]
             pixel = px[:, 1] * W + px[:, 0]
             edge_xy = pts + _EDGE_EPS * normal[e]
@@ -417,16 +418,16 @@ class RaycastScene:
         cam = plan.camera
         n_cover = plan.edge_pixels.numel() * plan.spp
         cover, rep, edge = hits[:n_cover], hits[n_cover : n_cover + plan.n_components], hits[n_cover + plan.n_components :]
-        img = torch.zeros(cam.height * cam.width, dtype=torch.float32)
-        if plan.n_components:
-            free = torch.nonzero(plan.labels >= 0).squeeze(1)
-            img[free] = rep.to(torch.float32)[plan.labels[free]]
+        if plan.n_components:  # each pixel off the edge pixels takes its component's ray (an edge pixel: 0, then its own)
+            img = torch.cat([torch.zeros(1, dtype=torch.float32), rep.to(torch.float32)])[plan.labels + 1]
+        else:
+            img = torch.zeros(cam.height * cam.width, dtype=torch.float32)
         if n_cover:
             img[plan.edge_pixels] = cover.reshape(-1, plan.spp).to(torch.float32).mean(1)
         img = img.reshape(cam.height, cam.width)
         if not need_grad:
             return img, None
-        outline = ~edge  # the ray just outside the segment misses: the segment is the outline there
+        outline = torch.nonzero(~edge).squeeze(1)  # the ray just outside the segment misses: the outline there
         state = {
             "edge": plan.sample_edge[outline], "t": plan.sample_t[outline], "pixel": plan.sample_pixel[outline],
             "candidates": plan.candidates, "normals": plan.normals, "step": plan.step, "camera": cam,
