@@ -23,6 +23,35 @@ def silhouette_config(args):
         raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels") from None
 
 
+def keypoint_config(args, base=None):
+    """The keypoint stage's settings: ``base`` (``None``: the default) with ``--keypoint-option NAME=VALUE``
+    overrides (repeatable; ``silfit fit`` and ``fit-dataset`` alike); ``None`` when neither is given."""
+    from ..runner.worker import keypoint_config as with_options
+
+    overrides = keypoint_options(args)
+    if not overrides:
+        return base
+    return with_options(overrides, base)
+
+
+def keypoint_options(args) -> dict:
+    """``--keypoint-option NAME=VALUE`` flags as ``{name: value}``, each checked against
+    :class:`~silfit.fitting.keypoint_stage.KeypointFitConfig` (a bad one: :class:`CLIError`)."""
+    from ..runner.worker import keypoint_config as with_options
+
+    overrides = {}
+    for text in getattr(args, "keypoint_option", None) or ():
+        name, sep, value = text.partition("=")
+        if not sep or not name.strip():
+            raise CLIError(f"--keypoint-option {text!r}: expected NAME=VALUE")
+        overrides[name.strip()] = value.strip()
+    try:
+        with_options(overrides)
+    except ValueError as err:
+        raise CLIError(str(err)) from None
+    return overrides
+
+
 def _missing_folders(path: Path) -> list:
     """``path``'s ancestors that do not exist yet, deepest first (removed again on failure)."""
     missing, parent = [], path.absolute().parent

@@ -76,6 +76,9 @@ def register(subparsers) -> None:
                    help="also write the K best distinct keypoint-stage solutions of the limbs' depth branches to "
                         "hypotheses/<k>/params.npz (1: the keypoint stage's best, where the silhouette stage starts), "
                         "their energies and differing segments in metrics.json (default 1: none)")
+    p.add_argument("--keypoint-option", action="append", default=[], metavar="NAME=VALUE",
+                   help="override a KeypointFitConfig field of the keypoint stage (one image, rig, video: each "
+                        "frame's start), e.g. init_poses=1 or pose_iters=10,10,10 (repeatable; as fit-dataset)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -76,21 +76,15 @@ def _ints(text, option):
 def run(args) -> int:
     from ..runner import FitOptions, InputError, fit_dataset
     from ..runner.items import parse_people
-    from ..runner.worker import keypoint_config
+    from .common import keypoint_options
 
     if args.batch_size < 1:
         raise CLIError(f"--batch-size {args.batch_size}: expected 1 or more")
     if args.ray is None and (args.actors != 2 or args.num_cpus != 1.0 or args.num_gpus != 0.0):
         raise CLIError("--actors, --num-cpus and --num-gpus are Ray options: add --ray")
-    overrides = {}
-    for text in args.keypoint_option:
-        name, sep, value = text.partition("=")
-        if not sep or not name:
-            raise CLIError(f"--keypoint-option {text!r}: expected NAME=VALUE")
-        overrides[name.strip()] = value.strip()
+    overrides = keypoint_options(args)
     try:
         people = parse_people(args.people)
-        keypoint_config(overrides)
     except (InputError, ValueError) as err:
         raise CLIError(str(err)) from None
     from ..outputs.export import parse_formats

@@ -15,7 +15,7 @@ from ..fitting.problem import Observation, Problem
 from ..run import Job
 from ..run import video_job as make_video_job
 from . import CLIError, note, warn
-from .common import choose_model, silhouette_config
+from .common import choose_model, keypoint_config, silhouette_config
 
 __all__ = ["build_job", "image_job", "rig_job", "video_job", "describe_inputs"]
 
@@ -137,15 +137,15 @@ def image_job(args) -> Job:
         note(choice_note)
     record = {"keypoints": args.keypoints and os.fspath(args.keypoints), "mask": args.mask, "image": args.image,
               "model": model.source, "camera_source": camera_source, **(photo["metrics"] if photo else {})}  # fmt: skip
-    keypoint_config = None
+    base = None
     if getattr(args, "hypotheses", 1) != 1:  # the K best distinct depth-branch solutions (hypotheses/<k>/)
         from ..fitting.keypoint_stage import KeypointFitConfig
 
         if not 1 <= args.hypotheses <= 20:
             raise CLIError(f"--hypotheses must be 1..20, got {args.hypotheses}")
-        keypoint_config = KeypointFitConfig(hypotheses=args.hypotheses)
+        base = KeypointFitConfig(hypotheses=args.hypotheses)
     return Job(Problem.single(keypoints, camera, mask), model, pose_prior=_pose_prior(args, model),
-               keypoint_config=keypoint_config, silhouette_config=silhouette_config(args), silhouette=not args.no_silhouette, progress=not args.quiet,
+               keypoint_config=keypoint_config(args, base), silhouette_config=silhouette_config(args), silhouette=not args.no_silhouette, progress=not args.quiet,
                warnings=warnings, record=record, images={} if image is None else {(0, 0): image},
                mask_sources={(0, 0): args.mask or "mask"})  # fmt: skip
 
@@ -190,9 +190,9 @@ def rig_job(args) -> Job:
         names.append(v.name)
     if not obs:
         raise first
-    return Job(Problem(obs), model, names, pose_prior=_pose_prior(args, model), silhouette_config=silhouette_config(args),
-               silhouette=not args.no_silhouette, progress=not args.quiet, warnings=warnings,
-               record={"rig": str(args.rig), "model": model.source}, images=images, rig=True)  # fmt: skip
+    return Job(Problem(obs), model, names, pose_prior=_pose_prior(args, model), keypoint_config=keypoint_config(args),
+               silhouette_config=silhouette_config(args), silhouette=not args.no_silhouette, progress=not args.quiet,
+               warnings=warnings, record={"rig": str(args.rig), "model": model.source}, images=images, rig=True)  # fmt: skip
 
 
 def _rig_model(args, keypoint_files, person):
@@ -233,6 +233,7 @@ def rig_video_job(args) -> Job:
                for c, ks in enumerate(row)] for f, row in enumerate(seq.frames)]  # fmt: skip
     masks = read_rig_sequence_masks(seq)  # [F][C] or None; read (and checked) before --check-only answers
     cfg = SequenceFitConfig()
+    cfg.keypoint = keypoint_config(args, cfg.keypoint)  # each frame's start
     if args.sequence_iterations is not None:
         cfg.iterations = int(args.sequence_iterations)
     obs = [Observation(v.view, frames[f][c], None if masks is None else masks[f][c], f, c)
@@ -297,6 +298,7 @@ def video_job(args) -> Job:
         masks = [read_mask(seq.masks[n], size=(camera.width, camera.height), allow_empty=True) if n in seq.masks else None
                  for n in seq.numbers]  # fmt: skip
     cfg = SequenceFitConfig()
+    cfg.keypoint = keypoint_config(args, cfg.keypoint)  # each frame's start
     if args.sequence_iterations is not None:
         cfg.iterations = int(args.sequence_iterations)
     silhouette = "run" if any(m is not None for m in masks) else "not run (no masks)" if not seq.masks else "not run (--no-silhouette)"

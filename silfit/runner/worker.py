@@ -48,10 +48,10 @@ class FitOptions:
         return asdict(self)
 
 
-def keypoint_config(options: Dict[str, object]) -> KeypointFitConfig:
-    """A :class:`KeypointFitConfig` with ``options`` (field name -> value; strings are parsed
-    by the type of the field's default, tuples comma-separated)."""
-    base = KeypointFitConfig()
+def keypoint_config(options: Dict[str, object], base: Optional[KeypointFitConfig] = None) -> KeypointFitConfig:
+    """``base`` (default :class:`KeypointFitConfig()`) with ``options`` (field name -> value; strings are
+    parsed by the type of the field's default, tuples comma-separated)."""
+    base = KeypointFitConfig() if base is None else base
     names = {f.name for f in fields(base)} | set(getattr(KeypointFitConfig, "renamed_fields", {}))  # old names too
     values = {}
     optional = {f.name for f in fields(base) if "Optional" in str(f.type)}  # these also take "none"

@@ -250,3 +250,40 @@ def test_fit_hypotheses_writes_each_solution_and_records_them(inputs, tmp_path, 
     capsys.readouterr()
     assert main(["fit", "--rig", str(d), "--hypotheses", "2", "--out", str(tmp_path / "rig")] + FAST) == 2
     assert "--hypotheses with --sequence/--rig" in capsys.readouterr().err  # refused for the flag, not for the folder
+
+
+def test_keypoint_option_reaches_each_mode_and_a_bad_one_is_one_line(inputs, tmp_path, capsys):
+    """``--keypoint-option NAME=VALUE`` (as fit-dataset's): an image's keypoint stage takes it over the default,
+    with --hypotheses too, a video's per-frame start over its own settings; a bad one exits 2 with one line."""
+    import argparse
+
+    from silfit.cli.common import keypoint_config
+    from silfit.fitting.sequence import SequenceFitConfig
+
+    d, model = inputs
+    args = argparse.Namespace(keypoint_option=["final_iters=7", "pose_iters=5,6,7"])
+    cfg = keypoint_config(args)
+    assert cfg.final_iters == 7 and tuple(cfg.pose_iters) == (5, 6, 7)
+    video = keypoint_config(args, SequenceFitConfig().keypoint)
+    assert video.final_iters == 7 and video.branch_refine == SequenceFitConfig().keypoint.branch_refine == 1
+    assert keypoint_config(argparse.Namespace(keypoint_option=[])) is None  # nothing given: the mode's default
+    out = tmp_path / "fit"
+    rc = main(["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
+               "--no-silhouette", "--keypoint-option", "init_poses=1", "--keypoint-option", "final_iters=5",
+               "--out", str(out)] + FAST)  # fmt: skip
+    assert rc == 0 and (out / "params.npz").is_file()
+    from silfit.cli import build_parser
+    from silfit.cli.jobs import build_job
+
+    job = build_job(build_parser().parse_args(["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"),
+                                               "--model", str(model), "--hypotheses", "2", "--keypoint-option", "final_iters=5",
+                                               "--out", str(tmp_path / "unused")]))  # fmt: skip
+    assert job.keypoint_config.final_iters == 5 and job.keypoint_config.hypotheses == 2
+    for bad, said in (("nope=1", "unknown keypoint-stage option 'nope'"), ("final_iters=x", "final_iters"),
+                      ("final_iters", "expected NAME=VALUE")):  # fmt: skip
+        capsys.readouterr()
+        rc = main(["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
+                   "--keypoint-option", bad, "--out", str(tmp_path / "bad")] + FAST)  # fmt: skip
+        err = capsys.readouterr().err.strip()
+        assert rc == 2 and err.count("\n") == 0 and said in err, err
+        assert not (tmp_path / "bad").exists()

@@ -13,6 +13,12 @@ from silfit.cli import main  # noqa: E402
 from silfit.synth.motion import SequenceConfig, generate_sequence_dataset  # noqa: E402
 
 
+#: a short keypoint stage per frame (these tests check the video path's plumbing, not its accuracy:
+#: tests/fitting/test_sequence.py does)
+KP_FAST = ["--keypoint-option", "init_poses=1", "--keypoint-option", "camera_iters=10", "--keypoint-option",
+           "pose_iters=10,10,10", "--keypoint-option", "shape_iters=5", "--keypoint-option", "final_iters=10"]  # fmt: skip
+
+
 @pytest.fixture(scope="module")
 def sequence(tmp_path_factory):
     d = tmp_path_factory.mktemp("seq_in")
@@ -38,7 +44,7 @@ def test_synth_sequence_writes_per_frame_files_and_truth(sequence):
 def test_fit_sequence_writes_one_shape_and_per_frame_outputs(sequence, tmp_path, capsys):
     seq, model = sequence
     out = tmp_path / "fit"
-    rc = main(["fit", "--sequence", str(seq), "--model", str(model), "--out", str(out), "--meshes", "--sequence-iterations", "10",
+    rc = main(["fit", *KP_FAST, "--sequence", str(seq), "--model", str(model), "--out", str(out), "--meshes", "--sequence-iterations", "10",
                "--silhouette-resolutions", "32", "--silhouette-iterations", "3"])  # fmt: skip
     assert rc == 0, capsys.readouterr().err
     p = np.load(out / "params.npz")
@@ -121,7 +127,7 @@ def test_fit_sequence_mismatched_silhouette_levels_fail_before_fitting(sequence,
 
     monkeypatch.setattr(silfit.fitting.sequence, "fit_sequence", no_fit)
     seq, model = sequence
-    rc = main(["fit", "--sequence", str(seq), "--model", str(model), "--out", str(tmp_path / "o"),
+    rc = main(["fit", *KP_FAST, "--sequence", str(seq), "--model", str(model), "--out", str(tmp_path / "o"),
                "--silhouette-resolutions", "32,64", "--silhouette-iterations", "3"])  # fmt: skip
     assert rc == 2
     captured = capsys.readouterr()
@@ -138,7 +144,7 @@ def test_fit_sequence_failing_write_leaves_no_parent_folder(sequence, tmp_path, 
     monkeypatch.setattr(silfit.video, "save_sequence_fit", failing_save)
     seq, model = sequence
     out = tmp_path / "new" / "deeper" / "fit"
-    rc = main(["fit", "--sequence", str(seq), "--model", str(model), "--out", str(out), "--sequence-iterations", "2",
+    rc = main(["fit", *KP_FAST, "--sequence", str(seq), "--model", str(model), "--out", str(out), "--sequence-iterations", "2",
                "--no-silhouette", "--quiet"])  # fmt: skip
     assert rc == 2 and "disk full" in capsys.readouterr().err
     assert not (tmp_path / "new").exists()
@@ -157,7 +163,7 @@ def test_fit_sequence_frame_with_an_empty_mask_has_no_silhouette_term(sequence, 
     Image.new("L", size, 0).save(masks[3])  # frame 3: the person was not segmented
     shutil.copy(masks[0], masks[0].with_name(masks[0].name.replace("000000000000", "000000000009")))  # not a frame
     out = tmp_path / "fit"
-    rc = main(["fit", "--sequence", str(copy), "--model", str(model), "--out", str(out), "--no-video", "--quiet",
+    rc = main(["fit", *KP_FAST, "--sequence", str(copy), "--model", str(model), "--out", str(out), "--no-video", "--quiet",
                "--sequence-iterations", "5", "--silhouette-resolutions", "32", "--silhouette-iterations", "2"])  # fmt: skip
     assert rc == 0, capsys.readouterr().err
     m = json.loads((out / "metrics.json").read_text())
@@ -206,7 +212,7 @@ def test_a_whole_body_video_fits_hands_and_face_with_the_whole_body_model(tmp_pa
     for f in range(3):
         (masks / f"clip_{f:012d}.png").write_bytes((src / "mask.png").read_bytes())
     out = tmp_path / "fit"
-    rc = main(["fit", "--sequence", str(video), "--masks", str(masks), "--out", str(out), "--sequence-iterations", "5",
+    rc = main(["fit", *KP_FAST, "--sequence", str(video), "--masks", str(masks), "--out", str(out), "--sequence-iterations", "5",
                "--silhouette-resolutions", "32", "--silhouette-iterations", "2", "--no-video", "--quiet"])  # fmt: skip
     assert rc == 0, capsys.readouterr().err
     assert "shipped open whole-body model" in capsys.readouterr().err
@@ -226,7 +232,7 @@ def test_fit_sequence_export_writes_one_animated_gltf(sequence, tmp_path, capsys
 
     seq, model = sequence
     out = tmp_path / "fit"
-    rc = main(["fit", "--sequence", str(seq), "--model", str(model), "--out", str(out), "--meshes", "--no-silhouette",
+    rc = main(["fit", *KP_FAST, "--sequence", str(seq), "--model", str(model), "--out", str(out), "--meshes", "--no-silhouette",
                "--sequence-iterations", "3", "--export", "glb,ply", "--fps", "5", "--quiet"])  # fmt: skip
     assert rc == 0, capsys.readouterr().err
     assert (out / "overlay.gif").is_file()
@@ -275,7 +281,7 @@ def test_a_rig_video_is_synthesised_fitted_over_every_view_and_rendered(sequence
                  "--out", str(tmp_path / "x")]) == 0  # fmt: skip
     assert "a rig video of 3 frames seen by 1 views (view_1), masks read" in capsys.readouterr().out
     out = tmp_path / "fit"
-    rc = main(["fit", "--rig", str(rig), "--model", str(model), "--out", str(out), "--sequence-iterations", "10",
+    rc = main(["fit", *KP_FAST, "--rig", str(rig), "--model", str(model), "--out", str(out), "--sequence-iterations", "10",
                "--silhouette-resolutions", "32", "--silhouette-iterations", "2", "--meshes", "--quiet"])  # fmt: skip
     assert rc == 0, capsys.readouterr().err
     line = capsys.readouterr().out  # the one summary line of silfit.run.Fit
@@ -311,7 +317,7 @@ def test_a_video_the_silhouette_stage_made_less_plausible_keeps_the_keypoint_fit
             if where == "video" else decision
 
     monkeypatch.setattr(plausibility, "silhouette_guard", implausible)
-    args = ["fit", "--sequence", str(seq), "--model", str(model), "--no-video", "--quiet", "--sequence-iterations", "5",
+    args = ["fit", *KP_FAST, "--sequence", str(seq), "--model", str(model), "--no-video", "--quiet", "--sequence-iterations", "5",
             "--silhouette-resolutions", "32", "--silhouette-iterations", "2"]  # fmt: skip
     assert main(args + ["--out", str(tmp_path / "kp"), "--no-silhouette"]) == 0
     assert main(args + ["--out", str(tmp_path / "fit")]) == 0, capsys.readouterr().err

@@ -7,6 +7,8 @@ import numpy as np
 
 from silfit.cli import main
 
+from .helpers import FAST  # a short keypoint stage: plumbing, not accuracy
+
 SHIPPED = Path(__file__).resolve().parents[2] / "data" / "synthetic_wholebody"
 
 
@@ -19,7 +21,7 @@ def test_fit_dataset_whole_body_items(tmp_path):
         kp["people"][0][field] = []
     (data / "subject_001" / "keypoints.json").write_text(json.dumps(kp))
     out = tmp_path / "out"
-    assert main(["fit-dataset", str(data), "--out", str(out), "--model", "open-smplx", "--no-silhouette", "--quiet"]) == 0
+    assert main(["fit-dataset", str(data), "--out", str(out), "--model", "open-smplx", "--no-silhouette", "--quiet", *FAST]) == 0
     full = json.loads((out / "subject_000" / "metrics.json").read_text())
     body = json.loads((out / "subject_001" / "metrics.json").read_text())
     assert full["layout"] == body["layout"] == "wholebody"
