@@ -23,30 +23,31 @@ def silhouette_config(args):
         raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels") from None
 
 
-def keypoint_config(args, base=None):
+def keypoint_settings(args, base=None):
     """The keypoint stage's settings: ``base`` (``None``: the default) with ``--keypoint-option NAME=VALUE``
-    overrides (repeatable; ``silfit fit`` and ``fit-dataset`` alike); ``None`` when neither is given."""
-    from ..runner.worker import keypoint_config as with_options
+    overrides (:func:`keypoint_options`); ``base`` itself when none is given."""
+    from ..runner.worker import keypoint_config
 
     overrides = keypoint_options(args)
-    if not overrides:
-        return base
-    return with_options(overrides, base)
+    return keypoint_config(overrides, base) if overrides else base
 
 
-def keypoint_options(args) -> dict:
-    """``--keypoint-option NAME=VALUE`` flags as ``{name: value}``, each checked against
-    :class:`~silfit.fitting.keypoint_stage.KeypointFitConfig` (a bad one: :class:`CLIError`)."""
-    from ..runner.worker import keypoint_config as with_options
+def keypoint_options(args, refused: tuple = ()) -> dict:
+    """``--keypoint-option NAME=VALUE`` flags (repeatable; ``silfit fit`` and ``fit-dataset`` alike) as
+    ``{name: value}``, each checked against :class:`~silfit.fitting.keypoint_stage.KeypointFitConfig`; a bad
+    one, or one of ``refused`` (a field a command sets with its own flag), is a :class:`CLIError`."""
+    from ..runner.worker import keypoint_config
 
     overrides = {}
     for text in getattr(args, "keypoint_option", None) or ():
         name, sep, value = text.partition("=")
-        if not sep or not name.strip():
+        if not sep or not name:
             raise CLIError(f"--keypoint-option {text!r}: expected NAME=VALUE")
         overrides[name.strip()] = value.strip()
+        if name.strip() in refused:
+            raise CLIError(f"--keypoint-option {text!r}: give --{name.strip()} instead")
     try:
-        with_options(overrides)
+        keypoint_config(overrides)
     except ValueError as err:
         raise CLIError(str(err)) from None
     return overrides

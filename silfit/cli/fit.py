@@ -93,6 +93,9 @@ def run(args) -> int:
     from ..run import check, run as run_job, write
     from .jobs import build_job, describe_inputs
 
+    from .common import keypoint_options
+
+    keypoint_options(args, refused=("hypotheses",))  # a bad option is one line before anything is read
     if getattr(args, "people", None) == "all":
         return _run_people(args)
     exports = export_formats(args)

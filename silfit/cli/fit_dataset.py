@@ -82,11 +82,11 @@ def run(args) -> int:
         raise CLIError(f"--batch-size {args.batch_size}: expected 1 or more")
     if args.ray is None and (args.actors != 2 or args.num_cpus != 1.0 or args.num_gpus != 0.0):
         raise CLIError("--actors, --num-cpus and --num-gpus are Ray options: add --ray")
-    overrides = keypoint_options(args)
     try:
         people = parse_people(args.people)
     except (InputError, ValueError) as err:
         raise CLIError(str(err)) from None
+    overrides = keypoint_options(args)
     from ..outputs.export import parse_formats
 
     try:

@@ -15,7 +15,7 @@ from ..fitting.problem import Observation, Problem
 from ..run import Job
 from ..run import video_job as make_video_job
 from . import CLIError, note, warn
-from .common import choose_model, keypoint_config, silhouette_config
+from .common import choose_model, keypoint_settings, silhouette_config
 
 __all__ = ["build_job", "image_job", "rig_job", "video_job", "describe_inputs"]
 
@@ -145,7 +145,7 @@ def image_job(args) -> Job:
             raise CLIError(f"--hypotheses must be 1..20, got {args.hypotheses}")
         base = KeypointFitConfig(hypotheses=args.hypotheses)
     return Job(Problem.single(keypoints, camera, mask), model, pose_prior=_pose_prior(args, model),
-               keypoint_config=keypoint_config(args, base), silhouette_config=silhouette_config(args), silhouette=not args.no_silhouette, progress=not args.quiet,
+               keypoint_config=keypoint_settings(args, base), silhouette_config=silhouette_config(args), silhouette=not args.no_silhouette, progress=not args.quiet,
                warnings=warnings, record=record, images={} if image is None else {(0, 0): image},
                mask_sources={(0, 0): args.mask or "mask"})  # fmt: skip
 
@@ -190,7 +190,7 @@ def rig_job(args) -> Job:
         names.append(v.name)
     if not obs:
         raise first
-    return Job(Problem(obs), model, names, pose_prior=_pose_prior(args, model), keypoint_config=keypoint_config(args),
+    return Job(Problem(obs), model, names, pose_prior=_pose_prior(args, model), keypoint_config=keypoint_settings(args),
                silhouette_config=silhouette_config(args), silhouette=not args.no_silhouette, progress=not args.quiet,
                warnings=warnings, record={"rig": str(args.rig), "model": model.source}, images=images, rig=True)  # fmt: skip
 
@@ -233,7 +233,7 @@ def rig_video_job(args) -> Job:
                for c, ks in enumerate(row)] for f, row in enumerate(seq.frames)]  # fmt: skip
     masks = read_rig_sequence_masks(seq)  # [F][C] or None; read (and checked) before --check-only answers
     cfg = SequenceFitConfig()
-    cfg.keypoint = keypoint_config(args, cfg.keypoint)  # each frame's start
+    cfg.keypoint = keypoint_settings(args, cfg.keypoint)  # each frame's start
     if args.sequence_iterations is not None:
         cfg.iterations = int(args.sequence_iterations)
     obs = [Observation(v.view, frames[f][c], None if masks is None else masks[f][c], f, c)
@@ -298,7 +298,7 @@ def video_job(args) -> Job:
         masks = [read_mask(seq.masks[n], size=(camera.width, camera.height), allow_empty=True) if n in seq.masks else None
                  for n in seq.numbers]  # fmt: skip
     cfg = SequenceFitConfig()
-    cfg.keypoint = keypoint_config(args, cfg.keypoint)  # each frame's start
+    cfg.keypoint = keypoint_settings(args, cfg.keypoint)  # each frame's start
     if args.sequence_iterations is not None:
         cfg.iterations = int(args.sequence_iterations)
     silhouette = "run" if any(m is not None for m in masks) else "not run (no masks)" if not seq.masks else "not run (--no-silhouette)"

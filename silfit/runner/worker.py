@@ -50,15 +50,17 @@ class FitOptions:
 
 def keypoint_config(options: Dict[str, object], base: Optional[KeypointFitConfig] = None) -> KeypointFitConfig:
     """``base`` (default :class:`KeypointFitConfig()`) with ``options`` (field name -> value; strings are
-    parsed by the type of the field's default, tuples comma-separated)."""
-    base = KeypointFitConfig() if base is None else base
-    names = {f.name for f in fields(base)} | set(getattr(KeypointFitConfig, "renamed_fields", {}))  # old names too
+    parsed by the type of the field's default in :class:`KeypointFitConfig()`, whatever ``base`` holds:
+    a video's ``final_tol_change`` is ``None`` there, still a float; tuples comma-separated)."""
+    plain = KeypointFitConfig()
+    base = plain if base is None else base
+    names = {f.name for f in fields(plain)} | set(getattr(KeypointFitConfig, "renamed_fields", {}))  # old names too
     values = {}
-    optional = {f.name for f in fields(base) if "Optional" in str(f.type)}  # these also take "none"
+    optional = {f.name for f in fields(plain) if "Optional" in str(f.type)}  # these also take "none"
     for key, value in options.items():
         if key not in names:
             raise ValueError(f"unknown keypoint-stage option {key!r} (one of {', '.join(sorted(names))})")
-        default = getattr(base, key)
+        default = getattr(plain, key)
         if isinstance(value, str) and key in optional and value.lower() == "none":
             value = None
         elif isinstance(value, str):

@@ -253,37 +253,40 @@ def test_fit_hypotheses_writes_each_solution_and_records_them(inputs, tmp_path, 
 
 
 def test_keypoint_option_reaches_each_mode_and_a_bad_one_is_one_line(inputs, tmp_path, capsys):
-    """``--keypoint-option NAME=VALUE`` (as fit-dataset's): an image's keypoint stage takes it over the default,
-    with --hypotheses too, a video's per-frame start over its own settings; a bad one exits 2 with one line."""
-    import argparse
+    """``--keypoint-option NAME=VALUE`` (as fit-dataset's): an image's keypoint stage takes it over the default
+    (with --hypotheses too), a video's per-frame start over the video's own settings (a float field the video
+    leaves at None included); a bad option, or --hypotheses given as one, exits 2 with one line."""
+    import shutil
 
-    from silfit.cli.common import keypoint_config
+    from silfit.cli import build_parser
+    from silfit.cli.jobs import build_job
     from silfit.fitting.sequence import SequenceFitConfig
 
     d, model = inputs
-    args = argparse.Namespace(keypoint_option=["final_iters=7", "pose_iters=5,6,7"])
-    cfg = keypoint_config(args)
-    assert cfg.final_iters == 7 and tuple(cfg.pose_iters) == (5, 6, 7)
-    video = keypoint_config(args, SequenceFitConfig().keypoint)
-    assert video.final_iters == 7 and video.branch_refine == SequenceFitConfig().keypoint.branch_refine == 1
-    assert keypoint_config(argparse.Namespace(keypoint_option=[])) is None  # nothing given: the mode's default
+    image = ["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model)]
+    job = build_job(build_parser().parse_args(image + ["--hypotheses", "2", "--keypoint-option", "final_iters=5",
+                                                       "--keypoint-option", "pose_iters=5,6,7", "--out", str(tmp_path / "x")]))
+    assert job.keypoint_config.final_iters == 5 and tuple(job.keypoint_config.pose_iters) == (5, 6, 7)
+    assert job.keypoint_config.hypotheses == 2
+    assert build_job(build_parser().parse_args(image + ["--out", str(tmp_path / "x")])).keypoint_config is None  # the default
+    video = tmp_path / "video"
+    video.mkdir()
+    for f in range(2):
+        shutil.copy(d / "kp.json", video / f"clip_{f:012d}_keypoints.json")
+    job = build_job(build_parser().parse_args(["fit", "--sequence", str(video), "--camera", str(d / "camera.json"), "--model",
+                                               str(model), "--keypoint-option", "final_tol_change=1e-5", "--keypoint-option",
+                                               "final_iters=7", "--out", str(tmp_path / "y")]))  # fmt: skip
+    start, default = job.sequence_config.keypoint, SequenceFitConfig().keypoint
+    assert start.final_iters == 7 and start.final_tol_change == 1e-5 and isinstance(start.final_tol_change, float)
+    assert start.branch_refine == default.branch_refine and start.init_poses == default.init_poses  # the video's own
     out = tmp_path / "fit"
-    rc = main(["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
-               "--no-silhouette", "--keypoint-option", "init_poses=1", "--keypoint-option", "final_iters=5",
-               "--out", str(out)] + FAST)  # fmt: skip
-    assert rc == 0 and (out / "params.npz").is_file()
-    from silfit.cli import build_parser
-    from silfit.cli.jobs import build_job
-
-    job = build_job(build_parser().parse_args(["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"),
-                                               "--model", str(model), "--hypotheses", "2", "--keypoint-option", "final_iters=5",
-                                               "--out", str(tmp_path / "unused")]))  # fmt: skip
-    assert job.keypoint_config.final_iters == 5 and job.keypoint_config.hypotheses == 2
+    assert main(image + ["--no-silhouette", "--keypoint-option", "init_poses=1", "--keypoint-option", "final_iters=5",
+                         "--out", str(out)] + FAST) == 0  # fmt: skip
+    assert (out / "params.npz").is_file()
     for bad, said in (("nope=1", "unknown keypoint-stage option 'nope'"), ("final_iters=x", "final_iters"),
-                      ("final_iters", "expected NAME=VALUE")):  # fmt: skip
+                      ("final_iters", "expected NAME=VALUE"), ("hypotheses=2", "give --hypotheses instead")):  # fmt: skip
         capsys.readouterr()
-        rc = main(["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
-                   "--keypoint-option", bad, "--out", str(tmp_path / "bad")] + FAST)  # fmt: skip
+        rc = main(image + ["--keypoint-option", bad, "--out", str(tmp_path / "bad")] + FAST)
         err = capsys.readouterr().err.strip()
         assert rc == 2 and err.count("\n") == 0 and said in err, err
         assert not (tmp_path / "bad").exists()

@@ -12,11 +12,8 @@ from silfit_toy_body import toy_model, write_toy_npz  # noqa: E402
 from silfit.cli import main  # noqa: E402
 from silfit.synth.motion import SequenceConfig, generate_sequence_dataset  # noqa: E402
 
-
-#: a short keypoint stage per frame (these tests check the video path's plumbing, not its accuracy:
-#: tests/fitting/test_sequence.py does)
-KP_FAST = ["--keypoint-option", "init_poses=1", "--keypoint-option", "camera_iters=10", "--keypoint-option",
-           "pose_iters=10,10,10", "--keypoint-option", "shape_iters=5", "--keypoint-option", "final_iters=10"]  # fmt: skip
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from runner.helpers import FAST as KP_FAST  # noqa: E402  (a short keypoint stage per frame: the video path's plumbing)
 
 
 @pytest.fixture(scope="module")
@@ -127,7 +124,7 @@ def test_fit_sequence_mismatched_silhouette_levels_fail_before_fitting(sequence,
 
     monkeypatch.setattr(silfit.fitting.sequence, "fit_sequence", no_fit)
     seq, model = sequence
-    rc = main(["fit", *KP_FAST, "--sequence", str(seq), "--model", str(model), "--out", str(tmp_path / "o"),
+    rc = main(["fit", "--sequence", str(seq), "--model", str(model), "--out", str(tmp_path / "o"),
                "--silhouette-resolutions", "32,64", "--silhouette-iterations", "3"])  # fmt: skip
     assert rc == 2
     captured = capsys.readouterr()

@@ -47,8 +47,8 @@ def test_body_only_file_with_the_whole_body_model(subject, tmp_path):
     (tmp_path / "kp.json").write_text(json.dumps(kp))
     out = tmp_path / "fit"
     rc = main(["fit", "--keypoints", str(tmp_path / "kp.json"), "--camera", str(subject / "camera.json"),
-               "--model", "open-smplx", "--no-silhouette", "--out", str(out), "--quiet",
-               "--keypoint-option", "init_poses=1", "--keypoint-option", "final_iters=10"])  # fmt: skip (plumbing: a short stage)
+               "--model", "open-smplx", "--no-silhouette", "--out", str(out), "--quiet",  # plumbing: a short stage
+               "--keypoint-option", "init_poses=1", "--keypoint-option", "final_iters=10"])  # fmt: skip
     assert rc == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert sorted(metrics["whole_body"]["held_at_rest"]) == ["expression", "jaw_pose", "left_hand_pose", "right_hand_pose"]
