@@ -116,6 +116,26 @@ def run(args) -> int:
     return 0
 
 
+def _shared_settings(jobs: list) -> list:
+    """The people's jobs of one photo with one model, pose prior and settings objects where they are the same
+    (built from the same flags, each person's job loaded its own): :func:`silfit.run.run_batch` batches jobs
+    that share them, so the people go through each stage together (the same fits bit for bit: a fit does not
+    depend on its batch). A person fitted with another model (whole-body keypoints) keeps its own."""
+    from dataclasses import replace
+
+    out, firsts = [], {}
+    for job in jobs:
+        key = (job.layout, getattr(job.model, "source", None), str(getattr(job.model, "dtype", "")),
+               getattr(job.model, "kind", None))  # fmt: skip
+        first = firsts.setdefault(key, job)
+        if first is not job and job.keypoint_config == first.keypoint_config and \
+                job.silhouette_config == first.silhouette_config:  # fmt: skip
+            job = replace(job, model=first.model, pose_prior=first.pose_prior, keypoint_config=first.keypoint_config,
+                          silhouette_config=first.silhouette_config)  # fmt: skip
+        out.append(job)
+    return out
+
+
 def _run_people(args) -> int:
     """``--people all``: detect every person once, build every person's job (a bad flag or input
     stops here, before anything is written), fit them as one batch (a person that fails is set aside
@@ -149,6 +169,7 @@ def _run_people(args) -> int:
         one.people, one.person, one.out, one.detected = None, str(i), str(out / f"person_{i}"), detected
         one.overwrite = True  # OUT itself was checked above; its person_<i>/ are written afresh
         jobs.append(build_job(one))
+    jobs = _shared_settings(jobs)
     if args.check_only:
         for i, job in enumerate(jobs):
             checked = check(job)

@@ -144,14 +144,20 @@ def test_detect_several_people(tmp_path):
     assert len(json.loads((tmp_path / "all" / "keypoints.json").read_text())["people"]) == 2
 
 
-def test_fit_every_person_of_a_photo(tmp_path, capsys):
-    """``silfit fit --image --people all``: each detected person into OUT/person_<i>/."""
+def test_fit_every_person_of_a_photo(tmp_path, capsys, monkeypatch):
+    """``silfit fit --image --people all``: each detected person into OUT/person_<i>/, the people fitted as one
+    batch (one model and settings for all: silfit.run.run_batch groups the jobs that share them)."""
+    import silfit.run
+
     a = np.asarray(Image.open(SUBJECT / "image.png"))
     b = np.asarray(Image.open(SUBJECT.parent / "subject_004" / "image.png"))
     image = tmp_path / "two.png"
     Image.fromarray(np.concatenate([a, b], axis=1)).save(image)
     out = tmp_path / "fits"
+    batches, real = [], silfit.run._run_images
+    monkeypatch.setattr(silfit.run, "_run_images", lambda jobs, isolate: batches.append(len(jobs)) or real(jobs, isolate))
     assert main(["fit", "--image", str(image), "--people", "all", "--no-silhouette", "--out", str(out), "--quiet"]) == 0
+    assert batches == [2], batches  # before: two batches of one (each person's job had its own model object)
     listed = json.loads((out / "people.json").read_text())["people"]
     assert [p["folder"] for p in listed] == ["person_0", "person_1"]
     xs = [json.loads((out / p["folder"] / "params.json").read_text()) for p in listed]
