@@ -10,8 +10,10 @@ lines, see :mod:`silfit.runner.store`); recording them is the caller's job.
 """
 from __future__ import annotations
 
+import collections.abc
 import os
 import time
+import typing
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Union
@@ -48,6 +50,18 @@ class FitOptions:
         return asdict(self)
 
 
+def _declared_kind(hint, key: str) -> tuple:
+    """``(kind, many)`` of an Optional field's declared type: ``Optional[int]`` -> ``(int, False)``,
+    ``Optional[Sequence[float]]`` -> ``(float, True)``; a type a command line cannot spell is an error."""
+    args = [a for a in typing.get_args(hint) if a is not type(None)] or [hint]
+    kind, many = args[0], False
+    if typing.get_origin(kind) in (list, tuple, collections.abc.Sequence):
+        kind, many = (typing.get_args(kind) or (float,))[0], True
+    if kind not in (int, float, str):
+        raise TypeError(f"keypoint-stage option {key} cannot be given on the command line")
+    return kind, many
+
+
 def keypoint_config(options: Dict[str, object], base: Optional[KeypointFitConfig] = None) -> KeypointFitConfig:
     """``base`` (default :class:`KeypointFitConfig()`) with ``options`` (field name -> value; strings are
     parsed by the type of the field's default in :class:`KeypointFitConfig()`, whatever ``base`` holds:
@@ -56,7 +70,8 @@ def keypoint_config(options: Dict[str, object], base: Optional[KeypointFitConfig
     base = plain if base is None else base
     names = {f.name for f in fields(plain)} | set(getattr(KeypointFitConfig, "renamed_fields", {}))  # old names too
     values = {}
-    optional = {f.name for f in fields(plain) if "Optional" in str(f.type)}  # these also take "none"
+    hints = typing.get_type_hints(KeypointFitConfig)
+    optional = {n for n, h in hints.items() if type(None) in typing.get_args(h)}  # these also take "none"
     for key, value in options.items():
         if key not in names:
             raise ValueError(f"unknown keypoint-stage option {key!r} (one of {', '.join(sorted(names))})")
@@ -72,12 +87,15 @@ def keypoint_config(options: Dict[str, object], base: Optional[KeypointFitConfig
                 elif isinstance(default, (tuple, list)):
                     kind = type(default[0]) if default else float
                     value = tuple(kind(v) for v in value.split(","))
-                elif default is None:
-                    value = None if value.lower() == "none" else int(value)
+                elif default is None:  # the declared type says (e.g. Optional[Sequence[float]]: "0,0,1")
+                    kind, many = _declared_kind(hints.get(key), key)
+                    value = tuple(kind(v) for v in value.split(",")) if many else kind(value)
                 else:
                     value = type(default)(value)
             except ValueError:
                 raise ValueError(f"keypoint-stage option {key}={value!r}: expected a value like {default!r}") from None
+            except TypeError as err:
+                raise ValueError(str(err)) from None
         values[key] = value
     return replace(base, **values)
 

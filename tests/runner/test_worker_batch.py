@@ -57,3 +57,19 @@ def test_keypoint_options_parse_by_the_field_and_optional_ones_take_none():
     assert keypoint_config({"final_tol_change": "1e-3"}).final_tol_change == 1e-3
     with pytest.raises(ValueError, match="final_iters='none'"):
         keypoint_config({"final_iters": "none"})  # not optional
+
+
+def test_keypoint_options_whose_default_is_none_parse_by_their_declared_type():
+    """A field that defaults to None is read by its declared type (before: always as an integer, so a list of hand
+    weights was refused); a video's base (final_tol_change None) does not change how a value is read."""
+    from silfit.fitting.sequence import SequenceFitConfig
+    from silfit.runner.worker import keypoint_config
+
+    cfg = keypoint_config({"hand_weights": "0,0.5,1", "final_iters_unsearched": "30", "hypothesis_joint_max_m": "0.4"})
+    assert cfg.hand_weights == (0.0, 0.5, 1.0) and cfg.final_iters_unsearched == 30 and cfg.hypothesis_joint_max_m == 0.4
+    video = keypoint_config({"final_tol_change": "1e-5"}, SequenceFitConfig().keypoint)
+    assert video.final_tol_change == 1e-5 and video.branch_refine == SequenceFitConfig().keypoint.branch_refine
+    with pytest.raises(ValueError, match="schedule cannot be given on the command line"):
+        keypoint_config({"schedule": "x"})
+    with pytest.raises(ValueError, match="hand_weights='a'"):
+        keypoint_config({"hand_weights": "a"})
