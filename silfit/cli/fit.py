@@ -120,12 +120,13 @@ def _shared_settings(jobs: list) -> list:
     """The people's jobs of one photo with one model, pose prior and settings objects where they are the same
     (built from the same flags, each person's job loaded its own): :func:`silfit.run.run_batch` batches jobs
     that share them, so the people go through each stage together (the same fits bit for bit: a fit does not
-    depend on its batch). A person fitted with another model (whole-body keypoints) keeps its own."""
+    depend on its batch). Jobs whose layout, model file, keypoint or silhouette settings differ keep their own
+    (defensive: one photo's detected people have one layout and one model today)."""
     from dataclasses import replace
 
     out, firsts = [], {}
     for job in jobs:
-        key = (job.layout, getattr(job.model, "source", None), str(getattr(job.model, "dtype", "")),
+        key = (job.layout, getattr(job.model, "source", None) or id(job.model), str(getattr(job.model, "dtype", "")),
                getattr(job.model, "kind", None))  # fmt: skip
         first = firsts.setdefault(key, job)
         if first is not job and job.keypoint_config == first.keypoint_config and \

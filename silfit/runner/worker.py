@@ -11,6 +11,7 @@ lines, see :mod:`silfit.runner.store`); recording them is the caller's job.
 from __future__ import annotations
 
 import collections.abc
+import functools
 import os
 import time
 import typing
@@ -51,26 +52,28 @@ class FitOptions:
 
 
 def _declared_kind(hint, key: str) -> tuple:
-    """``(kind, many)`` of an Optional field's declared type: ``Optional[int]`` -> ``(int, False)``,
-    ``Optional[Sequence[float]]`` -> ``(float, True)``; a type a command line cannot spell is an error."""
+    """``(kind, many, expected)`` of an Optional field's declared type: ``Optional[Sequence[float]]`` ->
+    ``(float, True, "comma-separated numbers ...")``; a type a command line cannot spell is a ``ValueError``."""
     args = [a for a in typing.get_args(hint) if a is not type(None)] or [hint]
     kind, many = args[0], False
     if typing.get_origin(kind) in (list, tuple, collections.abc.Sequence):
         kind, many = (typing.get_args(kind) or (float,))[0], True
     if kind not in (int, float, str):
-        raise TypeError(f"keypoint-stage option {key} cannot be given on the command line")
-    return kind, many
+        raise ValueError(f"keypoint-stage option {key} cannot be given on the command line")
+    word = {int: "integers", float: "numbers", str: "words"}[kind]
+    return kind, many, (f"comma-separated {word} (e.g. 0,0.5,1) or none" if many else f"{word[:-1]} or none")
 
 
 def keypoint_config(options: Dict[str, object], base: Optional[KeypointFitConfig] = None) -> KeypointFitConfig:
     """``base`` (default :class:`KeypointFitConfig()`) with ``options`` (field name -> value; strings are
-    parsed by the type of the field's default in :class:`KeypointFitConfig()`, whatever ``base`` holds:
-    a video's ``final_tol_change`` is ``None`` there, still a float; tuples comma-separated)."""
+    parsed by the type of the field's default in :class:`KeypointFitConfig()`, whatever ``base`` holds (a
+    video's ``final_tol_change`` is ``None`` there, still a float), or by the field's declared type where
+    that default is ``None`` (``hand_weights``: comma-separated numbers); tuples comma-separated)."""
     plain = KeypointFitConfig()
     base = plain if base is None else base
     names = {f.name for f in fields(plain)} | set(getattr(KeypointFitConfig, "renamed_fields", {}))  # old names too
     values = {}
-    hints = typing.get_type_hints(KeypointFitConfig)
+    hints = _config_hints()
     optional = {n for n, h in hints.items() if type(None) in typing.get_args(h)}  # these also take "none"
     for key, value in options.items():
         if key not in names:
@@ -79,6 +82,8 @@ def keypoint_config(options: Dict[str, object], base: Optional[KeypointFitConfig
         if isinstance(value, str) and key in optional and value.lower() == "none":
             value = None
         elif isinstance(value, str):
+            declared = _declared_kind(hints.get(key), key) if default is None else None  # e.g. Optional[Sequence[float]]
+            expected = declared[2] if declared else f"a value like {default!r}"
             try:
                 if isinstance(default, bool):
                     if value.lower() not in ("true", "false", "1", "0"):
@@ -87,17 +92,21 @@ def keypoint_config(options: Dict[str, object], base: Optional[KeypointFitConfig
                 elif isinstance(default, (tuple, list)):
                     kind = type(default[0]) if default else float
                     value = tuple(kind(v) for v in value.split(","))
-                elif default is None:  # the declared type says (e.g. Optional[Sequence[float]]: "0,0,1")
-                    kind, many = _declared_kind(hints.get(key), key)
+                elif declared:
+                    kind, many, _ = declared
                     value = tuple(kind(v) for v in value.split(",")) if many else kind(value)
                 else:
                     value = type(default)(value)
             except ValueError:
-                raise ValueError(f"keypoint-stage option {key}={value!r}: expected a value like {default!r}") from None
-            except TypeError as err:
-                raise ValueError(str(err)) from None
+                raise ValueError(f"keypoint-stage option {key}={value!r}: expected {expected}") from None
         values[key] = value
     return replace(base, **values)
+
+
+@functools.lru_cache(maxsize=1)
+def _config_hints() -> dict:
+    """:class:`KeypointFitConfig`'s declared field types (read once)."""
+    return typing.get_type_hints(KeypointFitConfig)
 
 
 def silhouette_config(options: FitOptions) -> SilhouetteFitConfig:

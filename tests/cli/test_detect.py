@@ -158,6 +158,7 @@ def test_fit_every_person_of_a_photo(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(silfit.run, "_run_images", lambda jobs, isolate: batches.append(len(jobs)) or real(jobs, isolate))
     assert main(["fit", "--image", str(image), "--people", "all", "--no-silhouette", "--out", str(out), "--quiet"]) == 0
     assert batches == [2], batches  # before: two batches of one (each person's job had its own model object)
+    assert json.loads((out / "person_0" / "params.json").read_text()) != json.loads((out / "person_1" / "params.json").read_text())
     listed = json.loads((out / "people.json").read_text())["people"]
     assert [p["folder"] for p in listed] == ["person_0", "person_1"]
     xs = [json.loads((out / p["folder"] / "params.json").read_text()) for p in listed]
@@ -228,3 +229,24 @@ def test_a_person_that_fails_is_set_aside_and_the_others_written(tmp_path, capsy
     assert [r["status"] for r in rows] == ["ok", "failed"] and "too few confident keypoints" in rows[1]["error"]
     assert (out / "person_0" / "params.npz").is_file() and not (out / "person_1").exists()
     assert "person 1 set aside" in capsys.readouterr().err
+
+
+def test_people_with_other_settings_keep_their_own():
+    """fit --people all shares one model and settings among the people's jobs only where they are the same."""
+    from dataclasses import replace
+
+    from silfit import load_body_model
+    from silfit.camera import Camera
+    from silfit.cli.fit import _shared_settings
+    from silfit.fitting.keypoint_stage import KeypointFitConfig
+    from silfit.fitting.problem import Problem
+    from silfit.keypoints import KeypointSet
+    from silfit.run import Job
+
+    kp = KeypointSet(np.full((25, 2), 32.0), np.ones(25), "body25")
+    base = Job(Problem.single(kp, Camera.from_image_size(64, 64), None), load_body_model(), keypoint_config=KeypointFitConfig())
+    same = replace(base, model=load_body_model(), keypoint_config=KeypointFitConfig())  # equal, not the same objects
+    other = replace(base, model=load_body_model(), keypoint_config=KeypointFitConfig(final_iters=5))
+    a, b, c = _shared_settings([base, same, other])
+    assert b.model is a.model and b.keypoint_config is a.keypoint_config
+    assert c.model is not a.model and c.keypoint_config.final_iters == 5

@@ -69,7 +69,9 @@ def test_keypoint_options_whose_default_is_none_parse_by_their_declared_type():
     assert cfg.hand_weights == (0.0, 0.5, 1.0) and cfg.final_iters_unsearched == 30 and cfg.hypothesis_joint_max_m == 0.4
     video = keypoint_config({"final_tol_change": "1e-5"}, SequenceFitConfig().keypoint)
     assert video.final_tol_change == 1e-5 and video.branch_refine == SequenceFitConfig().keypoint.branch_refine
+    assert keypoint_config({"face_weights": "1,2,3"}).face_weights == (1.0, 2.0, 3.0)
+    assert keypoint_config({"hand_weights": "none"}).hand_weights is None
     with pytest.raises(ValueError, match="schedule cannot be given on the command line"):
         keypoint_config({"schedule": "x"})
-    with pytest.raises(ValueError, match="hand_weights='a'"):
+    with pytest.raises(ValueError, match=r"hand_weights='a': expected comma-separated numbers \(e.g. 0,0.5,1\) or none"):
         keypoint_config({"hand_weights": "a"})
