@@ -156,17 +156,27 @@ def main() -> None:
     ap.add_argument("--k", type=int, default=3, help="hypotheses of the second run (1: the default run only)")
     ap.add_argument("--sweep", action="store_true", help="also the after rule at other margins and shifts (tuning)")
     ap.add_argument("--save", type=Path, help="write each run's per-subject rows here (pickle; for offline tuning)")
+    ap.add_argument("--before", action="append", default=[], metavar="NAME=VALUE",
+                    help="first fit with these KeypointFitConfig settings (repeatable; e.g. post_branch_iters=0: the "
+                         "schedule before the search from the fit)")  # fmt: skip
     args = ap.parse_args()
 
     model = load_body_model()
     sets, cams, gts = hard_set(args.n, args.seed, args.size, model)
     print(f"# Depth warning on {len(sets)} hard subjects (seed {args.seed}), keypoint stage\n")
     runs = [("default fit", KeypointFitConfig())]
+    if args.before:
+        from silfit.runner.worker import keypoint_config
+
+        runs.insert(0, (f"before: {', '.join(args.before)}", keypoint_config(dict(o.split("=", 1) for o in args.before))))
     if args.k > 1:
         runs.append((f"--hypotheses {args.k}", KeypointFitConfig(hypotheses=args.k)))
     for title, config in runs:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         rows = _fit(KeypointFitter(model, config=config), sets, cams, gts, model, args.batch)
+        failures = sum(r["e_truth"] < r["e_fit"] * (1 - 1e-3) for r in rows)
+        print(f"{title}: CPU {(time.process_time() - c0) / len(rows):.2f} s per subject (the truth's energy included); "
+              f"search failures (the truth's energy below the fit's) {failures}/{len(rows)}\n")
         if args.save:
             import pickle
 

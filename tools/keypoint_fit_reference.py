@@ -19,7 +19,7 @@ import numpy as np  # noqa: E402
 
 #: the short schedule of the reference fits
 CONFIG = {"camera_iters": 15, "pose_iters": [15, 15, 15], "shape_iters": 8, "final_iters": 15, "init_poses": 2,
-          "decision_iters": 8, "branch_iters": 10, "branch_screen_iters": 5}  # fmt: skip
+          "decision_iters": 8, "branch_iters": 10, "branch_screen_iters": 5, "post_branch_iters": 10}  # fmt: skip
 
 
 def main() -> None:

@@ -22,6 +22,9 @@ HANDS = ("left_hand_pose", "right_hand_pose")
 FACE = ("jaw_pose", "expression")
 #: the keypoint stage's limb-branch search (:mod:`silfit.fitting.branches`)
 BRANCHES = {"branches": {"min_depth_ratio": 0.3, "whole_limbs": True, "joint": False, "screen_after": 15, "survivors": 4}}
+#: the late search's: its 4 best go on (``carry``) to settle; the search from the fit screens after 20 of its 40 steps
+LATE_BRANCHES = {"branches": {**BRANCHES["branches"], "carry": 4}}
+POST_BRANCHES = {"branches": {**BRANCHES["branches"], "screen_after": 20}}
 
 #: the final stage's weights (also the late branch search's); ``points`` (the keypoints triangulated
 #: from several views) is 0 for one view
@@ -38,11 +41,18 @@ KEYPOINT_SCHEDULE = (
           options=BRANCHES),
     Stage("pose_3",     POSE,   {"keypoints": 1.0, "points": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4},        40),
     Stage("shape",      SHAPE,  {"keypoints": 1.0, "points": 1.0, "shape": 20.0},                                    20),
-    # the limb-branch search again, at the final weights from the refined pose (issue 25)
+    # the limb-branch search again, at the final weights from the refined pose (issue 25); its 4 best go on
     Stage("branches_late", ALL, FINAL,                                                                               30,
-          options=BRANCHES),
-    # run by branch_refine (4) hypotheses, a row stopping once a step lowers its energy by less than 1e-4
-    # (relative); where no branch search ran (rigs, branch_search off) 40 steps, every one run
+          options=LATE_BRANCHES),
+    # run by those 4, a row stopping once a step lowers its energy by less than 1e-4 (relative); the
+    # lowest energy goes on (not run where no branch search ran: rigs)
+    Stage("settle",     ALL,    FINAL,                                                                              120,
+          options={"tol_change": 1e-4, "searched_only": True}),
+    # the search from the settled fit (issue 25: a flip of the converged fit finds what the late one cut)
+    Stage("branches_post", ALL, FINAL,                                                                               40,
+          options=POST_BRANCHES),
+    # run by branch_refine (4) hypotheses as settle; where no branch search ran (rigs, branch_search off)
+    # 40 steps, every one run
     Stage("final",      ALL,    FINAL,                                                                              120,
           options={"unsearched_iterations": 40, "tol_change": 1e-4}),
 )  # fmt: skip
@@ -60,7 +70,13 @@ WHOLEBODY_KEYPOINT_SCHEDULE = KEYPOINT_SCHEDULE[:4] + (
                                               "face": 2.0},                                                          20),
     Stage("branches_late", ALL + HANDS + FACE, {**FINAL, "hands": 2.0, "hand_pose": 2.0, "face": 2.0, "jaw": 50.0,
                                                 "expression": 2.0},                                                  30,
-          options=BRANCHES),
+          options=LATE_BRANCHES),
+    Stage("settle",     ALL + HANDS + FACE,  {**FINAL, "hands": 2.0, "hand_pose": 2.0, "face": 2.0, "jaw": 50.0,
+                                              "expression": 2.0},                                                   120,
+          options={"tol_change": 1e-4, "searched_only": True}),
+    Stage("branches_post", ALL + HANDS + FACE, {**FINAL, "hands": 2.0, "hand_pose": 2.0, "face": 2.0, "jaw": 50.0,
+                                                "expression": 2.0},                                                  40,
+          options=POST_BRANCHES),
     Stage("final",      ALL + HANDS + FACE,  {**FINAL, "hands": 2.0, "hand_pose": 2.0, "face": 2.0, "jaw": 50.0,
                                               "expression": 2.0},                                                   120,
           options={"unsearched_iterations": 40, "tol_change": 1e-4}),

@@ -583,6 +583,42 @@ def test_branch_refine_chooses_by_the_final_energy_never_above_the_search_choice
     assert not any(s.get("refined") for s in out[1]["branch_search"][0])  # one branch: nothing refined to choose
 
 
+def test_a_search_from_the_settled_fit_after_the_late_searchs_best_settle(body_model):
+    # post_branch_iters (issue 25): the late search's best rows (its ``carry``) each settle at the final
+    # weights and the lowest energy goes on; a search from that fit follows and its best run to the end.
+    # Each row runs as it would alone, so the settled energy is at most the one-row choice's (carry 1),
+    # and the late search's record names the branch that settled lowest
+    from silfit.fitting.branches import flip_segment
+    from silfit.fitting.problem import Problem
+    from silfit.fitting.stages import Stage
+    from silfit.keypoints import KeypointSet
+
+    kp, truth = _thigh_subject(body_model)
+    w = {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4, "interpenetration": 1e5}
+    free = ("global_orient", "transl", "body_pose")
+    ks = KeypointSet(kp[:, :2], kp[:, 2], "body25")
+    out = {}
+    for carry in (1, 3):
+        search = {"branches": {"screen_after": 4, "survivors": 2, "carry": carry}}
+        stages = [Stage("branches_late", free, w, 8, options=search), Stage("settle", free, w, 6, options={"searched_only": True}),
+                  Stage("branches_post", free, w, 8, options={"branches": {"screen_after": 4, "survivors": 2}}),
+                  Stage("final", free, w, 6)]  # fmt: skip
+        fitter = KeypointFitter(body_model, config=KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages, branch_refine=2))
+        start = dict(truth, body_pose=flip_segment(fitter.body, truth, "left_thigh", body_model.joint_names, body_model.parents))
+        out[carry] = fitter.fit_problems([Problem.single(ks, CAM)], init={k: v.numpy() for k, v in start.items()})[1]
+    assert float(out[3]["energies"]["settle"][0]) <= float(out[1]["energies"]["settle"][0]) * (1 + 1e-9)
+    late, post, refined = out[3]["branch_search"][0]
+    assert [late["stage"], post["stage"], refined["stage"]] == ["branches_late", "branches_post", "final"]
+    assert len(late["tried"]) >= 3 and refined["refined"] and not post.get("refined")
+    # the branches recorded: the late search's settled pick, then the pick from the fit (each unless "keep")
+    assert out[3]["branches"][0] == [b for b in (late["kept"], post["kept"]) if b != "keep"]
+    assert refined["kept"] == post["kept"] and refined["tried"][0]["flip"] == post["kept"]
+    # a settle stage follows a search: where none ran it is skipped
+    fitter = KeypointFitter(body_model, config=KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages[1:2] + stages[3:]))
+    info = fitter.fit_problems([Problem.single(ks, CAM)], init={k: v.numpy() for k, v in truth.items()})[1]
+    assert list(info["energies"]) == ["final"]
+
+
 def test_two_solutions_are_distinct_by_the_mean_joint_shift_or_one_joint_far():
     # issue 25: a forearm turned in depth moves the wrist 0.3 m but 24 joints' mean little
     from silfit.fitting.keypoint_stage import DISTINCT_JOINT_MAX_M, DISTINCT_JOINTS_M, is_distinct, joint_shift_mm

@@ -28,7 +28,8 @@ def test_the_pose_weight_has_one_name_in_every_config():
                                                         "final_pose_prior_weight"}  # fmt: skip
         assert "pose_weight" in cfg.to_dict()
     cfg = KeypointFitConfig(pose_weight=(1.0, 2.0, 3.0, 4.0))
-    assert [s.weights.get("pose") for s in cfg.stages()] == [None, 1.0, 2.0, 2.0, 3.0, None, 4.0, 4.0]  # ..., shape, branches_late, final
+    assert [s.weights.get("pose") for s in cfg.stages()] == [None, 1.0, 2.0, 2.0, 3.0, None, 4.0, 4.0, 4.0, 4.0]  # ..., shape,
+    # branches_late, settle, branches_post, final
     assert SilhouetteFitConfig(pose_weight=0.5).weights()["pose"] == 0.5
     assert SequenceFitConfig(pose_weight=7.0).stages()[0].weights["pose"] == 7.0
     with pytest.raises(ValueError, match="pose_weight .3: one per pose stage"):

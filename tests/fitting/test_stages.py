@@ -10,9 +10,16 @@ from silfit.fitting.stages import Stage
 
 def test_keypoint_schedule_is_data_with_the_decision_in_the_first_pose_stage():
     stages = KeypointFitConfig().stages()
-    assert [s.name for s in stages] == ["camera", "pose_1", "pose_2", "branches_1", "pose_3", "shape", "branches_late", "final"]
-    assert "branches" in stages[6].options and stages[6].weights == stages[7].weights  # the late search: final weights
+    assert [s.name for s in stages] == ["camera", "pose_1", "pose_2", "branches_1", "pose_3", "shape", "branches_late",
+                                        "settle", "branches_post", "final"]  # fmt: skip
+    # the late search and the search from the fit: final weights; the late one's best 4 settle, the best goes on
+    assert all("branches" in stages[i].options and stages[i].weights == stages[-1].weights for i in (6, 8))
+    assert stages[6].options["branches"]["carry"] == 4 and "carry" not in stages[8].options["branches"]
+    assert stages[7].options == {"tol_change": 1e-4, "searched_only": True} and stages[7].weights == stages[-1].weights
+    assert stages[8].options["branches"]["screen_after"] == 20 and stages[8].iterations == 40
     assert "branches_late" not in [s.name for s in KeypointFitConfig(late_branch_iters=0).stages()]
+    assert [s.name for s in KeypointFitConfig(post_branch_iters=0).stages()][6:] == ["branches_late", "final"]
+    assert "carry" not in KeypointFitConfig(post_branch_iters=0).stages()[6].options["branches"]
     assert stages[1].options == {"decide_after": 20} and not stages[2].options
     assert stages[0].weights == {"torso": 1.0, "depth": 1e3}
     assert "branches" in stages[3].options and stages[3].weights["interpenetration"] == 1e5
