@@ -156,7 +156,7 @@ def main() -> None:
     ap.add_argument("--k", type=int, default=3, help="hypotheses of the second run (1: the default run only)")
     ap.add_argument("--sweep", action="store_true", help="also the after rule at other margins and shifts (tuning)")
     ap.add_argument("--save", type=Path, help="write each run's per-subject rows here (pickle; for offline tuning)")
-    ap.add_argument("--before", action="append", default=[], metavar="NAME=VALUE",
+    ap.add_argument("--baseline", action="append", default=[], metavar="NAME=VALUE",
                     help="first fit with these KeypointFitConfig settings (repeatable; e.g. post_branch_iters=0: the "
                          "schedule before the search from the fit)")  # fmt: skip
     args = ap.parse_args()
@@ -165,10 +165,12 @@ def main() -> None:
     sets, cams, gts = hard_set(args.n, args.seed, args.size, model)
     print(f"# Depth warning on {len(sets)} hard subjects (seed {args.seed}), keypoint stage\n")
     runs = [("default fit", KeypointFitConfig())]
-    if args.before:
+    if args.baseline:
         from silfit.runner.worker import keypoint_config
 
-        runs.insert(0, (f"before: {', '.join(args.before)}", keypoint_config(dict(o.split("=", 1) for o in args.before))))
+        if any("=" not in o for o in args.baseline):
+            ap.error("--baseline takes NAME=VALUE")
+        runs.insert(0, (f"baseline: {', '.join(args.baseline)}", keypoint_config(dict(o.split("=", 1) for o in args.baseline))))
     if args.k > 1:
         runs.append((f"--hypotheses {args.k}", KeypointFitConfig(hypotheses=args.k)))
     for title, config in runs:

@@ -75,7 +75,11 @@ EARLY_SEARCH_MARGIN = 0.05
 #: basin the first search weighed and dropped shows only there. Chosen on 120 hard subjects (seeds 8650,
 #: 8950, 9601, 9602, keypoint stage, ``bench_ambiguity.py --sweep``): fits above 150 mm warned 13 of 15,
 #: below 60 mm 20 of 52 (the rule before, search energies only: 12 of 15 and 29 of 52; the refined
-#: branches alone: 11 of 15 and 13 of 52)
+#: branches alone: 11 of 15 and 13 of 52). With the search from the fit (``post_branch_iters``) the late
+#: search is an earlier one too, and its ``kept`` is the branch that *settled* lowest: a late row the search
+#: ranked below it, or within the margin, counts (the search and the converged energies disagree); fresh
+#: seeds 9981 and 9982, 60 subjects: above 150 mm warned 6 of 6, below 60 mm 10 of 28 (the late search's own
+#: pick as its kept row: 4 of 6 and 8 of 28; the first search only: 3 of 6 and 8 of 28)
 EARLY_SEARCH_MIN_SHIFT_MM = 500.0
 #: ... and where no branch was refined to the end (``branch_refine`` 1: a video's per-frame start), a
 #: branch-search survivor within this relative energy of the kept one (its search stage's energies,
@@ -247,7 +251,8 @@ def branch_gap(search) -> Optional[float]:
     """The relative energy gap ``(E_other - E_kept) / E_kept`` between the hypothesis the
     branch search kept and the best other one, smallest over its stages (``search``: a
     :attr:`~silfit.fitting.KeypointFitResult.branch_search` entry; ``None`` when no other
-    hypothesis ran to the end)."""
+    hypothesis ran to the end). Negative where a search's kept row is the one that settled lowest
+    after it (``settled``), not its own lowest."""
     gaps = []
     for stage in search or []:
         if stage.get("refined"):  # the refined branches' final energies: not a search's

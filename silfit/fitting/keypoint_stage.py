@@ -21,8 +21,8 @@ Stages (each an independent per-sample L-BFGS, see :mod:`silfit.fitting.optim`):
 5. ``branches_late`` (one view, ``late_branch_iters``): the limb-branch search again, at the
    final stage's weights from the refined pose; its ``branch_refine`` (4) best go on (its ``carry``).
    ``settle`` (after a search only): each runs the final stage; the lowest energy goes on.
-   ``branches_post`` (``post_branch_iters``): the search once more, from that converged fit; its
-   ``branch_refine`` (4) best go on.
+   ``branches_post`` (one view, ``post_branch_iters``): the search once more, from that converged
+   fit; its ``branch_refine`` (4) best go on.
 6. ``final``: everything together with the interpenetration penalty on (120 steps, a row stopping
    once a step lowers its energy by less than 1e-4; 40, every one run, where no search ran), on each
    branch still in play; the lowest final energy is the fit.
@@ -227,7 +227,8 @@ class KeypointFitConfig:
     #: survivors fill the list (``refined: False``; their energy is their search stage's, not final)
     hypothesis_unrefined: bool = True
     #: each sample's lowest-energy hypotheses of the last branch search that run the rest of the
-    #: schedule (at least ``2 * hypotheses`` with ``hypotheses`` > 1); the lowest final energy is the fit
+    #: schedule (at least ``2 * hypotheses`` with ``hypotheses`` > 1); the lowest final energy is the fit.
+    #: As many of the late search's go on to ``settle`` where a search from the fit follows (``post_branch_iters``)
     #: (1: the search's own choice). 4 (was 1), with ``final_iters`` 120 (was 40): the search's energies
     #: 30 steps in are far from converged (the final stage took one subject from 1738 to 1391), so
     #: its choice followed how fast a branch converges, not where; four branches refined to near
@@ -247,7 +248,8 @@ class KeypointFitConfig:
     #: earlier stages reached and with the final stage's weights (the energy a fit is judged by):
     #: the same hypotheses (:func:`~silfit.fitting.branches.limb_hypotheses`, the joint ones with
     #: ``branch_joint``), screened after ``branch_screen_iters`` steps, ``branch_survivors`` run on.
-    #: With ``hypotheses`` > 1 the alternatives are its survivors. Issue 25 (search failures: the fit's
+    #: With ``hypotheses`` > 1 and no search from the fit (``post_branch_iters`` 0) the alternatives are its
+    #: survivors. Issue 25 (search failures: the fit's
     #: final energy above the truth's): the first search screens at the pose stage's heavy prior
     #: after a few steps, and the truth's branch was often cut there or never proposed (it needs a
     #: flip on top of another); a search at the final weights from the refined pose finds it. On 24
@@ -265,7 +267,8 @@ class KeypointFitConfig:
     #: survivors of the late search's screen (0: ``branch_survivors``)
     late_branch_survivors: int = 0
     #: a last branch search from the fit itself (0 steps: none): the late search's ``branch_refine`` best
-    #: run the final stage (``settle``) and the lowest final energy goes on; every segment of that fit
+    #: run the final stage (``settle``; with no late search, the one pose the earlier stages reached)
+    #: and the lowest final energy goes on; every segment of that fit
     #: pointing out of the image plane is mirrored (alone and per whole limb), each runs this many steps at
     #: the final weights (screened after half), and the ``branch_refine`` best run the final stage again
     #: (``final``); the lowest final energy is the fit. Issue 25: most fits above 150 mm on the hard set were
@@ -356,7 +359,8 @@ class KeypointFitConfig:
         """The schedule as data: camera, pose_1..n (annealed priors; the best start of each
         sample is kept ``decision_iters`` steps into pose stage ``flip_decision_stage``; the branch
         search after pose stage ``branch_after_stage``), shape, ``branches_late`` (the search again at
-        the final weights, ``late_branch_iters``), final (everything, with interpenetration); with ``whole_body`` the hand and
+        the final weights, ``late_branch_iters``), ``settle`` and ``branches_post`` (its best settle, and a search
+        from the best of them, ``post_branch_iters``), final (everything, with interpenetration); with ``whole_body`` the hand and
         face terms and parameters join as the module docstring says. The defaults give the literal
         tables :data:`~silfit.fitting.schedules.KEYPOINT_SCHEDULE` and ``WHOLEBODY_KEYPOINT_SCHEDULE``."""
         if self.schedule is not None:
@@ -418,9 +422,10 @@ class KeypointFitConfig:
                 opts["tol_change"] = float(self.final_tol_change)
             free = ("betas",) + pose_free + part_free
             if self.branch_search and self.post_branch_iters:  # the late search's best settle, the best of them
-                if self.late_branch_iters and int(self.branch_refine) > 1:  # goes on to a search from the fit
+                carry = max(int(self.branch_refine), 2 * int(self.hypotheses) if int(self.hypotheses) > 1 else 1)
+                if self.late_branch_iters and carry > 1:  # goes on to a search from the fit
                     late = out[-1]
-                    out[-1] = replace(late, options={"branches": {**late.options["branches"], "carry": int(self.branch_refine)}})
+                    out[-1] = replace(late, options={"branches": {**late.options["branches"], "carry": carry}})
                 settle = {k: v for k, v in opts.items() if k != "unsearched_iterations"}
                 out.append(Stage("settle", free, {**w, **part_w}, self.final_iters, options={**settle, "searched_only": True}))
                 post = self.branch_options()
@@ -430,7 +435,8 @@ class KeypointFitConfig:
         return tuple(out)
 
     def branch_options(self) -> dict:
-        """A branch-search stage's options (both searches alike: :data:`~silfit.fitting.schedules.BRANCHES`)."""
+        """A branch-search stage's options (every search alike, :data:`~silfit.fitting.schedules.BRANCHES`; the late
+        search adds its ``carry`` and the search from the fit its own ``screen_after`` in :meth:`stages`)."""
         opts = {"branches": {
             "min_depth_ratio": self.branch_min_depth_ratio, "whole_limbs": self.branch_whole_limbs,
             "joint": self.branch_joint, "screen_after": self.branch_screen_iters, "survivors": self.branch_survivors,
@@ -844,6 +850,35 @@ class KeypointFitter:
 
         row_labels = None  # with carry > 1: each row's hypothesis after the last search
         carried = None  # each row's hypothesis after an earlier search whose best few go on (its ``carry``)
+
+        def settle_pick(name):
+            """Each sample's carried row with the lowest score after stage ``name`` (its final energy; the
+            occlusion cue as in the final choice) goes on. The earlier search's record names it (``kept``) and
+            lists the carried rows' energies there (``settled``, by score, the pick first); with hypotheses > 1
+            the others join the alternatives not refined to the end."""
+            nonlocal carried
+            f = energies[name]
+            score, _ = choice(f)
+            best = best_per_group(score, group, B)
+            alternatives = K > 1 and cfg.hypothesis_unrefined
+            with torch.no_grad():
+                now = layout.rows(state)
+                joints = self.body(**now).joints.double().numpy() if alternatives else None
+            for b, r in enumerate(best.tolist()):
+                mine = sorted(torch.nonzero(group == b).flatten().tolist(), key=lambda i: float(score[i]))
+                record = searched[b][-1]
+                if record["kept"] != "keep":  # that search's own pick, replaced by the settled one
+                    chosen_branches[b].pop()
+                if carried[r] != "keep":
+                    chosen_branches[b].append(carried[r])
+                record["kept"] = carried[r]
+                record["settled"] = [{"flip": carried[i], "energy": float(f[i])} for i in mine]
+                for i in mine[1:] if alternatives else ():
+                    unrefined[b].append({"label": carried[i], "energy": float(f[i]), "stage": name,
+                                         "gap": (float(f[i]) - float(f[r])) / max(abs(float(f[r])), 1e-12), "joints": joints[i],
+                                         "params": {n: v[i].detach().cpu().numpy().astype(np.float32) for n, v in now.items()}})  # fmt: skip
+            take(best)
+            carried = None
         searched_any = False  # whether a branch search ran (none with several views)
         chosen_branches = [[] for _ in range(B)]
         searched = [[] for _ in range(B)]  # per problem and branch stage: the hypotheses that ran to its end
@@ -856,15 +891,8 @@ class KeypointFitter:
                 if views_per_frame > 1:  # the views' data fixes the limbs' depth: no search (docs: rigs)
                     continue
                 searched_any = True
-                if len(group) > B:  # an earlier search's best rows ran on (its carry): each sample's lowest
-                    best = best_per_group(energies[self.stages[si - 1].name], group, B)  # energy goes on
-                    for b, r in enumerate(best.tolist()):
-                        if searched[b][-1]["kept"] != "keep":  # that search's pick, replaced by the settled one
-                            chosen_branches[b].pop()
-                        if carried[r] != "keep":
-                            chosen_branches[b].append(carried[r])
-                        searched[b][-1]["kept"] = carried[r]
-                    take(best)
+                if carried is not None:  # an earlier search's best rows ran on (its ``carry``): the best goes on
+                    settle_pick(self.stages[si - 1].name)
                 if not decided or layout.frames != 1:
                     raise ValueError(f"stage '{stage.name}': the branch search needs one frame and a decided start")
                 opts = stage.options["branches"]
@@ -942,6 +970,8 @@ class KeypointFitter:
             decided = True
             if stage.iterations > together:  # the rest of the stage from the chosen start only
                 run(stage, stage.iterations - together, f"{stage.name}_chosen")
+        if carried is not None:  # carried rows and no search after them (a schedule given so): the best is the fit
+            settle_pick(self.stages[-1].name)
         if not decided:  # a schedule without a decision stage: keep the best start at the end
             take(best_per_group(energies[self.stages[-1].name], group, B))
         hypotheses = None

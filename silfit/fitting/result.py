@@ -70,7 +70,9 @@ class KeypointFitResult:
     #: search's end to the fit); where the last search's best branches were refined to the end
     #: (``branch_refine``), one more entry with ``"refined": True`` (``stage``: the last stage) lists the
     #: distinct ones with their final energies (``tried`` entries also with ``differs``), ordered by the
-    #: score that chose (the final energy; with the occlusion cue on, times its factor), the fit first
+    #: score that chose (the final energy; with the occlusion cue on, times its factor), the fit first; a search
+    #: whose best rows each ran the final stage before a later search (the late one, ``settle``) also lists them
+    #: with those energies (``"settled": [{"flip", "energy"}, ...]``, the pick first), and its ``kept`` is that pick
     branch_search: Optional[list] = None
     #: with ``KeypointFitConfig.hypotheses > 1``: per sample, the distinct hypotheses refined to the
     #: end, lowest energy first (the first is the fit): ``[{"label", "energy", "params", "differs", "refined",

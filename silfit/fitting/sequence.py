@@ -80,10 +80,11 @@ class SequenceFitConfig:
     #: (the single image's late branch search off and its first search's screen as before issue 25's
     #: change: the branch over time was tuned on these per-frame hypotheses)
     #: (the per-frame fit's final stage and branch choice as before issue 25's converged choice, too:
-    #: ``final_iters`` 40, ``branch_refine`` 1, every step run; the joint refinement is what converges here)
+    #: ``final_iters`` 40, ``branch_refine`` 1, every step run; the joint refinement is what converges here;
+    #: and no search from the fit, ``post_branch_iters`` 0)
     keypoint: KeypointFitConfig = field(default_factory=lambda: KeypointFitConfig(
         init_poses=2, late_branch_iters=0, branch_screen_iters=10, branch_survivors=3, final_iters=40, branch_refine=1,
-        final_tol_change=None))
+        final_tol_change=None, post_branch_iters=0))
     init_stride: int = 1  # fit every n-th usable frame alone; interpolate the others
     iterations: int = 100  # joint refinement, L-BFGS steps
     joint_smooth_weight: float = 1.0

@@ -610,6 +610,11 @@ def test_a_search_from_the_settled_fit_after_the_late_searchs_best_settle(body_m
     late, post, refined = out[3]["branch_search"][0]
     assert [late["stage"], post["stage"], refined["stage"]] == ["branches_late", "branches_post", "final"]
     assert len(late["tried"]) >= 3 and refined["refined"] and not post.get("refined")
+    # the carried rows by their settled energies, the pick first (metrics.json shows why it was kept)
+    settled = [t["energy"] for t in late["settled"]]
+    assert len(settled) == 3 and settled == sorted(settled) and late["settled"][0]["flip"] == late["kept"]
+    assert settled[0] == pytest.approx(float(out[3]["energies"]["settle"][0]))
+    assert "settled" not in out[1]["branch_search"][0][0]
     # the branches recorded: the late search's settled pick, then the pick from the fit (each unless "keep")
     assert out[3]["branches"][0] == [b for b in (late["kept"], post["kept"]) if b != "keep"]
     assert refined["kept"] == post["kept"] and refined["tried"][0]["flip"] == post["kept"]

@@ -10,7 +10,7 @@ SYNTHETIC = Path(__file__).resolve().parents[2] / "data" / "synthetic"
 #: keypoint-stage options that keep a fit to about 0.1 s (tests check plumbing, not accuracy)
 FAST = ["--keypoint-option", "init_poses=1", "--keypoint-option", "camera_iters=10", "--keypoint-option",
         "pose_iters=10,10,10", "--keypoint-option", "shape_iters=5", "--keypoint-option", "final_iters=10",
-        "--keypoint-option", "branch_refine=1"]  # fmt: skip
+        "--keypoint-option", "branch_refine=1", "--keypoint-option", "post_branch_iters=0"]  # fmt: skip
 
 
 def subject_people(name: str) -> list:

@@ -9,7 +9,8 @@ from silfit.runner.items import list_items
 from silfit import image_fit
 from silfit.runner.worker import DatasetFitter
 
-KP_FAST = {"init_poses": "1", "camera_iters": "10", "pose_iters": "10,10,10", "shape_iters": "5", "final_iters": "10"}
+KP_FAST = {"init_poses": "1", "camera_iters": "10", "pose_iters": "10,10,10", "shape_iters": "5", "final_iters": "10",
+           "post_branch_iters": "0"}  # fmt: skip
 
 
 def _fitter():
