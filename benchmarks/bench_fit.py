@@ -336,6 +336,9 @@ def main(argv=None):
     from silfit.fitting import KeypointFitConfig
     from silfit.priors import load_pose_prior
 
+    if args.set and (args.silhouette or args.hard or args.dataset):  # they fit through evaluate_dataset's defaults
+        ap.error("--set applies to the generated random-pose sets only; --silhouette, --hard and --dataset fit with "
+                 "the defaults: compare code trees (git worktree) instead")  # fmt: skip
     model = load_body_model()
     config = KeypointFitConfig(**parse_set(args.set))
     priors = args.prior or ["default"]
