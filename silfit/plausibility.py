@@ -271,7 +271,8 @@ def hypothesis_summary(hypotheses) -> list:
     best (relative), the segments it turns away from the best, how far its joints lie from the best's
     (``shift_mm``: mean, ``max_shift_mm``: the largest) and whether it was refined to the end (an
     unrefined one, ``refined: False``, is a branch-search survivor: its energy and gap are its search
-    stage's, named in ``stage``)."""
+    stage's, named in ``stage``; or, ``stage`` ``settle``, a late-search row that settled higher than the pick:
+    its energy at the final weights and its gap to the fit's)."""
     if not hypotheses:
         return []
     e0 = hypotheses[0]["energy"]

@@ -224,7 +224,9 @@ class KeypointFitConfig:
     #: mean alone, the rule before issue 25's warnings; videos' branch choice keeps that one) ...
     hypothesis_joint_max_m: Optional[float] = DISTINCT_JOINT_MAX_M
     #: ... and where fewer than ``hypotheses`` refined ones are distinct, the branch searches' other
-    #: survivors fill the list (``refined: False``; their energy is their search stage's, not final)
+    #: survivors fill the list (``refined: False``; their energy is their search stage's, not final; rows that
+    #: settled higher than the settled pick, ``stage`` ``settle``, carry their final-weight energy there and
+    #: their gap to the fit's final energy)
     hypothesis_unrefined: bool = True
     #: each sample's lowest-energy hypotheses of the last branch search that run the rest of the
     #: schedule (at least ``2 * hypotheses`` with ``hypotheses`` > 1); the lowest final energy is the fit.
@@ -854,18 +856,21 @@ class KeypointFitter:
         def settle_pick(name):
             """Each sample's carried row with the lowest score after stage ``name`` (its final energy; the
             occlusion cue as in the final choice) goes on. The earlier search's record names it (``kept``) and
-            lists the carried rows' energies there (``settled``, by score, the pick first); with hypotheses > 1
-            the others join the alternatives not refined to the end."""
+            lists the carried rows' energies there (``settled``, ranked as the pick was, the pick first); with
+            hypotheses > 1 the others join the alternatives not refined to the end (their gap is set against the
+            fit's final energy at the end: both are energies at the final weights)."""
             nonlocal carried
             f = energies[name]
             score, _ = choice(f)
+            ranked = best_per_group(score, group, B, count=len(group)).tolist()  # near-ties as the pick treats them
             best = best_per_group(score, group, B)
             alternatives = K > 1 and cfg.hypothesis_unrefined
             with torch.no_grad():
                 now = layout.rows(state)
                 joints = self.body(**now).joints.double().numpy() if alternatives else None
             for b, r in enumerate(best.tolist()):
-                mine = sorted(torch.nonzero(group == b).flatten().tolist(), key=lambda i: float(score[i]))
+                mine = [i for i in ranked if int(group[i]) == b]
+                assert mine[0] == r
                 record = searched[b][-1]
                 if record["kept"] != "keep":  # that search's own pick, replaced by the settled one
                     chosen_branches[b].pop()
@@ -874,8 +879,7 @@ class KeypointFitter:
                 record["kept"] = carried[r]
                 record["settled"] = [{"flip": carried[i], "energy": float(f[i])} for i in mine]
                 for i in mine[1:] if alternatives else ():
-                    unrefined[b].append({"label": carried[i], "energy": float(f[i]), "stage": name,
-                                         "gap": (float(f[i]) - float(f[r])) / max(abs(float(f[r])), 1e-12), "joints": joints[i],
+                    unrefined[b].append({"label": carried[i], "energy": float(f[i]), "stage": name, "gap": None, "joints": joints[i],
                                          "params": {n: v[i].detach().cpu().numpy().astype(np.float32) for n, v in now.items()}})  # fmt: skip
             take(best)
             carried = None
@@ -970,14 +974,17 @@ class KeypointFitter:
             decided = True
             if stage.iterations > together:  # the rest of the stage from the chosen start only
                 run(stage, stage.iterations - together, f"{stage.name}_chosen")
-        if carried is not None:  # carried rows and no search after them (a schedule given so): the best is the fit
-            settle_pick(self.stages[-1].name)
         if not decided:  # a schedule without a decision stage: keep the best start at the end
             take(best_per_group(energies[self.stages[-1].name], group, B))
         hypotheses = None
         if row_labels is not None:  # the fit: each sample's lowest final energy; the others as alternatives
             final = energies[self.stages[-1].name]
             score, occ = choice(final)
+            fit_energy = final[best_per_group(score, group, B)].tolist()
+            for b, alternatives in enumerate(unrefined):  # settled rows: their gap to the fit, both at the final weights
+                for x in alternatives:
+                    if x["gap"] is None:
+                        x["gap"] = (x["energy"] - fit_energy[b]) / max(abs(fit_energy[b]), 1e-12)
             hypotheses, best = distinct_hypotheses(self, layout, state, final, group, B, row_labels, score=score,
                                                    occlusion=occ, max_m=cfg.hypothesis_joint_max_m,
                                                    unrefined=unrefined if cfg.hypothesis_unrefined else None)  # fmt: skip

@@ -77,7 +77,8 @@ class KeypointFitResult:
     #: with ``KeypointFitConfig.hypotheses > 1``: per sample, the distinct hypotheses refined to the
     #: end, lowest energy first (the first is the fit): ``[{"label", "energy", "params", "differs", "refined",
     #: "shift_mm", "max_shift_mm"}]``, then branch-search survivors not refined (``refined: False``, with
-    #: ``stage`` and ``gap``) where fewer than K refined ones are distinct (:func:`~silfit.fitting.keypoint_stage.distinct_hypotheses`)
+    #: ``stage`` and ``gap``; a row that settled higher, ``stage`` ``settle``, with its final-weight energy and its gap to the
+    #: fit's) where fewer than K refined ones are distinct (:func:`~silfit.fitting.keypoint_stage.distinct_hypotheses`)
     hypotheses: Optional[list] = None
 
     def __len__(self) -> int:
