@@ -68,7 +68,7 @@ BREAKAGES = (
     ),
     Breakage(
         "interpenetration_zero", "interpenetration penalty returns zero",
-        (("silfit/priors/interpenetration.py", "return self.penalty(c, r)", "return 0.0 * self.penalty(c, r)"),),
+        (("silfit/priors/interpenetration.py", "index_add(0, row, overlap * overlap)", "index_add(0, row, 0.0 * overlap)"),),
         ("tests/priors/test_interpenetration.py",),
     ),
     Breakage(

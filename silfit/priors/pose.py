@@ -129,7 +129,30 @@ class MaxMixturePrior(nn.Module):
         return (0.5 * maha + self.constants.double()).to(x.dtype)
 
     def forward(self, body_pose: torch.Tensor) -> torch.Tensor:
-        return self.component_energies(body_pose).min(dim=1).values
+        x = _check_pose(body_pose, self.dim)
+        return _BestComponent.apply(x, self.means, self.precisions, self.constants)
+
+
+class _BestComponent(torch.autograd.Function):
+    """The best component's energy ``[B]`` (the values of ``component_energies(x).min(1)``, the
+    same bits) with its gradient ``P_k (x - mu_k)`` taken from the forward's own product: the
+    minimum's gradient is its component's alone, so the backward pass does not go through all
+    ``K`` quadratic forms again (it was the keypoint stage's largest backward cost)."""
+
+    @staticmethod
+    def forward(ctx, x, means, precisions, constants):
+        d = x.double()[:, None, :] - means.double()  # [B, K, D]
+        Pd = (precisions.double() * d[..., None, :]).sum(-1)  # [B, K, D], as quadratic_forms
+        energies = (0.5 * (d * Pd).sum(-1) + constants.double()).to(x.dtype)
+        value, best = energies.min(dim=1)
+        ctx.save_for_backward(Pd[torch.arange(len(best), device=best.device), best])
+        ctx.dtype = x.dtype
+        return value
+
+    @staticmethod
+    def backward(ctx, grad):
+        (Pd,) = ctx.saved_tensors
+        return (grad.double()[:, None] * Pd).to(ctx.dtype), None, None, None
 
 
 class LibraryMixturePrior(MaxMixturePrior):

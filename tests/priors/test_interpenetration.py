@@ -133,3 +133,51 @@ def test_sphere_set_round_trips_through_the_disk_cache_bit_for_bit(col, body_mod
     monkeypatch.setattr(ip, "build_spheres", lambda *a, **k: built[key])
     assert torch.equal(SphereCollisionModel(body_model).pair_mask, col.pair_mask)
     assert ip._load_spheres(path) is not None  # rewritten whole
+
+
+def _dense_penalty(col, betas, T):
+    """The penalty by its definition: every sphere's radius the minimum over its neighbours, every
+    tested pair's overlap, all with the gradient (what the fast path must equal)."""
+    c = col.centre_template + (betas[:, None, None, :] * col.centre_dirs).sum(-1)
+    nv = col.neighbour_template + (betas[:, None, None, None, :] * col.neighbour_dirs).sum(-1)
+    r = col.radius_scale * (((nv - c[:, :, None]) ** 2).sum(-1) + 1e-12).amin(-1).sqrt() - col.margin
+    Tw = (col.sphere_weights[None, :, :, None, None] * T[:, None, :, :3, :]).sum(2)
+    p = (Tw[..., :3] * c[..., None, :]).sum(-1) + Tw[..., 3]
+    d = torch.linalg.vector_norm(p[:, col.pair_a] - p[:, col.pair_b], dim=-1)
+    return (torch.relu(r[:, col.pair_a] + r[:, col.pair_b] - d) ** 2).sum(-1)
+
+
+def test_the_fast_penalty_equals_its_definition_in_value_and_gradient(col, open_model64):
+    """Only the overlapping pairs' spheres carry the gradient (and each radius only its nearest
+    neighbour's): the value and the gradient in pose and shape are the dense definition's."""
+    col64 = copy.deepcopy(col).double()
+    g = torch.Generator().manual_seed(5)
+    B = 12
+    examples = intersecting_examples()
+    pose = torch.cat([torch.as_tensor(np.asarray(examples[n][0]), dtype=torch.float64).reshape(1, 69) for n in examples])
+    pose = torch.cat([pose, 0.6 * torch.randn(B - len(pose), 69, generator=g, dtype=torch.float64)])
+    betas = torch.randn(B, 10, generator=g, dtype=torch.float64)
+    values = []
+    for fn in (col64, lambda b, T: _dense_penalty(col64, b, T)):
+        x, b = pose.clone().requires_grad_(True), betas.clone().requires_grad_(True)
+        T = body_transforms(open_model64, b, torch.zeros(B, 3, dtype=torch.float64), x)
+        e = fn(b, T)
+        values.append((e.detach(), *torch.autograd.grad(e.sum(), (x, b))))
+    (e, gx, gb), (e_ref, gx_ref, gb_ref) = values
+    assert int((e_ref > 0).sum()) >= len(examples)  # the intersecting examples and some random poses overlap
+    # the radius's offsets (neighbour - centre) are rounded once to the model's float32 from float64: 1e-7 apart
+    assert torch.allclose(e, e_ref, rtol=1e-5, atol=1e-12)
+    assert torch.allclose(gx, gx_ref, rtol=0, atol=1e-5 * float(gx_ref.abs().max()))
+    assert torch.allclose(gb, gb_ref, rtol=0, atol=1e-5 * float(gb_ref.abs().max()))
+
+
+def test_a_rows_penalty_does_not_depend_on_the_batch(col, body_model):
+    g = torch.Generator().manual_seed(6)
+    B = 9
+    pose, betas = 0.7 * torch.randn(B, 69, generator=g), torch.randn(B, 10, generator=g)
+    T = body_transforms(body_model, betas, torch.zeros(B, 3), pose)
+    together = col(betas, T)
+    assert int((together > 0).sum()) >= 2
+    alone = torch.cat([col(betas[i : i + 1], T[i : i + 1]) for i in range(B)])
+    assert torch.equal(together, alone)
+    assert torch.equal(together[3:7], col(betas[3:7], T[3:7]))
