@@ -362,20 +362,22 @@ class SphereCollisionModel(nn.Module):
         mask = torch.zeros(S, S, dtype=dtype)
         mask[self.pair_a, self.pair_b] = 1.0
         self.register_buffer("pair_mask", mask)
-        self.register_buffer("pair_tested", mask > 0)
         self.margin = float(margin)
-        # The radius's offsets (neighbour vertex - centre), linear in the shape: rounded once from float64.
+        # Derived from the arrays above (not saved in a state dict): the tested pairs as booleans; the radius's
+        # offsets (neighbour vertex - centre), linear in the shape, rounded once from float64, also by shape direction.
+        self.register_buffer("pair_tested", mask > 0, persistent=False)
         a = {name: np.asarray(arrays[name], dtype=np.float64) for name in _SPHERE_ARRAYS[:4]}
-        self.register_buffer("offset_template", torch.as_tensor(a["neighbour_template"] - a["centre_template"][:, None]).to(dtype))
-        self.register_buffer("offset_dirs", torch.as_tensor(a["neighbour_dirs"] - a["centre_dirs"][:, None]).to(dtype))
-        self.register_buffer("offset_dirs_by_beta", self.offset_dirs.permute(3, 0, 1, 2).contiguous())  # [L, S, K, 3]
+        offset_dirs = torch.as_tensor(a["neighbour_dirs"] - a["centre_dirs"][:, None]).to(dtype)
+        self.register_buffer("offset_template", torch.as_tensor(a["neighbour_template"] - a["centre_template"][:, None]).to(dtype), persistent=False)
+        self.register_buffer("offset_dirs", offset_dirs, persistent=False)  # [S, K, 3, L]
+        self.register_buffer("offset_dirs_by_beta", offset_dirs.permute(3, 0, 1, 2).contiguous(), persistent=False)  # [L, S, K, 3]
         # Each sphere's blend over the joints that carry it (2.6 of 24 on average; zero-padded to the most).
         w = self.sphere_weights
         nz = w != 0
         k = max(int(nz.sum(1).max()), 1)
         index = torch.sort((~nz).to(torch.uint8), dim=1, stable=True).indices[:, :k].contiguous()
-        self.register_buffer("carry_joint", index)
-        self.register_buffer("carry_weight", w.gather(1, index).contiguous())
+        self.register_buffer("carry_joint", index, persistent=False)
+        self.register_buffer("carry_weight", w.gather(1, index).contiguous(), persistent=False)
 
     def rest_spheres(self, betas: torch.Tensor, dtype: Optional[torch.dtype] = None):
         """Rest-pose centres ``[B, S, 3]`` and radii ``[B, S]`` for ``betas [B, L]``: a radius is
@@ -412,16 +414,22 @@ class SphereCollisionModel(nn.Module):
     def _posed_centres(self, b: torch.Tensor, transforms: torch.Tensor, sphere: Optional[torch.Tensor] = None) -> torch.Tensor:
         """Posed centres (no translation) of every sphere, ``[B, S, 3]``, or of spheres
         ``sphere [B, ...]``, ``[B, ..., 3]``."""
-        dt = transforms.dtype
+        # Gathers from tensors that carry the gradient are index_select (backward: index_add, in order), not
+        # advanced indexing, whose backward (index_put_ accumulating) adds in parallel with more than one thread.
+        dt, (B, J) = transforms.dtype, transforms.shape[:2]
+        T34 = transforms[:, :, :3, :]
         if sphere is None:
             c = self.centre_template.to(dt) + blend_shapes(b, self.centre_dirs.to(dt))
-            Tk, w = transforms[:, self.carry_joint, :3, :], self.carry_weight.to(dt)  # [B, S, k, 3, 4]
+            S, k = self.carry_joint.shape
+            Tk = T34.index_select(1, self.carry_joint.reshape(-1)).reshape(B, S, k, 3, 4)
+            w = self.carry_weight.to(dt)
         else:
             L = min(b.shape[1], self.centre_dirs.shape[-1])
             lead = (slice(None),) + (None,) * (sphere.ndim - 1)
             c = self.centre_template.to(dt)[sphere] + (b[lead + (None, slice(0, L))] * self.centre_dirs.to(dt)[sphere][..., :L]).sum(-1)
-            rows = torch.arange(len(b), device=b.device)[lead]
-            Tk, w = transforms[rows[..., None], self.carry_joint[sphere], :3, :], self.carry_weight.to(dt)[sphere]
+            at = torch.arange(B, device=b.device)[lead + (None,)] * J + self.carry_joint[sphere]  # [B, ..., k]
+            Tk = T34.reshape(B * J, 3, 4).index_select(0, at.reshape(-1)).reshape(*at.shape, 3, 4)
+            w = self.carry_weight.to(dt)[sphere]
         # the sphere's transform blended over the joints that carry it, as a product and a sum (body.lbs)
         Tw = (w[..., None, None] * Tk).sum(-3)
         return (Tw[..., :3] * c[..., None, :]).sum(-1) + Tw[..., 3]
@@ -452,19 +460,25 @@ class SphereCollisionModel(nn.Module):
     def penalty(self, centres: torch.Tensor, radii: torch.Tensor) -> torch.Tensor:
         """``[B]`` sum of squared overlaps (m^2) over the tested sphere pairs that overlap."""
         row, a, b = self.overlapping_pairs(centres, radii)
-        return self._sum_squared_overlaps(len(centres), row, centres[row, a], centres[row, b], radii[row, a], radii[row, b])
+        B, S = radii.shape
+        flat_c, flat_r = centres.reshape(B * S, 3), radii.reshape(B * S)
+        ia, ib = row * S + a, row * S + b  # index_select, not advanced indexing (_posed_centres)
+        return self._sum_squared_overlaps(B, row, flat_c.index_select(0, ia), flat_c.index_select(0, ib),
+                                          flat_r.index_select(0, ia), flat_r.index_select(0, ib))
 
     def forward(self, betas: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
         """The penalty ``[B]``. Every sphere is posed without a gradient to find the overlapping
         pairs (a few dozen of the 10172 at most, most rows none); only those pairs' spheres are
         posed again with it, so the backward pass costs next to nothing."""
         b = betas.to(transforms.dtype)
+        if len(b) != len(transforms):  # one shape for every row, as a broadcast
+            b = b.expand(len(transforms), -1)
         with torch.no_grad():
             nearest = self._nearest(b)
             sphere = torch.arange(self.num_spheres, device=b.device).expand(len(b), -1)
             row, pa, pb = self.overlapping_pairs(self._posed_centres(b, transforms), self._radii(b, sphere, nearest))
         pair = torch.stack([pa, pb], 1)[:, :, None]  # [N, 2, 1]: "rows" of one sphere each
-        rb, tb = b[row], transforms[row]
+        rb, tb = b.index_select(0, row), transforms.index_select(0, row)  # (_posed_centres)
         centres = self._posed_centres(rb, tb, pair)[:, :, 0]  # [N, 2, 3]
         radii = self._radii(rb, pair, nearest[row[:, None, None], pair])[:, :, 0]  # [N, 2]
         return self._sum_squared_overlaps(len(b), row, centres[:, 0], centres[:, 1], radii[:, 0], radii[:, 1])

@@ -150,7 +150,9 @@ class _BestComponent(torch.autograd.Function):
         return value
 
     @staticmethod
+    @torch.autograd.function.once_differentiable  # (a second derivative would need P_k itself: refused, not wrong)
     def backward(ctx, grad):
+        # the mixture is a fixed prior (buffers): no gradient for its means, precisions or constants
         (Pd,) = ctx.saved_tensors
         return (grad.double()[:, None] * Pd).to(ctx.dtype), None, None, None
 

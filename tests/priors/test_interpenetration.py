@@ -181,3 +181,29 @@ def test_a_rows_penalty_does_not_depend_on_the_batch(col, body_model):
     alone = torch.cat([col(betas[i : i + 1], T[i : i + 1]) for i in range(B)])
     assert torch.equal(together, alone)
     assert torch.equal(together[3:7], col(betas[3:7], T[3:7]))
+
+
+def test_the_penalty_and_its_gradient_are_the_same_bits_with_one_or_two_threads(col, body_model):
+    """Enough overlapping pairs that a parallel scatter-add would split (index_put_ accumulating adds in
+    parallel from 32,768 elements with more than one thread, in the order the threads come; the gathers
+    are index_select). With advanced indexing 5-6 of 6 two-thread runs differed from one thread."""
+    g = torch.Generator().manual_seed(7)
+    B = 48
+    pose, betas = 0.9 * torch.randn(B, 69, generator=g), torch.randn(B, 10, generator=g)
+    T0 = body_transforms(body_model, betas, torch.zeros(B, 3), pose)
+    results = []
+    before = torch.get_num_threads()
+    try:
+        for threads in (1, 2, 2, 2, 2, 2, 2, 1):
+            torch.set_num_threads(threads)
+            b, T = betas.clone().requires_grad_(True), T0.clone().requires_grad_(True)
+            e = col(b, T)
+            results.append((e.detach(), *torch.autograd.grad((e * torch.arange(1.0, B + 1)).sum(), (b, T))))
+            c, r = col.posed_spheres(b, T)
+            results[-1] += torch.autograd.grad(col.penalty(c, r).sum(), (b, T))
+    finally:
+        torch.set_num_threads(before)
+    assert int((results[0][0] > 0).sum()) >= 20
+    for other in results[1:]:
+        for x, y in zip(results[0], other):
+            assert torch.equal(x, y)
