@@ -48,7 +48,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..body.lbs import blend_shapes, per_row
+from ..body.lbs import _padded, blend_shapes, per_row
 
 __all__ = ["SphereCollisionModel", "tree_distances", "vertex_normals"]
 
@@ -372,12 +372,9 @@ class SphereCollisionModel(nn.Module):
         self.register_buffer("offset_dirs", offset_dirs, persistent=False)  # [S, K, 3, L]
         self.register_buffer("offset_dirs_by_beta", offset_dirs.permute(3, 0, 1, 2).contiguous(), persistent=False)  # [L, S, K, 3]
         # Each sphere's blend over the joints that carry it (2.6 of 24 on average; zero-padded to the most).
-        w = self.sphere_weights
-        nz = w != 0
-        k = max(int(nz.sum(1).max()), 1)
-        index = torch.sort((~nz).to(torch.uint8), dim=1, stable=True).indices[:, :k].contiguous()
-        self.register_buffer("carry_joint", index, persistent=False)
-        self.register_buffer("carry_weight", w.gather(1, index).contiguous(), persistent=False)
+        carry_joint, carry_weight = _padded(self.sphere_weights)
+        self.register_buffer("carry_joint", carry_joint, persistent=False)
+        self.register_buffer("carry_weight", carry_weight, persistent=False)
 
     def rest_spheres(self, betas: torch.Tensor, dtype: Optional[torch.dtype] = None):
         """Rest-pose centres ``[B, S, 3]`` and radii ``[B, S]`` for ``betas [B, L]``: a radius is
@@ -386,9 +383,8 @@ class SphereCollisionModel(nn.Module):
         dtype = dtype or betas.dtype
         b = betas.to(dtype)
         c = self.centre_template.to(dtype) + blend_shapes(b, self.centre_dirs.to(dtype))
-        S = len(c[0])
         nearest = self._nearest(b)
-        s = torch.arange(S, device=b.device).expand_as(nearest)
+        s = torch.arange(self.num_spheres, device=b.device).expand_as(nearest)
         return c, self._radii(b, s, nearest)
 
     def _nearest(self, b: torch.Tensor) -> torch.Tensor:

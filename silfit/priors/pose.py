@@ -123,14 +123,19 @@ class MaxMixturePrior(nn.Module):
         # Evaluated in float64 whatever the input's dtype: with a sharp mixture and a large
         # prior weight, float32 rounding (which depends on the batch size) would otherwise
         # make a batched fit drift away from the same fit done one sample at a time.
-        xd = x.double()
-        d = xd[:, None, :] - self.means.double()  # [B, K, D]
-        maha = quadratic_forms(d, self.precisions.double())
-        return (0.5 * maha + self.constants.double()).to(x.dtype)
+        return _energies_and_products(x, self.means, self.precisions, self.constants)[0]
 
     def forward(self, body_pose: torch.Tensor) -> torch.Tensor:
         x = _check_pose(body_pose, self.dim)
         return _BestComponent.apply(x, self.means, self.precisions, self.constants)
+
+
+def _energies_and_products(x: torch.Tensor, means, precisions, constants) -> tuple:
+    """Each component's energy ``[B, K]`` (in ``x``'s dtype) and ``P_k (x - mu_k)`` ``[B, K, D]`` (float64):
+    :func:`quadratic_forms`' products, kept for the gradient."""
+    d = x.double()[:, None, :] - means.double()  # [B, K, D]
+    Pd = (precisions.double() * d[..., None, :]).sum(-1)
+    return (0.5 * (d * Pd).sum(-1) + constants.double()).to(x.dtype), Pd
 
 
 class _BestComponent(torch.autograd.Function):
@@ -141,9 +146,7 @@ class _BestComponent(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, x, means, precisions, constants):
-        d = x.double()[:, None, :] - means.double()  # [B, K, D]
-        Pd = (precisions.double() * d[..., None, :]).sum(-1)  # [B, K, D], as quadratic_forms
-        energies = (0.5 * (d * Pd).sum(-1) + constants.double()).to(x.dtype)
+        energies, Pd = _energies_and_products(x, means, precisions, constants)
         value, best = energies.min(dim=1)
         ctx.save_for_backward(Pd[torch.arange(len(best), device=best.device), best])
         ctx.dtype = x.dtype
