@@ -383,9 +383,7 @@ class SphereCollisionModel(nn.Module):
         dtype = dtype or betas.dtype
         b = betas.to(dtype)
         c = self.centre_template.to(dtype) + blend_shapes(b, self.centre_dirs.to(dtype))
-        nearest = self._nearest(b)
-        s = torch.arange(self.num_spheres, device=b.device).expand_as(nearest)
-        return c, self._radii(b, s, nearest)
+        return c, self._all_radii(b, self._nearest(b))
 
     def _nearest(self, b: torch.Tensor) -> torch.Tensor:
         """``[B, S]`` the index of each sphere's nearest neighbour vertex (no gradient): the offsets
@@ -397,6 +395,10 @@ class SphereCollisionModel(nn.Module):
             for i in range(min(b.shape[1], len(dirs))):
                 off.addcmul_(b[:, i, None, None, None], dirs[i])
             return (off * off).sum(-1).argmin(-1)
+
+    def _all_radii(self, b: torch.Tensor, nearest: torch.Tensor) -> torch.Tensor:
+        """``[B, S]`` every sphere's radius, given ``nearest`` (:meth:`_nearest`)."""
+        return self._radii(b, torch.arange(self.num_spheres, device=b.device).expand_as(nearest), nearest)
 
     def _radii(self, b: torch.Tensor, sphere: torch.Tensor, nearest: torch.Tensor) -> torch.Tensor:
         """Radii of spheres ``sphere [B, ...]`` (rows of ``b [B, L]``) with their nearest neighbours'
@@ -434,11 +436,10 @@ class SphereCollisionModel(nn.Module):
         """Posed centres and radii given the skinning transforms ``[B, J, 4, 4]``
         (rest point -> posed point) of :func:`silfit.body.lbs.forward_kinematics`."""
         b = betas.to(transforms.dtype)
-        sphere = torch.arange(self.num_spheres, device=b.device).expand(len(b), -1)
         posed = self._posed_centres(b, transforms)
         if transl is not None:
             posed = posed + transl[:, None]
-        return posed, self._radii(b, sphere, self._nearest(b))
+        return posed, self._all_radii(b, self._nearest(b))
 
     def overlapping_pairs(self, centres: torch.Tensor, radii: torch.Tensor) -> tuple:
         """``(row, a, b)``: the tested pairs whose spheres overlap, in order (row, then ``a``, ``b``)."""
@@ -471,8 +472,7 @@ class SphereCollisionModel(nn.Module):
             b = b.expand(len(transforms), -1)
         with torch.no_grad():
             nearest = self._nearest(b)
-            sphere = torch.arange(self.num_spheres, device=b.device).expand(len(b), -1)
-            row, pa, pb = self.overlapping_pairs(self._posed_centres(b, transforms), self._radii(b, sphere, nearest))
+            row, pa, pb = self.overlapping_pairs(self._posed_centres(b, transforms), self._all_radii(b, nearest))
         pair = torch.stack([pa, pb], 1)[:, :, None]  # [N, 2, 1]: "rows" of one sphere each
         rb, tb = b.index_select(0, row), transforms.index_select(0, row)  # (_posed_centres)
         centres = self._posed_centres(rb, tb, pair)[:, :, 0]  # [N, 2, 3]
