@@ -7,12 +7,15 @@ each with :func:`silfit.fitting.sequence.fit_sequence` once per ``--methods`` en
 * ``before`` / ``after``: the defaults without / with the offsets round (``branch_offsets=()`` / the
   default ``(1, 2, 4)``: each frame refitted from the picks of the frames 1, 2 and 4 away);
 * ``off`` / ``on``: ``branch_dp`` off (one per-frame answer refined) / on (a dynamic programme over each
-  frame's hypotheses picks the branch sequence before the refinement), both without the offsets round.
+  frame's hypotheses picks the branch sequence before the refinement), both without the offsets round;
+* ``kp:NAME=VALUE+NAME=VALUE``: the defaults with the per-frame keypoint stage's options changed (as ``silfit fit
+  --keypoint-option``), e.g. ``kp:init_poses=2``: the per-frame start before issue 25's squat change.
 
 Prints per sequence the PA-MPJPE median and worst frame, the frames above 2x the sequence's median, the
 frames the programme changed, the CPU seconds of each fit, and the last method's CPU time over the first's.
 
     python benchmarks/bench_sequence_branches.py --motions squat,walk,run --seed 2031 --methods before,after
+    python benchmarks/bench_sequence_branches.py --motions squat,walk,run --seed 2101 --methods kp:init_poses=2,after
 """
 from __future__ import annotations
 
@@ -53,6 +56,7 @@ def main(argv=None):
     from silfit import load_body_model
     from silfit.camera import load_camera
     from silfit.fitting.sequence import SequenceFitConfig, fit_sequence
+    from silfit.runner.worker import keypoint_config
     from silfit.synth.motion import SequenceConfig, generate_sequence_dataset
     from silfit.video import read_sequence
 
@@ -79,8 +83,10 @@ def main(argv=None):
                 cfg = replace(cfg, branch_dp=(m == "on"), branch_offsets=())
             elif m == "before":
                 cfg = replace(cfg, branch_offsets=())
+            elif m.startswith("kp:"):  # the defaults with per-frame keypoint-stage options, as --keypoint-option
+                cfg = replace(cfg, keypoint=keypoint_config(dict(o.split("=", 1) for o in m[3:].split("+")), cfg.keypoint))
             elif m != "after":
-                raise SystemExit(f"unknown method {m!r} (before, after, off, on)")
+                raise SystemExit(f"unknown method {m!r} (before, after, off, on, kp:key=value+...)")
             t, c = time.perf_counter(), time.process_time()
             r = fit_sequence(seq.frames, cam, model, config=cfg)
             dt, cpu = time.perf_counter() - t, time.process_time() - c
