@@ -9,7 +9,8 @@ each with :func:`silfit.fitting.sequence.fit_sequence` once per ``--methods`` en
 * ``off`` / ``on``: ``branch_dp`` off (one per-frame answer refined) / on (a dynamic programme over each
   frame's hypotheses picks the branch sequence before the refinement), both without the offsets round;
 * ``kp:NAME=VALUE+NAME=VALUE``: the defaults with the per-frame keypoint stage's options changed (as ``silfit fit
-  --keypoint-option``), e.g. ``kp:init_poses=2``: the per-frame start before issue 25's squat change.
+  --keypoint-option``), e.g. ``kp:init_poses=2``: the per-frame start before issue 25's squat change (options
+  whose values are lists cannot be given: ``--methods`` is split at commas).
 
 Prints per sequence the PA-MPJPE median and worst frame, the frames above 2x the sequence's median, the
 frames the programme changed, the CPU seconds of each fit, and the last method's CPU time over the first's.
@@ -39,6 +40,29 @@ def frame_errors(model, gt, params) -> np.ndarray:
     return np.asarray(pa_mpjpe(_joints(model, params, F), np.asarray(gt["joints"], dtype=np.float64))) * 1000
 
 
+def method_config(m: str):
+    """The :class:`SequenceFitConfig` of method ``m`` (module docstring); ``SystemExit`` with one line if unknown."""
+    from silfit.fitting.sequence import SequenceFitConfig
+    from silfit.runner.worker import keypoint_config
+
+    cfg = SequenceFitConfig()
+    if m in ("off", "on"):
+        return replace(cfg, branch_dp=(m == "on"), branch_offsets=())
+    if m == "before":
+        return replace(cfg, branch_offsets=())
+    if m.startswith("kp:"):  # the defaults with per-frame keypoint-stage options, as --keypoint-option
+        parts = m[3:].split("+")
+        if not all("=" in p and p.split("=", 1)[0] for p in parts):
+            raise SystemExit(f"method {m!r}: expected kp:NAME=VALUE+NAME=VALUE")
+        try:
+            return replace(cfg, keypoint=keypoint_config(dict(p.split("=", 1) for p in parts), cfg.keypoint))
+        except ValueError as e:
+            raise SystemExit(f"method {m!r}: {e}") from None
+    if m != "after":
+        raise SystemExit(f"unknown method {m!r} (before, after, off, on, kp:NAME=VALUE+NAME=VALUE)")
+    return cfg
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--motions", default="squat,walk,run")
@@ -48,26 +72,26 @@ def main(argv=None):
     ap.add_argument("--drop", type=float, default=0.1)
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--keep", help="keep the dataset here")
-    ap.add_argument("--methods", default="before,after", help="settings to run (before, after, off, on)")
+    ap.add_argument("--methods", default="before,after", help="settings to run (before, after, off, on, kp:NAME=VALUE+NAME=VALUE)")
     ap.add_argument("--per-frame", action="store_true", help="print each frame's PA-MPJPE")
     ap.add_argument("--only", help="fit only these sequences (comma-separated names)")
     args = ap.parse_args(argv)
 
     from silfit import load_body_model
     from silfit.camera import load_camera
-    from silfit.fitting.sequence import SequenceFitConfig, fit_sequence
-    from silfit.runner.worker import keypoint_config
+    from silfit.fitting.sequence import fit_sequence
     from silfit.synth.motion import SequenceConfig, generate_sequence_dataset
     from silfit.video import read_sequence
 
     model = load_body_model()
     motions = tuple(args.motions.split(","))
+    methods = args.methods.split(",")
+    configs = {m: method_config(m) for m in methods}  # a bad method fails before any data or fit
     root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="bench_seqdp_"))
     if not (root / "index.json").is_file():
         generate_sequence_dataset(root, len(motions), SequenceConfig(seed=args.seed, frames=args.frames, size=args.size,
                                   noise_px=args.noise, drop_prob=args.drop, motions=motions))  # fmt: skip
     index = json.loads((root / "index.json").read_text())
-    methods = args.methods.split(",")
     table = []
     for rec in index["sequences"]:
         if args.only and rec["name"] not in args.only.split(","):
@@ -78,15 +102,7 @@ def main(argv=None):
         gt = dict(np.load(d / "gt.npz"))
         row = {"name": rec["name"], "motion": rec["motion"]}
         for m in methods:
-            cfg = SequenceFitConfig()
-            if m in ("off", "on"):
-                cfg = replace(cfg, branch_dp=(m == "on"), branch_offsets=())
-            elif m == "before":
-                cfg = replace(cfg, branch_offsets=())
-            elif m.startswith("kp:"):  # the defaults with per-frame keypoint-stage options, as --keypoint-option
-                cfg = replace(cfg, keypoint=keypoint_config(dict(o.split("=", 1) for o in m[3:].split("+")), cfg.keypoint))
-            elif m != "after":
-                raise SystemExit(f"unknown method {m!r} (before, after, off, on, kp:key=value+...)")
+            cfg = configs[m]
             t, c = time.perf_counter(), time.process_time()
             r = fit_sequence(seq.frames, cam, model, config=cfg)
             dt, cpu = time.perf_counter() - t, time.process_time() - c

@@ -82,9 +82,9 @@ class SequenceFitConfig:
     #: (the per-frame fit's final stage and branch choice as before issue 25's converged choice, too:
     #: ``final_iters`` 40, ``branch_refine`` 1, every step run; the joint refinement is what converges here;
     #: and no search from the fit, ``post_branch_iters`` 0)
-    #: (the single image's 4 starting poses, not 2: with 2, a squat seen from the side whose arms the body hides
-    #: in its deep frames started every one of them where L-BFGS could not leave a wrong arm, at 2-3x the energy
-    #: of the truth's basin; benchmarks/bench_sequence_branches.py, issue 25's videos)
+    #: (the single image's 4 starting poses, not 2: a squat seen from the side hides one arm in its deep frames,
+    #: and with 2 starts every such frame began where L-BFGS could not leave a wrong arm, at 2-3x the energy of
+    #: the truth's basin; README "Videos", benchmarks/bench_sequence_branches.py, issue 25)
     keypoint: KeypointFitConfig = field(default_factory=lambda: KeypointFitConfig(
         init_poses=4, late_branch_iters=0, branch_screen_iters=10, branch_survivors=3, final_iters=40, branch_refine=1,
         final_tol_change=None, post_branch_iters=0))
