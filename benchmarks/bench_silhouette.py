@@ -29,9 +29,13 @@ method was called ``main`` before the speed part); ``main`` is the default befor
 (``edge_density=4``: 4 edge points per pixel of contour-candidate length; before it: coarser render proxies per
 level, 3,000 faces at 128 px and 5,000 at 256 px, a 10-step warm-up and half body_pose's learning rate);
 ``--step`` times one render + backward of the default 256 px level per method (``main``/``after``'s edge points);
-``prev`` is the default before issue 24's runtime part (the same configuration and fits bit for bit as ``after``: the
+``prev`` is the default before issue 24's runtime part (the same configuration and fits bit for bit as ``dense``: the
 edge integral's vertex gradient by autograd over every vertex, the stage's reduced bodies rebuilt each call; methods
-older than ``after`` run so too, :data:`OLD_RUNTIME`); ``head-projective`` is ``head`` rendered with
+older than ``after`` run so too, :data:`OLD_RUNTIME`); ``dense`` is the default before issue 24's sampling part (4
+rays per edge pixel and 4 visibility-edge points per pixel of candidate length, :data:`BEFORE_SAMPLING_PART`; the
+cover term's nearest points from one float32 product over all pairs, not a k-d tree: methods older than ``after``
+run so too, :data:`PRODUCT_NN`); ``dense-tree`` is ``dense`` with the k-d tree (the nearest points' share of the
+change); ``head-projective`` is ``head`` rendered with
 Mitsuba's ``prb_projective`` integrator; ``after-1t``: the default with one Dr.Jit thread (the same fits bit for bit; see ``ONE_THREAD``); ``after-stratified``, ``*-s1``: see ``RENDERERS``; ``weakprior`` is the default with the stage's
 pose prior weight before issue 23's detected-inputs part (0.002, now 0.005).
 ``--video 60``: one 60-frame synthetic walk through the sequence's stage (``refine_sequence_silhouettes``: all
@@ -60,7 +64,9 @@ import numpy as np
 import torch
 
 from silfit import load_body_model
-from silfit.fitting.silhouette_stage import BEFORE_FOURTH_PART, SilhouetteFitConfig, fit_silhouette, fit_silhouette_problems
+from silfit.fitting.silhouette_stage import (
+    BEFORE_FOURTH_PART, BEFORE_SAMPLING_PART, SilhouetteFitConfig, fit_silhouette, fit_silhouette_problems,
+)
 
 #: the stage at main before issue 24's third part (a 20-iteration contour level at weights 0.05, then 40 + 25
 #: rendered steps, the full mesh posed each step and mapped to the render proxy)
@@ -70,17 +76,22 @@ HEAD = {"iterations": (40, 25), "contour_iterations": 20, "w_contour_inside": 0.
 #: body_pose's learning rate 0.03): the third part's default
 THIRD = BEFORE_FOURTH_PART
 #: the default before issue 24's speed part: edge_spp visibility-edge points per window pixel
-MAIN = {"edge_density": None}
+MAIN = {"edge_density": None, "spp": 4}
 METHODS = {"original": SilhouetteFitConfig.legacy, "before": SilhouetteFitConfig.legacy, "after": SilhouetteFitConfig,
            "head": lambda: SilhouetteFitConfig(**HEAD), "third": lambda: SilhouetteFitConfig(**THIRD),
            "main": lambda: SilhouetteFitConfig(**MAIN), "head-projective": lambda: SilhouetteFitConfig(**HEAD),
            "after-1t": SilhouetteFitConfig, "after-stratified": SilhouetteFitConfig,
            "head-s1": lambda: SilhouetteFitConfig(**HEAD, seed=1), "after-s1": lambda: SilhouetteFitConfig(seed=1),
-           "prev": SilhouetteFitConfig,
+           "prev": lambda: SilhouetteFitConfig(**BEFORE_SAMPLING_PART),
+           "dense": lambda: SilhouetteFitConfig(**BEFORE_SAMPLING_PART),
+           "dense-tree": lambda: SilhouetteFitConfig(**BEFORE_SAMPLING_PART),
            "weakprior": lambda: SilhouetteFitConfig(pose_weight=0.002)}  # fmt: skip
 #: methods run as before issue 24's runtime part (the edge integral's vertex gradient by torch's autograd over every
 #: vertex, the stage's reduced bodies rebuilt each call): ``prev`` is the default so (the same fits bit for bit)
 OLD_RUNTIME = {"original", "before", "head", "third", "main", "head-projective", "head-s1", "prev"}
+#: methods whose cover term finds its nearest points by the float32 product over all pairs, as before issue 24's
+#: sampling part (``silfit.silhouette.losses.NEAREST_BY_TREE`` off)
+PRODUCT_NN = OLD_RUNTIME | {"dense"}
 #: methods run with one Dr.Jit thread, as the ray-cast renderer did before issue 24's threads part (the same fits bit
 #: for bit); the others with Dr.Jit's whole pool (``--drjit-threads``, default: the host's cores)
 ONE_THREAD = OLD_RUNTIME | {"after-1t"}
@@ -95,6 +106,7 @@ def runtime(name):
     from renderers._llvm import import_mitsuba
     from renderers.raycast import RaycastScene
     from silfit.fitting import silhouette_stage
+    from silfit.silhouette import losses
 
     _, dr = import_mitsuba()
     DRJIT_POOL = DRJIT_POOL or dr.thread_count()  # the pool as Dr.Jit started, before a method set it to one
@@ -103,10 +115,12 @@ def runtime(name):
     if old:
         silhouette_stage._CONTOUR_BODIES.clear()
     dr.set_thread_count(1 if name in ONE_THREAD else DRJIT_POOL)
+    losses.NEAREST_BY_TREE = name not in PRODUCT_NN
     try:
         yield
     finally:
         RaycastScene.analytic_grad = True
+        losses.NEAREST_BY_TREE = True
 #: the renderer per method (``None``: the stage's default, the ray-cast method since issue 24's second part):
 #: ``original`` and ``head-projective`` render with Mitsuba's ``prb_projective`` (the renderer before the ray-cast
 #: method),

@@ -120,6 +120,11 @@ def sample_intrinsics(rng: np.random.Generator, width: int, height: int, fov_deg
     return Camera(fx=f, fy=f, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, width=width, height=height), fov
 
 
+#: metres: the nearest vertex of a placed body at least this far in front of the camera (a body that is long
+#: along the view axis and short in the image was placed partly behind it, where the projection blows up)
+_NEAREST_M = 0.3
+
+
 @dataclass
 class Placement:
     transl: np.ndarray  # [3]
@@ -158,7 +163,7 @@ def place_body(
     centre = (lo + hi) / 2
     extent = max(hi[1] - lo[1], (hi[0] - lo[0]) * H / W)
     z = camera.fy * extent / (phi * H)
-    t = np.array([-centre[0], -centre[1], z - centre[2]])
+    t = np.array([-centre[0], -centre[1], max(z - centre[2], _NEAREST_M - lo[2])])
     target = np.array([camera.cx + off[0] * W, camera.cy + off[1] * H])
     for _ in range(6):
         uv = project_points(V + torch.as_tensor(t), camera).numpy()
@@ -168,6 +173,9 @@ def place_body(
         depth = centre[2] + t[2]
         new_depth = depth * size / phi
         t[2] += new_depth - depth
+        if t[2] < _NEAREST_M - lo[2]:  # a body long along the view axis: its near end stays in front of the camera
+            t[2] = _NEAREST_M - lo[2]
+            new_depth = centre[2] + t[2]
         uv = project_points(V + torch.as_tensor(t), camera).numpy()
         mid = (uv.min(0) + uv.max(0)) / 2
         t[0] -= (mid[0] - target[0]) * new_depth / camera.fx

@@ -77,6 +77,33 @@ def test_contour_energies_are_zero_on_a_match_and_pull_toward_the_mask():
     assert abs(far - (float(target.dt_out[32, 0]) + 10.0)) < 1e-5
 
 
+def test_cover_energy_pairs_each_outline_point_with_its_exactly_nearest_point(monkeypatch):
+    """The cover term's nearest points (a k-d tree in float64) are the exact nearest ones, where the
+    float32 product over all pairs (the path before issue 24's sampling part, kept for points that
+    are not finite) rounds near ties at window coordinates; both give the same energy on separated points."""
+    from silfit.silhouette import cover_energy, losses
+
+    rng = np.random.default_rng(3)
+    u = torch.as_tensor(rng.uniform(0, 512, (2000, 2)), dtype=torch.float32)
+    pts = torch.as_tensor(rng.uniform(0, 512, (256, 2)), dtype=torch.float32)
+    d = ((pts.double()[:, None] - u.double()[None]) ** 2).sum(-1)  # exact (float64) squared distances
+    got = losses._nearest(u, pts)
+    assert torch.equal(d[torch.arange(256), got], d.min(1).values)
+    # two points 0.004 px apart at x ~ 500: the product's float32 sum cannot tell them apart, the tree can
+    near = torch.tensor([[500.0, 300.0], [500.004, 300.0]])
+    q = torch.tensor([[500.003, 300.0]])
+    assert int(losses._nearest(near, q)[0]) == 1
+    # a point that is not finite: the product's choice, no error
+    bad = torch.cat([u[:5], torch.tensor([[float("inf"), 0.0]])])
+    assert losses._nearest(bad, pts[:3]).shape == (3,)
+    # on separated points both paths give the same energy
+    grid = torch.stack(torch.meshgrid(torch.arange(0.0, 64, 8), torch.arange(0.0, 64, 8), indexing="ij"), -1).reshape(-1, 2)
+    outline = grid[::3] + 0.7
+    tree = cover_energy(grid, outline)
+    monkeypatch.setattr(losses, "NEAREST_BY_TREE", False)
+    assert float(cover_energy(grid, outline)) == float(tree)
+
+
 def test_outside_the_image_is_unknown_not_background():
     """Truncation (issue 23): a mask cut by the image's border. Beyond the border a body costs nothing,
     the cut is not an outline, and the distance inside the mask is to the visible background only."""

@@ -87,3 +87,21 @@ def test_place_body_fills_the_requested_share(open_model):
     size = max(np.ptp(uv[:, 0]), np.ptp(uv[:, 1])) / 200
     assert abs(size - 0.7) < 0.01
     assert np.allclose((uv.min(0) + uv.max(0)) / 2, [cam.cx, cam.cy], atol=0.5)
+
+
+def test_place_body_keeps_a_body_long_along_the_view_axis_in_front_of_the_camera():
+    """A body lying along the view axis is short in the image and long in depth: the placement once
+    put its near end behind the camera, where the projection blew up (seed 10600's subject 25, 1.75 m
+    deep and 0.76 m across: a translation of 6e19 m and no visible keypoint). Its nearest vertex now
+    stays 0.3 m in front, and the translation is finite."""
+    from silfit.camera import Camera, project_points
+    from silfit.synth.sampler import _NEAREST_M
+
+    cam = Camera(fx=420.0, fy=420.0, cx=255.5, cy=255.5, width=512, height=512)
+    corners = np.array([[x, y, z] for x in (-0.2, 0.55) for y in (-0.2, 0.56) for z in (-0.79, 0.96)], dtype=np.float64)
+    pl = place_body(np.random.default_rng(0), corners, cam, fill=(0.74, 0.74), jitter=0.0)
+    placed = corners + pl.transl
+    assert np.isfinite(pl.transl).all() and np.abs(pl.transl).max() < 10
+    assert placed[:, 2].min() >= _NEAREST_M - 1e-9
+    uv = project_points(torch.tensor(placed), cam).numpy()
+    assert np.isfinite(uv).all() and np.abs(uv).max() < 1e4
