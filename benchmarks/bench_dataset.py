@@ -139,8 +139,8 @@ def main() -> None:
         sub = subset(data, root, args.sil_subset)
         if args.main:  # a warm-up first (model, priors, proxies, renderers), so neither run pays it
             run(subset(data, root, 2), root / "out_warmup", True, 8, False)
-            with stage_changes(edge_density=None):
-                rows.append(run(sub, root / "out_sil_b8_main", True, 8, False, " (main: edge_density=None)"))
+            with stage_changes(edge_density=None, spp=4):
+                rows.append(run(sub, root / "out_sil_b8_main", True, 8, False, " (main: edge_density=None, spp=4)"))
             print(rows[-1], flush=True)
         rows.append(run(sub, root / "out_sil_b8", True, 8, False))
         print(rows[-1], flush=True)

@@ -26,7 +26,8 @@ level, 65 rendered steps, the full mesh posed each step); ``third`` is the stage
 (a longer contour level at higher weights, 50 rendered steps, the 10,000-face render proxy posed directly; this
 method was called ``main`` before the speed part); ``main`` is the default before issue 24's speed part
 (``edge_density=None``: ``edge_spp`` visibility-edge points per window pixel); ``after`` is the default
-(``edge_density=4``: 4 edge points per pixel of contour-candidate length; before it: coarser render proxies per
+(``edge_density=3``: 3 edge points per pixel of contour-candidate length, 2 rays per edge pixel, since the sampling
+part, 4 and 4 before it; before the speed part: coarser render proxies per
 level, 3,000 faces at 128 px and 5,000 at 256 px, a 10-step warm-up and half body_pose's learning rate);
 ``--step`` times one render + backward of the default 256 px level per method (``main``/``after``'s edge points);
 ``prev`` is the default before issue 24's runtime part (the same configuration and fits bit for bit as ``dense``: the

@@ -104,9 +104,10 @@ class SilhouetteFitConfig:
     contour_vertices: Optional[int] = 2000
     w_contour_inside: float = 0.2
     w_contour_cover: float = 0.2
-    #: primal samples per edge pixel (the ray-cast renderer traces one ray per constant region elsewhere); 4 before
-    #: issue 24's sampling part: with 2 (and ``edge_density`` 3) the stage cost 1.03x less on single images and 1.16x
-    #: less on 4-view rigs at the same IoU and PA-PVE (tuning seeds 9980-9981, README "the sampling part")
+    #: primal samples per edge pixel with the ray-cast renderer (which traces one ray per constant region elsewhere;
+    #: per pixel with the projective one); 4 before issue 24's sampling part: 2 (and ``edge_density`` 3) cost 1.07x
+    #: less on 4-view rigs and the same on single images, at the same IoU and PA-PVE (fresh seeds 10610-10611, on top
+    #: of the cover term's k-d tree; README "Issue 24's sampling part")
     spp: int = 2
     edge_spp: int = 1  # visibility-edge samples per pixel (projective integrator's sppp)
     #: the ray-cast renderer's visibility-edge points per pixel of contour-candidate length instead of

@@ -121,7 +121,8 @@ def sample_intrinsics(rng: np.random.Generator, width: int, height: int, fov_deg
 
 
 #: metres: the nearest vertex of a placed body at least this far in front of the camera (a body that is long
-#: along the view axis and short in the image was placed partly behind it, where the projection blows up)
+#: along the view axis and short in the image was placed partly behind it, where the projection blows up); such a
+#: body is framed closer than its target share says, and marked truncated where it leaves the image
 _NEAREST_M = 0.3
 
 
@@ -163,7 +164,9 @@ def place_body(
     centre = (lo + hi) / 2
     extent = max(hi[1] - lo[1], (hi[0] - lo[0]) * H / W)
     z = camera.fy * extent / (phi * H)
-    t = np.array([-centre[0], -centre[1], max(z - centre[2], _NEAREST_M - lo[2])])
+    t_min = _NEAREST_M - lo[2]  # the depth translation that puts the nearest vertex _NEAREST_M in front
+    clamped = z - centre[2] < t_min
+    t = np.array([-centre[0], -centre[1], max(z - centre[2], t_min)])
     target = np.array([camera.cx + off[0] * W, camera.cy + off[1] * H])
     for _ in range(6):
         uv = project_points(V + torch.as_tensor(t), camera).numpy()
@@ -173,11 +176,14 @@ def place_body(
         depth = centre[2] + t[2]
         new_depth = depth * size / phi
         t[2] += new_depth - depth
-        if t[2] < _NEAREST_M - lo[2]:  # a body long along the view axis: its near end stays in front of the camera
-            t[2] = _NEAREST_M - lo[2]
+        if t[2] < t_min:  # a body long along the view axis: its near end stays in front of the camera
+            t[2], clamped = t_min, True
             new_depth = centre[2] + t[2]
         uv = project_points(V + torch.as_tensor(t), camera).numpy()
         mid = (uv.min(0) + uv.max(0)) / 2
         t[0] -= (mid[0] - target[0]) * new_depth / camera.fx
         t[1] -= (mid[1] - target[1]) * new_depth / camera.fy
+    if clamped:  # held near the camera: it may not fit the frame (then it is cut, whatever the target share)
+        uv = project_points(V + torch.as_tensor(t), camera).numpy()
+        truncated = truncated or bool((uv.min(0) < -0.5).any() or uv[:, 0].max() > W - 0.5 or uv[:, 1].max() > H - 0.5)
     return Placement(transl=t, fill=phi, offset=(float(off[0]), float(off[1])), truncated=truncated)

@@ -93,9 +93,13 @@ def test_cover_energy_pairs_each_outline_point_with_its_exactly_nearest_point(mo
     near = torch.tensor([[500.0, 300.0], [500.004, 300.0]])
     q = torch.tensor([[500.003, 300.0]])
     assert int(losses._nearest(near, q)[0]) == 1
-    # a point that is not finite: the product's choice, no error
+    monkeypatch.setattr(losses, "NEAREST_BY_TREE", False)
+    assert int(losses._nearest(near, q)[0]) == 0  # the product's choice: the farther point
+    monkeypatch.setattr(losses, "NEAREST_BY_TREE", True)
+    # a point of either side that is not finite: the product's choice, no error
     bad = torch.cat([u[:5], torch.tensor([[float("inf"), 0.0]])])
     assert losses._nearest(bad, pts[:3]).shape == (3,)
+    assert losses._nearest(u[:5], torch.tensor([[float("nan"), 1.0]])).shape == (1,)
     # on separated points both paths give the same energy
     grid = torch.stack(torch.meshgrid(torch.arange(0.0, 64, 8), torch.arange(0.0, 64, 8), indexing="ij"), -1).reshape(-1, 2)
     outline = grid[::3] + 0.7

@@ -93,7 +93,7 @@ def test_place_body_keeps_a_body_long_along_the_view_axis_in_front_of_the_camera
     """A body lying along the view axis is short in the image and long in depth: the placement once
     put its near end behind the camera, where the projection blew up (seed 10600's subject 25, 1.75 m
     deep and 0.76 m across: a translation of 6e19 m and no visible keypoint). Its nearest vertex now
-    stays 0.3 m in front, and the translation is finite."""
+    stays 0.3 m in front, the translation is finite, and the cut body is marked truncated."""
     from silfit.camera import Camera, project_points
     from silfit.synth.sampler import _NEAREST_M
 
@@ -105,3 +105,5 @@ def test_place_body_keeps_a_body_long_along_the_view_axis_in_front_of_the_camera
     assert placed[:, 2].min() >= _NEAREST_M - 1e-9
     uv = project_points(torch.tensor(placed), cam).numpy()
     assert np.isfinite(uv).all() and np.abs(uv).max() < 1e4
+    # held that close it does not fit the frame: marked truncated, as the generator's metadata should say
+    assert pl.truncated and (uv.min() < 0 or uv.max() > 511)
