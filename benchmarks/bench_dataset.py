@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from silfit.fitting.silhouette_stage import BEFORE_SAMPLING_PART
 from silfit.runner import FitOptions, fit_dataset
 from silfit.synth.generate import SynthConfig, generate_dataset
 from silfit.synth.people import bystander
@@ -139,7 +140,7 @@ def main() -> None:
         sub = subset(data, root, args.sil_subset)
         if args.main:  # a warm-up first (model, priors, proxies, renderers), so neither run pays it
             run(subset(data, root, 2), root / "out_warmup", True, 8, False)
-            with stage_changes(edge_density=None, spp=4):
+            with stage_changes(**{**BEFORE_SAMPLING_PART, "edge_density": None}):
                 rows.append(run(sub, root / "out_sil_b8_main", True, 8, False, " (main: edge_density=None, spp=4)"))
             print(rows[-1], flush=True)
         rows.append(run(sub, root / "out_sil_b8", True, 8, False))

@@ -77,7 +77,7 @@ HEAD = {"iterations": (40, 25), "contour_iterations": 20, "w_contour_inside": 0.
 #: body_pose's learning rate 0.03): the third part's default
 THIRD = BEFORE_FOURTH_PART
 #: the default before issue 24's speed part: edge_spp visibility-edge points per window pixel
-MAIN = {"edge_density": None, "spp": 4}
+MAIN = {**BEFORE_SAMPLING_PART, "edge_density": None}
 METHODS = {"original": SilhouetteFitConfig.legacy, "before": SilhouetteFitConfig.legacy, "after": SilhouetteFitConfig,
            "head": lambda: SilhouetteFitConfig(**HEAD), "third": lambda: SilhouetteFitConfig(**THIRD),
            "main": lambda: SilhouetteFitConfig(**MAIN), "head-projective": lambda: SilhouetteFitConfig(**HEAD),

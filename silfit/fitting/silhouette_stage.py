@@ -77,14 +77,14 @@ _CONTOUR_LOCK = threading.Lock()
 from ..body.model import SMPL_PARAMETER_NAMES as PARAMS  # noqa: E402
 
 
-#: the rendered levels' settings before issue 24's fourth part (one proxy for every level, a shorter warm-up,
-#: body_pose's learning rate twice today's, edge_spp edge points per window pixel): :meth:`SilhouetteFitConfig.legacy`
-#: and the benchmark's older methods
-BEFORE_FOURTH_PART = {"level_proxy_faces": {}, "warmup": 5, "edge_density": None, "spp": 4,
-                      "lr": {"betas": 0.1, "body_pose": 0.03, "global_orient": 0.02, "transl": 0.01}}  # fmt: skip
 #: the rendered levels' samples before issue 24's sampling part (4 rays per edge pixel, 4 visibility-edge points
 #: per pixel of contour-candidate length): the benchmark's ``dense`` method
 BEFORE_SAMPLING_PART = {"spp": 4, "edge_density": 4.0}
+#: the rendered levels' settings before issue 24's fourth part (one proxy for every level, a shorter warm-up,
+#: body_pose's learning rate twice today's, edge_spp edge points per window pixel): :meth:`SilhouetteFitConfig.legacy`
+#: and the benchmark's older methods
+BEFORE_FOURTH_PART = {"level_proxy_faces": {}, "warmup": 5, "edge_density": None, "spp": BEFORE_SAMPLING_PART["spp"],
+                      "lr": {"betas": 0.1, "body_pose": 0.03, "global_orient": 0.02, "transl": 0.01}}  # fmt: skip
 
 
 @renamed_fields(w_pose=Alias("pose_weight"))
