@@ -14,7 +14,14 @@ same way:
   every Intel and compatible processor; before 2026-12-03 ``AVX2``, MKL's AVX2 branch,
   which it need not take on another maker's processor; on an Intel Xeon with AVX-512 the keypoint
   stage's fits are the same bits with either, and differ with ``AVX512``),
-* ``OPENBLAS_CORETYPE=Haswell`` (numpy's and scipy's OpenBLAS).
+* ``OPENBLAS_CORETYPE=Haswell`` (numpy's and scipy's OpenBLAS),
+* on a CPU with AVX-512 and numpy 2.4 or newer, ``NPY_DISABLE_CPU_FEATURES`` naming numpy's AVX-512
+  dispatch targets (:data:`NUMPY_AVX512`): numpy's own loops for float64 ``exp``, ``log``, ``sin``,
+  ``cos`` and more have AVX-512 versions (SVML) that round otherwise than the AVX2 machines' scalar
+  ones, so every processor runs its AVX2-level loops (added 2026-12-04, on an AMD EPYC).
+
+The pose prior's precisions, computed once when it loads, are BLAS-free (:mod:`silfit.priors.spd`):
+LAPACK's inverse followed OpenBLAS's kernel (``Sandybridge`` against ``Haswell``: other bits, other fits).
 
 The body model and the keypoint stage use no BLAS (:mod:`silfit.body.lbs`, "No BLAS"): MKL's GEMMs
 changed with its thread count on an Intel Xeon, by 1.1 mm in a float64 keypoint fit.
@@ -37,6 +44,9 @@ __all__ = ["KERNEL_PINS", "cpu_flags", "kernel_report", "pin_kernels"]
 #: environment variable -> value asked for on an x86-64 CPU with AVX2 and FMA
 KERNEL_PINS: Dict[str, str] = {"ATEN_CPU_CAPABILITY": "avx2", "MKL_CBWR": "COMPATIBLE", "OPENBLAS_CORETYPE": "Haswell"}
 
+#: numpy's dispatch targets above AVX2 (numpy 2.4's names), turned off on a CPU with AVX-512
+NUMPY_AVX512 = "X86_V4 AVX512_ICL AVX512_SPR"
+
 #: what :func:`pin_kernels` did in this process (``None``: not run yet)
 PINNED: Optional[Dict[str, str]] = None
 
@@ -53,11 +63,29 @@ def cpu_flags() -> set:
     return set()
 
 
+def _numpy_names_targets(version: Optional[str]) -> bool:
+    """Whether numpy ``version`` (default: the installed one, read without importing it) names its
+    dispatch targets as :data:`NUMPY_AVX512` does (2.4 and newer; older ones call them AVX512F, ...)."""
+    if version is None:
+        try:
+            from importlib.metadata import version as installed
+
+            version = installed("numpy")
+        except Exception:  # noqa: BLE001 - no numpy metadata: leave numpy alone
+            return False
+    try:
+        major, minor = (int(x) for x in version.split(".")[:2])
+    except ValueError:
+        return False
+    return (major, minor) >= (2, 4)
+
+
 def pin_kernels(environ: Optional[MutableMapping[str, str]] = None, flags: Optional[set] = None,
-                loaded: Optional[bool] = None) -> Dict[str, str]:  # fmt: skip
+                loaded: Optional[bool] = None, numpy_version: Optional[str] = None) -> Dict[str, str]:  # fmt: skip
     """Set the :data:`KERNEL_PINS` that ``environ`` (default ``os.environ``) does not set yet, where
     the CPU has AVX2 and FMA, ``SILFIT_KERNELS`` is not ``native`` and torch and numpy are not loaded
-    (``loaded``: override that check). Returns the variables it set."""
+    (``loaded``: override that check); with AVX-512, also numpy's dispatch (``numpy_version``: default the
+    installed one's). Returns the variables it set."""
     global PINNED
     env = os.environ if environ is None else environ
     flags = cpu_flags() if flags is None else flags
@@ -70,6 +98,8 @@ def pin_kernels(environ: Optional[MutableMapping[str, str]] = None, flags: Optio
             if k not in env:
                 env[k] = v
                 done[k] = v
+        if "avx512f" in flags and "NPY_DISABLE_CPU_FEATURES" not in env and _numpy_names_targets(numpy_version):
+            env["NPY_DISABLE_CPU_FEATURES"] = done["NPY_DISABLE_CPU_FEATURES"] = NUMPY_AVX512
     if environ is None:
         PINNED = done
     return done
@@ -79,7 +109,8 @@ def kernel_report() -> Dict[str, object]:
     """What this process computes with: torch's SIMD level, the pins silfit set, the variables as
     they stand (for ``metrics.json`` and bug reports)."""
     out: Dict[str, object] = {"machine": platform.machine(), "pinned_by_silfit": dict(PINNED or {})}
-    out["environment"] = {k: os.environ.get(k) for k in (*KERNEL_PINS, "OMP_NUM_THREADS", "MKL_ENABLE_INSTRUCTIONS")}
+    out["environment"] = {k: os.environ.get(k) for k in (*KERNEL_PINS, "NPY_DISABLE_CPU_FEATURES", "OMP_NUM_THREADS",
+                                                         "MKL_ENABLE_INSTRUCTIONS")}  # fmt: skip
     if "torch" in sys.modules:
         import torch
 

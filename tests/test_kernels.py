@@ -33,3 +33,30 @@ def test_this_process_runs_on_the_kernels_its_environment_names():
         assert torch.backends.cpu.get_cpu_capability().lower() == want.lower()
         assert report["environment"]["ATEN_CPU_CAPABILITY"] == want
     assert report["torch_cpu_capability"] == torch.backends.cpu.get_cpu_capability()
+
+
+def test_numpy_avx512_loops_are_turned_off_on_an_avx512_cpu(monkeypatch):
+    from silfit.kernels import NUMPY_AVX512
+
+    monkeypatch.setattr("platform.machine", lambda: "x86_64")
+    avx512 = AVX2 | {"avx512f"}
+    assert pin_kernels({}, flags=avx512, loaded=False, numpy_version="2.4.6")["NPY_DISABLE_CPU_FEATURES"] == NUMPY_AVX512
+    # older numpy names its targets otherwise (AVX512F, ...); an explicit choice wins; no AVX-512, nothing to turn off
+    assert "NPY_DISABLE_CPU_FEATURES" not in pin_kernels({}, flags=avx512, loaded=False, numpy_version="2.2.6")
+    assert "NPY_DISABLE_CPU_FEATURES" not in pin_kernels({"NPY_DISABLE_CPU_FEATURES": ""}, flags=avx512, loaded=False,
+                                                         numpy_version="2.4.6")  # fmt: skip
+    assert "NPY_DISABLE_CPU_FEATURES" not in pin_kernels({}, flags=AVX2, loaded=False, numpy_version="2.4.6")
+
+
+def test_the_installed_numpy_takes_the_avx512_names():
+    # the names must be numpy's: it would refuse unknown ones, or leave the AVX-512 loops on
+    import subprocess
+    import sys
+
+    from silfit.kernels import NUMPY_AVX512
+
+    code = ("import warnings; warnings.simplefilter('error'); import numpy; "
+            "from numpy._core._multiarray_umath import __cpu_features__ as f; print(f['X86_V4'], f['AVX512_ICL'])")  # fmt: skip
+    env = {**os.environ, "NPY_DISABLE_CPU_FEATURES": NUMPY_AVX512, "SILFIT_KERNELS": "native"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "False"]

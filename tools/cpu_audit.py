@@ -6,7 +6,9 @@ outcome follows float rounding passes on one and fails on another. One machine c
 several: ``ATEN_CPU_CAPABILITY`` picks torch's SIMD kernels (``default``, ``avx2``, ``avx512``
 where the CPU has it), ``MKL_ENABLE_INSTRUCTIONS`` caps the instruction set of MKL's BLAS
 (``SSE4_2``: another GEMM blocking and rounding), ``MKL_CBWR`` asks MKL for its
-conditional-reproducibility path, and ``OMP_NUM_THREADS`` sets the thread pools at start-up.
+conditional-reproducibility path, ``OMP_NUM_THREADS`` sets the thread pools at start-up,
+``OPENBLAS_CORETYPE`` numpy's and scipy's BLAS/LAPACK kernel and ``NPY_DISABLE_CPU_FEATURES`` numpy's own
+SIMD loops.
 Each setting runs the tests in a fresh process; a table gives the counts per setting and then
 every test that passed under one setting and not under another.
 
@@ -34,7 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_TESTS = ["tests/fitting", "tests/eval", "tests/body", "tests/priors"]
 #: environment variables a setting controls (unset unless the setting names them)
 CONTROLLED = ("ATEN_CPU_CAPABILITY", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "MKL_ENABLE_INSTRUCTIONS", "MKL_CBWR",
-              "OPENBLAS_CORETYPE")
+              "OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES")
 
 
 def all_settings() -> dict:
@@ -49,6 +51,11 @@ def all_settings() -> dict:
     s["omp-2"] = {"OMP_NUM_THREADS": "2", "MKL_NUM_THREADS": "2"}
     s["mkl-sse4_2"] = {"MKL_ENABLE_INSTRUCTIONS": "SSE4_2"}
     s["mkl-cbwr-compatible"] = {"MKL_CBWR": "COMPATIBLE"}
+    # numpy's and scipy's OpenBLAS on another kernel (AVX, no FMA), and numpy's own loops at their
+    # baseline (SSE4.2) instead of AVX2: another CPU's LAPACK and numpy (silfit.kernels)
+    s["openblas-sandybridge"] = {"OPENBLAS_CORETYPE": "Sandybridge"}
+    if "avx2" in flags:
+        s["numpy-baseline"] = {"NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"}
     return s
 
 

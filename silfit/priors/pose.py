@@ -37,6 +37,7 @@ from torch import nn
 
 from ..errors import InputError
 from ..safe_pickle import load_npz, load_pickle
+from . import spd
 from .limits import limit_bounds
 
 __all__ = [
@@ -90,14 +91,15 @@ class MaxMixturePrior(nn.Module):
                 raise InputError(source, f"field '{name}' holds NaN or infinite values", field=name)
         if (weights <= 0).any():
             raise InputError(source, "field 'weights' must be positive", field="weights")
+        # BLAS-free (silfit.priors.spd): LAPACK's inverse followed numpy's OpenBLAS kernel, so the precisions,
+        # and every fit they weigh, followed the CPU
+        symmetric = 0.5 * (covars + np.transpose(covars, (0, 2, 1)))
         try:
-            chol = np.linalg.cholesky(covars)
+            precisions, logdet = spd.inverse_and_logdet(symmetric)
         except np.linalg.LinAlgError:
             raise InputError(source, "field 'covars' is not positive definite", field="covars") from None
-        precisions = np.linalg.inv(covars)
-        precisions = 0.5 * (precisions + np.transpose(precisions, (0, 2, 1)))
-        logdet = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(-1)
-        const = -np.log(weights / weights.sum()) + 0.5 * logdet
+        total = math.fsum(float(w) for w in weights)
+        const = np.array([-math.log(float(w) / total) for w in weights]) + 0.5 * logdet
         self.source = source
         self.num_components, self.dim = K, D
         self.register_buffer("means", torch.as_tensor(means, dtype=dtype))

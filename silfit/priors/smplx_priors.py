@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from . import spd
 from .pose import MaxMixturePrior, quadratic_forms
 
 __all__ = ["HandPosePrior", "body_prior_for", "l2", "padded"]
@@ -51,13 +52,12 @@ def padded(fn: Callable, width: int = SMPL_BODY_POSE) -> Callable:
 def marginal_mixture(prior: MaxMixturePrior, dim: int) -> MaxMixturePrior:
     """The mixture over the first ``dim`` values: component means and covariance blocks, weights
     recovered from the constants (``const_k = -log w_k + 0.5 log det S_k`` up to one offset)."""
-    prec = prior.precisions.double()
-    cov = torch.linalg.inv(prec)
-    cov = 0.5 * (cov + cov.transpose(1, 2))
-    logdet = torch.linalg.slogdet(cov).logabsdet
-    logw = 0.5 * logdet - prior.constants.double()
-    w = torch.exp(logw - logw.max())
-    out = MaxMixturePrior(prior.means.double()[:, :dim].numpy(), cov[:, :dim, :dim].numpy(), w.numpy(),
+    prec = prior.precisions.double().cpu().numpy()
+    # BLAS-free, the same bits on every CPU (silfit.priors.spd); log det S_k = -log det P_k
+    cov, logdet_prec = spd.inverse_and_logdet(0.5 * (prec + np.transpose(prec, (0, 2, 1))))
+    logw = [-0.5 * float(ld) - float(c) for ld, c in zip(logdet_prec, prior.constants.double().cpu().numpy())]
+    w = np.array([math.exp(x - max(logw)) for x in logw])
+    out = MaxMixturePrior(prior.means.double()[:, :dim].cpu().numpy(), cov[:, :dim, :dim], w,
                           source=f"{prior.source} (marginal over the first {dim} values)", dtype=prior.means.dtype)  # fmt: skip
     return out
 
@@ -109,11 +109,15 @@ class HandPosePrior(nn.Module):
         else:
             self.space = "45 axis-angle values"
         mu = poses.mean(0)
-        cov = np.cov(poses, rowvar=False) + math.radians(floor_deg) ** 2 * np.eye(poses.shape[1])
+        d = poses - mu  # the covariance as a sum of outer products in order, not np.cov's BLAS product
+        cov = np.zeros((poses.shape[1], poses.shape[1]))
+        for row in d:
+            cov += row[:, None] * row[None, :]
+        cov = cov / (poses.shape[0] - 1) + math.radians(floor_deg) ** 2 * np.eye(poses.shape[1])
         dtype = dtype or model.dtype
         self.side, self.dim = side, poses.shape[1]
         self.register_buffer("mean", torch.as_tensor(mu, dtype=dtype))
-        self.register_buffer("precision", torch.as_tensor(np.linalg.inv(cov), dtype=dtype))
+        self.register_buffer("precision", torch.as_tensor(spd.inverse(cov), dtype=dtype))
 
     def forward(self, hand_pose: torch.Tensor) -> torch.Tensor:
         if hand_pose.shape[-1] != self.dim:
