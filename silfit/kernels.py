@@ -15,10 +15,12 @@ same way:
   which it need not take on another maker's processor; on an Intel Xeon with AVX-512 the keypoint
   stage's fits are the same bits with either, and differ with ``AVX512``),
 * ``OPENBLAS_CORETYPE=Haswell`` (numpy's and scipy's OpenBLAS),
-* on a CPU with AVX-512 and numpy 2.4 or newer, ``NPY_DISABLE_CPU_FEATURES`` naming numpy's AVX-512
-  dispatch targets (:data:`NUMPY_AVX512`): numpy's own loops for float64 ``exp``, ``log``, ``sin``,
-  ``cos`` and more have AVX-512 versions (SVML) that round otherwise than the AVX2 machines' scalar
-  ones, so every processor runs its AVX2-level loops (added 2026-12-04, on an AMD EPYC).
+* on a CPU with AVX-512 and numpy 2.4 or newer from a pip/uv wheel, ``NPY_DISABLE_CPU_FEATURES`` naming
+  numpy's AVX-512 dispatch targets (:data:`NUMPY_AVX512`; not where ``NPY_ENABLE_CPU_FEATURES`` is set):
+  numpy's own loops for float64 ``exp`` and ``log`` (its AVX512F code) and ``sin``, ``cos``, ``tan``,
+  ``log10``, ``expm1``, ``power`` and more (SVML) round otherwise than the scalar ones AVX2 machines run,
+  so every processor runs its AVX2-level loops (added 2026-12-04, on an AMD EPYC; from numpy's sources,
+  not measured: that machine has no AVX-512).
 
 The pose prior's precisions, computed once when it loads, are BLAS-free (:mod:`silfit.priors.spd`):
 LAPACK's inverse followed OpenBLAS's kernel (``Sandybridge`` against ``Haswell``: other bits, other fits).
@@ -39,7 +41,7 @@ import platform
 import sys
 from typing import Dict, MutableMapping, Optional
 
-__all__ = ["KERNEL_PINS", "cpu_flags", "kernel_report", "pin_kernels"]
+__all__ = ["KERNEL_PINS", "NUMPY_AVX512", "cpu_flags", "kernel_report", "pin_kernels"]
 
 #: environment variable -> value asked for on an x86-64 CPU with AVX2 and FMA
 KERNEL_PINS: Dict[str, str] = {"ATEN_CPU_CAPABILITY": "avx2", "MKL_CBWR": "COMPATIBLE", "OPENBLAS_CORETYPE": "Haswell"}
@@ -65,12 +67,18 @@ def cpu_flags() -> set:
 
 def _numpy_names_targets(version: Optional[str]) -> bool:
     """Whether numpy ``version`` (default: the installed one, read without importing it) names its
-    dispatch targets as :data:`NUMPY_AVX512` does (2.4 and newer; older ones call them AVX512F, ...)."""
+    dispatch targets as :data:`NUMPY_AVX512` does (2.4 and newer; older ones call them AVX512F, ...)
+    and, for the installed one, came from a wheel installed by pip or uv: those are built with the
+    X86_V2 baseline, so the AVX-512 targets are dispatched, not built in (numpy refuses to turn off a
+    baseline feature, as a conda build for a newer baseline could have)."""
     if version is None:
         try:
-            from importlib.metadata import version as installed
+            from importlib.metadata import distribution
 
-            version = installed("numpy")
+            dist = distribution("numpy")
+            version = dist.version
+            if (dist.read_text("INSTALLER") or "").strip().lower() not in ("pip", "uv"):
+                return False
         except Exception:  # noqa: BLE001 - no numpy metadata: leave numpy alone
             return False
     try:
@@ -98,7 +106,9 @@ def pin_kernels(environ: Optional[MutableMapping[str, str]] = None, flags: Optio
             if k not in env:
                 env[k] = v
                 done[k] = v
-        if "avx512f" in flags and "NPY_DISABLE_CPU_FEATURES" not in env and _numpy_names_targets(numpy_version):
+        # numpy refuses both NPY_ENABLE_ and NPY_DISABLE_CPU_FEATURES: a user's choice of either wins
+        npy_free = "NPY_DISABLE_CPU_FEATURES" not in env and "NPY_ENABLE_CPU_FEATURES" not in env
+        if "avx512f" in flags and npy_free and _numpy_names_targets(numpy_version):
             env["NPY_DISABLE_CPU_FEATURES"] = done["NPY_DISABLE_CPU_FEATURES"] = NUMPY_AVX512
     if environ is None:
         PINNED = done

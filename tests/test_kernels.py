@@ -1,6 +1,8 @@
 """silfit.kernels: the CPU kernels asked for before torch and numpy load (README, "Same inputs, same fit")."""
 import os
+import platform
 
+import pytest
 import torch
 
 from silfit.kernels import KERNEL_PINS, kernel_report, pin_kernels
@@ -46,8 +48,12 @@ def test_numpy_avx512_loops_are_turned_off_on_an_avx512_cpu(monkeypatch):
     assert "NPY_DISABLE_CPU_FEATURES" not in pin_kernels({"NPY_DISABLE_CPU_FEATURES": ""}, flags=avx512, loaded=False,
                                                          numpy_version="2.4.6")  # fmt: skip
     assert "NPY_DISABLE_CPU_FEATURES" not in pin_kernels({}, flags=AVX2, loaded=False, numpy_version="2.4.6")
+    # numpy refuses both variables at once
+    assert "NPY_DISABLE_CPU_FEATURES" not in pin_kernels({"NPY_ENABLE_CPU_FEATURES": "X86_V3"}, flags=avx512, loaded=False,
+                                                         numpy_version="2.4.6")  # fmt: skip
 
 
+@pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="x86-64 dispatch targets")
 def test_the_installed_numpy_takes_the_avx512_names():
     # the names must be numpy's: it would refuse unknown ones, or leave the AVX-512 loops on
     import subprocess

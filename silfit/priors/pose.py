@@ -93,7 +93,10 @@ class MaxMixturePrior(nn.Module):
             raise InputError(source, "field 'weights' must be positive", field="weights")
         # BLAS-free (silfit.priors.spd): LAPACK's inverse followed numpy's OpenBLAS kernel, so the precisions,
         # and every fit they weigh, followed the CPU
-        symmetric = 0.5 * (covars + np.transpose(covars, (0, 2, 1)))
+        covars_t = np.transpose(covars, (0, 2, 1))
+        if not np.allclose(covars, covars_t, rtol=1e-8, atol=1e-12 * max(float(np.abs(covars).max()), 1e-300)):
+            raise InputError(source, "field 'covars' is not symmetric", field="covars")
+        symmetric = 0.5 * (covars + covars_t)
         try:
             precisions, logdet = spd.inverse_and_logdet(symmetric)
         except np.linalg.LinAlgError:

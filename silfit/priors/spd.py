@@ -1,4 +1,4 @@
-"""Symmetric positive-definite matrices, BLAS-free: the same bits on every CPU and numpy build.
+"""Symmetric positive-definite matrices, BLAS-free: the same bits whatever BLAS kernel or SIMD level runs.
 
 A prior's precisions are computed once, when it loads, and then weigh every step of every fit;
 a fit's optimiser amplifies their last bits into millimetres. ``np.linalg.inv`` and
@@ -7,7 +7,8 @@ type: ``OPENBLAS_CORETYPE=Sandybridge`` against ``Haswell`` gave other precision
 mixture), its version (numpy's wheels bundle their own) and its thread split. Here every step is
 an elementwise numpy operation (a product, a difference, a quotient, a square root: each exactly
 rounded, whatever SIMD width runs it), in a fixed order, and the logarithms and sums of the
-log-determinant are Python's (``math.log``, ``math.fsum``), not numpy's SIMD loops.
+log-determinant are Python's (``math.log``, ``math.fsum``), not numpy's SIMD loops (``math.log`` is the C
+library's: the same on machines with AVX2 and FMA under one glibc).
 """
 from __future__ import annotations
 

@@ -65,6 +65,12 @@ def test_gmm_file_errors_name_the_file_and_field(tmp_path):
         pickle.dump({"means": np.zeros((2, 69)), "covars": np.zeros((2, 69, 69)), "weights": np.ones(2)}, fh)
     with pytest.raises(ValueError, match="positive definite"):
         MaxMixturePrior.from_pickle(p)
+    lopsided = np.tile(np.eye(69), (2, 1, 1))
+    lopsided[1, 0, 1] = 0.5  # an upper triangle that is not the lower one's mirror
+    with open(p, "wb") as fh:
+        pickle.dump({"means": np.zeros((2, 69)), "covars": lopsided, "weights": np.ones(2)}, fh)
+    with pytest.raises(ValueError, match="bad.pkl.*'covars' is not symmetric"):
+        MaxMixturePrior.from_pickle(p)
     (tmp_path / "junk.pkl").write_bytes(b"not a pickle")
     with pytest.raises(ValueError, match="junk.pkl"):
         MaxMixturePrior.from_pickle(tmp_path / "junk.pkl")
