@@ -53,8 +53,9 @@ def marginal_mixture(prior: MaxMixturePrior, dim: int) -> MaxMixturePrior:
     """The mixture over the first ``dim`` values: component means and covariance blocks, weights
     recovered from the constants (``const_k = -log w_k + 0.5 log det S_k`` up to one offset)."""
     prec = prior.precisions.double().cpu().numpy()
-    # BLAS-free, the same bits on every CPU (silfit.priors.spd); log det S_k = -log det P_k
-    cov, logdet_prec = spd.inverse_and_logdet(0.5 * (prec + np.transpose(prec, (0, 2, 1))))
+    # BLAS-free, the same bits on every CPU (silfit.priors.spd; a prior's precisions are exactly symmetric);
+    # log det S_k = -log det P_k
+    cov, logdet_prec = spd.inverse_and_logdet(prec)
     logw = [-0.5 * float(ld) - float(c) for ld, c in zip(logdet_prec, prior.constants.double().cpu().numpy())]
     w = np.array([math.exp(x - max(logw)) for x in logw])
     out = MaxMixturePrior(prior.means.double()[:, :dim].cpu().numpy(), cov[:, :dim, :dim], w,

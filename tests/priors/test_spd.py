@@ -35,7 +35,7 @@ def test_not_positive_definite_is_refused():
         spd.cholesky(np.full((2, 2), np.nan))
 
 
-_HASH = ("import hashlib, torch, silfit; from silfit.priors import load_pose_prior; "
+_HASH = ("import silfit, hashlib, torch; from silfit.priors import load_pose_prior; "
          "p = load_pose_prior(None, dtype=torch.float64); "
          "print(hashlib.sha256(p.precisions.numpy().tobytes() + p.constants.numpy().tobytes()).hexdigest())")  # fmt: skip
 
