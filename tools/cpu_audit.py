@@ -30,13 +30,13 @@ import xml.etree.ElementTree as ET
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from silfit.kernels import cpu_flags  # (importing silfit pins this process's kernels: CONTROLLED are reset per setting)
+from silfit.kernels import NUMPY_AVX512, cpu_flags  # (importing silfit pins this process's kernels: CONTROLLED are reset per setting)
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_TESTS = ["tests/fitting", "tests/eval", "tests/body", "tests/priors"]
 #: environment variables a setting controls (unset unless the setting names them)
 CONTROLLED = ("ATEN_CPU_CAPABILITY", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "MKL_ENABLE_INSTRUCTIONS", "MKL_CBWR",
-              "OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES")
+              "OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "NPY_ENABLE_CPU_FEATURES")
 
 
 def all_settings() -> dict:
@@ -55,7 +55,7 @@ def all_settings() -> dict:
     # baseline (SSE4.2) instead of AVX2: another CPU's LAPACK and numpy (silfit.kernels)
     s["openblas-sandybridge"] = {"OPENBLAS_CORETYPE": "Sandybridge"}
     if "avx2" in flags:
-        s["numpy-baseline"] = {"NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"}
+        s["numpy-baseline"] = {"NPY_DISABLE_CPU_FEATURES": f"X86_V3 {NUMPY_AVX512}"}
     return s
 
 
