@@ -1,7 +1,18 @@
 """Shared fixtures. The shipped open body model is loaded once per session."""
 import silfit  # noqa: F401  (first: pins the CPU kernels before torch and numpy load, silfit.kernels)
 
+import os  # noqa: E402
+
 import pytest  # noqa: E402
+
+#: The most pytest-xdist workers ``-n auto`` (pyproject's addopts) starts: one per CPU this process may
+#: run on, at most 4 (a worker peaks at about 1.7 GB; the fits are the same bits in any worker, each
+#: test's fit runs in one process). ``-n 0`` runs the suite in this process.
+MAX_WORKERS = 4
+
+
+def pytest_xdist_auto_num_workers(config):
+    return max(1, min(MAX_WORKERS, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
 
 
 @pytest.fixture(scope="session")
