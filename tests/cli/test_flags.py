@@ -15,9 +15,14 @@ from test_fit import FAST, inputs  # noqa: F401  (the module fixture: toy model,
 from silfit.cli import main
 
 
+#: A short keypoint schedule: these tests check what a flag changes, not how well the toy body fits.
+KP_SHORT = [f"--keypoint-option={o}" for o in ("init_poses=1", "camera_iters=10", "pose_iters=10,10,10", "shape_iters=5",
+                                               "final_iters=10", "post_branch_iters=0")]  # fmt: skip
+
+
 def fit_args(d, model, out, *extra):
     return ["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
-            "--no-silhouette", "--out", str(out), *FAST, *extra]  # fmt: skip
+            "--no-silhouette", "--out", str(out), *FAST, *KP_SHORT, *extra]  # fmt: skip
 
 
 def params(out):
