@@ -5,14 +5,31 @@ import os  # noqa: E402
 
 import pytest  # noqa: E402
 
-#: The most pytest-xdist workers ``-n auto`` (pyproject's addopts) starts: one per CPU this process may
-#: run on, at most 4 (a worker peaks at about 1.7 GB; the fits are the same bits in any worker, each
-#: test's fit runs in one process). ``-n 0`` runs the suite in this process.
-MAX_WORKERS = 4
+
+def pytest_configure(config):
+    """In a pytest-xdist worker, torch's pool shares the CPUs with the other workers: a thread each per
+    CPU (the fits are the same bits with any thread count, tests/fitting/test_determinism.py), and
+    the processes the tests start (``silfit`` on the command line) read the same from OMP_NUM_THREADS.
+    An OMP_NUM_THREADS already set is kept (``tools/cpu_audit.py``'s thread settings)."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0") or 0)
+    if workers > 1 and "OMP_NUM_THREADS" not in os.environ:
+        import torch
+
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+        threads = max(1, cpus // workers)
+        torch.set_num_threads(threads)
+        os.environ["OMP_NUM_THREADS"] = str(threads)
 
 
-def pytest_xdist_auto_num_workers(config):
-    return max(1, min(MAX_WORKERS, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
+@pytest.fixture(autouse=True)
+def _seeded_global_generators():
+    """Each test starts from the same global torch and numpy random state, whichever worker runs it
+    and whatever ran before (pytest-xdist's ``worksteal`` deals tests to workers as they free up)."""
+    import numpy as np
+    import torch
+
+    torch.manual_seed(0)
+    np.random.seed(0)
 
 
 @pytest.fixture(scope="session")

@@ -86,6 +86,8 @@ def main(argv=None) -> int:
     ap.add_argument("--keep", help="folder for the logs and JUnit files (default: a temporary one)")
     a, extra = ap.parse_known_args(argv)
     extra = [x for x in extra if x != "--"]
+    if a.jobs > 1 and not any(x == "-n" or x.startswith(("-n", "--numprocesses")) for x in extra):
+        extra = ["-n", "0", *extra]  # settings side by side: each pytest in one process (not pyproject's -n auto)
     settings = all_settings()
     chosen = a.settings.split(",") if a.settings else list(settings)
     unknown = [s for s in chosen if s not in settings]
