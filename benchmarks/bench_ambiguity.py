@@ -132,9 +132,12 @@ def _bad_fits(rows, title):
     print(f"\nAll subjects: truth energy above the fit's in {higher}/{len(rows)}\n")
 
 
-def hard_set(n: int, seed: int, size: int, model):
+def hard_set(n: int, seed: int, size: int, model, masks: bool = False):
     """``(keypoint sets, cameras, truths)`` of ``n`` generated hard subjects (``silfit synth --poses hard``,
-    written to a temporary folder and read back with silfit's readers); also :mod:`bench_energy_terms`."""
+    written to a temporary folder and read back with silfit's readers), with ``masks`` also their person
+    masks; also :mod:`bench_energy_terms`, :mod:`bench_hypothesis_silhouette`."""
+    from silfit.silhouette.masks import read_mask
+
     from silfit.synth.generate import generate_hard_dataset
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -144,6 +147,8 @@ def hard_set(n: int, seed: int, size: int, model):
         sets = [read_keypoints(d / "keypoints.json") for d in dirs]
         cams = [load_camera(d / "camera.json") for d in dirs]
         gts = [read_gt(d / "gt.npz") for d in dirs]
+        if masks:
+            return sets, cams, gts, [read_mask(d / "mask.png") for d in dirs]
     return sets, cams, gts
 
 

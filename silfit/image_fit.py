@@ -164,6 +164,28 @@ def _guard(model, start: dict, params: dict, keypoints: KeypointSet, camera: Cam
                      _median_reprojection(kp2d, keypoints), params.get("betas"), where)  # fmt: skip
 
 
+def _choose_hypothesis(model, sils, starts, keypoints: KeypointSet, camera: Camera, where: str) -> tuple:
+    """``(index, record)``: which of one image's hypotheses, each refined by the silhouette stage (``sils``, from
+    ``starts``; the keypoint fit first), is kept: the lowest final energy of the stage
+    (:attr:`~silfit.fitting.silhouette_stage.SilhouetteFitResult.final_energy`), unless the plausibility guard
+    would turn it back to its start (then the keypoint fit's, as without hypotheses). ``record`` (``metrics.json``'s
+    ``hypotheses_silhouette``; ``{}`` for one hypothesis): each one's final energy and IoU, the kept rank and its
+    energy's gap below the keypoint fit's. A person mask hardly sees a limb mirrored in depth, but the branch that
+    refines best against it was more often the right one (``benchmarks/bench_hypothesis_silhouette.py``)."""
+    if len(sils) == 1:
+        return 0, {}
+    energies = [s.final_energy for s in sils]
+    c = min(range(len(sils)), key=lambda k: (energies[k] if np.isfinite(energies[k]) else np.inf, k))
+    if c:
+        params = sils[c].params()
+        _, _, kp2d = _pose(model, params, keypoints.layout, camera)
+        if _guard(model, starts[c], params, keypoints, camera, kp2d, where).reverted:
+            c = 0
+    gap = (energies[0] - energies[c]) / abs(energies[0]) if energies[0] else 0.0
+    return c, {"energies": [float(e) for e in energies], "iou": [float(s.iou_end) for s in sils], "kept": c + 1,
+               "gap": float(gap)}  # fmt: skip
+
+
 def refine(
     model,
     keypoint_result: KeypointFitResult,
@@ -219,20 +241,36 @@ def refine_batch(
     from .fitting.silhouette_stage import fit_silhouette_problems
     from .fitting.hands_face import silhouette_inputs
 
+    # --hypotheses K with a mask (issue 25): every alternative the keypoint stage offers is refined too, as
+    # more problems of this batch, and the lowest final energy of the stage is kept (_choose_hypothesis)
+    rows, candidates = list(range(n)), [[i] for i in range(n)]  # per row: its problems, the keypoint fit first
+    for i, hyps in enumerate(keypoint_result.hypotheses or [None] * n):
+        for h in (hyps or [])[1:]:
+            candidates[i].append(len(rows))
+            rows.append(i)
+            inits.append({k: np.asarray(v) for k, v in h["params"].items()})
     # the layout decides the terms (a whole-body mesh keeps its hand and face keypoints)
-    cfg, sets, terms, weights, data = silhouette_inputs(model, list(keypoints), config or SilhouetteFitConfig(), model.dtype)
-    problems = [Problem.single(k, cam, m, kn) for k, cam, m, kn in zip(sets, cameras, fit_masks, known)]
+    cfg, sets, terms, weights, data = silhouette_inputs(model, [keypoints[r] for r in rows], config or SilhouetteFitConfig(),
+                                                        model.dtype)  # fmt: skip
+    problems = [Problem.single(k, cameras[r], fit_masks[r], known[r]) for k, r in zip(sets, rows)]
     sils = fit_silhouette_problems(model, problems, inits, keypoints[0].layout, cfg, pose_prior, renderer, progress,
                                    terms=terms, weights=weights, data=data)  # fmt: skip
     out = []
-    for i, sil in enumerate(sils):
+    for i in range(n):
         one = keypoint_result[i]
+        c, choice = _choose_hypothesis(model, [sils[c] for c in candidates[i]], [inits[c] for c in candidates[i]],
+                                       keypoints[i], cameras[i], mask_sources[i])  # fmt: skip
+        sil, start = sils[candidates[i][c]], inits[candidates[i][c]]
         params = sil.params()
         vertices, joints, kp2d = _pose(model, params, keypoints[i].layout, cameras[i])
         warnings = mask_warnings(masks[i], mask_sources[i]) + trim_notes[i] + list(sil.warnings)
+        if c:
+            warnings.append(f"depth branch chosen by the mask: hypothesis {c + 1} (hypotheses/{c + 1}), refined against "
+                            f"the mask, ends {choice['gap']:.1%} below the keypoint fit's energy; the keypoint stage "
+                            "preferred hypothesis 1: check a side view")  # fmt: skip
         # the plausibility guard (silfit.plausibility.silhouette_guard): a refined fit less plausible
         # than the keypoint fit is replaced by the keypoint fit, with a warning
-        guard = _guard(model, inits[i], params, keypoints[i], cameras[i], kp2d, mask_sources[i])
+        guard = _guard(model, start, params, keypoints[i], cameras[i], kp2d, mask_sources[i])
         if guard.reverted and getattr(config, "plausibility_guard", True):
             params = {k: np.asarray(v) for k, v in inits[i].items()}
             vertices, joints, kp2d = _pose(model, params, keypoints[i].layout, cameras[i])
@@ -254,6 +292,7 @@ def refine_batch(
             "silhouette_guard": {"kept": guard.keep if getattr(config, "plausibility_guard", True) else "silhouette",
                                  "less_plausible": list(guard.reasons)},
             "warnings": warnings,
+            **({"hypotheses_silhouette": choice} if choice else {}),
             **_run_record(one, sil),
         }  # fmt: skip
         out.append(FitResult(cameras[i], keypoints[i].layout, one, sil, params, vertices, joints, kp2d, metrics,

@@ -150,3 +150,60 @@ def test_concavities_are_unknown_only_in_a_mask_trimmed_as_clothing():
     assert untouched is None and notes == [[], []]
     off = SilhouetteFitConfig(leak_distance=0.0, hole_fraction=0.0, concave_radius=0.0)
     assert _known_pixels([mask], [body], off, ["a"], [[]], [True]) == [None]
+
+
+def test_the_hypothesis_that_refines_lowest_against_the_mask_is_kept(open_model):
+    """``--hypotheses K`` with a mask (issue 25): every hypothesis goes through the silhouette stage and the
+    lowest final energy is kept; metrics.json records each one's energy and which was kept (shipped subject 4:
+    two distinct hypotheses, 604 and 618 by the keypoint stage)."""
+    from silfit.fitting import KeypointFitConfig
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+
+    subject = load_subject(SHIPPED / "subject_004")
+    result = fit(subject.keypoints, subject.mask, subject.camera, model=open_model, progress=False,
+                 keypoint_config=KeypointFitConfig(hypotheses=2),
+                 silhouette_config=SilhouetteFitConfig(resolutions=(64,), iterations=(4,)))  # fmt: skip
+    hyps, record = result.keypoint.hypotheses[0], result.metrics["hypotheses_silhouette"]
+    assert len(hyps) == 2 and len(record["energies"]) == len(record["iou"]) == 2
+    assert record["kept"] == 1 + int(np.argmin(record["energies"]))  # (unless the guard turned it back)
+    assert record["gap"] == pytest.approx((record["energies"][0] - min(record["energies"])) / record["energies"][0])
+    moved = [w for w in result.metrics["warnings"] if w.startswith("depth branch chosen by the mask")]
+    assert len(moved) == (record["kept"] != 1)
+
+
+def test_choosing_a_hypothesis_by_the_silhouette_stage():
+    """The lowest final energy of the stage's last level wins, a tie goes to the keypoint fit, a NaN energy
+    never wins, and an alternative the plausibility guard would turn back (here: 0.5 m off its keypoints)
+    gives way to the keypoint fit."""
+    import sys
+
+    import torch
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent / "fitting"))
+    from silfit_toy_body import toy_model
+
+    from silfit.camera import Camera, project_points
+    from silfit.fitting.silhouette_stage import SilhouetteFitResult
+    from silfit.image_fit import _choose_hypothesis
+    from silfit.keypoints import KeypointSet, model_keypoints
+
+    toy_body = toy_model()
+    cam = Camera.from_image_size(320, 240)
+    start = {"betas": np.zeros(10, np.float32), "body_pose": np.zeros(69, np.float32),
+             "global_orient": np.array([np.pi, 0, 0], np.float32), "transl": np.array([0, 0.2, 3], np.float32)}  # fmt: skip
+    out = toy_body(**{k: torch.as_tensor(v)[None] for k, v in start.items()})
+    xy = project_points(model_keypoints(toy_body, out, "body25"), cam)[0].numpy()
+    kps = KeypointSet(xy, np.ones(25), "body25")
+
+    def refined(last, transl_x=0.0, first=5.0):
+        params = {k: v[None].copy() for k, v in start.items()}
+        params["transl"][0, 0] += transl_x
+        return SilhouetteFitResult(params, {"level": [0, 0, 1, 1], "energy": [first, 4.0, 3.0, last]}, 0.8, 0.9, 0.0, 4, [])
+
+    assert _choose_hypothesis(toy_body, [refined(2.0)], [start], kps, cam, "mask") == (0, {})
+    c, record = _choose_hypothesis(toy_body, [refined(2.0), refined(1.5), refined(1.8)], [start] * 3, kps, cam, "mask")
+    assert c == 1 and record["kept"] == 2 and record["energies"] == [2.0, 1.5, 1.8]
+    assert record["gap"] == pytest.approx(0.25)
+    assert _choose_hypothesis(toy_body, [refined(2.0), refined(2.0, first=0.1)], [start] * 2, kps, cam, "mask")[0] == 0
+    assert _choose_hypothesis(toy_body, [refined(2.0), refined(float("nan"))], [start] * 2, kps, cam, "mask")[0] == 0
+    assert _choose_hypothesis(toy_body, [refined(2.0), refined(1.0, transl_x=0.5)], [start] * 2, kps, cam, "mask")[0] == 0

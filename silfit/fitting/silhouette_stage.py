@@ -311,6 +311,14 @@ class SilhouetteFitResult:
     def params(self) -> dict:
         return dict(self.parameters)
 
+    @property
+    def final_energy(self) -> float:
+        """The stage's energy at the kept (lowest-energy) step of its last level: silhouette, keypoints and
+        priors at that level's weights (what :func:`silfit.image_fit.refine_batch` compares hypotheses by)."""
+        levels, energies = self.history.get("level") or [], self.history.get("energy") or []
+        last = [e for lv, e in zip(levels, energies) if lv == levels[-1]] if levels else []
+        return float(min(last)) if last else float("nan")
+
     def __getattr__(self, name):
         parameters = self.__dict__.get("parameters")
         if parameters is not None and name in parameters:
