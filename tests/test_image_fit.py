@@ -195,15 +195,79 @@ def test_choosing_a_hypothesis_by_the_silhouette_stage():
     xy = project_points(model_keypoints(toy_body, out, "body25"), cam)[0].numpy()
     kps = KeypointSet(xy, np.ones(25), "body25")
 
-    def refined(last, transl_x=0.0, first=5.0):
+    def refined(last, transl_x=0.0, first=5.0, levels=(0, 0, 1, 1), failed=False):
         params = {k: v[None].copy() for k, v in start.items()}
         params["transl"][0, 0] += transl_x
-        return SilhouetteFitResult(params, {"level": [0, 0, 1, 1], "energy": [first, 4.0, 3.0, last]}, 0.8, 0.9, 0.0, 4, [])
+        return SilhouetteFitResult(params, {"level": list(levels), "energy": [first, 4.0, 3.0, last]}, 0.8, 0.9, 0.0, 4, [],
+                                   failed=failed)  # fmt: skip
 
-    assert _choose_hypothesis(toy_body, [refined(2.0)], [start], kps, cam, "mask") == (0, {})
-    c, record = _choose_hypothesis(toy_body, [refined(2.0), refined(1.5), refined(1.8)], [start] * 3, kps, cam, "mask")
-    assert c == 1 and record["kept"] == 2 and record["energies"] == [2.0, 1.5, 1.8]
+    def choose(*sils, starts=None):
+        return _choose_hypothesis(toy_body, list(sils), starts or [start] * len(sils), kps, cam, "mask")
+
+    assert choose(refined(2.0)) == (0, {})
+    c, record = choose(refined(2.0), refined(1.5), refined(1.8))
+    assert c == 1 and record["kept"] == 2 and record["energies"] == [2.0, 1.5, 1.8] and record["guard_reverted"] is None
     assert record["gap"] == pytest.approx(0.25)
-    assert _choose_hypothesis(toy_body, [refined(2.0), refined(2.0, first=0.1)], [start] * 2, kps, cam, "mask")[0] == 0
-    assert _choose_hypothesis(toy_body, [refined(2.0), refined(float("nan"))], [start] * 2, kps, cam, "mask")[0] == 0
-    assert _choose_hypothesis(toy_body, [refined(2.0), refined(1.0, transl_x=0.5)], [start] * 2, kps, cam, "mask")[0] == 0
+    assert choose(refined(2.0), refined(2.0, first=0.1))[0] == 0  # a tie: the keypoint fit
+    assert choose(refined(2.0), refined(float("nan")))[0] == 0
+    # stopped early (a failure, or its last level not the others'): its energy is not compared
+    c, record = choose(refined(2.0), refined(1.0, failed=True), refined(1.0, levels=(0, 0, 0, 0)))
+    assert c == 0 and record["energies"] == [2.0, None, None]
+    # the guard: less plausible than its own start, or than the keypoint fit (0.5 m off the keypoints from either)
+    c, record = choose(refined(2.0), refined(1.0, transl_x=0.5))
+    assert c == 0 and record["guard_reverted"] == 2
+    moved = {**start, "transl": start["transl"] + np.array([0.5, 0, 0], np.float32)}
+    assert choose(refined(2.0), refined(1.0, transl_x=0.5), starts=[start, moved]) == (0, {
+        "energies": [2.0, 1.0], "iou": [0.9, 0.9], "kept": 1, "gap": 0.0, "guard_reverted": 2})
+
+
+def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
+    """Two images with 2 and 3 hypotheses in one batch: each image keeps its own candidate of lowest final energy
+    (the stage stubbed to return its starts with set energies), with its record and warning."""
+    import sys
+
+    import torch
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent / "fitting"))
+    from silfit_toy_body import toy_model
+
+    import silfit.fitting.silhouette_stage as stage
+    from silfit.camera import Camera, project_points
+    from silfit.fitting import KeypointFitConfig, KeypointFitter
+    from silfit.image_fit import body_mask, refine_batch
+    from silfit.keypoints import KeypointSet, model_keypoints
+
+    model = toy_model()
+    cam = Camera.from_image_size(320, 240)
+    sets = []
+    for x in (0.0, 0.1):
+        out = model(global_orient=torch.tensor([[np.pi, 0, 0]]), transl=torch.tensor([[x, 0.2, 3.0]]))
+        sets.append(KeypointSet(project_points(model_keypoints(model, out, "body25"), cam)[0].numpy(), np.ones(25), "body25"))
+    cfg = KeypointFitConfig(init_poses=1, camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branch_search=False)
+    kp = KeypointFitter(model, config=cfg).fit(sets, [cam, cam], progress=False)
+
+    def marked(i, k):  # sample i's fit with body_pose[0] = 0.01 k: which candidate a result came from
+        p = {n: np.array(v, dtype=np.float32) for n, v in kp.params(i).items()}
+        p["body_pose"][0] = 0.01 * k
+        return {"params": p, "energy": 1.0, "refined": True}
+
+    kp.hypotheses = [[marked(0, 0), marked(0, 1)], [marked(1, 0), marked(1, 1), marked(1, 2)]]
+    finals = [2.0, 2.0, 1.0, 1.5, 1.2]  # problems: image 0, image 1, then 0's alternative, 1's two
+
+    def stub(model, problems, inits, *args, **kwargs):
+        assert len(problems) == len(inits) == 5
+        return [stage.SilhouetteFitResult({n: np.asarray(v, np.float32).reshape(1, -1) for n, v in init.items()},
+                                          {"level": [1, 1], "energy": [3.0, e]}, 0.8, 0.9, 1.0, 2, [])
+                for init, e in zip(inits, finals)]  # fmt: skip
+
+    monkeypatch.setattr(stage, "fit_silhouette_problems", stub)
+    faces = model.faces.cpu().numpy()
+    masks = [body_mask(kp.vertices[i], faces, cam) for i in range(2)]
+    res = refine_batch(model, kp, sets, masks, progress=False)
+    assert [r.metrics["hypotheses_silhouette"]["kept"] for r in res] == [2, 3]
+    assert res[0].params["body_pose"].reshape(-1)[0] == pytest.approx(0.01)
+    assert res[1].params["body_pose"].reshape(-1)[0] == pytest.approx(0.02)
+    assert res[1].metrics["hypotheses_silhouette"]["energies"] == [2.0, 1.5, 1.2]
+    assert res[0].metrics["timings_s"]["silhouette"] == 2.0 and res[1].metrics["timings_s"]["silhouette"] == 3.0
+    for r, k in zip(res, (2, 3)):
+        assert any(w.startswith(f"depth branch chosen by the mask: hypothesis {k} ") for w in r.metrics["warnings"])

@@ -307,6 +307,8 @@ class SilhouetteFitResult:
     ious: list = field(default_factory=list)
     #: L-BFGS iterations of the contour level (``steps`` counts the rendered levels' steps)
     contour_iterations: int = 0
+    #: the stage stopped this problem early (a non-finite energy or a collapsed IoU; see ``warnings``)
+    failed: bool = False
 
     def params(self) -> dict:
         return dict(self.parameters)
@@ -318,6 +320,12 @@ class SilhouetteFitResult:
         levels, energies = self.history.get("level") or [], self.history.get("energy") or []
         last = [e for lv, e in zip(levels, energies) if lv == levels[-1]] if levels else []
         return float(min(last)) if last else float("nan")
+
+    @property
+    def final_level(self):
+        """The level of the last recorded step (``None``: none): energies compare only within one level."""
+        levels = self.history.get("level") or []
+        return levels[-1] if levels else None
 
     def __getattr__(self, name):
         parameters = self.__dict__.get("parameters")
@@ -1001,6 +1009,6 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
             iou_end=float(best_iou[p]) if h["iou"] else float("nan"),
             seconds=seconds, steps=steps[p], warnings=warnings[p], terms=best_terms[p], config=config,
             contour_iterations=contour_steps[p],
-            ious=[list(obs[f * C:(f + 1) * C]) for f in range(F)],
+            ious=[list(obs[f * C:(f + 1) * C]) for f in range(F)], failed=bool(failed[p]),
         ))  # fmt: skip
     return results
