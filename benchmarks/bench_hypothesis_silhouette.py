@@ -10,9 +10,11 @@ generator's noise-free masks) this fits the keypoint stage with ``hypotheses=K``
 compares the PA-PVE of the refined fit each rule keeps:
 
 * *keypoint energy*: the keypoint stage's fit (today's choice), refined;
-* *silhouette-stage energy*: the lowest final energy of the silhouette stage (its last level's kept
-  step: silhouette, keypoints and priors at the stage's weights); with ``--margin M`` an alternative
-  replaces the fit only when its energy is lower by more than ``M`` (relative);
+* *silhouette-stage energy*: the lowest final energy of the silhouette stage
+  (:attr:`~silfit.fitting.silhouette_stage.SilhouetteFitResult.final_energy`: its last level's kept step,
+  silhouette, keypoints and priors at the stage's weights), as ``silfit fit --hypotheses K --mask`` keeps
+  (:func:`silfit.image_fit._choose_hypothesis`, without its plausibility guard and clothing trim); with
+  ``--margin M`` an alternative replaces the fit only when its energy is lower by more than ``M`` (relative);
 * *IoU*: the highest mask IoU of the refined body (rendered with pyrender/OSMesa);
 * *oracle*: the best of the K against the truth (what a perfect chooser would get).
 
@@ -32,12 +34,6 @@ from silfit.eval.metrics import pa_pve
 from silfit.fitting import KeypointFitter
 from silfit.fitting.keypoint_stage import KeypointFitConfig
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig, fit_silhouettes
-
-
-def last_level_energy(sil) -> float:
-    """The silhouette stage's energy at the kept (lowest) step of its last level."""
-    levels = sil.history["level"]
-    return float(min(e for lv, e in zip(levels, sil.history["energy"]) if lv == levels[-1]))
 
 
 def main() -> None:
@@ -80,7 +76,7 @@ def main() -> None:
                 body = render_mask(v, faces, cams[i]) > 0
                 iou = float((body & masks[i]).sum() / max(1, (body | masks[i]).sum()))
                 out.append({"pve": 1000 * float(pa_pve(v, gts[i].vertices)), "e_kp": float(h["energy"]),
-                            "e_sil": last_level_energy(s), "iou": iou})  # fmt: skip
+                            "e_sil": s.final_energy, "iou": iou})  # fmt: skip
             rows.append(out)
             print(i, " | ".join(f"{o['pve']:.0f} mm, E_kp {o['e_kp']:.0f}, E_sil {o['e_sil']:.5f}, IoU {o['iou']:.3f}"
                                 for o in out), flush=True)  # fmt: skip
