@@ -173,8 +173,8 @@ def _choose_hypothesis(model, sils, starts, keypoints: KeypointSet, camera: Came
     without hypotheses). ``record`` (``metrics.json``'s ``hypotheses_silhouette``; ``{}`` for one hypothesis): each
     one's final energy (``None``: not comparable) and IoU, the kept rank, its energy's gap below the keypoint fit's,
     and ``guard_reverted``: the rank the guard set aside, if any. A person mask hardly sees a limb mirrored in
-    depth; on two generated hard sets the branch that refines lowest against it lowered the mean PA-PVE by about
-    4 mm, from a few changed choices (``benchmarks/bench_hypothesis_silhouette.py``, README)."""
+    depth; on three generated hard sets the branch that refines lowest against it lowered the mean PA-PVE by
+    3.3-4.6 mm, from a few changed choices (``benchmarks/bench_hypothesis_silhouette.py``, README)."""
     if len(sils) == 1:
         return 0, {}
     last = max((s.final_level for s in sils if s.final_level is not None), default=None)
@@ -264,7 +264,7 @@ def refine_batch(
     out = []
     for i in range(n):
         one = keypoint_result[i]
-        c, choice = _choose_hypothesis(model, [sils[c] for c in candidates[i]], [inits[c] for c in candidates[i]],
+        c, choice = _choose_hypothesis(model, [sils[k] for k in candidates[i]], [inits[k] for k in candidates[i]],
                                        keypoints[i], cameras[i], mask_sources[i],
                                        getattr(config, "plausibility_guard", True))  # fmt: skip
         sil, start = sils[candidates[i][c]], inits[candidates[i][c]]

@@ -317,8 +317,8 @@ class SilhouetteFitResult:
     def final_energy(self) -> float:
         """The stage's energy at the kept (lowest-energy) step of its last level: silhouette, keypoints and
         priors at that level's weights (what :func:`silfit.image_fit.refine_batch` compares hypotheses by)."""
-        levels, energies = self.history.get("level") or [], self.history.get("energy") or []
-        last = [e for lv, e in zip(levels, energies) if lv == levels[-1]] if levels else []
+        level = self.final_level
+        last = [e for lv, e in zip(self.history.get("level") or [], self.history.get("energy") or []) if lv == level]
         return float(min(last)) if last else float("nan")
 
     @property
