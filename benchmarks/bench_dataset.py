@@ -16,6 +16,10 @@ machine are noisy.
 
     .venv/bin/python benchmarks/bench_dataset.py [--n 100] [--sil-subset 10] [--work DIR]
     .venv/bin/python benchmarks/bench_dataset.py --n 12 --sil-subset 12 --silhouette-only --no-ray --main
+    .venv/bin/python benchmarks/bench_dataset.py --n 24 --sil-subset 24 --silhouette-only --no-ray --close
+
+``--close``: also the local silhouette run before issue 25's close-alternatives part (``alternatives_margin=0``: the
+keypoint stage's branch only is refined against the mask).
 """
 from __future__ import annotations
 
@@ -124,6 +128,8 @@ def main() -> None:
     parser.add_argument("--silhouette-only", action="store_true", help="only the runs with the silhouette stage")
     parser.add_argument("--main", action="store_true",
                         help="also the local silhouette run with edge_density=None (the stage before issue 24's speed part)")
+    parser.add_argument("--close", action="store_true",
+                        help="also the local silhouette run with alternatives_margin=0 (before issue 25's close alternatives)")
     args = parser.parse_args()
     root = Path(args.work or tempfile.mkdtemp(prefix="bench_dataset_"))
     root.mkdir(parents=True, exist_ok=True)
@@ -138,8 +144,13 @@ def main() -> None:
             print(rows[-1], flush=True)
     if args.sil_subset:
         sub = subset(data, root, args.sil_subset)
-        if args.main:  # a warm-up first (model, priors, proxies, renderers), so neither run pays it
+        if args.main or args.close:  # a warm-up first (model, priors, proxies, renderers), so neither run pays it
             run(subset(data, root, 2), root / "out_warmup", True, 8, False)
+        if args.close:
+            with stage_changes(alternatives_margin=0.0):
+                rows.append(run(sub, root / "out_sil_b8_close", True, 8, False, " (alternatives_margin=0)"))
+            print(rows[-1], flush=True)
+        if args.main:
             with stage_changes(**{**BEFORE_SAMPLING_PART, "edge_density": None}):
                 rows.append(run(sub, root / "out_sil_b8_main", True, 8, False, " (main: edge_density=None, spp=4)"))
             print(rows[-1], flush=True)

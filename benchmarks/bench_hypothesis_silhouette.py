@@ -19,6 +19,13 @@ compares the PA-PVE of the refined fit each rule keeps:
 * *oracle*: the best of the K against the truth (what a perfect chooser would get).
 
     python benchmarks/bench_hypothesis_silhouette.py --n 30 --seed 10800
+
+``--close``: the default path instead (one hypothesis, :func:`silfit.image_fit.refine_batch` with its clothing trim and
+plausibility guard), before and after issue 25's close-alternatives part on the same keypoint fits: ``before`` refines
+the keypoint stage's fit only (``SilhouetteFitConfig(alternatives_margin=0)``), ``after`` also its branches refined to
+the end within ``alternatives_margin`` of its energy (the default), keeping the lowest final energy of the stage.
+
+    python benchmarks/bench_hypothesis_silhouette.py --close --n 30 --seed 10900
 """
 from __future__ import annotations
 
@@ -44,7 +51,11 @@ def main() -> None:
     ap.add_argument("--k", type=int, default=3, help="hypotheses per subject (silfit fit --hypotheses K)")
     ap.add_argument("--batch", type=int, default=8, help="subjects per keypoint-stage batch")
     ap.add_argument("--margin", type=float, default=0.0, help="relative energy gap an alternative must beat")
+    ap.add_argument("--close", action="store_true", help="the default path: close alternatives refined (before/after)")
+    ap.add_argument("--margins", default="0,0.1", help="with --close: alternatives_margin per method (0: before)")
     args = ap.parse_args()
+    if args.close:
+        return close_alternatives(args)
 
     from renderers.offscreen import render_mask
 
@@ -104,6 +115,56 @@ def main() -> None:
         worse = sum(a > b + 5 for a, b in changed)
         print(f"| {name} | {pv.mean():.1f} / {np.median(pv):.1f} | {(pv > 150).sum()} | {(pv < 60).sum()} | "
               f"{len(changed)} ({better} / {worse}) |")
+
+
+def close_alternatives(args) -> None:
+    """``--close``: the default image path with ``alternatives_margin`` 0 (before) and each other margin, on the same
+    keypoint fits (the default keypoint stage, one hypothesis); PA-PVE of what ``refine_batch`` returns."""
+    from silfit.image_fit import refine_batch
+
+    torch.set_num_threads(1)
+    model = load_body_model()
+    sets, cams, gts, masks = hard_set(args.n, args.seed, args.size, model, masks=True)
+    fitter = KeypointFitter(model)
+    margins = [float(m) for m in args.margins.split(",")]
+    pv = {m: [] for m in margins}
+    cpu = {m: 0.0 for m in margins}
+    extra = {m: 0 for m in margins}
+    warned = {m: 0 for m in margins}
+    t_kp = 0.0
+    for b in range(0, len(sets), args.batch):
+        sl = slice(b, b + args.batch)
+        t0 = time.process_time()
+        kp = fitter.fit(sets[sl], cams[sl], progress=False)
+        t_kp += time.process_time() - t0
+        for m in margins:
+            t0 = time.process_time()
+            res = refine_batch(model, kp, sets[sl], masks[sl], SilhouetteFitConfig(alternatives_margin=m),
+                               pose_prior=fitter.pose_prior, progress=False)  # fmt: skip
+            cpu[m] += time.process_time() - t0
+            for j, r in enumerate(res):
+                pv[m].append(1000 * float(pa_pve(r.vertices.astype(np.float64), gts[b + j].vertices)))
+                record = r.metrics.get("hypotheses_silhouette") or {}
+                extra[m] += len(record.get("energies", [0])) - 1
+                warned[m] += any(w.startswith("depth branch chosen by the mask") for w in r.metrics["warnings"])
+        print(f"{min(b + args.batch, len(sets))}/{len(sets)}: " + ", ".join(
+            f"margin {m:g}: {np.mean(pv[m]):.1f} mm" for m in margins), flush=True)  # fmt: skip
+    n = len(sets)
+    base = np.array(pv[margins[0]])
+    print(f"\n{n} hard subjects (seed {args.seed}, {args.size} px, noise-free masks), the default image path "
+          f"(refine_batch); keypoint stage {t_kp / n:.2f} CPU s per subject\n")  # fmt: skip
+    print("| alternatives_margin | PA-PVE mean / median (mm) | > 150 mm | < 60 mm | extra problems / subject | "
+          f"fits changed vs {margins[0]:g} (better / worse by 5 mm) | chosen by the mask (warned) | silhouette CPU s / subject |")
+    print("|---|---|---:|---:|---:|---|---:|---:|")
+    for m in margins:
+        a = np.array(pv[m])
+        d = a - base
+        changed = np.abs(d) > 1e-6
+        print(f"| {m:g} | {a.mean():.1f} / {np.median(a):.1f} | {(a > 150).sum()} | {(a < 60).sum()} | {extra[m] / n:.2f} | "
+              f"{changed.sum()} ({(d < -5).sum()} / {(d > 5).sum()}) | {warned[m]} | {cpu[m] / n:.2f} |")
+    for m in margins[1:]:
+        moved = [f"{i}: {base[i]:.0f} -> {pv[m][i]:.0f}" for i in range(n) if abs(pv[m][i] - base[i]) > 1e-6]
+        print(f"\nmargin {m:g}, the fits that changed (subject: PA-PVE mm before -> after): {', '.join(moved) or 'none'}")
 
 
 if __name__ == "__main__":

@@ -192,6 +192,35 @@ def _choose_hypothesis(model, sils, starts, keypoints: KeypointSet, camera: Came
                "guard_reverted": reverted}  # fmt: skip
 
 
+def _offered_alternatives(keypoint_result: KeypointFitResult, config: SilhouetteFitConfig) -> list:
+    """Per sample, the keypoint stage's alternatives the silhouette stage refines too: with ``--hypotheses K``
+    every one after the fit, else (:attr:`~silfit.fitting.KeypointFitResult.alternatives`) the branches refined to
+    the end within ``config.alternatives_margin`` of the fit's final energy, closest first, at most
+    ``config.alternatives_max`` (none with a margin of 0)."""
+    n = len(keypoint_result)
+    if keypoint_result.hypotheses is not None:
+        return [list((h or [])[1:]) for h in keypoint_result.hypotheses]
+    margin, most = float(getattr(config, "alternatives_margin", 0.0)), int(getattr(config, "alternatives_max", 0))
+    if margin <= 0 or most <= 0 or keypoint_result.alternatives is None:
+        return [[] for _ in range(n)]
+    return [sorted((a for a in alts or [] if a["gap"] <= margin), key=lambda a: a["gap"])[:most]
+            for alts in keypoint_result.alternatives]  # fmt: skip
+
+
+def _mask_choice_warning(hypotheses: bool, alternative: dict, c: int, choice: dict) -> str:
+    """The warning of a fit whose depth branch the mask chose over the keypoint stage's: ``alternative`` (one of
+    ``--hypotheses K``'s, ``hypotheses``, as ``hypotheses/<c + 1>``, or one of the close alternatives)."""
+    if hypotheses:
+        which = f"hypothesis {c + 1} (hypotheses/{c + 1})"
+        prefer = "preferred hypothesis 1"
+    else:
+        turned = ", ".join(alternative.get("differs") or []) or alternative["label"]
+        which = f"the keypoint stage's alternative turning {turned} ({alternative['gap']:.1%} above its fit)"
+        prefer = "preferred its fit"
+    return (f"depth branch chosen by the mask: {which}, refined against the mask, ends {choice['gap']:.1%} below the "
+            f"keypoint fit's energy; the keypoint stage {prefer}: check a side view")
+
+
 def refine(
     model,
     keypoint_result: KeypointFitResult,
@@ -247,11 +276,13 @@ def refine_batch(
     from .fitting.silhouette_stage import fit_silhouette_problems
     from .fitting.hands_face import silhouette_inputs
 
-    # --hypotheses K with a mask (issue 25): every alternative the keypoint stage offers is refined too, as
-    # more problems of this batch, and the lowest final energy of the stage is kept (_choose_hypothesis)
+    # issue 25: --hypotheses K with a mask refines every alternative the keypoint stage offers, and without it the
+    # branches refined to the end within alternatives_margin of the fit's energy (those the depth warning would
+    # name), as more problems of this batch; the lowest final energy of the stage is kept (_choose_hypothesis)
+    offered = _offered_alternatives(keypoint_result, config or SilhouetteFitConfig())
     rows, candidates = list(range(n)), [[i] for i in range(n)]  # per row: its problems, the keypoint fit first
-    for i, hyps in enumerate(keypoint_result.hypotheses or [None] * n):
-        for h in (hyps or [])[1:]:
+    for i, hyps in enumerate(offered):
+        for h in hyps:
             candidates[i].append(len(rows))
             rows.append(i)
             inits.append({k: np.asarray(v) for k, v in h["params"].items()})
@@ -272,9 +303,7 @@ def refine_batch(
         vertices, joints, kp2d = _pose(model, params, keypoints[i].layout, cameras[i])
         warnings = mask_warnings(masks[i], mask_sources[i]) + trim_notes[i] + list(sil.warnings)
         if c:
-            warnings.append(f"depth branch chosen by the mask: hypothesis {c + 1} (hypotheses/{c + 1}), refined against "
-                            f"the mask, ends {choice['gap']:.1%} below the keypoint fit's energy; the keypoint stage "
-                            "preferred hypothesis 1: check a side view")  # fmt: skip
+            warnings.append(_mask_choice_warning(keypoint_result.hypotheses is not None, offered[i][c - 1], c, choice))
         # the plausibility guard (silfit.plausibility.silhouette_guard): a refined fit less plausible
         # than the keypoint fit is replaced by the keypoint fit, with a warning
         guard = _guard(model, start, params, keypoints[i], cameras[i], kp2d, mask_sources[i])

@@ -255,7 +255,7 @@ def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
     finals = [2.0, 2.0, 1.0, 1.5, 1.2]  # problems: image 0, image 1, then 0's alternative, 1's two
 
     def stub(model, problems, inits, *args, **kwargs):
-        assert len(problems) == len(inits) == 5
+        assert len(problems) == len(inits) == len(finals)
         return [stage.SilhouetteFitResult({n: np.asarray(v, np.float32).reshape(1, -1) for n, v in init.items()},
                                           {"level": [1, 1], "energy": [3.0, e]}, 0.8, 0.9, 1.0, 2, [])
                 for init, e in zip(inits, finals)]  # fmt: skip
@@ -271,3 +271,42 @@ def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
     assert res[0].metrics["timings_s"]["silhouette"] == 2.0 and res[1].metrics["timings_s"]["silhouette"] == 3.0
     for r, k in zip(res, (2, 3)):
         assert any(w.startswith(f"depth branch chosen by the mask: hypothesis {k} ") for w in r.metrics["warnings"])
+
+    # without --hypotheses: the branches refined to the end within alternatives_margin of the fit's energy
+    # (KeypointFitResult.alternatives; image 1's is 50 % above its fit: not refined)
+    kp.hypotheses = None
+    kp.alternatives = [[{**marked(0, 1), "label": "left_shin", "differs": ["left_shin"], "gap": 0.05}],
+                       [{**marked(1, 1), "label": "left_thigh", "differs": ["left_thigh"], "gap": 0.5}]]
+    finals[:] = [2.0, 2.0, 1.0]  # image 0, image 1, then 0's alternative
+    res = refine_batch(model, kp, sets, masks, progress=False)
+    assert res[0].metrics["hypotheses_silhouette"]["kept"] == 2 and "hypotheses_silhouette" not in res[1].metrics
+    assert res[0].params["body_pose"].reshape(-1)[0] == pytest.approx(0.01)
+    assert any(w.startswith("depth branch chosen by the mask: the keypoint stage's alternative turning left_shin (5.0% "
+                            "above its fit)") for w in res[0].metrics["warnings"])  # fmt: skip
+    assert not any("chosen by the mask" in w for w in res[1].metrics["warnings"])
+
+
+def test_offered_alternatives():
+    """Which of the keypoint stage's branches the silhouette stage refines too: ``--hypotheses K``'s after the fit;
+    else the alternatives within ``alternatives_margin``, closest first, at most ``alternatives_max``; none at 0."""
+    from types import SimpleNamespace
+
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+    from silfit.image_fit import _offered_alternatives
+
+    alts = [{"label": str(g), "gap": g} for g in (0.3, 0.05, 0.02, 0.08, 0.1)]
+
+    class Kp(SimpleNamespace):
+        def __len__(self):
+            return 1
+
+    def offered(config=SilhouetteFitConfig(), **kw):
+        kp = Kp(**{"hypotheses": None, "alternatives": None, **kw})
+        return [[a["label"] for a in one] for one in _offered_alternatives(kp, config)]
+
+    assert offered(alternatives=[alts]) == [["0.02", "0.05"]]
+    assert offered(SilhouetteFitConfig(alternatives_max=4), alternatives=[alts]) == [["0.02", "0.05", "0.08", "0.1"]]
+    assert offered(SilhouetteFitConfig(alternatives_margin=0.0), alternatives=[alts]) == [[]]
+    assert offered() == [[]]  # no branch refined (no search)
+    hyps = [{"label": "fit"}, {"label": "a"}, {"label": "b"}]
+    assert offered(hypotheses=[hyps], alternatives=[alts]) == [["a", "b"]]  # --hypotheses K: all of them

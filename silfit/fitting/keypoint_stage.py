@@ -976,7 +976,7 @@ class KeypointFitter:
                 run(stage, stage.iterations - together, f"{stage.name}_chosen")
         if not decided:  # a schedule without a decision stage: keep the best start at the end
             take(best_per_group(energies[self.stages[-1].name], group, B))
-        hypotheses = None
+        hypotheses = others = None
         if row_labels is not None:  # the fit: each sample's lowest final energy; the others as alternatives
             final = energies[self.stages[-1].name]
             score, occ = choice(final)
@@ -1001,6 +1001,10 @@ class KeypointFitter:
                                         "tried": [{"flip": x["label"], "energy": x["energy"], "differs": list(x["differs"]),
                                                    "shift_mm": x["shift_mm"], "max_shift_mm": x["max_shift_mm"]}
                                                   for x in h if x["refined"]]})  # fmt: skip
+            # the other distinct branches refined to the end, with their gap to the fit's final energy
+            # (KeypointFitResult.alternatives: the silhouette stage refines the close ones against a mask)
+            others = [[{**x, "gap": (x["energy"] - h[0]["energy"]) / max(abs(h[0]["energy"]), 1e-12)}
+                             for x in h[1:] if x["refined"]] for h in hypotheses]  # fmt: skip
             hypotheses = [h[:K] for h in hypotheses] if K > 1 else None
             take(best)
         if any(search_rows):  # every search row's joint shift (at its search's end) from the fit (metrics.json;
@@ -1012,7 +1016,7 @@ class KeypointFitter:
                     t["shift_mm"], t["max_shift_mm"] = round(mean_mm, 1), round(max_mm, 1)
         timings["total"] = time.perf_counter() - t_all
         info = {"energies": energies, "terms": terms, "timings": timings, "flipped": start_flip.numpy(), "branches": chosen_branches,
-                "branch_search": searched, "hypotheses": hypotheses,
+                "branch_search": searched, "hypotheses": hypotheses, "alternatives": others,
                 "data": data, "views": views, "layout": layout}  # fmt: skip
         return state, info
 
@@ -1059,7 +1063,7 @@ class KeypointFitter:
             timings=info["timings"], flipped=info["flipped"], reprojection_error=reproj,
             config=self.config.to_dict(self.whole_body),
             branches=info["branches"], branch_search=info["branch_search"], model=model_record(self.model),
-            hypotheses=info.get("hypotheses"),
+            hypotheses=info.get("hypotheses"), alternatives=info.get("alternatives"),
         )  # fmt: skip
 
 

@@ -80,6 +80,12 @@ class KeypointFitResult:
     #: ``stage`` and ``gap``; a row that settled higher, ``stage`` ``settle``, with its final-weight energy and its gap to the
     #: fit's) where fewer than K refined ones are distinct (:func:`~silfit.fitting.keypoint_stage.distinct_hypotheses`)
     hypotheses: Optional[list] = None
+    #: per sample, the other distinct branches refined to the end (``branch_refine``), lowest score first, in
+    #: :attr:`hypotheses`' form plus ``gap``: their final energy's relative gap above the fit's; whatever
+    #: ``hypotheses`` is. With a mask the close ones are refined against it too, and the mask may choose one
+    #: (:func:`silfit.image_fit.refine_batch`, ``SilhouetteFitConfig.alternatives_margin``); ``None``: no branch
+    #: was refined (no search, rigs, videos)
+    alternatives: Optional[list] = None
 
     def __len__(self) -> int:
         return self.betas.shape[0]
@@ -114,6 +120,7 @@ class KeypointFitResult:
             extra_params={k: v[idx] for k, v in self.extra_params.items()}, model=self.model,
             branch_search=None if self.branch_search is None else [self.branch_search[i] for i in idx],
             hypotheses=None if self.hypotheses is None else [self.hypotheses[i] for i in idx],
+            alternatives=None if self.alternatives is None else [self.alternatives[i] for i in idx],
         )  # fmt: skip
 
     # ------------------------------------------------------------------ I/O

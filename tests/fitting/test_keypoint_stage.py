@@ -579,6 +579,13 @@ def test_branch_refine_chooses_by_the_final_energy_never_above_the_search_choice
     assert refined["tried"][0]["flip"] == kept and finals[0] == pytest.approx(float(out[3]["energies"]["final"][0]))
     assert finals == sorted(finals) and refined["tried"][0]["max_shift_mm"] == 0.0
     assert not any(s.get("refined") for s in out[1]["branch_search"][0])  # one branch: nothing refined to choose
+    # the other refined branches, with their parameters and gaps above the fit's energy (KeypointFitResult.alternatives:
+    # the silhouette stage refines the close ones against a mask), whatever hypotheses is; none with one branch
+    (alternatives,) = out[3]["alternatives"]
+    assert [(a["label"], a["energy"]) for a in alternatives] == [(t["flip"], t["energy"]) for t in refined["tried"][1:]]
+    assert all(a["refined"] and a["params"]["body_pose"].shape == (69,) for a in alternatives)
+    assert [a["gap"] for a in alternatives] == pytest.approx([(e - finals[0]) / abs(finals[0]) for e in finals[1:]])
+    assert out[1]["alternatives"] is None
 
 
 def test_a_search_from_the_settled_fit_after_the_late_searchs_best_settle(body_model):
