@@ -121,6 +121,7 @@ def close_alternatives(args) -> None:
     """``--close``: the default image path with ``alternatives_margin`` 0 (before) and each other margin, on the same
     keypoint fits (the default keypoint stage, one hypothesis); PA-PVE of what ``refine_batch`` returns."""
     from silfit.image_fit import refine_batch
+    from silfit.plausibility import depth_warnings
 
     torch.set_num_threads(1)
     model = load_body_model()
@@ -131,6 +132,7 @@ def close_alternatives(args) -> None:
     cpu = {m: 0.0 for m in margins}
     extra = {m: 0 for m in margins}
     warned = {m: 0 for m in margins}
+    depth = {m: [] for m in margins}  # per subject: the depth warning (silfit.plausibility.depth_warnings) fires
     t_kp = 0.0
     for b in range(0, len(sets), args.batch):
         sl = slice(b, b + args.batch)
@@ -147,6 +149,7 @@ def close_alternatives(args) -> None:
                 record = r.metrics.get("hypotheses_silhouette") or {}
                 extra[m] += len(record.get("energies", [0])) - 1
                 warned[m] += any(w.startswith("depth branch chosen by the mask") for w in r.metrics["warnings"])
+                depth[m].append(bool(depth_warnings(kp.branch_search[j])))
         print(f"{min(b + args.batch, len(sets))}/{len(sets)}: " + ", ".join(
             f"margin {m:g}: {np.mean(pv[m]):.1f} mm" for m in margins), flush=True)  # fmt: skip
     n = len(sets)
@@ -154,14 +157,17 @@ def close_alternatives(args) -> None:
     print(f"\n{n} hard subjects (seed {args.seed}, {args.size} px, noise-free masks), the default image path "
           f"(refine_batch); keypoint stage {t_kp / n:.2f} CPU s per subject\n")  # fmt: skip
     print("| alternatives_margin | PA-PVE mean / median (mm) | > 150 mm | < 60 mm | extra problems / subject | "
-          f"fits changed vs {margins[0]:g} (better / worse by 5 mm) | chosen by the mask (warned) | silhouette CPU s / subject |")
-    print("|---|---|---:|---:|---:|---|---:|---:|")
+          f"fits changed vs {margins[0]:g} (better / worse by 5 mm) | chosen by the mask (warned) | > 150 mm with a depth "
+          "warning | < 60 mm with one | silhouette CPU s / subject |")  # fmt: skip
+    print("|---|---|---:|---:|---:|---|---:|---:|---:|---:|")
     for m in margins:
         a = np.array(pv[m])
         d = a - base
         changed = np.abs(d) > 1e-6
+        w = np.array(depth[m])
         print(f"| {m:g} | {a.mean():.1f} / {np.median(a):.1f} | {(a > 150).sum()} | {(a < 60).sum()} | {extra[m] / n:.2f} | "
-              f"{changed.sum()} ({(d < -5).sum()} / {(d > 5).sum()}) | {warned[m]} | {cpu[m] / n:.2f} |")
+              f"{changed.sum()} ({(d < -5).sum()} / {(d > 5).sum()}) | {warned[m]} | {(w & (a > 150)).sum()}/{(a > 150).sum()} | "
+              f"{(w & (a < 60)).sum()}/{(a < 60).sum()} | {cpu[m] / n:.2f} |")  # fmt: skip
     for m in margins[1:]:
         moved = [f"{i}: {base[i]:.0f} -> {pv[m][i]:.0f}" for i in range(n) if abs(pv[m][i] - base[i]) > 1e-6]
         print(f"\nmargin {m:g}, the fits that changed (subject: PA-PVE mm before -> after): {', '.join(moved) or 'none'}")

@@ -19,7 +19,8 @@ the plausibility guard), *main* (the defaults before issue 23's third part: no l
 set aside as unknown, ``leak_distance=0, hole_fraction=0``), *tight* (the defaults before the detected-input change: the keypoint
 trust region at 3 % of the window, ``trust_fraction=0.03``); *noconcave* (the defaults before the concavity change: ``concave_radius=0``), *concaveall* (the
 concavities unknown in every mask, ``concave_trimmed_only=False``); *weakprior* (the defaults before the
-detected-input pose-prior change: ``pose_weight=0.002``); ``--methods`` picks them, ``--set`` changes the after configuration
+detected-input pose-prior change: ``pose_weight=0.002``); *closeoff* (the defaults before issue 25's close-alternatives
+part: ``alternatives_margin=0``, the keypoint stage's branch only refined against the mask); ``--methods`` picks them, ``--set`` changes the after configuration
 (tuning). The last column counts the subjects whose mask was trimmed as clothing and those
 whose fit the guard replaced by the keypoint fit. Printed per condition: PA-PVE and PVE
 (mm, against the whole true body), median reprojection error (px, visible keypoints), max |beta|,
@@ -140,8 +141,10 @@ NOCONCAVE = dict(concave_radius=0.0)
 CONCAVEALL = dict(concave_trimmed_only=False)
 #: the defaults before the detected-input change: the silhouette stage's pose prior at 0.002
 WEAKPRIOR = dict(pose_weight=0.002)
+#: the defaults before issue 25's close-alternatives part: only the keypoint stage's branch refined against the mask
+CLOSEOFF = dict(alternatives_margin=0.0)
 METHODS = {"original": ORIGINAL, "before": BEFORE, "main": MAIN, "tight": TIGHT, "noconcave": NOCONCAVE,
-           "concaveall": CONCAVEALL, "weakprior": WEAKPRIOR, "after": {}}
+           "concaveall": CONCAVEALL, "weakprior": WEAKPRIOR, "closeoff": CLOSEOFF, "after": {}}
 
 
 def _value(text: str):

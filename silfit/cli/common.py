@@ -9,8 +9,10 @@ from . import CLIError
 
 
 def silhouette_config(args):
-    """The silhouette stage's settings from ``--silhouette-resolutions`` / ``--silhouette-iterations``."""
+    """The silhouette stage's settings from ``--silhouette-resolutions`` / ``--silhouette-iterations`` and
+    ``--silhouette-option NAME=VALUE`` (:func:`silhouette_options`)."""
     from ..fitting.silhouette_stage import SilhouetteFitConfig
+    from ..runner.worker import config_with
 
     levels = {}
     if args.silhouette_resolutions:
@@ -18,9 +20,10 @@ def silhouette_config(args):
     if args.silhouette_iterations:
         levels["iterations"] = tuple(args.silhouette_iterations)
     try:
-        return replace(SilhouetteFitConfig(), **levels)
+        base = replace(SilhouetteFitConfig(), **levels)
     except ValueError:
         raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels") from None
+    return config_with(SilhouetteFitConfig, silhouette_options(args), base, "silhouette")
 
 
 def keypoint_settings(args, base=None):
@@ -36,18 +39,38 @@ def keypoint_options(args, refused: tuple = ()) -> dict:
     """``--keypoint-option NAME=VALUE`` flags (repeatable; ``silfit fit`` and ``fit-dataset`` alike) as
     ``{name: value}``, each checked against :class:`~silfit.fitting.keypoint_stage.KeypointFitConfig`; a bad
     one, or one of ``refused`` (a field a command sets with its own flag), is a :class:`CLIError`."""
-    from ..runner.worker import keypoint_config
+    from ..fitting.keypoint_stage import KeypointFitConfig
+
+    return _stage_options(getattr(args, "keypoint_option", None), KeypointFitConfig, "keypoint", refused)
+
+
+def silhouette_options(args) -> dict:
+    """``--silhouette-option NAME=VALUE`` flags (repeatable) as ``{name: value}``, each checked against
+    :class:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig` (``resolutions`` and ``iterations`` have their
+    own flags); a bad one is a :class:`CLIError`."""
+    from ..fitting.silhouette_stage import SilhouetteFitConfig
+
+    refused = {"resolutions": "silhouette-resolutions", "iterations": "silhouette-iterations"}
+    return _stage_options(getattr(args, "silhouette_option", None), SilhouetteFitConfig, "silhouette", refused)
+
+
+def _stage_options(texts, cls, stage: str, refused=()) -> dict:
+    """``--<stage>-option NAME=VALUE`` flags ``texts`` as ``{name: value}``, checked against ``cls``
+    (:func:`silfit.runner.worker.config_with`); ``refused``: names given by their own flag (a mapping: to that
+    flag's name)."""
+    from ..runner.worker import config_with
 
     overrides = {}
-    for text in getattr(args, "keypoint_option", None) or ():
+    for text in texts or ():
         name, sep, value = text.partition("=")
         if not sep or not name:
-            raise CLIError(f"--keypoint-option {text!r}: expected NAME=VALUE")
+            raise CLIError(f"--{stage}-option {text!r}: expected NAME=VALUE")
         overrides[name.strip()] = value.strip()
         if name.strip() in refused:
-            raise CLIError(f"--keypoint-option {text!r}: give --{name.strip()} instead")
+            flag = refused[name.strip()] if isinstance(refused, dict) else name.strip()
+            raise CLIError(f"--{stage}-option {text!r}: give --{flag} instead")
     try:
-        keypoint_config(overrides)
+        config_with(cls, overrides, None, stage)
     except ValueError as err:
         raise CLIError(str(err)) from None
     return overrides

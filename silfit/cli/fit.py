@@ -81,6 +81,9 @@ def register(subparsers) -> None:
     p.add_argument("--keypoint-option", action="append", default=[], metavar="NAME=VALUE",
                    help="override a KeypointFitConfig field of the keypoint stage (one image, rig, video: each "
                         "frame's start), e.g. init_poses=1 or pose_iters=10,10,10 (repeatable; as fit-dataset)")
+    p.add_argument("--silhouette-option", action="append", default=[], metavar="NAME=VALUE",
+                   help="override a SilhouetteFitConfig field of the silhouette stage, e.g. alternatives_margin=0 "
+                        "(refine the keypoint stage's branch only) or plausibility_guard=false (repeatable; as fit-dataset)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -95,9 +98,10 @@ def run(args) -> int:
     from ..run import check, run as run_job, write
     from .jobs import build_job, describe_inputs
 
-    from .common import keypoint_options
+    from .common import keypoint_options, silhouette_options
 
     keypoint_options(args, refused=("hypotheses",))  # a bad option is one line before anything is read
+    silhouette_options(args)
     if getattr(args, "people", None) == "all":
         return _run_people(args)
     exports = export_formats(args)

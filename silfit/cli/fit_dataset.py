@@ -46,6 +46,8 @@ def register(subparsers) -> None:
     p.add_argument("--pose-prior", help="pose prior: gmm_08.pkl, a mixture .npz, or 'limits' (default: shipped)")
     p.add_argument("--keypoint-option", action="append", default=[], metavar="NAME=VALUE",
                    help="override a KeypointFitConfig field, e.g. init_poses=1 or pose_iters=10,10,10 (repeatable)")
+    p.add_argument("--silhouette-option", action="append", default=[], metavar="NAME=VALUE",
+                   help="override a SilhouetteFitConfig field, e.g. alternatives_margin=0 (repeatable)")
     p.add_argument("--silhouette-resolutions", metavar="R1,R2", help="silhouette window sizes per level (default 128,256)")
     p.add_argument("--silhouette-iterations", metavar="N1,N2", help="silhouette rendered steps per level (default 40,25, after the contour level)")
     p.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
@@ -76,7 +78,7 @@ def _ints(text, option):
 def run(args) -> int:
     from ..runner import FitOptions, InputError, fit_dataset
     from ..runner.items import parse_people
-    from .common import keypoint_options
+    from .common import keypoint_options, silhouette_options
 
     if args.batch_size < 1:
         raise CLIError(f"--batch-size {args.batch_size}: expected 1 or more")
@@ -95,7 +97,7 @@ def run(args) -> int:
         raise CLIError(str(err)) from None
     options = FitOptions(
         exports=list(exports), model=args.model, gender=args.gender, pose_prior=args.pose_prior, silhouette=not args.no_silhouette,
-        focal=args.focal, keypoint_options=overrides,
+        focal=args.focal, keypoint_options=overrides, silhouette_options=silhouette_options(args),
         silhouette_resolutions=_ints(args.silhouette_resolutions, "--silhouette-resolutions"),
         silhouette_iterations=_ints(args.silhouette_iterations, "--silhouette-iterations"),
     )  # fmt: skip

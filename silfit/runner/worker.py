@@ -45,13 +45,14 @@ class FitOptions:
     keypoint_options: Dict[str, object] = field(default_factory=dict)  # KeypointFitConfig field -> value
     silhouette_resolutions: Optional[Sequence[int]] = None
     silhouette_iterations: Optional[Sequence[int]] = None
+    silhouette_options: Dict[str, object] = field(default_factory=dict)  # SilhouetteFitConfig field -> value
     exports: Sequence[str] = ()  # "glb", "ply": mesh.glb / mesh.ply per item (silfit.outputs.export)
 
     def to_dict(self) -> dict:
         return asdict(self)
 
 
-def _declared_kind(hint, key: str) -> tuple:
+def _declared_kind(hint, key: str, stage: str = "keypoint") -> tuple:
     """``(kind, many, expected)`` of an Optional field's declared type: ``Optional[Sequence[float]]`` ->
     ``(float, True, "comma-separated numbers ...")``; a type a command line cannot spell is a ``ValueError``."""
     args = [a for a in typing.get_args(hint) if a is not type(None)] or [hint]
@@ -59,7 +60,7 @@ def _declared_kind(hint, key: str) -> tuple:
     if typing.get_origin(kind) in (list, tuple, collections.abc.Sequence):
         kind, many = (typing.get_args(kind) or (float,))[0], True
     if kind not in (int, float, str):
-        raise ValueError(f"keypoint-stage option {key} cannot be given on the command line")
+        raise ValueError(f"{stage}-stage option {key} cannot be given on the command line")
     word = {int: "integers", float: "numbers", str: "words"}[kind]
     return kind, many, (f"comma-separated {word} (e.g. 0,0.5,1) or none" if many else f"{word[:-1]} or none")
 
@@ -69,20 +70,26 @@ def keypoint_config(options: Dict[str, object], base: Optional[KeypointFitConfig
     parsed by the type of the field's default in :class:`KeypointFitConfig()`, whatever ``base`` holds (a
     video's ``final_tol_change`` is ``None`` there, still a float), or by the field's declared type where
     that default is ``None`` (``hand_weights``: comma-separated numbers); tuples comma-separated)."""
-    plain = KeypointFitConfig()
+    return config_with(KeypointFitConfig, options, base, "keypoint")
+
+
+def config_with(cls, options: Dict[str, object], base=None, stage: str = "keypoint"):
+    """``base`` (default ``cls()``) with ``options`` as :func:`keypoint_config` reads them, for either stage's
+    settings (``cls``: :class:`KeypointFitConfig` or :class:`SilhouetteFitConfig`; ``stage`` names it in errors)."""
+    plain = cls()
     base = plain if base is None else base
-    names = {f.name for f in fields(plain)} | set(getattr(KeypointFitConfig, "renamed_fields", {}))  # old names too
+    names = {f.name for f in fields(plain)} | set(getattr(cls, "renamed_fields", {}))  # old names too
     values = {}
-    hints = _config_hints()
+    hints = _config_hints(cls)
     optional = {n for n, h in hints.items() if type(None) in typing.get_args(h)}  # these also take "none"
     for key, value in options.items():
         if key not in names:
-            raise ValueError(f"unknown keypoint-stage option {key!r} (one of {', '.join(sorted(names))})")
+            raise ValueError(f"unknown {stage}-stage option {key!r} (one of {', '.join(sorted(names))})")
         default = getattr(plain, key)
         if isinstance(value, str) and key in optional and value.lower() == "none":
             value = None
         elif isinstance(value, str):
-            declared = _declared_kind(hints.get(key), key) if default is None else None  # e.g. Optional[Sequence[float]]
+            declared = _declared_kind(hints.get(key), key, stage) if default is None else None  # e.g. Optional[Sequence[float]]
             expected = declared[2] if declared else f"a value like {default!r}"
             try:
                 if isinstance(default, bool):
@@ -98,15 +105,15 @@ def keypoint_config(options: Dict[str, object], base: Optional[KeypointFitConfig
                 else:
                     value = type(default)(value)
             except ValueError:
-                raise ValueError(f"keypoint-stage option {key}={value!r}: expected {expected}") from None
+                raise ValueError(f"{stage}-stage option {key}={value!r}: expected {expected}") from None
         values[key] = value
     return replace(base, **values)
 
 
-@functools.lru_cache(maxsize=1)
-def _config_hints() -> dict:
-    """:class:`KeypointFitConfig`'s declared field types (read once)."""
-    return typing.get_type_hints(KeypointFitConfig)
+@functools.lru_cache(maxsize=4)
+def _config_hints(cls) -> dict:
+    """A settings class's declared field types (read once)."""
+    return typing.get_type_hints(cls)
 
 
 def silhouette_config(options: FitOptions) -> SilhouetteFitConfig:
@@ -119,7 +126,7 @@ def silhouette_config(options: FitOptions) -> SilhouetteFitConfig:
     base = SilhouetteFitConfig()
     if len(levels.get("resolutions", base.resolutions)) != len(levels.get("iterations", base.iterations)):
         raise ValueError("--silhouette-resolutions and --silhouette-iterations need the same number of levels")
-    return replace(base, **levels)
+    return config_with(SilhouetteFitConfig, dict(options.silhouette_options or {}), replace(base, **levels), "silhouette")
 
 
 class DatasetFitter:

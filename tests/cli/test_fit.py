@@ -252,6 +252,30 @@ def test_fit_hypotheses_writes_each_solution_and_records_them(inputs, tmp_path, 
     assert "--hypotheses with --sequence/--rig" in capsys.readouterr().err  # refused for the flag, not for the folder
 
 
+def test_silhouette_option_reaches_the_stage_and_a_bad_one_is_one_line(inputs, tmp_path, capsys):
+    """``--silhouette-option NAME=VALUE`` (as fit-dataset's): the job's silhouette stage takes it, with
+    ``--silhouette-resolutions/--silhouette-iterations`` beside it; a bad option, or a level given as one, exits 2
+    with one line and writes nothing."""
+    from silfit.cli import build_parser
+    from silfit.cli.jobs import build_job
+
+    d, model = inputs
+    image = ["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model)]
+    job = build_job(build_parser().parse_args(image + [
+        "--silhouette-option", "alternatives_margin=0", "--silhouette-option", "plausibility_guard=false",
+        "--silhouette-resolutions", "64", "--silhouette-iterations", "3", "--out", str(tmp_path / "x")]))  # fmt: skip
+    cfg = job.silhouette_config
+    assert cfg.alternatives_margin == 0.0 and cfg.plausibility_guard is False
+    assert cfg.resolutions == (64,) and cfg.iterations == (3,) and cfg.alternatives_max == 2  # the rest: defaults
+    for bad, said in (("nope=1", "unknown silhouette-stage option 'nope'"), ("alternatives_margin=x", "alternatives_margin"),
+                      ("spp", "expected NAME=VALUE"), ("resolutions=64", "give --silhouette-resolutions instead")):  # fmt: skip
+        capsys.readouterr()
+        rc = main(image + ["--silhouette-option", bad, "--out", str(tmp_path / "bad")] + FAST)
+        err = capsys.readouterr().err.strip()
+        assert rc == 2 and err.count("\n") == 0 and said in err, err
+        assert not (tmp_path / "bad").exists()
+
+
 def test_keypoint_option_reaches_each_mode_and_a_bad_one_is_one_line(inputs, tmp_path, capsys):
     """``--keypoint-option NAME=VALUE`` (as fit-dataset's): an image's keypoint stage takes it over the default
     (with --hypotheses too), a video's per-frame start over the video's own settings (a float field the video

@@ -60,6 +60,19 @@ def test_keypoint_options_parse_by_the_field_and_optional_ones_take_none():
         keypoint_config({"final_iters": "none"})  # not optional
 
 
+def test_silhouette_options_reach_the_workers_stage():
+    """``FitOptions.silhouette_options`` (fit-dataset's ``--silhouette-option``): read by the field's type, beside the
+    levels; an unknown one is a ValueError naming the silhouette stage."""
+    from silfit.runner.worker import silhouette_config
+
+    cfg = silhouette_config(FitOptions(silhouette_options={"alternatives_margin": "0", "trim_clothing": "false",
+                                                           "edge_density": "none"}, silhouette_iterations=(4, 5)))  # fmt: skip
+    assert cfg.alternatives_margin == 0.0 and cfg.trim_clothing is False and cfg.edge_density is None
+    assert cfg.iterations == (4, 5)
+    with pytest.raises(ValueError, match="unknown silhouette-stage option 'nope'"):
+        silhouette_config(FitOptions(silhouette_options={"nope": "1"}))
+
+
 def test_keypoint_options_whose_default_is_none_parse_by_their_declared_type():
     """A field that defaults to None is read by its declared type (before: always as an integer, so a list of hand
     weights was refused); a video's base (final_tol_change None) does not change how a value is read."""
