@@ -151,8 +151,8 @@ def main() -> None:
                 rows.append(run(sub, root / "out_sil_b8_close", True, 8, False, " (alternatives_margin=0)"))
             print(rows[-1], flush=True)
         if args.main:
-            with stage_changes(**{**BEFORE_SAMPLING_PART, "edge_density": None}):
-                rows.append(run(sub, root / "out_sil_b8_main", True, 8, False, " (main: edge_density=None, spp=4)"))
+            with stage_changes(**{**BEFORE_SAMPLING_PART, "edge_density": None, "alternatives_margin": 0.0}):
+                rows.append(run(sub, root / "out_sil_b8_main", True, 8, False, " (main: edge_density=None, spp=4, alternatives_margin=0)"))
             print(rows[-1], flush=True)
         rows.append(run(sub, root / "out_sil_b8", True, 8, False))
         print(rows[-1], flush=True)

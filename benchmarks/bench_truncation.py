@@ -128,9 +128,10 @@ def conditions(d: Path):
 #: the silhouette stage before issue 23 (no truncation, no keypoint trust region, no bound on |beta|,
 #: the plain two-sided energy)
 ORIGINAL = dict(truncation_aware=False, w_trust=0.0, w_beta_bound=0.0, robust_cover=False, trim_clothing=False,
-                plausibility_guard=False, leak_distance=0.0, hole_fraction=0.0)
+                plausibility_guard=False, leak_distance=0.0, hole_fraction=0.0, alternatives_margin=0.0)
 #: before the clothing/leak-robust energy (issue 23's first part: truncation, trust region, beta bound)
-BEFORE = dict(robust_cover=False, trim_clothing=False, plausibility_guard=False, leak_distance=0.0, hole_fraction=0.0)
+BEFORE = dict(robust_cover=False, trim_clothing=False, plausibility_guard=False, leak_distance=0.0, hole_fraction=0.0,
+              alternatives_margin=0.0)
 #: main before the leak/hole handling (issue 23's third part): no unknown leaks or holes
 MAIN = dict(leak_distance=0.0, hole_fraction=0.0)
 #: the defaults before the detected-input change: the keypoint trust region at 3 % of the window
@@ -142,6 +143,7 @@ CONCAVEALL = dict(concave_trimmed_only=False)
 #: the defaults before the detected-input change: the silhouette stage's pose prior at 0.002
 WEAKPRIOR = dict(pose_weight=0.002)
 #: the defaults before issue 25's close-alternatives part: only the keypoint stage's branch refined against the mask
+#: (``original`` and ``before`` predate it too; the other methods are today's defaults with one change)
 CLOSEOFF = dict(alternatives_margin=0.0)
 METHODS = {"original": ORIGINAL, "before": BEFORE, "main": MAIN, "tight": TIGHT, "noconcave": NOCONCAVE,
            "concaveall": CONCAVEALL, "weakprior": WEAKPRIOR, "closeoff": CLOSEOFF, "after": {}}

@@ -209,16 +209,20 @@ def _offered_alternatives(keypoint_result: KeypointFitResult, config: Silhouette
 
 def _mask_choice_warning(hypotheses: bool, alternative: dict, c: int, choice: dict) -> str:
     """The warning of a fit whose depth branch the mask chose over the keypoint stage's: ``alternative`` (one of
-    ``--hypotheses K``'s, ``hypotheses``, as ``hypotheses/<c + 1>``, or one of the close alternatives)."""
+    ``--hypotheses K``'s, ``hypotheses``, as ``hypotheses/<c + 1>``, or one of the close alternatives, named by the
+    limbs it turns)."""
+    from .plausibility import _segments
+
     if hypotheses:
         which = f"hypothesis {c + 1} (hypotheses/{c + 1})"
         prefer = "preferred hypothesis 1"
     else:
-        turned = ", ".join(alternative.get("differs") or []) or alternative["label"]
-        which = f"the keypoint stage's alternative turning {turned} ({alternative['gap']:.1%} above its fit)"
+        turned = ", ".join(alternative.get("differs") or _segments(alternative["label"])) or "no limb by more than 45 deg"
+        which = (f"the keypoint stage's alternative turning {turned} (keypoint-stage energy {alternative['gap']:+.1%} "
+                 "against its fit)")
         prefer = "preferred its fit"
     return (f"depth branch chosen by the mask: {which}, refined against the mask, ends {choice['gap']:.1%} below the "
-            f"keypoint fit's energy; the keypoint stage {prefer}: check a side view")
+            f"keypoint fit's silhouette-stage energy; the keypoint stage {prefer}: check a side view")
 
 
 def refine(
@@ -250,11 +254,15 @@ def refine_batch(
 ) -> List[FitResult]:
     """The silhouette stage on a batch of keypoint results (sample ``i`` of
     ``keypoint_result`` with ``keypoints[i]`` and ``masks[i]``), all subjects refined
-    together (:func:`~silfit.fitting.silhouette_stage.fit_silhouettes`)."""
+    together (:func:`~silfit.fitting.silhouette_stage.fit_silhouettes`), each with the keypoint stage's
+    alternatives it offers (:func:`_offered_alternatives`: ``--hypotheses K``'s, else the close ones) as more
+    problems of the batch; per image the lowest final energy is kept (:func:`_choose_hypothesis`)."""
     n = len(keypoints)
     if len(keypoint_result) != n or len(masks) != n:
         raise ValueError(f"{len(keypoint_result)} keypoint results, {n} keypoint sets and {len(masks)} masks")
     mask_sources = list(mask_sources or ["mask"] * n)
+    config = config or SilhouetteFitConfig()
+    guarded = getattr(config, "plausibility_guard", True)
     faces = model.faces.cpu().numpy()
     masks = [np.asarray(m, dtype=bool) for m in masks]
     cameras = keypoint_result.cameras
@@ -269,17 +277,18 @@ def refine_batch(
                 f"{mask_sources[i]}: the mask does not overlap the body fitted to the keypoints at all "
                 "(wrong mask, or keypoints of another image?)"
             )
-    fit_masks, trim_notes, trimmed = _trimmed_masks(masks, kp_masks, config or SilhouetteFitConfig(), mask_sources)
-    known = _known_pixels(fit_masks, kp_masks, config or SilhouetteFitConfig(), mask_sources, trim_notes, trimmed)
+    fit_masks, trim_notes, trimmed = _trimmed_masks(masks, kp_masks, config, mask_sources)
+    known = _known_pixels(fit_masks, kp_masks, config, mask_sources, trim_notes, trimmed)
     inits = [keypoint_result.params(i) for i in range(n)]
     from .fitting.problem import Problem
     from .fitting.silhouette_stage import fit_silhouette_problems
     from .fitting.hands_face import silhouette_inputs
 
     # issue 25: --hypotheses K with a mask refines every alternative the keypoint stage offers, and without it the
-    # branches refined to the end within alternatives_margin of the fit's energy (those the depth warning would
-    # name), as more problems of this batch; the lowest final energy of the stage is kept (_choose_hypothesis)
-    offered = _offered_alternatives(keypoint_result, config or SilhouetteFitConfig())
+    # branches refined to the end within alternatives_margin of the fit's energy (the depth warning's margin; it also
+    # asks that they move a joint 400 mm), as more problems of this batch; the lowest final energy of the stage is
+    # kept (_choose_hypothesis)
+    offered = _offered_alternatives(keypoint_result, config)
     rows, candidates = list(range(n)), [[i] for i in range(n)]  # per row: its problems, the keypoint fit first
     for i, hyps in enumerate(offered):
         for h in hyps:
@@ -287,8 +296,7 @@ def refine_batch(
             rows.append(i)
             inits.append({k: np.asarray(v) for k, v in h["params"].items()})
     # the layout decides the terms (a whole-body mesh keeps its hand and face keypoints)
-    cfg, sets, terms, weights, data = silhouette_inputs(model, [keypoints[r] for r in rows], config or SilhouetteFitConfig(),
-                                                        model.dtype)  # fmt: skip
+    cfg, sets, terms, weights, data = silhouette_inputs(model, [keypoints[r] for r in rows], config, model.dtype)
     problems = [Problem.single(k, cameras[r], fit_masks[r], known[r]) for k, r in zip(sets, rows)]
     sils = fit_silhouette_problems(model, problems, inits, keypoints[0].layout, cfg, pose_prior, renderer, progress,
                                    terms=terms, weights=weights, data=data)  # fmt: skip
@@ -296,8 +304,10 @@ def refine_batch(
     for i in range(n):
         one = keypoint_result[i]
         c, choice = _choose_hypothesis(model, [sils[k] for k in candidates[i]], [inits[k] for k in candidates[i]],
-                                       keypoints[i], cameras[i], mask_sources[i],
-                                       getattr(config, "plausibility_guard", True))  # fmt: skip
+                                       keypoints[i], cameras[i], mask_sources[i], guarded)  # fmt: skip
+        if choice and keypoint_result.hypotheses is None:  # the close alternatives: which branches were refined
+            choice["alternatives"] = [{"label": a["label"], "differs": list(a.get("differs") or []), "gap": float(a["gap"]),
+                                       "max_shift_mm": a.get("max_shift_mm")} for a in offered[i]]  # fmt: skip
         sil, start = sils[candidates[i][c]], inits[candidates[i][c]]
         params = sil.params()
         vertices, joints, kp2d = _pose(model, params, keypoints[i].layout, cameras[i])
@@ -307,11 +317,11 @@ def refine_batch(
         # the plausibility guard (silfit.plausibility.silhouette_guard): a refined fit less plausible
         # than the keypoint fit is replaced by the keypoint fit, with a warning
         guard = _guard(model, start, params, keypoints[i], cameras[i], kp2d, mask_sources[i])
-        if guard.reverted and getattr(config, "plausibility_guard", True):
+        if guard.reverted and guarded:
             params = {k: np.asarray(v) for k, v in inits[i].items()}
             vertices, joints, kp2d = _pose(model, params, keypoints[i].layout, cameras[i])
             warnings += list(guard.warnings)
-        final_mask = kp_masks[i] if guard.reverted and getattr(config, "plausibility_guard", True) else \
+        final_mask = kp_masks[i] if guard.reverted and guarded else \
             body_mask(vertices, faces, cameras[i])  # fmt: skip
         iou_after = mask_iou(final_mask, masks[i])
         if iou_after < ious_before[i] - 0.02:
@@ -326,7 +336,7 @@ def refine_batch(
             "iou_keypoint_stage": ious_before[i],
             "iou": iou_after,
             "silhouette_steps": sil.steps,
-            "silhouette_guard": {"kept": guard.keep if getattr(config, "plausibility_guard", True) else "silhouette",
+            "silhouette_guard": {"kept": guard.keep if guarded else "silhouette",
                                  "less_plausible": list(guard.reasons)},
             "warnings": warnings,
             **({"hypotheses_silhouette": choice} if choice else {}),

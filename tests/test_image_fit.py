@@ -281,8 +281,10 @@ def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
     res = refine_batch(model, kp, sets, masks, progress=False)
     assert res[0].metrics["hypotheses_silhouette"]["kept"] == 2 and "hypotheses_silhouette" not in res[1].metrics
     assert res[0].params["body_pose"].reshape(-1)[0] == pytest.approx(0.01)
-    assert any(w.startswith("depth branch chosen by the mask: the keypoint stage's alternative turning left_shin (5.0% "
-                            "above its fit)") for w in res[0].metrics["warnings"])  # fmt: skip
+    assert any(w.startswith("depth branch chosen by the mask: the keypoint stage's alternative turning left_shin "
+                            "(keypoint-stage energy +5.0% against its fit)") for w in res[0].metrics["warnings"])  # fmt: skip
+    assert res[0].metrics["hypotheses_silhouette"]["alternatives"] == [
+        {"label": "left_shin", "differs": ["left_shin"], "gap": 0.05, "max_shift_mm": None}]
     assert not any("chosen by the mask" in w for w in res[1].metrics["warnings"])
 
 

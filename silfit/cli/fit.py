@@ -83,7 +83,8 @@ def register(subparsers) -> None:
                         "frame's start), e.g. init_poses=1 or pose_iters=10,10,10 (repeatable; as fit-dataset)")
     p.add_argument("--silhouette-option", action="append", default=[], metavar="NAME=VALUE",
                    help="override a SilhouetteFitConfig field of the silhouette stage, e.g. alternatives_margin=0 "
-                        "(refine the keypoint stage's branch only) or plausibility_guard=false (repeatable; as fit-dataset)")
+                        "(without --hypotheses: no close alternative refined against the mask) or plausibility_guard=false "
+                        "(repeatable; as fit-dataset)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bars")

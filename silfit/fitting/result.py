@@ -81,10 +81,11 @@ class KeypointFitResult:
     #: fit's) where fewer than K refined ones are distinct (:func:`~silfit.fitting.keypoint_stage.distinct_hypotheses`)
     hypotheses: Optional[list] = None
     #: per sample, the other distinct branches refined to the end (``branch_refine``), lowest score first, in
-    #: :attr:`hypotheses`' form plus ``gap``: their final energy's relative gap above the fit's; whatever
+    #: :attr:`hypotheses`' form plus ``gap``: their final energy's relative gap to the fit's (above it, unless the
+    #: occlusion cue, ``occlusion_weight``, chose the fit by more than its energy: then it can be negative); whatever
     #: ``hypotheses`` is. With a mask the close ones are refined against it too, and the mask may choose one
     #: (:func:`silfit.image_fit.refine_batch`, ``SilhouetteFitConfig.alternatives_margin``); ``None``: no branch
-    #: was refined (no search, rigs, videos)
+    #: was refined (no search, rigs, videos) or the result was read from a file (:meth:`load`)
     alternatives: Optional[list] = None
 
     def __len__(self) -> int:

@@ -159,12 +159,14 @@ class SilhouetteFitConfig:
     #: is replaced by the keypoint fit, with a warning (image path: silfit.image_fit.refine_batch)
     plausibility_guard: bool = True
     #: the keypoint stage's other distinct branches refined to the end (``KeypointFitResult.alternatives``) whose
-    #: final energy lies within this relative margin of the fit's (the depth warning's ``HYPOTHESIS_MARGIN``) are
-    #: refined against the mask too, at most ``alternatives_max`` per image, as more problems of the batch, and the
-    #: lowest final energy of the stage is kept (image path: silfit.image_fit.refine_batch, as with ``--hypotheses K``,
-    #: which refines its K hypotheses instead); 0: off, the keypoint stage's branch only (before issue 25's
-    #: close-alternatives part)
+    #: final energy lies within this relative margin of the fit's (the same 10 % as the depth warning's
+    #: ``silfit.plausibility.HYPOTHESIS_MARGIN``, which also asks that they move a joint 400 mm) are refined against
+    #: the mask too, as more problems of the batch, and the lowest final energy of the stage is kept (image path:
+    #: silfit.image_fit.refine_batch; ``--hypotheses K`` refines its K hypotheses instead, whatever this is); 0: off,
+    #: the keypoint stage's branch only (before issue 25's close-alternatives part; README "By default, the close
+    #: alternatives too")
     alternatives_margin: float = 0.1
+    #: at most this many close alternatives per image, the closest in energy first (each costs one more problem)
     alternatives_max: int = 2
     #: Adam's learning rates (body_pose 0.03 before issue 24's fourth part: the first steps of a rendered level
     #: knocked the contour level's IoU down)

@@ -66,16 +66,16 @@ def _declared_kind(hint, key: str, stage: str = "keypoint") -> tuple:
 
 
 def keypoint_config(options: Dict[str, object], base: Optional[KeypointFitConfig] = None) -> KeypointFitConfig:
-    """``base`` (default :class:`KeypointFitConfig()`) with ``options`` (field name -> value; strings are
-    parsed by the type of the field's default in :class:`KeypointFitConfig()`, whatever ``base`` holds (a
-    video's ``final_tol_change`` is ``None`` there, still a float), or by the field's declared type where
-    that default is ``None`` (``hand_weights``: comma-separated numbers); tuples comma-separated)."""
+    """``base`` (default :class:`KeypointFitConfig()`) with ``options`` (:func:`config_with`)."""
     return config_with(KeypointFitConfig, options, base, "keypoint")
 
 
 def config_with(cls, options: Dict[str, object], base=None, stage: str = "keypoint"):
-    """``base`` (default ``cls()``) with ``options`` as :func:`keypoint_config` reads them, for either stage's
-    settings (``cls``: :class:`KeypointFitConfig` or :class:`SilhouetteFitConfig`; ``stage`` names it in errors)."""
+    """``base`` (default ``cls()``: :class:`KeypointFitConfig` or :class:`SilhouetteFitConfig`; ``stage`` names it
+    in errors) with ``options`` (field name -> value; strings are parsed by the type of the field's default in
+    ``cls()``, whatever ``base`` holds (a video's ``final_tol_change`` is ``None`` there, still a float), or by the
+    field's declared type where that default is ``None`` (``hand_weights``: comma-separated numbers); tuples
+    comma-separated; ``none`` for an optional field; a mapping (``lr``) cannot be given as text)."""
     plain = cls()
     base = plain if base is None else base
     names = {f.name for f in fields(plain)} | set(getattr(cls, "renamed_fields", {}))  # old names too
@@ -89,6 +89,8 @@ def config_with(cls, options: Dict[str, object], base=None, stage: str = "keypoi
         if isinstance(value, str) and key in optional and value.lower() == "none":
             value = None
         elif isinstance(value, str):
+            if isinstance(default, dict):
+                raise ValueError(f"{stage}-stage option {key} cannot be given on the command line (a mapping)")
             declared = _declared_kind(hints.get(key), key, stage) if default is None else None  # e.g. Optional[Sequence[float]]
             expected = declared[2] if declared else f"a value like {default!r}"
             try:

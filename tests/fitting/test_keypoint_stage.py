@@ -548,8 +548,9 @@ def test_occlusion_cue_scores_the_hypotheses_when_on(body_model):
 def test_branch_refine_chooses_by_the_final_energy_never_above_the_search_choice(body_model):
     # branch_refine=3: the search's three best branches of each sample run to the end and the lowest
     # final energy is the fit. The search's own choice is among them and each row runs as it would
-    # alone, so the fit's final energy is at most the one-branch fit's; no alternatives are returned
-    # (that is hypotheses > 1), and the branch recorded is the one chosen at the end
+    # alone, so the fit's final energy is at most the one-branch fit's; no hypotheses are returned
+    # (that is hypotheses > 1) but the other refined branches are (alternatives), and the branch
+    # recorded is the one chosen at the end
     from silfit.fitting.branches import flip_segment
     from silfit.fitting.problem import Problem
     from silfit.fitting.stages import Stage
@@ -582,6 +583,7 @@ def test_branch_refine_chooses_by_the_final_energy_never_above_the_search_choice
     # the other refined branches, with their parameters and gaps above the fit's energy (KeypointFitResult.alternatives:
     # the silhouette stage refines the close ones against a mask), whatever hypotheses is; none with one branch
     (alternatives,) = out[3]["alternatives"]
+    assert len(alternatives) >= 1 and len(alternatives) == len(refined["tried"]) - 1
     assert [(a["label"], a["energy"]) for a in alternatives] == [(t["flip"], t["energy"]) for t in refined["tried"][1:]]
     assert all(a["refined"] and a["params"]["body_pose"].shape == (69,) for a in alternatives)
     assert [a["gap"] for a in alternatives] == pytest.approx([(e - finals[0]) / abs(finals[0]) for e in finals[1:]])

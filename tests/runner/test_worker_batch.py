@@ -71,6 +71,8 @@ def test_silhouette_options_reach_the_workers_stage():
     assert cfg.iterations == (4, 5)
     with pytest.raises(ValueError, match="unknown silhouette-stage option 'nope'"):
         silhouette_config(FitOptions(silhouette_options={"nope": "1"}))
+    with pytest.raises(ValueError, match="level_proxy_faces cannot be given on the command line"):
+        silhouette_config(FitOptions(silhouette_options={"level_proxy_faces": ""}))  # a mapping: not dict("")
 
 
 def test_keypoint_options_whose_default_is_none_parse_by_their_declared_type():
