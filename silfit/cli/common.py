@@ -2,7 +2,6 @@
 flags and writing an output folder that leaves nothing behind on failure."""
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 from . import CLIError
@@ -10,20 +9,16 @@ from . import CLIError
 
 def silhouette_config(args):
     """The silhouette stage's settings from ``--silhouette-resolutions`` / ``--silhouette-iterations`` and
-    ``--silhouette-option NAME=VALUE`` (:func:`silhouette_options`)."""
-    from ..fitting.silhouette_stage import SilhouetteFitConfig
-    from ..runner.worker import config_with
+    ``--silhouette-option NAME=VALUE`` (:func:`silhouette_options`), read as ``fit-dataset`` reads them
+    (:func:`silfit.runner.worker.silhouette_config`)."""
+    from ..runner.worker import FitOptions, silhouette_config as from_options
 
-    levels = {}
-    if args.silhouette_resolutions:
-        levels["resolutions"] = tuple(args.silhouette_resolutions)
-    if args.silhouette_iterations:
-        levels["iterations"] = tuple(args.silhouette_iterations)
+    options = FitOptions(silhouette_resolutions=args.silhouette_resolutions, silhouette_iterations=args.silhouette_iterations,
+                         silhouette_options=silhouette_options(args))  # fmt: skip
     try:
-        base = replace(SilhouetteFitConfig(), **levels)
-    except ValueError:
-        raise CLIError("--silhouette-resolutions and --silhouette-iterations need the same number of levels") from None
-    return config_with(SilhouetteFitConfig, silhouette_options(args), base, "silhouette")
+        return from_options(options)
+    except ValueError as err:
+        raise CLIError(str(err)) from None
 
 
 def keypoint_settings(args, base=None):
