@@ -267,10 +267,17 @@ def test_silhouette_option_reaches_the_stage_and_a_bad_one_is_one_line(inputs, t
     cfg = job.silhouette_config
     assert cfg.alternatives_margin == 0.0 and cfg.plausibility_guard is False
     assert cfg.resolutions == (64,) and cfg.iterations == (3,) and cfg.alternatives_max == 2  # the rest: defaults
-    for bad, said in (("nope=1", "unknown silhouette-stage option 'nope'"), ("alternatives_margin=x", "alternatives_margin"),
-                      ("spp", "expected NAME=VALUE"), ("resolutions=64", "give --silhouette-resolutions instead")):  # fmt: skip
+    _each_bad_option_is_one_line(image + FAST, "--silhouette-option", (
+        ("nope=1", "unknown silhouette-stage option 'nope'"), ("alternatives_margin=x", "alternatives_margin"),
+        ("spp", "expected NAME=VALUE"), ("resolutions=64", "give --silhouette-resolutions instead")), tmp_path, capsys)  # fmt: skip
+
+
+def _each_bad_option_is_one_line(command, flag, cases, tmp_path, capsys):
+    """Each ``(value, said)`` of ``cases`` given as ``flag value`` to ``command``: exit 2, one line holding ``said``,
+    no output folder."""
+    for bad, said in cases:
         capsys.readouterr()
-        rc = main(image + ["--silhouette-option", bad, "--out", str(tmp_path / "bad")] + FAST)
+        rc = main(command + [flag, bad, "--out", str(tmp_path / "bad")])
         err = capsys.readouterr().err.strip()
         assert rc == 2 and err.count("\n") == 0 and said in err, err
         assert not (tmp_path / "bad").exists()
@@ -307,10 +314,6 @@ def test_keypoint_option_reaches_each_mode_and_a_bad_one_is_one_line(inputs, tmp
     assert main(image + ["--no-silhouette", "--keypoint-option", "init_poses=1", "--keypoint-option", "final_iters=5",
                          "--out", str(out)] + FAST) == 0  # fmt: skip
     assert (out / "params.npz").is_file()
-    for bad, said in (("nope=1", "unknown keypoint-stage option 'nope'"), ("final_iters=x", "final_iters"),
-                      ("final_iters", "expected NAME=VALUE"), ("hypotheses=2", "give --hypotheses instead")):  # fmt: skip
-        capsys.readouterr()
-        rc = main(image + ["--keypoint-option", bad, "--out", str(tmp_path / "bad")] + FAST)
-        err = capsys.readouterr().err.strip()
-        assert rc == 2 and err.count("\n") == 0 and said in err, err
-        assert not (tmp_path / "bad").exists()
+    _each_bad_option_is_one_line(image + FAST, "--keypoint-option", (
+        ("nope=1", "unknown keypoint-stage option 'nope'"), ("final_iters=x", "final_iters"),
+        ("final_iters", "expected NAME=VALUE"), ("hypotheses=2", "give --hypotheses instead")), tmp_path, capsys)  # fmt: skip
