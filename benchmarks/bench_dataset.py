@@ -20,6 +20,12 @@ machine are noisy.
 
 ``--close``: also the local silhouette run before issue 25's close-alternatives part (``alternatives_margin=0``: the
 keypoint stage's branch only is refined against the mask).
+
+``--workers 2``: also the local runs in 2 worker processes (``silfit fit-dataset --workers 2``, one CPU each; the
+one-process rows are the code before). ``--twice``: every local row of the silhouette subset twice, in turn (the
+machine is noisy; ratios within one pass).
+
+    .venv/bin/python benchmarks/bench_dataset.py --n 24 --sil-subset 24 --silhouette-only --no-ray --workers 2 --twice
 """
 from __future__ import annotations
 
@@ -93,22 +99,22 @@ def stage_changes(**changes):
         worker.silhouette_config = original
 
 
-def run(data: Path, out: Path, silhouette: bool, batch: int, ray: bool, label: str = "") -> dict:
+def run(data: Path, out: Path, silhouette: bool, batch: int, ray: bool, label: str = "", workers: int = 1) -> dict:
     shutil.rmtree(out, ignore_errors=True)
     t0 = time.perf_counter()
     s = fit_dataset(data, out, people="all", options=FitOptions(silhouette=silhouette), batch_size=batch,
-                    ray=ray, actors=2, num_cpus=1, progress=False)  # fmt: skip
+                    ray=ray, actors=2, num_cpus=1, workers=workers, progress=False)  # fmt: skip
     wall = time.perf_counter() - t0
     ok = [r for r in s["records"] if r["status"] == "ok"]
     images = len({r["keypoints"] for r in s["records"]})
-    workers = 2 if ray else 1
+    workers = 2 if ray else workers
     t = lambda key: np.array([r["timings_s"].get(key, 0.0) for r in ok])  # noqa: E731
     fit = t("keypoints") + t("silhouette")
     io = t("load") + t("save")
     n = len(s["records"])
     other = (workers * wall - t("total").sum()) / n
     return {
-        "mode": ("Ray, 2 actors" if ray else "local, 1 process") + label, "batch": batch, "silhouette": silhouette,
+        "mode": ("Ray, 2 actors" if ray else f"local, {workers} process{'es' if workers > 1 else ''}") + label, "batch": batch, "silhouette": silhouette,
         "items": n, "images": images, "ok": len(ok), "failed": s["failed"], "wall": wall,
         "images_h": 3600 * images / wall, "items_h": 3600 * n / wall, "fit": float(np.median(fit)),
         "io": float(np.median(io)), "other": other,
@@ -130,6 +136,8 @@ def main() -> None:
                         help="also the local silhouette run with edge_density=None (the stage before issue 24's speed part)")
     parser.add_argument("--close", action="store_true",
                         help="also the local silhouette run with alternatives_margin=0 (before issue 25's close alternatives)")
+    parser.add_argument("--workers", type=int, default=1, help="also the local runs in this many worker processes")
+    parser.add_argument("--twice", action="store_true", help="the silhouette subset's local rows twice, in turn")
     args = parser.parse_args()
     root = Path(args.work or tempfile.mkdtemp(prefix="bench_dataset_"))
     root.mkdir(parents=True, exist_ok=True)
@@ -139,6 +147,9 @@ def main() -> None:
         for b in (int(v) for v in args.batches.split(",")):
             rows.append(run(data, root / f"out_kp_b{b}", False, b, False))
             print(rows[-1], flush=True)
+            if args.workers > 1 and b == 8:
+                rows.append(run(data, root / f"out_kp_b{b}_w{args.workers}", False, b, False, workers=args.workers))
+                print(rows[-1], flush=True)
         if not args.no_ray:
             rows.append(run(data, root / "out_kp_ray", False, 8, True))
             print(rows[-1], flush=True)
@@ -154,8 +165,12 @@ def main() -> None:
             with stage_changes(**{**BEFORE_SAMPLING_PART, "edge_density": None, "alternatives_margin": 0.0}):
                 rows.append(run(sub, root / "out_sil_b8_main", True, 8, False, " (main: edge_density=None, spp=4, alternatives_margin=0)"))
             print(rows[-1], flush=True)
-        rows.append(run(sub, root / "out_sil_b8", True, 8, False))
-        print(rows[-1], flush=True)
+        for _ in range(2 if args.twice else 1):
+            rows.append(run(sub, root / "out_sil_b8", True, 8, False))
+            print(rows[-1], flush=True)
+            if args.workers > 1:
+                rows.append(run(sub, root / f"out_sil_b8_w{args.workers}", True, 8, False, workers=args.workers))
+                print(rows[-1], flush=True)
         if not args.no_ray:
             rows.append(run(sub, root / "out_sil_ray", True, 8, True))
             print(rows[-1], flush=True)

@@ -50,6 +50,8 @@ def register(subparsers) -> None:
                    help="override a SilhouetteFitConfig field, e.g. alternatives_margin=0 (repeatable)")
     p.add_argument("--silhouette-resolutions", metavar="R1,R2", help="silhouette window sizes per level (default 128,256)")
     p.add_argument("--silhouette-iterations", metavar="N1,N2", help="silhouette rendered steps per level (default 40,25, after the contour level)")
+    p.add_argument("--workers", default="1", metavar="N|auto",
+                   help="local worker processes, one CPU each, the same fits as one (default 1; auto: one per CPU)")
     p.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
                    help="run on Ray: no ADDRESS starts a local Ray, else join that cluster (e.g. auto, ray://head:10001)")
     p.add_argument("--actors", type=int, default=2, help="Ray: fitting actors (default 2)")
@@ -75,6 +77,18 @@ def _ints(text, option):
     return values
 
 
+def _workers(text: str):
+    if text == "auto":
+        return text
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise CLIError(f"--workers {text!r}: expected a positive number of processes or auto")
+    return value
+
+
 def run(args) -> int:
     from ..runner import FitOptions, InputError, fit_dataset
     from ..runner.items import parse_people
@@ -82,6 +96,9 @@ def run(args) -> int:
 
     if args.batch_size < 1:
         raise CLIError(f"--batch-size {args.batch_size}: expected 1 or more")
+    workers = _workers(args.workers)
+    if args.ray is not None and workers != 1:
+        raise CLIError("--workers runs local processes; a Ray run has --actors")
     if args.ray is None and (args.actors != 2 or args.num_cpus != 1.0 or args.num_gpus != 0.0):
         raise CLIError("--actors, --num-cpus and --num-gpus are Ray options: add --ray")
     try:
@@ -104,7 +121,7 @@ def run(args) -> int:
     try:
         summary = fit_dataset(
             args.input, args.out, people=people, masks=args.masks, images=args.images, camera=args.camera,
-            options=options, batch_size=args.batch_size, retry_failed=args.retry_failed,
+            options=options, batch_size=args.batch_size, retry_failed=args.retry_failed, workers=workers,
             ray=args.ray is not None, ray_address=args.ray or None, actors=args.actors,
             num_cpus=args.num_cpus, num_gpus=args.num_gpus, progress=not args.quiet,
         )  # fmt: skip

@@ -1,6 +1,6 @@
 """Fitting whole datasets (``silfit fit-dataset``): inputs (:mod:`.items`), the output folder
-and resuming (:mod:`.store`), the per-process fitter (:mod:`.worker`), local and Ray
-execution (:mod:`.run`, :mod:`.ray_backend`) and the end-of-run summary (:mod:`.summary`).
+and resuming (:mod:`.store`), the per-process fitter (:mod:`.worker`), local (one process or
+several) and Ray execution (:mod:`.run`, :mod:`.ray_backend`) and the end-of-run summary (:mod:`.summary`).
 :func:`fit_dataset` ties them together."""
 from __future__ import annotations
 
@@ -27,6 +27,7 @@ def fit_dataset(
     options: Optional[FitOptions] = None,
     batch_size: int = 8,
     retry_failed: bool = False,
+    workers: Union[int, str] = 1,
     ray: bool = False,
     ray_address: Optional[str] = None,
     actors: int = 2,
@@ -35,12 +36,22 @@ def fit_dataset(
     progress: bool = True,
 ) -> dict:
     """Fit every (image, person) of ``input`` into ``out`` (resuming a previous run there);
-    returns the summary (see :func:`silfit.runner.summary.summarise`) with ``records``."""
-    from .run import run_local
+    returns the summary (see :func:`silfit.runner.summary.summarise`) with ``records``.
+
+    ``workers``: local worker processes (one CPU each; ``"auto"``: one per CPU this process may use), the
+    same fits bit for bit as one (:func:`silfit.runner.run.run_pool`); 1 fits in this process. With
+    ``ray``, ``actors`` plays that part."""
+    from .run import available_cpus, run_local, run_pool
     from .summary import plot_summary, summarise, summary_table
 
     if Path(out).exists() and not Path(out).is_dir():
         raise InputError(f"{out}: output path exists and is not a folder")
+    if workers == "auto":
+        workers = available_cpus()
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise InputError(f"workers {workers!r}: expected a positive number of processes or 'auto'")
+    if ray and workers != 1:
+        raise InputError("workers: local worker processes; a Ray run has its actors (actors=)")
     items = list_items(input, people, masks=masks, images=images, camera=camera)
     options = options or FitOptions()
     from .worker import keypoint_config, silhouette_config
@@ -57,6 +68,8 @@ def fit_dataset(
         from .ray_backend import run_ray
 
         wall = run_ray(store, pending, options, batch_size, ray_address, actors, num_cpus, num_gpus, progress=progress)
+    elif workers > 1 and len(pending) > 1:
+        wall = run_pool(store, pending, options, batch_size, workers, progress=progress)
     else:
         wall = run_local(store, pending, options, batch_size, progress=progress, fitter=fitter)
     records = store.for_keys(keys)

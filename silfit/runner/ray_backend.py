@@ -22,9 +22,9 @@ from typing import List, Optional, Sequence
 import numpy as np
 
 from .items import Item
-from .run import drive
+from .run import drive, shared_batch_size
 from .store import RunStore
-from .worker import DatasetFitter, FitOptions
+from .worker import FitOptions, process_fitter
 
 __all__ = ["FitActor", "run_ray"]
 
@@ -33,12 +33,7 @@ class FitActor:
     """A Ray Data actor: builds the fitter once, then fits the batches it is given."""
 
     def __init__(self, options: dict, out: str, render_threads: int = 1):
-        import renderers.silhouette
-
-        # Dr.Jit's pool as large as the CPUs the actor reserved, not every core of the node (the fits are
-        # the same bits for any count: renderers.silhouette.SilhouetteRenderer)
-        renderers.silhouette.AUTO_THREADS = max(1, int(render_threads))
-        self.fitter = DatasetFitter(FitOptions(**options))
+        self.fitter = process_fitter(options, render_threads)  # Dr.Jit's pool as large as the CPUs reserved
         self.out = out
 
     def __call__(self, batch: dict) -> dict:
@@ -84,8 +79,7 @@ def run_ray(
         ctx = ray.data.DataContext.get_current()
         ctx.enable_progress_bars = False
         ctx.print_on_execution_start = False
-        # every actor gets work even when there are fewer than actors x batch_size items
-        batch_size = max(1, min(int(batch_size), -(-len(pending) // max(1, actors))))
+        batch_size = shared_batch_size(batch_size, len(pending), actors)
         rows = [{"item": json.dumps(it.to_dict())} for it in pending]
         ds = ray.data.from_items(rows, override_num_blocks=max(1, -(-len(rows) // batch_size)))
         fitted = ds.map_batches(

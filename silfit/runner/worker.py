@@ -253,6 +253,17 @@ class DatasetFitter:
         return rec
 
 
+def process_fitter(options: dict, render_threads: int = 1) -> DatasetFitter:
+    """The fitter of one worker process (a Ray actor, a local ``--workers`` process): Dr.Jit's pool as large as
+    the CPUs the worker has (``render_threads``), not every core of the machine (the fits are the same bits for any
+    count: :class:`renderers.silhouette.SilhouetteRenderer`), then :class:`DatasetFitter` from ``options``
+    (:meth:`FitOptions.to_dict`)."""
+    import renderers.silhouette
+
+    renderers.silhouette.AUTO_THREADS = max(1, int(render_threads))
+    return DatasetFitter(FitOptions(**options))
+
+
 def _round(v: float) -> float:
     return float(np.round(float(v), 6))
 

@@ -106,6 +106,11 @@ def test_bad_command_is_one_line_exit_2(tmp_path, capsys):
     (tmp_path / "file").write_text("x")
     assert main(["fit-dataset", str(SYNTHETIC), "--out", str(tmp_path / "file")]) == 2
     assert "exists and is not a folder" in capsys.readouterr().err
+    for value, extra in (("0", []), ("two", []), ("2", ["--ray"])):  # local processes: a count, or auto; not with Ray
+        assert main(["fit-dataset", str(SYNTHETIC), "--out", str(tmp_path / "o"), "--workers", value, *extra]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "--workers" in err, err
+        assert not (tmp_path / "o").exists()
     # a model or pose prior that cannot be read is refused before anything is written (results.jsonl was left)
     for flag in ("--model", "--pose-prior"):
         assert main(["fit-dataset", str(SYNTHETIC), "--out", str(tmp_path / "o"), flag, "EVIL"]) == 2
@@ -146,6 +151,27 @@ def test_sigkill_mid_run_then_restart_finishes_each_item_once(tmp_path):
     assert not [p.name for p in out.iterdir() if p.name.startswith(".")]  # no partial folder left
     for key in records:
         KeypointFitResult.load(out / key)
+
+
+def test_worker_processes_match_one_process(tmp_path):
+    """``--workers 2``: two spawned processes (one torch and one Dr.Jit thread each) fit the same bits as this
+    process does alone (its Dr.Jit pool as large as the machine), silhouettes included; each item recorded
+    once, and nothing is left behind but the items' folders."""
+    names = [f"subject_{i:03d}" for i in range(4)]
+    data = synthetic_copy(tmp_path / "data", names)
+    common = [str(data), "--silhouette-iterations", "3,3", "--batch-size", "4", "--no-report", "--quiet", *FAST]
+    assert main(["fit-dataset", "--out", str(tmp_path / "one"), *common]) == 0
+    assert main(["fit-dataset", "--out", str(tmp_path / "two"), "--workers", "2", *common]) == 0
+    one, two = _by_item(tmp_path / "one"), _by_item(tmp_path / "two")
+    assert sorted(one) == sorted(two) == names
+    assert {r["keypoint_batch_size"] for r in two.values()} == {2}  # batches cut so both processes get work
+    assert all(r["silhouette_stage"] == "fitted" for r in two.values())
+    for key in names:
+        assert one[key]["iou"] == two[key]["iou"], key
+        pa, pb = (KeypointFitResult.load(tmp_path / d / key) for d in ("one", "two"))
+        for name in ("betas", "body_pose", "global_orient", "transl", "vertices"):
+            np.testing.assert_array_equal(getattr(pa, name), getattr(pb, name), err_msg=f"{key} {name}")
+    assert sorted(p.name for p in (tmp_path / "two").iterdir() if p.is_dir()) == names
 
 
 def test_ray_run_matches_local_run(tmp_path):
