@@ -125,11 +125,27 @@ def _cli(*args):
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)  # fmt: skip
 
 
-def test_sigkill_mid_run_then_restart_finishes_each_item_once(tmp_path):
+def _children(pid: int) -> list:
+    try:
+        return [int(p) for p in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except OSError:
+        return []
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_sigkill_mid_run_then_restart_finishes_each_item_once(tmp_path, workers):
+    """Also with ``--workers 2``: the worker processes die with the driver (none left writing into OUT)."""
     names = [f"subject_{i:03d}" for i in range(5)]
     data, out = synthetic_copy(tmp_path / "data", names), tmp_path / "out"
     args = [str(data), "--out", str(out), "--no-silhouette", "--batch-size", "1", "--quiet", *FAST,
-            "--keypoint-option", "pose_iters=25,25,25"]  # fmt: skip
+            "--keypoint-option", "pose_iters=25,25,25", "--workers", workers]  # fmt: skip
     proc = _cli(*args)
     deadline = time.time() + 600  # the loop ends once two items are done; the CPU may be shared with other test workers
     while time.time() < deadline and proc.poll() is None:
@@ -138,8 +154,14 @@ def test_sigkill_mid_run_then_restart_finishes_each_item_once(tmp_path):
             break
         time.sleep(0.05)
     assert proc.poll() is None, "the run ended before it could be killed"
+    children = _children(proc.pid)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
+    deadline = time.time() + 30
+    while time.time() < deadline and any(_alive(c) for c in children):
+        time.sleep(0.1)
+    assert workers == "1" or len(children) >= 2
+    assert not [c for c in children if _alive(c)], "worker processes outlived the killed driver"
     killed_at = len(read_jsonl(out / "results.jsonl"))
     assert 2 <= killed_at < len(names)
     proc = _cli(*args)
