@@ -22,7 +22,8 @@ machine are noisy.
 keypoint stage's branch only is refined against the mask).
 
 ``--workers 2``: also the local runs in 2 worker processes (``silfit fit-dataset --workers 2``, one CPU each; the
-one-process rows are the code before). ``--twice``: every local row of the silhouette subset twice, in turn (the
+one-process rows are the code before); ``--uneven``: also with the batches cut as before they were shared evenly
+(at most ``batch`` items, as many as fill it: 28 items for 2 workers in batches of 8, 8, 8 and 4). ``--twice``: every local row of the silhouette subset twice, in turn (the
 machine is noisy; ratios within one pass).
 
     .venv/bin/python benchmarks/bench_dataset.py --n 24 --sil-subset 24 --silhouette-only --no-ray --workers 2 --twice
@@ -86,6 +87,19 @@ def subset(data: Path, root: Path, k: int) -> Path:
 
 
 @contextlib.contextmanager
+def uneven_batches():
+    """The pool's batches cut as before :func:`silfit.runner.run.shared_batches` shared them evenly."""
+    from silfit.runner import run as runmod
+
+    original = runmod.shared_batches
+    runmod.shared_batches = lambda items, batch, workers: runmod.batches(items, max(1, min(int(batch), -(-len(items) // max(1, int(workers))))))
+    try:
+        yield
+    finally:
+        runmod.shared_batches = original
+
+
+@contextlib.contextmanager
 def stage_changes(**changes):
     """The silhouette stage's settings with ``changes`` in this process (local runs only: Ray
     actors build their own)."""
@@ -138,6 +152,7 @@ def main() -> None:
                         help="also the local silhouette run with alternatives_margin=0 (before issue 25's close alternatives)")
     parser.add_argument("--workers", type=int, default=1, help="also the local runs in this many worker processes")
     parser.add_argument("--twice", action="store_true", help="the silhouette subset's local rows twice, in turn")
+    parser.add_argument("--uneven", action="store_true", help="with --workers: also the batches cut as before")
     args = parser.parse_args()
     root = Path(args.work or tempfile.mkdtemp(prefix="bench_dataset_"))
     root.mkdir(parents=True, exist_ok=True)
@@ -168,6 +183,11 @@ def main() -> None:
         for _ in range(2 if args.twice else 1):
             rows.append(run(sub, root / "out_sil_b8", True, 8, False))
             print(rows[-1], flush=True)
+            if args.workers > 1 and args.uneven:
+                with uneven_batches():
+                    rows.append(run(sub, root / f"out_sil_b8_w{args.workers}_uneven", True, 8, False, " (batches as before)",
+                                    workers=args.workers))  # fmt: skip
+                print(rows[-1], flush=True)
             if args.workers > 1:
                 rows.append(run(sub, root / f"out_sil_b8_w{args.workers}", True, 8, False, workers=args.workers))
                 print(rows[-1], flush=True)

@@ -63,8 +63,9 @@ from silfit.camera import Camera
 from ._llvm import import_mitsuba
 
 #: Dr.Jit's thread count for ray-cast renderers made with ``threads="auto"`` (``None``: leave the pool as the
-#: process has it, by default one thread per core); a Ray actor that reserves ``num_cpus`` CPUs sets it to that
-#: (:class:`silfit.runner.ray_backend.FitActor`), so actors sharing a node do not each run a pool of every core
+#: process has it, by default one thread per core); a Ray actor that reserves ``num_cpus`` CPUs sets it to that, and
+#: a ``fit-dataset --workers`` process to 1 (:func:`silfit.runner.worker.process_fitter`), so workers sharing a
+#: machine do not each run a pool of every core
 AUTO_THREADS: Optional[int] = None
 
 __all__ = [
@@ -348,7 +349,7 @@ class SilhouetteRenderer:
 
     ``threads``: Dr.Jit's thread-pool size, set before each render (``None``: leave it
     alone). The pool is process-wide and stays so. ``"auto"`` (the default) is
-    :data:`AUTO_THREADS` (``None`` unless a Ray actor set it) for the ray-cast method, which
+    :data:`AUTO_THREADS` (``None`` unless a Ray actor or a ``--workers`` process set it) for the ray-cast method, which
     gives bit-identical silhouettes, gradients and fits for any thread count (tested per
     render and per silhouette-stage fit), and ``1`` for
     ``"projective"``: there one thread keeps the backward pass's scatter-adds in a fixed

@@ -46,12 +46,12 @@ def fit_dataset(
 
     if Path(out).exists() and not Path(out).is_dir():
         raise InputError(f"{out}: output path exists and is not a folder")
+    if ray and workers != 1:
+        raise InputError(f"workers {workers!r}: local worker processes; a Ray run has its actors (actors=)")
     if workers == "auto":
         workers = available_cpus()
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise InputError(f"workers {workers!r}: expected a positive number of processes or 'auto'")
-    if ray and workers != 1:
-        raise InputError("workers: local worker processes; a Ray run has its actors (actors=)")
     items = list_items(input, people, masks=masks, images=images, camera=camera)
     options = options or FitOptions()
     from .worker import keypoint_config, silhouette_config
@@ -69,6 +69,7 @@ def fit_dataset(
 
         wall = run_ray(store, pending, options, batch_size, ray_address, actors, num_cpus, num_gpus, progress=progress)
     elif workers > 1 and len(pending) > 1:
+        del fitter  # each worker builds its own: this process need not hold one too
         wall = run_pool(store, pending, options, batch_size, workers, progress=progress)
     else:
         wall = run_local(store, pending, options, batch_size, progress=progress, fitter=fitter)

@@ -12,7 +12,7 @@ from .items import Item
 from .store import RunStore
 from .worker import DatasetFitter, FitOptions
 
-__all__ = ["available_cpus", "batches", "run_local", "run_pool", "progress_bar", "shared_batch_size"]
+__all__ = ["available_cpus", "batches", "run_local", "run_pool", "progress_bar", "shared_batch_size", "shared_batches", "WorkerDied"]
 
 
 def batches(items: Sequence[Item], size: int) -> List[List[Item]]:
@@ -21,9 +21,8 @@ def batches(items: Sequence[Item], size: int) -> List[List[Item]]:
 
 
 def shared_batch_size(batch_size: int, pending: int, workers: int) -> int:
-    """``batch_size``, cut so that every one of ``workers`` gets work when there are fewer than
-    ``workers x batch_size`` pending items (a fit does not depend on its batch: the same bits)."""
-    return max(1, min(int(batch_size), -(-int(pending) // max(1, int(workers)))))
+    """The largest batch of :func:`shared_batches` (Ray Data cuts its blocks into batches of one size)."""
+    return max(1, max((len(b) for b in shared_batches(range(int(pending)), batch_size, workers)), default=1))
 
 
 def available_cpus() -> int:
@@ -73,72 +72,127 @@ def run_local(store: RunStore, pending: Sequence[Item], options: FitOptions, bat
 
 
 # ---------------------------------------------------------------------------------------------- worker processes
-_PROCESS: dict = {}  # in a worker process: its fitter and the output folder
+_PROCESS: dict = {}  # in a worker process: its fitter and the output folder, or why it could not start
 
 
 def _die_with_parent(parent: int) -> None:
-    """Ask Linux to kill this worker when the driver dies (even by SIGKILL), so no orphan writes into ``OUT``
-    while a restarted run fits the same items; where that cannot be asked, a worker finds its driver gone at
-    its next batch (the pool's queue closes)."""
-    try:
-        import ctypes
-        import signal
+    """End this worker when the driver dies, even by SIGKILL, so none goes on writing into ``OUT`` while a
+    restarted run fits the same items: on Linux the kernel kills it (``PR_SET_PDEATHSIG``); everywhere, a
+    thread checks once a second whether the driver is still its parent."""
+    import signal
+    import sys
+    import threading
 
-        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
-    except (AttributeError, OSError):
-        return
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
+        except Exception:  # noqa: BLE001 - the watch below still ends it
+            pass
+
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
     if os.getppid() != parent:  # the driver died before the request took hold
         os._exit(1)
+    threading.Thread(target=watch, name="silfit-driver-watch", daemon=True).start()
 
 
 def _start_process(options: dict, out: str, parent: int) -> None:
-    _die_with_parent(parent)
-    from .worker import process_fitter
+    import signal
 
-    _PROCESS["fitter"], _PROCESS["out"] = process_fitter(options, render_threads=1), out
+    _die_with_parent(parent)
+    # Ctrl-C reaches the whole process group: the driver alone handles it (it stops the workers)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        from .worker import process_fitter
+
+        _PROCESS["fitter"], _PROCESS["out"] = process_fitter(options, render_threads=1), out
+    except Exception as err:  # noqa: BLE001 - reported with the first batch, as the driver's own error
+        _PROCESS["error"] = " ".join(f"{type(err).__name__}: {err}".split())
 
 
 def _fit_in_process(items: List[dict]) -> List[dict]:
+    if "error" in _PROCESS:
+        raise WorkerDied(f"a fit-dataset worker process could not start: {_PROCESS['error']}")
     return _PROCESS["fitter"].run_batch([Item.from_dict(d) for d in items], _PROCESS["out"])
 
 
-class WorkerDied(RuntimeError):
-    """A worker process ended without its results (killed, out of memory)."""
+class WorkerDied(ChildProcessError):
+    """A worker process could not start, or ended without its results (killed, out of memory). An
+    ``OSError``: the command line prints it as one line and exits with status 2."""
+
+
+def shared_batches(items: Sequence[Item], batch_size: int, workers: int) -> List[List[Item]]:
+    """``items`` in batches of at most ``batch_size`` that ``workers`` share evenly: their count a multiple
+    of ``workers`` (or one item each where there are fewer items), their sizes differing by one at most (28
+    items, batches of 8, 2 workers: 4 batches of 7, not 8, 8, 8 and 4, which left one worker idle for the last
+    4 items). A fit does not depend on its batch: the same bits."""
+    n, workers = len(items), max(1, int(workers))
+    if workers == 1 or not n:
+        return batches(items, batch_size)
+    count = -(-n // max(1, int(batch_size)))
+    count = min(n, -(-count // workers) * workers)
+    base, extra = divmod(n, count)
+    cuts = [0]
+    for k in range(count):
+        cuts.append(cuts[-1] + base + (1 if k < extra else 0))
+    return [list(items[a:b]) for a, b in zip(cuts[:-1], cuts[1:])]
 
 
 def run_pool(store: RunStore, pending: Sequence[Item], options: FitOptions, batch_size: int, workers: int,
              progress: bool = True) -> float:  # fmt: skip
     """Fit ``pending`` in ``workers`` processes of this machine, each one CPU's worth, as Ray's one-CPU actors:
-    one torch thread and one Dr.Jit thread, the fitter built once per process, ``batch_size`` items per
-    batch (fewer so every process gets work: :func:`shared_batch_size`). Each process writes its items'
-    folders (atomically: :func:`silfit.outfolder.atomic_folder`) and returns the records; the driver records them as
-    batches finish (any order), so resuming works as for one process. The fits are the same bits as
-    :func:`run_local`'s (``tests/cli/test_fit_dataset.py``). Processes are started fresh (``spawn``), so a
-    script calling this needs the usual ``if __name__ == "__main__":`` guard."""
+    one torch thread and one Dr.Jit thread, the fitter built once per process, at most ``batch_size`` items per
+    batch (:func:`shared_batches`). Each process writes its items' folders (atomically:
+    :func:`silfit.outfolder.atomic_folder`) and returns the records; the driver records them as batches finish
+    (any order), so resuming works as for one process. The fits are the same bits as :func:`run_local`'s
+    (``tests/cli/test_fit_dataset.py``). On an error or an interrupt the batches already finished are recorded
+    and the workers are stopped at once (a folder being written is left as a temporary one, which the next run
+    removes). Processes are started fresh (``spawn``), so a script calling this needs the usual
+    ``if __name__ == "__main__":`` guard."""
     if not pending:
         return 0.0
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
     from concurrent.futures.process import BrokenProcessPool
 
-    workers = max(1, min(int(workers), len(pending)))
-    size = shared_batch_size(batch_size, len(pending), workers)
-    parts = batches(pending, size)
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(parts)), mp_context=multiprocessing.get_context("spawn"),
+    parts = shared_batches(pending, batch_size, min(int(workers), len(pending)))
+    pool = ProcessPoolExecutor(max_workers=max(1, min(int(workers), len(parts))), mp_context=multiprocessing.get_context("spawn"),
                                initializer=_start_process, initargs=(options.to_dict(), os.fspath(store.out.resolve()), os.getpid()))  # fmt: skip
+    futures = [pool.submit(_fit_in_process, [it.to_dict() for it in part]) for part in parts]
+    recorded: set = set()
 
     def finished():
-        waiting = {pool.submit(_fit_in_process, [it.to_dict() for it in part]) for part in parts}
+        waiting = set(futures)
         while waiting:
             done, waiting = wait(waiting, return_when=FIRST_COMPLETED)
-            for future in done:
-                try:
+            failed = [f for f in done if f.exception() is not None]
+            for future in done:  # the batches that did finish first, so none is fitted again
+                if future.exception() is None:
+                    recorded.add(future)
                     yield future.result()
-                except BrokenProcessPool:
+            for future in failed:
+                err = future.exception()
+                if isinstance(err, BrokenProcessPool):
                     raise WorkerDied("a fit-dataset worker process ended without its results (killed, or out of memory?); "
                                      "the items recorded so far are kept: run the same command again to fit the rest") from None  # fmt: skip
+                raise err
 
+    clean = False
     try:
-        return drive(store, finished(), len(pending), progress)
+        wall = drive(store, finished(), len(pending), progress)
+        clean = True
+        return wall
     finally:
+        if not clean:
+            late = [f.result() for f in futures if f not in recorded and f.done() and not f.cancelled() and f.exception() is None]
+            for records in late:  # finished while the driver stopped: recorded, not fitted again
+                store.add(records)
+            for process in list((getattr(pool, "_processes", None) or {}).values()):
+                process.kill()
+        # waiting for killed workers is short; not waiting left the pool's thread to a closed pipe at exit
         pool.shutdown(wait=True, cancel_futures=True)

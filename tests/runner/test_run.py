@@ -1,0 +1,28 @@
+"""``silfit.runner.run``: how pending items are cut into batches that several workers share."""
+import pytest
+
+from silfit.runner.run import shared_batch_size, shared_batches
+
+CASES = [(8, 28, 2), (8, 30, 2), (8, 24, 2), (1, 5, 2), (4, 4, 2), (8, 3, 2), (8, 100, 1), (32, 100, 4), (8, 1, 2),
+         (3, 50, 16), (8, 13, 6), (8, 5, 4), (2, 7, 3)]  # fmt: skip
+
+
+@pytest.mark.parametrize("batch, pending, workers", CASES)
+def test_batches_are_shared_evenly_and_never_larger_than_asked(batch, pending, workers):
+    parts = shared_batches(list(range(pending)), batch, workers)
+    sizes = [len(p) for p in parts]
+    assert [i for p in parts for i in p] == list(range(pending))  # every item once, in order
+    assert 1 <= min(sizes) and max(sizes) <= batch
+    if workers == 1:
+        assert sizes[:-1] == [batch] * (len(sizes) - 1)  # one worker: the size asked
+        return
+    assert max(sizes) - min(sizes) <= 1
+    # every worker gets work: a multiple of the workers, or one item per batch where the items are too few for that
+    assert len(parts) % workers == 0 or len(parts) == pending
+    assert len(parts) >= min(workers, pending)
+    assert shared_batch_size(batch, pending, workers) == max(sizes)
+
+
+def test_twenty_eight_items_in_batches_of_eight_for_two_workers_are_four_of_seven():
+    assert [len(p) for p in shared_batches(list(range(28)), 8, 2)] == [7, 7, 7, 7]  # not 8, 8, 8 and 4
+    assert [len(p) for p in shared_batches(list(range(13)), 8, 6)] == [3, 2, 2, 2, 2, 2]  # six batches for six
