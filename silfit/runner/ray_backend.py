@@ -1,8 +1,8 @@
 """``silfit fit-dataset --ray``: the same job on a Ray cluster with Ray Data.
 
 The pending items become a dataset (one JSON row each); ``map_batches`` sends batches of at
-most ``batch_size`` items (cut so the actors share them evenly:
-:func:`silfit.runner.run.shared_batch_size`) to a fixed pool of actors (:class:`FitActor`), each holding a
+most ``batch_size`` items (the largest size of the batches the actors would share evenly,
+:func:`silfit.runner.run.shared_batch_size`; Ray Data cuts its blocks to one size) to a fixed pool of actors (:class:`FitActor`), each holding a
 :class:`~silfit.runner.worker.DatasetFitter` (model, prior, keypoint fitter, renderer built
 once per actor) with ``num_cpus`` / ``num_gpus`` reserved per actor. Each actor writes its
 items' folders under ``OUT`` itself (atomically, so ``OUT`` must be a path every node sees

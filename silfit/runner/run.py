@@ -4,6 +4,7 @@ local worker processes (:func:`run_pool`, ``--workers``) or on a Ray cluster
 (:class:`silfit.runner.store.RunStore`) and shows a progress bar."""
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from typing import Callable, Iterable, List, Optional, Sequence
@@ -26,11 +27,19 @@ def shared_batch_size(batch_size: int, pending: int, workers: int) -> int:
 
 
 def available_cpus() -> int:
-    """The CPUs this process may run on (its affinity where the system says, else the machine's)."""
+    """The CPUs this process may run on: its affinity where the system says (else the machine's), at most
+    its cgroup's CPU quota (a container's ``--cpus``) where one is set."""
     try:
-        return max(1, len(os.sched_getaffinity(0)))
+        cpus = max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):
-        return max(1, os.cpu_count() or 1)
+        cpus = max(1, os.cpu_count() or 1)
+    try:  # cgroup v2: "<quota> <period>" or "max <period>"
+        quota, period = open("/sys/fs/cgroup/cpu.max").read().split()[:2]
+        if quota != "max":
+            cpus = min(cpus, max(1, -(-int(quota) // int(period))))
+    except (OSError, ValueError):
+        pass
+    return cpus
 
 
 def progress_bar(total: int, enabled: bool):
@@ -78,7 +87,8 @@ _PROCESS: dict = {}  # in a worker process: its fitter and the output folder, or
 def _die_with_parent(parent: int) -> None:
     """End this worker when the driver dies, even by SIGKILL, so none goes on writing into ``OUT`` while a
     restarted run fits the same items: on Linux the kernel kills it (``PR_SET_PDEATHSIG``); everywhere, a
-    thread checks once a second whether the driver is still its parent."""
+    thread waits on the driver (multiprocessing's parent sentinel) and ends the process when it is gone."""
+    import multiprocessing
     import signal
     import sys
     import threading
@@ -90,14 +100,18 @@ def _die_with_parent(parent: int) -> None:
             ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
         except Exception:  # noqa: BLE001 - the watch below still ends it
             pass
-
-    def watch():
-        while os.getppid() == parent:
-            time.sleep(1.0)
-        os._exit(1)
-
     if os.getppid() != parent:  # the driver died before the request took hold
         os._exit(1)
+    driver = multiprocessing.parent_process()
+
+    def watch():
+        if driver is not None:
+            driver.join()
+        else:  # not started by multiprocessing's spawn: the parent's id changes when it dies (POSIX)
+            while os.getppid() == parent:
+                time.sleep(1.0)
+        os._exit(1)
+
     threading.Thread(target=watch, name="silfit-driver-watch", daemon=True).start()
 
 
@@ -119,6 +133,22 @@ def _fit_in_process(items: List[dict]) -> List[dict]:
     if "error" in _PROCESS:
         raise WorkerDied(f"a fit-dataset worker process could not start: {_PROCESS['error']}")
     return _PROCESS["fitter"].run_batch([Item.from_dict(d) for d in items], _PROCESS["out"])
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """SIGINT ignored within the block (the main thread only; elsewhere nothing changes)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 class WorkerDied(ChildProcessError):
@@ -163,7 +193,8 @@ def run_pool(store: RunStore, pending: Sequence[Item], options: FitOptions, batc
     parts = shared_batches(pending, batch_size, min(int(workers), len(pending)))
     pool = ProcessPoolExecutor(max_workers=max(1, min(int(workers), len(parts))), mp_context=multiprocessing.get_context("spawn"),
                                initializer=_start_process, initargs=(options.to_dict(), os.fspath(store.out.resolve()), os.getpid()))  # fmt: skip
-    futures = [pool.submit(_fit_in_process, [it.to_dict() for it in part]) for part in parts]
+    with _sigint_ignored():  # the processes start in submit(): they begin with Ctrl-C ignored, as they keep it
+        futures = [pool.submit(_fit_in_process, [it.to_dict() for it in part]) for part in parts]
     recorded: set = set()
 
     def finished():
@@ -189,10 +220,12 @@ def run_pool(store: RunStore, pending: Sequence[Item], options: FitOptions, batc
         return wall
     finally:
         if not clean:
-            late = [f.result() for f in futures if f not in recorded and f.done() and not f.cancelled() and f.exception() is None]
-            for records in late:  # finished while the driver stopped: recorded, not fitted again
-                store.add(records)
             for process in list((getattr(pool, "_processes", None) or {}).values()):
                 process.kill()
-        # waiting for killed workers is short; not waiting left the pool's thread to a closed pipe at exit
+        # waiting for killed workers is short; not waiting left the pool's thread to a closed pipe at exit. The
+        # pool reads the results already sent before it finds its workers dead, so they are recorded below.
         pool.shutdown(wait=True, cancel_futures=True)
+        if not clean:
+            for f in futures:  # finished while the driver stopped: recorded, not fitted again
+                if f not in recorded and f.done() and not f.cancelled() and f.exception() is None:
+                    store.add(f.result())
