@@ -34,7 +34,8 @@ def available_cpus() -> int:
     except (AttributeError, OSError):
         cpus = max(1, os.cpu_count() or 1)
     try:  # cgroup v2: "<quota> <period>" or "max <period>"
-        quota, period = open("/sys/fs/cgroup/cpu.max").read().split()[:2]
+        with open("/sys/fs/cgroup/cpu.max") as f:
+            quota, period = f.read().split()[:2]
         if quota != "max":
             cpus = min(cpus, max(1, -(-int(quota) // int(period))))
     except (OSError, ValueError):
@@ -122,6 +123,13 @@ def _start_process(options: dict, out: str, parent: int) -> None:
     # Ctrl-C reaches the whole process group: the driver alone handles it (it stops the workers)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
+        import threading
+
+        from tqdm.std import tqdm
+
+        # the stages' (disabled) progress bars would take a multiprocessing lock, a named semaphore the driver's
+        # resource tracker then reports as leaked when the worker is killed; a worker's bars need a thread lock only
+        tqdm.set_lock(threading.RLock())
         from .worker import process_fitter
 
         _PROCESS["fitter"], _PROCESS["out"] = process_fitter(options, render_threads=1), out
@@ -137,7 +145,8 @@ def _fit_in_process(items: List[dict]) -> List[dict]:
 
 @contextlib.contextmanager
 def _sigint_ignored():
-    """SIGINT ignored within the block (the main thread only; elsewhere nothing changes)."""
+    """SIGINT ignored within the block (the main thread only; elsewhere nothing changes). The handler before
+    it comes back unless an interrupt ends the block: SIGTERM's handler set Ctrl-C aside for the cleanup."""
     import signal
     import threading
 
@@ -147,8 +156,12 @@ def _sigint_ignored():
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         yield
-    finally:
+    except KeyboardInterrupt:
+        raise
+    except BaseException:
         signal.signal(signal.SIGINT, previous)
+        raise
+    signal.signal(signal.SIGINT, previous)
 
 
 class WorkerDied(ChildProcessError):
@@ -193,8 +206,7 @@ def run_pool(store: RunStore, pending: Sequence[Item], options: FitOptions, batc
     parts = shared_batches(pending, batch_size, min(int(workers), len(pending)))
     pool = ProcessPoolExecutor(max_workers=max(1, min(int(workers), len(parts))), mp_context=multiprocessing.get_context("spawn"),
                                initializer=_start_process, initargs=(options.to_dict(), os.fspath(store.out.resolve()), os.getpid()))  # fmt: skip
-    with _sigint_ignored():  # the processes start in submit(): they begin with Ctrl-C ignored, as they keep it
-        futures = [pool.submit(_fit_in_process, [it.to_dict() for it in part]) for part in parts]
+    futures: list = []
     recorded: set = set()
 
     def finished():
@@ -214,7 +226,9 @@ def run_pool(store: RunStore, pending: Sequence[Item], options: FitOptions, batc
                 raise err
 
     clean = False
-    try:
+    try:  # the processes start in submit(): they begin with Ctrl-C ignored, as they keep it
+        with _sigint_ignored():
+            futures.extend(pool.submit(_fit_in_process, [it.to_dict() for it in part]) for part in parts)
         wall = drive(store, finished(), len(pending), progress)
         clean = True
         return wall

@@ -297,12 +297,12 @@ def test_auto_threads_leave_the_pool_to_the_process_or_a_ray_actor(capsule, monk
     """``threads="auto"``: the ray-cast method takes ``AUTO_THREADS`` (``None``: Dr.Jit's pool as it is;
     a Ray actor sets the CPUs it reserved), the projective method one thread."""
     import renderers.silhouette as rs
-    from silfit.runner import ray_backend
+    from silfit.runner import ray_backend, worker
 
     f = capsule[1]
     assert SilhouetteRenderer(f).threads is None and SilhouetteRenderer(f, method="projective").threads == 1
-    monkeypatch.setattr(ray_backend, "DatasetFitter", lambda options: None)
-    monkeypatch.setattr(ray_backend, "FitOptions", lambda **options: options)
+    monkeypatch.setattr(worker, "DatasetFitter", lambda options: None)
+    monkeypatch.setattr(worker, "FitOptions", lambda **options: options)
     monkeypatch.setattr(rs, "AUTO_THREADS", None)
     ray_backend.FitActor({}, "out", render_threads=3)
     assert rs.AUTO_THREADS == 3 and SilhouetteRenderer(f).threads == 3

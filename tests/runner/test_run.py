@@ -1,7 +1,9 @@
 """``silfit.runner.run``: how pending items are cut into batches that several workers share."""
 import pytest
 
-from silfit.runner.run import shared_batch_size, shared_batches
+import signal
+
+from silfit.runner.run import _sigint_ignored, shared_batch_size, shared_batches
 
 CASES = [(8, 28, 2), (8, 30, 2), (8, 24, 2), (1, 5, 2), (4, 4, 2), (8, 3, 2), (8, 100, 1), (32, 100, 4), (8, 1, 2),
          (3, 50, 16), (8, 13, 6), (8, 5, 4), (2, 7, 3)]  # fmt: skip
@@ -26,3 +28,26 @@ def test_batches_are_shared_evenly_and_never_larger_than_asked(batch, pending, w
 def test_twenty_eight_items_in_batches_of_eight_for_two_workers_are_four_of_seven():
     assert [len(p) for p in shared_batches(list(range(28)), 8, 2)] == [7, 7, 7, 7]  # not 8, 8, 8 and 4
     assert [len(p) for p in shared_batches(list(range(13)), 8, 6)] == [3, 2, 2, 2, 2, 2]  # six batches for six
+
+
+def test_sigint_is_ignored_within_the_block_and_restored_unless_an_interrupt_ends_it():
+    """The worker processes start within the block (they inherit Ctrl-C ignored). An error ends it with the
+    handler restored; an interrupt (SIGTERM's handler raised, having set Ctrl-C aside) leaves it ignored."""
+    def handler(signum, frame):
+        pass
+
+    before = signal.signal(signal.SIGINT, handler)
+    try:
+        with _sigint_ignored():
+            assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+        assert signal.getsignal(signal.SIGINT) is handler
+        with pytest.raises(ValueError):
+            with _sigint_ignored():
+                raise ValueError("a batch could not be sent")
+        assert signal.getsignal(signal.SIGINT) is handler
+        with pytest.raises(KeyboardInterrupt):
+            with _sigint_ignored():
+                raise KeyboardInterrupt("SIGTERM")
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, before)
