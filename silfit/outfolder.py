@@ -5,8 +5,8 @@ folder or the new one, never neither and never a half-written one."""
 from __future__ import annotations
 
 import os
+import secrets
 import shutil
-import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator, Union
@@ -23,26 +23,33 @@ def atomic_folder(out: Union[str, os.PathLike], overwrite: bool = False) -> Iter
     if out.exists() and not overwrite and (not out.is_dir() or any(out.iterdir())):
         raise FileExistsError(f"{out}: output folder exists and is not empty (use --overwrite)")
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    tmp = old = None  # named before they exist, so an interrupt at any point knows what to remove
     try:
+        while tmp is None:
+            tmp = out.parent / f".{out.name}.{secrets.token_hex(6)}"
+            try:
+                os.mkdir(tmp, 0o700)
+            except FileExistsError:  # another's folder: never removed
+                tmp = None
         yield tmp
-        old = None
         if out.exists():  # set the old output aside first, so a crash here never loses both
-            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
+            while old is None:
+                old = out.parent / f".{out.name}.old.{secrets.token_hex(6)}"
+                try:
+                    os.mkdir(old, 0o700)
+                except FileExistsError:
+                    old = None
             try:
                 os.replace(out, old / out.name)
             except OSError as err:  # e.g. a read-only folder (moving a folder writes its '..')
-                old.rmdir()
                 raise OSError(err.errno, f"{err.strerror}: cannot replace the existing output folder (read-only?)", str(out)) from None
-        try:
-            os.replace(tmp, out)
-        except OSError:
-            if old is not None:  # put the earlier output back
-                os.replace(old / out.name, out)
-                old.rmdir()
-            raise
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
+        os.replace(tmp, out)
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        if old is not None and (old / out.name).exists() and not out.exists():  # put the earlier output back
+            os.replace(old / out.name, out)
+        for folder in (tmp, old):
+            if folder is not None:
+                shutil.rmtree(folder, ignore_errors=True)
         raise
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)

@@ -44,3 +44,37 @@ def test_the_earlier_output_is_replaced_only_once_complete(tmp_path):
     with atomic_folder(out, overwrite=True) as tmp:
         (tmp / "new.txt").write_text("new")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fit"] and sorted(os.listdir(out)) == ["new.txt"]
+
+
+@pytest.mark.parametrize("when", ["staging", "set-aside", "swap"])
+def test_an_interrupt_just_after_a_folder_is_made_leaves_the_earlier_output_and_nothing_else(tmp_path, monkeypatch, when):
+    """A signal can land as soon as ``mkdir`` returns (``silfit fit`` was seen leaving ``.fit.*`` behind): the
+    staging and set-aside folders are named before they exist, so the cleanup knows them; an interrupt
+    between setting the earlier output aside and the swap puts it back."""
+    import silfit.outfolder as outfolder
+
+    out = tmp_path / "fit"
+    out.mkdir()
+    (out / "old.txt").write_text("earlier")
+    real_mkdir, real_replace = os.mkdir, os.replace
+    made = []
+
+    def mkdir(path, mode=0o777):
+        real_mkdir(path, mode)
+        made.append(path)
+        if (when == "staging" and len(made) == 1) or (when == "set-aside" and len(made) == 2):
+            raise KeyboardInterrupt
+
+    def replace(src, dst):
+        real_replace(src, dst)
+        if when == "swap" and dst != out:  # the earlier output is set aside: interrupted before the swap
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(outfolder.os, "mkdir", mkdir)
+    monkeypatch.setattr(outfolder.os, "replace", replace)
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_folder(out, overwrite=True) as tmp:
+            (tmp / "new.txt").write_text("new")
+    monkeypatch.undo()
+    assert made and sorted(p.name for p in tmp_path.iterdir()) == ["fit"]
+    assert sorted(p.name for p in out.iterdir()) == ["old.txt"]
