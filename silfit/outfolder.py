@@ -44,6 +44,8 @@ def atomic_folder(out: Union[str, os.PathLike], overwrite: bool = False) -> Iter
             except OSError as err:  # e.g. a read-only folder (moving a folder writes its '..')
                 raise OSError(err.errno, f"{err.strerror}: cannot replace the existing output folder (read-only?)", str(out)) from None
         os.replace(tmp, out)
+        if old is not None:  # within the try: an interrupt while the earlier output is deleted still removes it
+            shutil.rmtree(old, ignore_errors=True)
     except BaseException:
         if old is not None and (old / out.name).exists() and not out.exists():  # put the earlier output back
             os.replace(old / out.name, out)
@@ -51,5 +53,3 @@ def atomic_folder(out: Union[str, os.PathLike], overwrite: bool = False) -> Iter
             if folder is not None:
                 shutil.rmtree(folder, ignore_errors=True)
         raise
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)

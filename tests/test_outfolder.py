@@ -46,18 +46,19 @@ def test_the_earlier_output_is_replaced_only_once_complete(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fit"] and sorted(os.listdir(out)) == ["new.txt"]
 
 
-@pytest.mark.parametrize("when", ["staging", "set-aside", "swap"])
-def test_an_interrupt_just_after_a_folder_is_made_leaves_the_earlier_output_and_nothing_else(tmp_path, monkeypatch, when):
+@pytest.mark.parametrize("when", ["staging", "set-aside", "swap", "cleanup"])
+def test_an_interrupt_at_any_point_leaves_one_output_and_nothing_else(tmp_path, monkeypatch, when):
     """A signal can land as soon as ``mkdir`` returns (``silfit fit`` was seen leaving ``.fit.*`` behind): the
     staging and set-aside folders are named before they exist, so the cleanup knows them; an interrupt
-    between setting the earlier output aside and the swap puts it back."""
+    between setting the earlier output aside and the swap puts it back; one while the earlier output is
+    deleted after the swap leaves the new output and removes the rest."""
     import silfit.outfolder as outfolder
 
     out = tmp_path / "fit"
     out.mkdir()
     (out / "old.txt").write_text("earlier")
-    real_mkdir, real_replace = os.mkdir, os.replace
-    made = []
+    real_mkdir, real_replace, real_rmtree = os.mkdir, os.replace, outfolder.shutil.rmtree
+    made, removing = [], []
 
     def mkdir(path, mode=0o777):
         real_mkdir(path, mode)
@@ -70,11 +71,18 @@ def test_an_interrupt_just_after_a_folder_is_made_leaves_the_earlier_output_and_
         if when == "swap" and dst != out:  # the earlier output is set aside: interrupted before the swap
             raise KeyboardInterrupt
 
+    def rmtree(path, ignore_errors=False):
+        removing.append(path)
+        if when == "cleanup" and len(removing) == 1:  # interrupted before deleting anything
+            raise KeyboardInterrupt
+        real_rmtree(path, ignore_errors=ignore_errors)
+
     monkeypatch.setattr(outfolder.os, "mkdir", mkdir)
     monkeypatch.setattr(outfolder.os, "replace", replace)
+    monkeypatch.setattr(outfolder.shutil, "rmtree", rmtree)
     with pytest.raises(KeyboardInterrupt):
         with atomic_folder(out, overwrite=True) as tmp:
             (tmp / "new.txt").write_text("new")
     monkeypatch.undo()
     assert made and sorted(p.name for p in tmp_path.iterdir()) == ["fit"]
-    assert sorted(p.name for p in out.iterdir()) == ["old.txt"]
+    assert sorted(p.name for p in out.iterdir()) == (["new.txt"] if when == "cleanup" else ["old.txt"])

@@ -146,7 +146,7 @@ def _fit_in_process(items: List[dict]) -> List[dict]:
 @contextlib.contextmanager
 def _sigint_ignored():
     """SIGINT ignored within the block (the main thread only; elsewhere nothing changes). The handler before
-    it comes back unless an interrupt ends the block: SIGTERM's handler set Ctrl-C aside for the cleanup."""
+    it comes back, unless an interrupt ends the block whose handler set SIGINT and SIGTERM aside for the cleanup."""
     import signal
     import threading
 
@@ -156,10 +156,10 @@ def _sigint_ignored():
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         yield
-    except KeyboardInterrupt:
-        raise
-    except BaseException:
-        signal.signal(signal.SIGINT, previous)
+    except BaseException as err:
+        # an interrupt whose handler set both signals aside for the cleanup (silfit.cli.interrupts) keeps that
+        if not (isinstance(err, KeyboardInterrupt) and signal.getsignal(signal.SIGTERM) is signal.SIG_IGN):
+            signal.signal(signal.SIGINT, previous)
         raise
     signal.signal(signal.SIGINT, previous)
 

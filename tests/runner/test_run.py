@@ -31,8 +31,9 @@ def test_twenty_eight_items_in_batches_of_eight_for_two_workers_are_four_of_seve
 
 
 def test_sigint_is_ignored_within_the_block_and_restored_unless_an_interrupt_ends_it():
-    """The worker processes start within the block (they inherit Ctrl-C ignored). An error ends it with the
-    handler restored; an interrupt (SIGTERM's handler raised, having set Ctrl-C aside) leaves it ignored."""
+    """The worker processes start within the block (they inherit Ctrl-C ignored). An error or another's
+    KeyboardInterrupt ends it with the handler restored; silfit's interrupt (its handler raised, having set
+    SIGINT and SIGTERM aside) leaves it ignored."""
     def handler(signum, frame):
         pass
 
@@ -45,9 +46,18 @@ def test_sigint_is_ignored_within_the_block_and_restored_unless_an_interrupt_end
             with _sigint_ignored():
                 raise ValueError("a batch could not be sent")
         assert signal.getsignal(signal.SIGINT) is handler
-        with pytest.raises(KeyboardInterrupt):
+        with pytest.raises(KeyboardInterrupt):  # another's KeyboardInterrupt: restored
             with _sigint_ignored():
-                raise KeyboardInterrupt("SIGTERM")
-        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+                raise KeyboardInterrupt
+        assert signal.getsignal(signal.SIGINT) is handler
+        term = signal.getsignal(signal.SIGTERM)
+        try:
+            with pytest.raises(KeyboardInterrupt):
+                with _sigint_ignored():
+                    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # as silfit.cli.interrupts' handler does
+                    raise KeyboardInterrupt("SIGTERM")
+            assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+        finally:
+            signal.signal(signal.SIGTERM, term)
     finally:
         signal.signal(signal.SIGINT, before)
