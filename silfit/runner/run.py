@@ -26,21 +26,32 @@ def shared_batch_size(batch_size: int, pending: int, workers: int) -> int:
     return max(1, max((len(b) for b in shared_batches(range(int(pending)), batch_size, workers)), default=1))
 
 
-def available_cpus() -> int:
+def available_cpus(cpu_max: str = "/sys/fs/cgroup/cpu.max") -> int:
     """The CPUs this process may run on: its affinity where the system says (else the machine's), at most
-    its cgroup's CPU quota (a container's ``--cpus``) where one is set."""
+    its cgroup's CPU quota (a container's ``--cpus``; :func:`quota_cpus` of the file ``cpu_max``) where one is set."""
     try:
         cpus = max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):
         cpus = max(1, os.cpu_count() or 1)
-    try:  # cgroup v2: "<quota> <period>" or "max <period>"
-        with open("/sys/fs/cgroup/cpu.max") as f:
-            quota, period = f.read().split()[:2]
-        if quota != "max":
-            cpus = min(cpus, max(1, -(-int(quota) // int(period))))
-    except (OSError, ValueError):
-        pass
-    return cpus
+    try:
+        with open(cpu_max) as f:
+            quota = quota_cpus(f.read())
+    except OSError:
+        quota = None
+    return cpus if quota is None else min(cpus, quota)
+
+
+def quota_cpus(cpu_max: str) -> Optional[int]:
+    """The CPUs a cgroup v2 ``cpu.max`` line allows (``"<quota> <period>"``, rounded up: 150000 100000 is 2), or
+    ``None`` for no limit (``"max <period>"``) or a line that cannot be read."""
+    fields = cpu_max.split()
+    if len(fields) < 2 or fields[0] == "max":
+        return None
+    try:
+        quota, period = int(fields[0]), int(fields[1])
+    except ValueError:
+        return None
+    return max(1, -(-quota // period)) if quota > 0 and period > 0 else None
 
 
 def progress_bar(total: int, enabled: bool):

@@ -3,7 +3,7 @@ import pytest
 
 import signal
 
-from silfit.runner.run import _sigint_ignored, shared_batch_size, shared_batches
+from silfit.runner.run import _sigint_ignored, available_cpus, quota_cpus, shared_batch_size, shared_batches
 
 CASES = [(8, 28, 2), (8, 30, 2), (8, 24, 2), (1, 5, 2), (4, 4, 2), (8, 3, 2), (8, 100, 1), (32, 100, 4), (8, 1, 2),
          (3, 50, 16), (8, 13, 6), (8, 5, 4), (2, 7, 3)]  # fmt: skip
@@ -61,3 +61,41 @@ def test_sigint_is_ignored_within_the_block_and_restored_unless_an_interrupt_end
             signal.signal(signal.SIGTERM, term)
     finally:
         signal.signal(signal.SIGINT, before)
+
+
+@pytest.mark.parametrize("line, cpus", [("max 100000", None), ("150000 100000", 2), ("100000 100000", 1),
+                                        ("50000 100000", 1), ("400000 100000\n", 4), ("", None), ("x y", None)])  # fmt: skip
+def test_a_cgroup_quota_is_read_as_whole_cpus_rounded_up(line, cpus):
+    assert quota_cpus(line) == cpus
+
+
+def test_available_cpus_is_the_affinity_capped_by_the_quota(tmp_path):
+    import os
+
+    affinity = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    assert available_cpus(str(tmp_path / "no such file")) == affinity
+    (tmp_path / "cpu.max").write_text("max 100000\n")
+    assert available_cpus(str(tmp_path / "cpu.max")) == affinity
+    (tmp_path / "cpu.max").write_text("100000 100000\n")
+    assert available_cpus(str(tmp_path / "cpu.max")) == 1
+
+
+def test_workers_auto_runs_one_process_per_available_cpu(tmp_path, monkeypatch):
+    """``fit_dataset(workers="auto")`` hands the pool :func:`available_cpus`' count (here 3)."""
+    from silfit.runner import FitOptions, fit_dataset
+    from silfit.runner import run as runmod
+
+    from .helpers import synthetic_copy
+
+    asked = {}
+
+    def pool(store, pending, options, batch_size, workers, progress=True):
+        asked["workers"] = workers
+        raise KeyboardInterrupt  # nothing fitted: only the count is checked
+
+    monkeypatch.setattr(runmod, "available_cpus", lambda: 3)
+    monkeypatch.setattr(runmod, "run_pool", pool)
+    data = synthetic_copy(tmp_path / "data", ["subject_000", "subject_001"])
+    with pytest.raises(KeyboardInterrupt):
+        fit_dataset(data, tmp_path / "out", options=FitOptions(silhouette=False), workers="auto", progress=False)
+    assert asked == {"workers": 3}
