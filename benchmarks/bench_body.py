@@ -11,6 +11,7 @@ import argparse
 import statistics
 import time
 
+import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import torch
 
 from silfit import load_body_model

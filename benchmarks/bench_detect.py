@@ -26,6 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import numpy as np
 
 from silfit import load_body_model

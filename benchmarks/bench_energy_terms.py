@@ -27,6 +27,7 @@ import argparse
 import time
 from dataclasses import replace
 
+import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import numpy as np
 import torch
 

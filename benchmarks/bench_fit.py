@@ -45,6 +45,7 @@ import math
 import time
 from pathlib import Path
 
+import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import numpy as np
 import torch
 from scipy.spatial.transform import Rotation

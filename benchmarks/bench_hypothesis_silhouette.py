@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import time
 
+import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import numpy as np
 import torch
 from bench_ambiguity import NAMES, hard_set

@@ -15,6 +15,7 @@ import argparse
 import importlib.util
 import time
 
+import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import numpy as np
 import torch
 

@@ -16,6 +16,7 @@ import pickletools
 import statistics
 import time
 
+import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import numpy as np
 
 from silfit.safe_pickle import RestrictedUnpickler, _check_bounds

@@ -32,6 +32,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import silfit  # noqa: E402, F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import torch  # noqa: E402
 
 TARGETS = {("fwd+bwd", 256, 4): 110.0, ("pyrender", 512, None): 30.0}

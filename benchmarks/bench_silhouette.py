@@ -61,6 +61,7 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
+import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import numpy as np
 import torch
 

@@ -36,6 +36,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import numpy as np
 import torch
 

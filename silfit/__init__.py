@@ -12,9 +12,13 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from .kernels import pin_kernels
+from .kernels import late_import_message, pin_kernels
 
 pin_kernels()  # before anything loads torch or numpy (silfit.kernels)
+if late_import_message():  # numpy or torch came first: say so once, where the script imports silfit
+    import warnings
+
+    warnings.warn(late_import_message(), RuntimeWarning, stacklevel=2)
 
 from ._lazy import lazy_exports  # noqa: E402
 

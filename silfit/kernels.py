@@ -41,7 +41,7 @@ import platform
 import sys
 from typing import Dict, MutableMapping, Optional
 
-__all__ = ["KERNEL_PINS", "NUMPY_AVX512", "cpu_flags", "kernel_report", "pin_kernels"]
+__all__ = ["KERNEL_PINS", "NUMPY_AVX512", "cpu_flags", "kernel_report", "late_import_message", "pin_kernels"]
 
 #: environment variable -> value asked for on an x86-64 CPU with AVX2 and FMA
 KERNEL_PINS: Dict[str, str] = {"ATEN_CPU_CAPABILITY": "avx2", "MKL_CBWR": "COMPATIBLE", "OPENBLAS_CORETYPE": "Haswell"}
@@ -51,6 +51,9 @@ NUMPY_AVX512 = "X86_V4 AVX512_ICL AVX512_SPR"
 
 #: what :func:`pin_kernels` did in this process (``None``: not run yet)
 PINNED: Optional[Dict[str, str]] = None
+#: the libraries (``numpy``, ``torch``) loaded before silfit where that kept :func:`pin_kernels` from pinning
+#: kernels the environment does not name (empty: none; ``import silfit`` warns, :func:`late_import_message`)
+LOADED_FIRST: tuple = ()
 
 
 def cpu_flags() -> set:
@@ -94,13 +97,17 @@ def pin_kernels(environ: Optional[MutableMapping[str, str]] = None, flags: Optio
     the CPU has AVX2 and FMA, ``SILFIT_KERNELS`` is not ``native`` and torch and numpy are not loaded
     (``loaded``: override that check); with AVX-512, also numpy's dispatch (``numpy_version``: default the
     installed one's). Returns the variables it set."""
-    global PINNED
+    global PINNED, LOADED_FIRST
     env = os.environ if environ is None else environ
     flags = cpu_flags() if flags is None else flags
+    first = tuple(m for m in ("numpy", "torch") if m in sys.modules)
     if loaded is None:
-        loaded = "torch" in sys.modules or "numpy" in sys.modules
+        loaded = bool(first)
     done: Dict[str, str] = {}
     x86 = platform.machine().lower() in ("x86_64", "amd64")
+    if environ is None:
+        wanted = env.get("SILFIT_KERNELS", "").lower() != "native" and x86 and {"avx2", "fma"} <= flags
+        LOADED_FIRST = first if loaded and wanted and any(k not in env for k in KERNEL_PINS) else ()
     if env.get("SILFIT_KERNELS", "").lower() != "native" and not loaded and x86 and {"avx2", "fma"} <= flags:
         for k, v in KERNEL_PINS.items():
             if k not in env:
@@ -113,6 +120,16 @@ def pin_kernels(environ: Optional[MutableMapping[str, str]] = None, flags: Optio
     if environ is None:
         PINNED = done
     return done
+
+
+def late_import_message() -> Optional[str]:
+    """What ``import silfit`` warns when numpy or torch loaded before it kept the kernels unpinned
+    (:data:`LOADED_FIRST`), or ``None``."""
+    if not LOADED_FIRST:
+        return None
+    return (f"{' and '.join(LOADED_FIRST)} loaded before silfit, so silfit could not pin the CPU kernels its fits are "
+            "reproduced with (silfit.kernels): fits may differ in their last bits, and by millimetres, from the "
+            "command line's; import silfit first, or set SILFIT_KERNELS=native to choose the native kernels")
 
 
 def kernel_report() -> Dict[str, object]:

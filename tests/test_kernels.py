@@ -5,7 +5,7 @@ import platform
 import pytest
 import torch
 
-from silfit.kernels import KERNEL_PINS, kernel_report, pin_kernels
+from silfit.kernels import KERNEL_PINS, cpu_flags, kernel_report, pin_kernels
 
 AVX2 = {"avx2", "fma", "sse4_2"}
 
@@ -66,3 +66,49 @@ def test_the_installed_numpy_takes_the_avx512_names():
     env = {**os.environ, "NPY_DISABLE_CPU_FEATURES": NUMPY_AVX512, "SILFIT_KERNELS": "native"}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "False"]
+
+
+def _first_import_of_a_library(path):
+    """The first top-level import in ``path`` of something outside the standard library, or ``None``."""
+    import ast
+    import sys
+
+    for node in ast.parse(path.read_text(encoding="utf-8")).body:
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""]
+            tops = {n.split(".")[0] for n in names} - set(sys.stdlib_module_names) - {"__future__"}
+            if tops:
+                return sorted(tops)[0], node.lineno
+    return None
+
+
+@pytest.mark.parametrize("folder", ["benchmarks", "tools"])
+def test_scripts_import_silfit_before_numpy_and_torch(folder):
+    # a benchmark that loads numpy or torch first measures unpinned kernels: other fits than the command line's
+    from pathlib import Path
+
+    scripts = sorted((Path(__file__).resolve().parents[1] / folder).glob("*.py"))
+    assert scripts
+    late = [f"{p.name}:{first[1]} ({first[0]})" for p in scripts
+            if (first := _first_import_of_a_library(p)) is not None and first[0] != "silfit"]  # fmt: skip
+    assert not late, f"import silfit before these: {late}"
+
+
+@pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64") or not {"avx2", "fma"} <= cpu_flags(),
+                    reason="kernels are pinned on x86-64 with AVX2 and FMA only")
+def test_importing_silfit_after_numpy_warns_once_unless_told_native():
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in KERNEL_PINS and k != "SILFIT_KERNELS"}
+
+    def stderr(code, **extra):
+        return subprocess.run([sys.executable, "-c", code], env={**env, **extra}, capture_output=True, text=True,
+                              check=True).stderr  # fmt: skip
+
+    late = stderr("import numpy, torch; import silfit; import silfit.kernels as k; print(k.LOADED_FIRST)")
+    assert late.count("RuntimeWarning: numpy and torch loaded before silfit") == 1, late
+    assert "import silfit first" in late
+    assert stderr("import silfit, numpy, torch") == ""
+    assert stderr("import numpy; import silfit", SILFIT_KERNELS="native") == ""
+    assert stderr("import numpy; import silfit", **KERNEL_PINS) == ""  # the environment names the kernels already

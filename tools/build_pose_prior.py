@@ -14,6 +14,7 @@ import argparse
 import sys
 from pathlib import Path
 
+import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]

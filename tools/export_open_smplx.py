@@ -41,6 +41,7 @@ import os
 import sys
 from pathlib import Path
 
+import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import numpy as np
 import torch
 

@@ -16,6 +16,7 @@ import numpy as np
 # times, each after keeping a differently sized allocation alive (the heap's state differs,
 # so the buffers the fit allocates land elsewhere), and prints every result.
 CHILD = textwrap.dedent("""
+    import silfit  # first: the pinned kernels (silfit.kernels)
     import json, math, sys
     import numpy as np, torch
     from renderers.offscreen import render_mask
