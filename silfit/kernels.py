@@ -105,9 +105,12 @@ def pin_kernels(environ: Optional[MutableMapping[str, str]] = None, flags: Optio
         loaded = bool(first)
     done: Dict[str, str] = {}
     x86 = platform.machine().lower() in ("x86_64", "amd64")
-    if environ is None:
+    if environ is None:  # numpy or torch came first and some pin is unset: import silfit warns
         wanted = env.get("SILFIT_KERNELS", "").lower() != "native" and x86 and {"avx2", "fma"} <= flags
-        LOADED_FIRST = first if loaded and wanted and any(k not in env for k in KERNEL_PINS) else ()
+        unset = any(k not in env for k in KERNEL_PINS) or (
+            "avx512f" in flags and "NPY_DISABLE_CPU_FEATURES" not in env and "NPY_ENABLE_CPU_FEATURES" not in env
+            and _numpy_names_targets(numpy_version))  # fmt: skip
+        LOADED_FIRST = first if loaded and wanted and unset else ()
     if env.get("SILFIT_KERNELS", "").lower() != "native" and not loaded and x86 and {"avx2", "fma"} <= flags:
         for k, v in KERNEL_PINS.items():
             if k not in env:

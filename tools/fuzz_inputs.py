@@ -38,12 +38,12 @@ import traceback
 from collections import Counter
 from pathlib import Path
 
-import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests" / "fitting"))  # the tests' capsule body model: fast to load and fit
+
+import silfit  # noqa: E402, F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
+import numpy as np  # noqa: E402
 
 JUNK = [float("nan"), float("inf"), float("-inf"), 1e30, -1e30, 10**400, -5, 0, 1e-300, "12", "x", None, True,
         False, [], {}, [1, 2], {"x": 1}]  # fmt: skip

@@ -47,7 +47,11 @@ def _init(address: Optional[str], local_cpus: int):
 
     if ray.is_initialized():
         return False
-    env = {"env_vars": {k: os.environ[k] for k in ("PYTHONPATH", "DRJIT_LIBLLVM_PATH", "PYOPENGL_PLATFORM") if k in os.environ}}
+    # the pinned CPU kernels too (silfit.kernels): a cluster's raylet was not started by this process
+    from ..kernels import KERNEL_PINS
+
+    passed = ("PYTHONPATH", "DRJIT_LIBLLVM_PATH", "PYOPENGL_PLATFORM", *KERNEL_PINS, "NPY_DISABLE_CPU_FEATURES", "SILFIT_KERNELS")
+    env = {"env_vars": {k: os.environ[k] for k in passed if k in os.environ}}
     if address:
         ray.init(address=address, runtime_env=env, log_to_driver=False, logging_level=logging.WARNING)
     else:
