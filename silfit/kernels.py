@@ -105,20 +105,19 @@ def pin_kernels(environ: Optional[MutableMapping[str, str]] = None, flags: Optio
         loaded = bool(first)
     done: Dict[str, str] = {}
     x86 = platform.machine().lower() in ("x86_64", "amd64")
+    eligible = env.get("SILFIT_KERNELS", "").lower() != "native" and x86 and {"avx2", "fma"} <= flags
+    # numpy refuses both NPY_ENABLE_ and NPY_DISABLE_CPU_FEATURES: a user's choice of either wins
+    npy_free = "NPY_DISABLE_CPU_FEATURES" not in env and "NPY_ENABLE_CPU_FEATURES" not in env
+    numpy_pin = eligible and "avx512f" in flags and npy_free and _numpy_names_targets(numpy_version)
     if environ is None:  # numpy or torch came first and some pin is unset: import silfit warns
-        wanted = env.get("SILFIT_KERNELS", "").lower() != "native" and x86 and {"avx2", "fma"} <= flags
-        unset = any(k not in env for k in KERNEL_PINS) or (
-            "avx512f" in flags and "NPY_DISABLE_CPU_FEATURES" not in env and "NPY_ENABLE_CPU_FEATURES" not in env
-            and _numpy_names_targets(numpy_version))  # fmt: skip
-        LOADED_FIRST = first if loaded and wanted and unset else ()
-    if env.get("SILFIT_KERNELS", "").lower() != "native" and not loaded and x86 and {"avx2", "fma"} <= flags:
+        unset = numpy_pin or any(k not in env for k in KERNEL_PINS)
+        LOADED_FIRST = first if loaded and eligible and unset else ()
+    if eligible and not loaded:
         for k, v in KERNEL_PINS.items():
             if k not in env:
                 env[k] = v
                 done[k] = v
-        # numpy refuses both NPY_ENABLE_ and NPY_DISABLE_CPU_FEATURES: a user's choice of either wins
-        npy_free = "NPY_DISABLE_CPU_FEATURES" not in env and "NPY_ENABLE_CPU_FEATURES" not in env
-        if "avx512f" in flags and npy_free and _numpy_names_targets(numpy_version):
+        if numpy_pin:
             env["NPY_DISABLE_CPU_FEATURES"] = done["NPY_DISABLE_CPU_FEATURES"] = NUMPY_AVX512
     if environ is None:
         PINNED = done
