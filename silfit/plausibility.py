@@ -304,7 +304,7 @@ def _segments(label: str) -> list:
     joint = dict(JOINT_HYPOTHESES)
     if label in joint:
         return [seg for part in joint[label] for seg in part]
-    return [seg for seg in label.split("+") if seg and seg != "keep"]
+    return [seg.split("/")[0] for seg in label.split("+") if seg and seg != "keep"]  # (``/turn``: how it was flipped)
 
 
 def depth_warnings(search, hypotheses=None, margin: float = HYPOTHESIS_MARGIN, search_margin: float = SEARCH_MARGIN,

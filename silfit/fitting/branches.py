@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-__all__ = ["JOINT_HYPOTHESES", "LIMB_SEGMENTS", "LIMBS", "TORSO_SEGMENT", "align_segments", "flip_hip", "joint_hypotheses", "flip_segment", "limb_hypotheses", "mirror_rotation", "rotation_between", "turn_hypotheses", "turn_root"]
+__all__ = ["HINGE_BEND", "JOINT_HYPOTHESES", "LIMB_SEGMENTS", "LIMBS", "TORSO_SEGMENT", "align_segments", "flip_hip", "joint_hypotheses", "flip_segment", "limb_hypotheses", "mirror_rotation", "rotation_between", "turn_hypotheses", "turn_root"]
 
 #: (segment, rotated joint, distal joint), SMPL joint names
 LIMB_SEGMENTS: Tuple[Tuple[str, str, str], ...] = (
@@ -34,6 +34,11 @@ LIMB_SEGMENTS: Tuple[Tuple[str, str, str], ...] = (
     ("right_upper_arm", "right_shoulder", "right_elbow"),
     ("right_forearm", "right_elbow", "right_wrist"),
 )
+#: hinge segments: the direction the segment swings to when its hinge flexes, in the upper segment's
+#: rest frame (SMPL: the body faces +Z; elbows bend the forearm forward, knees the shin backward,
+#: :mod:`silfit.priors.limits`)
+HINGE_BEND = {"left_forearm": (0.0, 0.0, 1.0), "right_forearm": (0.0, 0.0, 1.0),
+              "left_shin": (0.0, 0.0, -1.0), "right_shin": (0.0, 0.0, -1.0)}  # fmt: skip
 #: the torso's lean: turned at the lowest spine joint, pelvis and legs unchanged
 TORSO_SEGMENT = ("torso", "spine1", "neck")
 #: joint hypotheses the single-segment search cannot reach (its screen keeps only the best few,
@@ -89,9 +94,13 @@ def _pose_state(body, rows: Dict[str, torch.Tensor]):
     return st.joints.double().numpy(), st.transforms[..., :3, :3].double().numpy()
 
 
-def flip_segment(body, rows: Dict[str, torch.Tensor], segment: str, joint_names: Sequence[str], parents) -> torch.Tensor:
+def flip_segment(body, rows: Dict[str, torch.Tensor], segment: str, joint_names: Sequence[str], parents,
+                 hinge: bool = True) -> torch.Tensor:  # fmt: skip
     """``body_pose [R, 3 * (J - 1)]`` with ``segment`` mirrored in depth (camera frame,
     perspective: the mirror plane is perpendicular to the ray through the segment's middle).
+    The segment's proximal joint takes the smallest turn that does it, except at a hinge
+    (:data:`HINGE_BEND`, with ``hinge``): there the upper segment twists about its own axis and
+    the hinge flexes, as an elbow or a knee can.
 
     ``body`` is a :class:`~silfit.fitting.body.KeypointBody`-like evaluator (joints and
     transforms of parameter rows); ``rows`` holds parameter rows in the camera frame."""
@@ -103,7 +112,22 @@ def flip_segment(body, rows: Dict[str, torch.Tensor], segment: str, joint_names:
     p, d = joints[:, j], joints[:, c]
     ray = 0.5 * (p + d)
     n = ray / np.linalg.norm(ray, axis=-1, keepdims=True)
-    return _turned(rows, G, j, parents, mirror_rotation(d - p, n))
+    if not hinge or segment not in HINGE_BEND:
+        return _turned(rows, G, j, parents, mirror_rotation(d - p, n))
+    # a hinge (elbow, knee): the upper segment twists about its own axis until the hinge bends
+    # toward the mirrored segment, then the hinge bends onto it (the smallest turn at the hinge
+    # would bend it sideways, which the priors undo before the branch is scored)
+    v = d - p
+    target = v - 2.0 * (v * n).sum(-1, keepdims=True) * n
+    u = p - joints[:, parents[j]]
+    u = u / np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-12)
+    bend = np.einsum("rij,j->ri", G[:, parents[j]], np.asarray(HINGE_BEND[segment], dtype=np.float64))
+    along = lambda w: w - (w * u).sum(-1, keepdims=True) * u  # noqa: E731  (the part across the upper segment)
+    b, t = along(bend), along(target)
+    angle = np.arctan2((np.cross(b, t) * u).sum(-1), (b * t).sum(-1))
+    twisted = dict(rows, body_pose=_turned(rows, G, parents[j], parents, Rotation.from_rotvec(u * angle[:, None]).as_matrix()))
+    joints, G = _pose_state(body, twisted)
+    return _turned(twisted, G, j, parents, rotation_between(joints[:, c] - joints[:, j], target))
 
 
 def flip_hip(body, rows: Dict[str, torch.Tensor], joint_names: Sequence[str]) -> Dict[str, torch.Tensor]:
@@ -126,7 +150,7 @@ def flip_hip(body, rows: Dict[str, torch.Tensor], joint_names: Sequence[str]) ->
 
 
 def joint_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, ratios: Dict[str, np.ndarray],
-                     min_depth_ratio: float = 0.3) -> List[Tuple[int, str, Dict[str, torch.Tensor]]]:  # fmt: skip
+                     min_depth_ratio: float = 0.3, hinge: bool = True) -> List[Tuple[int, str, Dict[str, torch.Tensor]]]:  # fmt: skip
     """Hypotheses ``(row, label, {parameter: value})`` of :data:`JOINT_HYPOTHESES` for the rows
     where every part has a segment with a depth ratio of at least ``min_depth_ratio``
     (``ratios``: :func:`depth_ratios`, with ``torso`` and ``hip``)."""
@@ -144,7 +168,7 @@ def joint_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, 
                 if seg == "hip":
                     sub.update(flip_hip(body, sub, joint_names))
                 else:
-                    sub["body_pose"] = flip_segment(body, sub, seg, joint_names, parents)
+                    sub["body_pose"] = flip_segment(body, sub, seg, joint_names, parents, hinge)
         for k, r in enumerate(sel.tolist()):
             out.append((r, label, {"body_pose": sub["body_pose"][k], "global_orient": sub["global_orient"][k]}))
     return out
@@ -202,19 +226,26 @@ def depth_ratios(body, rows, joint_names) -> Dict[str, np.ndarray]:
 
 
 def limb_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, min_depth_ratio: float = 0.3,
-                    whole_limbs: bool = True, joint: bool = False) -> List[Tuple[int, str, torch.Tensor]]:  # fmt: skip
+                    whole_limbs: bool = True, joint: bool = False, hinge: bool = True,
+                    hinge_turns: bool = False) -> List[Tuple[int, str, torch.Tensor]]:  # fmt: skip
     """Hypotheses ``(row, label, body_pose [3 * (J - 1)])``: each segment whose depth
     ratio is at least ``min_depth_ratio`` flipped alone and, with ``whole_limbs``, each limb
     with both segments flipped (the upper first, then the lower from its new place); with
     ``joint``, also :func:`joint_hypotheses`, whose third item is a dict (``body_pose`` and
-    ``global_orient``: the ``hip`` hypotheses turn the root)."""
+    ``global_orient``: the ``hip`` hypotheses turn the root). ``hinge``: :func:`flip_segment`'s; with
+    ``hinge_turns`` each hinge segment's smallest-turn flip is a hypothesis too (``<segment>/turn``)."""
     ratios = depth_ratios(body, rows, joint_names)
-    flipped = {name: flip_segment(body, rows, name, joint_names, parents) for name, _, _ in LIMB_SEGMENTS}
+    flipped = {name: flip_segment(body, rows, name, joint_names, parents, hinge) for name, _, _ in LIMB_SEGMENTS}
     out = []
     R = rows["body_pose"].shape[0]
     for name, _, _ in LIMB_SEGMENTS:
         for r in np.nonzero(ratios[name] >= min_depth_ratio)[0].tolist():
             out.append((r, name, flipped[name][r]))
+    if hinge and hinge_turns:  # the smallest turn at each hinge too, labelled ``<segment>/turn``
+        for name in HINGE_BEND:
+            turned = flip_segment(body, rows, name, joint_names, parents, hinge=False)
+            for r in np.nonzero(ratios[name] >= min_depth_ratio)[0].tolist():
+                out.append((r, f"{name}/turn", turned[r]))
     if whole_limbs:
         for upper, lower in LIMBS:
             sel = np.nonzero((ratios[upper] >= min_depth_ratio) | (ratios[lower] >= min_depth_ratio))[0]
@@ -222,11 +253,11 @@ def limb_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, m
                 continue
             sub = {k: v[sel] for k, v in rows.items()}
             sub["body_pose"] = flipped[upper][sel]
-            both = flip_segment(body, sub, lower, joint_names, parents)
+            both = flip_segment(body, sub, lower, joint_names, parents, hinge)
             for k, r in enumerate(sel.tolist()):
                 out.append((r, f"{upper}+{lower}", both[k]))
     if joint:
-        out += joint_hypotheses(body, rows, joint_names, parents, ratios, min_depth_ratio)
+        out += joint_hypotheses(body, rows, joint_names, parents, ratios, min_depth_ratio, hinge)
     assert all(0 <= r < R for r, _, _ in out)
     return out
 
@@ -254,7 +285,7 @@ def turn_root(body, rows: Dict[str, torch.Tensor], joint_names, kind) -> Dict[st
 
 
 def turn_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, turns: Sequence, min_depth_ratio: float = 0.3,
-                    whole_limbs: bool = True) -> List[Tuple[int, str, Dict[str, torch.Tensor]]]:  # fmt: skip
+                    whole_limbs: bool = True, hinge: bool = True) -> List[Tuple[int, str, Dict[str, torch.Tensor]]]:  # fmt: skip
     """Hypotheses ``(row, label, {global_orient, body_pose})``: the root turned (:func:`turn_root`,
     one per item of ``turns``), alone and with each limb flip of :func:`limb_hypotheses` proposed
     from the turned pose (a wrong orientation and a wrong limb, which one flip at a time cannot fix)."""
@@ -265,6 +296,6 @@ def turn_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, t
         tag = "yaw" if kind == "mirror" else f"turn{float(kind):+g}"
         for r in range(rows["body_pose"].shape[0]):
             out.append((r, tag, {"body_pose": t["body_pose"][r], "global_orient": t["global_orient"][r]}))
-        for r, label, pose in limb_hypotheses(body, sub, joint_names, parents, min_depth_ratio, whole_limbs):
+        for r, label, pose in limb_hypotheses(body, sub, joint_names, parents, min_depth_ratio, whole_limbs, hinge=hinge):
             out.append((r, f"{tag}+{label}", {"body_pose": pose, "global_orient": t["global_orient"][r]}))
     return out

@@ -204,6 +204,14 @@ class KeypointFitConfig:
     branch_iters: int = 20
     branch_min_depth_ratio: float = 0.3
     branch_whole_limbs: bool = True
+    #: a forearm or a shin is mirrored as an elbow or a knee can turn it (the upper segment twists, the
+    #: hinge flexes: :func:`~silfit.fitting.branches.flip_segment`); off: the smallest turn at the hinge,
+    #: which bends it sideways, so the priors pull the branch back before it is scored (issue 25: a hand
+    #: at the chest fitted as an arm held out to the camera). Tuning seeds 10900, 10901, 12200, 12201 (120
+    #: hard subjects, the default image path with silhouettes): PA-PVE mean 67.5 -> 64.1 mm
+    branch_hinge: bool = True
+    #: with ``branch_hinge``, the smallest turn at each hinge is also a hypothesis (``<segment>/turn``)
+    branch_hinge_turns: bool = True
     #: also the joint hypotheses (:data:`~silfit.fitting.branches.JOINT_HYPOTHESES`: both legs,
     #: both arms, the torso's lean with the legs, the hip's tilt), screened with the others. Off by
     #: default: on 20 hard subjects (seed 4711, keypoint stage) they changed nothing alone (PA-PVE
@@ -442,6 +450,7 @@ class KeypointFitConfig:
         opts = {"branches": {
             "min_depth_ratio": self.branch_min_depth_ratio, "whole_limbs": self.branch_whole_limbs,
             "joint": self.branch_joint, "screen_after": self.branch_screen_iters, "survivors": self.branch_survivors,
+            "hinge": self.branch_hinge, "hinge_turns": self.branch_hinge_turns,
         }}  # fmt: skip
         if self.occlusion_weight:
             opts["branches"]["occlusion"] = float(self.occlusion_weight)
@@ -902,10 +911,11 @@ class KeypointFitter:
                 opts = stage.options["branches"]
                 hyps = limb_hypotheses(self.body, layout.rows(state), self.model.joint_names, self.model.parents,
                                        opts.get("min_depth_ratio", 0.3), opts.get("whole_limbs", True),
-                                       opts.get("joint", False))  # fmt: skip
+                                       opts.get("joint", False), opts.get("hinge", True), opts.get("hinge_turns", False))  # fmt: skip
                 if opts.get("turns"):
                     hyps += turn_hypotheses(self.body, layout.rows(state), self.model.joint_names, self.model.parents,
-                                            opts["turns"], opts.get("min_depth_ratio", 0.3), opts.get("whole_limbs", True))
+                                            opts["turns"], opts.get("min_depth_ratio", 0.3), opts.get("whole_limbs", True),
+                                            opts.get("hinge", True))  # fmt: skip
                 labels = ["keep"] * B + [h[1] for h in hyps]
                 take(torch.cat([torch.arange(B), torch.as_tensor([h[0] for h in hyps], dtype=torch.long)]))
                 for i, h in enumerate(hyps):  # a pose, or {parameter: value} (joint hypotheses)

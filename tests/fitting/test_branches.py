@@ -106,3 +106,36 @@ def test_root_turns_mirror_the_torso_yaw_and_keep_the_pelvis(body_model):
     hyps = turn_hypotheses(body, rows, names, parents, ["mirror", 30.0])
     labels = [h[1] for h in hyps]
     assert "yaw" in labels and "turn+30" in labels and all(set(h[2]) == {"body_pose", "global_orient"} for h in hyps)
+
+
+def test_a_hinge_flip_bends_the_hinge_the_natural_way_and_keeps_the_projection(body_model):
+    """The forearm mirrored in depth (issue 25: a hand at the chest fitted as an arm held out to the
+    camera) is reached by twisting the upper arm and flexing the elbow, not by the smallest turn at
+    the elbow, which bends it sideways (the pose prior then pulls the branch back before it is scored)."""
+    from scipy.spatial.transform import Rotation
+
+    from silfit.fitting.branches import flip_segment
+
+    body = KeypointBody(body_model, "body25")
+    names, parents = body_model.joint_names, body_model.parents
+    sh, el, wr = (names.index(n) for n in ("left_shoulder", "left_elbow", "left_wrist"))
+    pose = torch.zeros(3, 69, dtype=body_model.dtype)
+    pose[:, 3 * (sh - 1) : 3 * sh] = torch.tensor([[0.3, -1.2, 0.2], [0.5, -1.0, 0.0], [-0.2, -1.4, 0.4]])  # arm forward
+    pose[1:, 3 * (el - 1) : 3 * el] = torch.tensor([[0.0, -0.6, 0.0], [0.1, -0.3, 0.05]])  # straight, bent, bent a little
+    rows = {"betas": torch.zeros(3, 10, dtype=pose.dtype), "body_pose": pose,
+            "global_orient": torch.tensor([[np.pi, 0.0, 0.0]] * 3, dtype=pose.dtype),
+            "transl": torch.tensor([[0.0, 0.2, 3.0]] * 3, dtype=pose.dtype)}  # fmt: skip
+    flipped = flip_segment(body, rows, "left_forearm", names, parents)
+    with torch.no_grad():
+        j0 = body(**rows).joints.numpy()
+        j1 = body(**dict(rows, body_pose=flipped)).joints.numpy()
+    assert np.abs(j1[:, [sh, el]] - j0[:, [sh, el]]).max() < 1e-5  # shoulder and elbow stay
+    before, after = j0[:, wr] - j0[:, el], j1[:, wr] - j1[:, el]
+    assert (np.sign(before[:, 2]) != np.sign(after[:, 2])).all()  # the forearm points the other way in depth
+    assert np.linalg.norm(j1[:, wr, :2] / j1[:, wr, 2:] - j0[:, wr, :2] / j0[:, wr, 2:], axis=-1).max() < 0.03  # seen alike
+    elbow = Rotation.from_rotvec(flipped[:, 3 * (el - 1) : 3 * el].double().numpy()).as_rotvec()
+    assert (elbow[:, 1] < -0.5).all()  # the left elbow flexes: a negative turn about its Y axis (priors.limits)
+    assert (np.abs(elbow[:, [0, 2]]).max(axis=1) < 0.1 * np.abs(elbow[:, 1]) + 0.1).all()  # and about little else
+    sideways = flip_segment(body, rows, "left_forearm", names, parents, hinge=False)  # the smallest turn at the elbow
+    turn = Rotation.from_rotvec(sideways[:, 3 * (el - 1) : 3 * el].double().numpy()).as_rotvec()
+    assert not (turn[:, 1] < -0.5).all()
