@@ -121,7 +121,8 @@ def _fit_rows(fitter, sets, cams, gts, model, batch, refine, diagnose=False):
 def truth_flips(fitter, fit_p, truth_p, min_ratio=0.15):
     """The fit's ``body_pose`` with every limb segment (upper first) flipped in depth
     (:func:`~silfit.fitting.branches.flip_segment`) where it points to the other side of the image plane
-    than the truth's (the truth's depth ratio at least ``min_ratio``), and the flipped segments per subject."""
+    than the truth's (the truth's depth ratio at least ``min_ratio``), and the flipped segments per subject.
+    Each by the smallest turn at its proximal joint (``hinge=False``), as the README's numbers were measured."""
     from silfit.fitting.branches import LIMB_SEGMENTS, flip_segment
 
     body, names, parents = fitter.body, fitter.model.joint_names, fitter.model.parents
@@ -143,7 +144,8 @@ def truth_flips(fitter, fit_p, truth_p, min_ratio=0.15):
     for seg, _, _ in LIMB_SEGMENTS:
         now = ratios(rows)[seg]
         for k in np.nonzero((np.sign(now) != np.sign(truth[seg])) & (np.abs(truth[seg]) >= min_ratio))[0].tolist():
-            rows["body_pose"][k] = flip_segment(body, {n: v[k: k + 1] for n, v in rows.items()}, seg, names, parents)[0]
+            rows["body_pose"][k] = flip_segment(body, {n: v[k: k + 1] for n, v in rows.items()}, seg, names, parents,
+                                                 hinge=False)[0]
             flipped[k].append(seg)
     return rows["body_pose"].numpy(), flipped
 

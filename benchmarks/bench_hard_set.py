@@ -106,10 +106,10 @@ def main() -> None:
     if len(out) == 2:
         before, after = out.values()
         d = np.array([a["sil"] - b["sil"] for a, b in zip(after, before)])
+        moved = [f"{a['seed']}/{a['i']}: {b['sil']:.0f} -> {a['sil']:.0f}" for a, b in zip(after, before)
+                 if abs(a["sil"] - b["sil"]) > 30]  # fmt: skip
         print(f"\nWith silhouettes, after against before: {(d < -10).sum()} subjects better by more than 10 mm, "
-              f"{(d > 10).sum()} worse; moved by more than 30 mm (seed/subject: before -> after): "
-              + ", ".join(f"{a['seed']}/{a['i']}: {b['sil']:.0f} -> {a['sil']:.0f}" for a, b in zip(after, before)
-                          if abs(a["sil"] - b["sil"]) > 30))  # fmt: skip
+              f"{(d > 10).sum()} worse; moved by more than 30 mm (seed/subject: before -> after): {', '.join(moved) or 'none'}")
 
 
 if __name__ == "__main__":

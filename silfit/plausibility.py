@@ -298,13 +298,16 @@ def moves_a_joint(alternative, min_shift_mm: float = MIN_SHIFT_MM) -> bool:
 
 
 def _segments(label: str) -> list:
-    """The limb and torso segments a hypothesis' label flips (``keep``: none)."""
-    from .fitting.branches import JOINT_HYPOTHESES
+    """The limb and torso segments a hypothesis' label flips (``keep``: none; a root turn, ``yaw`` or
+    ``turn+30``, is named ``facing``; ``/turn`` says how a hinge segment was flipped)."""
+    from .fitting.branches import JOINT_HYPOTHESES, LIMB_SEGMENTS, TORSO_SEGMENT
 
     joint = dict(JOINT_HYPOTHESES)
     if label in joint:
         return [seg for part in joint[label] for seg in part]
-    return [seg.split("/")[0] for seg in label.split("+") if seg and seg != "keep"]  # (``/turn``: how it was flipped)
+    known = {s[0] for s in LIMB_SEGMENTS + (TORSO_SEGMENT,)} | {"hip"}
+    facing = ["facing"] if label.startswith(("yaw", "turn")) else []
+    return facing + [seg.split("/")[0] for seg in label.split("+") if seg.split("/")[0] in known]
 
 
 def depth_warnings(search, hypotheses=None, margin: float = HYPOTHESIS_MARGIN, search_margin: float = SEARCH_MARGIN,

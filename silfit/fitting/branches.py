@@ -6,7 +6,9 @@ through the plane that contains ``p`` and is perpendicular to the viewing ray pr
 camera and one away. Keypoints cannot tell them apart; a fit started on the wrong side
 stays there. :func:`flip_segment` builds the mirrored branch as a pose: the proximal
 joint's rotation is composed with the smallest rotation taking ``d - p`` to its mirror
-image, so the segment and everything below it turn rigidly. :func:`limb_hypotheses`
+image, so the segment and everything below it turn rigidly; at a hinge (elbow, knee) the
+upper segment twists about its own axis and the hinge flexes instead, as the joint can
+(:data:`HINGE_BEND`). :func:`limb_hypotheses`
 proposes, per sample, the flips of the segments that point far enough out of the image
 plane to matter (``min_depth_ratio``), singly and per whole limb.
 
@@ -21,7 +23,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-__all__ = ["HINGE_BEND", "JOINT_HYPOTHESES", "LIMB_SEGMENTS", "LIMBS", "TORSO_SEGMENT", "align_segments", "flip_hip", "joint_hypotheses", "flip_segment", "limb_hypotheses", "mirror_rotation", "rotation_between", "turn_hypotheses", "turn_root"]
+__all__ = ["HINGE_BEND", "HINGE_MIN_BEND_DEG", "JOINT_HYPOTHESES", "LIMB_SEGMENTS", "LIMBS", "TORSO_SEGMENT", "align_segments", "flip_hip", "joint_hypotheses", "flip_segment", "limb_hypotheses", "mirror_rotation", "rotation_between", "turn_hypotheses", "turn_root"]
 
 #: (segment, rotated joint, distal joint), SMPL joint names
 LIMB_SEGMENTS: Tuple[Tuple[str, str, str], ...] = (
@@ -39,6 +41,8 @@ LIMB_SEGMENTS: Tuple[Tuple[str, str, str], ...] = (
 #: :mod:`silfit.priors.limits`)
 HINGE_BEND = {"left_forearm": (0.0, 0.0, 1.0), "right_forearm": (0.0, 0.0, 1.0),
               "left_shin": (0.0, 0.0, -1.0), "right_shin": (0.0, 0.0, -1.0)}  # fmt: skip
+#: a mirrored hinge segment within this many degrees of its upper segment's line takes the smallest turn
+HINGE_MIN_BEND_DEG = 20.0
 #: the torso's lean: turned at the lowest spine joint, pelvis and legs unchanged
 TORSO_SEGMENT = ("torso", "spine1", "neck")
 #: joint hypotheses the single-segment search cannot reach (its screen keeps only the best few,
@@ -112,8 +116,9 @@ def flip_segment(body, rows: Dict[str, torch.Tensor], segment: str, joint_names:
     p, d = joints[:, j], joints[:, c]
     ray = 0.5 * (p + d)
     n = ray / np.linalg.norm(ray, axis=-1, keepdims=True)
+    turned = _turned(rows, G, j, parents, mirror_rotation(d - p, n))
     if not hinge or segment not in HINGE_BEND:
-        return _turned(rows, G, j, parents, mirror_rotation(d - p, n))
+        return turned
     # a hinge (elbow, knee): the upper segment twists about its own axis until the hinge bends
     # toward the mirrored segment, then the hinge bends onto it (the smallest turn at the hinge
     # would bend it sideways, which the priors undo before the branch is scored)
@@ -127,7 +132,11 @@ def flip_segment(body, rows: Dict[str, torch.Tensor], segment: str, joint_names:
     angle = np.arctan2((np.cross(b, t) * u).sum(-1), (b * t).sum(-1))
     twisted = dict(rows, body_pose=_turned(rows, G, parents[j], parents, Rotation.from_rotvec(u * angle[:, None]).as_matrix()))
     joints, G = _pose_state(body, twisted)
-    return _turned(twisted, G, j, parents, rotation_between(joints[:, c] - joints[:, j], target))
+    hinged = _turned(twisted, G, j, parents, rotation_between(joints[:, c] - joints[:, j], target))
+    # nearly in line with the upper segment, the mirrored segment needs little flexion and the twist
+    # would follow a tiny residual (any angle): there the smallest turn, a small sideways bend
+    near = np.linalg.norm(t, axis=-1) < np.sin(np.deg2rad(HINGE_MIN_BEND_DEG)) * np.linalg.norm(target, axis=-1)
+    return torch.where(torch.as_tensor(near)[:, None], turned, hinged)
 
 
 def flip_hip(body, rows: Dict[str, torch.Tensor], joint_names: Sequence[str]) -> Dict[str, torch.Tensor]:

@@ -208,9 +208,11 @@ class KeypointFitConfig:
     #: hinge flexes: :func:`~silfit.fitting.branches.flip_segment`); off: the smallest turn at the hinge,
     #: which bends it sideways, so the priors pull the branch back before it is scored (issue 25: a hand
     #: at the chest fitted as an arm held out to the camera). Tuning seeds 10900, 10901, 12200, 12201 (120
-    #: hard subjects, the default image path with silhouettes): PA-PVE mean 67.5 -> 64.1 mm
+    #: hard subjects, the default image path with silhouettes): PA-PVE mean 67.5 -> 64.1 mm, 63.0 with
+    #: ``branch_hinge_turns``; fresh ones in the README ("Hinge flips", benchmarks/bench_hard_set.py)
     branch_hinge: bool = True
-    #: with ``branch_hinge``, the smallest turn at each hinge is also a hypothesis (``<segment>/turn``)
+    #: with ``branch_hinge``, each hinge segment flipped alone by the smallest turn at its hinge is also a
+    #: hypothesis (``<segment>/turn``; whole limbs, joint and root-turn hypotheses use the hinge flip only)
     branch_hinge_turns: bool = True
     #: also the joint hypotheses (:data:`~silfit.fitting.branches.JOINT_HYPOTHESES`: both legs,
     #: both arms, the torso's lean with the legs, the hip's tilt), screened with the others. Off by
@@ -911,7 +913,7 @@ class KeypointFitter:
                 opts = stage.options["branches"]
                 hyps = limb_hypotheses(self.body, layout.rows(state), self.model.joint_names, self.model.parents,
                                        opts.get("min_depth_ratio", 0.3), opts.get("whole_limbs", True),
-                                       opts.get("joint", False), opts.get("hinge", True), opts.get("hinge_turns", False))  # fmt: skip
+                                       opts.get("joint", False), opts.get("hinge", True), opts.get("hinge_turns", True))  # fmt: skip
                 if opts.get("turns"):
                     hyps += turn_hypotheses(self.body, layout.rows(state), self.model.joint_names, self.model.parents,
                                             opts["turns"], opts.get("min_depth_ratio", 0.3), opts.get("whole_limbs", True),

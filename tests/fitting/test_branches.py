@@ -139,3 +139,61 @@ def test_a_hinge_flip_bends_the_hinge_the_natural_way_and_keeps_the_projection(b
     sideways = flip_segment(body, rows, "left_forearm", names, parents, hinge=False)  # the smallest turn at the elbow
     turn = Rotation.from_rotvec(sideways[:, 3 * (el - 1) : 3 * el].double().numpy()).as_rotvec()
     assert not (turn[:, 1] < -0.5).all()
+
+
+def test_every_hinge_flexes_its_natural_way_and_a_nearly_straight_mirror_takes_the_smallest_turn(body_model):
+    """Both forearms and both shins (the flexion axes of silfit.priors.limits: left elbow -Y, right elbow
+    +Y, knees +X); a segment whose mirror image lies within HINGE_MIN_BEND_DEG of its upper segment's
+    line (an arm held almost in the image plane) takes the smallest turn, as the twist is ill-defined there."""
+    from scipy.spatial.transform import Rotation
+
+    from silfit.fitting.branches import flip_segment
+
+    body = KeypointBody(body_model, "body25")
+    names, parents = body_model.joint_names, body_model.parents
+    cases = {  # segment: (upper joint, its rotation pointing the segment at the camera, hinge, flexion axis, sign)
+        "left_forearm": ("left_shoulder", (0.3, -1.2, 0.2), "left_elbow", 1, -1.0),
+        "right_forearm": ("right_shoulder", (0.3, 1.2, -0.2), "right_elbow", 1, 1.0),
+        "left_shin": ("left_hip", (-1.2, 0.0, 0.1), "left_knee", 0, 1.0),
+        "right_shin": ("right_hip", (-1.1, 0.0, -0.1), "right_knee", 0, 1.0),
+    }
+    rows = {"betas": torch.zeros(2, 10, dtype=body_model.dtype),
+            "global_orient": torch.tensor([[np.pi, 0.0, 0.0]] * 2, dtype=body_model.dtype),
+            "transl": torch.tensor([[0.0, 0.2, 3.0]] * 2, dtype=body_model.dtype)}  # fmt: skip
+    for segment, (upper, turn, hinge, axis, sign) in cases.items():
+        u, h = names.index(upper), names.index(hinge)
+        pose = torch.zeros(2, 69, dtype=body_model.dtype)
+        pose[:, 3 * (u - 1) : 3 * u] = torch.tensor(turn)
+        pose[1, 3 * (h - 1) + axis] = sign * 0.5  # row 1 bent a little, the natural way
+        flipped = flip_segment(body, dict(rows, body_pose=pose), segment, names, parents)
+        bend = Rotation.from_rotvec(flipped[:, 3 * (h - 1) : 3 * h].double().numpy()).as_rotvec()
+        assert (sign * bend[:, axis] > 0.5).all(), segment
+        assert (np.abs(np.delete(bend, axis, axis=1)).max(axis=1) < 0.1 * np.abs(bend[:, axis]) + 0.1).all(), segment
+    el = names.index("left_elbow")
+    flat = torch.zeros(1, 69, dtype=body_model.dtype)
+    flat[0, 3 * (names.index("left_shoulder") - 1) + 1] = -0.12  # a straight arm 7 degrees out of the image plane
+    hinged = flip_segment(body, dict({k: v[:1] for k, v in rows.items()}, body_pose=flat), "left_forearm", names, parents)
+    turned = flip_segment(body, dict({k: v[:1] for k, v in rows.items()}, body_pose=flat), "left_forearm", names, parents,
+                          hinge=False)  # fmt: skip
+    assert torch.equal(hinged, turned) and torch.any(hinged[0, 3 * (el - 1) : 3 * el] != 0)
+
+
+def test_a_hinge_flip_by_the_smallest_turn_is_its_own_hypothesis_and_names_its_segment(body_model):
+    from silfit.fitting.branches import limb_hypotheses
+    from silfit.plausibility import _segments
+
+    body = KeypointBody(body_model, "body25")
+    names, parents = body_model.joint_names, body_model.parents
+    pose = torch.zeros(1, 69, dtype=body_model.dtype)
+    pose[0, 3 * (names.index("left_shoulder") - 1) : 3 * names.index("left_shoulder")] = torch.tensor([0.3, -1.2, 0.2])
+    rows = {"betas": torch.zeros(1, 10, dtype=pose.dtype), "body_pose": pose,
+            "global_orient": torch.tensor([[np.pi, 0.0, 0.0]], dtype=pose.dtype),
+            "transl": torch.tensor([[0.0, 0.2, 3.0]], dtype=pose.dtype)}  # fmt: skip
+    labels = lambda **kw: [h[1] for h in limb_hypotheses(body, rows, names, parents, **kw)]  # noqa: E731
+    both, alone = labels(hinge_turns=True), labels(hinge_turns=False)
+    assert "left_forearm" in alone and "left_forearm/turn" not in alone
+    assert set(both) - set(alone) == {"left_forearm/turn"}
+    assert _segments("left_forearm/turn") == ["left_forearm"]
+    assert _segments("left_upper_arm+left_forearm") == ["left_upper_arm", "left_forearm"]
+    assert _segments("turn+30+left_shin") == ["facing", "left_shin"] and _segments("yaw") == ["facing"]
+    assert _segments("keep") == []
