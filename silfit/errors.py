@@ -10,7 +10,7 @@ import os
 import re
 from typing import Optional, Union
 
-__all__ = ["InputError", "UnsafeFileError", "quoted", "cut_quotes", "QUOTE_CHARS"]
+__all__ = ["InputError", "UnsafeFileError", "interruption", "quoted", "cut_quotes", "QUOTE_CHARS"]
 
 #: Most characters of a value read from a file that an error message quotes.
 QUOTE_CHARS = 24
@@ -63,3 +63,16 @@ def cut_quotes(message: str, limit: int = QUOTE_CHARS) -> str:
         return m.group(0) if len(body) <= limit else f"'{body[:limit]}...' ({len(body)} characters)"
 
     return _QUOTE.sub(cut, message)
+
+
+def interruption(err: BaseException) -> Optional[KeyboardInterrupt]:
+    """The interrupt (``KeyboardInterrupt``: Ctrl-C, or the command line's SIGTERM) that ``err`` is or
+    was raised while handling, if any: a signal inside ``np.savez`` leaves a zip member open, and
+    closing the archive on the way out raises ``ValueError``, which is the interrupt, not bad input."""
+    seen = set()
+    while err is not None and id(err) not in seen:
+        if isinstance(err, KeyboardInterrupt):
+            return err
+        seen.add(id(err))
+        err = err.__cause__ or err.__context__
+    return None

@@ -72,20 +72,33 @@ def main(argv=None) -> int:
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)  # no subcommand: a usage error, as argparse treats one
         return 2
-    from .interrupts import Interrupted, interrupts_raise
+    from .interrupts import interrupts_raise
 
     with interrupts_raise():
-        try:
-            return int(args.func(args) or 0)
-        except (OSError, ValueError) as err:  # bad input: silfit.errors.InputError (CLIError) is a ValueError
-            print(f"silfit {args.command}: error: {' '.join(_describe(err, args).split())}", file=sys.stderr)
-            return 2
-        except MemoryError:
-            print(f"silfit {args.command}: error: out of memory (is an input far larger than intended?)", file=sys.stderr)
-            return 2
-        except Interrupted as stop:
+        return run_command(args)
+
+
+def run_command(args) -> int:
+    """``args.func(args)``'s exit code, with bad input, memory and interrupts as one line each. An
+    error raised while an interrupt unwinds (a zip file closed with a member half written) is the
+    interrupt: it is reported as such and exits with its code."""
+    from ..errors import interruption
+    from .interrupts import Interrupted
+
+    try:
+        return int(args.func(args) or 0)
+    except BaseException as err:
+        stop = interruption(err)
+        if isinstance(stop, Interrupted):
             print(f"silfit {args.command}: interrupted ({stop})", file=sys.stderr)
             return stop.exit_code
+        if isinstance(err, (OSError, ValueError)):  # bad input: silfit.errors.InputError (CLIError) is a ValueError
+            print(f"silfit {args.command}: error: {' '.join(_describe(err, args).split())}", file=sys.stderr)
+            return 2
+        if isinstance(err, MemoryError):
+            print(f"silfit {args.command}: error: out of memory (is an input far larger than intended?)", file=sys.stderr)
+            return 2
+        raise
 
 
 if __name__ == "__main__":

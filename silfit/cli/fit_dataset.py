@@ -128,11 +128,14 @@ def run(args) -> int:
     except InputError as err:
         raise CLIError(str(err)) from None
     if not args.no_report:
+        from ..errors import interruption
         from ..outputs.report import write_report
 
         try:
             index = write_report(args.out)
         except (OSError, ValueError) as err:  # the fits are written; a report that cannot be is a warning
+            if interruption(err) is not None:  # (unless the run was stopped while writing it)
+                raise
             print(f"silfit fit-dataset: warning: no report: {' '.join(str(err).split())}", file=sys.stderr)
         else:
             print(f"wrote {index} (open it in a browser)")

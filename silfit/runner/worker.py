@@ -21,6 +21,7 @@ from typing import Dict, List, Optional, Sequence, Union
 
 import numpy as np
 
+from ..errors import interruption
 from ..fitting.keypoint_stage import KeypointFitConfig
 from ..fitting.silhouette_stage import SilhouetteFitConfig
 from ..image_fit import FitResult, save_fit
@@ -214,6 +215,8 @@ class DatasetFitter:
                 save_fit(res, out / key, self.faces, fit.job.problem.observations[0].keypoints, li.image, li.mask,
                          self._extra(li, len(loaded)), overwrite=True, exports=tuple(self.options.exports))  # fmt: skip
             except (OSError, ValueError) as err:
+                if interruption(err) is not None:  # the run was stopped while writing: not this item's failure
+                    raise
                 records[key] = _failed(li.item, "save", item_error(err, os.fspath(out / key), "output"))
                 continue
             times[key]["save"] = time.perf_counter() - t0

@@ -58,3 +58,28 @@ def test_signal_leaves_no_output_folder(inputs, tmp_path, sig, phase):
         assert not (tmp_path / "new").exists(), list(tmp_path.rglob("*"))
         return
     pytest.skip("the fit finished before the signal could be delivered, three times")
+
+
+def test_an_error_raised_while_an_interrupt_unwinds_is_reported_as_the_interrupt(capsys):
+    """A signal inside ``np.savez`` leaves a zip member open; closing the archive on the way out
+    raises ValueError, which must not turn the interrupt into an input error (exit 2)."""
+    import argparse
+
+    from silfit.cli import run_command
+    from silfit.cli.interrupts import Interrupted
+
+    def save(args):  # as zipfile.ZipFile.__exit__ does when the signal left a member's handle open
+        try:
+            raise Interrupted(signal.SIGTERM)
+        finally:
+            raise ValueError("Can't close the ZIP file while there is an open writing handle on it.")
+
+    assert run_command(argparse.Namespace(func=save, command="fit")) == 128 + signal.SIGTERM
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["silfit fit: interrupted (SIGTERM)"]
+
+    def bad(args):
+        raise ValueError("kp.json: field 'people' missing")
+
+    assert run_command(argparse.Namespace(func=bad, command="fit")) == 2
+    assert capsys.readouterr().err.strip() == "silfit fit: error: kp.json: field 'people' missing"
