@@ -69,10 +69,13 @@ def interruption(err: BaseException) -> Optional[KeyboardInterrupt]:
     """The interrupt (``KeyboardInterrupt``: Ctrl-C, or the command line's SIGTERM) that ``err`` is or
     was raised while handling, if any: a signal inside ``np.savez`` leaves a zip member open, and
     closing the archive on the way out raises ``ValueError``, which is the interrupt, not bad input."""
-    seen = set()
-    while err is not None and id(err) not in seen:
-        if isinstance(err, KeyboardInterrupt):
-            return err
-        seen.add(id(err))
-        err = err.__cause__ or err.__context__
+    seen, todo = set(), [err]
+    while todo:  # both links: ``raise X from Y`` while handling an interrupt keeps it in the context
+        e = todo.pop(0)
+        if e is None or id(e) in seen:
+            continue
+        if isinstance(e, KeyboardInterrupt):
+            return e
+        seen.add(id(e))
+        todo += [e.__cause__, e.__context__]
     return None

@@ -34,6 +34,7 @@ import numpy as np
 import torch
 
 from .camera import Camera, project_points
+from .errors import interruption
 from .fitting.keypoint_stage import KeypointFitter
 from .fitting.result import KeypointFitResult
 from .fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult
@@ -404,7 +405,7 @@ def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Came
         try:
             return list(zip(rows, call(rows)))
         except Exception as err:  # noqa: BLE001 - which row failed is found by fitting them alone
-            if not isolate:
+            if not isolate or interruption(err) is not None:  # (an error on an interrupt's way out is the interrupt)
                 raise
             if len(rows) == 1:
                 return [(rows[0], StageFailure(stage, err))]

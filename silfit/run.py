@@ -26,7 +26,7 @@ from typing import Any, Dict, List, Optional, Sequence, Union
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, interruption
 from .fitting.problem import Observation, Problem
 from .image_fit import StageFailure
 
@@ -271,7 +271,7 @@ def run_batch(jobs: Sequence[Job], isolate: bool = False) -> List[Union[Fit, Exc
             try:
                 results = [_run_video(checked[rows[0]])]
             except Exception as err:  # noqa: BLE001 - one job's failure, kept in its place
-                if not isolate:
+                if not isolate or interruption(err) is not None:
                     raise
                 results = [err]
         for i, fit in zip(rows, results):
@@ -328,7 +328,7 @@ def _run_rigs(jobs: Sequence[Job], isolate: bool) -> list:
                            first.keypoint_config, silhouette=first.silhouette, silhouette_config=first.silhouette_config,
                            progress=first.progress)  # fmt: skip
     except Exception as err:  # noqa: BLE001 - which job failed is found by fitting them alone
-        if not isolate:
+        if not isolate or interruption(err) is not None:
             raise
         return [err] if len(jobs) == 1 else [r for job in jobs for r in _run_rigs([job], isolate)]
     out = []

@@ -89,9 +89,9 @@ def run_command(args) -> int:
         return int(args.func(args) or 0)
     except BaseException as err:
         stop = interruption(err)
-        if isinstance(stop, Interrupted):
-            print(f"silfit {args.command}: interrupted ({stop})", file=sys.stderr)
-            return stop.exit_code
+        if stop is not None:  # the handler's Interrupted (128 + its signal), or a plain Ctrl-C (130)
+            print(f"silfit {args.command}: interrupted ({str(stop) or 'SIGINT'})", file=sys.stderr)
+            return stop.exit_code if isinstance(stop, Interrupted) else 130
         if isinstance(err, (OSError, ValueError)):  # bad input: silfit.errors.InputError (CLIError) is a ValueError
             print(f"silfit {args.command}: error: {' '.join(_describe(err, args).split())}", file=sys.stderr)
             return 2

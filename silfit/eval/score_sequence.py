@@ -19,7 +19,7 @@ from typing import Dict, List, Optional, Sequence
 import numpy as np
 import torch
 
-from ..errors import InputError
+from ..errors import InputError, interruption
 from .metrics import acceleration_error, mpjpe, pa_mpjpe, shape_pve
 
 __all__ = ["SEQUENCE_METRICS", "evaluate_sequences", "is_sequence_dataset", "score_sequence", "sequence_table"]
@@ -121,6 +121,8 @@ def evaluate_sequences(dataset: os.PathLike, fits: Optional[os.PathLike] = None,
             fit = read_fit(out, sizes={**model.parameter_sizes, "betas": None})
             per = read_fit(out / "stages" / "per_frame", sizes={**model.parameter_sizes, "betas": None})
         except (ValueError, OSError) as err:
+            if interruption(err) is not None:  # stopped while writing: not this subject's failure
+                raise
             skipped.append({"subject": name, "error": " ".join(str(err).split())})
             continue
         t, F = metrics.get("timings", {}), fit.num_frames

@@ -133,10 +133,12 @@ def flip_segment(body, rows: Dict[str, torch.Tensor], segment: str, joint_names:
     twisted = dict(rows, body_pose=_turned(rows, G, parents[j], parents, Rotation.from_rotvec(u * angle[:, None]).as_matrix()))
     joints, G = _pose_state(body, twisted)
     hinged = _turned(twisted, G, j, parents, rotation_between(joints[:, c] - joints[:, j], target))
-    # nearly in line with the upper segment, the mirrored segment needs little flexion and the twist
-    # would follow a tiny residual (any angle): there the smallest turn, a small sideways bend
-    near = np.linalg.norm(t, axis=-1) < np.sin(np.deg2rad(HINGE_MIN_BEND_DEG)) * np.linalg.norm(target, axis=-1)
-    return torch.where(torch.as_tensor(near)[:, None], turned, hinged)
+    # nearly straight on from the upper segment, the mirrored segment needs little flexion and the twist
+    # would follow a tiny residual (any angle): there the smallest turn, a small sideways bend (folded
+    # back onto the upper segment, the twist is as ill-defined, but the fold is the hinge's to make)
+    near = (np.linalg.norm(t, axis=-1) < np.sin(np.deg2rad(HINGE_MIN_BEND_DEG)) * np.linalg.norm(target, axis=-1)) \
+        & ((target * u).sum(-1) > 0)
+    return torch.where(torch.as_tensor(near, device=turned.device)[:, None], turned, hinged)
 
 
 def flip_hip(body, rows: Dict[str, torch.Tensor], joint_names: Sequence[str]) -> Dict[str, torch.Tensor]:
@@ -251,10 +253,11 @@ def limb_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, m
         for r in np.nonzero(ratios[name] >= min_depth_ratio)[0].tolist():
             out.append((r, name, flipped[name][r]))
     if hinge and hinge_turns:  # the smallest turn at each hinge too, labelled ``<segment>/turn``
-        for name in HINGE_BEND:
+        for name in HINGE_BEND:  # (where the hinge flip is that turn already, nearly straight on: no copy)
             turned = flip_segment(body, rows, name, joint_names, parents, hinge=False)
             for r in np.nonzero(ratios[name] >= min_depth_ratio)[0].tolist():
-                out.append((r, f"{name}/turn", turned[r]))
+                if not torch.equal(turned[r], flipped[name][r]):
+                    out.append((r, f"{name}/turn", turned[r]))
     if whole_limbs:
         for upper, lower in LIMBS:
             sel = np.nonzero((ratios[upper] >= min_depth_ratio) | (ratios[lower] >= min_depth_ratio))[0]

@@ -78,6 +78,15 @@ def test_an_error_raised_while_an_interrupt_unwinds_is_reported_as_the_interrupt
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["silfit fit: interrupted (SIGTERM)"]
 
+    def ctrl_c(args):  # a plain KeyboardInterrupt (outside the handler), and an error raised "from" another
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise ValueError("closing") from OSError("unrelated")
+
+    assert run_command(argparse.Namespace(func=ctrl_c, command="fit")) == 130
+    assert capsys.readouterr().err.strip() == "silfit fit: interrupted (SIGINT)"
+
     def bad(args):
         raise ValueError("kp.json: field 'people' missing")
 

@@ -176,6 +176,11 @@ def test_every_hinge_flexes_its_natural_way_and_a_nearly_straight_mirror_takes_t
     turned = flip_segment(body, dict({k: v[:1] for k, v in rows.items()}, body_pose=flat), "left_forearm", names, parents,
                           hinge=False)  # fmt: skip
     assert torch.equal(hinged, turned) and torch.any(hinged[0, 3 * (el - 1) : 3 * el] != 0)
+    toward = torch.zeros(1, 69, dtype=body_model.dtype)
+    toward[0, 3 * (names.index("left_shoulder") - 1) + 1] = -1.5  # a straight arm held out to the camera: its mirror
+    fold = flip_segment(body, dict({k: v[:1] for k, v in rows.items()}, body_pose=toward), "left_forearm", names, parents)
+    bend = Rotation.from_rotvec(fold[0, 3 * (el - 1) : 3 * el].double().numpy()).as_rotvec()  # folds back: the elbow's
+    assert bend[1] < -2.0 and np.abs(bend[[0, 2]]).max() < 0.2  # to make, not a sideways turn (issue 25's hand at the chest)
 
 
 def test_a_hinge_flip_by_the_smallest_turn_is_its_own_hypothesis_and_names_its_segment(body_model):

@@ -112,9 +112,17 @@ def test_an_interrupt_while_saving_stops_the_run_and_is_not_an_items_failure(tmp
         fitter.run_batch(list_items(data), tmp_path / "out")
     assert isinstance(caught.value.__context__, KeyboardInterrupt)
 
+    from silfit.fitting.keypoint_stage import KeypointFitter
+
+    monkeypatch.setattr(KeypointFitter, "fit", interrupted)  # in a stage: not a failure to isolate row by row
+    with pytest.raises(ValueError) as caught:
+        fitter.run_batch(list_items(data), tmp_path / "out1")
+    assert isinstance(caught.value.__context__, KeyboardInterrupt)
+    monkeypatch.undo()
+
     def full(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(worker, "save_fit", full)
+    monkeypatch.setattr(worker, "save_fit", full)  # (after undo: the real fit again)
     records = fitter.run_batch(list_items(data), tmp_path / "out2")
     assert records[0]["status"] == "failed" and records[0]["stage"] == "save"
