@@ -41,7 +41,7 @@ LIMB_SEGMENTS: Tuple[Tuple[str, str, str], ...] = (
 #: :mod:`silfit.priors.limits`)
 HINGE_BEND = {"left_forearm": (0.0, 0.0, 1.0), "right_forearm": (0.0, 0.0, 1.0),
               "left_shin": (0.0, 0.0, -1.0), "right_shin": (0.0, 0.0, -1.0)}  # fmt: skip
-#: a mirrored hinge segment within this many degrees of its upper segment's line takes the smallest turn
+#: a mirrored hinge segment within this many degrees of straight on from its upper segment takes the smallest turn
 HINGE_MIN_BEND_DEG = 20.0
 #: the torso's lean: turned at the lowest spine joint, pelvis and legs unchanged
 TORSO_SEGMENT = ("torso", "spine1", "neck")

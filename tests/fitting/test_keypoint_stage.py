@@ -693,3 +693,23 @@ def test_a_stage_tolerance_stops_rows_once_converged():
         its[tol] = both
     assert (its[1e-3].energies["final"] >= its[None].energies["final"] - 1e-6).all()
     assert not np.array_equal(its[1e-3].body_pose, its[None].body_pose)  # some row stopped early
+
+
+@pytest.mark.parametrize("hinge,turns", [(True, True), (False, False), (True, False)])
+def test_the_hinge_settings_reach_the_branch_search(body_model, monkeypatch, hinge, turns):
+    """``branch_hinge`` / ``branch_hinge_turns`` are what every branch search's hypotheses are made with."""
+    from silfit.fitting import keypoint_stage
+
+    seen = []
+    real = keypoint_stage.limb_hypotheses
+
+    def recording(*args):
+        seen.append(args[-2:])  # (hinge, hinge_turns)
+        return real(*args)
+
+    monkeypatch.setattr(keypoint_stage, "limb_hypotheses", recording)
+    kp, _ = subject(body_model)
+    cfg = KeypointFitConfig(camera_iters=5, pose_iters=(5, 5, 5), shape_iters=3, final_iters=5, init_poses=1,
+                            late_branch_iters=6, post_branch_iters=6, branch_hinge=hinge, branch_hinge_turns=turns)  # fmt: skip
+    KeypointFitter(body_model, config=cfg).fit([kp], [CAM], progress=False)
+    assert len(seen) == 3 and set(seen) == {(hinge, turns)}
