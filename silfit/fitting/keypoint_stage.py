@@ -214,6 +214,10 @@ class KeypointFitConfig:
     #: with ``branch_hinge``, each hinge segment flipped alone by the smallest turn at its hinge is also a
     #: hypothesis (``<segment>/turn``; whole limbs, joint and root-turn hypotheses use the hinge flip only)
     branch_hinge_turns: bool = True
+    #: a search's screen and its rows that go on (``carry``) take distinct poses first
+    #: (:func:`best_distinct_per_group`): a hinge flip and its ``/turn`` copy that reached the same pose take one
+    #: place, and the next distinct hypothesis the other (issue 25)
+    branch_distinct: bool = True
     #: also the joint hypotheses (:data:`~silfit.fitting.branches.JOINT_HYPOTHESES`: both legs,
     #: both arms, the torso's lean with the legs, the hip's tilt), screened with the others. Off by
     #: default: on 20 hard subjects (seed 4711, keypoint stage) they changed nothing alone (PA-PVE
@@ -452,7 +456,7 @@ class KeypointFitConfig:
         opts = {"branches": {
             "min_depth_ratio": self.branch_min_depth_ratio, "whole_limbs": self.branch_whole_limbs,
             "joint": self.branch_joint, "screen_after": self.branch_screen_iters, "survivors": self.branch_survivors,
-            "hinge": self.branch_hinge, "hinge_turns": self.branch_hinge_turns,
+            "hinge": self.branch_hinge, "hinge_turns": self.branch_hinge_turns, "distinct": self.branch_distinct,
         }}  # fmt: skip
         if self.occlusion_weight:
             opts["branches"]["occlusion"] = float(self.occlusion_weight)
@@ -538,6 +542,29 @@ def best_per_group(energy: torch.Tensor, group: torch.Tensor, groups: int, count
         step = rtol * max(abs(float(low)), 1.0) if math.isfinite(float(low)) else 1.0
         key = torch.where(torch.isfinite(fg), torch.floor((fg - low) / step), fg)
         out.append(rows[torch.argsort(key, stable=True)[: max(1, int(count))]])
+    return torch.cat(out)
+
+
+def best_distinct_per_group(energy: torch.Tensor, group: torch.Tensor, groups: int, count: int, joints,
+                            min_m: float = DISTINCT_JOINTS_M, max_m: Optional[float] = DISTINCT_JOINT_MAX_M) -> torch.Tensor:
+    """As :func:`best_per_group` with ``count``, but a row goes on only when its joints (``joints [rows, J, 3]``,
+    metres) are distinct (:func:`is_distinct`) from those of every better row of its group already going on;
+    where fewer than ``count`` are distinct, the best of the others fill the places. Rows in rank order per group,
+    groups in order. Two hypotheses that reached the same pose (a hinge flip and its smallest turn, say) take one
+    place, not two (issue 25)."""
+    ranked = best_per_group(energy, group, groups, count=int(group.numel()))
+    out = []
+    for g in range(groups):
+        rows = [r for r in ranked.tolist() if int(group[r]) == g]
+        kept: list = []
+        for r in rows:
+            if len(kept) == count:
+                break
+            if all(is_distinct(joints[r], joints[k], min_m, max_m) for k in kept):
+                kept.append(r)
+        fill = [r for r in rows if r not in kept][: max(0, count - len(kept))]
+        chosen = set(kept + fill)
+        out.append(torch.as_tensor([r for r in rows if r in chosen], dtype=torch.long))
     return torch.cat(out)
 
 
@@ -894,6 +921,15 @@ class KeypointFitter:
                                          "params": {n: v[i].detach().cpu().numpy().astype(np.float32) for n, v in now.items()}})  # fmt: skip
             take(best)
             carried = None
+        def survivors_of(f, count, opts):
+            """Each sample's ``count`` best rows by ``f``; with ``opts['distinct']`` distinct ones first
+            (:func:`best_distinct_per_group`)."""
+            if not opts.get("distinct"):
+                return best_per_group(f, group, B, count)
+            with torch.no_grad():
+                joints = self.body(**layout.rows(state)).joints.double().numpy()
+            return best_distinct_per_group(f, group, B, count, joints)
+
         searched_any = False  # whether a branch search ran (none with several views)
         chosen_branches = [[] for _ in range(B)]
         searched = [[] for _ in range(B)]  # per problem and branch stage: the hypotheses that ran to its end
@@ -930,7 +966,7 @@ class KeypointFitter:
                 # so a sample's steps (two optimiser runs) never depend on the others in its batch
                 if 0 < screen < stage.iterations:
                     f = run(stage, screen, f"{stage.name}_screen")
-                    rows = best_per_group(f, group, B, survivors)
+                    rows = survivors_of(f, survivors, opts)
                     labels = [labels[r] for r in rows.tolist()]
                     take(rows)
                     f = run(stage, stage.iterations - screen)
@@ -948,7 +984,7 @@ class KeypointFitter:
                     searched[b].append({"stage": stage.name, "kept": labels[k], "tried": tried})
                     search_rows[b] += [(t, row_joints[r], r, k) for t, r in zip(tried, mine)]
                 if going_on > 1:  # the best few of each sample go on (to the end, or to the next search)
-                    keep = best_per_group(f, group, B, count=going_on)
+                    keep = survivors_of(f, going_on, opts)
                     if si == last_search:
                         row_labels = [labels[r] for r in keep.tolist()]
                     else:

@@ -22,7 +22,7 @@ HANDS = ("left_hand_pose", "right_hand_pose")
 FACE = ("jaw_pose", "expression")
 #: the keypoint stage's limb-branch search (:mod:`silfit.fitting.branches`)
 BRANCHES = {"branches": {"min_depth_ratio": 0.3, "whole_limbs": True, "joint": False, "screen_after": 15, "survivors": 4,
-                         "hinge": True, "hinge_turns": True}}
+                         "hinge": True, "hinge_turns": True, "distinct": True}}
 #: the late search's: its 4 best go on (``carry``) to settle; the search from the fit screens after 20 of its 40 steps
 LATE_BRANCHES = {"branches": {**BRANCHES["branches"], "carry": 4}}
 POST_BRANCHES = {"branches": {**BRANCHES["branches"], "screen_after": 20}}

@@ -309,6 +309,26 @@ def test_start_choice_treats_near_ties_as_ties_and_keeps_the_earlier_start():
     assert best_per_group(tied, group, 2, count=2).tolist() == [0, 1, 4, 3]  # NaN last
 
 
+def test_distinct_survivors_give_a_repeated_pose_one_place():
+    """A search's survivors take distinct poses first (issue 25): a row whose joints are within the
+    distinctness rule of a better row of its sample gives its place to the next distinct one, and fills a
+    place only where too few are distinct; rows stay in rank order, samples in order."""
+    from silfit.fitting.keypoint_stage import best_distinct_per_group, best_per_group
+
+    group = torch.tensor([0, 0, 0, 0, 1, 1, 1])
+    f = torch.tensor([10.0, 11.0, 12.0, 13.0, 5.0, 6.0, 7.0], dtype=torch.float64)
+    base = np.zeros((24, 3))
+    moved = base.copy()
+    moved[20] += [0.0, 0.0, 0.3]  # a wrist 30 cm away: distinct (one joint beyond 10 cm)
+    near = base.copy()
+    near[20] += [0.0, 0.0, 0.02]  # 2 cm: the same pose
+    joints = np.stack([base, near, moved, moved + 0.001, base, near, near + 0.001])
+    assert best_per_group(f, group, 2, count=2).tolist() == [0, 1, 4, 5]
+    assert best_distinct_per_group(f, group, 2, 2, joints).tolist() == [0, 2, 4, 5]  # sample 1: none distinct, fill
+    assert best_distinct_per_group(f, group, 2, 3, joints).tolist() == [0, 1, 2, 4, 5, 6]
+    assert best_distinct_per_group(f, group, 2, 1, joints).tolist() == [0, 4]
+
+
 # ----------------------------------------------------------------------------- behaviour of single terms
 # (issue 22: each of these fails when its term is switched off, which tools/break_it.py checks)
 CAM256 = Camera.from_image_size(256, 256)
