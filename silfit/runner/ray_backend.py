@@ -17,6 +17,9 @@ from __future__ import annotations
 import json
 import logging
 import os
+import signal
+import threading
+from contextlib import contextmanager
 from typing import List, Optional, Sequence
 
 import numpy as np
@@ -52,12 +55,30 @@ def _init(address: Optional[str], local_cpus: int):
 
     passed = ("PYTHONPATH", "DRJIT_LIBLLVM_PATH", "PYOPENGL_PLATFORM", *KERNEL_PINS, "NPY_DISABLE_CPU_FEATURES", "SILFIT_KERNELS")
     env = {"env_vars": {k: os.environ[k] for k in passed if k in os.environ}}
-    if address:
-        ray.init(address=address, runtime_env=env, log_to_driver=False, logging_level=logging.WARNING)
-    else:
-        ray.init(num_cpus=local_cpus, include_dashboard=False, runtime_env=env, log_to_driver=False,
-                 logging_level=logging.WARNING)  # fmt: skip
+    with _signal_handlers_kept():
+        if address:
+            ray.init(address=address, runtime_env=env, log_to_driver=False, logging_level=logging.WARNING)
+        else:
+            ray.init(num_cpus=local_cpus, include_dashboard=False, runtime_env=env, log_to_driver=False,
+                     logging_level=logging.WARNING)  # fmt: skip
     return True
+
+
+@contextmanager
+def _signal_handlers_kept():
+    """SIGINT's and SIGTERM's handlers as they were before the block: ``ray.init`` installs its own SIGTERM
+    handler in the driver (it exits with status 15, before the command line's cleanup and its one line:
+    ``silfit fit-dataset --ray`` stopped by SIGTERM exits 143 like the local run)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    kept = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, handler in kept.items():
+            if handler is not None:  # None: not installed from Python; leave what is there
+                signal.signal(s, handler)
 
 
 def run_ray(

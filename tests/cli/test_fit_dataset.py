@@ -198,6 +198,29 @@ def test_sigkill_mid_run_then_restart_finishes_each_item_once(tmp_path, workers,
         KeypointFitResult.load(out / key)
 
 
+def test_sigterm_stops_a_ray_run_with_status_143(tmp_path):
+    """``--ray``: ``ray.init`` installs its own SIGTERM handler in the driver (it exited with status 15, without the
+    command line's line); the command line's handler comes back after it, so SIGTERM ends the run with its one line
+    (below Ray's own log lines) and status 143, as a local run does, the items done recorded."""
+    pytest.importorskip("ray")
+    names = [f"subject_{i:03d}" for i in range(4)]
+    data, out = synthetic_copy(tmp_path / "data", names), tmp_path / "out"
+    args = [str(data), "--out", str(out), "--no-silhouette", "--batch-size", "1", "--quiet", "--ray", "--actors", "1",
+            *FAST, "--keypoint-option", "pose_iters=25,25,25"]  # fmt: skip
+    proc = _cli(*args)
+    deadline = time.time() + 600  # Ray's start, then one item done: SIGTERM lands after ray.init
+    while time.time() < deadline and proc.poll() is None and not read_jsonl(out / "results.jsonl"):
+        time.sleep(0.05)
+    assert proc.poll() is None, "the run ended before it could be stopped"
+    os.kill(proc.pid, signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    text = err.decode()
+    assert proc.returncode == 143 and "Traceback" not in text, text[-2000:]
+    assert text.strip().splitlines()[-1] == "silfit fit-dataset: interrupted (SIGTERM)", text[-2000:]  # Ray logs above it
+    assert 1 <= len(read_jsonl(out / "results.jsonl")) <= len(names)
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".")]  # no partial folder left
+
+
 def test_worker_processes_match_one_process(tmp_path):
     """``--workers 2``: two spawned processes (one torch and one Dr.Jit thread each) fit the same bits as this
     process does alone (its Dr.Jit pool as large as the machine), silhouettes included; each item recorded
