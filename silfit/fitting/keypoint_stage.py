@@ -549,20 +549,22 @@ def best_distinct_per_group(energy: torch.Tensor, group: torch.Tensor, groups: i
                             min_m: float = DISTINCT_JOINTS_M, max_m: Optional[float] = DISTINCT_JOINT_MAX_M) -> torch.Tensor:
     """As :func:`best_per_group` with ``count``, but a row goes on only when its joints (``joints [rows, J, 3]``,
     metres) are distinct (:func:`is_distinct`) from those of every better row of its group already going on;
-    where fewer than ``count`` are distinct, the best of the others fill the places. Rows in rank order per group,
-    groups in order. Two hypotheses that reached the same pose (a hinge flip and its smallest turn, say) take one
-    place, not two (issue 25)."""
-    ranked = best_per_group(energy, group, groups, count=int(group.numel()))
+    where fewer than ``count`` are distinct, the best of the others fill the places (rows with non-finite
+    energies only fill, as they rank: last). Rows in rank order per group, groups in order. Two hypotheses
+    that reached the same pose (a hinge flip and its smallest turn, say) take one place, not two (issue 25)."""
+    count = max(1, int(count))
+    ranked = best_per_group(energy, group, groups, count=int(group.numel())).tolist()
+    finite = torch.isfinite(energy).tolist()
     out = []
     for g in range(groups):
-        rows = [r for r in ranked.tolist() if int(group[r]) == g]
+        rows = [r for r in ranked if int(group[r]) == g]
         kept: list = []
         for r in rows:
             if len(kept) == count:
                 break
-            if all(is_distinct(joints[r], joints[k], min_m, max_m) for k in kept):
+            if finite[r] and all(is_distinct(joints[r], joints[k], min_m, max_m) for k in kept):
                 kept.append(r)
-        fill = [r for r in rows if r not in kept][: max(0, count - len(kept))]
+        fill = [r for r in rows if r not in kept][: count - len(kept)]
         chosen = set(kept + fill)
         out.append(torch.as_tensor([r for r in rows if r in chosen], dtype=torch.long))
     return torch.cat(out)
@@ -921,10 +923,12 @@ class KeypointFitter:
                                          "params": {n: v[i].detach().cpu().numpy().astype(np.float32) for n, v in now.items()}})  # fmt: skip
             take(best)
             carried = None
+
         def survivors_of(f, count, opts):
-            """Each sample's ``count`` best rows by ``f``; with ``opts['distinct']`` distinct ones first
-            (:func:`best_distinct_per_group`)."""
-            if not opts.get("distinct"):
+            """Each sample's ``count`` best rows by ``f``, distinct ones first (:func:`best_distinct_per_group`;
+            the search options' ``distinct``, on where a schedule does not say, as ``hinge``): by energy alone
+            with ``distinct`` false."""
+            if not opts.get("distinct", True):
                 return best_per_group(f, group, B, count)
             with torch.no_grad():
                 joints = self.body(**layout.rows(state)).joints.double().numpy()

@@ -66,19 +66,30 @@ def _init(address: Optional[str], local_cpus: int):
 
 @contextmanager
 def _signal_handlers_kept():
-    """SIGINT's and SIGTERM's handlers as they were before the block: ``ray.init`` installs its own SIGTERM
-    handler in the driver (it exits with status 15, before the command line's cleanup and its one line:
-    ``silfit fit-dataset --ray`` stopped by SIGTERM exits 143 like the local run)."""
+    """The command line's SIGINT and SIGTERM handlers (Python functions) back after the block: ``ray.init``
+    installs its own SIGTERM handler in the driver, which exits with status 15 (``SystemExit``), before the
+    command line's cleanup and its one line. So ``silfit fit-dataset --ray`` stopped by SIGTERM exits 143 like a
+    local run, also while Ray starts (its exit is handed to the command line's handler). Handlers that are not
+    Python functions (the defaults, a library caller's run) stay as Ray leaves them; an interrupt whose handler
+    set both signals aside for the cleanup (:mod:`silfit.cli.interrupts`) leaves them aside."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    kept = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    kept = {s: h for s in (signal.SIGINT, signal.SIGTERM) if callable(h := signal.getsignal(s))}
     try:
         yield
-    finally:
-        for s, handler in kept.items():
-            if handler is not None:  # None: not installed from Python; leave what is there
-                signal.signal(s, handler)
+    except BaseException as err:
+        if isinstance(err, SystemExit) and err.code == signal.SIGTERM and signal.SIGTERM in kept:
+            kept[signal.SIGTERM](signal.SIGTERM, None)  # Ray's exit while it started: the command line's interrupt
+        if not (isinstance(err, KeyboardInterrupt) and signal.getsignal(signal.SIGTERM) is signal.SIG_IGN):
+            _restore(kept)  # (an interrupt's cleanup under way keeps both signals aside)
+        raise
+    _restore(kept)
+
+
+def _restore(handlers: dict) -> None:
+    for s, handler in handlers.items():
+        signal.signal(s, handler)
 
 
 def run_ray(

@@ -312,21 +312,48 @@ def test_start_choice_treats_near_ties_as_ties_and_keeps_the_earlier_start():
 def test_distinct_survivors_give_a_repeated_pose_one_place():
     """A search's survivors take distinct poses first (issue 25): a row whose joints are within the
     distinctness rule of a better row of its sample gives its place to the next distinct one, and fills a
-    place only where too few are distinct; rows stay in rank order, samples in order."""
+    place only where too few are distinct (as do rows with non-finite energies); rows come in rank order
+    (ties within ``rtol``: the earlier row first), samples in order, whatever the rows' order in the batch."""
     from silfit.fitting.keypoint_stage import best_distinct_per_group, best_per_group
 
-    group = torch.tensor([0, 0, 0, 0, 1, 1, 1])
-    f = torch.tensor([10.0, 11.0, 12.0, 13.0, 5.0, 6.0, 7.0], dtype=torch.float64)
     base = np.zeros((24, 3))
-    moved = base.copy()
-    moved[20] += [0.0, 0.0, 0.3]  # a wrist 30 cm away: distinct (one joint beyond 10 cm)
+    wrist = base.copy()
+    wrist[20] += [0.0, 0.0, 0.3]  # one joint 30 cm away: distinct (one joint beyond 10 cm)
     near = base.copy()
     near[20] += [0.0, 0.0, 0.02]  # 2 cm: the same pose
-    joints = np.stack([base, near, moved, moved + 0.001, base, near, near + 0.001])
-    assert best_per_group(f, group, 2, count=2).tolist() == [0, 1, 4, 5]
-    assert best_distinct_per_group(f, group, 2, 2, joints).tolist() == [0, 2, 4, 5]  # sample 1: none distinct, fill
-    assert best_distinct_per_group(f, group, 2, 3, joints).tolist() == [0, 1, 2, 4, 5, 6]
-    assert best_distinct_per_group(f, group, 2, 1, joints).tolist() == [0, 4]
+    shifted = base + [0.0, 0.04, 0.0]  # every joint 4 cm away: distinct (30 mm on average)
+    # samples interleaved as a search's rows are (starts, then hypotheses), energies not in row order
+    group = torch.tensor([0, 1, 0, 1, 0, 1, 0, 1, 0])
+    f = torch.tensor([13.0, 5.0, 10.0, 7.0, 11.0, 6.0, 12.0, math.inf, 10.000005], dtype=torch.float64)
+    joints = np.stack([wrist, base, base, near, near, near + 0.001, shifted, wrist, wrist])
+    # ranks: sample 0: 2, 8 (tied with 2: later), 4, 6, 0; sample 1: 1, 5, 3, 7 (inf last)
+    assert best_per_group(f, group, 2, count=3).tolist() == [2, 8, 4, 1, 5, 3]
+    # sample 0: its near-copy 4 gives its place to the shifted pose 6; sample 1: only the inf row is distinct
+    # from its best, and it only fills: its finite near-copies first
+    assert best_distinct_per_group(f, group, 2, 3, joints).tolist() == [2, 8, 6, 1, 5, 3]
+    assert best_distinct_per_group(f, group, 2, 2, joints).tolist() == [2, 8, 1, 5]
+    assert best_distinct_per_group(f, group, 2, 1, joints).tolist() == [2, 1]
+    assert best_distinct_per_group(f, group, 2, 0, joints).tolist() == [2, 1]  # at least one, as best_per_group
+    # all distinct: the same rows as by energy alone
+    apart = np.stack([base + [0.0, 0.0, 0.1 * i] for i in range(9)])
+    assert best_distinct_per_group(f, group, 2, 3, apart).tolist() == best_per_group(f, group, 2, count=3).tolist()
+
+
+@pytest.mark.parametrize("distinct", [True, False])
+def test_the_distinct_setting_reaches_the_branch_search(body_model, monkeypatch, distinct):
+    """``branch_distinct`` decides how every branch search picks its survivors: distinct poses first
+    (:func:`best_distinct_per_group`), or by energy alone."""
+    from silfit.fitting import keypoint_stage
+
+    calls = []
+    real = keypoint_stage.best_distinct_per_group
+    monkeypatch.setattr(keypoint_stage, "best_distinct_per_group", lambda *a, **k: calls.append(1) or real(*a, **k))
+    kp, _ = subject(body_model)
+    cfg = KeypointFitConfig(camera_iters=5, pose_iters=(5, 5, 5), shape_iters=3, final_iters=5, init_poses=1,
+                            late_branch_iters=6, post_branch_iters=6, branch_distinct=distinct)  # fmt: skip
+    KeypointFitter(body_model, config=cfg).fit([kp], [CAM], progress=False)
+    # the three searches' screens and the late search's carry (four rows to settle)
+    assert len(calls) == (4 if distinct else 0)
 
 
 # ----------------------------------------------------------------------------- behaviour of single terms
