@@ -70,12 +70,13 @@ def _signal_handlers_kept():
     installs its own SIGTERM handler in the driver, which exits with status 15 (``SystemExit``), before the
     command line's cleanup and its one line. So ``silfit fit-dataset --ray`` stopped by SIGTERM exits 143 like a
     local run, also while Ray starts (its exit is handed to the command line's handler). Handlers that are not
-    Python functions (the defaults, a library caller's run) stay as Ray leaves them; an interrupt whose handler
-    set both signals aside for the cleanup (:mod:`silfit.cli.interrupts`) leaves them aside."""
+    Python functions (the defaults, a library caller's run) stay as Ray leaves them (a library caller's own
+    Python handler is called, with no frame, for a SIGTERM while Ray starts); an interrupt whose handler set both
+    signals aside for the cleanup (:mod:`silfit.cli.interrupts`) leaves them aside."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    kept = {s: h for s in (signal.SIGINT, signal.SIGTERM) if callable(h := signal.getsignal(s))}
+    kept = {s: h for s in (signal.SIGTERM, signal.SIGINT) if callable(h := signal.getsignal(s))}  # SIGTERM's first back
     try:
         yield
     except BaseException as err:

@@ -324,9 +324,10 @@ def test_distinct_survivors_give_a_repeated_pose_one_place():
     shifted = base + [0.0, 0.04, 0.0]  # every joint 4 cm away: distinct (30 mm on average)
     # samples interleaved as a search's rows are (starts, then hypotheses), energies not in row order
     group = torch.tensor([0, 1, 0, 1, 0, 1, 0, 1, 0])
-    f = torch.tensor([13.0, 5.0, 10.0, 7.0, 11.0, 6.0, 12.0, math.inf, 10.000005], dtype=torch.float64)
+    f = torch.tensor([13.0, 5.0, 10.0, 7.0, 11.0, 6.0, 12.0, math.inf, 9.999995], dtype=torch.float64)
     joints = np.stack([wrist, base, base, near, near, near + 0.001, shifted, wrist, wrist])
-    # ranks: sample 0: 2, 8 (tied with 2: later), 4, 6, 0; sample 1: 1, 5, 3, 7 (inf last)
+    # ranks: sample 0: 2, 8 (lower than 2 by less than rtol: a tie, the earlier row first), 4, 6, 0;
+    # sample 1: 1, 5, 3, 7 (inf last)
     assert best_per_group(f, group, 2, count=3).tolist() == [2, 8, 4, 1, 5, 3]
     # sample 0: its near-copy 4 gives its place to the shifted pose 6; sample 1: only the inf row is distinct
     # from its best, and it only fills: its finite near-copies first
@@ -350,9 +351,11 @@ def test_the_distinct_setting_reaches_the_branch_search(body_model, monkeypatch,
     monkeypatch.setattr(keypoint_stage, "best_distinct_per_group", lambda *a, **k: calls.append(1) or real(*a, **k))
     kp, _ = subject(body_model)
     cfg = KeypointFitConfig(camera_iters=5, pose_iters=(5, 5, 5), shape_iters=3, final_iters=5, init_poses=1,
-                            late_branch_iters=6, post_branch_iters=6, branch_distinct=distinct)  # fmt: skip
+                            branch_iters=20, branch_screen_iters=15, branch_refine=4, late_branch_iters=6,
+                            post_branch_iters=6, branch_distinct=distinct)  # fmt: skip
     KeypointFitter(body_model, config=cfg).fit([kp], [CAM], progress=False)
-    # the three searches' screens and the late search's carry (four rows to settle)
+    # the first search's screen (15 of 20 steps), the late search's carry (its 6 steps: no screen), the search
+    # from the fit's screen (3 of 6) and its carry (the last search: branch_refine rows to the final stage)
     assert len(calls) == (4 if distinct else 0)
 
 
