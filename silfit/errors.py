@@ -10,7 +10,7 @@ import os
 import re
 from typing import Optional, Union
 
-__all__ = ["InputError", "UnsafeFileError", "interruption", "quoted", "cut_quotes", "QUOTE_CHARS"]
+__all__ = ["InputError", "UnsafeFileError", "interruption", "interrupt_cleanup", "quoted", "cut_quotes", "QUOTE_CHARS"]
 
 #: Most characters of a value read from a file that an error message quotes.
 QUOTE_CHARS = 24
@@ -79,3 +79,12 @@ def interruption(err: BaseException) -> Optional[KeyboardInterrupt]:
         seen.add(id(e))
         todo += [e.__cause__, e.__context__]
     return None
+
+
+def interrupt_cleanup(err: BaseException) -> bool:
+    """Whether ``err`` is an interrupt whose handler set SIGINT and SIGTERM aside for the cleanup on the way
+    out (:mod:`silfit.cli.interrupts`): a block that replaced a signal's handler leaves it aside then, rather
+    than putting its own back."""
+    import signal
+
+    return isinstance(err, KeyboardInterrupt) and signal.getsignal(signal.SIGTERM) is signal.SIG_IGN

@@ -24,6 +24,7 @@ from typing import List, Optional, Sequence
 
 import numpy as np
 
+from ..errors import interrupt_cleanup
 from .items import Item
 from .run import drive, shared_batch_size
 from .store import RunStore
@@ -82,8 +83,8 @@ def _signal_handlers_kept():
     except BaseException as err:
         if isinstance(err, SystemExit) and err.code == signal.SIGTERM and signal.SIGTERM in kept:
             kept[signal.SIGTERM](signal.SIGTERM, None)  # Ray's exit while it started: the command line's interrupt
-        if not (isinstance(err, KeyboardInterrupt) and signal.getsignal(signal.SIGTERM) is signal.SIG_IGN):
-            _restore(kept)  # (an interrupt's cleanup under way keeps both signals aside)
+        if not interrupt_cleanup(err):  # (an interrupt's cleanup under way keeps both signals aside)
+            _restore(kept)
         raise
     _restore(kept)
 

@@ -161,6 +161,8 @@ def _sigint_ignored():
     import signal
     import threading
 
+    from ..errors import interrupt_cleanup
+
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -168,8 +170,7 @@ def _sigint_ignored():
     try:
         yield
     except BaseException as err:
-        # an interrupt whose handler set both signals aside for the cleanup (silfit.cli.interrupts) keeps that
-        if not (isinstance(err, KeyboardInterrupt) and signal.getsignal(signal.SIGTERM) is signal.SIG_IGN):
+        if not interrupt_cleanup(err):  # (an interrupt's cleanup under way keeps both signals aside)
             signal.signal(signal.SIGINT, previous)
         raise
     signal.signal(signal.SIGINT, previous)
