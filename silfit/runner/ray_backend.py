@@ -18,6 +18,7 @@ import json
 import logging
 import os
 import signal
+import sys
 import threading
 from contextlib import contextmanager
 from typing import List, Optional, Sequence
@@ -128,10 +129,29 @@ def run_ray(
         )  # fmt: skip
 
         def stream():
-            for batch in fitted.iter_batches(batch_size=None, batch_format="numpy"):
-                yield [json.loads(s) for s in batch["record"]]
+            batches = iter(fitted.iter_batches(batch_size=None, batch_format="numpy"))
+            try:
+                for batch in batches:
+                    yield [json.loads(s) for s in batch["record"]]
+            finally:
+                getattr(batches, "close", lambda: None)()  # Ray Data shuts its executor down here
 
-        return drive(store, stream(), len(pending), progress)
+        records = stream()
+        try:
+            return drive(store, records, len(pending), progress)
+        finally:
+            records.close()  # on an interrupt or an error too: Ray Data's execution stopped before Ray is
     finally:
         if started:
-            ray.shutdown()
+            _shutdown(ray)
+
+
+def _shutdown(ray) -> None:
+    """``ray.shutdown()``, and no new local Ray started afterwards by a Ray Data thread still finishing (its
+    ``ray.get`` after the shutdown would start one: Ray's auto-connect). A ``fit-dataset --ray`` stopped by SIGTERM
+    once printed its line and then waited at exit, its log showing a ``ray.init`` from a thread other than the main
+    one. Auto-connect stays off in this process: a caller that wants Ray again calls ``ray.init``."""
+    hook = sys.modules.get("ray._private.auto_init_hook")
+    if hook is not None and hasattr(hook, "enable_auto_connect"):
+        hook.enable_auto_connect = False
+    ray.shutdown()

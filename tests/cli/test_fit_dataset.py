@@ -217,6 +217,7 @@ def test_sigterm_stops_a_ray_run_with_status_143(tmp_path):
     text = err.decode()
     assert proc.returncode == 143 and "Traceback" not in text, text[-2000:]
     assert text.strip().splitlines()[-1] == "silfit fit-dataset: interrupted (SIGTERM)", text[-2000:]  # Ray logs above it
+    assert "not the main thread" not in text, text[-2000:]  # no second Ray started by a Ray Data thread (CI, once)
     assert 1 <= len(read_jsonl(out / "results.jsonl")) <= len(names)
 
 
@@ -255,6 +256,11 @@ def test_ray_run_matches_local_run(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     common += ["--batch-size", "2"]
     assert main(["fit-dataset", "--out", str(tmp_path / "ray"), "--ray", "--actors", "2", *common]) == 0
+    import ray
+
+    assert not ray.is_initialized()
+    with pytest.raises(Exception, match="not been started"):  # a late Ray Data thread's call starts no new Ray
+        ray.put(1)
     local, ray = _by_item(tmp_path / "local"), _by_item(tmp_path / "ray")
     assert sorted(local) == sorted(ray) == names
     for key in local:
