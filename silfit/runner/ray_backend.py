@@ -63,7 +63,18 @@ def _init(address: Optional[str], local_cpus: int):
         else:
             ray.init(num_cpus=local_cpus, include_dashboard=False, runtime_env=env, log_to_driver=False,
                      logging_level=logging.WARNING)  # fmt: skip
+    _auto_connect_off()  # now, not at the shutdown: Ray's check of the switch does not lock
     return True
+
+
+def _auto_connect_off() -> None:
+    """No Ray started by a bare ``ray.get`` (Ray's auto-connect) in this process from now on: after the run's
+    ``ray.shutdown()`` a Ray Data thread still finishing would start a new local Ray from that thread, and a
+    ``fit-dataset --ray`` stopped by SIGTERM once printed its line and then waited at exit, its log showing a
+    ``ray.init`` from a thread other than the main one (CI). While the run's Ray is up the switch changes nothing."""
+    hook = sys.modules.get("ray._private.auto_init_hook")
+    if hook is not None and hasattr(hook, "enable_auto_connect"):
+        hook.enable_auto_connect = False
 
 
 @contextmanager
@@ -107,7 +118,9 @@ def run_ray(
     local_cpus: int = 2,
     progress: bool = True,
 ) -> float:
-    """Fit ``pending`` on Ray (see the module docstring); the wall time in seconds."""
+    """Fit ``pending`` on Ray (see the module docstring); the wall time in seconds. Where it starts Ray itself,
+    it shuts it down at the end and leaves Ray's auto-connect off in this process (:func:`_auto_connect_off`): a
+    caller that wants Ray again calls ``ray.init``."""
     if not pending:
         return 0.0
     import ray
@@ -137,21 +150,18 @@ def run_ray(
                 getattr(batches, "close", lambda: None)()  # Ray Data shuts its executor down here
 
         records = stream()
+        clean = False
         try:
-            return drive(store, records, len(pending), progress)
-        finally:
-            records.close()  # on an interrupt or an error too: Ray Data's execution stopped before Ray is
+            wall = drive(store, records, len(pending), progress)
+            clean = True
+            return wall
+        finally:  # Ray Data's execution stopped before Ray is, on an interrupt or an error too
+            try:
+                records.close()
+            except Exception:
+                if clean:
+                    raise
+                logging.getLogger(__name__).debug("stopping Ray Data's execution", exc_info=True)  # the first error stands
     finally:
         if started:
-            _shutdown(ray)
-
-
-def _shutdown(ray) -> None:
-    """``ray.shutdown()``, and no new local Ray started afterwards by a Ray Data thread still finishing (its
-    ``ray.get`` after the shutdown would start one: Ray's auto-connect). A ``fit-dataset --ray`` stopped by SIGTERM
-    once printed its line and then waited at exit, its log showing a ``ray.init`` from a thread other than the main
-    one. Auto-connect stays off in this process: a caller that wants Ray again calls ``ray.init``."""
-    hook = sys.modules.get("ray._private.auto_init_hook")
-    if hook is not None and hasattr(hook, "enable_auto_connect"):
-        hook.enable_auto_connect = False
-    ray.shutdown()
+            ray.shutdown()
