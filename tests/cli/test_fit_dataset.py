@@ -260,11 +260,11 @@ def test_ray_run_matches_local_run(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     common += ["--batch-size", "2"]
     assert main(["fit-dataset", "--out", str(tmp_path / "ray"), "--ray", "--actors", "2", *common]) == 0
-    import ray
+    import ray as ray_api
 
-    assert not ray.is_initialized()
+    assert not ray_api.is_initialized()
     with pytest.raises(Exception, match="not been started"):  # a late Ray Data thread's call starts no new Ray
-        ray.put(1)
+        ray_api.put(1)
     local, ray = _by_item(tmp_path / "local"), _by_item(tmp_path / "ray")
     assert sorted(local) == sorted(ray) == names
     for key in local:
