@@ -554,10 +554,10 @@ def best_distinct_per_group(energy: torch.Tensor, group: torch.Tensor, groups: i
     that reached the same pose (a hinge flip and its smallest turn, say) take one place, not two (issue 25)."""
     count = max(1, int(count))
     ranked = best_per_group(energy, group, groups, count=int(group.numel())).tolist()
-    finite = torch.isfinite(energy).tolist()
+    finite, of = torch.isfinite(energy).tolist(), group.tolist()
     out = []
     for g in range(groups):
-        rows = [r for r in ranked if int(group[r]) == g]
+        rows = [r for r in ranked if of[r] == g]
         kept: list = []
         for r in rows:
             if len(kept) == count:
