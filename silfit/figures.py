@@ -306,7 +306,8 @@ def contact_sheet(images: Sequence[Optional[np.ndarray]], titles: Sequence[str],
     import matplotlib.pyplot as plt
 
     rows = int(np.ceil(len(images) / columns))
-    fig, axes = plt.subplots(rows, columns, figsize=(3.6 * columns, 3.8 * rows), dpi=100, squeeze=False)
+    lines = max([t.count("\n") for t in titles] + [0])  # room for titles of several lines
+    fig, axes = plt.subplots(rows, columns, figsize=(3.6 * columns, (3.8 + 0.25 * lines) * rows), dpi=100, squeeze=False)
     for ax in axes.ravel():
         ax.axis("off")
     for ax, img, title in zip(axes.ravel(), images, titles):

@@ -18,6 +18,11 @@ Output folder written by :func:`save_fit` (and ``silfit fit``)::
     iou_curve.png              IoU and energy per silhouette step   [with a mask]
     metrics.json               timings per stage, reprojection error, IoU before/after, warnings
     stages/keypoints/          the keypoint stage's params.npz, params.json and overlay.png
+    hypotheses/<k>/            with ``--hypotheses K``: the k-th best distinct depth-branch solution
+                               (1: the keypoint stage's best), its params.npz/params.json (its energy,
+                               gap and the segments it turns in ``record``), mesh.obj; with a mask
+                               refined against it, and stages/keypoints/ the keypoint stage's
+    hypotheses.png             each hypothesis over the image and from the side   [--hypotheses K]
 
 Everything is written into a temporary folder beside the target and moved into place at
 the end, so a failed run leaves nothing half-written.
@@ -64,6 +69,10 @@ class FitResult:
     #: rendered body masks ``[H, W]`` (bool) of the keypoint stage and of the final body,
     #: when a silhouette was fitted
     masks: dict = field(default_factory=dict)
+    #: with ``--hypotheses K`` (:attr:`KeypointFitResult.hypotheses`), each hypothesis as a fit
+    #: (:func:`_hypothesis_outputs`): ``{"rank", "params", "vertices", "keypoints_2d", "keypoint_params", "record"}``;
+    #: ``params`` refined against the mask where there is one (``keypoint_params``: the keypoint stage's, else ``None``)
+    hypotheses: list = field(default_factory=list)
 
     @property
     def final(self) -> KeypointFitResult:
@@ -191,6 +200,34 @@ def _choose_hypothesis(model, sils, starts, keypoints: KeypointSet, camera: Came
     gap = (energies[0] - energies[c]) / abs(energies[0]) if energies[0] and energies[c] is not None else 0.0
     return c, {"energies": energies, "iou": [float(s.iou_end) for s in sils], "kept": c + 1, "gap": float(gap),
                "guard_reverted": reverted}  # fmt: skip
+
+
+def _hypothesis_outputs(model, hypotheses: list, keypoints: KeypointSet, camera: Camera, refined=None,
+                        choice: Optional[dict] = None, kept: Optional[int] = 1, where: str = "mask") -> list:
+    """One image's ``--hypotheses K`` solutions (``hypotheses``: :attr:`KeypointFitResult.hypotheses`' entry) as fits,
+    for :attr:`FitResult.hypotheses` (:func:`save_fit` writes them to ``hypotheses/<rank>/``): each one's parameters
+    posed, with ``record`` (:func:`~silfit.plausibility.hypothesis_summary`'s row, ``kept``: whether the final fit
+    came from it, given as the rank ``kept`` (``None``: none), and ``params_from``: which stage's parameters these are). With ``refined`` (per hypothesis, the silhouette stage's result from it) and
+    ``choice`` (:func:`_choose_hypothesis`'s record), each is the refined one, unless the plausibility guard finds it
+    less plausible than its own keypoint fit (then that, as for the fit itself), with the stage's final energy and
+    window IoU in its record; ``keypoint_params`` is then the keypoint stage's."""
+    from .plausibility import hypothesis_summary
+
+    out = []
+    for k, (h, row) in enumerate(zip(hypotheses, hypothesis_summary(hypotheses))):
+        start = {n: np.asarray(v) for n, v in h["params"].items()}
+        params, record = start, {**row, "kept": row["rank"] == kept, "params_from": "keypoint stage"}
+        if refined is not None:
+            params = refined[k].params()
+            record.update(params_from="silhouette stage", silhouette_energy=choice["energies"][k],
+                          silhouette_iou=choice["iou"][k])  # fmt: skip
+            if _guard(model, start, params, keypoints, camera, _pose(model, params, keypoints.layout, camera)[2],
+                      where).reverted:  # fmt: skip
+                params, record["params_from"] = start, "keypoint stage (the silhouette stage's was less plausible)"
+        vertices, _, kp2d = _pose(model, params, keypoints.layout, camera)
+        out.append({"rank": row["rank"], "params": params, "vertices": vertices, "keypoints_2d": kp2d, "record": record,
+                    "keypoint_params": None if refined is None else start})  # fmt: skip
+    return out
 
 
 def _offered_alternatives(keypoint_result: KeypointFitResult, config: SilhouetteFitConfig) -> list:
@@ -343,8 +380,14 @@ def refine_batch(
             **({"hypotheses_silhouette": choice} if choice else {}),
             **_run_record(one, sil),
         }  # fmt: skip
+        hypotheses = []
+        if keypoint_result.hypotheses is not None:  # --hypotheses K: each one refined, for hypotheses/<k>/
+            hypotheses = _hypothesis_outputs(model, keypoint_result.hypotheses[i] or [], keypoints[i], cameras[i],
+                                             [sils[k] for k in candidates[i]], choice or {"energies": [sil.final_energy],
+                                             "iou": [float(sil.iou_end)]}, None if guard.reverted and guarded else c + 1,
+                                             mask_sources[i])  # fmt: skip
         out.append(FitResult(cameras[i], keypoints[i].layout, one, sil, params, vertices, joints, kp2d, metrics,
-                             masks={"keypoint_stage": kp_masks[i], "final": final_mask}))  # fmt: skip
+                             masks={"keypoint_stage": kp_masks[i], "final": final_mask}, hypotheses=hypotheses))  # fmt: skip
     return out
 
 
@@ -459,8 +502,50 @@ def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Came
             from .plausibility import hypothesis_summary
 
             result.metrics["hypotheses"] = hypothesis_summary(hyps)
+            if not result.hypotheses:  # no silhouette stage: the keypoint stage's, posed (hypotheses/<k>/)
+                result.hypotheses = _hypothesis_outputs(model, hyps, keypoints[i], result.camera)
         out[i] = result
     return out  # type: ignore[return-value]
+
+
+def _hypothesis_title(h: dict, silhouette: bool) -> str:
+    """A :func:`_save_hypotheses` tile's title: rank, what it turns, its energy gap (and the mask's IoU)."""
+    r = h["record"]
+    turns = r.get("differs") or []
+    what = "the keypoint fit's branch" if r["rank"] == 1 else (
+        "turns " + (", ".join(turns) if len(turns) <= 2 else f"{len(turns)} segments") if turns else r["label"])
+    line = f"keypoint energy {r['gap']:+.1%}" + ("" if r.get("refined", True) else " (search stage)")
+    if silhouette and r.get("silhouette_iou") is not None:
+        line += f", IoU {r['silhouette_iou']:.3f}"
+    return f"{r['rank']}{' (kept)' if r['kept'] else ''}: {what}\n{line}"
+
+
+def _save_hypotheses(folder: Path, result: FitResult, faces: np.ndarray, keypoints: Optional[KeypointSet],
+                     image: Optional[np.ndarray]) -> None:
+    """``hypotheses/<rank>/`` (``params.npz``/``params.json`` with the hypothesis' record, ``mesh.obj``, and where the
+    silhouette stage refined it ``stages/keypoints/``, the keypoint stage's) and ``hypotheses.png``: each hypothesis
+    over the image and from the side, over the final fit (orange) where it differs."""
+    from . import figures
+    from .fitio import write_fit
+    from .meshio import write_obj
+
+    kp_xy, kp_conf = (None, None) if keypoints is None else (keypoints.xy, keypoints.conf)
+    silhouette = result.silhouette is not None
+    tiles, titles = [], []
+    for h in result.hypotheses:
+        d = folder / "hypotheses" / str(h["rank"])
+        write_fit(d, h["params"], [result.camera], layout=result.layout, model=result.keypoint.model,
+                  vertices=h["vertices"], keypoints_2d=h["keypoints_2d"], record=h["record"])  # fmt: skip
+        write_obj(d / "mesh.obj", h["vertices"], faces)
+        if h["keypoint_params"] is not None:
+            write_fit(d / "stages" / "keypoints", h["keypoint_params"], [result.camera], layout=result.layout,
+                      model=result.keypoint.model, record={"rank": h["rank"], "params_from": "keypoint stage"})  # fmt: skip
+        same = np.allclose(h["vertices"], result.vertices, atol=1e-6)
+        tiles += [figures.fit_overlay(image, h["vertices"], faces, result.camera, kp_xy, h["keypoints_2d"], kp_conf),
+                  figures.side_view(h["vertices"], faces, None if same else result.vertices,
+                                    labels=(f"hypothesis {h['rank']}", "final fit"))]  # fmt: skip
+        titles += [_hypothesis_title(h, silhouette), "from the side" + ("" if same else " (orange: the final fit)")]
+    figures.contact_sheet(tiles, titles, folder / "hypotheses.png", columns=2 * min(len(result.hypotheses), 3))
 
 
 def _keypoint_only(model, kp_result: KeypointFitResult, keypoints: KeypointSet) -> FitResult:
@@ -517,11 +602,8 @@ def save_fit(
             if mask is not None:
                 figures.write_png(tmp / "silhouette.png", figures.silhouette_comparison(result.masks["final"], mask))
             figures.iou_curve(result.silhouette.history, tmp / "iou_curve.png")
-        for k, h in enumerate((result.keypoint.hypotheses or [[]])[0], 1):  # --hypotheses K: hypotheses/k/params.npz
-            from .fitio import write_fit
-
-            write_fit(tmp / "hypotheses" / str(k), h["params"], [result.camera], layout=result.layout,
-                      model=result.keypoint.model, record={k: h[k] for k in ("label", "energy", "differs", "refined", "shift_mm", "max_shift_mm") if k in h})  # fmt: skip
+        if result.hypotheses:  # --hypotheses K: hypotheses/<k>/ and hypotheses.png
+            _save_hypotheses(tmp, result, faces, keypoints, image)
         metrics = dict(result.metrics)
         metrics["camera"] = result.camera.to_dict()
         metrics["layout"] = result.layout

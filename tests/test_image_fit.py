@@ -152,12 +152,14 @@ def test_concavities_are_unknown_only_in_a_mask_trimmed_as_clothing():
     assert _known_pixels([mask], [body], off, ["a"], [[]], [True]) == [None]
 
 
-def test_the_hypothesis_that_refines_lowest_against_the_mask_is_kept(open_model):
+def test_the_hypothesis_that_refines_lowest_against_the_mask_is_kept(open_model, tmp_path):
     """``--hypotheses K`` with a mask (issue 25): every hypothesis goes through the silhouette stage and the
     lowest final energy is kept; metrics.json records each one's energy and which was kept (shipped subject 4:
     two distinct hypotheses, 604 and 618 by the keypoint stage)."""
+    from silfit.fitio import read_fit
     from silfit.fitting import KeypointFitConfig
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+    from silfit.image_fit import save_fit
 
     subject = load_subject(SHIPPED / "subject_004")
     result = fit(subject.keypoints, subject.mask, subject.camera, model=open_model, progress=False,
@@ -169,6 +171,21 @@ def test_the_hypothesis_that_refines_lowest_against_the_mask_is_kept(open_model)
     assert record["gap"] == pytest.approx((record["energies"][0] - min(record["energies"])) / record["energies"][0])
     moved = [w for w in result.metrics["warnings"] if w.startswith("depth branch chosen by the mask")]
     assert len(moved) == (record["kept"] != 1)
+    # each hypothesis as a fit: refined against the mask, its keypoint-stage start kept beside it (hypotheses/<k>/)
+    assert [h["rank"] for h in result.hypotheses] == [1, 2]
+    for h, hyp, energy in zip(result.hypotheses, hyps, record["energies"]):
+        assert h["record"]["params_from"] == "silhouette stage" and h["record"]["silhouette_energy"] == energy
+        assert h["record"]["kept"] == (h["rank"] == record["kept"])
+        assert all(np.array_equal(h["keypoint_params"][k], np.asarray(v)) for k, v in hyp["params"].items())
+        assert not np.allclose(h["params"]["body_pose"], h["keypoint_params"]["body_pose"])  # the stage moved it
+    kept = result.hypotheses[record["kept"] - 1]
+    assert np.allclose(kept["vertices"], result.vertices) and np.allclose(kept["params"]["body_pose"], result.params["body_pose"])
+    out = save_fit(result, tmp_path / "fit", open_model.faces.numpy(), subject.keypoints, mask=subject.mask)
+    for k in (1, 2):
+        assert read_fit(out / "hypotheses" / str(k)).frame(0)["body_pose"] == pytest.approx(
+            result.hypotheses[k - 1]["params"]["body_pose"].reshape(-1), abs=1e-6)
+        assert (out / "hypotheses" / str(k) / "stages" / "keypoints" / "params.npz").is_file()
+    assert (out / "hypotheses.png").is_file()
 
 
 def test_choosing_a_hypothesis_by_the_silhouette_stage():
@@ -249,7 +266,7 @@ def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
     def marked(i, k):  # sample i's fit with body_pose[0] = 0.01 k: which candidate a result came from
         p = {n: np.array(v, dtype=np.float32) for n, v in kp.params(i).items()}
         p["body_pose"][0] = 0.01 * k
-        return {"params": p, "energy": 1.0, "refined": True}
+        return {"params": p, "energy": 1.0, "refined": True, "label": f"branch {k}", "differs": []}
 
     kp.hypotheses = [[marked(0, 0), marked(0, 1)], [marked(1, 0), marked(1, 1), marked(1, 2)]]
     finals = [2.0, 2.0, 1.0, 1.5, 1.2]  # problems: image 0, image 1, then 0's alternative, 1's two
@@ -271,6 +288,10 @@ def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
     assert res[0].metrics["timings_s"]["silhouette"] == 2.0 and res[1].metrics["timings_s"]["silhouette"] == 3.0
     for r, k in zip(res, (2, 3)):
         assert any(w.startswith(f"depth branch chosen by the mask: hypothesis {k} ") for w in r.metrics["warnings"])
+    # each image's own hypotheses as fits (hypotheses/<k>/), the kept one marked, with its stage energy
+    assert [[h["record"]["kept"] for h in r.hypotheses] for r in res] == [[False, True], [False, False, True]]
+    assert [[h["record"]["silhouette_energy"] for h in r.hypotheses] for r in res] == [[2.0, 1.0], [2.0, 1.5, 1.2]]
+    assert [h["params"]["body_pose"].reshape(-1)[0] for h in res[1].hypotheses[1:]] == pytest.approx([0.01, 0.02])
 
     # without --hypotheses: the branches refined to the end within alternatives_margin of the fit's energy
     # (KeypointFitResult.alternatives; image 1's is 50 % above its fit: not refined)
@@ -280,6 +301,7 @@ def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
     finals[:] = [2.0, 2.0, 1.0]  # image 0, image 1, then 0's alternative
     res = refine_batch(model, kp, sets, masks, progress=False)
     assert res[0].metrics["hypotheses_silhouette"]["kept"] == 2 and "hypotheses_silhouette" not in res[1].metrics
+    assert res[0].hypotheses == res[1].hypotheses == []  # the close alternatives are not hypotheses/<k>/
     assert res[0].params["body_pose"].reshape(-1)[0] == pytest.approx(0.01)
     assert any(w.startswith("depth branch chosen by the mask: the keypoint stage's alternative turning left_shin "
                             "(keypoint-stage energy +5.0% against its fit)") for w in res[0].metrics["warnings"])  # fmt: skip

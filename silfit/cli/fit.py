@@ -74,9 +74,10 @@ def register(subparsers) -> None:
                    "viewer: the camera frame turned 180 deg about x), vertex normals, the camera in the glTF")
     p.add_argument("--hypotheses", type=int, default=1, metavar="K",
                    help="also write the K best distinct keypoint-stage solutions of the limbs' depth branches to "
-                        "hypotheses/<k>/params.npz (1: the keypoint stage's best), their energies and differing "
-                        "segments in metrics.json (default 1: none); with a mask, each goes through the silhouette "
-                        "stage and the lowest final energy is kept (K times its cost; metrics.json: "
+                        "hypotheses/<k>/ (params.npz, mesh.obj; 1: the keypoint stage's best) and hypotheses.png (each "
+                        "over the image and from the side), their energies and differing segments in metrics.json "
+                        "(default 1: none); with a mask, each goes through the silhouette stage, hypotheses/<k>/ holds "
+                        "it refined, and the lowest final energy is kept (K times its cost; metrics.json: "
                         "hypotheses_silhouette)")
     p.add_argument("--keypoint-option", action="append", default=[], metavar="NAME=VALUE",
                    help="override a KeypointFitConfig field of the keypoint stage (one image, rig, video: each "

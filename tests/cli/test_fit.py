@@ -232,7 +232,12 @@ def test_fit_export_writes_upright_glb_and_ply(inputs, tmp_path, capsys):
 
 
 def test_fit_hypotheses_writes_each_solution_and_records_them(inputs, tmp_path, capsys):
+    import cv2
+    import torch
+
     from silfit.fitio import read_fit
+
+    body = toy_model()
 
     d, model = inputs
     out = tmp_path / "fit"
@@ -247,6 +252,18 @@ def test_fit_hypotheses_writes_each_solution_and_records_them(inputs, tmp_path, 
     assert metrics["branch_search"][0]["tried"][0]["flip"] == metrics["branch_search"][0]["kept"]
     best = read_fit(out / "hypotheses" / "1")  # the first is the fit itself
     assert np.allclose(best.frame(0)["body_pose"], read_fit(out).frame(0)["body_pose"], atol=1e-5)
+    for h in hyps:  # each one a fit of its own: its record, its mesh posed from its parameters, no silhouette stage
+        d_h = out / "hypotheses" / str(h["rank"])
+        record = json.loads((d_h / "params.json").read_text())
+        assert (record["rank"], record["label"], record["kept"], record["params_from"]) == (
+            h["rank"], h["label"], h["rank"] == 1, "keypoint stage")
+        assert not (d_h / "stages").exists()
+        v = np.array([[float(x) for x in line.split()[1:]] for line in (d_h / "mesh.obj").read_text().splitlines()
+                      if line.startswith("v ")])  # fmt: skip
+        params = {k: torch.as_tensor(x[None], dtype=torch.float32) for k, x in read_fit(d_h).frame(0).items()}
+        assert np.allclose(v, body(**params).vertices[0].numpy(), atol=1e-5)
+    sheet = cv2.imread(str(out / "hypotheses.png"))  # each hypothesis from the front and the side
+    assert sheet.ndim == 3 and sheet.shape[1] > sheet.shape[0] and sheet.std() > 10
     capsys.readouterr()
     assert main(["fit", "--rig", str(d), "--hypotheses", "2", "--out", str(tmp_path / "rig")] + FAST) == 2
     assert "--hypotheses with --sequence/--rig" in capsys.readouterr().err  # refused for the flag, not for the folder
