@@ -152,6 +152,9 @@ def test_a_depth_branch_the_keypoints_cannot_decide_is_reported():
               "tried": [{"flip": "keep", "energy": 100.0}, {"flip": "left_upper_arm", "energy": 101.0}]}]
     (w,) = depth_warnings(close)
     assert w.startswith("depth ambiguous for left_upper_arm:") and "branch search: left_upper_arm" in w
+    assert w.endswith("check a side view (--hypotheses 3 writes the alternatives)")
+    (again,) = depth_warnings(close + close)  # two searches keeping the same alternative: it is named once
+    assert again == w
     far = [{"stage": "branches_1", "kept": "keep", "tried": [{"flip": "keep", "energy": 100.0}, {"flip": "left_shin", "energy": 125.0}]}]
     assert depth_warnings(far) == [] and depth_warnings(None) == []
 
@@ -208,6 +211,7 @@ def test_hypotheses_are_summarised_and_the_ambiguous_limbs_named():
     (warning,) = depth_warnings(None, hyps)
     assert warning.startswith("depth ambiguous for left_shin, right_shin: an alternative fit within 10% of the energy")
     assert "hypotheses/2" in warning and "left_forearm" not in warning  # 40 % higher: not ambiguous
+    assert warning.endswith("check a side view")  # the alternative is written already
     assert depth_warnings(None, hyps[:1]) == [] and depth_warnings(None, None) == []
     assert "left_forearm" in depth_warnings(None, hyps, margin=0.5)[0]
 
