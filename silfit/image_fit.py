@@ -513,7 +513,8 @@ def _hypothesis_title(h: dict, silhouette: bool) -> str:
     r = h["record"]
     turns = r.get("differs") or []
     what = "the keypoint fit's branch" if r["rank"] == 1 else (
-        "turns " + (", ".join(turns) if len(turns) <= 2 else f"{len(turns)} segments") if turns else r["label"])
+        "turns " + (", ".join(turns) if len(turns) <= 2 else f"{len(turns)} segments") if turns
+        else f"from branch {r['label']}, no limb turned")
     line = f"keypoint energy {r['gap']:+.1%}" + ("" if r.get("refined", True) else " (search stage)")
     if silhouette and r.get("silhouette_iou") is not None:
         line += f", IoU {r['silhouette_iou']:.3f}"

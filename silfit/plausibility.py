@@ -367,7 +367,7 @@ def depth_warnings(search, hypotheses=None, margin: float = HYPOTHESIS_MARGIN, s
     moved = [float(m) for m in shifts if m is not None]
     by = f", moving a joint up to {max(moved) / 1000:.2f} m" if moved else ""
     where = list(dict.fromkeys(where))  # each alternative named once (several searches can keep the same one)
-    written = any(w.startswith("hypotheses/") for w in where)
+    written = hypotheses is not None  # --hypotheses K: the alternatives among its K are written
     return [f"depth ambiguous for {', '.join(segs)}: an alternative fit within {max(used):.0%} of the energy turns "
             f"{'it' if len(segs) == 1 else 'them'} the other way{by} ({', '.join(where)}); the keypoints cannot tell "
             "which: check a side view" + ("" if written else " (--hypotheses 3 writes the alternatives)")]
