@@ -203,14 +203,19 @@ def _choose_hypothesis(model, sils, starts, keypoints: KeypointSet, camera: Came
 
 
 def _hypothesis_outputs(model, hypotheses: list, keypoints: KeypointSet, camera: Camera, refined=None,
-                        choice: Optional[dict] = None, kept: Optional[int] = 1, where: str = "mask") -> list:
+                        choice: Optional[dict] = None, kept: Optional[int] = 1, where: str = "mask",
+                        guard: bool = True) -> list:
     """One image's ``--hypotheses K`` solutions (``hypotheses``: :attr:`KeypointFitResult.hypotheses`' entry) as fits,
     for :attr:`FitResult.hypotheses` (:func:`save_fit` writes them to ``hypotheses/<rank>/``): each one's parameters
-    posed, with ``record`` (:func:`~silfit.plausibility.hypothesis_summary`'s row, ``kept``: whether the final fit
-    came from it, given as the rank ``kept`` (``None``: none), and ``params_from``: which stage's parameters these are). With ``refined`` (per hypothesis, the silhouette stage's result from it) and
-    ``choice`` (:func:`_choose_hypothesis`'s record), each is the refined one, unless the plausibility guard finds it
-    less plausible than its own keypoint fit (then that, as for the fit itself), with the stage's final energy and
-    window IoU in its record; ``keypoint_params`` is then the keypoint stage's."""
+    posed, with ``record``: :func:`~silfit.plausibility.hypothesis_summary`'s row, ``kept`` (whether the final fit
+    came from it: rank ``kept``; ``None``: none) and ``params_from`` (which stage's parameters these are).
+
+    With ``refined`` (per hypothesis, the silhouette stage's result from it) and ``choice`` (:func:`_choose_hypothesis`'s
+    record), each is the refined one with the stage's final energy and window IoU in its record, unless the
+    plausibility guard (``guard``: ``SilhouetteFitConfig.plausibility_guard``) finds it less plausible than its own
+    keypoint fit: then that, as for the fit itself (the kept one holds the final fit either way), and the discarded
+    refinement's energy and IoU under ``silhouette_discarded``. ``keypoint_params``: the keypoint stage's (with
+    ``refined``; else ``None``)."""
     from .plausibility import hypothesis_summary
 
     out = []
@@ -221,9 +226,11 @@ def _hypothesis_outputs(model, hypotheses: list, keypoints: KeypointSet, camera:
             params = refined[k].params()
             record.update(params_from="silhouette stage", silhouette_energy=choice["energies"][k],
                           silhouette_iou=choice["iou"][k])  # fmt: skip
-            if _guard(model, start, params, keypoints, camera, _pose(model, params, keypoints.layout, camera)[2],
-                      where).reverted:  # fmt: skip
+            if guard and _guard(model, start, params, keypoints, camera, _pose(model, params, keypoints.layout, camera)[2],
+                                where).reverted:  # fmt: skip
                 params, record["params_from"] = start, "keypoint stage (the silhouette stage's was less plausible)"
+                record["silhouette_discarded"] = {"energy": record.pop("silhouette_energy"),
+                                                  "iou": record.pop("silhouette_iou")}  # fmt: skip
         vertices, _, kp2d = _pose(model, params, keypoints.layout, camera)
         out.append({"rank": row["rank"], "params": params, "vertices": vertices, "keypoints_2d": kp2d, "record": record,
                     "keypoint_params": None if refined is None else start})  # fmt: skip
@@ -381,11 +388,12 @@ def refine_batch(
             **_run_record(one, sil),
         }  # fmt: skip
         hypotheses = []
-        if keypoint_result.hypotheses is not None:  # --hypotheses K: each one refined, for hypotheses/<k>/
+        # --hypotheses K: each one refined, for hypotheses/<k>/; the final fit came from hypothesis c + 1 (its
+        # refinement, or where the guard turned it back its keypoint fit: the same guard, hypotheses/<c + 1> holds it too)
+        if keypoint_result.hypotheses is not None:
             hypotheses = _hypothesis_outputs(model, keypoint_result.hypotheses[i] or [], keypoints[i], cameras[i],
                                              [sils[k] for k in candidates[i]], choice or {"energies": [sil.final_energy],
-                                             "iou": [float(sil.iou_end)]}, None if guard.reverted and guarded else c + 1,
-                                             mask_sources[i])  # fmt: skip
+                                             "iou": [float(sil.iou_end)]}, c + 1, mask_sources[i], guarded)  # fmt: skip
         out.append(FitResult(cameras[i], keypoints[i].layout, one, sil, params, vertices, joints, kp2d, metrics,
                              masks={"keypoint_stage": kp_masks[i], "final": final_mask}, hypotheses=hypotheses))  # fmt: skip
     return out

@@ -370,7 +370,7 @@ def depth_warnings(search, hypotheses=None, margin: float = HYPOTHESIS_MARGIN, s
     written = hypotheses is not None  # --hypotheses K: the alternatives among its K are written
     return [f"depth ambiguous for {', '.join(segs)}: an alternative fit within {max(used):.0%} of the energy turns "
             f"{'it' if len(segs) == 1 else 'them'} the other way{by} ({', '.join(where)}); the keypoints cannot tell "
-            "which: check a side view" + ("" if written else " (--hypotheses 3 writes the alternatives)")]
+            "which: check a side view" + ("" if written else " (silfit fit --hypotheses 3 writes the alternatives)")]
 
 
 def shape_warnings(betas) -> list:

@@ -155,7 +155,7 @@ def test_concavities_are_unknown_only_in_a_mask_trimmed_as_clothing():
 def test_the_hypothesis_that_refines_lowest_against_the_mask_is_kept(open_model, tmp_path):
     """``--hypotheses K`` with a mask (issue 25): every hypothesis goes through the silhouette stage and the
     lowest final energy is kept; metrics.json records each one's energy and which was kept (shipped subject 4:
-    two distinct hypotheses, 604 and 618 by the keypoint stage)."""
+    two distinct hypotheses, a few per cent apart by the keypoint stage's energy)."""
     from silfit.fitio import read_fit
     from silfit.fitting import KeypointFitConfig
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
@@ -308,6 +308,59 @@ def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
     assert res[0].metrics["hypotheses_silhouette"]["alternatives"] == [
         {"label": "left_shin", "differs": ["left_shin"], "gap": 0.05, "max_shift_mm": None}]
     assert not any("chosen by the mask" in w for w in res[1].metrics["warnings"])
+
+
+def test_the_kept_hypothesis_holds_the_final_fit_whatever_the_guard_did(monkeypatch):
+    """``--hypotheses K`` with a mask: ``hypotheses/<kept>/`` holds the final fit, also where the plausibility guard
+    turned it back to the keypoint fit (it is still marked kept) and where the guard is off (``plausibility_guard``
+    false: the refined one, not its keypoint fit). The stage stubbed to move every fit 0.5 m off the keypoints."""
+    import sys
+
+    import torch
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent / "fitting"))
+    from silfit_toy_body import toy_model
+
+    import silfit.fitting.silhouette_stage as stage
+    from silfit.camera import Camera, project_points
+    from silfit.fitting import KeypointFitConfig, KeypointFitter
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+    from silfit.image_fit import body_mask, refine_batch
+    from silfit.keypoints import KeypointSet, model_keypoints
+
+    model = toy_model()
+    cam = Camera.from_image_size(320, 240)
+    out = model(global_orient=torch.tensor([[np.pi, 0, 0]]), transl=torch.tensor([[0.0, 0.2, 3.0]]))
+    sets = [KeypointSet(project_points(model_keypoints(model, out, "body25"), cam)[0].numpy(), np.ones(25), "body25")]
+    cfg = KeypointFitConfig(init_poses=1, camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branch_search=False)
+    kp = KeypointFitter(model, config=cfg).fit(sets, [cam], progress=False)
+    other = {n: np.array(v, dtype=np.float32) for n, v in kp.params(0).items()}
+    other["body_pose"][0] += 0.01
+    kp.hypotheses = [[{"params": kp.params(0), "energy": 1.0, "refined": True, "label": "keep", "differs": []},
+                      {"params": other, "energy": 1.1, "refined": True, "label": "left_shin", "differs": []}]]
+
+    def stub(model, problems, inits, *args, **kwargs):  # the keypoint fit refines lowest; every one far off
+        moved = [{n: np.asarray(v, np.float32).reshape(1, -1) for n, v in init.items()} for init in inits]
+        for p in moved:
+            p["transl"] = p["transl"] + np.array([[0.5, 0, 0]], np.float32)
+        return [stage.SilhouetteFitResult(p, {"level": [1, 1], "energy": [3.0, e]}, 0.8, 0.9, 1.0, 2, [])
+                for p, e in zip(moved, (1.0, 2.0))]  # fmt: skip
+
+    monkeypatch.setattr(stage, "fit_silhouette_problems", stub)
+    masks = [body_mask(kp.vertices[0], model.faces.cpu().numpy(), cam)]
+    reverted = "keypoint stage (the silhouette stage's was less plausible)"
+    for guarded, source in ((True, reverted), (False, "silhouette stage")):
+        (res,) = refine_batch(model, kp, sets, masks, SilhouetteFitConfig(plausibility_guard=guarded), progress=False)
+        assert res.metrics["silhouette_guard"]["kept"] == ("keypoints" if guarded else "silhouette")
+        assert [h["record"]["kept"] for h in res.hypotheses] == [True, False]
+        assert [h["record"]["params_from"] for h in res.hypotheses] == [source] * 2
+        # a refinement set aside: its energy and IoU kept apart (hypotheses.png's title shows no IoU for it)
+        assert [("silhouette_iou" in h["record"], "silhouette_discarded" in h["record"]) for h in res.hypotheses] == \
+            [(not guarded, guarded)] * 2
+        kept = res.hypotheses[0]
+        assert np.array_equal(kept["vertices"], res.vertices)
+        assert all(np.array_equal(np.asarray(kept["params"][n]).reshape(-1), np.asarray(v).reshape(-1))
+                   for n, v in res.params.items())  # fmt: skip
 
 
 def test_offered_alternatives():

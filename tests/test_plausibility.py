@@ -152,7 +152,7 @@ def test_a_depth_branch_the_keypoints_cannot_decide_is_reported():
               "tried": [{"flip": "keep", "energy": 100.0}, {"flip": "left_upper_arm", "energy": 101.0}]}]
     (w,) = depth_warnings(close)
     assert w.startswith("depth ambiguous for left_upper_arm:") and "branch search: left_upper_arm" in w
-    assert w.endswith("check a side view (--hypotheses 3 writes the alternatives)")
+    assert w.endswith("check a side view (silfit fit --hypotheses 3 writes the alternatives)")
     (again,) = depth_warnings(close + close)  # two searches keeping the same alternative: it is named once
     assert again == w
     far = [{"stage": "branches_1", "kept": "keep", "tried": [{"flip": "keep", "energy": 100.0}, {"flip": "left_shin", "energy": 125.0}]}]
