@@ -854,223 +854,39 @@ class KeypointFitter:
             v = torch.as_tensor(np.asarray(v, dtype=np.float64), dtype=dt)
             shape = state[n].shape[1:]
             state[n] = v.reshape(B, *shape).repeat(len(facings), *([1] * len(shape)))
-        start_flip = torch.as_tensor(np.repeat(facings, B), dtype=torch.bool)
-        group = torch.arange(B).repeat(len(facings))
-        energies, terms, timings = {}, {}, {}
+        fit = _ScheduleRun(self, layout, B, state, data, views, torch.as_tensor(np.repeat(facings, B), dtype=torch.bool),
+                           torch.arange(B).repeat(len(facings)), progress)  # fmt: skip
         decided = len(facings) * len(init_poses) == 1
         t_all = time.perf_counter()
-
-        def record(name, run):
-            energies[name], terms[name], timings[name] = run.energy, run.terms, run.seconds
-            return run.energy
-
-        def take(rows):
-            nonlocal state, data, views, start_flip, group
-            pick = lambda d: {k: v[rows] for k, v in d.items()}  # noqa: E731
-            state, data, views = pick(state), pick(data), pick(views)
-            start_flip, group = start_flip[rows], group[rows]
-            for d in (energies, terms):
-                for k in list(d):
-                    d[k] = d[k][rows] if isinstance(d[k], torch.Tensor) else {t: v[rows] for t, v in d[k].items()}
-
-        def run(stage, iters=None, name=None):
-            r = run_stage(stage, state, layout, self.energy, self.body, views, data, iterations=iters, history=cfg.history,
-                          progress=progress)  # fmt: skip
-            return record(name or stage.name, r)
-
-        K = max(1, int(cfg.hypotheses))
-        carry = max(int(cfg.branch_refine), 2 * K if K > 1 else 1)  # rows per sample from the last search to the end
-        last_search = max([i for i, s in enumerate(self.stages) if "branches" in s.options], default=-1)
-        occlusion_weight = self.stages[last_search].options["branches"].get("occlusion", 0.0) if last_search >= 0 else 0.0
-
-        def choice(f):  # the scores the refined hypotheses are chosen by, and their occlusion counts (the cue on)
-            if not occlusion_weight:
-                return f, None
-            with torch.no_grad():
-                occ = self.energy.terms["occlusion"](evaluate(self.body, layout, state, views, data))
-            return f * (1.0 + occlusion_weight * occ), occ
-
-        row_labels = None  # with carry > 1: each row's hypothesis after the last search
-        carried = None  # each row's hypothesis after an earlier search whose best few go on (its ``carry``)
-
-        def settle_pick(name):
-            """Each sample's carried row with the lowest score after stage ``name`` (its final energy; the
-            occlusion cue as in the final choice) goes on. The earlier search's record names it (``kept``) and
-            lists the carried rows' energies there (``settled``, ranked as the pick was, the pick first); with
-            hypotheses > 1 the others join the alternatives not refined to the end (their gap is set against the
-            fit's final energy at the end: both are energies at the final weights)."""
-            nonlocal carried
-            f = energies[name]
-            score, _ = choice(f)
-            ranked = best_per_group(score, group, B, count=len(group)).tolist()  # near-ties as the pick treats them
-            best = best_per_group(score, group, B)
-            alternatives = K > 1 and cfg.hypothesis_unrefined
-            with torch.no_grad():
-                now = layout.rows(state)
-                joints = self.body(**now).joints.double().numpy() if alternatives else None
-            for b, r in enumerate(best.tolist()):
-                mine = [i for i in ranked if int(group[i]) == b]
-                assert mine[0] == r
-                record = searched[b][-1]
-                if record["kept"] != "keep":  # that search's own pick, replaced by the settled one
-                    chosen_branches[b].pop()
-                if carried[r] != "keep":
-                    chosen_branches[b].append(carried[r])
-                record["kept"] = carried[r]
-                record["settled"] = [{"flip": carried[i], "energy": float(f[i])} for i in mine]
-                for i in mine[1:] if alternatives else ():
-                    unrefined[b].append({"label": carried[i], "energy": float(f[i]), "stage": name, "gap": None, "joints": joints[i],
-                                         "params": {n: v[i].detach().cpu().numpy().astype(np.float32) for n, v in now.items()}})  # fmt: skip
-            take(best)
-            carried = None
-
-        def survivors_of(f, count, opts):
-            """Each sample's ``count`` best rows by ``f``, distinct ones first (:func:`best_distinct_per_group`;
-            the search options' ``distinct``, on where a schedule does not say, as ``hinge``): by energy alone
-            with ``distinct`` false."""
-            if not opts.get("distinct", True):
-                return best_per_group(f, group, B, count)
-            with torch.no_grad():
-                joints = self.body(**layout.rows(state)).joints.double().numpy()
-            return best_distinct_per_group(f, group, B, count, joints)
-
-        searched_any = False  # whether a branch search ran (none with several views)
-        chosen_branches = [[] for _ in range(B)]
-        searched = [[] for _ in range(B)]  # per problem and branch stage: the hypotheses that ran to its end
-        search_rows = [[] for _ in range(B)]  # per problem: (tried entry, its joints at the search's end, ...)
-        unrefined = [[] for _ in range(B)]  # per problem: search rows not refined to the end (hypotheses > 1)
         for si, stage in enumerate(self.stages):
             if stage.options.get("hand_starts") and self.whole_body:
-                state = choose_hand_starts(self.model, self.body, layout, state, views, data, self.config.hand_sigma)
+                fit.state = choose_hand_starts(self.model, self.body, layout, fit.state, fit.views, fit.data, cfg.hand_sigma)
             if "branches" in stage.options:
                 if views_per_frame > 1:  # the views' data fixes the limbs' depth: no search (docs: rigs)
                     continue
-                searched_any = True
-                if carried is not None:  # an earlier search's best rows ran on (its ``carry``): the best goes on
-                    settle_pick(self.stages[si - 1].name)
-                if not decided or layout.frames != 1:
-                    raise ValueError(f"stage '{stage.name}': the branch search needs one frame and a decided start")
-                opts = stage.options["branches"]
-                hyps = limb_hypotheses(self.body, layout.rows(state), self.model.joint_names, self.model.parents,
-                                       opts.get("min_depth_ratio", 0.3), opts.get("whole_limbs", True),
-                                       opts.get("joint", False), opts.get("hinge", True), opts.get("hinge_turns", True))  # fmt: skip
-                if opts.get("turns"):
-                    hyps += turn_hypotheses(self.body, layout.rows(state), self.model.joint_names, self.model.parents,
-                                            opts["turns"], opts.get("min_depth_ratio", 0.3), opts.get("whole_limbs", True),
-                                            opts.get("hinge", True))  # fmt: skip
-                labels = ["keep"] * B + [h[1] for h in hyps]
-                take(torch.cat([torch.arange(B), torch.as_tensor([h[0] for h in hyps], dtype=torch.long)]))
-                for i, h in enumerate(hyps):  # a pose, or {parameter: value} (joint hypotheses)
-                    for n, v in (h[2] if isinstance(h[2], dict) else {"body_pose": h[2]}).items():
-                        state[n][B + i, 0] = v.to(dt)
-                screen, survivors = int(opts.get("screen_after", 0)), int(opts.get("survivors", 2))
-                going_on = carry if si == last_search else int(opts.get("carry", 1))  # rows per sample after it
-                survivors = max(survivors, going_on)  # (refined to the end or to the next search)
-                # a few steps for all, then the best few go on; split even where no sample has hypotheses,
-                # so a sample's steps (two optimiser runs) never depend on the others in its batch
-                if 0 < screen < stage.iterations:
-                    f = run(stage, screen, f"{stage.name}_screen")
-                    rows = survivors_of(f, survivors, opts)
-                    labels = [labels[r] for r in rows.tolist()]
-                    take(rows)
-                    f = run(stage, stage.iterations - screen)
-                else:
-                    f = run(stage)
-                keep = best_per_group(f, group, B)
-                with torch.no_grad():  # each row's joints (and parameters) at the search's end: how far from the fit
-                    now = layout.rows(state)
-                    row_joints = self.body(**now).joints.double().numpy()
-                for b, k in enumerate(keep.tolist()):
-                    if labels[k] != "keep":
-                        chosen_branches[b].append(labels[k])
-                    mine = sorted(torch.nonzero(group == b).flatten().tolist(), key=lambda r: float(f[r]))
-                    tried = [{"flip": labels[r], "energy": float(f[r])} for r in mine]
-                    searched[b].append({"stage": stage.name, "kept": labels[k], "tried": tried})
-                    search_rows[b] += [(t, row_joints[r], r, k) for t, r in zip(tried, mine)]
-                if going_on > 1:  # the best few of each sample go on (to the end, or to the next search)
-                    keep = survivors_of(f, going_on, opts)
-                    if si == last_search:
-                        row_labels = [labels[r] for r in keep.tolist()]
-                    else:
-                        carried = [labels[r] for r in keep.tolist()]
-                if K > 1 and cfg.hypothesis_unrefined:  # the rows that stop here: alternatives not refined to the end
-                    going = set(keep.tolist())
-                    for b in range(B):
-                        for t, j, r, k in search_rows[b][-len(searched[b][-1]["tried"]):]:
-                            if r not in going:
-                                unrefined[b].append({"label": t["flip"], "energy": t["energy"], "stage": stage.name,
-                                                     "gap": (t["energy"] - float(f[k])) / max(abs(float(f[k])), 1e-12),
-                                                     "joints": j, "params": {n: v[r].detach().cpu().numpy().astype(np.float32)
-                                                                             for n, v in now.items()}})  # fmt: skip
-                take(keep)
+                fit.branch_search(si, stage, decided)
                 continue
-            if stage.options.get("searched_only") and not searched_any:  # settles searched branches: none here
+            if stage.options.get("searched_only") and not fit.searched_any:  # settles searched branches: none here
                 continue
             decide_after = stage.options.get("decide_after") if not decided else None
             if decide_after is None:
-                if not searched_any and "unsearched_iterations" in stage.options:  # no branches to choose among:
+                if not fit.searched_any and "unsearched_iterations" in stage.options:  # no branches to choose among:
                     # fewer steps, every one run (the final stage as rigs were measured with)
                     opts = {k: v for k, v in stage.options.items() if k not in ("unsearched_iterations", "tol_change")}
                     stage = replace(stage, iterations=min(stage.iterations, int(stage.options["unsearched_iterations"])),
                                     options=opts)  # fmt: skip
-                run(stage)
+                fit.run(stage)
                 continue
-            H = len(init_poses)
-            if H > 1:  # row h * N + r: placed start r with initial pose h
-                N = state["body_pose"].shape[0]
-                take(torch.arange(N).repeat(H))
-                state["body_pose"] = torch.cat([p.to(dt).expand(N, layout.frames, -1) for p in init_poses], 0)
-            together = decide_after if 0 < decide_after < stage.iterations else stage.iterations
-            f = run(stage, together)  # every start
-            take(best_per_group(f, group, B))
+            fit.decide(stage, init_poses, decide_after)
             decided = True
-            if stage.iterations > together:  # the rest of the stage from the chosen start only
-                run(stage, stage.iterations - together, f"{stage.name}_chosen")
         if not decided:  # a schedule without a decision stage: keep the best start at the end
-            take(best_per_group(energies[self.stages[-1].name], group, B))
-        hypotheses = others = None
-        if row_labels is not None:  # the fit: each sample's lowest final energy; the others as alternatives
-            final = energies[self.stages[-1].name]
-            score, occ = choice(final)
-            fit_energy = final[best_per_group(score, group, B)].tolist()
-            for b, alternatives in enumerate(unrefined):  # settled rows: their gap to the fit, both at the final weights
-                for x in alternatives:
-                    if x["gap"] is None:
-                        x["gap"] = (x["energy"] - fit_energy[b]) / max(abs(fit_energy[b]), 1e-12)
-            hypotheses, best = distinct_hypotheses(self, layout, state, final, group, B, row_labels, score=score,
-                                                   occlusion=occ, max_m=cfg.hypothesis_joint_max_m,
-                                                   unrefined=unrefined if cfg.hypothesis_unrefined else None)  # fmt: skip
-            for b, h in enumerate(hypotheses):  # the branch chosen by the final energy, not the search's
-                if searched[b] and searched[b][-1]["kept"] != "keep":  # the search's pick, replaced below
-                    chosen_branches[b].pop()
-                if h[0]["label"] != "keep":
-                    chosen_branches[b].append(h[0]["label"])
-                if searched[b]:
-                    searched[b][-1]["kept"] = h[0]["label"]
-                    # the distinct branches refined to the end, by their final energies: what chose the fit
-                    # (metrics.json; plausibility.depth_warnings reads these rather than the search's)
-                    searched[b].append({"stage": self.stages[-1].name, "kept": h[0]["label"], "refined": True,
-                                        "tried": [{"flip": x["label"], "energy": x["energy"], "differs": list(x["differs"]),
-                                                   "shift_mm": x["shift_mm"], "max_shift_mm": x["max_shift_mm"]}
-                                                  for x in h if x["refined"]]})  # fmt: skip
-            # the other distinct branches refined to the end, with their gap to the fit's final energy
-            # (KeypointFitResult.alternatives: the silhouette stage refines the close ones against a mask)
-            others = [[{**x, "gap": (x["energy"] - h[0]["energy"]) / max(abs(h[0]["energy"]), 1e-12)}
-                             for x in h[1:] if x["refined"]] for h in hypotheses]  # fmt: skip
-            hypotheses = [h[:K] for h in hypotheses] if K > 1 else None
-            take(best)
-        if any(search_rows):  # every search row's joint shift (at its search's end) from the fit (metrics.json;
-            with torch.no_grad():  # depth_warnings). Against the fit, not the search's kept row: a fit that moved
-                fit_joints = self.body(**layout.rows(state)).joints.double().numpy()  # far after a search is unsure too
-            for b, entries in enumerate(search_rows):
-                for t, j, *_ in entries:
-                    mean_mm, max_mm = joint_shift_mm(j, fit_joints[b])
-                    t["shift_mm"], t["max_shift_mm"] = round(mean_mm, 1), round(max_mm, 1)
-        timings["total"] = time.perf_counter() - t_all
-        info = {"energies": energies, "terms": terms, "timings": timings, "flipped": start_flip.numpy(), "branches": chosen_branches,
-                "branch_search": searched, "hypotheses": hypotheses, "alternatives": others,
-                "data": data, "views": views, "layout": layout}  # fmt: skip
-        return state, info
+            fit.take(best_per_group(fit.energies[self.stages[-1].name], fit.group, B))
+        hypotheses, others = fit.choose()
+        fit.timings["total"] = time.perf_counter() - t_all
+        info = {"energies": fit.energies, "terms": fit.terms, "timings": fit.timings, "flipped": fit.start_flip.numpy(),
+                "branches": fit.chosen_branches, "branch_search": fit.searched, "hypotheses": hypotheses,
+                "alternatives": others, "data": fit.data, "views": fit.views, "layout": layout}  # fmt: skip
+        return fit.state, info
 
     def energy_at(self, params: dict, keypoints, cameras=None, *, image_size=None, focal=None, stage: str = "final"):
         """The energy of stage ``stage`` (default: the last, full one) at given parameters
@@ -1117,6 +933,229 @@ class KeypointFitter:
             branches=info["branches"], branch_search=info["branch_search"], model=model_record(self.model),
             hypotheses=info.get("hypotheses"), alternatives=info.get("alternatives"),
         )  # fmt: skip
+
+
+class _ScheduleRun:
+    """One :meth:`KeypointFitter.fit_problems` run: the rows it carries (each problem's starts, then its branch
+    hypotheses: ``state``, ``data``, ``views``, ``start_flip``, ``group`` the problem of each row), each stage's
+    ``energies``, ``terms`` and ``timings``, and what the branch searches tried and kept (``chosen_branches``,
+    ``searched``, ``search_rows``, ``unrefined``), stage by stage; :meth:`choose` ends it."""
+
+    def __init__(self, fitter: "KeypointFitter", layout: ParameterLayout, B: int, state: dict, data: dict, views: dict,
+                 start_flip: torch.Tensor, group: torch.Tensor, progress: bool):  # fmt: skip
+        cfg = fitter.config
+        self.fitter, self.layout, self.B, self.progress = fitter, layout, B, progress
+        self.state, self.data, self.views, self.start_flip, self.group = state, data, views, start_flip, group
+        self.energies, self.terms, self.timings = {}, {}, {}
+        self.K = max(1, int(cfg.hypotheses))
+        #: rows per sample from the last search to the end
+        self.carry = max(int(cfg.branch_refine), 2 * self.K if self.K > 1 else 1)
+        self.last_search = max([i for i, s in enumerate(fitter.stages) if "branches" in s.options], default=-1)
+        self.occlusion_weight = (fitter.stages[self.last_search].options["branches"].get("occlusion", 0.0)
+                                 if self.last_search >= 0 else 0.0)  # fmt: skip
+        self.row_labels = None  # with carry > 1: each row's hypothesis after the last search
+        self.carried = None  # each row's hypothesis after an earlier search whose best few go on (its ``carry``)
+        self.searched_any = False  # whether a branch search ran (none with several views)
+        self.chosen_branches = [[] for _ in range(B)]
+        self.searched = [[] for _ in range(B)]  # per problem and branch stage: the hypotheses that ran to its end
+        self.search_rows = [[] for _ in range(B)]  # per problem: (tried entry, its joints at the search's end, ...)
+        self.unrefined = [[] for _ in range(B)]  # per problem: search rows not refined to the end (hypotheses > 1)
+
+    def take(self, rows) -> None:
+        """Keep these rows (in this order) of the state, data, views and the stages' records."""
+        pick = lambda d: {k: v[rows] for k, v in d.items()}  # noqa: E731
+        self.state, self.data, self.views = pick(self.state), pick(self.data), pick(self.views)
+        self.start_flip, self.group = self.start_flip[rows], self.group[rows]
+        for d in (self.energies, self.terms):
+            for k in list(d):
+                d[k] = d[k][rows] if isinstance(d[k], torch.Tensor) else {t: v[rows] for t, v in d[k].items()}
+
+    def run(self, stage, iters=None, name=None) -> torch.Tensor:
+        """Run ``stage`` (``iters`` of its steps) on every row, recorded as ``name``; its energies ``[rows]``."""
+        f = self.fitter
+        r = run_stage(stage, self.state, self.layout, f.energy, f.body, self.views, self.data, iterations=iters,
+                      history=f.config.history, progress=self.progress)  # fmt: skip
+        name = name or stage.name
+        self.energies[name], self.terms[name], self.timings[name] = r.energy, r.terms, r.seconds
+        return r.energy
+
+    def joints(self) -> np.ndarray:
+        """Every row's joints now (float64)."""
+        with torch.no_grad():
+            return self.fitter.body(**self.layout.rows(self.state)).joints.double().numpy()
+
+    def choice(self, f):
+        """The scores the refined hypotheses are chosen by, and their occlusion counts (the cue on)."""
+        if not self.occlusion_weight:
+            return f, None
+        with torch.no_grad():
+            occ = self.fitter.energy.terms["occlusion"](evaluate(self.fitter.body, self.layout, self.state, self.views,
+                                                                 self.data))  # fmt: skip
+        return f * (1.0 + self.occlusion_weight * occ), occ
+
+    def survivors_of(self, f, count, opts):
+        """Each sample's ``count`` best rows by ``f``, distinct ones first (:func:`best_distinct_per_group`;
+        the search options' ``distinct``, on where a schedule does not say, as ``hinge``): by energy alone
+        with ``distinct`` false."""
+        if not opts.get("distinct", True):
+            return best_per_group(f, self.group, self.B, count)
+        return best_distinct_per_group(f, self.group, self.B, count, self.joints())
+
+    def settle_pick(self, name) -> None:
+        """Each sample's carried row with the lowest score after stage ``name`` (its final energy; the
+        occlusion cue as in the final choice) goes on. The earlier search's record names it (``kept``) and
+        lists the carried rows' energies there (``settled``, ranked as the pick was, the pick first); with
+        hypotheses > 1 the others join the alternatives not refined to the end (their gap is set against the
+        fit's final energy at the end: both are energies at the final weights)."""
+        f = self.energies[name]
+        score, _ = self.choice(f)
+        group, carried = self.group, self.carried
+        ranked = best_per_group(score, group, self.B, count=len(group)).tolist()  # near-ties as the pick treats them
+        best = best_per_group(score, group, self.B)
+        alternatives = self.K > 1 and self.fitter.config.hypothesis_unrefined
+        with torch.no_grad():
+            now = self.layout.rows(self.state)
+            joints = self.fitter.body(**now).joints.double().numpy() if alternatives else None
+        for b, r in enumerate(best.tolist()):
+            mine = [i for i in ranked if int(group[i]) == b]
+            assert mine[0] == r
+            record = self.searched[b][-1]
+            if record["kept"] != "keep":  # that search's own pick, replaced by the settled one
+                self.chosen_branches[b].pop()
+            if carried[r] != "keep":
+                self.chosen_branches[b].append(carried[r])
+            record["kept"] = carried[r]
+            record["settled"] = [{"flip": carried[i], "energy": float(f[i])} for i in mine]
+            for i in mine[1:] if alternatives else ():
+                self.unrefined[b].append({"label": carried[i], "energy": float(f[i]), "stage": name, "gap": None, "joints": joints[i],
+                                          "params": {n: v[i].detach().cpu().numpy().astype(np.float32) for n, v in now.items()}})  # fmt: skip
+        self.take(best)
+        self.carried = None
+
+    def branch_search(self, si: int, stage, decided: bool) -> None:
+        """Stage ``si``, a branch search (:func:`~silfit.fitting.branches.limb_hypotheses`, module docstring):
+        every row's hypotheses screened and run, each sample's best (``carry`` of them where they go on) kept,
+        the rest recorded."""
+        fitter, B, cfg, dt = self.fitter, self.B, self.fitter.config, self.fitter.dtype
+        self.searched_any = True
+        if self.carried is not None:  # an earlier search's best rows ran on (its ``carry``): the best goes on
+            self.settle_pick(fitter.stages[si - 1].name)
+        if not decided or self.layout.frames != 1:
+            raise ValueError(f"stage '{stage.name}': the branch search needs one frame and a decided start")
+        opts = stage.options["branches"]
+        hyps = limb_hypotheses(fitter.body, self.layout.rows(self.state), fitter.model.joint_names, fitter.model.parents,
+                               opts.get("min_depth_ratio", 0.3), opts.get("whole_limbs", True),
+                               opts.get("joint", False), opts.get("hinge", True), opts.get("hinge_turns", True))  # fmt: skip
+        if opts.get("turns"):
+            hyps += turn_hypotheses(fitter.body, self.layout.rows(self.state), fitter.model.joint_names, fitter.model.parents,
+                                    opts["turns"], opts.get("min_depth_ratio", 0.3), opts.get("whole_limbs", True),
+                                    opts.get("hinge", True))  # fmt: skip
+        labels = ["keep"] * B + [h[1] for h in hyps]
+        self.take(torch.cat([torch.arange(B), torch.as_tensor([h[0] for h in hyps], dtype=torch.long)]))
+        for i, h in enumerate(hyps):  # a pose, or {parameter: value} (joint hypotheses)
+            for n, v in (h[2] if isinstance(h[2], dict) else {"body_pose": h[2]}).items():
+                self.state[n][B + i, 0] = v.to(dt)
+        screen, survivors = int(opts.get("screen_after", 0)), int(opts.get("survivors", 2))
+        going_on = self.carry if si == self.last_search else int(opts.get("carry", 1))  # rows per sample after it
+        survivors = max(survivors, going_on)  # (refined to the end or to the next search)
+        # a few steps for all, then the best few go on; split even where no sample has hypotheses,
+        # so a sample's steps (two optimiser runs) never depend on the others in its batch
+        if 0 < screen < stage.iterations:
+            f = self.run(stage, screen, f"{stage.name}_screen")
+            rows = self.survivors_of(f, survivors, opts)
+            labels = [labels[r] for r in rows.tolist()]
+            self.take(rows)
+            f = self.run(stage, stage.iterations - screen)
+        else:
+            f = self.run(stage)
+        group = self.group
+        keep = best_per_group(f, group, B)
+        with torch.no_grad():  # each row's joints (and parameters) at the search's end: how far from the fit
+            now = self.layout.rows(self.state)
+            row_joints = fitter.body(**now).joints.double().numpy()
+        for b, k in enumerate(keep.tolist()):
+            if labels[k] != "keep":
+                self.chosen_branches[b].append(labels[k])
+            mine = sorted(torch.nonzero(group == b).flatten().tolist(), key=lambda r: float(f[r]))
+            tried = [{"flip": labels[r], "energy": float(f[r])} for r in mine]
+            self.searched[b].append({"stage": stage.name, "kept": labels[k], "tried": tried})
+            self.search_rows[b] += [(t, row_joints[r], r, k) for t, r in zip(tried, mine)]
+        if going_on > 1:  # the best few of each sample go on (to the end, or to the next search)
+            keep = self.survivors_of(f, going_on, opts)
+            if si == self.last_search:
+                self.row_labels = [labels[r] for r in keep.tolist()]
+            else:
+                self.carried = [labels[r] for r in keep.tolist()]
+        if self.K > 1 and cfg.hypothesis_unrefined:  # the rows that stop here: alternatives not refined to the end
+            going = set(keep.tolist())
+            for b in range(B):
+                for t, j, r, k in self.search_rows[b][-len(self.searched[b][-1]["tried"]):]:
+                    if r not in going:
+                        self.unrefined[b].append({"label": t["flip"], "energy": t["energy"], "stage": stage.name,
+                                                  "gap": (t["energy"] - float(f[k])) / max(abs(float(f[k])), 1e-12),
+                                                  "joints": j, "params": {n: v[r].detach().cpu().numpy().astype(np.float32)
+                                                                          for n, v in now.items()}})  # fmt: skip
+        self.take(keep)
+
+    def decide(self, stage, init_poses: list, decide_after: int) -> None:
+        """The decision stage: every placed start with each initial body pose, ``decide_after`` of its steps, each
+        sample's best start kept, the rest of the stage from it."""
+        H = len(init_poses)
+        if H > 1:  # row h * N + r: placed start r with initial pose h
+            N = self.state["body_pose"].shape[0]
+            self.take(torch.arange(N).repeat(H))
+            self.state["body_pose"] = torch.cat([p.to(self.fitter.dtype).expand(N, self.layout.frames, -1)
+                                                 for p in init_poses], 0)  # fmt: skip
+        together = decide_after if 0 < decide_after < stage.iterations else stage.iterations
+        f = self.run(stage, together)  # every start
+        self.take(best_per_group(f, self.group, self.B))
+        if stage.iterations > together:  # the rest of the stage from the chosen start only
+            self.run(stage, stage.iterations - together, f"{stage.name}_chosen")
+
+    def choose(self) -> tuple:
+        """``(hypotheses, alternatives)``: where a search's best rows ran to the end, each sample's lowest final
+        energy is the fit (its row kept) and the distinct others its alternatives (``hypotheses`` with ``K`` > 1,
+        else ``None``); each search row's joint shift from the fit recorded (metrics.json; depth warnings)."""
+        fitter, B, K, cfg = self.fitter, self.B, self.K, self.fitter.config
+        hypotheses = others = None
+        if self.row_labels is not None:  # the fit: each sample's lowest final energy; the others as alternatives
+            final = self.energies[fitter.stages[-1].name]
+            score, occ = self.choice(final)
+            fit_energy = final[best_per_group(score, self.group, B)].tolist()
+            for b, alternatives in enumerate(self.unrefined):  # settled rows: their gap to the fit, both at the final weights
+                for x in alternatives:
+                    if x["gap"] is None:
+                        x["gap"] = (x["energy"] - fit_energy[b]) / max(abs(fit_energy[b]), 1e-12)
+            hypotheses, best = distinct_hypotheses(fitter, self.layout, self.state, final, self.group, B, self.row_labels,
+                                                   score=score, occlusion=occ, max_m=cfg.hypothesis_joint_max_m,
+                                                   unrefined=self.unrefined if cfg.hypothesis_unrefined else None)  # fmt: skip
+            for b, h in enumerate(hypotheses):  # the branch chosen by the final energy, not the search's
+                searched = self.searched[b]
+                if searched and searched[-1]["kept"] != "keep":  # the search's pick, replaced below
+                    self.chosen_branches[b].pop()
+                if h[0]["label"] != "keep":
+                    self.chosen_branches[b].append(h[0]["label"])
+                if searched:
+                    searched[-1]["kept"] = h[0]["label"]
+                    # the distinct branches refined to the end, by their final energies: what chose the fit
+                    # (metrics.json; plausibility.depth_warnings reads these rather than the search's)
+                    searched.append({"stage": fitter.stages[-1].name, "kept": h[0]["label"], "refined": True,
+                                     "tried": [{"flip": x["label"], "energy": x["energy"], "differs": list(x["differs"]),
+                                                "shift_mm": x["shift_mm"], "max_shift_mm": x["max_shift_mm"]}
+                                               for x in h if x["refined"]]})  # fmt: skip
+            # the other distinct branches refined to the end, with their gap to the fit's final energy
+            # (KeypointFitResult.alternatives: the silhouette stage refines the close ones against a mask)
+            others = [[{**x, "gap": (x["energy"] - h[0]["energy"]) / max(abs(h[0]["energy"]), 1e-12)}
+                       for x in h[1:] if x["refined"]] for h in hypotheses]  # fmt: skip
+            hypotheses = [h[:K] for h in hypotheses] if K > 1 else None
+            self.take(best)
+        if any(self.search_rows):  # every search row's joint shift (at its search's end) from the fit (metrics.json;
+            fit_joints = self.joints()  # depth_warnings). Against the fit, not the search's kept row: a fit that moved
+            for b, entries in enumerate(self.search_rows):  # far after a search is unsure too
+                for t, j, *_ in entries:
+                    mean_mm, max_mm = joint_shift_mm(j, fit_joints[b])
+                    t["shift_mm"], t["max_shift_mm"] = round(mean_mm, 1), round(max_mm, 1)
+        return hypotheses, others
 
 
 def fit_keypoints(
