@@ -787,14 +787,10 @@ def _observation_window(mask, uv: np.ndarray, camera: Camera, resolution: int, m
     return None, resolution / extent
 
 
-def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, progress, callback, extra_terms,
-                  extra_weights, extra_data):  # fmt: skip
-    from renderers.silhouette import get_silhouette_renderer
-    from tqdm.auto import tqdm
-
-    dtype = model.dtype
-    P, F, C = len(problems), problems[0].num_frames, problems[0].num_views
-    grids = [p.grid() for p in problems]
+def _checked_masks(grids) -> tuple:
+    """``(masks, known)``: per problem, frame and view, the observation's mask (bool ``[H, W]`` or ``None``) and
+    its known pixels (or ``None``); a mask not of its camera's size, an empty one, known pixels not of the mask's
+    size, or no mask at all raise ``ValueError``."""
     masks = [[[None if o.mask is None else np.asarray(o.mask, dtype=bool) for o in row] for row in g] for g in grids]
     known = [[[None if o.mask is None or getattr(o, "known", None) is None else np.asarray(o.known, dtype=bool)
                for o in row] for row in g] for g in grids]  # fmt: skip
@@ -813,19 +809,217 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
                                      f"{known[p][f][c].shape[0]} pixels, the mask {m.shape[1]}x{m.shape[0]}")
     if not any(m is not None for g in masks for row in g for m in row):
         raise ValueError("the silhouette stage needs at least one mask")
-    params_layout = ParameterLayout.of(model, problems[0].shared, F)
-    sizes = params_layout.sizes
-    # State: shared [P, w], per-frame [P, F, w].
+    return masks, known
+
+
+def _start_state(inits, params_layout: ParameterLayout, frames: int, dtype) -> dict:
+    """The problems' starting parameters: shared ``[P, w]``, per-frame ``[P, F, w]`` (absent names: zero)."""
     start = {}
-    for n, w in sizes.items():
+    for n, w in params_layout.sizes.items():
         rows = []
         for init in inits:
             v = init.get(n)
-            v = np.zeros(w if params_layout.is_shared(n) else (F, w)) if v is None else np.asarray(v, dtype=np.float64)
+            v = np.zeros(w if params_layout.is_shared(n) else (frames, w)) if v is None else np.asarray(v, dtype=np.float64)
             rows.append(torch.as_tensor(v, dtype=dtype).reshape(w) if params_layout.is_shared(n)
-                        else torch.as_tensor(v, dtype=dtype).reshape(F, w))  # fmt: skip
+                        else torch.as_tensor(v, dtype=dtype).reshape(frames, w))  # fmt: skip
         start[n] = torch.stack(rows)
-    free_names = tuple(n for n in cfg.optimise if n in sizes)
+    return start
+
+
+class _LevelRenders:
+    """Each rendered level's ``(renderer, proxy map, batch renderer, body)`` by its proxy's face count (``None``:
+    ``proxy_faces``), built on first use; a caller's ``renderer`` renders the body's own vertices at every level."""
+
+    def __init__(self, model, layout: str, cfg: SilhouetteFitConfig, body, renderer, smpl_layout: bool):
+        self.model, self.layout, self.cfg, self.body, self.smpl_layout = model, layout, cfg, body, smpl_layout
+        self.built = {} if renderer is None else {"caller": (renderer, None, None, body)}
+
+    def __call__(self, n_faces):
+        from renderers.silhouette import get_silhouette_renderer
+
+        cfg, model = self.cfg, self.model
+        if self.built.get("caller"):
+            return self.built["caller"]
+        if n_faces is None or not cfg.proxy_faces:
+            n_faces = cfg.proxy_faces
+        if n_faces not in self.built:
+            level_proxy, faces, level_body = None, model.faces, self.body
+            if n_faces:
+                from renderers.proxy import get_proxy
+
+                level_proxy = get_proxy(model.v_template, model.faces, int(n_faces))
+                faces = level_proxy.faces
+            level_batch = None
+            if cfg.batch_render:
+                from renderers.batch import get_batch_renderer
+
+                level_batch = get_batch_renderer(faces)
+            if level_proxy is not None and cfg.proxy_body and self.smpl_layout:
+                level_body = cached_contour_body(model, self.layout, ("proxy", int(n_faces)), lambda: level_proxy)
+                level_proxy = None
+            self.built[n_faces] = (get_silhouette_renderer(faces), level_proxy, level_batch, level_body)
+        return self.built[n_faces]
+
+
+class _SilhouetteRun:
+    """One :func:`_fit_problems` run's hooks and records: per level (:meth:`prepare_level`) each problem's windows,
+    targets and contour points around the body as it is, the rendered levels' renderer; per rendered step each
+    problem's history, divergence check and best parameters so far (the lowest energy of the level: levels of
+    other resolutions do not compare); :meth:`finish_level` restarts the next level from the best, :meth:`results`
+    ends it."""
+
+    def __init__(self, model, cfg: SilhouetteFitConfig, grids, masks, known, params: dict, params_layout, views: dict,
+                 data: dict, silhouette: "SilhouetteTerm", level_render: _LevelRenders, contour_body, callback, bar):  # fmt: skip
+        self.model, self.cfg, self.grids, self.masks, self.known = model, cfg, grids, masks, known
+        self.params, self.params_layout, self.views, self.data = params, params_layout, views, data
+        self.silhouette, self.level_render, self.contour_body = silhouette, level_render, contour_body
+        self.callback, self.bar = callback, bar
+        P = self.P = len(grids)
+        self.history = [{k: [] for k in ("level", "energy", "silhouette", "keypoints", "iou")} for _ in range(P)]
+        self.warnings: list = [[] for _ in range(P)]
+        self.best_params = [{k: v[p].detach().clone() for k, v in params.items()} for p in range(P)]
+        self.best_iou = [float("nan")] * P
+        self.best_obs_iou: list = [[] for _ in range(P)]
+        self.best_terms: list = [{} for _ in range(P)]
+        self.best_iou_seen = [-1.0] * P
+        self.best_energy = [math.inf] * P
+        self.steps = [0] * P
+        self.contour_steps = [0] * P
+        self.failed = [False] * P
+        self.level, self.resolution, self.stepped_ious = None, None, {}
+
+    def prepare_level(self, level, stage):
+        """Each problem's windows and targets at the level's resolution (around the body as it
+        is now); the rows that run (those that have not failed) and the level's hooks."""
+        cfg, data, dtype, P = self.cfg, self.data, self.model.dtype, self.P
+        F, C = len(self.grids[0]), len(self.grids[0][0])
+        resolution = int(stage.options["resolution"])
+        with torch.no_grad():
+            verts = self.model(**self.params_layout.rows({k: v.detach() for k, v in self.params.items()})).vertices
+            verts = verts.reshape(P, F, *verts.shape[1:])
+        scale = torch.ones(P, F, C, dtype=dtype)
+        for p in range(P):
+            if self.failed[p]:
+                continue
+            windows, targets, contours = [], [], []
+            for f in range(F):
+                for c in range(C):
+                    R, t = self.views["R"][p, f, c].to(verts.dtype), self.views["t"][p, f, c].to(verts.dtype)
+                    cam_pts = world_to_camera(verts[p, f], R, t)
+                    cam = self.grids[p][f][c].view.camera
+                    window, target = _observation_window(self.masks[p][f][c], project_points(cam_pts, cam).numpy(), cam,
+                                                         resolution, cfg.margin, cfg.window_multiple, cfg.truncation_aware,
+                                                         cfg.cover_profile(resolution), self.known[p][f][c])  # fmt: skip
+                    windows.append(window)
+                    targets.append(target if window is not None else None)
+                    scale[p, f, c] = window.scale if window is not None else target
+                    if window is not None and stage.optimiser == "lbfgs":
+                        seen = None if target.valid is None else target.valid.numpy() > 0.5
+                        pts = contour_points(target.mask.numpy() > 0.5, cfg.contour_points, seen)
+                        contours.append(torch.as_tensor(pts, dtype=dtype))
+                    else:
+                        contours.append(None)
+            data["windows"][p], data["targets"][p], data["contours"][p] = windows, targets, contours
+        data["scale"] = scale
+        data["trust_px"] = torch.full((P,), float(cfg.trust_fraction) * resolution, dtype=dtype)
+        rows = torch.as_tensor([p for p in range(P) if not self.failed[p]], dtype=torch.long)
+        if stage.optimiser == "lbfgs":  # the contour level: deterministic, no rendering
+            return {"rows": rows, "body": self.contour_body}
+        sil = self.silhouette
+        sil.renderer, sil.proxy, sil.batch_renderer, level_body = self.level_render(stage.options.get("proxy_faces"))
+        self.best_energy[:] = [math.inf] * P  # energies of different resolutions are not comparable
+        self.level, self.resolution, self.stepped_ious = level, resolution, {}
+        return {"rows": rows, "body": level_body, "before_step": self.before_step, "on_step": self.on_step,
+                "after_step": self.after_step}  # fmt: skip
+
+    def before_step(self, i, rows):
+        seed = self.cfg.seed
+        self.data["seeds"] = [None if seed is None else int(seed) * 100003 + self.steps[p] for p in range(self.P)]
+
+    def on_step(self, i, rows, total, parts, ev):
+        """Per row: stop on divergence (keeping the best so far), else record the step."""
+        ious, obs_ious = ev.extras["iou"], ev.extras["iou_observations"]
+        go = []
+        for j, p in enumerate(rows.tolist()):
+            e_value, iou = float(total[j].detach()), ious[j]
+            if not math.isfinite(e_value) or iou < self.best_iou_seen[p] - self.cfg.iou_collapse:
+                why = "non-finite energy" if not math.isfinite(e_value) else f"IoU collapsed to {iou:.3f}"
+                self.warnings[p].append(f"step {self.steps[p]}: {why}; kept the best parameters so far")
+                self.failed[p] = True
+                go.append(False)
+                continue
+            h = self.history[p]
+            term_values = {k: float(v[j].detach()) for k, v in parts.items()}
+            for key, value in (("level", self.level), ("energy", e_value), ("silhouette", term_values.get("silhouette", 0.0)),
+                               ("keypoints", term_values.get("keypoints", 0.0)), ("iou", iou)):  # fmt: skip
+                h[key].append(value)
+            if e_value < self.best_energy[p]:
+                self.best_energy[p], self.best_iou[p], self.best_terms[p] = e_value, iou, term_values
+                self.best_obs_iou[p] = obs_ious[j]
+                self.best_params[p] = {k: v[p].detach().clone() for k, v in self.params.items()}
+            self.best_iou_seen[p] = max(self.best_iou_seen[p], iou)
+            if self.callback is not None:
+                self.callback(self.steps[p], {"level": self.level, "energy": e_value, "iou": iou, "subject": p})
+            self.stepped_ious[p] = iou
+            go.append(True)
+        return go
+
+    def after_step(self, i, stepped, totals):
+        for p in stepped.tolist():
+            self.steps[p] += 1
+            self.bar.update(1)
+        self.bar.set_postfix(iou=f"{np.mean([self.stepped_ious[p] for p in stepped.tolist()]):.3f}", res=self.resolution)
+        self.stepped_ious.clear()
+
+    def finish_level(self, level, stage, run):
+        if stage.optimiser == "lbfgs":
+            for p in range(self.P):
+                self.contour_steps[p] += int(run.iterations[p])
+                if not self.failed[p]:
+                    self.best_params[p] = {k: v[p].detach().clone() for k, v in self.params.items()}
+            return
+        # The next level restarts from the best parameters found so far.
+        with torch.no_grad():
+            for p in range(self.P):
+                for k in self.params:
+                    self.params[k][p].copy_(self.best_params[p][k])
+
+    def results(self, seconds: float) -> List[SilhouetteFitResult]:
+        """One :class:`SilhouetteFitResult` per problem: its best parameters (per-frame ``[F, w]``, shared ``[1, w]``)."""
+        config, sizes, layout = self.cfg.to_dict(), self.params_layout.sizes, self.params_layout
+        F, C = len(self.grids[0]), len(self.grids[0][0])
+        results = []
+        for p in range(self.P):
+            final = {}
+            for k, v in self.best_params[p].items():
+                final[k] = v.detach().cpu().numpy().astype(np.float32).reshape(-1 if layout.is_shared(k) else F, sizes[k])
+                if layout.is_shared(k):
+                    final[k] = final[k].reshape(1, -1)
+            h = self.history[p]
+            obs = self.best_obs_iou[p] or [float("nan")] * (F * C)
+            results.append(SilhouetteFitResult(
+                parameters=final, history=h,
+                iou_start=h["iou"][0] if h["iou"] else float("nan"),
+                iou_end=float(self.best_iou[p]) if h["iou"] else float("nan"),
+                seconds=seconds, steps=self.steps[p], warnings=self.warnings[p], terms=self.best_terms[p], config=config,
+                contour_iterations=self.contour_steps[p],
+                ious=[list(obs[f * C:(f + 1) * C]) for f in range(F)], failed=bool(self.failed[p]),
+            ))  # fmt: skip
+        return results
+
+
+def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, progress, callback, extra_terms,
+                  extra_weights, extra_data):  # fmt: skip
+    from tqdm.auto import tqdm
+
+    dtype = model.dtype
+    P, F = len(problems), problems[0].num_frames
+    grids = [p.grid() for p in problems]
+    masks, known = _checked_masks(grids)
+    params_layout = ParameterLayout.of(model, problems[0].shared, F)
+    # State: shared [P, w], per-frame [P, F, w].
+    start = _start_state(inits, params_layout, F, dtype)
+    free_names = tuple(n for n in cfg.optimise if n in params_layout.sizes)
     params = {k: v.clone().requires_grad_(k in free_names) for k, v in start.items()}
     prior = load_pose_prior(pose_prior, dtype=dtype) if not isinstance(pose_prior, torch.nn.Module) else pose_prior
     body = MeshBody(model, layout)
@@ -838,36 +1032,7 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
         from renderers.proxy import get_proxy
 
         contour_points_map = get_proxy(model.v_template, model.faces, int(cfg.proxy_faces))
-    # proxy faces (None: the full mesh) -> a rendered level's (renderer, proxy map, batch renderer, body);
-    # a caller's renderer renders the body's own vertices at every level
-    level_renders = {} if renderer is None else {"caller": (renderer, None, None, body)}
-
-    def level_render(n_faces):
-        """``(renderer, proxy map, batch renderer, body)`` of a rendered level whose proxy has ``n_faces``
-        (``None``: ``proxy_faces``), built on first use."""
-        if level_renders.get("caller"):
-            return level_renders["caller"]
-        if n_faces is None or not cfg.proxy_faces:
-            n_faces = cfg.proxy_faces
-        if n_faces not in level_renders:
-            level_proxy, faces, level_body = None, model.faces, body
-            if n_faces:
-                from renderers.proxy import get_proxy
-
-                level_proxy = get_proxy(model.v_template, model.faces, int(n_faces))
-                faces = level_proxy.faces
-            level_batch = None
-            if cfg.batch_render:
-                from renderers.batch import get_batch_renderer
-
-                level_batch = get_batch_renderer(faces)
-            if level_proxy is not None and cfg.proxy_body and smpl_layout:
-                level_body = cached_contour_body(model, layout, ("proxy", int(n_faces)), lambda: level_proxy)
-                level_proxy = None
-            level_renders[n_faces] = (get_silhouette_renderer(faces), level_proxy, level_batch, level_body)
-        return level_renders[n_faces]
-
-    silhouette = SilhouetteTerm(None, cfg.spp, cfg.edge_spp, edge_density=cfg.edge_density)  # each rendered level sets its renderer (level_render)
+    silhouette = SilhouetteTerm(None, cfg.spp, cfg.edge_spp, edge_density=cfg.edge_density)  # each rendered level sets its renderer (_LevelRenders)
 
     energy = Energy([
         silhouette, KeypointTerm("keypoints", cfg.kp_sigma),
@@ -888,137 +1053,16 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
         if isinstance(v, torch.Tensor) and v.shape[:1] != (P,):
             raise ValueError(f"data[{k!r}] has shape {tuple(v.shape)}; expected a leading problem axis of {P}")
     data = {
-        **extra_data, "target": target_xy, "weights": target_w, "scale": torch.ones(P, F, C, dtype=dtype),
+        **extra_data, "target": target_xy, "weights": target_w, "scale": torch.ones(P, F, problems[0].num_views, dtype=dtype),
         "start_body_pose": start["body_pose"], "R": views["R"], "t": views["t"],
         "windows": PerRow([None] * P), "targets": PerRow([None] * P), "seeds": PerRow([None] * P),
         "contours": PerRow([None] * P), "trust_px": torch.zeros(P, dtype=dtype),
     }  # fmt: skip
-
-    history = [{k: [] for k in ("level", "energy", "silhouette", "keypoints", "iou")} for _ in range(P)]
-    warnings: list = [[] for _ in range(P)]
-    best_params = [{k: v[p].detach().clone() for k, v in params.items()} for p in range(P)]
-    best_iou = [float("nan")] * P
-    best_obs_iou: list = [[] for _ in range(P)]
-    best_terms: list = [{} for _ in range(P)]
-    best_iou_seen = [-1.0] * P
-    best_energy = [math.inf] * P
-    steps = [0] * P
-    contour_steps = [0] * P
-    failed = [False] * P
     t0 = time.perf_counter()
     bar = tqdm(total=int(sum(cfg.iterations)) * P, desc="silhouette", disable=not progress, leave=False)
-
-    def prepare_level(level, stage):
-        """Each problem's windows and targets at the level's resolution (around the body as it
-        is now); the rows that run (those that have not failed) and the level's hooks."""
-        resolution = int(stage.options["resolution"])
-        with torch.no_grad():
-            verts = model(**params_layout.rows({k: v.detach() for k, v in params.items()})).vertices
-            verts = verts.reshape(P, F, *verts.shape[1:])
-        scale = torch.ones(P, F, C, dtype=dtype)
-        for p in range(P):
-            if failed[p]:
-                continue
-            windows, targets, contours = [], [], []
-            for f in range(F):
-                for c in range(C):
-                    cam_pts = world_to_camera(verts[p, f], views["R"][p, f, c].to(verts.dtype), views["t"][p, f, c].to(verts.dtype))
-                    cam = grids[p][f][c].view.camera
-                    window, target = _observation_window(masks[p][f][c], project_points(cam_pts, cam).numpy(), cam,
-                                                         resolution, cfg.margin, cfg.window_multiple, cfg.truncation_aware,
-                                                         cfg.cover_profile(resolution), known[p][f][c])  # fmt: skip
-                    windows.append(window)
-                    targets.append(target if window is not None else None)
-                    scale[p, f, c] = window.scale if window is not None else target
-                    if window is not None and stage.optimiser == "lbfgs":
-                        seen = None if target.valid is None else target.valid.numpy() > 0.5
-                        pts = contour_points(target.mask.numpy() > 0.5, cfg.contour_points, seen)
-                        contours.append(torch.as_tensor(pts, dtype=dtype))
-                    else:
-                        contours.append(None)
-            data["windows"][p], data["targets"][p], data["contours"][p] = windows, targets, contours
-        data["scale"] = scale
-        data["trust_px"] = torch.full((P,), float(cfg.trust_fraction) * resolution, dtype=dtype)
-        rows = torch.as_tensor([p for p in range(P) if not failed[p]], dtype=torch.long)
-        if stage.optimiser == "lbfgs":  # the contour level: deterministic, no rendering
-            return {"rows": rows, "body": contour_body}
-        silhouette.renderer, silhouette.proxy, silhouette.batch_renderer, level_body = level_render(stage.options.get("proxy_faces"))
-        best_energy[:] = [math.inf] * P  # energies of different resolutions are not comparable
-        stepped_ious: dict = {}
-
-        def before_step(i, rows):
-            data["seeds"] = [None if cfg.seed is None else int(cfg.seed) * 100003 + steps[p] for p in range(P)]
-
-        def on_step(i, rows, total, parts, ev):
-            """Per row: stop on divergence (keeping the best so far), else record the step."""
-            ious, obs_ious = ev.extras["iou"], ev.extras["iou_observations"]
-            go = []
-            for j, p in enumerate(rows.tolist()):
-                e_value, iou = float(total[j].detach()), ious[j]
-                if not math.isfinite(e_value) or iou < best_iou_seen[p] - cfg.iou_collapse:
-                    why = "non-finite energy" if not math.isfinite(e_value) else f"IoU collapsed to {iou:.3f}"
-                    warnings[p].append(f"step {steps[p]}: {why}; kept the best parameters so far")
-                    failed[p] = True
-                    go.append(False)
-                    continue
-                h = history[p]
-                term_values = {k: float(v[j].detach()) for k, v in parts.items()}
-                for key, value in (("level", level), ("energy", e_value), ("silhouette", term_values.get("silhouette", 0.0)),
-                                   ("keypoints", term_values.get("keypoints", 0.0)), ("iou", iou)):  # fmt: skip
-                    h[key].append(value)
-                if e_value < best_energy[p]:
-                    best_energy[p], best_iou[p], best_terms[p] = e_value, iou, term_values
-                    best_obs_iou[p] = obs_ious[j]
-                    best_params[p] = {k: v[p].detach().clone() for k, v in params.items()}
-                best_iou_seen[p] = max(best_iou_seen[p], iou)
-                if callback is not None:
-                    callback(steps[p], {"level": level, "energy": e_value, "iou": iou, "subject": p})
-                stepped_ious[p] = iou
-                go.append(True)
-            return go
-
-        def after_step(i, stepped, totals):
-            for p in stepped.tolist():
-                steps[p] += 1
-                bar.update(1)
-            bar.set_postfix(iou=f"{np.mean([stepped_ious[p] for p in stepped.tolist()]):.3f}", res=resolution)
-            stepped_ious.clear()
-
-        return {"rows": rows, "body": level_body, "before_step": before_step, "on_step": on_step, "after_step": after_step}
-
-    def finish_level(level, stage, run):
-        if stage.optimiser == "lbfgs":
-            for p in range(P):
-                contour_steps[p] += int(run.iterations[p])
-                if not failed[p]:
-                    best_params[p] = {k: v[p].detach().clone() for k, v in params.items()}
-            return
-        # The next level restarts from the best parameters found so far.
-        with torch.no_grad():
-            for p in range(P):
-                for k in params:
-                    params[k][p].copy_(best_params[p][k])
-
-    run_schedule(stages, params, params_layout, energy, body, views, data, before_stage=prepare_level,
-                 after_stage=finish_level)  # fmt: skip
+    run = _SilhouetteRun(model, cfg, grids, masks, known, params, params_layout, views, data, silhouette,
+                         _LevelRenders(model, layout, cfg, body, renderer, smpl_layout), contour_body, callback, bar)  # fmt: skip
+    run_schedule(stages, params, params_layout, energy, body, views, data, before_stage=run.prepare_level,
+                 after_stage=run.finish_level)  # fmt: skip
     bar.close()
-    seconds = (time.perf_counter() - t0) / max(P, 1)
-    config = cfg.to_dict()
-    results = []
-    for p in range(P):
-        final = {}
-        for k, v in best_params[p].items():
-            final[k] = v.detach().cpu().numpy().astype(np.float32).reshape(-1 if params_layout.is_shared(k) else F, sizes[k])
-            if params_layout.is_shared(k):
-                final[k] = final[k].reshape(1, -1)
-        h = history[p]
-        obs = best_obs_iou[p] or [float("nan")] * (F * C)
-        results.append(SilhouetteFitResult(
-            parameters=final, history=h,
-            iou_start=h["iou"][0] if h["iou"] else float("nan"),
-            iou_end=float(best_iou[p]) if h["iou"] else float("nan"),
-            seconds=seconds, steps=steps[p], warnings=warnings[p], terms=best_terms[p], config=config,
-            contour_iterations=contour_steps[p],
-            ious=[list(obs[f * C:(f + 1) * C]) for f in range(F)], failed=bool(failed[p]),
-        ))  # fmt: skip
-    return results
+    return run.results((time.perf_counter() - t0) / max(P, 1))
