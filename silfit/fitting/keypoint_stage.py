@@ -854,39 +854,40 @@ class KeypointFitter:
             v = torch.as_tensor(np.asarray(v, dtype=np.float64), dtype=dt)
             shape = state[n].shape[1:]
             state[n] = v.reshape(B, *shape).repeat(len(facings), *([1] * len(shape)))
-        fit = _ScheduleRun(self, layout, B, state, data, views, torch.as_tensor(np.repeat(facings, B), dtype=torch.bool),
-                           torch.arange(B).repeat(len(facings)), progress)  # fmt: skip
+        sched = _ScheduleRun(self, layout, B, state, data, views, progress=progress,
+                             start_flip=torch.as_tensor(np.repeat(facings, B), dtype=torch.bool),
+                             group=torch.arange(B).repeat(len(facings)))  # fmt: skip
         decided = len(facings) * len(init_poses) == 1
         t_all = time.perf_counter()
         for si, stage in enumerate(self.stages):
             if stage.options.get("hand_starts") and self.whole_body:
-                fit.state = choose_hand_starts(self.model, self.body, layout, fit.state, fit.views, fit.data, cfg.hand_sigma)
+                sched.state = choose_hand_starts(self.model, self.body, layout, sched.state, sched.views, sched.data, cfg.hand_sigma)
             if "branches" in stage.options:
                 if views_per_frame > 1:  # the views' data fixes the limbs' depth: no search (docs: rigs)
                     continue
-                fit.branch_search(si, stage, decided)
+                sched.branch_search(si, stage, decided)
                 continue
-            if stage.options.get("searched_only") and not fit.searched_any:  # settles searched branches: none here
+            if stage.options.get("searched_only") and not sched.searched_any:  # settles searched branches: none here
                 continue
             decide_after = stage.options.get("decide_after") if not decided else None
             if decide_after is None:
-                if not fit.searched_any and "unsearched_iterations" in stage.options:  # no branches to choose among:
+                if not sched.searched_any and "unsearched_iterations" in stage.options:  # no branches to choose among:
                     # fewer steps, every one run (the final stage as rigs were measured with)
                     opts = {k: v for k, v in stage.options.items() if k not in ("unsearched_iterations", "tol_change")}
                     stage = replace(stage, iterations=min(stage.iterations, int(stage.options["unsearched_iterations"])),
                                     options=opts)  # fmt: skip
-                fit.run(stage)
+                sched.run(stage)
                 continue
-            fit.decide(stage, init_poses, decide_after)
+            sched.decide(stage, init_poses, decide_after)
             decided = True
         if not decided:  # a schedule without a decision stage: keep the best start at the end
-            fit.take(best_per_group(fit.energies[self.stages[-1].name], fit.group, B))
-        hypotheses, others = fit.choose()
-        fit.timings["total"] = time.perf_counter() - t_all
-        info = {"energies": fit.energies, "terms": fit.terms, "timings": fit.timings, "flipped": fit.start_flip.numpy(),
-                "branches": fit.chosen_branches, "branch_search": fit.searched, "hypotheses": hypotheses,
-                "alternatives": others, "data": fit.data, "views": fit.views, "layout": layout}  # fmt: skip
-        return fit.state, info
+            sched.take(best_per_group(sched.energies[self.stages[-1].name], sched.group, B))
+        hypotheses, others = sched.choose()
+        sched.timings["total"] = time.perf_counter() - t_all
+        info = {"energies": sched.energies, "terms": sched.terms, "timings": sched.timings, "flipped": sched.start_flip.numpy(),
+                "branches": sched.chosen_branches, "branch_search": sched.searched, "hypotheses": hypotheses,
+                "alternatives": others, "data": sched.data, "views": sched.views, "layout": layout}  # fmt: skip
+        return sched.state, info
 
     def energy_at(self, params: dict, keypoints, cameras=None, *, image_size=None, focal=None, stage: str = "final"):
         """The energy of stage ``stage`` (default: the last, full one) at given parameters
@@ -979,10 +980,15 @@ class _ScheduleRun:
         self.energies[name], self.terms[name], self.timings[name] = r.energy, r.terms, r.seconds
         return r.energy
 
+    def rows_and_joints(self) -> tuple:
+        """``(parameters by name [rows, ...], joints [rows, J, 3] float64)`` of every row now."""
+        with torch.no_grad():
+            now = self.layout.rows(self.state)
+            return now, self.fitter.body(**now).joints.double().numpy()
+
     def joints(self) -> np.ndarray:
         """Every row's joints now (float64)."""
-        with torch.no_grad():
-            return self.fitter.body(**self.layout.rows(self.state)).joints.double().numpy()
+        return self.rows_and_joints()[1]
 
     def choice(self, f):
         """The scores the refined hypotheses are chosen by, and their occlusion counts (the cue on)."""
@@ -1013,9 +1019,7 @@ class _ScheduleRun:
         ranked = best_per_group(score, group, self.B, count=len(group)).tolist()  # near-ties as the pick treats them
         best = best_per_group(score, group, self.B)
         alternatives = self.K > 1 and self.fitter.config.hypothesis_unrefined
-        with torch.no_grad():
-            now = self.layout.rows(self.state)
-            joints = self.fitter.body(**now).joints.double().numpy() if alternatives else None
+        now, joints = self.rows_and_joints() if alternatives else (None, None)
         for b, r in enumerate(best.tolist()):
             mine = [i for i in ranked if int(group[i]) == b]
             assert mine[0] == r
@@ -1034,8 +1038,9 @@ class _ScheduleRun:
 
     def branch_search(self, si: int, stage, decided: bool) -> None:
         """Stage ``si``, a branch search (:func:`~silfit.fitting.branches.limb_hypotheses`, module docstring):
-        every row's hypotheses screened and run, each sample's best (``carry`` of them where they go on) kept,
-        the rest recorded."""
+        first an earlier search's carried rows settle (:meth:`settle_pick`); then every row's hypotheses are
+        screened and run, each sample's best (``carry`` of them where they go on) kept, the rest recorded. A
+        search needs one frame and a ``decided`` start (else ``ValueError``)."""
         fitter, B, cfg, dt = self.fitter, self.B, self.fitter.config, self.fitter.dtype
         self.searched_any = True
         if self.carried is not None:  # an earlier search's best rows ran on (its ``carry``): the best goes on
@@ -1070,9 +1075,7 @@ class _ScheduleRun:
             f = self.run(stage)
         group = self.group
         keep = best_per_group(f, group, B)
-        with torch.no_grad():  # each row's joints (and parameters) at the search's end: how far from the fit
-            now = self.layout.rows(self.state)
-            row_joints = fitter.body(**now).joints.double().numpy()
+        now, row_joints = self.rows_and_joints()  # each row's joints (and parameters) at the search's end
         for b, k in enumerate(keep.tolist()):
             if labels[k] != "keep":
                 self.chosen_branches[b].append(labels[k])
@@ -1113,9 +1116,12 @@ class _ScheduleRun:
             self.run(stage, stage.iterations - together, f"{stage.name}_chosen")
 
     def choose(self) -> tuple:
-        """``(hypotheses, alternatives)``: where a search's best rows ran to the end, each sample's lowest final
-        energy is the fit (its row kept) and the distinct others its alternatives (``hypotheses`` with ``K`` > 1,
-        else ``None``); each search row's joint shift from the fit recorded (metrics.json; depth warnings)."""
+        """``(hypotheses, alternatives)``: where the last search carried several rows per sample to the end, each
+        sample's lowest score (:meth:`choice`: its final energy, weighed by the occlusion cue where it is on) is
+        the fit (its row kept), ``alternatives`` are the other distinct branches refined to the end, with their gap
+        to the fit's energy, and ``hypotheses`` the ``K`` best distinct solutions (``None`` with ``K`` 1); both
+        ``None`` where no rows were carried. Each search row's joint shift from the fit is recorded (metrics.json;
+        depth warnings)."""
         fitter, B, K, cfg = self.fitter, self.B, self.K, self.fitter.config
         hypotheses = others = None
         if self.row_labels is not None:  # the fit: each sample's lowest final energy; the others as alternatives

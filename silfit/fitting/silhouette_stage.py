@@ -835,14 +835,15 @@ class _LevelRenders:
         self.built = {} if renderer is None else {"caller": (renderer, None, None, body)}
 
     def __call__(self, n_faces):
-        from renderers.silhouette import get_silhouette_renderer
-
+        """The level's ``(renderer, proxy map, batch renderer, body)``."""
         cfg, model = self.cfg, self.model
         if self.built.get("caller"):
             return self.built["caller"]
         if n_faces is None or not cfg.proxy_faces:
             n_faces = cfg.proxy_faces
         if n_faces not in self.built:
+            from renderers.silhouette import get_silhouette_renderer
+
             level_proxy, faces, level_body = None, model.faces, self.body
             if n_faces:
                 from renderers.proxy import get_proxy
@@ -865,16 +866,17 @@ class _SilhouetteRun:
     """One :func:`_fit_problems` run's hooks and records: per level (:meth:`prepare_level`) each problem's windows,
     targets and contour points around the body as it is, the rendered levels' renderer; per rendered step each
     problem's history, divergence check and best parameters so far (the lowest energy of the level: levels of
-    other resolutions do not compare); :meth:`finish_level` restarts the next level from the best, :meth:`results`
-    ends it."""
+    other resolutions do not compare); :meth:`finish_level` takes the contour level's end as the best so far and
+    restarts the next level from a rendered level's best; :meth:`results` ends it."""
 
     def __init__(self, model, cfg: SilhouetteFitConfig, grids, masks, known, params: dict, params_layout, views: dict,
-                 data: dict, silhouette: "SilhouetteTerm", level_render: _LevelRenders, contour_body, callback, bar):  # fmt: skip
+                 data: dict, silhouette: SilhouetteTerm, level_render: _LevelRenders, contour_body, callback, bar):  # fmt: skip
         self.model, self.cfg, self.grids, self.masks, self.known = model, cfg, grids, masks, known
         self.params, self.params_layout, self.views, self.data = params, params_layout, views, data
         self.silhouette, self.level_render, self.contour_body = silhouette, level_render, contour_body
         self.callback, self.bar = callback, bar
         P = self.P = len(grids)
+        self.F, self.C = len(grids[0]), len(grids[0][0])  # frames and views (every problem's)
         self.history = [{k: [] for k in ("level", "energy", "silhouette", "keypoints", "iou")} for _ in range(P)]
         self.warnings: list = [[] for _ in range(P)]
         self.best_params = [{k: v[p].detach().clone() for k, v in params.items()} for p in range(P)]
@@ -891,8 +893,7 @@ class _SilhouetteRun:
     def prepare_level(self, level, stage):
         """Each problem's windows and targets at the level's resolution (around the body as it
         is now); the rows that run (those that have not failed) and the level's hooks."""
-        cfg, data, dtype, P = self.cfg, self.data, self.model.dtype, self.P
-        F, C = len(self.grids[0]), len(self.grids[0][0])
+        cfg, data, dtype, P, F, C = self.cfg, self.data, self.model.dtype, self.P, self.F, self.C
         resolution = int(stage.options["resolution"])
         with torch.no_grad():
             verts = self.model(**self.params_layout.rows({k: v.detach() for k, v in self.params.items()})).vertices
@@ -933,6 +934,7 @@ class _SilhouetteRun:
                 "after_step": self.after_step}  # fmt: skip
 
     def before_step(self, i, rows):
+        """Each problem's renderer seed of this step (its own step count)."""
         seed = self.cfg.seed
         self.data["seeds"] = [None if seed is None else int(seed) * 100003 + self.steps[p] for p in range(self.P)]
 
@@ -965,6 +967,7 @@ class _SilhouetteRun:
         return go
 
     def after_step(self, i, stepped, totals):
+        """Count the step of the rows that took it (the progress bar too)."""
         for p in stepped.tolist():
             self.steps[p] += 1
             self.bar.update(1)
@@ -972,6 +975,8 @@ class _SilhouetteRun:
         self.stepped_ious.clear()
 
     def finish_level(self, level, stage, run):
+        """After the contour level its end is each problem's best so far; after a rendered level the next level
+        restarts from the best parameters found so far."""
         if stage.optimiser == "lbfgs":
             for p in range(self.P):
                 self.contour_steps[p] += int(run.iterations[p])
@@ -987,7 +992,7 @@ class _SilhouetteRun:
     def results(self, seconds: float) -> List[SilhouetteFitResult]:
         """One :class:`SilhouetteFitResult` per problem: its best parameters (per-frame ``[F, w]``, shared ``[1, w]``)."""
         config, sizes, layout = self.cfg.to_dict(), self.params_layout.sizes, self.params_layout
-        F, C = len(self.grids[0]), len(self.grids[0][0])
+        F, C = self.F, self.C
         results = []
         for p in range(self.P):
             final = {}
@@ -1060,9 +1065,9 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
     }  # fmt: skip
     t0 = time.perf_counter()
     bar = tqdm(total=int(sum(cfg.iterations)) * P, desc="silhouette", disable=not progress, leave=False)
-    run = _SilhouetteRun(model, cfg, grids, masks, known, params, params_layout, views, data, silhouette,
-                         _LevelRenders(model, layout, cfg, body, renderer, smpl_layout), contour_body, callback, bar)  # fmt: skip
-    run_schedule(stages, params, params_layout, energy, body, views, data, before_stage=run.prepare_level,
-                 after_stage=run.finish_level)  # fmt: skip
+    hooks = _SilhouetteRun(model, cfg, grids, masks, known, params, params_layout, views, data, silhouette,
+                           _LevelRenders(model, layout, cfg, body, renderer, smpl_layout), contour_body, callback, bar)  # fmt: skip
+    run_schedule(stages, params, params_layout, energy, body, views, data, before_stage=hooks.prepare_level,
+                 after_stage=hooks.finish_level)  # fmt: skip
     bar.close()
-    return run.results((time.perf_counter() - t0) / max(P, 1))
+    return hooks.results((time.perf_counter() - t0) / max(P, 1))
