@@ -226,12 +226,11 @@ def _hypothesis_outputs(model, hypotheses: list, keypoints: KeypointSet, camera:
             params = refined[k].params()
             record.update(params_from="silhouette stage", silhouette_energy=choice["energies"][k],
                           silhouette_iou=choice["iou"][k])  # fmt: skip
-            if guard and _guard(model, start, params, keypoints, camera, _pose(model, params, keypoints.layout, camera)[2],
-                                where).reverted:  # fmt: skip
-                params, record["params_from"] = start, "keypoint stage (the silhouette stage's was less plausible)"
-                record["silhouette_discarded"] = {"energy": record.pop("silhouette_energy"),
-                                                  "iou": record.pop("silhouette_iou")}  # fmt: skip
         vertices, _, kp2d = _pose(model, params, keypoints.layout, camera)
+        if refined is not None and guard and _guard(model, start, params, keypoints, camera, kp2d, where).reverted:
+            params, record["params_from"] = start, "keypoint stage (the silhouette stage's was less plausible)"
+            record["silhouette_discarded"] = {"energy": record.pop("silhouette_energy"), "iou": record.pop("silhouette_iou")}
+            vertices, _, kp2d = _pose(model, params, keypoints.layout, camera)
         out.append({"rank": row["rank"], "params": params, "vertices": vertices, "keypoints_2d": kp2d, "record": record,
                     "keypoint_params": None if refined is None else start})  # fmt: skip
     return out
