@@ -616,8 +616,9 @@ def distinct_hypotheses(fitter, layout, state, energy, group, groups: int, label
     names = fitter.model.joint_names
     order = best_per_group(energy if score is None else score, group, groups, count=int(group.shape[0]))
     out, best = [], []
+    order, of = order.tolist(), group.tolist()  # read once, not per sample and row
     for b in range(groups):
-        mine = [r for r in order.tolist() if int(group[r]) == b]
+        mine = [r for r in order if of[r] == b]
         kept = []  # (joints, row or unrefined record)
         for r in mine:
             if all(is_distinct(joints[r], j, min_m, max_m) for j, _ in kept):
@@ -1020,8 +1021,9 @@ class _ScheduleRun:
         best = best_per_group(score, group, self.B)
         alternatives = self.K > 1 and self.fitter.config.hypothesis_unrefined
         now, joints = self.rows_and_joints() if alternatives else (None, None)
+        of = group.tolist()  # read once, not per sample and row
         for b, r in enumerate(best.tolist()):
-            mine = [i for i in ranked if int(group[i]) == b]
+            mine = [i for i in ranked if of[i] == b]
             assert mine[0] == r
             record = self.searched[b][-1]
             if record["kept"] != "keep":  # that search's own pick, replaced by the settled one
