@@ -26,7 +26,9 @@ The pose prior's precisions, computed once when it loads, are BLAS-free (:mod:`s
 LAPACK's inverse followed OpenBLAS's kernel (``Sandybridge`` against ``Haswell``: other bits, other fits).
 
 The body model and the keypoint stage use no BLAS (:mod:`silfit.body.lbs`, "No BLAS"): MKL's GEMMs
-changed with its thread count on an Intel Xeon, by 1.1 mm in a float64 keypoint fit.
+changed with its thread count on an Intel Xeon, by 1.1 mm in a float64 keypoint fit; the collision spheres are
+posed without BLAS too. Nor ``torch.sqrt``, which MKL's vector maths rounds otherwise on an Intel Xeon with
+AVX-512 than on an AMD EPYC, whatever the pins (:func:`silfit.body.lbs.sqrt`, "No VML square root").
 
 Each is set only where the environment does not set it already (an explicit choice wins), and
 only when neither torch nor numpy has been imported yet: they read these variables once, when

@@ -22,7 +22,15 @@ joint regressor over its nonzeros, :func:`sparse_contract`), whose order of oper
 (:mod:`silfit.kernels`) and which split these sums across threads by output, never inside one
 (a sum down to a single value of more than 32,768 numbers does split by thread). Two
 GEMMs remain, neither in the keypoint stage's default energy: an official model's pose correctives and the
-skinning of a whole mesh (:func:`skin_vertices`; over the weights' nonzeros it took 2x the time).
+skinning of a whole mesh (:func:`skin_vertices`; over the weights' nonzeros it took 2x the time, so that is
+asked for only where a result must be the same bits everywhere: ``skin_vertices(..., blas=False)``,
+``pose_correctives(..., blas=False)``, as the interpenetration spheres are built).
+
+**No VML square root.** torch hands ``torch.sqrt`` (and ``pow(x, 0.5)``) of a float tensor to MKL's
+vector maths, whose result is not the correctly rounded one (on an AMD EPYC 1.2 % of float64 and 17 % of
+float32 values are 1 ulp off) and follows the processor: an Intel Xeon with AVX-512 rounds other values.
+:func:`sqrt` is computed from ``rsqrt`` (the processor's own square root and a division, both correctly
+rounded by IEEE 754) and one product: the same bits on every processor. The fitting path uses it.
 """
 from __future__ import annotations
 
@@ -33,6 +41,7 @@ import torch
 
 __all__ = [
     "skew",
+    "sqrt",
     "axis_angle_to_matrix",
     "per_row",
     "matmul",
@@ -46,6 +55,27 @@ __all__ = [
     "skin_vertices",
     "lbs",
 ]
+
+
+class _Sqrt(torch.autograd.Function):
+    """``x * rsqrt(x)`` (0 at 0); the gradient ``grad * rsqrt(x) / 2`` (module docstring, "No VML square root")."""
+
+    @staticmethod
+    def forward(ctx, x):
+        r = torch.rsqrt(x)
+        ctx.save_for_backward(r)
+        return torch.where(x == 0, x, x * r)
+
+    @staticmethod
+    def backward(ctx, grad):
+        (r,) = ctx.saved_tensors
+        return grad * (0.5 * r)
+
+
+def sqrt(x: torch.Tensor) -> torch.Tensor:
+    """The square root of ``x``, differentiable, within 2 ulp of the exact one and the same bits on every
+    processor (``torch.sqrt`` is not: module docstring, "No VML square root"). Negative values give NaN."""
+    return _Sqrt.apply(x)
 
 
 def skew(v: torch.Tensor) -> torch.Tensor:
@@ -66,7 +96,7 @@ def axis_angle_to_matrix(axis_angle: torch.Tensor) -> torch.Tensor:
     theta2 = (axis_angle * axis_angle).sum(-1)
     small = theta2 < 1e-6
     safe2 = torch.where(small, torch.ones_like(theta2), theta2)
-    theta = safe2.sqrt()
+    theta = sqrt(safe2)
     a = torch.where(small, 1.0 - theta2 / 6.0 + theta2 * theta2 / 120.0, torch.sin(theta) / theta)
     b = torch.where(small, 0.5 - theta2 / 24.0 + theta2 * theta2 / 720.0, (1.0 - torch.cos(theta)) / safe2)
     K = skew(axis_angle)
@@ -122,10 +152,13 @@ def pose_feature(rot_mats: torch.Tensor) -> torch.Tensor:
     return (rot_mats[:, 1:] - eye).flatten(1)
 
 
-def pose_correctives(rot_mats: torch.Tensor, posedirs: torch.Tensor) -> torch.Tensor:
-    """Pose-corrective offsets ``[B, V, 3]`` of ``rot_mats [B, J, 3, 3]`` with ``posedirs [(J-1)*9, V*3]``."""
+def pose_correctives(rot_mats: torch.Tensor, posedirs: torch.Tensor, blas: bool = True) -> torch.Tensor:
+    """Pose-corrective offsets ``[B, V, 3]`` of ``rot_mats [B, J, 3, 3]`` with ``posedirs [(J-1)*9, V*3]``;
+    ``blas=False``: a broadcast product and a sum, not a GEMM (module docstring, "No BLAS")."""
     B = rot_mats.shape[0]
-    return per_row(lambda f: f @ posedirs, pose_feature(rot_mats)).reshape(B, -1, 3)
+    if blas:
+        return per_row(lambda f: f @ posedirs, pose_feature(rot_mats)).reshape(B, -1, 3)
+    return per_row(lambda f: (f[..., None] * posedirs).sum(-2), pose_feature(rot_mats)).reshape(B, -1, 3)
 
 
 _SPARSE: dict = {}  # id(matrix) -> (weak reference, version, the matrix's padded rows, its transpose's)
@@ -256,13 +289,17 @@ def forward_kinematics(
     return posed_joints, skinning
 
 
-def skin_vertices(vertices: torch.Tensor, transforms: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+def skin_vertices(vertices: torch.Tensor, transforms: torch.Tensor, weights: torch.Tensor, blas: bool = True) -> torch.Tensor:
     """Linear blend skinning of rest vertices ``[B, V, 3]`` with per-joint transforms
-    ``[B, J, 4, 4]`` and skinning weights ``[V, J]``."""
-    # a GEMM per row (the keypoint stage's default energy skins no mesh, and the stages and the keypoint
+    ``[B, J, 4, 4]`` and skinning weights ``[V, J]``; ``blas=False``: over the weights' nonzeros
+    (:func:`sparse_contract`), the same bits on every processor (module docstring, "No BLAS")."""
+    # by default a GEMM per row (the keypoint stage's default energy skins no mesh, and the stages and the keypoint
     # fitter's set-up run one torch thread, so one MKL thread): over the weights' nonzeros (sparse_contract)
     # forward and backward took 2x the time
-    T = per_row(lambda t: torch.einsum("vj,bjrc->bvrc", weights, t), transforms[..., :3, :])  # [B, V, 3, 4]
+    if blas:
+        T = per_row(lambda t: torch.einsum("vj,bjrc->bvrc", weights, t), transforms[..., :3, :])  # [B, V, 3, 4]
+    else:
+        T = sparse_contract(weights, transforms[..., :3, :])
     return (T[..., :3] * vertices[..., None, :]).sum(-1) + T[..., 3]
 
 

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from .io import ModelArrays
-from .lbs import axis_angle_to_matrix, lbs, matmul
+from .lbs import axis_angle_to_matrix, lbs, matmul, sqrt
 from .model import BodyModel, BodyOutput
 
 __all__ = ["SMPLXModel", "SMPLXOutput", "HAND_JOINTS", "NECK_CHAIN", "dynamic_contour_bin"]
@@ -53,7 +53,7 @@ def dynamic_contour_bin(full_pose: torch.Tensor, chain=NECK_CHAIN) -> torch.Tens
     rel = torch.eye(3, dtype=full_pose.dtype, device=full_pose.device).expand(B, 3, 3)
     for k in range(len(chain)):
         rel = matmul(rots[:, k], rel)  # not a GEMM (silfit.body.lbs)
-    sy = torch.sqrt(rel[:, 0, 0] ** 2 + rel[:, 1, 0] ** 2)
+    sy = sqrt(rel[:, 0, 0] ** 2 + rel[:, 1, 0] ** 2)
     yaw = torch.round(torch.clamp(-torch.atan2(-rel[:, 2, 0], sy) * 180.0 / np.pi, max=39)).long()
     return torch.where(yaw < 0, torch.where(yaw < -39, torch.full_like(yaw, 78), 39 - yaw), yaw)
 

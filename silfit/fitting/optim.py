@@ -15,6 +15,8 @@ from typing import Callable, Mapping, Optional
 import numpy as np
 import torch
 
+from ..body.lbs import sqrt
+
 __all__ = ["BatchedAdam", "Plateau", "batched_lbfgs", "learning_rate_factor"]
 
 Energy = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
@@ -112,7 +114,7 @@ def batched_lbfgs(
         y = g_new - ga
         sy = (s * y).sum(-1)
         yy = (y * y).sum(-1)
-        upd = done & (sy > 1e-10 * yy.clamp(min=1e-30).sqrt() * s.norm(dim=-1))
+        upd = done & (sy > 1e-10 * sqrt(yy.clamp(min=1e-30)) * s.norm(dim=-1))
         u_idx = a_idx[upd]
         S[u_idx, ptr] = s[upd]
         Y[u_idx, ptr] = y[upd]
@@ -157,8 +159,8 @@ class BatchedAdam:
                 self.m[k][rows], self.v[k][rows] = m, v
                 shape = (-1,) + (1,) * (p.dim() - 1)
                 bc1 = (1 - self.b1 ** t).to(p.dtype).reshape(shape)
-                bc2 = (1 - self.b2 ** t).sqrt().to(p.dtype).reshape(shape)
-                p[rows] -= (lr[k] * factor / bc1) * m / (v.sqrt() / bc2 + self.eps)
+                bc2 = sqrt(1 - self.b2 ** t).to(p.dtype).reshape(shape)
+                p[rows] -= (lr[k] * factor / bc1) * m / (sqrt(v) / bc2 + self.eps)
 
 
 def learning_rate_factor(step: int, steps: int, warmup: int) -> float:

@@ -26,6 +26,7 @@ from typing import Callable, Dict, Iterable, Mapping, Optional
 
 import torch
 
+from ..body.lbs import sqrt
 from ..camera import project_points
 from .losses import reprojection_energy
 from .problem import ParameterLayout, world_to_camera
@@ -208,7 +209,7 @@ def robust_penalty(sq: torch.Tensor, sigma: Optional[float], kind: str = "charbo
         return sq
     s2 = float(sigma) ** 2
     if kind == "charbonnier":
-        return 2.0 * s2 * (torch.sqrt(1.0 + sq / s2) - 1.0)
+        return 2.0 * s2 * (sqrt(1.0 + sq / s2) - 1.0)
     if kind == "gm":
         return s2 * sq / (s2 + sq)
     raise ValueError(f"unknown robust penalty {kind!r} (expected charbonnier or gm)")

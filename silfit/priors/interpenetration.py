@@ -48,7 +48,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..body.lbs import _padded, blend_shapes, per_row
+from ..body.lbs import _padded, blend_shapes, per_row, sqrt
 
 __all__ = ["SphereCollisionModel", "tree_distances", "vertex_normals"]
 
@@ -165,17 +165,27 @@ def calibration_poses() -> np.ndarray:
     return np.stack(poses + [mirror_pose(p) for p in poses])
 
 
-def _skinning_transforms(model, body_pose: torch.Tensor) -> torch.Tensor:
-    """Mean-shape skinning transforms ``[P, J, 4, 4]`` (float64) for ``body_pose [P, 69]``."""
-    from ..body.lbs import axis_angle_to_matrix, forward_kinematics, vertices_to_joints
+def _mean_shape_posed(model, body_pose: torch.Tensor, chunk: int = 16) -> tuple:
+    """``(vertices [P, V, 3], transforms [P, J, 4, 4])`` of the mean shape in ``body_pose [P, 69]``, float64,
+    without BLAS (``blas=False``: :mod:`silfit.body.lbs`, "No BLAS"): MKL's GEMMs round the skinned
+    vertices otherwise on an Intel Xeon with AVX-512 than on an AMD EPYC, which changed the spheres' radius
+    scales in their last bits and a float64 keypoint fit by 1.1 mm."""
+    from ..body.lbs import axis_angle_to_matrix, forward_kinematics, pose_correctives, skin_vertices, vertices_to_joints
 
-    joints = vertices_to_joints(model.J_regressor.double(), model.v_template.double()[None])
+    v = model.v_template.double()[None]
+    joints = vertices_to_joints(model.J_regressor.double(), v)
     full = torch.cat([torch.zeros(len(body_pose), 3, dtype=torch.float64), body_pose], 1)
     # a whole-body model: SMPL's first 21 joints are its body, the rest (jaw, eyes, fingers) at rest
     full = torch.cat([full[:, : 3 * model.num_joints], full.new_zeros(len(full), max(0, 3 * model.num_joints - full.shape[1]))], 1)
-    full = full.reshape(len(body_pose), -1, 3)
-    _, T = forward_kinematics(axis_angle_to_matrix(full), joints.expand(len(body_pose), -1, -1), model.parents, model._levels)
-    return T
+    rot = axis_angle_to_matrix(full.reshape(len(body_pose), -1, 3))
+    _, T = forward_kinematics(rot, joints.expand(len(body_pose), -1, -1), model.parents, model._levels)
+    weights = model.lbs_weights.double()
+    posedirs = None if model.posedirs is None else model.posedirs.double()
+    verts = []
+    for s in range(0, len(body_pose), chunk):
+        vp = v if posedirs is None else v + pose_correctives(rot[s : s + chunk], posedirs, blas=False)
+        verts.append(skin_vertices(vp.expand(len(rot[s : s + chunk]), -1, -1), T[s : s + chunk], weights, blas=False))
+    return torch.cat(verts), T
 
 
 def _supports(weights: np.ndarray, threshold: float) -> np.ndarray:
@@ -206,10 +216,8 @@ def _posed_scale(model, centres, radii, weights, own, chunk: int = 16) -> np.nda
     dt = model.dtype
     c, w = torch.as_tensor(centres, dtype=dt), torch.as_tensor(weights, dtype=dt)
     with torch.no_grad():
-        verts = torch.cat([model(body_pose=poses[s : s + chunk].to(dt)).vertices for s in range(0, len(poses), chunk)])
-        T = _skinning_transforms(model, poses).to(dt)
-        # broadcast products, not GEMMs (silfit.body.lbs, "No BLAS"; the posed vertices above are one skinning
-        # GEMM per pose, run with the keypoint fitter's one thread)
+        verts, T = (t.to(dt) for t in _mean_shape_posed(model, poses, chunk))
+        # broadcast products, not GEMMs (silfit.body.lbs, "No BLAS")
         R = per_row(lambda m: (w[None, :, :, None, None] * m[:, None]).sum(2), T[..., :3, :3])
         t = per_row(lambda m: (w[None, :, :, None] * m[:, None]).sum(2), T[..., :3, 3])
         pc = (R * c[:, None, :]).sum(-1) + t  # [P, S, 3]
@@ -407,7 +415,7 @@ class SphereCollisionModel(nn.Module):
         L = min(b.shape[1], dirs.shape[-1])
         lead = (slice(None),) + (None,) * (sphere.ndim - 1)
         near = tmpl[sphere, nearest] + (b[lead + (None, slice(0, L))] * dirs[sphere, nearest][..., :L]).sum(-1)
-        return self.radius_scale.to(b.dtype)[sphere] * ((near * near).sum(-1) + 1e-12).sqrt() - self.margin
+        return self.radius_scale.to(b.dtype)[sphere] * sqrt((near * near).sum(-1) + 1e-12) - self.margin
 
     def _posed_centres(self, b: torch.Tensor, transforms: torch.Tensor, sphere: Optional[torch.Tensor] = None) -> torch.Tensor:
         """Posed centres (no translation) of every sphere, ``[B, S, 3]``, or of spheres

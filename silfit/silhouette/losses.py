@@ -59,6 +59,8 @@ from typing import Optional
 import numpy as np
 import torch
 
+from ..body.lbs import sqrt
+
 __all__ = [
     "CoverProfile", "MaskTarget", "clothing_thickness", "trim_clothing", "unknown_regions", "concave_region", "contour_points", "cover_energy", "cover_weights", "distance_transforms", "outside_distance_energy",
     "silhouette_energy", "soft_iou",
@@ -257,7 +259,7 @@ def cover_energy(uv: torch.Tensor, points: torch.Tensor, profile: Optional[Cover
     diff = pts - uv[nearest]
     if profile is None or profile.plain:
         return diff.square().sum(-1).mean()
-    dist = (diff.square().sum(-1) + 1e-12).sqrt()
+    dist = sqrt(diff.square().sum(-1) + 1e-12)
     return profile(dist).square().mean()
 
 

@@ -116,21 +116,81 @@ KEYPOINT_CHILD = textwrap.dedent("""
 """)
 
 
-def test_a_keypoint_fit_is_the_same_bits_with_one_or_two_threads(tmp_path):
+def test_a_keypoint_fit_is_the_same_bits_with_one_or_two_threads_and_either_mkl_branch(tmp_path):
     """No BLAS in the body model and the keypoint stage (silfit.body.lbs): on an Intel Xeon MKL's
     GEMMs gave another float64 fit with one thread than with two (1.1 mm), so the reference fits
     failed there. Each setting in its own process (the libraries read these once)."""
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     results = []
-    for threads in ("2", "1"):
-        # MKL's AVX2 branch (whose GEMMs followed the thread count there, where COMPATIBLE's did not) and
-        # a cache of its own, so each child builds the collision spheres itself
-        env = dict(os.environ, OMP_NUM_THREADS=threads, MKL_NUM_THREADS=threads, MKL_CBWR="AVX2",
-                   SILFIT_CACHE_DIR=str(tmp_path / f"cache{threads}"),
+    for threads, branch in (("2", "AVX2"), ("1", "AVX2"), ("1", "COMPATIBLE")):
+        # MKL's AVX2 branch (whose GEMMs followed the thread count there, where COMPATIBLE's did not), then its
+        # COMPATIBLE one (whose GEMMs rounded the collision spheres' posed vertices otherwise: 1.1 mm on an Intel
+        # Xeon against an AMD EPYC), and a cache of its own, so each child builds the collision spheres itself
+        env = dict(os.environ, OMP_NUM_THREADS=threads, MKL_NUM_THREADS=threads, MKL_CBWR=branch,
+                   SILFIT_CACHE_DIR=str(tmp_path / f"cache{threads}{branch}"),
                    PYTHONPATH=os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")])))  # fmt: skip
         done = subprocess.run([sys.executable, "-c", KEYPOINT_CHILD, os.path.join(root, "data", "synthetic")], env=env,
                               cwd=root, capture_output=True, text=True, timeout=300)  # fmt: skip
         assert done.returncode == 0, done.stderr[-3000:]
         results.append(json.loads([s for s in done.stdout.splitlines() if s.startswith("RESULT ")][-1][len("RESULT "):]))
-    assert results[0] == results[1]
+    assert results[0] == results[1] == results[2]
     assert abs(results[0]["transl"][-1]) > 1.0  # a fitted body in front of the camera
+
+
+#: kernels whose results follow the processor although silfit pins torch's SIMD level (silfit.kernels): BLAS
+#: (MKL's GEMMs and matrix-vector products: another rounding on an Intel Xeon with AVX-512) and MKL's vector
+#: square root (``torch.sqrt``, and ``pow(x, 0.5)`` which torch sends to it: not correctly rounded, and rounded
+#: otherwise there). silfit.body.lbs's ``matmul``, ``sparse_contract`` and ``sqrt`` replace them.
+PROCESSOR_DEPENDENT = {"aten.mm", "aten.bmm", "aten.addmm", "aten.baddbmm", "aten.addbmm", "aten.mv", "aten.addmv",
+                       "aten.dot", "aten.vdot", "aten.sqrt"}
+
+
+class _ProcessorDependentCalls:
+    """A dispatch mode recording each processor-dependent kernel call with the silfit line it came from."""
+
+    def __new__(cls):
+        import traceback
+
+        from torch.utils._python_dispatch import TorchDispatchMode
+
+        class Mode(TorchDispatchMode):
+            calls: list = []
+
+            def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+                name = str(func).rsplit(".", 1)[0]
+                half = name == "aten.pow" and len(args) > 1 and not hasattr(args[1], "shape") and args[1] == 0.5
+                if name in PROCESSOR_DEPENDENT or half:
+                    site = [f"{f.filename.rsplit('silfit/', 1)[-1]}:{f.name}" for f in traceback.extract_stack()
+                            if "/silfit/" in f.filename]
+                    self.calls.append((str(func), site))
+                return func(*args, **(kwargs or {}))
+
+        return Mode()
+
+
+def test_the_keypoint_fit_and_its_collision_spheres_call_no_processor_dependent_kernel():
+    """The float64 reference fits differed by 1.1 and 2.0 mm on an Intel Xeon with AVX-512 (issue 56):
+    ``../shared/tools/op_trace.py`` found the first differing operation in the collision spheres' radius
+    scales (the posed vertices they are calibrated on were a GEMM), and ``torch.sqrt`` rounds otherwise there.
+    Neither may run on the fitting path: the fit's energies and steps, and the spheres' construction."""
+    import torch
+
+    from silfit import load_body_model
+    from silfit.dataset import list_subjects, load_subject
+    from silfit.fitting import KeypointFitConfig
+    from silfit.fitting.keypoint_stage import fit_keypoints
+    from silfit.priors.interpenetration import _mean_shape_posed, calibration_poses
+
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    model = load_body_model(dtype=torch.float64)
+    s = load_subject(list_subjects(os.path.join(root, "data", "synthetic"))[1])
+    cfg = KeypointFitConfig(camera_iters=3, pose_iters=(3, 3, 3), shape_iters=2, final_iters=3, init_poses=2,
+                            decision_iters=2, branch_iters=2, branch_screen_iters=2, post_branch_iters=2)
+    fit_keypoints(s.keypoints, s.camera, model, config=cfg, progress=False)  # the spheres built or read first
+    mode = _ProcessorDependentCalls()
+    with mode:
+        fit_keypoints(s.keypoints, s.camera, model, config=cfg, progress=False)
+        _mean_shape_posed(model, torch.as_tensor(calibration_poses()[:3, : model.num_body_pose]))
+    # the only GEMM left skins the fitted mesh (the result's vertices, the rest pose's pelvis): body.model's forward
+    assert [c for c in mode.calls if not any(f.endswith("model.py:forward") for f in c[1])] == []
+    assert all(c[0] == "aten.bmm.default" for c in mode.calls)
