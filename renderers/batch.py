@@ -31,7 +31,7 @@ import torch
 
 from silfit.camera import Camera, project_points
 
-from .silhouette import SilhouetteRenderer, _fresh_seed, check_camera, check_mesh, faces_key, to_canonical
+from .silhouette import SilhouetteRenderer, fresh_seed, check_camera, check_mesh, faces_key, to_canonical
 
 __all__ = ["BatchSilhouetteRenderer", "TileLayout", "tile_layout", "render_batch", "get_batch_renderer"]
 
@@ -133,7 +133,7 @@ class BatchSilhouetteRenderer:
             return []
         if len({v.shape[0] for v in verts}) != 1:
             raise ValueError("all subjects must have the same number of vertices")
-        seed = _fresh_seed() if seed is None else int(seed)
+        seed = fresh_seed() if seed is None else int(seed)
         kw = dict(spp=spp, edge_spp=edge_spp, sampler=sampler)
         if edge_density is not None:  # the ray-cast method's edge points per pixel of contour length
             kw["edge_density"] = edge_density

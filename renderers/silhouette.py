@@ -470,7 +470,7 @@ class SilhouetteRenderer:
             eye, zero = torch.eye(3), torch.zeros(3)
             out = torch.stack([
                 self.render_views(v, [camera], [eye], [zero], spp=spp, edge_spp=edge_spp,
-                                  seeds=[_fresh_seed() if seed is None else int(seed) + i], sampler=sampler,
+                                  seeds=[fresh_seed() if seed is None else int(seed) + i], sampler=sampler,
                                   edge_density=edge_density)[0]
                 for i, v in enumerate(batch)
             ])  # fmt: skip
@@ -484,7 +484,7 @@ class SilhouetteRenderer:
             mapped = to_canonical(verts.to(torch.float32), camera).contiguous()
             if device.type != "cuda" or not self.variant.startswith("cuda"):
                 mapped = mapped.cpu()
-            s = _fresh_seed() if seed is None else int(seed) + i
+            s = fresh_seed() if seed is None else int(seed) + i
             if self.threads is not None and self.dr.thread_count() != self.threads:
                 self.dr.set_thread_count(self.threads)  # deterministic accumulation (see the class docstring)
             with scene.lock:
@@ -520,7 +520,7 @@ class SilhouetteRenderer:
         spp = self.spp if spp is None else _positive_int(spp, "spp")
         edge_spp = self.edge_spp if edge_spp is None else _positive_int(edge_spp, "edge_spp")
         sampler = self.sampler if sampler is None else _check_sampler(sampler)
-        seeds = [_fresh_seed() for _ in cameras] if seeds is None else [(_fresh_seed() if s is None else int(s)) for s in seeds]
+        seeds = [fresh_seed() for _ in cameras] if seeds is None else [(fresh_seed() if s is None else int(s)) for s in seeds]
         out_dtype = vertices.dtype if vertices.is_floating_point() else torch.float32
         device = vertices.device
         if self.method != "raycast":
@@ -596,7 +596,7 @@ def render_silhouette(
     return get_silhouette_renderer(f)(vertices, camera, spp=spp, edge_spp=edge_spp, seed=seed)
 
 
-def _fresh_seed() -> int:
+def fresh_seed() -> int:
     return int(torch.randint(0, 2**31 - 1, (1,)).item())
 
 

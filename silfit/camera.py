@@ -246,7 +246,7 @@ def check_rotation(R: np.ndarray, source: str, name: str = "R") -> np.ndarray:
     return R
 
 
-def _check_t(t: np.ndarray, source: str, name: str = "t") -> np.ndarray:
+def check_translation(t: np.ndarray, source: str, name: str = "t") -> np.ndarray:
     if float(np.abs(t).max()) > MAX_TRANSLATION_M:
         raise InputError(source, f"camera field '{name}' = {t.tolist()} is beyond {MAX_TRANSLATION_M:g} m "
                          "(is it in metres?)", field=name)  # fmt: skip
@@ -262,7 +262,7 @@ def extrinsics_from_dict(data: dict, source: str) -> Tuple[Optional[np.ndarray],
     if not has_R:
         return None, None
     R = check_rotation(_matrix(data["R"], (3, 3), source, "R"), source)
-    t = _check_t(_matrix(data["t"], (3,), source, "t"), source)
+    t = check_translation(_matrix(data["t"], (3,), source, "t"), source)
     return R, t
 
 

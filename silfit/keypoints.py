@@ -12,7 +12,7 @@ import numpy as np
 
 from .errors import InputError, quoted
 from .layouts import (  # noqa: F401  (re-exported: silfit.keypoints's names kept)
-    BLAZEPOSE33_NAMES, BODY25_NAMES, COCO17_NAMES, LAYOUTS, WHOLEBODY_NAMES, _layout_names, keypoint_sources,
+    BLAZEPOSE33_NAMES, BODY25_NAMES, COCO17_NAMES, LAYOUTS, WHOLEBODY_NAMES, layout_names, keypoint_sources,
     model_keypoints,
 )  # fmt: skip
 from .input_limits import read_json
@@ -37,7 +37,7 @@ class KeypointSet:
     """Detected 2D keypoints of one person: ``xy [K, 2]`` pixels, ``conf [K]`` in [0, 1]."""
 
     def __init__(self, xy, conf, layout: str, source: str = "<array>"):
-        names = _layout_names(layout)
+        names = layout_names(layout)
         xy = np.asarray(xy, dtype=np.float64)
         conf = np.asarray(conf, dtype=np.float64)
         if xy.shape != (len(names), 2) or conf.shape != (len(names),):
@@ -75,7 +75,7 @@ def _number(value) -> bool:
     return value is None or (isinstance(value, (int, float)) and not isinstance(value, bool))
 
 
-def _triplets(values, source: str, field: str) -> np.ndarray:
+def keypoint_triplets(values, source: str, field: str) -> np.ndarray:
     """``[K, 3]`` from a flat list of numbers or a list of ``[x, y, confidence]`` lists;
     anything else (strings, booleans, nesting, ragged rows) is refused naming the field."""
     if not isinstance(values, list):
@@ -128,16 +128,16 @@ def read_keypoints(path: Union[str, os.PathLike], person: Union[int, str] = "lar
             field = f"people[{i}].pose_keypoints_2d"
             if not isinstance(p, dict) or "pose_keypoints_2d" not in p:
                 raise InputError(source, f"field '{field}' is missing", field=field)
-            candidates.append((field, _triplets(p["pose_keypoints_2d"], source, field)))
+            candidates.append((field, keypoint_triplets(p["pose_keypoints_2d"], source, field)))
     elif isinstance(data, dict) and "keypoints" in data:
-        candidates.append(("keypoints", _triplets(data["keypoints"], source, "keypoints")))
+        candidates.append(("keypoints", keypoint_triplets(data["keypoints"], source, "keypoints")))
     elif isinstance(data, list) and data and isinstance(data[0], dict):
         for i, ann in enumerate(data):
             if not isinstance(ann, dict) or "keypoints" not in ann:
                 raise InputError(source, f"field '[{i}].keypoints' is missing", field=f"[{i}].keypoints")
-            candidates.append((f"[{i}].keypoints", _triplets(ann["keypoints"], source, f"[{i}].keypoints")))
+            candidates.append((f"[{i}].keypoints", keypoint_triplets(ann["keypoints"], source, f"[{i}].keypoints")))
     elif isinstance(data, list):
-        candidates.append(("<list>", _triplets(data, source, "<top-level list>")))
+        candidates.append(("<list>", keypoint_triplets(data, source, "<top-level list>")))
     else:
         raise InputError(source, "no keypoints found (expected OpenPose 'people', COCO 'keypoints' or a list)")
 

@@ -105,7 +105,7 @@ def keypoint_sources(model, layout: str = "body25", prefer_landmarks: bool = Fal
     The ``wholebody`` layout (SMPL-X-layout models) also has ``("none", 0)``: a point the model
     cannot place statically (an official SMPL-X file's dynamic jaw contour), fitted with weight 0.
     """
-    names = _layout_names(layout)
+    names = layout_names(layout)
     if layout.lower() == "wholebody":
         return wholebody_sources(model, prefer_landmarks)
     joint_index = {n: i for i, n in enumerate(model.joint_names)}
@@ -138,7 +138,7 @@ def model_keypoints(model, output, layout: str = "body25", prefer_landmarks: boo
     return stacked[:, index]
 
 
-def _layout_names(layout: str) -> tuple:
+def layout_names(layout: str) -> tuple:
     try:
         return LAYOUTS[layout.lower()]
     except KeyError:

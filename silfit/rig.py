@@ -35,7 +35,7 @@ from typing import List, Optional, Tuple, Union
 import numpy as np
 
 from .camera import (  # noqa: F401  (extrinsics_from_dict: re-exported, rig manifests name it)
-    _check_t, camera_from_dict, check_rotation, extrinsics_from_dict, read_camera_file,
+    check_translation, camera_from_dict, check_rotation, extrinsics_from_dict, read_camera_file,
 )
 from .errors import InputError, quoted
 from .fitting.problem import View
@@ -229,7 +229,7 @@ def read_easymocap(intri: PathLike, extri: PathLike, sizes=None) -> List[RigView
                 R = check_rotation(R, os.fspath(extri), f"Rot_{name}")
             else:
                 R = _rodrigues(_fs_matrix(fe, extri, f"R_{name}", (3,)))
-            t = _check_t(_fs_matrix(fe, extri, f"T_{name}", (3,)).reshape(3), os.fspath(extri), f"T_{name}")
+            t = check_translation(_fs_matrix(fe, extri, f"T_{name}", (3,)).reshape(3), os.fspath(extri), f"T_{name}")
             size = (sizes or {}).get(name) or _image_size_of(base / name)
             if size is None:
                 raise InputError(intri, f"camera {name}: no image size (intri.yml has none; expected {base / name}/image.png "
@@ -252,7 +252,7 @@ def video_folder(view: RigView) -> Path:
     return view.keypoints if view.keypoints.is_dir() else view.keypoints.parent
 
 
-def _holds_video(folder: Path) -> bool:
+def holds_video(folder: Path) -> bool:
     if not folder.is_dir():
         return False
     return any((folder / d).is_dir() for d in KEYPOINT_FOLDERS) or any(folder.glob("*_keypoints.json"))
@@ -274,17 +274,17 @@ def load_rig(folder: PathLike) -> List[RigView]:
     """The views of a rig folder (see the module docstring), files that do not exist set to ``None``
     (a view without ``keypoints.json`` is an error)."""
     folder = Path(folder)
-    views = _rig_views(folder)
+    views = read_rig_views(folder)
     for v in views:
         if v.keypoints is None or not v.keypoints.is_file():
-            hint = " (its folder holds a video: per-frame keypoints)" if v.keypoints is not None and _holds_video(video_folder(v)) else ""
+            hint = " (its folder holds a video: per-frame keypoints)" if v.keypoints is not None and holds_video(video_folder(v)) else ""
             raise InputError(v.keypoints or folder, f"view {v.name}: keypoint file not found{hint}", field="keypoints")
         v.mask = v.mask if v.mask is not None and v.mask.is_file() else None
         v.image = v.image if v.image is not None and v.image.is_file() else None
     return views
 
 
-def _rig_views(folder: Path) -> List[RigView]:
+def read_rig_views(folder: Path) -> List[RigView]:
     """The rig's views with their default file paths (not checked)."""
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: rig folder not found")

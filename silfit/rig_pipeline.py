@@ -106,7 +106,7 @@ def view_warnings(names, problem, vertices, per_view: dict, betas=None) -> List[
     return out + shape_warnings(betas)
 
 
-def _keypoint_metrics(kp: RigFit, problem, names, faces) -> RigResult:
+def keypoint_stage_result(kp: RigFit, problem, names, faces) -> RigResult:
     ious, masks = _view_ious(kp.vertices, faces, problem, names)
     per_view = {n: {"reprojection_error_px": float(e)} for n, e in zip(names, kp.reprojection_error)}
     for n, v in ious.items():
@@ -145,7 +145,7 @@ def fit_rigs(problems, names, model=None, pose_prior=None, keypoint_config=None,
     for kp in kps:  # the batch's seconds shared out
         kp.timings = {**kp.timings, "total": share}
     faces = model.faces.cpu().numpy()
-    out = [_keypoint_metrics(kp, p, n, faces) for kp, p, n in zip(kps, problems, names)]
+    out = [keypoint_stage_result(kp, p, n, faces) for kp, p, n in zip(kps, problems, names)]
     todo = [i for i, p in enumerate(problems) if silhouette and any(o.mask is not None for o in p.observations)]
     if todo:
         refined = refine_rig_fits(model, [(names[i], problems[i], kps[i]) for i in todo], silhouette_config, fitter.pose_prior,
@@ -176,7 +176,7 @@ def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool =
     from .rig import project_world
 
     faces = model.faces.cpu().numpy()
-    before = [_keypoint_metrics(kp, p, names, faces) for names, p, kp in items]
+    before = [keypoint_stage_result(kp, p, names, faces) for names, p, kp in items]
     for (names, p, _), b in zip(items, before):
         zero = [n for n in names if b.metrics["views"][n].get("iou_keypoint_stage", 1.0) == 0.0]
         if zero:

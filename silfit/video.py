@@ -32,7 +32,7 @@ import numpy as np
 
 from .errors import InputError
 from .keypoints import KEYPOINT_FOLDERS, KeypointSet, read_keypoints
-from .rig import RigView, _holds_video, _rig_views, select_views, video_folder
+from .rig import RigView, holds_video, read_rig_views, select_views, video_folder
 
 __all__ = ["RigSequence", "SequenceInput", "frame_number", "is_rig_video", "load_rig_sequence", "read_sequence", "save_sequence_fit",
            "write_overlay_video"]
@@ -345,8 +345,8 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
 def is_rig_video(folder: Union[str, os.PathLike]) -> bool:
     """Whether a rig folder holds a video: its views' folders hold per-frame keypoints
     (:func:`load_rig_sequence`) instead of one ``keypoints.json``."""
-    views = _rig_views(Path(folder))
-    return all(v.keypoints is not None and not v.keypoints.is_file() and _holds_video(video_folder(v)) for v in views)
+    views = read_rig_views(Path(folder))
+    return all(v.keypoints is not None and not v.keypoints.is_file() and holds_video(video_folder(v)) for v in views)
 
 
 @dataclass
@@ -395,11 +395,11 @@ def load_rig_sequence(folder: Union[str, os.PathLike], person: Union[int, str] =
     views by their number; a view without a frame's number has no detection there. ``names``: only
     these views (in the rig's order; an unknown name is an :class:`~silfit.errors.InputError`)."""
     folder = Path(folder)
-    views = select_views(_rig_views(folder), names)
+    views = select_views(read_rig_views(folder), names)
     videos = []
     for v in views:
         d = video_folder(v)
-        if not _holds_video(d):
+        if not holds_video(d):
             raise InputError(d, f"view {v.name}: no per-frame keypoints (*_keypoints.json, or keypoints/ or openpose/ "
                              "with them) for a rig video", field="keypoints")  # fmt: skip
         videos.append(read_sequence(d, person=person))

@@ -12,7 +12,7 @@ from typing import Optional, Union
 
 import numpy as np
 
-from .keypoints import KeypointSet, _triplets
+from .keypoints import KeypointSet, keypoint_triplets
 from .layouts import (  # noqa: F401  (re-exported: silfit.wholebody's names kept)
     BODY25_NAMES, FACE70_NAMES, FINGERS, HAND21_NAMES, PART_FIELDS, WHOLEBODY_NAMES, WHOLEBODY_PARTS, hand_names,
     part_slices, wholebody_keypoints, wholebody_sources,
@@ -68,8 +68,8 @@ def _part_array(values, count: int, source: str, field: str) -> Optional[np.ndar
     if values is None:
         return None
     if isinstance(values, list) and not values:
-        return None  # OpenPose writes [] for a part it was not asked to detect (anything else: _triplets checks it)
-    arr = _triplets(values, source, field)
+        return None  # OpenPose writes [] for a part it was not asked to detect (anything else: keypoint_triplets checks it)
+    arr = keypoint_triplets(values, source, field)
     if arr.shape[0] != count:
         raise ValueError(f"{source}: field '{field}' has {arr.shape[0]} keypoints, expected {count}")
     bad = ~np.isfinite(arr).all(axis=1)

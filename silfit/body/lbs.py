@@ -164,7 +164,7 @@ def pose_correctives(rot_mats: torch.Tensor, posedirs: torch.Tensor, blas: bool 
 _SPARSE: dict = {}  # id(matrix) -> (weak reference, version, the matrix's padded rows, its transpose's)
 
 
-def _padded(matrix: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def padded_nonzeros(matrix: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """``(index [R, k], weight [R, k])``: the columns of each row of ``matrix [R, C]`` that hold a
     nonzero, ascending, zero-padded to ``k``, the most any row holds."""
     nz = matrix != 0
@@ -187,7 +187,7 @@ def sparse_rows(matrix: torch.Tensor) -> Optional[tuple]:
     hit = _SPARSE.get(key)
     if hit is not None and hit[0]() is matrix and hit[1] == version:
         return hit[2]
-    value = (*_padded(matrix), *_padded(matrix.detach().T))
+    value = (*padded_nonzeros(matrix), *padded_nonzeros(matrix.detach().T))
     _SPARSE[key] = (weakref.ref(matrix, lambda _, key=key: _SPARSE.pop(key, None)), version, value)
     return value
 

@@ -204,7 +204,7 @@ def score_fit(model, subject, fit: FitParams, iou: bool = True) -> Dict[str, flo
         if "expression_err" in e:
             m["expression_err"] = e["expression_err"]
     m.update(_search_gap(fit.path))
-    m["facing_ok"] = 100.0 * float(_facing_agrees(fit.global_orient, gt.global_orient))
+    m["facing_ok"] = 100.0 * float(facing_agrees(fit.global_orient, gt.global_orient))
     fit_betas = np.pad(betas, (0, nb - len(betas)))
     m["shape_pve"] = 1000 * shape_pve(model, fit_betas, gt.betas[:nb])
     m["shape_pve_scaled"] = 1000 * shape_pve(model, fit_betas, gt.betas[:nb], scale=True)
@@ -235,7 +235,7 @@ def score_fit(model, subject, fit: FitParams, iou: bool = True) -> Dict[str, flo
     return {k: float(v) for k, v in m.items()}
 
 
-def _facing_agrees(orient, gt_orient) -> bool:
+def facing_agrees(orient, gt_orient) -> bool:
     """Whether the body's forward direction (rest +Z) is within 90 degrees of the truth's,
     in the camera's ground plane (x, z)."""
     from scipy.spatial.transform import Rotation

@@ -23,7 +23,7 @@ import torch
 from ..dataset import read_index
 from ..fitio import read_fit
 from ..keypoints import model_keypoints
-from .evaluate import METRICS, _facing_agrees, find_fits, markdown_table, summarise  # noqa: F401  (markdown_table: re-exported)
+from .evaluate import METRICS, facing_agrees, find_fits, markdown_table, summarise  # noqa: F401  (markdown_table: re-exported)
 from .metrics import mask_iou, mpjpe, pa_mpjpe, pa_pve, pve, reprojection_error, shape_pve, translation_error
 
 __all__ = ["evaluate_rig_dataset", "is_rig_dataset", "run_rig_fitter", "score_rig_fit", "subset_truth"]
@@ -67,7 +67,7 @@ def score_rig_fit(model, views, problem, gt: dict, params: dict, iou: bool = Tru
         "pa_pve": 1000 * pa_pve(verts, gv), "mpjpe": 1000 * mpjpe(joints, gj), "pa_mpjpe": 1000 * pa_mpjpe(joints, gj),
         "transl_err": 1000 * translation_error(joints[0], gj[0]),
         "shape_pve": 1000 * shape_pve(model, params["betas"], gt["betas"]),
-        "facing_ok": 100.0 * float(_facing_agrees(params["global_orient"], gt["global_orient"])),  # world y is down
+        "facing_ok": 100.0 * float(facing_agrees(params["global_orient"], gt["global_orient"])),  # world y is down
     }  # fmt: skip
     reproj, ious = [], []
     faces = model.faces.cpu().numpy()
@@ -98,7 +98,7 @@ def run_rig_fitter(subject_dirs: Sequence[Path], fits_root: Path, methods: Seque
     the final one); returns a status."""
     from ..fitting.rig_fit import rig_problem
     from ..rig import load_rig
-    from ..rig_pipeline import _keypoint_metrics, save_rig_fit
+    from ..rig_pipeline import keypoint_stage_result, save_rig_fit
     from ..run import Job, run_batch
 
     unknown = [m for m in methods if m not in ("keypoints", "silhouette")]
@@ -120,7 +120,7 @@ def run_rig_fitter(subject_dirs: Sequence[Path], fits_root: Path, methods: Seque
         r, p = fit.stage, fit.job.problem
         per = float(r.keypoint.timings["total"])
         if "keypoints" in methods:
-            kp = _keypoint_metrics(r.keypoint, p, list(fit.job.view_names), faces)
+            kp = keypoint_stage_result(r.keypoint, p, list(fit.job.view_names), faces)
             kp.metrics["timings"] = {"keypoints": per, "total": per}
             save_rig_fit(kp, fits_root / d.name / "keypoints", faces, p, overwrite=True, model=model)
         if "silhouette" in methods and r.silhouette is not None:

@@ -48,7 +48,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..body.lbs import _padded, blend_shapes, per_row, sqrt
+from ..body.lbs import padded_nonzeros, blend_shapes, per_row, sqrt
 
 __all__ = ["SphereCollisionModel", "tree_distances", "vertex_normals"]
 
@@ -380,7 +380,7 @@ class SphereCollisionModel(nn.Module):
         self.register_buffer("offset_dirs", offset_dirs, persistent=False)  # [S, K, 3, L]
         self.register_buffer("offset_dirs_by_beta", offset_dirs.permute(3, 0, 1, 2).contiguous(), persistent=False)  # [L, S, K, 3]
         # Each sphere's blend over the joints that carry it (2.6 of 24 on average; zero-padded to the most).
-        carry_joint, carry_weight = _padded(self.sphere_weights)
+        carry_joint, carry_weight = padded_nonzeros(self.sphere_weights)
         self.register_buffer("carry_joint", carry_joint, persistent=False)
         self.register_buffer("carry_weight", carry_weight, persistent=False)
 

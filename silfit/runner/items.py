@@ -147,7 +147,7 @@ def item_error(err: BaseException, file: Optional[str], component: str) -> ItemE
     return ItemError(file, found.group(1) if found else component, message)
 
 
-def _reading(component: str, file: Optional[str], fn, *args, **kwargs):
+def read_component(component: str, file: Optional[str], fn, *args, **kwargs):
     try:
         return fn(*args, **kwargs)
     except (ValueError, FileNotFoundError, OSError, KeyError, TypeError) as err:
@@ -177,7 +177,7 @@ def load_item(item: Item, read_masks: bool = True) -> LoadedItem:
     finds the person's mask file but does not read it."""
     if item.error:
         raise ItemError(item.error.get("file"), item.error.get("field", "input"), item.error.get("message", ""))
-    people = _reading("keypoints", item.keypoints, read_people, item.keypoints)
+    people = read_component("keypoints", item.keypoints, read_people, item.keypoints)
     if item.person == LARGEST:
         k = _largest(people)
     else:
@@ -186,14 +186,14 @@ def load_item(item: Item, read_masks: bool = True) -> LoadedItem:
             raise ItemError(item.keypoints, "people", f"person {k} requested, the file holds {len(people)}")
     mask_file = item.masks.get(str(k)) or (item.masks.get(LARGEST) if k == _largest(people) else None)
 
-    camera = _reading("camera", item.camera, load_camera, item.camera) if item.camera else None
+    camera = read_component("camera", item.camera, load_camera, item.camera) if item.camera else None
     size = None if camera is None else (camera.width, camera.height)
-    image = _reading("image", item.image, read_image, item.image, size) if item.image else None
+    image = read_component("image", item.image, read_image, item.image, size) if item.image else None
     if size is None and image is not None:
         size = (image.shape[1], image.shape[0])
-    mask = _reading("mask", mask_file, read_mask, mask_file, size) if mask_file and read_masks else None
+    mask = read_component("mask", mask_file, read_mask, mask_file, size) if mask_file and read_masks else None
     if camera is None and image is None and mask is None and mask_file:
-        mask = _reading("mask", mask_file, read_mask, mask_file, size)  # the only source of the image size
+        mask = read_component("mask", mask_file, read_mask, mask_file, size)  # the only source of the image size
     if camera is None:
         ref = image if image is not None else mask
         if ref is None:

@@ -25,7 +25,7 @@ from ..errors import interruption
 from ..fitting.keypoint_stage import KeypointFitConfig
 from ..fitting.silhouette_stage import SilhouetteFitConfig
 from ..image_fit import FitResult, save_fit
-from .items import Item, ItemError, LoadedItem, _reading, item_error, load_item
+from .items import Item, ItemError, LoadedItem, read_component, item_error, load_item
 
 __all__ = ["FitOptions", "DatasetFitter", "keypoint_config", "silhouette_config"]
 
@@ -191,8 +191,8 @@ class DatasetFitter:
                 if getattr(self.model, "kind", "smpl") == "smplx":  # hands and face from the same file
                     from ..wholebody import choose_fit_keypoints, read_wholebody_parts
 
-                    parts = _reading("keypoints", it.keypoints, read_wholebody_parts, it.keypoints, li.person)
-                    li.keypoints = _reading("keypoints", it.keypoints, choose_fit_keypoints, li.keypoints, parts, self.model)[0]
+                    parts = read_component("keypoints", it.keypoints, read_wholebody_parts, it.keypoints, li.person)
+                    li.keypoints = read_component("keypoints", it.keypoints, choose_fit_keypoints, li.keypoints, parts, self.model)[0]
                 loaded.append(li)
             except ItemError as err:
                 records[it.key] = _failed(it, "load", err)

@@ -36,7 +36,7 @@ from ..fitting.problem import View
 from ..keypoints import BODY25_NAMES, model_keypoints, write_openpose_json
 from ..rig import look_at, view_to_dict, write_cameras_json
 from .generate import (
-    WHOLEBODY_DEPTH_TOLERANCE, WHOLEBODY_PARTS, SynthConfig, _background, _BODY_COLOURS, _render, keypoint_visibility,
+    WHOLEBODY_DEPTH_TOLERANCE, WHOLEBODY_PARTS, SynthConfig, background_image, BODY_COLOURS, render_subject, keypoint_visibility,
     noisy_keypoints, sample_wholebody_params, wholebody_names,
 )
 from .sampler import global_orientation, sample_betas, sample_intrinsics, sample_pose
@@ -122,7 +122,7 @@ def generate_rig_subject(model, index: int, config: SynthConfig, rig: RigConfig,
     stature = float(rest[:, 1].max() - rest[:, 1].min())
     views = rig.layout if rig.layout is not None else rig_layout(rng, vertices, cfg, rig)
     faces = model.faces.cpu().numpy()
-    colour = _BODY_COLOURS[int(rng.integers(len(_BODY_COLOURS)))]
+    colour = BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))]
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     clean2d, visibility, counts, wb_clean = [], [], [], {}
@@ -132,8 +132,8 @@ def generate_rig_subject(model, index: int, config: SynthConfig, rig: RigConfig,
         v_cam = vertices @ R.T + t
         k_cam = kp3d @ R.T + t
         kp2d = project_points(torch.as_tensor(k_cam), cam).numpy()
-        r = _render(v_cam.astype(np.float32), faces, cam, colour)
-        bg, _ = _background(rng, cfg.background, cam.height, cam.width)
+        r = render_subject(v_cam.astype(np.float32), faces, cam, colour)
+        bg, _ = background_image(rng, cfg.background, cam.height, cam.width)
         image = np.where(r.mask[..., None], r.color, bg).astype(np.uint8)
         vis = keypoint_visibility(k_cam, kp2d, r.depth, BODY25_NAMES)
         kp, _ = noisy_keypoints(rng, kp2d, vis, noise_px, drop_prob, cfg.conf_visible, cfg.conf_occluded)

@@ -187,7 +187,7 @@ def sample_wholebody_params(rng: np.random.Generator, model, cfg: SynthConfig):
 
 
 # ----------------------------------------------------------------------------- pieces
-def _background(rng: np.random.Generator, kind: str, h: int, w: int) -> Tuple[np.ndarray, str]:
+def background_image(rng: np.random.Generator, kind: str, h: int, w: int) -> Tuple[np.ndarray, str]:
     if kind == "mixed":
         kind = "plain" if rng.random() < 0.4 else "textured"
     base = rng.uniform(0.35, 0.95, 3)
@@ -221,13 +221,13 @@ def _background(rng: np.random.Generator, kind: str, h: int, w: int) -> Tuple[np
     return (np.clip(img, 0, 1) * 255).round().astype(np.uint8), label
 
 
-_BODY_COLOURS = (
+BODY_COLOURS = (
     (0.80, 0.62, 0.50), (0.62, 0.45, 0.35), (0.45, 0.32, 0.25), (0.90, 0.74, 0.62),
     (0.55, 0.60, 0.75), (0.70, 0.45, 0.45), (0.50, 0.65, 0.55), (0.62, 0.68, 0.78),
 )  # fmt: skip
 
 
-def _render(vertices: np.ndarray, faces: np.ndarray, camera: Camera, colour):
+def render_subject(vertices: np.ndarray, faces: np.ndarray, camera: Camera, colour):
     from renderers.offscreen import render_mesh
 
     return render_mesh(vertices, faces, camera, color=colour)
@@ -344,10 +344,10 @@ def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> S
     stature = float(rest[:, 1].max() - rest[:, 1].min())
 
     # Render.
-    colour = _BODY_COLOURS[int(rng.integers(len(_BODY_COLOURS)))]
-    bg, bg_label = _background(rng, cfg.background, H, W)
+    colour = BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))]
+    bg, bg_label = background_image(rng, cfg.background, H, W)
     faces = model.faces.cpu().numpy()
-    r = _render(vertices, faces, camera, colour)
+    r = render_subject(vertices, faces, camera, colour)
     mask = r.mask
     image = np.where(mask[..., None], r.color, bg).astype(np.uint8)
 

@@ -58,7 +58,7 @@ from ..camera import UPRIGHT_FACING_CAMERA, project_points, save_camera
 from ..dataset import INDEX_NAME, save_npz, write_png
 from ..keypoints import BODY25_NAMES, model_keypoints, write_openpose_json
 from ..poses.library import BODY_JOINTS, get_pose, mirror_pose
-from .generate import _BODY_COLOURS, _background, _render, keypoint_visibility, noisy_keypoints
+from .generate import BODY_COLOURS, background_image, render_subject, keypoint_visibility, noisy_keypoints
 from .sampler import place_body, sample_betas, sample_intrinsics
 
 __all__ = [
@@ -244,8 +244,8 @@ def generate_sequence(model, index: int, cfg: SequenceConfig, out_dir: Path) -> 
     joints = out.joints.cpu().numpy().astype(np.float32)
     kp3d = kp3d.cpu().numpy()
 
-    colour = _BODY_COLOURS[int(rng.integers(len(_BODY_COLOURS)))]
-    bg, _ = _background(rng, cfg.background, W, W)
+    colour = BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))]
+    bg, _ = background_image(rng, cfg.background, W, W)
     faces = model.faces.cpu().numpy()
     frame_dropped = rng.random(F) < cfg.drop_frames
     frame_dropped[[0, -1]] = False
@@ -255,7 +255,7 @@ def generate_sequence(model, index: int, cfg: SequenceConfig, out_dir: Path) -> 
     vis_all, drop_all = np.zeros((F, 25), np.int8), np.zeros((F, 25), bool)
     name = out_dir.name
     for f in range(F):
-        r = _render(vertices[f], faces, camera, colour)
+        r = render_subject(vertices[f], faces, camera, colour)
         vis = keypoint_visibility(kp3d[f], kp2d[f], r.depth, BODY25_NAMES)
         kp, dropped = noisy_keypoints(rng, kp2d[f], vis, cfg.noise_px, cfg.drop_prob, cfg.conf_visible, cfg.conf_occluded)
         vis_all[f], drop_all[f] = vis, dropped
@@ -306,7 +306,7 @@ def generate_rig_sequence(model, index: int, cfg: SequenceConfig, views: int, ou
     extent = float((box.max(0) - box.min(0)).max())
     synth = SynthConfig(seed=cfg.seed, size=W, fov_deg=tuple(cfg.fov_deg), fill=tuple(cfg.fill))
     layout = rig_layout(rng, np.array([[0.0, -extent / 2, 0.0], [0.0, extent / 2, 0.0]]), synth, RigConfig(views=views))
-    colour = _BODY_COLOURS[int(rng.integers(len(_BODY_COLOURS)))]
+    colour = BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))]
     faces = model.faces.cpu().numpy()
     out_dir = Path(out_dir)
     C = len(layout)
@@ -318,14 +318,14 @@ def generate_rig_sequence(model, index: int, cfg: SequenceConfig, views: int, ou
             (folder / sub).mkdir(parents=True, exist_ok=True)
         (folder / "camera.json").write_text(json.dumps(view_to_dict(view), indent=2) + "\n", encoding="utf-8")
         R, t = view.extrinsics()
-        bg, _ = _background(rng, cfg.background, W, W)
+        bg, _ = background_image(rng, cfg.background, W, W)
         drop = rng.random(F) < cfg.drop_frames
         drop[[0, -1]] = False
         dropped_frames[:, c] = drop
         for f in range(F):
             v_cam, k_cam = vertices[f] @ R.T + t, kp3d[f] @ R.T + t
             kp2d = project_points(torch.as_tensor(k_cam), view.camera).numpy()
-            r = _render(v_cam.astype(np.float32), faces, view.camera, colour)
+            r = render_subject(v_cam.astype(np.float32), faces, view.camera, colour)
             vis = keypoint_visibility(k_cam, kp2d, r.depth, BODY25_NAMES)
             kp, _ = noisy_keypoints(rng, kp2d, vis, cfg.noise_px, cfg.drop_prob, cfg.conf_visible, cfg.conf_occluded)
             clean[f, c], vis_all[f, c] = kp2d, vis
