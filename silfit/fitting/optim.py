@@ -30,6 +30,52 @@ def _eval(fun: Energy, x: torch.Tensor, idx: torch.Tensor):
     return f.detach(), g.detach()
 
 
+def _two_loop_direction(ga, Sa, Ya, ra, va, gam, order, first_step: float) -> torch.Tensor:
+    """L-BFGS's search direction ``-H g`` per row by the two-loop recursion over the stored pairs (``order``: slots
+    newest to oldest, ``va`` 1 for a valid pair); the initial scale ``gam`` (NaN: none yet, then a steepest-descent
+    step of length ``first_step``)."""
+    q = ga.clone()
+    alphas = {}
+    for k in order:
+        a = ra[:, k] * (Sa[:, k] * q).sum(-1) * va[:, k]
+        alphas[k] = a
+        q = q - a[:, None] * Ya[:, k]
+    fresh = ~torch.isfinite(gam)
+    gam = torch.where(fresh, first_step / ga.norm(dim=-1).clamp(min=1e-12), gam)
+    r = gam[:, None] * q
+    for k in reversed(order):
+        b = ra[:, k] * (Ya[:, k] * r).sum(-1)
+        r = r + Sa[:, k] * ((alphas[k] - b) * va[:, k])[:, None]
+    return -r
+
+
+def _backtrack(fun: Energy, xa, fa, ga, d, gtd, a_idx, max_ls: int, c1: float):
+    """A backtracking line search per row along ``d`` from ``xa`` (Armijo's condition with ``c1``; a rejected step
+    shrinks to the minimum of the quadratic through ``fa``, ``gtd`` and the trial, within [0.1, 0.5] of it).
+    Returns ``(x, f, g, accepted)``: a row not accepted within ``max_ls`` trials keeps its start."""
+    dt, dev = xa.dtype, xa.device
+    t = torch.ones(len(a_idx), dtype=dt, device=dev)
+    done = torch.zeros(len(a_idx), dtype=torch.bool, device=dev)
+    x_new, f_new, g_new = xa.clone(), fa.clone(), ga.clone()
+    for _ in range(max_ls):
+        todo = (~done).nonzero().squeeze(1)
+        xt = xa[todo] + t[todo, None] * d[todo]
+        ft, gt = _eval(fun, xt, a_idx[todo])
+        ok = torch.isfinite(ft) & (ft <= fa[todo] + c1 * t[todo] * gtd[todo])
+        acc = todo[ok]
+        x_new[acc], f_new[acc], g_new[acc] = xt[ok], ft[ok], gt[ok]
+        done[acc] = True
+        if bool(done.all()):
+            break
+        rej = todo[~ok]
+        tr, fr = t[rej], ft[~ok]
+        denom = 2.0 * (fr - fa[rej] - gtd[rej] * tr)
+        tq = -gtd[rej] * tr * tr / denom
+        tq = torch.where(torch.isfinite(tq) & (denom > 0), tq, 0.5 * tr)
+        t[rej] = torch.minimum(torch.maximum(tq, 0.1 * tr), 0.5 * tr)
+    return x_new, f_new, g_new, done
+
+
 def batched_lbfgs(
     fun: Energy,
     x0: torch.Tensor,
@@ -66,23 +112,8 @@ def batched_lbfgs(
         if a_idx.numel() == 0:
             break
         ga = g[a_idx]
-        Sa, Ya, ra, va = S[a_idx], Y[a_idx], rho[a_idx], valid[a_idx].to(dt)
-        # Two-loop recursion, newest to oldest.
-        order = [(ptr - 1 - k) % history for k in range(history)]
-        q = ga.clone()
-        alphas = {}
-        for k in order:
-            a = ra[:, k] * (Sa[:, k] * q).sum(-1) * va[:, k]
-            alphas[k] = a
-            q = q - a[:, None] * Ya[:, k]
-        gam = gamma[a_idx]
-        fresh = ~torch.isfinite(gam)
-        gam = torch.where(fresh, first_step / ga.norm(dim=-1).clamp(min=1e-12), gam)
-        r = gam[:, None] * q
-        for k in reversed(order):
-            b = ra[:, k] * (Ya[:, k] * r).sum(-1)
-            r = r + Sa[:, k] * ((alphas[k] - b) * va[:, k])[:, None]
-        d = -r
+        order = [(ptr - 1 - k) % history for k in range(history)]  # newest to oldest
+        d = _two_loop_direction(ga, S[a_idx], Y[a_idx], rho[a_idx], valid[a_idx].to(dt), gamma[a_idx], order, first_step)
         gtd = (ga * d).sum(-1)
         bad = ~(gtd < 0)
         if bad.any():  # not a descent direction: restart with steepest descent
@@ -91,25 +122,7 @@ def batched_lbfgs(
             valid[a_idx[bad]] = False
         # Backtracking line search per sample.
         xa, fa = x[a_idx], f[a_idx]
-        t = torch.ones(len(a_idx), dtype=dt, device=dev)
-        done = torch.zeros(len(a_idx), dtype=torch.bool, device=dev)
-        x_new, f_new, g_new = xa.clone(), fa.clone(), ga.clone()
-        for _ in range(max_ls):
-            todo = (~done).nonzero().squeeze(1)
-            xt = xa[todo] + t[todo, None] * d[todo]
-            ft, gt = _eval(fun, xt, a_idx[todo])
-            ok = torch.isfinite(ft) & (ft <= fa[todo] + c1 * t[todo] * gtd[todo])
-            acc = todo[ok]
-            x_new[acc], f_new[acc], g_new[acc] = xt[ok], ft[ok], gt[ok]
-            done[acc] = True
-            if bool(done.all()):
-                break
-            rej = todo[~ok]
-            tr, fr = t[rej], ft[~ok]
-            denom = 2.0 * (fr - fa[rej] - gtd[rej] * tr)
-            tq = -gtd[rej] * tr * tr / denom
-            tq = torch.where(torch.isfinite(tq) & (denom > 0), tq, 0.5 * tr)
-            t[rej] = torch.minimum(torch.maximum(tq, 0.1 * tr), 0.5 * tr)
+        x_new, f_new, g_new, done = _backtrack(fun, xa, fa, ga, d, gtd, a_idx, max_ls, c1)
         s = x_new - xa
         y = g_new - ga
         sy = (s * y).sum(-1)

@@ -460,49 +460,24 @@ def _project_views(points: torch.Tensor, views, rig: bool) -> np.ndarray:
     return np.stack(out, 1)
 
 
-def fit_sequence(
-    frames: Sequence,
-    camera,
-    model=None,
-    *,
-    config: Optional[SequenceFitConfig] = None,
-    pose_prior=None,
-    progress: bool = False,
-) -> SequenceFitResult:
-    """Fit one person over a sequence of frames of one camera, or of a calibrated rig (module docstring).
-
-    ``frames``: one :class:`~silfit.keypoints.KeypointSet` per frame, ``None`` where no person was
-    detected, with ``camera`` a :class:`~silfit.camera.Camera` (the fit in its frame); or, for a rig
-    video, ``frames[f][c]`` per view with ``camera`` a list of :class:`~silfit.fitting.problem.View` s
-    (the fit in their world frame: every frame's initialisation the rig's keypoint stage,
-    :func:`~silfit.fitting.rig_fit.fit_rig_keypoints`; the refinement over frames x views). At least
-    one frame must have usable keypoints (in some view)."""
-    from ..body import load_body_model
-
-    cfg = config or SequenceFitConfig()
-    model = load_body_model() if model is None else model
-    rig = not isinstance(camera, Camera)
-    views = list(camera) if rig else [View(camera)]
-    grid = [list(row) for row in frames] if rig else [[ks] for ks in frames]
-    if any(len(row) != len(views) for row in grid):
-        raise ValueError(f"every frame needs one entry per view ({len(views)})")
-    if not grid or all(ks is None for row in grid for ks in row):
-        raise ValueError("the sequence has no frame with keypoints")
-    layout = next(ks for row in grid for ks in row if ks is not None).layout
-    F, C = len(grid), len(views)
-    t0 = time.perf_counter()
-    xy_v, conf_v, outliers, usable_v = _view_columns(grid, layout, cfg)
+def _initial_frames(usable_v: np.ndarray, rig: bool, stride: int) -> np.ndarray:
+    """The frames the per-frame initialisation fits: every ``stride``-th usable frame and the last (a rig's frames
+    seen by one view only are monocular: they start from the frames seen by several)."""
     usable = usable_v.any(1)
-    if not usable.any():
-        raise ValueError(f"no frame of the sequence has enough confident torso keypoints (of {F} frames)")
-    # a rig's frames seen by one view only are monocular: they start from the frames seen by several
-    seen = usable_v.sum(1) >= min(2, C) if rig else usable
+    seen = usable_v.sum(1) >= min(2, usable_v.shape[1]) if rig else usable
     seen = seen if seen.any() else usable
-    init_frames = np.flatnonzero(seen)[:: max(int(cfg.init_stride), 1)]
+    init_frames = np.flatnonzero(seen)[:: max(stride, 1)]
     if np.flatnonzero(seen)[-1] not in init_frames:
         init_frames = np.append(init_frames, np.flatnonzero(seen)[-1])
+    return init_frames
 
-    # 2. per-frame initialisation, the usable frames as one batch
+
+def _initialise_frames(model, layout, cfg, pose_prior, camera, views, rig: bool, columns, init_frames, progress):
+    """Step 2 of :func:`fit_sequence`: ``init_frames`` fitted as one batch (a rig's as one-frame rigs; one camera's with
+    the branch choice over time or the neighbour and offset refits). Returns ``(fitter, per, rebranched)``: the
+    keypoint fitter, ``per[name] [F, size]`` (the frames not fitted zero) and the frames put on another depth branch."""
+    xy_v, conf_v, usable_v = columns
+    F = len(xy_v)
     rebranched = np.zeros(F, dtype=bool)
     fitter = KeypointFitter(model, layout, cfg.keypoint, pose_prior)
     names = tuple(fitter.params.sizes)
@@ -535,29 +510,37 @@ def fit_sequence(
     for n in names:
         v = state[n].double().numpy().reshape(len(init_frames), -1)
         per[n][init_frames] = v
-    t_init = time.perf_counter() - t0
-    known = np.zeros(F, dtype=bool)
-    known[init_frames] = True
+    return fitter, per, rebranched
 
-    # 3. consistent facings (one view; several: the triangulated torso gives each frame's facing)
-    refaced = np.zeros(F, dtype=bool)
-    if C == 1:
-        orient = per["global_orient"]
-        if rig:  # the facing as the view's camera sees it
-            orient = (Rotation.from_matrix(views[0].extrinsics()[0]) * Rotation.from_rotvec(orient)).as_rotvec()
-        refaced = consistent_facings(body_forward(orient), known, cfg.facing_jump_cost)
-    betas0 = np.median(per["betas"][known], 0)
-    per_frame = interpolate_frames(per, known)  # the per-frame fit (betas per frame too)
-    start = interpolate_frames({n: per[n] for n in names if n != "betas"}, known & ~refaced)
 
-    # 4. joint refinement
-    bridged = ~usable
+def _sequence_warnings(bridged: np.ndarray, refaced: np.ndarray, rebranched: np.ndarray) -> list:
+    """The warnings of a sequence fit: frames bridged, refaced or put on another depth branch (the first ten named)."""
+    F = len(bridged)
+    warnings = []
+    if bridged.any():
+        warnings.append(f"{int(bridged.sum())} of {F} frame(s) bridged from their neighbours (no usable keypoints): "
+                        f"{', '.join(map(str, np.flatnonzero(bridged)[:10]))}{' ...' if bridged.sum() > 10 else ''}")  # fmt: skip
+    if refaced.any():
+        warnings.append(f"{int(refaced.sum())} frame(s) had their facing re-initialised from their neighbours")
+    if rebranched.any():
+        warnings.append(f"{int(rebranched.sum())} frame(s) took another depth branch than their lowest-energy one, to agree "
+                        f"with their neighbours: {', '.join(map(str, np.flatnonzero(rebranched)[:10]))}"
+                        f"{' ...' if rebranched.sum() > 10 else ''}")  # fmt: skip
+    return warnings
+
+
+def _refine_jointly(model, layout, cfg, pose_prior, views, columns, start: dict, betas0, names, progress):
+    """Step 4 of :func:`fit_sequence`: every frame refined together from ``start`` (one shape ``betas0``, the temporal
+    terms; bridged frames weighed by ``cfg.bridge_weight``), in overlapping windows where the video is longer than
+    ``cfg.window`` (one shape over the windows, then their poses again). Returns ``(final, refiner)``."""
+    xy_v, conf_v, usable_v = columns
+    F, C = len(xy_v), len(views)
+    usable = usable_v.any(1)
     kps = _view_keypoints(xy_v, conf_v, usable_v)
     weights = np.where(usable, 1.0, float(cfg.bridge_weight))
     refiner_cfg = replace(cfg.keypoint, flip_test=False, init_poses=1, branch_search=False, temporal_sigma=cfg.temporal_sigma,
                           schedule=cfg.stages(views=C))  # fmt: skip
-    refiner = KeypointFitter(model, layout, refiner_cfg, fitter.pose_prior)
-    t1 = time.perf_counter()
+    refiner = KeypointFitter(model, layout, refiner_cfg, pose_prior)
     starts = _windows(F, int(cfg.window), int(cfg.overlap))
     L = F if len(starts) == 1 else int(cfg.window)
 
@@ -582,9 +565,89 @@ def fit_sequence(
             start = merged
             probs, init, fw = problems_and_init(betas0)
             state, info = refiner.fit_problems(probs, progress=progress, init=init, frame_weights=fw)
-    t_refine = time.perf_counter() - t1
     final = _merge_windows({n: state[n].double().numpy() for n in names if n != "betas"}, starts, F)
     final["betas"] = state["betas"].double().numpy().mean(0) if len(starts) == 1 else betas0
+    return final, refiner
+
+
+def _frame_grid(frames, camera) -> tuple:
+    """``(rig, views, grid, layout)`` of :func:`fit_sequence`'s inputs: ``grid[f][c]`` the keypoints of frame ``f`` in
+    view ``c`` (one view for one camera's video); a frame without an entry per view, or no keypoints at all, is refused."""
+    rig = not isinstance(camera, Camera)
+    views = list(camera) if rig else [View(camera)]
+    grid = [list(row) for row in frames] if rig else [[ks] for ks in frames]
+    if any(len(row) != len(views) for row in grid):
+        raise ValueError(f"every frame needs one entry per view ({len(views)})")
+    if not grid or all(ks is None for row in grid for ks in row):
+        raise ValueError("the sequence has no frame with keypoints")
+    layout = next(ks for row in grid for ks in row if ks is not None).layout
+    return rig, views, grid, layout
+
+
+def _median_reprojection(kp2d, xy_v, conf_v, usable_v) -> np.ndarray:
+    """``[F, C]`` the median distance (px) of each usable frame's and view's confident keypoints from the fit's; NaN
+    elsewhere."""
+    F, C = usable_v.shape
+    err = np.linalg.norm(kp2d - xy_v, axis=-1)
+    return np.array([[np.median(err[f, c][conf_v[f, c] > 0]) if (conf_v[f, c] > 0).any() and usable_v[f, c] else np.nan
+                      for c in range(C)] for f in range(F)])  # fmt: skip
+
+
+def fit_sequence(
+    frames: Sequence,
+    camera,
+    model=None,
+    *,
+    config: Optional[SequenceFitConfig] = None,
+    pose_prior=None,
+    progress: bool = False,
+) -> SequenceFitResult:
+    """Fit one person over a sequence of frames of one camera, or of a calibrated rig (module docstring).
+
+    ``frames``: one :class:`~silfit.keypoints.KeypointSet` per frame, ``None`` where no person was
+    detected, with ``camera`` a :class:`~silfit.camera.Camera` (the fit in its frame); or, for a rig
+    video, ``frames[f][c]`` per view with ``camera`` a list of :class:`~silfit.fitting.problem.View` s
+    (the fit in their world frame: every frame's initialisation the rig's keypoint stage,
+    :func:`~silfit.fitting.rig_fit.fit_rig_keypoints`; the refinement over frames x views). At least
+    one frame must have usable keypoints (in some view)."""
+    from ..body import load_body_model
+
+    cfg = config or SequenceFitConfig()
+    model = load_body_model() if model is None else model
+    rig, views, grid, layout = _frame_grid(frames, camera)
+    F, C = len(grid), len(views)
+    t0 = time.perf_counter()
+    xy_v, conf_v, outliers, usable_v = _view_columns(grid, layout, cfg)
+    usable = usable_v.any(1)
+    if not usable.any():
+        raise ValueError(f"no frame of the sequence has enough confident torso keypoints (of {F} frames)")
+    init_frames = _initial_frames(usable_v, rig, int(cfg.init_stride))
+
+    # 2. per-frame initialisation, the usable frames as one batch
+    fitter, per, rebranched = _initialise_frames(model, layout, cfg, pose_prior, camera, views, rig, (xy_v, conf_v, usable_v),
+                                                 init_frames, progress)  # fmt: skip
+    names = tuple(fitter.params.sizes)
+    t_init = time.perf_counter() - t0
+    known = np.zeros(F, dtype=bool)
+    known[init_frames] = True
+
+    # 3. consistent facings (one view; several: the triangulated torso gives each frame's facing)
+    refaced = np.zeros(F, dtype=bool)
+    if C == 1:
+        orient = per["global_orient"]
+        if rig:  # the facing as the view's camera sees it
+            orient = (Rotation.from_matrix(views[0].extrinsics()[0]) * Rotation.from_rotvec(orient)).as_rotvec()
+        refaced = consistent_facings(body_forward(orient), known, cfg.facing_jump_cost)
+    betas0 = np.median(per["betas"][known], 0)
+    per_frame = interpolate_frames(per, known)  # the per-frame fit (betas per frame too)
+    start = interpolate_frames({n: per[n] for n in names if n != "betas"}, known & ~refaced)
+
+    # 4. joint refinement
+    bridged = ~usable
+    t1 = time.perf_counter()
+    final, refiner = _refine_jointly(model, layout, cfg, fitter.pose_prior, views, (xy_v, conf_v, usable_v), start, betas0,
+                                     names, progress)  # fmt: skip
+    t_refine = time.perf_counter() - t1
 
     # outputs
     T = lambda a: torch.as_tensor(np.asarray(a), dtype=refiner.dtype)  # noqa: E731
@@ -592,21 +655,10 @@ def fit_sequence(
         rows = {n: T(np.repeat(final[n][None], F, 0) if n == "betas" else final[n]) for n in names}
         body = refiner.body(**rows)
         kp2d = _project_views(body.keypoints.double(), views, rig)  # [F, C, K, 2]
-    err = np.linalg.norm(kp2d - xy_v, axis=-1)
-    reproj = np.array([[np.median(err[f, c][conf_v[f, c] > 0]) if (conf_v[f, c] > 0).any() and usable_v[f, c] else np.nan
-                        for c in range(C)] for f in range(F)])  # fmt: skip
+    reproj = _median_reprojection(kp2d, xy_v, conf_v, usable_v)
     if not rig:  # one camera's video: no view axis
         kp2d, reproj, outliers = kp2d[:, 0], reproj[:, 0], outliers[:, 0]
-    warnings = []
-    if bridged.any():
-        warnings.append(f"{int(bridged.sum())} of {F} frame(s) bridged from their neighbours (no usable keypoints): "
-                        f"{', '.join(map(str, np.flatnonzero(bridged)[:10]))}{' ...' if bridged.sum() > 10 else ''}")  # fmt: skip
-    if refaced.any():
-        warnings.append(f"{int(refaced.sum())} frame(s) had their facing re-initialised from their neighbours")
-    if rebranched.any():
-        warnings.append(f"{int(rebranched.sum())} frame(s) took another depth branch than their lowest-energy one, to agree "
-                        f"with their neighbours: {', '.join(map(str, np.flatnonzero(rebranched)[:10]))}"
-                        f"{' ...' if rebranched.sum() > 10 else ''}")  # fmt: skip
+    warnings = _sequence_warnings(bridged, refaced, rebranched)
     f32 = lambda a: np.asarray(a, dtype=np.float32)  # noqa: E731
     return SequenceFitResult(
         betas=f32(final["betas"]), body_pose=f32(final["body_pose"]), global_orient=f32(final["global_orient"]),

@@ -275,6 +275,83 @@ def noisy_keypoints(
 
 
 # ----------------------------------------------------------------------------- one subject
+def _sample_pose_and_view(model, rng: np.random.Generator, cfg: SynthConfig, frontal: bool) -> tuple:
+    """``(pose sample, yaw, elevation, roll)`` in degrees of one subject: a frontal library pose facing the camera
+    for the dataset's first subject (``frontal``), else a library or hard pose at a random yaw, elevation and roll."""
+    if frontal:
+        ps = sample_pose(rng, names=FRONTAL_POSES, perturb_deg=min(cfg.perturb_deg, 4.0), blend_prob=0.0)
+        yaw = float(rng.uniform(-20, 20))
+        elev = float(rng.uniform(-5, 5))
+        return ps, yaw, elev, 0.0
+    if cfg.poses == "hard":
+        from .hard import hard_pose_and_yaw
+
+        ps, yaw = hard_pose_and_yaw(model, rng, cfg.yaw_range_deg)
+    else:
+        ps = sample_pose(rng, perturb_deg=cfg.perturb_deg, blend_prob=cfg.blend_prob, mirror_prob=cfg.mirror_prob)
+        yaw = float(rng.uniform(*cfg.yaw_range_deg))
+    elev = float(rng.uniform(-cfg.elevation_deg, cfg.elevation_deg))
+    roll = float(rng.uniform(-cfg.roll_deg, cfg.roll_deg))
+    return ps, yaw, elev, roll
+
+
+def _wholebody_keypoints(rng, parts3d: dict, parts2d: dict, depth, noise_px: float, drop_prob: float, cfg) -> tuple:
+    """``(gt arrays, noisy keypoints)`` of the hands and face: visibility by ``depth``, the hands' and face's own noise."""
+    wb_arrays, wb_kp = {}, {}
+    for part in parts3d:
+        names = wholebody_names(part)
+        scale = cfg.hand_noise_scale if part.startswith("hand") else cfg.face_noise_scale
+        pvis = keypoint_visibility(parts3d[part], parts2d[part], depth, names, WHOLEBODY_DEPTH_TOLERANCE)
+        pkp, pdrop = noisy_keypoints(rng, parts2d[part], pvis, noise_px * scale, drop_prob, cfg.conf_visible, cfg.conf_occluded)
+        wb_kp[part] = pkp
+        wb_arrays.update({
+            f"{part}_3d": parts3d[part].astype(np.float32), f"{part}_2d_clean": parts2d[part].astype(np.float64),
+            f"{part}_visibility": pvis, f"{part}_dropped": pdrop,
+        })  # fmt: skip
+    return wb_arrays, wb_kp
+
+
+def _write_subject_files(out_dir: Path, cfg, image, mask, kp, wb_kp: dict, coco_kp, camera) -> None:
+    """A subject's image.png, mask.png, keypoints.json (whole-body with hands and face where ``cfg.whole_body``),
+    keypoints_coco17.json (``cfg.coco``) and camera.json, into ``out_dir`` (created)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_png(out_dir / "image.png", image)
+    write_png(out_dir / "mask.png", mask)
+    if cfg.whole_body:
+        write_wholebody_json(out_dir / "keypoints.json", kp, wb_kp["hand_left"], wb_kp["hand_right"], wb_kp["face"])
+    else:
+        write_openpose_json(out_dir / "keypoints.json", kp)
+    if cfg.coco:
+        write_openpose_json(out_dir / "keypoints_coco17.json", coco_kp)
+    save_camera(camera, out_dir / "camera.json")
+
+
+def _projected_keypoints(model, out, camera, whole_body: bool) -> tuple:
+    """``((body25 3D, 2D), (coco17 3D, 2D), hands and face 3D, 2D)`` of a posed body ``out`` (numpy, float64; the
+    parts' dicts empty without ``whole_body``)."""
+    kp3d = model_keypoints(model, out, "body25")[0]
+    kp2d = project_points(kp3d.double(), camera).cpu().numpy()
+    coco3d = model_keypoints(model, out, "coco17")[0]
+    coco2d = project_points(coco3d.double(), camera).cpu().numpy()
+    parts3d, parts2d = {}, {}
+    if whole_body:
+        wb = wholebody_keypoints(model, out)
+        parts3d = {p: wb[p][0].double() for p in WHOLEBODY_PARTS}
+        parts2d = {p: project_points(v, camera).cpu().numpy() for p, v in parts3d.items()}
+        parts3d = {p: v.cpu().numpy() for p, v in parts3d.items()}
+    body = (kp3d.cpu().numpy().astype(np.float64), kp2d)
+    return body, (coco3d.cpu().numpy().astype(np.float64), coco2d), parts3d, parts2d
+
+
+def _render_over_background(rng: np.random.Generator, background: str, vertices, faces, camera) -> tuple:
+    """``(rendering, image, background label)``: the body in a random colour over a random ``background`` (plain,
+    textured or mixed), at the camera's size."""
+    colour = BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))]
+    bg, bg_label = background_image(rng, background, camera.height, camera.width)
+    r = render_subject(vertices, faces, camera, colour)
+    return r, np.where(r.mask[..., None], r.color, bg).astype(np.uint8), bg_label
+
+
 def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> SubjectRecord:
     """Sample, render and write subject ``index`` of a dataset into ``out_dir`` (created)."""
     cfg = config
@@ -286,21 +363,7 @@ def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> S
     W = H = int(cfg.size)
 
     # Pose, shape, orientation.
-    if frontal:
-        ps = sample_pose(rng, names=FRONTAL_POSES, perturb_deg=min(cfg.perturb_deg, 4.0), blend_prob=0.0)
-        yaw = float(rng.uniform(-20, 20))
-        elev = float(rng.uniform(-5, 5))
-        roll = 0.0
-    else:
-        if cfg.poses == "hard":
-            from .hard import hard_pose_and_yaw
-
-            ps, yaw = hard_pose_and_yaw(model, rng, cfg.yaw_range_deg)
-        else:
-            ps = sample_pose(rng, perturb_deg=cfg.perturb_deg, blend_prob=cfg.blend_prob, mirror_prob=cfg.mirror_prob)
-            yaw = float(rng.uniform(*cfg.yaw_range_deg))
-        elev = float(rng.uniform(-cfg.elevation_deg, cfg.elevation_deg))
-        roll = float(rng.uniform(-cfg.roll_deg, cfg.roll_deg))
+    ps, yaw, elev, roll = _sample_pose_and_view(model, rng, cfg, frontal)
     betas = sample_betas(rng, model.num_betas, cfg.beta_truncation)
     global_orient = global_orientation(yaw, elev, roll, root=ps.root)
     camera, fov = sample_intrinsics(rng, W, H, cfg.fov_deg)
@@ -326,30 +389,15 @@ def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> S
             **{k: v.astype(np.float32) for k, v in extra.items()},
         }  # fmt: skip
         out = model(**{k: as_t(v) for k, v in params.items()})
-        kp3d = model_keypoints(model, out, "body25")[0]
-        kp2d = project_points(kp3d.double(), camera).cpu().numpy()
-        coco3d = model_keypoints(model, out, "coco17")[0]
-        coco2d = project_points(coco3d.double(), camera).cpu().numpy()
+        (kp3d, kp2d), (coco3d, coco2d), parts3d, parts2d = _projected_keypoints(model, out, camera, cfg.whole_body)
         rest = model.rest_vertices(as_t(betas))[0]
-        parts3d = {}
-        if cfg.whole_body:
-            wb = wholebody_keypoints(model, out)
-            parts3d = {p: wb[p][0].double() for p in WHOLEBODY_PARTS}
-            parts2d = {p: project_points(v, camera).cpu().numpy() for p, v in parts3d.items()}
-            parts3d = {p: v.cpu().numpy() for p, v in parts3d.items()}
     vertices = out.vertices[0].cpu().numpy().astype(np.float32)
     joints = out.joints[0].cpu().numpy().astype(np.float32)
-    kp3d = kp3d.cpu().numpy().astype(np.float64)
-    coco3d = coco3d.cpu().numpy().astype(np.float64)
     stature = float(rest[:, 1].max() - rest[:, 1].min())
 
     # Render.
-    colour = BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))]
-    bg, bg_label = background_image(rng, cfg.background, H, W)
-    faces = model.faces.cpu().numpy()
-    r = render_subject(vertices, faces, camera, colour)
+    r, image, bg_label = _render_over_background(rng, cfg.background, vertices, model.faces.cpu().numpy(), camera)
     mask = r.mask
-    image = np.where(mask[..., None], r.color, bg).astype(np.uint8)
 
     # Keypoints.
     vis = keypoint_visibility(kp3d, kp2d, r.depth, BODY25_NAMES)
@@ -358,28 +406,11 @@ def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> S
     coco_kp, coco_dropped = noisy_keypoints(rng, coco2d, coco_vis, noise_px, drop_prob, cfg.conf_visible, cfg.conf_occluded)
 
     wb_arrays, wb_kp = {}, {}
-    for part in parts3d:
-        names = wholebody_names(part)
-        scale = cfg.hand_noise_scale if part.startswith("hand") else cfg.face_noise_scale
-        pvis = keypoint_visibility(parts3d[part], parts2d[part], r.depth, names, WHOLEBODY_DEPTH_TOLERANCE)
-        pkp, pdrop = noisy_keypoints(rng, parts2d[part], pvis, noise_px * scale, drop_prob, cfg.conf_visible, cfg.conf_occluded)
-        wb_kp[part] = pkp
-        wb_arrays.update({
-            f"{part}_3d": parts3d[part].astype(np.float32), f"{part}_2d_clean": parts2d[part].astype(np.float64),
-            f"{part}_visibility": pvis, f"{part}_dropped": pdrop,
-        })  # fmt: skip
+    if cfg.whole_body:
+        wb_arrays, wb_kp = _wholebody_keypoints(rng, parts3d, parts2d, r.depth, noise_px, drop_prob, cfg)
 
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_png(out_dir / "image.png", image)
-    write_png(out_dir / "mask.png", mask)
-    if cfg.whole_body:
-        write_wholebody_json(out_dir / "keypoints.json", kp, wb_kp["hand_left"], wb_kp["hand_right"], wb_kp["face"])
-    else:
-        write_openpose_json(out_dir / "keypoints.json", kp)
-    if cfg.coco:
-        write_openpose_json(out_dir / "keypoints_coco17.json", coco_kp)
-    save_camera(camera, out_dir / "camera.json")
+    _write_subject_files(out_dir, cfg, image, mask, kp, wb_kp, coco_kp, camera)
     save_npz(out_dir / "gt.npz", {
         **params,
         "vertices": vertices, "joints": joints,
