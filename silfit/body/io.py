@@ -150,6 +150,49 @@ def _check_shape(path: Path, key: str, arr: np.ndarray, expected: tuple) -> None
         raise InputError(path, f"field '{key}' has shape {tuple(arr.shape)}, expected {shown}")
 
 
+def _meta(raw) -> dict:
+    """The file's ``meta_json`` as a dict (empty where absent or unreadable)."""
+    if "meta_json" not in raw:
+        return {}
+    try:
+        meta = json.loads(str(raw["meta_json"]))
+    except (json.JSONDecodeError, RecursionError):
+        return {}
+    return meta if isinstance(meta, dict) else {}
+
+
+def _joint_names(raw, path, parents: tuple) -> tuple:
+    """The file's ``joint_names``, else SMPL's or SMPL-X's by the joint count and tree, else ``joint_<j>``."""
+    J = len(parents)
+    if "joint_names" in raw:
+        joint_names = tuple(str(n) for n in np.atleast_1d(to_numpy(raw["joint_names"])).tolist())
+    elif J == len(SMPL_JOINT_NAMES):
+        joint_names = SMPL_JOINT_NAMES
+    elif parents == SMPLX_PARENTS:
+        joint_names = SMPLX_JOINT_NAMES
+    else:
+        joint_names = tuple(f"joint_{j}" for j in range(J))
+    if len(joint_names) != J:
+        raise InputError(path, f"field 'joint_names' has {len(joint_names)} names for {J} joints")
+    return joint_names
+
+
+def _landmarks(raw, path, V: int) -> tuple:
+    """``(names, regressor [N, V])`` of the extra keypoints: the file's ``landmark_regressor``, else on the official
+    SMPL topology the field's vertex ids, else none."""
+    if "landmark_regressor" in raw:
+        landmark_regressor = _array(raw, "landmark_regressor", path, np.float64)
+        landmark_names = tuple(str(n) for n in np.atleast_1d(to_numpy(raw.get("landmark_names", []))).tolist())
+        _check_shape(path, "landmark_regressor", landmark_regressor, (len(landmark_names), V))
+        return landmark_names, landmark_regressor
+    if V == 6890:  # official SMPL topology: the vertex ids of the field's extra keypoints
+        landmark_names = tuple(SMPL_LANDMARK_VERTICES)
+        landmark_regressor = np.zeros((len(landmark_names), V))
+        landmark_regressor[np.arange(len(landmark_names)), list(SMPL_LANDMARK_VERTICES.values())] = 1.0
+        return landmark_names, landmark_regressor
+    return (), None
+
+
 def load_model_arrays(path: Union[str, os.PathLike, None] = None, gender: str = "neutral") -> ModelArrays:
     """Read and validate a body-model file (see :func:`resolve_model_path`)."""
     path = resolve_model_path(path, gender)
@@ -198,36 +241,9 @@ def load_model_arrays(path: Union[str, os.PathLike, None] = None, gender: str = 
         if arr is not None and not np.isfinite(arr).all():
             raise InputError(path, f"field '{key}' holds NaN or infinite values", field=key)
 
-    meta = {}
-    if "meta_json" in raw:
-        try:
-            meta = json.loads(str(raw["meta_json"]))
-        except (json.JSONDecodeError, RecursionError):
-            meta = {}
-        meta = meta if isinstance(meta, dict) else {}
-
-    if "joint_names" in raw:
-        joint_names = tuple(str(n) for n in np.atleast_1d(to_numpy(raw["joint_names"])).tolist())
-    elif J == len(SMPL_JOINT_NAMES):
-        joint_names = SMPL_JOINT_NAMES
-    elif parents == SMPLX_PARENTS:
-        joint_names = SMPLX_JOINT_NAMES
-    else:
-        joint_names = tuple(f"joint_{j}" for j in range(J))
-    if len(joint_names) != J:
-        raise InputError(path, f"field 'joint_names' has {len(joint_names)} names for {J} joints")
-
-    landmark_names: tuple = ()
-    landmark_regressor = None
-    if "landmark_regressor" in raw:
-        landmark_regressor = _array(raw, "landmark_regressor", path, np.float64)
-        landmark_names = tuple(str(n) for n in np.atleast_1d(to_numpy(raw.get("landmark_names", []))).tolist())
-        _check_shape(path, "landmark_regressor", landmark_regressor, (len(landmark_names), V))
-    elif V == 6890:  # official SMPL topology: the vertex ids of the field's extra keypoints
-        landmark_names = tuple(SMPL_LANDMARK_VERTICES)
-        landmark_regressor = np.zeros((len(landmark_names), V))
-        landmark_regressor[np.arange(len(landmark_names)), list(SMPL_LANDMARK_VERTICES.values())] = 1.0
-
+    meta = _meta(raw)
+    joint_names = _joint_names(raw, path, parents)
+    landmark_names, landmark_regressor = _landmarks(raw, path, V)
     arrays = ModelArrays(
         v_template=v_template,
         faces=faces,

@@ -87,6 +87,36 @@ def rig_layout(rng: np.random.Generator, vertices: np.ndarray, cfg: SynthConfig,
     return out
 
 
+def _view_part_keypoints(rng, parts3d: dict, view, depth, noise_px: float, drop_prob: float, cfg, wb_clean: dict) -> dict:
+    """Whole body: each part's (hands', face's) noisy keypoints in ``view``, visibility by its rendered ``depth``; the
+    clean projections appended to ``wb_clean[part]``."""
+    R, t = view.extrinsics()
+    parts = {}
+    for part, p3 in parts3d.items():
+        pc = p3 @ R.T + t
+        p2 = project_points(torch.as_tensor(pc), view.camera).numpy()
+        pvis = keypoint_visibility(pc, p2, depth, wholebody_names(part), WHOLEBODY_DEPTH_TOLERANCE)
+        scale = cfg.hand_noise_scale if part.startswith("hand") else cfg.face_noise_scale
+        parts[part] = noisy_keypoints(rng, p2, pvis, noise_px * scale, drop_prob, cfg.conf_visible, cfg.conf_occluded)[0]
+        wb_clean.setdefault(part, []).append(p2)
+    return parts
+
+
+def _write_view_files(folder: Path, view, image, mask, kp, parts: dict) -> None:
+    """One view's folder: image.png, mask.png, keypoints.json (whole-body where ``parts`` holds hands and face) and
+    camera.json (with R, t)."""
+    folder.mkdir(exist_ok=True)
+    write_png(folder / "image.png", image)
+    write_png(folder / "mask.png", mask)
+    if parts:
+        from ..wholebody import write_wholebody_json
+
+        write_wholebody_json(folder / "keypoints.json", kp, parts["hand_left"], parts["hand_right"], parts["face"])
+    else:
+        write_openpose_json(folder / "keypoints.json", kp)
+    (folder / "camera.json").write_text(json.dumps(view_to_dict(view), indent=2) + "\n", encoding="utf-8")
+
+
 def generate_rig_subject(model, index: int, config: SynthConfig, rig: RigConfig, out_dir: Path) -> dict:
     """Sample, render (every view) and write rig subject ``index`` into ``out_dir``; returns its record."""
     cfg = config
@@ -137,25 +167,8 @@ def generate_rig_subject(model, index: int, config: SynthConfig, rig: RigConfig,
         image = np.where(r.mask[..., None], r.color, bg).astype(np.uint8)
         vis = keypoint_visibility(k_cam, kp2d, r.depth, BODY25_NAMES)
         kp, _ = noisy_keypoints(rng, kp2d, vis, noise_px, drop_prob, cfg.conf_visible, cfg.conf_occluded)
-        parts = {}
-        for part, p3 in parts3d.items():  # whole body: each part's points, visibility in this view
-            pc = p3 @ R.T + t
-            p2 = project_points(torch.as_tensor(pc), cam).numpy()
-            pvis = keypoint_visibility(pc, p2, r.depth, wholebody_names(part), WHOLEBODY_DEPTH_TOLERANCE)
-            scale = cfg.hand_noise_scale if part.startswith("hand") else cfg.face_noise_scale
-            parts[part] = noisy_keypoints(rng, p2, pvis, noise_px * scale, drop_prob, cfg.conf_visible, cfg.conf_occluded)[0]
-            wb_clean.setdefault(part, []).append(p2)
-        folder = out_dir / view_name(c)
-        folder.mkdir(exist_ok=True)
-        write_png(folder / "image.png", image)
-        write_png(folder / "mask.png", r.mask)
-        if parts:
-            from ..wholebody import write_wholebody_json
-
-            write_wholebody_json(folder / "keypoints.json", kp, parts["hand_left"], parts["hand_right"], parts["face"])
-        else:
-            write_openpose_json(folder / "keypoints.json", kp)
-        (folder / "camera.json").write_text(json.dumps(view_to_dict(view), indent=2) + "\n", encoding="utf-8")
+        parts = _view_part_keypoints(rng, parts3d, view, r.depth, noise_px, drop_prob, cfg, wb_clean)
+        _write_view_files(out_dir / view_name(c), view, image, r.mask, kp, parts)
         clean2d.append(kp2d)
         visibility.append(vis)
         counts.append(int((vis == 2).sum()))
