@@ -223,6 +223,30 @@ def _lbfgs_rows(stage, state, layout, energy, body, views, data, rows, iteration
     return StageRun(energy_all, terms, run.seconds, its)
 
 
+def _select_rows(d: Dict[str, object], rows: torch.Tensor) -> Dict[str, object]:
+    """``d``'s entries at ``rows``: tensors indexed, anything else read as one entry per row (unlike :func:`_select`)."""
+    return {k: (v[rows] if isinstance(v, torch.Tensor) else [v[i] for i in rows.tolist()]) for k, v in d.items()}
+
+
+def _evaluate_rows(stage: Stage, state, layout, energy: Energy, body, views, data, rows: torch.Tensor, weights) -> tuple:
+    """``(total [R], parts, evaluation)``: the stage's energy at the problems ``rows`` (their free parameters gated as
+    the stage's data says)."""
+    sub = {k: v[rows] for k, v in state.items()}
+    data_rows = _select_rows(data, rows)
+    sub.update(gated({k: sub[k] for k in stage.free}, sub, data_rows))
+    ev = evaluate(body, layout, sub, {k: v[rows] for k, v in views.items()}, data_rows)
+    total, parts = energy(ev, weights)
+    return total, parts, ev
+
+
+def _record_energies(last: torch.Tensor, last_terms: Dict[str, torch.Tensor], rows, total, parts) -> None:
+    """The rows' latest total and per-term energies into ``last`` and ``last_terms`` (float64, NaN where never set)."""
+    with torch.no_grad():
+        last[rows] = total.detach().to(last.dtype)
+        for k, v in parts.items():
+            last_terms.setdefault(k, torch.full(last.shape, float("nan"), dtype=torch.float64))[rows] = v.detach().to(torch.float64)
+
+
 def run_adam_stage(
     stage: Stage,
     state: Dict[str, torch.Tensor],
@@ -263,10 +287,6 @@ def run_adam_stage(
     its = torch.zeros(P, dtype=torch.long)
     last = torch.full((P,), float("nan"), dtype=torch.float64)
     last_terms: Dict[str, torch.Tensor] = {}
-
-    def select(d, rows):
-        return {k: (v[rows] if isinstance(v, torch.Tensor) else [v[i] for i in rows.tolist()]) for k, v in d.items()}
-
     for i in range(iters):
         rows = active.nonzero().squeeze(1)
         if rows.numel() == 0:
@@ -274,19 +294,12 @@ def run_adam_stage(
         factor = learning_rate_factor(i, iters, settings.warmup)
         if before_step is not None:
             before_step(i, rows)
-        sub = {k: v[rows] for k, v in state.items()}
-        data_rows = select(data, rows)
-        sub.update(gated({k: sub[k] for k in stage.free}, sub, data_rows))
-        ev = evaluate(body, layout, sub, {k: v[rows] for k, v in views.items()}, data_rows)
-        total, parts = energy(ev, weights)
+        total, parts, ev = _evaluate_rows(stage, state, layout, energy, body, views, data, rows, weights)
         if on_step is not None:
             go = [bool(g) for g in on_step(i, rows, total, parts, ev)]
         else:
             go = [math.isfinite(float(e)) for e in total.detach()]
-        with torch.no_grad():
-            last[rows] = total.detach().to(last.dtype)
-            for k, v in parts.items():
-                last_terms.setdefault(k, torch.full((P,), float("nan"), dtype=torch.float64))[rows] = v.detach().to(torch.float64)
+        _record_energies(last, last_terms, rows, total, parts)
         keep = [j for j, g in enumerate(go) if g]
         active[rows[[j for j, g in enumerate(go) if not g]]] = False
         if not keep:
