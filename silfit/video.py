@@ -246,6 +246,61 @@ def write_overlay_video(path: Path, pictures, fps: float) -> Optional[Path]:
     return path
 
 
+def _write_sequence_meshes(tmp: Path, result, model, numbers, meshes: bool, exports, fps: float) -> None:
+    """Every frame's posed body: ``meshes/frame_<n>.obj`` with ``meshes``, and the ``exports`` (animation.glb,
+    meshes/frame_<n>.ply; :func:`silfit.outputs.export.write_sequence_exports`)."""
+    import torch
+
+    from .meshio import write_obj
+
+    cam = result.camera
+    faces = model.faces.cpu().numpy()
+    posed = []
+    for f in range(result.num_frames):
+        with torch.no_grad():
+            v = model(**{k: torch.as_tensor(np.asarray(a)[None], dtype=model.dtype) for k, a in result.frame_params(f).items()})
+        posed.append(v.vertices[0].numpy())
+    if meshes:
+        (tmp / "meshes").mkdir()
+        for f, v in enumerate(posed):
+            write_obj(tmp / "meshes" / f"frame_{numbers[f]:012d}.obj", v, faces)
+    if exports:
+        from .outputs.export import write_sequence_exports
+
+        write_sequence_exports(tmp, np.stack(posed), faces, cam, exports, numbers, fps)
+
+
+def _sequence_metrics(result, numbers, names, gif, extra_metrics) -> dict:
+    """A sequence fit's ``metrics.json``: frames, bridged, refaced and rebranched frames, outliers, reprojection
+    errors, timings, warnings, the camera (a rig video: its views and cameras, world coordinates), the overlay video,
+    the configuration and, with the silhouette stage, the IoUs."""
+    from .fitting.sequence import finite_median
+
+    rig = result.views is not None
+    cam = result.camera
+    finite = result.reprojection_error[np.isfinite(result.reprojection_error)]
+    metrics = {
+        "frames": len(numbers), "first_frame": numbers[0], "last_frame": numbers[-1],
+        "bridged_frames": [numbers[i] for i in np.flatnonzero(result.bridged)],
+        "refaced_frames": [numbers[i] for i in np.flatnonzero(result.refaced)],
+        # the frames whose depth branch the choice over time changed (SequenceFitConfig.branch_dp)
+        "rebranched_frames": [numbers[i] for i in np.flatnonzero(result.rebranched)] if result.rebranched is not None else [],
+        "outlier_keypoints": int(result.outliers.sum()),
+        "reprojection_error_px": float(np.median(finite)) if len(finite) else None,
+        **({"reprojection_error_px_keypoint_stage": finite_median(result.reprojection_error_keypoint_stage)}
+           if result.reprojection_error_keypoint_stage is not None else {}),
+        "timings": result.timings, "warnings": list(result.warnings),
+        **({"views": names, "cameras": [v.camera.to_dict() for v in result.views], "coordinates": "world"} if rig
+           else {"camera": cam.to_dict()}),
+        "overlay_video": gif.name if gif else None, "config": result.config, **(extra_metrics or {}),
+    }  # fmt: skip
+    if result.silhouette_iou is not None:
+        metrics["silhouette_iou_start"] = result.silhouette_iou_start
+        clean = lambda v: None if not np.isfinite(v) else float(v)  # noqa: E731
+        metrics["silhouette_iou"] = [[clean(v) for v in row] if rig else clean(row) for row in result.silhouette_iou]
+    return metrics
+
+
 def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: bool = False, video: bool = True,
                       fps: float = 30.0, extra_metrics: Optional[dict] = None, overwrite: bool = False,
                       exports: Sequence[str] = ()) -> Path:  # fmt: skip
@@ -262,12 +317,8 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
     world coordinates with every view (``keypoints_2d [F, C, K, 2]``, ``reprojection_error [F, C]``),
     ``cameras.json``, meshes in world coordinates, overlays with the views side by side; ``metrics.json``
     has ``views``, ``cameras`` and ``silhouette_iou`` per frame and view; no exports."""
-    import torch
-
     from . import figures
     from .fitio import write_fit
-    from .fitting.sequence import finite_median
-    from .meshio import write_obj
     from .outfolder import atomic_folder
 
     numbers = list(sequence.numbers)
@@ -293,46 +344,14 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
 
             write_cameras_json(tmp / "cameras.json", list(zip(names, result.views)))
         if meshes or exports:
-            faces = model.faces.cpu().numpy()
-            posed = []
-            for f in range(result.num_frames):
-                with torch.no_grad():
-                    v = model(**{k: torch.as_tensor(np.asarray(a)[None], dtype=model.dtype) for k, a in result.frame_params(f).items()})
-                posed.append(v.vertices[0].numpy())
-            if meshes:
-                (tmp / "meshes").mkdir()
-                for f, v in enumerate(posed):
-                    write_obj(tmp / "meshes" / f"frame_{numbers[f]:012d}.obj", v, faces)
-            if exports:
-                from .outputs.export import write_sequence_exports
-
-                write_sequence_exports(tmp, np.stack(posed), faces, cam, exports, numbers, fps)
+            _write_sequence_meshes(tmp, result, model, numbers, meshes, exports, fps)
         strip_stride = max(1, -(-result.num_frames // 8))
         images = [v.images for v in sequence.videos] if rig else sequence.images
         pics = _frame_pictures(result, numbers, model, images, None, 1 if video else strip_stride)
         strip = pics[::strip_stride] if video else pics
         figures.write_png(tmp / "strip.png", np.concatenate(strip, axis=1))
         gif = write_overlay_video(tmp / "overlay.gif", pics, fps) if video else None
-        finite = result.reprojection_error[np.isfinite(result.reprojection_error)]
-        metrics = {
-            "frames": len(numbers), "first_frame": numbers[0], "last_frame": numbers[-1],
-            "bridged_frames": [numbers[i] for i in np.flatnonzero(result.bridged)],
-            "refaced_frames": [numbers[i] for i in np.flatnonzero(result.refaced)],
-            # the frames whose depth branch the choice over time changed (SequenceFitConfig.branch_dp)
-            "rebranched_frames": [numbers[i] for i in np.flatnonzero(result.rebranched)] if result.rebranched is not None else [],
-            "outlier_keypoints": int(result.outliers.sum()),
-            "reprojection_error_px": float(np.median(finite)) if len(finite) else None,
-            **({"reprojection_error_px_keypoint_stage": finite_median(result.reprojection_error_keypoint_stage)}
-               if result.reprojection_error_keypoint_stage is not None else {}),
-            "timings": result.timings, "warnings": list(result.warnings),
-            **({"views": names, "cameras": [v.camera.to_dict() for v in result.views], "coordinates": "world"} if rig
-               else {"camera": cam.to_dict()}),
-            "overlay_video": gif.name if gif else None, "config": result.config, **(extra_metrics or {}),
-        }  # fmt: skip
-        if result.silhouette_iou is not None:
-            metrics["silhouette_iou_start"] = result.silhouette_iou_start
-            clean = lambda v: None if not np.isfinite(v) else float(v)  # noqa: E731
-            metrics["silhouette_iou"] = [[clean(v) for v in row] if rig else clean(row) for row in result.silhouette_iou]
+        metrics = _sequence_metrics(result, numbers, names, gif, extra_metrics)
         (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2, default=float))
     return Path(out)
 
