@@ -831,6 +831,61 @@ def finite_median(values) -> Optional[float]:
     return float(np.median(v)) if v.size else None
 
 
+def _mask_grid(masks, rig: bool) -> tuple:
+    """``(mgrid, empty)``: ``mgrid[f][c]`` the masks per frame and view, an empty one (the person not segmented in
+    that frame) as ``None`` (a frame without a silhouette term), and the frames that had one."""
+    mgrid = [list(row) for row in masks] if rig else [[m] for m in masks]
+    empty = sorted({f for f, row in enumerate(mgrid) for m in row if m is not None and not np.any(m)})
+    return [[None if (m is not None and not np.any(m)) else m for m in row] for row in mgrid], empty
+
+
+def _silhouette_observations(grid, mgrid, views, outliers, bridged) -> list:
+    """The silhouette stage's observations per frame and view: the mask, and the keypoints without the outliers (none
+    for a bridged frame; a whole-body set's hands and face at zero confidence: not optimised here)."""
+    obs = []
+    for f in range(len(grid)):
+        for c, view in enumerate(views):
+            ks = grid[f][c]
+            if ks is not None and not bridged[f]:
+                conf = np.where(outliers[f, c], 0.0, ks.conf)
+                if ks.layout == "wholebody":  # hands and face stay as the keypoint fit left them (not optimised here)
+                    from ..wholebody import part_slices
+
+                    conf = conf.copy()
+                    conf[part_slices()["body"].stop:] = 0.0
+                ks = KeypointSet(ks.xy, conf, ks.layout, ks.source) if (conf > 0).any() else None
+            else:
+                ks = None
+            obs.append(Observation(view, ks, mgrid[f][c], frame=f, view_index=c))
+    return obs
+
+
+def _keypoint_reprojection(grid, kp2d, outliers, bridged) -> np.ndarray:
+    """``[F, C]`` the median reprojection error (px) against the keypoints the keypoint stage's error was measured on
+    (outliers and bridged frames left out; a whole-body fit's hands and face too), so before and after compare alike."""
+    F, C = len(grid), len(grid[0]) if grid else 0
+    reproj = np.full((F, C), np.nan)
+    for f in range(F):
+        for c in range(C):
+            ks = grid[f][c]
+            if ks is not None and not bridged[f]:
+                ok = (ks.conf > 0) & ~outliers[f, c]
+                if ok.any():
+                    reproj[f, c] = np.median(np.linalg.norm(kp2d[f, c] - ks.xy, axis=-1)[ok])
+    return reproj
+
+
+def _with_parameters(result, p: dict, betas, joints, kp2d, reproj, timings, warnings) -> SequenceFitResult:
+    """A copy of ``result`` with the silhouette stage's parameters ``p`` (one ``betas``), joints, projected keypoints
+    and reprojection errors (the keypoint stage's kept beside), ``timings`` and ``warnings``."""
+    return replace(result, betas=betas, body_pose=np.asarray(p["body_pose"], np.float32),
+                   extra={n: np.asarray(p[n], np.float32) for n in result.extra},
+                   global_orient=np.asarray(p["global_orient"], np.float32), transl=np.asarray(p["transl"], np.float32),
+                   joints=np.asarray(joints, np.float32), keypoints_2d=np.asarray(kp2d, np.float32),
+                   reprojection_error=reproj, reprojection_error_keypoint_stage=result.reprojection_error, timings=timings,
+                   warnings=warnings)  # fmt: skip
+
+
 def refine_sequence_silhouettes(
     model,
     result: SequenceFitResult,
@@ -864,10 +919,7 @@ def refine_sequence_silhouettes(
     views = result.views if rig else [View(result.camera)]
     C = len(views)
     grid = [list(row) for row in frames] if rig else [[ks] for ks in frames]
-    mgrid = [list(row) for row in masks] if rig else [[m] for m in masks]
-    # an empty mask (the person not segmented in that frame) is a frame without a silhouette term
-    empty = sorted({f for f, row in enumerate(mgrid) for m in row if m is not None and not np.any(m)})
-    mgrid = [[None if (m is not None and not np.any(m)) else m for m in row] for row in mgrid]
+    mgrid, empty = _mask_grid(masks, rig)
     if all(m is None for row in mgrid for m in row):
         raise ValueError("the sequence's silhouette stage needs at least one non-empty mask")
     outliers = result.outliers if rig else result.outliers[:, None]
@@ -877,21 +929,7 @@ def refine_sequence_silhouettes(
     if cfg.proxy_faces and int(cfg.proxy_faces) >= int(model.faces.shape[0]):  # a small model: render it whole
         cfg = replace(cfg, proxy_faces=None)
     sigma = result.config.get("temporal_sigma", 10.0)
-    obs = []
-    for f in range(F):
-        for c, view in enumerate(views):
-            ks = grid[f][c]
-            if ks is not None and not result.bridged[f]:
-                conf = np.where(outliers[f, c], 0.0, ks.conf)
-                if ks.layout == "wholebody":  # hands and face stay as the keypoint fit left them (not optimised here)
-                    from ..wholebody import part_slices
-
-                    conf = conf.copy()
-                    conf[part_slices()["body"].stop:] = 0.0
-                ks = KeypointSet(ks.xy, conf, ks.layout, ks.source) if (conf > 0).any() else None
-            else:
-                ks = None
-            obs.append(Observation(view, ks, mgrid[f][c], frame=f, view_index=c))
+    obs = _silhouette_observations(grid, mgrid, views, outliers, result.bridged)
     init = result.params()
     t0 = time.perf_counter()
     (sil,) = fit_silhouette_problems(
@@ -907,16 +945,7 @@ def refine_sequence_silhouettes(
         body = model(**{n: T(np.repeat(betas[None], F, 0) if n == "betas" else p[n]) for n in init})
         joints = body.joints.numpy()
         kp2d = _project_views(model_keypoints(model, body, result.layout).double(), views, rig)  # [F, C, K, 2]
-    # against the keypoints the keypoint stage's error was measured on (outliers and bridged frames left
-    # out; a whole-body fit's hands and face too, though held here), so before and after compare alike
-    reproj = np.full((F, C), np.nan)
-    for f in range(F):
-        for c in range(C):
-            ks = grid[f][c]
-            if ks is not None and not result.bridged[f]:
-                ok = (ks.conf > 0) & ~outliers[f, c]
-                if ok.any():
-                    reproj[f, c] = np.median(np.linalg.norm(kp2d[f, c] - ks.xy, axis=-1)[ok])
+    reproj = _keypoint_reprojection(grid, kp2d, outliers, result.bridged)
     if not rig:
         kp2d, reproj = kp2d[:, 0], reproj[:, 0]
     timings = dict(result.timings, silhouette=seconds, total=result.timings["total"] + seconds)
@@ -928,15 +957,11 @@ def refine_sequence_silhouettes(
     guard = guard_fit(model, finite_median(result.reprojection_error), result.betas, finite_median(reproj), betas, "video")
     if guard.reverted and getattr(cfg, "plausibility_guard", True):
         return replace(result, timings=timings, warnings=list(result.warnings) + list(sil.warnings) + list(guard.warnings))
-    out = replace(result, betas=betas, body_pose=np.asarray(p["body_pose"], np.float32),
-                  extra={n: np.asarray(p[n], np.float32) for n in result.extra},
-                  global_orient=np.asarray(p["global_orient"], np.float32), transl=np.asarray(p["transl"], np.float32),
-                  joints=np.asarray(joints, np.float32), keypoints_2d=np.asarray(kp2d, np.float32),
-                  reprojection_error=reproj, reprojection_error_keypoint_stage=result.reprojection_error, timings=timings,
-                  warnings=list(result.warnings) + list(sil.warnings)
-                  + reprojection_rise_warnings(finite_median(result.reprojection_error), finite_median(reproj)) + shape_warnings(betas)
-                  + _cut_off_frames([m for row in mgrid for m in row], C)
-                  + ([f"{len(empty)} frame(s) with an empty mask had no silhouette term: {empty[:10]}"] if empty else []))  # fmt: skip
+    warnings = (list(result.warnings) + list(sil.warnings)
+                + reprojection_rise_warnings(finite_median(result.reprojection_error), finite_median(reproj)) + shape_warnings(betas)
+                + _cut_off_frames([m for row in mgrid for m in row], C)
+                + ([f"{len(empty)} frame(s) with an empty mask had no silhouette term: {empty[:10]}"] if empty else []))  # fmt: skip
+    out = _with_parameters(result, p, betas, joints, kp2d, reproj, timings, warnings)
     ious = np.array(sil.ious, dtype=np.float64).reshape(F, C)
     out.silhouette_iou, out.silhouette_iou_start = (ious if rig else ious[:, 0]), float(sil.iou_start)
     return out
