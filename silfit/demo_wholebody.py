@@ -74,6 +74,37 @@ def _box(xy, conf, W, H, margin: float = 0.35, min_px: int = 12):
     return x0, y0, int(min(W, c[0] + half + 1)), int(min(H, c[1] + half + 1))
 
 
+def _closeup_rows(image, cam, kps, vertices: list, faces) -> tuple:
+    """``(rows, labels)``: per hand and the face (where its keypoints are seen), its box from the keypoints magnified,
+    the keypoints, then each of ``vertices`` drawn at that magnification."""
+    from . import figures
+    from .wholebody import part_slices
+
+    sl = part_slices()
+    rows, labels = [], []
+    for part, label in (("hand_left", "left hand"), ("hand_right", "right hand"), ("face", "face")):
+        xy, conf = kps.xy[sl[part]], kps.conf[sl[part]]
+        if not (conf > 0).any():
+            continue
+        crop, zcam, (x0, y0, s) = _zoom(image, cam, _box(xy, conf, cam.width, cam.height))
+        zxy = (xy - [x0, y0]) * s
+        row = [figures.draw_keypoints(crop, zxy, figures.DETECTED, conf)]
+        for v in vertices:
+            row.append(figures.fit_overlay(crop, v, faces, zcam, zxy, None, conf))
+        rows.append(row)
+        labels.append(label)
+    return rows, labels
+
+
+def _score_table(scores: dict) -> str:
+    """The demo's Markdown table: a row per metric of :data:`ROWS`, a column per method of :data:`METHODS`."""
+    lines = ["| metric | " + " | ".join(METHODS) + " |", "|---|" + "---:|" * len(METHODS)]
+    for key, label in ROWS:
+        cells = [scores[m].get(key) for m in METHODS]
+        lines.append(f"| {label} | " + " | ".join("-" if c is None else f"{c:.2f}" if key == "expression_err" else f"{c:.1f}" for c in cells) + " |")
+    return "\n".join(lines)
+
+
 def run_wholebody_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = True, silhouette_config=None) -> dict:
     """Run the demo into ``out`` (see the module docstring); returns the report."""
     from . import figures
@@ -85,7 +116,7 @@ def run_wholebody_demo(out: Path, subject_dir: Optional[Path] = None, progress: 
     from .image_fit import save_fit
     from .run import fit
     from .silhouette.masks import read_mask
-    from .wholebody import WholeBodyKeypoints, part_slices, read_wholebody
+    from .wholebody import WholeBodyKeypoints, read_wholebody
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -123,19 +154,7 @@ def run_wholebody_demo(out: Path, subject_dir: Optional[Path] = None, progress: 
         scores[name] = {**wholebody_errors(model, {"vertices": v, "joints": j, "expression": e}, truth), "time_s": float(t)}
 
     # close-ups: each part's box from its keypoints, magnified, the fitted meshes drawn at that magnification
-    sl = part_slices()
-    rows, labels = [], []
-    for part, label in (("hand_left", "left hand"), ("hand_right", "right hand"), ("face", "face")):
-        xy, conf = kps.xy[sl[part]], kps.conf[sl[part]]
-        if not (conf > 0).any():
-            continue
-        crop, zcam, (x0, y0, s) = _zoom(image, cam, _box(xy, conf, cam.width, cam.height))
-        zxy = (xy - [x0, y0]) * s
-        row = [figures.draw_keypoints(crop, zxy, figures.DETECTED, conf)]
-        for name, (v, _, _, _) in fits.items():
-            row.append(figures.fit_overlay(crop, v, faces, zcam, zxy, None, conf))
-        rows.append(row)
-        labels.append(label)
+    rows, labels = _closeup_rows(image, cam, kps, [v for v, _, _, _ in fits.values()], faces)
     sheet = [img for row in rows for img in row]
     titles = [f"{lab}: {col}" for lab in labels for col in ("input + keypoints",) + METHODS]
     figures.contact_sheet(sheet, titles, out / "closeups.png", columns=4)
@@ -144,11 +163,7 @@ def run_wholebody_demo(out: Path, subject_dir: Optional[Path] = None, progress: 
              figures.fit_overlay(image, result.vertices, faces, cam)]  # fmt: skip
     figures.contact_sheet(*summary_panels(whole, sheet, titles), out / "summary.png", columns=4)
 
-    lines = ["| metric | " + " | ".join(METHODS) + " |", "|---|" + "---:|" * len(METHODS)]
-    for key, label in ROWS:
-        cells = [scores[m].get(key) for m in METHODS]
-        lines.append(f"| {label} | " + " | ".join("-" if c is None else f"{c:.2f}" if key == "expression_err" else f"{c:.1f}" for c in cells) + " |")
-    table = "\n".join(lines)
+    table = _score_table(scores)
     report = {"subject": str(d), "scores": scores, "warnings": result.metrics.get("warnings", []),
               "iou": {"keypoint_stage": result.metrics.get("iou_keypoint_stage"), "final": result.metrics.get("iou")}}  # fmt: skip
     (out / "report.json").write_text(json.dumps(report, indent=2))
