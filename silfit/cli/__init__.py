@@ -95,6 +95,11 @@ def run_command(args) -> int:
         if isinstance(err, (OSError, ValueError)):  # bad input: silfit.errors.InputError (CLIError) is a ValueError
             print(f"silfit {args.command}: error: {' '.join(_describe(err, args).split())}", file=sys.stderr)
             return 2
+        from ..errors import SystemLibraryError
+
+        if isinstance(err, SystemLibraryError):  # libLLVM or libOSMesa missing: what to install, one line
+            print(f"silfit {args.command}: error: {' '.join(str(err).split())}", file=sys.stderr)
+            return 2
         if isinstance(err, MemoryError):
             print(f"silfit {args.command}: error: out of memory (is an input far larger than intended?)", file=sys.stderr)
             return 2
