@@ -21,7 +21,7 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["default_subject", "run_demo"]
+__all__ = ["default_subject", "run_demo", "report_table"]
 
 #: The shipped synthetic set, beside the package in a source checkout.
 SHIPPED_SET = Path(__file__).resolve().parents[1] / "data" / "synthetic"
@@ -71,6 +71,12 @@ def _table(before: dict, after: dict) -> str:
             fmt = "{:.3f}" if key == "iou" else "{:.2f}" if key in ("reproj_px", "time_s") else "{:.1f}"
             lines.append(f"| {label} | {fmt.format(a)} | {fmt.format(b)} | {change} |")
     return "\n".join(lines)
+
+
+def report_table(report: dict) -> str:
+    """The table ``silfit demo`` prints, from its ``report.json`` (the README's demo table is this,
+    written by ``tools/readme_demo.py``)."""
+    return _table(report["keypoints_only"], report["keypoints_plus_silhouette"])
 
 
 def _person_box(masks, margin: float = 0.12) -> tuple:
