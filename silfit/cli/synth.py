@@ -53,7 +53,7 @@ def register(subparsers) -> None:
     p.add_argument("--views", type=int, default=None, metavar="N",
                    help="a calibrated rig per subject: N cameras on a ring around the body (varied heights), per-view "
                         "folders view_<i>/ (image, mask, keypoints, camera.json with R, t), cameras.json and one gt.npz "
-                        "in world coordinates (see README: Camera rigs); with --whole-body, OpenPose whole-body "
+                        "in world coordinates (see docs/guides/rigs.md); with --whole-body, OpenPose whole-body "
                         "keypoints per view; with --sequence, each motion seen by N cameras (a rig video: per-view "
                         "video folders)")
     p.add_argument("--layout", default=None, metavar="CAMERAS.json",
