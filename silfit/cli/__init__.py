@@ -47,6 +47,10 @@ def build_parser() -> argparse.ArgumentParser:
         if importlib.util.find_spec(module) is None:
             continue
         importlib.import_module(module).register(sub)
+    from .flags import finish_parser
+
+    for name, subparser in sub.choices.items():
+        finish_parser(name, subparser)  # examples in every --help, no docstring markup
     return parser
 
 
