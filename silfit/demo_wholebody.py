@@ -74,7 +74,7 @@ def _box(xy, conf, W, H, margin: float = 0.35, min_px: int = 12):
     return x0, y0, int(min(W, c[0] + half + 1)), int(min(H, c[1] + half + 1))
 
 
-def run_wholebody_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = True, silhouette_config=None) -> dict:
+def run_wholebody_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = False, silhouette_config=None) -> dict:
     """Run the demo into ``out`` (see the module docstring); returns the report."""
     from . import figures
     from .body import load_body_model
