@@ -26,6 +26,8 @@ import sys
 import warnings
 from typing import Optional
 
+from silfit.errors import SystemLibraryError
+
 __all__ = [
     "LibLLVMNotFoundError",
     "MIN_LLVM_MAJOR",
@@ -55,7 +57,7 @@ _SEARCH_GLOBS = (
 )
 
 
-class LibLLVMNotFoundError(RuntimeError):
+class LibLLVMNotFoundError(SystemLibraryError):
     """No libLLVM that Dr.Jit's LLVM backend can use was found."""
 
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 import threading
 from dataclasses import dataclass
 from typing import Optional, Sequence, Union
@@ -29,8 +30,10 @@ from typing import Optional, Sequence, Union
 import numpy as np
 
 from silfit.camera import Camera
+from silfit.errors import SystemLibraryError
 
 __all__ = [
+    "OSMesaNotFoundError",
     "BODY_COLOR",
     "Rendering",
     "OffscreenRenderer",
@@ -56,7 +59,6 @@ _ALLOWED_PLATFORMS = ("osmesa", "egl")
 def _ensure_platform() -> str:
     platform = os.environ.get("PYOPENGL_PLATFORM", "").lower()
     if platform not in _ALLOWED_PLATFORMS:
-        import sys
 
         if "OpenGL" in sys.modules and platform:
             raise RuntimeError(
@@ -68,10 +70,44 @@ def _ensure_platform() -> str:
     return platform
 
 
-def _pyrender():
-    _ensure_platform()
-    import pyrender
+class OSMesaNotFoundError(SystemLibraryError):
+    """libOSMesa (offscreen OpenGL, for pyrender) is not installed."""
 
+
+#: The one line shown when libOSMesa is missing (as the libLLVM one, :mod:`renderers._llvm`).
+OSMESA_MESSAGE = (
+    "libOSMesa not found: silfit draws its pictures with pyrender on OSMesa (offscreen OpenGL); "
+    "install it with `apt-get install libosmesa6` (Debian/Ubuntu) or `conda install -c conda-forge mesalib`, "
+    "or set PYOPENGL_PLATFORM=egl where an EGL driver is installed"
+)
+
+
+def _osmesa_present() -> bool:
+    """Whether the dynamic loader finds libOSMesa (as PyOpenGL's osmesa platform looks it up)."""
+    import ctypes
+    import ctypes.util
+
+    if ctypes.util.find_library("OSMesa"):
+        return True
+    for name in ("libOSMesa.so.8", "libOSMesa.so.6", "libOSMesa.so"):  # a library on LD_LIBRARY_PATH only
+        try:
+            ctypes.CDLL(name)
+            return True
+        except OSError:
+            continue
+    return False
+
+
+def _pyrender():
+    platform = _ensure_platform()
+    if platform == "osmesa" and "pyrender" not in sys.modules and not _osmesa_present():
+        raise OSMesaNotFoundError(OSMESA_MESSAGE)
+    try:
+        import pyrender
+    except (ImportError, AttributeError, OSError) as err:  # PyOpenGL failing to load its platform's library
+        if platform == "osmesa" and not _osmesa_present():
+            raise OSMesaNotFoundError(OSMESA_MESSAGE) from err
+        raise
     return pyrender
 
 

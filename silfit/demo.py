@@ -21,7 +21,7 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["default_subject", "run_demo"]
+__all__ = ["default_subject", "run_demo", "report_table"]
 
 #: The shipped synthetic set, beside the package in a source checkout.
 SHIPPED_SET = Path(__file__).resolve().parents[1] / "data" / "synthetic"
@@ -73,6 +73,12 @@ def _table(before: dict, after: dict) -> str:
     return "\n".join(lines)
 
 
+def report_table(report: dict) -> str:
+    """The table ``silfit demo`` prints, from its ``report.json`` (the README's demo table is this,
+    written by ``tools/readme_demo.py``)."""
+    return _table(report["keypoints_only"], report["keypoints_plus_silhouette"])
+
+
 def _person_box(masks, margin: float = 0.12) -> tuple:
     """``(x0, y0, x1, y1)``: a square around the given masks (the person's and the fitted
     bodies'), for close-ups."""
@@ -95,7 +101,7 @@ def _crop(image: np.ndarray, box: tuple, min_size: int = 400) -> np.ndarray:
     return np.repeat(np.repeat(crop, factor, axis=0), factor, axis=1)
 
 
-def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = True, silhouette_config=None) -> dict:
+def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = False, silhouette_config=None) -> dict:
     """Run the demo into ``out`` (see the module docstring); returns the report."""
     from . import figures
     from .body import load_body_model

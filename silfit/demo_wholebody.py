@@ -105,7 +105,7 @@ def _score_table(scores: dict) -> str:
     return "\n".join(lines)
 
 
-def run_wholebody_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = True, silhouette_config=None) -> dict:
+def run_wholebody_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = False, silhouette_config=None) -> dict:
     """Run the demo into ``out`` (see the module docstring); returns the report."""
     from . import figures
     from .body import load_body_model

@@ -10,7 +10,7 @@ import os
 import re
 from typing import Optional, Union
 
-__all__ = ["InputError", "UnsafeFileError", "interruption", "interrupt_cleanup", "quoted", "cut_quotes", "QUOTE_CHARS"]
+__all__ = ["InputError", "UnsafeFileError", "SystemLibraryError", "interruption", "interrupt_cleanup", "quoted", "cut_quotes", "QUOTE_CHARS"]
 
 #: Most characters of a value read from a file that an error message quotes.
 QUOTE_CHARS = 24
@@ -32,6 +32,12 @@ class InputError(ValueError):
         self.field = field
         text = " ".join(str(message).split())  # one line, whatever the message held
         super().__init__(f"{self.source}: {text}" if self.source else text)
+
+
+class SystemLibraryError(RuntimeError):
+    """A system library silfit needs is missing (libLLVM for Mitsuba/Dr.Jit, libOSMesa for the
+    offscreen pictures): the message is one line saying what to install. The command line prints
+    it and exits with status 2."""
 
 
 class UnsafeFileError(InputError):

@@ -277,7 +277,7 @@ def refine(
     config: Optional[SilhouetteFitConfig] = None,
     pose_prior=None,
     renderer=None,
-    progress: bool = True,
+    progress: bool = False,
     mask_source: str = "mask",
 ) -> FitResult:
     """The silhouette stage on top of a single-sample keypoint result (see :func:`silfit.run.fit`)."""
@@ -293,7 +293,7 @@ def refine_batch(
     config: Optional[SilhouetteFitConfig] = None,
     pose_prior=None,
     renderer=None,
-    progress: bool = True,
+    progress: bool = False,
     mask_sources: Optional[Sequence[str]] = None,
 ) -> List[FitResult]:
     """The silhouette stage on a batch of keypoint results (sample ``i`` of
@@ -437,7 +437,7 @@ class StageFailure(Exception):
 
 def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Camera], masks: Sequence[Optional[np.ndarray]],
                  *, pose_prior=None, keypoint_config=None, silhouette_config=None, silhouette: bool = True,
-                 progress: bool = True, mask_sources: Optional[Sequence[str]] = None,
+                 progress: bool = False, mask_sources: Optional[Sequence[str]] = None,
                  isolate: bool = False) -> List[Union[FitResult, StageFailure]]:  # fmt: skip
     """Images' cores, keypoints already checked (:func:`silfit.run.check`), one layout: the
     keypoint stage batched over all images, the silhouette stage batched over those with a mask

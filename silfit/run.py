@@ -55,7 +55,7 @@ class Job:
     silhouette_config: Any = None
     sequence_config: Any = None
     silhouette: bool = True
-    progress: bool = True
+    progress: bool = False
     frame_numbers: Optional[Sequence[int]] = None
     warnings: List[str] = field(default_factory=list)
     record: Dict[str, Any] = field(default_factory=dict)
@@ -447,7 +447,7 @@ def write(fit: Fit, out, *, overwrite: bool = False, exports: Sequence[str] = ()
 
 def fit(keypoints, mask: Optional[np.ndarray] = None, camera=None, *, image_size: Optional[tuple] = None,
         focal: Optional[float] = None, model=None, pose_prior=None, keypoint_config=None, silhouette_config=None,
-        progress: bool = True):  # fmt: skip
+        progress: bool = False):  # fmt: skip
     """Fit SMPL to one image (a :class:`~silfit.image_fit.FitResult`): keypoints (a :class:`KeypointSet` or ``[K, 3]`` array), then,
     if ``mask [H, W]`` (bool) is given, refine against the silhouette.
 
@@ -461,7 +461,7 @@ def fit(keypoints, mask: Optional[np.ndarray] = None, camera=None, *, image_size
 
 
 def image_job(keypoints, mask=None, camera=None, *, image_size=None, focal=None, model=None, pose_prior=None,
-              keypoint_config=None, silhouette_config=None, progress: bool = True, image=None) -> Job:  # fmt: skip
+              keypoint_config=None, silhouette_config=None, progress: bool = False, image=None) -> Job:  # fmt: skip
     """A job for one image: keypoints (a :class:`~silfit.keypoints.KeypointSet` or ``[K, 3]``
     array), an optional ``mask [H, W]``, and ``camera`` or ``image_size=(W, H)`` (+ ``focal``)
     for the default camera."""
@@ -487,7 +487,7 @@ def image_job(keypoints, mask=None, camera=None, *, image_size=None, focal=None,
 
 
 def video_job(frames, camera, model=None, *, masks=None, config=None, silhouette_config=None, pose_prior=None,
-              progress: bool = True, numbers=None, inputs=None, warnings=(), record=None) -> Job:  # fmt: skip
+              progress: bool = False, numbers=None, inputs=None, warnings=(), record=None) -> Job:  # fmt: skip
     """A job for one camera's video: ``frames`` one :class:`~silfit.keypoints.KeypointSet` (or
     ``None``: no detection) per frame, ``masks`` one mask or ``None`` per frame, ``config`` a
     :class:`~silfit.fitting.sequence.SequenceFitConfig`; ``numbers`` the frame numbers and

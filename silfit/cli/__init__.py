@@ -47,6 +47,10 @@ def build_parser() -> argparse.ArgumentParser:
         if importlib.util.find_spec(module) is None:
             continue
         importlib.import_module(module).register(sub)
+    from .flags import finish_parser
+
+    for name, subparser in sub.choices.items():
+        finish_parser(name, subparser)  # examples in every --help, no docstring markup
     return parser
 
 
@@ -94,6 +98,11 @@ def run_command(args) -> int:
             return stop.exit_code if isinstance(stop, Interrupted) else 130
         if isinstance(err, (OSError, ValueError)):  # bad input: silfit.errors.InputError (CLIError) is a ValueError
             print(f"silfit {args.command}: error: {' '.join(_describe(err, args).split())}", file=sys.stderr)
+            return 2
+        from ..errors import SystemLibraryError
+
+        if isinstance(err, SystemLibraryError):  # libLLVM or libOSMesa missing: what to install, one line
+            print(f"silfit {args.command}: error: {' '.join(str(err).split())}", file=sys.stderr)
             return 2
         if isinstance(err, MemoryError):
             print(f"silfit {args.command}: error: out of memory (is an input far larger than intended?)", file=sys.stderr)

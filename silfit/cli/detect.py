@@ -33,7 +33,7 @@ def register(subparsers) -> None:
                    help="person detector score threshold (default 0.5; lower finds more people seen from behind, "
                    "and more things that are not people)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
-    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    p.add_argument("--quiet", action="store_true", help="no progress bars (as for every command; detect shows none: its result lines and warnings are printed)")
     p.set_defaults(func=run)
 
 

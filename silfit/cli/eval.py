@@ -17,24 +17,28 @@ def register(subparsers) -> None:
             "every subject's gt.npz, or run the fitter first (--run, or automatically when no fit exists). Prints "
             "a Markdown table (mean and median per metric per method), writes the JSON report and a per-subject "
             "error plot. Malformed subjects are skipped and listed with their path and field. A sequence dataset "
-            "(silfit synth --sequence) is scored per frame and with the temporal refinement: PA-MPJPE, MPJPE, "
+            "(silfit synth --videos) is scored per frame and with the temporal refinement: PA-MPJPE, MPJPE, "
             "acceleration error, shape error, seconds per frame."
         ),
     )
     p.add_argument("dataset", metavar="DIR", help="dataset folder (subject folders, optionally index.json)")
-    p.add_argument("--out", default="report.json", help="JSON report path (default report.json)")
+    p.add_argument("--report", dest="out", default="report.json", metavar="FILE",
+                   help="the JSON report's path (default report.json)")
     p.add_argument("--fits", default=None, help="folder of fit outputs (default DIR/fits)")
     p.add_argument("--run", action="store_true", help="run the fitter even if fits exist (overwrites them)")
     p.add_argument("--methods", default="keypoints,silhouette", help="methods to run with --run (default keypoints,silhouette)")
-    p.add_argument("--plot", default=None, help="per-subject error plot PNG (default: next to --out, *_errors.png)")
+    p.add_argument("--plot", default=None, help="per-subject error plot PNG (default: next to --report, *_errors.png)")
     p.add_argument("--no-iou", action="store_true", help="skip the silhouette IoU (no rendering)")
     p.add_argument("--model", default=None, help="body model file (default: the shipped open body model)")
     p.add_argument("--quiet", action="store_true", help="no progress bars while fitting")
+    from .flags import deprecated_alias
+
+    deprecated_alias(p, "--out", "--report")  # --out: an output folder everywhere else
     p.set_defaults(func=run)
 
 
 def run_sequences(args: argparse.Namespace, model) -> int:
-    """A ``silfit synth --sequence`` dataset: per-frame vs temporal fits (silfit.eval.score_sequence)."""
+    """A ``silfit synth --videos`` dataset: per-frame vs temporal fits (silfit.eval.score_sequence)."""
     from ..eval.score_sequence import evaluate_sequences, sequence_table
 
     report = evaluate_sequences(args.dataset, fits=args.fits, model=model, run=args.run, progress=not args.quiet)

@@ -31,7 +31,7 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("fit", help="fit SMPL to an image's 2D keypoints and person mask")
     p.add_argument("--rig", metavar="DIR", help="a calibrated camera rig: cameras.json (or EasyMocap intri.yml + "
                    "extri.yml, or one sub-folder per view with camera.json incl. R, t) and per view keypoints.json, "
-                   "optional mask.png, image.png; fits in world coordinates (see README: Camera rigs)")
+                   "optional mask.png, image.png; fits in world coordinates (see docs/guides/rigs.md)")
     p.add_argument("--views", metavar="A,B", help="--rig: fit only these views (names as in the rig), e.g. cam0,cam2")
     p.add_argument("--keypoints", help="OpenPose BODY_25 / COCO-17 keypoint JSON, or OpenPose whole-body JSON (hands "
                    "and face: fitted with an SMPL-X-layout model) (default: detected in --image, with its mask unless "

@@ -32,7 +32,10 @@ def register(subparsers) -> None:
     )  # fmt: skip
     p.add_argument("input", help="OpenPose folder (*_keypoints.json), manifest (.jsonl/.csv) or synthetic dataset folder")
     p.add_argument("--out", required=True, help="output folder (created; an existing one is resumed)")
-    p.add_argument("--people", default="largest", help="largest (default), all, or a person index K")
+    p.add_argument("--people", default="largest", metavar="largest|all",
+                   help="largest (default): the largest person of each image; all: every person")
+    p.add_argument("--person", type=int, default=None, metavar="K",
+                   help="person K of each image instead (0-based, as silfit fit --person)")
     p.add_argument("--masks", help="OpenPose input: folder of <stem>.png / <stem>_<k>.png masks")
     p.add_argument("--images", help="OpenPose input: folder of <stem>.png/.jpg images")
     p.add_argument("--camera", help="OpenPose input: a shared camera.json, or a folder of <stem>.json")
@@ -102,7 +105,11 @@ def run(args) -> int:
     if args.ray is None and (args.actors != 2 or args.num_cpus != 1.0 or args.num_gpus != 0.0):
         raise CLIError("--actors, --num-cpus and --num-gpus are Ray options: add --ray")
     try:
-        people = parse_people(args.people)
+        if args.people not in ("largest", "all") and args.person is None:  # the old spelling of --person K
+            print(f"warning: --people {args.people} is deprecated, use --person {args.people} (same meaning)",
+                  file=sys.stderr)  # fmt: skip
+            args.person, args.people = args.people, "largest"
+        people = parse_people(args.people if args.person is None else str(args.person))
     except (InputError, ValueError) as err:
         raise CLIError(str(err)) from None
     overrides = keypoint_options(args)

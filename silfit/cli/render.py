@@ -44,11 +44,16 @@ def register(subparsers) -> None:
     p.add_argument("--camera", help="camera.json (fx, fy, cx, cy, width, height): also render under this camera")
     p.add_argument("--overlay", metavar="IMAGE", help="blend the body over this image (writes overlay.png)")
     p.add_argument("--alpha", type=float, default=0.6, help="overlay opacity of the body (default 0.6)")
-    p.add_argument("--views", help="comma-separated views: front, side (=right), back, left (default: front)")
+    p.add_argument("--directions", dest="views",
+                   help="comma-separated directions to look from: front, side (=right), back, left (default: front)")
     p.add_argument("--turntable", type=int, metavar="N", help="N views evenly spaced around the body")
-    p.add_argument("--mask", action="store_true", help="also write a binary mask (mask.png)")
+    p.add_argument("--write-mask", dest="mask", action="store_true", help="also write a binary mask (mask.png)")
     p.add_argument("--size", default="512", help="view image size: N or WxH (default 512)")
     p.add_argument("--out", default=".", help="output folder (default: current folder)")
+    from .flags import deprecated_alias
+
+    deprecated_alias(p, "--views", "--directions")  # --views: a rig's camera names (silfit fit --rig)
+    deprecated_alias(p, "--mask", "--write-mask")  # --mask: a mask file to fit to (silfit fit)
     p.set_defaults(func=run)
 
 

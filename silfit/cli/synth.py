@@ -41,25 +41,30 @@ def register(subparsers) -> None:
     p.add_argument("--poses", choices=("library", "hard"), default="library",
                    help="library: around the hand-authored pose library (default); hard: silfit.poses.sampler's squats, "
                         "kneeling, running, lunges, hands at the face/head/hip, front and back views over-represented")
-    p.add_argument("--sequence", action="store_true",
+    p.add_argument("--videos", dest="sequence", action="store_true",
                    help="--n short motions instead of single images (silfit.synth.motion: walk, run, squat, wave, turn; "
                         "per-frame OpenPose JSON, masks, images and per-frame truth in one folder per sequence)")
-    p.add_argument("--frames", type=int, default=60, help="--sequence: frames per sequence (default 60)")
-    p.add_argument("--fps", type=float, default=30.0, help="--sequence: frame rate (default 30)")
-    p.add_argument("--motions", default=None, help="--sequence: comma-separated motions, cycled (default: all)")
-    p.add_argument("--orbit", type=float, default=0.0, help="--sequence: camera orbit over the clip, degrees (default 0)")
+    p.add_argument("--frames", type=int, default=60, help="--videos: frames per sequence (default 60)")
+    p.add_argument("--fps", type=float, default=30.0, help="--videos: frame rate (default 30)")
+    p.add_argument("--motions", default=None, help="--videos: comma-separated motions, cycled (default: all)")
+    p.add_argument("--orbit", type=float, default=0.0, help="--videos: camera orbit over the clip, degrees (default 0)")
     p.add_argument("--drop-frames", type=float, default=0.0,
-                   help="--sequence: probability of a frame with no person detected (default 0)")
-    p.add_argument("--views", type=int, default=None, metavar="N",
+                   help="--videos: probability of a frame with no person detected (default 0)")
+    p.add_argument("--cameras", dest="views", type=int, default=None, metavar="N",
                    help="a calibrated rig per subject: N cameras on a ring around the body (varied heights), per-view "
                         "folders view_<i>/ (image, mask, keypoints, camera.json with R, t), cameras.json and one gt.npz "
-                        "in world coordinates (see README: Camera rigs); with --whole-body, OpenPose whole-body "
-                        "keypoints per view; with --sequence, each motion seen by N cameras (a rig video: per-view "
+                        "in world coordinates (see docs/guides/rigs.md); with --whole-body, OpenPose whole-body "
+                        "keypoints per view; with --videos, each motion seen by N cameras (a rig video: per-view "
                         "video folders)")
-    p.add_argument("--layout", default=None, metavar="CAMERAS.json",
-                   help="with --views: the rig's cameras from this cameras.json instead of the ring")
+    p.add_argument("--cameras-file", dest="layout", default=None, metavar="CAMERAS.json",
+                   help="with --cameras: the rig's cameras from this cameras.json instead of the ring")
     p.add_argument("--model", default=None, help="body model file (default: the shipped open body model)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    from .flags import deprecated_alias
+
+    for old, new in (("--sequence", "--videos"), ("--views", "--cameras"), ("--layout", "--cameras-file"),
+                     ("--no-progress", "--quiet")):  # fmt: skip
+        deprecated_alias(p, old, new)
     p.set_defaults(func=run)
 
 
@@ -70,7 +75,7 @@ def run_sequence(args: argparse.Namespace, model) -> int:
     cfg = SequenceConfig(seed=args.seed, frames=args.frames, fps=args.fps, size=args.size, noise_px=args.noise_px,
                          drop_prob=args.drop, drop_frames=args.drop_frames, motions=motions, orbit_deg=args.orbit,
                          fov_deg=tuple(args.fov), background=args.background).validate()  # fmt: skip
-    index = generate_sequence_dataset(args.out, args.n, cfg, model=model, progress=not args.no_progress,
+    index = generate_sequence_dataset(args.out, args.n, cfg, model=model, progress=not args.quiet,
                                       command=shlex.join(["silfit", "synth", *sys.argv[2:]]), views=args.views)  # fmt: skip
     seqs = index["sequences"]
     rig = f" seen by {args.views} cameras" if args.views else ""
@@ -81,7 +86,7 @@ def run_sequence(args: argparse.Namespace, model) -> int:
 
 def run(args: argparse.Namespace) -> int:
     if args.sequence and args.layout is not None:
-        raise ValueError("--sequence with --layout: rig sequences place their cameras on a ring (--views N)")
+        raise ValueError("--videos with --cameras-file: rig videos place their cameras on a ring (--cameras N)")
     if args.sequence:
         model = None
         if args.model is not None:
@@ -124,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
         argv += ["--poses", args.poses]
     if args.views is not None or args.layout is not None:
         return _run_rig(args, cfg, model, argv)
-    index = generate_dataset(args.out, args.n, cfg, model=model, progress=not args.no_progress, command=shlex.join(argv))
+    index = generate_dataset(args.out, args.n, cfg, model=model, progress=not args.quiet, command=shlex.join(argv))
     s = dataset_summary(index)
     print(f"wrote {len(index['subjects'])} subjects to {args.out} (seed {args.seed}, {args.size}x{args.size}, noise {args.noise_px} px)")
     print(
@@ -144,8 +149,8 @@ def _run_rig(args, cfg, model, argv) -> int:
         raise ValueError("--views: rigs use the library poses (no --poses hard)")
     layout = [v.view for v in read_cameras_json(args.layout)] if args.layout else None
     rig = RigConfig(views=args.views or (len(layout) if layout else 4), layout=layout)
-    argv += ["--views", str(rig.views)] + (["--layout", args.layout] if args.layout else [])
-    index = generate_rig_dataset(args.out, args.n, cfg, rig, model=model, progress=not args.no_progress, command=shlex.join(argv))
+    argv += ["--cameras", str(rig.views)] + (["--cameras-file", args.layout] if args.layout else [])
+    index = generate_rig_dataset(args.out, args.n, cfg, rig, model=model, progress=not args.quiet, command=shlex.join(argv))
     print(f"wrote {len(index['subjects'])} rig subjects ({index['rig']} views each) to {args.out} (seed {args.seed}, "
           f"{args.size}x{args.size}, noise {args.noise_px} px)")
     return 0

@@ -36,7 +36,7 @@ def sample_photo() -> Path:
     raise FileNotFoundError(f"{SAMPLE_PHOTO}: sample photo not found (not a source checkout): give --photo PATH")
 
 
-def run_photo_demo(out: Path, photo_path: Optional[Path] = None, progress: bool = True, silhouette_config=None) -> dict:
+def run_photo_demo(out: Path, photo_path: Optional[Path] = None, progress: bool = False, silhouette_config=None) -> dict:
     """Detect, fit and draw (see the module docstring); returns the report."""
     from .. import figures
     from ..body import load_body_model

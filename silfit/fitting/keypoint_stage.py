@@ -805,7 +805,7 @@ class KeypointFitter:
         return data, views, state
 
     # ------------------------------------------------------------------ fit
-    def fit(self, keypoints, cameras=None, *, image_size=None, focal=None, progress: bool = True) -> KeypointFitResult:
+    def fit(self, keypoints, cameras=None, *, image_size=None, focal=None, progress: bool = False) -> KeypointFitResult:
         sets = prepare_keypoints(keypoints, self.layout)
         for ks in sets:
             if ks.layout != self.layout:
@@ -1176,7 +1176,7 @@ def fit_keypoints(
     layout: Optional[str] = None,
     config: Optional[KeypointFitConfig] = None,
     pose_prior=None,
-    progress: bool = True,
+    progress: bool = False,
 ) -> KeypointFitResult:
     """Fit SMPL to 2D keypoints of one person or a batch of people.
 

@@ -656,7 +656,7 @@ def fit_silhouette(
     config: Optional[SilhouetteFitConfig] = None,
     pose_prior=None,
     renderer=None,
-    progress: bool = True,
+    progress: bool = False,
     callback: Optional[Callable[[int, dict], None]] = None,
 ) -> SilhouetteFitResult:
     """Refine one subject's parameters against its person ``mask [H, W]`` (bool).
@@ -680,7 +680,7 @@ def fit_silhouettes(
     config: Optional[SilhouetteFitConfig] = None,
     pose_prior=None,
     renderer=None,
-    progress: bool = True,
+    progress: bool = False,
     callback: Optional[Callable[[int, dict], None]] = None,
 ) -> List[SilhouetteFitResult]:
     """The silhouette stage for a batch of single images (one camera and mask each), as
@@ -700,7 +700,7 @@ def fit_silhouette_problems(
     config: Optional[SilhouetteFitConfig] = None,
     pose_prior=None,
     renderer=None,
-    progress: bool = True,
+    progress: bool = False,
     callback: Optional[Callable[[int, dict], None]] = None,
     terms: Sequence[Term] = (),
     weights: Optional[dict] = None,

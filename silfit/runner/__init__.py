@@ -33,7 +33,7 @@ def fit_dataset(
     actors: int = 2,
     num_cpus: float = 1.0,
     num_gpus: float = 0.0,
-    progress: bool = True,
+    progress: bool = False,
 ) -> dict:
     """Fit every (image, person) of ``input`` into ``out`` (resuming a previous run there);
     returns the summary (see :func:`silfit.runner.summary.summarise`) with ``records``.

@@ -116,7 +116,7 @@ def run_ray(
     num_cpus: float = 1.0,
     num_gpus: float = 0.0,
     local_cpus: int = 2,
-    progress: bool = True,
+    progress: bool = False,
 ) -> float:
     """Fit ``pending`` on Ray (see the module docstring); the wall time in seconds. Where it starts Ray itself,
     it shuts it down at the end and leaves Ray's auto-connect off in this process (:func:`_auto_connect_off`): a

@@ -82,7 +82,7 @@ def drive(store: RunStore, results: Iterable[List[dict]], total: int, progress: 
     return time.perf_counter() - t0
 
 
-def run_local(store: RunStore, pending: Sequence[Item], options: FitOptions, batch_size: int, progress: bool = True,
+def run_local(store: RunStore, pending: Sequence[Item], options: FitOptions, batch_size: int, progress: bool = False,
               fitter: Optional[DatasetFitter] = None) -> float:  # fmt: skip
     """Fit ``pending`` in this process, ``batch_size`` items per keypoint-stage call (with
     ``fitter``, already built from ``options``, when given)."""
@@ -199,7 +199,7 @@ def shared_batches(items: Sequence[Item], batch_size: int, workers: int) -> List
 
 
 def run_pool(store: RunStore, pending: Sequence[Item], options: FitOptions, batch_size: int, workers: int,
-             progress: bool = True) -> float:  # fmt: skip
+             progress: bool = False) -> float:  # fmt: skip
     """Fit ``pending`` in ``workers`` processes of this machine, each one CPU's worth, as Ray's one-CPU actors:
     one torch thread and one Dr.Jit thread, the fitter built once per process, at most ``batch_size`` items per
     batch (:func:`shared_batches`). Each process writes its items' folders (atomically:

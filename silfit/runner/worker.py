@@ -85,7 +85,11 @@ def config_with(cls, options: Dict[str, object], base=None, stage: str = "keypoi
     optional = {n for n, h in hints.items() if type(None) in typing.get_args(h)}  # these also take "none"
     for key, value in options.items():
         if key not in names:
-            raise ValueError(f"unknown {stage}-stage option {key!r} (one of {', '.join(sorted(names))})")
+            import difflib
+
+            close = difflib.get_close_matches(key, sorted(names), n=3, cutoff=0.6)
+            hint = f"did you mean {' or '.join(close)}? " if close else ""
+            raise ValueError(f"unknown {stage}-stage option {key!r}: {hint}(one of {', '.join(sorted(names))})")
         default = getattr(plain, key)
         if isinstance(value, str) and key in optional and value.lower() == "none":
             value = None

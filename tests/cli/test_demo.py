@@ -2,8 +2,10 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from silfit.cli import SUBCOMMANDS, main
@@ -31,3 +33,54 @@ def test_demo_writes_pictures_and_the_comparison_table(tmp_path, capsys):
     for name in ("01_input.png", "summary.png", "07_vertex_error.png"):
         img = np.asarray(Image.open(tmp_path / "demo" / name))
         assert img.ndim == 3 and img.std() > 5  # a real picture, not a blank canvas
+    assert_readme_table_is(printed)  # the same run: the README's table is what the demo prints
+
+
+README = Path(__file__).resolve().parents[2] / "README.md"
+#: Another processor may round a fit's last bits otherwise (Dr.Jit compiles for its vector width): the
+#: README's numbers must equal the demo's within these (millimetres and pixels: 3 % or the absolute
+#: amount, whichever is larger; the IoU: 0.003); on the project's machines they are equal as printed.
+#: A stale table (the one this replaced said PVE 25.6 -> 15.5 mm, IoU 0.983, against 22.0 -> 25.6 mm,
+#: 0.956) is far outside them.
+RELATIVE = {"(mm)": 0.03, "(px)": 0.03, "IoU": 0.0}
+ABSOLUTE = {"(mm)": 0.3, "(px)": 0.03, "IoU": 0.003}
+
+
+def table_rows(text: str) -> dict:
+    """``{metric: (keypoints only, keypoints + silhouette)}`` of a demo table (the time row left out:
+    one run's seconds)."""
+    rows = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 4 and cells[0] not in ("metric", "---") and not cells[0].startswith("time"):
+            rows[cells[0]] = (float(cells[1]), float(cells[2]))
+    return rows
+
+
+def assert_readme_table_is(printed: str) -> None:
+    readme = README.read_text()
+    begin, end = "<!-- silfit-demo-table: begin", "<!-- silfit-demo-table: end -->"
+    assert begin in readme and end in readme, "README.md lost its demo-table markers (tools/readme_demo.py)"
+    block = readme[readme.index("-->", readme.index(begin)) + 3 : readme.index(end)]
+    ours, demo = table_rows(block), table_rows(printed)
+    assert len(demo) >= 8 and list(ours) == list(demo), (list(ours), list(demo))
+    for metric, (a, b) in demo.items():
+        unit = next(k for k in ABSOLUTE if k in metric)
+        tol = max(RELATIVE[unit] * max(abs(a), abs(b)), ABSOLUTE[unit])
+        assert abs(ours[metric][0] - a) <= tol and abs(ours[metric][1] - b) <= tol, (
+            f"README.md's demo table says {metric} {ours[metric]}, `silfit demo` printed ({a}, {b}): "
+            "run `python tools/readme_demo.py` to rewrite it")
+
+
+def test_a_stale_readme_table_fails(monkeypatch, tmp_path):
+    text = README.read_text()
+    printed = text[text.index("| metric") : text.index("<!-- silfit-demo-table: end")]  # as if the demo printed it
+    assert_readme_table_is(printed)
+    row = next(line for line in printed.splitlines() if line.startswith("| silhouette IoU"))
+    cells = row.split("|")
+    cells[3] = f" {float(cells[3]) + 0.02:.3f} "  # the silhouette stage's IoU, 0.02 off
+    fake = tmp_path / "README.md"
+    fake.write_text(text.replace(row, "|".join(cells)))
+    monkeypatch.setattr(sys.modules[__name__], "README", fake)
+    with pytest.raises(AssertionError, match="silhouette IoU"):
+        assert_readme_table_is(printed)

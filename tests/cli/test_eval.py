@@ -24,7 +24,7 @@ def small(tmp_path, open_model):
 
 def test_eval_scores_existing_fits(small, tmp_path, capsys):
     report_path = tmp_path / "out" / "report.json"
-    assert main(["eval", str(small), "--out", str(report_path)]) == 0
+    assert main(["eval", str(small), "--report", str(report_path)]) == 0
     out = capsys.readouterr().out
     assert "| MPJPE (mm) |" in out and "keypoints mean" in out
     report = json.loads(report_path.read_text())
@@ -35,7 +35,7 @@ def test_eval_scores_existing_fits(small, tmp_path, capsys):
 def test_eval_reports_a_broken_subject_and_scores_the_rest(small, tmp_path, capsys):
     (small / "subject_001" / "camera.json").write_text('{"fx": 100, "fy": 100, "cx": 47.5, "cy": 47.5, "width": 96}')
     report_path = tmp_path / "report.json"
-    assert main(["eval", str(small), "--out", str(report_path), "--no-iou"]) == 0
+    assert main(["eval", str(small), "--report", str(report_path), "--no-iou"]) == 0
     out = capsys.readouterr().out
     assert "skipped subject_001" in out and "subject_001/camera.json" in out and "height" in out
     report = json.loads(report_path.read_text())
@@ -44,5 +44,5 @@ def test_eval_reports_a_broken_subject_and_scores_the_rest(small, tmp_path, caps
 
 
 def test_eval_of_a_missing_folder_is_a_one_line_error(tmp_path, capsys):
-    assert main(["eval", str(tmp_path / "nope"), "--out", str(tmp_path / "r.json")]) == 2
+    assert main(["eval", str(tmp_path / "nope"), "--report", str(tmp_path / "r.json")]) == 2
     assert "dataset folder not found" in capsys.readouterr().err

@@ -12,8 +12,8 @@ SIL = ["--silhouette-resolutions", "32", "--silhouette-iterations", "3"]
 @pytest.fixture(scope="module")
 def rigs(tmp_path_factory):
     out = tmp_path_factory.mktemp("rigs") / "data"
-    assert main(["synth", "--n", "1", "--views", "2", "--size", "96", "--seed", "4", "--noise-px", "0", "--out", str(out),
-                 "--no-progress"]) == 0  # fmt: skip
+    assert main(["synth", "--n", "1", "--cameras", "2", "--size", "96", "--seed", "4", "--noise-px", "0", "--out", str(out),
+                 "--quiet"]) == 0  # fmt: skip
     return out
 
 
@@ -53,7 +53,7 @@ def test_fit_rig_keypoints_only_and_check_only(rigs, tmp_path, capsys):
 
 def test_eval_scores_a_rig_dataset(rigs, tmp_path, capsys):
     report = tmp_path / "report.json"
-    assert main(["eval", str(rigs), "--run", "--methods", "keypoints", "--out", str(report), "--quiet"]) == 0
+    assert main(["eval", str(rigs), "--run", "--methods", "keypoints", "--report", str(report), "--quiet"]) == 0
     assert "PVE, world frame" in capsys.readouterr().out
     r = json.loads(report.read_text())
     row = r["results"][0]
@@ -123,8 +123,8 @@ def test_a_whole_body_rig_fits_hands_and_face_in_every_view(tmp_path, capsys):
     the keypoint stage over the views with the hands and face, the whole-body silhouette stage over every
     view's mask, a world-frame fit file with the whole-body parameters that ``silfit render`` draws."""
     data = tmp_path / "data"
-    assert main(["synth", "--n", "1", "--views", "2", "--whole-body", "--size", "96", "--seed", "4", "--noise-px", "0",
-                 "--out", str(data), "--no-progress"]) == 0  # fmt: skip
+    assert main(["synth", "--n", "1", "--cameras", "2", "--whole-body", "--size", "96", "--seed", "4", "--noise-px", "0",
+                 "--out", str(data), "--quiet"]) == 0  # fmt: skip
     kp = json.loads((data / "subject_000" / "view_1" / "keypoints.json").read_text())["people"][0]
     assert len(kp["hand_left_keypoints_2d"]) == 63 and len(kp["face_keypoints_2d"]) == 210
     out = tmp_path / "fit"
@@ -151,8 +151,8 @@ def test_a_whole_body_rig_video_fits_hands_and_face_over_frames_and_views(tmp_pa
     import shutil
 
     data = tmp_path / "data"
-    assert main(["synth", "--n", "1", "--views", "2", "--whole-body", "--size", "64", "--seed", "6", "--noise-px", "0",
-                 "--out", str(data), "--no-progress"]) == 0  # fmt: skip
+    assert main(["synth", "--n", "1", "--cameras", "2", "--whole-body", "--size", "64", "--seed", "6", "--noise-px", "0",
+                 "--out", str(data), "--quiet"]) == 0  # fmt: skip
     video = tmp_path / "video"
     video.mkdir()
     shutil.copy(data / "subject_000" / "cameras.json", video)

@@ -176,9 +176,9 @@ def test_synth_sequence_flags_reach_the_generator(tmp_path):
     d.mkdir()
     model = write_toy_npz(d / "toy.npz")
     out = tmp_path / "motions"
-    rc = main(["synth", "--sequence", "--n", "2", "--frames", "6", "--fps", "12", "--motions", "squat,wave", "--orbit", "40",
+    rc = main(["synth", "--videos", "--n", "2", "--frames", "6", "--fps", "12", "--motions", "squat,wave", "--orbit", "40",
                "--drop-frames", "0.99", "--size", "48", "--seed", "5", "--model", str(model), "--out", str(out),
-               "--no-progress"])  # fmt: skip
+               "--quiet"])  # fmt: skip
     assert rc == 0
     seqs = json.loads((out / "index.json").read_text())["sequences"]
     assert [s["motion"] for s in seqs] == ["squat", "wave"]
@@ -268,8 +268,8 @@ def test_a_rig_video_is_synthesised_fitted_over_every_view_and_rendered(sequence
     of frames x views that ``silfit render`` draws."""
     _, model = sequence
     data = tmp_path / "data"
-    assert main(["synth", "--sequence", "--views", "2", "--n", "1", "--frames", "3", "--size", "64", "--seed", "2",
-                 "--noise-px", "0", "--motions", "walk", "--model", str(model), "--out", str(data), "--no-progress"]) == 0
+    assert main(["synth", "--videos", "--cameras", "2", "--n", "1", "--frames", "3", "--size", "64", "--seed", "2",
+                 "--noise-px", "0", "--motions", "walk", "--model", str(model), "--out", str(data), "--quiet"]) == 0
     rig = data / "seq_000"
     assert (rig / "cameras.json").is_file() and len(list((rig / "view_1" / "keypoints").glob("*_keypoints.json"))) == 3
     gt = np.load(rig / "gt.npz")

@@ -107,7 +107,7 @@ def test_render_alpha_blends_the_overlay(tmp_path):
 
 def synth(tmp_path, name, *extra):
     out = tmp_path / name
-    assert main(["synth", "--n", "3", "--seed", "3", "--out", str(out), "--size", "64", "--no-progress", *extra]) == 0
+    assert main(["synth", "--n", "3", "--seed", "3", "--out", str(out), "--size", "64", "--quiet", *extra]) == 0
     return out, json.loads((out / "index.json").read_text())["subjects"]
 
 
@@ -148,7 +148,7 @@ def test_eval_fits_and_plot_name_their_folders(tmp_path, open_model):
             np.savez(elsewhere / name / "keypoints" / "params.npz", **{k: gt[k] for k in ("betas", "body_pose", "global_orient", "transl")})
     report_path, plot = tmp_path / "report.json", tmp_path / "plots" / "errors.png"
     plot.parent.mkdir()
-    assert main(["eval", str(data), "--fits", str(elsewhere), "--plot", str(plot), "--out", str(report_path), "--no-iou"]) == 0
+    assert main(["eval", str(data), "--fits", str(elsewhere), "--plot", str(plot), "--report", str(report_path), "--no-iou"]) == 0
     report = json.loads(report_path.read_text())
     assert report["num_scored"] == 2 and report["missing_fits"] == []
     assert plot.is_file() and not (tmp_path / "report_errors.png").exists()
@@ -162,7 +162,7 @@ def test_render_model_changes_the_body(tmp_path):
     path.write_text(json.dumps({"global_orient": [math.pi, 0.0, 0.0], "transl": [0.0, 0.2, 3.0]}))
     masks = {}
     for name, extra in (("default", []), ("toy", ["--model", str(toy)])):
-        assert main(["render", str(path), "--views", "front", "--mask", "--size", "64", "--out", str(tmp_path / name), *extra]) == 0
+        assert main(["render", str(path), "--directions", "front", "--write-mask", "--size", "64", "--out", str(tmp_path / name), *extra]) == 0
         masks[name] = np.asarray(Image.open(tmp_path / name / "mask.png")) > 127
     assert masks["default"].any() and masks["toy"].any()
     assert (masks["default"] != masks["toy"]).mean() > 0.02  # another body, another silhouette

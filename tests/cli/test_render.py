@@ -41,7 +41,7 @@ def box_obj(tmp_path_factory):
 
 def test_views_and_mask_from_params(params_json, tmp_path):
     out = tmp_path / "out"
-    assert main(["render", str(params_json), "--views", "front,side,back", "--mask", "--size", "96x128", "--out", str(out)]) == 0
+    assert main(["render", str(params_json), "--directions", "front,side,back", "--write-mask", "--size", "96x128", "--out", str(out)]) == 0
     names = sorted(p.name for p in out.iterdir())
     assert names == ["mask.png", "view_back.png", "view_front.png", "view_side.png"]
     for name in names:
@@ -77,7 +77,7 @@ def test_mesh_turntable_camera_overlay(box_obj, tmp_path):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--views", "front,top"], "unknown view"),
+        (["--directions", "front,top"], "unknown view"),
         (["--turntable", "0"], "turntable"),
         (["--size", "0x10"], "--size"),
         (["--camera", "CAMERA_BAD_FOCAL"], "focal"),
@@ -93,7 +93,7 @@ def test_bad_options_leave_no_png(params_json, tmp_path, capsys, args, message):
     args = [a.replace("CAMERA_BAD_FOCAL", str(tmp_path / "bad_focal.json")).replace("CAMERA_ZERO_WIDTH", str(tmp_path / "zero_w.json")) for a in args]
     args = [str(tmp_path / a) if a == "missing.png" else a for a in args]
     out = tmp_path / "out"
-    assert main(["render", str(params_json), "--out", str(out), "--mask", *args]) == 2
+    assert main(["render", str(params_json), "--out", str(out), "--write-mask", *args]) == 2
     assert message in capsys.readouterr().err
     assert not out.exists() or not any(out.iterdir())
 
@@ -187,7 +187,7 @@ def test_render_draws_whole_body_fits_with_the_recorded_model(tmp_path, capsys):
 
     smplx = load_body_model(kind="smplx")
     fit = _fit_file(tmp_path / "wb", smplx, 1)
-    assert main(["render", str(fit / "params.npz"), "--size", "64", "--mask", "--out", str(tmp_path / "r")]) == 0
+    assert main(["render", str(fit / "params.npz"), "--size", "64", "--write-mask", "--out", str(tmp_path / "r")]) == 0
     assert _png(tmp_path / "r" / "view_front.png").shape == (64, 64, 3)
     # the SMPL model cannot draw it: a clear error naming the field
     assert main(["render", str(fit / "params.npz"), "--model", str(load_body_model().source), "--out", str(tmp_path / "x")]) == 2

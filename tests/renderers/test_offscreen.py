@@ -108,3 +108,30 @@ def test_offscreen_bad_inputs(sphere):
         offscreen.view_angles("front,top")
     with pytest.raises(ValueError, match="turntable"):
         offscreen.view_angles(turntable=0)
+
+
+def test_missing_osmesa_is_one_line_saying_what_to_install(tmp_path):
+    """Without libOSMesa, `silfit render` says what to install on one line (exit 2, no traceback),
+    as for a missing libLLVM. The library's absence is imitated in a child process (pyrender not
+    yet imported there), where the loader's answer is replaced."""
+    import subprocess
+    import sys
+
+    mesh = tmp_path / "tri.obj"
+    mesh.write_text("v 0 0 2\nv 0.1 0 2\nv 0 0.1 2\nf 1 2 3\n")
+    code = (
+        "import sys, renderers.offscreen as o; o._osmesa_present = lambda: False;"
+        "from silfit.cli import main;"
+        f"sys.exit(main(['render', {str(mesh)!r}, '--out', {str(tmp_path / 'views')!r}]))"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "PYOPENGL_PLATFORM"}
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert run.returncode == 2, run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in run.stderr, run.stderr
+    assert lines[0].startswith("silfit render: error: libOSMesa not found") and "apt-get install libosmesa6" in lines[0]
+    assert "conda install -c conda-forge mesalib" in lines[0]
+
+
+def test_osmesa_is_found_here():
+    assert offscreen._osmesa_present()  # this machine has it: the check above would be wrong otherwise
