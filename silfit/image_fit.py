@@ -13,8 +13,9 @@ Output folder written by :func:`save_fit` (and ``silfit fit``)::
     overlay.png                the final body over the image (or a grey canvas) + keypoints
     side.png                   the final body seen from the side, over the keypoint-stage body
                                (orange) when a silhouette was fitted
-    silhouette.png             final silhouette vs the mask (white: both, red: body only,
-                               blue: mask only)            [with a mask]
+    silhouette.png             final silhouette vs the mask (white: both, red: body outside the
+                               mask, blue: mask not covered, tan: mask treated as clothing, hair,
+                               a leak or another person, not fitted)   [with a mask]
     iou_curve.png              IoU and energy per silhouette step   [with a mask]
     metrics.json               timings per stage, reprojection error, IoU before/after, warnings
     stages/keypoints/          the keypoint stage's params.npz, params.json and overlay.png
@@ -66,8 +67,9 @@ class FitResult:
     joints: np.ndarray
     keypoints_2d: np.ndarray
     metrics: dict = field(default_factory=dict)
-    #: rendered body masks ``[H, W]`` (bool) of the keypoint stage and of the final body,
-    #: when a silhouette was fitted
+    #: rendered body masks ``[H, W]`` (bool) of the keypoint stage and of the final body, and ``fitted``: the
+    #: mask pixels the silhouette stage fitted as body (not trimmed as clothing, not unknown), when a silhouette
+    #: was fitted
     masks: dict = field(default_factory=dict)
     #: with ``--hypotheses K`` (:attr:`KeypointFitResult.hypotheses`), each hypothesis as a fit
     #: (:func:`_hypothesis_outputs`): ``{"rank", "params", "vertices", "keypoints_2d", "keypoint_params", "record"}``;
@@ -394,7 +396,9 @@ def refine_batch(
                                              [sils[k] for k in candidates[i]], choice or {"energies": [sil.final_energy],
                                              "iou": [float(sil.iou_end)]}, c + 1, mask_sources[i], guarded)  # fmt: skip
         out.append(FitResult(cameras[i], keypoints[i].layout, one, sil, params, vertices, joints, kp2d, metrics,
-                             masks={"keypoint_stage": kp_masks[i], "final": final_mask}, hypotheses=hypotheses))  # fmt: skip
+                             masks={"keypoint_stage": kp_masks[i], "final": final_mask,
+                                    "fitted": fit_masks[i] if known[i] is None else fit_masks[i] & known[i]},
+                             hypotheses=hypotheses))  # fmt: skip
     return out
 
 
@@ -608,7 +612,8 @@ def save_fit(
             figures.write_png(stage_dir / "overlay.png", figures.fit_overlay(
                 image, kp_verts, faces, result.camera, kp_xy, result.keypoint.keypoints_2d[0], kp_conf))  # fmt: skip
             if mask is not None:
-                figures.write_png(tmp / "silhouette.png", figures.silhouette_comparison(result.masks["final"], mask))
+                figures.write_png(tmp / "silhouette.png", figures.silhouette_comparison(result.masks["final"], mask,
+                                                                                         result.masks.get("fitted")))  # fmt: skip
             figures.iou_curve(result.silhouette.history, tmp / "iou_curve.png")
         if result.hypotheses:  # --hypotheses K: hypotheses/<k>/ and hypotheses.png
             _save_hypotheses(tmp, result, faces, keypoints, image)

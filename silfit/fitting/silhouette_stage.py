@@ -131,6 +131,9 @@ class SilhouetteFitConfig:
     cover_margin: float = 0.03
     cover_inner: float = 0.25
     cover_cap: float = 0.06
+    #: the mask-not-covered side's weight against body-outside-the-mask's (``CoverProfile.weight``, issue 55:
+    #: a body inside its mask strongly, filling it weakly: the mask may be clothing or hair); 1: as strong
+    cover_weight: float = 1.0
     #: a mask that reaches beyond the keypoint fit's body all around (loose clothing, hair, a grown
     #: segmentation: :func:`~silfit.silhouette.losses.clothing_thickness` above ``trim_min`` of the
     #: mask's extent) is eroded by that thickness (at most ``trim_max``) before the stage
@@ -256,7 +259,8 @@ class SilhouetteFitConfig:
         if not self.robust_cover:
             return None
         r = float(resolution)
-        return CoverProfile(float(self.cover_margin) * r, float(self.cover_inner), float(self.cover_cap) * r)
+        return CoverProfile(float(self.cover_margin) * r, float(self.cover_inner), float(self.cover_cap) * r,
+                            float(self.cover_weight))  # fmt: skip
 
     def weights(self) -> dict:
         """The rendered levels' weights."""
