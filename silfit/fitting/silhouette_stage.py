@@ -199,7 +199,7 @@ class SilhouetteFitConfig:
     #: plausibility guard. Without it (before issue 55): a radius of ``trust_fraction`` of the window around the
     #: detection, confidences normalised to sum 1 (6 % of the window, ``w_trust`` 0.05: on photos the stage then
     #: doubled the reprojection error and the guard threw its result away on 3 photos of 4); 0: off (before issue 23)
-    w_trust: float = 2.0
+    w_trust: float = 0.5
     trust_fraction: float = 0.0
     trust_from_start: bool = True
     trust_ratio: float = 1.0
