@@ -86,7 +86,7 @@ WHOLEBODY_KEYPOINT_SCHEDULE = KEYPOINT_SCHEDULE[:4] + (
 SIL_FREE = ("betas", "global_orient", "body_pose", "transl")
 #: the silhouette stage's terms and weights other than the silhouette's own (every level)
 SIL_PRIORS = {"keypoints": 0.02, "pose": 0.005, "limits": 1.0, "angle": 0.001, "shape": 0.005, "stay": 0.0,
-              "keypoint_trust": 0.5, "beta_bound": 10.0}  # fmt: skip
+              "keypoint_trust": 0.05, "beta_bound": 10.0}  # fmt: skip
 #: Adam's settings of the rendered levels (:class:`~silfit.fitting.stages.AdamSettings`)
 SIL_ADAM = {"lr": {"betas": 0.1, "global_orient": 0.02, "body_pose": 0.015, "transl": 0.01}, "warmup": 10,
             "plateau_window": 12, "plateau_rtol": 0.003}  # fmt: skip

@@ -192,14 +192,16 @@ class SilhouetteFitConfig:
     #: radius from its detection at no cost, beyond it quadratically, weighed by its confidence (issue 55:
     #: keypoints as a constraint, not a competitor). With ``trust_from_start`` (issue 55) the radius is each
     #: keypoint's own reprojection error after the keypoint stage times ``trust_ratio``, plus ``trust_median`` times
-    #: the median of those errors, plus ``trust_fraction`` of the window's longer side (:func:`trust_data`; the
-    #: median error can rise by about ``trust_median``), and each keypoint weighs its confidence over the observation's largest (a
-    #: keypoint that leaves its region costs the same however many keypoints there are): the stage may bring a
-    #: keypoint closer but moves none much farther than the keypoint stage left it, so its result seldom needs the
-    #: plausibility guard. Without it (before issue 55): a radius of ``trust_fraction`` of the window around the
-    #: detection, confidences normalised to sum 1 (6 % of the window, ``w_trust`` 0.05: on photos the stage then
-    #: doubled the reprojection error and the guard threw its result away on 3 photos of 4); 0: off (before issue 23)
-    w_trust: float = 0.5
+    #: the median of those errors (the median error can rise by about that share), plus ``trust_fraction`` of the
+    #: window's longer side; the excess counts in units of the median error plus a pixel (:func:`trust_data`: the
+    #: same on a photo of 4,000 pixels as on one of 256) and each keypoint weighs its confidence over the
+    #: observation's largest. Before issue 55 (``trust_from_start=False, trust_fraction=0.06``): a radius of 6 % of
+    #: the window around the detections, confidences normalised to sum 1; on photos the stage then doubled the
+    #: reprojection error and the guard threw its result away on 5 people of 8 (docs/benchmarks/real-photos.md).
+    #: ``w_trust`` 0.05, not 0.5 or 2: stronger held a noise-free subject's keypoints so hard that the stage turned
+    #: limbs in depth instead (demo subject, PA-PVE 10.4 -> 22.1 mm at 0.5, 7.7 at 0.05; clean renders, tuning seed
+    #: 5501: 30.2 mm at 2.0, 26.6 at 0.5); 0: off (before issue 23)
+    w_trust: float = 0.05
     trust_fraction: float = 0.0
     trust_from_start: bool = True
     trust_ratio: float = 1.0
