@@ -206,6 +206,7 @@ class SilhouetteFitConfig:
     trust_from_start: bool = True
     trust_ratio: float = 1.0
     trust_median: float = 0.15
+    trust_unit_median: float = 1.0
     #: shape held in the plausible range: ``(|beta| - max_abs_beta)^2`` beyond it (:func:`beta_bound`)
     w_beta_bound: float = 10.0
     max_abs_beta: float = 2.5
@@ -484,7 +485,7 @@ def trust_excess(dist: torch.Tensor, radius: torch.Tensor, weights: torch.Tensor
 
 
 def trust_data(target: torch.Tensor, weights: torch.Tensor, start_2d: torch.Tensor, ratio: float = 1.0,
-               median_share: float = 0.0, floor_px: float = 1.0) -> dict:
+               median_share: float = 0.0, floor_px: float = 1.0, unit_share: float = 1.0) -> dict:
     """The data of :class:`KeypointTrustTerm` around the keypoint stage's fit (issue 55), from the detections
     ``target [..., K, 2]``, their ``weights [..., K]`` (confidences) and the fit's projections ``start_2d``, all in
     image pixels: ``trust_radius [..., K]``, each keypoint's free radius, ``ratio`` times its reprojection error
@@ -499,7 +500,7 @@ def trust_data(target: torch.Tensor, weights: torch.Tensor, start_2d: torch.Tens
     med = med.reshape(start.shape[:-1])
     top = weights.amax(dim=-1, keepdim=True).clamp(min=1e-12)
     return {"trust_radius": float(ratio) * start + float(median_share) * med[..., None],
-            "trust_unit": med + float(floor_px), "trust_weights": weights / top}
+            "trust_unit": float(unit_share) * med + float(floor_px), "trust_weights": weights / top}
 
 
 class KeypointTrustTerm(Term):
@@ -1114,7 +1115,8 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
     if cfg.trust_from_start and any_keypoints:  # the trust region around the keypoint stage's fit (issue 55)
         with torch.no_grad():
             start_2d = evaluate(body, params_layout, start, views, data).keypoints_2d
-        data.update(trust_data(target_xy, target_w, start_2d, cfg.trust_ratio, cfg.trust_median))
+        data.update(trust_data(target_xy, target_w, start_2d, cfg.trust_ratio, cfg.trust_median,
+                               unit_share=cfg.trust_unit_median))  # fmt: skip
     t0 = time.perf_counter()
     bar = tqdm(total=int(sum(cfg.iterations)) * P, desc="silhouette", disable=not progress, leave=False)
     hooks = _SilhouetteRun(model, cfg, grids, masks, known, params, params_layout, views, data, silhouette,
