@@ -6,8 +6,10 @@ Subjects from silfit's generator (fully visible, all yaws, 1 px keypoint noise),
 person's height; ``cut``: the image cut at mid-thigh; ``second``: a second person (the next subject's mask
 and keypoints, shifted sideways so that their box overlaps this person's by ``--overlap`` of its width)
 joined to the mask, as a segmenter run around one of two people standing close marks both. The second
-person is detected too: the methods that take other people out (``own``) get their mask and keypoints
-(:func:`silfit.silhouette.people.own_mask`, the radius 6 % of their extent, as ``Person.own_mask``).
+person is detected too: the methods that take other people out (``after``) get their mask and keypoints, and the
+pixels of the joined mask that are the second person's are unknown to the stage
+(:func:`silfit.silhouette.people.own_mask`, the radius 6 % of their extent, this person's own skeleton kept
+within 4 % of theirs, as ``Person.own_mask``).
 
 Methods: *keypoints only*; *main* (the silhouette stage before issue 55: the trust region of 6 % of the
 window around the detections, the fill side as strong as the inside side, the whole mask);
@@ -47,6 +49,9 @@ MAIN = dict(trust_from_start=False, trust_fraction=0.06, w_trust=0.05, cover_wei
 #: the defaults with one change (tuning; ``--methods``)
 VARIANTS = {"weakfill": dict(cover_weight=0.5), "fill1": dict(cover_weight=1.0), "oldtrust": MAIN,
             "w05": dict(w_trust=0.5), "med50": dict(trust_median=0.5), "w02med50": dict(w_trust=0.2, trust_median=0.5)}
+
+
+KEEP = 0.04  # as Person.own_mask: within 4 % of the person's extent of their own skeleton, a pixel stays theirs
 
 
 def shift(mask: np.ndarray, dx: int) -> np.ndarray:
@@ -125,12 +130,14 @@ def main() -> None:
             runs.append(("after, no subtraction", after, False))
         for name, changes, subtract in runs:
             cfg = replace(SilhouetteFitConfig(), **changes)
-            use = masks
-            if subtract:
-                use = [own_mask(m, (k.xy, k.conf, k.names), [(om, ok.xy, ok.conf, ok.names, 0.06 * _extent(ok))
-                                                              for om, ok in o]) for m, k, o in zip(masks, sets, others)]  # fmt: skip
+            known = None
+            if subtract:  # the other person's region of the mask unknown (Person.own_mask, as silfit fit --image)
+                own = [own_mask(m, (k.xy, k.conf, k.names), [(om, ok.xy, ok.conf, ok.names, 0.06 * _extent(ok))
+                                                              for om, ok in o], keep=KEEP * _extent(k))
+                       for m, k, o in zip(masks, sets, others)]  # fmt: skip
+                known = [None if np.array_equal(o, m) else ~(m & ~o) for o, m in zip(own, masks)]
             t0 = time.perf_counter()
-            fits = refine_batch(model, kp, sets, use, cfg, fitter.pose_prior, progress=False)
+            fits = refine_batch(model, kp, sets, masks, cfg, fitter.pose_prior, progress=False, known=known)
             seconds = (time.perf_counter() - t0) / len(fits)
             rows = [_score(model, f.params, g, f) for f, g in zip(fits, gts)]
             for r, f, m in zip(rows, fits, masks):  # IoU with the given mask (the whole of it)

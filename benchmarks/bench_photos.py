@@ -131,11 +131,13 @@ def main() -> None:
             for i, person in enumerate(people if args.people == "all" else people[:1]):
                 t0 = time.perf_counter()
                 kp = person.keypoint_set(source=f"{name} person {i}")
-                mask = person.own_mask(people) if len(people) > 1 and not args.whole_mask else person.mask()
+                mask, known = person.mask(), None
+                if len(people) > 1 and not args.whole_mask:  # the other people's part of the mask: unknown
+                    known = ~(mask & ~person.own_mask(people))
                 kp, notes = check_keypoints(kp, photo.size)
                 kp_fit = fitter.fit([kp], image_size=photo.size, focal=focal, progress=False)
                 fits = {"after": refine(model, kp_fit, kp, mask, SilhouetteFitConfig(), fitter.pose_prior, progress=False,
-                                        mask_source=f"{name} mask")}  # fmt: skip
+                                        mask_source=f"{name} mask", known=known)}  # fmt: skip
                 if not args.no_before:
                     fits["before"] = refine(model, kp_fit, kp, mask, replace(SilhouetteFitConfig(), **BEFORE),
                                             fitter.pose_prior, progress=False, mask_source=f"{name} mask")  # fmt: skip

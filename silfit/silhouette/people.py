@@ -67,12 +67,13 @@ def skeleton_distance(shape: tuple, xy: np.ndarray, conf: np.ndarray, names: Seq
     return cv2.distanceTransform((canvas == 0).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
 
 
-def own_mask(mask: np.ndarray, own: tuple, others: Sequence[tuple], min_conf: float = 0.2) -> np.ndarray:
+def own_mask(mask: np.ndarray, own: tuple, others: Sequence[tuple], min_conf: float = 0.2, keep: float = 0.0) -> np.ndarray:
     """``mask`` (bool ``[H, W]``) less the pixels that belong to other people (module docstring).
 
     ``own``: this person's ``(xy [K, 2], conf [K], names)``; ``others``: per other person ``(mask or None,
     xy, conf, names, radius)``, ``radius`` (pixels) how far from their skeleton their neighbourhood reaches
-    (about a limb's half-width). Without a confident keypoint of this person nothing is removed;
+    (about a limb's half-width). Pixels within ``keep`` pixels of this person's own skeleton stay (their body
+    where it overlaps the other: an arm across them). Without a confident keypoint of this person nothing is removed;
     a removal that would leave nothing returns ``mask`` unchanged."""
     m = np.asarray(mask, dtype=bool)
     if not others or not m.any():
@@ -89,6 +90,6 @@ def own_mask(mask: np.ndarray, own: tuple, others: Sequence[tuple], min_conf: fl
         near = d_other <= float(radius)
         if other_mask is not None:
             near = near | np.asarray(other_mask, dtype=bool)
-        removed |= m & theirs & near
+        removed |= m & theirs & near & (d_own > float(keep))
     out = m & ~removed
     return out if out.any() else m.copy()
