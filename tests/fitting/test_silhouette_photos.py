@@ -136,3 +136,44 @@ def test_other_people_are_taken_out_of_the_mask():
     near = own_mask(joined, (a_xy, a_conf, BODY25), [(None, b_xy, b_conf, BODY25, 6.0)])
     assert not near[20:90, 62:70].any() and near[a_mask & (np.arange(120) < 50)[None, :]].all()
     assert np.array_equal(own_mask(joined, (a_xy, a_conf, BODY25), []), joined)
+
+
+def _person(x0, mask):
+    """A detected standing person (BlazePose-33 landmarks) at column ``x0`` with the segmenter's ``mask``."""
+    from types import SimpleNamespace
+
+    from silfit.detect.layout import BLAZEPOSE33_NAMES
+    from silfit.detect.person import Person
+
+    place = {"nose": (0, 10), "left_eye": (2, 8), "right_eye": (-2, 8), "left_ear": (4, 9), "right_ear": (-4, 9),
+             "left_shoulder": (8, 20), "right_shoulder": (-8, 20), "left_elbow": (10, 35), "right_elbow": (-10, 35),
+             "left_wrist": (10, 50), "right_wrist": (-10, 50), "left_hip": (5, 55), "right_hip": (-5, 55),
+             "left_knee": (5, 75), "right_knee": (-5, 75), "left_ankle": (5, 92), "right_ankle": (-5, 92)}  # fmt: skip
+    xy = np.array([place.get(n, place["nose"]) for n in BLAZEPOSE33_NAMES], np.float64) + [x0, 0]
+    vis = np.array([1.0 if n in place else 0.0 for n in BLAZEPOSE33_NAMES])
+    roi = SimpleNamespace(to_dict=lambda: {})
+    return Person(0.9, 0.9, roi, roi, xy, np.zeros(33), vis, vis, np.zeros((33, 3)), mask.astype(np.float32),
+                  (mask.shape[1], mask.shape[0]))  # fmt: skip
+
+
+def test_a_photos_other_people_are_unknown_to_the_stage():
+    """``silfit fit --image`` with two people detected, the first's mask reaching into the second: the photo's
+    inputs keep the first's mask whole and mark the second's part of it unknown (``known``), so the stage neither
+    fits nor avoids it; with one person there is nothing unknown."""
+    from types import SimpleNamespace
+
+    from silfit.cli.detect import photo_inputs
+
+    _, _, a_box = _stick(40)
+    _, _, b_box = _stick(66)
+    a = _person(40, a_box | (b_box & (np.arange(120) < 75)[None, :]))
+    b = _person(66, b_box)
+    photo = SimpleNamespace(image=np.zeros((100, 120, 3), np.uint8), size=(120, 100), focal=lambda: (None, "none"),
+                            warnings=lambda: [])  # fmt: skip
+    out = photo_inputs("two.png", "largest", True, True, detected=(photo, [a, b]))
+    assert np.array_equal(out["mask"], a.mask())
+    assert out["known"] is not None and not out["known"][20:90, 62:75].any()  # the second person's part
+    assert out["known"][a_box & (np.arange(120) < 50)[None, :]].all()  # the first's own body stays known
+    assert out["metrics"]["detection"]["mask_other_people_px"] == int((~out["known"]).sum())
+    alone = photo_inputs("one.png", "largest", True, True, detected=(photo, [a]))
+    assert alone["known"] is None
