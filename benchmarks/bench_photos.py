@@ -7,12 +7,15 @@ matplotlib's ``grace_hopper``), plus ``--extra`` files or wheels (every ``assets
 ``zidane.jpg``, two football coaches cut off at the waist: ``pip download ultralytics --no-deps``).
 Nothing is downloaded at run time.
 
-Per photo and person (the largest; ``--people all``: every person detected), printed as a table:
+Every person detected in a photo leaves the others' masks (issue 55: :meth:`silfit.detect.person.Person.own_mask`,
+as ``silfit fit --image`` does; ``--whole-mask``: before it). Per photo and person (the largest; ``--people all``:
+every person detected), printed as a table:
 median reprojection error of the keypoint stage, of the silhouette stage *before* (issue 23's
 first part: truncation-aware, keypoint trust region, beta bound; the plain mask energy; no
 clothing trim, no plausibility guard) and *after* (the defaults), max |beta| and stature (m)
-before/after, the share of the final body's vertices projected outside the image, and the after
-fit's warnings (shortened). A contact sheet (per person: the final body over the photo, and the
+before/after, the share of the final body's vertices projected outside the image, the IoU with the mask of
+the keypoint fit and of the final fit, whether the silhouette stage's result was kept or turned back by the
+plausibility guard, and the after fit's warnings (shortened). A contact sheet (per person: the final body over the photo, and the
 side view over the keypoint fit in orange) goes to ``docs/photos_sheet.png`` (``--sheet``).
 
     python benchmarks/bench_photos.py --extra ultralytics-8.4.190-py3-none-any.whl --people all
@@ -89,6 +92,8 @@ def main() -> None:
     ap.add_argument("--sheet", default=str(Path(__file__).resolve().parents[1] / "docs" / "photos_sheet.png"))
     ap.add_argument("--only", help="comma-separated photo names (default: all)")
     ap.add_argument("--no-before", action="store_true", help="skip the 'before' silhouette stage (faster)")
+    ap.add_argument("--whole-mask", action="store_true", help="each person's whole mask (before issue 55: the other "
+                    "people detected not taken out)")
     args = ap.parse_args()
 
     from silfit import figures
@@ -113,24 +118,26 @@ def main() -> None:
         if args.only:
             photos = [(n, p) for n, p in photos if n in args.only.split(",")]
         print(f"# Real photos: {len(photos)} ({', '.join(n for n, _ in photos)}), people: {args.people}\n")
-        print("| photo | person | reprojection px kp / before / after | max abs beta before / after | stature m before / after "
-              "| body outside image | IoU kp / after | s | warnings (after) |")
-        print("|---|---:|---|---|---|---:|---|---:|---|")
+        print("| photo | person | reprojection px kp / before / after | after / kp | max abs beta before / after | "
+              "stature m before / after | body outside image | IoU kp / after | kept | s | warnings (after) |")
+        print("|---|---:|---|---:|---|---|---:|---|---|---:|---|")
         for name, path in photos:
-            try:
-                photo, people = detect_photo(path, DetectConfig(max_people=0 if args.people == "all" else 1))
+            try:  # every person detected: the others leave each one's mask (issue 55), as silfit fit --image does
+                photo, people = detect_photo(path, DetectConfig(max_people=0 if args.people == "all" else 3))
             except InputError as e:
                 print(f"| {name} | - | {e} | | | | | | |")
                 continue
             focal, _ = photo.focal()
-            for i, person in enumerate(people):
+            for i, person in enumerate(people if args.people == "all" else people[:1]):
                 t0 = time.perf_counter()
                 kp = person.keypoint_set(source=f"{name} person {i}")
-                mask = person.mask()
+                mask, known = person.mask(), None
+                if len(people) > 1 and not args.whole_mask:  # the other people's part of the mask: unknown
+                    known = ~(mask & ~person.own_mask(people))
                 kp, notes = check_keypoints(kp, photo.size)
                 kp_fit = fitter.fit([kp], image_size=photo.size, focal=focal, progress=False)
                 fits = {"after": refine(model, kp_fit, kp, mask, SilhouetteFitConfig(), fitter.pose_prior, progress=False,
-                                        mask_source=f"{name} mask")}  # fmt: skip
+                                        mask_source=f"{name} mask", known=known)}  # fmt: skip
                 if not args.no_before:
                     fits["before"] = refine(model, kp_fit, kp, mask, replace(SilhouetteFitConfig(), **BEFORE),
                                             fitter.pose_prior, progress=False, mask_source=f"{name} mask")  # fmt: skip
@@ -151,9 +158,12 @@ def main() -> None:
                 if reasons:
                     short = [f"guard: kept kp fit ({', '.join(reasons)})" if w.startswith("guard") else w for w in short]
                 rows.append((name, i, m["reprojection_error_px_keypoint_stage"], rp, beta, height, outside, short))
-                print(f"| {name} | {i} | {m['reprojection_error_px_keypoint_stage']:.1f} / {b(rp, 'before')} / {rp['after']:.2f} | "
+                kept = m.get("silhouette_guard", {}).get("kept", "silhouette")
+                r0 = m["reprojection_error_px_keypoint_stage"]
+                print(f"| {name} | {i} | {r0:.2f} / {b(rp, 'before')} / {rp['after']:.2f} | {rp['after'] / r0:.2f} | "
                       f"{b(beta, 'before')} / {beta['after']:.2f} | {b(height, 'before')} / {height['after']:.2f} | "
-                      f"{outside:.0%} | {m['iou_keypoint_stage']:.2f} / {m['iou']:.2f} | {seconds:.0f} | {'; '.join(short)} |",
+                      f"{outside:.0%} | {m['iou_keypoint_stage']:.3f} / {m['iou']:.3f} | "
+                      f"{'silhouette' if kept == 'silhouette' else 'turned back'} | {seconds:.0f} | {'; '.join(short)} |",
                       flush=True)  # fmt: skip
                 front = figures.fit_overlay(photo.image, after.vertices, faces, cam, kp.xy, None, kp.conf)
                 scale = 360 / max(front.shape[:2])

@@ -171,13 +171,18 @@ def side_view(vertices: np.ndarray, faces: np.ndarray, reference: Optional[np.nd
     return img
 
 
-def silhouette_comparison(body: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """White where body and mask agree, red body only, blue mask only, black neither."""
+def silhouette_comparison(body: np.ndarray, mask: np.ndarray, fitted: Optional[np.ndarray] = None) -> np.ndarray:
+    """White where body and mask agree, red body outside the mask, blue mask the body does not cover, black
+    neither; with ``fitted`` (the mask pixels the silhouette stage fitted as body) the mask pixels it did not
+    (treated as clothing, hair, a leak or another person: trimmed or unknown) and the body does not cover are
+    tan instead of blue (issue 55)."""
     body, mask = np.asarray(body, bool), np.asarray(mask, bool)
     out = np.zeros(body.shape + (3,), np.uint8)
     out[body & mask] = (255, 255, 255)
     out[body & ~mask] = (230, 50, 50)
     out[~body & mask] = (60, 110, 240)
+    if fitted is not None:
+        out[~body & mask & ~np.asarray(fitted, bool)] = (205, 170, 100)
     return out
 
 

@@ -13,8 +13,9 @@ Output folder written by :func:`save_fit` (and ``silfit fit``)::
     overlay.png                the final body over the image (or a grey canvas) + keypoints
     side.png                   the final body seen from the side, over the keypoint-stage body
                                (orange) when a silhouette was fitted
-    silhouette.png             final silhouette vs the mask (white: both, red: body only,
-                               blue: mask only)            [with a mask]
+    silhouette.png             final silhouette vs the mask (white: both, red: body outside the
+                               mask, blue: mask not covered, tan: mask treated as clothing, hair,
+                               a leak or another person, not fitted)   [with a mask]
     iou_curve.png              IoU and energy per silhouette step   [with a mask]
     metrics.json               timings per stage, reprojection error, IoU before/after, warnings
     stages/keypoints/          the keypoint stage's params.npz, params.json and overlay.png
@@ -66,8 +67,9 @@ class FitResult:
     joints: np.ndarray
     keypoints_2d: np.ndarray
     metrics: dict = field(default_factory=dict)
-    #: rendered body masks ``[H, W]`` (bool) of the keypoint stage and of the final body,
-    #: when a silhouette was fitted
+    #: rendered body masks ``[H, W]`` (bool) of the keypoint stage and of the final body, and ``fitted``: the
+    #: mask pixels the silhouette stage fitted as body (not trimmed as clothing, not unknown), when a silhouette
+    #: was fitted
     masks: dict = field(default_factory=dict)
     #: with ``--hypotheses K`` (:attr:`KeypointFitResult.hypotheses`), each hypothesis as a fit
     #: (:func:`_hypothesis_outputs`): ``{"rank", "params", "vertices", "keypoints_2d", "keypoint_params", "record"}``;
@@ -279,10 +281,11 @@ def refine(
     renderer=None,
     progress: bool = False,
     mask_source: str = "mask",
+    known: Optional[np.ndarray] = None,
 ) -> FitResult:
     """The silhouette stage on top of a single-sample keypoint result (see :func:`silfit.run.fit`)."""
     return refine_batch(model, keypoint_result, [keypoints], [mask], config, pose_prior, renderer, progress,
-                        [mask_source])[0]  # fmt: skip
+                        [mask_source], [known])[0]  # fmt: skip
 
 
 def refine_batch(
@@ -295,12 +298,15 @@ def refine_batch(
     renderer=None,
     progress: bool = False,
     mask_sources: Optional[Sequence[str]] = None,
+    known: Optional[Sequence[Optional[np.ndarray]]] = None,
 ) -> List[FitResult]:
     """The silhouette stage on a batch of keypoint results (sample ``i`` of
     ``keypoint_result`` with ``keypoints[i]`` and ``masks[i]``), all subjects refined
     together (:func:`~silfit.fitting.silhouette_stage.fit_silhouettes`), each with the keypoint stage's
     alternatives it offers (:func:`_offered_alternatives`: ``--hypotheses K``'s, else the close ones) as more
-    problems of the batch; per image the lowest final energy is kept (:func:`_choose_hypothesis`)."""
+    problems of the batch; per image the lowest final energy is kept (:func:`_choose_hypothesis`). ``known``: per
+    image, the mask's pixels whose value is trusted (``None``: all; e.g. not the other people's, issue 55), joined to
+    those the stage sets aside itself (leaks, holes, concavities)."""
     n = len(keypoints)
     if len(keypoint_result) != n or len(masks) != n:
         raise ValueError(f"{len(keypoint_result)} keypoint results, {n} keypoint sets and {len(masks)} masks")
@@ -322,7 +328,10 @@ def refine_batch(
                 "(wrong mask, or keypoints of another image?)"
             )
     fit_masks, trim_notes, trimmed = _trimmed_masks(masks, kp_masks, config, mask_sources)
+    given = list(known) if known is not None else [None] * n
     known = _known_pixels(fit_masks, kp_masks, config, mask_sources, trim_notes, trimmed)
+    known = [k if g is None else (np.asarray(g, dtype=bool) if k is None else k & np.asarray(g, dtype=bool))
+             for k, g in zip(known, given)]  # fmt: skip
     inits = [keypoint_result.params(i) for i in range(n)]
     from .fitting.problem import Problem
     from .fitting.silhouette_stage import fit_silhouette_problems
@@ -394,7 +403,9 @@ def refine_batch(
                                              [sils[k] for k in candidates[i]], choice or {"energies": [sil.final_energy],
                                              "iou": [float(sil.iou_end)]}, c + 1, mask_sources[i], guarded)  # fmt: skip
         out.append(FitResult(cameras[i], keypoints[i].layout, one, sil, params, vertices, joints, kp2d, metrics,
-                             masks={"keypoint_stage": kp_masks[i], "final": final_mask}, hypotheses=hypotheses))  # fmt: skip
+                             masks={"keypoint_stage": kp_masks[i], "final": final_mask,
+                                    "fitted": fit_masks[i] if known[i] is None else fit_masks[i] & known[i]},
+                             hypotheses=hypotheses))  # fmt: skip
     return out
 
 
@@ -438,10 +449,12 @@ class StageFailure(Exception):
 def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Camera], masks: Sequence[Optional[np.ndarray]],
                  *, pose_prior=None, keypoint_config=None, silhouette_config=None, silhouette: bool = True,
                  progress: bool = False, mask_sources: Optional[Sequence[str]] = None,
-                 isolate: bool = False) -> List[Union[FitResult, StageFailure]]:  # fmt: skip
+                 isolate: bool = False, known: Optional[Sequence[Optional[np.ndarray]]] = None,
+                 ) -> List[Union[FitResult, StageFailure]]:  # fmt: skip
     """Images' cores, keypoints already checked (:func:`silfit.run.check`), one layout: the
     keypoint stage batched over all images, the silhouette stage batched over those with a mask
-    (and ``silhouette``), each image's plausibility warnings
+    (and ``silhouette``; ``known``: per image, the mask's pixels whose value is trusted, ``None``: all), each
+    image's plausibility warnings
     (:func:`silfit.plausibility.fit_warnings`, depth ambiguity). With ``isolate``, a failing
     batch is fitted again image by image, and an image that still fails gets a
     :class:`StageFailure` in its place; without, the first error raises."""
@@ -479,7 +492,8 @@ def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Came
             batch = kp_results[group[0]][0].select([kp_results[i][1] for i in group])
             fitted = refine_batch(model, batch, [keypoints[i] for i in group], [np.asarray(masks[i], dtype=bool) for i in group],
                                   silhouette_config, fitter.pose_prior, progress=progress,
-                                  mask_sources=[mask_sources[i] for i in group])  # fmt: skip
+                                  mask_sources=[mask_sources[i] for i in group],
+                                  known=None if known is None else [known[i] for i in group])  # fmt: skip
             done.update(zip(group, fitted))
         return [done[i] for i in rows]
 
@@ -608,7 +622,8 @@ def save_fit(
             figures.write_png(stage_dir / "overlay.png", figures.fit_overlay(
                 image, kp_verts, faces, result.camera, kp_xy, result.keypoint.keypoints_2d[0], kp_conf))  # fmt: skip
             if mask is not None:
-                figures.write_png(tmp / "silhouette.png", figures.silhouette_comparison(result.masks["final"], mask))
+                figures.write_png(tmp / "silhouette.png", figures.silhouette_comparison(result.masks["final"], mask,
+                                                                                         result.masks.get("fitted")))  # fmt: skip
             figures.iou_curve(result.silhouette.history, tmp / "iou_curve.png")
         if result.hypotheses:  # --hypotheses K: hypotheses/<k>/ and hypotheses.png
             _save_hypotheses(tmp, result, faces, keypoints, image)

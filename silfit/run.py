@@ -304,7 +304,8 @@ def _run_images(jobs: Sequence[Job], isolate: bool) -> list:
     results = fit_problems(first.model, [o.keypoints for o in obs], [o.view.camera for o in obs], [o.mask for o in obs],
                            pose_prior=first.pose_prior, keypoint_config=first.keypoint_config,
                            silhouette_config=first.silhouette_config, silhouette=first.silhouette, progress=first.progress,
-                           mask_sources=[job.mask_sources.get((0, 0), "mask") for job in jobs], isolate=isolate)  # fmt: skip
+                           mask_sources=[job.mask_sources.get((0, 0), "mask") for job in jobs], isolate=isolate,
+                           known=[o.known for o in obs])  # fmt: skip
     out = []
     for job, r in zip(jobs, results):
         if isinstance(r, Exception):

@@ -62,13 +62,15 @@ def run(args) -> int:
 def photo_inputs(image_path: str, person, detect: bool, want_mask: bool, detected=None) -> dict:
     """What ``silfit fit --image`` takes from the photo: its pixels (upright), the EXIF focal
     length and, when ``detect`` (no ``--keypoints``), the detected person's BODY_25
-    keypoints, mask (if ``want_mask``), detection summary and warnings. ``detected``: the
+    keypoints, mask (if ``want_mask``) and ``known`` (with several people detected, the mask's pixels that are
+    not the other people's: :meth:`~silfit.detect.person.Person.own_mask`; the silhouette stage neither fits
+    nor avoids the others, ``None``: all known), detection summary and warnings. ``detected``: the
     ``(photo, people)`` of an earlier detection (``--people all``), reused."""
     from ..detect import DetectConfig
     from ..detect.output import detect_photo
     from ..detect.photo import read_photo
 
-    out = {"keypoints": None, "mask": None, "warnings": [], "metrics": {}}
+    out = {"keypoints": None, "mask": None, "known": None, "warnings": [], "metrics": {}}
     if detect:
         index = None if person == "largest" else int(person)
         photo, people = detected or detect_photo(image_path, DetectConfig(max_people=3 if index is None else index + 1))
@@ -76,11 +78,21 @@ def photo_inputs(image_path: str, person, detect: bool, want_mask: bool, detecte
             raise CLIError(f"{image_path}: person {index} requested, {len(people)} detected")
         chosen = people[index or 0]
         out["keypoints"] = chosen.keypoint_set("body25", source=f"{image_path} (detected keypoints)")
-        out["mask"] = chosen.mask() if want_mask else None
         out["warnings"] = [f"detection: {w}" for w in chosen.warnings()]
         summary = chosen.to_dict()
         summary.pop("landmarks")
         out["metrics"]["detection"] = {"people_found": len(people), "person": index or 0, **summary}
+        if want_mask:  # other people are not this person (issue 55): their regions of this person's mask unknown
+            import numpy as np
+
+            out["mask"] = chosen.mask()
+            removed_px = out["mask"] & ~chosen.own_mask(people) if len(people) > 1 else np.zeros_like(out["mask"])
+            out["known"] = ~removed_px if removed_px.any() else None
+            removed = int(removed_px.sum())
+            out["metrics"]["detection"]["mask_other_people_px"] = removed
+            if removed > 0.02 * max(int(chosen.mask().sum()), 1):
+                out["warnings"].append(f"detection: {removed / chosen.mask().sum():.0%} of the person's mask belongs to the "
+                                       f"{len(people) - 1} other people detected: left out of the silhouette fit")
     else:
         photo = read_photo(image_path)
     out["warnings"] = [*photo.warnings(), *out["warnings"]]

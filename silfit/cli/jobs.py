@@ -113,12 +113,12 @@ def image_job(args) -> Job:
             warn(f"{args.camera}: camera R, t not applied: one image is fitted in the camera's frame")
         if size is not None and tuple(size) != (camera.width, camera.height):
             raise CLIError(f"{args.camera}: camera is {camera.width}x{camera.height} but the image is {size[0]}x{size[1]}")
-    mask = None
+    mask, known = None, None
     if args.mask:
         mask = read_mask(args.mask, size=(camera.width, camera.height) if camera is not None else size)
         size = size or (mask.shape[1], mask.shape[0])
     elif photo and photo["mask"] is not None:
-        mask = photo["mask"]
+        mask, known = photo["mask"], photo.get("known")
     if camera is None:
         if size is None:
             raise CLIError("no camera: give --camera C.json, or --image / --image-size / --mask for the default camera")
@@ -144,7 +144,7 @@ def image_job(args) -> Job:
         if not 1 <= args.hypotheses <= 20:
             raise CLIError(f"--hypotheses must be 1..20, got {args.hypotheses}")
         base = KeypointFitConfig(hypotheses=args.hypotheses)
-    return Job(Problem.single(keypoints, camera, mask), model, pose_prior=_pose_prior(args, model),
+    return Job(Problem.single(keypoints, camera, mask, known), model, pose_prior=_pose_prior(args, model),
                keypoint_config=keypoint_settings(args, base), silhouette_config=silhouette_config(args), silhouette=not args.no_silhouette, progress=not args.quiet,
                warnings=warnings, record=record, images={} if image is None else {(0, 0): image},
                mask_sources={(0, 0): args.mask or "mask"})  # fmt: skip

@@ -23,7 +23,7 @@ Steps, as MediaPipe's pose graphs run them:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import List, Optional
+from typing import List, Optional, Sequence
 
 import numpy as np
 
@@ -128,6 +128,19 @@ class Person:
     def mask(self, threshold: float = 0.5) -> np.ndarray:
         """The person mask ``bool [H, W]``."""
         return self.mask_prob > threshold
+
+    def own_mask(self, others: Sequence["Person"], radius: float = 0.06, keep: float = 0.04,
+                 threshold: float = 0.5) -> np.ndarray:  # fmt: skip
+        """The person mask less the other people's regions (:func:`silfit.silhouette.people.own_mask`, issue 55):
+        each of ``others``' mask and the neighbourhood of their landmarks (``radius`` of their extent) where
+        nearer their skeleton than this person's, except within ``keep`` of this person's extent of their own
+        skeleton."""
+        from ..silhouette.people import own_mask
+
+        own = (self.xy, self.confidence(), BLAZEPOSE33_NAMES)
+        rest = [(p.mask(threshold), p.xy, p.confidence(), BLAZEPOSE33_NAMES, float(radius) * p.extent_px())
+                for p in others if p is not self]  # fmt: skip
+        return own_mask(self.mask(threshold), own, rest, keep=float(keep) * self.extent_px())
 
     def extent_px(self) -> float:
         """Longest side of the box of the landmarks inside the image."""

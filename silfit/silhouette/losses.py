@@ -93,27 +93,31 @@ def distance_transforms(mask: np.ndarray, valid=None) -> tuple[np.ndarray, np.nd
 class CoverProfile:
     """The "mask not covered" side's robust profile, in pixels of the target's grid: an
     uncovered mask pixel at distance ``d`` from the mask's edge costs ``inner * d`` up to
-    ``margin``, then ``inner * margin + (d - margin)``, at most ``cap``. ``CoverProfile()``
-    (``margin=0, inner=1, cap=inf``) is the plain two-sided energy."""
+    ``margin``, then ``inner * margin + (d - margin)``, at most ``cap``, all times ``weight``.
+    ``CoverProfile()`` (``margin=0, inner=1, cap=inf, weight=1``) is the plain two-sided energy."""
 
     margin: float = 0.0
     inner: float = 1.0
     cap: float = float("inf")
+    #: the whole side's weight against "body outside the mask" (issue 55: the body must lie inside the mask,
+    #: strongly, but need not fill it where the mask may be clothing or hair: weakly); 1: as strong
+    weight: float = 1.0
 
     def __post_init__(self):
-        if not (self.margin >= 0 and 0 <= self.inner <= 1 and self.cap > 0):
-            raise ValueError(f"CoverProfile: need margin >= 0, 0 <= inner <= 1, cap > 0; got {self}")
+        if not (self.margin >= 0 and 0 <= self.inner <= 1 and self.cap > 0 and 0 < self.weight <= 1):
+            raise ValueError(f"CoverProfile: need margin >= 0, 0 <= inner <= 1, cap > 0, 0 < weight <= 1; got {self}")
 
     @property
     def plain(self) -> bool:
-        return self.margin == 0 and self.inner == 1 and math.isinf(self.cap)
+        return self.margin == 0 and self.inner == 1 and math.isinf(self.cap) and self.weight == 1
 
     def __call__(self, d):
         """The profile at distances ``d`` (numpy array or torch tensor, >= 0)."""
         lib = torch if isinstance(d, torch.Tensor) else np
         m, a = float(self.margin), float(self.inner)
         v = a * lib.clip(d, 0, m) + lib.clip(d - m, 0, None) if m > 0 else a * d
-        return lib.clip(v, None, float(self.cap)) if not math.isinf(self.cap) else v
+        v = lib.clip(v, None, float(self.cap)) if not math.isinf(self.cap) else v
+        return v * float(self.weight) if self.weight != 1 else v
 
 
 def cover_weights(dt_in: np.ndarray, profile: Optional[CoverProfile] = None) -> np.ndarray:

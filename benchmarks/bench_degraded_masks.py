@@ -1,0 +1,167 @@
+"""Degraded masks (issue 55): does the silhouette stage still beat the keypoints alone when the mask is
+not the body's?
+
+Subjects from silfit's generator (fully visible, all yaws, 1 px keypoint noise), under four conditions
+(the helpers of ``bench_truncation.py``): ``clean`` masks; ``clothing``: the mask dilated by 4 % of the
+person's height; ``cut``: the image cut at mid-thigh; ``second``: a second person (the next subject's mask
+and keypoints, shifted sideways so that their box overlaps this person's by ``--overlap`` of its width)
+joined to the mask, as a segmenter run around one of two people standing close marks both. The second
+person is detected too: the methods that take other people out (``after``) get their mask and keypoints, and the
+pixels of the joined mask that are the second person's are unknown to the stage
+(:func:`silfit.silhouette.people.own_mask`, the radius 6 % of their extent, this person's own skeleton kept
+within 4 % of theirs, as ``Person.own_mask``).
+
+Methods: *keypoints only*; *main* (the silhouette stage before issue 55: the trust region of 6 % of the
+window around the detections, the fill side as strong as the inside side, the whole mask);
+*after* (the defaults); *after, no subtraction* (``second`` only: the defaults on the joined mask).
+Printed per condition: PA-PVE and PVE (mm, against the whole true body), the median reprojection error (px),
+IoU with the given mask, how many fits the plausibility guard turned back, the gain of keypoints +
+silhouette over keypoints only in PA-PVE, and per subject the most the stage worsened a fit's PA-PVE and how many
+it worsened by more than 5 mm. The ``main`` method runs main's settings in this branch's code: with them the
+stage computes what main's does (the trust region's older path, the fill side's weight 1, the whole mask).
+
+    python benchmarks/bench_degraded_masks.py --n 8 --seed 5501
+"""
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
+import numpy as np
+
+from bench_truncation import _score, cut_subject, grow
+from silfit import load_body_model
+from silfit.camera import load_camera
+from silfit.dataset import read_gt, read_mask
+from silfit.fitting import KeypointFitter
+from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+from silfit.image_fit import refine_batch
+from silfit.keypoints import KeypointSet, read_keypoints
+from silfit.silhouette.people import own_mask
+
+#: the silhouette stage before issue 55 (its trust region around the detections, 6 % of the window; the
+#: mask-not-covered side as strong as the inside side)
+MAIN = dict(trust_from_start=False, trust_fraction=0.06, w_trust=0.05, cover_weight=1.0)
+#: the defaults with one change (tuning; ``--methods``)
+VARIANTS = {"weakfill": dict(cover_weight=0.5), "fill1": dict(cover_weight=1.0), "oldtrust": MAIN,
+            "w05": dict(w_trust=0.5), "med50": dict(trust_median=0.5), "w02med50": dict(w_trust=0.2, trust_median=0.5)}
+
+
+KEEP = 0.04  # as Person.own_mask: within 4 % of the person's extent of their own skeleton, a pixel stays theirs
+
+
+def shift(mask: np.ndarray, dx: int) -> np.ndarray:
+    out = np.zeros_like(mask)
+    if dx >= 0:
+        out[:, dx:] = mask[:, : mask.shape[1] - dx]
+    else:
+        out[:, :dx] = mask[:, -dx:]
+    return out
+
+
+def second_person(mask, kp, other_mask, other_kp, overlap: float):
+    """(joined mask, other's shifted mask, other's shifted keypoints): the other person placed beside this one
+    (to the side with more room) with their boxes overlapping by ``overlap`` of this person's width."""
+    xs, oxs = np.nonzero(mask)[1], np.nonzero(other_mask)[1]
+    width = xs.max() - xs.min()
+    right = xs.mean() < mask.shape[1] / 2
+    if right:  # other's left edge at this person's right edge minus the overlap
+        dx = int(round(xs.max() - overlap * width - oxs.min()))
+    else:
+        dx = int(round(xs.min() + overlap * width - oxs.max()))
+    moved = shift(other_mask, dx)
+    xy = other_kp.xy + np.array([dx, 0.0])
+    return mask | moved, moved, KeypointSet(xy, other_kp.conf, other_kp.layout, source="second")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=8)
+    ap.add_argument("--seed", type=int, default=5501)
+    ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--overlap", type=float, default=0.3)
+    ap.add_argument("--conditions", default="clean,clothing,cut,second")
+    ap.add_argument("--methods", default="main,after")
+    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="change a field of 'after'")
+    args = ap.parse_args()
+    from bench_truncation import _value
+
+    after = {k: _value(v) for k, v in (x.split("=", 1) for x in args.set)}
+    from silfit.synth.generate import SynthConfig, generate_dataset
+
+    model = load_body_model()
+    with tempfile.TemporaryDirectory() as tmp:
+        generate_dataset(Path(tmp) / "d", args.n, SynthConfig(seed=args.seed, size=args.size, noise_px=1.0), model=model)
+        dirs = sorted(p for p in (Path(tmp) / "d").iterdir() if (p / "gt.npz").is_file())
+        raw = [(read_keypoints(d / "keypoints.json"), read_mask(d / "mask.png"), load_camera(d / "camera.json"),
+                read_gt(d / "gt.npz"), cut_subject(d)) for d in dirs]  # fmt: skip
+    subjects = []  # per subject: {condition: (keypoints, mask, camera, others)}, gt
+    for i, (kp, mask, cam, gt, (kc, mc, cc, _)) in enumerate(raw):
+        height = np.ptp(np.nonzero(mask)[0])
+        okp, omask = raw[(i + 1) % len(raw)][0], raw[(i + 1) % len(raw)][1]
+        joined, moved, mkp = second_person(mask, kp, omask, okp, args.overlap)
+        subjects.append(({"clean": (kp, mask, cam, ()), "clothing": (kp, grow(mask, max(1, int(0.04 * height))), cam, ()),
+                          "cut": (kc, mc, cc, ()), "second": (kp, joined, cam, ((moved, mkp),))}, gt))  # fmt: skip
+    fitter = KeypointFitter(model)
+    print(f"# Degraded masks: {len(subjects)} subjects (seed {args.seed}, {args.size} px, second person's overlap "
+          f"{args.overlap:.0%})" + (f"; after: {after}" if after else "") + "\n")  # fmt: skip
+    print("| condition | method | PA-PVE mean / worst (mm) | vs keypoints only | PVE mean (mm) | reprojection median px | "
+          "IoU mean | turned back | most worsened (mm) / fits worse by > 5 mm | s per image |")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|")
+    kp_cache = {}
+    for cond in args.conditions.split(","):
+        sets, masks, cams, others = (list(x) for x in zip(*[c[cond] for c, _ in subjects]))
+        gts = [g for _, g in subjects]
+        key = "cut" if cond == "cut" else "full"
+        if key not in kp_cache:
+            kp_cache[key] = fitter.fit(sets, cams, progress=False)
+        kp = kp_cache[key]
+        base = [_score(model, kp.params(i), g, None, reproj=float(kp.reprojection_error[i])) for i, g in enumerate(gts)]
+        ref = float(np.mean([r["pa"] for r in base]))
+        _row(cond, "keypoints only", base, ref, None)
+        ref_each = np.array([r["pa"] for r in base])
+        runs = [(m, MAIN if m == "main" else {**after, **VARIANTS.get(m, {})}, m != "main")
+                for m in args.methods.split(",")]  # fmt: skip
+        if cond == "second" and "after" in args.methods.split(","):
+            runs.append(("after, no subtraction", after, False))
+        for name, changes, subtract in runs:
+            cfg = replace(SilhouetteFitConfig(), **changes)
+            known = None
+            if subtract:  # the other person's region of the mask unknown (Person.own_mask, as silfit fit --image)
+                own = [own_mask(m, (k.xy, k.conf, k.names), [(om, ok.xy, ok.conf, ok.names, 0.06 * _extent(ok))
+                                                              for om, ok in o], keep=KEEP * _extent(k))
+                       for m, k, o in zip(masks, sets, others)]  # fmt: skip
+                known = [None if np.array_equal(o, m) else ~(m & ~o) for o, m in zip(own, masks)]
+            t0 = time.perf_counter()
+            fits = refine_batch(model, kp, sets, masks, cfg, fitter.pose_prior, progress=False, known=known)
+            seconds = (time.perf_counter() - t0) / len(fits)
+            rows = [_score(model, f.params, g, f) for f, g in zip(fits, gts)]
+            for r, f, m in zip(rows, fits, masks):  # IoU with the given mask (the whole of it)
+                from silfit.eval.metrics import mask_iou
+
+                r["iou"] = mask_iou(f.masks["final"], m)
+            _row(cond, name, rows, ref, seconds, ref_each)
+
+
+def _extent(kp: KeypointSet) -> float:
+    pts = kp.xy[kp.conf > 0.1]
+    return float((pts.max(0) - pts.min(0)).max()) if len(pts) >= 2 else 0.0
+
+
+def _row(cond, name, rows, ref, seconds, ref_each=None) -> None:
+    get = lambda k: np.array([r[k] for r in rows], dtype=np.float64)  # noqa: E731
+    pa = get("pa")
+    worse = "" if ref_each is None else f"{(pa - ref_each).max():+.1f} / {int(np.sum(pa - ref_each > 5.0))}"
+    gain = "" if seconds is None else f"{100 * (ref - pa.mean()) / ref:+.1f} %"
+    iou = get("iou")
+    print(f"| {cond} | {name} | {pa.mean():.1f} / {pa.max():.1f} | {gain} | {get('pve').mean():.1f} | "
+          f"{np.median(get('reproj')):.2f} | {np.nanmean(iou) if np.isfinite(iou).any() else float('nan'):.3f} | "
+          f"{int(get('kept_kp').sum())} | {worse} | {'' if seconds is None else f'{seconds:.1f}'} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
