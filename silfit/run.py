@@ -66,6 +66,9 @@ class Job:
     rig: bool = False
     #: the frames are a video's (the sequence fit and the video's outputs), even when it has one frame
     video: bool = False
+    #: ``(frame, view)`` -> the detected :class:`~silfit.detect.Person` the keypoints came from (its 3D landmarks
+    #: give the image depth cue without running the landmark model again; absent: run on ``images``)
+    people: Dict[tuple, Any] = field(default_factory=dict)
 
     @property
     def num_frames(self) -> int:
@@ -304,7 +307,8 @@ def _run_images(jobs: Sequence[Job], isolate: bool) -> list:
     results = fit_problems(first.model, [o.keypoints for o in obs], [o.view.camera for o in obs], [o.mask for o in obs],
                            pose_prior=first.pose_prior, keypoint_config=first.keypoint_config,
                            silhouette_config=first.silhouette_config, silhouette=first.silhouette, progress=first.progress,
-                           mask_sources=[job.mask_sources.get((0, 0), "mask") for job in jobs], isolate=isolate)  # fmt: skip
+                           mask_sources=[job.mask_sources.get((0, 0), "mask") for job in jobs], isolate=isolate,
+                           images=[job.images.get((0, 0)) for job in jobs], people=[job.people.get((0, 0)) for job in jobs])  # fmt: skip
     out = []
     for job, r in zip(jobs, results):
         if isinstance(r, Exception):
@@ -447,16 +451,19 @@ def write(fit: Fit, out, *, overwrite: bool = False, exports: Sequence[str] = ()
 
 def fit(keypoints, mask: Optional[np.ndarray] = None, camera=None, *, image_size: Optional[tuple] = None,
         focal: Optional[float] = None, model=None, pose_prior=None, keypoint_config=None, silhouette_config=None,
-        progress: bool = True):  # fmt: skip
+        progress: bool = True, image: Optional[np.ndarray] = None):  # fmt: skip
     """Fit SMPL to one image (a :class:`~silfit.image_fit.FitResult`): keypoints (a :class:`KeypointSet` or ``[K, 3]`` array), then,
     if ``mask [H, W]`` (bool) is given, refine against the silhouette.
 
     ``camera`` or ``image_size=(W, H)`` (+ optional ``focal``) define the camera, as for
-    :func:`silfit.fit_keypoints`. ``model`` defaults to the shipped open body model. The same
-    path as every other mode (:func:`run` on :func:`image_job`).
+    :func:`silfit.fit_keypoints`. ``model`` defaults to the shipped open body model. ``image`` (uint8 RGB
+    ``[H, W, 3]``): the landmark model's 3D on it decides limbs' depth order (the image depth cue,
+    :mod:`silfit.fitting.image_depth`; ``metrics["image_depth"]``). The same path as every other mode
+    (:func:`run` on :func:`image_job`).
     """
     job = image_job(keypoints, mask, camera, image_size=image_size, focal=focal, model=model, pose_prior=pose_prior,
-                    keypoint_config=keypoint_config, silhouette_config=silhouette_config, progress=progress)  # fmt: skip
+                    keypoint_config=keypoint_config, silhouette_config=silhouette_config, progress=progress,
+                    image=image)  # fmt: skip
     return run(job).stage
 
 

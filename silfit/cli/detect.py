@@ -77,6 +77,7 @@ def photo_inputs(image_path: str, person, detect: bool, want_mask: bool, detecte
         chosen = people[index or 0]
         out["keypoints"] = chosen.keypoint_set("body25", source=f"{image_path} (detected keypoints)")
         out["mask"] = chosen.mask() if want_mask else None
+        out["person"] = chosen  # its 3D landmarks: the image depth cue
         out["warnings"] = [f"detection: {w}" for w in chosen.warnings()]
         summary = chosen.to_dict()
         summary.pop("landmarks")
