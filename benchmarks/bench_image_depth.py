@@ -85,7 +85,7 @@ def run_seed(seed: int, n: int, size: int, poses: str, fit: bool) -> list:
     return rows
 
 
-def compare_seed(seed: int, n: int, size: int, poses: str, batch: int, weights: tuple) -> list:
+def compare_seed(seed: int, n: int, size: int, poses: str, batch: int, weights: tuple, silhouette: bool = True) -> list:
     """The default image path (keypoint stage in batches of ``batch``, then the silhouette stage against the
     generator's masks) per ``image_depth_weight`` in ``weights`` (0: the cue off, the baseline), on the same
     subjects: per subject and weight PA-PVE (mm) of the keypoint stage and with silhouettes, CPU seconds."""
@@ -120,7 +120,8 @@ def compare_seed(seed: int, n: int, size: int, poses: str, batch: int, weights: 
             kp = fitter.fit(sets[sl], cams[sl], progress=False, depth_cues=cues[sl] if w else None)
             t_kp = time.process_time() - t0
             t0 = time.process_time()
-            res = refine_batch(model, kp, sets[sl], masks[sl], SilhouetteFitConfig(), pose_prior=fitter.pose_prior, progress=False)
+            res = refine_batch(model, kp, sets[sl], masks[sl], SilhouetteFitConfig(), pose_prior=fitter.pose_prior,
+                               progress=False) if silhouette else [None] * len(kp)  # fmt: skip
             t_sil = time.process_time() - t0
             for j, r in enumerate(res):
                 gt = gts[b + j]
@@ -128,7 +129,7 @@ def compare_seed(seed: int, n: int, size: int, poses: str, batch: int, weights: 
                 rows.append({"seed": seed, "i": b + j, "w": w, "t_kp": t_kp / len(res), "t_sil": t_sil / len(res),
                              "t_cue": t_cue if w else 0.0, "decided": 0 if c is None else len(c.decided()),
                              "kp": 1000 * float(pa_pve(kp.vertices[j].astype(np.float64), gt.vertices)),
-                             "sil": 1000 * float(pa_pve(r.vertices.astype(np.float64), gt.vertices))})  # fmt: skip
+                             "sil": np.nan if r is None else 1000 * float(pa_pve(r.vertices.astype(np.float64), gt.vertices))})  # fmt: skip
     return rows
 
 
@@ -139,14 +140,17 @@ def compare_table(rows: list, weights: tuple) -> None:
     for w in weights:
         r = [x for x in rows if x["w"] == w]
         kp, sil = np.array([x["kp"] for x in r]), np.array([x["sil"] for x in r])
+        if np.isnan(sil).all():  # the keypoint stage only: the thresholds read its PA-PVE
+            sil = kp
         print(f"| {w:g}{' (off: baseline)' if not w else ''} | {len(r)} | {kp.mean():.1f} / {np.median(kp):.1f} | "
               f"{sil.mean():.1f} / {np.median(sil):.1f} | {(sil > 150).sum()} | {(sil <= 60).sum()} ({100 * (sil <= 60).mean():.0f} %) | "
               f"{np.mean([x['t_cue'] for x in r]):.2f}, {np.mean([x['t_kp'] for x in r]):.2f}, {np.mean([x['t_sil'] for x in r]):.2f} |")  # fmt: skip
-    base = {(x["seed"], x["i"]): x["sil"] for x in rows if x["w"] == weights[0]}
+    key = "kp" if all(np.isnan(x["sil"]) for x in rows) else "sil"
+    base = {(x["seed"], x["i"]): x[key] for x in rows if x["w"] == weights[0]}
     for w in weights[1:]:
-        d = {(x["seed"], x["i"]): x["sil"] - base[x["seed"], x["i"]] for x in rows if x["w"] == w}
+        d = {(x["seed"], x["i"]): x[key] - base[x["seed"], x["i"]] for x in rows if x["w"] == w}
         moved = [f"{k[0]}/{k[1]}: {base[k]:.0f} -> {base[k] + v:.0f}" for k, v in d.items() if abs(v) > 30]
-        print(f"\nweight {w:g} against {weights[0]:g}, with silhouettes: {sum(v < -10 for v in d.values())} better by more than "
+        print(f"\nweight {w:g} against {weights[0]:g}, {'with silhouettes' if key == 'sil' else 'keypoint stage'}: {sum(v < -10 for v in d.values())} better by more than "
               f"10 mm, {sum(v > 10 for v in d.values())} worse; moved by more than 30 mm: {', '.join(moved) or 'none'}")
 
 
@@ -202,13 +206,15 @@ def main() -> None:
     ap.add_argument("--compare", metavar="W0,W1", help="instead: fit with these image_depth_weight values (0: the cue "
                     "off, the baseline) on the default image path (keypoints + silhouette) and compare")
     ap.add_argument("--batch", type=int, default=8, help="--compare: subjects per keypoint-stage batch")
+    ap.add_argument("--no-silhouette", action="store_true", help="--compare: the keypoint stage only (the table's "
+                    "thresholds then read the keypoint stage's PA-PVE)")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     t0 = time.perf_counter()
     if args.compare:
         weights = tuple(float(w) for w in args.compare.split(","))
         with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
-            jobs = {(p, s): pool.submit(compare_seed, s, args.n, args.size, p, args.batch, weights)
+            jobs = {(p, s): pool.submit(compare_seed, s, args.n, args.size, p, args.batch, weights, not args.no_silhouette)
                     for p in args.poses.split(",") for s in seeds}  # fmt: skip
             out = {k: j.result() for k, j in jobs.items()}
         if args.save:

@@ -47,9 +47,9 @@ class ImageDepthConfig:
     """The cue's gates (defaults measured on generated renders: ``benchmarks/bench_image_depth.py``)."""
 
     #: a segment's depth cosine in the landmark model's 3D below this: a near-flat call, off
-    off_below: float = 0.3
+    off_below: float = 0.4
     #: ... and from this on full confidence (a linear ramp between)
-    full_at: float = 0.5
+    full_at: float = 0.6
     #: a landmark end below this visibility switches its segment off (above: confidence times visibility)
     min_visibility: float = 0.5
     #: a segment whose end lies farther than this (share of the keypoints' extent) from its keypoint is off

@@ -468,8 +468,13 @@ def fit_sequence(
     config: Optional[SequenceFitConfig] = None,
     pose_prior=None,
     progress: bool = False,
+    depth_cues: Optional[Sequence] = None,
 ) -> SequenceFitResult:
     """Fit one person over a sequence of frames of one camera, or of a calibrated rig (module docstring).
+
+    ``depth_cues`` (one camera; per frame a :class:`~silfit.fitting.image_depth.DepthCue` from its image or
+    ``None``): each frame's start fit and its hypotheses, from which the branch is chosen over time, carry the
+    image depth cue (the ``image_depth`` term).
 
     ``frames``: one :class:`~silfit.keypoints.KeypointSet` per frame, ``None`` where no person was
     detected, with ``camera`` a :class:`~silfit.camera.Camera` (the fit in its frame); or, for a rig
@@ -521,7 +526,8 @@ def fit_sequence(
                 fitter = KeypointFitter(model, layout, replace(cfg.keypoint, hypotheses=max(int(cfg.branch_hypotheses), 1),
                                                                hypothesis_joint_max_m=None, hypothesis_unrefined=False),
                                         fitter.pose_prior)  # fmt: skip
-            state, info = fitter.fit_problems(probs, progress=progress)
+            cues = [depth_cues[f] for f in init_frames] if depth_cues is not None else None
+            state, info = fitter.fit_problems(probs, progress=progress, depth_cues=cues)
             energy = info["energies"][fitter.stages[-1].name]
             if cfg.branch_dp and len(probs) > 1:
                 state, rebranched[init_frames], energy = _choose_branches(model, layout, cfg.keypoint, fitter, probs, state,

@@ -151,3 +151,28 @@ def replace_weight(cfg, w):
     from dataclasses import replace
 
     return replace(cfg, image_depth_weight=w)
+
+
+def test_the_depth_warning_names_only_limbs_the_image_leaves_undecided():
+    from silfit.plausibility import depth_warnings
+
+    close = [{"stage": "branches_1", "kept": "keep",
+              "tried": [{"flip": "keep", "energy": 100.0}, {"flip": "left_upper_arm", "energy": 101.0},
+                        {"flip": "right_shin", "energy": 101.5}]}]  # fmt: skip
+    (w,) = depth_warnings(close)
+    assert w.startswith("depth ambiguous for left_upper_arm, right_shin:")
+    (w,) = depth_warnings(close, decided=["left_upper_arm"])
+    assert w.startswith("depth ambiguous for right_shin:") and "left_upper_arm" not in w
+    assert depth_warnings(close, decided=["left_upper_arm", "right_shin"]) == []
+
+
+def test_metrics_say_image_depth_none_without_an_image(body_model, reaching_subject):
+    from silfit.run import fit
+
+    s = reaching_subject
+    cfg = KeypointFitConfig(camera_iters=3, pose_iters=(3, 3, 3), shape_iters=2, final_iters=3, late_branch_iters=2,
+                            post_branch_iters=2, decision_iters=2)  # fmt: skip
+    r = fit(s.keypoints, camera=s.camera, model=body_model, keypoint_config=cfg, progress=False)
+    assert r.metrics["image_depth"] == "none"
+    r = fit(s.keypoints, camera=s.camera, model=body_model, keypoint_config=cfg, progress=False, image=s.image)
+    assert r.metrics["image_depth"]["decided"]["right_forearm"]["distal"] == "nearer"
