@@ -222,7 +222,8 @@ def main() -> None:
 
             args.save.write_bytes(pickle.dumps(out))
         for p in args.poses.split(","):
-            print(f"\n## {p} poses: {args.n} subjects per seed, seeds {args.seeds}, {args.size} px, keypoints + silhouette "
+            what = "keypoint stage only" if args.no_silhouette else "keypoints + silhouette"
+            print(f"\n## {p} poses: {args.n} subjects per seed, seeds {args.seeds}, {args.size} px, {what} "
                   f"({time.perf_counter() - t0:.0f} s wall for all, {args.workers} processes)\n")
             compare_table([r for s in seeds for r in out[p, s]], weights)
         return

@@ -32,8 +32,8 @@ from .branches import LIMB_SEGMENTS
 from .problem import world_to_camera
 from .terms import Evaluation, Term
 
-__all__ = ["DepthCue", "ImageDepthConfig", "ImageDepthTerm", "NO_CUE", "SEGMENTS", "cue_data", "depth_cue",
-           "landmark_agreement", "match_person"]  # fmt: skip
+__all__ = ["DepthCue", "ImageDepthConfig", "ImageDepthTerm", "SEGMENTS", "cue_data", "cue_from_image", "depth_cue",
+           "landmark_agreement", "match_person", "person_cue"]  # fmt: skip
 
 #: the limb segments the cue speaks for: (segment, proximal joint, distal joint), SMPL and BlazePose names alike
 SEGMENTS = LIMB_SEGMENTS
@@ -97,9 +97,6 @@ class DepthCue:
 def _off(reason: str) -> DepthCue:
     S = len(SEGMENTS)
     return DepthCue(np.zeros(S), np.zeros(S), np.zeros(S), refused=reason)
-
-
-NO_CUE = None  # a problem without an image: no data, the term is 0
 
 
 def landmark_agreement(landmarks_xy: np.ndarray, landmark_names: Sequence[str], keypoints) -> tuple:
