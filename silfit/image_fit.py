@@ -449,7 +449,8 @@ class StageFailure(Exception):
 def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Camera], masks: Sequence[Optional[np.ndarray]],
                  *, pose_prior=None, keypoint_config=None, silhouette_config=None, silhouette: bool = True,
                  progress: bool = False, mask_sources: Optional[Sequence[str]] = None,
-                 isolate: bool = False, known: Optional[Sequence[Optional[np.ndarray]]] = None,
+                 isolate: bool = False, images: Optional[Sequence[Optional[np.ndarray]]] = None,
+                 people: Optional[Sequence] = None, known: Optional[Sequence[Optional[np.ndarray]]] = None,
                  ) -> List[Union[FitResult, StageFailure]]:  # fmt: skip
     """Images' cores, keypoints already checked (:func:`silfit.run.check`), one layout: the
     keypoint stage batched over all images, the silhouette stage batched over those with a mask
@@ -457,11 +458,17 @@ def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Came
     image's plausibility warnings
     (:func:`silfit.plausibility.fit_warnings`, depth ambiguity). With ``isolate``, a failing
     batch is fitted again image by image, and an image that still fails gets a
-    :class:`StageFailure` in its place; without, the first error raises."""
+    :class:`StageFailure` in its place; without, the first error raises.
+
+    ``images`` (per image an RGB array or ``None``): the image depth cue
+    (:func:`~silfit.fitting.image_depth.cue_from_image`; ``people``: per image the detection its keypoints
+    came from, reused) joins the keypoint stage where the settings' ``image_depth_weight`` is on;
+    ``metrics.json``'s ``image_depth`` says what it decided (``"none"`` without an image)."""
     n = len(keypoints)
     mask_sources = list(mask_sources or ["mask"] * n)
     fitter = _keypoint_fitter(model, keypoints[0].layout, keypoint_config, pose_prior)
     out: List[Union[FitResult, StageFailure, None]] = [None] * n
+    cues, cue_records = _depth_cues(fitter, keypoints, images, people)
 
     def each(rows, call, stage):
         """``call(rows)`` -> one result per row; isolated: again row by row where the batch fails."""
@@ -475,7 +482,8 @@ def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Came
             return [pair for r in rows for pair in each([r], call, stage)]
 
     def keypoint_stage(rows):  # per row: (the batch's result, its index there); timings shared out
-        kp = fitter.fit([keypoints[i] for i in rows], [cameras[i] for i in rows], progress=progress)
+        kp = fitter.fit([keypoints[i] for i in rows], [cameras[i] for i in rows], progress=progress,
+                        depth_cues=[cues[i] for i in rows])  # fmt: skip
         kp.timings = {k: float(v) / len(rows) for k, v in kp.timings.items()}
         return [(kp, j) for j in range(len(rows))]
 
@@ -515,8 +523,10 @@ def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Came
             result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
         hyps = (result.keypoint.hypotheses or [None])[0]
         search = (result.keypoint.branch_search or [None])[0]
+        result.metrics["image_depth"] = cue_records[i]
+        decided = cues[i].decided() if cues[i] is not None else ()
         result.metrics["warnings"] += fit_warnings(result.metrics, keypoints[i], result.vertices, result.params.get("betas")) \
-            + depth_warnings(search, hyps)
+            + depth_warnings(search, hyps, decided=decided)
         if search:  # every hypothesis the branch search ran to its end, with its energy
             result.metrics["branch_search"] = search
         if hyps is not None:  # hypotheses=K: every alternative's energy and the limbs it turns (metrics.json)
@@ -527,6 +537,30 @@ def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Came
                 result.hypotheses = _hypothesis_outputs(model, hyps, keypoints[i], result.camera)
         out[i] = result
     return out  # type: ignore[return-value]
+
+
+def _depth_cues(fitter, keypoints, images, people) -> tuple:
+    """``(cues, records)`` per image: the image depth cue (``None`` without an image, or with the cue off or
+    refused) and ``metrics.json``'s ``image_depth`` (``"none"`` without an image; ``"off"`` where the settings turn
+    it off), with the landmark model's seconds."""
+    import time
+
+    from .fitting.image_depth import cue_from_image
+
+    n = len(keypoints)
+    images = list(images) if images is not None else [None] * n
+    people = list(people) if people is not None else [None] * n
+    cues, records = [None] * n, ["none"] * n
+    for i, (image, ks) in enumerate(zip(images, keypoints)):
+        if image is None:
+            continue
+        if not fitter.config.image_depth_weight:
+            records[i] = "off"
+            continue
+        t0 = time.perf_counter()
+        cues[i], records[i] = cue_from_image(image, ks, people[i])
+        records[i]["seconds"] = round(time.perf_counter() - t0, 3)
+    return cues, records
 
 
 def _hypothesis_title(h: dict, silhouette: bool) -> str:

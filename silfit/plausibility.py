@@ -312,8 +312,11 @@ def _segments(label: str) -> list:
 
 def depth_warnings(search, hypotheses=None, margin: float = HYPOTHESIS_MARGIN, search_margin: float = SEARCH_MARGIN,
                    min_shift_mm: float = MIN_SHIFT_MM, search_min_shift_mm: float = SEARCH_MIN_SHIFT_MM,
-                   early_margin: float = EARLY_SEARCH_MARGIN, early_min_shift_mm: float = EARLY_SEARCH_MIN_SHIFT_MM) -> list:
-    """One warning naming the limbs whose depth the keypoints cannot decide, or none.
+                   early_margin: float = EARLY_SEARCH_MARGIN, early_min_shift_mm: float = EARLY_SEARCH_MIN_SHIFT_MM,
+                   decided: Sequence[str] = ()) -> list:
+    """One warning naming the limbs whose depth neither the keypoints nor the image decide, or none
+    (``decided``: the segments the image depth cue decided, :mod:`silfit.fitting.image_depth`: an alternative
+    that turns only those is not close, and they are not named).
 
     An alternative is *close* when it lies within a relative energy margin of the fit and moves some
     joint far from it (:func:`moves_a_joint`):
@@ -361,6 +364,10 @@ def depth_warnings(search, hypotheses=None, margin: float = HYPOTHESIS_MARGIN, s
                 where.append(f"branch search: {t['flip']}")
                 shifts.append(t.get("max_shift_mm"))
                 used.append(search_margin)
+    if decided:  # the image decides these segments: an alternative turning nothing else is no ambiguity
+        keep = [k for k, c in enumerate(close) if not c or any(s not in decided for s in c)]
+        close = [[s for s in close[k] if s not in decided] for k in keep]
+        where, shifts, used = [where[k] for k in keep], [shifts[k] for k in keep], [used[k] for k in keep]
     if not close:
         return []
     segs = sorted({s for c in close for s in c}) or ["a limb"]

@@ -66,6 +66,9 @@ class Job:
     rig: bool = False
     #: the frames are a video's (the sequence fit and the video's outputs), even when it has one frame
     video: bool = False
+    #: ``(frame, view)`` -> the detected :class:`~silfit.detect.Person` the keypoints came from (its 3D landmarks
+    #: give the image depth cue without running the landmark model again; absent: run on ``images``)
+    people: Dict[tuple, Any] = field(default_factory=dict)
 
     @property
     def num_frames(self) -> int:
@@ -305,6 +308,7 @@ def _run_images(jobs: Sequence[Job], isolate: bool) -> list:
                            pose_prior=first.pose_prior, keypoint_config=first.keypoint_config,
                            silhouette_config=first.silhouette_config, silhouette=first.silhouette, progress=first.progress,
                            mask_sources=[job.mask_sources.get((0, 0), "mask") for job in jobs], isolate=isolate,
+                           images=[job.images.get((0, 0)) for job in jobs], people=[job.people.get((0, 0)) for job in jobs],
                            known=[o.known for o in obs])  # fmt: skip
     out = []
     for job, r in zip(jobs, results):
@@ -343,6 +347,29 @@ def _run_rigs(jobs: Sequence[Job], isolate: bool) -> list:
     return out
 
 
+def _video_depth_cues(job: Job, frames) -> tuple:
+    """``(cues, records)`` per frame of a one-camera video: the image depth cue of each frame with keypoints and an
+    image (``job.images`` or the reader's ``--images``), else ``None``; ``(None, None)`` with no image or the cue off."""
+    from .fitting.image_depth import cue_from_image
+    from .fitting.sequence import SequenceFitConfig
+
+    weight = (job.sequence_config or SequenceFitConfig()).keypoint.image_depth_weight
+    paths = dict(getattr(job.inputs, "images", None) or {})
+    numbers = list(job.frame_numbers) if job.frame_numbers is not None else list(range(len(frames)))
+    if not weight or not (job.images or paths):
+        return None, None
+    from .imagefile import read_rgb
+
+    cues, records = [None] * len(frames), ["none"] * len(frames)
+    for f, (ks, number) in enumerate(zip(frames, numbers)):
+        image = job.images.get((f, 0))
+        if image is None and number in paths:
+            image = read_rgb(paths[number], "image")
+        if ks is not None and image is not None:
+            cues[f], records[f] = cue_from_image(image, ks)
+    return cues, records
+
+
 def _run_video(job: Job) -> Fit:
     """A video of one camera (camera frame) or of a rig (world frame): the sequence fit
     (:func:`~silfit.fitting.sequence.fit_sequence`) and, where masks exist, its silhouette stage."""
@@ -355,8 +382,9 @@ def _run_video(job: Job) -> Fit:
     frames = [[o.keypoints for o in row] for row in grid] if rig else [row[0].keypoints for row in grid]
     masks = [[o.mask for o in row] for row in grid] if rig else [row[0].mask for row in grid]
     cameras = [o.view for o in grid[0]] if rig else grid[0][0].view.camera
+    cues, cue_records = (None, None) if rig else _video_depth_cues(job, frames)
     result = fit_sequence(frames, cameras, job.model, config=job.sequence_config or SequenceFitConfig(),
-                          pose_prior=job.pose_prior, progress=job.progress)  # fmt: skip
+                          pose_prior=job.pose_prior, progress=job.progress, depth_cues=cues)  # fmt: skip
     silhouette = job.silhouette and any(o.mask is not None for o in job.problem.observations)
     if silhouette:
         result = refine_sequence_silhouettes(job.model, result, frames, masks, config=job.silhouette_config,
@@ -380,7 +408,9 @@ def _run_video(job: Job) -> Fit:
         warnings += frame_warnings(frames, vertices, errors[:, 0], numbers)
     metrics = {"reprojection_error_px": finite_median(errors), "warnings": _dedupe(warnings),
                "silhouette": "run" if silhouette else "not run", "bridged_count": int(np.sum(result.bridged)),
-               "seconds_per_frame": float(result.timings["seconds_per_frame"])}  # fmt: skip
+               "seconds_per_frame": float(result.timings["seconds_per_frame"]),
+               "image_depth": "none" if cue_records is None else {  # per frame: the segments the image decided
+                   str(n): sorted(r.get("decided", {})) if isinstance(r, dict) else r for n, r in zip(numbers, cue_records)}}  # fmt: skip
     if silhouette and getattr(result, "silhouette_iou_start", None) is not None:  # the summary's "IoU a -> b"
         metrics["silhouette_iou_start"] = float(result.silhouette_iou_start)
     result.warnings = metrics["warnings"]
@@ -448,16 +478,19 @@ def write(fit: Fit, out, *, overwrite: bool = False, exports: Sequence[str] = ()
 
 def fit(keypoints, mask: Optional[np.ndarray] = None, camera=None, *, image_size: Optional[tuple] = None,
         focal: Optional[float] = None, model=None, pose_prior=None, keypoint_config=None, silhouette_config=None,
-        progress: bool = False):  # fmt: skip
+        progress: bool = False, image: Optional[np.ndarray] = None):  # fmt: skip
     """Fit SMPL to one image (a :class:`~silfit.image_fit.FitResult`): keypoints (a :class:`KeypointSet` or ``[K, 3]`` array), then,
     if ``mask [H, W]`` (bool) is given, refine against the silhouette.
 
     ``camera`` or ``image_size=(W, H)`` (+ optional ``focal``) define the camera, as for
-    :func:`silfit.fit_keypoints`. ``model`` defaults to the shipped open body model. The same
-    path as every other mode (:func:`run` on :func:`image_job`).
+    :func:`silfit.fit_keypoints`. ``model`` defaults to the shipped open body model. ``image`` (uint8 RGB
+    ``[H, W, 3]``): the landmark model's 3D on it decides limbs' depth order (the image depth cue,
+    :mod:`silfit.fitting.image_depth`; ``metrics["image_depth"]``). The same path as every other mode
+    (:func:`run` on :func:`image_job`).
     """
     job = image_job(keypoints, mask, camera, image_size=image_size, focal=focal, model=model, pose_prior=pose_prior,
-                    keypoint_config=keypoint_config, silhouette_config=silhouette_config, progress=progress)  # fmt: skip
+                    keypoint_config=keypoint_config, silhouette_config=silhouette_config, progress=progress,
+                    image=image)  # fmt: skip
     return run(job).stage
 
 

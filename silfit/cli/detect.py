@@ -78,6 +78,7 @@ def photo_inputs(image_path: str, person, detect: bool, want_mask: bool, detecte
             raise CLIError(f"{image_path}: person {index} requested, {len(people)} detected")
         chosen = people[index or 0]
         out["keypoints"] = chosen.keypoint_set("body25", source=f"{image_path} (detected keypoints)")
+        out["person"] = chosen  # its 3D landmarks: the image depth cue
         out["warnings"] = [f"detection: {w}" for w in chosen.warnings()]
         summary = chosen.to_dict()
         summary.pop("landmarks")

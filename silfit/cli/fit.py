@@ -46,7 +46,9 @@ def register(subparsers) -> None:
     cam.add_argument("--focal", type=float, help="focal length in pixels (default: max(width, height); with --sequence "
                      "it replaces the focal length of a camera.json found beside the frames)")
     p.add_argument("--image", help="the image (its size, EXIF focal length and the overlay; keypoints and mask "
-                   "are detected in it when --keypoints is not given)")
+                   "are detected in it when --keypoints is not given). Its landmark model's 3D decides which way limbs "
+                   "point in depth where it is confident (the image depth cue; metrics.json's image_depth; "
+                   "--keypoint-option image_depth_weight=0 turns it off)")
     p.add_argument("--image-size", help="WxH when neither --camera, --image nor --mask gives the size")
     p.add_argument("--no-silhouette", action="store_true", help="stop after the keypoint stage")
     p.add_argument("--model", help="SMPL or SMPL-X model file or folder, or 'open-smplx' for the shipped open whole-body "

@@ -147,7 +147,8 @@ def image_job(args) -> Job:
     return Job(Problem.single(keypoints, camera, mask, known), model, pose_prior=_pose_prior(args, model),
                keypoint_config=keypoint_settings(args, base), silhouette_config=silhouette_config(args), silhouette=not args.no_silhouette, progress=not args.quiet,
                warnings=warnings, record=record, images={} if image is None else {(0, 0): image},
-               mask_sources={(0, 0): args.mask or "mask"})  # fmt: skip
+               mask_sources={(0, 0): args.mask or "mask"},
+               people={(0, 0): photo["person"]} if photo and photo.get("person") is not None else {})  # fmt: skip
 
 
 def rig_job(args) -> Job:

@@ -292,8 +292,10 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
         sets = prepare_keypoints([s.keypoints for s in subjects])
     # every subject through the one path (silfit.run): both stages batched, in chunks of silhouette_batch
     chunk = max(1, int(silhouette_batch)) if "silhouette" in methods else len(subjects)
+    # a subject's image (image.png) gives the image depth cue (silfit.fitting.image_depth)
     jobs = [Job(Problem.single(k, s.camera, s.mask), model, silhouette="silhouette" in methods, progress=progress,
-                mask_sources={(0, 0): str(s.file("mask"))}) for k, s in zip(sets, subjects)]  # fmt: skip
+                mask_sources={(0, 0): str(s.file("mask"))}, images={} if s.image is None else {(0, 0): s.image})
+            for k, s in zip(sets, subjects)]  # fmt: skip
     fits = [f for c in range(0, len(jobs), chunk) for f in run_batch(jobs[c : c + chunk], isolate=True)]
     # a subject whose keypoints are refused (silfit.run.check) or whose keypoint stage fails fails alone
     bad = {i: (f.error if isinstance(f, StageFailure) else f) for i, f in enumerate(fits)
@@ -317,7 +319,7 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
             with atomic_folder(Path(fits_root) / s.name / "keypoints", overwrite=True) as tmp:
                 kp.save(tmp)
                 record = {"timings": {k: float(v) for k, v in kp.timings.items()}, "batched_over": min(chunk, len(subjects)),
-                          "search": search[i]}  # fmt: skip
+                          "search": search[i], "image_depth": getattr(fits[i], "metrics", {}).get("image_depth")}  # fmt: skip
                 (tmp / "metrics.json").write_text(json.dumps(record, indent=2))
         status["keypoints"] = (f"ran on {len(subjects) - len(bad)} subjects in {elapsed:.1f} s (batched; per-subject times are batch "
                                "averages)" + (f"; failed: {'; '.join(f'{subjects[i].name}: {e}' for i, e in bad.items())}" if bad else ""))

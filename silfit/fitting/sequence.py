@@ -472,9 +472,10 @@ def _initial_frames(usable_v: np.ndarray, rig: bool, stride: int) -> np.ndarray:
     return init_frames
 
 
-def _initialise_frames(model, layout, cfg, pose_prior, camera, views, rig: bool, columns, init_frames, progress):
+def _initialise_frames(model, layout, cfg, pose_prior, camera, views, rig: bool, columns, init_frames, progress,
+                       depth_cues=None):  # fmt: skip
     """Step 2 of :func:`fit_sequence`: ``init_frames`` fitted as one batch (a rig's as one-frame rigs; one camera's with
-    the branch choice over time or the neighbour and offset refits). Returns ``(fitter, per, rebranched)``: the
+    the branch choice over time or the neighbour and offset refits; ``depth_cues`` per frame). Returns ``(fitter, per, rebranched)``: the
     keypoint fitter, ``per[name] [F, size]`` (the frames not fitted zero) and the frames put on another depth branch."""
     xy_v, conf_v, usable_v = columns
     F = len(xy_v)
@@ -496,7 +497,8 @@ def _initialise_frames(model, layout, cfg, pose_prior, camera, views, rig: bool,
                 fitter = KeypointFitter(model, layout, replace(cfg.keypoint, hypotheses=max(int(cfg.branch_hypotheses), 1),
                                                                hypothesis_joint_max_m=None, hypothesis_unrefined=False),
                                         fitter.pose_prior)  # fmt: skip
-            state, info = fitter.fit_problems(probs, progress=progress)
+            cues = [depth_cues[f] for f in init_frames] if depth_cues is not None else None
+            state, info = fitter.fit_problems(probs, progress=progress, depth_cues=cues)
             energy = info["energies"][fitter.stages[-1].name]
             if cfg.branch_dp and len(probs) > 1:
                 state, rebranched[init_frames], energy = _choose_branches(model, layout, cfg.keypoint, fitter, probs, state,
@@ -601,8 +603,13 @@ def fit_sequence(
     config: Optional[SequenceFitConfig] = None,
     pose_prior=None,
     progress: bool = False,
+    depth_cues: Optional[Sequence] = None,
 ) -> SequenceFitResult:
     """Fit one person over a sequence of frames of one camera, or of a calibrated rig (module docstring).
+
+    ``depth_cues`` (one camera; per frame a :class:`~silfit.fitting.image_depth.DepthCue` from its image or
+    ``None``): each frame's start fit and its hypotheses, from which the branch is chosen over time, carry the
+    image depth cue (the ``image_depth`` term).
 
     ``frames``: one :class:`~silfit.keypoints.KeypointSet` per frame, ``None`` where no person was
     detected, with ``camera`` a :class:`~silfit.camera.Camera` (the fit in its frame); or, for a rig
@@ -625,7 +632,7 @@ def fit_sequence(
 
     # 2. per-frame initialisation, the usable frames as one batch
     fitter, per, rebranched = _initialise_frames(model, layout, cfg, pose_prior, camera, views, rig, (xy_v, conf_v, usable_v),
-                                                 init_frames, progress)  # fmt: skip
+                                                 init_frames, progress, depth_cues)  # fmt: skip
     names = tuple(fitter.params.sizes)
     t_init = time.perf_counter() - t0
     known = np.zeros(F, dtype=bool)

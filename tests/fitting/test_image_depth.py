@@ -1,0 +1,178 @@
+"""The image depth cue (issue 54): its gates, and a subject whose keypoints cannot tell a limb's depth but
+whose image can."""
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from silfit.fitting import KeypointFitConfig, KeypointFitter
+from silfit.fitting.image_depth import SEGMENTS, DepthCue, ImageDepthConfig, ImageDepthTerm, cue_data, depth_cue
+from silfit.keypoints import BLAZEPOSE33_NAMES, KeypointSet
+
+NAMES = list(BLAZEPOSE33_NAMES)
+
+
+def landmarks(forearm_dz: float):
+    """A standing person's 33 landmarks (2D pixels and 3D metres, z away from the camera) with the left
+    forearm reaching ``forearm_dz`` metres in depth (its length 0.25 m), every landmark fully visible."""
+    xy = np.zeros((33, 2))
+    world = np.zeros((33, 3))
+    pts = {"left_shoulder": (120, 100), "right_shoulder": (80, 100), "left_elbow": (130, 150), "right_elbow": (70, 150),
+           "left_wrist": (135, 190), "right_wrist": (65, 190), "left_hip": (112, 200), "right_hip": (88, 200),
+           "left_knee": (114, 280), "right_knee": (86, 280), "left_ankle": (115, 360), "right_ankle": (85, 360)}  # fmt: skip
+    for n, p in pts.items():
+        xy[NAMES.index(n)] = p
+        world[NAMES.index(n), :2] = (np.asarray(p) - (100, 200)) / 400.0
+    world[NAMES.index("left_wrist"), 2] = forearm_dz
+    world[NAMES.index("left_wrist"), 1] = world[NAMES.index("left_elbow"), 1] + np.sqrt(0.25**2 - forearm_dz**2)
+    return xy, world, np.ones(33)
+
+
+def keypoints_of(xy) -> KeypointSet:
+    from silfit.detect.layout import blazepose_to_layout
+
+    kp = blazepose_to_layout(xy, np.ones(33), "body25")
+    return KeypointSet(kp[:, :2], kp[:, 2], "body25")
+
+
+def forearm(cue: DepthCue):
+    s = [n for n, _, _ in SEGMENTS].index("left_forearm")
+    return cue.sign[s], cue.confidence[s]
+
+
+def test_a_confident_call_decides_and_a_near_flat_one_is_off():
+    xy, world, vis = landmarks(-0.2)  # depth cosine -0.8: the hand well in front of the elbow
+    sign, conf = forearm(depth_cue(world, vis, NAMES, xy, keypoints_of(xy)))
+    assert sign == -1 and conf == pytest.approx(1.0)
+    xy, world, vis = landmarks(0.04)  # depth cosine 0.16: near-flat, below ImageDepthConfig.off_below
+    assert forearm(depth_cue(world, vis, NAMES, xy, keypoints_of(xy))) == (0, 0)
+    xy, world, vis = landmarks(-0.2)
+    vis[NAMES.index("left_wrist")] = 0.2  # a hidden hand: no call
+    assert forearm(depth_cue(world, vis, NAMES, xy, keypoints_of(xy))) == (0, 0)
+
+
+def test_a_left_right_swapped_landmark_set_is_refused():
+    xy, world, vis = landmarks(-0.2)
+    kp = keypoints_of(xy)
+    swapped = xy.copy()
+    for n in NAMES:
+        if n.startswith("left_"):
+            a, b = NAMES.index(n), NAMES.index("right_" + n[5:])
+            swapped[[a, b]] = xy[[b, a]]
+    cue = depth_cue(world, vis, NAMES, swapped, kp)
+    assert cue.refused and "swapped" in cue.refused
+    assert not cue.decided() and (cue.weights() == 0).all()
+
+
+def test_a_landmark_far_from_its_keypoint_switches_its_segments_off():
+    xy, world, vis = landmarks(-0.2)
+    kp = keypoints_of(xy)
+    moved = xy.copy()
+    moved[NAMES.index("left_wrist")] += (40.0, 0.0)  # 40 px off in a 260 px person: another reading of the hand
+    cue = depth_cue(world, vis, NAMES, moved, kp)
+    assert forearm(cue) == (0, 0) and not cue.refused
+    assert forearm(depth_cue(world, vis, NAMES, moved, kp, ImageDepthConfig(max_disagreement=0.2)))[0] == -1
+
+
+def test_the_term_charges_only_the_other_side_and_is_zero_without_a_cue(body_model):
+    from silfit.fitting.terms import Evaluation
+
+    term = ImageDepthTerm(body_model.joint_names, margin=0.1)
+    J = torch.zeros(1, 24, 3, dtype=torch.float64)
+    e, w = body_model.joint_names.index("left_elbow"), body_model.joint_names.index("left_wrist")
+    J[0, w] = torch.tensor([0.0, 0.15, -0.2], dtype=torch.float64)  # the hand in front of the elbow (cosine -0.8)
+    views = {"R": torch.eye(3, dtype=torch.float64).expand(1, 1, 1, 3, 3), "t": torch.zeros(1, 1, 1, 3, dtype=torch.float64)}
+    ev = lambda data: Evaluation(1, 1, 1, {}, {}, type("B", (), {"joints": J})(), torch.zeros(1, 1, 1, 25, 2), None,  # noqa: E731
+                                 data, views=views)  # fmt: skip
+    assert float(term(ev({}))) == 0.0
+    s = [n for n, _, _ in SEGMENTS].index("left_forearm")
+    cue = np.zeros((1, 1, len(SEGMENTS)))
+    cue[0, 0, s] = -0.5  # nearer, confidence 0.5: the fit agrees
+    assert float(term(ev({"image_depth": torch.as_tensor(cue)}))) == 0.0
+    cue[0, 0, s] = 0.5  # farther: (0.1 + 0.8)^2 * 0.5
+    assert float(term(ev({"image_depth": torch.as_tensor(cue)}))) == pytest.approx(0.5 * 0.9**2)
+    assert cue_data([None, None]) is None
+
+
+FAST = KeypointFitConfig(camera_iters=20, pose_iters=(20, 20, 30), shape_iters=10, final_iters=40, late_branch_iters=20,
+                         post_branch_iters=20)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def reaching_subject(body_model):
+    """A generated hard subject (``silfit synth --poses hard``, seed 20003, subject 7, 256 px) whose right arm
+    reaches toward the camera: its keypoints fit as well with the arm reaching away."""
+    from silfit.dataset import load_subject
+    from silfit.synth.generate import SynthConfig, generate_subject
+
+    with tempfile.TemporaryDirectory() as tmp:
+        generate_subject(body_model, 7, SynthConfig(seed=20003, size=256, poses="hard", frontal_first=False), Path(tmp) / "s")
+        return load_subject(Path(tmp) / "s")
+
+
+def test_the_image_decides_a_limb_the_keypoints_cannot(body_model, reaching_subject):
+    from silfit.eval.metrics import pa_pve
+    from silfit.fitting.image_depth import cue_from_image
+
+    s = reaching_subject
+    names = body_model.joint_names
+    cue, record = cue_from_image(s.image, s.keypoints)  # the shipped landmark model on the rendered image
+    assert cue is not None and record["decided"]["right_forearm"]["distal"] == "nearer"
+    fitter = KeypointFitter(body_model, config=FAST)
+
+    def fit(cues):
+        with torch.no_grad():
+            r = fitter.fit([s.keypoints], [s.camera], progress=False, depth_cues=cues)
+        dz = r.joints[0, names.index("right_wrist"), 2] - r.joints[0, names.index("right_elbow"), 2]
+        return 1000 * pa_pve(r.vertices[0].astype(np.float64), s.gt.vertices), dz
+
+    truth_dz = s.gt.joints[names.index("right_wrist"), 2] - s.gt.joints[names.index("right_elbow"), 2]
+    assert truth_dz < -0.15  # the hand 15+ cm nearer the camera than the elbow
+    without, dz_without = fit(None)  # measured: 260 mm, the arm reaching away
+    assert without > 150 and dz_without > 0
+    with_cue, dz_with = fit([cue])  # measured: 50 mm
+    assert with_cue < 100 and dz_with < 0
+
+
+def test_without_an_image_the_fit_is_the_same_bit_for_bit(body_model, reaching_subject):
+    s = reaching_subject
+    fitter = KeypointFitter(body_model, config=KeypointFitConfig(camera_iters=5, pose_iters=(5, 5, 5), shape_iters=3,
+                                                                 final_iters=5, late_branch_iters=4, post_branch_iters=4))
+    a = fitter.fit([s.keypoints], [s.camera], progress=False)
+    b = fitter.fit([s.keypoints], [s.camera], progress=False, depth_cues=[None])
+    off = KeypointFitter(body_model, config=replace_weight(fitter.config, 0.0)).fit([s.keypoints], [s.camera], progress=False)
+    assert np.array_equal(a.joints, b.joints) and np.array_equal(a.joints, off.joints)
+    assert a.energies["final"][0] == off.energies["final"][0]
+
+
+def replace_weight(cfg, w):
+    from dataclasses import replace
+
+    return replace(cfg, image_depth_weight=w)
+
+
+def test_the_depth_warning_names_only_limbs_the_image_leaves_undecided():
+    from silfit.plausibility import depth_warnings
+
+    close = [{"stage": "branches_1", "kept": "keep",
+              "tried": [{"flip": "keep", "energy": 100.0}, {"flip": "left_upper_arm", "energy": 101.0},
+                        {"flip": "right_shin", "energy": 101.5}]}]  # fmt: skip
+    (w,) = depth_warnings(close)
+    assert w.startswith("depth ambiguous for left_upper_arm, right_shin:")
+    (w,) = depth_warnings(close, decided=["left_upper_arm"])
+    assert w.startswith("depth ambiguous for right_shin:") and "left_upper_arm" not in w
+    assert depth_warnings(close, decided=["left_upper_arm", "right_shin"]) == []
+
+
+def test_metrics_say_image_depth_none_without_an_image(body_model, reaching_subject):
+    from silfit.run import fit
+
+    s = reaching_subject
+    cfg = KeypointFitConfig(camera_iters=3, pose_iters=(3, 3, 3), shape_iters=2, final_iters=3, late_branch_iters=2,
+                            post_branch_iters=2, decision_iters=2)  # fmt: skip
+    r = fit(s.keypoints, camera=s.camera, model=body_model, keypoint_config=cfg, progress=False)
+    assert r.metrics["image_depth"] == "none"
+    r = fit(s.keypoints, camera=s.camera, model=body_model, keypoint_config=cfg, progress=False, image=s.image)
+    assert r.metrics["image_depth"]["decided"]["right_forearm"]["distal"] == "nearer"
