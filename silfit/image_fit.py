@@ -257,13 +257,13 @@ def _mask_choice_warning(hypotheses: bool, alternative: dict, c: int, choice: di
     """The warning of a fit whose depth branch the mask chose over the keypoint stage's: ``alternative`` (one of
     ``--hypotheses K``'s, ``hypotheses``, as ``hypotheses/<c + 1>``, or one of the close alternatives, named by the
     limbs it turns)."""
-    from .plausibility import _segments
+    from .plausibility import label_segments
 
     if hypotheses:
         which = f"hypothesis {c + 1} (hypotheses/{c + 1})"
         prefer = "preferred hypothesis 1"
     else:
-        turned = ", ".join(alternative.get("differs") or _segments(alternative["label"])) or "no limb by more than 45 deg"
+        turned = ", ".join(alternative.get("differs") or label_segments(alternative["label"])) or "no limb by more than 45 deg"
         which = (f"the keypoint stage's alternative turning {turned} (keypoint-stage energy {alternative['gap']:+.1%} "
                  "against its fit)")
         prefer = "preferred its fit"

@@ -297,7 +297,7 @@ def moves_a_joint(alternative, min_shift_mm: float = MIN_SHIFT_MM) -> bool:
     return shift is None or float(shift) >= min_shift_mm
 
 
-def _segments(label: str) -> list:
+def label_segments(label: str) -> list:
     """The limb and torso segments a hypothesis' label flips (``keep``: none; a root turn, ``yaw`` or
     ``turn+30``, is named ``facing``; ``/turn`` says how a hinge segment was flipped)."""
     from .fitting.branches import JOINT_HYPOTHESES, LIMB_SEGMENTS, TORSO_SEGMENT
@@ -349,7 +349,7 @@ def depth_warnings(search, hypotheses=None, margin: float = HYPOTHESIS_MARGIN, s
         e0 = hyps[0]["energy"] if hyps else 0.0
         for k, h in enumerate(hyps[1:], 2):
             if h["energy"] - e0 <= margin * abs(e0) and moves_a_joint(h, min_shift_mm):
-                close.append(list(h.get("differs") or []) or _segments(h["label"]) or _segments(hyps[0]["label"]))
+                close.append(list(h.get("differs") or []) or label_segments(h["label"]) or label_segments(hyps[0]["label"]))
                 where.append(h.get("where", f"hypotheses/{k}"))
                 shifts.append(h.get("max_shift_mm"))
                 used.append(margin)
@@ -360,7 +360,7 @@ def depth_warnings(search, hypotheses=None, margin: float = HYPOTHESIS_MARGIN, s
         for t in stage["tried"]:
             if t["flip"] != stage["kept"] and t["energy"] - kept <= search_margin * abs(kept) \
                     and moves_a_joint(t, search_min_shift_mm):
-                close.append(_segments(t["flip"]) or _segments(stage["kept"]))
+                close.append(label_segments(t["flip"]) or label_segments(stage["kept"]))
                 where.append(f"branch search: {t['flip']}")
                 shifts.append(t.get("max_shift_mm"))
                 used.append(search_margin)

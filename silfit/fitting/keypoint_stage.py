@@ -507,7 +507,7 @@ def prepare_keypoints(keypoints, layout: Optional[str] = None) -> list:
     return [KeypointSet(a[:, :2], a[:, 2], layout, source=f"<array>[{i}]") for i, a in enumerate(arr)]
 
 
-def _check_torso(ks: KeypointSet):
+def check_torso(ks: KeypointSet):
     names = ks.names
     have = [n for n in _TORSO_ALL if n in names and ks.conf[names.index(n)] > 0]
     up = [n for n in _UPPER if n in have]
@@ -768,7 +768,7 @@ class KeypointFitter:
         except ValueError:  # torso not triangulated: place it from the view that sees it best, as one image
             c = int(np.argmax([(conf[v, torso] > 0).sum() + conf[v, torso].sum() * 1e-3 for v in range(len(row))]))
             o = row[c]
-            _check_torso(o.keypoints)
+            check_torso(o.keypoints)
             orient, transl, _ = self._initial_placement(o.keypoints.xy, o.keypoints.conf, o.view.camera, False)
             orient, transl = placement_to_world(orient, transl, *ext[c], self.rest_pelvis)
         z0 = [float((R @ transl + t)[2]) for R, t in ext]
@@ -828,7 +828,7 @@ class KeypointFitter:
         for ks in sets:
             if ks.layout != self.layout:
                 raise ValueError(f"{ks.source}: keypoints are {ks.layout}, this fitter was built for {self.layout}")
-            _check_torso(ks)
+            check_torso(ks)
         cams = _resolve_cameras(sets, cameras, image_size, focal)
         problems = [Problem.single(ks, cam) for ks, cam in zip(sets, cams)]
         with torch_threads(self.config.threads):

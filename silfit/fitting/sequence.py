@@ -56,7 +56,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from ..camera import Camera, project_points
 from ..keypoints import KeypointSet, model_keypoints
-from .keypoint_stage import KeypointFitConfig, KeypointFitter, _check_torso
+from .keypoint_stage import KeypointFitConfig, KeypointFitter, check_torso
 from .problem import Observation, Problem, View
 from .aliases import Alias, renamed_fields
 from .stages import Stage
@@ -374,7 +374,7 @@ def _frame_sets(frames: Sequence[Optional[KeypointSet]], layout: str, cfg: Seque
         if outliers[f].sum() / n > cfg.outlier_frame_share:
             continue
         try:
-            _check_torso(KeypointSet(xy[f], conf_clean[f], layout, source=ks.source))
+            check_torso(KeypointSet(xy[f], conf_clean[f], layout, source=ks.source))
         except ValueError:
             continue
         usable[f] = True
@@ -595,6 +595,16 @@ def _median_reprojection(kp2d, xy_v, conf_v, usable_v) -> np.ndarray:
                       for c in range(C)] for f in range(F)])  # fmt: skip
 
 
+def _refaced_frames(orient: np.ndarray, known: np.ndarray, views, rig: bool, jump_cost: float) -> np.ndarray:
+    """Step 3 of :func:`fit_sequence`: the frames whose facing disagrees with their neighbours' (one view; several: the
+    triangulated torso gives each frame's facing, none refaced)."""
+    if len(views) != 1:
+        return np.zeros(len(orient), dtype=bool)
+    if rig:  # the facing as the view's camera sees it
+        orient = (Rotation.from_matrix(views[0].extrinsics()[0]) * Rotation.from_rotvec(orient)).as_rotvec()
+    return consistent_facings(body_forward(orient), known, jump_cost)
+
+
 def fit_sequence(
     frames: Sequence,
     camera,
@@ -622,7 +632,7 @@ def fit_sequence(
     cfg = config or SequenceFitConfig()
     model = load_body_model() if model is None else model
     rig, views, grid, layout = _frame_grid(frames, camera)
-    F, C = len(grid), len(views)
+    F = len(grid)
     t0 = time.perf_counter()
     xy_v, conf_v, outliers, usable_v = _view_columns(grid, layout, cfg)
     usable = usable_v.any(1)
@@ -639,12 +649,7 @@ def fit_sequence(
     known[init_frames] = True
 
     # 3. consistent facings (one view; several: the triangulated torso gives each frame's facing)
-    refaced = np.zeros(F, dtype=bool)
-    if C == 1:
-        orient = per["global_orient"]
-        if rig:  # the facing as the view's camera sees it
-            orient = (Rotation.from_matrix(views[0].extrinsics()[0]) * Rotation.from_rotvec(orient)).as_rotvec()
-        refaced = consistent_facings(body_forward(orient), known, cfg.facing_jump_cost)
+    refaced = _refaced_frames(per["global_orient"], known, views, rig, cfg.facing_jump_cost)
     betas0 = np.median(per["betas"][known], 0)
     per_frame = interpolate_frames(per, known)  # the per-frame fit (betas per frame too)
     start = interpolate_frames({n: per[n] for n in names if n != "betas"}, known & ~refaced)

@@ -185,7 +185,7 @@ def test_every_hinge_flexes_its_natural_way_and_a_nearly_straight_mirror_takes_t
 
 def test_a_hinge_flip_by_the_smallest_turn_is_its_own_hypothesis_and_names_its_segment(body_model):
     from silfit.fitting.branches import limb_hypotheses
-    from silfit.plausibility import _segments
+    from silfit.plausibility import label_segments
 
     body = KeypointBody(body_model, "body25")
     names, parents = body_model.joint_names, body_model.parents
@@ -198,7 +198,7 @@ def test_a_hinge_flip_by_the_smallest_turn_is_its_own_hypothesis_and_names_its_s
     both, alone = labels(hinge_turns=True), labels(hinge_turns=False)
     assert "left_forearm" in alone and "left_forearm/turn" not in alone
     assert set(both) - set(alone) == {"left_forearm/turn"}
-    assert _segments("left_forearm/turn") == ["left_forearm"]
-    assert _segments("left_upper_arm+left_forearm") == ["left_upper_arm", "left_forearm"]
-    assert _segments("turn+30+left_shin") == ["facing", "left_shin"] and _segments("yaw") == ["facing"]
-    assert _segments("keep") == []
+    assert label_segments("left_forearm/turn") == ["left_forearm"]
+    assert label_segments("left_upper_arm+left_forearm") == ["left_upper_arm", "left_forearm"]
+    assert label_segments("turn+30+left_shin") == ["facing", "left_shin"] and label_segments("yaw") == ["facing"]
+    assert label_segments("keep") == []
