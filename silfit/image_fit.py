@@ -288,6 +288,71 @@ def refine(
                         [mask_source], [known])[0]  # fmt: skip
 
 
+def _keypoint_fit_masks(keypoint_result, masks, mask_sources, faces) -> tuple:
+    """``(masks, IoUs)`` of the keypoint fits' bodies against the checked ``masks``; a mask that does not overlap its
+    body at all is refused (a wrong mask, or another image's keypoints)."""
+    kp_masks, ious_before = [], []
+    for i in range(len(masks)):
+        camera = keypoint_result.cameras[i]
+        validate_mask(masks[i], mask_sources[i], size=(camera.width, camera.height))
+        kp_masks.append(body_mask(keypoint_result.vertices[i], faces, camera))
+        ious_before.append(mask_iou(kp_masks[i], masks[i]))
+        if ious_before[i] == 0.0:
+            raise ValueError(
+                f"{mask_sources[i]}: the mask does not overlap the body fitted to the keypoints at all "
+                "(wrong mask, or keypoints of another image?)"
+            )
+    return kp_masks, ious_before
+
+
+def _alternative_rows(offered, inits: list) -> tuple:
+    """``(rows, candidates)``: the batch's problems, each image's own first, then its ``offered`` alternatives (their
+    starts appended to ``inits``); ``candidates[i]``: image ``i``'s problems, the keypoint fit first."""
+    n = len(offered)
+    rows, candidates = list(range(n)), [[i] for i in range(n)]
+    for i, hyps in enumerate(offered):
+        for h in hyps:
+            candidates[i].append(len(rows))
+            rows.append(i)
+            inits.append({k: np.asarray(v) for k, v in h["params"].items()})
+    return rows, candidates
+
+
+def _refined_metrics(one, sil, seconds: float, kp2d, keypoints, ious: tuple, guard, guarded: bool, warnings: list,
+                     choice) -> dict:  # fmt: skip
+    """An image's ``metrics.json`` after the silhouette stage: timings, reprojection errors and IoUs before and after
+    (``ious``), the stage's steps, the guard's findings (what it kept: the silhouette stage's result where it is off,
+    ``guarded`` false), warnings, the hypotheses' choice and the run record."""
+    return {
+        "stages": ["keypoints", "silhouette"],
+        "timings_s": {**{f"keypoints.{k}": float(v) for k, v in one.timings.items()},
+                      "keypoints": _stage_seconds(one.timings), "silhouette": seconds},
+        "reprojection_error_px_keypoint_stage": float(one.reprojection_error[0]),
+        "reprojection_error_px": _median_reprojection(kp2d, keypoints),
+        "iou_keypoint_stage": ious[0],
+        "iou": ious[1],
+        "silhouette_steps": sil.steps,
+        "silhouette_guard": {"kept": guard.keep if guarded else "silhouette", "less_plausible": list(guard.reasons)},
+        "warnings": warnings,
+        **({"hypotheses_silhouette": choice} if choice else {}),
+        **_run_record(one, sil),
+    }  # fmt: skip
+
+
+def _apply_guard(model, start, init, params, posed, keypoints, camera, mask_source, guarded: bool, kp_mask, warnings):
+    """The plausibility guard (:func:`silfit.plausibility.silhouette_guard`) on one refined fit: where it is less
+    plausible than the keypoint fit it started from (and the guard is on), the keypoint fit ``init`` replaces it, with
+    the guard's warnings appended to ``warnings``. Returns ``(guard, params, (vertices, joints, kp2d), final mask)``."""
+    vertices, joints, kp2d = posed
+    guard = _guard(model, start, params, keypoints, camera, kp2d, mask_source)
+    if guard.reverted and guarded:
+        params = {k: np.asarray(v) for k, v in init.items()}
+        vertices, joints, kp2d = _pose(model, params, keypoints.layout, camera)
+        warnings += list(guard.warnings)
+    final_mask = kp_mask if guard.reverted and guarded else body_mask(vertices, model.faces.cpu().numpy(), camera)
+    return guard, params, (vertices, joints, kp2d), final_mask
+
+
 def refine_batch(
     model,
     keypoint_result: KeypointFitResult,
@@ -316,38 +381,20 @@ def refine_batch(
     faces = model.faces.cpu().numpy()
     masks = [np.asarray(m, dtype=bool) for m in masks]
     cameras = keypoint_result.cameras
-    kp_masks, ious_before = [], []
-    for i in range(n):
-        camera = cameras[i]
-        validate_mask(masks[i], mask_sources[i], size=(camera.width, camera.height))
-        kp_masks.append(body_mask(keypoint_result.vertices[i], faces, camera))
-        ious_before.append(mask_iou(kp_masks[i], masks[i]))
-        if ious_before[i] == 0.0:
-            raise ValueError(
-                f"{mask_sources[i]}: the mask does not overlap the body fitted to the keypoints at all "
-                "(wrong mask, or keypoints of another image?)"
-            )
+    kp_masks, ious_before = _keypoint_fit_masks(keypoint_result, masks, mask_sources, faces)
     fit_masks, trim_notes, trimmed = _trimmed_masks(masks, kp_masks, config, mask_sources)
-    given = list(known) if known is not None else [None] * n
-    known = _known_pixels(fit_masks, kp_masks, config, mask_sources, trim_notes, trimmed)
+    own = _known_pixels(fit_masks, kp_masks, config, mask_sources, trim_notes, trimmed)
     known = [k if g is None else (np.asarray(g, dtype=bool) if k is None else k & np.asarray(g, dtype=bool))
-             for k, g in zip(known, given)]  # fmt: skip
+             for k, g in zip(own, list(known) if known is not None else [None] * n)]  # fmt: skip
     inits = [keypoint_result.params(i) for i in range(n)]
     from .fitting.problem import Problem
     from .fitting.silhouette_stage import fit_silhouette_problems
     from .fitting.hands_face import silhouette_inputs
 
-    # issue 25: --hypotheses K with a mask refines every alternative the keypoint stage offers, and without it the
-    # branches refined to the end within alternatives_margin of the fit's energy (the depth warning's margin; it also
-    # asks that they move a joint 400 mm), as more problems of this batch; the lowest final energy of the stage is
-    # kept (_choose_hypothesis)
+    # issue 25: the keypoint stage's alternatives (_offered_alternatives) as more problems of this batch; the lowest
+    # final energy of the stage is kept (_choose_hypothesis)
     offered = _offered_alternatives(keypoint_result, config)
-    rows, candidates = list(range(n)), [[i] for i in range(n)]  # per row: its problems, the keypoint fit first
-    for i, hyps in enumerate(offered):
-        for h in hyps:
-            candidates[i].append(len(rows))
-            rows.append(i)
-            inits.append({k: np.asarray(v) for k, v in h["params"].items()})
+    rows, candidates = _alternative_rows(offered, inits)
     # the layout decides the terms (a whole-body mesh keeps its hand and face keypoints)
     cfg, sets, terms, weights, data = silhouette_inputs(model, [keypoints[r] for r in rows], config, model.dtype)
     problems = [Problem.single(k, cameras[r], fit_masks[r], known[r]) for k, r in zip(sets, rows)]
@@ -367,41 +414,19 @@ def refine_batch(
         warnings = mask_warnings(masks[i], mask_sources[i]) + trim_notes[i] + list(sil.warnings)
         if c:
             warnings.append(_mask_choice_warning(keypoint_result.hypotheses is not None, offered[i][c - 1], c, choice))
-        # the plausibility guard (silfit.plausibility.silhouette_guard): a refined fit less plausible
-        # than the keypoint fit is replaced by the keypoint fit, with a warning
-        guard = _guard(model, start, params, keypoints[i], cameras[i], kp2d, mask_sources[i])
-        if guard.reverted and guarded:
-            params = {k: np.asarray(v) for k, v in inits[i].items()}
-            vertices, joints, kp2d = _pose(model, params, keypoints[i].layout, cameras[i])
-            warnings += list(guard.warnings)
-        final_mask = kp_masks[i] if guard.reverted and guarded else \
-            body_mask(vertices, faces, cameras[i])  # fmt: skip
+        guard, params, (vertices, joints, kp2d), final_mask = _apply_guard(
+            model, start, inits[i], params, (vertices, joints, kp2d), keypoints[i], cameras[i], mask_sources[i], guarded,
+            kp_masks[i], warnings)  # fmt: skip
         iou_after = mask_iou(final_mask, masks[i])
         if iou_after < ious_before[i] - 0.02:
             warnings.append(f"silhouette stage lowered the IoU ({ious_before[i]:.3f} -> {iou_after:.3f}); kept its result")
-        metrics = {
-            "stages": ["keypoints", "silhouette"],
-            "timings_s": {**{f"keypoints.{k}": float(v) for k, v in one.timings.items()},
-                          "keypoints": _stage_seconds(one.timings),
-                          "silhouette": float(sum(sils[k].seconds for k in candidates[i]))},
-            "reprojection_error_px_keypoint_stage": float(one.reprojection_error[0]),
-            "reprojection_error_px": _median_reprojection(kp2d, keypoints[i]),
-            "iou_keypoint_stage": ious_before[i],
-            "iou": iou_after,
-            "silhouette_steps": sil.steps,
-            "silhouette_guard": {"kept": guard.keep if guarded else "silhouette",
-                                 "less_plausible": list(guard.reasons)},
-            "warnings": warnings,
-            **({"hypotheses_silhouette": choice} if choice else {}),
-            **_run_record(one, sil),
-        }  # fmt: skip
-        hypotheses = []
+        metrics = _refined_metrics(one, sil, float(sum(sils[k].seconds for k in candidates[i])), kp2d, keypoints[i],
+                                   (ious_before[i], iou_after), guard, guarded, warnings, choice)  # fmt: skip
         # --hypotheses K: each one refined, for hypotheses/<k>/; the final fit came from hypothesis c + 1 (its
         # refinement, or where the guard turned it back its keypoint fit: the same guard, hypotheses/<c + 1> holds it too)
-        if keypoint_result.hypotheses is not None:
-            hypotheses = _hypothesis_outputs(model, keypoint_result.hypotheses[i] or [], keypoints[i], cameras[i],
-                                             [sils[k] for k in candidates[i]], choice or {"energies": [sil.final_energy],
-                                             "iou": [float(sil.iou_end)]}, c + 1, mask_sources[i], guarded)  # fmt: skip
+        hypotheses = [] if keypoint_result.hypotheses is None else _hypothesis_outputs(
+            model, keypoint_result.hypotheses[i] or [], keypoints[i], cameras[i], [sils[k] for k in candidates[i]],
+            choice or {"energies": [sil.final_energy], "iou": [float(sil.iou_end)]}, c + 1, mask_sources[i], guarded)
         out.append(FitResult(cameras[i], keypoints[i].layout, one, sil, params, vertices, joints, kp2d, metrics,
                              masks={"keypoint_stage": kp_masks[i], "final": final_mask,
                                     "fitted": fit_masks[i] if known[i] is None else fit_masks[i] & known[i]},
@@ -444,6 +469,31 @@ class StageFailure(Exception):
     def __init__(self, stage: str, error: Exception, partial=None):
         super().__init__(str(error))
         self.stage, self.error, self.partial = stage, error, partial
+
+
+def _add_records(model, whole_body: bool, result: FitResult, keypoints: KeypointSet, cue, cue_record) -> None:
+    """An image's fit's records and warnings, into its ``metrics``: the whole body's fitted parts, the image depth
+    cue, the plausibility and depth-ambiguity warnings (limbs the image ``cue`` decides are not named), the branch
+    search and the hypotheses (posed for ``hypotheses/<k>/`` where no silhouette stage refined them)."""
+    if whole_body:  # which parts were fitted, which held at rest
+        from .fitting.hands_face import wholebody_summary
+
+        result.metrics["whole_body"], notes = wholebody_summary(keypoints)
+        result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
+    hyps = (result.keypoint.hypotheses or [None])[0]
+    search = (result.keypoint.branch_search or [None])[0]
+    result.metrics["image_depth"] = cue_record
+    decided = cue.decided() if cue is not None else ()
+    result.metrics["warnings"] += fit_warnings(result.metrics, keypoints, result.vertices, result.params.get("betas")) \
+        + depth_warnings(search, hyps, decided=decided)
+    if search:  # every hypothesis the branch search ran to its end, with its energy
+        result.metrics["branch_search"] = search
+    if hyps is not None:  # hypotheses=K: every alternative's energy and the limbs it turns (metrics.json)
+        from .plausibility import hypothesis_summary
+
+        result.metrics["hypotheses"] = hypothesis_summary(hyps)
+        if not result.hypotheses:  # no silhouette stage: the keypoint stage's, posed (hypotheses/<k>/)
+            result.hypotheses = _hypothesis_outputs(model, hyps, keypoints, result.camera)
 
 
 def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Camera], masks: Sequence[Optional[np.ndarray]],
@@ -516,25 +566,7 @@ def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Came
             result.partial = _keypoint_only(model, kp[0][kp[1]], keypoints[i])
             out[i] = result
             continue
-        if fitter.whole_body:  # which parts were fitted, which held at rest
-            from .fitting.hands_face import wholebody_summary
-
-            result.metrics["whole_body"], notes = wholebody_summary(keypoints[i])
-            result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
-        hyps = (result.keypoint.hypotheses or [None])[0]
-        search = (result.keypoint.branch_search or [None])[0]
-        result.metrics["image_depth"] = cue_records[i]
-        decided = cues[i].decided() if cues[i] is not None else ()
-        result.metrics["warnings"] += fit_warnings(result.metrics, keypoints[i], result.vertices, result.params.get("betas")) \
-            + depth_warnings(search, hyps, decided=decided)
-        if search:  # every hypothesis the branch search ran to its end, with its energy
-            result.metrics["branch_search"] = search
-        if hyps is not None:  # hypotheses=K: every alternative's energy and the limbs it turns (metrics.json)
-            from .plausibility import hypothesis_summary
-
-            result.metrics["hypotheses"] = hypothesis_summary(hyps)
-            if not result.hypotheses:  # no silhouette stage: the keypoint stage's, posed (hypotheses/<k>/)
-                result.hypotheses = _hypothesis_outputs(model, hyps, keypoints[i], result.camera)
+        _add_records(model, fitter.whole_body, result, keypoints[i], cues[i], cue_records[i])
         out[i] = result
     return out  # type: ignore[return-value]
 
