@@ -73,7 +73,7 @@ def main(argv=None) -> int:
         subject = args.subject
         if subject is None:
             subprocess.run([sys.executable, "-m", "silfit", "synth", "--n", "1", "--seed", "3", "--size", "512",
-                            "--out", f"{tmp}/data", "--no-progress"], check=True, env=env, capture_output=True)  # fmt: skip
+                            "--out", f"{tmp}/data", "--quiet"], check=True, env=env, capture_output=True)  # fmt: skip
             subject = f"{tmp}/data/subject_000"
         print(f"Subject {subject}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs.\n")
         for sil in (False, True):

@@ -47,9 +47,9 @@ def main() -> int:
     tmp = Path(tempfile.mkdtemp(prefix="one_path_"))
     data = HERE / "data" / "synthetic" / "subject_003"
     rigs, seqs = tmp / "rigs", tmp / "seqs"
-    silfit(HERE, ["synth", "--n", "1", "--views", "3", "--size", "256", "--seed", "77", "--out", str(rigs), "--no-progress"])
-    silfit(HERE, ["synth", "--sequence", "--motions", "walk", "--frames", "8", "--n", "1", "--size", "256", "--seed", "78", "--out", str(seqs),
-                  "--no-progress"])  # fmt: skip
+    silfit(HERE, ["synth", "--n", "1", "--cameras", "3", "--size", "256", "--seed", "77", "--out", str(rigs), "--quiet"])
+    silfit(HERE, ["synth", "--videos", "--motions", "walk", "--frames", "8", "--n", "1", "--size", "256", "--seed", "78", "--out", str(seqs),
+                  "--quiet"])  # fmt: skip
     seq = next(p for p in seqs.iterdir() if p.is_dir())
     cases = {
         "image, keypoints only": ["--keypoints", str(data / "keypoints.json"), "--camera", str(data / "camera.json"),

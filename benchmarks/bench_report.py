@@ -52,7 +52,7 @@ def main() -> int:
     try:
         t = time.perf_counter()
         assert silfit(["synth", "--n", str(args.n), "--seed", str(args.seed), "--size", str(args.size), "--noise-px", "3",
-                       "--drop", "0.08", "--truncation", "0.1", "--out", str(work / "data"), "--no-progress"]) == 0  # fmt: skip
+                       "--drop", "0.08", "--truncation", "0.1", "--out", str(work / "data"), "--quiet"]) == 0  # fmt: skip
         rows.append(("silfit synth", f"{time.perf_counter() - t:.1f} s"))
         t = time.perf_counter()
         rc = silfit(["fit-dataset", str(work / "data"), "--out", str(work / "fits"), "--no-silhouette", "--batch-size",

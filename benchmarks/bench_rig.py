@@ -18,7 +18,7 @@ and worst-view IoU, seconds per subject.
 
     python benchmarks/bench_rig.py --subjects 30 --silhouette 0 --views 2,3,4 --rings --points 0,1   # issue 25: 2-view rigs
 
-``--rings``: each view count gets its own rig set, as ``silfit synth --views N`` makes them
+``--rings``: each view count gets its own rig set, as ``silfit synth --cameras N`` makes them
 (N cameras on a ring, two at 90 degrees; same seed, so the same bodies) instead of subsets of
 one 8-camera ring. ``--points`` compares weights of the keypoint stage's ``points`` term
 (``KeypointFitConfig.points_weight`` and ``final_points_weight``; 0: the stage before it).
@@ -89,7 +89,7 @@ def main(argv=None):
     ap.add_argument("--start", default="points",
                     help="comma-separated starts of the keypoint stage (silfit.fitting.rig_fit.fit_rig_keypoints: points, "
                          "rest, both); the silhouette stage refines the last one's fits")
-    ap.add_argument("--rings", action="store_true", help="one rig set per view count (silfit synth --views N)")
+    ap.add_argument("--rings", action="store_true", help="one rig set per view count (silfit synth --cameras N)")
     ap.add_argument("--points", default=None, help="comma-separated weights of the points term to compare (default: the config's)")
     ap.add_argument("--keep", help="keep the generated rig dataset in this folder (reused when it holds one)")
     args = ap.parse_args(argv)

@@ -1,6 +1,6 @@
 """Benchmark of rig videos (issue 26): per-frame rig fits vs the temporal refinement over frames x views.
 
-Generates ``--n`` fresh rig sequences (``silfit synth --sequence --views V``: walk, run, squat, wave,
+Generates ``--n`` fresh rig sequences (``silfit synth --videos --cameras V``: walk, run, squat, wave,
 turn in turn; ``--frames`` frames, ``--noise`` px keypoint noise, ``--drop`` of the keypoints dropped,
 seed ``--seed``) and fits each with :func:`silfit.fitting.sequence.fit_sequence` given the rig's views:
 its per-frame initialisation (every frame the rig's keypoint stage, one batch: ``per-frame rig fits``)

@@ -1,6 +1,6 @@
 """Benchmark of sequence fitting (issue 15, videos): per-frame fits vs the temporal refinement.
 
-Generates ``--n`` fresh sequences (``silfit synth --sequence``: walk, run, squat, wave,
+Generates ``--n`` fresh sequences (``silfit synth --videos``: walk, run, squat, wave,
 turn in turn; ``--frames`` frames at 30 fps, ``--noise`` px keypoint noise, ``--drop`` of
 the keypoints dropped, seed ``--seed``) and fits each
 

@@ -1,6 +1,6 @@
 """Benchmark of the branch choice over time in sequence fits (issue 25, videos).
 
-Generates fresh sequences of ``--motions`` (``silfit synth --sequence``; ``--frames`` frames at
+Generates fresh sequences of ``--motions`` (``silfit synth --videos``; ``--frames`` frames at
 30 fps, ``--noise`` px keypoint noise, ``--drop`` of the keypoints dropped, seed ``--seed``) and fits
 each with :func:`silfit.fitting.sequence.fit_sequence` once per ``--methods`` entry:
 

@@ -3,7 +3,7 @@
 OpenPose run on a video writes one file per frame, ``<video>_<frame, 12 digits>_keypoints.json``
 (``--write_json``). :func:`read_sequence` reads such a folder (or, when the folder holds a
 ``keypoints/`` or ``openpose/`` sub-folder, that one; ``masks/``, ``images/`` and
-``camera.json`` beside it are then picked up too, the layout ``silfit synth --sequence``
+``camera.json`` beside it are then picked up too, the layout ``silfit synth --videos``
 writes; a ``camera.json`` among the keypoint files is picked up as well). Frames are ordered by
 the number in their names; a number missing between the first and the last is a frame
 with no detection, as is a file whose ``people`` list is empty (OpenPose writes those when
@@ -410,7 +410,7 @@ def load_rig_sequence(folder: Union[str, os.PathLike], person: Union[int, str] =
     """A rig video (the rig folder of :func:`silfit.rig.load_rig`: ``cameras.json``, EasyMocap's calibration or
     sub-folders with ``camera.json``) whose views' folders are video folders as
     :func:`read_sequence` reads them (per-frame OpenPose JSON, optional ``masks/`` and
-    ``images/``; the layout ``silfit synth --sequence --views N`` writes). Frames are matched across
+    ``images/``; the layout ``silfit synth --videos --cameras N`` writes). Frames are matched across
     views by their number; a view without a frame's number has no detection there. ``names``: only
     these views (in the rig's order; an unknown name is an :class:`~silfit.errors.InputError`)."""
     folder = Path(folder)

@@ -387,3 +387,31 @@ def test_offered_alternatives():
     assert offered() == [[]]  # no branch refined (no search)
     hyps = [{"label": "fit"}, {"label": "a"}, {"label": "b"}]
     assert offered(hypotheses=[hyps], alternatives=[alts]) == [["a", "b"]]  # --hypotheses K: all of them
+
+
+def test_a_jobs_unknown_pixels_reach_the_silhouette_stage(open_model, subject, monkeypatch):
+    """Issue 55: a job's ``known`` map (``silfit fit --image``: the mask's pixels of other people) reaches the
+    silhouette stage through silfit.run's one-image path: those pixels are unknown there."""
+    import dataclasses
+
+    import silfit.fitting.silhouette_stage as stage
+    from silfit.fitting.problem import Problem
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+    from silfit.run import image_job, run
+
+    seen = []
+    real = stage.fit_silhouette_problems
+
+    def spy(model, problems, *args, **kwargs):
+        seen.extend(o.known for p in problems for o in p.observations)
+        return real(model, problems, *args, **kwargs)
+
+    monkeypatch.setattr(stage, "fit_silhouette_problems", spy)
+    cfg = SilhouetteFitConfig(resolutions=(64,), iterations=(2,), contour_iterations=1)
+    job = image_job(subject.keypoints, subject.mask, subject.camera, model=open_model, silhouette_config=cfg)
+    known = np.ones_like(subject.mask, dtype=bool)
+    ys, xs = np.nonzero(subject.mask)
+    known[ys.min(): ys.min() + 10, :] = False  # the top of the mask: another person's, say
+    obs = job.problem.observations[0]
+    run(dataclasses.replace(job, problem=Problem.single(obs.keypoints, obs.view.camera, obs.mask, known)))
+    assert seen and seen[0] is not None and not seen[0][ys.min() + 2, xs[0]] and seen[0][ys.max(), xs[-1]]

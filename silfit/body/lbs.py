@@ -58,13 +58,14 @@ __all__ = [
 
 
 class _Sqrt(torch.autograd.Function):
-    """``x * rsqrt(x)`` (0 at 0); the gradient ``grad * rsqrt(x) / 2`` (module docstring, "No VML square root")."""
+    """``x * rsqrt(x)`` (0 at 0, infinity at infinity); the gradient ``grad * rsqrt(x) / 2`` (module docstring, "No VML
+    square root")."""
 
     @staticmethod
     def forward(ctx, x):
         r = torch.rsqrt(x)
         ctx.save_for_backward(r)
-        return torch.where(x == 0, x, x * r)
+        return torch.where((x == 0) | torch.isinf(x), x, x * r)
 
     @staticmethod
     def backward(ctx, grad):

@@ -71,6 +71,14 @@ def _stage_options(texts, cls, stage: str, refused=()) -> dict:
     return overrides
 
 
+def check_out(out, overwrite: bool) -> None:
+    """An output folder that exists and is not empty is refused unless ``--overwrite`` was given (its one meaning,
+    :data:`silfit.cli.flags.MEANINGS`)."""
+    out = Path(out)
+    if out.exists() and not overwrite and (not out.is_dir() or any(out.iterdir())):
+        raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
+
+
 def _missing_folders(path: Path) -> list:
     """``path``'s ancestors that do not exist yet, deepest first (removed again on failure)."""
     missing, parent = [], path.absolute().parent

@@ -3,6 +3,7 @@ the shipped BlazePose models; writes the folder described in :mod:`silfit.detect
 from __future__ import annotations
 
 from . import CLIError, warn
+from .common import check_out
 
 
 def _positive_int(text: str) -> int:
@@ -44,8 +45,7 @@ def run(args) -> int:
     from ..detect.output import detect_photo, save_detection
 
     out = Path(args.out)
-    if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
-        raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
+    check_out(out, args.overwrite)
     if not 0.0 < args.min_score < 1.0:
         raise CLIError(f"--min-score {args.min_score}: expected a value between 0 and 1")
     photo, people = detect_photo(args.image, DetectConfig(min_score=args.min_score, max_people=args.people))

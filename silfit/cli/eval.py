@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     from ..eval.score_rig import evaluate_rig_dataset, is_rig_dataset
 
-    rig = is_rig_dataset(args.dataset)  # silfit synth --views: world-frame metrics, IoU per view
+    rig = is_rig_dataset(args.dataset)  # silfit synth --cameras: world-frame metrics, IoU per view
     try:
         report = (evaluate_rig_dataset if rig else evaluate_dataset)(args.dataset, fits=args.fits, model=model, run=args.run, methods=methods, iou=not args.no_iou,
                                   progress=not args.quiet)  # fmt: skip

@@ -12,12 +12,17 @@ def register(subparsers) -> None:
     )  # fmt: skip
     p.add_argument("kind", choices=("smpl", "smplx"), help="smpl: the open body model; smplx: the open whole-body model")
     p.add_argument("dir", help="output folder (the model goes into DIR/<kind>/, as smplx.create expects)")
+    p.add_argument("--overwrite", action="store_true", help="replace the model in an existing, non-empty DIR/<kind>/")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    from ..body.export_model import export_model
+    from pathlib import Path
 
+    from ..body.export_model import export_model
+    from .common import check_out
+
+    check_out(Path(args.dir) / args.kind, args.overwrite)
     for path in export_model(args.kind, args.dir):
         print(f"wrote {path}")
     return 0

@@ -105,7 +105,9 @@ def run(args) -> int:
     if args.ray is None and (args.actors != 2 or args.num_cpus != 1.0 or args.num_gpus != 0.0):
         raise CLIError("--actors, --num-cpus and --num-gpus are Ray options: add --ray")
     try:
-        if args.people not in ("largest", "all") and args.person is None:  # the old spelling of --person K
+        if args.person is not None and args.people != "largest":
+            raise CLIError(f"--people {args.people} and --person {args.person}: give one of them")
+        if args.people.strip().isdigit():  # the old spelling of --person K
             print(f"warning: --people {args.people} is deprecated, use --person {args.people} (same meaning)",
                   file=sys.stderr)  # fmt: skip
             args.person, args.people = args.people, "largest"

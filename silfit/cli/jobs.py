@@ -15,7 +15,7 @@ from ..fitting.problem import Observation, Problem
 from ..run import Job
 from ..run import video_job as make_video_job
 from . import CLIError, note, warn
-from .common import choose_model, keypoint_settings, silhouette_config
+from .common import check_out, choose_model, keypoint_settings, silhouette_config
 
 __all__ = ["build_job", "image_job", "rig_job", "video_job", "describe_inputs"]
 
@@ -30,9 +30,7 @@ def _person(text: str):
 
 
 def _check_out(args) -> None:
-    out = Path(args.out)
-    if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
-        raise CLIError(f"{out}: output folder exists and is not empty (use --overwrite)")
+    check_out(args.out, args.overwrite)
 
 
 def _parse_size(text: str) -> tuple:

@@ -156,7 +156,7 @@ def render_outputs(args) -> dict[str, np.ndarray]:
 
     size = parse_size(args.size)
     if args.turntable is not None and args.views:
-        raise CLIError("give either --views or --turntable, not both")
+        raise CLIError("give either --directions or --turntable, not both")
     if not 0.0 <= args.alpha <= 1.0:
         raise CLIError(f"--alpha {args.alpha}: expected a value in [0, 1]")
     offscreen.view_angles(args.views, args.turntable)  # validates view names / N before any work

@@ -60,6 +60,7 @@ def register(subparsers) -> None:
                    help="with --cameras: the rig's cameras from this cameras.json instead of the ring")
     p.add_argument("--model", default=None, help="body model file (default: the shipped open body model)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--overwrite", action="store_true", help="write into an existing, non-empty output folder")
     from .flags import deprecated_alias
 
     for old, new in (("--sequence", "--videos"), ("--views", "--cameras"), ("--layout", "--cameras-file"),
@@ -85,6 +86,9 @@ def run_sequence(args: argparse.Namespace, model) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    from .common import check_out
+
+    check_out(args.out, args.overwrite)
     if args.sequence and args.layout is not None:
         raise ValueError("--videos with --cameras-file: rig videos place their cameras on a ring (--cameras N)")
     if args.sequence:
@@ -146,9 +150,9 @@ def _run_rig(args, cfg, model, argv) -> int:
     from ..synth.camera_rigs import RigConfig, generate_rig_dataset
 
     if args.poses != "library":
-        raise ValueError("--views: rigs use the library poses (no --poses hard)")
+        raise ValueError("--cameras: rigs use the library poses (no --poses hard)")
     layout = [v.view for v in read_cameras_json(args.layout)] if args.layout else None
-    rig = RigConfig(views=args.views or (len(layout) if layout else 4), layout=layout)
+    rig = RigConfig(views=args.views if args.views is not None else (len(layout) if layout else 4), layout=layout)
     argv += ["--cameras", str(rig.views)] + (["--cameras-file", args.layout] if args.layout else [])
     index = generate_rig_dataset(args.out, args.n, cfg, rig, model=model, progress=not args.quiet, command=shlex.join(argv))
     print(f"wrote {len(index['subjects'])} rig subjects ({index['rig']} views each) to {args.out} (seed {args.seed}, "

@@ -1,4 +1,4 @@
-"""Scoring rig fits (``silfit synth --views N`` datasets) against their world-frame truth.
+"""Scoring rig fits (``silfit synth --cameras N`` datasets) against their world-frame truth.
 
 Fit outputs: ``FITS/<subject>/<method>/params.npz`` in world coordinates, as ``silfit fit
 --rig`` writes them (methods ``keypoints`` and ``silhouette``). Metrics per subject and

@@ -1,4 +1,4 @@
-"""Scoring sequence fits (``silfit synth --sequence`` datasets) against their per-frame truth.
+"""Scoring sequence fits (``silfit synth --videos`` datasets) against their per-frame truth.
 
 Methods: ``per_frame`` (the single-image keypoint stage on every frame, the fits a
 sequence fit starts from: ``FITS/<seq>/temporal/stages/per_frame/params.npz``) and
@@ -44,7 +44,7 @@ def _index(dataset: Path) -> Optional[dict]:
 
 
 def is_sequence_dataset(dataset: os.PathLike) -> bool:
-    """Whether ``dataset`` is a ``silfit synth --sequence`` dataset (its ``index.json`` says so)."""
+    """Whether ``dataset`` is a ``silfit synth --videos`` dataset (its ``index.json`` says so)."""
     from ..synth.motion import SEQUENCE_FORMAT
 
     index = _index(Path(dataset))

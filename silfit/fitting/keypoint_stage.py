@@ -178,7 +178,7 @@ class KeypointFitConfig:
     #: keypoints triangulated from the views) in the pose stages and in the shape and final stages
     #: (0 for one view: nothing is triangulated). With two views the 2D terms alone could end with a
     #: limb in the wrong depth branch (one view agrees, the robust term bounds the other's residual):
-    #: on 30 ``silfit synth --views 2`` subjects (tuning seed 0, keypoint stage) 1 and 1 took the
+    #: on 30 ``silfit synth --cameras 2`` subjects (tuning seed 0, keypoint stage) 1 and 1 took the
     #: world PVE from 19.5 to 17.9 mm mean, 66.8 to 33.6 mm worst (4 views 15.9 -> 15.8; seed 1:
     #: 2 views 18.5 -> 17.5, 3 views 16.4 -> 15.9, 4 views 15.5 -> 15.4)
     points_weight: float = 1.0

@@ -11,7 +11,7 @@ triangulated shoulders and hips give the facing) and no limb-branch search: seve
 fix a limb's depth, and the schedule starts from the body posed onto every triangulated
 keypoint (:func:`pose_from_points`) instead of the rest pose, so that no limb has to climb
 from the wrong depth branch (with two views the wrong branch could win: one view agrees with
-it, and the robust data term sets the other view's limb aside: on 30 ``silfit synth --views 2``
+it, and the robust data term sets the other view's limb aside: on 30 ``silfit synth --cameras 2``
 subjects of seed 0, 3 fits of 45-98 mm world PVE, each with its energy above the truth's;
 ``benchmarks/bench_rig.py --start rest,points`` compares). The start alone did not hold: the
 pose stages' strong prior (weight 2000 first) pulled a limb off its triangulated place and the

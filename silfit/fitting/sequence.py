@@ -73,7 +73,7 @@ ROTATIONS = ("global_orient", "body_pose")
 @renamed_fields(pose_prior_weight=Alias("pose_weight"))
 @dataclass
 class SequenceFitConfig:
-    """Settings of :func:`fit_sequence` (defaults tuned on ``silfit synth --sequence`` data,
+    """Settings of :func:`fit_sequence` (defaults tuned on ``silfit synth --videos`` data,
     see ``benchmarks/bench_sequence.py``)."""
 
     #: the per-frame initialisation (the single-image keypoint stage)

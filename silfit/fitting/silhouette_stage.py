@@ -248,6 +248,10 @@ class SilhouetteFitConfig:
         missing = [n for n in self.optimise if n not in self.lr]
         if missing:
             raise ValueError(f"SilhouetteFitConfig: no learning rate (lr) for optimised parameter(s) {', '.join(missing)}")
+        negative = [n for n in ("w_trust", "trust_fraction", "trust_ratio", "trust_median", "trust_unit_median")
+                    if not float(getattr(self, n)) >= 0]  # fmt: skip
+        if negative:
+            raise ValueError(f"SilhouetteFitConfig: {', '.join(negative)} must be 0 or more (the keypoint trust region)")
 
     @classmethod
     def legacy(cls, **changes) -> "SilhouetteFitConfig":

@@ -1,6 +1,6 @@
 """Synthetic camera rigs: one body seen by ``N`` calibrated cameras, with shared ground truth.
 
-``silfit synth --views N`` writes, per subject::
+``silfit synth --cameras N`` writes, per subject::
 
     subject_000/cameras.json        the rig (silfit.rig's manifest: intrinsics, R, t per view)
     subject_000/gt.npz              the truth in world coordinates (params, vertices, joints,
@@ -55,7 +55,7 @@ class RigConfig:
 
     def validate(self) -> "RigConfig":
         if self.layout is None and not 1 <= int(self.views) <= 64:
-            raise ValueError(f"--views must be 1..64, got {self.views}")
+            raise ValueError(f"--cameras must be 1..64, got {self.views}")
         if self.heights_m[0] > self.heights_m[1]:
             raise ValueError(f"camera height range must be low first, got {self.heights_m}")
         return self
@@ -197,7 +197,7 @@ def generate_rig_dataset(out, n: int, config: SynthConfig, rig: RigConfig, model
     if progress:
         from tqdm import tqdm
 
-        it = tqdm(it, desc="silfit synth --views", unit="subject")
+        it = tqdm(it, desc="silfit synth --cameras", unit="subject")
     records = [generate_rig_subject(model, i, cfg, rig, out / subject_name(i)) for i in it]
     views = len(rig.layout) if rig.layout is not None else int(rig.views)
     index = {

@@ -1,4 +1,4 @@
-"""Short synthetic motions with per-frame ground truth (``silfit synth --sequence``).
+"""Short synthetic motions with per-frame ground truth (``silfit synth --videos``).
 
 A motion is a cycle of key poses from the pose library (:mod:`silfit.poses.library`),
 interpolated by a periodic cubic spline of every joint's axis-angle components (smooth to
@@ -24,7 +24,7 @@ A sequence folder (one camera)::
 
 and the dataset's ``index.json`` has ``"format": "silfit-synthetic-sequence"``.
 
-A rig sequence (``silfit synth --sequence --views N``, :func:`generate_rig_sequence`): the same
+A rig sequence (``silfit synth --videos --cameras N``, :func:`generate_rig_sequence`): the same
 motion seen by ``N`` calibrated cameras on a ring (:func:`silfit.synth.camera_rigs.rig_layout`, placed so the
 whole trajectory fits their frames), a rig folder whose views are video folders::
 
@@ -125,7 +125,7 @@ def motion_trajectory(name: str, frames: int, fps: float, phase: float = 0.0) ->
 
 @dataclass
 class SequenceConfig:
-    """Settings of ``silfit synth --sequence`` (recorded in ``index.json``)."""
+    """Settings of ``silfit synth --videos`` (recorded in ``index.json``)."""
 
     seed: int = 0
     frames: int = 60
@@ -360,9 +360,9 @@ def generate_sequence_dataset(out: os.PathLike, n: int, config: Optional[Sequenc
     if progress:
         from tqdm import tqdm
 
-        iterator = tqdm(iterator, desc="silfit synth --sequence", unit="sequence")
+        iterator = tqdm(iterator, desc="silfit synth --videos", unit="sequence")
     if views is not None and not 1 <= int(views) <= 64:
-        raise ValueError(f"--views must be 1..64, got {views}")
+        raise ValueError(f"--cameras must be 1..64, got {views}")
     records: List[dict] = [generate_sequence(model, i, cfg, out / f"seq_{i:03d}") if views is None
                            else generate_rig_sequence(model, i, cfg, int(views), out / f"seq_{i:03d}") for i in iterator]  # fmt: skip
     index = {

@@ -166,3 +166,18 @@ def test_a_body_does_not_depend_on_the_rest_of_its_batch(open_model, dtype):
     _, _, y0, g0 = runs[0]
     for B, pos, y, g in runs[1:]:
         assert torch.equal(y, y0) and torch.equal(g, g0), f"row at position {pos} of a batch of {B} differs"
+
+
+def test_sqrt_is_the_square_root_within_two_ulp_and_keeps_zero_and_infinity():
+    """silfit.body.lbs.sqrt (no MKL vector maths: the same bits on every processor) against numpy's correctly
+    rounded square root, its ends and its gradient."""
+    import numpy as np
+
+    from silfit.body.lbs import sqrt
+
+    x = torch.rand(10000, generator=torch.Generator().manual_seed(3), dtype=torch.float64) * 100
+    exact = np.sqrt(x.numpy())
+    assert (np.abs(sqrt(x).numpy() - exact) <= 2 * np.spacing(exact)).all()
+    ends = sqrt(torch.tensor([0.0, float("inf")], dtype=torch.float64))
+    assert ends[0] == 0 and torch.isinf(ends[1])
+    assert torch.autograd.gradcheck(sqrt, (torch.rand(8, dtype=torch.float64) + 0.1).requires_grad_())

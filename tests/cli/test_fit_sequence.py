@@ -1,4 +1,4 @@
-"""``silfit fit --sequence`` and ``silfit synth --sequence`` end to end on a tiny sequence (toy body)."""
+"""``silfit fit --sequence`` and ``silfit synth --videos`` end to end on a tiny sequence (toy body)."""
 import json
 import sys
 from pathlib import Path
@@ -263,7 +263,7 @@ def test_fit_sequence_says_which_frames_have_no_mask(sequence, tmp_path, capsys)
 
 
 def test_a_rig_video_is_synthesised_fitted_over_every_view_and_rendered(sequence, tmp_path, capsys):
-    """``silfit synth --sequence --views 2`` writes a rig whose views are video folders; ``silfit fit --rig``
+    """``silfit synth --videos --cameras 2`` writes a rig whose views are video folders; ``silfit fit --rig``
     fits it as one video seen by every view (world frame, one shape, every view's masks) into one fit file
     of frames x views that ``silfit render`` draws."""
     _, model = sequence

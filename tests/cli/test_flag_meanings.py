@@ -89,3 +89,27 @@ def test_a_mistyped_stage_option_gets_a_suggestion(flag, typo, suggestion, tmp_p
     assert main(["fit", "--keypoints", str(tmp_path / "kp.json"), "--out", str(tmp_path / "o"), flag, typo]) == 2
     err = capsys.readouterr().err
     assert f"did you mean {suggestion}" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_synth_and_export_model_refuse_a_non_empty_folder_without_overwrite(tmp_path, capsys):
+    from silfit.cli import main
+
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "mine.txt").write_text("keep")
+    assert main(["synth", "--n", "1", "--size", "32", "--out", str(tmp_path / "data"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "use --overwrite" in err and err.count("\n") == 1 and (tmp_path / "data" / "mine.txt").exists()
+    (tmp_path / "models" / "smpl").mkdir(parents=True)
+    (tmp_path / "models" / "smpl" / "x").write_text("")
+    assert main(["export-model", "smpl", str(tmp_path / "models")]) == 2
+    assert not (tmp_path / "models" / "smpl" / "SMPL_NEUTRAL.pkl").exists()
+    assert main(["export-model", "smpl", str(tmp_path / "models"), "--overwrite"]) == 0
+    assert (tmp_path / "models" / "smpl" / "SMPL_NEUTRAL.pkl").exists()
+
+
+def test_fit_dataset_refuses_people_with_person(tmp_path, capsys):
+    from silfit.cli import main
+
+    assert main(["fit-dataset", str(tmp_path), "--out", str(tmp_path / "o"), "--people", "all", "--person", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "give one of them" in err and err.count("\n") == 1 and not (tmp_path / "o").exists()

@@ -104,7 +104,7 @@ def test_problem_data_holds_the_triangulated_points_for_several_views_only(body_
 
 @pytest.fixture(scope="module")
 def limb_in_wrong_branch(body_model, tmp_path_factory):
-    # ``silfit synth --views 2 --seed 0``'s subject 3 (512 px, 2 px noise): the 2D terms of two
+    # ``silfit synth --cameras 2 --seed 0``'s subject 3 (512 px, 2 px noise): the 2D terms of two
     # views alone end with the left arm in the wrong depth branch (measured: world PVE 66.6 mm with
     # the FAST schedule, the wrist 160 mm off, the fit's energy above the truth's; 4 views: 21 mm)
     d = tmp_path_factory.mktemp("rig2_branch")
