@@ -48,7 +48,7 @@ def register(subparsers) -> None:
     p.add_argument("--image", help="the image (its size, EXIF focal length and the overlay; keypoints and mask "
                    "are detected in it when --keypoints is not given). Its landmark model's 3D decides which way limbs "
                    "point in depth where it is confident (the image depth cue; metrics.json's image_depth; "
-                   "--keypoint-option image_depth_weight=0 turns it off)")
+                   "off by default: --keypoint-option image_depth_weight=100 turns it on)")
     p.add_argument("--image-size", help="WxH when neither --camera, --image nor --mask gives the size")
     p.add_argument("--no-silhouette", action="store_true", help="stop after the keypoint stage")
     p.add_argument("--model", help="SMPL or SMPL-X model file or folder, or 'open-smplx' for the shipped open whole-body "

@@ -310,11 +310,10 @@ class KeypointFitConfig:
     #: the image depth cue (:mod:`silfit.fitting.image_depth`, the ``image_depth`` term; issue 54): each limb
     #: segment whose depth order the landmark model's 3D decides, charged where the fit turns it the other way,
     #: in the branch searches (their hypotheses ranked by it) and in every stage at the final weights. Problems
-    #: without an image have no cue: the term is 0 and their fit is the same bit for bit. 0: off. Tuning seeds
-    #: 20000-20001 (30 hard and 30 easy generated subjects, keypoint stage): 100 took the hard set's PA-PVE mean
-    #: from 79.1 to 57.2 mm (above 150 mm 3 -> 0), the easy set's 72.0 -> 72.1; 1000 only to 63.5 (one fit broken
-    #: by a wrong call), easy 73.0 (docs/benchmarks/image-depth.md)
-    image_depth_weight: float = 100.0
+    #: without an image have no cue: the term is 0 and their fit is the same bit for bit. 0 (the default): off;
+    #: 100 is the weight measured (docs/benchmarks/image-depth.md): on fresh seeds, with the other changes of
+    #: 2026-12-06 merged, it did not pay (hard and easy sets slightly worse, one easy fit broken), so it is asked for
+    image_depth_weight: float = 0.0
     #: the term's margin: a decided segment's depth cosine (along the ray) must reach this on the cue's side
     image_depth_margin: float = 0.1
     #: temporal terms (``smooth_joints``, ``smooth_root``; weight 0 in the single-image

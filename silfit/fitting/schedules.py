@@ -28,9 +28,8 @@ LATE_BRANCHES = {"branches": {**BRANCHES["branches"], "carry": 4}}
 POST_BRANCHES = {"branches": {**BRANCHES["branches"], "screen_after": 20}}
 
 #: the final stage's weights (also the late branch search's); ``points`` (the keypoints triangulated
-#: from several views) is 0 for one view, ``image_depth`` (the image depth cue, issue 54) without an image
-FINAL = {"keypoints": 1.0, "points": 1.0, "pose": 40.0, "angle": 1.0, "limits": 1e4, "shape": 5.0, "interpenetration": 1e5,
-         "image_depth": 100.0}
+#: from several views) is 0 for one view
+FINAL = {"keypoints": 1.0, "points": 1.0, "pose": 40.0, "angle": 1.0, "limits": 1e4, "shape": 5.0, "interpenetration": 1e5}
 #: single image (and the per-frame start of a video), SMPL: :class:`~silfit.fitting.keypoint_stage.KeypointFitConfig`
 KEYPOINT_SCHEDULE = (
     #     name          free    weights (term: weight)                                                          iterations
@@ -39,7 +38,7 @@ KEYPOINT_SCHEDULE = (
           options={"decide_after": 20}),  # each problem keeps its best start (facing x initial pose) after 20 steps
     Stage("pose_2",     POSE,   {"keypoints": 1.0, "points": 1.0, "pose": 400.0, "angle": 5.0, "limits": 1e4},       30),
     Stage("branches_1", POSE,   {"keypoints": 1.0, "points": 1.0, "pose": 400.0, "angle": 5.0, "limits": 1e4,
-                                 "interpenetration": 1e5, "image_depth": 100.0},                                       20,
+                                 "interpenetration": 1e5},                                                           20,
           options=BRANCHES),
     Stage("pose_3",     POSE,   {"keypoints": 1.0, "points": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4},        40),
     Stage("shape",      SHAPE,  {"keypoints": 1.0, "points": 1.0, "shape": 20.0},                                    20),

@@ -120,7 +120,7 @@ def test_the_image_decides_a_limb_the_keypoints_cannot(body_model, reaching_subj
     names = body_model.joint_names
     cue, record = cue_from_image(s.image, s.keypoints)  # the shipped landmark model on the rendered image
     assert cue is not None and record["decided"]["right_forearm"]["distal"] == "nearer"
-    fitter = KeypointFitter(body_model, config=FAST)
+    fitter = KeypointFitter(body_model, config=replace_weight(FAST, 100.0))  # the weight measured; off by default
 
     def fit(cues):
         with torch.no_grad():
@@ -139,7 +139,8 @@ def test_the_image_decides_a_limb_the_keypoints_cannot(body_model, reaching_subj
 def test_without_an_image_the_fit_is_the_same_bit_for_bit(body_model, reaching_subject):
     s = reaching_subject
     fitter = KeypointFitter(body_model, config=KeypointFitConfig(camera_iters=5, pose_iters=(5, 5, 5), shape_iters=3,
-                                                                 final_iters=5, late_branch_iters=4, post_branch_iters=4))
+                                                                 final_iters=5, late_branch_iters=4, post_branch_iters=4,
+                                                                 image_depth_weight=100.0))  # fmt: skip
     a = fitter.fit([s.keypoints], [s.camera], progress=False)
     b = fitter.fit([s.keypoints], [s.camera], progress=False, depth_cues=[None])
     off = KeypointFitter(body_model, config=replace_weight(fitter.config, 0.0)).fit([s.keypoints], [s.camera], progress=False)
@@ -174,5 +175,8 @@ def test_metrics_say_image_depth_none_without_an_image(body_model, reaching_subj
                             post_branch_iters=2, decision_iters=2)  # fmt: skip
     r = fit(s.keypoints, camera=s.camera, model=body_model, keypoint_config=cfg, progress=False)
     assert r.metrics["image_depth"] == "none"
+    r = fit(s.keypoints, camera=s.camera, model=body_model, keypoint_config=cfg, progress=False, image=s.image)
+    assert r.metrics["image_depth"] == "off"  # the default: the cue is asked for
+    cfg = replace_weight(cfg, 100.0)
     r = fit(s.keypoints, camera=s.camera, model=body_model, keypoint_config=cfg, progress=False, image=s.image)
     assert r.metrics["image_depth"]["decided"]["right_forearm"]["distal"] == "nearer"
