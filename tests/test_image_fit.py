@@ -103,11 +103,9 @@ def test_the_guard_keeps_the_keypoint_fit_when_the_silhouette_fit_is_less_plausi
     assert not np.allclose(off.params["body_pose"], result.params["body_pose"])
 
 
-def test_a_leak_far_from_the_body_is_set_aside_with_a_note(open_model, subject, monkeypatch):
-    """Issue 23: mask pixels far from the keypoint fit's body (a leak) reach the silhouette stage as
-    unknown (``Observation.known``), with a note in the warnings; a mask without one passes none."""
+def _known_seen_by_the_stage(monkeypatch) -> list:
+    """The ``known`` map of every observation the silhouette stage is given, in order (a spy on it)."""
     import silfit.fitting.silhouette_stage as stage
-    from silfit.fitting.silhouette_stage import SilhouetteFitConfig
 
     seen = []
     real = stage.fit_silhouette_problems
@@ -117,6 +115,15 @@ def test_a_leak_far_from_the_body_is_set_aside_with_a_note(open_model, subject, 
         return real(model, problems, *args, **kwargs)
 
     monkeypatch.setattr(stage, "fit_silhouette_problems", spy)
+    return seen
+
+
+def test_a_leak_far_from_the_body_is_set_aside_with_a_note(open_model, subject, monkeypatch):
+    """Issue 23: mask pixels far from the keypoint fit's body (a leak) reach the silhouette stage as
+    unknown (``Observation.known``), with a note in the warnings; a mask without one passes none."""
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+
+    seen = _known_seen_by_the_stage(monkeypatch)
     cfg = SilhouetteFitConfig(resolutions=(64,), iterations=(2,), contour_iterations=1)
     mask = subject.mask.copy()
     ys, xs = np.nonzero(mask)
@@ -394,19 +401,11 @@ def test_a_jobs_unknown_pixels_reach_the_silhouette_stage(open_model, subject, m
     silhouette stage through silfit.run's one-image path: those pixels are unknown there."""
     import dataclasses
 
-    import silfit.fitting.silhouette_stage as stage
     from silfit.fitting.problem import Problem
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
     from silfit.run import image_job, run
 
-    seen = []
-    real = stage.fit_silhouette_problems
-
-    def spy(model, problems, *args, **kwargs):
-        seen.extend(o.known for p in problems for o in p.observations)
-        return real(model, problems, *args, **kwargs)
-
-    monkeypatch.setattr(stage, "fit_silhouette_problems", spy)
+    seen = _known_seen_by_the_stage(monkeypatch)
     cfg = SilhouetteFitConfig(resolutions=(64,), iterations=(2,), contour_iterations=1)
     job = image_job(subject.keypoints, subject.mask, subject.camera, model=open_model, silhouette_config=cfg)
     known = np.ones_like(subject.mask, dtype=bool)
