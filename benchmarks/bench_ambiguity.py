@@ -21,6 +21,7 @@ optimiser would find it) or not (the energy prefers the wrong branch).
     python benchmarks/bench_ambiguity.py --n 30 --seed 8700
     python benchmarks/bench_ambiguity.py --n 20 --seed 31 --sweep    # tuning: other margins / shifts
 """
+
 from __future__ import annotations
 
 import argparse
@@ -56,18 +57,28 @@ def _fit(fitter, sets, cams, gts, model, batch):
 
     rows = []
     for i in range(0, len(sets), batch):
-        res = fitter.fit(sets[i: i + batch], cams[i: i + batch], progress=False)
-        e_truth, _ = fitter.energy_at({n: np.stack([getattr(g, n) for g in gts[i: i + batch]]) for n in NAMES},
-                                      sets[i: i + batch], cams[i: i + batch])  # fmt: skip
+        res = fitter.fit(sets[i : i + batch], cams[i : i + batch], progress=False)
+        e_truth, _ = fitter.energy_at(
+            {n: np.stack([getattr(g, n) for g in gts[i : i + batch]]) for n in NAMES},
+            sets[i : i + batch],
+            cams[i : i + batch],
+        )
         for j in range(len(res)):
             gt = gts[i + j]
             fit_pve = 1000 * float(pa_pve(res.vertices[j].astype(np.float64), gt.vertices))
             hyps = res.hypotheses[j] if res.hypotheses else None
-            rows.append({"pve": fit_pve, "search": res.branch_search[j], "hyps": hyps,
-                         "best": min([fit_pve] + [pve(h["params"], gt) for h in (hyps or [])[1:]]),
-                         "e_fit": float(res.energies["final"][j]), "e_truth": float(e_truth[j]),
-                         "reproj": float(res.reprojection_error[j]),
-                         "terms": {t: float(v[j]) for t, v in res.term_energies["final"].items()}})  # fmt: skip
+            rows.append(
+                {
+                    "pve": fit_pve,
+                    "search": res.branch_search[j],
+                    "hyps": hyps,
+                    "best": min([fit_pve] + [pve(h["params"], gt) for h in (hyps or [])[1:]]),
+                    "e_fit": float(res.energies["final"][j]),
+                    "e_truth": float(e_truth[j]),
+                    "reproj": float(res.reprojection_error[j]),
+                    "terms": {t: float(v[j]) for t, v in res.term_energies["final"].items()},
+                }
+            )
     return rows
 
 
@@ -86,15 +97,21 @@ def _table(rows, title, K):
     good, bad = pve < 60, pve > 150
     mid = ~good & ~bad
     print(f"### {title}\n")
-    print(f"PA-PVE mean {pve.mean():.1f} mm, median {np.median(pve):.1f} mm; good (< 60 mm) {good.sum()}, "
-          f"middling {mid.sum()}, bad (> 150 mm) {bad.sum()} of {len(rows)}\n")
-    print("| rule | fits warned | bad warned (hits) | middling warned | good warned (false alarms) |"
-          + (f" best of {K} within 60 mm | alternatives offered (unrefined) |" if K > 1 else ""))
+    print(
+        f"PA-PVE mean {pve.mean():.1f} mm, median {np.median(pve):.1f} mm; good (< 60 mm) {good.sum()}, "
+        f"middling {mid.sum()}, bad (> 150 mm) {bad.sum()} of {len(rows)}\n"
+    )
+    print(
+        "| rule | fits warned | bad warned (hits) | middling warned | good warned (false alarms) |"
+        + (f" best of {K} within 60 mm | alternatives offered (unrefined) |" if K > 1 else "")
+    )
     print("|---|---:|---:|---:|---:|" + ("---:|---:|" if K > 1 else ""))
     for which in ("before", "after"):
         w = np.array([_warned(r, which) for r in rows])
-        line = (f"| {which} | {w.sum()}/{len(rows)} | {(w & bad).sum()}/{bad.sum()} | {(w & mid).sum()}/{mid.sum()} "
-                f"| {(w & good).sum()}/{good.sum()} |")
+        line = (
+            f"| {which} | {w.sum()}/{len(rows)} | {(w & bad).sum()}/{bad.sum()} | {(w & mid).sum()}/{mid.sum()} "
+            f"| {(w & good).sum()}/{good.sum()} |"
+        )
         if K > 1:
             best = np.array([r["best"] for r in rows])
             offered = sum(len(r["hyps"] or []) - 1 for r in rows)
@@ -107,28 +124,40 @@ def _table(rows, title, K):
 def _sweep(rows):
     pve = np.array([r["pve"] for r in rows])
     good, bad = pve < 60, pve > 150
-    print("| refined margin | min shift (mm) | earlier search's margin | its min shift (mm) | bad warned | good warned |")
+    print(
+        "| refined margin | min shift (mm) | earlier search's margin | its min shift (mm) | bad warned | good warned |"
+    )
     print("|---:|---:|---:|---:|---:|---:|")
     for m in (0.05, 0.1, 0.2, 0.3):
         for s in (300, 400):
             for em in (0.0, 0.02, 0.05, 0.1):
                 for es in (300, 400, 500):
-                    w = np.array([_warned(r, "after", margin=m, min_shift_mm=s, early_margin=em, early_min_shift_mm=es)
-                                  for r in rows])  # fmt: skip
-                    print(f"| {m:g} | {s:g} | {em:g} | {es:g} | {(w & bad).sum()}/{bad.sum()} | {(w & good).sum()}/{good.sum()} |")
+                    w = np.array(
+                        [
+                            _warned(r, "after", margin=m, min_shift_mm=s, early_margin=em, early_min_shift_mm=es)
+                            for r in rows
+                        ]
+                    )
+                    print(
+                        f"| {m:g} | {s:g} | {em:g} | {es:g} | {(w & bad).sum()}/{bad.sum()} | {(w & good).sum()}/{good.sum()} |"
+                    )
     print()
 
 
 def _bad_fits(rows, title):
-    print(f"Bad fits (> 150 mm), {title}: is the truth's energy below the fit's (search failure) or not "
-          "(the energy prefers the wrong branch)?\n")
+    print(
+        f"Bad fits (> 150 mm), {title}: is the truth's energy below the fit's (search failure) or not "
+        "(the energy prefers the wrong branch)?\n"
+    )
     print("| subject | PA-PVE (mm) | fit energy | truth energy | truth lower | warned before | warned after |")
     print("|---:|---:|---:|---:|---|---|---|")
     for i, r in enumerate(rows):
         if r["pve"] > 150:
-            print(f"| {i} | {r['pve']:.0f} | {r['e_fit']:.1f} | {r['e_truth']:.1f} | "
-                  f"{'yes (search failure)' if r['e_truth'] < r['e_fit'] * (1 - 1e-3) else 'no'} "
-                  f"| {_warned(r, 'before')} | {_warned(r, 'after')} |")
+            print(
+                f"| {i} | {r['pve']:.0f} | {r['e_fit']:.1f} | {r['e_truth']:.1f} | "
+                f"{'yes (search failure)' if r['e_truth'] < r['e_fit'] * (1 - 1e-3) else 'no'} "
+                f"| {_warned(r, 'before')} | {_warned(r, 'after')} |"
+            )
     higher = sum(r["e_truth"] > r["e_fit"] * (1 + 1e-3) for r in rows)
     print(f"\nAll subjects: truth energy above the fit's in {higher}/{len(rows)}\n")
 
@@ -162,9 +191,14 @@ def main() -> None:
     ap.add_argument("--k", type=int, default=3, help="hypotheses of the second run (1: the default run only)")
     ap.add_argument("--sweep", action="store_true", help="also the after rule at other margins and shifts (tuning)")
     ap.add_argument("--save", type=Path, help="write each run's per-subject rows here (pickle; for offline tuning)")
-    ap.add_argument("--baseline", action="append", default=[], metavar="NAME=VALUE",
-                    help="first fit with these KeypointFitConfig settings (repeatable; e.g. post_branch_iters=0: the "
-                         "schedule before the search from the fit)")  # fmt: skip
+    ap.add_argument(
+        "--baseline",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="first fit with these KeypointFitConfig settings (repeatable; e.g. post_branch_iters=0: the "
+        "schedule before the search from the fit)",
+    )
     args = ap.parse_args()
 
     model = load_body_model()
@@ -176,20 +210,25 @@ def main() -> None:
 
         if any("=" not in o for o in args.baseline):
             ap.error("--baseline takes NAME=VALUE")
-        runs.insert(0, (f"baseline: {', '.join(args.baseline)}", keypoint_config(dict(o.split("=", 1) for o in args.baseline))))
+        runs.insert(
+            0, (f"baseline: {', '.join(args.baseline)}", keypoint_config(dict(o.split("=", 1) for o in args.baseline)))
+        )
     if args.k > 1:
         runs.append((f"--hypotheses {args.k}", KeypointFitConfig(hypotheses=args.k)))
     for title, config in runs:
         t0, c0 = time.perf_counter(), time.process_time()
         rows = _fit(KeypointFitter(model, config=config), sets, cams, gts, model, args.batch)
         failures = sum(r["e_truth"] < r["e_fit"] * (1 - 1e-3) for r in rows)
-        print(f"{title}: CPU {(time.process_time() - c0) / len(rows):.2f} s per subject (the truth's energy included); "
-              f"search failures (the truth's energy below the fit's) {failures}/{len(rows)}\n")
+        print(
+            f"{title}: CPU {(time.process_time() - c0) / len(rows):.2f} s per subject (the truth's energy included); "
+            f"search failures (the truth's energy below the fit's) {failures}/{len(rows)}\n"
+        )
         if args.save:
             import pickle
 
-            args.save.write_bytes(pickle.dumps({**(pickle.loads(args.save.read_bytes()) if args.save.is_file() else {}),
-                                                title: rows}))  # fmt: skip
+            args.save.write_bytes(
+                pickle.dumps({**(pickle.loads(args.save.read_bytes()) if args.save.is_file() else {}), title: rows})
+            )
         _table(rows, f"{title} ({time.perf_counter() - t0:.0f} s)", config.hypotheses)
         if args.sweep:
             _sweep(rows)

@@ -5,6 +5,7 @@ shipped open model (or ``--model PATH``). Prints a Markdown table of median time
 
 Target on a 2-core CPU: batch 1 forward+backward under 30 ms.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -34,8 +35,10 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=30)
     args = parser.parse_args()
     model = load_body_model(args.model)
-    print(f"model: {model.source} ({model.num_vertices} vertices), torch {torch.__version__}, "
-          f"{torch.get_num_threads()} threads\n")
+    print(
+        f"model: {model.source} ({model.num_vertices} vertices), torch {torch.__version__}, "
+        f"{torch.get_num_threads()} threads\n"
+    )
     print("| batch | forward (ms) | forward+backward (ms) | per sample fwd+bwd (ms) |")
     print("|---:|---:|---:|---:|")
     for batch in (1, 64):

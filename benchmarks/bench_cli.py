@@ -10,6 +10,7 @@ stage; then the wall time of the real command (``python -m silfit fit``, median 
 Target on the 2-core CPU (issue 10): ``silfit fit`` with silhouettes at most 5 s wall for
 one 512x512 image.  Timings on a shared machine are noisy: the CPU column is the steadier.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -72,13 +73,36 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         subject = args.subject
         if subject is None:
-            subprocess.run([sys.executable, "-m", "silfit", "synth", "--n", "1", "--seed", "3", "--size", "512",
-                            "--out", f"{tmp}/data", "--quiet"], check=True, env=env, capture_output=True)  # fmt: skip
+            subprocess.run(
+                [
+                    sys.executable,
+                    "-m",
+                    "silfit",
+                    "synth",
+                    "--n",
+                    "1",
+                    "--seed",
+                    "3",
+                    "--size",
+                    "512",
+                    "--out",
+                    f"{tmp}/data",
+                    "--quiet",
+                ],
+                check=True,
+                env=env,
+                capture_output=True,
+            )
             subject = f"{tmp}/data/subject_000"
         print(f"Subject {subject}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs.\n")
         for sil in (False, True):
-            out = subprocess.run([sys.executable, "-c", PHASES, subject, str(int(sil)), f"{tmp}/o"], check=True,
-                                 env=env, capture_output=True, text=True)  # fmt: skip
+            out = subprocess.run(
+                [sys.executable, "-c", PHASES, subject, str(int(sil)), f"{tmp}/o"],
+                check=True,
+                env=env,
+                capture_output=True,
+                text=True,
+            )
             rows = json.loads(out.stdout.strip().splitlines()[-1])
             print(f"### Phases of one `silfit fit` ({'with' if sil else 'without'} the silhouette stage)\n")
             print("| phase | wall (s) | CPU (s) |\n|---|---:|---:|")
@@ -87,12 +111,29 @@ def main(argv=None) -> int:
             print(f"| **total** | {sum(r[1] for r in rows):.2f} | {sum(r[2] for r in rows):.2f} |\n")
         print("### `python -m silfit fit` wall time (median of %d)\n" % args.repeats)
         print("| command | wall (s) | CPU (s) |\n|---|---:|---:|")
-        for label, extra in (("--no-silhouette", ["--no-silhouette"]), ("with --mask", ["--mask", f"{subject}/mask.png"])):
+        for label, extra in (
+            ("--no-silhouette", ["--no-silhouette"]),
+            ("with --mask", ["--mask", f"{subject}/mask.png"]),
+        ):
             walls, cpus = [], []
             for _ in range(args.repeats):
-                cmd = [sys.executable, "-m", "silfit", "fit", "--keypoints", f"{subject}/keypoints.json", "--camera",
-                       f"{subject}/camera.json", "--image", f"{subject}/image.png", "--out", f"{tmp}/cli", "--overwrite",
-                       "--quiet", *extra]  # fmt: skip
+                cmd = [
+                    sys.executable,
+                    "-m",
+                    "silfit",
+                    "fit",
+                    "--keypoints",
+                    f"{subject}/keypoints.json",
+                    "--camera",
+                    f"{subject}/camera.json",
+                    "--image",
+                    f"{subject}/image.png",
+                    "--out",
+                    f"{tmp}/cli",
+                    "--overwrite",
+                    "--quiet",
+                    *extra,
+                ]
                 t = time.perf_counter()
                 before = os.times()
                 subprocess.run(cmd, check=True, env=env, capture_output=True)
@@ -100,7 +141,7 @@ def main(argv=None) -> int:
                 walls.append(time.perf_counter() - t)
                 cpus.append(after.children_user - before.children_user + after.children_system - before.children_system)
             print(f"| silfit fit {label} | {statistics.median(walls):.2f} | {statistics.median(cpus):.2f} |")
-        print(f"\ntarget: silfit fit with silhouettes <= 5 s wall")
+        print("\ntarget: silfit fit with silhouettes <= 5 s wall")
     return 0
 
 

@@ -28,6 +28,7 @@ machine is noisy; ratios within one pass).
 
     .venv/bin/python benchmarks/bench_dataset.py --n 24 --sil-subset 24 --silhouette-only --no-ray --workers 2 --twice
 """
+
 from __future__ import annotations
 
 import argparse
@@ -93,7 +94,9 @@ def uneven_batches():
     from silfit.runner import run as runmod
 
     original = runmod.shared_batches
-    runmod.shared_batches = lambda items, batch, workers: runmod.batches(items, max(1, min(int(batch), -(-len(items) // max(1, int(workers))))))
+    runmod.shared_batches = lambda items, batch, workers: runmod.batches(
+        items, max(1, min(int(batch), -(-len(items) // max(1, int(workers)))))
+    )
     try:
         yield
     finally:
@@ -117,8 +120,18 @@ def stage_changes(**changes):
 def run(data: Path, out: Path, silhouette: bool, batch: int, ray: bool, label: str = "", workers: int = 1) -> dict:
     shutil.rmtree(out, ignore_errors=True)
     t0 = time.perf_counter()
-    s = fit_dataset(data, out, people="all", options=FitOptions(silhouette=silhouette), batch_size=batch,
-                    ray=ray, actors=2, num_cpus=1, workers=workers, progress=False)  # fmt: skip
+    s = fit_dataset(
+        data,
+        out,
+        people="all",
+        options=FitOptions(silhouette=silhouette),
+        batch_size=batch,
+        ray=ray,
+        actors=2,
+        num_cpus=1,
+        workers=workers,
+        progress=False,
+    )
     wall = time.perf_counter() - t0
     ok = [r for r in s["records"] if r["status"] == "ok"]
     images = len({r["keypoints"] for r in s["records"]})
@@ -129,13 +142,22 @@ def run(data: Path, out: Path, silhouette: bool, batch: int, ray: bool, label: s
     n = len(s["records"])
     other = (workers * wall - t("total").sum()) / n
     return {
-        "mode": ("Ray, 2 actors" if ray else f"local, {workers} process{'es' if workers > 1 else ''}") + label, "batch": batch, "silhouette": silhouette,
-        "items": n, "images": images, "ok": len(ok), "failed": s["failed"], "wall": wall,
-        "images_h": 3600 * images / wall, "items_h": 3600 * n / wall, "fit": float(np.median(fit)),
-        "io": float(np.median(io)), "other": other,
+        "mode": ("Ray, 2 actors" if ray else f"local, {workers} process{'es' if workers > 1 else ''}") + label,
+        "batch": batch,
+        "silhouette": silhouette,
+        "items": n,
+        "images": images,
+        "ok": len(ok),
+        "failed": s["failed"],
+        "wall": wall,
+        "images_h": 3600 * images / wall,
+        "items_h": 3600 * n / wall,
+        "fit": float(np.median(fit)),
+        "io": float(np.median(io)),
+        "other": other,
         "kp_stage": float(t("keypoints").mean()) if ok else float("nan"),
         "sil_stage": float(t("silhouette").mean()) if ok else float("nan"),
-    }  # fmt: skip
+    }
 
 
 def main() -> None:
@@ -147,10 +169,16 @@ def main() -> None:
     parser.add_argument("--work", help="folder for the generated data and outputs (default: a temporary one)")
     parser.add_argument("--no-ray", action="store_true", help="skip the Ray runs")
     parser.add_argument("--silhouette-only", action="store_true", help="only the runs with the silhouette stage")
-    parser.add_argument("--main", action="store_true",
-                        help="also the local silhouette run with edge_density=None (the stage before issue 24's speed part)")
-    parser.add_argument("--close", action="store_true",
-                        help="also the local silhouette run with alternatives_margin=0 (before issue 25's close alternatives)")
+    parser.add_argument(
+        "--main",
+        action="store_true",
+        help="also the local silhouette run with edge_density=None (the stage before issue 24's speed part)",
+    )
+    parser.add_argument(
+        "--close",
+        action="store_true",
+        help="also the local silhouette run with alternatives_margin=0 (before issue 25's close alternatives)",
+    )
     parser.add_argument("--workers", type=int, default=1, help="also the local runs in this many worker processes")
     parser.add_argument("--twice", action="store_true", help="the silhouette subset's local rows twice, in turn")
     parser.add_argument("--uneven", action="store_true", help="with --workers: also the batches cut as before")
@@ -179,15 +207,33 @@ def main() -> None:
             print(rows[-1], flush=True)
         if args.main:
             with stage_changes(**{**BEFORE_SAMPLING_PART, "edge_density": None, "alternatives_margin": 0.0}):
-                rows.append(run(sub, root / "out_sil_b8_main", True, 8, False, " (main: edge_density=None, spp=4, alternatives_margin=0)"))
+                rows.append(
+                    run(
+                        sub,
+                        root / "out_sil_b8_main",
+                        True,
+                        8,
+                        False,
+                        " (main: edge_density=None, spp=4, alternatives_margin=0)",
+                    )
+                )
             print(rows[-1], flush=True)
         for _ in range(2 if args.twice else 1):
             rows.append(run(sub, root / "out_sil_b8", True, 8, False))
             print(rows[-1], flush=True)
             if args.workers > 1 and args.uneven:
                 with uneven_batches():
-                    rows.append(run(sub, root / f"out_sil_b8_w{args.workers}_uneven", True, 8, False, " (batches as before)",
-                                    workers=args.workers))  # fmt: skip
+                    rows.append(
+                        run(
+                            sub,
+                            root / f"out_sil_b8_w{args.workers}_uneven",
+                            True,
+                            8,
+                            False,
+                            " (batches as before)",
+                            workers=args.workers,
+                        )
+                    )
                 print(rows[-1], flush=True)
             if args.workers > 1:
                 rows.append(run(sub, root / f"out_sil_b8_w{args.workers}", True, 8, False, workers=args.workers))
@@ -195,16 +241,22 @@ def main() -> None:
         if not args.no_ray:
             rows.append(run(sub, root / "out_sil_ray", True, 8, True))
             print(rows[-1], flush=True)
-    print(f"\n{args.n} generated subjects ({args.size} px), every fifth with a second keypoint-only person, "
-          f"3 corrupted files (keypoints of subject 10, camera of 21, mask of 3); --people all. Work: {root}\n")  # fmt: skip
-    print("| run | batch | silhouette | images | items | failed | wall (s) | images/h | items/h "
-          "| fit s/item (median) | keypoint stage s/item (mean) | silhouette stage s/item (mean) "
-          "| read+write s/item (median) | other s/item |")
+    print(
+        f"\n{args.n} generated subjects ({args.size} px), every fifth with a second keypoint-only person, "
+        f"3 corrupted files (keypoints of subject 10, camera of 21, mask of 3); --people all. Work: {root}\n"
+    )
+    print(
+        "| run | batch | silhouette | images | items | failed | wall (s) | images/h | items/h "
+        "| fit s/item (median) | keypoint stage s/item (mean) | silhouette stage s/item (mean) "
+        "| read+write s/item (median) | other s/item |"
+    )
     print("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
-        print(f"| {r['mode']} | {r['batch']} | {'yes' if r['silhouette'] else 'no'} | {r['images']} | {r['items']} "
-              f"| {r['failed']} | {r['wall']:.0f} | {r['images_h']:.0f} | {r['items_h']:.0f} | {r['fit']:.2f} "
-              f"| {r['kp_stage']:.2f} | {r['sil_stage']:.2f} | {r['io']:.2f} | {r['other']:.2f} |")  # fmt: skip
+        print(
+            f"| {r['mode']} | {r['batch']} | {'yes' if r['silhouette'] else 'no'} | {r['images']} | {r['items']} "
+            f"| {r['failed']} | {r['wall']:.0f} | {r['images_h']:.0f} | {r['items_h']:.0f} | {r['fit']:.2f} "
+            f"| {r['kp_stage']:.2f} | {r['sil_stage']:.2f} | {r['io']:.2f} | {r['other']:.2f} |"
+        )
 
 
 if __name__ == "__main__":

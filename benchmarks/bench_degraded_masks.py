@@ -22,6 +22,7 @@ stage computes what main's does (the trust region's older path, the fill side's 
 
     python benchmarks/bench_degraded_masks.py --n 8 --seed 5501
 """
+
 from __future__ import annotations
 
 import argparse
@@ -47,8 +48,14 @@ from silfit.silhouette.people import own_mask
 #: mask-not-covered side as strong as the inside side)
 MAIN = dict(trust_from_start=False, trust_fraction=0.06, w_trust=0.05, cover_weight=1.0)
 #: the defaults with one change (tuning; ``--methods``)
-VARIANTS = {"weakfill": dict(cover_weight=0.5), "fill1": dict(cover_weight=1.0), "oldtrust": MAIN,
-            "w05": dict(w_trust=0.5), "med50": dict(trust_median=0.5), "w02med50": dict(w_trust=0.2, trust_median=0.5)}
+VARIANTS = {
+    "weakfill": dict(cover_weight=0.5),
+    "fill1": dict(cover_weight=1.0),
+    "oldtrust": MAIN,
+    "w05": dict(w_trust=0.5),
+    "med50": dict(trust_median=0.5),
+    "w02med50": dict(w_trust=0.2, trust_median=0.5),
+}
 
 
 KEEP = 0.04  # as Person.own_mask: within 4 % of the person's extent of their own skeleton, a pixel stays theirs
@@ -95,22 +102,45 @@ def main() -> None:
 
     model = load_body_model()
     with tempfile.TemporaryDirectory() as tmp:
-        generate_dataset(Path(tmp) / "d", args.n, SynthConfig(seed=args.seed, size=args.size, noise_px=1.0), model=model)
+        generate_dataset(
+            Path(tmp) / "d", args.n, SynthConfig(seed=args.seed, size=args.size, noise_px=1.0), model=model
+        )
         dirs = sorted(p for p in (Path(tmp) / "d").iterdir() if (p / "gt.npz").is_file())
-        raw = [(read_keypoints(d / "keypoints.json"), read_mask(d / "mask.png"), load_camera(d / "camera.json"),
-                read_gt(d / "gt.npz"), cut_subject(d)) for d in dirs]  # fmt: skip
+        raw = [
+            (
+                read_keypoints(d / "keypoints.json"),
+                read_mask(d / "mask.png"),
+                load_camera(d / "camera.json"),
+                read_gt(d / "gt.npz"),
+                cut_subject(d),
+            )
+            for d in dirs
+        ]
     subjects = []  # per subject: {condition: (keypoints, mask, camera, others)}, gt
     for i, (kp, mask, cam, gt, (kc, mc, cc, _)) in enumerate(raw):
         height = np.ptp(np.nonzero(mask)[0])
         okp, omask = raw[(i + 1) % len(raw)][0], raw[(i + 1) % len(raw)][1]
         joined, moved, mkp = second_person(mask, kp, omask, okp, args.overlap)
-        subjects.append(({"clean": (kp, mask, cam, ()), "clothing": (kp, grow(mask, max(1, int(0.04 * height))), cam, ()),
-                          "cut": (kc, mc, cc, ()), "second": (kp, joined, cam, ((moved, mkp),))}, gt))  # fmt: skip
+        subjects.append(
+            (
+                {
+                    "clean": (kp, mask, cam, ()),
+                    "clothing": (kp, grow(mask, max(1, int(0.04 * height))), cam, ()),
+                    "cut": (kc, mc, cc, ()),
+                    "second": (kp, joined, cam, ((moved, mkp),)),
+                },
+                gt,
+            )
+        )
     fitter = KeypointFitter(model)
-    print(f"# Degraded masks: {len(subjects)} subjects (seed {args.seed}, {args.size} px, second person's overlap "
-          f"{args.overlap:.0%})" + (f"; after: {after}" if after else "") + "\n")  # fmt: skip
-    print("| condition | method | PA-PVE mean / worst (mm) | vs keypoints only | PVE mean (mm) | reprojection median px | "
-          "IoU mean | turned back | most worsened (mm) / fits worse by > 5 mm | s per image |")
+    print(
+        f"# Degraded masks: {len(subjects)} subjects (seed {args.seed}, {args.size} px, second person's overlap "
+        f"{args.overlap:.0%})" + (f"; after: {after}" if after else "") + "\n"
+    )
+    print(
+        "| condition | method | PA-PVE mean / worst (mm) | vs keypoints only | PVE mean (mm) | reprojection median px | "
+        "IoU mean | turned back | most worsened (mm) / fits worse by > 5 mm | s per image |"
+    )
     print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|")
     kp_cache = {}
     for cond in args.conditions.split(","):
@@ -124,17 +154,24 @@ def main() -> None:
         ref = float(np.mean([r["pa"] for r in base]))
         _row(cond, "keypoints only", base, ref, None)
         ref_each = np.array([r["pa"] for r in base])
-        runs = [(m, MAIN if m == "main" else {**after, **VARIANTS.get(m, {})}, m != "main")
-                for m in args.methods.split(",")]  # fmt: skip
+        runs = [
+            (m, MAIN if m == "main" else {**after, **VARIANTS.get(m, {})}, m != "main") for m in args.methods.split(",")
+        ]
         if cond == "second" and "after" in args.methods.split(","):
             runs.append(("after, no subtraction", after, False))
         for name, changes, subtract in runs:
             cfg = replace(SilhouetteFitConfig(), **changes)
             known = None
             if subtract:  # the other person's region of the mask unknown (Person.own_mask, as silfit fit --image)
-                own = [own_mask(m, (k.xy, k.conf, k.names), [(om, ok.xy, ok.conf, ok.names, 0.06 * _extent(ok))
-                                                              for om, ok in o], keep=KEEP * _extent(k))
-                       for m, k, o in zip(masks, sets, others)]  # fmt: skip
+                own = [
+                    own_mask(
+                        m,
+                        (k.xy, k.conf, k.names),
+                        [(om, ok.xy, ok.conf, ok.names, 0.06 * _extent(ok)) for om, ok in o],
+                        keep=KEEP * _extent(k),
+                    )
+                    for m, k, o in zip(masks, sets, others)
+                ]
                 known = [None if np.array_equal(o, m) else ~(m & ~o) for o, m in zip(own, masks)]
             t0 = time.perf_counter()
             fits = refine_batch(model, kp, sets, masks, cfg, fitter.pose_prior, progress=False, known=known)
@@ -158,9 +195,12 @@ def _row(cond, name, rows, ref, seconds, ref_each=None) -> None:
     worse = "" if ref_each is None else f"{(pa - ref_each).max():+.1f} / {int(np.sum(pa - ref_each > 5.0))}"
     gain = "" if seconds is None else f"{100 * (ref - pa.mean()) / ref:+.1f} %"
     iou = get("iou")
-    print(f"| {cond} | {name} | {pa.mean():.1f} / {pa.max():.1f} | {gain} | {get('pve').mean():.1f} | "
-          f"{np.median(get('reproj')):.2f} | {np.nanmean(iou) if np.isfinite(iou).any() else float('nan'):.3f} | "
-          f"{int(get('kept_kp').sum())} | {worse} | {'' if seconds is None else f'{seconds:.1f}'} |", flush=True)
+    print(
+        f"| {cond} | {name} | {pa.mean():.1f} / {pa.max():.1f} | {gain} | {get('pve').mean():.1f} | "
+        f"{np.median(get('reproj')):.2f} | {np.nanmean(iou) if np.isfinite(iou).any() else float('nan'):.3f} | "
+        f"{int(get('kept_kp').sum())} | {worse} | {'' if seconds is None else f'{seconds:.1f}'} |",
+        flush=True,
+    )
 
 
 if __name__ == "__main__":

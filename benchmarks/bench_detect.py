@@ -19,6 +19,7 @@ Measured:
 
     python benchmarks/bench_detect.py --n 30 --silhouette 8
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,7 +44,9 @@ def pa_pve_mm(vertices, gt_vertices) -> float:
 def generate(out: Path, n: int, seed: int, size: int, fill, truncation: float):
     from silfit.synth import SynthConfig, generate_dataset
 
-    cfg = SynthConfig(seed=seed, size=size, noise_px=0.0, fill=tuple(fill), truncation_prob=truncation, background="mixed")
+    cfg = SynthConfig(
+        seed=seed, size=size, noise_px=0.0, fill=tuple(fill), truncation_prob=truncation, background="mixed"
+    )
     generate_dataset(out, n, cfg)
     return [load_subject(p) for p in list_subjects(out)]
 
@@ -105,7 +108,9 @@ def main():
     ious = np.array([r["iou"] for r in found])
     print(f"\n## Detection on {len(rows)} rendered subjects ({args.size} x {args.size} px, seed {args.seed})\n")
     print("| metric | value |\n|---|---:|")
-    print(f"| detection rate (min score {args.min_score}) | {len(found)}/{len(rows)} ({100 * len(found) / len(rows):.0f} %) |")
+    print(
+        f"| detection rate (min score {args.min_score}) | {len(found)}/{len(rows)} ({100 * len(found) / len(rows):.0f} %) |"
+    )
     print(f"| detection rate (min score 0.3) | {low}/{len(rows)} ({100 * low / len(rows):.0f} %) |")
     print(f"| keypoint error, median over all joints (px) | {np.nanmedian(err):.1f} |")
     print(f"| keypoint error, mean of per-subject medians (px) | {np.nanmean(np.nanmedian(err, axis=1)):.1f} |")
@@ -149,8 +154,10 @@ def main():
         dt = (time.perf_counter() - t) / (2 * k)
         print(f"\n## Fit PA-PVE (mm), keypoints + silhouette, first {k} detected subjects ({dt:.0f} s per fit)\n")
         print("| inputs | keypoint stage mean / median | + silhouette mean / median |\n|---|---:|---:|")
-        for name, kp_key, sil_key in (("detected keypoints + mask", "detected_kp", "detected"),
-                                      ("true keypoints + mask", "true_kp", "true")):  # fmt: skip
+        for name, kp_key, sil_key in (
+            ("detected keypoints + mask", "detected_kp", "detected"),
+            ("true keypoints + mask", "true_kp", "true"),
+        ):
             a, b = res[kp_key], res[sil_key]
             print(f"| {name} | {np.mean(a):.1f} / {np.median(a):.1f} | {np.mean(b):.1f} / {np.median(b):.1f} |")
 

@@ -21,6 +21,7 @@ energy is not the right comparison (bench_ambiguity.py's "truth lower" uses it):
 its own basin's minimum; the refined truth's is. A refined truth costlier than the fit but within
 :data:`APART_MM` of it is the same pose with the shape prior not yet settled, not another branch.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -75,12 +76,13 @@ def _fit_rows(fitter, sets, cams, gts, model, batch, refine, diagnose=False):
     weights = {k: float(v) for k, v in final.weights.items() if v}
     refiner = None
     if refine:
-        cfg = replace(fitter.config, schedule=[replace(final, iterations=refine)], flip_test=False, hypotheses=1,
-                      branch_refine=0)
+        cfg = replace(
+            fitter.config, schedule=[replace(final, iterations=refine)], flip_test=False, hypotheses=1, branch_refine=0
+        )
         refiner = KeypointFitter(model, config=cfg, pose_prior=fitter.pose_prior)
     rows = []
     for i in range(0, len(sets), batch):
-        s, c, g = sets[i: i + batch], cams[i: i + batch], gts[i: i + batch]
+        s, c, g = sets[i : i + batch], cams[i : i + batch], gts[i : i + batch]
         res = fitter.fit(s, c, progress=False)
         fit_p = {n: getattr(res, n) for n in NAMES}
         truth_p = {n: np.stack([getattr(x, n) for x in g]) for n in NAMES}
@@ -104,12 +106,20 @@ def _fit_rows(fitter, sets, cams, gts, model, batch, refine, diagnose=False):
                     mixed[tag] = (fitter.energy_at(p_, s, c)[0], p_)
                 needed = mixed.pop("needed", {})
         for j in range(len(s)):
-            r = {"pve": pve(fit_p, g[j], j), "e_fit": float(e_fit[j]), "e_truth": float(e_tr[j]),
-                 "fit": {k: weights[k] * float(t_fit[k][j]) for k in weights},
-                 "truth": {k: weights[k] * float(t_tr[k][j]) for k in weights}}  # fmt: skip
+            r = {
+                "pve": pve(fit_p, g[j], j),
+                "e_fit": float(e_fit[j]),
+                "e_truth": float(e_tr[j]),
+                "fit": {k: weights[k] * float(t_fit[k][j]) for k in weights},
+                "truth": {k: weights[k] * float(t_tr[k][j]) for k in weights},
+            }
             if refiner is not None:
-                r.update(e_ref=float(e_ref[j]), ref={k: weights[k] * float(t_ref[k][j]) for k in weights},
-                         pve_ref=pve(ref_p, g[j], j), apart=pve(ref_p, _Verts(res.vertices[j]), j))  # fmt: skip
+                r.update(
+                    e_ref=float(e_ref[j]),
+                    ref={k: weights[k] * float(t_ref[k][j]) for k in weights},
+                    pve_ref=pve(ref_p, g[j], j),
+                    apart=pve(ref_p, _Verts(res.vertices[j]), j),
+                )
                 for tag, (e_, p_) in mixed.items():
                     r[f"e_{tag}"], r[f"pve_{tag}"] = float(e_[j]), pve(p_, g[j], j)
                 if mixed:
@@ -144,8 +154,9 @@ def truth_flips(fitter, fit_p, truth_p, min_ratio=0.15):
     for seg, _, _ in LIMB_SEGMENTS:
         now = ratios(rows)[seg]
         for k in np.nonzero((np.sign(now) != np.sign(truth[seg])) & (np.abs(truth[seg]) >= min_ratio))[0].tolist():
-            rows["body_pose"][k] = flip_segment(body, {n: v[k: k + 1] for n, v in rows.items()}, seg, names, parents,
-                                                 hinge=False)[0]
+            rows["body_pose"][k] = flip_segment(
+                body, {n: v[k : k + 1] for n, v in rows.items()}, seg, names, parents, hinge=False
+            )[0]
             flipped[k].append(seg)
     return rows["body_pose"].numpy(), flipped
 
@@ -156,37 +167,57 @@ class _Verts:  # PA-PVE between two fits: the fit's vertices as the reference
 
 
 def _subjects(name, rows):
-    print(f"\n{name}: per subject (energies of the final stage; 'apart': PA-PVE between the fit and the refined truth)\n")
+    print(
+        f"\n{name}: per subject (energies of the final stage; 'apart': PA-PVE between the fit and the refined truth)\n"
+    )
     diag = "e_orient" in rows[0]
-    print("| subject | fit PA-PVE | refined truth PA-PVE | apart (mm) | fit energy | truth | refined truth | largest cause |"
-          + (" fit + truth's orient: energy, PA-PVE | fit + truth's pose: energy, PA-PVE | fit + truth's flips: energy, "
-             "PA-PVE | flips needed |" if diag else ""))
+    print(
+        "| subject | fit PA-PVE | refined truth PA-PVE | apart (mm) | fit energy | truth | refined truth | largest cause |"
+        + (
+            " fit + truth's orient: energy, PA-PVE | fit + truth's pose: energy, PA-PVE | fit + truth's flips: energy, "
+            "PA-PVE | flips needed |"
+            if diag
+            else ""
+        )
+    )
     print("|---:|---:|---:|---:|---:|---:|---:|---|" + ("---:|---:|---:|---|" if diag else ""))
     for i, r in enumerate(rows):
         diffs = {k: r["ref"][k] - r["fit"][k] for k in r["fit"]}
         cause = max(diffs, key=diffs.get) if r["e_ref"] > r["e_fit"] * (1 + 1e-3) else "-"
-        print(f"| {i} | {r['pve']:.0f} | {r['pve_ref']:.0f} | {r['apart']:.0f} | {r['e_fit']:.1f} | {r['e_truth']:.1f} "
-              f"| {r['e_ref']:.1f} | {cause} ({diffs.get(cause, 0):+.1f}) |"
-              + (f" {r['e_orient']:.1f}, {r['pve_orient']:.0f} | {r['e_pose']:.1f}, {r['pve_pose']:.0f} | {r['e_flips']:.1f}, "
-                 f"{r['pve_flips']:.0f} | {'+'.join(r['needed']) or '-'} |" if diag else ""))
+        print(
+            f"| {i} | {r['pve']:.0f} | {r['pve_ref']:.0f} | {r['apart']:.0f} | {r['e_fit']:.1f} | {r['e_truth']:.1f} "
+            f"| {r['e_ref']:.1f} | {cause} ({diffs.get(cause, 0):+.1f}) |"
+            + (
+                f" {r['e_orient']:.1f}, {r['pve_orient']:.0f} | {r['e_pose']:.1f}, {r['pve_pose']:.0f} | {r['e_flips']:.1f}, "
+                f"{r['pve_flips']:.0f} | {'+'.join(r['needed']) or '-'} |"
+                if diag
+                else ""
+            )
+        )
 
 
 def _summary(name, rows, seconds):
     pve = np.array([r["pve"] for r in rows])
     fail = sum(r["e_truth"] < r["e_fit"] * (1 - 1e-3) or r.get("e_ref", np.inf) < r["e_fit"] * (1 - 1e-3) for r in rows)
     costlier = sum(r.get("e_ref", r["e_truth"]) > r["e_fit"] * (1 + 1e-3) for r in rows)
-    other = sum(r.get("e_ref", r["e_truth"]) > r["e_fit"] * (1 + 1e-3) and r.get("apart", np.inf) > APART_MM for r in rows)
+    other = sum(
+        r.get("e_ref", r["e_truth"]) > r["e_fit"] * (1 + 1e-3) and r.get("apart", np.inf) > APART_MM for r in rows
+    )
     ref = np.array([r.get("pve_ref", np.nan) for r in rows])
-    return (f"| {name} | {pve.mean():.1f} | {np.median(pve):.1f} | {(pve > 150).sum()}/{len(rows)} | {fail}/{len(rows)} "
-            f"| {costlier}/{len(rows)} | {other}/{len(rows)} | {np.nanmean(ref):.1f} | {seconds / len(rows):.2f} |")
+    return (
+        f"| {name} | {pve.mean():.1f} | {np.median(pve):.1f} | {(pve > 150).sum()}/{len(rows)} | {fail}/{len(rows)} "
+        f"| {costlier}/{len(rows)} | {other}/{len(rows)} | {np.nanmean(ref):.1f} | {seconds / len(rows):.2f} |"
+    )
 
 
 def _terms(name, rows, terms, which):
     """Per term: mean w*(which - fit), and among subjects where ``which`` costs more than the fit, how often the
     term is the largest contributor and how often it alone decides."""
     key_e = "e_ref" if which == "ref" else "e_truth"
-    print(f"\n{name}: per term, {'refined truth' if which == 'ref' else 'truth'} minus fit (weighted; "
-          f"costlier in {sum(r[key_e] > r['e_fit'] * (1 + 1e-3) for r in rows)}/{len(rows)})\n")
+    print(
+        f"\n{name}: per term, {'refined truth' if which == 'ref' else 'truth'} minus fit (weighted; "
+        f"costlier in {sum(r[key_e] > r['e_fit'] * (1 + 1e-3) for r in rows)}/{len(rows)})\n"
+    )
     print("| term | mean | median | truth higher | largest cause | decides alone |")
     print("|---|---:|---:|---:|---:|---:|")
     for t in terms:
@@ -208,13 +239,21 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=8650)
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--batch", type=int, default=10)
-    ap.add_argument("--variants", nargs="*", default=["default"], help=f"of {', '.join(_variants())}, or PATH.npz "
-                    "(a mixture prior at the default weights)")  # fmt: skip
+    ap.add_argument(
+        "--variants",
+        nargs="*",
+        default=["default"],
+        help=f"of {', '.join(_variants())}, or PATH.npz (a mixture prior at the default weights)",
+    )
     ap.add_argument("--refine", type=int, default=100, help="L-BFGS steps of the final stage from the truth (0: none)")
     ap.add_argument("--subjects", action="store_true", help="per-subject rows (the first variant)")
-    ap.add_argument("--diagnose", action="store_true", help="with --subjects: also the final stage (--refine steps) "
-                    "from the fit with the truth's global orientation, with the truth's body pose, and with the truth's "
-                    "depth branches (the fit's limb segments flipped where the truth's point the other way)")
+    ap.add_argument(
+        "--diagnose",
+        action="store_true",
+        help="with --subjects: also the final stage (--refine steps) "
+        "from the fit with the truth's global orientation, with the truth's body pose, and with the truth's "
+        "depth branches (the fit's limb segments flipped where the truth's point the other way)",
+    )
     ap.add_argument("--only", help="comma-separated indices of the generated subjects to fit (e.g. the failures)")
     ap.add_argument("--terms", action="store_true", help="the per-term tables for every variant (default: the first)")
     args = ap.parse_args()
@@ -234,8 +273,10 @@ def main() -> None:
         table[v] = (rows, terms, time.process_time() - t0)
         print(f"(done {v}: {time.process_time() - t0:.0f} CPU s)", flush=True)
     print(f"\n# Energy terms at truth and fit, {len(sets)} hard subjects (seed {args.seed}), keypoint stage\n")
-    print(f"| variant | PA-PVE mean (mm) | median | > 150 mm | search failures | truth costlier | costlier, other basin "
-          f"(> {APART_MM:g} mm apart) | refined truth PA-PVE | CPU s / subject (fit + truth refine) |")
+    print(
+        f"| variant | PA-PVE mean (mm) | median | > 150 mm | search failures | truth costlier | costlier, other basin "
+        f"(> {APART_MM:g} mm apart) | refined truth PA-PVE | CPU s / subject (fit + truth refine) |"
+    )
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for v, (rows, terms, sec) in table.items():
         print(_summary(v, rows, sec))

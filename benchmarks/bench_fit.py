@@ -38,6 +38,7 @@ stage, and the relative change against the issue's targets.
     python benchmarks/bench_fit.py --subjects 0 --no-shipped --hard 60 --seed 101      # the hard set (issue 9's table)
     python benchmarks/bench_fit.py --subjects 0 --no-shipped --silhouette-batches 1,8,16
 """
+
 from __future__ import annotations
 
 import argparse
@@ -74,9 +75,13 @@ def generate(model, n, seed=0, noise_px=2.0, size=512):
     pose[:, 57:69] *= 0.3  # wrists and hands (SMPL joints 20-23): small
     pose = clamp_to_limits(pose)
     yaw = torch.rand(n, generator=g).numpy() * 2 * math.pi
-    orient = np.stack([(Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, y, 0])).as_rotvec() for y in yaw])
+    orient = np.stack(
+        [(Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, y, 0])).as_rotvec() for y in yaw]
+    )
     betas = torch.randn(n, 10, generator=g) * 0.5
-    transl = torch.stack([torch.rand(n, generator=g) * 0.4 - 0.2, torch.rand(n, generator=g) * 0.2, 3.0 + torch.rand(n, generator=g)], 1)
+    transl = torch.stack(
+        [torch.rand(n, generator=g) * 0.4 - 0.2, torch.rand(n, generator=g) * 0.2, 3.0 + torch.rand(n, generator=g)], 1
+    )
     gt = dict(betas=betas, body_pose=pose, global_orient=torch.tensor(orient, dtype=torch.float32), transl=transl)
     with torch.no_grad():
         out = model(**gt)
@@ -84,8 +89,9 @@ def generate(model, n, seed=0, noise_px=2.0, size=512):
         xy = project_points(model_keypoints(model, out, "body25"), cam)
     xy = xy + noise_px * torch.randn(xy.shape, generator=g)
     kps = [np.concatenate([xy[i].numpy(), np.ones((25, 1))], 1) for i in range(n)]
-    return dict(keypoints=kps, cameras=[cam] * n, joints=out.joints.numpy(), vertices=out.vertices.numpy(),
-                global_orient=orient)  # fmt: skip
+    return dict(
+        keypoints=kps, cameras=[cam] * n, joints=out.joints.numpy(), vertices=out.vertices.numpy(), global_orient=orient
+    )
 
 
 def load_shipped():
@@ -105,8 +111,14 @@ def load_dir(root):
         joints.append(gt["joints"].reshape(-1, 24, 3)[0])
         verts.append(gt["vertices"].reshape(1, -1, 3)[0])
         orients.append(gt["global_orient"].reshape(-1)[:3])
-    return dict(keypoints=kps, cameras=cams, joints=np.stack(joints), vertices=np.stack(verts),
-                global_orient=np.stack(orients), names=[d.name for d in subjects])  # fmt: skip
+    return dict(
+        keypoints=kps,
+        cameras=cams,
+        joints=np.stack(joints),
+        vertices=np.stack(verts),
+        global_orient=np.stack(orients),
+        names=[d.name for d in subjects],
+    )
 
 
 def generate_synth(model, n, seed, noise_px, size=256):
@@ -130,8 +142,11 @@ def generate_holdout(model, n, names, seed=0, noise_px=2.0, size=512):
         ps = sample_pose(rng, names=names, perturb_deg=6.0, blend_prob=0.0, mirror_prob=0.5)
         orient = global_orientation(rng.uniform(-180, 180), rng.uniform(-15, 15), rng.uniform(-5, 5), root=ps.root)
         cam, _ = sample_intrinsics(rng, size, size)
-        p = dict(betas=torch.as_tensor(sample_betas(rng, model.num_betas))[None], body_pose=torch.as_tensor(ps.body_pose)[None],
-                 global_orient=torch.as_tensor(orient)[None])  # fmt: skip
+        p = dict(
+            betas=torch.as_tensor(sample_betas(rng, model.num_betas))[None],
+            body_pose=torch.as_tensor(ps.body_pose)[None],
+            global_orient=torch.as_tensor(orient)[None],
+        )
         p = {k: v.to(model.dtype) for k, v in p.items()}
         with torch.no_grad():
             place = place_body(rng, model(**p).vertices[0].double().numpy(), cam)
@@ -144,7 +159,9 @@ def generate_holdout(model, n, names, seed=0, noise_px=2.0, size=512):
         joints.append(out.joints[0].numpy())
         verts.append(out.vertices[0].numpy())
         orients.append(orient)
-    return dict(keypoints=kps, cameras=cams, joints=np.stack(joints), vertices=np.stack(verts), global_orient=np.stack(orients))
+    return dict(
+        keypoints=kps, cameras=cams, joints=np.stack(joints), vertices=np.stack(verts), global_orient=np.stack(orients)
+    )
 
 
 def procrustes_error(X, Y):
@@ -176,7 +193,9 @@ def run_set(name, data, fitter, batch, singles):
     t0 = time.perf_counter()
     parts = []
     for s in range(0, n, batch):
-        parts.append(fitter.fit(np.stack(data["keypoints"][s : s + batch]), data["cameras"][s : s + batch], progress=False))
+        parts.append(
+            fitter.fit(np.stack(data["keypoints"][s : s + batch]), data["cameras"][s : s + batch], progress=False)
+        )
     t_batch = (time.perf_counter() - t0) / n
     m = {k: [] for k in ("reproj", "mpjpe", "pa", "pve", "facing")}
     for k, r in enumerate(parts):
@@ -227,7 +246,9 @@ def run_silhouette_benchmark(model, n, seed, noise_px, size, keep=None):
         root = Path(keep or tmp)
         t0 = time.perf_counter()
         generate_dataset(root, n, SynthConfig(seed=seed, size=size, noise_px=noise_px), model=model, progress=True)
-        print(f"generated {n} subjects ({size}x{size}, {noise_px:g} px noise, seed {seed}) in {time.perf_counter() - t0:.0f} s\n")
+        print(
+            f"generated {n} subjects ({size}x{size}, {noise_px:g} px noise, seed {seed}) in {time.perf_counter() - t0:.0f} s\n"
+        )
         report = evaluate_dataset(root, model=model, run=True, methods=("keypoints", "silhouette"))
     print(markdown_table(report))
     summary = report["summary"]
@@ -271,11 +292,21 @@ def silhouette_timing(model, batches, n=16, seed=11, size=512, config=None):
         res = []
         for i in range(0, n, b):
             chunk = list(range(i, min(n, i + b)))
-            res += fit_silhouettes(model, [kp.params(j) for j in chunk], [subjects[j].camera for j in chunk],
-                                   [subjects[j].mask for j in chunk], [subjects[j].keypoints.as_array() for j in chunk],
-                                   config=config or SilhouetteFitConfig(), pose_prior=fitter.pose_prior, progress=False)  # fmt: skip
+            res += fit_silhouettes(
+                model,
+                [kp.params(j) for j in chunk],
+                [subjects[j].camera for j in chunk],
+                [subjects[j].mask for j in chunk],
+                [subjects[j].keypoints.as_array() for j in chunk],
+                config=config or SilhouetteFitConfig(),
+                pose_prior=fitter.pose_prior,
+                progress=False,
+            )
         dt = (time.perf_counter() - t0) / n
-        print(f"| {b} | {dt:.2f} | {np.mean([r.iou_end for r in res]):.3f} | {np.mean([r.steps for r in res]):.0f} |", flush=True)
+        print(
+            f"| {b} | {dt:.2f} | {np.mean([r.iou_end for r in res]):.3f} | {np.mean([r.steps for r in res]):.0f} |",
+            flush=True,
+        )
 
 
 def depth_branch_table(report, label):
@@ -283,7 +314,9 @@ def depth_branch_table(report, label):
     percentile, subjects above 150 mm PA-PVE, search failures, facing correct, seconds."""
     rows = report["results"]
     print(f"\n{label}\n")
-    print("| method | PA-PVE mean / median / p90 (mm) | PA-MPJPE mean / median / p90 (mm) | > 150 mm | search failures | facing correct | IoU | s/image |")
+    print(
+        "| method | PA-PVE mean / median / p90 (mm) | PA-MPJPE mean / median / p90 (mm) | > 150 mm | search failures | facing correct | IoU | s/image |"
+    )
     print("|---|---|---|---:|---:|---:|---:|---:|")
     for method in report["methods"]:
         r = [x for x in rows if x["method"] == method]
@@ -291,9 +324,11 @@ def depth_branch_table(report, label):
         stats = lambda a: f"{a.mean():.1f} / {np.median(a):.1f} / {np.percentile(a, 90):.1f}" if len(a) else "-"  # noqa: E731
         pa = col("pa_pve")
         fail, facing, iou, t = col("search_failure"), col("facing_ok"), col("iou"), col("time_s")
-        print(f"| {method} | {stats(pa)} | {stats(col('pa_mpjpe'))} | {int((pa > 150).sum())} of {len(pa)} | "
-              f"{fail.mean() if len(fail) else float('nan'):.0f} % | {facing.mean():.0f} % | "
-              f"{iou.mean() if len(iou) else float('nan'):.3f} | {t.mean() if len(t) else float('nan'):.2f} |")
+        print(
+            f"| {method} | {stats(pa)} | {stats(col('pa_mpjpe'))} | {int((pa > 150).sum())} of {len(pa)} | "
+            f"{fail.mean() if len(fail) else float('nan'):.0f} % | {facing.mean():.0f} % | "
+            f"{iou.mean() if len(iou) else float('nan'):.3f} | {t.mean() if len(t) else float('nan'):.2f} |"
+        )
 
 
 def run_dataset_benchmark(model, root, methods, label):
@@ -317,33 +352,56 @@ def main(argv=None):
     ap.add_argument("--singles", type=int, default=5, help="subjects also fitted one by one for the timing")
     ap.add_argument("--noise", type=float, default=2.0)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--silhouette", type=int, default=0, help="keypoint-only vs keypoint+silhouette on N fresh subjects")
+    ap.add_argument(
+        "--silhouette", type=int, default=0, help="keypoint-only vs keypoint+silhouette on N fresh subjects"
+    )
     ap.add_argument("--size", type=int, default=512, help="image size of the --silhouette set")
     ap.add_argument("--keep", help="keep the --silhouette dataset and its fits in this folder")
-    ap.add_argument("--dataset", action="append", default=[], help="also score both methods on this synthetic-format dataset (repeatable)")
+    ap.add_argument(
+        "--dataset",
+        action="append",
+        default=[],
+        help="also score both methods on this synthetic-format dataset (repeatable)",
+    )
     ap.add_argument("--keypoints-only", action="store_true", help="--dataset / --hard: the keypoint stage only")
-    ap.add_argument("--hard", type=int, default=0, help="also N fresh hard-pose subjects (silfit synth --poses hard, seed --seed)")
+    ap.add_argument(
+        "--hard", type=int, default=0, help="also N fresh hard-pose subjects (silfit synth --poses hard, seed --seed)"
+    )
     ap.add_argument("--silhouette-batches", help="time the silhouette stage alone and in batches, e.g. 1,8,16")
     ap.add_argument("--full-mesh", action="store_true", help="silhouette timing: render the full mesh, no proxy")
-    ap.add_argument("--whole-body", type=int, default=0, metavar="N",
-                    help="only the whole-body table (bench_wholebody.py) on N fresh whole-body subjects (seed --seed)")
+    ap.add_argument(
+        "--whole-body",
+        type=int,
+        default=0,
+        metavar="N",
+        help="only the whole-body table (bench_wholebody.py) on N fresh whole-body subjects (seed --seed)",
+    )
     args = ap.parse_args(argv)
     if args.whole_body:
         from bench_wholebody import run_wholebody_benchmark
 
-        run_wholebody_benchmark(args.whole_body, args.seed, args.noise, args.size, min(args.batch, 16), args.singles, args.keep)
+        run_wholebody_benchmark(
+            args.whole_body, args.seed, args.noise, args.size, min(args.batch, 16), args.singles, args.keep
+        )
         return
 
     from silfit.fitting import KeypointFitConfig
     from silfit.priors import load_pose_prior
 
     if args.set and (args.silhouette or args.hard or args.dataset):  # they fit through evaluate_dataset's defaults
-        ap.error("--set applies to the generated random-pose sets only; --silhouette, --hard and --dataset fit with "
-                 "the defaults: compare code trees (git worktree) instead")  # fmt: skip
+        ap.error(
+            "--set applies to the generated random-pose sets only; --silhouette, --hard and --dataset fit with "
+            "the defaults: compare code trees (git worktree) instead"
+        )
     model = load_body_model()
     config = KeypointFitConfig(**parse_set(args.set))
     priors = args.prior or ["default"]
-    fitters = {p: KeypointFitter(model, config=config, pose_prior=load_pose_prior(None if p == "default" else p, dtype=model.dtype)) for p in priors}  # fmt: skip
+    fitters = {
+        p: KeypointFitter(
+            model, config=config, pose_prior=load_pose_prior(None if p == "default" else p, dtype=model.dtype)
+        )
+        for p in priors
+    }
     if args.silhouette:
         report = run_silhouette_benchmark(model, args.silhouette, args.seed, args.noise, args.size, args.keep)
         depth_branch_table(report, f"silhouette set ({args.silhouette} subjects, seed {args.seed})")
@@ -361,7 +419,9 @@ def main(argv=None):
         with tempfile.TemporaryDirectory() as tmp:
             root = Path(args.keep or tmp) / "hard"
             generate_hard_dataset(root, args.hard, seed=args.seed, size=args.size, noise_px=args.noise, model=model)
-            run_dataset_benchmark(model, root, methods, f"hard set ({args.hard} subjects, seed {args.seed}, {args.noise:g} px noise)")
+            run_dataset_benchmark(
+                model, root, methods, f"hard set ({args.hard} subjects, seed {args.seed}, {args.noise:g} px noise)"
+            )
     for root in args.dataset:
         methods = ("keypoints",) if args.keypoints_only else ("keypoints", "silhouette")
         run_dataset_benchmark(model, root, methods, f"dataset {root}")
@@ -370,11 +430,23 @@ def main(argv=None):
     if shipped is not None:
         sets.append((f"shipped synthetic ({len(shipped['keypoints'])}, library poses)", shipped, fitters))
     if args.synth:
-        sets.append((f"silfit synth ({args.synth}, seed {args.seed}, library poses)", generate_synth(model, args.synth, args.seed, args.noise), fitters))  # fmt: skip
+        sets.append(
+            (
+                f"silfit synth ({args.synth}, seed {args.seed}, library poses)",
+                generate_synth(model, args.synth, args.seed, args.noise),
+                fitters,
+            )
+        )
     if args.subjects:
-        sets.append((f"generated ({args.subjects}, {args.noise:g} px noise, random poses)", generate(model, args.subjects, args.seed, args.noise), fitters))  # fmt: skip
+        sets.append(
+            (
+                f"generated ({args.subjects}, {args.noise:g} px noise, random poses)",
+                generate(model, args.subjects, args.seed, args.noise),
+                fitters,
+            )
+        )
     if args.holdout:
-        from silfit.priors import LibraryMixturePrior, MaxMixturePrior
+        from silfit.priors import MaxMixturePrior
         from silfit.priors.library_prior import build_library_mixture, split_library
 
         half_a, half_b = split_library(args.seed)
@@ -385,11 +457,20 @@ def main(argv=None):
             "limits": fitters.get("limits") or KeypointFitter(model, config=config, pose_prior="limits"),
             "default (full library, has seen B)": fitters.get("default") or KeypointFitter(model, config=config),
         }
-        sets.append((f"held-out: poses from library half B only ({args.holdout})", generate_holdout(model, args.holdout, half_b, args.seed, args.noise), hf))  # fmt: skip
+        sets.append(
+            (
+                f"held-out: poses from library half B only ({args.holdout})",
+                generate_holdout(model, args.holdout, half_b, args.seed, args.noise),
+                hf,
+            )
+        )
 
     if not sets:
         return
-    print("| set | prior | reproj px (mean/median) | MPJPE mm | PA-MPJPE mm | PVE mm | facing correct | s/image single | s/image batch %d |" % args.batch)
+    print(
+        "| set | prior | reproj px (mean/median) | MPJPE mm | PA-MPJPE mm | PVE mm | facing correct | s/image single | s/image batch %d |"
+        % args.batch
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     for name, data, fits in sets:
         for method, fitter in fits.items():
@@ -397,13 +478,18 @@ def main(argv=None):
             mm = lambda k: f"{1000 * np.mean(m[k]):.1f} / {1000 * np.median(m[k]):.1f}"  # noqa: E731
             print(
                 f"| {name} | {method} | {np.mean(m['reproj']):.2f} / {np.median(m['reproj']):.2f} | {mm('mpjpe')} | "
-                f"{mm('pa')} | {mm('pve')} | {100 * np.mean(m['facing']):.0f} % | {t1:.2f} | {tb:.2f} |", flush=True,
+                f"{mm('pa')} | {mm('pve')} | {100 * np.mean(m['facing']):.0f} % | {t1:.2f} | {tb:.2f} |",
+                flush=True,
             )
-    print("\nNote: the default prior is built from silfit's pose library, which also poses the shipped and `silfit synth` "
-          "subjects, so its numbers on those sets are optimistic; see the random-pose and held-out rows.")
+    print(
+        "\nNote: the default prior is built from silfit's pose library, which also poses the shipped and `silfit synth` "
+        "subjects, so its numbers on those sets are optimistic; see the random-pose and held-out rows."
+    )
     if args.holdout:
-        print(f"Held-out split (seed {args.seed}): mixture built from half A = {', '.join(half_a)}; "
-              f"subjects posed from half B = {', '.join(half_b)}.")
+        print(
+            f"Held-out split (seed {args.seed}): mixture built from half A = {', '.join(half_a)}; "
+            f"subjects posed from half B = {', '.join(half_b)}."
+        )
 
 
 if __name__ == "__main__":

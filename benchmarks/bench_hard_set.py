@@ -18,6 +18,7 @@ Seeds run in parallel processes (``--workers``, one torch thread each), so every
 
     python benchmarks/bench_hard_set.py --seeds 15300,15301 --baseline branch_hinge=False
 """
+
 from __future__ import annotations
 
 import argparse
@@ -52,31 +53,47 @@ def run_seed(seed: int, n: int, size: int, batch: int, settings: dict) -> list:
         t0 = time.process_time()
         kp = fitter.fit(sets[sl], cams[sl], progress=False)
         t_kp = time.process_time() - t0
-        e_truth, _ = fitter.energy_at({k: np.stack([getattr(g, k) for g in gts[sl]]) for k in NAMES}, sets[sl], cams[sl])
+        e_truth, _ = fitter.energy_at(
+            {k: np.stack([getattr(g, k) for g in gts[sl]]) for k in NAMES}, sets[sl], cams[sl]
+        )
         t0 = time.process_time()
-        res = refine_batch(model, kp, sets[sl], masks[sl], SilhouetteFitConfig(), pose_prior=fitter.pose_prior, progress=False)
+        res = refine_batch(
+            model, kp, sets[sl], masks[sl], SilhouetteFitConfig(), pose_prior=fitter.pose_prior, progress=False
+        )
         t_sil = time.process_time() - t0
         for j, r in enumerate(res):
             gt = gts[b + j]
-            rows.append({"seed": seed, "i": b + j, "t_kp": t_kp / len(res), "t_sil": t_sil / len(res),
-                         "kp": 1000 * float(pa_pve(kp.vertices[j].astype(np.float64), gt.vertices)),
-                         "sil": 1000 * float(pa_pve(r.vertices.astype(np.float64), gt.vertices)),
-                         "warned": bool(depth_warnings(kp.branch_search[j])),
-                         "e_fit": float(kp.energies["final"][j]), "e_truth": float(e_truth[j])})  # fmt: skip
+            rows.append(
+                {
+                    "seed": seed,
+                    "i": b + j,
+                    "t_kp": t_kp / len(res),
+                    "t_sil": t_sil / len(res),
+                    "kp": 1000 * float(pa_pve(kp.vertices[j].astype(np.float64), gt.vertices)),
+                    "sil": 1000 * float(pa_pve(r.vertices.astype(np.float64), gt.vertices)),
+                    "warned": bool(depth_warnings(kp.branch_search[j])),
+                    "e_fit": float(kp.energies["final"][j]),
+                    "e_truth": float(e_truth[j]),
+                }
+            )
     return rows
 
 
 def table(runs: dict) -> None:
-    print("| run | subjects | keypoint stage PA-PVE mean / median (mm) | with silhouettes mean / median | > 150 mm | "
-          "> 150 mm warned | < 60 mm warned | search failures | CPU s / subject (keypoints, silhouettes) |")
+    print(
+        "| run | subjects | keypoint stage PA-PVE mean / median (mm) | with silhouettes mean / median | > 150 mm | "
+        "> 150 mm warned | < 60 mm warned | search failures | CPU s / subject (keypoints, silhouettes) |"
+    )
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for name, rows in runs.items():
         kp, sil = np.array([r["kp"] for r in rows]), np.array([r["sil"] for r in rows])
         w = np.array([r["warned"] for r in rows])
         fail = sum(r["e_truth"] < r["e_fit"] * (1 - 1e-3) for r in rows)
-        print(f"| {name} | {len(rows)} | {kp.mean():.1f} / {np.median(kp):.1f} | {sil.mean():.1f} / {np.median(sil):.1f} | "
-              f"{(sil > 150).sum()} | {(w & (sil > 150)).sum()}/{(sil > 150).sum()} | {(w & (sil < 60)).sum()}/{(sil < 60).sum()} | "
-              f"{fail}/{len(rows)} | {np.mean([r['t_kp'] for r in rows]):.2f}, {np.mean([r['t_sil'] for r in rows]):.2f} |")  # fmt: skip
+        print(
+            f"| {name} | {len(rows)} | {kp.mean():.1f} / {np.median(kp):.1f} | {sil.mean():.1f} / {np.median(sil):.1f} | "
+            f"{(sil > 150).sum()} | {(w & (sil > 150)).sum()}/{(sil > 150).sum()} | {(w & (sil < 60)).sum()}/{(sil < 60).sum()} | "
+            f"{fail}/{len(rows)} | {np.mean([r['t_kp'] for r in rows]):.2f}, {np.mean([r['t_sil'] for r in rows]):.2f} |"
+        )
 
 
 def main() -> None:
@@ -85,8 +102,13 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=30)
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--batch", type=int, default=8, help="subjects per keypoint-stage batch")
-    ap.add_argument("--baseline", action="append", default=[], metavar="NAME=VALUE",
-                    help="the before run's KeypointFitConfig settings (repeatable); none: today's defaults only")
+    ap.add_argument(
+        "--baseline",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="the before run's KeypointFitConfig settings (repeatable); none: today's defaults only",
+    )
     ap.add_argument("--workers", type=int, default=2, help="parallel processes (one seed and run each)")
     args = ap.parse_args()
     if any("=" not in o for o in args.baseline):
@@ -97,19 +119,29 @@ def main() -> None:
         runs = {f"before ({', '.join(args.baseline)})": dict(o.split("=", 1) for o in args.baseline), **runs}
     t0 = time.perf_counter()
     with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
-        jobs = {(name, s): pool.submit(run_seed, s, args.n, args.size, args.batch, settings)
-                for name, settings in runs.items() for s in seeds}  # fmt: skip
+        jobs = {
+            (name, s): pool.submit(run_seed, s, args.n, args.size, args.batch, settings)
+            for name, settings in runs.items()
+            for s in seeds
+        }
         out = {name: [r for s in seeds for r in jobs[name, s].result()] for name in runs}
-    print(f"# {args.n} hard subjects per seed, seeds {args.seeds}, {args.size} px, the default image path "
-          f"({time.perf_counter() - t0:.0f} s wall, {args.workers} processes)\n")
+    print(
+        f"# {args.n} hard subjects per seed, seeds {args.seeds}, {args.size} px, the default image path "
+        f"({time.perf_counter() - t0:.0f} s wall, {args.workers} processes)\n"
+    )
     table(out)
     if len(out) == 2:
         before, after = out.values()
         d = np.array([a["sil"] - b["sil"] for a, b in zip(after, before)])
-        moved = [f"{a['seed']}/{a['i']}: {b['sil']:.0f} -> {a['sil']:.0f}" for a, b in zip(after, before)
-                 if abs(a["sil"] - b["sil"]) > 30]  # fmt: skip
-        print(f"\nWith silhouettes, after against before: {(d < -10).sum()} subjects better by more than 10 mm, "
-              f"{(d > 10).sum()} worse; moved by more than 30 mm (seed/subject: before -> after): {', '.join(moved) or 'none'}")
+        moved = [
+            f"{a['seed']}/{a['i']}: {b['sil']:.0f} -> {a['sil']:.0f}"
+            for a, b in zip(after, before)
+            if abs(a["sil"] - b["sil"]) > 30
+        ]
+        print(
+            f"\nWith silhouettes, after against before: {(d < -10).sum()} subjects better by more than 10 mm, "
+            f"{(d > 10).sum()} worse; moved by more than 30 mm (seed/subject: before -> after): {', '.join(moved) or 'none'}"
+        )
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ the end within ``alternatives_margin`` of its energy (the default), keeping the 
 
     python benchmarks/bench_hypothesis_silhouette.py --close --n 30 --seed 10900
 """
+
 from __future__ import annotations
 
 import argparse
@@ -70,16 +71,23 @@ def main() -> None:
     rows, t_kp, t_sil = [], 0.0, 0.0
     for b in range(0, len(sets), args.batch):
         t0 = time.process_time()
-        kp = fitter.fit(sets[b: b + args.batch], cams[b: b + args.batch], progress=False)
+        kp = fitter.fit(sets[b : b + args.batch], cams[b : b + args.batch], progress=False)
         t_kp += time.process_time() - t0
         for j in range(len(kp)):
             i = b + j
             hyps = kp.hypotheses[j]  # the fit first, then the alternatives (refined to the end or not)
             inits = [{n: np.asarray(h["params"][n], dtype=np.float32).reshape(1, -1) for n in NAMES} for h in hyps]
             t0 = time.process_time()
-            sils = fit_silhouettes(model, inits, [cams[i]] * len(inits), [masks[i]] * len(inits),
-                                   [sets[i].as_array()] * len(inits), config=SilhouetteFitConfig(),
-                                   pose_prior=fitter.pose_prior, progress=False)  # fmt: skip
+            sils = fit_silhouettes(
+                model,
+                inits,
+                [cams[i]] * len(inits),
+                [masks[i]] * len(inits),
+                [sets[i].as_array()] * len(inits),
+                config=SilhouetteFitConfig(),
+                pose_prior=fitter.pose_prior,
+                progress=False,
+            )
             t_sil += time.process_time() - t0
             out = []
             for h, s in zip(hyps, sils):
@@ -87,11 +95,22 @@ def main() -> None:
                     v = model(**{n: T(s.parameters[n]).reshape(1, -1) for n in NAMES}).vertices[0].double().numpy()
                 body = render_mask(v, faces, cams[i]) > 0
                 iou = float((body & masks[i]).sum() / max(1, (body | masks[i]).sum()))
-                out.append({"pve": 1000 * float(pa_pve(v, gts[i].vertices)), "e_kp": float(h["energy"]),
-                            "e_sil": s.final_energy, "iou": iou})  # fmt: skip
+                out.append(
+                    {
+                        "pve": 1000 * float(pa_pve(v, gts[i].vertices)),
+                        "e_kp": float(h["energy"]),
+                        "e_sil": s.final_energy,
+                        "iou": iou,
+                    }
+                )
             rows.append(out)
-            print(i, " | ".join(f"{o['pve']:.0f} mm, E_kp {o['e_kp']:.0f}, E_sil {o['e_sil']:.5f}, IoU {o['iou']:.3f}"
-                                for o in out), flush=True)  # fmt: skip
+            print(
+                i,
+                " | ".join(
+                    f"{o['pve']:.0f} mm, E_kp {o['e_kp']:.0f}, E_sil {o['e_sil']:.5f}, IoU {o['iou']:.3f}" for o in out
+                ),
+                flush=True,
+            )
 
     def by_sil(out):
         k = int(np.argmin([o["e_sil"] for o in out]))
@@ -104,9 +123,11 @@ def main() -> None:
         "oracle (best against the truth)": lambda out: int(np.argmin([o["pve"] for o in out])),
     }
     n = len(rows)
-    print(f"\n{n} hard subjects (seed {args.seed}, {args.size} px), --hypotheses {args.k}, every hypothesis "
-          f"through the silhouette stage; CPU s per subject: keypoint stage {t_kp / n:.2f}, silhouette stage "
-          f"{t_sil / n:.2f} ({np.mean([len(r) for r in rows]):.1f} hypotheses each)\n")  # fmt: skip
+    print(
+        f"\n{n} hard subjects (seed {args.seed}, {args.size} px), --hypotheses {args.k}, every hypothesis "
+        f"through the silhouette stage; CPU s per subject: keypoint stage {t_kp / n:.2f}, silhouette stage "
+        f"{t_sil / n:.2f} ({np.mean([len(r) for r in rows]):.1f} hypotheses each)\n"
+    )
     print("| choice | PA-PVE mean / median (mm) | > 150 mm | < 60 mm | choices changed (better / worse by 5 mm) |")
     print("|---|---|---:|---:|---|")
     for name, rule in rules.items():
@@ -114,8 +135,10 @@ def main() -> None:
         changed = [(r[rule(r)]["pve"], r[0]["pve"]) for r in rows if rule(r) != 0]
         better = sum(a < b - 5 for a, b in changed)
         worse = sum(a > b + 5 for a, b in changed)
-        print(f"| {name} | {pv.mean():.1f} / {np.median(pv):.1f} | {(pv > 150).sum()} | {(pv < 60).sum()} | "
-              f"{len(changed)} ({better} / {worse}) |")
+        print(
+            f"| {name} | {pv.mean():.1f} / {np.median(pv):.1f} | {(pv > 150).sum()} | {(pv < 60).sum()} | "
+            f"{len(changed)} ({better} / {worse}) |"
+        )
 
 
 def close_alternatives(args) -> None:
@@ -142,8 +165,15 @@ def close_alternatives(args) -> None:
         t_kp += time.process_time() - t0
         for m in margins:
             t0 = time.process_time()
-            res = refine_batch(model, kp, sets[sl], masks[sl], SilhouetteFitConfig(alternatives_margin=m),
-                               pose_prior=fitter.pose_prior, progress=False)  # fmt: skip
+            res = refine_batch(
+                model,
+                kp,
+                sets[sl],
+                masks[sl],
+                SilhouetteFitConfig(alternatives_margin=m),
+                pose_prior=fitter.pose_prior,
+                progress=False,
+            )
             cpu[m] += time.process_time() - t0
             for j, r in enumerate(res):
                 pv[m].append(1000 * float(pa_pve(r.vertices.astype(np.float64), gts[b + j].vertices)))
@@ -151,27 +181,38 @@ def close_alternatives(args) -> None:
                 extra[m] += len(record.get("energies", [0])) - 1
                 warned[m] += any(w.startswith("depth branch chosen by the mask") for w in r.metrics["warnings"])
                 depth[m].append(bool(depth_warnings(kp.branch_search[j])))
-        print(f"{min(b + args.batch, len(sets))}/{len(sets)}: " + ", ".join(
-            f"margin {m:g}: {np.mean(pv[m]):.1f} mm" for m in margins), flush=True)  # fmt: skip
+        print(
+            f"{min(b + args.batch, len(sets))}/{len(sets)}: "
+            + ", ".join(f"margin {m:g}: {np.mean(pv[m]):.1f} mm" for m in margins),
+            flush=True,
+        )
     n = len(sets)
     base = np.array(pv[margins[0]])
-    print(f"\n{n} hard subjects (seed {args.seed}, {args.size} px, noise-free masks), the default image path "
-          f"(refine_batch); keypoint stage {t_kp / n:.2f} CPU s per subject\n")  # fmt: skip
-    print("| alternatives_margin | PA-PVE mean / median (mm) | > 150 mm | < 60 mm | extra problems / subject | "
-          f"fits changed vs {margins[0]:g} (better / worse by 5 mm) | chosen by the mask (warned) | > 150 mm with a depth "
-          "warning | < 60 mm with one | silhouette CPU s / subject |")  # fmt: skip
+    print(
+        f"\n{n} hard subjects (seed {args.seed}, {args.size} px, noise-free masks), the default image path "
+        f"(refine_batch); keypoint stage {t_kp / n:.2f} CPU s per subject\n"
+    )
+    print(
+        "| alternatives_margin | PA-PVE mean / median (mm) | > 150 mm | < 60 mm | extra problems / subject | "
+        f"fits changed vs {margins[0]:g} (better / worse by 5 mm) | chosen by the mask (warned) | > 150 mm with a depth "
+        "warning | < 60 mm with one | silhouette CPU s / subject |"
+    )
     print("|---|---|---:|---:|---:|---|---:|---:|---:|---:|")
     for m in margins:
         a = np.array(pv[m])
         d = a - base
         changed = np.abs(d) > 1e-6
         w = np.array(depth[m])
-        print(f"| {m:g} | {a.mean():.1f} / {np.median(a):.1f} | {(a > 150).sum()} | {(a < 60).sum()} | {extra[m] / n:.2f} | "
-              f"{changed.sum()} ({(d < -5).sum()} / {(d > 5).sum()}) | {warned[m]} | {(w & (a > 150)).sum()}/{(a > 150).sum()} | "
-              f"{(w & (a < 60)).sum()}/{(a < 60).sum()} | {cpu[m] / n:.2f} |")  # fmt: skip
+        print(
+            f"| {m:g} | {a.mean():.1f} / {np.median(a):.1f} | {(a > 150).sum()} | {(a < 60).sum()} | {extra[m] / n:.2f} | "
+            f"{changed.sum()} ({(d < -5).sum()} / {(d > 5).sum()}) | {warned[m]} | {(w & (a > 150)).sum()}/{(a > 150).sum()} | "
+            f"{(w & (a < 60)).sum()}/{(a < 60).sum()} | {cpu[m] / n:.2f} |"
+        )
     for m in margins[1:]:
         moved = [f"{i}: {base[i]:.0f} -> {pv[m][i]:.0f}" for i in range(n) if abs(pv[m][i] - base[i]) > 1e-6]
-        print(f"\nmargin {m:g}, the fits that changed (subject: PA-PVE mm before -> after): {', '.join(moved) or 'none'}")
+        print(
+            f"\nmargin {m:g}, the fits that changed (subject: PA-PVE mm before -> after): {', '.join(moved) or 'none'}"
+        )
 
 
 if __name__ == "__main__":

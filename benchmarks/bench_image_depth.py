@@ -11,6 +11,7 @@ of those it gets right, and how many landmark sets it refuses (a left/right swap
 
     python benchmarks/bench_image_depth.py --seeds 20000,20001 --n 15 --fit
 """
+
 from __future__ import annotations
 
 import argparse
@@ -45,10 +46,19 @@ def run_seed(seed: int, n: int, size: int, poses: str, fit: bool) -> list:
     names = model.joint_names
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp) / "set"
-        generate_dataset(root, n, SynthConfig(seed=seed, size=size, poses=poses, frontal_first=False), model=model, progress=False)
+        generate_dataset(
+            root, n, SynthConfig(seed=seed, size=size, poses=poses, frontal_first=False), model=model, progress=False
+        )
         dirs = sorted(d for d in root.iterdir() if (d / "keypoints.json").is_file())
-        subjects = [(read_rgb(d / "image.png", "image"), read_keypoints(d / "keypoints.json"), load_camera(d / "camera.json"),
-                     read_gt(d / "gt.npz")) for d in dirs]  # fmt: skip
+        subjects = [
+            (
+                read_rgb(d / "image.png", "image"),
+                read_keypoints(d / "keypoints.json"),
+                load_camera(d / "camera.json"),
+                read_gt(d / "gt.npz"),
+            )
+            for d in dirs
+        ]
     fits = None
     t_fit = 0.0
     if fit:
@@ -65,20 +75,41 @@ def run_seed(seed: int, n: int, size: int, poses: str, fit: bool) -> list:
         except DetectionError:
             person = None
         t_det = time.perf_counter() - t0
-        cue = None if person is None else depth_cue(person.world, np.where(person.in_image(), person.visibility, 0.0),
-                                                    person.names, person.xy, ks)  # fmt: skip
+        cue = (
+            None
+            if person is None
+            else depth_cue(
+                person.world, np.where(person.in_image(), person.visibility, 0.0), person.names, person.xy, ks
+            )
+        )
         for s, (seg, p, d) in enumerate(SEGMENTS):
             jp, jd = names.index(p), names.index(d)
-            row = {"seed": seed, "i": i, "seg": seg, "dz": float(gt.joints[jd, 2] - gt.joints[jp, 2]), "t_det": t_det,
-                   "t_fit": t_fit, "found": person is not None}  # fmt: skip
+            row = {
+                "seed": seed,
+                "i": i,
+                "seg": seg,
+                "dz": float(gt.joints[jd, 2] - gt.joints[jp, 2]),
+                "t_det": t_det,
+                "t_fit": t_fit,
+                "found": person is not None,
+            }
             if person is not None:
                 lp, ld = person.names.index(p), person.names.index(d)
                 v = person.world[ld] - person.world[lp]
-                row.update(cos=float(v[2] / np.linalg.norm(v)), wdz=float(v[2]), zdz=float(person.z[ld] - person.z[lp]),
-                           vis=float(min(person.visibility[lp], person.visibility[ld])),
-                           err2d=float(max(np.linalg.norm(person.xy[lp] - ks.xy[ks.names.index(p)]),
-                                           np.linalg.norm(person.xy[ld] - ks.xy[ks.names.index(d)]))),
-                           call=float(cue.sign[s] * cue.confidence[s]), refused=cue.refused is not None)  # fmt: skip
+                row.update(
+                    cos=float(v[2] / np.linalg.norm(v)),
+                    wdz=float(v[2]),
+                    zdz=float(person.z[ld] - person.z[lp]),
+                    vis=float(min(person.visibility[lp], person.visibility[ld])),
+                    err2d=float(
+                        max(
+                            np.linalg.norm(person.xy[lp] - ks.xy[ks.names.index(p)]),
+                            np.linalg.norm(person.xy[ld] - ks.xy[ks.names.index(d)]),
+                        )
+                    ),
+                    call=float(cue.sign[s] * cue.confidence[s]),
+                    refused=cue.refused is not None,
+                )
             if fits is not None:
                 row["fit_dz"] = float(fits[i, jd, 2] - fits[i, jp, 2])
             rows.append(row)
@@ -101,7 +132,9 @@ def compare_seed(seed: int, n: int, size: int, poses: str, batch: int, weights: 
     model = load_body_model()
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp) / "set"
-        generate_dataset(root, n, SynthConfig(seed=seed, size=size, poses=poses, frontal_first=False), model=model, progress=False)
+        generate_dataset(
+            root, n, SynthConfig(seed=seed, size=size, poses=poses, frontal_first=False), model=model, progress=False
+        )
         dirs = sorted(d for d in root.iterdir() if (d / "keypoints.json").is_file())
         images = [read_rgb(d / "image.png", "image") for d in dirs]
         sets = [read_keypoints(d / "keypoints.json") for d in dirs]
@@ -120,45 +153,71 @@ def compare_seed(seed: int, n: int, size: int, poses: str, batch: int, weights: 
             kp = fitter.fit(sets[sl], cams[sl], progress=False, depth_cues=cues[sl] if w else None)
             t_kp = time.process_time() - t0
             t0 = time.process_time()
-            res = refine_batch(model, kp, sets[sl], masks[sl], SilhouetteFitConfig(), pose_prior=fitter.pose_prior,
-                               progress=False) if silhouette else [None] * len(kp)  # fmt: skip
+            res = (
+                refine_batch(
+                    model, kp, sets[sl], masks[sl], SilhouetteFitConfig(), pose_prior=fitter.pose_prior, progress=False
+                )
+                if silhouette
+                else [None] * len(kp)
+            )
             t_sil = time.process_time() - t0
             for j, r in enumerate(res):
                 gt = gts[b + j]
                 c = cues[b + j]
-                rows.append({"seed": seed, "i": b + j, "w": w, "t_kp": t_kp / len(res), "t_sil": t_sil / len(res),
-                             "t_cue": t_cue if w else 0.0, "decided": 0 if c is None else len(c.decided()),
-                             "kp": 1000 * float(pa_pve(kp.vertices[j].astype(np.float64), gt.vertices)),
-                             "sil": np.nan if r is None else 1000 * float(pa_pve(r.vertices.astype(np.float64), gt.vertices))})  # fmt: skip
+                rows.append(
+                    {
+                        "seed": seed,
+                        "i": b + j,
+                        "w": w,
+                        "t_kp": t_kp / len(res),
+                        "t_sil": t_sil / len(res),
+                        "t_cue": t_cue if w else 0.0,
+                        "decided": 0 if c is None else len(c.decided()),
+                        "kp": 1000 * float(pa_pve(kp.vertices[j].astype(np.float64), gt.vertices)),
+                        "sil": np.nan
+                        if r is None
+                        else 1000 * float(pa_pve(r.vertices.astype(np.float64), gt.vertices)),
+                    }
+                )
     return rows
 
 
 def compare_table(rows: list, weights: tuple) -> None:
-    print("| image_depth_weight | subjects | keypoint stage PA-PVE mean / median (mm) | with silhouettes mean / median | "
-          "> 150 mm | within 60 mm | CPU s / subject (cue, keypoints, silhouettes) |")
+    print(
+        "| image_depth_weight | subjects | keypoint stage PA-PVE mean / median (mm) | with silhouettes mean / median | "
+        "> 150 mm | within 60 mm | CPU s / subject (cue, keypoints, silhouettes) |"
+    )
     print("|---|---:|---:|---:|---:|---:|---:|")
     for w in weights:
         r = [x for x in rows if x["w"] == w]
         kp, sil = np.array([x["kp"] for x in r]), np.array([x["sil"] for x in r])
         if np.isnan(sil).all():  # the keypoint stage only: the thresholds read its PA-PVE
             sil = kp
-        print(f"| {w:g}{' (off: baseline)' if not w else ''} | {len(r)} | {kp.mean():.1f} / {np.median(kp):.1f} | "
-              f"{sil.mean():.1f} / {np.median(sil):.1f} | {(sil > 150).sum()} | {(sil <= 60).sum()} ({100 * (sil <= 60).mean():.0f} %) | "
-              f"{np.mean([x['t_cue'] for x in r]):.2f}, {np.mean([x['t_kp'] for x in r]):.2f}, {np.mean([x['t_sil'] for x in r]):.2f} |")  # fmt: skip
+        print(
+            f"| {w:g}{' (off: baseline)' if not w else ''} | {len(r)} | {kp.mean():.1f} / {np.median(kp):.1f} | "
+            f"{sil.mean():.1f} / {np.median(sil):.1f} | {(sil > 150).sum()} | {(sil <= 60).sum()} ({100 * (sil <= 60).mean():.0f} %) | "
+            f"{np.mean([x['t_cue'] for x in r]):.2f}, {np.mean([x['t_kp'] for x in r]):.2f}, {np.mean([x['t_sil'] for x in r]):.2f} |"
+        )
     key = "kp" if all(np.isnan(x["sil"]) for x in rows) else "sil"
     base = {(x["seed"], x["i"]): x[key] for x in rows if x["w"] == weights[0]}
     for w in weights[1:]:
         d = {(x["seed"], x["i"]): x[key] - base[x["seed"], x["i"]] for x in rows if x["w"] == w}
         moved = [f"{k[0]}/{k[1]}: {base[k]:.0f} -> {base[k] + v:.0f}" for k, v in d.items() if abs(v) > 30]
-        print(f"\nweight {w:g} against {weights[0]:g}, {'with silhouettes' if key == 'sil' else 'keypoint stage'}: {sum(v < -10 for v in d.values())} better by more than "
-              f"10 mm, {sum(v > 10 for v in d.values())} worse; moved by more than 30 mm: {', '.join(moved) or 'none'}")
+        print(
+            f"\nweight {w:g} against {weights[0]:g}, {'with silhouettes' if key == 'sil' else 'keypoint stage'}: {sum(v < -10 for v in d.values())} better by more than "
+            f"10 mm, {sum(v > 10 for v in d.values())} worse; moved by more than 30 mm: {', '.join(moved) or 'none'}"
+        )
 
 
 def table(rows: list, min_dz: float, fit: bool) -> None:
     deep = [r for r in rows if abs(r["dz"]) >= min_dz and r["found"]]
-    print(f"segments with |true dz| >= {min_dz} m: {len(deep)} (of {len(rows)}; subjects without a detection: "
-          f"{len({(r['seed'], r['i']) for r in rows if not r['found']})})\n")
-    head = "| cue depth cosine | segments | cue sign right | image z sign right |" + (" fit right | cue right where the fit is wrong |" if fit else "")
+    print(
+        f"segments with |true dz| >= {min_dz} m: {len(deep)} (of {len(rows)}; subjects without a detection: "
+        f"{len({(r['seed'], r['i']) for r in rows if not r['found']})})\n"
+    )
+    head = "| cue depth cosine | segments | cue sign right | image z sign right |" + (
+        " fit right | cue right where the fit is wrong |" if fit else ""
+    )
     print(head)
     print("|---:" * (head.count("|") - 1) + "|")
     right = lambda r, k: np.sign(r[k]) == np.sign(r["dz"])  # noqa: E731
@@ -179,18 +238,26 @@ def table(rows: list, min_dz: float, fit: bool) -> None:
     called = [r for r in deep if r["call"]]
     subjects = {(r["seed"], r["i"]) for r in rows if r["found"]}
     refused = {(r["seed"], r["i"]) for r in rows if r.get("refused")}
-    print(f"\nGated cue (ImageDepthConfig defaults): decides {len(called)} of these {len(deep)} segments, right on "
-          f"{sum(np.sign(r['call']) == np.sign(r['dz']) for r in called)}; landmark sets refused: {len(refused)} of {len(subjects)}")
+    print(
+        f"\nGated cue (ImageDepthConfig defaults): decides {len(called)} of these {len(deep)} segments, right on "
+        f"{sum(np.sign(r['call']) == np.sign(r['dz']) for r in called)}; landmark sets refused: {len(refused)} of {len(subjects)}"
+    )
     flat = [r for r in rows if abs(r["dz"]) < min_dz and r["found"] and r["call"]]
-    print(f"Segments flatter than {min_dz} m it decides anyway: {len(flat)} (sign right on "
-          f"{sum(np.sign(r['call']) == np.sign(r['dz']) for r in flat)})")
+    print(
+        f"Segments flatter than {min_dz} m it decides anyway: {len(flat)} (sign right on "
+        f"{sum(np.sign(r['call']) == np.sign(r['dz']) for r in flat)})"
+    )
     if fit:
         turn = [r for r in called if np.sign(r["call"]) != np.sign(r["fit_dz"])]
-        print(f"Decided segments where the cue disagrees with the fit: {len(turn)}; the cue right on "
-              f"{sum(np.sign(r['call']) == np.sign(r['dz']) for r in turn)} (what-if: signs only, no refit)")
+        print(
+            f"Decided segments where the cue disagrees with the fit: {len(turn)}; the cue right on "
+            f"{sum(np.sign(r['call']) == np.sign(r['dz']) for r in turn)} (what-if: signs only, no refit)"
+        )
     det = sorted({(r["seed"], r["i"]): r["t_det"] for r in rows}.values())
-    print(f"Landmark model (detector + 2 passes): {np.median(det):.2f} s median per image" +
-          (f"; keypoint stage {np.mean([r['t_fit'] for r in rows]):.1f} CPU s per subject" if fit else ""))  # fmt: skip
+    print(
+        f"Landmark model (detector + 2 passes): {np.median(det):.2f} s median per image"
+        + (f"; keypoint stage {np.mean([r['t_fit'] for r in rows]):.1f} CPU s per subject" if fit else "")
+    )
 
 
 def main() -> None:
@@ -198,24 +265,36 @@ def main() -> None:
     ap.add_argument("--seeds", default="20000,20001", help="comma-separated generator seeds, --n subjects each")
     ap.add_argument("--n", type=int, default=15)
     ap.add_argument("--size", type=int, default=256)
-    ap.add_argument("--poses", default="hard,library", help="pose sets, comma-separated (hard, library: the easy default)")
+    ap.add_argument(
+        "--poses", default="hard,library", help="pose sets, comma-separated (hard, library: the easy default)"
+    )
     ap.add_argument("--min-dz", type=float, default=0.08)
     ap.add_argument("--fit", action="store_true", help="also the keypoint fit's signs")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--save", type=Path, help="write the per-segment rows here (pickle; for offline tuning)")
-    ap.add_argument("--compare", metavar="W0,W1", help="instead: fit with these image_depth_weight values (0: the cue "
-                    "off, the baseline) on the default image path (keypoints + silhouette) and compare")
+    ap.add_argument(
+        "--compare",
+        metavar="W0,W1",
+        help="instead: fit with these image_depth_weight values (0: the cue "
+        "off, the baseline) on the default image path (keypoints + silhouette) and compare",
+    )
     ap.add_argument("--batch", type=int, default=8, help="--compare: subjects per keypoint-stage batch")
-    ap.add_argument("--no-silhouette", action="store_true", help="--compare: the keypoint stage only (the table's "
-                    "thresholds then read the keypoint stage's PA-PVE)")
+    ap.add_argument(
+        "--no-silhouette",
+        action="store_true",
+        help="--compare: the keypoint stage only (the table's thresholds then read the keypoint stage's PA-PVE)",
+    )
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     t0 = time.perf_counter()
     if args.compare:
         weights = tuple(float(w) for w in args.compare.split(","))
         with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
-            jobs = {(p, s): pool.submit(compare_seed, s, args.n, args.size, p, args.batch, weights, not args.no_silhouette)
-                    for p in args.poses.split(",") for s in seeds}  # fmt: skip
+            jobs = {
+                (p, s): pool.submit(compare_seed, s, args.n, args.size, p, args.batch, weights, not args.no_silhouette)
+                for p in args.poses.split(",")
+                for s in seeds
+            }
             out = {k: j.result() for k, j in jobs.items()}
         if args.save:
             import pickle
@@ -223,20 +302,28 @@ def main() -> None:
             args.save.write_bytes(pickle.dumps(out))
         for p in args.poses.split(","):
             what = "keypoint stage only" if args.no_silhouette else "keypoints + silhouette"
-            print(f"\n## {p} poses: {args.n} subjects per seed, seeds {args.seeds}, {args.size} px, {what} "
-                  f"({time.perf_counter() - t0:.0f} s wall for all, {args.workers} processes)\n")
+            print(
+                f"\n## {p} poses: {args.n} subjects per seed, seeds {args.seeds}, {args.size} px, {what} "
+                f"({time.perf_counter() - t0:.0f} s wall for all, {args.workers} processes)\n"
+            )
             compare_table([r for s in seeds for r in out[p, s]], weights)
         return
     with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
-        jobs = {(p, s): pool.submit(run_seed, s, args.n, args.size, p, args.fit) for p in args.poses.split(",") for s in seeds}
+        jobs = {
+            (p, s): pool.submit(run_seed, s, args.n, args.size, p, args.fit)
+            for p in args.poses.split(",")
+            for s in seeds
+        }
         out = {k: j.result() for k, j in jobs.items()}
     if args.save:
         import pickle
 
         args.save.write_bytes(pickle.dumps(out))
     for p in args.poses.split(","):
-        print(f"\n## {p} poses: {args.n} subjects per seed, seeds {args.seeds}, {args.size} px "
-              f"({time.perf_counter() - t0:.0f} s wall for all)\n")
+        print(
+            f"\n## {p} poses: {args.n} subjects per seed, seeds {args.seeds}, {args.size} px "
+            f"({time.perf_counter() - t0:.0f} s wall for all)\n"
+        )
         table([r for s in seeds for r in out[p, s]], args.min_dz, args.fit)
 
 

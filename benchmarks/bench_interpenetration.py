@@ -9,6 +9,7 @@ part) and the term's energy in fitter units (x 1e5, the keypoint stage's weight)
 the build time and the forward+backward time for a batch of 32 (median of 30 runs;
 timings on a shared CPU are noisy).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -51,7 +52,10 @@ def main() -> None:
 
     rows = [(f"contact: {n}", p, pairs) for n, (p, pairs) in contact_examples(model).items()]
     rows += [(f"intersecting: {n}", p, pairs) for n, (p, pairs) in intersecting_examples().items()]
-    rows += [(f"library: {n}", POSE_LIBRARY[n].body_pose, None) for n in ("stand_relaxed", "sit_chair", "squat_deep", "kneel_one", "phone_call")]
+    rows += [
+        (f"library: {n}", POSE_LIBRARY[n].body_pose, None)
+        for n in ("stand_relaxed", "sit_chair", "squat_deep", "kneel_one", "phone_call")
+    ]
     print("| pose | gap (cm) | depth (cm) | energy x 1e5 |")
     print("|---|---:|---:|---:|")
     for name, pose, pairs in rows:

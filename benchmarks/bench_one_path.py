@@ -7,6 +7,7 @@ parameter, with the wall time of each run.
 Prints one row per case: the largest absolute difference of any parameter, of the vertices, and
 both runs' wall seconds (one process per run, so model loading is included in both).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -34,7 +35,11 @@ def compare(a: Path, b: Path) -> tuple:
     pa, pb = np.load(a / "params.npz"), np.load(b / "params.npz")
     names = [n for n in ("betas", "body_pose", "global_orient", "transl") if n in pa.files]
     dp = max(float(np.abs(pa[n].astype(np.float64) - pb[n].astype(np.float64)).max()) for n in names)
-    dv = float(np.abs(pa["vertices"].astype(np.float64) - pb["vertices"].astype(np.float64)).max()) if "vertices" in pa.files else float("nan")
+    dv = (
+        float(np.abs(pa["vertices"].astype(np.float64) - pb["vertices"].astype(np.float64)).max())
+        if "vertices" in pa.files
+        else float("nan")
+    )
     return dp, dv
 
 
@@ -47,19 +52,53 @@ def main() -> int:
     tmp = Path(tempfile.mkdtemp(prefix="one_path_"))
     data = HERE / "data" / "synthetic" / "subject_003"
     rigs, seqs = tmp / "rigs", tmp / "seqs"
-    silfit(HERE, ["synth", "--n", "1", "--cameras", "3", "--size", "256", "--seed", "77", "--out", str(rigs), "--quiet"])
-    silfit(HERE, ["synth", "--videos", "--motions", "walk", "--frames", "8", "--n", "1", "--size", "256", "--seed", "78", "--out", str(seqs),
-                  "--quiet"])  # fmt: skip
+    silfit(
+        HERE, ["synth", "--n", "1", "--cameras", "3", "--size", "256", "--seed", "77", "--out", str(rigs), "--quiet"]
+    )
+    silfit(
+        HERE,
+        [
+            "synth",
+            "--videos",
+            "--motions",
+            "walk",
+            "--frames",
+            "8",
+            "--n",
+            "1",
+            "--size",
+            "256",
+            "--seed",
+            "78",
+            "--out",
+            str(seqs),
+            "--quiet",
+        ],
+    )
     seq = next(p for p in seqs.iterdir() if p.is_dir())
     cases = {
-        "image, keypoints only": ["--keypoints", str(data / "keypoints.json"), "--camera", str(data / "camera.json"),
-                                  "--image-size", "256x256", "--no-silhouette"],
-        "image + silhouette": ["--keypoints", str(data / "keypoints.json"), "--camera", str(data / "camera.json"),
-                               "--mask", str(data / "mask.png")] + sil,
+        "image, keypoints only": [
+            "--keypoints",
+            str(data / "keypoints.json"),
+            "--camera",
+            str(data / "camera.json"),
+            "--image-size",
+            "256x256",
+            "--no-silhouette",
+        ],
+        "image + silhouette": [
+            "--keypoints",
+            str(data / "keypoints.json"),
+            "--camera",
+            str(data / "camera.json"),
+            "--mask",
+            str(data / "mask.png"),
+        ]
+        + sil,
         "rig (3 views) + silhouette": ["--rig", str(rigs / "subject_000")] + sil,
         "video (8 frames)": ["--sequence", str(seq), "--no-silhouette", "--no-video"],
-    }  # fmt: skip
-    print(f"| case | max abs diff, parameters | max abs diff, vertices (m) | base wall s | this wall s |")
+    }
+    print("| case | max abs diff, parameters | max abs diff, vertices (m) | base wall s | this wall s |")
     print("|---|---|---|---|---|")
     for name, args in cases.items():
         out_a, out_b = tmp / f"base_{len(name)}_{hash(name) & 0xFFFF}", tmp / f"this_{len(name)}_{hash(name) & 0xFFFF}"

@@ -20,6 +20,7 @@ side view over the keypoint fit in orange) goes to ``docs/photos_sheet.png`` (``
 
     python benchmarks/bench_photos.py --extra ultralytics-8.4.190-py3-none-any.whl --people all
 """
+
 from __future__ import annotations
 
 import argparse
@@ -74,11 +75,18 @@ def extra_photos(paths, tmp: Path) -> list:
 
 
 def _short(warning: str) -> str:
-    keys = [("kept the keypoint fit", "guard: kept kp fit"), ("person cut off", "cut off"), ("trimmed by", "clothing trimmed"),
-            ("runs out of the image", "cut off"), ("lower body not visible", "lower body hidden"),
-            ("depth ambiguous", "depth ambiguous"), ("moved the body away", "reprojection rise"),
-            ("implausible body shape", "|betas| > 3"), ("far from the keypoint fit's body", "leak ignored"),
-            ("IoU", "low IoU")]  # fmt: skip
+    keys = [
+        ("kept the keypoint fit", "guard: kept kp fit"),
+        ("person cut off", "cut off"),
+        ("trimmed by", "clothing trimmed"),
+        ("runs out of the image", "cut off"),
+        ("lower body not visible", "lower body hidden"),
+        ("depth ambiguous", "depth ambiguous"),
+        ("moved the body away", "reprojection rise"),
+        ("implausible body shape", "|betas| > 3"),
+        ("far from the keypoint fit's body", "leak ignored"),
+        ("IoU", "low IoU"),
+    ]
     for key, text in keys:
         if key in warning:
             return text
@@ -92,8 +100,11 @@ def main() -> None:
     ap.add_argument("--sheet", default=str(Path(__file__).resolve().parents[1] / "docs" / "photos_sheet.png"))
     ap.add_argument("--only", help="comma-separated photo names (default: all)")
     ap.add_argument("--no-before", action="store_true", help="skip the 'before' silhouette stage (faster)")
-    ap.add_argument("--whole-mask", action="store_true", help="each person's whole mask (before issue 55: the other "
-                    "people detected not taken out)")
+    ap.add_argument(
+        "--whole-mask",
+        action="store_true",
+        help="each person's whole mask (before issue 55: the other people detected not taken out)",
+    )
     args = ap.parse_args()
 
     from silfit import figures
@@ -118,8 +129,10 @@ def main() -> None:
         if args.only:
             photos = [(n, p) for n, p in photos if n in args.only.split(",")]
         print(f"# Real photos: {len(photos)} ({', '.join(n for n, _ in photos)}), people: {args.people}\n")
-        print("| photo | person | reprojection px kp / before / after | after / kp | max abs beta before / after | "
-              "stature m before / after | body outside image | IoU kp / after | kept | s | warnings (after) |")
+        print(
+            "| photo | person | reprojection px kp / before / after | after / kp | max abs beta before / after | "
+            "stature m before / after | body outside image | IoU kp / after | kept | s | warnings (after) |"
+        )
         print("|---|---:|---|---:|---|---|---:|---|---|---:|---|")
         for name, path in photos:
             try:  # every person detected: the others leave each one's mask (issue 55), as silfit fit --image does
@@ -136,11 +149,30 @@ def main() -> None:
                     known = ~(mask & ~person.own_mask(people))
                 kp, notes = check_keypoints(kp, photo.size)
                 kp_fit = fitter.fit([kp], image_size=photo.size, focal=focal, progress=False)
-                fits = {"after": refine(model, kp_fit, kp, mask, SilhouetteFitConfig(), fitter.pose_prior, progress=False,
-                                        mask_source=f"{name} mask", known=known)}  # fmt: skip
+                fits = {
+                    "after": refine(
+                        model,
+                        kp_fit,
+                        kp,
+                        mask,
+                        SilhouetteFitConfig(),
+                        fitter.pose_prior,
+                        progress=False,
+                        mask_source=f"{name} mask",
+                        known=known,
+                    )
+                }
                 if not args.no_before:
-                    fits["before"] = refine(model, kp_fit, kp, mask, replace(SilhouetteFitConfig(), **BEFORE),
-                                            fitter.pose_prior, progress=False, mask_source=f"{name} mask")  # fmt: skip
+                    fits["before"] = refine(
+                        model,
+                        kp_fit,
+                        kp,
+                        mask,
+                        replace(SilhouetteFitConfig(), **BEFORE),
+                        fitter.pose_prior,
+                        progress=False,
+                        mask_source=f"{name} mask",
+                    )
                 seconds = time.perf_counter() - t0
                 after = fits["after"]
                 m = after.metrics
@@ -148,7 +180,9 @@ def main() -> None:
                 warnings += [f"detection: {w}" for w in person.warnings()]
                 cam = after.camera
                 uv = project_points(torch.as_tensor(after.vertices, dtype=torch.float64), cam).numpy()
-                outside = float(np.mean((uv[:, 0] < 0) | (uv[:, 0] > cam.width) | (uv[:, 1] < 0) | (uv[:, 1] > cam.height)))
+                outside = float(
+                    np.mean((uv[:, 0] < 0) | (uv[:, 0] > cam.width) | (uv[:, 1] < 0) | (uv[:, 1] > cam.height))
+                )
                 beta = {k: float(np.abs(f.params["betas"]).max()) for k, f in fits.items()}
                 height = {k: body_stature(model, f.params["betas"]) for k, f in fits.items()}
                 rp = {k: f.metrics["reprojection_error_px"] for k, f in fits.items()}
@@ -156,22 +190,27 @@ def main() -> None:
                 short = sorted({_short(w) for w in warnings})
                 reasons = m.get("silhouette_guard", {}).get("less_plausible", [])
                 if reasons:
-                    short = [f"guard: kept kp fit ({', '.join(reasons)})" if w.startswith("guard") else w for w in short]
+                    short = [
+                        f"guard: kept kp fit ({', '.join(reasons)})" if w.startswith("guard") else w for w in short
+                    ]
                 rows.append((name, i, m["reprojection_error_px_keypoint_stage"], rp, beta, height, outside, short))
                 kept = m.get("silhouette_guard", {}).get("kept", "silhouette")
                 r0 = m["reprojection_error_px_keypoint_stage"]
-                print(f"| {name} | {i} | {r0:.2f} / {b(rp, 'before')} / {rp['after']:.2f} | {rp['after'] / r0:.2f} | "
-                      f"{b(beta, 'before')} / {beta['after']:.2f} | {b(height, 'before')} / {height['after']:.2f} | "
-                      f"{outside:.0%} | {m['iou_keypoint_stage']:.3f} / {m['iou']:.3f} | "
-                      f"{'silhouette' if kept == 'silhouette' else 'turned back'} | {seconds:.0f} | {'; '.join(short)} |",
-                      flush=True)  # fmt: skip
+                print(
+                    f"| {name} | {i} | {r0:.2f} / {b(rp, 'before')} / {rp['after']:.2f} | {rp['after'] / r0:.2f} | "
+                    f"{b(beta, 'before')} / {beta['after']:.2f} | {b(height, 'before')} / {height['after']:.2f} | "
+                    f"{outside:.0%} | {m['iou_keypoint_stage']:.3f} / {m['iou']:.3f} | "
+                    f"{'silhouette' if kept == 'silhouette' else 'turned back'} | {seconds:.0f} | {'; '.join(short)} |",
+                    flush=True,
+                )
                 front = figures.fit_overlay(photo.image, after.vertices, faces, cam, kp.xy, None, kp.conf)
                 scale = 360 / max(front.shape[:2])
                 if scale < 1:
                     import cv2
 
-                    front = cv2.resize(front, (int(front.shape[1] * scale), int(front.shape[0] * scale)),
-                                       interpolation=cv2.INTER_AREA)  # fmt: skip
+                    front = cv2.resize(
+                        front, (int(front.shape[1] * scale), int(front.shape[0] * scale)), interpolation=cv2.INTER_AREA
+                    )
                 panels += [front, figures.side_view(after.vertices, faces, after.keypoint.vertices[0], size=(288, 360))]
                 titles += [f"{name} #{i}: final", f"{name} #{i}: side (orange: kp fit)"]
     if panels:

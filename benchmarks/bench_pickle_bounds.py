@@ -7,6 +7,7 @@ of median seconds.
 
     .venv/bin/python benchmarks/bench_pickle_bounds.py [--repeats 3]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -27,11 +28,16 @@ def smpl_sized(seed: int = 0) -> dict:
     rng = np.random.default_rng(seed)
     V, J = 6890, 24
     return {
-        "v_template": rng.normal(size=(V, 3)), "f": rng.integers(0, V, (13776, 3)).astype(np.uint32),
-        "shapedirs": rng.normal(size=(V, 3, 300)), "posedirs": rng.normal(size=(V, 3, 207)),
-        "J_regressor": rng.random((J, V)), "weights": rng.random((V, J)),
-        "kintree_table": np.stack([np.arange(J) - 1, np.arange(J)]), "bs_style": "lbs", "bs_type": "lrotmin",
-    }  # fmt: skip
+        "v_template": rng.normal(size=(V, 3)),
+        "f": rng.integers(0, V, (13776, 3)).astype(np.uint32),
+        "shapedirs": rng.normal(size=(V, 3, 300)),
+        "posedirs": rng.normal(size=(V, 3, 207)),
+        "J_regressor": rng.random((J, V)),
+        "weights": rng.random((V, J)),
+        "kintree_table": np.stack([np.arange(J) - 1, np.arange(J)]),
+        "bs_style": "lbs",
+        "bs_type": "lrotmin",
+    }
 
 
 def median_s(fn, repeats: int) -> float:
@@ -51,9 +57,13 @@ def main() -> None:
     cases = {
         "SMPL-sized arrays, protocol 2": pickle.dumps(smpl_sized(), protocol=2),
         "SMPL-sized arrays, protocol 5": pickle.dumps(smpl_sized(), protocol=5),
-        "1M floats as nested lists, protocol 2": pickle.dumps({"v_template": rng.normal(size=(200_000, 5)).tolist()}, protocol=2),
+        "1M floats as nested lists, protocol 2": pickle.dumps(
+            {"v_template": rng.normal(size=(200_000, 5)).tolist()}, protocol=2
+        ),
     }
-    print("| pickle | size (MB) | opcode scan alone (s) | pre-pass with the bound (s) | unpickling (s) | pre-pass / unpickling |")
+    print(
+        "| pickle | size (MB) | opcode scan alone (s) | pre-pass with the bound (s) | unpickling (s) | pre-pass / unpickling |"
+    )
     print("|---|---:|---:|---:|---:|---:|")
     for name, data in cases.items():
         scan = median_s(lambda: sum(1 for _ in pickletools.genops(data)), args.repeats)

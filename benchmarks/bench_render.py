@@ -21,6 +21,7 @@ windows, 4 spp, 1 edge sample.
 Targets on the 2-core CPU: forward+backward 256x256 at 4 spp <= 110 ms; pyrender colour
 + mask 512x512 <= 30 ms.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -133,7 +134,9 @@ def bench_basic(args) -> bool:
     t_p = median_ms(pyr, args.repeats)
     rows.append(("pyrender colour+mask", "512x512", None, t_p, None))
 
-    print(f"Variant: {renderer.variant}; torch threads {torch.get_num_threads()}; median of {args.repeats} warm runs.\n")
+    print(
+        f"Variant: {renderer.variant}; torch threads {torch.get_num_threads()}; median of {args.repeats} warm runs.\n"
+    )
     print("| renderer | size | spp | forward (ms) | forward+backward (ms) |")
     print("|---|---|---|---|---|")
     ok = True
@@ -190,8 +193,10 @@ def bench_proxy(args) -> None:
     model, verts, cams128 = library_subjects(13, 128)
     _, _, cams256 = library_subjects(13, 256)
     full = SilhouetteRenderer(model.faces)
-    ref = {size: [full(v, c, spp=64, seed=1, sampler="multijitter") for v, c in zip(verts, cams)]
-           for size, cams in ((128, cams128), (256, cams256))}  # fmt: skip
+    ref = {
+        size: [full(v, c, spp=64, seed=1, sampler="multijitter") for v, c in zip(verts, cams)]
+        for size, cams in ((128, cams128), (256, cams256))
+    }
     rows = [(model.faces.shape[0], model.num_vertices, "-", "1.0000 / 1.0000", "1.0000 / 1.0000", full, None)]
     for n_faces in (int(x) for x in args.proxy_faces.split(",")):
         t = time.perf_counter()
@@ -200,11 +205,18 @@ def bench_proxy(args) -> None:
         r = SilhouetteRenderer(proxy.faces)
         cells = []
         for size, cams in ((128, cams128), (256, cams256)):
-            ious = [soft_iou(r(proxy(v), c, spp=64, seed=1, sampler="multijitter"), s) for v, c, s in zip(verts, cams, ref[size])]
+            ious = [
+                soft_iou(r(proxy(v), c, spp=64, seed=1, sampler="multijitter"), s)
+                for v, c, s in zip(verts, cams, ref[size])
+            ]
             cells.append(f"{min(ious):.4f} / {statistics.mean(ious):.4f}")
         rows.append((proxy.n_faces, proxy.n_vertices, f"{built:.1f}", cells[0], cells[1], r, proxy))
-    print(f"\n### Render proxies: soft IoU vs the full mesh (13 library poses, same seed, 64 stratified spp), and cost at 128x128 spp 4\n")
-    print("| faces | vertices | build (s) | IoU 128 px min / mean | IoU 256 px min / mean | forward (ms) | forward+backward (ms) |")
+    print(
+        "\n### Render proxies: soft IoU vs the full mesh (13 library poses, same seed, 64 stratified spp), and cost at 128x128 spp 4\n"
+    )
+    print(
+        "| faces | vertices | build (s) | IoU 128 px min / mean | IoU 256 px min / mean | forward (ms) | forward+backward (ms) |"
+    )
     print("|---:|---:|---:|---|---|---:|---:|")
     for n_f, n_v, built, i128, i256, r, proxy in rows:
         v = verts[0] if proxy is None else proxy(verts[0])
@@ -234,13 +246,22 @@ def bench_batch(args) -> None:
     batches = [int(x) for x in args.batches.split(",")]
     model, verts, cams = library_subjects(max(batches))
     proxy = get_proxy(model.v_template, model.faces, DEFAULT_PROXY_FACES)
-    print(f"\n### Batched subjects, 128x128 windows, spp 4, edge spp 1 (best of {args.repeats}; ms per call, per subject in brackets)\n")
-    print("N subjects rendered then one backward pass: *shared scene* = one cached scene re-used for every subject "
-          "(each earlier subject's backward then rebuilds its BVH); *scene per subject* = `mode='separate'`; "
-          "*tiles* = `mode='tiled'`, all subjects in one film.\n")
-    print("| mesh | N | fwd: scene per subject | fwd: tiles | fwd+bwd: shared scene | fwd+bwd: scene per subject | fwd+bwd: tiles |")
+    print(
+        f"\n### Batched subjects, 128x128 windows, spp 4, edge spp 1 (best of {args.repeats}; ms per call, per subject in brackets)\n"
+    )
+    print(
+        "N subjects rendered then one backward pass: *shared scene* = one cached scene re-used for every subject "
+        "(each earlier subject's backward then rebuilds its BVH); *scene per subject* = `mode='separate'`; "
+        "*tiles* = `mode='tiled'`, all subjects in one film.\n"
+    )
+    print(
+        "| mesh | N | fwd: scene per subject | fwd: tiles | fwd+bwd: shared scene | fwd+bwd: scene per subject | fwd+bwd: tiles |"
+    )
     print("|---|---:|---:|---:|---:|---:|---:|")
-    for label, faces, vs in (("full", model.faces, verts), (f"proxy {proxy.n_faces:,}", proxy.faces, [proxy(v) for v in verts])):
+    for label, faces, vs in (
+        ("full", model.faces, verts),
+        (f"proxy {proxy.n_faces:,}", proxy.faces, [proxy(v) for v in verts]),
+    ):
         tiled, separate = BatchSilhouetteRenderer(faces, mode="tiled"), BatchSilhouetteRenderer(faces, mode="separate")
         for n in batches:
             sub_v, sub_c = vs[:n], cams[:n]
@@ -266,7 +287,10 @@ def bench_batch(args) -> None:
                 return run
 
             reps = max(3, args.repeats // max(1, n // 4))
-            cells = [median_ms(f, reps, 1, True) for f in (fwd(separate), fwd(tiled), shared, fwd_bwd(separate), fwd_bwd(tiled))]
+            cells = [
+                median_ms(f, reps, 1, True)
+                for f in (fwd(separate), fwd(tiled), shared, fwd_bwd(separate), fwd_bwd(tiled))
+            ]
             print(f"| {label} | {n} | " + " | ".join(f"{c:.0f} ({c / n:.0f})" for c in cells) + " |", flush=True)
 
 
@@ -282,8 +306,12 @@ def bench_breakdown(args) -> None:
         (f"proxy {proxy.n_faces:,}, 1 subject", proxy.faces, [proxy(verts[0])], cams[:1]),
         (f"proxy {proxy.n_faces:,}, 8 subjects tiled", proxy.faces, [proxy(v) for v in verts], cams),
     ]
-    print(f"\n### Where one forward+backward call goes (ms, best of {args.repeats}; 128x128 windows, spp 4, edge spp 1)\n")
-    print("| case | whole call (torch in/out) | BVH rebuild (params.update) | primal: trace | primal: kernels | adjoint: trace | adjoint: kernels | torch map + bridge + loss |")
+    print(
+        f"\n### Where one forward+backward call goes (ms, best of {args.repeats}; 128x128 windows, spp 4, edge spp 1)\n"
+    )
+    print(
+        "| case | whole call (torch in/out) | BVH rebuild (params.update) | primal: trace | primal: kernels | adjoint: trace | adjoint: kernels | torch map + bridge + loss |"
+    )
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
     for label, faces, vs, cs in cases:
         br = BatchSilhouetteRenderer(faces)
@@ -344,8 +372,11 @@ def bench_breakdown(args) -> None:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
         med = {k: min(v) for k, v in phases.items()}  # best of: robust on a loaded CPU
         rest = t_whole - sum(med.values())
-        print(f"| {label} | {t_whole:.1f} | {med['bvh']:.1f} | {med['p_trace']:.1f} | {med['p_kern']:.1f} | "
-              f"{med['a_trace']:.1f} | {med['a_kern']:.1f} | {rest:.1f} |", flush=True)  # fmt: skip
+        print(
+            f"| {label} | {t_whole:.1f} | {med['bvh']:.1f} | {med['p_trace']:.1f} | {med['p_kern']:.1f} | "
+            f"{med['a_trace']:.1f} | {med['a_kern']:.1f} | {rest:.1f} |",
+            flush=True,
+        )
 
 
 def _kernel_ms(history) -> float:

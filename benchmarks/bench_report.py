@@ -8,6 +8,7 @@ first, ``--screenshot`` writes the picture (``docs/report_100.png`` by default).
 
     .venv/bin/python benchmarks/bench_report.py [--n 100] [--seed 5] [--size 160] [--screenshot docs/report_100.png]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -23,8 +24,18 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-FAST = ["--keypoint-option", "init_poses=1", "--keypoint-option", "camera_iters=20", "--keypoint-option",
-        "pose_iters=20,20,20", "--keypoint-option", "shape_iters=10", "--keypoint-option", "final_iters=20"]  # fmt: skip
+FAST = [
+    "--keypoint-option",
+    "init_poses=1",
+    "--keypoint-option",
+    "camera_iters=20",
+    "--keypoint-option",
+    "pose_iters=20,20,20",
+    "--keypoint-option",
+    "shape_iters=10",
+    "--keypoint-option",
+    "final_iters=20",
+]
 
 
 def chromium(*args) -> str:
@@ -51,13 +62,47 @@ def main() -> int:
     rows = []
     try:
         t = time.perf_counter()
-        assert silfit(["synth", "--n", str(args.n), "--seed", str(args.seed), "--size", str(args.size), "--noise-px", "3",
-                       "--drop", "0.08", "--truncation", "0.1", "--out", str(work / "data"), "--quiet"]) == 0  # fmt: skip
+        assert (
+            silfit(
+                [
+                    "synth",
+                    "--n",
+                    str(args.n),
+                    "--seed",
+                    str(args.seed),
+                    "--size",
+                    str(args.size),
+                    "--noise-px",
+                    "3",
+                    "--drop",
+                    "0.08",
+                    "--truncation",
+                    "0.1",
+                    "--out",
+                    str(work / "data"),
+                    "--quiet",
+                ]
+            )
+            == 0
+        )
         rows.append(("silfit synth", f"{time.perf_counter() - t:.1f} s"))
         t = time.perf_counter()
-        rc = silfit(["fit-dataset", str(work / "data"), "--out", str(work / "fits"), "--no-silhouette", "--batch-size",
-                     "16", "--quiet", *FAST])  # fmt: skip
-        rows.append((f"silfit fit-dataset (keypoints only, exit {rc}), report included", f"{time.perf_counter() - t:.1f} s"))
+        rc = silfit(
+            [
+                "fit-dataset",
+                str(work / "data"),
+                "--out",
+                str(work / "fits"),
+                "--no-silhouette",
+                "--batch-size",
+                "16",
+                "--quiet",
+                *FAST,
+            ]
+        )
+        rows.append(
+            (f"silfit fit-dataset (keypoints only, exit {rc}), report included", f"{time.perf_counter() - t:.1f} s")
+        )
         t = time.perf_counter()
         assert silfit(["report", str(work / "fits")]) == 0
         rows.append(("silfit report (side views included)", f"{time.perf_counter() - t:.1f} s"))
@@ -73,7 +118,9 @@ def main() -> int:
         rows.append(("chromium --dump-dom", f"{time.perf_counter() - t:.1f} s"))
         order = re.findall(r'<div class="card[^"]*" id="card-\d+" data-item="([^"]*)"', dom)
         expected = [r["item"] for r in ok]
-        sorted_ok = len(order) == len(records) and set(order[: len(failed)]) == set(failed) and order[len(failed):] == expected
+        sorted_ok = (
+            len(order) == len(records) and set(order[: len(failed)]) == set(failed) and order[len(failed) :] == expected
+        )
         rows.append(("cards in the page / sorted worst first by the page's script", f"{len(order)} / {sorted_ok}"))
         shot = Path(args.screenshot)
         shot.parent.mkdir(parents=True, exist_ok=True)

@@ -19,6 +19,7 @@ with the number of subjects whose vertices moved by more than 0.1 mm, and the se
     python benchmarks/bench_reproducible.py --subjects 30 --seed 2207 --before 4f1b8e7
     python benchmarks/bench_reproducible.py --subjects 6 --quick      # batch 1 and 4, two settings
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,12 +44,21 @@ PARAMS = ("betas", "global_orient", "body_pose", "transl")
 def settings(quick: bool) -> list:
     """``(label, batch, env)`` of each run; the first is the reference."""
     if quick:
-        return [("batch 1", 1, {}), ("batch 4", 4, {}), ("batch 4, OMP 1", 4, {"OMP_NUM_THREADS": "1"}),
-                ("batch 4, ATEN default", 4, {"ATEN_CPU_CAPABILITY": "default"})]  # fmt: skip
-    runs = [("batch 1", 1, {}), ("batch 8", 8, {}), ("batch 32", 32, {}),
-            ("batch 8, OMP 1", 8, {"OMP_NUM_THREADS": "1"}), ("batch 8, OMP 2", 8, {"OMP_NUM_THREADS": "2"}),
-            ("batch 8, ATEN default", 8, {"ATEN_CPU_CAPABILITY": "default"}),
-            ("batch 8, ATEN avx2", 8, {"ATEN_CPU_CAPABILITY": "avx2"})]  # fmt: skip
+        return [
+            ("batch 1", 1, {}),
+            ("batch 4", 4, {}),
+            ("batch 4, OMP 1", 4, {"OMP_NUM_THREADS": "1"}),
+            ("batch 4, ATEN default", 4, {"ATEN_CPU_CAPABILITY": "default"}),
+        ]
+    runs = [
+        ("batch 1", 1, {}),
+        ("batch 8", 8, {}),
+        ("batch 32", 32, {}),
+        ("batch 8, OMP 1", 8, {"OMP_NUM_THREADS": "1"}),
+        ("batch 8, OMP 2", 8, {"OMP_NUM_THREADS": "2"}),
+        ("batch 8, ATEN default", 8, {"ATEN_CPU_CAPABILITY": "default"}),
+        ("batch 8, ATEN avx2", 8, {"ATEN_CPU_CAPABILITY": "avx2"}),
+    ]
     if "avx512f" in cpu_flags():
         runs.append(("batch 8, ATEN avx512", 8, {"ATEN_CPU_CAPABILITY": "avx512"}))
     return runs
@@ -62,7 +72,9 @@ def generate_inputs(path: Path, n: int, seed: int) -> None:
 
     data = generate(load_body_model(), n, seed=seed)
     cam = data["cameras"][0]
-    np.savez(path, keypoints=np.stack(data["keypoints"]), camera=[cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy])
+    np.savez(
+        path, keypoints=np.stack(data["keypoints"]), camera=[cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy]
+    )
 
 
 def worker(inputs: str, out: str, batch: int, dtype: str) -> None:
@@ -77,7 +89,9 @@ def worker(inputs: str, out: str, batch: int, dtype: str) -> None:
     w, h, fx, fy, cx, cy = d["camera"].tolist()
     cam = Camera(width=int(w), height=int(h), fx=fx, fy=fy, cx=cx, cy=cy)
     kps = d["keypoints"]
-    fitter = KeypointFitter(load_body_model(), config=KeypointFitConfig() if dtype == "before" else KeypointFitConfig(dtype=dtype))
+    fitter = KeypointFitter(
+        load_body_model(), config=KeypointFitConfig() if dtype == "before" else KeypointFitConfig(dtype=dtype)
+    )
     res = {k: [] for k in PARAMS + ("vertices",)}
     t0, c0 = time.perf_counter(), time.process_time()
     for s in range(0, len(kps), batch):
@@ -85,8 +99,14 @@ def worker(inputs: str, out: str, batch: int, dtype: str) -> None:
         for k in PARAMS + ("vertices",):
             res[k].append(getattr(r, k))
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    np.savez(out, **{k: np.concatenate(v) for k, v in res.items()}, wall=wall / len(kps), cpu=cpu / len(kps),
-             threads=torch.get_num_threads(), code=str(Path(silfit.__file__).resolve().parent))  # fmt: skip
+    np.savez(
+        out,
+        **{k: np.concatenate(v) for k, v in res.items()},
+        wall=wall / len(kps),
+        cpu=cpu / len(kps),
+        threads=torch.get_num_threads(),
+        code=str(Path(silfit.__file__).resolve().parent),
+    )
 
 
 def run_child(inputs: Path, out: Path, batch: int, dtype: str, env: dict, code: Path = None) -> None:
@@ -128,8 +148,11 @@ def main(argv=None) -> int:
         code = None
         if a.before:
             code = tmp / "before"
-            subprocess.run(["git", "-C", str(HERE.parent), "worktree", "add", "--detach", str(code), a.before], check=True,
-                           capture_output=True)  # fmt: skip
+            subprocess.run(
+                ["git", "-C", str(HERE.parent), "worktree", "add", "--detach", str(code), a.before],
+                check=True,
+                capture_output=True,
+            )
             kinds = ["before"] + kinds
         for dtype in kinds:
             ref = None
@@ -141,26 +164,45 @@ def main(argv=None) -> int:
                 used = str(r.pop("code"))
                 if (dtype == "before") != used.startswith(str(tmp)):
                     raise SystemExit(f"the {dtype} run imported silfit from {used}")
-                print(f"  {dtype:8s} {label:24s} {r['wall']:.2f} s/image ({time.perf_counter() - t0:.0f} s with start-up)",
-                      file=sys.stderr, flush=True)  # fmt: skip
+                print(
+                    f"  {dtype:8s} {label:24s} {r['wall']:.2f} s/image ({time.perf_counter() - t0:.0f} s with start-up)",
+                    file=sys.stderr,
+                    flush=True,
+                )
                 if ref is None:
                     ref = {k: v.astype(np.float64) for k, v in r.items()}
                 rows.append((dtype, label, compare(ref, r), float(r["wall"]), float(r["cpu"])))
                 speed.setdefault(dtype, {})[label] = float(r["wall"])
         if code is not None:
             subprocess.run(["git", "-C", str(HERE.parent), "worktree", "remove", "--force", str(code)], check=False)
-    print(f"\n{a.subjects} fresh subjects (seed {a.seed}), keypoint stage, differences against batch 1 of the same code "
-          f"and dtype{f'; before: {a.before}, its float32 default' if a.before else ''}\n")
-    print("| dtype | run | max parameter diff | max vertex diff (mm) | subjects moved > 0.1 mm | s/image (wall) | s/image (CPU) |")
+    print(
+        f"\n{a.subjects} fresh subjects (seed {a.seed}), keypoint stage, differences against batch 1 of the same code "
+        f"and dtype{f'; before: {a.before}, its float32 default' if a.before else ''}\n"
+    )
+    print(
+        "| dtype | run | max parameter diff | max vertex diff (mm) | subjects moved > 0.1 mm | s/image (wall) | s/image (CPU) |"
+    )
     print("|---|---|---:|---:|---:|---:|---:|")
     for dtype, label, c, wall, cpu in rows:
-        print(f"| {dtype} | {label} | {c['param']:.2e} | {c['vertex']:.4f} | {c['moved']} / {a.subjects} | {wall:.2f} | {cpu:.2f} |")
+        print(
+            f"| {dtype} | {label} | {c['param']:.2e} | {c['vertex']:.4f} | {c['moved']} / {a.subjects} | {wall:.2f} | {cpu:.2f} |"
+        )
     if "float64" in speed and len(speed) > 1:
         others = [k for k in speed if k != "float64"]
-        print("\n| run | " + " | ".join(f"float64 / {k} time (wall)" for k in others) + " |\n|---|" + "---:|" * len(others))
+        print(
+            "\n| run | "
+            + " | ".join(f"float64 / {k} time (wall)" for k in others)
+            + " |\n|---|"
+            + "---:|" * len(others)
+        )
         for label in speed["float64"]:
-            print(f"| {label} | " + " | ".join(f"{speed['float64'][label] / speed[k][label]:.2f}x" if label in speed[k] else "-"
-                                              for k in others) + " |")  # fmt: skip
+            print(
+                f"| {label} | "
+                + " | ".join(
+                    f"{speed['float64'][label] / speed[k][label]:.2f}x" if label in speed[k] else "-" for k in others
+                )
+                + " |"
+            )
     print(json.dumps({"subjects": a.subjects, "seed": a.seed}), file=sys.stderr)
     return 0
 

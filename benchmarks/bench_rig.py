@@ -27,6 +27,7 @@ one 8-camera ring. ``--points`` compares weights of the keypoint stage's ``point
 (:func:`silfit.fitting.rig_fit.pose_from_points`); the summary line gives the 2-view over 4-view
 ratio of the world PVE per start.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -64,8 +65,15 @@ def method_name(start: str, points) -> str:
 
 
 def table(rows, title):
-    keys = [("pa_pve", "PA-PVE"), ("pve_world", "PVE world"), ("shape_pve", "shape"), ("iou", "IoU"),
-            ("iou_worst", "IoU worst view"), ("reproj_px", "reproj px"), ("facing_ok", "facing ok %")]  # fmt: skip
+    keys = [
+        ("pa_pve", "PA-PVE"),
+        ("pve_world", "PVE world"),
+        ("shape_pve", "shape"),
+        ("iou", "IoU"),
+        ("iou_worst", "IoU worst view"),
+        ("reproj_px", "reproj px"),
+        ("facing_ok", "facing ok %"),
+    ]
     print(f"\n### {title}\n")
     print("| views | method | subjects | " + " | ".join(f"{k} mean / median" for _, k in keys) + " | s / subject |")
     print("|---:|---|---:|" + "---:|" * (len(keys) + 1))
@@ -86,11 +94,16 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=1515)
     ap.add_argument("--noise", type=float, default=2.0)
     ap.add_argument("--size", type=int, default=512)
-    ap.add_argument("--start", default="points",
-                    help="comma-separated starts of the keypoint stage (silfit.fitting.rig_fit.fit_rig_keypoints: points, "
-                         "rest, both); the silhouette stage refines the last one's fits")
+    ap.add_argument(
+        "--start",
+        default="points",
+        help="comma-separated starts of the keypoint stage (silfit.fitting.rig_fit.fit_rig_keypoints: points, "
+        "rest, both); the silhouette stage refines the last one's fits",
+    )
     ap.add_argument("--rings", action="store_true", help="one rig set per view count (silfit synth --cameras N)")
-    ap.add_argument("--points", default=None, help="comma-separated weights of the points term to compare (default: the config's)")
+    ap.add_argument(
+        "--points", default=None, help="comma-separated weights of the points term to compare (default: the config's)"
+    )
     ap.add_argument("--keep", help="keep the generated rig dataset in this folder (reused when it holds one)")
     args = ap.parse_args(argv)
     model = load_body_model()
@@ -100,8 +113,13 @@ def main(argv=None):
 
     def load_set(folder, views):
         if not (args.keep and (folder / "index.json").is_file()):  # else: the kept set of an earlier run
-            generate_rig_dataset(folder, args.subjects, SynthConfig(seed=args.seed, size=args.size, noise_px=args.noise),
-                                 RigConfig(views=views), model=model)  # fmt: skip
+            generate_rig_dataset(
+                folder,
+                args.subjects,
+                SynthConfig(seed=args.seed, size=args.size, noise_px=args.noise),
+                RigConfig(views=views),
+                model=model,
+            )
         out = []
         for i in range(args.subjects):
             d = folder / f"subject_{i:03d}"
@@ -113,8 +131,12 @@ def main(argv=None):
     sets = {C: load_set(root / f"views_{C}", C) for C in counts} if args.rings else {None: load_set(root, 8)}
     print(f"{args.subjects} subjects per set ready in {time.perf_counter() - t0:.0f} s ({root})")
     weights = [None] if args.points is None else [float(w) for w in args.points.split(",")]
-    fitters = {w: KeypointFitter(model) if w is None else
-               KeypointFitter(model, config=KeypointFitConfig(points_weight=w, final_points_weight=w)) for w in weights}  # fmt: skip
+    fitters = {
+        w: KeypointFitter(model)
+        if w is None
+        else KeypointFitter(model, config=KeypointFitConfig(points_weight=w, final_points_weight=w))
+        for w in weights
+    }
     fitter = fitters[weights[-1]]
     rows = {}
     for C in counts:
@@ -129,25 +151,39 @@ def main(argv=None):
                 fits = fit_rig_keypoints(fitters[w], probs, start=start)
                 kp_s = (time.perf_counter() - t) / len(probs)
                 method = method_name(start, w)
-                rows[(C, method)] = {"seconds": kp_s, "metrics": [
-                    score_rig_fit(model, v, p, g, f.params) for v, p, f, g in zip(vsel, probs, fits, truth)]}
+                rows[(C, method)] = {
+                    "seconds": kp_s,
+                    "metrics": [
+                        score_rig_fit(model, v, p, g, f.params) for v, p, f, g in zip(vsel, probs, fits, truth)
+                    ],
+                }
         n = min(args.silhouette, len(probs))
         if n:
             t = time.perf_counter()
-            res = refine_rig_fits(model, [([x.name for x in v], p, f) for v, p, f in zip(vsel[:n], probs[:n], fits[:n])],
-                                  pose_prior=fitter.pose_prior)  # fmt: skip
+            res = refine_rig_fits(
+                model,
+                [([x.name for x in v], p, f) for v, p, f in zip(vsel[:n], probs[:n], fits[:n])],
+                pose_prior=fitter.pose_prior,
+            )
             sil_s = (time.perf_counter() - t) / n
             rows[(C, "keypoints (same subjects)")] = {"seconds": kp_s, "metrics": rows[(C, method)]["metrics"][:n]}
-            rows[(C, "+ silhouette")] = {"seconds": kp_s + sil_s, "metrics": [
-                score_rig_fit(model, v, p, g, r.params) for v, p, r, g in zip(vsel, probs, res, truth)]}
+            rows[(C, "+ silhouette")] = {
+                "seconds": kp_s + sil_s,
+                "metrics": [score_rig_fit(model, v, p, g, r.params) for v, p, r, g in zip(vsel, probs, res, truth)],
+            }
         print(f"{C} views done ({time.perf_counter() - t0:.0f} s)", flush=True)
-    table(rows, f"Rigs: {args.subjects} subjects (seed {args.seed}, {args.noise} px noise, {args.size} px), "
-                f"silhouette stage on {min(args.silhouette, args.subjects)}")  # fmt: skip
+    table(
+        rows,
+        f"Rigs: {args.subjects} subjects (seed {args.seed}, {args.noise} px noise, {args.size} px), "
+        f"silhouette stage on {min(args.silhouette, args.subjects)}",
+    )
     for method in dict.fromkeys(m for _, m in rows):
         if (2, method) in rows and (4, method) in rows:
             two, four = (np.array([m["pve_world"] for m in rows[(c, method)]["metrics"]]) for c in (2, 4))
-            print(f"{method}: PVE world 2 views {two.mean():.1f} mm (max {two.max():.1f}) / 4 views {four.mean():.1f} mm "
-                  f"(max {four.max():.1f}) = {two.mean() / four.mean():.2f}x (target <= 1.5x)")
+            print(
+                f"{method}: PVE world 2 views {two.mean():.1f} mm (max {two.max():.1f}) / 4 views {four.mean():.1f} mm "
+                f"(max {four.max():.1f}) = {two.mean() / four.mean():.2f}x (target <= 1.5x)"
+            )
     if (4, "keypoints") in rows:
         for method in ("keypoints", "+ silhouette"):
             if (4, method) in rows:

@@ -10,6 +10,7 @@ sequences, MPJPE in the world frame with no alignment at all, PA-MPJPE, accelera
 
     python benchmarks/bench_rig_sequence.py --n 3 --frames 20 --views 4 --seed 2026
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,7 +44,9 @@ def main(argv=None):
     model = load_body_model()
     rows = {"per-frame rig fits": [], "temporal": []}
     with tempfile.TemporaryDirectory() as tmp:
-        cfg = SequenceConfig(seed=args.seed, frames=args.frames, size=args.size, noise_px=args.noise, drop_prob=args.drop)
+        cfg = SequenceConfig(
+            seed=args.seed, frames=args.frames, size=args.size, noise_px=args.noise, drop_prob=args.drop
+        )
         index = generate_sequence_dataset(tmp, args.n, cfg, model=model, views=args.views)
         for rec in index["sequences"]:
             d = Path(tmp) / rec["name"]
@@ -58,19 +61,33 @@ def main(argv=None):
                 T = lambda a: torch.as_tensor(np.asarray(a), dtype=model.dtype)  # noqa: E731
                 F = args.frames
                 with torch.no_grad():
-                    j = model(**{k: T(np.repeat(np.asarray(v)[None], F, 0) if np.asarray(v).ndim == 1 else v)
-                                 for k, v in params.items()}).joints.numpy()  # fmt: skip
+                    j = model(
+                        **{
+                            k: T(np.repeat(np.asarray(v)[None], F, 0) if np.asarray(v).ndim == 1 else v)
+                            for k, v in params.items()
+                        }
+                    ).joints.numpy()
                 row["mpjpe_world"] = float(np.linalg.norm(j[:, :24] - gt["joints"], axis=-1).mean() * 1000)
                 row["s_per_frame"] = s / F
                 rows[name].append(row)
-            print(f"{rec['name']} {rec['motion']}: world MPJPE {rows['per-frame rig fits'][-1]['mpjpe_world']:.1f} -> "
-                  f"{rows['temporal'][-1]['mpjpe_world']:.1f} mm, {seconds:.0f} s", flush=True)
-    print(f"\n{args.n} rig sequences x {args.frames} frames x {args.views} views, {args.size} px, noise {args.noise} px, "
-          f"drop {args.drop}, seed {args.seed} (means)\n")
+            print(
+                f"{rec['name']} {rec['motion']}: world MPJPE {rows['per-frame rig fits'][-1]['mpjpe_world']:.1f} -> "
+                f"{rows['temporal'][-1]['mpjpe_world']:.1f} mm, {seconds:.0f} s",
+                flush=True,
+            )
+    print(
+        f"\n{args.n} rig sequences x {args.frames} frames x {args.views} views, {args.size} px, noise {args.noise} px, "
+        f"drop {args.drop}, seed {args.seed} (means)\n"
+    )
     print("| metric | per-frame rig fits | temporal |\n|---|---:|---:|")
-    for key, label in (("mpjpe_world", "MPJPE, world frame, no alignment (mm)"), ("pa_mpjpe", "PA-MPJPE (mm)"),
-                       ("mpjpe", "MPJPE, pelvis-aligned (mm)"), ("accel", "acceleration error (mm/frame²)"),
-                       ("shape", "shape error, T-pose PVE (mm)"), ("s_per_frame", "seconds per frame")):  # fmt: skip
+    for key, label in (
+        ("mpjpe_world", "MPJPE, world frame, no alignment (mm)"),
+        ("pa_mpjpe", "PA-MPJPE (mm)"),
+        ("mpjpe", "MPJPE, pelvis-aligned (mm)"),
+        ("accel", "acceleration error (mm/frame²)"),
+        ("shape", "shape error, T-pose PVE (mm)"),
+        ("s_per_frame", "seconds per frame"),
+    ):
         a, b = (np.mean([r[key] for r in rows[n]]) for n in rows)
         print(f"| {label} | {a:.1f} | {b:.1f} |" if key != "s_per_frame" else f"| {label} | {a:.2f} | {b:.2f} |")
 

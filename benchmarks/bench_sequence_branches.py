@@ -18,6 +18,7 @@ frames the programme changed, the CPU seconds of each fit, and the last method's
     python benchmarks/bench_sequence_branches.py --motions squat,walk,run --seed 2031 --methods before,after
     python benchmarks/bench_sequence_branches.py --motions squat,walk,run --seed 2101 --methods kp:init_poses=2,after
 """
+
 from __future__ import annotations
 
 import argparse
@@ -73,7 +74,9 @@ def main(argv=None):
     ap.add_argument("--drop", type=float, default=0.1)
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--keep", help="keep the dataset here")
-    ap.add_argument("--methods", default="before,after", help="settings to run (before, after, off, on, kp:NAME=VALUE+NAME=VALUE)")
+    ap.add_argument(
+        "--methods", default="before,after", help="settings to run (before, after, off, on, kp:NAME=VALUE+NAME=VALUE)"
+    )
     ap.add_argument("--per-frame", action="store_true", help="print each frame's PA-MPJPE")
     ap.add_argument("--only", help="fit only these sequences (comma-separated names)")
     args = ap.parse_args(argv)
@@ -90,8 +93,18 @@ def main(argv=None):
     configs = {m: method_config(m) for m in methods}  # a bad method fails before any data or fit
     root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="bench_seqdp_"))
     if not (root / "index.json").is_file():
-        generate_sequence_dataset(root, len(motions), SequenceConfig(seed=args.seed, frames=args.frames, size=args.size,
-                                  noise_px=args.noise, drop_prob=args.drop, motions=motions))  # fmt: skip
+        generate_sequence_dataset(
+            root,
+            len(motions),
+            SequenceConfig(
+                seed=args.seed,
+                frames=args.frames,
+                size=args.size,
+                noise_px=args.noise,
+                drop_prob=args.drop,
+                motions=motions,
+            ),
+        )
     index = json.loads((root / "index.json").read_text())
     table = []
     for rec in index["sequences"]:
@@ -111,9 +124,17 @@ def main(argv=None):
             e0 = frame_errors(model, gt, r.per_frame)
             med = float(np.median(e))
             changed = getattr(r, "rebranched", None)
-            row[m] = {"median": med, "max": float(e.max()), "argmax": int(e.argmax()), "above": int((e > 2 * med).sum()),
-                      "seconds": dt, "cpu": cpu, "changed": int(np.sum(changed)) if changed is not None else 0,
-                      "init_median": float(np.median(e0)), "init_max": float(e0.max())}  # fmt: skip
+            row[m] = {
+                "median": med,
+                "max": float(e.max()),
+                "argmax": int(e.argmax()),
+                "above": int((e > 2 * med).sum()),
+                "seconds": dt,
+                "cpu": cpu,
+                "changed": int(np.sum(changed)) if changed is not None else 0,
+                "init_median": float(np.median(e0)),
+                "init_max": float(e0.max()),
+            }
             if args.per_frame:
                 print(f"{rec['name']} {rec['motion']} {m} final:", " ".join(f"{x:.0f}" for x in e))
                 print(f"{rec['name']} {rec['motion']} {m} init: ", " ".join(f"{x:.0f}" for x in e0))
@@ -122,14 +143,19 @@ def main(argv=None):
             print(rec["name"], rec["motion"], m, {k: round(v, 1) for k, v in row[m].items()}, flush=True)
         table.append(row)
     load = os.getloadavg()
-    print(f"\n{len(table)} sequences x {args.frames} frames, {args.noise} px noise, {args.drop:.0%} keypoints dropped, "
-          f"seed {args.seed}; load average {load[0]:.1f} {load[1]:.1f} {load[2]:.1f} (shared CPU)\n")  # fmt: skip
+    print(
+        f"\n{len(table)} sequences x {args.frames} frames, {args.noise} px noise, {args.drop:.0%} keypoints dropped, "
+        f"seed {args.seed}; load average {load[0]:.1f} {load[1]:.1f} {load[2]:.1f} (shared CPU)\n"
+    )
     head = " | ".join(f"{m}: median / max (frame) / above 2x median / changed / CPU s" for m in methods)
     print(f"| sequence | {head} | CPU time ratio |")
     print("|---|" + "---|" * len(methods) + "---:|")
     for row in table:
-        cells = " | ".join(f"{row[m]['median']:.1f} / {row[m]['max']:.1f} ({row[m]['argmax']}) / {row[m]['above']} / "
-                           f"{row[m]['changed']} / {row[m]['cpu']:.0f}" for m in methods)  # fmt: skip
+        cells = " | ".join(
+            f"{row[m]['median']:.1f} / {row[m]['max']:.1f} ({row[m]['argmax']}) / {row[m]['above']} / "
+            f"{row[m]['changed']} / {row[m]['cpu']:.0f}"
+            for m in methods
+        )
         ratio = row[methods[-1]]["cpu"] / row[methods[0]]["cpu"] if len(methods) > 1 else 1.0
         print(f"| {row['name']} {row['motion']} | {cells} | {ratio:.2f} |")
 

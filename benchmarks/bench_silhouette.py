@@ -53,6 +53,7 @@ The machine is shared: compare the rows of one run (ratios), not runs.
     python benchmarks/bench_silhouette.py --single 30 --rig 10 --seed 9100
     python benchmarks/bench_silhouette.py --single 4 --seed 9100 --methods after   # a quick look
 """
+
 from __future__ import annotations
 
 import argparse
@@ -67,27 +68,45 @@ import torch
 
 from silfit import load_body_model
 from silfit.fitting.silhouette_stage import (
-    BEFORE_FOURTH_PART, BEFORE_SAMPLING_PART, SilhouetteFitConfig, fit_silhouette, fit_silhouette_problems,
+    BEFORE_FOURTH_PART,
+    BEFORE_SAMPLING_PART,
+    SilhouetteFitConfig,
+    fit_silhouette,
+    fit_silhouette_problems,
 )
 
 #: the stage at main before issue 24's third part (a 20-iteration contour level at weights 0.05, then 40 + 25
 #: rendered steps, the full mesh posed each step and mapped to the render proxy)
-HEAD = {"iterations": (40, 25), "contour_iterations": 20, "w_contour_inside": 0.05, "w_contour_cover": 0.05,
-        "proxy_body": False, **BEFORE_FOURTH_PART}  # fmt: skip
+HEAD = {
+    "iterations": (40, 25),
+    "contour_iterations": 20,
+    "w_contour_inside": 0.05,
+    "w_contour_cover": 0.05,
+    "proxy_body": False,
+    **BEFORE_FOURTH_PART,
+}
 #: the stage at main before issue 24's fourth part (a 10,000-face proxy at both rendered levels, a 5-step warm-up,
 #: body_pose's learning rate 0.03): the third part's default
 THIRD = BEFORE_FOURTH_PART
 #: the default before issue 24's speed part: edge_spp visibility-edge points per window pixel
 MAIN = {**BEFORE_SAMPLING_PART, "edge_density": None}
-METHODS = {"original": SilhouetteFitConfig.legacy, "before": SilhouetteFitConfig.legacy, "after": SilhouetteFitConfig,
-           "head": lambda: SilhouetteFitConfig(**HEAD), "third": lambda: SilhouetteFitConfig(**THIRD),
-           "main": lambda: SilhouetteFitConfig(**MAIN), "head-projective": lambda: SilhouetteFitConfig(**HEAD),
-           "after-1t": SilhouetteFitConfig, "after-stratified": SilhouetteFitConfig,
-           "head-s1": lambda: SilhouetteFitConfig(**HEAD, seed=1), "after-s1": lambda: SilhouetteFitConfig(seed=1),
-           "prev": lambda: SilhouetteFitConfig(**BEFORE_SAMPLING_PART),
-           "dense": lambda: SilhouetteFitConfig(**BEFORE_SAMPLING_PART),
-           "dense-tree": lambda: SilhouetteFitConfig(**BEFORE_SAMPLING_PART),
-           "weakprior": lambda: SilhouetteFitConfig(pose_weight=0.002)}  # fmt: skip
+METHODS = {
+    "original": SilhouetteFitConfig.legacy,
+    "before": SilhouetteFitConfig.legacy,
+    "after": SilhouetteFitConfig,
+    "head": lambda: SilhouetteFitConfig(**HEAD),
+    "third": lambda: SilhouetteFitConfig(**THIRD),
+    "main": lambda: SilhouetteFitConfig(**MAIN),
+    "head-projective": lambda: SilhouetteFitConfig(**HEAD),
+    "after-1t": SilhouetteFitConfig,
+    "after-stratified": SilhouetteFitConfig,
+    "head-s1": lambda: SilhouetteFitConfig(**HEAD, seed=1),
+    "after-s1": lambda: SilhouetteFitConfig(seed=1),
+    "prev": lambda: SilhouetteFitConfig(**BEFORE_SAMPLING_PART),
+    "dense": lambda: SilhouetteFitConfig(**BEFORE_SAMPLING_PART),
+    "dense-tree": lambda: SilhouetteFitConfig(**BEFORE_SAMPLING_PART),
+    "weakprior": lambda: SilhouetteFitConfig(pose_weight=0.002),
+}
 #: methods run as before issue 24's runtime part (the edge integral's vertex gradient by torch's autograd over every
 #: vertex, the stage's reduced bodies rebuilt each call): ``prev`` is the default so (the same fits bit for bit)
 OLD_RUNTIME = {"original", "before", "head", "third", "main", "head-projective", "head-s1", "prev"}
@@ -123,14 +142,19 @@ def runtime(name):
     finally:
         RaycastScene.analytic_grad = True
         losses.NEAREST_BY_TREE = True
+
+
 #: the renderer per method (``None``: the stage's default, the ray-cast method since issue 24's second part):
 #: ``original`` and ``head-projective`` render with Mitsuba's ``prb_projective`` (the renderer before the ray-cast
 #: method),
 #: ``after-stratified`` with stratified pixel samples and evenly spaced edge points (lower noise, same expectation;
 #: measured worse on a 4-view rig: the stage's Adam settings were tuned with independent samples' noise);
 #: ``*-s1``: the renderer's base seed 1 instead of 0 (the spread a seed alone gives)
-RENDERERS = {"original": {"method": "projective"}, "head-projective": {"method": "projective"},
-             "after-stratified": {"sampler": "stratified", "edge_sampling": "systematic"}}  # fmt: skip
+RENDERERS = {
+    "original": {"method": "projective"},
+    "head-projective": {"method": "projective"},
+    "after-stratified": {"sampler": "stratified", "edge_sampling": "systematic"},
+}
 
 
 def renderer_for(model, name):
@@ -157,8 +181,11 @@ def single_scores(model, params, s) -> dict:
 
     V, J = body(model, params)
     mask = render_mask(V.astype(np.float32), model.faces.numpy(), s.camera)
-    return {"iou": mask_iou(mask, s.mask), "pve": 1000 * pve(V, s.gt.vertices, J[0], s.gt.joints[0]),
-            "pa_pve": 1000 * pa_pve(V, s.gt.vertices)}  # fmt: skip
+    return {
+        "iou": mask_iou(mask, s.mask),
+        "pve": 1000 * pve(V, s.gt.vertices, J[0], s.gt.joints[0]),
+        "pa_pve": 1000 * pa_pve(V, s.gt.vertices),
+    }
 
 
 BASE = "before"
@@ -166,25 +193,31 @@ BASE = "before"
 
 def table(title, rows, unit="image"):
     print(f"\n### {title}\n")
-    print(f"| method | s/{unit} stage (in-process) | s/{unit} wall (whole fit) | rendered steps | contour iterations | "
-          "IoU mean | PVE mm mean | PA-PVE mm mean / median |")
+    print(
+        f"| method | s/{unit} stage (in-process) | s/{unit} wall (whole fit) | rendered steps | contour iterations | "
+        "IoU mean | PVE mm mean | PA-PVE mm mean / median |"
+    )
     print("|---|---:|---:|---:|---:|---:|---:|---|")
     base = rows.get(BASE) or rows.get("before")
     for name, r in rows.items():
         a = {k: np.array(v, dtype=np.float64) for k, v in r.items()}
         ratio = f" ({np.mean(base['stage']) / a['stage'].mean():.2f}x)" if base and a["stage"].mean() > 0 else ""
         wall_ratio = f" ({np.mean(base['wall']) / a['wall'].mean():.2f}x)" if base else ""
-        print(f"| {name} | {a['stage'].mean():.2f}{ratio} | {a['wall'].mean():.2f}{wall_ratio} | {a['steps'].mean():.0f} | "
-              f"{a['contour'].mean():.0f} | {a['iou'].mean():.4f} | {a['pve'].mean():.2f} | "
-              f"{a['pa_pve'].mean():.2f} / {np.median(a['pa_pve']):.2f} |")
+        print(
+            f"| {name} | {a['stage'].mean():.2f}{ratio} | {a['wall'].mean():.2f}{wall_ratio} | {a['steps'].mean():.0f} | "
+            f"{a['contour'].mean():.0f} | {a['iou'].mean():.4f} | {a['pve'].mean():.2f} | "
+            f"{a['pa_pve'].mean():.2f} / {np.median(a['pa_pve']):.2f} |"
+        )
     if base and len(rows) > 1:
         for name, r in rows.items():
             if r is base or name == "keypoints only":
                 continue
             d_iou = np.array(r["iou"]) - np.array(base["iou"])
             d_pa = np.array(r["pa_pve"]) - np.array(base["pa_pve"])
-            print(f"\n{name} - {BASE if BASE in rows else 'before'}, per {unit}: IoU {d_iou.mean():+.4f} (min {d_iou.min():+.4f}), "
-                  f"PA-PVE {d_pa.mean():+.2f} mm (max {d_pa.max():+.2f})")
+            print(
+                f"\n{name} - {BASE if BASE in rows else 'before'}, per {unit}: IoU {d_iou.mean():+.4f} (min {d_iou.min():+.4f}), "
+                f"PA-PVE {d_pa.mean():+.2f} mm (max {d_pa.max():+.2f})"
+            )
 
 
 def run_single(model, n, seed, size, methods):
@@ -201,7 +234,9 @@ def run_single(model, n, seed, size, methods):
     kp = fitter.fit([s.keypoints for s in subjects], [s.camera for s in subjects], progress=False)
     kp_share = (time.perf_counter() - t0) / n
     rows = {"keypoints only": {"stage": [0.0] * n, "wall": [kp_share] * n, "steps": [0] * n, "contour": [0] * n}}
-    for k, v in zip(("iou", "pve", "pa_pve"), zip(*[single_scores(model, kp.params(i), s).values() for i, s in enumerate(subjects)])):
+    for k, v in zip(
+        ("iou", "pve", "pa_pve"), zip(*[single_scores(model, kp.params(i), s).values() for i, s in enumerate(subjects)])
+    ):
         rows["keypoints only"][k] = list(v)
     # methods interleaved per subject, so a change in the machine's load hits them alike
     setups = {name: (METHODS[name](), renderer_for(model, name)) for name in methods}
@@ -212,8 +247,17 @@ def run_single(model, n, seed, size, methods):
             r = rows[name]
             with runtime(name):
                 t = time.perf_counter()
-                res = fit_silhouette(model, kp.params(i), s.camera, s.mask, s.keypoints.as_array(), config=cfg,
-                                     pose_prior=fitter.pose_prior, progress=False, renderer=renderer)  # fmt: skip
+                res = fit_silhouette(
+                    model,
+                    kp.params(i),
+                    s.camera,
+                    s.mask,
+                    s.keypoints.as_array(),
+                    config=cfg,
+                    pose_prior=fitter.pose_prior,
+                    progress=False,
+                    renderer=renderer,
+                )
                 dt = time.perf_counter() - t
             r["stage"].append(res.seconds)
             r["wall"].append(kp_share + dt)
@@ -269,8 +313,15 @@ def run_rig(model, n, seed, size, methods):
             r = rows[name]
             with runtime(name):
                 t = time.perf_counter()
-                (res,) = fit_silhouette_problems(model, [problem], [dict(f.params)], config=cfg, pose_prior=fitter.pose_prior,
-                                                 progress=False, renderer=renderer)  # fmt: skip
+                (res,) = fit_silhouette_problems(
+                    model,
+                    [problem],
+                    [dict(f.params)],
+                    config=cfg,
+                    pose_prior=fitter.pose_prior,
+                    progress=False,
+                    renderer=renderer,
+                )
                 dt = time.perf_counter() - t
             r["stage"].append(res.seconds)
             r["wall"].append(kp_share + dt)
@@ -315,8 +366,16 @@ def run_step(model, methods, resolutions=(128, 256), repeats=15):
                     x = pv.clone().requires_grad_()
                     with runtime(name):
                         t = time.perf_counter()
-                        img = r.render_views(x, [wcam], [torch.eye(3)], [torch.zeros(3)], spp=cfg.spp,
-                                             edge_spp=cfg.edge_spp, seeds=[k], **dens)[0]  # fmt: skip
+                        img = r.render_views(
+                            x,
+                            [wcam],
+                            [torch.eye(3)],
+                            [torch.zeros(3)],
+                            spp=cfg.spp,
+                            edge_spp=cfg.edge_spp,
+                            seeds=[k],
+                            **dens,
+                        )[0]
                         (img * w).sum().backward()
                     if k >= 2:
                         ts.append(time.perf_counter() - t)
@@ -361,7 +420,9 @@ def run_kornia(size=512, repeats=5):
     img = torch.as_tensor(mask, dtype=torch.float32)[None, None]
     k, t_k = best(lambda: kornia.contrib.distance_transform(img)[0, 0].numpy())
     err = np.abs(k - exact)
-    print(f"| kornia.contrib.distance_transform {kornia.__version__} | {t_k:.1f} | {err.max():.1f} | {err.mean():.2f} |")
+    print(
+        f"| kornia.contrib.distance_transform {kornia.__version__} | {t_k:.1f} | {err.max():.1f} | {err.mean():.2f} |"
+    )
 
 
 def run_video(model, frames, seed, size, methods):
@@ -377,8 +438,9 @@ def run_video(model, frames, seed, size, methods):
 
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
-        generate_sequence_dataset(root, 1, SequenceConfig(seed=seed, frames=frames, size=size, noise_px=2.0,
-                                                          drop_prob=0.1), model=model)  # fmt: skip
+        generate_sequence_dataset(
+            root, 1, SequenceConfig(seed=seed, frames=frames, size=size, noise_px=2.0, drop_prob=0.1), model=model
+        )
         d = root / "seq_000"
         seq = read_sequence(d)
         cam = load_camera(d / "camera.json")
@@ -396,17 +458,24 @@ def run_video(model, frames, seed, size, methods):
             t = time.perf_counter()
             r = refine_sequence_silhouettes(model, fit, seq.frames, masks, config=METHODS[name]())
             dt = time.perf_counter() - t
-        rows[name] = {**score_sequence(model, gt, r.params()), "stage": dt / frames,
-                      "iou": float(np.nanmean(r.silhouette_iou))}  # fmt: skip
+        rows[name] = {
+            **score_sequence(model, gt, r.params()),
+            "stage": dt / frames,
+            "iou": float(np.nanmean(r.silhouette_iou)),
+        }
         print(f"video: {name} done ({dt:.0f} s)", flush=True)
     print(f"\n### Video: one {frames}-frame walk, {size} px, seed {seed} (keypoint fit {kp_seconds:.2f} s/frame)\n")
-    print("| method | s/frame stage (in-process) | silhouette IoU (window) | PA-MPJPE mm | acceleration error mm/frame^2 | "
-          "shape error mm |")
+    print(
+        "| method | s/frame stage (in-process) | silhouette IoU (window) | PA-MPJPE mm | acceleration error mm/frame^2 | "
+        "shape error mm |"
+    )
     print("|---|---:|---:|---:|---:|---:|")
     base = rows.get(BASE) or rows.get("head")  # the video case may leave the slow original out
     for name, r in rows.items():
         ratio = f" ({base['stage'] / r['stage']:.2f}x)" if base and r["stage"] > 0 else ""
-        print(f"| {name} | {r['stage']:.2f}{ratio} | {r['iou']:.4f} | {r['pa_mpjpe']:.1f} | {r['accel']:.1f} | {r['shape']:.1f} |")
+        print(
+            f"| {name} | {r['stage']:.2f}{ratio} | {r['iou']:.4f} | {r['pa_mpjpe']:.1f} | {r['accel']:.1f} | {r['shape']:.1f} |"
+        )
     return rows
 
 
@@ -418,13 +487,22 @@ def main(argv=None):
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--methods", default="before,after", help="comma-separated: " + ", ".join(METHODS))
     ap.add_argument("--base", default="before", help="the method the ratios are taken against")
-    ap.add_argument("--video", type=int, default=0, metavar="FRAMES",
-                    help="a synthetic walk of FRAMES frames (60: the issue's video case) through the sequence's stage")
+    ap.add_argument(
+        "--video",
+        type=int,
+        default=0,
+        metavar="FRAMES",
+        help="a synthetic walk of FRAMES frames (60: the issue's video case) through the sequence's stage",
+    )
     ap.add_argument("--video-methods", default=None, help="methods of the video case (default: --methods)")
     ap.add_argument("--kornia", action="store_true", help="also time kornia's distance transform against OpenCV's")
     ap.add_argument("--step", action="store_true", help="also time one rendered step per level and method")
-    ap.add_argument("--drjit-threads", type=int, default=None,
-                    help="Dr.Jit's pool for the methods not in ONE_THREAD (default: as Dr.Jit starts, the host's cores)")
+    ap.add_argument(
+        "--drjit-threads",
+        type=int,
+        default=None,
+        help="Dr.Jit's pool for the methods not in ONE_THREAD (default: as Dr.Jit starts, the host's cores)",
+    )
     args = ap.parse_args(argv)
     global BASE, DRJIT_POOL
     BASE = args.base

@@ -28,6 +28,7 @@ IoU with the given mask (inside the image) and the stage's seconds; mean and wor
 
     python benchmarks/bench_truncation.py --n 6 --seed 101 --methods original,before,main,after
 """
+
 from __future__ import annotations
 
 import argparse
@@ -83,7 +84,7 @@ def leak(mask: np.ndarray, kp: KeypointSet, holes: int = 3) -> np.ndarray:
     hip_y = int(kp.xy[kp.names.index("mid_hip"), 1])
     out = mask.copy()
     x0 = xs.max() - 2
-    out[max(hip_y - height // 10, 0): hip_y + height // 10, x0: x0 + int(0.3 * height)] = True
+    out[max(hip_y - height // 10, 0) : hip_y + height // 10, x0 : x0 + int(0.3 * height)] = True
     r = max(1, int(round(0.025 * height)))
     depth = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 3)
     for _ in range(holes):
@@ -116,8 +117,12 @@ def conditions(d: Path):
     kp, mask, cam = read_keypoints(d / "keypoints.json"), read_mask(d / "mask.png"), load_camera(d / "camera.json")
     height = np.ptp(np.nonzero(mask)[0])
     kc, mc, cc, _ = cut_subject(d)
-    out = {"clean": (kp, mask, cam), "cut": (kc, mc, cc), "clothing": (kp, grow(mask, max(1, int(0.04 * height))), cam),
-           "leak": (kp, leak(mask, kp), cam)}  # fmt: skip
+    out = {
+        "clean": (kp, mask, cam),
+        "cut": (kc, mc, cc),
+        "clothing": (kp, grow(mask, max(1, int(0.04 * height))), cam),
+        "leak": (kp, leak(mask, kp), cam),
+    }
     found = detected(d)
     if found is not None:
         out["detected"] = (found[0], found[1], cam)
@@ -128,11 +133,26 @@ def conditions(d: Path):
 
 #: the silhouette stage before issue 23 (no truncation, no keypoint trust region, no bound on |beta|,
 #: the plain two-sided energy)
-ORIGINAL = dict(truncation_aware=False, w_trust=0.0, w_beta_bound=0.0, robust_cover=False, trim_clothing=False,
-                plausibility_guard=False, leak_distance=0.0, hole_fraction=0.0, alternatives_margin=0.0)
+ORIGINAL = dict(
+    truncation_aware=False,
+    w_trust=0.0,
+    w_beta_bound=0.0,
+    robust_cover=False,
+    trim_clothing=False,
+    plausibility_guard=False,
+    leak_distance=0.0,
+    hole_fraction=0.0,
+    alternatives_margin=0.0,
+)
 #: before the clothing/leak-robust energy (issue 23's first part: truncation, trust region, beta bound)
-BEFORE = dict(robust_cover=False, trim_clothing=False, plausibility_guard=False, leak_distance=0.0, hole_fraction=0.0,
-              alternatives_margin=0.0)
+BEFORE = dict(
+    robust_cover=False,
+    trim_clothing=False,
+    plausibility_guard=False,
+    leak_distance=0.0,
+    hole_fraction=0.0,
+    alternatives_margin=0.0,
+)
 #: main before the leak/hole handling (issue 23's third part): no unknown leaks or holes
 MAIN = dict(leak_distance=0.0, hole_fraction=0.0)
 #: the defaults before the detected-input change: the keypoint trust region at 3 % of the window
@@ -146,8 +166,17 @@ WEAKPRIOR = dict(pose_weight=0.002)
 #: the defaults before issue 25's close-alternatives part: only the keypoint stage's branch refined against the mask
 #: (``original`` and ``before`` predate it too; the other methods are today's defaults with one change)
 CLOSEOFF = dict(alternatives_margin=0.0)
-METHODS = {"original": ORIGINAL, "before": BEFORE, "main": MAIN, "tight": TIGHT, "noconcave": NOCONCAVE,
-           "concaveall": CONCAVEALL, "weakprior": WEAKPRIOR, "closeoff": CLOSEOFF, "after": {}}
+METHODS = {
+    "original": ORIGINAL,
+    "before": BEFORE,
+    "main": MAIN,
+    "tight": TIGHT,
+    "noconcave": NOCONCAVE,
+    "concaveall": CONCAVEALL,
+    "weakprior": WEAKPRIOR,
+    "closeoff": CLOSEOFF,
+    "after": {},
+}
 
 
 def _value(text: str):
@@ -166,8 +195,13 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--conditions", default="clean,cut,clothing,leak,detected", help="comma-separated subset")
     ap.add_argument("--methods", default="main,after", help=f"comma-separated, of {', '.join(METHODS)}")
-    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                    help="change a SilhouetteFitConfig field of 'after' (tuning), repeatable")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="change a SilhouetteFitConfig field of 'after' (tuning), repeatable",
+    )
     ap.add_argument("--per-subject", action="store_true", help="also print each subject's PA-PVE (mm) per row")
     args = ap.parse_args()
     global _PER_SUBJECT
@@ -179,14 +213,21 @@ def main() -> None:
 
     model = load_body_model()
     with tempfile.TemporaryDirectory() as tmp:
-        generate_dataset(Path(tmp) / "d", args.n, SynthConfig(seed=args.seed, size=args.size, noise_px=1.0), model=model)
+        generate_dataset(
+            Path(tmp) / "d", args.n, SynthConfig(seed=args.seed, size=args.size, noise_px=1.0), model=model
+        )
         dirs = sorted(p for p in (Path(tmp) / "d").iterdir() if (p / "gt.npz").is_file())
         subjects = [conditions(d) for d in dirs]
     fitter = KeypointFitter(model)
     found = sum("detected" in c for c, _ in subjects)
-    print(f"# Real-photo conditions: {len(subjects)} subjects per condition, detected: {found} found (seed {args.seed}, {args.size} px)"
-          + (f"; after: {after}" if after else "") + "\n")  # fmt: skip
-    print("| condition | method | PA-PVE mean / worst (mm) | PVE mean (mm) | reprojection median px (mean / worst) | max abs beta | IoU mean | s per image | trimmed / kept kp fit |")
+    print(
+        f"# Real-photo conditions: {len(subjects)} subjects per condition, detected: {found} found (seed {args.seed}, {args.size} px)"
+        + (f"; after: {after}" if after else "")
+        + "\n"
+    )
+    print(
+        "| condition | method | PA-PVE mean / worst (mm) | PVE mean (mm) | reprojection median px (mean / worst) | max abs beta | IoU mean | s per image | trimmed / kept kp fit |"
+    )
     print("|---|---|---|---:|---|---:|---:|---:|---:|")
     kp_cache = {}  # clean, clothing and leak share the keypoints: one keypoint fit
     for cond in args.conditions.split(","):
@@ -197,12 +238,18 @@ def main() -> None:
         sets, masks, cams = (list(x) for x in zip(*[c[cond] for c, _ in have]))
         gts = [g for _, g in have]
         # the detected conditions hold the subjects the detector found only: a keypoint fit of their own
-        key = {"cut": "cut", "detected": "detected", "detected_kp": "detected", "detected_mask": "detected_mask"}.get(cond, "full")
+        key = {"cut": "cut", "detected": "detected", "detected_kp": "detected", "detected_mask": "detected_mask"}.get(
+            cond, "full"
+        )
         if key not in kp_cache:
             kp_cache[key] = fitter.fit(sets, cams, progress=False)
         kp = kp_cache[key]
-        _row(cond, "keypoints only", [_score(model, kp.params(i), g, None, reproj=float(kp.reprojection_error[i]))
-                                      for i, g in enumerate(gts)], None)  # fmt: skip
+        _row(
+            cond,
+            "keypoints only",
+            [_score(model, kp.params(i), g, None, reproj=float(kp.reprojection_error[i])) for i, g in enumerate(gts)],
+            None,
+        )
         for name, changes in methods.items():
             cfg = replace(SilhouetteFitConfig(), **changes)
             t0 = time.perf_counter()
@@ -214,14 +261,25 @@ def main() -> None:
 def _score(model, params, gt, fit, reproj=None) -> dict:
     T = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64).reshape(1, -1), dtype=model.dtype)  # noqa: E731
     with torch.no_grad():
-        v = model(**{k: T(params[k]) for k in ("betas", "body_pose", "global_orient", "transl")}).vertices[0].double().numpy()
+        v = (
+            model(**{k: T(params[k]) for k in ("betas", "body_pose", "global_orient", "transl")})
+            .vertices[0]
+            .double()
+            .numpy()
+        )
     pa = 1000 * np.linalg.norm(procrustes_align(v, gt.vertices) - gt.vertices, axis=-1).mean()
     pve = 1000 * np.linalg.norm(v - gt.vertices, axis=-1).mean()
     m = fit.metrics if fit is not None else {}
     warnings = m.get("warnings", [])
-    return {"pa": pa, "pve": pve, "reproj": m.get("reprojection_error_px", reproj), "beta": float(np.abs(params["betas"]).max()),
-            "iou": m.get("iou", float("nan")), "trimmed": any("trimmed by" in w for w in warnings),
-            "kept_kp": m.get("silhouette_guard", {}).get("kept") == "keypoints"}  # fmt: skip
+    return {
+        "pa": pa,
+        "pve": pve,
+        "reproj": m.get("reprojection_error_px", reproj),
+        "beta": float(np.abs(params["betas"]).max()),
+        "iou": m.get("iou", float("nan")),
+        "trimmed": any("trimmed by" in w for w in warnings),
+        "kept_kp": m.get("silhouette_guard", {}).get("kept") == "keypoints",
+    }
 
 
 _PER_SUBJECT = False
@@ -232,9 +290,11 @@ def _row(cond, name, rows, seconds) -> None:
     pa, rp = get("pa"), get("reproj")
     if _PER_SUBJECT:
         print(f"<!-- {cond} / {name}: PA-PVE per subject {' '.join(f'{x:.1f}' for x in pa)} -->")
-    print(f"| {cond} | {name} | {pa.mean():.1f} / {pa.max():.1f} | {get('pve').mean():.1f} | {rp.mean():.1f} / {rp.max():.1f} | "
-          f"{get('beta').max():.2f} | {np.nanmean(get('iou')) if np.isfinite(get('iou')).any() else float('nan'):.3f} | "
-          f"{'' if seconds is None else f'{seconds:.1f}'} | {int(get('trimmed').sum())} / {int(get('kept_kp').sum())} |")
+    print(
+        f"| {cond} | {name} | {pa.mean():.1f} / {pa.max():.1f} | {get('pve').mean():.1f} | {rp.mean():.1f} / {rp.max():.1f} | "
+        f"{get('beta').max():.2f} | {np.nanmean(get('iou')) if np.isfinite(get('iou')).any() else float('nan'):.3f} | "
+        f"{'' if seconds is None else f'{seconds:.1f}'} | {int(get('trimmed').sum())} / {int(get('kept_kp').sum())} |"
+    )
 
 
 if __name__ == "__main__":

@@ -7,6 +7,7 @@ to the body keypoints alone (hands, jaw, expression held at rest), and today's b
 SMPL-layout model, BODY_25; same template and vertex order, so PA-PVE compares directly).
 Errors: :mod:`silfit.eval.score_wholebody` (mm; expression: RMS coefficient error).
 """
+
 from __future__ import annotations
 
 import tempfile
@@ -65,9 +66,11 @@ def run_wholebody_benchmark(n=30, seed=41, noise=2.0, size=512, batch=16, single
     rows = {}
     fx = KeypointFitter(smplx, "wholebody")
     fb = KeypointFitter(smpl, "body25")
-    for label, fitter, sets in (("whole body (SMPL-X model, body+hands+face)", fx, whole),
-                                ("body keypoints only (SMPL-X model, parts at rest)", fx, body_only),
-                                ("body only today (open SMPL model, BODY_25)", fb, bodies)):  # fmt: skip
+    for label, fitter, sets in (
+        ("whole body (SMPL-X model, body+hands+face)", fx, whole),
+        ("body keypoints only (SMPL-X model, parts at rest)", fx, body_only),
+        ("body only today (open SMPL model, BODY_25)", fb, bodies),
+    ):
         results, t_batch = _fit(fitter, sets, cams, batch)
         t_single = _single_time(fitter, sets, cams, min(singles, len(sets)))
         errs = []
@@ -75,14 +78,21 @@ def run_wholebody_benchmark(n=30, seed=41, noise=2.0, size=512, batch=16, single
             for i in range(len(r)):
                 g = gts[len(errs)]
                 if fitter is fb:
-                    errs.append({"pa_pve_mm": 1000 * pa_pve(r.vertices[i].astype(np.float64), g["vertices"].astype(np.float64))})
+                    errs.append(
+                        {"pa_pve_mm": 1000 * pa_pve(r.vertices[i].astype(np.float64), g["vertices"].astype(np.float64))}
+                    )
                 else:
                     errs.append(_errors(smplx, r, i, g))
         rows[label] = (errs, t_single, t_batch)
-    print(f"\nWhole-body keypoint stage: {len(dirs)} fresh subjects (silfit synth --whole-body --seed {seed}, {size} px, "
-          f"all yaws, body noise {noise:g} px, hands {0.5 * noise:g} px, face {0.4 * noise:g} px), CPU, load {os.getloadavg()[0]:.1f}")  # fmt: skip
+    print(
+        f"\nWhole-body keypoint stage: {len(dirs)} fresh subjects (silfit synth --whole-body --seed {seed}, {size} px, "
+        f"all yaws, body noise {noise:g} px, hands {0.5 * noise:g} px, face {0.4 * noise:g} px), CPU, load {os.getloadavg()[0]:.1f}"
+    )
     keys = ("hand_pa_mm", "hand_wrist_mm", "face_pa_mm", "expression_err", "pa_pve_mm")
-    print("| fit | hand PA mm | hand wrist-aligned mm | face PA mm | expression RMS | PA-PVE mm | s/image single | s/image batch %d |" % batch)
+    print(
+        "| fit | hand PA mm | hand wrist-aligned mm | face PA mm | expression RMS | PA-PVE mm | s/image single | s/image batch %d |"
+        % batch
+    )
     print("|---|---|---|---|---|---|---|---|")
     for label, (errs, t1, tb) in rows.items():
         cells = []
@@ -90,5 +100,7 @@ def run_wholebody_benchmark(n=30, seed=41, noise=2.0, size=512, batch=16, single
             v = [e[k] for e in errs if k in e]
             cells.append(f"{np.mean(v):.1f} / {np.median(v):.1f}" if v else "-")
         print(f"| {label} | " + " | ".join(cells) + f" | {t1:.2f} | {tb:.2f} |", flush=True)
-    print("(mean / median; PA: similarity Procrustes per part; the body-only rows keep hands, jaw and expression at rest)")
+    print(
+        "(mean / median; PA: similarity Procrustes per part; the body-only rows keep hands, jaw and expression at rest)"
+    )
     return rows

@@ -17,6 +17,7 @@ fits. The target is flat after warm-up: the drift from the end of warm-up (the f
 
     python benchmarks/soak.py [--renders 1000] [--subjects 200] [--iters-scale 1]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -33,7 +34,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import silfit  # noqa: E402, F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
-import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 TARGET_DRIFT_MB = 50.0
@@ -83,9 +83,14 @@ def soak_fits(model, n: int, iters_scale: float, every: int, rows: list, save: b
     cfg = KeypointFitConfig()
     if iters_scale != 1:
         s = lambda v: max(1, int(round(v * iters_scale)))  # noqa: E731
-        cfg = replace(cfg, decision_iters=s(cfg.decision_iters), camera_iters=s(cfg.camera_iters),
-                      pose_iters=tuple(s(v) for v in cfg.pose_iters), shape_iters=s(cfg.shape_iters),
-                      final_iters=s(cfg.final_iters))  # fmt: skip
+        cfg = replace(
+            cfg,
+            decision_iters=s(cfg.decision_iters),
+            camera_iters=s(cfg.camera_iters),
+            pose_iters=tuple(s(v) for v in cfg.pose_iters),
+            shape_iters=s(cfg.shape_iters),
+            final_iters=s(cfg.final_iters),
+        )
     subjects = generate(model, n, seed=1)
     faces = model.faces.numpy()
     work = Path(tempfile.mkdtemp(prefix="silfit-soak-"))
@@ -125,7 +130,9 @@ def main(argv=None) -> int:
     ap.add_argument("--iters-scale", type=float, default=1.0, help="scale the keypoint stage's iteration counts")
     ap.add_argument("--every", type=int, default=100, help="RSS every N renders (default 100)")
     ap.add_argument("--every-fit", type=int, default=20, help="RSS every N fits (default 20)")
-    ap.add_argument("--no-save", action="store_true", help="fit only, no save_fit (to tell the fit's memory from the output's)")
+    ap.add_argument(
+        "--no-save", action="store_true", help="fit only, no save_fit (to tell the fit's memory from the output's)"
+    )
     args = ap.parse_args(argv)
 
     import silfit
@@ -138,9 +145,11 @@ def main(argv=None) -> int:
     gc.collect()
     if args.subjects:
         soak_fits(model, args.subjects, args.iters_scale, args.every_fit, rows, save=not args.no_save)
-    print(f"Soak: {args.renders} silhouettes ({args.size}x{args.size} window, 4 spp, forward+backward) and "
-          f"{args.subjects} fits (keypoint stage, iterations x{args.iters_scale:g}{'' if args.no_save else ', + save_fit'}) in one process; "
-          f"torch threads {torch.get_num_threads()}.\n")
+    print(
+        f"Soak: {args.renders} silhouettes ({args.size}x{args.size} window, 4 spp, forward+backward) and "
+        f"{args.subjects} fits (keypoint stage, iterations x{args.iters_scale:g}{'' if args.no_save else ', + save_fit'}) in one process; "
+        f"torch threads {torch.get_num_threads()}.\n"
+    )
     print("| phase | step | elapsed (s) | RSS (MB) |\n|---|---:|---:|---:|")
     for phase, i, t, mb in rows:
         print(f"| {phase} | {i} | {t:.1f} | {mb:.1f} |")
@@ -153,8 +162,10 @@ def main(argv=None) -> int:
             continue
         met = d[2] < TARGET_DRIFT_MB
         ok &= met
-        print(f"| {phase} | {d[0]:.1f} | {d[1]:.1f} | {d[2]:+.1f} | {d[3]:.1f} | < {TARGET_DRIFT_MB:.0f} MB: "
-              f"{'met' if met else 'MISSED'} |")  # fmt: skip
+        print(
+            f"| {phase} | {d[0]:.1f} | {d[1]:.1f} | {d[2]:+.1f} | {d[3]:.1f} | < {TARGET_DRIFT_MB:.0f} MB: "
+            f"{'met' if met else 'MISSED'} |"
+        )
     return 0 if ok else 1
 
 

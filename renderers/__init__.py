@@ -23,6 +23,7 @@ agree to sub-pixel precision.
 
 Names are resolved lazily, so ``import renderers`` loads neither Mitsuba nor pyrender.
 """
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING

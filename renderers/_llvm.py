@@ -16,6 +16,7 @@ when the wheel has it and a CUDA device is actually usable, ``llvm_ad_mono`` oth
 Override with the ``variant`` argument or the ``SILFIT_MITSUBA_VARIANT`` environment
 variable.
 """
+
 from __future__ import annotations
 
 import ctypes

@@ -20,6 +20,7 @@ The renderer's noise differs from single renders (one seed for the whole film, t
 samples spread over all subjects' edges), but the estimate is the same: a batch equals
 single renders within the Monte Carlo noise.
 """
+
 from __future__ import annotations
 
 import math
@@ -54,7 +55,9 @@ class TileLayout:
     def tile_camera(self, i: int, camera: Camera) -> Camera:
         """The film-sized camera that images like ``camera`` shifted into cell ``i``."""
         ox, oy = self.offsets[i]
-        return Camera(fx=camera.fx, fy=camera.fy, cx=camera.cx + ox, cy=camera.cy + oy, width=self.width, height=self.height)
+        return Camera(
+            fx=camera.fx, fy=camera.fy, cx=camera.cx + ox, cy=camera.cy + oy, width=self.width, height=self.height
+        )
 
 
 def tile_layout(cameras: Sequence[Camera], gap: int = 4) -> TileLayout:
@@ -73,13 +76,7 @@ class BatchSilhouetteRenderer:
     silhouettes whose gradients reach each subject's vertices."""
 
     def __init__(
-        self,
-        faces,
-        spp: int = 4,
-        edge_spp: int = 1,
-        gap: int = 4,
-        variant: Optional[str] = None,
-        mode: str = "auto",
+        self, faces, spp: int = 4, edge_spp: int = 1, gap: int = 4, variant: Optional[str] = None, mode: str = "auto"
     ):
         if mode not in ("auto", "tiled", "separate"):
             raise ValueError(f"mode must be 'auto', 'tiled' or 'separate', got {mode!r}")
@@ -102,7 +99,9 @@ class BatchSilhouetteRenderer:
         holds its vertices at the backward pass (no BVH rebuild there)."""
         with self._lock:
             while len(self._slots) <= i:
-                self._slots.append(SilhouetteRenderer(self.faces, spp=self.spp, edge_spp=self.edge_spp, variant=self.variant))
+                self._slots.append(
+                    SilhouetteRenderer(self.faces, spp=self.spp, edge_spp=self.edge_spp, variant=self.variant)
+                )
             return self._slots[i]
 
     def _tiled_renderer(self, n: int) -> SilhouetteRenderer:
@@ -125,7 +124,10 @@ class BatchSilhouetteRenderer:
         sampler: Optional[str] = None,
         edge_density: Optional[float] = None,
     ) -> List[torch.Tensor]:
-        verts = [check_mesh(v, self.faces)[0] for v in (list(vertices) if not isinstance(vertices, torch.Tensor) or vertices.dim() == 3 else [vertices])]
+        verts = [
+            check_mesh(v, self.faces)[0]
+            for v in (list(vertices) if not isinstance(vertices, torch.Tensor) or vertices.dim() == 3 else [vertices])
+        ]
         cameras = [check_camera(c) for c in cameras]
         if len(verts) != len(cameras):
             raise ValueError(f"got {len(verts)} vertex sets but {len(cameras)} cameras")
@@ -170,7 +172,9 @@ class BatchSilhouetteRenderer:
 
 def _canonical_camera(width: int, height: int) -> Camera:
     """The camera whose :func:`to_canonical` map is the identity (focal W, centred)."""
-    return Camera(fx=float(width), fy=float(width), cx=width / 2.0 - 0.5, cy=height / 2.0 - 0.5, width=width, height=height)
+    return Camera(
+        fx=float(width), fy=float(width), cx=width / 2.0 - 0.5, cy=height / 2.0 - 0.5, width=width, height=height
+    )
 
 
 def _stays_in_window(vertices: torch.Tensor, camera: Camera, gap: int) -> bool:
@@ -183,7 +187,10 @@ def _stays_in_window(vertices: torch.Tensor, camera: Camera, gap: int) -> bool:
         uv = project_points(v, camera)
         lo, hi = uv.min(0).values, uv.max(0).values
         return bool(
-            lo[0] >= -0.5 - gap and lo[1] >= -0.5 - gap and hi[0] <= camera.width - 0.5 + gap and hi[1] <= camera.height - 0.5 + gap
+            lo[0] >= -0.5 - gap
+            and lo[1] >= -0.5 - gap
+            and hi[0] <= camera.width - 0.5 + gap
+            and hi[1] <= camera.height - 0.5 + gap
         )
 
 

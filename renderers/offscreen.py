@@ -18,6 +18,7 @@ Platform
 0.1-0.4 px by multisampling: keep OSMesa for sub-pixel ground truth).  pyrender is
 imported lazily, so importing :mod:`renderers` costs nothing until the first render.
 """
+
 from __future__ import annotations
 
 import math
@@ -59,7 +60,6 @@ _ALLOWED_PLATFORMS = ("osmesa", "egl")
 def _ensure_platform() -> str:
     platform = os.environ.get("PYOPENGL_PLATFORM", "").lower()
     if platform not in _ALLOWED_PLATFORMS:
-
         if "OpenGL" in sys.modules and platform:
             raise RuntimeError(
                 f"PyOpenGL was already imported with PYOPENGL_PLATFORM={platform!r}; "
@@ -166,11 +166,7 @@ def _look_pose(direction: Sequence[float]) -> np.ndarray:
 
 #: (direction of travel in camera coordinates, intensity): key from upper left, fill from
 #: the right, rim from behind-above: shows the body's shape without harsh shadows.
-_LIGHTS = (
-    ((0.5, 0.55, 1.0), 2.4),
-    ((-0.8, 0.1, 0.6), 0.7),
-    ((0.0, 0.6, -1.0), 1.2),
-)
+_LIGHTS = (((0.5, 0.55, 1.0), 2.4), ((-0.8, 0.1, 0.6), 0.7), ((0.0, 0.6, -1.0), 1.2))
 _GL_FROM_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
@@ -188,7 +184,9 @@ class OffscreenRenderer:
         self._pr = pr
         self._renderer = pr.OffscreenRenderer(self.width, self.height)
         self._scene = pr.Scene(bg_color=(*_BACKGROUND, 0.0), ambient_light=(0.1, 0.1, 0.11))
-        self._camera_node = self._scene.add(pr.IntrinsicsCamera(1.0, 1.0, 0.0, 0.0, znear=0.01, zfar=1000.0), pose=_GL_FROM_CV)
+        self._camera_node = self._scene.add(
+            pr.IntrinsicsCamera(1.0, 1.0, 0.0, 0.0, znear=0.01, zfar=1000.0), pose=_GL_FROM_CV
+        )
         for direction, intensity in _LIGHTS:
             self._scene.add(pr.DirectionalLight(color=np.ones(3), intensity=intensity), pose=_look_pose(direction))
         self._mesh_node = None
@@ -206,16 +204,23 @@ class OffscreenRenderer:
             self._mesh_node = None
         normals = _vertex_normals(vertices, faces) if shaded else None
         material = pr.MetallicRoughnessMaterial(
-            baseColorFactor=(*[float(c) for c in color], 1.0), metallicFactor=0.0, roughnessFactor=0.65, doubleSided=True
+            baseColorFactor=(*[float(c) for c in color], 1.0),
+            metallicFactor=0.0,
+            roughnessFactor=0.65,
+            doubleSided=True,
         )
-        prim = pr.Primitive(positions=vertices, normals=normals, indices=faces, material=material, mode=pr.constants.GLTF.TRIANGLES)
+        prim = pr.Primitive(
+            positions=vertices, normals=normals, indices=faces, material=material, mode=pr.constants.GLTF.TRIANGLES
+        )
         self._mesh_node = self._scene.add(pr.Mesh([prim]))
 
     def render(self, vertices, faces, camera: Camera, color=BODY_COLOR, depth_only: bool = False) -> Rendering:
         """Shaded colour (unless ``depth_only``) and depth of a mesh in camera coordinates."""
         camera = _check_camera(camera)
         if (camera.width, camera.height) != (self.width, self.height):
-            raise ValueError(f"camera is {camera.width}x{camera.height} but this renderer is {self.width}x{self.height}")
+            raise ValueError(
+                f"camera is {camera.width}x{camera.height} but this renderer is {self.width}x{self.height}"
+            )
         v, f = mesh_arrays(vertices, faces)
         self._set_camera(camera)
         self._set_mesh(v, f, color, shaded=not depth_only)
@@ -236,9 +241,7 @@ def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     tri = vertices[faces]
     fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     idx = faces.reshape(-1)
-    vn = np.stack(
-        [np.bincount(idx, weights=np.repeat(fn[:, c], 3), minlength=len(vertices)) for c in range(3)], axis=1
-    )
+    vn = np.stack([np.bincount(idx, weights=np.repeat(fn[:, c], 3), minlength=len(vertices)) for c in range(3)], axis=1)
     norm = np.linalg.norm(vn, axis=1, keepdims=True)
     return (vn / np.maximum(norm, 1e-12)).astype(np.float32)
 
@@ -274,12 +277,7 @@ def render_mask(vertices, faces, camera: Camera) -> np.ndarray:
 
 
 def overlay(
-    image: np.ndarray,
-    vertices,
-    faces,
-    camera: Optional[Camera] = None,
-    alpha: float = 0.6,
-    color=BODY_COLOR,
+    image: np.ndarray, vertices, faces, camera: Optional[Camera] = None, alpha: float = 0.6, color=BODY_COLOR
 ) -> np.ndarray:
     """The shaded body blended over ``image`` (``[H,W,3]`` or ``[H,W]`` uint8) with opacity
     ``alpha`` where the body is.  ``camera`` defaults to the image's default camera."""
@@ -309,7 +307,9 @@ def overlay(
 _NAMED_VIEWS = {"front": 0.0, "right": 90.0, "side": 90.0, "back": 180.0, "left": 270.0}
 
 
-def view_angles(views: Union[str, Sequence[str], None] = None, turntable: Optional[int] = None) -> list[tuple[str, float]]:
+def view_angles(
+    views: Union[str, Sequence[str], None] = None, turntable: Optional[int] = None
+) -> list[tuple[str, float]]:
     """``(name, degrees)`` for named views (``front, side/right, back, left``) or a
     turntable of ``turntable`` evenly spaced views (``turn000`` ...)."""
     if turntable is not None:
@@ -343,11 +343,7 @@ def rotate_about_vertical(vertices: np.ndarray, degrees: float, centre: Optional
 
 
 def framing_camera(
-    vertices,
-    width: int,
-    height: int,
-    fov_degrees: float = 30.0,
-    margin: float = 0.08,
+    vertices, width: int, height: int, fov_degrees: float = 30.0, margin: float = 0.08
 ) -> tuple[Camera, np.ndarray]:
     """A camera (centred principal point, vertical field of view ``fov_degrees``) and the
     vertices moved along the optical axis so the mesh's bounding box is centred and fills

@@ -26,6 +26,7 @@ under ``$SILFIT_CACHE_DIR`` (default ``~/.cache/silfit``)``/proxy/<sha1>.npz``, 
 hash of the template, the faces and the options.  The disk cache is an optimisation only:
 a missing, unreadable or stale file is rebuilt (about 1 s for the open body).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -39,7 +40,15 @@ from typing import Optional
 import numpy as np
 import torch
 
-__all__ = ["DEFAULT_PROXY_FACES", "ProxySilhouetteRenderer", "RenderProxy", "proxy_renderer", "build_proxy", "get_proxy", "proxy_cache_dir"]
+__all__ = [
+    "DEFAULT_PROXY_FACES",
+    "ProxySilhouetteRenderer",
+    "RenderProxy",
+    "proxy_renderer",
+    "build_proxy",
+    "get_proxy",
+    "proxy_cache_dir",
+]
 
 #: Proxy size that keeps the open body's silhouette IoU >= 0.995 against the full mesh
 #: (10,000 of 26,692 faces; see benchmarks/bench_render.py --proxy).
@@ -69,9 +78,7 @@ class RenderProxy:
     def apply(self, vertices: torch.Tensor) -> torch.Tensor:
         """Proxy vertices ``[..., Vp, 3]`` of model vertices ``[..., V, 3]`` (differentiable)."""
         if vertices.shape[-2] != self.n_model_vertices or vertices.shape[-1] != 3:
-            raise ValueError(
-                f"proxy expects vertices [..., {self.n_model_vertices}, 3], got {list(vertices.shape)}"
-            )
+            raise ValueError(f"proxy expects vertices [..., {self.n_model_vertices}, 3], got {list(vertices.shape)}")
         idx, w = self._tensors(vertices.device, vertices.dtype)
         gathered = vertices[..., idx.reshape(-1), :].reshape(*vertices.shape[:-2], *idx.shape, 3)
         return (gathered * w[..., None]).sum(-2)

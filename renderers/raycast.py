@@ -40,6 +40,7 @@ the views of a body (a rig) are rays from several camera centres into it, so a r
 rebuilds the structure once, not once per view.  The edge points and their visibility are
 computed in the forward pass, so the backward pass needs no renderer at all.
 """
+
 from __future__ import annotations
 
 import math
@@ -208,8 +209,13 @@ class RaycastScene:
         ``faces`` (indices; ``None``: all) into the scene: one acceleration-structure build."""
         v = verts.detach().to(torch.float32).contiguous()
         held = self._held
-        if held is not None and torch.equal(held[0], v) and (
-            (faces is None and held[1] is None) or (faces is not None and held[1] is not None and torch.equal(held[1], faces))
+        if (
+            held is not None
+            and torch.equal(held[0], v)
+            and (
+                (faces is None and held[1] is None)
+                or (faces is not None and held[1] is not None and torch.equal(held[1], faces))
+            )
         ):
             return
         if faces is not None or (held is not None and held[1] is not None):
@@ -259,8 +265,10 @@ class RaycastScene:
         mi = self.mi
         o = origins.to(torch.float32).contiguous()
         d = directions.to(torch.float32).contiguous()
-        ray = mi.Ray3f(mi.Point3f(mi.Float(o[:, 0]), mi.Float(o[:, 1]), mi.Float(o[:, 2])),
-                       mi.Vector3f(mi.Float(d[:, 0]), mi.Float(d[:, 1]), mi.Float(d[:, 2])))  # fmt: skip
+        ray = mi.Ray3f(
+            mi.Point3f(mi.Float(o[:, 0]), mi.Float(o[:, 1]), mi.Float(o[:, 2])),
+            mi.Vector3f(mi.Float(d[:, 0]), mi.Float(d[:, 1]), mi.Float(d[:, 2])),
+        )
         hit = self.scene.ray_test(ray)
         return mi.Int32(hit).torch().to(torch.bool)
 
@@ -287,8 +295,9 @@ class RaycastScene:
             plans, origins, directions = [], [], []
             for (cam, R, t), seed, vc, (d, _) in zip(views, seeds, vcs, towards):
                 R64, t64 = R.to(torch.float64), t.to(torch.float64)
-                plan, xy_cam = self._plan(vc, d < 0, cam, spp, edge_spp, int(seed), stratified, need_grad, systematic,
-                                          edge_density)  # fmt: skip
+                plan, xy_cam = self._plan(
+                    vc, d < 0, cam, spp, edge_spp, int(seed), stratified, need_grad, systematic, edge_density
+                )
                 centre = -(R64.T @ t64)
                 d = _directions(xy_cam, cam)
                 if not torch.equal(R64, _EYE):  # camera -> reference frame: R^T d (the identity: d, bit for bit)
@@ -296,7 +305,9 @@ class RaycastScene:
                 plans.append(plan)
                 origins.append(centre.expand(d.shape[0], 3))
                 directions.append(d)
-            self.set_vertices(verts, self.visible_faces(towards, [(vc, p.camera, p.touched) for vc, p in zip(vcs, plans)]))
+            self.set_vertices(
+                verts, self.visible_faces(towards, [(vc, p.camera, p.touched) for vc, p in zip(vcs, plans)])
+            )
             hits = self.ray_test(torch.cat(origins), torch.cat(directions))
             images, states, start = [], [], 0
             for plan in plans:
@@ -307,8 +318,9 @@ class RaycastScene:
                 states.append(state)
         return images, states
 
-    def _plan(self, vc, facing, cam: Camera, spp, edge_spp, seed, stratified, need_grad, systematic=True,
-              edge_density=None):  # fmt: skip
+    def _plan(
+        self, vc, facing, cam: Camera, spp, edge_spp, seed, stratified, need_grad, systematic=True, edge_density=None
+    ):
         E = self.edges
         W, H = cam.width, cam.height
         # the silhouette's candidates (faces facing opposite ways, or a boundary), then only their endpoints
@@ -365,7 +377,10 @@ class RaycastScene:
                 N = max(1, min(math.ceil(float(edge_density) * total), int(edge_spp) * W * H))
             cum = torch.cumsum(length, 0)
             if systematic:  # evenly spaced, one random offset
-                s = (torch.arange(N, dtype=torch.float64) + float(hash_uniform(seed, 3, torch.zeros(1, dtype=torch.int64)))) * (total / N)
+                s = (
+                    torch.arange(N, dtype=torch.float64)
+                    + float(hash_uniform(seed, 3, torch.zeros(1, dtype=torch.int64)))
+                ) * (total / N)
             else:  # independent uniform positions
                 s = hash_uniform(seed, 4, torch.arange(N)) * total
             e = torch.searchsorted(cum, s, right=True).clamp(max=idx.numel() - 1)
@@ -417,8 +432,14 @@ class RaycastScene:
     def _finish(self, plan: _ViewRays, hits: torch.Tensor, need_grad: bool):
         cam = plan.camera
         n_cover = plan.edge_pixels.numel() * plan.spp
-        cover, rep, edge = hits[:n_cover], hits[n_cover : n_cover + plan.n_components], hits[n_cover + plan.n_components :]
-        if plan.n_components:  # each pixel off the edge pixels takes its component's ray (an edge pixel: 0, then its own)
+        cover, rep, edge = (
+            hits[:n_cover],
+            hits[n_cover : n_cover + plan.n_components],
+            hits[n_cover + plan.n_components :],
+        )
+        if (
+            plan.n_components
+        ):  # each pixel off the edge pixels takes its component's ray (an edge pixel: 0, then its own)
             img = torch.cat([torch.zeros(1, dtype=torch.float32), rep.to(torch.float32)])[plan.labels + 1]
         else:
             img = torch.zeros(cam.height * cam.width, dtype=torch.float32)
@@ -429,14 +450,20 @@ class RaycastScene:
             return img, None
         outline = torch.nonzero(~edge).squeeze(1)  # the ray just outside the segment misses: the outline there
         state = {
-            "edge": plan.sample_edge[outline], "t": plan.sample_t[outline], "pixel": plan.sample_pixel[outline],
-            "candidates": plan.candidates, "normals": plan.normals, "step": plan.step, "camera": cam,
-        }  # fmt: skip
+            "edge": plan.sample_edge[outline],
+            "t": plan.sample_t[outline],
+            "pixel": plan.sample_pixel[outline],
+            "candidates": plan.candidates,
+            "normals": plan.normals,
+            "step": plan.step,
+            "camera": cam,
+        }
         return img, state
 
     # ---- gradient
-    def vertex_grad(self, verts: torch.Tensor, R: torch.Tensor, t: torch.Tensor, state: dict,
-                    grad_img: torch.Tensor) -> torch.Tensor:  # fmt: skip
+    def vertex_grad(
+        self, verts: torch.Tensor, R: torch.Tensor, t: torch.Tensor, state: dict, grad_img: torch.Tensor
+    ) -> torch.Tensor:
         """``d sum(grad_img * S) / d verts`` of one view (the edge integral, module docstring)."""
         g = grad_img.detach().to(torch.float64).reshape(-1)
         out = torch.zeros(verts.shape, dtype=torch.float64)
@@ -492,9 +519,17 @@ class RaycastRender(torch.autograd.Function):
         return (total.to(dtype=verts.dtype, device=verts.device), None, None, None) + (None,) * len(grads)
 
 
-def render_views(scene: RaycastScene, verts: torch.Tensor, views: Sequence[tuple], spp: int, edge_spp: int,
-                 seeds: Sequence[int], stratified: bool, systematic: bool = True,
-                 edge_density: Optional[float] = None) -> List[torch.Tensor]:  # fmt: skip
+def render_views(
+    scene: RaycastScene,
+    verts: torch.Tensor,
+    views: Sequence[tuple],
+    spp: int,
+    edge_spp: int,
+    seeds: Sequence[int],
+    stratified: bool,
+    systematic: bool = True,
+    edge_density: Optional[float] = None,
+) -> List[torch.Tensor]:
     """Silhouettes ``[H, W]`` (float32) of ``verts [V, 3]`` in each view ``(camera, R, t)``,
     differentiable with respect to ``verts`` when it requires grad.  ``edge_density``: edge
     points per pixel of contour-candidate length (``None``: ``edge_spp`` per image pixel);
@@ -503,7 +538,9 @@ def render_views(scene: RaycastScene, verts: torch.Tensor, views: Sequence[tuple
         raise ValueError(f"edge_density must be a positive number or None, got {edge_density!r}")
     need_grad = torch.is_grad_enabled() and verts.requires_grad
     with scene.lock:
-        images, states = scene.render(verts, views, spp, edge_spp, seeds, stratified, need_grad, systematic, edge_density)
+        images, states = scene.render(
+            verts, views, spp, edge_spp, seeds, stratified, need_grad, systematic, edge_density
+        )
     if not need_grad:
         return images
     out = RaycastRender.apply(verts, scene, list(views), states, *images)

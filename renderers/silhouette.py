@@ -46,6 +46,7 @@ integrator's ``render_backward`` itself: every render gets its own gradient, wha
 order of renders and ``backward()`` calls.  (With ``dr.wrap`` the earlier renders got no
 gradient and the last one got theirs as well.)
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -468,12 +469,22 @@ class SilhouetteRenderer:
         if self.method == "raycast":
             batch = vertices if batched else vertices[None]
             eye, zero = torch.eye(3), torch.zeros(3)
-            out = torch.stack([
-                self.render_views(v, [camera], [eye], [zero], spp=spp, edge_spp=edge_spp,
-                                  seeds=[fresh_seed() if seed is None else int(seed) + i], sampler=sampler,
-                                  edge_density=edge_density)[0]
-                for i, v in enumerate(batch)
-            ])  # fmt: skip
+            out = torch.stack(
+                [
+                    self.render_views(
+                        v,
+                        [camera],
+                        [eye],
+                        [zero],
+                        spp=spp,
+                        edge_spp=edge_spp,
+                        seeds=[fresh_seed() if seed is None else int(seed) + i],
+                        sampler=sampler,
+                        edge_density=edge_density,
+                    )[0]
+                    for i, v in enumerate(batch)
+                ]
+            )
             return out if batched else out[0]
         scene = self._scene(vertices.shape[-2], camera.width, camera.height, spp, edge_spp, sampler)
         batch = vertices if batched else vertices[None]
@@ -520,7 +531,11 @@ class SilhouetteRenderer:
         spp = self.spp if spp is None else _positive_int(spp, "spp")
         edge_spp = self.edge_spp if edge_spp is None else _positive_int(edge_spp, "edge_spp")
         sampler = self.sampler if sampler is None else _check_sampler(sampler)
-        seeds = [fresh_seed() for _ in cameras] if seeds is None else [(fresh_seed() if s is None else int(s)) for s in seeds]
+        seeds = (
+            [fresh_seed() for _ in cameras]
+            if seeds is None
+            else [(fresh_seed() if s is None else int(s)) for s in seeds]
+        )
         out_dtype = vertices.dtype if vertices.is_floating_point() else torch.float32
         device = vertices.device
         if self.method != "raycast":
@@ -531,12 +546,27 @@ class SilhouetteRenderer:
             return out
         from .raycast import render_views
 
-        views = [(cam, torch.as_tensor(R).detach().to(torch.float64).cpu(), torch.as_tensor(t).detach().to(torch.float64).cpu())
-                 for cam, R, t in zip(cameras, rotations, translations)]  # fmt: skip
+        views = [
+            (
+                cam,
+                torch.as_tensor(R).detach().to(torch.float64).cpu(),
+                torch.as_tensor(t).detach().to(torch.float64).cpu(),
+            )
+            for cam, R, t in zip(cameras, rotations, translations)
+        ]
         self._set_threads()
         verts = vertices.cpu() if vertices.device.type != "cpu" else vertices
-        images = render_views(self._ray_scene(vertices.shape[0]), verts, views, spp, edge_spp, seeds, sampler != "independent",
-                              self.edge_sampling == "systematic", edge_density)  # fmt: skip
+        images = render_views(
+            self._ray_scene(vertices.shape[0]),
+            verts,
+            views,
+            spp,
+            edge_spp,
+            seeds,
+            sampler != "independent",
+            self.edge_sampling == "systematic",
+            edge_density,
+        )
         return [img.to(device=device, dtype=out_dtype) for img in images]
 
     def render_roi(
@@ -583,12 +613,7 @@ def get_silhouette_renderer(faces) -> SilhouetteRenderer:
 
 
 def render_silhouette(
-    vertices: torch.Tensor,
-    faces,
-    camera: Camera,
-    spp: int = 4,
-    edge_spp: int = 1,
-    seed: Optional[int] = None,
+    vertices: torch.Tensor, faces, camera: Camera, spp: int = 4, edge_spp: int = 1, seed: Optional[int] = None
 ) -> torch.Tensor:
     """Functional form: silhouette of ``vertices`` with ``faces`` under ``camera``.
     Renderers (and their compiled scenes) are cached per faces topology."""

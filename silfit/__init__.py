@@ -8,6 +8,7 @@ video's frames.
 Names are resolved on first use (PEP 562), so ``import silfit`` (and ``silfit --help``,
 ``silfit synth``) does not pay for torch, scipy and the fitting code until they are needed.
 """
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING

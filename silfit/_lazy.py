@@ -1,4 +1,5 @@
 """Lazy package attributes (PEP 562): a name is imported from its submodule on first use."""
+
 from __future__ import annotations
 
 import importlib

@@ -16,6 +16,7 @@ offscreen rasteriser, the synthetic generator and every file silfit writes):
   facing the camera therefore has ``global_orient`` = axis-angle ``(pi, 0, 0)``
   (:data:`UPRIGHT_FACING_CAMERA`), and one seen from behind ``(0, 0, pi)``.
 """
+
 from __future__ import annotations
 
 import json
@@ -117,7 +118,9 @@ class Camera:
         try:
             fx, fy, cx, cy = (float(v) for v in np.asarray(intrinsics, dtype=np.float64).reshape(-1))
         except (TypeError, ValueError):
-            raise ValueError(f"camera_intrinsics must be 4 numbers (fx, fy, cx, cy), got {quoted(intrinsics)}") from None
+            raise ValueError(
+                f"camera_intrinsics must be 4 numbers (fx, fy, cx, cy), got {quoted(intrinsics)}"
+            ) from None
         try:
             width, height = (float(v) for v in np.asarray(image_size, dtype=np.float64).reshape(-1))
         except (TypeError, ValueError):
@@ -198,13 +201,19 @@ def camera_from_dict(data, source: str) -> Camera:
         ratio = getattr(camera, name) / side
         if not FOCAL_RANGE[0] <= ratio <= FOCAL_RANGE[1]:
             raise InputError(
-                source, f"camera field '{name}' = {getattr(camera, name):g} px is {ratio:g} times the image's longer "
-                f"side; expected {FOCAL_RANGE[0]:g} to {FOCAL_RANGE[1]:g} times (is it in pixels?)", field=name,
-            )  # fmt: skip
+                source,
+                f"camera field '{name}' = {getattr(camera, name):g} px is {ratio:g} times the image's longer "
+                f"side; expected {FOCAL_RANGE[0]:g} to {FOCAL_RANGE[1]:g} times (is it in pixels?)",
+                field=name,
+            )
     for name, centre, size in (("cx", camera.width / 2, camera.width), ("cy", camera.height / 2, camera.height)):
         if abs(getattr(camera, name) - centre) > MAX_PRINCIPAL_OFFSET * size:
-            raise InputError(source, f"camera field '{name}' = {getattr(camera, name):g} lies far outside the "
-                             f"{camera.width}x{camera.height} image", field=name)  # fmt: skip
+            raise InputError(
+                source,
+                f"camera field '{name}' = {getattr(camera, name):g} lies far outside the "
+                f"{camera.width}x{camera.height} image",
+                field=name,
+            )
     return camera
 
 
@@ -212,6 +221,7 @@ def camera_from_dict(data, source: str) -> Camera:
 ROTATION_TOL = 1e-3
 #: camera centres must lie within this many metres of the world origin
 MAX_TRANSLATION_M = 1e4
+
 
 def _leaves(value):
     if isinstance(value, (list, tuple)):
@@ -229,8 +239,11 @@ def _matrix(value, shape, source, name) -> np.ndarray:
     if arr.size != int(np.prod(shape)):
         raise InputError(source, f"camera field '{name}' must have shape {shape}, got {arr.shape}", field=name)
     if not isinstance(value, (list, tuple)) or any(isinstance(v, (bool, str)) for v in _leaves(value)):
-        raise InputError(source, f"camera field '{name}' must be a list of numbers of shape {shape} (no booleans "
-                         "or strings)", field=name)  # fmt: skip
+        raise InputError(
+            source,
+            f"camera field '{name}' must be a list of numbers of shape {shape} (no booleans or strings)",
+            field=name,
+        )
     arr = arr.reshape(shape)
     if not np.all(np.isfinite(arr)):
         raise InputError(source, f"camera field '{name}' holds NaN or infinity", field=name)
@@ -241,15 +254,22 @@ def check_rotation(R: np.ndarray, source: str, name: str = "R") -> np.ndarray:
     """``R`` as a proper rotation matrix, or an :class:`InputError` naming the field."""
     err = float(np.abs(R @ R.T - np.eye(3)).max())
     if err > ROTATION_TOL or abs(float(np.linalg.det(R)) - 1.0) > ROTATION_TOL:
-        raise InputError(source, f"camera field '{name}' is not a rotation matrix (|R R^T - I| = {err:.3g}, "
-                         f"det {np.linalg.det(R):.3g}); expected world-to-camera R, OpenCV convention", field=name)  # fmt: skip
+        raise InputError(
+            source,
+            f"camera field '{name}' is not a rotation matrix (|R R^T - I| = {err:.3g}, "
+            f"det {np.linalg.det(R):.3g}); expected world-to-camera R, OpenCV convention",
+            field=name,
+        )
     return R
 
 
 def check_translation(t: np.ndarray, source: str, name: str = "t") -> np.ndarray:
     if float(np.abs(t).max()) > MAX_TRANSLATION_M:
-        raise InputError(source, f"camera field '{name}' = {t.tolist()} is beyond {MAX_TRANSLATION_M:g} m "
-                         "(is it in metres?)", field=name)  # fmt: skip
+        raise InputError(
+            source,
+            f"camera field '{name}' = {t.tolist()} is beyond {MAX_TRANSLATION_M:g} m (is it in metres?)",
+            field=name,
+        )
     return t
 
 
@@ -258,7 +278,9 @@ def extrinsics_from_dict(data: dict, source: str) -> Tuple[Optional[np.ndarray],
     has_R, has_t = "R" in data, "t" in data
     if has_R != has_t:
         missing = "t" if has_R else "R"
-        raise InputError(source, f"camera field '{missing}' missing: give both R (3x3) and t (3), or neither", field=missing)
+        raise InputError(
+            source, f"camera field '{missing}' missing: give both R (3x3) and t (3), or neither", field=missing
+        )
     if not has_R:
         return None, None
     R = check_rotation(_matrix(data["R"], (3, 3), source, "R"), source)

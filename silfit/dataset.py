@@ -27,6 +27,7 @@ without an index every sub-folder holding a ``keypoints.json`` or ``camera.json`
 Every reader here raises :class:`SubjectError` (a ``ValueError``) or ``FileNotFoundError``
 whose message starts with the offending file's path and names the field.
 """
+
 from __future__ import annotations
 
 import io
@@ -107,7 +108,9 @@ class GroundTruth:
     def params(self) -> Dict[str, np.ndarray]:
         """The SMPL (or, for whole-body subjects, SMPL-X) parameters as ``[1, n]`` arrays, ready for
         ``model(**params)``."""
-        params = {k: getattr(self, k)[None].astype(np.float32) for k in ("betas", "body_pose", "global_orient", "transl")}
+        params = {
+            k: getattr(self, k)[None].astype(np.float32) for k in ("betas", "body_pose", "global_orient", "transl")
+        }
         params.update({k: self.extras[k][None].astype(np.float32) for k in WHOLEBODY_GT_PARAMS if k in self.extras})
         return params
 
@@ -172,7 +175,7 @@ def read_mask(path: PathLike, size: Optional[Sequence[int]] = None) -> np.ndarra
     except (ValueError, FileNotFoundError) as err:
         message = str(err)
         prefix = f"{os.fspath(path)}: "
-        raise SubjectError(path, "mask", message[len(prefix):] if message.startswith(prefix) else message) from None
+        raise SubjectError(path, "mask", message[len(prefix) :] if message.startswith(prefix) else message) from None
 
 
 def read_image(path: PathLike, size: Optional[Sequence[int]] = None) -> np.ndarray:
@@ -258,9 +261,14 @@ def read_gt(path: PathLike, fields: Iterable[str] = tuple(GT_FIELDS)) -> GroundT
         out[name] = arr
     extras = {k: v for k, v in raw.items() if k not in out}
     return GroundTruth(
-        betas=out["betas"], body_pose=out["body_pose"], global_orient=out["global_orient"],
-        transl=out["transl"], vertices=out["vertices"], joints=out["joints"], extras=extras,
-    )  # fmt: skip
+        betas=out["betas"],
+        body_pose=out["body_pose"],
+        global_orient=out["global_orient"],
+        transl=out["transl"],
+        vertices=out["vertices"],
+        joints=out["joints"],
+        extras=extras,
+    )
 
 
 def load_subject(
@@ -341,7 +349,8 @@ def list_subjects(dataset: PathLike) -> List[Path]:
     if any((root / SUBJECT_FILES[c]).is_file() for c in ("keypoints", "camera")):
         return [root]
     subjects = sorted(
-        p for p in root.iterdir()
+        p
+        for p in root.iterdir()
         if p.is_dir() and any((p / SUBJECT_FILES[c]).is_file() for c in ("keypoints", "camera", "gt"))
-    )  # fmt: skip
+    )
     return subjects

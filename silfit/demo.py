@@ -13,6 +13,7 @@ Writes into the output folder::
     report.md, report.json     the keypoint-only vs keypoint+silhouette table against ground truth
     fit/                       the full fit output (as ``silfit fit`` writes it)
 """
+
 from __future__ import annotations
 
 import json
@@ -116,8 +117,9 @@ def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = Fal
     faces = model.faces.cpu().numpy()
     cam, kps = subject.camera, subject.keypoints
 
-    job = image_job(kps, subject.mask, cam, model=model, silhouette_config=silhouette_config, progress=progress,
-                    image=subject.image)  # fmt: skip
+    job = image_job(
+        kps, subject.mask, cam, model=model, silhouette_config=silhouette_config, progress=progress, image=subject.image
+    )
     job.mask_sources[(0, 0)] = str(subject.file("mask"))
     result = run(job).stage  # the path every mode takes (silfit.run)
     kp_result = result.keypoint
@@ -135,12 +137,17 @@ def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = Fal
     pictures = {
         "01_input.png": close(figures.draw_keypoints(subject.image, kps.xy, figures.DETECTED, kps.conf)),
         "02_mask.png": close(np.repeat(subject.mask[..., None].astype(np.uint8) * 255, 3, axis=2)),
-        "03_keypoint_fit.png": close(figures.fit_overlay(subject.image, kp_vertices, faces, cam, kps.xy, None, kps.conf)),
-        "04_silhouette_fit.png": close(figures.fit_overlay(subject.image, result.vertices, faces, cam, kps.xy, None,
-                                                           kps.conf)),  # fmt: skip
+        "03_keypoint_fit.png": close(
+            figures.fit_overlay(subject.image, kp_vertices, faces, cam, kps.xy, None, kps.conf)
+        ),
+        "04_silhouette_fit.png": close(
+            figures.fit_overlay(subject.image, result.vertices, faces, cam, kps.xy, None, kps.conf)
+        ),
     }
     match_kp, match_sil = match(result.masks["keypoint_stage"]), match(result.masks["final"])
-    pictures["05_silhouette_match.png"] = np.hstack([match_kp, np.full((match_kp.shape[0], 6, 3), 128, np.uint8), match_sil])
+    pictures["05_silhouette_match.png"] = np.hstack(
+        [match_kp, np.full((match_kp.shape[0], 6, 3), 128, np.uint8), match_sil]
+    )
     for name, image in pictures.items():
         figures.write_png(out / name, image)
     figures.iou_curve(result.silhouette.history, out / "06_iou_curve.png")
@@ -151,12 +158,23 @@ def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = Fal
         1000 * np.linalg.norm(pelvis(kp_vertices, kp_result.joints[0]) - pelvis(gt_v, gt_j), axis=1),
         1000 * np.linalg.norm(pelvis(result.vertices, result.joints) - pelvis(gt_v, gt_j), axis=1),
     ]
-    figures.error_heatmap(gt_v, faces, errors, ["keypoints only", "keypoints + silhouette"], out / "07_vertex_error.png")
+    figures.error_heatmap(
+        gt_v, faces, errors, ["keypoints only", "keypoints + silhouette"], out / "07_vertex_error.png"
+    )
 
     sheet = [pictures[n] for n in sorted(pictures)] + [
-        read_image(out / "06_iou_curve.png"), read_image(out / "07_vertex_error.png")]  # fmt: skip
-    titles = ["input + keypoints", "mask", "keypoint fit", "keypoint + silhouette fit",
-              "silhouette before | after", "silhouette stage", "per-vertex error (mm)"]  # fmt: skip
+        read_image(out / "06_iou_curve.png"),
+        read_image(out / "07_vertex_error.png"),
+    ]
+    titles = [
+        "input + keypoints",
+        "mask",
+        "keypoint fit",
+        "keypoint + silhouette fit",
+        "silhouette before | after",
+        "silhouette stage",
+        "per-vertex error (mm)",
+    ]
     figures.contact_sheet(sheet, titles, out / "summary.png", columns=4)
 
     report = {

@@ -10,6 +10,7 @@ Writes into the output folder::
     report.md/.json    hand, face, expression and body errors against the ground truth, per method
     fit/               the whole-body fit's output folder (as ``silfit fit`` writes it)
 """
+
 from __future__ import annotations
 
 import json
@@ -22,9 +23,14 @@ import numpy as np
 __all__ = ["run_wholebody_demo", "summary_panels"]
 
 SHIPPED_WHOLEBODY = Path(__file__).resolve().parents[1] / "data" / "synthetic_wholebody"
-ROWS = (("hand_pa_mm", "hand error, Procrustes (mm)"), ("hand_wrist_mm", "hand error, wrist-aligned (mm)"),
-        ("face_pa_mm", "face error, Procrustes (mm)"), ("expression_err", "expression error (RMS)"),
-        ("pa_pve_mm", "body PA-PVE (mm)"), ("time_s", "time (s)"))  # fmt: skip
+ROWS = (
+    ("hand_pa_mm", "hand error, Procrustes (mm)"),
+    ("hand_wrist_mm", "hand error, wrist-aligned (mm)"),
+    ("face_pa_mm", "face error, Procrustes (mm)"),
+    ("expression_err", "expression error (RMS)"),
+    ("pa_pve_mm", "body PA-PVE (mm)"),
+    ("time_s", "time (s)"),
+)
 METHODS = ("body keypoints only", "whole-body keypoints", "whole-body + silhouette")
 WHOLE_TITLES = ("input + whole-body keypoints", METHODS[0], METHODS[2])
 
@@ -33,7 +39,9 @@ def summary_panels(whole: list, closeups: list, closeup_titles: list, columns: i
     """``summary.png``'s cells and titles, as many of one as of the other: the whole-body pictures
     (:data:`WHOLE_TITLES`) on the first row, empty cells to the row's end, then the close-ups."""
     if len(whole) != len(WHOLE_TITLES) or len(closeups) != len(closeup_titles):
-        raise ValueError(f"{len(whole)} + {len(closeups)} pictures for {len(WHOLE_TITLES)} + {len(closeup_titles)} titles")
+        raise ValueError(
+            f"{len(whole)} + {len(closeups)} pictures for {len(WHOLE_TITLES)} + {len(closeup_titles)} titles"
+        )
     pad = -len(whole) % columns
     return list(whole) + [None] * pad + list(closeups), list(WHOLE_TITLES) + [""] * pad + list(closeup_titles)
 
@@ -48,8 +56,13 @@ def _subject_dir(out: Path, subject_dir: Optional[Path]) -> Path:
     from .synth import SynthConfig, generate_dataset
 
     target = out / "generated_subject"  # a pip install: the same kind of subject, generated
-    generate_dataset(target, 1, SynthConfig(seed=2024, size=384, noise_px=0.0, whole_body=True),
-                     load_body_model(kind="smplx"), progress=False)  # fmt: skip
+    generate_dataset(
+        target,
+        1,
+        SynthConfig(seed=2024, size=384, noise_px=0.0, whole_body=True),
+        load_body_model(kind="smplx"),
+        progress=False,
+    )
     return target / "subject_000"
 
 
@@ -62,7 +75,9 @@ def _zoom(image, camera, box, size: int = 320):
     s = size / max(x1 - x0, y1 - y0)
     w, h = max(1, round((x1 - x0) * s)), max(1, round((y1 - y0) * s))
     crop = cv2.resize(np.ascontiguousarray(image[y0:y1, x0:x1]), (w, h), interpolation=cv2.INTER_LINEAR)
-    cam = replace(camera, fx=camera.fx * s, fy=camera.fy * s, cx=(camera.cx - x0) * s, cy=(camera.cy - y0) * s, width=w, height=h)
+    cam = replace(
+        camera, fx=camera.fx * s, fy=camera.fy * s, cx=(camera.cx - x0) * s, cy=(camera.cy - y0) * s, width=w, height=h
+    )
     return crop, cam, (x0, y0, s)
 
 
@@ -101,11 +116,17 @@ def _score_table(scores: dict) -> str:
     lines = ["| metric | " + " | ".join(METHODS) + " |", "|---|" + "---:|" * len(METHODS)]
     for key, label in ROWS:
         cells = [scores[m].get(key) for m in METHODS]
-        lines.append(f"| {label} | " + " | ".join("-" if c is None else f"{c:.2f}" if key == "expression_err" else f"{c:.1f}" for c in cells) + " |")
+        lines.append(
+            f"| {label} | "
+            + " | ".join("-" if c is None else f"{c:.2f}" if key == "expression_err" else f"{c:.1f}" for c in cells)
+            + " |"
+        )
     return "\n".join(lines)
 
 
-def run_wholebody_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = False, silhouette_config=None) -> dict:
+def run_wholebody_demo(
+    out: Path, subject_dir: Optional[Path] = None, progress: bool = False, silhouette_config=None
+) -> dict:
     """Run the demo into ``out`` (see the module docstring); returns the report."""
     from . import figures
     from .body import load_body_model
@@ -133,8 +154,9 @@ def run_wholebody_demo(out: Path, subject_dir: Optional[Path] = None, progress: 
     kps = wb.as_keypoint_set()
 
     t0 = time.perf_counter()
-    body_only = KeypointFitter(model, "wholebody").fit(WholeBodyKeypoints(wb.body, None, None, None).as_keypoint_set(), cam,
-                                                       progress=progress)  # fmt: skip
+    body_only = KeypointFitter(model, "wholebody").fit(
+        WholeBodyKeypoints(wb.body, None, None, None).as_keypoint_set(), cam, progress=progress
+    )
     t_body = time.perf_counter() - t0
     t0 = time.perf_counter()
     result = fit(kps, mask, cam, model=model, silhouette_config=silhouette_config, progress=progress)
@@ -144,28 +166,41 @@ def run_wholebody_demo(out: Path, subject_dir: Optional[Path] = None, progress: 
 
     fits = {
         METHODS[0]: (body_only.vertices[0], body_only.joints[0], body_only.extra_params["expression"][0], t_body),
-        METHODS[1]: (kp_stage.vertices[0], kp_stage.joints[0], kp_stage.extra_params["expression"][0],
-                     result.metrics["timings_s"]["keypoints"]),
+        METHODS[1]: (
+            kp_stage.vertices[0],
+            kp_stage.joints[0],
+            kp_stage.extra_params["expression"][0],
+            result.metrics["timings_s"]["keypoints"],
+        ),
         METHODS[2]: (result.vertices, result.joints, np.asarray(result.params["expression"]).reshape(-1), t_whole),
-    }  # fmt: skip
+    }
     truth = {"vertices": gt["vertices"], "joints": gt["joints"], "expression": gt["expression"]}
     scores = {}
     for name, (v, j, e, t) in fits.items():
-        scores[name] = {**wholebody_errors(model, {"vertices": v, "joints": j, "expression": e}, truth), "time_s": float(t)}
+        scores[name] = {
+            **wholebody_errors(model, {"vertices": v, "joints": j, "expression": e}, truth),
+            "time_s": float(t),
+        }
 
     # close-ups: each part's box from its keypoints, magnified, the fitted meshes drawn at that magnification
     rows, labels = _closeup_rows(image, cam, kps, [v for v, _, _, _ in fits.values()], faces)
     sheet = [img for row in rows for img in row]
     titles = [f"{lab}: {col}" for lab in labels for col in ("input + keypoints",) + METHODS]
     figures.contact_sheet(sheet, titles, out / "closeups.png", columns=4)
-    whole = [figures.draw_keypoints(image, kps.xy, figures.DETECTED, kps.conf),
-             figures.fit_overlay(image, fits[METHODS[0]][0], faces, cam),
-             figures.fit_overlay(image, result.vertices, faces, cam)]  # fmt: skip
+    whole = [
+        figures.draw_keypoints(image, kps.xy, figures.DETECTED, kps.conf),
+        figures.fit_overlay(image, fits[METHODS[0]][0], faces, cam),
+        figures.fit_overlay(image, result.vertices, faces, cam),
+    ]
     figures.contact_sheet(*summary_panels(whole, sheet, titles), out / "summary.png", columns=4)
 
     table = _score_table(scores)
-    report = {"subject": str(d), "scores": scores, "warnings": result.metrics.get("warnings", []),
-              "iou": {"keypoint_stage": result.metrics.get("iou_keypoint_stage"), "final": result.metrics.get("iou")}}  # fmt: skip
+    report = {
+        "subject": str(d),
+        "scores": scores,
+        "warnings": result.metrics.get("warnings", []),
+        "iou": {"keypoint_stage": result.metrics.get("iou_keypoint_stage"), "final": result.metrics.get("iou")},
+    }
     (out / "report.json").write_text(json.dumps(report, indent=2))
     (out / "report.md").write_text(f"# silfit demo --whole-body: {d.name}\n\n{table}\n")
     report["table"] = table

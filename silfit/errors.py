@@ -4,13 +4,23 @@
 working) whose message is one line starting with the file (or argument) it concerns,
 naming the field where there is one. The command line prints it and exits with status 2.
 """
+
 from __future__ import annotations
 
 import os
 import re
 from typing import Optional, Union
 
-__all__ = ["InputError", "UnsafeFileError", "SystemLibraryError", "interruption", "interrupt_cleanup", "quoted", "cut_quotes", "QUOTE_CHARS"]
+__all__ = [
+    "InputError",
+    "UnsafeFileError",
+    "SystemLibraryError",
+    "interruption",
+    "interrupt_cleanup",
+    "quoted",
+    "cut_quotes",
+    "QUOTE_CHARS",
+]
 
 #: Most characters of a value read from a file that an error message quotes.
 QUOTE_CHARS = 24

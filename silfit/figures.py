@@ -2,6 +2,7 @@
 
 All functions return or write RGB ``uint8`` images; nothing here changes a fit.
 """
+
 from __future__ import annotations
 
 import os
@@ -38,7 +39,9 @@ def _canvas(image: Optional[np.ndarray], camera: Camera) -> np.ndarray:
     return img[..., :3].astype(np.uint8)
 
 
-def draw_keypoints(image: np.ndarray, xy: np.ndarray, color, conf: Optional[np.ndarray] = None, radius: int = 0) -> np.ndarray:
+def draw_keypoints(
+    image: np.ndarray, xy: np.ndarray, color, conf: Optional[np.ndarray] = None, radius: int = 0
+) -> np.ndarray:
     """Dots at ``xy [K, 2]`` (skipping zero-confidence ones and those off the image), radius scaled to the image."""
     import cv2
 
@@ -129,8 +132,14 @@ def paint_mesh(vertices, faces, camera: Camera, color=BODY_RGB) -> np.ndarray:
 REFERENCE_RGB = (0.95, 0.45, 0.10)  # the keypoint-stage body behind the final one in side views (linear RGB)
 
 
-def side_view(vertices: np.ndarray, faces: np.ndarray, reference: Optional[np.ndarray] = None, size: tuple = (320, 400),
-              degrees: float = 90.0, labels: tuple = ("final", "keypoint fit")) -> np.ndarray:  # fmt: skip
+def side_view(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    reference: Optional[np.ndarray] = None,
+    size: tuple = (320, 400),
+    degrees: float = 90.0,
+    labels: tuple = ("final", "keypoint fit"),
+) -> np.ndarray:
     """The body seen from the side: camera-frame ``vertices [V, 3]`` (OpenCV axes) turned
     ``degrees`` about the camera's vertical axis through the body's centre, painted (no GL,
     :func:`paint_mesh`) over ``reference`` (the keypoint-stage body, same frame) in orange, both
@@ -228,8 +237,12 @@ def iou_curve(history: dict, path: os.PathLike, title: str = "silhouette stage")
         e_hi = e_hi if e_hi > e_lo else e_lo + 1.0
         for k in range(3):
             v = e_lo + (e_hi - e_lo) * k / 2
-            text(f"{10 ** v:.3g}", (x1 + 6, int(round(y1 - (y1 - y0) * k / 2))), orange)
-        pts = [(px(i), y1 - (y1 - y0) * (np.log10(e) - e_lo) / (e_hi - e_lo)) for i, e in enumerate(energy) if e > 0 and np.isfinite(e)]
+            text(f"{10**v:.3g}", (x1 + 6, int(round(y1 - (y1 - y0) * k / 2))), orange)
+        pts = [
+            (px(i), y1 - (y1 - y0) * (np.log10(e) - e_lo) / (e_hi - e_lo))
+            for i, e in enumerate(energy)
+            if e > 0 and np.isfinite(e)
+        ]
         if len(pts) > 1:
             cv2.polylines(img, [np.round(np.array(pts)).astype(np.int32)], False, orange, 1, cv2.LINE_AA)
     if iou.size > 1:
@@ -277,8 +290,9 @@ def error_heatmap(
 
     vmax = vmax or float(max(np.percentile(e, 99) for e in errors_mm))
     centre = vertices.mean(0)
-    fig, axes = plt.subplots(len(views), len(errors_mm), figsize=(2.6 * len(errors_mm) + 0.8, 3.6 * len(views)), dpi=100,
-                             squeeze=False)  # fmt: skip
+    fig, axes = plt.subplots(
+        len(views), len(errors_mm), figsize=(2.6 * len(errors_mm) + 0.8, 3.6 * len(views)), dpi=100, squeeze=False
+    )
     cmap = plt.get_cmap("inferno")
     for c, (err, title) in enumerate(zip(errors_mm, titles)):
         face_err = np.asarray(err)[faces].mean(1)
@@ -290,7 +304,9 @@ def error_heatmap(
             shade = 0.55 + 0.45 * np.abs(normal[:, 2]) / np.maximum(np.linalg.norm(normal, axis=1), 1e-12)
             colours = cmap(np.clip(face_err / vmax, 0, 1))[:, :3] * shade[:, None]
             ax = axes[r, c]
-            ax.add_collection(PolyCollection(tri[order][:, :, :2] * [1, -1], facecolors=colours[order], edgecolors="none"))
+            ax.add_collection(
+                PolyCollection(tri[order][:, :, :2] * [1, -1], facecolors=colours[order], edgecolors="none")
+            )
             ax.autoscale_view()
             ax.set_aspect("equal")
             ax.axis("off")
@@ -301,7 +317,9 @@ def error_heatmap(
     _save_figure(fig, path)
 
 
-def contact_sheet(images: Sequence[Optional[np.ndarray]], titles: Sequence[str], path: os.PathLike, columns: int = 3) -> None:
+def contact_sheet(
+    images: Sequence[Optional[np.ndarray]], titles: Sequence[str], path: os.PathLike, columns: int = 3
+) -> None:
     """A titled grid of RGB images, one title per image (``None``: an empty cell)."""
     import matplotlib
 
@@ -312,7 +330,9 @@ def contact_sheet(images: Sequence[Optional[np.ndarray]], titles: Sequence[str],
 
     rows = int(np.ceil(len(images) / columns))
     lines = max([t.count("\n") for t in titles] + [0])  # room for titles of several lines
-    fig, axes = plt.subplots(rows, columns, figsize=(3.6 * columns, (3.8 + 0.25 * lines) * rows), dpi=100, squeeze=False)
+    fig, axes = plt.subplots(
+        rows, columns, figsize=(3.6 * columns, (3.8 + 0.25 * lines) * rows), dpi=100, squeeze=False
+    )
     for ax in axes.ravel():
         ax.axis("off")
     for ax, img, title in zip(axes.ravel(), images, titles):

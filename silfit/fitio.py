@@ -31,6 +31,7 @@ and finite; the camera must be complete and valid. Errors are
 :class:`silfit.dataset.SubjectError` (an :class:`~silfit.errors.InputError`: one line naming
 the file and the field) or ``FileNotFoundError``.
 """
+
 from __future__ import annotations
 
 import functools
@@ -57,8 +58,14 @@ FIT_FILES = ("params.npz", "params.json")
 #: SMPL parameter name -> width (``None``: any number of shape coefficients).
 PARAM_SIZES: Dict[str, Optional[int]] = {"betas": None, "body_pose": 69, "global_orient": 3, "transl": 3}
 #: The parameters an SMPL-X-layout model adds, and their widths (expression: any count).
-WHOLEBODY_SIZES: Dict[str, Optional[int]] = {"expression": None, "jaw_pose": 3, "leye_pose": 3, "reye_pose": 3,
-                                              "left_hand_pose": 45, "right_hand_pose": 45}  # fmt: skip
+WHOLEBODY_SIZES: Dict[str, Optional[int]] = {
+    "expression": None,
+    "jaw_pose": 3,
+    "leye_pose": 3,
+    "reye_pose": 3,
+    "left_hand_pose": 45,
+    "right_hand_pose": 45,
+}
 #: Optional per-frame arrays: name -> (rank after the frame axis, trailing width).
 ARRAY_FIELDS = {"vertices": (2, 3), "joints": (2, 3), "keypoints_2d": (3, 2), "reprojection_error": (1, None)}
 COORDINATES = ("camera", "world")
@@ -248,7 +255,10 @@ def _hand_pca(source: str, sha256: str) -> Optional[Dict[str, np.ndarray]]:
     extras = load_model_arrays(source).extras
     if "hands_componentsl" not in extras:
         return None
-    return {side: np.asarray(extras[f"hands_components{c}"], dtype=np.float64) for side, c in (("left", "l"), ("right", "r"))}
+    return {
+        side: np.asarray(extras[f"hands_components{c}"], dtype=np.float64)
+        for side, c in (("left", "l"), ("right", "r"))
+    }
 
 
 def write_fit(
@@ -290,19 +300,32 @@ def write_fit(
     rec = model if isinstance(model, dict) or model is None else model_record(model)
     rec = rec or {"kind": "smplx" if "left_hand_pose" in rows else "smpl", "source": "", "sha256": ""}
     numbers = np.arange(F) if frame_numbers is None else np.asarray(frame_numbers, dtype=np.int64)
-    meta = {"schema": np.array(SCHEMA), "model": np.array(rec["kind"]), "model_source": np.array(rec["source"]),
-            "model_sha256": np.array(rec["sha256"]), "layout": np.array(layout), "coordinates": np.array(coordinates),
-            "frames": numbers, "views": np.array(names),
-            "camera_intrinsics": np.array([[c.fx, c.fy, c.cx, c.cy] for c in cameras], np.float64),
-            "image_size": np.array([[c.width, c.height] for c in cameras], np.int64), "camera_R": R, "camera_t": t}  # fmt: skip
+    meta = {
+        "schema": np.array(SCHEMA),
+        "model": np.array(rec["kind"]),
+        "model_source": np.array(rec["source"]),
+        "model_sha256": np.array(rec["sha256"]),
+        "layout": np.array(layout),
+        "coordinates": np.array(coordinates),
+        "frames": numbers,
+        "views": np.array(names),
+        "camera_intrinsics": np.array([[c.fx, c.fy, c.cx, c.cy] for c in cameras], np.float64),
+        "image_size": np.array([[c.width, c.height] for c in cameras], np.int64),
+        "camera_R": R,
+        "camera_t": t,
+    }
     pca = _hand_pca(rec["source"], rec["sha256"]) if "left_hand_pose" in rows else None
     if pca:  # the hand poses also as the coefficients smplx's use_pca=True takes
         for side, comps in pca.items():
             coeffs = np.linalg.lstsq(comps.T, rows[f"{side}_hand_pose"].astype(np.float64).T, rcond=None)[0].T
             meta[f"{side}_hand_pca"] = coeffs.astype(np.float32)  # [F, k]: coeffs @ components = the pose
     per_frame = {}
-    for name, value, rank in (("vertices", vertices, 2), ("joints", joints, 2), ("keypoints_2d", keypoints_2d, 3),
-                              ("reprojection_error", reprojection_error, 1)):  # fmt: skip
+    for name, value, rank in (
+        ("vertices", vertices, 2),
+        ("joints", joints, 2),
+        ("keypoints_2d", keypoints_2d, 3),
+        ("reprojection_error", reprojection_error, 1),
+    ):
         if value is None:
             continue
         a = np.asarray(value, dtype=np.float32)
@@ -315,8 +338,15 @@ def write_fit(
     out.mkdir(parents=True, exist_ok=True)
     np.savez(out / "params.npz", **rows, **meta, **per_frame)
     cams = [{**c.to_dict(), "R": R[i].tolist(), "t": t[i].tolist(), "name": names[i]} for i, c in enumerate(cameras)]
-    payload = {"schema": SCHEMA, **{n: v.astype(float).tolist() for n, v in rows.items()}, "model": rec,
-               "layout": layout, "coordinates": coordinates, "frames": numbers.tolist(), "cameras": cams}  # fmt: skip
+    payload = {
+        "schema": SCHEMA,
+        **{n: v.astype(float).tolist() for n, v in rows.items()},
+        "model": rec,
+        "layout": layout,
+        "coordinates": coordinates,
+        "frames": numbers.tolist(),
+        "cameras": cams,
+    }
     if cameras:
         payload["camera"] = cameras[0].to_dict()
     if "reprojection_error" in per_frame and "reprojection_error_px" not in (record or {}):
@@ -333,9 +363,8 @@ def _as_subject_error(f: Path, err) -> SubjectError:
     """A shared reader's :class:`~silfit.errors.InputError` as this reader's error type."""
     msg = str(err).partition(": ")[2]
     if err.field and msg.startswith(f"field '{err.field}'"):
-        msg = msg[len(f"field '{err.field}'"):].lstrip(": ").strip()
+        msg = msg[len(f"field '{err.field}'") :].lstrip(": ").strip()
     return SubjectError(f, err.field or "<file>", msg)
-
 
 
 def _read_npz(f: Path) -> dict:
@@ -410,8 +439,12 @@ def _frame_array(f: Path, name: str, value, rank: int, last: Optional[int], F: i
     elif arr.ndim == rank:
         arr = arr[None] if F == 1 or name != "reprojection_error" else arr[:, None]
     if arr.ndim != rank + 1 or arr.shape[0] != F or (last is not None and arr.shape[-1] != last):
-        raise SubjectError(f, name, f"has shape {list(arr.shape)}, expected [{F}{', ...' if rank > 1 else ''}"
-                                    f"{', ' + str(last) if last else ', views'}] ({F} frame(s))")  # fmt: skip
+        raise SubjectError(
+            f,
+            name,
+            f"has shape {list(arr.shape)}, expected [{F}{', ...' if rank > 1 else ''}"
+            f"{', ' + str(last) if last else ', views'}] ({F} frame(s))",
+        )
     return arr
 
 
@@ -433,7 +466,11 @@ def _model(f: Path, raw: dict) -> Optional[dict]:
     if isinstance(m, dict):  # params.json
         rec = {k: str(m.get(k, "")) for k in ("kind", "source", "sha256")}
     else:
-        rec = {"kind": _text(m), "source": _text(raw.get("model_source", "")), "sha256": _text(raw.get("model_sha256", ""))}
+        rec = {
+            "kind": _text(m),
+            "source": _text(raw.get("model_source", "")),
+            "sha256": _text(raw.get("model_sha256", "")),
+        }
     if rec["kind"] not in ("smpl", "smplx"):
         raise SubjectError(f, "model", f"unknown model kind {quoted(rec['kind'])} (expected smpl or smplx)")
     return rec
@@ -445,10 +482,15 @@ def _npz_cameras(f: Path, raw: dict):
         return [], [], []
     if len(have) == 1:
         other = "image_size" if have[0] == "camera_intrinsics" else "camera_intrinsics"
-        raise SubjectError(f, other, f"missing (the camera needs both camera_intrinsics and image_size; found {have[0]})")
+        raise SubjectError(
+            f, other, f"missing (the camera needs both camera_intrinsics and image_size; found {have[0]})"
+        )
     intr = _numeric(f, "camera_intrinsics", raw["camera_intrinsics"])
     size = _numeric(f, "image_size", raw["image_size"])
-    intr, size = intr.reshape(-1, intr.shape[-1]) if intr.ndim else intr, size.reshape(-1, size.shape[-1]) if size.ndim else size
+    intr, size = (
+        intr.reshape(-1, intr.shape[-1]) if intr.ndim else intr,
+        size.reshape(-1, size.shape[-1]) if size.ndim else size,
+    )
     if intr.ndim != 2 or intr.shape[1] != 4:
         raise SubjectError(f, "camera_intrinsics", f"has {intr.size} values, expected [fx, fy, cx, cy] per view")
     if size.ndim != 2 or size.shape[1] != 2:
@@ -462,7 +504,11 @@ def _npz_cameras(f: Path, raw: dict):
             cameras.append(Camera.from_intrinsics(intr[i], size[i]))
         except ValueError as err:
             raise SubjectError(f, "camera_intrinsics", str(err)) from None
-    R = _numeric(f, "camera_R", raw["camera_R"]).reshape(-1, 3, 3) if "camera_R" in raw else np.tile(np.eye(3), (C, 1, 1))
+    R = (
+        _numeric(f, "camera_R", raw["camera_R"]).reshape(-1, 3, 3)
+        if "camera_R" in raw
+        else np.tile(np.eye(3), (C, 1, 1))
+    )
     t = _numeric(f, "camera_t", raw["camera_t"]).reshape(-1, 3) if "camera_t" in raw else np.zeros((C, 3))
     if len(R) != C or len(t) != C:
         raise SubjectError(f, "camera_R" if len(R) != C else "camera_t", f"expected one per view ({C})")
@@ -483,8 +529,14 @@ def _json_cameras(f: Path, raw: dict):
     for i, doc in enumerate(docs[:64]):
         name = "camera" if docs is not raw.get("cameras") else f"cameras[{i}]"
         try:
-            cameras.append(camera_from_dict({k: v for k, v in doc.items() if k in ("fx", "fy", "cx", "cy", "width", "height")}
-                                            if isinstance(doc, dict) else doc, name))  # fmt: skip
+            cameras.append(
+                camera_from_dict(
+                    {k: v for k, v in doc.items() if k in ("fx", "fy", "cx", "cy", "width", "height")}
+                    if isinstance(doc, dict)
+                    else doc,
+                    name,
+                )
+            )
         except InputError as err:
             raise SubjectError(f, name, str(err).partition(": ")[2]) from None
         R = _numeric(f, f"{name}.R", doc.get("R", np.eye(3).tolist())).reshape(-1)
@@ -502,6 +554,8 @@ def _scalars(f: Path, name: str, value) -> Dict[str, float]:
     out = {}
     for k, v in value.items():
         if isinstance(v, bool) or not isinstance(v, (int, float)):  # NaN is allowed: a stage may not have run
-            raise SubjectError(f, f"{name}.{k}" if name != "reprojection_error_px" else name, f"must be a number, got {quoted(v)}")
+            raise SubjectError(
+                f, f"{name}.{k}" if name != "reprojection_error_px" else name, f"must be a number, got {quoted(v)}"
+            )
         out[str(k)] = float(v)
     return out

@@ -28,6 +28,7 @@ Output folder written by :func:`save_fit` (and ``silfit fit``)::
 Everything is written into a temporary folder beside the target and moved into place at
 the end, so a failed run leaves nothing half-written.
 """
+
 from __future__ import annotations
 
 import json
@@ -50,7 +51,16 @@ from .plausibility import depth_warnings, fit_warnings, guard_fit, mask_warnings
 from .eval.metrics import mask_iou
 from .silhouette.masks import validate_mask
 
-__all__ = ["FitResult", "fit_problem", "fit_problems", "StageFailure", "refine", "refine_batch", "save_fit", "body_mask"]
+__all__ = [
+    "FitResult",
+    "fit_problem",
+    "fit_problems",
+    "StageFailure",
+    "refine",
+    "refine_batch",
+    "save_fit",
+    "body_mask",
+]
 
 
 @dataclass
@@ -82,10 +92,14 @@ class FitResult:
         arr = {k: np.asarray(v, dtype=np.float32).reshape(1, -1) for k, v in self.params.items()}  # [1, w] (one image)
         smpl = {k: v for k, v in arr.items() if k in ("betas", "body_pose", "global_orient", "transl")}
         return replace(
-            self.keypoint, **smpl, extra_params={k: v for k, v in arr.items() if k not in smpl},
-            vertices=self.vertices[None], joints=self.joints[None], keypoints_2d=self.keypoints_2d[None],
+            self.keypoint,
+            **smpl,
+            extra_params={k: v for k, v in arr.items() if k not in smpl},
+            vertices=self.vertices[None],
+            joints=self.joints[None],
+            keypoints_2d=self.keypoints_2d[None],
             reprojection_error=np.array([self.metrics.get("reprojection_error_px", np.nan)]),
-        )  # fmt: skip
+        )
 
 
 def body_mask(vertices: np.ndarray, faces: np.ndarray, camera: Camera) -> np.ndarray:
@@ -105,7 +119,10 @@ def _pose(model, params: dict, layout: str, camera: Camera):
 
 def _run_record(keypoint_result: KeypointFitResult, silhouette: Optional[SilhouetteFitResult] = None) -> dict:
     """Each stage's term energies and the run's configuration, for ``metrics.json``."""
-    terms = {f"keypoints.{stage}": {t: float(v[0]) for t, v in d.items()} for stage, d in keypoint_result.term_energies.items()}
+    terms = {
+        f"keypoints.{stage}": {t: float(v[0]) for t, v in d.items()}
+        for stage, d in keypoint_result.term_energies.items()
+    }
     config = {"keypoint_stage": keypoint_result.config}
     if silhouette is not None:
         terms["silhouette"] = dict(silhouette.terms)
@@ -140,8 +157,12 @@ def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources):
             continue
         t = min(t, cfg.trim_max * extent)
         out.append(trim_clothing(mask, t))
-        notes.append([f"{source}: the mask reaches about {t:.0f} px beyond the keypoint fit's body all around (loose "
-                      "clothing, hair or a grown mask?): the silhouette stage fitted it trimmed by that much"])
+        notes.append(
+            [
+                f"{source}: the mask reaches about {t:.0f} px beyond the keypoint fit's body all around (loose "
+                "clothing, hair or a grown mask?): the silhouette stage fitted it trimmed by that much"
+            ]
+        )
     return out, notes, trimmed
 
 
@@ -162,8 +183,10 @@ def _known_pixels(masks, body_masks, cfg: SilhouetteFitConfig, sources, notes, t
         known = unknown_regions(mask, body, float(cfg.leak_distance) * extent, float(cfg.hole_fraction), concave)
         far = 0 if known is None else int(np.count_nonzero(mask & ~known & ~concave_region(body, concave)))
         if far > 0.02 * len(ys):
-            note.append(f"{source}: {100 * far / len(ys):.0f} % of the mask lies far from the keypoint fit's body (a leak "
-                        "into an object or the background?): the silhouette stage ignored it")
+            note.append(
+                f"{source}: {100 * far / len(ys):.0f} % of the mask lies far from the keypoint fit's body (a leak "
+                "into an object or the background?): the silhouette stage ignored it"
+            )
         out.append(known)
     return out
 
@@ -172,11 +195,19 @@ def _guard(model, start: dict, params: dict, keypoints: KeypointSet, camera: Cam
     """:func:`~silfit.plausibility.guard_fit` of one refined fit against the keypoint fit ``start`` it
     began from (median reprojection error, |betas|, stature)."""
     _, _, kp2d_start = _pose(model, start, keypoints.layout, camera)
-    return guard_fit(model, _median_reprojection(kp2d_start, keypoints), start.get("betas"),
-                     _median_reprojection(kp2d, keypoints), params.get("betas"), where)  # fmt: skip
+    return guard_fit(
+        model,
+        _median_reprojection(kp2d_start, keypoints),
+        start.get("betas"),
+        _median_reprojection(kp2d, keypoints),
+        params.get("betas"),
+        where,
+    )
 
 
-def _choose_hypothesis(model, sils, starts, keypoints: KeypointSet, camera: Camera, where: str, guard: bool = True) -> tuple:
+def _choose_hypothesis(
+    model, sils, starts, keypoints: KeypointSet, camera: Camera, where: str, guard: bool = True
+) -> tuple:
     """``(index, record)``: which of one image's hypotheses, each refined by the silhouette stage (``sils``, from
     ``starts``; the keypoint fit first), is kept: the lowest final energy of the stage
     (:attr:`~silfit.fitting.silhouette_stage.SilhouetteFitResult.final_energy`) among those that ran to the
@@ -190,8 +221,10 @@ def _choose_hypothesis(model, sils, starts, keypoints: KeypointSet, camera: Came
     if len(sils) == 1:
         return 0, {}
     last = max((s.final_level for s in sils if s.final_level is not None), default=None)
-    energies = [s.final_energy if (not s.failed and s.final_level == last and np.isfinite(s.final_energy)) else None
-                for s in sils]  # fmt: skip
+    energies = [
+        s.final_energy if (not s.failed and s.final_level == last and np.isfinite(s.final_energy)) else None
+        for s in sils
+    ]
     c = min(range(len(sils)), key=lambda k: (np.inf if energies[k] is None else energies[k], k))
     reverted = None
     if c and guard:
@@ -200,13 +233,26 @@ def _choose_hypothesis(model, sils, starts, keypoints: KeypointSet, camera: Came
         if any(_guard(model, s, params, keypoints, camera, kp2d, where).reverted for s in (starts[c], starts[0])):
             c, reverted = 0, c + 1
     gap = (energies[0] - energies[c]) / abs(energies[0]) if energies[0] and energies[c] is not None else 0.0
-    return c, {"energies": energies, "iou": [float(s.iou_end) for s in sils], "kept": c + 1, "gap": float(gap),
-               "guard_reverted": reverted}  # fmt: skip
+    return c, {
+        "energies": energies,
+        "iou": [float(s.iou_end) for s in sils],
+        "kept": c + 1,
+        "gap": float(gap),
+        "guard_reverted": reverted,
+    }
 
 
-def _hypothesis_outputs(model, hypotheses: list, keypoints: KeypointSet, camera: Camera, refined=None,
-                        choice: Optional[dict] = None, kept: Optional[int] = 1, where: str = "mask",
-                        guard: bool = True) -> list:
+def _hypothesis_outputs(
+    model,
+    hypotheses: list,
+    keypoints: KeypointSet,
+    camera: Camera,
+    refined=None,
+    choice: Optional[dict] = None,
+    kept: Optional[int] = 1,
+    where: str = "mask",
+    guard: bool = True,
+) -> list:
     """One image's ``--hypotheses K`` solutions (``hypotheses``: :attr:`KeypointFitResult.hypotheses`' entry) as fits,
     for :attr:`FitResult.hypotheses` (:func:`save_fit` writes them to ``hypotheses/<rank>/``): each one's parameters
     posed, with ``record``: :func:`~silfit.plausibility.hypothesis_summary`'s row, ``kept`` (whether the final fit
@@ -226,15 +272,27 @@ def _hypothesis_outputs(model, hypotheses: list, keypoints: KeypointSet, camera:
         params, record = start, {**row, "kept": row["rank"] == kept, "params_from": "keypoint stage"}
         if refined is not None:
             params = refined[k].params()
-            record.update(params_from="silhouette stage", silhouette_energy=choice["energies"][k],
-                          silhouette_iou=choice["iou"][k])  # fmt: skip
+            record.update(
+                params_from="silhouette stage", silhouette_energy=choice["energies"][k], silhouette_iou=choice["iou"][k]
+            )
         vertices, _, kp2d = _pose(model, params, keypoints.layout, camera)
         if refined is not None and guard and _guard(model, start, params, keypoints, camera, kp2d, where).reverted:
             params, record["params_from"] = start, "keypoint stage (the silhouette stage's was less plausible)"
-            record["silhouette_discarded"] = {"energy": record.pop("silhouette_energy"), "iou": record.pop("silhouette_iou")}
+            record["silhouette_discarded"] = {
+                "energy": record.pop("silhouette_energy"),
+                "iou": record.pop("silhouette_iou"),
+            }
             vertices, _, kp2d = _pose(model, params, keypoints.layout, camera)
-        out.append({"rank": row["rank"], "params": params, "vertices": vertices, "keypoints_2d": kp2d, "record": record,
-                    "keypoint_params": None if refined is None else start})  # fmt: skip
+        out.append(
+            {
+                "rank": row["rank"],
+                "params": params,
+                "vertices": vertices,
+                "keypoints_2d": kp2d,
+                "record": record,
+                "keypoint_params": None if refined is None else start,
+            }
+        )
     return out
 
 
@@ -249,8 +307,10 @@ def _offered_alternatives(keypoint_result: KeypointFitResult, config: Silhouette
     margin, most = float(getattr(config, "alternatives_margin", 0.0)), int(getattr(config, "alternatives_max", 0))
     if margin <= 0 or most <= 0 or keypoint_result.alternatives is None:
         return [[] for _ in range(n)]
-    return [sorted((a for a in alts or [] if a["gap"] <= margin), key=lambda a: a["gap"])[:most]
-            for alts in keypoint_result.alternatives]  # fmt: skip
+    return [
+        sorted((a for a in alts or [] if a["gap"] <= margin), key=lambda a: a["gap"])[:most]
+        for alts in keypoint_result.alternatives
+    ]
 
 
 def _mask_choice_warning(hypotheses: bool, alternative: dict, c: int, choice: dict) -> str:
@@ -263,12 +323,19 @@ def _mask_choice_warning(hypotheses: bool, alternative: dict, c: int, choice: di
         which = f"hypothesis {c + 1} (hypotheses/{c + 1})"
         prefer = "preferred hypothesis 1"
     else:
-        turned = ", ".join(alternative.get("differs") or label_segments(alternative["label"])) or "no limb by more than 45 deg"
-        which = (f"the keypoint stage's alternative turning {turned} (keypoint-stage energy {alternative['gap']:+.1%} "
-                 "against its fit)")
+        turned = (
+            ", ".join(alternative.get("differs") or label_segments(alternative["label"]))
+            or "no limb by more than 45 deg"
+        )
+        which = (
+            f"the keypoint stage's alternative turning {turned} (keypoint-stage energy {alternative['gap']:+.1%} "
+            "against its fit)"
+        )
         prefer = "preferred its fit"
-    return (f"depth branch chosen by the mask: {which}, refined against the mask, ends {choice['gap']:.1%} below the "
-            f"keypoint fit's silhouette-stage energy; the keypoint stage {prefer}: check a side view")
+    return (
+        f"depth branch chosen by the mask: {which}, refined against the mask, ends {choice['gap']:.1%} below the "
+        f"keypoint fit's silhouette-stage energy; the keypoint stage {prefer}: check a side view"
+    )
 
 
 def refine(
@@ -284,8 +351,9 @@ def refine(
     known: Optional[np.ndarray] = None,
 ) -> FitResult:
     """The silhouette stage on top of a single-sample keypoint result (see :func:`silfit.run.fit`)."""
-    return refine_batch(model, keypoint_result, [keypoints], [mask], config, pose_prior, renderer, progress,
-                        [mask_source], [known])[0]  # fmt: skip
+    return refine_batch(
+        model, keypoint_result, [keypoints], [mask], config, pose_prior, renderer, progress, [mask_source], [known]
+    )[0]
 
 
 def _keypoint_fit_masks(keypoint_result, masks, mask_sources, faces) -> tuple:
@@ -318,15 +386,19 @@ def _alternative_rows(offered, inits: list) -> tuple:
     return rows, candidates
 
 
-def _refined_metrics(one, sil, seconds: float, kp2d, keypoints, ious: tuple, guard, guarded: bool, warnings: list,
-                     choice) -> dict:  # fmt: skip
+def _refined_metrics(
+    one, sil, seconds: float, kp2d, keypoints, ious: tuple, guard, guarded: bool, warnings: list, choice
+) -> dict:
     """An image's ``metrics.json`` after the silhouette stage: timings, reprojection errors and IoUs before and after
     (``ious``), the stage's steps, the guard's findings (what it kept: the silhouette stage's result where it is off,
     ``guarded`` false), warnings, the hypotheses' choice and the run record."""
     return {
         "stages": ["keypoints", "silhouette"],
-        "timings_s": {**{f"keypoints.{k}": float(v) for k, v in one.timings.items()},
-                      "keypoints": _stage_seconds(one.timings), "silhouette": seconds},
+        "timings_s": {
+            **{f"keypoints.{k}": float(v) for k, v in one.timings.items()},
+            "keypoints": _stage_seconds(one.timings),
+            "silhouette": seconds,
+        },
         "reprojection_error_px_keypoint_stage": float(one.reprojection_error[0]),
         "reprojection_error_px": _median_reprojection(kp2d, keypoints),
         "iou_keypoint_stage": ious[0],
@@ -336,7 +408,7 @@ def _refined_metrics(one, sil, seconds: float, kp2d, keypoints, ious: tuple, gua
         "warnings": warnings,
         **({"hypotheses_silhouette": choice} if choice else {}),
         **_run_record(one, sil),
-    }  # fmt: skip
+    }
 
 
 def _apply_guard(model, start, init, params, posed, keypoints, camera, mask_source, guarded: bool, kp_mask, warnings):
@@ -384,8 +456,10 @@ def refine_batch(
     kp_masks, ious_before = _keypoint_fit_masks(keypoint_result, masks, mask_sources, faces)
     fit_masks, trim_notes, trimmed = _trimmed_masks(masks, kp_masks, config, mask_sources)
     own = _known_pixels(fit_masks, kp_masks, config, mask_sources, trim_notes, trimmed)
-    known = [k if g is None else (np.asarray(g, dtype=bool) if k is None else k & np.asarray(g, dtype=bool))
-             for k, g in zip(own, list(known) if known is not None else [None] * n)]  # fmt: skip
+    known = [
+        k if g is None else (np.asarray(g, dtype=bool) if k is None else k & np.asarray(g, dtype=bool))
+        for k, g in zip(own, list(known) if known is not None else [None] * n)
+    ]
     inits = [keypoint_result.params(i) for i in range(n)]
     from .fitting.problem import Problem
     from .fitting.silhouette_stage import fit_silhouette_problems
@@ -398,16 +472,41 @@ def refine_batch(
     # the layout decides the terms (a whole-body mesh keeps its hand and face keypoints)
     cfg, sets, terms, weights, data = silhouette_inputs(model, [keypoints[r] for r in rows], config, model.dtype)
     problems = [Problem.single(k, cameras[r], fit_masks[r], known[r]) for k, r in zip(sets, rows)]
-    sils = fit_silhouette_problems(model, problems, inits, keypoints[0].layout, cfg, pose_prior, renderer, progress,
-                                   terms=terms, weights=weights, data=data)  # fmt: skip
+    sils = fit_silhouette_problems(
+        model,
+        problems,
+        inits,
+        keypoints[0].layout,
+        cfg,
+        pose_prior,
+        renderer,
+        progress,
+        terms=terms,
+        weights=weights,
+        data=data,
+    )
     out = []
     for i in range(n):
         one = keypoint_result[i]
-        c, choice = _choose_hypothesis(model, [sils[k] for k in candidates[i]], [inits[k] for k in candidates[i]],
-                                       keypoints[i], cameras[i], mask_sources[i], guarded)  # fmt: skip
+        c, choice = _choose_hypothesis(
+            model,
+            [sils[k] for k in candidates[i]],
+            [inits[k] for k in candidates[i]],
+            keypoints[i],
+            cameras[i],
+            mask_sources[i],
+            guarded,
+        )
         if choice and keypoint_result.hypotheses is None:  # the close alternatives: which branches were refined
-            choice["alternatives"] = [{"label": a["label"], "differs": list(a.get("differs") or []), "gap": float(a["gap"]),
-                                       "max_shift_mm": a.get("max_shift_mm")} for a in offered[i]]  # fmt: skip
+            choice["alternatives"] = [
+                {
+                    "label": a["label"],
+                    "differs": list(a.get("differs") or []),
+                    "gap": float(a["gap"]),
+                    "max_shift_mm": a.get("max_shift_mm"),
+                }
+                for a in offered[i]
+            ]
         sil, start = sils[candidates[i][c]], inits[candidates[i][c]]
         params = sil.params()
         vertices, joints, kp2d = _pose(model, params, keypoints[i].layout, cameras[i])
@@ -415,26 +514,77 @@ def refine_batch(
         if c:
             warnings.append(_mask_choice_warning(keypoint_result.hypotheses is not None, offered[i][c - 1], c, choice))
         guard, params, (vertices, joints, kp2d), final_mask = _apply_guard(
-            model, start, inits[i], params, (vertices, joints, kp2d), keypoints[i], cameras[i], mask_sources[i], guarded,
-            kp_masks[i], warnings)  # fmt: skip
+            model,
+            start,
+            inits[i],
+            params,
+            (vertices, joints, kp2d),
+            keypoints[i],
+            cameras[i],
+            mask_sources[i],
+            guarded,
+            kp_masks[i],
+            warnings,
+        )
         iou_after = mask_iou(final_mask, masks[i])
         if iou_after < ious_before[i] - 0.02:
-            warnings.append(f"silhouette stage lowered the IoU ({ious_before[i]:.3f} -> {iou_after:.3f}); kept its result")
-        metrics = _refined_metrics(one, sil, float(sum(sils[k].seconds for k in candidates[i])), kp2d, keypoints[i],
-                                   (ious_before[i], iou_after), guard, guarded, warnings, choice)  # fmt: skip
+            warnings.append(
+                f"silhouette stage lowered the IoU ({ious_before[i]:.3f} -> {iou_after:.3f}); kept its result"
+            )
+        metrics = _refined_metrics(
+            one,
+            sil,
+            float(sum(sils[k].seconds for k in candidates[i])),
+            kp2d,
+            keypoints[i],
+            (ious_before[i], iou_after),
+            guard,
+            guarded,
+            warnings,
+            choice,
+        )
         # --hypotheses K: each one refined, for hypotheses/<k>/; the final fit came from hypothesis c + 1 (its
         # refinement, or where the guard turned it back its keypoint fit: the same guard, hypotheses/<c + 1> holds it too)
-        hypotheses = [] if keypoint_result.hypotheses is None else _hypothesis_outputs(
-            model, keypoint_result.hypotheses[i] or [], keypoints[i], cameras[i], [sils[k] for k in candidates[i]],
-            choice or {"energies": [sil.final_energy], "iou": [float(sil.iou_end)]}, c + 1, mask_sources[i], guarded)
-        out.append(FitResult(cameras[i], keypoints[i].layout, one, sil, params, vertices, joints, kp2d, metrics,
-                             masks={"keypoint_stage": kp_masks[i], "final": final_mask,
-                                    "fitted": fit_masks[i] if known[i] is None else fit_masks[i] & known[i]},
-                             hypotheses=hypotheses))  # fmt: skip
+        hypotheses = (
+            []
+            if keypoint_result.hypotheses is None
+            else _hypothesis_outputs(
+                model,
+                keypoint_result.hypotheses[i] or [],
+                keypoints[i],
+                cameras[i],
+                [sils[k] for k in candidates[i]],
+                choice or {"energies": [sil.final_energy], "iou": [float(sil.iou_end)]},
+                c + 1,
+                mask_sources[i],
+                guarded,
+            )
+        )
+        out.append(
+            FitResult(
+                cameras[i],
+                keypoints[i].layout,
+                one,
+                sil,
+                params,
+                vertices,
+                joints,
+                kp2d,
+                metrics,
+                masks={
+                    "keypoint_stage": kp_masks[i],
+                    "final": final_mask,
+                    "fitted": fit_masks[i] if known[i] is None else fit_masks[i] & known[i],
+                },
+                hypotheses=hypotheses,
+            )
+        )
     return out
 
 
-def fit_problem(model, keypoints: KeypointSet, camera: Camera, mask: Optional[np.ndarray] = None, **options) -> FitResult:
+def fit_problem(
+    model, keypoints: KeypointSet, camera: Camera, mask: Optional[np.ndarray] = None, **options
+) -> FitResult:
     """One image's core (:func:`fit_problems` for one image; a failure raises)."""
     (result,) = fit_problems(model, [keypoints], [camera], [mask], **options)
     if isinstance(result, Exception):
@@ -484,8 +634,9 @@ def _add_records(model, whole_body: bool, result: FitResult, keypoints: Keypoint
     search = (result.keypoint.branch_search or [None])[0]
     result.metrics["image_depth"] = cue_record
     decided = cue.decided() if cue is not None else ()
-    result.metrics["warnings"] += fit_warnings(result.metrics, keypoints, result.vertices, result.params.get("betas")) \
-        + depth_warnings(search, hyps, decided=decided)
+    result.metrics["warnings"] += fit_warnings(
+        result.metrics, keypoints, result.vertices, result.params.get("betas")
+    ) + depth_warnings(search, hyps, decided=decided)
     if search:  # every hypothesis the branch search ran to its end, with its energy
         result.metrics["branch_search"] = search
     if hyps is not None:  # hypotheses=K: every alternative's energy and the limbs it turns (metrics.json)
@@ -496,12 +647,23 @@ def _add_records(model, whole_body: bool, result: FitResult, keypoints: Keypoint
             result.hypotheses = _hypothesis_outputs(model, hyps, keypoints, result.camera)
 
 
-def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Camera], masks: Sequence[Optional[np.ndarray]],
-                 *, pose_prior=None, keypoint_config=None, silhouette_config=None, silhouette: bool = True,
-                 progress: bool = False, mask_sources: Optional[Sequence[str]] = None,
-                 isolate: bool = False, images: Optional[Sequence[Optional[np.ndarray]]] = None,
-                 people: Optional[Sequence] = None, known: Optional[Sequence[Optional[np.ndarray]]] = None,
-                 ) -> List[Union[FitResult, StageFailure]]:  # fmt: skip
+def fit_problems(
+    model,
+    keypoints: Sequence[KeypointSet],
+    cameras: Sequence[Camera],
+    masks: Sequence[Optional[np.ndarray]],
+    *,
+    pose_prior=None,
+    keypoint_config=None,
+    silhouette_config=None,
+    silhouette: bool = True,
+    progress: bool = False,
+    mask_sources: Optional[Sequence[str]] = None,
+    isolate: bool = False,
+    images: Optional[Sequence[Optional[np.ndarray]]] = None,
+    people: Optional[Sequence] = None,
+    known: Optional[Sequence[Optional[np.ndarray]]] = None,
+) -> List[Union[FitResult, StageFailure]]:
     """Images' cores, keypoints already checked (:func:`silfit.run.check`), one layout: the
     keypoint stage batched over all images, the silhouette stage batched over those with a mask
     (and ``silhouette``; ``known``: per image, the mask's pixels whose value is trusted, ``None``: all), each
@@ -532,8 +694,12 @@ def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Came
             return [pair for r in rows for pair in each([r], call, stage)]
 
     def keypoint_stage(rows):  # per row: (the batch's result, its index there); timings shared out
-        kp = fitter.fit([keypoints[i] for i in rows], [cameras[i] for i in rows], progress=progress,
-                        depth_cues=[cues[i] for i in rows])  # fmt: skip
+        kp = fitter.fit(
+            [keypoints[i] for i in rows],
+            [cameras[i] for i in rows],
+            progress=progress,
+            depth_cues=[cues[i] for i in rows],
+        )
         kp.timings = {k: float(v) / len(rows) for k, v in kp.timings.items()}
         return [(kp, j) for j in range(len(rows))]
 
@@ -548,10 +714,17 @@ def fit_problems(model, keypoints: Sequence[KeypointSet], cameras: Sequence[Came
         done = {}
         for group in groups.values():
             batch = kp_results[group[0]][0].select([kp_results[i][1] for i in group])
-            fitted = refine_batch(model, batch, [keypoints[i] for i in group], [np.asarray(masks[i], dtype=bool) for i in group],
-                                  silhouette_config, fitter.pose_prior, progress=progress,
-                                  mask_sources=[mask_sources[i] for i in group],
-                                  known=None if known is None else [known[i] for i in group])  # fmt: skip
+            fitted = refine_batch(
+                model,
+                batch,
+                [keypoints[i] for i in group],
+                [np.asarray(masks[i], dtype=bool) for i in group],
+                silhouette_config,
+                fitter.pose_prior,
+                progress=progress,
+                mask_sources=[mask_sources[i] for i in group],
+                known=None if known is None else [known[i] for i in group],
+            )
             done.update(zip(group, fitted))
         return [done[i] for i in rows]
 
@@ -599,17 +772,24 @@ def _hypothesis_title(h: dict, silhouette: bool) -> str:
     """A :func:`_save_hypotheses` tile's title: rank, what it turns, its energy gap (and the mask's IoU)."""
     r = h["record"]
     turns = r.get("differs") or []
-    what = "the keypoint fit's branch" if r["rank"] == 1 else (
-        "turns " + (", ".join(turns) if len(turns) <= 2 else f"{len(turns)} segments") if turns
-        else f"from branch {r['label']}, no limb turned")
+    what = (
+        "the keypoint fit's branch"
+        if r["rank"] == 1
+        else (
+            "turns " + (", ".join(turns) if len(turns) <= 2 else f"{len(turns)} segments")
+            if turns
+            else f"from branch {r['label']}, no limb turned"
+        )
+    )
     line = f"keypoint energy {r['gap']:+.1%}" + ("" if r.get("refined", True) else " (search stage)")
     if silhouette and r.get("silhouette_iou") is not None:
         line += f", IoU {r['silhouette_iou']:.3f}"
     return f"{r['rank']}{' (kept)' if r['kept'] else ''}: {what}\n{line}"
 
 
-def _save_hypotheses(folder: Path, result: FitResult, faces: np.ndarray, keypoints: Optional[KeypointSet],
-                     image: Optional[np.ndarray]) -> None:
+def _save_hypotheses(
+    folder: Path, result: FitResult, faces: np.ndarray, keypoints: Optional[KeypointSet], image: Optional[np.ndarray]
+) -> None:
     """``hypotheses/<rank>/`` (``params.npz``/``params.json`` with the hypothesis' record, ``mesh.obj``, and where the
     silhouette stage refined it ``stages/keypoints/``, the keypoint stage's) and ``hypotheses.png``: each hypothesis
     over the image and from the side, over the final fit (orange) where it differs."""
@@ -622,16 +802,33 @@ def _save_hypotheses(folder: Path, result: FitResult, faces: np.ndarray, keypoin
     tiles, titles = [], []
     for h in result.hypotheses:
         d = folder / "hypotheses" / str(h["rank"])
-        write_fit(d, h["params"], [result.camera], layout=result.layout, model=result.keypoint.model,
-                  vertices=h["vertices"], keypoints_2d=h["keypoints_2d"], record=h["record"])  # fmt: skip
+        write_fit(
+            d,
+            h["params"],
+            [result.camera],
+            layout=result.layout,
+            model=result.keypoint.model,
+            vertices=h["vertices"],
+            keypoints_2d=h["keypoints_2d"],
+            record=h["record"],
+        )
         write_obj(d / "mesh.obj", h["vertices"], faces)
         if h["keypoint_params"] is not None:
-            write_fit(d / "stages" / "keypoints", h["keypoint_params"], [result.camera], layout=result.layout,
-                      model=result.keypoint.model, record={"rank": h["rank"], "params_from": "keypoint stage"})  # fmt: skip
+            write_fit(
+                d / "stages" / "keypoints",
+                h["keypoint_params"],
+                [result.camera],
+                layout=result.layout,
+                model=result.keypoint.model,
+                record={"rank": h["rank"], "params_from": "keypoint stage"},
+            )
         same = np.allclose(h["vertices"], result.vertices, atol=1e-6)
-        tiles += [figures.fit_overlay(image, h["vertices"], faces, result.camera, kp_xy, h["keypoints_2d"], kp_conf),
-                  figures.side_view(h["vertices"], faces, None if same else result.vertices,
-                                    labels=(f"hypothesis {h['rank']}", "final fit"))]  # fmt: skip
+        tiles += [
+            figures.fit_overlay(image, h["vertices"], faces, result.camera, kp_xy, h["keypoints_2d"], kp_conf),
+            figures.side_view(
+                h["vertices"], faces, None if same else result.vertices, labels=(f"hypothesis {h['rank']}", "final fit")
+            ),
+        ]
         titles += [_hypothesis_title(h, silhouette), "from the side" + ("" if same else " (orange: the final fit)")]
     figures.contact_sheet(tiles, titles, folder / "hypotheses.png", columns=2 * min(len(result.hypotheses), 3))
 
@@ -641,13 +838,17 @@ def _keypoint_only(model, kp_result: KeypointFitResult, keypoints: KeypointSet) 
     vertices, joints, kp2d = _pose(model, kp_result.params(0), keypoints.layout, kp_result.camera)
     metrics = {
         "stages": ["keypoints"],
-        "timings_s": {**{f"keypoints.{k}": float(v) for k, v in kp_result.timings.items()},
-                      "keypoints": _stage_seconds(kp_result.timings)},
+        "timings_s": {
+            **{f"keypoints.{k}": float(v) for k, v in kp_result.timings.items()},
+            "keypoints": _stage_seconds(kp_result.timings),
+        },
         "reprojection_error_px": _median_reprojection(kp2d, keypoints),
         "warnings": [],
         **_run_record(kp_result),
-    }  # fmt: skip
-    return FitResult(kp_result.camera, keypoints.layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d, metrics)
+    }
+    return FitResult(
+        kp_result.camera, keypoints.layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d, metrics
+    )
 
 
 def save_fit(
@@ -677,19 +878,27 @@ def save_fit(
             write_fit_exports(tmp, result.vertices, faces, result.camera, exports)
         kp_xy = None if keypoints is None else keypoints.xy
         kp_conf = None if keypoints is None else keypoints.conf
-        figures.write_png(tmp / "overlay.png", figures.fit_overlay(
-            image, result.vertices, faces, result.camera, kp_xy, result.keypoints_2d, kp_conf))  # fmt: skip
+        figures.write_png(
+            tmp / "overlay.png",
+            figures.fit_overlay(image, result.vertices, faces, result.camera, kp_xy, result.keypoints_2d, kp_conf),
+        )
         stage_dir = tmp / "stages" / "keypoints"
         result.keypoint.save(stage_dir)
         reference = result.keypoint.vertices[0] if result.silhouette is not None else None
         figures.write_png(tmp / "side.png", figures.side_view(result.vertices, faces, reference))
         if result.silhouette is not None:
             kp_verts = result.keypoint.vertices[0]
-            figures.write_png(stage_dir / "overlay.png", figures.fit_overlay(
-                image, kp_verts, faces, result.camera, kp_xy, result.keypoint.keypoints_2d[0], kp_conf))  # fmt: skip
+            figures.write_png(
+                stage_dir / "overlay.png",
+                figures.fit_overlay(
+                    image, kp_verts, faces, result.camera, kp_xy, result.keypoint.keypoints_2d[0], kp_conf
+                ),
+            )
             if mask is not None:
-                figures.write_png(tmp / "silhouette.png", figures.silhouette_comparison(result.masks["final"], mask,
-                                                                                         result.masks.get("fitted")))  # fmt: skip
+                figures.write_png(
+                    tmp / "silhouette.png",
+                    figures.silhouette_comparison(result.masks["final"], mask, result.masks.get("fitted")),
+                )
             figures.iou_curve(result.silhouette.history, tmp / "iou_curve.png")
         if result.hypotheses:  # --hypotheses K: hypotheses/<k>/ and hypotheses.png
             _save_hypotheses(tmp, result, faces, keypoints, image)

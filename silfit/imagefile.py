@@ -12,6 +12,7 @@ fit 16 bits. Float, CMYK and other colour spaces are refused. :func:`read_rgb` (
 :func:`to_rgb8`, for an image already open) takes the same modes to RGB ``uint8``, 16-bit
 values scaled to 8 bits (``v / 257``, so 65535 is 255), not clipped.
 """
+
 from __future__ import annotations
 
 import os
@@ -98,7 +99,9 @@ def to_rgb8(im, source: str, what: str = "image") -> np.ndarray:
     """An open Pillow image as RGB ``uint8 [H, W, 3]``: the modes :func:`read_pixels`
     reads, 16-bit values scaled (not clipped) to 8 bits; other modes refused (naming ``source``)."""
     if im.mode == "CMYK":
-        raise InputError(source, f"{what} is in CMYK; silfit reads greyscale, RGB and RGBA images (convert it to RGB first)")
+        raise InputError(
+            source, f"{what} is in CMYK; silfit reads greyscale, RGB and RGBA images (convert it to RGB first)"
+        )
     return pixels_to_rgb8(_native(im, source, what))
 
 

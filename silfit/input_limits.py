@@ -10,6 +10,7 @@ allocated (every error is an :class:`~silfit.errors.InputError` naming the file 
 :func:`read_json` is the one JSON reader of silfit's input files (size-capped, every
 failure an :class:`~silfit.errors.InputError` naming the file).
 """
+
 from __future__ import annotations
 
 import json
@@ -19,9 +20,14 @@ from typing import Union
 from .errors import InputError
 
 __all__ = [
-    "MAX_IMAGE_SIDE", "MAX_IMAGE_PIXELS", "MAX_JSON_BYTES",
-    "image_size_problem", "check_image_size", "check_file_size", "read_json",
-]  # fmt: skip
+    "MAX_IMAGE_SIDE",
+    "MAX_IMAGE_PIXELS",
+    "MAX_JSON_BYTES",
+    "image_size_problem",
+    "check_image_size",
+    "check_file_size",
+    "read_json",
+]
 
 #: Largest image/mask/camera side, pixels.
 MAX_IMAGE_SIDE = 16384
@@ -54,7 +60,9 @@ def check_file_size(path: Union[str, os.PathLike], limit: int = MAX_JSON_BYTES, 
     """Raise :class:`InputError` if ``path`` is larger than ``limit`` bytes."""
     size = os.path.getsize(path)
     if size > limit:
-        raise InputError(path, f"{what} is {size / 1024**2:.0f} MiB, more than the {limit / 1024**2:.0f} MiB silfit reads")
+        raise InputError(
+            path, f"{what} is {size / 1024**2:.0f} MiB, more than the {limit / 1024**2:.0f} MiB silfit reads"
+        )
 
 
 def read_json(path: Union[str, os.PathLike], what: str):

@@ -36,6 +36,7 @@ they load. ``import silfit`` does this first thing, so the command line, Ray wor
 inherit the driver's environment) and scripts that import silfit before torch all get it.
 ``SILFIT_KERNELS=native`` turns it off. :func:`kernel_report` says what a process runs on.
 """
+
 from __future__ import annotations
 
 import os
@@ -93,8 +94,12 @@ def _numpy_names_targets(version: Optional[str]) -> bool:
     return (major, minor) >= (2, 4)
 
 
-def pin_kernels(environ: Optional[MutableMapping[str, str]] = None, flags: Optional[set] = None,
-                loaded: Optional[bool] = None, numpy_version: Optional[str] = None) -> Dict[str, str]:  # fmt: skip
+def pin_kernels(
+    environ: Optional[MutableMapping[str, str]] = None,
+    flags: Optional[set] = None,
+    loaded: Optional[bool] = None,
+    numpy_version: Optional[str] = None,
+) -> Dict[str, str]:
     """Set the :data:`KERNEL_PINS` that ``environ`` (default ``os.environ``) does not set yet, where
     the CPU has AVX2 and FMA, ``SILFIT_KERNELS`` is not ``native`` and torch and numpy are not loaded
     (``loaded``: override that check); with AVX-512, also numpy's dispatch (``numpy_version``: default the
@@ -131,17 +136,21 @@ def late_import_message() -> Optional[str]:
     (:data:`LOADED_FIRST`), or ``None``."""
     if not LOADED_FIRST:
         return None
-    return (f"{' and '.join(LOADED_FIRST)} loaded before silfit, so silfit could not pin the CPU kernels its fits are "
-            "reproduced with (silfit.kernels): fits may differ in their last bits, and by millimetres, from the "
-            "command line's; import silfit first, or set SILFIT_KERNELS=native to choose the native kernels")
+    return (
+        f"{' and '.join(LOADED_FIRST)} loaded before silfit, so silfit could not pin the CPU kernels its fits are "
+        "reproduced with (silfit.kernels): fits may differ in their last bits, and by millimetres, from the "
+        "command line's; import silfit first, or set SILFIT_KERNELS=native to choose the native kernels"
+    )
 
 
 def kernel_report() -> Dict[str, object]:
     """What this process computes with: torch's SIMD level, the pins silfit set, the variables as
     they stand (for ``metrics.json`` and bug reports)."""
     out: Dict[str, object] = {"machine": platform.machine(), "pinned_by_silfit": dict(PINNED or {})}
-    out["environment"] = {k: os.environ.get(k) for k in (*KERNEL_PINS, "NPY_DISABLE_CPU_FEATURES", "OMP_NUM_THREADS",
-                                                         "MKL_ENABLE_INSTRUCTIONS")}  # fmt: skip
+    out["environment"] = {
+        k: os.environ.get(k)
+        for k in (*KERNEL_PINS, "NPY_DISABLE_CPU_FEATURES", "OMP_NUM_THREADS", "MKL_ENABLE_INSTRUCTIONS")
+    }
     if "torch" in sys.modules:
         import torch
 

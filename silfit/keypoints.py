@@ -1,6 +1,7 @@
 """2D keypoints of one person (:class:`KeypointSet`) and the body keypoint files silfit reads and
 writes (OpenPose BODY_25 / COCO-17 JSON). The layouts and their sources on a body model are in
 :mod:`silfit.layouts` (their names are kept here too)."""
+
 from __future__ import annotations
 
 import json
@@ -12,9 +13,15 @@ import numpy as np
 
 from .errors import InputError, quoted
 from .layouts import (  # noqa: F401  (re-exported: silfit.keypoints's names kept)
-    BLAZEPOSE33_NAMES, BODY25_NAMES, COCO17_NAMES, LAYOUTS, WHOLEBODY_NAMES, layout_names, keypoint_sources,
+    BLAZEPOSE33_NAMES,
+    BODY25_NAMES,
+    COCO17_NAMES,
+    LAYOUTS,
+    WHOLEBODY_NAMES,
+    layout_names,
+    keypoint_sources,
     model_keypoints,
-)  # fmt: skip
+)
 from .input_limits import read_json
 
 #: Sub-folders of a video folder (or a rig video's view) that hold per-frame OpenPose files, in order of preference.
@@ -33,6 +40,7 @@ __all__ = [
     "write_openpose_json",
 ]
 
+
 class KeypointSet:
     """Detected 2D keypoints of one person: ``xy [K, 2]`` pixels, ``conf [K]`` in [0, 1]."""
 
@@ -42,12 +50,15 @@ class KeypointSet:
         conf = np.asarray(conf, dtype=np.float64)
         if xy.shape != (len(names), 2) or conf.shape != (len(names),):
             raise InputError(
-                source, f"keypoints have shape {xy.shape} with {conf.shape} confidences, expected "
-                f"{len(names)} points of [x, y, confidence] for layout {layout}"
+                source,
+                f"keypoints have shape {xy.shape} with {conf.shape} confidences, expected "
+                f"{len(names)} points of [x, y, confidence] for layout {layout}",
             )
         bad = ~np.isfinite(xy).all(axis=1) | ~np.isfinite(conf)
         if bad.any():
-            raise InputError(source, f"keypoint(s) {', '.join(names[i] for i in np.flatnonzero(bad))} are NaN or infinite")
+            raise InputError(
+                source, f"keypoint(s) {', '.join(names[i] for i in np.flatnonzero(bad))} are NaN or infinite"
+            )
         if (conf < 0).any():
             raise InputError(source, f"negative confidence for {', '.join(names[i] for i in np.flatnonzero(conf < 0))}")
         if not (conf > 0).any():
@@ -83,7 +94,9 @@ def keypoint_triplets(values, source: str, field: str) -> np.ndarray:
     if values and all(isinstance(v, list) for v in values):
         for i, row in enumerate(values):
             if len(row) != 3:
-                raise InputError(source, f"field '{field}[{i}]' has {len(row)} values, expected [x, y, confidence]", field)
+                raise InputError(
+                    source, f"field '{field}[{i}]' has {len(row)} values, expected [x, y, confidence]", field
+                )
         flat = [v for row in values for v in row]
     else:
         flat = values
@@ -92,11 +105,15 @@ def keypoint_triplets(values, source: str, field: str) -> np.ndarray:
             shown = quoted(v) if not isinstance(v, (list, dict)) else type(v).__name__
             raise InputError(source, f"field '{field}' value {i} is {shown}, expected a number", field=field)
     if len(flat) % 3:
-        raise InputError(source, f"field '{field}' holds {len(flat)} numbers, not a multiple of 3 (x, y, confidence)", field)
+        raise InputError(
+            source, f"field '{field}' holds {len(flat)} numbers, not a multiple of 3 (x, y, confidence)", field
+        )
     try:
         return np.asarray([np.nan if v is None else v for v in flat], dtype=np.float64).reshape(-1, 3)
     except OverflowError:  # an integer beyond float range
-        raise InputError(source, f"field '{field}' holds a number too large for a pixel coordinate", field=field) from None
+        raise InputError(
+            source, f"field '{field}' holds a number too large for a pixel coordinate", field=field
+        ) from None
 
 
 def _layout_for_count(count: int, source: str, field: str) -> str:
@@ -104,7 +121,8 @@ def _layout_for_count(count: int, source: str, field: str) -> str:
         if len(names) == count:
             return name
     raise InputError(
-        source, f"field '{field}' has {count} keypoints; expected 25 (OpenPose BODY_25), 17 (COCO-17) or 33 (BlazePose)",
+        source,
+        f"field '{field}' has {count} keypoints; expected 25 (OpenPose BODY_25), 17 (COCO-17) or 33 (BlazePose)",
         field,
     )
 
@@ -161,10 +179,11 @@ def write_openpose_json(path: Union[str, os.PathLike], keypoints: np.ndarray, ex
     kp = kp[None] if kp.ndim == 2 else kp
     missing = ~np.isfinite(kp).all(axis=2)
     kp[missing] = 0.0
-    people = [{"person_id": [-1], "pose_keypoints_2d": [round(float(v), 4) for v in k.reshape(-1)], **(extra or {})}
-              for k in kp]  # fmt: skip
+    people = [
+        {"person_id": [-1], "pose_keypoints_2d": [round(float(v), 4) for v in k.reshape(-1)], **(extra or {})}
+        for k in kp
+    ]
     payload = {"version": 1.3, "people": people}
     tmp = Path(f"{os.fspath(path)}.tmp")
     tmp.write_text(json.dumps(payload))
     os.replace(tmp, path)
-

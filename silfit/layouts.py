@@ -18,15 +18,31 @@ Whole body (OpenPose's BODY_25 + 2 x 21 hand + 70 face points) on an SMPL-X-layo
 Readers and writers of keypoint files are in :mod:`silfit.keypoints` (body) and
 :mod:`silfit.wholebody` (whole body).
 """
+
 from __future__ import annotations
 
 import torch
 
 __all__ = [
-    "BLAZEPOSE33_NAMES", "BODY25_NAMES", "COCO17_NAMES", "FACE70_NAMES", "FINGERS", "HAND21_NAMES", "DEFAULT_DEPTH_TOLERANCE", "KEYPOINT_DEPTH_TOLERANCE", "LAYOUTS",
-    "PART_FIELDS", "WHOLEBODY_NAMES", "WHOLEBODY_PARTS", "hand_names", "keypoint_sources", "model_keypoints",
-    "part_slices", "wholebody_keypoints", "wholebody_sources",
-]  # fmt: skip
+    "BLAZEPOSE33_NAMES",
+    "BODY25_NAMES",
+    "COCO17_NAMES",
+    "FACE70_NAMES",
+    "FINGERS",
+    "HAND21_NAMES",
+    "DEFAULT_DEPTH_TOLERANCE",
+    "KEYPOINT_DEPTH_TOLERANCE",
+    "LAYOUTS",
+    "PART_FIELDS",
+    "WHOLEBODY_NAMES",
+    "WHOLEBODY_PARTS",
+    "hand_names",
+    "keypoint_sources",
+    "model_keypoints",
+    "part_slices",
+    "wholebody_keypoints",
+    "wholebody_sources",
+]
 
 #: How far (metres) behind the nearest surface along its camera ray a keypoint may lie and still count
 #: as visible (the synthetic data's visibility, :mod:`silfit.synth.generate`; the occlusion cue,
@@ -35,66 +51,175 @@ __all__ = [
 #: shoulders 7.9, elbows 5.9, wrists 3.4, pelvis 14.4, hips 12.8, knees 7.0, ankles 6.0 cm)
 #: plus 1.5-2.5 cm.
 KEYPOINT_DEPTH_TOLERANCE = {
-    "nose": 0.03, "neck": 0.11, "right_shoulder": 0.10, "right_elbow": 0.075, "right_wrist": 0.05,
-    "left_shoulder": 0.10, "left_elbow": 0.075, "left_wrist": 0.05, "mid_hip": 0.17, "right_hip": 0.15,
-    "right_knee": 0.09, "right_ankle": 0.075, "left_hip": 0.15, "left_knee": 0.09, "left_ankle": 0.075,
-    "right_eye": 0.03, "left_eye": 0.03, "right_ear": 0.03, "left_ear": 0.03, "left_big_toe": 0.03,
-    "left_small_toe": 0.03, "left_heel": 0.03, "right_big_toe": 0.03, "right_small_toe": 0.03, "right_heel": 0.03,
-}  # fmt: skip
+    "nose": 0.03,
+    "neck": 0.11,
+    "right_shoulder": 0.10,
+    "right_elbow": 0.075,
+    "right_wrist": 0.05,
+    "left_shoulder": 0.10,
+    "left_elbow": 0.075,
+    "left_wrist": 0.05,
+    "mid_hip": 0.17,
+    "right_hip": 0.15,
+    "right_knee": 0.09,
+    "right_ankle": 0.075,
+    "left_hip": 0.15,
+    "left_knee": 0.09,
+    "left_ankle": 0.075,
+    "right_eye": 0.03,
+    "left_eye": 0.03,
+    "right_ear": 0.03,
+    "left_ear": 0.03,
+    "left_big_toe": 0.03,
+    "left_small_toe": 0.03,
+    "left_heel": 0.03,
+    "right_big_toe": 0.03,
+    "right_small_toe": 0.03,
+    "right_heel": 0.03,
+}
 #: the depth tolerance (metres) of a keypoint not in :data:`KEYPOINT_DEPTH_TOLERANCE`
 DEFAULT_DEPTH_TOLERANCE = 0.05
 
 BODY25_NAMES = (
-    "nose", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder", "left_elbow",
-    "left_wrist", "mid_hip", "right_hip", "right_knee", "right_ankle", "left_hip", "left_knee",
-    "left_ankle", "right_eye", "left_eye", "right_ear", "left_ear", "left_big_toe", "left_small_toe",
-    "left_heel", "right_big_toe", "right_small_toe", "right_heel",
-)  # fmt: skip
+    "nose",
+    "neck",
+    "right_shoulder",
+    "right_elbow",
+    "right_wrist",
+    "left_shoulder",
+    "left_elbow",
+    "left_wrist",
+    "mid_hip",
+    "right_hip",
+    "right_knee",
+    "right_ankle",
+    "left_hip",
+    "left_knee",
+    "left_ankle",
+    "right_eye",
+    "left_eye",
+    "right_ear",
+    "left_ear",
+    "left_big_toe",
+    "left_small_toe",
+    "left_heel",
+    "right_big_toe",
+    "right_small_toe",
+    "right_heel",
+)
 COCO17_NAMES = (
-    "nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",
-    "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip", "left_knee",
-    "right_knee", "left_ankle", "right_ankle",
-)  # fmt: skip
+    "nose",
+    "left_eye",
+    "right_eye",
+    "left_ear",
+    "right_ear",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_hip",
+    "right_hip",
+    "left_knee",
+    "right_knee",
+    "left_ankle",
+    "right_ankle",
+)
 #: MediaPipe BlazePose's 33 landmarks, as :mod:`silfit.detect` finds them.
 BLAZEPOSE33_NAMES = (
-    "nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye", "right_eye_outer",
-    "left_ear", "right_ear", "mouth_left", "mouth_right", "left_shoulder", "right_shoulder", "left_elbow",
-    "right_elbow", "left_wrist", "right_wrist", "left_pinky", "right_pinky", "left_index", "right_index",
-    "left_thumb", "right_thumb", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
-    "left_heel", "right_heel", "left_foot_index", "right_foot_index",
-)  # fmt: skip
-_HAND_POINTS = ("wrist",) + tuple(f"{f}{k}" for f in ("thumb", "index", "middle", "ring", "pinky") for k in (1, 2, 3, 4))
+    "nose",
+    "left_eye_inner",
+    "left_eye",
+    "left_eye_outer",
+    "right_eye_inner",
+    "right_eye",
+    "right_eye_outer",
+    "left_ear",
+    "right_ear",
+    "mouth_left",
+    "mouth_right",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_pinky",
+    "right_pinky",
+    "left_index",
+    "right_index",
+    "left_thumb",
+    "right_thumb",
+    "left_hip",
+    "right_hip",
+    "left_knee",
+    "right_knee",
+    "left_ankle",
+    "right_ankle",
+    "left_heel",
+    "right_heel",
+    "left_foot_index",
+    "right_foot_index",
+)
+_HAND_POINTS = ("wrist",) + tuple(
+    f"{f}{k}" for f in ("thumb", "index", "middle", "ring", "pinky") for k in (1, 2, 3, 4)
+)
 #: OpenPose's whole-body layout as one list (137 points, :mod:`silfit.wholebody`): BODY_25, the left and
 #: right hand (21 each, ``left_hand_wrist``, ``left_hand_thumb1`` ...), the face (``face_00`` .. ``face_67``,
 #: ``right_pupil``, ``left_pupil``); sources on an SMPL-X-layout model only.
 WHOLEBODY_NAMES = (
-    BODY25_NAMES + tuple(f"left_hand_{n}" for n in _HAND_POINTS) + tuple(f"right_hand_{n}" for n in _HAND_POINTS)
-    + tuple(f"face_{k:02d}" for k in range(68)) + ("right_pupil", "left_pupil")
-)  # fmt: skip
-LAYOUTS = {"body25": BODY25_NAMES, "coco17": COCO17_NAMES, "blazepose33": BLAZEPOSE33_NAMES, "wholebody": WHOLEBODY_NAMES}
+    BODY25_NAMES
+    + tuple(f"left_hand_{n}" for n in _HAND_POINTS)
+    + tuple(f"right_hand_{n}" for n in _HAND_POINTS)
+    + tuple(f"face_{k:02d}" for k in range(68))
+    + ("right_pupil", "left_pupil")
+)
+LAYOUTS = {
+    "body25": BODY25_NAMES,
+    "coco17": COCO17_NAMES,
+    "blazepose33": BLAZEPOSE33_NAMES,
+    "wholebody": WHOLEBODY_NAMES,
+}
 
 #: Keypoint name -> SMPL joint name, where a joint is the source.
 _JOINT_SOURCES = {
-    "neck": "neck", "mid_hip": "pelvis",
-    "left_shoulder": "left_shoulder", "right_shoulder": "right_shoulder",
-    "left_elbow": "left_elbow", "right_elbow": "right_elbow",
-    "left_wrist": "left_wrist", "right_wrist": "right_wrist",
-    "left_hip": "left_hip", "right_hip": "right_hip",
-    "left_knee": "left_knee", "right_knee": "right_knee",
-    "left_ankle": "left_ankle", "right_ankle": "right_ankle",
+    "neck": "neck",
+    "mid_hip": "pelvis",
+    "left_shoulder": "left_shoulder",
+    "right_shoulder": "right_shoulder",
+    "left_elbow": "left_elbow",
+    "right_elbow": "right_elbow",
+    "left_wrist": "left_wrist",
+    "right_wrist": "right_wrist",
+    "left_hip": "left_hip",
+    "right_hip": "right_hip",
+    "left_knee": "left_knee",
+    "right_knee": "right_knee",
+    "left_ankle": "left_ankle",
+    "right_ankle": "right_ankle",
     # BlazePose's hand points: the model has no finger landmarks; SMPL's hand joint (at the
     # knuckles) is the nearest point to all three.
-    "left_pinky": "left_hand", "left_index": "left_hand", "left_thumb": "left_hand",
-    "right_pinky": "right_hand", "right_index": "right_hand", "right_thumb": "right_hand",
-}  # fmt: skip
+    "left_pinky": "left_hand",
+    "left_index": "left_hand",
+    "left_thumb": "left_hand",
+    "right_pinky": "right_hand",
+    "right_index": "right_hand",
+    "right_thumb": "right_hand",
+}
 #: Keypoint name -> the model landmark it is fitted to, where the model has no landmark of
 #: that name (BlazePose's points): the nearest one (eye corners -> the eye, mouth corners
 #: -> the nose, a few cm above them; the foot's tip -> the big toe).
 _LANDMARK_ALIASES = {
-    "left_eye_inner": "left_eye", "left_eye_outer": "left_eye", "right_eye_inner": "right_eye",
-    "right_eye_outer": "right_eye", "mouth_left": "nose", "mouth_right": "nose",
-    "left_foot_index": "left_big_toe", "right_foot_index": "right_big_toe",
-}  # fmt: skip
+    "left_eye_inner": "left_eye",
+    "left_eye_outer": "left_eye",
+    "right_eye_inner": "right_eye",
+    "right_eye_outer": "right_eye",
+    "mouth_left": "nose",
+    "mouth_right": "nose",
+    "left_foot_index": "left_big_toe",
+    "right_foot_index": "right_big_toe",
+}
 
 
 def keypoint_sources(model, layout: str = "body25", prefer_landmarks: bool = False) -> list[tuple[str, int]]:
@@ -165,7 +290,7 @@ assert WHOLEBODY_NAMES[25:46] == tuple(f"left_hand_{n}" for n in HAND21_NAMES) a
 def part_slices() -> dict:
     """``{part: slice}`` of each part's points in the ``wholebody`` layout."""
     out, start = {}, 0
-    for (part, count) in PART_FIELDS.values():
+    for part, count in PART_FIELDS.values():
         out[part] = slice(start, start + count)
         start += count
     return out
@@ -217,7 +342,9 @@ def _hand_points(model, output, side: str) -> torch.Tensor:
         f"{side}_{f}{k}" for f in FINGERS for k in (1, 2, 3) if f"{side}_{f}{k}" not in joint
     ]
     if missing:
-        raise ValueError(f"{model.source}: the model has no joint or landmark for hand keypoint(s) {', '.join(missing[:4])}")
+        raise ValueError(
+            f"{model.source}: the model has no joint or landmark for hand keypoint(s) {', '.join(missing[:4])}"
+        )
     landmarks = model.landmarks(output.vertices)
     cols = [output.joints[:, joint[f"{side}_wrist"]]]
     for f in FINGERS:

@@ -1,4 +1,5 @@
 """Writing meshes: Wavefront OBJ and PLY (ASCII), vertex order preserved."""
+
 from __future__ import annotations
 
 import os
@@ -20,8 +21,14 @@ def write_obj(path: os.PathLike, vertices: np.ndarray, faces: np.ndarray, commen
         fh.write(("f %d %d %d\n" * len(f)) % tuple(f.ravel().tolist()))
 
 
-def write_ply(path: os.PathLike, vertices: np.ndarray, faces: np.ndarray, colors: Optional[np.ndarray] = None,
-              normals: Optional[np.ndarray] = None, comment: Optional[str] = None) -> None:
+def write_ply(
+    path: os.PathLike,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    colors: Optional[np.ndarray] = None,
+    normals: Optional[np.ndarray] = None,
+    comment: Optional[str] = None,
+) -> None:
     """ASCII PLY with optional per-vertex ``colors [V, 3]`` (uint8), ``normals [V, 3]`` and a header comment."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)

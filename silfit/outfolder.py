@@ -2,6 +2,7 @@
 target, which replaces the target only once it is complete. An earlier output is set
 aside before the swap and removed after it, so a crash at any point leaves either the old
 folder or the new one, never neither and never a half-written one."""
+
 from __future__ import annotations
 
 import os
@@ -42,7 +43,9 @@ def atomic_folder(out: Union[str, os.PathLike], overwrite: bool = False) -> Iter
             try:
                 os.replace(out, old / out.name)
             except OSError as err:  # e.g. a read-only folder (moving a folder writes its '..')
-                raise OSError(err.errno, f"{err.strerror}: cannot replace the existing output folder (read-only?)", str(out)) from None
+                raise OSError(
+                    err.errno, f"{err.strerror}: cannot replace the existing output folder (read-only?)", str(out)
+                ) from None
         os.replace(tmp, out)
         if old is not None:  # within the try: an interrupt while the earlier output is deleted still removes it
             shutil.rmtree(old, ignore_errors=True)

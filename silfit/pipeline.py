@@ -2,9 +2,27 @@
 core is :mod:`silfit.image_fit`, the fit of anything is :func:`silfit.run.run`, and
 :func:`silfit.fit` (``silfit.pipeline.fit``) is :func:`silfit.run.fit`. Nothing inside silfit
 imports this module."""
+
 from .image_fit import (  # noqa: F401
-    FitResult, StageFailure, body_mask, fit_problem, fit_problems, refine, refine_batch, save_fit,
-)  # fmt: skip
+    FitResult,
+    StageFailure,
+    body_mask,
+    fit_problem,
+    fit_problems,
+    refine,
+    refine_batch,
+    save_fit,
+)
 from .run import fit  # noqa: F401
 
-__all__ = ["FitResult", "StageFailure", "body_mask", "fit", "fit_problem", "fit_problems", "refine", "refine_batch", "save_fit"]
+__all__ = [
+    "FitResult",
+    "StageFailure",
+    "body_mask",
+    "fit",
+    "fit_problem",
+    "fit_problems",
+    "refine",
+    "refine_batch",
+    "save_fit",
+]

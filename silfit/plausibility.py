@@ -25,6 +25,7 @@
 * :func:`mask_warnings`: a mask that runs out of the image (the person cut off);
   :func:`depth_warnings`: a depth branch the keypoints cannot decide.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -36,10 +37,26 @@ from .errors import InputError
 from .keypoints import KeypointSet
 
 __all__ = [
-    "GuardDecision", "body_stature", "branch_gap", "depth_warnings", "check_frames", "check_keypoints", "fit_summary",
-    "EARLY_SEARCH_MARGIN", "EARLY_SEARCH_MIN_SHIFT_MM", "SEARCH_MIN_SHIFT_MM", "fit_warnings", "guard_fit", "hypothesis_summary", "mask_warnings", "moves_a_joint", "person_extent", "reprojection_rise_warnings",
-    "shape_warnings", "silhouette_guard",
-]  # fmt: skip
+    "GuardDecision",
+    "body_stature",
+    "branch_gap",
+    "depth_warnings",
+    "check_frames",
+    "check_keypoints",
+    "fit_summary",
+    "EARLY_SEARCH_MARGIN",
+    "EARLY_SEARCH_MIN_SHIFT_MM",
+    "SEARCH_MIN_SHIFT_MM",
+    "fit_warnings",
+    "guard_fit",
+    "hypothesis_summary",
+    "mask_warnings",
+    "moves_a_joint",
+    "person_extent",
+    "reprojection_rise_warnings",
+    "shape_warnings",
+    "silhouette_guard",
+]
 
 
 #: Keypoints farther than this many image widths/heights outside the image are dropped.
@@ -127,36 +144,43 @@ def check_keypoints(keypoints: KeypointSet, image_size: Optional[tuple] = None) 
     if image_size is not None:
         w, h = float(image_size[0]), float(image_size[1])
         outside = (
-            (xy[:, 0] < -OUTSIDE_MARGIN * w) | (xy[:, 0] > (1 + OUTSIDE_MARGIN) * w)
-            | (xy[:, 1] < -OUTSIDE_MARGIN * h) | (xy[:, 1] > (1 + OUTSIDE_MARGIN) * h)
-        ) & (conf > 0)  # fmt: skip
+            (xy[:, 0] < -OUTSIDE_MARGIN * w)
+            | (xy[:, 0] > (1 + OUTSIDE_MARGIN) * w)
+            | (xy[:, 1] < -OUTSIDE_MARGIN * h)
+            | (xy[:, 1] > (1 + OUTSIDE_MARGIN) * h)
+        ) & (conf > 0)
         if not (conf[~outside] > 0).any():
             raise InputError(source, f"every keypoint lies far outside the {w:.0f}x{h:.0f} image: no person to fit")
         if outside.any():
             names = ", ".join(keypoints.names[i] for i in np.flatnonzero(outside))
-            warnings.append(f"{source}: keypoint(s) {names} lie more than {OUTSIDE_MARGIN:g} image size(s) outside "
-                            f"the {w:.0f}x{h:.0f} image; treated as missing")  # fmt: skip
+            warnings.append(
+                f"{source}: keypoint(s) {names} lie more than {OUTSIDE_MARGIN:g} image size(s) outside "
+                f"the {w:.0f}x{h:.0f} image; treated as missing"
+            )
             xy[outside], conf[outside] = 0.0, 0.0
             keypoints = KeypointSet(xy, conf, keypoints.layout, source=source)
     extent = person_extent(keypoints)
     if extent < MIN_PERSON_PX:
         raise InputError(
-            source, f"the keypoints span only {extent:.1f} px (all at nearly one place?); silfit needs a person at "
+            source,
+            f"the keypoints span only {extent:.1f} px (all at nearly one place?); silfit needs a person at "
             f"least {MIN_PERSON_PX:g} px tall",
-        )  # fmt: skip
+        )
     upper, lower = _centre(keypoints, _UPPER), _centre(keypoints, _LOWER)
     if upper is not None and lower is not None:
         torso = float(np.linalg.norm(upper - lower))
         if torso < MIN_TORSO_FRACTION * extent:
             raise InputError(
-                source, f"the torso (shoulders/neck to hips) is {torso:.1f} px long, under {MIN_TORSO_FRACTION:.0%} "
+                source,
+                f"the torso (shoulders/neck to hips) is {torso:.1f} px long, under {MIN_TORSO_FRACTION:.0%} "
                 f"of the person's {extent:.0f} px: degenerate keypoints",
-            )  # fmt: skip
+            )
     return keypoints, warnings
 
 
-def check_frames(frames: Sequence[Optional[KeypointSet]], image_size: Optional[tuple] = None,
-                 numbers: Optional[Sequence[int]] = None) -> tuple[list, list]:
+def check_frames(
+    frames: Sequence[Optional[KeypointSet]], image_size: Optional[tuple] = None, numbers: Optional[Sequence[int]] = None
+) -> tuple[list, list]:
     """:func:`check_keypoints` for each frame of a video: far-outside points dropped, and a
     frame whose keypoints would be refused becomes a frame without a detection (``None``: the
     sequence fit bridges it from its neighbours). Returns ``(frames, warnings)``, one warning
@@ -177,15 +201,21 @@ def check_frames(frames: Sequence[Optional[KeypointSet]], image_size: Optional[t
             dropped.append(n)
         out.append(ks)
     if not any(ks is not None for ks in out) and refused:
-        raise InputError(refused[0][1].partition(": ")[0], f"no frame has usable keypoints; frame {refused[0][0]}: "
-                         f"{refused[0][1].partition(': ')[2]}")  # fmt: skip
+        raise InputError(
+            refused[0][1].partition(": ")[0],
+            f"no frame has usable keypoints; frame {refused[0][0]}: {refused[0][1].partition(': ')[2]}",
+        )
     warnings = []
     if dropped:
-        warnings.append(f"frame(s) {_frame_list(dropped)}: keypoint(s) more than {OUTSIDE_MARGIN:g} image size(s) outside "
-                        "the image treated as missing")  # fmt: skip
+        warnings.append(
+            f"frame(s) {_frame_list(dropped)}: keypoint(s) more than {OUTSIDE_MARGIN:g} image size(s) outside "
+            "the image treated as missing"
+        )
     if refused:
-        warnings.append(f"frame(s) {_frame_list([n for n, _ in refused])}: unusable keypoints, fitted as frames without "
-                        f"a detection (first: {refused[0][1]})")  # fmt: skip
+        warnings.append(
+            f"frame(s) {_frame_list([n for n, _ in refused])}: unusable keypoints, fitted as frames without "
+            f"a detection (first: {refused[0][1]})"
+        )
     return out, warnings
 
 
@@ -202,8 +232,10 @@ def fit_warnings(metrics: dict, keypoints: KeypointSet, vertices: np.ndarray, be
     iou, iou_kp = metrics.get("iou"), metrics.get("iou_keypoint_stage")
     if iou is not None:
         if iou < MIN_IOU:
-            warnings.append(f"final silhouette IoU is only {iou:.3f}: the mask and the body disagree "
-                            "(a wrong, noisy or partial mask?)")  # fmt: skip
+            warnings.append(
+                f"final silhouette IoU is only {iou:.3f}: the mask and the body disagree "
+                "(a wrong, noisy or partial mask?)"
+            )
         if iou_kp is not None and iou < iou_kp - IOU_DROP:
             warnings.append(f"final silhouette IoU {iou:.3f} is far below the keypoint fit's {iou_kp:.3f}")
     z = np.asarray(vertices, dtype=np.float64)[:, 2]
@@ -213,24 +245,38 @@ def fit_warnings(metrics: dict, keypoints: KeypointSet, vertices: np.ndarray, be
     elif (z <= 0).any():
         warnings.append(f"part of the fitted body lies behind the camera (nearest vertex at z = {z.min():.2f} m)")
     elif not DEPTH_RANGE_M[0] <= depth <= DEPTH_RANGE_M[1]:
-        warnings.append(f"the fitted body is {depth:.2f} m from the camera, outside the plausible "
-                        f"{DEPTH_RANGE_M[0]:g}-{DEPTH_RANGE_M[1]:g} m (wrong focal length or keypoint scale?)")  # fmt: skip
+        warnings.append(
+            f"the fitted body is {depth:.2f} m from the camera, outside the plausible "
+            f"{DEPTH_RANGE_M[0]:g}-{DEPTH_RANGE_M[1]:g} m (wrong focal length or keypoint scale?)"
+        )
     err, extent = metrics.get("reprojection_error_px"), person_extent(keypoints)
     if err is not None and extent > 0 and not err <= MAX_REPROJECTION_FRACTION * extent:
-        warnings.append(f"median reprojection error {err:.1f} px is {err / extent:.0%} of the person's {extent:.0f} px "
-                        "extent: the body does not match the keypoints")  # fmt: skip
-    return warnings + reprojection_rise_warnings(metrics.get("reprojection_error_px_keypoint_stage"), err) + shape_warnings(betas)
+        warnings.append(
+            f"median reprojection error {err:.1f} px is {err / extent:.0%} of the person's {extent:.0f} px "
+            "extent: the body does not match the keypoints"
+        )
+    return (
+        warnings
+        + reprojection_rise_warnings(metrics.get("reprojection_error_px_keypoint_stage"), err)
+        + shape_warnings(betas)
+    )
 
 
 def reprojection_rise_warnings(before: Optional[float], after: Optional[float]) -> list:
     """A warning when the silhouette stage's median reprojection error ``after`` is above
     :data:`MAX_REPROJECTION_RISE` times the keypoint stage's ``before`` and
     :data:`MIN_REPROJECTION_RISE_PX` more (none when either is missing)."""
-    if before is None or after is None or not (after > MAX_REPROJECTION_RISE * before and after > before + MIN_REPROJECTION_RISE_PX):
+    if (
+        before is None
+        or after is None
+        or not (after > MAX_REPROJECTION_RISE * before and after > before + MIN_REPROJECTION_RISE_PX)
+    ):
         return []
-    return [f"the silhouette stage moved the body away from the keypoints (median reprojection error {before:.1f} -> "
-            f"{after:.1f} px): the mask may hold clothing, objects or other people, or the person is cut off by the image "
-            "border; compare with stages/keypoints"]
+    return [
+        f"the silhouette stage moved the body away from the keypoints (median reprojection error {before:.1f} -> "
+        f"{after:.1f} px): the mask may hold clothing, objects or other people, or the person is cut off by the image "
+        "border; compare with stages/keypoints"
+    ]
 
 
 def mask_warnings(mask: np.ndarray, source: str = "mask") -> list:
@@ -243,8 +289,10 @@ def mask_warnings(mask: np.ndarray, source: str = "mask") -> list:
     cut = [name for name, row in sides.items() if row.mean() >= MIN_BORDER_RUN]
     if not cut:
         return []
-    return [f"{source}: the person runs out of the image at the {' and '.join(cut)} edge(s) (cut off): the body beyond "
-            "the border is fitted from the keypoints and priors alone; check the side view"]
+    return [
+        f"{source}: the person runs out of the image at the {' and '.join(cut)} edge(s) (cut off): the body beyond "
+        "the border is fitted from the keypoints and priors alone; check the side view"
+    ]
 
 
 def branch_gap(search) -> Optional[float]:
@@ -279,9 +327,14 @@ def hypothesis_summary(hypotheses) -> list:
     out = []
     for k, h in enumerate(hypotheses, 1):
         refined = h.get("refined", True)
-        row = {"rank": k, "label": h["label"], "energy": float(h["energy"]),
-               "gap": float((h["energy"] - e0) / max(abs(e0), 1e-12) if refined else h["gap"]),
-               "differs": list(h["differs"]), "refined": bool(refined)}  # fmt: skip
+        row = {
+            "rank": k,
+            "label": h["label"],
+            "energy": float(h["energy"]),
+            "gap": float((h["energy"] - e0) / max(abs(e0), 1e-12) if refined else h["gap"]),
+            "differs": list(h["differs"]),
+            "refined": bool(refined),
+        }
         row.update({key: float(h[key]) for key in ("shift_mm", "max_shift_mm") if key in h})
         if not refined:
             row["stage"] = h.get("stage")
@@ -310,10 +363,17 @@ def label_segments(label: str) -> list:
     return facing + [seg.split("/")[0] for seg in label.split("+") if seg.split("/")[0] in known]
 
 
-def depth_warnings(search, hypotheses=None, margin: float = HYPOTHESIS_MARGIN, search_margin: float = SEARCH_MARGIN,
-                   min_shift_mm: float = MIN_SHIFT_MM, search_min_shift_mm: float = SEARCH_MIN_SHIFT_MM,
-                   early_margin: float = EARLY_SEARCH_MARGIN, early_min_shift_mm: float = EARLY_SEARCH_MIN_SHIFT_MM,
-                   decided: Sequence[str] = ()) -> list:
+def depth_warnings(
+    search,
+    hypotheses=None,
+    margin: float = HYPOTHESIS_MARGIN,
+    search_margin: float = SEARCH_MARGIN,
+    min_shift_mm: float = MIN_SHIFT_MM,
+    search_min_shift_mm: float = SEARCH_MIN_SHIFT_MM,
+    early_margin: float = EARLY_SEARCH_MARGIN,
+    early_min_shift_mm: float = EARLY_SEARCH_MIN_SHIFT_MM,
+    decided: Sequence[str] = (),
+) -> list:
     """One warning naming the limbs whose depth neither the keypoints nor the image decide, or none
     (``decided``: the segments the image depth cue decided, :mod:`silfit.fitting.image_depth`: an alternative
     that turns only those is not close, and they are not named).
@@ -342,14 +402,23 @@ def depth_warnings(search, hypotheses=None, margin: float = HYPOTHESIS_MARGIN, s
     refined = [s for s in search or [] if s.get("refined")]
     if refined:  # every branch refined to choose the fit (hypotheses keeps only K of them): named by its folder
         rank = {h["label"]: k for k, h in enumerate(hypotheses or [], 1) if h.get("refined", True)}
-        hyps = [{"label": t["flip"], "energy": t["energy"], "differs": t.get("differs"), "max_shift_mm": t.get("max_shift_mm"),
-                 "where": f"hypotheses/{rank[t['flip']]}" if t["flip"] in rank else f"refined branch: {t['flip']}"}
-                for t in refined[-1]["tried"]]  # fmt: skip
+        hyps = [
+            {
+                "label": t["flip"],
+                "energy": t["energy"],
+                "differs": t.get("differs"),
+                "max_shift_mm": t.get("max_shift_mm"),
+                "where": f"hypotheses/{rank[t['flip']]}" if t["flip"] in rank else f"refined branch: {t['flip']}",
+            }
+            for t in refined[-1]["tried"]
+        ]
     if len(hyps) > 1 or refined:
         e0 = hyps[0]["energy"] if hyps else 0.0
         for k, h in enumerate(hyps[1:], 2):
             if h["energy"] - e0 <= margin * abs(e0) and moves_a_joint(h, min_shift_mm):
-                close.append(list(h.get("differs") or []) or label_segments(h["label"]) or label_segments(hyps[0]["label"]))
+                close.append(
+                    list(h.get("differs") or []) or label_segments(h["label"]) or label_segments(hyps[0]["label"])
+                )
                 where.append(h.get("where", f"hypotheses/{k}"))
                 shifts.append(h.get("max_shift_mm"))
                 used.append(margin)
@@ -358,8 +427,11 @@ def depth_warnings(search, hypotheses=None, margin: float = HYPOTHESIS_MARGIN, s
     for stage in searches:
         kept = next(t["energy"] for t in stage["tried"] if t["flip"] == stage["kept"])
         for t in stage["tried"]:
-            if t["flip"] != stage["kept"] and t["energy"] - kept <= search_margin * abs(kept) \
-                    and moves_a_joint(t, search_min_shift_mm):
+            if (
+                t["flip"] != stage["kept"]
+                and t["energy"] - kept <= search_margin * abs(kept)
+                and moves_a_joint(t, search_min_shift_mm)
+            ):
                 close.append(label_segments(t["flip"]) or label_segments(stage["kept"]))
                 where.append(f"branch search: {t['flip']}")
                 shifts.append(t.get("max_shift_mm"))
@@ -375,9 +447,11 @@ def depth_warnings(search, hypotheses=None, margin: float = HYPOTHESIS_MARGIN, s
     by = f", moving a joint up to {max(moved) / 1000:.2f} m" if moved else ""
     where = list(dict.fromkeys(where))  # each alternative named once (several searches can keep the same one)
     written = hypotheses is not None  # --hypotheses K: the alternatives among its K are written
-    return [f"depth ambiguous for {', '.join(segs)}: an alternative fit within {max(used):.0%} of the energy turns "
-            f"{'it' if len(segs) == 1 else 'them'} the other way{by} ({', '.join(where)}); the keypoints cannot tell "
-            "which: check a side view" + ("" if written else " (silfit fit --hypotheses 3 writes the alternatives)")]
+    return [
+        f"depth ambiguous for {', '.join(segs)}: an alternative fit within {max(used):.0%} of the energy turns "
+        f"{'it' if len(segs) == 1 else 'them'} the other way{by} ({', '.join(where)}); the keypoints cannot tell "
+        "which: check a side view" + ("" if written else " (silfit fit --hypotheses 3 writes the alternatives)")
+    ]
 
 
 def shape_warnings(betas) -> list:
@@ -385,8 +459,10 @@ def shape_warnings(betas) -> list:
     b = np.abs(np.asarray([] if betas is None else betas, dtype=np.float64)).reshape(-1)
     if not b.size or b.max() <= MAX_ABS_BETA:
         return []
-    return [f"implausible body shape: |betas| up to {b.max():.1f} (beyond {MAX_ABS_BETA:g} standard deviations of the "
-            "shape space)"]
+    return [
+        f"implausible body shape: |betas| up to {b.max():.1f} (beyond {MAX_ABS_BETA:g} standard deviations of the "
+        "shape space)"
+    ]
 
 
 @dataclass(frozen=True)
@@ -419,9 +495,11 @@ def body_stature(model, betas) -> float:
 def fit_summary(reprojection_px, betas, stature_m) -> dict:
     """The numbers :func:`silhouette_guard` compares, of one fit."""
     b = np.abs(np.asarray([] if betas is None else betas, dtype=np.float64)).reshape(-1)
-    return {"reprojection_px": None if reprojection_px is None else float(reprojection_px),
-            "max_abs_beta": float(b.max()) if b.size else 0.0,
-            "stature_m": None if stature_m is None else float(stature_m)}  # fmt: skip
+    return {
+        "reprojection_px": None if reprojection_px is None else float(reprojection_px),
+        "max_abs_beta": float(b.max()) if b.size else 0.0,
+        "stature_m": None if stature_m is None else float(stature_m),
+    }
 
 
 def _implausible(s: dict) -> dict:
@@ -448,8 +526,11 @@ def guard_fit(model, before_px, before_betas, after_px, after_betas, where: str 
         except (AttributeError, KeyError, RuntimeError):
             return None
 
-    return silhouette_guard(fit_summary(before_px, before_betas, stature(before_betas)),
-                            fit_summary(after_px, after_betas, stature(after_betas)), where)  # fmt: skip
+    return silhouette_guard(
+        fit_summary(before_px, before_betas, stature(before_betas)),
+        fit_summary(after_px, after_betas, stature(after_betas)),
+        where,
+    )
 
 
 def silhouette_guard(keypoint_fit: dict, refined: dict, where: str = "") -> GuardDecision:
@@ -462,8 +543,13 @@ def silhouette_guard(keypoint_fit: dict, refined: dict, where: str = "") -> Guar
     the keypoint fit is kept (the keypoint fit is no better), with no warning here."""
     reasons = []
     before, after = keypoint_fit.get("reprojection_px"), refined.get("reprojection_px")
-    if before is not None and after is not None and np.isfinite(before) and (
-        not np.isfinite(after) or (after > GUARD_REPROJECTION_RISE * before and after > before + GUARD_MIN_RISE_PX)
+    if (
+        before is not None
+        and after is not None
+        and np.isfinite(before)
+        and (
+            not np.isfinite(after) or (after > GUARD_REPROJECTION_RISE * before and after > before + GUARD_MIN_RISE_PX)
+        )
     ):
         reasons.append(f"reprojection error {before:.1f} -> {after:.1f} px")
     old = _implausible(keypoint_fit)
@@ -471,6 +557,8 @@ def silhouette_guard(keypoint_fit: dict, refined: dict, where: str = "") -> Guar
     if not reasons:
         return GuardDecision("silhouette")
     at = f"{where}: " if where else ""
-    warning = (f"{at}the silhouette stage made the fit less plausible ({'; '.join(reasons)}): kept the keypoint fit "
-               "instead (the mask may hold clothing, objects or other people, or the person is cut off)")
+    warning = (
+        f"{at}the silhouette stage made the fit less plausible ({'; '.join(reasons)}): kept the keypoint fit "
+        "instead (the mask may hold clothing, objects or other people, or the person is cut off)"
+    )
     return GuardDecision("keypoints", tuple(reasons), (warning,))

@@ -24,6 +24,7 @@ name), each with ``camera.json``. A view's folder holds ``keypoints.json`` (Open
 optionally ``mask.png`` and ``image.png``; in a rig video (:func:`silfit.video.load_rig_sequence`) it is a video
 folder instead (per-frame OpenPose JSON, ``masks/``, ``images/``: :func:`silfit.video.read_sequence`).
 """
+
 from __future__ import annotations
 
 import math
@@ -35,7 +36,11 @@ from typing import List, Optional, Tuple, Union
 import numpy as np
 
 from .camera import (  # noqa: F401  (extrinsics_from_dict: re-exported, rig manifests name it)
-    check_translation, camera_from_dict, check_rotation, extrinsics_from_dict, read_camera_file,
+    check_translation,
+    camera_from_dict,
+    check_rotation,
+    extrinsics_from_dict,
+    read_camera_file,
 )
 from .errors import InputError, quoted
 from .fitting.problem import View
@@ -130,8 +135,9 @@ def write_cameras_json(path: PathLike, views: List[Tuple[str, View]]) -> None:
     """Write a ``cameras.json`` manifest for ``(name, view)`` pairs (files in ``<name>/``)."""
     import json
 
-    Path(path).write_text(json.dumps({"views": [{"name": n, **view_to_dict(v)} for n, v in views]}, indent=2) + "\n",
-                          encoding="utf-8")  # fmt: skip
+    Path(path).write_text(
+        json.dumps({"views": [{"name": n, **view_to_dict(v)} for n, v in views]}, indent=2) + "\n", encoding="utf-8"
+    )
 
 
 # ----------------------------------------------------------------------------- EasyMocap
@@ -160,10 +166,14 @@ def _fs_matrix(fs, path: Path, key: str, sizes) -> np.ndarray:
     except cv2.error:
         mat = None
     if mat is None:
-        raise InputError(path, f"field '{key}' is not an opencv-matrix (rows, cols, dt, data of rows x cols numbers)", field=key)
+        raise InputError(
+            path, f"field '{key}' is not an opencv-matrix (rows, cols, dt, data of rows x cols numbers)", field=key
+        )
     mat = np.asarray(mat, dtype=np.float64)
     if mat.size not in sizes:
-        raise InputError(path, f"field '{key}' has {mat.size} values, expected {' or '.join(map(str, sizes))}", field=key)
+        raise InputError(
+            path, f"field '{key}' has {mat.size} values, expected {' or '.join(map(str, sizes))}", field=key
+        )
     if not np.all(np.isfinite(mat)):
         raise InputError(path, f"field '{key}' holds NaN or infinity", field=key)
     return mat
@@ -222,8 +232,10 @@ def read_easymocap(intri: PathLike, extri: PathLike, sizes=None) -> List[RigView
             if not fi.getNode(f"dist_{name}").empty():
                 dist = _fs_matrix(fi, intri, f"dist_{name}", (4, 5, 8, 12, 14))
                 if np.abs(dist).max() > 1e-6:
-                    warnings.append(f"{intri}: camera {name}: lens distortion (dist_{name}) is ignored; undistort the "
-                                    "keypoints and masks for exact results")  # fmt: skip
+                    warnings.append(
+                        f"{intri}: camera {name}: lens distortion (dist_{name}) is ignored; undistort the "
+                        "keypoints and masks for exact results"
+                    )
             if not fe.getNode(f"Rot_{name}").empty():
                 R = _fs_matrix(fe, extri, f"Rot_{name}", (9,)).reshape(3, 3)
                 R = check_rotation(R, os.fspath(extri), f"Rot_{name}")
@@ -232,13 +244,33 @@ def read_easymocap(intri: PathLike, extri: PathLike, sizes=None) -> List[RigView
             t = check_translation(_fs_matrix(fe, extri, f"T_{name}", (3,)).reshape(3), os.fspath(extri), f"T_{name}")
             size = (sizes or {}).get(name) or _image_size_of(base / name)
             if size is None:
-                raise InputError(intri, f"camera {name}: no image size (intri.yml has none; expected {base / name}/image.png "
-                                 "or mask.png)", field=f"K_{name}")  # fmt: skip
-            cam = camera_from_dict({"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "width": int(size[0]),
-                                    "height": int(size[1])}, f"{intri}: K_{name}")  # fmt: skip
+                raise InputError(
+                    intri,
+                    f"camera {name}: no image size (intri.yml has none; expected {base / name}/image.png or mask.png)",
+                    field=f"K_{name}",
+                )
+            cam = camera_from_dict(
+                {
+                    "fx": K[0, 0],
+                    "fy": K[1, 1],
+                    "cx": K[0, 2],
+                    "cy": K[1, 2],
+                    "width": int(size[0]),
+                    "height": int(size[1]),
+                },
+                f"{intri}: K_{name}",
+            )
             folder = base / name
-            out.append(RigView(name, View(cam, R, t), folder / "keypoints.json", folder / "mask.png", folder / "image.png",
-                               warnings))  # fmt: skip
+            out.append(
+                RigView(
+                    name,
+                    View(cam, R, t),
+                    folder / "keypoints.json",
+                    folder / "mask.png",
+                    folder / "image.png",
+                    warnings,
+                )
+            )
         return out
     finally:
         fi.release()
@@ -277,7 +309,11 @@ def load_rig(folder: PathLike) -> List[RigView]:
     views = read_rig_views(folder)
     for v in views:
         if v.keypoints is None or not v.keypoints.is_file():
-            hint = " (its folder holds a video: per-frame keypoints)" if v.keypoints is not None and holds_video(video_folder(v)) else ""
+            hint = (
+                " (its folder holds a video: per-frame keypoints)"
+                if v.keypoints is not None and holds_video(video_folder(v))
+                else ""
+            )
             raise InputError(v.keypoints or folder, f"view {v.name}: keypoint file not found{hint}", field="keypoints")
         v.mask = v.mask if v.mask is not None and v.mask.is_file() else None
         v.image = v.image if v.image is not None and v.image.is_file() else None
@@ -295,9 +331,13 @@ def read_rig_views(folder: Path) -> List[RigView]:
     else:
         subs = sorted(p for p in folder.iterdir() if p.is_dir() and (p / "camera.json").is_file())
         if not subs:
-            raise InputError(folder, "not a rig: expected cameras.json, intri.yml + extri.yml, or sub-folders with camera.json")
-        views = [RigView(p.name, read_view_camera(p / "camera.json"), p / "keypoints.json", p / "mask.png", p / "image.png")
-                 for p in subs]  # fmt: skip
+            raise InputError(
+                folder, "not a rig: expected cameras.json, intri.yml + extri.yml, or sub-folders with camera.json"
+            )
+        views = [
+            RigView(p.name, read_view_camera(p / "camera.json"), p / "keypoints.json", p / "mask.png", p / "image.png")
+            for p in subs
+        ]
     return views
 
 
@@ -335,7 +375,9 @@ def look_at(centre: np.ndarray, target: np.ndarray, up=(0.0, -1.0, 0.0)) -> Tupl
     return R, -R @ np.asarray(centre, float)
 
 
-def ring_layout(n: int, radius: float, heights=None, target=(0.0, 0.0, 0.0), start_deg: float = 0.0) -> List[Tuple[np.ndarray, np.ndarray]]:
+def ring_layout(
+    n: int, radius: float, heights=None, target=(0.0, 0.0, 0.0), start_deg: float = 0.0
+) -> List[Tuple[np.ndarray, np.ndarray]]:
     """``n`` cameras on a ring around ``target`` (world y down: height ``h`` is at ``y = -h``),
     evenly spaced in azimuth from ``start_deg``, all looking at ``target``."""
     heights = [0.0] * n if heights is None else list(heights)

@@ -22,6 +22,7 @@ A rig video (``silfit fit --rig DIR`` on a rig whose views are video folders,
 :func:`silfit.video.load_rig_sequence`; fitted by :func:`silfit.run.run`): the sequence fit of :mod:`silfit.fitting.sequence`
 over frames x views in the world frame, written by :func:`silfit.video.save_sequence_fit`.
 """
+
 from __future__ import annotations
 
 import json
@@ -37,7 +38,15 @@ from .eval.metrics import mask_iou
 from .fitting.rig_fit import RigFit, fit_rig_keypoints
 from .outfolder import atomic_folder
 
-__all__ = ["RigResult", "fit_rig", "fit_rigs", "read_rig_sequence_masks", "refine_rig_fits", "save_rig_fit", "view_vertices"]
+__all__ = [
+    "RigResult",
+    "fit_rig",
+    "fit_rigs",
+    "read_rig_sequence_masks",
+    "refine_rig_fits",
+    "save_rig_fit",
+    "view_vertices",
+]
 
 
 @dataclass
@@ -89,8 +98,10 @@ def disagreeing_views(names, errors, factor: float = 4.0, floor_px: float = 10.0
         if np.isfinite(e) and np.isfinite(median) and e > max(factor * median, floor_px):
             where = "in the other view" if len(errors) == 2 else "over the other views"
             hint = " (with two views either may be the wrong one)" if len(errors) == 2 else ""
-            out.append(f"view {n}: median reprojection error {e:.1f} px against {median:.1f} px {where}; check its "
-                       f"calibration and that its keypoints are this person's{hint}")  # fmt: skip
+            out.append(
+                f"view {n}: median reprojection error {e:.1f} px against {median:.1f} px {where}; check its "
+                f"calibration and that its keypoints are this person's{hint}"
+            )
     return out
 
 
@@ -111,24 +122,43 @@ def keypoint_stage_result(kp: RigFit, problem, names, faces) -> RigResult:
     per_view = {n: {"reprojection_error_px": float(e)} for n, e in zip(names, kp.reprojection_error)}
     for n, v in ious.items():
         per_view[n]["iou_keypoint_stage"] = v
-    metrics = {"views": per_view, "timings": {"keypoints": float(kp.timings["total"])},
-               "reprojection_error_px": float(np.nanmedian(kp.reprojection_error)),
-               "warnings": disagreeing_views(names, kp.reprojection_error)
-               + view_warnings(names, problem, kp.vertices, per_view, kp.params.get("betas"))}  # fmt: skip
+    metrics = {
+        "views": per_view,
+        "timings": {"keypoints": float(kp.timings["total"])},
+        "reprojection_error_px": float(np.nanmedian(kp.reprojection_error)),
+        "warnings": disagreeing_views(names, kp.reprojection_error)
+        + view_warnings(names, problem, kp.vertices, per_view, kp.params.get("betas")),
+    }
     if ious:
         metrics["iou_mean"] = float(np.mean(list(ious.values())))
     return RigResult(list(names), dict(kp.params), kp.vertices, kp.joints, kp, None, metrics, masks)
 
 
-def fit_rig(problem, names, model=None, pose_prior=None, keypoint_config=None, silhouette: bool = True,
-            silhouette_config=None, progress: bool = False) -> RigResult:  # fmt: skip
+def fit_rig(
+    problem,
+    names,
+    model=None,
+    pose_prior=None,
+    keypoint_config=None,
+    silhouette: bool = True,
+    silhouette_config=None,
+    progress: bool = False,
+) -> RigResult:
     """Fit one rig problem (:func:`silfit.fitting.rig_fit.rig_problem`); ``names`` the views'
     names. With ``silhouette`` and at least one mask, the silhouette stage follows."""
     return fit_rigs([problem], [names], model, pose_prior, keypoint_config, silhouette, silhouette_config, progress)[0]
 
 
-def fit_rigs(problems, names, model=None, pose_prior=None, keypoint_config=None, silhouette: bool = True,
-             silhouette_config=None, progress: bool = False) -> List[RigResult]:  # fmt: skip
+def fit_rigs(
+    problems,
+    names,
+    model=None,
+    pose_prior=None,
+    keypoint_config=None,
+    silhouette: bool = True,
+    silhouette_config=None,
+    progress: bool = False,
+) -> List[RigResult]:
     """Fit rig problems of one keypoint layout (``names[i]``: problem ``i``'s view names): the
     keypoint stage batched over them, then the silhouette stage batched over those with a mask
     (with ``silhouette``); a result per problem, ``keypoint`` holding its keypoint-stage fit."""
@@ -148,8 +178,9 @@ def fit_rigs(problems, names, model=None, pose_prior=None, keypoint_config=None,
     out = [keypoint_stage_result(kp, p, n, faces) for kp, p, n in zip(kps, problems, names)]
     todo = [i for i, p in enumerate(problems) if silhouette and any(o.mask is not None for o in p.observations)]
     if todo:
-        refined = refine_rig_fits(model, [(names[i], problems[i], kps[i]) for i in todo], silhouette_config, fitter.pose_prior,
-                                  progress)  # fmt: skip
+        refined = refine_rig_fits(
+            model, [(names[i], problems[i], kps[i]) for i in todo], silhouette_config, fitter.pose_prior, progress
+        )
         for i, r in zip(todo, refined):
             out[i] = r
     if fitter.whole_body:  # which parts were fitted (seen in any view), which held at rest
@@ -180,7 +211,9 @@ def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool =
     for (names, p, _), b in zip(items, before):
         zero = [n for n in names if b.metrics["views"][n].get("iou_keypoint_stage", 1.0) == 0.0]
         if zero:
-            raise ValueError(f"view(s) {', '.join(zero)}: the mask does not overlap the body fitted to the keypoints at all")
+            raise ValueError(
+                f"view(s) {', '.join(zero)}: the mask does not overlap the body fitted to the keypoints at all"
+            )
     layout = items[0][1].observations[0].keypoints.layout
     problems, extra = [p for _, p, _ in items], {}
     if layout == "wholebody":  # the whole-body mesh; hand and face keypoints kept (as for one image)
@@ -189,8 +222,16 @@ def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool =
 
         config, problems, *rest = wholebody_problem_inputs(model, problems, config or SilhouetteFitConfig())
         extra = dict(zip(("terms", "weights", "data"), rest))
-    sils = fit_silhouette_problems(model, problems, [dict(kp.params) for _, _, kp in items], layout=layout,
-                                   config=config, pose_prior=pose_prior, progress=progress, **extra)  # fmt: skip
+    sils = fit_silhouette_problems(
+        model,
+        problems,
+        [dict(kp.params) for _, _, kp in items],
+        layout=layout,
+        config=config,
+        pose_prior=pose_prior,
+        progress=progress,
+        **extra,
+    )
     out = []
     for (names, p, kp), b, sil in zip(items, before, sils):
         params = {n: np.asarray(v, np.float32).reshape(-1) for n, v in sil.parameters.items()}
@@ -207,8 +248,14 @@ def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool =
             errs.append(float(np.median(np.linalg.norm(uv - o.keypoints.xy, axis=1)[ok])) if ok.any() else float("nan"))
         # the plausibility guard, as for one image (silfit.plausibility.silhouette_guard): a refined fit less
         # plausible than the keypoint fit it started from is not kept
-        guard = guard_fit(model, b.metrics["reprojection_error_px"], kp.params.get("betas"), float(np.nanmedian(errs)),
-                          params.get("betas"), "rig")  # fmt: skip
+        guard = guard_fit(
+            model,
+            b.metrics["reprojection_error_px"],
+            kp.params.get("betas"),
+            float(np.nanmedian(errs)),
+            params.get("betas"),
+            "rig",
+        )
         if guard.reverted and getattr(config, "plausibility_guard", True):
             b.metrics["warnings"] = list(b.metrics["warnings"]) + list(sil.warnings) + list(guard.warnings)
             b.metrics["silhouette_guard"] = {"kept": "keypoints", "less_plausible": list(guard.reasons)}
@@ -224,19 +271,35 @@ def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool =
         for n, v in ious.items():
             metrics["views"][n]["iou"] = v
         metrics.update(
-            iou_mean_keypoint_stage=metrics.pop("iou_mean"), iou_mean=float(np.mean(list(ious.values()))),
-            reprojection_error_px=float(np.nanmedian(errs)), keypoints_2d=np.asarray(proj),
-            warnings=[w for n, o in zip(names, p.grid()[0]) if o.mask is not None for w in mask_warnings(o.mask, f"view {n}")]
-            + list(sil.warnings) + disagreeing_views(names, errs) + view_warnings(names, p, vertices, metrics["views"], params.get("betas")),
+            iou_mean_keypoint_stage=metrics.pop("iou_mean"),
+            iou_mean=float(np.mean(list(ious.values()))),
+            reprojection_error_px=float(np.nanmedian(errs)),
+            keypoints_2d=np.asarray(proj),
+            warnings=[
+                w for n, o in zip(names, p.grid()[0]) if o.mask is not None for w in mask_warnings(o.mask, f"view {n}")
+            ]
+            + list(sil.warnings)
+            + disagreeing_views(names, errs)
+            + view_warnings(names, p, vertices, metrics["views"], params.get("betas")),
             silhouette_steps=sil.steps,
-        )  # fmt: skip
+        )
         metrics["timings"]["silhouette"] = float(sil.seconds)
-        out.append(RigResult(list(names), params, vertices, body.joints[0].numpy().astype(np.float32), kp, sil, metrics, masks))
+        out.append(
+            RigResult(list(names), params, vertices, body.joints[0].numpy().astype(np.float32), kp, sil, metrics, masks)
+        )
     return out
 
 
-def save_rig_fit(result: RigResult, out: Union[str, os.PathLike], faces: np.ndarray, problem, images=None,
-                 extra_metrics: Optional[dict] = None, overwrite: bool = False, model=None) -> Path:  # fmt: skip
+def save_rig_fit(
+    result: RigResult,
+    out: Union[str, os.PathLike],
+    faces: np.ndarray,
+    problem,
+    images=None,
+    extra_metrics: Optional[dict] = None,
+    overwrite: bool = False,
+    model=None,
+) -> Path:
     """Write the output folder described in the module docstring, atomically (``model``: the
     body model, recorded in ``params.npz``)."""
     from .fitio import write_fit
@@ -253,27 +316,61 @@ def save_rig_fit(result: RigResult, out: Union[str, os.PathLike], faces: np.ndar
     extrinsics = [o.view.extrinsics() for o in grid]
 
     def write_params(folder: Path, params: dict, vertices, joints, proj, errors, record=None):
-        write_fit(folder, params, cameras, layout=layout, model=model, coordinates="world", extrinsics=extrinsics,
-                  views=result.names, vertices=vertices, joints=joints, keypoints_2d=np.asarray(proj)[None],
-                  reprojection_error=np.asarray(errors, np.float32)[None], record=record)  # fmt: skip
+        write_fit(
+            folder,
+            params,
+            cameras,
+            layout=layout,
+            model=model,
+            coordinates="world",
+            extrinsics=extrinsics,
+            views=result.names,
+            vertices=vertices,
+            joints=joints,
+            keypoints_2d=np.asarray(proj)[None],
+            reprojection_error=np.asarray(errors, np.float32)[None],
+            record=record,
+        )
 
     with atomic_folder(out, overwrite) as tmp:
         proj = result.metrics.get("keypoints_2d", result.keypoint.keypoints_2d)
         views = result.metrics.get("views")
-        errors = [views[n]["reprojection_error_px"] for n in result.names] if views else result.keypoint.reprojection_error
-        write_params(tmp, result.params, result.vertices, result.joints, proj, errors,
-                     {"timings": result.metrics.get("timings", {})})
-        write_obj(tmp / "mesh.obj", result.vertices, faces, "silfit: posed body in world coordinates (rig extrinsics, metres)")
+        errors = (
+            [views[n]["reprojection_error_px"] for n in result.names] if views else result.keypoint.reprojection_error
+        )
+        write_params(
+            tmp,
+            result.params,
+            result.vertices,
+            result.joints,
+            proj,
+            errors,
+            {"timings": result.metrics.get("timings", {})},
+        )
+        write_obj(
+            tmp / "mesh.obj", result.vertices, faces, "silfit: posed body in world coordinates (rig extrinsics, metres)"
+        )
         write_cameras_json(tmp / "cameras.json", [(n, o.view) for n, o in zip(result.names, grid)])
         if result.silhouette is not None:
             kp = result.keypoint
-            write_params(tmp / "stages" / "keypoints", kp.params, kp.vertices, kp.joints, kp.keypoints_2d, kp.reprojection_error)
+            write_params(
+                tmp / "stages" / "keypoints", kp.params, kp.vertices, kp.joints, kp.keypoints_2d, kp.reprojection_error
+            )
         for c, (name, o) in enumerate(zip(result.names, grid)):
             folder = tmp / "views" / name
             folder.mkdir(parents=True, exist_ok=True)
-            figures.write_png(folder / "overlay.png", figures.fit_overlay(
-                images.get(name), view_vertices(result.vertices, o.view), faces, o.view.camera, o.keypoints.xy,
-                np.asarray(proj)[c], o.keypoints.conf))  # fmt: skip
+            figures.write_png(
+                folder / "overlay.png",
+                figures.fit_overlay(
+                    images.get(name),
+                    view_vertices(result.vertices, o.view),
+                    faces,
+                    o.view.camera,
+                    o.keypoints.xy,
+                    np.asarray(proj)[c],
+                    o.keypoints.conf,
+                ),
+            )
             if o.mask is not None and name in result.masks:
                 figures.write_png(folder / "silhouette.png", figures.silhouette_comparison(result.masks[name], o.mask))
         metrics = {k: v for k, v in result.metrics.items() if k != "keypoints_2d"}
@@ -294,6 +391,10 @@ def read_rig_sequence_masks(seq) -> Optional[list]:
     columns = []
     for c, view in enumerate(seq.views):
         cam = view.view.camera
-        columns.append([None if p is None else read_mask(p, size=(cam.width, cam.height), allow_empty=True)
-                        for p in seq.per_view(c, "masks")])  # fmt: skip
+        columns.append(
+            [
+                None if p is None else read_mask(p, size=(cam.width, cam.height), allow_empty=True)
+                for p in seq.per_view(c, "masks")
+            ]
+        )
     return [[col[f] for col in columns] for f in range(len(seq.numbers))]

@@ -17,6 +17,7 @@ The number of frames and views decides the keypoint stage's core (one image:
 :func:`~silfit.fitting.sequence.fit_sequence`); the keypoint layout decides the model's terms
 (body or whole body). Nothing above :func:`run` branches on the mode.
 """
+
 from __future__ import annotations
 
 import re
@@ -89,7 +90,9 @@ class Job:
     @property
     def mode(self) -> str:
         """``"image"``, ``"rig"`` or ``"video"`` (what the frames x views shape is called)."""
-        return "video" if (self.video or self.num_frames > 1) else "rig" if (self.rig or self.num_views > 1) else "image"
+        return (
+            "video" if (self.video or self.num_frames > 1) else "rig" if (self.rig or self.num_views > 1) else "image"
+        )
 
 
 @dataclass
@@ -139,10 +142,14 @@ class Fit:
         err = m.get("reprojection_error_px")
         if err is not None:
             parts.append(f"median reprojection error {err:.2f} px")
-        before = _finite_mean(m.get("iou_keypoint_stage", m.get("iou_mean_keypoint_stage", m.get("silhouette_iou_start"))))
+        before = _finite_mean(
+            m.get("iou_keypoint_stage", m.get("iou_mean_keypoint_stage", m.get("silhouette_iou_start")))
+        )
         after = _finite_mean(self.iou)
         if np.isfinite(after):
-            parts.append(f"IoU {before:.3f} -> {after:.3f}" if before is not None and np.isfinite(before) else f"IoU {after:.3f}")
+            parts.append(
+                f"IoU {before:.3f} -> {after:.3f}" if before is not None and np.isfinite(before) else f"IoU {after:.3f}"
+            )
         return ", ".join(parts)
 
 
@@ -214,8 +221,14 @@ def check(job: Job) -> Job:
             kept.append((c, column))
         if not kept:
             raise first
-        problem = Problem([Observation(grid[f][c].view, column[f], grid[f][c].mask, f, i, known=grid[f][c].known)
-                           for f in range(F) for i, (c, column) in enumerate(kept)], job.problem.shared)  # fmt: skip
+        problem = Problem(
+            [
+                Observation(grid[f][c].view, column[f], grid[f][c].mask, f, i, known=grid[f][c].known)
+                for f in range(F)
+                for i, (c, column) in enumerate(kept)
+            ],
+            job.problem.shared,
+        )
         names = [names[c] for c, _ in kept]
         index = {c: i for i, (c, _) in enumerate(kept)}  # a view's pictures and mask sources follow it
         images = {(f, index[c]): v for (f, c), v in job.images.items() if c in index}
@@ -226,7 +239,9 @@ def check(job: Job) -> Job:
             job = _replace(job, inputs=job.inputs.select_views([c for c, _ in kept]))
     from dataclasses import replace
 
-    return replace(job, problem=problem, view_names=names, warnings=_dedupe(warnings), images=images, mask_sources=sources)
+    return replace(
+        job, problem=problem, view_names=names, warnings=_dedupe(warnings), images=images, mask_sources=sources
+    )
 
 
 # -------------------------------------------------------------------------------- run
@@ -264,8 +279,20 @@ def run_batch(jobs: Sequence[Job], isolate: bool = False) -> List[Union[Fit, Exc
             out[i] = err
     groups: Dict[tuple, List[int]] = {}
     for i, job in checked.items():
-        key = (job.mode, job.layout, id(job.model), id(job.pose_prior), id(job.keypoint_config), id(job.silhouette_config),
-               job.silhouette, job.progress) if job.mode in ("image", "rig") else (job.mode, i)  # fmt: skip
+        key = (
+            (
+                job.mode,
+                job.layout,
+                id(job.model),
+                id(job.pose_prior),
+                id(job.keypoint_config),
+                id(job.silhouette_config),
+                job.silhouette,
+                job.progress,
+            )
+            if job.mode in ("image", "rig")
+            else (job.mode, i)
+        )
         groups.setdefault(key, []).append(i)
     for key, rows in groups.items():
         if key[0] in ("image", "rig"):
@@ -304,21 +331,42 @@ def _run_images(jobs: Sequence[Job], isolate: bool) -> list:
 
     first = jobs[0]
     obs = [job.problem.observations[0] for job in jobs]
-    results = fit_problems(first.model, [o.keypoints for o in obs], [o.view.camera for o in obs], [o.mask for o in obs],
-                           pose_prior=first.pose_prior, keypoint_config=first.keypoint_config,
-                           silhouette_config=first.silhouette_config, silhouette=first.silhouette, progress=first.progress,
-                           mask_sources=[job.mask_sources.get((0, 0), "mask") for job in jobs], isolate=isolate,
-                           images=[job.images.get((0, 0)) for job in jobs], people=[job.people.get((0, 0)) for job in jobs],
-                           known=[o.known for o in obs])  # fmt: skip
+    results = fit_problems(
+        first.model,
+        [o.keypoints for o in obs],
+        [o.view.camera for o in obs],
+        [o.mask for o in obs],
+        pose_prior=first.pose_prior,
+        keypoint_config=first.keypoint_config,
+        silhouette_config=first.silhouette_config,
+        silhouette=first.silhouette,
+        progress=first.progress,
+        mask_sources=[job.mask_sources.get((0, 0), "mask") for job in jobs],
+        isolate=isolate,
+        images=[job.images.get((0, 0)) for job in jobs],
+        people=[job.people.get((0, 0)) for job in jobs],
+        known=[o.known for o in obs],
+    )
     out = []
     for job, r in zip(jobs, results):
         if isinstance(r, Exception):
             out.append(r)
             continue
         m = r.metrics
-        out.append(Fit(job, _params_per_frame(r.params, 1), _arr(r.vertices)[None], _arr(r.joints)[None],
-                       _arr(r.keypoints_2d)[None, None], np.array([[m.get("reprojection_error_px", np.nan)]], dtype=np.float64),
-                       np.array([[m.get("iou", np.nan)]], dtype=np.float64), "camera", m, r))  # fmt: skip
+        out.append(
+            Fit(
+                job,
+                _params_per_frame(r.params, 1),
+                _arr(r.vertices)[None],
+                _arr(r.joints)[None],
+                _arr(r.keypoints_2d)[None, None],
+                np.array([[m.get("reprojection_error_px", np.nan)]], dtype=np.float64),
+                np.array([[m.get("iou", np.nan)]], dtype=np.float64),
+                "camera",
+                m,
+                r,
+            )
+        )
     return out
 
 
@@ -329,9 +377,16 @@ def _run_rigs(jobs: Sequence[Job], isolate: bool) -> list:
 
     first = jobs[0]
     try:
-        results = fit_rigs([job.problem for job in jobs], [list(job.view_names) for job in jobs], first.model, first.pose_prior,
-                           first.keypoint_config, silhouette=first.silhouette, silhouette_config=first.silhouette_config,
-                           progress=first.progress)  # fmt: skip
+        results = fit_rigs(
+            [job.problem for job in jobs],
+            [list(job.view_names) for job in jobs],
+            first.model,
+            first.pose_prior,
+            first.keypoint_config,
+            silhouette=first.silhouette,
+            silhouette_config=first.silhouette_config,
+            progress=first.progress,
+        )
     except Exception as err:  # noqa: BLE001 - which job failed is found by fitting them alone
         if not isolate or interruption(err) is not None:
             raise
@@ -341,9 +396,20 @@ def _run_rigs(jobs: Sequence[Job], isolate: bool) -> list:
         names = list(job.view_names)
         views = r.metrics["views"]
         proj = r.metrics.get("keypoints_2d", r.keypoint.keypoints_2d)
-        out.append(Fit(job, _params_per_frame(r.params, 1), _arr(r.vertices)[None], _arr(r.joints)[None], _arr(proj)[None],
-                       np.array([[views[n].get("reprojection_error_px", np.nan) for n in names]], dtype=np.float64),
-                       np.array([[views[n].get("iou", np.nan) for n in names]], dtype=np.float64), "world", r.metrics, r))  # fmt: skip
+        out.append(
+            Fit(
+                job,
+                _params_per_frame(r.params, 1),
+                _arr(r.vertices)[None],
+                _arr(r.joints)[None],
+                _arr(proj)[None],
+                np.array([[views[n].get("reprojection_error_px", np.nan) for n in names]], dtype=np.float64),
+                np.array([[views[n].get("iou", np.nan) for n in names]], dtype=np.float64),
+                "world",
+                r.metrics,
+                r,
+            )
+        )
     return out
 
 
@@ -383,20 +449,42 @@ def _run_video(job: Job) -> Fit:
     masks = [[o.mask for o in row] for row in grid] if rig else [row[0].mask for row in grid]
     cameras = [o.view for o in grid[0]] if rig else grid[0][0].view.camera
     cues, cue_records = (None, None) if rig else _video_depth_cues(job, frames)
-    result = fit_sequence(frames, cameras, job.model, config=job.sequence_config or SequenceFitConfig(),
-                          pose_prior=job.pose_prior, progress=job.progress, depth_cues=cues)  # fmt: skip
+    result = fit_sequence(
+        frames,
+        cameras,
+        job.model,
+        config=job.sequence_config or SequenceFitConfig(),
+        pose_prior=job.pose_prior,
+        progress=job.progress,
+        depth_cues=cues,
+    )
     silhouette = job.silhouette and any(o.mask is not None for o in job.problem.observations)
     if silhouette:
-        result = refine_sequence_silhouettes(job.model, result, frames, masks, config=job.silhouette_config,
-                                             pose_prior=job.pose_prior, progress=job.progress)  # fmt: skip
+        result = refine_sequence_silhouettes(
+            job.model,
+            result,
+            frames,
+            masks,
+            config=job.silhouette_config,
+            pose_prior=job.pose_prior,
+            progress=job.progress,
+        )
     F, C = len(grid), len(grid[0])
     params = result.params()
     with torch.no_grad():
-        T = lambda n, a: torch.as_tensor(np.repeat(np.asarray(a)[None], F, 0) if n == "betas" else np.asarray(a), dtype=job.model.dtype)  # noqa: E731
+
+        def T(n, a):
+            return torch.as_tensor(
+                np.repeat(np.asarray(a)[None], F, 0) if n == "betas" else np.asarray(a), dtype=job.model.dtype
+            )
+
         vertices = job.model(**{n: T(n, a) for n, a in params.items()}).vertices.numpy()
     errors = np.asarray(result.reprojection_error, np.float64).reshape(F, C)
-    iou = np.full((F, C), np.nan) if result.silhouette_iou is None else np.broadcast_to(
-        np.asarray(result.silhouette_iou, np.float64).reshape(F, -1), (F, C)).copy()  # fmt: skip
+    iou = (
+        np.full((F, C), np.nan)
+        if result.silhouette_iou is None
+        else np.broadcast_to(np.asarray(result.silhouette_iou, np.float64).reshape(F, -1), (F, C)).copy()
+    )
     numbers = list(job.frame_numbers) if job.frame_numbers is not None else list(range(F))
     warnings = list(result.warnings)
     if rig:  # a view the fit could not agree with (the rule of one frame's rig, on each view's median)
@@ -406,16 +494,33 @@ def _run_video(job: Job) -> Fit:
         warnings += disagreeing_views(list(job.view_names), medians)
     else:
         warnings += frame_warnings(frames, vertices, errors[:, 0], numbers)
-    metrics = {"reprojection_error_px": finite_median(errors), "warnings": _dedupe(warnings),
-               "silhouette": "run" if silhouette else "not run", "bridged_count": int(np.sum(result.bridged)),
-               "seconds_per_frame": float(result.timings["seconds_per_frame"]),
-               "image_depth": "none" if cue_records is None else {  # per frame: the segments the image decided
-                   str(n): sorted(r.get("decided", {})) if isinstance(r, dict) else r for n, r in zip(numbers, cue_records)}}  # fmt: skip
+    metrics = {
+        "reprojection_error_px": finite_median(errors),
+        "warnings": _dedupe(warnings),
+        "silhouette": "run" if silhouette else "not run",
+        "bridged_count": int(np.sum(result.bridged)),
+        "seconds_per_frame": float(result.timings["seconds_per_frame"]),
+        "image_depth": "none"
+        if cue_records is None
+        else {  # per frame: the segments the image decided
+            str(n): sorted(r.get("decided", {})) if isinstance(r, dict) else r for n, r in zip(numbers, cue_records)
+        },
+    }
     if silhouette and getattr(result, "silhouette_iou_start", None) is not None:  # the summary's "IoU a -> b"
         metrics["silhouette_iou_start"] = float(result.silhouette_iou_start)
     result.warnings = metrics["warnings"]
-    return Fit(job, _params_per_frame(params, F), _arr(vertices), _arr(result.joints),
-               _arr(result.keypoints_2d).reshape(F, C, -1, 2), errors, iou, "world" if rig else "camera", metrics, result)  # fmt: skip
+    return Fit(
+        job,
+        _params_per_frame(params, F),
+        _arr(vertices),
+        _arr(result.joints),
+        _arr(result.keypoints_2d).reshape(F, C, -1, 2),
+        errors,
+        iou,
+        "world" if rig else "camera",
+        metrics,
+        result,
+    )
 
 
 def frame_warnings(frames, vertices, errors, numbers) -> List[str]:
@@ -436,15 +541,27 @@ def frame_warnings(frames, vertices, errors, numbers) -> List[str]:
     out = []
     for first, found in kinds.values():
         shown = ", ".join(map(str, found[:10])) + (" ..." if len(found) > 10 else "")
-        out.append(f"frame(s) {shown}: {first}" if len(found) == 1 else f"{len(found)} frame(s) ({shown}), e.g. frame {found[0]}: {first}")
+        out.append(
+            f"frame(s) {shown}: {first}"
+            if len(found) == 1
+            else f"{len(found)} frame(s) ({shown}), e.g. frame {found[0]}: {first}"
+        )
     return out
 
 
 # -------------------------------------------------------------------------------- outputs
 
 
-def write(fit: Fit, out, *, overwrite: bool = False, exports: Sequence[str] = (), meshes: bool = False,
-          video: bool = True, fps: float = 30.0) -> Path:  # fmt: skip
+def write(
+    fit: Fit,
+    out,
+    *,
+    overwrite: bool = False,
+    exports: Sequence[str] = (),
+    meshes: bool = False,
+    video: bool = True,
+    fps: float = 30.0,
+) -> Path:
     """Write a fit's output folder atomically (the fit file of :mod:`silfit.fitio`, the mesh(es),
     pictures, ``metrics.json``); ``exports`` (``"glb"``, ``"ply"``) adds upright meshes for
     other tools (not for rigs: a rig's world frame has no fixed up axis); ``meshes``, ``video``
@@ -458,27 +575,59 @@ def write(fit: Fit, out, *, overwrite: bool = False, exports: Sequence[str] = ()
         from .image_fit import save_fit
 
         o = job.problem.observations[0]
-        return save_fit(fit.stage, out, faces, o.keypoints, job.images.get((0, 0)), o.mask, extra, overwrite=overwrite,
-                        exports=exports)  # fmt: skip
+        return save_fit(
+            fit.stage,
+            out,
+            faces,
+            o.keypoints,
+            job.images.get((0, 0)),
+            o.mask,
+            extra,
+            overwrite=overwrite,
+            exports=exports,
+        )
     if job.mode == "rig":
         from .rig_pipeline import save_rig_fit
 
         if exports:
-            raise InputError("--export", "not available for rigs (a rig's world frame has no fixed up axis); mesh.obj holds the body")
+            raise InputError(
+                "--export", "not available for rigs (a rig's world frame has no fixed up axis); mesh.obj holds the body"
+            )
         images = {job.view_names[c]: img for (f, c), img in job.images.items()}
         return save_rig_fit(fit.stage, out, faces, job.problem, images, extra, overwrite=overwrite, model=model)
     from .video import save_sequence_fit
 
-    return save_sequence_fit(fit.stage, out, model, job.inputs, meshes=meshes, video=video, fps=fps, extra_metrics=extra,
-                             overwrite=overwrite, exports=exports)  # fmt: skip
+    return save_sequence_fit(
+        fit.stage,
+        out,
+        model,
+        job.inputs,
+        meshes=meshes,
+        video=video,
+        fps=fps,
+        extra_metrics=extra,
+        overwrite=overwrite,
+        exports=exports,
+    )
 
 
 # -------------------------------------------------------------------------------- builders for Python callers
 
 
-def fit(keypoints, mask: Optional[np.ndarray] = None, camera=None, *, image_size: Optional[tuple] = None,
-        focal: Optional[float] = None, model=None, pose_prior=None, keypoint_config=None, silhouette_config=None,
-        progress: bool = False, image: Optional[np.ndarray] = None):  # fmt: skip
+def fit(
+    keypoints,
+    mask: Optional[np.ndarray] = None,
+    camera=None,
+    *,
+    image_size: Optional[tuple] = None,
+    focal: Optional[float] = None,
+    model=None,
+    pose_prior=None,
+    keypoint_config=None,
+    silhouette_config=None,
+    progress: bool = False,
+    image: Optional[np.ndarray] = None,
+):
     """Fit SMPL to one image (a :class:`~silfit.image_fit.FitResult`): keypoints (a :class:`KeypointSet` or ``[K, 3]`` array), then,
     if ``mask [H, W]`` (bool) is given, refine against the silhouette.
 
@@ -488,14 +637,36 @@ def fit(keypoints, mask: Optional[np.ndarray] = None, camera=None, *, image_size
     :mod:`silfit.fitting.image_depth`; ``metrics["image_depth"]``). The same path as every other mode
     (:func:`run` on :func:`image_job`).
     """
-    job = image_job(keypoints, mask, camera, image_size=image_size, focal=focal, model=model, pose_prior=pose_prior,
-                    keypoint_config=keypoint_config, silhouette_config=silhouette_config, progress=progress,
-                    image=image)  # fmt: skip
+    job = image_job(
+        keypoints,
+        mask,
+        camera,
+        image_size=image_size,
+        focal=focal,
+        model=model,
+        pose_prior=pose_prior,
+        keypoint_config=keypoint_config,
+        silhouette_config=silhouette_config,
+        progress=progress,
+        image=image,
+    )
     return run(job).stage
 
 
-def image_job(keypoints, mask=None, camera=None, *, image_size=None, focal=None, model=None, pose_prior=None,
-              keypoint_config=None, silhouette_config=None, progress: bool = False, image=None) -> Job:  # fmt: skip
+def image_job(
+    keypoints,
+    mask=None,
+    camera=None,
+    *,
+    image_size=None,
+    focal=None,
+    model=None,
+    pose_prior=None,
+    keypoint_config=None,
+    silhouette_config=None,
+    progress: bool = False,
+    image=None,
+) -> Job:
     """A job for one image: keypoints (a :class:`~silfit.keypoints.KeypointSet` or ``[K, 3]``
     array), an optional ``mask [H, W]``, and ``camera`` or ``image_size=(W, H)`` (+ ``focal``)
     for the default camera."""
@@ -516,12 +687,32 @@ def image_job(keypoints, mask=None, camera=None, *, image_size=None, focal=None,
 
         camera = replace(camera, fx=float(focal), fy=float(focal))
     mask = None if mask is None else np.asarray(mask, dtype=bool)
-    return Job(Problem.single(sets[0], camera, mask), model, pose_prior=pose_prior, keypoint_config=keypoint_config,
-               silhouette_config=silhouette_config, progress=progress, images={} if image is None else {(0, 0): image})  # fmt: skip
+    return Job(
+        Problem.single(sets[0], camera, mask),
+        model,
+        pose_prior=pose_prior,
+        keypoint_config=keypoint_config,
+        silhouette_config=silhouette_config,
+        progress=progress,
+        images={} if image is None else {(0, 0): image},
+    )
 
 
-def video_job(frames, camera, model=None, *, masks=None, config=None, silhouette_config=None, pose_prior=None,
-              progress: bool = False, numbers=None, inputs=None, warnings=(), record=None) -> Job:  # fmt: skip
+def video_job(
+    frames,
+    camera,
+    model=None,
+    *,
+    masks=None,
+    config=None,
+    silhouette_config=None,
+    pose_prior=None,
+    progress: bool = False,
+    numbers=None,
+    inputs=None,
+    warnings=(),
+    record=None,
+) -> Job:
     """A job for one camera's video: ``frames`` one :class:`~silfit.keypoints.KeypointSet` (or
     ``None``: no detection) per frame, ``masks`` one mask or ``None`` per frame, ``config`` a
     :class:`~silfit.fitting.sequence.SequenceFitConfig`; ``numbers`` the frame numbers and
@@ -530,7 +721,16 @@ def video_job(frames, camera, model=None, *, masks=None, config=None, silhouette
 
     masks = list(masks) if masks is not None else [None] * len(frames)
     view = View(camera)
-    return Job(Problem([Observation(view, ks, m, f) for f, (ks, m) in enumerate(zip(frames, masks))]), model,
-               pose_prior=pose_prior, silhouette_config=silhouette_config, sequence_config=config, progress=progress,
-               frame_numbers=None if numbers is None else list(numbers), warnings=list(warnings), inputs=inputs,
-               record=dict(record or {}), video=True)  # fmt: skip
+    return Job(
+        Problem([Observation(view, ks, m, f) for f, (ks, m) in enumerate(zip(frames, masks))]),
+        model,
+        pose_prior=pose_prior,
+        silhouette_config=silhouette_config,
+        sequence_config=config,
+        progress=progress,
+        frame_numbers=None if numbers is None else list(numbers),
+        warnings=list(warnings),
+        inputs=inputs,
+        record=dict(record or {}),
+        video=True,
+    )

@@ -29,6 +29,7 @@ through memo references (10**10 floats) is refused, naming the file and the fiel
 Python 2 names (``copy_reg``, ``__builtin__``) are mapped to their Python 3 names first,
 as the standard unpickler does.
 """
+
 from __future__ import annotations
 
 import _compat_pickle
@@ -109,7 +110,9 @@ class SparseStandIn(_StandIn):
                 matrix.check_format(full_check=True)
             return np.asarray(matrix.toarray())
         except (KeyError, TypeError, ValueError, IndexError) as err:
-            raise ValueError(f"a sparse {self.format} matrix in the file is malformed ({type(err).__name__}: {err})") from None
+            raise ValueError(
+                f"a sparse {self.format} matrix in the file is malformed ({type(err).__name__}: {err})"
+            ) from None
 
 
 def _sparse(fmt: str) -> type:
@@ -211,7 +214,9 @@ class RestrictedUnpickler(pickle.Unpickler):
 def _check_size(path: str) -> None:
     size = os.path.getsize(path)
     if size > MAX_FILE_BYTES:
-        raise InputError(path, f"file is {size / 1024**3:.1f} GiB, more than the {MAX_FILE_BYTES / 1024**3:.0f} GiB silfit reads")
+        raise InputError(
+            path, f"file is {size / 1024**3:.1f} GiB, more than the {MAX_FILE_BYTES / 1024**3:.0f} GiB silfit reads"
+        )
 
 
 def load_pickle(path: Union[str, os.PathLike], what: str = "silfit input") -> Any:
@@ -257,7 +262,12 @@ def _effect(op) -> tuple:
     pushes, whether what it pushes is a scalar)."""
     before = [s.name for s in op.stack_before]
     after = [s.name for s in op.stack_after]
-    return (before.index("mark") if "mark" in before else None, len(before), bool(after), bool(after) and after[0] in _SCALARS)
+    return (
+        before.index("mark") if "mark" in before else None,
+        len(before),
+        bool(after),
+        bool(after) and after[0] in _SCALARS,
+    )
 
 
 _EFFECTS = {op.name: _effect(op) for op in pickletools.opcodes}
@@ -405,8 +415,12 @@ def _check_bounds(data: bytes, source: str, what: str) -> None:
     if depth > MAX_DEPTH:
         field = _top_field(root, sizes, 1)
         where = f" (field '{field}')" if field else ""
-        raise InputError(source, f"refused this pickle as {what}: objects nested {depth} deep{where}, more than the "
-                         f"{MAX_DEPTH} silfit reads", field=field)  # fmt: skip
+        raise InputError(
+            source,
+            f"refused this pickle as {what}: objects nested {depth} deep{where}, more than the "
+            f"{MAX_DEPTH} silfit reads",
+            field=field,
+        )
     limit = expansion_limit(len(data))
     field = _top_field(root, sizes, 0)
     where = f", most of it field '{field}'" if field else ""
@@ -431,9 +445,13 @@ def _unpickle(data: bytes, source: str, what: str) -> Any:
         except RecursionError:
             raise InputError(source, f"cannot read this pickle as {what} (nested too deeply)") from None
         except MemoryError:
-            raise InputError(source, f"cannot read this pickle as {what} (it asks for more memory than there is)") from None
+            raise InputError(
+                source, f"cannot read this pickle as {what} (it asks for more memory than there is)"
+            ) from None
         except Exception as err:  # noqa: BLE001 - any other unpickling failure is a bad file
-            raise InputError(source, f"cannot read this pickle as {what} ({type(err).__name__}: {cut_quotes(str(err))})") from None
+            raise InputError(
+                source, f"cannot read this pickle as {what} ({type(err).__name__}: {cut_quotes(str(err))})"
+            ) from None
 
 
 def _npz_member_with_objects(zf: zipfile.ZipFile, key: str, source: str, what: str) -> np.ndarray:
@@ -477,7 +495,9 @@ def load_npz(path: Union[str, os.PathLike], what: str = "silfit input", allow_ob
                     if "allow_pickle" not in str(err):
                         raise InputError(source, f"field '{key}' is not a readable array ({err})", field=key) from None
                     if not allow_objects:
-                        raise InputError(source, f"field '{key}' holds Python objects, not numbers", field=key) from None
+                        raise InputError(
+                            source, f"field '{key}' holds Python objects, not numbers", field=key
+                        ) from None
                     out[key] = _npz_member_with_objects(zf, key, source, what)
     except InputError:
         raise

@@ -19,6 +19,7 @@ separately); no mask or image matching any frame. Warned of
 (:attr:`SequenceInput.warnings`): frames with a person but no mask, masks and images for
 frame numbers the keypoints do not have (ignored).
 """
+
 from __future__ import annotations
 
 import json
@@ -31,15 +32,24 @@ from typing import Dict, List, Optional, Sequence, Union
 import numpy as np
 
 from .errors import InputError
+from .imagefile import IMAGE_EXTENSIONS
 from .keypoints import KEYPOINT_FOLDERS, KeypointSet, read_keypoints
 from .rig import RigView, holds_video, read_rig_views, select_views, video_folder
 
-__all__ = ["RigSequence", "SequenceInput", "frame_number", "is_rig_video", "load_rig_sequence", "read_sequence", "save_sequence_fit",
-           "write_overlay_video"]
+__all__ = [
+    "RigSequence",
+    "SequenceInput",
+    "frame_number",
+    "is_rig_video",
+    "load_rig_sequence",
+    "read_sequence",
+    "save_sequence_fit",
+    "write_overlay_video",
+]
 
 _KEYPOINTS = re.compile(r"^(?P<stem>.*?)_?(?P<num>\d+)?_keypoints\.json$")
 _DIGITS = re.compile(r"(\d+)(?!.*\d)")
-from .imagefile import IMAGE_EXTENSIONS
+
 MAX_FRAMES = 100_000
 #: Most frame numbers missing in a row (frames without detection, bridged by the fit).
 MAX_GAP = 100
@@ -92,8 +102,11 @@ def _one_video(files: Dict[int, Path], what: str, folder: Path) -> None:
         stems.setdefault(_name_stem(p.name), []).append(n)
     if len(stems) > 1:
         (a, fa), (b, fb), *_ = sorted(stems.items(), key=lambda kv: -len(kv[1]))
-        raise InputError(folder, f"{what} files of {len(stems)} videos in one folder: '{a}' (frames {fa[0]}..{fa[-1]}) and "
-                         f"'{b}' (frames {fb[0]}..{fb[-1]}); give each video's files their own folder")  # fmt: skip
+        raise InputError(
+            folder,
+            f"{what} files of {len(stems)} videos in one folder: '{a}' (frames {fa[0]}..{fa[-1]}) and "
+            f"'{b}' (frames {fb[0]}..{fb[-1]}); give each video's files their own folder",
+        )
 
 
 def _numbered(folder: Path, what: str) -> Dict[int, Path]:
@@ -116,8 +129,11 @@ def _check_gaps(numbered: Dict[int, Path], folder: Path) -> None:
     ordered = sorted(numbered)
     for before, after in zip(ordered, ordered[1:]):
         if after - before - 1 > MAX_GAP:
-            raise InputError(numbered[after], f"frame {after} comes {after - before - 1} missing frames after frame {before} "
-                             f"(at most {MAX_GAP} are bridged); is it from another video? Fit the parts separately")  # fmt: skip
+            raise InputError(
+                numbered[after],
+                f"frame {after} comes {after - before - 1} missing frames after frame {before} "
+                f"(at most {MAX_GAP} are bridged); is it from another video? Fit the parts separately",
+            )
     if ordered[-1] - ordered[0] + 1 > MAX_FRAMES:
         raise InputError(folder, f"frames {ordered[0]}..{ordered[-1]}: more than {MAX_FRAMES} frames")
 
@@ -130,9 +146,16 @@ def _match(files: Dict[int, Path], numbers: List[int], frames: list, what: str, 
     have = set(numbers)
     extra = sorted(set(files) - have)
     if len(extra) == len(files):
-        raise InputError(folder, f"no {what} file matches a frame: {what}s for frames {extra[0]}..{extra[-1]}, keypoints "
-                         f"for {numbers[0]}..{numbers[-1]} (is it another video's folder?)")  # fmt: skip
-    out = [f"{folder}: {len(extra)} {what}(s) for frames the keypoints do not have, ignored: {_listed(extra)}"] if extra else []
+        raise InputError(
+            folder,
+            f"no {what} file matches a frame: {what}s for frames {extra[0]}..{extra[-1]}, keypoints "
+            f"for {numbers[0]}..{numbers[-1]} (is it another video's folder?)",
+        )
+    out = (
+        [f"{folder}: {len(extra)} {what}(s) for frames the keypoints do not have, ignored: {_listed(extra)}"]
+        if extra
+        else []
+    )
     missing = [n for n, ks in zip(numbers, frames) if ks is not None and n not in files]
     if missing:
         effect = "no silhouette term there" if what == "mask" else "drawn without the image"
@@ -144,8 +167,12 @@ def _listed(numbers: List[int], most: int = 10) -> str:
     return ", ".join(map(str, numbers[:most])) + (f", ... ({len(numbers) - most} more)" if len(numbers) > most else "")
 
 
-def read_sequence(folder: Union[str, os.Union[str, os.PathLike]], masks: Optional[Union[str, os.Union[str, os.PathLike]]] = None,
-                  images: Optional[Union[str, os.Union[str, os.PathLike]]] = None, person: Union[int, str] = "largest") -> SequenceInput:  # fmt: skip
+def read_sequence(
+    folder: Union[str, os.Union[str, os.PathLike]],
+    masks: Optional[Union[str, os.Union[str, os.PathLike]]] = None,
+    images: Optional[Union[str, os.Union[str, os.PathLike]]] = None,
+    person: Union[int, str] = "largest",
+) -> SequenceInput:
     """Read a folder of per-frame OpenPose JSON files (module docstring); ``masks`` and
     ``images`` are folders (default: ``masks/`` and ``images/`` beside a ``keypoints/``
     sub-folder, when present)."""
@@ -160,8 +187,11 @@ def read_sequence(folder: Union[str, os.Union[str, os.PathLike]], masks: Optiona
     for p in files:
         n = frame_number(p.name)
         if n is None:
-            raise InputError(p, "keypoint file name has no frame number (expected <video>_<frame, 12 digits>_keypoints.json, "
-                             "as OpenPose writes for a video)")  # fmt: skip
+            raise InputError(
+                p,
+                "keypoint file name has no frame number (expected <video>_<frame, 12 digits>_keypoints.json, "
+                "as OpenPose writes for a video)",
+            )
         if n in numbered:
             raise InputError(p, f"two keypoint files for frame {n}: {numbered[n].name} and {p.name}")
         numbered[n] = p
@@ -197,7 +227,9 @@ def read_sequence(folder: Union[str, os.Union[str, os.PathLike]], masks: Optiona
     cam = next((d / "camera.json" for d in (kp_dir, side) if d is not None and (d / "camera.json").is_file()), None)
     mask_files, image_files = _numbered(mdir, "mask") if mdir else {}, _numbered(idir, "image") if idir else {}
     warnings = _match(mask_files, numbers, frames, "mask", mdir) + _match(image_files, numbers, frames, "image", idir)
-    return SequenceInput(root, numbers, frames, [numbered.get(n) for n in numbers], mask_files, image_files, cam, warnings)
+    return SequenceInput(
+        root, numbers, frames, [numbered.get(n) for n in numbers], mask_files, image_files, cam, warnings
+    )
 
 
 # ----------------------------------------------------------------------------- writing a sequence fit
@@ -225,8 +257,11 @@ def _frame_pictures(result, numbers, model, images, masks, stride: int = 1):
         for c, view in enumerate(views):
             R, t = view.extrinsics()
             img = read_rgb(images[c][numbers[f]], "image") if numbers[f] in images[c] else None
-            row.append(figures.fit_overlay(img, (vertices @ R.T + t).astype(np.float32), faces, view.camera, None,
-                                           result.keypoints_2d[f, c]))  # fmt: skip
+            row.append(
+                figures.fit_overlay(
+                    img, (vertices @ R.T + t).astype(np.float32), faces, view.camera, None, result.keypoints_2d[f, c]
+                )
+            )
         height = max(r.shape[0] for r in row)
         pics.append(np.concatenate([np.pad(r, ((0, height - r.shape[0]), (0, 0), (0, 0))) for r in row], axis=1))
     return pics
@@ -240,7 +275,9 @@ def write_overlay_video(path: Path, pictures, fps: float) -> Optional[Path]:
         from PIL import Image
 
         frames = [Image.fromarray(np.asarray(p, dtype=np.uint8)) for p in pictures]
-        frames[0].save(path, format="GIF", save_all=True, append_images=frames[1:], duration=int(round(1000.0 / fps)), loop=0)
+        frames[0].save(
+            path, format="GIF", save_all=True, append_images=frames[1:], duration=int(round(1000.0 / fps)), loop=0
+        )
         return path
     iio.imwrite(path, np.stack(pictures), extension=".gif", duration=1000.0 / fps, loop=0)
     return path
@@ -258,7 +295,12 @@ def _write_sequence_meshes(tmp: Path, result, model, numbers, meshes: bool, expo
     posed = []
     for f in range(result.num_frames):
         with torch.no_grad():
-            v = model(**{k: torch.as_tensor(np.asarray(a)[None], dtype=model.dtype) for k, a in result.frame_params(f).items()})
+            v = model(
+                **{
+                    k: torch.as_tensor(np.asarray(a)[None], dtype=model.dtype)
+                    for k, a in result.frame_params(f).items()
+                }
+            )
         posed.append(v.vertices[0].numpy())
     if meshes:
         (tmp / "meshes").mkdir()
@@ -280,20 +322,33 @@ def _sequence_metrics(result, numbers, names, gif, extra_metrics) -> dict:
     cam = result.camera
     finite = result.reprojection_error[np.isfinite(result.reprojection_error)]
     metrics = {
-        "frames": len(numbers), "first_frame": numbers[0], "last_frame": numbers[-1],
+        "frames": len(numbers),
+        "first_frame": numbers[0],
+        "last_frame": numbers[-1],
         "bridged_frames": [numbers[i] for i in np.flatnonzero(result.bridged)],
         "refaced_frames": [numbers[i] for i in np.flatnonzero(result.refaced)],
         # the frames whose depth branch the choice over time changed (SequenceFitConfig.branch_dp)
-        "rebranched_frames": [numbers[i] for i in np.flatnonzero(result.rebranched)] if result.rebranched is not None else [],
+        "rebranched_frames": [numbers[i] for i in np.flatnonzero(result.rebranched)]
+        if result.rebranched is not None
+        else [],
         "outlier_keypoints": int(result.outliers.sum()),
         "reprojection_error_px": float(np.median(finite)) if len(finite) else None,
-        **({"reprojection_error_px_keypoint_stage": finite_median(result.reprojection_error_keypoint_stage)}
-           if result.reprojection_error_keypoint_stage is not None else {}),
-        "timings": result.timings, "warnings": list(result.warnings),
-        **({"views": names, "cameras": [v.camera.to_dict() for v in result.views], "coordinates": "world"} if rig
-           else {"camera": cam.to_dict()}),
-        "overlay_video": gif.name if gif else None, "config": result.config, **(extra_metrics or {}),
-    }  # fmt: skip
+        **(
+            {"reprojection_error_px_keypoint_stage": finite_median(result.reprojection_error_keypoint_stage)}
+            if result.reprojection_error_keypoint_stage is not None
+            else {}
+        ),
+        "timings": result.timings,
+        "warnings": list(result.warnings),
+        **(
+            {"views": names, "cameras": [v.camera.to_dict() for v in result.views], "coordinates": "world"}
+            if rig
+            else {"camera": cam.to_dict()}
+        ),
+        "overlay_video": gif.name if gif else None,
+        "config": result.config,
+        **(extra_metrics or {}),
+    }
     if result.silhouette_iou is not None:
         metrics["silhouette_iou_start"] = result.silhouette_iou_start
         clean = lambda v: None if not np.isfinite(v) else float(v)  # noqa: E731
@@ -301,9 +356,19 @@ def _sequence_metrics(result, numbers, names, gif, extra_metrics) -> dict:
     return metrics
 
 
-def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: bool = False, video: bool = True,
-                      fps: float = 30.0, extra_metrics: Optional[dict] = None, overwrite: bool = False,
-                      exports: Sequence[str] = ()) -> Path:  # fmt: skip
+def save_sequence_fit(
+    result,
+    out,
+    model,
+    sequence: "SequenceInput",
+    *,
+    meshes: bool = False,
+    video: bool = True,
+    fps: float = 30.0,
+    extra_metrics: Optional[dict] = None,
+    overwrite: bool = False,
+    exports: Sequence[str] = (),
+) -> Path:
     """Write a :class:`~silfit.fitting.sequence.SequenceFitResult` atomically: ``params.npz``
     / ``params.json`` (the fit file of :mod:`silfit.fitio`: ``F`` frames, one view, ``frames``
     the frame numbers; ``params.json`` adds ``bridged``, ``refaced`` and ``rebranched`` per frame),
@@ -330,15 +395,38 @@ def save_sequence_fit(result, out, model, sequence: "SequenceInput", *, meshes: 
     if rig and exports:
         raise ValueError("exports of a rig video: not available (a rig's world frame has no fixed up axis)")
     names = list(sequence.names) if rig else None
-    where = dict(cameras=[v.camera for v in result.views], coordinates="world", extrinsics=[v.extrinsics() for v in result.views],
-                 views=names) if rig else dict(cameras=[cam])  # fmt: skip
+    where = (
+        dict(
+            cameras=[v.camera for v in result.views],
+            coordinates="world",
+            extrinsics=[v.extrinsics() for v in result.views],
+            views=names,
+        )
+        if rig
+        else dict(cameras=[cam])
+    )
     per_view = (lambda a: a) if rig else (lambda a: a[:, None])  # noqa: E731  (one camera: no view axis)
     with atomic_folder(out, overwrite) as tmp:
-        write_fit(tmp, result.params(), layout=result.layout, model=model, frame_numbers=numbers,
-                  joints=result.joints, keypoints_2d=per_view(result.keypoints_2d),
-                  reprojection_error=per_view(result.reprojection_error), record=flags, **where)  # fmt: skip
-        write_fit(tmp / "stages" / "per_frame", result.per_frame, layout=result.layout, model=model,
-                  frame_numbers=numbers, **where)  # fmt: skip
+        write_fit(
+            tmp,
+            result.params(),
+            layout=result.layout,
+            model=model,
+            frame_numbers=numbers,
+            joints=result.joints,
+            keypoints_2d=per_view(result.keypoints_2d),
+            reprojection_error=per_view(result.reprojection_error),
+            record=flags,
+            **where,
+        )
+        write_fit(
+            tmp / "stages" / "per_frame",
+            result.per_frame,
+            layout=result.layout,
+            model=model,
+            frame_numbers=numbers,
+            **where,
+        )
         if rig:
             from .rig import write_cameras_json
 
@@ -397,8 +485,12 @@ class RigSequence:
         from dataclasses import replace
 
         idx = list(indices)
-        return replace(self, views=[self.views[c] for c in idx], videos=[self.videos[c] for c in idx],
-                       frames=[[row[c] for c in idx] for row in self.frames])  # fmt: skip
+        return replace(
+            self,
+            views=[self.views[c] for c in idx],
+            videos=[self.videos[c] for c in idx],
+            frames=[[row[c] for c in idx] for row in self.frames],
+        )
 
     def per_view(self, c: int, what: str) -> List[Optional[Path]]:
         """View ``c``'s ``"masks"`` or ``"images"`` file per frame (``None``: none)."""
@@ -419,15 +511,22 @@ def load_rig_sequence(folder: Union[str, os.PathLike], person: Union[int, str] =
     for v in views:
         d = video_folder(v)
         if not holds_video(d):
-            raise InputError(d, f"view {v.name}: no per-frame keypoints (*_keypoints.json, or keypoints/ or openpose/ "
-                             "with them) for a rig video", field="keypoints")  # fmt: skip
+            raise InputError(
+                d,
+                f"view {v.name}: no per-frame keypoints (*_keypoints.json, or keypoints/ or openpose/ "
+                "with them) for a rig video",
+                field="keypoints",
+            )
         videos.append(read_sequence(d, person=person))
     first, last = min(s.numbers[0] for s in videos), max(s.numbers[-1] for s in videos)
     have = sorted({n for s in videos for n, ks in zip(s.numbers, s.frames)})
     for a, b in zip(have, have[1:]):
         if b - a - 1 > MAX_GAP:
-            raise InputError(folder, f"the views' frames {a} and {b} are {b - a - 1} frames apart (at most {MAX_GAP} are "
-                             "bridged); are all views of one recording?")  # fmt: skip
+            raise InputError(
+                folder,
+                f"the views' frames {a} and {b} are {b - a - 1} frames apart (at most {MAX_GAP} are "
+                "bridged); are all views of one recording?",
+            )
     numbers = list(range(first, last + 1))
     frames = []
     for n in numbers:

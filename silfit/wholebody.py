@@ -2,6 +2,7 @@
 reading, writing and validating OpenPose whole-body JSON, and choosing which keypoints a fit uses.
 The layout's parts and their sources on an SMPL-X-layout model are in :mod:`silfit.layouts` (their
 names are kept here too)."""
+
 from __future__ import annotations
 
 import json
@@ -14,9 +15,18 @@ import numpy as np
 
 from .keypoints import KeypointSet, keypoint_triplets
 from .layouts import (  # noqa: F401  (re-exported: silfit.wholebody's names kept)
-    BODY25_NAMES, FACE70_NAMES, FINGERS, HAND21_NAMES, PART_FIELDS, WHOLEBODY_NAMES, WHOLEBODY_PARTS, hand_names,
-    part_slices, wholebody_keypoints, wholebody_sources,
-)  # fmt: skip
+    BODY25_NAMES,
+    FACE70_NAMES,
+    FINGERS,
+    HAND21_NAMES,
+    PART_FIELDS,
+    WHOLEBODY_NAMES,
+    WHOLEBODY_PARTS,
+    hand_names,
+    part_slices,
+    wholebody_keypoints,
+    wholebody_sources,
+)
 
 __all__ = [
     "FINGERS",
@@ -32,6 +42,7 @@ __all__ = [
     "read_wholebody",
     "write_wholebody_json",
 ]
+
 
 @dataclass
 class WholeBodyKeypoints:
@@ -59,7 +70,10 @@ class WholeBodyKeypoints:
 
     def as_keypoint_set(self) -> KeypointSet:
         """One :class:`KeypointSet` of the ``wholebody`` layout (absent parts: confidence 0)."""
-        rows = [self.part(p) if self.part(p) is not None else np.zeros((n, 3)) for p, (_, n) in zip(WHOLEBODY_PARTS, PART_FIELDS.values())]
+        rows = [
+            self.part(p) if self.part(p) is not None else np.zeros((n, 3))
+            for p, (_, n) in zip(WHOLEBODY_PARTS, PART_FIELDS.values())
+        ]
         arr = np.concatenate(rows, 0)
         return KeypointSet(arr[:, :2], arr[:, 2], "wholebody", source=self.source)
 
@@ -74,7 +88,9 @@ def _part_array(values, count: int, source: str, field: str) -> Optional[np.ndar
         raise ValueError(f"{source}: field '{field}' has {arr.shape[0]} keypoints, expected {count}")
     bad = ~np.isfinite(arr).all(axis=1)
     if bad.any():
-        raise ValueError(f"{source}: field '{field}' has NaN or infinite values at point(s) {', '.join(map(str, np.flatnonzero(bad)[:5]))}")
+        raise ValueError(
+            f"{source}: field '{field}' has NaN or infinite values at point(s) {', '.join(map(str, np.flatnonzero(bad)[:5]))}"
+        )
     if (arr[:, 2] < 0).any():
         raise ValueError(f"{source}: field '{field}' has negative confidences")
     return arr
@@ -92,7 +108,9 @@ def validate_wholebody(kp: WholeBodyKeypoints, require=("body",)) -> WholeBodyKe
     return kp
 
 
-def read_wholebody(path: Union[str, os.PathLike], person: Union[int, str] = "largest", require=("body",)) -> WholeBodyKeypoints:
+def read_wholebody(
+    path: Union[str, os.PathLike], person: Union[int, str] = "largest", require=("body",)
+) -> WholeBodyKeypoints:
     """Read OpenPose whole-body JSON (``people[i]`` with ``pose_keypoints_2d`` (BODY_25),
     ``hand_left_keypoints_2d`` / ``hand_right_keypoints_2d`` (21 each) and ``face_keypoints_2d`` (70)).
     Parts that are absent or ``[]`` are ``None``; the parts in ``require`` must be present with a
@@ -114,8 +132,14 @@ def read_wholebody(path: Union[str, os.PathLike], person: Union[int, str] = "lar
             parts[part] = _part_array(p.get(field), count, source, f"people[{i}].{field}")
         if parts["body"] is None:
             raise ValueError(f"{source}: field 'people[{i}].pose_keypoints_2d' is empty")
-        body = KeypointSet(parts["body"][:, :2], parts["body"][:, 2], "body25", source=f"{source} (people[{i}].pose_keypoints_2d)")
-        people.append(WholeBodyKeypoints(body, parts["hand_left"], parts["hand_right"], parts["face"], source=f"{source} (people[{i}])"))
+        body = KeypointSet(
+            parts["body"][:, :2], parts["body"][:, 2], "body25", source=f"{source} (people[{i}].pose_keypoints_2d)"
+        )
+        people.append(
+            WholeBodyKeypoints(
+                body, parts["hand_left"], parts["hand_right"], parts["face"], source=f"{source} (people[{i}])"
+            )
+        )
     if person == "largest":
         chosen = max(people, key=lambda k: k.body.visible_area())
     else:
@@ -126,7 +150,9 @@ def read_wholebody(path: Union[str, os.PathLike], person: Union[int, str] = "lar
     return validate_wholebody(chosen, require)
 
 
-def write_wholebody_json(path: Union[str, os.PathLike], body: np.ndarray, hand_left=None, hand_right=None, face=None) -> None:
+def write_wholebody_json(
+    path: Union[str, os.PathLike], body: np.ndarray, hand_left=None, hand_right=None, face=None
+) -> None:
     """Write one person's whole-body keypoints (``[K, 3]`` x, y, confidence per part; ``None`` parts
     are written as ``[]``) as OpenPose JSON. Non-finite points become zeros with zero confidence."""
     person = {"person_id": [-1]}
@@ -175,8 +201,10 @@ def choose_fit_keypoints(keypoints: KeypointSet, wholebody: Optional[WholeBodyKe
     for an SMPL-layout model (a note says that hands and face are not fitted)."""
     if getattr(model, "kind", "smpl") == "smplx":
         if keypoints.layout != "body25":
-            raise ValueError(f"{keypoints.source}: an SMPL-X-layout model is fitted to OpenPose BODY_25 / whole-body "
-                             f"keypoints, not {keypoints.layout}")  # fmt: skip
+            raise ValueError(
+                f"{keypoints.source}: an SMPL-X-layout model is fitted to OpenPose BODY_25 / whole-body "
+                f"keypoints, not {keypoints.layout}"
+            )
         wb = wholebody or WholeBodyKeypoints(keypoints, None, None, None, source=keypoints.source)
         return wb.as_keypoint_set(), None
     if wholebody is not None and wholebody.has_parts:

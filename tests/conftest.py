@@ -1,4 +1,5 @@
 """Shared fixtures. The shipped open body model is loaded once per session."""
+
 import silfit  # noqa: F401  (first: pins the CPU kernels before torch and numpy load, silfit.kernels)
 
 import os  # noqa: E402

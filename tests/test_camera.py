@@ -1,4 +1,5 @@
 """The camera convention: projection, crops, defaults and camera files."""
+
 import json
 import math
 
@@ -44,12 +45,7 @@ def test_weak_perspective():
 
 @pytest.mark.parametrize(
     "kwargs, message",
-    [
-        (dict(fx=0.0), "focal"),
-        (dict(fy=-1.0), "focal"),
-        (dict(width=0), "width"),
-        (dict(cx=float("nan")), "cx"),
-    ],
+    [(dict(fx=0.0), "focal"), (dict(fy=-1.0), "focal"), (dict(width=0), "width"), (dict(cx=float("nan")), "cx")],
 )
 def test_bad_cameras_are_rejected(kwargs, message):
     fields = dict(fx=100.0, fy=100.0, cx=10.0, cy=10.0, width=20, height=20)
@@ -83,7 +79,10 @@ def test_camera_from_stored_intrinsics():
     "change,expect",
     [
         ({"fx": "500"}, r"'fx' must be a finite number, got '500'"),
-        ({"width": 100000, "height": 100000, "cx": 5e4, "cy": 5e4}, r"100000x100000 pixels is larger than silfit accepts"),
+        (
+            {"width": 100000, "height": 100000, "cx": 5e4, "cy": 5e4},
+            r"100000x100000 pixels is larger than silfit accepts",
+        ),
         ({"width": 9000, "height": 9000, "cx": 4500, "cy": 4500}, r"megapixels"),
         ({"width": 10**400}, r"'width' must be a finite number"),
         ({"fx": 1e-3}, r"'fx' = 0\.001 px .* times the image's longer side"),

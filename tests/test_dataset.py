@@ -1,4 +1,5 @@
 """Reading subject folders: validation errors name the file and the field."""
+
 import json
 
 import numpy as np
@@ -20,10 +21,17 @@ def make_subject(folder, size=(40, 30)):
     mask[5:25, 10:30] = True
     write_png(folder / "mask.png", mask)
     write_png(folder / "image.png", np.full((h, w, 3), 128, np.uint8))
-    save_npz(folder / "gt.npz", {
-        "betas": np.zeros(10), "body_pose": np.zeros(69), "global_orient": np.array([np.pi, 0, 0]),
-        "transl": np.array([0, 0, 3.0]), "vertices": np.zeros((8, 3)), "joints": np.zeros((24, 3)),
-    })  # fmt: skip
+    save_npz(
+        folder / "gt.npz",
+        {
+            "betas": np.zeros(10),
+            "body_pose": np.zeros(69),
+            "global_orient": np.array([np.pi, 0, 0]),
+            "transl": np.array([0, 0, 3.0]),
+            "vertices": np.zeros((8, 3)),
+            "joints": np.zeros((24, 3)),
+        },
+    )
     return folder
 
 
@@ -78,7 +86,9 @@ def test_gt_fields_are_validated(tmp_path):
 def test_mask_size_and_content_checked(tmp_path):
     d = make_subject(tmp_path / "a")
     write_png(d / "mask.png", np.ones((10, 10), bool))
-    with pytest.raises(SubjectError, match=r"mask\.png: field 'mask': mask is 10x10 pixels but the image/camera is 40x30"):
+    with pytest.raises(
+        SubjectError, match=r"mask\.png: field 'mask': mask is 10x10 pixels but the image/camera is 40x30"
+    ):
         load_subject(d)
     write_png(d / "mask.png", np.zeros((30, 40), bool))
     with pytest.raises(SubjectError, match="empty"):

@@ -1,4 +1,5 @@
 """``silfit demo --whole-body`` writes its close-ups and a table in which the hands and face fit."""
+
 import json
 
 from silfit.demo_wholebody import METHODS, SHIPPED_WHOLEBODY, run_wholebody_demo
@@ -6,8 +7,12 @@ from silfit.fitting.silhouette_stage import SilhouetteFitConfig
 
 
 def test_wholebody_demo(tmp_path):
-    report = run_wholebody_demo(tmp_path, SHIPPED_WHOLEBODY / "subject_000", progress=False,
-                                silhouette_config=SilhouetteFitConfig(resolutions=(64,), iterations=(6,)))  # fmt: skip
+    report = run_wholebody_demo(
+        tmp_path,
+        SHIPPED_WHOLEBODY / "subject_000",
+        progress=False,
+        silhouette_config=SilhouetteFitConfig(resolutions=(64,), iterations=(6,)),
+    )
     for name in ("closeups.png", "summary.png", "report.md", "report.json", "fit/params.npz"):
         assert (tmp_path / name).is_file(), name
     s = json.loads((tmp_path / "report.json").read_text())["scores"]

@@ -5,6 +5,7 @@ first, as the pages say) whose working folder is a temporary one holding a link 
 ``data/`` (the shipped subjects the examples read). A block is left out only when the line before its
 fence is ``<!-- illustrative -->`` (code for another program, e.g. Blender's ``bpy``); most must run.
 """
+
 from __future__ import annotations
 
 import os
@@ -57,6 +58,7 @@ def test_page_code_runs(page, tmp_path):
     script.write_text("\n".join(f"# --- block {k + 1}\n{b}" for k, b in enumerate(blocks)))
     (tmp_path / "data").symlink_to(ROOT / "data")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep))
-    run = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True,
-                         timeout=600)  # fmt: skip
+    run = subprocess.run(
+        [sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600
+    )
     assert run.returncode == 0, f"{page.relative_to(ROOT)}:\n{run.stdout[-2000:]}\n{run.stderr[-4000:]}"

@@ -5,6 +5,7 @@ API reference entry naming a function or module that no longer exists fails the 
 MkDocs, Material, mkdocstrings and mkdocs-awesome-nav come with the ``docs`` extra, which
 ``tools/setup.sh`` installs; without them this test fails (it is not skipped) and says what to install.
 """
+
 from __future__ import annotations
 
 import os
@@ -27,8 +28,10 @@ def build(tmp_path: Path, edit=None) -> subprocess.CompletedProcess:
         import mkdocs_awesome_nav  # noqa: F401
         import mkdocstrings  # noqa: F401
     except ImportError as err:
-        pytest.fail(f"{err}: the docs build needs the docs extra: pip install -c constraints.txt -e '.[docs]' "
-                    "(tools/setup.sh installs it)")  # fmt: skip
+        pytest.fail(
+            f"{err}: the docs build needs the docs extra: pip install -c constraints.txt -e '.[docs]' "
+            "(tools/setup.sh installs it)"
+        )
     shutil.copytree(ROOT / "docs", tmp_path / "docs")
     config = (ROOT / "mkdocs.yml").read_text()
     assert "paths: [.]" in config
@@ -36,16 +39,28 @@ def build(tmp_path: Path, edit=None) -> subprocess.CompletedProcess:
     if edit:
         edit(tmp_path / "docs")
     env = dict(os.environ, NO_MKDOCS_2_WARNING="1")  # no advertisement of Material's successor on stderr
-    return subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(tmp_path / "site")],
-                          cwd=tmp_path, capture_output=True, text=True, timeout=600, env=env)  # fmt: skip
+    return subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(tmp_path / "site")],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
+    )
 
 
 def test_the_site_builds_with_warnings_as_errors(tmp_path):
     run = build(tmp_path)
     assert run.returncode == 0, run.stderr[-4000:]
     site = tmp_path / "site"
-    for page in ("index.html", "install/index.html", "how-it-works/index.html", "guides/photos/index.html",
-                 "benchmarks/depth-ambiguity/index.html", "reference/silfit-run/index.html"):  # fmt: skip
+    for page in (
+        "index.html",
+        "install/index.html",
+        "how-it-works/index.html",
+        "guides/photos/index.html",
+        "benchmarks/depth-ambiguity/index.html",
+        "reference/silfit-run/index.html",
+    ):
         assert (site / page).is_file(), page
     api = (site / "reference/silfit-run/index.html").read_text()
     assert "image_job" in api and "run_batch" in api  # generated from the docstrings

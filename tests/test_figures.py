@@ -1,4 +1,5 @@
 """Pictures drawn without GL or matplotlib: the painted mesh and the IoU curve."""
+
 from __future__ import annotations
 
 import math
@@ -42,7 +43,11 @@ def test_overlay_and_iou_curve(tmp_path):
     out = fit_overlay(np.zeros((64, 64, 3), np.uint8), v, f, cam, keypoints_xy=np.array([[5.0, 5.0]]))
     assert out.shape == (64, 64, 3) and out[32, 32].min() > 60 and out[1, 60].max() == 0
     assert out[5, 5, 1] > 150  # the keypoint dot, green
-    history = {"iou": list(np.linspace(0.7, 0.95, 30)), "energy": list(np.linspace(5, 1, 30)), "level": [0] * 15 + [1] * 15}
+    history = {
+        "iou": list(np.linspace(0.7, 0.95, 30)),
+        "energy": list(np.linspace(5, 1, 30)),
+        "level": [0] * 15 + [1] * 15,
+    }
     iou_curve(history, tmp_path / "c.png")
     img = np.asarray(Image.open(tmp_path / "c.png").convert("RGB"))
     assert img.shape == (340, 600, 3)

@@ -1,4 +1,5 @@
 """The one reader and writer of fit files: round trips for one image, a video and a rig, and the checks."""
+
 import json
 
 import numpy as np
@@ -15,13 +16,20 @@ CAM = Camera(fx=300.0, fy=310.0, cx=63.5, cy=60.0, width=128, height=120)
 def _result():
     rng = np.random.default_rng(0)
     return KeypointFitResult(
-        betas=rng.normal(size=(1, 10)).astype(np.float32), body_pose=rng.normal(size=(1, 69)).astype(np.float32),
-        global_orient=rng.normal(size=(1, 3)).astype(np.float32), transl=np.array([[0.1, 0.2, 3.0]], np.float32),
-        cameras=[CAM], vertices=rng.normal(size=(1, 50, 3)).astype(np.float32),
-        joints=rng.normal(size=(1, 24, 3)).astype(np.float32), keypoints_2d=rng.normal(size=(1, 17, 2)).astype(np.float32),
-        layout="coco17", energies={"final": np.array([1.5])}, timings={"final": 0.25},
-        flipped=np.array([True]), reprojection_error=np.array([2.5]),
-    )  # fmt: skip
+        betas=rng.normal(size=(1, 10)).astype(np.float32),
+        body_pose=rng.normal(size=(1, 69)).astype(np.float32),
+        global_orient=rng.normal(size=(1, 3)).astype(np.float32),
+        transl=np.array([[0.1, 0.2, 3.0]], np.float32),
+        cameras=[CAM],
+        vertices=rng.normal(size=(1, 50, 3)).astype(np.float32),
+        joints=rng.normal(size=(1, 24, 3)).astype(np.float32),
+        keypoints_2d=rng.normal(size=(1, 17, 2)).astype(np.float32),
+        layout="coco17",
+        energies={"final": np.array([1.5])},
+        timings={"final": 0.25},
+        flipped=np.array([True]),
+        reprojection_error=np.array([2.5]),
+    )
 
 
 def test_round_trip_both_files(tmp_path):
@@ -45,13 +53,21 @@ def test_faces_camera_follows_the_body_not_the_start():
 
     from silfit.camera import UPRIGHT_BACK_TO_CAMERA, UPRIGHT_FACING_CAMERA
 
-    assert faces_camera(UPRIGHT_FACING_CAMERA, [0.0, 0.2, 3.0]) and not faces_camera(UPRIGHT_BACK_TO_CAMERA, [0.0, 0.2, 3.0])
+    assert faces_camera(UPRIGHT_FACING_CAMERA, [0.0, 0.2, 3.0]) and not faces_camera(
+        UPRIGHT_BACK_TO_CAMERA, [0.0, 0.2, 3.0]
+    )
     assert not faces_camera(UPRIGHT_FACING_CAMERA, [0.0, 0.2, -3.0])  # behind the camera, its front away from it
 
 
 def _npz(tmp_path, **fields):
-    base = dict(betas=np.zeros(10), body_pose=np.zeros(69), global_orient=np.zeros(3), transl=np.zeros(3),
-                camera_intrinsics=np.array([300.0, 300, 63.5, 60]), image_size=np.array([128, 120]))  # fmt: skip
+    base = dict(
+        betas=np.zeros(10),
+        body_pose=np.zeros(69),
+        global_orient=np.zeros(3),
+        transl=np.zeros(3),
+        camera_intrinsics=np.array([300.0, 300, 63.5, 60]),
+        image_size=np.array([128, 120]),
+    )
     base.update(fields)
     base = {k: v for k, v in base.items() if v is not None}
     np.savez(tmp_path / "params.npz", **base)
@@ -103,18 +119,34 @@ def test_json_checks_and_partial_reads(tmp_path):
 def test_video_and_rig_fits_keep_their_frame_and_view_axes(tmp_path):
     rng = np.random.default_rng(1)
     F, C, K = 4, 2, 25
-    params = {"betas": rng.normal(size=10), "body_pose": rng.normal(size=(F, 69)), "global_orient": rng.normal(size=(F, 3)),
-              "transl": rng.normal(size=(F, 3))}  # fmt: skip
+    params = {
+        "betas": rng.normal(size=10),
+        "body_pose": rng.normal(size=(F, 69)),
+        "global_orient": rng.normal(size=(F, 3)),
+        "transl": rng.normal(size=(F, 3)),
+    }
     R = [np.eye(3), np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]])]
     t = [np.zeros(3), np.array([0.5, 0.0, 3.0])]
-    write_fit(tmp_path, params, [CAM, CAM], layout="body25", coordinates="world", extrinsics=list(zip(R, t)),
-              views=["left", "right"], frame_numbers=[10, 11, 12, 14], keypoints_2d=rng.normal(size=(F, C, K, 2)),
-              reprojection_error=np.full((F, C), np.nan), record={"timings": {"total": 1.0}})  # fmt: skip
+    write_fit(
+        tmp_path,
+        params,
+        [CAM, CAM],
+        layout="body25",
+        coordinates="world",
+        extrinsics=list(zip(R, t)),
+        views=["left", "right"],
+        frame_numbers=[10, 11, 12, 14],
+        keypoints_2d=rng.normal(size=(F, C, K, 2)),
+        reprojection_error=np.full((F, C), np.nan),
+        record={"timings": {"total": 1.0}},
+    )
     for name in ("params.npz", "params.json"):
         fit = read_fit(tmp_path / name)
         assert fit.num_frames == F and fit.params["betas"].shape == (F, 10) and fit.coordinates == "world"
         assert fit.views == ["left", "right"] and len(fit.cameras) == C
-        np.testing.assert_allclose(fit.extrinsics[1][0], R[1]) and np.testing.assert_allclose(fit.extrinsics[1][1], t[1])
+        np.testing.assert_allclose(fit.extrinsics[1][0], R[1]) and np.testing.assert_allclose(
+            fit.extrinsics[1][1], t[1]
+        )
         np.testing.assert_allclose(fit.frame(2)["body_pose"], params["body_pose"][2], atol=1e-6)
         np.testing.assert_allclose(fit.frame(3)["betas"], params["betas"], atol=1e-6)  # shared: repeated
         assert fit.model["kind"] == "smpl"

@@ -2,6 +2,7 @@
 wrong types and shapes, NaN/inf, huge and negative numbers, truncated and random bytes,
 odd PNG modes and sizes, hostile pickles), the reader either returns a valid object or
 raises :class:`silfit.errors.InputError` naming the file, on one line. Nothing else escapes."""
+
 import io
 import json
 import os
@@ -34,7 +35,12 @@ def read_params(path):
 
 
 #: Examples per reader (kept small for CI; SILFIT_FUZZ_EXAMPLES=2000 for a long local run).
-FUZZ = settings(max_examples=int(os.environ.get("SILFIT_FUZZ_EXAMPLES", "60")), deadline=None, suppress_health_check=list(HealthCheck), database=None)
+FUZZ = settings(
+    max_examples=int(os.environ.get("SILFIT_FUZZ_EXAMPLES", "60")),
+    deadline=None,
+    suppress_health_check=list(HealthCheck),
+    database=None,
+)
 
 # ----------------------------------------------------------------------------- strategies
 numbers = st.one_of(
@@ -43,7 +49,11 @@ numbers = st.one_of(
     st.sampled_from([0, 1, -1, 0.5, 1e30, -1e30, 10**400, 2**63, 320, 240, 1e-300]),
 )
 scalars = st.one_of(numbers, st.none(), st.booleans(), st.text(max_size=8))
-json_values = st.recursive(scalars, lambda inner: st.lists(inner, max_size=6) | st.dictionaries(st.text(max_size=6), inner, max_size=4), max_leaves=30)
+json_values = st.recursive(
+    scalars,
+    lambda inner: st.lists(inner, max_size=6) | st.dictionaries(st.text(max_size=6), inner, max_size=4),
+    max_leaves=30,
+)
 
 
 def _mutated(valid: list, values):
@@ -106,11 +116,17 @@ def test_keypoint_reader(doc, cut, junk, person):
 
 @FUZZ
 @given(
-    fields=st.fixed_dictionaries({}, optional={k: numbers | scalars for k in ("fx", "fy", "cx", "cy", "width", "height")}),
-    extra=st.none() | json_values, cut=cuts, junk=byte_tails,
-)  # fmt: skip
+    fields=st.fixed_dictionaries(
+        {}, optional={k: numbers | scalars for k in ("fx", "fy", "cx", "cy", "width", "height")}
+    ),
+    extra=st.none() | json_values,
+    cut=cuts,
+    junk=byte_tails,
+)
 def test_camera_reader(fields, extra, cut, junk):
-    doc = {**_VALID_CAMERA, **fields} if extra is None else fields if not isinstance(extra, dict) else {**extra, **fields}
+    doc = (
+        {**_VALID_CAMERA, **fields} if extra is None else fields if not isinstance(extra, dict) else {**extra, **fields}
+    )
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "camera.json"
         path.write_bytes(_as_bytes(doc, cut, junk))
@@ -124,9 +140,15 @@ _MODES = ["1", "L", "P", "RGB", "RGBA", "LA", "I", "I;16", "F", "CMYK"]
 
 @FUZZ
 @given(
-    h=st.integers(1, 12), w=st.integers(1, 12), mode=st.sampled_from(_MODES), fmt=st.sampled_from(["PNG", "TIFF", "BMP", "JPEG"]),
-    seed=st.integers(0, 2**16), cut=cuts, junk=byte_tails, size=st.one_of(st.none(), st.tuples(st.integers(1, 12), st.integers(1, 12))),
-)  # fmt: skip
+    h=st.integers(1, 12),
+    w=st.integers(1, 12),
+    mode=st.sampled_from(_MODES),
+    fmt=st.sampled_from(["PNG", "TIFF", "BMP", "JPEG"]),
+    seed=st.integers(0, 2**16),
+    cut=cuts,
+    junk=byte_tails,
+    size=st.one_of(st.none(), st.tuples(st.integers(1, 12), st.integers(1, 12))),
+)
 def test_mask_reader(h, w, mode, fmt, seed, cut, junk, size):
     from PIL import Image
 
@@ -158,10 +180,27 @@ arrays = st.one_of(
 
 @FUZZ
 @given(
-    fields=st.dictionaries(st.sampled_from(["betas", "body_pose", "global_orient", "transl", "camera_intrinsics",
-                                            "image_size", "layout", "camera", "x"]), arrays, max_size=6),
-    as_json=st.booleans(), cut=cuts, junk=byte_tails,
-)  # fmt: skip
+    fields=st.dictionaries(
+        st.sampled_from(
+            [
+                "betas",
+                "body_pose",
+                "global_orient",
+                "transl",
+                "camera_intrinsics",
+                "image_size",
+                "layout",
+                "camera",
+                "x",
+            ]
+        ),
+        arrays,
+        max_size=6,
+    ),
+    as_json=st.booleans(),
+    cut=cuts,
+    junk=byte_tails,
+)
 def test_fit_output_reader(fields, as_json, cut, junk):
     with tempfile.TemporaryDirectory() as d:
         if as_json:
@@ -174,7 +213,10 @@ def test_fit_output_reader(fields, as_json, cut, junk):
         else:
             path = Path(d) / "params.npz"
             buf = io.BytesIO()
-            np.savez(buf, **{k: np.asarray(v, dtype=object) if not isinstance(v, np.ndarray) else v for k, v in fields.items()})
+            np.savez(
+                buf,
+                **{k: np.asarray(v, dtype=object) if not isinstance(v, np.ndarray) else v for k, v in fields.items()},
+            )
             data = buf.getvalue()
             path.write_bytes((data if cut is None else data[: int(cut * len(data))]) + junk)
         result = _check_clean(lambda: read_params(path), path)
@@ -184,16 +226,29 @@ def test_fit_output_reader(fields, as_json, cut, junk):
             assert camera is None or isinstance(camera, Camera)
 
 
-_FIELDS = ["v_template", "f", "shapedirs", "posedirs", "J_regressor", "weights", "kintree_table", "joint_names",
-           "landmark_regressor", "landmark_names", "meta_json"]  # fmt: skip
+_FIELDS = [
+    "v_template",
+    "f",
+    "shapedirs",
+    "posedirs",
+    "J_regressor",
+    "weights",
+    "kintree_table",
+    "joint_names",
+    "landmark_regressor",
+    "landmark_names",
+    "meta_json",
+]
 
 
 @FUZZ
 @given(
     replace=st.dictionaries(st.sampled_from(_FIELDS), arrays, max_size=3),
-    drop=st.lists(st.sampled_from(_FIELDS), max_size=2), as_pickle=st.booleans(),
-    flip=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), max_size=4), cut=cuts,
-)  # fmt: skip
+    drop=st.lists(st.sampled_from(_FIELDS), max_size=2),
+    as_pickle=st.booleans(),
+    flip=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), max_size=4),
+    cut=cuts,
+)
 def test_model_reader(replace, drop, as_pickle, flip, cut):
     model = dict(official_arrays())
     model.update(replace)
@@ -264,7 +319,11 @@ def _object_graphs(draw):
 
 
 @FUZZ
-@given(value=_object_graphs(), protocol=st.integers(0, 5), flip=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), max_size=2))
+@given(
+    value=_object_graphs(),
+    protocol=st.integers(0, 5),
+    flip=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), max_size=2),
+)
 def test_pickle_memo_and_nesting_are_bounded(value, protocol, flip):
     """Whatever shared, nested or cyclic structure a pickle holds (and a few flipped bytes),
     the restricted unpickler returns a value within its bounds, or refuses the file cleanly."""

@@ -1,4 +1,5 @@
 """The whole fit (keypoints, then silhouette) on shipped synthetic subjects."""
+
 from pathlib import Path
 
 import numpy as np
@@ -84,11 +85,15 @@ def test_the_guard_keeps_the_keypoint_fit_when_the_silhouette_fit_is_less_plausi
 
     def implausible(before, after, where=""):
         calls.append((before, after))
-        return GuardDecision("keypoints", ("stature 2.40 m",), (f"{where}: made the fit less plausible: kept the keypoint fit",))
+        return GuardDecision(
+            "keypoints", ("stature 2.40 m",), (f"{where}: made the fit less plausible: kept the keypoint fit",)
+        )
 
     monkeypatch.setattr(pipeline, "silhouette_guard", implausible)
     cfg = SilhouetteFitConfig(resolutions=(64,), iterations=(4,), contour_iterations=2)
-    result = fit(subject.keypoints, subject.mask, subject.camera, model=open_model, silhouette_config=cfg, progress=False)
+    result = fit(
+        subject.keypoints, subject.mask, subject.camera, model=open_model, silhouette_config=cfg, progress=False
+    )
     m = result.metrics
     assert calls and {"reprojection_px", "max_abs_beta", "stature_m"} <= set(calls[0][0])
     assert m["silhouette_guard"] == {"kept": "keypoints", "less_plausible": ["stature 2.40 m"]}
@@ -96,9 +101,16 @@ def test_the_guard_keeps_the_keypoint_fit_when_the_silhouette_fit_is_less_plausi
     for k in ("betas", "body_pose", "transl"):
         assert np.allclose(np.asarray(result.params[k]).reshape(-1), result.keypoint.params(0)[k].reshape(-1))
     assert m["iou"] == m["iou_keypoint_stage"]
-    off = fit(subject.keypoints, subject.mask, subject.camera, model=open_model, progress=False,
-              silhouette_config=SilhouetteFitConfig(resolutions=(64,), iterations=(4,), contour_iterations=2,
-                                                    plausibility_guard=False))  # fmt: skip
+    off = fit(
+        subject.keypoints,
+        subject.mask,
+        subject.camera,
+        model=open_model,
+        progress=False,
+        silhouette_config=SilhouetteFitConfig(
+            resolutions=(64,), iterations=(4,), contour_iterations=2, plausibility_guard=False
+        ),
+    )
     assert off.metrics["silhouette_guard"]["kept"] == "silhouette"
     assert not np.allclose(off.params["body_pose"], result.params["body_pose"])
 
@@ -129,12 +141,14 @@ def test_a_leak_far_from_the_body_is_set_aside_with_a_note(open_model, subject, 
     ys, xs = np.nonzero(mask)
     h = int(np.ptp(ys))
     y = int(ys.mean())
-    mask[y - h // 10: y + h // 10, xs.max() - 2: xs.max() + h // 3] = True  # a block joined at the side
+    mask[y - h // 10 : y + h // 10, xs.max() - 2 : xs.max() + h // 3] = True  # a block joined at the side
     leaky = fit(subject.keypoints, mask, subject.camera, model=open_model, silhouette_config=cfg, progress=False)
     far = min(mask.shape[1] - 1, xs.max() + h // 3 - 2)
     assert mask[y, far] and seen[-1] is not None and not seen[-1][y, far] and seen[-1][ys[0], xs[0]]
     assert any("far from the keypoint fit's body" in w for w in leaky.metrics["warnings"])
-    off = SilhouetteFitConfig(resolutions=(64,), iterations=(2,), contour_iterations=1, leak_distance=0.0, hole_fraction=0.0)
+    off = SilhouetteFitConfig(
+        resolutions=(64,), iterations=(2,), contour_iterations=1, leak_distance=0.0, hole_fraction=0.0
+    )
     fit(subject.keypoints, mask, subject.camera, model=open_model, silhouette_config=off, progress=False)
     assert seen[-1] is None
 
@@ -169,9 +183,15 @@ def test_the_hypothesis_that_refines_lowest_against_the_mask_is_kept(open_model,
     from silfit.image_fit import save_fit
 
     subject = load_subject(SHIPPED / "subject_004")
-    result = fit(subject.keypoints, subject.mask, subject.camera, model=open_model, progress=False,
-                 keypoint_config=KeypointFitConfig(hypotheses=2),
-                 silhouette_config=SilhouetteFitConfig(resolutions=(64,), iterations=(4,)))  # fmt: skip
+    result = fit(
+        subject.keypoints,
+        subject.mask,
+        subject.camera,
+        model=open_model,
+        progress=False,
+        keypoint_config=KeypointFitConfig(hypotheses=2),
+        silhouette_config=SilhouetteFitConfig(resolutions=(64,), iterations=(4,)),
+    )
     hyps, record = result.keypoint.hypotheses[0], result.metrics["hypotheses_silhouette"]
     assert len(hyps) == 2 and len(record["energies"]) == len(record["iou"]) == 2
     assert record["kept"] == 1 + int(np.argmin(record["energies"]))  # (unless the guard turned it back)
@@ -186,11 +206,14 @@ def test_the_hypothesis_that_refines_lowest_against_the_mask_is_kept(open_model,
         assert all(np.array_equal(h["keypoint_params"][k], np.asarray(v)) for k, v in hyp["params"].items())
         assert not np.allclose(h["params"]["body_pose"], h["keypoint_params"]["body_pose"])  # the stage moved it
     kept = result.hypotheses[record["kept"] - 1]
-    assert np.allclose(kept["vertices"], result.vertices) and np.allclose(kept["params"]["body_pose"], result.params["body_pose"])
+    assert np.allclose(kept["vertices"], result.vertices) and np.allclose(
+        kept["params"]["body_pose"], result.params["body_pose"]
+    )
     out = save_fit(result, tmp_path / "fit", open_model.faces.numpy(), subject.keypoints, mask=subject.mask)
     for k in (1, 2):
         assert read_fit(out / "hypotheses" / str(k)).frame(0)["body_pose"] == pytest.approx(
-            result.hypotheses[k - 1]["params"]["body_pose"].reshape(-1), abs=1e-6)
+            result.hypotheses[k - 1]["params"]["body_pose"].reshape(-1), abs=1e-6
+        )
         assert (out / "hypotheses" / str(k) / "stages" / "keypoints" / "params.npz").is_file()
     assert (out / "hypotheses.png").is_file()
 
@@ -213,8 +236,12 @@ def test_choosing_a_hypothesis_by_the_silhouette_stage():
 
     toy_body = toy_model()
     cam = Camera.from_image_size(320, 240)
-    start = {"betas": np.zeros(10, np.float32), "body_pose": np.zeros(69, np.float32),
-             "global_orient": np.array([np.pi, 0, 0], np.float32), "transl": np.array([0, 0.2, 3], np.float32)}  # fmt: skip
+    start = {
+        "betas": np.zeros(10, np.float32),
+        "body_pose": np.zeros(69, np.float32),
+        "global_orient": np.array([np.pi, 0, 0], np.float32),
+        "transl": np.array([0, 0.2, 3], np.float32),
+    }
     out = toy_body(**{k: torch.as_tensor(v)[None] for k, v in start.items()})
     xy = project_points(model_keypoints(toy_body, out, "body25"), cam)[0].numpy()
     kps = KeypointSet(xy, np.ones(25), "body25")
@@ -222,8 +249,9 @@ def test_choosing_a_hypothesis_by_the_silhouette_stage():
     def refined(last, transl_x=0.0, first=5.0, levels=(0, 0, 1, 1), failed=False):
         params = {k: v[None].copy() for k, v in start.items()}
         params["transl"][0, 0] += transl_x
-        return SilhouetteFitResult(params, {"level": list(levels), "energy": [first, 4.0, 3.0, last]}, 0.8, 0.9, 0.0, 4, [],
-                                   failed=failed)  # fmt: skip
+        return SilhouetteFitResult(
+            params, {"level": list(levels), "energy": [first, 4.0, 3.0, last]}, 0.8, 0.9, 0.0, 4, [], failed=failed
+        )
 
     def choose(*sils, starts=None):
         return _choose_hypothesis(toy_body, list(sils), starts or [start] * len(sils), kps, cam, "mask")
@@ -241,8 +269,10 @@ def test_choosing_a_hypothesis_by_the_silhouette_stage():
     c, record = choose(refined(2.0), refined(1.0, transl_x=0.5))
     assert c == 0 and record["guard_reverted"] == 2
     moved = {**start, "transl": start["transl"] + np.array([0.5, 0, 0], np.float32)}
-    assert choose(refined(2.0), refined(1.0, transl_x=0.5), starts=[start, moved]) == (0, {
-        "energies": [2.0, 1.0], "iou": [0.9, 0.9], "kept": 1, "gap": 0.0, "guard_reverted": 2})
+    assert choose(refined(2.0), refined(1.0, transl_x=0.5), starts=[start, moved]) == (
+        0,
+        {"energies": [2.0, 1.0], "iou": [0.9, 0.9], "kept": 1, "gap": 0.0, "guard_reverted": 2},
+    )
 
 
 def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
@@ -266,8 +296,12 @@ def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
     sets = []
     for x in (0.0, 0.1):
         out = model(global_orient=torch.tensor([[np.pi, 0, 0]]), transl=torch.tensor([[x, 0.2, 3.0]]))
-        sets.append(KeypointSet(project_points(model_keypoints(model, out, "body25"), cam)[0].numpy(), np.ones(25), "body25"))
-    cfg = KeypointFitConfig(init_poses=1, camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branch_search=False)
+        sets.append(
+            KeypointSet(project_points(model_keypoints(model, out, "body25"), cam)[0].numpy(), np.ones(25), "body25")
+        )
+    cfg = KeypointFitConfig(
+        init_poses=1, camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branch_search=False
+    )
     kp = KeypointFitter(model, config=cfg).fit(sets, [cam, cam], progress=False)
 
     def marked(i, k):  # sample i's fit with body_pose[0] = 0.01 k: which candidate a result came from
@@ -280,9 +314,18 @@ def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
 
     def stub(model, problems, inits, *args, **kwargs):
         assert len(problems) == len(inits) == len(finals)
-        return [stage.SilhouetteFitResult({n: np.asarray(v, np.float32).reshape(1, -1) for n, v in init.items()},
-                                          {"level": [1, 1], "energy": [3.0, e]}, 0.8, 0.9, 1.0, 2, [])
-                for init, e in zip(inits, finals)]  # fmt: skip
+        return [
+            stage.SilhouetteFitResult(
+                {n: np.asarray(v, np.float32).reshape(1, -1) for n, v in init.items()},
+                {"level": [1, 1], "energy": [3.0, e]},
+                0.8,
+                0.9,
+                1.0,
+                2,
+                [],
+            )
+            for init, e in zip(inits, finals)
+        ]
 
     monkeypatch.setattr(stage, "fit_silhouette_problems", stub)
     faces = model.faces.cpu().numpy()
@@ -303,17 +346,25 @@ def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
     # without --hypotheses: the branches refined to the end within alternatives_margin of the fit's energy
     # (KeypointFitResult.alternatives; image 1's is 50 % above its fit: not refined)
     kp.hypotheses = None
-    kp.alternatives = [[{**marked(0, 1), "label": "left_shin", "differs": ["left_shin"], "gap": 0.05}],
-                       [{**marked(1, 1), "label": "left_thigh", "differs": ["left_thigh"], "gap": 0.5}]]
+    kp.alternatives = [
+        [{**marked(0, 1), "label": "left_shin", "differs": ["left_shin"], "gap": 0.05}],
+        [{**marked(1, 1), "label": "left_thigh", "differs": ["left_thigh"], "gap": 0.5}],
+    ]
     finals[:] = [2.0, 2.0, 1.0]  # image 0, image 1, then 0's alternative
     res = refine_batch(model, kp, sets, masks, progress=False)
     assert res[0].metrics["hypotheses_silhouette"]["kept"] == 2 and "hypotheses_silhouette" not in res[1].metrics
     assert res[0].hypotheses == res[1].hypotheses == []  # the close alternatives are not hypotheses/<k>/
     assert res[0].params["body_pose"].reshape(-1)[0] == pytest.approx(0.01)
-    assert any(w.startswith("depth branch chosen by the mask: the keypoint stage's alternative turning left_shin "
-                            "(keypoint-stage energy +5.0% against its fit)") for w in res[0].metrics["warnings"])  # fmt: skip
+    assert any(
+        w.startswith(
+            "depth branch chosen by the mask: the keypoint stage's alternative turning left_shin "
+            "(keypoint-stage energy +5.0% against its fit)"
+        )
+        for w in res[0].metrics["warnings"]
+    )
     assert res[0].metrics["hypotheses_silhouette"]["alternatives"] == [
-        {"label": "left_shin", "differs": ["left_shin"], "gap": 0.05, "max_shift_mm": None}]
+        {"label": "left_shin", "differs": ["left_shin"], "gap": 0.05, "max_shift_mm": None}
+    ]
     assert not any("chosen by the mask" in w for w in res[1].metrics["warnings"])
 
 
@@ -339,19 +390,27 @@ def test_the_kept_hypothesis_holds_the_final_fit_whatever_the_guard_did(monkeypa
     cam = Camera.from_image_size(320, 240)
     out = model(global_orient=torch.tensor([[np.pi, 0, 0]]), transl=torch.tensor([[0.0, 0.2, 3.0]]))
     sets = [KeypointSet(project_points(model_keypoints(model, out, "body25"), cam)[0].numpy(), np.ones(25), "body25")]
-    cfg = KeypointFitConfig(init_poses=1, camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branch_search=False)
+    cfg = KeypointFitConfig(
+        init_poses=1, camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branch_search=False
+    )
     kp = KeypointFitter(model, config=cfg).fit(sets, [cam], progress=False)
     other = {n: np.array(v, dtype=np.float32) for n, v in kp.params(0).items()}
     other["body_pose"][0] += 0.01
-    kp.hypotheses = [[{"params": kp.params(0), "energy": 1.0, "refined": True, "label": "keep", "differs": []},
-                      {"params": other, "energy": 1.1, "refined": True, "label": "left_shin", "differs": []}]]
+    kp.hypotheses = [
+        [
+            {"params": kp.params(0), "energy": 1.0, "refined": True, "label": "keep", "differs": []},
+            {"params": other, "energy": 1.1, "refined": True, "label": "left_shin", "differs": []},
+        ]
+    ]
 
     def stub(model, problems, inits, *args, **kwargs):  # the keypoint fit refines lowest; every one far off
         moved = [{n: np.asarray(v, np.float32).reshape(1, -1) for n, v in init.items()} for init in inits]
         for p in moved:
             p["transl"] = p["transl"] + np.array([[0.5, 0, 0]], np.float32)
-        return [stage.SilhouetteFitResult(p, {"level": [1, 1], "energy": [3.0, e]}, 0.8, 0.9, 1.0, 2, [])
-                for p, e in zip(moved, (1.0, 2.0))]  # fmt: skip
+        return [
+            stage.SilhouetteFitResult(p, {"level": [1, 1], "energy": [3.0, e]}, 0.8, 0.9, 1.0, 2, [])
+            for p, e in zip(moved, (1.0, 2.0))
+        ]
 
     monkeypatch.setattr(stage, "fit_silhouette_problems", stub)
     masks = [body_mask(kp.vertices[0], model.faces.cpu().numpy(), cam)]
@@ -362,12 +421,15 @@ def test_the_kept_hypothesis_holds_the_final_fit_whatever_the_guard_did(monkeypa
         assert [h["record"]["kept"] for h in res.hypotheses] == [True, False]
         assert [h["record"]["params_from"] for h in res.hypotheses] == [source] * 2
         # a refinement set aside: its energy and IoU kept apart (hypotheses.png's title shows no IoU for it)
-        assert [("silhouette_iou" in h["record"], "silhouette_discarded" in h["record"]) for h in res.hypotheses] == \
-            [(not guarded, guarded)] * 2
+        assert [("silhouette_iou" in h["record"], "silhouette_discarded" in h["record"]) for h in res.hypotheses] == [
+            (not guarded, guarded)
+        ] * 2
         kept = res.hypotheses[0]
         assert np.array_equal(kept["vertices"], res.vertices)
-        assert all(np.array_equal(np.asarray(kept["params"][n]).reshape(-1), np.asarray(v).reshape(-1))
-                   for n, v in res.params.items())  # fmt: skip
+        assert all(
+            np.array_equal(np.asarray(kept["params"][n]).reshape(-1), np.asarray(v).reshape(-1))
+            for n, v in res.params.items()
+        )
 
 
 def test_offered_alternatives():
@@ -410,7 +472,7 @@ def test_a_jobs_unknown_pixels_reach_the_silhouette_stage(open_model, subject, m
     job = image_job(subject.keypoints, subject.mask, subject.camera, model=open_model, silhouette_config=cfg)
     known = np.ones_like(subject.mask, dtype=bool)
     ys, xs = np.nonzero(subject.mask)
-    known[ys.min(): ys.min() + 10, :] = False  # the top of the mask: another person's, say
+    known[ys.min() : ys.min() + 10, :] = False  # the top of the mask: another person's, say
     obs = job.problem.observations[0]
     run(dataclasses.replace(job, problem=Problem.single(obs.keypoints, obs.view.camera, obs.mask, known)))
     assert seen and seen[0] is not None and not seen[0][ys.min() + 2, xs[0]] and seen[0][ys.max(), xs[-1]]

@@ -1,4 +1,5 @@
 """silfit.kernels: the CPU kernels asked for before torch and numpy load (README, "Same inputs, same fit")."""
+
 import os
 import platform
 
@@ -42,15 +43,19 @@ def test_numpy_avx512_loops_are_turned_off_on_an_avx512_cpu(monkeypatch):
 
     monkeypatch.setattr("platform.machine", lambda: "x86_64")
     avx512 = AVX2 | {"avx512f"}
-    assert pin_kernels({}, flags=avx512, loaded=False, numpy_version="2.4.6")["NPY_DISABLE_CPU_FEATURES"] == NUMPY_AVX512
+    assert (
+        pin_kernels({}, flags=avx512, loaded=False, numpy_version="2.4.6")["NPY_DISABLE_CPU_FEATURES"] == NUMPY_AVX512
+    )
     # older numpy names its targets otherwise (AVX512F, ...); an explicit choice wins; no AVX-512, nothing to turn off
     assert "NPY_DISABLE_CPU_FEATURES" not in pin_kernels({}, flags=avx512, loaded=False, numpy_version="2.2.6")
-    assert "NPY_DISABLE_CPU_FEATURES" not in pin_kernels({"NPY_DISABLE_CPU_FEATURES": ""}, flags=avx512, loaded=False,
-                                                         numpy_version="2.4.6")  # fmt: skip
+    assert "NPY_DISABLE_CPU_FEATURES" not in pin_kernels(
+        {"NPY_DISABLE_CPU_FEATURES": ""}, flags=avx512, loaded=False, numpy_version="2.4.6"
+    )
     assert "NPY_DISABLE_CPU_FEATURES" not in pin_kernels({}, flags=AVX2, loaded=False, numpy_version="2.4.6")
     # numpy refuses both variables at once
-    assert "NPY_DISABLE_CPU_FEATURES" not in pin_kernels({"NPY_ENABLE_CPU_FEATURES": "X86_V3"}, flags=avx512, loaded=False,
-                                                         numpy_version="2.4.6")  # fmt: skip
+    assert "NPY_DISABLE_CPU_FEATURES" not in pin_kernels(
+        {"NPY_ENABLE_CPU_FEATURES": "X86_V3"}, flags=avx512, loaded=False, numpy_version="2.4.6"
+    )
 
 
 @pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="x86-64 dispatch targets")
@@ -61,8 +66,10 @@ def test_the_installed_numpy_takes_the_avx512_names():
 
     from silfit.kernels import NUMPY_AVX512
 
-    code = ("import warnings; warnings.simplefilter('error'); import numpy; "
-            "from numpy._core._multiarray_umath import __cpu_features__ as f; print(f['X86_V4'], f['AVX512_ICL'])")  # fmt: skip
+    code = (
+        "import warnings; warnings.simplefilter('error'); import numpy; "
+        "from numpy._core._multiarray_umath import __cpu_features__ as f; print(f['X86_V4'], f['AVX512_ICL'])"
+    )
     env = {**os.environ, "NPY_DISABLE_CPU_FEATURES": NUMPY_AVX512, "SILFIT_KERNELS": "native"}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "False"]
@@ -79,10 +86,15 @@ def _first_import_of_a_library(path):
     for at, node in enumerate(body):
         if isinstance(node, (ast.Import, ast.ImportFrom)):
             names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""]
-            tops = [n.split(".")[0] for n in names if n.split(".")[0] not in sys.stdlib_module_names and n != "__future__"]
+            tops = [
+                n.split(".")[0] for n in names if n.split(".")[0] not in sys.stdlib_module_names and n != "__future__"
+            ]
             if tops:
-                later = any("sys.path.insert" in (src := ast.unparse(n)) and ("parents[1]" in src or "ROOT" in src)
-                            for n in body[at + 1:] if isinstance(n, ast.Expr))  # the checkout's root (the scripts' idioms)
+                later = any(
+                    "sys.path.insert" in (src := ast.unparse(n)) and ("parents[1]" in src or "ROOT" in src)
+                    for n in body[at + 1 :]
+                    if isinstance(n, ast.Expr)
+                )  # the checkout's root (the scripts' idioms)
                 return tops[0], node.lineno, later
     return None
 
@@ -98,20 +110,27 @@ def test_scripts_import_silfit_before_numpy_and_torch(folder):
     late = [f"{name}:{first[1]} ({first[0]})" for name, first in firsts.items() if first and first[0] != "silfit"]
     assert not late, f"import silfit before these: {late}"
     path_after = [name for name, first in firsts.items() if first and first[0] == "silfit" and first[2]]
-    assert not path_after, f"these change sys.path after importing silfit (another installed silfit would win): {path_after}"
+    assert not path_after, (
+        f"these change sys.path after importing silfit (another installed silfit would win): {path_after}"
+    )
 
 
-@pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64") or not {"avx2", "fma"} <= cpu_flags(),
-                    reason="kernels are pinned on x86-64 with AVX2 and FMA only")
+@pytest.mark.skipif(
+    platform.machine().lower() not in ("x86_64", "amd64") or not {"avx2", "fma"} <= cpu_flags(),
+    reason="kernels are pinned on x86-64 with AVX2 and FMA only",
+)
 def test_importing_silfit_after_numpy_warns_once_unless_told_native():
     import subprocess
     import sys
 
-    env = {k: v for k, v in os.environ.items() if k not in KERNEL_PINS and k not in ("SILFIT_KERNELS", "PYTHONWARNINGS")}
+    env = {
+        k: v for k, v in os.environ.items() if k not in KERNEL_PINS and k not in ("SILFIT_KERNELS", "PYTHONWARNINGS")
+    }
 
     def stderr(code, **extra):
-        return subprocess.run([sys.executable, "-c", code], env={**env, **extra}, capture_output=True, text=True,
-                              check=True).stderr  # fmt: skip
+        return subprocess.run(
+            [sys.executable, "-c", code], env={**env, **extra}, capture_output=True, text=True, check=True
+        ).stderr
 
     late = stderr("import numpy, torch; import silfit; import silfit.kernels as k; print(k.LOADED_FIRST)")
     assert late.count("RuntimeWarning: numpy and torch loaded before silfit") == 1, late

@@ -1,4 +1,5 @@
 """Keypoint files: OpenPose and COCO JSON in, OpenPose JSON out, clear errors."""
+
 import json
 
 import numpy as np
@@ -62,7 +63,9 @@ def test_bad_keypoint_files_name_file_and_field(tmp_path, payload, message):
 def test_nan_keypoints_are_named(tmp_path):
     kp = body25()
     kp[4, 0] = np.nan
-    (tmp_path / "nan.json").write_text(json.dumps({"people": [{"pose_keypoints_2d": [None if np.isnan(v) else v for v in kp.reshape(-1)]}]}))
+    (tmp_path / "nan.json").write_text(
+        json.dumps({"people": [{"pose_keypoints_2d": [None if np.isnan(v) else v for v in kp.reshape(-1)]}]})
+    )
     with pytest.raises(ValueError, match="right_wrist"):
         read_keypoints(tmp_path / "nan.json")
 

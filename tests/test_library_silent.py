@@ -1,16 +1,27 @@
 """The library prints no progress bars unless asked (``progress=True``); the command line asks unless
 ``--quiet``."""
+
 import inspect
 
 import pytest
 
 
-@pytest.mark.parametrize("where, name", [
-    ("silfit.run", "fit"), ("silfit.run", "image_job"), ("silfit.run", "video_job"), ("silfit.run", "Job"),
-    ("silfit.fitting.keypoint_stage", "fit_keypoints"), ("silfit.fitting.keypoint_stage", "KeypointFitter.fit"),
-    ("silfit.fitting.silhouette_stage", "fit_silhouette"), ("silfit.image_fit", "refine"), ("silfit.image_fit", "refine_batch"),
-    ("silfit.runner", "fit_dataset"), ("silfit.demo", "run_demo"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "where, name",
+    [
+        ("silfit.run", "fit"),
+        ("silfit.run", "image_job"),
+        ("silfit.run", "video_job"),
+        ("silfit.run", "Job"),
+        ("silfit.fitting.keypoint_stage", "fit_keypoints"),
+        ("silfit.fitting.keypoint_stage", "KeypointFitter.fit"),
+        ("silfit.fitting.silhouette_stage", "fit_silhouette"),
+        ("silfit.image_fit", "refine"),
+        ("silfit.image_fit", "refine_batch"),
+        ("silfit.runner", "fit_dataset"),
+        ("silfit.demo", "run_demo"),
+    ],
+)
 def test_progress_is_off_by_default(where, name):
     import importlib
 
@@ -29,8 +40,15 @@ def test_a_library_fit_prints_nothing(capsys):
 
     subject = Path(__file__).resolve().parents[1] / "data" / "synthetic" / "subject_000"
     camera, _, _ = read_camera_file(subject / "camera.json")
-    config = KeypointFitConfig(init_poses=1, pose_iters=(5, 5, 5), shape_iters=3, final_iters=5, post_branch_iters=0,
-                              branch_search=False, flip_test=False)
+    config = KeypointFitConfig(
+        init_poses=1,
+        pose_iters=(5, 5, 5),
+        shape_iters=3,
+        final_iters=5,
+        post_branch_iters=0,
+        branch_search=False,
+        flip_test=False,
+    )
     silfit.fit_keypoints(read_keypoints(subject / "keypoints.json"), camera, config=config)
     out = capsys.readouterr()
     assert out.out == "" and "it/s" not in out.err and "%|" not in out.err, out

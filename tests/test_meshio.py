@@ -1,4 +1,5 @@
 """Mesh files: OBJ and PLY written with the model's vertex order, read back by trimesh."""
+
 import numpy as np
 import trimesh
 

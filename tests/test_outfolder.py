@@ -1,4 +1,5 @@
 """Atomic output folders: what a failed swap leaves behind."""
+
 import os
 import subprocess
 

@@ -1,5 +1,6 @@
 """Plausibility: degenerate keypoints refused, far-outside keypoints dropped, implausible
 fits reported as warnings (unit tests of the pure functions, and through ``silfit fit``)."""
+
 import json
 import sys
 from pathlib import Path
@@ -82,10 +83,18 @@ def test_through_silfit_fit(tmp_path, capsys):
     model = write_toy_npz(tmp_path / "toy.npz")
     data = json.loads((SUBJECT / "keypoints.json").read_text())
     values = data["people"][0]["pose_keypoints_2d"]
-    values[4 * 3: 4 * 3 + 2] = [1e30, 1e30]  # right wrist
+    values[4 * 3 : 4 * 3 + 2] = [1e30, 1e30]  # right wrist
     (tmp_path / "kp.json").write_text(json.dumps(data))
-    args = ["fit", "--keypoints", str(tmp_path / "kp.json"), "--camera", str(SUBJECT / "camera.json"), "--model",
-            str(model), "--no-silhouette"]  # fmt: skip
+    args = [
+        "fit",
+        "--keypoints",
+        str(tmp_path / "kp.json"),
+        "--camera",
+        str(SUBJECT / "camera.json"),
+        "--model",
+        str(model),
+        "--no-silhouette",
+    ]
     assert main(args + ["--out", str(tmp_path / "a")]) == 0
     err = capsys.readouterr().err
     warnings = json.loads((tmp_path / "a" / "metrics.json").read_text())["warnings"]
@@ -116,7 +125,9 @@ def test_a_silhouette_stage_that_leaves_the_keypoints_or_the_shape_space_is_repo
     verts = np.array([[0.0, 0.0, 3.0], [0.1, 0.5, 3.1]])
     drift = fit_warnings({"reprojection_error_px": 11.6, "reprojection_error_px_keypoint_stage": 1.9}, kp, verts)
     assert len(drift) == 1 and "1.9 -> 11.6 px" in drift[0] and "stages/keypoints" in drift[0]
-    assert fit_warnings({"reprojection_error_px": 3.0, "reprojection_error_px_keypoint_stage": 1.0}, kp, verts) == []  # +2 px only
+    assert (
+        fit_warnings({"reprojection_error_px": 3.0, "reprojection_error_px_keypoint_stage": 1.0}, kp, verts) == []
+    )  # +2 px only
     shape = fit_warnings({}, kp, verts, betas=np.array([0.5, -4.4, 0.0]))
     assert len(shape) == 1 and "|betas| up to 4.4" in shape[0]
     assert fit_warnings({}, kp, verts, betas=np.array([2.9, -2.0])) == []
@@ -125,10 +136,22 @@ def test_a_silhouette_stage_that_leaves_the_keypoints_or_the_shape_space_is_repo
 def test_branch_gap_is_the_kept_hypothesis_margin():
     from silfit.plausibility import branch_gap
 
-    search = [{"stage": "branches_1", "kept": "left_shin",
-               "tried": [{"flip": "left_shin", "energy": 100.0}, {"flip": "keep", "energy": 103.0},
-                         {"flip": "right_thigh", "energy": 150.0}]},
-              {"stage": "branches_2", "kept": "keep", "tried": [{"flip": "keep", "energy": 90.0}, {"flip": "left_arm", "energy": 99.0}]}]
+    search = [
+        {
+            "stage": "branches_1",
+            "kept": "left_shin",
+            "tried": [
+                {"flip": "left_shin", "energy": 100.0},
+                {"flip": "keep", "energy": 103.0},
+                {"flip": "right_thigh", "energy": 150.0},
+            ],
+        },
+        {
+            "stage": "branches_2",
+            "kept": "keep",
+            "tried": [{"flip": "keep", "energy": 90.0}, {"flip": "left_arm", "energy": 99.0}],
+        },
+    ]
     assert branch_gap(search) == pytest.approx(0.03)  # the smaller of 3 % and 10 %
     assert branch_gap([{"stage": "b", "kept": "keep", "tried": [{"flip": "keep", "energy": 5.0}]}]) is None
     assert branch_gap(None) is None
@@ -148,14 +171,25 @@ def test_a_mask_that_runs_out_of_the_image_is_reported():
 def test_a_depth_branch_the_keypoints_cannot_decide_is_reported():
     from silfit.plausibility import depth_warnings
 
-    close = [{"stage": "branches_1", "kept": "keep",
-              "tried": [{"flip": "keep", "energy": 100.0}, {"flip": "left_upper_arm", "energy": 101.0}]}]
+    close = [
+        {
+            "stage": "branches_1",
+            "kept": "keep",
+            "tried": [{"flip": "keep", "energy": 100.0}, {"flip": "left_upper_arm", "energy": 101.0}],
+        }
+    ]
     (w,) = depth_warnings(close)
     assert w.startswith("depth ambiguous for left_upper_arm:") and "branch search: left_upper_arm" in w
     assert w.endswith("check a side view (silfit fit --hypotheses 3 writes the alternatives)")
     (again,) = depth_warnings(close + close)  # two searches keeping the same alternative: it is named once
     assert again == w
-    far = [{"stage": "branches_1", "kept": "keep", "tried": [{"flip": "keep", "energy": 100.0}, {"flip": "left_shin", "energy": 125.0}]}]
+    far = [
+        {
+            "stage": "branches_1",
+            "kept": "keep",
+            "tried": [{"flip": "keep", "energy": 100.0}, {"flip": "left_shin", "energy": 125.0}],
+        }
+    ]
     assert depth_warnings(far) == [] and depth_warnings(None) == []
 
 
@@ -203,9 +237,11 @@ def test_body_stature_follows_the_shape(open_model):
 def test_hypotheses_are_summarised_and_the_ambiguous_limbs_named():
     from silfit.plausibility import depth_warnings, hypothesis_summary
 
-    hyps = [{"label": "keep", "energy": 100.0, "differs": []},
-            {"label": "both_shins", "energy": 101.5, "differs": ["left_shin", "right_shin"]},
-            {"label": "left_forearm", "energy": 140.0, "differs": ["left_forearm"]}]  # fmt: skip
+    hyps = [
+        {"label": "keep", "energy": 100.0, "differs": []},
+        {"label": "both_shins", "energy": 101.5, "differs": ["left_shin", "right_shin"]},
+        {"label": "left_forearm", "energy": 140.0, "differs": ["left_forearm"]},
+    ]
     rows = hypothesis_summary(hyps)
     assert [r["rank"] for r in rows] == [1, 2, 3] and rows[1]["gap"] == pytest.approx(0.015)
     (warning,) = depth_warnings(None, hyps)
@@ -223,7 +259,9 @@ def test_depth_warning_names_the_limbs_of_close_alternatives():
         return [{"stage": "branches_1", "kept": kept, "tried": [{"flip": f, "energy": e} for f, e in tried]}]
 
     # default fits (no hypotheses refined): the branch search's survivors within SEARCH_MARGIN
-    (w,) = depth_warnings(search(("keep", 100.0), ("both_shins", 100 * (1 + SEARCH_MARGIN) - 1), ("left_forearm", 150.0)))
+    (w,) = depth_warnings(
+        search(("keep", 100.0), ("both_shins", 100 * (1 + SEARCH_MARGIN) - 1), ("left_forearm", 150.0))
+    )
     assert w.startswith("depth ambiguous for left_shin, right_shin:") and "branch search: both_shins" in w
     assert "left_forearm" not in w
     assert depth_warnings(search(("keep", 100.0), ("left_forearm", 100 * (1 + SEARCH_MARGIN) + 1))) == []
@@ -232,8 +270,10 @@ def test_depth_warning_names_the_limbs_of_close_alternatives():
     assert "left_shin, left_thigh" in w
     assert depth_warnings(None) == [] and depth_warnings([]) == []
     # refined hypotheses decide where there are distinct ones: their final energies, the tighter margin
-    hyps = [{"label": "keep", "energy": 100.0, "differs": []},
-            {"label": "right_upper_arm", "energy": 100 * (1 + HYPOTHESIS_MARGIN) - 0.5, "differs": []}]  # fmt: skip
+    hyps = [
+        {"label": "keep", "energy": 100.0, "differs": []},
+        {"label": "right_upper_arm", "energy": 100 * (1 + HYPOTHESIS_MARGIN) - 0.5, "differs": []},
+    ]
     close = search(("keep", 100.0), ("left_shin", 101.0))
     (w,) = depth_warnings(close, hyps)
     assert "right_upper_arm" in w and "hypotheses/2" in w and "left_shin" not in w
@@ -251,20 +291,38 @@ def test_an_alternative_that_moves_no_joint_far_is_no_depth_warning():
 
     assert moves_a_joint({"max_shift_mm": MIN_SHIFT_MM}) and not moves_a_joint({"max_shift_mm": MIN_SHIFT_MM - 1})
     assert moves_a_joint({})  # recorded before joint shifts were: the energy alone decides
-    tried = [{"flip": "keep", "energy": 100.0, "shift_mm": 2.0, "max_shift_mm": 5.0},
-             {"flip": "left_shin", "energy": 101.0, "shift_mm": 12.0, "max_shift_mm": 120.0},
-             {"flip": "right_forearm", "energy": 104.0, "shift_mm": 25.0, "max_shift_mm": 450.0}]
+    tried = [
+        {"flip": "keep", "energy": 100.0, "shift_mm": 2.0, "max_shift_mm": 5.0},
+        {"flip": "left_shin", "energy": 101.0, "shift_mm": 12.0, "max_shift_mm": 120.0},
+        {"flip": "right_forearm", "energy": 104.0, "shift_mm": 25.0, "max_shift_mm": 450.0},
+    ]
     search = [{"stage": "branches_late", "kept": "keep", "tried": tried}]
     (w,) = depth_warnings(search)
     assert w.startswith("depth ambiguous for right_forearm:") and "0.45 m" in w and "left_shin" not in w
     assert depth_warnings(search[:1], search_min_shift_mm=500) == []
     assert "left_shin" in depth_warnings(search, search_min_shift_mm=0)[0]
     # refined hypotheses likewise; unrefined ones (search energies) never count as refined alternatives
-    hyps = [{"label": "keep", "energy": 100.0, "differs": [], "refined": True, "shift_mm": 0.0, "max_shift_mm": 0.0},
-            {"label": "left_shin", "energy": 105.0, "differs": ["left_shin"], "refined": True, "shift_mm": 9.0,
-             "max_shift_mm": 90.0},
-            {"label": "both_arms", "energy": 50.0, "differs": ["left_upper_arm"], "refined": False, "stage": "branches_1",
-             "gap": 0.05, "shift_mm": 60.0, "max_shift_mm": 500.0}]  # fmt: skip
+    hyps = [
+        {"label": "keep", "energy": 100.0, "differs": [], "refined": True, "shift_mm": 0.0, "max_shift_mm": 0.0},
+        {
+            "label": "left_shin",
+            "energy": 105.0,
+            "differs": ["left_shin"],
+            "refined": True,
+            "shift_mm": 9.0,
+            "max_shift_mm": 90.0,
+        },
+        {
+            "label": "both_arms",
+            "energy": 50.0,
+            "differs": ["left_upper_arm"],
+            "refined": False,
+            "stage": "branches_1",
+            "gap": 0.05,
+            "shift_mm": 60.0,
+            "max_shift_mm": 500.0,
+        },
+    ]
     assert depth_warnings(None, hyps) == []  # the refined alternative moves a joint 90 mm only
     (w,) = depth_warnings(None, [hyps[0], dict(hyps[1], max_shift_mm=450.0), hyps[2]])
     assert "hypotheses/2" in w and "hypotheses/3" not in w and "left_upper_arm" not in w
@@ -275,28 +333,59 @@ def test_an_alternative_that_moves_no_joint_far_is_no_depth_warning():
 def test_unrefined_hypotheses_are_summarised_with_their_search_gap():
     from silfit.plausibility import hypothesis_summary
 
-    hyps = [{"label": "keep", "energy": 100.0, "differs": [], "refined": True, "shift_mm": 0.0, "max_shift_mm": 0.0},
-            {"label": "left_arm", "energy": 40.0, "differs": ["left_forearm"], "refined": False, "stage": "branches_1",
-             "gap": 0.12, "shift_mm": 41.0, "max_shift_mm": 380.0}]  # fmt: skip
+    hyps = [
+        {"label": "keep", "energy": 100.0, "differs": [], "refined": True, "shift_mm": 0.0, "max_shift_mm": 0.0},
+        {
+            "label": "left_arm",
+            "energy": 40.0,
+            "differs": ["left_forearm"],
+            "refined": False,
+            "stage": "branches_1",
+            "gap": 0.12,
+            "shift_mm": 41.0,
+            "max_shift_mm": 380.0,
+        },
+    ]
     rows = hypothesis_summary(hyps)
     assert rows[0]["refined"] and rows[0]["gap"] == 0.0 and rows[0]["max_shift_mm"] == 0.0
-    assert rows[1] == {"rank": 2, "label": "left_arm", "energy": 40.0, "gap": 0.12, "differs": ["left_forearm"],
-                       "refined": False, "shift_mm": 41.0, "max_shift_mm": 380.0, "stage": "branches_1"}  # fmt: skip
+    assert rows[1] == {
+        "rank": 2,
+        "label": "left_arm",
+        "energy": 40.0,
+        "gap": 0.12,
+        "differs": ["left_forearm"],
+        "refined": False,
+        "shift_mm": 41.0,
+        "max_shift_mm": 380.0,
+        "stage": "branches_1",
+    }
 
 
 def test_with_branches_refined_to_the_end_their_final_energies_decide_the_depth_warning():
     # the fit is the refined branch with the lowest final energy, which need not be the search's lowest:
     # the last search's energies (far from converged) no longer say whether an alternative is close
     from silfit.plausibility import (
-        EARLY_SEARCH_MARGIN, EARLY_SEARCH_MIN_SHIFT_MM, HYPOTHESIS_MARGIN, MIN_SHIFT_MM, depth_warnings,
-    )  # fmt: skip
+        EARLY_SEARCH_MARGIN,
+        EARLY_SEARCH_MIN_SHIFT_MM,
+        HYPOTHESIS_MARGIN,
+        MIN_SHIFT_MM,
+        depth_warnings,
+    )
 
     def record(*finals):
-        return {"stage": "final", "kept": finals[0][0], "refined": True,
-                "tried": [{"flip": f, "energy": e, "differs": d, "max_shift_mm": m} for f, e, d, m in finals]}
+        return {
+            "stage": "final",
+            "kept": finals[0][0],
+            "refined": True,
+            "tried": [{"flip": f, "energy": e, "differs": d, "max_shift_mm": m} for f, e, d, m in finals],
+        }
 
     def searched(stage, kept, *tried, shift=EARLY_SEARCH_MIN_SHIFT_MM):
-        return {"stage": stage, "kept": kept, "tried": [{"flip": f, "energy": e, "max_shift_mm": shift} for f, e in tried]}
+        return {
+            "stage": stage,
+            "kept": kept,
+            "tried": [{"flip": f, "energy": e, "max_shift_mm": shift} for f, e in tried],
+        }
 
     late = searched("branches_late", "left_shin", ("keep", 100.0), ("left_shin", 108.0))  # "keep" 8 % below the kept
     far = record(("left_shin", 80.0, [], 0.0), ("keep", 80 * (1 + HYPOTHESIS_MARGIN) + 1, ["left_shin"], 500.0))
@@ -313,12 +402,16 @@ def test_with_branches_refined_to_the_end_their_final_energies_decide_the_depth_
     assert "right_forearm" in w and "branch search: right_forearm" in w
     first_far = searched("branches_1", "keep", ("keep", 200.0), ("right_forearm", 200 * (1 + EARLY_SEARCH_MARGIN) + 1))
     assert depth_warnings([first_far, late, far]) == []
-    first_near = searched("branches_1", "keep", ("keep", 200.0), ("right_forearm", 200.0), shift=EARLY_SEARCH_MIN_SHIFT_MM - 1)
+    first_near = searched(
+        "branches_1", "keep", ("keep", 200.0), ("right_forearm", 200.0), shift=EARLY_SEARCH_MIN_SHIFT_MM - 1
+    )
     assert depth_warnings([first_near, late, far]) == []  # as close as can be, but no joint moves far
     # with --hypotheses K the record still decides (every refined branch; hypotheses keeps K of them), and
     # a branch also among the hypotheses is named by its folder
-    hyps = [{"label": "left_shin", "energy": 80.0, "differs": []},
-            {"label": "keep", "energy": close["tried"][1]["energy"], "differs": ["left_shin"], "max_shift_mm": 500.0}]  # fmt: skip
+    hyps = [
+        {"label": "left_shin", "energy": 80.0, "differs": []},
+        {"label": "keep", "energy": close["tried"][1]["energy"], "differs": ["left_shin"], "max_shift_mm": 500.0},
+    ]
     (w,) = depth_warnings([late, close], hyps)
     assert "hypotheses/2" in w and "refined branch" not in w
     assert "refined branch: keep" in depth_warnings([late, close], hyps[:1])[0]  # cut to K = 1: still read

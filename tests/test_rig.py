@@ -1,4 +1,5 @@
 """Camera rigs: camera.json with extrinsics, cameras.json, EasyMocap's intri/extri.yml, rig folders."""
+
 import json
 
 import cv2
@@ -14,9 +15,15 @@ from silfit.errors import InputError
 from silfit.fitting.problem import View
 from silfit.keypoints import write_openpose_json
 from silfit.rig import (
-    load_rig, look_at, project_world, read_cameras_json, read_easymocap, read_view_camera, ring_layout,
+    load_rig,
+    look_at,
+    project_world,
+    read_cameras_json,
+    read_easymocap,
+    read_view_camera,
+    ring_layout,
     write_cameras_json,
-)  # fmt: skip
+)
 
 CAM = {"fx": 500.0, "fy": 500.0, "cx": 63.5, "cy": 63.5, "width": 128, "height": 128}
 R0 = Rotation.from_rotvec([0.1, -0.7, 0.05]).as_matrix()
@@ -36,16 +43,19 @@ def test_camera_json_with_and_without_extrinsics(tmp_path):
     assert plain.R is None and np.allclose(plain.extrinsics()[0], np.eye(3))
 
 
-@pytest.mark.parametrize("extra, field, words", [
-    ({"R": R0.tolist()}, "t", "give both"),
-    ({"R": (2 * R0).tolist(), "t": T0}, "R", "not a rotation"),
-    ({"R": [[1, 0], [0, 1]], "t": T0}, "R", "shape"),
-    ({"R": R0.tolist(), "t": [0, 0]}, "t", "shape"),
-    ({"R": R0.tolist(), "t": ["a", 0, 0]}, "t", "numbers"),
-    ({"R": R0.tolist(), "t": [0, 0, float("nan")]}, "t", "NaN"),
-    ({"R": R0.tolist(), "t": [0, 0, 1e6]}, "t", "metres"),
-    ({"R": R0.tolist(), "t": [True, 0, 0]}, "t", "boolean"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "extra, field, words",
+    [
+        ({"R": R0.tolist()}, "t", "give both"),
+        ({"R": (2 * R0).tolist(), "t": T0}, "R", "not a rotation"),
+        ({"R": [[1, 0], [0, 1]], "t": T0}, "R", "shape"),
+        ({"R": R0.tolist(), "t": [0, 0]}, "t", "shape"),
+        ({"R": R0.tolist(), "t": ["a", 0, 0]}, "t", "numbers"),
+        ({"R": R0.tolist(), "t": [0, 0, float("nan")]}, "t", "NaN"),
+        ({"R": R0.tolist(), "t": [0, 0, 1e6]}, "t", "metres"),
+        ({"R": R0.tolist(), "t": [True, 0, 0]}, "t", "boolean"),
+    ],
+)
 def test_bad_extrinsics_name_the_file_and_field(tmp_path, extra, field, words):
     f = write(tmp_path / "camera.json", {**CAM, **extra})
     with pytest.raises(InputError) as err:
@@ -60,9 +70,12 @@ def test_cameras_json_round_trip_and_errors(tmp_path):
     back = read_cameras_json(tmp_path / "cameras.json")
     assert [v.name for v in back] == ["a", "b"]
     assert np.allclose(back[1].view.extrinsics()[0], R0) and back[0].keypoints == tmp_path / "a" / "keypoints.json"
-    for data, words in (({"views": []}, "views"), ({"views": [{**CAM, "name": "x"}, {**CAM, "name": "x"}]}, "two views"),
-                        ({"views": [{**CAM, "name": "../up"}]}, "plain folder name"),
-                        ({"views": [{"name": "a", "fx": 1}]}, "missing")):  # fmt: skip
+    for data, words in (
+        ({"views": []}, "views"),
+        ({"views": [{**CAM, "name": "x"}, {**CAM, "name": "x"}]}, "two views"),
+        ({"views": [{**CAM, "name": "../up"}]}, "plain folder name"),
+        ({"views": [{"name": "a", "fx": 1}]}, "missing"),
+    ):
         with pytest.raises(InputError, match=words):
             read_cameras_json(write(tmp_path / "bad.json", data))
 
@@ -115,14 +128,23 @@ def test_easymocap_bad_files(tmp_path):
         read_easymocap(tmp_path / "intri.yml", tmp_path / "extri.yml", sizes={"a": (128, 128)})
 
 
-@pytest.mark.parametrize("node", ["T_a: 3", 'T_a: "abc"', "T_a: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ 1., 2. ]",
-                                  "T_a: !!opencv-matrix\n   rows: 300000000\n   cols: 1\n   dt: d\n   data: [ 1., 2., 3. ]"])
+@pytest.mark.parametrize(
+    "node",
+    [
+        "T_a: 3",
+        'T_a: "abc"',
+        "T_a: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ 1., 2. ]",
+        "T_a: !!opencv-matrix\n   rows: 300000000\n   cols: 1\n   dt: d\n   data: [ 1., 2., 3. ]",
+    ],
+)
 def test_easymocap_malformed_matrix_is_an_input_error(tmp_path, node):
     # OpenCV asserts (cv2.error) on a scalar node's or a mis-sized matrix's .mat(): one InputError instead
     K = np.array([[500.0, 0, 63.5], [0, 500.0, 63.5], [0, 0, 1]])
     _write_easymocap(tmp_path, ["a"], K, [[0, 0, 0]], [[0, 0, 3]])
-    (tmp_path / "extri.yml").write_text("%YAML:1.0\n---\nnames:\n   - a\nR_a: !!opencv-matrix\n   rows: 3\n   cols: 1\n"
-                                        f"   dt: d\n   data: [ 0., 0., 0. ]\n{node}\n")
+    (tmp_path / "extri.yml").write_text(
+        "%YAML:1.0\n---\nnames:\n   - a\nR_a: !!opencv-matrix\n   rows: 3\n   cols: 1\n"
+        f"   dt: d\n   data: [ 0., 0., 0. ]\n{node}\n"
+    )
     with pytest.raises(InputError, match="opencv-matrix") as err:
         read_easymocap(tmp_path / "intri.yml", tmp_path / "extri.yml", sizes={"a": (128, 128)})
     assert err.value.field == "T_a"
@@ -206,15 +228,25 @@ def test_load_rig_reads_an_easymocap_folder(tmp_path):
 
 
 _values = st.recursive(
-    st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-(10**30), 10**30), st.booleans(), st.none(),
-              st.text(max_size=4)),
-    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=4), inner, max_size=3), max_leaves=20,
-)  # fmt: skip
+    st.one_of(
+        st.floats(allow_nan=True, allow_infinity=True),
+        st.integers(-(10**30), 10**30),
+        st.booleans(),
+        st.none(),
+        st.text(max_size=4),
+    ),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=4), inner, max_size=3),
+    max_leaves=20,
+)
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck), database=None)
-@given(R=st.one_of(st.just(R0.tolist()), _values), t=st.one_of(st.just(T0), _values), manifest=st.booleans(),
-       drop=st.sampled_from([None, "R", "t", "fx"]))  # fmt: skip
+@given(
+    R=st.one_of(st.just(R0.tolist()), _values),
+    t=st.one_of(st.just(T0), _values),
+    manifest=st.booleans(),
+    drop=st.sampled_from([None, "R", "t", "fx"]),
+)
 def test_fuzzed_extrinsics_are_read_or_refused_cleanly(tmp_path_factory, R, t, manifest, drop):
     doc = {**CAM, "R": R, "t": t}
     if drop:
@@ -240,9 +272,13 @@ def test_a_rig_video_aligns_each_views_frames_by_number(tmp_path, layout):
 
     views = _rig_folder(tmp_path, layout == "manifest")
     if layout == "easymocap":
-        _write_easymocap(tmp_path, [n for n, _ in views], np.array([[500.0, 0, 63.5], [0, 500.0, 63.5], [0, 0, 1]]),
-                         [Rotation.from_matrix(v.extrinsics()[0]).as_rotvec() for _, v in views],
-                         [v.extrinsics()[1] for _, v in views])  # fmt: skip
+        _write_easymocap(
+            tmp_path,
+            [n for n, _ in views],
+            np.array([[500.0, 0, 63.5], [0, 500.0, 63.5], [0, 0, 1]]),
+            [Rotation.from_matrix(v.extrinsics()[0]).as_rotvec() for _, v in views],
+            [v.extrinsics()[1] for _, v in views],
+        )
         for n, _ in views:
             (tmp_path / n / "camera.json").unlink()
     ranges = {"cam0": range(0, 3), "cam1": range(1, 4), "cam2": range(0, 4)}
@@ -251,15 +287,21 @@ def test_a_rig_video_aligns_each_views_frames_by_number(tmp_path, layout):
         for sub in ("keypoints", "masks"):
             (tmp_path / name / sub).mkdir()
         for f in frames:
-            write_openpose_json(tmp_path / name / "keypoints" / f"{name}_{f:012d}_keypoints.json", np.full((25, 3), 1.0 + f))
+            write_openpose_json(
+                tmp_path / name / "keypoints" / f"{name}_{f:012d}_keypoints.json", np.full((25, 3), 1.0 + f)
+            )
             write_png(tmp_path / name / "masks" / f"{name}_{f:012d}.png", np.ones((128, 128), bool))
     assert is_rig_video(tmp_path)
     with pytest.raises(InputError, match="keypoint file not found .its folder holds a video"):
         load_rig(tmp_path)
     seq = load_rig_sequence(tmp_path)
     assert seq.names == ["cam0", "cam1", "cam2"] and seq.numbers == [0, 1, 2, 3]
-    assert [[ks is not None for ks in row] for row in seq.frames] == [[True, False, True], [True, True, True],
-                                                                       [True, True, True], [False, True, True]]  # fmt: skip
+    assert [[ks is not None for ks in row] for row in seq.frames] == [
+        [True, False, True],
+        [True, True, True],
+        [True, True, True],
+        [False, True, True],
+    ]
     assert seq.frames[2][1].xy[0, 0] == 3.0  # cam1's frame 2 in row 2
     assert seq.per_view(1, "masks")[0] is None and seq.per_view(1, "masks")[3].name == "cam1_000000000003.png"
     assert np.allclose(seq.views[1].view.extrinsics()[0], views[1][1].extrinsics()[0])

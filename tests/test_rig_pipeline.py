@@ -1,4 +1,5 @@
 """silfit.rig_pipeline's pure parts."""
+
 import math
 
 from silfit.rig_pipeline import disagreeing_views

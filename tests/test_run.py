@@ -1,5 +1,6 @@
 """The one path (silfit.run): the checks every job gets, run_batch's batching and isolation,
 the one result type's shapes for an image, a rig and a video."""
+
 from pathlib import Path
 
 import numpy as np
@@ -40,13 +41,18 @@ def test_check_drops_far_points_of_an_image_and_refuses_an_unusable_one(subject)
 
 def test_check_sets_a_rig_view_aside_and_a_video_frame_becomes_undetected(subject):
     ks, cam = subject.keypoints, subject.camera
-    rig = Job(Problem([Observation(View(cam), ks, None, 0, 0), Observation(View(cam), _unusable(ks), None, 0, 1)]),
-              view_names=["a", "b"], rig=True)  # fmt: skip
+    rig = Job(
+        Problem([Observation(View(cam), ks, None, 0, 0), Observation(View(cam), _unusable(ks), None, 0, 1)]),
+        view_names=["a", "b"],
+        rig=True,
+    )
     checked = check(rig)
     assert list(checked.view_names) == ["a"] and checked.num_views == 1 and checked.mode == "rig"
     assert any(w.startswith("view b set aside") for w in checked.warnings)
-    video = Job(Problem([Observation(View(cam), k, None, f) for f, k in enumerate([ks, _unusable(ks), ks])]),
-                frame_numbers=[10, 11, 12])  # fmt: skip
+    video = Job(
+        Problem([Observation(View(cam), k, None, f) for f, k in enumerate([ks, _unusable(ks), ks])]),
+        frame_numbers=[10, 11, 12],
+    )
     checked = check(video)
     assert checked.mode == "video" and checked.problem.grid()[1][0].keypoints is None
     assert any("11" in w and "unusable" in w for w in checked.warnings)
@@ -58,14 +64,26 @@ def test_run_batch_isolates_a_failing_silhouette_stage(open_model, subject):
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
 
     sil = SilhouetteFitConfig(resolutions=(32,), iterations=(2,))
-    jobs = [image_job(subject.keypoints, mask, subject.camera, model=open_model, keypoint_config=FAST, silhouette_config=sil,
-                      progress=False) for mask in (far, None)]  # fmt: skip
+    jobs = [
+        image_job(
+            subject.keypoints,
+            mask,
+            subject.camera,
+            model=open_model,
+            keypoint_config=FAST,
+            silhouette_config=sil,
+            progress=False,
+        )
+        for mask in (far, None)
+    ]
     bad, good = run_batch(jobs, isolate=True)
     assert isinstance(bad, StageFailure) and bad.stage == "silhouette" and "does not overlap" in str(bad)
     assert bad.partial is not None and bad.partial.silhouette is None  # the keypoint stage's fit is kept
     assert good.vertices.shape == (1, open_model.num_vertices, 3) and good.keypoints_2d.shape[:2] == (1, 1)
     # the same image alone: the batch changed nothing (rows are independent)
-    alone = run(image_job(subject.keypoints, None, subject.camera, model=open_model, keypoint_config=FAST, progress=False))
+    alone = run(
+        image_job(subject.keypoints, None, subject.camera, model=open_model, keypoint_config=FAST, progress=False)
+    )
     assert np.allclose(alone.params["body_pose"], good.params["body_pose"], atol=1e-5)
     with pytest.raises(ValueError, match="does not overlap"):
         run_batch(jobs[:1])
@@ -76,8 +94,12 @@ def test_run_gives_one_result_type_for_a_video(open_model, subject):
 
     ks, cam = subject.keypoints, subject.camera
     cfg = SequenceFitConfig(keypoint=FAST, iterations=3, neighbour_starts=False)
-    job = Job(Problem([Observation(View(cam), k, None, f) for f, k in enumerate([ks, None, ks])]), open_model,
-              sequence_config=cfg, progress=False)  # fmt: skip
+    job = Job(
+        Problem([Observation(View(cam), k, None, f) for f, k in enumerate([ks, None, ks])]),
+        open_model,
+        sequence_config=cfg,
+        progress=False,
+    )
     fit = run(job)
     assert fit.vertices.shape == (3, open_model.num_vertices, 3) and fit.reprojection_error.shape == (3, 1)
     assert fit.params["betas"].ndim == 1 and fit.params["body_pose"].shape == (3, 69)
@@ -89,8 +111,14 @@ def test_a_one_frame_video_stays_a_video(open_model, subject):
     from silfit.fitting.sequence import SequenceFitConfig, SequenceFitResult
 
     ks, cam = subject.keypoints, subject.camera
-    job = video_job([ks], cam, open_model, config=SequenceFitConfig(keypoint=FAST, iterations=3, neighbour_starts=False),
-                    progress=False, numbers=[7])  # fmt: skip
+    job = video_job(
+        [ks],
+        cam,
+        open_model,
+        config=SequenceFitConfig(keypoint=FAST, iterations=3, neighbour_starts=False),
+        progress=False,
+        numbers=[7],
+    )
     assert job.mode == "video" and check(job).mode == "video"
     fit = run(job)
     assert isinstance(fit.stage, SequenceFitResult) and fit.params["body_pose"].shape == (1, 69)
@@ -100,8 +128,13 @@ def test_check_reindexes_a_rig_videos_pictures_when_a_view_is_set_aside(subject)
     ks, cam = subject.keypoints, subject.camera
     obs = [Observation(View(cam), k, None, f, c) for f in range(2) for c, k in enumerate([_unusable(ks), ks])]
     pics = {(f, c): np.full((2, 2, 3), 10 * f + c, np.uint8) for f in range(2) for c in range(2)}
-    job = Job(Problem(obs), view_names=["a", "b"], rig=True, images=pics,
-              mask_sources={(f, c): f"m{f}{c}" for f in range(2) for c in range(2)})  # fmt: skip
+    job = Job(
+        Problem(obs),
+        view_names=["a", "b"],
+        rig=True,
+        images=pics,
+        mask_sources={(f, c): f"m{f}{c}" for f in range(2) for c in range(2)},
+    )
     checked = check(job)
     assert list(checked.view_names) == ["b"] and sorted(checked.images) == [(0, 0), (1, 0)]
     assert checked.images[(1, 0)][0, 0, 0] == 11 and checked.mask_sources == {(0, 0): "m01", (1, 0): "m11"}

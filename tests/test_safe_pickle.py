@@ -1,5 +1,6 @@
 """Restricted unpickling: crafted pickles that try to run code are refused before anything
 runs; the official model/prior layouts still load."""
+
 import io
 import os
 import pickle
@@ -80,8 +81,11 @@ def test_hostile_pose_prior_is_refused(tmp_path, name):
     marker = tmp_path / "ran"
     path = tmp_path / "gmm_08.pkl"
     rng = np.random.default_rng(0)
-    payload = {"means": rng.normal(size=(2, 69)), "covars": np.stack([np.eye(69)] * 2),
-               "weights": _attacks(marker)[name]}  # fmt: skip
+    payload = {
+        "means": rng.normal(size=(2, 69)),
+        "covars": np.stack([np.eye(69)] * 2),
+        "weights": _attacks(marker)[name],
+    }
     path.write_bytes(pickle.dumps(payload, protocol=2))
     with pytest.raises(UnsafeFileError, match="gmm_08.pkl"):
         load_pose_prior(path)
@@ -150,7 +154,9 @@ def test_official_layouts_load_with_sparse_regressors_and_object_arrays(tmp_path
     write_chumpy_pickle(tmp_path / "SMPL_NEUTRAL.pkl", arrays)
     from_pkl = load_body_model(tmp_path / "SMPL_NEUTRAL.pkl", dtype=torch.float64)
     # a converted .npz whose regressor is a pickled sparse matrix (an object array)
-    converted = dict(arrays, J_regressor=np.array(getattr(scipy.sparse, f"{fmt}_matrix")(arrays["J_regressor"]), dtype=object))
+    converted = dict(
+        arrays, J_regressor=np.array(getattr(scipy.sparse, f"{fmt}_matrix")(arrays["J_regressor"]), dtype=object)
+    )
     from_npz = load_body_model(_savez(tmp_path / "conv.npz", converted), dtype=torch.float64)
     assert torch.allclose(from_pkl.J_regressor, reference.J_regressor)
     assert torch.allclose(from_npz.J_regressor, reference.J_regressor)
@@ -183,7 +189,9 @@ def test_a_pickle_cannot_allocate_more_than_it_holds(tmp_path):
     path.write_bytes(b"\x80\x02cnumpy\nndarray\nJ\x00\xe1\xf5\x05J\x00\xe1\xf5\x05\x86\x85R.")  # ndarray((1e8, 1e8))
     with pytest.raises(InputError, match=r"big\.pkl.*ndarray may only appear"):
         load_pickle(path)
-    path.write_bytes(b"\x80\x02cnumpy._core.multiarray\n_reconstruct\ncnumpy\nndarray\nJ\x00\xe1\xf5\x05\x85C\x01b\x87R.")
+    path.write_bytes(
+        b"\x80\x02cnumpy._core.multiarray\n_reconstruct\ncnumpy\nndarray\nJ\x00\xe1\xf5\x05\x85C\x01b\x87R."
+    )
     assert load_pickle(path).shape == (0,)
     path.write_bytes(b"\x80\x02c__builtin__\nbytearray\nJ\x00\xca\x9a;\x85R.")  # bytearray(10**9)
     with pytest.raises(UnsafeFileError, match="builtins.bytearray"):

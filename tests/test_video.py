@@ -1,4 +1,5 @@
 """Reading a video's per-frame OpenPose folder."""
+
 import json
 
 import numpy as np
@@ -71,7 +72,10 @@ def test_a_frame_number_far_from_the_others_is_refused_before_any_frame_is_alloc
     from silfit.video import MAX_GAP
 
     _frames(tmp_path / "a", [0, 1, 2, 3, 4, 5, 99999])
-    with pytest.raises(InputError, match=rf"v_000000099999_keypoints\.json: frame 99999 comes 99993 missing frames after frame 5 \(at most {MAX_GAP}"):
+    with pytest.raises(
+        InputError,
+        match=rf"v_000000099999_keypoints\.json: frame 99999 comes 99993 missing frames after frame 5 \(at most {MAX_GAP}",
+    ):
         read_sequence(tmp_path / "a")
     _frames(tmp_path / "b", [0, 1, MAX_GAP + 2])
     assert len(read_sequence(tmp_path / "b").numbers) == MAX_GAP + 3
@@ -90,7 +94,9 @@ def test_a_keypoint_file_without_a_frame_number_is_refused(tmp_path):
 def test_two_videos_in_one_folder_are_refused(tmp_path):
     _frames(tmp_path / "kp", [0, 1, 2], stem="walk")
     _frames(tmp_path / "kp", [3, 4], stem="run")
-    with pytest.raises(InputError, match=r"keypoint files of 2 videos in one folder: 'walk' \(frames 0..2\) and 'run' \(frames 3..4\)"):
+    with pytest.raises(
+        InputError, match=r"keypoint files of 2 videos in one folder: 'walk' \(frames 0..2\) and 'run' \(frames 3..4\)"
+    ):
         read_sequence(tmp_path / "kp")
     _frames(tmp_path / "one", [0, 1, 2], stem="walk")
     _masks(tmp_path / "m", [0, 1], stem="walk")
@@ -108,6 +114,8 @@ def test_masks_that_do_not_match_the_frames_are_reported(tmp_path):
     assert "2 mask(s) for frames the keypoints do not have, ignored: 7, 8" in text, text
     assert "no mask for 1 frame(s) with a person (no silhouette term there): 1" in text, text
     _masks(tmp_path / "other", [50, 51])
-    with pytest.raises(InputError, match=r"other: no mask file matches a frame: masks for frames 50..51, keypoints for 0..3"):
+    with pytest.raises(
+        InputError, match=r"other: no mask file matches a frame: masks for frames 50..51, keypoints for 0..3"
+    ):
         read_sequence(tmp_path / "kp", masks=tmp_path / "other")
     assert read_sequence(tmp_path / "kp", masks=None).warnings == []

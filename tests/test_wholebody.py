@@ -1,4 +1,5 @@
 """OpenPose whole-body keypoints: sources on the whole-body model, and the JSON files (round trip, errors)."""
+
 import json
 
 import numpy as np
@@ -17,8 +18,12 @@ def wb():
 def test_sources_on_the_model(wb, open_model):
     out = wb()
     kp = wholebody_keypoints(wb, out)
-    assert {k: tuple(v.shape) for k, v in kp.items()} == {"body": (1, 25, 3), "hand_left": (1, 21, 3),
-                                                          "hand_right": (1, 21, 3), "face": (1, 70, 3)}
+    assert {k: tuple(v.shape) for k, v in kp.items()} == {
+        "body": (1, 25, 3),
+        "hand_left": (1, 21, 3),
+        "hand_right": (1, 21, 3),
+        "face": (1, 70, 3),
+    }
     J = out.joints[0]
     names = list(wb.joint_names)
     hl = kp["hand_left"][0]
@@ -61,16 +66,28 @@ def test_round_trip_and_absent_parts(tmp_path):
 @pytest.mark.parametrize(
     "edit, message",
     [
-        (lambda p: p.update(hand_left_keypoints_2d=[1.0] * 60), r"'people\[0\].hand_left_keypoints_2d' has 20 keypoints, expected 21"),
+        (
+            lambda p: p.update(hand_left_keypoints_2d=[1.0] * 60),
+            r"'people\[0\].hand_left_keypoints_2d' has 20 keypoints, expected 21",
+        ),
         (lambda p: p.update(face_keypoints_2d=[1.0] * 209), "not a multiple of 3"),
         (lambda p: p["face_keypoints_2d"].__setitem__(4, float("nan")), "NaN or infinite values at point"),
-        (lambda p: p.update(hand_right_keypoints_2d=[0.0] * 63), "hand_right_keypoints_2d': all keypoint confidences are zero"),
+        (
+            lambda p: p.update(hand_right_keypoints_2d=[0.0] * 63),
+            "hand_right_keypoints_2d': all keypoint confidences are zero",
+        ),
         (lambda p: p.update(face_keypoints_2d=[]), "'face_keypoints_2d' is missing or empty"),
         (lambda p: p.pop("pose_keypoints_2d"), r"'people\[0\].pose_keypoints_2d' is missing"),
         (lambda p: p["hand_left_keypoints_2d"].__setitem__(2, -0.5), "negative confidences"),
         # a ragged nested array: numpy's "inhomogeneous shape" before, with neither file nor field
-        (lambda p: p["hand_left_keypoints_2d"].__setitem__(1, [1.0, [2.0, 3.0]]), r"'people\[0\].hand_left_keypoints_2d' value 1 is list"),
-        (lambda p: p.update(hand_left_keypoints_2d=[[1.0, 2.0, 0.5]] * 20 + [[1.0, 2.0]]), r"hand_left_keypoints_2d\[20\]' has 2 values"),
+        (
+            lambda p: p["hand_left_keypoints_2d"].__setitem__(1, [1.0, [2.0, 3.0]]),
+            r"'people\[0\].hand_left_keypoints_2d' value 1 is list",
+        ),
+        (
+            lambda p: p.update(hand_left_keypoints_2d=[[1.0, 2.0, 0.5]] * 20 + [[1.0, 2.0]]),
+            r"hand_left_keypoints_2d\[20\]' has 2 values",
+        ),
     ],
 )
 def test_bad_files_fail_clearly(tmp_path, edit, message):

@@ -13,6 +13,7 @@ there would make every breakage look caught, so the script stops.
 A patch whose text is no longer in the source is reported as ``patch stale`` (the code
 moved: update the patch), never silently skipped.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -47,77 +48,134 @@ TRI = "silfit/fitting/triangulate.py"
 
 BREAKAGES = (
     Breakage(
-        "translation_only", "silhouette stage optimises the translation only",
-        ((SIL, "free = {k: params[k] for k in cfg.optimise}", 'free = {k: params[k] for k in cfg.optimise if k == "transl"}'),),
+        "translation_only",
+        "silhouette stage optimises the translation only",
+        (
+            (
+                SIL,
+                "free = {k: params[k] for k in cfg.optimise}",
+                'free = {k: params[k] for k in cfg.optimise if k == "transl"}',
+            ),
+        ),
         ("tests/fitting/test_recovery.py::test_silhouette_stage_recovers_the_truth",),
     ),
     Breakage(
-        "shared_step", "L-BFGS line search shares one step length across the batch (samples coupled)",
+        "shared_step",
+        "L-BFGS line search shares one step length across the batch (samples coupled)",
         (
-            (OPTIM, "ok = torch.isfinite(ft) & (ft <= fa[todo] + c1 * t[todo] * gtd[todo])",
-             "ok = torch.isfinite(ft) & (ft <= fa[todo] + c1 * t[todo] * gtd[todo])\n            ok = ok & bool(ok.all())"),
-            (OPTIM, "t[rej] = torch.minimum(torch.maximum(tq, 0.1 * tr), 0.5 * tr)",
-             "t[rej] = torch.minimum(torch.maximum(tq, 0.1 * tr), 0.5 * tr)\n            t[:] = t[rej].min()"),
+            (
+                OPTIM,
+                "ok = torch.isfinite(ft) & (ft <= fa[todo] + c1 * t[todo] * gtd[todo])",
+                "ok = torch.isfinite(ft) & (ft <= fa[todo] + c1 * t[todo] * gtd[todo])\n            ok = ok & bool(ok.all())",
+            ),
+            (
+                OPTIM,
+                "t[rej] = torch.minimum(torch.maximum(tq, 0.1 * tr), 0.5 * tr)",
+                "t[rej] = torch.minimum(torch.maximum(tq, 0.1 * tr), 0.5 * tr)\n            t[:] = t[rej].min()",
+            ),
         ),
         ("tests/fitting/test_optim_losses.py", "tests/fitting/test_keypoint_stage.py::test_batch_equals_single_fits"),
     ),
     Breakage(
-        "l2", "robust (Geman-McClure) keypoint term replaced by plain L2",
-        ((TERMS, "self.name, self.sigma, self.mask = name, sigma, mask", "self.name, self.sigma, self.mask = name, None, mask"),),
-        ("tests/fitting/test_keypoint_stage.py::test_outlier_moves_the_robust_fit_far_less_than_l2", "tests/fitting/test_terms.py"),
+        "l2",
+        "robust (Geman-McClure) keypoint term replaced by plain L2",
+        (
+            (
+                TERMS,
+                "self.name, self.sigma, self.mask = name, sigma, mask",
+                "self.name, self.sigma, self.mask = name, None, mask",
+            ),
+        ),
+        (
+            "tests/fitting/test_keypoint_stage.py::test_outlier_moves_the_robust_fit_far_less_than_l2",
+            "tests/fitting/test_terms.py",
+        ),
     ),
     Breakage(
-        "interpenetration_zero", "interpenetration penalty returns zero",
-        (("silfit/priors/interpenetration.py", "index_add(0, row, overlap * overlap)", "index_add(0, row, 0.0 * overlap)"),),
+        "interpenetration_zero",
+        "interpenetration penalty returns zero",
+        (
+            (
+                "silfit/priors/interpenetration.py",
+                "index_add(0, row, overlap * overlap)",
+                "index_add(0, row, 0.0 * overlap)",
+            ),
+        ),
         ("tests/priors/test_interpenetration.py",),
     ),
     Breakage(
-        "interpenetration_term_zero", "the fit's interpenetration term returns zero (the prior itself intact)",
-        ((TERMS, "return ev.per_problem(self.collisions(ev.rows[\"betas\"], ev.body.transforms))",
-          "return ev.per_problem(0.0 * self.collisions(ev.rows[\"betas\"], ev.body.transforms))"),),
+        "interpenetration_term_zero",
+        "the fit's interpenetration term returns zero (the prior itself intact)",
+        (
+            (
+                TERMS,
+                'return ev.per_problem(self.collisions(ev.rows["betas"], ev.body.transforms))',
+                'return ev.per_problem(0.0 * self.collisions(ev.rows["betas"], ev.body.transforms))',
+            ),
+        ),
         ("tests/fitting/test_terms.py",),
     ),
     Breakage(
-        "dt_swapped", "distance transforms swapped inside/outside",
-        (("silfit/silhouette/losses.py", "return outside.astype(np.float32), inside.astype(np.float32)",
-          "return inside.astype(np.float32), outside.astype(np.float32)"),),
+        "dt_swapped",
+        "distance transforms swapped inside/outside",
+        (
+            (
+                "silfit/silhouette/losses.py",
+                "return outside.astype(np.float32), inside.astype(np.float32)",
+                "return inside.astype(np.float32), outside.astype(np.float32)",
+            ),
+        ),
         ("tests/silhouette/test_losses.py",),
     ),
     Breakage(
-        "confidence_ignored", "keypoint confidences ignored (every visible keypoint weighted 1)",
-        ((KP, "weights.append([[o.keypoints.conf] for o in rows])",
-          "weights.append([[(o.keypoints.conf > 0).astype(float)] for o in rows])"),),
+        "confidence_ignored",
+        "keypoint confidences ignored (every visible keypoint weighted 1)",
+        (
+            (
+                KP,
+                "weights.append([[o.keypoints.conf] for o in rows])",
+                "weights.append([[(o.keypoints.conf > 0).astype(float)] for o in rows])",
+            ),
+        ),
         ("tests/fitting/test_keypoint_stage.py::test_low_confidence_keypoints_count_less",),
     ),
     Breakage(
-        "flip_off", "flip test off by default (KeypointFitConfig.flip_test = False)",
+        "flip_off",
+        "flip test off by default (KeypointFitConfig.flip_test = False)",
         ((KP, "flip_test: bool = True", "flip_test: bool = False"),),
         ("tests/fitting/test_keypoint_stage.py::test_back_facing_subject_is_fitted_facing_away",),
     ),
     # issue 22: breakages that passed every behaviour test before these tests (each runs only its new test)
     Breakage(
-        "temporal_off", "sequence refinement's temporal smoothness terms off (joint and root smoothness weights 0)",
-        ((SEQ, "joint_smooth_weight: float = 1.0", "joint_smooth_weight: float = 0.0"),
-         (SEQ, "root_smooth_weight: float = 1.0", "root_smooth_weight: float = 0.0")),
+        "temporal_off",
+        "sequence refinement's temporal smoothness terms off (joint and root smoothness weights 0)",
+        (
+            (SEQ, "joint_smooth_weight: float = 1.0", "joint_smooth_weight: float = 0.0"),
+            (SEQ, "root_smooth_weight: float = 1.0", "root_smooth_weight: float = 0.0"),
+        ),
         ("tests/fitting/test_sequence.py::test_temporal_terms_smooth_a_noisy_sequence",),
     ),
     Breakage(
-        "dlt_unweighted", "triangulation (DLT) ignores the confidences (every seeing view weighted 1)",
+        "dlt_unweighted",
+        "triangulation (DLT) ignores the confidences (every seeing view weighted 1)",
         ((TRI, "w = np.asarray(weights, np.float64)", "w = (np.asarray(weights, np.float64) > 0).astype(np.float64)"),),
         ("tests/fitting/test_triangulate.py::test_dlt_trusts_the_confident_views",),
     ),
     Breakage(
-        "interpenetration_off", "interpenetration off in the keypoint stage (KeypointFitConfig.interpenetration_weight = 0)",
+        "interpenetration_off",
+        "interpenetration off in the keypoint stage (KeypointFitConfig.interpenetration_weight = 0)",
         ((KP, "interpenetration_weight: float = 1e5", "interpenetration_weight: float = 0.0"),),
         ("tests/fitting/test_keypoint_stage.py::test_self_contact_poses_are_fitted_without_the_arms_inside_the_body",),
     ),
     Breakage(
-        "camera_depth_nothing", "the camera stage's depth term scaled to nothing (weight x 1e-9)",
+        "camera_depth_nothing",
+        "the camera stage's depth term scaled to nothing (weight x 1e-9)",
         ((KP, '{"torso": 1.0, "depth": self.depth_weight}', '{"torso": 1.0, "depth": 1e-9 * self.depth_weight}'),),
         ("tests/fitting/test_keypoint_stage.py::test_camera_stage_keeps_the_root_near_the_similar_triangles_depth",),
     ),
     Breakage(
-        "shape_prior_zero", "the shape prior returns 0",
+        "shape_prior_zero",
+        "the shape prior returns 0",
         (("silfit/priors/simple.py", "return (betas * betas).sum(-1)", "return 0.0 * (betas * betas).sum(-1)"),),
         ("tests/fitting/test_keypoint_stage.py::test_shape_prior_keeps_the_shape_bounded_on_noisy_keypoints",),
     ),
@@ -143,7 +201,18 @@ def apply(root: Path, patches) -> str:
 
 def run_pytest(root: Path, tests: Sequence[str], timeout: float) -> Tuple[int, str, float]:
     env = dict(os.environ, PYTHONPATH=str(root), PYTHONDONTWRITEBYTECODE="1")
-    cmd = [sys.executable, "-m", "pytest", "-q", "-x", "-n", "0", "-p", "no:cacheprovider", *tests]  # a few tests: one process
+    cmd = [
+        sys.executable,
+        "-m",
+        "pytest",
+        "-q",
+        "-x",
+        "-n",
+        "0",
+        "-p",
+        "no:cacheprovider",
+        *tests,
+    ]  # a few tests: one process
     t0 = time.perf_counter()
     try:
         p = subprocess.run(cmd, cwd=root, env=env, capture_output=True, text=True, timeout=timeout)

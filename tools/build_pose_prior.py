@@ -8,6 +8,7 @@ Deterministic: the same settings give the same file.
     python tools/build_pose_prior.py                       # the shipped file
     python tools/build_pose_prior.py --out /tmp/half.npz --names-half a   # held-out build
 """
+
 from __future__ import annotations
 
 import argparse
@@ -40,9 +41,13 @@ def main(argv=None):
     data = build_library_mixture(names, **settings)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     # Deterministic (fixed zip timestamps) and atomic: the same settings give the same bytes.
-    save_npz(args.out, {k: (v.astype(np.float32) if k in ("means", "covars", "weights") else v) for k, v in data.items()})
-    print(f"wrote {args.out} ({args.out.stat().st_size / 1024:.0f} KiB): {data['means'].shape[0]} components, "
-          f"{len(data['pose_names'])} library poses, mean log-likelihood {float(data['loglik']):.2f}")
+    save_npz(
+        args.out, {k: (v.astype(np.float32) if k in ("means", "covars", "weights") else v) for k, v in data.items()}
+    )
+    print(
+        f"wrote {args.out} ({args.out.stat().st_size / 1024:.0f} KiB): {data['means'].shape[0]} components, "
+        f"{len(data['pose_names'])} library poses, mean log-likelihood {float(data['loglik']):.2f}"
+    )
 
 
 if __name__ == "__main__":

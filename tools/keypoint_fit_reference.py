@@ -8,6 +8,7 @@ Float64, because float32 fits differ between CPUs by millimetres (their SIMD ker
 differently, and the optimiser amplifies it); in float64 the same code gives the same fits to
 well under 0.1 mm.
 """
+
 from __future__ import annotations
 
 import silfit  # noqa: F401  (first: pins the CPU kernels before torch and numpy load, as the tests do: silfit.kernels)
@@ -18,8 +19,17 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 #: the short schedule of the reference fits
-CONFIG = {"camera_iters": 15, "pose_iters": [15, 15, 15], "shape_iters": 8, "final_iters": 15, "init_poses": 2,
-          "decision_iters": 8, "branch_iters": 10, "branch_screen_iters": 5, "post_branch_iters": 10}  # fmt: skip
+CONFIG = {
+    "camera_iters": 15,
+    "pose_iters": [15, 15, 15],
+    "shape_iters": 8,
+    "final_iters": 15,
+    "init_poses": 2,
+    "decision_iters": 8,
+    "branch_iters": 10,
+    "branch_screen_iters": 5,
+    "post_branch_iters": 10,
+}
 
 
 def main() -> None:

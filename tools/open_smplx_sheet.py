@@ -5,6 +5,7 @@ posed meshes) our skinning next to anny's own posing.
 
     PYTHONPATH=. .venv/bin/python tools/open_smplx_sheet.py --reference /tmp/open_smplx_sheet.npz
 """
+
 from __future__ import annotations
 
 import argparse

@@ -7,6 +7,7 @@
 The table sits between the ``<!-- silfit-demo-table: begin ...-->`` and ``<!-- silfit-demo-table: end -->``
 lines of README.md; ``tests/cli/test_demo.py`` compares it with the demo's own output in the suite.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -19,6 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # this checkout's silfit, not another installed one
 
 import silfit  # noqa: E402,F401  (before numpy and torch: the kernel pins, as on the command line)
+
 BEGIN, END = "<!-- silfit-demo-table: begin", "<!-- silfit-demo-table: end -->"
 
 

@@ -5,6 +5,7 @@ spread (max - min) of PA-MPJPE, the translation and the pose.
     python tools/repro_silhouette.py                 # Dr.Jit one thread (the renderer's default)
     python tools/repro_silhouette.py --threads none  # Dr.Jit's own pool size (the old behaviour)
 """
+
 from __future__ import annotations
 
 import argparse
@@ -42,21 +43,26 @@ def main(argv=None) -> int:
     renderer = SilhouetteRenderer(model.faces, threads=threads)
     cfg = SilhouetteFitConfig(resolutions=(args.resolution,), iterations=(args.steps,))
     pa, transl, pose = [], [], []
-    print(f"| run | seconds | PA-MPJPE mm | transl (m) |\n|---|---|---|---|")
+    print("| run | seconds | PA-MPJPE mm | transl (m) |\n|---|---|---|---|")
     for r in range(args.runs):
         t0 = time.perf_counter()
-        sr = fit_silhouette(model, kr.params(0), s.camera, s.mask, s.keypoints.as_array(), config=cfg,
-                            renderer=renderer, progress=False)  # fmt: skip
+        sr = fit_silhouette(
+            model, kr.params(0), s.camera, s.mask, s.keypoints.as_array(), config=cfg, renderer=renderer, progress=False
+        )
         with torch.no_grad():
             joints = model(**{k: torch.as_tensor(v) for k, v in sr.params().items()}).joints[0].numpy()
         pa.append(1000 * pa_mpjpe(joints, s.gt.joints))
         transl.append(sr.transl[0].astype(np.float64))
         pose.append(sr.body_pose[0].astype(np.float64))
-        print(f"| {r} | {time.perf_counter() - t0:.1f} | {pa[-1]:.3f} | {np.round(transl[-1], 5).tolist()} |", flush=True)
+        print(
+            f"| {r} | {time.perf_counter() - t0:.1f} | {pa[-1]:.3f} | {np.round(transl[-1], 5).tolist()} |", flush=True
+        )
     spread_t = 1000 * np.ptp(np.stack(transl), 0)
-    print(f"\nDr.Jit threads {args.threads}, {args.steps} steps at {args.resolution} px, {args.runs} runs: spread "
-          f"PA-MPJPE {np.ptp(pa):.3f} mm, translation x/y/z {spread_t[0]:.3f}/{spread_t[1]:.3f}/{spread_t[2]:.3f} mm, "
-          f"body_pose max {np.ptp(np.stack(pose), 0).max():.2e} rad")  # fmt: skip
+    print(
+        f"\nDr.Jit threads {args.threads}, {args.steps} steps at {args.resolution} px, {args.runs} runs: spread "
+        f"PA-MPJPE {np.ptp(pa):.3f} mm, translation x/y/z {spread_t[0]:.3f}/{spread_t[1]:.3f}/{spread_t[2]:.3f} mm, "
+        f"body_pose max {np.ptp(np.stack(pose), 0).max():.2e} rad"
+    )
     return 0
 
 

@@ -24,6 +24,7 @@ chumpy, no other classes). Nothing in the open models is changed; the layout is 
 The landmarks are single vertices and single triangles, so ``smplx``'s forward pass gives the
 open model's vertices and joints (see tests/body/test_export_model.py: within 0.01 mm).
 """
+
 from __future__ import annotations
 
 import json
@@ -36,8 +37,14 @@ import numpy as np
 
 from .io import OPEN_BODY_PATH, OPEN_SMPLX_PATH, ModelArrays, load_model_arrays
 
-__all__ = ["EXPORT_KINDS", "SMPLX_SHAPE_COLUMNS", "SMPLX_EXPRESSION_COLUMNS", "export_model", "open_vertex_ids",
-           "read_vertex_ids"]
+__all__ = [
+    "EXPORT_KINDS",
+    "SMPLX_SHAPE_COLUMNS",
+    "SMPLX_EXPRESSION_COLUMNS",
+    "export_model",
+    "open_vertex_ids",
+    "read_vertex_ids",
+]
 
 EXPORT_KINDS = ("smpl", "smplx")
 #: ``smplx`` reads expression directions from column 300 on when ``shapedirs`` has 300 + 100 columns.
@@ -45,13 +52,28 @@ SMPLX_SHAPE_COLUMNS, SMPLX_EXPRESSION_COLUMNS = 300, 100
 
 #: ``smplx``'s extra-joint key -> silfit landmark name (order as ``smplx``'s ``VertexJointSelector``).
 _VERTEX_ID_LANDMARKS = {
-    "nose": "nose", "reye": "right_eye", "leye": "left_eye", "rear": "right_ear", "lear": "left_ear",
-    "LBigToe": "left_big_toe", "LSmallToe": "left_small_toe", "LHeel": "left_heel",
-    "RBigToe": "right_big_toe", "RSmallToe": "right_small_toe", "RHeel": "right_heel",
-    "lthumb": "left_thumb_tip", "lindex": "left_index_tip", "lmiddle": "left_middle_tip", "lring": "left_ring_tip",
-    "lpinky": "left_pinky_tip", "rthumb": "right_thumb_tip", "rindex": "right_index_tip",
-    "rmiddle": "right_middle_tip", "rring": "right_ring_tip", "rpinky": "right_pinky_tip",
-}  # fmt: skip
+    "nose": "nose",
+    "reye": "right_eye",
+    "leye": "left_eye",
+    "rear": "right_ear",
+    "lear": "left_ear",
+    "LBigToe": "left_big_toe",
+    "LSmallToe": "left_small_toe",
+    "LHeel": "left_heel",
+    "RBigToe": "right_big_toe",
+    "RSmallToe": "right_small_toe",
+    "RHeel": "right_heel",
+    "lthumb": "left_thumb_tip",
+    "lindex": "left_index_tip",
+    "lmiddle": "left_middle_tip",
+    "lring": "left_ring_tip",
+    "lpinky": "left_pinky_tip",
+    "rthumb": "right_thumb_tip",
+    "rindex": "right_index_tip",
+    "rmiddle": "right_middle_tip",
+    "rring": "right_ring_tip",
+    "rpinky": "right_pinky_tip",
+}
 
 
 def _model_arrays(kind: str) -> ModelArrays:
@@ -196,9 +218,9 @@ def export_model(kind: str, folder: Union[str, os.PathLike]) -> List[Path]:
         "vertex_ids": ids,
         "distance_to_silfit_landmark_mm": {k: round(v * 1000, 2) for k, v in distances.items()},
         "how": "smplx.create(DIR, model_type='smpl', vertex_ids=VERTEX_IDS); for SMPL-X replace the selector after "
-               "creating: model.vertex_joint_selector = smplx.vertex_joint_selector.VertexJointSelector(vertex_ids=VERTEX_IDS)",
+        "creating: model.vertex_joint_selector = smplx.vertex_joint_selector.VertexJointSelector(vertex_ids=VERTEX_IDS)",
         "model": Path(arrays.source).name,
-    }  # fmt: skip
+    }
     _atomic_write(ids_file, lambda fh: fh.write((json.dumps(info, indent=2) + "\n").encode()))
     licence = Path(arrays.source).with_name("LICENSE-open-smplx.txt" if kind == "smplx" else "LICENSE-open-body.txt")
     files = [model_file, ids_file]

@@ -7,13 +7,14 @@ stand-ins that keep the pickled state, so the arrays can be read without chumpy
 installed) and refuses any other class before it runs. Sparse joint regressors are
 densified. ``.npz`` files with object arrays go through the same unpickler.
 """
+
 from __future__ import annotations
 
 import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional, Union
+from typing import Optional, Union
 
 import numpy as np
 
@@ -45,28 +46,74 @@ OPEN_SMPLX_PATH = Path(__file__).resolve().parent / "data" / "open_smplx.npz"
 REQUIRED_KEYS = ("v_template", "f", "shapedirs", "J_regressor", "weights", "kintree_table")
 
 SMPL_JOINT_NAMES = (
-    "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
-    "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot", "neck",
-    "left_collar", "right_collar", "head", "left_shoulder", "right_shoulder",
-    "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hand", "right_hand",
-)  # fmt: skip
+    "pelvis",
+    "left_hip",
+    "right_hip",
+    "spine1",
+    "left_knee",
+    "right_knee",
+    "spine2",
+    "left_ankle",
+    "right_ankle",
+    "spine3",
+    "left_foot",
+    "right_foot",
+    "neck",
+    "left_collar",
+    "right_collar",
+    "head",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_hand",
+    "right_hand",
+)
 SMPL_PARENTS = (-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21)
 
 #: Extra keypoints on the official SMPL mesh (6890 vertices), as vertex ids.
 SMPL_LANDMARK_VERTICES = {
-    "nose": 332, "right_eye": 6260, "left_eye": 2800, "right_ear": 4071, "left_ear": 583,
-    "left_big_toe": 3216, "left_small_toe": 3226, "left_heel": 3387,
-    "right_big_toe": 6617, "right_small_toe": 6624, "right_heel": 6787,
-}  # fmt: skip
+    "nose": 332,
+    "right_eye": 6260,
+    "left_eye": 2800,
+    "right_ear": 4071,
+    "left_ear": 583,
+    "left_big_toe": 3216,
+    "left_small_toe": 3226,
+    "left_heel": 3387,
+    "right_big_toe": 6617,
+    "right_small_toe": 6624,
+    "right_heel": 6787,
+}
 
 _FILE_NAMES = {
-    "neutral": ("SMPL_NEUTRAL.pkl", "SMPL_NEUTRAL.npz", "basicmodel_neutral_lbs_10_207_0_v1.1.0.pkl",
-                "basicModel_neutral_lbs_10_207_0_v1.0.0.pkl", "SMPLX_NEUTRAL.npz", "SMPLX_NEUTRAL.pkl"),
-    "male": ("SMPL_MALE.pkl", "SMPL_MALE.npz", "basicmodel_m_lbs_10_207_0_v1.1.0.pkl",
-             "basicModel_m_lbs_10_207_0_v1.0.0.pkl", "SMPLX_MALE.npz", "SMPLX_MALE.pkl"),
-    "female": ("SMPL_FEMALE.pkl", "SMPL_FEMALE.npz", "basicmodel_f_lbs_10_207_0_v1.1.0.pkl",
-               "basicModel_f_lbs_10_207_0_v1.0.0.pkl", "SMPLX_FEMALE.npz", "SMPLX_FEMALE.pkl"),
-}  # fmt: skip
+    "neutral": (
+        "SMPL_NEUTRAL.pkl",
+        "SMPL_NEUTRAL.npz",
+        "basicmodel_neutral_lbs_10_207_0_v1.1.0.pkl",
+        "basicModel_neutral_lbs_10_207_0_v1.0.0.pkl",
+        "SMPLX_NEUTRAL.npz",
+        "SMPLX_NEUTRAL.pkl",
+    ),
+    "male": (
+        "SMPL_MALE.pkl",
+        "SMPL_MALE.npz",
+        "basicmodel_m_lbs_10_207_0_v1.1.0.pkl",
+        "basicModel_m_lbs_10_207_0_v1.0.0.pkl",
+        "SMPLX_MALE.npz",
+        "SMPLX_MALE.pkl",
+    ),
+    "female": (
+        "SMPL_FEMALE.pkl",
+        "SMPL_FEMALE.npz",
+        "basicmodel_f_lbs_10_207_0_v1.1.0.pkl",
+        "basicModel_f_lbs_10_207_0_v1.0.0.pkl",
+        "SMPLX_FEMALE.npz",
+        "SMPLX_FEMALE.pkl",
+    ),
+}
 
 
 @dataclass
@@ -200,8 +247,9 @@ def load_model_arrays(path: Union[str, os.PathLike, None] = None, gender: str = 
     missing = [k for k in REQUIRED_KEYS if k not in raw]
     if missing:
         raise InputError(
-            path, f"not an SMPL-layout model file: field(s) missing: {', '.join(missing)} "
-            f"(found: {', '.join(sorted(map(str, raw))) or 'nothing'})"
+            path,
+            f"not an SMPL-layout model file: field(s) missing: {', '.join(missing)} "
+            f"(found: {', '.join(sorted(map(str, raw))) or 'nothing'})",
         )
     v_template = _array(raw, "v_template", path, np.float64)
     _check_shape(path, "v_template", v_template, (None, 3))
@@ -236,8 +284,13 @@ def load_model_arrays(path: Union[str, os.PathLike, None] = None, gender: str = 
         if not np.any(posedirs):
             posedirs = None  # all zero: skip the pose-corrective product entirely
 
-    for key, arr in (("v_template", v_template), ("J_regressor", J_regressor), ("weights", weights),
-                     ("shapedirs", shapedirs), ("posedirs", posedirs)):  # fmt: skip
+    for key, arr in (
+        ("v_template", v_template),
+        ("J_regressor", J_regressor),
+        ("weights", weights),
+        ("shapedirs", shapedirs),
+        ("posedirs", posedirs),
+    ):
         if arr is not None and not np.isfinite(arr).all():
             raise InputError(path, f"field '{key}' holds NaN or infinite values", field=key)
 
@@ -265,13 +318,21 @@ def load_model_arrays(path: Union[str, os.PathLike, None] = None, gender: str = 
 
 # ---------------------------------------------------------------------------------------------- SMPL-X
 SMPLX_JOINT_NAMES = SMPL_JOINT_NAMES[:22] + (
-    "jaw", "left_eye_smplhf", "right_eye_smplhf",
+    "jaw",
+    "left_eye_smplhf",
+    "right_eye_smplhf",
     *(f"left_{f}{k}" for f in ("index", "middle", "pinky", "ring", "thumb") for k in (1, 2, 3)),
     *(f"right_{f}{k}" for f in ("index", "middle", "pinky", "ring", "thumb") for k in (1, 2, 3)),
-)  # fmt: skip
-SMPLX_PARENTS = SMPL_PARENTS[:22] + (15, 15, 15) + tuple(
-    p for wrist in (20, 21) for base in range(25 + 15 * (wrist - 20), 40 + 15 * (wrist - 20), 3)
-    for p in (wrist, base, base + 1)
+)
+SMPLX_PARENTS = (
+    SMPL_PARENTS[:22]
+    + (15, 15, 15)
+    + tuple(
+        p
+        for wrist in (20, 21)
+        for base in range(25 + 15 * (wrist - 20), 40 + 15 * (wrist - 20), 3)
+        for p in (wrist, base, base + 1)
+    )
 )
 
 #: SMPL-X's shape space: ``shapedirs`` holds 300 shape then 100 expression directions (v1.1);
@@ -281,13 +342,28 @@ SMPLX_SHAPE_SPACE_DIM = 300
 #: Extra keypoints on the official SMPL-X mesh (10475 vertices), as vertex ids (as the ``smplx``
 #: package's ``vertex_ids['smplx']``).
 SMPLX_LANDMARK_VERTICES = {
-    "nose": 9120, "right_eye": 9929, "left_eye": 9448, "right_ear": 616, "left_ear": 6,
-    "left_big_toe": 5770, "left_small_toe": 5780, "left_heel": 8846,
-    "right_big_toe": 8463, "right_small_toe": 8474, "right_heel": 8635,
-    "left_thumb_tip": 5361, "left_index_tip": 4933, "left_middle_tip": 5058, "left_ring_tip": 5169,
-    "left_pinky_tip": 5286, "right_thumb_tip": 8079, "right_index_tip": 7669, "right_middle_tip": 7794,
-    "right_ring_tip": 7905, "right_pinky_tip": 8022,
-}  # fmt: skip
+    "nose": 9120,
+    "right_eye": 9929,
+    "left_eye": 9448,
+    "right_ear": 616,
+    "left_ear": 6,
+    "left_big_toe": 5770,
+    "left_small_toe": 5780,
+    "left_heel": 8846,
+    "right_big_toe": 8463,
+    "right_small_toe": 8474,
+    "right_heel": 8635,
+    "left_thumb_tip": 5361,
+    "left_index_tip": 4933,
+    "left_middle_tip": 5058,
+    "left_ring_tip": 5169,
+    "left_pinky_tip": 5286,
+    "right_thumb_tip": 8079,
+    "right_index_tip": 7669,
+    "right_middle_tip": 7794,
+    "right_ring_tip": 7905,
+    "right_pinky_tip": 8022,
+}
 
 
 def is_smplx_layout(parents: tuple, meta: Optional[dict] = None) -> bool:
@@ -357,7 +433,9 @@ def read_smplx_extras(raw: dict, path: Path, arrays: ModelArrays) -> ModelArrays
         didx = _array(raw, "dynamic_lmk_faces_idx", path, np.int64)
         _check_shape(path, "dynamic_lmk_faces_idx", didx, (None, None))
         if "dynamic_lmk_bary_coords" not in raw:
-            raise ValueError(f"{path}: field 'dynamic_lmk_bary_coords' is missing (needed with 'dynamic_lmk_faces_idx')")
+            raise ValueError(
+                f"{path}: field 'dynamic_lmk_bary_coords' is missing (needed with 'dynamic_lmk_faces_idx')"
+            )
         dbary = _array(raw, "dynamic_lmk_bary_coords", path, np.float64)
         _check_shape(path, "dynamic_lmk_bary_coords", dbary, didx.shape + (3,))
         if didx.size and (didx.min() < 0 or didx.max() >= len(faces)):
@@ -379,7 +457,9 @@ def find_smplx_file(folder: Path, gender: str = "neutral") -> Path:
         for candidate in (folder / name, folder / "smplx" / name):
             if candidate.is_file():
                 return candidate
-    raise FileNotFoundError(f"{folder}: no {gender} SMPL-X model file in this folder (looked for {', '.join(names)}, also under smplx/)")
+    raise FileNotFoundError(
+        f"{folder}: no {gender} SMPL-X model file in this folder (looked for {', '.join(names)}, also under smplx/)"
+    )
 
 
 def _append_landmarks(arrays: ModelArrays, names: tuple, rows: np.ndarray) -> None:

@@ -32,6 +32,7 @@ float32 values are 1 ulp off) and follows the processor: an Intel Xeon with AVX-
 :func:`sqrt` is computed from ``rsqrt`` (the processor's own square root and a division, both correctly
 rounded by IEEE 754) and one product: the same bits on every processor. The fitting path uses it.
 """
+
 from __future__ import annotations
 
 import weakref
@@ -247,10 +248,7 @@ def kinematic_levels(parents: Sequence[int]) -> list[list[int]]:
 
 
 def forward_kinematics(
-    rot_mats: torch.Tensor,
-    joints: torch.Tensor,
-    parents: Sequence[int],
-    levels: Optional[list[list[int]]] = None,
+    rot_mats: torch.Tensor, joints: torch.Tensor, parents: Sequence[int], levels: Optional[list[list[int]]] = None
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Chain local rotations down the kinematic tree.
 
@@ -264,7 +262,9 @@ def forward_kinematics(
     B, J = joints.shape[:2]
     parents_t = torch.as_tensor([max(p, 0) for p in parents], device=joints.device)
     rel = joints - torch.where(
-        (torch.as_tensor(parents, device=joints.device) >= 0)[None, :, None], joints[:, parents_t], torch.zeros_like(joints)
+        (torch.as_tensor(parents, device=joints.device) >= 0)[None, :, None],
+        joints[:, parents_t],
+        torch.zeros_like(joints),
     )
     local = torch.cat([rot_mats, rel[..., None]], dim=-1)  # [B, J, 3, 4]
     bottom = joints.new_tensor([0.0, 0.0, 0.0, 1.0]).expand(B, J, 1, 4)
@@ -290,7 +290,9 @@ def forward_kinematics(
     return posed_joints, skinning
 
 
-def skin_vertices(vertices: torch.Tensor, transforms: torch.Tensor, weights: torch.Tensor, blas: bool = True) -> torch.Tensor:
+def skin_vertices(
+    vertices: torch.Tensor, transforms: torch.Tensor, weights: torch.Tensor, blas: bool = True
+) -> torch.Tensor:
     """Linear blend skinning of rest vertices ``[B, V, 3]`` with per-joint transforms
     ``[B, J, 4, 4]`` and skinning weights ``[V, J]``; ``blas=False``: over the weights' nonzeros
     (:func:`sparse_contract`), the same bits on every processor (module docstring, "No BLAS")."""

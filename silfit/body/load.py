@@ -1,5 +1,6 @@
 """Loading a body model: the factory beside the model classes (:mod:`.model`, :mod:`.smplx`),
 so neither imports the other."""
+
 from __future__ import annotations
 
 import os
@@ -39,7 +40,9 @@ def load_body_model(
         raise ValueError(f"kind must be 'smpl' or 'smplx', got {kind!r}")
     if path is None and kind == "smplx":
         if not OPEN_SMPLX_PATH.is_file():
-            raise FileNotFoundError(f"{OPEN_SMPLX_PATH}: the shipped open whole-body model is missing from the installation")
+            raise FileNotFoundError(
+                f"{OPEN_SMPLX_PATH}: the shipped open whole-body model is missing from the installation"
+            )
         path = OPEN_SMPLX_PATH
     elif kind == "smplx" and os.path.isdir(os.path.expanduser(os.fspath(path))):
         path = find_smplx_file(path, gender)  # a folder may hold SMPL and SMPL-X files: take SMPL-X's

@@ -1,4 +1,5 @@
 """``BodyModel``: a thin ``nn.Module`` over the functional SMPL core in :mod:`.lbs`."""
+
 from __future__ import annotations
 
 import copy
@@ -152,9 +153,16 @@ class BodyModel(nn.Module):
         transl = self._param("transl", transl, 3, B)
         full_pose = torch.cat([global_orient, body_pose], dim=1)
         vertices, joints = lbs(
-            betas, full_pose, self.v_template, self.shapedirs, self.posedirs,
-            self.J_regressor, self.parents, self.lbs_weights, self._levels,
-        )  # fmt: skip
+            betas,
+            full_pose,
+            self.v_template,
+            self.shapedirs,
+            self.posedirs,
+            self.J_regressor,
+            self.parents,
+            self.lbs_weights,
+            self._levels,
+        )
         return BodyOutput(
             vertices=vertices + transl[:, None],
             joints=joints + transl[:, None],

@@ -7,6 +7,7 @@ Parameters (SMPL-X's names, axis-angle): ``betas [B, n]``, ``expression [B, m]``
 with ``use_pca``), ``transl [B, 3]``. 55 joints in SMPL-X's order and tree
 (:data:`~silfit.body.io.SMPLX_JOINT_NAMES`).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -84,6 +85,7 @@ class SMPLXModel(BodyModel):
             raise ValueError(f"{arrays.source}: not an SMPL-X-layout model file (it has {arrays.num_joints} joints)")
         extras = arrays.extras
         shape, expr = arrays.shapedirs, extras["exprdirs"]
+
         def default(n: int) -> int:
             return n if n <= DEFAULT_SPACE_LIMIT else 10
 
@@ -92,19 +94,27 @@ class SMPLXModel(BodyModel):
         if not 0 < nb <= shape.shape[-1]:
             raise ValueError(f"{arrays.source}: num_betas={nb}, the file has {shape.shape[-1]} shape directions")
         if not 0 <= ne <= expr.shape[-1]:
-            raise ValueError(f"{arrays.source}: num_expression={ne}, the file has {expr.shape[-1]} expression directions")
+            raise ValueError(
+                f"{arrays.source}: num_expression={ne}, the file has {expr.shape[-1]} expression directions"
+            )
         # The core blends one coefficient vector [betas, expression] with [shapedirs, exprdirs].
-        combined = ModelArrays(**{**arrays.__dict__, "shapedirs": np.concatenate([shape[..., :nb], expr[..., :ne]], -1)})
+        combined = ModelArrays(
+            **{**arrays.__dict__, "shapedirs": np.concatenate([shape[..., :nb], expr[..., :ne]], -1)}
+        )
         super().__init__(combined, dtype=dtype)
         self._num_betas, self._num_expression = nb, ne
         self.use_pca, self.flat_hand_mean = bool(use_pca), bool(flat_hand_mean)
         self.num_pca_comps = int(num_pca_comps) if use_pca else 45
         if use_pca:
             if "hands_componentsl" not in extras:
-                raise ValueError(f"{arrays.source}: use_pca needs a hand PCA (fields 'hands_componentsl/r'), the file has none")
+                raise ValueError(
+                    f"{arrays.source}: use_pca needs a hand PCA (fields 'hands_componentsl/r'), the file has none"
+                )
             avail = extras["hands_componentsl"].shape[0]
             if not 0 < self.num_pca_comps <= avail:
-                raise ValueError(f"{arrays.source}: num_pca_comps={self.num_pca_comps}, the file has {avail} hand components")
+                raise ValueError(
+                    f"{arrays.source}: num_pca_comps={self.num_pca_comps}, the file has {avail} hand components"
+                )
             for side in ("l", "r"):
                 comps = extras[f"hands_components{side}"][: self.num_pca_comps]
                 self.register_buffer(f"hand_components_{side}", torch.as_tensor(comps, dtype=dtype))
@@ -138,10 +148,17 @@ class SMPLXModel(BodyModel):
         """Parameters in call order: name -> width (SMPL-X's names)."""
         hand = self.num_pca_comps
         return {
-            "betas": self.num_betas, "expression": self.num_expression, "global_orient": 3,
-            "body_pose": self.num_body_pose, "jaw_pose": 3, "leye_pose": 3, "reye_pose": 3,
-            "left_hand_pose": hand, "right_hand_pose": hand, "transl": 3,
-        }  # fmt: skip
+            "betas": self.num_betas,
+            "expression": self.num_expression,
+            "global_orient": 3,
+            "body_pose": self.num_body_pose,
+            "jaw_pose": 3,
+            "leye_pose": 3,
+            "reye_pose": 3,
+            "left_hand_pose": hand,
+            "right_hand_pose": hand,
+            "transl": 3,
+        }
 
     # ------------------------------------------------------------------ evaluation
     def _hand(self, pose: torch.Tensor, side: str) -> torch.Tensor:
@@ -150,12 +167,30 @@ class SMPLXModel(BodyModel):
         return (pose[..., :, None] * getattr(self, f"hand_components_{side}")).sum(-2)  # not a GEMM (silfit.body.lbs)
 
     def forward(
-        self, betas=None, body_pose=None, global_orient=None, transl=None, expression=None, jaw_pose=None,
-        leye_pose=None, reye_pose=None, left_hand_pose=None, right_hand_pose=None,
-    ) -> SMPLXOutput:  # fmt: skip
-        given = dict(betas=betas, body_pose=body_pose, global_orient=global_orient, transl=transl, expression=expression,
-                     jaw_pose=jaw_pose, leye_pose=leye_pose, reye_pose=reye_pose, left_hand_pose=left_hand_pose,
-                     right_hand_pose=right_hand_pose)  # fmt: skip
+        self,
+        betas=None,
+        body_pose=None,
+        global_orient=None,
+        transl=None,
+        expression=None,
+        jaw_pose=None,
+        leye_pose=None,
+        reye_pose=None,
+        left_hand_pose=None,
+        right_hand_pose=None,
+    ) -> SMPLXOutput:
+        given = dict(
+            betas=betas,
+            body_pose=body_pose,
+            global_orient=global_orient,
+            transl=transl,
+            expression=expression,
+            jaw_pose=jaw_pose,
+            leye_pose=leye_pose,
+            reye_pose=reye_pose,
+            left_hand_pose=left_hand_pose,
+            right_hand_pose=right_hand_pose,
+        )
         B = self.batch_size_of(**given)
         sizes = self.parameter_sizes
         p = {}
@@ -164,25 +199,46 @@ class SMPLXModel(BodyModel):
             if name == "betas" and value is not None:
                 width = torch.as_tensor(value).shape[-1]
                 if width > self.num_betas:
-                    raise ValueError(f"argument 'betas' has {width} values, this model has {self.num_betas} shape directions")
+                    raise ValueError(
+                        f"argument 'betas' has {width} values, this model has {self.num_betas} shape directions"
+                    )
             p[name] = self._param(name, value, width, B)
         betas = p["betas"]
         coeffs = torch.cat([betas, betas.new_zeros(B, self.num_betas - betas.shape[1]), p["expression"]], dim=1)
         left, right = self._hand(p["left_hand_pose"], "l"), self._hand(p["right_hand_pose"], "r")
-        full_pose = torch.cat(
-            [p["global_orient"], p["body_pose"], p["jaw_pose"], p["leye_pose"], p["reye_pose"], left, right], dim=1
-        ) + self.pose_mean
+        full_pose = (
+            torch.cat(
+                [p["global_orient"], p["body_pose"], p["jaw_pose"], p["leye_pose"], p["reye_pose"], left, right], dim=1
+            )
+            + self.pose_mean
+        )
         vertices, joints = lbs(
-            coeffs, full_pose, self.v_template, self.shapedirs, self.posedirs,
-            self.J_regressor, self.parents, self.lbs_weights, self._levels,
-        )  # fmt: skip
+            coeffs,
+            full_pose,
+            self.v_template,
+            self.shapedirs,
+            self.posedirs,
+            self.J_regressor,
+            self.parents,
+            self.lbs_weights,
+            self._levels,
+        )
         transl = p["transl"]
         return SMPLXOutput(
-            vertices=vertices + transl[:, None], joints=joints + transl[:, None], betas=betas,
-            body_pose=p["body_pose"], global_orient=p["global_orient"], transl=transl, expression=p["expression"],
-            jaw_pose=p["jaw_pose"], leye_pose=p["leye_pose"], reye_pose=p["reye_pose"],
-            left_hand_pose=full_pose[:, 75:120], right_hand_pose=full_pose[:, 120:165], full_pose=full_pose,
-        )  # fmt: skip
+            vertices=vertices + transl[:, None],
+            joints=joints + transl[:, None],
+            betas=betas,
+            body_pose=p["body_pose"],
+            global_orient=p["global_orient"],
+            transl=transl,
+            expression=p["expression"],
+            jaw_pose=p["jaw_pose"],
+            leye_pose=p["leye_pose"],
+            reye_pose=p["reye_pose"],
+            left_hand_pose=full_pose[:, 75:120],
+            right_hand_pose=full_pose[:, 120:165],
+            full_pose=full_pose,
+        )
 
     def face_landmarks(self, output: SMPLXOutput) -> torch.Tensor:
         """The 68-point face layout ``[B, 68, 3]`` on posed vertices: ``face_00`` ... ``face_67``

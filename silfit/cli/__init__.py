@@ -4,6 +4,7 @@ Each subcommand lives in ``silfit/cli/<name>.py`` and exposes
 ``register(subparsers)``, which adds its parser and sets ``func`` (a callable taking
 the parsed ``argparse.Namespace`` and returning an exit code).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -13,11 +14,11 @@ import importlib.util
 import os
 import sys
 
+from ..errors import InputError
+
 #: Subcommands in the order ``silfit --help`` lists them.
 SUBCOMMANDS = ("demo", "fit", "detect", "synth", "eval", "render", "fit-dataset", "export-model", "report")
 
-
-from ..errors import InputError
 
 #: A bad command line: the one input-error type (one clear line, no traceback, exit code 2).
 CLIError = InputError
@@ -37,8 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .. import __version__
 
     parser = argparse.ArgumentParser(
-        prog="silfit",
-        description="Recover SMPL pose, shape and camera from 2D keypoints and a person silhouette.",
+        prog="silfit", description="Recover SMPL pose, shape and camera from 2D keypoints and a person silhouette."
     )
     parser.add_argument("--version", action="version", version=f"silfit {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -105,7 +105,9 @@ def run_command(args) -> int:
             print(f"silfit {args.command}: error: {' '.join(str(err).split())}", file=sys.stderr)
             return 2
         if isinstance(err, MemoryError):
-            print(f"silfit {args.command}: error: out of memory (is an input far larger than intended?)", file=sys.stderr)
+            print(
+                f"silfit {args.command}: error: out of memory (is an input far larger than intended?)", file=sys.stderr
+            )
             return 2
         raise
 

@@ -1,5 +1,6 @@
 """What several ``silfit fit`` modes share on the command line: the silhouette stage's
 flags and writing an output folder that leaves nothing behind on failure."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -13,8 +14,11 @@ def silhouette_config(args):
     (:func:`silfit.runner.worker.silhouette_config`)."""
     from ..runner.worker import FitOptions, silhouette_config as from_options
 
-    options = FitOptions(silhouette_resolutions=args.silhouette_resolutions, silhouette_iterations=args.silhouette_iterations,
-                         silhouette_options=silhouette_options(args))  # fmt: skip
+    options = FitOptions(
+        silhouette_resolutions=args.silhouette_resolutions,
+        silhouette_iterations=args.silhouette_iterations,
+        silhouette_options=silhouette_options(args),
+    )
     try:
         return from_options(options)
     except ValueError as err:
@@ -113,7 +117,10 @@ def choose_model(choice, gender: str, has_parts: bool):
         return load_body_model(choice, gender=gender), None
     if has_parts:
         model = load_body_model(kind="smplx")
-        return model, f"keypoints have hand/face points and no --model: using the shipped open whole-body model ({model.source})"
+        return (
+            model,
+            f"keypoints have hand/face points and no --model: using the shipped open whole-body model ({model.source})",
+        )
     return load_body_model(), None
 
 

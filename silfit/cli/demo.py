@@ -1,4 +1,5 @@
 """``silfit demo``: fit a shipped synthetic subject end to end (see :mod:`silfit.demo`)."""
+
 from __future__ import annotations
 
 import time
@@ -13,11 +14,19 @@ def register(subparsers) -> None:
     )
     p.add_argument("--out", default="silfit-demo", help="output folder (default: ./silfit-demo)")
     p.add_argument("--subject", help="a subject folder in the synthetic format (default: the shipped subject_000)")
-    p.add_argument("--photo", nargs="?", const="", metavar="PATH",
-                   help="fit a photograph instead: detect the person, fit, draw (default: the shipped sample photo)")
-    p.add_argument("--whole-body", action="store_true",
-                   help="a shipped whole-body subject: hands and face close up, body-only vs whole-body fit "
-                        "(--subject: a whole-body subject folder)")
+    p.add_argument(
+        "--photo",
+        nargs="?",
+        const="",
+        metavar="PATH",
+        help="fit a photograph instead: detect the person, fit, draw (default: the shipped sample photo)",
+    )
+    p.add_argument(
+        "--whole-body",
+        action="store_true",
+        help="a shipped whole-body subject: hands and face close up, body-only vs whole-body fit "
+        "(--subject: a whole-body subject folder)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 

@@ -1,5 +1,6 @@
 """``silfit detect``: person keypoints (OpenPose JSON) and mask (PNG) from a photo, with
 the shipped BlazePose models; writes the folder described in :mod:`silfit.detect.output`."""
+
 from __future__ import annotations
 
 from . import CLIError, warn
@@ -25,16 +26,33 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("detect", help="detect people in a photo: OpenPose keypoints JSON + mask PNG")
     p.add_argument("image", help="the photo (JPEG, PNG, ...)")
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--layout", choices=("body25", "coco17", "blazepose33"), default="body25",
-                   help="keypoint layout written (default body25, what silfit fit uses)")
-    p.add_argument("--people", type=people_count, default=1, metavar="N|all",
-                   help="detect up to N people, or every person found ('all': the detector also runs on tiles "
-                   "of the photo); default 1")
-    p.add_argument("--min-score", type=float, default=0.5,
-                   help="person detector score threshold (default 0.5; lower finds more people seen from behind, "
-                   "and more things that are not people)")
+    p.add_argument(
+        "--layout",
+        choices=("body25", "coco17", "blazepose33"),
+        default="body25",
+        help="keypoint layout written (default body25, what silfit fit uses)",
+    )
+    p.add_argument(
+        "--people",
+        type=people_count,
+        default=1,
+        metavar="N|all",
+        help="detect up to N people, or every person found ('all': the detector also runs on tiles "
+        "of the photo); default 1",
+    )
+    p.add_argument(
+        "--min-score",
+        type=float,
+        default=0.5,
+        help="person detector score threshold (default 0.5; lower finds more people seen from behind, "
+        "and more things that are not people)",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
-    p.add_argument("--quiet", action="store_true", help="no progress bars (as for every command; detect shows none: its result lines and warnings are printed)")
+    p.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no progress bars (as for every command; detect shows none: its result lines and warnings are printed)",
+    )
     p.set_defaults(func=run)
 
 
@@ -92,8 +110,10 @@ def photo_inputs(image_path: str, person, detect: bool, want_mask: bool, detecte
             removed = int(removed_px.sum())
             out["metrics"]["detection"]["mask_other_people_px"] = removed
             if removed > 0.02 * max(int(chosen.mask().sum()), 1):
-                out["warnings"].append(f"detection: {removed / chosen.mask().sum():.0%} of the person's mask belongs to the "
-                                       f"{len(people) - 1} other people detected: left out of the silhouette fit")
+                out["warnings"].append(
+                    f"detection: {removed / chosen.mask().sum():.0%} of the person's mask belongs to the "
+                    f"{len(people) - 1} other people detected: left out of the silhouette fit"
+                )
     else:
         photo = read_photo(image_path)
     out["warnings"] = [*photo.warnings(), *out["warnings"]]

@@ -1,4 +1,5 @@
 """``silfit eval``: score fits against a dataset's ground truth (or run the fitter first)."""
+
 from __future__ import annotations
 
 import argparse
@@ -22,11 +23,18 @@ def register(subparsers) -> None:
         ),
     )
     p.add_argument("dataset", metavar="DIR", help="dataset folder (subject folders, optionally index.json)")
-    p.add_argument("--report", dest="out", default="report.json", metavar="FILE",
-                   help="the JSON report's path (default report.json)")
+    p.add_argument(
+        "--report",
+        dest="out",
+        default="report.json",
+        metavar="FILE",
+        help="the JSON report's path (default report.json)",
+    )
     p.add_argument("--fits", default=None, help="folder of fit outputs (default DIR/fits)")
     p.add_argument("--run", action="store_true", help="run the fitter even if fits exist (overwrites them)")
-    p.add_argument("--methods", default="keypoints,silhouette", help="methods to run with --run (default keypoints,silhouette)")
+    p.add_argument(
+        "--methods", default="keypoints,silhouette", help="methods to run with --run (default keypoints,silhouette)"
+    )
     p.add_argument("--plot", default=None, help="per-subject error plot PNG (default: next to --report, *_errors.png)")
     p.add_argument("--no-iou", action="store_true", help="skip the silhouette IoU (no rendering)")
     p.add_argument("--model", default=None, help="body model file (default: the shipped open body model)")
@@ -69,10 +77,19 @@ def run(args: argparse.Namespace) -> int:
 
     rig = is_rig_dataset(args.dataset)  # silfit synth --cameras: world-frame metrics, IoU per view
     try:
-        report = (evaluate_rig_dataset if rig else evaluate_dataset)(args.dataset, fits=args.fits, model=model, run=args.run, methods=methods, iou=not args.no_iou,
-                                  progress=not args.quiet)  # fmt: skip
+        report = (evaluate_rig_dataset if rig else evaluate_dataset)(
+            args.dataset,
+            fits=args.fits,
+            model=model,
+            run=args.run,
+            methods=methods,
+            iou=not args.no_iou,
+            progress=not args.quiet,
+        )
     except FitterUnavailable as err:
-        raise CLIError(f"{err}; pass --fits DIR with existing fit outputs (FITS/<subject>/<method>/params.npz)") from None
+        raise CLIError(
+            f"{err}; pass --fits DIR with existing fit outputs (FITS/<subject>/<method>/params.npz)"
+        ) from None
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     plot = Path(args.plot) if args.plot else out.with_name(out.stem + "_errors.png")

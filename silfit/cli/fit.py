@@ -6,6 +6,7 @@ The flags make a job (:mod:`silfit.cli.jobs`), :func:`silfit.run.run` fits it an
 leaves no half-written output): the one image's folder of :mod:`silfit.image_fit`, the rig's
 of :mod:`silfit.rig_pipeline`, the video's of :func:`silfit.video.save_sequence_fit`.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -29,70 +30,127 @@ def _int_list(text: str) -> tuple:
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("fit", help="fit SMPL to an image's 2D keypoints and person mask")
-    p.add_argument("--rig", metavar="DIR", help="a calibrated camera rig: cameras.json (or EasyMocap intri.yml + "
-                   "extri.yml, or one sub-folder per view with camera.json incl. R, t) and per view keypoints.json, "
-                   "optional mask.png, image.png; fits in world coordinates (see docs/guides/rigs.md)")
+    p.add_argument(
+        "--rig",
+        metavar="DIR",
+        help="a calibrated camera rig: cameras.json (or EasyMocap intri.yml + "
+        "extri.yml, or one sub-folder per view with camera.json incl. R, t) and per view keypoints.json, "
+        "optional mask.png, image.png; fits in world coordinates (see docs/guides/rigs.md)",
+    )
     p.add_argument("--views", metavar="A,B", help="--rig: fit only these views (names as in the rig), e.g. cam0,cam2")
-    p.add_argument("--keypoints", help="OpenPose BODY_25 / COCO-17 keypoint JSON, or OpenPose whole-body JSON (hands "
-                   "and face: fitted with an SMPL-X-layout model) (default: detected in --image, with its mask unless "
-                   "--mask is given)")
+    p.add_argument(
+        "--keypoints",
+        help="OpenPose BODY_25 / COCO-17 keypoint JSON, or OpenPose whole-body JSON (hands "
+        "and face: fitted with an SMPL-X-layout model) (default: detected in --image, with its mask unless "
+        "--mask is given)",
+    )
     p.add_argument("--person", default="largest", help="person index in the keypoint file, or 'largest'")
-    p.add_argument("--people", metavar="all", choices=("all",),
-                   help="--image without --keypoints: fit every person detected, each into OUT/person_<i>/ "
-                   "(largest first; OUT/people.json lists them)")
+    p.add_argument(
+        "--people",
+        metavar="all",
+        choices=("all",),
+        help="--image without --keypoints: fit every person detected, each into OUT/person_<i>/ "
+        "(largest first; OUT/people.json lists them)",
+    )
     p.add_argument("--mask", help="person silhouette PNG (enables the silhouette stage)")
     cam = p.add_mutually_exclusive_group()
     cam.add_argument("--camera", help="camera.json with fx, fy, cx, cy, width, height")
-    cam.add_argument("--focal", type=float, help="focal length in pixels (default: max(width, height); with --sequence "
-                     "it replaces the focal length of a camera.json found beside the frames)")
-    p.add_argument("--image", help="the image (its size, EXIF focal length and the overlay; keypoints and mask "
-                   "are detected in it when --keypoints is not given). Its landmark model's 3D decides which way limbs "
-                   "point in depth where it is confident (the image depth cue; metrics.json's image_depth; "
-                   "off by default: --keypoint-option image_depth_weight=100 turns it on)")
+    cam.add_argument(
+        "--focal",
+        type=float,
+        help="focal length in pixels (default: max(width, height); with --sequence "
+        "it replaces the focal length of a camera.json found beside the frames)",
+    )
+    p.add_argument(
+        "--image",
+        help="the image (its size, EXIF focal length and the overlay; keypoints and mask "
+        "are detected in it when --keypoints is not given). Its landmark model's 3D decides which way limbs "
+        "point in depth where it is confident (the image depth cue; metrics.json's image_depth; "
+        "off by default: --keypoint-option image_depth_weight=100 turns it on)",
+    )
     p.add_argument("--image-size", help="WxH when neither --camera, --image nor --mask gives the size")
     p.add_argument("--no-silhouette", action="store_true", help="stop after the keypoint stage")
-    p.add_argument("--model", help="SMPL or SMPL-X model file or folder, or 'open-smplx' for the shipped open whole-body "
-                   "model (default: the shipped open body model; for keypoints with hands or face the shipped open "
-                   "whole-body model)")
+    p.add_argument(
+        "--model",
+        help="SMPL or SMPL-X model file or folder, or 'open-smplx' for the shipped open whole-body "
+        "model (default: the shipped open body model; for keypoints with hands or face the shipped open "
+        "whole-body model)",
+    )
     p.add_argument("--gender", default="neutral", help="model gender when --model is a folder")
-    p.add_argument("--pose-prior", help="pose prior: SMPLify gmm_08.pkl, a mixture .npz, or 'limits' "
-                   "(default: the shipped pose-library mixture)")
-    p.add_argument("--silhouette-resolutions", type=_int_list, metavar="R1,R2",
-                   help="silhouette window sizes per level, coarse to fine (default 128,256)")
-    p.add_argument("--silhouette-iterations", type=_int_list, metavar="N1,N2",
-                   help="silhouette rendered steps per level (default 40,25, after the contour level)")
+    p.add_argument(
+        "--pose-prior",
+        help="pose prior: SMPLify gmm_08.pkl, a mixture .npz, or 'limits' (default: the shipped pose-library mixture)",
+    )
+    p.add_argument(
+        "--silhouette-resolutions",
+        type=_int_list,
+        metavar="R1,R2",
+        help="silhouette window sizes per level, coarse to fine (default 128,256)",
+    )
+    p.add_argument(
+        "--silhouette-iterations",
+        type=_int_list,
+        metavar="N1,N2",
+        help="silhouette rendered steps per level (default 40,25, after the contour level)",
+    )
     seq = p.add_argument_group("videos (silfit.fitting.sequence)")
-    seq.add_argument("--sequence", metavar="DIR", help="fit a video: a folder of per-frame OpenPose JSON files "
-                     "(<video>_<frame 12 digits>_keypoints.json, or DIR/keypoints/ or DIR/openpose/ with masks/, images/, "
-                     "camera.json beside)")
+    seq.add_argument(
+        "--sequence",
+        metavar="DIR",
+        help="fit a video: a folder of per-frame OpenPose JSON files "
+        "(<video>_<frame 12 digits>_keypoints.json, or DIR/keypoints/ or DIR/openpose/ with masks/, images/, "
+        "camera.json beside)",
+    )
     seq.add_argument("--masks", metavar="DIR", help="--sequence: per-frame masks, matched by frame number")
     seq.add_argument("--images", metavar="DIR", help="--sequence: per-frame images (overlays), matched by frame number")
     seq.add_argument("--meshes", action="store_true", help="--sequence: also write meshes/frame_<n>.obj")
     seq.add_argument("--fps", type=float, default=30.0, help="--sequence: frame rate of overlay.gif (default 30)")
     seq.add_argument("--no-video", action="store_true", help="--sequence: only strip.png, no overlay.gif")
     seq.add_argument("--sequence-iterations", type=int, help="--sequence: joint refinement steps (default 100)")
-    p.add_argument("--export", metavar="glb,ply", help="also write mesh.glb / mesh.ply (with --sequence: animation.glb, one "
-                   "animated glTF of every frame / meshes/frame_<n>.ply): the body upright (x right, y up, z toward the "
-                   "viewer: the camera frame turned 180 deg about x), vertex normals, the camera in the glTF")
-    p.add_argument("--hypotheses", type=int, default=1, metavar="K",
-                   help="also write the K best distinct keypoint-stage solutions of the limbs' depth branches to "
-                        "hypotheses/<k>/ (params.npz, mesh.obj; 1: the keypoint stage's best) and hypotheses.png (each "
-                        "over the image and from the side), their energies and differing segments in metrics.json "
-                        "(default 1: none); with a mask, each goes through the silhouette stage, hypotheses/<k>/ holds "
-                        "it refined, and the lowest final energy is kept (K times its cost; metrics.json: "
-                        "hypotheses_silhouette)")
-    p.add_argument("--keypoint-option", action="append", default=[], metavar="NAME=VALUE",
-                   help="override a KeypointFitConfig field of the keypoint stage (one image, rig, video: each "
-                        "frame's start), e.g. init_poses=1 or pose_iters=10,10,10 (repeatable; as fit-dataset)")
-    p.add_argument("--silhouette-option", action="append", default=[], metavar="NAME=VALUE",
-                   help="override a SilhouetteFitConfig field of the silhouette stage, e.g. alternatives_margin=0 "
-                        "(without --hypotheses: no close alternative refined against the mask) or plausibility_guard=false "
-                        "(repeatable; as fit-dataset)")
+    p.add_argument(
+        "--export",
+        metavar="glb,ply",
+        help="also write mesh.glb / mesh.ply (with --sequence: animation.glb, one "
+        "animated glTF of every frame / meshes/frame_<n>.ply): the body upright (x right, y up, z toward the "
+        "viewer: the camera frame turned 180 deg about x), vertex normals, the camera in the glTF",
+    )
+    p.add_argument(
+        "--hypotheses",
+        type=int,
+        default=1,
+        metavar="K",
+        help="also write the K best distinct keypoint-stage solutions of the limbs' depth branches to "
+        "hypotheses/<k>/ (params.npz, mesh.obj; 1: the keypoint stage's best) and hypotheses.png (each "
+        "over the image and from the side), their energies and differing segments in metrics.json "
+        "(default 1: none); with a mask, each goes through the silhouette stage, hypotheses/<k>/ holds "
+        "it refined, and the lowest final energy is kept (K times its cost; metrics.json: "
+        "hypotheses_silhouette)",
+    )
+    p.add_argument(
+        "--keypoint-option",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="override a KeypointFitConfig field of the keypoint stage (one image, rig, video: each "
+        "frame's start), e.g. init_poses=1 or pose_iters=10,10,10 (repeatable; as fit-dataset)",
+    )
+    p.add_argument(
+        "--silhouette-option",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="override a SilhouetteFitConfig field of the silhouette stage, e.g. alternatives_margin=0 "
+        "(without --hypotheses: no close alternative refined against the mask) or plausibility_guard=false "
+        "(repeatable; as fit-dataset)",
+    )
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.add_argument("--check-only", action="store_true",
-                   help="read and check every input (files, sizes, keypoint plausibility), fit and write nothing")
+    p.add_argument(
+        "--check-only",
+        action="store_true",
+        help="read and check every input (files, sizes, keypoint plausibility), fit and write nothing",
+    )
     p.set_defaults(func=run)
 
 
@@ -118,8 +176,18 @@ def run(args) -> int:
         return 0
     fit = run_job(job)
     out = Path(args.out)
-    save_leaving_nothing_on_error(out, lambda: write(fit, out, overwrite=args.overwrite, exports=exports, meshes=args.meshes,
-                                                     video=not args.no_video, fps=args.fps))  # fmt: skip
+    save_leaving_nothing_on_error(
+        out,
+        lambda: write(
+            fit,
+            out,
+            overwrite=args.overwrite,
+            exports=exports,
+            meshes=args.meshes,
+            video=not args.no_video,
+            fps=args.fps,
+        ),
+    )
     print(f"wrote {out}: {fit.summary()}")
     for warning in fit.warnings:
         warn(warning)
@@ -136,13 +204,25 @@ def _shared_settings(jobs: list) -> list:
 
     out, firsts = [], {}
     for job in jobs:
-        key = (job.layout, getattr(job.model, "source", None) or id(job.model), str(getattr(job.model, "dtype", "")),
-               getattr(job.model, "kind", None))  # fmt: skip
+        key = (
+            job.layout,
+            getattr(job.model, "source", None) or id(job.model),
+            str(getattr(job.model, "dtype", "")),
+            getattr(job.model, "kind", None),
+        )
         first = firsts.setdefault(key, job)
-        if first is not job and job.keypoint_config == first.keypoint_config and \
-                job.silhouette_config == first.silhouette_config:  # fmt: skip
-            job = replace(job, model=first.model, pose_prior=first.pose_prior, keypoint_config=first.keypoint_config,
-                          silhouette_config=first.silhouette_config)  # fmt: skip
+        if (
+            first is not job
+            and job.keypoint_config == first.keypoint_config
+            and job.silhouette_config == first.silhouette_config
+        ):
+            job = replace(
+                job,
+                model=first.model,
+                pose_prior=first.pose_prior,
+                keypoint_config=first.keypoint_config,
+                silhouette_config=first.silhouette_config,
+            )
         out.append(job)
     return out
 
@@ -199,9 +279,15 @@ def _run_people(args) -> int:
     def save():
         with atomic_folder(out, args.overwrite) as tmp:
             for i, fit in fits.items():
-                write(fit, tmp / f"person_{i}", exports=exports, meshes=args.meshes, video=not args.no_video, fps=args.fps)
-            rows = [{"person": i, "folder": f"person_{i}", "status": "ok"} if i in fits else
-                    {"person": i, "folder": None, "status": "failed", "error": str(failed[i])} for i in range(len(results))]
+                write(
+                    fit, tmp / f"person_{i}", exports=exports, meshes=args.meshes, video=not args.no_video, fps=args.fps
+                )
+            rows = [
+                {"person": i, "folder": f"person_{i}", "status": "ok"}
+                if i in fits
+                else {"person": i, "folder": None, "status": "failed", "error": str(failed[i])}
+                for i in range(len(results))
+            ]
             (tmp / "people.json").write_text(json.dumps({"image": args.image, "people": rows}, indent=2))
 
     save_leaving_nothing_on_error(out, save)

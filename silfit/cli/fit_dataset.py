@@ -11,6 +11,7 @@ Exit status: 0 every item fitted; 2 the command or the input as a whole is wrong
 is fitted); ``10 + n`` when ``n`` items failed (``n`` capped at 100, so 110 means 100 or
 more); ``failures.jsonl`` says which and why.
 """
+
 from __future__ import annotations
 
 import sys
@@ -27,15 +28,28 @@ def exit_status(failed: int) -> int:
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "fit-dataset", help="fit a whole dataset: OpenPose folder, manifest or synthetic set (resumable; local or Ray)",
-        description=__doc__.split("\n\n", 1)[1], epilog="exit status: 0 all fitted, 2 bad command/input, 10+n n items failed (n<=100)",
-    )  # fmt: skip
-    p.add_argument("input", help="OpenPose folder (*_keypoints.json), manifest (.jsonl/.csv) or synthetic dataset folder")
+        "fit-dataset",
+        help="fit a whole dataset: OpenPose folder, manifest or synthetic set (resumable; local or Ray)",
+        description=__doc__.split("\n\n", 1)[1],
+        epilog="exit status: 0 all fitted, 2 bad command/input, 10+n n items failed (n<=100)",
+    )
+    p.add_argument(
+        "input", help="OpenPose folder (*_keypoints.json), manifest (.jsonl/.csv) or synthetic dataset folder"
+    )
     p.add_argument("--out", required=True, help="output folder (created; an existing one is resumed)")
-    p.add_argument("--people", default="largest", metavar="largest|all",
-                   help="largest (default): the largest person of each image; all: every person")
-    p.add_argument("--person", type=int, default=None, metavar="K",
-                   help="person K of each image instead (0-based, as silfit fit --person)")
+    p.add_argument(
+        "--people",
+        default="largest",
+        metavar="largest|all",
+        help="largest (default): the largest person of each image; all: every person",
+    )
+    p.add_argument(
+        "--person",
+        type=int,
+        default=None,
+        metavar="K",
+        help="person K of each image instead (0-based, as silfit fit --person)",
+    )
     p.add_argument("--masks", help="OpenPose input: folder of <stem>.png / <stem>_<k>.png masks")
     p.add_argument("--images", help="OpenPose input: folder of <stem>.png/.jpg images")
     p.add_argument("--camera", help="OpenPose input: a shared camera.json, or a folder of <stem>.json")
@@ -43,28 +57,66 @@ def register(subparsers) -> None:
     p.add_argument("--batch-size", type=int, default=8, help="items per keypoint-stage batch (default 8)")
     p.add_argument("--no-silhouette", action="store_true", help="keypoint stage only, even where masks exist")
     p.add_argument("--retry-failed", action="store_true", help="fit again the items failed in a previous run")
-    p.add_argument("--model", help="SMPL or SMPL-X model file or folder, or 'open-smplx' (the shipped open whole-body "
-                   "model: hands and face of OpenPose whole-body files are fitted) (default: the shipped open body model)")
+    p.add_argument(
+        "--model",
+        help="SMPL or SMPL-X model file or folder, or 'open-smplx' (the shipped open whole-body "
+        "model: hands and face of OpenPose whole-body files are fitted) (default: the shipped open body model)",
+    )
     p.add_argument("--gender", default="neutral", help="model gender when --model is a folder")
     p.add_argument("--pose-prior", help="pose prior: gmm_08.pkl, a mixture .npz, or 'limits' (default: shipped)")
-    p.add_argument("--keypoint-option", action="append", default=[], metavar="NAME=VALUE",
-                   help="override a KeypointFitConfig field, e.g. init_poses=1 or pose_iters=10,10,10 (repeatable)")
-    p.add_argument("--silhouette-option", action="append", default=[], metavar="NAME=VALUE",
-                   help="override a SilhouetteFitConfig field, e.g. alternatives_margin=0 (repeatable)")
-    p.add_argument("--silhouette-resolutions", metavar="R1,R2", help="silhouette window sizes per level (default 128,256)")
-    p.add_argument("--silhouette-iterations", metavar="N1,N2", help="silhouette rendered steps per level (default 40,25, after the contour level)")
-    p.add_argument("--workers", default="1", metavar="N|auto",
-                   help="local worker processes, one CPU each, the same fits as one (default 1; auto: one per CPU)")
-    p.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
-                   help="run on Ray: no ADDRESS starts a local Ray, else join that cluster (e.g. auto, ray://head:10001)")
+    p.add_argument(
+        "--keypoint-option",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="override a KeypointFitConfig field, e.g. init_poses=1 or pose_iters=10,10,10 (repeatable)",
+    )
+    p.add_argument(
+        "--silhouette-option",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="override a SilhouetteFitConfig field, e.g. alternatives_margin=0 (repeatable)",
+    )
+    p.add_argument(
+        "--silhouette-resolutions", metavar="R1,R2", help="silhouette window sizes per level (default 128,256)"
+    )
+    p.add_argument(
+        "--silhouette-iterations",
+        metavar="N1,N2",
+        help="silhouette rendered steps per level (default 40,25, after the contour level)",
+    )
+    p.add_argument(
+        "--workers",
+        default="1",
+        metavar="N|auto",
+        help="local worker processes, one CPU each, the same fits as one (default 1; auto: one per CPU)",
+    )
+    p.add_argument(
+        "--ray",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="ADDRESS",
+        help="run on Ray: no ADDRESS starts a local Ray, else join that cluster (e.g. auto, ray://head:10001)",
+    )
     p.add_argument("--actors", type=int, default=2, help="Ray: fitting actors (default 2)")
     p.add_argument("--num-cpus", type=float, default=1.0, help="Ray: CPUs reserved per actor (default 1)")
     p.add_argument("--num-gpus", type=float, default=0.0, help="Ray: GPUs reserved per actor (default 0)")
-    p.add_argument("--export", metavar="glb,ply", help="also write mesh.glb / mesh.ply per item: the body upright "
-                   "(x right, y up, z toward the viewer), normals, the camera in the glTF")
-    p.add_argument("--no-report", action="store_true", help="do not write report/index.html (the gallery of "
-                   "`silfit report`) at the end")
-    p.add_argument("--quiet", action="store_true", help="no progress bar (the summary table and warnings are still printed)")
+    p.add_argument(
+        "--export",
+        metavar="glb,ply",
+        help="also write mesh.glb / mesh.ply per item: the body upright "
+        "(x right, y up, z toward the viewer), normals, the camera in the glTF",
+    )
+    p.add_argument(
+        "--no-report",
+        action="store_true",
+        help="do not write report/index.html (the gallery of `silfit report`) at the end",
+    )
+    p.add_argument(
+        "--quiet", action="store_true", help="no progress bar (the summary table and warnings are still printed)"
+    )
     p.set_defaults(func=run)
 
 
@@ -108,8 +160,10 @@ def run(args) -> int:
         if args.person is not None and args.people != "largest":
             raise CLIError(f"--people {args.people} and --person {args.person}: give one of them")
         if args.people.strip().isdigit():  # the old spelling of --person K
-            print(f"warning: --people {args.people} is deprecated, use --person {args.people} (same meaning)",
-                  file=sys.stderr)  # fmt: skip
+            print(
+                f"warning: --people {args.people} is deprecated, use --person {args.people} (same meaning)",
+                file=sys.stderr,
+            )
             args.person, args.people = args.people, "largest"
         people = parse_people(args.people if args.person is None else str(args.person))
     except (InputError, ValueError) as err:
@@ -122,18 +176,36 @@ def run(args) -> int:
     except ValueError as err:
         raise CLIError(str(err)) from None
     options = FitOptions(
-        exports=list(exports), model=args.model, gender=args.gender, pose_prior=args.pose_prior, silhouette=not args.no_silhouette,
-        focal=args.focal, keypoint_options=overrides, silhouette_options=silhouette_options(args),
+        exports=list(exports),
+        model=args.model,
+        gender=args.gender,
+        pose_prior=args.pose_prior,
+        silhouette=not args.no_silhouette,
+        focal=args.focal,
+        keypoint_options=overrides,
+        silhouette_options=silhouette_options(args),
         silhouette_resolutions=_ints(args.silhouette_resolutions, "--silhouette-resolutions"),
         silhouette_iterations=_ints(args.silhouette_iterations, "--silhouette-iterations"),
-    )  # fmt: skip
+    )
     try:
         summary = fit_dataset(
-            args.input, args.out, people=people, masks=args.masks, images=args.images, camera=args.camera,
-            options=options, batch_size=args.batch_size, retry_failed=args.retry_failed, workers=workers,
-            ray=args.ray is not None, ray_address=args.ray or None, actors=args.actors,
-            num_cpus=args.num_cpus, num_gpus=args.num_gpus, progress=not args.quiet,
-        )  # fmt: skip
+            args.input,
+            args.out,
+            people=people,
+            masks=args.masks,
+            images=args.images,
+            camera=args.camera,
+            options=options,
+            batch_size=args.batch_size,
+            retry_failed=args.retry_failed,
+            workers=workers,
+            ray=args.ray is not None,
+            ray_address=args.ray or None,
+            actors=args.actors,
+            num_cpus=args.num_cpus,
+            num_gpus=args.num_gpus,
+            progress=not args.quiet,
+        )
     except InputError as err:
         raise CLIError(str(err)) from None
     if not args.no_report:
@@ -150,6 +222,8 @@ def run(args) -> int:
             print(f"wrote {index} (open it in a browser)")
     print(summary["table"])
     if summary["failed"]:
-        print(f"silfit fit-dataset: {summary['failed']} of {summary['items']} items failed; see {args.out}/failures.jsonl",
-              file=sys.stderr)  # fmt: skip
+        print(
+            f"silfit fit-dataset: {summary['failed']} of {summary['items']} items failed; see {args.out}/failures.jsonl",
+            file=sys.stderr,
+        )
     return exit_status(summary["failed"])

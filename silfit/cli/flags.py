@@ -6,6 +6,7 @@
 * :func:`deprecated_alias`: an old spelling of a renamed flag keeps working and says the new one.
 * :data:`EXAMPLES`: the examples every subcommand's ``--help`` ends with.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -103,9 +104,19 @@ class _Deprecated(argparse.Action):
 def deprecated_alias(parser: argparse.ArgumentParser, old: str, new: str) -> None:
     """Accept ``old`` as a hidden, deprecated spelling of ``parser``'s flag ``new``."""
     target = next(a for a in parser._actions if new in a.option_strings)
-    parser.add_argument(old, action=_Deprecated, target=target, new=new, dest=target.dest, nargs=target.nargs,
-                        type=target.type, choices=target.choices, metavar=target.metavar,
-                        default=argparse.SUPPRESS, help=argparse.SUPPRESS)  # fmt: skip
+    parser.add_argument(
+        old,
+        action=_Deprecated,
+        target=target,
+        new=new,
+        dest=target.dest,
+        nargs=target.nargs,
+        type=target.type,
+        choices=target.choices,
+        metavar=target.metavar,
+        default=argparse.SUPPRESS,
+        help=argparse.SUPPRESS,
+    )
 
 
 def is_deprecated(action: argparse.Action) -> bool:

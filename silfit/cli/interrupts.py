@@ -2,6 +2,7 @@
 ``KeyboardInterrupt``) so every ``try/except BaseException`` cleanup on the way out runs
 (``silfit fit`` removes its temporary output folder), and the command exits with
 ``128 + signal`` after one line. Further signals are ignored while that cleanup runs."""
+
 from __future__ import annotations
 
 import signal

@@ -4,10 +4,10 @@
 :mod:`silfit.camera`, :mod:`silfit.rig`, :mod:`silfit.video`, :mod:`silfit.imagefile`) and
 fits nothing; :func:`silfit.run.run` does the rest for all three.
 """
+
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import numpy as np
 
@@ -50,8 +50,11 @@ def _pose_prior(args, model):
 
     pose_prior = load_pose_prior(args.pose_prior, dtype=model.dtype)
     if getattr(pose_prior, "dim", model.num_body_pose) < model.num_body_pose:
-        raise InputError(args.pose_prior or "--pose-prior (default)", f"the pose prior is over {pose_prior.dim} values, the "
-                         f"model's body_pose has {model.num_body_pose}", field="means")  # fmt: skip
+        raise InputError(
+            args.pose_prior or "--pose-prior (default)",
+            f"the pose prior is over {pose_prior.dim} values, the model's body_pose has {model.num_body_pose}",
+            field="means",
+        )
     return pose_prior
 
 
@@ -67,11 +70,15 @@ def build_job(args) -> Job:
     if getattr(args, "views", None) and not getattr(args, "rig", None):
         raise CLIError("--views picks cameras of a rig; give --rig DIR")
     if args.sequence and getattr(args, "rig", None):
-        raise CLIError("--sequence with --rig: a rig video is --rig DIR alone (its views' folders hold the per-frame files)")
+        raise CLIError(
+            "--sequence with --rig: a rig video is --rig DIR alone (its views' folders hold the per-frame files)"
+        )
     if getattr(args, "hypotheses", 1) != 1 and (args.sequence or getattr(args, "rig", None)):
         raise CLIError("--hypotheses with --sequence/--rig: not available (one image's depth branches only)")
     if getattr(args, "export", None) and getattr(args, "rig", None):
-        raise CLIError("--export with --rig: not available (a rig's world frame has no fixed up axis); mesh.obj holds the body")
+        raise CLIError(
+            "--export with --rig: not available (a rig's world frame has no fixed up axis); mesh.obj holds the body"
+        )
     if args.sequence:
         return video_job(args)
     if getattr(args, "rig", None):
@@ -96,21 +103,32 @@ def image_job(args) -> Job:
     if args.image:
         from .detect import photo_inputs
 
-        photo = photo_inputs(args.image, person, not args.keypoints, not (args.mask or args.no_silhouette),
-                             getattr(args, "detected", None))  # fmt: skip
+        photo = photo_inputs(
+            args.image,
+            person,
+            not args.keypoints,
+            not (args.mask or args.no_silhouette),
+            getattr(args, "detected", None),
+        )
     elif not args.keypoints:
         raise CLIError("no keypoints: give --keypoints KP.json, or --image PHOTO to detect them")
     keypoints = read_keypoints(args.keypoints, person=person) if args.keypoints else photo["keypoints"]
-    image, size = (photo["image"], photo["size"]) if photo else (None, _parse_size(args.image_size) if args.image_size else None)
+    image, size = (
+        (photo["image"], photo["size"]) if photo else (None, _parse_size(args.image_size) if args.image_size else None)
+    )
     camera, warnings, camera_source = None, list(photo["warnings"]) if photo else [], None
     if args.camera:  # R, t (optional) checked as for rigs; one image is fitted in its camera's frame
         camera, R, t = read_camera_file(args.camera)
         camera_source = "camera file"
         if R is not None and (np.abs(R - np.eye(3)).max() > 1e-9 or np.abs(t).max() > 1e-9):
-            camera_source += " (its R, t not applied: one image is fitted in the camera's frame; --rig fits in the world frame)"
+            camera_source += (
+                " (its R, t not applied: one image is fitted in the camera's frame; --rig fits in the world frame)"
+            )
             warn(f"{args.camera}: camera R, t not applied: one image is fitted in the camera's frame")
         if size is not None and tuple(size) != (camera.width, camera.height):
-            raise CLIError(f"{args.camera}: camera is {camera.width}x{camera.height} but the image is {size[0]}x{size[1]}")
+            raise CLIError(
+                f"{args.camera}: camera is {camera.width}x{camera.height} but the image is {size[0]}x{size[1]}"
+            )
     mask, known = None, None
     if args.mask:
         mask = read_mask(args.mask, size=(camera.width, camera.height) if camera is not None else size)
@@ -133,8 +151,14 @@ def image_job(args) -> Job:
     keypoints, choice_note = choose_fit_keypoints(keypoints, wholebody, model)
     if choice_note:
         note(choice_note)
-    record = {"keypoints": args.keypoints and os.fspath(args.keypoints), "mask": args.mask, "image": args.image,
-              "model": model.source, "camera_source": camera_source, **(photo["metrics"] if photo else {})}  # fmt: skip
+    record = {
+        "keypoints": args.keypoints and os.fspath(args.keypoints),
+        "mask": args.mask,
+        "image": args.image,
+        "model": model.source,
+        "camera_source": camera_source,
+        **(photo["metrics"] if photo else {}),
+    }
     base = None
     if getattr(args, "hypotheses", 1) != 1:  # the K best distinct depth-branch solutions (hypotheses/<k>/)
         from ..fitting.keypoint_stage import KeypointFitConfig
@@ -142,11 +166,20 @@ def image_job(args) -> Job:
         if not 1 <= args.hypotheses <= 20:
             raise CLIError(f"--hypotheses must be 1..20, got {args.hypotheses}")
         base = KeypointFitConfig(hypotheses=args.hypotheses)
-    return Job(Problem.single(keypoints, camera, mask, known), model, pose_prior=_pose_prior(args, model),
-               keypoint_config=keypoint_settings(args, base), silhouette_config=silhouette_config(args), silhouette=not args.no_silhouette, progress=not args.quiet,
-               warnings=warnings, record=record, images={} if image is None else {(0, 0): image},
-               mask_sources={(0, 0): args.mask or "mask"},
-               people={(0, 0): photo["person"]} if photo and photo.get("person") is not None else {})  # fmt: skip
+    return Job(
+        Problem.single(keypoints, camera, mask, known),
+        model,
+        pose_prior=_pose_prior(args, model),
+        keypoint_config=keypoint_settings(args, base),
+        silhouette_config=silhouette_config(args),
+        silhouette=not args.no_silhouette,
+        progress=not args.quiet,
+        warnings=warnings,
+        record=record,
+        images={} if image is None else {(0, 0): image},
+        mask_sources={(0, 0): args.mask or "mask"},
+        people={(0, 0): photo["person"]} if photo and photo.get("person") is not None else {},
+    )
 
 
 def rig_job(args) -> Job:
@@ -162,7 +195,9 @@ def rig_job(args) -> Job:
 
     for flag in ("keypoints", "mask", "camera", "focal", "image", "image_size"):
         if getattr(args, flag, None):
-            raise CLIError(f"--rig reads every view's files from the rig folder; --{flag.replace('_', '-')} is not used with it")
+            raise CLIError(
+                f"--rig reads every view's files from the rig folder; --{flag.replace('_', '-')} is not used with it"
+            )
     _check_out(args)
     person = _person(args.person)
     views = select_views(load_rig(args.rig), args.views.split(",") if args.views else None)
@@ -177,21 +212,36 @@ def rig_job(args) -> Job:
             warnings.append(f"view {v.name} set aside: {err}")
             continue
         cam = v.view.camera
-        mask = read_mask(v.mask, size=(cam.width, cam.height)) if v.mask is not None else None  # IoU even without the stage
+        mask = (
+            read_mask(v.mask, size=(cam.width, cam.height)) if v.mask is not None else None
+        )  # IoU even without the stage
         if v.image is not None:
             img = read_rgb(v.image, "image")
             if (img.shape[1], img.shape[0]) != (cam.width, cam.height):
-                raise CLIError(f"{v.image}: image is {img.shape[1]}x{img.shape[0]} but view {v.name}'s camera is "
-                               f"{cam.width}x{cam.height}")  # fmt: skip
+                raise CLIError(
+                    f"{v.image}: image is {img.shape[1]}x{img.shape[0]} but view {v.name}'s camera is "
+                    f"{cam.width}x{cam.height}"
+                )
             images[(0, len(obs))] = img
         warnings += list(v.warnings)
         obs.append(Observation(v.view, ks, mask, 0, len(obs)))
         names.append(v.name)
     if not obs:
         raise first
-    return Job(Problem(obs), model, names, pose_prior=_pose_prior(args, model), keypoint_config=keypoint_settings(args),
-               silhouette_config=silhouette_config(args), silhouette=not args.no_silhouette, progress=not args.quiet,
-               warnings=warnings, record={"rig": str(args.rig), "model": model.source}, images=images, rig=True)  # fmt: skip
+    return Job(
+        Problem(obs),
+        model,
+        names,
+        pose_prior=_pose_prior(args, model),
+        keypoint_config=keypoint_settings(args),
+        silhouette_config=silhouette_config(args),
+        silhouette=not args.no_silhouette,
+        progress=not args.quiet,
+        warnings=warnings,
+        record={"rig": str(args.rig), "model": model.source},
+        images=images,
+        rig=True,
+    )
 
 
 def _rig_model(args, keypoint_files, person):
@@ -227,21 +277,48 @@ def rig_video_job(args) -> Job:
     C = len(seq.views)
     files = [seq.files(c) for c in range(C)]
     model = _rig_model(args, [p for column in files for p in column], person)
-    frames = [[ks if ks is None or getattr(model, "kind", "smpl") != "smplx"
-               else choose_fit_keypoints(ks, read_wholebody_parts(files[c][f], person), model)[0]
-               for c, ks in enumerate(row)] for f, row in enumerate(seq.frames)]  # fmt: skip
+    frames = [
+        [
+            ks
+            if ks is None or getattr(model, "kind", "smpl") != "smplx"
+            else choose_fit_keypoints(ks, read_wholebody_parts(files[c][f], person), model)[0]
+            for c, ks in enumerate(row)
+        ]
+        for f, row in enumerate(seq.frames)
+    ]
     masks = read_rig_sequence_masks(seq)  # [F][C] or None; read (and checked) before --check-only answers
     cfg = SequenceFitConfig()
     cfg.keypoint = keypoint_settings(args, cfg.keypoint)  # each frame's start
     if args.sequence_iterations is not None:
         cfg.iterations = int(args.sequence_iterations)
-    obs = [Observation(v.view, frames[f][c], None if masks is None else masks[f][c], f, c)
-           for f in range(len(frames)) for c, v in enumerate(seq.views)]  # fmt: skip
-    silhouette = "run" if masks is not None and not args.no_silhouette else "not run (--no-silhouette)" if args.no_silhouette else "not run (no masks)"
-    return Job(Problem(obs), model, seq.names, pose_prior=_pose_prior(args, model), silhouette_config=sil_config,
-               sequence_config=cfg, silhouette=not args.no_silhouette, progress=not args.quiet, frame_numbers=list(seq.numbers),
-               warnings=list(seq.warnings), inputs=seq, rig=True, video=True,
-               record={"rig": str(args.rig), "model": model.source, "silhouette": silhouette})  # fmt: skip
+    obs = [
+        Observation(v.view, frames[f][c], None if masks is None else masks[f][c], f, c)
+        for f in range(len(frames))
+        for c, v in enumerate(seq.views)
+    ]
+    silhouette = (
+        "run"
+        if masks is not None and not args.no_silhouette
+        else "not run (--no-silhouette)"
+        if args.no_silhouette
+        else "not run (no masks)"
+    )
+    return Job(
+        Problem(obs),
+        model,
+        seq.names,
+        pose_prior=_pose_prior(args, model),
+        silhouette_config=sil_config,
+        sequence_config=cfg,
+        silhouette=not args.no_silhouette,
+        progress=not args.quiet,
+        frame_numbers=list(seq.numbers),
+        warnings=list(seq.warnings),
+        inputs=seq,
+        rig=True,
+        video=True,
+        record={"rig": str(args.rig), "model": model.source, "silhouette": silhouette},
+    )
 
 
 def _video_camera(args, seq):
@@ -294,17 +371,40 @@ def video_job(args) -> Job:
     frames = [None if ks is None else choose_fit_keypoints(ks, w, model)[0] for ks, w in zip(seq.frames, parts)]
     masks = [None] * len(frames)
     if seq.masks and not args.no_silhouette:  # read (and checked) before --check-only answers
-        masks = [read_mask(seq.masks[n], size=(camera.width, camera.height), allow_empty=True) if n in seq.masks else None
-                 for n in seq.numbers]  # fmt: skip
+        masks = [
+            read_mask(seq.masks[n], size=(camera.width, camera.height), allow_empty=True) if n in seq.masks else None
+            for n in seq.numbers
+        ]
     cfg = SequenceFitConfig()
     cfg.keypoint = keypoint_settings(args, cfg.keypoint)  # each frame's start
     if args.sequence_iterations is not None:
         cfg.iterations = int(args.sequence_iterations)
-    silhouette = "run" if any(m is not None for m in masks) else "not run (no masks)" if not seq.masks else "not run (--no-silhouette)"
-    job = make_video_job(frames, camera, model, masks=masks, config=cfg, silhouette_config=sil_config,
-                         pose_prior=_pose_prior(args, model), progress=not args.quiet, numbers=seq.numbers, inputs=seq,
-                         warnings=seq.warnings, record={"sequence": str(args.sequence), "model": model.source,
-                                                        "camera_source": camera_source, "silhouette": silhouette})  # fmt: skip
+    silhouette = (
+        "run"
+        if any(m is not None for m in masks)
+        else "not run (no masks)"
+        if not seq.masks
+        else "not run (--no-silhouette)"
+    )
+    job = make_video_job(
+        frames,
+        camera,
+        model,
+        masks=masks,
+        config=cfg,
+        silhouette_config=sil_config,
+        pose_prior=_pose_prior(args, model),
+        progress=not args.quiet,
+        numbers=seq.numbers,
+        inputs=seq,
+        warnings=seq.warnings,
+        record={
+            "sequence": str(args.sequence),
+            "model": model.source,
+            "camera_source": camera_source,
+            "silhouette": silhouette,
+        },
+    )
     job.silhouette = not args.no_silhouette
     return job
 
@@ -312,12 +412,16 @@ def video_job(args) -> Job:
 def describe_inputs(job: Job) -> str:
     """``--check-only``'s line: what will be fitted, with which camera."""
     if job.mode == "video" and job.num_views > 1 or job.mode == "video" and job.rig:
-        return (f"inputs OK: a rig video of {job.num_frames} frames seen by {job.num_views} views "
-                f"({', '.join(job.view_names)}), masks {'read' if job.has_masks else 'none'}")  # fmt: skip
+        return (
+            f"inputs OK: a rig video of {job.num_frames} frames seen by {job.num_views} views "
+            f"({', '.join(job.view_names)}), masks {'read' if job.has_masks else 'none'}"
+        )
     if job.mode == "video":
         seq, cam = job.inputs, job.problem.observations[0].view.camera
-        return (f"inputs OK: {len(seq.numbers)} frames ({seq.detected} with a person), {len(seq.masks)} masks, "
-                f"{len(seq.images)} images; camera: {job.record['camera_source']} (fx {cam.fx:g}, {cam.width}x{cam.height})")  # fmt: skip
+        return (
+            f"inputs OK: {len(seq.numbers)} frames ({seq.detected} with a person), {len(seq.masks)} masks, "
+            f"{len(seq.images)} images; camera: {job.record['camera_source']} (fx {cam.fx:g}, {cam.width}x{cam.height})"
+        )
     if job.mode == "rig":
         return f"inputs OK ({job.num_views} views)"
     cam = job.problem.observations[0].view.camera

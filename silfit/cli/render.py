@@ -20,6 +20,7 @@ Outputs (PNG, in ``--out``):
 Everything is rendered before anything is written, and each PNG is written to a
 temporary file and renamed, so an error leaves no partial PNG behind.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -34,18 +35,29 @@ MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("render", help="render a fitted body or a mesh to PNG images (views, overlay, mask)")
-    p.add_argument("input", help="a fit's params.npz / params.json (an image, rig, video or whole-body fit) or a mesh "
-                   "file (OBJ/PLY)")
-    p.add_argument("--model", help="SMPL / SMPL-X model file or folder, or 'open-smplx' (default: the model kind the fit "
-                   "file records, shipped open model)")
-    p.add_argument("--frame", default="0", help="a video fit's frame index (0-based), or 'all' for an animated GIF per "
-                   "picture (default 0)")
+    p.add_argument(
+        "input",
+        help="a fit's params.npz / params.json (an image, rig, video or whole-body fit) or a mesh file (OBJ/PLY)",
+    )
+    p.add_argument(
+        "--model",
+        help="SMPL / SMPL-X model file or folder, or 'open-smplx' (default: the model kind the fit "
+        "file records, shipped open model)",
+    )
+    p.add_argument(
+        "--frame",
+        default="0",
+        help="a video fit's frame index (0-based), or 'all' for an animated GIF per picture (default 0)",
+    )
     p.add_argument("--fps", type=float, default=10.0, help="--frame all: GIF frame rate (default 10)")
     p.add_argument("--camera", help="camera.json (fx, fy, cx, cy, width, height): also render under this camera")
     p.add_argument("--overlay", metavar="IMAGE", help="blend the body over this image (writes overlay.png)")
     p.add_argument("--alpha", type=float, default=0.6, help="overlay opacity of the body (default 0.6)")
-    p.add_argument("--directions", dest="views",
-                   help="comma-separated directions to look from: front, side (=right), back, left (default: front)")
+    p.add_argument(
+        "--directions",
+        dest="views",
+        help="comma-separated directions to look from: front, side (=right), back, left (default: front)",
+    )
     p.add_argument("--turntable", type=int, metavar="N", help="N views evenly spaced around the body")
     p.add_argument("--write-mask", dest="mask", action="store_true", help="also write a binary mask (mask.png)")
     p.add_argument("--size", default="512", help="view image size: N or WxH (default 512)")
@@ -171,8 +183,9 @@ def render_outputs(args) -> dict[str, np.ndarray]:
             raise CLIError(
                 f"--overlay image is {w}x{h} but the camera is {overlay_camera.width}x{overlay_camera.height}"
             )
-    per_frame = [_pictures(args, v, faces, camera, background, size, background is not None and overlay_camera)
-                 for v in frames]  # fmt: skip
+    per_frame = [
+        _pictures(args, v, faces, camera, background, size, background is not None and overlay_camera) for v in frames
+    ]
     if len(per_frame) == 1:
         return per_frame[0]
     return {name.replace(".png", ".gif"): np.stack([pics[name] for pics in per_frame]) for name in per_frame[0]}

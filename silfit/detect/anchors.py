@@ -13,6 +13,7 @@ cell), fixed anchor size (every anchor is 1 x 1 in normalised units, so only the
 matter). Consecutive layers with the same stride share one feature map, so the stride-32
 map holds 3 x 2 = 6 anchors per cell: 28*28*2 + 14*14*2 + 7*7*6 = 2254.
 """
+
 from __future__ import annotations
 
 import math

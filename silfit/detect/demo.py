@@ -11,6 +11,7 @@ The default photo is ``data/photos/astronaut.jpg`` of a source checkout (NASA's 
 portrait of Eileen Collins, the image scikit-image ships as ``astronaut``), else
 scikit-image's own copy when it is installed.
 """
+
 from __future__ import annotations
 
 import time
@@ -36,7 +37,9 @@ def sample_photo() -> Path:
     raise FileNotFoundError(f"{SAMPLE_PHOTO}: sample photo not found (not a source checkout): give --photo PATH")
 
 
-def run_photo_demo(out: Path, photo_path: Optional[Path] = None, progress: bool = False, silhouette_config=None) -> dict:
+def run_photo_demo(
+    out: Path, photo_path: Optional[Path] = None, progress: bool = False, silhouette_config=None
+) -> dict:
     """Detect, fit and draw (see the module docstring); returns the report."""
     from .. import figures
     from ..body import load_body_model
@@ -57,8 +60,16 @@ def run_photo_demo(out: Path, photo_path: Optional[Path] = None, progress: bool 
     focal, focal_source = photo.focal()
     model = load_body_model()
     faces = model.faces.cpu().numpy()
-    result = fit(keypoints, mask, None, image_size=photo.size, focal=focal, model=model,
-                 silhouette_config=silhouette_config, progress=progress)  # fmt: skip
+    result = fit(
+        keypoints,
+        mask,
+        None,
+        image_size=photo.size,
+        focal=focal,
+        model=model,
+        silhouette_config=silhouette_config,
+        progress=progress,
+    )
     warnings = photo.warnings() + [f"detection: {w}" for w in person.warnings()] + result.metrics.get("warnings", [])
     extra = {"image": str(path), "camera_source": focal_source if focal else "default max(W, H)", "warnings": warnings}
     save_fit(result, out / "fit", faces, keypoints, photo.image, mask, extra, overwrite=True)
@@ -71,8 +82,13 @@ def run_photo_demo(out: Path, photo_path: Optional[Path] = None, progress: bool 
         figures.silhouette_comparison(result.masks["final"], mask),
         figures.side_view(result.vertices, faces, result.keypoint.vertices[0]),
     ]
-    titles = ["detection", "keypoint fit", "keypoint + silhouette fit", "silhouette vs detected mask",
-              "side: final over keypoint fit"]  # fmt: skip
+    titles = [
+        "detection",
+        "keypoint fit",
+        "keypoint + silhouette fit",
+        "silhouette vs detected mask",
+        "side: final over keypoint fit",
+    ]
     figures.contact_sheet(panels, titles, out / "summary.png", columns=5)
 
     m = result.metrics
@@ -84,7 +100,10 @@ def run_photo_demo(out: Path, photo_path: Optional[Path] = None, progress: bool 
         ("lower body visible", "yes" if person.lower_body_visible() else "no"),
         ("reprojection error (px, median)", f"{m['reprojection_error_px']:.1f}"),
         ("silhouette IoU, keypoint fit -> final", f"{m['iou_keypoint_stage']:.3f} -> {m['iou']:.3f}"),
-        ("time: detection / fit (s)", f"{t_detect:.1f} / {sum(v for k, v in m['timings_s'].items() if '.' not in k):.1f}"),
+        (
+            "time: detection / fit (s)",
+            f"{t_detect:.1f} / {sum(v for k, v in m['timings_s'].items() if '.' not in k):.1f}",
+        ),
     ]
     table = "| | |\n|---|---|\n" + "\n".join(f"| {a} | {b} |" for a, b in rows)
     (out / "report.md").write_text(f"# silfit photo demo: {path.name}\n\n{table}\n")

@@ -7,6 +7,7 @@ the crop's "up" towards the image's right, i.e. clockwise on screen, as MediaPip
 ``NormalizedRect.rotation``). Crop-normalised coordinates ``(a, b)`` in ``[0, 1]`` run
 over the crop's pixel *edges*, as the models' outputs do.
 """
+
 from __future__ import annotations
 
 import math
@@ -61,8 +62,12 @@ class ROI:
         return ROI(self.cx, self.cy, self.size * float(factor), self.angle)
 
     def to_dict(self) -> dict:
-        return {"cx": round(self.cx, 3), "cy": round(self.cy, 3), "size": round(self.size, 3),
-                "angle_deg": round(math.degrees(self.angle), 3)}  # fmt: skip
+        return {
+            "cx": round(self.cx, 3),
+            "cy": round(self.cy, 3),
+            "size": round(self.size, 3),
+            "angle_deg": round(math.degrees(self.angle), 3),
+        }
 
 
 def roi_from_alignment_points(center: np.ndarray, scale_point: np.ndarray, scale: float = 1.25) -> ROI:
@@ -93,8 +98,14 @@ def warp_to_crop(image: np.ndarray, roi: ROI, out_size: int) -> np.ndarray:
     S = np.array([[sx, 0.0, 0.5 * sx - 0.5], [0.0, sy, 0.5 * sy - 0.5]])
     M = S[:, :2] @ M
     M[:, 2] += S[:, 2]
-    return cv2.warpAffine(img, M, (int(out_size), int(out_size)), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)  # fmt: skip
+    return cv2.warpAffine(
+        img,
+        M,
+        (int(out_size), int(out_size)),
+        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=0,
+    )
 
 
 def warp_from_crop(crop: np.ndarray, roi: ROI, width: int, height: int) -> np.ndarray:
@@ -104,5 +115,11 @@ def warp_from_crop(crop: np.ndarray, roi: ROI, width: int, height: int) -> np.nd
 
     S = crop.shape[0]
     M = roi.crop_matrix(S)
-    return cv2.warpAffine(np.ascontiguousarray(crop, dtype=np.float32), M, (int(width), int(height)),
-                          flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)  # fmt: skip
+    return cv2.warpAffine(
+        np.ascontiguousarray(crop, dtype=np.float32),
+        M,
+        (int(width), int(height)),
+        flags=cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=0,
+    )

@@ -14,6 +14,7 @@
   peak confidence is at least 0.5;
 * 39 x 3 world landmarks (metres, hip-centred).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -51,7 +52,9 @@ class RoiLandmarks:
     mask_crop: np.ndarray  # [256, 256] person probability in the crop
 
 
-def refine_from_heatmap(xy_norm: np.ndarray, heatmap: np.ndarray, kernel: int = 7, min_confidence: float = 0.5) -> np.ndarray:
+def refine_from_heatmap(
+    xy_norm: np.ndarray, heatmap: np.ndarray, kernel: int = 7, min_confidence: float = 0.5
+) -> np.ndarray:
     """Refine crop-normalised landmarks ``[L, 2]`` with heatmap logits ``[h, w, L]``."""
     h, w, L = heatmap.shape
     out = np.array(xy_norm, dtype=np.float64, copy=True)
@@ -104,10 +107,15 @@ def run_landmark_model(image: np.ndarray, roi: ROI, refine: bool = True) -> RoiL
     c, s = np.cos(roi.angle), np.sin(roi.angle)
     world[:, :2] = world[:, :2] @ np.array([[c, -s], [s, c]]).T
     return RoiLandmarks(
-        roi=roi, presence_score=float(out["presence"]), xy=xy, z=raw[:, 2] * roi.size / LANDMARK_INPUT,
-        visibility=_sigmoid(raw[:, 3]), presence=_sigmoid(raw[:, 4]), world=world,
+        roi=roi,
+        presence_score=float(out["presence"]),
+        xy=xy,
+        z=raw[:, 2] * roi.size / LANDMARK_INPUT,
+        visibility=_sigmoid(raw[:, 3]),
+        presence=_sigmoid(raw[:, 4]),
+        world=world,
         mask_crop=_sigmoid(out["segmentation"].astype(np.float64)).astype(np.float32),
-    )  # fmt: skip
+    )
 
 
 def roi_from_landmarks(lm: RoiLandmarks, scale: float = ROI_SCALE) -> ROI:

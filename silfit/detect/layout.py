@@ -14,6 +14,7 @@ more) it sat a median 0.15 torso lengths (shoulder midpoint to hip midpoint, IQR
 512-pixel images. The neck is therefore the shoulder midpoint moved up the torso by
 :data:`NECK_ABOVE_SHOULDERS` of its length.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -36,8 +37,16 @@ _DERIVED = {
 NECK_ABOVE_SHOULDERS = 0.15
 
 #: BlazePose landmarks below the hips (reported when a person's lower body is not visible).
-LOWER_BODY = ("left_knee", "right_knee", "left_ankle", "right_ankle", "left_heel", "right_heel",
-              "left_foot_index", "right_foot_index")  # fmt: skip
+LOWER_BODY = (
+    "left_knee",
+    "right_knee",
+    "left_ankle",
+    "right_ankle",
+    "left_heel",
+    "right_heel",
+    "left_foot_index",
+    "right_foot_index",
+)
 
 _TARGETS = {"body25": BODY25_NAMES, "coco17": COCO17_NAMES, "blazepose33": BLAZEPOSE33_NAMES}
 

@@ -4,6 +4,7 @@ The ``.tflite`` files come unchanged from the ``mediapipe==0.10.21`` wheel (Apac
 see ``data/README.md``); they run on the CPU through ``ai-edge-litert``, so nothing is
 downloaded at run time and mediapipe itself is not needed.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -22,7 +23,10 @@ MODEL_DIR = Path(__file__).resolve().parent / "data"
 #: Model name -> (file name, sha256) of the shipped files.
 MODEL_FILES = {
     "pose_detection": ("pose_detection.tflite", "9ba9dd3d42efaaba86b4ff0122b06f29c4122e756b329d89dca1e297fd8f866c"),
-    "pose_landmark_full": ("pose_landmark_full.tflite", "e9a5c5cb17f736fafd4c2ec1da3b3d331d6edbe8a0d32395855aeb2cdfd64b9f"),
+    "pose_landmark_full": (
+        "pose_landmark_full.tflite",
+        "e9a5c5cb17f736fafd4c2ec1da3b3d331d6edbe8a0d32395855aeb2cdfd64b9f",
+    ),
 }
 
 
@@ -41,7 +45,9 @@ def verify_model(name: str) -> Path:
         raise FileNotFoundError(f"{path}: detection model file missing (reinstall silfit)")
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
     if digest != MODEL_FILES[name][1]:
-        raise ValueError(f"{path}: detection model file is corrupt (sha256 {digest[:12]}..., expected {MODEL_FILES[name][1][:12]}...)")
+        raise ValueError(
+            f"{path}: detection model file is corrupt (sha256 {digest[:12]}..., expected {MODEL_FILES[name][1][:12]}...)"
+        )
     return path
 
 

@@ -2,6 +2,7 @@
 ``algorithm: WEIGHTED`` (the pose detector's setting): the best remaining detection
 absorbs every other whose box overlaps it by more than the threshold (IoU), and its box
 and keypoints become the score-weighted mean of the group; its score stays its own."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -19,8 +20,14 @@ def box_iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
 
 
-def weighted_nms(scores: np.ndarray, boxes: np.ndarray, keypoints: np.ndarray, min_score: float = 0.5,
-                 iou_threshold: float = 0.3, max_detections: int = 0):  # fmt: skip
+def weighted_nms(
+    scores: np.ndarray,
+    boxes: np.ndarray,
+    keypoints: np.ndarray,
+    min_score: float = 0.5,
+    iou_threshold: float = 0.3,
+    max_detections: int = 0,
+):
     """Detections with ``score >= min_score`` after weighted NMS, best first:
     ``(scores [M], boxes [M, 4], keypoints [M, K, 2])``; ``max_detections`` 0 keeps all."""
     keep = np.flatnonzero(np.asarray(scores) >= min_score)

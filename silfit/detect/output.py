@@ -15,6 +15,7 @@
 Written into a temporary folder beside the target and moved into place at the end, so
 a failed run leaves nothing half-written.
 """
+
 from __future__ import annotations
 
 import json
@@ -39,8 +40,9 @@ def detect_photo(path: os.PathLike, config: Optional[DetectConfig] = None) -> Tu
     return photo, people
 
 
-def save_detection(out: os.PathLike, photo: Photo, people: List[Person], layout: str = "body25",
-                   overwrite: bool = False) -> Path:  # fmt: skip
+def save_detection(
+    out: os.PathLike, photo: Photo, people: List[Person], layout: str = "body25", overwrite: bool = False
+) -> Path:
     from ..dataset import write_png
     from ..keypoints import write_openpose_json
     from ..outfolder import atomic_folder
@@ -54,10 +56,15 @@ def save_detection(out: os.PathLike, photo: Photo, people: List[Person], layout:
         write_png(tmp / "detection.png", detection_overlay(photo.image, people))
         focal, focal_source = photo.focal()
         report = {
-            "image": photo.path, "width": photo.size[0], "height": photo.size[1], "layout": layout,
-            "focal_px": focal, "focal_source": focal_source, "warnings": photo.warnings(),
+            "image": photo.path,
+            "width": photo.size[0],
+            "height": photo.size[1],
+            "layout": layout,
+            "focal_px": focal,
+            "focal_source": focal_source,
+            "warnings": photo.warnings(),
             "models": "MediaPipe BlazePose GHUM pose_detection + pose_landmark_full (mediapipe 0.10.21)",
             "people": [p.to_dict() for p in people],
-        }  # fmt: skip
+        }
         (tmp / "detection.json").write_text(json.dumps(report, indent=2))
     return out

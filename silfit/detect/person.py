@@ -20,6 +20,7 @@ Steps, as MediaPipe's pose graphs run them:
    ``max_contained``) is dropped, and so is a further reading whose mask spreads far beyond
    its own landmarks (:func:`mask_in_box`: background clutter).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -35,7 +36,15 @@ from .layout import BLAZEPOSE33_NAMES, LOWER_BODY, blazepose_to_layout
 from .models import load_model
 from .nms import box_iou, weighted_nms
 
-__all__ = ["DetectConfig", "DetectionError", "Person", "detect_people", "detect_candidates", "detector_regions", "mask_in_box"]
+__all__ = [
+    "DetectConfig",
+    "DetectionError",
+    "Person",
+    "detect_people",
+    "detect_candidates",
+    "detector_regions",
+    "mask_in_box",
+]
 
 
 class DetectionError(InputError):
@@ -129,8 +138,9 @@ class Person:
         """The person mask ``bool [H, W]``."""
         return self.mask_prob > threshold
 
-    def own_mask(self, others: Sequence["Person"], radius: float = 0.06, keep: float = 0.04,
-                 threshold: float = 0.5) -> np.ndarray:  # fmt: skip
+    def own_mask(
+        self, others: Sequence["Person"], radius: float = 0.06, keep: float = 0.04, threshold: float = 0.5
+    ) -> np.ndarray:
         """The person mask less the other people's regions (:func:`silfit.silhouette.people.own_mask`, issue 55):
         each of ``others``' mask and the neighbourhood of their landmarks (``radius`` of their extent) where
         nearer their skeleton than this person's, except within ``keep`` of this person's extent of their own
@@ -138,8 +148,11 @@ class Person:
         from ..silhouette.people import own_mask
 
         own = (self.xy, self.confidence(), BLAZEPOSE33_NAMES)
-        rest = [(p.mask(threshold), p.xy, p.confidence(), BLAZEPOSE33_NAMES, float(radius) * p.extent_px())
-                for p in others if p is not self]  # fmt: skip
+        rest = [
+            (p.mask(threshold), p.xy, p.confidence(), BLAZEPOSE33_NAMES, float(radius) * p.extent_px())
+            for p in others
+            if p is not self
+        ]
         return own_mask(self.mask(threshold), own, rest, keep=float(keep) * self.extent_px())
 
     def extent_px(self) -> float:
@@ -172,10 +185,14 @@ class Person:
         edges = self.cut_off_edges()
         if edges:
             outside = [n for n, i in zip(BLAZEPOSE33_NAMES, self.in_image()) if not i]
-            out.append(f"person cut off at the image's {' and '.join(edges)} edge: {', '.join(outside)} outside the image")
+            out.append(
+                f"person cut off at the image's {' and '.join(edges)} edge: {', '.join(outside)} outside the image"
+            )
         if not self.lower_body_visible():
-            out.append("lower body not visible (knees, ankles and feet outside the image or occluded): "
-                       "the fit follows the visible part only")  # fmt: skip
+            out.append(
+                "lower body not visible (knees, ankles and feet outside the image or occluded): "
+                "the fit follows the visible part only"
+            )
         return out
 
     def to_dict(self) -> dict:
@@ -189,11 +206,16 @@ class Person:
             "extent_px": round(self.extent_px(), 1),
             "mask_area_px": int(self.mask().sum()),
             "landmarks": {
-                name: {"x": round(float(self.xy[i, 0]), 2), "y": round(float(self.xy[i, 1]), 2),
-                       "z": round(float(self.z[i]), 2), "visibility": round(float(self.visibility[i]), 4),
-                       "presence": round(float(self.presence[i]), 4), "confidence": round(float(conf[i]), 4)}
+                name: {
+                    "x": round(float(self.xy[i, 0]), 2),
+                    "y": round(float(self.xy[i, 1]), 2),
+                    "z": round(float(self.z[i]), 2),
+                    "visibility": round(float(self.visibility[i]), 4),
+                    "presence": round(float(self.presence[i]), 4),
+                    "confidence": round(float(conf[i]), 4),
+                }
                 for i, name in enumerate(BLAZEPOSE33_NAMES)
-            },  # fmt: skip
+            },
             "not_visible": self.not_visible(),
             "lower_body_visible": self.lower_body_visible(),
             "warnings": self.warnings(),
@@ -262,8 +284,11 @@ def _detect_in(image: np.ndarray, roi: ROI, cfg: DetectConfig):
     scores, boxes, kps = decode_detections(boxes_raw, scores_raw)
     keep = scores >= cfg.min_score
     scores, boxes, kps = scores[keep], boxes[keep], kps[keep]
-    return (scores, roi.crop_to_image(boxes.reshape(-1, 2)).reshape(-1, 4),  # axis-aligned regions: corners map
-            roi.crop_to_image(kps.reshape(-1, 2)).reshape(kps.shape))  # fmt: skip
+    return (
+        scores,
+        roi.crop_to_image(boxes.reshape(-1, 2)).reshape(-1, 4),  # axis-aligned regions: corners map
+        roi.crop_to_image(kps.reshape(-1, 2)).reshape(kps.shape),
+    )
 
 
 def _person_from_detection(img: np.ndarray, score: float, kp: np.ndarray, cfg: DetectConfig) -> Optional[Person]:
@@ -283,10 +308,19 @@ def _person_from_detection(img: np.ndarray, score: float, kp: np.ndarray, cfg: D
         lm = again
     n = NUM_LANDMARKS
     return Person(
-        score=score, presence_score=lm.presence_score, detector_roi=det_roi, roi=lm.roi,
-        xy=lm.xy[:n], z=lm.z[:n], visibility=lm.visibility[:n], presence=lm.presence[:n], world=lm.world,
-        mask_prob=mask_in_image(lm, W, H), image_size=(W, H), config=cfg,
-    )  # fmt: skip
+        score=score,
+        presence_score=lm.presence_score,
+        detector_roi=det_roi,
+        roi=lm.roi,
+        xy=lm.xy[:n],
+        z=lm.z[:n],
+        visibility=lm.visibility[:n],
+        presence=lm.presence[:n],
+        world=lm.world,
+        mask_prob=mask_in_image(lm, W, H),
+        image_size=(W, H),
+        config=cfg,
+    )
 
 
 def _same_person(a: Person, b: Person, min_iou: float = 0.5, max_contained: float = 1.0) -> bool:
@@ -357,7 +391,11 @@ def detect_people(image: np.ndarray, config: Optional[DetectConfig] = None, sour
             break
     if not people:
         if too_small:
-            raise DetectionError(f"{source}: person too small: the largest found spans {max(too_small):.0f} px, "
-                                 f"need at least {cfg.min_person_px:.0f}")  # fmt: skip
-        raise DetectionError(f"{source}: no person found (the landmark model saw no pose in {len(scores)} detection(s))")
+            raise DetectionError(
+                f"{source}: person too small: the largest found spans {max(too_small):.0f} px, "
+                f"need at least {cfg.min_person_px:.0f}"
+            )
+        raise DetectionError(
+            f"{source}: no person found (the landmark model saw no pose in {len(scores)} detection(s))"
+        )
     return people

@@ -14,6 +14,7 @@ A focal length outside the bounds a camera file's must meet
 (:data:`silfit.camera.FOCAL_RANGE` times the image's longer side) is ignored: the default
 is used and :meth:`Photo.warnings` says why. So is an EXIF block Pillow cannot parse.
 """
+
 from __future__ import annotations
 
 import math
@@ -132,8 +133,10 @@ def focal_from_exif(exif: dict, size: Tuple[int, int], stored_width: int = 0) ->
     focal, source = _exif_focal(exif, size, stored_width)
     side = max(size)
     if focal is not None and not FOCAL_RANGE[0] * side <= focal <= FOCAL_RANGE[1] * side:
-        return None, (f"{source} gives {focal:.4g} px, {focal / side:.3g} times the image's longer side (expected "
-                      f"{FOCAL_RANGE[0]:g} to {FOCAL_RANGE[1]:g} times, as for a camera file): ignored, the default focal length max(W, H) used")  # fmt: skip
+        return None, (
+            f"{source} gives {focal:.4g} px, {focal / side:.3g} times the image's longer side (expected "
+            f"{FOCAL_RANGE[0]:g} to {FOCAL_RANGE[1]:g} times, as for a camera file): ignored, the default focal length max(W, H) used"
+        )
     return focal, source
 
 
@@ -142,7 +145,11 @@ def _exif_focal(exif: dict, size: Tuple[int, int], stored_width: int) -> Tuple[O
     f35 = exif.get("FocalLengthIn35mmFilm")
     if f35:
         return f35 * math.hypot(W, H) / FULL_FRAME_DIAGONAL_MM, f"EXIF FocalLengthIn35mmFilm ({f35:g} mm)"
-    f_mm, xres, unit = exif.get("FocalLength"), exif.get("FocalPlaneXResolution"), exif.get("FocalPlaneResolutionUnit", 2)
+    f_mm, xres, unit = (
+        exif.get("FocalLength"),
+        exif.get("FocalPlaneXResolution"),
+        exif.get("FocalPlaneResolutionUnit", 2),
+    )
     if f_mm and xres and int(unit) in _UNIT_MM:
         px_per_mm = xres / _UNIT_MM[int(unit)]
         stored = stored_width or W

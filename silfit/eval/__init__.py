@@ -1,4 +1,5 @@
 """Evaluation: error metrics (:mod:`.metrics`) and dataset scoring (:mod:`.evaluate`)."""
+
 from .metrics import mask_iou, mpjpe, pa_mpjpe, procrustes_align, pve, reprojection_error, shape_pve, translation_error
 
 __all__ = [
@@ -19,7 +20,15 @@ __all__ = [
 
 
 def __getattr__(name):
-    if name in ("evaluate_dataset", "markdown_table", "plot_errors", "read_fit", "score_fit", "find_fits", "run_fitter"):
+    if name in (
+        "evaluate_dataset",
+        "markdown_table",
+        "plot_errors",
+        "read_fit",
+        "score_fit",
+        "find_fits",
+        "run_fitter",
+    ):
         from . import evaluate
 
         return getattr(evaluate, name)

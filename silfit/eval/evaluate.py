@@ -29,10 +29,10 @@ open whole-body model for a dataset whose keypoint files hold hand or face point
 A subject whose files are missing or malformed is skipped with its path and field in the
 report's ``skipped`` list; the others are still scored.
 """
+
 from __future__ import annotations
 
 import json
-import math
 import os
 import time
 from dataclasses import dataclass, field
@@ -119,7 +119,9 @@ def read_fit(folder: os.PathLike, model=None) -> FitParams:
     sizes = None if model is None else {**model.parameter_sizes, "betas": None}
     fit = read_fit_file(folder / "params.npz", require=SMPL_NAMES, sizes=sizes)
     if fit.num_frames != 1:
-        raise SubjectError(fit.path, "frames", f"holds {fit.num_frames} frames; score videos with silfit eval on a sequence dataset")
+        raise SubjectError(
+            fit.path, "frames", f"holds {fit.num_frames} frames; score videos with silfit eval on a sequence dataset"
+        )
     params = fit.frame(0)
     smpl = {k: v for k, v in params.items() if k in SMPL_NAMES}
     extra = {k: v for k, v in params.items() if k not in SMPL_NAMES}
@@ -140,7 +142,9 @@ def _read_timings(folder: Path) -> Dict[str, float]:
         for key in ("timings", "timings_s", "time_per_stage", "stage_times", "times"):
             t = data.get(key)
             if isinstance(t, dict):
-                out = {str(k): float(v) for k, v in t.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
+                out = {
+                    str(k): float(v) for k, v in t.items() if isinstance(v, (int, float)) and not isinstance(v, bool)
+                }
                 if key == "timings_s":  # silfit fit's metrics.json: whole stages, not their "keypoints.<stage>" parts
                     out = {k: v for k, v in out.items() if "." not in k}
                 if out:
@@ -179,8 +183,13 @@ def score_fit(model, subject, fit: FitParams, iou: bool = True) -> Dict[str, flo
     betas = fit.betas[:nb]
     extra = {k: t(v) for k, v in fit.extra.items() if k in model.parameter_sizes}
     with torch.no_grad():
-        out = model(betas=t(betas), body_pose=t(fit.body_pose), global_orient=t(fit.global_orient), transl=t(fit.transl),
-                    **extra)  # fmt: skip
+        out = model(
+            betas=t(betas),
+            body_pose=t(fit.body_pose),
+            global_orient=t(fit.global_orient),
+            transl=t(fit.transl),
+            **extra,
+        )
         kp = model_keypoints(model, out, "body25")[0]
         kp2d = project_points(kp.double(), camera).cpu().numpy()
     verts = out.vertices[0].cpu().double().numpy()
@@ -198,8 +207,11 @@ def score_fit(model, subject, fit: FitParams, iou: bool = True) -> Dict[str, flo
     if getattr(model, "kind", "smpl") == "smplx" and gt.vertices.shape == verts.shape and gj.shape == joints.shape:
         from .score_wholebody import wholebody_errors
 
-        e = wholebody_errors(model, {"vertices": verts, "joints": joints, "expression": fit.extra.get("expression")},
-                             {"vertices": gt.vertices, "joints": gj, "expression": gt.extras.get("expression")})  # fmt: skip
+        e = wholebody_errors(
+            model,
+            {"vertices": verts, "joints": joints, "expression": fit.extra.get("expression")},
+            {"vertices": gt.vertices, "joints": gj, "expression": gt.extras.get("expression")},
+        )
         m.update({k[: -len("_mm")]: v for k, v in e.items() if k in ("hand_pa_mm", "hand_wrist_mm", "face_pa_mm")})
         if "expression_err" in e:
             m["expression_err"] = e["expression_err"]
@@ -265,8 +277,14 @@ def _search_gap(folder: Optional[Path]) -> Dict[str, float]:
 
 
 # ----------------------------------------------------------------------------- the fitter
-def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str], model, progress: bool = False,
-               silhouette_batch: int = 8) -> Dict[str, str]:  # fmt: skip
+def run_fitter(
+    subjects: Sequence,
+    fits_root: os.PathLike,
+    methods: Sequence[str],
+    model,
+    progress: bool = False,
+    silhouette_batch: int = 8,
+) -> Dict[str, str]:
     """Run the fitter over loaded subjects, writing ``fits_root/<subject>/<method>/``.
 
     ``keypoints``: the keypoint stage, batched over all subjects. ``silhouette``: the
@@ -287,19 +305,32 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
     if getattr(model, "kind", "smpl") == "smplx":  # whole-body: hands and face from the same files
         from ..wholebody import choose_fit_keypoints, read_wholebody_parts
 
-        sets = [choose_fit_keypoints(s.keypoints, read_wholebody_parts(s.file("keypoints"), 0), model)[0] for s in subjects]
+        sets = [
+            choose_fit_keypoints(s.keypoints, read_wholebody_parts(s.file("keypoints"), 0), model)[0] for s in subjects
+        ]
     else:
         sets = prepare_keypoints([s.keypoints for s in subjects])
     # every subject through the one path (silfit.run): both stages batched, in chunks of silhouette_batch
     chunk = max(1, int(silhouette_batch)) if "silhouette" in methods else len(subjects)
     # a subject's image (image.png) gives the image depth cue (silfit.fitting.image_depth)
-    jobs = [Job(Problem.single(k, s.camera, s.mask), model, silhouette="silhouette" in methods, progress=progress,
-                mask_sources={(0, 0): str(s.file("mask"))}, images={} if s.image is None else {(0, 0): s.image})
-            for k, s in zip(sets, subjects)]  # fmt: skip
+    jobs = [
+        Job(
+            Problem.single(k, s.camera, s.mask),
+            model,
+            silhouette="silhouette" in methods,
+            progress=progress,
+            mask_sources={(0, 0): str(s.file("mask"))},
+            images={} if s.image is None else {(0, 0): s.image},
+        )
+        for k, s in zip(sets, subjects)
+    ]
     fits = [f for c in range(0, len(jobs), chunk) for f in run_batch(jobs[c : c + chunk], isolate=True)]
     # a subject whose keypoints are refused (silfit.run.check) or whose keypoint stage fails fails alone
-    bad = {i: (f.error if isinstance(f, StageFailure) else f) for i, f in enumerate(fits)
-           if isinstance(f, Exception) and not (isinstance(f, StageFailure) and f.stage == "silhouette")}  # fmt: skip
+    bad = {
+        i: (f.error if isinstance(f, StageFailure) else f)
+        for i, f in enumerate(fits)
+        if isinstance(f, Exception) and not (isinstance(f, StageFailure) and f.stage == "silhouette")
+    }
     if len(bad) == len(fits):
         raise next(iter(bad.values()))
     elapsed = time.perf_counter() - t0
@@ -309,8 +340,10 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
         truth = {k: np.stack([s.gt.params()[k][0] for s in subjects]) for k in model.parameter_names}
         e_truth, _ = fitter.energy_at(truth, sets, [s.camera for s in subjects])
         last = fitter.stages[-1].name
-        search = [None if i in bad else {"energy_fit": float(_keypoint_result(f).energies[last][0]), "energy_truth": float(b)}
-                  for i, (f, b) in enumerate(zip(fits, e_truth))]  # fmt: skip
+        search = [
+            None if i in bad else {"energy_fit": float(_keypoint_result(f).energies[last][0]), "energy_truth": float(b)}
+            for i, (f, b) in enumerate(zip(fits, e_truth))
+        ]
     if "keypoints" in methods:
         for i, s in enumerate(subjects):  # each fit folder is written beside its place, then moved in
             if i in bad:
@@ -318,11 +351,17 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
             kp = _keypoint_result(fits[i])
             with atomic_folder(Path(fits_root) / s.name / "keypoints", overwrite=True) as tmp:
                 kp.save(tmp)
-                record = {"timings": {k: float(v) for k, v in kp.timings.items()}, "batched_over": min(chunk, len(subjects)),
-                          "search": search[i], "image_depth": getattr(fits[i], "metrics", {}).get("image_depth")}  # fmt: skip
+                record = {
+                    "timings": {k: float(v) for k, v in kp.timings.items()},
+                    "batched_over": min(chunk, len(subjects)),
+                    "search": search[i],
+                    "image_depth": getattr(fits[i], "metrics", {}).get("image_depth"),
+                }
                 (tmp / "metrics.json").write_text(json.dumps(record, indent=2))
-        status["keypoints"] = (f"ran on {len(subjects) - len(bad)} subjects in {elapsed:.1f} s (batched; per-subject times are batch "
-                               "averages)" + (f"; failed: {'; '.join(f'{subjects[i].name}: {e}' for i, e in bad.items())}" if bad else ""))
+        status["keypoints"] = (
+            f"ran on {len(subjects) - len(bad)} subjects in {elapsed:.1f} s (batched; per-subject times are batch "
+            "averages)" + (f"; failed: {'; '.join(f'{subjects[i].name}: {e}' for i, e in bad.items())}" if bad else "")
+        )
     if "silhouette" in methods:
         faces = model.faces.cpu().numpy()
         ran, failed = 0, []
@@ -337,8 +376,16 @@ def run_fitter(subjects: Sequence, fits_root: os.PathLike, methods: Sequence[str
                 kp_total = float(f.stage.keypoint.timings.get("total", 0.0))
                 timings = {"keypoints": kp_total, "silhouette": f.stage.silhouette.seconds}
                 timings["total"] = sum(timings.values())
-                save_fit(f.stage, Path(fits_root) / s.name / "silhouette", faces, sets[i], s.image, s.mask,
-                         {"timings": timings, "search": search[i]}, overwrite=True)  # fmt: skip
+                save_fit(
+                    f.stage,
+                    Path(fits_root) / s.name / "silhouette",
+                    faces,
+                    sets[i],
+                    s.image,
+                    s.mask,
+                    {"timings": timings, "search": search[i]},
+                    overwrite=True,
+                )
                 ran += 1
         status["silhouette"] = f"ran on {ran} subjects" + (f"; failed: {'; '.join(failed)}" if failed else "")
     return status
@@ -371,7 +418,9 @@ def evaluate_dataset(
 
         model = load_body_model(kind="smplx" if _whole_body_dataset(subject_dirs) else None)
     if not subject_dirs:
-        raise FileNotFoundError(f"{dataset}: no subject folders found (expected index.json or sub-folders with keypoints.json)")
+        raise FileNotFoundError(
+            f"{dataset}: no subject folders found (expected index.json or sub-folders with keypoints.json)"
+        )
 
     skipped: List[dict] = []
     loaded = []
@@ -400,7 +449,9 @@ def evaluate_dataset(
                 fit = read_fit(folder, model)
                 metrics = score_fit(model, s, fit, iou=iou)
             except (SubjectError, ValueError, FileNotFoundError) as err:
-                skipped.append({"subject": s.name, "method": method, "path": str(folder), "error": str(err), **_field_of(err)})
+                skipped.append(
+                    {"subject": s.name, "method": method, "path": str(folder), "error": str(err), **_field_of(err)}
+                )
                 continue
             rows.append({"subject": s.name, "method": method, **metrics})
 
@@ -507,7 +558,9 @@ def plot_errors(report: dict, path: os.PathLike, metrics: Sequence[str] = ("mpjp
     methods = report.get("methods") or sorted({r["method"] for r in rows})
     subjects = list(dict.fromkeys(r["subject"] for r in rows))
     metrics = [k for k in metrics if any(k in r for r in rows)] or ["mpjpe"]
-    fig, axes = plt.subplots(len(metrics), 1, figsize=(max(6.0, 0.45 * len(subjects) + 2), 2.4 * len(metrics)), squeeze=False)
+    fig, axes = plt.subplots(
+        len(metrics), 1, figsize=(max(6.0, 0.45 * len(subjects) + 2), 2.4 * len(metrics)), squeeze=False
+    )
     width = 0.8 / max(1, len(methods))
     x = np.arange(len(subjects))
     for ax, k in zip(axes[:, 0], metrics):
@@ -518,7 +571,9 @@ def plot_errors(report: dict, path: os.PathLike, metrics: Sequence[str] = ("mpjp
         ax.set_ylabel(f"{label} ({unit})" if unit else label, fontsize=8)
         ax.grid(axis="y", alpha=0.3)
         ax.set_xticks(x)
-        ax.set_xticklabels([s.replace("subject_", "") for s in subjects], fontsize=7, rotation=90 if len(subjects) > 30 else 0)
+        ax.set_xticklabels(
+            [s.replace("subject_", "") for s in subjects], fontsize=7, rotation=90 if len(subjects) > 30 else 0
+        )
     axes[0, 0].legend(fontsize=8)
     axes[0, 0].set_title(f"Per-subject errors: {Path(report['dataset']).name}", fontsize=9)
     fig.tight_layout()

@@ -21,6 +21,7 @@ Conventions (as in the SMPLify / SPIN / HMR literature):
 Every function takes arrays ``[..., N, 3]`` (a leading batch is allowed) and returns a
 float (or ``[...]`` array for batched input).
 """
+
 from __future__ import annotations
 
 from typing import Optional, Tuple

@@ -10,6 +10,7 @@ placement, orientation, pose and shape together), ``pve`` (pelvis-aligned), ``pa
 (mean over the views of the rendered body against each view's mask), ``iou_worst`` (the
 worst view), ``iou_views`` (every view's, a list) and ``time_s``.
 """
+
 from __future__ import annotations
 
 import json
@@ -63,12 +64,15 @@ def score_rig_fit(model, views, problem, gt: dict, params: dict, iou: bool = Tru
     joints = out.joints[0].double().numpy()
     gv, gj = gt["vertices"].astype(np.float64), gt["joints"].astype(np.float64)
     m = {
-        "pve_world": 1000 * pve(verts, gv, align=False), "pve": 1000 * pve(verts, gv, joints[0], gj[0]),
-        "pa_pve": 1000 * pa_pve(verts, gv), "mpjpe": 1000 * mpjpe(joints, gj), "pa_mpjpe": 1000 * pa_mpjpe(joints, gj),
+        "pve_world": 1000 * pve(verts, gv, align=False),
+        "pve": 1000 * pve(verts, gv, joints[0], gj[0]),
+        "pa_pve": 1000 * pa_pve(verts, gv),
+        "mpjpe": 1000 * mpjpe(joints, gj),
+        "pa_mpjpe": 1000 * pa_mpjpe(joints, gj),
         "transl_err": 1000 * translation_error(joints[0], gj[0]),
         "shape_pve": 1000 * shape_pve(model, params["betas"], gt["betas"]),
         "facing_ok": 100.0 * float(facing_agrees(params["global_orient"], gt["global_orient"])),  # world y is down
-    }  # fmt: skip
+    }
     reproj, ious = [], []
     faces = model.faces.cpu().numpy()
     for c, o in enumerate(problem.grid()[0]):
@@ -90,8 +94,14 @@ def score_rig_fit(model, views, problem, gt: dict, params: dict, iou: bool = Tru
     return out
 
 
-def run_rig_fitter(subject_dirs: Sequence[Path], fits_root: Path, methods: Sequence[str], model, views: Optional[int] = None,
-                   progress: bool = False) -> dict:  # fmt: skip
+def run_rig_fitter(
+    subject_dirs: Sequence[Path],
+    fits_root: Path,
+    methods: Sequence[str],
+    model,
+    views: Optional[int] = None,
+    progress: bool = False,
+) -> dict:
     """Fit every rig subject through :func:`silfit.run.run_batch` (the keypoint stage batched
     over subjects, then the silhouette stage; ``views``: only the first ``views`` cameras), write
     ``fits_root/<subject>/<method>/`` (``keypoints``: the keypoint stage's fit, ``silhouette``:
@@ -107,8 +117,17 @@ def run_rig_fitter(subject_dirs: Sequence[Path], fits_root: Path, methods: Seque
     jobs = []
     for d in subject_dirs:
         v = load_rig(d)[: views or None]
-        jobs.append(Job(rig_problem(v), model, [x.name for x in v], silhouette="silhouette" in methods, progress=progress,
-                        rig=True, record={"subject": d.name}))  # fmt: skip
+        jobs.append(
+            Job(
+                rig_problem(v),
+                model,
+                [x.name for x in v],
+                silhouette="silhouette" in methods,
+                progress=progress,
+                rig=True,
+                record={"subject": d.name},
+            )
+        )
     t0 = time.perf_counter()
     fits = run_batch(jobs, isolate=True)  # a subject that fails fails alone
     faces = model.faces.cpu().numpy()
@@ -128,8 +147,10 @@ def run_rig_fitter(subject_dirs: Sequence[Path], fits_root: Path, methods: Seque
             r.metrics["timings"] = {"keypoints": per, "silhouette": sil, "total": per + sil}
             save_rig_fit(r, fits_root / d.name / "silhouette", faces, p, overwrite=True, model=model)
     done = [f for f in fits if not isinstance(f, Exception)]
-    status = {"keypoints": f"ran on {len(done)} subjects in {time.perf_counter() - t0:.1f} s (batched, both stages)"
-              + (f"; failed: {'; '.join(failed)}" if failed else "")}  # fmt: skip
+    status = {
+        "keypoints": f"ran on {len(done)} subjects in {time.perf_counter() - t0:.1f} s (batched, both stages)"
+        + (f"; failed: {'; '.join(failed)}" if failed else "")
+    }
     if "silhouette" in methods:
         status["silhouette"] = f"ran on {sum(f.stage.silhouette is not None for f in done)} subjects"
     return status
@@ -143,8 +164,16 @@ def _timings(folder: Path) -> dict:
         return {}
 
 
-def evaluate_rig_dataset(dataset, fits=None, model=None, run: bool = False, methods=("keypoints", "silhouette"),
-                         iou: bool = True, views: Optional[int] = None, progress: bool = False) -> dict:  # fmt: skip
+def evaluate_rig_dataset(
+    dataset,
+    fits=None,
+    model=None,
+    run: bool = False,
+    methods=("keypoints", "silhouette"),
+    iou: bool = True,
+    views: Optional[int] = None,
+    progress: bool = False,
+) -> dict:
     """Score (and with ``run``, or when there are no fits, first run) every rig subject."""
     from ..dataset import list_subjects
 
@@ -174,19 +203,26 @@ def evaluate_rig_dataset(dataset, fits=None, model=None, run: bool = False, meth
             try:
                 fit = read_fit(folder)
                 g = subset_truth(gt, range(views)) if views else gt
-                m = score_rig_fit(model, rig_views[: views or None], _subset(problem, views), g, fit.frame(0), iou,
-                                  _timings(folder))  # fmt: skip
+                m = score_rig_fit(
+                    model, rig_views[: views or None], _subset(problem, views), g, fit.frame(0), iou, _timings(folder)
+                )
             except (ValueError, FileNotFoundError) as err:
                 skipped.append({"subject": d.name, "method": method, "path": str(folder), "error": str(err)})
                 continue
             rows.append({"subject": d.name, "method": method, **m})
     report = {
-        "dataset": str(dataset), "fits": str(fits_root), "rig": True,
+        "dataset": str(dataset),
+        "fits": str(fits_root),
+        "rig": True,
         "units": {k: u for k, (_, u, _) in METRICS.items()},
-        "methods": sorted({r["method"] for r in rows}), "num_subjects": len(dirs),
-        "num_scored": len({r["subject"] for r in rows}), "summary": summarise(rows), "results": rows,
-        "skipped": skipped, "missing_fits": missing,
-    }  # fmt: skip
+        "methods": sorted({r["method"] for r in rows}),
+        "num_subjects": len(dirs),
+        "num_scored": len({r["subject"] for r in rows}),
+        "summary": summarise(rows),
+        "results": rows,
+        "skipped": skipped,
+        "missing_fits": missing,
+    }
     if status:
         report["fitter"] = status
     return report

@@ -9,6 +9,7 @@ frames, mm), acceleration error (mm/frame^2, pelvis-aligned joints, see
 bodies, mm; per-frame fits: the mean over frames of each frame's shape), the PA-MPJPE of
 bridged frames, and seconds per frame.
 """
+
 from __future__ import annotations
 
 import json
@@ -26,10 +27,13 @@ __all__ = ["SEQUENCE_METRICS", "evaluate_sequences", "is_sequence_dataset", "sco
 
 #: metric -> (label, unit)
 SEQUENCE_METRICS = {
-    "pa_mpjpe": ("PA-MPJPE", "mm"), "mpjpe": ("MPJPE", "mm"), "accel": ("acceleration error", "mm/frame^2"),
-    "shape": ("shape error (T-pose PVE)", "mm"), "pa_mpjpe_bridged": ("PA-MPJPE of bridged frames", "mm"),
+    "pa_mpjpe": ("PA-MPJPE", "mm"),
+    "mpjpe": ("MPJPE", "mm"),
+    "accel": ("acceleration error", "mm/frame^2"),
+    "shape": ("shape error (T-pose PVE)", "mm"),
+    "pa_mpjpe_bridged": ("PA-MPJPE of bridged frames", "mm"),
     "seconds_per_frame": ("seconds per frame", "s"),
-}  # fmt: skip
+}
 METHODS = ("per_frame", "temporal")
 
 
@@ -56,8 +60,12 @@ def _joints(model, params: Dict[str, np.ndarray], F: int) -> np.ndarray:
     betas = np.asarray(params["betas"])
     betas = np.repeat(betas[None], F, 0) if betas.ndim == 1 else betas
     with torch.no_grad():
-        out = model(betas=T(betas), body_pose=T(params["body_pose"]), global_orient=T(params["global_orient"]),
-                    transl=T(params["transl"]))  # fmt: skip
+        out = model(
+            betas=T(betas),
+            body_pose=T(params["body_pose"]),
+            global_orient=T(params["global_orient"]),
+            transl=T(params["transl"]),
+        )
     return out.joints.double().cpu().numpy()
 
 
@@ -71,17 +79,30 @@ def score_sequence(model, gt: Dict[str, np.ndarray], params: Dict[str, np.ndarra
     true = np.asarray(gt["joints"], dtype=np.float64)
     pa = np.asarray(pa_mpjpe(pred, true)) * 1000
     betas = np.asarray(params["betas"])
-    shape = shape_pve(model, betas, gt["betas"]) if betas.ndim == 1 else np.mean(shape_pve(model, betas, np.repeat(gt["betas"][None], F, 0)))
-    row = {"pa_mpjpe": float(pa.mean()), "mpjpe": float(np.mean(mpjpe(pred, true)) * 1000),
-           "accel": acceleration_error(pred, true) * 1000 if F >= 3 else float("nan"),  # needs 3 frames
-           "shape": float(shape) * 1000}  # fmt: skip
+    shape = (
+        shape_pve(model, betas, gt["betas"])
+        if betas.ndim == 1
+        else np.mean(shape_pve(model, betas, np.repeat(gt["betas"][None], F, 0)))
+    )
+    row = {
+        "pa_mpjpe": float(pa.mean()),
+        "mpjpe": float(np.mean(mpjpe(pred, true)) * 1000),
+        "accel": acceleration_error(pred, true) * 1000 if F >= 3 else float("nan"),  # needs 3 frames
+        "shape": float(shape) * 1000,
+    }
     if bridged is not None and np.any(bridged):
         row["pa_mpjpe_bridged"] = float(pa[np.asarray(bridged, dtype=bool)].mean())
     return row
 
 
-def evaluate_sequences(dataset: os.PathLike, fits: Optional[os.PathLike] = None, model=None, run: bool = False,
-                       progress: bool = False, config=None) -> dict:  # fmt: skip
+def evaluate_sequences(
+    dataset: os.PathLike,
+    fits: Optional[os.PathLike] = None,
+    model=None,
+    run: bool = False,
+    progress: bool = False,
+    config=None,
+) -> dict:
     """Score every sequence of ``dataset`` (fitting it first with ``run`` or when no fit
     exists: ``FITS/<seq>/temporal/``, written by :func:`silfit.video.save_sequence_fit`)."""
     from ..body import load_body_model
@@ -94,7 +115,9 @@ def evaluate_sequences(dataset: os.PathLike, fits: Optional[os.PathLike] = None,
     root = Path(dataset)
     index = _index(root)
     if not is_sequence_dataset(root):
-        raise InputError(root / "index.json", "not a sequence dataset (expected format silfit-synthetic-sequence)", field="format")
+        raise InputError(
+            root / "index.json", "not a sequence dataset (expected format silfit-synthetic-sequence)", field="format"
+        )
     from ..fitio import read_fit
 
     model = load_body_model() if model is None else model
@@ -114,8 +137,16 @@ def evaluate_sequences(dataset: os.PathLike, fits: Optional[os.PathLike] = None,
             gt = read_truth(d / "gt.npz")
             if run or not (out / "params.npz").is_file():
                 seq = read_sequence(d)  # through the one path (silfit.run), as silfit fit --sequence
-                job = video_job(seq.frames, load_camera(d / "camera.json"), model, config=config, progress=False,
-                                numbers=seq.numbers, inputs=seq, warnings=seq.warnings)  # fmt: skip
+                job = video_job(
+                    seq.frames,
+                    load_camera(d / "camera.json"),
+                    model,
+                    config=config,
+                    progress=False,
+                    numbers=seq.numbers,
+                    inputs=seq,
+                    warnings=seq.warnings,
+                )
                 write(run_job(job), out, video=False, overwrite=True)
             metrics = json.loads((out / "metrics.json").read_text(encoding="utf-8"))
             fit = read_fit(out, sizes={**model.parameter_sizes, "betas": None})
@@ -128,7 +159,10 @@ def evaluate_sequences(dataset: os.PathLike, fits: Optional[os.PathLike] = None,
         t, F = metrics.get("timings", {}), fit.num_frames
         bridged = np.isin(fit.frame_numbers, metrics.get("bridged_frames", []))
         every = lambda f: {n: np.repeat(v, F, 0) if v.shape[0] == 1 else v for n, v in f.params.items()}  # noqa: E731
-        for method, params, seconds in (("per_frame", every(per), t.get("per_frame_init")), ("temporal", every(fit), t.get("total"))):
+        for method, params, seconds in (
+            ("per_frame", every(per), t.get("per_frame_init")),
+            ("temporal", every(fit), t.get("total")),
+        ):
             row = {"subject": name, "method": method, **score_sequence(model, gt, params, bridged)}
             if seconds is not None:
                 row["seconds_per_frame"] = float(seconds) / F
@@ -141,22 +175,37 @@ def evaluate_sequences(dataset: os.PathLike, fits: Optional[os.PathLike] = None,
             vals = np.array([r[k] for r in mrows if k in r and np.isfinite(r[k])])
             if len(vals):
                 summary[m][k] = {"mean": float(vals.mean()), "median": float(np.median(vals)), "n": int(len(vals))}
-    return {"dataset": str(root), "kind": "sequence", "methods": list(METHODS), "results": rows, "summary": summary,
-            "skipped": skipped, "missing_fits": []}  # fmt: skip
+    return {
+        "dataset": str(root),
+        "kind": "sequence",
+        "methods": list(METHODS),
+        "results": rows,
+        "summary": summary,
+        "skipped": skipped,
+        "missing_fits": [],
+    }
 
 
 def sequence_table(report: dict, methods: Sequence[str] = METHODS) -> str:
     """A Markdown table: one row per metric, mean and median per method, and the ratio
     ``per_frame / temporal`` of the means."""
     summary = report["summary"]
-    lines = ["| metric | " + " | ".join(f"{m} mean | {m} median" for m in methods) + " | per-frame / temporal |",
-             "|---|" + "---:|---:|" * len(methods) + "---:|"]  # fmt: skip
+    lines = [
+        "| metric | " + " | ".join(f"{m} mean | {m} median" for m in methods) + " | per-frame / temporal |",
+        "|---|" + "---:|---:|" * len(methods) + "---:|",
+    ]
     for k, (label, unit) in SEQUENCE_METRICS.items():
         cells, means = [], []
         for m in methods:
             s = summary.get(m, {}).get(k)
-            cells += ["-", "-"] if s is None else [f"{s['mean']:.2f}" if unit == "s" else f"{s['mean']:.1f}",
-                                                   f"{s['median']:.2f}" if unit == "s" else f"{s['median']:.1f}"]  # fmt: skip
+            cells += (
+                ["-", "-"]
+                if s is None
+                else [
+                    f"{s['mean']:.2f}" if unit == "s" else f"{s['mean']:.1f}",
+                    f"{s['median']:.2f}" if unit == "s" else f"{s['median']:.1f}",
+                ]
+            )
             means.append(None if s is None else s["mean"])
         ratio = f"{means[0] / means[-1]:.2f}x" if None not in means and means[-1] else "-"
         lines.append(f"| {label} ({unit}) | " + " | ".join(cells) + f" | {ratio} |")

@@ -10,6 +10,7 @@
 All in millimetres; one number per subject (the two hands averaged, a hand that the fit held at rest
 for lack of keypoints still counts).
 """
+
 from __future__ import annotations
 
 from typing import Dict
@@ -29,7 +30,15 @@ def part_vertices(model) -> Dict[str, np.ndarray]:
     names = model.joint_names
     out = {}
     for side in ("left", "right"):
-        joints = [i for i, n in enumerate(names) if n == f"{side}_wrist" or (n.startswith(f"{side}_") and n[len(side) + 1 :].rstrip("123") in ("thumb", "index", "middle", "ring", "pinky"))]
+        joints = [
+            i
+            for i, n in enumerate(names)
+            if n == f"{side}_wrist"
+            or (
+                n.startswith(f"{side}_")
+                and n[len(side) + 1 :].rstrip("123") in ("thumb", "index", "middle", "ring", "pinky")
+            )
+        ]
         out[f"hand_{side}"] = np.flatnonzero(np.isin(owner, joints))
     out["face"] = np.flatnonzero(np.isin(owner, [names.index(n) for n in _FACE_JOINTS if n in names]))
     return out

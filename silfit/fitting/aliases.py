@@ -6,6 +6,7 @@ attribute (a property reading and writing the canonical field). The old names ar
 fields: ``dataclasses.fields``, ``replace`` and the config's ``to_dict`` see the canonical
 names only.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -45,13 +46,16 @@ def renamed_fields(**aliases: Alias):
                 if old not in kwargs:
                     continue
                 value = kwargs.pop(old)
-                warnings.warn(f"{cls.__name__}: '{old}' is deprecated, use '{a.field}'", DeprecationWarning, stacklevel=2)
+                warnings.warn(
+                    f"{cls.__name__}: '{old}' is deprecated, use '{a.field}'", DeprecationWarning, stacklevel=2
+                )
                 current = kwargs.get(a.field, _default(cls, a.field))
                 kwargs[a.field] = value if a.put is None else a.put(current, value, kwargs)
             init(self, *args, **kwargs)
 
         cls.__init__ = __init__
         for old, a in aliases.items():
+
             def getter(self, a=a):
                 value = getattr(self, a.field)
                 return value if a.get is None else a.get(value)

@@ -6,6 +6,7 @@ surface vertices the keypoints need (the full mesh is posed once, at the end of 
 parameters by name (``body(**params)``, rows ``[R, width]``) and return a
 :class:`BodyState`, so the energy terms do not depend on the model kind.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -14,9 +15,7 @@ from typing import Optional
 import torch
 from torch import nn
 
-from ..body.lbs import (
-    axis_angle_to_matrix, blend_shapes, forward_kinematics, per_row, pose_feature, vertices_to_joints,
-)  # fmt: skip
+from ..body.lbs import axis_angle_to_matrix, blend_shapes, forward_kinematics, per_row, pose_feature, vertices_to_joints
 from ..keypoints import keypoint_sources
 
 __all__ = ["BodyState", "KeypointBody", "MeshBody", "body_transforms", "pose_parameter_names"]
@@ -59,7 +58,9 @@ class KeypointBody(nn.Module):
         # joint's rest position and shape directions the same bits on every processor and thread count
         Jr, V, L = model.J_regressor, model.num_vertices, model.shapedirs.shape[-1]
         self.register_buffer("J_template", vertices_to_joints(Jr, model.v_template[None])[0])
-        self.register_buffer("J_shapedirs", vertices_to_joints(Jr, model.shapedirs.reshape(1, V, 3 * L))[0].reshape(-1, 3, L))
+        self.register_buffer(
+            "J_shapedirs", vertices_to_joints(Jr, model.shapedirs.reshape(1, V, 3 * L))[0].reshape(-1, 3, L)
+        )
         lm_used = sorted({i for kind, i in sources if kind == "landmark"})
         J = model.num_joints
         if lm_used:

@@ -15,6 +15,7 @@ plane to matter (``min_depth_ratio``), singly and per whole limb.
 Pure functions of joint positions and rotations (no gradients): the keypoint stage runs
 a short L-BFGS from each hypothesis and keeps the lowest energy per sample.
 """
+
 from __future__ import annotations
 
 from typing import Dict, List, Sequence, Tuple
@@ -23,7 +24,23 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-__all__ = ["HINGE_BEND", "HINGE_MIN_BEND_DEG", "JOINT_HYPOTHESES", "LIMB_SEGMENTS", "LIMBS", "TORSO_SEGMENT", "align_segments", "flip_hip", "joint_hypotheses", "flip_segment", "limb_hypotheses", "mirror_rotation", "rotation_between", "turn_hypotheses", "turn_root"]
+__all__ = [
+    "HINGE_BEND",
+    "HINGE_MIN_BEND_DEG",
+    "JOINT_HYPOTHESES",
+    "LIMB_SEGMENTS",
+    "LIMBS",
+    "TORSO_SEGMENT",
+    "align_segments",
+    "flip_hip",
+    "joint_hypotheses",
+    "flip_segment",
+    "limb_hypotheses",
+    "mirror_rotation",
+    "rotation_between",
+    "turn_hypotheses",
+    "turn_root",
+]
 
 #: (segment, rotated joint, distal joint), SMPL joint names
 LIMB_SEGMENTS: Tuple[Tuple[str, str, str], ...] = (
@@ -39,8 +56,12 @@ LIMB_SEGMENTS: Tuple[Tuple[str, str, str], ...] = (
 #: hinge segments: the direction the segment swings to when its hinge flexes, in the upper segment's
 #: rest frame (SMPL: the body faces +Z; elbows bend the forearm forward, knees the shin backward,
 #: :mod:`silfit.priors.limits`)
-HINGE_BEND = {"left_forearm": (0.0, 0.0, 1.0), "right_forearm": (0.0, 0.0, 1.0),
-              "left_shin": (0.0, 0.0, -1.0), "right_shin": (0.0, 0.0, -1.0)}  # fmt: skip
+HINGE_BEND = {
+    "left_forearm": (0.0, 0.0, 1.0),
+    "right_forearm": (0.0, 0.0, 1.0),
+    "left_shin": (0.0, 0.0, -1.0),
+    "right_shin": (0.0, 0.0, -1.0),
+}
 #: a mirrored hinge segment within this many degrees of straight on from its upper segment takes the smallest turn
 HINGE_MIN_BEND_DEG = 20.0
 #: the torso's lean: turned at the lowest spine joint, pelvis and legs unchanged
@@ -65,8 +86,12 @@ JOINT_HYPOTHESES: Tuple[Tuple[str, Tuple[Tuple[str, ...], ...]], ...] = (
     ("hip+torso", (("hip",), ("torso",))),
 )
 #: whole limbs: (upper segment, lower segment)
-LIMBS = (("left_thigh", "left_shin"), ("right_thigh", "right_shin"),
-         ("left_upper_arm", "left_forearm"), ("right_upper_arm", "right_forearm"))  # fmt: skip
+LIMBS = (
+    ("left_thigh", "left_shin"),
+    ("right_thigh", "right_shin"),
+    ("left_upper_arm", "left_forearm"),
+    ("right_upper_arm", "right_forearm"),
+)
 
 
 def mirror_rotation(v: np.ndarray, n: np.ndarray) -> np.ndarray:
@@ -86,7 +111,9 @@ def rotation_between(v: np.ndarray, w: np.ndarray) -> np.ndarray:
     unit = axis / np.maximum(s, 1e-12)[:, None]
     # v and its mirror image (anti)parallel: along the normal a half turn about any axis
     # perpendicular to v; in the plane nothing to turn
-    perp = np.cross(v, np.where(np.abs(v[:, :1]) < 0.9 * np.linalg.norm(v, axis=-1, keepdims=True), [[1.0, 0, 0]], [[0, 1.0, 0]]))
+    perp = np.cross(
+        v, np.where(np.abs(v[:, :1]) < 0.9 * np.linalg.norm(v, axis=-1, keepdims=True), [[1.0, 0, 0]], [[0, 1.0, 0]])
+    )
     perp = perp / np.maximum(np.linalg.norm(perp, axis=-1, keepdims=True), 1e-12)
     rv = np.where((s > 1e-9)[:, None], unit * angle[:, None], np.where((c < 0)[:, None], np.pi * perp, 0.0))
     return Rotation.from_rotvec(rv).as_matrix()
@@ -98,8 +125,9 @@ def _pose_state(body, rows: Dict[str, torch.Tensor]):
     return st.joints.double().numpy(), st.transforms[..., :3, :3].double().numpy()
 
 
-def flip_segment(body, rows: Dict[str, torch.Tensor], segment: str, joint_names: Sequence[str], parents,
-                 hinge: bool = True) -> torch.Tensor:  # fmt: skip
+def flip_segment(
+    body, rows: Dict[str, torch.Tensor], segment: str, joint_names: Sequence[str], parents, hinge: bool = True
+) -> torch.Tensor:
     """``body_pose [R, 3 * (J - 1)]`` with ``segment`` mirrored in depth (camera frame,
     perspective: the mirror plane is perpendicular to the ray through the segment's middle).
     The segment's proximal joint takes the smallest turn that does it, except at a hinge
@@ -130,14 +158,17 @@ def flip_segment(body, rows: Dict[str, torch.Tensor], segment: str, joint_names:
     along = lambda w: w - (w * u).sum(-1, keepdims=True) * u  # noqa: E731  (the part across the upper segment)
     b, t = along(bend), along(target)
     angle = np.arctan2((np.cross(b, t) * u).sum(-1), (b * t).sum(-1))
-    twisted = dict(rows, body_pose=_turned(rows, G, parents[j], parents, Rotation.from_rotvec(u * angle[:, None]).as_matrix()))
+    twisted = dict(
+        rows, body_pose=_turned(rows, G, parents[j], parents, Rotation.from_rotvec(u * angle[:, None]).as_matrix())
+    )
     joints, G = _pose_state(body, twisted)
     hinged = _turned(twisted, G, j, parents, rotation_between(joints[:, c] - joints[:, j], target))
     # nearly straight on from the upper segment, the mirrored segment needs little flexion and the twist
     # would follow a tiny residual (any angle): there the smallest turn, a small sideways bend (folded
     # back onto the upper segment, the twist is as ill-defined, but the fold is the hinge's to make)
-    near = (np.linalg.norm(t, axis=-1) < np.sin(np.deg2rad(HINGE_MIN_BEND_DEG)) * np.linalg.norm(target, axis=-1)) \
-        & ((target * u).sum(-1) > 0)
+    near = (np.linalg.norm(t, axis=-1) < np.sin(np.deg2rad(HINGE_MIN_BEND_DEG)) * np.linalg.norm(target, axis=-1)) & (
+        (target * u).sum(-1) > 0
+    )
     return torch.where(torch.as_tensor(near, device=turned.device)[:, None], turned, hinged)
 
 
@@ -160,8 +191,15 @@ def flip_hip(body, rows: Dict[str, torch.Tensor], joint_names: Sequence[str]) ->
     return {"global_orient": orient, "body_pose": pose}
 
 
-def joint_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, ratios: Dict[str, np.ndarray],
-                     min_depth_ratio: float = 0.3, hinge: bool = True) -> List[Tuple[int, str, Dict[str, torch.Tensor]]]:  # fmt: skip
+def joint_hypotheses(
+    body,
+    rows: Dict[str, torch.Tensor],
+    joint_names,
+    parents,
+    ratios: Dict[str, np.ndarray],
+    min_depth_ratio: float = 0.3,
+    hinge: bool = True,
+) -> List[Tuple[int, str, Dict[str, torch.Tensor]]]:
     """Hypotheses ``(row, label, {parameter: value})`` of :data:`JOINT_HYPOTHESES` for the rows
     where every part has a segment with a depth ratio of at least ``min_depth_ratio``
     (``ratios``: :func:`depth_ratios`, with ``torso`` and ``hip``)."""
@@ -197,8 +235,9 @@ def _turned(rows, G, j, parents, fix, sel=None) -> torch.Tensor:
     return pose
 
 
-def align_segments(body, rows: Dict[str, torch.Tensor], points: np.ndarray, weights: np.ndarray, joint_names,
-                   parents, keypoint_names) -> torch.Tensor:  # fmt: skip
+def align_segments(
+    body, rows: Dict[str, torch.Tensor], points: np.ndarray, weights: np.ndarray, joint_names, parents, keypoint_names
+) -> torch.Tensor:
     """``body_pose [R, 3 * (J - 1)]`` with every limb segment turned (upper segments first, the
     smallest rotation at its proximal joint) to point along the segment between its end
     keypoints in ``points [R, K, 3]`` (the keypoints of ``keypoint_names``, in the rows' frame);
@@ -232,13 +271,23 @@ def depth_ratios(body, rows, joint_names) -> Dict[str, np.ndarray]:
         p, d = joints[:, joint_names.index(proximal)], joints[:, joint_names.index(distal)]
         ray = 0.5 * (p + d)
         v = d - p
-        out[name] = np.abs((v * ray).sum(-1)) / np.maximum(np.linalg.norm(v, axis=-1) * np.linalg.norm(ray, axis=-1), 1e-12)
+        out[name] = np.abs((v * ray).sum(-1)) / np.maximum(
+            np.linalg.norm(v, axis=-1) * np.linalg.norm(ray, axis=-1), 1e-12
+        )
     return out
 
 
-def limb_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, min_depth_ratio: float = 0.3,
-                    whole_limbs: bool = True, joint: bool = False, hinge: bool = True,
-                    hinge_turns: bool = False) -> List[Tuple[int, str, torch.Tensor]]:  # fmt: skip
+def limb_hypotheses(
+    body,
+    rows: Dict[str, torch.Tensor],
+    joint_names,
+    parents,
+    min_depth_ratio: float = 0.3,
+    whole_limbs: bool = True,
+    joint: bool = False,
+    hinge: bool = True,
+    hinge_turns: bool = False,
+) -> List[Tuple[int, str, torch.Tensor]]:
     """Hypotheses ``(row, label, body_pose [3 * (J - 1)])``: each segment whose depth
     ratio is at least ``min_depth_ratio`` flipped alone and, with ``whole_limbs``, each limb
     with both segments flipped (the upper first, then the lower from its new place); with
@@ -296,8 +345,16 @@ def turn_root(body, rows: Dict[str, torch.Tensor], joint_names, kind) -> Dict[st
     return {"global_orient": orient, "body_pose": rows["body_pose"].detach().clone()}
 
 
-def turn_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, turns: Sequence, min_depth_ratio: float = 0.3,
-                    whole_limbs: bool = True, hinge: bool = True) -> List[Tuple[int, str, Dict[str, torch.Tensor]]]:  # fmt: skip
+def turn_hypotheses(
+    body,
+    rows: Dict[str, torch.Tensor],
+    joint_names,
+    parents,
+    turns: Sequence,
+    min_depth_ratio: float = 0.3,
+    whole_limbs: bool = True,
+    hinge: bool = True,
+) -> List[Tuple[int, str, Dict[str, torch.Tensor]]]:
     """Hypotheses ``(row, label, {global_orient, body_pose})``: the root turned (:func:`turn_root`,
     one per item of ``turns``), alone and with each limb flip of :func:`limb_hypotheses` proposed
     from the turned pose (a wrong orientation and a wrong limb, which one flip at a time cannot fix)."""
@@ -308,6 +365,8 @@ def turn_hypotheses(body, rows: Dict[str, torch.Tensor], joint_names, parents, t
         tag = "yaw" if kind == "mirror" else f"turn{float(kind):+g}"
         for r in range(rows["body_pose"].shape[0]):
             out.append((r, tag, {"body_pose": t["body_pose"][r], "global_orient": t["global_orient"][r]}))
-        for r, label, pose in limb_hypotheses(body, sub, joint_names, parents, min_depth_ratio, whole_limbs, hinge=hinge):
+        for r, label, pose in limb_hypotheses(
+            body, sub, joint_names, parents, min_depth_ratio, whole_limbs, hinge=hinge
+        ):
             out.append((r, f"{tag}+{label}", {"body_pose": pose, "global_orient": t["global_orient"][r]}))
     return out

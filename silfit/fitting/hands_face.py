@@ -7,6 +7,7 @@ masks of it: ``keypoints`` (the body's 25, as for BODY_25), ``hands`` (both hand
 (70), each with its own robust scale. Their priors are :class:`PriorTerm` s: ``hand_pose``
 (:class:`~silfit.priors.smplx_priors.HandPosePrior` per hand), ``jaw`` and ``expression`` (L2).
 """
+
 from __future__ import annotations
 
 from typing import Dict, List
@@ -31,7 +32,8 @@ def hand_priors(model, dtype) -> tuple:
     key = (model.source, bool(getattr(model, "use_pca", False)), getattr(model, "num_pca_comps", 45), dtype)
     if key not in _PRIORS:
         _PRIORS[key] = tuple(HandPosePrior(model, side, dtype=dtype) for side in ("left", "right")) + tuple(
-            library_hand_set(model, side).to(dtype) for side in ("left", "right"))
+            library_hand_set(model, side).to(dtype) for side in ("left", "right")
+        )
     return _PRIORS[key]
 
 
@@ -60,8 +62,9 @@ def wholebody_terms(model, terms: List[Term], sigma, config, dtype) -> List[Term
         KeypointTerm("hands", config.hand_sigma if robust else None, mask=masks["hands"]),
         KeypointTerm("face", config.face_sigma if robust else None, mask=masks["face"]),
         PriorTerm("hand_pose", (left, right), ("left_hand_pose", "right_hand_pose")),
-        PriorTerm("jaw", l2, "jaw_pose"), PriorTerm("expression", l2, "expression"),
-    ]  # fmt: skip
+        PriorTerm("jaw", l2, "jaw_pose"),
+        PriorTerm("expression", l2, "expression"),
+    ]
     return out
 
 
@@ -76,7 +79,7 @@ def part_gates(weights: torch.Tensor) -> Dict[str, torch.Tensor]:
 def parts_fitted(gates: Dict[str, torch.Tensor]) -> List[dict]:
     """Per problem: ``{param: bool}`` whether the parameter was fitted (not held at rest)."""
     P = next(iter(gates.values())).shape[0]
-    return [{k[len("gate_"):]: bool(v[b].any()) for k, v in gates.items()} for b in range(P)]
+    return [{k[len("gate_") :]: bool(v[b].any()) for k, v in gates.items()} for b in range(P)]
 
 
 #: wrist offsets tried by :func:`choose_hand_starts` (degrees): twist about the forearm, then flexion
@@ -90,8 +93,13 @@ def _wrist_offsets(side: str, dtype) -> torch.Tensor:
     from scipy.spatial.transform import Rotation
 
     sign = 1.0 if side == "left" else -1.0
-    mats = [(Rotation.from_rotvec([sign * np.radians(t), 0, 0]) * Rotation.from_rotvec([0, 0, sign * np.radians(f)])).as_matrix()
-            for t in WRIST_TWIST_DEG for f in WRIST_FLEX_DEG]  # fmt: skip
+    mats = [
+        (
+            Rotation.from_rotvec([sign * np.radians(t), 0, 0]) * Rotation.from_rotvec([0, 0, sign * np.radians(f)])
+        ).as_matrix()
+        for t in WRIST_TWIST_DEG
+        for f in WRIST_FLEX_DEG
+    ]
     return torch.as_tensor(np.stack(mats), dtype=dtype)
 
 
@@ -124,8 +132,14 @@ def choose_hand_starts(model, body, layout, state, views, data, sigma) -> dict:
     P = state["body_pose"].shape[0]
     hands = {n: [state[n]] + [lib[h].expand_as(state[n]) for h in range(len(lib))] for n, lib in libs.items()}
     wrists = {side: [_compose_wrist(state["body_pose"], joint[side], o) for o in offsets[side]] for side, _, _ in sides}
-    best = {side: (torch.full((P,), float("inf"), dtype=dt), torch.zeros(P, dtype=torch.long), torch.zeros(P, dtype=torch.long))
-            for side, _, _ in sides}  # fmt: skip
+    best = {
+        side: (
+            torch.full((P,), float("inf"), dtype=dt),
+            torch.zeros(P, dtype=torch.long),
+            torch.zeros(P, dtype=torch.long),
+        )
+        for side, _, _ in sides
+    }
     for r in range(len(offsets["left"])):
         pose = wrists["left"][r].clone()
         right_sl = slice(3 * (joint["right"] - 1), 3 * joint["right"])
@@ -136,8 +150,13 @@ def choose_hand_starts(model, body, layout, state, views, data, sigma) -> dict:
             for side, n, part in sides:
                 k = sl[part]
                 K = k.stop - k.start
-                e = reprojection_energy(ev.keypoints_2d[..., k, :].reshape(-1, K, 2), data["target"][..., k, :].reshape(-1, K, 2),
-                                        data["weights"][..., k].reshape(-1, K), data["scale"].reshape(-1), sigma)  # fmt: skip
+                e = reprojection_energy(
+                    ev.keypoints_2d[..., k, :].reshape(-1, K, 2),
+                    data["target"][..., k, :].reshape(-1, K, 2),
+                    data["weights"][..., k].reshape(-1, K),
+                    data["scale"].reshape(-1),
+                    sigma,
+                )
                 e = e.reshape(P, -1).sum(1)
                 val, bh, br = best[side]
                 better = e < val
@@ -166,7 +185,11 @@ def wholebody_summary(keypoints) -> tuple:
     fitted = {n: present[p] for n, p in GATED_PARTS.items()}
     rest = [n for n, f in fitted.items() if not f]
     notes = []
-    for part, params in (("hand_left", "left_hand_pose"), ("hand_right", "right_hand_pose"), ("face", "jaw_pose and expression")):
+    for part, params in (
+        ("hand_left", "left_hand_pose"),
+        ("hand_right", "right_hand_pose"),
+        ("face", "jaw_pose and expression"),
+    ):
         if not present[part]:
             notes.append(f"no {part.replace('_', ' ')} keypoints: {params} left at rest")
     return {"parts_present": present, "parameters_fitted": fitted, "held_at_rest": rest}, notes
@@ -202,16 +225,20 @@ def wholebody_silhouette_inputs(model, keypoints, config, dtype) -> tuple:
     body_sets = [KeypointSet(k.xy, b.numpy(), k.layout, k.source) for k, b in zip(keypoints, body.double())]
     present = {p: bool((conf[:, sl[p]] > 0).any(1).all()) for p in ("hand_left", "hand_right", "face")}
     free = tuple(n for n, p in GATED_PARTS.items() if present[p])
-    cfg = replace(config, optimise=tuple(config.optimise) + tuple(n for n in free if n not in config.optimise),
-                  lr={**SILHOUETTE_PART_LR, **config.lr})  # fmt: skip
+    cfg = replace(
+        config,
+        optimise=tuple(config.optimise) + tuple(n for n in free if n not in config.optimise),
+        lr={**SILHOUETTE_PART_LR, **config.lr},
+    )
     masks = part_masks(dtype)
     left, right = hand_priors(model, dtype)[:2]
     terms = [
         KeypointTerm("hands", config.kp_sigma, mask=masks["hands"], weights_key="part_weights"),
         KeypointTerm("face", config.kp_sigma, mask=masks["face"], weights_key="part_weights"),
         PriorTerm("hand_pose", (left, right), ("left_hand_pose", "right_hand_pose")),
-        PriorTerm("jaw", l2, "jaw_pose"), PriorTerm("expression", l2, "expression"),
-    ]  # fmt: skip
+        PriorTerm("jaw", l2, "jaw_pose"),
+        PriorTerm("expression", l2, "expression"),
+    ]
     weights = {k: v * config.w_keypoints for k, v in SILHOUETTE_PART_WEIGHTS.items()}
     weights.update(SILHOUETTE_PRIOR_WEIGHTS)
     data = {"part_weights": (part / body_sum)[:, None, None]}  # [P, F=1, C=1, K]

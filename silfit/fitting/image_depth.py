@@ -20,6 +20,7 @@ branch; 0 (not evaluated against any data) for a problem without an image.
 
 Pure functions of arrays, except the term (torch).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -32,13 +33,29 @@ from .branches import LIMB_SEGMENTS
 from .problem import world_to_camera
 from .terms import Evaluation, Term
 
-__all__ = ["DepthCue", "ImageDepthConfig", "ImageDepthTerm", "SEGMENTS", "cue_data", "cue_from_image", "depth_cue",
-           "landmark_agreement", "match_person", "person_cue"]  # fmt: skip
+__all__ = [
+    "DepthCue",
+    "ImageDepthConfig",
+    "ImageDepthTerm",
+    "SEGMENTS",
+    "cue_data",
+    "cue_from_image",
+    "depth_cue",
+    "landmark_agreement",
+    "match_person",
+    "person_cue",
+]
 
 #: the limb segments the cue speaks for: (segment, proximal joint, distal joint), SMPL and BlazePose names alike
 SEGMENTS = LIMB_SEGMENTS
-_PAIRS = (("left_shoulder", "right_shoulder"), ("left_elbow", "right_elbow"), ("left_wrist", "right_wrist"),
-          ("left_hip", "right_hip"), ("left_knee", "right_knee"), ("left_ankle", "right_ankle"))  # fmt: skip
+_PAIRS = (
+    ("left_shoulder", "right_shoulder"),
+    ("left_elbow", "right_elbow"),
+    ("left_wrist", "right_wrist"),
+    ("left_hip", "right_hip"),
+    ("left_knee", "right_knee"),
+    ("left_ankle", "right_ankle"),
+)
 _LIMB_POINTS = tuple(n for pair in _PAIRS for n in pair)
 
 
@@ -83,10 +100,18 @@ class DepthCue:
 
     def to_dict(self) -> dict:
         """``metrics.json``'s ``image_depth``: the decided segments with their call and confidence."""
-        out = {"decided": {n: {"distal": "farther" if s > 0 else "nearer", "confidence": round(float(c), 3),
-                               "depth_cosine": round(float(r), 3)}
-                           for n, s, c, r in zip(self.names, self.sign, self.confidence, self.ratio) if s and c},
-               "undecided": [n for n in self.names if n not in self.decided()]}  # fmt: skip
+        out = {
+            "decided": {
+                n: {
+                    "distal": "farther" if s > 0 else "nearer",
+                    "confidence": round(float(c), 3),
+                    "depth_cosine": round(float(r), 3),
+                }
+                for n, s, c, r in zip(self.names, self.sign, self.confidence, self.ratio)
+                if s and c
+            },
+            "undecided": [n for n in self.names if n not in self.decided()],
+        }
         if self.refused:
             out["refused"] = self.refused
         if self.notes:
@@ -120,8 +145,14 @@ def landmark_agreement(landmarks_xy: np.ndarray, landmark_names: Sequence[str], 
     return direct, s_sum / extent, d_sum / extent, extent
 
 
-def depth_cue(world: np.ndarray, visibility: np.ndarray, landmark_names: Sequence[str], xy: Optional[np.ndarray] = None,
-              keypoints=None, config: Optional[ImageDepthConfig] = None) -> DepthCue:  # fmt: skip
+def depth_cue(
+    world: np.ndarray,
+    visibility: np.ndarray,
+    landmark_names: Sequence[str],
+    xy: Optional[np.ndarray] = None,
+    keypoints=None,
+    config: Optional[ImageDepthConfig] = None,
+) -> DepthCue:
     """The per-segment depth evidence of one landmark set (module docstring): ``world [L, 3]`` (z away from
     the camera), ``visibility [L]`` in [0, 1], ``landmark_names`` naming the ``L`` landmarks; with ``xy [L, 2]``
     and ``keypoints`` (the set being fitted) the 2D agreement gates (a mirrored set refused, a segment whose
@@ -137,8 +168,10 @@ def depth_cue(world: np.ndarray, visibility: np.ndarray, landmark_names: Sequenc
     if keypoints is not None and xy is not None:
         direct, swapped, d_sum, _ = landmark_agreement(np.asarray(xy, np.float64), names, keypoints)
         if d_sum > 0 and swapped < cfg.swap_ratio * d_sum:
-            return _off(f"the landmarks' left and right fit the keypoints better swapped ({swapped:.2f} against "
-                        f"{d_sum:.2f} keypoint extents): a mirrored reading")  # fmt: skip
+            return _off(
+                f"the landmarks' left and right fit the keypoints better swapped ({swapped:.2f} against "
+                f"{d_sum:.2f} keypoint extents): a mirrored reading"
+            )
         far = {n for n, d in zip(_LIMB_POINTS, direct) if not np.isfinite(d) or d > cfg.max_disagreement}
         if far:
             notes.append(f"landmarks far from (or without) their keypoints: {', '.join(sorted(far))}")

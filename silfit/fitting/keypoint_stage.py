@@ -49,6 +49,7 @@ confidence times a per-keypoint weight (hips 0.5: SMPL's hip joints sit higher a
 further inside than detectors' hip points). Zero-confidence keypoints contribute
 nothing.
 """
+
 from __future__ import annotations
 
 import math
@@ -75,9 +76,16 @@ from .result import PARAM_NAMES, KeypointFitResult
 from .aliases import Alias, renamed_fields
 from .stages import Stage, check_stages, run_stage, stage_to_dict
 from .terms import (
-    DepthTerm, Energy, InterpenetrationTerm, JointSmoothnessTerm, KeypointTerm, PointsTerm, PriorTerm, RootSmoothnessTerm,
+    DepthTerm,
+    Energy,
+    InterpenetrationTerm,
+    JointSmoothnessTerm,
+    KeypointTerm,
+    PointsTerm,
+    PriorTerm,
+    RootSmoothnessTerm,
     evaluate,
-)  # fmt: skip
+)
 from .triangulate import placement_to_world, projection_matrices, robust_triangulate, torso_placement, triangulate_views
 from .threads import torch_threads
 
@@ -100,9 +108,13 @@ def _pose_stage_weights(current, value, keywords):
     """``pose_prior_weights`` (the pose stages' pose-prior weights) onto ``pose_weight``."""
     n = len(keywords.get("pose_iters", KeypointFitConfig.__dataclass_fields__["pose_iters"].default))
     if len(value) != n:
-        angle = keywords.get("angle_prior_weights", KeypointFitConfig.__dataclass_fields__["angle_prior_weights"].default)
-        raise ValueError(f"KeypointFitConfig: pose_iters ({n}), pose_prior_weights ({len(value)}) and angle_prior_weights "
-                         f"({len(angle)}) must have the same non-zero length")  # fmt: skip
+        angle = keywords.get(
+            "angle_prior_weights", KeypointFitConfig.__dataclass_fields__["angle_prior_weights"].default
+        )
+        raise ValueError(
+            f"KeypointFitConfig: pose_iters ({n}), pose_prior_weights ({len(value)}) and angle_prior_weights "
+            f"({len(angle)}) must have the same non-zero length"
+        )
     return tuple(value) + (tuple(current)[-1],)
 
 
@@ -352,7 +364,9 @@ class KeypointFitConfig:
                 f"the final stage's) and angle_prior_weights ({len(self.angle_prior_weights)}) do not match"
             )
         if not 0 <= int(self.flip_decision_stage) < n:
-            raise ValueError(f"KeypointFitConfig: flip_decision_stage {self.flip_decision_stage} is not a pose stage (0..{n - 1})")
+            raise ValueError(
+                f"KeypointFitConfig: flip_decision_stage {self.flip_decision_stage} is not a pose stage (0..{n - 1})"
+            )
         if int(self.init_poses) < 1:
             raise ValueError(f"KeypointFitConfig: init_poses must be at least 1, got {self.init_poses}")
         starts = (2 if self.flip_test else 1) * int(self.init_poses)
@@ -396,7 +410,9 @@ class KeypointFitConfig:
         hw = tuple(self.hand_weights if self.hand_weights is not None else ramp) if whole_body else (0.0,) * n
         fw = tuple(self.face_weights if self.face_weights is not None else ramp) if whole_body else (0.0,) * n
         pose_free = ("global_orient", "transl", "body_pose")
-        out = [Stage("camera", ("global_orient", "transl"), {"torso": 1.0, "depth": self.depth_weight}, self.camera_iters)]
+        out = [
+            Stage("camera", ("global_orient", "transl"), {"torso": 1.0, "depth": self.depth_weight}, self.camera_iters)
+        ]
         for i, (it, wp, wa) in enumerate(zip(self.pose_iters, self.pose_weight[:-1], self.angle_prior_weights)):
             opts = {"decide_after": int(self.decision_iters)} if i == self.flip_decision_stage else {}
             weights = {"keypoints": 1.0, "pose": wp, "angle": wa, "limits": self.limit_weight}
@@ -405,8 +421,15 @@ class KeypointFitConfig:
             if hw[i] and not any(hw[:i]):  # hands start from their best library pose, fitted alone first
                 if self.hand_iters:  # the body free too (the wrists turn), held by its keypoints and priors
                     w = {**weights, "hands": hw[i], "hand_pose": self.hand_prior_weight}
-                    out.append(Stage("hands", pose_free + WHOLEBODY_HAND_PARAMS, w, int(self.hand_iters),
-                                     options={"hand_starts": True}))  # fmt: skip
+                    out.append(
+                        Stage(
+                            "hands",
+                            pose_free + WHOLEBODY_HAND_PARAMS,
+                            w,
+                            int(self.hand_iters),
+                            options={"hand_starts": True},
+                        )
+                    )
                 else:
                     opts = {**opts, "hand_starts": True}
             part_w, part_free = self.part_weights(hw[i], fw[i])
@@ -415,8 +438,15 @@ class KeypointFitConfig:
             if self.branch_search and i == min(self.branch_after_stage, len(self.pose_iters) - 1):
                 for r in range(int(self.branch_rounds)):
                     w = {**weights, "interpenetration": self.interpenetration_weight, **self.image_depth_weights()}
-                    out.append(Stage(f"branches_{r + 1}", pose_free + part_free, w, int(self.branch_iters),
-                                     options=self.branch_options()))  # fmt: skip
+                    out.append(
+                        Stage(
+                            f"branches_{r + 1}",
+                            pose_free + part_free,
+                            w,
+                            int(self.branch_iters),
+                            options=self.branch_options(),
+                        )
+                    )
         final_parts = (self.final_hand_weight, self.final_face_weight) if whole_body else (0.0, 0.0)
         if self.shape_iters:
             w = {"keypoints": 1.0, "shape": self.shape_weight}
@@ -425,10 +455,14 @@ class KeypointFitConfig:
             w.update({k: v for k, v in zip(("hands", "face"), final_parts) if v})
             out.append(Stage("shape", ("betas", "transl"), w, self.shape_iters))
         w = {
-            "keypoints": 1.0, "pose": self.pose_weight[-1], "angle": self.final_angle_prior_weight,
-            "limits": self.limit_weight, "shape": self.final_shape_weight,
-            "interpenetration": self.interpenetration_weight, **self.image_depth_weights(),
-        }  # fmt: skip
+            "keypoints": 1.0,
+            "pose": self.pose_weight[-1],
+            "angle": self.final_angle_prior_weight,
+            "limits": self.limit_weight,
+            "shape": self.final_shape_weight,
+            "interpenetration": self.interpenetration_weight,
+            **self.image_depth_weights(),
+        }
         if self.final_points_weight:
             w["points"] = float(self.final_points_weight)
         part_w, part_free = self.part_weights(*final_parts)
@@ -439,11 +473,22 @@ class KeypointFitConfig:
             if self.late_branch_survivors:
                 opts["branches"]["survivors"] = int(self.late_branch_survivors)
             for r in range(max(1, int(self.late_branch_rounds))):
-                out.append(Stage("branches_late" if r == 0 else f"branches_late_{r + 1}", ("betas",) + pose_free + part_free,
-                                 {**w, **part_w}, int(self.late_branch_iters), options=opts))  # fmt: skip
+                out.append(
+                    Stage(
+                        "branches_late" if r == 0 else f"branches_late_{r + 1}",
+                        ("betas",) + pose_free + part_free,
+                        {**w, **part_w},
+                        int(self.late_branch_iters),
+                        options=opts,
+                    )
+                )
         if self.final_iters:
             unsearched = self.final_iters_unsearched
-            opts = {} if unsearched is None or unsearched >= self.final_iters else {"unsearched_iterations": int(unsearched)}
+            opts = (
+                {}
+                if unsearched is None or unsearched >= self.final_iters
+                else {"unsearched_iterations": int(unsearched)}
+            )
             if self.final_tol_change is not None:
                 opts["tol_change"] = float(self.final_tol_change)
             free = ("betas",) + pose_free + part_free
@@ -453,7 +498,9 @@ class KeypointFitConfig:
                     late = out[-1]
                     out[-1] = replace(late, options={"branches": {**late.options["branches"], "carry": carry}})
                 settle = {k: v for k, v in opts.items() if k != "unsearched_iterations"}
-                out.append(Stage("settle", free, {**w, **part_w}, self.final_iters, options={**settle, "searched_only": True}))
+                out.append(
+                    Stage("settle", free, {**w, **part_w}, self.final_iters, options={**settle, "searched_only": True})
+                )
                 post = self.branch_options()
                 post["branches"]["screen_after"] = int(self.post_branch_iters) // 2
                 out.append(Stage("branches_post", free, {**w, **part_w}, int(self.post_branch_iters), options=post))
@@ -467,11 +514,18 @@ class KeypointFitConfig:
     def branch_options(self) -> dict:
         """A branch-search stage's options (every search alike, :data:`~silfit.fitting.schedules.BRANCHES`; the late
         search adds its ``carry`` and the search from the fit its own ``screen_after`` in :meth:`stages`)."""
-        opts = {"branches": {
-            "min_depth_ratio": self.branch_min_depth_ratio, "whole_limbs": self.branch_whole_limbs,
-            "joint": self.branch_joint, "screen_after": self.branch_screen_iters, "survivors": self.branch_survivors,
-            "hinge": self.branch_hinge, "hinge_turns": self.branch_hinge_turns, "distinct": self.branch_distinct,
-        }}  # fmt: skip
+        opts = {
+            "branches": {
+                "min_depth_ratio": self.branch_min_depth_ratio,
+                "whole_limbs": self.branch_whole_limbs,
+                "joint": self.branch_joint,
+                "screen_after": self.branch_screen_iters,
+                "survivors": self.branch_survivors,
+                "hinge": self.branch_hinge,
+                "hinge_turns": self.branch_hinge_turns,
+                "distinct": self.branch_distinct,
+            }
+        }
         if self.occlusion_weight:
             opts["branches"]["occlusion"] = float(self.occlusion_weight)
         return opts
@@ -501,7 +555,9 @@ def prepare_keypoints(keypoints, layout: Optional[str] = None) -> list:
     if layout is None:
         matches = [n for n, names in LAYOUTS.items() if len(names) == arr.shape[1]]
         if not matches:
-            raise ValueError(f"keypoints array has {arr.shape[1]} points; expected 25 (body25), 17 (coco17) or 33 (blazepose33)")
+            raise ValueError(
+                f"keypoints array has {arr.shape[1]} points; expected 25 (body25), 17 (coco17) or 33 (blazepose33)"
+            )
         layout = matches[0]
     return [KeypointSet(a[:, :2], a[:, 2], layout, source=f"<array>[{i}]") for i, a in enumerate(arr)]
 
@@ -541,8 +597,9 @@ def _resolve_cameras(sets, cameras, image_size, focal) -> list:
 DECISION_RTOL = 1e-6
 
 
-def best_per_group(energy: torch.Tensor, group: torch.Tensor, groups: int, count: int = 1,
-                   rtol: float = DECISION_RTOL) -> torch.Tensor:  # fmt: skip
+def best_per_group(
+    energy: torch.Tensor, group: torch.Tensor, groups: int, count: int = 1, rtol: float = DECISION_RTOL
+) -> torch.Tensor:
     """Row indices of the lowest finite energies of each group ``g < groups``: one per group
     in group order (``count=1``), or up to ``count`` per group, groups in order (rows with
     non-finite energies lose to any finite one). Energies are compared in steps of ``rtol``
@@ -559,8 +616,15 @@ def best_per_group(energy: torch.Tensor, group: torch.Tensor, groups: int, count
     return torch.cat(out)
 
 
-def best_distinct_per_group(energy: torch.Tensor, group: torch.Tensor, groups: int, count: int, joints,
-                            min_m: float = DISTINCT_JOINTS_M, max_m: Optional[float] = DISTINCT_JOINT_MAX_M) -> torch.Tensor:
+def best_distinct_per_group(
+    energy: torch.Tensor,
+    group: torch.Tensor,
+    groups: int,
+    count: int,
+    joints,
+    min_m: float = DISTINCT_JOINTS_M,
+    max_m: Optional[float] = DISTINCT_JOINT_MAX_M,
+) -> torch.Tensor:
     """As :func:`best_per_group` with ``count``, but a row goes on only when its joints (``joints [rows, J, 3]``,
     metres) are distinct (:func:`is_distinct`) from those of every better row of its group already going on;
     where fewer than ``count`` are distinct, the best of the others fill the places (rows with non-finite
@@ -613,8 +677,20 @@ def differing_segments(joints, reference, names) -> list:
     return out
 
 
-def distinct_hypotheses(fitter, layout, state, energy, group, groups: int, labels, min_m: float = DISTINCT_JOINTS_M,
-                        score=None, occlusion=None, max_m: Optional[float] = DISTINCT_JOINT_MAX_M, unrefined=None):  # fmt: skip
+def distinct_hypotheses(
+    fitter,
+    layout,
+    state,
+    energy,
+    group,
+    groups: int,
+    labels,
+    min_m: float = DISTINCT_JOINTS_M,
+    score=None,
+    occlusion=None,
+    max_m: Optional[float] = DISTINCT_JOINT_MAX_M,
+    unrefined=None,
+):
     """``(hypotheses, best_rows)``: per sample ``b < groups``, its rows (``group == b``) refined to the
     end, lowest ``score`` (default: ``energy``) first, without those not distinct (:func:`is_distinct`,
     ``min_m``, ``max_m``) from a lower one, as ``[{"label", "energy", "params": {name: [w]}, "differs":
@@ -644,14 +720,33 @@ def distinct_hypotheses(fitter, layout, state, energy, group, groups: int, label
         hyps = []
         for j, r in kept:
             mean_mm, max_mm = joint_shift_mm(j, kept[0][0])
-            common = {"differs": differing_segments(j, kept[0][0], names), "shift_mm": round(mean_mm, 1),
-                      "max_shift_mm": round(max_mm, 1)}  # fmt: skip
+            common = {
+                "differs": differing_segments(j, kept[0][0], names),
+                "shift_mm": round(mean_mm, 1),
+                "max_shift_mm": round(max_mm, 1),
+            }
             if isinstance(r, dict):
-                hyps.append({"label": r["label"], "energy": float(r["energy"]), **common, "params": r["params"],
-                             "refined": False, "stage": r["stage"], "gap": float(r["gap"])})  # fmt: skip
+                hyps.append(
+                    {
+                        "label": r["label"],
+                        "energy": float(r["energy"]),
+                        **common,
+                        "params": r["params"],
+                        "refined": False,
+                        "stage": r["stage"],
+                        "gap": float(r["gap"]),
+                    }
+                )
                 continue
-            hyps.append({"label": labels[r], "energy": float(energy[r]), **common, "refined": True,
-                         "params": {n: v[r].detach().cpu().numpy().astype(np.float32) for n, v in rows.items()}})  # fmt: skip
+            hyps.append(
+                {
+                    "label": labels[r],
+                    "energy": float(energy[r]),
+                    **common,
+                    "refined": True,
+                    "params": {n: v[r].detach().cpu().numpy().astype(np.float32) for n, v in rows.items()},
+                }
+            )
             if occlusion is not None:
                 hyps[-1]["occlusion"] = float(occlusion[r])
         out.append(hyps)
@@ -697,15 +792,20 @@ class KeypointFitter:
         self.torso_mask = torch.as_tensor([n in _TORSO_ALL for n in names], dtype=self.dtype)
         sigma = self.config.sigma if self.config.robust else None
         terms = [
-            KeypointTerm("keypoints", sigma), KeypointTerm("torso", sigma, mask=self.torso_mask), DepthTerm(),
+            KeypointTerm("keypoints", sigma),
+            KeypointTerm("torso", sigma, mask=self.torso_mask),
+            DepthTerm(),
             PointsTerm(sigma, self.config.norm_extent / POINTS_STATURE_M),  # L2 as the data term with robust=False
-            PriorTerm("pose", self.pose_prior, "body_pose"), PriorTerm("angle", angle_prior, "body_pose"),
-            PriorTerm("limits", limit_violation, "body_pose"), PriorTerm("shape", shape_prior, "betas"),
+            PriorTerm("pose", self.pose_prior, "body_pose"),
+            PriorTerm("angle", angle_prior, "body_pose"),
+            PriorTerm("limits", limit_violation, "body_pose"),
+            PriorTerm("shape", shape_prior, "betas"),
             OcclusionTerm(self.model, _names(layout), tuple(self.config.occlusion_conf)),
-            InterpenetrationTerm(self.collisions), ImageDepthTerm(self.model.joint_names, self.config.image_depth_margin),
+            InterpenetrationTerm(self.collisions),
+            ImageDepthTerm(self.model.joint_names, self.config.image_depth_margin),
             JointSmoothnessTerm(sigma=self.config.temporal_sigma, kind=self.config.temporal_robust),
             RootSmoothnessTerm(sigma=self.config.temporal_sigma, kind=self.config.temporal_robust),
-        ]  # fmt: skip
+        ]
         if self.whole_body:
             terms = wholebody_terms(self.model, terms, sigma, self.config, self.dtype)
         self.energy = Energy(terms)
@@ -755,8 +855,11 @@ class KeypointFitter:
         names = _names(self.layout)
         views = [o.view for o in row]
         ext = [v.extrinsics() for v in views]
-        P = projection_matrices([[v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy] for v in views],
-                                [e[0] for e in ext], [e[1] for e in ext])  # fmt: skip
+        P = projection_matrices(
+            [[v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy] for v in views],
+            [e[0] for e in ext],
+            [e[1] for e in ext],
+        )
         xy = np.stack([o.keypoints.xy for o in row])
         conf = np.stack([o.keypoints.conf for o in row])
         torso = [names.index(n) for n in _TORSO_ALL if n in names]
@@ -786,7 +889,9 @@ class KeypointFitter:
             for p in problems:
                 grid = p.grid()
                 if len(grid[0]) != C:
-                    raise ValueError(f"problems of one batch must have the same number of views, got {C} and {len(grid[0])}")
+                    raise ValueError(
+                        f"problems of one batch must have the same number of views, got {C} and {len(grid[0])}"
+                    )
                 target.append([[o.keypoints.xy for o in row] for row in grid])
                 weights.append([[o.keypoints.conf for o in row] for row in grid])
                 ext = []
@@ -798,18 +903,33 @@ class KeypointFitter:
                         ext[-1].append(cfg.norm_extent / max(size, 1.0))
                 scale.append(ext)
                 if C == 1:
-                    placed = [self._initial_placement(row[0].keypoints.xy, row[0].keypoints.conf, row[0].view.camera, flip)
-                              for row in grid]  # fmt: skip
+                    placed = [
+                        self._initial_placement(row[0].keypoints.xy, row[0].keypoints.conf, row[0].view.camera, flip)
+                        for row in grid
+                    ]
                     placed = [(q[0], q[1], [q[2]]) for q in placed]
                 else:
                     placed = [self._rig_placement(row) for row in grid]
-                    points.append([triangulate_views([o.view for o in row], np.stack([o.keypoints.xy for o in row]),
-                                                     np.stack([o.keypoints.conf for o in row])) for row in grid])  # fmt: skip
+                    points.append(
+                        [
+                            triangulate_views(
+                                [o.view for o in row],
+                                np.stack([o.keypoints.xy for o in row]),
+                                np.stack([o.keypoints.conf for o in row]),
+                            )
+                            for row in grid
+                        ]
+                    )
                 orient.append([q[0] for q in placed])
                 transl.append([q[1] for q in placed])
                 z0.append([q[2] for q in placed])
-        data = {"target": T(target), "weights": T(weights) * self.kp_weights / C, "scale": T(scale), "z0": T(z0),
-                "conf": T(weights)}  # fmt: skip
+        data = {
+            "target": T(target),
+            "weights": T(weights) * self.kp_weights / C,
+            "scale": T(scale),
+            "z0": T(z0),
+            "conf": T(weights),
+        }
         if points:  # several views: the keypoints triangulated per frame (the ``points`` term)
             data["points3d"] = T([[q[0] for q in row] for row in points])
             data["points3d_weights"] = T([[q[1] for q in row] for row in points]) * self.kp_weights
@@ -819,8 +939,9 @@ class KeypointFitter:
         return data, views, state
 
     # ------------------------------------------------------------------ fit
-    def fit(self, keypoints, cameras=None, *, image_size=None, focal=None, progress: bool = False,
-            depth_cues=None) -> KeypointFitResult:  # fmt: skip
+    def fit(
+        self, keypoints, cameras=None, *, image_size=None, focal=None, progress: bool = False, depth_cues=None
+    ) -> KeypointFitResult:
         """Fit keypoint sets (one or a batch); ``depth_cues``: per set a :class:`~silfit.fitting.image_depth.DepthCue`
         from its image, or ``None`` (no image: the fit is as without the argument)."""
         sets = prepare_keypoints(keypoints, self.layout)
@@ -834,8 +955,14 @@ class KeypointFitter:
             state, info = self.fit_problems(problems, progress=progress, depth_cues=depth_cues)
         return self._result(state, info, sets, cams)
 
-    def fit_problems(self, problems: Sequence[Problem], progress: bool = False, init: Optional[dict] = None,
-                     frame_weights=None, depth_cues=None):  # fmt: skip
+    def fit_problems(
+        self,
+        problems: Sequence[Problem],
+        progress: bool = False,
+        init: Optional[dict] = None,
+        frame_weights=None,
+        depth_cues=None,
+    ):
         """Run the schedule on problems of equal frame and view counts (several views: the
         placement is triangulated, no flip test, no branch search).
 
@@ -876,14 +1003,24 @@ class KeypointFitter:
             v = torch.as_tensor(np.asarray(v, dtype=np.float64), dtype=dt)
             shape = state[n].shape[1:]
             state[n] = v.reshape(B, *shape).repeat(len(facings), *([1] * len(shape)))
-        sched = _ScheduleRun(self, layout, B, state, data, views, progress=progress,
-                             start_flip=torch.as_tensor(np.repeat(facings, B), dtype=torch.bool),
-                             group=torch.arange(B).repeat(len(facings)))  # fmt: skip
+        sched = _ScheduleRun(
+            self,
+            layout,
+            B,
+            state,
+            data,
+            views,
+            progress=progress,
+            start_flip=torch.as_tensor(np.repeat(facings, B), dtype=torch.bool),
+            group=torch.arange(B).repeat(len(facings)),
+        )
         decided = len(facings) * len(init_poses) == 1
         t_all = time.perf_counter()
         for si, stage in enumerate(self.stages):
             if stage.options.get("hand_starts") and self.whole_body:
-                sched.state = choose_hand_starts(self.model, self.body, layout, sched.state, sched.views, sched.data, cfg.hand_sigma)
+                sched.state = choose_hand_starts(
+                    self.model, self.body, layout, sched.state, sched.views, sched.data, cfg.hand_sigma
+                )
             if "branches" in stage.options:
                 if views_per_frame > 1:  # the views' data fixes the limbs' depth: no search (docs: rigs)
                     continue
@@ -896,8 +1033,11 @@ class KeypointFitter:
                 if not sched.searched_any and "unsearched_iterations" in stage.options:  # no branches to choose among:
                     # fewer steps, every one run (the final stage as rigs were measured with)
                     opts = {k: v for k, v in stage.options.items() if k not in ("unsearched_iterations", "tol_change")}
-                    stage = replace(stage, iterations=min(stage.iterations, int(stage.options["unsearched_iterations"])),
-                                    options=opts)  # fmt: skip
+                    stage = replace(
+                        stage,
+                        iterations=min(stage.iterations, int(stage.options["unsearched_iterations"])),
+                        options=opts,
+                    )
                 sched.run(stage)
                 continue
             sched.decide(stage, init_poses, decide_after)
@@ -906,9 +1046,19 @@ class KeypointFitter:
             sched.take(best_per_group(sched.energies[self.stages[-1].name], sched.group, B))
         hypotheses, others = sched.choose()
         sched.timings["total"] = time.perf_counter() - t_all
-        info = {"energies": sched.energies, "terms": sched.terms, "timings": sched.timings, "flipped": sched.start_flip.numpy(),
-                "branches": sched.chosen_branches, "branch_search": sched.searched, "hypotheses": hypotheses,
-                "alternatives": others, "data": sched.data, "views": sched.views, "layout": layout}  # fmt: skip
+        info = {
+            "energies": sched.energies,
+            "terms": sched.terms,
+            "timings": sched.timings,
+            "flipped": sched.start_flip.numpy(),
+            "branches": sched.chosen_branches,
+            "branch_search": sched.searched,
+            "hypotheses": hypotheses,
+            "alternatives": others,
+            "data": sched.data,
+            "views": sched.views,
+            "layout": layout,
+        }
         return sched.state, info
 
     def energy_at(self, params: dict, keypoints, cameras=None, *, image_size=None, focal=None, stage: str = "final"):
@@ -947,15 +1097,25 @@ class KeypointFitter:
         np_ = lambda t: t.detach().cpu().numpy().astype(np.float32)  # noqa: E731
         extra = {n: np_(rows[n]) for n in layout.sizes if n not in PARAM_NAMES}
         return KeypointFitResult(
-            **{n: np_(rows[n]) for n in PARAM_NAMES}, extra_params=extra, cameras=cams, vertices=np_(out.vertices),
-            joints=np_(out.joints), keypoints_2d=np_(proj), layout=self.layout,
+            **{n: np_(rows[n]) for n in PARAM_NAMES},
+            extra_params=extra,
+            cameras=cams,
+            vertices=np_(out.vertices),
+            joints=np_(out.joints),
+            keypoints_2d=np_(proj),
+            layout=self.layout,
             energies={k: np_(v) for k, v in info["energies"].items()},
             term_energies={s: {t: np_(v) for t, v in d.items()} for s, d in info["terms"].items()},
-            timings=info["timings"], flipped=info["flipped"], reprojection_error=reproj,
+            timings=info["timings"],
+            flipped=info["flipped"],
+            reprojection_error=reproj,
             config=self.config.to_dict(self.whole_body),
-            branches=info["branches"], branch_search=info["branch_search"], model=model_record(self.model),
-            hypotheses=info.get("hypotheses"), alternatives=info.get("alternatives"),
-        )  # fmt: skip
+            branches=info["branches"],
+            branch_search=info["branch_search"],
+            model=model_record(self.model),
+            hypotheses=info.get("hypotheses"),
+            alternatives=info.get("alternatives"),
+        )
 
 
 class _ScheduleRun:
@@ -964,8 +1124,18 @@ class _ScheduleRun:
     ``energies``, ``terms`` and ``timings``, and what the branch searches tried and kept (``chosen_branches``,
     ``searched``, ``search_rows``, ``unrefined``), stage by stage; :meth:`choose` ends it."""
 
-    def __init__(self, fitter: "KeypointFitter", layout: ParameterLayout, B: int, state: dict, data: dict, views: dict,
-                 start_flip: torch.Tensor, group: torch.Tensor, progress: bool):  # fmt: skip
+    def __init__(
+        self,
+        fitter: "KeypointFitter",
+        layout: ParameterLayout,
+        B: int,
+        state: dict,
+        data: dict,
+        views: dict,
+        start_flip: torch.Tensor,
+        group: torch.Tensor,
+        progress: bool,
+    ):
         cfg = fitter.config
         self.fitter, self.layout, self.B, self.progress = fitter, layout, B, progress
         self.state, self.data, self.views, self.start_flip, self.group = state, data, views, start_flip, group
@@ -974,8 +1144,9 @@ class _ScheduleRun:
         #: rows per sample from the last search to the end
         self.carry = max(int(cfg.branch_refine), 2 * self.K if self.K > 1 else 1)
         self.last_search = max([i for i, s in enumerate(fitter.stages) if "branches" in s.options], default=-1)
-        self.occlusion_weight = (fitter.stages[self.last_search].options["branches"].get("occlusion", 0.0)
-                                 if self.last_search >= 0 else 0.0)  # fmt: skip
+        self.occlusion_weight = (
+            fitter.stages[self.last_search].options["branches"].get("occlusion", 0.0) if self.last_search >= 0 else 0.0
+        )
         self.row_labels = None  # with carry > 1: each row's hypothesis after the last search
         self.carried = None  # each row's hypothesis after an earlier search whose best few go on (its ``carry``)
         self.searched_any = False  # whether a branch search ran (none with several views)
@@ -996,8 +1167,18 @@ class _ScheduleRun:
     def run(self, stage, iters=None, name=None) -> torch.Tensor:
         """Run ``stage`` (``iters`` of its steps) on every row, recorded as ``name``; its energies ``[rows]``."""
         f = self.fitter
-        r = run_stage(stage, self.state, self.layout, f.energy, f.body, self.views, self.data, iterations=iters,
-                      history=f.config.history, progress=self.progress)  # fmt: skip
+        r = run_stage(
+            stage,
+            self.state,
+            self.layout,
+            f.energy,
+            f.body,
+            self.views,
+            self.data,
+            iterations=iters,
+            history=f.config.history,
+            progress=self.progress,
+        )
         name = name or stage.name
         self.energies[name], self.terms[name], self.timings[name] = r.energy, r.terms, r.seconds
         return r.energy
@@ -1017,8 +1198,9 @@ class _ScheduleRun:
         if not self.occlusion_weight:
             return f, None
         with torch.no_grad():
-            occ = self.fitter.energy.terms["occlusion"](evaluate(self.fitter.body, self.layout, self.state, self.views,
-                                                                 self.data))  # fmt: skip
+            occ = self.fitter.energy.terms["occlusion"](
+                evaluate(self.fitter.body, self.layout, self.state, self.views, self.data)
+            )
         return f * (1.0 + self.occlusion_weight * occ), occ
 
     def survivors_of(self, f, count, opts):
@@ -1054,8 +1236,16 @@ class _ScheduleRun:
             record["kept"] = carried[r]
             record["settled"] = [{"flip": carried[i], "energy": float(f[i])} for i in mine]
             for i in mine[1:] if alternatives else ():
-                self.unrefined[b].append({"label": carried[i], "energy": float(f[i]), "stage": name, "gap": None, "joints": joints[i],
-                                          "params": {n: v[i].detach().cpu().numpy().astype(np.float32) for n, v in now.items()}})  # fmt: skip
+                self.unrefined[b].append(
+                    {
+                        "label": carried[i],
+                        "energy": float(f[i]),
+                        "stage": name,
+                        "gap": None,
+                        "joints": joints[i],
+                        "params": {n: v[i].detach().cpu().numpy().astype(np.float32) for n, v in now.items()},
+                    }
+                )
         self.take(best)
         self.carried = None
 
@@ -1071,13 +1261,28 @@ class _ScheduleRun:
         if not decided or self.layout.frames != 1:
             raise ValueError(f"stage '{stage.name}': the branch search needs one frame and a decided start")
         opts = stage.options["branches"]
-        hyps = limb_hypotheses(fitter.body, self.layout.rows(self.state), fitter.model.joint_names, fitter.model.parents,
-                               opts.get("min_depth_ratio", 0.3), opts.get("whole_limbs", True),
-                               opts.get("joint", False), opts.get("hinge", True), opts.get("hinge_turns", True))  # fmt: skip
+        hyps = limb_hypotheses(
+            fitter.body,
+            self.layout.rows(self.state),
+            fitter.model.joint_names,
+            fitter.model.parents,
+            opts.get("min_depth_ratio", 0.3),
+            opts.get("whole_limbs", True),
+            opts.get("joint", False),
+            opts.get("hinge", True),
+            opts.get("hinge_turns", True),
+        )
         if opts.get("turns"):
-            hyps += turn_hypotheses(fitter.body, self.layout.rows(self.state), fitter.model.joint_names, fitter.model.parents,
-                                    opts["turns"], opts.get("min_depth_ratio", 0.3), opts.get("whole_limbs", True),
-                                    opts.get("hinge", True))  # fmt: skip
+            hyps += turn_hypotheses(
+                fitter.body,
+                self.layout.rows(self.state),
+                fitter.model.joint_names,
+                fitter.model.parents,
+                opts["turns"],
+                opts.get("min_depth_ratio", 0.3),
+                opts.get("whole_limbs", True),
+                opts.get("hinge", True),
+            )
         labels = ["keep"] * B + [h[1] for h in hyps]
         self.take(torch.cat([torch.arange(B), torch.as_tensor([h[0] for h in hyps], dtype=torch.long)]))
         for i, h in enumerate(hyps):  # a pose, or {parameter: value} (joint hypotheses)
@@ -1115,12 +1320,18 @@ class _ScheduleRun:
         if self.K > 1 and cfg.hypothesis_unrefined:  # the rows that stop here: alternatives not refined to the end
             going = set(keep.tolist())
             for b in range(B):
-                for t, j, r, k in self.search_rows[b][-len(self.searched[b][-1]["tried"]):]:
+                for t, j, r, k in self.search_rows[b][-len(self.searched[b][-1]["tried"]) :]:
                     if r not in going:
-                        self.unrefined[b].append({"label": t["flip"], "energy": t["energy"], "stage": stage.name,
-                                                  "gap": (t["energy"] - float(f[k])) / max(abs(float(f[k])), 1e-12),
-                                                  "joints": j, "params": {n: v[r].detach().cpu().numpy().astype(np.float32)
-                                                                          for n, v in now.items()}})  # fmt: skip
+                        self.unrefined[b].append(
+                            {
+                                "label": t["flip"],
+                                "energy": t["energy"],
+                                "stage": stage.name,
+                                "gap": (t["energy"] - float(f[k])) / max(abs(float(f[k])), 1e-12),
+                                "joints": j,
+                                "params": {n: v[r].detach().cpu().numpy().astype(np.float32) for n, v in now.items()},
+                            }
+                        )
         self.take(keep)
 
     def decide(self, stage, init_poses: list, decide_after: int) -> None:
@@ -1130,8 +1341,9 @@ class _ScheduleRun:
         if H > 1:  # row h * N + r: placed start r with initial pose h
             N = self.state["body_pose"].shape[0]
             self.take(torch.arange(N).repeat(H))
-            self.state["body_pose"] = torch.cat([p.to(self.fitter.dtype).expand(N, self.layout.frames, -1)
-                                                 for p in init_poses], 0)  # fmt: skip
+            self.state["body_pose"] = torch.cat(
+                [p.to(self.fitter.dtype).expand(N, self.layout.frames, -1) for p in init_poses], 0
+            )
         together = decide_after if 0 < decide_after < stage.iterations else stage.iterations
         f = self.run(stage, together)  # every start
         self.take(best_per_group(f, self.group, self.B))
@@ -1151,13 +1363,25 @@ class _ScheduleRun:
             final = self.energies[fitter.stages[-1].name]
             score, occ = self.choice(final)
             fit_energy = final[best_per_group(score, self.group, B)].tolist()
-            for b, alternatives in enumerate(self.unrefined):  # settled rows: their gap to the fit, both at the final weights
+            for b, alternatives in enumerate(
+                self.unrefined
+            ):  # settled rows: their gap to the fit, both at the final weights
                 for x in alternatives:
                     if x["gap"] is None:
                         x["gap"] = (x["energy"] - fit_energy[b]) / max(abs(fit_energy[b]), 1e-12)
-            hypotheses, best = distinct_hypotheses(fitter, self.layout, self.state, final, self.group, B, self.row_labels,
-                                                   score=score, occlusion=occ, max_m=cfg.hypothesis_joint_max_m,
-                                                   unrefined=self.unrefined if cfg.hypothesis_unrefined else None)  # fmt: skip
+            hypotheses, best = distinct_hypotheses(
+                fitter,
+                self.layout,
+                self.state,
+                final,
+                self.group,
+                B,
+                self.row_labels,
+                score=score,
+                occlusion=occ,
+                max_m=cfg.hypothesis_joint_max_m,
+                unrefined=self.unrefined if cfg.hypothesis_unrefined else None,
+            )
             for b, h in enumerate(hypotheses):  # the branch chosen by the final energy, not the search's
                 searched = self.searched[b]
                 if searched and searched[-1]["kept"] != "keep":  # the search's pick, replaced below
@@ -1168,14 +1392,34 @@ class _ScheduleRun:
                     searched[-1]["kept"] = h[0]["label"]
                     # the distinct branches refined to the end, by their final energies: what chose the fit
                     # (metrics.json; plausibility.depth_warnings reads these rather than the search's)
-                    searched.append({"stage": fitter.stages[-1].name, "kept": h[0]["label"], "refined": True,
-                                     "tried": [{"flip": x["label"], "energy": x["energy"], "differs": list(x["differs"]),
-                                                "shift_mm": x["shift_mm"], "max_shift_mm": x["max_shift_mm"]}
-                                               for x in h if x["refined"]]})  # fmt: skip
+                    searched.append(
+                        {
+                            "stage": fitter.stages[-1].name,
+                            "kept": h[0]["label"],
+                            "refined": True,
+                            "tried": [
+                                {
+                                    "flip": x["label"],
+                                    "energy": x["energy"],
+                                    "differs": list(x["differs"]),
+                                    "shift_mm": x["shift_mm"],
+                                    "max_shift_mm": x["max_shift_mm"],
+                                }
+                                for x in h
+                                if x["refined"]
+                            ],
+                        }
+                    )
             # the other distinct branches refined to the end, with their gap to the fit's final energy
             # (KeypointFitResult.alternatives: the silhouette stage refines the close ones against a mask)
-            others = [[{**x, "gap": (x["energy"] - h[0]["energy"]) / max(abs(h[0]["energy"]), 1e-12)}
-                       for x in h[1:] if x["refined"]] for h in hypotheses]  # fmt: skip
+            others = [
+                [
+                    {**x, "gap": (x["energy"] - h[0]["energy"]) / max(abs(h[0]["energy"]), 1e-12)}
+                    for x in h[1:]
+                    if x["refined"]
+                ]
+                for h in hypotheses
+            ]
             hypotheses = [h[:K] for h in hypotheses] if K > 1 else None
             self.take(best)
         if any(self.search_rows):  # every search row's joint shift (at its search's end) from the fit (metrics.json;

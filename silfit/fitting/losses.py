@@ -1,4 +1,5 @@
 """Pure loss functions of the keypoint stage."""
+
 from __future__ import annotations
 
 import torch

@@ -17,6 +17,7 @@ a confident keypoint that is hidden, or a low-confidence one that is visible, co
 depth test): the keypoint stage uses it to *choose* among its limb-branch hypotheses
 (``KeypointFitConfig.occlusion_weight``), never inside L-BFGS.
 """
+
 from __future__ import annotations
 
 from typing import Sequence, Tuple
@@ -33,7 +34,9 @@ __all__ = ["OcclusionTerm", "hidden_keypoints", "occlusion_cost", "occlusion_par
 CONF_RANGE = (0.3, 0.6)
 
 
-def surface_depth(vertices: torch.Tensor, faces: torch.Tensor, points: torch.Tensor, offset: float = 0.0) -> torch.Tensor:
+def surface_depth(
+    vertices: torch.Tensor, faces: torch.Tensor, points: torch.Tensor, offset: float = 0.0
+) -> torch.Tensor:
     """``[R, K]``: the depth (camera ``z``) of the nearest surface of each row's mesh
     (``vertices [R, V, 3]``, camera frame) along the ray through each of ``points [R, K, 3]``
     (camera frame); ``inf`` where the ray misses the mesh. With ``offset`` (normalised image
@@ -41,8 +44,10 @@ def surface_depth(vertices: torch.Tensor, faces: torch.Tensor, points: torch.Ten
     (as the synthetic data's visibility takes the farthest surface of 3 x 3 pixels: an edge pixel
     is no occlusion)."""
     f = faces.long()
-    shifts = torch.tensor([[0.0, 0.0]] + ([[offset, 0.0], [-offset, 0.0], [0.0, offset], [0.0, -offset]] if offset else []),
-                          dtype=torch.float64)  # fmt: skip
+    shifts = torch.tensor(
+        [[0.0, 0.0]] + ([[offset, 0.0], [-offset, 0.0], [0.0, offset], [0.0, -offset]] if offset else []),
+        dtype=torch.float64,
+    )
     out = torch.full(points.shape[:2], float("inf"), dtype=torch.float64)
     for r in range(vertices.shape[0]):
         v = vertices[r].double()
@@ -74,8 +79,9 @@ def surface_depth(vertices: torch.Tensor, faces: torch.Tensor, points: torch.Ten
     return out
 
 
-def hidden_keypoints(vertices: torch.Tensor, faces: torch.Tensor, keypoints: torch.Tensor, tolerance: torch.Tensor,
-                     offset: float = 0.0) -> torch.Tensor:  # fmt: skip
+def hidden_keypoints(
+    vertices: torch.Tensor, faces: torch.Tensor, keypoints: torch.Tensor, tolerance: torch.Tensor, offset: float = 0.0
+) -> torch.Tensor:
     """``bool [R, K]``: keypoints ``[R, K, 3]`` (camera frame) behind the surface of their row's
     mesh by more than ``tolerance [K]`` metres (``offset``: :func:`surface_depth`)."""
     d = surface_depth(vertices, faces, keypoints, offset)
@@ -94,14 +100,18 @@ def occlusion_parts(hidden: torch.Tensor, conf: torch.Tensor, conf_range: Tuple[
     return ((h * expect_visible) * seen).sum(-1), (((1.0 - h) * (1.0 - expect_visible)) * seen).sum(-1)
 
 
-def occlusion_cost(hidden: torch.Tensor, conf: torch.Tensor, conf_range: Tuple[float, float] = CONF_RANGE) -> torch.Tensor:
+def occlusion_cost(
+    hidden: torch.Tensor, conf: torch.Tensor, conf_range: Tuple[float, float] = CONF_RANGE
+) -> torch.Tensor:
     """``[R]``: keypoints whose depth order disagrees with their confidence (:func:`occlusion_parts`, summed)."""
     a, b = occlusion_parts(hidden, conf, conf_range)
     return a + b
 
 
 def keypoint_tolerances(names: Sequence[str]) -> torch.Tensor:
-    return torch.as_tensor([KEYPOINT_DEPTH_TOLERANCE.get(n, DEFAULT_DEPTH_TOLERANCE) for n in names], dtype=torch.float64)
+    return torch.as_tensor(
+        [KEYPOINT_DEPTH_TOLERANCE.get(n, DEFAULT_DEPTH_TOLERANCE) for n in names], dtype=torch.float64
+    )
 
 
 class OcclusionTerm(Term):

@@ -7,6 +7,7 @@ sample slows every one). Here each sample has its own history, its own step leng
 test; samples that have converged drop out of the batch. A batch therefore gives the
 same result as fitting each sample alone, up to floating-point rounding.
 """
+
 from __future__ import annotations
 
 import math
@@ -113,7 +114,9 @@ def batched_lbfgs(
             break
         ga = g[a_idx]
         order = [(ptr - 1 - k) % history for k in range(history)]  # newest to oldest
-        d = _two_loop_direction(ga, S[a_idx], Y[a_idx], rho[a_idx], valid[a_idx].to(dt), gamma[a_idx], order, first_step)
+        d = _two_loop_direction(
+            ga, S[a_idx], Y[a_idx], rho[a_idx], valid[a_idx].to(dt), gamma[a_idx], order, first_step
+        )
         gtd = (ga * d).sum(-1)
         bad = ~(gtd < 0)
         if bad.any():  # not a descent direction: restart with steepest descent
@@ -171,8 +174,8 @@ class BatchedAdam:
                 v = self.v[k][rows].mul_(self.b2).addcmul_(g, g, value=1 - self.b2)
                 self.m[k][rows], self.v[k][rows] = m, v
                 shape = (-1,) + (1,) * (p.dim() - 1)
-                bc1 = (1 - self.b1 ** t).to(p.dtype).reshape(shape)
-                bc2 = sqrt(1 - self.b2 ** t).to(p.dtype).reshape(shape)
+                bc1 = (1 - self.b1**t).to(p.dtype).reshape(shape)
+                bc2 = sqrt(1 - self.b2**t).to(p.dtype).reshape(shape)
                 p[rows] -= (lr[k] * factor / bc1) * m / (sqrt(v) / bc2 + self.eps)
 
 

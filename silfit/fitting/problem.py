@@ -13,6 +13,7 @@ independent row (:mod:`silfit.fitting.optim`), its shared and per-frame paramete
 packed side by side (:class:`ParameterLayout`), so there is no cross-talk between
 problems while frames of one problem share their shape.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -102,7 +103,9 @@ def stack_views(problems: Sequence[Problem], dtype=torch.float64) -> Dict[str, t
     intr, Rs, ts = [], [], []
     for p in problems:
         grid = p.grid()
-        intr.append([[[o.view.camera.fx, o.view.camera.fy, o.view.camera.cx, o.view.camera.cy] for o in row] for row in grid])
+        intr.append(
+            [[[o.view.camera.fx, o.view.camera.fy, o.view.camera.cx, o.view.camera.cy] for o in row] for row in grid]
+        )
         ext = [[o.view.extrinsics() for o in row] for row in grid]
         Rs.append([[e[0] for e in row] for row in ext])
         ts.append([[e[1] for e in row] for row in ext])

@@ -1,4 +1,5 @@
 """``KeypointFitResult``: SMPL parameters, camera, mesh and fit diagnostics; save/load."""
+
 from __future__ import annotations
 
 import os
@@ -96,7 +97,10 @@ class KeypointFitResult:
         return self.cameras[0]
 
     def params(self, i: int = 0) -> dict:
-        return {**{name: getattr(self, name)[i] for name in PARAM_NAMES}, **{k: v[i] for k, v in self.extra_params.items()}}
+        return {
+            **{name: getattr(self, name)[i] for name in PARAM_NAMES},
+            **{k: v[i] for k, v in self.extra_params.items()},
+        }
 
     @property
     def parameter_names(self) -> tuple:
@@ -111,18 +115,28 @@ class KeypointFitResult:
         idx = [int(i) for i in indices]
         pick = lambda a: None if a is None else a[idx]  # noqa: E731
         return KeypointFitResult(
-            betas=self.betas[idx], body_pose=self.body_pose[idx], global_orient=self.global_orient[idx],
-            transl=self.transl[idx], cameras=[self.cameras[i] for i in idx], vertices=pick(self.vertices),
-            joints=pick(self.joints), keypoints_2d=pick(self.keypoints_2d), layout=self.layout,
-            energies={k: v[idx] for k, v in self.energies.items()}, timings=dict(self.timings),
-            flipped=pick(self.flipped), reprojection_error=pick(self.reprojection_error),
+            betas=self.betas[idx],
+            body_pose=self.body_pose[idx],
+            global_orient=self.global_orient[idx],
+            transl=self.transl[idx],
+            cameras=[self.cameras[i] for i in idx],
+            vertices=pick(self.vertices),
+            joints=pick(self.joints),
+            keypoints_2d=pick(self.keypoints_2d),
+            layout=self.layout,
+            energies={k: v[idx] for k, v in self.energies.items()},
+            timings=dict(self.timings),
+            flipped=pick(self.flipped),
+            reprojection_error=pick(self.reprojection_error),
             term_energies={s: {t: v[idx] for t, v in d.items()} for s, d in self.term_energies.items()},
-            config=self.config, branches=None if self.branches is None else [self.branches[i] for i in idx],
-            extra_params={k: v[idx] for k, v in self.extra_params.items()}, model=self.model,
+            config=self.config,
+            branches=None if self.branches is None else [self.branches[i] for i in idx],
+            extra_params={k: v[idx] for k, v in self.extra_params.items()},
+            model=self.model,
             branch_search=None if self.branch_search is None else [self.branch_search[i] for i in idx],
             hypotheses=None if self.hypotheses is None else [self.hypotheses[i] for i in idx],
             alternatives=None if self.alternatives is None else [self.alternatives[i] for i in idx],
-        )  # fmt: skip
+        )
 
     # ------------------------------------------------------------------ I/O
     def save(self, directory: Union[str, os.PathLike], index: int = 0) -> Path:
@@ -130,10 +144,14 @@ class KeypointFitResult:
         :func:`silfit.fitio.write_fit` (one frame, one view; the schema is described there)."""
         from ..fitio import write_fit
 
-        record = {"energies": {k: float(v[index]) for k, v in self.energies.items()},
-                  "timings": {k: float(v) for k, v in self.timings.items()}}  # fmt: skip
+        record = {
+            "energies": {k: float(v[index]) for k, v in self.energies.items()},
+            "timings": {k: float(v) for k, v in self.timings.items()},
+        }
         if self.term_energies:
-            record["energy_terms"] = {s: {t: float(v[index]) for t, v in d.items()} for s, d in self.term_energies.items()}
+            record["energy_terms"] = {
+                s: {t: float(v[index]) for t, v in d.items()} for s, d in self.term_energies.items()
+            }
         if self.config:
             record["config"] = self.config
         if self.branches is not None:
@@ -147,10 +165,16 @@ class KeypointFitResult:
             record["reprojection_error_px"] = float(self.reprojection_error[index])
         pick = lambda name: None if getattr(self, name) is None else getattr(self, name)[index]  # noqa: E731
         return write_fit(
-            directory, {name: self.params(index)[name] for name in self.parameter_names}, [self.cameras[index]],
-            layout=self.layout, model=self.model, vertices=pick("vertices"), joints=pick("joints"),
-            keypoints_2d=pick("keypoints_2d"), record=record,
-        )  # fmt: skip
+            directory,
+            {name: self.params(index)[name] for name in self.parameter_names},
+            [self.cameras[index]],
+            layout=self.layout,
+            model=self.model,
+            vertices=pick("vertices"),
+            joints=pick("joints"),
+            keypoints_2d=pick("keypoints_2d"),
+            record=record,
+        )
 
     @classmethod
     def load(cls, path: Union[str, os.PathLike]) -> "KeypointFitResult":
@@ -161,18 +185,25 @@ class KeypointFitResult:
 
         fit = read_fit(path, require=PARAM_NAMES, require_camera=True)
         if fit.num_frames != 1 or len(fit.cameras) != 1:
-            raise SubjectError(fit.path, "frames", f"holds {fit.num_frames} frame(s) x {len(fit.cameras)} view(s); "
-                               "a KeypointFitResult is one image's fit")  # fmt: skip
+            raise SubjectError(
+                fit.path,
+                "frames",
+                f"holds {fit.num_frames} frame(s) x {len(fit.cameras)} view(s); a KeypointFitResult is one image's fit",
+            )
         params = fit.frame(0)
         get = lambda n: fit.arrays[n][0].astype(np.float32)[None] if n in fit.arrays else None  # noqa: E731
         kp2d = get("keypoints_2d")
         return cls(
-            **{n: params[n][None].astype(np.float32) for n in PARAM_NAMES}, cameras=[fit.camera],
-            vertices=get("vertices"), joints=get("joints"), keypoints_2d=None if kp2d is None else kp2d[:, 0],
-            layout=fit.layout or "body25", energies={k: np.array([v]) for k, v in fit.energies.items()},
+            **{n: params[n][None].astype(np.float32) for n in PARAM_NAMES},
+            cameras=[fit.camera],
+            vertices=get("vertices"),
+            joints=get("joints"),
+            keypoints_2d=None if kp2d is None else kp2d[:, 0],
+            layout=fit.layout or "body25",
+            energies={k: np.array([v]) for k, v in fit.energies.items()},
             timings=dict(fit.timings),
             flipped=None if fit.flipped is None else np.array([fit.flipped]),
             reprojection_error=None if fit.reprojection_error is None else np.array([fit.reprojection_error]),
             extra_params={n: params[n][None].astype(np.float32) for n in WHOLEBODY_EXTRA_NAMES if n in params},
             model=fit.model,
-        )  # fmt: skip
+        )

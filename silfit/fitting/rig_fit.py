@@ -21,6 +21,7 @@ keep the ``points`` term (:class:`~silfit.fitting.terms.PointsTerm`: the body's 
 the triangulated ones, ``KeypointFitConfig.points_weight`` and ``final_points_weight``) to the end.
 Parameters and meshes are in the world frame of the rig's extrinsics.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
@@ -37,8 +38,16 @@ from .triangulate import placement_to_world, triangulate_views
 from .threads import torch_threads
 from .keypoint_stage import POINTS_STATURE_M
 
-__all__ = ["RigFit", "fit_keypoints_of", "fit_rig_keypoints", "has_wholebody_parts", "pose_from_points", "rig_problem",
-           "triangulated_keypoints", "wholebody_problem_inputs"]
+__all__ = [
+    "RigFit",
+    "fit_keypoints_of",
+    "fit_rig_keypoints",
+    "has_wholebody_parts",
+    "pose_from_points",
+    "rig_problem",
+    "triangulated_keypoints",
+    "wholebody_problem_inputs",
+]
 
 
 #: the 3D start (:func:`pose_from_points`): its L-BFGS rounds (pose-prior weight, steps), the prior
@@ -122,8 +131,12 @@ def camera_to_world(model, rows: Dict[str, torch.Tensor], views) -> Dict[str, to
     :func:`~silfit.fitting.triangulate.placement_to_world`)."""
     with torch.no_grad():
         j = model(betas=rows["betas"]).joints[:, 0].double().numpy()
-    placed = [placement_to_world(rows["global_orient"][b].double().numpy(), rows["transl"][b].double().numpy(),
-                                 *view.extrinsics(), j[b]) for b, view in enumerate(views)]  # fmt: skip
+    placed = [
+        placement_to_world(
+            rows["global_orient"][b].double().numpy(), rows["transl"][b].double().numpy(), *view.extrinsics(), j[b]
+        )
+        for b, view in enumerate(views)
+    ]
     T = lambda a: torch.as_tensor(np.asarray(a), dtype=rows["transl"].dtype)  # noqa: E731
     return {**rows, "global_orient": T([q[0] for q in placed]), "transl": T([q[1] for q in placed])}
 
@@ -141,7 +154,9 @@ def in_first_camera(problem: Problem) -> Problem:
     return replace(problem, observations=obs)
 
 
-def fit_rig_keypoints(fitter, problems: Sequence[Problem], progress: bool = False, start: str = "points") -> List[RigFit]:
+def fit_rig_keypoints(
+    fitter, problems: Sequence[Problem], progress: bool = False, start: str = "points"
+) -> List[RigFit]:
     """The keypoint stage on one-frame rig problems of equal view counts (one batch).
 
     ``start`` (several views): ``"points"`` starts the schedule from :func:`pose_from_points`,
@@ -169,13 +184,17 @@ def fit_rig_keypoints(fitter, problems: Sequence[Problem], progress: bool = Fals
     last = list(info["energies"])[-1]
     fits = []
     for b, p in enumerate(problems):
-        fits.append(RigFit(
-            params={n: rows[n][b].numpy().astype(np.float32) for n in layout.sizes},
-            vertices=out.vertices[b].numpy().astype(np.float32), joints=out.joints[b].numpy().astype(np.float32),
-            keypoints_2d=proj[b].astype(np.float32), reprojection_error=_median_errors(proj[b], p),
-            energies={k: float(v[b]) for k, v in info["energies"].items()},
-            timings={**info["timings"], "final_stage": last},
-        ))  # fmt: skip
+        fits.append(
+            RigFit(
+                params={n: rows[n][b].numpy().astype(np.float32) for n in layout.sizes},
+                vertices=out.vertices[b].numpy().astype(np.float32),
+                joints=out.joints[b].numpy().astype(np.float32),
+                keypoints_2d=proj[b].astype(np.float32),
+                reprojection_error=_median_errors(proj[b], p),
+                energies={k: float(v[b]) for k, v in info["energies"].items()},
+                timings={**info["timings"], "final_stage": last},
+            )
+        )
     return fits
 
 
@@ -194,17 +213,27 @@ def wholebody_problem_inputs(model, problems: Sequence[Problem], config) -> tupl
     flat = [o for g in grids for row in g for o in row]
     if any(o.keypoints is None for o in flat):
         raise ValueError("a whole-body silhouette stage needs keypoints in every observation")
-    cfg, body_sets, terms, weights, data = wholebody_silhouette_inputs(model, [o.keypoints for o in flat], config, model.dtype)
+    cfg, body_sets, terms, weights, data = wholebody_silhouette_inputs(
+        model, [o.keypoints for o in flat], config, model.dtype
+    )
     P, F, C = len(problems), problems[0].num_frames, problems[0].num_views
     data = {"part_weights": data["part_weights"].reshape(P, F, C, -1)}
     sl = part_slices()
     conf = np.stack([o.keypoints.conf for o in flat]).reshape(P, F, C, -1)
-    present = {part: bool((conf[..., sl[part]] > 0).any(-1).any(-1).all()) for part in ("hand_left", "hand_right", "face")}
+    present = {
+        part: bool((conf[..., sl[part]] > 0).any(-1).any(-1).all()) for part in ("hand_left", "hand_right", "face")
+    }
     free = tuple(n for n, part in GATED_PARTS.items() if present[part])
-    cfg = replace(cfg, optimise=tuple(n for n in cfg.optimise if n not in GATED_PARTS) + free,
-                  lr={**SILHOUETTE_PART_LR, **config.lr})  # fmt: skip
+    cfg = replace(
+        cfg,
+        optimise=tuple(n for n in cfg.optimise if n not in GATED_PARTS) + free,
+        lr={**SILHOUETTE_PART_LR, **config.lr},
+    )
     it = iter(body_sets)
-    out = [Problem([replace(o, keypoints=next(it)) for row in g for o in row], shared=p.shared) for p, g in zip(problems, grids)]
+    out = [
+        Problem([replace(o, keypoints=next(it)) for row in g for o in row], shared=p.shared)
+        for p, g in zip(problems, grids)
+    ]
     return cfg, out, terms, weights, data
 
 
@@ -214,14 +243,17 @@ def triangulated_keypoints(problem: Problem, kp_weights: np.ndarray) -> Tuple[np
     in the problem's world frame), weighted by ``kp_weights [K]`` times the mean over the views of
     the confidence of the inlier views (0: not triangulated)."""
     row = problem.grid()[0]
-    X, w = triangulate_views([o.view for o in row], np.stack([o.keypoints.xy for o in row]),
-                             np.stack([o.keypoints.conf for o in row]))  # fmt: skip
+    X, w = triangulate_views(
+        [o.view for o in row], np.stack([o.keypoints.xy for o in row]), np.stack([o.keypoints.conf for o in row])
+    )
     w = w * np.asarray(kp_weights, np.float64)
     ok = w > 0
     return np.where(ok[:, None], X, 0.0), np.where(ok, w, 0.0)
 
 
-def pose_from_points(fitter, problems: Sequence[Problem], state: Dict[str, torch.Tensor], align: bool = True) -> Dict[str, torch.Tensor]:
+def pose_from_points(
+    fitter, problems: Sequence[Problem], state: Dict[str, torch.Tensor], align: bool = True
+) -> Dict[str, torch.Tensor]:
     """A start for one-frame problems with several views: the body posed onto its triangulated
     keypoints (:func:`triangulated_keypoints`) from the placed rest pose in ``state`` (the fitter's
     initial state, rows ``[B, 1, w]``).
@@ -247,8 +279,15 @@ def pose_from_points(fitter, problems: Sequence[Problem], state: Dict[str, torch
     scale = cfg.norm_extent / POINTS_STATURE_M
     sigma2 = float(cfg.sigma) ** 2
     if align:
-        base["body_pose"] = align_segments(fitter.body, base, X.double().numpy(), w.double().numpy(),
-                                           fitter.model.joint_names, fitter.model.parents, LAYOUTS[fitter.layout])
+        base["body_pose"] = align_segments(
+            fitter.body,
+            base,
+            X.double().numpy(),
+            w.double().numpy(),
+            fitter.model.joint_names,
+            fitter.model.parents,
+            LAYOUTS[fitter.layout],
+        )
     x = torch.cat([base[n] for n in free], 1)
     for wp, iters in POINTS_ROUNDS:
         wa = cfg.angle_prior_weights[min(1, len(cfg.angle_prior_weights) - 1)]
@@ -260,8 +299,7 @@ def pose_from_points(fitter, problems: Sequence[Problem], state: Dict[str, torch
             d2 = ((kp - X[idx]) * scale).square().sum(-1)
             data = (w[idx] * sigma2 * d2 / (d2 + sigma2)).sum(-1)
             bp = rows["body_pose"]
-            return (data + wp * fitter.pose_prior(bp) + wa * angle_prior(bp)
-                    + cfg.limit_weight * limit_violation(bp))  # fmt: skip
+            return data + wp * fitter.pose_prior(bp) + wa * angle_prior(bp) + cfg.limit_weight * limit_violation(bp)
 
         x, _, _ = batched_lbfgs(fun, x, max_iter=iters, history=cfg.history)
     return dict(zip(free, (v.detach() for v in torch.split(x, sizes, 1))))
@@ -282,6 +320,7 @@ def _fit_from(fitter, run, progress, start):
     better = torch.as_tensor(info_r["energies"][last] < info["energies"][last])
     for n in state:
         state[n][better] = state_r[n][better]
-    info["energies"] = {k: torch.where(better, info_r["energies"][k], v) for k, v in info["energies"].items()
-                        if k in info_r["energies"]}  # fmt: skip
+    info["energies"] = {
+        k: torch.where(better, info_r["energies"][k], v) for k, v in info["energies"].items() if k in info_r["energies"]
+    }
     return state, info

@@ -8,6 +8,7 @@ Every weight has one name, the term's (``pose``: the pose prior, whose config fi
 ``pose_weight`` in every config). Each stage runs in :func:`~silfit.fitting.stages.run_stage`,
 which dispatches on the optimiser column.
 """
+
 from __future__ import annotations
 
 from .stages import Stage
@@ -21,92 +22,190 @@ ALL = ("betas",) + POSE
 HANDS = ("left_hand_pose", "right_hand_pose")
 FACE = ("jaw_pose", "expression")
 #: the keypoint stage's limb-branch search (:mod:`silfit.fitting.branches`)
-BRANCHES = {"branches": {"min_depth_ratio": 0.3, "whole_limbs": True, "joint": False, "screen_after": 15, "survivors": 4,
-                         "hinge": True, "hinge_turns": True, "distinct": True}}
+BRANCHES = {
+    "branches": {
+        "min_depth_ratio": 0.3,
+        "whole_limbs": True,
+        "joint": False,
+        "screen_after": 15,
+        "survivors": 4,
+        "hinge": True,
+        "hinge_turns": True,
+        "distinct": True,
+    }
+}
 #: the late search's: its 4 best go on (``carry``) to settle; the search from the fit screens after 20 of its 40 steps
 LATE_BRANCHES = {"branches": {**BRANCHES["branches"], "carry": 4}}
 POST_BRANCHES = {"branches": {**BRANCHES["branches"], "screen_after": 20}}
 
 #: the final stage's weights (also the late branch search's); ``points`` (the keypoints triangulated
 #: from several views) is 0 for one view
-FINAL = {"keypoints": 1.0, "points": 1.0, "pose": 40.0, "angle": 1.0, "limits": 1e4, "shape": 5.0, "interpenetration": 1e5}
+FINAL = {
+    "keypoints": 1.0,
+    "points": 1.0,
+    "pose": 40.0,
+    "angle": 1.0,
+    "limits": 1e4,
+    "shape": 5.0,
+    "interpenetration": 1e5,
+}
 #: single image (and the per-frame start of a video), SMPL: :class:`~silfit.fitting.keypoint_stage.KeypointFitConfig`
 KEYPOINT_SCHEDULE = (
     #     name          free    weights (term: weight)                                                          iterations
-    Stage("camera",     CAMERA, {"torso": 1.0, "depth": 1e3},                                                        30),
-    Stage("pose_1",     POSE,   {"keypoints": 1.0, "points": 1.0, "pose": 2000.0, "angle": 10.0, "limits": 1e4},     30,
-          options={"decide_after": 20}),  # each problem keeps its best start (facing x initial pose) after 20 steps
-    Stage("pose_2",     POSE,   {"keypoints": 1.0, "points": 1.0, "pose": 400.0, "angle": 5.0, "limits": 1e4},       30),
-    Stage("branches_1", POSE,   {"keypoints": 1.0, "points": 1.0, "pose": 400.0, "angle": 5.0, "limits": 1e4,
-                                 "interpenetration": 1e5},                                                           20,
-          options=BRANCHES),
-    Stage("pose_3",     POSE,   {"keypoints": 1.0, "points": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4},        40),
-    Stage("shape",      SHAPE,  {"keypoints": 1.0, "points": 1.0, "shape": 20.0},                                    20),
+    Stage("camera", CAMERA, {"torso": 1.0, "depth": 1e3}, 30),
+    Stage(
+        "pose_1",
+        POSE,
+        {"keypoints": 1.0, "points": 1.0, "pose": 2000.0, "angle": 10.0, "limits": 1e4},
+        30,
+        options={"decide_after": 20},
+    ),  # each problem keeps its best start (facing x initial pose) after 20 steps
+    Stage("pose_2", POSE, {"keypoints": 1.0, "points": 1.0, "pose": 400.0, "angle": 5.0, "limits": 1e4}, 30),
+    Stage(
+        "branches_1",
+        POSE,
+        {"keypoints": 1.0, "points": 1.0, "pose": 400.0, "angle": 5.0, "limits": 1e4, "interpenetration": 1e5},
+        20,
+        options=BRANCHES,
+    ),
+    Stage("pose_3", POSE, {"keypoints": 1.0, "points": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4}, 40),
+    Stage("shape", SHAPE, {"keypoints": 1.0, "points": 1.0, "shape": 20.0}, 20),
     # the limb-branch search again, at the final weights from the refined pose (issue 25); its 4 best go on
-    Stage("branches_late", ALL, FINAL,                                                                               30,
-          options=LATE_BRANCHES),
+    Stage("branches_late", ALL, FINAL, 30, options=LATE_BRANCHES),
     # run by those 4, a row stopping once a step lowers its energy by less than 1e-4 (relative); the
     # lowest energy goes on (not run where no branch search ran: rigs)
-    Stage("settle",     ALL,    FINAL,                                                                              120,
-          options={"tol_change": 1e-4, "searched_only": True}),
+    Stage("settle", ALL, FINAL, 120, options={"tol_change": 1e-4, "searched_only": True}),
     # the search from the settled fit (issue 25: a flip of the converged fit finds what the late one cut)
-    Stage("branches_post", ALL, FINAL,                                                                               40,
-          options=POST_BRANCHES),
+    Stage("branches_post", ALL, FINAL, 40, options=POST_BRANCHES),
     # run by branch_refine (4) hypotheses as settle; where no branch search ran (rigs, branch_search off)
     # 40 steps, every one run
-    Stage("final",      ALL,    FINAL,                                                                              120,
-          options={"unsearched_iterations": 40, "tol_change": 1e-4}),
-)  # fmt: skip
+    Stage("final", ALL, FINAL, 120, options={"unsearched_iterations": 40, "tol_change": 1e-4}),
+)
 
 #: whole body (an SMPL-X-layout model, the ``wholebody`` keypoints): the body's schedule, the hands started
 #: from their best library pose (``hands``), then the hand and face terms on in the last pose stage and after
 WHOLEBODY_KEYPOINT_SCHEDULE = KEYPOINT_SCHEDULE[:4] + (
-    Stage("hands",      POSE + HANDS,        {"keypoints": 1.0, "points": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4,
-                                              "hands": 1.0, "hand_pose": 2.0},                                       30,
-          options={"hand_starts": True}),
-    Stage("pose_3",     POSE + HANDS + FACE, {"keypoints": 1.0, "points": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4,
-                                              "hands": 1.0, "hand_pose": 2.0, "face": 1.0, "jaw": 50.0,
-                                              "expression": 2.0},                                                    40),
-    Stage("shape",      SHAPE,               {"keypoints": 1.0, "points": 1.0, "shape": 20.0, "hands": 2.0,
-                                              "face": 2.0},                                                          20),
-    Stage("branches_late", ALL + HANDS + FACE, {**FINAL, "hands": 2.0, "hand_pose": 2.0, "face": 2.0, "jaw": 50.0,
-                                                "expression": 2.0},                                                  30,
-          options=LATE_BRANCHES),
-    Stage("settle",     ALL + HANDS + FACE,  {**FINAL, "hands": 2.0, "hand_pose": 2.0, "face": 2.0, "jaw": 50.0,
-                                              "expression": 2.0},                                                   120,
-          options={"tol_change": 1e-4, "searched_only": True}),
-    Stage("branches_post", ALL + HANDS + FACE, {**FINAL, "hands": 2.0, "hand_pose": 2.0, "face": 2.0, "jaw": 50.0,
-                                                "expression": 2.0},                                                  40,
-          options=POST_BRANCHES),
-    Stage("final",      ALL + HANDS + FACE,  {**FINAL, "hands": 2.0, "hand_pose": 2.0, "face": 2.0, "jaw": 50.0,
-                                              "expression": 2.0},                                                   120,
-          options={"unsearched_iterations": 40, "tol_change": 1e-4}),
-)  # fmt: skip
+    Stage(
+        "hands",
+        POSE + HANDS,
+        {"keypoints": 1.0, "points": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4, "hands": 1.0, "hand_pose": 2.0},
+        30,
+        options={"hand_starts": True},
+    ),
+    Stage(
+        "pose_3",
+        POSE + HANDS + FACE,
+        {
+            "keypoints": 1.0,
+            "points": 1.0,
+            "pose": 80.0,
+            "angle": 2.0,
+            "limits": 1e4,
+            "hands": 1.0,
+            "hand_pose": 2.0,
+            "face": 1.0,
+            "jaw": 50.0,
+            "expression": 2.0,
+        },
+        40,
+    ),
+    Stage("shape", SHAPE, {"keypoints": 1.0, "points": 1.0, "shape": 20.0, "hands": 2.0, "face": 2.0}, 20),
+    Stage(
+        "branches_late",
+        ALL + HANDS + FACE,
+        {**FINAL, "hands": 2.0, "hand_pose": 2.0, "face": 2.0, "jaw": 50.0, "expression": 2.0},
+        30,
+        options=LATE_BRANCHES,
+    ),
+    Stage(
+        "settle",
+        ALL + HANDS + FACE,
+        {**FINAL, "hands": 2.0, "hand_pose": 2.0, "face": 2.0, "jaw": 50.0, "expression": 2.0},
+        120,
+        options={"tol_change": 1e-4, "searched_only": True},
+    ),
+    Stage(
+        "branches_post",
+        ALL + HANDS + FACE,
+        {**FINAL, "hands": 2.0, "hand_pose": 2.0, "face": 2.0, "jaw": 50.0, "expression": 2.0},
+        40,
+        options=POST_BRANCHES,
+    ),
+    Stage(
+        "final",
+        ALL + HANDS + FACE,
+        {**FINAL, "hands": 2.0, "hand_pose": 2.0, "face": 2.0, "jaw": 50.0, "expression": 2.0},
+        120,
+        options={"unsearched_iterations": 40, "tol_change": 1e-4},
+    ),
+)
 
 SIL_FREE = ("betas", "global_orient", "body_pose", "transl")
 #: the silhouette stage's terms and weights other than the silhouette's own (every level)
-SIL_PRIORS = {"keypoints": 0.02, "pose": 0.005, "limits": 1.0, "angle": 0.001, "shape": 0.005, "stay": 0.0,
-              "keypoint_trust": 0.05, "beta_bound": 10.0}  # fmt: skip
+SIL_PRIORS = {
+    "keypoints": 0.02,
+    "pose": 0.005,
+    "limits": 1.0,
+    "angle": 0.001,
+    "shape": 0.005,
+    "stay": 0.0,
+    "keypoint_trust": 0.05,
+    "beta_bound": 10.0,
+}
 #: Adam's settings of the rendered levels (:class:`~silfit.fitting.stages.AdamSettings`)
-SIL_ADAM = {"lr": {"betas": 0.1, "global_orient": 0.02, "body_pose": 0.015, "transl": 0.01}, "warmup": 10,
-            "plateau_window": 12, "plateau_rtol": 0.003}  # fmt: skip
+SIL_ADAM = {
+    "lr": {"betas": 0.1, "global_orient": 0.02, "body_pose": 0.015, "transl": 0.01},
+    "warmup": 10,
+    "plateau_window": 12,
+    "plateau_rtol": 0.003,
+}
 
 #: the silhouette stage: :class:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig` (no rendering in the
 #: contour level; each rendered level's window has ``resolution`` pixels along its longer side and renders a
 #: ``proxy_faces``-face render proxy)
 SILHOUETTE_SCHEDULE = (
     #     name              free      weights                                                     iterations optimiser
-    Stage("contour",        SIL_FREE, {"contour_inside": 0.2, "contour_cover": 0.2, **SIL_PRIORS},   40, "lbfgs",
-          {"resolution": 256}),
-    Stage("silhouette_128", SIL_FREE, {"silhouette": 1.0, **SIL_PRIORS},                             30, "adam",
-          {"resolution": 128, "proxy_faces": 3000, **SIL_ADAM}),
-    Stage("silhouette_256", SIL_FREE, {"silhouette": 1.0, **SIL_PRIORS},                             20, "adam",
-          {"resolution": 256, "proxy_faces": 5000, **SIL_ADAM}),
-)  # fmt: skip
+    Stage(
+        "contour",
+        SIL_FREE,
+        {"contour_inside": 0.2, "contour_cover": 0.2, **SIL_PRIORS},
+        40,
+        "lbfgs",
+        {"resolution": 256},
+    ),
+    Stage(
+        "silhouette_128",
+        SIL_FREE,
+        {"silhouette": 1.0, **SIL_PRIORS},
+        30,
+        "adam",
+        {"resolution": 128, "proxy_faces": 3000, **SIL_ADAM},
+    ),
+    Stage(
+        "silhouette_256",
+        SIL_FREE,
+        {"silhouette": 1.0, **SIL_PRIORS},
+        20,
+        "adam",
+        {"resolution": 256, "proxy_faces": 5000, **SIL_ADAM},
+    ),
+)
 
 #: a video's joint refinement (one problem of F frames, one shape):
 #: :class:`~silfit.fitting.sequence.SequenceFitConfig` (windowed: a second pass of 40 steps with ``betas`` held)
 SEQUENCE_SCHEDULE = (
-    Stage("sequence", ALL, {"keypoints": 1.0, "pose": 40.0, "angle": 1.0, "limits": 1e4, "smooth_joints": 1.0,
-                            "smooth_root": 1.0, "shape": 5.0}, 100),
-)  # fmt: skip
+    Stage(
+        "sequence",
+        ALL,
+        {
+            "keypoints": 1.0,
+            "pose": 40.0,
+            "angle": 1.0,
+            "limits": 1e4,
+            "smooth_joints": 1.0,
+            "smooth_root": 1.0,
+            "shape": 5.0,
+        },
+        100,
+    ),
+)

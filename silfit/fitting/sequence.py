@@ -43,6 +43,7 @@ reduced body ``F`` times, so memory and time grow linearly with ``F``; ``window`
 long sequence into overlapping windows fitted as a batch of problems (each window's own
 ``betas``; the sequence's is their frame-weighted mean, then held fixed in a second pass).
 """
+
 from __future__ import annotations
 
 import math
@@ -63,9 +64,17 @@ from .stages import Stage
 from .threads import torch_threads
 
 __all__ = [
-    "SequenceFitConfig", "SequenceFitResult", "consistent_facings", "fit_sequence", "interpolate_frames",
-    "keypoint_outliers", "refine_sequence_silhouettes", "viterbi", "pose_distances", "branch_path",
-]  # fmt: skip
+    "SequenceFitConfig",
+    "SequenceFitResult",
+    "consistent_facings",
+    "fit_sequence",
+    "interpolate_frames",
+    "keypoint_outliers",
+    "refine_sequence_silhouettes",
+    "viterbi",
+    "pose_distances",
+    "branch_path",
+]
 
 ROTATIONS = ("global_orient", "body_pose")
 
@@ -85,9 +94,18 @@ class SequenceFitConfig:
     #: (the single image's 4 starting poses, not 2: a squat seen from the side hides one arm in its deep frames,
     #: and with 2 starts every such frame began where L-BFGS could not leave a wrong arm, at 2-3x the energy of
     #: the truth's basin; README "Videos", benchmarks/bench_sequence_branches.py, issue 25)
-    keypoint: KeypointFitConfig = field(default_factory=lambda: KeypointFitConfig(
-        init_poses=4, late_branch_iters=0, branch_screen_iters=10, branch_survivors=3, final_iters=40, branch_refine=1,
-        final_tol_change=None, post_branch_iters=0))
+    keypoint: KeypointFitConfig = field(
+        default_factory=lambda: KeypointFitConfig(
+            init_poses=4,
+            late_branch_iters=0,
+            branch_screen_iters=10,
+            branch_survivors=3,
+            final_iters=40,
+            branch_refine=1,
+            final_tol_change=None,
+            post_branch_iters=0,
+        )
+    )
     init_stride: int = 1  # fit every n-th usable frame alone; interpolate the others
     iterations: int = 100  # joint refinement, L-BFGS steps
     joint_smooth_weight: float = 1.0
@@ -140,8 +158,14 @@ class SequenceFitConfig:
         shape held; ``views``: a rig video's, the temporal weights scaled by ``views_smooth_scale``); the
         defaults give the literal table :data:`~silfit.fitting.schedules.SEQUENCE_SCHEDULE`."""
         k = 1.0 if views <= 1 else self.views_smooth_scale
-        w = {"keypoints": 1.0, "pose": self.pose_weight, "angle": self.angle_prior_weight, "limits": self.limit_weight,
-             "smooth_joints": k * self.joint_smooth_weight, "smooth_root": k * self.root_smooth_weight}  # fmt: skip
+        w = {
+            "keypoints": 1.0,
+            "pose": self.pose_weight,
+            "angle": self.angle_prior_weight,
+            "limits": self.limit_weight,
+            "smooth_joints": k * self.joint_smooth_weight,
+            "smooth_root": k * self.root_smooth_weight,
+        }
         if free_betas:
             w["shape"] = self.shape_weight
         if self.interpenetration_weight:
@@ -204,8 +228,13 @@ class SequenceFitResult:
     def params(self) -> Dict[str, np.ndarray]:
         """The model's parameter names: ``betas [L]``, the rest ``[F, w]`` (a whole-body model's
         hands, face and expression included)."""
-        return {"betas": self.betas, "body_pose": self.body_pose, "global_orient": self.global_orient, "transl": self.transl,
-                **self.extra}  # fmt: skip
+        return {
+            "betas": self.betas,
+            "body_pose": self.body_pose,
+            "global_orient": self.global_orient,
+            "transl": self.transl,
+            **self.extra,
+        }
 
     def frame_params(self, f: int) -> Dict[str, np.ndarray]:
         return {n: v if n == "betas" else v[f] for n, v in self.params().items()}
@@ -271,7 +300,9 @@ def interpolate_frames(params: Dict[str, np.ndarray], known: np.ndarray) -> Dict
 def body_forward(global_orient: np.ndarray) -> np.ndarray:
     """``[F, 2]``: the body's forward direction (+Z of SMPL's rest frame) in the camera's
     ground plane (x, z), unit length."""
-    f = Rotation.from_rotvec(np.asarray(global_orient, dtype=np.float64).reshape(-1, 3)).apply([0.0, 0.0, 1.0])[:, [0, 2]]
+    f = Rotation.from_rotvec(np.asarray(global_orient, dtype=np.float64).reshape(-1, 3)).apply([0.0, 0.0, 1.0])[
+        :, [0, 2]
+    ]
     return f / np.maximum(np.linalg.norm(f, axis=1, keepdims=True), 1e-9)
 
 
@@ -285,8 +316,10 @@ def consistent_facings(forward: np.ndarray, valid: np.ndarray, jump_cost: float 
     if len(idx) < 2:
         return out
     sign = np.array([1.0, -1.0])
-    pair = [None] + [jump_cost * (1.0 - sign[:, None] * sign[None, :] * float(forward[idx[n - 1]] @ forward[idx[n]])) / 2.0
-                     for n in range(1, len(idx))]  # [previous label, label]  # fmt: skip
+    pair = [None] + [
+        jump_cost * (1.0 - sign[:, None] * sign[None, :] * float(forward[idx[n - 1]] @ forward[idx[n]])) / 2.0
+        for n in range(1, len(idx))
+    ]  # [previous label, label]
     out[idx] = viterbi([np.array([0.0, 1.0])] * len(idx), pair).astype(bool)
     return out
 
@@ -321,8 +354,13 @@ def pose_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.linalg.norm(a[:, None] - b[None], axis=-1).mean(-1)
 
 
-def branch_path(energies: Sequence[np.ndarray], joints: Sequence[np.ndarray], gaps: Sequence[int],
-                temporal_weight: float = 1.0, temporal_scale: float = 0.02) -> np.ndarray:  # fmt: skip
+def branch_path(
+    energies: Sequence[np.ndarray],
+    joints: Sequence[np.ndarray],
+    gaps: Sequence[int],
+    temporal_weight: float = 1.0,
+    temporal_scale: float = 0.02,
+) -> np.ndarray:
     """Each frame's hypothesis (``int [N]``) chosen over time: :func:`viterbi` with unary = a frame's
     hypothesis energies ``energies[n] [H_n]`` less the frame's lowest, over the sequence's median
     lowest (so a unit is a typical frame's whole energy), and pairwise = ``temporal_weight`` times the
@@ -336,9 +374,13 @@ def branch_path(energies: Sequence[np.ndarray], joints: Sequence[np.ndarray], ga
     low = np.array([e[np.isfinite(e)].min() if np.isfinite(e).any() else np.nan for e in energies])
     scale = max(float(np.median(np.abs(low[np.isfinite(low)]))) if np.isfinite(low).any() else 1.0, 1e-12)
     # a non-finite energy (a failed fit) is a candidate only when nothing else is left
-    unary = [np.where(np.isfinite(e), (e - (lo if np.isfinite(lo) else 0.0)) / scale, 1e12) for e, lo in zip(energies, low)]
-    pair = [None] + [temporal_weight * pose_distances(joints[n - 1], joints[n]) / (temporal_scale * max(int(gaps[n]), 1))
-                     for n in range(1, N)]  # fmt: skip
+    unary = [
+        np.where(np.isfinite(e), (e - (lo if np.isfinite(lo) else 0.0)) / scale, 1e12) for e, lo in zip(energies, low)
+    ]
+    pair = [None] + [
+        temporal_weight * pose_distances(joints[n - 1], joints[n]) / (temporal_scale * max(int(gaps[n]), 1))
+        for n in range(1, N)
+    ]
     return viterbi(unary, pair)
 
 
@@ -472,8 +514,9 @@ def _initial_frames(usable_v: np.ndarray, rig: bool, stride: int) -> np.ndarray:
     return init_frames
 
 
-def _initialise_frames(model, layout, cfg, pose_prior, camera, views, rig: bool, columns, init_frames, progress,
-                       depth_cues=None):  # fmt: skip
+def _initialise_frames(
+    model, layout, cfg, pose_prior, camera, views, rig: bool, columns, init_frames, progress, depth_cues=None
+):
     """Step 2 of :func:`fit_sequence`: ``init_frames`` fitted as one batch (a rig's as one-frame rigs; one camera's with
     the branch choice over time or the neighbour and offset refits; ``depth_cues`` per frame). Returns ``(fitter, per, rebranched)``: the
     keypoint fitter, ``per[name] [F, size]`` (the frames not fitted zero) and the frames put on another depth branch."""
@@ -486,28 +529,57 @@ def _initialise_frames(model, layout, cfg, pose_prior, camera, views, rig: bool,
         if rig:  # each frame as a one-frame rig (world frame); the triangulated torso starts it: no neighbour starts
             from .rig_fit import fit_rig_keypoints
 
-            probs = [Problem([Observation(v, _keypoint_set(xy_v[f, c], conf_v[f, c] * usable_v[f, c], layout), frame=0, view_index=c)
-                              for c, v in enumerate(views)]) for f in init_frames]  # fmt: skip
+            probs = [
+                Problem(
+                    [
+                        Observation(
+                            v, _keypoint_set(xy_v[f, c], conf_v[f, c] * usable_v[f, c], layout), frame=0, view_index=c
+                        )
+                        for c, v in enumerate(views)
+                    ]
+                )
+                for f in init_frames
+            ]
             fits = fit_rig_keypoints(fitter, probs, progress=progress)
             state = {n: torch.as_tensor(np.stack([fit.params[n] for fit in fits])) for n in names}
         else:
             probs = [Problem.single(KeypointSet(xy_v[f, 0], conf_v[f, 0], layout), camera) for f in init_frames]
             if cfg.branch_dp:  # several hypotheses per frame; the branch is chosen over time (tuned on refined
                 # hypotheses distinct by the mean joint distance alone: the rule before issue 25's warnings)
-                fitter = KeypointFitter(model, layout, replace(cfg.keypoint, hypotheses=max(int(cfg.branch_hypotheses), 1),
-                                                               hypothesis_joint_max_m=None, hypothesis_unrefined=False),
-                                        fitter.pose_prior)  # fmt: skip
+                fitter = KeypointFitter(
+                    model,
+                    layout,
+                    replace(
+                        cfg.keypoint,
+                        hypotheses=max(int(cfg.branch_hypotheses), 1),
+                        hypothesis_joint_max_m=None,
+                        hypothesis_unrefined=False,
+                    ),
+                    fitter.pose_prior,
+                )
             cues = [depth_cues[f] for f in init_frames] if depth_cues is not None else None
             state, info = fitter.fit_problems(probs, progress=progress, depth_cues=cues)
             energy = info["energies"][fitter.stages[-1].name]
             if cfg.branch_dp and len(probs) > 1:
-                state, rebranched[init_frames], energy = _choose_branches(model, layout, cfg.keypoint, fitter, probs, state,
-                                                                          info, cfg, init_frames, progress)  # fmt: skip
+                state, rebranched[init_frames], energy = _choose_branches(
+                    model, layout, cfg.keypoint, fitter, probs, state, info, cfg, init_frames, progress
+                )
             elif cfg.neighbour_starts and len(probs) > 1:
-                state, energy = _refit_from_neighbours(model, layout, cfg.keypoint, fitter, probs, state, info, progress)
+                state, energy = _refit_from_neighbours(
+                    model, layout, cfg.keypoint, fitter, probs, state, info, progress
+                )
             if cfg.branch_offsets and len(probs) > 1:
-                state, _ = _refit_from_offsets(model, layout, cfg.keypoint, fitter, probs, info["layout"].rows(state), energy,
-                                           cfg.branch_offsets, progress)  # fmt: skip
+                state, _ = _refit_from_offsets(
+                    model,
+                    layout,
+                    cfg.keypoint,
+                    fitter,
+                    probs,
+                    info["layout"].rows(state),
+                    energy,
+                    cfg.branch_offsets,
+                    progress,
+                )
     per = {n: np.zeros((F, fitter.params.sizes[n])) for n in names}
     for n in names:
         v = state[n].double().numpy().reshape(len(init_frames), -1)
@@ -520,14 +592,18 @@ def _sequence_warnings(bridged: np.ndarray, refaced: np.ndarray, rebranched: np.
     F = len(bridged)
     warnings = []
     if bridged.any():
-        warnings.append(f"{int(bridged.sum())} of {F} frame(s) bridged from their neighbours (no usable keypoints): "
-                        f"{', '.join(map(str, np.flatnonzero(bridged)[:10]))}{' ...' if bridged.sum() > 10 else ''}")  # fmt: skip
+        warnings.append(
+            f"{int(bridged.sum())} of {F} frame(s) bridged from their neighbours (no usable keypoints): "
+            f"{', '.join(map(str, np.flatnonzero(bridged)[:10]))}{' ...' if bridged.sum() > 10 else ''}"
+        )
     if refaced.any():
         warnings.append(f"{int(refaced.sum())} frame(s) had their facing re-initialised from their neighbours")
     if rebranched.any():
-        warnings.append(f"{int(rebranched.sum())} frame(s) took another depth branch than their lowest-energy one, to agree "
-                        f"with their neighbours: {', '.join(map(str, np.flatnonzero(rebranched)[:10]))}"
-                        f"{' ...' if rebranched.sum() > 10 else ''}")  # fmt: skip
+        warnings.append(
+            f"{int(rebranched.sum())} frame(s) took another depth branch than their lowest-energy one, to agree "
+            f"with their neighbours: {', '.join(map(str, np.flatnonzero(rebranched)[:10]))}"
+            f"{' ...' if rebranched.sum() > 10 else ''}"
+        )
     return warnings
 
 
@@ -540,8 +616,14 @@ def _refine_jointly(model, layout, cfg, pose_prior, views, columns, start: dict,
     usable = usable_v.any(1)
     kps = _view_keypoints(xy_v, conf_v, usable_v)
     weights = np.where(usable, 1.0, float(cfg.bridge_weight))
-    refiner_cfg = replace(cfg.keypoint, flip_test=False, init_poses=1, branch_search=False, temporal_sigma=cfg.temporal_sigma,
-                          schedule=cfg.stages(views=C))  # fmt: skip
+    refiner_cfg = replace(
+        cfg.keypoint,
+        flip_test=False,
+        init_poses=1,
+        branch_search=False,
+        temporal_sigma=cfg.temporal_sigma,
+        schedule=cfg.stages(views=C),
+    )
     refiner = KeypointFitter(model, layout, refiner_cfg, pose_prior)
     starts = _windows(F, int(cfg.window), int(cfg.overlap))
     L = F if len(starts) == 1 else int(cfg.window)
@@ -549,8 +631,11 @@ def _refine_jointly(model, layout, cfg, pose_prior, views, columns, start: dict,
     def problems_and_init(betas):
         probs, init, fw = [], {n: [] for n in names}, []
         for s in starts:
-            obs = [Observation(v, _keypoint_set(*kps[f][c], layout), frame=f - s, view_index=c)
-                   for f in range(s, s + L) for c, v in enumerate(views)]  # fmt: skip
+            obs = [
+                Observation(v, _keypoint_set(*kps[f][c], layout), frame=f - s, view_index=c)
+                for f in range(s, s + L)
+                for c, v in enumerate(views)
+            ]
             probs.append(Problem(obs))
             for n in names:
                 init[n].append(betas if n == "betas" else start[n][s : s + L])
@@ -591,8 +676,15 @@ def _median_reprojection(kp2d, xy_v, conf_v, usable_v) -> np.ndarray:
     elsewhere."""
     F, C = usable_v.shape
     err = np.linalg.norm(kp2d - xy_v, axis=-1)
-    return np.array([[np.median(err[f, c][conf_v[f, c] > 0]) if (conf_v[f, c] > 0).any() and usable_v[f, c] else np.nan
-                      for c in range(C)] for f in range(F)])  # fmt: skip
+    return np.array(
+        [
+            [
+                np.median(err[f, c][conf_v[f, c] > 0]) if (conf_v[f, c] > 0).any() and usable_v[f, c] else np.nan
+                for c in range(C)
+            ]
+            for f in range(F)
+        ]
+    )
 
 
 def _refaced_frames(orient: np.ndarray, known: np.ndarray, views, rig: bool, jump_cost: float) -> np.ndarray:
@@ -641,8 +733,9 @@ def fit_sequence(
     init_frames = _initial_frames(usable_v, rig, int(cfg.init_stride))
 
     # 2. per-frame initialisation, the usable frames as one batch
-    fitter, per, rebranched = _initialise_frames(model, layout, cfg, pose_prior, camera, views, rig, (xy_v, conf_v, usable_v),
-                                                 init_frames, progress, depth_cues)  # fmt: skip
+    fitter, per, rebranched = _initialise_frames(
+        model, layout, cfg, pose_prior, camera, views, rig, (xy_v, conf_v, usable_v), init_frames, progress, depth_cues
+    )
     names = tuple(fitter.params.sizes)
     t_init = time.perf_counter() - t0
     known = np.zeros(F, dtype=bool)
@@ -657,8 +750,9 @@ def fit_sequence(
     # 4. joint refinement
     bridged = ~usable
     t1 = time.perf_counter()
-    final, refiner = _refine_jointly(model, layout, cfg, fitter.pose_prior, views, (xy_v, conf_v, usable_v), start, betas0,
-                                     names, progress)  # fmt: skip
+    final, refiner = _refine_jointly(
+        model, layout, cfg, fitter.pose_prior, views, (xy_v, conf_v, usable_v), start, betas0, names, progress
+    )
     t_refine = time.perf_counter() - t1
 
     # outputs
@@ -673,22 +767,43 @@ def fit_sequence(
     warnings = _sequence_warnings(bridged, refaced, rebranched)
     f32 = lambda a: np.asarray(a, dtype=np.float32)  # noqa: E731
     return SequenceFitResult(
-        betas=f32(final["betas"]), body_pose=f32(final["body_pose"]), global_orient=f32(final["global_orient"]),
-        transl=f32(final["transl"]), camera=views[0].camera, joints=f32(body.joints.numpy()), keypoints_2d=f32(kp2d),
-        bridged=bridged, refaced=refaced, rebranched=rebranched, outliers=outliers, reprojection_error=reproj,
+        betas=f32(final["betas"]),
+        body_pose=f32(final["body_pose"]),
+        global_orient=f32(final["global_orient"]),
+        transl=f32(final["transl"]),
+        camera=views[0].camera,
+        joints=f32(body.joints.numpy()),
+        keypoints_2d=f32(kp2d),
+        bridged=bridged,
+        refaced=refaced,
+        rebranched=rebranched,
+        outliers=outliers,
+        reprojection_error=reproj,
         per_frame={n: f32(v) for n, v in per_frame.items()},
         extra={n: f32(final[n]) for n in names if n not in ("betas", "body_pose", "global_orient", "transl")},
-        timings={"per_frame_init": t_init, "refine": t_refine, "total": time.perf_counter() - t0, "frames": F,
-                 "seconds_per_frame": (time.perf_counter() - t0) / F},
-        layout=layout, config=cfg.to_dict(), warnings=warnings, views=views if rig else None,
-    )  # fmt: skip
+        timings={
+            "per_frame_init": t_init,
+            "refine": t_refine,
+            "total": time.perf_counter() - t0,
+            "frames": F,
+            "seconds_per_frame": (time.perf_counter() - t0) / F,
+        },
+        layout=layout,
+        config=cfg.to_dict(),
+        warnings=warnings,
+        views=views if rig else None,
+    )
 
 
 def _fits_from(model, layout, config, fitter, probs, state, own, src, progress):
     """Frame ``own[m]``'s problem fitted from frame ``src[m]``'s parameters in ``state``, one start each,
     all in one batch: ``(state, energy [M])`` (energies of the final stage, as ``fitter``'s)."""
-    again = KeypointFitter(model, layout, replace(config, flip_test=False, init_poses=1, branch_search=False, hypotheses=1,
-                                                  final_iters_unsearched=None), fitter.pose_prior)  # fmt: skip
+    again = KeypointFitter(
+        model,
+        layout,
+        replace(config, flip_test=False, init_poses=1, branch_search=False, hypotheses=1, final_iters_unsearched=None),
+        fitter.pose_prior,
+    )
     # (the final stage as the frames' own fits ran it, so their energies compare)
     start = {k: v[torch.as_tensor(src)].double().numpy() for k, v in state.items()}
     nb_state, nb_info = again.fit_problems([probs[i] for i in own], progress=progress, init=start)
@@ -747,7 +862,9 @@ def _refit_from_offsets(model, layout, config, fitter, probs, state, energy, off
     nb_rows = {k: v.reshape(len(own), -1) for k, v in nb_state.items()}
     energy = torch.cat([torch.as_tensor(energy, dtype=torch.float64).reshape(-1), nb_energy.double()])
     rows = best_per_group(energy, torch.cat([torch.arange(n), torch.as_tensor(own)]), n)
-    return {k: torch.cat([v.double().reshape(n, -1), nb_rows[k].double()])[rows] for k, v in state.items()}, energy[rows]
+    return {k: torch.cat([v.double().reshape(n, -1), nb_rows[k].double()])[rows] for k, v in state.items()}, energy[
+        rows
+    ]
 
 
 def _choose_branches(model, layout, config, fitter, probs, state, info, cfg, frames, progress):
@@ -781,7 +898,9 @@ def _choose_branches(model, layout, config, fitter, probs, state, info, cfg, fra
 
     for b in range(n):
         hyps = (info.get("hypotheses") or [None] * n)[b]
-        for h in hyps or [{"params": {k: v[b].double().numpy() for k, v in rows.items()}, "energy": info["energies"][last][b]}]:
+        for h in hyps or [
+            {"params": {k: v[b].double().numpy() for k, v in rows.items()}, "energy": info["energies"][last][b]}
+        ]:
             add(h["params"], h["energy"], b)
     gaps = np.r_[1, np.diff(np.asarray(frames))]
     rounds = max(int(cfg.branch_rounds), 1) if cfg.neighbour_starts and n > 1 else 1
@@ -791,17 +910,26 @@ def _choose_branches(model, layout, config, fitter, probs, state, info, cfg, fra
         params = {k: np.stack(v) for k, v in cand.items()}
         e, own = np.asarray(energy), np.asarray(owner)
         with torch.no_grad():  # only the new candidates' joints would do; the sequence's are few enough
-            joints = fitter.body(**{k: torch.as_tensor(v, dtype=fitter.dtype) for k, v in params.items()}).joints.double().numpy()
+            joints = (
+                fitter.body(**{k: torch.as_tensor(v, dtype=fitter.dtype) for k, v in params.items()})
+                .joints.double()
+                .numpy()
+            )
         per = [np.flatnonzero(own == b) for b in range(n)]
-        pick = branch_path([e[i] for i in per], [joints[i] for i in per], gaps, cfg.branch_temporal_weight,
-                           cfg.branch_temporal_scale)  # fmt: skip
+        pick = branch_path(
+            [e[i] for i in per], [joints[i] for i in per], gaps, cfg.branch_temporal_weight, cfg.branch_temporal_scale
+        )
         chosen = np.array([i[p] for i, p in zip(per, pick)])
         if r + 1 < rounds:
             add_refits({k: torch.as_tensor(v[chosen]) for k, v in params.items()})
     e = np.where(np.isfinite(e), e, np.inf)
     lowest = np.array([i[int(np.argmin(e[i]))] for i in per])  # the first of tied ones
     moved = np.linalg.norm(joints[chosen] - joints[lowest], axis=-1).mean(-1)
-    return {k: torch.as_tensor(v[chosen]) for k, v in params.items()}, moved > DISTINCT_JOINTS_M, torch.as_tensor(e[chosen])
+    return (
+        {k: torch.as_tensor(v[chosen]) for k, v in params.items()},
+        moved > DISTINCT_JOINTS_M,
+        torch.as_tensor(e[chosen]),
+    )
 
 
 def _merge_windows(params: Dict[str, np.ndarray], starts: List[int], F: int) -> Dict[str, np.ndarray]:
@@ -832,8 +960,10 @@ def _cut_off_frames(masks, views: int = 1) -> List[str]:
     cut = sorted({i // views for i, m in enumerate(masks) if m is not None and mask_warnings(m)})
     if not cut:
         return []
-    return [f"frame(s) {', '.join(map(str, cut[:10]))}{' ...' if len(cut) > 10 else ''}: the person runs out of the image "
-            "(cut off); the body beyond the border rests on the keypoints and priors only"]
+    return [
+        f"frame(s) {', '.join(map(str, cut[:10]))}{' ...' if len(cut) > 10 else ''}: the person runs out of the image "
+        "(cut off); the body beyond the border rests on the keypoints and priors only"
+    ]
 
 
 def finite_median(values) -> Optional[float]:
@@ -864,7 +994,7 @@ def _silhouette_observations(grid, mgrid, views, outliers, bridged) -> list:
                     from ..wholebody import part_slices
 
                     conf = conf.copy()
-                    conf[part_slices()["body"].stop:] = 0.0
+                    conf[part_slices()["body"].stop :] = 0.0
                 ks = KeypointSet(ks.xy, conf, ks.layout, ks.source) if (conf > 0).any() else None
             else:
                 ks = None
@@ -890,12 +1020,20 @@ def _keypoint_reprojection(grid, kp2d, outliers, bridged) -> np.ndarray:
 def _with_parameters(result, p: dict, betas, joints, kp2d, reproj, timings, warnings) -> SequenceFitResult:
     """A copy of ``result`` with the silhouette stage's parameters ``p`` (one ``betas``), joints, projected keypoints
     and reprojection errors (the keypoint stage's kept beside), ``timings`` and ``warnings``."""
-    return replace(result, betas=betas, body_pose=np.asarray(p["body_pose"], np.float32),
-                   extra={n: np.asarray(p[n], np.float32) for n in result.extra},
-                   global_orient=np.asarray(p["global_orient"], np.float32), transl=np.asarray(p["transl"], np.float32),
-                   joints=np.asarray(joints, np.float32), keypoints_2d=np.asarray(kp2d, np.float32),
-                   reprojection_error=reproj, reprojection_error_keypoint_stage=result.reprojection_error, timings=timings,
-                   warnings=warnings)  # fmt: skip
+    return replace(
+        result,
+        betas=betas,
+        body_pose=np.asarray(p["body_pose"], np.float32),
+        extra={n: np.asarray(p[n], np.float32) for n in result.extra},
+        global_orient=np.asarray(p["global_orient"], np.float32),
+        transl=np.asarray(p["transl"], np.float32),
+        joints=np.asarray(joints, np.float32),
+        keypoints_2d=np.asarray(kp2d, np.float32),
+        reprojection_error=reproj,
+        reprojection_error_keypoint_stage=result.reprojection_error,
+        timings=timings,
+        warnings=warnings,
+    )
 
 
 def refine_sequence_silhouettes(
@@ -945,10 +1083,16 @@ def refine_sequence_silhouettes(
     init = result.params()
     t0 = time.perf_counter()
     (sil,) = fit_silhouette_problems(
-        model, [Problem(obs)], [init], layout=result.layout, config=cfg, pose_prior=pose_prior, progress=progress,
+        model,
+        [Problem(obs)],
+        [init],
+        layout=result.layout,
+        config=cfg,
+        pose_prior=pose_prior,
+        progress=progress,
         terms=(JointSmoothnessTerm(sigma=sigma), RootSmoothnessTerm(sigma=sigma)),
         weights={"smooth_joints": temporal_weight, "smooth_root": temporal_weight},
-    )  # fmt: skip
+    )
     seconds = time.perf_counter() - t0
     p = sil.params()
     betas = np.asarray(p["betas"], dtype=np.float32).reshape(-1)
@@ -966,13 +1110,21 @@ def refine_sequence_silhouettes(
     # than the keypoint fit it started from (median reprojection error over the frames, |betas|, stature) is not kept
     from ..plausibility import guard_fit
 
-    guard = guard_fit(model, finite_median(result.reprojection_error), result.betas, finite_median(reproj), betas, "video")
+    guard = guard_fit(
+        model, finite_median(result.reprojection_error), result.betas, finite_median(reproj), betas, "video"
+    )
     if guard.reverted and getattr(cfg, "plausibility_guard", True):
-        return replace(result, timings=timings, warnings=list(result.warnings) + list(sil.warnings) + list(guard.warnings))
-    warnings = (list(result.warnings) + list(sil.warnings)
-                + reprojection_rise_warnings(finite_median(result.reprojection_error), finite_median(reproj)) + shape_warnings(betas)
-                + _cut_off_frames([m for row in mgrid for m in row], C)
-                + ([f"{len(empty)} frame(s) with an empty mask had no silhouette term: {empty[:10]}"] if empty else []))  # fmt: skip
+        return replace(
+            result, timings=timings, warnings=list(result.warnings) + list(sil.warnings) + list(guard.warnings)
+        )
+    warnings = (
+        list(result.warnings)
+        + list(sil.warnings)
+        + reprojection_rise_warnings(finite_median(result.reprojection_error), finite_median(reproj))
+        + shape_warnings(betas)
+        + _cut_off_frames([m for row in mgrid for m in row], C)
+        + ([f"{len(empty)} frame(s) with an empty mask had no silhouette term: {empty[:10]}"] if empty else [])
+    )
     out = _with_parameters(result, p, betas, joints, kp2d, reproj, timings, warnings)
     ious = np.array(sil.ious, dtype=np.float64).reshape(F, C)
     out.silhouette_iou, out.silhouette_iou_start = (ious if rig else ious[:, 0]), float(sil.iou_start)

@@ -40,6 +40,7 @@ subject on an energy plateau. All levels run in the project's one schedule runne
 windows and recording each step. Steps with non-finite energy, or whose IoU collapses, stop
 that subject and keep its best parameters so far (``warnings`` in its result).
 """
+
 from __future__ import annotations
 
 import math
@@ -55,8 +56,14 @@ import torch
 from ..camera import Camera, project_points
 from ..priors import angle_prior, limit_violation, load_pose_prior, shape_prior
 from ..silhouette.losses import (
-    CoverProfile, MaskTarget, contour_points, cover_energy, outside_distance_energy, silhouette_energy, soft_iou,
-)  # fmt: skip
+    CoverProfile,
+    MaskTarget,
+    contour_points,
+    cover_energy,
+    outside_distance_energy,
+    silhouette_energy,
+    soft_iou,
+)
 from ..body.lbs import axis_angle_to_matrix, blend_shapes, pose_correctives, skin_vertices
 from .body import BodyState, KeypointBody, MeshBody, pose_parameter_names
 from .problem import ParameterLayout, Problem, stack_views, world_to_camera
@@ -66,10 +73,17 @@ from .terms import Energy, Evaluation, KeypointTerm, PriorTerm, StayTerm, Term, 
 from .threads import torch_threads
 
 __all__ = [
-    "ContourCoverTerm", "ContourInsideTerm", "SilhouetteFitConfig", "SilhouetteFitResult", "SilhouetteTerm",
-    "choose_window", "fit_silhouette",
-    "fit_silhouette_problems", "fit_silhouettes", "window_target",
-]  # fmt: skip
+    "ContourCoverTerm",
+    "ContourInsideTerm",
+    "SilhouetteFitConfig",
+    "SilhouetteFitResult",
+    "SilhouetteTerm",
+    "choose_window",
+    "fit_silhouette",
+    "fit_silhouette_problems",
+    "fit_silhouettes",
+    "window_target",
+]
 
 _CONTOUR_LOCK = threading.Lock()
 
@@ -83,8 +97,13 @@ BEFORE_SAMPLING_PART = {"spp": 4, "edge_density": 4.0}
 #: the rendered levels' settings before issue 24's fourth part (one proxy for every level, a shorter warm-up,
 #: body_pose's learning rate twice today's, edge_spp edge points per window pixel): :meth:`SilhouetteFitConfig.legacy`
 #: and the benchmark's older methods
-BEFORE_FOURTH_PART = {"level_proxy_faces": {}, "warmup": 5, "edge_density": None, "spp": BEFORE_SAMPLING_PART["spp"],
-                      "lr": {"betas": 0.1, "body_pose": 0.03, "global_orient": 0.02, "transl": 0.01}}  # fmt: skip
+BEFORE_FOURTH_PART = {
+    "level_proxy_faces": {},
+    "warmup": 5,
+    "edge_density": None,
+    "spp": BEFORE_SAMPLING_PART["spp"],
+    "lr": {"betas": 0.1, "body_pose": 0.03, "global_orient": 0.02, "transl": 0.01},
+}
 
 
 @renamed_fields(w_pose=Alias("pose_weight"))
@@ -173,9 +192,7 @@ class SilhouetteFitConfig:
     alternatives_max: int = 2
     #: Adam's learning rates (body_pose 0.03 before issue 24's fourth part: the first steps of a rendered level
     #: knocked the contour level's IoU down)
-    lr: dict = field(
-        default_factory=lambda: {"betas": 0.1, "body_pose": 0.015, "global_orient": 0.02, "transl": 0.01}
-    )
+    lr: dict = field(default_factory=lambda: {"betas": 0.1, "body_pose": 0.015, "global_orient": 0.02, "transl": 0.01})
     w_silhouette: float = 1.0
     w_keypoints: float = 0.02
     kp_sigma: float = 20.0  # Geman-McClure scale, window pixels
@@ -244,23 +261,39 @@ class SilhouetteFitConfig:
                 "must have the same non-zero length"
             )
         if int(self.contour_iterations) != self.contour_iterations or self.contour_iterations < 0:
-            raise ValueError(f"SilhouetteFitConfig: contour_iterations must be a non-negative integer, got {self.contour_iterations!r}")
+            raise ValueError(
+                f"SilhouetteFitConfig: contour_iterations must be a non-negative integer, got {self.contour_iterations!r}"
+            )
         missing = [n for n in self.optimise if n not in self.lr]
         if missing:
-            raise ValueError(f"SilhouetteFitConfig: no learning rate (lr) for optimised parameter(s) {', '.join(missing)}")
-        negative = [n for n in ("w_trust", "trust_fraction", "trust_ratio", "trust_median", "trust_unit_median")
-                    if not float(getattr(self, n)) >= 0]  # fmt: skip
+            raise ValueError(
+                f"SilhouetteFitConfig: no learning rate (lr) for optimised parameter(s) {', '.join(missing)}"
+            )
+        negative = [
+            n
+            for n in ("w_trust", "trust_fraction", "trust_ratio", "trust_median", "trust_unit_median")
+            if not float(getattr(self, n)) >= 0
+        ]
         if negative:
-            raise ValueError(f"SilhouetteFitConfig: {', '.join(negative)} must be 0 or more (the keypoint trust region)")
+            raise ValueError(
+                f"SilhouetteFitConfig: {', '.join(negative)} must be 0 or more (the keypoint trust region)"
+            )
 
     @classmethod
     def legacy(cls, **changes) -> "SilhouetteFitConfig":
         """The schedule before the contour level (issue 24): rendered Adam levels only, 60
         steps at 128 px and 50 at 256 px, the rendered levels' settings before its fourth part
         (:data:`BEFORE_FOURTH_PART`; the benchmark's "before")."""
-        return cls(**{"resolutions": (128, 256), "iterations": (60, 50), "contour_iterations": 0, "window_multiple": 1,
-                      **{k: (dict(v) if isinstance(v, dict) else v) for k, v in BEFORE_FOURTH_PART.items()},
-                      **changes})  # fmt: skip
+        return cls(
+            **{
+                "resolutions": (128, 256),
+                "iterations": (60, 50),
+                "contour_iterations": 0,
+                "window_multiple": 1,
+                **{k: (dict(v) if isinstance(v, dict) else v) for k, v in BEFORE_FOURTH_PART.items()},
+                **changes,
+            }
+        )
 
     def cover_profile(self, resolution: int) -> Optional[CoverProfile]:
         """The mask-not-covered profile in pixels of a window ``resolution`` pixels long
@@ -268,16 +301,23 @@ class SilhouetteFitConfig:
         if not self.robust_cover:
             return None
         r = float(resolution)
-        return CoverProfile(float(self.cover_margin) * r, float(self.cover_inner), float(self.cover_cap) * r,
-                            float(self.cover_weight))  # fmt: skip
+        return CoverProfile(
+            float(self.cover_margin) * r, float(self.cover_inner), float(self.cover_cap) * r, float(self.cover_weight)
+        )
 
     def weights(self) -> dict:
         """The rendered levels' weights."""
         return {
-            "silhouette": self.w_silhouette, "keypoints": self.w_keypoints, "pose": self.pose_weight,
-            "limits": self.w_limits, "angle": self.w_angle, "shape": self.w_shape, "stay": self.w_stay,
-            "keypoint_trust": self.w_trust, "beta_bound": self.w_beta_bound,
-        }  # fmt: skip
+            "silhouette": self.w_silhouette,
+            "keypoints": self.w_keypoints,
+            "pose": self.pose_weight,
+            "limits": self.w_limits,
+            "angle": self.w_angle,
+            "shape": self.w_shape,
+            "stay": self.w_stay,
+            "keypoint_trust": self.w_trust,
+            "beta_bound": self.w_beta_bound,
+        }
 
     def contour_weights(self) -> dict:
         """The contour level's weights: the rendered silhouette's place taken by the two
@@ -291,14 +331,35 @@ class SilhouetteFitConfig:
         :data:`~silfit.fitting.schedules.SILHOUETTE_SCHEDULE`."""
         contour = ()
         if self.contour_iterations:
-            contour = (Stage("contour", tuple(self.optimise), self.contour_weights(), int(self.contour_iterations),
-                             "lbfgs", {"resolution": int(self.contour_resolution)}),)  # fmt: skip
+            contour = (
+                Stage(
+                    "contour",
+                    tuple(self.optimise),
+                    self.contour_weights(),
+                    int(self.contour_iterations),
+                    "lbfgs",
+                    {"resolution": int(self.contour_resolution)},
+                ),
+            )
         faces = [self.level_faces(r) for r in self.resolutions]
         return contour + tuple(
-            Stage(f"silhouette_{int(r)}", tuple(self.optimise), self.weights(), int(it), "adam",
-                  {"resolution": int(r), **({} if f is None else {"proxy_faces": f}),
-                   **AdamSettings({k: self.lr[k] for k in self.optimise}, int(self.warmup),
-                                  int(self.plateau_window), float(self.plateau_rtol)).options()})  # fmt: skip
+            Stage(
+                f"silhouette_{int(r)}",
+                tuple(self.optimise),
+                self.weights(),
+                int(it),
+                "adam",
+                {
+                    "resolution": int(r),
+                    **({} if f is None else {"proxy_faces": f}),
+                    **AdamSettings(
+                        {k: self.lr[k] for k in self.optimise},
+                        int(self.warmup),
+                        int(self.plateau_window),
+                        float(self.plateau_rtol),
+                    ).options(),
+                },
+            )
             for r, it, f in zip(self.resolutions, self.iterations, faces)
         )
 
@@ -385,8 +446,14 @@ def choose_window(mask: np.ndarray, uv: np.ndarray, camera: Camera, resolution: 
     return RoiWindow(x0, y0, scale, camera.crop(x0, y0, width, height, scale))
 
 
-def window_target(mask: np.ndarray, window, supersample: int = 4, truncation_aware: bool = True,
-                  cover: Optional[CoverProfile] = None, known: Optional[np.ndarray] = None) -> tuple[MaskTarget, np.ndarray]:  # fmt: skip
+def window_target(
+    mask: np.ndarray,
+    window,
+    supersample: int = 4,
+    truncation_aware: bool = True,
+    cover: Optional[CoverProfile] = None,
+    known: Optional[np.ndarray] = None,
+) -> tuple[MaskTarget, np.ndarray]:
     """The mask resampled into a ``RoiWindow``: ``(MaskTarget of the binarised coverage, coverage)``.
 
     Coverage is the fraction of each window pixel inside the mask (supersampled, then
@@ -405,9 +472,21 @@ def window_target(mask: np.ndarray, window, supersample: int = 4, truncation_awa
     s = window.scale * ss
     # Output (supersampled) pixel centre i -> image pixel-centre coordinate x0 + (i + 0.5)/s - 0.5.
     M = np.array([[1.0 / s, 0.0, window.x0 + 0.5 / s - 0.5], [0.0, 1.0 / s, window.y0 + 0.5 / s - 0.5]])
-    warp = lambda img: cv2.resize(cv2.warpAffine(  # noqa: E731
-        img, M, (cam.width * ss, cam.height * ss), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
-        borderMode=cv2.BORDER_CONSTANT, borderValue=0.0), (cam.width, cam.height), interpolation=cv2.INTER_AREA)  # fmt: skip
+
+    def warp(img):
+        return cv2.resize(
+            cv2.warpAffine(
+                img,
+                M,
+                (cam.width * ss, cam.height * ss),
+                flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+                borderMode=cv2.BORDER_CONSTANT,
+                borderValue=0.0,
+            ),
+            (cam.width, cam.height),
+            interpolation=cv2.INTER_AREA,
+        )
+
     if known is not None:
         known = np.asarray(known, dtype=bool)
         mask = np.asarray(mask, dtype=bool) & known
@@ -455,23 +534,44 @@ class SilhouetteTerm(Term):
         # edge_density only when set: a caller's renderer without the option still works with None
         dens = {} if self.edge_density is None else {"edge_density": self.edge_density}
         if self.batch_renderer is not None and len(jobs) > 1:
-            sils = self.batch_renderer([cams[p, o // ev.C, o % ev.C] for p, o in jobs],
-                                       [windows[p][o].camera for p, o in jobs],
-                                       spp=self.spp, edge_spp=self.edge_spp, seed=seeds[0], **dens)  # fmt: skip
+            sils = self.batch_renderer(
+                [cams[p, o // ev.C, o % ev.C] for p, o in jobs],
+                [windows[p][o].camera for p, o in jobs],
+                spp=self.spp,
+                edge_spp=self.edge_spp,
+                seed=seeds[0],
+                **dens,
+            )
         elif hasattr(self.renderer, "render_views"):  # a body's views in one call (one BVH build per body)
             Vb, R, t = V.reshape(ev.P, ev.F, *V.shape[1:]), ev.data["R"], ev.data["t"]
             sils = [None] * len(jobs)
             for key in dict.fromkeys((p, o // ev.C) for p, o in jobs):
                 js = [j for j, (p, o) in enumerate(jobs) if (p, o // ev.C) == key]
                 cs = [jobs[j][1] % ev.C for j in js]
-                imgs = self.renderer.render_views(Vb[key], [windows[key[0]][jobs[j][1]].camera for j in js],
-                                                  [R[key][c] for c in cs], [t[key][c] for c in cs], spp=self.spp,
-                                                  edge_spp=self.edge_spp, seeds=[seeds[j] for j in js], **dens)  # fmt: skip
+                imgs = self.renderer.render_views(
+                    Vb[key],
+                    [windows[key[0]][jobs[j][1]].camera for j in js],
+                    [R[key][c] for c in cs],
+                    [t[key][c] for c in cs],
+                    spp=self.spp,
+                    edge_spp=self.edge_spp,
+                    seeds=[seeds[j] for j in js],
+                    **dens,
+                )
                 for j, img in zip(js, imgs):
                     sils[j] = img
         else:
-            sils = [self.renderer(cams[p, o // ev.C, o % ev.C], windows[p][o].camera, spp=self.spp,
-                                  edge_spp=self.edge_spp, seed=seed, **dens) for (p, o), seed in zip(jobs, seeds)]  # fmt: skip
+            sils = [
+                self.renderer(
+                    cams[p, o // ev.C, o % ev.C],
+                    windows[p][o].camera,
+                    spp=self.spp,
+                    edge_spp=self.edge_spp,
+                    seed=seed,
+                    **dens,
+                )
+                for (p, o), seed in zip(jobs, seeds)
+            ]
         energies = [torch.zeros((), dtype=V.dtype) for _ in range(ev.P)]
         ious = [[float("nan")] * len(windows[p]) for p in range(ev.P)]
         for (p, o), sil in zip(jobs, sils):
@@ -490,8 +590,15 @@ def trust_excess(dist: torch.Tensor, radius: torch.Tensor, weights: torch.Tensor
     return (weights * torch.relu(dist - radius).square()).sum(-1)
 
 
-def trust_data(target: torch.Tensor, weights: torch.Tensor, start_2d: torch.Tensor, ratio: float = 1.0,
-               median_share: float = 0.0, floor_px: float = 1.0, unit_share: float = 1.0) -> dict:
+def trust_data(
+    target: torch.Tensor,
+    weights: torch.Tensor,
+    start_2d: torch.Tensor,
+    ratio: float = 1.0,
+    median_share: float = 0.0,
+    floor_px: float = 1.0,
+    unit_share: float = 1.0,
+) -> dict:
     """The data of :class:`KeypointTrustTerm` around the keypoint stage's fit (issue 55), from the detections
     ``target [..., K, 2]``, their ``weights [..., K]`` (confidences) and the fit's projections ``start_2d``, all in
     image pixels: ``trust_radius [..., K]``, each keypoint's free radius, ``ratio`` times its reprojection error
@@ -505,8 +612,11 @@ def trust_data(target: torch.Tensor, weights: torch.Tensor, start_2d: torch.Tens
     med = torch.stack([r[m].median() if bool(m.any()) else r.new_zeros(()) for r, m in zip(flat, fseen)])
     med = med.reshape(start.shape[:-1])
     top = weights.amax(dim=-1, keepdim=True).clamp(min=1e-12)
-    return {"trust_radius": float(ratio) * start + float(median_share) * med[..., None],
-            "trust_unit": float(unit_share) * med + float(floor_px), "trust_weights": weights / top}
+    return {
+        "trust_radius": float(ratio) * start + float(median_share) * med[..., None],
+        "trust_unit": float(unit_share) * med + float(floor_px),
+        "trust_weights": weights / top,
+    }
 
 
 class KeypointTrustTerm(Term):
@@ -534,7 +644,9 @@ class KeypointTrustTerm(Term):
             return ev.per_problem(trust_excess(dist * scale, tau, w / w.sum(-1, keepdim=True).clamp(min=1e-9)))
         unit = d["trust_unit"].reshape(-1, 1).to(dist.dtype)
         radius = d["trust_radius"].reshape(-1, K).to(dist.dtype) + tau / scale
-        return ev.per_problem(trust_excess(dist / unit, radius / unit, d["trust_weights"].reshape(-1, K).to(dist.dtype)))
+        return ev.per_problem(
+            trust_excess(dist / unit, radius / unit, d["trust_weights"].reshape(-1, K).to(dist.dtype))
+        )
 
 
 def beta_bound(betas: torch.Tensor, limit: float) -> torch.Tensor:
@@ -627,8 +739,12 @@ def cached_contour_body(model, layout: str, what: tuple, vertex_index: Callable)
     with _CONTOUR_LOCK:
         bodies = _CONTOUR_BODIES.setdefault(model, {})
         kept = bodies.get(key)
-        if kept is not None and len(kept[0]) == len(arrays) and all(a is b for a, b in zip(kept[0], arrays)) \
-                and kept[1] == versions:  # fmt: skip
+        if (
+            kept is not None
+            and len(kept[0]) == len(arrays)
+            and all(a is b for a, b in zip(kept[0], arrays))
+            and kept[1] == versions
+        ):
             return kept[2]
         body = ContourBody(model, layout, vertex_index())
         bodies[key] = (arrays, versions, body)
@@ -721,8 +837,9 @@ def fit_silhouette(
     keypoint term on; ``None`` fits the silhouette and priors alone. ``callback(step,
     info)`` is called every step with the level, energy and IoU.
     """
-    return fit_silhouettes(model, [init], [camera], [mask], [keypoints], layout, config, pose_prior, renderer,
-                           progress, callback)[0]  # fmt: skip
+    return fit_silhouettes(
+        model, [init], [camera], [mask], [keypoints], layout, config, pose_prior, renderer, progress, callback
+    )[0]
 
 
 def fit_silhouettes(
@@ -742,7 +859,9 @@ def fit_silhouettes(
     :func:`fit_silhouette` per subject; ``callback(step, info)`` gets ``info['subject']``."""
     keypoints = list(keypoints) if keypoints is not None else [None] * len(inits)
     if not (len(inits) == len(cameras) == len(masks) == len(keypoints)):
-        raise ValueError(f"{len(inits)} starts, {len(cameras)} cameras, {len(masks)} masks, {len(keypoints)} keypoint sets")
+        raise ValueError(
+            f"{len(inits)} starts, {len(cameras)} cameras, {len(masks)} masks, {len(keypoints)} keypoint sets"
+        )
     problems = [Problem.single(kp, cam, mask) for kp, cam, mask in zip(keypoints, cameras, masks)]
     return fit_silhouette_problems(model, problems, inits, layout, config, pose_prior, renderer, progress, callback)
 
@@ -792,8 +911,20 @@ def fit_silhouette_problems(
 
         pose_prior = body_prior_for(model, pose_prior)
     with torch_threads(cfg.threads):
-        return _fit_problems(model, problems, list(inits), layout, cfg, pose_prior, renderer, progress, callback,
-                             tuple(terms), dict(weights or {}), dict(data or {}))  # fmt: skip
+        return _fit_problems(
+            model,
+            problems,
+            list(inits),
+            layout,
+            cfg,
+            pose_prior,
+            renderer,
+            progress,
+            callback,
+            tuple(terms),
+            dict(weights or {}),
+            dict(data or {}),
+        )
 
 
 def _keypoint_array(keypoints) -> Optional[np.ndarray]:
@@ -831,8 +962,17 @@ def _keypoint_data(grids, dtype) -> tuple:
     return target, weights, any(a is not None for g in arrays for row in g for a in row)
 
 
-def _observation_window(mask, uv: np.ndarray, camera: Camera, resolution: int, margin: float, multiple: int = 1,
-                        truncation_aware: bool = True, cover: Optional[CoverProfile] = None, known=None):  # fmt: skip
+def _observation_window(
+    mask,
+    uv: np.ndarray,
+    camera: Camera,
+    resolution: int,
+    margin: float,
+    multiple: int = 1,
+    truncation_aware: bool = True,
+    cover: Optional[CoverProfile] = None,
+    known=None,
+):
     """``(window, target)`` of an observation with a mask, or ``(None, scale)`` without one
     (the pixels-to-window scale a window around the projected body would have)."""
     if mask is not None:
@@ -847,8 +987,16 @@ def _checked_masks(grids) -> tuple:
     its known pixels (or ``None``); a mask not of its camera's size, an empty one, known pixels not of the mask's
     size, or no mask at all raise ``ValueError``."""
     masks = [[[None if o.mask is None else np.asarray(o.mask, dtype=bool) for o in row] for row in g] for g in grids]
-    known = [[[None if o.mask is None or getattr(o, "known", None) is None else np.asarray(o.known, dtype=bool)
-               for o in row] for row in g] for g in grids]  # fmt: skip
+    known = [
+        [
+            [
+                None if o.mask is None or getattr(o, "known", None) is None else np.asarray(o.known, dtype=bool)
+                for o in row
+            ]
+            for row in g
+        ]
+        for g in grids
+    ]
     for p, g in enumerate(grids):
         for f, row in enumerate(g):
             for c, o in enumerate(row):
@@ -860,8 +1008,10 @@ def _checked_masks(grids) -> tuple:
                 if not m.any():
                     raise ValueError(f"problem {p}, frame {f}, view {c}: the mask is empty")
                 if known[p][f][c] is not None and known[p][f][c].shape != m.shape:
-                    raise ValueError(f"problem {p}, frame {f}, view {c}: known is {known[p][f][c].shape[1]}x"
-                                     f"{known[p][f][c].shape[0]} pixels, the mask {m.shape[1]}x{m.shape[0]}")
+                    raise ValueError(
+                        f"problem {p}, frame {f}, view {c}: known is {known[p][f][c].shape[1]}x"
+                        f"{known[p][f][c].shape[0]} pixels, the mask {m.shape[1]}x{m.shape[0]}"
+                    )
     if not any(m is not None for g in masks for row in g for m in row):
         raise ValueError("the silhouette stage needs at least one mask")
     return masks, known
@@ -874,9 +1024,16 @@ def _start_state(inits, params_layout: ParameterLayout, frames: int, dtype) -> d
         rows = []
         for init in inits:
             v = init.get(n)
-            v = np.zeros(w if params_layout.is_shared(n) else (frames, w)) if v is None else np.asarray(v, dtype=np.float64)
-            rows.append(torch.as_tensor(v, dtype=dtype).reshape(w) if params_layout.is_shared(n)
-                        else torch.as_tensor(v, dtype=dtype).reshape(frames, w))  # fmt: skip
+            v = (
+                np.zeros(w if params_layout.is_shared(n) else (frames, w))
+                if v is None
+                else np.asarray(v, dtype=np.float64)
+            )
+            rows.append(
+                torch.as_tensor(v, dtype=dtype).reshape(w)
+                if params_layout.is_shared(n)
+                else torch.as_tensor(v, dtype=dtype).reshape(frames, w)
+            )
         start[n] = torch.stack(rows)
     return start
 
@@ -924,8 +1081,23 @@ class _SilhouetteRun:
     other resolutions do not compare); :meth:`finish_level` takes the contour level's end as the best so far and
     restarts the next level from a rendered level's best; :meth:`results` ends it."""
 
-    def __init__(self, model, cfg: SilhouetteFitConfig, grids, masks, known, params: dict, params_layout, views: dict,
-                 data: dict, silhouette: SilhouetteTerm, level_render: _LevelRenders, contour_body, callback, bar):  # fmt: skip
+    def __init__(
+        self,
+        model,
+        cfg: SilhouetteFitConfig,
+        grids,
+        masks,
+        known,
+        params: dict,
+        params_layout,
+        views: dict,
+        data: dict,
+        silhouette: SilhouetteTerm,
+        level_render: _LevelRenders,
+        contour_body,
+        callback,
+        bar,
+    ):
         self.model, self.cfg, self.grids, self.masks, self.known = model, cfg, grids, masks, known
         self.params, self.params_layout, self.views, self.data = params, params_layout, views, data
         self.silhouette, self.level_render, self.contour_body = silhouette, level_render, contour_body
@@ -963,9 +1135,17 @@ class _SilhouetteRun:
                     R, t = self.views["R"][p, f, c].to(verts.dtype), self.views["t"][p, f, c].to(verts.dtype)
                     cam_pts = world_to_camera(verts[p, f], R, t)
                     cam = self.grids[p][f][c].view.camera
-                    window, target = _observation_window(self.masks[p][f][c], project_points(cam_pts, cam).numpy(), cam,
-                                                         resolution, cfg.margin, cfg.window_multiple, cfg.truncation_aware,
-                                                         cfg.cover_profile(resolution), self.known[p][f][c])  # fmt: skip
+                    window, target = _observation_window(
+                        self.masks[p][f][c],
+                        project_points(cam_pts, cam).numpy(),
+                        cam,
+                        resolution,
+                        cfg.margin,
+                        cfg.window_multiple,
+                        cfg.truncation_aware,
+                        cfg.cover_profile(resolution),
+                        self.known[p][f][c],
+                    )
                     windows.append(window)
                     targets.append(target if window is not None else None)
                     scale[p, f, c] = window.scale if window is not None else target
@@ -985,8 +1165,13 @@ class _SilhouetteRun:
         sil.renderer, sil.proxy, sil.batch_renderer, level_body = self.level_render(stage.options.get("proxy_faces"))
         self.best_energy[:] = [math.inf] * P  # energies of different resolutions are not comparable
         self.level, self.resolution, self.stepped_ious = level, resolution, {}
-        return {"rows": rows, "body": level_body, "before_step": self.before_step, "on_step": self.on_step,
-                "after_step": self.after_step}  # fmt: skip
+        return {
+            "rows": rows,
+            "body": level_body,
+            "before_step": self.before_step,
+            "on_step": self.on_step,
+            "after_step": self.after_step,
+        }
 
     def before_step(self, i, rows):
         """Each problem's renderer seed of this step (its own step count)."""
@@ -1007,8 +1192,13 @@ class _SilhouetteRun:
                 continue
             h = self.history[p]
             term_values = {k: float(v[j].detach()) for k, v in parts.items()}
-            for key, value in (("level", self.level), ("energy", e_value), ("silhouette", term_values.get("silhouette", 0.0)),
-                               ("keypoints", term_values.get("keypoints", 0.0)), ("iou", iou)):  # fmt: skip
+            for key, value in (
+                ("level", self.level),
+                ("energy", e_value),
+                ("silhouette", term_values.get("silhouette", 0.0)),
+                ("keypoints", term_values.get("keypoints", 0.0)),
+                ("iou", iou),
+            ):
                 h[key].append(value)
             if e_value < self.best_energy[p]:
                 self.best_energy[p], self.best_iou[p], self.best_terms[p] = e_value, iou, term_values
@@ -1026,7 +1216,9 @@ class _SilhouetteRun:
         for p in stepped.tolist():
             self.steps[p] += 1
             self.bar.update(1)
-        self.bar.set_postfix(iou=f"{np.mean([self.stepped_ious[p] for p in stepped.tolist()]):.3f}", res=self.resolution)
+        self.bar.set_postfix(
+            iou=f"{np.mean([self.stepped_ious[p] for p in stepped.tolist()]):.3f}", res=self.resolution
+        )
         self.stepped_ious.clear()
 
     def finish_level(self, level, stage, run):
@@ -1052,24 +1244,46 @@ class _SilhouetteRun:
         for p in range(self.P):
             final = {}
             for k, v in self.best_params[p].items():
-                final[k] = v.detach().cpu().numpy().astype(np.float32).reshape(-1 if layout.is_shared(k) else F, sizes[k])
+                final[k] = (
+                    v.detach().cpu().numpy().astype(np.float32).reshape(-1 if layout.is_shared(k) else F, sizes[k])
+                )
                 if layout.is_shared(k):
                     final[k] = final[k].reshape(1, -1)
             h = self.history[p]
             obs = self.best_obs_iou[p] or [float("nan")] * (F * C)
-            results.append(SilhouetteFitResult(
-                parameters=final, history=h,
-                iou_start=h["iou"][0] if h["iou"] else float("nan"),
-                iou_end=float(self.best_iou[p]) if h["iou"] else float("nan"),
-                seconds=seconds, steps=self.steps[p], warnings=self.warnings[p], terms=self.best_terms[p], config=config,
-                contour_iterations=self.contour_steps[p],
-                ious=[list(obs[f * C:(f + 1) * C]) for f in range(F)], failed=bool(self.failed[p]),
-            ))  # fmt: skip
+            results.append(
+                SilhouetteFitResult(
+                    parameters=final,
+                    history=h,
+                    iou_start=h["iou"][0] if h["iou"] else float("nan"),
+                    iou_end=float(self.best_iou[p]) if h["iou"] else float("nan"),
+                    seconds=seconds,
+                    steps=self.steps[p],
+                    warnings=self.warnings[p],
+                    terms=self.best_terms[p],
+                    config=config,
+                    contour_iterations=self.contour_steps[p],
+                    ious=[list(obs[f * C : (f + 1) * C]) for f in range(F)],
+                    failed=bool(self.failed[p]),
+                )
+            )
         return results
 
 
-def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, progress, callback, extra_terms,
-                  extra_weights, extra_data):  # fmt: skip
+def _fit_problems(
+    model,
+    problems,
+    inits,
+    layout,
+    cfg,
+    pose_prior,
+    renderer,
+    progress,
+    callback,
+    extra_terms,
+    extra_weights,
+    extra_data,
+):
     from tqdm.auto import tqdm
 
     dtype = model.dtype
@@ -1086,25 +1300,46 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
     smpl_layout = getattr(model, "kind", "smpl") == "smpl"
     contour_body, contour_points_map = body, None  # the contour level's evaluator and its vertices' map
     if cfg.contour_iterations and cfg.contour_vertices and smpl_layout:
-        contour_body = cached_contour_body(model, layout, ("vertices", int(cfg.contour_vertices)),
-                                           lambda: contour_vertex_index(model, cfg.contour_vertices))  # fmt: skip
+        contour_body = cached_contour_body(
+            model,
+            layout,
+            ("vertices", int(cfg.contour_vertices)),
+            lambda: contour_vertex_index(model, cfg.contour_vertices),
+        )
     elif cfg.proxy_faces:  # the full body, its points read at the proxy's vertices
         from renderers.proxy import get_proxy
 
         contour_points_map = get_proxy(model.v_template, model.faces, int(cfg.proxy_faces))
-    silhouette = SilhouetteTerm(None, cfg.spp, cfg.edge_spp, edge_density=cfg.edge_density)  # each rendered level sets its renderer (_LevelRenders)
+    silhouette = SilhouetteTerm(
+        None, cfg.spp, cfg.edge_spp, edge_density=cfg.edge_density
+    )  # each rendered level sets its renderer (_LevelRenders)
 
-    energy = Energy([
-        silhouette, KeypointTerm("keypoints", cfg.kp_sigma),
-        PriorTerm("pose", prior, "body_pose"), PriorTerm("limits", limit_violation, "body_pose"),
-        PriorTerm("angle", angle_prior, "body_pose"), PriorTerm("shape", shape_prior, "betas"),
-        StayTerm("body_pose"), ContourInsideTerm(contour_points_map), ContourCoverTerm(contour_points_map),
-        KeypointTrustTerm(), PriorTerm("beta_bound", lambda b: beta_bound(b, cfg.max_abs_beta), "betas"), *extra_terms,
-    ])  # fmt: skip
+    energy = Energy(
+        [
+            silhouette,
+            KeypointTerm("keypoints", cfg.kp_sigma),
+            PriorTerm("pose", prior, "body_pose"),
+            PriorTerm("limits", limit_violation, "body_pose"),
+            PriorTerm("angle", angle_prior, "body_pose"),
+            PriorTerm("shape", shape_prior, "betas"),
+            StayTerm("body_pose"),
+            ContourInsideTerm(contour_points_map),
+            ContourCoverTerm(contour_points_map),
+            KeypointTrustTerm(),
+            PriorTerm("beta_bound", lambda b: beta_bound(b, cfg.max_abs_beta), "betas"),
+            *extra_terms,
+        ]
+    )
     target_xy, target_w, any_keypoints = _keypoint_data(grids, dtype)
     stages = tuple(
-        Stage(s.name, free_names, {**s.weights, **extra_weights, **({} if any_keypoints else {"keypoints": 0.0, "keypoint_trust": 0.0})},
-              s.iterations, s.optimiser, s.options)  # fmt: skip
+        Stage(
+            s.name,
+            free_names,
+            {**s.weights, **extra_weights, **({} if any_keypoints else {"keypoints": 0.0, "keypoint_trust": 0.0})},
+            s.iterations,
+            s.optimiser,
+            s.options,
+        )
         for s in cfg.stages()
     )
     check_stages(stages, energy, params_layout)
@@ -1113,21 +1348,55 @@ def _fit_problems(model, problems, inits, layout, cfg, pose_prior, renderer, pro
         if isinstance(v, torch.Tensor) and v.shape[:1] != (P,):
             raise ValueError(f"data[{k!r}] has shape {tuple(v.shape)}; expected a leading problem axis of {P}")
     data = {
-        **extra_data, "target": target_xy, "weights": target_w, "scale": torch.ones(P, F, problems[0].num_views, dtype=dtype),
-        "start_body_pose": start["body_pose"], "R": views["R"], "t": views["t"],
-        "windows": PerRow([None] * P), "targets": PerRow([None] * P), "seeds": PerRow([None] * P),
-        "contours": PerRow([None] * P), "trust_px": torch.zeros(P, dtype=dtype),
-    }  # fmt: skip
+        **extra_data,
+        "target": target_xy,
+        "weights": target_w,
+        "scale": torch.ones(P, F, problems[0].num_views, dtype=dtype),
+        "start_body_pose": start["body_pose"],
+        "R": views["R"],
+        "t": views["t"],
+        "windows": PerRow([None] * P),
+        "targets": PerRow([None] * P),
+        "seeds": PerRow([None] * P),
+        "contours": PerRow([None] * P),
+        "trust_px": torch.zeros(P, dtype=dtype),
+    }
     if cfg.trust_from_start and any_keypoints:  # the trust region around the keypoint stage's fit (issue 55)
         with torch.no_grad():
             start_2d = evaluate(body, params_layout, start, views, data).keypoints_2d
-        data.update(trust_data(target_xy, target_w, start_2d, cfg.trust_ratio, cfg.trust_median,
-                               unit_share=cfg.trust_unit_median))  # fmt: skip
+        data.update(
+            trust_data(
+                target_xy, target_w, start_2d, cfg.trust_ratio, cfg.trust_median, unit_share=cfg.trust_unit_median
+            )
+        )
     t0 = time.perf_counter()
     bar = tqdm(total=int(sum(cfg.iterations)) * P, desc="silhouette", disable=not progress, leave=False)
-    hooks = _SilhouetteRun(model, cfg, grids, masks, known, params, params_layout, views, data, silhouette,
-                           _LevelRenders(model, layout, cfg, body, renderer, smpl_layout), contour_body, callback, bar)  # fmt: skip
-    run_schedule(stages, params, params_layout, energy, body, views, data, before_stage=hooks.prepare_level,
-                 after_stage=hooks.finish_level)  # fmt: skip
+    hooks = _SilhouetteRun(
+        model,
+        cfg,
+        grids,
+        masks,
+        known,
+        params,
+        params_layout,
+        views,
+        data,
+        silhouette,
+        _LevelRenders(model, layout, cfg, body, renderer, smpl_layout),
+        contour_body,
+        callback,
+        bar,
+    )
+    run_schedule(
+        stages,
+        params,
+        params_layout,
+        energy,
+        body,
+        views,
+        data,
+        before_stage=hooks.prepare_level,
+        after_stage=hooks.finish_level,
+    )
     bar.close()
     return hooks.results((time.perf_counter() - t0) / max(P, 1))

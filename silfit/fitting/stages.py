@@ -17,6 +17,7 @@ per row, its own optimiser state and stopping; a batch gives what its rows give 
   renderer seeds), look at each step's rows (``on_step``: history, best parameters,
   divergence; it says which rows take the step) and follow the steps taken (``after_step``).
 """
+
 from __future__ import annotations
 
 import math
@@ -31,9 +32,18 @@ from .problem import ParameterLayout
 from .terms import Energy, evaluate
 
 __all__ = [
-    "AdamSettings", "PerRow", "Stage", "StageRun", "check_stages", "gated", "run_adam_stage", "run_lbfgs_stage", "run_schedule",
-    "run_stage", "stage_to_dict",
-]  # fmt: skip
+    "AdamSettings",
+    "PerRow",
+    "Stage",
+    "StageRun",
+    "check_stages",
+    "gated",
+    "run_adam_stage",
+    "run_lbfgs_stage",
+    "run_schedule",
+    "run_stage",
+    "stage_to_dict",
+]
 
 OPTIMISERS = ("lbfgs", "adam")
 
@@ -74,19 +84,29 @@ class AdamSettings:
         missing = [n for n in stage.free if n not in o.get("lr", {})]
         if missing:
             raise ValueError(f"stage '{stage.name}': no learning rate (options['lr']) for {', '.join(missing)}")
-        return cls(dict(o["lr"]), int(o.get("warmup", 0)), int(o.get("plateau_window", 0)), float(o.get("plateau_rtol", 0.0)))
+        return cls(
+            dict(o["lr"]), int(o.get("warmup", 0)), int(o.get("plateau_window", 0)), float(o.get("plateau_rtol", 0.0))
+        )
 
     def options(self) -> dict:
         """The stage options that give these settings."""
-        return {"lr": dict(self.lr), "warmup": self.warmup, "plateau_window": self.plateau_window,
-                "plateau_rtol": self.plateau_rtol}  # fmt: skip
+        return {
+            "lr": dict(self.lr),
+            "warmup": self.warmup,
+            "plateau_window": self.plateau_window,
+            "plateau_rtol": self.plateau_rtol,
+        }
 
 
 def stage_to_dict(stage: Stage) -> dict:
     return {
-        "name": stage.name, "free": list(stage.free), "weights": dict(stage.weights),
-        "iterations": int(stage.iterations), "optimiser": stage.optimiser, "options": dict(stage.options),
-    }  # fmt: skip
+        "name": stage.name,
+        "free": list(stage.free),
+        "weights": dict(stage.weights),
+        "iterations": int(stage.iterations),
+        "optimiser": stage.optimiser,
+        "options": dict(stage.options),
+    }
 
 
 def check_stages(stages: Sequence[Stage], energy: Energy, layout: ParameterLayout) -> None:
@@ -173,8 +193,9 @@ def run_lbfgs_stage(
         return p
 
     def fun(x, idx):
-        ev = evaluate(body, layout, params_at(x, idx), {k: v[idx] for k, v in views.items()},
-                      {k: v[idx] for k, v in data.items()})  # fmt: skip
+        ev = evaluate(
+            body, layout, params_at(x, idx), {k: v[idx] for k, v in views.items()}, {k: v[idx] for k, v in data.items()}
+        )
         return energy(ev, weights)[0]
 
     bar = None
@@ -207,8 +228,18 @@ def _lbfgs_rows(stage, state, layout, energy, body, views, data, rows, iteration
     if rows.numel() == 0:
         return StageRun(torch.full((P,), float("nan")), {}, 0.0, torch.zeros(P, dtype=torch.long))
     sub = {k: v.detach()[rows].clone() for k, v in state.items()}
-    run = run_lbfgs_stage(stage, sub, layout, energy, body, {k: v[rows] for k, v in views.items()}, _select(data, rows),
-                          iterations, history, progress)  # fmt: skip
+    run = run_lbfgs_stage(
+        stage,
+        sub,
+        layout,
+        energy,
+        body,
+        {k: v[rows] for k, v in views.items()},
+        _select(data, rows),
+        iterations,
+        history,
+        progress,
+    )
     with torch.no_grad():
         for k in stage.free:
             state[k][rows] = sub[k].to(state[k].dtype)
@@ -228,7 +259,9 @@ def _select_rows(d: Dict[str, object], rows: torch.Tensor) -> Dict[str, object]:
     return {k: (v[rows] if isinstance(v, torch.Tensor) else [v[i] for i in rows.tolist()]) for k, v in d.items()}
 
 
-def _evaluate_rows(stage: Stage, state, layout, energy: Energy, body, views, data, rows: torch.Tensor, weights) -> tuple:
+def _evaluate_rows(
+    stage: Stage, state, layout, energy: Energy, body, views, data, rows: torch.Tensor, weights
+) -> tuple:
     """``(total [R], parts, evaluation)``: the stage's energy at the problems ``rows`` (their free parameters gated as
     the stage's data says)."""
     sub = {k: v[rows] for k, v in state.items()}
@@ -244,7 +277,9 @@ def _record_energies(last: torch.Tensor, last_terms: Dict[str, torch.Tensor], ro
     with torch.no_grad():
         last[rows] = total.detach().to(last.dtype)
         for k, v in parts.items():
-            last_terms.setdefault(k, torch.full(last.shape, float("nan"), dtype=torch.float64))[rows] = v.detach().to(torch.float64)
+            last_terms.setdefault(k, torch.full(last.shape, float("nan"), dtype=torch.float64))[rows] = v.detach().to(
+                torch.float64
+            )
 
 
 def run_adam_stage(
@@ -352,11 +387,23 @@ def run_stage(
             rows = torch.arange(next(iter(state.values())).shape[0])
         if rows is None:
             return run_lbfgs_stage(stage, state, layout, energy, body, views, data, iterations, history, progress)
-        return _lbfgs_rows(stage, state, layout, energy, body, views, data, torch.as_tensor(rows, dtype=torch.long),
-                           iterations, history, progress)  # fmt: skip
+        return _lbfgs_rows(
+            stage,
+            state,
+            layout,
+            energy,
+            body,
+            views,
+            data,
+            torch.as_tensor(rows, dtype=torch.long),
+            iterations,
+            history,
+            progress,
+        )
     if stage.optimiser == "adam":
-        return run_adam_stage(stage, state, layout, energy, body, views, data, rows, iterations, adam, before_step,
-                              on_step, after_step)  # fmt: skip
+        return run_adam_stage(
+            stage, state, layout, energy, body, views, data, rows, iterations, adam, before_step, on_step, after_step
+        )
     raise ValueError(f"stage '{stage.name}': unknown optimiser {stage.optimiser!r} (expected {', '.join(OPTIMISERS)})")
 
 

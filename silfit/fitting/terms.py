@@ -19,10 +19,11 @@ Data each term expects in ``Evaluation.data``:
 * :class:`JointSmoothnessTerm`, :class:`RootSmoothnessTerm` (temporal, over a problem's
   frames, no data; problems of fewer than three frames give 0).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Dict, Iterable, Mapping, Optional
+from typing import Dict, Iterable, Mapping, Optional
 
 import torch
 
@@ -70,7 +71,9 @@ class Evaluation:
         return values.reshape(self.P, -1).sum(1)
 
 
-def evaluate(body, layout: ParameterLayout, params: Dict[str, torch.Tensor], views: Dict[str, torch.Tensor], data) -> Evaluation:
+def evaluate(
+    body, layout: ParameterLayout, params: Dict[str, torch.Tensor], views: Dict[str, torch.Tensor], data
+) -> Evaluation:
     """Evaluate ``body`` (a :mod:`silfit.fitting.body` evaluator) for the problems' parameters
     and project its keypoints into every view (``views``: ``intr, R, t [P, F, C, ...]``)."""
     rows = layout.rows(params)
@@ -99,8 +102,13 @@ class KeypointTerm(Term):
     (Geman-McClure with ``sigma``, or plain L2 with ``sigma=None``), summed over
     observations. ``mask [K]`` restricts it to some keypoints (e.g. the torso)."""
 
-    def __init__(self, name: str = "keypoints", sigma: Optional[float] = 100.0, mask: Optional[torch.Tensor] = None,
-                 weights_key: str = "weights"):  # fmt: skip
+    def __init__(
+        self,
+        name: str = "keypoints",
+        sigma: Optional[float] = 100.0,
+        mask: Optional[torch.Tensor] = None,
+        weights_key: str = "weights",
+    ):
         self.name, self.sigma, self.mask, self.weights_key = name, sigma, mask, weights_key
 
     def __call__(self, ev: Evaluation) -> torch.Tensor:
@@ -109,9 +117,12 @@ class KeypointTerm(Term):
         w = d[self.weights_key]  # ``weights``, or another key of the same shape (a part's own weights)
         weights = w if self.mask is None else w * self.mask.to(w.dtype)
         e = reprojection_energy(
-            ev.keypoints_2d.reshape(-1, K, 2), d["target"].reshape(-1, K, 2), weights.reshape(-1, K),
-            d["scale"].reshape(-1), self.sigma,
-        )  # fmt: skip
+            ev.keypoints_2d.reshape(-1, K, 2),
+            d["target"].reshape(-1, K, 2),
+            weights.reshape(-1, K),
+            d["scale"].reshape(-1),
+            self.sigma,
+        )
         return ev.per_problem(e)
 
 
@@ -222,7 +233,13 @@ class JointSmoothnessTerm(Term):
     :func:`robust_penalty` with ``sigma`` (mm per frame^2) so a true fast motion (a swing, a
     kick) is penalised linearly, not flattened."""
 
-    def __init__(self, name: str = "smooth_joints", sigma: Optional[float] = 10.0, kind: str = "charbonnier", scale: float = 1000.0):
+    def __init__(
+        self,
+        name: str = "smooth_joints",
+        sigma: Optional[float] = 10.0,
+        kind: str = "charbonnier",
+        scale: float = 1000.0,
+    ):
         self.name, self.sigma, self.kind, self.scale = name, sigma, kind, float(scale)
 
     def __call__(self, ev: Evaluation) -> torch.Tensor:
@@ -239,8 +256,14 @@ class RootSmoothnessTerm(Term):
     matrix (``global_orient``; x ``rotation_scale``, i.e. the motion of points that far from
     the root, in the same units), each through :func:`robust_penalty`."""
 
-    def __init__(self, name: str = "smooth_root", sigma: Optional[float] = 10.0, kind: str = "charbonnier",
-                 scale: float = 1000.0, rotation_scale: float = 500.0):  # fmt: skip
+    def __init__(
+        self,
+        name: str = "smooth_root",
+        sigma: Optional[float] = 10.0,
+        kind: str = "charbonnier",
+        scale: float = 1000.0,
+        rotation_scale: float = 500.0,
+    ):
         self.name, self.sigma, self.kind = name, sigma, kind
         self.scale, self.rotation_scale = float(scale), float(rotation_scale)
 
@@ -253,7 +276,9 @@ class RootSmoothnessTerm(Term):
         a = second_differences(transl) * self.scale
         rot = axis_angle_to_matrix(orient.reshape(-1, 3)).reshape(ev.P, ev.F, 9)
         b = second_differences(rot) * self.rotation_scale
-        e = robust_penalty((a * a).sum(-1), self.sigma, self.kind) + robust_penalty((b * b).sum(-1), self.sigma, self.kind)
+        e = robust_penalty((a * a).sum(-1), self.sigma, self.kind) + robust_penalty(
+            (b * b).sum(-1), self.sigma, self.kind
+        )
         return e.sum(1)
 
 

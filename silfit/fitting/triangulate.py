@@ -21,6 +21,7 @@ Pure numpy functions:
   (weighted Kabsch), as ``global_orient`` / ``transl`` for a body rotating about its
   pelvis joint.
 """
+
 from __future__ import annotations
 
 from itertools import combinations
@@ -29,8 +30,16 @@ from typing import Optional, Sequence, Tuple
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["dlt", "placement_to_world", "projection_matrices", "reprojection_errors", "robust_triangulate", "torso_placement",
-           "kabsch", "triangulate_views"]
+__all__ = [
+    "dlt",
+    "placement_to_world",
+    "projection_matrices",
+    "reprojection_errors",
+    "robust_triangulate",
+    "torso_placement",
+    "kabsch",
+    "triangulate_views",
+]
 
 
 def projection_matrices(intr: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -137,8 +146,9 @@ def triangulate_views(views, xy: np.ndarray, conf: np.ndarray) -> Tuple[np.ndarr
     that agree (:func:`robust_triangulate`), each weighted by its inlier views' confidences summed
     over the ``C`` views and divided by ``C`` (0, and ``X`` 0, where not triangulated)."""
     ext = [v.extrinsics() for v in views]
-    P = projection_matrices([[v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy] for v in views],
-                            [e[0] for e in ext], [e[1] for e in ext])  # fmt: skip
+    P = projection_matrices(
+        [[v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy] for v in views], [e[0] for e in ext], [e[1] for e in ext]
+    )
     conf = np.asarray(conf, np.float64)
     X, inliers, _ = robust_triangulate(P, xy, conf)
     w = (np.where(np.isfinite(conf), conf, 0.0) * inliers).sum(0) / len(views)

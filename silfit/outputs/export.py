@@ -14,6 +14,7 @@ area-weighted over the triangles; the vertex order is the body model's.
   per frame (the frame minus the base) and an animation that switches the targets' weights
   frame by frame (``STEP``) at the video's frame rate; the camera as above.
 """
+
 from __future__ import annotations
 
 import json
@@ -24,12 +25,22 @@ from typing import Iterable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-__all__ = ["EXPORT_FORMATS", "WORLD_FRAME", "parse_formats", "to_upright", "vertex_normals", "write_glb",
-           "write_fit_exports", "write_sequence_exports"]
+__all__ = [
+    "EXPORT_FORMATS",
+    "WORLD_FRAME",
+    "parse_formats",
+    "to_upright",
+    "vertex_normals",
+    "write_glb",
+    "write_fit_exports",
+    "write_sequence_exports",
+]
 
 EXPORT_FORMATS = ("glb", "ply")
-WORLD_FRAME = ("silfit upright camera frame: x right, y up, z toward the viewer (OpenCV camera frame rotated "
-               "180 deg about x), metres; camera at the origin looking down -z")  # fmt: skip
+WORLD_FRAME = (
+    "silfit upright camera frame: x right, y up, z toward the viewer (OpenCV camera frame rotated "
+    "180 deg about x), metres; camera at the origin looking down -z"
+)
 _UPRIGHT = np.array([1.0, -1.0, -1.0])
 
 
@@ -94,16 +105,30 @@ class _Buffer:
 
 
 def _camera(camera) -> dict:
-    cam = {"type": "perspective", "name": "camera",
-           "perspective": {"yfov": float(2 * np.arctan(camera.height / (2.0 * camera.fy))),
-                           "aspectRatio": float(camera.width / camera.height), "znear": 0.01},
-           "extras": {"intrinsics": {k: float(getattr(camera, k)) for k in ("fx", "fy", "cx", "cy", "width", "height")},
-                      "note": "OpenCV pinhole intrinsics in pixels; glTF keeps yfov and aspectRatio only"}}  # fmt: skip
+    cam = {
+        "type": "perspective",
+        "name": "camera",
+        "perspective": {
+            "yfov": float(2 * np.arctan(camera.height / (2.0 * camera.fy))),
+            "aspectRatio": float(camera.width / camera.height),
+            "znear": 0.01,
+        },
+        "extras": {
+            "intrinsics": {k: float(getattr(camera, k)) for k in ("fx", "fy", "cx", "cy", "width", "height")},
+            "note": "OpenCV pinhole intrinsics in pixels; glTF keeps yfov and aspectRatio only",
+        },
+    }
     return cam
 
 
-def write_glb(path: os.PathLike, vertices: np.ndarray, faces: np.ndarray, camera=None, fps: float = 30.0,
-              frame_numbers: Optional[Sequence[int]] = None) -> Path:  # fmt: skip
+def write_glb(
+    path: os.PathLike,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    camera=None,
+    fps: float = 30.0,
+    frame_numbers: Optional[Sequence[int]] = None,
+) -> Path:
     """A binary glTF of ``vertices`` in OpenCV camera coordinates, written in the upright world frame
     (see the module docstring): ``[V, 3]`` one body; ``[N, V, 3]`` an animated body (morph target per
     frame, ``STEP`` weights at ``fps``). ``camera`` (a :class:`silfit.camera.Camera`) adds a camera node."""
@@ -114,24 +139,41 @@ def write_glb(path: os.PathLike, vertices: np.ndarray, faces: np.ndarray, camera
     buf = _Buffer()
     indices = buf.add(np.asarray(faces, dtype=np.uint32).reshape(-1), "SCALAR", target=34963)
     base, base_n = frames[0].astype(np.float32), normals[0].astype(np.float32)
-    prim = {"attributes": {"POSITION": buf.add(base, "VEC3", 34962, bounds=True), "NORMAL": buf.add(base_n, "VEC3", 34962)},
-            "indices": indices, "mode": 4}  # fmt: skip
+    prim = {
+        "attributes": {"POSITION": buf.add(base, "VEC3", 34962, bounds=True), "NORMAL": buf.add(base_n, "VEC3", 34962)},
+        "indices": indices,
+        "mode": 4,
+    }
     mesh = {"name": "body", "primitives": [prim]}
     gltf: dict = {
         "asset": {"version": "2.0", "generator": "silfit", "extras": {"frame": WORLD_FRAME}},
-        "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"name": "body", "mesh": 0}], "meshes": [mesh],
-    }  # fmt: skip
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"name": "body", "mesh": 0}],
+        "meshes": [mesh],
+    }
     if animated:
         n = len(frames)
-        prim["targets"] = [{"POSITION": buf.add((frames[k] - frames[0]).astype(np.float32), "VEC3", 34962, bounds=True),
-                            "NORMAL": buf.add((normals[k] - normals[0]).astype(np.float32), "VEC3", 34962)}
-                           for k in range(n)]  # fmt: skip
+        prim["targets"] = [
+            {
+                "POSITION": buf.add((frames[k] - frames[0]).astype(np.float32), "VEC3", 34962, bounds=True),
+                "NORMAL": buf.add((normals[k] - normals[0]).astype(np.float32), "VEC3", 34962),
+            }
+            for k in range(n)
+        ]
         mesh["weights"] = [0.0] * n
-        mesh["extras"] = {"targetNames": [f"frame_{int(f)}" for f in (frame_numbers if frame_numbers is not None else range(n))]}
+        mesh["extras"] = {
+            "targetNames": [f"frame_{int(f)}" for f in (frame_numbers if frame_numbers is not None else range(n))]
+        }
         times = buf.add((np.arange(n) / float(fps)).astype(np.float32), "SCALAR", bounds=True)
         weights = buf.add(np.eye(n, dtype=np.float32).reshape(-1), "SCALAR")
-        gltf["animations"] = [{"name": "fit", "channels": [{"sampler": 0, "target": {"node": 0, "path": "weights"}}],
-                               "samplers": [{"input": times, "output": weights, "interpolation": "STEP"}]}]  # fmt: skip
+        gltf["animations"] = [
+            {
+                "name": "fit",
+                "channels": [{"sampler": 0, "target": {"node": 0, "path": "weights"}}],
+                "samplers": [{"input": times, "output": weights, "interpolation": "STEP"}],
+            }
+        ]
     if camera is not None:
         gltf["cameras"] = [_camera(camera)]
         gltf["nodes"].append({"name": "camera", "camera": 0})
@@ -151,7 +193,9 @@ def write_glb(path: os.PathLike, vertices: np.ndarray, faces: np.ndarray, camera
 
 
 # ---------------------------------------------------------------------------------------------- fits
-def write_fit_exports(folder: os.PathLike, vertices: np.ndarray, faces: np.ndarray, camera, formats: Iterable[str]) -> List[Path]:
+def write_fit_exports(
+    folder: os.PathLike, vertices: np.ndarray, faces: np.ndarray, camera, formats: Iterable[str]
+) -> List[Path]:
     """One fit's ``mesh.glb`` / ``mesh.ply`` (``formats``) in ``folder``, from camera-frame ``vertices [V, 3]``."""
     from ..meshio import write_ply
 
@@ -168,8 +212,15 @@ def write_fit_exports(folder: os.PathLike, vertices: np.ndarray, faces: np.ndarr
     return written
 
 
-def write_sequence_exports(folder: os.PathLike, frames: np.ndarray, faces: np.ndarray, camera, formats: Iterable[str],
-                           frame_numbers: Sequence[int], fps: float) -> List[Path]:  # fmt: skip
+def write_sequence_exports(
+    folder: os.PathLike,
+    frames: np.ndarray,
+    faces: np.ndarray,
+    camera,
+    formats: Iterable[str],
+    frame_numbers: Sequence[int],
+    fps: float,
+) -> List[Path]:
     """A video fit's exports from camera-frame ``frames [N, V, 3]``: ``animation.glb`` (all frames) and
     ``meshes/frame_<n>.ply`` per frame."""
     from ..meshio import write_ply
@@ -177,7 +228,9 @@ def write_sequence_exports(folder: os.PathLike, frames: np.ndarray, faces: np.nd
     folder, written = Path(folder), []
     for fmt in formats:
         if fmt == "glb":
-            written.append(write_glb(folder / "animation.glb", frames, faces, camera, fps=fps, frame_numbers=frame_numbers))
+            written.append(
+                write_glb(folder / "animation.glb", frames, faces, camera, fps=fps, frame_numbers=frame_numbers)
+            )
         elif fmt == "ply":
             (folder / "meshes").mkdir(exist_ok=True)
             for number, v in zip(frame_numbers, frames):

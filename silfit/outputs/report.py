@@ -10,6 +10,7 @@ failed item the failing file, field and message. The cards sort by any metric in
 worst first by default (failed items first, then lowest IoU where any fit has one, else highest
 reprojection error); ``#sort=<key>&order=<worst|best>`` in the address picks the order too.
 """
+
 from __future__ import annotations
 
 import html
@@ -63,12 +64,15 @@ def _card(item: str, folder: Optional[Path], record: dict) -> Card:
     warnings = record.get("warnings", [])
     stages = record.get("stages", [])
     return Card(
-        item=item, folder=folder, status=str(record.get("status", "ok")),
-        reprojection_error_px=_number(record.get("reprojection_error_px")), iou=_number(record.get("iou")),
+        item=item,
+        folder=folder,
+        status=str(record.get("status", "ok")),
+        reprojection_error_px=_number(record.get("reprojection_error_px")),
+        iou=_number(record.get("iou")),
         iou_keypoint_stage=_number(record.get("iou_keypoint_stage")),
         warnings=[str(w) for w in warnings] if isinstance(warnings, list) else [str(warnings)],
         stages=" + ".join(str(s) for s in stages) if isinstance(stages, list) else str(stages),
-    )  # fmt: skip
+    )
 
 
 def _metrics(folder: Path) -> dict:
@@ -99,12 +103,22 @@ def collect_cards(folder: Union[str, os.PathLike]) -> List[Card]:
             if r.get("status") == "failed":
                 e = r.get("error") if isinstance(r.get("error"), dict) else {}
                 where = ": ".join(str(e[k]) for k in ("file", "field") if e.get(k))
-                cards.append(Card(item, None, "failed", error=f"{r.get('stage', '?')} stage: {where}: {e.get('message', '')}".strip()))
+                cards.append(
+                    Card(
+                        item,
+                        None,
+                        "failed",
+                        error=f"{r.get('stage', '?')} stage: {where}: {e.get('message', '')}".strip(),
+                    )
+                )
             elif sub.is_dir():
                 cards.append(_card(item, sub, {**_metrics(sub), **r}))
         return cards
-    fits = [folder] if (folder / "metrics.json").is_file() else sorted(
-        p for p in folder.iterdir() if p.is_dir() and (p / "metrics.json").is_file())  # fmt: skip
+    fits = (
+        [folder]
+        if (folder / "metrics.json").is_file()
+        else sorted(p for p in folder.iterdir() if p.is_dir() and (p / "metrics.json").is_file())
+    )
     for sub in fits:
         m = _metrics(sub)
         card = _card(sub.name, sub, m)
@@ -168,15 +182,19 @@ def _link(path: Path, base: Path) -> str:
 
 def _card_html(n: int, card: Card, report: Path, side: Optional[str]) -> str:
     e = html.escape
-    attrs = (f'data-item="{e(card.item)}" data-failed="{1 if card.status != "ok" else 0}" '
-             f'data-reproj="{_data(card.reprojection_error_px)}" data-iou="{_data(card.iou)}" '
-             f'data-iou_kp="{_data(card.iou_keypoint_stage)}" data-warnings="{len(card.warnings)}"')  # fmt: skip
+    attrs = (
+        f'data-item="{e(card.item)}" data-failed="{1 if card.status != "ok" else 0}" '
+        f'data-reproj="{_data(card.reprojection_error_px)}" data-iou="{_data(card.iou)}" '
+        f'data-iou_kp="{_data(card.iou_keypoint_stage)}" data-warnings="{len(card.warnings)}"'
+    )
     pics = []
     if card.folder is not None:
         for name in ("overlay.png", "strip.png"):
             if (card.folder / name).is_file():
-                pics.append(f'<a href="{_link(card.folder / name, report)}"><img src="{_link(card.folder / name, report)}" '
-                            f'alt="overlay of {e(card.item)}" loading="lazy" class="overlay"></a>')  # fmt: skip
+                pics.append(
+                    f'<a href="{_link(card.folder / name, report)}"><img src="{_link(card.folder / name, report)}" '
+                    f'alt="overlay of {e(card.item)}" loading="lazy" class="overlay"></a>'
+                )
                 break
     if side:
         pics.append(f'<img src="{side}" alt="side view of {e(card.item)}" loading="lazy" class="side">')
@@ -185,14 +203,20 @@ def _card_html(n: int, card: Card, report: Path, side: Optional[str]) -> str:
         rows.append(f"<tr><th>IoU</th><td>{_fmt(card.iou_keypoint_stage, 3)} &rarr; {_fmt(card.iou, 3)}</td></tr>")
     if card.stages:
         rows.append(f"<tr><th>stages</th><td>{e(card.stages)}</td></tr>")
-    body = f'<table>{"".join(rows)}</table>' if card.status == "ok" else f'<p class="error">{e(card.error or card.status)}</p>'
+    body = (
+        f"<table>{''.join(rows)}</table>"
+        if card.status == "ok"
+        else f'<p class="error">{e(card.error or card.status)}</p>'
+    )
     warn = "".join(f"<li>{e(w)}</li>" for w in card.warnings)
     title = e(card.item)
     if card.folder is not None:
         title = f'<a href="{_link(card.folder, report)}/">{title}</a>'
-    return (f'<div class="card{" failed" if card.status != "ok" else ""}" id="card-{n}" {attrs}>'
-            f'<h2>{title}</h2><div class="pics">{"".join(pics)}</div>{body}'
-            f'{f"<ul class=warnings>{warn}</ul>" if warn else ""}</div>')  # fmt: skip
+    return (
+        f'<div class="card{" failed" if card.status != "ok" else ""}" id="card-{n}" {attrs}>'
+        f'<h2>{title}</h2><div class="pics">{"".join(pics)}</div>{body}'
+        f"{f'<ul class=warnings>{warn}</ul>' if warn else ''}</div>"
+    )
 
 
 _CSS = """
@@ -252,8 +276,10 @@ _JS = """
 def _summary(cards: List[Card]) -> str:
     ok = [c for c in cards if c.status == "ok"]
     parts = [f"{len(cards)} items", f"{len(ok)} fitted", f"{len(cards) - len(ok)} failed"]
-    for label, values, digits in (("median reprojection error", [c.reprojection_error_px for c in ok], 2),
-                                  ("median IoU", [c.iou for c in ok], 3)):  # fmt: skip
+    for label, values, digits in (
+        ("median reprojection error", [c.reprojection_error_px for c in ok], 2),
+        ("median IoU", [c.iou for c in ok], 3),
+    ):
         values = [v for v in values if v is not None]
         if values:
             parts.append(f"{label} {float(np.median(values)):.{digits}f}")
@@ -261,7 +287,9 @@ def _summary(cards: List[Card]) -> str:
     return ", ".join(parts)
 
 
-def write_report(folder: Union[str, os.PathLike], out: Union[str, os.PathLike, None] = None, side_views: bool = True) -> Path:
+def write_report(
+    folder: Union[str, os.PathLike], out: Union[str, os.PathLike, None] = None, side_views: bool = True
+) -> Path:
     """Write the gallery of the fits under ``folder`` into ``out`` (default ``folder/report``);
     returns its ``index.html``."""
     from ..dataset import write_png
@@ -284,8 +312,10 @@ def write_report(folder: Union[str, os.PathLike], out: Union[str, os.PathLike, N
         html_cards.append(_card_html(n, card, report, side))
     has_iou = any(c.iou is not None for c in cards)
     default = "iou" if has_iou else "reproj"
-    options = "".join(f'<option value="{k}"{" selected" if k == default else ""}>{html.escape(label)}</option>'
-                      for k, (label, _) in SORT_KEYS.items())  # fmt: skip
+    options = "".join(
+        f'<option value="{k}"{" selected" if k == default else ""}>{html.escape(label)}</option>'
+        for k, (label, _) in SORT_KEYS.items()
+    )
     keys_js = json.dumps(SORT_KEYS)
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>silfit report: {html.escape(folder.name)}</title>

@@ -13,6 +13,7 @@ weight. For the vertices of group ``a`` the nearest vertex ``u`` of group ``b`` 
 ``settle_contact`` turns a pose in which two parts intersect into one in which they just
 touch: it bisects the geodesic blend from a pose where they are apart.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -56,7 +57,13 @@ def posed_vertices(model, body_pose, betas=None) -> np.ndarray:
 
 
 def part_contact(
-    model, vertices: np.ndarray, a: Sequence[str], b: Sequence[str], reach: float = 0.06, tol: float = 0.005, touch: float = 0.012
+    model,
+    vertices: np.ndarray,
+    a: Sequence[str],
+    b: Sequence[str],
+    reach: float = 0.06,
+    tol: float = 0.005,
+    touch: float = 0.012,
 ) -> Contact:
     """Gap and penetration of joint group ``a`` into joint group ``b`` on posed ``vertices [V, 3]``."""
     from scipy.spatial import cKDTree
@@ -71,7 +78,15 @@ def part_contact(
     return Contact(gap=float(d.min()), depth=float(depth.max()), inside=int((depth > tol).sum()))
 
 
-def settle_contact(model, apart, through, pairs: Sequence[Tuple[Sequence[str], Sequence[str]]], tol: float = 0.005, steps: int = 8, betas=None) -> np.ndarray:
+def settle_contact(
+    model,
+    apart,
+    through,
+    pairs: Sequence[Tuple[Sequence[str], Sequence[str]]],
+    tol: float = 0.005,
+    steps: int = 8,
+    betas=None,
+) -> np.ndarray:
     """The pose on the geodesic blend from ``apart`` (no group of ``pairs`` ``[(a, b), ...]``
     inside its partner) toward ``through`` (intersecting) nearest ``through`` whose
     penetrations all stay within ``tol``: the parts touch there."""
@@ -105,18 +120,36 @@ def contact_examples(model) -> dict:
     """``{name: (body_pose [69], [(a, b), ...])}``: library poses adjusted so that the joint
     groups ``a`` and ``b`` of each pair just touch (arms hanging against the sides, a hand
     resting on the head, seated with the hands on the thighs, arms crossed)."""
-    sides_in = _with_joints("stand_relaxed", left_shoulder=arm("L", (-0.25, -1, 0.05)), right_shoulder=arm("R", (-0.25, -1, 0.05)))
+    sides_in = _with_joints(
+        "stand_relaxed", left_shoulder=arm("L", (-0.25, -1, 0.05)), right_shoulder=arm("R", (-0.25, -1, 0.05))
+    )
     hand_up = dict(right_shoulder=arm("R", (0.7, 0.7, 0.2), internal=-90))
     head_apart = _with_joints("stand_relaxed", **hand_up, right_elbow=elbow("R", 60))
     head_in = _with_joints("stand_relaxed", **hand_up, right_elbow=elbow("R", 150))
-    raised = _with_joints("sit_chair", left_shoulder=arm("L", (0.2, -0.6, 0.8), internal=15), right_shoulder=arm("R", (0.2, -0.6, 0.8), internal=15))
+    raised = _with_joints(
+        "sit_chair",
+        left_shoulder=arm("L", (0.2, -0.6, 0.8), internal=15),
+        right_shoulder=arm("R", (0.2, -0.6, 0.8), internal=15),
+    )
     loose = blend_poses(POSE_LIBRARY["arms_crossed"].body_pose, POSE_LIBRARY["stand_relaxed"].body_pose, 0.6)
     cases = {
-        "arms_hanging_against_the_sides": (POSE_LIBRARY["stand_relaxed"].body_pose, sides_in, [(L_ARM, TORSO), (R_ARM, TORSO)]),
+        "arms_hanging_against_the_sides": (
+            POSE_LIBRARY["stand_relaxed"].body_pose,
+            sides_in,
+            [(L_ARM, TORSO), (R_ARM, TORSO)],
+        ),
         "hand_resting_on_the_head": (head_apart, head_in, [(R_HAND, HEAD)]),
-        "seated_hands_on_the_thighs": (raised, POSE_LIBRARY["sit_chair"].body_pose, [(L_ARM, ["left_hip"]), (R_ARM, ["right_hip"])]),
-        "arms_crossed_touching": (loose, POSE_LIBRARY["arms_crossed"].body_pose, [(L_ARM, TORSO), (R_ARM, TORSO), (L_ARM, R_ARM)]),
-    }  # fmt: skip
+        "seated_hands_on_the_thighs": (
+            raised,
+            POSE_LIBRARY["sit_chair"].body_pose,
+            [(L_ARM, ["left_hip"]), (R_ARM, ["right_hip"])],
+        ),
+        "arms_crossed_touching": (
+            loose,
+            POSE_LIBRARY["arms_crossed"].body_pose,
+            [(L_ARM, TORSO), (R_ARM, TORSO), (L_ARM, R_ARM)],
+        ),
+    }
     return {name: (settle_contact(model, a, b, pairs), pairs) for name, (a, b, pairs) in cases.items()}
 
 

@@ -26,6 +26,7 @@ coupled as people move, then varied at random:
 Deterministic for a ``numpy.random.Generator`` (or a seed). Angles are degrees in the
 parameters, radians in the arrays.
 """
+
 from __future__ import annotations
 
 import math
@@ -94,16 +95,25 @@ def _arm_state(rng, side: str, style: str) -> Tuple[dict, str]:
         spec = {f"{S}_shoulder": arm(side, d, internal=_u(rng, 0, 30)), f"{S}_elbow": elbow(side, _u(rng, 5, 45))}
     elif style == "forward":  # reaching / balancing forward; elbow straighter the higher the arm
         up = _u(rng, -0.5, 0.4)
-        spec = {f"{S}_shoulder": arm(side, (_u(rng, 0.1, 0.5), up, 1.0)), f"{S}_elbow": elbow(side, _u(rng, 5, 40) * (1 - up))}
+        spec = {
+            f"{S}_shoulder": arm(side, (_u(rng, 0.1, 0.5), up, 1.0)),
+            f"{S}_elbow": elbow(side, _u(rng, 5, 40) * (1 - up)),
+        }
     elif style == "on_knees":
-        spec = {f"{S}_shoulder": arm(side, (_u(rng, 0.1, 0.3), -1, _u(rng, 0.4, 0.8)), internal=_u(rng, 10, 30)),
-                f"{S}_elbow": elbow(side, _u(rng, 20, 50))}  # fmt: skip
+        spec = {
+            f"{S}_shoulder": arm(side, (_u(rng, 0.1, 0.3), -1, _u(rng, 0.4, 0.8)), internal=_u(rng, 10, 30)),
+            f"{S}_elbow": elbow(side, _u(rng, 20, 50)),
+        }
     elif style == "clasped":
-        spec = {f"{S}_shoulder": arm(side, (0.4, -0.8, _u(rng, 0.6, 1.0)), internal=_u(rng, 40, 55)),
-                f"{S}_elbow": elbow(side, _u(rng, 80, 110))}  # fmt: skip
+        spec = {
+            f"{S}_shoulder": arm(side, (0.4, -0.8, _u(rng, 0.6, 1.0)), internal=_u(rng, 40, 55)),
+            f"{S}_elbow": elbow(side, _u(rng, 80, 110)),
+        }
     elif style == "guard":
-        spec = {f"{S}_shoulder": arm(side, (0.4, -0.8, _u(rng, 0.5, 0.7)), internal=_u(rng, 25, 35)),
-                f"{S}_elbow": elbow(side, _u(rng, 110, 130))}  # fmt: skip
+        spec = {
+            f"{S}_shoulder": arm(side, (0.4, -0.8, _u(rng, 0.5, 0.7)), internal=_u(rng, 25, 35)),
+            f"{S}_elbow": elbow(side, _u(rng, 110, 130)),
+        }
     else:
         raise ValueError(f"unknown arm style {style!r}")
     return spec, style
@@ -126,11 +136,15 @@ def _squat(rng):
     abd, rot = _u(rng, 8, 25), _u(rng, 5, 20)
     hip, kn = 45 + 80 * t, 50 + 95 * t
     spec = {
-        "left_hip": leg("L", flex=hip + _u(rng, -5, 5), abd=abd, ext_rot=rot), "right_hip": leg("R", flex=hip + _u(rng, -5, 5), abd=abd, ext_rot=rot),
-        "left_knee": knee(kn), "right_knee": knee(kn + _u(rng, -5, 5)),
-        "left_ankle": ankle("L", plantar=-(10 + 25 * t)), "right_ankle": ankle("R", plantar=-(10 + 25 * t)),
-        **_spine(flex=15 + 25 * t), **_head(flex=-(5 + 20 * t)),
-    }  # fmt: skip
+        "left_hip": leg("L", flex=hip + _u(rng, -5, 5), abd=abd, ext_rot=rot),
+        "right_hip": leg("R", flex=hip + _u(rng, -5, 5), abd=abd, ext_rot=rot),
+        "left_knee": knee(kn),
+        "right_knee": knee(kn + _u(rng, -5, 5)),
+        "left_ankle": ankle("L", plantar=-(10 + 25 * t)),
+        "right_ankle": ankle("R", plantar=-(10 + 25 * t)),
+        **_spine(flex=15 + 25 * t),
+        **_head(flex=-(5 + 20 * t)),
+    }
     arms, style = _arms(rng, ("forward", "on_knees", "clasped", "hanging"))
     return {**spec, **arms}, np.zeros(3), {"depth": t, "arms": style}
 
@@ -138,12 +152,14 @@ def _squat(rng):
 def _kneel_one(rng):
     front, back_flex = _u(rng, 70, 100), _u(rng, -15, 10)
     spec = {
-        "left_hip": leg("L", flex=front, abd=_u(rng, 0, 12)), "left_knee": knee(front + _u(rng, -5, 15)),
+        "left_hip": leg("L", flex=front, abd=_u(rng, 0, 12)),
+        "left_knee": knee(front + _u(rng, -5, 15)),
         "left_ankle": ankle("L", plantar=_u(rng, -15, 0)),
-        "right_hip": leg("R", flex=back_flex, abd=_u(rng, 0, 8)), "right_knee": knee(_u(rng, 85, 110) - back_flex),
+        "right_hip": leg("R", flex=back_flex, abd=_u(rng, 0, 8)),
+        "right_knee": knee(_u(rng, 85, 110) - back_flex),
         "right_ankle": ankle("R", plantar=_u(rng, -25, 30)),
         **_spine(flex=_u(rng, 0, 25)),
-    }  # fmt: skip
+    }
     arms, style = _arms(rng, ("on_knees", "hanging", "forward", "clasped"))
     return {**spec, **arms}, np.zeros(3), {"front_hip": front, "arms": style}
 
@@ -152,10 +168,14 @@ def _kneel_both(rng):
     s = _u(rng, 0.0, 1.0)  # 0 upright on the knees, 1 sitting back on the heels
     hip, kn = 5 + 55 * s, 95 + 50 * s
     spec = {
-        "left_hip": leg("L", flex=hip, abd=_u(rng, 2, 12)), "right_hip": leg("R", flex=hip, abd=_u(rng, 2, 12)),
-        "left_knee": knee(kn), "right_knee": knee(kn), "left_ankle": ankle("L", plantar=_u(rng, 20, 50)),
-        "right_ankle": ankle("R", plantar=_u(rng, 20, 50)), **_spine(flex=_u(rng, 0, 20) + 15 * s),
-    }  # fmt: skip
+        "left_hip": leg("L", flex=hip, abd=_u(rng, 2, 12)),
+        "right_hip": leg("R", flex=hip, abd=_u(rng, 2, 12)),
+        "left_knee": knee(kn),
+        "right_knee": knee(kn),
+        "left_ankle": ankle("L", plantar=_u(rng, 20, 50)),
+        "right_ankle": ankle("R", plantar=_u(rng, 20, 50)),
+        **_spine(flex=_u(rng, 0, 20) + 15 * s),
+    }
     arms, style = _arms(rng, ("hanging", "on_knees", "clasped", "forward"))
     return {**spec, **arms}, np.zeros(3), {"sit_back": s, "arms": style}
 
@@ -164,9 +184,13 @@ def _sit(rng):
     hip = _u(rng, 75, 110)
     kn = _u(rng, 60, 125)
     spec = {
-        "left_hip": leg("L", flex=hip, abd=_u(rng, 3, 20), ext_rot=_u(rng, 0, 15)), "right_hip": leg("R", flex=hip + _u(rng, -8, 8), abd=_u(rng, 3, 20), ext_rot=_u(rng, 0, 15)),
-        "left_knee": knee(kn), "right_knee": knee(kn + _u(rng, -15, 15)), **_spine(flex=_u(rng, 0, 25)), **_head(flex=_u(rng, -10, 10)),
-    }  # fmt: skip
+        "left_hip": leg("L", flex=hip, abd=_u(rng, 3, 20), ext_rot=_u(rng, 0, 15)),
+        "right_hip": leg("R", flex=hip + _u(rng, -8, 8), abd=_u(rng, 3, 20), ext_rot=_u(rng, 0, 15)),
+        "left_knee": knee(kn),
+        "right_knee": knee(kn + _u(rng, -15, 15)),
+        **_spine(flex=_u(rng, 0, 25)),
+        **_head(flex=_u(rng, -10, 10)),
+    }
     arms, style = _arms(rng, ("on_knees", "hanging", "clasped", "forward"))
     return {**spec, **arms}, axis_rot(("x", -_u(rng, 0, 15))), {"hip": hip, "knee": kn, "arms": style}
 
@@ -174,20 +198,34 @@ def _sit(rng):
 def _stride(rng, front_hip, front_knee, back_hip, back_knee, lean, arm_swing):
     swing = arm_swing
     spec = {
-        "left_hip": leg("L", flex=front_hip), "left_knee": knee(front_knee), "left_ankle": ankle("L", plantar=_u(rng, -10, 20)),
-        "right_hip": leg("R", flex=back_hip), "right_knee": knee(back_knee), "right_ankle": ankle("R", plantar=_u(rng, -20, 35)),
+        "left_hip": leg("L", flex=front_hip),
+        "left_knee": knee(front_knee),
+        "left_ankle": ankle("L", plantar=_u(rng, -10, 20)),
+        "right_hip": leg("R", flex=back_hip),
+        "right_knee": knee(back_knee),
+        "right_ankle": ankle("R", plantar=_u(rng, -20, 35)),
         # Opposite arm forward: the right arm swings with the left thigh.
-        "right_shoulder": arm("R", (0.2, -1, swing), internal=10), "right_elbow": elbow("R", _u(rng, 70, 100)),
-        "left_shoulder": arm("L", (0.2, -1, -0.8 * swing), internal=10), "left_elbow": elbow("L", _u(rng, 70, 100)),
+        "right_shoulder": arm("R", (0.2, -1, swing), internal=10),
+        "right_elbow": elbow("R", _u(rng, 70, 100)),
+        "left_shoulder": arm("L", (0.2, -1, -0.8 * swing), internal=10),
+        "left_elbow": elbow("L", _u(rng, 70, 100)),
         **_spine(flex=lean, twist=-8 * swing),
-    }  # fmt: skip
+    }
     return spec
 
 
 def _run(rng):
     phase = _u(rng, 0.0, 1.0)  # 0 stance (front leg under the body) .. 1 flight (thigh driven high)
     front_hip = 15 + 55 * phase
-    spec = _stride(rng, front_hip, 30 + 70 * phase + _u(rng, -10, 20), -(10 + 20 * phase), _u(rng, 30, 110), _u(rng, 5, 18), 0.4 + 0.4 * phase)
+    spec = _stride(
+        rng,
+        front_hip,
+        30 + 70 * phase + _u(rng, -10, 20),
+        -(10 + 20 * phase),
+        _u(rng, 30, 110),
+        _u(rng, 5, 18),
+        0.4 + 0.4 * phase,
+    )
     return spec, np.zeros(3), {"phase": phase}
 
 
@@ -202,10 +240,14 @@ def _lunge(rng):
 def _reach_overhead(rng):
     both = rng.random() < 0.5
     spec = {
-        "right_shoulder": arm("R", (_u(rng, 0.1, 0.5), 1, _u(rng, -0.1, 0.4))), "right_elbow": elbow("R", _u(rng, 0, 30)),
-        "right_collar": axis_rot(("z", -_u(rng, 5, 20))), **_spine(flex=-_u(rng, 0, 15)), **_head(flex=-_u(rng, 5, 25)),
-        "left_ankle": ankle("L", plantar=_u(rng, 0, 30)), "right_ankle": ankle("R", plantar=_u(rng, 0, 30)),
-    }  # fmt: skip
+        "right_shoulder": arm("R", (_u(rng, 0.1, 0.5), 1, _u(rng, -0.1, 0.4))),
+        "right_elbow": elbow("R", _u(rng, 0, 30)),
+        "right_collar": axis_rot(("z", -_u(rng, 5, 20))),
+        **_spine(flex=-_u(rng, 0, 15)),
+        **_head(flex=-_u(rng, 5, 25)),
+        "left_ankle": ankle("L", plantar=_u(rng, 0, 30)),
+        "right_ankle": ankle("R", plantar=_u(rng, 0, 30)),
+    }
     if both:
         spec["left_shoulder"] = arm("L", (_u(rng, 0.1, 0.5), 1, _u(rng, -0.1, 0.4)))
         spec["left_elbow"] = elbow("L", _u(rng, 0, 30))
@@ -217,11 +259,15 @@ def _reach_overhead(rng):
 def _reach_forward(rng):
     t = _u(rng, 0.2, 1.0)  # how far: the trunk and hips bend with the reach
     spec = {
-        "right_shoulder": arm("R", (_u(rng, 0.05, 0.3), _u(rng, -0.6, 0.1), 1)), "right_elbow": elbow("R", _u(rng, 0, 20)),
-        "left_hip": leg("L", flex=10 + 40 * t), "right_hip": leg("R", flex=10 + 40 * t + _u(rng, -10, 10)),
-        "left_knee": knee(_u(rng, 0, 30) * t), "right_knee": knee(_u(rng, 0, 40) * t),
-        **_spine(flex=10 + 35 * t, twist=_u(rng, -15, 5)), **_head(flex=-15 * t),
-    }  # fmt: skip
+        "right_shoulder": arm("R", (_u(rng, 0.05, 0.3), _u(rng, -0.6, 0.1), 1)),
+        "right_elbow": elbow("R", _u(rng, 0, 20)),
+        "left_hip": leg("L", flex=10 + 40 * t),
+        "right_hip": leg("R", flex=10 + 40 * t + _u(rng, -10, 10)),
+        "left_knee": knee(_u(rng, 0, 30) * t),
+        "right_knee": knee(_u(rng, 0, 40) * t),
+        **_spine(flex=10 + 35 * t, twist=_u(rng, -15, 5)),
+        **_head(flex=-15 * t),
+    }
     spec.update(_arm_state(rng, "L", ("hanging", "forward")[int(rng.integers(2))])[0])
     return spec, axis_rot(("x", 10 * t)), {"reach": t}
 
@@ -231,7 +277,12 @@ def _reach_forward(rng):
 _CONTACT = {
     "hand_face": (((0.3, 0.6), (0.1, 0.3), (0.7, 0.9)), (-70, -50), 150.0, ["head", "neck"]),
     "hand_head": (((0.6, 0.8), (0.6, 0.8), (0.1, 0.3)), (-95, -80), 150.0, ["head", "neck"]),
-    "hand_hip": (((0.5, 0.7), (-1.0, -1.0), (-0.15, 0.0)), (55, 65), 100.0, ["pelvis", "spine1", "left_hip", "right_hip"]),
+    "hand_hip": (
+        ((0.5, 0.7), (-1.0, -1.0), (-0.15, 0.0)),
+        (55, 65),
+        100.0,
+        ["pelvis", "spine1", "left_hip", "right_hip"],
+    ),
 }
 
 
@@ -239,7 +290,11 @@ def _contact(kind):
     def make(rng):
         (o, u, f), (i0, i1), flex, _ = _CONTACT[kind]
         base_name = ("stand", "sit", "kneel_both")[int(rng.choice(3, p=(0.6, 0.2, 0.2)))]
-        base = {"stand": lambda r: (_arms(r, ("hanging",))[0], np.zeros(3), {}), "sit": _sit, "kneel_both": _kneel_both}[base_name]
+        base = {
+            "stand": lambda r: (_arms(r, ("hanging",))[0], np.zeros(3), {}),
+            "sit": _sit,
+            "kneel_both": _kneel_both,
+        }[base_name]
         spec, root, params = base(rng)
         d = (_u(rng, *o), _u(rng, *u), _u(rng, *f))
         spec["right_shoulder"] = arm("R", d, internal=_u(rng, i0, i1))
@@ -253,10 +308,18 @@ def _contact(kind):
 
 #: ``{name: (weight in the hard mix, sampler)}``
 ARCHETYPES: Dict[str, Tuple[float, Callable]] = {
-    "squat": (0.16, _squat), "kneel_one": (0.09, _kneel_one), "kneel_both": (0.08, _kneel_both), "sit": (0.07, _sit),
-    "run": (0.11, _run), "lunge": (0.11, _lunge), "reach_overhead": (0.06, _reach_overhead), "reach_forward": (0.06, _reach_forward),
-    "hand_face": (0.1, _contact("hand_face")), "hand_head": (0.08, _contact("hand_head")), "hand_hip": (0.08, _contact("hand_hip")),
-}  # fmt: skip
+    "squat": (0.16, _squat),
+    "kneel_one": (0.09, _kneel_one),
+    "kneel_both": (0.08, _kneel_both),
+    "sit": (0.07, _sit),
+    "run": (0.11, _run),
+    "lunge": (0.11, _lunge),
+    "reach_overhead": (0.06, _reach_overhead),
+    "reach_forward": (0.06, _reach_forward),
+    "hand_face": (0.1, _contact("hand_face")),
+    "hand_head": (0.08, _contact("hand_head")),
+    "hand_hip": (0.08, _contact("hand_hip")),
+}
 #: Archetypes whose front and back views are the hard ones (a limb along the viewing ray).
 DEEP_FLEXION = ("squat", "kneel_one", "kneel_both", "run", "lunge", "hand_face", "hand_head")
 
@@ -297,7 +360,11 @@ class PoseSampler:
         self.model, self.names = model, names
         w = np.array([ARCHETYPES[n][0] for n in names])
         self.weights = w / w.sum()
-        self.perturb_deg, self.max_interpenetration, self.max_tries = float(perturb_deg), float(max_interpenetration), int(max_tries)
+        self.perturb_deg, self.max_interpenetration, self.max_tries = (
+            float(perturb_deg),
+            float(max_interpenetration),
+            int(max_tries),
+        )
         self.max_depth = float(max_depth)
         self.collisions = SphereCollisionModel(model)
         self._sigma = np.repeat([PERTURB_SCALE[j] for j in BODY_JOINTS], 3) * math.radians(self.perturb_deg)

@@ -1,5 +1,6 @@
 """Priors for fitting SMPL: joint limits, pose priors (SMPLify's GMM file format and
 the shipped default), knee/elbow angle prior, shape prior and interpenetration."""
+
 from .interpenetration import SphereCollisionModel
 from .limits import (
     BODY_JOINT_NAMES,
@@ -10,7 +11,14 @@ from .limits import (
     limit_violation,
     within_limits,
 )
-from .pose import DEFAULT_MIXTURE_PATH, LibraryMixturePrior, LimitsPrior, MaxMixturePrior, default_pose_prior, load_pose_prior
+from .pose import (
+    DEFAULT_MIXTURE_PATH,
+    LibraryMixturePrior,
+    LimitsPrior,
+    MaxMixturePrior,
+    default_pose_prior,
+    load_pose_prior,
+)
 from .simple import angle_prior, shape_prior
 
 __all__ = [

@@ -37,6 +37,7 @@ evaluation (every pair and every neighbour with the gradient) cost 36.5 ms (``be
 ``--module`` on the previous file), and the keypoint stage runs about 2x faster. A row's value does
 not depend on the batch (the pairs' squared overlaps are summed with ``index_add``, one after another).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -154,13 +155,27 @@ def calibration_poses() -> np.ndarray:
     lib = [p.body_pose for p in POSE_LIBRARY.values()]
     spine = lambda f: {f"spine{i}": trunk(f / 3) for i in (1, 2, 3)}  # noqa: E731
     extremes = [
-        {"left_hip": leg("L", flex=130, abd=15), "left_knee": knee(150), "right_hip": leg("R", flex=-40), "right_knee": knee(150)},
+        {
+            "left_hip": leg("L", flex=130, abd=15),
+            "left_knee": knee(150),
+            "right_hip": leg("R", flex=-40),
+            "right_knee": knee(150),
+        },
         {"left_hip": leg("L", flex=100, abd=-20), "right_hip": leg("R", flex=100, abd=-20), **spine(70)},
-        {"left_shoulder": arm("L", (0.05, -1, 0)), "left_elbow": elbow("L", 150),
-         "right_shoulder": arm("R", (0.3, -0.2, 1), internal=60), "right_elbow": elbow("R", 150)},
-        {"left_shoulder": arm("L", (0.1, 1, 0.1)), "left_elbow": elbow("L", 150),
-         "right_shoulder": arm("R", (0.05, -1, -0.3), internal=-40), "right_elbow": elbow("R", 120), **spine(-40)},
-    ]  # fmt: skip
+        {
+            "left_shoulder": arm("L", (0.05, -1, 0)),
+            "left_elbow": elbow("L", 150),
+            "right_shoulder": arm("R", (0.3, -0.2, 1), internal=60),
+            "right_elbow": elbow("R", 150),
+        },
+        {
+            "left_shoulder": arm("L", (0.1, 1, 0.1)),
+            "left_elbow": elbow("L", 150),
+            "right_shoulder": arm("R", (0.05, -1, -0.3), internal=-40),
+            "right_elbow": elbow("R", 120),
+            **spine(-40),
+        },
+    ]
     poses = lib + [build_pose(e) for e in extremes]
     return np.stack(poses + [mirror_pose(p) for p in poses])
 
@@ -176,7 +191,9 @@ def _mean_shape_posed(model, body_pose: torch.Tensor, chunk: int = 16) -> tuple:
     joints = vertices_to_joints(model.J_regressor.double(), v)
     full = torch.cat([torch.zeros(len(body_pose), 3, dtype=torch.float64), body_pose], 1)
     # a whole-body model: SMPL's first 21 joints are its body, the rest (jaw, eyes, fingers) at rest
-    full = torch.cat([full[:, : 3 * model.num_joints], full.new_zeros(len(full), max(0, 3 * model.num_joints - full.shape[1]))], 1)
+    full = torch.cat(
+        [full[:, : 3 * model.num_joints], full.new_zeros(len(full), max(0, 3 * model.num_joints - full.shape[1]))], 1
+    )
     rot = axis_angle_to_matrix(full.reshape(len(body_pose), -1, 3))
     _, T = forward_kinematics(rot, joints.expand(len(body_pose), -1, -1), model.parents, model._levels)
     weights = model.lbs_weights.double()
@@ -227,7 +244,9 @@ def _posed_scale(model, centres, radii, weights, own, chunk: int = 16) -> np.nda
         for g in np.unique(group):
             members = torch.as_tensor(np.flatnonzero(group == g))
             vi = torch.as_tensor(np.flatnonzero(own[int(members[0])]))
-            best[members] = torch.cdist(pc[:, members], verts[:, vi], compute_mode="donot_use_mm_for_euclid_dist").amin(-1).amin(0)
+            best[members] = (
+                torch.cdist(pc[:, members], verts[:, vi], compute_mode="donot_use_mm_for_euclid_dist").amin(-1).amin(0)
+            )
     scale = np.minimum(1.0, best.double().numpy() / np.maximum(radii, 1e-9))
     mirrored = centres * np.array([-1.0, 1.0, 1.0])
     partner, d = _nearest(mirrored, centres, 1)
@@ -271,16 +290,31 @@ def build_spheres(
     gap = np.linalg.norm(centres[:, None] - centres[None], axis=-1) - (radii[:, None] + radii[None, :])
     a, b = np.nonzero(far & np.triu(np.ones((S, S), dtype=bool), 1) & (gap > rest_margin))
     return {
-        "centre_template": centres, "centre_dirs": sd[nb].mean(1), "neighbour_template": v[nb],
-        "neighbour_dirs": sd[nb], "sphere_weights": w, "radius_scale": scale, "sphere_part": part,
-        "pair_a": a, "pair_b": b,
-    }  # fmt: skip
+        "centre_template": centres,
+        "centre_dirs": sd[nb].mean(1),
+        "neighbour_template": v[nb],
+        "neighbour_dirs": sd[nb],
+        "sphere_weights": w,
+        "radius_scale": scale,
+        "sphere_part": part,
+        "pair_a": a,
+        "pair_b": b,
+    }
 
 
 _CACHE: Dict[tuple, dict] = {}
 #: the arrays :func:`build_spheres` returns (a cached file without one of them is rebuilt)
-_SPHERE_ARRAYS = ("centre_template", "centre_dirs", "neighbour_template", "neighbour_dirs", "sphere_weights",
-                  "radius_scale", "sphere_part", "pair_a", "pair_b")
+_SPHERE_ARRAYS = (
+    "centre_template",
+    "centre_dirs",
+    "neighbour_template",
+    "neighbour_dirs",
+    "sphere_weights",
+    "radius_scale",
+    "sphere_part",
+    "pair_a",
+    "pair_b",
+)
 
 
 def sphere_cache_dir() -> Path:
@@ -309,8 +343,17 @@ def _load_spheres(path: Path) -> Optional[dict]:
     except Exception:  # noqa: BLE001 - any unreadable cache file (missing, truncated, ...) is rebuilt
         return None
     S = len(arrays["centre_template"])
-    ok = all(len(arrays[n]) == S for n in ("centre_dirs", "neighbour_template", "neighbour_dirs", "sphere_weights",
-                                           "radius_scale", "sphere_part")) and len(arrays["pair_a"]) == len(arrays["pair_b"])
+    ok = all(
+        len(arrays[n]) == S
+        for n in (
+            "centre_dirs",
+            "neighbour_template",
+            "neighbour_dirs",
+            "sphere_weights",
+            "radius_scale",
+            "sphere_part",
+        )
+    ) and len(arrays["pair_a"]) == len(arrays["pair_b"])
     return arrays if ok else None
 
 
@@ -365,7 +408,9 @@ class SphereCollisionModel(nn.Module):
         dtype = model.v_template.dtype
         for name, value in arrays.items():
             t = torch.as_tensor(np.ascontiguousarray(value))
-            self.register_buffer(name, (t.long() if name in ("pair_a", "pair_b", "sphere_part") else t.to(dtype)).clone())
+            self.register_buffer(
+                name, (t.long() if name in ("pair_a", "pair_b", "sphere_part") else t.to(dtype)).clone()
+            )
         self.num_spheres = S = len(arrays["centre_template"])
         mask = torch.zeros(S, S, dtype=dtype)
         mask[self.pair_a, self.pair_b] = 1.0
@@ -376,9 +421,15 @@ class SphereCollisionModel(nn.Module):
         self.register_buffer("pair_tested", mask > 0, persistent=False)
         a = {name: np.asarray(arrays[name], dtype=np.float64) for name in _SPHERE_ARRAYS[:4]}
         offset_dirs = torch.as_tensor(a["neighbour_dirs"] - a["centre_dirs"][:, None]).to(dtype)
-        self.register_buffer("offset_template", torch.as_tensor(a["neighbour_template"] - a["centre_template"][:, None]).to(dtype), persistent=False)
+        self.register_buffer(
+            "offset_template",
+            torch.as_tensor(a["neighbour_template"] - a["centre_template"][:, None]).to(dtype),
+            persistent=False,
+        )
         self.register_buffer("offset_dirs", offset_dirs, persistent=False)  # [S, K, 3, L]
-        self.register_buffer("offset_dirs_by_beta", offset_dirs.permute(3, 0, 1, 2).contiguous(), persistent=False)  # [L, S, K, 3]
+        self.register_buffer(
+            "offset_dirs_by_beta", offset_dirs.permute(3, 0, 1, 2).contiguous(), persistent=False
+        )  # [L, S, K, 3]
         # Each sphere's blend over the joints that carry it (2.6 of 24 on average; zero-padded to the most).
         carry_joint, carry_weight = padded_nonzeros(self.sphere_weights)
         self.register_buffer("carry_joint", carry_joint, persistent=False)
@@ -417,7 +468,9 @@ class SphereCollisionModel(nn.Module):
         near = tmpl[sphere, nearest] + (b[lead + (None, slice(0, L))] * dirs[sphere, nearest][..., :L]).sum(-1)
         return self.radius_scale.to(b.dtype)[sphere] * sqrt((near * near).sum(-1) + 1e-12) - self.margin
 
-    def _posed_centres(self, b: torch.Tensor, transforms: torch.Tensor, sphere: Optional[torch.Tensor] = None) -> torch.Tensor:
+    def _posed_centres(
+        self, b: torch.Tensor, transforms: torch.Tensor, sphere: Optional[torch.Tensor] = None
+    ) -> torch.Tensor:
         """Posed centres (no translation) of every sphere, ``[B, S, 3]``, or of spheres
         ``sphere [B, ...]``, ``[B, ..., 3]``."""
         # Gathers from tensors that carry the gradient are index_select (backward: index_add, in order), not
@@ -432,7 +485,9 @@ class SphereCollisionModel(nn.Module):
         else:
             L = min(b.shape[1], self.centre_dirs.shape[-1])
             lead = (slice(None),) + (None,) * (sphere.ndim - 1)
-            c = self.centre_template.to(dt)[sphere] + (b[lead + (None, slice(0, L))] * self.centre_dirs.to(dt)[sphere][..., :L]).sum(-1)
+            c = self.centre_template.to(dt)[sphere] + (
+                b[lead + (None, slice(0, L))] * self.centre_dirs.to(dt)[sphere][..., :L]
+            ).sum(-1)
             at = torch.arange(B, device=b.device)[lead + (None,)] * J + self.carry_joint[sphere]  # [B, ..., k]
             Tk = T34.reshape(B * J, 3, 4).index_select(0, at.reshape(-1)).reshape(*at.shape, 3, 4)
             w = self.carry_weight.to(dt)[sphere]
@@ -468,8 +523,14 @@ class SphereCollisionModel(nn.Module):
         B, S = radii.shape
         flat_c, flat_r = centres.reshape(B * S, 3), radii.reshape(B * S)
         ia, ib = row * S + a, row * S + b  # index_select, not advanced indexing (_posed_centres)
-        return self._sum_squared_overlaps(B, row, flat_c.index_select(0, ia), flat_c.index_select(0, ib),
-                                          flat_r.index_select(0, ia), flat_r.index_select(0, ib))
+        return self._sum_squared_overlaps(
+            B,
+            row,
+            flat_c.index_select(0, ia),
+            flat_c.index_select(0, ib),
+            flat_r.index_select(0, ia),
+            flat_r.index_select(0, ib),
+        )
 
     def forward(self, betas: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
         """The penalty ``[B]``. Every sphere is posed without a gradient to find the overlapping

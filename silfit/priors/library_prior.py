@@ -26,6 +26,7 @@ library, so this prior fits the synthetic benchmark better than it will fit real
 photos. ``benchmarks/bench_fit.py --holdout`` measures a prior built from half the
 library on subjects posed only from the other half.
 """
+
 from __future__ import annotations
 
 import math
@@ -48,7 +49,6 @@ BUILD_DEFAULTS = dict(
     shrink=0.05,
     em_iters=60,
 )
-
 
 
 def split_library(seed: int = 0):
@@ -118,7 +118,13 @@ def _component_logpdf(X, means, covars):
 
 
 def fit_gaussian_mixture(
-    X: np.ndarray, components: int, seed: int = 0, reg: float = 1e-2, shrink: float = 0.05, iters: int = 60, tol: float = 1e-6
+    X: np.ndarray,
+    components: int,
+    seed: int = 0,
+    reg: float = 1e-2,
+    shrink: float = 0.05,
+    iters: int = 60,
+    tol: float = 1e-6,
 ) -> Dict[str, np.ndarray]:
     """EM for a full-covariance Gaussian mixture (k-means++ start). Each M-step covariance
     is ``(1 - shrink) * S_k + shrink * S_pooled + reg * I``. Returns ``means [K, D]``,

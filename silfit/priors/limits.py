@@ -22,6 +22,7 @@ generous: wide enough for sitting, kneeling, lunging, kicking, throwing and reac
 overhead, tight enough to forbid hyperextended knees/elbows, knees bending sideways
 and heads turned backwards. Values in radians.
 """
+
 from __future__ import annotations
 
 import math
@@ -104,10 +105,7 @@ assert all(-math.pi < v < math.pi for v in _LOWER + _UPPER)
 
 def limit_bounds(dtype=torch.float32, device=None) -> Tuple[torch.Tensor, torch.Tensor]:
     """``(lower [69], upper [69])`` bounds in ``body_pose`` order."""
-    return (
-        torch.tensor(_LOWER, dtype=dtype, device=device),
-        torch.tensor(_UPPER, dtype=dtype, device=device),
-    )
+    return (torch.tensor(_LOWER, dtype=dtype, device=device), torch.tensor(_UPPER, dtype=dtype, device=device))
 
 
 def limit_centre_and_range(dtype=torch.float32, device=None) -> Tuple[torch.Tensor, torch.Tensor]:

@@ -25,6 +25,7 @@
 
 Both return energies ``[B]`` that are zero at their best pose and differentiable.
 """
+
 from __future__ import annotations
 
 import math
@@ -41,7 +42,11 @@ from . import spd
 from .limits import limit_bounds
 
 __all__ = [
-    "MaxMixturePrior", "LibraryMixturePrior", "LimitsPrior", "load_pose_prior", "default_pose_prior",
+    "MaxMixturePrior",
+    "LibraryMixturePrior",
+    "LimitsPrior",
+    "load_pose_prior",
+    "default_pose_prior",
     "DEFAULT_MIXTURE_PATH",
 ]
 
@@ -200,7 +205,7 @@ class LibraryMixturePrior(MaxMixturePrior):
             raise InputError(path, f"field(s) missing: {', '.join(missing)}")
         prior = cls(data["means"], data["covars"], data["weights"], source=path, dtype=dtype)
         try:
-            prior.settings = {k[len("setting_"):]: float(v) for k, v in data.items() if k.startswith("setting_")}
+            prior.settings = {k[len("setting_") :]: float(v) for k, v in data.items() if k.startswith("setting_")}
             prior.pose_names = [str(n) for n in np.atleast_1d(data.get("pose_names", []))]
         except (TypeError, ValueError) as err:
             raise InputError(path, f"a 'setting_*' or 'pose_names' field is malformed ({err})") from None

@@ -1,4 +1,5 @@
 """Small priors: SMPLify's knee/elbow angle prior and the L2 shape prior."""
+
 from __future__ import annotations
 
 import torch

@@ -14,6 +14,7 @@ a hand-pose prior, and the L2 priors on the jaw and the expression.
   the same library).
 * :func:`l2`: ``|x|^2`` per row (jaw pose in radians, expression coefficients in their unit-variance space).
 """
+
 from __future__ import annotations
 
 import math
@@ -58,8 +59,13 @@ def marginal_mixture(prior: MaxMixturePrior, dim: int) -> MaxMixturePrior:
     cov, logdet_prec = spd.inverse_and_logdet(prec)
     logw = [-0.5 * float(ld) - float(c) for ld, c in zip(logdet_prec, prior.constants.double().cpu().numpy())]
     w = np.array([math.exp(x - max(logw)) for x in logw])
-    out = MaxMixturePrior(prior.means.double()[:, :dim].cpu().numpy(), cov[:, :dim, :dim], w,
-                          source=f"{prior.source} (marginal over the first {dim} values)", dtype=prior.means.dtype)  # fmt: skip
+    out = MaxMixturePrior(
+        prior.means.double()[:, :dim].cpu().numpy(),
+        cov[:, :dim, :dim],
+        w,
+        source=f"{prior.source} (marginal over the first {dim} values)",
+        dtype=prior.means.dtype,
+    )
     return out
 
 

@@ -10,6 +10,7 @@ rounded, whatever SIMD width runs it), in a fixed order, and the logarithms and 
 log-determinant are Python's (``math.log``, ``math.fsum``), not numpy's SIMD loops (``math.log`` is the C
 library's: the same on machines with AVX2 and FMA under one glibc).
 """
+
 from __future__ import annotations
 
 import math

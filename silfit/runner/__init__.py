@@ -2,6 +2,7 @@
 and resuming (:mod:`.store`), the per-process fitter (:mod:`.worker`), local (one process or
 several) and Ray execution (:mod:`.run`, :mod:`.ray_backend`) and the end-of-run summary (:mod:`.summary`).
 :func:`fit_dataset` ties them together."""
+
 from __future__ import annotations
 
 import json

@@ -24,6 +24,7 @@ Errors in one image's files do not stop the listing: that item carries the error
 reported as failed. Errors in the input as a whole (no such folder, a malformed manifest)
 raise :class:`InputError`.
 """
+
 from __future__ import annotations
 
 import csv
@@ -139,7 +140,9 @@ def item_error(err: BaseException, file: Optional[str], component: str) -> ItemE
     if not isinstance(err, (InputError, FileNotFoundError)):
         message = short_message(message, library=True)
     if file and message.startswith(f"{file}"):
-        message = re.sub(r"^\s*(\([^)]*\))?:\s*", lambda m: f"{m.group(1)}: " if m.group(1) else "", message[len(file):])
+        message = re.sub(
+            r"^\s*(\([^)]*\))?:\s*", lambda m: f"{m.group(1)}: " if m.group(1) else "", message[len(file) :]
+        )
     named = getattr(err, "field", None)  # errors that carry their field (silfit's InputError)
     if isinstance(named, str) and named:
         return ItemError(file, named, message)
@@ -197,7 +200,9 @@ def load_item(item: Item, read_masks: bool = True) -> LoadedItem:
     if camera is None:
         ref = image if image is not None else mask
         if ref is None:
-            raise ItemError(item.keypoints, "camera", "no camera: give a camera.json, or an image or mask for the default camera")
+            raise ItemError(
+                item.keypoints, "camera", "no camera: give a camera.json, or an image or mask for the default camera"
+            )
         camera = Camera.from_image_size(ref.shape[1], ref.shape[0])
     return LoadedItem(item, people[k], k, len(people), camera, mask, mask_file, image)
 
@@ -237,7 +242,9 @@ def _expand(key: str, keypoints: str, people, masks: Dict[str, str], **files) ->
         try:
             n = len(read_people(keypoints))
         except (ValueError, FileNotFoundError, OSError) as err:
-            return [Item(key, keypoints, LARGEST, masks, error=item_error(err, keypoints, "keypoints").to_dict(), **files)]
+            return [
+                Item(key, keypoints, LARGEST, masks, error=item_error(err, keypoints, "keypoints").to_dict(), **files)
+            ]
         return [Item(f"{key}_{k}", keypoints, k, masks, **files) for k in range(n)]
     if people == LARGEST:
         return [Item(key, keypoints, LARGEST, masks, **files)]
@@ -294,8 +301,14 @@ def _synthetic_items(subjects: List[Path], people):
     for s in subjects:
         kp, cam, mask, image = (s / SUBJECT_FILES[c] for c in ("keypoints", "camera", "mask", "image"))
         masks = {LARGEST: os.fspath(mask)} if mask.is_file() else {}
-        items += _expand(s.name, os.fspath(kp), people, masks, image=os.fspath(image) if image.is_file() else None,
-                         camera=os.fspath(cam) if cam.is_file() else None)  # fmt: skip
+        items += _expand(
+            s.name,
+            os.fspath(kp),
+            people,
+            masks,
+            image=os.fspath(image) if image.is_file() else None,
+            camera=os.fspath(cam) if cam.is_file() else None,
+        )
     return items
 
 
@@ -308,7 +321,9 @@ def _manifest_rows(path: Path) -> List[dict]:
         text = data.decode("utf-8")
     except UnicodeDecodeError as err:
         line = data.count(b"\n", 0, err.start) + 1
-        raise InputError(f"{path}: line {line}: not UTF-8 text (byte 0x{data[err.start]:02x}); is it a binary file?") from None
+        raise InputError(
+            f"{path}: line {line}: not UTF-8 text (byte 0x{data[err.start]:02x}); is it a binary file?"
+        ) from None
     if path.suffix.lower() == ".csv":
         reader = csv.DictReader(text.splitlines())
         if not reader.fieldnames or "keypoints" not in reader.fieldnames:
@@ -340,7 +355,9 @@ def _manifest_items(path: Path, people):
     for n, row in enumerate(rows, line0):
         unknown = sorted(set(row) - set(MANIFEST_COLUMNS))
         if unknown:
-            raise InputError(f"{path}: line {n}: field '{unknown[0]}': unknown column (expected {', '.join(MANIFEST_COLUMNS)})")
+            raise InputError(
+                f"{path}: line {n}: field '{unknown[0]}': unknown column (expected {', '.join(MANIFEST_COLUMNS)})"
+            )
         for col, value in row.items():
             if value is not None and not isinstance(value, (str, int)) or isinstance(value, bool):
                 raise InputError(f"{path}: line {n}: field '{col}': expected a string, got {quoted(value)}")
@@ -355,7 +372,9 @@ def _manifest_items(path: Path, people):
             try:
                 person = parse_people(get("person"))
             except InputError:
-                raise InputError(f"{path}: line {n}: field 'person': expected largest, all or an index, got {quoted(get('person'))}") from None
+                raise InputError(
+                    f"{path}: line {n}: field 'person': expected largest, all or an index, got {quoted(get('person'))}"
+                ) from None
         masks = {}
         if get("mask"):
             masks[str(person) if isinstance(person, int) else LARGEST] = resolve("mask")
@@ -377,8 +396,10 @@ def _unique(source: Path, items: List[Item]) -> List[Item]:
     seen = {}
     for it in items:
         if it.key in seen:
-            raise InputError(f"{source}: two items would write the same output folder {it.key!r} "
-                             f"({seen[it.key]} and {it.keypoints}); give them distinct ids")  # fmt: skip
+            raise InputError(
+                f"{source}: two items would write the same output folder {it.key!r} "
+                f"({seen[it.key]} and {it.keypoints}); give them distinct ids"
+            )
         if it.key.startswith(".") or "/" in it.key or it.key in RESERVED:
             raise InputError(f"{source}: item name {it.key!r} cannot be an output folder name")
         seen[it.key] = it.keypoints

@@ -12,6 +12,7 @@ at the same place) and returns the records; the driver streams them into
 Without an address a local Ray is started (``ray.init(num_cpus=..., include_dashboard=False)``);
 with one (``auto``, ``ray://host:10001`` or ``host:6379``) the job joins that cluster.
 """
+
 from __future__ import annotations
 
 import json
@@ -21,7 +22,7 @@ import signal
 import sys
 import threading
 from contextlib import contextmanager
-from typing import List, Optional, Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -55,14 +56,26 @@ def _init(address: Optional[str], local_cpus: int):
     # the pinned CPU kernels too (silfit.kernels): a cluster's raylet was not started by this process
     from ..kernels import KERNEL_PINS
 
-    passed = ("PYTHONPATH", "DRJIT_LIBLLVM_PATH", "PYOPENGL_PLATFORM", *KERNEL_PINS, "NPY_DISABLE_CPU_FEATURES", "SILFIT_KERNELS")
+    passed = (
+        "PYTHONPATH",
+        "DRJIT_LIBLLVM_PATH",
+        "PYOPENGL_PLATFORM",
+        *KERNEL_PINS,
+        "NPY_DISABLE_CPU_FEATURES",
+        "SILFIT_KERNELS",
+    )
     env = {"env_vars": {k: os.environ[k] for k in passed if k in os.environ}}
     with _signal_handlers_kept():
         if address:
             ray.init(address=address, runtime_env=env, log_to_driver=False, logging_level=logging.WARNING)
         else:
-            ray.init(num_cpus=local_cpus, include_dashboard=False, runtime_env=env, log_to_driver=False,
-                     logging_level=logging.WARNING)  # fmt: skip
+            ray.init(
+                num_cpus=local_cpus,
+                include_dashboard=False,
+                runtime_env=env,
+                log_to_driver=False,
+                logging_level=logging.WARNING,
+            )
     _auto_connect_off()  # now, not at the shutdown: Ray's check of the switch does not lock
     return True
 
@@ -135,11 +148,18 @@ def run_ray(
         rows = [{"item": json.dumps(it.to_dict())} for it in pending]
         ds = ray.data.from_items(rows, override_num_blocks=max(1, -(-len(rows) // batch_size)))
         fitted = ds.map_batches(
-            FitActor, fn_constructor_kwargs={"options": options.to_dict(), "out": os.fspath(store.out.resolve()),
-                                             "render_threads": max(1, int(num_cpus))},
-            batch_size=batch_size, compute=ray.data.ActorPoolStrategy(size=max(1, actors)),
-            num_cpus=num_cpus, num_gpus=num_gpus or None, batch_format="numpy",
-        )  # fmt: skip
+            FitActor,
+            fn_constructor_kwargs={
+                "options": options.to_dict(),
+                "out": os.fspath(store.out.resolve()),
+                "render_threads": max(1, int(num_cpus)),
+            },
+            batch_size=batch_size,
+            compute=ray.data.ActorPoolStrategy(size=max(1, actors)),
+            num_cpus=num_cpus,
+            num_gpus=num_gpus or None,
+            batch_format="numpy",
+        )
 
         def stream():
             batches = iter(fitted.iter_batches(batch_size=None, batch_format="numpy"))
@@ -161,7 +181,9 @@ def run_ray(
             except Exception:
                 if clean:
                     raise
-                logging.getLogger(__name__).debug("stopping Ray Data's execution", exc_info=True)  # the first error stands
+                logging.getLogger(__name__).debug(
+                    "stopping Ray Data's execution", exc_info=True
+                )  # the first error stands
     finally:
         if started:
             ray.shutdown()

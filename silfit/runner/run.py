@@ -2,6 +2,7 @@
 local worker processes (:func:`run_pool`, ``--workers``) or on a Ray cluster
 (:func:`silfit.runner.ray_backend.run_ray`); the driver records every finished batch
 (:class:`silfit.runner.store.RunStore`) and shows a progress bar."""
+
 from __future__ import annotations
 
 import contextlib
@@ -13,7 +14,16 @@ from .items import Item
 from .store import RunStore
 from .worker import DatasetFitter, FitOptions
 
-__all__ = ["available_cpus", "batches", "run_local", "run_pool", "progress_bar", "shared_batch_size", "shared_batches", "WorkerDied"]
+__all__ = [
+    "available_cpus",
+    "batches",
+    "run_local",
+    "run_pool",
+    "progress_bar",
+    "shared_batch_size",
+    "shared_batches",
+    "WorkerDied",
+]
 
 
 def batches(items: Sequence[Item], size: int) -> List[List[Item]]:
@@ -63,7 +73,9 @@ def progress_bar(total: int, enabled: bool):
     return tqdm(total=total, unit="item", desc="fit-dataset", dynamic_ncols=True, smoothing=0.1)
 
 
-def drive(store: RunStore, results: Iterable[List[dict]], total: int, progress: bool, on_batch: Callable = None) -> float:
+def drive(
+    store: RunStore, results: Iterable[List[dict]], total: int, progress: bool, on_batch: Callable = None
+) -> float:
     """Record each batch of records as it arrives; the wall time in seconds."""
     t0 = time.perf_counter()
     bar = progress_bar(total, progress)
@@ -82,8 +94,14 @@ def drive(store: RunStore, results: Iterable[List[dict]], total: int, progress: 
     return time.perf_counter() - t0
 
 
-def run_local(store: RunStore, pending: Sequence[Item], options: FitOptions, batch_size: int, progress: bool = False,
-              fitter: Optional[DatasetFitter] = None) -> float:  # fmt: skip
+def run_local(
+    store: RunStore,
+    pending: Sequence[Item],
+    options: FitOptions,
+    batch_size: int,
+    progress: bool = False,
+    fitter: Optional[DatasetFitter] = None,
+) -> float:
     """Fit ``pending`` in this process, ``batch_size`` items per keypoint-stage call (with
     ``fitter``, already built from ``options``, when given)."""
     if not pending:
@@ -198,8 +216,9 @@ def shared_batches(items: Sequence[Item], batch_size: int, workers: int) -> List
     return [list(items[a:b]) for a, b in zip(cuts[:-1], cuts[1:])]
 
 
-def run_pool(store: RunStore, pending: Sequence[Item], options: FitOptions, batch_size: int, workers: int,
-             progress: bool = False) -> float:  # fmt: skip
+def run_pool(
+    store: RunStore, pending: Sequence[Item], options: FitOptions, batch_size: int, workers: int, progress: bool = False
+) -> float:
     """Fit ``pending`` in ``workers`` processes of this machine, each one CPU's worth, as Ray's one-CPU actors:
     one torch thread and one Dr.Jit thread, the fitter built once per process, at most ``batch_size`` items per
     batch (:func:`shared_batches`). Each process writes its items' folders (atomically:
@@ -216,8 +235,12 @@ def run_pool(store: RunStore, pending: Sequence[Item], options: FitOptions, batc
     from concurrent.futures.process import BrokenProcessPool
 
     parts = shared_batches(pending, batch_size, min(int(workers), len(pending)))
-    pool = ProcessPoolExecutor(max_workers=max(1, min(int(workers), len(parts))), mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_start_process, initargs=(options.to_dict(), os.fspath(store.out.resolve()), os.getpid()))  # fmt: skip
+    pool = ProcessPoolExecutor(
+        max_workers=max(1, min(int(workers), len(parts))),
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=_start_process,
+        initargs=(options.to_dict(), os.fspath(store.out.resolve()), os.getpid()),
+    )
     futures: list = []
     recorded: set = set()
 
@@ -233,8 +256,10 @@ def run_pool(store: RunStore, pending: Sequence[Item], options: FitOptions, batc
             for future in failed:
                 err = future.exception()
                 if isinstance(err, BrokenProcessPool):
-                    raise WorkerDied("a fit-dataset worker process ended without its results (killed, or out of memory?); "
-                                     "the items recorded so far are kept: run the same command again to fit the rest") from None  # fmt: skip
+                    raise WorkerDied(
+                        "a fit-dataset worker process ended without its results (killed, or out of memory?); "
+                        "the items recorded so far are kept: run the same command again to fit the rest"
+                    ) from None
                 raise err
 
     clean = False

@@ -11,6 +11,7 @@ On start (:meth:`RunStore.open`): a line cut off by a kill is dropped; temporary
 interrupted writes are removed; the lines of items that will run again (folder missing,
 or failed with ``retry_failed``) are removed, so every item ends with exactly one line.
 """
+
 from __future__ import annotations
 
 import json
@@ -80,7 +81,11 @@ class RunStore:
                 keep[key] = r
             elif r.get("status") == "failed" and not (retry_failed and key in keys):
                 keep[key] = r
-        failures = {f["item"]: f for f in read_jsonl(out / FAILURES) if isinstance(f, dict) and keep.get(f.get("item"), {}).get("status") == "failed"}
+        failures = {
+            f["item"]: f
+            for f in read_jsonl(out / FAILURES)
+            if isinstance(f, dict) and keep.get(f.get("item"), {}).get("status") == "failed"
+        }
         _rewrite(out / RESULTS, keep.values())
         _rewrite(out / FAILURES, failures.values())
         return cls(out, keep, failures)
@@ -90,7 +95,10 @@ class RunStore:
 
     def add(self, records: List[dict]) -> None:
         """Record finished items (their folders are already in place)."""
-        with open(self.out / RESULTS, "a", encoding="utf-8") as res, open(self.out / FAILURES, "a", encoding="utf-8") as fail:
+        with (
+            open(self.out / RESULTS, "a", encoding="utf-8") as res,
+            open(self.out / FAILURES, "a", encoding="utf-8") as fail,
+        ):
             for r in records:
                 if r["status"] == "failed":
                     f = {"item": r["item"], **r["error"]}

@@ -1,11 +1,12 @@
 """The end-of-run summary of a dataset run: a Markdown table (``OUT/summary.md``) and a plot
 (``OUT/summary.png``) from the result records."""
+
 from __future__ import annotations
 
 import os
 from collections import Counter
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -16,7 +17,12 @@ def _stats(values) -> Optional[dict]:
     v = np.array([x for x in values if x is not None and np.isfinite(x)], dtype=np.float64)
     if not len(v):
         return None
-    return {"n": int(len(v)), "mean": float(v.mean()), "median": float(np.median(v)), "p90": float(np.percentile(v, 90))}
+    return {
+        "n": int(len(v)),
+        "mean": float(v.mean()),
+        "median": float(np.median(v)),
+        "p90": float(np.percentile(v, 90)),
+    }
 
 
 def summarise(records: Sequence[dict], wall_s: Optional[float] = None, fitted_now: int = 0) -> dict:
@@ -45,7 +51,9 @@ def summary_table(s: dict) -> str:
 
     def row(label, st, fmt):
         if st:
-            lines.append(f"| {label} | {st['n']} | {fmt.format(st['mean'])} | {fmt.format(st['median'])} | {fmt.format(st['p90'])} |")
+            lines.append(
+                f"| {label} | {st['n']} | {fmt.format(st['mean'])} | {fmt.format(st['median'])} | {fmt.format(st['p90'])} |"
+            )
 
     row("reprojection error (px)", s["reprojection_error_px"], "{:.2f}")
     row("IoU after keypoint stage", s["iou_keypoint_stage"], "{:.3f}")

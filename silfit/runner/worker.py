@@ -8,6 +8,7 @@ written with :func:`silfit.save_fit` (atomically: a temporary folder renamed int
 :meth:`DatasetFitter.run_batch` returns one JSON-ready record per item (``results.jsonl``'s
 lines, see :mod:`silfit.runner.store`); recording them is the caller's job.
 """
+
 from __future__ import annotations
 
 import collections.abc
@@ -96,7 +97,9 @@ def config_with(cls, options: Dict[str, object], base=None, stage: str = "keypoi
         elif isinstance(value, str):
             if isinstance(default, dict):
                 raise ValueError(f"{stage}-stage option {key} cannot be given on the command line (a mapping)")
-            declared = _declared_kind(hints.get(key), key, stage) if default is None else None  # e.g. Optional[Sequence[float]]
+            declared = (
+                _declared_kind(hints.get(key), key, stage) if default is None else None
+            )  # e.g. Optional[Sequence[float]]
             expected = declared[2] if declared else f"a value like {default!r}"
             try:
                 if isinstance(default, bool):
@@ -133,7 +136,9 @@ def silhouette_config(options: FitOptions) -> SilhouetteFitConfig:
     base = SilhouetteFitConfig()
     if len(levels.get("resolutions", base.resolutions)) != len(levels.get("iterations", base.iterations)):
         raise ValueError("--silhouette-resolutions and --silhouette-iterations need the same number of levels")
-    return config_with(SilhouetteFitConfig, dict(options.silhouette_options or {}), replace(base, **levels), "silhouette")
+    return config_with(
+        SilhouetteFitConfig, dict(options.silhouette_options or {}), replace(base, **levels), "silhouette"
+    )
 
 
 class DatasetFitter:
@@ -160,12 +165,23 @@ class DatasetFitter:
         from ..fitting.problem import Problem
         from ..run import Job
 
-        camera = li.camera if self.options.focal is None else replace(li.camera, fx=float(self.options.focal),
-                                                                        fy=float(self.options.focal))  # fmt: skip
-        return Job(Problem.single(li.keypoints, camera, li.mask), self.model, pose_prior=self.pose_prior,
-                   keypoint_config=self.config, silhouette_config=self.silhouette_config, silhouette=self.options.silhouette,
-                   progress=False, warnings=list(li.warnings), images={} if li.image is None else {(0, 0): li.image},
-                   mask_sources={(0, 0): li.mask_file or "mask"})  # fmt: skip
+        camera = (
+            li.camera
+            if self.options.focal is None
+            else replace(li.camera, fx=float(self.options.focal), fy=float(self.options.focal))
+        )
+        return Job(
+            Problem.single(li.keypoints, camera, li.mask),
+            self.model,
+            pose_prior=self.pose_prior,
+            keypoint_config=self.config,
+            silhouette_config=self.silhouette_config,
+            silhouette=self.options.silhouette,
+            progress=False,
+            warnings=list(li.warnings),
+            images={} if li.image is None else {(0, 0): li.image},
+            mask_sources={(0, 0): li.mask_file or "mask"},
+        )
 
     def run_batch(self, items: Sequence[Item], out: Union[str, os.PathLike]) -> List[dict]:
         """Fit ``items`` (:func:`silfit.run.run_batch`: the checks, one batched keypoint stage per
@@ -196,7 +212,9 @@ class DatasetFitter:
                     from ..wholebody import choose_fit_keypoints, read_wholebody_parts
 
                     parts = read_component("keypoints", it.keypoints, read_wholebody_parts, it.keypoints, li.person)
-                    li.keypoints = read_component("keypoints", it.keypoints, choose_fit_keypoints, li.keypoints, parts, self.model)[0]
+                    li.keypoints = read_component(
+                        "keypoints", it.keypoints, choose_fit_keypoints, li.keypoints, parts, self.model
+                    )[0]
                 loaded.append(li)
             except ItemError as err:
                 records[it.key] = _failed(it, "load", err)
@@ -207,7 +225,9 @@ class DatasetFitter:
             if isinstance(fit, Exception):  # the checks (as reading), or a stage
                 stage = fit.stage if isinstance(fit, StageFailure) else "load"
                 err = fit.error if isinstance(fit, StageFailure) else fit
-                source, component = (li.mask_file, "mask") if stage == "silhouette" else (li.item.keypoints, "keypoints")
+                source, component = (
+                    (li.mask_file, "mask") if stage == "silhouette" else (li.item.keypoints, "keypoints")
+                )
                 records[key] = _failed(li.item, stage, item_error(err, source, component))
                 continue
             res = fit.stage
@@ -216,8 +236,17 @@ class DatasetFitter:
                 times[key]["silhouette"] = float(res.silhouette.seconds)
             t0 = time.perf_counter()
             try:
-                save_fit(res, out / key, self.faces, fit.job.problem.observations[0].keypoints, li.image, li.mask,
-                         self._extra(li, len(loaded)), overwrite=True, exports=tuple(self.options.exports))  # fmt: skip
+                save_fit(
+                    res,
+                    out / key,
+                    self.faces,
+                    fit.job.problem.observations[0].keypoints,
+                    li.image,
+                    li.mask,
+                    self._extra(li, len(loaded)),
+                    overwrite=True,
+                    exports=tuple(self.options.exports),
+                )
             except (OSError, ValueError) as err:
                 if interruption(err) is not None:  # the run was stopped while writing: not this item's failure
                     raise
@@ -239,19 +268,32 @@ class DatasetFitter:
 
     def _extra(self, li: LoadedItem, batch: int) -> dict:
         extra = {
-            "item": li.item.key, "keypoints": li.item.keypoints, "person": li.person, "people_in_file": li.people,
-            "mask": li.mask_file, "image": li.item.image, "camera_file": li.item.camera, "model": self.model.source,
-            "silhouette_stage": self._silhouette_status(li), "keypoint_batch_size": batch,
-        }  # fmt: skip
+            "item": li.item.key,
+            "keypoints": li.item.keypoints,
+            "person": li.person,
+            "people_in_file": li.people,
+            "mask": li.mask_file,
+            "image": li.item.image,
+            "camera_file": li.item.camera,
+            "model": self.model.source,
+            "silhouette_stage": self._silhouette_status(li),
+            "keypoint_batch_size": batch,
+        }
         return extra
 
     def _record(self, li: LoadedItem, res: FitResult, batch: int) -> dict:
         m = res.metrics
         rec = {
-            "item": li.item.key, "status": "ok", "keypoints": li.item.keypoints, "person": li.person,
-            "people_in_file": li.people, "mask": li.mask_file, "silhouette_stage": self._silhouette_status(li),
-            "stages": list(m["stages"]), "reprojection_error_px": _round(m["reprojection_error_px"]),
-        }  # fmt: skip
+            "item": li.item.key,
+            "status": "ok",
+            "keypoints": li.item.keypoints,
+            "person": li.person,
+            "people_in_file": li.people,
+            "mask": li.mask_file,
+            "silhouette_stage": self._silhouette_status(li),
+            "stages": list(m["stages"]),
+            "reprojection_error_px": _round(m["reprojection_error_px"]),
+        }
         for k in ("iou_keypoint_stage", "iou"):
             if k in m:
                 rec[k] = _round(m[k])

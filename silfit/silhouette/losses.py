@@ -50,6 +50,7 @@ instead of pixels, in the same pixel units:
 Both are means of squared pixel distances (smooth at zero, so a quasi-Newton method can
 use them); neither needs the body's own outline, so no visibility is computed.
 """
+
 from __future__ import annotations
 
 import math
@@ -62,9 +63,20 @@ import torch
 from ..body.lbs import sqrt
 
 __all__ = [
-    "CoverProfile", "MaskTarget", "clothing_thickness", "trim_clothing", "unknown_regions", "concave_region", "contour_points", "cover_energy", "cover_weights", "distance_transforms", "outside_distance_energy",
-    "silhouette_energy", "soft_iou",
-]  # fmt: skip
+    "CoverProfile",
+    "MaskTarget",
+    "clothing_thickness",
+    "trim_clothing",
+    "unknown_regions",
+    "concave_region",
+    "contour_points",
+    "cover_energy",
+    "cover_weights",
+    "distance_transforms",
+    "outside_distance_energy",
+    "silhouette_energy",
+    "soft_iou",
+]
 
 
 def distance_transforms(mask: np.ndarray, valid=None) -> tuple[np.ndarray, np.ndarray]:
@@ -144,8 +156,9 @@ class MaskTarget:
     cover: Optional[CoverProfile] = None
 
     @classmethod
-    def from_mask(cls, mask: np.ndarray, device=None, dtype=torch.float32, valid=None,
-                  cover: Optional[CoverProfile] = None) -> "MaskTarget":  # fmt: skip
+    def from_mask(
+        cls, mask: np.ndarray, device=None, dtype=torch.float32, valid=None, cover: Optional[CoverProfile] = None
+    ) -> "MaskTarget":
         """``valid``: bool ``[H, W]``, the pixels inside the image (module docstring: truncation);
         ``cover``: the robust profile of the mask-not-covered side (module docstring)."""
         dt_out, dt_in = distance_transforms(mask, valid)
@@ -153,8 +166,15 @@ class MaskTarget:
         seen = None if valid is None else as_t(np.asarray(valid, dtype=np.float32))
         plain = cover is None or cover.plain
         w_in = None if plain else as_t(cover_weights(dt_in, cover))
-        return cls(as_t(np.asarray(mask, dtype=np.float32)), as_t(dt_out), as_t(dt_in), float(np.count_nonzero(mask)), seen,
-                   w_in, None if plain else cover)  # fmt: skip
+        return cls(
+            as_t(np.asarray(mask, dtype=np.float32)),
+            as_t(dt_out),
+            as_t(dt_in),
+            float(np.count_nonzero(mask)),
+            seen,
+            w_in,
+            None if plain else cover,
+        )
 
 
 def silhouette_energy(silhouette: torch.Tensor, target: MaskTarget) -> torch.Tensor:
@@ -176,7 +196,6 @@ def soft_iou(silhouette: torch.Tensor, mask: torch.Tensor, valid: Optional[torch
     inter = torch.minimum(silhouette, mask).sum(dim=(-2, -1))
     union = torch.maximum(silhouette, mask).sum(dim=(-2, -1))
     return inter / union.clamp(min=1e-9)
-
 
 
 def contour_points(mask: np.ndarray, count: int, valid=None) -> np.ndarray:
@@ -321,8 +340,9 @@ def concave_region(body: np.ndarray, radius: float) -> np.ndarray:
     return closed & ~b
 
 
-def unknown_regions(mask: np.ndarray, body: Optional[np.ndarray], far: float, hole_fraction: float,
-                    concave: float = 0.0) -> Optional[np.ndarray]:  # fmt: skip
+def unknown_regions(
+    mask: np.ndarray, body: Optional[np.ndarray], far: float, hole_fraction: float, concave: float = 0.0
+) -> Optional[np.ndarray]:
     """``known`` (bool ``[H, W]``) of a person ``mask``, or ``None`` when all of it is: the mask's
     pixels farther than ``far`` pixels from ``body`` (the keypoint fit's silhouette; ``far <= 0`` or
     ``body None``: none), the mask's holes (background regions not touching the image's border)
@@ -336,7 +356,9 @@ def unknown_regions(mask: np.ndarray, body: Optional[np.ndarray], far: float, ho
     if body is not None and concave > 0:
         unknown |= m & concave_region(body, concave)
     if body is not None and far > 0 and np.asarray(body).any():
-        dist = cv2.distanceTransform((~np.asarray(body, dtype=bool)).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        dist = cv2.distanceTransform(
+            (~np.asarray(body, dtype=bool)).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE
+        )
         unknown |= m & (dist > float(far))
     if hole_fraction > 0 and m.any():
         count, labels, stats, _ = cv2.connectedComponentsWithStats((~m).astype(np.uint8), connectivity=4)

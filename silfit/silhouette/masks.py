@@ -8,6 +8,7 @@ naming the file. A mask is foreground where it is above half its type's range. I
 is read from the file's header and checked against :mod:`silfit.input_limits` before the
 pixels are decoded (by :mod:`silfit.imagefile`).
 """
+
 from __future__ import annotations
 
 import os
@@ -40,7 +41,7 @@ def _to_binary(raw: np.ndarray, source: str) -> np.ndarray:
         if np.all(colour == colour.reshape(-1, colour.shape[2])[0]):
             return _binarise(alpha)
         raise InputError(
-            source, f"mask has an alpha channel and varying colour; save the person mask as a greyscale image"
+            source, "mask has an alpha channel and varying colour; save the person mask as a greyscale image"
         )
     if not grey_agrees:
         raise InputError(source, "mask is a colour image whose channels differ; expected a greyscale (binary) mask")
@@ -52,7 +53,9 @@ def _check_size(width: int, height: int, source: str, size: Optional[tuple[int, 
         raise InputError(source, f"mask is {width}x{height} pixels but the image/camera is {size[0]}x{size[1]}")
 
 
-def validate_mask(mask: np.ndarray, source: str, size: Optional[tuple[int, int]] = None, allow_empty: bool = False) -> np.ndarray:
+def validate_mask(
+    mask: np.ndarray, source: str, size: Optional[tuple[int, int]] = None, allow_empty: bool = False
+) -> np.ndarray:
     """Check a boolean mask ``[H, W]``: not empty (unless ``allow_empty``), not all foreground,
     of ``size = (W, H)``."""
     _check_size(mask.shape[1], mask.shape[0], source, size)
@@ -63,7 +66,9 @@ def validate_mask(mask: np.ndarray, source: str, size: Optional[tuple[int, int]]
     return mask
 
 
-def read_mask(path: Union[str, os.PathLike], size: Optional[tuple[int, int]] = None, allow_empty: bool = False) -> np.ndarray:
+def read_mask(
+    path: Union[str, os.PathLike], size: Optional[tuple[int, int]] = None, allow_empty: bool = False
+) -> np.ndarray:
     """Read a person mask as a boolean array ``[H, W]`` (see the module docstring); ``allow_empty``
     accepts a mask without foreground (a video frame where the person was not segmented)."""
     source = os.fspath(path)

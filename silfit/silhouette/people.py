@@ -16,6 +16,7 @@ layout (:data:`BONES`, by name: BODY_25, COCO-17, BlazePose-33 and the whole-bod
 the keypoints themselves. Pure functions of arrays; the image path applies them where a photo's people are
 detected (``silfit fit --image``, ``--people all``).
 """
+
 from __future__ import annotations
 
 from typing import Optional, Sequence
@@ -26,20 +27,42 @@ __all__ = ["BONES", "own_mask", "skeleton_distance"]
 
 #: the segments of a person's skeleton, by keypoint name (a pair a layout does not name is skipped)
 BONES = (
-    ("neck", "nose"), ("neck", "mid_hip"), ("left_shoulder", "right_shoulder"), ("left_hip", "right_hip"),
-    ("left_shoulder", "left_hip"), ("right_shoulder", "right_hip"), ("neck", "left_shoulder"), ("neck", "right_shoulder"),
-    ("mid_hip", "left_hip"), ("mid_hip", "right_hip"),
-    ("left_shoulder", "left_elbow"), ("left_elbow", "left_wrist"), ("right_shoulder", "right_elbow"),
-    ("right_elbow", "right_wrist"), ("left_hip", "left_knee"), ("left_knee", "left_ankle"), ("right_hip", "right_knee"),
-    ("right_knee", "right_ankle"), ("left_ankle", "left_heel"), ("right_ankle", "right_heel"),
-    ("left_ankle", "left_big_toe"), ("right_ankle", "right_big_toe"), ("left_ankle", "left_foot_index"),
-    ("right_ankle", "right_foot_index"), ("nose", "left_eye"), ("nose", "right_eye"), ("left_eye", "left_ear"),
-    ("right_eye", "right_ear"), ("left_wrist", "left_index"), ("right_wrist", "right_index"),
-)  # fmt: skip
+    ("neck", "nose"),
+    ("neck", "mid_hip"),
+    ("left_shoulder", "right_shoulder"),
+    ("left_hip", "right_hip"),
+    ("left_shoulder", "left_hip"),
+    ("right_shoulder", "right_hip"),
+    ("neck", "left_shoulder"),
+    ("neck", "right_shoulder"),
+    ("mid_hip", "left_hip"),
+    ("mid_hip", "right_hip"),
+    ("left_shoulder", "left_elbow"),
+    ("left_elbow", "left_wrist"),
+    ("right_shoulder", "right_elbow"),
+    ("right_elbow", "right_wrist"),
+    ("left_hip", "left_knee"),
+    ("left_knee", "left_ankle"),
+    ("right_hip", "right_knee"),
+    ("right_knee", "right_ankle"),
+    ("left_ankle", "left_heel"),
+    ("right_ankle", "right_heel"),
+    ("left_ankle", "left_big_toe"),
+    ("right_ankle", "right_big_toe"),
+    ("left_ankle", "left_foot_index"),
+    ("right_ankle", "right_foot_index"),
+    ("nose", "left_eye"),
+    ("nose", "right_eye"),
+    ("left_eye", "left_ear"),
+    ("right_eye", "right_ear"),
+    ("left_wrist", "left_index"),
+    ("right_wrist", "right_index"),
+)
 
 
-def skeleton_distance(shape: tuple, xy: np.ndarray, conf: np.ndarray, names: Sequence[str],
-                      min_conf: float = 0.2) -> Optional[np.ndarray]:  # fmt: skip
+def skeleton_distance(
+    shape: tuple, xy: np.ndarray, conf: np.ndarray, names: Sequence[str], min_conf: float = 0.2
+) -> Optional[np.ndarray]:
     """Distance (pixels, float32 ``[H, W]`` for ``shape = (H, W)``) from every pixel to a person's skeleton:
     the segments of :data:`BONES` between keypoints of confidence above ``min_conf`` and those keypoints;
     ``None`` when none is confident."""
@@ -67,7 +90,9 @@ def skeleton_distance(shape: tuple, xy: np.ndarray, conf: np.ndarray, names: Seq
     return cv2.distanceTransform((canvas == 0).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
 
 
-def own_mask(mask: np.ndarray, own: tuple, others: Sequence[tuple], min_conf: float = 0.2, keep: float = 0.0) -> np.ndarray:
+def own_mask(
+    mask: np.ndarray, own: tuple, others: Sequence[tuple], min_conf: float = 0.2, keep: float = 0.0
+) -> np.ndarray:
     """``mask`` (bool ``[H, W]``) less the pixels that belong to other people (module docstring).
 
     ``own``: this person's ``(xy [K, 2], conf [K], names)``; ``others``: per other person ``(mask or None,

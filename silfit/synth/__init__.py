@@ -3,16 +3,9 @@ camera samplers and the dataset generator behind ``silfit synth``.
 
 The rendering pieces (pyrender) are imported only when a subject is generated.
 """
+
 from ..poses.library import FRONTAL_POSES, POSE_LIBRARY, LibraryPose, get_pose, mirror_pose, pose_names
-from .sampler import (
-    Placement,
-    PoseSample,
-    global_orientation,
-    place_body,
-    sample_betas,
-    sample_intrinsics,
-    sample_pose,
-)
+from .sampler import Placement, PoseSample, global_orientation, place_body, sample_betas, sample_intrinsics, sample_pose
 
 __all__ = [
     "FRONTAL_POSES",

@@ -19,6 +19,7 @@ distance that makes the body fill a share ``fill`` of its frame; or the cameras 
 jaw as :func:`~silfit.synth.generate.sample_wholebody_params` draws them, and every view's
 ``keypoints.json`` holds OpenPose whole-body parts (hands and face, each point's visibility per view).
 """
+
 from __future__ import annotations
 
 import json
@@ -30,14 +31,22 @@ from typing import List, Optional, Sequence, Tuple
 import numpy as np
 import torch
 
-from ..camera import Camera, project_points
+from ..camera import project_points
 from ..dataset import save_npz, write_png
 from ..fitting.problem import View
 from ..keypoints import BODY25_NAMES, model_keypoints, write_openpose_json
 from ..rig import look_at, view_to_dict, write_cameras_json
 from .generate import (
-    WHOLEBODY_DEPTH_TOLERANCE, WHOLEBODY_PARTS, SynthConfig, background_image, BODY_COLOURS, render_subject, keypoint_visibility,
-    noisy_keypoints, sample_wholebody_params, wholebody_names,
+    WHOLEBODY_DEPTH_TOLERANCE,
+    WHOLEBODY_PARTS,
+    SynthConfig,
+    background_image,
+    BODY_COLOURS,
+    render_subject,
+    keypoint_visibility,
+    noisy_keypoints,
+    sample_wholebody_params,
+    wholebody_names,
 )
 from .sampler import global_orientation, sample_betas, sample_intrinsics, sample_pose
 
@@ -87,7 +96,9 @@ def rig_layout(rng: np.random.Generator, vertices: np.ndarray, cfg: SynthConfig,
     return out
 
 
-def _view_part_keypoints(rng, parts3d: dict, view, depth, noise_px: float, drop_prob: float, cfg, wb_clean: dict) -> dict:
+def _view_part_keypoints(
+    rng, parts3d: dict, view, depth, noise_px: float, drop_prob: float, cfg, wb_clean: dict
+) -> dict:
     """Whole body: each part's (hands', face's) noisy keypoints in ``view``, visibility by its rendered ``depth``; the
     clean projections appended to ``wb_clean[part]``."""
     R, t = view.extrinsics()
@@ -97,7 +108,9 @@ def _view_part_keypoints(rng, parts3d: dict, view, depth, noise_px: float, drop_
         p2 = project_points(torch.as_tensor(pc), view.camera).numpy()
         pvis = keypoint_visibility(pc, p2, depth, wholebody_names(part), WHOLEBODY_DEPTH_TOLERANCE)
         scale = cfg.hand_noise_scale if part.startswith("hand") else cfg.face_noise_scale
-        parts[part] = noisy_keypoints(rng, p2, pvis, noise_px * scale, drop_prob, cfg.conf_visible, cfg.conf_occluded)[0]
+        parts[part] = noisy_keypoints(rng, p2, pvis, noise_px * scale, drop_prob, cfg.conf_visible, cfg.conf_occluded)[
+            0
+        ]
         wb_clean.setdefault(part, []).append(p2)
     return parts
 
@@ -129,15 +142,25 @@ def generate_rig_subject(model, index: int, config: SynthConfig, rig: RigConfig,
     betas = sample_betas(rng, model.num_betas, cfg.beta_truncation)
     global_orient = global_orientation(yaw, 0.0, 0.0, root=ps.root)
     body_pose = ps.body_pose[: model.num_body_pose]
-    extra = sample_wholebody_params(rng, model, cfg)[0] if cfg.whole_body else {}  # drawn last: body-only rigs unchanged
+    extra = (
+        sample_wholebody_params(rng, model, cfg)[0] if cfg.whole_body else {}
+    )  # drawn last: body-only rigs unchanged
     as_t = lambda a: torch.as_tensor(np.asarray(a)[None], dtype=model.dtype, device=model.device)  # noqa: E731
     with torch.no_grad():
-        out0 = model(betas=as_t(betas), body_pose=as_t(body_pose), global_orient=as_t(global_orient),
-                     **{k: as_t(v) for k, v in extra.items()})  # fmt: skip
+        out0 = model(
+            betas=as_t(betas),
+            body_pose=as_t(body_pose),
+            global_orient=as_t(global_orient),
+            **{k: as_t(v) for k, v in extra.items()},
+        )
         transl = -out0.joints[0, 0].double().cpu().numpy()
-        params = {"betas": betas.astype(np.float32), "body_pose": body_pose.astype(np.float32),
-                  "global_orient": global_orient.astype(np.float32), "transl": transl.astype(np.float32),
-                  **{k: np.asarray(v, np.float32) for k, v in extra.items()}}  # fmt: skip
+        params = {
+            "betas": betas.astype(np.float32),
+            "body_pose": body_pose.astype(np.float32),
+            "global_orient": global_orient.astype(np.float32),
+            "transl": transl.astype(np.float32),
+            **{k: np.asarray(v, np.float32) for k, v in extra.items()},
+        }
         out = model(**{k: as_t(v) for k, v in params.items()})
         kp3d = model_keypoints(model, out, "body25")[0].double().cpu().numpy()
         parts3d = {}
@@ -173,18 +196,36 @@ def generate_rig_subject(model, index: int, config: SynthConfig, rig: RigConfig,
         visibility.append(vis)
         counts.append(int((vis == 2).sum()))
     write_cameras_json(out_dir / "cameras.json", [(view_name(c), v) for c, v in enumerate(views)])
-    save_npz(out_dir / "gt.npz", {
-        **params, "vertices": vertices.astype(np.float32), "joints": joints, "keypoints_3d": kp3d.astype(np.float32),
-        "keypoints_2d_clean": np.asarray(clean2d), "keypoints_visibility": np.asarray(visibility, np.int8),
-        "stature": np.float64(stature), "noise_px": np.float64(noise_px), "views": np.int64(len(views)),
-        **{f"{p}_3d": v.astype(np.float32) for p, v in parts3d.items()},
-        **{f"{p}_2d_clean": np.asarray(v) for p, v in wb_clean.items()},
-    })  # fmt: skip
-    return {"name": out_dir.name, "pose": ps.name, "yaw_deg": round(yaw, 4), "stature_m": round(stature, 4),
-            "views": len(views), "noise_px": noise_px, "keypoints_visible_per_view": counts}  # fmt: skip
+    save_npz(
+        out_dir / "gt.npz",
+        {
+            **params,
+            "vertices": vertices.astype(np.float32),
+            "joints": joints,
+            "keypoints_3d": kp3d.astype(np.float32),
+            "keypoints_2d_clean": np.asarray(clean2d),
+            "keypoints_visibility": np.asarray(visibility, np.int8),
+            "stature": np.float64(stature),
+            "noise_px": np.float64(noise_px),
+            "views": np.int64(len(views)),
+            **{f"{p}_3d": v.astype(np.float32) for p, v in parts3d.items()},
+            **{f"{p}_2d_clean": np.asarray(v) for p, v in wb_clean.items()},
+        },
+    )
+    return {
+        "name": out_dir.name,
+        "pose": ps.name,
+        "yaw_deg": round(yaw, 4),
+        "stature_m": round(stature, 4),
+        "views": len(views),
+        "noise_px": noise_px,
+        "keypoints_visible_per_view": counts,
+    }
 
 
-def generate_rig_dataset(out, n: int, config: SynthConfig, rig: RigConfig, model=None, progress=False, command=None) -> dict:
+def generate_rig_dataset(
+    out, n: int, config: SynthConfig, rig: RigConfig, model=None, progress=False, command=None
+) -> dict:
     """``n`` rig subjects into ``out`` and ``out/index.json`` (``"rig": views``)."""
 
     from .. import __version__
@@ -201,10 +242,19 @@ def generate_rig_dataset(out, n: int, config: SynthConfig, rig: RigConfig, model
     records = [generate_rig_subject(model, i, cfg, rig, out / subject_name(i)) for i in it]
     views = len(rig.layout) if rig.layout is not None else int(rig.views)
     index = {
-        "format": "silfit-synthetic-rig", "version": 1, "silfit_version": __version__, "rig": views,
-        "generator": {**cfg.to_dict(), "n": int(n), "views": views, "heights_m": list(rig.heights_m),
-                      "layout": rig.layout is not None, **({"command": command} if command else {})},
+        "format": "silfit-synthetic-rig",
+        "version": 1,
+        "silfit_version": __version__,
+        "rig": views,
+        "generator": {
+            **cfg.to_dict(),
+            "n": int(n),
+            "views": views,
+            "heights_m": list(rig.heights_m),
+            "layout": rig.layout is not None,
+            **({"command": command} if command else {}),
+        },
         "subjects": records,
-    }  # fmt: skip
+    }
     (out / INDEX_NAME).write_text(json.dumps(index, indent=2) + "\n", encoding="utf-8")
     return index

@@ -24,14 +24,15 @@ part's 3D points, clean projections, visibility and drop flags.
 The dataset is deterministic for a seed: subject ``i`` uses ``numpy.random.default_rng([seed, i])``
 and every file is written without timestamps.
 """
+
 from __future__ import annotations
 
 import json
 import math
 import os
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Callable, Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 import torch
@@ -43,10 +44,17 @@ from ..keypoints import BODY25_NAMES, COCO17_NAMES, model_keypoints, write_openp
 from ..layouts import DEFAULT_DEPTH_TOLERANCE, KEYPOINT_DEPTH_TOLERANCE
 from ..wholebody import FACE70_NAMES, hand_names, wholebody_keypoints, write_wholebody_json
 from .hands import hand_axes, hand_pose_to_axis_angle, sample_hand_pose
-from ..poses.library import FRONTAL_POSES, POSE_LIBRARY
+from ..poses.library import FRONTAL_POSES
 from .sampler import global_orientation, place_body, sample_betas, sample_intrinsics, sample_pose
 
-__all__ = ["SynthConfig", "SubjectRecord", "generate_subject", "generate_dataset", "FORMAT_VERSION", "KEYPOINT_DEPTH_TOLERANCE"]
+__all__ = [
+    "SynthConfig",
+    "SubjectRecord",
+    "generate_subject",
+    "generate_dataset",
+    "FORMAT_VERSION",
+    "KEYPOINT_DEPTH_TOLERANCE",
+]
 
 FORMAT_VERSION = 1
 
@@ -153,8 +161,10 @@ WHOLEBODY_PARTS = ("hand_left", "hand_right", "face")
 WHOLEBODY_DEPTH_TOLERANCE = {
     **{n: 0.015 for side in ("left", "right") for n in hand_names(side)},
     **{f"{side}_wrist": 0.04 for side in ("left", "right")},
-    **{n: 0.01 for n in FACE70_NAMES}, "right_pupil": 0.025, "left_pupil": 0.025,
-}  # fmt: skip
+    **{n: 0.01 for n in FACE70_NAMES},
+    "right_pupil": 0.025,
+    "left_pupil": 0.025,
+}
 
 
 def wholebody_names(part: str) -> tuple:
@@ -167,7 +177,9 @@ def sample_wholebody_params(rng: np.random.Generator, model, cfg: SynthConfig):
     model parameters ``{name: array}``, ``{"left_hand_flex": [5, 3], "left_hand_spread": [5], ...}``
     and the two library pose names."""
     if model.use_pca:
-        raise ValueError(f"{model.source}: whole-body synthesis poses hands joint by joint: load the model without use_pca")
+        raise ValueError(
+            f"{model.source}: whole-body synthesis poses hands joint by joint: load the model without use_pca"
+        )
     with torch.no_grad():
         joints = model(**model.zero_params(1)).joints[0].double().cpu().numpy()
     mean = model.pose_mean.double().cpu().numpy()  # the model adds its mean hand pose (flat_hand_mean=False)
@@ -222,9 +234,15 @@ def background_image(rng: np.random.Generator, kind: str, h: int, w: int) -> Tup
 
 
 BODY_COLOURS = (
-    (0.80, 0.62, 0.50), (0.62, 0.45, 0.35), (0.45, 0.32, 0.25), (0.90, 0.74, 0.62),
-    (0.55, 0.60, 0.75), (0.70, 0.45, 0.45), (0.50, 0.65, 0.55), (0.62, 0.68, 0.78),
-)  # fmt: skip
+    (0.80, 0.62, 0.50),
+    (0.62, 0.45, 0.35),
+    (0.45, 0.32, 0.25),
+    (0.90, 0.74, 0.62),
+    (0.55, 0.60, 0.75),
+    (0.70, 0.45, 0.45),
+    (0.50, 0.65, 0.55),
+    (0.62, 0.68, 0.78),
+)
 
 
 def render_subject(vertices: np.ndarray, faces: np.ndarray, camera: Camera, colour):
@@ -234,7 +252,11 @@ def render_subject(vertices: np.ndarray, faces: np.ndarray, camera: Camera, colo
 
 
 def keypoint_visibility(
-    points_3d: np.ndarray, points_2d: np.ndarray, depth: np.ndarray, names: Sequence[str], tolerance: Optional[Dict[str, float]] = None
+    points_3d: np.ndarray,
+    points_2d: np.ndarray,
+    depth: np.ndarray,
+    names: Sequence[str],
+    tolerance: Optional[Dict[str, float]] = None,
 ) -> np.ndarray:
     """``int8 [K]``: 0 outside the image (or behind the camera), 1 self-occluded, 2 visible,
     by comparing each keypoint's depth with the rendered ``depth [H, W]`` (0 = background):
@@ -257,9 +279,14 @@ def keypoint_visibility(
 
 
 def noisy_keypoints(
-    rng: np.random.Generator, clean_2d: np.ndarray, visibility: np.ndarray, noise_px: float, drop_prob: float,
-    conf_visible=(0.6, 1.0), conf_occluded=(0.1, 0.3),
-) -> Tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    rng: np.random.Generator,
+    clean_2d: np.ndarray,
+    visibility: np.ndarray,
+    noise_px: float,
+    drop_prob: float,
+    conf_visible=(0.6, 1.0),
+    conf_occluded=(0.1, 0.3),
+) -> Tuple[np.ndarray, np.ndarray]:
     """``(keypoints [K, 3], dropped bool [K])`` from clean projections and visibility codes."""
     K = len(clean_2d)
     # Draw every random number for every point (fixed count): results do not depend on which are visible.
@@ -302,12 +329,18 @@ def _wholebody_keypoints(rng, parts3d: dict, parts2d: dict, depth, noise_px: flo
         names = wholebody_names(part)
         scale = cfg.hand_noise_scale if part.startswith("hand") else cfg.face_noise_scale
         pvis = keypoint_visibility(parts3d[part], parts2d[part], depth, names, WHOLEBODY_DEPTH_TOLERANCE)
-        pkp, pdrop = noisy_keypoints(rng, parts2d[part], pvis, noise_px * scale, drop_prob, cfg.conf_visible, cfg.conf_occluded)
+        pkp, pdrop = noisy_keypoints(
+            rng, parts2d[part], pvis, noise_px * scale, drop_prob, cfg.conf_visible, cfg.conf_occluded
+        )
         wb_kp[part] = pkp
-        wb_arrays.update({
-            f"{part}_3d": parts3d[part].astype(np.float32), f"{part}_2d_clean": parts2d[part].astype(np.float64),
-            f"{part}_visibility": pvis, f"{part}_dropped": pdrop,
-        })  # fmt: skip
+        wb_arrays.update(
+            {
+                f"{part}_3d": parts3d[part].astype(np.float32),
+                f"{part}_2d_clean": parts2d[part].astype(np.float64),
+                f"{part}_visibility": pvis,
+                f"{part}_dropped": pdrop,
+            }
+        )
     return wb_arrays, wb_kp
 
 
@@ -375,19 +408,28 @@ def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> S
     dtype = model.dtype
     as_t = lambda a: torch.as_tensor(np.asarray(a)[None], dtype=dtype, device=model.device)  # noqa: E731
     with torch.no_grad():
-        out0 = model(betas=as_t(betas), body_pose=as_t(body_pose), global_orient=as_t(global_orient),
-                     **{k: as_t(v) for k, v in extra.items()})
+        out0 = model(
+            betas=as_t(betas),
+            body_pose=as_t(body_pose),
+            global_orient=as_t(global_orient),
+            **{k: as_t(v) for k, v in extra.items()},
+        )
         place = place_body(
-            rng, out0.vertices[0].double().cpu().numpy(), camera, fill=cfg.fill,
+            rng,
+            out0.vertices[0].double().cpu().numpy(),
+            camera,
+            fill=cfg.fill,
             truncation_prob=0.0 if frontal else cfg.truncation_prob,
-        )  # fmt: skip
+        )
         # Store the parameters at the precision they are written with, then evaluate once more,
         # so gt.npz's vertices are exactly model(params) for the stored params.
         params = {
-            "betas": betas.astype(np.float32), "body_pose": body_pose.astype(np.float32),
-            "global_orient": global_orient.astype(np.float32), "transl": place.transl.astype(np.float32),
+            "betas": betas.astype(np.float32),
+            "body_pose": body_pose.astype(np.float32),
+            "global_orient": global_orient.astype(np.float32),
+            "transl": place.transl.astype(np.float32),
             **{k: v.astype(np.float32) for k, v in extra.items()},
-        }  # fmt: skip
+        }
         out = model(**{k: as_t(v) for k, v in params.items()})
         (kp3d, kp2d), (coco3d, coco2d), parts3d, parts2d = _projected_keypoints(model, out, camera, cfg.whole_body)
         rest = model.rest_vertices(as_t(betas))[0]
@@ -403,7 +445,9 @@ def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> S
     vis = keypoint_visibility(kp3d, kp2d, r.depth, BODY25_NAMES)
     kp, dropped = noisy_keypoints(rng, kp2d, vis, noise_px, drop_prob, cfg.conf_visible, cfg.conf_occluded)
     coco_vis = keypoint_visibility(coco3d, coco2d, r.depth, COCO17_NAMES)
-    coco_kp, coco_dropped = noisy_keypoints(rng, coco2d, coco_vis, noise_px, drop_prob, cfg.conf_visible, cfg.conf_occluded)
+    coco_kp, coco_dropped = noisy_keypoints(
+        rng, coco2d, coco_vis, noise_px, drop_prob, cfg.conf_visible, cfg.conf_occluded
+    )
 
     wb_arrays, wb_kp = {}, {}
     if cfg.whole_body:
@@ -411,27 +455,52 @@ def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> S
 
     out_dir = Path(out_dir)
     _write_subject_files(out_dir, cfg, image, mask, kp, wb_kp, coco_kp, camera)
-    save_npz(out_dir / "gt.npz", {
-        **params,
-        "vertices": vertices, "joints": joints,
-        "keypoints_3d": kp3d.astype(np.float32), "keypoints_2d_clean": kp2d.astype(np.float64),
-        "keypoints_visibility": vis, "keypoints_dropped": dropped,
-        "coco17_3d": coco3d.astype(np.float32), "coco17_2d_clean": coco2d.astype(np.float64),
-        "coco17_visibility": coco_vis,
-        "stature": np.float64(stature), "noise_px": np.float64(noise_px),
-        **wb_arrays, **{k: v.astype(np.float32) for k, v in angles.items()},
-    })  # fmt: skip
+    save_npz(
+        out_dir / "gt.npz",
+        {
+            **params,
+            "vertices": vertices,
+            "joints": joints,
+            "keypoints_3d": kp3d.astype(np.float32),
+            "keypoints_2d_clean": kp2d.astype(np.float64),
+            "keypoints_visibility": vis,
+            "keypoints_dropped": dropped,
+            "coco17_3d": coco3d.astype(np.float32),
+            "coco17_2d_clean": coco2d.astype(np.float64),
+            "coco17_visibility": coco_vis,
+            "stature": np.float64(stature),
+            "noise_px": np.float64(noise_px),
+            **wb_arrays,
+            **{k: v.astype(np.float32) for k, v in angles.items()},
+        },
+    )
 
     pelvis_z = float(joints[0, 2])
     return SubjectRecord(
-        name=out_dir.name, pose=ps.name, description=ps.describe() + f"; yaw {yaw:.0f} deg",
-        blend=ps.blend, blend_weight=ps.blend_weight, mirrored=ps.mirrored,
-        yaw_deg=yaw, elevation_deg=elev, roll_deg=roll, fov_deg=fov, focal_px=camera.fx,
-        distance_m=pelvis_z, stature_m=stature, fill=place.fill, truncated=place.truncated, noise_px=noise_px,
-        keypoints_visible=int((vis == 2).sum()), keypoints_occluded=int((vis == 1).sum()),
-        keypoints_outside=int((vis == 0).sum()), keypoints_dropped=int(dropped.sum()), background=bg_label,
-        hand_left=hands[0], hand_right=hands[1],
-    )  # fmt: skip
+        name=out_dir.name,
+        pose=ps.name,
+        description=ps.describe() + f"; yaw {yaw:.0f} deg",
+        blend=ps.blend,
+        blend_weight=ps.blend_weight,
+        mirrored=ps.mirrored,
+        yaw_deg=yaw,
+        elevation_deg=elev,
+        roll_deg=roll,
+        fov_deg=fov,
+        focal_px=camera.fx,
+        distance_m=pelvis_z,
+        stature_m=stature,
+        fill=place.fill,
+        truncated=place.truncated,
+        noise_px=noise_px,
+        keypoints_visible=int((vis == 2).sum()),
+        keypoints_occluded=int((vis == 1).sum()),
+        keypoints_outside=int((vis == 0).sum()),
+        keypoints_dropped=int(dropped.sum()),
+        background=bg_label,
+        hand_left=hands[0],
+        hand_right=hands[1],
+    )
 
 
 # ----------------------------------------------------------------------------- a dataset
@@ -483,9 +552,14 @@ def generate_dataset(
         "generator": {
             **cfg.to_dict(),
             "n": int(n),
-            "body_model": {"file": Path(str(model.source)).name, "vertices": int(model.num_vertices), "betas": int(model.num_betas),
-                           "kind": getattr(model, "kind", "smpl")},
-            "keypoints": "OpenPose BODY_25" + (" + hands 2x21 + face 70 (OpenPose whole-body)" if cfg.whole_body else "")
+            "body_model": {
+                "file": Path(str(model.source)).name,
+                "vertices": int(model.num_vertices),
+                "betas": int(model.num_betas),
+                "kind": getattr(model, "kind", "smpl"),
+            },
+            "keypoints": "OpenPose BODY_25"
+            + (" + hands 2x21 + face 70 (OpenPose whole-body)" if cfg.whole_body else "")
             + (" + COCO-17" if cfg.coco else ""),
             **({"command": command} if command else {}),
         },
@@ -502,16 +576,25 @@ def dataset_summary(index: dict) -> dict:
     for key in ("stature_m", "distance_m", "yaw_deg", "fov_deg", "fill"):
         vals = np.array([s[key] for s in subs], dtype=np.float64)
         summary[key] = {
-            "min": round(float(vals.min()), 3), "median": round(float(np.median(vals)), 3),
-            "max": round(float(vals.max()), 3), "mean": round(float(vals.mean()), 3),
-        }  # fmt: skip
+            "min": round(float(vals.min()), 3),
+            "median": round(float(np.median(vals)), 3),
+            "max": round(float(vals.max()), 3),
+            "mean": round(float(vals.mean()), 3),
+        }
     summary["back_facing"] = int(sum(abs(s["yaw_deg"]) > 90 for s in subs))
     summary["truncated"] = int(sum(bool(s["truncated"]) for s in subs))
     return summary
 
 
 def generate_hard_dataset(
-    out: os.PathLike, n: int, seed: int = 0, size: int = 512, noise_px: float = 2.0, model=None, progress: bool = False, **settings
+    out: os.PathLike,
+    n: int,
+    seed: int = 0,
+    size: int = 512,
+    noise_px: float = 2.0,
+    model=None,
+    progress: bool = False,
+    **settings,
 ) -> dict:
     """Write ``n`` hard subjects into ``out`` (``silfit synth --poses hard``); returns the index.
     ``settings`` are further :class:`silfit.synth.generate.SynthConfig` fields."""

@@ -7,6 +7,7 @@ about the palm normal; positive moves the finger towards the thumb side, for the
 palm's plane edge, i.e. opening the hand). The rotation axes come from the model's rest joints
 (:func:`hand_axes`), so the same angles pose the open model and official SMPL-X alike.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -17,18 +18,31 @@ from scipy.spatial.transform import Rotation
 
 from ..wholebody import FINGERS
 
-__all__ = ["HandPose", "HAND_LIBRARY", "FLEX_LIMITS", "SPREAD_LIMITS", "hand_axes", "hand_pose_to_axis_angle",
-           "sample_hand_pose", "within_limits"]
+__all__ = [
+    "HandPose",
+    "HAND_LIBRARY",
+    "FLEX_LIMITS",
+    "SPREAD_LIMITS",
+    "hand_axes",
+    "hand_pose_to_axis_angle",
+    "sample_hand_pose",
+    "within_limits",
+]
 
 #: Flexion limits [5, 3, 2] (radians): fingers MCP -20..90, PIP 0..110, DIP -5..80 degrees; thumb CMC
 #: -15..50, MCP -10..60, IP -15..80 degrees.
-FLEX_LIMITS = np.radians(np.array([
-    [[-15, 50], [-10, 60], [-15, 80]],
-    [[-20, 90], [0, 110], [-5, 80]],
-    [[-20, 90], [0, 110], [-5, 80]],
-    [[-20, 90], [0, 110], [-5, 80]],
-    [[-20, 90], [0, 110], [-5, 80]],
-], dtype=np.float64))  # fmt: skip
+FLEX_LIMITS = np.radians(
+    np.array(
+        [
+            [[-15, 50], [-10, 60], [-15, 80]],
+            [[-20, 90], [0, 110], [-5, 80]],
+            [[-20, 90], [0, 110], [-5, 80]],
+            [[-20, 90], [0, 110], [-5, 80]],
+            [[-20, 90], [0, 110], [-5, 80]],
+        ],
+        dtype=np.float64,
+    )
+)
 #: Spread limits [5, 2] (radians at the base joint): thumb -10..45, index -15..20, middle -15..15,
 #: ring -20..15, pinky -30..15 degrees.
 SPREAD_LIMITS = np.radians(np.array([[-10, 45], [-15, 20], [-15, 15], [-20, 15], [-30, 15]], dtype=np.float64))
@@ -55,29 +69,66 @@ class HandPose:
 
 _FIST = (80, 100, 60)
 _RELAX = (20, 30, 15)
-HAND_LIBRARY: Dict[str, HandPose] = {p.name: p for p in (
-    HandPose("flat", "all fingers straight and together (the model's rest hand)", ((0, 0, 0),) * 5, (0,) * 5),
-    HandPose("relaxed", "a resting hand: fingers lightly curled, more towards the little finger",
-             ((10, 15, 15), (15, 20, 10), _RELAX, (25, 35, 20), (30, 40, 25)), (15, 0, 0, 0, 0)),
-    HandPose("open", "fingers straight and spread wide", ((0, 0, 0), (-5, 0, 0), (-5, 0, 0), (-5, 0, 0), (-5, 0, 0)),
-             (40, 15, 0, -12, -25)),
-    HandPose("fist", "a closed fist, the thumb across the fingers", ((40, 45, 50), _FIST, _FIST, _FIST, _FIST), (0, 0, 0, 0, 0)),
-    HandPose("pointing", "index finger straight, the others in a fist", ((40, 45, 50), (0, 0, 0), _FIST, _FIST, _FIST), (0,) * 5),
-    HandPose("pinch", "thumb and index tips together (about 1 cm apart on the open model), the others relaxed",
-             ((10, 30, 80), (60, 40, 20), (30, 35, 20), (30, 40, 25), (30, 45, 30)), (20, 0, 0, 0, 0)),
-    HandPose("grasp", "holding a cylinder: all fingers half closed, the thumb opposed",
-             ((30, 20, 20), (50, 60, 40), (50, 65, 40), (50, 65, 40), (50, 65, 40)), (35, 0, 0, 0, 0)),
-    HandPose("peace", "index and middle straight and apart, the others in a fist",
-             ((40, 45, 50), (0, 0, 0), (0, 0, 0), _FIST, _FIST), (0, 12, -10, 0, 0)),
-    HandPose("thumbs_up", "a fist with the thumb straight", ((0, 0, 0), _FIST, _FIST, _FIST, _FIST), (30, 0, 0, 0, 0)),
-)}  # fmt: skip
+HAND_LIBRARY: Dict[str, HandPose] = {
+    p.name: p
+    for p in (
+        HandPose("flat", "all fingers straight and together (the model's rest hand)", ((0, 0, 0),) * 5, (0,) * 5),
+        HandPose(
+            "relaxed",
+            "a resting hand: fingers lightly curled, more towards the little finger",
+            ((10, 15, 15), (15, 20, 10), _RELAX, (25, 35, 20), (30, 40, 25)),
+            (15, 0, 0, 0, 0),
+        ),
+        HandPose(
+            "open",
+            "fingers straight and spread wide",
+            ((0, 0, 0), (-5, 0, 0), (-5, 0, 0), (-5, 0, 0), (-5, 0, 0)),
+            (40, 15, 0, -12, -25),
+        ),
+        HandPose(
+            "fist",
+            "a closed fist, the thumb across the fingers",
+            ((40, 45, 50), _FIST, _FIST, _FIST, _FIST),
+            (0, 0, 0, 0, 0),
+        ),
+        HandPose(
+            "pointing",
+            "index finger straight, the others in a fist",
+            ((40, 45, 50), (0, 0, 0), _FIST, _FIST, _FIST),
+            (0,) * 5,
+        ),
+        HandPose(
+            "pinch",
+            "thumb and index tips together (about 1 cm apart on the open model), the others relaxed",
+            ((10, 30, 80), (60, 40, 20), (30, 35, 20), (30, 40, 25), (30, 45, 30)),
+            (20, 0, 0, 0, 0),
+        ),
+        HandPose(
+            "grasp",
+            "holding a cylinder: all fingers half closed, the thumb opposed",
+            ((30, 20, 20), (50, 60, 40), (50, 65, 40), (50, 65, 40), (50, 65, 40)),
+            (35, 0, 0, 0, 0),
+        ),
+        HandPose(
+            "peace",
+            "index and middle straight and apart, the others in a fist",
+            ((40, 45, 50), (0, 0, 0), (0, 0, 0), _FIST, _FIST),
+            (0, 12, -10, 0, 0),
+        ),
+        HandPose(
+            "thumbs_up", "a fist with the thumb straight", ((0, 0, 0), _FIST, _FIST, _FIST, _FIST), (30, 0, 0, 0, 0)
+        ),
+    )
+}
 
 
 def within_limits(flex: np.ndarray, spread: np.ndarray, atol: float = 1e-9) -> bool:
     return bool(
-        np.all(flex >= FLEX_LIMITS[..., 0] - atol) and np.all(flex <= FLEX_LIMITS[..., 1] + atol)
-        and np.all(spread >= SPREAD_LIMITS[:, 0] - atol) and np.all(spread <= SPREAD_LIMITS[:, 1] + atol)
-    )  # fmt: skip
+        np.all(flex >= FLEX_LIMITS[..., 0] - atol)
+        and np.all(flex <= FLEX_LIMITS[..., 1] + atol)
+        and np.all(spread >= SPREAD_LIMITS[:, 0] - atol)
+        and np.all(spread <= SPREAD_LIMITS[:, 1] + atol)
+    )
 
 
 def hand_axes(rest_joints: np.ndarray, joint_names, side: str) -> Dict[str, np.ndarray]:

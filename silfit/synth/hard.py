@@ -13,6 +13,7 @@ The set itself is written by :func:`silfit.synth.generate.generate_hard_dataset`
 This set is for measuring: the shipped pose prior is fitted to the library only
 (:mod:`silfit.priors.library_prior`) and must not be refitted to it.
 """
+
 from __future__ import annotations
 
 from typing import Tuple

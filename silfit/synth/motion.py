@@ -39,6 +39,7 @@ whole trajectory fits their frames), a rig folder whose views are video folders:
 
 (``index.json``: ``"format": "silfit-synthetic-sequence"``, ``"rig": N``).
 """
+
 from __future__ import annotations
 
 import json
@@ -46,7 +47,7 @@ import math
 import os
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 import torch
@@ -62,9 +63,15 @@ from .generate import BODY_COLOURS, background_image, render_subject, keypoint_v
 from .sampler import place_body, sample_betas, sample_intrinsics
 
 __all__ = [
-    "MOTIONS", "SEQUENCE_FORMAT", "SequenceConfig", "frame_stem", "generate_rig_sequence", "generate_sequence",
-    "generate_sequence_dataset", "motion_trajectory",
-]  # fmt: skip
+    "MOTIONS",
+    "SEQUENCE_FORMAT",
+    "SequenceConfig",
+    "frame_stem",
+    "generate_rig_sequence",
+    "generate_sequence",
+    "generate_sequence_dataset",
+    "motion_trajectory",
+]
 
 SEQUENCE_FORMAT = "silfit-synthetic-sequence"
 
@@ -82,7 +89,9 @@ class Motion:
 
 
 MOTIONS: Dict[str, Motion] = {
-    "walk": Motion(("walk_left_heel_strike", "walk_right_midswing", "~walk_left_heel_strike", "~walk_right_midswing"), 1.1, 0.6),
+    "walk": Motion(
+        ("walk_left_heel_strike", "walk_right_midswing", "~walk_left_heel_strike", "~walk_right_midswing"), 1.1, 0.6
+    ),
     "run": Motion(("run_stance", "run_flight", "~run_stance", "~run_flight"), 0.7, 1.0),
     "squat": Motion(("stand_relaxed", "squat_half", "squat_deep", "squat_half"), 2.0),
     "wave": Motion(("wave_right@-35", "wave_right@25"), 0.8),
@@ -158,7 +167,9 @@ class SequenceConfig:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
         unknown = [m for m in self.motions if m not in MOTIONS]
         if unknown or not self.motions:
-            raise ValueError(f"unknown motion(s) {', '.join(unknown) or '(none)'}; expected some of {', '.join(MOTIONS)}")
+            raise ValueError(
+                f"unknown motion(s) {', '.join(unknown) or '(none)'}; expected some of {', '.join(MOTIONS)}"
+            )
         return self
 
     def to_dict(self) -> dict:
@@ -202,17 +213,33 @@ def _world_motion(model, rng, cfg: SequenceConfig, index: int, orbit: Optional[n
     pos = Rotation.from_rotvec(-np.radians(orbit)[:, None] * np.array([0.0, 1.0, 0.0])).apply(pos)
     T = lambda a: torch.as_tensor(np.asarray(a), dtype=model.dtype, device=model.device)  # noqa: E731
     with torch.no_grad():
-        out_w = model(betas=T(np.repeat(betas[None], F, 0)), body_pose=T(body_pose), global_orient=T(R_world.as_rotvec()),
-                      transl=T(np.zeros((F, 3))))  # fmt: skip
+        out_w = model(
+            betas=T(np.repeat(betas[None], F, 0)),
+            body_pose=T(body_pose),
+            global_orient=T(R_world.as_rotvec()),
+            transl=T(np.zeros((F, 3))),
+        )
         v_w = out_w.vertices.double().cpu().numpy()
-        rest = model(betas=T(betas[None]), body_pose=T(np.zeros((1, 69))), global_orient=T(np.zeros((1, 3))),
-                     transl=T(np.zeros((1, 3))))  # fmt: skip
+        rest = model(
+            betas=T(betas[None]),
+            body_pose=T(np.zeros((1, 69))),
+            global_orient=T(np.zeros((1, 3))),
+            transl=T(np.zeros((1, 3))),
+        )
     j0 = rest.joints[0, 0].double().cpu().numpy()  # the shaped pelvis: the centre of the root rotation
     # feet on the ground: the lowest vertex of each frame at the first frame's height
     low = v_w[..., 1].min(1)
     T_w = pos + np.stack([np.zeros(F), low[0] - low, np.zeros(F)], 1)
-    return {"motion": motion, "betas": betas, "body_pose": body_pose, "R_world": R_world, "T_w": T_w, "v_w": v_w, "j0": j0,
-            "yaw0": yaw0}  # fmt: skip
+    return {
+        "motion": motion,
+        "betas": betas,
+        "body_pose": body_pose,
+        "R_world": R_world,
+        "T_w": T_w,
+        "v_w": v_w,
+        "j0": j0,
+        "yaw0": yaw0,
+    }
 
 
 def generate_sequence(model, index: int, cfg: SequenceConfig, out_dir: Path) -> dict:
@@ -233,11 +260,19 @@ def generate_sequence(model, index: int, cfg: SequenceConfig, out_dir: Path) -> 
     place = place_body(rng, v_cam[:, ::20].reshape(-1, 3), camera, fill=cfg.fill)
     orient_c = (C * R_world).as_rotvec()
     transl_c = C.apply(j0 + T_w) + place.transl - j0
-    params = {"betas": betas.astype(np.float32), "body_pose": body_pose.astype(np.float32),
-              "global_orient": orient_c.astype(np.float32), "transl": transl_c.astype(np.float32)}  # fmt: skip
+    params = {
+        "betas": betas.astype(np.float32),
+        "body_pose": body_pose.astype(np.float32),
+        "global_orient": orient_c.astype(np.float32),
+        "transl": transl_c.astype(np.float32),
+    }
     with torch.no_grad():
-        out = model(betas=T(np.repeat(params["betas"][None], F, 0)), body_pose=T(params["body_pose"]),
-                    global_orient=T(params["global_orient"]), transl=T(params["transl"]))  # fmt: skip
+        out = model(
+            betas=T(np.repeat(params["betas"][None], F, 0)),
+            body_pose=T(params["body_pose"]),
+            global_orient=T(params["global_orient"]),
+            transl=T(params["transl"]),
+        )
         kp3d = model_keypoints(model, out, "body25").double()
         kp2d = project_points(kp3d, camera).cpu().numpy()
     vertices = out.vertices.cpu().numpy().astype(np.float32)
@@ -257,23 +292,44 @@ def generate_sequence(model, index: int, cfg: SequenceConfig, out_dir: Path) -> 
     for f in range(F):
         r = render_subject(vertices[f], faces, camera, colour)
         vis = keypoint_visibility(kp3d[f], kp2d[f], r.depth, BODY25_NAMES)
-        kp, dropped = noisy_keypoints(rng, kp2d[f], vis, cfg.noise_px, cfg.drop_prob, cfg.conf_visible, cfg.conf_occluded)
+        kp, dropped = noisy_keypoints(
+            rng, kp2d[f], vis, cfg.noise_px, cfg.drop_prob, cfg.conf_visible, cfg.conf_occluded
+        )
         vis_all[f], drop_all[f] = vis, dropped
         stem = frame_stem(name, f)
-        write_openpose_json(out_dir / "keypoints" / f"{stem}_keypoints.json", np.zeros((0, 25, 3)) if frame_dropped[f] else kp)
+        write_openpose_json(
+            out_dir / "keypoints" / f"{stem}_keypoints.json", np.zeros((0, 25, 3)) if frame_dropped[f] else kp
+        )
         write_png(out_dir / "masks" / f"{stem}.png", r.mask)
         write_png(out_dir / "images" / f"{stem}.png", np.where(r.mask[..., None], r.color, bg).astype(np.uint8))
     save_camera(camera, out_dir / "camera.json")
-    save_npz(out_dir / "gt.npz", {
-        **params, "joints": joints, "keypoints_3d": kp3d.astype(np.float32), "keypoints_2d_clean": kp2d,
-        "keypoints_visibility": vis_all, "keypoints_dropped": drop_all, "frame_dropped": frame_dropped,
-        "fps": np.float64(cfg.fps), "noise_px": np.float64(cfg.noise_px),
-    })  # fmt: skip
+    save_npz(
+        out_dir / "gt.npz",
+        {
+            **params,
+            "joints": joints,
+            "keypoints_3d": kp3d.astype(np.float32),
+            "keypoints_2d_clean": kp2d,
+            "keypoints_visibility": vis_all,
+            "keypoints_dropped": drop_all,
+            "frame_dropped": frame_dropped,
+            "fps": np.float64(cfg.fps),
+            "noise_px": np.float64(cfg.noise_px),
+        },
+    )
     return {
-        "name": name, "motion": motion, "frames": F, "fps": cfg.fps, "yaw_deg": round(yaw0, 2), "elevation_deg": round(elev, 2),
-        "fov_deg": round(fov, 3), "orbit_deg": cfg.orbit_deg, "frames_dropped": int(frame_dropped.sum()),
-        "keypoints_dropped": int(drop_all.sum()), "distance_m": round(float(joints[:, 0, 2].mean()), 3),
-    }  # fmt: skip
+        "name": name,
+        "motion": motion,
+        "frames": F,
+        "fps": cfg.fps,
+        "yaw_deg": round(yaw0, 2),
+        "elevation_deg": round(elev, 2),
+        "fov_deg": round(fov, 3),
+        "orbit_deg": cfg.orbit_deg,
+        "frames_dropped": int(frame_dropped.sum()),
+        "keypoints_dropped": int(drop_all.sum()),
+        "distance_m": round(float(joints[:, 0, 2].mean()), 3),
+    }
 
 
 def generate_rig_sequence(model, index: int, cfg: SequenceConfig, views: int, out_dir: Path) -> dict:
@@ -294,11 +350,19 @@ def generate_rig_sequence(model, index: int, cfg: SequenceConfig, views: int, ou
     transl -= transl.mean(0) + j0
     dtype = model.dtype
     T = lambda a: torch.as_tensor(np.asarray(a), dtype=dtype, device=model.device)  # noqa: E731
-    params = {"betas": wm["betas"].astype(np.float32), "body_pose": wm["body_pose"].astype(np.float32),
-              "global_orient": orient.astype(np.float32), "transl": transl.astype(np.float32)}  # fmt: skip
+    params = {
+        "betas": wm["betas"].astype(np.float32),
+        "body_pose": wm["body_pose"].astype(np.float32),
+        "global_orient": orient.astype(np.float32),
+        "transl": transl.astype(np.float32),
+    }
     with torch.no_grad():
-        out = model(betas=T(np.repeat(params["betas"][None], F, 0)), body_pose=T(params["body_pose"]),
-                    global_orient=T(params["global_orient"]), transl=T(params["transl"]))  # fmt: skip
+        out = model(
+            betas=T(np.repeat(params["betas"][None], F, 0)),
+            body_pose=T(params["body_pose"]),
+            global_orient=T(params["global_orient"]),
+            transl=T(params["transl"]),
+        )
         kp3d = model_keypoints(model, out, "body25").double().cpu().numpy()
     vertices = out.vertices.double().cpu().numpy()
     # cameras framing the whole trajectory: its box's largest side stands in for the body's height
@@ -330,21 +394,46 @@ def generate_rig_sequence(model, index: int, cfg: SequenceConfig, views: int, ou
             kp, _ = noisy_keypoints(rng, kp2d, vis, cfg.noise_px, cfg.drop_prob, cfg.conf_visible, cfg.conf_occluded)
             clean[f, c], vis_all[f, c] = kp2d, vis
             stem = frame_stem(name, f)
-            write_openpose_json(folder / "keypoints" / f"{stem}_keypoints.json", np.zeros((0, 25, 3)) if drop[f] else kp)
+            write_openpose_json(
+                folder / "keypoints" / f"{stem}_keypoints.json", np.zeros((0, 25, 3)) if drop[f] else kp
+            )
             write_png(folder / "masks" / f"{stem}.png", r.mask)
             write_png(folder / "images" / f"{stem}.png", np.where(r.mask[..., None], r.color, bg).astype(np.uint8))
     write_cameras_json(out_dir / "cameras.json", [(view_name(c), v) for c, v in enumerate(layout)])
-    save_npz(out_dir / "gt.npz", {
-        **params, "joints": out.joints.cpu().numpy().astype(np.float32), "keypoints_3d": kp3d.astype(np.float32),
-        "keypoints_2d_clean": clean, "keypoints_visibility": vis_all, "frame_dropped": dropped_frames,
-        "fps": np.float64(cfg.fps), "noise_px": np.float64(cfg.noise_px), "views": np.int64(C),
-    })  # fmt: skip
-    return {"name": out_dir.name, "motion": wm["motion"], "frames": F, "fps": cfg.fps, "views": C,
-            "yaw_deg": round(wm["yaw0"], 2), "frames_dropped": int(dropped_frames.sum())}  # fmt: skip
+    save_npz(
+        out_dir / "gt.npz",
+        {
+            **params,
+            "joints": out.joints.cpu().numpy().astype(np.float32),
+            "keypoints_3d": kp3d.astype(np.float32),
+            "keypoints_2d_clean": clean,
+            "keypoints_visibility": vis_all,
+            "frame_dropped": dropped_frames,
+            "fps": np.float64(cfg.fps),
+            "noise_px": np.float64(cfg.noise_px),
+            "views": np.int64(C),
+        },
+    )
+    return {
+        "name": out_dir.name,
+        "motion": wm["motion"],
+        "frames": F,
+        "fps": cfg.fps,
+        "views": C,
+        "yaw_deg": round(wm["yaw0"], 2),
+        "frames_dropped": int(dropped_frames.sum()),
+    }
 
 
-def generate_sequence_dataset(out: os.PathLike, n: int, config: Optional[SequenceConfig] = None, model=None,
-                              progress: bool = False, command: Optional[str] = None, views: Optional[int] = None) -> dict:  # fmt: skip
+def generate_sequence_dataset(
+    out: os.PathLike,
+    n: int,
+    config: Optional[SequenceConfig] = None,
+    model=None,
+    progress: bool = False,
+    command: Optional[str] = None,
+    views: Optional[int] = None,
+) -> dict:
     """Generate ``n`` sequences into ``out/seq_000`` ... and write ``out/index.json``; with ``views``,
     rig sequences (:func:`generate_rig_sequence`)."""
     cfg = (config or SequenceConfig()).validate()
@@ -363,12 +452,19 @@ def generate_sequence_dataset(out: os.PathLike, n: int, config: Optional[Sequenc
         iterator = tqdm(iterator, desc="silfit synth --videos", unit="sequence")
     if views is not None and not 1 <= int(views) <= 64:
         raise ValueError(f"--cameras must be 1..64, got {views}")
-    records: List[dict] = [generate_sequence(model, i, cfg, out / f"seq_{i:03d}") if views is None
-                           else generate_rig_sequence(model, i, cfg, int(views), out / f"seq_{i:03d}") for i in iterator]  # fmt: skip
+    records: List[dict] = [
+        generate_sequence(model, i, cfg, out / f"seq_{i:03d}")
+        if views is None
+        else generate_rig_sequence(model, i, cfg, int(views), out / f"seq_{i:03d}")
+        for i in iterator
+    ]
     index = {
-        "format": SEQUENCE_FORMAT, "version": 1, "silfit_version": __version__, **({"rig": int(views)} if views else {}),
+        "format": SEQUENCE_FORMAT,
+        "version": 1,
+        "silfit_version": __version__,
+        **({"rig": int(views)} if views else {}),
         "generator": {**cfg.to_dict(), "n": int(n), **({"command": command} if command else {})},
         "sequences": records,
-    }  # fmt: skip
+    }
     (out / INDEX_NAME).write_text(json.dumps(index, indent=2) + "\n", encoding="utf-8")
     return index

@@ -1,4 +1,5 @@
 """Extra people in a synthetic subject's keypoint file (multi-person inputs for dataset runs)."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -3,11 +3,12 @@
 All samplers take a ``numpy.random.Generator`` so a dataset is reproducible from its
 seed. Angles in the public settings are degrees; arrays are radians (axis-angle).
 """
+
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Dict, Optional, Sequence, Tuple
+from typing import Optional, Sequence, Tuple
 
 import numpy as np
 import torch
@@ -15,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from ..camera import UPRIGHT_FACING_CAMERA, Camera, project_points
 from ..priors.limits import clamp_to_limits
-from ..poses.library import BODY_JOINTS, FRONTAL_POSES, PERTURB_SCALE, POSE_LIBRARY, LibraryPose, mirror_pose, mirror_rotvec
+from ..poses.library import BODY_JOINTS, PERTURB_SCALE, POSE_LIBRARY, mirror_pose, mirror_rotvec
 
 __all__ = [
     "PoseSample",
@@ -86,7 +87,9 @@ def sample_pose(
     return PoseSample(pose, root, main.name, blend, weight, mirrored)
 
 
-def sample_betas(rng: np.random.Generator, num_betas: int = 10, truncation: float = 2.5, scale: float = 1.0) -> np.ndarray:
+def sample_betas(
+    rng: np.random.Generator, num_betas: int = 10, truncation: float = 2.5, scale: float = 1.0
+) -> np.ndarray:
     """Shape coefficients from the model's prior: unit Gaussian (times ``scale``), each entry
     truncated to ``|beta| <= truncation`` by resampling."""
     betas = rng.normal(0.0, scale, num_betas)
@@ -112,7 +115,9 @@ def global_orientation(yaw_deg: float, elevation_deg: float = 0.0, roll_deg: flo
     return r.as_rotvec()
 
 
-def sample_intrinsics(rng: np.random.Generator, width: int, height: int, fov_deg: Tuple[float, float] = (45.0, 65.0)) -> Tuple[Camera, float]:
+def sample_intrinsics(
+    rng: np.random.Generator, width: int, height: int, fov_deg: Tuple[float, float] = (45.0, 65.0)
+) -> Tuple[Camera, float]:
     """A centred pinhole camera whose horizontal-or-vertical (the longer side) field of view
     is uniform in ``fov_deg``; returns ``(camera, fov)``."""
     fov = float(rng.uniform(*fov_deg))

@@ -1,5 +1,6 @@
 """``silfit export-model``: the open models load in the real ``smplx`` package (pinned in the test extra)
 and its forward pass gives silfit's vertices, joints, extra joints and face landmarks."""
+
 import json
 import pickle
 
@@ -11,7 +12,7 @@ import smplx  # noqa: E402  (pinned in the test extra)
 from smplx.vertex_joint_selector import VertexJointSelector  # noqa: E402
 
 from silfit import load_body_model  # noqa: E402
-from silfit.body.export_model import export_model, read_vertex_ids  # noqa: E402
+from silfit.body.export_model import read_vertex_ids  # noqa: E402
 from silfit.cli import main  # noqa: E402
 
 TOL = 1e-5  # metres: 0.01 mm
@@ -45,8 +46,12 @@ def test_smpl_loads_in_smplx_and_matches_silfit(exported):
     ids = read_vertex_ids(exported, "smpl")
     theirs = smplx.create(str(exported), model_type="smpl", dtype=torch.float64, vertex_ids=ids)
     ours = load_body_model(dtype=torch.float64)
-    params = dict(betas=_random((3, 10), 0, 1.0), body_pose=_random((3, 69), 1, 0.3),
-                  global_orient=_random((3, 3), 2, 0.5), transl=_random((3, 3), 3, 0.5))  # fmt: skip
+    params = dict(
+        betas=_random((3, 10), 0, 1.0),
+        body_pose=_random((3, 69), 1, 0.3),
+        global_orient=_random((3, 3), 2, 0.5),
+        transl=_random((3, 3), 3, 0.5),
+    )
     a, b = theirs(**params), ours(**params)
     assert a.vertices.shape == b.vertices.shape
     assert (a.vertices - b.vertices).abs().max() < TOL
@@ -64,15 +69,30 @@ def test_smpl_loads_in_smplx_and_matches_silfit(exported):
 def test_smplx_loads_in_smplx_and_matches_silfit(exported, use_pca):
     ids = read_vertex_ids(exported, "smplx")
     kw = dict(use_pca=use_pca, num_pca_comps=12, flat_hand_mean=False)
-    theirs = smplx.create(str(exported), model_type="smplx", dtype=torch.float64, num_expression_coeffs=16,
-                          use_face_contour=True, batch_size=2, **kw)  # fmt: skip
+    theirs = smplx.create(
+        str(exported),
+        model_type="smplx",
+        dtype=torch.float64,
+        num_expression_coeffs=16,
+        use_face_contour=True,
+        batch_size=2,
+        **kw,
+    )
     theirs.vertex_joint_selector = VertexJointSelector(vertex_ids=ids).to(torch.float64)
     ours = load_body_model(kind="smplx", dtype=torch.float64, num_expression=16, **kw)
     hand = 12 if use_pca else 45
-    params = dict(betas=_random((2, 10), 0, 1.0), expression=_random((2, 16), 1, 1.0), body_pose=_random((2, 63), 2, 0.3),
-                  global_orient=_random((2, 3), 3, 0.5), transl=_random((2, 3), 4, 0.5), jaw_pose=_random((2, 3), 5, 0.2),
-                  leye_pose=_random((2, 3), 6, 0.1), reye_pose=_random((2, 3), 7, 0.1),
-                  left_hand_pose=_random((2, hand), 8, 0.5), right_hand_pose=_random((2, hand), 9, 0.5))  # fmt: skip
+    params = dict(
+        betas=_random((2, 10), 0, 1.0),
+        expression=_random((2, 16), 1, 1.0),
+        body_pose=_random((2, 63), 2, 0.3),
+        global_orient=_random((2, 3), 3, 0.5),
+        transl=_random((2, 3), 4, 0.5),
+        jaw_pose=_random((2, 3), 5, 0.2),
+        leye_pose=_random((2, 3), 6, 0.1),
+        reye_pose=_random((2, 3), 7, 0.1),
+        left_hand_pose=_random((2, hand), 8, 0.5),
+        right_hand_pose=_random((2, hand), 9, 0.5),
+    )
     a, b = theirs(**params), ours(**params)
     assert (a.vertices - b.vertices).abs().max() < TOL
     assert (a.joints[:, :55] - b.joints).abs().max() < TOL
@@ -115,14 +135,28 @@ def test_a_fitted_whole_body_params_file_goes_through_smplx_as_it_is(exported, t
     names = [n for n in npz.files if n in ours.parameter_sizes]
     assert str(npz["model"]) == "smplx" and sorted(names) == sorted(ours.parameter_sizes)
     params = {n: torch.as_tensor(npz[n], dtype=torch.float64) for n in names}
-    theirs = smplx.SMPLX(str(exported / "smplx"), dtype=torch.float64, use_pca=False, num_expression_coeffs=16,
-                         num_betas=10, batch_size=2)  # fmt: skip
+    theirs = smplx.SMPLX(
+        str(exported / "smplx"),
+        dtype=torch.float64,
+        use_pca=False,
+        num_expression_coeffs=16,
+        num_betas=10,
+        batch_size=2,
+    )
     out = theirs(**params)
     assert (out.vertices - torch.as_tensor(npz["vertices"], dtype=torch.float64)).abs().max() < 1e-4  # float32 file
     # the hands also as smplx's default PCA coefficients (all 45 components: exact)
     assert npz["left_hand_pca"].shape == (2, 45) and npz["right_hand_pca"].shape == (2, 45)
-    pca = smplx.SMPLX(str(exported / "smplx"), dtype=torch.float64, use_pca=True, num_pca_comps=45,
-                      num_expression_coeffs=16, batch_size=2)  # fmt: skip
-    hands = {"left_hand_pose": torch.as_tensor(npz["left_hand_pca"], dtype=torch.float64),
-             "right_hand_pose": torch.as_tensor(npz["right_hand_pca"], dtype=torch.float64)}  # fmt: skip
+    pca = smplx.SMPLX(
+        str(exported / "smplx"),
+        dtype=torch.float64,
+        use_pca=True,
+        num_pca_comps=45,
+        num_expression_coeffs=16,
+        batch_size=2,
+    )
+    hands = {
+        "left_hand_pose": torch.as_tensor(npz["left_hand_pca"], dtype=torch.float64),
+        "right_hand_pose": torch.as_tensor(npz["right_hand_pca"], dtype=torch.float64),
+    }
     assert (pca(**{**params, **hands}).vertices - out.vertices).abs().max() < 1e-4

@@ -1,4 +1,5 @@
 """Loading body-model files in the official SMPL layouts, and clear errors for bad ones."""
+
 import pickle
 import sys
 import types

@@ -1,4 +1,5 @@
 """The functional SMPL core against hand-computed examples and finite differences."""
+
 import math
 
 import numpy as np
@@ -6,7 +7,7 @@ import pytest
 import torch
 
 from silfit.body.io import ModelArrays
-from silfit.body.lbs import axis_angle_to_matrix, forward_kinematics, kinematic_levels, lbs
+from silfit.body.lbs import axis_angle_to_matrix, kinematic_levels, lbs
 from silfit.body.model import BodyModel
 
 
@@ -46,7 +47,9 @@ def chain_model(dtype=torch.float64) -> BodyModel:
     """Three joints on the x axis at 0, 1, 2; one vertex rigidly on each joint, offset +y by 0.5,
     plus one vertex half on joint 1 and half on joint 2. Joints are regressed from the
     vertices (regressor picks the vertex and removes its offset via a twin vertex)."""
-    verts = np.array([[0, 0.5, 0], [1, 0.5, 0], [2, 0.5, 0], [1.5, 0, 0], [0, -0.5, 0], [1, -0.5, 0], [2, -0.5, 0]], float)
+    verts = np.array(
+        [[0, 0.5, 0], [1, 0.5, 0], [2, 0.5, 0], [1.5, 0, 0], [0, -0.5, 0], [1, -0.5, 0], [2, -0.5, 0]], float
+    )
     regressor = np.zeros((3, 7))
     for j in range(3):  # mean of the +y and -y vertex of each joint = the joint
         regressor[j, j] = regressor[j, j + 4] = 0.5
@@ -158,8 +161,17 @@ def test_a_body_does_not_depend_on_the_rest_of_its_batch(open_model, dtype):
 
     def body(x):
         b, p, o = x.split(tuple(widths.values()), dim=1)
-        v, j = lbs(b, torch.cat([o, p], 1), model.v_template, model.shapedirs, posedirs.to(dtype), model.J_regressor,
-                   model.parents, model.lbs_weights, model._levels)  # fmt: skip
+        v, j = lbs(
+            b,
+            torch.cat([o, p], 1),
+            model.v_template,
+            model.shapedirs,
+            posedirs.to(dtype),
+            model.J_regressor,
+            model.parents,
+            model.lbs_weights,
+            model._levels,
+        )
         return torch.cat([v, j], 1)
 
     runs = _row_alone_and_in_batches(body, rows, dtype)

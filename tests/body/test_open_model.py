@@ -1,4 +1,5 @@
 """The shipped open body model: layout, mesh, skinning, shape space and keypoints."""
+
 import numpy as np
 import torch
 
@@ -18,7 +19,9 @@ def test_layout_and_counts(open_model):
     assert open_model.posedirs is None  # zero pose correctives are dropped on load
     assert {"nose", "left_big_toe", "right_heel", "left_ear"} <= set(open_model.landmark_names)
     with np.load(OPEN_BODY_PATH, allow_pickle=False) as data:  # the file itself has SMPL's keys
-        assert {"v_template", "f", "shapedirs", "posedirs", "J_regressor", "weights", "kintree_table"} <= set(data.files)
+        assert {"v_template", "f", "shapedirs", "posedirs", "J_regressor", "weights", "kintree_table"} <= set(
+            data.files
+        )
 
 
 def test_zero_parameters_give_the_template(open_model):

@@ -1,5 +1,6 @@
 """The shipped open whole-body model (SMPL-X layout): layout, articulation regions, expressions and the
 face landmarks the exporter chose."""
+
 import numpy as np
 import pytest
 import torch
@@ -74,8 +75,25 @@ def test_jaw_opens_the_mouth_downwards(wb):
 def test_face_landmarks_form_the_68_point_arrangement(wb):
     f = face(wb)
     mirror = f * np.array([-1.0, 1.0, 1.0])
-    pairs = [(i, 16 - i) for i in range(8)] + [(17 + i, 26 - i) for i in range(5)] + [(31, 35), (32, 34), (36, 45),
-             (37, 44), (38, 43), (39, 42), (40, 47), (41, 46), (48, 54), (49, 53), (50, 52), (59, 55), (58, 56)]  # fmt: skip
+    pairs = (
+        [(i, 16 - i) for i in range(8)]
+        + [(17 + i, 26 - i) for i in range(5)]
+        + [
+            (31, 35),
+            (32, 34),
+            (36, 45),
+            (37, 44),
+            (38, 43),
+            (39, 42),
+            (40, 47),
+            (41, 46),
+            (48, 54),
+            (49, 53),
+            (50, 52),
+            (59, 55),
+            (58, 56),
+        ]
+    )
     assert max(np.linalg.norm(f[a] - mirror[b]) for a, b in pairs) < 1e-3  # left/right symmetric
     assert np.abs(f[[8, 27, 28, 29, 30, 33, 51, 57, 62, 66], 0]).max() < 2e-3  # the midline points
     # subject's right (-X, image left when facing the camera) first
@@ -125,7 +143,10 @@ def test_pca_hands_span_the_hand_library():
 def test_gradcheck_through_the_open_model_float64(wb):
     g = torch.Generator().manual_seed(3)
     names = list(wb.parameter_sizes)
-    inputs = tuple((torch.randn(1, w, generator=g, dtype=torch.float64) * 0.2).requires_grad_() for w in wb.parameter_sizes.values())
+    inputs = tuple(
+        (torch.randn(1, w, generator=g, dtype=torch.float64) * 0.2).requires_grad_()
+        for w in wb.parameter_sizes.values()
+    )
     probe = torch.randn(wb.num_vertices, 3, generator=g, dtype=torch.float64)
 
     def f(*xs):

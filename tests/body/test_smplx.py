@@ -1,5 +1,6 @@
 """The SMPL-X-layout whole-body model: official-layout files (written here), parameters, PCA hands,
 face landmarks, and gradients through the whole model."""
+
 import pickle
 
 import numpy as np
@@ -58,8 +59,12 @@ def test_official_npz_and_pickle_load_as_smplx(smplx_file, tmp_path):
     a = load_body_model(smplx_file, dtype=torch.float64)
     b = load_body_model(tmp_path / "SMPLX_NEUTRAL.pkl", dtype=torch.float64)
     smpl = {k: raw[k] for k in ("v_template", "f")}  # an SMPL file beside the SMPL-X one in the same folder
-    smpl.update(shapedirs=raw["shapedirs"][..., :10], J_regressor=raw["J_regressor"][:24], weights=np.full((V, 24), 1 / 24),
-                kintree_table=np.stack([np.array(SMPL_PARENTS) % (2**32), np.arange(24)]))
+    smpl.update(
+        shapedirs=raw["shapedirs"][..., :10],
+        J_regressor=raw["J_regressor"][:24],
+        weights=np.full((V, 24), 1 / 24),
+        kintree_table=np.stack([np.array(SMPL_PARENTS) % (2**32), np.arange(24)]),
+    )
     np.savez(smplx_file.parent / "SMPL_NEUTRAL.npz", **smpl)
     c = load_body_model(smplx_file.parent, gender="neutral", dtype=torch.float64, kind="smplx")
     assert load_body_model(smplx_file.parent).kind == "smpl"
@@ -76,9 +81,17 @@ def test_shape_and_expression_parts_of_shapedirs(smplx_file, tmp_path):
     raw = np.load(smplx_file)
     m = load_body_model(smplx_file, dtype=torch.float64, num_betas=20, num_expression=5, flat_hand_mean=True)
     assert list(m.parameter_sizes.items()) == [
-        ("betas", 20), ("expression", 5), ("global_orient", 3), ("body_pose", 63), ("jaw_pose", 3),
-        ("leye_pose", 3), ("reye_pose", 3), ("left_hand_pose", 45), ("right_hand_pose", 45), ("transl", 3),
-    ]  # fmt: skip
+        ("betas", 20),
+        ("expression", 5),
+        ("global_orient", 3),
+        ("body_pose", 63),
+        ("jaw_pose", 3),
+        ("leye_pose", 3),
+        ("reye_pose", 3),
+        ("left_hand_pose", 45),
+        ("right_hand_pose", 45),
+        ("transl", 3),
+    ]
     assert m.parameter_names[0] == "betas" and set(m.zero_params(4)) == set(m.parameter_sizes)
     betas, expr = torch.randn(1, 20, dtype=torch.float64), torch.randn(1, 5, dtype=torch.float64)
     out = m(betas=betas, expression=expr)
@@ -149,12 +162,16 @@ def test_gradcheck_through_the_whole_model_float64(smplx_file):
     m = load_body_model(smplx_file, dtype=torch.float64, num_betas=4, num_expression=3, use_pca=True, num_pca_comps=4)
     g = torch.Generator().manual_seed(0)
     names = list(m.parameter_sizes)
-    inputs = tuple((torch.randn(1, w, generator=g, dtype=torch.float64) * 0.3).requires_grad_() for w in m.parameter_sizes.values())
+    inputs = tuple(
+        (torch.randn(1, w, generator=g, dtype=torch.float64) * 0.3).requires_grad_() for w in m.parameter_sizes.values()
+    )
     probe = torch.randn(V, 3, generator=g, dtype=torch.float64)
 
     def f(*xs):
         out = m(**dict(zip(names, xs)))
-        return torch.stack([(out.vertices[0] * probe).sum(), out.joints[0, 30:40].sum(), m.face_landmarks(out)[0, 20:].sum()])
+        return torch.stack(
+            [(out.vertices[0] * probe).sum(), out.joints[0, 30:40].sum(), m.face_landmarks(out)[0, 20:].sum()]
+        )
 
     assert torch.autograd.gradcheck(f, inputs, eps=1e-6, atol=1e-6, fast_mode=True)
 

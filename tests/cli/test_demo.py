@@ -1,4 +1,5 @@
 """``silfit demo`` end to end, and the CLI's entry point."""
+
 import json
 import subprocess
 import sys
@@ -10,9 +11,21 @@ from PIL import Image
 
 from silfit.cli import SUBCOMMANDS, main
 
-DEMO_FILES = ("01_input.png", "02_mask.png", "03_keypoint_fit.png", "04_silhouette_fit.png",
-              "05_silhouette_match.png", "06_iou_curve.png", "07_vertex_error.png", "summary.png",
-              "report.md", "report.json", "fit/params.npz", "fit/mesh.obj", "fit/silhouette.png")  # fmt: skip
+DEMO_FILES = (
+    "01_input.png",
+    "02_mask.png",
+    "03_keypoint_fit.png",
+    "04_silhouette_fit.png",
+    "05_silhouette_match.png",
+    "06_iou_curve.png",
+    "07_vertex_error.png",
+    "summary.png",
+    "report.md",
+    "report.json",
+    "fit/params.npz",
+    "fit/mesh.obj",
+    "fit/silhouette.png",
+)
 
 
 def test_help_lists_every_subcommand():
@@ -69,7 +82,8 @@ def assert_readme_table_is(printed: str) -> None:
         tol = max(RELATIVE[unit] * max(abs(a), abs(b)), ABSOLUTE[unit])
         assert abs(ours[metric][0] - a) <= tol and abs(ours[metric][1] - b) <= tol, (
             f"README.md's demo table says {metric} {ours[metric]}, `silfit demo` printed ({a}, {b}): "
-            "run `python tools/readme_demo.py` to rewrite it")
+            "run `python tools/readme_demo.py` to rewrite it"
+        )
 
 
 def test_a_stale_readme_table_fails(monkeypatch, tmp_path):

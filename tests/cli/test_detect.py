@@ -1,4 +1,5 @@
 """``silfit detect`` and ``silfit fit --image`` on a real photograph and on a shipped render."""
+
 import json
 from pathlib import Path
 
@@ -75,8 +76,16 @@ def test_fit_image_on_a_render_recovers_the_body(tmp_path):
     params = np.load(out / "params.npz")
     model = load_body_model()
     with torch.no_grad():
-        verts = model(**{k: torch.as_tensor(params[k][None] if params[k].ndim == 1 else params[k]).float()
-                         for k in ("betas", "body_pose", "global_orient", "transl")}).vertices[0].numpy()  # fmt: skip
+        verts = (
+            model(
+                **{
+                    k: torch.as_tensor(params[k][None] if params[k].ndim == 1 else params[k]).float()
+                    for k in ("betas", "body_pose", "global_orient", "transl")
+                }
+            )
+            .vertices[0]
+            .numpy()
+        )
     gt = read_gt(SUBJECT / "gt.npz").vertices
     pa_pve = 1000 * np.linalg.norm(procrustes_align(verts, gt) - gt, axis=-1).mean()
     # Measured 30 mm (keypoint stage alone from the detected keypoints: 27 mm; the default
@@ -93,7 +102,10 @@ def test_explicit_keypoints_win_and_exif_focal_is_used(tmp_path):
     Image.open(SUBJECT / "image.png").save(photo, quality=95, exif=exif.tobytes())
     out = tmp_path / "fit"
     kp = SUBJECT / "keypoints.json"
-    assert main(["fit", "--keypoints", str(kp), "--image", str(photo), "--no-silhouette", "--out", str(out), "--quiet"]) == 0
+    assert (
+        main(["fit", "--keypoints", str(kp), "--image", str(photo), "--no-silhouette", "--out", str(out), "--quiet"])
+        == 0
+    )
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["keypoints"] == str(kp) and "detection" not in metrics
     assert metrics["camera_source"].startswith("EXIF FocalLengthIn35mmFilm")
@@ -112,7 +124,9 @@ def test_bad_photos_exit_2_with_one_line(case, tmp_path, capsys):
         assert main(command + ["--out", str(out)]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and str(image) in err, err
-        expected = {"missing": "image not found", "empty": "cannot read the image", "no_person": "no person found"}[case]
+        expected = {"missing": "image not found", "empty": "cannot read the image", "no_person": "no person found"}[
+            case
+        ]
         assert expected in err
         assert not out.exists()
 
@@ -133,8 +147,10 @@ def test_detect_several_people(tmp_path):
     people = json.loads((out / "keypoints.json").read_text())["people"]
     assert len(people) == 2
     # Largest first, as read_keypoints(person="largest") picks.
-    assert read_keypoints(out / "keypoints.json", person=0).visible_area() >= read_keypoints(
-        out / "keypoints.json", person=1).visible_area()  # fmt: skip
+    assert (
+        read_keypoints(out / "keypoints.json", person=0).visible_area()
+        >= read_keypoints(out / "keypoints.json", person=1).visible_area()
+    )
     masks = [read_mask(out / m, size=(512, 256)) for m in ("mask.png", "mask_1.png")]
     assert not (masks[0] & masks[1]).any()
     with pytest.raises(SystemExit) as exit_:  # argparse rejects it: usage line, status 2
@@ -155,16 +171,34 @@ def test_fit_every_person_of_a_photo(tmp_path, capsys, monkeypatch):
     Image.fromarray(np.concatenate([a, b], axis=1)).save(image)
     out = tmp_path / "fits"
     batches, real = [], silfit.run._run_images
-    monkeypatch.setattr(silfit.run, "_run_images", lambda jobs, isolate: batches.append(len(jobs)) or real(jobs, isolate))
+    monkeypatch.setattr(
+        silfit.run, "_run_images", lambda jobs, isolate: batches.append(len(jobs)) or real(jobs, isolate)
+    )
     assert main(["fit", "--image", str(image), "--people", "all", "--no-silhouette", "--out", str(out), "--quiet"]) == 0
     assert batches == [2], batches  # before: two batches of one (each person's job had its own model object)
-    assert json.loads((out / "person_0" / "params.json").read_text()) != json.loads((out / "person_1" / "params.json").read_text())
+    assert json.loads((out / "person_0" / "params.json").read_text()) != json.loads(
+        (out / "person_1" / "params.json").read_text()
+    )
     listed = json.loads((out / "people.json").read_text())["people"]
     assert [p["folder"] for p in listed] == ["person_0", "person_1"]
     xs = [json.loads((out / p["folder"] / "params.json").read_text()) for p in listed]
     assert all((out / p["folder"] / "mesh.obj").is_file() for p in listed) and len(xs) == 2
-    assert main(["fit", "--image", str(image), "--people", "all", "--keypoints", str(SUBJECT / "keypoints.json"),
-                 "--out", str(tmp_path / "bad")]) == 2  # fmt: skip
+    assert (
+        main(
+            [
+                "fit",
+                "--image",
+                str(image),
+                "--people",
+                "all",
+                "--keypoints",
+                str(SUBJECT / "keypoints.json"),
+                "--out",
+                str(tmp_path / "bad"),
+            ]
+        )
+        == 2
+    )
     assert not (tmp_path / "bad").exists()
     capsys.readouterr()
     # a bad flag found once the people are detected (person 0's job) or before: one line, exit 2, no output folder
@@ -189,7 +223,10 @@ def test_detect_does_not_write_an_exif_focal_outside_the_bounds(tmp_path, capsys
     assert f"warning: {report['warnings'][0]}" in printed
     # silfit fit says so too (and, in silfit/cli/fit.py, falls back to the default focal: photo.focal() is None)
     kp = SUBJECT / "keypoints.json"
-    assert main(["fit", "--keypoints", str(kp), "--image", str(photo), "--out", str(tmp_path / "fit"), "--check-only"]) == 0
+    assert (
+        main(["fit", "--keypoints", str(kp), "--image", str(photo), "--out", str(tmp_path / "fit"), "--check-only"])
+        == 0
+    )
     assert f"warning: {report['warnings'][0]}" in capsys.readouterr().err
 
 
@@ -244,7 +281,9 @@ def test_people_with_other_settings_keep_their_own():
     from silfit.run import Job
 
     kp = KeypointSet(np.full((25, 2), 32.0), np.ones(25), "body25")
-    base = Job(Problem.single(kp, Camera.from_image_size(64, 64), None), load_body_model(), keypoint_config=KeypointFitConfig())
+    base = Job(
+        Problem.single(kp, Camera.from_image_size(64, 64), None), load_body_model(), keypoint_config=KeypointFitConfig()
+    )
     same = replace(base, model=load_body_model(), keypoint_config=KeypointFitConfig())  # equal, not the same objects
     other = replace(base, model=load_body_model(), keypoint_config=KeypointFitConfig(final_iters=5))
     a, b, c = _shared_settings([base, same, other])

@@ -1,4 +1,5 @@
 """How the command line reports errors of the system: the file (or the output folder) named."""
+
 import os
 
 import pytest

@@ -1,4 +1,5 @@
 """``silfit eval`` from the command line."""
+
 import json
 
 import numpy as np

@@ -34,8 +34,21 @@ FAST = ["--quiet"]
 def test_fit_writes_all_outputs(inputs, tmp_path):
     d, model = inputs
     out = tmp_path / "fit"
-    rc = main(["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
-               "--no-silhouette", "--out", str(out)] + FAST)  # fmt: skip
+    rc = main(
+        [
+            "fit",
+            "--keypoints",
+            str(d / "kp.json"),
+            "--camera",
+            str(d / "camera.json"),
+            "--model",
+            str(model),
+            "--no-silhouette",
+            "--out",
+            str(out),
+        ]
+        + FAST
+    )
     assert rc == 0
     for f in ("params.npz", "params.json", "mesh.obj", "overlay.png", "metrics.json"):
         assert (out / f).exists(), f
@@ -52,8 +65,23 @@ def test_fit_writes_all_outputs(inputs, tmp_path):
 def test_fit_with_image_size_and_focal(inputs, tmp_path):
     d, model = inputs
     # 500 px, not the default max(W, H) = 320: ignoring --focal changes the camera and the fitted depth
-    rc = main(["fit", "--keypoints", str(d / "kp.json"), "--image-size", "320x240", "--focal", "500", "--model",
-               str(model), "--no-silhouette", "--out", str(tmp_path / "o")] + FAST)  # fmt: skip
+    rc = main(
+        [
+            "fit",
+            "--keypoints",
+            str(d / "kp.json"),
+            "--image-size",
+            "320x240",
+            "--focal",
+            "500",
+            "--model",
+            str(model),
+            "--no-silhouette",
+            "--out",
+            str(tmp_path / "o"),
+        ]
+        + FAST
+    )
     assert rc == 0
     metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
     assert metrics["camera"]["fx"] == metrics["camera"]["fy"] == 500.0
@@ -99,12 +127,36 @@ SMALL_SILHOUETTE = ["--silhouette-resolutions", "64", "--silhouette-iterations",
 
 def test_fit_with_mask_writes_the_silhouette_outputs(tmp_path):
     out = tmp_path / "fit"
-    rc = main(["fit", "--keypoints", str(SUBJECT / "keypoints.json"), "--camera", str(SUBJECT / "camera.json"),
-               "--mask", str(SUBJECT / "mask.png"), "--image", str(SUBJECT / "image.png"), "--out", str(out)]
-              + FAST + SMALL_SILHOUETTE)  # fmt: skip
+    rc = main(
+        [
+            "fit",
+            "--keypoints",
+            str(SUBJECT / "keypoints.json"),
+            "--camera",
+            str(SUBJECT / "camera.json"),
+            "--mask",
+            str(SUBJECT / "mask.png"),
+            "--image",
+            str(SUBJECT / "image.png"),
+            "--out",
+            str(out),
+        ]
+        + FAST
+        + SMALL_SILHOUETTE
+    )
     assert rc == 0
-    for f in ("params.npz", "params.json", "mesh.obj", "overlay.png", "side.png", "silhouette.png", "iou_curve.png",
-              "metrics.json", "stages/keypoints/params.npz", "stages/keypoints/overlay.png"):  # fmt: skip
+    for f in (
+        "params.npz",
+        "params.json",
+        "mesh.obj",
+        "overlay.png",
+        "side.png",
+        "silhouette.png",
+        "iou_curve.png",
+        "metrics.json",
+        "stages/keypoints/params.npz",
+        "stages/keypoints/overlay.png",
+    ):
         assert (out / f).is_file() and (out / f).stat().st_size > 0, f
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["stages"] == ["keypoints", "silhouette"]
@@ -118,21 +170,46 @@ def test_malformed_masks_are_clear_errors(tmp_path, capsys, problem):
     import cv2
 
     mask = cv2.imread(str(SUBJECT / "mask.png"), cv2.IMREAD_UNCHANGED)
-    bad = {"size": mask[:100], "empty": np.zeros_like(mask),
-           "colour": np.dstack([mask, np.zeros_like(mask), mask // 3])}[problem]  # fmt: skip
+    bad = {
+        "size": mask[:100],
+        "empty": np.zeros_like(mask),
+        "colour": np.dstack([mask, np.zeros_like(mask), mask // 3]),
+    }[problem]
     cv2.imwrite(str(tmp_path / "bad_mask.png"), bad)
-    rc = main(["fit", "--keypoints", str(SUBJECT / "keypoints.json"), "--camera", str(SUBJECT / "camera.json"),
-               "--mask", str(tmp_path / "bad_mask.png"), "--out", str(tmp_path / "out")] + FAST)  # fmt: skip
+    rc = main(
+        [
+            "fit",
+            "--keypoints",
+            str(SUBJECT / "keypoints.json"),
+            "--camera",
+            str(SUBJECT / "camera.json"),
+            "--mask",
+            str(tmp_path / "bad_mask.png"),
+            "--out",
+            str(tmp_path / "out"),
+        ]
+        + FAST
+    )
     assert rc == 2
     err = capsys.readouterr().err
     assert "bad_mask.png" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.parametrize("case", ["binary_keypoints", "string_numbers", "huge_camera", "huge_image_size", "person",
-                                  "hostile_model", "directory_as_keypoints", "huge_image"])  # fmt: skip
+@pytest.mark.parametrize(
+    "case",
+    [
+        "binary_keypoints",
+        "string_numbers",
+        "huge_camera",
+        "huge_image_size",
+        "person",
+        "hostile_model",
+        "directory_as_keypoints",
+        "huge_image",
+    ],
+)
 def test_hostile_and_broken_inputs_exit_2_with_one_line(inputs, tmp_path, capsys, case):
-    import pickle
 
     d, model = inputs
     kp, cam, extra, expect = d / "kp.json", ["--camera", str(d / "camera.json")], [], None
@@ -145,7 +222,9 @@ def test_hostile_and_broken_inputs_exit_2_with_one_line(inputs, tmp_path, capsys
         kp.write_text(json.dumps({"people": [{"pose_keypoints_2d": ["12.5"] * 75}]}))
         expect = "field 'people[0].pose_keypoints_2d' value 0 is '12.5'"
     elif case == "huge_camera":
-        (tmp_path / "cam.json").write_text(json.dumps(dict(fx=1e5, fy=1e5, cx=5e4, cy=5e4, width=100000, height=100000)))
+        (tmp_path / "cam.json").write_text(
+            json.dumps(dict(fx=1e5, fy=1e5, cx=5e4, cy=5e4, width=100000, height=100000))
+        )
         cam, expect = ["--camera", str(tmp_path / "cam.json")], "cam.json: camera width/height: 100000x100000"
     elif case == "huge_image_size":
         cam, expect = ["--image-size", "100000x100000"], "--image-size: image size 100000x100000 pixels is larger"
@@ -164,7 +243,12 @@ def test_hostile_and_broken_inputs_exit_2_with_one_line(inputs, tmp_path, capsys
         Image.new("L", (20000, 8)).save(tmp_path / "wide.png")
         cam, expect = ["--image", str(tmp_path / "wide.png")], "wide.png: image size 20000x8 pixels is larger"
     out = tmp_path / "new" / "out"
-    rc = main(["fit", "--keypoints", str(kp), "--model", str(model), "--no-silhouette", "--out", str(out)] + cam + extra + FAST)
+    rc = main(
+        ["fit", "--keypoints", str(kp), "--model", str(model), "--no-silhouette", "--out", str(out)]
+        + cam
+        + extra
+        + FAST
+    )
     err = capsys.readouterr().err
     assert rc == 2, err
     assert expect in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
@@ -175,8 +259,18 @@ def test_hostile_and_broken_inputs_exit_2_with_one_line(inputs, tmp_path, capsys
 
 def test_check_only_reads_everything_and_writes_nothing(inputs, tmp_path, capsys):
     d, model = inputs
-    args = ["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
-            "--out", str(tmp_path / "out"), "--check-only"]  # fmt: skip
+    args = [
+        "fit",
+        "--keypoints",
+        str(d / "kp.json"),
+        "--camera",
+        str(d / "camera.json"),
+        "--model",
+        str(model),
+        "--out",
+        str(tmp_path / "out"),
+        "--check-only",
+    ]
     assert main(args) == 0
     assert "inputs OK" in capsys.readouterr().out and not (tmp_path / "out").exists()
     (tmp_path / "prior.pkl").write_bytes(b"cos\nsystem\n(Vtouch " + str(tmp_path / "ran").encode() + b"\ntR.")
@@ -208,12 +302,30 @@ def test_fit_export_writes_upright_glb_and_ply(inputs, tmp_path, capsys):
 
     d, model = inputs
     out = tmp_path / "fit"
-    rc = main(["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
-               "--no-silhouette", "--export", "glb,ply", "--out", str(out)] + FAST)  # fmt: skip
+    rc = main(
+        [
+            "fit",
+            "--keypoints",
+            str(d / "kp.json"),
+            "--camera",
+            str(d / "camera.json"),
+            "--model",
+            str(model),
+            "--no-silhouette",
+            "--export",
+            "glb,ply",
+            "--out",
+            str(out),
+        ]
+        + FAST
+    )
     err = capsys.readouterr().err  # the fit's warnings (a depth warning, say): not part of the bad run's one line below
     assert rc == 0, err
     params = np.load(out / "params.npz")  # the camera frame (as mesh.obj), as documented
-    joints, vertices = params["joints"].reshape(-1, 24, 3)[0], params["vertices"].reshape(-1, toy_model().num_vertices, 3)[0]
+    joints, vertices = (
+        params["joints"].reshape(-1, 24, 3)[0],
+        params["vertices"].reshape(-1, toy_model().num_vertices, 3)[0],
+    )
     assert joints[15, 1] < joints[7, 1]  # camera frame: the head (joint 15) above the ankle (7) means smaller y
     for name in ("mesh.glb", "mesh.ply"):
         loaded = trimesh.load(out / name, process=False)
@@ -223,8 +335,26 @@ def test_fit_export_writes_upright_glb_and_ply(inputs, tmp_path, capsys):
         assert head[1] > foot[1], name
         top = mesh.vertices[:, 1].argmax()
         assert np.linalg.norm(mesh.vertices[top, [0, 2]] - head[[0, 2]]) < 0.3, name  # the highest point is the head's
-    assert main(["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
-                 "--no-silhouette", "--export", "obj", "--out", str(tmp_path / "bad")] + FAST) == 2  # fmt: skip
+    assert (
+        main(
+            [
+                "fit",
+                "--keypoints",
+                str(d / "kp.json"),
+                "--camera",
+                str(d / "camera.json"),
+                "--model",
+                str(model),
+                "--no-silhouette",
+                "--export",
+                "obj",
+                "--out",
+                str(tmp_path / "bad"),
+            ]
+            + FAST
+        )
+        == 2
+    )
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "--export 'obj'" in err and not (tmp_path / "bad").exists()
     assert main(["fit", "--rig", str(d), "--export", "glb", "--out", str(tmp_path / "rig")] + FAST) == 2
@@ -241,8 +371,23 @@ def test_fit_hypotheses_writes_each_solution_and_records_them(inputs, tmp_path, 
 
     d, model = inputs
     out = tmp_path / "fit"
-    rc = main(["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
-               "--no-silhouette", "--hypotheses", "2", "--out", str(out)] + FAST)  # fmt: skip
+    rc = main(
+        [
+            "fit",
+            "--keypoints",
+            str(d / "kp.json"),
+            "--camera",
+            str(d / "camera.json"),
+            "--model",
+            str(model),
+            "--no-silhouette",
+            "--hypotheses",
+            "2",
+            "--out",
+            str(out),
+        ]
+        + FAST
+    )
     assert rc == 0
     metrics = json.loads((out / "metrics.json").read_text())
     hyps = metrics["hypotheses"]
@@ -256,10 +401,19 @@ def test_fit_hypotheses_writes_each_solution_and_records_them(inputs, tmp_path, 
         d_h = out / "hypotheses" / str(h["rank"])
         record = json.loads((d_h / "params.json").read_text())
         assert (record["rank"], record["label"], record["kept"], record["params_from"]) == (
-            h["rank"], h["label"], h["rank"] == 1, "keypoint stage")
+            h["rank"],
+            h["label"],
+            h["rank"] == 1,
+            "keypoint stage",
+        )
         assert not (d_h / "stages").exists()
-        v = np.array([[float(x) for x in line.split()[1:]] for line in (d_h / "mesh.obj").read_text().splitlines()
-                      if line.startswith("v ")])  # fmt: skip
+        v = np.array(
+            [
+                [float(x) for x in line.split()[1:]]
+                for line in (d_h / "mesh.obj").read_text().splitlines()
+                if line.startswith("v ")
+            ]
+        )
         params = {k: torch.as_tensor(x[None], dtype=torch.float32) for k, x in read_fit(d_h).frame(0).items()}
         assert np.allclose(v, body(**params).vertices[0].numpy(), atol=1e-5)
     sheet = cv2.imread(str(out / "hypotheses.png"))  # each hypothesis from the front and the side
@@ -278,15 +432,38 @@ def test_silhouette_option_reaches_the_stage_and_a_bad_one_is_one_line(inputs, t
 
     d, model = inputs
     image = ["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model)]
-    job = build_job(build_parser().parse_args(image + [
-        "--silhouette-option", "alternatives_margin=0", "--silhouette-option", "plausibility_guard=false",
-        "--silhouette-resolutions", "64", "--silhouette-iterations", "3", "--out", str(tmp_path / "x")]))  # fmt: skip
+    job = build_job(
+        build_parser().parse_args(
+            image
+            + [
+                "--silhouette-option",
+                "alternatives_margin=0",
+                "--silhouette-option",
+                "plausibility_guard=false",
+                "--silhouette-resolutions",
+                "64",
+                "--silhouette-iterations",
+                "3",
+                "--out",
+                str(tmp_path / "x"),
+            ]
+        )
+    )
     cfg = job.silhouette_config
     assert cfg.alternatives_margin == 0.0 and cfg.plausibility_guard is False
     assert cfg.resolutions == (64,) and cfg.iterations == (3,) and cfg.alternatives_max == 2  # the rest: defaults
-    _each_bad_option_is_one_line(image + FAST, "--silhouette-option", (
-        ("nope=1", "unknown silhouette-stage option 'nope'"), ("alternatives_margin=x", "alternatives_margin"),
-        ("spp", "expected NAME=VALUE"), ("resolutions=64", "give --silhouette-resolutions instead")), tmp_path, capsys)  # fmt: skip
+    _each_bad_option_is_one_line(
+        image + FAST,
+        "--silhouette-option",
+        (
+            ("nope=1", "unknown silhouette-stage option 'nope'"),
+            ("alternatives_margin=x", "alternatives_margin"),
+            ("spp", "expected NAME=VALUE"),
+            ("resolutions=64", "give --silhouette-resolutions instead"),
+        ),
+        tmp_path,
+        capsys,
+    )
 
 
 def _each_bad_option_is_one_line(command, flag, cases, tmp_path, capsys):
@@ -312,25 +489,79 @@ def test_keypoint_option_reaches_each_mode_and_a_bad_one_is_one_line(inputs, tmp
 
     d, model = inputs
     image = ["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model)]
-    job = build_job(build_parser().parse_args(image + ["--hypotheses", "2", "--keypoint-option", "final_iters=5",
-                                                       "--keypoint-option", "pose_iters=5,6,7", "--out", str(tmp_path / "x")]))
+    job = build_job(
+        build_parser().parse_args(
+            image
+            + [
+                "--hypotheses",
+                "2",
+                "--keypoint-option",
+                "final_iters=5",
+                "--keypoint-option",
+                "pose_iters=5,6,7",
+                "--out",
+                str(tmp_path / "x"),
+            ]
+        )
+    )
     assert job.keypoint_config.final_iters == 5 and tuple(job.keypoint_config.pose_iters) == (5, 6, 7)
     assert job.keypoint_config.hypotheses == 2
-    assert build_job(build_parser().parse_args(image + ["--out", str(tmp_path / "x")])).keypoint_config is None  # the default
+    assert (
+        build_job(build_parser().parse_args(image + ["--out", str(tmp_path / "x")])).keypoint_config is None
+    )  # the default
     video = tmp_path / "video"
     video.mkdir()
     for f in range(2):
         shutil.copy(d / "kp.json", video / f"clip_{f:012d}_keypoints.json")
-    job = build_job(build_parser().parse_args(["fit", "--sequence", str(video), "--camera", str(d / "camera.json"), "--model",
-                                               str(model), "--keypoint-option", "final_tol_change=1e-5", "--keypoint-option",
-                                               "final_iters=7", "--out", str(tmp_path / "y")]))  # fmt: skip
+    job = build_job(
+        build_parser().parse_args(
+            [
+                "fit",
+                "--sequence",
+                str(video),
+                "--camera",
+                str(d / "camera.json"),
+                "--model",
+                str(model),
+                "--keypoint-option",
+                "final_tol_change=1e-5",
+                "--keypoint-option",
+                "final_iters=7",
+                "--out",
+                str(tmp_path / "y"),
+            ]
+        )
+    )
     start, default = job.sequence_config.keypoint, SequenceFitConfig().keypoint
     assert start.final_iters == 7 and start.final_tol_change == 1e-5 and isinstance(start.final_tol_change, float)
     assert start.branch_refine == default.branch_refine and start.init_poses == default.init_poses  # the video's own
     out = tmp_path / "fit"
-    assert main(image + ["--no-silhouette", "--keypoint-option", "init_poses=1", "--keypoint-option", "final_iters=5",
-                         "--out", str(out)] + FAST) == 0  # fmt: skip
+    assert (
+        main(
+            image
+            + [
+                "--no-silhouette",
+                "--keypoint-option",
+                "init_poses=1",
+                "--keypoint-option",
+                "final_iters=5",
+                "--out",
+                str(out),
+            ]
+            + FAST
+        )
+        == 0
+    )
     assert (out / "params.npz").is_file()
-    _each_bad_option_is_one_line(image + FAST, "--keypoint-option", (
-        ("nope=1", "unknown keypoint-stage option 'nope'"), ("final_iters=x", "final_iters"),
-        ("final_iters", "expected NAME=VALUE"), ("hypotheses=2", "give --hypotheses instead")), tmp_path, capsys)  # fmt: skip
+    _each_bad_option_is_one_line(
+        image + FAST,
+        "--keypoint-option",
+        (
+            ("nope=1", "unknown keypoint-stage option 'nope'"),
+            ("final_iters=x", "final_iters"),
+            ("final_iters", "expected NAME=VALUE"),
+            ("hypotheses=2", "give --hypotheses instead"),
+        ),
+        tmp_path,
+        capsys,
+    )

@@ -1,4 +1,5 @@
 """``silfit fit-dataset`` end to end: layouts, failures, resuming (also after SIGKILL) and Ray."""
+
 import json
 import os
 import signal
@@ -33,7 +34,9 @@ def test_failures_are_isolated_and_runs_resume(tmp_path, capsys):
     names = [f"subject_{i:03d}" for i in range(5)]
     data = synthetic_copy(tmp_path / "data", names)
     (data / "subject_001" / "keypoints.json").write_text("{broken")
-    (data / "subject_002" / "camera.json").write_text('{"fx": 100, "fy": 100, "cx": 10, "cy": 10, "width": -5, "height": 4}')
+    (data / "subject_002" / "camera.json").write_text(
+        '{"fx": 100, "fy": 100, "cx": 10, "cy": 10, "width": -5, "height": 4}'
+    )
     # without camera.json and image.png a keypoint-only run reads the mask for the image size
     (data / "subject_003" / "mask.png").write_bytes(b"not a png")
     (data / "subject_003" / "camera.json").unlink()
@@ -47,7 +50,10 @@ def test_failures_are_isolated_and_runs_resume(tmp_path, capsys):
     fails = {f["item"]: f for f in read_jsonl(out / "failures.jsonl")}
     assert fails["subject_001"]["file"] == str(data / "subject_001" / "keypoints.json")
     assert fails["subject_002"]["file"] == str(data / "subject_002" / "camera.json")
-    assert fails["subject_003"]["file"] == str(data / "subject_003" / "mask.png") and fails["subject_003"]["field"] == "mask"
+    assert (
+        fails["subject_003"]["file"] == str(data / "subject_003" / "mask.png")
+        and fails["subject_003"]["field"] == "mask"
+    )
     assert all(f["message"] and "\n" not in f["message"] for f in fails.values())
     assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ["report", "subject_000", "subject_004"]
     assert (out / "report" / "index.html").is_file()  # the gallery (tests/outputs/test_report.py opens it)
@@ -73,20 +79,59 @@ def test_openpose_people_all_matches_silfit_fit_layout(tmp_path):
     root = openpose_folder(tmp_path / "in", names=("subject_000", "subject_001"), two_people=("subject_001",))
     out = tmp_path / "out"
     sil = ["--silhouette-resolutions", "48", "--silhouette-iterations", "4"]
-    rc = main(["fit-dataset", str(root / "kp"), "--out", str(out), "--people", "all", "--masks", str(root / "masks"),
-               "--images", str(root / "images"), "--camera", str(root / "cameras"), "--quiet", *FAST, *sil])  # fmt: skip
+    rc = main(
+        [
+            "fit-dataset",
+            str(root / "kp"),
+            "--out",
+            str(out),
+            "--people",
+            "all",
+            "--masks",
+            str(root / "masks"),
+            "--images",
+            str(root / "images"),
+            "--camera",
+            str(root / "cameras"),
+            "--quiet",
+            *FAST,
+            *sil,
+        ]
+    )
     assert rc == 0
     records = _by_item(out)
     assert sorted(records) == ["subject_000_0", "subject_001_0", "subject_001_1"]
     with_mask, without = records["subject_001_0"], records["subject_001_1"]
     assert with_mask["stages"] == ["keypoints", "silhouette"] and 0 < with_mask["iou"] <= 1
     assert without["stages"] == ["keypoints"] and "iou" not in without and "no mask" in without["silhouette_stage"]
-    assert json.loads((out / "subject_001_1" / "metrics.json").read_text())["silhouette_stage"] == without["silhouette_stage"]
+    assert (
+        json.loads((out / "subject_001_1" / "metrics.json").read_text())["silhouette_stage"]
+        == without["silhouette_stage"]
+    )
     # the same files as `silfit fit` writes for one image with (and without) a mask
     single = tmp_path / "single"
-    assert main(["fit", "--keypoints", str(root / "kp" / "subject_001_keypoints.json"), "--person", "0",
-                 "--mask", str(root / "masks" / "subject_001_0.png"), "--image", str(root / "images" / "subject_001.png"),
-                 "--camera", str(root / "cameras" / "subject_001.json"), "--out", str(single), "--quiet", *sil]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "fit",
+                "--keypoints",
+                str(root / "kp" / "subject_001_keypoints.json"),
+                "--person",
+                "0",
+                "--mask",
+                str(root / "masks" / "subject_001_0.png"),
+                "--image",
+                str(root / "images" / "subject_001.png"),
+                "--camera",
+                str(root / "cameras" / "subject_001.json"),
+                "--out",
+                str(single),
+                "--quiet",
+                *sil,
+            ]
+        )
+        == 0
+    )
     assert _files(out / "subject_001_0") == _files(single)
     kp_only = set(_files(single)) - {"silhouette.png", "iou_curve.png", "stages/keypoints/overlay.png"}
     assert set(_files(out / "subject_001_1")) == kp_only
@@ -99,8 +144,21 @@ def test_bad_command_is_one_line_exit_2(tmp_path, capsys):
     assert main(["fit-dataset", str(SYNTHETIC), "--out", str(tmp_path / "o"), "--keypoint-option", "nope=1"]) == 2
     assert "unknown keypoint-stage option 'nope'" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
-    assert main(["fit-dataset", str(SYNTHETIC), "--out", str(tmp_path / "o"), "--silhouette-resolutions", "64",
-                 "--silhouette-iterations", "5,5"]) == 2
+    assert (
+        main(
+            [
+                "fit-dataset",
+                str(SYNTHETIC),
+                "--out",
+                str(tmp_path / "o"),
+                "--silhouette-resolutions",
+                "64",
+                "--silhouette-iterations",
+                "5,5",
+            ]
+        )
+        == 2
+    )
     assert "same number of levels" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
     (tmp_path / "file").write_text("x")
@@ -121,8 +179,13 @@ def test_bad_command_is_one_line_exit_2(tmp_path, capsys):
 
 def _cli(*args):
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.Popen([sys.executable, "-m", "silfit", "fit-dataset", *args], cwd=ROOT, env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)  # fmt: skip
+    return subprocess.Popen(
+        [sys.executable, "-m", "silfit", "fit-dataset", *args],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
 
 
 def _workers_of(pid: int) -> list:
@@ -152,8 +215,10 @@ def _alive(pid: int) -> bool:
 _LINUX = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds the worker processes in /proc")
 
 
-@pytest.mark.parametrize("workers, victim", [("1", "driver"), pytest.param("2", "driver", marks=_LINUX),
-                                             pytest.param("2", "worker", marks=_LINUX)])  # fmt: skip
+@pytest.mark.parametrize(
+    "workers, victim",
+    [("1", "driver"), pytest.param("2", "driver", marks=_LINUX), pytest.param("2", "worker", marks=_LINUX)],
+)
 def test_sigkill_mid_run_then_restart_finishes_each_item_once(tmp_path, workers, victim):
     """Also with ``--workers 2``: the worker processes end with a killed driver (none left writing into OUT);
     a killed worker stops the run with one line and status 2, the batches finished so far recorded."""
@@ -161,8 +226,20 @@ def test_sigkill_mid_run_then_restart_finishes_each_item_once(tmp_path, workers,
         pytest.skip("this kernel lists no child processes in /proc")
     names = [f"subject_{i:03d}" for i in range(5)]
     data, out = synthetic_copy(tmp_path / "data", names), tmp_path / "out"
-    args = [str(data), "--out", str(out), "--no-silhouette", "--batch-size", "1", "--quiet", *FAST,
-            "--keypoint-option", "pose_iters=25,25,25", "--workers", workers]  # fmt: skip
+    args = [
+        str(data),
+        "--out",
+        str(out),
+        "--no-silhouette",
+        "--batch-size",
+        "1",
+        "--quiet",
+        *FAST,
+        "--keypoint-option",
+        "pose_iters=25,25,25",
+        "--workers",
+        workers,
+    ]
     proc = _cli(*args)
     deadline = time.time() + 600  # the loop ends once two items are done; the CPU may be shared with other test workers
     while time.time() < deadline and proc.poll() is None:
@@ -205,8 +282,21 @@ def test_sigterm_stops_a_ray_run_with_status_143(tmp_path):
     pytest.importorskip("ray")
     names = [f"subject_{i:03d}" for i in range(4)]
     data, out = synthetic_copy(tmp_path / "data", names), tmp_path / "out"
-    args = [str(data), "--out", str(out), "--no-silhouette", "--batch-size", "1", "--quiet", "--ray", "--actors", "1",
-            *FAST, "--keypoint-option", "pose_iters=25,25,25"]  # fmt: skip
+    args = [
+        str(data),
+        "--out",
+        str(out),
+        "--no-silhouette",
+        "--batch-size",
+        "1",
+        "--quiet",
+        "--ray",
+        "--actors",
+        "1",
+        *FAST,
+        "--keypoint-option",
+        "pose_iters=25,25,25",
+    ]
     proc = _cli(*args)
     deadline = time.time() + 600  # Ray's start, then one item done: SIGTERM lands after ray.init
     while time.time() < deadline and proc.poll() is None and not read_jsonl(out / "results.jsonl"):
@@ -241,7 +331,9 @@ def test_worker_processes_match_one_process(tmp_path):
     for key in names:  # the records whole (warnings, errors, IoU), but the timings and the batch
         a, b = ({k: v for k, v in r[key].items() if k not in ("timings_s", "keypoint_batch_size")} for r in (one, two))
         assert a == b, key
-        assert (tmp_path / "one" / key / "params.npz").read_bytes() == (tmp_path / "two" / key / "params.npz").read_bytes()
+        assert (tmp_path / "one" / key / "params.npz").read_bytes() == (
+            tmp_path / "two" / key / "params.npz"
+        ).read_bytes()
     assert sorted(p.name for p in (tmp_path / "two").iterdir() if p.is_dir()) == names
 
 
@@ -254,9 +346,18 @@ def test_ray_run_matches_local_run(tmp_path):
     names = [f"subject_{i:03d}" for i in range(4)]  # two batches of two: one per actor
     common = [str(synthetic_copy(tmp_path / "data", names)), "--no-silhouette", "--quiet", *FAST]
     root = Path(__file__).resolve().parents[2]
-    env = {**os.environ, "OMP_NUM_THREADS": "2", "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
-    done = subprocess.run([sys.executable, "-m", "silfit", "fit-dataset", "--out", str(tmp_path / "local"), "--batch-size", "1",
-                           *common], env=env, capture_output=True, text=True, timeout=600)  # fmt: skip
+    env = {
+        **os.environ,
+        "OMP_NUM_THREADS": "2",
+        "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]),
+    }
+    done = subprocess.run(
+        [sys.executable, "-m", "silfit", "fit-dataset", "--out", str(tmp_path / "local"), "--batch-size", "1", *common],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert done.returncode == 0, done.stderr[-2000:]
     common += ["--batch-size", "2"]
     assert main(["fit-dataset", "--out", str(tmp_path / "ray"), "--ray", "--actors", "2", *common]) == 0
@@ -268,7 +369,10 @@ def test_ray_run_matches_local_run(tmp_path):
     local, ray = _by_item(tmp_path / "local"), _by_item(tmp_path / "ray")
     assert sorted(local) == sorted(ray) == names
     for key in local:
-        a, b = ({k: v for k, v in r.items() if k not in ("timings_s", "keypoint_batch_size")} for r in (local[key], ray[key]))
+        a, b = (
+            {k: v for k, v in r.items() if k not in ("timings_s", "keypoint_batch_size")}
+            for r in (local[key], ray[key])
+        )
         assert a.keys() == b.keys()
         for k in a:
             if isinstance(a[k], float):
@@ -288,14 +392,22 @@ def test_dataset_items_get_the_checks_of_one_image(tmp_path):
     values = np.asarray(doc["people"][0]["pose_keypoints_2d"], dtype=float).reshape(-1, 3)
     far = values.copy()
     far[:, :2] = 1e30
-    (data / "subject_000" / "keypoints.json").write_text(json.dumps({**doc, "people": [{"pose_keypoints_2d": far.ravel().tolist()}]}))
+    (data / "subject_000" / "keypoints.json").write_text(
+        json.dumps({**doc, "people": [{"pose_keypoints_2d": far.ravel().tolist()}]})
+    )
     wrist = values.copy()
     wrist[4, :2] = 1e30
-    (data / "subject_001" / "keypoints.json").write_text(json.dumps({**doc, "people": [{"pose_keypoints_2d": wrist.ravel().tolist()}]}))
+    (data / "subject_001" / "keypoints.json").write_text(
+        json.dumps({**doc, "people": [{"pose_keypoints_2d": wrist.ravel().tolist()}]})
+    )
     out = tmp_path / "out"
     assert main(["fit-dataset", str(data), "--out", str(out), "--no-silhouette", "--quiet", *FAST]) == 11
     fail = read_jsonl(out / "failures.jsonl")[0]
-    assert fail["item"] == "subject_000" and fail["field"] in ("keypoints", "people[0].pose_keypoints_2d") and "far outside" in fail["message"]
+    assert (
+        fail["item"] == "subject_000"
+        and fail["field"] in ("keypoints", "people[0].pose_keypoints_2d")
+        and "far outside" in fail["message"]
+    )
     ok = _by_item(out)["subject_001"]
     assert ok["status"] == "ok" and any("right_wrist" in w and "treated as missing" in w for w in ok["warnings"])
     metrics = json.loads((out / "subject_001" / "metrics.json").read_text())
@@ -307,8 +419,23 @@ def test_export_and_no_report(tmp_path):
 
     data = synthetic_copy(tmp_path / "data", ["subject_000", "subject_002"])
     out = tmp_path / "out"
-    assert main(["fit-dataset", str(data), "--out", str(out), "--no-silhouette", "--export", "glb,ply", "--no-report",
-                 "--quiet", *FAST]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "fit-dataset",
+                str(data),
+                "--out",
+                str(out),
+                "--no-silhouette",
+                "--export",
+                "glb,ply",
+                "--no-report",
+                "--quiet",
+                *FAST,
+            ]
+        )
+        == 0
+    )
     assert not (out / "report").exists()
     for item in ("subject_000", "subject_002"):
         joints = np.load(out / item / "params.npz")["joints"].reshape(-1, 3)

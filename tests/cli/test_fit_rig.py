@@ -1,4 +1,5 @@
 """``silfit fit --rig`` and ``silfit eval`` on a rig dataset, end to end on tiny images."""
+
 import json
 
 import numpy as np
@@ -12,16 +13,44 @@ SIL = ["--silhouette-resolutions", "32", "--silhouette-iterations", "3"]
 @pytest.fixture(scope="module")
 def rigs(tmp_path_factory):
     out = tmp_path_factory.mktemp("rigs") / "data"
-    assert main(["synth", "--n", "1", "--cameras", "2", "--size", "96", "--seed", "4", "--noise-px", "0", "--out", str(out),
-                 "--quiet"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "synth",
+                "--n",
+                "1",
+                "--cameras",
+                "2",
+                "--size",
+                "96",
+                "--seed",
+                "4",
+                "--noise-px",
+                "0",
+                "--out",
+                str(out),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     return out
 
 
 def test_fit_rig_writes_world_outputs_and_per_view_overlays(rigs, tmp_path):
     out = tmp_path / "fit"
     assert main(["fit", "--rig", str(rigs / "subject_000"), "--out", str(out), "--quiet"] + SIL) == 0
-    for f in ("params.npz", "params.json", "mesh.obj", "cameras.json", "metrics.json", "stages/keypoints/params.npz",
-              "views/view_0/overlay.png", "views/view_1/overlay.png", "views/view_1/silhouette.png"):  # fmt: skip
+    for f in (
+        "params.npz",
+        "params.json",
+        "mesh.obj",
+        "cameras.json",
+        "metrics.json",
+        "stages/keypoints/params.npz",
+        "views/view_0/overlay.png",
+        "views/view_1/overlay.png",
+        "views/view_1/silhouette.png",
+    ):
         assert (out / f).is_file(), f
     m = json.loads((out / "metrics.json").read_text())
     assert set(m["views"]) == {"view_0", "view_1"}
@@ -110,8 +139,10 @@ def test_rig_fits_get_one_image_warnings_per_view(rigs):
     views = load_rig(rigs / "subject_000")
     problem = rig_problem(views)
     gt = np.load(rigs / "subject_000" / "gt.npz")
-    per_view = {"view_0": {"reprojection_error_px": 1.0, "iou": 0.45, "iou_keypoint_stage": 0.8},
-                "view_1": {"reprojection_error_px": 1.0, "iou": 0.9}}  # fmt: skip
+    per_view = {
+        "view_0": {"reprojection_error_px": 1.0, "iou": 0.45, "iou_keypoint_stage": 0.8},
+        "view_1": {"reprojection_error_px": 1.0, "iou": 0.9},
+    }
     warnings = view_warnings(["view_0", "view_1"], problem, gt["vertices"], per_view)
     assert any(w.startswith("view view_0: final silhouette IoU is only 0.450") for w in warnings), warnings
     assert any(w.startswith("view view_0: final silhouette IoU 0.450 is far below") for w in warnings)
@@ -123,8 +154,28 @@ def test_a_whole_body_rig_fits_hands_and_face_in_every_view(tmp_path, capsys):
     the keypoint stage over the views with the hands and face, the whole-body silhouette stage over every
     view's mask, a world-frame fit file with the whole-body parameters that ``silfit render`` draws."""
     data = tmp_path / "data"
-    assert main(["synth", "--n", "1", "--cameras", "2", "--whole-body", "--size", "96", "--seed", "4", "--noise-px", "0",
-                 "--out", str(data), "--quiet"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "synth",
+                "--n",
+                "1",
+                "--cameras",
+                "2",
+                "--whole-body",
+                "--size",
+                "96",
+                "--seed",
+                "4",
+                "--noise-px",
+                "0",
+                "--out",
+                str(data),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     kp = json.loads((data / "subject_000" / "view_1" / "keypoints.json").read_text())["people"][0]
     assert len(kp["hand_left_keypoints_2d"]) == 63 and len(kp["face_keypoints_2d"]) == 210
     out = tmp_path / "fit"
@@ -151,15 +202,37 @@ def test_a_whole_body_rig_video_fits_hands_and_face_over_frames_and_views(tmp_pa
     import shutil
 
     data = tmp_path / "data"
-    assert main(["synth", "--n", "1", "--cameras", "2", "--whole-body", "--size", "64", "--seed", "6", "--noise-px", "0",
-                 "--out", str(data), "--quiet"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "synth",
+                "--n",
+                "1",
+                "--cameras",
+                "2",
+                "--whole-body",
+                "--size",
+                "64",
+                "--seed",
+                "6",
+                "--noise-px",
+                "0",
+                "--out",
+                str(data),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     video = tmp_path / "video"
     video.mkdir()
     shutil.copy(data / "subject_000" / "cameras.json", video)
     for v in ("view_0", "view_1"):
         (video / v / "keypoints").mkdir(parents=True)
         for f in range(2):
-            shutil.copy(data / "subject_000" / v / "keypoints.json", video / v / "keypoints" / f"{v}_{f:012d}_keypoints.json")
+            shutil.copy(
+                data / "subject_000" / v / "keypoints.json", video / v / "keypoints" / f"{v}_{f:012d}_keypoints.json"
+            )
     out = tmp_path / "fit"
     rc = main(["fit", "--rig", str(video), "--out", str(out), "--sequence-iterations", "3", "--no-video", "--quiet"])
     assert rc == 0, capsys.readouterr().err
@@ -174,11 +247,15 @@ def test_a_rig_fit_the_silhouette_stage_made_less_plausible_keeps_the_keypoint_f
     import silfit.plausibility as plausibility
 
     def implausible(before, after, where=""):
-        return plausibility.GuardDecision("keypoints", ("stature 2.40 m",), (f"{where}: made the fit less plausible: kept the keypoint fit",))
+        return plausibility.GuardDecision(
+            "keypoints", ("stature 2.40 m",), (f"{where}: made the fit less plausible: kept the keypoint fit",)
+        )
 
     monkeypatch.setattr(plausibility, "silhouette_guard", implausible)
     out = tmp_path / "fit"
-    assert main(["fit", "--rig", str(rigs / "subject_000"), "--out", str(out), "--quiet"] + SIL) == 0, capsys.readouterr().err
+    assert main(["fit", "--rig", str(rigs / "subject_000"), "--out", str(out), "--quiet"] + SIL) == 0, (
+        capsys.readouterr().err
+    )
     m = json.loads((out / "metrics.json").read_text())
     assert m["silhouette_guard"]["kept"] == "keypoints" and any("kept the keypoint fit" in w for w in m["warnings"])
     assert "iou" not in m["views"]["view_0"] and not (out / "stages").exists()  # the keypoint stage's fit is the fit

@@ -1,4 +1,5 @@
 """``silfit fit --sequence`` and ``silfit synth --videos`` end to end on a tiny sequence (toy body)."""
+
 import json
 import sys
 from pathlib import Path
@@ -41,8 +42,25 @@ def test_synth_sequence_writes_per_frame_files_and_truth(sequence):
 def test_fit_sequence_writes_one_shape_and_per_frame_outputs(sequence, tmp_path, capsys):
     seq, model = sequence
     out = tmp_path / "fit"
-    rc = main(["fit", *KP_FAST, "--sequence", str(seq), "--model", str(model), "--out", str(out), "--meshes", "--sequence-iterations", "10",
-               "--silhouette-resolutions", "32", "--silhouette-iterations", "3"])  # fmt: skip
+    rc = main(
+        [
+            "fit",
+            *KP_FAST,
+            "--sequence",
+            str(seq),
+            "--model",
+            str(model),
+            "--out",
+            str(out),
+            "--meshes",
+            "--sequence-iterations",
+            "10",
+            "--silhouette-resolutions",
+            "32",
+            "--silhouette-iterations",
+            "3",
+        ]
+    )
     assert rc == 0, capsys.readouterr().err
     p = np.load(out / "params.npz")
     assert p["betas"].shape == (5, 10) and (p["betas"] == p["betas"][0]).all()  # one shape, repeated per frame
@@ -60,7 +78,9 @@ def test_fit_sequence_writes_one_shape_and_per_frame_outputs(sequence, tmp_path,
     body = load_body_model(model)
     T = lambda n: torch.as_tensor(p[n], dtype=body.dtype)  # noqa: E731
     with torch.no_grad():
-        kp3 = model_keypoints(body, body(**{n: T(n) for n in ("betas", "body_pose", "global_orient", "transl")}), "body25")
+        kp3 = model_keypoints(
+            body, body(**{n: T(n) for n in ("betas", "body_pose", "global_orient", "transl")}), "body25"
+        )
     cam = Camera.from_intrinsics(p["camera_intrinsics"][0], p["image_size"][0])
     np.testing.assert_allclose(p["keypoints_2d"][:, 0], project_points(kp3.double(), cam).numpy(), atol=0.05)
     assert sorted(f.name for f in (out / "meshes").iterdir()) == [f"frame_{i:012d}.obj" for i in range(5)]
@@ -91,7 +111,9 @@ def test_fit_sequence_check_only_reads_the_masks(sequence, tmp_path, capsys):
     shutil.copytree(seq, copy)
     bad = sorted((copy / "masks").glob("*.png"))[1]
     bad.write_bytes(b"not a png")
-    assert main(["fit", "--sequence", str(copy), "--model", str(model), "--out", str(tmp_path / "o"), "--check-only"]) == 2
+    assert (
+        main(["fit", "--sequence", str(copy), "--model", str(model), "--out", str(tmp_path / "o"), "--check-only"]) == 2
+    )
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and bad.name in err and not (tmp_path / "o").exists()
 
@@ -124,8 +146,21 @@ def test_fit_sequence_mismatched_silhouette_levels_fail_before_fitting(sequence,
 
     monkeypatch.setattr(silfit.fitting.sequence, "fit_sequence", no_fit)
     seq, model = sequence
-    rc = main(["fit", "--sequence", str(seq), "--model", str(model), "--out", str(tmp_path / "o"),
-               "--silhouette-resolutions", "32,64", "--silhouette-iterations", "3"])  # fmt: skip
+    rc = main(
+        [
+            "fit",
+            "--sequence",
+            str(seq),
+            "--model",
+            str(model),
+            "--out",
+            str(tmp_path / "o"),
+            "--silhouette-resolutions",
+            "32,64",
+            "--silhouette-iterations",
+            "3",
+        ]
+    )
     assert rc == 2
     captured = capsys.readouterr()
     assert "same number of levels" in captured.err and "wrote" not in captured.out and not (tmp_path / "o").exists()
@@ -141,8 +176,22 @@ def test_fit_sequence_failing_write_leaves_no_parent_folder(sequence, tmp_path, 
     monkeypatch.setattr(silfit.video, "save_sequence_fit", failing_save)
     seq, model = sequence
     out = tmp_path / "new" / "deeper" / "fit"
-    rc = main(["fit", *KP_FAST, "--sequence", str(seq), "--model", str(model), "--out", str(out), "--sequence-iterations", "2",
-               "--no-silhouette", "--quiet"])  # fmt: skip
+    rc = main(
+        [
+            "fit",
+            *KP_FAST,
+            "--sequence",
+            str(seq),
+            "--model",
+            str(model),
+            "--out",
+            str(out),
+            "--sequence-iterations",
+            "2",
+            "--no-silhouette",
+            "--quiet",
+        ]
+    )
     assert rc == 2 and "disk full" in capsys.readouterr().err
     assert not (tmp_path / "new").exists()
 
@@ -160,8 +209,26 @@ def test_fit_sequence_frame_with_an_empty_mask_has_no_silhouette_term(sequence, 
     Image.new("L", size, 0).save(masks[3])  # frame 3: the person was not segmented
     shutil.copy(masks[0], masks[0].with_name(masks[0].name.replace("000000000000", "000000000009")))  # not a frame
     out = tmp_path / "fit"
-    rc = main(["fit", *KP_FAST, "--sequence", str(copy), "--model", str(model), "--out", str(out), "--no-video", "--quiet",
-               "--sequence-iterations", "5", "--silhouette-resolutions", "32", "--silhouette-iterations", "2"])  # fmt: skip
+    rc = main(
+        [
+            "fit",
+            *KP_FAST,
+            "--sequence",
+            str(copy),
+            "--model",
+            str(model),
+            "--out",
+            str(out),
+            "--no-video",
+            "--quiet",
+            "--sequence-iterations",
+            "5",
+            "--silhouette-resolutions",
+            "32",
+            "--silhouette-iterations",
+            "2",
+        ]
+    )
     assert rc == 0, capsys.readouterr().err
     m = json.loads((out / "metrics.json").read_text())
     assert m["silhouette"] == "run"
@@ -176,9 +243,33 @@ def test_synth_sequence_flags_reach_the_generator(tmp_path):
     d.mkdir()
     model = write_toy_npz(d / "toy.npz")
     out = tmp_path / "motions"
-    rc = main(["synth", "--videos", "--n", "2", "--frames", "6", "--fps", "12", "--motions", "squat,wave", "--orbit", "40",
-               "--drop-frames", "0.99", "--size", "48", "--seed", "5", "--model", str(model), "--out", str(out),
-               "--quiet"])  # fmt: skip
+    rc = main(
+        [
+            "synth",
+            "--videos",
+            "--n",
+            "2",
+            "--frames",
+            "6",
+            "--fps",
+            "12",
+            "--motions",
+            "squat,wave",
+            "--orbit",
+            "40",
+            "--drop-frames",
+            "0.99",
+            "--size",
+            "48",
+            "--seed",
+            "5",
+            "--model",
+            str(model),
+            "--out",
+            str(out),
+            "--quiet",
+        ]
+    )
     assert rc == 0
     seqs = json.loads((out / "index.json").read_text())["sequences"]
     assert [s["motion"] for s in seqs] == ["squat", "wave"]
@@ -209,8 +300,26 @@ def test_a_whole_body_video_fits_hands_and_face_with_the_whole_body_model(tmp_pa
     for f in range(3):
         (masks / f"clip_{f:012d}.png").write_bytes((src / "mask.png").read_bytes())
     out = tmp_path / "fit"
-    rc = main(["fit", *KP_FAST, "--sequence", str(video), "--masks", str(masks), "--out", str(out), "--sequence-iterations", "5",
-               "--silhouette-resolutions", "32", "--silhouette-iterations", "2", "--no-video", "--quiet"])  # fmt: skip
+    rc = main(
+        [
+            "fit",
+            *KP_FAST,
+            "--sequence",
+            str(video),
+            "--masks",
+            str(masks),
+            "--out",
+            str(out),
+            "--sequence-iterations",
+            "5",
+            "--silhouette-resolutions",
+            "32",
+            "--silhouette-iterations",
+            "2",
+            "--no-video",
+            "--quiet",
+        ]
+    )
     assert rc == 0, capsys.readouterr().err
     assert "shipped open whole-body model" in capsys.readouterr().err
     p = np.load(out / "params.npz")
@@ -229,8 +338,27 @@ def test_fit_sequence_export_writes_one_animated_gltf(sequence, tmp_path, capsys
 
     seq, model = sequence
     out = tmp_path / "fit"
-    rc = main(["fit", *KP_FAST, "--sequence", str(seq), "--model", str(model), "--out", str(out), "--meshes", "--no-silhouette",
-               "--sequence-iterations", "3", "--export", "glb,ply", "--fps", "5", "--quiet"])  # fmt: skip
+    rc = main(
+        [
+            "fit",
+            *KP_FAST,
+            "--sequence",
+            str(seq),
+            "--model",
+            str(model),
+            "--out",
+            str(out),
+            "--meshes",
+            "--no-silhouette",
+            "--sequence-iterations",
+            "3",
+            "--export",
+            "glb,ply",
+            "--fps",
+            "5",
+            "--quiet",
+        ]
+    )
     assert rc == 0, capsys.readouterr().err
     assert (out / "overlay.gif").is_file()
     gltf, blob = glb_json_and_blob(out / "animation.glb")
@@ -257,7 +385,9 @@ def test_fit_sequence_says_which_frames_have_no_mask(sequence, tmp_path, capsys)
     copy = tmp_path / "seq"
     shutil.copytree(seq, copy)
     sorted((copy / "masks").glob("*.png"))[1].unlink()
-    assert main(["fit", "--sequence", str(copy), "--model", str(model), "--out", str(tmp_path / "o"), "--check-only"]) == 0
+    assert (
+        main(["fit", "--sequence", str(copy), "--model", str(model), "--out", str(tmp_path / "o"), "--check-only"]) == 0
+    )
     out = capsys.readouterr().err  # warnings: standard error
     assert "warning:" in out and "no mask for 1 frame(s) with a person (no silhouette term there): 1" in out, out
 
@@ -268,18 +398,77 @@ def test_a_rig_video_is_synthesised_fitted_over_every_view_and_rendered(sequence
     of frames x views that ``silfit render`` draws."""
     _, model = sequence
     data = tmp_path / "data"
-    assert main(["synth", "--videos", "--cameras", "2", "--n", "1", "--frames", "3", "--size", "64", "--seed", "2",
-                 "--noise-px", "0", "--motions", "walk", "--model", str(model), "--out", str(data), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "synth",
+                "--videos",
+                "--cameras",
+                "2",
+                "--n",
+                "1",
+                "--frames",
+                "3",
+                "--size",
+                "64",
+                "--seed",
+                "2",
+                "--noise-px",
+                "0",
+                "--motions",
+                "walk",
+                "--model",
+                str(model),
+                "--out",
+                str(data),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     rig = data / "seq_000"
     assert (rig / "cameras.json").is_file() and len(list((rig / "view_1" / "keypoints").glob("*_keypoints.json"))) == 3
     gt = np.load(rig / "gt.npz")
     assert gt["keypoints_2d_clean"].shape == (3, 2, 25, 2) and gt["joints"].shape == (3, 24, 3)
-    assert main(["fit", "--rig", str(rig), "--model", str(model), "--check-only", "--views", "view_1",
-                 "--out", str(tmp_path / "x")]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "fit",
+                "--rig",
+                str(rig),
+                "--model",
+                str(model),
+                "--check-only",
+                "--views",
+                "view_1",
+                "--out",
+                str(tmp_path / "x"),
+            ]
+        )
+        == 0
+    )
     assert "a rig video of 3 frames seen by 1 views (view_1), masks read" in capsys.readouterr().out
     out = tmp_path / "fit"
-    rc = main(["fit", *KP_FAST, "--rig", str(rig), "--model", str(model), "--out", str(out), "--sequence-iterations", "10",
-               "--silhouette-resolutions", "32", "--silhouette-iterations", "2", "--meshes", "--quiet"])  # fmt: skip
+    rc = main(
+        [
+            "fit",
+            *KP_FAST,
+            "--rig",
+            str(rig),
+            "--model",
+            str(model),
+            "--out",
+            str(out),
+            "--sequence-iterations",
+            "10",
+            "--silhouette-resolutions",
+            "32",
+            "--silhouette-iterations",
+            "2",
+            "--meshes",
+            "--quiet",
+        ]
+    )
     assert rc == 0, capsys.readouterr().err
     line = capsys.readouterr().out  # the one summary line of silfit.run.Fit
     assert "3 frames, 0 bridged" in line and "2 views" in line
@@ -291,15 +480,25 @@ def test_a_rig_video_is_synthesised_fitted_over_every_view_and_rendered(sequence
     assert np.linalg.norm(p["joints"] - gt["joints"], axis=-1).mean() < 0.05  # world frame, no alignment
     m = json.loads((out / "metrics.json").read_text())
     assert m["silhouette"] == "run" and np.asarray(m["silhouette_iou"]).shape == (3, 2) and m["coordinates"] == "world"
-    for f in ("cameras.json", "strip.png", "overlay.gif", "stages/per_frame/params.npz", "meshes/frame_000000000002.obj"):
+    for f in (
+        "cameras.json",
+        "strip.png",
+        "overlay.gif",
+        "stages/per_frame/params.npz",
+        "meshes/frame_000000000002.obj",
+    ):
         assert (out / f).is_file(), f
-    assert main(["render", str(out / "params.npz"), "--frame", "all", "--size", "32", "--out", str(tmp_path / "r")]) == 0
+    assert (
+        main(["render", str(out / "params.npz"), "--frame", "all", "--size", "32", "--out", str(tmp_path / "r")]) == 0
+    )
     assert (tmp_path / "r" / "view_front.gif").is_file()
     assert main(["fit", "--rig", str(rig), "--sequence", str(rig), "--out", str(tmp_path / "y")]) == 2
     assert "a rig video is --rig DIR alone" in capsys.readouterr().err
 
 
-def test_a_video_the_silhouette_stage_made_less_plausible_keeps_the_keypoint_fit(sequence, tmp_path, capsys, monkeypatch):
+def test_a_video_the_silhouette_stage_made_less_plausible_keeps_the_keypoint_fit(
+    sequence, tmp_path, capsys, monkeypatch
+):
     """The plausibility guard (silfit.plausibility.silhouette_guard) holds for videos as for one image: a refined fit
     judged less plausible is not kept, and the warning says so."""
     import silfit.plausibility as plausibility
@@ -310,12 +509,31 @@ def test_a_video_the_silhouette_stage_made_less_plausible_keeps_the_keypoint_fit
     def implausible(before, after, where=""):
         seen.append(where)
         decision = real(before, after, where)
-        return plausibility.GuardDecision("keypoints", ("stature 2.40 m",), (f"{where}: made the fit less plausible: kept the keypoint fit",)) \
-            if where == "video" else decision
+        return (
+            plausibility.GuardDecision(
+                "keypoints", ("stature 2.40 m",), (f"{where}: made the fit less plausible: kept the keypoint fit",)
+            )
+            if where == "video"
+            else decision
+        )
 
     monkeypatch.setattr(plausibility, "silhouette_guard", implausible)
-    args = ["fit", *KP_FAST, "--sequence", str(seq), "--model", str(model), "--no-video", "--quiet", "--sequence-iterations", "5",
-            "--silhouette-resolutions", "32", "--silhouette-iterations", "2"]  # fmt: skip
+    args = [
+        "fit",
+        *KP_FAST,
+        "--sequence",
+        str(seq),
+        "--model",
+        str(model),
+        "--no-video",
+        "--quiet",
+        "--sequence-iterations",
+        "5",
+        "--silhouette-resolutions",
+        "32",
+        "--silhouette-iterations",
+        "2",
+    ]
     assert main(args + ["--out", str(tmp_path / "kp"), "--no-silhouette"]) == 0
     assert main(args + ["--out", str(tmp_path / "fit")]) == 0, capsys.readouterr().err
     assert "video" in seen

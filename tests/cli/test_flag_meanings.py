@@ -1,5 +1,6 @@
 """One meaning per flag: every subcommand's parser walked, the renamed flags' old spellings, examples in
 every ``--help``, suggestions for a mistyped stage option."""
+
 import argparse
 
 import pytest
@@ -36,7 +37,9 @@ def test_a_shared_flag_has_one_meaning():
     unlisted = sorted(set(shared) - set(MEANINGS))
     assert not unlisted, f"flags several subcommands take, with no entry in silfit.cli.flags.MEANINGS: {unlisted}"
     for flag, where in shared.items():
-        kinds = {(type(a).__name__, a.nargs) for _, a in where}  # a switch in one place, a value in another: two meanings
+        kinds = {
+            (type(a).__name__, a.nargs) for _, a in where
+        }  # a switch in one place, a value in another: two meanings
         assert len(kinds) == 1, f"{flag}: {[(n, type(a).__name__, a.nargs) for n, a in where]}"
     assert not set(MEANINGS) - set(shared), "an entry of MEANINGS no longer shared: remove it"
 
@@ -45,18 +48,30 @@ def test_the_flags_that_had_two_meanings_have_one():
     found = uses()
     assert [n for n, _ in found["--views"]] == ["fit"]  # a rig's camera names; synth --cameras, render --directions
     assert [n for n, _ in found["--layout"]] == ["detect"]  # a keypoint layout; synth --cameras-file
-    assert "--no-progress" not in found and {n for n, _ in found["--quiet"]} >= {"fit", "detect", "synth", "eval", "demo"}
+    assert "--no-progress" not in found and {n for n, _ in found["--quiet"]} >= {
+        "fit",
+        "detect",
+        "synth",
+        "eval",
+        "demo",
+    }
     assert all(a.metavar != "FILE" for _, a in found["--out"]), "--out is a folder everywhere (eval: --report FILE)"
     assert "--sequence" in found and [n for n, _ in found["--sequence"]] == ["fit"]  # a video folder; synth --videos
     assert [n for n, _ in found["--mask"]] == ["fit"]  # a mask file; render --write-mask
 
 
-@pytest.mark.parametrize("command, old, new, value", [
-    ("synth", "--views", "--cameras", "3"), ("synth", "--layout", "--cameras-file", "c.json"),
-    ("synth", "--sequence", "--videos", None), ("synth", "--no-progress", "--quiet", None),
-    ("render", "--views", "--directions", "front,side"), ("render", "--mask", "--write-mask", None),
-    ("eval", "--out", "--report", "r.json"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "command, old, new, value",
+    [
+        ("synth", "--views", "--cameras", "3"),
+        ("synth", "--layout", "--cameras-file", "c.json"),
+        ("synth", "--sequence", "--videos", None),
+        ("synth", "--no-progress", "--quiet", None),
+        ("render", "--views", "--directions", "front,side"),
+        ("render", "--mask", "--write-mask", None),
+        ("eval", "--out", "--report", "r.json"),
+    ],
+)
 def test_an_old_spelling_still_works_and_names_the_new_one(command, old, new, value, capsys):
     base = {"synth": ["synth", "--n", "1", "--out", "o"], "render": ["render", "p.npz"], "eval": ["eval", "d"]}[command]
     extra = [value] if value is not None else []
@@ -78,13 +93,18 @@ def test_every_help_ends_with_examples_and_no_docstring_markup(command, capsys):
     with pytest.raises(SystemExit):
         main([command, "--help"])
     text = capsys.readouterr().out
-    examples = text[text.index("examples:"):]
+    examples = text[text.index("examples:") :]
     assert examples.count(f"silfit {command}") >= 2, examples
     assert ":mod:" not in text and ":func:" not in text and "``" not in text
 
 
-@pytest.mark.parametrize("flag, typo, suggestion", [("--keypoint-option", "init_pose=1", "init_poses"),
-                                                    ("--silhouette-option", "alternative_margin=0", "alternatives_margin")])
+@pytest.mark.parametrize(
+    "flag, typo, suggestion",
+    [
+        ("--keypoint-option", "init_pose=1", "init_poses"),
+        ("--silhouette-option", "alternative_margin=0", "alternatives_margin"),
+    ],
+)
 def test_a_mistyped_stage_option_gets_a_suggestion(flag, typo, suggestion, tmp_path, capsys):
     assert main(["fit", "--keypoints", str(tmp_path / "kp.json"), "--out", str(tmp_path / "o"), flag, typo]) == 2
     err = capsys.readouterr().err

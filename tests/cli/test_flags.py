@@ -3,6 +3,7 @@
 Cheap: the toy body of ``tests/fitting`` for ``fit`` (keypoint stage only), tiny images for
 ``synth`` and ``render``.
 """
+
 import json
 import math
 import shutil
@@ -16,13 +17,35 @@ from silfit.cli import main
 
 
 #: A short keypoint schedule: these tests check what a flag changes, not how well the toy body fits.
-KP_SHORT = [f"--keypoint-option={o}" for o in ("init_poses=1", "camera_iters=10", "pose_iters=10,10,10", "shape_iters=5",
-                                               "final_iters=10", "post_branch_iters=0")]  # fmt: skip
+KP_SHORT = [
+    f"--keypoint-option={o}"
+    for o in (
+        "init_poses=1",
+        "camera_iters=10",
+        "pose_iters=10,10,10",
+        "shape_iters=5",
+        "final_iters=10",
+        "post_branch_iters=0",
+    )
+]
 
 
 def fit_args(d, model, out, *extra):
-    return ["fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"), "--model", str(model),
-            "--no-silhouette", "--out", str(out), *FAST, *KP_SHORT, *extra]  # fmt: skip
+    return [
+        "fit",
+        "--keypoints",
+        str(d / "kp.json"),
+        "--camera",
+        str(d / "camera.json"),
+        "--model",
+        str(model),
+        "--no-silhouette",
+        "--out",
+        str(out),
+        *FAST,
+        *KP_SHORT,
+        *extra,
+    ]
 
 
 def params(out):
@@ -96,8 +119,24 @@ def test_render_alpha_blends_the_overlay(tmp_path):
     body = {}
     for alpha in ("0.2", "0.9"):
         out = tmp_path / f"a{alpha}"
-        assert main(["render", str(path), "--camera", str(tmp_path / "camera.json"), "--overlay",
-                     str(tmp_path / "image.png"), "--mask", "--alpha", alpha, "--out", str(out)]) == 0  # fmt: skip
+        assert (
+            main(
+                [
+                    "render",
+                    str(path),
+                    "--camera",
+                    str(tmp_path / "camera.json"),
+                    "--overlay",
+                    str(tmp_path / "image.png"),
+                    "--mask",
+                    "--alpha",
+                    alpha,
+                    "--out",
+                    str(out),
+                ]
+            )
+            == 0
+        )
         mask = np.asarray(Image.open(out / "mask.png")) > 127
         overlay = np.asarray(Image.open(out / "overlay.png")).astype(float)
         body[alpha] = overlay[mask].mean() - 30.0  # how far the body pixels are from the image
@@ -112,7 +151,9 @@ def synth(tmp_path, name, *extra):
 
 
 def test_synth_camera_and_framing_flags(tmp_path):
-    out, subs = synth(tmp_path, "ds", "--fov", "30", "30", "--fill", "0.4", "0.4", "--elevation", "0.5", "--roll", "0.5")
+    out, subs = synth(
+        tmp_path, "ds", "--fov", "30", "30", "--fill", "0.4", "0.4", "--elevation", "0.5", "--roll", "0.5"
+    )
     for s in subs:
         cam = json.loads((out / s["name"] / "camera.json").read_text())
         assert cam["fx"] == pytest.approx(32.0 / math.tan(math.radians(15.0)), rel=1e-6)  # a 30-degree field of view
@@ -124,7 +165,9 @@ def test_synth_camera_and_framing_flags(tmp_path):
         assert abs(s["elevation_deg"]) <= 0.5 and abs(s["roll_deg"]) <= 0.5
     # under the defaults (+-15 and +-5 degrees) this seed draws larger angles
     _, default = synth(tmp_path, "default")
-    assert max(abs(s["elevation_deg"]) for s in default[1:]) > 2.0 and max(abs(s["roll_deg"]) for s in default[1:]) > 1.0
+    assert (
+        max(abs(s["elevation_deg"]) for s in default[1:]) > 2.0 and max(abs(s["roll_deg"]) for s in default[1:]) > 1.0
+    )
 
 
 def test_synth_truncation_truncates(tmp_path):
@@ -136,7 +179,6 @@ def test_synth_truncation_truncates(tmp_path):
         assert border.any(), s["name"]  # the body is cut by the image's edge
 
 
-
 def test_eval_fits_and_plot_name_their_folders(tmp_path, open_model):
     from silfit.synth.generate import SynthConfig, generate_dataset
 
@@ -145,10 +187,18 @@ def test_eval_fits_and_plot_name_their_folders(tmp_path, open_model):
     for name in ("subject_000", "subject_001"):  # the truth as the "fit", outside DIR/fits
         with np.load(data / name / "gt.npz") as gt:
             (elsewhere / name / "keypoints").mkdir(parents=True)
-            np.savez(elsewhere / name / "keypoints" / "params.npz", **{k: gt[k] for k in ("betas", "body_pose", "global_orient", "transl")})
+            np.savez(
+                elsewhere / name / "keypoints" / "params.npz",
+                **{k: gt[k] for k in ("betas", "body_pose", "global_orient", "transl")},
+            )
     report_path, plot = tmp_path / "report.json", tmp_path / "plots" / "errors.png"
     plot.parent.mkdir()
-    assert main(["eval", str(data), "--fits", str(elsewhere), "--plot", str(plot), "--report", str(report_path), "--no-iou"]) == 0
+    assert (
+        main(
+            ["eval", str(data), "--fits", str(elsewhere), "--plot", str(plot), "--report", str(report_path), "--no-iou"]
+        )
+        == 0
+    )
     report = json.loads(report_path.read_text())
     assert report["num_scored"] == 2 and report["missing_fits"] == []
     assert plot.is_file() and not (tmp_path / "report_errors.png").exists()
@@ -162,7 +212,23 @@ def test_render_model_changes_the_body(tmp_path):
     path.write_text(json.dumps({"global_orient": [math.pi, 0.0, 0.0], "transl": [0.0, 0.2, 3.0]}))
     masks = {}
     for name, extra in (("default", []), ("toy", ["--model", str(toy)])):
-        assert main(["render", str(path), "--directions", "front", "--write-mask", "--size", "64", "--out", str(tmp_path / name), *extra]) == 0
+        assert (
+            main(
+                [
+                    "render",
+                    str(path),
+                    "--directions",
+                    "front",
+                    "--write-mask",
+                    "--size",
+                    "64",
+                    "--out",
+                    str(tmp_path / name),
+                    *extra,
+                ]
+            )
+            == 0
+        )
         masks[name] = np.asarray(Image.open(tmp_path / name / "mask.png")) > 127
     assert masks["default"].any() and masks["toy"].any()
     assert (masks["default"] != masks["toy"]).mean() > 0.02  # another body, another silhouette

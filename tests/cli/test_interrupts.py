@@ -1,5 +1,6 @@
 """SIGINT / SIGTERM during ``silfit fit`` (a real subprocess): one line, exit 128 + signal,
 and no output folder (nor its temporary twin, nor parent folders the run created)."""
+
 import os
 import signal
 import subprocess
@@ -18,8 +19,21 @@ ROOT = Path(__file__).resolve().parents[2]
 def _start(inputs, out: Path) -> subprocess.Popen:
     d, model = inputs
     env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONUNBUFFERED="1")
-    cmd = [sys.executable, "-m", "silfit", "fit", "--keypoints", str(d / "kp.json"), "--camera", str(d / "camera.json"),
-           "--model", str(model), "--no-silhouette", "--out", str(out)]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "silfit",
+        "fit",
+        "--keypoints",
+        str(d / "kp.json"),
+        "--camera",
+        str(d / "camera.json"),
+        "--model",
+        str(model),
+        "--no-silhouette",
+        "--out",
+        str(out),
+    ]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=ROOT)
 
 

@@ -1,4 +1,5 @@
 """``silfit render``: PNG outputs, sizes, centring, errors without partial files."""
+
 from __future__ import annotations
 
 import json
@@ -26,7 +27,9 @@ def _centroid(mask):
 @pytest.fixture(scope="module")
 def params_json(tmp_path_factory):
     path = tmp_path_factory.mktemp("fit") / "params.json"
-    path.write_text(json.dumps({"global_orient": [math.pi, 0.0, 0.0], "transl": [0.0, 0.2, 3.0], "betas": [0.5] + [0.0] * 9}))
+    path.write_text(
+        json.dumps({"global_orient": [math.pi, 0.0, 0.0], "transl": [0.0, 0.2, 3.0], "betas": [0.5] + [0.0] * 9})
+    )
     return path
 
 
@@ -41,7 +44,22 @@ def box_obj(tmp_path_factory):
 
 def test_views_and_mask_from_params(params_json, tmp_path):
     out = tmp_path / "out"
-    assert main(["render", str(params_json), "--directions", "front,side,back", "--write-mask", "--size", "96x128", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "render",
+                str(params_json),
+                "--directions",
+                "front,side,back",
+                "--write-mask",
+                "--size",
+                "96x128",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     names = sorted(p.name for p in out.iterdir())
     assert names == ["mask.png", "view_back.png", "view_front.png", "view_side.png"]
     for name in names:
@@ -58,11 +76,33 @@ def test_mesh_turntable_camera_overlay(box_obj, tmp_path):
     (tmp_path / "camera.json").write_text(json.dumps(cam))
     Image.fromarray(np.full((60, 80, 3), 30, dtype=np.uint8)).save(tmp_path / "image.png")
     out = tmp_path / "out"
-    rc = main(["render", str(box_obj), "--turntable", "3", "--size", "64", "--camera", str(tmp_path / "camera.json"),
-               "--overlay", str(tmp_path / "image.png"), "--mask", "--out", str(out)])  # fmt: skip
+    rc = main(
+        [
+            "render",
+            str(box_obj),
+            "--turntable",
+            "3",
+            "--size",
+            "64",
+            "--camera",
+            str(tmp_path / "camera.json"),
+            "--overlay",
+            str(tmp_path / "image.png"),
+            "--mask",
+            "--out",
+            str(out),
+        ]
+    )
     assert rc == 0
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["camera.png", "mask.png", "overlay.png", "view_turn000.png", "view_turn001.png", "view_turn002.png"]
+    assert names == [
+        "camera.png",
+        "mask.png",
+        "overlay.png",
+        "view_turn000.png",
+        "view_turn001.png",
+        "view_turn002.png",
+    ]
     assert _png(out / "view_turn000.png").shape == (64, 64, 3)
     front = (_png(out / "view_turn000.png") < 250).any(axis=2)
     assert np.abs(_centroid(front) - [31.5, 31.5]).max() < 3  # framed: the body in the centre
@@ -90,7 +130,12 @@ def test_bad_options_leave_no_png(params_json, tmp_path, capsys, args, message):
     zero_w = {"fx": 50.0, "fy": 50.0, "cx": 10.0, "cy": 10.0, "width": 0, "height": 20}
     (tmp_path / "bad_focal.json").write_text(json.dumps(bad_focal))
     (tmp_path / "zero_w.json").write_text(json.dumps(zero_w))
-    args = [a.replace("CAMERA_BAD_FOCAL", str(tmp_path / "bad_focal.json")).replace("CAMERA_ZERO_WIDTH", str(tmp_path / "zero_w.json")) for a in args]
+    args = [
+        a.replace("CAMERA_BAD_FOCAL", str(tmp_path / "bad_focal.json")).replace(
+            "CAMERA_ZERO_WIDTH", str(tmp_path / "zero_w.json")
+        )
+        for a in args
+    ]
     args = [str(tmp_path / a) if a == "missing.png" else a for a in args]
     out = tmp_path / "out"
     assert main(["render", str(params_json), "--out", str(out), "--write-mask", *args]) == 2
@@ -190,7 +235,12 @@ def test_render_draws_whole_body_fits_with_the_recorded_model(tmp_path, capsys):
     assert main(["render", str(fit / "params.npz"), "--size", "64", "--write-mask", "--out", str(tmp_path / "r")]) == 0
     assert _png(tmp_path / "r" / "view_front.png").shape == (64, 64, 3)
     # the SMPL model cannot draw it: a clear error naming the field
-    assert main(["render", str(fit / "params.npz"), "--model", str(load_body_model().source), "--out", str(tmp_path / "x")]) == 2
+    assert (
+        main(
+            ["render", str(fit / "params.npz"), "--model", str(load_body_model().source), "--out", str(tmp_path / "x")]
+        )
+        == 2
+    )
     assert "body_pose" in capsys.readouterr().err and not (tmp_path / "x").exists()
 
 
@@ -206,7 +256,23 @@ def test_render_draws_a_chosen_frame_or_every_frame_of_a_video_fit(tmp_path, cap
         xs.append(_centroid(camera_mask)[0])
     assert xs[1] > xs[0] + 10, xs
     out = tmp_path / "all"
-    assert main(["render", str(fit / "params.npz"), "--frame", "all", "--camera", str(cam), "--size", "48", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "render",
+                str(fit / "params.npz"),
+                "--frame",
+                "all",
+                "--camera",
+                str(cam),
+                "--size",
+                "48",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     with Image.open(out / "camera.gif") as gif:
         assert gif.n_frames == 5
     assert main(["render", str(fit / "params.npz"), "--frame", "5", "--out", str(tmp_path / "bad")]) == 2
@@ -222,5 +288,8 @@ def test_render_moves_a_rig_fit_into_its_first_view(tmp_path, open_model):
     np.savez(fit / "params.npz", **params)
     cam = tmp_path / "camera.json"
     cam.write_text(json.dumps(json.loads((fit / "params.json").read_text())["camera"]))
-    assert main(["render", str(fit / "params.npz"), "--camera", str(cam), "--size", "48", "--out", str(tmp_path / "r")]) == 0
+    assert (
+        main(["render", str(fit / "params.npz"), "--camera", str(cam), "--size", "48", "--out", str(tmp_path / "r")])
+        == 0
+    )
     assert (_png(tmp_path / "r" / "camera.png").min(axis=-1) < 250).sum() > 50  # the body is in the view

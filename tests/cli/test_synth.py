@@ -1,4 +1,5 @@
 """``silfit synth`` from the command line."""
+
 import json
 
 from silfit.cli import main
@@ -6,8 +7,27 @@ from silfit.cli import main
 
 def test_synth_writes_a_dataset(tmp_path, capsys):
     out = tmp_path / "ds"
-    code = main(["synth", "--n", "2", "--seed", "4", "--out", str(out), "--size", "96", "--noise-px", "1.5",
-                 "--clean", "1", "--drop", "0.1", "--quiet", "--coco"])  # fmt: skip
+    code = main(
+        [
+            "synth",
+            "--n",
+            "2",
+            "--seed",
+            "4",
+            "--out",
+            str(out),
+            "--size",
+            "96",
+            "--noise-px",
+            "1.5",
+            "--clean",
+            "1",
+            "--drop",
+            "0.1",
+            "--quiet",
+            "--coco",
+        ]
+    )
     assert code == 0
     index = json.loads((out / "index.json").read_text())
     assert index["generator"]["seed"] == 4 and index["generator"]["noise_px"] == 1.5
@@ -28,7 +48,9 @@ def test_synth_whole_body_with_a_body_only_model_is_a_one_line_error(tmp_path, c
     from silfit.body.io import OPEN_BODY_PATH
 
     out = tmp_path / "wb"
-    assert main(["synth", "--whole-body", "--n", "1", "--out", str(out), "--model", str(OPEN_BODY_PATH), "--quiet"]) == 2
+    assert (
+        main(["synth", "--whole-body", "--n", "1", "--out", str(out), "--model", str(OPEN_BODY_PATH), "--quiet"]) == 2
+    )
     err = capsys.readouterr().err
     assert "--whole-body needs an SMPL-X-layout model" in err and len(err.strip().splitlines()) == 1
     assert not (out / "subject_000").exists()
@@ -36,7 +58,9 @@ def test_synth_whole_body_with_a_body_only_model_is_a_one_line_error(tmp_path, c
 
 def test_synth_hard_poses(tmp_path, capsys):
     out = tmp_path / "hard"
-    assert main(["synth", "--poses", "hard", "--n", "1", "--seed", "3", "--out", str(out), "--size", "64", "--quiet"]) == 0
+    assert (
+        main(["synth", "--poses", "hard", "--n", "1", "--seed", "3", "--out", str(out), "--size", "64", "--quiet"]) == 0
+    )
     index = json.loads((out / "index.json").read_text())
     assert index["generator"]["poses"] == "hard" and "--poses hard" in index["generator"]["command"]
     from silfit.poses.sampler import ARCHETYPES

@@ -14,7 +14,7 @@ def test_anchor_grid_matches_the_detector_output():
     np.testing.assert_allclose(a[2 * 28], [0.5 / 28, 1.5 / 28])
     # Stride 16 starts after 28*28*2 anchors; the three stride-32 layers share a 7 x 7 map, 6 per cell.
     np.testing.assert_allclose(a[1568], [0.5 / 14, 0.5 / 14])
-    tail = a[1568 + 392:]
+    tail = a[1568 + 392 :]
     assert len(tail) == 7 * 7 * 6
     np.testing.assert_allclose(tail[:6], np.tile([0.5 / 7, 0.5 / 7], (6, 1)))
     np.testing.assert_allclose(tail[6], [1.5 / 7, 0.5 / 7])

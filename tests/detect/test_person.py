@@ -1,4 +1,5 @@
 """Detection on the shipped synthetic subjects (256 x 256 renders with ground truth)."""
+
 from pathlib import Path
 
 import numpy as np
@@ -113,8 +114,18 @@ def test_a_reading_whose_mask_spreads_beyond_its_landmarks_is_clutter():
     xy = np.stack([np.linspace(40, 60, 33), np.linspace(20, 80, 33)], axis=1)
     prob = np.zeros((100, 200), np.float32)
     prob[20:80, 40:60] = 1.0
-    kw = dict(score=0.9, presence_score=0.9, detector_roi=ROI(50, 50, 80), roi=ROI(50, 50, 80), xy=xy, z=np.zeros(33),
-              visibility=np.ones(33), presence=np.ones(33), world=np.zeros((33, 3)), image_size=(200, 100))
+    kw = dict(
+        score=0.9,
+        presence_score=0.9,
+        detector_roi=ROI(50, 50, 80),
+        roi=ROI(50, 50, 80),
+        xy=xy,
+        z=np.zeros(33),
+        visibility=np.ones(33),
+        presence=np.ones(33),
+        world=np.zeros((33, 3)),
+        image_size=(200, 100),
+    )
     assert mask_in_box(Person(mask_prob=prob, **kw)) == 1.0
     spread = prob.copy()
     spread[:, 100:] = 1.0  # a blurred crowd beside the landmarks

@@ -61,11 +61,14 @@ def test_bad_images_are_reported(tmp_path):
         read_photo(tmp_path / "junk.png")
 
 
-@pytest.mark.parametrize("tags, name", [
-    ({0xA405: 65535}, "FocalLengthIn35mmFilm (65535 mm)"),  # fx = 1.1e6 px on a 512 px image
-    ({0x920A: 1e9, 0xA20E: 1000.0, 0xA210: 3}, "FocalLength (1e+09 mm)"),
-    ({0x920A: 1e-6, 0xA20E: 1000.0, 0xA210: 3}, "FocalLength (1e-06 mm)"),  # would put the body behind the camera
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "tags, name",
+    [
+        ({0xA405: 65535}, "FocalLengthIn35mmFilm (65535 mm)"),  # fx = 1.1e6 px on a 512 px image
+        ({0x920A: 1e9, 0xA20E: 1000.0, 0xA210: 3}, "FocalLength (1e+09 mm)"),
+        ({0x920A: 1e-6, 0xA20E: 1000.0, 0xA210: 3}, "FocalLength (1e-06 mm)"),  # would put the body behind the camera
+    ],
+)
 def test_an_exif_focal_outside_the_camera_bounds_is_ignored_with_a_warning(tmp_path, tags, name):
     from silfit.camera import FOCAL_RANGE
 
@@ -75,7 +78,9 @@ def test_an_exif_focal_outside_the_camera_bounds_is_ignored_with_a_warning(tmp_p
     (warning,) = photo.warnings()
     assert warning.startswith(str(tmp_path / "e.jpg")) and f"{FOCAL_RANGE[0]:g} to {FOCAL_RANGE[1]:g} times" in warning
     # the bounds themselves are accepted: 1000 x the longer side (120 px)
-    assert focal_from_exif({"FocalLengthIn35mmFilm": 1000 * 120 * FULL_FRAME_DIAGONAL_MM / math.hypot(120, 80) * (1 - 1e-9)}, (120, 80))[0]
+    assert focal_from_exif(
+        {"FocalLengthIn35mmFilm": 1000 * 120 * FULL_FRAME_DIAGONAL_MM / math.hypot(120, 80) * (1 - 1e-9)}, (120, 80)
+    )[0]
     assert read_photo(_jpeg(tmp_path / "ok.jpg", exif_tags={0xA405: 28})).warnings() == []
 
 
@@ -95,7 +100,9 @@ def test_malformed_exif_is_one_warning_of_ours_not_pillows(tmp_path):
     import warnings
 
     tiff = b"MM\x00\x2a\x00\x00\x00\x08" + struct.pack(">H", 3)
-    tiff += struct.pack(">HHII", 0x010F, 2, 100, 0x1000) + struct.pack(">HHII", 0x0110, 2, 5000, 0x20)  # data past the end
+    tiff += struct.pack(">HHII", 0x010F, 2, 100, 0x1000) + struct.pack(
+        ">HHII", 0x0110, 2, 5000, 0x20
+    )  # data past the end
     tiff += struct.pack(">HHII", 0x8769, 4, 1, 0xFFFF) + b"\x00\x00\x00\x00"  # an EXIF IFD past the end
     path = _with_app1(tmp_path / "g.jpg", b"Exif\x00\x00" + tiff)
     with warnings.catch_warnings(record=True) as caught:

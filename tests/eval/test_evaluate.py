@@ -1,4 +1,5 @@
 """Scoring fits over a dataset."""
+
 import numpy as np
 import pytest
 
@@ -56,12 +57,25 @@ def test_missing_fits_are_listed(dataset_with_fits, open_model):
 
 
 def test_read_fit_validates_fields(tmp_path):
-    np.savez(tmp_path / "params.npz", betas=np.zeros(10), body_pose=np.zeros(72), global_orient=np.zeros(3), transl=np.zeros(3))
+    np.savez(
+        tmp_path / "params.npz",
+        betas=np.zeros(10),
+        body_pose=np.zeros(72),
+        global_orient=np.zeros(3),
+        transl=np.zeros(3),
+    )
     with pytest.raises(SubjectError) as info:
         read_fit(tmp_path)
     assert info.value.field == "body_pose" and "params.npz" in str(info.value)
-    np.savez(tmp_path / "params.npz", betas=np.zeros((1, 10)), body_pose=np.zeros((1, 69)), global_orient=np.zeros(3),
-             transl=np.zeros(3), camera_intrinsics=np.array([100.0, 100, 50, 50]), image_size=np.array([101, 101]))  # fmt: skip
+    np.savez(
+        tmp_path / "params.npz",
+        betas=np.zeros((1, 10)),
+        body_pose=np.zeros((1, 69)),
+        global_orient=np.zeros(3),
+        transl=np.zeros(3),
+        camera_intrinsics=np.array([100.0, 100, 50, 50]),
+        image_size=np.array([101, 101]),
+    )
     fit = read_fit(tmp_path)
     assert fit.betas.shape == (10,) and fit.camera.width == 101 and fit.timings == {}
 
@@ -71,7 +85,15 @@ def test_read_fit_takes_silfit_fits_stage_seconds(tmp_path):
     ``keypoints.<stage>``): eval reads the whole stages, the silhouette stage included."""
     import json
 
-    np.savez(tmp_path / "params.npz", betas=np.zeros(10), body_pose=np.zeros(69), global_orient=np.zeros(3), transl=np.zeros(3))
+    np.savez(
+        tmp_path / "params.npz",
+        betas=np.zeros(10),
+        body_pose=np.zeros(69),
+        global_orient=np.zeros(3),
+        transl=np.zeros(3),
+    )
     (tmp_path / "params.json").write_text(json.dumps({"timings": {"final": 1.0}}))
-    (tmp_path / "metrics.json").write_text(json.dumps({"timings_s": {"keypoints.camera": 0.5, "keypoints": 2.0, "silhouette": 6.0}}))
+    (tmp_path / "metrics.json").write_text(
+        json.dumps({"timings_s": {"keypoints.camera": 0.5, "keypoints": 2.0, "silhouette": 6.0}})
+    )
     assert read_fit(tmp_path).timings == {"keypoints": 2.0, "silhouette": 6.0}

@@ -1,4 +1,5 @@
 """Metrics: known answers."""
+
 import math
 
 import numpy as np
@@ -83,4 +84,3 @@ def test_shape_pve_is_zero_for_the_same_shape_and_stature_alignment_removes_scal
     scaled = shape_pve(open_model, taller, betas, scale=True)
     print(f"beta0 = 2 vs 0: shape PVE {1000 * plain:.1f} mm, stature aligned {1000 * scaled:.1f} mm")
     assert plain > 0.03 and scaled < 0.5 * plain
-

@@ -1,4 +1,5 @@
 """Scoring sequences: the acceleration error by hand, the truth scores zero, the evaluator's table."""
+
 import json
 
 import numpy as np
@@ -24,7 +25,9 @@ def sequence_dataset(tmp_path_factory, open_model):
     from silfit.synth.motion import SequenceConfig, generate_sequence_dataset
 
     out = tmp_path_factory.mktemp("seqeval") / "data"
-    generate_sequence_dataset(out, 1, SequenceConfig(seed=9, frames=5, size=32, noise_px=0.0, motions=("walk",)), model=open_model)
+    generate_sequence_dataset(
+        out, 1, SequenceConfig(seed=9, frames=5, size=32, noise_px=0.0, motions=("walk",)), model=open_model
+    )
     return out
 
 
@@ -39,7 +42,10 @@ def test_truth_scores_zero_and_a_jittered_fit_does_not(sequence_dataset, open_mo
 
 
 def test_a_two_frame_sequence_scores_without_acceleration(sequence_dataset, open_model):
-    gt = {k: (v[:2] if k != "betas" and np.ndim(v) > 1 else v) for k, v in np.load(sequence_dataset / "seq_000" / "gt.npz").items()}
+    gt = {
+        k: (v[:2] if k != "betas" and np.ndim(v) > 1 else v)
+        for k, v in np.load(sequence_dataset / "seq_000" / "gt.npz").items()
+    }
     pose = gt["body_pose"].copy()
     pose[1] += 0.1
     row = score_sequence(open_model, gt, dict(gt, body_pose=pose))
@@ -53,7 +59,9 @@ def test_evaluate_sequences_scores_existing_fits(sequence_dataset, open_model, t
     (fit / "stages" / "per_frame").mkdir(parents=True)
     params = {k: gt[k] for k in ("betas", "body_pose", "global_orient", "transl")}
     np.savez(fit / "params.npz", **params, frames=np.arange(5), bridged=np.zeros(5, bool))
-    np.savez(fit / "stages" / "per_frame" / "params.npz", **dict(params, betas=np.repeat(gt["betas"][None], 5, 0) + 0.5))
+    np.savez(
+        fit / "stages" / "per_frame" / "params.npz", **dict(params, betas=np.repeat(gt["betas"][None], 5, 0) + 0.5)
+    )
     (fit / "metrics.json").write_text(json.dumps({"timings": {"per_frame_init": 1.0, "total": 2.0}}))
     report = evaluate_sequences(sequence_dataset, fits=tmp_path / "fits", model=open_model)
     s = report["summary"]

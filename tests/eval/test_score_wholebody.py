@@ -1,7 +1,7 @@
 """Whole-body errors against hand-computed values."""
+
 import numpy as np
 import pytest
-import torch
 from scipy.spatial.transform import Rotation
 
 from silfit.body import load_body_model
@@ -12,8 +12,11 @@ from silfit.eval.score_wholebody import part_vertices, wholebody_errors
 def posed():
     m = load_body_model(kind="smplx")
     out = m(**m.zero_params(1))
-    return m, {"vertices": out.vertices[0].double().numpy(), "joints": out.joints[0].double().numpy(),
-               "expression": np.zeros(m.num_expression)}  # fmt: skip
+    return m, {
+        "vertices": out.vertices[0].double().numpy(),
+        "joints": out.joints[0].double().numpy(),
+        "expression": np.zeros(m.num_expression),
+    }
 
 
 def test_parts_are_disjoint_and_where_expected(posed):
@@ -52,7 +55,7 @@ def test_eval_scores_a_whole_body_fit_folder(tmp_path):
     from pathlib import Path
 
     from silfit.dataset import load_subject
-    from silfit.eval.evaluate import evaluate_dataset, read_fit, score_fit
+    from silfit.eval.evaluate import read_fit, score_fit
     from silfit.fitting.result import KeypointFitResult
 
     src = Path(__file__).resolve().parents[2] / "data" / "synthetic_wholebody" / "subject_000"
@@ -62,7 +65,11 @@ def test_eval_scores_a_whole_body_fit_folder(tmp_path):
     smpl = {k: gt[k] for k in ("betas", "body_pose", "global_orient", "transl")}
     extra = {k: v for k, v in gt.items() if k not in smpl}
     KeypointFitResult(**smpl, cameras=[subject.camera], extra_params=extra).save(tmp_path / "truth")
-    at_rest = {**extra, "left_hand_pose": np.zeros_like(extra["left_hand_pose"]), "right_hand_pose": np.zeros_like(extra["right_hand_pose"])}
+    at_rest = {
+        **extra,
+        "left_hand_pose": np.zeros_like(extra["left_hand_pose"]),
+        "right_hand_pose": np.zeros_like(extra["right_hand_pose"]),
+    }
     KeypointFitResult(**smpl, cameras=[subject.camera], extra_params=at_rest).save(tmp_path / "rest")
     good = score_fit(m, subject, read_fit(tmp_path / "truth", m), iou=False)
     bad = score_fit(m, subject, read_fit(tmp_path / "rest", m), iou=False)

@@ -1,20 +1,45 @@
 """A small capsule body in SMPL's layout (24 joints, landmarks for BODY_25) for fast
 fitting tests that do not depend on the shipped model."""
+
 import numpy as np
 
 from silfit.body import SMPL_JOINT_NAMES, SMPL_PARENTS, BodyModel
 from silfit.body.io import ModelArrays
 
 _LEFT = {
-    "pelvis": (0, 0, 0), "left_hip": (0.08, -0.09, 0), "spine1": (0, 0.11, 0), "left_knee": (0.1, -0.47, 0),
-    "spine2": (0, 0.25, 0), "left_ankle": (0.09, -0.87, -0.02), "spine3": (0, 0.36, 0),
-    "left_foot": (0.1, -0.93, 0.1), "neck": (0, 0.55, 0), "left_collar": (0.06, 0.46, 0),
-    "head": (0, 0.64, 0.02), "left_shoulder": (0.18, 0.47, 0), "left_elbow": (0.45, 0.47, 0),
-    "left_wrist": (0.7, 0.47, 0), "left_hand": (0.78, 0.47, 0),
-}  # fmt: skip
-_RADIUS = {"pelvis": 0.12, "spine1": 0.12, "spine2": 0.12, "spine3": 0.12, "neck": 0.05, "head": 0.09,
-           "hip": 0.07, "knee": 0.05, "ankle": 0.04, "foot": 0.035, "collar": 0.04, "shoulder": 0.045,
-           "elbow": 0.035, "wrist": 0.03, "hand": 0.03}  # fmt: skip
+    "pelvis": (0, 0, 0),
+    "left_hip": (0.08, -0.09, 0),
+    "spine1": (0, 0.11, 0),
+    "left_knee": (0.1, -0.47, 0),
+    "spine2": (0, 0.25, 0),
+    "left_ankle": (0.09, -0.87, -0.02),
+    "spine3": (0, 0.36, 0),
+    "left_foot": (0.1, -0.93, 0.1),
+    "neck": (0, 0.55, 0),
+    "left_collar": (0.06, 0.46, 0),
+    "head": (0, 0.64, 0.02),
+    "left_shoulder": (0.18, 0.47, 0),
+    "left_elbow": (0.45, 0.47, 0),
+    "left_wrist": (0.7, 0.47, 0),
+    "left_hand": (0.78, 0.47, 0),
+}
+_RADIUS = {
+    "pelvis": 0.12,
+    "spine1": 0.12,
+    "spine2": 0.12,
+    "spine3": 0.12,
+    "neck": 0.05,
+    "head": 0.09,
+    "hip": 0.07,
+    "knee": 0.05,
+    "ankle": 0.04,
+    "foot": 0.035,
+    "collar": 0.04,
+    "shoulder": 0.045,
+    "elbow": 0.035,
+    "wrist": 0.03,
+    "hand": 0.03,
+}
 _MAIN_CHILD = {"pelvis": "spine1", "spine3": "neck"}
 _LEAF_DIR = {"head": (0, 0.2, 0), "left_foot": (0, -0.02, 0.1), "left_hand": (0.08, 0, 0)}
 
@@ -98,10 +123,18 @@ def toy_arrays(seed=0):
     shapedirs[:, 0, 1] = 0.08 * verts[:, 0]  # width
     shapedirs[:, :, 2:] = rng.normal(0, 0.003, (V, 3, 8))
     return ModelArrays(
-        v_template=verts, faces=np.asarray(faces, dtype=np.int64), shapedirs=shapedirs, posedirs=None,
-        J_regressor=reg, weights=np.asarray(weights), parents=tuple(SMPL_PARENTS), joint_names=tuple(names),
-        landmark_names=tuple(lm_names), landmark_regressor=lm_reg, source="<toy capsule body>",
-    )  # fmt: skip
+        v_template=verts,
+        faces=np.asarray(faces, dtype=np.int64),
+        shapedirs=shapedirs,
+        posedirs=None,
+        J_regressor=reg,
+        weights=np.asarray(weights),
+        parents=tuple(SMPL_PARENTS),
+        joint_names=tuple(names),
+        landmark_names=tuple(lm_names),
+        landmark_regressor=lm_reg,
+        source="<toy capsule body>",
+    )
 
 
 def toy_model(dtype=None):
@@ -114,9 +147,15 @@ def write_toy_npz(path):
     a = toy_arrays()
     parents = np.array(a.parents)
     np.savez(
-        path, v_template=a.v_template, f=a.faces, shapedirs=a.shapedirs, J_regressor=a.J_regressor,
-        weights=a.weights, kintree_table=np.stack([parents, np.arange(len(parents))]),
-        joint_names=np.array(a.joint_names), landmark_regressor=a.landmark_regressor,
+        path,
+        v_template=a.v_template,
+        f=a.faces,
+        shapedirs=a.shapedirs,
+        J_regressor=a.J_regressor,
+        weights=a.weights,
+        kintree_table=np.stack([parents, np.arange(len(parents))]),
+        joint_names=np.array(a.joint_names),
+        landmark_regressor=a.landmark_regressor,
         landmark_names=np.array(a.landmark_names),
-    )  # fmt: skip
+    )
     return path

@@ -1,4 +1,5 @@
 """The fitting bodies: the reduced keypoint body against the whole mesh, and batch invariance."""
+
 import copy
 
 import pytest
@@ -29,7 +30,9 @@ def test_reduced_body_matches_the_mesh_keypoints(open_model64, correctives):
 def test_reduced_body_does_not_depend_on_the_rest_of_its_batch(open_model64):
     body = KeypointBody(open_model64, "body25")
     gen = torch.Generator().manual_seed(1)
-    rows = {n: 0.4 * torch.randn(6, w, generator=gen, dtype=torch.float64) for n, w in open_model64.parameter_sizes.items()}
+    rows = {
+        n: 0.4 * torch.randn(6, w, generator=gen, dtype=torch.float64) for n, w in open_model64.parameter_sizes.items()
+    }
 
     def first_row(B, pos):
         p = {n: v[1 : B + 1].clone() for n, v in rows.items()}
@@ -37,8 +40,9 @@ def test_reduced_body_does_not_depend_on_the_rest_of_its_batch(open_model64):
             p[n][pos] = rows[n][0]
             p[n].requires_grad_(True)
         kp = body(**p).keypoints[pos]
-        grads = torch.autograd.grad((kp * torch.linspace(0.5, 1.5, kp.numel(), dtype=kp.dtype).reshape(kp.shape)).sum(),
-                                    list(p.values()))  # fmt: skip
+        grads = torch.autograd.grad(
+            (kp * torch.linspace(0.5, 1.5, kp.numel(), dtype=kp.dtype).reshape(kp.shape)).sum(), list(p.values())
+        )
         return kp.detach(), [g[pos] for g in grads]
 
     kp0, g0 = first_row(1, 0)

@@ -1,4 +1,5 @@
 """silfit.fitting.branches: rotations between directions and limbs turned onto 3D points."""
+
 import numpy as np
 import torch
 
@@ -26,8 +27,11 @@ def test_limbs_are_turned_onto_the_points_of_a_posed_body(body_model):
     pose = torch.zeros(2, 69, dtype=body_model.dtype)
     for j in (1, 2, 4, 5, 16, 17, 18, 19):  # hips, knees, shoulders, elbows
         pose[:, 3 * (j - 1) : 3 * j] = torch.as_tensor(rng.uniform(-0.8, 0.8, size=(2, 3)), dtype=pose.dtype)
-    rows = {"betas": torch.zeros(2, 10, dtype=pose.dtype), "global_orient": torch.zeros(2, 3, dtype=pose.dtype),
-            "transl": torch.zeros(2, 3, dtype=pose.dtype)}  # fmt: skip
+    rows = {
+        "betas": torch.zeros(2, 10, dtype=pose.dtype),
+        "global_orient": torch.zeros(2, 3, dtype=pose.dtype),
+        "transl": torch.zeros(2, 3, dtype=pose.dtype),
+    }
     with torch.no_grad():
         target = body(**rows, body_pose=pose).keypoints.double().numpy()
     w = np.ones(target.shape[:2])
@@ -42,8 +46,12 @@ def test_limbs_are_turned_onto_the_points_of_a_posed_body(body_model):
         return (u * v).sum(-1) / np.linalg.norm(u, axis=-1) / np.linalg.norm(v, axis=-1)
 
     I = BODY25_NAMES.index  # noqa: E741
-    for p, d in (("left_hip", "left_knee"), ("right_knee", "right_ankle"), ("left_shoulder", "left_elbow"),
-                 ("right_elbow", "right_wrist")):  # fmt: skip
+    for p, d in (
+        ("left_hip", "left_knee"),
+        ("right_knee", "right_ankle"),
+        ("left_shoulder", "left_elbow"),
+        ("right_elbow", "right_wrist"),
+    ):
         assert (cos(kp, target, I(p), I(d)) > 0.9999).all(), (p, d)
     lw = (I("left_elbow"), I("left_wrist"))
     assert cos(kp, target, *lw)[0] > 0.9999
@@ -59,9 +67,12 @@ def test_joint_hypotheses_flip_pairs_and_the_hip_keeps_the_legs(body_model):
     pose = torch.zeros(1, 69, dtype=body_model.dtype)
     for j, v in {1: (-1.2, 0, 0), 2: (-1.1, 0, 0), 4: (1.5, 0, 0), 5: (1.4, 0, 0), 3: (0.5, 0, 0)}.items():
         pose[0, 3 * (j - 1) : 3 * j] = torch.tensor(v)  # both thighs forward (toward the camera), knees bent, a lean
-    rows = {"betas": torch.zeros(1, 10, dtype=pose.dtype), "body_pose": pose,
-            "global_orient": torch.tensor([[np.pi, 0.0, 0.0]], dtype=pose.dtype),
-            "transl": torch.tensor([[0.0, 0.2, 3.0]], dtype=pose.dtype)}  # fmt: skip
+    rows = {
+        "betas": torch.zeros(1, 10, dtype=pose.dtype),
+        "body_pose": pose,
+        "global_orient": torch.tensor([[np.pi, 0.0, 0.0]], dtype=pose.dtype),
+        "transl": torch.tensor([[0.0, 0.2, 3.0]], dtype=pose.dtype),
+    }
     ratios = depth_ratios(body, rows, names)
     hyps = {label: p for _, label, p in joint_hypotheses(body, rows, names, parents, ratios, 0.3)}
     assert "both_thighs" in hyps and "both_legs" in hyps
@@ -70,8 +81,12 @@ def test_joint_hypotheses_flip_pairs_and_the_hip_keeps_the_legs(body_model):
         j2 = body(**dict(rows, **{k: v[None] for k, v in hyps["both_thighs"].items()})).joints[0].numpy()
     for hip, knee in (("left_hip", "left_knee"), ("right_hip", "right_knee")):
         a, b = names.index(hip), names.index(knee)
-        assert np.sign(j0[b, 2] - j0[a, 2]) != np.sign(j2[b, 2] - j2[a, 2])  # each thigh now points the other way in depth
-        assert abs(np.linalg.norm(j2[b, :2] / j2[b, 2] - j0[b, :2] / j0[b, 2])) < 0.03  # and projects about where it did
+        assert np.sign(j0[b, 2] - j0[a, 2]) != np.sign(
+            j2[b, 2] - j2[a, 2]
+        )  # each thigh now points the other way in depth
+        assert (
+            abs(np.linalg.norm(j2[b, :2] / j2[b, 2] - j0[b, :2] / j0[b, 2])) < 0.03
+        )  # and projects about where it did
     hip = flip_hip(body, rows, names)
     with torch.no_grad():
         jh = body(**dict(rows, **hip)).joints[0].numpy()
@@ -90,18 +105,26 @@ def test_root_turns_mirror_the_torso_yaw_and_keep_the_pelvis(body_model):
 
     yaw = 0.5  # turned 0.5 rad about the vertical (the camera frame is upside down: pi about x first)
     orient = torch.tensor((Rotation.from_rotvec([0, yaw, 0]) * Rotation.from_rotvec([np.pi, 0, 0])).as_rotvec())
-    rows = {"betas": torch.zeros(1, 10, dtype=body_model.dtype), "body_pose": torch.zeros(1, 69, dtype=body_model.dtype),
-            "global_orient": orient[None].to(body_model.dtype), "transl": torch.tensor([[0.0, 0.2, 3.0]], dtype=body_model.dtype)}  # fmt: skip
+    rows = {
+        "betas": torch.zeros(1, 10, dtype=body_model.dtype),
+        "body_pose": torch.zeros(1, 69, dtype=body_model.dtype),
+        "global_orient": orient[None].to(body_model.dtype),
+        "transl": torch.tensor([[0.0, 0.2, 3.0]], dtype=body_model.dtype),
+    }
     with torch.no_grad():
         j0 = body(**rows).joints[0].numpy()
         jm = body(**dict(rows, **turn_root(body, rows, names, "mirror"))).joints[0].numpy()
         jt = body(**dict(rows, **turn_root(body, rows, names, 30.0))).joints[0].numpy()
-    l, r = names.index("left_hip"), names.index("right_hip")
+    lh, r = names.index("left_hip"), names.index("right_hip")
     assert np.abs(jm[0] - j0[0]).max() < 1e-4 and np.abs(jt[0] - j0[0]).max() < 1e-4  # turned about the pelvis
-    assert np.sign(jm[r, 2] - jm[l, 2]) != np.sign(j0[r, 2] - j0[l, 2])  # the hips' line now points the other way in depth
+    assert np.sign(jm[r, 2] - jm[lh, 2]) != np.sign(
+        j0[r, 2] - j0[lh, 2]
+    )  # the hips' line now points the other way in depth
     proj = lambda j, k: j[k, :2] / j[k, 2]  # noqa: E731
-    assert abs(np.linalg.norm(proj(jm, r) - proj(jm, l)) - np.linalg.norm(proj(j0, r) - proj(j0, l))) < 0.01  # same width
-    v0, vt = j0[r] - j0[l], jt[r] - jt[l]
+    assert (
+        abs(np.linalg.norm(proj(jm, r) - proj(jm, lh)) - np.linalg.norm(proj(j0, r) - proj(j0, lh))) < 0.01
+    )  # same width
+    v0, vt = j0[r] - j0[lh], jt[r] - jt[lh]
     assert abs(np.degrees(np.arccos(v0 @ vt / np.linalg.norm(v0) / np.linalg.norm(vt))) - 30.0) < 1.0
     hyps = turn_hypotheses(body, rows, names, parents, ["mirror", 30.0])
     labels = [h[1] for h in hyps]
@@ -120,11 +143,18 @@ def test_a_hinge_flip_bends_the_hinge_the_natural_way_and_keeps_the_projection(b
     names, parents = body_model.joint_names, body_model.parents
     sh, el, wr = (names.index(n) for n in ("left_shoulder", "left_elbow", "left_wrist"))
     pose = torch.zeros(3, 69, dtype=body_model.dtype)
-    pose[:, 3 * (sh - 1) : 3 * sh] = torch.tensor([[0.3, -1.2, 0.2], [0.5, -1.0, 0.0], [-0.2, -1.4, 0.4]])  # arm forward
-    pose[1:, 3 * (el - 1) : 3 * el] = torch.tensor([[0.0, -0.6, 0.0], [0.1, -0.3, 0.05]])  # straight, bent, bent a little
-    rows = {"betas": torch.zeros(3, 10, dtype=pose.dtype), "body_pose": pose,
-            "global_orient": torch.tensor([[np.pi, 0.0, 0.0]] * 3, dtype=pose.dtype),
-            "transl": torch.tensor([[0.0, 0.2, 3.0]] * 3, dtype=pose.dtype)}  # fmt: skip
+    pose[:, 3 * (sh - 1) : 3 * sh] = torch.tensor(
+        [[0.3, -1.2, 0.2], [0.5, -1.0, 0.0], [-0.2, -1.4, 0.4]]
+    )  # arm forward
+    pose[1:, 3 * (el - 1) : 3 * el] = torch.tensor(
+        [[0.0, -0.6, 0.0], [0.1, -0.3, 0.05]]
+    )  # straight, bent, bent a little
+    rows = {
+        "betas": torch.zeros(3, 10, dtype=pose.dtype),
+        "body_pose": pose,
+        "global_orient": torch.tensor([[np.pi, 0.0, 0.0]] * 3, dtype=pose.dtype),
+        "transl": torch.tensor([[0.0, 0.2, 3.0]] * 3, dtype=pose.dtype),
+    }
     flipped = flip_segment(body, rows, "left_forearm", names, parents)
     with torch.no_grad():
         j0 = body(**rows).joints.numpy()
@@ -132,7 +162,9 @@ def test_a_hinge_flip_bends_the_hinge_the_natural_way_and_keeps_the_projection(b
     assert np.abs(j1[:, [sh, el]] - j0[:, [sh, el]]).max() < 1e-5  # shoulder and elbow stay
     before, after = j0[:, wr] - j0[:, el], j1[:, wr] - j1[:, el]
     assert (np.sign(before[:, 2]) != np.sign(after[:, 2])).all()  # the forearm points the other way in depth
-    assert np.linalg.norm(j1[:, wr, :2] / j1[:, wr, 2:] - j0[:, wr, :2] / j0[:, wr, 2:], axis=-1).max() < 0.03  # seen alike
+    assert (
+        np.linalg.norm(j1[:, wr, :2] / j1[:, wr, 2:] - j0[:, wr, :2] / j0[:, wr, 2:], axis=-1).max() < 0.03
+    )  # seen alike
     elbow = Rotation.from_rotvec(flipped[:, 3 * (el - 1) : 3 * el].double().numpy()).as_rotvec()
     assert (elbow[:, 1] < -0.5).all()  # the left elbow flexes: a negative turn about its Y axis (priors.limits)
     assert (np.abs(elbow[:, [0, 2]]).max(axis=1) < 0.1 * np.abs(elbow[:, 1]) + 0.1).all()  # and about little else
@@ -157,9 +189,11 @@ def test_every_hinge_flexes_its_natural_way_and_a_nearly_straight_mirror_takes_t
         "left_shin": ("left_hip", (-1.2, 0.0, 0.1), "left_knee", 0, 1.0),
         "right_shin": ("right_hip", (-1.1, 0.0, -0.1), "right_knee", 0, 1.0),
     }
-    rows = {"betas": torch.zeros(2, 10, dtype=body_model.dtype),
-            "global_orient": torch.tensor([[np.pi, 0.0, 0.0]] * 2, dtype=body_model.dtype),
-            "transl": torch.tensor([[0.0, 0.2, 3.0]] * 2, dtype=body_model.dtype)}  # fmt: skip
+    rows = {
+        "betas": torch.zeros(2, 10, dtype=body_model.dtype),
+        "global_orient": torch.tensor([[np.pi, 0.0, 0.0]] * 2, dtype=body_model.dtype),
+        "transl": torch.tensor([[0.0, 0.2, 3.0]] * 2, dtype=body_model.dtype),
+    }
     for segment, (upper, turn, hinge, axis, sign) in cases.items():
         u, h = names.index(upper), names.index(hinge)
         pose = torch.zeros(2, 69, dtype=body_model.dtype)
@@ -172,15 +206,22 @@ def test_every_hinge_flexes_its_natural_way_and_a_nearly_straight_mirror_takes_t
     el = names.index("left_elbow")
     flat = torch.zeros(1, 69, dtype=body_model.dtype)
     flat[0, 3 * (names.index("left_shoulder") - 1) + 1] = -0.12  # a straight arm 7 degrees out of the image plane
-    hinged = flip_segment(body, dict({k: v[:1] for k, v in rows.items()}, body_pose=flat), "left_forearm", names, parents)
-    turned = flip_segment(body, dict({k: v[:1] for k, v in rows.items()}, body_pose=flat), "left_forearm", names, parents,
-                          hinge=False)  # fmt: skip
+    hinged = flip_segment(
+        body, dict({k: v[:1] for k, v in rows.items()}, body_pose=flat), "left_forearm", names, parents
+    )
+    turned = flip_segment(
+        body, dict({k: v[:1] for k, v in rows.items()}, body_pose=flat), "left_forearm", names, parents, hinge=False
+    )
     assert torch.equal(hinged, turned) and torch.any(hinged[0, 3 * (el - 1) : 3 * el] != 0)
     toward = torch.zeros(1, 69, dtype=body_model.dtype)
     toward[0, 3 * (names.index("left_shoulder") - 1) + 1] = -1.5  # a straight arm held out to the camera: its mirror
-    fold = flip_segment(body, dict({k: v[:1] for k, v in rows.items()}, body_pose=toward), "left_forearm", names, parents)
+    fold = flip_segment(
+        body, dict({k: v[:1] for k, v in rows.items()}, body_pose=toward), "left_forearm", names, parents
+    )
     bend = Rotation.from_rotvec(fold[0, 3 * (el - 1) : 3 * el].double().numpy()).as_rotvec()  # folds back: the elbow's
-    assert bend[1] < -2.0 and np.abs(bend[[0, 2]]).max() < 0.2  # to make, not a sideways turn (issue 25's hand at the chest)
+    assert (
+        bend[1] < -2.0 and np.abs(bend[[0, 2]]).max() < 0.2
+    )  # to make, not a sideways turn (issue 25's hand at the chest)
 
 
 def test_a_hinge_flip_by_the_smallest_turn_is_its_own_hypothesis_and_names_its_segment(body_model):
@@ -191,9 +232,12 @@ def test_a_hinge_flip_by_the_smallest_turn_is_its_own_hypothesis_and_names_its_s
     names, parents = body_model.joint_names, body_model.parents
     pose = torch.zeros(1, 69, dtype=body_model.dtype)
     pose[0, 3 * (names.index("left_shoulder") - 1) : 3 * names.index("left_shoulder")] = torch.tensor([0.3, -1.2, 0.2])
-    rows = {"betas": torch.zeros(1, 10, dtype=pose.dtype), "body_pose": pose,
-            "global_orient": torch.tensor([[np.pi, 0.0, 0.0]], dtype=pose.dtype),
-            "transl": torch.tensor([[0.0, 0.2, 3.0]], dtype=pose.dtype)}  # fmt: skip
+    rows = {
+        "betas": torch.zeros(1, 10, dtype=pose.dtype),
+        "body_pose": pose,
+        "global_orient": torch.tensor([[np.pi, 0.0, 0.0]], dtype=pose.dtype),
+        "transl": torch.tensor([[0.0, 0.2, 3.0]], dtype=pose.dtype),
+    }
     labels = lambda **kw: [h[1] for h in limb_hypotheses(body, rows, names, parents, **kw)]  # noqa: E731
     both, alone = labels(hinge_turns=True), labels(hinge_turns=False)
     assert "left_forearm" in alone and "left_forearm/turn" not in alone

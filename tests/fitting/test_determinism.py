@@ -4,6 +4,7 @@ from one process to the next, and whatever else the process allocated before it.
 The cause it guards against: OpenCV's IPP path of the precise distance transform rounds by
 the output buffer's address (1-2 ulp), so the same target mask gave other distances, and
 L-BFGS other fits, with the heap's state (a batch of subjects more often than one)."""
+
 import json
 import os
 import subprocess
@@ -51,12 +52,22 @@ REPEATS = 3
 
 def run_child(hash_seed: int, shift: int) -> list:
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    env = dict(os.environ, PYTHONHASHSEED=str(hash_seed), PYTHONPATH=os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")])))
-    done = subprocess.run([sys.executable, "-c", CHILD, str(shift), str(REPEATS)], env=env, cwd=root,
-                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    env = dict(
+        os.environ,
+        PYTHONHASHSEED=str(hash_seed),
+        PYTHONPATH=os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")])),
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", CHILD, str(shift), str(REPEATS)],
+        env=env,
+        cwd=root,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     line = [s for s in done.stdout.splitlines() if s.startswith("RESULT ")][-1]
-    return json.loads(line[len("RESULT "):])
+    return json.loads(line[len("RESULT ") :])
 
 
 def test_contour_level_of_a_batch_is_bit_identical_across_processes():
@@ -66,7 +77,8 @@ def test_contour_level_of_a_batch_is_bit_identical_across_processes():
         for p, (a, b) in enumerate(zip(first, run)):
             for name in a:
                 assert np.array_equal(np.asarray(a[name], np.float32), np.asarray(b[name], np.float32)), (
-                    f"fit {i}, subject {p}: {name} differs from the first fit's")  # fmt: skip
+                    f"fit {i}, subject {p}: {name} differs from the first fit's"
+                )
 
 
 def test_distance_transforms_do_not_depend_on_the_buffers_address(monkeypatch):
@@ -83,11 +95,12 @@ def test_distance_transforms_do_not_depend_on_the_buffers_address(monkeypatch):
     original = cv2.distanceTransform
     results = []
     for offset in range(8):
+
         def at_offset(src, *args, offset=offset, **kwargs):
             n = src.size * 4
             buf = np.zeros(n + 128, np.uint8)
             base = (-buf.ctypes.data) % 64 + 4 * offset
-            return original(src, *args, dst=buf[base:base + n].view(np.float32).reshape(src.shape), **kwargs)
+            return original(src, *args, dst=buf[base : base + n].view(np.float32).reshape(src.shape), **kwargs)
 
         monkeypatch.setattr(cv2, "distanceTransform", at_offset)
         results.append(distance_transforms(mask, valid))
@@ -126,13 +139,26 @@ def test_a_keypoint_fit_is_the_same_bits_with_one_or_two_threads_and_either_mkl_
         # MKL's AVX2 branch (whose GEMMs followed the thread count there, where COMPATIBLE's did not), then its
         # COMPATIBLE one (whose GEMMs rounded the collision spheres' posed vertices otherwise: 1.1 mm on an Intel
         # Xeon against an AMD EPYC), and a cache of its own, so each child builds the collision spheres itself
-        env = dict(os.environ, OMP_NUM_THREADS=threads, MKL_NUM_THREADS=threads, MKL_CBWR=branch,
-                   SILFIT_CACHE_DIR=str(tmp_path / f"cache{threads}{branch}"),
-                   PYTHONPATH=os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")])))  # fmt: skip
-        done = subprocess.run([sys.executable, "-c", KEYPOINT_CHILD, os.path.join(root, "data", "synthetic")], env=env,
-                              cwd=root, capture_output=True, text=True, timeout=300)  # fmt: skip
+        env = dict(
+            os.environ,
+            OMP_NUM_THREADS=threads,
+            MKL_NUM_THREADS=threads,
+            MKL_CBWR=branch,
+            SILFIT_CACHE_DIR=str(tmp_path / f"cache{threads}{branch}"),
+            PYTHONPATH=os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")])),
+        )
+        done = subprocess.run(
+            [sys.executable, "-c", KEYPOINT_CHILD, os.path.join(root, "data", "synthetic")],
+            env=env,
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
         assert done.returncode == 0, done.stderr[-3000:]
-        results.append(json.loads([s for s in done.stdout.splitlines() if s.startswith("RESULT ")][-1][len("RESULT "):]))
+        results.append(
+            json.loads([s for s in done.stdout.splitlines() if s.startswith("RESULT ")][-1][len("RESULT ") :])
+        )
     assert results[0] == results[1] == results[2]
     assert abs(results[0]["transl"][-1]) > 1.0  # a fitted body in front of the camera
 
@@ -141,8 +167,18 @@ def test_a_keypoint_fit_is_the_same_bits_with_one_or_two_threads_and_either_mkl_
 #: (MKL's GEMMs and matrix-vector products: another rounding on an Intel Xeon with AVX-512) and MKL's vector
 #: square root (``torch.sqrt``, and ``pow(x, 0.5)`` which torch sends to it: not correctly rounded, and rounded
 #: otherwise there). silfit.body.lbs's ``matmul``, ``sparse_contract`` and ``sqrt`` replace them.
-PROCESSOR_DEPENDENT = {"aten.mm", "aten.bmm", "aten.addmm", "aten.baddbmm", "aten.addbmm", "aten.mv", "aten.addmv",
-                       "aten.dot", "aten.vdot", "aten.sqrt"}
+PROCESSOR_DEPENDENT = {
+    "aten.mm",
+    "aten.bmm",
+    "aten.addmm",
+    "aten.baddbmm",
+    "aten.addbmm",
+    "aten.mv",
+    "aten.addmv",
+    "aten.dot",
+    "aten.vdot",
+    "aten.sqrt",
+}
 
 
 class _ProcessorDependentCalls:
@@ -160,8 +196,11 @@ class _ProcessorDependentCalls:
                 name = str(func).rsplit(".", 1)[0]
                 half = name == "aten.pow" and len(args) > 1 and not hasattr(args[1], "shape") and args[1] == 0.5
                 if name in PROCESSOR_DEPENDENT or half:
-                    site = [f"{f.filename.rsplit('silfit/', 1)[-1]}:{f.name}" for f in traceback.extract_stack()
-                            if "/silfit/" in f.filename]
+                    site = [
+                        f"{f.filename.rsplit('silfit/', 1)[-1]}:{f.name}"
+                        for f in traceback.extract_stack()
+                        if "/silfit/" in f.filename
+                    ]
                     self.calls.append((str(func), site))
                 return func(*args, **(kwargs or {}))
 
@@ -184,8 +223,17 @@ def test_the_keypoint_fit_and_its_collision_spheres_call_no_processor_dependent_
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     model = load_body_model(dtype=torch.float64)
     s = load_subject(list_subjects(os.path.join(root, "data", "synthetic"))[1])
-    cfg = KeypointFitConfig(camera_iters=3, pose_iters=(3, 3, 3), shape_iters=2, final_iters=3, init_poses=2,
-                            decision_iters=2, branch_iters=2, branch_screen_iters=2, post_branch_iters=2)
+    cfg = KeypointFitConfig(
+        camera_iters=3,
+        pose_iters=(3, 3, 3),
+        shape_iters=2,
+        final_iters=3,
+        init_poses=2,
+        decision_iters=2,
+        branch_iters=2,
+        branch_screen_iters=2,
+        post_branch_iters=2,
+    )
     fit_keypoints(s.keypoints, s.camera, model, config=cfg, progress=False)  # the spheres built or read first
     mode = _ProcessorDependentCalls()
     with mode:

@@ -1,5 +1,6 @@
 """Whole-body fitting: the reduced body, part gates, terms, and recovery of a noise-free subject
 with a body-only and a one-handed copy of it in the same batch."""
+
 import numpy as np
 import pytest
 import torch
@@ -98,8 +99,11 @@ def _subject(model):
     libs = {s: library_hand_set(model, s).double() for s in ("left", "right")}
     rng = np.random.default_rng(3)
     gt = model.zero_params(1)
-    gt["body_pose"] = torch.as_tensor(POSE_LIBRARY["wave"].body_pose[:63] if "wave" in POSE_LIBRARY
-                                      else next(iter(POSE_LIBRARY.values())).body_pose[:63])[None].double()  # fmt: skip
+    gt["body_pose"] = torch.as_tensor(
+        POSE_LIBRARY["wave"].body_pose[:63]
+        if "wave" in POSE_LIBRARY
+        else next(iter(POSE_LIBRARY.values())).body_pose[:63]
+    )[None].double()
     gt["global_orient"] = torch.tensor([[np.pi, 0.25, 0.0]], dtype=torch.float64)
     gt["transl"] = torch.tensor([[0.0, 0.1, 2.6]], dtype=torch.float64)
     gt["betas"] = torch.as_tensor(rng.normal(0, 0.7, (1, model.num_betas)))
@@ -120,12 +124,19 @@ def test_whole_body_recovery_body_only_and_missing_hand(smplx):
     body_only[25:] = 0.0
     one_hand = full.copy()
     one_hand[sl["hand_left"]] = 0.0
-    sets = [KeypointSet(xy, c, "wholebody", source=n) for n, c in (("full", full), ("body", body_only), ("one", one_hand))]
+    sets = [
+        KeypointSet(xy, c, "wholebody", source=n) for n, c in (("full", full), ("body", body_only), ("one", one_hand))
+    ]
     fitter = KeypointFitter(smplx, "wholebody", KeypointFitConfig(init_poses=2))
     r = fitter.fit(sets, cam, progress=False)
-    truth = {"vertices": out.vertices[0].numpy(), "joints": out.joints[0].numpy(), "expression": gt["expression"][0].numpy()}
-    err = wholebody_errors(smplx, {"vertices": r.vertices[0], "joints": r.joints[0],
-                                   "expression": r.extra_params["expression"][0]}, truth)  # fmt: skip
+    truth = {
+        "vertices": out.vertices[0].numpy(),
+        "joints": out.joints[0].numpy(),
+        "expression": gt["expression"][0].numpy(),
+    }
+    err = wholebody_errors(
+        smplx, {"vertices": r.vertices[0], "joints": r.joints[0], "expression": r.extra_params["expression"][0]}, truth
+    )
     # noise-free keypoints: hands and face recovered (tolerances well above what the fit reaches, far below
     # what the hands and face at rest give: hands 15-25 mm, face 4 mm)
     assert err["hand_pa_mm"] < 8.0, err
@@ -154,21 +165,35 @@ def test_silhouette_inputs_keep_body_normalisation_and_part_weights(smplx):
     conf[25:46] = 1.0  # left hand
     conf[100] = 0.25  # a face point; no right hand
     ks = KeypointSet(np.zeros((137, 2)), conf, "wholebody")
-    cfg, body_sets, terms, weights, data = wholebody_silhouette_inputs(smplx, [ks], SilhouetteFitConfig(), torch.float64)
+    cfg, body_sets, terms, weights, data = wholebody_silhouette_inputs(
+        smplx, [ks], SilhouetteFitConfig(), torch.float64
+    )
     assert np.all(body_sets[0].conf[25:] == 0) and np.all(body_sets[0].conf[:25] == 0.5)
     pw = data["part_weights"][0, 0, 0]
-    assert pw[30].item() == pytest.approx(1.0 / 12.5) and pw[100].item() == pytest.approx(0.25 / 12.5) and pw[:25].abs().sum() == 0
+    assert (
+        pw[30].item() == pytest.approx(1.0 / 12.5)
+        and pw[100].item() == pytest.approx(0.25 / 12.5)
+        and pw[:25].abs().sum() == 0
+    )
     # the right hand is absent: not optimised; the left hand, jaw and expression are
     assert "right_hand_pose" not in cfg.optimise and {"left_hand_pose", "jaw_pose", "expression"} <= set(cfg.optimise)
-    assert {t.name for t in terms} == {"hands", "face", "hand_pose", "jaw", "expression"} and set(weights) == {t.name for t in terms}
+    assert {t.name for t in terms} == {"hands", "face", "hand_pose", "jaw", "expression"} and set(weights) == {
+        t.name for t in terms
+    }
 
 
 def test_whole_body_result_saves_and_loads_smplx_names(tmp_path, smplx):
     from silfit.fitting.result import KeypointFitResult
 
     z = lambda w: np.full((1, w), 0.1, np.float32)  # noqa: E731
-    r = KeypointFitResult(betas=z(10), body_pose=z(63), global_orient=z(3), transl=z(3), cameras=[Camera.from_image_size(64, 64)],
-                          extra_params={"expression": z(16), "jaw_pose": z(3), "left_hand_pose": z(45)})  # fmt: skip
+    r = KeypointFitResult(
+        betas=z(10),
+        body_pose=z(63),
+        global_orient=z(3),
+        transl=z(3),
+        cameras=[Camera.from_image_size(64, 64)],
+        extra_params={"expression": z(16), "jaw_pose": z(3), "left_hand_pose": z(45)},
+    )
     r.save(tmp_path)
     back = KeypointFitResult.load(tmp_path)
     assert back.body_pose.shape == (1, 63) and set(back.extra_params) == {"expression", "jaw_pose", "left_hand_pose"}

@@ -1,5 +1,6 @@
 """The image depth cue (issue 54): its gates, and a subject whose keypoints cannot tell a limb's depth but
 whose image can."""
+
 import tempfile
 from pathlib import Path
 
@@ -19,9 +20,20 @@ def landmarks(forearm_dz: float):
     forearm reaching ``forearm_dz`` metres in depth (its length 0.25 m), every landmark fully visible."""
     xy = np.zeros((33, 2))
     world = np.zeros((33, 3))
-    pts = {"left_shoulder": (120, 100), "right_shoulder": (80, 100), "left_elbow": (130, 150), "right_elbow": (70, 150),
-           "left_wrist": (135, 190), "right_wrist": (65, 190), "left_hip": (112, 200), "right_hip": (88, 200),
-           "left_knee": (114, 280), "right_knee": (86, 280), "left_ankle": (115, 360), "right_ankle": (85, 360)}  # fmt: skip
+    pts = {
+        "left_shoulder": (120, 100),
+        "right_shoulder": (80, 100),
+        "left_elbow": (130, 150),
+        "right_elbow": (70, 150),
+        "left_wrist": (135, 190),
+        "right_wrist": (65, 190),
+        "left_hip": (112, 200),
+        "right_hip": (88, 200),
+        "left_knee": (114, 280),
+        "right_knee": (86, 280),
+        "left_ankle": (115, 360),
+        "right_ankle": (85, 360),
+    }
     for n, p in pts.items():
         xy[NAMES.index(n)] = p
         world[NAMES.index(n), :2] = (np.asarray(p) - (100, 200)) / 400.0
@@ -81,11 +93,18 @@ def test_the_term_charges_only_the_other_side_and_is_zero_without_a_cue(body_mod
 
     term = ImageDepthTerm(body_model.joint_names, margin=0.1)
     J = torch.zeros(1, 24, 3, dtype=torch.float64)
-    e, w = body_model.joint_names.index("left_elbow"), body_model.joint_names.index("left_wrist")
+    w = body_model.joint_names.index("left_wrist")
     J[0, w] = torch.tensor([0.0, 0.15, -0.2], dtype=torch.float64)  # the hand in front of the elbow (cosine -0.8)
-    views = {"R": torch.eye(3, dtype=torch.float64).expand(1, 1, 1, 3, 3), "t": torch.zeros(1, 1, 1, 3, dtype=torch.float64)}
-    ev = lambda data: Evaluation(1, 1, 1, {}, {}, type("B", (), {"joints": J})(), torch.zeros(1, 1, 1, 25, 2), None,  # noqa: E731
-                                 data, views=views)  # fmt: skip
+    views = {
+        "R": torch.eye(3, dtype=torch.float64).expand(1, 1, 1, 3, 3),
+        "t": torch.zeros(1, 1, 1, 3, dtype=torch.float64),
+    }
+
+    def ev(data):
+        return Evaluation(
+            1, 1, 1, {}, {}, type("B", (), {"joints": J})(), torch.zeros(1, 1, 1, 25, 2), None, data, views=views
+        )
+
     assert float(term(ev({}))) == 0.0
     s = [n for n, _, _ in SEGMENTS].index("left_forearm")
     cue = np.zeros((1, 1, len(SEGMENTS)))
@@ -96,8 +115,9 @@ def test_the_term_charges_only_the_other_side_and_is_zero_without_a_cue(body_mod
     assert cue_data([None, None]) is None
 
 
-FAST = KeypointFitConfig(camera_iters=20, pose_iters=(20, 20, 30), shape_iters=10, final_iters=40, late_branch_iters=20,
-                         post_branch_iters=20)  # fmt: skip
+FAST = KeypointFitConfig(
+    camera_iters=20, pose_iters=(20, 20, 30), shape_iters=10, final_iters=40, late_branch_iters=20, post_branch_iters=20
+)
 
 
 @pytest.fixture(scope="module")
@@ -108,7 +128,9 @@ def reaching_subject(body_model):
     from silfit.synth.generate import SynthConfig, generate_subject
 
     with tempfile.TemporaryDirectory() as tmp:
-        generate_subject(body_model, 7, SynthConfig(seed=20003, size=256, poses="hard", frontal_first=False), Path(tmp) / "s")
+        generate_subject(
+            body_model, 7, SynthConfig(seed=20003, size=256, poses="hard", frontal_first=False), Path(tmp) / "s"
+        )
         return load_subject(Path(tmp) / "s")
 
 
@@ -138,12 +160,23 @@ def test_the_image_decides_a_limb_the_keypoints_cannot(body_model, reaching_subj
 
 def test_without_an_image_the_fit_is_the_same_bit_for_bit(body_model, reaching_subject):
     s = reaching_subject
-    fitter = KeypointFitter(body_model, config=KeypointFitConfig(camera_iters=5, pose_iters=(5, 5, 5), shape_iters=3,
-                                                                 final_iters=5, late_branch_iters=4, post_branch_iters=4,
-                                                                 image_depth_weight=100.0))  # fmt: skip
+    fitter = KeypointFitter(
+        body_model,
+        config=KeypointFitConfig(
+            camera_iters=5,
+            pose_iters=(5, 5, 5),
+            shape_iters=3,
+            final_iters=5,
+            late_branch_iters=4,
+            post_branch_iters=4,
+            image_depth_weight=100.0,
+        ),
+    )
     a = fitter.fit([s.keypoints], [s.camera], progress=False)
     b = fitter.fit([s.keypoints], [s.camera], progress=False, depth_cues=[None])
-    off = KeypointFitter(body_model, config=replace_weight(fitter.config, 0.0)).fit([s.keypoints], [s.camera], progress=False)
+    off = KeypointFitter(body_model, config=replace_weight(fitter.config, 0.0)).fit(
+        [s.keypoints], [s.camera], progress=False
+    )
     assert np.array_equal(a.joints, b.joints) and np.array_equal(a.joints, off.joints)
     assert a.energies["final"][0] == off.energies["final"][0]
 
@@ -157,9 +190,17 @@ def replace_weight(cfg, w):
 def test_the_depth_warning_names_only_limbs_the_image_leaves_undecided():
     from silfit.plausibility import depth_warnings
 
-    close = [{"stage": "branches_1", "kept": "keep",
-              "tried": [{"flip": "keep", "energy": 100.0}, {"flip": "left_upper_arm", "energy": 101.0},
-                        {"flip": "right_shin", "energy": 101.5}]}]  # fmt: skip
+    close = [
+        {
+            "stage": "branches_1",
+            "kept": "keep",
+            "tried": [
+                {"flip": "keep", "energy": 100.0},
+                {"flip": "left_upper_arm", "energy": 101.0},
+                {"flip": "right_shin", "energy": 101.5},
+            ],
+        }
+    ]
     (w,) = depth_warnings(close)
     assert w.startswith("depth ambiguous for left_upper_arm, right_shin:")
     (w,) = depth_warnings(close, decided=["left_upper_arm"])
@@ -171,8 +212,15 @@ def test_metrics_say_image_depth_none_without_an_image(body_model, reaching_subj
     from silfit.run import fit
 
     s = reaching_subject
-    cfg = KeypointFitConfig(camera_iters=3, pose_iters=(3, 3, 3), shape_iters=2, final_iters=3, late_branch_iters=2,
-                            post_branch_iters=2, decision_iters=2)  # fmt: skip
+    cfg = KeypointFitConfig(
+        camera_iters=3,
+        pose_iters=(3, 3, 3),
+        shape_iters=2,
+        final_iters=3,
+        late_branch_iters=2,
+        post_branch_iters=2,
+        decision_iters=2,
+    )
     r = fit(s.keypoints, camera=s.camera, model=body_model, keypoint_config=cfg, progress=False)
     assert r.metrics["image_depth"] == "none"
     r = fit(s.keypoints, camera=s.camera, model=body_model, keypoint_config=cfg, progress=False, image=s.image)

@@ -8,13 +8,21 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from silfit.camera import Camera, project_points
-from silfit.fitting import KeypointFitConfig, KeypointFitResult, KeypointFitter, fit_keypoints
+from silfit.fitting import KeypointFitConfig, KeypointFitter, fit_keypoints
 from silfit.keypoints import BODY25_NAMES, model_keypoints
 
 CAM = Camera.from_image_size(512, 512)
 # A plausible pose: arms lowered and bent, one knee bent, slight lean.
-POSE = {1: (-0.3, 0, 0.05), 4: (0.5, 0, 0), 3: (0.1, 0, 0), 16: (0, -0.3, -1.1), 17: (0, 0.2, 1.2),
-        18: (0, -0.8, 0), 19: (0, 0.5, 0), 2: (-0.1, 0, -0.05)}  # fmt: skip
+POSE = {
+    1: (-0.3, 0, 0.05),
+    4: (0.5, 0, 0),
+    3: (0.1, 0, 0),
+    16: (0, -0.3, -1.1),
+    17: (0, 0.2, 1.2),
+    18: (0, -0.8, 0),
+    19: (0, 0.5, 0),
+    2: (-0.1, 0, -0.05),
+}
 
 
 def subject(model, yaw_deg=30.0, pose=POSE, betas=None):
@@ -24,7 +32,9 @@ def subject(model, yaw_deg=30.0, pose=POSE, betas=None):
     orient = (Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, math.radians(yaw_deg), 0])).as_rotvec()
     gt = dict(
         betas=torch.zeros(1, 10) if betas is None else torch.as_tensor(betas, dtype=torch.float32)[None],
-        body_pose=p, global_orient=torch.tensor(orient, dtype=torch.float32)[None], transl=torch.tensor([[0.05, 0.15, 3.5]]),
+        body_pose=p,
+        global_orient=torch.tensor(orient, dtype=torch.float32)[None],
+        transl=torch.tensor([[0.05, 0.15, 3.5]]),
     )
     out = model(**gt)
     xy = project_points(model_keypoints(model, out, "body25"), CAM)[0].numpy()
@@ -94,8 +104,12 @@ def test_outlier_moves_the_robust_fit_far_less_than_l2(toy_body):
     bad[BODY25_NAMES.index("left_wrist"), 0] += 200.0
     shift = {}
     for robust in (True, False):
-        cfg = KeypointFitConfig(robust=robust, **{k: getattr(FAST, k) for k in ("camera_iters", "pose_iters", "shape_iters", "final_iters")})
-        fit = KeypointFitter(toy_body, config=cfg).fit(np.stack([kp, bad]), CAM, progress=False)  # one batch: a row's fit is its own
+        cfg = KeypointFitConfig(
+            robust=robust, **{k: getattr(FAST, k) for k in ("camera_iters", "pose_iters", "shape_iters", "final_iters")}
+        )
+        fit = KeypointFitter(toy_body, config=cfg).fit(
+            np.stack([kp, bad]), CAM, progress=False
+        )  # one batch: a row's fit is its own
         others = [i for i in range(24) if i not in (18, 20, 22)]  # all but the left forearm and hand
         shift[robust] = np.linalg.norm(fit.joints[0, others] - fit.joints[1, others], axis=1).mean()
     assert shift[True] < 0.5 * shift[False], shift
@@ -193,7 +207,9 @@ def _fixed_start_fit(model, keypoints, init, stages):
 
     cfg = KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages)
     fitter = KeypointFitter(model, config=cfg)
-    ks = __import__("silfit.keypoints", fromlist=["KeypointSet"]).KeypointSet(keypoints[:, :2], keypoints[:, 2], "body25")
+    ks = __import__("silfit.keypoints", fromlist=["KeypointSet"]).KeypointSet(
+        keypoints[:, :2], keypoints[:, 2], "body25"
+    )
     state, info = fitter.fit_problems([Problem.single(ks, CAM)], init=init)
     return fitter, state, info, ks
 
@@ -204,8 +220,12 @@ def test_branch_search_recovers_a_limb_mirrored_in_depth(body_model):
 
     pose = {**POSE, 4: (1.2, 0, 0), 1: (-0.9, 0, 0.05)}  # left thigh forward, shin bent down-back
     kp, out = subject(body_model, yaw_deg=0.0, pose=pose)
-    truth = {"betas": torch.zeros(1, 10), "global_orient": torch.tensor([[math.pi, 0.0, 0.0]]),
-             "body_pose": torch.zeros(1, 69), "transl": torch.tensor([[0.05, 0.15, 3.5]])}  # fmt: skip
+    truth = {
+        "betas": torch.zeros(1, 10),
+        "global_orient": torch.tensor([[math.pi, 0.0, 0.0]]),
+        "body_pose": torch.zeros(1, 69),
+        "transl": torch.tensor([[0.05, 0.15, 3.5]]),
+    }
     for j, v in pose.items():
         truth["body_pose"][0, 3 * (j - 1) : 3 * j] = torch.tensor(v)
     fitter0 = KeypointFitter(body_model)
@@ -233,7 +253,9 @@ def test_search_gap_is_zero_when_the_fit_starts_and_stays_at_the_truth(body_mode
     truth = {"betas": np.zeros((1, 10)), "body_pose": np.zeros((1, 69))}
     for j, v in POSE.items():
         truth["body_pose"][0, 3 * (j - 1) : 3 * j] = v
-    truth["global_orient"] = (Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, math.radians(20.0), 0])).as_rotvec()[None]
+    truth["global_orient"] = (
+        Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, math.radians(20.0), 0])
+    ).as_rotvec()[None]
     truth["transl"] = np.array([[0.05, 0.15, 3.5]])
     w = KeypointFitConfig().stages()[-1].weights
     stages = [Stage("final", ("betas", "global_orient", "transl", "body_pose"), w, 10)]
@@ -252,8 +274,14 @@ def test_low_confidence_keypoints_count_less(toy_body):
     """The data term weighs each keypoint by its confidence: at fixed parameters, one
     keypoint 30 px off with confidence 0.2 adds exactly 0.2x the energy it adds at 1.0."""
     kp, out = subject(toy_body, yaw_deg=20.0)
-    truth = {"betas": np.zeros((1, 10)), "body_pose": np.zeros((1, 69)), "transl": np.array([[0.05, 0.15, 3.5]]),
-             "global_orient": (Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, math.radians(20.0), 0])).as_rotvec()[None]}  # fmt: skip
+    truth = {
+        "betas": np.zeros((1, 10)),
+        "body_pose": np.zeros((1, 69)),
+        "transl": np.array([[0.05, 0.15, 3.5]]),
+        "global_orient": (
+            Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, math.radians(20.0), 0])
+        ).as_rotvec()[None],
+    }
     for j, v in POSE.items():
         truth["body_pose"][0, 3 * (j - 1) : 3 * j] = v
     fitter = KeypointFitter(toy_body, config=FAST)
@@ -350,9 +378,19 @@ def test_the_distinct_setting_reaches_the_branch_search(body_model, monkeypatch,
     real = keypoint_stage.best_distinct_per_group
     monkeypatch.setattr(keypoint_stage, "best_distinct_per_group", lambda *a, **k: calls.append(1) or real(*a, **k))
     kp, _ = subject(body_model)
-    cfg = KeypointFitConfig(camera_iters=5, pose_iters=(5, 5, 5), shape_iters=3, final_iters=5, init_poses=1,
-                            branch_iters=20, branch_screen_iters=15, branch_refine=4, late_branch_iters=6,
-                            post_branch_iters=6, branch_distinct=distinct)  # fmt: skip
+    cfg = KeypointFitConfig(
+        camera_iters=5,
+        pose_iters=(5, 5, 5),
+        shape_iters=3,
+        final_iters=5,
+        init_poses=1,
+        branch_iters=20,
+        branch_screen_iters=15,
+        branch_refine=4,
+        late_branch_iters=6,
+        post_branch_iters=6,
+        branch_distinct=distinct,
+    )
     KeypointFitter(body_model, config=cfg).fit([kp], [CAM], progress=False)
     # the first search's screen (15 of 20 steps), the late search's carry (its 6 steps: no screen), the search
     # from the fit's screen (3 of 6) and its carry (the last search: branch_refine rows to the final stage)
@@ -364,13 +402,19 @@ def test_the_distinct_setting_reaches_the_branch_search(body_model, monkeypatch,
 CAM256 = Camera.from_image_size(256, 256)
 
 
-def posed_keypoints(model, body_pose, yaw_deg=0.0, transl=(0.05, 0.15, 3.5), cam=CAM256, noise_px=0.0, seed=0, jitter=None):
+def posed_keypoints(
+    model, body_pose, yaw_deg=0.0, transl=(0.05, 0.15, 3.5), cam=CAM256, noise_px=0.0, seed=0, jitter=None
+):
     """BODY_25 keypoints ``[25, 3]`` of ``model`` in ``body_pose [69]`` turned by ``yaw_deg`` from facing
     the camera, with Gaussian pixel noise (``noise_px``, ``seed``) and, for measuring a bound's margin,
     a further 1e-9 px perturbation (``jitter``: its seed); and the truth's parameters."""
     orient = (Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, math.radians(yaw_deg), 0])).as_rotvec()
-    truth = {"betas": np.zeros((1, 10)), "body_pose": np.asarray(body_pose, dtype=np.float64).reshape(1, 69),
-             "global_orient": orient[None], "transl": np.asarray(transl, dtype=np.float64)[None]}  # fmt: skip
+    truth = {
+        "betas": np.zeros((1, 10)),
+        "body_pose": np.asarray(body_pose, dtype=np.float64).reshape(1, 69),
+        "global_orient": orient[None],
+        "transl": np.asarray(transl, dtype=np.float64)[None],
+    }
     with torch.no_grad():
         out = model(**{k: torch.as_tensor(v, dtype=model.dtype) for k, v in truth.items()})
         xy = project_points(model_keypoints(model, out, "body25"), cam)[0].double().numpy()
@@ -405,8 +449,10 @@ def contact_fit_penetration(model, interpenetration=True, jitter=None):
     from silfit.poses.contact import L_ARM, R_ARM, TORSO, part_contact
     from silfit.poses.library import POSE_LIBRARY
 
-    kps = [posed_keypoints(model, POSE_LIBRARY[n].body_pose, 0.0, (0.0, 0.2, 3.0), jitter=jitter)[0]
-           for n in ("arms_crossed", "squat_half")]  # fmt: skip
+    kps = [
+        posed_keypoints(model, POSE_LIBRARY[n].body_pose, 0.0, (0.0, 0.2, 3.0), jitter=jitter)[0]
+        for n in ("arms_crossed", "squat_half")
+    ]
     fitter = KeypointFitter(model, config=FAST if interpenetration else replace(FAST, interpenetration_weight=0.0))
     res = fitter.fit(np.stack(kps), CAM256, progress=False)
     T = lambda a: torch.as_tensor(a, dtype=fitter.dtype)  # noqa: E731
@@ -517,8 +563,12 @@ def _thigh_subject(model):
     """Keypoints ``[25, 3]`` and true parameters of a body whose left thigh points at the camera."""
     pose = {**POSE, 4: (1.2, 0, 0), 1: (-0.9, 0, 0.05)}
     kp, _ = subject(model, yaw_deg=0.0, pose=pose)
-    truth = {"betas": torch.zeros(1, 10), "global_orient": torch.tensor([[math.pi, 0.0, 0.0]]),
-             "body_pose": torch.zeros(1, 69), "transl": torch.tensor([[0.05, 0.15, 3.5]])}  # fmt: skip
+    truth = {
+        "betas": torch.zeros(1, 10),
+        "global_orient": torch.tensor([[math.pi, 0.0, 0.0]]),
+        "body_pose": torch.zeros(1, 69),
+        "transl": torch.tensor([[0.05, 0.15, 3.5]]),
+    }
     for j, v in pose.items():
         truth["body_pose"][0, 3 * (j - 1) : 3 * j] = torch.tensor(v)
     return kp, truth
@@ -536,10 +586,16 @@ def test_hypotheses_keep_the_best_distinct_branches_refined_to_the_end(body_mode
     kp, truth = _thigh_subject(body_model)
     w = {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4, "interpenetration": 1e5}
     free = ("global_orient", "transl", "body_pose")
-    stages = [Stage("branches", free, w, 12, options={"branches": {"joint": True, "screen_after": 4, "survivors": 2}}),
-              Stage("final", free, w, 8)]  # fmt: skip
-    fitter = KeypointFitter(body_model, config=KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages, hypotheses=3))
-    start = dict(truth, body_pose=flip_segment(fitter.body, truth, "left_thigh", body_model.joint_names, body_model.parents))
+    stages = [
+        Stage("branches", free, w, 12, options={"branches": {"joint": True, "screen_after": 4, "survivors": 2}}),
+        Stage("final", free, w, 8),
+    ]
+    fitter = KeypointFitter(
+        body_model, config=KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages, hypotheses=3)
+    )
+    start = dict(
+        truth, body_pose=flip_segment(fitter.body, truth, "left_thigh", body_model.joint_names, body_model.parents)
+    )
     ks = KeypointSet(kp[:, :2], kp[:, 2], "body25")
     state, info = fitter.fit_problems([Problem.single(ks, CAM)], init={k: v.numpy() for k, v in start.items()})
     (hyps,) = info["hypotheses"]
@@ -561,8 +617,9 @@ def test_hypotheses_keep_the_best_distinct_branches_refined_to_the_end(body_mode
     # first, in their order, with their energies; unrefined ones are not in it)
     refined = info["branch_search"][0][-1]
     assert refined["refined"] and refined["kept"] == hyps[0]["label"]
-    assert [(t["flip"], t["energy"]) for t in refined["tried"]][: len(energies)] == \
-        [(h["label"], h["energy"]) for h in hyps if h["refined"]]
+    assert [(t["flip"], t["energy"]) for t in refined["tried"]][: len(energies)] == [
+        (h["label"], h["energy"]) for h in hyps if h["refined"]
+    ]
     assert len(refined["tried"]) >= len(energies)
 
 
@@ -583,12 +640,19 @@ def test_occlusion_cue_scores_the_hypotheses_when_on(body_model):
     w = {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4, "interpenetration": 1e5}
     free = ("global_orient", "transl", "body_pose")
     weight = 0.05
-    stages = [Stage("branches", free, w, 8, options={"branches": {"screen_after": 4, "survivors": 2, "occlusion": weight}}),
-              Stage("final", free, w, 4)]  # fmt: skip
-    fitter = KeypointFitter(body_model, config=KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages, hypotheses=2))
-    start = dict(truth, body_pose=flip_segment(fitter.body, truth, "left_thigh", body_model.joint_names, body_model.parents))
-    state, info = fitter.fit_problems([Problem.single(KeypointSet(kp[:, :2], kp[:, 2], "body25"), CAM)],
-                                      init={k: v.numpy() for k, v in start.items()})  # fmt: skip
+    stages = [
+        Stage("branches", free, w, 8, options={"branches": {"screen_after": 4, "survivors": 2, "occlusion": weight}}),
+        Stage("final", free, w, 4),
+    ]
+    fitter = KeypointFitter(
+        body_model, config=KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages, hypotheses=2)
+    )
+    start = dict(
+        truth, body_pose=flip_segment(fitter.body, truth, "left_thigh", body_model.joint_names, body_model.parents)
+    )
+    state, info = fitter.fit_problems(
+        [Problem.single(KeypointSet(kp[:, :2], kp[:, 2], "body25"), CAM)], init={k: v.numpy() for k, v in start.items()}
+    )
     (hyps,) = info["hypotheses"]
     assert all(h["occlusion"] >= 3 - 1e-9 for h in hyps)  # nose and eyes visible, marked hidden
     scores = [h["energy"] * (1 + weight * h["occlusion"]) for h in hyps]
@@ -609,14 +673,18 @@ def test_branch_refine_chooses_by_the_final_energy_never_above_the_search_choice
     kp, truth = _thigh_subject(body_model)
     w = {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4, "interpenetration": 1e5}
     free = ("global_orient", "transl", "body_pose")
-    stages = [Stage("branches", free, w, 8, options={"branches": {"screen_after": 4, "survivors": 2}}),
-              Stage("final", free, w, 6)]  # fmt: skip
+    stages = [
+        Stage("branches", free, w, 8, options={"branches": {"screen_after": 4, "survivors": 2}}),
+        Stage("final", free, w, 6),
+    ]
     ks = KeypointSet(kp[:, :2], kp[:, 2], "body25")
     out = {}
     for refine in (1, 3):
         cfg = KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages, branch_refine=refine)
         fitter = KeypointFitter(body_model, config=cfg)
-        start = dict(truth, body_pose=flip_segment(fitter.body, truth, "left_thigh", body_model.joint_names, body_model.parents))
+        start = dict(
+            truth, body_pose=flip_segment(fitter.body, truth, "left_thigh", body_model.joint_names, body_model.parents)
+        )
         out[refine] = fitter.fit_problems([Problem.single(ks, CAM)], init={k: v.numpy() for k, v in start.items()})[1]
     assert out[3]["hypotheses"] is None
     assert float(out[3]["energies"]["final"][0]) <= float(out[1]["energies"]["final"][0]) * (1 + 1e-9)
@@ -657,11 +725,18 @@ def test_a_search_from_the_settled_fit_after_the_late_searchs_best_settle(body_m
     out = {}
     for carry in (1, 3):
         search = {"branches": {"screen_after": 4, "survivors": 2, "carry": carry}}
-        stages = [Stage("branches_late", free, w, 8, options=search), Stage("settle", free, w, 6, options={"searched_only": True}),
-                  Stage("branches_post", free, w, 8, options={"branches": {"screen_after": 4, "survivors": 2}}),
-                  Stage("final", free, w, 6)]  # fmt: skip
-        fitter = KeypointFitter(body_model, config=KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages, branch_refine=2))
-        start = dict(truth, body_pose=flip_segment(fitter.body, truth, "left_thigh", body_model.joint_names, body_model.parents))
+        stages = [
+            Stage("branches_late", free, w, 8, options=search),
+            Stage("settle", free, w, 6, options={"searched_only": True}),
+            Stage("branches_post", free, w, 8, options={"branches": {"screen_after": 4, "survivors": 2}}),
+            Stage("final", free, w, 6),
+        ]
+        fitter = KeypointFitter(
+            body_model, config=KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages, branch_refine=2)
+        )
+        start = dict(
+            truth, body_pose=flip_segment(fitter.body, truth, "left_thigh", body_model.joint_names, body_model.parents)
+        )
         out[carry] = fitter.fit_problems([Problem.single(ks, CAM)], init={k: v.numpy() for k, v in start.items()})[1]
     assert float(out[3]["energies"]["settle"][0]) <= float(out[1]["energies"]["settle"][0]) * (1 + 1e-9)
     late, post, refined = out[3]["branch_search"][0]
@@ -676,7 +751,9 @@ def test_a_search_from_the_settled_fit_after_the_late_searchs_best_settle(body_m
     assert out[3]["branches"][0] == [b for b in (late["kept"], post["kept"]) if b != "keep"]
     assert refined["kept"] == post["kept"] and refined["tried"][0]["flip"] == post["kept"]
     # a settle stage follows a search: where none ran it is skipped
-    fitter = KeypointFitter(body_model, config=KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages[1:2] + stages[3:]))
+    fitter = KeypointFitter(
+        body_model, config=KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages[1:2] + stages[3:])
+    )
     info = fitter.fit_problems([Problem.single(ks, CAM)], init={k: v.numpy() for k, v in truth.items()})[1]
     assert list(info["energies"]) == ["final"]
 
@@ -706,17 +783,33 @@ def test_the_final_stage_runs_fewer_steps_where_no_branch_search_ran(monkeypatch
 
     ran = []
     real = ks.run_stage
-    monkeypatch.setattr(ks, "run_stage", lambda stage, *a, iterations=None, **k: (
-        ran.append((stage.name, stage.iterations if iterations is None else iterations)),
-        real(stage, *a, iterations=iterations, **k))[1])  # fmt: skip
+    monkeypatch.setattr(
+        ks,
+        "run_stage",
+        lambda stage, *a, iterations=None, **k: (
+            ran.append((stage.name, stage.iterations if iterations is None else iterations)),
+            real(stage, *a, iterations=iterations, **k),
+        )[1],
+    )
     model = toy_model()
     kp, _ = subject(model)
-    small = dict(camera_iters=3, pose_iters=(3, 3, 3), shape_iters=2, branch_iters=4, branch_screen_iters=2,
-                 late_branch_iters=4, final_iters=7, final_iters_unsearched=2, decision_iters=2)  # fmt: skip
+    small = dict(
+        camera_iters=3,
+        pose_iters=(3, 3, 3),
+        shape_iters=2,
+        branch_iters=4,
+        branch_screen_iters=2,
+        late_branch_iters=4,
+        final_iters=7,
+        final_iters_unsearched=2,
+        decision_iters=2,
+    )
     finals = {}
     for search in (True, False):
         ran.clear()
-        KeypointFitter(model, config=KeypointFitConfig(**small, branch_search=search)).fit(kp[None], CAM, progress=False)
+        KeypointFitter(model, config=KeypointFitConfig(**small, branch_search=search)).fit(
+            kp[None], CAM, progress=False
+        )
         finals[search] = [n for name, n in ran if name == "final"]
     assert finals == {True: [7], False: [2]}
     small["final_tol_change"] = None
@@ -759,7 +852,16 @@ def test_the_hinge_settings_reach_the_branch_search(body_model, monkeypatch, hin
 
     monkeypatch.setattr(keypoint_stage, "limb_hypotheses", recording)
     kp, _ = subject(body_model)
-    cfg = KeypointFitConfig(camera_iters=5, pose_iters=(5, 5, 5), shape_iters=3, final_iters=5, init_poses=1,
-                            late_branch_iters=6, post_branch_iters=6, branch_hinge=hinge, branch_hinge_turns=turns)  # fmt: skip
+    cfg = KeypointFitConfig(
+        camera_iters=5,
+        pose_iters=(5, 5, 5),
+        shape_iters=3,
+        final_iters=5,
+        init_poses=1,
+        late_branch_iters=6,
+        post_branch_iters=6,
+        branch_hinge=hinge,
+        branch_hinge_turns=turns,
+    )
     KeypointFitter(body_model, config=cfg).fit([kp], [CAM], progress=False)
     assert len(seen) == 3 and set(seen) == {(hinge, turns)}

@@ -5,7 +5,13 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from silfit.fitting.occlusion import hidden_keypoints, keypoint_tolerances, occlusion_cost, occlusion_parts, surface_depth
+from silfit.fitting.occlusion import (
+    hidden_keypoints,
+    keypoint_tolerances,
+    occlusion_cost,
+    occlusion_parts,
+    surface_depth,
+)
 from silfit.keypoints import BODY25_NAMES, model_keypoints
 
 # a square of two triangles at depth 2 m, x and y in -1..1
@@ -45,10 +51,16 @@ def test_a_body_facing_away_hides_its_face(body_model):
     out = {}
     for name, yaw in (("front", 0.0), ("back", 180.0)):
         orient = (Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, math.radians(yaw), 0])).as_rotvec()
-        o = body_model(betas=torch.zeros(1, 10), body_pose=torch.zeros(1, 69),
-                       global_orient=torch.tensor(orient, dtype=torch.float32)[None], transl=torch.tensor([[0.0, 0.2, 3.0]]))  # fmt: skip
+        o = body_model(
+            betas=torch.zeros(1, 10),
+            body_pose=torch.zeros(1, 69),
+            global_orient=torch.tensor(orient, dtype=torch.float32)[None],
+            transl=torch.tensor([[0.0, 0.2, 3.0]]),
+        )
         kp = model_keypoints(body_model, o, "body25").double()
-        out[name] = hidden_keypoints(o.vertices.double(), body_model.faces, kp, keypoint_tolerances(BODY25_NAMES), 1 / 500)[0]
+        out[name] = hidden_keypoints(
+            o.vertices.double(), body_model.faces, kp, keypoint_tolerances(BODY25_NAMES), 1 / 500
+        )[0]
     face = [BODY25_NAMES.index(n) for n in ("nose", "left_eye", "right_eye")]
     assert not out["front"][face].any() and out["back"][face].all()
     conf = torch.ones(1, 25, dtype=torch.float64)  # every keypoint detected confidently: the back view costs more

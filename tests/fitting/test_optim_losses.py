@@ -1,4 +1,3 @@
-import numpy as np
 import pytest
 import torch
 
@@ -20,7 +19,9 @@ def test_reprojection_energy_weights_and_l2():
     e_gm = reprojection_energy(proj, tgt, w, torch.ones(1), sigma=100.0)
     assert float(e_gm) < 25.0 + 100.0**2
     # The scale converts pixels to normalised pixels.
-    assert float(reprojection_energy(proj[:, :1], tgt[:, :1], w[:, :1], torch.tensor([2.0]), None)) == pytest.approx(100.0)
+    assert float(reprojection_energy(proj[:, :1], tgt[:, :1], w[:, :1], torch.tensor([2.0]), None)) == pytest.approx(
+        100.0
+    )
 
 
 def rosenbrock(A):
@@ -38,5 +39,7 @@ def test_batched_lbfgs_converges_independently_per_sample():
     assert torch.allclose(x[:, 0], A, atol=1e-4) and torch.allclose(x[:, 1], A**2, atol=1e-3)
     # Same as one-by-one fits: no cross-talk.
     for i in range(3):
-        xi, fi, ii = batched_lbfgs(rosenbrock(A[i : i + 1]), x0[i : i + 1], max_iter=300, tol_grad=1e-9, tol_change=1e-14)
+        xi, fi, ii = batched_lbfgs(
+            rosenbrock(A[i : i + 1]), x0[i : i + 1], max_iter=300, tol_grad=1e-9, tol_change=1e-14
+        )
         assert torch.allclose(xi[0], x[i], atol=1e-8) and int(ii[0]) == int(iters[i])

@@ -1,4 +1,5 @@
 """Problems over frames and views: shared parameters, packing, one L-BFGS row per problem."""
+
 import math
 
 import numpy as np

@@ -8,6 +8,7 @@ with margin over the spread that starts moved by 1e-9 give (other CPUs' rounding
 silhouette stage must beat its start by stated margins on pose (PA-MPJPE), mesh (PVE) and
 shape, so a silhouette stage that stops refining the pose or the shape fails.
 """
+
 from pathlib import Path
 
 import numpy as np
@@ -43,7 +44,9 @@ def perturbed_truth(gt) -> dict:
     noise), a wider, shorter shape and the body 12 cm too far and off to one side. A fixed start,
     not a keypoint fit's: the keypoint optimiser's path is chaotic (1e-12 px on the keypoints moves
     its fits by millimetres), and a start that moved with it made this test follow float rounding."""
-    p = {k: np.asarray(getattr(gt, k), np.float64).reshape(-1) for k in ("betas", "body_pose", "global_orient", "transl")}
+    p = {
+        k: np.asarray(getattr(gt, k), np.float64).reshape(-1) for k in ("betas", "body_pose", "global_orient", "transl")
+    }
     p["body_pose"] = p["body_pose"] + np.random.default_rng(7).normal(0.0, 0.12, p["body_pose"].shape)
     p["betas"] = p["betas"] + np.r_[0.6, -0.4, np.zeros(len(p["betas"]) - 2)]
     p["transl"] = p["transl"] + np.array([0.02, -0.015, 0.12])
@@ -56,8 +59,9 @@ def fits(open_model):
     assert float(s.gt.extras["noise_px"]) == 0.0
     kp = fit_keypoints(s.keypoints, s.camera, open_model, config=KEYPOINT_CONFIG, progress=False)
     start = perturbed_truth(s.gt)
-    sil = fit_silhouette(open_model, start, s.camera, s.mask, s.keypoints.as_array(), config=SILHOUETTE_CONFIG,
-                         progress=False)  # fmt: skip
+    sil = fit_silhouette(
+        open_model, start, s.camera, s.mask, s.keypoints.as_array(), config=SILHOUETTE_CONFIG, progress=False
+    )
     e_kp, e_start, e_sil = (errors(open_model, p, s.gt) for p in (kp.params(0), start, sil.params()))
     print(f"\nkeypoint stage {e_kp}\nsilhouette start {e_start}\nsilhouette stage {e_sil}")
     return kp, sil, e_kp, e_start, e_sil

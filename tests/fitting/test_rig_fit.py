@@ -1,4 +1,5 @@
 """Rig fitting: one body seen by calibrated views, recovered in world coordinates."""
+
 from dataclasses import replace
 
 import numpy as np
@@ -53,9 +54,19 @@ def test_moving_the_world_frame_moves_the_fit_with_it(body_model, two_views):
     d, _ = two_views
     problem = rig_problem(load_rig(d))
     Rw, tw = look_at([0.4, -0.2, -1.0], [0.0, 0.3, 0.5])  # world' = Rw world + tw
-    moved = Problem([replace(o, view=View(o.view.camera, o.view.extrinsics()[0] @ Rw.T,
-                                          o.view.extrinsics()[1] - o.view.extrinsics()[0] @ Rw.T @ tw))
-                     for o in problem.observations])  # fmt: skip
+    moved = Problem(
+        [
+            replace(
+                o,
+                view=View(
+                    o.view.camera,
+                    o.view.extrinsics()[0] @ Rw.T,
+                    o.view.extrinsics()[1] - o.view.extrinsics()[0] @ Rw.T @ tw,
+                ),
+            )
+            for o in problem.observations
+        ]
+    )
     fitter = KeypointFitter(body_model, config=FAST)
     a, b = fit_rig_keypoints(fitter, [problem, moved])
     err = np.linalg.norm(a.vertices @ Rw.T + tw - b.vertices, axis=1)
@@ -134,8 +145,10 @@ def test_points_term_is_zero_without_points_and_robust_with_them():
     ev = Evaluation(1, 1, 1, {}, {}, Body(), torch.zeros(1, 1, 1, 2, 2, dtype=torch.float64), None, {})
     term = PointsTerm(sigma=100.0, scale=500.0 / 1.7)
     assert float(term(ev)) == 0.0
-    ev.data = {"points3d": torch.tensor([[[[0.01, 0.0, 0.0], [1.0, 0.0, 0.0]]]], dtype=torch.float64),
-               "points3d_weights": torch.tensor([[[2.0, 1.0]]], dtype=torch.float64)}  # fmt: skip
+    ev.data = {
+        "points3d": torch.tensor([[[[0.01, 0.0, 0.0], [1.0, 0.0, 0.0]]]], dtype=torch.float64),
+        "points3d_weights": torch.tensor([[[2.0, 1.0]]], dtype=torch.float64),
+    }
     d2 = (0.01 * 500.0 / 1.7) ** 2
     assert float(term(ev)) == pytest.approx(2.0 * 1e4 * d2 / (d2 + 1e4), rel=1e-9)
     ev.data["points3d"][0, 0, 1, 0] = 100.0  # a point far off costs at most weight x sigma^2
@@ -153,8 +166,10 @@ def test_points_term_follows_the_data_terms_robust_setting(body_model):
         keypoints = torch.tensor([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]], dtype=torch.float64)
 
     ev = Evaluation(1, 1, 1, {}, {}, Body(), torch.zeros(1, 1, 1, 2, 2, dtype=torch.float64), None, {})
-    ev.data = {"points3d": torch.tensor([[[[0.5, 0.0, 0.0], [1.0, 0.0, 0.0]]]], dtype=torch.float64),
-               "points3d_weights": torch.tensor([[[2.0, 1.0]]], dtype=torch.float64)}  # fmt: skip
+    ev.data = {
+        "points3d": torch.tensor([[[[0.5, 0.0, 0.0], [1.0, 0.0, 0.0]]]], dtype=torch.float64),
+        "points3d_weights": torch.tensor([[[2.0, 1.0]]], dtype=torch.float64),
+    }
     d2 = (0.5 * 500.0 / 1.7) ** 2
     assert float(PointsTerm(sigma=None)(ev)) == pytest.approx(2.0 * d2, rel=1e-9)
     assert float(PointsTerm(sigma=100.0)(ev)) < 2.0 * 1e4
@@ -171,8 +186,16 @@ def test_a_rig_runs_the_final_stage_of_no_branch_search(body_model, two_views, m
     ran = []
     real = ks.run_stage
     monkeypatch.setattr(ks, "run_stage", lambda stage, *a, **k: (ran.append(stage), real(stage, *a, **k))[1])
-    small = KeypointFitConfig(camera_iters=3, pose_iters=(3, 3, 3), shape_iters=2, late_branch_iters=4, final_iters=7,
-                              final_iters_unsearched=2, final_tol_change=1e-4, init_poses=1)  # fmt: skip
+    small = KeypointFitConfig(
+        camera_iters=3,
+        pose_iters=(3, 3, 3),
+        shape_iters=2,
+        late_branch_iters=4,
+        final_iters=7,
+        final_iters_unsearched=2,
+        final_tol_change=1e-4,
+        init_poses=1,
+    )
     fit_rig_keypoints(KeypointFitter(body_model, config=small), [rig_problem(load_rig(two_views[0]))])
     (final,) = [s for s in ran if s.name == "final"]
     assert final.iterations == 2 and final.options == {}

@@ -1,4 +1,5 @@
 """The default schedules as literal tables, and one name per weight (old names kept as aliases)."""
+
 import warnings
 from dataclasses import fields, replace
 
@@ -6,8 +7,11 @@ import pytest
 
 from silfit.fitting import KeypointFitConfig
 from silfit.fitting.schedules import (
-    KEYPOINT_SCHEDULE, SEQUENCE_SCHEDULE, SILHOUETTE_SCHEDULE, WHOLEBODY_KEYPOINT_SCHEDULE,
-)  # fmt: skip
+    KEYPOINT_SCHEDULE,
+    SEQUENCE_SCHEDULE,
+    SILHOUETTE_SCHEDULE,
+    WHOLEBODY_KEYPOINT_SCHEDULE,
+)
 from silfit.fitting.sequence import SequenceFitConfig
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig
 
@@ -24,11 +28,26 @@ def test_the_default_configs_give_the_literal_tables():
 def test_the_pose_weight_has_one_name_in_every_config():
     for cfg in (KeypointFitConfig(), SilhouetteFitConfig(), SequenceFitConfig()):
         names = {f.name for f in fields(cfg)}
-        assert "pose_weight" in names and not names & {"w_pose", "pose_prior_weight", "pose_prior_weights",
-                                                        "final_pose_prior_weight"}  # fmt: skip
+        assert "pose_weight" in names and not names & {
+            "w_pose",
+            "pose_prior_weight",
+            "pose_prior_weights",
+            "final_pose_prior_weight",
+        }
         assert "pose_weight" in cfg.to_dict()
     cfg = KeypointFitConfig(pose_weight=(1.0, 2.0, 3.0, 4.0))
-    assert [s.weights.get("pose") for s in cfg.stages()] == [None, 1.0, 2.0, 2.0, 3.0, None, 4.0, 4.0, 4.0, 4.0]  # ..., shape,
+    assert [s.weights.get("pose") for s in cfg.stages()] == [
+        None,
+        1.0,
+        2.0,
+        2.0,
+        3.0,
+        None,
+        4.0,
+        4.0,
+        4.0,
+        4.0,
+    ]  # ..., shape,
     # branches_late, settle, branches_post, final
     assert SilhouetteFitConfig(pose_weight=0.5).weights()["pose"] == 0.5
     assert SequenceFitConfig(pose_weight=7.0).stages()[0].weights["pose"] == 7.0
@@ -70,8 +89,13 @@ def test_the_late_search_options_reach_its_stages():
     "Depth ambiguity: search failures") shape the late search's stages and their options."""
     names = [s.name for s in KeypointFitConfig().stages()]
     assert names.count("branches_late") == 1 and not any(n.startswith("branches_late_") for n in names)
-    late = [s for s in KeypointFitConfig(late_branch_rounds=2, late_branch_turns=("mirror", 30.0),
-                                         late_branch_survivors=6).stages() if s.name.startswith("branches_late")]  # fmt: skip
+    late = [
+        s
+        for s in KeypointFitConfig(
+            late_branch_rounds=2, late_branch_turns=("mirror", 30.0), late_branch_survivors=6
+        ).stages()
+        if s.name.startswith("branches_late")
+    ]
     assert [s.name for s in late] == ["branches_late", "branches_late_2"]
     for s in late:
         assert s.options["branches"]["turns"] == ["mirror", 30.0] and s.options["branches"]["survivors"] == 6

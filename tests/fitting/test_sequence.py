@@ -1,4 +1,5 @@
 """Sequence fitting: bridging, consistent facings, one shape, and recovery of a short motion."""
+
 import math
 from dataclasses import replace
 
@@ -11,9 +12,21 @@ from silfit.camera import Camera, project_points
 from silfit.eval.metrics import acceleration_error, pa_mpjpe
 from silfit.fitting import KeypointFitConfig
 from silfit.fitting.sequence import (
-    SequenceFitConfig, _fits_from, _merge_windows, _neighbour_sources, _refit_from_offsets, _windows, body_forward,
-    branch_path, consistent_facings, fit_sequence, interpolate_frames, keypoint_outliers, pose_distances, viterbi,
-)  # fmt: skip
+    SequenceFitConfig,
+    _fits_from,
+    _merge_windows,
+    _neighbour_sources,
+    _refit_from_offsets,
+    _windows,
+    body_forward,
+    branch_path,
+    consistent_facings,
+    fit_sequence,
+    interpolate_frames,
+    keypoint_outliers,
+    pose_distances,
+    viterbi,
+)
 from silfit.keypoints import KeypointSet, model_keypoints
 from silfit.synth.motion import motion_trajectory
 
@@ -47,7 +60,9 @@ def test_interpolate_frames_slerps_rotations_and_holds_the_ends():
 
 def test_consistent_facings_flag_the_fewest_flipped_frames_and_allow_a_slow_turn():
     yaw = np.radians(np.linspace(0, 150, 12))  # a slow turn: no jump
-    orient = np.stack([(Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, y, 0])).as_rotvec() for y in yaw])
+    orient = np.stack(
+        [(Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, y, 0])).as_rotvec() for y in yaw]
+    )
     valid = np.ones(12, dtype=bool)
     assert not consistent_facings(body_forward(orient), valid).any()
     flipped = orient.copy()
@@ -88,7 +103,10 @@ def test_branch_path_prefers_the_continuous_branch_over_a_slightly_lower_energy(
     energies[2] = np.array([np.nan, 95.0])  # a failed candidate is never taken
     assert branch_path(energies, joints, gaps).tolist() == [0, 0, 1, 0, 0]
     # a wider gap between frames allows more motion
-    two = [np.array([100.0, 300.0]), np.array([150.0, 95.0])]  # the second frame: 0.55 typical energies lower on the other
+    two = [
+        np.array([100.0, 300.0]),
+        np.array([150.0, 95.0]),
+    ]  # the second frame: 0.55 typical energies lower on the other
     assert branch_path(two, joints[:2], [1, 1]).tolist() == [0, 0]  # a jump of 2.5
     assert branch_path(two, joints[:2], [1, 10]).tolist() == [0, 1]  # 10 frames apart: 0.25
 
@@ -111,8 +129,12 @@ def motion_keypoints(model, F=8, params=False):
     traj = motion_trajectory("walk", F, 30.0)
     pose = torch.as_tensor(traj["body_pose"], dtype=model.dtype)
     betas = torch.tensor([[0.8, -0.6] + [0.0] * 8], dtype=model.dtype).expand(F, 10)
-    orient = torch.as_tensor((Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, 0.5, 0])).as_rotvec(), dtype=model.dtype)
-    transl = torch.stack([torch.linspace(-0.1, 0.1, F), torch.full((F,), 0.2), torch.full((F,), 3.2)], 1).to(model.dtype)
+    orient = torch.as_tensor(
+        (Rotation.from_rotvec([math.pi, 0, 0]) * Rotation.from_rotvec([0, 0.5, 0])).as_rotvec(), dtype=model.dtype
+    )
+    transl = torch.stack([torch.linspace(-0.1, 0.1, F), torch.full((F,), 0.2), torch.full((F,), 3.2)], 1).to(
+        model.dtype
+    )
     with torch.no_grad():
         out = model(betas=betas, body_pose=pose, global_orient=orient.expand(F, 3), transl=transl)
         uv = project_points(model_keypoints(model, out, "body25").double(), CAM).numpy()
@@ -123,8 +145,9 @@ def motion_keypoints(model, F=8, params=False):
     return sets, out.joints.double().numpy(), betas[0].numpy()
 
 
-FAST_INIT = KeypointFitConfig(camera_iters=15, pose_iters=(15, 15, 15), shape_iters=8, final_iters=15, init_poses=1,
-                              branch_search=False)  # fmt: skip
+FAST_INIT = KeypointFitConfig(
+    camera_iters=15, pose_iters=(15, 15, 15), shape_iters=8, final_iters=15, init_poses=1, branch_search=False
+)
 
 
 def test_a_dropped_frame_is_bridged_and_the_sequence_has_one_shape(open_model):
@@ -147,7 +170,9 @@ def test_a_dropped_frame_is_bridged_and_the_sequence_has_one_shape(open_model):
     assert np.linalg.norm((r.joints[3] - r.joints[3, :1]) - mid, axis=-1).mean() < 0.02
     # the joint refinement is smoother than the per-frame fits, against the truth
     with torch.no_grad():
-        pf = open_model(**{k: torch.as_tensor(v, dtype=open_model.dtype) for k, v in r.per_frame.items()}).joints.numpy()
+        pf = open_model(
+            **{k: torch.as_tensor(v, dtype=open_model.dtype) for k, v in r.per_frame.items()}
+        ).joints.numpy()
     assert acceleration_error(r.joints, joints) < acceleration_error(pf, joints)
 
 
@@ -237,7 +262,11 @@ def temporal_smoothness(model, temporal=True, jitter=None):
     with torch.no_grad():
         start = model(**{k: torch.as_tensor(v, dtype=model.dtype) for k, v in r.per_frame.items()}).joints.numpy()
     mm = 1000.0
-    return acceleration_error(r.joints, joints) * mm, acceleration_error(start, joints) * mm, pa_mpjpe(r.joints, joints).mean() * mm
+    return (
+        acceleration_error(r.joints, joints) * mm,
+        acceleration_error(start, joints) * mm,
+        pa_mpjpe(r.joints, joints).mean() * mm,
+    )
 
 
 def test_temporal_terms_smooth_a_noisy_sequence(open_model):
@@ -262,8 +291,13 @@ def test_a_rig_video_is_fitted_over_frames_and_views_in_the_world_frame(open_mod
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
     from silfit.synth.motion import SequenceConfig, generate_sequence_dataset
 
-    generate_sequence_dataset(tmp_path, 1, SequenceConfig(seed=5, frames=4, size=96, noise_px=0.0, motions=("walk",)),
-                              model=open_model, views=2)  # fmt: skip
+    generate_sequence_dataset(
+        tmp_path,
+        1,
+        SequenceConfig(seed=5, frames=4, size=96, noise_px=0.0, motions=("walk",)),
+        model=open_model,
+        views=2,
+    )
     seq = load_rig_sequence(tmp_path / "seq_000")
     gt = np.load(tmp_path / "seq_000" / "gt.npz")
     frames = [list(row) for row in seq.frames]
@@ -278,7 +312,8 @@ def test_a_rig_video_is_fitted_over_frames_and_views_in_the_world_frame(open_mod
     err = 1000 * np.linalg.norm(r.joints - gt["joints"], axis=-1).mean(-1)  # mm per frame, world frame, no alignment
     assert err.max() < 40.0 and err[[0, 1, 3]].mean() < 25.0, err
     masks = [[read_mask(p) for p in row] for row in zip(*(seq.per_view(c, "masks") for c in range(2)))]
-    s = refine_sequence_silhouettes(open_model, r, frames, masks,
-                                    config=SilhouetteFitConfig(resolutions=(32,), iterations=(2,)))  # fmt: skip
+    s = refine_sequence_silhouettes(
+        open_model, r, frames, masks, config=SilhouetteFitConfig(resolutions=(32,), iterations=(2,))
+    )
     assert s.silhouette_iou.shape == (4, 2) and s.keypoints_2d.shape == (4, 2, 25, 2) and s.views is r.views
     assert np.nanmax(s.reprojection_error) < 4.0

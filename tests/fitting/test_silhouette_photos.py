@@ -1,6 +1,7 @@
 """Issue 55: a silhouette stage that improves a photo's fit: the keypoints as a constraint (trust region around the
 keypoint stage's fit), a body inside its mask strongly but filling it weakly (asymmetric energy), and other people
 taken out of a person's mask. Each test fails with its feature switched off."""
+
 from dataclasses import replace
 
 import numpy as np
@@ -21,9 +22,15 @@ def _trust_ev(proj, target, weights, data):
     from types import SimpleNamespace
 
     P, F, C, K = proj.shape[:4]
-    base = {"target": target, "weights": weights, "scale": torch.full((P, F, C), 0.5, dtype=torch.float64),
-            "trust_px": torch.zeros(P, dtype=torch.float64)}  # fmt: skip
-    return SimpleNamespace(keypoints_2d=proj, data={**base, **data}, F=F, C=C, per_problem=lambda v: v.reshape(P, -1).sum(1))
+    base = {
+        "target": target,
+        "weights": weights,
+        "scale": torch.full((P, F, C), 0.5, dtype=torch.float64),
+        "trust_px": torch.zeros(P, dtype=torch.float64),
+    }
+    return SimpleNamespace(
+        keypoints_2d=proj, data={**base, **data}, F=F, C=C, per_problem=lambda v: v.reshape(P, -1).sum(1)
+    )
 
 
 def test_trust_region_is_around_the_keypoint_stage_fit():
@@ -68,8 +75,15 @@ def test_trust_region_holds_the_keypoints_against_a_mask_elsewhere(open_model, t
     keypoints[:, :2] += np.random.default_rng(0).normal(0, 0.5, (len(keypoints), 2))  # the keypoint stage's errors
     cfg = replace(FAST, w_keypoints=0.02)
     on = fit_silhouette(open_model, POSE, CAMERA, target_mask, keypoints, config=cfg, progress=False)
-    off = fit_silhouette(open_model, POSE, CAMERA, target_mask, keypoints, progress=False,
-                         config=replace(cfg, trust_from_start=False, trust_fraction=0.06, w_trust=0.05))  # fmt: skip
+    off = fit_silhouette(
+        open_model,
+        POSE,
+        CAMERA,
+        target_mask,
+        keypoints,
+        progress=False,
+        config=replace(cfg, trust_from_start=False, trust_fraction=0.06, w_trust=0.05),
+    )
     before = _median_error(open_model, POSE, keypoints)
     assert _median_error(open_model, on.params(), keypoints) <= 1.25 * before + 0.25
     assert _median_error(open_model, off.params(), keypoints) > 2 * before + 1.0
@@ -102,22 +116,57 @@ def test_clothing_does_not_inflate_the_body(open_model):
     grown = cv2.dilate(body.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7))).astype(bool)
     cfg = replace(FAST, iterations=(40,))
     asym = fit_silhouette(open_model, POSE, CAMERA, grown, None, config=cfg, progress=False)
-    plain = fit_silhouette(open_model, POSE, CAMERA, grown, None, config=replace(cfg, robust_cover=False), progress=False)
+    plain = fit_silhouette(
+        open_model, POSE, CAMERA, grown, None, config=replace(cfg, robust_cover=False), progress=False
+    )
     z0 = float(POSE["transl"][0, 2])
     closer = lambda r: z0 - float(r.params()["transl"].reshape(-1)[2])  # noqa: E731
     assert closer(plain) > closer(asym) + 0.025
 
 
-BODY25 = ("nose", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder", "left_elbow", "left_wrist",
-          "mid_hip", "right_hip", "right_knee", "right_ankle", "left_hip", "left_knee", "left_ankle")  # fmt: skip
+BODY25 = (
+    "nose",
+    "neck",
+    "right_shoulder",
+    "right_elbow",
+    "right_wrist",
+    "left_shoulder",
+    "left_elbow",
+    "left_wrist",
+    "mid_hip",
+    "right_hip",
+    "right_knee",
+    "right_ankle",
+    "left_hip",
+    "left_knee",
+    "left_ankle",
+)
 
 
 def _stick(x0):
     """A standing stick person at column ``x0`` (BODY_25's first 15 keypoints) and their mask (a box)."""
-    xy = np.array([[0, 10], [0, 20], [-8, 20], [-10, 35], [-10, 50], [8, 20], [10, 35], [10, 50], [0, 55], [-5, 55],
-                   [-5, 75], [-5, 95], [5, 55], [5, 75], [5, 95]], np.float64) + [x0, 0]  # fmt: skip
+    xy = np.array(
+        [
+            [0, 10],
+            [0, 20],
+            [-8, 20],
+            [-10, 35],
+            [-10, 50],
+            [8, 20],
+            [10, 35],
+            [10, 50],
+            [0, 55],
+            [-5, 55],
+            [-5, 75],
+            [-5, 95],
+            [5, 55],
+            [5, 75],
+            [5, 95],
+        ],
+        np.float64,
+    ) + [x0, 0]
     mask = np.zeros((100, 120), bool)
-    mask[5:98, int(x0) - 13: int(x0) + 14] = True
+    mask[5:98, int(x0) - 13 : int(x0) + 14] = True
     return xy, np.ones(len(xy)), mask
 
 
@@ -145,15 +194,41 @@ def _person(x0, mask):
     from silfit.detect.layout import BLAZEPOSE33_NAMES
     from silfit.detect.person import Person
 
-    place = {"nose": (0, 10), "left_eye": (2, 8), "right_eye": (-2, 8), "left_ear": (4, 9), "right_ear": (-4, 9),
-             "left_shoulder": (8, 20), "right_shoulder": (-8, 20), "left_elbow": (10, 35), "right_elbow": (-10, 35),
-             "left_wrist": (10, 50), "right_wrist": (-10, 50), "left_hip": (5, 55), "right_hip": (-5, 55),
-             "left_knee": (5, 75), "right_knee": (-5, 75), "left_ankle": (5, 92), "right_ankle": (-5, 92)}  # fmt: skip
+    place = {
+        "nose": (0, 10),
+        "left_eye": (2, 8),
+        "right_eye": (-2, 8),
+        "left_ear": (4, 9),
+        "right_ear": (-4, 9),
+        "left_shoulder": (8, 20),
+        "right_shoulder": (-8, 20),
+        "left_elbow": (10, 35),
+        "right_elbow": (-10, 35),
+        "left_wrist": (10, 50),
+        "right_wrist": (-10, 50),
+        "left_hip": (5, 55),
+        "right_hip": (-5, 55),
+        "left_knee": (5, 75),
+        "right_knee": (-5, 75),
+        "left_ankle": (5, 92),
+        "right_ankle": (-5, 92),
+    }
     xy = np.array([place.get(n, place["nose"]) for n in BLAZEPOSE33_NAMES], np.float64) + [x0, 0]
     vis = np.array([1.0 if n in place else 0.0 for n in BLAZEPOSE33_NAMES])
     roi = SimpleNamespace(to_dict=lambda: {})
-    return Person(0.9, 0.9, roi, roi, xy, np.zeros(33), vis, vis, np.zeros((33, 3)), mask.astype(np.float32),
-                  (mask.shape[1], mask.shape[0]))  # fmt: skip
+    return Person(
+        0.9,
+        0.9,
+        roi,
+        roi,
+        xy,
+        np.zeros(33),
+        vis,
+        vis,
+        np.zeros((33, 3)),
+        mask.astype(np.float32),
+        (mask.shape[1], mask.shape[0]),
+    )
 
 
 def test_a_photos_other_people_are_unknown_to_the_stage():
@@ -168,8 +243,9 @@ def test_a_photos_other_people_are_unknown_to_the_stage():
     _, _, b_box = _stick(66)
     a = _person(40, a_box | (b_box & (np.arange(120) < 75)[None, :]))
     b = _person(66, b_box)
-    photo = SimpleNamespace(image=np.zeros((100, 120, 3), np.uint8), size=(120, 100), focal=lambda: (None, "none"),
-                            warnings=lambda: [])  # fmt: skip
+    photo = SimpleNamespace(
+        image=np.zeros((100, 120, 3), np.uint8), size=(120, 100), focal=lambda: (None, "none"), warnings=lambda: []
+    )
     out = photo_inputs("two.png", "largest", True, True, detected=(photo, [a, b]))
     assert np.array_equal(out["mask"], a.mask())
     assert out["known"] is not None and not out["known"][20:90, 62:75].any()  # the second person's part

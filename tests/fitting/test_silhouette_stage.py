@@ -1,4 +1,5 @@
 """The silhouette stage on the open body model with the real Mitsuba renderer."""
+
 import math
 from dataclasses import replace
 
@@ -25,9 +26,17 @@ POSE = {
     "transl": np.array([[0.0, 0.15, 3.0]], np.float32),
 }
 # the rendered level alone (no contour level), as the bounds below were measured
-FAST = SilhouetteFitConfig(resolutions=(64,), iterations=(30,), optimise=("transl",), w_keypoints=0.0, warmup=2,
-                           plateau_window=100, lr={"betas": 0.0, "body_pose": 0.0, "global_orient": 0.0, "transl": 0.01},
-                           contour_iterations=0, window_multiple=1)  # fmt: skip
+FAST = SilhouetteFitConfig(
+    resolutions=(64,),
+    iterations=(30,),
+    optimise=("transl",),
+    w_keypoints=0.0,
+    warmup=2,
+    plateau_window=100,
+    lr={"betas": 0.0, "body_pose": 0.0, "global_orient": 0.0, "transl": 0.01},
+    contour_iterations=0,
+    window_multiple=1,
+)
 
 
 def vertices(model, params):
@@ -96,7 +105,9 @@ def test_gradient_moves_a_shifted_body_toward_a_shifted_mask(open_model, target_
     assert 0.075 < dx < 0.095, dx
     assert abs(dy) < 0.006, dy
     assert -0.01 < dz < 0.08, dz
-    iou_after = mask_iou(render_mask(vertices(open_model, result.params()), open_model.faces.numpy(), CAMERA), target_mask)
+    iou_after = mask_iou(
+        render_mask(vertices(open_model, result.params()), open_model.faces.numpy(), CAMERA), target_mask
+    )
     # measured 0.443 -> 0.943 with the plain cover term; the robust one (issue 23: masks are supersets of
     # bodies, an uncovered mask pixel near its edge pulls at a quarter) stops short: 0.902
     assert iou_before < 0.45 and iou_after > (0.88 if robust else 0.92), (iou_before, iou_after)
@@ -104,8 +115,13 @@ def test_gradient_moves_a_shifted_body_toward_a_shifted_mask(open_model, target_
 
 
 def test_divergence_keeps_the_best_parameters(open_model, target_mask):
-    wild = replace(FAST, iterations=(8,), lr={"betas": 0.0, "body_pose": 0.0, "global_orient": 0.0, "transl": 5.0},
-                   iou_collapse=0.05, warmup=1)  # fmt: skip
+    wild = replace(
+        FAST,
+        iterations=(8,),
+        lr={"betas": 0.0, "body_pose": 0.0, "global_orient": 0.0, "transl": 5.0},
+        iou_collapse=0.05,
+        warmup=1,
+    )
     result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=wild, progress=False)
     assert result.warnings and "IoU collapsed" in result.warnings[0]
     assert np.all(np.isfinite(result.transl)) and abs(result.transl[0, 0] - POSE["transl"][0, 0]) < 1.0
@@ -120,8 +136,9 @@ def test_plateau_stops_a_level_early(open_model, target_mask):
 
 def test_keypoint_term_is_off_without_keypoints(open_model, target_mask):
     cfg = replace(FAST, iterations=(2,), w_keypoints=0.02)
-    kp = np.concatenate([project_points(torch.as_tensor(vertices(open_model, POSE))[:25], CAMERA).numpy(),
-                         np.ones((25, 1))], 1)  # fmt: skip
+    kp = np.concatenate(
+        [project_points(torch.as_tensor(vertices(open_model, POSE))[:25], CAMERA).numpy(), np.ones((25, 1))], 1
+    )
     with_kp = fit_silhouette(open_model, POSE, CAMERA, target_mask, keypoints=kp, config=cfg, progress=False)
     without = fit_silhouette(open_model, POSE, CAMERA, target_mask, keypoints=None, config=cfg, progress=False)
     assert "keypoints" in with_kp.terms and with_kp.terms["keypoints"] > 0
@@ -193,8 +210,9 @@ def view_mask(model, params, R=None, t=None):
 def test_two_views_recover_the_depth_one_view_cannot(open_model):
     truth = dict(POSE, transl=POSE["transl"] + np.array([[0.05, 0.0, 0.12]], np.float32))
     front, side = view_mask(open_model, truth), view_mask(open_model, truth, SIDE_R, SIDE_T)
-    problem = Problem([Observation(View(CAMERA), None, front, 0, 0),
-                       Observation(View(CAMERA, SIDE_R, SIDE_T), None, side, 0, 1)])  # fmt: skip
+    problem = Problem(
+        [Observation(View(CAMERA), None, front, 0, 0), Observation(View(CAMERA, SIDE_R, SIDE_T), None, side, 0, 1)]
+    )
     two = fit_silhouette_problems(open_model, [problem], [POSE], config=TWO_VIEW, progress=False)[0]
     one = fit_silhouette(open_model, POSE, CAMERA, front, config=TWO_VIEW, progress=False)
     err_two = np.abs(two.transl[0] - truth["transl"][0])
@@ -210,8 +228,9 @@ def test_two_views_recover_the_depth_one_view_cannot(open_model):
 
 def test_an_observation_without_a_mask_adds_nothing(open_model):
     front = view_mask(open_model, dict(POSE, transl=POSE["transl"] + np.array([[0.08, 0.0, 0.0]], np.float32)))
-    problem = Problem([Observation(View(CAMERA), None, front, 0, 0),
-                       Observation(View(CAMERA, SIDE_R, SIDE_T), None, None, 0, 1)])  # fmt: skip
+    problem = Problem(
+        [Observation(View(CAMERA), None, front, 0, 0), Observation(View(CAMERA, SIDE_R, SIDE_T), None, None, 0, 1)]
+    )
     two = fit_silhouette_problems(open_model, [problem], [POSE], config=FAST, progress=False)[0]
     one = fit_silhouette(open_model, POSE, CAMERA, front, config=FAST, progress=False)
     assert math.isnan(two.ious[0][1]) and two.ious[0][0] > 0.8  # window soft IoU, measured 0.88
@@ -242,8 +261,16 @@ class GoalTerm(Term):
 def test_extra_terms_and_their_data_join_the_energy(open_model, target_mask):
     goal = torch.as_tensor(POSE["transl"] + np.array([[0.3, 0.0, 0.0]], np.float32))
     problem = Problem.single(None, CAMERA, target_mask)
-    r = fit_silhouette_problems(open_model, [problem], [POSE], config=FAST, progress=False, terms=[GoalTerm()],
-                                weights={"goal": 100.0}, data={"goal": goal})[0]  # fmt: skip
+    r = fit_silhouette_problems(
+        open_model,
+        [problem],
+        [POSE],
+        config=FAST,
+        progress=False,
+        terms=[GoalTerm()],
+        weights={"goal": 100.0},
+        data={"goal": goal},
+    )[0]
     assert r.terms["goal"] > 0
     # the silhouette alone stops near +0.08 m; a strong pull toward +0.3 m takes the body further
     # (measured +0.106 m against +0.085 m alone; Adam's step size limits how far in 30 steps)
@@ -253,8 +280,16 @@ def test_extra_terms_and_their_data_join_the_energy(open_model, target_mask):
     with pytest.raises(ValueError, match="unknown energy term"):
         fit_silhouette_problems(open_model, [problem], [POSE], config=FAST, progress=False, weights={"gaol": 1.0})
     with pytest.raises(ValueError, match="leading problem axis"):
-        fit_silhouette_problems(open_model, [problem], [POSE], config=FAST, progress=False, terms=[GoalTerm()],
-                                weights={"goal": 1.0}, data={"goal": goal.repeat(2, 1)})  # fmt: skip
+        fit_silhouette_problems(
+            open_model,
+            [problem],
+            [POSE],
+            config=FAST,
+            progress=False,
+            terms=[GoalTerm()],
+            weights={"goal": 1.0},
+            data={"goal": goal.repeat(2, 1)},
+        )
 
 
 # ----------------------------------------------------------------------------- the contour level (issue 24)
@@ -267,8 +302,12 @@ CONTOUR = replace(FAST, iterations=(0,), contour_iterations=15, contour_resoluti
 
 def random_params(seed: int, rows: int = 2) -> dict:
     g = torch.Generator().manual_seed(seed)
-    return {"betas": torch.randn(rows, 10, generator=g), "body_pose": 0.3 * torch.randn(rows, 69, generator=g),
-            "global_orient": torch.randn(rows, 3, generator=g), "transl": torch.randn(rows, 3, generator=g)}  # fmt: skip
+    return {
+        "betas": torch.randn(rows, 10, generator=g),
+        "body_pose": 0.3 * torch.randn(rows, 69, generator=g),
+        "global_orient": torch.randn(rows, 3, generator=g),
+        "transl": torch.randn(rows, 3, generator=g),
+    }
 
 
 def test_contour_body_poses_the_same_vertices_as_the_mesh(open_model):
@@ -338,7 +377,9 @@ def test_contour_level_then_rendered_level(open_model, target_mask, robust):
     # (soft IoU at 64 px against 0.44 at the start; measured at the first rendered steps with the plain cover
     # term: 0.83-0.85 with the prb_projective renderer, 0.837-0.843 with the ray-cast one; with the robust
     # cover term, whose pull near the mask's edge is weaker, 0.83 and below)
-    assert result.iou_start > (0.75 if robust else 0.8) and abs(result.transl[0, 0] - POSE["transl"][0, 0] - 0.08) < 0.015
+    assert (
+        result.iou_start > (0.75 if robust else 0.8) and abs(result.transl[0, 0] - POSE["transl"][0, 0] - 0.08) < 0.015
+    )
 
 
 def test_a_batch_with_the_contour_level_equals_single_runs(open_model):
@@ -360,8 +401,9 @@ def test_a_fit_is_bit_identical_for_any_drjit_thread_count(open_model, target_ma
 
     _, dr = import_mitsuba()
     default = SilhouetteFitConfig()
-    cfg = replace(FAST, iterations=(6,), optimise=default.optimise, lr=default.lr, contour_iterations=6,
-                  contour_resolution=64)  # fmt: skip
+    cfg = replace(
+        FAST, iterations=(6,), optimise=default.optimise, lr=default.lr, contour_iterations=6, contour_resolution=64
+    )
     previous = dr.thread_count()
     results = []
     try:
@@ -401,8 +443,12 @@ def test_keypoint_trust_region_is_free_inside_and_quadratic_beyond():
     proj = target.clone()
     proj[0, 0, 0, 0, 0] = 4.0  # 4 image px = 8 window px at scale 2: inside tau = 10
     proj[1, 0, 0, 1, 0] = 10.0  # 20 window px: 10 beyond tau
-    data = {"target": target, "weights": torch.tensor([1.0, 1.0, 0.0], dtype=torch.float64).expand(P, F, C, K),
-            "scale": torch.full((P, F, C), 2.0, dtype=torch.float64), "trust_px": torch.full((P,), 10.0, dtype=torch.float64)}  # fmt: skip
+    data = {
+        "target": target,
+        "weights": torch.tensor([1.0, 1.0, 0.0], dtype=torch.float64).expand(P, F, C, K),
+        "scale": torch.full((P, F, C), 2.0, dtype=torch.float64),
+        "trust_px": torch.full((P,), 10.0, dtype=torch.float64),
+    }
     ev = SimpleNamespace(keypoints_2d=proj, data=data, F=F, C=C, per_problem=lambda v: v.reshape(P, -1).sum(1))
     e = KeypointTrustTerm()(ev)
     assert e[0].item() == 0.0 and e[1].item() == pytest.approx(100.0 / 2.0)  # (20 - 10)^2 over the 2 weighted points
@@ -426,7 +472,9 @@ def test_level_proxy_faces_pick_each_rendered_levels_proxy(open_model, target_ma
     cfg = replace(FAST, iterations=(2,), proxy_faces=10000, level_proxy_faces={64: 2000})
     assert [s.options.get("proxy_faces") for s in cfg.stages()] == [2000]
     assert replace(cfg, level_proxy_faces={64: 20000}).stages()[0].options.get("proxy_faces") is None
-    assert replace(cfg, level_proxy_faces={"64": 2000}).stages()[0].options["proxy_faces"] == 2000  # read back from JSON
+    assert (
+        replace(cfg, level_proxy_faces={"64": 2000}).stages()[0].options["proxy_faces"] == 2000
+    )  # read back from JSON
     assert replace(cfg, proxy_faces=None).stages()[0].options.get("proxy_faces") is None
     assert all("proxy_faces" not in s.options for s in SilhouetteFitConfig.legacy().stages())
     assert [s.options.get("proxy_faces") for s in SilhouetteFitConfig().stages()[1:]] == [3000, 5000]
@@ -437,5 +485,7 @@ def test_level_proxy_faces_pick_each_rendered_levels_proxy(open_model, target_ma
     # only the proxy a rendered level uses is built (not the 10,000-face one no level renders)
     assert seen == [2000] and result.steps == 2 and math.isfinite(result.iou_end)
     seen.clear()  # proxy_faces=None: the full mesh at every level
-    result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=replace(cfg, proxy_faces=None), progress=False)
+    result = fit_silhouette(
+        open_model, POSE, CAMERA, target_mask, config=replace(cfg, proxy_faces=None), progress=False
+    )
     assert seen == [len(open_model.faces)] and result.steps == 2

@@ -1,4 +1,5 @@
 """Stages as data: validation of schedules and configs."""
+
 from dataclasses import replace
 
 import pytest
@@ -10,8 +11,18 @@ from silfit.fitting.stages import Stage
 
 def test_keypoint_schedule_is_data_with_the_decision_in_the_first_pose_stage():
     stages = KeypointFitConfig().stages()
-    assert [s.name for s in stages] == ["camera", "pose_1", "pose_2", "branches_1", "pose_3", "shape", "branches_late",
-                                        "settle", "branches_post", "final"]  # fmt: skip
+    assert [s.name for s in stages] == [
+        "camera",
+        "pose_1",
+        "pose_2",
+        "branches_1",
+        "pose_3",
+        "shape",
+        "branches_late",
+        "settle",
+        "branches_post",
+        "final",
+    ]
     # the late search and the search from the fit: final weights; the late one's best 4 settle, the best goes on
     assert all("branches" in stages[i].options and stages[i].weights == stages[-1].weights for i in (6, 8))
     assert stages[6].options["branches"]["carry"] == 4 and "carry" not in stages[8].options["branches"]
@@ -88,10 +99,15 @@ def quadratic_problem(P=3, seed=0):
     g = torch.Generator().manual_seed(seed)
     layout = ParameterLayout({"x": 4, "transl": 3}, ("x",), frames=1)
     state = layout.zeros(P)
-    views = {"intr": torch.tensor([100.0, 100.0, 50.0, 50.0], dtype=torch.float64).expand(P, 1, 1, 4),
-             "R": torch.eye(3, dtype=torch.float64).expand(P, 1, 1, 3, 3), "t": torch.zeros(P, 1, 1, 3, dtype=torch.float64)}
-    data = {"target": torch.randn(P, 4, generator=g, dtype=torch.float64),
-            "curvature": 0.5 + torch.rand(P, 4, generator=g, dtype=torch.float64)}  # fmt: skip
+    views = {
+        "intr": torch.tensor([100.0, 100.0, 50.0, 50.0], dtype=torch.float64).expand(P, 1, 1, 4),
+        "R": torch.eye(3, dtype=torch.float64).expand(P, 1, 1, 3, 3),
+        "t": torch.zeros(P, 1, 1, 3, dtype=torch.float64),
+    }
+    data = {
+        "target": torch.randn(P, 4, generator=g, dtype=torch.float64),
+        "curvature": 0.5 + torch.rand(P, 4, generator=g, dtype=torch.float64),
+    }
     return layout, state, Energy([Quadratic()]), views, data
 
 
@@ -105,7 +121,9 @@ def adam_state(state):
 def test_an_adam_stage_on_a_quadratic_recovers_each_rows_minimum():
     layout, state, energy, views, data = quadratic_problem()
     params = adam_state(state)
-    run = run_stage(Stage("q", ("x",), {"quad": 1.0}, 400, "adam", ADAM), params, layout, energy, point_body, views, data)
+    run = run_stage(
+        Stage("q", ("x",), {"quad": 1.0}, 400, "adam", ADAM), params, layout, energy, point_body, views, data
+    )
     assert isinstance(run.adam, BatchedAdam) and run.iterations.tolist() == [400, 400, 400]
     assert torch.allclose(params["x"].detach(), data["target"], atol=1e-3), params["x"] - data["target"]
     assert float(run.energy.max()) < 1e-5 and torch.equal(params["transl"], state["transl"])  # held: not free
@@ -169,8 +187,9 @@ def test_a_schedule_continues_one_adam_across_its_adam_stages():
     params = adam_state(state)
     stages = [Stage("a", ("x",), {"quad": 1.0}, 7, "adam", ADAM), Stage("b", ("x",), {"quad": 2.0}, 5, "adam", ADAM)]
     seen = []
-    runs = run_schedule(stages, params, layout, energy, point_body, views, data,
-                        before_stage=lambda i, s: seen.append(s.name))  # fmt: skip
+    runs = run_schedule(
+        stages, params, layout, energy, point_body, views, data, before_stage=lambda i, s: seen.append(s.name)
+    )
     assert seen == ["a", "b"] and runs[0].adam is runs[1].adam and runs[1].adam.t.tolist() == [12, 12, 12]
     # the energy of stage b is weighted by 2
     assert torch.allclose(runs[1].terms["quad"] * 2.0, runs[1].energy.to(runs[1].terms["quad"].dtype))

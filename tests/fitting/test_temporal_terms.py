@@ -1,4 +1,5 @@
 """Temporal energy terms: hand-computed values and gradients against finite differences."""
+
 import math
 
 import pytest
@@ -22,7 +23,9 @@ def test_second_differences_and_penalties_by_hand():
     sq = torch.tensor([0.0, 1.0, 9.0], dtype=torch.float64)
     assert robust_penalty(sq, None).tolist() == [0.0, 1.0, 9.0]
     # Charbonnier with sigma 2: 2*4*(sqrt(1 + sq/4) - 1); GM: 4 sq / (4 + sq)
-    assert robust_penalty(sq, 2.0).tolist() == pytest.approx([0.0, 8 * (math.sqrt(1.25) - 1), 8 * (math.sqrt(3.25) - 1)])
+    assert robust_penalty(sq, 2.0).tolist() == pytest.approx(
+        [0.0, 8 * (math.sqrt(1.25) - 1), 8 * (math.sqrt(3.25) - 1)]
+    )
     assert robust_penalty(sq, 2.0, "gm").tolist() == pytest.approx([0.0, 0.8, 36 / 13])
     # large residuals: Charbonnier grows linearly (|r| * 2 sigma), GM is bounded by sigma^2
     big = torch.tensor([1e6], dtype=torch.float64)

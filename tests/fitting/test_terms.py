@@ -1,7 +1,5 @@
 """Energy terms against hand-computed values, and the energy's weight checks."""
-import math
 
-import numpy as np
 import pytest
 import torch
 
@@ -23,9 +21,11 @@ def evaluation(P=1, F=1, C=1, proj=None, data=None, params=None):
 
 def test_keypoint_term_is_the_weighted_geman_mcclure_sum():
     proj = torch.tensor([[[[[3.0, 4.0], [0.0, 0.0]]]]], dtype=torch.float64)  # residual 5 px, then 0
-    data = {"target": torch.zeros(1, 1, 1, 2, 2, dtype=torch.float64),
-            "weights": torch.tensor([[[[2.0, 7.0]]]], dtype=torch.float64),
-            "scale": torch.tensor([[[2.0]]], dtype=torch.float64)}  # fmt: skip
+    data = {
+        "target": torch.zeros(1, 1, 1, 2, 2, dtype=torch.float64),
+        "weights": torch.tensor([[[[2.0, 7.0]]]], dtype=torch.float64),
+        "scale": torch.tensor([[[2.0]]], dtype=torch.float64),
+    }
     ev = evaluation(proj=proj, data=data)
     # r = 2 * 5 = 10 normalised px; rho = s^2 r^2 / (s^2 + r^2) with s = 10: 100 * 100 / 200 = 50; weight 2.
     assert KeypointTerm(sigma=10.0)(ev).item() == pytest.approx(100.0)

@@ -1,19 +1,28 @@
 """Triangulation (confidence-weighted DLT, robust to one wrong view) and the torso placement."""
+
 import numpy as np
 import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
 from silfit.fitting.triangulate import (
-    dlt, kabsch, placement_to_world, projection_matrices, reprojection_errors, robust_triangulate, torso_placement,
-)  # fmt: skip
+    dlt,
+    kabsch,
+    placement_to_world,
+    projection_matrices,
+    reprojection_errors,
+    robust_triangulate,
+    torso_placement,
+)
 from silfit.rig import ring_layout
 
 
 def rig(n, seed=0):
     rng = np.random.default_rng(seed)
     ext = ring_layout(n, 3.0, rng.uniform(-0.3, 1.0, n), start_deg=rng.uniform(0, 360))
-    intr = np.stack([rng.uniform(400, 700, n), rng.uniform(400, 700, n), rng.uniform(200, 300, n), rng.uniform(200, 300, n)], 1)
+    intr = np.stack(
+        [rng.uniform(400, 700, n), rng.uniform(400, 700, n), rng.uniform(200, 300, n), rng.uniform(200, 300, n)], 1
+    )
     return projection_matrices(intr, [e[0] for e in ext], [e[1] for e in ext])
 
 

@@ -1,5 +1,6 @@
 """``silfit.outputs.export``: GLB / PLY in the upright world frame, read back by trimesh; the animated
 glTF of a video holds every frame (decoded here from the file's own accessors)."""
+
 import json
 import struct
 
@@ -67,7 +68,9 @@ def test_animated_glb_holds_every_frame(posed, tmp_path):
     v, f, _, _ = posed
     frames = np.stack([v + [0.05 * k, 0.0, 0.0] for k in range(4)])
     frames[2, 0] += 0.3  # one vertex moves alone in frame 2
-    write_glb(tmp_path / "anim.glb", frames, f, Camera.from_image_size(320, 240), fps=10, frame_numbers=[10, 11, 12, 13])
+    write_glb(
+        tmp_path / "anim.glb", frames, f, Camera.from_image_size(320, 240), fps=10, frame_numbers=[10, 11, 12, 13]
+    )
     gltf, blob = glb_json_and_blob(tmp_path / "anim.glb")
     prim = gltf["meshes"][0]["primitives"][0]
     base = accessor(gltf, blob, prim["attributes"]["POSITION"])
@@ -89,8 +92,9 @@ def test_ply_is_upright_with_normals(posed, tmp_path):
     assert "comment silfit upright camera frame" in text and "property float nx" in text
     mesh = trimesh.load(tmp_path / "mesh.ply", process=False)
     assert np.allclose(mesh.vertices, to_upright(v), atol=1e-5) and np.array_equal(mesh.faces, f)
-    normals = np.loadtxt(tmp_path / "mesh.ply", skiprows=text[: text.index("end_header")].count("\n") + 1,
-                         max_rows=len(v))[:, 3:6]  # fmt: skip
+    normals = np.loadtxt(
+        tmp_path / "mesh.ply", skiprows=text[: text.index("end_header")].count("\n") + 1, max_rows=len(v)
+    )[:, 3:6]
     assert np.allclose(normals, vertex_normals(to_upright(v), f), atol=1e-5)
 
 

@@ -1,5 +1,6 @@
 """``silfit report`` / the report at the end of ``fit-dataset``: the gallery renders in a real headless
 Chromium (Debian's ``chromium``, installed by tools/setup.sh), whose JavaScript sorts the cards."""
+
 import json
 import os
 import re
@@ -16,7 +17,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from runner.helpers import FAST, synthetic_copy  # noqa: E402
 
 from silfit.cli import main  # noqa: E402
-from silfit.outputs.report import collect_cards, side_view  # noqa: E402
+from silfit.outputs.report import side_view  # noqa: E402
 
 
 def chromium(*args, timeout=120):
@@ -88,8 +89,16 @@ def _fake_fit(folder: Path, name: str, metrics: dict) -> None:
 
 def test_report_of_fit_folders_sorts_by_any_metric_and_escapes_text(tmp_path, capsys):
     _fake_fit(tmp_path, "b", {"reprojection_error_px": 3.0, "iou_keypoint_stage": 0.7, "iou": 0.9, "warnings": []})
-    _fake_fit(tmp_path, "a", {"reprojection_error_px": 1.0, "iou_keypoint_stage": 0.6, "iou": 0.5,
-                              "warnings": ["<script>alert(1)</script>", "two"]})  # fmt: skip
+    _fake_fit(
+        tmp_path,
+        "a",
+        {
+            "reprojection_error_px": 1.0,
+            "iou_keypoint_stage": 0.6,
+            "iou": 0.5,
+            "warnings": ["<script>alert(1)</script>", "two"],
+        },
+    )
     _fake_fit(tmp_path, "c", {"reprojection_error_px": 2.0, "iou_keypoint_stage": 0.8, "iou": 0.7, "warnings": ["one"]})
     (tmp_path / "d").mkdir()
     (tmp_path / "d" / "metrics.json").write_text("{not json")
@@ -99,9 +108,13 @@ def test_report_of_fit_folders_sorts_by_any_metric_and_escapes_text(tmp_path, ca
     page = index.read_text()
     assert "<script>alert" not in page and "&lt;script&gt;alert(1)&lt;/script&gt;" in page
     assert card_order(chromium("--dump-dom", index.as_uri())) == ["d", "a", "c", "b"]  # default: lowest IoU first
-    for sort, order, expected in (("reproj", "worst", ["d", "b", "c", "a"]), ("iou_kp", "worst", ["d", "a", "b", "c"]),
-                                  ("warnings", "worst", ["d", "a", "c", "b"]), ("item", "worst", ["d", "a", "b", "c"]),
-                                  ("iou", "best", ["b", "c", "a", "d"])):  # fmt: skip
+    for sort, order, expected in (
+        ("reproj", "worst", ["d", "b", "c", "a"]),
+        ("iou_kp", "worst", ["d", "a", "b", "c"]),
+        ("warnings", "worst", ["d", "a", "c", "b"]),
+        ("item", "worst", ["d", "a", "b", "c"]),
+        ("iou", "best", ["b", "c", "a", "d"]),
+    ):
         dom = chromium("--dump-dom", index.as_uri() + f"#sort={sort}&order={order}")
         assert f'data-sorted="{sort}:{order}"' in dom and card_order(dom) == expected, sort
 
@@ -115,9 +128,13 @@ def test_side_view_turns_the_body(open_model):
     import torch
 
     with torch.no_grad():
-        v = open_model(global_orient=torch.tensor([[np.pi, 0.0, 0.0]]), transl=torch.tensor([[0.0, 0.0, 3.0]])).vertices[0]
+        v = open_model(
+            global_orient=torch.tensor([[np.pi, 0.0, 0.0]]), transl=torch.tensor([[0.0, 0.0, 3.0]])
+        ).vertices[0]
     img = side_view(v.numpy(), open_model.faces.numpy(), size=(120, 180))
-    body = (np.abs(img.astype(int) - 235).sum(-1) > 10)
+    body = np.abs(img.astype(int) - 235).sum(-1) > 10
     cols = np.flatnonzero(body.any(0))
     rows = np.flatnonzero(body.any(1))
-    assert np.ptp(rows) > 150 and np.ptp(cols) < 0.3 * np.ptp(rows)  # from the side: tall and narrow (the T-pose arms point at the viewer)
+    assert np.ptp(rows) > 150 and np.ptp(cols) < 0.3 * np.ptp(
+        rows
+    )  # from the side: tall and narrow (the T-pose arms point at the viewer)

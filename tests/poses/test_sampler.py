@@ -1,4 +1,5 @@
 """The sampler of plausible poses that do not come from the pose library."""
+
 import numpy as np
 import pytest
 import torch
@@ -33,11 +34,15 @@ def test_samples_are_within_the_limits_and_deterministic(sampler, samples, body_
     assert bool(within_limits(poses).all())
     again = [sampler.sample(np.random.default_rng([7, i])) for i in range(2)]
     for a, b in zip(samples, again):
-        assert a.archetype == b.archetype and np.array_equal(a.body_pose, b.body_pose) and np.array_equal(a.root, b.root)
+        assert (
+            a.archetype == b.archetype and np.array_equal(a.body_pose, b.body_pose) and np.array_equal(a.root, b.root)
+        )
     other = sampler.sample(np.random.default_rng([8, 0]))
     assert not np.allclose(other.body_pose, samples[0].body_pose)
     # sample_poses: pose i depends on (seed, i) only.
-    assert np.array_equal(sample_poses(2, seed=7, model=body_model, archetypes=NON_CONTACT)[1].body_pose, samples[1].body_pose)
+    assert np.array_equal(
+        sample_poses(2, seed=7, model=body_model, archetypes=NON_CONTACT)[1].body_pose, samples[1].body_pose
+    )
 
 
 def test_samples_do_not_come_from_the_library(samples):

@@ -18,6 +18,7 @@ Measured on the open body model, mean shape (energy in m^2; the fitter weighs it
 (old term: the former spheres of 0.8 x the RMS slice radius; numbers from
 ``benchmarks/bench_interpenetration.py``.)
 """
+
 import copy
 
 import numpy as np
@@ -27,6 +28,7 @@ import torch
 from silfit.fitting.body import body_transforms
 from silfit.poses.contact import contact_examples, intersecting_examples, part_contact, posed_vertices
 from silfit.priors import SphereCollisionModel
+
 
 def energy(col, model, body_pose, betas=None):
     if not torch.is_tensor(body_pose):
@@ -100,7 +102,9 @@ def test_gradient_matches_finite_differences(col, open_model64):
     col64 = copy.deepcopy(col).double()
 
     def f(x):
-        T = body_transforms(open_model64, torch.zeros(1, 10, dtype=torch.float64), torch.zeros(1, 3, dtype=torch.float64), x)
+        T = body_transforms(
+            open_model64, torch.zeros(1, 10, dtype=torch.float64), torch.zeros(1, 3, dtype=torch.float64), x
+        )
         return col64(torch.zeros(1, 10, dtype=torch.float64), T).sum()
 
     x = pose.clone().requires_grad_(True)
@@ -154,7 +158,9 @@ def test_the_fast_penalty_equals_its_definition_in_value_and_gradient(col, open_
     g = torch.Generator().manual_seed(5)
     B = 12
     examples = intersecting_examples()
-    pose = torch.cat([torch.as_tensor(np.asarray(examples[n][0]), dtype=torch.float64).reshape(1, 69) for n in examples])
+    pose = torch.cat(
+        [torch.as_tensor(np.asarray(examples[n][0]), dtype=torch.float64).reshape(1, 69) for n in examples]
+    )
     pose = torch.cat([pose, 0.6 * torch.randn(B - len(pose), 69, generator=g, dtype=torch.float64)])
     betas = torch.randn(B, 10, generator=g, dtype=torch.float64)
     values = []

@@ -1,4 +1,5 @@
 """The shipped default pose prior: a mixture fitted to silfit's own pose library."""
+
 import subprocess
 import sys
 from pathlib import Path
@@ -108,10 +109,25 @@ def test_builder_is_deterministic_and_respects_the_name_list(tmp_path):
 def test_build_script_writes_a_loadable_file(tmp_path):
     out = tmp_path / "mix.npz"
     subprocess.run(
-        [sys.executable, str(ROOT / "tools" / "build_pose_prior.py"), "--out", str(out), "--n-samples", "300",
-         "--components", "2", "--em-iters", "3", "--names", "t_pose", "a_pose", "stand_relaxed"],
-        check=True, capture_output=True,
-    )  # fmt: skip
+        [
+            sys.executable,
+            str(ROOT / "tools" / "build_pose_prior.py"),
+            "--out",
+            str(out),
+            "--n-samples",
+            "300",
+            "--components",
+            "2",
+            "--em-iters",
+            "3",
+            "--names",
+            "t_pose",
+            "a_pose",
+            "stand_relaxed",
+        ],
+        check=True,
+        capture_output=True,
+    )
     prior = load_pose_prior(out)
     assert isinstance(prior, LibraryMixturePrior) and prior.num_components == 2
     assert prior.pose_names == ["t_pose", "a_pose", "stand_relaxed"] and prior.settings["components"] == 2

@@ -5,23 +5,26 @@ import torch
 
 from silfit.body import SMPL_JOINT_NAMES, SMPL_PARENTS
 from silfit.body.lbs import axis_angle_to_matrix, forward_kinematics
-from silfit.priors import (
-    BODY_JOINT_NAMES,
-    JOINT_LIMITS,
-    clamp_to_limits,
-    limit_bounds,
-    limit_violation,
-    within_limits,
-)
+from silfit.priors import BODY_JOINT_NAMES, JOINT_LIMITS, clamp_to_limits, limit_bounds, limit_violation, within_limits
 
 # A rough SMPL T-pose skeleton (metres; Y up, facing +Z, +X the body's left).
 _LEFT = {
-    "pelvis": (0, 0, 0), "left_hip": (0.06, -0.09, 0), "spine1": (0, 0.11, 0), "left_knee": (0.1, -0.47, 0),
-    "spine2": (0, 0.25, 0), "left_ankle": (0.09, -0.87, -0.04), "spine3": (0, 0.31, 0),
-    "left_foot": (0.11, -0.93, 0.08), "neck": (0, 0.52, 0), "left_collar": (0.08, 0.43, 0),
-    "head": (0, 0.6, 0.05), "left_shoulder": (0.18, 0.45, 0), "left_elbow": (0.44, 0.45, 0),
-    "left_wrist": (0.7, 0.45, 0), "left_hand": (0.78, 0.45, 0),
-}  # fmt: skip
+    "pelvis": (0, 0, 0),
+    "left_hip": (0.06, -0.09, 0),
+    "spine1": (0, 0.11, 0),
+    "left_knee": (0.1, -0.47, 0),
+    "spine2": (0, 0.25, 0),
+    "left_ankle": (0.09, -0.87, -0.04),
+    "spine3": (0, 0.31, 0),
+    "left_foot": (0.11, -0.93, 0.08),
+    "neck": (0, 0.52, 0),
+    "left_collar": (0.08, 0.43, 0),
+    "head": (0, 0.6, 0.05),
+    "left_shoulder": (0.18, 0.45, 0),
+    "left_elbow": (0.44, 0.45, 0),
+    "left_wrist": (0.7, 0.45, 0),
+    "left_hand": (0.78, 0.45, 0),
+}
 
 
 def _skeleton():
@@ -100,16 +103,34 @@ def test_layout_and_zero_pose_inside():
 
 
 PLAUSIBLE = {
-    "sitting": dict(left_hip=(-1.6, 0, 0.1), right_hip=(-1.6, 0, -0.1), left_knee=(1.6, 0, 0), right_knee=(1.6, 0, 0),
-                    left_shoulder=(0, 0, -1.3), right_shoulder=(0, 0, 1.3)),
-    "kneeling": dict(left_hip=(0.1, 0, 0), right_hip=(-1.4, 0, 0), left_knee=(2.3, 0, 0), right_knee=(1.5, 0, 0),
-                     left_ankle=(0.8, 0, 0)),
+    "sitting": dict(
+        left_hip=(-1.6, 0, 0.1),
+        right_hip=(-1.6, 0, -0.1),
+        left_knee=(1.6, 0, 0),
+        right_knee=(1.6, 0, 0),
+        left_shoulder=(0, 0, -1.3),
+        right_shoulder=(0, 0, 1.3),
+    ),
+    "kneeling": dict(
+        left_hip=(0.1, 0, 0),
+        right_hip=(-1.4, 0, 0),
+        left_knee=(2.3, 0, 0),
+        right_knee=(1.5, 0, 0),
+        left_ankle=(0.8, 0, 0),
+    ),
     "lunge": dict(left_hip=(-1.3, 0, 0), right_hip=(0.6, 0, 0), left_knee=(1.4, 0, 0), right_knee=(0.3, 0, 0)),
     "kick": dict(right_hip=(-2.0, 0.3, -0.3), right_knee=(0.2, 0, 0), spine1=(-0.3, 0, 0)),
-    "throw": dict(right_shoulder=(0.8, 1.0, -1.2), right_elbow=(0.5, 1.6, 0), spine2=(0, 0.4, 0.1), spine3=(0, 0.4, 0.1)),
-    "reach_up": dict(left_shoulder=(0, 0, 1.7), right_shoulder=(0, 0, -1.7), left_collar=(0, 0, 0.4),
-                     right_collar=(0, 0, -0.4), spine3=(-0.3, 0, 0)),
-}  # fmt: skip
+    "throw": dict(
+        right_shoulder=(0.8, 1.0, -1.2), right_elbow=(0.5, 1.6, 0), spine2=(0, 0.4, 0.1), spine3=(0, 0.4, 0.1)
+    ),
+    "reach_up": dict(
+        left_shoulder=(0, 0, 1.7),
+        right_shoulder=(0, 0, -1.7),
+        left_collar=(0, 0, 0.4),
+        right_collar=(0, 0, -0.4),
+        spine3=(-0.3, 0, 0),
+    ),
+}
 
 
 @pytest.mark.parametrize("name", sorted(PLAUSIBLE))
@@ -119,9 +140,15 @@ def test_plausible_poses_are_within_limits(name):
 
 
 @pytest.mark.parametrize(
-    "rot", [dict(left_knee=(-0.6, 0, 0)), dict(right_knee=(0, 0, 0.9)), dict(left_elbow=(0, 0.8, 0)),
-            dict(right_elbow=(0, -0.8, 0)), dict(neck=(0, 2.5, 0))],
-)  # fmt: skip
+    "rot",
+    [
+        dict(left_knee=(-0.6, 0, 0)),
+        dict(right_knee=(0, 0, 0.9)),
+        dict(left_elbow=(0, 0.8, 0)),
+        dict(right_elbow=(0, -0.8, 0)),
+        dict(neck=(0, 2.5, 0)),
+    ],
+)
 def test_implausible_poses_violate_and_the_gradient_pulls_back(rot):
     p = pose_with(**rot).requires_grad_(True)
     v = limit_violation(p)

@@ -1,4 +1,5 @@
 """silfit.priors.spd: BLAS-free Cholesky and inverse of SPD matrices, the same bits under any OpenBLAS kernel."""
+
 import os
 import subprocess
 import sys
@@ -35,16 +36,22 @@ def test_not_positive_definite_is_refused():
         spd.cholesky(np.full((2, 2), np.nan))
 
 
-_HASH = ("import silfit, hashlib, torch; from silfit.priors import load_pose_prior; "
-         "p = load_pose_prior(None, dtype=torch.float64); "
-         "print(hashlib.sha256(p.precisions.numpy().tobytes() + p.constants.numpy().tobytes()).hexdigest())")  # fmt: skip
+_HASH = (
+    "import silfit, hashlib, torch; from silfit.priors import load_pose_prior; "
+    "p = load_pose_prior(None, dtype=torch.float64); "
+    "print(hashlib.sha256(p.precisions.numpy().tobytes() + p.constants.numpy().tobytes()).hexdigest())"
+)
 
 
-@pytest.mark.skipif(not {"avx2", "fma"} <= __import__("silfit.kernels").kernels.cpu_flags(), reason="needs an x86-64 CPU with AVX2")
+@pytest.mark.skipif(
+    not {"avx2", "fma"} <= __import__("silfit.kernels").kernels.cpu_flags(), reason="needs an x86-64 CPU with AVX2"
+)
 def test_the_shipped_prior_has_the_same_precisions_under_another_openblas_kernel():
     # LAPACK's inverse gave other bits with OpenBLAS's Sandybridge kernel than with Haswell (then other fits)
     out = []
     for core in ("Haswell", "Sandybridge"):
         env = {**os.environ, "OPENBLAS_CORETYPE": core}
-        out.append(subprocess.run([sys.executable, "-c", _HASH], env=env, capture_output=True, text=True, check=True).stdout)
+        out.append(
+            subprocess.run([sys.executable, "-c", _HASH], env=env, capture_output=True, text=True, check=True).stdout
+        )
     assert out[0] == out[1] and len(out[0]) > 60

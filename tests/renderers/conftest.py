@@ -1,4 +1,5 @@
 """Shared fixtures for the renderer tests: small meshes and cameras (64-128 px)."""
+
 from __future__ import annotations
 
 import math

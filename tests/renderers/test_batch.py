@@ -1,5 +1,6 @@
 """Batched silhouettes (several subjects in tiles of one film) equal single renders within
 the Monte Carlo noise, and gradients reach each subject's vertices without cross-talk."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -35,7 +36,9 @@ def _centroid(img: torch.Tensor) -> np.ndarray:
 
 
 def test_layout():
-    cams = [Camera(fx=1.0, fy=1.0, cx=0.0, cy=0.0, width=w, height=h) for w, h in ((64, 64), (56, 48), (72, 60), (64, 64))]
+    cams = [
+        Camera(fx=1.0, fy=1.0, cx=0.0, cy=0.0, width=w, height=h) for w, h in ((64, 64), (56, 48), (72, 60), (64, 64))
+    ]
     lay = tile_layout(cams, gap=4)
     assert (lay.columns, lay.rows, lay.cell_w, lay.cell_h) == (2, 2, 72, 64)
     assert (lay.width, lay.height) == (2 * 76 + 4, 2 * 68 + 4)
@@ -93,7 +96,9 @@ def test_subject_leaving_its_window_is_rendered_alone(batch_renderer, subjects):
     assert batch_renderer.last_fallbacks == 1
     single = batch_renderer.single(moved[1], cams[1], spp=256, seed=7)
     assert float((out[1] - single).abs().mean()) < 0.003
-    assert float(out[2].sum()) == pytest.approx(float(batch_renderer.single(verts[2], cams[2], spp=256, seed=1).sum()), rel=0.01)
+    assert float(out[2].sum()) == pytest.approx(
+        float(batch_renderer.single(verts[2], cams[2], spp=256, seed=1).sum()), rel=0.01
+    )
 
 
 def test_bad_batches(batch_renderer, subjects, sphere):

@@ -1,4 +1,5 @@
 """Mitsuba silhouette renderer: camera convention, gradients, ROI, batching, errors."""
+
 from __future__ import annotations
 
 import math
@@ -131,7 +132,9 @@ def test_gradient_matches_finite_differences(capsule, capsule_renderer, cam64, e
         return centre + p[3] * (v0 - centre) + CENTRE + p[:3]
 
     with torch.no_grad():
-        target = (capsule_renderer(verts(torch.tensor([0.02, 0.015, -0.25, 0.97])), cam64, spp=64, seed=0) > 0.5).float()
+        target = (
+            capsule_renderer(verts(torch.tensor([0.02, 0.015, -0.25, 0.97])), cam64, spp=64, seed=0) > 0.5
+        ).float()
 
     def loss(s):
         return ((s - target) ** 2).sum()
@@ -292,7 +295,6 @@ def test_raycast_is_bit_identical_for_any_thread_count(capsule, cam64):
         assert torch.equal(s, out[0][0]) and torch.equal(g, out[0][1])
 
 
-
 def test_auto_threads_leave_the_pool_to_the_process_or_a_ray_actor(capsule, monkeypatch):
     """``threads="auto"``: the ray-cast method takes ``AUTO_THREADS`` (``None``: Dr.Jit's pool as it is;
     a Ray actor sets the CPUs it reserved), the projective method one thread."""
@@ -308,13 +310,16 @@ def test_auto_threads_leave_the_pool_to_the_process_or_a_ray_actor(capsule, monk
     assert rs.AUTO_THREADS == 3 and SilhouetteRenderer(f).threads == 3
     assert SilhouetteRenderer(f, method="projective").threads == 1 and SilhouetteRenderer(f, threads=2).threads == 2
 
+
 def test_render_views_shares_one_body(capsule, cam64):
     """``render_views``: one vertex set, several extrinsics; each view equals a render of the
     mapped vertices, and the gradients of all views reach the one vertex set."""
     v, f = capsule
     r = SilhouetteRenderer(f)
     angle = 0.4
-    Ry = torch.tensor([[math.cos(angle), 0.0, math.sin(angle)], [0.0, 1.0, 0.0], [-math.sin(angle), 0.0, math.cos(angle)]])
+    Ry = torch.tensor(
+        [[math.cos(angle), 0.0, math.sin(angle)], [0.0, 1.0, 0.0], [-math.sin(angle), 0.0, math.cos(angle)]]
+    )
     views = [(torch.eye(3), CENTRE), (Ry, CENTRE + torch.tensor([0.05, 0.0, 0.0]))]
     x = v.clone().requires_grad_()
     imgs = r.render_views(x, [cam64, cam64], [R for R, _ in views], [t for _, t in views], seeds=[4, 5])

@@ -1,11 +1,11 @@
 """Mitsuba silhouettes vs pyrender masks vs projected vertices, on the open body model."""
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 import pytest
-import torch
 
 from silfit.camera import Camera, project_points
 from renderers.offscreen import render_mask

@@ -1,4 +1,5 @@
 """pyrender/OSMesa offscreen renderer: convention, colour/depth/mask, overlay, views, errors."""
+
 from __future__ import annotations
 
 import os
@@ -17,7 +18,9 @@ def _centroid(img):
 
 
 def test_platform_is_osmesa_or_egl():
-    offscreen.render_mask(np.array([[0, 0, 1.0], [1, 0, 1], [0, 1, 1]]), np.array([[0, 1, 2]]), Camera(10, 10, 4.5, 4.5, 10, 10))
+    offscreen.render_mask(
+        np.array([[0, 0, 1.0], [1, 0, 1], [0, 1, 1]]), np.array([[0, 1, 2]]), Camera(10, 10, 4.5, 4.5, 10, 10)
+    )
     import OpenGL.platform
 
     # the platform PyOpenGL actually loaded (the environment variable is the code's own request)

@@ -1,6 +1,7 @@
 """Render proxy: a fixed linear map of the body's vertices to a coarser mesh whose
 silhouette matches the full mesh's (IoU >= 0.995) and whose gradients pass the
 finite-difference check."""
+
 from __future__ import annotations
 
 import math
@@ -108,7 +109,14 @@ def test_proxy_silhouette_iou(model, proxy):
     full_r, proxy_r = SilhouetteRenderer(model.faces), SilhouetteRenderer(proxy.faces)
     cam = Camera(fx=1000.0, fy=1000.0, cx=511.5, cy=511.5, width=1024, height=1024)
     ious = []
-    for name, seed in [("t_pose", None), ("sit_chair", None), ("kneel_one", None), ("lie_reclined", None), (None, 1), (None, 2)]:
+    for name, seed in [
+        ("t_pose", None),
+        ("sit_chair", None),
+        ("kneel_one", None),
+        ("lie_reclined", None),
+        (None, 1),
+        (None, 2),
+    ]:
         v = _posed(model, name, seed)
         window = roi_window(v, cam, size=256, margin=0.12)
         full = full_r(v, window.camera, spp=32, seed=1, sampler="multijitter")

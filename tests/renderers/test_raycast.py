@@ -1,4 +1,5 @@
 """renderers.raycast: the visibility-edge points' density (issue 24's speed part), the vertex gradient."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -1,5 +1,6 @@
 """Small dataset inputs built from the shipped synthetic subjects (shared by the runner and
 fit-dataset tests)."""
+
 import json
 import shutil
 from pathlib import Path
@@ -8,9 +9,22 @@ from silfit.synth.people import bystander
 
 SYNTHETIC = Path(__file__).resolve().parents[2] / "data" / "synthetic"
 #: keypoint-stage options that keep a fit to about 0.1 s (tests check plumbing, not accuracy)
-FAST = ["--keypoint-option", "init_poses=1", "--keypoint-option", "camera_iters=10", "--keypoint-option",
-        "pose_iters=10,10,10", "--keypoint-option", "shape_iters=5", "--keypoint-option", "final_iters=10",
-        "--keypoint-option", "branch_refine=1", "--keypoint-option", "post_branch_iters=0"]  # fmt: skip
+FAST = [
+    "--keypoint-option",
+    "init_poses=1",
+    "--keypoint-option",
+    "camera_iters=10",
+    "--keypoint-option",
+    "pose_iters=10,10,10",
+    "--keypoint-option",
+    "shape_iters=5",
+    "--keypoint-option",
+    "final_iters=10",
+    "--keypoint-option",
+    "branch_refine=1",
+    "--keypoint-option",
+    "post_branch_iters=0",
+]
 
 
 def subject_people(name: str) -> list:

@@ -1,4 +1,5 @@
 """Dataset inputs: listing items of the three input kinds, and reading one item's files."""
+
 import json
 import shutil
 
@@ -38,12 +39,26 @@ def test_openpose_folder_people_masks_cameras(tmp_path):
 def test_manifest_jsonl_and_csv(tmp_path):
     synthetic_copy(tmp_path / "data", ["subject_000", "subject_001"])
     rows = [
-        {"keypoints": "data/subject_000/keypoints.json", "mask": "data/subject_000/mask.png", "camera": "data/subject_000/camera.json"},
-        {"keypoints": "data/subject_001/keypoints.json", "image": "data/subject_001/image.png", "id": "b", "person": "0"},
+        {
+            "keypoints": "data/subject_000/keypoints.json",
+            "mask": "data/subject_000/mask.png",
+            "camera": "data/subject_000/camera.json",
+        },
+        {
+            "keypoints": "data/subject_001/keypoints.json",
+            "image": "data/subject_001/image.png",
+            "id": "b",
+            "person": "0",
+        },
     ]
     (tmp_path / "m.jsonl").write_text("\n".join(json.dumps(r) for r in rows) + "\n")
-    (tmp_path / "m.csv").write_text("keypoints,mask,image,camera,person,id\n" + "\n".join(
-        ",".join(str(r.get(c, "")) for c in ("keypoints", "mask", "image", "camera", "person", "id")) for r in rows) + "\n")  # fmt: skip
+    (tmp_path / "m.csv").write_text(
+        "keypoints,mask,image,camera,person,id\n"
+        + "\n".join(
+            ",".join(str(r.get(c, "")) for c in ("keypoints", "mask", "image", "camera", "person", "id")) for r in rows
+        )
+        + "\n"
+    )
     for name in ("m.jsonl", "m.csv"):
         items = list_items(tmp_path / name)
         assert [it.key for it in items] == ["subject_000", "b"]
@@ -61,7 +76,10 @@ def test_manifest_jsonl_and_csv(tmp_path):
         ('{"keypoints": "a.json"}\nnot json\n', "line 2: not valid JSON"),
         ('{"keypoints": "a.json"}\n{"keypoints": "b/a.json"}\n', "same output folder 'a'"),
         ('{"keypoints": "a.json", "person": "two"}\n', "field 'person'"),
-        (b'{"keypoints": "a.json"}\n\x00\xc2\x01\xff binary', "line 2: not UTF-8 text (byte 0xc2); is it a binary file?"),
+        (
+            b'{"keypoints": "a.json"}\n\x00\xc2\x01\xff binary',
+            "line 2: not UTF-8 text (byte 0xc2); is it a binary file?",
+        ),
     ],
 )
 def test_bad_manifest_is_one_clear_error(tmp_path, text, words):
@@ -123,7 +141,9 @@ def test_failure_messages_quote_only_a_short_prefix_of_what_a_file_holds(tmp_pat
     kp = {"people": [{"pose_keypoints_2d": [10.0] * 4 + [secret] + [1.0] * 70}]}
     (tmp_path / "kp.json").write_text(json.dumps(kp))
     (tmp_path / "cam.json").write_text(json.dumps({"fx": secret, "fy": 1, "cx": 1, "cy": 1, "width": 9, "height": 9}))
-    (tmp_path / "m.jsonl").write_text('{"id": "a", "keypoints": "kp.json"}\n{"id": "b", "keypoints": "kp.json", "camera": "cam.json"}\n')
+    (tmp_path / "m.jsonl").write_text(
+        '{"id": "a", "keypoints": "kp.json"}\n{"id": "b", "keypoints": "kp.json", "camera": "cam.json"}\n'
+    )
     messages = []
     for it in list_items(tmp_path / "m.jsonl"):
         with pytest.raises(ItemError) as info:

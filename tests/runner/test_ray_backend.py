@@ -1,4 +1,5 @@
 """The Ray backend's signal handling around ``ray.init`` (no Ray started: its handler is imitated)."""
+
 import signal
 import sys
 

@@ -1,12 +1,26 @@
 """``silfit.runner.run``: how pending items are cut into batches that several workers share."""
+
 import pytest
 
 import signal
 
 from silfit.runner.run import _sigint_ignored, available_cpus, quota_cpus, shared_batch_size, shared_batches
 
-CASES = [(8, 28, 2), (8, 30, 2), (8, 24, 2), (1, 5, 2), (4, 4, 2), (8, 3, 2), (8, 100, 1), (32, 100, 4), (8, 1, 2),
-         (3, 50, 16), (8, 13, 6), (8, 5, 4), (2, 7, 3)]  # fmt: skip
+CASES = [
+    (8, 28, 2),
+    (8, 30, 2),
+    (8, 24, 2),
+    (1, 5, 2),
+    (4, 4, 2),
+    (8, 3, 2),
+    (8, 100, 1),
+    (32, 100, 4),
+    (8, 1, 2),
+    (3, 50, 16),
+    (8, 13, 6),
+    (8, 5, 4),
+    (2, 7, 3),
+]
 
 
 @pytest.mark.parametrize("batch, pending, workers", CASES)
@@ -34,6 +48,7 @@ def test_sigint_is_ignored_within_the_block_and_restored_unless_an_interrupt_end
     """The worker processes start within the block (they inherit Ctrl-C ignored). An error or another's
     KeyboardInterrupt ends it with the handler restored; silfit's interrupt (its handler raised, having set
     SIGINT and SIGTERM aside) leaves it ignored."""
+
     def handler(signum, frame):
         pass
 
@@ -63,8 +78,18 @@ def test_sigint_is_ignored_within_the_block_and_restored_unless_an_interrupt_end
         signal.signal(signal.SIGINT, before)
 
 
-@pytest.mark.parametrize("line, cpus", [("max 100000", None), ("150000 100000", 2), ("100000 100000", 1),
-                                        ("50000 100000", 1), ("400000 100000\n", 4), ("", None), ("x y", None)])  # fmt: skip
+@pytest.mark.parametrize(
+    "line, cpus",
+    [
+        ("max 100000", None),
+        ("150000 100000", 2),
+        ("100000 100000", 1),
+        ("50000 100000", 1),
+        ("400000 100000\n", 4),
+        ("", None),
+        ("x y", None),
+    ],
+)
 def test_a_cgroup_quota_is_read_as_whole_cpus_rounded_up(line, cpus):
     assert quota_cpus(line) == cpus
 

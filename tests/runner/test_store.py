@@ -1,4 +1,5 @@
 """The run store: what counts as done, and the repairs made on start."""
+
 import json
 
 from silfit.runner.store import FAILURES, RESULTS, RunStore, read_jsonl

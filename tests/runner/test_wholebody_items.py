@@ -1,4 +1,5 @@
 """``silfit fit-dataset --model open-smplx`` on whole-body items: hands and face fitted, a body-only item at rest."""
+
 import json
 import shutil
 from pathlib import Path
@@ -21,7 +22,12 @@ def test_fit_dataset_whole_body_items(tmp_path):
         kp["people"][0][field] = []
     (data / "subject_001" / "keypoints.json").write_text(json.dumps(kp))
     out = tmp_path / "out"
-    assert main(["fit-dataset", str(data), "--out", str(out), "--model", "open-smplx", "--no-silhouette", "--quiet", *FAST]) == 0
+    assert (
+        main(
+            ["fit-dataset", str(data), "--out", str(out), "--model", "open-smplx", "--no-silhouette", "--quiet", *FAST]
+        )
+        == 0
+    )
     full = json.loads((out / "subject_000" / "metrics.json").read_text())
     body = json.loads((out / "subject_001" / "metrics.json").read_text())
     assert full["layout"] == body["layout"] == "wholebody"

@@ -1,5 +1,6 @@
 """The dataset worker refines a batch's masked items in one silhouette-stage call (issue 24), through the
 one path (silfit.run.run_batch -> silfit.image_fit.fit_problems)."""
+
 import numpy as np
 import pytest
 
@@ -9,8 +10,14 @@ from silfit.runner.items import list_items
 from silfit import image_fit
 from silfit.runner.worker import DatasetFitter
 
-KP_FAST = {"init_poses": "1", "camera_iters": "10", "pose_iters": "10,10,10", "shape_iters": "5", "final_iters": "10",
-           "post_branch_iters": "0"}  # fmt: skip
+KP_FAST = {
+    "init_poses": "1",
+    "camera_iters": "10",
+    "pose_iters": "10,10,10",
+    "shape_iters": "5",
+    "final_iters": "10",
+    "post_branch_iters": "0",
+}
 
 
 def _fitter():
@@ -51,8 +58,15 @@ def test_a_bad_mask_fails_alone(tmp_path):
 def test_keypoint_options_parse_by_the_field_and_optional_ones_take_none():
     from silfit.runner.worker import keypoint_config
 
-    cfg = keypoint_config({"final_tol_change": "none", "final_iters_unsearched": "None", "final_iters": "30",
-                           "pose_iters": "5,6,7", "branch_search": "false"})  # fmt: skip
+    cfg = keypoint_config(
+        {
+            "final_tol_change": "none",
+            "final_iters_unsearched": "None",
+            "final_iters": "30",
+            "pose_iters": "5,6,7",
+            "branch_search": "false",
+        }
+    )
     assert cfg.final_tol_change is None and cfg.final_iters_unsearched is None
     assert cfg.final_iters == 30 and cfg.pose_iters == (5, 6, 7) and cfg.branch_search is False
     assert keypoint_config({"final_tol_change": "1e-3"}).final_tol_change == 1e-3
@@ -65,8 +79,12 @@ def test_silhouette_options_reach_the_workers_stage():
     levels; an unknown one is a ValueError naming the silhouette stage."""
     from silfit.runner.worker import silhouette_config
 
-    cfg = silhouette_config(FitOptions(silhouette_options={"alternatives_margin": "0", "trim_clothing": "false",
-                                                           "edge_density": "none"}, silhouette_iterations=(4, 5)))  # fmt: skip
+    cfg = silhouette_config(
+        FitOptions(
+            silhouette_options={"alternatives_margin": "0", "trim_clothing": "false", "edge_density": "none"},
+            silhouette_iterations=(4, 5),
+        )
+    )
     assert cfg.alternatives_margin == 0.0 and cfg.trim_clothing is False and cfg.edge_density is None
     assert cfg.iterations == (4, 5)
     with pytest.raises(ValueError, match="unknown silhouette-stage option 'nope'"):
@@ -82,14 +100,18 @@ def test_keypoint_options_whose_default_is_none_parse_by_their_declared_type():
     from silfit.runner.worker import keypoint_config
 
     cfg = keypoint_config({"hand_weights": "0,0.5,1", "final_iters_unsearched": "30", "hypothesis_joint_max_m": "0.4"})
-    assert cfg.hand_weights == (0.0, 0.5, 1.0) and cfg.final_iters_unsearched == 30 and cfg.hypothesis_joint_max_m == 0.4
+    assert (
+        cfg.hand_weights == (0.0, 0.5, 1.0) and cfg.final_iters_unsearched == 30 and cfg.hypothesis_joint_max_m == 0.4
+    )
     video = keypoint_config({"final_tol_change": "1e-5"}, SequenceFitConfig().keypoint)
     assert video.final_tol_change == 1e-5 and video.branch_refine == SequenceFitConfig().keypoint.branch_refine
     assert keypoint_config({"face_weights": "1,2,3"}).face_weights == (1.0, 2.0, 3.0)
     assert keypoint_config({"hand_weights": "none"}).hand_weights is None
     with pytest.raises(ValueError, match="schedule cannot be given on the command line"):
         keypoint_config({"schedule": "x"})
-    with pytest.raises(ValueError, match=r"hand_weights='a': expected comma-separated numbers \(e.g. 0,0.5,1\) or none"):
+    with pytest.raises(
+        ValueError, match=r"hand_weights='a': expected comma-separated numbers \(e.g. 0,0.5,1\) or none"
+    ):
         keypoint_config({"hand_weights": "a"})
 
 

@@ -1,4 +1,5 @@
 """Distance-transform silhouette energy and IoU."""
+
 import numpy as np
 import pytest
 import torch
@@ -101,7 +102,9 @@ def test_cover_energy_pairs_each_outline_point_with_its_exactly_nearest_point(mo
     assert losses._nearest(bad, pts[:3]).shape == (3,)
     assert losses._nearest(u[:5], torch.tensor([[float("nan"), 1.0]])).shape == (1,)
     # on separated points both paths give the same energy
-    grid = torch.stack(torch.meshgrid(torch.arange(0.0, 64, 8), torch.arange(0.0, 64, 8), indexing="ij"), -1).reshape(-1, 2)
+    grid = torch.stack(torch.meshgrid(torch.arange(0.0, 64, 8), torch.arange(0.0, 64, 8), indexing="ij"), -1).reshape(
+        -1, 2
+    )
     outline = grid[::3] + 0.7
     tree = cover_energy(grid, outline)
     monkeypatch.setattr(losses, "NEAREST_BY_TREE", False)
@@ -120,14 +123,18 @@ def test_outside_the_image_is_unknown_not_background():
     dt_out, dt_in = distance_transforms(mask, valid)
     plain_out, plain_in = distance_transforms(mask)
     assert (dt_out[30:] == 0).all() and plain_out[35, 15] > 0  # a leg below the border: free with valid
-    assert dt_in[29, 15] > plain_in[29, 15] and dt_in[29, 15] == pytest.approx(5.0)  # the sides are the edge, not the cut
+    assert dt_in[29, 15] > plain_in[29, 15] and dt_in[29, 15] == pytest.approx(
+        5.0
+    )  # the sides are the edge, not the cut
     pts = contour_points(mask, 500, valid)
     bottom = (pts[:, 1] >= 27) & (pts[:, 0] > 10) & (pts[:, 0] < 19)
     assert len(pts) and pts[:, 1].max() < 29 and not bottom.any()  # the sides only: no outline along the cut
     assert contour_points(mask, 500)[:, 1].max() >= 29
     body = torch.zeros(40, 30)
     body[10:40, 10:20] = 1.0  # the true body continues below the image
-    assert soft_iou(body, torch.as_tensor(mask, dtype=torch.float32), torch.as_tensor(valid, dtype=torch.float32)) == 1.0
+    assert (
+        soft_iou(body, torch.as_tensor(mask, dtype=torch.float32), torch.as_tensor(valid, dtype=torch.float32)) == 1.0
+    )
     assert soft_iou(body, torch.as_tensor(mask, dtype=torch.float32)) < 0.7
 
 

@@ -1,4 +1,5 @@
 """Synthetic rigs: per-view data with one world-frame truth."""
+
 import json
 
 import numpy as np
@@ -9,8 +10,27 @@ from silfit.rig import load_rig, project_world
 
 def test_synth_views_writes_consistent_per_view_data(tmp_path):
     out = tmp_path / "rigs"
-    assert main(["synth", "--n", "2", "--cameras", "3", "--size", "64", "--seed", "3", "--noise-px", "0",
-                 "--out", str(out), "--quiet"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "synth",
+                "--n",
+                "2",
+                "--cameras",
+                "3",
+                "--size",
+                "64",
+                "--seed",
+                "3",
+                "--noise-px",
+                "0",
+                "--out",
+                str(out),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     index = json.loads((out / "index.json").read_text())
     assert index["rig"] == 3 and len(index["subjects"]) == 2
     sub = out / "subject_000"
@@ -33,8 +53,23 @@ def test_synth_views_writes_consistent_per_view_data(tmp_path):
     assert np.ptp(centres[:, 1]) > 0.05  # at varied heights
     # the same cameras again from a layout file: same cameras, another body
     out2 = tmp_path / "fixed"
-    assert main(["synth", "--n", "1", "--cameras-file", str(sub / "cameras.json"), "--seed", "9", "--out", str(out2),
-                 "--quiet"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "synth",
+                "--n",
+                "1",
+                "--cameras-file",
+                str(sub / "cameras.json"),
+                "--seed",
+                "9",
+                "--out",
+                str(out2),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     again = load_rig(out2 / "subject_000")
     assert np.allclose(again[2].view.extrinsics()[0], views[2].view.extrinsics()[0])
     assert not np.allclose(np.load(out2 / "subject_000" / "gt.npz")["betas"], gt["betas"])

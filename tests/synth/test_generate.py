@@ -1,4 +1,5 @@
 """The generator: determinism, keypoints vs ground truth and mask, file format."""
+
 import json
 
 import numpy as np
@@ -98,8 +99,17 @@ def test_back_facing_nose_is_occluded(open_model, tmp_path):
     """A body seen from behind: the nose and eyes fail the depth test (low confidence)."""
     from silfit.synth.generate import SynthConfig, generate_subject
 
-    cfg = SynthConfig(seed=5, size=128, noise_px=0.0, frontal_first=False, yaw_range_deg=(180.0, 180.0),
-                      elevation_deg=0.0, roll_deg=0.0, blend_prob=0.0, perturb_deg=0.0)  # fmt: skip
+    cfg = SynthConfig(
+        seed=5,
+        size=128,
+        noise_px=0.0,
+        frontal_first=False,
+        yaw_range_deg=(180.0, 180.0),
+        elevation_deg=0.0,
+        roll_deg=0.0,
+        blend_prob=0.0,
+        perturb_deg=0.0,
+    )
     rec = generate_subject(open_model, 1, cfg, tmp_path / "back")
     sub = load_subject(tmp_path / "back", require=("gt",))
     vis = dict(zip(BODY25_NAMES, sub.gt.extras["keypoints_visibility"]))

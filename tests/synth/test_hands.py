@@ -1,11 +1,19 @@
 """The hand pose library: finger limits, perturbation within them, and its effect on the model."""
+
 import numpy as np
 import pytest
 import torch
 
 from silfit import load_body_model
-from silfit.synth.hands import (FLEX_LIMITS, HAND_LIBRARY, SPREAD_LIMITS, hand_axes, hand_pose_to_axis_angle,
-                                sample_hand_pose, within_limits)
+from silfit.synth.hands import (
+    FLEX_LIMITS,
+    HAND_LIBRARY,
+    SPREAD_LIMITS,
+    hand_axes,
+    hand_pose_to_axis_angle,
+    sample_hand_pose,
+    within_limits,
+)
 from silfit.wholebody import wholebody_keypoints
 
 

@@ -1,4 +1,5 @@
 """The hard synthetic set: sampler poses, front and back views of deep flexion over-represented."""
+
 import json
 
 import numpy as np

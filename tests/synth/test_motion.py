@@ -1,4 +1,5 @@
 """Synthetic motions: smooth per-frame truth, OpenPose per-frame files, determinism."""
+
 import json
 
 import numpy as np

@@ -5,7 +5,9 @@ from silfit.synth.people import bystander
 
 def test_bystander_is_a_smaller_shifted_copy():
     kp = np.array([[10.0, 20.0, 0.9], [30.0, 60.0, 0.8], [0.0, 0.0, 0.0], [50.0, 40.0, 0.5]])
-    other = np.asarray(bystander({"pose_keypoints_2d": kp.reshape(-1).tolist()}, dx=100.0, scale=0.5)["pose_keypoints_2d"]).reshape(-1, 3)
+    other = np.asarray(
+        bystander({"pose_keypoints_2d": kp.reshape(-1).tolist()}, dx=100.0, scale=0.5)["pose_keypoints_2d"]
+    ).reshape(-1, 3)
     seen = kp[:, 2] > 0
     np.testing.assert_array_equal(other[:, 2], kp[:, 2])
     np.testing.assert_array_equal(other[~seen], 0.0)  # undetected points stay (0, 0, 0)

@@ -1,4 +1,5 @@
 """The pose library and the samplers."""
+
 import math
 
 import numpy as np
@@ -8,8 +9,27 @@ from silfit.priors import within_limits
 from silfit.synth import FRONTAL_POSES, POSE_LIBRARY, mirror_pose, sample_betas, sample_pose
 from silfit.synth.sampler import global_orientation, place_body, sample_intrinsics
 
-REQUIRED_KINDS = ("stand", "walk", "run", "sit", "squat", "kneel", "lunge", "reach", "wave", "point", "arms_crossed",
-                  "hands_on_hips", "bend", "throw", "kick", "jump", "lie", "t_pose", "a_pose")  # fmt: skip
+REQUIRED_KINDS = (
+    "stand",
+    "walk",
+    "run",
+    "sit",
+    "squat",
+    "kneel",
+    "lunge",
+    "reach",
+    "wave",
+    "point",
+    "arms_crossed",
+    "hands_on_hips",
+    "bend",
+    "throw",
+    "kick",
+    "jump",
+    "lie",
+    "t_pose",
+    "a_pose",
+)
 
 
 def test_library_is_large_named_and_covers_the_kinds():
@@ -47,7 +67,11 @@ def test_mirror_is_an_involution_and_swaps_sides():
 def test_pose_signs_on_the_model(open_model):
     """Knee flexion moves the foot back, hip flexion the knee forward, elbow flexion the hand forward."""
     names = open_model.joint_names
-    out = open_model(body_pose=torch.tensor(np.stack([POSE_LIBRARY[n].body_pose for n in ("sit_chair", "arms_crossed")]), dtype=torch.float32))
+    out = open_model(
+        body_pose=torch.tensor(
+            np.stack([POSE_LIBRARY[n].body_pose for n in ("sit_chair", "arms_crossed")]), dtype=torch.float32
+        )
+    )
     J = out.joints
     j = {n: i for i, n in enumerate(names)}
     sit, crossed = J[0], J[1]

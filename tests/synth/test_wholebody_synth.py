@@ -1,4 +1,5 @@
 """Whole-body synthetic subjects: parameters, keypoints and the ground truth that reproduces them."""
+
 from pathlib import Path
 
 import numpy as np
@@ -12,8 +13,18 @@ from silfit.synth.generate import WHOLEBODY_PARTS, SynthConfig, generate_dataset
 from silfit.synth.hands import hand_axes, hand_pose_to_axis_angle, within_limits
 from silfit.wholebody import read_wholebody, wholebody_keypoints
 
-PARAMS = ("betas", "expression", "global_orient", "body_pose", "jaw_pose", "leye_pose", "reye_pose",
-          "left_hand_pose", "right_hand_pose", "transl")
+PARAMS = (
+    "betas",
+    "expression",
+    "global_orient",
+    "body_pose",
+    "jaw_pose",
+    "leye_pose",
+    "reye_pose",
+    "left_hand_pose",
+    "right_hand_pose",
+    "transl",
+)
 SHIPPED = Path(__file__).resolve().parents[2] / "data" / "synthetic_wholebody"
 
 
