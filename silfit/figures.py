@@ -69,8 +69,8 @@ def fit_overlay(
 
     The body comes from the offscreen GL renderer when this process has already loaded it
     (then it costs a few ms), else it is painted with OpenCV (:func:`paint_mesh`; no
-    pyrender import and GL context, about 1-2 s, for a picture every ``silfit fit``
-    writes)."""
+    pyrender import and GL context, which take seconds (docs/benchmarks/defaults.md), for a
+    picture every ``silfit fit`` writes)."""
     canvas = _canvas(image, camera)
     if not 0.0 <= alpha <= 1.0:
         raise ValueError(f"alpha must be in [0, 1], got {alpha}")

@@ -216,8 +216,8 @@ def _choose_hypothesis(
     without hypotheses). ``record`` (``metrics.json``'s ``hypotheses_silhouette``; ``{}`` for one hypothesis): each
     one's final energy (``None``: not comparable) and IoU, the kept rank, its energy's gap below the keypoint fit's,
     and ``guard_reverted``: the rank the guard set aside, if any. A person mask hardly sees a limb mirrored in
-    depth; on three generated hard sets the branch that refines lowest against it lowered the mean PA-PVE by
-    3.3-4.6 mm, from a few changed choices (``benchmarks/bench_hypothesis_silhouette.py``, README)."""
+    depth, yet on generated hard sets the branch that refines lowest against it is the better choice
+    (``benchmarks/bench_hypothesis_silhouette.py``; the numbers: docs/benchmarks/defaults.md)."""
     if len(sils) == 1:
         return 0, {}
     last = max((s.final_level for s in sils if s.final_level is not None), default=None)
@@ -597,9 +597,9 @@ _LAST_FITTER: list = []  # [(model, layout, config, pose prior), fitter]: the la
 
 def _keypoint_fitter(model, layout: str, config, pose_prior) -> KeypointFitter:
     """A :class:`KeypointFitter`, the previous call's where model, layout, settings and prior are
-    the same (``fit-dataset`` fits batch after batch with them: building one costs about 0.7 s, its
-    keypoint body's reductions; a fitter holds no state from one fit to the next, so the fits are
-    the same)."""
+    the same (``fit-dataset`` fits batch after batch with them: building one costs its keypoint
+    body's reductions, docs/benchmarks/defaults.md; a fitter holds no state from one fit to the next,
+    so the fits are the same)."""
     import copy
 
     if _LAST_FITTER:

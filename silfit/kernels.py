@@ -1,8 +1,8 @@
 """The CPU kernels silfit's arithmetic runs on, chosen before torch and numpy load theirs.
 
 A fit's optimiser amplifies differences in the last bits of its arithmetic into millimetres
-(measured: keypoints moved by 1e-12 px move a fit's vertices by 6-20 mm; README, "Same inputs,
-same fit"). The libraries under silfit pick their kernels by the processor: torch's SIMD level
+(README, "Same inputs, same fit"; the measurement: docs/benchmarks/defaults.md). The libraries
+under silfit pick their kernels by the processor: torch's SIMD level
 (AVX2 or AVX-512: 4 or 8 lanes, so another order of partial sums), MKL's branch (its GEMMs, and the
 vector maths torch hands it: ``sin``, ``cos``, ``exp``, ``log``, ``sqrt``, ``tanh`` of a float tensor
 go to MKL's VML), OpenBLAS's core type (Haswell, Zen, SkylakeX). So on an x86-64 processor with AVX2
@@ -26,7 +26,7 @@ The pose prior's precisions, computed once when it loads, are BLAS-free (:mod:`s
 LAPACK's inverse followed OpenBLAS's kernel (``Sandybridge`` against ``Haswell``: other bits, other fits).
 
 The body model and the keypoint stage use no BLAS (:mod:`silfit.body.lbs`, "No BLAS"): MKL's GEMMs
-changed with its thread count on an Intel Xeon, by 1.1 mm in a float64 keypoint fit; the collision spheres are
+changed with its thread count on an Intel Xeon, and so did a float64 keypoint fit; the collision spheres are
 posed without BLAS too. Nor ``torch.sqrt``, which MKL's vector maths rounds otherwise on an Intel Xeon with
 AVX-512 than on an AMD EPYC, whatever the pins (:func:`silfit.body.lbs.sqrt`, "No VML square root").
 

@@ -89,23 +89,17 @@ MIN_SHIFT_MM = 400.0
 #: relative energy of its kept one ...
 EARLY_SEARCH_MARGIN = 0.05
 #: ... moving a joint this far from the fit: the refined branches all come from the last search, so a
-#: basin the first search weighed and dropped shows only there. Chosen on 120 hard subjects (seeds 8650,
-#: 8950, 9601, 9602, keypoint stage, ``bench_ambiguity.py --sweep``): fits above 150 mm warned 13 of 15,
-#: below 60 mm 20 of 52 (the rule before, search energies only: 12 of 15 and 29 of 52; the refined
-#: branches alone: 11 of 15 and 13 of 52). With the search from the fit (``post_branch_iters``) the late
-#: search is an earlier one too, and its ``kept`` is the branch that *settled* lowest: a late row the search
-#: ranked below it, or within the margin, counts (the search and the converged energies disagree); fresh
-#: seeds 9981 and 9982, 60 subjects: above 150 mm warned 6 of 6, below 60 mm 10 of 28 (the late search's own
-#: pick as its kept row: 4 of 6 and 8 of 28; the first search only: 3 of 6 and 8 of 28)
+#: basin the first search weighed and dropped shows only there. With the search from the fit
+#: (``post_branch_iters``) the late search is an earlier one too, and its ``kept`` is the branch that *settled*
+#: lowest: a late row the search ranked below it, or within the margin, counts (the search and the converged
+#: energies disagree). Why these defaults (this and ``EARLY_SEARCH_MARGIN``): docs/benchmarks/defaults.md
 EARLY_SEARCH_MIN_SHIFT_MM = 500.0
 #: ... and where no branch was refined to the end (``branch_refine`` 1: a video's per-frame start), a
 #: branch-search survivor within this relative energy of the kept one (its search stage's energies,
 #: 20-30 steps in) ...
 SEARCH_MARGIN = 0.1
 #: ... whose joints at its search's end lie at least this far from the fit's (mm: the branch, and
-#: how far the fit moved after that search). Tuning seed 8650 (40 hard subjects, keypoint stage): the
-#: energy alone warned 12 of 14 default fits below 60 mm PA-PVE; with 400 mm, 4 of 14, and still the 3
-#: above 150 mm (``benchmarks/bench_ambiguity.py``)
+#: how far the fit moved after that search; why this default: docs/benchmarks/defaults.md)
 SEARCH_MIN_SHIFT_MM = 400.0
 #: Shape coefficients beyond this many standard deviations are reported.
 MAX_ABS_BETA = 3.0

@@ -15,20 +15,21 @@ rows, their number or its position (``tests/body/test_lbs.py``). The small per-j
 
 **No BLAS.** A GEMM's result also follows the BLAS library's choice of kernel, which changes with
 the processor (MKL on an Intel CPU with AVX-512 against an AMD one, even with ``MKL_CBWR=AVX2``) and
-with its thread count: on an Intel Xeon the same float64 keypoint fit moved 1.1 mm between one and
-two MKL threads and 1.4 mm against the AMD machine's. So the products here are torch's own
+with its thread count: on an Intel Xeon the same float64 keypoint fit differed between one and two MKL
+threads and from an AMD machine's (docs/benchmarks/defaults.md). So the products here are torch's own
 elementwise kernels (a broadcast product and a sum, :func:`matmul` for the small matrices, the
 joint regressor over its nonzeros, :func:`sparse_contract`), whose order of operations silfit pins
 (:mod:`silfit.kernels`) and which split these sums across threads by output, never inside one
 (a sum down to a single value of more than 32,768 numbers does split by thread). Two
 GEMMs remain, neither in the keypoint stage's default energy: an official model's pose correctives and the
-skinning of a whole mesh (:func:`skin_vertices`; over the weights' nonzeros it took 2x the time, so that is
+skinning of a whole mesh (:func:`skin_vertices`; over the weights' nonzeros it is slower, so that is
 asked for only where a result must be the same bits everywhere: ``skin_vertices(..., blas=False)``,
 ``pose_correctives(..., blas=False)``, as the interpenetration spheres are built).
 
 **No VML square root.** torch hands ``torch.sqrt`` (and ``pow(x, 0.5)``) of a float tensor to MKL's
-vector maths, whose result is not the correctly rounded one (on an AMD EPYC 1.2 % of float64 and 17 % of
-float32 values are 1 ulp off) and follows the processor: an Intel Xeon with AVX-512 rounds other values.
+vector maths, whose result is not the correctly rounded one (on an AMD EPYC some float64 and float32
+values are 1 ulp off: docs/benchmarks/defaults.md) and follows the processor: an Intel Xeon with AVX-512
+rounds other values.
 :func:`sqrt` is computed from ``rsqrt`` (the processor's own square root and a division, both correctly
 rounded by IEEE 754) and one product: the same bits on every processor. The fitting path uses it.
 """
@@ -298,7 +299,7 @@ def skin_vertices(
     (:func:`sparse_contract`), the same bits on every processor (module docstring, "No BLAS")."""
     # by default a GEMM per row (the keypoint stage's default energy skins no mesh, and the stages and the keypoint
     # fitter's set-up run one torch thread, so one MKL thread): over the weights' nonzeros (sparse_contract)
-    # forward and backward took 2x the time
+    # forward and backward are slower (docs/benchmarks/defaults.md)
     if blas:
         T = per_row(lambda t: torch.einsum("vj,bjrc->bvrc", weights, t), transforms[..., :3, :])  # [B, V, 3, 4]
     else:

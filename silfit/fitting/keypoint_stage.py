@@ -143,9 +143,8 @@ class KeypointFitConfig:
     flip_test: bool = True
     #: initial body poses tried per sample (and per facing): the zero pose, then the pose
     #: prior's most probable mixture means; all run as one batch (the camera stage is shared
-    #: by a facing's starts) and the lowest energy is kept. 4 starts cut the median PA-MPJPE
-    #: on 30 library-posed synthetic subjects from 95 to 66 mm (benchmarks/bench_fit.py) at
-    #: about 1.5x the batched cost; set 1 for the fastest batched throughput.
+    #: by a facing's starts) and the lowest energy is kept; each start adds to the batched cost:
+    #: set 1 for the fastest batched throughput (why this default: docs/benchmarks/defaults.md)
     init_poses: int = 4
     #: after which pose sub-stage (0-based) each sample keeps the best of its starts
     flip_decision_stage: int = 0
@@ -168,18 +167,17 @@ class KeypointFitConfig:
     angle_prior_weights: Sequence[float] = (10.0, 5.0, 2.0)
     shape_iters: int = 20
     shape_weight: float = 20.0
-    #: the final stage's L-BFGS steps. 120 (was 40): issue 25's search failures were largely an
-    #: unconverged final stage; with ``branch_refine`` 4 the hypotheses are chosen by an energy near its
-    #: minimum (see ``branch_refine``)
+    #: the final stage's L-BFGS steps; with ``branch_refine`` above 1 the hypotheses are chosen by the
+    #: final energy, so this many steps bring it near its minimum (see ``branch_refine``; why this
+    #: default: docs/benchmarks/defaults.md)
     final_iters: int = 120
     #: ... but at most this many, every one run (no ``final_tol_change``), where no branch search ran
     #: (several views fix the limbs' depth, or ``branch_search`` off): no branches to choose among, and
     #: the rigs' numbers were measured so (``None``: ``final_iters`` always)
     final_iters_unsearched: Optional[int] = 40
     #: after a branch search, the final stage's rows stop once a step lowers their energy by less than this (relative; the
-    #: optimiser's default, 1e-8, ran nearly every row all ``final_iters``). Simulated on the final
-    #: stage's trajectories of 60 hard subjects (seeds 8950, 9090): 1e-4 runs 0.67 of its row-steps at
-    #: PA-PVE mean 84.1 -> 82.7 mm (1e-5: 0.95, 84.1); ``None``: the optimiser's default
+    #: optimiser's default, 1e-8, runs nearly every row all ``final_iters``); ``None``: the optimiser's default
+    #: (why this default: docs/benchmarks/defaults.md)
     final_tol_change: Optional[float] = 1e-4
     final_angle_prior_weight: float = 1.0
     final_shape_weight: float = 5.0
@@ -189,19 +187,15 @@ class KeypointFitConfig:
     #: several calibrated views: the ``points`` term (:class:`~silfit.fitting.terms.PointsTerm`, the
     #: keypoints triangulated from the views) in the pose stages and in the shape and final stages
     #: (0 for one view: nothing is triangulated). With two views the 2D terms alone could end with a
-    #: limb in the wrong depth branch (one view agrees, the robust term bounds the other's residual):
-    #: on 30 ``silfit synth --cameras 2`` subjects (tuning seed 0, keypoint stage) 1 and 1 took the
-    #: world PVE from 19.5 to 17.9 mm mean, 66.8 to 33.6 mm worst (4 views 15.9 -> 15.8; seed 1:
-    #: 2 views 18.5 -> 17.5, 3 views 16.4 -> 15.9, 4 views 15.5 -> 15.4)
+    #: limb in the wrong depth branch (one view agrees, the robust term bounds the other's residual),
+    #: which this term holds (why this default, and ``final_points_weight``'s: docs/benchmarks/defaults.md)
     points_weight: float = 1.0
     final_points_weight: float = 1.0
     history: int = 10
     #: the floating-point type the stage computes in (``None``: the model's own). float64 by
     #: default: the optimiser amplifies last-bit differences (other SIMD kernels) into millimetres,
-    #: and in float64 they are rarer and smaller (2 of 30 fits moved, by up to 4.1 mm, against 5 of
-    #: 30 and 12.4 mm in float32; README, "Same inputs, same fit"), at about 1.2x float32's CPU
-    #: time batched and 0.67x the old float32 stage's (``benchmarks/bench_reproducible.py``).
-    #: Results are returned in float32 either way.
+    #: and in float64 they are rarer and smaller (README, "Same inputs, same fit"; why this default:
+    #: docs/benchmarks/defaults.md). Results are returned in float32 either way.
     dtype: Optional[str] = "float64"
     #: torch threads during the fit (the per-iteration tensors are small, so one thread
     #: avoids synchronisation overhead; ``None`` leaves torch's setting alone).
@@ -220,9 +214,7 @@ class KeypointFitConfig:
     #: a forearm or a shin is mirrored as an elbow or a knee can turn it (the upper segment twists, the
     #: hinge flexes: :func:`~silfit.fitting.branches.flip_segment`); off: the smallest turn at the hinge,
     #: which bends it sideways, so the priors pull the branch back before it is scored (issue 25: a hand
-    #: at the chest fitted as an arm held out to the camera). Tuning seeds 10900, 10901, 12200, 12201 (120
-    #: hard subjects, the default image path with silhouettes): PA-PVE mean 67.5 -> 64.1 mm, 63.0 with
-    #: ``branch_hinge_turns``; fresh ones in the README ("Hinge flips", benchmarks/bench_hard_set.py)
+    #: at the chest fitted as an arm held out to the camera; why this default: docs/benchmarks/defaults.md)
     branch_hinge: bool = True
     #: with ``branch_hinge``, each hinge segment flipped alone by the smallest turn at its hinge is also a
     #: hypothesis (``<segment>/turn``; whole limbs, joint and root-turn hypotheses use the hinge flip only)
@@ -233,18 +225,14 @@ class KeypointFitConfig:
     branch_distinct: bool = True
     #: also the joint hypotheses (:data:`~silfit.fitting.branches.JOINT_HYPOTHESES`: both legs,
     #: both arms, the torso's lean with the legs, the hip's tilt), screened with the others. Off by
-    #: default: on 20 hard subjects (seed 4711, keypoint stage) they changed nothing alone (PA-PVE
-    #: 123.9 mm either way) and little with ``hypotheses=3`` (98.9 against 99.4 mm); on the tuning
-    #: set (seed 31) they made that worse (88.8 against 81.3 mm: lower energies, wrong poses)
+    #: default (why: docs/benchmarks/defaults.md)
     branch_joint: bool = False
     #: the last branch search keeps each sample's ``max(branch_refine, 2 * hypotheses)`` lowest-energy
     #: hypotheses and runs the rest of the schedule on all of them; the lowest final energy is the fit,
     #: the ``hypotheses`` best distinct ones (:func:`distinct_hypotheses`) are returned as
     #: alternatives (``KeypointFitResult.hypotheses``; ``silfit fit --hypotheses K``). Choosing the
-    #: branch by the final energy, not the search stage's, is itself better: ``hypotheses=3`` lowered
-    #: the hard set's keypoint-stage PA-PVE from 123.9 to 99.4 mm (20 subjects, seed 4711; fits above
-    #: 150 mm 5 -> 3, search failures 5 -> 2) at about 1.3-3x the time (a loaded machine; measured
-    #: with ``branch_refine`` 1, now 4: see there)
+    #: branch by the final energy, not the search stage's, is itself better, at a cost in time
+    #: (docs/benchmarks/defaults.md; ``branch_refine`` does so by default)
     hypotheses: int = 1
     #: :func:`distinct_hypotheses`: two solutions are distinct when their joints are
     #: :data:`DISTINCT_JOINTS_M` apart (mean) or any one joint more than this (metres; ``None``: the
@@ -258,14 +246,10 @@ class KeypointFitConfig:
     #: each sample's lowest-energy hypotheses of the last branch search that run the rest of the
     #: schedule (at least ``2 * hypotheses`` with ``hypotheses`` > 1); the lowest final energy is the fit.
     #: As many of the late search's go on to ``settle`` where a search from the fit follows (``post_branch_iters``)
-    #: (1: the search's own choice). 4 (was 1), with ``final_iters`` 120 (was 40): the search's energies
-    #: 30 steps in are far from converged (the final stage took one subject from 1738 to 1391), so
-    #: its choice followed how fast a branch converges, not where; four branches refined to near
-    #: their minima are chosen by the energy a fit is judged by. Hard set (``silfit synth --poses
-    #: hard``, keypoint stage, 30 subjects): tuning seed 8950 PA-PVE mean 112.9 -> 90.9 mm, above
-    #: 150 mm 7 -> 5 (``branch_refine`` 4 alone 106.4, ``final_iters`` 120 alone 108.8, 4 and 80
-    #: 99.9, 6 and 200 96.9); seed 9090 88.2 -> 77.3 mm, 4 -> 3; about 2x the CPU time on these
-    #: poses (README, "Depth ambiguity: a converged choice")
+    #: (1: the search's own choice). The search's energies a few dozen steps in are far from converged,
+    #: so its choice follows how fast a branch converges, not where; branches refined to near their
+    #: minima (``final_iters``) are chosen by the energy a fit is judged by (why this default:
+    #: docs/benchmarks/defaults.md)
     branch_refine: int = 4
     branch_rounds: int = 1
     #: hypotheses drop early: after ``branch_screen_iters`` steps only each sample's
@@ -281,11 +265,8 @@ class KeypointFitConfig:
     #: survivors. Issue 25 (search failures: the fit's
     #: final energy above the truth's): the first search screens at the pose stage's heavy prior
     #: after a few steps, and the truth's branch was often cut there or never proposed (it needs a
-    #: flip on top of another); a search at the final weights from the refined pose finds it. On 24
-    #: hard subjects (tuning seed 31, keypoint stage) 30 steps with screening after 15 and 4 survivors
-    #: (both searches) took search failures 4 -> 0, fits above 150 mm 4 -> 1, PA-PVE mean 105.9 ->
-    #: 80.3 mm at about 2.3x the CPU time; fresh seed 8500, 60 subjects: failures 16 -> 8, above
-    #: 150 mm 19 -> 11, mean 117.2 -> 99.7 mm at 2.0x (README, "Depth ambiguity: search failures")
+    #: flip on top of another); a search at the final weights from the refined pose finds it (why this
+    #: default: docs/benchmarks/defaults.md)
     late_branch_iters: int = 30
     #: late searches in a row (each from the one before's pick)
     late_branch_rounds: int = 1
@@ -300,31 +281,25 @@ class KeypointFitConfig:
     #: and the lowest final energy goes on; every segment of that fit
     #: pointing out of the image plane is mirrored (alone and per whole limb), each runs this many steps at
     #: the final weights (screened after half), and the ``branch_refine`` best run the final stage again
-    #: (``final``); the lowest final energy is the fit. Issue 25: most fits above 150 mm on the hard set were
-    #: search failures (the fit's energy above the truth's), and from the converged fit a single flip often
-    #: reaches the truth's basin where the late search, 30 steps from an unconverged pose, cut it at its
-    #: screen. Tuning seeds 8650 and 8950 (60 hard subjects, keypoint stage): PA-PVE mean 90.1 -> 78.6 mm,
-    #: above 150 mm 8 -> 5, search failures 8 -> 2; fresh seeds 9981 and 9982: 85.9 -> 82.1 mm, 7 -> 6, 2 -> 1,
-    #: at 1.7x the CPU time (README, "Depth ambiguity: a search from the fit"). 0: the schedule before
+    #: (``final``); the lowest final energy is the fit. From the converged fit a single flip often reaches
+    #: the truth's basin where the late search, from an unconverged pose, cut it at its screen (issue 25's
+    #: search failures: the fit's energy above the truth's; why this default: docs/benchmarks/defaults.md).
+    #: 0: the schedule before
     post_branch_iters: int = 40
     #: occlusion cue (:mod:`silfit.fitting.occlusion`, the ``occlusion`` term) in choosing among the
     #: hypotheses refined to the end (``branch_refine`` or ``2 * hypotheses`` of them): a hypothesis'
     #: final energy counts ``1 + occlusion_weight * n`` times, ``n`` the keypoints whose depth order
     #: disagrees with their confidence (a confident keypoint hidden behind the body, a low-confidence
     #: one in front: confidences at or below ``occlusion_conf[0]`` expect hidden, at or above
-    #: ``occlusion_conf[1]`` visible). 0: off. Off by default: on 20 hard subjects (tuning seed 31,
-    #: keypoint stage, ``hypotheses=3``) 0.01 changed the choice of one fit (81.3 -> 78.6 mm PA-PVE,
-    #: chosen offline), on 60 fresh ones (seed 8123) it made the mean worse (90.2 -> 90.6 mm); used in
-    #: the branch search's choice too it made the tuning set's default fit worse (101.7 -> 109.6 mm:
-    #: the search's poses, 20 steps in, disagree at 5-6 keypoints each, the truth at about 1)
+    #: ``occlusion_conf[1]`` visible). 0: off. Off by default (why: docs/benchmarks/defaults.md)
     occlusion_weight: float = 0.0
     occlusion_conf: Sequence[float] = (0.3, 0.6)
     #: the image depth cue (:mod:`silfit.fitting.image_depth`, the ``image_depth`` term; issue 54): each limb
     #: segment whose depth order the landmark model's 3D decides, charged where the fit turns it the other way,
     #: in the branch searches (their hypotheses ranked by it) and in every stage at the final weights. Problems
-    #: without an image have no cue: the term is 0 and their fit is the same bit for bit. 0 (the default): off;
-    #: 100 is the weight measured (docs/benchmarks/image-depth.md): on fresh seeds, with the other changes of
-    #: 2026-12-06 merged, it did not pay (hard and easy sets slightly worse, one easy fit broken), so it is asked for
+    #: without an image have no cue: the term is 0 and their fit is the same bit for bit. 0 (the default): off,
+    #: the cue is asked for; 100 is the weight measured (docs/benchmarks/image-depth.md; why this default:
+    #: docs/benchmarks/defaults.md)
     image_depth_weight: float = 0.0
     #: the term's margin: a decided segment's depth cosine (along the ray) must reach this on the cue's side
     image_depth_margin: float = 0.1

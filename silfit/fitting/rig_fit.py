@@ -11,14 +11,12 @@ triangulated shoulders and hips give the facing) and no limb-branch search: seve
 fix a limb's depth, and the schedule starts from the body posed onto every triangulated
 keypoint (:func:`pose_from_points`) instead of the rest pose, so that no limb has to climb
 from the wrong depth branch (with two views the wrong branch could win: one view agrees with
-it, and the robust data term sets the other view's limb aside: on 30 ``silfit synth --cameras 2``
-subjects of seed 0, 3 fits of 45-98 mm world PVE, each with its energy above the truth's;
-``benchmarks/bench_rig.py --start rest,points`` compares). The start alone did not hold: the
-pose stages' strong prior (weight 2000 first) pulled a limb off its triangulated place and the
-2D terms of two views let it settle in the other branch (seed 0's subject 3: 35 mm at the start,
-127 mm after ``pose_1``, 67 mm at the end, the fit's energy above the truth's), so the stages
-keep the ``points`` term (:class:`~silfit.fitting.terms.PointsTerm`: the body's keypoints against
-the triangulated ones, ``KeypointFitConfig.points_weight`` and ``final_points_weight``) to the end.
+it, and the robust data term sets the other view's limb aside; ``benchmarks/bench_rig.py --start
+rest,points`` compares). The start alone did not hold: the pose stages' strong prior (weight 2000
+first) pulled a limb off its triangulated place and the 2D terms of two views let it settle in the
+other branch, so the stages keep the ``points`` term (:class:`~silfit.fitting.terms.PointsTerm`: the
+body's keypoints against the triangulated ones, ``KeypointFitConfig.points_weight`` and
+``final_points_weight``) to the end (the measurements: docs/benchmarks/defaults.md).
 Parameters and meshes are in the world frame of the rig's extrinsics.
 """
 
@@ -167,8 +165,8 @@ def fit_rig_keypoints(
     the world by that camera's extrinsics (:func:`camera_to_world`): a one-view rig is a single
     image (similar-triangles placement, flip test, branch search: all assume the camera at the
     origin), and a rig's fit depends on the world frame's choice only through the rounding of the
-    relative extrinsics (which the optimiser still amplifies: 3-5 mm mean on the two-view test
-    subject; the L-BFGS path in world axis-angle moved it by 6.4 mm before)."""
+    relative extrinsics (which the optimiser still amplifies, less than the L-BFGS path in world
+    axis-angle did before; by how much: docs/benchmarks/defaults.md)."""
     problems = list(problems)
     run = [in_first_camera(p) for p in problems]
     with torch_threads(fitter.config.threads):

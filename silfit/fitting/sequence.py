@@ -14,7 +14,7 @@ cameras: a rig video), one shape for all frames.
    frame's fit (one start each, one batch) and keeps the lowest final energy of its three
    fits (:func:`~silfit.fitting.keypoint_stage.best_per_group`: near-ties keep its own fit). A
    frame stuck alone in a poor local minimum seldom is when started from the frame beside it
-   (test subject: frame 0 at energy 1893 and 174 mm PA-MPJPE alone, 133 and 15 mm from frame 1).
+   (measured: docs/benchmarks/defaults.md, ``SequenceFitConfig.neighbour_starts``).
    With ``branch_dp`` each frame's hypotheses and neighbour refits are candidates and the branch is
    chosen over time (:func:`branch_path`, a Viterbi programme; ``rebranched`` frames are recorded);
 3. **consistent facings**: each frame's body-forward direction in the ground plane is
@@ -91,9 +91,8 @@ class SequenceFitConfig:
     #: (the per-frame fit's final stage and branch choice as before issue 25's converged choice, too:
     #: ``final_iters`` 40, ``branch_refine`` 1, every step run; the joint refinement is what converges here;
     #: and no search from the fit, ``post_branch_iters`` 0)
-    #: (the single image's 4 starting poses, not 2: a squat seen from the side hides one arm in its deep frames,
-    #: and with 2 starts every such frame began where L-BFGS could not leave a wrong arm, at 2-3x the energy of
-    #: the truth's basin; README "Videos", benchmarks/bench_sequence_branches.py, issue 25)
+    #: (the single image's 4 starting poses, not 2: a squat seen from the side hides one arm in its deep frames;
+    #: why these defaults: docs/benchmarks/defaults.md)
     keypoint: KeypointFitConfig = field(
         default_factory=lambda: KeypointFitConfig(
             init_poses=4,
@@ -127,10 +126,8 @@ class SequenceFitConfig:
     #: dynamic programme picks one per frame (:func:`branch_path`: each candidate's energy above the frame's
     #: lowest, over the sequence's typical energy, plus ``branch_temporal_weight`` times the root-relative
     #: joint distance between consecutive frames' candidates over ``branch_temporal_scale`` metres per
-    #: frame) before the joint refinement, instead of each frame's lowest energy (one camera only).
-    #: Fresh seed 2031 (benchmarks/bench_sequence_branches.py, 60 frames), PA-MPJPE median / worst frame
-    #: against main's: squat 55.4 / 154 -> 28.8 / 92 mm, run 111 / 242 -> 57 / 124, walk 41.0 / 74 ->
-    #: 38.9 / 80; about 2x the wall time (loaded machine)
+    #: frame) before the joint refinement, instead of each frame's lowest energy (one camera only; why this
+    #: default: docs/benchmarks/defaults.md)
     branch_dp: bool = True
     branch_hypotheses: int = 3
     branch_temporal_weight: float = 1.0
@@ -140,17 +137,14 @@ class SequenceFitConfig:
     #: frame from the picks of the frames these many away, both directions (:func:`_neighbour_sources`),
     #: and each frame keeps the lowest energy of its pick and these refits (near-ties: its pick): a right
     #: branch a few frames away reaches a run of frames whose own fits all took the wrong one. ``()`` or
-    #: ``None``: no such round. Fresh seeds (benchmarks/bench_sequence_branches.py --methods before,after),
-    #: PA-MPJPE median and frames above 2x it: 2077 run 64.9 -> 46.3 mm, 13 -> 4, squat and walk about
-    #: unchanged, 1.32x the time; 2093 run 40.0 -> 37.9 mm, 1 -> 1, squat 33.2 -> 33.2, walk 56.4 ->
-    #: 55.8, 1.4x the CPU time
+    #: ``None``: no such round (why this default: docs/benchmarks/defaults.md)
     branch_offsets: Optional[tuple] = (1, 2, 4)
     window: int = 0  # frames per window (0: the whole sequence as one problem)
     overlap: int = 10
     window_pose_iterations: int = 40  # second pass (shared betas fixed) in windowed mode
     #: several calibrated views (a rig video): the temporal weights times this; the views fix the depth
-    #: the smoothing resolves for one camera, and at full weight it flattens a run's bounce (world MPJPE
-    #: 17 -> 41 mm on benchmarks/bench_rig_sequence.py's run, 16 at 0.1)
+    #: the smoothing resolves for one camera, and at full weight it flattens a run's bounce (why this
+    #: default: docs/benchmarks/defaults.md)
     views_smooth_scale: float = 0.1
 
     def stages(self, free_betas: bool = True, iterations: Optional[int] = None, views: int = 1) -> tuple:

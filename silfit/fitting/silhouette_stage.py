@@ -124,9 +124,8 @@ class SilhouetteFitConfig:
     w_contour_inside: float = 0.2
     w_contour_cover: float = 0.2
     #: primal samples per edge pixel with the ray-cast renderer (which traces one ray per constant region elsewhere;
-    #: per pixel with the projective one); 4 before issue 24's sampling part: 2 (and ``edge_density`` 3) cost 1.07x
-    #: less on 4-view rigs and the same on single images, at the same IoU and PA-PVE (fresh seeds 10610-10611, on top
-    #: of the cover term's k-d tree; README "Issue 24's sampling part")
+    #: per pixel with the projective one); 4 before issue 24's sampling part (why this default, and
+    #: ``edge_density``'s: docs/benchmarks/defaults.md)
     spp: int = 2
     edge_spp: int = 1  # visibility-edge samples per pixel (projective integrator's sppp)
     #: the ray-cast renderer's visibility-edge points per pixel of contour-candidate length instead of
@@ -171,8 +170,7 @@ class SilhouetteFitConfig:
     #: ``concave_radius`` of the mask's extent, minus itself: armpits, between the arms and the torso,
     #: between the thighs) are unknown (:func:`~silfit.silhouette.losses.concave_region`): loose
     #: clothing fills them, and a stage that covers them turns many joints a little; 0: off (before
-    #: issue 23's concavity change; benchmarks/bench_truncation.py, clothing, tuning seeds 606, 808, 1234:
-    #: 96.2 -> 93.7, 57.0 -> 47.1 (at 0.05), 29.2 -> 25.8 mm)
+    #: issue 23's concavity change; why this default: docs/benchmarks/defaults.md)
     concave_radius: float = 0.07
     #: the concavities unknown only in a mask trimmed as clothing (``trim_clothing``): a mask that
     #: matches the body has no filled concavities, and there they are the only sign of a misplaced limb
@@ -196,10 +194,8 @@ class SilhouetteFitConfig:
     w_silhouette: float = 1.0
     w_keypoints: float = 0.02
     kp_sigma: float = 20.0  # Geman-McClure scale, window pixels
-    #: the pose prior's (one name in every config, issue 26; old name ``w_pose``). 0.005, not 0.002: with a
-    #: detector's keypoints (off by about 2 % of the person, unsure arms) the stage turned the arms the
-    #: keypoints barely hold, at the same reprojection error (benchmarks/bench_truncation.py, ``detected``,
-    #: tuning seeds 4242 and 606: 101.5 -> 100.7 and 131.3 -> 129.2 mm; clean 32.3 -> 32.6, 61.8 -> 61.8)
+    #: the pose prior's (one name in every config, issue 26; old name ``w_pose``); it holds the arms a
+    #: detector's keypoints barely hold (why this default: docs/benchmarks/defaults.md)
     pose_weight: float = 0.005
     w_limits: float = 1.0
     w_angle: float = 0.001
@@ -213,18 +209,16 @@ class SilhouetteFitConfig:
     #: window's longer side; the excess counts in units of the median error plus a pixel (:func:`trust_data`: the
     #: same on a photo of 4,000 pixels as on one of 256) and each keypoint weighs its confidence over the
     #: observation's largest. Before issue 55 (``trust_from_start=False, trust_fraction=0.06``): a radius of 6 % of
-    #: the window around the detections, confidences normalised to sum 1; on photos the stage then doubled the
-    #: reprojection error and the guard threw its result away on 5 people of 8 (docs/benchmarks/real-photos.md).
-    #: ``w_trust`` 0.05, not 0.5 or 2: stronger held a noise-free subject's keypoints so hard that the stage turned
-    #: limbs in depth instead (demo subject, PA-PVE 10.4 -> 22.1 mm at 0.5, 7.7 at 0.05; clean renders, tuning seed
-    #: 5501: 30.2 mm at 2.0, 26.6 at 0.5); 0: off (before issue 23)
+    #: the window around the detections, confidences normalised to sum 1 (docs/benchmarks/real-photos.md).
+    #: ``w_trust``: the weight; too strong, it holds a noise-free subject's keypoints so hard that the stage
+    #: turns limbs in depth instead; 0: off (before issue 23; why these defaults: docs/benchmarks/defaults.md)
     w_trust: float = 0.05
     trust_fraction: float = 0.0
     trust_from_start: bool = True
     trust_ratio: float = 1.0
     trust_median: float = 0.15
-    #: the share of the median error in the trust region's unit (``unit = trust_unit_median * median + 1 px``);
-    #: 0.25 held zidane's coach tighter (reprojection 1.30x -> 0.96x) but bus.jpg's hidden person looser (1.35x -> 1.43x)
+    #: the share of the median error in the trust region's unit (``unit = trust_unit_median * median + 1 px``;
+    #: why this default: docs/benchmarks/defaults.md)
     trust_unit_median: float = 1.0
     #: shape held in the plausible range: ``(|beta| - max_abs_beta)^2`` beyond it (:func:`beta_bound`)
     w_beta_bound: float = 10.0
@@ -249,8 +243,7 @@ class SilhouetteFitConfig:
     #: pose the full mesh, then map it to the proxy (before issue 24's third part)
     proxy_body: bool = True
     #: a batch's subjects rendered together in tiles of one film (:mod:`renderers.batch`);
-    #: off by default: with the deterministic one-thread renderer tiles measured no faster
-    #: than one render per subject (6.8 vs 6.5 s per subject, batch of 8, this 2-core CPU)
+    #: off by default (why: docs/benchmarks/defaults.md)
     batch_render: bool = False
     threads: Optional[int] = 1  # torch threads during the stage (see silfit.fitting.threads)
 
@@ -720,8 +713,9 @@ class ContourBody(torch.nn.Module):
 
 #: model -> {(layout, what, model's dtype): (the model's arrays it mixes, their versions, ContourBody)}: the reduced
 #: bodies of the stage (the contour level's points, each rendered level's proxy) kept from call to call (building
-#: one poses the landmarks' reduction and mixes the model's arrays: about 0.1 s per call before issue 24's speed
-#: part); rebuilt when one of those arrays is another tensor or was written in place (its ``_version``)
+#: one poses the landmarks' reduction and mixes the model's arrays, a cost paid per call before issue 24's speed
+#: part: docs/benchmarks/defaults.md); rebuilt when one of those arrays is another tensor or was written in place
+#: (its ``_version``)
 _CONTOUR_BODIES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 

@@ -2,7 +2,7 @@
 
 A fit's tensors are small (one body, a few thousand pixels), so torch's thread pool
 costs more in synchronisation than it gains, and it competes with Dr.Jit's own pool:
-measured on a 2-core machine, silhouette steps ran 2.5x faster with one torch thread.
+silhouette steps run faster with one torch thread (measured: docs/benchmarks/defaults.md).
 """
 
 from __future__ import annotations

@@ -21,20 +21,19 @@ each other pay about the square of the depth:
   touch at the rest pose. Energy per sample: ``sum relu(r_a + r_b - |c_a - c_b|)^2``
   (metres^2), whose gradient pushes overlapping parts apart.
 
-Measured on the open body model (``benchmarks/bench_interpenetration.py``, energies x 1e5,
-the fitter's weight): poses whose surfaces touch (arms hanging against the sides, a hand
-on the head, hands resting on the thighs, arms crossed) cost 0 where the former
-surface-sized spheres charged 115-430; a forearm 3.4 cm through the thigh costs 130, arms
-crossed 6 cm through the chest 21900. 165 spheres, 10172 tested pairs.
+On the open body model poses whose surfaces touch (arms hanging against the sides, a hand
+on the head, hands resting on the thighs, arms crossed) cost 0, and a limb pushed through
+another costs about the square of the depth (``benchmarks/bench_interpenetration.py``; the
+numbers, against the former surface-sized spheres: docs/benchmarks/defaults.md).
 
 **Cost.** Most rows of a fit have no overlapping pair, and an overlapping row a few dozen. So
 :meth:`SphereCollisionModel.forward` poses every sphere *without* a gradient (each radius's nearest
 neighbour found by accumulating the shape directions one at a time; all pairwise distances), keeps
 the overlapping tested pairs, and forms only those pairs' spheres again with the gradient. The
 value and gradient are the dense definition's (a test checks both against it in float64). Forward
-and backward for a batch of 32 cost 14.5 ms on one thread of a 2-core Xeon where the dense
-evaluation (every pair and every neighbour with the gradient) cost 36.5 ms (``bench_interpenetration.py``,
-``--module`` on the previous file), and the keypoint stage runs about 2x faster. A row's value does
+and backward cost less than the dense evaluation (every pair and every neighbour with the gradient),
+and the keypoint stage runs faster (``bench_interpenetration.py``, ``--module`` on the previous file;
+the timings: docs/benchmarks/defaults.md). A row's value does
 not depend on the batch (the pairs' squared overlaps are summed with ``index_add``, one after another).
 """
 
@@ -184,7 +183,7 @@ def _mean_shape_posed(model, body_pose: torch.Tensor, chunk: int = 16) -> tuple:
     """``(vertices [P, V, 3], transforms [P, J, 4, 4])`` of the mean shape in ``body_pose [P, 69]``, float64,
     without BLAS (``blas=False``: :mod:`silfit.body.lbs`, "No BLAS"): MKL's GEMMs round the skinned
     vertices otherwise on an Intel Xeon with AVX-512 than on an AMD EPYC, which changed the spheres' radius
-    scales in their last bits and a float64 keypoint fit by 1.1 mm."""
+    scales in their last bits and so a float64 keypoint fit (docs/benchmarks/defaults.md)."""
     from ..body.lbs import axis_angle_to_matrix, forward_kinematics, pose_correctives, skin_vertices, vertices_to_joints
 
     v = model.v_template.double()[None]
@@ -370,7 +369,7 @@ def _save_spheres(path: Path, arrays: dict) -> None:
 def cached_spheres(model, margin: float = 0.004, disk_cache: bool = True, **settings) -> dict:
     """:func:`build_spheres` once per body model and settings: in memory, and on disk
     (:func:`sphere_cache_dir`; the arrays round-trip exactly, so a fit is the same bits either way).
-    Building takes 10-15 s on a loaded 2-core CPU, once per process (each Ray actor, each
+    Building takes seconds (docs/benchmarks/defaults.md), once per process (each Ray actor, each
     ``silfit`` call) without the file."""
     key = _cache_key(model, margin, settings)
     if key not in _CACHE:

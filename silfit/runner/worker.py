@@ -189,8 +189,7 @@ class DatasetFitter:
         their folders under ``out``; one record per item, in order. With one torch thread, as the
         stages and Ray's one-CPU actors run (the same bits: ``tests/cli/test_fit_dataset.py``): the
         small work between the stages (posing, masks, writing) gains nothing from a second thread,
-        and on a loaded CPU the pool's waiting made it about 20x slower (one body posed: 3-8 ms
-        quiet, 100 ms at load 6 on the 2-core machine)."""
+        and on a loaded CPU the pool's waiting made it much slower (docs/benchmarks/defaults.md)."""
         from ..fitting.threads import torch_threads
 
         with torch_threads(1):

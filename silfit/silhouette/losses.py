@@ -255,8 +255,8 @@ NEAREST_BY_TREE = True
 
 def _nearest(u: torch.Tensor, pts: torch.Tensor) -> torch.Tensor:
     """Index ``[B]`` of the point of ``u [N, 2]`` nearest each of ``pts [B, 2]``: a k-d tree in float64
-    (exact distances, so the same choice on every processor; about 2.7x faster than the product over all
-    pairs at the contour level's 2,000 points and 256 outline points), or, with a point of either that is not
+    (exact distances, so the same choice on every processor; faster than the product over all pairs at the
+    contour level's sizes: docs/benchmarks/defaults.md), or, with a point of either that is not
     finite or :data:`NEAREST_BY_TREE` off, the smallest ``|u|^2 - 2 p.u`` from one product (its float32 rounding
     decides near ties)."""
     from scipy.spatial import cKDTree
