@@ -277,6 +277,117 @@ def _search_gap(folder: Optional[Path]) -> Dict[str, float]:
 
 
 # ----------------------------------------------------------------------------- the fitter
+def _fit_keypoint_sets(subjects: Sequence, model) -> list:
+    """The keypoints each subject is fitted to: with a whole-body (SMPL-X-layout) model, hands and face from the
+    same files."""
+    from ..fitting import prepare_keypoints
+
+    if getattr(model, "kind", "smpl") == "smplx":  # whole-body: hands and face from the same files
+        from ..wholebody import choose_fit_keypoints, read_wholebody_parts
+
+        return [
+            choose_fit_keypoints(s.keypoints, read_wholebody_parts(s.file("keypoints"), 0), model)[0] for s in subjects
+        ]
+    return prepare_keypoints([s.keypoints for s in subjects])
+
+
+def _fitter_jobs(sets: list, subjects: Sequence, methods: Sequence[str], model, progress: bool) -> list:
+    """One :class:`silfit.run.Job` per subject (a subject's image.png gives the image depth cue)."""
+    from ..fitting.problem import Problem
+    from ..run import Job
+
+    return [
+        Job(
+            Problem.single(k, s.camera, s.mask),
+            model,
+            silhouette="silhouette" in methods,
+            progress=progress,
+            mask_sources={(0, 0): str(s.file("mask"))},
+            images={} if s.image is None else {(0, 0): s.image},
+        )
+        for k, s in zip(sets, subjects)
+    ]
+
+
+def _failed_keypoint_stage(fits: list) -> dict:
+    """``{subject number: error}`` of the subjects whose keypoints were refused (silfit.run.check) or whose keypoint
+    stage failed (a failed silhouette stage keeps its keypoint fit)."""
+    from ..image_fit import StageFailure
+
+    return {
+        i: (f.error if isinstance(f, StageFailure) else f)
+        for i, f in enumerate(fits)
+        if isinstance(f, Exception) and not (isinstance(f, StageFailure) and f.stage == "silhouette")
+    }
+
+
+def _search_records(subjects: Sequence, sets: list, fits: list, bad: dict, model) -> list:
+    """Per subject, the keypoint-stage energy at the fit and at the truth (``None`` without ground truth for every
+    subject, or where the subject failed)."""
+    from ..fitting import KeypointFitter
+
+    if not all(s.gt is not None for s in subjects):
+        return [None] * len(subjects)
+    fitter = KeypointFitter(model, sets[0].layout)
+    truth = {k: np.stack([s.gt.params()[k][0] for s in subjects]) for k in model.parameter_names}
+    e_truth, _ = fitter.energy_at(truth, sets, [s.camera for s in subjects])
+    last = fitter.stages[-1].name
+    return [
+        None if i in bad else {"energy_fit": float(_keypoint_result(f).energies[last][0]), "energy_truth": float(b)}
+        for i, (f, b) in enumerate(zip(fits, e_truth))
+    ]
+
+
+def _write_keypoint_fits(subjects: Sequence, fits: list, bad: dict, fits_root, batched_over: int, search: list):
+    """Each subject's keypoint fit into ``fits_root/<subject>/keypoints/`` (written beside its place, then moved in)."""
+    from ..outfolder import atomic_folder
+
+    for i, s in enumerate(subjects):  # each fit folder is written beside its place, then moved in
+        if i in bad:
+            continue
+        kp = _keypoint_result(fits[i])
+        with atomic_folder(Path(fits_root) / s.name / "keypoints", overwrite=True) as tmp:
+            kp.save(tmp)
+            record = {
+                "timings": {k: float(v) for k, v in kp.timings.items()},
+                "batched_over": batched_over,
+                "search": search[i],
+                "image_depth": getattr(fits[i], "metrics", {}).get("image_depth"),
+            }
+            (tmp / "metrics.json").write_text(json.dumps(record, indent=2))
+
+
+def _write_silhouette_fits(subjects: Sequence, fits: list, bad: dict, sets: list, fits_root, model, search) -> str:
+    """Each subject's silhouette fit into ``fits_root/<subject>/silhouette/``; returns the method's status."""
+    from ..image_fit import StageFailure, save_fit
+
+    faces = model.faces.cpu().numpy()
+    ran, failed = 0, []
+    for i, (s, f) in enumerate(zip(subjects, fits)):
+        if i in bad:
+            failed.append(f"{s.name}: {bad[i]}")
+        elif s.mask is None:
+            failed.append(f"{s.name}: no mask")
+        elif isinstance(f, StageFailure):
+            failed.append(f"{s.name}: {f.error}")
+        else:
+            kp_total = float(f.stage.keypoint.timings.get("total", 0.0))
+            timings = {"keypoints": kp_total, "silhouette": f.stage.silhouette.seconds}
+            timings["total"] = sum(timings.values())
+            save_fit(
+                f.stage,
+                Path(fits_root) / s.name / "silhouette",
+                faces,
+                sets[i],
+                s.image,
+                s.mask,
+                {"timings": timings, "search": search[i]},
+                overwrite=True,
+            )
+            ran += 1
+    return f"ran on {ran} subjects" + (f"; failed: {'; '.join(failed)}" if failed else "")
+
+
 def run_fitter(
     subjects: Sequence,
     fits_root: os.PathLike,
@@ -291,103 +402,32 @@ def run_fitter(
     silhouette stage per subject, starting from the keypoint stage's result (run once and
     shared when both methods are asked for). Returns ``{method: status}``; raises
     :class:`FitterUnavailable` when nothing can run."""
-    from ..fitting import KeypointFitter, prepare_keypoints
-    from ..fitting.problem import Problem
-    from ..outfolder import atomic_folder
-    from ..image_fit import StageFailure, save_fit
-    from ..run import Job, run_batch
+    from ..run import run_batch
 
     unknown = [m for m in methods if m not in ("keypoints", "silhouette")]
     if unknown:
         raise FitterUnavailable(f"unknown method(s) {', '.join(unknown)} (expected keypoints, silhouette)")
     status = {}
     t0 = time.perf_counter()
-    if getattr(model, "kind", "smpl") == "smplx":  # whole-body: hands and face from the same files
-        from ..wholebody import choose_fit_keypoints, read_wholebody_parts
-
-        sets = [
-            choose_fit_keypoints(s.keypoints, read_wholebody_parts(s.file("keypoints"), 0), model)[0] for s in subjects
-        ]
-    else:
-        sets = prepare_keypoints([s.keypoints for s in subjects])
+    sets = _fit_keypoint_sets(subjects, model)
     # every subject through the one path (silfit.run): both stages batched, in chunks of silhouette_batch
     chunk = max(1, int(silhouette_batch)) if "silhouette" in methods else len(subjects)
-    # a subject's image (image.png) gives the image depth cue (silfit.fitting.image_depth)
-    jobs = [
-        Job(
-            Problem.single(k, s.camera, s.mask),
-            model,
-            silhouette="silhouette" in methods,
-            progress=progress,
-            mask_sources={(0, 0): str(s.file("mask"))},
-            images={} if s.image is None else {(0, 0): s.image},
-        )
-        for k, s in zip(sets, subjects)
-    ]
+    jobs = _fitter_jobs(sets, subjects, methods, model, progress)
     fits = [f for c in range(0, len(jobs), chunk) for f in run_batch(jobs[c : c + chunk], isolate=True)]
     # a subject whose keypoints are refused (silfit.run.check) or whose keypoint stage fails fails alone
-    bad = {
-        i: (f.error if isinstance(f, StageFailure) else f)
-        for i, f in enumerate(fits)
-        if isinstance(f, Exception) and not (isinstance(f, StageFailure) and f.stage == "silhouette")
-    }
+    bad = _failed_keypoint_stage(fits)
     if len(bad) == len(fits):
         raise next(iter(bad.values()))
     elapsed = time.perf_counter() - t0
-    search = [None] * len(subjects)
-    if all(s.gt is not None for s in subjects):  # the keypoint-stage energy at the truth vs at the fit
-        fitter = KeypointFitter(model, sets[0].layout)
-        truth = {k: np.stack([s.gt.params()[k][0] for s in subjects]) for k in model.parameter_names}
-        e_truth, _ = fitter.energy_at(truth, sets, [s.camera for s in subjects])
-        last = fitter.stages[-1].name
-        search = [
-            None if i in bad else {"energy_fit": float(_keypoint_result(f).energies[last][0]), "energy_truth": float(b)}
-            for i, (f, b) in enumerate(zip(fits, e_truth))
-        ]
+    search = _search_records(subjects, sets, fits, bad, model)  # the keypoint-stage energy at the truth vs at the fit
     if "keypoints" in methods:
-        for i, s in enumerate(subjects):  # each fit folder is written beside its place, then moved in
-            if i in bad:
-                continue
-            kp = _keypoint_result(fits[i])
-            with atomic_folder(Path(fits_root) / s.name / "keypoints", overwrite=True) as tmp:
-                kp.save(tmp)
-                record = {
-                    "timings": {k: float(v) for k, v in kp.timings.items()},
-                    "batched_over": min(chunk, len(subjects)),
-                    "search": search[i],
-                    "image_depth": getattr(fits[i], "metrics", {}).get("image_depth"),
-                }
-                (tmp / "metrics.json").write_text(json.dumps(record, indent=2))
+        _write_keypoint_fits(subjects, fits, bad, fits_root, min(chunk, len(subjects)), search)
         status["keypoints"] = (
             f"ran on {len(subjects) - len(bad)} subjects in {elapsed:.1f} s (batched; per-subject times are batch "
             "averages)" + (f"; failed: {'; '.join(f'{subjects[i].name}: {e}' for i, e in bad.items())}" if bad else "")
         )
     if "silhouette" in methods:
-        faces = model.faces.cpu().numpy()
-        ran, failed = 0, []
-        for i, (s, f) in enumerate(zip(subjects, fits)):
-            if i in bad:
-                failed.append(f"{s.name}: {bad[i]}")
-            elif s.mask is None:
-                failed.append(f"{s.name}: no mask")
-            elif isinstance(f, StageFailure):
-                failed.append(f"{s.name}: {f.error}")
-            else:
-                kp_total = float(f.stage.keypoint.timings.get("total", 0.0))
-                timings = {"keypoints": kp_total, "silhouette": f.stage.silhouette.seconds}
-                timings["total"] = sum(timings.values())
-                save_fit(
-                    f.stage,
-                    Path(fits_root) / s.name / "silhouette",
-                    faces,
-                    sets[i],
-                    s.image,
-                    s.mask,
-                    {"timings": timings, "search": search[i]},
-                    overwrite=True,
-                )
-                ran += 1
-        status["silhouette"] = f"ran on {ran} subjects" + (f"; failed: {'; '.join(failed)}" if failed else "")
+        status["silhouette"] = _write_silhouette_fits(subjects, fits, bad, sets, fits_root, model, search)
     return status
 
 

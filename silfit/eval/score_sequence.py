@@ -95,6 +95,72 @@ def score_sequence(model, gt: Dict[str, np.ndarray], params: Dict[str, np.ndarra
     return row
 
 
+def _fit_sequence(d: Path, out: Path, model, config) -> None:
+    """Fit the sequence in ``d`` through the one path (silfit.run), as silfit fit --sequence, into ``out``."""
+    from ..camera import load_camera
+    from ..run import run as run_job
+    from ..run import video_job, write
+    from ..video import read_sequence
+
+    seq = read_sequence(d)  # through the one path (silfit.run), as silfit fit --sequence
+    job = video_job(
+        seq.frames,
+        load_camera(d / "camera.json"),
+        model,
+        config=config,
+        progress=False,
+        numbers=seq.numbers,
+        inputs=seq,
+        warnings=seq.warnings,
+    )
+    write(run_job(job), out, video=False, overwrite=True)
+
+
+def _read_sequence_fit(d: Path, out: Path, model, run: bool, config) -> tuple:
+    """``(truth, metrics.json, temporal fit, per-frame fit)`` of the sequence in ``d`` (fitted first with ``run`` or
+    when ``out`` holds no fit)."""
+    from ..dataset import read_truth
+    from ..fitio import read_fit
+
+    gt = read_truth(d / "gt.npz")
+    if run or not (out / "params.npz").is_file():
+        _fit_sequence(d, out, model, config)
+    metrics = json.loads((out / "metrics.json").read_text(encoding="utf-8"))
+    fit = read_fit(out, sizes={**model.parameter_sizes, "betas": None})
+    per = read_fit(out / "stages" / "per_frame", sizes={**model.parameter_sizes, "betas": None})
+    return gt, metrics, fit, per
+
+
+def _sequence_rows(model, name: str, gt, metrics: dict, fit, per) -> List[dict]:
+    """The result rows (``per_frame``, ``temporal``) of one sequence."""
+    rows = []
+    t, F = metrics.get("timings", {}), fit.num_frames
+    bridged = np.isin(fit.frame_numbers, metrics.get("bridged_frames", []))
+    every = lambda f: {n: np.repeat(v, F, 0) if v.shape[0] == 1 else v for n, v in f.params.items()}  # noqa: E731
+    for method, params, seconds in (
+        ("per_frame", every(per), t.get("per_frame_init")),
+        ("temporal", every(fit), t.get("total")),
+    ):
+        row = {"subject": name, "method": method, **score_sequence(model, gt, params, bridged)}
+        if seconds is not None:
+            row["seconds_per_frame"] = float(seconds) / F
+        rows.append(row)
+    return rows
+
+
+def _sequence_summary(rows: List[dict]) -> dict:
+    """``{method: {metric: {"mean", "median", "n"}}}`` over the result rows (NaNs ignored)."""
+    summary = {}
+    for m in METHODS:
+        mrows = [r for r in rows if r["method"] == m]
+        summary[m] = {}
+        for k in SEQUENCE_METRICS:
+            vals = np.array([r[k] for r in mrows if k in r and np.isfinite(r[k])])
+            if len(vals):
+                summary[m][k] = {"mean": float(vals.mean()), "median": float(np.median(vals)), "n": int(len(vals))}
+    return summary
+
+
 def evaluate_sequences(
     dataset: os.PathLike,
     fits: Optional[os.PathLike] = None,
@@ -106,11 +172,6 @@ def evaluate_sequences(
     """Score every sequence of ``dataset`` (fitting it first with ``run`` or when no fit
     exists: ``FITS/<seq>/temporal/``, written by :func:`silfit.video.save_sequence_fit`)."""
     from ..body import load_body_model
-    from ..camera import load_camera
-    from ..dataset import read_truth
-    from ..run import run as run_job
-    from ..run import video_job, write
-    from ..video import read_sequence
 
     root = Path(dataset)
     index = _index(root)
@@ -118,8 +179,6 @@ def evaluate_sequences(
         raise InputError(
             root / "index.json", "not a sequence dataset (expected format silfit-synthetic-sequence)", field="format"
         )
-    from ..fitio import read_fit
-
     model = load_body_model() if model is None else model
     fits_root = Path(fits) if fits else root / "fits"
     rows: List[dict] = []
@@ -131,56 +190,20 @@ def evaluate_sequences(
 
         iterator = tqdm(names, desc="silfit eval (sequences)", unit="sequence")
     for name in iterator:
-        d = root / name
-        out = fits_root / name / "temporal"
         try:
-            gt = read_truth(d / "gt.npz")
-            if run or not (out / "params.npz").is_file():
-                seq = read_sequence(d)  # through the one path (silfit.run), as silfit fit --sequence
-                job = video_job(
-                    seq.frames,
-                    load_camera(d / "camera.json"),
-                    model,
-                    config=config,
-                    progress=False,
-                    numbers=seq.numbers,
-                    inputs=seq,
-                    warnings=seq.warnings,
-                )
-                write(run_job(job), out, video=False, overwrite=True)
-            metrics = json.loads((out / "metrics.json").read_text(encoding="utf-8"))
-            fit = read_fit(out, sizes={**model.parameter_sizes, "betas": None})
-            per = read_fit(out / "stages" / "per_frame", sizes={**model.parameter_sizes, "betas": None})
+            gt, metrics, fit, per = _read_sequence_fit(root / name, fits_root / name / "temporal", model, run, config)
         except (ValueError, OSError) as err:
             if interruption(err) is not None:  # stopped while writing: not this subject's failure
                 raise
             skipped.append({"subject": name, "error": " ".join(str(err).split())})
             continue
-        t, F = metrics.get("timings", {}), fit.num_frames
-        bridged = np.isin(fit.frame_numbers, metrics.get("bridged_frames", []))
-        every = lambda f: {n: np.repeat(v, F, 0) if v.shape[0] == 1 else v for n, v in f.params.items()}  # noqa: E731
-        for method, params, seconds in (
-            ("per_frame", every(per), t.get("per_frame_init")),
-            ("temporal", every(fit), t.get("total")),
-        ):
-            row = {"subject": name, "method": method, **score_sequence(model, gt, params, bridged)}
-            if seconds is not None:
-                row["seconds_per_frame"] = float(seconds) / F
-            rows.append(row)
-    summary = {}
-    for m in METHODS:
-        mrows = [r for r in rows if r["method"] == m]
-        summary[m] = {}
-        for k in SEQUENCE_METRICS:
-            vals = np.array([r[k] for r in mrows if k in r and np.isfinite(r[k])])
-            if len(vals):
-                summary[m][k] = {"mean": float(vals.mean()), "median": float(np.median(vals)), "n": int(len(vals))}
+        rows += _sequence_rows(model, name, gt, metrics, fit, per)
     return {
         "dataset": str(root),
         "kind": "sequence",
         "methods": list(METHODS),
         "results": rows,
-        "summary": summary,
+        "summary": _sequence_summary(rows),
         "skipped": skipped,
         "missing_fits": [],
     }

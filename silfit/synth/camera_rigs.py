@@ -130,13 +130,9 @@ def _write_view_files(folder: Path, view, image, mask, kp, parts: dict) -> None:
     (folder / "camera.json").write_text(json.dumps(view_to_dict(view), indent=2) + "\n", encoding="utf-8")
 
 
-def generate_rig_subject(model, index: int, config: SynthConfig, rig: RigConfig, out_dir: Path) -> dict:
-    """Sample, render (every view) and write rig subject ``index`` into ``out_dir``; returns its record."""
-    cfg = config
-    rng = np.random.default_rng([int(cfg.seed), int(index)])
-    clean = index < cfg.clean
-    noise_px = 0.0 if clean else float(cfg.noise_px)
-    drop_prob = 0.0 if clean else float(cfg.drop_prob)
+def _sample_rig_body(rng, model, cfg: SynthConfig) -> tuple:
+    """``(pose sample, yaw, pose {betas, body_pose, global_orient}, extra whole-body parameters)`` of a rig subject,
+    drawn from ``rng`` in that order (the whole-body parameters last: body-only rigs unchanged)."""
     ps = sample_pose(rng, perturb_deg=cfg.perturb_deg, blend_prob=cfg.blend_prob, mirror_prob=cfg.mirror_prob)
     yaw = float(rng.uniform(*cfg.yaw_range_deg))
     betas = sample_betas(rng, model.num_betas, cfg.beta_truncation)
@@ -145,6 +141,24 @@ def generate_rig_subject(model, index: int, config: SynthConfig, rig: RigConfig,
     extra = (
         sample_wholebody_params(rng, model, cfg)[0] if cfg.whole_body else {}
     )  # drawn last: body-only rigs unchanged
+    return ps, yaw, {"betas": betas, "body_pose": body_pose, "global_orient": global_orient}, extra
+
+
+@dataclass
+class RigBody:
+    """A rig subject's body in the world (pelvis at the origin): stored parameters, keypoints, vertices, stature."""
+
+    params: dict
+    kp3d: np.ndarray
+    parts3d: dict
+    vertices: np.ndarray
+    joints: np.ndarray
+    stature: float
+
+
+def _posed_rig_body(model, whole_body: bool, pose: dict, extra: dict) -> RigBody:
+    """The body ``pose`` (+ ``extra``) moved so that its pelvis is at the origin, evaluated at the stored precision."""
+    betas, body_pose, global_orient = pose["betas"], pose["body_pose"], pose["global_orient"]
     as_t = lambda a: torch.as_tensor(np.asarray(a)[None], dtype=model.dtype, device=model.device)  # noqa: E731
     with torch.no_grad():
         out0 = model(
@@ -164,7 +178,7 @@ def generate_rig_subject(model, index: int, config: SynthConfig, rig: RigConfig,
         out = model(**{k: as_t(v) for k, v in params.items()})
         kp3d = model_keypoints(model, out, "body25")[0].double().cpu().numpy()
         parts3d = {}
-        if cfg.whole_body:
+        if whole_body:
             from ..wholebody import wholebody_keypoints
 
             wb = wholebody_keypoints(model, out)
@@ -173,42 +187,65 @@ def generate_rig_subject(model, index: int, config: SynthConfig, rig: RigConfig,
     vertices = out.vertices[0].double().cpu().numpy()
     joints = out.joints[0].cpu().numpy().astype(np.float32)
     stature = float(rest[:, 1].max() - rest[:, 1].min())
-    views = rig.layout if rig.layout is not None else rig_layout(rng, vertices, cfg, rig)
-    faces = model.faces.cpu().numpy()
-    colour = BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))]
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    return RigBody(params, kp3d, parts3d, vertices, joints, stature)
+
+
+def _render_rig_views(
+    rng, views, body: RigBody, faces, colour, cfg: SynthConfig, noise_px: float, drop_prob: float, out_dir: Path
+) -> tuple:
+    """Render, detect and write every view's folder; returns ``(clean 2D keypoints, visibility, visible counts,
+    whole-body clean projections)``, one entry per view."""
     clean2d, visibility, counts, wb_clean = [], [], [], {}
     for c, view in enumerate(views):
         R, t = view.extrinsics()
         cam = view.camera
-        v_cam = vertices @ R.T + t
-        k_cam = kp3d @ R.T + t
+        v_cam = body.vertices @ R.T + t
+        k_cam = body.kp3d @ R.T + t
         kp2d = project_points(torch.as_tensor(k_cam), cam).numpy()
         r = render_subject(v_cam.astype(np.float32), faces, cam, colour)
         bg, _ = background_image(rng, cfg.background, cam.height, cam.width)
         image = np.where(r.mask[..., None], r.color, bg).astype(np.uint8)
         vis = keypoint_visibility(k_cam, kp2d, r.depth, BODY25_NAMES)
         kp, _ = noisy_keypoints(rng, kp2d, vis, noise_px, drop_prob, cfg.conf_visible, cfg.conf_occluded)
-        parts = _view_part_keypoints(rng, parts3d, view, r.depth, noise_px, drop_prob, cfg, wb_clean)
+        parts = _view_part_keypoints(rng, body.parts3d, view, r.depth, noise_px, drop_prob, cfg, wb_clean)
         _write_view_files(out_dir / view_name(c), view, image, r.mask, kp, parts)
         clean2d.append(kp2d)
         visibility.append(vis)
         counts.append(int((vis == 2).sum()))
+    return clean2d, visibility, counts, wb_clean
+
+
+def generate_rig_subject(model, index: int, config: SynthConfig, rig: RigConfig, out_dir: Path) -> dict:
+    """Sample, render (every view) and write rig subject ``index`` into ``out_dir``; returns its record."""
+    cfg = config
+    rng = np.random.default_rng([int(cfg.seed), int(index)])
+    clean = index < cfg.clean
+    noise_px = 0.0 if clean else float(cfg.noise_px)
+    drop_prob = 0.0 if clean else float(cfg.drop_prob)
+    ps, yaw, pose, extra = _sample_rig_body(rng, model, cfg)
+    body = _posed_rig_body(model, cfg.whole_body, pose, extra)
+    views = rig.layout if rig.layout is not None else rig_layout(rng, body.vertices, cfg, rig)
+    faces = model.faces.cpu().numpy()
+    colour = BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))]
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    clean2d, visibility, counts, wb_clean = _render_rig_views(
+        rng, views, body, faces, colour, cfg, noise_px, drop_prob, out_dir
+    )
     write_cameras_json(out_dir / "cameras.json", [(view_name(c), v) for c, v in enumerate(views)])
     save_npz(
         out_dir / "gt.npz",
         {
-            **params,
-            "vertices": vertices.astype(np.float32),
-            "joints": joints,
-            "keypoints_3d": kp3d.astype(np.float32),
+            **body.params,
+            "vertices": body.vertices.astype(np.float32),
+            "joints": body.joints,
+            "keypoints_3d": body.kp3d.astype(np.float32),
             "keypoints_2d_clean": np.asarray(clean2d),
             "keypoints_visibility": np.asarray(visibility, np.int8),
-            "stature": np.float64(stature),
+            "stature": np.float64(body.stature),
             "noise_px": np.float64(noise_px),
             "views": np.int64(len(views)),
-            **{f"{p}_3d": v.astype(np.float32) for p, v in parts3d.items()},
+            **{f"{p}_3d": v.astype(np.float32) for p, v in body.parts3d.items()},
             **{f"{p}_2d_clean": np.asarray(v) for p, v in wb_clean.items()},
         },
     )
@@ -216,7 +253,7 @@ def generate_rig_subject(model, index: int, config: SynthConfig, rig: RigConfig,
         "name": out_dir.name,
         "pose": ps.name,
         "yaw_deg": round(yaw, 4),
-        "stature_m": round(stature, 4),
+        "stature_m": round(body.stature, 4),
         "views": len(views),
         "noise_px": noise_px,
         "keypoints_visible_per_view": counts,

@@ -385,28 +385,29 @@ def _render_over_background(rng: np.random.Generator, background: str, vertices,
     return r, np.where(r.mask[..., None], r.color, bg).astype(np.uint8), bg_label
 
 
-def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> SubjectRecord:
-    """Sample, render and write subject ``index`` of a dataset into ``out_dir`` (created)."""
-    cfg = config
-    rng = np.random.default_rng([int(cfg.seed), int(index)])
-    frontal = cfg.frontal_first and index == 0
-    clean = index < cfg.clean
-    noise_px = 0.0 if clean else float(cfg.noise_px)
-    drop_prob = 0.0 if clean else float(cfg.drop_prob)
-    W = H = int(cfg.size)
+@dataclass
+class PosedSubject:
+    """A subject's body as written: the stored (float32) parameters, its placement, keypoints and vertices."""
 
-    # Pose, shape, orientation.
-    ps, yaw, elev, roll = _sample_pose_and_view(model, rng, cfg, frontal)
-    betas = sample_betas(rng, model.num_betas, cfg.beta_truncation)
-    global_orient = global_orientation(yaw, elev, roll, root=ps.root)
-    camera, fov = sample_intrinsics(rng, W, H, cfg.fov_deg)
-    body_pose = ps.body_pose[: model.num_body_pose]  # SMPL-X: joints 1..21 (no SMPL hand joints)
-    extra, angles, hands = {}, {}, (None, None)
-    if cfg.whole_body:
-        extra, angles, hands = sample_wholebody_params(rng, model, cfg)
+    params: Dict[str, np.ndarray]
+    place: object  # silfit.synth.sampler's placement (transl, fill, truncated)
+    kp3d: np.ndarray
+    kp2d: np.ndarray
+    coco3d: np.ndarray
+    coco2d: np.ndarray
+    parts3d: dict
+    parts2d: dict
+    vertices: np.ndarray
+    joints: np.ndarray
+    stature: float
 
+
+def _pose_and_place(model, rng, cfg: SynthConfig, camera, frontal: bool, pose: dict, extra: dict) -> PosedSubject:
+    """Place the body ``pose`` (``betas``, ``body_pose``, ``global_orient``) and ``extra`` whole-body parameters in
+    front of ``camera`` (draws the placement from ``rng``), then evaluate the stored parameters once more."""
     dtype = model.dtype
     as_t = lambda a: torch.as_tensor(np.asarray(a)[None], dtype=dtype, device=model.device)  # noqa: E731
+    betas, body_pose, global_orient = pose["betas"], pose["body_pose"], pose["global_orient"]
     with torch.no_grad():
         out0 = model(
             betas=as_t(betas),
@@ -436,46 +437,90 @@ def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> S
     vertices = out.vertices[0].cpu().numpy().astype(np.float32)
     joints = out.joints[0].cpu().numpy().astype(np.float32)
     stature = float(rest[:, 1].max() - rest[:, 1].min())
+    return PosedSubject(params, place, kp3d, kp2d, coco3d, coco2d, parts3d, parts2d, vertices, joints, stature)
 
-    # Render.
-    r, image, bg_label = _render_over_background(rng, cfg.background, vertices, model.faces.cpu().numpy(), camera)
-    mask = r.mask
 
-    # Keypoints.
-    vis = keypoint_visibility(kp3d, kp2d, r.depth, BODY25_NAMES)
-    kp, dropped = noisy_keypoints(rng, kp2d, vis, noise_px, drop_prob, cfg.conf_visible, cfg.conf_occluded)
-    coco_vis = keypoint_visibility(coco3d, coco2d, r.depth, COCO17_NAMES)
+@dataclass
+class SubjectKeypoints:
+    """A subject's keypoints as detected: visibility codes, noisy keypoints and drop flags (body, COCO-17, parts)."""
+
+    vis: np.ndarray
+    kp: np.ndarray
+    dropped: np.ndarray
+    coco_vis: np.ndarray
+    coco_kp: np.ndarray
+    wb_arrays: dict
+    wb_kp: dict
+
+
+def _subject_keypoints(rng, body: PosedSubject, depth, noise_px: float, drop_prob: float, cfg) -> SubjectKeypoints:
+    """Visibility by the rendered ``depth`` and noisy keypoints of the body, COCO-17 and (whole body) the parts."""
+    vis = keypoint_visibility(body.kp3d, body.kp2d, depth, BODY25_NAMES)
+    kp, dropped = noisy_keypoints(rng, body.kp2d, vis, noise_px, drop_prob, cfg.conf_visible, cfg.conf_occluded)
+    coco_vis = keypoint_visibility(body.coco3d, body.coco2d, depth, COCO17_NAMES)
     coco_kp, coco_dropped = noisy_keypoints(
-        rng, coco2d, coco_vis, noise_px, drop_prob, cfg.conf_visible, cfg.conf_occluded
+        rng, body.coco2d, coco_vis, noise_px, drop_prob, cfg.conf_visible, cfg.conf_occluded
     )
-
     wb_arrays, wb_kp = {}, {}
     if cfg.whole_body:
-        wb_arrays, wb_kp = _wholebody_keypoints(rng, parts3d, parts2d, r.depth, noise_px, drop_prob, cfg)
+        wb_arrays, wb_kp = _wholebody_keypoints(rng, body.parts3d, body.parts2d, depth, noise_px, drop_prob, cfg)
+    return SubjectKeypoints(vis, kp, dropped, coco_vis, coco_kp, wb_arrays, wb_kp)
+
+
+def _subject_truth(body: PosedSubject, kps: SubjectKeypoints, noise_px: float, angles: dict) -> dict:
+    """The arrays of a subject's ``gt.npz``."""
+    return {
+        **body.params,
+        "vertices": body.vertices,
+        "joints": body.joints,
+        "keypoints_3d": body.kp3d.astype(np.float32),
+        "keypoints_2d_clean": body.kp2d.astype(np.float64),
+        "keypoints_visibility": kps.vis,
+        "keypoints_dropped": kps.dropped,
+        "coco17_3d": body.coco3d.astype(np.float32),
+        "coco17_2d_clean": body.coco2d.astype(np.float64),
+        "coco17_visibility": kps.coco_vis,
+        "stature": np.float64(body.stature),
+        "noise_px": np.float64(noise_px),
+        **kps.wb_arrays,
+        **{k: v.astype(np.float32) for k, v in angles.items()},
+    }
+
+
+def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> SubjectRecord:
+    """Sample, render and write subject ``index`` of a dataset into ``out_dir`` (created)."""
+    cfg = config
+    rng = np.random.default_rng([int(cfg.seed), int(index)])
+    frontal = cfg.frontal_first and index == 0
+    clean = index < cfg.clean
+    noise_px = 0.0 if clean else float(cfg.noise_px)
+    drop_prob = 0.0 if clean else float(cfg.drop_prob)
+    W = H = int(cfg.size)
+
+    # Pose, shape, orientation.
+    ps, yaw, elev, roll = _sample_pose_and_view(model, rng, cfg, frontal)
+    betas = sample_betas(rng, model.num_betas, cfg.beta_truncation)
+    global_orient = global_orientation(yaw, elev, roll, root=ps.root)
+    camera, fov = sample_intrinsics(rng, W, H, cfg.fov_deg)
+    body_pose = ps.body_pose[: model.num_body_pose]  # SMPL-X: joints 1..21 (no SMPL hand joints)
+    extra, angles, hands = {}, {}, (None, None)
+    if cfg.whole_body:
+        extra, angles, hands = sample_wholebody_params(rng, model, cfg)
+    pose = {"betas": betas, "body_pose": body_pose, "global_orient": global_orient}
+    body = _pose_and_place(model, rng, cfg, camera, frontal, pose, extra)
+
+    # Render.
+    faces = model.faces.cpu().numpy()
+    r, image, bg_label = _render_over_background(rng, cfg.background, body.vertices, faces, camera)
+
+    # Keypoints.
+    kps = _subject_keypoints(rng, body, r.depth, noise_px, drop_prob, cfg)
 
     out_dir = Path(out_dir)
-    _write_subject_files(out_dir, cfg, image, mask, kp, wb_kp, coco_kp, camera)
-    save_npz(
-        out_dir / "gt.npz",
-        {
-            **params,
-            "vertices": vertices,
-            "joints": joints,
-            "keypoints_3d": kp3d.astype(np.float32),
-            "keypoints_2d_clean": kp2d.astype(np.float64),
-            "keypoints_visibility": vis,
-            "keypoints_dropped": dropped,
-            "coco17_3d": coco3d.astype(np.float32),
-            "coco17_2d_clean": coco2d.astype(np.float64),
-            "coco17_visibility": coco_vis,
-            "stature": np.float64(stature),
-            "noise_px": np.float64(noise_px),
-            **wb_arrays,
-            **{k: v.astype(np.float32) for k, v in angles.items()},
-        },
-    )
+    _write_subject_files(out_dir, cfg, image, r.mask, kps.kp, kps.wb_kp, kps.coco_kp, camera)
+    save_npz(out_dir / "gt.npz", _subject_truth(body, kps, noise_px, angles))
 
-    pelvis_z = float(joints[0, 2])
+    vis = kps.vis
     return SubjectRecord(
         name=out_dir.name,
         pose=ps.name,
@@ -488,15 +533,15 @@ def generate_subject(model, index: int, config: SynthConfig, out_dir: Path) -> S
         roll_deg=roll,
         fov_deg=fov,
         focal_px=camera.fx,
-        distance_m=pelvis_z,
-        stature_m=stature,
-        fill=place.fill,
-        truncated=place.truncated,
+        distance_m=float(body.joints[0, 2]),
+        stature_m=body.stature,
+        fill=body.place.fill,
+        truncated=body.place.truncated,
         noise_px=noise_px,
         keypoints_visible=int((vis == 2).sum()),
         keypoints_occluded=int((vis == 1).sum()),
         keypoints_outside=int((vis == 0).sum()),
-        keypoints_dropped=int(dropped.sum()),
+        keypoints_dropped=int(kps.dropped.sum()),
         background=bg_label,
         hand_left=hands[0],
         hand_right=hands[1],

@@ -242,30 +242,9 @@ def _world_motion(model, rng, cfg: SequenceConfig, index: int, orbit: Optional[n
     }
 
 
-def generate_sequence(model, index: int, cfg: SequenceConfig, out_dir: Path) -> dict:
-    """Sample, render and write sequence ``index`` into ``out_dir``; returns its index record."""
-    rng = np.random.default_rng([int(cfg.seed), int(index), 7])
-    F, W = int(cfg.frames), int(cfg.size)
-    orbit = cfg.orbit_deg * np.linspace(0.0, 1.0, F)
-    wm = _world_motion(model, rng, cfg, index, orbit)
-    motion, betas, body_pose, yaw0 = wm["motion"], wm["betas"], wm["body_pose"], wm["yaw0"]
-    R_world, T_w, v_w, j0 = wm["R_world"], wm["T_w"], wm["v_w"], wm["j0"]
-    elev = float(rng.uniform(-cfg.elevation_deg, cfg.elevation_deg))
-    camera, fov = sample_intrinsics(rng, W, W, cfg.fov_deg)
-    C = Rotation.from_rotvec([math.radians(elev), 0.0, 0.0]) * Rotation.from_rotvec(UPRIGHT_FACING_CAMERA)
-
-    dtype = model.dtype
-    T = lambda a: torch.as_tensor(np.asarray(a), dtype=dtype, device=model.device)  # noqa: E731
-    v_cam = C.apply((v_w + T_w[:, None]).reshape(-1, 3)).reshape(v_w.shape)
-    place = place_body(rng, v_cam[:, ::20].reshape(-1, 3), camera, fill=cfg.fill)
-    orient_c = (C * R_world).as_rotvec()
-    transl_c = C.apply(j0 + T_w) + place.transl - j0
-    params = {
-        "betas": betas.astype(np.float32),
-        "body_pose": body_pose.astype(np.float32),
-        "global_orient": orient_c.astype(np.float32),
-        "transl": transl_c.astype(np.float32),
-    }
+def _posed_frames(model, params: dict, F: int) -> tuple:
+    """``(model output, BODY_25 keypoints [F, 25, 3] as a float64 tensor)`` of a sequence's ``params`` (one shape)."""
+    T = lambda a: torch.as_tensor(np.asarray(a), dtype=model.dtype, device=model.device)  # noqa: E731
     with torch.no_grad():
         out = model(
             betas=T(np.repeat(params["betas"][None], F, 0)),
@@ -274,7 +253,61 @@ def generate_sequence(model, index: int, cfg: SequenceConfig, out_dir: Path) -> 
             transl=T(params["transl"]),
         )
         kp3d = model_keypoints(model, out, "body25").double()
-        kp2d = project_points(kp3d, camera).cpu().numpy()
+    return out, kp3d
+
+
+def _camera_frame_params(rng, cfg: SequenceConfig, wm: dict, W: int) -> tuple:
+    """``(params, camera, fov, elevation)``: the world motion ``wm`` seen by one camera at a random elevation (drawn
+    from ``rng``, then the intrinsics, then the placement framing the whole trajectory)."""
+    R_world, T_w, v_w, j0 = wm["R_world"], wm["T_w"], wm["v_w"], wm["j0"]
+    elev = float(rng.uniform(-cfg.elevation_deg, cfg.elevation_deg))
+    camera, fov = sample_intrinsics(rng, W, W, cfg.fov_deg)
+    C = Rotation.from_rotvec([math.radians(elev), 0.0, 0.0]) * Rotation.from_rotvec(UPRIGHT_FACING_CAMERA)
+    v_cam = C.apply((v_w + T_w[:, None]).reshape(-1, 3)).reshape(v_w.shape)
+    place = place_body(rng, v_cam[:, ::20].reshape(-1, 3), camera, fill=cfg.fill)
+    orient_c = (C * R_world).as_rotvec()
+    transl_c = C.apply(j0 + T_w) + place.transl - j0
+    params = {
+        "betas": wm["betas"].astype(np.float32),
+        "body_pose": wm["body_pose"].astype(np.float32),
+        "global_orient": orient_c.astype(np.float32),
+        "transl": transl_c.astype(np.float32),
+    }
+    return params, camera, fov, elev
+
+
+def _write_video_frames(
+    rng, folder: Path, name: str, frames: dict, camera, faces, colour, bg, frame_dropped, cfg: SequenceConfig
+) -> tuple:
+    """Render, detect and write every frame (``frames``: ``vertices``, ``kp3d``, ``kp2d`` per frame, camera frame) of
+    one video folder (keypoints/, masks/, images/); returns ``(visibility [F, 25], dropped keypoints [F, 25])``."""
+    F = len(frame_dropped)
+    vis_all, drop_all = np.zeros((F, 25), np.int8), np.zeros((F, 25), bool)
+    for f in range(F):
+        r = render_subject(frames["vertices"][f], faces, camera, colour)
+        vis = keypoint_visibility(frames["kp3d"][f], frames["kp2d"][f], r.depth, BODY25_NAMES)
+        kp, dropped = noisy_keypoints(
+            rng, frames["kp2d"][f], vis, cfg.noise_px, cfg.drop_prob, cfg.conf_visible, cfg.conf_occluded
+        )
+        vis_all[f], drop_all[f] = vis, dropped
+        stem = frame_stem(name, f)
+        write_openpose_json(
+            folder / "keypoints" / f"{stem}_keypoints.json", np.zeros((0, 25, 3)) if frame_dropped[f] else kp
+        )
+        write_png(folder / "masks" / f"{stem}.png", r.mask)
+        write_png(folder / "images" / f"{stem}.png", np.where(r.mask[..., None], r.color, bg).astype(np.uint8))
+    return vis_all, drop_all
+
+
+def generate_sequence(model, index: int, cfg: SequenceConfig, out_dir: Path) -> dict:
+    """Sample, render and write sequence ``index`` into ``out_dir``; returns its index record."""
+    rng = np.random.default_rng([int(cfg.seed), int(index), 7])
+    F, W = int(cfg.frames), int(cfg.size)
+    orbit = cfg.orbit_deg * np.linspace(0.0, 1.0, F)
+    wm = _world_motion(model, rng, cfg, index, orbit)
+    params, camera, fov, elev = _camera_frame_params(rng, cfg, wm, W)
+    out, kp3d = _posed_frames(model, params, F)
+    kp2d = project_points(kp3d, camera).cpu().numpy()
     vertices = out.vertices.cpu().numpy().astype(np.float32)
     joints = out.joints.cpu().numpy().astype(np.float32)
     kp3d = kp3d.cpu().numpy()
@@ -287,21 +320,9 @@ def generate_sequence(model, index: int, cfg: SequenceConfig, out_dir: Path) -> 
     out_dir = Path(out_dir)
     for sub in ("keypoints", "masks", "images"):
         (out_dir / sub).mkdir(parents=True, exist_ok=True)
-    vis_all, drop_all = np.zeros((F, 25), np.int8), np.zeros((F, 25), bool)
     name = out_dir.name
-    for f in range(F):
-        r = render_subject(vertices[f], faces, camera, colour)
-        vis = keypoint_visibility(kp3d[f], kp2d[f], r.depth, BODY25_NAMES)
-        kp, dropped = noisy_keypoints(
-            rng, kp2d[f], vis, cfg.noise_px, cfg.drop_prob, cfg.conf_visible, cfg.conf_occluded
-        )
-        vis_all[f], drop_all[f] = vis, dropped
-        stem = frame_stem(name, f)
-        write_openpose_json(
-            out_dir / "keypoints" / f"{stem}_keypoints.json", np.zeros((0, 25, 3)) if frame_dropped[f] else kp
-        )
-        write_png(out_dir / "masks" / f"{stem}.png", r.mask)
-        write_png(out_dir / "images" / f"{stem}.png", np.where(r.mask[..., None], r.color, bg).astype(np.uint8))
+    frames = {"vertices": vertices, "kp3d": kp3d, "kp2d": kp2d}
+    vis_all, drop_all = _write_video_frames(rng, out_dir, name, frames, camera, faces, colour, bg, frame_dropped, cfg)
     save_camera(camera, out_dir / "camera.json")
     save_npz(
         out_dir / "gt.npz",
@@ -319,10 +340,10 @@ def generate_sequence(model, index: int, cfg: SequenceConfig, out_dir: Path) -> 
     )
     return {
         "name": name,
-        "motion": motion,
+        "motion": wm["motion"],
         "frames": F,
         "fps": cfg.fps,
-        "yaw_deg": round(yaw0, 2),
+        "yaw_deg": round(wm["yaw0"], 2),
         "elevation_deg": round(elev, 2),
         "fov_deg": round(fov, 3),
         "orbit_deg": cfg.orbit_deg,
@@ -332,73 +353,89 @@ def generate_sequence(model, index: int, cfg: SequenceConfig, out_dir: Path) -> 
     }
 
 
-def generate_rig_sequence(model, index: int, cfg: SequenceConfig, views: int, out_dir: Path) -> dict:
-    """Sample, render and write rig sequence ``index`` (``views`` cameras, module docstring) into
-    ``out_dir``; returns its index record."""
-    from ..rig import view_to_dict, write_cameras_json
-    from .generate import SynthConfig
-    from .camera_rigs import RigConfig, rig_layout, view_name
-
-    rng = np.random.default_rng([int(cfg.seed), int(index), 11])
-    F, W = int(cfg.frames), int(cfg.size)
-    wm = _world_motion(model, rng, cfg, index)
-    # the rig's world: y down (the Y-up world turned 180 degrees about x), the mean pelvis at the origin
+def _rig_world_params(wm: dict) -> dict:
+    """The stored parameters of a world motion ``wm`` in the rig's world: y down (the Y-up world turned 180 degrees
+    about x), the mean pelvis at the origin."""
     flip = Rotation.from_rotvec([math.pi, 0.0, 0.0])
     j0 = wm["j0"]
     orient = (flip * wm["R_world"]).as_rotvec()
     transl = flip.apply(j0 + wm["T_w"]) - j0
     transl -= transl.mean(0) + j0
-    dtype = model.dtype
-    T = lambda a: torch.as_tensor(np.asarray(a), dtype=dtype, device=model.device)  # noqa: E731
-    params = {
+    return {
         "betas": wm["betas"].astype(np.float32),
         "body_pose": wm["body_pose"].astype(np.float32),
         "global_orient": orient.astype(np.float32),
         "transl": transl.astype(np.float32),
     }
-    with torch.no_grad():
-        out = model(
-            betas=T(np.repeat(params["betas"][None], F, 0)),
-            body_pose=T(params["body_pose"]),
-            global_orient=T(params["global_orient"]),
-            transl=T(params["transl"]),
-        )
-        kp3d = model_keypoints(model, out, "body25").double().cpu().numpy()
-    vertices = out.vertices.double().cpu().numpy()
-    # cameras framing the whole trajectory: its box's largest side stands in for the body's height
+
+
+def _trajectory_layout(rng, vertices: np.ndarray, cfg: SequenceConfig, views: int) -> list:
+    """``views`` cameras on a ring framing the whole trajectory (its box's largest side stands in for the body's
+    height)."""
+    from .camera_rigs import RigConfig, rig_layout
+    from .generate import SynthConfig
+
     box = vertices.reshape(-1, 3)
     extent = float((box.max(0) - box.min(0)).max())
-    synth = SynthConfig(seed=cfg.seed, size=W, fov_deg=tuple(cfg.fov_deg), fill=tuple(cfg.fill))
-    layout = rig_layout(rng, np.array([[0.0, -extent / 2, 0.0], [0.0, extent / 2, 0.0]]), synth, RigConfig(views=views))
+    synth = SynthConfig(seed=cfg.seed, size=int(cfg.size), fov_deg=tuple(cfg.fov_deg), fill=tuple(cfg.fill))
+    return rig_layout(rng, np.array([[0.0, -extent / 2, 0.0], [0.0, extent / 2, 0.0]]), synth, RigConfig(views=views))
+
+
+def _write_rig_video_view(
+    rng, folder: Path, view, vertices, kp3d, faces, colour, cfg: SequenceConfig
+) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One view of a rig sequence: its video folder (camera.json, keypoints/, masks/, images/) written; returns
+    ``(clean 2D keypoints [F, 25, 2], visibility [F, 25], frames dropped [F])``."""
+    from ..rig import view_to_dict
+
+    F, W = len(vertices), int(cfg.size)
+    name = folder.name
+    for sub in ("keypoints", "masks", "images"):
+        (folder / sub).mkdir(parents=True, exist_ok=True)
+    (folder / "camera.json").write_text(json.dumps(view_to_dict(view), indent=2) + "\n", encoding="utf-8")
+    R, t = view.extrinsics()
+    bg, _ = background_image(rng, cfg.background, W, W)
+    drop = rng.random(F) < cfg.drop_frames
+    drop[[0, -1]] = False
+    clean, vis_all = np.zeros((F, 25, 2)), np.zeros((F, 25), np.int8)
+    for f in range(F):
+        v_cam, k_cam = vertices[f] @ R.T + t, kp3d[f] @ R.T + t
+        kp2d = project_points(torch.as_tensor(k_cam), view.camera).numpy()
+        r = render_subject(v_cam.astype(np.float32), faces, view.camera, colour)
+        vis = keypoint_visibility(k_cam, kp2d, r.depth, BODY25_NAMES)
+        kp, _ = noisy_keypoints(rng, kp2d, vis, cfg.noise_px, cfg.drop_prob, cfg.conf_visible, cfg.conf_occluded)
+        clean[f], vis_all[f] = kp2d, vis
+        stem = frame_stem(name, f)
+        write_openpose_json(folder / "keypoints" / f"{stem}_keypoints.json", np.zeros((0, 25, 3)) if drop[f] else kp)
+        write_png(folder / "masks" / f"{stem}.png", r.mask)
+        write_png(folder / "images" / f"{stem}.png", np.where(r.mask[..., None], r.color, bg).astype(np.uint8))
+    return clean, vis_all, drop
+
+
+def generate_rig_sequence(model, index: int, cfg: SequenceConfig, views: int, out_dir: Path) -> dict:
+    """Sample, render and write rig sequence ``index`` (``views`` cameras, module docstring) into
+    ``out_dir``; returns its index record."""
+    from ..rig import write_cameras_json
+    from .camera_rigs import view_name
+
+    rng = np.random.default_rng([int(cfg.seed), int(index), 11])
+    F = int(cfg.frames)
+    wm = _world_motion(model, rng, cfg, index)
+    params = _rig_world_params(wm)
+    out, kp3d = _posed_frames(model, params, F)
+    kp3d = kp3d.cpu().numpy()
+    vertices = out.vertices.double().cpu().numpy()
+    layout = _trajectory_layout(rng, vertices, cfg, views)
     colour = BODY_COLOURS[int(rng.integers(len(BODY_COLOURS)))]
     faces = model.faces.cpu().numpy()
     out_dir = Path(out_dir)
     C = len(layout)
     clean, vis_all, dropped_frames = np.zeros((F, C, 25, 2)), np.zeros((F, C, 25), np.int8), np.zeros((F, C), bool)
     for c, view in enumerate(layout):
-        name = view_name(c)
-        folder = out_dir / name
-        for sub in ("keypoints", "masks", "images"):
-            (folder / sub).mkdir(parents=True, exist_ok=True)
-        (folder / "camera.json").write_text(json.dumps(view_to_dict(view), indent=2) + "\n", encoding="utf-8")
-        R, t = view.extrinsics()
-        bg, _ = background_image(rng, cfg.background, W, W)
-        drop = rng.random(F) < cfg.drop_frames
-        drop[[0, -1]] = False
-        dropped_frames[:, c] = drop
-        for f in range(F):
-            v_cam, k_cam = vertices[f] @ R.T + t, kp3d[f] @ R.T + t
-            kp2d = project_points(torch.as_tensor(k_cam), view.camera).numpy()
-            r = render_subject(v_cam.astype(np.float32), faces, view.camera, colour)
-            vis = keypoint_visibility(k_cam, kp2d, r.depth, BODY25_NAMES)
-            kp, _ = noisy_keypoints(rng, kp2d, vis, cfg.noise_px, cfg.drop_prob, cfg.conf_visible, cfg.conf_occluded)
-            clean[f, c], vis_all[f, c] = kp2d, vis
-            stem = frame_stem(name, f)
-            write_openpose_json(
-                folder / "keypoints" / f"{stem}_keypoints.json", np.zeros((0, 25, 3)) if drop[f] else kp
-            )
-            write_png(folder / "masks" / f"{stem}.png", r.mask)
-            write_png(folder / "images" / f"{stem}.png", np.where(r.mask[..., None], r.color, bg).astype(np.uint8))
+        folder = out_dir / view_name(c)
+        clean[:, c], vis_all[:, c], dropped_frames[:, c] = _write_rig_video_view(
+            rng, folder, view, vertices, kp3d, faces, colour, cfg
+        )
     write_cameras_json(out_dir / "cameras.json", [(view_name(c), v) for c, v in enumerate(layout)])
     save_npz(
         out_dir / "gt.npz",
