@@ -102,11 +102,71 @@ def _crop(image: np.ndarray, box: tuple, min_size: int = 400) -> np.ndarray:
     return np.repeat(np.repeat(crop, factor, axis=0), factor, axis=1)
 
 
+def _closeups(subject, result, kp_vertices: np.ndarray, faces: np.ndarray) -> dict:
+    """The close-ups ``01_input.png`` to ``05_silhouette_match.png`` of the module docstring, by file name."""
+    from . import figures
+
+    cam, kps = subject.camera, subject.keypoints
+    box = _person_box([subject.mask, result.masks["keypoint_stage"], result.masks["final"]])
+    close = lambda image: _crop(image, box)  # noqa: E731  (close-ups around the person)
+    match = lambda body: close(figures.silhouette_comparison(body, subject.mask))  # noqa: E731
+    pictures = {
+        "01_input.png": close(figures.draw_keypoints(subject.image, kps.xy, figures.DETECTED, kps.conf)),
+        "02_mask.png": close(np.repeat(subject.mask[..., None].astype(np.uint8) * 255, 3, axis=2)),
+        "03_keypoint_fit.png": close(
+            figures.fit_overlay(subject.image, kp_vertices, faces, cam, kps.xy, None, kps.conf)
+        ),
+        "04_silhouette_fit.png": close(
+            figures.fit_overlay(subject.image, result.vertices, faces, cam, kps.xy, None, kps.conf)
+        ),
+    }
+    match_kp, match_sil = match(result.masks["keypoint_stage"]), match(result.masks["final"])
+    pictures["05_silhouette_match.png"] = np.hstack(
+        [match_kp, np.full((match_kp.shape[0], 6, 3), 128, np.uint8), match_sil]
+    )
+    return pictures
+
+
+def _write_vertex_errors(subject, result, kp_vertices: np.ndarray, kp_joints: np.ndarray, faces, path: Path) -> None:
+    """``07_vertex_error.png``: the per-vertex error (mm, pelvis-aligned) of both fits on the ground truth."""
+    from . import figures
+
+    gt_v = subject.gt.vertices
+    pelvis = lambda v, j: v - j[0]  # noqa: E731  (PVE is pelvis-aligned)
+    gt_j = subject.gt.joints
+    errors = [
+        1000 * np.linalg.norm(pelvis(kp_vertices, kp_joints) - pelvis(gt_v, gt_j), axis=1),
+        1000 * np.linalg.norm(pelvis(result.vertices, result.joints) - pelvis(gt_v, gt_j), axis=1),
+    ]
+    figures.error_heatmap(gt_v, faces, errors, ["keypoints only", "keypoints + silhouette"], path)
+
+
+def _write_summary(out: Path, pictures: dict) -> None:
+    """``summary.png``: the close-ups and the two plots on one sheet."""
+    from . import figures
+    from .dataset import read_image
+
+    sheet = [pictures[n] for n in sorted(pictures)] + [
+        read_image(out / "06_iou_curve.png"),
+        read_image(out / "07_vertex_error.png"),
+    ]
+    titles = [
+        "input + keypoints",
+        "mask",
+        "keypoint fit",
+        "keypoint + silhouette fit",
+        "silhouette before | after",
+        "silhouette stage",
+        "per-vertex error (mm)",
+    ]
+    figures.contact_sheet(sheet, titles, out / "summary.png", columns=4)
+
+
 def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = False, silhouette_config=None) -> dict:
     """Run the demo into ``out`` (see the module docstring); returns the report."""
     from . import figures
     from .body import load_body_model
-    from .dataset import load_subject, read_image
+    from .dataset import load_subject
     from .image_fit import save_fit
     from .run import image_job, run
 
@@ -131,51 +191,12 @@ def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = Fal
     table = _table(before, after)
 
     kp_vertices = kp_result.vertices[0]
-    box = _person_box([subject.mask, result.masks["keypoint_stage"], result.masks["final"]])
-    close = lambda image: _crop(image, box)  # noqa: E731  (close-ups around the person)
-    match = lambda body: close(figures.silhouette_comparison(body, subject.mask))  # noqa: E731
-    pictures = {
-        "01_input.png": close(figures.draw_keypoints(subject.image, kps.xy, figures.DETECTED, kps.conf)),
-        "02_mask.png": close(np.repeat(subject.mask[..., None].astype(np.uint8) * 255, 3, axis=2)),
-        "03_keypoint_fit.png": close(
-            figures.fit_overlay(subject.image, kp_vertices, faces, cam, kps.xy, None, kps.conf)
-        ),
-        "04_silhouette_fit.png": close(
-            figures.fit_overlay(subject.image, result.vertices, faces, cam, kps.xy, None, kps.conf)
-        ),
-    }
-    match_kp, match_sil = match(result.masks["keypoint_stage"]), match(result.masks["final"])
-    pictures["05_silhouette_match.png"] = np.hstack(
-        [match_kp, np.full((match_kp.shape[0], 6, 3), 128, np.uint8), match_sil]
-    )
+    pictures = _closeups(subject, result, kp_vertices, faces)
     for name, image in pictures.items():
         figures.write_png(out / name, image)
     figures.iou_curve(result.silhouette.history, out / "06_iou_curve.png")
-    gt_v = subject.gt.vertices
-    pelvis = lambda v, j: v - j[0]  # noqa: E731  (PVE is pelvis-aligned)
-    gt_j = subject.gt.joints
-    errors = [
-        1000 * np.linalg.norm(pelvis(kp_vertices, kp_result.joints[0]) - pelvis(gt_v, gt_j), axis=1),
-        1000 * np.linalg.norm(pelvis(result.vertices, result.joints) - pelvis(gt_v, gt_j), axis=1),
-    ]
-    figures.error_heatmap(
-        gt_v, faces, errors, ["keypoints only", "keypoints + silhouette"], out / "07_vertex_error.png"
-    )
-
-    sheet = [pictures[n] for n in sorted(pictures)] + [
-        read_image(out / "06_iou_curve.png"),
-        read_image(out / "07_vertex_error.png"),
-    ]
-    titles = [
-        "input + keypoints",
-        "mask",
-        "keypoint fit",
-        "keypoint + silhouette fit",
-        "silhouette before | after",
-        "silhouette stage",
-        "per-vertex error (mm)",
-    ]
-    figures.contact_sheet(sheet, titles, out / "summary.png", columns=4)
+    _write_vertex_errors(subject, result, kp_vertices, kp_result.joints[0], faces, out / "07_vertex_error.png")
+    _write_summary(out, pictures)
 
     report = {
         "subject": str(subject.path),

@@ -124,31 +124,67 @@ def _score_table(scores: dict) -> str:
     return "\n".join(lines)
 
 
-def run_wholebody_demo(
-    out: Path, subject_dir: Optional[Path] = None, progress: bool = False, silhouette_config=None
-) -> dict:
-    """Run the demo into ``out`` (see the module docstring); returns the report."""
-    from . import figures
-    from .body import load_body_model
+def _read_subject(d: Path) -> tuple:
+    """``(whole-body keypoints, camera, image, mask, ground truth)`` of a whole-body subject folder."""
     from .camera import load_camera
-    from .eval.score_wholebody import wholebody_errors
-    from .fitting import KeypointFitter
+    from .dataset import read_truth
     from .imagefile import read_rgb
-    from .image_fit import save_fit
-    from .run import fit
     from .silhouette.masks import read_mask
-    from .wholebody import WholeBodyKeypoints, read_wholebody
+    from .wholebody import read_wholebody
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    d = _subject_dir(out, subject_dir)
     wb = read_wholebody(d / "keypoints.json")
     cam = load_camera(d / "camera.json")
     image = read_rgb(d / "image.png", "image")
     mask = read_mask(d / "mask.png", size=(cam.width, cam.height))
-    from .dataset import read_truth
-
     gt = read_truth(d / "gt.npz")
+    return wb, cam, image, mask, gt
+
+
+def _score_fits(model, fits: dict, gt) -> dict:
+    """Per method of ``fits`` (``(vertices, joints, expression, seconds)``): its errors against ``gt`` and time."""
+    from .eval.score_wholebody import wholebody_errors
+
+    truth = {"vertices": gt["vertices"], "joints": gt["joints"], "expression": gt["expression"]}
+    scores = {}
+    for name, (v, j, e, t) in fits.items():
+        scores[name] = {
+            **wholebody_errors(model, {"vertices": v, "joints": j, "expression": e}, truth),
+            "time_s": float(t),
+        }
+    return scores
+
+
+def _write_pictures(out: Path, image, cam, kps, fits: dict, final_vertices, faces) -> None:
+    """``closeups.png`` (each part's box from its keypoints, magnified, the fitted meshes drawn at that
+    magnification) and ``summary.png``."""
+    from . import figures
+
+    rows, labels = _closeup_rows(image, cam, kps, [v for v, _, _, _ in fits.values()], faces)
+    sheet = [img for row in rows for img in row]
+    titles = [f"{lab}: {col}" for lab in labels for col in ("input + keypoints",) + METHODS]
+    figures.contact_sheet(sheet, titles, out / "closeups.png", columns=4)
+    whole = [
+        figures.draw_keypoints(image, kps.xy, figures.DETECTED, kps.conf),
+        figures.fit_overlay(image, fits[METHODS[0]][0], faces, cam),
+        figures.fit_overlay(image, final_vertices, faces, cam),
+    ]
+    figures.contact_sheet(*summary_panels(whole, sheet, titles), out / "summary.png", columns=4)
+
+
+def run_wholebody_demo(
+    out: Path, subject_dir: Optional[Path] = None, progress: bool = False, silhouette_config=None
+) -> dict:
+    """Run the demo into ``out`` (see the module docstring); returns the report."""
+    from .body import load_body_model
+    from .fitting import KeypointFitter
+    from .image_fit import save_fit
+    from .run import fit
+    from .wholebody import WholeBodyKeypoints
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    d = _subject_dir(out, subject_dir)
+    wb, cam, image, mask, gt = _read_subject(d)
     model = load_body_model(kind="smplx")
     faces = model.faces.cpu().numpy()
     kps = wb.as_keypoint_set()
@@ -174,25 +210,8 @@ def run_wholebody_demo(
         ),
         METHODS[2]: (result.vertices, result.joints, np.asarray(result.params["expression"]).reshape(-1), t_whole),
     }
-    truth = {"vertices": gt["vertices"], "joints": gt["joints"], "expression": gt["expression"]}
-    scores = {}
-    for name, (v, j, e, t) in fits.items():
-        scores[name] = {
-            **wholebody_errors(model, {"vertices": v, "joints": j, "expression": e}, truth),
-            "time_s": float(t),
-        }
-
-    # close-ups: each part's box from its keypoints, magnified, the fitted meshes drawn at that magnification
-    rows, labels = _closeup_rows(image, cam, kps, [v for v, _, _, _ in fits.values()], faces)
-    sheet = [img for row in rows for img in row]
-    titles = [f"{lab}: {col}" for lab in labels for col in ("input + keypoints",) + METHODS]
-    figures.contact_sheet(sheet, titles, out / "closeups.png", columns=4)
-    whole = [
-        figures.draw_keypoints(image, kps.xy, figures.DETECTED, kps.conf),
-        figures.fit_overlay(image, fits[METHODS[0]][0], faces, cam),
-        figures.fit_overlay(image, result.vertices, faces, cam),
-    ]
-    figures.contact_sheet(*summary_panels(whole, sheet, titles), out / "summary.png", columns=4)
+    scores = _score_fits(model, fits, gt)
+    _write_pictures(out, image, cam, kps, fits, result.vertices, faces)
 
     table = _score_table(scores)
     report = {

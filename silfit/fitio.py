@@ -261,6 +261,92 @@ def _hand_pca(source: str, sha256: str) -> Optional[Dict[str, np.ndarray]]:
     }
 
 
+def _frame_rows(params: Mapping[str, np.ndarray]) -> Tuple[Dict[str, np.ndarray], int]:
+    """``params`` as float32 ``[F, w]`` rows (one frame's repeated over the frames) and ``F``."""
+    rows = {n: np.atleast_2d(np.asarray(v, dtype=np.float32)) for n, v in params.items()}
+    F = max(v.shape[0] for v in rows.values())
+    if any(v.shape[0] not in (1, F) for v in rows.values()):
+        raise ValueError(f"parameters have frame counts {sorted({v.shape[0] for v in rows.values()})}")
+    rows = {n: np.repeat(v, F, axis=0) if v.shape[0] == 1 else v for n, v in rows.items()}
+    return rows, F
+
+
+def _camera_poses(extrinsics, C: int) -> Tuple[np.ndarray, np.ndarray]:
+    """``(R [C, 3, 3], t [C, 3])`` of the views' extrinsics (identity where omitted)."""
+    ext = [(np.eye(3), np.zeros(3)) if e is None else e for e in (extrinsics or [None] * C)]
+    R = np.stack([np.asarray(e[0], np.float64).reshape(3, 3) for e in ext])
+    t = np.stack([np.asarray(e[1], np.float64).reshape(3) for e in ext])
+    return R, t
+
+
+def _npz_meta(rec: dict, rows: dict, layout: str, coordinates: str, numbers, names, cameras, R, t) -> dict:
+    """``params.npz``'s fields beside the parameters: model, layout, frames, cameras (and the hand PCA)."""
+    meta = {
+        "schema": np.array(SCHEMA),
+        "model": np.array(rec["kind"]),
+        "model_source": np.array(rec["source"]),
+        "model_sha256": np.array(rec["sha256"]),
+        "layout": np.array(layout),
+        "coordinates": np.array(coordinates),
+        "frames": numbers,
+        "views": np.array(names),
+        "camera_intrinsics": np.array([[c.fx, c.fy, c.cx, c.cy] for c in cameras], np.float64),
+        "image_size": np.array([[c.width, c.height] for c in cameras], np.int64),
+        "camera_R": R,
+        "camera_t": t,
+    }
+    pca = _hand_pca(rec["source"], rec["sha256"]) if "left_hand_pose" in rows else None
+    if pca:  # the hand poses also as the coefficients smplx's use_pca=True takes
+        for side, comps in pca.items():
+            coeffs = np.linalg.lstsq(comps.T, rows[f"{side}_hand_pose"].astype(np.float64).T, rcond=None)[0].T
+            meta[f"{side}_hand_pca"] = coeffs.astype(np.float32)  # [F, k]: coeffs @ components = the pose
+    return meta
+
+
+def _per_frame_arrays(vertices, joints, keypoints_2d, reprojection_error) -> Dict[str, np.ndarray]:
+    """The optional per-frame arrays given, float32 with their frame (and view) axes."""
+    per_frame = {}
+    for name, value, rank in (
+        ("vertices", vertices, 2),
+        ("joints", joints, 2),
+        ("keypoints_2d", keypoints_2d, 3),
+        ("reprojection_error", reprojection_error, 1),
+    ):
+        if value is None:
+            continue
+        a = np.asarray(value, dtype=np.float32)
+        if name == "keypoints_2d" and a.ndim == 2:  # one view's [K, 2]
+            a = a[None]
+        if name == "reprojection_error" and a.ndim == 0:
+            a = a.reshape(1)
+        per_frame[name] = a[None] if a.ndim == rank else a
+    return per_frame
+
+
+def _json_payload(
+    rows: dict, rec: dict, layout: str, coordinates: str, numbers, cameras, R, t, names, per_frame: dict, record
+) -> dict:
+    """``params.json``'s content."""
+    cams = [{**c.to_dict(), "R": R[i].tolist(), "t": t[i].tolist(), "name": names[i]} for i, c in enumerate(cameras)]
+    payload = {
+        "schema": SCHEMA,
+        **{n: v.astype(float).tolist() for n, v in rows.items()},
+        "model": rec,
+        "layout": layout,
+        "coordinates": coordinates,
+        "frames": numbers.tolist(),
+        "cameras": cams,
+    }
+    if cameras:
+        payload["camera"] = cameras[0].to_dict()
+    if "reprojection_error" in per_frame and "reprojection_error_px" not in (record or {}):
+        finite = per_frame["reprojection_error"][np.isfinite(per_frame["reprojection_error"])]
+        if finite.size:
+            payload["reprojection_error_px"] = float(np.median(finite))
+    payload.update(record or {})
+    return payload
+
+
 def write_fit(
     folder: PathLike,
     params: Mapping[str, np.ndarray],
@@ -287,73 +373,19 @@ def write_fit(
     ``record``: more JSON fields for ``params.json`` (energies, timings, config, ...)."""
     if coordinates not in COORDINATES:
         raise ValueError(f"coordinates must be one of {COORDINATES}, got {coordinates!r}")
-    rows = {n: np.atleast_2d(np.asarray(v, dtype=np.float32)) for n, v in params.items()}
-    F = max(v.shape[0] for v in rows.values())
-    if any(v.shape[0] not in (1, F) for v in rows.values()):
-        raise ValueError(f"parameters have frame counts {sorted({v.shape[0] for v in rows.values()})}")
-    rows = {n: np.repeat(v, F, axis=0) if v.shape[0] == 1 else v for n, v in rows.items()}
+    rows, F = _frame_rows(params)
     C = len(cameras)
-    ext = [(np.eye(3), np.zeros(3)) if e is None else e for e in (extrinsics or [None] * C)]
-    R = np.stack([np.asarray(e[0], np.float64).reshape(3, 3) for e in ext])
-    t = np.stack([np.asarray(e[1], np.float64).reshape(3) for e in ext])
+    R, t = _camera_poses(extrinsics, C)
     names = list(views) if views is not None else [f"view_{c}" if C > 1 else "camera" for c in range(C)]
     rec = model if isinstance(model, dict) or model is None else model_record(model)
     rec = rec or {"kind": "smplx" if "left_hand_pose" in rows else "smpl", "source": "", "sha256": ""}
     numbers = np.arange(F) if frame_numbers is None else np.asarray(frame_numbers, dtype=np.int64)
-    meta = {
-        "schema": np.array(SCHEMA),
-        "model": np.array(rec["kind"]),
-        "model_source": np.array(rec["source"]),
-        "model_sha256": np.array(rec["sha256"]),
-        "layout": np.array(layout),
-        "coordinates": np.array(coordinates),
-        "frames": numbers,
-        "views": np.array(names),
-        "camera_intrinsics": np.array([[c.fx, c.fy, c.cx, c.cy] for c in cameras], np.float64),
-        "image_size": np.array([[c.width, c.height] for c in cameras], np.int64),
-        "camera_R": R,
-        "camera_t": t,
-    }
-    pca = _hand_pca(rec["source"], rec["sha256"]) if "left_hand_pose" in rows else None
-    if pca:  # the hand poses also as the coefficients smplx's use_pca=True takes
-        for side, comps in pca.items():
-            coeffs = np.linalg.lstsq(comps.T, rows[f"{side}_hand_pose"].astype(np.float64).T, rcond=None)[0].T
-            meta[f"{side}_hand_pca"] = coeffs.astype(np.float32)  # [F, k]: coeffs @ components = the pose
-    per_frame = {}
-    for name, value, rank in (
-        ("vertices", vertices, 2),
-        ("joints", joints, 2),
-        ("keypoints_2d", keypoints_2d, 3),
-        ("reprojection_error", reprojection_error, 1),
-    ):
-        if value is None:
-            continue
-        a = np.asarray(value, dtype=np.float32)
-        if name == "keypoints_2d" and a.ndim == 2:  # one view's [K, 2]
-            a = a[None]
-        if name == "reprojection_error" and a.ndim == 0:
-            a = a.reshape(1)
-        per_frame[name] = a[None] if a.ndim == rank else a
+    meta = _npz_meta(rec, rows, layout, coordinates, numbers, names, cameras, R, t)
+    per_frame = _per_frame_arrays(vertices, joints, keypoints_2d, reprojection_error)
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     np.savez(out / "params.npz", **rows, **meta, **per_frame)
-    cams = [{**c.to_dict(), "R": R[i].tolist(), "t": t[i].tolist(), "name": names[i]} for i, c in enumerate(cameras)]
-    payload = {
-        "schema": SCHEMA,
-        **{n: v.astype(float).tolist() for n, v in rows.items()},
-        "model": rec,
-        "layout": layout,
-        "coordinates": coordinates,
-        "frames": numbers.tolist(),
-        "cameras": cams,
-    }
-    if cameras:
-        payload["camera"] = cameras[0].to_dict()
-    if "reprojection_error" in per_frame and "reprojection_error_px" not in (record or {}):
-        finite = per_frame["reprojection_error"][np.isfinite(per_frame["reprojection_error"])]
-        if finite.size:
-            payload["reprojection_error_px"] = float(np.median(finite))
-    payload.update(record or {})
+    payload = _json_payload(rows, rec, layout, coordinates, numbers, cameras, R, t, names, per_frame, record)
     (out / "params.json").write_text(json.dumps(payload, indent=2, default=float))
     return out
 

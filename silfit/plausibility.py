@@ -28,7 +28,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Optional, Sequence
 
 import numpy as np
@@ -357,6 +357,96 @@ def label_segments(label: str) -> list:
     return facing + [seg.split("/")[0] for seg in label.split("+") if seg.split("/")[0] in known]
 
 
+@dataclass
+class _CloseAlternatives:
+    """The close alternatives :func:`depth_warnings` found, in order: per alternative, the segments it turns
+    (``close``), where it is named (``where``), its largest joint shift (mm or ``None``) and the margin it is
+    within (``used``)."""
+
+    close: list = field(default_factory=list)
+    where: list = field(default_factory=list)
+    shifts: list = field(default_factory=list)
+    used: list = field(default_factory=list)
+
+    def add(self, segments: list, where: str, shift, margin: float) -> None:
+        """One more close alternative."""
+        self.close.append(segments)
+        self.where.append(where)
+        self.shifts.append(shift)
+        self.used.append(margin)
+
+    def without(self, decided: Sequence[str]) -> "_CloseAlternatives":
+        """The alternatives that turn something besides the ``decided`` segments, those not named."""
+        keep = [k for k, c in enumerate(self.close) if not c or any(s not in decided for s in c)]
+        return _CloseAlternatives(
+            [[s for s in self.close[k] if s not in decided] for k in keep],
+            [self.where[k] for k in keep],
+            [self.shifts[k] for k in keep],
+            [self.used[k] for k in keep],
+        )
+
+
+def _refined_hypotheses(refined: list, hypotheses) -> list:
+    """Every branch refined to choose the fit (the last refined entry's ``tried``) as a hypothesis, named by its
+    ``hypotheses/k`` folder where it is among ``hypotheses``."""
+    rank = {h["label"]: k for k, h in enumerate(hypotheses or [], 1) if h.get("refined", True)}
+    return [
+        {
+            "label": t["flip"],
+            "energy": t["energy"],
+            "differs": t.get("differs"),
+            "max_shift_mm": t.get("max_shift_mm"),
+            "where": f"hypotheses/{rank[t['flip']]}" if t["flip"] in rank else f"refined branch: {t['flip']}",
+        }
+        for t in refined[-1]["tried"]
+    ]
+
+
+def _add_close_hypotheses(found: _CloseAlternatives, hyps: list, margin: float, min_shift_mm: float) -> None:
+    """The hypotheses after the first within ``margin`` of its energy that move a joint ``min_shift_mm``."""
+    e0 = hyps[0]["energy"] if hyps else 0.0
+    for k, h in enumerate(hyps[1:], 2):
+        if h["energy"] - e0 <= margin * abs(e0) and moves_a_joint(h, min_shift_mm):
+            found.add(
+                list(h.get("differs") or []) or label_segments(h["label"]) or label_segments(hyps[0]["label"]),
+                h.get("where", f"hypotheses/{k}"),
+                h.get("max_shift_mm"),
+                margin,
+            )
+
+
+def _add_close_survivors(found: _CloseAlternatives, searches: list, margin: float, min_shift_mm: float) -> None:
+    """The branch searches' survivors within ``margin`` of their search's kept row that move a joint
+    ``min_shift_mm``."""
+    for stage in searches:
+        kept = next(t["energy"] for t in stage["tried"] if t["flip"] == stage["kept"])
+        for t in stage["tried"]:
+            if (
+                t["flip"] != stage["kept"]
+                and t["energy"] - kept <= margin * abs(kept)
+                and moves_a_joint(t, min_shift_mm)
+            ):
+                found.add(
+                    label_segments(t["flip"]) or label_segments(stage["kept"]),
+                    f"branch search: {t['flip']}",
+                    t.get("max_shift_mm"),
+                    margin,
+                )
+
+
+def _depth_message(found: _CloseAlternatives, written: bool) -> list:
+    """The one warning naming the segments the close alternatives turn (``written``: ``--hypotheses K`` given)."""
+    segs = sorted({s for c in found.close for s in c}) or ["a limb"]
+    moved = [float(m) for m in found.shifts if m is not None]
+    by = f", moving a joint up to {max(moved) / 1000:.2f} m" if moved else ""
+    where = list(dict.fromkeys(found.where))  # each alternative named once (several searches can keep the same one)
+    return [
+        f"depth ambiguous for {', '.join(segs)}: an alternative fit within {max(found.used):.0%} of the energy turns "
+        f"{'it' if len(segs) == 1 else 'them'} the other way{by} ({', '.join(where)}); the keypoints cannot tell "
+        "which: check a side view" + ("" if written else " (silfit fit --hypotheses 3 writes the alternatives)")
+    ]
+
+
 def depth_warnings(
     search,
     hypotheses=None,
@@ -390,62 +480,22 @@ def depth_warnings(
     The limbs named are the segments the close alternatives turn away from the fit (``differs``), or
     those their label flips (the kept one's, for an unflipped alternative). Measured on the generated
     hard set (``benchmarks/bench_ambiguity.py``: fits above 150 mm warned, fits below 60 mm warned)."""
-    close, where, shifts, used = [], [], [], []
+    found = _CloseAlternatives()
     hyps = [h for h in hypotheses or [] if h.get("refined", True)]
     searches = [s for s in search or [] if not s.get("refined")]
     refined = [s for s in search or [] if s.get("refined")]
     if refined:  # every branch refined to choose the fit (hypotheses keeps only K of them): named by its folder
-        rank = {h["label"]: k for k, h in enumerate(hypotheses or [], 1) if h.get("refined", True)}
-        hyps = [
-            {
-                "label": t["flip"],
-                "energy": t["energy"],
-                "differs": t.get("differs"),
-                "max_shift_mm": t.get("max_shift_mm"),
-                "where": f"hypotheses/{rank[t['flip']]}" if t["flip"] in rank else f"refined branch: {t['flip']}",
-            }
-            for t in refined[-1]["tried"]
-        ]
+        hyps = _refined_hypotheses(refined, hypotheses)
     if len(hyps) > 1 or refined:
-        e0 = hyps[0]["energy"] if hyps else 0.0
-        for k, h in enumerate(hyps[1:], 2):
-            if h["energy"] - e0 <= margin * abs(e0) and moves_a_joint(h, min_shift_mm):
-                close.append(
-                    list(h.get("differs") or []) or label_segments(h["label"]) or label_segments(hyps[0]["label"])
-                )
-                where.append(h.get("where", f"hypotheses/{k}"))
-                shifts.append(h.get("max_shift_mm"))
-                used.append(margin)
+        _add_close_hypotheses(found, hyps, margin, min_shift_mm)
         # the last search's best went on to the end; the earlier ones' survivors by their own rule
         searches, search_margin, search_min_shift_mm = searches[:-1], early_margin, early_min_shift_mm
-    for stage in searches:
-        kept = next(t["energy"] for t in stage["tried"] if t["flip"] == stage["kept"])
-        for t in stage["tried"]:
-            if (
-                t["flip"] != stage["kept"]
-                and t["energy"] - kept <= search_margin * abs(kept)
-                and moves_a_joint(t, search_min_shift_mm)
-            ):
-                close.append(label_segments(t["flip"]) or label_segments(stage["kept"]))
-                where.append(f"branch search: {t['flip']}")
-                shifts.append(t.get("max_shift_mm"))
-                used.append(search_margin)
+    _add_close_survivors(found, searches, search_margin, search_min_shift_mm)
     if decided:  # the image decides these segments: an alternative turning nothing else is no ambiguity
-        keep = [k for k, c in enumerate(close) if not c or any(s not in decided for s in c)]
-        close = [[s for s in close[k] if s not in decided] for k in keep]
-        where, shifts, used = [where[k] for k in keep], [shifts[k] for k in keep], [used[k] for k in keep]
-    if not close:
+        found = found.without(decided)
+    if not found.close:
         return []
-    segs = sorted({s for c in close for s in c}) or ["a limb"]
-    moved = [float(m) for m in shifts if m is not None]
-    by = f", moving a joint up to {max(moved) / 1000:.2f} m" if moved else ""
-    where = list(dict.fromkeys(where))  # each alternative named once (several searches can keep the same one)
-    written = hypotheses is not None  # --hypotheses K: the alternatives among its K are written
-    return [
-        f"depth ambiguous for {', '.join(segs)}: an alternative fit within {max(used):.0%} of the energy turns "
-        f"{'it' if len(segs) == 1 else 'them'} the other way{by} ({', '.join(where)}); the keypoints cannot tell "
-        "which: check a side view" + ("" if written else " (silfit fit --hypotheses 3 writes the alternatives)")
-    ]
+    return _depth_message(found, hypotheses is not None)  # --hypotheses K: the alternatives among its K are written
 
 
 def shape_warnings(betas) -> list:

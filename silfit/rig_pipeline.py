@@ -195,33 +195,128 @@ def fit_rigs(
     return out
 
 
-def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool = False) -> List[RigResult]:
-    """The silhouette stage on rig problems, every view with a mask rendered
-    (:func:`~silfit.fitting.silhouette_stage.fit_silhouette_problems`), from their keypoint
-    fits: ``items`` are ``(view names, problem, RigFit)`` with equal view counts."""
-    import torch
-
-    from .fitting.silhouette_stage import fit_silhouette_problems
-    from .keypoints import model_keypoints
-    from .plausibility import guard_fit, mask_warnings
-    from .rig import project_world
-
-    faces = model.faces.cpu().numpy()
-    before = [keypoint_stage_result(kp, p, names, faces) for names, p, kp in items]
+def _check_masks_overlap(items, before) -> None:
+    """Raise where a view's mask does not overlap the body fitted to the keypoints at all."""
     for (names, p, _), b in zip(items, before):
         zero = [n for n in names if b.metrics["views"][n].get("iou_keypoint_stage", 1.0) == 0.0]
         if zero:
             raise ValueError(
                 f"view(s) {', '.join(zero)}: the mask does not overlap the body fitted to the keypoints at all"
             )
-    layout = items[0][1].observations[0].keypoints.layout
-    problems, extra = [p for _, p, _ in items], {}
-    if layout == "wholebody":  # the whole-body mesh; hand and face keypoints kept (as for one image)
+
+
+def _silhouette_inputs(model, problems, layout: str, config):
+    """``(config, problems, extra)`` for the silhouette stage: with the whole-body layout, the whole-body mesh's
+    inputs (hand and face keypoints kept, as for one image)."""
+    extra = {}
+    if layout == "wholebody":
         from .fitting.rig_fit import wholebody_problem_inputs
         from .fitting.silhouette_stage import SilhouetteFitConfig
 
         config, problems, *rest = wholebody_problem_inputs(model, problems, config or SilhouetteFitConfig())
         extra = dict(zip(("terms", "weights", "data"), rest))
+    return config, problems, extra
+
+
+def _posed_body(model, params: dict, layout: str):
+    """``(body, world keypoints [K, 3] float64, vertices [V, 3] float32)`` of one parameter set."""
+    import torch
+
+    from .keypoints import model_keypoints
+
+    t = lambda a: torch.as_tensor(np.asarray(a, np.float64)[None], dtype=model.dtype)  # noqa: E731
+    with torch.no_grad():
+        body = model(**{n: t(v) for n, v in params.items()})
+        kp3 = model_keypoints(model, body, layout)[0].double().numpy()
+    vertices = body.vertices[0].numpy().astype(np.float32)
+    return body, kp3, vertices
+
+
+def _rig_reprojection(kp3: np.ndarray, problem):
+    """``(projections, median errors)``: the world keypoints projected into each view, and each view's median
+    reprojection error (px; NaN without a confident keypoint)."""
+    from .rig import project_world
+
+    proj, errs = [], []
+    for o in problem.grid()[0]:
+        uv = project_world(kp3, o.view)
+        proj.append(uv)
+        ok = o.keypoints.conf > 0
+        errs.append(float(np.median(np.linalg.norm(uv - o.keypoints.xy, axis=1)[ok])) if ok.any() else float("nan"))
+    return proj, errs
+
+
+def _kept_keypoint_result(b: RigResult, sil, guard) -> RigResult:
+    """The keypoint-stage result ``b``, kept by the plausibility guard over the refined fit ``sil``."""
+    b.metrics["warnings"] = list(b.metrics["warnings"]) + list(sil.warnings) + list(guard.warnings)
+    b.metrics["silhouette_guard"] = {"kept": "keypoints", "less_plausible": list(guard.reasons)}
+    b.metrics["timings"]["silhouette"] = float(sil.seconds)
+    return b
+
+
+def _refined_metrics(metrics: dict, names, p, sil, guard, ious: dict, errs, proj, vertices, betas) -> dict:
+    """The keypoint stage's ``metrics`` updated in place with the refined fit's: errors, IoUs, warnings."""
+    from .plausibility import mask_warnings
+
+    metrics["silhouette_guard"] = {"kept": "silhouette", "less_plausible": list(guard.reasons)}
+    for n, e in zip(names, errs):
+        metrics["views"][n]["reprojection_error_px_keypoint_stage"] = metrics["views"][n]["reprojection_error_px"]
+        metrics["views"][n]["reprojection_error_px"] = e
+    for n, v in ious.items():
+        metrics["views"][n]["iou"] = v
+    metrics.update(
+        iou_mean_keypoint_stage=metrics.pop("iou_mean"),
+        iou_mean=float(np.mean(list(ious.values()))),
+        reprojection_error_px=float(np.nanmedian(errs)),
+        keypoints_2d=np.asarray(proj),
+        warnings=[
+            w for n, o in zip(names, p.grid()[0]) if o.mask is not None for w in mask_warnings(o.mask, f"view {n}")
+        ]
+        + list(sil.warnings)
+        + disagreeing_views(names, errs)
+        + view_warnings(names, p, vertices, metrics["views"], betas),
+        silhouette_steps=sil.steps,
+    )
+    metrics["timings"]["silhouette"] = float(sil.seconds)
+    return metrics
+
+
+def _refined_rig_result(model, faces, layout: str, config, item, b: RigResult, sil) -> RigResult:
+    """One rig problem's result after the silhouette stage ``sil``, from its keypoint-stage result ``b``."""
+    from .plausibility import guard_fit
+
+    names, p, kp = item
+    params = {n: np.asarray(v, np.float32).reshape(-1) for n, v in sil.parameters.items()}
+    body, kp3, vertices = _posed_body(model, params, layout)
+    proj, errs = _rig_reprojection(kp3, p)
+    # the plausibility guard, as for one image (silfit.plausibility.silhouette_guard): a refined fit less
+    # plausible than the keypoint fit it started from is not kept
+    guard = guard_fit(
+        model,
+        b.metrics["reprojection_error_px"],
+        kp.params.get("betas"),
+        float(np.nanmedian(errs)),
+        params.get("betas"),
+        "rig",
+    )
+    if guard.reverted and getattr(config, "plausibility_guard", True):
+        return _kept_keypoint_result(b, sil, guard)
+    ious, masks = _view_ious(vertices, faces, p, names)
+    metrics = _refined_metrics(b.metrics, names, p, sil, guard, ious, errs, proj, vertices, params.get("betas"))
+    return RigResult(list(names), params, vertices, body.joints[0].numpy().astype(np.float32), kp, sil, metrics, masks)
+
+
+def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool = False) -> List[RigResult]:
+    """The silhouette stage on rig problems, every view with a mask rendered
+    (:func:`~silfit.fitting.silhouette_stage.fit_silhouette_problems`), from their keypoint
+    fits: ``items`` are ``(view names, problem, RigFit)`` with equal view counts."""
+    from .fitting.silhouette_stage import fit_silhouette_problems
+
+    faces = model.faces.cpu().numpy()
+    before = [keypoint_stage_result(kp, p, names, faces) for names, p, kp in items]
+    _check_masks_overlap(items, before)
+    layout = items[0][1].observations[0].keypoints.layout
+    config, problems, extra = _silhouette_inputs(model, [p for _, p, _ in items], layout, config)
     sils = fit_silhouette_problems(
         model,
         problems,
@@ -232,62 +327,61 @@ def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool =
         progress=progress,
         **extra,
     )
-    out = []
-    for (names, p, kp), b, sil in zip(items, before, sils):
-        params = {n: np.asarray(v, np.float32).reshape(-1) for n, v in sil.parameters.items()}
-        t = lambda a: torch.as_tensor(np.asarray(a, np.float64)[None], dtype=model.dtype)  # noqa: E731
-        with torch.no_grad():
-            body = model(**{n: t(v) for n, v in params.items()})
-            kp3 = model_keypoints(model, body, layout)[0].double().numpy()
-        vertices = body.vertices[0].numpy().astype(np.float32)
-        proj, errs = [], []
-        for o in p.grid()[0]:
-            uv = project_world(kp3, o.view)
-            proj.append(uv)
-            ok = o.keypoints.conf > 0
-            errs.append(float(np.median(np.linalg.norm(uv - o.keypoints.xy, axis=1)[ok])) if ok.any() else float("nan"))
-        # the plausibility guard, as for one image (silfit.plausibility.silhouette_guard): a refined fit less
-        # plausible than the keypoint fit it started from is not kept
-        guard = guard_fit(
-            model,
-            b.metrics["reprojection_error_px"],
-            kp.params.get("betas"),
-            float(np.nanmedian(errs)),
-            params.get("betas"),
-            "rig",
+    return [_refined_rig_result(model, faces, layout, config, it, b, sil) for it, b, sil in zip(items, before, sils)]
+
+
+@dataclass
+class _RigFile:
+    """What every fit file of a rig's output folder shares: the views' cameras, the layout, the model."""
+
+    names: List[str]
+    cameras: list
+    extrinsics: list
+    layout: str
+    model: object = None
+
+    def write(self, folder: Path, params: dict, vertices, joints, proj, errors, record=None) -> None:
+        """One fit file (:func:`silfit.fitio.write_fit`: world coordinates, every view) into ``folder``."""
+        from .fitio import write_fit
+
+        write_fit(
+            folder,
+            params,
+            self.cameras,
+            layout=self.layout,
+            model=self.model,
+            coordinates="world",
+            extrinsics=self.extrinsics,
+            views=self.names,
+            vertices=vertices,
+            joints=joints,
+            keypoints_2d=np.asarray(proj)[None],
+            reprojection_error=np.asarray(errors, np.float32)[None],
+            record=record,
         )
-        if guard.reverted and getattr(config, "plausibility_guard", True):
-            b.metrics["warnings"] = list(b.metrics["warnings"]) + list(sil.warnings) + list(guard.warnings)
-            b.metrics["silhouette_guard"] = {"kept": "keypoints", "less_plausible": list(guard.reasons)}
-            b.metrics["timings"]["silhouette"] = float(sil.seconds)
-            out.append(b)
-            continue
-        ious, masks = _view_ious(vertices, faces, p, names)
-        metrics = b.metrics
-        metrics["silhouette_guard"] = {"kept": "silhouette", "less_plausible": list(guard.reasons)}
-        for n, e in zip(names, errs):
-            metrics["views"][n]["reprojection_error_px_keypoint_stage"] = metrics["views"][n]["reprojection_error_px"]
-            metrics["views"][n]["reprojection_error_px"] = e
-        for n, v in ious.items():
-            metrics["views"][n]["iou"] = v
-        metrics.update(
-            iou_mean_keypoint_stage=metrics.pop("iou_mean"),
-            iou_mean=float(np.mean(list(ious.values()))),
-            reprojection_error_px=float(np.nanmedian(errs)),
-            keypoints_2d=np.asarray(proj),
-            warnings=[
-                w for n, o in zip(names, p.grid()[0]) if o.mask is not None for w in mask_warnings(o.mask, f"view {n}")
-            ]
-            + list(sil.warnings)
-            + disagreeing_views(names, errs)
-            + view_warnings(names, p, vertices, metrics["views"], params.get("betas")),
-            silhouette_steps=sil.steps,
+
+
+def _write_view_pictures(tmp: Path, result: RigResult, grid, faces: np.ndarray, images: dict, proj) -> None:
+    """``views/<name>/overlay.png`` per view, and ``silhouette.png`` where the view has a mask."""
+    from . import figures
+
+    for c, (name, o) in enumerate(zip(result.names, grid)):
+        folder = tmp / "views" / name
+        folder.mkdir(parents=True, exist_ok=True)
+        figures.write_png(
+            folder / "overlay.png",
+            figures.fit_overlay(
+                images.get(name),
+                view_vertices(result.vertices, o.view),
+                faces,
+                o.view.camera,
+                o.keypoints.xy,
+                np.asarray(proj)[c],
+                o.keypoints.conf,
+            ),
         )
-        metrics["timings"]["silhouette"] = float(sil.seconds)
-        out.append(
-            RigResult(list(names), params, vertices, body.joints[0].numpy().astype(np.float32), kp, sil, metrics, masks)
-        )
-    return out
+        if o.mask is not None and name in result.masks:
+            figures.write_png(folder / "silhouette.png", figures.silhouette_comparison(result.masks[name], o.mask))
 
 
 def save_rig_fit(
@@ -302,8 +396,6 @@ def save_rig_fit(
 ) -> Path:
     """Write the output folder described in the module docstring, atomically (``model``: the
     body model, recorded in ``params.npz``)."""
-    from .fitio import write_fit
-    from . import figures
     from .meshio import write_obj
     from .rig import write_cameras_json
 
@@ -314,23 +406,7 @@ def save_rig_fit(
 
     cameras = [o.view.camera for o in grid]
     extrinsics = [o.view.extrinsics() for o in grid]
-
-    def write_params(folder: Path, params: dict, vertices, joints, proj, errors, record=None):
-        write_fit(
-            folder,
-            params,
-            cameras,
-            layout=layout,
-            model=model,
-            coordinates="world",
-            extrinsics=extrinsics,
-            views=result.names,
-            vertices=vertices,
-            joints=joints,
-            keypoints_2d=np.asarray(proj)[None],
-            reprojection_error=np.asarray(errors, np.float32)[None],
-            record=record,
-        )
+    fit_file = _RigFile(result.names, cameras, extrinsics, layout, model)
 
     with atomic_folder(out, overwrite) as tmp:
         proj = result.metrics.get("keypoints_2d", result.keypoint.keypoints_2d)
@@ -338,7 +414,7 @@ def save_rig_fit(
         errors = (
             [views[n]["reprojection_error_px"] for n in result.names] if views else result.keypoint.reprojection_error
         )
-        write_params(
+        fit_file.write(
             tmp,
             result.params,
             result.vertices,
@@ -353,26 +429,10 @@ def save_rig_fit(
         write_cameras_json(tmp / "cameras.json", [(n, o.view) for n, o in zip(result.names, grid)])
         if result.silhouette is not None:
             kp = result.keypoint
-            write_params(
+            fit_file.write(
                 tmp / "stages" / "keypoints", kp.params, kp.vertices, kp.joints, kp.keypoints_2d, kp.reprojection_error
             )
-        for c, (name, o) in enumerate(zip(result.names, grid)):
-            folder = tmp / "views" / name
-            folder.mkdir(parents=True, exist_ok=True)
-            figures.write_png(
-                folder / "overlay.png",
-                figures.fit_overlay(
-                    images.get(name),
-                    view_vertices(result.vertices, o.view),
-                    faces,
-                    o.view.camera,
-                    o.keypoints.xy,
-                    np.asarray(proj)[c],
-                    o.keypoints.conf,
-                ),
-            )
-            if o.mask is not None and name in result.masks:
-                figures.write_png(folder / "silhouette.png", figures.silhouette_comparison(result.masks[name], o.mask))
+        _write_view_pictures(tmp, result, grid, faces, images, proj)
         metrics = {k: v for k, v in result.metrics.items() if k != "keypoints_2d"}
         metrics.update(extra_metrics or {})
         (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2))

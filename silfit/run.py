@@ -436,12 +436,59 @@ def _video_depth_cues(job: Job, frames) -> tuple:
     return cues, records
 
 
+def _sequence_vertices(model, params: dict, F: int) -> np.ndarray:
+    """The posed vertices ``[F, V, 3]`` of a sequence's parameters (``betas`` shared over the frames)."""
+    import torch
+
+    with torch.no_grad():
+
+        def T(n, a):
+            return torch.as_tensor(
+                np.repeat(np.asarray(a)[None], F, 0) if n == "betas" else np.asarray(a), dtype=model.dtype
+            )
+
+        return model(**{n: T(n, a) for n, a in params.items()}).vertices.numpy()
+
+
+def _video_warnings(job: Job, result, frames, vertices, errors: np.ndarray, numbers, rig: bool) -> List[str]:
+    """The sequence fit's warnings and, for a rig, the views the fit could not agree with, or, for one camera,
+    each frame's plausibility warnings (:func:`frame_warnings`)."""
+    warnings = list(result.warnings)
+    if rig:  # a view the fit could not agree with (the rule of one frame's rig, on each view's median)
+        from .rig_pipeline import disagreeing_views
+
+        medians = [float(np.median(e[np.isfinite(e)])) if np.isfinite(e).any() else float("nan") for e in errors.T]
+        warnings += disagreeing_views(list(job.view_names), medians)
+    else:
+        warnings += frame_warnings(frames, vertices, errors[:, 0], numbers)
+    return warnings
+
+
+def _video_metrics(result, errors: np.ndarray, warnings: List[str], silhouette: bool, numbers, cue_records) -> dict:
+    """A video fit's ``metrics.json`` fields."""
+    from .fitting.sequence import finite_median
+
+    metrics = {
+        "reprojection_error_px": finite_median(errors),
+        "warnings": _dedupe(warnings),
+        "silhouette": "run" if silhouette else "not run",
+        "bridged_count": int(np.sum(result.bridged)),
+        "seconds_per_frame": float(result.timings["seconds_per_frame"]),
+        "image_depth": "none"
+        if cue_records is None
+        else {  # per frame: the segments the image decided
+            str(n): sorted(r.get("decided", {})) if isinstance(r, dict) else r for n, r in zip(numbers, cue_records)
+        },
+    }
+    if silhouette and getattr(result, "silhouette_iou_start", None) is not None:  # the summary's "IoU a -> b"
+        metrics["silhouette_iou_start"] = float(result.silhouette_iou_start)
+    return metrics
+
+
 def _run_video(job: Job) -> Fit:
     """A video of one camera (camera frame) or of a rig (world frame): the sequence fit
     (:func:`~silfit.fitting.sequence.fit_sequence`) and, where masks exist, its silhouette stage."""
-    import torch
-
-    from .fitting.sequence import SequenceFitConfig, finite_median, fit_sequence, refine_sequence_silhouettes
+    from .fitting.sequence import SequenceFitConfig, fit_sequence, refine_sequence_silhouettes
 
     grid = job.problem.grid()
     rig = job.rig or len(grid[0]) > 1
@@ -471,14 +518,7 @@ def _run_video(job: Job) -> Fit:
         )
     F, C = len(grid), len(grid[0])
     params = result.params()
-    with torch.no_grad():
-
-        def T(n, a):
-            return torch.as_tensor(
-                np.repeat(np.asarray(a)[None], F, 0) if n == "betas" else np.asarray(a), dtype=job.model.dtype
-            )
-
-        vertices = job.model(**{n: T(n, a) for n, a in params.items()}).vertices.numpy()
+    vertices = _sequence_vertices(job.model, params, F)
     errors = np.asarray(result.reprojection_error, np.float64).reshape(F, C)
     iou = (
         np.full((F, C), np.nan)
@@ -486,28 +526,8 @@ def _run_video(job: Job) -> Fit:
         else np.broadcast_to(np.asarray(result.silhouette_iou, np.float64).reshape(F, -1), (F, C)).copy()
     )
     numbers = list(job.frame_numbers) if job.frame_numbers is not None else list(range(F))
-    warnings = list(result.warnings)
-    if rig:  # a view the fit could not agree with (the rule of one frame's rig, on each view's median)
-        from .rig_pipeline import disagreeing_views
-
-        medians = [float(np.median(e[np.isfinite(e)])) if np.isfinite(e).any() else float("nan") for e in errors.T]
-        warnings += disagreeing_views(list(job.view_names), medians)
-    else:
-        warnings += frame_warnings(frames, vertices, errors[:, 0], numbers)
-    metrics = {
-        "reprojection_error_px": finite_median(errors),
-        "warnings": _dedupe(warnings),
-        "silhouette": "run" if silhouette else "not run",
-        "bridged_count": int(np.sum(result.bridged)),
-        "seconds_per_frame": float(result.timings["seconds_per_frame"]),
-        "image_depth": "none"
-        if cue_records is None
-        else {  # per frame: the segments the image decided
-            str(n): sorted(r.get("decided", {})) if isinstance(r, dict) else r for n, r in zip(numbers, cue_records)
-        },
-    }
-    if silhouette and getattr(result, "silhouette_iou_start", None) is not None:  # the summary's "IoU a -> b"
-        metrics["silhouette_iou_start"] = float(result.silhouette_iou_start)
+    warnings = _video_warnings(job, result, frames, vertices, errors, numbers, rig)
+    metrics = _video_metrics(result, errors, warnings, silhouette, numbers, cue_records)
     result.warnings = metrics["warnings"]
     return Fit(
         job,

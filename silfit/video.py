@@ -356,6 +356,66 @@ def _sequence_metrics(result, numbers, names, gif, extra_metrics) -> dict:
     return metrics
 
 
+def _sequence_flags(result) -> dict:
+    """``params.json``'s per-frame flags: ``bridged``, ``refaced`` (and ``rebranched`` where recorded)."""
+    flags = {"bridged": result.bridged.tolist(), "refaced": result.refaced.tolist()}
+    if result.rebranched is not None:
+        flags["rebranched"] = result.rebranched.tolist()
+    return flags
+
+
+def _fit_file_views(result, names: Optional[List[str]]) -> dict:
+    """The views arguments of :func:`silfit.fitio.write_fit`: a rig video's (``names`` given) in world
+    coordinates, or the one camera."""
+    if names is not None:
+        return dict(
+            cameras=[v.camera for v in result.views],
+            coordinates="world",
+            extrinsics=[v.extrinsics() for v in result.views],
+            views=names,
+        )
+    return dict(cameras=[result.camera])
+
+
+def _write_sequence_fit_files(tmp: Path, result, model, numbers: list, where: dict, flags: dict, rig: bool) -> None:
+    """``params.npz`` / ``params.json`` and ``stages/per_frame/``'s (:func:`silfit.fitio.write_fit`)."""
+    from .fitio import write_fit
+
+    per_view = (lambda a: a) if rig else (lambda a: a[:, None])  # noqa: E731  (one camera: no view axis)
+    write_fit(
+        tmp,
+        result.params(),
+        layout=result.layout,
+        model=model,
+        frame_numbers=numbers,
+        joints=result.joints,
+        keypoints_2d=per_view(result.keypoints_2d),
+        reprojection_error=per_view(result.reprojection_error),
+        record=flags,
+        **where,
+    )
+    write_fit(
+        tmp / "stages" / "per_frame",
+        result.per_frame,
+        layout=result.layout,
+        model=model,
+        frame_numbers=numbers,
+        **where,
+    )
+
+
+def _write_sequence_pictures(tmp: Path, result, model, sequence, numbers: list, rig: bool, video: bool, fps: float):
+    """``strip.png`` and, with ``video``, ``overlay.gif`` (its path, or ``None``: returned)."""
+    from . import figures
+
+    strip_stride = max(1, -(-result.num_frames // 8))
+    images = [v.images for v in sequence.videos] if rig else sequence.images
+    pics = _frame_pictures(result, numbers, model, images, None, 1 if video else strip_stride)
+    strip = pics[::strip_stride] if video else pics
+    figures.write_png(tmp / "strip.png", np.concatenate(strip, axis=1))
+    return write_overlay_video(tmp / "overlay.gif", pics, fps) if video else None
+
+
 def save_sequence_fit(
     result,
     out,
@@ -382,63 +442,24 @@ def save_sequence_fit(
     world coordinates with every view (``keypoints_2d [F, C, K, 2]``, ``reprojection_error [F, C]``),
     ``cameras.json``, meshes in world coordinates, overlays with the views side by side; ``metrics.json``
     has ``views``, ``cameras`` and ``silhouette_iou`` per frame and view; no exports."""
-    from . import figures
-    from .fitio import write_fit
     from .outfolder import atomic_folder
 
     numbers = list(sequence.numbers)
-    cam = result.camera
-    flags = {"bridged": result.bridged.tolist(), "refaced": result.refaced.tolist()}
-    if result.rebranched is not None:
-        flags["rebranched"] = result.rebranched.tolist()
+    flags = _sequence_flags(result)
     rig = result.views is not None  # a rig video: world coordinates, every view (silfit.video.RigSequence)
     if rig and exports:
         raise ValueError("exports of a rig video: not available (a rig's world frame has no fixed up axis)")
     names = list(sequence.names) if rig else None
-    where = (
-        dict(
-            cameras=[v.camera for v in result.views],
-            coordinates="world",
-            extrinsics=[v.extrinsics() for v in result.views],
-            views=names,
-        )
-        if rig
-        else dict(cameras=[cam])
-    )
-    per_view = (lambda a: a) if rig else (lambda a: a[:, None])  # noqa: E731  (one camera: no view axis)
+    where = _fit_file_views(result, names)
     with atomic_folder(out, overwrite) as tmp:
-        write_fit(
-            tmp,
-            result.params(),
-            layout=result.layout,
-            model=model,
-            frame_numbers=numbers,
-            joints=result.joints,
-            keypoints_2d=per_view(result.keypoints_2d),
-            reprojection_error=per_view(result.reprojection_error),
-            record=flags,
-            **where,
-        )
-        write_fit(
-            tmp / "stages" / "per_frame",
-            result.per_frame,
-            layout=result.layout,
-            model=model,
-            frame_numbers=numbers,
-            **where,
-        )
+        _write_sequence_fit_files(tmp, result, model, numbers, where, flags, rig)
         if rig:
             from .rig import write_cameras_json
 
             write_cameras_json(tmp / "cameras.json", list(zip(names, result.views)))
         if meshes or exports:
             _write_sequence_meshes(tmp, result, model, numbers, meshes, exports, fps)
-        strip_stride = max(1, -(-result.num_frames // 8))
-        images = [v.images for v in sequence.videos] if rig else sequence.images
-        pics = _frame_pictures(result, numbers, model, images, None, 1 if video else strip_stride)
-        strip = pics[::strip_stride] if video else pics
-        figures.write_png(tmp / "strip.png", np.concatenate(strip, axis=1))
-        gif = write_overlay_video(tmp / "overlay.gif", pics, fps) if video else None
+        gif = _write_sequence_pictures(tmp, result, model, sequence, numbers, rig, video, fps)
         metrics = _sequence_metrics(result, numbers, names, gif, extra_metrics)
         (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2, default=float))
     return Path(out)
