@@ -449,10 +449,39 @@ def refine_batch(
         raise ValueError(f"{len(keypoint_result)} keypoint results, {n} keypoint sets and {len(masks)} masks")
     mask_sources = list(mask_sources or ["mask"] * n)
     config = config or SilhouetteFitConfig()
-    guarded = getattr(config, "plausibility_guard", True)
-    faces = model.faces.cpu().numpy()
     masks = [np.asarray(m, dtype=bool) for m in masks]
-    cameras = keypoint_result.cameras
+    kp_masks, ious_before, fit_masks, trim_notes, known = _batch_masks(
+        keypoint_result, masks, mask_sources, config, known, model.faces.cpu().numpy()
+    )
+    inits = [keypoint_result.params(i) for i in range(n)]
+    # issue 25: the keypoint stage's alternatives (_offered_alternatives) as more problems of this batch; the lowest
+    # final energy of the stage is kept (_choose_hypothesis)
+    offered = _offered_alternatives(keypoint_result, config)
+    rows, candidates = _alternative_rows(offered, inits)
+    sils = _refine_rows(
+        model, keypoint_result, keypoints, rows, (fit_masks, known), inits, config, pose_prior, renderer, progress
+    )
+    batch = _RefinedBatch(
+        model,
+        keypoint_result,
+        keypoints,
+        masks,
+        mask_sources,
+        getattr(config, "plausibility_guard", True),
+        (kp_masks, ious_before, fit_masks, trim_notes, known),
+        inits,
+        offered,
+        candidates,
+        sils,
+    )
+    return [batch.result(i) for i in range(n)]
+
+
+def _batch_masks(keypoint_result, masks: list, mask_sources: list, config, known, faces) -> tuple:
+    """:func:`refine_batch`'s masks per image: ``(kp_masks, ious_before, fit_masks, trim_notes, known)``, the keypoint
+    fit's rendered masks and their IoUs with ``masks``, the masks fitted (trimmed) and the trim's notes, and the pixels
+    whose value is trusted (the stage's own, joined to the caller's ``known``; ``None``: all)."""
+    n = len(masks)
     kp_masks, ious_before = _keypoint_fit_masks(keypoint_result, masks, mask_sources, faces)
     fit_masks, trim_notes, trimmed = _trimmed_masks(masks, kp_masks, config, mask_sources)
     own = _known_pixels(fit_masks, kp_masks, config, mask_sources, trim_notes, trimmed)
@@ -460,19 +489,24 @@ def refine_batch(
         k if g is None else (np.asarray(g, dtype=bool) if k is None else k & np.asarray(g, dtype=bool))
         for k, g in zip(own, list(known) if known is not None else [None] * n)
     ]
-    inits = [keypoint_result.params(i) for i in range(n)]
+    return kp_masks, ious_before, fit_masks, trim_notes, known
+
+
+def _refine_rows(
+    model, keypoint_result, keypoints, rows: list, masks: tuple, inits: list, config, pose_prior, renderer, progress
+) -> list:
+    """The silhouette stage on :func:`refine_batch`'s ``rows`` (an image's index per problem: its start and offered
+    alternatives, ``inits``), each with its image's mask and known pixels (``masks``: ``(fit_masks, known)``)."""
     from .fitting.problem import Problem
     from .fitting.silhouette_stage import fit_silhouette_problems
     from .fitting.hands_face import silhouette_inputs
 
-    # issue 25: the keypoint stage's alternatives (_offered_alternatives) as more problems of this batch; the lowest
-    # final energy of the stage is kept (_choose_hypothesis)
-    offered = _offered_alternatives(keypoint_result, config)
-    rows, candidates = _alternative_rows(offered, inits)
+    fit_masks, known = masks
+    cameras = keypoint_result.cameras
     # the layout decides the terms (a whole-body mesh keeps its hand and face keypoints)
     cfg, sets, terms, weights, data = silhouette_inputs(model, [keypoints[r] for r in rows], config, model.dtype)
     problems = [Problem.single(k, cameras[r], fit_masks[r], known[r]) for k, r in zip(sets, rows)]
-    sils = fit_silhouette_problems(
+    return fit_silhouette_problems(
         model,
         problems,
         inits,
@@ -485,34 +519,50 @@ def refine_batch(
         weights=weights,
         data=data,
     )
-    out = []
-    for i in range(n):
-        one = keypoint_result[i]
-        c, choice = _choose_hypothesis(
-            model,
-            [sils[k] for k in candidates[i]],
-            [inits[k] for k in candidates[i]],
-            keypoints[i],
-            cameras[i],
-            mask_sources[i],
+
+
+class _RefinedBatch:
+    """:func:`refine_batch`'s batch after the silhouette stage: per image its inputs, masks (``masks_of``:
+    ``(kp_masks, ious_before, fit_masks, trim_notes, known)``, :func:`_batch_masks`) and its candidates' refined
+    fits (``candidates[i]``: the rows of ``inits`` and ``sils``, its start first, then the ``offered``
+    alternatives); :meth:`result` makes an image's :class:`FitResult`."""
+
+    def __init__(
+        self,
+        model,
+        keypoint_result,
+        keypoints,
+        masks,
+        mask_sources,
+        guarded: bool,
+        masks_of: tuple,
+        inits,
+        offered,
+        candidates,
+        sils,
+    ):
+        self.model, self.keypoint_result, self.keypoints = model, keypoint_result, keypoints
+        self.masks, self.mask_sources, self.guarded, self.cameras = (
+            masks,
+            mask_sources,
             guarded,
+            keypoint_result.cameras,
         )
-        if choice and keypoint_result.hypotheses is None:  # the close alternatives: which branches were refined
-            choice["alternatives"] = [
-                {
-                    "label": a["label"],
-                    "differs": list(a.get("differs") or []),
-                    "gap": float(a["gap"]),
-                    "max_shift_mm": a.get("max_shift_mm"),
-                }
-                for a in offered[i]
-            ]
+        self.kp_masks, self.ious_before, self.fit_masks, self.trim_notes, self.known = masks_of
+        self.inits, self.offered, self.candidates, self.sils = inits, offered, candidates, sils
+
+    def result(self, i: int) -> FitResult:
+        """Image ``i``'s fit: its candidate with the lowest final energy, under the plausibility guard."""
+        model, keypoints, cameras, masks = self.model, self.keypoints, self.cameras, self.masks
+        kr, candidates, inits, sils = self.keypoint_result, self.candidates, self.inits, self.sils
+        one = kr[i]
+        c, choice = self.choose(i)
         sil, start = sils[candidates[i][c]], inits[candidates[i][c]]
         params = sil.params()
         vertices, joints, kp2d = _pose(model, params, keypoints[i].layout, cameras[i])
-        warnings = mask_warnings(masks[i], mask_sources[i]) + trim_notes[i] + list(sil.warnings)
+        warnings = mask_warnings(masks[i], self.mask_sources[i]) + self.trim_notes[i] + list(sil.warnings)
         if c:
-            warnings.append(_mask_choice_warning(keypoint_result.hypotheses is not None, offered[i][c - 1], c, choice))
+            warnings.append(_mask_choice_warning(kr.hypotheses is not None, self.offered[i][c - 1], c, choice))
         guard, params, (vertices, joints, kp2d), final_mask = _apply_guard(
             model,
             start,
@@ -521,15 +571,15 @@ def refine_batch(
             (vertices, joints, kp2d),
             keypoints[i],
             cameras[i],
-            mask_sources[i],
-            guarded,
-            kp_masks[i],
+            self.mask_sources[i],
+            self.guarded,
+            self.kp_masks[i],
             warnings,
         )
         iou_after = mask_iou(final_mask, masks[i])
-        if iou_after < ious_before[i] - 0.02:
+        if iou_after < self.ious_before[i] - 0.02:
             warnings.append(
-                f"silhouette stage lowered the IoU ({ious_before[i]:.3f} -> {iou_after:.3f}); kept its result"
+                f"silhouette stage lowered the IoU ({self.ious_before[i]:.3f} -> {iou_after:.3f}); kept its result"
             )
         metrics = _refined_metrics(
             one,
@@ -537,49 +587,69 @@ def refine_batch(
             float(sum(sils[k].seconds for k in candidates[i])),
             kp2d,
             keypoints[i],
-            (ious_before[i], iou_after),
+            (self.ious_before[i], iou_after),
             guard,
-            guarded,
+            self.guarded,
             warnings,
             choice,
         )
-        # --hypotheses K: each one refined, for hypotheses/<k>/; the final fit came from hypothesis c + 1 (its
-        # refinement, or where the guard turned it back its keypoint fit: the same guard, hypotheses/<c + 1> holds it too)
-        hypotheses = (
-            []
-            if keypoint_result.hypotheses is None
-            else _hypothesis_outputs(
-                model,
-                keypoint_result.hypotheses[i] or [],
-                keypoints[i],
-                cameras[i],
-                [sils[k] for k in candidates[i]],
-                choice or {"energies": [sil.final_energy], "iou": [float(sil.iou_end)]},
-                c + 1,
-                mask_sources[i],
-                guarded,
-            )
+        hypotheses = self.hypotheses(i, c, choice, sil)
+        fitted = self.fit_masks[i] if self.known[i] is None else self.fit_masks[i] & self.known[i]
+        return FitResult(
+            cameras[i],
+            keypoints[i].layout,
+            one,
+            sil,
+            params,
+            vertices,
+            joints,
+            kp2d,
+            metrics,
+            masks={"keypoint_stage": self.kp_masks[i], "final": final_mask, "fitted": fitted},
+            hypotheses=hypotheses,
         )
-        out.append(
-            FitResult(
-                cameras[i],
-                keypoints[i].layout,
-                one,
-                sil,
-                params,
-                vertices,
-                joints,
-                kp2d,
-                metrics,
-                masks={
-                    "keypoint_stage": kp_masks[i],
-                    "final": final_mask,
-                    "fitted": fit_masks[i] if known[i] is None else fit_masks[i] & known[i],
-                },
-                hypotheses=hypotheses,
-            )
+
+    def choose(self, i: int) -> tuple:
+        """``(c, choice)``: image ``i``'s candidate kept (:func:`_choose_hypothesis`) and the choice's record (with
+        the close alternatives offered, where no ``--hypotheses K`` gave them)."""
+        c, choice = _choose_hypothesis(
+            self.model,
+            [self.sils[k] for k in self.candidates[i]],
+            [self.inits[k] for k in self.candidates[i]],
+            self.keypoints[i],
+            self.cameras[i],
+            self.mask_sources[i],
+            self.guarded,
         )
-    return out
+        if choice and self.keypoint_result.hypotheses is None:  # the close alternatives: which branches were refined
+            choice["alternatives"] = [
+                {
+                    "label": a["label"],
+                    "differs": list(a.get("differs") or []),
+                    "gap": float(a["gap"]),
+                    "max_shift_mm": a.get("max_shift_mm"),
+                }
+                for a in self.offered[i]
+            ]
+        return c, choice
+
+    def hypotheses(self, i: int, c: int, choice, sil) -> list:
+        """--hypotheses K: image ``i``'s each one refined, for hypotheses/<k>/; the final fit came from hypothesis
+        ``c + 1`` (its refinement ``sil``, or where the guard turned it back its keypoint fit: the same guard,
+        hypotheses/<c + 1> holds it too). Without: none."""
+        if self.keypoint_result.hypotheses is None:
+            return []
+        return _hypothesis_outputs(
+            self.model,
+            self.keypoint_result.hypotheses[i] or [],
+            self.keypoints[i],
+            self.cameras[i],
+            [self.sils[k] for k in self.candidates[i]],
+            choice or {"energies": [sil.final_energy], "iou": [float(sil.iou_end)]},
+            c + 1,
+            self.mask_sources[i],
+            self.guarded,
+        )
 
 
 def fit_problem(
@@ -679,35 +749,61 @@ def fit_problems(
     n = len(keypoints)
     mask_sources = list(mask_sources or ["mask"] * n)
     fitter = _keypoint_fitter(model, keypoints[0].layout, keypoint_config, pose_prior)
-    out: List[Union[FitResult, StageFailure, None]] = [None] * n
     cues, cue_records = _depth_cues(fitter, keypoints, images, people)
+    batch = _ImageBatch(
+        model, fitter, keypoints, cameras, masks, mask_sources, known, cues, silhouette_config, progress
+    )
+    kp_results = dict(_each(list(range(n)), batch.keypoint_stage, "keypoints", isolate))
+    ok = [i for i in range(n) if not isinstance(kp_results[i], StageFailure)]
+    sil = [i for i in ok if masks[i] is not None and silhouette]
+    refined = (
+        dict(_each(sil, lambda rows: batch.silhouette_stage(rows, kp_results), "silhouette", isolate)) if sil else {}
+    )
+    return [batch.result(i, kp_results[i], refined, cue_records[i]) for i in range(n)]
 
-    def each(rows, call, stage):
-        """``call(rows)`` -> one result per row; isolated: again row by row where the batch fails."""
-        try:
-            return list(zip(rows, call(rows)))
-        except Exception as err:  # noqa: BLE001 - which row failed is found by fitting them alone
-            if not isolate or interruption(err) is not None:  # (an error on an interrupt's way out is the interrupt)
-                raise
-            if len(rows) == 1:
-                return [(rows[0], StageFailure(stage, err))]
-            return [pair for r in rows for pair in each([r], call, stage)]
 
-    def keypoint_stage(rows):  # per row: (the batch's result, its index there); timings shared out
-        kp = fitter.fit(
-            [keypoints[i] for i in rows],
-            [cameras[i] for i in rows],
-            progress=progress,
-            depth_cues=[cues[i] for i in rows],
+def _each(rows: list, call, stage: str, isolate: bool) -> list:
+    """``call(rows)`` -> one result per row; ``isolate``: again row by row where the batch fails (an image that still
+    fails gets a :class:`StageFailure` of ``stage``)."""
+    try:
+        return list(zip(rows, call(rows)))
+    except Exception as err:  # noqa: BLE001 - which row failed is found by fitting them alone
+        if not isolate or interruption(err) is not None:  # (an error on an interrupt's way out is the interrupt)
+            raise
+        if len(rows) == 1:
+            return [(rows[0], StageFailure(stage, err))]
+        return [pair for r in rows for pair in _each([r], call, stage, isolate)]
+
+
+@dataclass
+class _ImageBatch:
+    """:func:`fit_problems`' images (``cues``: their image depth cues) and the stages it runs on rows of them."""
+
+    model: object
+    fitter: KeypointFitter
+    keypoints: Sequence[KeypointSet]
+    cameras: Sequence[Camera]
+    masks: Sequence[Optional[np.ndarray]]
+    mask_sources: list
+    known: Optional[Sequence[Optional[np.ndarray]]]
+    cues: list
+    silhouette_config: object
+    progress: bool
+
+    def keypoint_stage(self, rows: list) -> list:
+        """Per row: (the batch's result, its index there); timings shared out."""
+        kp = self.fitter.fit(
+            [self.keypoints[i] for i in rows],
+            [self.cameras[i] for i in rows],
+            progress=self.progress,
+            depth_cues=[self.cues[i] for i in rows],
         )
         kp.timings = {k: float(v) / len(rows) for k, v in kp.timings.items()}
         return [(kp, j) for j in range(len(rows))]
 
-    kp_results = dict(each(list(range(n)), keypoint_stage, "keypoints"))
-    ok = [i for i in range(n) if not isinstance(kp_results[i], StageFailure)]
-    sil = [i for i in ok if masks[i] is not None and silhouette]
-
-    def silhouette_stage(rows):
+    def silhouette_stage(self, rows: list, kp_results: dict) -> list:
+        """Per row its refined :class:`FitResult` (:func:`refine_batch`); rows fitted in one keypoint batch
+        (``kp_results``: :meth:`keypoint_stage`'s) are refined as one."""
         groups: dict = {}  # rows fitted in one keypoint batch are refined as one
         for i in rows:
             groups.setdefault(id(kp_results[i][0]), []).append(i)
@@ -715,33 +811,30 @@ def fit_problems(
         for group in groups.values():
             batch = kp_results[group[0]][0].select([kp_results[i][1] for i in group])
             fitted = refine_batch(
-                model,
+                self.model,
                 batch,
-                [keypoints[i] for i in group],
-                [np.asarray(masks[i], dtype=bool) for i in group],
-                silhouette_config,
-                fitter.pose_prior,
-                progress=progress,
-                mask_sources=[mask_sources[i] for i in group],
-                known=None if known is None else [known[i] for i in group],
+                [self.keypoints[i] for i in group],
+                [np.asarray(self.masks[i], dtype=bool) for i in group],
+                self.silhouette_config,
+                self.fitter.pose_prior,
+                progress=self.progress,
+                mask_sources=[self.mask_sources[i] for i in group],
+                known=None if self.known is None else [self.known[i] for i in group],
             )
             done.update(zip(group, fitted))
         return [done[i] for i in rows]
 
-    refined = dict(each(sil, silhouette_stage, "silhouette")) if sil else {}
-    for i in range(n):
-        kp = kp_results[i]
+    def result(self, i: int, kp, refined: dict, cue_record) -> Union[FitResult, StageFailure]:
+        """Image ``i``'s result from its keypoint stage's ``kp`` and, where it ran, its silhouette stage's (in
+        ``refined``), with its records (:func:`_add_records`); a failure as a :class:`StageFailure`."""
         if isinstance(kp, StageFailure):
-            out[i] = kp
-            continue
-        result = refined[i] if i in refined else _keypoint_only(model, kp[0][kp[1]], keypoints[i])
+            return kp
+        result = refined[i] if i in refined else _keypoint_only(self.model, kp[0][kp[1]], self.keypoints[i])
         if isinstance(result, StageFailure):
-            result.partial = _keypoint_only(model, kp[0][kp[1]], keypoints[i])
-            out[i] = result
-            continue
-        _add_records(model, fitter.whole_body, result, keypoints[i], cues[i], cue_records[i])
-        out[i] = result
-    return out  # type: ignore[return-value]
+            result.partial = _keypoint_only(self.model, kp[0][kp[1]], self.keypoints[i])
+            return result
+        _add_records(self.model, self.fitter.whole_body, result, self.keypoints[i], self.cues[i], cue_record)
+        return result
 
 
 def _depth_cues(fitter, keypoints, images, people) -> tuple:

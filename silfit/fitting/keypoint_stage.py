@@ -102,6 +102,8 @@ POINTS_STATURE_M = 1.7
 #: their rotation, only the eyeball centres)
 WHOLEBODY_HAND_PARAMS = ("left_hand_pose", "right_hand_pose")
 WHOLEBODY_FACE_PARAMS = ("jaw_pose", "expression")
+#: the parameters every pose stage frees
+_POSE_FREE = ("global_orient", "transl", "body_pose")
 
 
 def _pose_stage_weights(current, value, keywords):
@@ -384,44 +386,11 @@ class KeypointFitConfig:
         ramp = tuple(0.0 if i < n - 1 else 1.0 for i in range(n))
         hw = tuple(self.hand_weights if self.hand_weights is not None else ramp) if whole_body else (0.0,) * n
         fw = tuple(self.face_weights if self.face_weights is not None else ramp) if whole_body else (0.0,) * n
-        pose_free = ("global_orient", "transl", "body_pose")
         out = [
             Stage("camera", ("global_orient", "transl"), {"torso": 1.0, "depth": self.depth_weight}, self.camera_iters)
         ]
         for i, (it, wp, wa) in enumerate(zip(self.pose_iters, self.pose_weight[:-1], self.angle_prior_weights)):
-            opts = {"decide_after": int(self.decision_iters)} if i == self.flip_decision_stage else {}
-            weights = {"keypoints": 1.0, "pose": wp, "angle": wa, "limits": self.limit_weight}
-            if self.points_weight:
-                weights["points"] = float(self.points_weight)
-            if hw[i] and not any(hw[:i]):  # hands start from their best library pose, fitted alone first
-                if self.hand_iters:  # the body free too (the wrists turn), held by its keypoints and priors
-                    w = {**weights, "hands": hw[i], "hand_pose": self.hand_prior_weight}
-                    out.append(
-                        Stage(
-                            "hands",
-                            pose_free + WHOLEBODY_HAND_PARAMS,
-                            w,
-                            int(self.hand_iters),
-                            options={"hand_starts": True},
-                        )
-                    )
-                else:
-                    opts = {**opts, "hand_starts": True}
-            part_w, part_free = self.part_weights(hw[i], fw[i])
-            weights.update(part_w)
-            out.append(Stage(f"pose_{i + 1}", pose_free + part_free, weights, int(it), options=opts))
-            if self.branch_search and i == min(self.branch_after_stage, len(self.pose_iters) - 1):
-                for r in range(int(self.branch_rounds)):
-                    w = {**weights, "interpenetration": self.interpenetration_weight, **self.image_depth_weights()}
-                    out.append(
-                        Stage(
-                            f"branches_{r + 1}",
-                            pose_free + part_free,
-                            w,
-                            int(self.branch_iters),
-                            options=self.branch_options(),
-                        )
-                    )
+            out += self._pose_stages(i, int(it), wp, wa, hw, fw)
         final_parts = (self.final_hand_weight, self.final_face_weight) if whole_body else (0.0, 0.0)
         if self.shape_iters:
             w = {"keypoints": 1.0, "shape": self.shape_weight}
@@ -429,6 +398,58 @@ class KeypointFitConfig:
                 w["points"] = float(self.final_points_weight)
             w.update({k: v for k, v in zip(("hands", "face"), final_parts) if v})
             out.append(Stage("shape", ("betas", "transl"), w, self.shape_iters))
+        w = self._final_weights()
+        part_w, part_free = self.part_weights(*final_parts)
+        free = ("betas",) + _POSE_FREE + part_free
+        if self.branch_search and self.late_branch_iters:
+            out += self._late_branch_stages(free, w, part_w)
+        if self.final_iters:
+            out += self._final_stages(out, free, w, part_w)
+        return tuple(out)
+
+    def _pose_stages(self, i: int, iterations: int, wp: float, wa: float, hw: tuple, fw: tuple) -> list:
+        """Pose stage ``i`` (0-based; pose and angle prior weights ``wp``, ``wa``; hand and face keypoint weights
+        ``hw``, ``fw`` per pose stage): the ``hands`` stage before it where the hands start there, the stage, and
+        the branch searches after it where they run there."""
+        out = []
+        opts = {"decide_after": int(self.decision_iters)} if i == self.flip_decision_stage else {}
+        weights = {"keypoints": 1.0, "pose": wp, "angle": wa, "limits": self.limit_weight}
+        if self.points_weight:
+            weights["points"] = float(self.points_weight)
+        if hw[i] and not any(hw[:i]):  # hands start from their best library pose, fitted alone first
+            if self.hand_iters:  # the body free too (the wrists turn), held by its keypoints and priors
+                w = {**weights, "hands": hw[i], "hand_pose": self.hand_prior_weight}
+                out.append(
+                    Stage(
+                        "hands",
+                        _POSE_FREE + WHOLEBODY_HAND_PARAMS,
+                        w,
+                        int(self.hand_iters),
+                        options={"hand_starts": True},
+                    )
+                )
+            else:
+                opts = {**opts, "hand_starts": True}
+        part_w, part_free = self.part_weights(hw[i], fw[i])
+        weights.update(part_w)
+        out.append(Stage(f"pose_{i + 1}", _POSE_FREE + part_free, weights, iterations, options=opts))
+        if self.branch_search and i == min(self.branch_after_stage, len(self.pose_iters) - 1):
+            for r in range(int(self.branch_rounds)):
+                w = {**weights, "interpenetration": self.interpenetration_weight, **self.image_depth_weights()}
+                out.append(
+                    Stage(
+                        f"branches_{r + 1}",
+                        _POSE_FREE + part_free,
+                        w,
+                        int(self.branch_iters),
+                        options=self.branch_options(),
+                    )
+                )
+        return out
+
+    def _final_weights(self) -> dict:
+        """The final stage's weights (and the late searches', settle's and the search from the fit's), without the
+        hand and face parts'."""
         w = {
             "keypoints": 1.0,
             "pose": self.pose_weight[-1],
@@ -440,47 +461,51 @@ class KeypointFitConfig:
         }
         if self.final_points_weight:
             w["points"] = float(self.final_points_weight)
-        part_w, part_free = self.part_weights(*final_parts)
-        if self.branch_search and self.late_branch_iters:
-            opts = self.branch_options()
-            if self.late_branch_turns:
-                opts["branches"]["turns"] = list(self.late_branch_turns)
-            if self.late_branch_survivors:
-                opts["branches"]["survivors"] = int(self.late_branch_survivors)
-            for r in range(max(1, int(self.late_branch_rounds))):
-                out.append(
-                    Stage(
-                        "branches_late" if r == 0 else f"branches_late_{r + 1}",
-                        ("betas",) + pose_free + part_free,
-                        {**w, **part_w},
-                        int(self.late_branch_iters),
-                        options=opts,
-                    )
-                )
-        if self.final_iters:
-            unsearched = self.final_iters_unsearched
-            opts = (
-                {}
-                if unsearched is None or unsearched >= self.final_iters
-                else {"unsearched_iterations": int(unsearched)}
+        return w
+
+    def _late_branch_stages(self, free: tuple, w: dict, part_w: dict) -> list:
+        """The late branch searches (``branches_late``, ``branches_late_<r>``) at the final weights ``w`` and
+        ``part_w``, parameters ``free``; every one with the same options."""
+        opts = self.branch_options()
+        if self.late_branch_turns:
+            opts["branches"]["turns"] = list(self.late_branch_turns)
+        if self.late_branch_survivors:
+            opts["branches"]["survivors"] = int(self.late_branch_survivors)
+        return [
+            Stage(
+                "branches_late" if r == 0 else f"branches_late_{r + 1}",
+                free,
+                {**w, **part_w},
+                int(self.late_branch_iters),
+                options=opts,
             )
-            if self.final_tol_change is not None:
-                opts["tol_change"] = float(self.final_tol_change)
-            free = ("betas",) + pose_free + part_free
-            if self.branch_search and self.post_branch_iters:  # the late search's best settle, the best of them
-                carry = max(int(self.branch_refine), 2 * int(self.hypotheses) if int(self.hypotheses) > 1 else 1)
-                if self.late_branch_iters and carry > 1:  # goes on to a search from the fit
-                    late = out[-1]
-                    out[-1] = replace(late, options={"branches": {**late.options["branches"], "carry": carry}})
-                settle = {k: v for k, v in opts.items() if k != "unsearched_iterations"}
-                out.append(
-                    Stage("settle", free, {**w, **part_w}, self.final_iters, options={**settle, "searched_only": True})
-                )
-                post = self.branch_options()
-                post["branches"]["screen_after"] = int(self.post_branch_iters) // 2
-                out.append(Stage("branches_post", free, {**w, **part_w}, int(self.post_branch_iters), options=post))
-            out.append(Stage("final", free, {**w, **part_w}, self.final_iters, options=opts))
-        return tuple(out)
+            for r in range(max(1, int(self.late_branch_rounds)))
+        ]
+
+    def _final_stages(self, out: list, free: tuple, w: dict, part_w: dict) -> list:
+        """``settle`` and ``branches_post`` (after a search from the fit) and ``final``, at the final weights ``w`` and
+        ``part_w``, parameters ``free``; a late search last in ``out`` gets its ``carry`` there (replaced in place)."""
+        unsearched = self.final_iters_unsearched
+        opts = (
+            {} if unsearched is None or unsearched >= self.final_iters else {"unsearched_iterations": int(unsearched)}
+        )
+        if self.final_tol_change is not None:
+            opts["tol_change"] = float(self.final_tol_change)
+        stages = []
+        if self.branch_search and self.post_branch_iters:  # the late search's best settle, the best of them
+            carry = max(int(self.branch_refine), 2 * int(self.hypotheses) if int(self.hypotheses) > 1 else 1)
+            if self.late_branch_iters and carry > 1:  # goes on to a search from the fit
+                late = out[-1]
+                out[-1] = replace(late, options={"branches": {**late.options["branches"], "carry": carry}})
+            settle = {k: v for k, v in opts.items() if k != "unsearched_iterations"}
+            stages.append(
+                Stage("settle", free, {**w, **part_w}, self.final_iters, options={**settle, "searched_only": True})
+            )
+            post = self.branch_options()
+            post["branches"]["screen_after"] = int(self.post_branch_iters) // 2
+            stages.append(Stage("branches_post", free, {**w, **part_w}, int(self.post_branch_iters), options=post))
+        stages.append(Stage("final", free, {**w, **part_w}, self.final_iters, options=opts))
+        return stages
 
     def image_depth_weights(self) -> dict:
         """The ``image_depth`` term's weight in the stages that carry it (none when it is off)."""
@@ -950,6 +975,31 @@ class KeypointFitter:
         Returns ``(state, info)``: the parameters (shared ``[B, w]``, per-frame
         ``[B, F, w]``) and a dict with per-stage ``energies`` and ``terms`` ``[B]``,
         ``timings`` (seconds), ``flipped [B]`` and the data and views used."""
+        B = len(problems)
+        layout, facings, init_poses, (data, views, state) = self._starts(problems, init, frame_weights, depth_cues)
+        sched = _ScheduleRun(
+            self,
+            layout,
+            B,
+            state,
+            data,
+            views,
+            progress=progress,
+            start_flip=torch.as_tensor(np.repeat(facings, B), dtype=torch.bool),
+            group=torch.arange(B).repeat(len(facings)),
+        )
+        decided = len(facings) * len(init_poses) == 1
+        t_all = time.perf_counter()
+        decided = self._run_stages(sched, init_poses, decided, problems[0].num_views)
+        if not decided:  # a schedule without a decision stage: keep the best start at the end
+            sched.take(best_per_group(sched.energies[self.stages[-1].name], sched.group, B))
+        hypotheses, others = sched.choose()
+        sched.timings["total"] = time.perf_counter() - t_all
+        return sched.state, sched.info(hypotheses, others)
+
+    def _starts(self, problems: Sequence[Problem], init: Optional[dict], frame_weights, depth_cues) -> tuple:
+        """:meth:`fit_problems`' starts: ``(layout, facings, init_poses, (data, views, state))``, the rows facing-major
+        (:meth:`_problem_data`) with ``init``, ``frame_weights`` and ``depth_cues`` applied."""
         cfg, dt = self.config, self.dtype
         B = len(problems)
         frames = {p.num_frames for p in problems}
@@ -978,23 +1028,15 @@ class KeypointFitter:
             v = torch.as_tensor(np.asarray(v, dtype=np.float64), dtype=dt)
             shape = state[n].shape[1:]
             state[n] = v.reshape(B, *shape).repeat(len(facings), *([1] * len(shape)))
-        sched = _ScheduleRun(
-            self,
-            layout,
-            B,
-            state,
-            data,
-            views,
-            progress=progress,
-            start_flip=torch.as_tensor(np.repeat(facings, B), dtype=torch.bool),
-            group=torch.arange(B).repeat(len(facings)),
-        )
-        decided = len(facings) * len(init_poses) == 1
-        t_all = time.perf_counter()
+        return layout, facings, init_poses, (data, views, state)
+
+    def _run_stages(self, sched: "_ScheduleRun", init_poses: list, decided: bool, views_per_frame: int) -> bool:
+        """Every stage of the schedule on ``sched``'s rows (a search, the decision stage, or a plain run); whether the
+        start is ``decided`` at the end."""
         for si, stage in enumerate(self.stages):
             if stage.options.get("hand_starts") and self.whole_body:
                 sched.state = choose_hand_starts(
-                    self.model, self.body, layout, sched.state, sched.views, sched.data, cfg.hand_sigma
+                    self.model, self.body, sched.layout, sched.state, sched.views, sched.data, self.config.hand_sigma
                 )
             if "branches" in stage.options:
                 if views_per_frame > 1:  # the views' data fixes the limbs' depth: no search (docs: rigs)
@@ -1017,24 +1059,7 @@ class KeypointFitter:
                 continue
             sched.decide(stage, init_poses, decide_after)
             decided = True
-        if not decided:  # a schedule without a decision stage: keep the best start at the end
-            sched.take(best_per_group(sched.energies[self.stages[-1].name], sched.group, B))
-        hypotheses, others = sched.choose()
-        sched.timings["total"] = time.perf_counter() - t_all
-        info = {
-            "energies": sched.energies,
-            "terms": sched.terms,
-            "timings": sched.timings,
-            "flipped": sched.start_flip.numpy(),
-            "branches": sched.chosen_branches,
-            "branch_search": sched.searched,
-            "hypotheses": hypotheses,
-            "alternatives": others,
-            "data": sched.data,
-            "views": sched.views,
-            "layout": layout,
-        }
-        return sched.state, info
+        return decided
 
     def energy_at(self, params: dict, keypoints, cameras=None, *, image_size=None, focal=None, stage: str = "final"):
         """The energy of stage ``stage`` (default: the last, full one) at given parameters
@@ -1129,6 +1154,22 @@ class _ScheduleRun:
         self.searched = [[] for _ in range(B)]  # per problem and branch stage: the hypotheses that ran to its end
         self.search_rows = [[] for _ in range(B)]  # per problem: (tried entry, its joints at the search's end, ...)
         self.unrefined = [[] for _ in range(B)]  # per problem: search rows not refined to the end (hypotheses > 1)
+
+    def info(self, hypotheses, others) -> dict:
+        """:meth:`KeypointFitter.fit_problems`' ``info`` at the end (``hypotheses``, ``others``: :meth:`choose`'s)."""
+        return {
+            "energies": self.energies,
+            "terms": self.terms,
+            "timings": self.timings,
+            "flipped": self.start_flip.numpy(),
+            "branches": self.chosen_branches,
+            "branch_search": self.searched,
+            "hypotheses": hypotheses,
+            "alternatives": others,
+            "data": self.data,
+            "views": self.views,
+            "layout": self.layout,
+        }
 
     def take(self, rows) -> None:
         """Keep these rows (in this order) of the state, data, views and the stages' records."""
@@ -1229,13 +1270,43 @@ class _ScheduleRun:
         first an earlier search's carried rows settle (:meth:`settle_pick`); then every row's hypotheses are
         screened and run, each sample's best (``carry`` of them where they go on) kept, the rest recorded. A
         search needs one frame and a ``decided`` start (else ``ValueError``)."""
-        fitter, B, cfg, dt = self.fitter, self.B, self.fitter.config, self.fitter.dtype
+        fitter, B, cfg = self.fitter, self.B, self.fitter.config
         self.searched_any = True
         if self.carried is not None:  # an earlier search's best rows ran on (its ``carry``): the best goes on
             self.settle_pick(fitter.stages[si - 1].name)
         if not decided or self.layout.frames != 1:
             raise ValueError(f"stage '{stage.name}': the branch search needs one frame and a decided start")
         opts = stage.options["branches"]
+        labels = self.add_hypotheses(opts)
+        screen, survivors = int(opts.get("screen_after", 0)), int(opts.get("survivors", 2))
+        going_on = self.carry if si == self.last_search else int(opts.get("carry", 1))  # rows per sample after it
+        survivors = max(survivors, going_on)  # (refined to the end or to the next search)
+        # a few steps for all, then the best few go on; split even where no sample has hypotheses,
+        # so a sample's steps (two optimiser runs) never depend on the others in its batch
+        if 0 < screen < stage.iterations:
+            f = self.run(stage, screen, f"{stage.name}_screen")
+            rows = self.survivors_of(f, survivors, opts)
+            labels = [labels[r] for r in rows.tolist()]
+            self.take(rows)
+            f = self.run(stage, stage.iterations - screen)
+        else:
+            f = self.run(stage)
+        keep = best_per_group(f, self.group, B)
+        now = self.record_search(stage.name, f, labels, keep)
+        if going_on > 1:  # the best few of each sample go on (to the end, or to the next search)
+            keep = self.survivors_of(f, going_on, opts)
+            if si == self.last_search:
+                self.row_labels = [labels[r] for r in keep.tolist()]
+            else:
+                self.carried = [labels[r] for r in keep.tolist()]
+        if self.K > 1 and cfg.hypothesis_unrefined:  # the rows that stop here: alternatives not refined to the end
+            self.record_unrefined(stage.name, f, keep, now)
+        self.take(keep)
+
+    def add_hypotheses(self, opts: dict) -> list:
+        """Every row's branch hypotheses (a search's options ``opts``) appended as rows after the ``B`` kept ones;
+        each row's label (``"keep"`` for those ``B``)."""
+        fitter, B, dt = self.fitter, self.B, self.fitter.dtype
         hyps = limb_hypotheses(
             fitter.body,
             self.layout.rows(self.state),
@@ -1263,51 +1334,39 @@ class _ScheduleRun:
         for i, h in enumerate(hyps):  # a pose, or {parameter: value} (joint hypotheses)
             for n, v in (h[2] if isinstance(h[2], dict) else {"body_pose": h[2]}).items():
                 self.state[n][B + i, 0] = v.to(dt)
-        screen, survivors = int(opts.get("screen_after", 0)), int(opts.get("survivors", 2))
-        going_on = self.carry if si == self.last_search else int(opts.get("carry", 1))  # rows per sample after it
-        survivors = max(survivors, going_on)  # (refined to the end or to the next search)
-        # a few steps for all, then the best few go on; split even where no sample has hypotheses,
-        # so a sample's steps (two optimiser runs) never depend on the others in its batch
-        if 0 < screen < stage.iterations:
-            f = self.run(stage, screen, f"{stage.name}_screen")
-            rows = self.survivors_of(f, survivors, opts)
-            labels = [labels[r] for r in rows.tolist()]
-            self.take(rows)
-            f = self.run(stage, stage.iterations - screen)
-        else:
-            f = self.run(stage)
+        return labels
+
+    def record_search(self, name: str, f, labels: list, keep) -> dict:
+        """The search ``name``'s record per sample (its pick ``keep``, every row's energy ``f``: ``searched``,
+        ``search_rows``, ``chosen_branches``); every row's parameters at its end."""
         group = self.group
-        keep = best_per_group(f, group, B)
         now, row_joints = self.rows_and_joints()  # each row's joints (and parameters) at the search's end
         for b, k in enumerate(keep.tolist()):
             if labels[k] != "keep":
                 self.chosen_branches[b].append(labels[k])
             mine = sorted(torch.nonzero(group == b).flatten().tolist(), key=lambda r: float(f[r]))
             tried = [{"flip": labels[r], "energy": float(f[r])} for r in mine]
-            self.searched[b].append({"stage": stage.name, "kept": labels[k], "tried": tried})
+            self.searched[b].append({"stage": name, "kept": labels[k], "tried": tried})
             self.search_rows[b] += [(t, row_joints[r], r, k) for t, r in zip(tried, mine)]
-        if going_on > 1:  # the best few of each sample go on (to the end, or to the next search)
-            keep = self.survivors_of(f, going_on, opts)
-            if si == self.last_search:
-                self.row_labels = [labels[r] for r in keep.tolist()]
-            else:
-                self.carried = [labels[r] for r in keep.tolist()]
-        if self.K > 1 and cfg.hypothesis_unrefined:  # the rows that stop here: alternatives not refined to the end
-            going = set(keep.tolist())
-            for b in range(B):
-                for t, j, r, k in self.search_rows[b][-len(self.searched[b][-1]["tried"]) :]:
-                    if r not in going:
-                        self.unrefined[b].append(
-                            {
-                                "label": t["flip"],
-                                "energy": t["energy"],
-                                "stage": stage.name,
-                                "gap": (t["energy"] - float(f[k])) / max(abs(float(f[k])), 1e-12),
-                                "joints": j,
-                                "params": {n: v[r].detach().cpu().numpy().astype(np.float32) for n, v in now.items()},
-                            }
-                        )
-        self.take(keep)
+        return now
+
+    def record_unrefined(self, name: str, f, keep, now: dict) -> None:
+        """The rows of search ``name`` not in ``keep`` (energies ``f``, parameters ``now``): alternatives not refined
+        to the end (``unrefined``), with their gap to their sample's pick."""
+        going = set(keep.tolist())
+        for b in range(self.B):
+            for t, j, r, k in self.search_rows[b][-len(self.searched[b][-1]["tried"]) :]:
+                if r not in going:
+                    self.unrefined[b].append(
+                        {
+                            "label": t["flip"],
+                            "energy": t["energy"],
+                            "stage": name,
+                            "gap": (t["energy"] - float(f[k])) / max(abs(float(f[k])), 1e-12),
+                            "joints": j,
+                            "params": {n: v[r].detach().cpu().numpy().astype(np.float32) for n, v in now.items()},
+                        }
+                    )
 
     def decide(self, stage, init_poses: list, decide_after: int) -> None:
         """The decision stage: every placed start with each initial body pose, ``decide_after`` of its steps, each

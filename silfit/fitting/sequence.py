@@ -691,6 +691,76 @@ def _refaced_frames(orient: np.ndarray, known: np.ndarray, views, rig: bool, jum
     return consistent_facings(body_forward(orient), known, jump_cost)
 
 
+def _posed_outputs(refiner, final: dict, names, views, rig: bool, columns: tuple, outliers) -> tuple:
+    """:func:`fit_sequence`'s outputs of the refined parameters ``final``: ``(joints, keypoints_2d, reprojection
+    errors, outliers)`` (``columns``: :func:`_view_columns`' ``(xy, conf, usable)``; one camera: no view axis)."""
+    xy_v, conf_v, usable_v = columns
+    F = len(xy_v)
+    T = lambda a: torch.as_tensor(np.asarray(a), dtype=refiner.dtype)  # noqa: E731
+    with torch.no_grad():
+        rows = {n: T(np.repeat(final[n][None], F, 0) if n == "betas" else final[n]) for n in names}
+        body = refiner.body(**rows)
+        kp2d = _project_views(body.keypoints.double(), views, rig)  # [F, C, K, 2]
+    reproj = _median_reprojection(kp2d, xy_v, conf_v, usable_v)
+    if not rig:  # one camera's video: no view axis
+        kp2d, reproj, outliers = kp2d[:, 0], reproj[:, 0], outliers[:, 0]
+    return body.joints.numpy(), kp2d, reproj, outliers
+
+
+def _sequence_timings(t0: float, t_init: float, t_refine: float, F: int) -> dict:
+    """:func:`fit_sequence`'s ``timings`` (seconds; ``t0`` its start) of ``F`` frames."""
+    return {
+        "per_frame_init": t_init,
+        "refine": t_refine,
+        "total": time.perf_counter() - t0,
+        "frames": F,
+        "seconds_per_frame": (time.perf_counter() - t0) / F,
+    }
+
+
+def _refinement_start(per: dict, known, names: tuple, views, rig: bool, cfg: SequenceFitConfig) -> tuple:
+    """Step 3 of :func:`fit_sequence`, from the per-frame fits ``per`` of the ``known`` frames: ``(refaced, betas0,
+    per_frame, start)``, the frames refaced, the median shape, the per-frame fit interpolated (betas per frame too) and
+    the refinement's start (the refaced frames interpolated too)."""
+    refaced = _refaced_frames(per["global_orient"], known, views, rig, cfg.facing_jump_cost)
+    betas0 = np.median(per["betas"][known], 0)
+    per_frame = interpolate_frames(per, known)  # the per-frame fit (betas per frame too)
+    start = interpolate_frames({n: per[n] for n in names if n != "betas"}, known & ~refaced)
+    return refaced, betas0, per_frame, start
+
+
+def _sequence_result(
+    final: dict, names: tuple, posed: tuple, flags: tuple, per_frame: dict, timings: dict, views, camera, layout, cfg
+) -> SequenceFitResult:
+    """:func:`fit_sequence`'s result: the refined parameters ``final``, ``posed`` (:func:`_posed_outputs`), ``flags``
+    per frame ``(bridged, refaced, rebranched)``, the per-frame fit; ``views`` a rig's (``None``: one camera's)."""
+    joints, kp2d, reproj, outliers = posed
+    bridged, refaced, rebranched = flags
+    warnings = _sequence_warnings(bridged, refaced, rebranched)
+    f32 = lambda a: np.asarray(a, dtype=np.float32)  # noqa: E731
+    return SequenceFitResult(
+        betas=f32(final["betas"]),
+        body_pose=f32(final["body_pose"]),
+        global_orient=f32(final["global_orient"]),
+        transl=f32(final["transl"]),
+        camera=camera,
+        joints=f32(joints),
+        keypoints_2d=f32(kp2d),
+        bridged=bridged,
+        refaced=refaced,
+        rebranched=rebranched,
+        outliers=outliers,
+        reprojection_error=reproj,
+        per_frame={n: f32(v) for n, v in per_frame.items()},
+        extra={n: f32(final[n]) for n in names if n not in ("betas", "body_pose", "global_orient", "transl")},
+        timings=timings,
+        layout=layout,
+        config=cfg.to_dict(),
+        warnings=warnings,
+        views=views,
+    )
+
+
 def fit_sequence(
     frames: Sequence,
     camera,
@@ -736,10 +806,7 @@ def fit_sequence(
     known[init_frames] = True
 
     # 3. consistent facings (one view; several: the triangulated torso gives each frame's facing)
-    refaced = _refaced_frames(per["global_orient"], known, views, rig, cfg.facing_jump_cost)
-    betas0 = np.median(per["betas"][known], 0)
-    per_frame = interpolate_frames(per, known)  # the per-frame fit (betas per frame too)
-    start = interpolate_frames({n: per[n] for n in names if n != "betas"}, known & ~refaced)
+    refaced, betas0, per_frame, start = _refinement_start(per, known, names, views, rig, cfg)
 
     # 4. joint refinement
     bridged = ~usable
@@ -750,42 +817,20 @@ def fit_sequence(
     t_refine = time.perf_counter() - t1
 
     # outputs
-    T = lambda a: torch.as_tensor(np.asarray(a), dtype=refiner.dtype)  # noqa: E731
-    with torch.no_grad():
-        rows = {n: T(np.repeat(final[n][None], F, 0) if n == "betas" else final[n]) for n in names}
-        body = refiner.body(**rows)
-        kp2d = _project_views(body.keypoints.double(), views, rig)  # [F, C, K, 2]
-    reproj = _median_reprojection(kp2d, xy_v, conf_v, usable_v)
-    if not rig:  # one camera's video: no view axis
-        kp2d, reproj, outliers = kp2d[:, 0], reproj[:, 0], outliers[:, 0]
-    warnings = _sequence_warnings(bridged, refaced, rebranched)
-    f32 = lambda a: np.asarray(a, dtype=np.float32)  # noqa: E731
-    return SequenceFitResult(
-        betas=f32(final["betas"]),
-        body_pose=f32(final["body_pose"]),
-        global_orient=f32(final["global_orient"]),
-        transl=f32(final["transl"]),
-        camera=views[0].camera,
-        joints=f32(body.joints.numpy()),
-        keypoints_2d=f32(kp2d),
-        bridged=bridged,
-        refaced=refaced,
-        rebranched=rebranched,
-        outliers=outliers,
-        reprojection_error=reproj,
-        per_frame={n: f32(v) for n, v in per_frame.items()},
-        extra={n: f32(final[n]) for n in names if n not in ("betas", "body_pose", "global_orient", "transl")},
-        timings={
-            "per_frame_init": t_init,
-            "refine": t_refine,
-            "total": time.perf_counter() - t0,
-            "frames": F,
-            "seconds_per_frame": (time.perf_counter() - t0) / F,
-        },
-        layout=layout,
-        config=cfg.to_dict(),
-        warnings=warnings,
-        views=views if rig else None,
+    joints, kp2d, reproj, outliers = _posed_outputs(
+        refiner, final, names, views, rig, (xy_v, conf_v, usable_v), outliers
+    )
+    return _sequence_result(
+        final,
+        names,
+        (joints, kp2d, reproj, outliers),
+        (bridged, refaced, rebranched),
+        per_frame,
+        _sequence_timings(t0, t_init, t_refine, F),
+        views if rig else None,
+        views[0].camera,
+        layout,
+        cfg,
     )
 
 
@@ -1030,6 +1075,60 @@ def _with_parameters(result, p: dict, betas, joints, kp2d, reproj, timings, warn
     )
 
 
+def _posed_sequence(model, result: SequenceFitResult, p: dict, betas, names: list, views, grid, outliers) -> tuple:
+    """:func:`refine_sequence_silhouettes`' parameters ``p`` (one ``betas``) posed: ``(joints, keypoints_2d,
+    reprojection errors)`` per frame (and view, in a rig; one camera: no view axis)."""
+    F, rig = result.num_frames, result.views is not None
+    T = lambda a: torch.as_tensor(np.asarray(a), dtype=model.dtype)  # noqa: E731
+    with torch.no_grad():
+        body = model(**{n: T(np.repeat(betas[None], F, 0) if n == "betas" else p[n]) for n in names})
+        joints = body.joints.numpy()
+        kp2d = _project_views(model_keypoints(model, body, result.layout).double(), views, rig)  # [F, C, K, 2]
+    reproj = _keypoint_reprojection(grid, kp2d, outliers, result.bridged)
+    if not rig:
+        kp2d, reproj = kp2d[:, 0], reproj[:, 0]
+    return joints, kp2d, reproj
+
+
+def _refined_sequence_warnings(result: SequenceFitResult, sil, reproj, betas, mgrid, C: int, empty: list) -> list:
+    """:func:`refine_sequence_silhouettes`' warnings where its result is kept: the keypoint fit's, the silhouette
+    stage's, a risen reprojection error, the shape's, masks cut off at the image border, frames with an empty mask."""
+    from ..plausibility import reprojection_rise_warnings, shape_warnings
+
+    return (
+        list(result.warnings)
+        + list(sil.warnings)
+        + reprojection_rise_warnings(finite_median(result.reprojection_error), finite_median(reproj))
+        + shape_warnings(betas)
+        + _cut_off_frames([m for row in mgrid for m in row], C)
+        + ([f"{len(empty)} frame(s) with an empty mask had no silhouette term: {empty[:10]}"] if empty else [])
+    )
+
+
+def _fit_sequence_silhouettes(
+    model, result: SequenceFitResult, problem: Problem, init: dict, cfg, pose_prior, progress: bool, temporal_weight
+) -> tuple:
+    """:func:`refine_sequence_silhouettes`' silhouette stage on its one ``problem`` from ``init``, with the temporal
+    terms (``result``'s ``temporal_sigma``, weight ``temporal_weight``): ``(its result, seconds)``."""
+    from .silhouette_stage import fit_silhouette_problems
+    from .terms import JointSmoothnessTerm, RootSmoothnessTerm
+
+    sigma = result.config.get("temporal_sigma", 10.0)
+    t0 = time.perf_counter()
+    (sil,) = fit_silhouette_problems(
+        model,
+        [problem],
+        [init],
+        layout=result.layout,
+        config=cfg,
+        pose_prior=pose_prior,
+        progress=progress,
+        terms=(JointSmoothnessTerm(sigma=sigma), RootSmoothnessTerm(sigma=sigma)),
+        weights={"smooth_joints": temporal_weight, "smooth_root": temporal_weight},
+    )
+    return sil, time.perf_counter() - t0
+
+
 def refine_sequence_silhouettes(
     model,
     result: SequenceFitResult,
@@ -1052,9 +1151,7 @@ def refine_sequence_silhouettes(
 
     A rig video's fit (``result.views``): ``frames[f][c]`` and ``masks[f][c]`` per view, every view's
     mask rendered in its camera (the keypoint stage's extrinsics), results per frame and view."""
-    from ..plausibility import reprojection_rise_warnings, shape_warnings
-    from .silhouette_stage import SilhouetteFitConfig, fit_silhouette_problems
-    from .terms import JointSmoothnessTerm, RootSmoothnessTerm
+    from .silhouette_stage import SilhouetteFitConfig
 
     F = result.num_frames
     if len(masks) != F or len(frames) != F:
@@ -1072,32 +1169,14 @@ def refine_sequence_silhouettes(
     cfg = config or SilhouetteFitConfig()
     if cfg.proxy_faces and int(cfg.proxy_faces) >= int(model.faces.shape[0]):  # a small model: render it whole
         cfg = replace(cfg, proxy_faces=None)
-    sigma = result.config.get("temporal_sigma", 10.0)
     obs = _silhouette_observations(grid, mgrid, views, outliers, result.bridged)
     init = result.params()
-    t0 = time.perf_counter()
-    (sil,) = fit_silhouette_problems(
-        model,
-        [Problem(obs)],
-        [init],
-        layout=result.layout,
-        config=cfg,
-        pose_prior=pose_prior,
-        progress=progress,
-        terms=(JointSmoothnessTerm(sigma=sigma), RootSmoothnessTerm(sigma=sigma)),
-        weights={"smooth_joints": temporal_weight, "smooth_root": temporal_weight},
+    sil, seconds = _fit_sequence_silhouettes(
+        model, result, Problem(obs), init, cfg, pose_prior, progress, temporal_weight
     )
-    seconds = time.perf_counter() - t0
     p = sil.params()
     betas = np.asarray(p["betas"], dtype=np.float32).reshape(-1)
-    T = lambda a: torch.as_tensor(np.asarray(a), dtype=model.dtype)  # noqa: E731
-    with torch.no_grad():
-        body = model(**{n: T(np.repeat(betas[None], F, 0) if n == "betas" else p[n]) for n in init})
-        joints = body.joints.numpy()
-        kp2d = _project_views(model_keypoints(model, body, result.layout).double(), views, rig)  # [F, C, K, 2]
-    reproj = _keypoint_reprojection(grid, kp2d, outliers, result.bridged)
-    if not rig:
-        kp2d, reproj = kp2d[:, 0], reproj[:, 0]
+    joints, kp2d, reproj = _posed_sequence(model, result, p, betas, list(init), views, grid, outliers)
     timings = dict(result.timings, silhouette=seconds, total=result.timings["total"] + seconds)
     timings["seconds_per_frame"] = timings["total"] / F
     # the plausibility guard, as for one image (silfit.plausibility.silhouette_guard): a refined fit less plausible
@@ -1111,14 +1190,7 @@ def refine_sequence_silhouettes(
         return replace(
             result, timings=timings, warnings=list(result.warnings) + list(sil.warnings) + list(guard.warnings)
         )
-    warnings = (
-        list(result.warnings)
-        + list(sil.warnings)
-        + reprojection_rise_warnings(finite_median(result.reprojection_error), finite_median(reproj))
-        + shape_warnings(betas)
-        + _cut_off_frames([m for row in mgrid for m in row], C)
-        + ([f"{len(empty)} frame(s) with an empty mask had no silhouette term: {empty[:10]}"] if empty else [])
-    )
+    warnings = _refined_sequence_warnings(result, sil, reproj, betas, mgrid, C, empty)
     out = _with_parameters(result, p, betas, joints, kp2d, reproj, timings, warnings)
     ious = np.array(sil.ious, dtype=np.float64).reshape(F, C)
     out.silhouette_iou, out.silhouette_iou_start = (ious if rig else ious[:, 0]), float(sil.iou_start)

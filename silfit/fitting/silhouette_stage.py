@@ -1292,77 +1292,18 @@ def _fit_problems(
     prior = load_pose_prior(pose_prior, dtype=dtype) if not isinstance(pose_prior, torch.nn.Module) else pose_prior
     body = MeshBody(model, layout)
     smpl_layout = getattr(model, "kind", "smpl") == "smpl"
-    contour_body, contour_points_map = body, None  # the contour level's evaluator and its vertices' map
-    if cfg.contour_iterations and cfg.contour_vertices and smpl_layout:
-        contour_body = cached_contour_body(
-            model,
-            layout,
-            ("vertices", int(cfg.contour_vertices)),
-            lambda: contour_vertex_index(model, cfg.contour_vertices),
-        )
-    elif cfg.proxy_faces:  # the full body, its points read at the proxy's vertices
-        from renderers.proxy import get_proxy
-
-        contour_points_map = get_proxy(model.v_template, model.faces, int(cfg.proxy_faces))
+    contour_body, contour_points_map = _contour_evaluators(model, layout, cfg, body, smpl_layout)
     silhouette = SilhouetteTerm(
         None, cfg.spp, cfg.edge_spp, edge_density=cfg.edge_density
     )  # each rendered level sets its renderer (_LevelRenders)
-
-    energy = Energy(
-        [
-            silhouette,
-            KeypointTerm("keypoints", cfg.kp_sigma),
-            PriorTerm("pose", prior, "body_pose"),
-            PriorTerm("limits", limit_violation, "body_pose"),
-            PriorTerm("angle", angle_prior, "body_pose"),
-            PriorTerm("shape", shape_prior, "betas"),
-            StayTerm("body_pose"),
-            ContourInsideTerm(contour_points_map),
-            ContourCoverTerm(contour_points_map),
-            KeypointTrustTerm(),
-            PriorTerm("beta_bound", lambda b: beta_bound(b, cfg.max_abs_beta), "betas"),
-            *extra_terms,
-        ]
-    )
+    energy = _silhouette_energy(silhouette, prior, cfg, contour_points_map, extra_terms)
     target_xy, target_w, any_keypoints = _keypoint_data(grids, dtype)
-    stages = tuple(
-        Stage(
-            s.name,
-            free_names,
-            {**s.weights, **extra_weights, **({} if any_keypoints else {"keypoints": 0.0, "keypoint_trust": 0.0})},
-            s.iterations,
-            s.optimiser,
-            s.options,
-        )
-        for s in cfg.stages()
-    )
+    stages = _weighted_stages(cfg, free_names, extra_weights, any_keypoints)
     check_stages(stages, energy, params_layout)
     views = stack_views(problems, dtype)
-    for k, v in extra_data.items():
-        if isinstance(v, torch.Tensor) and v.shape[:1] != (P,):
-            raise ValueError(f"data[{k!r}] has shape {tuple(v.shape)}; expected a leading problem axis of {P}")
-    data = {
-        **extra_data,
-        "target": target_xy,
-        "weights": target_w,
-        "scale": torch.ones(P, F, problems[0].num_views, dtype=dtype),
-        "start_body_pose": start["body_pose"],
-        "R": views["R"],
-        "t": views["t"],
-        "windows": PerRow([None] * P),
-        "targets": PerRow([None] * P),
-        "seeds": PerRow([None] * P),
-        "contours": PerRow([None] * P),
-        "trust_px": torch.zeros(P, dtype=dtype),
-    }
-    if cfg.trust_from_start and any_keypoints:  # the trust region around the keypoint stage's fit (issue 55)
-        with torch.no_grad():
-            start_2d = evaluate(body, params_layout, start, views, data).keypoints_2d
-        data.update(
-            trust_data(
-                target_xy, target_w, start_2d, cfg.trust_ratio, cfg.trust_median, unit_share=cfg.trust_unit_median
-            )
-        )
+    data = _stage_data(
+        problems, extra_data, (target_xy, target_w, any_keypoints), start, views, cfg, body, params_layout
+    )
     t0 = time.perf_counter()
     bar = tqdm(total=int(sum(cfg.iterations)) * P, desc="silhouette", disable=not progress, leave=False)
     hooks = _SilhouetteRun(
@@ -1394,3 +1335,94 @@ def _fit_problems(
     )
     bar.close()
     return hooks.results((time.perf_counter() - t0) / max(P, 1))
+
+
+def _contour_evaluators(model, layout, cfg, body, smpl_layout: bool) -> tuple:
+    """``(contour_body, contour_points_map)``: the contour level's evaluator (``body``, or one of the model's contour
+    vertices only) and its vertices' map (the proxy's vertices where the full body is read at them, else ``None``)."""
+    contour_body, contour_points_map = body, None  # the contour level's evaluator and its vertices' map
+    if cfg.contour_iterations and cfg.contour_vertices and smpl_layout:
+        contour_body = cached_contour_body(
+            model,
+            layout,
+            ("vertices", int(cfg.contour_vertices)),
+            lambda: contour_vertex_index(model, cfg.contour_vertices),
+        )
+    elif cfg.proxy_faces:  # the full body, its points read at the proxy's vertices
+        from renderers.proxy import get_proxy
+
+        contour_points_map = get_proxy(model.v_template, model.faces, int(cfg.proxy_faces))
+    return contour_body, contour_points_map
+
+
+def _silhouette_energy(silhouette, prior, cfg, contour_points_map, extra_terms) -> Energy:
+    """The silhouette stage's energy: the ``silhouette`` term, the keypoints, the priors, the contour terms (read at
+    ``contour_points_map``), the trust region, the shape's bound and the caller's ``extra_terms``."""
+    return Energy(
+        [
+            silhouette,
+            KeypointTerm("keypoints", cfg.kp_sigma),
+            PriorTerm("pose", prior, "body_pose"),
+            PriorTerm("limits", limit_violation, "body_pose"),
+            PriorTerm("angle", angle_prior, "body_pose"),
+            PriorTerm("shape", shape_prior, "betas"),
+            StayTerm("body_pose"),
+            ContourInsideTerm(contour_points_map),
+            ContourCoverTerm(contour_points_map),
+            KeypointTrustTerm(),
+            PriorTerm("beta_bound", lambda b: beta_bound(b, cfg.max_abs_beta), "betas"),
+            *extra_terms,
+        ]
+    )
+
+
+def _weighted_stages(cfg, free_names: tuple, extra_weights: dict, any_keypoints: bool) -> tuple:
+    """``cfg``'s stages freeing ``free_names``, with the caller's ``extra_weights`` (and no keypoint terms where no
+    problem has keypoints)."""
+    return tuple(
+        Stage(
+            s.name,
+            free_names,
+            {**s.weights, **extra_weights, **({} if any_keypoints else {"keypoints": 0.0, "keypoint_trust": 0.0})},
+            s.iterations,
+            s.optimiser,
+            s.options,
+        )
+        for s in cfg.stages()
+    )
+
+
+def _stage_data(
+    problems, extra_data: dict, keypoints: tuple, start: dict, views: dict, cfg, body, params_layout
+) -> dict:
+    """The silhouette stage's data: the caller's ``extra_data`` (checked: a leading problem axis), the ``keypoints``
+    (:func:`_keypoint_data`'s ``(target, weights, any)``), the start's body pose, the views' extrinsics, the per-row
+    slots the levels fill, and the trust region around the start's keypoints (``trust_from_start``)."""
+    P, F, dtype = len(problems), problems[0].num_frames, start["body_pose"].dtype
+    target_xy, target_w, any_keypoints = keypoints
+    for k, v in extra_data.items():
+        if isinstance(v, torch.Tensor) and v.shape[:1] != (P,):
+            raise ValueError(f"data[{k!r}] has shape {tuple(v.shape)}; expected a leading problem axis of {P}")
+    data = {
+        **extra_data,
+        "target": target_xy,
+        "weights": target_w,
+        "scale": torch.ones(P, F, problems[0].num_views, dtype=dtype),
+        "start_body_pose": start["body_pose"],
+        "R": views["R"],
+        "t": views["t"],
+        "windows": PerRow([None] * P),
+        "targets": PerRow([None] * P),
+        "seeds": PerRow([None] * P),
+        "contours": PerRow([None] * P),
+        "trust_px": torch.zeros(P, dtype=dtype),
+    }
+    if cfg.trust_from_start and any_keypoints:  # the trust region around the keypoint stage's fit (issue 55)
+        with torch.no_grad():
+            start_2d = evaluate(body, params_layout, start, views, data).keypoints_2d
+        data.update(
+            trust_data(
+                target_xy, target_w, start_2d, cfg.trust_ratio, cfg.trust_median, unit_share=cfg.trust_unit_median
+            )
+        )
+    return data
