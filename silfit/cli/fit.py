@@ -28,8 +28,8 @@ def _int_list(text: str) -> tuple:
     return values
 
 
-def register(subparsers) -> None:
-    p = subparsers.add_parser("fit", help="fit SMPL to an image's 2D keypoints and person mask")
+def _add_input_flags(p) -> None:
+    """The keypoints to fit: a rig and its views, a keypoint file and which people."""
     p.add_argument(
         "--rig",
         metavar="DIR",
@@ -52,6 +52,10 @@ def register(subparsers) -> None:
         help="--image without --keypoints: fit every person detected, each into OUT/person_<i>/ "
         "(largest first; OUT/people.json lists them)",
     )
+
+
+def _add_image_flags(p) -> None:
+    """The mask, the camera (a file or a focal length), the image and its size."""
     p.add_argument("--mask", help="person silhouette PNG (enables the silhouette stage)")
     cam = p.add_mutually_exclusive_group()
     cam.add_argument("--camera", help="camera.json with fx, fy, cx, cy, width, height")
@@ -69,6 +73,10 @@ def register(subparsers) -> None:
         "off by default: --keypoint-option image_depth_weight=100 turns it on)",
     )
     p.add_argument("--image-size", help="WxH when neither --camera, --image nor --mask gives the size")
+
+
+def _add_model_flags(p) -> None:
+    """The stages, the body model, the pose prior and the silhouette stage's levels."""
     p.add_argument("--no-silhouette", action="store_true", help="stop after the keypoint stage")
     p.add_argument(
         "--model",
@@ -93,6 +101,10 @@ def register(subparsers) -> None:
         metavar="N1,N2",
         help="silhouette rendered steps per level (default 40,25, after the contour level)",
     )
+
+
+def _add_sequence_flags(p) -> None:
+    """The video flags, in their own help group."""
     seq = p.add_argument_group("videos (silfit.fitting.sequence)")
     seq.add_argument(
         "--sequence",
@@ -107,6 +119,10 @@ def register(subparsers) -> None:
     seq.add_argument("--fps", type=float, default=30.0, help="--sequence: frame rate of overlay.gif (default 30)")
     seq.add_argument("--no-video", action="store_true", help="--sequence: only strip.png, no overlay.gif")
     seq.add_argument("--sequence-iterations", type=int, help="--sequence: joint refinement steps (default 100)")
+
+
+def _add_result_flags(p) -> None:
+    """What is written besides the fit: exported meshes and the depth-branch hypotheses."""
     p.add_argument(
         "--export",
         metavar="glb,ply",
@@ -126,6 +142,10 @@ def register(subparsers) -> None:
         "it refined, and the lowest final energy is kept (K times its cost; metrics.json: "
         "hypotheses_silhouette)",
     )
+
+
+def _add_stage_option_flags(p) -> None:
+    """The keypoint and silhouette stages' NAME=VALUE overrides."""
     p.add_argument(
         "--keypoint-option",
         action="append",
@@ -143,6 +163,10 @@ def register(subparsers) -> None:
         "(without --hypotheses: no close alternative refined against the mask) or plausibility_guard=false "
         "(repeatable; as fit-dataset)",
     )
+
+
+def _add_run_flags(p) -> None:
+    """The output folder and how the run behaves."""
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -151,6 +175,17 @@ def register(subparsers) -> None:
         action="store_true",
         help="read and check every input (files, sizes, keypoint plausibility), fit and write nothing",
     )
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("fit", help="fit SMPL to an image's 2D keypoints and person mask")
+    _add_input_flags(p)
+    _add_image_flags(p)
+    _add_model_flags(p)
+    _add_sequence_flags(p)
+    _add_result_flags(p)
+    _add_stage_option_flags(p)
+    _add_run_flags(p)
     p.set_defaults(func=run)
 
 

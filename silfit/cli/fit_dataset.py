@@ -26,13 +26,8 @@ def exit_status(failed: int) -> int:
     return 0 if failed == 0 else FAILED_BASE + min(int(failed), FAILED_CAP)
 
 
-def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "fit-dataset",
-        help="fit a whole dataset: OpenPose folder, manifest or synthetic set (resumable; local or Ray)",
-        description=__doc__.split("\n\n", 1)[1],
-        epilog="exit status: 0 all fitted, 2 bad command/input, 10+n n items failed (n<=100)",
-    )
+def _add_input_flags(p) -> None:
+    """The dataset, the output folder and which people of each image."""
     p.add_argument(
         "input", help="OpenPose folder (*_keypoints.json), manifest (.jsonl/.csv) or synthetic dataset folder"
     )
@@ -50,10 +45,18 @@ def register(subparsers) -> None:
         metavar="K",
         help="person K of each image instead (0-based, as silfit fit --person)",
     )
+
+
+def _add_openpose_flags(p) -> None:
+    """An OpenPose input's masks, images and cameras, and one focal length for every item."""
     p.add_argument("--masks", help="OpenPose input: folder of <stem>.png / <stem>_<k>.png masks")
     p.add_argument("--images", help="OpenPose input: folder of <stem>.png/.jpg images")
     p.add_argument("--camera", help="OpenPose input: a shared camera.json, or a folder of <stem>.json")
     p.add_argument("--focal", type=float, help="focal length in pixels for every item (overrides the cameras')")
+
+
+def _add_fit_flags(p) -> None:
+    """The batch size, the stages, retrying failed items, the body model and the pose prior."""
     p.add_argument("--batch-size", type=int, default=8, help="items per keypoint-stage batch (default 8)")
     p.add_argument("--no-silhouette", action="store_true", help="keypoint stage only, even where masks exist")
     p.add_argument("--retry-failed", action="store_true", help="fit again the items failed in a previous run")
@@ -64,6 +67,10 @@ def register(subparsers) -> None:
     )
     p.add_argument("--gender", default="neutral", help="model gender when --model is a folder")
     p.add_argument("--pose-prior", help="pose prior: gmm_08.pkl, a mixture .npz, or 'limits' (default: shipped)")
+
+
+def _add_stage_option_flags(p) -> None:
+    """The keypoint and silhouette stages' overrides and the silhouette stage's levels."""
     p.add_argument(
         "--keypoint-option",
         action="append",
@@ -86,6 +93,10 @@ def register(subparsers) -> None:
         metavar="N1,N2",
         help="silhouette rendered steps per level (default 40,25, after the contour level)",
     )
+
+
+def _add_worker_flags(p) -> None:
+    """Where the items are fitted: local worker processes or Ray actors."""
     p.add_argument(
         "--workers",
         default="1",
@@ -103,6 +114,10 @@ def register(subparsers) -> None:
     p.add_argument("--actors", type=int, default=2, help="Ray: fitting actors (default 2)")
     p.add_argument("--num-cpus", type=float, default=1.0, help="Ray: CPUs reserved per actor (default 1)")
     p.add_argument("--num-gpus", type=float, default=0.0, help="Ray: GPUs reserved per actor (default 0)")
+
+
+def _add_output_flags(p) -> None:
+    """What is written besides the fits, and the progress bar."""
     p.add_argument(
         "--export",
         metavar="glb,ply",
@@ -117,6 +132,21 @@ def register(subparsers) -> None:
     p.add_argument(
         "--quiet", action="store_true", help="no progress bar (the summary table and warnings are still printed)"
     )
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "fit-dataset",
+        help="fit a whole dataset: OpenPose folder, manifest or synthetic set (resumable; local or Ray)",
+        description=__doc__.split("\n\n", 1)[1],
+        epilog="exit status: 0 all fitted, 2 bad command/input, 10+n n items failed (n<=100)",
+    )
+    _add_input_flags(p)
+    _add_openpose_flags(p)
+    _add_fit_flags(p)
+    _add_stage_option_flags(p)
+    _add_worker_flags(p)
+    _add_output_flags(p)
     p.set_defaults(func=run)
 
 
@@ -144,11 +174,8 @@ def _workers(text: str):
     return value
 
 
-def run(args) -> int:
-    from ..runner import FitOptions, InputError, fit_dataset
-    from ..runner.items import parse_people
-    from .common import keypoint_options, silhouette_options
-
+def _checked_workers(args):
+    """``--workers`` (checked), after the batch size and the local / Ray flags are checked against each other."""
     if args.batch_size < 1:
         raise CLIError(f"--batch-size {args.batch_size}: expected 1 or more")
     workers = _workers(args.workers)
@@ -156,6 +183,15 @@ def run(args) -> int:
         raise CLIError("--workers runs local processes; a Ray run has --actors")
     if args.ray is None and (args.actors != 2 or args.num_cpus != 1.0 or args.num_gpus != 0.0):
         raise CLIError("--actors, --num-cpus and --num-gpus are Ray options: add --ray")
+    return workers
+
+
+def _people(args):
+    """``--people`` / ``--person`` as :func:`silfit.runner.items.parse_people` reads them (``--people K``, the old
+    spelling of ``--person K``, with a deprecation warning)."""
+    from ..runner import InputError
+    from ..runner.items import parse_people
+
     try:
         if args.person is not None and args.people != "largest":
             raise CLIError(f"--people {args.people} and --person {args.person}: give one of them")
@@ -165,9 +201,16 @@ def run(args) -> int:
                 file=sys.stderr,
             )
             args.person, args.people = args.people, "largest"
-        people = parse_people(args.people if args.person is None else str(args.person))
+        return parse_people(args.people if args.person is None else str(args.person))
     except (InputError, ValueError) as err:
         raise CLIError(str(err)) from None
+
+
+def _fit_options(args):
+    """The :class:`silfit.runner.FitOptions` of every item, from the model, stage and export flags."""
+    from ..runner import FitOptions
+    from .common import keypoint_options, silhouette_options
+
     overrides = keypoint_options(args)
     from ..outputs.export import parse_formats
 
@@ -175,7 +218,7 @@ def run(args) -> int:
         exports = parse_formats(args.export)
     except ValueError as err:
         raise CLIError(str(err)) from None
-    options = FitOptions(
+    return FitOptions(
         exports=list(exports),
         model=args.model,
         gender=args.gender,
@@ -187,6 +230,30 @@ def run(args) -> int:
         silhouette_resolutions=_ints(args.silhouette_resolutions, "--silhouette-resolutions"),
         silhouette_iterations=_ints(args.silhouette_iterations, "--silhouette-iterations"),
     )
+
+
+def _write_report(out) -> None:
+    """``OUT/report/index.html`` (:func:`silfit.outputs.report.write_report`); one that cannot be written is a
+    warning (the fits are written), unless the run was stopped while writing it."""
+    from ..errors import interruption
+    from ..outputs.report import write_report
+
+    try:
+        index = write_report(out)
+    except (OSError, ValueError) as err:  # the fits are written; a report that cannot be is a warning
+        if interruption(err) is not None:  # (unless the run was stopped while writing it)
+            raise
+        print(f"silfit fit-dataset: warning: no report: {' '.join(str(err).split())}", file=sys.stderr)
+    else:
+        print(f"wrote {index} (open it in a browser)")
+
+
+def run(args) -> int:
+    from ..runner import InputError, fit_dataset
+
+    workers = _checked_workers(args)
+    people = _people(args)
+    options = _fit_options(args)
     try:
         summary = fit_dataset(
             args.input,
@@ -209,17 +276,7 @@ def run(args) -> int:
     except InputError as err:
         raise CLIError(str(err)) from None
     if not args.no_report:
-        from ..errors import interruption
-        from ..outputs.report import write_report
-
-        try:
-            index = write_report(args.out)
-        except (OSError, ValueError) as err:  # the fits are written; a report that cannot be is a warning
-            if interruption(err) is not None:  # (unless the run was stopped while writing it)
-                raise
-            print(f"silfit fit-dataset: warning: no report: {' '.join(str(err).split())}", file=sys.stderr)
-        else:
-            print(f"wrote {index} (open it in a browser)")
+        _write_report(args.out)
     print(summary["table"])
     if summary["failed"]:
         print(

@@ -88,62 +88,77 @@ def build_job(args) -> Job:
     return image_job(args)
 
 
-def image_job(args) -> Job:
-    """One image (or photo: keypoints, mask and EXIF focal length detected when not given)."""
-    from ..camera import Camera, read_camera_file
-    from ..keypoints import read_keypoints
-    from ..silhouette.masks import read_mask
-    from ..wholebody import choose_fit_keypoints, read_wholebody_parts
-
-    if args.mask and args.no_silhouette:
-        raise CLIError("--mask and --no-silhouette contradict each other")
-    _check_out(args)
-    person = _person(args.person)
-    photo = None
+def _photo_inputs(args, person):
+    """``--image``'s inputs (:func:`silfit.cli.detect.photo_inputs`: keypoints and mask detected where not given),
+    or ``None`` without ``--image`` (then ``--keypoints`` is required)."""
     if args.image:
         from .detect import photo_inputs
 
-        photo = photo_inputs(
+        return photo_inputs(
             args.image,
             person,
             not args.keypoints,
             not (args.mask or args.no_silhouette),
             getattr(args, "detected", None),
         )
-    elif not args.keypoints:
+    if not args.keypoints:
         raise CLIError("no keypoints: give --keypoints KP.json, or --image PHOTO to detect them")
-    keypoints = read_keypoints(args.keypoints, person=person) if args.keypoints else photo["keypoints"]
-    image, size = (
-        (photo["image"], photo["size"]) if photo else (None, _parse_size(args.image_size) if args.image_size else None)
-    )
-    camera, warnings, camera_source = None, list(photo["warnings"]) if photo else [], None
-    if args.camera:  # R, t (optional) checked as for rigs; one image is fitted in its camera's frame
-        camera, R, t = read_camera_file(args.camera)
-        camera_source = "camera file"
-        if R is not None and (np.abs(R - np.eye(3)).max() > 1e-9 or np.abs(t).max() > 1e-9):
-            camera_source += (
-                " (its R, t not applied: one image is fitted in the camera's frame; --rig fits in the world frame)"
-            )
-            warn(f"{args.camera}: camera R, t not applied: one image is fitted in the camera's frame")
-        if size is not None and tuple(size) != (camera.width, camera.height):
-            raise CLIError(
-                f"{args.camera}: camera is {camera.width}x{camera.height} but the image is {size[0]}x{size[1]}"
-            )
+    return None
+
+
+def _camera_file(path, size) -> tuple:
+    """``(camera, camera_source)`` from ``--camera``; its R, t (optional) checked as for rigs, not applied: one
+    image is fitted in its camera's frame. The camera's size must be the image's ``size`` (when known)."""
+    from ..camera import read_camera_file
+
+    camera, R, t = read_camera_file(path)
+    camera_source = "camera file"
+    if R is not None and (np.abs(R - np.eye(3)).max() > 1e-9 or np.abs(t).max() > 1e-9):
+        camera_source += (
+            " (its R, t not applied: one image is fitted in the camera's frame; --rig fits in the world frame)"
+        )
+        warn(f"{path}: camera R, t not applied: one image is fitted in the camera's frame")
+    if size is not None and tuple(size) != (camera.width, camera.height):
+        raise CLIError(f"{path}: camera is {camera.width}x{camera.height} but the image is {size[0]}x{size[1]}")
+    return camera, camera_source
+
+
+def _image_mask(args, photo, camera, size) -> tuple:
+    """``(mask, known, size)``: ``--mask`` (the size from it when not known yet), else the photo's detected mask
+    and its known pixels, else none."""
+    from ..silhouette.masks import read_mask
+
     mask, known = None, None
     if args.mask:
         mask = read_mask(args.mask, size=(camera.width, camera.height) if camera is not None else size)
         size = size or (mask.shape[1], mask.shape[0])
     elif photo and photo["mask"] is not None:
         mask, known = photo["mask"], photo.get("known")
-    if camera is None:
-        if size is None:
-            raise CLIError("no camera: give --camera C.json, or --image / --image-size / --mask for the default camera")
-        camera = Camera.from_image_size(*size)
-        camera_source = "default max(W, H)"
-        if args.focal is not None:
-            camera, camera_source = _with_focal(camera, args.focal), "--focal"
-        elif photo and photo["focal"]:
-            camera, camera_source = _with_focal(camera, photo["focal"], photo["focal_source"]), photo["focal_source"]
+    return mask, known, size
+
+
+def _default_camera(args, photo, size) -> tuple:
+    """``(camera, camera_source)`` without ``--camera``: the default camera of the image size, its focal length
+    from ``--focal`` or else the photo's (EXIF)."""
+    from ..camera import Camera
+
+    if size is None:
+        raise CLIError("no camera: give --camera C.json, or --image / --image-size / --mask for the default camera")
+    camera = Camera.from_image_size(*size)
+    camera_source = "default max(W, H)"
+    if args.focal is not None:
+        camera, camera_source = _with_focal(camera, args.focal), "--focal"
+    elif photo and photo["focal"]:
+        camera, camera_source = _with_focal(camera, photo["focal"], photo["focal_source"]), photo["focal_source"]
+    return camera, camera_source
+
+
+def _model_and_keypoints(args, person, keypoints) -> tuple:
+    """``(model, keypoints)``: the body model (:func:`silfit.cli.common.choose_model`; whole-body keypoints pick
+    the whole-body model) and the keypoints it fits (:func:`silfit.wholebody.choose_fit_keypoints`), each
+    choice's note said."""
+    from ..wholebody import choose_fit_keypoints, read_wholebody_parts
+
     wholebody = read_wholebody_parts(args.keypoints, person) if args.keypoints else None
     model, model_note = choose_model(args.model, args.gender, wholebody is not None and wholebody.has_parts)
     if model_note:
@@ -151,6 +166,41 @@ def image_job(args) -> Job:
     keypoints, choice_note = choose_fit_keypoints(keypoints, wholebody, model)
     if choice_note:
         note(choice_note)
+    return model, keypoints
+
+
+def _hypotheses_base(args):
+    """The keypoint stage's base settings for ``--hypotheses K`` (the K best distinct depth-branch solutions,
+    hypotheses/<k>/), or ``None`` (the default) for K = 1."""
+    base = None
+    if getattr(args, "hypotheses", 1) != 1:
+        from ..fitting.keypoint_stage import KeypointFitConfig
+
+        if not 1 <= args.hypotheses <= 20:
+            raise CLIError(f"--hypotheses must be 1..20, got {args.hypotheses}")
+        base = KeypointFitConfig(hypotheses=args.hypotheses)
+    return base
+
+
+def image_job(args) -> Job:
+    """One image (or photo: keypoints, mask and EXIF focal length detected when not given)."""
+    from ..keypoints import read_keypoints
+
+    if args.mask and args.no_silhouette:
+        raise CLIError("--mask and --no-silhouette contradict each other")
+    _check_out(args)
+    person = _person(args.person)
+    photo = _photo_inputs(args, person)
+    keypoints = read_keypoints(args.keypoints, person=person) if args.keypoints else photo["keypoints"]
+    image, size = (
+        (photo["image"], photo["size"]) if photo else (None, _parse_size(args.image_size) if args.image_size else None)
+    )
+    warnings = list(photo["warnings"]) if photo else []
+    camera, camera_source = _camera_file(args.camera, size) if args.camera else (None, None)
+    mask, known, size = _image_mask(args, photo, camera, size)
+    if camera is None:
+        camera, camera_source = _default_camera(args, photo, size)
+    model, keypoints = _model_and_keypoints(args, person, keypoints)
     record = {
         "keypoints": args.keypoints and os.fspath(args.keypoints),
         "mask": args.mask,
@@ -159,13 +209,7 @@ def image_job(args) -> Job:
         "camera_source": camera_source,
         **(photo["metrics"] if photo else {}),
     }
-    base = None
-    if getattr(args, "hypotheses", 1) != 1:  # the K best distinct depth-branch solutions (hypotheses/<k>/)
-        from ..fitting.keypoint_stage import KeypointFitConfig
-
-        if not 1 <= args.hypotheses <= 20:
-            raise CLIError(f"--hypotheses must be 1..20, got {args.hypotheses}")
-        base = KeypointFitConfig(hypotheses=args.hypotheses)
+    base = _hypotheses_base(args)
     return Job(
         Problem.single(keypoints, camera, mask, known),
         model,

@@ -7,16 +7,8 @@ import shlex
 import sys
 
 
-def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "synth",
-        help="generate synthetic subjects (image, mask, keypoints, camera, ground truth)",
-        description=(
-            "Render random people (hand-authored pose library, shape prior, random cameras) and write one "
-            "folder per subject: image.png, mask.png, keypoints.json (OpenPose BODY_25), camera.json, gt.npz; "
-            "plus index.json with the settings. Deterministic for a given --seed."
-        ),
-    )
+def _add_dataset_flags(p) -> None:
+    """How many subjects, where, the seed, the image size and the keypoints' noise, drops and truncation."""
     p.add_argument("--n", type=int, required=True, help="number of subjects")
     p.add_argument("--out", required=True, help="output dataset folder")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -27,6 +19,10 @@ def register(subparsers) -> None:
     )
     p.add_argument("--drop", type=float, default=0.0, help="probability of dropping each keypoint (default 0)")
     p.add_argument("--truncation", type=float, default=0.0, help="probability of a partly truncated body (default 0)")
+
+
+def _add_view_flags(p) -> None:
+    """The ranges of the camera's field of view, framing, elevation and roll, the body's yaw and pose perturbation."""
     p.add_argument(
         "--fov", type=float, nargs=2, default=(45.0, 65.0), metavar=("MIN", "MAX"), help="field of view range, degrees"
     )
@@ -49,6 +45,10 @@ def register(subparsers) -> None:
     )
     p.add_argument("--roll", type=float, default=5.0, help="camera roll range +-degrees (default 5)")
     p.add_argument("--perturb", type=float, default=6.0, help="pose perturbation std. dev., degrees (default 6)")
+
+
+def _add_subject_flags(p) -> None:
+    """The background, the COCO-17 keypoints, whole-body subjects and where the poses come from."""
     p.add_argument("--background", choices=("plain", "textured", "mixed"), default="mixed")
     p.add_argument("--coco", action="store_true", help="also write keypoints_coco17.json")
     p.add_argument(
@@ -64,6 +64,10 @@ def register(subparsers) -> None:
         help="library: around the hand-authored pose library (default); hard: silfit.poses.sampler's squats, "
         "kneeling, running, lunges, hands at the face/head/hip, front and back views over-represented",
     )
+
+
+def _add_video_flags(p) -> None:
+    """Short motions instead of single images (--videos) and their settings."""
     p.add_argument(
         "--videos",
         dest="sequence",
@@ -81,6 +85,10 @@ def register(subparsers) -> None:
         default=0.0,
         help="--videos: probability of a frame with no person detected (default 0)",
     )
+
+
+def _add_rig_flags(p) -> None:
+    """A calibrated camera rig per subject: a ring of N cameras or a cameras.json."""
     p.add_argument(
         "--cameras",
         dest="views",
@@ -100,9 +108,17 @@ def register(subparsers) -> None:
         metavar="CAMERAS.json",
         help="with --cameras: the rig's cameras from this cameras.json instead of the ring",
     )
+
+
+def _add_run_flags(p) -> None:
+    """The body model, the progress bar and writing into an existing folder."""
     p.add_argument("--model", default=None, help="body model file (default: the shipped open body model)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--overwrite", action="store_true", help="write into an existing, non-empty output folder")
+
+
+def _add_deprecated_aliases(p) -> None:
+    """The old spellings of renamed flags (hidden; they say the new one)."""
     from .flags import deprecated_alias
 
     for old, new in (
@@ -112,6 +128,25 @@ def register(subparsers) -> None:
         ("--no-progress", "--quiet"),
     ):
         deprecated_alias(p, old, new)
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "synth",
+        help="generate synthetic subjects (image, mask, keypoints, camera, ground truth)",
+        description=(
+            "Render random people (hand-authored pose library, shape prior, random cameras) and write one "
+            "folder per subject: image.png, mask.png, keypoints.json (OpenPose BODY_25), camera.json, gt.npz; "
+            "plus index.json with the settings. Deterministic for a given --seed."
+        ),
+    )
+    _add_dataset_flags(p)
+    _add_view_flags(p)
+    _add_subject_flags(p)
+    _add_video_flags(p)
+    _add_rig_flags(p)
+    _add_run_flags(p)
+    _add_deprecated_aliases(p)
     p.set_defaults(func=run)
 
 
@@ -150,22 +185,21 @@ def run_sequence(args: argparse.Namespace, model) -> int:
     return 0
 
 
-def run(args: argparse.Namespace) -> int:
-    from .common import check_out
+def _body_model(args):
+    """``--model``'s body model, or ``None`` (the generator's default: the shipped open model)."""
+    model = None
+    if args.model is not None:
+        from ..body import load_body_model
 
-    check_out(args.out, args.overwrite)
-    if args.sequence and args.layout is not None:
-        raise ValueError("--videos with --cameras-file: rig videos place their cameras on a ring (--cameras N)")
-    if args.sequence:
-        model = None
-        if args.model is not None:
-            from ..body import load_body_model
+        model = load_body_model(args.model)
+    return model
 
-            model = load_body_model(args.model)
-        return run_sequence(args, model)
-    from ..synth.generate import SynthConfig, dataset_summary, generate_dataset
 
-    cfg = SynthConfig(
+def _synth_config(args: argparse.Namespace):
+    """The single-image subjects' :class:`silfit.synth.generate.SynthConfig` (validated) from the flags."""
+    from ..synth.generate import SynthConfig
+
+    return SynthConfig(
         seed=args.seed,
         size=args.size,
         noise_px=args.noise_px,
@@ -184,11 +218,11 @@ def run(args: argparse.Namespace) -> int:
         poses=args.poses,
         frontal_first=args.poses == "library",
     ).validate()
-    model = None
-    if args.model is not None:
-        from ..body import load_body_model
 
-        model = load_body_model(args.model)
+
+def _command_argv(args: argparse.Namespace) -> list:
+    """The command that regenerates the dataset, as recorded in index.json: the output folder as DIR and only
+    the flags that differ from their defaults (a rig adds its own, :func:`_run_rig`)."""
     argv = [
         "silfit",
         "synth",
@@ -225,9 +259,13 @@ def run(args: argparse.Namespace) -> int:
         argv.append("--whole-body")
     if args.poses != "library":
         argv += ["--poses", args.poses]
-    if args.views is not None or args.layout is not None:
-        return _run_rig(args, cfg, model, argv)
-    index = generate_dataset(args.out, args.n, cfg, model=model, progress=not args.quiet, command=shlex.join(argv))
+    return argv
+
+
+def _print_summary(args: argparse.Namespace, index: dict) -> None:
+    """Two lines on the written dataset: how many subjects, and the ranges of stature, distance and yaw."""
+    from ..synth.generate import dataset_summary
+
     s = dataset_summary(index)
     print(
         f"wrote {len(index['subjects'])} subjects to {args.out} (seed {args.seed}, {args.size}x{args.size}, noise {args.noise_px} px)"
@@ -238,6 +276,25 @@ def run(args: argparse.Namespace) -> int:
         f"yaw {s['yaw_deg']['min']:.0f}..{s['yaw_deg']['max']:.0f} deg, {s['back_facing']} back-facing; "
         f"{s['truncated']} truncated"
     )
+
+
+def run(args: argparse.Namespace) -> int:
+    from .common import check_out
+
+    check_out(args.out, args.overwrite)
+    if args.sequence and args.layout is not None:
+        raise ValueError("--videos with --cameras-file: rig videos place their cameras on a ring (--cameras N)")
+    if args.sequence:
+        return run_sequence(args, _body_model(args))
+    from ..synth.generate import generate_dataset
+
+    cfg = _synth_config(args)
+    model = _body_model(args)
+    argv = _command_argv(args)
+    if args.views is not None or args.layout is not None:
+        return _run_rig(args, cfg, model, argv)
+    index = generate_dataset(args.out, args.n, cfg, model=model, progress=not args.quiet, command=shlex.join(argv))
+    _print_summary(args, index)
     return 0
 
 
