@@ -4,14 +4,14 @@ Fits a generated hard set (``silfit synth --poses hard``: squats, kneeling, runn
 face; front and back views) with the keypoint stage, twice: the default schedule, and
 ``hypotheses=K`` (``silfit fit --hypotheses K``). For each it prints, by the fit's PA-PVE against
 the truth (good: below 60 mm, middling, bad: above 150 mm), how many fits carry the depth warning
-(:func:`~silfit.plausibility.depth_warnings`): on good fits a warning is a false alarm, on bad ones a
+(:func:`~silfit.fitting.plausibility.depth_warnings`): on good fits a warning is a false alarm, on bad ones a
 hit. *Before* is the rule of main 802356a (with one hypothesis, the branch search's survivors within
-:data:`~silfit.plausibility.SEARCH_MARGIN` of the kept one by the search's energies, moving a joint
-:data:`~silfit.plausibility.SEARCH_MIN_SHIFT_MM`); *after* is today's (the ``branch_refine`` branches
-refined to the end, by their final energies, within :data:`~silfit.plausibility.HYPOTHESIS_MARGIN`,
-moving a joint :data:`~silfit.plausibility.MIN_SHIFT_MM`, as with ``--hypotheses K``; or an earlier
-search's survivor within :data:`~silfit.plausibility.EARLY_SEARCH_MARGIN` moving a joint
-:data:`~silfit.plausibility.EARLY_SEARCH_MIN_SHIFT_MM`). Both come
+:data:`~silfit.fitting.plausibility.SEARCH_MARGIN` of the kept one by the search's energies, moving a joint
+:data:`~silfit.fitting.plausibility.SEARCH_MIN_SHIFT_MM`); *after* is today's (the ``branch_refine`` branches
+refined to the end, by their final energies, within :data:`~silfit.fitting.plausibility.HYPOTHESIS_MARGIN`,
+moving a joint :data:`~silfit.fitting.plausibility.MIN_SHIFT_MM`, as with ``--hypotheses K``; or an earlier
+search's survivor within :data:`~silfit.fitting.plausibility.EARLY_SEARCH_MARGIN` moving a joint
+:data:`~silfit.fitting.plausibility.EARLY_SEARCH_MIN_SHIFT_MM`). Both come
 from one fit per subject and schedule (the fits are the same; only the warning differs), with the best
 of the K hypotheses within 60 mm.
 
@@ -35,12 +35,12 @@ import torch
 
 from silfit import load_body_model
 from silfit.camera import load_camera
-from silfit.dataset import read_gt
+from silfit.io.subjects import read_gt
 from silfit.eval.metrics import pa_pve
 from silfit.fitting import KeypointFitter
 from silfit.fitting.keypoint_stage import KeypointFitConfig
-from silfit.keypoints import read_keypoints
-from silfit.plausibility import depth_warnings
+from silfit.io.keypoints import read_keypoints
+from silfit.fitting.plausibility import depth_warnings
 
 NAMES = ("betas", "body_pose", "global_orient", "transl")
 

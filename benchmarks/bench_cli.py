@@ -38,8 +38,8 @@ mark("import torch")
 from silfit import load_body_model
 from silfit.camera import load_camera
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig
-from silfit.keypoints import read_keypoints
-from silfit.image_fit import save_fit
+from silfit.io.keypoints import read_keypoints
+from silfit.fitting.image_fit import save_fit
 from silfit.run import fit
 from silfit.silhouette.masks import read_mask
 mark("import silfit (fitting, pipeline)")

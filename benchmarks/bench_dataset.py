@@ -199,7 +199,7 @@ def main() -> None:
             print(rows[-1], flush=True)
     if args.sil_subset:
         sub = subset(data, root, args.sil_subset)
-        if args.main or args.close:  # a warm-up first (model, priors, proxies, renderers), so neither run pays it
+        if args.main or args.close:  # a warm-up first (model, priors, proxies, silfit.render), so neither run pays it
             run(subset(data, root, 2), root / "out_warmup", True, 8, False)
         if args.close:
             with stage_changes(alternatives_margin=0.0):

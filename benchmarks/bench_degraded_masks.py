@@ -37,11 +37,11 @@ import numpy as np
 from bench_truncation import _score, cut_subject, grow
 from silfit import load_body_model
 from silfit.camera import load_camera
-from silfit.dataset import read_gt, read_mask
+from silfit.io.subjects import read_gt, read_mask
 from silfit.fitting import KeypointFitter
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig
-from silfit.image_fit import refine_batch
-from silfit.keypoints import KeypointSet, read_keypoints
+from silfit.fitting.image_fit import refine_batch
+from silfit.io.keypoints import KeypointSet, read_keypoints
 from silfit.silhouette.people import own_mask
 
 #: the silhouette stage before issue 55 (its trust region around the detections, 6 % of the window; the

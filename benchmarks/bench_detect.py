@@ -31,10 +31,10 @@ import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and
 import numpy as np
 
 from silfit import load_body_model
-from silfit.dataset import list_subjects, load_subject
+from silfit.io.subjects import list_subjects, load_subject
 from silfit.detect import DetectConfig, DetectionError, detect_people
 from silfit.eval.metrics import mask_iou, procrustes_align
-from silfit.keypoints import BODY25_NAMES
+from silfit.io.keypoints import BODY25_NAMES
 
 
 def pa_pve_mm(vertices, gt_vertices) -> float:

@@ -54,7 +54,7 @@ from scipy.spatial.transform import Rotation
 from silfit import load_body_model
 from silfit.camera import Camera, load_camera, project_points
 from silfit.fitting import KeypointFitter
-from silfit.keypoints import model_keypoints, read_keypoints
+from silfit.io.keypoints import model_keypoints, read_keypoints
 from silfit.priors import clamp_to_limits
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -274,7 +274,7 @@ def silhouette_timing(model, batches, n=16, seed=11, size=512, config=None):
     """Seconds per subject of the silhouette stage run alone (batch 1) and in batches."""
     import tempfile
 
-    from silfit.dataset import list_subjects, load_subject
+    from silfit.io.subjects import list_subjects, load_subject
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig, fit_silhouettes
     from silfit.synth import generate_dataset
     from silfit.synth.generate import SynthConfig

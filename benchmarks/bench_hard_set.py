@@ -2,13 +2,13 @@
 
 Issue 25's targets are measured on generated hard sets (``silfit synth --poses hard``: squats, kneeling,
 running, hands at the face; front and back views) with the default image path: the keypoint stage in
-batches of ``--batch`` and :func:`silfit.image_fit.refine_batch` (the silhouette stage with its clothing
+batches of ``--batch`` and :func:`silfit.fitting.image_fit.refine_batch` (the silhouette stage with its clothing
 trim and plausibility guard) against the generator's noise-free masks. This runs that path twice on the
 same subjects, *before* with the keypoint settings of ``--baseline`` (the older behaviour, kept behind its
 option) and *after* with today's defaults, and prints per run:
 
 * PA-PVE of the keypoint stage's fit and of the fit with silhouettes (mean / median), fits above 150 mm;
-* how many fits above 150 mm carry the depth warning (:func:`~silfit.plausibility.depth_warnings`) and how
+* how many fits above 150 mm carry the depth warning (:func:`~silfit.fitting.plausibility.depth_warnings`) and how
   many below 60 mm carry one too (false alarms);
 * search failures: the truth's keypoint energy (:meth:`~silfit.fitting.KeypointFitter.energy_at`) below the
   fit's; the truth's shape and the keypoints' noise make this a lower bound on the search's misses;
@@ -35,8 +35,8 @@ from silfit import load_body_model
 from silfit.eval.metrics import pa_pve
 from silfit.fitting import KeypointFitter
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig
-from silfit.image_fit import refine_batch
-from silfit.plausibility import depth_warnings
+from silfit.fitting.image_fit import refine_batch
+from silfit.fitting.plausibility import depth_warnings
 from silfit.runner.worker import keypoint_config
 
 

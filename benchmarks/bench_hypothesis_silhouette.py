@@ -13,14 +13,14 @@ compares the PA-PVE of the refined fit each rule keeps:
 * *silhouette-stage energy*: the lowest final energy of the silhouette stage
   (:attr:`~silfit.fitting.silhouette_stage.SilhouetteFitResult.final_energy`: its last level's kept step,
   silhouette, keypoints and priors at the stage's weights), as ``silfit fit --hypotheses K --mask`` keeps
-  (:func:`silfit.image_fit._choose_hypothesis`, without its plausibility guard and clothing trim); with
+  (:func:`silfit.fitting.image_fit._choose_hypothesis`, without its plausibility guard and clothing trim); with
   ``--margin M`` an alternative replaces the fit only when its energy is lower by more than ``M`` (relative);
 * *IoU*: the highest mask IoU of the refined body (rendered with pyrender/OSMesa);
 * *oracle*: the best of the K against the truth (what a perfect chooser would get).
 
     python benchmarks/bench_hypothesis_silhouette.py --n 30 --seed 10800
 
-``--close``: the default path instead (one hypothesis, :func:`silfit.image_fit.refine_batch` with its clothing trim and
+``--close``: the default path instead (one hypothesis, :func:`silfit.fitting.image_fit.refine_batch` with its clothing trim and
 plausibility guard), before and after issue 25's close-alternatives part on the same keypoint fits: ``before`` refines
 the keypoint stage's fit only (``SilhouetteFitConfig(alternatives_margin=0)``), ``after`` also its branches refined to
 the end within ``alternatives_margin`` of its energy (the default), keeping the lowest final energy of the stage.
@@ -59,7 +59,7 @@ def main() -> None:
     if args.close:
         return close_alternatives(args)
 
-    from renderers.offscreen import render_mask
+    from silfit.render.offscreen import render_mask
 
     torch.set_num_threads(1)
     model = load_body_model()
@@ -144,8 +144,8 @@ def main() -> None:
 def close_alternatives(args) -> None:
     """``--close``: the default image path with ``alternatives_margin`` 0 (before) and each other margin, on the same
     keypoint fits (the default keypoint stage, one hypothesis); PA-PVE of what ``refine_batch`` returns."""
-    from silfit.image_fit import refine_batch
-    from silfit.plausibility import depth_warnings
+    from silfit.fitting.image_fit import refine_batch
+    from silfit.fitting.plausibility import depth_warnings
 
     torch.set_num_threads(1)
     model = load_body_model()
@@ -156,7 +156,9 @@ def close_alternatives(args) -> None:
     cpu = {m: 0.0 for m in margins}
     extra = {m: 0 for m in margins}
     warned = {m: 0 for m in margins}
-    depth = {m: [] for m in margins}  # per subject: the depth warning (silfit.plausibility.depth_warnings) fires
+    depth = {
+        m: [] for m in margins
+    }  # per subject: the depth warning (silfit.fitting.plausibility.depth_warnings) fires
     t_kp = 0.0
     for b in range(0, len(sets), args.batch):
         sl = slice(b, b + args.batch)

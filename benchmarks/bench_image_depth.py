@@ -27,10 +27,10 @@ import torch
 
 from silfit import load_body_model
 from silfit.camera import load_camera
-from silfit.dataset import read_gt
+from silfit.io.subjects import read_gt
 from silfit.fitting.image_depth import SEGMENTS, depth_cue
-from silfit.imagefile import read_rgb
-from silfit.keypoints import read_keypoints
+from silfit.io.images import read_rgb
+from silfit.io.keypoints import read_keypoints
 
 BINS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.6, 1.01)
 
@@ -123,7 +123,7 @@ def compare_seed(seed: int, n: int, size: int, poses: str, batch: int, weights: 
     from silfit.fitting import KeypointFitter, KeypointFitConfig
     from silfit.fitting.image_depth import cue_from_image
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
-    from silfit.image_fit import refine_batch
+    from silfit.fitting.image_fit import refine_batch
     from silfit.eval.metrics import pa_pve
     from silfit.silhouette.masks import read_mask
     from silfit.synth.generate import SynthConfig, generate_dataset

@@ -107,7 +107,7 @@ def main() -> None:
     )
     args = ap.parse_args()
 
-    from silfit import figures
+    from silfit.outputs import figures
     from silfit.body import load_body_model
     from silfit.camera import project_points
     from silfit.detect import DetectConfig
@@ -115,8 +115,8 @@ def main() -> None:
     from silfit.errors import InputError
     from silfit.fitting import KeypointFitter
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
-    from silfit.image_fit import refine
-    from silfit.plausibility import body_stature, check_keypoints, fit_warnings
+    from silfit.fitting.image_fit import refine
+    from silfit.fitting.plausibility import body_stature, check_keypoints, fit_warnings
 
     import torch
 

@@ -20,7 +20,7 @@ import time
 import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import numpy as np
 
-from silfit.safe_pickle import RestrictedUnpickler, _check_bounds
+from silfit.io.safe_pickle import RestrictedUnpickler, _check_bounds
 
 
 def smpl_sized(seed: int = 0) -> dict:

@@ -94,8 +94,8 @@ def bench_basic(args) -> bool:
     sizes = [int(s) for s in args.sizes.split(",")]
     spps = [int(s) for s in args.spp.split(",")]
 
-    from renderers import SilhouetteRenderer, render_mesh
-    from renderers.silhouette import roi_window
+    from silfit.render import SilhouetteRenderer, render_mesh
+    from silfit.render.silhouette import roi_window
 
     verts, faces = body_vertices()
     renderer = SilhouetteRenderer(faces, edge_spp=1)
@@ -160,7 +160,7 @@ def bench_basic(args) -> bool:
 def library_subjects(n: int, size: int = 128, step: int = 3):
     """``n`` posed bodies (library poses, turned a little) and 128 px windows around them."""
     import silfit
-    from renderers.silhouette import roi_window
+    from silfit.render.silhouette import roi_window
     from silfit.camera import Camera
     from silfit.synth.poses import POSE_LIBRARY
 
@@ -187,8 +187,8 @@ def soft_iou(a, b) -> float:
 
 
 def bench_proxy(args) -> None:
-    from renderers.proxy import get_proxy
-    from renderers.silhouette import SilhouetteRenderer
+    from silfit.render.proxy import get_proxy
+    from silfit.render.silhouette import SilhouetteRenderer
 
     model, verts, cams128 = library_subjects(13, 128)
     _, _, cams256 = library_subjects(13, 256)
@@ -240,8 +240,8 @@ def _time_single(renderer, v, cam, repeats, spp=4):
 
 
 def bench_batch(args) -> None:
-    from renderers.batch import BatchSilhouetteRenderer
-    from renderers.proxy import DEFAULT_PROXY_FACES, get_proxy
+    from silfit.render.batch import BatchSilhouetteRenderer
+    from silfit.render.proxy import DEFAULT_PROXY_FACES, get_proxy
 
     batches = [int(x) for x in args.batches.split(",")]
     model, verts, cams = library_subjects(max(batches))
@@ -295,9 +295,9 @@ def bench_batch(args) -> None:
 
 
 def bench_breakdown(args) -> None:
-    from renderers.batch import BatchSilhouetteRenderer, _canonical_camera
-    from renderers.proxy import DEFAULT_PROXY_FACES, get_proxy
-    from renderers.silhouette import to_canonical
+    from silfit.render.batch import BatchSilhouetteRenderer, _canonical_camera
+    from silfit.render.proxy import DEFAULT_PROXY_FACES, get_proxy
+    from silfit.render.silhouette import to_canonical
 
     model, verts, cams = library_subjects(8)
     proxy = get_proxy(model.v_template, model.faces, DEFAULT_PROXY_FACES)
@@ -327,7 +327,7 @@ def bench_breakdown(args) -> None:
         if len(vs) == 1:
             renderer, cam, mapped = br.single, cs[0], to_canonical(vs[0], cs[0])
         else:
-            from renderers.batch import tile_layout
+            from silfit.render.batch import tile_layout
 
             layout = tile_layout(cs, br.gap)
             renderer = br._tiled_renderer(len(vs))

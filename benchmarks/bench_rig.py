@@ -43,8 +43,8 @@ from silfit.eval.score_rig import score_rig_fit, subset_truth
 from silfit.fitting.keypoint_stage import KeypointFitConfig, KeypointFitter
 from silfit.fitting.problem import Problem
 from silfit.fitting.rig_fit import fit_rig_keypoints, rig_problem
-from silfit.rig import load_rig
-from silfit.rig_pipeline import refine_rig_fits
+from silfit.io.rig import load_rig
+from silfit.fitting.rig_pipeline import refine_rig_fits
 from silfit.synth.generate import SynthConfig
 from silfit.synth.camera_rigs import RigConfig, generate_rig_dataset
 

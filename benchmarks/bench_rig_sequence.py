@@ -38,7 +38,7 @@ def main(argv=None):
     from silfit import load_body_model
     from silfit.eval.score_sequence import score_sequence
     from silfit.fitting.sequence import fit_sequence
-    from silfit.video import load_rig_sequence
+    from silfit.io.video import load_rig_sequence
     from silfit.synth.motion import SequenceConfig, generate_sequence_dataset
 
     model = load_body_model()

@@ -70,7 +70,7 @@ def main(argv=None):
     from silfit.fitting.keypoint_stage import _check_torso
     from silfit.fitting.sequence import fit_sequence, interpolate_frames
     from silfit.synth.motion import SequenceConfig, generate_sequence_dataset
-    from silfit.video import read_sequence
+    from silfit.io.video import read_sequence
 
     model = load_body_model()
     root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="bench_seq_"))
@@ -207,7 +207,7 @@ def silhouette_benchmark(model, root, records, frames, config):
     from silfit.eval.score_sequence import score_sequence
     from silfit.fitting.sequence import fit_sequence, refine_sequence_silhouettes
     from silfit.silhouette.masks import read_mask
-    from silfit.video import read_sequence
+    from silfit.io.video import read_sequence
 
     rows = {"keypoints (temporal)": [], "+ silhouette, temporal terms": [], "+ silhouette, no temporal terms": []}
     for rec in records:

@@ -85,7 +85,7 @@ def main(argv=None):
     from silfit.camera import load_camera
     from silfit.fitting.sequence import fit_sequence
     from silfit.synth.motion import SequenceConfig, generate_sequence_dataset
-    from silfit.video import read_sequence
+    from silfit.io.video import read_sequence
 
     model = load_body_model()
     motions = tuple(args.motions.split(","))

@@ -124,8 +124,8 @@ def runtime(name):
     """Method ``name``'s runtime: before issue 24's runtime part for :data:`OLD_RUNTIME` (no vertex-gradient
     shortcut, no kept bodies), else today's."""
     global DRJIT_POOL
-    from renderers._llvm import import_mitsuba
-    from renderers.raycast import RaycastScene
+    from silfit.render._llvm import import_mitsuba
+    from silfit.render.raycast import RaycastScene
     from silfit.fitting import silhouette_stage
     from silfit.silhouette import losses
 
@@ -162,7 +162,7 @@ def renderer_for(model, name):
     options = RENDERERS.get(name)
     if options is None:
         return None
-    from renderers.proxy import ProxySilhouetteRenderer, get_proxy
+    from silfit.render.proxy import ProxySilhouetteRenderer, get_proxy
 
     cfg = METHODS[name]()
     return ProxySilhouetteRenderer(get_proxy(model.v_template, model.faces, int(cfg.proxy_faces)), **options)
@@ -176,7 +176,7 @@ def body(model, params):
 
 
 def single_scores(model, params, s) -> dict:
-    from renderers.offscreen import render_mask
+    from silfit.render.offscreen import render_mask
     from silfit.eval.metrics import mask_iou, pa_pve, pve
 
     V, J = body(model, params)
@@ -221,7 +221,7 @@ def table(title, rows, unit="image"):
 
 
 def run_single(model, n, seed, size, methods):
-    from silfit.dataset import list_subjects, load_subject
+    from silfit.io.subjects import list_subjects, load_subject
     from silfit.fitting import KeypointFitter
     from silfit.synth import generate_dataset
     from silfit.synth.generate import SynthConfig
@@ -275,7 +275,7 @@ def run_rig(model, n, seed, size, methods):
     from silfit.fitting.keypoint_stage import KeypointFitter
     from silfit.fitting.problem import Problem
     from silfit.fitting.rig_fit import fit_rig_keypoints, rig_problem
-    from silfit.rig import load_rig
+    from silfit.io.rig import load_rig
     from silfit.synth.generate import SynthConfig
     from silfit.synth.camera_rigs import RigConfig, generate_rig_dataset
     from dataclasses import replace
@@ -339,8 +339,8 @@ def run_step(model, methods, resolutions=(128, 256), repeats=15):
     """One rendered step of each level (render + backward of a weighted coverage sum, the level's default
     render proxy, a window of the level's size around a standing body, the stage's torch threads) per method,
     methods interleaved: median milliseconds and edge points per call (the methods' ``edge_density``)."""
-    from renderers.proxy import get_proxy
-    from renderers.silhouette import get_silhouette_renderer, roi_window
+    from silfit.render.proxy import get_proxy
+    from silfit.render.silhouette import get_silhouette_renderer, roi_window
     from silfit.camera import Camera
     from silfit.fitting.threads import torch_threads
 
@@ -390,7 +390,7 @@ def run_kornia(size=512, repeats=5):
     """kornia's distance transform against OpenCV's exact Euclidean one on a body mask."""
     import cv2
 
-    from renderers.offscreen import render_mask
+    from silfit.render.offscreen import render_mask
     from silfit.camera import Camera
 
     model = load_body_model()
@@ -434,7 +434,7 @@ def run_video(model, frames, seed, size, methods):
     from silfit.fitting.sequence import fit_sequence, refine_sequence_silhouettes
     from silfit.silhouette.masks import read_mask
     from silfit.synth.motion import SequenceConfig, generate_sequence_dataset
-    from silfit.video import read_sequence
+    from silfit.io.video import read_sequence
 
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
@@ -506,7 +506,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     global BASE, DRJIT_POOL
     BASE = args.base
-    from renderers._llvm import import_mitsuba
+    from silfit.render._llvm import import_mitsuba
 
     DRJIT_POOL = args.drjit_threads or import_mitsuba()[1].thread_count()
     methods = [m for m in args.methods.split(",") if m]

@@ -43,12 +43,12 @@ import torch
 
 from silfit import load_body_model
 from silfit.camera import Camera, load_camera, project_points
-from silfit.dataset import read_gt, read_mask
+from silfit.io.subjects import read_gt, read_mask
 from silfit.eval.metrics import procrustes_align
 from silfit.fitting import KeypointFitter
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig
-from silfit.keypoints import KeypointSet, read_keypoints
-from silfit.image_fit import refine_batch
+from silfit.io.keypoints import KeypointSet, read_keypoints
+from silfit.fitting.image_fit import refine_batch
 
 
 def cut_subject(d: Path):
@@ -101,7 +101,7 @@ def leak(mask: np.ndarray, kp: KeypointSet, holes: int = 3) -> np.ndarray:
 def detected(d: Path):
     """(keypoints, mask) of subject folder ``d`` from :func:`silfit.detect.detect_people` on its
     rendered image, or ``None`` when nobody is found."""
-    from silfit.dataset import read_image
+    from silfit.io.subjects import read_image
     from silfit.detect import DetectionError, detect_people
 
     try:

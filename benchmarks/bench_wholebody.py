@@ -48,7 +48,7 @@ def run_wholebody_benchmark(n=30, seed=41, noise=2.0, size=512, batch=16, single
     from silfit.eval.metrics import pa_pve
     from silfit.fitting.keypoint_stage import KeypointFitter
     from silfit.synth.generate import SynthConfig, generate_dataset
-    from silfit.wholebody import WholeBodyKeypoints, read_wholebody
+    from silfit.io.wholebody import WholeBodyKeypoints, read_wholebody
 
     smplx, smpl = load_body_model(kind="smplx"), load_body_model()
     root = Path(keep) if keep else Path(tempfile.mkdtemp(prefix="bench_wb_"))

@@ -48,7 +48,7 @@ def rss_mb() -> float:
 
 
 def soak_renders(model, n: int, size: int, every: int, rows: list) -> None:
-    from renderers import SilhouetteRenderer
+    from silfit.render import SilhouetteRenderer
     from silfit.camera import Camera
 
     renderer = SilhouetteRenderer(model.faces, spp=4, edge_spp=1)
@@ -78,7 +78,7 @@ def soak_fits(model, n: int, iters_scale: float, every: int, rows: list, save: b
 
     import silfit
     from silfit.fitting import KeypointFitConfig
-    from silfit.keypoints import KeypointSet
+    from silfit.io.keypoints import KeypointSet
 
     cfg = KeypointFitConfig()
     if iters_scale != 1:

@@ -32,12 +32,12 @@ _EXPORTS = {
     "Camera": "camera",
     "KeypointFitResult": "fitting",
     "fit_keypoints": "fitting",
-    "FitResult": "image_fit",
+    "FitResult": "fitting.image_fit",
     "fit": "run",
-    "save_fit": "image_fit",
+    "save_fit": "fitting.image_fit",
     "fit_sequence": "fitting.sequence",
-    "read_sequence": "video",
-    "save_sequence_fit": "video",
+    "read_sequence": "io.video",
+    "save_sequence_fit": "io.video",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__"]
@@ -51,6 +51,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from .camera import Camera
     from .fitting import KeypointFitResult, fit_keypoints
     from .fitting.sequence import fit_sequence
-    from .image_fit import FitResult, save_fit
+    from .fitting.image_fit import FitResult, save_fit
     from .run import fit
-    from .video import read_sequence, save_sequence_fit
+    from .io.video import read_sequence, save_sequence_fit

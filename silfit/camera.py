@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from .errors import InputError, quoted
-from .input_limits import image_size_problem, read_json
+from .io.limits import image_size_problem, read_json
 
 __all__ = [
     "Camera",

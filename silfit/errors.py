@@ -27,7 +27,7 @@ QUOTE_CHARS = 24
 
 # Every bad input silfit reports is an InputError: files and fields (here), command-line
 # options (silfit.cli.CLIError is this class), dataset inputs (silfit.runner), subject
-# folders (silfit.dataset.SubjectError) and photos with nobody in them
+# folders (silfit.io.subjects.SubjectError) and photos with nobody in them
 # (silfit.detect.DetectionError) are subclasses or the class itself.
 
 
@@ -52,7 +52,7 @@ class SystemLibraryError(RuntimeError):
 
 class UnsafeFileError(InputError):
     """A file asked to run code or build an object silfit does not allow (a pickle
-    naming a class outside the allow-list of :mod:`silfit.safe_pickle`)."""
+    naming a class outside the allow-list of :mod:`silfit.io.safe_pickle`)."""
 
 
 def quoted(value, limit: int = QUOTE_CHARS) -> str:

@@ -15,8 +15,8 @@ Whole body (OpenPose's BODY_25 + 2 x 21 hand + 70 face points) on an SMPL-X-layo
   pupils (68 = right, 69 = left) at the eye joints (eyeball centres);
 * body: BODY_25.
 
-Readers and writers of keypoint files are in :mod:`silfit.keypoints` (body) and
-:mod:`silfit.wholebody` (whole body).
+Readers and writers of keypoint files are in :mod:`silfit.io.keypoints` (body) and
+:mod:`silfit.io.wholebody` (whole body).
 """
 
 from __future__ import annotations
@@ -165,7 +165,7 @@ BLAZEPOSE33_NAMES = (
 _HAND_POINTS = ("wrist",) + tuple(
     f"{f}{k}" for f in ("thumb", "index", "middle", "ring", "pinky") for k in (1, 2, 3, 4)
 )
-#: OpenPose's whole-body layout as one list (137 points, :mod:`silfit.wholebody`): BODY_25, the left and
+#: OpenPose's whole-body layout as one list (137 points, :mod:`silfit.io.wholebody`): BODY_25, the left and
 #: right hand (21 each, ``left_hand_wrist``, ``left_hand_thumb1`` ...), the face (``face_00`` .. ``face_67``,
 #: ``right_pupil``, ``left_pupil``); sources on an SMPL-X-layout model only.
 WHOLEBODY_NAMES = (

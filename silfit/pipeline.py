@@ -1,9 +1,9 @@
 """The names ``silfit.pipeline`` had before the one path (issue 26), kept for callers: one image's
-core is :mod:`silfit.image_fit`, the fit of anything is :func:`silfit.run.run`, and
+core is :mod:`silfit.fitting.image_fit`, the fit of anything is :func:`silfit.run.run`, and
 :func:`silfit.fit` (``silfit.pipeline.fit``) is :func:`silfit.run.fit`. Nothing inside silfit
 imports this module."""
 
-from .image_fit import (  # noqa: F401
+from .fitting.image_fit import (  # noqa: F401
     FitResult,
     StageFailure,
     body_mask,

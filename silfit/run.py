@@ -8,7 +8,7 @@
                     silhouette stage (where masks exist), the plausibility warnings, the metrics
       -> Fit        the one result type: shared and per-frame parameters, per-(frame, view)
                     reprojection error and IoU, metrics and warnings
-      -> write(fit, out)   the output folder (the fit file of silfit.fitio, meshes, pictures,
+      -> write(fit, out)   the output folder (the fit file of silfit.io.fit, meshes, pictures,
                     metrics.json), written atomically
 
 The number of frames and views decides the keypoint stage's core (one image:
@@ -29,7 +29,7 @@ import numpy as np
 
 from .errors import InputError, interruption
 from .fitting.problem import Observation, Problem
-from .image_fit import StageFailure
+from .fitting.image_fit import StageFailure
 
 __all__ = ["Job", "Fit", "StageFailure", "check", "fit", "run", "run_batch", "write", "image_job", "video_job"]
 
@@ -45,7 +45,7 @@ class Job:
     findings, carried into the result; ``record`` is copied into ``metrics.json`` (the input
     files, the camera's source, the model); ``images`` maps ``(frame, view)`` to an RGB image
     for the pictures; ``inputs`` is the reader's own object where a writer needs more (a
-    video's :class:`~silfit.video.SequenceInput`); ``rig`` marks views of a calibrated rig
+    video's :class:`~silfit.io.video.SequenceInput`); ``rig`` marks views of a calibrated rig
     (world coordinates; with one view too)."""
 
     problem: Problem
@@ -175,12 +175,12 @@ def _dedupe(items: Sequence[str]) -> List[str]:
 
 def check(job: Job) -> Job:
     """The checks every input gets, before anything is fitted (and all ``--check-only`` runs):
-    each observation's keypoints through :func:`silfit.plausibility.check_keypoints` (points far
+    each observation's keypoints through :func:`silfit.fitting.plausibility.check_keypoints` (points far
     outside the image dropped, degenerate sets refused). A refused set is an error for one
     image; a rig sets that view aside (a warning; an error if no view is left); a video fits
     that frame as one without a detection (bridged from its neighbours). Returns the job with
     the checked keypoints and the findings added to ``warnings``."""
-    from .plausibility import check_frames, check_keypoints
+    from .fitting.plausibility import check_frames, check_keypoints
 
     grid = job.problem.grid()
     F, C = len(grid), len(grid[0])
@@ -260,7 +260,7 @@ def run_batch(jobs: Sequence[Job], isolate: bool = False) -> List[Union[Fit, Exc
     model and settings go through the keypoint stage as one batch and through the silhouette
     stage as one batch (as ``fit-dataset`` and ``eval`` feed them); rigs and videos one by one.
     With ``isolate``, a job that fails (its checks, or a stage:
-    :class:`~silfit.image_fit.StageFailure`) gets its error in its place and the others go on;
+    :class:`~silfit.fitting.image_fit.StageFailure`) gets its error in its place and the others go on;
     without, the first error raises."""
     out: List[Union[Fit, Exception, None]] = [None] * len(jobs)
     checked: Dict[int, Job] = {}
@@ -326,8 +326,8 @@ def _params_per_frame(params: dict, F: int) -> Dict[str, np.ndarray]:
 
 
 def _run_images(jobs: Sequence[Job], isolate: bool) -> list:
-    """One-image jobs of one layout, model and settings, batched (:func:`silfit.image_fit.fit_problems`)."""
-    from .image_fit import fit_problems
+    """One-image jobs of one layout, model and settings, batched (:func:`silfit.fitting.image_fit.fit_problems`)."""
+    from .fitting.image_fit import fit_problems
 
     first = jobs[0]
     obs = [job.problem.observations[0] for job in jobs]
@@ -371,9 +371,9 @@ def _run_images(jobs: Sequence[Job], isolate: bool) -> list:
 
 
 def _run_rigs(jobs: Sequence[Job], isolate: bool) -> list:
-    """Rig jobs of one layout, model and settings, batched (:func:`silfit.rig_pipeline.fit_rigs`);
+    """Rig jobs of one layout, model and settings, batched (:func:`silfit.fitting.rig_pipeline.fit_rigs`);
     isolated: a failing batch again job by job."""
-    from .rig_pipeline import fit_rigs
+    from .fitting.rig_pipeline import fit_rigs
 
     first = jobs[0]
     try:
@@ -424,7 +424,7 @@ def _video_depth_cues(job: Job, frames) -> tuple:
     numbers = list(job.frame_numbers) if job.frame_numbers is not None else list(range(len(frames)))
     if not weight or not (job.images or paths):
         return None, None
-    from .imagefile import read_rgb
+    from .io.images import read_rgb
 
     cues, records = [None] * len(frames), ["none"] * len(frames)
     for f, (ks, number) in enumerate(zip(frames, numbers)):
@@ -455,7 +455,7 @@ def _video_warnings(job: Job, result, frames, vertices, errors: np.ndarray, numb
     each frame's plausibility warnings (:func:`frame_warnings`)."""
     warnings = list(result.warnings)
     if rig:  # a view the fit could not agree with (the rule of one frame's rig, on each view's median)
-        from .rig_pipeline import disagreeing_views
+        from .fitting.rig_pipeline import disagreeing_views
 
         medians = [float(np.median(e[np.isfinite(e)])) if np.isfinite(e).any() else float("nan") for e in errors.T]
         warnings += disagreeing_views(list(job.view_names), medians)
@@ -544,10 +544,10 @@ def _run_video(job: Job) -> Fit:
 
 
 def frame_warnings(frames, vertices, errors, numbers) -> List[str]:
-    """One image's plausibility warnings (:func:`silfit.plausibility.fit_warnings`: depth,
+    """One image's plausibility warnings (:func:`silfit.fitting.plausibility.fit_warnings`: depth,
     reprojection error against the person's extent) for every frame of a video, one line per
     kind of finding with the frames it concerns."""
-    from .plausibility import fit_warnings
+    from .fitting.plausibility import fit_warnings
 
     kinds: Dict[str, list] = {}
     for f, ks in enumerate(frames):
@@ -582,7 +582,7 @@ def write(
     video: bool = True,
     fps: float = 30.0,
 ) -> Path:
-    """Write a fit's output folder atomically (the fit file of :mod:`silfit.fitio`, the mesh(es),
+    """Write a fit's output folder atomically (the fit file of :mod:`silfit.io.fit`, the mesh(es),
     pictures, ``metrics.json``); ``exports`` (``"glb"``, ``"ply"``) adds upright meshes for
     other tools (not for rigs: a rig's world frame has no fixed up axis); ``meshes``, ``video``
     and ``fps`` are a video's (one OBJ per frame, the overlay GIF, its frame rate)."""
@@ -592,7 +592,7 @@ def write(
     extra = {k: v for k, v in fit.metrics.items() if k in job.record}
     extra["warnings"] = list(fit.warnings)
     if job.mode == "image":
-        from .image_fit import save_fit
+        from .fitting.image_fit import save_fit
 
         o = job.problem.observations[0]
         return save_fit(
@@ -607,7 +607,7 @@ def write(
             exports=exports,
         )
     if job.mode == "rig":
-        from .rig_pipeline import save_rig_fit
+        from .fitting.rig_pipeline import save_rig_fit
 
         if exports:
             raise InputError(
@@ -615,7 +615,7 @@ def write(
             )
         images = {job.view_names[c]: img for (f, c), img in job.images.items()}
         return save_rig_fit(fit.stage, out, faces, job.problem, images, extra, overwrite=overwrite, model=model)
-    from .video import save_sequence_fit
+    from .io.video import save_sequence_fit
 
     return save_sequence_fit(
         fit.stage,
@@ -648,7 +648,7 @@ def fit(
     progress: bool = False,
     image: Optional[np.ndarray] = None,
 ):
-    """Fit SMPL to one image (a :class:`~silfit.image_fit.FitResult`): keypoints (a :class:`KeypointSet` or ``[K, 3]`` array), then,
+    """Fit SMPL to one image (a :class:`~silfit.fitting.image_fit.FitResult`): keypoints (a :class:`KeypointSet` or ``[K, 3]`` array), then,
     if ``mask [H, W]`` (bool) is given, refine against the silhouette.
 
     ``camera`` or ``image_size=(W, H)`` (+ optional ``focal``) define the camera, as for
@@ -687,7 +687,7 @@ def image_job(
     progress: bool = False,
     image=None,
 ) -> Job:
-    """A job for one image: keypoints (a :class:`~silfit.keypoints.KeypointSet` or ``[K, 3]``
+    """A job for one image: keypoints (a :class:`~silfit.io.keypoints.KeypointSet` or ``[K, 3]``
     array), an optional ``mask [H, W]``, and ``camera`` or ``image_size=(W, H)`` (+ ``focal``)
     for the default camera."""
     from .camera import Camera
@@ -733,10 +733,10 @@ def video_job(
     warnings=(),
     record=None,
 ) -> Job:
-    """A job for one camera's video: ``frames`` one :class:`~silfit.keypoints.KeypointSet` (or
+    """A job for one camera's video: ``frames`` one :class:`~silfit.io.keypoints.KeypointSet` (or
     ``None``: no detection) per frame, ``masks`` one mask or ``None`` per frame, ``config`` a
     :class:`~silfit.fitting.sequence.SequenceFitConfig`; ``numbers`` the frame numbers and
-    ``inputs`` the reader's :class:`~silfit.video.SequenceInput` (for the writer's pictures)."""
+    ``inputs`` the reader's :class:`~silfit.io.video.SequenceInput` (for the writer's pictures)."""
     from .fitting.problem import View
 
     masks = list(masks) if masks is not None else [None] * len(frames)

@@ -104,7 +104,7 @@ def test_bad_camera_files_name_file_and_field(tmp_path, change, expect):
 
 
 def test_camera_size_limit_applies_to_every_camera():
-    from silfit.input_limits import MAX_IMAGE_SIDE
+    from silfit.io.limits import MAX_IMAGE_SIDE
 
     with pytest.raises(ValueError, match="larger than silfit accepts"):
         Camera.from_image_size(MAX_IMAGE_SIDE + 1, 10)

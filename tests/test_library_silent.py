@@ -16,10 +16,10 @@ import pytest
         ("silfit.fitting.keypoint_stage", "fit_keypoints"),
         ("silfit.fitting.keypoint_stage", "KeypointFitter.fit"),
         ("silfit.fitting.silhouette_stage", "fit_silhouette"),
-        ("silfit.image_fit", "refine"),
-        ("silfit.image_fit", "refine_batch"),
+        ("silfit.fitting.image_fit", "refine"),
+        ("silfit.fitting.image_fit", "refine_batch"),
         ("silfit.runner", "fit_dataset"),
-        ("silfit.demo", "run_demo"),
+        ("silfit.demos.body", "run_demo"),
     ],
 )
 def test_progress_is_off_by_default(where, name):
@@ -34,7 +34,7 @@ def test_progress_is_off_by_default(where, name):
 def test_a_library_fit_prints_nothing(capsys):
     import silfit
     from silfit.fitting import KeypointFitConfig
-    from silfit.keypoints import read_keypoints
+    from silfit.io.keypoints import read_keypoints
     from silfit.camera import read_camera_file
     from pathlib import Path
 

@@ -6,11 +6,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from silfit.dataset import load_subject
+from silfit.io.subjects import load_subject
 from silfit.errors import InputError
 from silfit.fitting import KeypointFitConfig
 from silfit.fitting.problem import Observation, Problem, View
-from silfit.keypoints import KeypointSet
+from silfit.io.keypoints import KeypointSet
 from silfit.run import Job, StageFailure, check, image_job, run, run_batch, video_job
 
 SHIPPED = Path(__file__).resolve().parents[1] / "data" / "synthetic"
@@ -153,7 +153,7 @@ def test_batches_with_the_same_settings_share_one_keypoint_fitter(open_model):
     settings, or the same settings object changed in place, get a fitter of their own."""
     from dataclasses import replace
 
-    from silfit.image_fit import _keypoint_fitter
+    from silfit.fitting.image_fit import _keypoint_fitter
 
     cfg = replace(FAST)
     first = _keypoint_fitter(open_model, "body25", cfg, None)

@@ -60,3 +60,70 @@ def test_the_length_check_sees_a_long_function(tmp_path):
     body = "".join(f"    x{i} = {i}\n" for i in range(MAX_FUNCTION_LINES))
     (tmp_path / "m.py").write_text("def short():\n    return 1\n\n\ndef long():\n" + body)
     assert long_functions(tmp_path) == [f"{tmp_path.name}/m.py:5 long ({MAX_FUNCTION_LINES + 1})"]
+
+
+def private_imports(root: Path = ROOT / "silfit") -> list:
+    """``path:line module.name`` of every ``from module import _name`` in ``root``: another module's private name."""
+    found = []
+    for p in sorted(root.rglob("*.py")):
+        for node in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom):
+                for alias in node.names:
+                    if alias.name.startswith("_") and not alias.name.startswith("__"):
+                        found.append(f"{p.relative_to(root.parent)}:{node.lineno} {node.module}.{alias.name}")
+    return found
+
+
+def test_no_import_of_another_modules_private_name():
+    assert not private_imports(), private_imports()
+
+
+def test_the_private_import_check_sees_one(tmp_path):
+    (tmp_path / "m.py").write_text("from .other import _hidden, shown\n")
+    assert private_imports(tmp_path) == [f"{tmp_path.name}/m.py:1 other._hidden"]
+
+
+def test_one_installed_package_with_few_top_level_modules():
+    """The layout shows the flow (issue 57): one top-level package, its top level a handful of modules, the rest in
+    packages by role (io, fitting, outputs, render, ...)."""
+    import tomllib
+
+    find = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]["find"]
+    assert find["include"] == ["silfit*"]
+    top = sorted(p.name for p in (ROOT / "silfit").glob("*.py"))
+    assert len(top) <= 10, top
+
+
+def _module_exists(dotted: str) -> bool:
+    p = ROOT.joinpath(*dotted.split("."))
+    return p.with_suffix(".py").is_file() or (p / "__init__.py").is_file()
+
+
+def unresolved_imports(root: Path = ROOT) -> list:
+    """``path:line module`` of every import of a silfit module (absolute or relative, at module level or inside a
+    function, where only running it would find a wrong one) whose module is not in the tree."""
+    found = []
+    for top in ("silfit", "tests", "benchmarks", "tools"):
+        for p in sorted((root / top).rglob("*.py")):
+            package = list(p.relative_to(root).with_suffix("").parts[:-1])
+            for node in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.ImportFrom):
+                    if node.level:
+                        base = package[: len(package) - node.level + 1]
+                        names = [".".join(base + ([node.module] if node.module else []))]
+                    else:
+                        names = [node.module or ""]
+                elif isinstance(node, ast.Import):
+                    names = [a.name for a in node.names]
+                else:
+                    continue
+                found += [
+                    f"{p.relative_to(root)}:{node.lineno} {m}"
+                    for m in names
+                    if m.split(".")[0] == "silfit" and not _module_exists(m)
+                ]
+    return found
+
+
+def test_every_silfit_import_resolves():
+    assert not unresolved_imports(), unresolved_imports()

@@ -21,7 +21,7 @@ sys.path.insert(0, str(ROOT))
 import silfit  # noqa: E402, F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import numpy as np  # noqa: E402
 
-from silfit.dataset import save_npz  # noqa: E402
+from silfit.io.subjects import save_npz  # noqa: E402
 from silfit.priors.library_prior import BUILD_DEFAULTS, build_library_mixture, split_library  # noqa: E402
 
 

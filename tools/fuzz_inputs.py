@@ -74,7 +74,7 @@ def valid_inputs(d: Path) -> dict:
     from PIL import Image
 
     from silfit.camera import Camera, project_points
-    from silfit.keypoints import model_keypoints
+    from silfit.io.keypoints import model_keypoints
     from silfit_toy_body import toy_model, write_toy_npz
 
     model_path = write_toy_npz(d / "toy.npz")

@@ -36,7 +36,7 @@ def main() -> None:
     import torch
 
     from silfit import fit_keypoints, load_body_model
-    from silfit.dataset import list_subjects, load_subject
+    from silfit.io.subjects import list_subjects, load_subject
     from silfit.fitting import KeypointFitConfig
 
     root = Path(__file__).resolve().parents[1]

@@ -16,11 +16,11 @@ import numpy as np
 import torch
 from PIL import Image, ImageDraw
 
-from renderers.offscreen import render_mesh
+from silfit.render.offscreen import render_mesh
 from silfit.body import load_body_model
 from silfit.camera import Camera, project_points
 from silfit.synth.hands import HAND_LIBRARY, hand_axes, hand_pose_to_axis_angle
-from silfit.wholebody import wholebody_keypoints
+from silfit.io.wholebody import wholebody_keypoints
 
 TILE = 220
 TOP = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])  # camera axes (rows) in body axes: looking down

@@ -43,7 +43,7 @@ def main(argv=None) -> int:
     parser.add_argument("--check", action="store_true", help="only compare; exit 1 when they differ")
     parser.add_argument("--readme", default=str(ROOT / "README.md"))
     args = parser.parse_args(argv)
-    from silfit.demo import report_table, run_demo
+    from silfit.demos.body import report_table, run_demo
 
     if args.source:
         report = json.loads((Path(args.source) / "report.json").read_text())

@@ -28,9 +28,9 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", default="1", help="Dr.Jit threads for the renderer, or 'none'")
     args = ap.parse_args(argv)
 
-    from renderers.silhouette import SilhouetteRenderer
+    from silfit.render.silhouette import SilhouetteRenderer
     from silfit import load_body_model
-    from silfit.dataset import load_subject
+    from silfit.io.subjects import load_subject
     from silfit.eval.metrics import pa_mpjpe
     from silfit.fitting import KeypointFitConfig, fit_keypoints
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig, fit_silhouette

@@ -1,7 +1,7 @@
 """Reading body-model files: official SMPL ``.pkl``/``.npz`` and the shipped open model.
 
 The official SMPL pickles were written with chumpy (a Python 2 autodiff library)
-inside. They are read with :mod:`silfit.safe_pickle`'s restricted unpickler, which
+inside. They are read with :mod:`silfit.io.safe_pickle`'s restricted unpickler, which
 allows only numpy arrays, scipy sparse matrices and chumpy classes (replaced by
 stand-ins that keep the pickled state, so the arrays can be read without chumpy
 installed) and refuses any other class before it runs. Sparse joint regressors are
@@ -19,7 +19,7 @@ from typing import Optional, Union
 import numpy as np
 
 from ..errors import InputError
-from ..safe_pickle import load_npz, load_pickle, to_numpy
+from ..io.safe_pickle import load_npz, load_pickle, to_numpy
 
 __all__ = [
     "ModelArrays",

@@ -1,4 +1,4 @@
-"""``silfit demo``: fit a shipped synthetic subject end to end (see :mod:`silfit.demo`)."""
+"""``silfit demo``: fit a shipped synthetic subject end to end (see :mod:`silfit.demos.body`)."""
 
 from __future__ import annotations
 
@@ -32,14 +32,14 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..demo import run_demo
+    from ..demos.body import run_demo
 
     t0 = time.perf_counter()
     out = Path(args.out)
     if args.photo is not None:
         return _run_photo(args, out, t0)
     if args.whole_body:
-        from ..demo_wholebody import run_wholebody_demo
+        from ..demos.wholebody import run_wholebody_demo
 
         demo, label, first = run_wholebody_demo, "silfit demo --whole-body", "closeups.png"
     else:

@@ -3,8 +3,8 @@ video), refined against the person's silhouettes.
 
 The flags make a job (:mod:`silfit.cli.jobs`), :func:`silfit.run.run` fits it and
 :func:`silfit.run.write` writes the output folder into ``--out`` atomically (a failed run
-leaves no half-written output): the one image's folder of :mod:`silfit.image_fit`, the rig's
-of :mod:`silfit.rig_pipeline`, the video's of :func:`silfit.video.save_sequence_fit`.
+leaves no half-written output): the one image's folder of :mod:`silfit.fitting.image_fit`, the rig's
+of :mod:`silfit.fitting.rig_pipeline`, the video's of :func:`silfit.io.video.save_sequence_fit`.
 """
 
 from __future__ import annotations
@@ -278,7 +278,7 @@ def _run_people(args) -> int:
         raise CLIError("--people all is for one photo (--image); not with --sequence or --rig")
     from ..detect import DetectConfig
     from ..detect.output import detect_photo
-    from ..outfolder import atomic_folder
+    from ..outputs.folder import atomic_folder
     from ..run import check, run_batch, write
     from .jobs import build_job, describe_inputs
 

@@ -1,7 +1,7 @@
 """``silfit fit``'s input builders: the command line's files and flags -> one
 :class:`silfit.run.Job` (one image or photo, a rig, a video). Each reads and checks its files
-(one reader per format: :mod:`silfit.keypoints`, :mod:`silfit.silhouette.masks`,
-:mod:`silfit.camera`, :mod:`silfit.rig`, :mod:`silfit.video`, :mod:`silfit.imagefile`) and
+(one reader per format: :mod:`silfit.io.keypoints`, :mod:`silfit.silhouette.masks`,
+:mod:`silfit.camera`, :mod:`silfit.io.rig`, :mod:`silfit.io.video`, :mod:`silfit.io.images`) and
 fits nothing; :func:`silfit.run.run` does the rest for all three.
 """
 
@@ -34,7 +34,7 @@ def _check_out(args) -> None:
 
 
 def _parse_size(text: str) -> tuple:
-    from ..input_limits import check_image_size
+    from ..io.limits import check_image_size
 
     try:
         w, h = (int(v) for v in text.lower().split("x"))
@@ -82,7 +82,7 @@ def build_job(args) -> Job:
     if args.sequence:
         return video_job(args)
     if getattr(args, "rig", None):
-        from ..video import is_rig_video
+        from ..io.video import is_rig_video
 
         return rig_video_job(args) if is_rig_video(args.rig) else rig_job(args)
     return image_job(args)
@@ -155,9 +155,9 @@ def _default_camera(args, photo, size) -> tuple:
 
 def _model_and_keypoints(args, person, keypoints) -> tuple:
     """``(model, keypoints)``: the body model (:func:`silfit.cli.common.choose_model`; whole-body keypoints pick
-    the whole-body model) and the keypoints it fits (:func:`silfit.wholebody.choose_fit_keypoints`), each
+    the whole-body model) and the keypoints it fits (:func:`silfit.io.wholebody.choose_fit_keypoints`), each
     choice's note said."""
-    from ..wholebody import choose_fit_keypoints, read_wholebody_parts
+    from ..io.wholebody import choose_fit_keypoints, read_wholebody_parts
 
     wholebody = read_wholebody_parts(args.keypoints, person) if args.keypoints else None
     model, model_note = choose_model(args.model, args.gender, wholebody is not None and wholebody.has_parts)
@@ -184,7 +184,7 @@ def _hypotheses_base(args):
 
 def image_job(args) -> Job:
     """One image (or photo: keypoints, mask and EXIF focal length detected when not given)."""
-    from ..keypoints import read_keypoints
+    from ..io.keypoints import read_keypoints
 
     if args.mask and args.no_silhouette:
         raise CLIError("--mask and --no-silhouette contradict each other")
@@ -227,14 +227,14 @@ def image_job(args) -> Job:
 
 
 def rig_job(args) -> Job:
-    """One body seen by a calibrated rig (:func:`silfit.rig.load_rig`: a ``cameras.json``
+    """One body seen by a calibrated rig (:func:`silfit.io.rig.load_rig`: a ``cameras.json``
     manifest, EasyMocap's ``intri.yml`` + ``extri.yml``, or one sub-folder per view with its
     ``camera.json``; each view holds ``keypoints.json`` and optionally ``mask.png`` and
     ``image.png``), fitted in world coordinates; ``--views`` picks cameras."""
     from ..errors import InputError
     from ..fitting.rig_fit import fit_keypoints_of
-    from ..imagefile import read_rgb
-    from ..rig import load_rig, select_views
+    from ..io.images import read_rgb
+    from ..io.rig import load_rig, select_views
     from ..silhouette.masks import read_mask
 
     for flag in ("keypoints", "mask", "camera", "focal", "image", "image_size"):
@@ -303,13 +303,13 @@ def _rig_model(args, keypoint_files, person):
 
 
 def rig_video_job(args) -> Job:
-    """A rig video: a rig folder whose views' folders are video folders (:func:`silfit.video.load_rig_sequence`:
+    """A rig video: a rig folder whose views' folders are video folders (:func:`silfit.io.video.load_rig_sequence`:
     the rig's cameras, each view's per-frame OpenPose JSON with optional ``masks/`` and ``images/``,
     frames matched across views by number), fitted over frames x views in the world frame."""
     from ..fitting.sequence import SequenceFitConfig
-    from ..video import load_rig_sequence
-    from ..rig_pipeline import read_rig_sequence_masks
-    from ..wholebody import choose_fit_keypoints, read_wholebody_parts
+    from ..io.video import load_rig_sequence
+    from ..fitting.rig_pipeline import read_rig_sequence_masks
+    from ..io.wholebody import choose_fit_keypoints, read_wholebody_parts
 
     for flag in ("keypoints", "mask", "camera", "focal", "image", "image_size", "masks", "images"):
         if getattr(args, flag, None):
@@ -367,7 +367,7 @@ def rig_video_job(args) -> Job:
 
 def _video_camera(args, seq):
     from ..camera import Camera, load_camera
-    from ..imagefile import image_file_size
+    from ..io.images import image_file_size
 
     if args.camera or seq.camera:
         path = args.camera or seq.camera
@@ -392,12 +392,12 @@ def _video_camera(args, seq):
 
 
 def video_job(args) -> Job:
-    """One person over a video's frames (:func:`silfit.video.read_sequence`: per-frame
+    """One person over a video's frames (:func:`silfit.io.video.read_sequence`: per-frame
     OpenPose JSON, masks and images matched by frame number, a ``camera.json`` beside)."""
     from ..fitting.sequence import SequenceFitConfig
     from ..silhouette.masks import read_mask
-    from ..video import read_sequence
-    from ..wholebody import choose_fit_keypoints, read_wholebody_parts
+    from ..io.video import read_sequence
+    from ..io.wholebody import choose_fit_keypoints, read_wholebody_parts
 
     for flag in ("keypoints", "mask", "image"):
         if getattr(args, flag, None):

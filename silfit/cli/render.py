@@ -1,7 +1,7 @@
 """``silfit render``: offscreen images of a fitted body or a mesh (pyrender on OSMesa).
 
 Input is a fit file (``params.npz`` / ``params.json`` of any mode, read with
-:func:`silfit.fitio.read_fit`; evaluated with the shipped open model of the kind the file
+:func:`silfit.io.fit.read_fit`; evaluated with the shipped open model of the kind the file
 records, or ``--model`` for the model file the fit was made with) or a mesh file (OBJ/PLY/...; read with trimesh). Vertices are drawn in the
 camera frame of the project's convention (OpenCV axes, see :mod:`silfit.camera`): a rig's
 world-frame fit is moved into its first view's camera frame. A video's fit draws frame
@@ -116,7 +116,7 @@ def load_vertices(args) -> tuple[list, np.ndarray, Optional[object]]:
     if suffix in (".npz", ".json"):
         import torch
 
-        from silfit.fitio import read_fit
+        from silfit.io.fit import read_fit
 
         if args.model:  # the file read once, checked against the model given
             model = fit_model(None, args.model)
@@ -149,14 +149,14 @@ def load_vertices(args) -> tuple[list, np.ndarray, Optional[object]]:
 
 
 def read_image(path: str) -> np.ndarray:
-    from silfit.imagefile import read_rgb
+    from silfit.io.images import read_rgb
 
     return read_rgb(path, "image")
 
 
 def write_png(path: Path, image: np.ndarray) -> None:
-    """The one PNG writer (:func:`silfit.dataset.write_png`: atomic, no partial file on error)."""
-    from silfit.dataset import write_png as write
+    """The one PNG writer (:func:`silfit.io.subjects.write_png`: atomic, no partial file on error)."""
+    from silfit.io.subjects import write_png as write
 
     write(path, image)
 
@@ -164,7 +164,7 @@ def write_png(path: Path, image: np.ndarray) -> None:
 def render_outputs(args) -> dict[str, np.ndarray]:
     """All requested images, keyed by file name (nothing is written here)."""
     from silfit.camera import Camera, load_camera
-    from renderers import offscreen
+    from silfit.render import offscreen
 
     size = parse_size(args.size)
     if args.turntable is not None and args.views:
@@ -193,7 +193,7 @@ def render_outputs(args) -> dict[str, np.ndarray]:
 
 def _pictures(args, vertices, faces, camera, background, size, overlay_camera) -> dict[str, np.ndarray]:
     """One frame's pictures, keyed by file name."""
-    from renderers import offscreen
+    from silfit.render import offscreen
 
     vertices, faces = offscreen.mesh_arrays(vertices, faces)
     if not np.any(vertices[:, 2] > 0):
@@ -220,7 +220,7 @@ def run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     for name, image in images.items():
         if name.endswith(".gif"):
-            from silfit.video import write_overlay_video
+            from silfit.io.video import write_overlay_video
 
             write_overlay_video(out / name, list(image), args.fps)
         else:

@@ -299,7 +299,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_rig(args, cfg, model, argv) -> int:
-    from ..rig import read_cameras_json
+    from ..io.rig import read_cameras_json
     from ..synth.camera_rigs import RigConfig, generate_rig_dataset
 
     if args.poses != "library":

@@ -41,10 +41,10 @@ def run_photo_demo(
     out: Path, photo_path: Optional[Path] = None, progress: bool = False, silhouette_config=None
 ) -> dict:
     """Detect, fit and draw (see the module docstring); returns the report."""
-    from .. import figures
+    from ..outputs import figures
     from ..body import load_body_model
-    from ..dataset import read_image
-    from ..image_fit import save_fit
+    from ..io.subjects import read_image
+    from ..fitting.image_fit import save_fit
     from ..run import fit
     from .output import detect_photo, save_detection
 

@@ -1,5 +1,5 @@
 """BlazePose's 33 landmarks (layout ``blazepose33``, defined with the others in
-:mod:`silfit.keypoints`, where their sources on the body model are) and their conversion
+:mod:`silfit.io.keypoints`, where their sources on the body model are) and their conversion
 to the other layouts silfit fits and writes (OpenPose BODY_25, COCO-17).
 
 BODY_25 from BlazePose: the 17 points both share are copied; ``mid_hip`` is the hips'
@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..keypoints import BLAZEPOSE33_NAMES, BODY25_NAMES, COCO17_NAMES
+from ..io.keypoints import BLAZEPOSE33_NAMES, BODY25_NAMES, COCO17_NAMES
 
 __all__ = ["BLAZEPOSE33_NAMES", "blazepose_to_layout", "LOWER_BODY"]
 

@@ -43,9 +43,9 @@ def detect_photo(path: os.PathLike, config: Optional[DetectConfig] = None) -> Tu
 def save_detection(
     out: os.PathLike, photo: Photo, people: List[Person], layout: str = "body25", overwrite: bool = False
 ) -> Path:
-    from ..dataset import write_png
-    from ..keypoints import write_openpose_json
-    from ..outfolder import atomic_folder
+    from ..io.subjects import write_png
+    from ..io.keypoints import write_openpose_json
+    from ..outputs.folder import atomic_folder
     from .draw import detection_overlay
 
     out = Path(out)

@@ -129,7 +129,7 @@ class Person:
         return blazepose_to_layout(self.xy, self.confidence(), layout)
 
     def keypoint_set(self, layout: str = "body25", source: str = "<detected>"):
-        from ..keypoints import KeypointSet
+        from ..io.keypoints import KeypointSet
 
         kp = self.keypoints(layout)
         return KeypointSet(kp[:, :2], kp[:, 2], layout, source=source)

@@ -76,7 +76,7 @@ def read_photo(path: os.PathLike) -> Photo:
     from PIL import Image, ImageOps, UnidentifiedImageError
 
     from ..errors import InputError
-    from ..imagefile import image_file_size, to_rgb8
+    from ..io.images import image_file_size, to_rgb8
 
     source = os.fspath(path)
     if not os.path.isfile(source):

@@ -43,10 +43,10 @@ import numpy as np
 import torch
 
 from ..camera import Camera, project_points
-from ..dataset import SUBJECT_FILES, SubjectError, list_subjects, load_subject
-from ..fitio import PARAM_SIZES as PARAM_FIELDS
-from ..fitio import read_fit as read_fit_file
-from ..keypoints import model_keypoints
+from ..io.subjects import SUBJECT_FILES, SubjectError, list_subjects, load_subject
+from ..io.fit import PARAM_SIZES as PARAM_FIELDS
+from ..io.fit import read_fit as read_fit_file
+from ..io.keypoints import model_keypoints
 from .metrics import mask_iou, mpjpe, pa_mpjpe, pa_pve, pve, reprojection_error, shape_pve, translation_error
 
 __all__ = [
@@ -113,7 +113,7 @@ class FitParams:
 
 # ----------------------------------------------------------------------------- reading fits
 def read_fit(folder: os.PathLike, model=None) -> FitParams:
-    """Read ``params.npz`` (with :func:`silfit.fitio.read_fit`; the parameters of ``model``, default
+    """Read ``params.npz`` (with :func:`silfit.io.fit.read_fit`; the parameters of ``model``, default
     SMPL's) + ``metrics.json`` / ``params.json`` timings of one fit folder."""
     folder = Path(folder)
     sizes = None if model is None else {**model.parameter_sizes, "betas": None}
@@ -231,7 +231,7 @@ def score_fit(model, subject, fit: FitParams, iou: bool = True) -> Dict[str, flo
 
     if iou and subject.mask is not None:
         try:
-            from renderers.offscreen import render_mask
+            from silfit.render.offscreen import render_mask
 
             cam = camera if (camera.width, camera.height) == subject.mask.shape[::-1] else subject.camera
             m["iou"] = mask_iou(render_mask(verts.astype(np.float32), model.faces.cpu().numpy(), cam), subject.mask)
@@ -283,7 +283,7 @@ def _fit_keypoint_sets(subjects: Sequence, model) -> list:
     from ..fitting import prepare_keypoints
 
     if getattr(model, "kind", "smpl") == "smplx":  # whole-body: hands and face from the same files
-        from ..wholebody import choose_fit_keypoints, read_wholebody_parts
+        from ..io.wholebody import choose_fit_keypoints, read_wholebody_parts
 
         return [
             choose_fit_keypoints(s.keypoints, read_wholebody_parts(s.file("keypoints"), 0), model)[0] for s in subjects
@@ -312,7 +312,7 @@ def _fitter_jobs(sets: list, subjects: Sequence, methods: Sequence[str], model, 
 def _failed_keypoint_stage(fits: list) -> dict:
     """``{subject number: error}`` of the subjects whose keypoints were refused (silfit.run.check) or whose keypoint
     stage failed (a failed silhouette stage keeps its keypoint fit)."""
-    from ..image_fit import StageFailure
+    from ..fitting.image_fit import StageFailure
 
     return {
         i: (f.error if isinstance(f, StageFailure) else f)
@@ -340,7 +340,7 @@ def _search_records(subjects: Sequence, sets: list, fits: list, bad: dict, model
 
 def _write_keypoint_fits(subjects: Sequence, fits: list, bad: dict, fits_root, batched_over: int, search: list):
     """Each subject's keypoint fit into ``fits_root/<subject>/keypoints/`` (written beside its place, then moved in)."""
-    from ..outfolder import atomic_folder
+    from ..outputs.folder import atomic_folder
 
     for i, s in enumerate(subjects):  # each fit folder is written beside its place, then moved in
         if i in bad:
@@ -359,7 +359,7 @@ def _write_keypoint_fits(subjects: Sequence, fits: list, bad: dict, fits_root, b
 
 def _write_silhouette_fits(subjects: Sequence, fits: list, bad: dict, sets: list, fits_root, model, search) -> str:
     """Each subject's silhouette fit into ``fits_root/<subject>/silhouette/``; returns the method's status."""
-    from ..image_fit import StageFailure, save_fit
+    from ..fitting.image_fit import StageFailure, save_fit
 
     faces = model.faces.cpu().numpy()
     ran, failed = 0, []
@@ -433,7 +433,7 @@ def run_fitter(
 
 def _keypoint_result(fit):
     """The keypoint stage's result of a :class:`silfit.run.Fit` (or of a failed silhouette stage)."""
-    from ..image_fit import StageFailure
+    from ..fitting.image_fit import StageFailure
 
     return (fit.partial if isinstance(fit, StageFailure) else fit.stage).keypoint
 
@@ -514,7 +514,7 @@ def evaluate_dataset(
 
 def _whole_body_dataset(subject_dirs) -> bool:
     """The first subject's keypoint file holds hand or face points (OpenPose whole-body JSON)."""
-    from ..wholebody import read_wholebody_parts
+    from ..io.wholebody import read_wholebody_parts
 
     for d in subject_dirs[:1]:
         try:

@@ -21,9 +21,9 @@ from typing import List, Optional, Sequence
 import numpy as np
 import torch
 
-from ..dataset import read_index
-from ..fitio import read_fit
-from ..keypoints import model_keypoints
+from ..io.subjects import read_index
+from ..io.fit import read_fit
+from ..io.keypoints import model_keypoints
 from .evaluate import METRICS, facing_agrees, find_fits, markdown_table, summarise  # noqa: F401  (markdown_table: re-exported)
 from .metrics import mask_iou, mpjpe, pa_mpjpe, pa_pve, pve, reprojection_error, shape_pve, translation_error
 
@@ -37,9 +37,9 @@ def is_rig_dataset(dataset) -> bool:
 
 def _load(subject_dir: Path):
     from ..fitting.rig_fit import rig_problem
-    from ..rig import load_rig
+    from ..io.rig import load_rig
 
-    from ..dataset import read_truth
+    from ..io.subjects import read_truth
 
     views = load_rig(subject_dir)
     return views, rig_problem(views), read_truth(subject_dir / "gt.npz")
@@ -52,9 +52,9 @@ def subset_truth(gt: dict, idx) -> dict:
 
 def score_rig_fit(model, views, problem, gt: dict, params: dict, iou: bool = True, timings=None) -> dict:
     """The metrics of one rig fit (world-frame ``params``) against the subject's truth."""
-    from ..image_fit import body_mask
-    from ..rig import project_world
-    from ..rig_pipeline import view_vertices
+    from ..fitting.image_fit import body_mask
+    from ..io.rig import project_world
+    from ..fitting.rig_pipeline import view_vertices
 
     t = lambda a: torch.as_tensor(np.asarray(a, np.float64)[None], dtype=model.dtype)  # noqa: E731
     with torch.no_grad():
@@ -107,8 +107,8 @@ def run_rig_fitter(
     ``fits_root/<subject>/<method>/`` (``keypoints``: the keypoint stage's fit, ``silhouette``:
     the final one); returns a status."""
     from ..fitting.rig_fit import rig_problem
-    from ..rig import load_rig
-    from ..rig_pipeline import keypoint_stage_result, save_rig_fit
+    from ..io.rig import load_rig
+    from ..fitting.rig_pipeline import keypoint_stage_result, save_rig_fit
     from ..run import Job, run_batch
 
     unknown = [m for m in methods if m not in ("keypoints", "silhouette")]
@@ -175,7 +175,7 @@ def evaluate_rig_dataset(
     progress: bool = False,
 ) -> dict:
     """Score (and with ``run``, or when there are no fits, first run) every rig subject."""
-    from ..dataset import list_subjects
+    from ..io.subjects import list_subjects
 
     dataset = Path(dataset)
     fits_root = Path(fits) if fits is not None else dataset / "fits"

@@ -100,7 +100,7 @@ def _fit_sequence(d: Path, out: Path, model, config) -> None:
     from ..camera import load_camera
     from ..run import run as run_job
     from ..run import video_job, write
-    from ..video import read_sequence
+    from ..io.video import read_sequence
 
     seq = read_sequence(d)  # through the one path (silfit.run), as silfit fit --sequence
     job = video_job(
@@ -119,8 +119,8 @@ def _fit_sequence(d: Path, out: Path, model, config) -> None:
 def _read_sequence_fit(d: Path, out: Path, model, run: bool, config) -> tuple:
     """``(truth, metrics.json, temporal fit, per-frame fit)`` of the sequence in ``d`` (fitted first with ``run`` or
     when ``out`` holds no fit)."""
-    from ..dataset import read_truth
-    from ..fitio import read_fit
+    from ..io.subjects import read_truth
+    from ..io.fit import read_fit
 
     gt = read_truth(d / "gt.npz")
     if run or not (out / "params.npz").is_file():
@@ -170,7 +170,7 @@ def evaluate_sequences(
     config=None,
 ) -> dict:
     """Score every sequence of ``dataset`` (fitting it first with ``run`` or when no fit
-    exists: ``FITS/<seq>/temporal/``, written by :func:`silfit.video.save_sequence_fit`)."""
+    exists: ``FITS/<seq>/temporal/``, written by :func:`silfit.io.video.save_sequence_fit`)."""
     from ..body import load_body_model
 
     root = Path(dataset)

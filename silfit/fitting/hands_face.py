@@ -1,7 +1,7 @@
 """Whole-body pieces of the fitting core: the hand and face terms of the energy and the per-problem
 gates that hold absent parts at rest.
 
-The ``wholebody`` keypoint layout (:data:`silfit.keypoints.WHOLEBODY_NAMES`) is one keypoint vector
+The ``wholebody`` keypoint layout (:data:`silfit.io.keypoints.WHOLEBODY_NAMES`) is one keypoint vector
 per observation (body, left hand, right hand, face), so the parts are :class:`KeypointTerm` s over
 masks of it: ``keypoints`` (the body's 25, as for BODY_25), ``hands`` (both hands' 42) and ``face``
 (70), each with its own robust scale. Their priors are :class:`PriorTerm` s: ``hand_pose``
@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from ..priors.smplx_priors import HandPosePrior, l2, library_hand_set
-from ..wholebody import part_slices
+from ..io.wholebody import part_slices
 from .terms import KeypointTerm, PointsTerm, PriorTerm, Term, evaluate
 
 __all__ = ["GATED_PARTS", "choose_hand_starts", "hand_priors", "part_gates", "part_masks", "wholebody_terms"]
@@ -213,7 +213,7 @@ def wholebody_silhouette_inputs(model, keypoints, config, dtype) -> tuple:
     where the keypoint stage left it: at rest for the problems without it)."""
     from dataclasses import replace
 
-    from ..keypoints import KeypointSet
+    from ..io.keypoints import KeypointSet
 
     sl = part_slices()
     conf = torch.as_tensor(np.stack([k.conf for k in keypoints]), dtype=dtype)  # [P, K]
@@ -247,7 +247,7 @@ def wholebody_silhouette_inputs(model, keypoints, config, dtype) -> tuple:
 
 def silhouette_inputs(model, keypoints, config, dtype) -> tuple:
     """What the silhouette stage needs for the keypoint layout of ``keypoints`` (one
-    :class:`~silfit.keypoints.KeypointSet` per problem): ``(config, keypoint sets, terms,
+    :class:`~silfit.io.keypoints.KeypointSet` per problem): ``(config, keypoint sets, terms,
     weights, data)``, the whole-body terms for the ``wholebody`` layout
     (:func:`wholebody_silhouette_inputs`), none beyond the stage's own for a body layout. The
     one place the layout decides the silhouette stage's terms."""

@@ -126,7 +126,7 @@ def _off(reason: str) -> DepthCue:
 
 def landmark_agreement(landmarks_xy: np.ndarray, landmark_names: Sequence[str], keypoints) -> tuple:
     """``(direct [n], swapped, direct_sum, extent)``: each limb landmark's 2D distance to its keypoint
-    (``keypoints``: a :class:`~silfit.keypoints.KeypointSet`; ``nan`` where the keypoint has no confidence),
+    (``keypoints``: a :class:`~silfit.io.keypoints.KeypointSet`; ``nan`` where the keypoint has no confidence),
     in shares of the keypoints' extent, for :data:`_LIMB_POINTS`; and over the left/right pairs both sides
     of which are seen, the summed distances read swapped and direct."""
     names = list(keypoints.names)

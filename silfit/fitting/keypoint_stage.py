@@ -62,8 +62,8 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from ..camera import UPRIGHT_BACK_TO_CAMERA, UPRIGHT_FACING_CAMERA, Camera
-from ..fitio import model_record
-from ..keypoints import LAYOUTS, KeypointSet
+from ..io.fit import model_record
+from ..io.keypoints import LAYOUTS, KeypointSet
 from ..priors import SphereCollisionModel, angle_prior, limit_violation, load_pose_prior, shape_prior
 from ..priors.smplx_priors import body_prior_for
 from .body import KeypointBody
@@ -1479,7 +1479,7 @@ def fit_keypoints(
 ) -> KeypointFitResult:
     """Fit SMPL to 2D keypoints of one person or a batch of people.
 
-    ``keypoints``: a :class:`~silfit.keypoints.KeypointSet`, a list of them (a batch), or
+    ``keypoints``: a :class:`~silfit.io.keypoints.KeypointSet`, a list of them (a batch), or
     an array ``[K, 3]`` / ``[B, K, 3]`` of ``x, y, confidence`` (layout inferred from K:
     25 BODY_25, 17 COCO-17). ``camera``: one :class:`~silfit.camera.Camera` for all or one
     per sample; without it ``image_size=(W, H)`` (or a list) gives the documented default

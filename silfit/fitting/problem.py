@@ -45,7 +45,7 @@ class View:
 @dataclass
 class Observation:
     """What one view saw in one frame: 2D keypoints ``xy [K, 2]``, ``conf [K]`` (a
-    :class:`~silfit.keypoints.KeypointSet` or ``None``) and an optional mask ``[H, W]``;
+    :class:`~silfit.io.keypoints.KeypointSet` or ``None``) and an optional mask ``[H, W]``;
     ``known`` (bool ``[H, W]``, ``None``: everywhere): the pixels whose mask value is trusted;
     the silhouette stage treats the others like those beyond the image: unknown, no cost either
     way (:func:`silfit.silhouette.losses.unknown_regions`: leaks, small holes)."""

@@ -63,7 +63,7 @@ class KeypointFitResult:
     #: a whole-body (SMPL-X-layout) model's other parameters by their SMPL-X names
     #: (``expression``, ``jaw_pose``, ``leye_pose``, ``reye_pose``, ``left_hand_pose``, ``right_hand_pose``), ``[B, w]``
     extra_params: dict = field(default_factory=dict)
-    #: the body model's record (:func:`silfit.fitio.model_record`: kind, source, sha256)
+    #: the body model's record (:func:`silfit.io.fit.model_record`: kind, source, sha256)
     model: Optional[dict] = None
     #: per sample, each branch-search stage's hypotheses that ran to its end and their energies at
     #: its end (``[{"stage", "kept", "tried": [{"flip", "energy", "shift_mm", "max_shift_mm"}, ...]}]``, lowest
@@ -85,7 +85,7 @@ class KeypointFitResult:
     #: :attr:`hypotheses`' form plus ``gap``: their final energy's relative gap to the fit's (above it, unless the
     #: occlusion cue, ``occlusion_weight``, chose the fit by more than its energy: then it can be negative); whatever
     #: ``hypotheses`` is. With a mask the close ones are refined against it too, and the mask may choose one
-    #: (:func:`silfit.image_fit.refine_batch`, ``SilhouetteFitConfig.alternatives_margin``); ``None``: no branch
+    #: (:func:`silfit.fitting.image_fit.refine_batch`, ``SilhouetteFitConfig.alternatives_margin``); ``None``: no branch
     #: was refined (no search, rigs, videos) or the result was read from a file (:meth:`load`)
     alternatives: Optional[list] = None
 
@@ -141,8 +141,8 @@ class KeypointFitResult:
     # ------------------------------------------------------------------ I/O
     def save(self, directory: Union[str, os.PathLike], index: int = 0) -> Path:
         """Write sample ``index`` as ``params.npz`` and ``params.json`` into ``directory`` with
-        :func:`silfit.fitio.write_fit` (one frame, one view; the schema is described there)."""
-        from ..fitio import write_fit
+        :func:`silfit.io.fit.write_fit` (one frame, one view; the schema is described there)."""
+        from ..io.fit import write_fit
 
         record = {
             "energies": {k: float(v[index]) for k, v in self.energies.items()},
@@ -179,9 +179,9 @@ class KeypointFitResult:
     @classmethod
     def load(cls, path: Union[str, os.PathLike]) -> "KeypointFitResult":
         """Read one image's fit (``params.npz`` or ``params.json``, a file or the folder holding
-        them) with :func:`silfit.fitio.read_fit` (all four parameters and the camera are required)."""
-        from ..dataset import SubjectError
-        from ..fitio import read_fit
+        them) with :func:`silfit.io.fit.read_fit` (all four parameters and the camera are required)."""
+        from ..io.subjects import SubjectError
+        from ..io.fit import read_fit
 
         fit = read_fit(path, require=PARAM_NAMES, require_camera=True)
         if fit.num_frames != 1 or len(fit.cameras) != 1:

@@ -28,7 +28,7 @@ from typing import Dict, List, Sequence, Tuple
 import numpy as np
 import torch
 
-from ..keypoints import LAYOUTS, read_keypoints
+from ..io.keypoints import LAYOUTS, read_keypoints
 from .problem import Observation, Problem, View, stack_views
 from .terms import evaluate
 from .branches import align_segments
@@ -70,11 +70,11 @@ class RigFit:
 def fit_keypoints_of(path, model=None, person="largest"):
     """The keypoints ``model`` is fitted to from one OpenPose file: its body (BODY_25 / COCO-17) for
     an SMPL-layout model (or no model), the ``wholebody`` layout (hands and face; absent parts at
-    confidence 0) for an SMPL-X-layout one (:func:`silfit.wholebody.choose_fit_keypoints`)."""
+    confidence 0) for an SMPL-X-layout one (:func:`silfit.io.wholebody.choose_fit_keypoints`)."""
     ks = read_keypoints(path, person=person)
     if model is None or getattr(model, "kind", "smpl") != "smplx":
         return ks
-    from ..wholebody import choose_fit_keypoints, read_wholebody_parts
+    from ..io.wholebody import choose_fit_keypoints, read_wholebody_parts
 
     return choose_fit_keypoints(ks, read_wholebody_parts(path, person), model)[0]
 
@@ -83,7 +83,7 @@ def has_wholebody_parts(paths, person="largest") -> bool:
     """Whether any of these OpenPose files holds confident hand or face points (they pick the
     whole-body model when none is given, as for one image)."""
     from ..errors import InputError
-    from ..wholebody import read_wholebody_parts
+    from ..io.wholebody import read_wholebody_parts
 
     for path in paths:
         try:
@@ -96,12 +96,12 @@ def has_wholebody_parts(paths, person="largest") -> bool:
 
 
 def rig_problem(views, person="largest", with_masks: bool = True, model=None) -> Problem:
-    """A one-frame :class:`Problem` from :func:`silfit.rig.load_rig`'s views: each view's
-    keypoints (OpenPose; checked as one image's are, :func:`silfit.plausibility.check_keypoints`,
+    """A one-frame :class:`Problem` from :func:`silfit.io.rig.load_rig`'s views: each view's
+    keypoints (OpenPose; checked as one image's are, :func:`silfit.fitting.plausibility.check_keypoints`,
     with the notes added to the view's warnings) and, when present and ``with_masks``, its mask
     (checked against the camera's size). With an SMPL-X-layout ``model`` the keypoints are the
     ``wholebody`` layout (:func:`fit_keypoints_of`)."""
-    from ..plausibility import check_keypoints
+    from .plausibility import check_keypoints
     from ..silhouette.masks import read_mask
 
     obs = []
@@ -205,7 +205,7 @@ def wholebody_problem_inputs(model, problems: Sequence[Problem], config) -> tupl
     optimised when every frame of every problem has it in at least one view (else it stays where the
     keypoint stage left it)."""
     from .hands_face import GATED_PARTS, SILHOUETTE_PART_LR, wholebody_silhouette_inputs
-    from ..wholebody import part_slices
+    from ..io.wholebody import part_slices
 
     grids = [p.grid() for p in problems]
     flat = [o for g in grids for row in g for o in row]

@@ -56,7 +56,7 @@ import torch
 from scipy.spatial.transform import Rotation, Slerp
 
 from ..camera import Camera, project_points
-from ..keypoints import KeypointSet, model_keypoints
+from ..io.keypoints import KeypointSet, model_keypoints
 from .keypoint_stage import KeypointFitConfig, KeypointFitter, check_torso
 from .problem import Observation, Problem, View
 from .aliases import Alias, renamed_fields
@@ -777,7 +777,7 @@ def fit_sequence(
     ``None``): each frame's start fit and its hypotheses, from which the branch is chosen over time, carry the
     image depth cue (the ``image_depth`` term).
 
-    ``frames``: one :class:`~silfit.keypoints.KeypointSet` per frame, ``None`` where no person was
+    ``frames``: one :class:`~silfit.io.keypoints.KeypointSet` per frame, ``None`` where no person was
     detected, with ``camera`` a :class:`~silfit.camera.Camera` (the fit in its frame); or, for a rig
     video, ``frames[f][c]`` per view with ``camera`` a list of :class:`~silfit.fitting.problem.View` s
     (the fit in their world frame: every frame's initialisation the rig's keypoint stage,
@@ -992,9 +992,9 @@ SILHOUETTE_TEMPORAL_WEIGHT = 5e-5
 
 
 def _cut_off_frames(masks, views: int = 1) -> List[str]:
-    """One warning naming the frames whose mask runs out of the image (:func:`silfit.plausibility.mask_warnings`);
+    """One warning naming the frames whose mask runs out of the image (:func:`silfit.fitting.plausibility.mask_warnings`);
     ``masks`` frame-major over ``views`` views."""
-    from ..plausibility import mask_warnings
+    from .plausibility import mask_warnings
 
     cut = sorted({i // views for i, m in enumerate(masks) if m is not None and mask_warnings(m)})
     if not cut:
@@ -1030,7 +1030,7 @@ def _silhouette_observations(grid, mgrid, views, outliers, bridged) -> list:
             if ks is not None and not bridged[f]:
                 conf = np.where(outliers[f, c], 0.0, ks.conf)
                 if ks.layout == "wholebody":  # hands and face stay as the keypoint fit left them (not optimised here)
-                    from ..wholebody import part_slices
+                    from ..io.wholebody import part_slices
 
                     conf = conf.copy()
                     conf[part_slices()["body"].stop :] = 0.0
@@ -1093,7 +1093,7 @@ def _posed_sequence(model, result: SequenceFitResult, p: dict, betas, names: lis
 def _refined_sequence_warnings(result: SequenceFitResult, sil, reproj, betas, mgrid, C: int, empty: list) -> list:
     """:func:`refine_sequence_silhouettes`' warnings where its result is kept: the keypoint fit's, the silhouette
     stage's, a risen reprojection error, the shape's, masks cut off at the image border, frames with an empty mask."""
-    from ..plausibility import reprojection_rise_warnings, shape_warnings
+    from .plausibility import reprojection_rise_warnings, shape_warnings
 
     return (
         list(result.warnings)
@@ -1179,9 +1179,9 @@ def refine_sequence_silhouettes(
     joints, kp2d, reproj = _posed_sequence(model, result, p, betas, list(init), views, grid, outliers)
     timings = dict(result.timings, silhouette=seconds, total=result.timings["total"] + seconds)
     timings["seconds_per_frame"] = timings["total"] / F
-    # the plausibility guard, as for one image (silfit.plausibility.silhouette_guard): a refined fit less plausible
+    # the plausibility guard, as for one image (silfit.fitting.plausibility.silhouette_guard): a refined fit less plausible
     # than the keypoint fit it started from (median reprojection error over the frames, |betas|, stature) is not kept
-    from ..plausibility import guard_fit
+    from .plausibility import guard_fit
 
     guard = guard_fit(
         model, finite_median(result.reprojection_error), result.betas, finite_median(reproj), betas, "video"

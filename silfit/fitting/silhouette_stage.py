@@ -129,7 +129,7 @@ class SilhouetteFitConfig:
     spp: int = 2
     edge_spp: int = 1  # visibility-edge samples per pixel (projective integrator's sppp)
     #: the ray-cast renderer's visibility-edge points per pixel of contour-candidate length instead of
-    #: ``edge_spp`` per window pixel (at most that many; renderers.raycast: same expected gradient, fewer rays); ``None``:
+    #: ``edge_spp`` per window pixel (at most that many; silfit.render.raycast: same expected gradient, fewer rays); ``None``:
     #: ``edge_spp`` per pixel (before issue 24's speed part)
     edge_density: Optional[float] = 3.0  # 4.0 before issue 24's sampling part
     margin: float = 0.12  # window margin, fraction of the box on each side
@@ -155,7 +155,7 @@ class SilhouetteFitConfig:
     #: a mask that reaches beyond the keypoint fit's body all around (loose clothing, hair, a grown
     #: segmentation: :func:`~silfit.silhouette.losses.clothing_thickness` above ``trim_min`` of the
     #: mask's extent) is eroded by that thickness (at most ``trim_max``) before the stage
-    #: (:func:`~silfit.silhouette.losses.trim_clothing`; image path: silfit.image_fit.refine_batch)
+    #: (:func:`~silfit.silhouette.losses.trim_clothing`; image path: silfit.fitting.image_fit.refine_batch)
     trim_clothing: bool = True
     trim_min: float = 0.015
     trim_max: float = 0.08
@@ -163,7 +163,7 @@ class SilhouetteFitConfig:
     #: silhouette (a leak into an object or the background) and the mask's holes smaller than
     #: ``hole_fraction`` of its area (segmentation gaps) are unknown, like the pixels beyond the
     #: image (:func:`~silfit.silhouette.losses.unknown_regions`; image path:
-    #: silfit.image_fit.refine_batch); 0: off
+    #: silfit.fitting.image_fit.refine_batch); 0: off
     leak_distance: float = 0.03
     hole_fraction: float = 0.02
     #: mask pixels in the concavities of the keypoint fit's silhouette (its closing by a disc of
@@ -175,14 +175,14 @@ class SilhouetteFitConfig:
     #: the concavities unknown only in a mask trimmed as clothing (``trim_clothing``): a mask that
     #: matches the body has no filled concavities, and there they are the only sign of a misplaced limb
     concave_trimmed_only: bool = True
-    #: after the stage, a fit less plausible than the keypoint fit (silfit.plausibility.silhouette_guard)
-    #: is replaced by the keypoint fit, with a warning (image path: silfit.image_fit.refine_batch)
+    #: after the stage, a fit less plausible than the keypoint fit (silfit.fitting.plausibility.silhouette_guard)
+    #: is replaced by the keypoint fit, with a warning (image path: silfit.fitting.image_fit.refine_batch)
     plausibility_guard: bool = True
     #: the keypoint stage's other distinct branches refined to the end (``KeypointFitResult.alternatives``) whose
     #: final energy lies within this relative margin of the fit's (the same 10 % as the depth warning's
-    #: ``silfit.plausibility.HYPOTHESIS_MARGIN``, which also asks that they move a joint 400 mm) are refined against
+    #: ``silfit.fitting.plausibility.HYPOTHESIS_MARGIN``, which also asks that they move a joint 400 mm) are refined against
     #: the mask too, as more problems of the batch, and the lowest final energy of the stage is kept (image path:
-    #: silfit.image_fit.refine_batch; ``--hypotheses K`` refines its K hypotheses instead, whatever this is); 0: off,
+    #: silfit.fitting.image_fit.refine_batch; ``--hypotheses K`` refines its K hypotheses instead, whatever this is); 0: off,
     #: the keypoint stage's branch only (before issue 25's close-alternatives part; README "By default, the close
     #: alternatives too")
     alternatives_margin: float = 0.1
@@ -230,7 +230,7 @@ class SilhouetteFitConfig:
     optimise: tuple = PARAMS
     seed: Optional[int] = 0  # base seed of the renderer's sampling (None: fresh seeds)
     #: render a coarser proxy mesh with this many faces (vertices a fixed linear map of the
-    #: model's, :mod:`renderers.proxy`; IoU >= 0.995 against the full mesh at 10,000 faces);
+    #: model's, :mod:`silfit.render.proxy`; IoU >= 0.995 against the full mesh at 10,000 faces);
     #: ``None`` renders the full mesh
     proxy_faces: Optional[int] = 10000
     #: the render proxy's faces by rendered level resolution (window pixels -> faces, at most
@@ -242,7 +242,7 @@ class SilhouetteFitConfig:
     #: of the model, no full mesh per step) in the rendered levels of an SMPL-layout model; ``False``:
     #: pose the full mesh, then map it to the proxy (before issue 24's third part)
     proxy_body: bool = True
-    #: a batch's subjects rendered together in tiles of one film (:mod:`renderers.batch`);
+    #: a batch's subjects rendered together in tiles of one film (:mod:`silfit.render.batch`);
     #: off by default (why: docs/benchmarks/defaults.md)
     batch_render: bool = False
     threads: Optional[int] = 1  # torch threads during the stage (see silfit.fitting.threads)
@@ -401,7 +401,7 @@ class SilhouetteFitResult:
     @property
     def final_energy(self) -> float:
         """The stage's energy at the kept (lowest-energy) step of its last level: silhouette, keypoints and
-        priors at that level's weights (what :func:`silfit.image_fit.refine_batch` compares hypotheses by)."""
+        priors at that level's weights (what :func:`silfit.fitting.image_fit.refine_batch` compares hypotheses by)."""
         level = self.final_level
         last = [e for lv, e in zip(self.history.get("level") or [], self.history.get("energy") or []) if lv == level]
         return float(min(last)) if last else float("nan")
@@ -420,11 +420,11 @@ class SilhouetteFitResult:
 
 
 def choose_window(mask: np.ndarray, uv: np.ndarray, camera: Camera, resolution: int, margin: float, multiple: int = 1):
-    """A :class:`renderers.silhouette.RoiWindow` covering the mask's box and the projected
+    """A :class:`silfit.render.silhouette.RoiWindow` covering the mask's box and the projected
     body ``uv [N, 2]`` with ``margin``, rendered with ``resolution`` pixels along its longer
     side (aspect ratio kept); the shorter side is rounded up to a ``multiple`` of pixels (more
     margin), so windows come in a few sizes and the renderer reuses its compiled kernels."""
-    from renderers.silhouette import RoiWindow
+    from silfit.render.silhouette import RoiWindow
 
     ys, xs = np.nonzero(mask)
     lo = np.minimum([xs.min() - 0.5, ys.min() - 0.5], uv.min(0) - 0.5)
@@ -502,10 +502,10 @@ class SilhouetteTerm(Term):
     none); leaves the soft IoU per problem (mean over its masks) in ``ev.extras['iou']``
     and per observation in ``ev.extras['iou_observations']``.
 
-    ``proxy`` (a :class:`renderers.proxy.RenderProxy`) maps the body's vertices to the
+    ``proxy`` (a :class:`silfit.render.proxy.RenderProxy`) maps the body's vertices to the
     render proxy first; ``batch_renderer`` renders several observations in one call.
     Reads ``ev.data``: ``windows`` and ``targets`` (per problem, lists over its
-    observations of :class:`renderers.silhouette.RoiWindow` and :class:`MaskTarget`) and
+    observations of :class:`silfit.render.silhouette.RoiWindow` and :class:`MaskTarget`) and
     ``seeds`` (per problem, the renderer seed of this step or ``None``)."""
 
     name = "silhouette"
@@ -649,10 +649,10 @@ def beta_bound(betas: torch.Tensor, limit: float) -> torch.Tensor:
 
 def contour_vertex_index(model, count: int) -> np.ndarray:
     """About ``count`` model vertices spread evenly over the surface (sorted indices): each
-    vertex of a render proxy of ``2 * count`` faces (:func:`renderers.proxy.get_proxy`)
+    vertex of a render proxy of ``2 * count`` faces (:func:`silfit.render.proxy.get_proxy`)
     replaced by the model vertex that weighs most in it; every vertex of a model with no more
     than ``2 * count`` faces (nothing to reduce)."""
-    from renderers.proxy import get_proxy
+    from silfit.render.proxy import get_proxy
 
     if 2 * int(count) >= int(model.faces.shape[0]):
         return np.arange(int(model.v_template.shape[0]))
@@ -669,7 +669,7 @@ class ContourBody(torch.nn.Module):
 
     ``vertex_index``: model vertex indices ``[n]`` (the contour level: each point is a
     model vertex, the same function of the parameters as the full mesh's vertices), or a
-    render proxy (:class:`renderers.proxy.RenderProxy`, the rendered levels): each point is
+    render proxy (:class:`silfit.render.proxy.RenderProxy`, the rendered levels): each point is
     the proxy's fixed mix of model vertices taken in the rest pose (template, shape and pose
     correctives mixed exactly, skinning weights mixed too), so the proxy's vertices are
     posed directly, without the full mesh (its neighbours' transforms differ little: the
@@ -878,7 +878,7 @@ def fit_silhouette_problems(
     (:class:`~silfit.fitting.problem.Problem`; every problem of a batch has the same
     ``F`` and ``C``). Each observation's ``mask [H, W]`` (bool, or ``None``: no silhouette
     term for it) is matched in its camera (extrinsics ``R, t`` from its view), its
-    ``keypoints`` (a :class:`~silfit.keypoints.KeypointSet`, an array ``[K, 3]`` or
+    ``keypoints`` (a :class:`~silfit.io.keypoints.KeypointSet`, an array ``[K, 3]`` or
     ``None``) keep the keypoint term; all observations' terms are summed per problem.
 
     ``inits``: one dict per problem of the model's parameters by name, per-frame ones
@@ -1048,17 +1048,17 @@ class _LevelRenders:
         if n_faces is None or not cfg.proxy_faces:
             n_faces = cfg.proxy_faces
         if n_faces not in self.built:
-            from renderers.silhouette import get_silhouette_renderer
+            from silfit.render.silhouette import get_silhouette_renderer
 
             level_proxy, faces, level_body = None, model.faces, self.body
             if n_faces:
-                from renderers.proxy import get_proxy
+                from silfit.render.proxy import get_proxy
 
                 level_proxy = get_proxy(model.v_template, model.faces, int(n_faces))
                 faces = level_proxy.faces
             level_batch = None
             if cfg.batch_render:
-                from renderers.batch import get_batch_renderer
+                from silfit.render.batch import get_batch_renderer
 
                 level_batch = get_batch_renderer(faces)
             if level_proxy is not None and cfg.proxy_body and self.smpl_layout:
@@ -1349,7 +1349,7 @@ def _contour_evaluators(model, layout, cfg, body, smpl_layout: bool) -> tuple:
             lambda: contour_vertex_index(model, cfg.contour_vertices),
         )
     elif cfg.proxy_faces:  # the full body, its points read at the proxy's vertices
-        from renderers.proxy import get_proxy
+        from silfit.render.proxy import get_proxy
 
         contour_points_map = get_proxy(model.v_template, model.faces, int(cfg.proxy_faces))
     return contour_body, contour_points_map

@@ -197,7 +197,7 @@ def write_fit_exports(
     folder: os.PathLike, vertices: np.ndarray, faces: np.ndarray, camera, formats: Iterable[str]
 ) -> List[Path]:
     """One fit's ``mesh.glb`` / ``mesh.ply`` (``formats``) in ``folder``, from camera-frame ``vertices [V, 3]``."""
-    from ..meshio import write_ply
+    from ..io.meshes import write_ply
 
     folder, written = Path(folder), []
     for fmt in formats:
@@ -223,7 +223,7 @@ def write_sequence_exports(
 ) -> List[Path]:
     """A video fit's exports from camera-frame ``frames [N, V, 3]``: ``animation.glb`` (all frames) and
     ``meshes/frame_<n>.ply`` per frame."""
-    from ..meshio import write_ply
+    from ..io.meshes import write_ply
 
     folder, written = Path(folder), []
     for fmt in formats:

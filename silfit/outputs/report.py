@@ -76,7 +76,7 @@ def _card(item: str, folder: Optional[Path], record: dict) -> Card:
 
 
 def _metrics(folder: Path) -> dict:
-    from ..input_limits import read_json
+    from ..io.limits import read_json
 
     try:
         metrics = read_json(folder / "metrics.json", "metrics")
@@ -135,7 +135,7 @@ def side_view(vertices: np.ndarray, faces: np.ndarray, size=(120, 180)) -> np.nd
     """``[H, W, 3]`` uint8: the camera-frame body turned 90 degrees about the camera's vertical (y)
     axis through its centre, seen from far away (near orthographic), on a light grey canvas."""
     from ..camera import Camera
-    from ..figures import paint_mesh
+    from .figures import paint_mesh
 
     v = np.asarray(vertices, dtype=np.float64)
     centre = (v.max(0) + v.min(0)) / 2
@@ -292,7 +292,7 @@ def write_report(
 ) -> Path:
     """Write the gallery of the fits under ``folder`` into ``out`` (default ``folder/report``);
     returns its ``index.html``."""
-    from ..dataset import write_png
+    from ..io.subjects import write_png
 
     folder = Path(folder)
     cards = collect_cards(folder)

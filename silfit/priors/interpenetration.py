@@ -318,7 +318,7 @@ _SPHERE_ARRAYS = (
 
 def sphere_cache_dir() -> Path:
     """Where sphere sets are cached on disk: ``$SILFIT_CACHE_DIR/spheres`` (default
-    ``~/.cache/silfit/spheres``), beside the render proxies (:func:`renderers.proxy.proxy_cache_dir`)."""
+    ``~/.cache/silfit/spheres``), beside the render proxies (:func:`silfit.render.proxy.proxy_cache_dir`)."""
     root = os.environ.get("SILFIT_CACHE_DIR") or os.path.join(os.path.expanduser("~"), ".cache", "silfit")
     return Path(root) / "spheres"
 

@@ -37,7 +37,7 @@ import torch
 from torch import nn
 
 from ..errors import InputError
-from ..safe_pickle import load_npz, load_pickle
+from ..io.safe_pickle import load_npz, load_pickle
 from . import spd
 from .limits import limit_bounds
 

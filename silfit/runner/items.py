@@ -13,7 +13,7 @@ Input kinds (:func:`list_items` picks by what ``INPUT`` is):
   ``keypoints`` (required), ``mask``, ``image``, ``camera``, ``person`` (an index or
   ``largest``; empty: ``--people``), ``id`` (output folder name; default the keypoint
   file's stem without ``_keypoints``, or its folder's name for a ``keypoints.json``). Relative paths are relative to the manifest's folder.
-* **silfit's synthetic format** (:mod:`silfit.dataset`): one subject folder per image,
+* **silfit's synthetic format** (:mod:`silfit.io.subjects`): one subject folder per image,
   ``mask.png`` the mask of the subject's largest person.
 
 ``people``: ``"largest"`` (one item per image, named by the stem), ``"all"`` (one item per
@@ -39,8 +39,8 @@ import numpy as np
 
 from ..camera import Camera, load_camera
 from ..errors import InputError, cut_quotes, quoted  # InputError: the dataset input as a whole is unusable
-from ..dataset import SUBJECT_FILES, SubjectError, list_subjects, read_image, read_mask
-from ..keypoints import KeypointSet, read_keypoints
+from ..io.subjects import SUBJECT_FILES, SubjectError, list_subjects, read_image, read_mask
+from ..io.keypoints import KeypointSet, read_keypoints
 
 __all__ = ["InputError", "ItemError", "Item", "LoadedItem", "list_items", "load_item", "read_people", "parse_people"]
 
@@ -159,7 +159,7 @@ def read_component(component: str, file: Optional[str], fn, *args, **kwargs):
 
 def read_people(path: Union[str, os.PathLike]) -> List[KeypointSet]:
     """Every person in a keypoint file, in file order, read with
-    :func:`silfit.keypoints.read_keypoints` (which checks all of them on every call, so once
+    :func:`silfit.io.keypoints.read_keypoints` (which checks all of them on every call, so once
     person 0 has been read, the first index that fails is past the last person)."""
     people = [read_keypoints(path, person=0)]
     while True:
@@ -313,7 +313,7 @@ def _synthetic_items(subjects: List[Path], people):
 
 
 def _manifest_rows(path: Path) -> List[dict]:
-    from ..input_limits import MAX_JSON_BYTES, check_file_size
+    from ..io.limits import MAX_JSON_BYTES, check_file_size
 
     check_file_size(path, MAX_JSON_BYTES, "the manifest")
     data = path.read_bytes()

@@ -222,7 +222,7 @@ def run_pool(
     """Fit ``pending`` in ``workers`` processes of this machine, each one CPU's worth, as Ray's one-CPU actors:
     one torch thread and one Dr.Jit thread, the fitter built once per process, at most ``batch_size`` items per
     batch (:func:`shared_batches`). Each process writes its items' folders (atomically:
-    :func:`silfit.outfolder.atomic_folder`) and returns the records; the driver records them as batches finish
+    :func:`silfit.outputs.folder.atomic_folder`) and returns the records; the driver records them as batches finish
     (any order), so resuming works as for one process. The fits are the same bits as :func:`run_local`'s
     (``tests/cli/test_fit_dataset.py``). On an error or an interrupt the batches already finished are recorded
     and the workers are stopped at once (a folder being written is left as a temporary one, which the next run

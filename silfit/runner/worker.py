@@ -25,7 +25,7 @@ import numpy as np
 from ..errors import interruption
 from ..fitting.keypoint_stage import KeypointFitConfig
 from ..fitting.silhouette_stage import SilhouetteFitConfig
-from ..image_fit import FitResult, save_fit
+from ..fitting.image_fit import FitResult, save_fit
 from .items import Item, ItemError, LoadedItem, read_component, item_error, load_item
 
 __all__ = ["FitOptions", "DatasetFitter", "keypoint_config", "silhouette_config"]
@@ -196,7 +196,7 @@ class DatasetFitter:
             return self._run_batch(items, out)
 
     def _run_batch(self, items: Sequence[Item], out: Union[str, os.PathLike]) -> List[dict]:
-        from ..image_fit import StageFailure
+        from ..fitting.image_fit import StageFailure
         from ..run import run_batch
 
         out = Path(out)
@@ -208,7 +208,7 @@ class DatasetFitter:
             try:
                 li = load_item(it, read_masks=self.options.silhouette)
                 if getattr(self.model, "kind", "smpl") == "smplx":  # hands and face from the same file
-                    from ..wholebody import choose_fit_keypoints, read_wholebody_parts
+                    from ..io.wholebody import choose_fit_keypoints, read_wholebody_parts
 
                     parts = read_component("keypoints", it.keypoints, read_wholebody_parts, it.keypoints, li.person)
                     li.keypoints = read_component(
@@ -304,11 +304,11 @@ class DatasetFitter:
 def process_fitter(options: dict, render_threads: int = 1) -> DatasetFitter:
     """The fitter of one worker process (a Ray actor, a local ``--workers`` process): Dr.Jit's pool as large as
     the CPUs the worker has (``render_threads``), not every core of the machine (the fits are the same bits for any
-    count: :class:`renderers.silhouette.SilhouetteRenderer`), then :class:`DatasetFitter` from ``options``
+    count: :class:`silfit.render.silhouette.SilhouetteRenderer`), then :class:`DatasetFitter` from ``options``
     (:meth:`FitOptions.to_dict`)."""
-    import renderers.silhouette
+    import silfit.render.silhouette
 
-    renderers.silhouette.AUTO_THREADS = max(1, int(render_threads))
+    silfit.render.silhouette.AUTO_THREADS = max(1, int(render_threads))
     return DatasetFitter(FitOptions(**options))
 
 

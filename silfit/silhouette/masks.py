@@ -5,8 +5,8 @@ colour), and greyscale or RGB with an alpha channel whose alpha is opaque everyw
 (the colour carries the mask) or whose colour is constant (the alpha carries it).
 Everything else (colour masks, palettes with several colours) is rejected with a message
 naming the file. A mask is foreground where it is above half its type's range. Its size
-is read from the file's header and checked against :mod:`silfit.input_limits` before the
-pixels are decoded (by :mod:`silfit.imagefile`).
+is read from the file's header and checked against :mod:`silfit.io.limits` before the
+pixels are decoded (by :mod:`silfit.io.images`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from typing import Optional, Union
 import numpy as np
 
 from ..errors import InputError
-from ..imagefile import image_file_size, read_pixels
+from ..io.images import image_file_size, read_pixels
 
 __all__ = ["read_mask", "validate_mask"]
 

@@ -2,7 +2,7 @@
 
 ``silfit synth --cameras N`` writes, per subject::
 
-    subject_000/cameras.json        the rig (silfit.rig's manifest: intrinsics, R, t per view)
+    subject_000/cameras.json        the rig (silfit.io.rig's manifest: intrinsics, R, t per view)
     subject_000/gt.npz              the truth in world coordinates (params, vertices, joints,
                                     keypoints_3d) + per-view clean projections and visibility
     subject_000/view_0/             image.png, mask.png, keypoints.json, camera.json (with R, t)
@@ -32,10 +32,10 @@ import numpy as np
 import torch
 
 from ..camera import project_points
-from ..dataset import save_npz, write_png
+from ..io.subjects import save_npz, write_png
 from ..fitting.problem import View
-from ..keypoints import BODY25_NAMES, model_keypoints, write_openpose_json
-from ..rig import look_at, view_to_dict, write_cameras_json
+from ..io.keypoints import BODY25_NAMES, model_keypoints, write_openpose_json
+from ..io.rig import look_at, view_to_dict, write_cameras_json
 from .generate import (
     WHOLEBODY_DEPTH_TOLERANCE,
     WHOLEBODY_PARTS,
@@ -122,7 +122,7 @@ def _write_view_files(folder: Path, view, image, mask, kp, parts: dict) -> None:
     write_png(folder / "image.png", image)
     write_png(folder / "mask.png", mask)
     if parts:
-        from ..wholebody import write_wholebody_json
+        from ..io.wholebody import write_wholebody_json
 
         write_wholebody_json(folder / "keypoints.json", kp, parts["hand_left"], parts["hand_right"], parts["face"])
     else:
@@ -179,7 +179,7 @@ def _posed_rig_body(model, whole_body: bool, pose: dict, extra: dict) -> RigBody
         kp3d = model_keypoints(model, out, "body25")[0].double().cpu().numpy()
         parts3d = {}
         if whole_body:
-            from ..wholebody import wholebody_keypoints
+            from ..io.wholebody import wholebody_keypoints
 
             wb = wholebody_keypoints(model, out)
             parts3d = {p: wb[p][0].double().cpu().numpy() for p in WHOLEBODY_PARTS}
@@ -266,7 +266,7 @@ def generate_rig_dataset(
     """``n`` rig subjects into ``out`` and ``out/index.json`` (``"rig": views``)."""
 
     from .. import __version__
-    from ..dataset import INDEX_NAME
+    from ..io.subjects import INDEX_NAME
     from .generate import generation_start, subject_name
 
     cfg, rig = config.validate(), rig.validate()

@@ -1,9 +1,9 @@
-"""Synthetic subjects with known ground truth, written in the format of :mod:`silfit.dataset`.
+"""Synthetic subjects with known ground truth, written in the format of :mod:`silfit.io.subjects`.
 
 One subject = a sampled library pose, a shape from the prior, a camera and placement; the
-body is rendered offscreen (pyrender on OSMesa, :mod:`renderers.offscreen`) for the shaded
+body is rendered offscreen (pyrender on OSMesa, :mod:`silfit.render.offscreen`) for the shaded
 ``image.png`` and the binary ``mask.png``; BODY_25 keypoints are the projections of the
-model's keypoints (:func:`silfit.keypoints.model_keypoints`), with
+model's keypoints (:func:`silfit.io.keypoints.model_keypoints`), with
 
 * visibility: 0 outside the image, 1 self-occluded (the rendered depth at the keypoint's
   pixel is nearer than the keypoint by more than a per-keypoint tolerance: joint centres
@@ -15,7 +15,7 @@ model's keypoints (:func:`silfit.keypoints.model_keypoints`), with
 
 With ``whole_body`` (an SMPL-X-layout model) a subject also gets library hand poses
 (:mod:`.hands`), an expression, a jaw opening and eye rotations, and ``keypoints.json`` holds
-OpenPose's whole-body parts (:mod:`silfit.wholebody`): hands with ``hand_noise_scale`` and the
+OpenPose's whole-body parts (:mod:`silfit.io.wholebody`): hands with ``hand_noise_scale`` and the
 face with ``face_noise_scale`` times the body's pixel noise (detectors locate these small, sharp
 features more precisely in pixels), visibility from the rendered depth with the tolerances of
 :data:`WHOLEBODY_DEPTH_TOLERANCE`; ``gt.npz`` adds every parameter, the finger angles and each
@@ -39,10 +39,10 @@ import torch
 
 from .. import __version__
 from ..camera import Camera, project_points, save_camera
-from ..dataset import INDEX_NAME, save_npz, write_png
-from ..keypoints import BODY25_NAMES, COCO17_NAMES, model_keypoints, write_openpose_json
+from ..io.subjects import INDEX_NAME, save_npz, write_png
+from ..io.keypoints import BODY25_NAMES, COCO17_NAMES, model_keypoints, write_openpose_json
 from ..layouts import DEFAULT_DEPTH_TOLERANCE, KEYPOINT_DEPTH_TOLERANCE
-from ..wholebody import FACE70_NAMES, hand_names, wholebody_keypoints, write_wholebody_json
+from ..io.wholebody import FACE70_NAMES, hand_names, wholebody_keypoints, write_wholebody_json
 from .hands import hand_axes, hand_pose_to_axis_angle, sample_hand_pose
 from ..poses.library import FRONTAL_POSES
 from .sampler import global_orientation, place_body, sample_betas, sample_intrinsics, sample_pose
@@ -246,7 +246,7 @@ BODY_COLOURS = (
 
 
 def render_subject(vertices: np.ndarray, faces: np.ndarray, camera: Camera, colour):
-    from renderers.offscreen import render_mesh
+    from silfit.render.offscreen import render_mesh
 
     return render_mesh(vertices, faces, camera, color=colour)
 

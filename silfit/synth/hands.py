@@ -1,7 +1,7 @@
 """Hand poses for whole-body subjects: a named library written as finger angles, anatomical finger
 limits, perturbation within them, and conversion to SMPL-X's ``left/right_hand_pose [45]``.
 
-A hand pose is ``flex [5, 3]`` (radians, fingers in :data:`~silfit.wholebody.FINGERS` order, joints
+A hand pose is ``flex [5, 3]`` (radians, fingers in :data:`~silfit.io.wholebody.FINGERS` order, joints
 base to tip; positive curls towards the palm) and ``spread [5]`` (radians at each finger's base joint,
 about the palm normal; positive moves the finger towards the thumb side, for the thumb away from the
 palm's plane edge, i.e. opening the hand). The rotation axes come from the model's rest joints
@@ -16,7 +16,7 @@ from typing import Dict, Optional
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..wholebody import FINGERS
+from ..io.wholebody import FINGERS
 
 __all__ = [
     "HandPose",

@@ -56,8 +56,8 @@ from scipy.spatial.transform import Rotation
 
 from .. import __version__
 from ..camera import UPRIGHT_FACING_CAMERA, project_points, save_camera
-from ..dataset import INDEX_NAME, save_npz, write_png
-from ..keypoints import BODY25_NAMES, model_keypoints, write_openpose_json
+from ..io.subjects import INDEX_NAME, save_npz, write_png
+from ..io.keypoints import BODY25_NAMES, model_keypoints, write_openpose_json
 from ..poses.library import BODY_JOINTS, get_pose, mirror_pose
 from .generate import BODY_COLOURS, background_image, render_subject, keypoint_visibility, noisy_keypoints
 from .sampler import place_body, sample_betas, sample_intrinsics
@@ -386,7 +386,7 @@ def _write_rig_video_view(
 ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One view of a rig sequence: its video folder (camera.json, keypoints/, masks/, images/) written; returns
     ``(clean 2D keypoints [F, 25, 2], visibility [F, 25], frames dropped [F])``."""
-    from ..rig import view_to_dict
+    from ..io.rig import view_to_dict
 
     F, W = len(vertices), int(cfg.size)
     name = folder.name
@@ -415,7 +415,7 @@ def _write_rig_video_view(
 def generate_rig_sequence(model, index: int, cfg: SequenceConfig, views: int, out_dir: Path) -> dict:
     """Sample, render and write rig sequence ``index`` (``views`` cameras, module docstring) into
     ``out_dir``; returns its index record."""
-    from ..rig import write_cameras_json
+    from ..io.rig import write_cameras_json
     from .camera_rigs import view_name
 
     rng = np.random.default_rng([int(cfg.seed), int(index), 11])

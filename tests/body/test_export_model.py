@@ -119,10 +119,10 @@ def test_export_model_rejects_an_unknown_kind(tmp_path, capsys):
 
 
 def test_a_fitted_whole_body_params_file_goes_through_smplx_as_it_is(exported, tmp_path):
-    """The fit file (silfit.fitio: every parameter ``[frames, w]``, SMPL-X names) of a whole-body fit feeds
+    """The fit file (silfit.io.fit: every parameter ``[frames, w]``, SMPL-X names) of a whole-body fit feeds
     ``smplx.SMPLX(...)(**params)`` with no reshaping, and gives the fit's own mesh."""
     from silfit.camera import Camera
-    from silfit.fitio import write_fit
+    from silfit.io.fit import write_fit
 
     ours = load_body_model(kind="smplx", dtype=torch.float64)
     rng = np.random.default_rng(4)

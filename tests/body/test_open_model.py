@@ -4,7 +4,7 @@ import numpy as np
 import torch
 
 from silfit.body.io import OPEN_BODY_PATH, load_model_arrays
-from silfit.keypoints import BODY25_NAMES, COCO17_NAMES, model_keypoints
+from silfit.io.keypoints import BODY25_NAMES, COCO17_NAMES, model_keypoints
 
 
 def stature(vertices: torch.Tensor) -> torch.Tensor:

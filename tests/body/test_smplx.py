@@ -202,7 +202,7 @@ def test_whole_body_keypoints_of_an_official_topology_file(tmp_path):
     """On SMPL-X's own mesh (10475 vertices) the fingertips and BODY_25 extras are the smplx package's
     vertex ids and the face comes from the landmark embedding with its dynamic contour."""
     from silfit.body.io import SMPLX_LANDMARK_VERTICES
-    from silfit.wholebody import wholebody_keypoints
+    from silfit.io.wholebody import wholebody_keypoints
 
     arrays = official_smplx_arrays(num_betas=10, num_expression=10, V=10475)
     del arrays["posedirs"]  # 10475 x 3 x 486 random numbers would only slow the test down

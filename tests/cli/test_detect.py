@@ -8,7 +8,7 @@ import pytest
 from PIL import Image
 
 from silfit.cli import main
-from silfit.keypoints import read_keypoints
+from silfit.io.keypoints import read_keypoints
 from silfit.silhouette.masks import read_mask
 
 SUBJECT = Path(__file__).resolve().parents[2] / "data" / "synthetic" / "subject_000"
@@ -67,7 +67,7 @@ def test_fit_image_on_a_render_recovers_the_body(tmp_path):
     import torch
 
     from silfit import load_body_model
-    from silfit.dataset import read_gt
+    from silfit.io.subjects import read_gt
     from silfit.eval.metrics import procrustes_align
 
     out = tmp_path / "fit"
@@ -277,7 +277,7 @@ def test_people_with_other_settings_keep_their_own():
     from silfit.cli.fit import _shared_settings
     from silfit.fitting.keypoint_stage import KeypointFitConfig
     from silfit.fitting.problem import Problem
-    from silfit.keypoints import KeypointSet
+    from silfit.io.keypoints import KeypointSet
     from silfit.run import Job
 
     kp = KeypointSet(np.full((25, 2), 32.0), np.ones(25), "body25")

@@ -10,7 +10,7 @@ from silfit_toy_body import toy_model, write_toy_npz  # noqa: E402
 
 from silfit.camera import Camera, project_points, save_camera  # noqa: E402
 from silfit.cli import main  # noqa: E402
-from silfit.keypoints import model_keypoints, write_openpose_json  # noqa: E402
+from silfit.io.keypoints import model_keypoints, write_openpose_json  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -365,7 +365,7 @@ def test_fit_hypotheses_writes_each_solution_and_records_them(inputs, tmp_path, 
     import cv2
     import torch
 
-    from silfit.fitio import read_fit
+    from silfit.io.fit import read_fit
 
     body = toy_model()
 

@@ -386,7 +386,7 @@ def test_ray_run_matches_local_run(tmp_path):
 
 def test_dataset_items_get_the_checks_of_one_image(tmp_path):
     """Keypoints at 1e30 fail the item (named file and field), one far-off wrist is dropped with a warning, as
-    ``silfit fit`` does for one image (silfit.plausibility); a fit gets the same warnings."""
+    ``silfit fit`` does for one image (silfit.fitting.plausibility); a fit gets the same warnings."""
     data = synthetic_copy(tmp_path / "data", ["subject_000", "subject_001"])
     doc = json.loads((data / "subject_000" / "keypoints.json").read_text())
     values = np.asarray(doc["people"][0]["pose_keypoints_2d"], dtype=float).reshape(-1, 3)

@@ -63,7 +63,7 @@ def test_fit_rig_writes_world_outputs_and_per_view_overlays(rigs, tmp_path):
     assert np.linalg.norm(p["joints"][0, 0] - gt["joints"][0]) < 0.1  # the pelvis, in world coordinates
     assert p["keypoints_2d"].shape[:2] == (1, 2) and p["reprojection_error"].shape == (1, 2)
     # the rig's cameras come back out, readable as a rig manifest
-    from silfit.rig import read_cameras_json
+    from silfit.io.rig import read_cameras_json
 
     assert [v.name for v in read_cameras_json(out / "cameras.json")] == ["view_0", "view_1"]
 
@@ -133,8 +133,8 @@ def test_a_view_without_the_person_asked_for_is_set_aside(rigs, tmp_path, capsys
 
 def test_rig_fits_get_one_image_warnings_per_view(rigs):
     from silfit.fitting.rig_fit import rig_problem
-    from silfit.rig import load_rig
-    from silfit.rig_pipeline import view_warnings
+    from silfit.io.rig import load_rig
+    from silfit.fitting.rig_pipeline import view_warnings
 
     views = load_rig(rigs / "subject_000")
     problem = rig_problem(views)
@@ -243,8 +243,8 @@ def test_a_whole_body_rig_video_fits_hands_and_face_over_frames_and_views(tmp_pa
 
 
 def test_a_rig_fit_the_silhouette_stage_made_less_plausible_keeps_the_keypoint_fit(rigs, tmp_path, capsys, monkeypatch):
-    """The plausibility guard (silfit.plausibility.silhouette_guard) holds for rigs as for one image."""
-    import silfit.plausibility as plausibility
+    """The plausibility guard (silfit.fitting.plausibility.silhouette_guard) holds for rigs as for one image."""
+    import silfit.fitting.plausibility as plausibility
 
     def implausible(before, after, where=""):
         return plausibility.GuardDecision(

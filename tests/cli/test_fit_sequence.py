@@ -73,7 +73,7 @@ def test_fit_sequence_writes_one_shape_and_per_frame_outputs(sequence, tmp_path,
 
     from silfit import load_body_model
     from silfit.camera import Camera, project_points
-    from silfit.keypoints import model_keypoints
+    from silfit.io.keypoints import model_keypoints
 
     body = load_body_model(model)
     T = lambda n: torch.as_tensor(p[n], dtype=body.dtype)  # noqa: E731
@@ -167,13 +167,13 @@ def test_fit_sequence_mismatched_silhouette_levels_fail_before_fitting(sequence,
 
 
 def test_fit_sequence_failing_write_leaves_no_parent_folder(sequence, tmp_path, capsys, monkeypatch):
-    import silfit.video
+    import silfit.io.video
 
     def failing_save(result, out, *a, **k):  # the writer made the parents, then failed
         out.parent.mkdir(parents=True)
         raise OSError(f"{out}: disk full")
 
-    monkeypatch.setattr(silfit.video, "save_sequence_fit", failing_save)
+    monkeypatch.setattr(silfit.io.video, "save_sequence_fit", failing_save)
     seq, model = sequence
     out = tmp_path / "new" / "deeper" / "fit"
     rc = main(
@@ -499,9 +499,9 @@ def test_a_rig_video_is_synthesised_fitted_over_every_view_and_rendered(sequence
 def test_a_video_the_silhouette_stage_made_less_plausible_keeps_the_keypoint_fit(
     sequence, tmp_path, capsys, monkeypatch
 ):
-    """The plausibility guard (silfit.plausibility.silhouette_guard) holds for videos as for one image: a refined fit
+    """The plausibility guard (silfit.fitting.plausibility.silhouette_guard) holds for videos as for one image: a refined fit
     judged less plausible is not kept, and the warning says so."""
-    import silfit.plausibility as plausibility
+    import silfit.fitting.plausibility as plausibility
 
     seq, model = sequence
     real, seen = plausibility.silhouette_guard, []

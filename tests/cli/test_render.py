@@ -216,9 +216,9 @@ def test_hostile_fit_files_are_one_line_errors(tmp_path, capsys, kind):
 
 
 def _fit_file(folder, model, frames, **kw):
-    """A fit file of ``frames`` frames for ``model`` through the one writer (silfit.fitio)."""
+    """A fit file of ``frames`` frames for ``model`` through the one writer (silfit.io.fit)."""
     from silfit.camera import Camera
-    from silfit.fitio import write_fit
+    from silfit.io.fit import write_fit
 
     params = {n: np.zeros((frames, w)) for n, w in model.parameter_sizes.items()}
     params["global_orient"][:, 0] = math.pi

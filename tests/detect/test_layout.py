@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from silfit.detect.layout import BLAZEPOSE33_NAMES, NECK_ABOVE_SHOULDERS, blazepose_to_layout
-from silfit.keypoints import BODY25_NAMES, COCO17_NAMES
+from silfit.io.keypoints import BODY25_NAMES, COCO17_NAMES
 
 
 def _landmarks():
@@ -42,7 +42,7 @@ def test_coco17_and_undetected_points():
 
 
 def test_blazepose33_layout_has_sources_on_the_body_model(open_model, tmp_path):
-    from silfit.keypoints import keypoint_sources, read_keypoints, write_openpose_json
+    from silfit.io.keypoints import keypoint_sources, read_keypoints, write_openpose_json
 
     xy, conf = _landmarks()
     np.testing.assert_allclose(blazepose_to_layout(xy, conf, "blazepose33"), np.concatenate([xy, conf[:, None]], 1))

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from silfit.dataset import list_subjects, load_subject
+from silfit.io.subjects import list_subjects, load_subject
 from silfit.detect import DetectConfig, DetectionError, detect_people
 from silfit.eval.metrics import mask_iou
 
@@ -85,7 +85,7 @@ def test_truncated_subject_reports_what_is_cut_off(subjects):
 def test_every_person_with_tiles_where_the_whole_image_finds_one():
     """The detector, made for one dominant person, sees one of two side-by-side people in the
     letterboxed whole image; ``max_people=0`` (all) adds tiles and finds both, once each."""
-    from silfit.dataset import read_image
+    from silfit.io.subjects import read_image
 
     img = read_image(Path(__file__).resolve().parents[2] / "data" / "photos" / "astronaut.jpg")[..., :3]
     two = np.ascontiguousarray(np.concatenate([img, img[:, ::-1]], axis=1))

@@ -116,7 +116,7 @@ def test_malformed_exif_is_one_warning_of_ours_not_pillows(tmp_path):
 
 def test_16_bit_greyscale_is_scaled_not_clipped_and_cmyk_is_refused(tmp_path):
     from silfit.errors import InputError
-    from silfit.imagefile import read_rgb
+    from silfit.io.images import read_rgb
 
     ramp = np.tile(np.linspace(0, 65535, 64).astype(np.uint16), (16, 1))
     Image.fromarray(ramp).save(tmp_path / "g16.png")

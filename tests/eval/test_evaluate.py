@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from silfit.eval.evaluate import evaluate_dataset, markdown_table, plot_errors, read_fit
-from silfit.dataset import SubjectError
+from silfit.io.subjects import SubjectError
 
 
 def test_perfect_and_shifted_fits(dataset_with_fits, open_model):

@@ -54,7 +54,7 @@ def test_eval_scores_a_whole_body_fit_folder(tmp_path):
     the same fit with the hands at rest does not."""
     from pathlib import Path
 
-    from silfit.dataset import load_subject
+    from silfit.io.subjects import load_subject
     from silfit.eval.evaluate import read_fit, score_fit
     from silfit.fitting.result import KeypointFitResult
 

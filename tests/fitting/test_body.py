@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from silfit.fitting.body import KeypointBody
-from silfit.keypoints import model_keypoints
+from silfit.io.keypoints import model_keypoints
 
 
 @pytest.mark.parametrize("correctives", [False, True])

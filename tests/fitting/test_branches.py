@@ -5,7 +5,7 @@ import torch
 
 from silfit.fitting.body import KeypointBody
 from silfit.fitting.branches import align_segments, rotation_between
-from silfit.keypoints import BODY25_NAMES
+from silfit.io.keypoints import BODY25_NAMES
 
 
 def test_rotation_between_turns_one_direction_onto_another():
@@ -226,7 +226,7 @@ def test_every_hinge_flexes_its_natural_way_and_a_nearly_straight_mirror_takes_t
 
 def test_a_hinge_flip_by_the_smallest_turn_is_its_own_hypothesis_and_names_its_segment(body_model):
     from silfit.fitting.branches import limb_hypotheses
-    from silfit.plausibility import label_segments
+    from silfit.fitting.plausibility import label_segments
 
     body = KeypointBody(body_model, "body25")
     names, parents = body_model.joint_names, body_model.parents

@@ -20,7 +20,7 @@ CHILD = textwrap.dedent("""
     import silfit  # first: the pinned kernels (silfit.kernels)
     import json, math, sys
     import numpy as np, torch
-    from renderers.offscreen import render_mask
+    from silfit.render.offscreen import render_mask
     from silfit.body import load_body_model
     from silfit.camera import Camera
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig, fit_silhouettes
@@ -117,7 +117,7 @@ KEYPOINT_CHILD = textwrap.dedent("""
     import json, sys
     import numpy as np, torch
     from silfit import load_body_model
-    from silfit.dataset import list_subjects, load_subject
+    from silfit.io.subjects import list_subjects, load_subject
     from silfit.fitting import KeypointFitConfig
     from silfit.fitting.keypoint_stage import fit_keypoints
 
@@ -215,7 +215,7 @@ def test_the_keypoint_fit_and_its_collision_spheres_call_no_processor_dependent_
     import torch
 
     from silfit import load_body_model
-    from silfit.dataset import list_subjects, load_subject
+    from silfit.io.subjects import list_subjects, load_subject
     from silfit.fitting import KeypointFitConfig
     from silfit.fitting.keypoint_stage import fit_keypoints
     from silfit.priors.interpenetration import _mean_shape_posed, calibration_poses

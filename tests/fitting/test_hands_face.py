@@ -13,10 +13,10 @@ from silfit.fitting.keypoint_stage import KeypointFitConfig, KeypointFitter
 from silfit.fitting.stages import gated
 from silfit.fitting.terms import PriorTerm
 from silfit.fitting.hands_face import part_gates
-from silfit.keypoints import KeypointSet, model_keypoints
+from silfit.io.keypoints import KeypointSet, model_keypoints
 from silfit.poses.library import POSE_LIBRARY
 from silfit.priors.smplx_priors import l2, library_hand_set, padded
-from silfit.wholebody import part_slices
+from silfit.io.wholebody import part_slices
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ import torch
 
 from silfit.fitting import KeypointFitConfig, KeypointFitter
 from silfit.fitting.image_depth import SEGMENTS, DepthCue, ImageDepthConfig, ImageDepthTerm, cue_data, depth_cue
-from silfit.keypoints import BLAZEPOSE33_NAMES, KeypointSet
+from silfit.io.keypoints import BLAZEPOSE33_NAMES, KeypointSet
 
 NAMES = list(BLAZEPOSE33_NAMES)
 
@@ -124,7 +124,7 @@ FAST = KeypointFitConfig(
 def reaching_subject(body_model):
     """A generated hard subject (``silfit synth --poses hard``, seed 20003, subject 7, 256 px) whose right arm
     reaches toward the camera: its keypoints fit as well with the arm reaching away."""
-    from silfit.dataset import load_subject
+    from silfit.io.subjects import load_subject
     from silfit.synth.generate import SynthConfig, generate_subject
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -188,7 +188,7 @@ def replace_weight(cfg, w):
 
 
 def test_the_depth_warning_names_only_limbs_the_image_leaves_undecided():
-    from silfit.plausibility import depth_warnings
+    from silfit.fitting.plausibility import depth_warnings
 
     close = [
         {

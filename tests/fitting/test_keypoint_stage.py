@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from silfit.camera import Camera, project_points
 from silfit.fitting import KeypointFitConfig, KeypointFitter, fit_keypoints
-from silfit.keypoints import BODY25_NAMES, model_keypoints
+from silfit.io.keypoints import BODY25_NAMES, model_keypoints
 
 CAM = Camera.from_image_size(512, 512)
 # A plausible pose: arms lowered and bent, one knee bent, slight lean.
@@ -88,7 +88,7 @@ def test_shipped_synthetic_subject(body_model, gt_path):
     if gt_path is None:
         pytest.skip("no shipped synthetic subject yet (data/synthetic/*/gt.npz)")
     from silfit.camera import load_camera
-    from silfit.keypoints import read_keypoints
+    from silfit.io.keypoints import read_keypoints
 
     d = gt_path.parent
     ks = read_keypoints(d / "keypoints.json")
@@ -161,7 +161,7 @@ def test_a_sample_without_branch_hypotheses_fits_the_same_beside_one_with_them(b
     30-step L-BFGS alone and two (15 + 15, a fresh history) beside another's (shipped subjects 0 and 1:
     the late search proposes nothing for subject 0; its final energy 62.7 alone, 72.3 in the batch)."""
     from silfit.camera import load_camera
-    from silfit.keypoints import read_keypoints
+    from silfit.io.keypoints import read_keypoints
 
     root = Path(__file__).resolve().parents[2] / "data" / "synthetic"
     dirs = [root / f"subject_{i:03d}" for i in (0, 1)]
@@ -189,7 +189,7 @@ def test_single_image_fits_equal_the_reference(open_model64):
     to the single-image path shows as a difference well above the 0.1 mm bound."""
     import json
 
-    from silfit.dataset import list_subjects, load_subject
+    from silfit.io.subjects import list_subjects, load_subject
 
     ref = np.load(Path(__file__).parent / "data" / "keypoint_fit_reference.npz")
     cfg = KeypointFitConfig(**json.loads(str(ref["config"])))
@@ -207,7 +207,7 @@ def _fixed_start_fit(model, keypoints, init, stages):
 
     cfg = KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages)
     fitter = KeypointFitter(model, config=cfg)
-    ks = __import__("silfit.keypoints", fromlist=["KeypointSet"]).KeypointSet(
+    ks = __import__("silfit.io.keypoints", fromlist=["KeypointSet"]).KeypointSet(
         keypoints[:, :2], keypoints[:, 2], "body25"
     )
     state, info = fitter.fit_problems([Problem.single(ks, CAM)], init=init)
@@ -433,7 +433,7 @@ def pose_of(spec) -> np.ndarray:
 
 def _problems(kps, cam=CAM256):
     from silfit.fitting.problem import Problem
-    from silfit.keypoints import KeypointSet
+    from silfit.io.keypoints import KeypointSet
 
     return [Problem.single(KeypointSet(k[:, :2], k[:, 2], "body25"), cam) for k in kps]
 
@@ -581,7 +581,7 @@ def test_hypotheses_keep_the_best_distinct_branches_refined_to_the_end(body_mode
     from silfit.fitting.branches import flip_segment
     from silfit.fitting.problem import Problem
     from silfit.fitting.stages import Stage
-    from silfit.keypoints import KeypointSet
+    from silfit.io.keypoints import KeypointSet
 
     kp, truth = _thigh_subject(body_model)
     w = {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4, "interpenetration": 1e5}
@@ -630,7 +630,7 @@ def test_occlusion_cue_scores_the_hypotheses_when_on(body_model):
     from silfit.fitting.branches import flip_segment
     from silfit.fitting.problem import Problem
     from silfit.fitting.stages import Stage
-    from silfit.keypoints import KeypointSet
+    from silfit.io.keypoints import KeypointSet
 
     assert all("occlusion" not in s.options.get("branches", {}) for s in KeypointFitConfig().stages())
     on = [s for s in KeypointFitConfig(occlusion_weight=0.05).stages() if "branches" in s.options]
@@ -668,7 +668,7 @@ def test_branch_refine_chooses_by_the_final_energy_never_above_the_search_choice
     from silfit.fitting.branches import flip_segment
     from silfit.fitting.problem import Problem
     from silfit.fitting.stages import Stage
-    from silfit.keypoints import KeypointSet
+    from silfit.io.keypoints import KeypointSet
 
     kp, truth = _thigh_subject(body_model)
     w = {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4, "interpenetration": 1e5}
@@ -716,7 +716,7 @@ def test_a_search_from_the_settled_fit_after_the_late_searchs_best_settle(body_m
     from silfit.fitting.branches import flip_segment
     from silfit.fitting.problem import Problem
     from silfit.fitting.stages import Stage
-    from silfit.keypoints import KeypointSet
+    from silfit.io.keypoints import KeypointSet
 
     kp, truth = _thigh_subject(body_model)
     w = {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4, "interpenetration": 1e5}

@@ -12,7 +12,7 @@ from silfit.fitting.occlusion import (
     occlusion_parts,
     surface_depth,
 )
-from silfit.keypoints import BODY25_NAMES, model_keypoints
+from silfit.io.keypoints import BODY25_NAMES, model_keypoints
 
 # a square of two triangles at depth 2 m, x and y in -1..1
 SQUARE = torch.tensor([[[-1.0, -1.0, 2.0], [1.0, -1.0, 2.0], [1.0, 1.0, 2.0], [-1.0, 1.0, 2.0]]], dtype=torch.float64)

@@ -11,7 +11,7 @@ from silfit.fitting import KeypointFitConfig, KeypointFitter
 from silfit.fitting.problem import Observation, ParameterLayout, Problem, View, world_to_camera
 from silfit.fitting.stages import Stage, run_lbfgs_stage
 from silfit.fitting.terms import evaluate
-from silfit.keypoints import KeypointSet
+from silfit.io.keypoints import KeypointSet
 
 CAM = Camera.from_image_size(256, 256)
 

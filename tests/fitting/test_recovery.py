@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from silfit.dataset import load_subject
+from silfit.io.subjects import load_subject
 from silfit.eval.metrics import pa_mpjpe, pve, shape_pve
 from silfit.fitting import KeypointFitConfig, fit_keypoints
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig, fit_silhouette

@@ -27,7 +27,7 @@ from silfit.fitting.sequence import (
     pose_distances,
     viterbi,
 )
-from silfit.keypoints import KeypointSet, model_keypoints
+from silfit.io.keypoints import KeypointSet, model_keypoints
 from silfit.synth.motion import motion_trajectory
 
 CAM = Camera.from_image_size(256, 256)
@@ -286,7 +286,7 @@ def test_a_rig_video_is_fitted_over_frames_and_views_in_the_world_frame(open_mod
     keypoint stage, the refinement sees every view; the fit is in the rig's world frame (no alignment), a
     view missing in a frame leaves it fitted from the other view, a frame missing in every view is bridged."""
     from silfit.fitting.sequence import refine_sequence_silhouettes
-    from silfit.video import load_rig_sequence
+    from silfit.io.video import load_rig_sequence
     from silfit.silhouette.masks import read_mask
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
     from silfit.synth.motion import SequenceConfig, generate_sequence_dataset

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from renderers.offscreen import render_mask
+from silfit.render.offscreen import render_mask
 from silfit.fitting.silhouette_stage import KeypointTrustTerm, SilhouetteFitConfig, fit_silhouette, trust_data
-from silfit.keypoints import model_keypoints
+from silfit.io.keypoints import model_keypoints
 from silfit.camera import project_points
 from silfit.silhouette import MaskTarget, silhouette_energy
 from silfit.silhouette.people import own_mask

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from renderers.offscreen import render_mask
+from silfit.render.offscreen import render_mask
 from silfit.camera import Camera, project_points
 from silfit.fitting.silhouette_stage import (
     SilhouetteFitConfig,
@@ -54,7 +54,7 @@ def target_mask(open_model):
 def test_window_target_matches_the_mask_at_scale_one():
     mask = np.zeros((40, 60), bool)
     mask[10:30, 20:35] = True
-    from renderers.silhouette import RoiWindow
+    from silfit.render.silhouette import RoiWindow
 
     window = RoiWindow(0.0, 0.0, 1.0, Camera(fx=50, fy=50, cx=29.5, cy=19.5, width=60, height=40))
     target, coverage = window_target(mask, window)
@@ -341,7 +341,7 @@ def test_proxy_body_poses_the_render_proxy(open_model):
     """The rendered levels' evaluator (``proxy_body``): the render proxy's rest-pose mix of the
     model, posed directly, stays within millimetres of the proxy of the posed mesh (mean well under
     one); keypoints as the mesh's."""
-    from renderers.proxy import get_proxy
+    from silfit.render.proxy import get_proxy
 
     proxy = get_proxy(open_model.v_template, open_model.faces, 2000)
     params = random_params(4)
@@ -397,7 +397,7 @@ def test_a_fit_is_bit_identical_for_any_drjit_thread_count(open_model, target_ma
     """The stage's default (ray-cast) renderer leaves Dr.Jit's thread pool as the process has it,
     and a fit is the same bits with one thread or two: Embree answers boolean ray tests and every
     sum is torch's (issue 24's threads part)."""
-    from renderers._llvm import import_mitsuba
+    from silfit.render._llvm import import_mitsuba
 
     _, dr = import_mitsuba()
     default = SilhouetteFitConfig()
@@ -467,7 +467,7 @@ def test_known_pixels_of_another_size_are_refused(open_model, target_mask):
 def test_level_proxy_faces_pick_each_rendered_levels_proxy(open_model, target_mask, monkeypatch):
     """Issue 24's fourth part: a rendered level listed in ``level_proxy_faces`` renders that coarser
     proxy (at most ``proxy_faces``; a level not listed, the legacy schedule and a full-mesh config: none)."""
-    import renderers.silhouette as rs
+    import silfit.render.silhouette as rs
 
     cfg = replace(FAST, iterations=(2,), proxy_faces=10000, level_proxy_faces={64: 2000})
     assert [s.options.get("proxy_faces") for s in cfg.stages()] == [2000]

@@ -14,7 +14,7 @@ from silfit.fitting.triangulate import (
     robust_triangulate,
     torso_placement,
 )
-from silfit.rig import ring_layout
+from silfit.io.rig import ring_layout
 
 
 def rig(n, seed=0):

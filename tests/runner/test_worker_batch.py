@@ -1,5 +1,5 @@
 """The dataset worker refines a batch's masked items in one silhouette-stage call (issue 24), through the
-one path (silfit.run.run_batch -> silfit.image_fit.fit_problems)."""
+one path (silfit.run.run_batch -> silfit.fitting.image_fit.fit_problems)."""
 
 import numpy as np
 import pytest
@@ -7,7 +7,7 @@ import pytest
 from runner.helpers import SYNTHETIC, synthetic_copy
 from silfit.runner import FitOptions
 from silfit.runner.items import list_items
-from silfit import image_fit
+from silfit.fitting import image_fit
 from silfit.runner.worker import DatasetFitter
 
 KP_FAST = {

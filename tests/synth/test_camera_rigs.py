@@ -5,7 +5,7 @@ import json
 import numpy as np
 
 from silfit.cli import main
-from silfit.rig import load_rig, project_world
+from silfit.io.rig import load_rig, project_world
 
 
 def test_synth_views_writes_consistent_per_view_data(tmp_path):

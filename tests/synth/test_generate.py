@@ -6,8 +6,8 @@ import numpy as np
 import torch
 
 from silfit.camera import load_camera, project_points
-from silfit.dataset import load_subject
-from silfit.keypoints import BODY25_NAMES, model_keypoints, read_keypoints
+from silfit.io.subjects import load_subject
+from silfit.io.keypoints import BODY25_NAMES, model_keypoints, read_keypoints
 from silfit.priors import within_limits
 
 

@@ -14,7 +14,7 @@ from silfit.synth.hands import (
     sample_hand_pose,
     within_limits,
 )
-from silfit.wholebody import wholebody_keypoints
+from silfit.io.wholebody import wholebody_keypoints
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import torch
 
-from silfit.dataset import list_subjects, load_subject
+from silfit.io.subjects import list_subjects, load_subject
 from silfit.poses.sampler import ARCHETYPES, DEEP_FLEXION
 from silfit.priors import within_limits
 from silfit.synth import generate_hard_dataset

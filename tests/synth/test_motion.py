@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from silfit.camera import load_camera, project_points
-from silfit.keypoints import read_keypoints
+from silfit.io.keypoints import read_keypoints
 from silfit.synth.motion import MOTIONS, SequenceConfig, frame_stem, generate_sequence_dataset, motion_trajectory
 
 

@@ -8,10 +8,10 @@ import torch
 
 from silfit import load_body_model
 from silfit.camera import load_camera, project_points
-from silfit.dataset import load_subject
+from silfit.io.subjects import load_subject
 from silfit.synth.generate import WHOLEBODY_PARTS, SynthConfig, generate_dataset
 from silfit.synth.hands import hand_axes, hand_pose_to_axis_angle, within_limits
-from silfit.wholebody import read_wholebody, wholebody_keypoints
+from silfit.io.wholebody import read_wholebody, wholebody_keypoints
 
 PARAMS = (
     "betas",

@@ -1,0 +1,1 @@
+"""The demos (``silfit demo``): a shipped subject fitted end to end, body and whole body."""

@@ -1,0 +1,460 @@
+"""The whole fit of one body seen by a calibrated rig (``silfit fit --rig``): the keypoint
+stage over all views in the world frame (:mod:`silfit.fitting.rig_fit`), then, when the
+views have masks, the silhouette stage rendering every view; results in memory
+(:func:`fit_rig`) and on disk (:func:`save_rig_fit`).
+
+Output folder (world coordinates: the frame of the rig's extrinsics)::
+
+    params.npz, params.json   the fit file (silfit.io.fit: one frame, the rig's views with their
+                              R, t; coordinates = "world"): parameters, vertices, joints,
+                              keypoints_2d and reprojection error per view, the model
+    mesh.obj                  the posed body in world coordinates (metres)
+    cameras.json              the rig's cameras (silfit.io.rig manifest: intrinsics, R, t)
+    metrics.json              per view: median reprojection error (px), IoU of the keypoint
+                              stage and of the final body (views with masks); timings
+    views/<name>/overlay.png  the final body over each view's image (or a grey canvas)
+    views/<name>/silhouette.png   final silhouette vs the view's mask   [with a mask]
+    stages/keypoints/params.npz   the keypoint stage's parameters         [with masks]
+
+Written atomically (:func:`silfit.outputs.folder.atomic_folder`).
+
+A rig video (``silfit fit --rig DIR`` on a rig whose views are video folders,
+:func:`silfit.io.video.load_rig_sequence`; fitted by :func:`silfit.run.run`): the sequence fit of :mod:`silfit.fitting.sequence`
+over frames x views in the world frame, written by :func:`silfit.io.video.save_sequence_fit`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import List, Optional, Union
+
+import numpy as np
+
+from ..eval.metrics import mask_iou
+from .rig_fit import RigFit, fit_rig_keypoints
+from ..outputs.folder import atomic_folder
+
+__all__ = [
+    "RigResult",
+    "fit_rig",
+    "fit_rigs",
+    "read_rig_sequence_masks",
+    "refine_rig_fits",
+    "save_rig_fit",
+    "view_vertices",
+]
+
+
+@dataclass
+class RigResult:
+    """A rig fit: final world-frame parameters and mesh, the keypoint stage's fit, the
+    per-view metrics, and the silhouette stage's result (``None`` without masks)."""
+
+    names: List[str]
+    params: dict
+    vertices: np.ndarray
+    joints: np.ndarray
+    keypoint: RigFit
+    silhouette: object = None
+    metrics: dict = field(default_factory=dict)
+    masks: dict = field(default_factory=dict)  # view name -> rendered final mask
+
+
+def view_vertices(vertices: np.ndarray, view) -> np.ndarray:
+    """World-frame vertices in a view's camera frame (``R x + t``)."""
+    from ..io.rig import to_camera
+
+    return to_camera(vertices, view).astype(np.float32)
+
+
+def _view_ious(vertices, faces, problem, names):
+    from .image_fit import body_mask
+
+    ious, masks = {}, {}
+    for name, o in zip(names, problem.grid()[0]):
+        if o.mask is None:
+            continue
+        m = body_mask(view_vertices(vertices, o.view), faces, o.view.camera)
+        masks[name], ious[name] = m, float(mask_iou(m, o.mask))
+    return ious, masks
+
+
+def disagreeing_views(names, errors, factor: float = 4.0, floor_px: float = 10.0) -> List[str]:
+    """Warnings for views whose median reprojection error is ``factor`` times the other views'
+    median and above ``floor_px``: a view the fit could not agree with (a wrong calibration,
+    another person's keypoints), which the robust data term only damps."""
+    errors = np.asarray(errors, dtype=np.float64)
+    if np.isfinite(errors).sum() < 2:
+        return []
+    out = []
+    for i, (n, e) in enumerate(zip(names, errors)):
+        # against the other views' median: with two views the overall median is the mean of
+        # the culprit's error and the other's, which never exceeds it 4 times, and nothing fired
+        median = float(np.nanmedian(np.delete(errors, i)))
+        if np.isfinite(e) and np.isfinite(median) and e > max(factor * median, floor_px):
+            where = "in the other view" if len(errors) == 2 else "over the other views"
+            hint = " (with two views either may be the wrong one)" if len(errors) == 2 else ""
+            out.append(
+                f"view {n}: median reprojection error {e:.1f} px against {median:.1f} px {where}; check its "
+                f"calibration and that its keypoints are this person's{hint}"
+            )
+    return out
+
+
+def view_warnings(names, problem, vertices, per_view: dict, betas=None) -> List[str]:
+    """One image's fit warnings (:func:`silfit.fitting.plausibility.fit_warnings`: IoU, depth,
+    reprojection error) for each view of a rig fit, from its metrics in ``per_view``."""
+    from .plausibility import fit_warnings, shape_warnings
+
+    out = []
+    for name, o in zip(names, problem.grid()[0]):
+        for w in fit_warnings(per_view[name], o.keypoints, view_vertices(vertices, o.view)):
+            out.append(f"view {name}: {w}")
+    return out + shape_warnings(betas)
+
+
+def keypoint_stage_result(kp: RigFit, problem, names, faces) -> RigResult:
+    ious, masks = _view_ious(kp.vertices, faces, problem, names)
+    per_view = {n: {"reprojection_error_px": float(e)} for n, e in zip(names, kp.reprojection_error)}
+    for n, v in ious.items():
+        per_view[n]["iou_keypoint_stage"] = v
+    metrics = {
+        "views": per_view,
+        "timings": {"keypoints": float(kp.timings["total"])},
+        "reprojection_error_px": float(np.nanmedian(kp.reprojection_error)),
+        "warnings": disagreeing_views(names, kp.reprojection_error)
+        + view_warnings(names, problem, kp.vertices, per_view, kp.params.get("betas")),
+    }
+    if ious:
+        metrics["iou_mean"] = float(np.mean(list(ious.values())))
+    return RigResult(list(names), dict(kp.params), kp.vertices, kp.joints, kp, None, metrics, masks)
+
+
+def fit_rig(
+    problem,
+    names,
+    model=None,
+    pose_prior=None,
+    keypoint_config=None,
+    silhouette: bool = True,
+    silhouette_config=None,
+    progress: bool = False,
+) -> RigResult:
+    """Fit one rig problem (:func:`silfit.fitting.rig_fit.rig_problem`); ``names`` the views'
+    names. With ``silhouette`` and at least one mask, the silhouette stage follows."""
+    return fit_rigs([problem], [names], model, pose_prior, keypoint_config, silhouette, silhouette_config, progress)[0]
+
+
+def fit_rigs(
+    problems,
+    names,
+    model=None,
+    pose_prior=None,
+    keypoint_config=None,
+    silhouette: bool = True,
+    silhouette_config=None,
+    progress: bool = False,
+) -> List[RigResult]:
+    """Fit rig problems of one keypoint layout (``names[i]``: problem ``i``'s view names): the
+    keypoint stage batched over them, then the silhouette stage batched over those with a mask
+    (with ``silhouette``); a result per problem, ``keypoint`` holding its keypoint-stage fit."""
+    from ..body import load_body_model
+    from .keypoint_stage import KeypointFitter
+
+    model = load_body_model() if model is None else model
+    layout = problems[0].observations[0].keypoints.layout
+    fitter = KeypointFitter(model, layout, keypoint_config, pose_prior)  # no branch search with several views:
+    # the final stage runs its ``unsearched_iterations`` (KeypointFitConfig.final_iters_unsearched)
+    t0 = time.perf_counter()
+    kps = fit_rig_keypoints(fitter, list(problems), progress=progress)
+    share = (time.perf_counter() - t0) / len(problems)
+    for kp in kps:  # the batch's seconds shared out
+        kp.timings = {**kp.timings, "total": share}
+    faces = model.faces.cpu().numpy()
+    out = [keypoint_stage_result(kp, p, n, faces) for kp, p, n in zip(kps, problems, names)]
+    todo = [i for i, p in enumerate(problems) if silhouette and any(o.mask is not None for o in p.observations)]
+    if todo:
+        refined = refine_rig_fits(
+            model, [(names[i], problems[i], kps[i]) for i in todo], silhouette_config, fitter.pose_prior, progress
+        )
+        for i, r in zip(todo, refined):
+            out[i] = r
+    if fitter.whole_body:  # which parts were fitted (seen in any view), which held at rest
+        from .hands_face import wholebody_summary
+        from ..io.keypoints import KeypointSet
+
+        for problem, result in zip(problems, out):
+            ks = [o.keypoints for o in problem.grid()[0]]
+            seen = KeypointSet(ks[0].xy, np.max([k.conf for k in ks], 0), ks[0].layout, ks[0].source)
+            result.metrics["whole_body"], notes = wholebody_summary(seen)
+            result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
+    return out
+
+
+def _check_masks_overlap(items, before) -> None:
+    """Raise where a view's mask does not overlap the body fitted to the keypoints at all."""
+    for (names, p, _), b in zip(items, before):
+        zero = [n for n in names if b.metrics["views"][n].get("iou_keypoint_stage", 1.0) == 0.0]
+        if zero:
+            raise ValueError(
+                f"view(s) {', '.join(zero)}: the mask does not overlap the body fitted to the keypoints at all"
+            )
+
+
+def _silhouette_inputs(model, problems, layout: str, config):
+    """``(config, problems, extra)`` for the silhouette stage: with the whole-body layout, the whole-body mesh's
+    inputs (hand and face keypoints kept, as for one image)."""
+    extra = {}
+    if layout == "wholebody":
+        from .rig_fit import wholebody_problem_inputs
+        from .silhouette_stage import SilhouetteFitConfig
+
+        config, problems, *rest = wholebody_problem_inputs(model, problems, config or SilhouetteFitConfig())
+        extra = dict(zip(("terms", "weights", "data"), rest))
+    return config, problems, extra
+
+
+def _posed_body(model, params: dict, layout: str):
+    """``(body, world keypoints [K, 3] float64, vertices [V, 3] float32)`` of one parameter set."""
+    import torch
+
+    from ..io.keypoints import model_keypoints
+
+    t = lambda a: torch.as_tensor(np.asarray(a, np.float64)[None], dtype=model.dtype)  # noqa: E731
+    with torch.no_grad():
+        body = model(**{n: t(v) for n, v in params.items()})
+        kp3 = model_keypoints(model, body, layout)[0].double().numpy()
+    vertices = body.vertices[0].numpy().astype(np.float32)
+    return body, kp3, vertices
+
+
+def _rig_reprojection(kp3: np.ndarray, problem):
+    """``(projections, median errors)``: the world keypoints projected into each view, and each view's median
+    reprojection error (px; NaN without a confident keypoint)."""
+    from ..io.rig import project_world
+
+    proj, errs = [], []
+    for o in problem.grid()[0]:
+        uv = project_world(kp3, o.view)
+        proj.append(uv)
+        ok = o.keypoints.conf > 0
+        errs.append(float(np.median(np.linalg.norm(uv - o.keypoints.xy, axis=1)[ok])) if ok.any() else float("nan"))
+    return proj, errs
+
+
+def _kept_keypoint_result(b: RigResult, sil, guard) -> RigResult:
+    """The keypoint-stage result ``b``, kept by the plausibility guard over the refined fit ``sil``."""
+    b.metrics["warnings"] = list(b.metrics["warnings"]) + list(sil.warnings) + list(guard.warnings)
+    b.metrics["silhouette_guard"] = {"kept": "keypoints", "less_plausible": list(guard.reasons)}
+    b.metrics["timings"]["silhouette"] = float(sil.seconds)
+    return b
+
+
+def _refined_metrics(metrics: dict, names, p, sil, guard, ious: dict, errs, proj, vertices, betas) -> dict:
+    """The keypoint stage's ``metrics`` updated in place with the refined fit's: errors, IoUs, warnings."""
+    from .plausibility import mask_warnings
+
+    metrics["silhouette_guard"] = {"kept": "silhouette", "less_plausible": list(guard.reasons)}
+    for n, e in zip(names, errs):
+        metrics["views"][n]["reprojection_error_px_keypoint_stage"] = metrics["views"][n]["reprojection_error_px"]
+        metrics["views"][n]["reprojection_error_px"] = e
+    for n, v in ious.items():
+        metrics["views"][n]["iou"] = v
+    metrics.update(
+        iou_mean_keypoint_stage=metrics.pop("iou_mean"),
+        iou_mean=float(np.mean(list(ious.values()))),
+        reprojection_error_px=float(np.nanmedian(errs)),
+        keypoints_2d=np.asarray(proj),
+        warnings=[
+            w for n, o in zip(names, p.grid()[0]) if o.mask is not None for w in mask_warnings(o.mask, f"view {n}")
+        ]
+        + list(sil.warnings)
+        + disagreeing_views(names, errs)
+        + view_warnings(names, p, vertices, metrics["views"], betas),
+        silhouette_steps=sil.steps,
+    )
+    metrics["timings"]["silhouette"] = float(sil.seconds)
+    return metrics
+
+
+def _refined_rig_result(model, faces, layout: str, config, item, b: RigResult, sil) -> RigResult:
+    """One rig problem's result after the silhouette stage ``sil``, from its keypoint-stage result ``b``."""
+    from .plausibility import guard_fit
+
+    names, p, kp = item
+    params = {n: np.asarray(v, np.float32).reshape(-1) for n, v in sil.parameters.items()}
+    body, kp3, vertices = _posed_body(model, params, layout)
+    proj, errs = _rig_reprojection(kp3, p)
+    # the plausibility guard, as for one image (silfit.fitting.plausibility.silhouette_guard): a refined fit less
+    # plausible than the keypoint fit it started from is not kept
+    guard = guard_fit(
+        model,
+        b.metrics["reprojection_error_px"],
+        kp.params.get("betas"),
+        float(np.nanmedian(errs)),
+        params.get("betas"),
+        "rig",
+    )
+    if guard.reverted and getattr(config, "plausibility_guard", True):
+        return _kept_keypoint_result(b, sil, guard)
+    ious, masks = _view_ious(vertices, faces, p, names)
+    metrics = _refined_metrics(b.metrics, names, p, sil, guard, ious, errs, proj, vertices, params.get("betas"))
+    return RigResult(list(names), params, vertices, body.joints[0].numpy().astype(np.float32), kp, sil, metrics, masks)
+
+
+def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool = False) -> List[RigResult]:
+    """The silhouette stage on rig problems, every view with a mask rendered
+    (:func:`~silfit.fitting.silhouette_stage.fit_silhouette_problems`), from their keypoint
+    fits: ``items`` are ``(view names, problem, RigFit)`` with equal view counts."""
+    from .silhouette_stage import fit_silhouette_problems
+
+    faces = model.faces.cpu().numpy()
+    before = [keypoint_stage_result(kp, p, names, faces) for names, p, kp in items]
+    _check_masks_overlap(items, before)
+    layout = items[0][1].observations[0].keypoints.layout
+    config, problems, extra = _silhouette_inputs(model, [p for _, p, _ in items], layout, config)
+    sils = fit_silhouette_problems(
+        model,
+        problems,
+        [dict(kp.params) for _, _, kp in items],
+        layout=layout,
+        config=config,
+        pose_prior=pose_prior,
+        progress=progress,
+        **extra,
+    )
+    return [_refined_rig_result(model, faces, layout, config, it, b, sil) for it, b, sil in zip(items, before, sils)]
+
+
+@dataclass
+class _RigFile:
+    """What every fit file of a rig's output folder shares: the views' cameras, the layout, the model."""
+
+    names: List[str]
+    cameras: list
+    extrinsics: list
+    layout: str
+    model: object = None
+
+    def write(self, folder: Path, params: dict, vertices, joints, proj, errors, record=None) -> None:
+        """One fit file (:func:`silfit.io.fit.write_fit`: world coordinates, every view) into ``folder``."""
+        from ..io.fit import write_fit
+
+        write_fit(
+            folder,
+            params,
+            self.cameras,
+            layout=self.layout,
+            model=self.model,
+            coordinates="world",
+            extrinsics=self.extrinsics,
+            views=self.names,
+            vertices=vertices,
+            joints=joints,
+            keypoints_2d=np.asarray(proj)[None],
+            reprojection_error=np.asarray(errors, np.float32)[None],
+            record=record,
+        )
+
+
+def _write_view_pictures(tmp: Path, result: RigResult, grid, faces: np.ndarray, images: dict, proj) -> None:
+    """``views/<name>/overlay.png`` per view, and ``silhouette.png`` where the view has a mask."""
+    from ..outputs import figures
+
+    for c, (name, o) in enumerate(zip(result.names, grid)):
+        folder = tmp / "views" / name
+        folder.mkdir(parents=True, exist_ok=True)
+        figures.write_png(
+            folder / "overlay.png",
+            figures.fit_overlay(
+                images.get(name),
+                view_vertices(result.vertices, o.view),
+                faces,
+                o.view.camera,
+                o.keypoints.xy,
+                np.asarray(proj)[c],
+                o.keypoints.conf,
+            ),
+        )
+        if o.mask is not None and name in result.masks:
+            figures.write_png(folder / "silhouette.png", figures.silhouette_comparison(result.masks[name], o.mask))
+
+
+def save_rig_fit(
+    result: RigResult,
+    out: Union[str, os.PathLike],
+    faces: np.ndarray,
+    problem,
+    images=None,
+    extra_metrics: Optional[dict] = None,
+    overwrite: bool = False,
+    model=None,
+) -> Path:
+    """Write the output folder described in the module docstring, atomically (``model``: the
+    body model, recorded in ``params.npz``)."""
+    from ..io.meshes import write_obj
+    from ..io.rig import write_cameras_json
+
+    out = Path(out)
+    images = images or {}
+    grid = problem.grid()[0]
+    layout = grid[0].keypoints.layout
+
+    cameras = [o.view.camera for o in grid]
+    extrinsics = [o.view.extrinsics() for o in grid]
+    fit_file = _RigFile(result.names, cameras, extrinsics, layout, model)
+
+    with atomic_folder(out, overwrite) as tmp:
+        proj = result.metrics.get("keypoints_2d", result.keypoint.keypoints_2d)
+        views = result.metrics.get("views")
+        errors = (
+            [views[n]["reprojection_error_px"] for n in result.names] if views else result.keypoint.reprojection_error
+        )
+        fit_file.write(
+            tmp,
+            result.params,
+            result.vertices,
+            result.joints,
+            proj,
+            errors,
+            {"timings": result.metrics.get("timings", {})},
+        )
+        write_obj(
+            tmp / "mesh.obj", result.vertices, faces, "silfit: posed body in world coordinates (rig extrinsics, metres)"
+        )
+        write_cameras_json(tmp / "cameras.json", [(n, o.view) for n, o in zip(result.names, grid)])
+        if result.silhouette is not None:
+            kp = result.keypoint
+            fit_file.write(
+                tmp / "stages" / "keypoints", kp.params, kp.vertices, kp.joints, kp.keypoints_2d, kp.reprojection_error
+            )
+        _write_view_pictures(tmp, result, grid, faces, images, proj)
+        metrics = {k: v for k, v in result.metrics.items() if k != "keypoints_2d"}
+        metrics.update(extra_metrics or {})
+        (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    return out
+
+
+# ----------------------------------------------------------------------------- rig videos
+def read_rig_sequence_masks(seq) -> Optional[list]:
+    """``masks[f][c]`` (bool ``[H, W]``, or ``None`` where the view has no mask for the frame; empty
+    masks allowed: no silhouette term there) of a rig video, each checked against its camera's size;
+    ``None`` when no view has masks."""
+    from ..silhouette.masks import read_mask
+
+    if not any(v.masks for v in seq.videos):
+        return None
+    columns = []
+    for c, view in enumerate(seq.views):
+        cam = view.view.camera
+        columns.append(
+            [
+                None if p is None else read_mask(p, size=(cam.width, cam.height), allow_empty=True)
+                for p in seq.per_view(c, "masks")
+            ]
+        )
+    return [[col[f] for col in columns] for f in range(len(seq.numbers))]
