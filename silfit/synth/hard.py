@@ -16,6 +16,8 @@ This set is for measuring: the shipped pose prior is fitted to the library only
 
 from __future__ import annotations
 
+import functools
+
 from typing import Tuple
 
 import numpy as np
@@ -41,5 +43,19 @@ def hard_pose_and_yaw(model, rng: np.random.Generator, yaw_range_deg: Tuple[floa
     """``(SampledPose, yaw_deg)`` for one subject of the hard set."""
     from ..poses.sampler import PoseSampler
 
-    ps = PoseSampler(model).sample(rng)
+    ps = PoseSampler(_screening_model(model)).sample(rng)
     return ps, hard_yaw(rng, ps.archetype, yaw_range_deg)
+
+
+def _screening_model(model):
+    """The body the sampler screens poses on (self-contact, interpenetration): an SMPL-layout model (23 body
+    joints); for a whole-body (SMPL-X) model the shipped open SMPL model, whose first 21 joints are the ones a
+    SMPL-X subject takes from the pose."""
+    return model if model.num_body_pose == 69 else _open_smpl()
+
+
+@functools.lru_cache(maxsize=1)
+def _open_smpl():
+    from ..body import load_body_model
+
+    return load_body_model()

@@ -43,3 +43,15 @@ def test_hard_generator_writes_readable_subjects(tmp_path, open_model):
     again = generate_hard_dataset(tmp_path / "again", 1, seed=2, size=96, model=open_model)
     assert again["subjects"][0]["description"] == index["subjects"][0]["description"]
     assert set(DEEP_FLEXION) <= set(ARCHETYPES)
+
+
+def test_hard_whole_body_subjects_take_the_sampler_pose_on_smplx(tmp_path):
+    """``silfit synth --whole-body --poses hard``: the sampler screens its poses on an SMPL-layout body and an
+    SMPL-X subject takes their first 21 joints (before: a shape error from the sampler's collision check)."""
+    from silfit import load_body_model
+
+    model = load_body_model(kind="smplx")
+    index = generate_hard_dataset(tmp_path / "wb", 1, seed=3, size=64, model=model, whole_body=True)
+    s = load_subject(list_subjects(tmp_path / "wb")[0])
+    assert index["subjects"][0]["pose"] in ARCHETYPES
+    assert np.asarray(s.gt.body_pose).shape[-1] == 63 and s.mask.any()
