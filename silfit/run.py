@@ -31,7 +31,19 @@ from .errors import InputError, interruption
 from .fitting.problem import Observation, Problem
 from .fitting.image_fit import StageFailure
 
-__all__ = ["Job", "Fit", "StageFailure", "check", "fit", "run", "run_batch", "write", "image_job", "video_job"]
+__all__ = [
+    "Job",
+    "Fit",
+    "StageFailure",
+    "check",
+    "fit",
+    "run",
+    "run_batch",
+    "write",
+    "keypoint_stage_fit",
+    "image_job",
+    "video_job",
+]
 
 
 @dataclass
@@ -391,26 +403,38 @@ def _run_rigs(jobs: Sequence[Job], isolate: bool) -> list:
         if not isolate or interruption(err) is not None:
             raise
         return [err] if len(jobs) == 1 else [r for job in jobs for r in _run_rigs([job], isolate)]
-    out = []
-    for job, r in zip(jobs, results):
-        names = list(job.view_names)
-        views = r.metrics["views"]
-        proj = r.metrics.get("keypoints_2d", r.keypoint.keypoints_2d)
-        out.append(
-            Fit(
-                job,
-                _params_per_frame(r.params, 1),
-                _arr(r.vertices)[None],
-                _arr(r.joints)[None],
-                _arr(proj)[None],
-                np.array([[views[n].get("reprojection_error_px", np.nan) for n in names]], dtype=np.float64),
-                np.array([[views[n].get("iou", np.nan) for n in names]], dtype=np.float64),
-                "world",
-                r.metrics,
-                r,
-            )
-        )
-    return out
+    return [_rig_fit(job, r) for job, r in zip(jobs, results)]
+
+
+def _rig_fit(job: Job, r, iou: str = "iou") -> Fit:
+    """The :class:`Fit` of a rig job's :class:`~silfit.fitting.rig_pipeline.RigResult` (``iou``: the views' IoU field)."""
+    names = list(job.view_names)
+    views = r.metrics["views"]
+    proj = r.metrics.get("keypoints_2d", r.keypoint.keypoints_2d)
+    return Fit(
+        job,
+        _params_per_frame(r.params, 1),
+        _arr(r.vertices)[None],
+        _arr(r.joints)[None],
+        _arr(proj)[None],
+        np.array([[views[n].get("reprojection_error_px", np.nan) for n in names]], dtype=np.float64),
+        np.array([[views[n].get(iou, np.nan) for n in names]], dtype=np.float64),
+        "world",
+        r.metrics,
+        r,
+    )
+
+
+def keypoint_stage_fit(fit: Fit) -> Fit:
+    """A rig fit's keypoint stage alone, as a :class:`Fit` of its own (:func:`write` makes the folder a fit
+    without a silhouette stage would have; its ``metrics`` are the stage's, without the job's ``record``)."""
+    if fit.job.mode != "rig":
+        raise ValueError(f"keypoint_stage_fit: a rig's fit only, not a fit of mode {fit.job.mode!r}")
+    from .fitting.rig_pipeline import keypoint_stage_result
+
+    job = fit.job
+    kp = keypoint_stage_result(fit.stage.keypoint, job.problem, list(job.view_names), job.model.faces.cpu().numpy())
+    return _rig_fit(job, kp, "iou_keypoint_stage")
 
 
 def _video_depth_cues(job: Job, frames) -> tuple:
@@ -581,16 +605,24 @@ def write(
     meshes: bool = False,
     video: bool = True,
     fps: float = 30.0,
+    extra: Optional[dict] = None,
+    images: Optional[Dict[tuple, np.ndarray]] = None,
 ) -> Path:
     """Write a fit's output folder atomically (the fit file of :mod:`silfit.io.fit`, the mesh(es),
-    pictures, ``metrics.json``); ``exports`` (``"glb"``, ``"ply"``) adds upright meshes for
-    other tools (not for rigs: a rig's world frame has no fixed up axis); ``meshes``, ``video``
-    and ``fps`` are a video's (one OBJ per frame, the overlay GIF, its frame rate)."""
+    pictures, ``metrics.json``); the one writer of output folders (its parts chosen by the fit's
+    frames and views). ``exports`` (``"glb"``, ``"ply"``) adds upright meshes for other tools (not
+    for rigs: a rig's world frame has no fixed up axis); ``meshes``, ``video`` and ``fps`` are a
+    video's (one OBJ per frame, the overlay GIF, its frame rate). ``extra``: more ``metrics.json``
+    fields (over the fit's own); ``images``: ``(frame, view)`` -> the RGB image to draw an image's
+    or a rig's pictures on, over the job's (a fit run without its image; a video's come from its
+    reader)."""
     job = fit.job
     model = job.model
     faces = model.faces.cpu().numpy()
-    extra = {k: v for k, v in fit.metrics.items() if k in job.record}
-    extra["warnings"] = list(fit.warnings)
+    fields = {k: v for k, v in fit.metrics.items() if k in job.record}
+    fields["warnings"] = list(fit.warnings)
+    fields.update(extra or {})
+    pictures = {**job.images, **(images or {})}
     if job.mode == "image":
         from .fitting.image_fit import save_fit
 
@@ -600,9 +632,9 @@ def write(
             out,
             faces,
             o.keypoints,
-            job.images.get((0, 0)),
+            pictures.get((0, 0)),
             o.mask,
-            extra,
+            fields,
             overwrite=overwrite,
             exports=exports,
         )
@@ -613,8 +645,8 @@ def write(
             raise InputError(
                 "--export", "not available for rigs (a rig's world frame has no fixed up axis); mesh.obj holds the body"
             )
-        images = {job.view_names[c]: img for (f, c), img in job.images.items()}
-        return save_rig_fit(fit.stage, out, faces, job.problem, images, extra, overwrite=overwrite, model=model)
+        views = {job.view_names[c]: img for (f, c), img in pictures.items()}
+        return save_rig_fit(fit.stage, out, faces, job.problem, views, fields, overwrite=overwrite, model=model)
     from .io.video import save_sequence_fit
 
     return save_sequence_fit(
@@ -625,7 +657,7 @@ def write(
         meshes=meshes,
         video=video,
         fps=fps,
-        extra_metrics=extra,
+        extra_metrics=fields,
         overwrite=overwrite,
         exports=exports,
     )

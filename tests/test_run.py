@@ -11,7 +11,7 @@ from silfit.errors import InputError
 from silfit.fitting import KeypointFitConfig
 from silfit.fitting.problem import Observation, Problem, View
 from silfit.io.keypoints import KeypointSet
-from silfit.run import Job, StageFailure, check, image_job, run, run_batch, video_job
+from silfit.run import Job, StageFailure, check, image_job, keypoint_stage_fit, run, run_batch, video_job, write
 
 SHIPPED = Path(__file__).resolve().parents[1] / "data" / "synthetic"
 FAST = KeypointFitConfig(camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branch_search=False)
@@ -161,3 +161,38 @@ def test_batches_with_the_same_settings_share_one_keypoint_fitter(open_model):
     cfg.final_iters = 3  # changed in place: not the fitter built for the old values
     again = _keypoint_fitter(open_model, "body25", cfg, None)
     assert again is not first and again.config.final_iters == 3
+
+
+def test_write_adds_metrics_fields_and_draws_on_the_images_given(open_model, subject, tmp_path):
+    import json
+
+    fit = run(image_job(subject.keypoints, None, subject.camera, model=open_model, keypoint_config=FAST))
+    write(fit, tmp_path / "plain")
+    write(fit, tmp_path / "more", extra={"note": "x", "warnings": ["w"]}, images={(0, 0): subject.image})
+    plain, more = (json.loads((tmp_path / d / "metrics.json").read_text()) for d in ("plain", "more"))
+    assert list(more) == list(plain) + ["note"] and more["warnings"] == ["w"]
+    assert (tmp_path / "plain" / "overlay.png").read_bytes() != (tmp_path / "more" / "overlay.png").read_bytes()
+    with pytest.raises(ValueError, match="rig"):
+        keypoint_stage_fit(fit)  # a rig's keypoint stage alone; an image's keypoint fit is its own folder's stages/
+
+
+WRITERS = {"save_fit", "save_rig_fit", "save_sequence_fit"}
+#: run.write, the one writer of output folders, and the per-mode writers' own modules
+WRITER_MODULES = {"run.py", "fitting/image_fit.py", "fitting/rig_pipeline.py", "io/video.py"}
+
+
+def test_only_run_write_calls_the_per_mode_writers():
+    import ast
+
+    package = Path(__file__).resolve().parents[1] / "silfit"
+    calls = []
+    for p in sorted(package.rglob("*.py")):
+        if p.relative_to(package).as_posix() in WRITER_MODULES:
+            continue
+        for node in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Call):
+                f = node.func
+                name = f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else None
+                if name in WRITERS:
+                    calls.append(f"{p.relative_to(package)}:{node.lineno} {name}")
+    assert not calls, f"write output folders with silfit.run.write, not the per-mode writers: {calls}"

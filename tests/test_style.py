@@ -99,6 +99,21 @@ def _module_exists(dotted: str) -> bool:
     return p.with_suffix(".py").is_file() or (p / "__init__.py").is_file()
 
 
+def _names_defined(init: Path) -> set:
+    """The names a package's ``__init__.py`` defines, imports or exports lazily (names in its strings)."""
+    names = set()
+    for node in ast.walk(ast.parse(init.read_text(encoding="utf-8"))):
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            names |= {(a.asname or a.name).split(".")[0] for a in node.names}
+        elif isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+            names.add(node.id)
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value.isidentifier():
+            names.add(node.value)  # __all__ and the lazy exports' tables
+    return names
+
+
 def unresolved_imports(root: Path = ROOT) -> list:
     """``path:line module`` of every import of a silfit module (absolute or relative, at module level or inside a
     function, where only running it would find a wrong one) whose module is not in the tree."""
@@ -113,6 +128,10 @@ def unresolved_imports(root: Path = ROOT) -> list:
                         names = [".".join(base + ([node.module] if node.module else []))]
                     else:
                         names = [node.module or ""]
+                    init = ROOT.joinpath(*names[0].split("."), "__init__.py")
+                    if names[0].split(".")[0] == "silfit" and init.is_file():  # from a package: a module or a name
+                        defined = _names_defined(init)
+                        names += [f"{names[0]}.{a.name}" for a in node.names if a.name not in defined]
                 elif isinstance(node, ast.Import):
                     names = [a.name for a in node.names]
                 else:

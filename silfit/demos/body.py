@@ -167,8 +167,7 @@ def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = Fal
     from ..outputs import figures
     from ..body import load_body_model
     from ..io.subjects import load_subject
-    from ..fitting.image_fit import save_fit
-    from ..run import image_job, run
+    from ..run import image_job, run, write
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -181,10 +180,11 @@ def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = Fal
         kps, subject.mask, cam, model=model, silhouette_config=silhouette_config, progress=progress, image=subject.image
     )
     job.mask_sources[(0, 0)] = str(subject.file("mask"))
-    result = run(job).stage  # the path every mode takes (silfit.run)
+    fitted = run(job)  # the path every mode takes (silfit.run)
+    result = fitted.stage
     kp_result = result.keypoint
     kp_seconds = float(result.metrics["timings_s"]["keypoints"])
-    save_fit(result, out / "fit", faces, kps, subject.image, subject.mask, overwrite=True)
+    write(fitted, out / "fit", overwrite=True)
 
     before = _score(model, subject, kp_result.params(0), cam, kp_seconds)
     after = _score(model, subject, result.params, cam, kp_seconds + result.silhouette.seconds)

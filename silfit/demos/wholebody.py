@@ -177,8 +177,7 @@ def run_wholebody_demo(
     """Run the demo into ``out`` (see the module docstring); returns the report."""
     from ..body import load_body_model
     from ..fitting import KeypointFitter
-    from ..fitting.image_fit import save_fit
-    from ..run import fit
+    from ..run import image_job, run, write
     from ..io.wholebody import WholeBodyKeypoints
 
     out = Path(out)
@@ -195,9 +194,10 @@ def run_wholebody_demo(
     )
     t_body = time.perf_counter() - t0
     t0 = time.perf_counter()
-    result = fit(kps, mask, cam, model=model, silhouette_config=silhouette_config, progress=progress)
+    fitted = run(image_job(kps, mask, cam, model=model, silhouette_config=silhouette_config, progress=progress))
+    result = fitted.stage
     t_whole = time.perf_counter() - t0
-    save_fit(result, out / "fit", faces, kps, image, mask, overwrite=True)
+    write(fitted, out / "fit", overwrite=True, images={(0, 0): image})  # fitted without the image, drawn on it
     kp_stage = result.keypoint
 
     fits = {

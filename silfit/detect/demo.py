@@ -44,8 +44,7 @@ def run_photo_demo(
     from ..outputs import figures
     from ..body import load_body_model
     from ..io.subjects import read_image
-    from ..fitting.image_fit import save_fit
-    from ..run import fit
+    from ..run import image_job, run, write
     from .output import detect_photo, save_detection
 
     out = Path(out)
@@ -60,19 +59,22 @@ def run_photo_demo(
     focal, focal_source = photo.focal()
     model = load_body_model()
     faces = model.faces.cpu().numpy()
-    result = fit(
-        keypoints,
-        mask,
-        None,
-        image_size=photo.size,
-        focal=focal,
-        model=model,
-        silhouette_config=silhouette_config,
-        progress=progress,
+    fitted = run(
+        image_job(
+            keypoints,
+            mask,
+            None,
+            image_size=photo.size,
+            focal=focal,
+            model=model,
+            silhouette_config=silhouette_config,
+            progress=progress,
+        )
     )
+    result = fitted.stage
     warnings = photo.warnings() + [f"detection: {w}" for w in person.warnings()] + result.metrics.get("warnings", [])
     extra = {"image": str(path), "camera_source": focal_source if focal else "default max(W, H)", "warnings": warnings}
-    save_fit(result, out / "fit", faces, keypoints, photo.image, mask, extra, overwrite=True)
+    write(fitted, out / "fit", overwrite=True, extra=extra, images={(0, 0): photo.image})  # fitted without the image
 
     cam = result.camera
     panels = [

@@ -357,11 +357,11 @@ def _write_keypoint_fits(subjects: Sequence, fits: list, bad: dict, fits_root, b
             (tmp / "metrics.json").write_text(json.dumps(record, indent=2))
 
 
-def _write_silhouette_fits(subjects: Sequence, fits: list, bad: dict, sets: list, fits_root, model, search) -> str:
+def _write_silhouette_fits(subjects: Sequence, fits: list, bad: dict, fits_root, search) -> str:
     """Each subject's silhouette fit into ``fits_root/<subject>/silhouette/``; returns the method's status."""
-    from ..fitting.image_fit import StageFailure, save_fit
+    from ..fitting.image_fit import StageFailure
+    from ..run import write
 
-    faces = model.faces.cpu().numpy()
     ran, failed = 0, []
     for i, (s, f) in enumerate(zip(subjects, fits)):
         if i in bad:
@@ -374,16 +374,8 @@ def _write_silhouette_fits(subjects: Sequence, fits: list, bad: dict, sets: list
             kp_total = float(f.stage.keypoint.timings.get("total", 0.0))
             timings = {"keypoints": kp_total, "silhouette": f.stage.silhouette.seconds}
             timings["total"] = sum(timings.values())
-            save_fit(
-                f.stage,
-                Path(fits_root) / s.name / "silhouette",
-                faces,
-                sets[i],
-                s.image,
-                s.mask,
-                {"timings": timings, "search": search[i]},
-                overwrite=True,
-            )
+            extra = {"timings": timings, "search": search[i]}
+            write(f, Path(fits_root) / s.name / "silhouette", overwrite=True, extra=extra)
             ran += 1
     return f"ran on {ran} subjects" + (f"; failed: {'; '.join(failed)}" if failed else "")
 
@@ -427,7 +419,7 @@ def run_fitter(
             "averages)" + (f"; failed: {'; '.join(f'{subjects[i].name}: {e}' for i, e in bad.items())}" if bad else "")
         )
     if "silhouette" in methods:
-        status["silhouette"] = _write_silhouette_fits(subjects, fits, bad, sets, fits_root, model, search)
+        status["silhouette"] = _write_silhouette_fits(subjects, fits, bad, fits_root, search)
     return status
 
 

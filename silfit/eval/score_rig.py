@@ -108,8 +108,7 @@ def run_rig_fitter(
     the final one); returns a status."""
     from ..fitting.rig_fit import rig_problem
     from ..io.rig import load_rig
-    from ..fitting.rig_pipeline import keypoint_stage_result, save_rig_fit
-    from ..run import Job, run_batch
+    from ..run import Job, keypoint_stage_fit, run_batch, write
 
     unknown = [m for m in methods if m not in ("keypoints", "silhouette")]
     if unknown:
@@ -130,22 +129,21 @@ def run_rig_fitter(
         )
     t0 = time.perf_counter()
     fits = run_batch(jobs, isolate=True)  # a subject that fails fails alone
-    faces = model.faces.cpu().numpy()
     failed = []
     for d, fit in zip(subject_dirs, fits):
         if isinstance(fit, Exception):
             failed.append(f"{d.name}: {getattr(fit, 'error', fit)}")
             continue
-        r, p = fit.stage, fit.job.problem
+        r = fit.stage
         per = float(r.keypoint.timings["total"])
         if "keypoints" in methods:
-            kp = keypoint_stage_result(r.keypoint, p, list(fit.job.view_names), faces)
+            kp = keypoint_stage_fit(fit)
             kp.metrics["timings"] = {"keypoints": per, "total": per}
-            save_rig_fit(kp, fits_root / d.name / "keypoints", faces, p, overwrite=True, model=model)
+            write(kp, fits_root / d.name / "keypoints", overwrite=True)
         if "silhouette" in methods and r.silhouette is not None:
             sil = float(r.metrics["timings"]["silhouette"])
             r.metrics["timings"] = {"keypoints": per, "silhouette": sil, "total": per + sil}
-            save_rig_fit(r, fits_root / d.name / "silhouette", faces, p, overwrite=True, model=model)
+            write(fit, fits_root / d.name / "silhouette", overwrite=True)
     done = [f for f in fits if not isinstance(f, Exception)]
     status = {
         "keypoints": f"ran on {len(done)} subjects in {time.perf_counter() - t0:.1f} s (batched, both stages)"

@@ -3,7 +3,7 @@ pose prior are built once; each batch is read item by item (a bad file fails onl
 each item made a :class:`silfit.run.Job`, the batch fitted by :func:`silfit.run.run_batch`
 (the path every mode takes: the checks, one batched keypoint stage per layout, the silhouette
 stage batched over the items with masks, the warnings; a failing item fails alone), and
-written with :func:`silfit.save_fit` (atomically: a temporary folder renamed into place).
+written with :func:`silfit.run.write` (atomically: a temporary folder renamed into place).
 
 :meth:`DatasetFitter.run_batch` returns one JSON-ready record per item (``results.jsonl``'s
 lines, see :mod:`silfit.runner.store`); recording them is the caller's job.
@@ -25,7 +25,7 @@ import numpy as np
 from ..errors import interruption
 from ..fitting.keypoint_stage import KeypointFitConfig
 from ..fitting.silhouette_stage import SilhouetteFitConfig
-from ..fitting.image_fit import FitResult, save_fit
+from ..fitting.image_fit import FitResult
 from .items import Item, ItemError, LoadedItem, read_component, item_error, load_item
 
 __all__ = ["FitOptions", "DatasetFitter", "keypoint_config", "silhouette_config"]
@@ -154,7 +154,6 @@ class DatasetFitter:
             self.model = load_body_model(kind="smplx")
         else:
             self.model = load_body_model(options.model, gender=options.gender) if options.model else load_body_model()
-        self.faces = self.model.faces.cpu().numpy()
         self.config = keypoint_config(options.keypoint_options)
         self.pose_prior = load_pose_prior(options.pose_prior, dtype=self.model.dtype)
         self.silhouette_config = silhouette_config(options)
@@ -197,7 +196,7 @@ class DatasetFitter:
 
     def _run_batch(self, items: Sequence[Item], out: Union[str, os.PathLike]) -> List[dict]:
         from ..fitting.image_fit import StageFailure
-        from ..run import run_batch
+        from ..run import run_batch, write
 
         out = Path(out)
         records: Dict[str, dict] = {}
@@ -235,16 +234,12 @@ class DatasetFitter:
                 times[key]["silhouette"] = float(res.silhouette.seconds)
             t0 = time.perf_counter()
             try:
-                save_fit(
-                    res,
+                write(
+                    fit,
                     out / key,
-                    self.faces,
-                    fit.job.problem.observations[0].keypoints,
-                    li.image,
-                    li.mask,
-                    self._extra(li, len(loaded)),
                     overwrite=True,
                     exports=tuple(self.options.exports),
+                    extra=self._extra(li, len(loaded)),
                 )
             except (OSError, ValueError) as err:
                 if interruption(err) is not None:  # the run was stopped while writing: not this item's failure
