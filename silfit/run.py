@@ -1,7 +1,8 @@
 """One path from inputs to outputs, for every mode (one image, a rig, a video; body or whole body)::
 
-    inputs      an input builder (silfit.cli.jobs for the CLI; :func:`image_job` here for
-                Python callers) reads the files and makes a Job
+    inputs      an input builder (:mod:`silfit.inputs`: one image, a rig, a video, a rig video, a
+                dataset item; the command line's :mod:`silfit.cli.jobs` reads the files and calls
+                them) makes a Job
       -> Job        one person's observations over frames x views (a Problem: keypoints, masks,
                     views with their cameras and R, t), the body model and the settings
       -> run(job)   the checks every input gets (:func:`check`), the keypoint stage, the
@@ -21,7 +22,7 @@ The number of frames and views decides the keypoint stage's core (one image:
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Sequence, Union
 
@@ -30,6 +31,9 @@ import numpy as np
 from .errors import InputError, interruption
 from .fitting.problem import Observation, Problem
 from .fitting.image_fit import StageFailure
+from .inputs.image import image_job
+from .inputs.job import Job
+from .inputs.video import video_job
 
 __all__ = [
     "Job",
@@ -44,67 +48,6 @@ __all__ = [
     "image_job",
     "video_job",
 ]
-
-
-@dataclass
-class Job:
-    """What to fit: ``problem`` (observations over frames x views of one person; a frame's
-    keypoints may be ``None``: no detection there), the body ``model`` and the settings.
-
-    ``silhouette_config`` ``None``: the defaults; ``silhouette=False``: no silhouette stage
-    even where masks exist. ``view_names`` name the views (warnings, output folders);
-    ``frame_numbers`` the frames (a video's file numbers). ``warnings`` are the input readers'
-    findings, carried into the result; ``record`` is copied into ``metrics.json`` (the input
-    files, the camera's source, the model); ``images`` maps ``(frame, view)`` to an RGB image
-    for the pictures; ``inputs`` is the reader's own object where a writer needs more (a
-    video's :class:`~silfit.io.video.SequenceInput`); ``rig`` marks views of a calibrated rig
-    (world coordinates; with one view too)."""
-
-    problem: Problem
-    model: Any = None
-    view_names: Sequence[str] = ("camera",)
-    pose_prior: Any = None
-    keypoint_config: Any = None
-    silhouette_config: Any = None
-    sequence_config: Any = None
-    silhouette: bool = True
-    progress: bool = False
-    frame_numbers: Optional[Sequence[int]] = None
-    warnings: List[str] = field(default_factory=list)
-    record: Dict[str, Any] = field(default_factory=dict)
-    images: Dict[tuple, np.ndarray] = field(default_factory=dict)
-    mask_sources: Dict[tuple, str] = field(default_factory=dict)
-    inputs: Any = None
-    #: the views are a calibrated rig (fitted in its world frame), even when only one is left
-    rig: bool = False
-    #: the frames are a video's (the sequence fit and the video's outputs), even when it has one frame
-    video: bool = False
-    #: ``(frame, view)`` -> the detected :class:`~silfit.detect.Person` the keypoints came from (its 3D landmarks
-    #: give the image depth cue without running the landmark model again; absent: run on ``images``)
-    people: Dict[tuple, Any] = field(default_factory=dict)
-
-    @property
-    def num_frames(self) -> int:
-        return self.problem.num_frames
-
-    @property
-    def num_views(self) -> int:
-        return self.problem.num_views
-
-    @property
-    def layout(self) -> str:
-        return next(o.keypoints.layout for o in self.problem.observations if o.keypoints is not None)
-
-    @property
-    def has_masks(self) -> bool:
-        return any(o.mask is not None for o in self.problem.observations)
-
-    @property
-    def mode(self) -> str:
-        """``"image"``, ``"rig"`` or ``"video"`` (what the frames x views shape is called)."""
-        return (
-            "video" if (self.video or self.num_frames > 1) else "rig" if (self.rig or self.num_views > 1) else "image"
-        )
 
 
 @dataclass
@@ -703,86 +646,3 @@ def fit(
         image=image,
     )
     return run(job).stage
-
-
-def image_job(
-    keypoints,
-    mask=None,
-    camera=None,
-    *,
-    image_size=None,
-    focal=None,
-    model=None,
-    pose_prior=None,
-    keypoint_config=None,
-    silhouette_config=None,
-    progress: bool = False,
-    image=None,
-) -> Job:
-    """A job for one image: keypoints (a :class:`~silfit.io.keypoints.KeypointSet` or ``[K, 3]``
-    array), an optional ``mask [H, W]``, and ``camera`` or ``image_size=(W, H)`` (+ ``focal``)
-    for the default camera."""
-    from .camera import Camera
-    from .fitting.keypoint_stage import prepare_keypoints
-
-    sets = prepare_keypoints(keypoints)
-    if len(sets) != 1:
-        raise ValueError(f"one person's keypoints, got {len(sets)}; use fit_keypoints for batches")
-    if camera is None:
-        if image_size is None and mask is not None:
-            image_size = (mask.shape[1], mask.shape[0])
-        if image_size is None:
-            raise ValueError("no camera: give a camera (intrinsics) or the image size to derive the default one")
-        camera = Camera.from_image_size(int(image_size[0]), int(image_size[1]), focal)
-    elif focal is not None:
-        from dataclasses import replace
-
-        camera = replace(camera, fx=float(focal), fy=float(focal))
-    mask = None if mask is None else np.asarray(mask, dtype=bool)
-    return Job(
-        Problem.single(sets[0], camera, mask),
-        model,
-        pose_prior=pose_prior,
-        keypoint_config=keypoint_config,
-        silhouette_config=silhouette_config,
-        progress=progress,
-        images={} if image is None else {(0, 0): image},
-    )
-
-
-def video_job(
-    frames,
-    camera,
-    model=None,
-    *,
-    masks=None,
-    config=None,
-    silhouette_config=None,
-    pose_prior=None,
-    progress: bool = False,
-    numbers=None,
-    inputs=None,
-    warnings=(),
-    record=None,
-) -> Job:
-    """A job for one camera's video: ``frames`` one :class:`~silfit.io.keypoints.KeypointSet` (or
-    ``None``: no detection) per frame, ``masks`` one mask or ``None`` per frame, ``config`` a
-    :class:`~silfit.fitting.sequence.SequenceFitConfig`; ``numbers`` the frame numbers and
-    ``inputs`` the reader's :class:`~silfit.io.video.SequenceInput` (for the writer's pictures)."""
-    from .fitting.problem import View
-
-    masks = list(masks) if masks is not None else [None] * len(frames)
-    view = View(camera)
-    return Job(
-        Problem([Observation(view, ks, m, f) for f, (ks, m) in enumerate(zip(frames, masks))]),
-        model,
-        pose_prior=pose_prior,
-        silhouette_config=silhouette_config,
-        sequence_config=config,
-        progress=progress,
-        frame_numbers=None if numbers is None else list(numbers),
-        warnings=list(warnings),
-        inputs=inputs,
-        record=dict(record or {}),
-        video=True,
-    )

@@ -1,8 +1,9 @@
 """``silfit fit``'s input builders: the command line's files and flags -> one
-:class:`silfit.run.Job` (one image or photo, a rig, a video). Each reads and checks its files
+:class:`silfit.inputs.Job` (one image or photo, a rig, a video, a rig video). Each reads and checks its files
 (one reader per format: :mod:`silfit.io.keypoints`, :mod:`silfit.silhouette.masks`,
-:mod:`silfit.camera`, :mod:`silfit.io.rig`, :mod:`silfit.io.video`, :mod:`silfit.io.images`) and
-fits nothing; :func:`silfit.run.run` does the rest for all three.
+:mod:`silfit.camera`, :mod:`silfit.io.rig`, :mod:`silfit.io.video`, :mod:`silfit.io.images`), says the
+command line's notes and ends by calling the builder every caller uses (:mod:`silfit.inputs`); it fits
+nothing: :func:`silfit.run.run` does the rest for all of them.
 """
 
 from __future__ import annotations
@@ -11,9 +12,9 @@ import os
 
 import numpy as np
 
+from .. import inputs as builders
 from ..fitting.problem import Observation, Problem
-from ..run import Job
-from ..run import video_job as make_video_job
+from ..inputs import Job
 from . import CLIError, note, warn
 from .common import check_out, choose_model, keypoint_settings, silhouette_config
 
@@ -210,19 +211,22 @@ def image_job(args) -> Job:
         **(photo["metrics"] if photo else {}),
     }
     base = _hypotheses_base(args)
-    return Job(
-        Problem.single(keypoints, camera, mask, known),
-        model,
+    return builders.image_job(
+        keypoints,
+        mask,
+        camera,
+        model=model,
         pose_prior=_pose_prior(args, model),
         keypoint_config=keypoint_settings(args, base),
         silhouette_config=silhouette_config(args),
         silhouette=not args.no_silhouette,
         progress=not args.quiet,
+        known=known,
         warnings=warnings,
         record=record,
-        images={} if image is None else {(0, 0): image},
-        mask_sources={(0, 0): args.mask or "mask"},
-        people={(0, 0): photo["person"]} if photo and photo.get("person") is not None else {},
+        image=image,
+        mask_source=args.mask or "mask",
+        detected_person=photo.get("person") if photo else None,
     )
 
 
@@ -272,10 +276,10 @@ def rig_job(args) -> Job:
         names.append(v.name)
     if not obs:
         raise first
-    return Job(
+    return builders.rig_job(
         Problem(obs),
-        model,
         names,
+        model,
         pose_prior=_pose_prior(args, model),
         keypoint_config=keypoint_settings(args),
         silhouette_config=silhouette_config(args),
@@ -284,7 +288,6 @@ def rig_job(args) -> Job:
         warnings=warnings,
         record={"rig": str(args.rig), "model": model.source},
         images=images,
-        rig=True,
     )
 
 
@@ -335,11 +338,6 @@ def rig_video_job(args) -> Job:
     cfg.keypoint = keypoint_settings(args, cfg.keypoint)  # each frame's start
     if args.sequence_iterations is not None:
         cfg.iterations = int(args.sequence_iterations)
-    obs = [
-        Observation(v.view, frames[f][c], None if masks is None else masks[f][c], f, c)
-        for f in range(len(frames))
-        for c, v in enumerate(seq.views)
-    ]
     silhouette = (
         "run"
         if masks is not None and not args.no_silhouette
@@ -347,20 +345,20 @@ def rig_video_job(args) -> Job:
         if args.no_silhouette
         else "not run (no masks)"
     )
-    return Job(
-        Problem(obs),
-        model,
+    return builders.rig_video_job(
+        frames,
+        [v.view for v in seq.views],
         seq.names,
-        pose_prior=_pose_prior(args, model),
+        model,
+        masks=masks,
+        config=cfg,
         silhouette_config=sil_config,
-        sequence_config=cfg,
+        pose_prior=_pose_prior(args, model),
         silhouette=not args.no_silhouette,
         progress=not args.quiet,
-        frame_numbers=list(seq.numbers),
-        warnings=list(seq.warnings),
+        numbers=seq.numbers,
         inputs=seq,
-        rig=True,
-        video=True,
+        warnings=seq.warnings,
         record={"rig": str(args.rig), "model": model.source, "silhouette": silhouette},
     )
 
@@ -430,7 +428,7 @@ def video_job(args) -> Job:
         if not seq.masks
         else "not run (--no-silhouette)"
     )
-    job = make_video_job(
+    return builders.video_job(
         frames,
         camera,
         model,
@@ -448,9 +446,8 @@ def video_job(args) -> Job:
             "camera_source": camera_source,
             "silhouette": silhouette,
         },
+        silhouette=not args.no_silhouette,
     )
-    job.silhouette = not args.no_silhouette
-    return job
 
 
 def describe_inputs(job: Job) -> str:

@@ -292,18 +292,20 @@ def _fit_keypoint_sets(subjects: Sequence, model) -> list:
 
 
 def _fitter_jobs(sets: list, subjects: Sequence, methods: Sequence[str], model, progress: bool) -> list:
-    """One :class:`silfit.run.Job` per subject (a subject's image.png gives the image depth cue)."""
-    from ..fitting.problem import Problem
-    from ..run import Job
+    """One :class:`silfit.inputs.Job` per subject (:func:`silfit.inputs.image_job`; a subject's image.png gives the
+    image depth cue)."""
+    from ..inputs import image_job
 
     return [
-        Job(
-            Problem.single(k, s.camera, s.mask),
-            model,
+        image_job(
+            k,
+            s.mask,
+            s.camera,
+            model=model,
             silhouette="silhouette" in methods,
             progress=progress,
-            mask_sources={(0, 0): str(s.file("mask"))},
-            images={} if s.image is None else {(0, 0): s.image},
+            mask_source=str(s.file("mask")),
+            image=s.image,
         )
         for k, s in zip(sets, subjects)
     ]

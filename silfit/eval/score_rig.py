@@ -108,7 +108,8 @@ def run_rig_fitter(
     the final one); returns a status."""
     from ..fitting.rig_fit import rig_problem
     from ..io.rig import load_rig
-    from ..run import Job, keypoint_stage_fit, run_batch, write
+    from ..inputs import rig_job
+    from ..run import keypoint_stage_fit, run_batch, write
 
     unknown = [m for m in methods if m not in ("keypoints", "silhouette")]
     if unknown:
@@ -117,13 +118,12 @@ def run_rig_fitter(
     for d in subject_dirs:
         v = load_rig(d)[: views or None]
         jobs.append(
-            Job(
+            rig_job(
                 rig_problem(v),
-                model,
                 [x.name for x in v],
+                model,
                 silhouette="silhouette" in methods,
                 progress=progress,
-                rig=True,
                 record={"subject": d.name},
             )
         )

@@ -98,8 +98,9 @@ def score_sequence(model, gt: Dict[str, np.ndarray], params: Dict[str, np.ndarra
 def _fit_sequence(d: Path, out: Path, model, config) -> None:
     """Fit the sequence in ``d`` through the one path (silfit.run), as silfit fit --sequence, into ``out``."""
     from ..camera import load_camera
+    from ..inputs import video_job
     from ..run import run as run_job
-    from ..run import video_job, write
+    from ..run import write
     from ..io.video import read_sequence
 
     seq = read_sequence(d)  # through the one path (silfit.run), as silfit fit --sequence

@@ -1,6 +1,6 @@
 """Fitting batches of dataset items in one process (:class:`DatasetFitter`): the model and
 pose prior are built once; each batch is read item by item (a bad file fails only its item),
-each item made a :class:`silfit.run.Job`, the batch fitted by :func:`silfit.run.run_batch`
+each item made a :class:`silfit.inputs.Job` (:func:`silfit.inputs.item_job`), the batch fitted by :func:`silfit.run.run_batch`
 (the path every mode takes: the checks, one batched keypoint stage per layout, the silhouette
 stage batched over the items with masks, the warnings; a failing item fails alone), and
 written with :func:`silfit.run.write` (atomically: a temporary folder renamed into place).
@@ -160,26 +160,18 @@ class DatasetFitter:
 
     # ------------------------------------------------------------------ one batch
     def job(self, li: LoadedItem):
-        """The :class:`silfit.run.Job` of a loaded item (one image; ``--focal`` applied)."""
-        from ..fitting.problem import Problem
-        from ..run import Job
+        """The :class:`silfit.inputs.Job` of a loaded item (:func:`silfit.inputs.item_job`: one image; ``--focal``
+        applied)."""
+        from ..inputs import item_job
 
-        camera = (
-            li.camera
-            if self.options.focal is None
-            else replace(li.camera, fx=float(self.options.focal), fy=float(self.options.focal))
-        )
-        return Job(
-            Problem.single(li.keypoints, camera, li.mask),
+        return item_job(
+            li,
             self.model,
+            focal=self.options.focal,
             pose_prior=self.pose_prior,
             keypoint_config=self.config,
             silhouette_config=self.silhouette_config,
             silhouette=self.options.silhouette,
-            progress=False,
-            warnings=list(li.warnings),
-            images={} if li.image is None else {(0, 0): li.image},
-            mask_sources={(0, 0): li.mask_file or "mask"},
         )
 
     def run_batch(self, items: Sequence[Item], out: Union[str, os.PathLike]) -> List[dict]:

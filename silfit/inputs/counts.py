@@ -1,0 +1,20 @@
+"""The builders' shape checks: one entry per frame, one per view (a ``ValueError`` otherwise: a caller's mistake,
+not a bad input file)."""
+
+from __future__ import annotations
+
+__all__ = ["one_per_frame", "one_per_view"]
+
+
+def one_per_frame(count: int, **lists) -> None:
+    """Refuse a list of ``lists`` (``None``: not given) whose length is not ``count`` frames."""
+    for name, values in lists.items():
+        if values is not None and len(values) != count:
+            raise ValueError(f"{len(values)} {name} for {count} frames: one per frame")
+
+
+def one_per_view(count: int, **lists) -> None:
+    """Refuse a list of ``lists`` (``None``: not given) whose length is not ``count`` views."""
+    for name, values in lists.items():
+        if values is not None and len(values) != count:
+            raise ValueError(f"{len(values)} {name} for {count} views: one per view")
