@@ -21,7 +21,29 @@ if late_import_message():  # numpy or torch came first: say so once, where the s
 
     warnings.warn(late_import_message(), RuntimeWarning, stacklevel=2)
 
-from ._lazy import lazy_exports  # noqa: E402
+from ._lazy import alias_moved_modules, lazy_exports  # noqa: E402
+
+#: modules moved by issue 57's layout (old name -> new): the old names still import, with a DeprecationWarning
+MOVED_MODULES = {
+    "silfit.fitio": "silfit.io.fit",
+    "silfit.imagefile": "silfit.io.images",
+    "silfit.meshio": "silfit.io.meshes",
+    "silfit.safe_pickle": "silfit.io.safe_pickle",
+    "silfit.keypoints": "silfit.io.keypoints",
+    "silfit.input_limits": "silfit.io.limits",
+    "silfit.dataset": "silfit.io.subjects",
+    "silfit.rig": "silfit.io.rig",
+    "silfit.video": "silfit.io.video",
+    "silfit.wholebody": "silfit.io.wholebody",
+    "silfit.figures": "silfit.outputs.figures",
+    "silfit.outfolder": "silfit.outputs.folder",
+    "silfit.image_fit": "silfit.fitting.image_fit",
+    "silfit.rig_pipeline": "silfit.fitting.rig_pipeline",
+    "silfit.plausibility": "silfit.fitting.plausibility",
+    "silfit.demo": "silfit.demos.body",
+    "silfit.demo_wholebody": "silfit.demos.wholebody",
+}
+alias_moved_modules(MOVED_MODULES)
 
 __version__ = "0.1.0"
 

@@ -1,8 +1,13 @@
-"""Lazy package attributes (PEP 562): a name is imported from its submodule on first use."""
+"""Lazy package attributes (PEP 562): a name is imported from its submodule on first use; and the old names of
+moved modules, answered by the new ones."""
 
 from __future__ import annotations
 
 import importlib
+import importlib.abc
+import importlib.util
+import sys
+import warnings
 
 
 def lazy_exports(package: str, exports: dict, namespace: dict):
@@ -21,3 +26,31 @@ def lazy_exports(package: str, exports: dict, namespace: dict):
         return sorted(set(namespace) | set(exports))
 
     return __getattr__, __dir__
+
+
+class MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """Old module names that moved (issue 57's layout): ``import silfit.dataset`` gives ``silfit.io.subjects``
+    itself, with a :class:`DeprecationWarning` naming the new place, so scripts written against the old layout
+    keep running for a release. No file is kept at the old place."""
+
+    def __init__(self, moved: dict):
+        self.moved = dict(moved)
+
+    def find_spec(self, name, path=None, target=None):
+        if name not in self.moved:
+            return None
+        return importlib.util.spec_from_loader(name, self)
+
+    def create_module(self, spec):
+        new = self.moved[spec.name]
+        warnings.warn(f"{spec.name} moved to {new}; the old name goes in a later release", DeprecationWarning, 3)
+        return importlib.import_module(new)
+
+    def exec_module(self, module) -> None:
+        """Nothing to run: the module is the new one, already imported."""
+
+
+def alias_moved_modules(moved: dict) -> None:
+    """Answer the old names in ``moved`` (old dotted name -> new one) from now on (once per process)."""
+    if not any(isinstance(f, MovedModules) for f in sys.meta_path):
+        sys.meta_path.append(MovedModules(moved))
