@@ -13,7 +13,10 @@ within 4 % of theirs, as ``Person.own_mask``).
 
 Methods: *keypoints only*; *main* (the silhouette stage before issue 55: the trust region of 6 % of the
 window around the detections, the fill side as strong as the inside side, the whole mask);
-*after* (the defaults); *after, no subtraction* (``second`` only: the defaults on the joined mask).
+*current* (issue 55's stage before the two-pass refit: one pass with the trust region around the keypoint stage's
+fit, ``trust_free_ratio=None``, ``trim_quantile=0.25``); *twopass* (the two-pass refit, ``trust_free_ratio=1.3``,
+``trim_quantile=0.5``); *after* (the defaults); *after, no subtraction* (``second`` only: the defaults on the joined
+mask).
 Printed per condition: PA-PVE and PVE (mm, against the whole true body), the median reprojection error (px),
 IoU with the given mask, how many fits the plausibility guard turned back, the gain of keypoints +
 silhouette over keypoints only in PA-PVE, and per subject the most the stage worsened a fit's PA-PVE and how many
@@ -46,12 +49,25 @@ from silfit.silhouette.people import own_mask
 
 #: the silhouette stage before issue 55 (its trust region around the detections, 6 % of the window; the
 #: mask-not-covered side as strong as the inside side)
-MAIN = dict(trust_from_start=False, trust_fraction=0.06, w_trust=0.05, cover_weight=1.0)
+MAIN = dict(
+    trust_from_start=False,
+    trust_fraction=0.06,
+    w_trust=0.05,
+    cover_weight=1.0,
+    trust_free_ratio=None,
+    trim_quantile=0.25,
+)
+#: the stage after issue 55, before the two-pass refit: one pass with the trust region around the keypoint stage's fit,
+#: the clothing trim at the outline distances' quartile
+CURRENT = dict(trust_free_ratio=None, trim_quantile=0.25)
 #: the defaults with one change (tuning; ``--methods``)
 VARIANTS = {
     "weakfill": dict(cover_weight=0.5),
     "fill1": dict(cover_weight=1.0),
     "oldtrust": MAIN,
+    "current": CURRENT,
+    "twopass": dict(trust_free_ratio=1.3, trim_quantile=0.5),
+    "twopass25": dict(trust_free_ratio=1.3, trim_quantile=0.25),
     "w05": dict(w_trust=0.5),
     "med50": dict(trust_median=0.5),
     "w02med50": dict(w_trust=0.2, trust_median=0.5),
@@ -97,7 +113,7 @@ def main() -> None:
     args = ap.parse_args()
     from bench_truncation import _value
 
-    after = {k: _value(v) for k, v in (x.split("=", 1) for x in args.set)}
+    after = {k: None if v.lower() == "none" else _value(v) for k, v in (x.split("=", 1) for x in args.set)}
     from silfit.synth.generate import SynthConfig, generate_dataset
 
     model = load_body_model()

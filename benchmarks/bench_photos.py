@@ -12,7 +12,7 @@ as ``silfit fit --image`` does; ``--whole-mask``: before it). Per photo and pers
 every person detected), printed as a table:
 median reprojection error of the keypoint stage, of the silhouette stage *before* (issue 23's
 first part: truncation-aware, keypoint trust region, beta bound; the plain mask energy; no
-clothing trim, no plausibility guard) and *after* (the defaults), max |beta| and stature (m)
+clothing trim, no plausibility guard) and *after* (the defaults; ``--set FIELD=VALUE``: one changed), max |beta| and stature (m)
 before/after, the share of the final body's vertices projected outside the image, the IoU with the mask of
 the keypoint fit and of the final fit, whether the silhouette stage's result was kept or turned back by the
 plausibility guard, and the after fit's warnings (shortened). A contact sheet (per person: the final body over the photo, and the
@@ -105,7 +105,11 @@ def main() -> None:
         action="store_true",
         help="each person's whole mask (before issue 55: the other people detected not taken out)",
     )
+    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="change a field of 'after'")
     args = ap.parse_args()
+    from bench_truncation import _value
+
+    changes = {k: None if v.lower() == "none" else _value(v) for k, v in (x.split("=", 1) for x in args.set)}
 
     from silfit.outputs import figures
     from silfit.body import load_body_model
@@ -155,7 +159,7 @@ def main() -> None:
                         kp_fit,
                         kp,
                         mask,
-                        SilhouetteFitConfig(),
+                        replace(SilhouetteFitConfig(), **changes),
                         fitter.pose_prior,
                         progress=False,
                         mask_source=f"{name} mask",

@@ -140,16 +140,21 @@ def _median_reprojection(kp2d: np.ndarray, keypoints: KeypointSet) -> float:
     return float(np.median(err[keypoints.conf > 0]))
 
 
-def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources):
+def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources, known=None):
     """``(masks for the stage, notes per mask)``: a mask reaching beyond the keypoint fit's body
-    all around (clothing) trimmed by that thickness (``SilhouetteFitConfig.trim_clothing``)."""
+    all around (clothing) trimmed by that thickness (``SilhouetteFitConfig.trim_clothing``), unless
+    that leaves none of its pixels the caller's ``known`` trusts (per mask; ``None``: all)."""
     from ..silhouette.losses import clothing_thickness, trim_clothing
 
     out, notes, trimmed = [], [], []
-    for mask, body, source in zip(masks, body_masks, sources):
+    for mask, body, source, seen in zip(masks, body_masks, sources, known or [None] * len(masks)):
         ys, xs = np.nonzero(mask)
         extent = float(max(np.ptp(ys), np.ptp(xs))) if len(ys) else 0.0
-        t = clothing_thickness(mask, body) if getattr(cfg, "trim_clothing", False) and extent > 0 else 0.0
+        t = (
+            clothing_thickness(mask, body, float(getattr(cfg, "trim_quantile", 0.25)))
+            if getattr(cfg, "trim_clothing", False) and extent > 0
+            else 0.0
+        )
         trimmed.append(t > cfg.trim_min * extent)
         if not trimmed[-1]:
             out.append(mask)
@@ -157,6 +162,10 @@ def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources):
             continue
         t = min(t, cfg.trim_max * extent)
         out.append(trim_clothing(mask, t))
+        if seen is not None and not (out[-1] & np.asarray(seen, dtype=bool)).any():  # nothing left to fit
+            out[-1], trimmed[-1] = mask, False
+            notes.append([])
+            continue
         notes.append(
             [
                 f"{source}: the mask reaches about {t:.0f} px beyond the keypoint fit's body all around (loose "
@@ -458,8 +467,15 @@ def refine_batch(
     # final energy of the stage is kept (_choose_hypothesis)
     offered = _offered_alternatives(keypoint_result, config)
     rows, candidates = _alternative_rows(offered, inits)
-    sils = _refine_rows(
-        model, keypoint_result, keypoints, rows, (fit_masks, known), inits, config, pose_prior, renderer, progress
+    sils, passes = _refine_passes(
+        model,
+        keypoint_result,
+        keypoints,
+        (rows, candidates),
+        (fit_masks, known),
+        inits,
+        config,
+        (pose_prior, renderer, progress),
     )
     batch = _RefinedBatch(
         model,
@@ -474,7 +490,75 @@ def refine_batch(
         candidates,
         sils,
     )
-    return [batch.result(i) for i in range(n)]
+    return [_with_passes(batch.result(i), passes[i]) for i in range(n)]
+
+
+def _refine_passes(
+    model, keypoint_result, keypoints, rows_of: tuple, masks: tuple, inits: list, config, run: tuple
+) -> tuple:
+    """``(sils, passes)``: :func:`refine_batch`'s problems (``rows_of``: ``(rows, candidates)``, :func:`_alternative_rows`)
+    refined by the silhouette stage, in one pass, or with ``SilhouetteFitConfig.trust_free_ratio`` in two: first with
+    the trust region before issue 55 (:meth:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig.free_pass`), then
+    the images that pass dragged off their keypoints (:func:`_dragged_images`), all their problems, with the trust
+    region of ``config``, batched (``run``: ``(pose_prior, renderer, progress)``). ``passes[i]``: image ``i``'s record of
+    the two passes (``{}``: one pass)."""
+    rows, candidates = rows_of
+    pose_prior, renderer, progress = run
+    free = getattr(config, "trust_free_ratio", None)
+    first = config if free is None else config.free_pass()
+    sils = _refine_rows(model, keypoint_result, keypoints, rows, masks, inits, first, pose_prior, renderer, progress)
+    passes = [{} for _ in candidates]
+    if free is None:
+        return sils, passes
+    redo = _dragged_images(model, keypoints, keypoint_result.cameras, candidates, inits, sils, config, passes)
+    ks = [k for k, r in enumerate(rows) if r in redo]
+    if ks:
+        again = _refine_rows(
+            model,
+            keypoint_result,
+            keypoints,
+            [rows[k] for k in ks],
+            masks,
+            [inits[k] for k in ks],
+            config,
+            pose_prior,
+            renderer,
+            progress,
+        )
+        for k, sil in zip(ks, again):
+            passes[rows[k]]["free_pass_seconds"] = passes[rows[k]].get("free_pass_seconds", 0.0) + sils[k].seconds
+            sils[k] = sil
+    return sils, passes
+
+
+def _dragged_images(model, keypoints, cameras, candidates: list, inits: list, sils: list, config, passes: list) -> set:
+    """The two-pass refit's images to refit with the trust region (``SilhouetteFitConfig.trust_free_ratio``): those
+    whose free pass's kept candidate (:func:`_choose_hypothesis`, of ``sils``) ends with a median reprojection error
+    above ``trust_free_ratio`` times their keypoint fit's (``inits[i]``); each image's errors recorded in
+    ``passes[i]``."""
+    redo = set()
+    for i, rows in enumerate(candidates):
+        k, camera = keypoints[i], cameras[i]
+        guard = getattr(config, "plausibility_guard", True)
+        c, _ = _choose_hypothesis(model, [sils[r] for r in rows], [inits[r] for r in rows], k, camera, "mask", guard)
+        before = _median_reprojection(_pose(model, inits[i], k.layout, camera)[2], k)
+        after = _median_reprojection(_pose(model, sils[rows[c]].params(), k.layout, camera)[2], k)
+        refit = after > float(config.trust_free_ratio) * before
+        passes[i].update(
+            free_pass_reprojection_px=after, keypoint_stage_reprojection_px=before, refit_with_trust_region=refit
+        )
+        if refit:
+            redo.add(i)
+    return redo
+
+
+def _with_passes(result: FitResult, passes: dict) -> FitResult:
+    """``result`` with the two-pass refit's record (:func:`_dragged_images`) in its metrics (``silhouette_passes``),
+    the free pass's seconds added to the stage's where the image was refitted; unchanged without it."""
+    if passes:
+        result.metrics["silhouette_passes"] = {k: v for k, v in passes.items() if k != "free_pass_seconds"}
+        result.metrics["timings_s"]["silhouette"] += passes.get("free_pass_seconds", 0.0)
+    return result
 
 
 def _batch_masks(keypoint_result, masks: list, mask_sources: list, config, known, faces) -> tuple:
@@ -483,7 +567,7 @@ def _batch_masks(keypoint_result, masks: list, mask_sources: list, config, known
     whose value is trusted (the stage's own, joined to the caller's ``known``; ``None``: all)."""
     n = len(masks)
     kp_masks, ious_before = _keypoint_fit_masks(keypoint_result, masks, mask_sources, faces)
-    fit_masks, trim_notes, trimmed = _trimmed_masks(masks, kp_masks, config, mask_sources)
+    fit_masks, trim_notes, trimmed = _trimmed_masks(masks, kp_masks, config, mask_sources, known)
     own = _known_pixels(fit_masks, kp_masks, config, mask_sources, trim_notes, trimmed)
     known = [
         k if g is None else (np.asarray(g, dtype=bool) if k is None else k & np.asarray(g, dtype=bool))

@@ -47,7 +47,7 @@ import math
 import threading
 import time
 import weakref
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, List, Optional, Sequence
 
 import numpy as np
@@ -106,6 +106,11 @@ BEFORE_FOURTH_PART = {
 }
 
 
+#: the trust region of the two-pass refit's first pass (``SilhouetteFitConfig.trust_free_ratio``): the one before
+#: issue 55, a radius of this share of the window's longer side around the detections
+FREE_TRUST_FRACTION = 0.06
+
+
 @renamed_fields(w_pose=Alias("pose_weight"))
 @dataclass
 class SilhouetteFitConfig:
@@ -159,6 +164,10 @@ class SilhouetteFitConfig:
     trim_clothing: bool = True
     trim_min: float = 0.015
     trim_max: float = 0.08
+    #: the quantile of the mask outline's distances to the keypoint fit's body taken as the clothing's thickness
+    #: (:func:`~silfit.silhouette.losses.clothing_thickness`); 0.25 before the two-pass refit (why this default:
+    #: docs/benchmarks/defaults.md)
+    trim_quantile: float = 0.25
     #: mask pixels farther than ``leak_distance`` of the mask's extent from the keypoint fit's
     #: silhouette (a leak into an object or the background) and the mask's holes smaller than
     #: ``hole_fraction`` of its area (segmentation gaps) are unknown, like the pixels beyond the
@@ -220,6 +229,13 @@ class SilhouetteFitConfig:
     #: the share of the median error in the trust region's unit (``unit = trust_unit_median * median + 1 px``;
     #: why this default: docs/benchmarks/defaults.md)
     trust_unit_median: float = 1.0
+    #: two passes in the image path (silfit.fitting.image_fit.refine_batch): the stage runs first with the trust region
+    #: before issue 55 (a radius of ``FREE_TRUST_FRACTION`` of the window around the detections: the silhouette free
+    #: to move the keypoints a little), then every image whose kept result's median reprojection error exceeds
+    #: ``trust_free_ratio`` times the keypoint stage's has all its branches refitted with the trust region above
+    #: (``trust_from_start``), and keeps that. ``None``: one pass with the trust region above (why this default:
+    #: docs/benchmarks/defaults.md)
+    trust_free_ratio: Optional[float] = None
     #: shape held in the plausible range: ``(|beta| - max_abs_beta)^2`` beyond it (:func:`beta_bound`)
     w_beta_bound: float = 10.0
     max_abs_beta: float = 2.5
@@ -271,6 +287,12 @@ class SilhouetteFitConfig:
             raise ValueError(
                 f"SilhouetteFitConfig: {', '.join(negative)} must be 0 or more (the keypoint trust region)"
             )
+        if self.trust_free_ratio is not None and not float(self.trust_free_ratio) > 0:
+            raise ValueError(
+                f"SilhouetteFitConfig: trust_free_ratio must be above 0 or None, got {self.trust_free_ratio!r}"
+            )
+        if not 0.0 <= float(self.trim_quantile) <= 1.0:
+            raise ValueError(f"SilhouetteFitConfig: trim_quantile must lie in [0, 1], got {self.trim_quantile!r}")
 
     @classmethod
     def legacy(cls, **changes) -> "SilhouetteFitConfig":
@@ -287,6 +309,11 @@ class SilhouetteFitConfig:
                 **changes,
             }
         )
+
+    def free_pass(self) -> "SilhouetteFitConfig":
+        """The two-pass refit's first pass (``trust_free_ratio``): these settings with the trust region before issue
+        55 (a radius of :data:`FREE_TRUST_FRACTION` of the window around the detections)."""
+        return replace(self, trust_from_start=False, trust_fraction=FREE_TRUST_FRACTION)
 
     def cover_profile(self, resolution: int) -> Optional[CoverProfile]:
         """The mask-not-covered profile in pixels of a window ``resolution`` pixels long

@@ -173,6 +173,29 @@ def test_concavities_are_unknown_only_in_a_mask_trimmed_as_clothing():
     assert _known_pixels([mask], [body], off, ["a"], [[]], [True]) == [None]
 
 
+def test_the_clothing_trim_leaves_something_known_to_fit():
+    """A mask grown all around is trimmed (``trim_quantile``: the outline distances' quantile taken as its thickness),
+    unless the trimmed mask keeps none of the pixels the caller trusts (``known``): then it is fitted untrimmed (the
+    stage needs something to fit; pure: no fitting)."""
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+    from silfit.fitting.image_fit import _trimmed_masks
+
+    body = np.zeros((100, 100), bool)
+    body[20:80, 40:60] = True
+    mask = np.zeros_like(body)
+    mask[14:86, 34:66] = True  # 6 px of clothing all around
+    cfg = SilhouetteFitConfig()
+    (out,), (note,), (trimmed,) = _trimmed_masks([mask], [body], cfg, ["a"])
+    assert trimmed and out.sum() < mask.sum() and note
+    rim = mask & ~out  # only the trimmed rim is known: nothing left to fit
+    (out,), (note,), (trimmed,) = _trimmed_masks([mask], [body], cfg, ["a"], [rim])
+    assert not trimmed and np.array_equal(out, mask) and note == []
+    with pytest.raises(ValueError, match="trim_quantile"):
+        SilhouetteFitConfig(trim_quantile=1.5)
+    with pytest.raises(ValueError, match="trust_free_ratio"):
+        SilhouetteFitConfig(trust_free_ratio=0.0)
+
+
 def test_the_hypothesis_that_refines_lowest_against_the_mask_is_kept(open_model, tmp_path):
     """``--hypotheses K`` with a mask (issue 25): every hypothesis goes through the silhouette stage and the
     lowest final energy is kept; metrics.json records each one's energy and which was kept (shipped subject 4:

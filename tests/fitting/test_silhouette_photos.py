@@ -253,3 +253,43 @@ def test_a_photos_other_people_are_unknown_to_the_stage():
     assert out["metrics"]["detection"]["mask_other_people_px"] == int((~out["known"]).sum())
     alone = photo_inputs("one.png", "largest", True, True, detected=(photo, [a]))
     assert alone["known"] is None
+
+
+def test_the_two_pass_refit_trusts_the_images_the_free_pass_dragged(open_model, target_mask):
+    """``trust_free_ratio``: the stage runs first with the trust region before issue 55 (free); an image whose result
+    then lies more than ``trust_free_ratio`` times the keypoint stage's median reprojection error from its keypoints
+    (here: a mask 8 cm to the side drags the body) is refitted with the trust region around the keypoint stage's fit,
+    and keeps that: the single trusted pass's result (``None``), not the free one (a ratio too large to act)."""
+    from silfit.fitting import KeypointFitResult
+    from silfit.fitting.image_fit import refine_batch
+    from silfit.io.keypoints import KeypointSet
+
+    keypoints = _keypoints_of(open_model, POSE)
+    keypoints[:, :2] += np.random.default_rng(0).normal(0, 0.5, (len(keypoints), 2))  # the keypoint stage's errors
+    before = _median_error(open_model, POSE, keypoints)
+    kp = KeypointFitResult(
+        **{k: np.asarray(v, np.float32) for k, v in POSE.items()},
+        cameras=[CAMERA],
+        vertices=vertices(open_model, POSE)[None],
+        reprojection_error=np.array([before]),
+    )
+    kset = KeypointSet(keypoints[:, :2], keypoints[:, 2], "body25")
+    # the refit alone under test: no clothing trim, no leak set aside, no guard turning the free pass's result back
+    cfg = replace(FAST, w_keypoints=0.02, trim_clothing=False, leak_distance=0.0, plausibility_guard=False)
+
+    def run(ratio):
+        (result,) = refine_batch(
+            open_model, kp, [kset], [target_mask], replace(cfg, trust_free_ratio=ratio), progress=False
+        )
+        return result
+
+    two, one, free = run(1.3), run(None), run(1000.0)
+    passes = two.metrics["silhouette_passes"]
+    assert passes["refit_with_trust_region"] and passes["free_pass_reprojection_px"] > 1.3 * before
+    assert passes["keypoint_stage_reprojection_px"] == pytest.approx(before, rel=1e-4)
+    assert two.metrics["reprojection_error_px"] <= 1.25 * before + 0.25  # as the trust region's own test
+    assert np.allclose(two.params["transl"], one.params["transl"])  # the refit is the single trusted pass
+    assert "silhouette_passes" not in one.metrics
+    assert not free.metrics["silhouette_passes"]["refit_with_trust_region"]
+    assert free.metrics["reprojection_error_px"] > 2 * before + 1.0  # switched off: the free pass's result is kept
+    assert not np.allclose(free.params["transl"], two.params["transl"])
