@@ -43,7 +43,7 @@ class MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
     def create_module(self, spec):
         new = self.moved[spec.name]
-        warnings.warn(f"{spec.name} moved to {new}; the old name goes in a later release", DeprecationWarning, 3)
+        warnings.warn(f"{spec.name} moved to {new}; the old name goes in a later release", DeprecationWarning, 2)
         return importlib.import_module(new)
 
     def exec_module(self, module) -> None:

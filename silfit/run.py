@@ -560,6 +560,8 @@ def write(
     or a rig's pictures on, over the job's (a fit run without its image; a video's come from its
     reader)."""
     job = fit.job
+    if images and job.mode == "video":
+        raise ValueError("write: a video's pictures come from its reader (job.inputs), not from images=")
     model = job.model
     faces = model.faces.cpu().numpy()
     fields = {k: v for k, v in fit.metrics.items() if k in job.record}

@@ -196,3 +196,14 @@ def test_only_run_write_calls_the_per_mode_writers():
                 if name in WRITERS:
                     calls.append(f"{p.relative_to(package)}:{node.lineno} {name}")
     assert not calls, f"write output folders with silfit.run.write, not the per-mode writers: {calls}"
+
+
+def test_write_refuses_pictures_for_a_video():
+    """A video's overlays are drawn on the frames its reader found; pictures given to write would be ignored."""
+    from types import SimpleNamespace
+
+    from silfit.run import write
+
+    fit = SimpleNamespace(job=SimpleNamespace(mode="video"))
+    with pytest.raises(ValueError, match="a video's pictures come from its reader"):
+        write(fit, "unused", images={(0, 0): np.zeros((2, 2, 3), np.uint8)})

@@ -127,7 +127,7 @@ def test_proxy_silhouette_iou(model, proxy):
 
 
 def test_proxy_gradient_matches_finite_differences(model, proxy, edge_gradient_check):
-    """The edge-gradient FD check of tests/silfit.render/test_mitsuba_silhouette.py, through
+    """The edge-gradient FD check of tests/render/test_mitsuba_silhouette.py, through
     the proxy map: d loss / d (tx, ty, tz, scale) of the body's model vertices."""
     v0 = _posed(model, "stand_relaxed")
     centre = v0.mean(0)
