@@ -1,4 +1,4 @@
-"""Old names of config fields, kept working: one canonical name per weight (issue 26).
+"""Old names of config fields, kept working: one canonical name per weight (issues 26 and 57).
 
 :func:`renamed_fields` decorates a dataclass config: each old name stays a keyword of the
 constructor (mapped onto its canonical field, with a :class:`DeprecationWarning`) and an

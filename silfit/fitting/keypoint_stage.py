@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass, field, replace
 from typing import Optional, Sequence, Union
 
@@ -106,18 +107,52 @@ WHOLEBODY_FACE_PARAMS = ("jaw_pose", "expression")
 _POSE_FREE = ("global_orient", "transl", "body_pose")
 
 
-def _pose_stage_weights(current, value, keywords):
-    """``pose_prior_weights`` (the pose stages' pose-prior weights) onto ``pose_weight``."""
-    n = len(keywords.get("pose_iters", KeypointFitConfig.__dataclass_fields__["pose_iters"].default))
-    if len(value) != n:
-        angle = keywords.get(
-            "angle_prior_weights", KeypointFitConfig.__dataclass_fields__["angle_prior_weights"].default
+def _stage_weights(old: str, field_name: str):
+    """An ``Alias.put`` for ``old`` (one weight per pose stage) onto ``field_name`` (the pose stages' weights, then
+    the final stage's): ``old`` must have one value per pose stage."""
+
+    def put(current, value, keywords):
+        n = len(keywords.get("pose_iters", KeypointFitConfig.__dataclass_fields__["pose_iters"].default))
+        if len(value) != n:
+            raise ValueError(
+                f"KeypointFitConfig: pose_iters ({n}), {old} ({len(value)}): one weight per pose stage, the same "
+                f"non-zero length (the final stage's is {field_name}'s last)"
+            )
+        return tuple(value) + (tuple(current)[-1],)
+
+    return put
+
+
+def _final_weight(current, value, keywords):
+    """An ``Alias.put`` for an old ``final_*`` weight: the last value of its (stages then final) tuple."""
+    return tuple(current)[:-1] + (float(value),)
+
+
+def _last(weights):
+    """An ``Alias.get`` for an old ``final_*`` weight."""
+    return tuple(weights)[-1]
+
+
+def _but_last(weights):
+    """An ``Alias.get`` for an old per-pose-stage weight."""
+    return tuple(weights)[:-1]
+
+
+def shape_weights(value) -> tuple:
+    """``KeypointFitConfig.shape_weight`` as ``(shape stage, final stage)``: a single number (or one value) is the
+    shape stage's, the old meaning of the name (deprecated; the final stage's keeps its default)."""
+    if np.ndim(value) == 0 or len(value) == 1:
+        final = KeypointFitConfig.__dataclass_fields__["shape_weight"].default[-1]
+        warnings.warn(
+            f"KeypointFitConfig: a single shape_weight is deprecated: give (shape stage, final stage), "
+            f"e.g. (20.0, 5.0); the final stage's kept at {final}",
+            DeprecationWarning,
+            stacklevel=5,
         )
-        raise ValueError(
-            f"KeypointFitConfig: pose_iters ({n}), pose_prior_weights ({len(value)}) and angle_prior_weights "
-            f"({len(angle)}) must have the same non-zero length"
-        )
-    return tuple(value) + (tuple(current)[-1],)
+        value = (float(np.ravel(value)[0]), final)
+    if len(value) != 2:
+        raise ValueError(f"KeypointFitConfig: shape_weight has {len(value)} values: give (shape stage, final stage)")
+    return tuple(float(w) for w in value)
 
 
 #: two hypotheses of a sample whose joints are this close (mean, metres) are one solution ...
@@ -130,8 +165,11 @@ DIFFERS_DEG = 30.0
 
 
 @renamed_fields(
-    pose_prior_weights=Alias("pose_weight", lambda w: tuple(w)[:-1], _pose_stage_weights),
-    final_pose_prior_weight=Alias("pose_weight", lambda w: tuple(w)[-1], lambda w, v, kw: tuple(w)[:-1] + (float(v),)),
+    pose_prior_weights=Alias("pose_weight", _but_last, _stage_weights("pose_prior_weights", "pose_weight")),
+    final_pose_prior_weight=Alias("pose_weight", _last, _final_weight),
+    angle_prior_weights=Alias("angle_weight", _but_last, _stage_weights("angle_prior_weights", "angle_weight")),
+    final_angle_prior_weight=Alias("angle_weight", _last, _final_weight),
+    final_shape_weight=Alias("shape_weight", _last, lambda w, v, kw: _final_weight(shape_weights(w), v, kw)),
 )
 @dataclass
 class KeypointFitConfig:
@@ -166,9 +204,13 @@ class KeypointFitConfig:
     #: :class:`~silfit.fitting.sequence.SequenceFitConfig`; the old ``pose_prior_weights`` (the pose
     #: stages') and ``final_pose_prior_weight`` still work).
     pose_weight: Sequence[float] = (2000.0, 400.0, 80.0, 40.0)
-    angle_prior_weights: Sequence[float] = (10.0, 5.0, 2.0)
+    #: the angle prior's (the knees' and elbows' bend), the same way: one per pose stage, then the final stage's
+    #: (issue 57; the old ``angle_prior_weights`` (the pose stages') and ``final_angle_prior_weight`` still work)
+    angle_weight: Sequence[float] = (10.0, 5.0, 2.0, 1.0)
     shape_iters: int = 20
-    shape_weight: float = 20.0
+    #: the shape prior's: the shape stage's, then the final stage's (issue 57; the old ``final_shape_weight``
+    #: still works, and a single number is the shape stage's, as the name meant before, with a warning)
+    shape_weight: Sequence[float] = (20.0, 5.0)
     #: the final stage's L-BFGS steps; with ``branch_refine`` above 1 the hypotheses are chosen by the
     #: final energy, so this many steps bring it near its minimum (see ``branch_refine``; why this
     #: default: docs/benchmarks/defaults.md)
@@ -181,8 +223,6 @@ class KeypointFitConfig:
     #: optimiser's default, 1e-8, runs nearly every row all ``final_iters``); ``None``: the optimiser's default
     #: (why this default: docs/benchmarks/defaults.md)
     final_tol_change: Optional[float] = 1e-4
-    final_angle_prior_weight: float = 1.0
-    final_shape_weight: float = 5.0
     limit_weight: float = 1e4
     interpenetration_weight: float = 1e5
     depth_weight: float = 1e3
@@ -335,10 +375,12 @@ class KeypointFitConfig:
     def __post_init__(self):
         n = len(self.pose_iters)
         self.pose_weight = tuple(float(w) for w in self.pose_weight)
-        if not (len(self.pose_weight) - 1 == len(self.angle_prior_weights) == n) or n == 0:
+        self.angle_weight = tuple(float(w) for w in self.angle_weight)
+        self.shape_weight = shape_weights(self.shape_weight)
+        if not (len(self.pose_weight) - 1 == len(self.angle_weight) - 1 == n) or n == 0:
             raise ValueError(
                 f"KeypointFitConfig: pose_iters ({n}), pose_weight ({len(self.pose_weight)}: one per pose stage, then "
-                f"the final stage's) and angle_prior_weights ({len(self.angle_prior_weights)}) do not match"
+                f"the final stage's) and angle_weight ({len(self.angle_weight)}: the same) do not match"
             )
         if not 0 <= int(self.flip_decision_stage) < n:
             raise ValueError(
@@ -389,11 +431,11 @@ class KeypointFitConfig:
         out = [
             Stage("camera", ("global_orient", "transl"), {"torso": 1.0, "depth": self.depth_weight}, self.camera_iters)
         ]
-        for i, (it, wp, wa) in enumerate(zip(self.pose_iters, self.pose_weight[:-1], self.angle_prior_weights)):
+        for i, (it, wp, wa) in enumerate(zip(self.pose_iters, self.pose_weight[:-1], self.angle_weight[:-1])):
             out += self._pose_stages(i, int(it), wp, wa, hw, fw)
         final_parts = (self.final_hand_weight, self.final_face_weight) if whole_body else (0.0, 0.0)
         if self.shape_iters:
-            w = {"keypoints": 1.0, "shape": self.shape_weight}
+            w = {"keypoints": 1.0, "shape": self.shape_weight[0]}
             if self.final_points_weight:
                 w["points"] = float(self.final_points_weight)
             w.update({k: v for k, v in zip(("hands", "face"), final_parts) if v})
@@ -453,9 +495,9 @@ class KeypointFitConfig:
         w = {
             "keypoints": 1.0,
             "pose": self.pose_weight[-1],
-            "angle": self.final_angle_prior_weight,
+            "angle": self.angle_weight[-1],
             "limits": self.limit_weight,
-            "shape": self.final_shape_weight,
+            "shape": self.shape_weight[-1],
             "interpenetration": self.interpenetration_weight,
             **self.image_depth_weights(),
         }

@@ -288,7 +288,7 @@ def pose_from_points(
         )
     x = torch.cat([base[n] for n in free], 1)
     for wp, iters in POINTS_ROUNDS:
-        wa = cfg.angle_prior_weights[min(1, len(cfg.angle_prior_weights) - 1)]
+        wa = cfg.angle_weight[min(1, len(cfg.angle_weight) - 2)]  # the second pose stage's (or the only one's)
 
         def fun(xr, idx):
             rows = {n: v[idx] for n, v in base.items()}

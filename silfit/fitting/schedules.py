@@ -5,7 +5,8 @@ These are what the configs' defaults give (:meth:`KeypointFitConfig.stages`,
 against its config), written out so a schedule reads at a glance. A table is also a valid
 ``schedule`` to start from: ``KeypointFitConfig(schedule=[...])`` runs any list of stages.
 Every weight has one name, the term's (``pose``: the pose prior, whose config field is
-``pose_weight`` in every config). Each stage runs in :func:`~silfit.fitting.stages.run_stage`,
+``pose_weight`` in every config; ``angle``: ``angle_weight``; ``shape``: ``shape_weight``; ``limits``:
+``limit_weight``). Each stage runs in :func:`~silfit.fitting.stages.run_stage`,
 which dispatches on the optimiser column.
 """
 

@@ -79,7 +79,7 @@ __all__ = [
 ROTATIONS = ("global_orient", "body_pose")
 
 
-@renamed_fields(pose_prior_weight=Alias("pose_weight"))
+@renamed_fields(pose_prior_weight=Alias("pose_weight"), angle_prior_weight=Alias("angle_weight"))
 @dataclass
 class SequenceFitConfig:
     """Settings of :func:`fit_sequence` (defaults tuned on ``silfit synth --videos`` data,
@@ -110,7 +110,7 @@ class SequenceFitConfig:
     joint_smooth_weight: float = 1.0
     root_smooth_weight: float = 1.0
     pose_weight: float = 40.0  # the pose prior's (one name in every config, issue 26; old name ``pose_prior_weight``)
-    angle_prior_weight: float = 1.0
+    angle_weight: float = 1.0  # the angle prior's (one name in every config, issue 57; old name ``angle_prior_weight``)
     limit_weight: float = 1e4
     shape_weight: float = 5.0
     interpenetration_weight: float = 0.0
@@ -155,7 +155,7 @@ class SequenceFitConfig:
         w = {
             "keypoints": 1.0,
             "pose": self.pose_weight,
-            "angle": self.angle_prior_weight,
+            "angle": self.angle_weight,
             "limits": self.limit_weight,
             "smooth_joints": k * self.joint_smooth_weight,
             "smooth_root": k * self.root_smooth_weight,

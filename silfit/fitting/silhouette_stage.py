@@ -6,7 +6,7 @@ cross-talk: a batch gives what the subjects give one at a time.
 Energy (per subject, the named terms of :mod:`silfit.fitting.terms` plus the silhouette)::
 
     E = w_silhouette * E_sil(S) + w_keypoints * E_kp + pose_weight * prior(pose)
-        + w_limits * limits(pose) + w_angle * angle(pose) + w_shape * |betas|^2
+        + limit_weight * limits(pose) + angle_weight * angle(pose) + shape_weight * |betas|^2
         + w_stay * |theta - theta_kp|^2
 
 * ``S`` is the Mitsuba silhouette (projective sampling, so the gradient includes the
@@ -111,7 +111,12 @@ BEFORE_FOURTH_PART = {
 FREE_TRUST_FRACTION = 0.06
 
 
-@renamed_fields(w_pose=Alias("pose_weight"))
+@renamed_fields(
+    w_pose=Alias("pose_weight"),
+    w_limits=Alias("limit_weight"),
+    w_angle=Alias("angle_weight"),
+    w_shape=Alias("shape_weight"),
+)
 @dataclass
 class SilhouetteFitConfig:
     """Settings of the silhouette stage (defaults tuned on the synthetic set)."""
@@ -206,9 +211,11 @@ class SilhouetteFitConfig:
     #: the pose prior's (one name in every config, issue 26; old name ``w_pose``); it holds the arms a
     #: detector's keypoints barely hold (why this default: docs/benchmarks/defaults.md)
     pose_weight: float = 0.005
-    w_limits: float = 1.0
-    w_angle: float = 0.001
-    w_shape: float = 0.005
+    #: the joint limits', the angle prior's and the shape prior's (one name in every config, issue 57; old names
+    #: ``w_limits``, ``w_angle``, ``w_shape``)
+    limit_weight: float = 1.0
+    angle_weight: float = 0.001
+    shape_weight: float = 0.005
     w_stay: float = 0.0
     #: trust region on the keypoints (:class:`KeypointTrustTerm`): a keypoint's projection may move up to a
     #: radius from its detection at no cost, beyond it quadratically, weighed by its confidence (issue 55:
@@ -331,9 +338,9 @@ class SilhouetteFitConfig:
             "silhouette": self.w_silhouette,
             "keypoints": self.w_keypoints,
             "pose": self.pose_weight,
-            "limits": self.w_limits,
-            "angle": self.w_angle,
-            "shape": self.w_shape,
+            "limits": self.limit_weight,
+            "angle": self.angle_weight,
+            "shape": self.shape_weight,
             "stay": self.w_stay,
             "keypoint_trust": self.w_trust,
             "beta_bound": self.w_beta_bound,

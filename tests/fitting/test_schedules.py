@@ -75,13 +75,114 @@ def test_old_names_map_to_the_canonical_one():
     assert kp.pose_weight[-1] == 1.5 and kp.stages()[-1].weights["pose"] == 1.5 and sil.pose_weight == 0.25
 
 
+#: every weight with one name per term (issue 57): the canonical field in each config, and the old names it had
+ONE_NAME = {
+    "angle_weight": {"angle_prior_weights", "final_angle_prior_weight", "angle_prior_weight", "w_angle"},
+    "shape_weight": {"final_shape_weight", "w_shape"},
+    "limit_weight": {"w_limits"},
+}
+
+
+@pytest.mark.parametrize("name", sorted(ONE_NAME))
+def test_the_prior_weights_have_one_name_in_every_config(name):
+    for cfg in (KeypointFitConfig(), SilhouetteFitConfig(), SequenceFitConfig()):
+        names = {f.name for f in fields(cfg)}
+        assert name in names and not names & ONE_NAME[name], type(cfg).__name__
+        assert name in cfg.to_dict() and not set(cfg.to_dict()) & ONE_NAME[name]
+
+
+def test_the_keypoint_angle_and_shape_weights_are_stages_then_final():
+    cfg = KeypointFitConfig(angle_weight=(1.0, 2.0, 3.0, 4.0), shape_weight=(6.0, 7.0))
+    by_name = {s.name: s.weights for s in cfg.stages()}
+    assert [by_name[f"pose_{i}"]["angle"] for i in (1, 2, 3)] == [1.0, 2.0, 3.0]
+    assert by_name["final"]["angle"] == 4.0 and by_name["branches_late"]["angle"] == 4.0
+    assert by_name["shape"]["shape"] == 6.0 and by_name["final"]["shape"] == 7.0
+    assert cfg.to_dict()["angle_weight"] == [1.0, 2.0, 3.0, 4.0] and cfg.to_dict()["shape_weight"] == [6.0, 7.0]
+    assert SilhouetteFitConfig(angle_weight=0.5, shape_weight=0.25, limit_weight=2.0).weights() == {
+        **SilhouetteFitConfig().weights(),
+        "angle": 0.5,
+        "shape": 0.25,
+        "limits": 2.0,
+    }
+    assert SequenceFitConfig(angle_weight=3.0).stages()[0].weights["angle"] == 3.0
+    with pytest.raises(ValueError, match="angle_weight .3: the same. do not match"):
+        KeypointFitConfig(angle_weight=(1.0, 2.0, 3.0))
+    with pytest.raises(ValueError, match="shape_weight has 3 values"):
+        KeypointFitConfig(shape_weight=(1.0, 2.0, 3.0))
+
+
+def test_old_prior_weight_names_map_with_a_warning():
+    with pytest.warns(DeprecationWarning) as caught:
+        sil = SilhouetteFitConfig(w_angle=0.01, w_shape=0.02, w_limits=3.0)
+    assert sorted(str(w.message) for w in caught) == [
+        f"SilhouetteFitConfig: '{old}' is deprecated, use '{new}'"
+        for old, new in (("w_angle", "angle_weight"), ("w_limits", "limit_weight"), ("w_shape", "shape_weight"))
+    ]
+    assert (sil.angle_weight, sil.shape_weight, sil.limit_weight) == (0.01, 0.02, 3.0)
+    assert (sil.w_angle, sil.w_shape, sil.w_limits) == (0.01, 0.02, 3.0)
+    assert replace(sil, iterations=(5, 5)).weights() == sil.weights()
+    with pytest.warns(DeprecationWarning, match="'angle_prior_weight' is deprecated, use 'angle_weight'"):
+        seq = SequenceFitConfig(angle_prior_weight=2.5)
+    assert seq.angle_weight == seq.angle_prior_weight == 2.5 and seq.stages()[0].weights["angle"] == 2.5
+    with pytest.warns(DeprecationWarning) as caught:
+        kp = KeypointFitConfig(
+            angle_prior_weights=(5.0, 6.0, 7.0), final_angle_prior_weight=8.0, final_shape_weight=9.0
+        )
+    assert {str(w.message) for w in caught} == {
+        f"KeypointFitConfig: '{old}' is deprecated, use '{new}'"
+        for old, new in (
+            ("angle_prior_weights", "angle_weight"),
+            ("final_angle_prior_weight", "angle_weight"),
+            ("final_shape_weight", "shape_weight"),
+        )
+    }
+    assert kp.angle_weight == (5.0, 6.0, 7.0, 8.0) and kp.shape_weight == (20.0, 9.0)
+    assert kp.angle_prior_weights == (5.0, 6.0, 7.0) and kp.final_angle_prior_weight == 8.0
+    assert kp.final_shape_weight == 9.0
+    with pytest.raises(ValueError, match="pose_iters .3., angle_prior_weights .2."):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            KeypointFitConfig(angle_prior_weights=(1.0, 2.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        kp.final_angle_prior_weight = 1.5  # attributes write through too
+        kp.final_shape_weight = 2.5
+        kp.angle_prior_weights = (1.0, 2.0, 3.0)
+        sil.w_angle, sil.w_shape, sil.w_limits = 0.1, 0.2, 0.3
+        seq.angle_prior_weight = 4.0
+    assert kp.angle_weight == (1.0, 2.0, 3.0, 1.5) and kp.shape_weight == (20.0, 2.5)
+    assert kp.stages()[-1].weights["angle"] == 1.5 and kp.stages()[-1].weights["shape"] == 2.5
+    assert (sil.angle_weight, sil.shape_weight, sil.limit_weight, seq.angle_weight) == (0.1, 0.2, 0.3, 4.0)
+
+
+def test_a_single_keypoint_shape_weight_is_the_shape_stages_as_before():
+    """``KeypointFitConfig.shape_weight`` was the shape stage's number; one number still means that (warned)."""
+    for old in (30.0, 30, (30.0,)):
+        with pytest.warns(DeprecationWarning, match="single shape_weight is deprecated"):
+            assert KeypointFitConfig(shape_weight=old).shape_weight == (30.0, 5.0)
+    with pytest.warns(DeprecationWarning):
+        assert KeypointFitConfig(shape_weight=30.0, final_shape_weight=6.0).shape_weight == (30.0, 6.0)
+
+
 def test_the_dataset_runners_options_take_the_old_name_too():
-    from silfit.runner.worker import keypoint_config
+    from silfit.runner.worker import FitOptions, keypoint_config, silhouette_config
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         assert keypoint_config({"pose_prior_weights": "1,2,3"}).pose_weight == (1.0, 2.0, 3.0, 40.0)
     assert keypoint_config({"pose_weight": "1,2,3,4"}).pose_weight == (1.0, 2.0, 3.0, 4.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        kp = keypoint_config(
+            {"angle_prior_weights": "1,2,3", "final_angle_prior_weight": "4", "final_shape_weight": "6"}
+        )
+        assert (kp.angle_weight, kp.shape_weight) == ((1.0, 2.0, 3.0, 4.0), (20.0, 6.0))
+        assert keypoint_config({"shape_weight": "30"}).shape_weight == (30.0, 5.0)  # the old meaning
+        sil = silhouette_config(FitOptions(silhouette_options={"w_angle": "0.5", "w_shape": "0.25", "w_limits": "2"}))
+    assert (sil.angle_weight, sil.shape_weight, sil.limit_weight) == (0.5, 0.25, 2.0)
+    assert keypoint_config({"angle_weight": "1,2,3,4", "shape_weight": "7,8"}).shape_weight == (7.0, 8.0)
+    sil = silhouette_config(FitOptions(silhouette_options={"angle_weight": "0.5", "limit_weight": "2"}))
+    assert (sil.angle_weight, sil.limit_weight) == (0.5, 2.0)
 
 
 def test_the_late_search_options_reach_its_stages():
