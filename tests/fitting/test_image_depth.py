@@ -228,3 +228,53 @@ def test_metrics_say_image_depth_none_without_an_image(body_model, reaching_subj
     cfg = replace_weight(cfg, 100.0)
     r = fit(s.keypoints, camera=s.camera, model=body_model, keypoint_config=cfg, progress=False, image=s.image)
     assert r.metrics["image_depth"]["decided"]["right_forearm"]["distal"] == "nearer"
+
+
+def test_the_image_decides_the_branch_as_a_hard_choice(body_model, reaching_subject):
+    """``image_depth_decide``: the cue's confident calls choose among the branch search's hypotheses (the term off);
+    ignored, this subject's right arm is fitted reaching away (260 mm PA-PVE, measured)."""
+    from dataclasses import replace
+
+    from silfit.eval.metrics import pa_pve
+    from silfit.fitting.image_depth import cue_from_image
+
+    s = reaching_subject
+    names = body_model.joint_names
+    cue, _ = cue_from_image(s.image, s.keypoints)
+    assert cue.hard_signs(0.6)[[n for n, _, _ in SEGMENTS].index("right_forearm")] == -1  # nearer, confident
+    fitter = KeypointFitter(body_model, config=replace(FAST, image_depth_decide=0.6))
+    assert fitter.config.image_depth_weight == 0.0
+    with torch.no_grad():
+        r = fitter.fit([s.keypoints], [s.camera], progress=False, depth_cues=[cue])
+    dz = r.joints[0, names.index("right_wrist"), 2] - r.joints[0, names.index("right_elbow"), 2]
+    assert dz < 0 and 1000 * pa_pve(r.vertices[0].astype(np.float64), s.gt.vertices) < 100  # measured: 47 mm
+    record = r.branch_search[0][-1]["image_depth"]  # the final choice names the sides it took as decided
+    assert record["decided"]["right_forearm"] == "nearer" and record["fit_agrees"]
+
+
+def test_without_an_image_the_hard_choice_changes_nothing(body_model, reaching_subject):
+    from dataclasses import replace
+
+    s = reaching_subject
+    tiny = KeypointFitConfig(
+        camera_iters=5, pose_iters=(5, 5, 5), shape_iters=3, final_iters=5, late_branch_iters=4, post_branch_iters=4
+    )
+    a = KeypointFitter(body_model, config=replace(tiny, image_depth_decide=0.6)).fit(
+        [s.keypoints], [s.camera], progress=False, depth_cues=[None]
+    )
+    b = KeypointFitter(body_model, config=tiny).fit([s.keypoints], [s.camera], progress=False)
+    assert np.array_equal(a.joints, b.joints) and a.energies["final"][0] == b.energies["final"][0]
+    assert a.branch_search == b.branch_search
+
+
+def test_rows_against_the_decided_sides_rank_after_those_that_agree():
+    from silfit.fitting.image_depth import demote_disagreeing
+    from silfit.fitting.keypoint_stage import best_per_group
+
+    f = torch.tensor([10.0, 12.0, 11.0, 5.0, 6.0], dtype=torch.float64)
+    group = torch.tensor([0, 0, 0, 1, 1])
+    against = torch.tensor([True, False, True, True, True])
+    score = demote_disagreeing(f, group, 2, against)
+    assert best_per_group(score, group, 2).tolist() == [1, 3]  # sample 1: none agrees, the energy chooses
+    assert best_per_group(score, group, 2, count=3).tolist() == [1, 0, 2, 3, 4]
+    assert torch.equal(score[3:], f[3:])
