@@ -116,7 +116,9 @@ def run_seed(seed: int, n: int, size: int, poses: str, fit: bool) -> list:
     return rows
 
 
-def compare_seed(seed: int, n: int, size: int, poses: str, batch: int, variants: tuple, silhouette: bool = True) -> list:
+def compare_seed(
+    seed: int, n: int, size: int, poses: str, batch: int, variants: tuple, silhouette: bool = True
+) -> list:
     """The default image path (keypoint stage in batches of ``batch``, then the silhouette stage against the
     generator's masks) per cue setting in ``variants`` (``(label, image_depth_weight, image_depth_decide)``; weight
     0 and decide ``None``: the cue off, the baseline), on the same subjects: per subject and setting PA-PVE (mm) of
@@ -148,9 +150,7 @@ def compare_seed(seed: int, n: int, size: int, poses: str, batch: int, variants:
     rows = []
     for label, w, decide in variants:
         on = bool(w) or decide is not None
-        fitter = KeypointFitter(
-            model, config=KeypointFitConfig(image_depth_weight=float(w), image_depth_decide=decide)
-        )
+        fitter = KeypointFitter(model, config=KeypointFitConfig(image_depth_weight=float(w), image_depth_decide=decide))
         for b in range(0, len(sets), batch):
             sl = slice(b, b + batch)
             t0 = time.process_time()

@@ -323,7 +323,9 @@ def cue_hypotheses(body, rows: dict, calls: np.ndarray, names, parents, camera: 
     low = opts.get("min_depth_ratio", 0.3)
     proposed = {(r, (n,)) for n, _, _ in SEGMENTS for r in np.nonzero(ratios[n] >= low)[0].tolist()}
     if opts.get("whole_limbs", True):
-        proposed |= {(r, limb) for limb in LIMBS for r in np.nonzero(np.maximum(*(ratios[n] for n in limb)) >= low)[0].tolist()}
+        proposed |= {
+            (r, limb) for limb in LIMBS for r in np.nonzero(np.maximum(*(ratios[n] for n in limb)) >= low)[0].tolist()
+        }
     return [
         (r, "image:" + "+".join(segs), rows["body_pose"][r])
         for r, segs in enumerate(flipped)
