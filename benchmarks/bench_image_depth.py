@@ -15,6 +15,7 @@ of those it gets right, and how many landmark sets it refuses (a left/right swap
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -150,7 +151,8 @@ def compare_seed(
     rows = []
     for label, w, decide in variants:
         on = bool(w) or decide is not None
-        fitter = KeypointFitter(model, config=KeypointFitConfig(image_depth_weight=float(w), image_depth_decide=decide))
+        cfg = KeypointFitConfig(image_depth_weight=float(w), image_depth_decide=decide)
+        fitter = KeypointFitter(model, config=replace(cfg, image_depth_decide_screens="reserve" not in label))
         for b in range(0, len(sets), batch):
             sl = slice(b, b + batch)
             t0 = time.process_time()
@@ -178,6 +180,7 @@ def compare_seed(
                         "t_cue": t_cue if on else 0.0,
                         "decided": 0 if c is None else len(c.decided()),
                         "hard": 0 if c is None or decide is None else int((c.hard_signs(decide) != 0).sum()),
+                        "gap": choice_gap(kp.branch_search[j]),
                         "kp": 1000 * float(pa_pve(kp.vertices[j].astype(np.float64), gt.vertices)),
                         "sil": np.nan
                         if r is None
@@ -185,6 +188,16 @@ def compare_seed(
                     }
                 )
     return rows
+
+
+def choice_gap(search) -> float:
+    """The relative final energy the fit's branch pays above the lowest refined one (0: the energy's own choice;
+    above 0 where the image cue's hard choice took another)."""
+    if not search or not search[-1].get("refined"):
+        return 0.0
+    low = min(t["energy"] for t in search[-1]["tried"])
+    kept = next(t["energy"] for t in search[-1]["tried"] if t["flip"] == search[-1]["kept"])
+    return (kept - low) / max(abs(low), 1e-12)
 
 
 def compare_table(rows: list, weights: tuple) -> None:
@@ -292,7 +305,8 @@ def main() -> None:
         "--decide",
         metavar="T0,T1",
         help="compare also (weight 0) with these image_depth_decide thresholds: the cue as a hard choice in the "
-        "branch search (implies --compare 0 where --compare is not given)",
+        "branch search (T/reserve: image_depth_decide_screens off; implies --compare 0 where --compare is not given, "
+        "--compare none: no baseline)",
     )
     ap.add_argument("--batch", type=int, default=8, help="--compare: subjects per keypoint-stage batch")
     ap.add_argument(
@@ -304,8 +318,12 @@ def main() -> None:
     seeds = [int(s) for s in args.seeds.split(",")]
     t0 = time.perf_counter()
     if args.compare or args.decide:
-        variants = tuple((f"weight {float(w):g}", float(w), None) for w in (args.compare or "0").split(","))
-        variants += tuple((f"decide {float(t):g}", 0.0, float(t)) for t in (args.decide or "").split(",") if t)
+        compare = (args.compare or "0").split(",") if args.compare != "none" else []
+        variants = tuple((f"weight {float(w):g}", float(w), None) for w in compare)
+        for t in (args.decide or "").split(","):  # T, or T/reserve (image_depth_decide_screens off)
+            if t:
+                label = f"decide {float(t.split('/')[0]):g}{' reserve' if '/' in t else ''}"
+                variants += ((label, 0.0, float(t.split("/")[0])),)
         weights = tuple(v[0] for v in variants)
         with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
             jobs = {

@@ -312,6 +312,10 @@ class KeypointFitConfig:
     #: energies; where none agrees, by energy alone). ``None`` (the default): off. Problems without an image:
     #: unchanged bit for bit (docs/benchmarks/image-depth.md; why this default: docs/benchmarks/defaults.md)
     image_depth_decide: Optional[float] = None
+    #: with ``image_depth_decide``: the searches' screens and the rows they carry on rank the agreeing rows first (on), or
+    #: keep the energy's ranking with one place for each sample's best agreeing row (off: the other branches stay
+    #: refined, as alternatives for the silhouette stage)
+    image_depth_decide_screens: bool = True
     #: temporal terms (``smooth_joints``, ``smooth_root``; weight 0 in the single-image
     #: schedule, used by :mod:`silfit.fitting.sequence`): robust scale in mm per frame^2
     #: and the penalty (``charbonnier`` or ``gm``)
@@ -1255,6 +1259,22 @@ class _ScheduleRun:
             return best_per_group(f, self.group, self.B, count)
         return best_distinct_per_group(f, self.group, self.B, count, self.joints())
 
+    def screened(self, f, count, opts):
+        """:meth:`survivors_of` with the image cue's decided sides (``image_depth_decide``): the agreeing rows first
+        (``image_depth_decide_screens``), or by ``f`` with the last place of a sample none of whose rows agrees given
+        to its best agreeing row (where it has one)."""
+        if self.calls is None or self.fitter.config.image_depth_decide_screens:
+            return self.survivors_of(self.demoted(f), count, opts)
+        rows, against = self.survivors_of(f, count, opts).tolist(), self.disagreeing()
+        best = best_per_group(torch.where(against, torch.full_like(f, math.inf), f), self.group, self.B).tolist()
+        of, out = self.group.tolist(), []
+        for b, a in enumerate(best):
+            mine = [r for r in rows if of[r] == b]
+            if math.isfinite(float(f[a])) and not against[a] and all(against[r] for r in mine):
+                mine = (mine[:-1] if len(mine) >= count else mine) + [a]
+            out += mine
+        return torch.as_tensor(out, dtype=torch.long)
+
     def settle_pick(self, name) -> None:
         """Each sample's carried row with the lowest score after stage ``name`` (its final energy; the
         occlusion cue as in the final choice) goes on. The earlier search's record names it (``kept``) and
@@ -1313,7 +1333,7 @@ class _ScheduleRun:
         # so a sample's steps (two optimiser runs) never depend on the others in its batch
         if 0 < screen < stage.iterations:
             f = self.run(stage, screen, f"{stage.name}_screen")
-            rows = self.survivors_of(self.demoted(f), survivors, opts)
+            rows = self.screened(f, survivors, opts)
             labels = [labels[r] for r in rows.tolist()]
             self.take(rows)
             f = self.run(stage, stage.iterations - screen)
@@ -1323,7 +1343,7 @@ class _ScheduleRun:
         keep = best_per_group(score, self.group, B)
         now = self.record_search(stage.name, f, labels, keep)
         if going_on > 1:  # the best few of each sample go on (to the end, or to the next search)
-            keep = self.survivors_of(score, going_on, opts)
+            keep = self.screened(f, going_on, opts)
             if si == self.last_search:
                 self.row_labels = [labels[r] for r in keep.tolist()]
             else:
