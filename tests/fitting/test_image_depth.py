@@ -2,6 +2,7 @@
 whose image can."""
 
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -182,8 +183,6 @@ def test_without_an_image_the_fit_is_the_same_bit_for_bit(body_model, reaching_s
 
 
 def replace_weight(cfg, w):
-    from dataclasses import replace
-
     return replace(cfg, image_depth_weight=w)
 
 
@@ -228,13 +227,16 @@ def test_metrics_say_image_depth_none_without_an_image(body_model, reaching_subj
     cfg = replace_weight(cfg, 100.0)
     r = fit(s.keypoints, camera=s.camera, model=body_model, keypoint_config=cfg, progress=False, image=s.image)
     assert r.metrics["image_depth"]["decided"]["right_forearm"]["distal"] == "nearer"
+    cfg = replace(replace_weight(cfg, 0.0), image_depth_decide=0.6)  # the hard choice alone: the cue runs too
+    r = fit(s.keypoints, camera=s.camera, model=body_model, keypoint_config=cfg, progress=False, image=s.image)
+    assert r.metrics["image_depth"]["branch_choice"]["segments"]["right_forearm"] == "nearer"
 
 
-def test_the_image_decides_the_branch_as_a_hard_choice(body_model, reaching_subject):
-    """``image_depth_decide``: the cue's confident calls choose among the branch search's hypotheses (the term off);
-    ignored, this subject's right arm is fitted reaching away (260 mm PA-PVE, measured)."""
-    from dataclasses import replace
-
+@pytest.mark.parametrize("screens", [True, False])
+def test_the_image_decides_the_branch_as_a_hard_choice(body_model, reaching_subject, screens):
+    """``image_depth_decide``: the cue's confident calls choose among the branch search's hypotheses (the term off;
+    ``image_depth_decide_screens`` either way); ignored, this subject's right arm is fitted reaching away (260 mm
+    PA-PVE, measured)."""
     from silfit.eval.metrics import pa_pve
     from silfit.fitting.image_depth import cue_from_image
 
@@ -242,7 +244,9 @@ def test_the_image_decides_the_branch_as_a_hard_choice(body_model, reaching_subj
     names = body_model.joint_names
     cue, _ = cue_from_image(s.image, s.keypoints)
     assert cue.hard_signs(0.6)[[n for n, _, _ in SEGMENTS].index("right_forearm")] == -1  # nearer, confident
-    fitter = KeypointFitter(body_model, config=replace(FAST, image_depth_decide=0.6))
+    fitter = KeypointFitter(
+        body_model, config=replace(FAST, image_depth_decide=0.6, image_depth_decide_screens=screens)
+    )
     assert fitter.config.image_depth_weight == 0.0
     with torch.no_grad():
         r = fitter.fit([s.keypoints], [s.camera], progress=False, depth_cues=[cue])
@@ -253,13 +257,11 @@ def test_the_image_decides_the_branch_as_a_hard_choice(body_model, reaching_subj
 
 
 def test_without_an_image_the_hard_choice_changes_nothing(body_model, reaching_subject):
-    from dataclasses import replace
-
     s = reaching_subject
     tiny = KeypointFitConfig(
         camera_iters=5, pose_iters=(5, 5, 5), shape_iters=3, final_iters=5, late_branch_iters=4, post_branch_iters=4
     )
-    a = KeypointFitter(body_model, config=replace(tiny, image_depth_decide=0.6)).fit(
+    a = KeypointFitter(body_model, config=replace(tiny, image_depth_decide=0.6, image_depth_decide_screens=False)).fit(
         [s.keypoints], [s.camera], progress=False, depth_cues=[None]
     )
     b = KeypointFitter(body_model, config=tiny).fit([s.keypoints], [s.camera], progress=False)
