@@ -152,7 +152,10 @@ def compare_seed(
     for label, w, decide in variants:
         on = bool(w) or decide is not None
         cfg = KeypointFitConfig(image_depth_weight=float(w), image_depth_decide=decide)
-        fitter = KeypointFitter(model, config=replace(cfg, image_depth_decide_screens="reserve" not in label))
+        cfg = replace(
+            cfg, image_depth_decide_screens="reserve" not in label, image_depth_decide_early="late" not in label
+        )
+        fitter = KeypointFitter(model, config=cfg)
         for b in range(0, len(sets), batch):
             sl = slice(b, b + batch)
             t0 = time.process_time()
@@ -305,7 +308,7 @@ def main() -> None:
         "--decide",
         metavar="T0,T1",
         help="compare also (weight 0) with these image_depth_decide thresholds: the cue as a hard choice in the "
-        "branch search (T/reserve: image_depth_decide_screens off; implies --compare 0 where --compare is not given, "
+        "branch search (T/reserve: image_depth_decide_screens off, T/late: image_depth_decide_early off, both: T/reserve/late; implies --compare 0 where --compare is not given, "
         "--compare none: no baseline)",
     )
     ap.add_argument("--batch", type=int, default=8, help="--compare: subjects per keypoint-stage batch")
@@ -320,9 +323,11 @@ def main() -> None:
     if args.compare or args.decide:
         compare = (args.compare or "0").split(",") if args.compare != "none" else []
         variants = tuple((f"weight {float(w):g}", float(w), None) for w in compare)
-        for t in (args.decide or "").split(","):  # T, or T/reserve (image_depth_decide_screens off)
+        for t in (args.decide or "").split(
+            ","
+        ):  # T, T/reserve (image_depth_decide_screens off), T/late (..._early off)
             if t:
-                label = f"decide {float(t.split('/')[0]):g}{' reserve' if '/' in t else ''}"
+                label = " ".join([f"decide {float(t.split('/')[0]):g}"] + t.split("/")[1:])
                 variants += ((label, 0.0, float(t.split("/")[0])),)
         weights = tuple(v[0] for v in variants)
         with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:

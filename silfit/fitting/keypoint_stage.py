@@ -316,6 +316,9 @@ class KeypointFitConfig:
     #: keep the energy's ranking with one place for each sample's best agreeing row (off: the other branches stay
     #: refined, as alternatives for the silhouette stage)
     image_depth_decide_screens: bool = True
+    #: with ``image_depth_decide``: also in the search after the pose stages (``branches_<r>``, at their heavy prior, few
+    #: steps in); off: only in the late search, the settled pick, the search from the fit and the final choice
+    image_depth_decide_early: bool = True
     #: temporal terms (``smooth_joints``, ``smooth_root``; weight 0 in the single-image
     #: schedule, used by :mod:`silfit.fitting.sequence`): robust scale in mm per frame^2
     #: and the penalty (``charbonnier`` or ``gm``)
@@ -1168,6 +1171,7 @@ class _ScheduleRun:
         self.search_rows = [[] for _ in range(B)]  # per problem: (tried entry, its joints at the search's end, ...)
         self.unrefined = [[] for _ in range(B)]  # per problem: search rows not refined to the end (hypotheses > 1)
         self.calls = calls  # per problem the image cue's decided sides [B, S] (image_depth_decide), or None
+        self.cue_on = True  # whether the search now running (and the choices after it) use the decided sides
 
     def info(self, hypotheses, others) -> dict:
         """:meth:`KeypointFitter.fit_problems`' ``info`` at the end (``hypotheses``, ``others``: :meth:`choose`'s)."""
@@ -1247,7 +1251,7 @@ class _ScheduleRun:
     def demoted(self, score):
         """``score`` with the rows against the image cue's decided sides ranked after those that agree
         (:func:`~silfit.fitting.image_depth.demote_disagreeing`); ``score`` itself without decided sides."""
-        if self.calls is None:
+        if self.calls is None or not self.cue_on:
             return score
         return demote_disagreeing(score, self.group, self.B, self.disagreeing())
 
@@ -1263,7 +1267,7 @@ class _ScheduleRun:
         """:meth:`survivors_of` with the image cue's decided sides (``image_depth_decide``): the agreeing rows first
         (``image_depth_decide_screens``), or by ``f`` with the last place of a sample none of whose rows agrees given
         to its best agreeing row (where it has one)."""
-        if self.calls is None or self.fitter.config.image_depth_decide_screens:
+        if self.calls is None or not self.cue_on or self.fitter.config.image_depth_decide_screens:
             return self.survivors_of(self.demoted(f), count, opts)
         rows, against = self.survivors_of(f, count, opts).tolist(), self.disagreeing()
         best = best_per_group(torch.where(against, torch.full_like(f, math.inf), f), self.group, self.B).tolist()
@@ -1320,6 +1324,8 @@ class _ScheduleRun:
         search needs one frame and a ``decided`` start (else ``ValueError``)."""
         fitter, B, cfg = self.fitter, self.B, self.fitter.config
         self.searched_any = True
+        early = stage.name[len("branches_") :].isdigit()  # a search after the pose stages
+        self.cue_on = cfg.image_depth_decide_early or not early
         if self.carried is not None:  # an earlier search's best rows ran on (its ``carry``): the best goes on
             self.settle_pick(fitter.stages[si - 1].name)
         if not decided or self.layout.frames != 1:
@@ -1378,7 +1384,7 @@ class _ScheduleRun:
                 opts.get("whole_limbs", True),
                 opts.get("hinge", True),
             )
-        if self.calls is not None:  # each decided segment turned to the image cue's side
+        if self.calls is not None and self.cue_on:  # each decided segment turned to the image cue's side
             rows = self.layout.rows(self.state)
             calls = self.calls[self.group.numpy()]
             hyps += cue_hypotheses(

@@ -232,10 +232,10 @@ def test_metrics_say_image_depth_none_without_an_image(body_model, reaching_subj
     assert r.metrics["image_depth"]["branch_choice"]["segments"]["right_forearm"] == "nearer"
 
 
-@pytest.mark.parametrize("screens", [True, False])
-def test_the_image_decides_the_branch_as_a_hard_choice(body_model, reaching_subject, screens):
+@pytest.mark.parametrize("screens,early", [(True, True), (False, True), (False, False)])
+def test_the_image_decides_the_branch_as_a_hard_choice(body_model, reaching_subject, screens, early):
     """``image_depth_decide``: the cue's confident calls choose among the branch search's hypotheses (the term off;
-    ``image_depth_decide_screens`` either way); ignored, this subject's right arm is fitted reaching away (260 mm
+    ``image_depth_decide_screens`` and ``image_depth_decide_early`` either way); ignored, this subject's right arm is fitted reaching away (260 mm
     PA-PVE, measured)."""
     from silfit.eval.metrics import pa_pve
     from silfit.fitting.image_depth import cue_from_image
@@ -245,7 +245,10 @@ def test_the_image_decides_the_branch_as_a_hard_choice(body_model, reaching_subj
     cue, _ = cue_from_image(s.image, s.keypoints)
     assert cue.hard_signs(0.6)[[n for n, _, _ in SEGMENTS].index("right_forearm")] == -1  # nearer, confident
     fitter = KeypointFitter(
-        body_model, config=replace(FAST, image_depth_decide=0.6, image_depth_decide_screens=screens)
+        body_model,
+        config=replace(
+            FAST, image_depth_decide=0.6, image_depth_decide_screens=screens, image_depth_decide_early=early
+        ),
     )
     assert fitter.config.image_depth_weight == 0.0
     with torch.no_grad():
