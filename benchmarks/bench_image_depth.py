@@ -15,6 +15,7 @@ of those it gets right, and how many landmark sets it refuses (a left/right swap
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -116,10 +117,13 @@ def run_seed(seed: int, n: int, size: int, poses: str, fit: bool) -> list:
     return rows
 
 
-def compare_seed(seed: int, n: int, size: int, poses: str, batch: int, weights: tuple, silhouette: bool = True) -> list:
+def compare_seed(
+    seed: int, n: int, size: int, poses: str, batch: int, variants: tuple, silhouette: bool = True
+) -> list:
     """The default image path (keypoint stage in batches of ``batch``, then the silhouette stage against the
-    generator's masks) per ``image_depth_weight`` in ``weights`` (0: the cue off, the baseline), on the same
-    subjects: per subject and weight PA-PVE (mm) of the keypoint stage and with silhouettes, CPU seconds."""
+    generator's masks) per cue setting in ``variants`` (``(label, image_depth_weight, image_depth_decide)``; weight
+    0 and decide ``None``: the cue off, the baseline), on the same subjects: per subject and setting PA-PVE (mm) of
+    the keypoint stage and with silhouettes, CPU seconds."""
     from silfit.fitting import KeypointFitter, KeypointFitConfig
     from silfit.fitting.image_depth import cue_from_image
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
@@ -145,12 +149,17 @@ def compare_seed(seed: int, n: int, size: int, poses: str, batch: int, weights: 
     cues = [cue_from_image(im, ks)[0] for im, ks in zip(images, sets)]
     t_cue = (time.process_time() - t0) / len(sets)
     rows = []
-    for w in weights:
-        fitter = KeypointFitter(model, config=KeypointFitConfig(image_depth_weight=float(w)))
+    for label, w, decide in variants:
+        on = bool(w) or decide is not None
+        cfg = KeypointFitConfig(image_depth_weight=float(w), image_depth_decide=decide)
+        cfg = replace(
+            cfg, image_depth_decide_screens="reserve" not in label, image_depth_decide_early="late" not in label
+        )
+        fitter = KeypointFitter(model, config=cfg)
         for b in range(0, len(sets), batch):
             sl = slice(b, b + batch)
             t0 = time.process_time()
-            kp = fitter.fit(sets[sl], cams[sl], progress=False, depth_cues=cues[sl] if w else None)
+            kp = fitter.fit(sets[sl], cams[sl], progress=False, depth_cues=cues[sl] if on else None)
             t_kp = time.process_time() - t0
             t0 = time.process_time()
             res = (
@@ -168,11 +177,13 @@ def compare_seed(seed: int, n: int, size: int, poses: str, batch: int, weights: 
                     {
                         "seed": seed,
                         "i": b + j,
-                        "w": w,
+                        "w": label,
                         "t_kp": t_kp / len(res),
                         "t_sil": t_sil / len(res),
-                        "t_cue": t_cue if w else 0.0,
+                        "t_cue": t_cue if on else 0.0,
                         "decided": 0 if c is None else len(c.decided()),
+                        "hard": 0 if c is None or decide is None else int((c.hard_signs(decide) != 0).sum()),
+                        "gap": choice_gap(kp.branch_search[j]),
                         "kp": 1000 * float(pa_pve(kp.vertices[j].astype(np.float64), gt.vertices)),
                         "sil": np.nan
                         if r is None
@@ -182,9 +193,20 @@ def compare_seed(seed: int, n: int, size: int, poses: str, batch: int, weights: 
     return rows
 
 
+def choice_gap(search) -> float:
+    """The relative final energy the fit's branch pays above the lowest refined one (0: the energy's own choice;
+    above 0 where the image cue's hard choice took another)."""
+    if not search or not search[-1].get("refined"):
+        return 0.0
+    low = min(t["energy"] for t in search[-1]["tried"])
+    kept = next(t["energy"] for t in search[-1]["tried"] if t["flip"] == search[-1]["kept"])
+    return (kept - low) / max(abs(low), 1e-12)
+
+
 def compare_table(rows: list, weights: tuple) -> None:
+    """The table of :func:`compare_seed`'s rows per setting label in ``weights`` (the first: the baseline)."""
     print(
-        "| image_depth_weight | subjects | keypoint stage PA-PVE mean / median (mm) | with silhouettes mean / median | "
+        "| cue setting | subjects | keypoint stage PA-PVE mean / median (mm) | with silhouettes mean / median | "
         "> 150 mm | within 60 mm | CPU s / subject (cue, keypoints, silhouettes) |"
     )
     print("|---|---:|---:|---:|---:|---:|---:|")
@@ -194,17 +216,21 @@ def compare_table(rows: list, weights: tuple) -> None:
         if np.isnan(sil).all():  # the keypoint stage only: the thresholds read its PA-PVE
             sil = kp
         print(
-            f"| {w:g}{' (off: baseline)' if not w else ''} | {len(r)} | {kp.mean():.1f} / {np.median(kp):.1f} | "
+            f"| {w}{' (baseline)' if w == weights[0] else ''} | {len(r)} | {kp.mean():.1f} / {np.median(kp):.1f} | "
             f"{sil.mean():.1f} / {np.median(sil):.1f} | {(sil > 150).sum()} | {(sil <= 60).sum()} ({100 * (sil <= 60).mean():.0f} %) | "
             f"{np.mean([x['t_cue'] for x in r]):.2f}, {np.mean([x['t_kp'] for x in r]):.2f}, {np.mean([x['t_sil'] for x in r]):.2f} |"
         )
+    for w in weights:
+        hard = sum(x.get("hard", 0) for x in rows if x["w"] == w)
+        if hard:
+            print(f"\n{w}: {hard} segments decided (hard choice) over {sum(x['w'] == w for x in rows)} subjects")
     key = "kp" if all(np.isnan(x["sil"]) for x in rows) else "sil"
     base = {(x["seed"], x["i"]): x[key] for x in rows if x["w"] == weights[0]}
     for w in weights[1:]:
         d = {(x["seed"], x["i"]): x[key] - base[x["seed"], x["i"]] for x in rows if x["w"] == w}
         moved = [f"{k[0]}/{k[1]}: {base[k]:.0f} -> {base[k] + v:.0f}" for k, v in d.items() if abs(v) > 30]
         print(
-            f"\nweight {w:g} against {weights[0]:g}, {'with silhouettes' if key == 'sil' else 'keypoint stage'}: {sum(v < -10 for v in d.values())} better by more than "
+            f"\n{w} against {weights[0]}, {'with silhouettes' if key == 'sil' else 'keypoint stage'}: {sum(v < -10 for v in d.values())} better by more than "
             f"10 mm, {sum(v > 10 for v in d.values())} worse; moved by more than 30 mm: {', '.join(moved) or 'none'}"
         )
 
@@ -278,6 +304,13 @@ def main() -> None:
         help="instead: fit with these image_depth_weight values (0: the cue "
         "off, the baseline) on the default image path (keypoints + silhouette) and compare",
     )
+    ap.add_argument(
+        "--decide",
+        metavar="T0,T1",
+        help="compare also (weight 0) with these image_depth_decide thresholds: the cue as a hard choice in the "
+        "branch search (T/reserve: image_depth_decide_screens off, T/late: image_depth_decide_early off, both: T/reserve/late; implies --compare 0 where --compare is not given, "
+        "--compare none: no baseline)",
+    )
     ap.add_argument("--batch", type=int, default=8, help="--compare: subjects per keypoint-stage batch")
     ap.add_argument(
         "--no-silhouette",
@@ -287,11 +320,19 @@ def main() -> None:
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     t0 = time.perf_counter()
-    if args.compare:
-        weights = tuple(float(w) for w in args.compare.split(","))
+    if args.compare or args.decide:
+        compare = (args.compare or "0").split(",") if args.compare != "none" else []
+        variants = tuple((f"weight {float(w):g}", float(w), None) for w in compare)
+        for t in (args.decide or "").split(
+            ","
+        ):  # T, T/reserve (image_depth_decide_screens off), T/late (..._early off)
+            if t:
+                label = " ".join([f"decide {float(t.split('/')[0]):g}"] + t.split("/")[1:])
+                variants += ((label, 0.0, float(t.split("/")[0])),)
+        weights = tuple(v[0] for v in variants)
         with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
             jobs = {
-                (p, s): pool.submit(compare_seed, s, args.n, args.size, p, args.batch, weights, not args.no_silhouette)
+                (p, s): pool.submit(compare_seed, s, args.n, args.size, p, args.batch, variants, not args.no_silhouette)
                 for p in args.poses.split(",")
                 for s in seeds
             }

@@ -386,10 +386,10 @@ def _video_depth_cues(job: Job, frames) -> tuple:
     from .fitting.image_depth import cue_from_image
     from .fitting.sequence import SequenceFitConfig
 
-    weight = (job.sequence_config or SequenceFitConfig()).keypoint.image_depth_weight
+    kp_cfg = (job.sequence_config or SequenceFitConfig()).keypoint
     paths = dict(getattr(job.inputs, "images", None) or {})
     numbers = list(job.frame_numbers) if job.frame_numbers is not None else list(range(len(frames)))
-    if not weight or not (job.images or paths):
+    if (not kp_cfg.image_depth_weight and kp_cfg.image_depth_decide is None) or not (job.images or paths):
         return None, None
     from .io.images import read_rgb
 

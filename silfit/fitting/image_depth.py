@@ -29,7 +29,7 @@ from typing import List, Optional, Sequence
 import numpy as np
 import torch
 
-from .branches import LIMB_SEGMENTS
+from .branches import LIMB_SEGMENTS, LIMBS, depth_ratios, flip_segment
 from .problem import world_to_camera
 from .terms import Evaluation, Term
 
@@ -40,6 +40,10 @@ __all__ = [
     "SEGMENTS",
     "cue_data",
     "cue_from_image",
+    "cue_disagrees",
+    "cue_hypotheses",
+    "demote_disagreeing",
+    "hard_calls",
     "depth_cue",
     "landmark_agreement",
     "match_person",
@@ -97,6 +101,19 @@ class DepthCue:
 
     def decided(self) -> List[str]:
         return [n for n, w in zip(self.names, self.weights()) if w != 0]
+
+    def hard_signs(self, threshold: float) -> np.ndarray:
+        """``[S]`` the cue's sign on the segments it calls (its gates passed) with a depth cosine of at least
+        ``threshold``, 0 elsewhere: the calls the branch search takes as decided (``image_depth_decide``)."""
+        return np.where((self.confidence > 0) & (np.abs(self.ratio) >= threshold), self.sign, 0.0)
+
+    def hard_record(self, threshold: float) -> dict:
+        """``metrics.json``'s ``image_depth`` ``branch_choice``: the segments whose side :meth:`hard_signs` decides."""
+        signs = self.hard_signs(threshold)
+        return {
+            "threshold": float(threshold),
+            "segments": {n: "farther" if s > 0 else "nearer" for n, s in zip(self.names, signs) if s},
+        }
 
     def to_dict(self) -> dict:
         """``metrics.json``'s ``image_depth``: the decided segments with their call and confidence."""
@@ -242,6 +259,78 @@ def cue_data(cues: Sequence[Optional[DepthCue]], frames: int = 1) -> Optional[np
     S = len(SEGMENTS)
     w = np.stack([np.zeros(S) if c is None else c.weights() for c in cues])
     return np.repeat(w[:, None, :], frames, axis=1)
+
+
+def hard_calls(cues: Optional[Sequence[Optional[DepthCue]]], threshold: Optional[float]) -> Optional[np.ndarray]:
+    """``[P, S]`` per problem the cue's decided sides (:meth:`DepthCue.hard_signs`; zeros without a cue), or ``None``
+    where ``threshold`` is ``None`` or no cue decides a segment (the branch search is then as without a cue)."""
+    if threshold is None or cues is None or all(c is None for c in cues):
+        return None
+    S = len(SEGMENTS)
+    calls = np.stack([np.zeros(S) if c is None else c.hard_signs(float(threshold)) for c in cues])
+    return calls if calls.any() else None
+
+
+def cue_disagrees(joints: np.ndarray, R: np.ndarray, t: np.ndarray, calls: np.ndarray, joint_names) -> np.ndarray:
+    """``[rows, S]`` whether each row's pose (``joints [rows, J, 3]``, seen by a camera ``R [rows, 3, 3]``,
+    ``t [rows, 3]``) turns a segment the other way than its decided side ``calls [rows, S]`` (+1 the distal joint
+    farther, -1 nearer, 0 undecided: never disagrees)."""
+    names = list(joint_names)
+    p = [names.index(a) for _, a, _ in SEGMENTS]
+    d = [names.index(b) for _, _, b in SEGMENTS]
+    cam = np.einsum("rij,rkj->rki", R, joints) + t[:, None, :]
+    dz = cam[:, d, 2] - cam[:, p, 2]
+    return calls * dz < 0
+
+
+def demote_disagreeing(score: torch.Tensor, group: torch.Tensor, groups: int, disagree: torch.Tensor) -> torch.Tensor:
+    """``score [rows]`` with each sample's rows that ``disagree`` (with the image cue's decided sides) lifted above
+    every finite score of its rows (their order among themselves kept), where the sample has a finite row that
+    agrees; a sample none of whose rows agrees keeps its scores (the energy chooses). Ranked by
+    :func:`~silfit.fitting.keypoint_stage.best_per_group`, the rows that agree come first."""
+    out = score.clone()
+    finite = torch.isfinite(score)
+    for g in range(groups):
+        mine = (group == g) & finite
+        if not (mine & ~disagree).any() or not (mine & disagree).any():
+            continue
+        low, high = score[mine].min(), score[mine].max()
+        lift = 2.0 * (float(high - low) + max(abs(float(low)), 1.0))  # past the highest, beyond best_per_group's steps
+        out[mine & disagree] = score[mine & disagree] + lift
+    return out
+
+
+def cue_hypotheses(body, rows: dict, calls: np.ndarray, names, parents, camera: tuple, opts: dict) -> list:
+    """Hypotheses ``(row, label, body_pose)``: each row whose pose turns a decided segment (``calls [rows, S]``,
+    :func:`hard_calls`; seen by ``camera``, ``(R [rows, 3, 3], t [rows, 3])``) the other way, with each such segment
+    mirrored to the cue's side in turn (:func:`~silfit.fitting.branches.flip_segment`, upper segments first, each
+    checked after the flips before it), labelled ``image:<segment>+...``; not where the flips are a single segment or
+    a whole limb that :func:`~silfit.fitting.branches.limb_hypotheses` proposes already (a search's options ``opts``:
+    ``min_depth_ratio``, ``whole_limbs``, ``hinge``)."""
+    rows = dict(rows)
+    ratios = depth_ratios(body, rows, names)
+    flipped = [[] for _ in range(len(calls))]
+    for s, (seg, _, _) in enumerate(SEGMENTS):
+        with torch.no_grad():
+            joints = body(**rows).joints.double().numpy()
+        dis = cue_disagrees(joints, camera[0], camera[1], calls, names)[:, s]
+        if not dis.any():
+            continue
+        pose = flip_segment(body, rows, seg, names, parents, opts.get("hinge", True))
+        rows["body_pose"] = torch.where(torch.as_tensor(dis)[:, None], pose, rows["body_pose"])
+        for r in np.nonzero(dis)[0].tolist():
+            flipped[r].append(seg)
+    low = opts.get("min_depth_ratio", 0.3)
+    proposed = {(r, (n,)) for n, _, _ in SEGMENTS for r in np.nonzero(ratios[n] >= low)[0].tolist()}
+    if opts.get("whole_limbs", True):
+        proposed |= {
+            (r, limb) for limb in LIMBS for r in np.nonzero(np.maximum(*(ratios[n] for n in limb)) >= low)[0].tolist()
+        }
+    return [
+        (r, "image:" + "+".join(segs), rows["body_pose"][r])
+        for r, segs in enumerate(flipped)
+        if segs and (r, tuple(segs)) not in proposed
+    ]
 
 
 class ImageDepthTerm(Term):

@@ -828,7 +828,7 @@ def fit_problems(
 
     ``images`` (per image an RGB array or ``None``): the image depth cue
     (:func:`~silfit.fitting.image_depth.cue_from_image`; ``people``: per image the detection its keypoints
-    came from, reused) joins the keypoint stage where the settings' ``image_depth_weight`` is on;
+    came from, reused) joins the keypoint stage where the settings' ``image_depth_weight`` or ``image_depth_decide`` is on;
     ``metrics.json``'s ``image_depth`` says what it decided (``"none"`` without an image)."""
     n = len(keypoints)
     mask_sources = list(mask_sources or ["mask"] * n)
@@ -936,12 +936,15 @@ def _depth_cues(fitter, keypoints, images, people) -> tuple:
     for i, (image, ks) in enumerate(zip(images, keypoints)):
         if image is None:
             continue
-        if not fitter.config.image_depth_weight:
+        decide = fitter.config.image_depth_decide
+        if not fitter.config.image_depth_weight and decide is None:
             records[i] = "off"
             continue
         t0 = time.perf_counter()
         cues[i], records[i] = cue_from_image(image, ks, people[i])
         records[i]["seconds"] = round(time.perf_counter() - t0, 3)
+        if decide is not None and cues[i] is not None:  # the sides the branch search takes as decided
+            records[i]["branch_choice"] = cues[i].hard_record(decide)
     return cues, records
 
 

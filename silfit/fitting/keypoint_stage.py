@@ -69,9 +69,9 @@ from ..priors import SphereCollisionModel, angle_prior, limit_violation, load_po
 from ..priors.smplx_priors import body_prior_for
 from .body import KeypointBody
 from .hands_face import choose_hand_starts, part_gates, wholebody_terms
-from .image_depth import ImageDepthTerm, cue_data
+from .image_depth import ImageDepthTerm, cue_data, cue_disagrees, cue_hypotheses, demote_disagreeing, hard_calls
 from .occlusion import OcclusionTerm
-from .branches import limb_hypotheses, turn_hypotheses
+from .branches import LIMB_SEGMENTS, limb_hypotheses, turn_hypotheses
 from .problem import ParameterLayout, Problem, stack_views
 from .result import PARAM_NAMES, KeypointFitResult
 from .aliases import Alias, renamed_fields
@@ -345,6 +345,20 @@ class KeypointFitConfig:
     image_depth_weight: float = 0.0
     #: the term's margin: a decided segment's depth cosine (along the ray) must reach this on the cue's side
     image_depth_margin: float = 0.1
+    #: the image depth cue as a hard choice in the branch searches: the segments the cue calls (its gates passed)
+    #: with a depth cosine of at least this are decided; each search also proposes each sample's pose with every
+    #: decided segment turned to the cue's side (``image:<segments>``), and its screen, its pick, the settled pick
+    #: and the choice among the refined branches rank the rows that agree with every decided side first (by their
+    #: energies; where none agrees, by energy alone). ``None`` (the default): off. Problems without an image:
+    #: unchanged bit for bit (docs/benchmarks/image-depth.md; why this default: docs/benchmarks/defaults.md)
+    image_depth_decide: Optional[float] = None
+    #: with ``image_depth_decide``: the searches' screens and the rows they carry on rank the agreeing rows first (on), or
+    #: keep the energy's ranking with one place for each sample's best agreeing row (off: the other branches stay
+    #: refined, as alternatives for the silhouette stage)
+    image_depth_decide_screens: bool = True
+    #: with ``image_depth_decide``: also in the search after the pose stages (``branches_<r>``, at their heavy prior, few
+    #: steps in); off: only in the late search, the settled pick, the search from the fit and the final choice
+    image_depth_decide_early: bool = True
     #: temporal terms (``smooth_joints``, ``smooth_root``; weight 0 in the single-image
     #: schedule, used by :mod:`silfit.fitting.sequence`): robust scale in mm per frame^2
     #: and the penalty (``charbonnier`` or ``gm``)
@@ -1029,6 +1043,7 @@ class KeypointFitter:
             progress=progress,
             start_flip=torch.as_tensor(np.repeat(facings, B), dtype=torch.bool),
             group=torch.arange(B).repeat(len(facings)),
+            calls=hard_calls(depth_cues, self.config.image_depth_decide),
         )
         decided = len(facings) * len(init_poses) == 1
         t_all = time.perf_counter()
@@ -1177,6 +1192,7 @@ class _ScheduleRun:
         start_flip: torch.Tensor,
         group: torch.Tensor,
         progress: bool,
+        calls: Optional[np.ndarray] = None,
     ):
         cfg = fitter.config
         self.fitter, self.layout, self.B, self.progress = fitter, layout, B, progress
@@ -1196,6 +1212,8 @@ class _ScheduleRun:
         self.searched = [[] for _ in range(B)]  # per problem and branch stage: the hypotheses that ran to its end
         self.search_rows = [[] for _ in range(B)]  # per problem: (tried entry, its joints at the search's end, ...)
         self.unrefined = [[] for _ in range(B)]  # per problem: search rows not refined to the end (hypotheses > 1)
+        self.calls = calls  # per problem the image cue's decided sides [B, S] (image_depth_decide), or None
+        self.cue_on = True  # whether the search now running (and the choices after it) use the decided sides
 
     def info(self, hypotheses, others) -> dict:
         """:meth:`KeypointFitter.fit_problems`' ``info`` at the end (``hypotheses``, ``others``: :meth:`choose`'s)."""
@@ -1252,14 +1270,32 @@ class _ScheduleRun:
         return self.rows_and_joints()[1]
 
     def choice(self, f):
-        """The scores the refined hypotheses are chosen by, and their occlusion counts (the cue on)."""
+        """The scores the refined hypotheses are chosen by, and their occlusion counts (the cue on); rows against
+        the image cue's decided sides ranked last (:meth:`demoted`)."""
         if not self.occlusion_weight:
-            return f, None
+            return self.demoted(f), None
         with torch.no_grad():
             occ = self.fitter.energy.terms["occlusion"](
                 evaluate(self.fitter.body, self.layout, self.state, self.views, self.data)
             )
-        return f * (1.0 + self.occlusion_weight * occ), occ
+        return self.demoted(f * (1.0 + self.occlusion_weight * occ)), occ
+
+    def camera(self) -> tuple:
+        """Every row's (one) camera: ``(R [rows, 3, 3], t [rows, 3])``, float64."""
+        return self.views["R"][:, 0, 0].double().numpy(), self.views["t"][:, 0, 0].double().numpy()
+
+    def disagreeing(self) -> torch.Tensor:
+        """``[rows]`` whether each row turns a segment the image cue decides the other way (``calls`` set)."""
+        R, t = self.camera()
+        calls = self.calls[self.group.numpy()]
+        return torch.as_tensor(cue_disagrees(self.joints(), R, t, calls, self.fitter.model.joint_names).any(1))
+
+    def demoted(self, score):
+        """``score`` with the rows against the image cue's decided sides ranked after those that agree
+        (:func:`~silfit.fitting.image_depth.demote_disagreeing`); ``score`` itself without decided sides."""
+        if self.calls is None or not self.cue_on:
+            return score
+        return demote_disagreeing(score, self.group, self.B, self.disagreeing())
 
     def survivors_of(self, f, count, opts):
         """Each sample's ``count`` best rows by ``f``, distinct ones first (:func:`best_distinct_per_group`;
@@ -1268,6 +1304,22 @@ class _ScheduleRun:
         if not opts.get("distinct", True):
             return best_per_group(f, self.group, self.B, count)
         return best_distinct_per_group(f, self.group, self.B, count, self.joints())
+
+    def screened(self, f, count, opts):
+        """:meth:`survivors_of` with the image cue's decided sides (``image_depth_decide``): the agreeing rows first
+        (``image_depth_decide_screens``), or by ``f`` with the last place of a sample none of whose rows agrees given
+        to its best agreeing row (where it has one)."""
+        if self.calls is None or not self.cue_on or self.fitter.config.image_depth_decide_screens:
+            return self.survivors_of(self.demoted(f), count, opts)
+        rows, against = self.survivors_of(f, count, opts).tolist(), self.disagreeing()
+        best = best_per_group(torch.where(against, torch.full_like(f, math.inf), f), self.group, self.B).tolist()
+        of, out = self.group.tolist(), []
+        for b, a in enumerate(best):
+            mine = [r for r in rows if of[r] == b]
+            if math.isfinite(float(f[a])) and not against[a] and all(against[r] for r in mine):
+                mine = (mine[:-1] if len(mine) >= count else mine) + [a]
+            out += mine
+        return torch.as_tensor(out, dtype=torch.long)
 
     def settle_pick(self, name) -> None:
         """Each sample's carried row with the lowest score after stage ``name`` (its final energy; the
@@ -1314,6 +1366,8 @@ class _ScheduleRun:
         search needs one frame and a ``decided`` start (else ``ValueError``)."""
         fitter, B, cfg = self.fitter, self.B, self.fitter.config
         self.searched_any = True
+        early = stage.name[len("branches_") :].isdigit()  # a search after the pose stages
+        self.cue_on = cfg.image_depth_decide_early or not early
         if self.carried is not None:  # an earlier search's best rows ran on (its ``carry``): the best goes on
             self.settle_pick(fitter.stages[si - 1].name)
         if not decided or self.layout.frames != 1:
@@ -1327,16 +1381,17 @@ class _ScheduleRun:
         # so a sample's steps (two optimiser runs) never depend on the others in its batch
         if 0 < screen < stage.iterations:
             f = self.run(stage, screen, f"{stage.name}_screen")
-            rows = self.survivors_of(f, survivors, opts)
+            rows = self.screened(f, survivors, opts)
             labels = [labels[r] for r in rows.tolist()]
             self.take(rows)
             f = self.run(stage, stage.iterations - screen)
         else:
             f = self.run(stage)
-        keep = best_per_group(f, self.group, B)
+        score = self.demoted(f)  # (the energies themselves without the image cue's decided sides)
+        keep = best_per_group(score, self.group, B)
         now = self.record_search(stage.name, f, labels, keep)
         if going_on > 1:  # the best few of each sample go on (to the end, or to the next search)
-            keep = self.survivors_of(f, going_on, opts)
+            keep = self.screened(f, going_on, opts)
             if si == self.last_search:
                 self.row_labels = [labels[r] for r in keep.tolist()]
             else:
@@ -1370,6 +1425,12 @@ class _ScheduleRun:
                 opts.get("min_depth_ratio", 0.3),
                 opts.get("whole_limbs", True),
                 opts.get("hinge", True),
+            )
+        if self.calls is not None and self.cue_on:  # each decided segment turned to the image cue's side
+            rows = self.layout.rows(self.state)
+            calls = self.calls[self.group.numpy()]
+            hyps += cue_hypotheses(
+                fitter.body, rows, calls, fitter.model.joint_names, fitter.model.parents, self.camera(), opts
             )
         labels = ["keep"] * B + [h[1] for h in hyps]
         self.take(torch.cat([torch.arange(B), torch.as_tensor([h[0] for h in hyps], dtype=torch.long)]))
@@ -1425,6 +1486,20 @@ class _ScheduleRun:
         self.take(best_per_group(f, self.group, self.B))
         if stage.iterations > together:  # the rest of the stage from the chosen start only
             self.run(stage, stage.iterations - together, f"{stage.name}_chosen")
+
+    def record_cue_choice(self, best) -> None:
+        """With the image cue's decided sides: the final choice's record (``searched``' last entry) names them
+        (``image_depth``: ``decided`` segment and side, ``fit_agrees`` whether the fit, row ``best[b]``, has them)."""
+        if self.calls is None:
+            return
+        against = self.disagreeing()
+        names = [n for n, _, _ in LIMB_SEGMENTS]
+        for b, r in enumerate(best.tolist()):
+            if self.searched[b]:
+                self.searched[b][-1]["image_depth"] = {
+                    "decided": {n: "farther" if c > 0 else "nearer" for n, c in zip(names, self.calls[b]) if c},
+                    "fit_agrees": not bool(against[r]),
+                }
 
     def choose(self) -> tuple:
         """``(hypotheses, alternatives)``: where the last search carried several rows per sample to the end, each
@@ -1497,6 +1572,7 @@ class _ScheduleRun:
                 for h in hypotheses
             ]
             hypotheses = [h[:K] for h in hypotheses] if K > 1 else None
+            self.record_cue_choice(best)
             self.take(best)
         if any(self.search_rows):  # every search row's joint shift (at its search's end) from the fit (metrics.json;
             fit_joints = self.joints()  # depth_warnings). Against the fit, not the search's kept row: a fit that moved

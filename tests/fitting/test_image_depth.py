@@ -2,6 +2,7 @@
 whose image can."""
 
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -182,8 +183,6 @@ def test_without_an_image_the_fit_is_the_same_bit_for_bit(body_model, reaching_s
 
 
 def replace_weight(cfg, w):
-    from dataclasses import replace
-
     return replace(cfg, image_depth_weight=w)
 
 
@@ -228,3 +227,59 @@ def test_metrics_say_image_depth_none_without_an_image(body_model, reaching_subj
     cfg = replace_weight(cfg, 100.0)
     r = fit(s.keypoints, camera=s.camera, model=body_model, keypoint_config=cfg, progress=False, image=s.image)
     assert r.metrics["image_depth"]["decided"]["right_forearm"]["distal"] == "nearer"
+    cfg = replace(replace_weight(cfg, 0.0), image_depth_decide=0.6)  # the hard choice alone: the cue runs too
+    r = fit(s.keypoints, camera=s.camera, model=body_model, keypoint_config=cfg, progress=False, image=s.image)
+    assert r.metrics["image_depth"]["branch_choice"]["segments"]["right_forearm"] == "nearer"
+
+
+@pytest.mark.parametrize("screens,early", [(True, True), (False, True), (False, False)])
+def test_the_image_decides_the_branch_as_a_hard_choice(body_model, reaching_subject, screens, early):
+    """``image_depth_decide``: the cue's confident calls choose among the branch search's hypotheses (the term off;
+    ``image_depth_decide_screens`` and ``image_depth_decide_early`` either way); ignored, this subject's right arm is fitted reaching away (260 mm
+    PA-PVE, measured)."""
+    from silfit.eval.metrics import pa_pve
+    from silfit.fitting.image_depth import cue_from_image
+
+    s = reaching_subject
+    names = body_model.joint_names
+    cue, _ = cue_from_image(s.image, s.keypoints)
+    assert cue.hard_signs(0.6)[[n for n, _, _ in SEGMENTS].index("right_forearm")] == -1  # nearer, confident
+    fitter = KeypointFitter(
+        body_model,
+        config=replace(
+            FAST, image_depth_decide=0.6, image_depth_decide_screens=screens, image_depth_decide_early=early
+        ),
+    )
+    assert fitter.config.image_depth_weight == 0.0
+    with torch.no_grad():
+        r = fitter.fit([s.keypoints], [s.camera], progress=False, depth_cues=[cue])
+    dz = r.joints[0, names.index("right_wrist"), 2] - r.joints[0, names.index("right_elbow"), 2]
+    assert dz < 0 and 1000 * pa_pve(r.vertices[0].astype(np.float64), s.gt.vertices) < 100  # measured: 47 mm
+    record = r.branch_search[0][-1]["image_depth"]  # the final choice names the sides it took as decided
+    assert record["decided"]["right_forearm"] == "nearer" and record["fit_agrees"]
+
+
+def test_without_an_image_the_hard_choice_changes_nothing(body_model, reaching_subject):
+    s = reaching_subject
+    tiny = KeypointFitConfig(
+        camera_iters=5, pose_iters=(5, 5, 5), shape_iters=3, final_iters=5, late_branch_iters=4, post_branch_iters=4
+    )
+    a = KeypointFitter(body_model, config=replace(tiny, image_depth_decide=0.6, image_depth_decide_screens=False)).fit(
+        [s.keypoints], [s.camera], progress=False, depth_cues=[None]
+    )
+    b = KeypointFitter(body_model, config=tiny).fit([s.keypoints], [s.camera], progress=False)
+    assert np.array_equal(a.joints, b.joints) and a.energies["final"][0] == b.energies["final"][0]
+    assert a.branch_search == b.branch_search
+
+
+def test_rows_against_the_decided_sides_rank_after_those_that_agree():
+    from silfit.fitting.image_depth import demote_disagreeing
+    from silfit.fitting.keypoint_stage import best_per_group
+
+    f = torch.tensor([10.0, 12.0, 11.0, 5.0, 6.0], dtype=torch.float64)
+    group = torch.tensor([0, 0, 0, 1, 1])
+    against = torch.tensor([True, False, True, True, True])
+    score = demote_disagreeing(f, group, 2, against)
+    assert best_per_group(score, group, 2).tolist() == [1, 3]  # sample 1: none agrees, the energy chooses
+    assert best_per_group(score, group, 2, count=3).tolist() == [1, 0, 2, 3, 4]
+    assert torch.equal(score[3:], f[3:])
