@@ -99,7 +99,7 @@ def _add_model_flags(p) -> None:
         "--silhouette-iterations",
         type=_int_list,
         metavar="N1,N2",
-        help="silhouette rendered steps per level (default 40,25, after the contour level)",
+        help="silhouette rendered steps per level (default 30,20, after the contour level)",
     )
 
 

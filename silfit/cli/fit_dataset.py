@@ -91,7 +91,7 @@ def _add_stage_option_flags(p) -> None:
     p.add_argument(
         "--silhouette-iterations",
         metavar="N1,N2",
-        help="silhouette rendered steps per level (default 40,25, after the contour level)",
+        help="silhouette rendered steps per level (default 30,20, after the contour level)",
     )
 
 

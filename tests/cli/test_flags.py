@@ -254,3 +254,20 @@ def test_quiet_hides_progress_only_and_warnings_go_to_stderr(inputs, tmp_path, c
     cap = capsys.readouterr()
     assert cap.out.startswith("wrote ") and "median reprojection error" in cap.out  # the result line stays
     assert "warning:" not in cap.out and "warning:" in cap.err  # warnings on standard error, also with --quiet
+
+
+@pytest.mark.parametrize("command", ["fit", "fit-dataset"])
+def test_the_silhouette_levels_help_states_the_stages_defaults(command):
+    """``--silhouette-resolutions`` and ``--silhouette-iterations`` say the defaults the stage runs with (the help
+    text is written out so that ``--help`` does not import the fitting code)."""
+    import re
+
+    from silfit.cli import build_parser
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices[command]
+    text = {a.option_strings[0]: a.help for a in sub._actions if a.option_strings}
+    cfg = SilhouetteFitConfig()
+    for flag, value in (("--silhouette-resolutions", cfg.resolutions), ("--silhouette-iterations", cfg.iterations)):
+        stated = re.search(r"default (\d+(?:,\d+)*)", text[flag]).group(1)
+        assert stated == ",".join(str(v) for v in value), (flag, text[flag])
