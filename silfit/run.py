@@ -455,7 +455,8 @@ def _video_metrics(result, errors: np.ndarray, warnings: List[str], silhouette: 
 def _run_video(job: Job) -> Fit:
     """A video of one camera (camera frame) or of a rig (world frame): the sequence fit
     (:func:`~silfit.fitting.sequence.fit_sequence`) and, where masks exist, its silhouette stage."""
-    from .fitting.sequence import SequenceFitConfig, fit_sequence, refine_sequence_silhouettes
+    from .fitting.refine import refine_silhouettes
+    from .fitting.sequence import SequenceFitConfig, SequenceRefinement, fit_sequence
 
     grid = job.problem.grid()
     rig = job.rig or len(grid[0]) > 1
@@ -474,15 +475,8 @@ def _run_video(job: Job) -> Fit:
     )
     silhouette = job.silhouette and any(o.mask is not None for o in job.problem.observations)
     if silhouette:
-        result = refine_sequence_silhouettes(
-            job.model,
-            result,
-            frames,
-            masks,
-            config=job.silhouette_config,
-            pose_prior=job.pose_prior,
-            progress=job.progress,
-        )
+        hooks = SequenceRefinement(result, frames, masks)
+        (result,) = refine_silhouettes(job.model, hooks, job.silhouette_config, job.pose_prior, progress=job.progress)
     F, C = len(grid), len(grid[0])
     params = result.params()
     vertices = _sequence_vertices(job.model, params, F)

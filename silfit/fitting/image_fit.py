@@ -44,6 +44,7 @@ from ..camera import Camera, project_points
 from ..errors import interruption
 from .keypoint_stage import KeypointFitter
 from .result import KeypointFitResult
+from .refine import SilhouetteHooks, StageInputs, refine_silhouettes
 from .silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult
 from ..io.keypoints import KeypointSet, model_keypoints
 from ..outputs.folder import atomic_folder
@@ -58,6 +59,7 @@ __all__ = [
     "StageFailure",
     "refine",
     "refine_batch",
+    "ImageRefinement",
     "save_fit",
     "body_mask",
 ]
@@ -446,89 +448,94 @@ def refine_batch(
     mask_sources: Optional[Sequence[str]] = None,
     known: Optional[Sequence[Optional[np.ndarray]]] = None,
 ) -> List[FitResult]:
-    """The silhouette stage on a batch of keypoint results (sample ``i`` of
-    ``keypoint_result`` with ``keypoints[i]`` and ``masks[i]``), all subjects refined
-    together (:func:`~silfit.fitting.silhouette_stage.fit_silhouettes`), each with the keypoint stage's
-    alternatives it offers (:func:`_offered_alternatives`: ``--hypotheses K``'s, else the close ones) as more
-    problems of the batch; per image the lowest final energy is kept (:func:`_choose_hypothesis`). ``known``: per
-    image, the mask's pixels whose value is trusted (``None``: all; e.g. not the other people's, issue 55), joined to
-    those the stage sets aside itself (leaks, holes, concavities)."""
-    n = len(keypoints)
-    if len(keypoint_result) != n or len(masks) != n:
-        raise ValueError(f"{len(keypoint_result)} keypoint results, {n} keypoint sets and {len(masks)} masks")
-    mask_sources = list(mask_sources or ["mask"] * n)
-    config = config or SilhouetteFitConfig()
-    masks = [np.asarray(m, dtype=bool) for m in masks]
-    kp_masks, ious_before, fit_masks, trim_notes, known = _batch_masks(
-        keypoint_result, masks, mask_sources, config, known, model.faces.cpu().numpy()
-    )
-    inits = [keypoint_result.params(i) for i in range(n)]
-    # issue 25: the keypoint stage's alternatives (_offered_alternatives) as more problems of this batch; the lowest
-    # final energy of the stage is kept (_choose_hypothesis)
-    offered = _offered_alternatives(keypoint_result, config)
-    rows, candidates = _alternative_rows(offered, inits)
-    sils, passes = _refine_passes(
-        model,
-        keypoint_result,
-        keypoints,
-        (rows, candidates),
-        (fit_masks, known),
-        inits,
-        config,
-        (pose_prior, renderer, progress),
-    )
-    batch = _RefinedBatch(
-        model,
-        keypoint_result,
-        keypoints,
-        masks,
-        mask_sources,
-        getattr(config, "plausibility_guard", True),
-        (kp_masks, ious_before, fit_masks, trim_notes, known),
-        inits,
-        offered,
-        candidates,
-        sils,
-    )
-    return [_with_passes(batch.result(i), passes[i]) for i in range(n)]
+    """The silhouette stage on a batch of keypoint results (sample ``i`` of ``keypoint_result`` with ``keypoints[i]``
+    and ``masks[i]``): the one driver (:func:`~silfit.fitting.refine.refine_silhouettes`) with an image's hooks
+    (:class:`ImageRefinement`)."""
+    hooks = ImageRefinement(keypoint_result, keypoints, masks, mask_sources, known)
+    return refine_silhouettes(model, hooks, config, pose_prior, renderer, progress)
 
 
-def _refine_passes(
-    model, keypoint_result, keypoints, rows_of: tuple, masks: tuple, inits: list, config, run: tuple
-) -> tuple:
-    """``(sils, passes)``: :func:`refine_batch`'s problems (``rows_of``: ``(rows, candidates)``, :func:`_alternative_rows`)
-    refined by the silhouette stage, in one pass, or with ``SilhouetteFitConfig.trust_free_ratio`` in two: first with
-    the trust region before issue 55 (:meth:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig.free_pass`), then
-    the images that pass dragged off their keypoints (:func:`_dragged_images`), all their problems, with the trust
-    region of ``config``, batched (``run``: ``(pose_prior, renderer, progress)``). ``passes[i]``: image ``i``'s record of
-    the two passes (``{}``: one pass)."""
-    rows, candidates = rows_of
-    pose_prior, renderer, progress = run
-    free = getattr(config, "trust_free_ratio", None)
-    first = config if free is None else config.free_pass()
-    sils = _refine_rows(model, keypoint_result, keypoints, rows, masks, inits, first, pose_prior, renderer, progress)
-    passes = [{} for _ in candidates]
-    if free is None:
-        return sils, passes
-    redo = _dragged_images(model, keypoints, keypoint_result.cameras, candidates, inits, sils, config, passes)
-    ks = [k for k, r in enumerate(rows) if r in redo]
-    if ks:
-        again = _refine_rows(
-            model,
-            keypoint_result,
-            keypoints,
-            [rows[k] for k in ks],
-            masks,
-            [inits[k] for k in ks],
-            config,
-            pose_prior,
-            renderer,
-            progress,
+class ImageRefinement(SilhouetteHooks):
+    """An image batch's hooks of the one silhouette driver (:func:`~silfit.fitting.refine.refine_silhouettes`): all
+    subjects refined together, each with the keypoint stage's alternatives it offers (:func:`_offered_alternatives`:
+    ``--hypotheses K``'s, else the close ones) as more problems of the batch; per image the lowest final energy is
+    kept (:func:`_choose_hypothesis`). ``known``: per image, the mask's pixels whose value is trusted (``None``: all;
+    e.g. not the other people's, issue 55), joined to those the stage sets aside itself (leaks, holes, concavities).
+    With ``SilhouetteFitConfig.trust_free_ratio``, two passes: first with the trust region before issue 55
+    (:meth:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig.free_pass`), then the images that pass dragged off
+    their keypoints (:func:`_dragged_images`), all their problems, with the trust region of the settings."""
+
+    def __init__(self, keypoint_result: KeypointFitResult, keypoints, masks, mask_sources=None, known=None):
+        n = len(keypoints)
+        if len(keypoint_result) != n or len(masks) != n:
+            raise ValueError(f"{len(keypoint_result)} keypoint results, {n} keypoint sets and {len(masks)} masks")
+        self.keypoint_result, self.keypoints, self.known = keypoint_result, keypoints, known
+        self.mask_sources = list(mask_sources or ["mask"] * n)
+        self.masks = [np.asarray(m, dtype=bool) for m in masks]
+
+    def prepare(self, model, config: SilhouetteFitConfig) -> SilhouetteFitConfig:
+        """The masks per image (:func:`_batch_masks`)."""
+        self.masks_of = _batch_masks(
+            self.keypoint_result, self.masks, self.mask_sources, config, self.known, model.faces.cpu().numpy()
         )
-        for k, sil in zip(ks, again):
-            passes[rows[k]]["free_pass_seconds"] = passes[rows[k]].get("free_pass_seconds", 0.0) + sils[k].seconds
-            sils[k] = sil
-    return sils, passes
+        return config
+
+    def starts(self, config: SilhouetteFitConfig) -> list:
+        """The keypoint fits, then the alternatives they offer (issue 25; :func:`_alternative_rows`)."""
+        self.inits = [self.keypoint_result.params(i) for i in range(len(self.keypoints))]
+        self.offered = _offered_alternatives(self.keypoint_result, config)
+        self.rows, self.candidates = _alternative_rows(self.offered, self.inits)
+        self.passes = [{} for _ in self.candidates]
+        return self.inits
+
+    def inputs(self, model, problems: List[int], config: SilhouetteFitConfig) -> StageInputs:
+        """Each problem with its image's mask and known pixels; the layout decides the terms (a whole-body mesh keeps
+        its hand and face keypoints)."""
+        from .problem import Problem
+        from .hands_face import silhouette_inputs
+
+        _, _, fit_masks, _, known = self.masks_of
+        rows, cameras = [self.rows[k] for k in problems], self.keypoint_result.cameras
+        cfg, sets, terms, weights, data = silhouette_inputs(
+            model, [self.keypoints[r] for r in rows], config, model.dtype
+        )
+        problems = [Problem.single(k, cameras[r], fit_masks[r], known[r]) for k, r in zip(sets, rows)]
+        return StageInputs(problems, self.keypoints[0].layout, cfg, terms, weights, data)
+
+    def first_pass(self, config: SilhouetteFitConfig) -> SilhouetteFitConfig:
+        return config if getattr(config, "trust_free_ratio", None) is None else config.free_pass()
+
+    def refit(self, model, sils: list, config: SilhouetteFitConfig) -> List[int]:
+        """With ``trust_free_ratio``: the problems of the images the free pass dragged off their keypoints."""
+        if getattr(config, "trust_free_ratio", None) is None:
+            return []
+        cameras = self.keypoint_result.cameras
+        redo = _dragged_images(model, self.keypoints, cameras, self.candidates, self.inits, sils, config, self.passes)
+        return [k for k, r in enumerate(self.rows) if r in redo]
+
+    def refitted(self, problems: List[int], first: list) -> None:
+        for k, sil in zip(problems, first):
+            self.passes[self.rows[k]]["free_pass_seconds"] = (
+                self.passes[self.rows[k]].get("free_pass_seconds", 0.0) + sil.seconds
+            )
+
+    def read_back(self, model, sils: list, config: SilhouetteFitConfig, seconds: float) -> List[FitResult]:
+        """Per image its :class:`FitResult` (:class:`_RefinedBatch`), with the two passes' record."""
+        guarded = getattr(config, "plausibility_guard", True)
+        batch = _RefinedBatch(
+            model,
+            self.keypoint_result,
+            self.keypoints,
+            self.masks,
+            self.mask_sources,
+            guarded,
+            self.masks_of,
+            self.inits,
+            self.offered,
+            self.candidates,
+            sils,
+        )
+        return [_with_passes(batch.result(i), self.passes[i]) for i in range(len(self.keypoints))]
 
 
 def _dragged_images(model, keypoints, cameras, candidates: list, inits: list, sils: list, config, passes: list) -> set:
@@ -574,35 +581,6 @@ def _batch_masks(keypoint_result, masks: list, mask_sources: list, config, known
         for k, g in zip(own, list(known) if known is not None else [None] * n)
     ]
     return kp_masks, ious_before, fit_masks, trim_notes, known
-
-
-def _refine_rows(
-    model, keypoint_result, keypoints, rows: list, masks: tuple, inits: list, config, pose_prior, renderer, progress
-) -> list:
-    """The silhouette stage on :func:`refine_batch`'s ``rows`` (an image's index per problem: its start and offered
-    alternatives, ``inits``), each with its image's mask and known pixels (``masks``: ``(fit_masks, known)``)."""
-    from .problem import Problem
-    from .silhouette_stage import fit_silhouette_problems
-    from .hands_face import silhouette_inputs
-
-    fit_masks, known = masks
-    cameras = keypoint_result.cameras
-    # the layout decides the terms (a whole-body mesh keeps its hand and face keypoints)
-    cfg, sets, terms, weights, data = silhouette_inputs(model, [keypoints[r] for r in rows], config, model.dtype)
-    problems = [Problem.single(k, cameras[r], fit_masks[r], known[r]) for k, r in zip(sets, rows)]
-    return fit_silhouette_problems(
-        model,
-        problems,
-        inits,
-        keypoints[0].layout,
-        cfg,
-        pose_prior,
-        renderer,
-        progress,
-        terms=terms,
-        weights=weights,
-        data=data,
-    )
 
 
 class _RefinedBatch:

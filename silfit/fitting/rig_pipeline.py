@@ -35,10 +35,12 @@ from typing import List, Optional, Union
 import numpy as np
 
 from ..eval.metrics import mask_iou
+from .refine import SilhouetteHooks, StageInputs, refine_silhouettes
 from .rig_fit import RigFit, fit_rig_keypoints
 from ..outputs.folder import atomic_folder
 
 __all__ = [
+    "RigRefinement",
     "RigResult",
     "fit_rig",
     "fit_rigs",
@@ -178,9 +180,8 @@ def fit_rigs(
     out = [keypoint_stage_result(kp, p, n, faces) for kp, p, n in zip(kps, problems, names)]
     todo = [i for i, p in enumerate(problems) if silhouette and any(o.mask is not None for o in p.observations)]
     if todo:
-        refined = refine_rig_fits(
-            model, [(names[i], problems[i], kps[i]) for i in todo], silhouette_config, fitter.pose_prior, progress
-        )
+        hooks = RigRefinement([(names[i], problems[i], kps[i]) for i in todo])
+        refined = refine_silhouettes(model, hooks, silhouette_config, fitter.pose_prior, progress=progress)
         for i, r in zip(todo, refined):
             out[i] = r
     if fitter.whole_body:  # which parts were fitted (seen in any view), which held at rest
@@ -307,27 +308,43 @@ def _refined_rig_result(model, faces, layout: str, config, item, b: RigResult, s
 
 
 def refine_rig_fits(model, items, config=None, pose_prior=None, progress: bool = False) -> List[RigResult]:
-    """The silhouette stage on rig problems, every view with a mask rendered
-    (:func:`~silfit.fitting.silhouette_stage.fit_silhouette_problems`), from their keypoint
-    fits: ``items`` are ``(view names, problem, RigFit)`` with equal view counts."""
-    from .silhouette_stage import fit_silhouette_problems
+    """The silhouette stage on rig problems, every view with a mask rendered, from their keypoint fits: ``items``
+    are ``(view names, problem, RigFit)`` with equal view counts; the one driver
+    (:func:`~silfit.fitting.refine.refine_silhouettes`) with a rig's hooks (:class:`RigRefinement`)."""
+    return refine_silhouettes(model, RigRefinement(items), config, pose_prior, progress=progress)
 
-    faces = model.faces.cpu().numpy()
-    before = [keypoint_stage_result(kp, p, names, faces) for names, p, kp in items]
-    _check_masks_overlap(items, before)
-    layout = items[0][1].observations[0].keypoints.layout
-    config, problems, extra = _silhouette_inputs(model, [p for _, p, _ in items], layout, config)
-    sils = fit_silhouette_problems(
-        model,
-        problems,
-        [dict(kp.params) for _, _, kp in items],
-        layout=layout,
-        config=config,
-        pose_prior=pose_prior,
-        progress=progress,
-        **extra,
-    )
-    return [_refined_rig_result(model, faces, layout, config, it, b, sil) for it, b, sil in zip(items, before, sils)]
+
+class RigRefinement(SilhouetteHooks):
+    """Rig problems' hooks of the one silhouette driver (:func:`~silfit.fitting.refine.refine_silhouettes`):
+    ``items`` are ``(view names, problem, RigFit)``; each problem starts from its keypoint fit, every view with a
+    mask rendered; read back as a :class:`RigResult` from its keypoint-stage one (before/after, the plausibility
+    guard)."""
+
+    def __init__(self, items):
+        self.items = list(items)
+        self.layout = self.items[0][1].observations[0].keypoints.layout
+
+    def prepare(self, model, config):
+        """The keypoint-stage results; a view whose mask misses its keypoint fit's body refused."""
+        self.faces = model.faces.cpu().numpy()
+        self.before = [keypoint_stage_result(kp, p, names, self.faces) for names, p, kp in self.items]
+        _check_masks_overlap(self.items, self.before)
+        return config
+
+    def starts(self, config) -> list:
+        return [dict(kp.params) for _, _, kp in self.items]
+
+    def inputs(self, model, problems: List[int], config) -> StageInputs:
+        """The problems as they are, or the whole-body mesh's inputs (:func:`_silhouette_inputs`)."""
+        config, chosen, extra = _silhouette_inputs(model, [self.items[k][1] for k in problems], self.layout, config)
+        return StageInputs(chosen, self.layout, config, **extra)
+
+    def read_back(self, model, sils: list, config, seconds: float) -> List[RigResult]:
+        """Each problem's :class:`RigResult` (:func:`_refined_rig_result`; the guard reads ``config``)."""
+        return [
+            _refined_rig_result(model, self.faces, self.layout, config, it, b, sil)
+            for it, b, sil in zip(self.items, self.before, sils)
+        ]
 
 
 @dataclass

@@ -59,6 +59,7 @@ from ..camera import Camera, project_points
 from ..io.keypoints import KeypointSet, model_keypoints
 from .keypoint_stage import KeypointFitConfig, KeypointFitter, check_torso
 from .problem import Observation, Problem, View
+from .refine import SilhouetteHooks, StageInputs, refine_silhouettes
 from .aliases import Alias, renamed_fields
 from .stages import Stage
 from .threads import torch_threads
@@ -71,6 +72,7 @@ __all__ = [
     "interpolate_frames",
     "keypoint_outliers",
     "refine_sequence_silhouettes",
+    "SequenceRefinement",
     "viterbi",
     "pose_distances",
     "branch_path",
@@ -1105,30 +1107,6 @@ def _refined_sequence_warnings(result: SequenceFitResult, sil, reproj, betas, mg
     )
 
 
-def _fit_sequence_silhouettes(
-    model, result: SequenceFitResult, problem: Problem, init: dict, cfg, pose_prior, progress: bool, temporal_weight
-) -> tuple:
-    """:func:`refine_sequence_silhouettes`' silhouette stage on its one ``problem`` from ``init``, with the temporal
-    terms (``result``'s ``temporal_sigma``, weight ``temporal_weight``): ``(its result, seconds)``."""
-    from .silhouette_stage import fit_silhouette_problems
-    from .terms import JointSmoothnessTerm, RootSmoothnessTerm
-
-    sigma = result.config.get("temporal_sigma", 10.0)
-    t0 = time.perf_counter()
-    (sil,) = fit_silhouette_problems(
-        model,
-        [problem],
-        [init],
-        layout=result.layout,
-        config=cfg,
-        pose_prior=pose_prior,
-        progress=progress,
-        terms=(JointSmoothnessTerm(sigma=sigma), RootSmoothnessTerm(sigma=sigma)),
-        weights={"smooth_joints": temporal_weight, "smooth_root": temporal_weight},
-    )
-    return sil, time.perf_counter() - t0
-
-
 def refine_sequence_silhouettes(
     model,
     result: SequenceFitResult,
@@ -1140,58 +1118,82 @@ def refine_sequence_silhouettes(
     pose_prior=None,
     progress: bool = False,
 ) -> SequenceFitResult:
-    """The silhouette stage on a sequence fit: one problem of ``F`` frames (one shared
-    ``betas``), each frame's mask (``None``: no silhouette term there) and keypoints
-    (outliers and bridged frames left out), with the temporal terms of the keypoint
-    refinement (weight ``temporal_weight``) in its energy
-    (:func:`~silfit.fitting.silhouette_stage.fit_silhouette_problems`). Returns a copy of
-    ``result`` with the refined parameters, joints, projected keypoints and reprojection
-    errors (the keypoint stage's kept in ``reprojection_error_keypoint_stage``); ``per_frame`` is kept, and
-    ``timings["silhouette"]`` and ``silhouette_iou`` (per frame, NaN without a mask) are added.
+    """The silhouette stage on a sequence fit: the one driver (:func:`~silfit.fitting.refine.refine_silhouettes`)
+    with a video's hooks (:class:`SequenceRefinement`, which says what it returns)."""
+    hooks = SequenceRefinement(result, frames, masks, temporal_weight)
+    (out,) = refine_silhouettes(model, hooks, config, pose_prior, progress=progress)
+    return out
+
+
+class SequenceRefinement(SilhouetteHooks):
+    """A sequence fit's hooks of the one silhouette driver (:func:`~silfit.fitting.refine.refine_silhouettes`): one
+    problem of ``F`` frames (one shared ``betas``), each frame's mask (``None``: no silhouette term there) and
+    keypoints (outliers and bridged frames left out), with the temporal terms of the keypoint refinement (weight
+    ``temporal_weight``) in its energy. Read back as a copy of ``result`` with the refined parameters, joints,
+    projected keypoints and reprojection errors (the keypoint stage's kept in ``reprojection_error_keypoint_stage``);
+    ``per_frame`` is kept, and ``timings["silhouette"]`` and ``silhouette_iou`` (per frame, NaN without a mask) are
+    added; a refined fit the plausibility guard finds less plausible is not kept.
 
     A rig video's fit (``result.views``): ``frames[f][c]`` and ``masks[f][c]`` per view, every view's
     mask rendered in its camera (the keypoint stage's extrinsics), results per frame and view."""
-    from .silhouette_stage import SilhouetteFitConfig
 
-    F = result.num_frames
-    if len(masks) != F or len(frames) != F:
-        raise ValueError(f"{len(masks)} masks and {len(frames)} keypoint frames for a fit of {F} frames")
-    rig = result.views is not None
-    views = result.views if rig else [View(result.camera)]
-    C = len(views)
-    grid = [list(row) for row in frames] if rig else [[ks] for ks in frames]
-    mgrid, empty = _mask_grid(masks, rig)
-    if all(m is None for row in mgrid for m in row):
-        raise ValueError("the sequence's silhouette stage needs at least one non-empty mask")
-    outliers = result.outliers if rig else result.outliers[:, None]
-    if C > 1:  # several views: the keypoint refinement's scale of the temporal weights (SequenceFitConfig)
-        temporal_weight = temporal_weight * float(result.config.get("views_smooth_scale", 1.0))
-    cfg = config or SilhouetteFitConfig()
-    if cfg.proxy_faces and int(cfg.proxy_faces) >= int(model.faces.shape[0]):  # a small model: render it whole
-        cfg = replace(cfg, proxy_faces=None)
-    obs = _silhouette_observations(grid, mgrid, views, outliers, result.bridged)
-    init = result.params()
-    sil, seconds = _fit_sequence_silhouettes(
-        model, result, Problem(obs), init, cfg, pose_prior, progress, temporal_weight
-    )
-    p = sil.params()
-    betas = np.asarray(p["betas"], dtype=np.float32).reshape(-1)
-    joints, kp2d, reproj = _posed_sequence(model, result, p, betas, list(init), views, grid, outliers)
-    timings = dict(result.timings, silhouette=seconds, total=result.timings["total"] + seconds)
-    timings["seconds_per_frame"] = timings["total"] / F
-    # the plausibility guard, as for one image (silfit.fitting.plausibility.silhouette_guard): a refined fit less plausible
-    # than the keypoint fit it started from (median reprojection error over the frames, |betas|, stature) is not kept
-    from .plausibility import guard_fit
+    def __init__(self, result: SequenceFitResult, frames, masks, temporal_weight: float = SILHOUETTE_TEMPORAL_WEIGHT):
+        F = result.num_frames
+        if len(masks) != F or len(frames) != F:
+            raise ValueError(f"{len(masks)} masks and {len(frames)} keypoint frames for a fit of {F} frames")
+        self.result, self.rig = result, result.views is not None
+        self.views = result.views if self.rig else [View(result.camera)]
+        self.grid = [list(row) for row in frames] if self.rig else [[ks] for ks in frames]
+        self.mgrid, self.empty = _mask_grid(masks, self.rig)
+        if all(m is None for row in self.mgrid for m in row):
+            raise ValueError("the sequence's silhouette stage needs at least one non-empty mask")
+        self.outliers = result.outliers if self.rig else result.outliers[:, None]
+        if len(self.views) > 1:  # several views: the keypoint refinement's scale of the temporal weights
+            temporal_weight = temporal_weight * float(result.config.get("views_smooth_scale", 1.0))
+        self.temporal_weight = temporal_weight
 
-    guard = guard_fit(
-        model, finite_median(result.reprojection_error), result.betas, finite_median(reproj), betas, "video"
-    )
-    if guard.reverted and getattr(cfg, "plausibility_guard", True):
-        return replace(
-            result, timings=timings, warnings=list(result.warnings) + list(sil.warnings) + list(guard.warnings)
+    def prepare(self, model, config):
+        """A small model rendered whole (no proxy)."""
+        if config.proxy_faces and int(config.proxy_faces) >= int(model.faces.shape[0]):
+            config = replace(config, proxy_faces=None)
+        return config
+
+    def starts(self, config) -> list:
+        self.init = self.result.params()
+        return [self.init]
+
+    def inputs(self, model, problems: List[int], config) -> StageInputs:
+        """The one problem (:func:`_silhouette_observations`) with the temporal terms (``result``'s
+        ``temporal_sigma``)."""
+        from .terms import JointSmoothnessTerm, RootSmoothnessTerm
+
+        obs = _silhouette_observations(self.grid, self.mgrid, self.views, self.outliers, self.result.bridged)
+        sigma, w = self.result.config.get("temporal_sigma", 10.0), self.temporal_weight
+        terms = (JointSmoothnessTerm(sigma=sigma), RootSmoothnessTerm(sigma=sigma))
+        return StageInputs([Problem(obs)], self.result.layout, config, terms, {"smooth_joints": w, "smooth_root": w})
+
+    def read_back(self, model, sils: list, config, seconds: float) -> List[SequenceFitResult]:
+        """The refined sequence, or (the plausibility guard) the keypoint fit's with the guard's warnings."""
+        from .plausibility import guard_fit
+
+        (sil,), result, F = sils, self.result, self.result.num_frames
+        p = sil.params()
+        betas = np.asarray(p["betas"], dtype=np.float32).reshape(-1)
+        joints, kp2d, reproj = _posed_sequence(
+            model, result, p, betas, list(self.init), self.views, self.grid, self.outliers
         )
-    warnings = _refined_sequence_warnings(result, sil, reproj, betas, mgrid, C, empty)
-    out = _with_parameters(result, p, betas, joints, kp2d, reproj, timings, warnings)
-    ious = np.array(sil.ious, dtype=np.float64).reshape(F, C)
-    out.silhouette_iou, out.silhouette_iou_start = (ious if rig else ious[:, 0]), float(sil.iou_start)
-    return out
+        timings = dict(result.timings, silhouette=seconds, total=result.timings["total"] + seconds)
+        timings["seconds_per_frame"] = timings["total"] / F
+        # the plausibility guard, as for one image: a refined fit less plausible than the keypoint fit it started from
+        # (median reprojection error over the frames, |betas|, stature) is not kept
+        guard = guard_fit(
+            model, finite_median(result.reprojection_error), result.betas, finite_median(reproj), betas, "video"
+        )
+        if guard.reverted and getattr(config, "plausibility_guard", True):
+            warnings = list(result.warnings) + list(sil.warnings) + list(guard.warnings)
+            return [replace(result, timings=timings, warnings=warnings)]
+        warnings = _refined_sequence_warnings(result, sil, reproj, betas, self.mgrid, len(self.views), self.empty)
+        out = _with_parameters(result, p, betas, joints, kp2d, reproj, timings, warnings)
+        ious = np.array(sil.ious, dtype=np.float64).reshape(F, len(self.views))
+        out.silhouette_iou, out.silhouette_iou_start = (ious if self.rig else ious[:, 0]), float(sil.iou_start)
+        return [out]
