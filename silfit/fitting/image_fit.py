@@ -569,9 +569,9 @@ def _with_passes(result: FitResult, passes: dict) -> FitResult:
 
 
 def _batch_masks(keypoint_result, masks: list, mask_sources: list, config, known, faces) -> tuple:
-    """:func:`refine_batch`'s masks per image: ``(kp_masks, ious_before, fit_masks, trim_notes, known)``, the keypoint
-    fit's rendered masks and their IoUs with ``masks``, the masks fitted (trimmed) and the trim's notes, and the pixels
-    whose value is trusted (the stage's own, joined to the caller's ``known``; ``None``: all)."""
+    """:class:`ImageRefinement`'s masks per image: ``(kp_masks, ious_before, fit_masks, trim_notes, known)``, the
+    keypoint fit's rendered masks and their IoUs with ``masks``, the masks fitted (trimmed) and the trim's notes, and
+    the pixels whose value is trusted (the stage's own, joined to the caller's ``known``; ``None``: all)."""
     n = len(masks)
     kp_masks, ious_before = _keypoint_fit_masks(keypoint_result, masks, mask_sources, faces)
     fit_masks, trim_notes, trimmed = _trimmed_masks(masks, kp_masks, config, mask_sources, known)
@@ -584,7 +584,7 @@ def _batch_masks(keypoint_result, masks: list, mask_sources: list, config, known
 
 
 class _RefinedBatch:
-    """:func:`refine_batch`'s batch after the silhouette stage: per image its inputs, masks (``masks_of``:
+    """:class:`ImageRefinement`'s batch after the silhouette stage: per image its inputs, masks (``masks_of``:
     ``(kp_masks, ious_before, fit_masks, trim_notes, known)``, :func:`_batch_masks`) and its candidates' refined
     fits (``candidates[i]``: the rows of ``inits`` and ``sils``, its start first, then the ``offered``
     alternatives); :meth:`result` makes an image's :class:`FitResult`."""
@@ -864,24 +864,23 @@ class _ImageBatch:
         return [(kp, j) for j in range(len(rows))]
 
     def silhouette_stage(self, rows: list, kp_results: dict) -> list:
-        """Per row its refined :class:`FitResult` (:func:`refine_batch`); rows fitted in one keypoint batch
-        (``kp_results``: :meth:`keypoint_stage`'s) are refined as one."""
+        """Per row its refined :class:`FitResult` (the one silhouette driver with :class:`ImageRefinement`); rows
+        fitted in one keypoint batch (``kp_results``: :meth:`keypoint_stage`'s) are refined as one."""
         groups: dict = {}  # rows fitted in one keypoint batch are refined as one
         for i in rows:
             groups.setdefault(id(kp_results[i][0]), []).append(i)
         done = {}
         for group in groups.values():
             batch = kp_results[group[0]][0].select([kp_results[i][1] for i in group])
-            fitted = refine_batch(
-                self.model,
+            hooks = ImageRefinement(
                 batch,
                 [self.keypoints[i] for i in group],
                 [np.asarray(self.masks[i], dtype=bool) for i in group],
-                self.silhouette_config,
-                self.fitter.pose_prior,
-                progress=self.progress,
-                mask_sources=[self.mask_sources[i] for i in group],
-                known=None if self.known is None else [self.known[i] for i in group],
+                [self.mask_sources[i] for i in group],
+                None if self.known is None else [self.known[i] for i in group],
+            )
+            fitted = refine_silhouettes(
+                self.model, hooks, self.silhouette_config, self.fitter.pose_prior, progress=self.progress
             )
             done.update(zip(group, fitted))
         return [done[i] for i in rows]

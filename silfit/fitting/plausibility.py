@@ -19,9 +19,10 @@
   :data:`GUARD_REPROJECTION_RISE` times the keypoint stage's, |betas| beyond
   :data:`MAX_ABS_BETA`, a stature outside :data:`STATURE_RANGE_M`, each only where the keypoint
   fit was not already so), it says to keep the keypoint fit, with a warning. It takes numbers
-  (:func:`fit_summary` makes them) and holds no model; images (:func:`silfit.fitting.image_fit.refine_batch`),
-  rigs (:func:`silfit.fitting.rig_pipeline.refine_rig_fits`) and videos
-  (:func:`silfit.fitting.sequence.refine_sequence_silhouettes`) all call it.
+  (:func:`fit_summary` makes them) and holds no model; the one silhouette driver's hooks
+  (:func:`silfit.fitting.refine.refine_silhouettes`) for images (:class:`silfit.fitting.image_fit.ImageRefinement`),
+  rigs (:class:`silfit.fitting.rig_pipeline.RigRefinement`) and videos
+  (:class:`silfit.fitting.sequence.SequenceRefinement`) all call it when they read the stage's results back.
 * :func:`mask_warnings`: a mask that runs out of the image (the person cut off);
   :func:`depth_warnings`: a depth branch the keypoints cannot decide.
 """

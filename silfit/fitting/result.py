@@ -85,7 +85,7 @@ class KeypointFitResult:
     #: :attr:`hypotheses`' form plus ``gap``: their final energy's relative gap to the fit's (above it, unless the
     #: occlusion cue, ``occlusion_weight``, chose the fit by more than its energy: then it can be negative); whatever
     #: ``hypotheses`` is. With a mask the close ones are refined against it too, and the mask may choose one
-    #: (:func:`silfit.fitting.image_fit.refine_batch`, ``SilhouetteFitConfig.alternatives_margin``); ``None``: no branch
+    #: (:class:`image_fit.ImageRefinement`, ``SilhouetteFitConfig.alternatives_margin``); ``None``: no branch
     #: was refined (no search, rigs, videos) or the result was read from a file (:meth:`load`)
     alternatives: Optional[list] = None
 

@@ -165,7 +165,7 @@ class SilhouetteFitConfig:
     #: a mask that reaches beyond the keypoint fit's body all around (loose clothing, hair, a grown
     #: segmentation: :func:`~silfit.silhouette.losses.clothing_thickness` above ``trim_min`` of the
     #: mask's extent) is eroded by that thickness (at most ``trim_max``) before the stage
-    #: (:func:`~silfit.silhouette.losses.trim_clothing`; image path: silfit.fitting.image_fit.refine_batch)
+    #: (:func:`~silfit.silhouette.losses.trim_clothing`; image path: image_fit.ImageRefinement)
     trim_clothing: bool = True
     trim_min: float = 0.015
     trim_max: float = 0.08
@@ -177,7 +177,7 @@ class SilhouetteFitConfig:
     #: silhouette (a leak into an object or the background) and the mask's holes smaller than
     #: ``hole_fraction`` of its area (segmentation gaps) are unknown, like the pixels beyond the
     #: image (:func:`~silfit.silhouette.losses.unknown_regions`; image path:
-    #: silfit.fitting.image_fit.refine_batch); 0: off
+    #: image_fit.ImageRefinement); 0: off
     leak_distance: float = 0.03
     hole_fraction: float = 0.02
     #: mask pixels in the concavities of the keypoint fit's silhouette (its closing by a disc of
@@ -190,13 +190,13 @@ class SilhouetteFitConfig:
     #: matches the body has no filled concavities, and there they are the only sign of a misplaced limb
     concave_trimmed_only: bool = True
     #: after the stage, a fit less plausible than the keypoint fit (silfit.fitting.plausibility.silhouette_guard)
-    #: is replaced by the keypoint fit, with a warning (image path: silfit.fitting.image_fit.refine_batch)
+    #: is replaced by the keypoint fit, with a warning (image path: image_fit.ImageRefinement)
     plausibility_guard: bool = True
     #: the keypoint stage's other distinct branches refined to the end (``KeypointFitResult.alternatives``) whose
     #: final energy lies within this relative margin of the fit's (the same 10 % as the depth warning's
     #: ``silfit.fitting.plausibility.HYPOTHESIS_MARGIN``, which also asks that they move a joint 400 mm) are refined against
     #: the mask too, as more problems of the batch, and the lowest final energy of the stage is kept (image path:
-    #: silfit.fitting.image_fit.refine_batch; ``--hypotheses K`` refines its K hypotheses instead, whatever this is); 0: off,
+    #: image_fit.ImageRefinement; ``--hypotheses K`` refines its K hypotheses instead, whatever this is); 0: off,
     #: the keypoint stage's branch only (before issue 25's close-alternatives part; README "By default, the close
     #: alternatives too")
     alternatives_margin: float = 0.1
@@ -236,7 +236,7 @@ class SilhouetteFitConfig:
     #: the share of the median error in the trust region's unit (``unit = trust_unit_median * median + 1 px``;
     #: why this default: docs/benchmarks/defaults.md)
     trust_unit_median: float = 1.0
-    #: two passes in the image path (silfit.fitting.image_fit.refine_batch): the stage runs first with the trust region
+    #: two passes in the image path (image_fit.ImageRefinement): the stage runs first with the trust region
     #: before issue 55 (a radius of ``FREE_TRUST_FRACTION`` of the window around the detections: the silhouette free
     #: to move the keypoints a little), then every image whose kept result's median reprojection error exceeds
     #: ``trust_free_ratio`` times the keypoint stage's has all its branches refitted with the trust region above
@@ -435,7 +435,7 @@ class SilhouetteFitResult:
     @property
     def final_energy(self) -> float:
         """The stage's energy at the kept (lowest-energy) step of its last level: silhouette, keypoints and
-        priors at that level's weights (what :func:`silfit.fitting.image_fit.refine_batch` compares hypotheses by)."""
+        priors at that level's weights (what :class:`image_fit.ImageRefinement` compares hypotheses by)."""
         level = self.final_level
         last = [e for lv, e in zip(self.history.get("level") or [], self.history.get("energy") or []) if lv == level]
         return float(min(last)) if last else float("nan")

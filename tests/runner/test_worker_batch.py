@@ -28,13 +28,13 @@ def test_masked_items_are_refined_in_one_call(tmp_path, monkeypatch):
     data = synthetic_copy(tmp_path / "in", ["subject_000", "subject_001", "subject_002"])
     items = list_items(data)
     calls = []
-    real = image_fit.refine_batch
+    real = image_fit.refine_silhouettes
 
-    def counting(model, kp, keypoints, masks, *args, **kwargs):
-        calls.append(len(masks))
-        return real(model, kp, keypoints, masks, *args, **kwargs)
+    def counting(model, hooks, *args, **kwargs):
+        calls.append(len(hooks.masks))
+        return real(model, hooks, *args, **kwargs)
 
-    monkeypatch.setattr(image_fit, "refine_batch", counting)
+    monkeypatch.setattr(image_fit, "refine_silhouettes", counting)
     records = _fitter().run_batch(items, tmp_path / "out")
     assert calls == [3]
     assert [r["status"] for r in records] == ["ok"] * 3
