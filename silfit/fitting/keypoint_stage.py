@@ -75,6 +75,7 @@ from .branches import LIMB_SEGMENTS, limb_hypotheses, turn_hypotheses
 from .problem import ParameterLayout, Problem, stack_views
 from .result import PARAM_NAMES, KeypointFitResult
 from .aliases import Alias, renamed_fields
+from .schedule_edits import keypoint_defaults, keypoint_stages
 from .stages import Stage, check_stages, run_stage, stage_to_dict
 from .terms import (
     DepthTerm,
@@ -103,8 +104,9 @@ POINTS_STATURE_M = 1.7
 #: their rotation, only the eyeball centres)
 WHOLEBODY_HAND_PARAMS = ("left_hand_pose", "right_hand_pose")
 WHOLEBODY_FACE_PARAMS = ("jaw_pose", "expression")
-#: the parameters every pose stage frees
-_POSE_FREE = ("global_orient", "transl", "body_pose")
+#: the defaults of :class:`KeypointFitConfig`'s stage fields: the cells of the literal tables
+#: (:data:`~silfit.fitting.schedules.KEYPOINT_SCHEDULE`; the hand and face fields' ``WHOLEBODY_KEYPOINT_SCHEDULE``)
+STAGE_DEFAULTS = keypoint_defaults()
 
 
 def _stage_weights(old: str, field_name: str):
@@ -187,13 +189,13 @@ class KeypointFitConfig:
     #: set 1 for the fastest batched throughput (why this default: docs/benchmarks/defaults.md)
     init_poses: int = 4
     #: after which pose sub-stage (0-based) each sample keeps the best of its starts
-    flip_decision_stage: int = 0
+    flip_decision_stage: int = STAGE_DEFAULTS["flip_decision_stage"]
     #: steps of that sub-stage run with every start before choosing (0: the whole sub-stage);
     #: its remaining steps continue from the chosen start only
-    decision_iters: int = 20
+    decision_iters: int = STAGE_DEFAULTS["decision_iters"]
     robust: bool = True  # False: plain L2 data terms (keypoints and, several views, points; for comparisons)
-    camera_iters: int = 30
-    pose_iters: Sequence[int] = (30, 30, 40)
+    camera_iters: int = STAGE_DEFAULTS["camera_iters"]
+    pose_iters: Sequence[int] = STAGE_DEFAULTS["pose_iters"]
     #: Annealed pose-prior weights of the pose stages, tuned for the shipped library mixture
     #: (:class:`~silfit.priors.LibraryMixturePrior`; about 10x the weights that suited the
     #: old split-normal default, whose energies are on a similar scale but which needed less
@@ -203,36 +205,36 @@ class KeypointFitConfig:
     #: in :class:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig` and in
     #: :class:`~silfit.fitting.sequence.SequenceFitConfig`; the old ``pose_prior_weights`` (the pose
     #: stages') and ``final_pose_prior_weight`` still work).
-    pose_weight: Sequence[float] = (2000.0, 400.0, 80.0, 40.0)
+    pose_weight: Sequence[float] = STAGE_DEFAULTS["pose_weight"]
     #: the angle prior's (the knees' and elbows' bend), the same way: one per pose stage, then the final stage's
     #: (issue 57; the old ``angle_prior_weights`` (the pose stages') and ``final_angle_prior_weight`` still work)
-    angle_weight: Sequence[float] = (10.0, 5.0, 2.0, 1.0)
-    shape_iters: int = 20
+    angle_weight: Sequence[float] = STAGE_DEFAULTS["angle_weight"]
+    shape_iters: int = STAGE_DEFAULTS["shape_iters"]
     #: the shape prior's: the shape stage's, then the final stage's (issue 57; the old ``final_shape_weight``
     #: still works, and a single number is the shape stage's, as the name meant before, with a warning)
-    shape_weight: Sequence[float] = (20.0, 5.0)
+    shape_weight: Sequence[float] = STAGE_DEFAULTS["shape_weight"]
     #: the final stage's L-BFGS steps; with ``branch_refine`` above 1 the hypotheses are chosen by the
     #: final energy, so this many steps bring it near its minimum (see ``branch_refine``; why this
     #: default: docs/benchmarks/defaults.md)
-    final_iters: int = 120
+    final_iters: int = STAGE_DEFAULTS["final_iters"]
     #: ... but at most this many, every one run (no ``final_tol_change``), where no branch search ran
     #: (several views fix the limbs' depth, or ``branch_search`` off): no branches to choose among, and
     #: the rigs' numbers were measured so (``None``: ``final_iters`` always)
-    final_iters_unsearched: Optional[int] = 40
+    final_iters_unsearched: Optional[int] = STAGE_DEFAULTS["final_iters_unsearched"]
     #: after a branch search, the final stage's rows stop once a step lowers their energy by less than this (relative; the
     #: optimiser's default, 1e-8, runs nearly every row all ``final_iters``); ``None``: the optimiser's default
     #: (why this default: docs/benchmarks/defaults.md)
-    final_tol_change: Optional[float] = 1e-4
-    limit_weight: float = 1e4
-    interpenetration_weight: float = 1e5
-    depth_weight: float = 1e3
+    final_tol_change: Optional[float] = STAGE_DEFAULTS["final_tol_change"]
+    limit_weight: float = STAGE_DEFAULTS["limit_weight"]
+    interpenetration_weight: float = STAGE_DEFAULTS["interpenetration_weight"]
+    depth_weight: float = STAGE_DEFAULTS["depth_weight"]
     #: several calibrated views: the ``points`` term (:class:`~silfit.fitting.terms.PointsTerm`, the
     #: keypoints triangulated from the views) in the pose stages and in the shape and final stages
     #: (0 for one view: nothing is triangulated). With two views the 2D terms alone could end with a
     #: limb in the wrong depth branch (one view agrees, the robust term bounds the other's residual),
     #: which this term holds (why this default, and ``final_points_weight``'s: docs/benchmarks/defaults.md)
-    points_weight: float = 1.0
-    final_points_weight: float = 1.0
+    points_weight: float = STAGE_DEFAULTS["points_weight"]
+    final_points_weight: float = STAGE_DEFAULTS["final_points_weight"]
     history: int = 10
     #: the floating-point type the stage computes in (``None``: the model's own). float64 by
     #: default: the optimiser amplifies last-bit differences (other SIMD kernels) into millimetres,
@@ -248,27 +250,27 @@ class KeypointFitConfig:
     #: per whole limb), each hypothesis runs ``branch_iters`` L-BFGS steps with that pose
     #: stage's weights plus interpenetration, and each sample keeps its lowest energy;
     #: ``branch_rounds`` repeats the search from the kept pose.
-    branch_search: bool = True
-    branch_after_stage: int = 1
-    branch_iters: int = 20
-    branch_min_depth_ratio: float = 0.3
-    branch_whole_limbs: bool = True
+    branch_search: bool = STAGE_DEFAULTS["branch_search"]
+    branch_after_stage: int = STAGE_DEFAULTS["branch_after_stage"]
+    branch_iters: int = STAGE_DEFAULTS["branch_iters"]
+    branch_min_depth_ratio: float = STAGE_DEFAULTS["branch_min_depth_ratio"]
+    branch_whole_limbs: bool = STAGE_DEFAULTS["branch_whole_limbs"]
     #: a forearm or a shin is mirrored as an elbow or a knee can turn it (the upper segment twists, the
     #: hinge flexes: :func:`~silfit.fitting.branches.flip_segment`); off: the smallest turn at the hinge,
     #: which bends it sideways, so the priors pull the branch back before it is scored (issue 25: a hand
     #: at the chest fitted as an arm held out to the camera; why this default: docs/benchmarks/defaults.md)
-    branch_hinge: bool = True
+    branch_hinge: bool = STAGE_DEFAULTS["branch_hinge"]
     #: with ``branch_hinge``, each hinge segment flipped alone by the smallest turn at its hinge is also a
     #: hypothesis (``<segment>/turn``; whole limbs, joint and root-turn hypotheses use the hinge flip only)
-    branch_hinge_turns: bool = True
+    branch_hinge_turns: bool = STAGE_DEFAULTS["branch_hinge_turns"]
     #: a search's screen and its rows that go on (``carry``) take distinct poses first
     #: (:func:`best_distinct_per_group`): a hinge flip and its ``/turn`` copy that reached the same pose take one
     #: place, and the next distinct hypothesis the other (issue 25)
-    branch_distinct: bool = True
+    branch_distinct: bool = STAGE_DEFAULTS["branch_distinct"]
     #: also the joint hypotheses (:data:`~silfit.fitting.branches.JOINT_HYPOTHESES`: both legs,
     #: both arms, the torso's lean with the legs, the hip's tilt), screened with the others. Off by
     #: default (why: docs/benchmarks/defaults.md)
-    branch_joint: bool = False
+    branch_joint: bool = STAGE_DEFAULTS["branch_joint"]
     #: the last branch search keeps each sample's ``max(branch_refine, 2 * hypotheses)`` lowest-energy
     #: hypotheses and runs the rest of the schedule on all of them; the lowest final energy is the fit,
     #: the ``hypotheses`` best distinct ones (:func:`distinct_hypotheses`) are returned as
@@ -292,13 +294,13 @@ class KeypointFitConfig:
     #: so its choice follows how fast a branch converges, not where; branches refined to near their
     #: minima (``final_iters``) are chosen by the energy a fit is judged by (why this default:
     #: docs/benchmarks/defaults.md)
-    branch_refine: int = 4
-    branch_rounds: int = 1
+    branch_refine: int = STAGE_DEFAULTS["branch_refine"]
+    branch_rounds: int = STAGE_DEFAULTS["branch_rounds"]
     #: hypotheses drop early: after ``branch_screen_iters`` steps only each sample's
     #: ``branch_survivors`` lowest-energy hypotheses (the unflipped pose among them or not)
     #: run the remaining steps (0: all run every step)
-    branch_screen_iters: int = 15
-    branch_survivors: int = 4
+    branch_screen_iters: int = STAGE_DEFAULTS["branch_screen_iters"]
+    branch_survivors: int = STAGE_DEFAULTS["branch_survivors"]
     #: a second branch search just before the final stage (0 steps: none), from the pose the
     #: earlier stages reached and with the final stage's weights (the energy a fit is judged by):
     #: the same hypotheses (:func:`~silfit.fitting.branches.limb_hypotheses`, the joint ones with
@@ -309,9 +311,9 @@ class KeypointFitConfig:
     #: after a few steps, and the truth's branch was often cut there or never proposed (it needs a
     #: flip on top of another); a search at the final weights from the refined pose finds it (why this
     #: default: docs/benchmarks/defaults.md)
-    late_branch_iters: int = 30
+    late_branch_iters: int = STAGE_DEFAULTS["late_branch_iters"]
     #: late searches in a row (each from the one before's pick)
-    late_branch_rounds: int = 1
+    late_branch_rounds: int = STAGE_DEFAULTS["late_branch_rounds"]
     #: root-turn hypotheses in the late search(es) (:func:`~silfit.fitting.branches.turn_hypotheses`:
     #: ``"mirror"`` the torso's yaw mirrored in depth, a number a turn in degrees), alone and with each
     #: limb flip; empty: none
@@ -327,7 +329,7 @@ class KeypointFitConfig:
     #: the truth's basin where the late search, from an unconverged pose, cut it at its screen (issue 25's
     #: search failures: the fit's energy above the truth's; why this default: docs/benchmarks/defaults.md).
     #: 0: the schedule before
-    post_branch_iters: int = 40
+    post_branch_iters: int = STAGE_DEFAULTS["post_branch_iters"]
     #: occlusion cue (:mod:`silfit.fitting.occlusion`, the ``occlusion`` term) in choosing among the
     #: hypotheses refined to the end (``branch_refine`` or ``2 * hypotheses`` of them): a hypothesis'
     #: final energy counts ``1 + occlusion_weight * n`` times, ``n`` the keypoints whose depth order
@@ -369,19 +371,19 @@ class KeypointFitConfig:
     #: robust scales (Geman-McClure sigma, normalised pixels) of the hand and face terms
     hand_weights: Optional[Sequence[float]] = None
     face_weights: Optional[Sequence[float]] = None
-    final_hand_weight: float = 2.0
-    final_face_weight: float = 2.0
+    final_hand_weight: float = STAGE_DEFAULTS["final_hand_weight"]
+    final_face_weight: float = STAGE_DEFAULTS["final_face_weight"]
     hand_sigma: float = 50.0
     face_sigma: float = 50.0
     #: L-BFGS steps of a ``hands`` stage before the first pose stage with hand terms: the hands
     #: start from their best library pose and wrist turn (:func:`~silfit.fitting.hands_face.choose_hand_starts`)
     #: and are fitted with the body (held by its keypoints and priors; 0: no such stage, the hands start
     #: in that pose stage)
-    hand_iters: int = 30
+    hand_iters: int = STAGE_DEFAULTS["hand_iters"]
     #: priors of the parts, on wherever the parts are free
-    hand_prior_weight: float = 2.0
-    jaw_weight: float = 50.0
-    expression_weight: float = 2.0
+    hand_prior_weight: float = STAGE_DEFAULTS["hand_prior_weight"]
+    jaw_weight: float = STAGE_DEFAULTS["jaw_weight"]
+    expression_weight: float = STAGE_DEFAULTS["expression_weight"]
     #: an explicit list of :class:`~silfit.fitting.stages.Stage` replacing the schedule
     #: the fields above describe (see :meth:`stages`)
     schedule: Optional[Sequence[Stage]] = None
@@ -417,174 +419,19 @@ class KeypointFitConfig:
         if self.schedule is not None and not all(isinstance(s, Stage) for s in self.schedule):
             raise ValueError("KeypointFitConfig: schedule must be a list of silfit.fitting.stages.Stage")
 
-    def part_weights(self, hands: float, face: float) -> tuple:
-        """``(weights, free)`` the hand and face parts add to a stage with these keypoint weights."""
-        w, free = {}, ()
-        if hands:
-            w.update(hands=hands, hand_pose=self.hand_prior_weight)
-            free += WHOLEBODY_HAND_PARAMS
-        if face:
-            w.update(face=face, jaw=self.jaw_weight, expression=self.expression_weight)
-            free += WHOLEBODY_FACE_PARAMS
-        return w, free
-
     def stages(self, whole_body: bool = False) -> tuple:
-        """The schedule as data: camera, pose_1..n (annealed priors; the best start of each
-        sample is kept ``decision_iters`` steps into pose stage ``flip_decision_stage``; the branch
-        search after pose stage ``branch_after_stage``), shape, ``branches_late`` (the search again at
-        the final weights, ``late_branch_iters``), ``settle`` and ``branches_post`` (its best settle, and a search
-        from the best of them, ``post_branch_iters``), final (everything, with interpenetration); with ``whole_body`` the hand and
-        face terms and parameters join as the module docstring says. The defaults give the literal
-        tables :data:`~silfit.fitting.schedules.KEYPOINT_SCHEDULE` and ``WHOLEBODY_KEYPOINT_SCHEDULE``."""
+        """The schedule as data: the literal table (:data:`~silfit.fitting.schedules.KEYPOINT_SCHEDULE`, with
+        ``whole_body`` ``WHOLEBODY_KEYPOINT_SCHEDULE``) as it stands, or edited by the fields that differ from their
+        defaults (which are the table's cells: :mod:`silfit.fitting.schedule_edits`): camera, pose_1..n (annealed
+        priors; the best start of each sample is kept ``decision_iters`` steps into pose stage
+        ``flip_decision_stage``; the branch search after pose stage ``branch_after_stage``), shape, ``branches_late``
+        (the search again at the final weights, ``late_branch_iters``), ``settle`` and ``branches_post`` (its best
+        settle, and a search from the best of them, ``post_branch_iters``), final (everything, with
+        interpenetration); with ``whole_body`` the hand and face terms and parameters join as the module docstring
+        says. ``schedule``: that list instead."""
         if self.schedule is not None:
             return tuple(self.schedule)
-        n = len(self.pose_iters)
-        ramp = tuple(0.0 if i < n - 1 else 1.0 for i in range(n))
-        hw = tuple(self.hand_weights if self.hand_weights is not None else ramp) if whole_body else (0.0,) * n
-        fw = tuple(self.face_weights if self.face_weights is not None else ramp) if whole_body else (0.0,) * n
-        out = [
-            Stage("camera", ("global_orient", "transl"), {"torso": 1.0, "depth": self.depth_weight}, self.camera_iters)
-        ]
-        for i, (it, wp, wa) in enumerate(zip(self.pose_iters, self.pose_weight[:-1], self.angle_weight[:-1])):
-            out += self._pose_stages(i, int(it), wp, wa, hw, fw)
-        final_parts = (self.final_hand_weight, self.final_face_weight) if whole_body else (0.0, 0.0)
-        if self.shape_iters:
-            w = {"keypoints": 1.0, "shape": self.shape_weight[0]}
-            if self.final_points_weight:
-                w["points"] = float(self.final_points_weight)
-            w.update({k: v for k, v in zip(("hands", "face"), final_parts) if v})
-            out.append(Stage("shape", ("betas", "transl"), w, self.shape_iters))
-        w = self._final_weights()
-        part_w, part_free = self.part_weights(*final_parts)
-        free = ("betas",) + _POSE_FREE + part_free
-        if self.branch_search and self.late_branch_iters:
-            out += self._late_branch_stages(free, w, part_w)
-        if self.final_iters:
-            out += self._final_stages(out, free, w, part_w)
-        return tuple(out)
-
-    def _pose_stages(self, i: int, iterations: int, wp: float, wa: float, hw: tuple, fw: tuple) -> list:
-        """Pose stage ``i`` (0-based; pose and angle prior weights ``wp``, ``wa``; hand and face keypoint weights
-        ``hw``, ``fw`` per pose stage): the ``hands`` stage before it where the hands start there, the stage, and
-        the branch searches after it where they run there."""
-        out = []
-        opts = {"decide_after": int(self.decision_iters)} if i == self.flip_decision_stage else {}
-        weights = {"keypoints": 1.0, "pose": wp, "angle": wa, "limits": self.limit_weight}
-        if self.points_weight:
-            weights["points"] = float(self.points_weight)
-        if hw[i] and not any(hw[:i]):  # hands start from their best library pose, fitted alone first
-            if self.hand_iters:  # the body free too (the wrists turn), held by its keypoints and priors
-                w = {**weights, "hands": hw[i], "hand_pose": self.hand_prior_weight}
-                out.append(
-                    Stage(
-                        "hands",
-                        _POSE_FREE + WHOLEBODY_HAND_PARAMS,
-                        w,
-                        int(self.hand_iters),
-                        options={"hand_starts": True},
-                    )
-                )
-            else:
-                opts = {**opts, "hand_starts": True}
-        part_w, part_free = self.part_weights(hw[i], fw[i])
-        weights.update(part_w)
-        out.append(Stage(f"pose_{i + 1}", _POSE_FREE + part_free, weights, iterations, options=opts))
-        if self.branch_search and i == min(self.branch_after_stage, len(self.pose_iters) - 1):
-            for r in range(int(self.branch_rounds)):
-                w = {**weights, "interpenetration": self.interpenetration_weight, **self.image_depth_weights()}
-                out.append(
-                    Stage(
-                        f"branches_{r + 1}",
-                        _POSE_FREE + part_free,
-                        w,
-                        int(self.branch_iters),
-                        options=self.branch_options(),
-                    )
-                )
-        return out
-
-    def _final_weights(self) -> dict:
-        """The final stage's weights (and the late searches', settle's and the search from the fit's), without the
-        hand and face parts'."""
-        w = {
-            "keypoints": 1.0,
-            "pose": self.pose_weight[-1],
-            "angle": self.angle_weight[-1],
-            "limits": self.limit_weight,
-            "shape": self.shape_weight[-1],
-            "interpenetration": self.interpenetration_weight,
-            **self.image_depth_weights(),
-        }
-        if self.final_points_weight:
-            w["points"] = float(self.final_points_weight)
-        return w
-
-    def _late_branch_stages(self, free: tuple, w: dict, part_w: dict) -> list:
-        """The late branch searches (``branches_late``, ``branches_late_<r>``) at the final weights ``w`` and
-        ``part_w``, parameters ``free``; every one with the same options."""
-        opts = self.branch_options()
-        if self.late_branch_turns:
-            opts["branches"]["turns"] = list(self.late_branch_turns)
-        if self.late_branch_survivors:
-            opts["branches"]["survivors"] = int(self.late_branch_survivors)
-        return [
-            Stage(
-                "branches_late" if r == 0 else f"branches_late_{r + 1}",
-                free,
-                {**w, **part_w},
-                int(self.late_branch_iters),
-                options=opts,
-            )
-            for r in range(max(1, int(self.late_branch_rounds)))
-        ]
-
-    def _final_stages(self, out: list, free: tuple, w: dict, part_w: dict) -> list:
-        """``settle`` and ``branches_post`` (after a search from the fit) and ``final``, at the final weights ``w`` and
-        ``part_w``, parameters ``free``; a late search last in ``out`` gets its ``carry`` there (replaced in place)."""
-        unsearched = self.final_iters_unsearched
-        opts = (
-            {} if unsearched is None or unsearched >= self.final_iters else {"unsearched_iterations": int(unsearched)}
-        )
-        if self.final_tol_change is not None:
-            opts["tol_change"] = float(self.final_tol_change)
-        stages = []
-        if self.branch_search and self.post_branch_iters:  # the late search's best settle, the best of them
-            carry = max(int(self.branch_refine), 2 * int(self.hypotheses) if int(self.hypotheses) > 1 else 1)
-            if self.late_branch_iters and carry > 1:  # goes on to a search from the fit
-                late = out[-1]
-                out[-1] = replace(late, options={"branches": {**late.options["branches"], "carry": carry}})
-            settle = {k: v for k, v in opts.items() if k != "unsearched_iterations"}
-            stages.append(
-                Stage("settle", free, {**w, **part_w}, self.final_iters, options={**settle, "searched_only": True})
-            )
-            post = self.branch_options()
-            post["branches"]["screen_after"] = int(self.post_branch_iters) // 2
-            stages.append(Stage("branches_post", free, {**w, **part_w}, int(self.post_branch_iters), options=post))
-        stages.append(Stage("final", free, {**w, **part_w}, self.final_iters, options=opts))
-        return stages
-
-    def image_depth_weights(self) -> dict:
-        """The ``image_depth`` term's weight in the stages that carry it (none when it is off)."""
-        return {"image_depth": float(self.image_depth_weight)} if self.image_depth_weight else {}
-
-    def branch_options(self) -> dict:
-        """A branch-search stage's options (every search alike, :data:`~silfit.fitting.schedules.BRANCHES`; the late
-        search adds its ``carry`` and the search from the fit its own ``screen_after`` in :meth:`stages`)."""
-        opts = {
-            "branches": {
-                "min_depth_ratio": self.branch_min_depth_ratio,
-                "whole_limbs": self.branch_whole_limbs,
-                "joint": self.branch_joint,
-                "screen_after": self.branch_screen_iters,
-                "survivors": self.branch_survivors,
-                "hinge": self.branch_hinge,
-                "hinge_turns": self.branch_hinge_turns,
-                "distinct": self.branch_distinct,
-            }
-        }
-        if self.occlusion_weight:
-            opts["branches"]["occlusion"] = float(self.occlusion_weight)
-        return opts
+        return keypoint_stages(self, whole_body)
 
     def to_dict(self, whole_body: bool = False) -> dict:
         """The settings and the resulting schedule (saved with every fit)."""

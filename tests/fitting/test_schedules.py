@@ -1,4 +1,5 @@
-"""The default schedules as literal tables, and one name per weight (old names kept as aliases)."""
+"""The schedules as literal tables (the single source: the configs edit them), and one name per weight (old names
+kept as aliases)."""
 
 import warnings
 from dataclasses import fields, replace
@@ -23,6 +24,36 @@ def test_the_default_configs_give_the_literal_tables():
     assert SequenceFitConfig().stages() == SEQUENCE_SCHEDULE
     # and a table is a schedule to start from
     assert KeypointFitConfig(schedule=KEYPOINT_SCHEDULE[:2]).stages() == KEYPOINT_SCHEDULE[:2]
+
+
+def test_the_table_is_the_source(monkeypatch):
+    """The stage fields' defaults are the table's cells, and a field that differs edits only the cells it names."""
+    from silfit.fitting import schedule_edits
+    from silfit.fitting.schedules import named, row
+
+    poses, cfg = named(KEYPOINT_SCHEDULE, r"pose_\d+"), KeypointFitConfig()
+    assert (
+        cfg.pose_iters == tuple(s.iterations for s in poses)
+        and cfg.final_iters == row(KEYPOINT_SCHEDULE, "final").iterations
+    )
+    assert cfg.pose_weight == tuple(s.weights["pose"] for s in poses) + (
+        row(KEYPOINT_SCHEDULE, "final").weights["pose"],
+    )
+    assert SilhouetteFitConfig().iterations == tuple(s.iterations for s in SILHOUETTE_SCHEDULE[1:])
+    assert SequenceFitConfig().iterations == SEQUENCE_SCHEDULE[0].iterations
+    table = tuple(
+        replace(s, weights={**s.weights, "limits": 5.0}) if s.name == "pose_2" else s for s in KEYPOINT_SCHEDULE
+    )
+    monkeypatch.setattr(schedule_edits, "KEYPOINT_SCHEDULE", table)
+    assert KeypointFitConfig().stages() == table
+    edited = {s.name: s for s in KeypointFitConfig(pose_iters=(1, 2, 3)).stages()}
+    assert list(edited) == [s.name for s in table] and edited["pose_2"].iterations == 2
+    assert edited["pose_2"].weights["limits"] == 5.0 and edited["pose_3"].weights["limits"] == 1e4
+    assert {
+        s.name: s.weights["limits"] for s in KeypointFitConfig(limit_weight=7.0).stages() if "limits" in s.weights
+    } == {s.name: 7.0 for s in table if "limits" in s.weights}
+    late = row(KeypointFitConfig(post_branch_iters=0, branch_search=True).stages(), "branches_late")
+    assert "carry" not in late.options["branches"]  # nothing goes on to a search from the fit
 
 
 def test_the_pose_weight_has_one_name_in_every_config():
