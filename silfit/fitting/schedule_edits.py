@@ -26,10 +26,30 @@ import dataclasses
 from dataclasses import replace
 from typing import Mapping, Optional
 
-from .schedules import FACE, HANDS, KEYPOINT_SCHEDULE, WHOLEBODY_KEYPOINT_SCHEDULE, named, row
+from .schedules import (
+    FACE,
+    HANDS,
+    KEYPOINT_SCHEDULE,
+    SEQUENCE_SCHEDULE,
+    SILHOUETTE_SCHEDULE,
+    WHOLEBODY_KEYPOINT_SCHEDULE,
+    named,
+    row,
+)
 from .stages import Stage
 
-__all__ = ["BRANCH_KEYS", "TERM_ORDER", "changed_fields", "keypoint_defaults", "keypoint_stages", "with_cells"]
+__all__ = [
+    "BRANCH_KEYS",
+    "TERM_ORDER",
+    "changed_fields",
+    "keypoint_defaults",
+    "keypoint_stages",
+    "sequence_defaults",
+    "sequence_stages",
+    "silhouette_defaults",
+    "silhouette_stages",
+    "with_cells",
+]
 
 POSE_ROW = r"pose_\d+"
 SEARCH_ROW = r"branches_\d+"
@@ -410,3 +430,133 @@ def final_row(t: Stage, e: Edit) -> Stage:
         )
         options = {**options, **({} if tol is None else {"tol_change": float(tol)}), **rest}
     return replace(at_final_weights(t, e), iterations=e.get("final_iters", t.iterations), options=options)
+
+
+#: :class:`~silfit.fitting.sequence.SequenceFitConfig`'s weight fields, by term
+SEQUENCE_TERMS = {
+    "pose_weight": "pose",
+    "angle_weight": "angle",
+    "limit_weight": "limits",
+    "shape_weight": "shape",
+    "joint_smooth_weight": "smooth_joints",
+    "root_smooth_weight": "smooth_root",
+}
+
+
+def sequence_defaults() -> dict:
+    """:class:`~silfit.fitting.sequence.SequenceFitConfig`'s stage fields' defaults, read from
+    :data:`~silfit.fitting.schedules.SEQUENCE_SCHEDULE`."""
+    t = row(SEQUENCE_SCHEDULE, "sequence")
+    return {"iterations": t.iterations, **{name: t.weights[term] for name, term in SEQUENCE_TERMS.items()}}
+
+
+def sequence_stages(cfg, free_betas: bool = True, iterations: Optional[int] = None, views: int = 1) -> tuple:
+    """:meth:`SequenceFitConfig.stages <silfit.fitting.sequence.SequenceFitConfig.stages>`: the table's one row,
+    its weights those of the fields that differ from their defaults (the table's), the temporal ones times
+    ``views_smooth_scale`` for several ``views``, ``interpenetration_weight`` where not 0; ``free_betas`` off: the
+    shape held (no ``betas``, no ``shape`` term); ``iterations``: that many steps (else ``iterations``')."""
+    t = row(SEQUENCE_SCHEDULE, "sequence")
+    e = Edit(cfg, changed_fields(cfg, skip=("keypoint",)))
+    k = 1.0 if views <= 1 else cfg.views_smooth_scale
+    weights = {**t.weights, **e.cells(**{term: (name, getattr(cfg, name)) for name, term in SEQUENCE_TERMS.items()})}
+    weights.update({term: k * weights[term] for term in ("smooth_joints", "smooth_root")})
+    if not free_betas:
+        weights.pop("shape")
+    if cfg.interpenetration_weight:
+        weights["interpenetration"] = cfg.interpenetration_weight
+    free = t.free if free_betas else tuple(p for p in t.free if p != "betas")
+    steps = e.get("iterations", t.iterations, int) if iterations is None else int(iterations)
+    return (replace(t, free=free, weights=weights, iterations=steps, options=copy.deepcopy(t.options)),)
+
+
+LEVEL_ROW = r"silhouette_\d+"
+#: :class:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig`'s weight fields, by term
+SILHOUETTE_TERMS = {
+    "w_contour_inside": "contour_inside",
+    "w_contour_cover": "contour_cover",
+    "w_silhouette": "silhouette",
+    "w_keypoints": "keypoints",
+    "pose_weight": "pose",
+    "limit_weight": "limits",
+    "angle_weight": "angle",
+    "shape_weight": "shape",
+    "w_stay": "stay",
+    "w_trust": "keypoint_trust",
+    "w_beta_bound": "beta_bound",
+}
+#: its Adam settings fields (the rendered levels' options but ``lr``), each with its type
+ADAM_FIELDS = {"warmup": int, "plateau_window": int, "plateau_rtol": float}
+
+
+def silhouette_defaults() -> dict:
+    """:class:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig`'s stage fields' defaults, read from
+    :data:`~silfit.fitting.schedules.SILHOUETTE_SCHEDULE` (the weights: the contour level's contour terms, the first
+    rendered level's others)."""
+    contour, levels = row(SILHOUETTE_SCHEDULE, "contour"), named(SILHOUETTE_SCHEDULE, LEVEL_ROW)
+    weights = {**contour.weights, **levels[0].weights}
+    return {
+        "resolutions": tuple(s.options["resolution"] for s in levels),
+        "iterations": tuple(s.iterations for s in levels),
+        "contour_iterations": contour.iterations,
+        "contour_resolution": contour.options["resolution"],
+        **{name: weights[term] for name, term in SILHOUETTE_TERMS.items()},
+        "lr": dict(levels[0].options["lr"]),
+        **{name: levels[0].options[name] for name in ADAM_FIELDS},
+        "level_proxy_faces": {s.options["resolution"]: s.options["proxy_faces"] for s in levels},
+        "optimise": levels[0].free,
+    }
+
+
+def silhouette_stages(cfg) -> tuple:
+    """:meth:`SilhouetteFitConfig.stages <silfit.fitting.silhouette_stage.SilhouetteFitConfig.stages>`: the table's
+    contour level (where ``contour_iterations``), then one rendered level per resolution of ``resolutions`` (the
+    table's row of that resolution, else a copy of its last), each edited by the fields that differ from their
+    defaults (the table's)."""
+    e = Edit(cfg, changed_fields(cfg))
+    cells = e.cells(**{term: (name, getattr(cfg, name)) for name, term in SILHOUETTE_TERMS.items()})
+    levels = named(SILHOUETTE_SCHEDULE, LEVEL_ROW)
+    by_resolution = {s.options["resolution"]: s for s in levels}
+    contour = ()
+    if cfg.contour_iterations:
+        t = row(SILHOUETTE_SCHEDULE, "contour")
+        options = {**t.options, "resolution": e.get("contour_resolution", t.options["resolution"], int)}
+        iterations = e.get("contour_iterations", t.iterations, int)
+        free = tuple(cfg.optimise) if "optimise" in e.changed else t.free
+        contour = (replace(t, free=free, weights=in_place(t.weights, cells), iterations=iterations, options=options),)
+    return contour + tuple(
+        level_row(by_resolution.get(int(r), levels[-1]), e, cells, int(r), int(it))
+        for r, it in zip(cfg.resolutions, cfg.iterations)
+    )
+
+
+def in_place(weights: Mapping, cells: Mapping) -> dict:
+    """``weights`` with the ``cells`` of its terms set, in its order (the others not added)."""
+    return {k: cells.get(k, v) for k, v in weights.items()}
+
+
+def level_row(t: Stage, e: Edit, cells: Mapping, resolution: int, iterations: int) -> Stage:
+    """A rendered level at ``resolution`` from the table's row ``t``: its weights' ``cells``, ``iterations`` where
+    ``iterations`` or ``resolutions`` changed, the render proxy's faces (``proxy_faces``, ``level_proxy_faces``),
+    the learning rates (``lr`` of ``optimise``) and Adam's settings."""
+    cfg, o = e.cfg, t.options
+    renumbered = "resolutions" in e.changed
+    faces = o.get("proxy_faces")
+    if renumbered or e.changed & {"proxy_faces", "level_proxy_faces"}:
+        faces = cfg.level_faces(resolution)
+    lr = {k: cfg.lr[k] for k in cfg.optimise} if e.changed & {"lr", "optimise"} else o["lr"]
+    rest = {k: v for k, v in o.items() if k not in ("resolution", "proxy_faces", "lr", *ADAM_FIELDS)}
+    options = {
+        "resolution": resolution,
+        **({} if faces is None else {"proxy_faces": faces}),
+        "lr": lr,
+        **{name: e.get(name, o[name], convert) for name, convert in ADAM_FIELDS.items()},
+        **rest,
+    }
+    return replace(
+        t,
+        name=f"silhouette_{resolution}",
+        free=tuple(cfg.optimise) if "optimise" in e.changed else t.free,
+        weights=in_place(t.weights, cells),
+        iterations=iterations if renumbered or "iterations" in e.changed else t.iterations,
+        options=options,
+    )

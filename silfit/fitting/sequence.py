@@ -60,7 +60,7 @@ from ..io.keypoints import KeypointSet, model_keypoints
 from .keypoint_stage import KeypointFitConfig, KeypointFitter, check_torso
 from .problem import Observation, Problem, View
 from .aliases import Alias, renamed_fields
-from .stages import Stage
+from .schedule_edits import sequence_defaults, sequence_stages
 from .threads import torch_threads
 
 __all__ = [
@@ -77,6 +77,11 @@ __all__ = [
 ]
 
 ROTATIONS = ("global_orient", "body_pose")
+
+
+#: the defaults of :class:`SequenceFitConfig`'s stage fields: the cells of the literal table
+#: (:data:`~silfit.fitting.schedules.SEQUENCE_SCHEDULE`)
+STAGE_DEFAULTS = sequence_defaults()
 
 
 @renamed_fields(pose_prior_weight=Alias("pose_weight"), angle_prior_weight=Alias("angle_weight"))
@@ -106,13 +111,15 @@ class SequenceFitConfig:
         )
     )
     init_stride: int = 1  # fit every n-th usable frame alone; interpolate the others
-    iterations: int = 100  # joint refinement, L-BFGS steps
-    joint_smooth_weight: float = 1.0
-    root_smooth_weight: float = 1.0
-    pose_weight: float = 40.0  # the pose prior's (one name in every config, issue 26; old name ``pose_prior_weight``)
-    angle_weight: float = 1.0  # the angle prior's (one name in every config, issue 57; old name ``angle_prior_weight``)
-    limit_weight: float = 1e4
-    shape_weight: float = 5.0
+    iterations: int = STAGE_DEFAULTS["iterations"]  # joint refinement, L-BFGS steps
+    joint_smooth_weight: float = STAGE_DEFAULTS["joint_smooth_weight"]
+    root_smooth_weight: float = STAGE_DEFAULTS["root_smooth_weight"]
+    #: the pose prior's (one name in every config, issue 26; old name ``pose_prior_weight``)
+    pose_weight: float = STAGE_DEFAULTS["pose_weight"]
+    #: the angle prior's (one name in every config, issue 57; old name ``angle_prior_weight``)
+    angle_weight: float = STAGE_DEFAULTS["angle_weight"]
+    limit_weight: float = STAGE_DEFAULTS["limit_weight"]
+    shape_weight: float = STAGE_DEFAULTS["shape_weight"]
     interpenetration_weight: float = 0.0
     temporal_sigma: float = 10.0  # mm per frame^2 (Charbonnier)
     bridge_weight: float = 0.0  # data weight of bridged frames
@@ -149,23 +156,10 @@ class SequenceFitConfig:
 
     def stages(self, free_betas: bool = True, iterations: Optional[int] = None, views: int = 1) -> tuple:
         """The joint refinement's one stage (``free_betas=False``: the windowed mode's second pass, the
-        shape held; ``views``: a rig video's, the temporal weights scaled by ``views_smooth_scale``); the
-        defaults give the literal table :data:`~silfit.fitting.schedules.SEQUENCE_SCHEDULE`."""
-        k = 1.0 if views <= 1 else self.views_smooth_scale
-        w = {
-            "keypoints": 1.0,
-            "pose": self.pose_weight,
-            "angle": self.angle_weight,
-            "limits": self.limit_weight,
-            "smooth_joints": k * self.joint_smooth_weight,
-            "smooth_root": k * self.root_smooth_weight,
-        }
-        if free_betas:
-            w["shape"] = self.shape_weight
-        if self.interpenetration_weight:
-            w["interpenetration"] = self.interpenetration_weight
-        free = (("betas",) if free_betas else ()) + ("global_orient", "transl", "body_pose")
-        return (Stage("sequence", free, w, int(self.iterations if iterations is None else iterations)),)
+        shape held; ``views``: a rig video's, the temporal weights scaled by ``views_smooth_scale``): the literal
+        table :data:`~silfit.fitting.schedules.SEQUENCE_SCHEDULE`, its cells those of the fields that differ from
+        their defaults (:func:`~silfit.fitting.schedule_edits.sequence_stages`)."""
+        return sequence_stages(self, free_betas, iterations, views)
 
     def to_dict(self) -> dict:
         d = {k: v for k, v in self.__dict__.items() if k != "keypoint"}

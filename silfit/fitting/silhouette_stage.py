@@ -68,7 +68,8 @@ from ..body.lbs import axis_angle_to_matrix, blend_shapes, pose_correctives, ski
 from .body import BodyState, KeypointBody, MeshBody, pose_parameter_names
 from .problem import ParameterLayout, Problem, stack_views, world_to_camera
 from .aliases import Alias, renamed_fields
-from .stages import AdamSettings, PerRow, Stage, check_stages, run_schedule, stage_to_dict
+from .schedule_edits import silhouette_defaults, silhouette_stages
+from .stages import PerRow, Stage, check_stages, run_schedule, stage_to_dict
 from .terms import Energy, Evaluation, KeypointTerm, PriorTerm, StayTerm, Term, evaluate
 from .threads import torch_threads
 
@@ -86,10 +87,6 @@ __all__ = [
 ]
 
 _CONTOUR_LOCK = threading.Lock()
-
-#: SMPL's parameters, the default free set (a model's own set is ``model.parameter_names``)
-from ..body.model import SMPL_PARAMETER_NAMES as PARAMS  # noqa: E402
-
 
 #: the rendered levels' samples before issue 24's sampling part (4 rays per edge pixel, 4 visibility-edge points
 #: per pixel of contour-candidate length): the benchmark's ``dense`` method
@@ -109,6 +106,9 @@ BEFORE_FOURTH_PART = {
 #: the trust region of the two-pass refit's first pass (``SilhouetteFitConfig.trust_free_ratio``): the one before
 #: issue 55, a radius of this share of the window's longer side around the detections
 FREE_TRUST_FRACTION = 0.06
+#: the defaults of :class:`SilhouetteFitConfig`'s stage fields: the cells of the literal table
+#: (:data:`~silfit.fitting.schedules.SILHOUETTE_SCHEDULE`)
+STAGE_DEFAULTS = silhouette_defaults()
 
 
 @renamed_fields(
@@ -121,18 +121,21 @@ FREE_TRUST_FRACTION = 0.06
 class SilhouetteFitConfig:
     """Settings of the silhouette stage (defaults tuned on the synthetic set)."""
 
-    resolutions: tuple = (128, 256)  # window's longer side in pixels, per rendered level
-    iterations: tuple = (30, 20)  # Adam steps per rendered level (upper bounds: plateaus stop earlier)
+    #: window's longer side in pixels, per rendered level
+    resolutions: tuple = STAGE_DEFAULTS["resolutions"]
+    #: Adam steps per rendered level (upper bounds: plateaus stop earlier)
+    iterations: tuple = STAGE_DEFAULTS["iterations"]
     #: L-BFGS iterations of the contour level (no rendering: :class:`ContourInsideTerm` and
     #: :class:`ContourCoverTerm`) run before the rendered levels; 0: none (:meth:`legacy`)
-    contour_iterations: int = 40
-    contour_resolution: int = 256  # the contour level's window (its distance transform's pixels)
+    contour_iterations: int = STAGE_DEFAULTS["contour_iterations"]
+    #: the contour level's window (its distance transform's pixels)
+    contour_resolution: int = STAGE_DEFAULTS["contour_resolution"]
     contour_points: int = 256  # mask outline points per observation in the contour level
     #: surface points the contour level poses and projects (model vertices spread over the
     #: surface, :func:`contour_vertex_index`); ``None``: all (the render proxy's, if any)
     contour_vertices: Optional[int] = 2000
-    w_contour_inside: float = 0.2
-    w_contour_cover: float = 0.2
+    w_contour_inside: float = STAGE_DEFAULTS["w_contour_inside"]
+    w_contour_cover: float = STAGE_DEFAULTS["w_contour_cover"]
     #: primal samples per edge pixel with the ray-cast renderer (which traces one ray per constant region elsewhere;
     #: per pixel with the projective one); 4 before issue 24's sampling part (why this default, and
     #: ``edge_density``'s: docs/benchmarks/defaults.md)
@@ -204,19 +207,19 @@ class SilhouetteFitConfig:
     alternatives_max: int = 2
     #: Adam's learning rates (body_pose 0.03 before issue 24's fourth part: the first steps of a rendered level
     #: knocked the contour level's IoU down)
-    lr: dict = field(default_factory=lambda: {"betas": 0.1, "body_pose": 0.015, "global_orient": 0.02, "transl": 0.01})
-    w_silhouette: float = 1.0
-    w_keypoints: float = 0.02
+    lr: dict = field(default_factory=lambda: dict(sorted(STAGE_DEFAULTS["lr"].items())))  # by name
+    w_silhouette: float = STAGE_DEFAULTS["w_silhouette"]
+    w_keypoints: float = STAGE_DEFAULTS["w_keypoints"]
     kp_sigma: float = 20.0  # Geman-McClure scale, window pixels
     #: the pose prior's (one name in every config, issue 26; old name ``w_pose``); it holds the arms a
     #: detector's keypoints barely hold (why this default: docs/benchmarks/defaults.md)
-    pose_weight: float = 0.005
+    pose_weight: float = STAGE_DEFAULTS["pose_weight"]
     #: the joint limits', the angle prior's and the shape prior's (one name in every config, issue 57; old names
     #: ``w_limits``, ``w_angle``, ``w_shape``)
-    limit_weight: float = 1.0
-    angle_weight: float = 0.001
-    shape_weight: float = 0.005
-    w_stay: float = 0.0
+    limit_weight: float = STAGE_DEFAULTS["limit_weight"]
+    angle_weight: float = STAGE_DEFAULTS["angle_weight"]
+    shape_weight: float = STAGE_DEFAULTS["shape_weight"]
+    w_stay: float = STAGE_DEFAULTS["w_stay"]
     #: trust region on the keypoints (:class:`KeypointTrustTerm`): a keypoint's projection may move up to a
     #: radius from its detection at no cost, beyond it quadratically, weighed by its confidence (issue 55:
     #: keypoints as a constraint, not a competitor). With ``trust_from_start`` (issue 55) the radius is each
@@ -228,7 +231,7 @@ class SilhouetteFitConfig:
     #: the window around the detections, confidences normalised to sum 1 (docs/benchmarks/real-photos.md).
     #: ``w_trust``: the weight; too strong, it holds a noise-free subject's keypoints so hard that the stage
     #: turns limbs in depth instead; 0: off (before issue 23; why these defaults: docs/benchmarks/defaults.md)
-    w_trust: float = 0.05
+    w_trust: float = STAGE_DEFAULTS["w_trust"]
     trust_fraction: float = 0.0
     trust_from_start: bool = True
     trust_ratio: float = 1.0
@@ -244,13 +247,16 @@ class SilhouetteFitConfig:
     #: docs/benchmarks/defaults.md)
     trust_free_ratio: Optional[float] = None
     #: shape held in the plausible range: ``(|beta| - max_abs_beta)^2`` beyond it (:func:`beta_bound`)
-    w_beta_bound: float = 10.0
+    w_beta_bound: float = STAGE_DEFAULTS["w_beta_bound"]
     max_abs_beta: float = 2.5
-    warmup: int = 10  # steps of linear learning-rate warm-up per level (5 before issue 24's fourth part)
-    plateau_window: int = 12  # steps compared for the plateau test
-    plateau_rtol: float = 0.003  # relative energy improvement below which a level stops
+    #: steps of linear learning-rate warm-up per level (5 before issue 24's fourth part)
+    warmup: int = STAGE_DEFAULTS["warmup"]
+    #: steps compared for the plateau test
+    plateau_window: int = STAGE_DEFAULTS["plateau_window"]
+    #: relative energy improvement below which a level stops
+    plateau_rtol: float = STAGE_DEFAULTS["plateau_rtol"]
     iou_collapse: float = 0.15  # IoU drop (vs best) that counts as divergence
-    optimise: tuple = PARAMS
+    optimise: tuple = STAGE_DEFAULTS["optimise"]
     seed: Optional[int] = 0  # base seed of the renderer's sampling (None: fresh seeds)
     #: render a coarser proxy mesh with this many faces (vertices a fixed linear map of the
     #: model's, :mod:`silfit.render.proxy`; IoU >= 0.995 against the full mesh at 10,000 faces);
@@ -260,7 +266,7 @@ class SilhouetteFitConfig:
     #: ``proxy_faces``; a level not listed renders ``proxy_faces``; ignored with ``proxy_faces=None`` or a
     #: caller's renderer): a window pixel spans 2-4 image pixels, so a coarser proxy does at a smaller
     #: acceleration-structure build, ray plan and trace per step (issue 24's fourth part; ``{}``: before it)
-    level_proxy_faces: dict = field(default_factory=lambda: {128: 3000, 256: 5000})
+    level_proxy_faces: dict = field(default_factory=lambda: dict(STAGE_DEFAULTS["level_proxy_faces"]))
     #: pose the render proxy's vertices directly (:class:`ContourBody` of the proxy: its rest-pose mix
     #: of the model, no full mesh per step) in the rendered levels of an SMPL-layout model; ``False``:
     #: pose the full mesh, then map it to the proxy (before issue 24's third part)
@@ -353,42 +359,10 @@ class SilhouetteFitConfig:
         return {"contour_inside": self.w_contour_inside, "contour_cover": self.w_contour_cover, **w}
 
     def stages(self) -> tuple:
-        """The contour level (L-BFGS, when ``contour_iterations``), then one Adam stage per
-        rendered window resolution (coarse to fine); the defaults give the literal table
-        :data:`~silfit.fitting.schedules.SILHOUETTE_SCHEDULE`."""
-        contour = ()
-        if self.contour_iterations:
-            contour = (
-                Stage(
-                    "contour",
-                    tuple(self.optimise),
-                    self.contour_weights(),
-                    int(self.contour_iterations),
-                    "lbfgs",
-                    {"resolution": int(self.contour_resolution)},
-                ),
-            )
-        faces = [self.level_faces(r) for r in self.resolutions]
-        return contour + tuple(
-            Stage(
-                f"silhouette_{int(r)}",
-                tuple(self.optimise),
-                self.weights(),
-                int(it),
-                "adam",
-                {
-                    "resolution": int(r),
-                    **({} if f is None else {"proxy_faces": f}),
-                    **AdamSettings(
-                        {k: self.lr[k] for k in self.optimise},
-                        int(self.warmup),
-                        int(self.plateau_window),
-                        float(self.plateau_rtol),
-                    ).options(),
-                },
-            )
-            for r, it, f in zip(self.resolutions, self.iterations, faces)
-        )
+        """The contour level (L-BFGS, when ``contour_iterations``), then one Adam stage per rendered window
+        resolution (coarse to fine): the literal table :data:`~silfit.fitting.schedules.SILHOUETTE_SCHEDULE`, edited by
+        the fields that differ from their defaults (:func:`~silfit.fitting.schedule_edits.silhouette_stages`)."""
+        return silhouette_stages(self)
 
     def level_faces(self, resolution: int) -> Optional[int]:
         """The render proxy's faces of a rendered level at ``resolution`` when it is not ``proxy_faces``
