@@ -74,7 +74,7 @@ from .occlusion import OcclusionTerm
 from .branches import LIMB_SEGMENTS, limb_hypotheses, turn_hypotheses
 from .problem import ParameterLayout, Problem, stack_views
 from .result import PARAM_NAMES, KeypointFitResult
-from .aliases import Alias, renamed_fields
+from .aliases import Alias, flat_dict, grouped, renamed_fields
 from .schedule_edits import keypoint_defaults, keypoint_stages
 from .stages import Stage, check_stages, run_stage, stage_to_dict
 from .terms import (
@@ -91,7 +91,14 @@ from .terms import (
 from .triangulate import placement_to_world, projection_matrices, robust_triangulate, torso_placement, triangulate_views
 from .threads import torch_threads
 
-__all__ = ["KeypointFitConfig", "KeypointFitter", "fit_keypoints", "prepare_keypoints"]
+__all__ = [
+    "ImageDepthOptions",
+    "KeypointFitConfig",
+    "KeypointFitter",
+    "OcclusionOptions",
+    "fit_keypoints",
+    "prepare_keypoints",
+]
 
 _UPPER = ("left_shoulder", "right_shoulder", "neck")
 _LOWER = ("left_hip", "right_hip", "mid_hip")
@@ -166,12 +173,61 @@ DISTINCT_JOINT_MAX_M = 0.10
 DIFFERS_DEG = 30.0
 
 
+@dataclass(frozen=True)
+class OcclusionOptions:
+    """The occlusion cue (:mod:`silfit.fitting.occlusion`, the ``occlusion`` term) in choosing among the hypotheses
+    refined to the end (``branch_refine`` or ``2 * hypotheses`` of them): a hypothesis' final energy counts
+    ``1 + weight * n`` times, ``n`` the keypoints whose depth order disagrees with their confidence (a confident
+    keypoint hidden behind the body, a low-confidence one in front: confidences at or below ``conf[0]`` expect
+    hidden, at or above ``conf[1]`` visible). ``weight`` 0: off. Off by default (why: docs/benchmarks/defaults.md)"""
+
+    weight: float = 0.0
+    conf: Sequence[float] = (0.3, 0.6)
+
+
+@dataclass(frozen=True)
+class ImageDepthOptions:
+    """The image depth cue (:mod:`silfit.fitting.image_depth`, the ``image_depth`` term; issue 54): each limb segment
+    whose depth order the landmark model's 3D decides, charged where the fit turns it the other way, in the branch
+    searches (their hypotheses ranked by it) and in every stage at the final weights. Problems without an image have
+    no cue: the term is 0 and their fit is the same bit for bit."""
+
+    #: the term's weight; 0 (the default): off, unless ``decide`` asks for the cue; 100 is the weight measured
+    #: (docs/benchmarks/image-depth.md; why this default: docs/benchmarks/defaults.md)
+    weight: float = 0.0
+    #: the term's margin: a decided segment's depth cosine (along the ray) must reach this on the cue's side
+    margin: float = 0.1
+    #: the cue as a hard choice in the branch searches: the segments the cue calls (its gates passed) with a depth
+    #: cosine of at least this are decided; each search also proposes each sample's pose with every decided segment
+    #: turned to the cue's side (``image:<segments>``), and its screen, its pick, the settled pick and the choice
+    #: among the refined branches rank the rows that agree with every decided side first (by their energies; where
+    #: none agrees, by energy alone). ``None`` (the default): off. Problems without an image: unchanged bit for bit
+    #: (docs/benchmarks/image-depth.md; why this default: docs/benchmarks/defaults.md)
+    decide: Optional[float] = None
+    #: with ``decide``: the searches' screens and the rows they carry on rank the agreeing rows first (on), or keep the
+    #: energy's ranking with one place for each sample's best agreeing row (off: the other branches stay refined, as
+    #: alternatives for the silhouette stage)
+    decide_screens: bool = True
+    #: with ``decide``: also in the search after the pose stages (``branches_<r>``, at their heavy prior, few steps
+    #: in); off: only in the late search, the settled pick, the search from the fit and the final choice
+    decide_early: bool = True
+
+
 @renamed_fields(
     pose_prior_weights=Alias("pose_weight", _but_last, _stage_weights("pose_prior_weights", "pose_weight")),
     final_pose_prior_weight=Alias("pose_weight", _last, _final_weight),
     angle_prior_weights=Alias("angle_weight", _but_last, _stage_weights("angle_prior_weights", "angle_weight")),
     final_angle_prior_weight=Alias("angle_weight", _last, _final_weight),
     final_shape_weight=Alias("shape_weight", _last, lambda w, v, kw: _final_weight(shape_weights(w), v, kw)),
+    **grouped("occlusion", occlusion_weight="weight", occlusion_conf="conf"),
+    **grouped(
+        "image_depth",
+        image_depth_weight="weight",
+        image_depth_margin="margin",
+        image_depth_decide="decide",
+        image_depth_decide_screens="decide_screens",
+        image_depth_decide_early="decide_early",
+    ),
 )
 @dataclass
 class KeypointFitConfig:
@@ -330,37 +386,11 @@ class KeypointFitConfig:
     #: search failures: the fit's energy above the truth's; why this default: docs/benchmarks/defaults.md).
     #: 0: the schedule before
     post_branch_iters: int = STAGE_DEFAULTS["post_branch_iters"]
-    #: occlusion cue (:mod:`silfit.fitting.occlusion`, the ``occlusion`` term) in choosing among the
-    #: hypotheses refined to the end (``branch_refine`` or ``2 * hypotheses`` of them): a hypothesis'
-    #: final energy counts ``1 + occlusion_weight * n`` times, ``n`` the keypoints whose depth order
-    #: disagrees with their confidence (a confident keypoint hidden behind the body, a low-confidence
-    #: one in front: confidences at or below ``occlusion_conf[0]`` expect hidden, at or above
-    #: ``occlusion_conf[1]`` visible). 0: off. Off by default (why: docs/benchmarks/defaults.md)
-    occlusion_weight: float = 0.0
-    occlusion_conf: Sequence[float] = (0.3, 0.6)
-    #: the image depth cue (:mod:`silfit.fitting.image_depth`, the ``image_depth`` term; issue 54): each limb
-    #: segment whose depth order the landmark model's 3D decides, charged where the fit turns it the other way,
-    #: in the branch searches (their hypotheses ranked by it) and in every stage at the final weights. Problems
-    #: without an image have no cue: the term is 0 and their fit is the same bit for bit. 0 (the default): off,
-    #: the cue is asked for; 100 is the weight measured (docs/benchmarks/image-depth.md; why this default:
-    #: docs/benchmarks/defaults.md)
-    image_depth_weight: float = 0.0
-    #: the term's margin: a decided segment's depth cosine (along the ray) must reach this on the cue's side
-    image_depth_margin: float = 0.1
-    #: the image depth cue as a hard choice in the branch searches: the segments the cue calls (its gates passed)
-    #: with a depth cosine of at least this are decided; each search also proposes each sample's pose with every
-    #: decided segment turned to the cue's side (``image:<segments>``), and its screen, its pick, the settled pick
-    #: and the choice among the refined branches rank the rows that agree with every decided side first (by their
-    #: energies; where none agrees, by energy alone). ``None`` (the default): off. Problems without an image:
-    #: unchanged bit for bit (docs/benchmarks/image-depth.md; why this default: docs/benchmarks/defaults.md)
-    image_depth_decide: Optional[float] = None
-    #: with ``image_depth_decide``: the searches' screens and the rows they carry on rank the agreeing rows first (on), or
-    #: keep the energy's ranking with one place for each sample's best agreeing row (off: the other branches stay
-    #: refined, as alternatives for the silhouette stage)
-    image_depth_decide_screens: bool = True
-    #: with ``image_depth_decide``: also in the search after the pose stages (``branches_<r>``, at their heavy prior, few
-    #: steps in); off: only in the late search, the settled pick, the search from the fit and the final choice
-    image_depth_decide_early: bool = True
+    #: the occlusion cue (:class:`OcclusionOptions`; once ``occlusion_weight``, ``occlusion_conf``, which still work)
+    occlusion: OcclusionOptions = field(default_factory=OcclusionOptions)
+    #: the image depth cue (:class:`ImageDepthOptions`; once ``image_depth_weight``, ``image_depth_margin``,
+    #: ``image_depth_decide``, ``image_depth_decide_screens``, ``image_depth_decide_early``, which still work)
+    image_depth: ImageDepthOptions = field(default_factory=ImageDepthOptions)
     #: temporal terms (``smooth_joints``, ``smooth_root``; weight 0 in the single-image
     #: schedule, used by :mod:`silfit.fitting.sequence`): robust scale in mm per frame^2
     #: and the penalty (``charbonnier`` or ``gm``)
@@ -435,7 +465,7 @@ class KeypointFitConfig:
 
     def to_dict(self, whole_body: bool = False) -> dict:
         """The settings and the resulting schedule (saved with every fit)."""
-        d = {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items() if k != "schedule"}
+        d = flat_dict(self, skip=("schedule",))  # the groups' fields by their flat names, as before them
         d["stages"] = [stage_to_dict(s) for s in self.stages(whole_body)]
         return d
 
@@ -703,9 +733,9 @@ class KeypointFitter:
             PriorTerm("angle", angle_prior, "body_pose"),
             PriorTerm("limits", limit_violation, "body_pose"),
             PriorTerm("shape", shape_prior, "betas"),
-            OcclusionTerm(self.model, _names(layout), tuple(self.config.occlusion_conf)),
+            OcclusionTerm(self.model, _names(layout), tuple(self.config.occlusion.conf)),
             InterpenetrationTerm(self.collisions),
-            ImageDepthTerm(self.model.joint_names, self.config.image_depth_margin),
+            ImageDepthTerm(self.model.joint_names, self.config.image_depth.margin),
             JointSmoothnessTerm(sigma=self.config.temporal_sigma, kind=self.config.temporal_robust),
             RootSmoothnessTerm(sigma=self.config.temporal_sigma, kind=self.config.temporal_robust),
         ]
@@ -890,7 +920,7 @@ class KeypointFitter:
             progress=progress,
             start_flip=torch.as_tensor(np.repeat(facings, B), dtype=torch.bool),
             group=torch.arange(B).repeat(len(facings)),
-            calls=hard_calls(depth_cues, self.config.image_depth_decide),
+            calls=hard_calls(depth_cues, self.config.image_depth.decide),
         )
         decided = len(facings) * len(init_poses) == 1
         t_all = time.perf_counter()
@@ -1059,7 +1089,7 @@ class _ScheduleRun:
         self.searched = [[] for _ in range(B)]  # per problem and branch stage: the hypotheses that ran to its end
         self.search_rows = [[] for _ in range(B)]  # per problem: (tried entry, its joints at the search's end, ...)
         self.unrefined = [[] for _ in range(B)]  # per problem: search rows not refined to the end (hypotheses > 1)
-        self.calls = calls  # per problem the image cue's decided sides [B, S] (image_depth_decide), or None
+        self.calls = calls  # per problem the image cue's decided sides [B, S] (``image_depth.decide``), or None
         self.cue_on = True  # whether the search now running (and the choices after it) use the decided sides
 
     def info(self, hypotheses, others) -> dict:
@@ -1153,10 +1183,10 @@ class _ScheduleRun:
         return best_distinct_per_group(f, self.group, self.B, count, self.joints())
 
     def screened(self, f, count, opts):
-        """:meth:`survivors_of` with the image cue's decided sides (``image_depth_decide``): the agreeing rows first
-        (``image_depth_decide_screens``), or by ``f`` with the last place of a sample none of whose rows agrees given
+        """:meth:`survivors_of` with the image cue's decided sides (``image_depth.decide``): the agreeing rows first
+        (``image_depth.decide_screens``), or by ``f`` with the last place of a sample none of whose rows agrees given
         to its best agreeing row (where it has one)."""
-        if self.calls is None or not self.cue_on or self.fitter.config.image_depth_decide_screens:
+        if self.calls is None or not self.cue_on or self.fitter.config.image_depth.decide_screens:
             return self.survivors_of(self.demoted(f), count, opts)
         rows, against = self.survivors_of(f, count, opts).tolist(), self.disagreeing()
         best = best_per_group(torch.where(against, torch.full_like(f, math.inf), f), self.group, self.B).tolist()
@@ -1214,7 +1244,7 @@ class _ScheduleRun:
         fitter, B, cfg = self.fitter, self.B, self.fitter.config
         self.searched_any = True
         early = stage.name[len("branches_") :].isdigit()  # a search after the pose stages
-        self.cue_on = cfg.image_depth_decide_early or not early
+        self.cue_on = cfg.image_depth.decide_early or not early
         if self.carried is not None:  # an earlier search's best rows ran on (its ``carry``): the best goes on
             self.settle_pick(fitter.stages[si - 1].name)
         if not decided or self.layout.frames != 1:

@@ -308,7 +308,7 @@ def search_rows(t: Stage, pose: Stage, e: Edit) -> list:
     weights = {
         **pose.weights,
         "interpenetration": e.get("interpenetration_weight", t.weights["interpenetration"]),
-        **({"image_depth": float(cfg.image_depth_weight)} if cfg.image_depth_weight else {}),
+        **({"image_depth": float(cfg.image_depth.weight)} if cfg.image_depth.weight else {}),
     }
     b = branch_options(t.options["branches"], e)
     return [
@@ -326,13 +326,13 @@ def search_rows(t: Stage, pose: Stage, e: Edit) -> list:
 
 def branch_options(table_options: Mapping, e: Edit) -> dict:
     """A branch search's ``options["branches"]`` from the table's: the branch fields that changed, the occlusion
-    cue's weight (``occlusion_weight``); without the late search's ``turns`` and ``carry``."""
+    cue's weight (``occlusion.weight``); without the late search's ``turns`` and ``carry``."""
     b = {k: v for k, v in table_options.items() if k not in ("carry", "turns", "occlusion")}
     for name, key in BRANCH_KEYS.items():
         if name in e.changed:
             b[key] = getattr(e.cfg, name)
-    if e.cfg.occlusion_weight:
-        b["occlusion"] = float(e.cfg.occlusion_weight)
+    if e.cfg.occlusion.weight:
+        b["occlusion"] = float(e.cfg.occlusion.weight)
     return b
 
 
@@ -357,7 +357,7 @@ FINAL_PART_FIELDS = frozenset(
 def at_final_weights(t: Stage, e: Edit) -> Stage:
     """Row ``t`` (one of :data:`FINAL_ROWS`) with the final weights' fields that changed: ``pose_weight``'s,
     ``angle_weight``'s and ``shape_weight``'s last, ``limit_weight``, ``interpenetration_weight``,
-    ``image_depth_weight``, ``final_points_weight``, the final hand and face terms (and their parameters)."""
+    ``image_depth.weight``, ``final_points_weight``, the final hand and face terms (and their parameters)."""
     cfg = e.cfg
     cells = e.cells(
         pose=("pose_weight", cfg.pose_weight[-1]),
@@ -365,7 +365,7 @@ def at_final_weights(t: Stage, e: Edit) -> Stage:
         limits=("limit_weight", cfg.limit_weight),
         shape=("shape_weight", cfg.shape_weight[-1]),
         interpenetration=("interpenetration_weight", cfg.interpenetration_weight),
-        image_depth=("image_depth_weight", term_or_none(cfg.image_depth_weight)),
+        image_depth=("image_depth", term_or_none(cfg.image_depth.weight)),
         points=("final_points_weight", term_or_none(cfg.final_points_weight)),
     )
     free = t.free

@@ -234,3 +234,27 @@ def test_the_late_search_options_reach_its_stages():
     default = next(s for s in KeypointFitConfig().stages() if s.name == "branches_late")
     assert "turns" not in default.options["branches"]
     assert default.options["branches"]["survivors"] == KeypointFitConfig().branch_survivors
+
+
+def test_grouped_settings_keep_their_flat_names_for_one_release():
+    """The image depth and occlusion cues' settings are groups (``image_depth.weight``...); the flat names still work
+    (warned), attributes read and write through, and ``to_dict`` (metrics.json) records the flat names as before."""
+    from silfit.fitting import ImageDepthOptions, OcclusionOptions
+    from silfit.runner.worker import keypoint_config
+
+    with pytest.warns(DeprecationWarning, match="'image_depth_weight' is deprecated, use 'image_depth.weight'"):
+        old = KeypointFitConfig(image_depth_weight=100.0, image_depth_decide=0.6)
+    new = KeypointFitConfig(image_depth=ImageDepthOptions(weight=100.0, decide=0.6))
+    assert old == new and old.image_depth_weight == 100.0 and old.to_dict() == new.to_dict()
+    d = new.to_dict()
+    assert d["image_depth_weight"] == 100.0 and d["occlusion_conf"] == [0.3, 0.6] and "image_depth" not in d
+    assert replace(new, sigma=50.0).image_depth is new.image_depth  # frozen groups: shared safely
+    new.occlusion_weight = 0.5  # writes through
+    assert new.occlusion == OcclusionOptions(weight=0.5) and new.stages()[3].options["branches"]["occlusion"] == 0.5
+    kp = keypoint_config({"image_depth.weight": "100", "image_depth.decide": "none", "occlusion.conf": "0.1,0.9"})
+    assert kp.image_depth == ImageDepthOptions(weight=100.0) and kp.occlusion.conf == (0.1, 0.9)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        assert keypoint_config({"image_depth_decide": "0.6"}).image_depth.decide == 0.6
+    with pytest.raises(ValueError, match="image_depth is a group: give its fields"):
+        keypoint_config({"image_depth": "100"})
