@@ -2,6 +2,7 @@
 stage plugs in later as :mod:`silfit.fitting.silhouette_stage`."""
 
 from .keypoint_stage import (
+    BranchSearch,
     ImageDepthOptions,
     KeypointFitConfig,
     KeypointFitter,
@@ -14,6 +15,7 @@ from .optim import batched_lbfgs
 from .result import KeypointFitResult
 
 __all__ = [
+    "BranchSearch",
     "ImageDepthOptions",
     "KeypointFitConfig",
     "KeypointFitResult",

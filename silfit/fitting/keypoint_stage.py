@@ -92,6 +92,7 @@ from .triangulate import placement_to_world, projection_matrices, robust_triangu
 from .threads import torch_threads
 
 __all__ = [
+    "BranchSearch",
     "ImageDepthOptions",
     "KeypointFitConfig",
     "KeypointFitter",
@@ -174,6 +175,84 @@ DIFFERS_DEG = 30.0
 
 
 @dataclass(frozen=True)
+class BranchSearch:
+    """The limb-branch searches (:mod:`silfit.fitting.branches`) of the keypoint stage: after a pose stage
+    (``branches_<r>``), at the final weights (``branches_late``) and from the fit (``branches_post``); the stage
+    fields among these edit the table's rows (:mod:`silfit.fitting.schedule_edits`). Each field was
+    ``KeypointFitConfig.branch_<name>`` (``late_branch_*``, ``post_branch_iters``), names that still work."""
+
+    #: on: after pose stage ``after_stage`` (0-based), every segment pointing out of the image plane by at least
+    #: ``min_depth_ratio`` (|cos| to the ray) is mirrored in depth (alone, and per whole limb), each hypothesis runs
+    #: ``iters`` L-BFGS steps with that pose stage's weights plus interpenetration, and each sample keeps its lowest
+    #: energy; ``rounds`` repeats the search from the kept pose.
+    search: bool = STAGE_DEFAULTS["branch_search"]
+    after_stage: int = STAGE_DEFAULTS["branch_after_stage"]
+    iters: int = STAGE_DEFAULTS["branch_iters"]
+    min_depth_ratio: float = STAGE_DEFAULTS["branch_min_depth_ratio"]
+    whole_limbs: bool = STAGE_DEFAULTS["branch_whole_limbs"]
+    #: a forearm or a shin is mirrored as an elbow or a knee can turn it (the upper segment twists, the
+    #: hinge flexes: :func:`~silfit.fitting.branches.flip_segment`); off: the smallest turn at the hinge,
+    #: which bends it sideways, so the priors pull the branch back before it is scored (issue 25: a hand
+    #: at the chest fitted as an arm held out to the camera; why this default: docs/benchmarks/defaults.md)
+    hinge: bool = STAGE_DEFAULTS["branch_hinge"]
+    #: with ``hinge``, each hinge segment flipped alone by the smallest turn at its hinge is also a
+    #: hypothesis (``<segment>/turn``; whole limbs, joint and root-turn hypotheses use the hinge flip only)
+    hinge_turns: bool = STAGE_DEFAULTS["branch_hinge_turns"]
+    #: a search's screen and its rows that go on (``carry``) take distinct poses first
+    #: (:func:`best_distinct_per_group`): a hinge flip and its ``/turn`` copy that reached the same pose take one
+    #: place, and the next distinct hypothesis the other (issue 25)
+    distinct: bool = STAGE_DEFAULTS["branch_distinct"]
+    #: also the joint hypotheses (:data:`~silfit.fitting.branches.JOINT_HYPOTHESES`: both legs,
+    #: both arms, the torso's lean with the legs, the hip's tilt), screened with the others. Off by
+    #: default (why: docs/benchmarks/defaults.md)
+    joint: bool = STAGE_DEFAULTS["branch_joint"]
+    #: each sample's lowest-energy hypotheses of the last branch search that run the rest of the
+    #: schedule (at least ``2 * hypotheses`` with ``KeypointFitConfig.hypotheses`` > 1); the lowest final energy is
+    #: the fit.
+    #: As many of the late search's go on to ``settle`` where a search from the fit follows (``post_iters``)
+    #: (1: the search's own choice). The search's energies a few dozen steps in are far from converged,
+    #: so its choice follows how fast a branch converges, not where; branches refined to near their
+    #: minima (``final_iters``) are chosen by the energy a fit is judged by (why this default:
+    #: docs/benchmarks/defaults.md)
+    refine: int = STAGE_DEFAULTS["branch_refine"]
+    rounds: int = STAGE_DEFAULTS["branch_rounds"]
+    #: hypotheses drop early: after ``screen_iters`` steps only each sample's
+    #: ``survivors`` lowest-energy hypotheses (the unflipped pose among them or not)
+    #: run the remaining steps (0: all run every step)
+    screen_iters: int = STAGE_DEFAULTS["branch_screen_iters"]
+    survivors: int = STAGE_DEFAULTS["branch_survivors"]
+    #: a second branch search just before the final stage (0 steps: none), from the pose the
+    #: earlier stages reached and with the final stage's weights (the energy a fit is judged by):
+    #: the same hypotheses (:func:`~silfit.fitting.branches.limb_hypotheses`, the joint ones with
+    #: ``joint``), screened after ``screen_iters`` steps, ``survivors`` run on.
+    #: With ``KeypointFitConfig.hypotheses`` > 1 and no search from the fit (``post_iters`` 0) the alternatives are
+    #: its survivors. Issue 25 (search failures: the fit's
+    #: final energy above the truth's): the first search screens at the pose stage's heavy prior
+    #: after a few steps, and the truth's branch was often cut there or never proposed (it needs a
+    #: flip on top of another); a search at the final weights from the refined pose finds it (why this
+    #: default: docs/benchmarks/defaults.md)
+    late_iters: int = STAGE_DEFAULTS["late_branch_iters"]
+    #: late searches in a row (each from the one before's pick)
+    late_rounds: int = STAGE_DEFAULTS["late_branch_rounds"]
+    #: root-turn hypotheses in the late search(es) (:func:`~silfit.fitting.branches.turn_hypotheses`:
+    #: ``"mirror"`` the torso's yaw mirrored in depth, a number a turn in degrees), alone and with each
+    #: limb flip; empty: none
+    late_turns: tuple = ()
+    #: survivors of the late search's screen (0: ``survivors``)
+    late_survivors: int = 0
+    #: a last branch search from the fit itself (0 steps: none): the late search's ``refine`` best
+    #: run the final stage (``settle``; with no late search, the one pose the earlier stages reached)
+    #: and the lowest final energy goes on; every segment of that fit
+    #: pointing out of the image plane is mirrored (alone and per whole limb), each runs this many steps at
+    #: the final weights (screened after half), and the ``refine`` best run the final stage again
+    #: (``final``); the lowest final energy is the fit. From the converged fit a single flip often reaches
+    #: the truth's basin where the late search, from an unconverged pose, cut it at its screen (issue 25's
+    #: search failures: the fit's energy above the truth's; why this default: docs/benchmarks/defaults.md).
+    #: 0: the schedule before
+    post_iters: int = STAGE_DEFAULTS["post_branch_iters"]
+
+
+@dataclass(frozen=True)
 class OcclusionOptions:
     """The occlusion cue (:mod:`silfit.fitting.occlusion`, the ``occlusion`` term) in choosing among the hypotheses
     refined to the end (``branch_refine`` or ``2 * hypotheses`` of them): a hypothesis' final energy counts
@@ -219,6 +298,27 @@ class ImageDepthOptions:
     angle_prior_weights=Alias("angle_weight", _but_last, _stage_weights("angle_prior_weights", "angle_weight")),
     final_angle_prior_weight=Alias("angle_weight", _last, _final_weight),
     final_shape_weight=Alias("shape_weight", _last, lambda w, v, kw: _final_weight(shape_weights(w), v, kw)),
+    **grouped(
+        "branches",
+        late_branch_survivors="late_survivors",
+        late_branch_rounds="late_rounds",
+        late_branch_turns="late_turns",
+        late_branch_iters="late_iters",
+        post_branch_iters="post_iters",
+        branch_min_depth_ratio="min_depth_ratio",
+        branch_whole_limbs="whole_limbs",
+        branch_hinge_turns="hinge_turns",
+        branch_after_stage="after_stage",
+        branch_screen_iters="screen_iters",
+        branch_survivors="survivors",
+        branch_distinct="distinct",
+        branch_search="search",
+        branch_refine="refine",
+        branch_rounds="rounds",
+        branch_hinge="hinge",
+        branch_joint="joint",
+        branch_iters="iters",
+    ),
     **grouped("occlusion", occlusion_weight="weight", occlusion_conf="conf"),
     **grouped(
         "image_depth",
@@ -300,39 +400,15 @@ class KeypointFitConfig:
     #: torch threads during the fit (the per-iteration tensors are small, so one thread
     #: avoids synchronisation overhead; ``None`` leaves torch's setting alone).
     threads: Optional[int] = 1
-    #: limb-branch search (:mod:`silfit.fitting.branches`): after pose stage
-    #: ``branch_after_stage`` (0-based), every segment pointing out of the image plane by at
-    #: least ``branch_min_depth_ratio`` (|cos| to the ray) is mirrored in depth (alone, and
-    #: per whole limb), each hypothesis runs ``branch_iters`` L-BFGS steps with that pose
-    #: stage's weights plus interpenetration, and each sample keeps its lowest energy;
-    #: ``branch_rounds`` repeats the search from the kept pose.
-    branch_search: bool = STAGE_DEFAULTS["branch_search"]
-    branch_after_stage: int = STAGE_DEFAULTS["branch_after_stage"]
-    branch_iters: int = STAGE_DEFAULTS["branch_iters"]
-    branch_min_depth_ratio: float = STAGE_DEFAULTS["branch_min_depth_ratio"]
-    branch_whole_limbs: bool = STAGE_DEFAULTS["branch_whole_limbs"]
-    #: a forearm or a shin is mirrored as an elbow or a knee can turn it (the upper segment twists, the
-    #: hinge flexes: :func:`~silfit.fitting.branches.flip_segment`); off: the smallest turn at the hinge,
-    #: which bends it sideways, so the priors pull the branch back before it is scored (issue 25: a hand
-    #: at the chest fitted as an arm held out to the camera; why this default: docs/benchmarks/defaults.md)
-    branch_hinge: bool = STAGE_DEFAULTS["branch_hinge"]
-    #: with ``branch_hinge``, each hinge segment flipped alone by the smallest turn at its hinge is also a
-    #: hypothesis (``<segment>/turn``; whole limbs, joint and root-turn hypotheses use the hinge flip only)
-    branch_hinge_turns: bool = STAGE_DEFAULTS["branch_hinge_turns"]
-    #: a search's screen and its rows that go on (``carry``) take distinct poses first
-    #: (:func:`best_distinct_per_group`): a hinge flip and its ``/turn`` copy that reached the same pose take one
-    #: place, and the next distinct hypothesis the other (issue 25)
-    branch_distinct: bool = STAGE_DEFAULTS["branch_distinct"]
-    #: also the joint hypotheses (:data:`~silfit.fitting.branches.JOINT_HYPOTHESES`: both legs,
-    #: both arms, the torso's lean with the legs, the hip's tilt), screened with the others. Off by
-    #: default (why: docs/benchmarks/defaults.md)
-    branch_joint: bool = STAGE_DEFAULTS["branch_joint"]
-    #: the last branch search keeps each sample's ``max(branch_refine, 2 * hypotheses)`` lowest-energy
+    #: the limb-branch searches (:class:`BranchSearch`; once ``branch_search``, ``branch_*``, ``late_branch_*``,
+    #: ``post_branch_iters``, which still work)
+    branches: BranchSearch = field(default_factory=BranchSearch)
+    #: the last branch search keeps each sample's ``max(branches.refine, 2 * hypotheses)`` lowest-energy
     #: hypotheses and runs the rest of the schedule on all of them; the lowest final energy is the fit,
     #: the ``hypotheses`` best distinct ones (:func:`distinct_hypotheses`) are returned as
     #: alternatives (``KeypointFitResult.hypotheses``; ``silfit fit --hypotheses K``). Choosing the
     #: branch by the final energy, not the search stage's, is itself better, at a cost in time
-    #: (docs/benchmarks/defaults.md; ``branch_refine`` does so by default)
+    #: (docs/benchmarks/defaults.md; ``branches.refine`` does so by default)
     hypotheses: int = 1
     #: :func:`distinct_hypotheses`: two solutions are distinct when their joints are
     #: :data:`DISTINCT_JOINTS_M` apart (mean) or any one joint more than this (metres; ``None``: the
@@ -343,49 +419,6 @@ class KeypointFitConfig:
     #: settled higher than the settled pick, ``stage`` ``settle``, carry their final-weight energy there and
     #: their gap to the fit's final energy)
     hypothesis_unrefined: bool = True
-    #: each sample's lowest-energy hypotheses of the last branch search that run the rest of the
-    #: schedule (at least ``2 * hypotheses`` with ``hypotheses`` > 1); the lowest final energy is the fit.
-    #: As many of the late search's go on to ``settle`` where a search from the fit follows (``post_branch_iters``)
-    #: (1: the search's own choice). The search's energies a few dozen steps in are far from converged,
-    #: so its choice follows how fast a branch converges, not where; branches refined to near their
-    #: minima (``final_iters``) are chosen by the energy a fit is judged by (why this default:
-    #: docs/benchmarks/defaults.md)
-    branch_refine: int = STAGE_DEFAULTS["branch_refine"]
-    branch_rounds: int = STAGE_DEFAULTS["branch_rounds"]
-    #: hypotheses drop early: after ``branch_screen_iters`` steps only each sample's
-    #: ``branch_survivors`` lowest-energy hypotheses (the unflipped pose among them or not)
-    #: run the remaining steps (0: all run every step)
-    branch_screen_iters: int = STAGE_DEFAULTS["branch_screen_iters"]
-    branch_survivors: int = STAGE_DEFAULTS["branch_survivors"]
-    #: a second branch search just before the final stage (0 steps: none), from the pose the
-    #: earlier stages reached and with the final stage's weights (the energy a fit is judged by):
-    #: the same hypotheses (:func:`~silfit.fitting.branches.limb_hypotheses`, the joint ones with
-    #: ``branch_joint``), screened after ``branch_screen_iters`` steps, ``branch_survivors`` run on.
-    #: With ``hypotheses`` > 1 and no search from the fit (``post_branch_iters`` 0) the alternatives are its
-    #: survivors. Issue 25 (search failures: the fit's
-    #: final energy above the truth's): the first search screens at the pose stage's heavy prior
-    #: after a few steps, and the truth's branch was often cut there or never proposed (it needs a
-    #: flip on top of another); a search at the final weights from the refined pose finds it (why this
-    #: default: docs/benchmarks/defaults.md)
-    late_branch_iters: int = STAGE_DEFAULTS["late_branch_iters"]
-    #: late searches in a row (each from the one before's pick)
-    late_branch_rounds: int = STAGE_DEFAULTS["late_branch_rounds"]
-    #: root-turn hypotheses in the late search(es) (:func:`~silfit.fitting.branches.turn_hypotheses`:
-    #: ``"mirror"`` the torso's yaw mirrored in depth, a number a turn in degrees), alone and with each
-    #: limb flip; empty: none
-    late_branch_turns: tuple = ()
-    #: survivors of the late search's screen (0: ``branch_survivors``)
-    late_branch_survivors: int = 0
-    #: a last branch search from the fit itself (0 steps: none): the late search's ``branch_refine`` best
-    #: run the final stage (``settle``; with no late search, the one pose the earlier stages reached)
-    #: and the lowest final energy goes on; every segment of that fit
-    #: pointing out of the image plane is mirrored (alone and per whole limb), each runs this many steps at
-    #: the final weights (screened after half), and the ``branch_refine`` best run the final stage again
-    #: (``final``); the lowest final energy is the fit. From the converged fit a single flip often reaches
-    #: the truth's basin where the late search, from an unconverged pose, cut it at its screen (issue 25's
-    #: search failures: the fit's energy above the truth's; why this default: docs/benchmarks/defaults.md).
-    #: 0: the schedule before
-    post_branch_iters: int = STAGE_DEFAULTS["post_branch_iters"]
     #: the occlusion cue (:class:`OcclusionOptions`; once ``occlusion_weight``, ``occlusion_conf``, which still work)
     occlusion: OcclusionOptions = field(default_factory=OcclusionOptions)
     #: the image depth cue (:class:`ImageDepthOptions`; once ``image_depth_weight``, ``image_depth_margin``,
@@ -435,9 +468,10 @@ class KeypointFitConfig:
         if int(self.init_poses) < 1:
             raise ValueError(f"KeypointFitConfig: init_poses must be at least 1, got {self.init_poses}")
         starts = (2 if self.flip_test else 1) * int(self.init_poses)
-        if self.branch_search and starts > 1 and min(self.branch_after_stage, n - 1) < self.flip_decision_stage:
+        b = self.branches
+        if b.search and starts > 1 and min(b.after_stage, n - 1) < self.flip_decision_stage:
             raise ValueError(
-                f"KeypointFitConfig: the branch search (after pose stage {self.branch_after_stage}) needs the start "
+                f"KeypointFitConfig: the branch search (after pose stage {b.after_stage}) needs the start "
                 f"decided first (flip_decision_stage {self.flip_decision_stage})"
             )
         for name in ("hand_weights", "face_weights"):
@@ -1077,7 +1111,7 @@ class _ScheduleRun:
         self.energies, self.terms, self.timings = {}, {}, {}
         self.K = max(1, int(cfg.hypotheses))
         #: rows per sample from the last search to the end
-        self.carry = max(int(cfg.branch_refine), 2 * self.K if self.K > 1 else 1)
+        self.carry = max(int(cfg.branches.refine), 2 * self.K if self.K > 1 else 1)
         self.last_search = max([i for i, s in enumerate(fitter.stages) if "branches" in s.options], default=-1)
         self.occlusion_weight = (
             fitter.stages[self.last_search].options["branches"].get("occlusion", 0.0) if self.last_search >= 0 else 0.0

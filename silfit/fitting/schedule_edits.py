@@ -135,14 +135,23 @@ def differs(value, default) -> bool:
 
 
 def changed_fields(config, skip=("schedule",)) -> frozenset:
-    """The names of ``config``'s (a dataclass) fields that differ from their defaults."""
+    """The names of ``config``'s (a dataclass) fields that differ from their defaults; a group's fields (a field
+    holding a dataclass, its fields once flat: :func:`~silfit.fitting.aliases.grouped`) by their flat names too."""
+    flat = {}
+    for old, a in getattr(type(config), "renamed_fields", {}).items():
+        if a.sub is not None:
+            flat.setdefault(a.field, []).append((old, a.sub))
     out = set()
     for f in dataclasses.fields(config):
         if f.name in skip:
             continue
-        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
-        if differs(getattr(config, f.name), default):
+        value, default = (
+            getattr(config, f.name),
+            f.default if f.default is not dataclasses.MISSING else f.default_factory(),
+        )
+        if differs(value, default):
             out.add(f.name)
+            out.update(old for old, sub in flat.get(f.name, ()) if differs(getattr(value, sub), getattr(default, sub)))
     return frozenset(out)
 
 

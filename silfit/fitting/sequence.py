@@ -57,7 +57,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from ..camera import Camera, project_points
 from ..io.keypoints import KeypointSet, model_keypoints
-from .keypoint_stage import KeypointFitConfig, KeypointFitter, check_torso
+from .keypoint_stage import BranchSearch, KeypointFitConfig, KeypointFitter, check_torso
 from .problem import Observation, Problem, View
 from .aliases import Alias, renamed_fields
 from .schedule_edits import sequence_defaults, sequence_stages
@@ -101,13 +101,9 @@ class SequenceFitConfig:
     keypoint: KeypointFitConfig = field(
         default_factory=lambda: KeypointFitConfig(
             init_poses=4,
-            late_branch_iters=0,
-            branch_screen_iters=10,
-            branch_survivors=3,
+            branches=BranchSearch(late_iters=0, screen_iters=10, survivors=3, refine=1, post_iters=0),
             final_iters=40,
-            branch_refine=1,
             final_tol_change=None,
-            post_branch_iters=0,
         )
     )
     init_stride: int = 1  # fit every n-th usable frame alone; interpolate the others
@@ -608,7 +604,7 @@ def _refine_jointly(model, layout, cfg, pose_prior, views, columns, start: dict,
         cfg.keypoint,
         flip_test=False,
         init_poses=1,
-        branch_search=False,
+        branches=replace(cfg.keypoint.branches, search=False),
         temporal_sigma=cfg.temporal_sigma,
         schedule=cfg.stages(views=C),
     )
@@ -834,7 +830,14 @@ def _fits_from(model, layout, config, fitter, probs, state, own, src, progress):
     again = KeypointFitter(
         model,
         layout,
-        replace(config, flip_test=False, init_poses=1, branch_search=False, hypotheses=1, final_iters_unsearched=None),
+        replace(
+            config,
+            flip_test=False,
+            init_poses=1,
+            branches=replace(config.branches, search=False),
+            hypotheses=1,
+            final_iters_unsearched=None,
+        ),
         fitter.pose_prior,
     )
     # (the final stage as the frames' own fits ran it, so their energies compare)
