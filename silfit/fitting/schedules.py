@@ -89,7 +89,7 @@ KEYPOINT_SCHEDULE = (
     Stage("settle", ALL, FINAL, 120, options={"tol_change": 1e-4, "searched_only": True}),
     # the search from the settled fit (issue 25: a flip of the converged fit finds what the late one cut)
     Stage("branches_post", ALL, FINAL, 40, options=POST_BRANCHES),
-    # run by branch_refine (4) hypotheses as settle; where no branch search ran (rigs, branch_search off)
+    # run by branches.refine (4) hypotheses as settle; where no branch search ran (rigs, branches.search off)
     # 40 steps, every one run
     Stage("final", ALL, FINAL, 120, options={"unsearched_iterations": 40, "tol_change": 1e-4}),
 )

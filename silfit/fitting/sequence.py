@@ -94,8 +94,8 @@ class SequenceFitConfig:
     #: (the single image's late branch search off and its first search's screen as before issue 25's
     #: change: the branch over time was tuned on these per-frame hypotheses)
     #: (the per-frame fit's final stage and branch choice as before issue 25's converged choice, too:
-    #: ``final_iters`` 40, ``branch_refine`` 1, every step run; the joint refinement is what converges here;
-    #: and no search from the fit, ``post_branch_iters`` 0)
+    #: ``final_iters`` 40, ``branches.refine`` 1, every step run; the joint refinement is what converges here;
+    #: and no search from the fit, ``branches.post_iters`` 0)
     #: (the single image's 4 starting poses, not 2: a squat seen from the side hides one arm in its deep frames;
     #: why these defaults: docs/benchmarks/defaults.md)
     keypoint: KeypointFitConfig = field(

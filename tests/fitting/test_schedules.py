@@ -258,3 +258,24 @@ def test_grouped_settings_keep_their_flat_names_for_one_release():
         assert keypoint_config({"image_depth_decide": "0.6"}).image_depth.decide == 0.6
     with pytest.raises(ValueError, match="image_depth is a group: give its fields"):
         keypoint_config({"image_depth": "100"})
+
+
+def test_the_branch_search_settings_are_a_group():
+    """``KeypointFitConfig.branches`` (:class:`BranchSearch`): the old ``branch_*`` names still work, edit the same
+    table cells and are recorded as before."""
+    from silfit.fitting import BranchSearch
+    from silfit.fitting.schedule_edits import changed_fields
+    from silfit.runner.worker import keypoint_config
+
+    with pytest.warns(DeprecationWarning, match="'late_branch_iters' is deprecated, use 'branches.late_iters'"):
+        old = KeypointFitConfig(late_branch_iters=0, branch_survivors=3)
+    new = KeypointFitConfig(branches=BranchSearch(late_iters=0, survivors=3))
+    assert old == new and old.stages() == new.stages() and old.to_dict() == new.to_dict()
+    assert "branches_late" not in [s.name for s in new.stages()] and new.branch_survivors == 3
+    assert new.to_dict()["late_branch_iters"] == 0 and "branches" not in new.to_dict()
+    assert changed_fields(new) == {"branches", "late_branch_iters", "branch_survivors"}
+    off = keypoint_config({"branches.search": "false"})
+    assert off.branches.search is False and not any(s.name.startswith("branches") for s in off.stages())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        assert keypoint_config({"branch_search": "false"}) == off
