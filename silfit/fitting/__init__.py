@@ -3,6 +3,7 @@ stage plugs in later as :mod:`silfit.fitting.silhouette_stage`."""
 
 from .keypoint_stage import (
     BranchSearch,
+    HandsFace,
     ImageDepthOptions,
     KeypointFitConfig,
     KeypointFitter,
@@ -16,6 +17,7 @@ from .result import KeypointFitResult
 
 __all__ = [
     "BranchSearch",
+    "HandsFace",
     "ImageDepthOptions",
     "KeypointFitConfig",
     "KeypointFitResult",

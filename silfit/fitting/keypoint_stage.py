@@ -34,7 +34,7 @@ keypoints triangulated from the views) joins the pose, shape and final stages.
 Whole-body fitting (an SMPL-X-layout model and the ``wholebody`` keypoint layout, SMPLify-X's
 schedule): the body stages as above, the hand and face keypoint terms (``hands``, ``face``, each
 its own robust scale) weigh nothing while the body is placed and are switched on and raised over
-the later stages (``hand_weights``/``face_weights`` per pose stage, then the final weights; a
+the later stages (``hands_face.hand_weights``/``face_weights`` per pose stage, then the final weights; a
 ``hands`` stage first starts each hand from its best library pose and wrist turn); the
 hand poses, jaw and expression are free where their terms are on, with their priors (``hand_pose``:
 :class:`~silfit.priors.smplx_priors.HandPosePrior`; ``jaw``, ``expression``: L2). A part with no
@@ -93,6 +93,7 @@ from .threads import torch_threads
 
 __all__ = [
     "BranchSearch",
+    "HandsFace",
     "ImageDepthOptions",
     "KeypointFitConfig",
     "KeypointFitter",
@@ -253,6 +254,33 @@ class BranchSearch:
 
 
 @dataclass(frozen=True)
+class HandsFace:
+    """Whole-body fitting (an SMPL-X-layout model and the ``wholebody`` keypoints; :mod:`silfit.fitting.keypoint_stage`'s
+    docstring): the hand and face terms' weights, robust scales, priors and the ``hands`` stage. Each field was
+    ``KeypointFitConfig``'s own, by the same name, which still works; the stage fields among these edit the whole-body
+    table's rows (:mod:`silfit.fitting.schedule_edits`)."""
+
+    #: hand / face keypoint weights per pose stage (``None``: the table's, 0 in all but the last pose stage), in the
+    #: shape stage and the final stage; robust scales (Geman-McClure sigma, normalised pixels) of the hand and face
+    #: terms
+    hand_weights: Optional[Sequence[float]] = None
+    face_weights: Optional[Sequence[float]] = None
+    final_hand_weight: float = STAGE_DEFAULTS["final_hand_weight"]
+    final_face_weight: float = STAGE_DEFAULTS["final_face_weight"]
+    hand_sigma: float = 50.0
+    face_sigma: float = 50.0
+    #: L-BFGS steps of a ``hands`` stage before the first pose stage with hand terms: the hands
+    #: start from their best library pose and wrist turn (:func:`~silfit.fitting.hands_face.choose_hand_starts`)
+    #: and are fitted with the body (held by its keypoints and priors; 0: no such stage, the hands start
+    #: in that pose stage)
+    hand_iters: int = STAGE_DEFAULTS["hand_iters"]
+    #: priors of the parts, on wherever the parts are free
+    hand_prior_weight: float = STAGE_DEFAULTS["hand_prior_weight"]
+    jaw_weight: float = STAGE_DEFAULTS["jaw_weight"]
+    expression_weight: float = STAGE_DEFAULTS["expression_weight"]
+
+
+@dataclass(frozen=True)
 class OcclusionOptions:
     """The occlusion cue (:mod:`silfit.fitting.occlusion`, the ``occlusion`` term) in choosing among the hypotheses
     refined to the end (``branch_refine`` or ``2 * hypotheses`` of them): a hypothesis' final energy counts
@@ -320,6 +348,19 @@ class ImageDepthOptions:
         branch_iters="iters",
     ),
     **grouped("occlusion", occlusion_weight="weight", occlusion_conf="conf"),
+    **grouped(
+        "hands_face",
+        hand_weights="hand_weights",
+        face_weights="face_weights",
+        final_hand_weight="final_hand_weight",
+        final_face_weight="final_face_weight",
+        hand_sigma="hand_sigma",
+        face_sigma="face_sigma",
+        hand_iters="hand_iters",
+        hand_prior_weight="hand_prior_weight",
+        jaw_weight="jaw_weight",
+        expression_weight="expression_weight",
+    ),
     **grouped(
         "image_depth",
         image_depth_weight="weight",
@@ -429,24 +470,8 @@ class KeypointFitConfig:
     #: and the penalty (``charbonnier`` or ``gm``)
     temporal_sigma: float = 10.0
     temporal_robust: str = "charbonnier"
-    #: whole-body fitting (see the module docstring): hand / face keypoint weights per pose stage
-    #: (``None``: 0 in all but the last pose stage, 1 there), in the shape stage and the final stage;
-    #: robust scales (Geman-McClure sigma, normalised pixels) of the hand and face terms
-    hand_weights: Optional[Sequence[float]] = None
-    face_weights: Optional[Sequence[float]] = None
-    final_hand_weight: float = STAGE_DEFAULTS["final_hand_weight"]
-    final_face_weight: float = STAGE_DEFAULTS["final_face_weight"]
-    hand_sigma: float = 50.0
-    face_sigma: float = 50.0
-    #: L-BFGS steps of a ``hands`` stage before the first pose stage with hand terms: the hands
-    #: start from their best library pose and wrist turn (:func:`~silfit.fitting.hands_face.choose_hand_starts`)
-    #: and are fitted with the body (held by its keypoints and priors; 0: no such stage, the hands start
-    #: in that pose stage)
-    hand_iters: int = STAGE_DEFAULTS["hand_iters"]
-    #: priors of the parts, on wherever the parts are free
-    hand_prior_weight: float = STAGE_DEFAULTS["hand_prior_weight"]
-    jaw_weight: float = STAGE_DEFAULTS["jaw_weight"]
-    expression_weight: float = STAGE_DEFAULTS["expression_weight"]
+    #: whole-body fitting (:class:`HandsFace`; its fields were the config's, names that still work)
+    hands_face: HandsFace = field(default_factory=HandsFace)
     #: an explicit list of :class:`~silfit.fitting.stages.Stage` replacing the schedule
     #: the fields above describe (see :meth:`stages`)
     schedule: Optional[Sequence[Stage]] = None
@@ -774,7 +799,7 @@ class KeypointFitter:
             RootSmoothnessTerm(sigma=self.config.temporal_sigma, kind=self.config.temporal_robust),
         ]
         if self.whole_body:
-            terms = wholebody_terms(self.model, terms, sigma, self.config, self.dtype)
+            terms = wholebody_terms(self.model, terms, sigma, self.config.hands_face, self.dtype)
         self.energy = Energy(terms)
         self.stages = self.config.stages(self.whole_body)
         check_stages(self.stages, self.energy, self.params)
@@ -1004,7 +1029,13 @@ class KeypointFitter:
         for si, stage in enumerate(self.stages):
             if stage.options.get("hand_starts") and self.whole_body:
                 sched.state = choose_hand_starts(
-                    self.model, self.body, sched.layout, sched.state, sched.views, sched.data, self.config.hand_sigma
+                    self.model,
+                    self.body,
+                    sched.layout,
+                    sched.state,
+                    sched.views,
+                    sched.data,
+                    self.config.hands_face.hand_sigma,
                 )
             if "branches" in stage.options:
                 if views_per_frame > 1:  # the views' data fixes the limbs' depth: no search (docs: rigs)
