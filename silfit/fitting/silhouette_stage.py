@@ -67,7 +67,7 @@ from ..silhouette.losses import (
 from ..body.lbs import axis_angle_to_matrix, blend_shapes, pose_correctives, skin_vertices
 from .body import BodyState, KeypointBody, MeshBody, pose_parameter_names
 from .problem import ParameterLayout, Problem, stack_views, world_to_camera
-from .aliases import Alias, renamed_fields
+from .aliases import Alias, flat_dict, grouped, renamed_fields
 from .schedule_edits import silhouette_defaults, silhouette_stages
 from .stages import PerRow, Stage, check_stages, run_schedule, stage_to_dict
 from .terms import Energy, Evaluation, KeypointTerm, PriorTerm, StayTerm, Term, evaluate
@@ -76,6 +76,7 @@ from .threads import torch_threads
 __all__ = [
     "ContourCoverTerm",
     "ContourInsideTerm",
+    "MaskHandling",
     "SilhouetteFitConfig",
     "SilhouetteFitResult",
     "SilhouetteTerm",
@@ -111,45 +112,13 @@ FREE_TRUST_FRACTION = 0.06
 STAGE_DEFAULTS = silhouette_defaults()
 
 
-@renamed_fields(
-    w_pose=Alias("pose_weight"),
-    w_limits=Alias("limit_weight"),
-    w_angle=Alias("angle_weight"),
-    w_shape=Alias("shape_weight"),
-)
-@dataclass
-class SilhouetteFitConfig:
-    """Settings of the silhouette stage (defaults tuned on the synthetic set)."""
+@dataclass(frozen=True)
+class MaskHandling:
+    """What the silhouette stage makes of a mask (:mod:`silfit.silhouette.losses`): the pixels it leaves unknown
+    (beyond the image, leaks, holes, the keypoint fit's concavities), the clothing it trims and the robust profile of
+    the mask-not-covered side. Each field was :class:`SilhouetteFitConfig`'s own, by the same name, which still
+    works."""
 
-    #: window's longer side in pixels, per rendered level
-    resolutions: tuple = STAGE_DEFAULTS["resolutions"]
-    #: Adam steps per rendered level (upper bounds: plateaus stop earlier)
-    iterations: tuple = STAGE_DEFAULTS["iterations"]
-    #: L-BFGS iterations of the contour level (no rendering: :class:`ContourInsideTerm` and
-    #: :class:`ContourCoverTerm`) run before the rendered levels; 0: none (:meth:`legacy`)
-    contour_iterations: int = STAGE_DEFAULTS["contour_iterations"]
-    #: the contour level's window (its distance transform's pixels)
-    contour_resolution: int = STAGE_DEFAULTS["contour_resolution"]
-    contour_points: int = 256  # mask outline points per observation in the contour level
-    #: surface points the contour level poses and projects (model vertices spread over the
-    #: surface, :func:`contour_vertex_index`); ``None``: all (the render proxy's, if any)
-    contour_vertices: Optional[int] = 2000
-    w_contour_inside: float = STAGE_DEFAULTS["w_contour_inside"]
-    w_contour_cover: float = STAGE_DEFAULTS["w_contour_cover"]
-    #: primal samples per edge pixel with the ray-cast renderer (which traces one ray per constant region elsewhere;
-    #: per pixel with the projective one); 4 before issue 24's sampling part (why this default, and
-    #: ``edge_density``'s: docs/benchmarks/defaults.md)
-    spp: int = 2
-    edge_spp: int = 1  # visibility-edge samples per pixel (projective integrator's sppp)
-    #: the ray-cast renderer's visibility-edge points per pixel of contour-candidate length instead of
-    #: ``edge_spp`` per window pixel (at most that many; silfit.render.raycast: same expected gradient, fewer rays); ``None``:
-    #: ``edge_spp`` per pixel (before issue 24's speed part)
-    edge_density: Optional[float] = 3.0  # 4.0 before issue 24's sampling part
-    margin: float = 0.12  # window margin, fraction of the box on each side
-    #: window sides rounded up to a multiple of this many pixels: few distinct window sizes,
-    #: so few compiled render kernels (a new size costs Dr.Jit a trace and, the first time on
-    #: a machine, an LLVM compile of seconds)
-    window_multiple: int = 16
     #: what lies outside the image is unknown, not background (:mod:`silfit.silhouette.losses`:
     #: truncation); ``False``: the border is background, as before issue 23
     truncation_aware: bool = True
@@ -192,6 +161,66 @@ class SilhouetteFitConfig:
     #: the concavities unknown only in a mask trimmed as clothing (``trim_clothing``): a mask that
     #: matches the body has no filled concavities, and there they are the only sign of a misplaced limb
     concave_trimmed_only: bool = True
+
+
+@renamed_fields(
+    w_pose=Alias("pose_weight"),
+    w_limits=Alias("limit_weight"),
+    w_angle=Alias("angle_weight"),
+    w_shape=Alias("shape_weight"),
+    **grouped(
+        "mask",
+        truncation_aware="truncation_aware",
+        robust_cover="robust_cover",
+        cover_margin="cover_margin",
+        cover_inner="cover_inner",
+        cover_cap="cover_cap",
+        cover_weight="cover_weight",
+        trim_clothing="trim_clothing",
+        trim_min="trim_min",
+        trim_max="trim_max",
+        trim_quantile="trim_quantile",
+        leak_distance="leak_distance",
+        hole_fraction="hole_fraction",
+        concave_radius="concave_radius",
+        concave_trimmed_only="concave_trimmed_only",
+    ),
+)
+@dataclass
+class SilhouetteFitConfig:
+    """Settings of the silhouette stage (defaults tuned on the synthetic set)."""
+
+    #: window's longer side in pixels, per rendered level
+    resolutions: tuple = STAGE_DEFAULTS["resolutions"]
+    #: Adam steps per rendered level (upper bounds: plateaus stop earlier)
+    iterations: tuple = STAGE_DEFAULTS["iterations"]
+    #: L-BFGS iterations of the contour level (no rendering: :class:`ContourInsideTerm` and
+    #: :class:`ContourCoverTerm`) run before the rendered levels; 0: none (:meth:`legacy`)
+    contour_iterations: int = STAGE_DEFAULTS["contour_iterations"]
+    #: the contour level's window (its distance transform's pixels)
+    contour_resolution: int = STAGE_DEFAULTS["contour_resolution"]
+    contour_points: int = 256  # mask outline points per observation in the contour level
+    #: surface points the contour level poses and projects (model vertices spread over the
+    #: surface, :func:`contour_vertex_index`); ``None``: all (the render proxy's, if any)
+    contour_vertices: Optional[int] = 2000
+    w_contour_inside: float = STAGE_DEFAULTS["w_contour_inside"]
+    w_contour_cover: float = STAGE_DEFAULTS["w_contour_cover"]
+    #: primal samples per edge pixel with the ray-cast renderer (which traces one ray per constant region elsewhere;
+    #: per pixel with the projective one); 4 before issue 24's sampling part (why this default, and
+    #: ``edge_density``'s: docs/benchmarks/defaults.md)
+    spp: int = 2
+    edge_spp: int = 1  # visibility-edge samples per pixel (projective integrator's sppp)
+    #: the ray-cast renderer's visibility-edge points per pixel of contour-candidate length instead of
+    #: ``edge_spp`` per window pixel (at most that many; silfit.render.raycast: same expected gradient, fewer rays); ``None``:
+    #: ``edge_spp`` per pixel (before issue 24's speed part)
+    edge_density: Optional[float] = 3.0  # 4.0 before issue 24's sampling part
+    margin: float = 0.12  # window margin, fraction of the box on each side
+    #: window sides rounded up to a multiple of this many pixels: few distinct window sizes,
+    #: so few compiled render kernels (a new size costs Dr.Jit a trace and, the first time on
+    #: a machine, an LLVM compile of seconds)
+    window_multiple: int = 16
+    #: what the stage makes of the masks (:class:`MaskHandling`; its fields were the config's, names that still work)
+    mask: MaskHandling = field(default_factory=MaskHandling)
     #: after the stage, a fit less plausible than the keypoint fit (silfit.fitting.plausibility.silhouette_guard)
     #: is replaced by the keypoint fit, with a warning (image path: silfit.fitting.image_fit.refine_batch)
     plausibility_guard: bool = True
@@ -304,8 +333,8 @@ class SilhouetteFitConfig:
             raise ValueError(
                 f"SilhouetteFitConfig: trust_free_ratio must be above 0 or None, got {self.trust_free_ratio!r}"
             )
-        if not 0.0 <= float(self.trim_quantile) <= 1.0:
-            raise ValueError(f"SilhouetteFitConfig: trim_quantile must lie in [0, 1], got {self.trim_quantile!r}")
+        if not 0.0 <= float(self.mask.trim_quantile) <= 1.0:
+            raise ValueError(f"SilhouetteFitConfig: trim_quantile must lie in [0, 1], got {self.mask.trim_quantile!r}")
 
     @classmethod
     def legacy(cls, **changes) -> "SilhouetteFitConfig":
@@ -331,11 +360,12 @@ class SilhouetteFitConfig:
     def cover_profile(self, resolution: int) -> Optional[CoverProfile]:
         """The mask-not-covered profile in pixels of a window ``resolution`` pixels long
         (``None``: plain, ``robust_cover=False``)."""
-        if not self.robust_cover:
+        m = self.mask
+        if not m.robust_cover:
             return None
         r = float(resolution)
         return CoverProfile(
-            float(self.cover_margin) * r, float(self.cover_inner), float(self.cover_cap) * r, float(self.cover_weight)
+            float(m.cover_margin) * r, float(m.cover_inner), float(m.cover_cap) * r, float(m.cover_weight)
         )
 
     def weights(self) -> dict:
@@ -373,7 +403,7 @@ class SilhouetteFitConfig:
         return int(faces)
 
     def to_dict(self) -> dict:
-        d = {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
+        d = flat_dict(self)  # the groups' fields by their flat names, as before them
         d["stages"] = [stage_to_dict(s) for s in self.stages()]
         return d
 
@@ -1144,7 +1174,7 @@ class _SilhouetteRun:
                         resolution,
                         cfg.margin,
                         cfg.window_multiple,
-                        cfg.truncation_aware,
+                        cfg.mask.truncation_aware,
                         cfg.cover_profile(resolution),
                         self.known[p][f][c],
                     )

@@ -279,3 +279,19 @@ def test_the_branch_search_settings_are_a_group():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         assert keypoint_config({"branch_search": "false"}) == off
+
+
+def test_the_mask_settings_are_a_group():
+    """``SilhouetteFitConfig.mask`` (:class:`MaskHandling`): the old flat names still work and are recorded."""
+    from silfit.fitting.silhouette_stage import MaskHandling
+    from silfit.runner.worker import FitOptions, silhouette_config
+
+    with pytest.warns(DeprecationWarning, match="'trim_clothing' is deprecated, use 'mask.trim_clothing'"):
+        old = SilhouetteFitConfig(trim_clothing=False, cover_cap=0.1)
+    new = SilhouetteFitConfig(mask=MaskHandling(trim_clothing=False, cover_cap=0.1))
+    assert old == new and new.trim_clothing is False and new.cover_profile(100).cap == 10.0
+    assert new.to_dict()["cover_cap"] == 0.1 and "mask" not in new.to_dict() and old.stages() == new.stages()
+    sil = silhouette_config(FitOptions(silhouette_options={"mask.leak_distance": "0", "mask.trim_quantile": "0.5"}))
+    assert sil.mask == MaskHandling(leak_distance=0.0, trim_quantile=0.5)
+    with pytest.raises(ValueError, match="trim_quantile must lie in"):
+        SilhouetteFitConfig(mask=MaskHandling(trim_quantile=2.0))
