@@ -15,7 +15,6 @@ of those it gets right, and how many landmark sets it refuses (a left/right swap
 from __future__ import annotations
 
 import argparse
-from dataclasses import replace
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -124,7 +123,7 @@ def compare_seed(
     generator's masks) per cue setting in ``variants`` (``(label, image_depth_weight, image_depth_decide)``; weight
     0 and decide ``None``: the cue off, the baseline), on the same subjects: per subject and setting PA-PVE (mm) of
     the keypoint stage and with silhouettes, CPU seconds."""
-    from silfit.fitting import KeypointFitter, KeypointFitConfig
+    from silfit.fitting import ImageDepthOptions, KeypointFitter, KeypointFitConfig
     from silfit.fitting.image_depth import cue_from_image
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
     from silfit.fitting.image_fit import refine_batch
@@ -151,10 +150,10 @@ def compare_seed(
     rows = []
     for label, w, decide in variants:
         on = bool(w) or decide is not None
-        cfg = KeypointFitConfig(image_depth_weight=float(w), image_depth_decide=decide)
-        cfg = replace(
-            cfg, image_depth_decide_screens="reserve" not in label, image_depth_decide_early="late" not in label
+        cue = ImageDepthOptions(
+            float(w), decide=decide, decide_screens="reserve" not in label, decide_early="late" not in label
         )
+        cfg = KeypointFitConfig(image_depth=cue)
         fitter = KeypointFitter(model, config=cfg)
         for b in range(0, len(sets), batch):
             sl = slice(b, b + batch)

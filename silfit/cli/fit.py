@@ -70,7 +70,7 @@ def _add_image_flags(p) -> None:
         help="the image (its size, EXIF focal length and the overlay; keypoints and mask "
         "are detected in it when --keypoints is not given). Its landmark model's 3D decides which way limbs "
         "point in depth where it is confident (the image depth cue; metrics.json's image_depth; "
-        "off by default: --keypoint-option image_depth_weight=100 turns it on)",
+        "off by default: --keypoint-option image_depth.weight=100 turns it on)",
     )
     p.add_argument("--image-size", help="WxH when neither --camera, --image nor --mask gives the size")
 

@@ -1,15 +1,28 @@
 """Fitting SMPL to an image: the keypoint stage (SMPLify in torch); the silhouette
 stage plugs in later as :mod:`silfit.fitting.silhouette_stage`."""
 
-from .keypoint_stage import KeypointFitConfig, KeypointFitter, fit_keypoints, prepare_keypoints
+from .keypoint_stage import (
+    BranchSearch,
+    HandsFace,
+    ImageDepthOptions,
+    KeypointFitConfig,
+    KeypointFitter,
+    OcclusionOptions,
+    fit_keypoints,
+    prepare_keypoints,
+)
 from .losses import gmof, reprojection_energy
 from .optim import batched_lbfgs
 from .result import KeypointFitResult
 
 __all__ = [
+    "BranchSearch",
+    "HandsFace",
+    "ImageDepthOptions",
     "KeypointFitConfig",
     "KeypointFitResult",
     "KeypointFitter",
+    "OcclusionOptions",
     "batched_lbfgs",
     "fit_keypoints",
     "gmof",

@@ -5,6 +5,11 @@ constructor (mapped onto its canonical field, with a :class:`DeprecationWarning`
 attribute (a property reading and writing the canonical field). The old names are not
 fields: ``dataclasses.fields``, ``replace`` and the config's ``to_dict`` see the canonical
 names only.
+
+:func:`grouped` gives the aliases of fields moved into a group (a small dataclass held by one field, issue 57:
+``KeypointFitConfig.image_depth.weight``, once ``image_depth_weight``): each old flat name reads and writes its
+group's field, and :func:`flat_dict` records a config with the flat names, as before the move, for the release
+the aliases live.
 """
 
 from __future__ import annotations
@@ -14,17 +19,53 @@ import functools
 import warnings
 from typing import Callable, NamedTuple, Optional
 
-__all__ = ["Alias", "renamed_fields"]
+__all__ = ["Alias", "flat_dict", "grouped", "renamed_fields"]
 
 
 class Alias(NamedTuple):
     """An old field name's mapping onto canonical field ``field``: ``get(canonical) -> old
     value``; ``put(canonical, old value, keywords) -> canonical`` (``keywords``: the
-    constructor's other arguments, e.g. to check a length); both default to a plain rename."""
+    constructor's other arguments, e.g. to check a length); both default to a plain rename. ``sub``: the
+    group's field where ``field`` holds a group (:func:`grouped`)."""
 
     field: str
     get: Optional[Callable] = None
     put: Optional[Callable] = None
+    sub: Optional[str] = None
+
+
+def grouped(field: str, **subs: str) -> dict:
+    """The aliases of flat names moved into group ``field`` (a dataclass): ``old=sub`` for each."""
+
+    def alias(sub: str) -> Alias:
+        return Alias(
+            field, lambda group: getattr(group, sub), lambda group, v, kw: dataclasses.replace(group, **{sub: v}), sub
+        )
+
+    return {old: alias(sub) for old, sub in subs.items()}
+
+
+def listed(value):
+    """A settings value as JSON keeps it: tuples as lists."""
+    return list(value) if isinstance(value, tuple) else value
+
+
+def flat_dict(config, skip=()) -> dict:
+    """``config``'s fields by name (but ``skip``), tuples as lists, each group's fields under their old flat names
+    (:func:`grouped`) where the group stood."""
+    subs = {}
+    for old, a in getattr(type(config), "renamed_fields", {}).items():
+        if a.sub is not None:
+            subs.setdefault(a.field, []).append((old, a.sub))
+    out = {}
+    for name, value in config.__dict__.items():
+        if name in skip:
+            continue
+        if name in subs:
+            out.update({old: listed(getattr(value, sub)) for old, sub in subs[name]})
+        else:
+            out[name] = listed(value)
+    return out
 
 
 def _default(cls, name):
@@ -46,9 +87,8 @@ def renamed_fields(**aliases: Alias):
                 if old not in kwargs:
                     continue
                 value = kwargs.pop(old)
-                warnings.warn(
-                    f"{cls.__name__}: '{old}' is deprecated, use '{a.field}'", DeprecationWarning, stacklevel=2
-                )
+                new = a.field if a.sub is None else f"{a.field}.{a.sub}"
+                warnings.warn(f"{cls.__name__}: '{old}' is deprecated, use '{new}'", DeprecationWarning, stacklevel=2)
                 current = kwargs.get(a.field, _default(cls, a.field))
                 kwargs[a.field] = value if a.put is None else a.put(current, value, kwargs)
             init(self, *args, **kwargs)
@@ -63,7 +103,8 @@ def renamed_fields(**aliases: Alias):
             def setter(self, value, a=a):
                 setattr(self, a.field, value if a.put is None else a.put(getattr(self, a.field), value, vars(self)))
 
-            setattr(cls, old, property(getter, setter, doc=f"Deprecated name of ``{a.field}``."))
+            new = a.field if a.sub is None else f"{a.field}.{a.sub}"
+            setattr(cls, old, property(getter, setter, doc=f"Deprecated name of ``{new}``."))
         cls.renamed_fields = dict(aliases)
         return cls
 

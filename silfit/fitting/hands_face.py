@@ -51,7 +51,8 @@ def part_masks(dtype=torch.float64) -> Dict[str, torch.Tensor]:
 
 
 def wholebody_terms(model, terms: List[Term], sigma, config, dtype) -> List[Term]:
-    """The body terms (``keypoints`` and ``points`` restricted to the body's points) plus the hand and face terms."""
+    """The body terms (``keypoints`` and ``points`` restricted to the body's points) plus the hand and face terms
+    (``config``: :class:`~silfit.fitting.keypoint_stage.HandsFace`, their robust scales)."""
     masks = part_masks(dtype)
     robust = sigma is not None
     body = {"keypoints": KeypointTerm("keypoints", sigma, mask=masks["body"])}

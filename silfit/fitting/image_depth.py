@@ -104,7 +104,7 @@ class DepthCue:
 
     def hard_signs(self, threshold: float) -> np.ndarray:
         """``[S]`` the cue's sign on the segments it calls (its gates passed) with a depth cosine of at least
-        ``threshold``, 0 elsewhere: the calls the branch search takes as decided (``image_depth_decide``)."""
+        ``threshold``, 0 elsewhere: the calls the branch search takes as decided (``image_depth.decide``)."""
         return np.where((self.confidence > 0) & (np.abs(self.ratio) >= threshold), self.sign, 0.0)
 
     def hard_record(self, threshold: float) -> dict:

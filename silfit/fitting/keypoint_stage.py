@@ -34,7 +34,7 @@ keypoints triangulated from the views) joins the pose, shape and final stages.
 Whole-body fitting (an SMPL-X-layout model and the ``wholebody`` keypoint layout, SMPLify-X's
 schedule): the body stages as above, the hand and face keypoint terms (``hands``, ``face``, each
 its own robust scale) weigh nothing while the body is placed and are switched on and raised over
-the later stages (``hand_weights``/``face_weights`` per pose stage, then the final weights; a
+the later stages (``hands_face.hand_weights``/``face_weights`` per pose stage, then the final weights; a
 ``hands`` stage first starts each hand from its best library pose and wrist turn); the
 hand poses, jaw and expression are free where their terms are on, with their priors (``hand_pose``:
 :class:`~silfit.priors.smplx_priors.HandPosePrior`; ``jaw``, ``expression``: L2). A part with no
@@ -74,7 +74,8 @@ from .occlusion import OcclusionTerm
 from .branches import LIMB_SEGMENTS, limb_hypotheses, turn_hypotheses
 from .problem import ParameterLayout, Problem, stack_views
 from .result import PARAM_NAMES, KeypointFitResult
-from .aliases import Alias, renamed_fields
+from .aliases import Alias, flat_dict, grouped, renamed_fields
+from .schedule_edits import keypoint_defaults, keypoint_stages
 from .stages import Stage, check_stages, run_stage, stage_to_dict
 from .terms import (
     DepthTerm,
@@ -90,7 +91,16 @@ from .terms import (
 from .triangulate import placement_to_world, projection_matrices, robust_triangulate, torso_placement, triangulate_views
 from .threads import torch_threads
 
-__all__ = ["KeypointFitConfig", "KeypointFitter", "fit_keypoints", "prepare_keypoints"]
+__all__ = [
+    "BranchSearch",
+    "HandsFace",
+    "ImageDepthOptions",
+    "KeypointFitConfig",
+    "KeypointFitter",
+    "OcclusionOptions",
+    "fit_keypoints",
+    "prepare_keypoints",
+]
 
 _UPPER = ("left_shoulder", "right_shoulder", "neck")
 _LOWER = ("left_hip", "right_hip", "mid_hip")
@@ -103,8 +113,9 @@ POINTS_STATURE_M = 1.7
 #: their rotation, only the eyeball centres)
 WHOLEBODY_HAND_PARAMS = ("left_hand_pose", "right_hand_pose")
 WHOLEBODY_FACE_PARAMS = ("jaw_pose", "expression")
-#: the parameters every pose stage frees
-_POSE_FREE = ("global_orient", "transl", "body_pose")
+#: the defaults of :class:`KeypointFitConfig`'s stage fields: the cells of the literal tables
+#: (:data:`~silfit.fitting.schedules.KEYPOINT_SCHEDULE`; the hand and face fields' ``WHOLEBODY_KEYPOINT_SCHEDULE``)
+STAGE_DEFAULTS = keypoint_defaults()
 
 
 def _stage_weights(old: str, field_name: str):
@@ -164,12 +175,200 @@ DISTINCT_JOINT_MAX_M = 0.10
 DIFFERS_DEG = 30.0
 
 
+@dataclass(frozen=True)
+class BranchSearch:
+    """The limb-branch searches (:mod:`silfit.fitting.branches`) of the keypoint stage: after a pose stage
+    (``branches_<r>``), at the final weights (``branches_late``) and from the fit (``branches_post``); the stage
+    fields among these edit the table's rows (:mod:`silfit.fitting.schedule_edits`). Each field was
+    ``KeypointFitConfig.branch_<name>`` (``late_branch_*``, ``post_branch_iters``), names that still work."""
+
+    #: on: after pose stage ``after_stage`` (0-based), every segment pointing out of the image plane by at least
+    #: ``min_depth_ratio`` (|cos| to the ray) is mirrored in depth (alone, and per whole limb), each hypothesis runs
+    #: ``iters`` L-BFGS steps with that pose stage's weights plus interpenetration, and each sample keeps its lowest
+    #: energy; ``rounds`` repeats the search from the kept pose.
+    search: bool = STAGE_DEFAULTS["branch_search"]
+    after_stage: int = STAGE_DEFAULTS["branch_after_stage"]
+    iters: int = STAGE_DEFAULTS["branch_iters"]
+    min_depth_ratio: float = STAGE_DEFAULTS["branch_min_depth_ratio"]
+    whole_limbs: bool = STAGE_DEFAULTS["branch_whole_limbs"]
+    #: a forearm or a shin is mirrored as an elbow or a knee can turn it (the upper segment twists, the
+    #: hinge flexes: :func:`~silfit.fitting.branches.flip_segment`); off: the smallest turn at the hinge,
+    #: which bends it sideways, so the priors pull the branch back before it is scored (issue 25: a hand
+    #: at the chest fitted as an arm held out to the camera; why this default: docs/benchmarks/defaults.md)
+    hinge: bool = STAGE_DEFAULTS["branch_hinge"]
+    #: with ``hinge``, each hinge segment flipped alone by the smallest turn at its hinge is also a
+    #: hypothesis (``<segment>/turn``; whole limbs, joint and root-turn hypotheses use the hinge flip only)
+    hinge_turns: bool = STAGE_DEFAULTS["branch_hinge_turns"]
+    #: a search's screen and its rows that go on (``carry``) take distinct poses first
+    #: (:func:`best_distinct_per_group`): a hinge flip and its ``/turn`` copy that reached the same pose take one
+    #: place, and the next distinct hypothesis the other (issue 25)
+    distinct: bool = STAGE_DEFAULTS["branch_distinct"]
+    #: also the joint hypotheses (:data:`~silfit.fitting.branches.JOINT_HYPOTHESES`: both legs,
+    #: both arms, the torso's lean with the legs, the hip's tilt), screened with the others. Off by
+    #: default (why: docs/benchmarks/defaults.md)
+    joint: bool = STAGE_DEFAULTS["branch_joint"]
+    #: each sample's lowest-energy hypotheses of the last branch search that run the rest of the
+    #: schedule (at least ``2 * hypotheses`` with ``KeypointFitConfig.hypotheses`` > 1); the lowest final energy is
+    #: the fit.
+    #: As many of the late search's go on to ``settle`` where a search from the fit follows (``post_iters``)
+    #: (1: the search's own choice). The search's energies a few dozen steps in are far from converged,
+    #: so its choice follows how fast a branch converges, not where; branches refined to near their
+    #: minima (``final_iters``) are chosen by the energy a fit is judged by (why this default:
+    #: docs/benchmarks/defaults.md)
+    refine: int = STAGE_DEFAULTS["branch_refine"]
+    rounds: int = STAGE_DEFAULTS["branch_rounds"]
+    #: hypotheses drop early: after ``screen_iters`` steps only each sample's
+    #: ``survivors`` lowest-energy hypotheses (the unflipped pose among them or not)
+    #: run the remaining steps (0: all run every step)
+    screen_iters: int = STAGE_DEFAULTS["branch_screen_iters"]
+    survivors: int = STAGE_DEFAULTS["branch_survivors"]
+    #: a second branch search just before the final stage (0 steps: none), from the pose the
+    #: earlier stages reached and with the final stage's weights (the energy a fit is judged by):
+    #: the same hypotheses (:func:`~silfit.fitting.branches.limb_hypotheses`, the joint ones with
+    #: ``joint``), screened after ``screen_iters`` steps, ``survivors`` run on.
+    #: With ``KeypointFitConfig.hypotheses`` > 1 and no search from the fit (``post_iters`` 0) the alternatives are
+    #: its survivors. Issue 25 (search failures: the fit's
+    #: final energy above the truth's): the first search screens at the pose stage's heavy prior
+    #: after a few steps, and the truth's branch was often cut there or never proposed (it needs a
+    #: flip on top of another); a search at the final weights from the refined pose finds it (why this
+    #: default: docs/benchmarks/defaults.md)
+    late_iters: int = STAGE_DEFAULTS["late_branch_iters"]
+    #: late searches in a row (each from the one before's pick)
+    late_rounds: int = STAGE_DEFAULTS["late_branch_rounds"]
+    #: root-turn hypotheses in the late search(es) (:func:`~silfit.fitting.branches.turn_hypotheses`:
+    #: ``"mirror"`` the torso's yaw mirrored in depth, a number a turn in degrees), alone and with each
+    #: limb flip; empty: none
+    late_turns: tuple = ()
+    #: survivors of the late search's screen (0: ``survivors``)
+    late_survivors: int = 0
+    #: a last branch search from the fit itself (0 steps: none): the late search's ``refine`` best
+    #: run the final stage (``settle``; with no late search, the one pose the earlier stages reached)
+    #: and the lowest final energy goes on; every segment of that fit
+    #: pointing out of the image plane is mirrored (alone and per whole limb), each runs this many steps at
+    #: the final weights (screened after half), and the ``refine`` best run the final stage again
+    #: (``final``); the lowest final energy is the fit. From the converged fit a single flip often reaches
+    #: the truth's basin where the late search, from an unconverged pose, cut it at its screen (issue 25's
+    #: search failures: the fit's energy above the truth's; why this default: docs/benchmarks/defaults.md).
+    #: 0: the schedule before
+    post_iters: int = STAGE_DEFAULTS["post_branch_iters"]
+
+
+@dataclass(frozen=True)
+class HandsFace:
+    """Whole-body fitting (an SMPL-X-layout model and the ``wholebody`` keypoints; :mod:`silfit.fitting.keypoint_stage`'s
+    docstring): the hand and face terms' weights, robust scales, priors and the ``hands`` stage. Each field was
+    ``KeypointFitConfig``'s own, by the same name, which still works; the stage fields among these edit the whole-body
+    table's rows (:mod:`silfit.fitting.schedule_edits`)."""
+
+    #: hand / face keypoint weights per pose stage (``None``: the table's, 0 in all but the last pose stage), in the
+    #: shape stage and the final stage; robust scales (Geman-McClure sigma, normalised pixels) of the hand and face
+    #: terms
+    hand_weights: Optional[Sequence[float]] = None
+    face_weights: Optional[Sequence[float]] = None
+    final_hand_weight: float = STAGE_DEFAULTS["final_hand_weight"]
+    final_face_weight: float = STAGE_DEFAULTS["final_face_weight"]
+    hand_sigma: float = 50.0
+    face_sigma: float = 50.0
+    #: L-BFGS steps of a ``hands`` stage before the first pose stage with hand terms: the hands
+    #: start from their best library pose and wrist turn (:func:`~silfit.fitting.hands_face.choose_hand_starts`)
+    #: and are fitted with the body (held by its keypoints and priors; 0: no such stage, the hands start
+    #: in that pose stage)
+    hand_iters: int = STAGE_DEFAULTS["hand_iters"]
+    #: priors of the parts, on wherever the parts are free
+    hand_prior_weight: float = STAGE_DEFAULTS["hand_prior_weight"]
+    jaw_weight: float = STAGE_DEFAULTS["jaw_weight"]
+    expression_weight: float = STAGE_DEFAULTS["expression_weight"]
+
+
+@dataclass(frozen=True)
+class OcclusionOptions:
+    """The occlusion cue (:mod:`silfit.fitting.occlusion`, the ``occlusion`` term) in choosing among the hypotheses
+    refined to the end (``branch_refine`` or ``2 * hypotheses`` of them): a hypothesis' final energy counts
+    ``1 + weight * n`` times, ``n`` the keypoints whose depth order disagrees with their confidence (a confident
+    keypoint hidden behind the body, a low-confidence one in front: confidences at or below ``conf[0]`` expect
+    hidden, at or above ``conf[1]`` visible). ``weight`` 0: off. Off by default (why: docs/benchmarks/defaults.md)"""
+
+    weight: float = 0.0
+    conf: Sequence[float] = (0.3, 0.6)
+
+
+@dataclass(frozen=True)
+class ImageDepthOptions:
+    """The image depth cue (:mod:`silfit.fitting.image_depth`, the ``image_depth`` term; issue 54): each limb segment
+    whose depth order the landmark model's 3D decides, charged where the fit turns it the other way, in the branch
+    searches (their hypotheses ranked by it) and in every stage at the final weights. Problems without an image have
+    no cue: the term is 0 and their fit is the same bit for bit."""
+
+    #: the term's weight; 0 (the default): off, unless ``decide`` asks for the cue; 100 is the weight measured
+    #: (docs/benchmarks/image-depth.md; why this default: docs/benchmarks/defaults.md)
+    weight: float = 0.0
+    #: the term's margin: a decided segment's depth cosine (along the ray) must reach this on the cue's side
+    margin: float = 0.1
+    #: the cue as a hard choice in the branch searches: the segments the cue calls (its gates passed) with a depth
+    #: cosine of at least this are decided; each search also proposes each sample's pose with every decided segment
+    #: turned to the cue's side (``image:<segments>``), and its screen, its pick, the settled pick and the choice
+    #: among the refined branches rank the rows that agree with every decided side first (by their energies; where
+    #: none agrees, by energy alone). ``None`` (the default): off. Problems without an image: unchanged bit for bit
+    #: (docs/benchmarks/image-depth.md; why this default: docs/benchmarks/defaults.md)
+    decide: Optional[float] = None
+    #: with ``decide``: the searches' screens and the rows they carry on rank the agreeing rows first (on), or keep the
+    #: energy's ranking with one place for each sample's best agreeing row (off: the other branches stay refined, as
+    #: alternatives for the silhouette stage)
+    decide_screens: bool = True
+    #: with ``decide``: also in the search after the pose stages (``branches_<r>``, at their heavy prior, few steps
+    #: in); off: only in the late search, the settled pick, the search from the fit and the final choice
+    decide_early: bool = True
+
+
 @renamed_fields(
     pose_prior_weights=Alias("pose_weight", _but_last, _stage_weights("pose_prior_weights", "pose_weight")),
     final_pose_prior_weight=Alias("pose_weight", _last, _final_weight),
     angle_prior_weights=Alias("angle_weight", _but_last, _stage_weights("angle_prior_weights", "angle_weight")),
     final_angle_prior_weight=Alias("angle_weight", _last, _final_weight),
     final_shape_weight=Alias("shape_weight", _last, lambda w, v, kw: _final_weight(shape_weights(w), v, kw)),
+    **grouped(
+        "branches",
+        late_branch_survivors="late_survivors",
+        late_branch_rounds="late_rounds",
+        late_branch_turns="late_turns",
+        late_branch_iters="late_iters",
+        post_branch_iters="post_iters",
+        branch_min_depth_ratio="min_depth_ratio",
+        branch_whole_limbs="whole_limbs",
+        branch_hinge_turns="hinge_turns",
+        branch_after_stage="after_stage",
+        branch_screen_iters="screen_iters",
+        branch_survivors="survivors",
+        branch_distinct="distinct",
+        branch_search="search",
+        branch_refine="refine",
+        branch_rounds="rounds",
+        branch_hinge="hinge",
+        branch_joint="joint",
+        branch_iters="iters",
+    ),
+    **grouped("occlusion", occlusion_weight="weight", occlusion_conf="conf"),
+    **grouped(
+        "hands_face",
+        hand_weights="hand_weights",
+        face_weights="face_weights",
+        final_hand_weight="final_hand_weight",
+        final_face_weight="final_face_weight",
+        hand_sigma="hand_sigma",
+        face_sigma="face_sigma",
+        hand_iters="hand_iters",
+        hand_prior_weight="hand_prior_weight",
+        jaw_weight="jaw_weight",
+        expression_weight="expression_weight",
+    ),
+    **grouped(
+        "image_depth",
+        image_depth_weight="weight",
+        image_depth_margin="margin",
+        image_depth_decide="decide",
+        image_depth_decide_screens="decide_screens",
+        image_depth_decide_early="decide_early",
+    ),
 )
 @dataclass
 class KeypointFitConfig:
@@ -187,13 +386,13 @@ class KeypointFitConfig:
     #: set 1 for the fastest batched throughput (why this default: docs/benchmarks/defaults.md)
     init_poses: int = 4
     #: after which pose sub-stage (0-based) each sample keeps the best of its starts
-    flip_decision_stage: int = 0
+    flip_decision_stage: int = STAGE_DEFAULTS["flip_decision_stage"]
     #: steps of that sub-stage run with every start before choosing (0: the whole sub-stage);
     #: its remaining steps continue from the chosen start only
-    decision_iters: int = 20
+    decision_iters: int = STAGE_DEFAULTS["decision_iters"]
     robust: bool = True  # False: plain L2 data terms (keypoints and, several views, points; for comparisons)
-    camera_iters: int = 30
-    pose_iters: Sequence[int] = (30, 30, 40)
+    camera_iters: int = STAGE_DEFAULTS["camera_iters"]
+    pose_iters: Sequence[int] = STAGE_DEFAULTS["pose_iters"]
     #: Annealed pose-prior weights of the pose stages, tuned for the shipped library mixture
     #: (:class:`~silfit.priors.LibraryMixturePrior`; about 10x the weights that suited the
     #: old split-normal default, whose energies are on a similar scale but which needed less
@@ -203,36 +402,36 @@ class KeypointFitConfig:
     #: in :class:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig` and in
     #: :class:`~silfit.fitting.sequence.SequenceFitConfig`; the old ``pose_prior_weights`` (the pose
     #: stages') and ``final_pose_prior_weight`` still work).
-    pose_weight: Sequence[float] = (2000.0, 400.0, 80.0, 40.0)
+    pose_weight: Sequence[float] = STAGE_DEFAULTS["pose_weight"]
     #: the angle prior's (the knees' and elbows' bend), the same way: one per pose stage, then the final stage's
     #: (issue 57; the old ``angle_prior_weights`` (the pose stages') and ``final_angle_prior_weight`` still work)
-    angle_weight: Sequence[float] = (10.0, 5.0, 2.0, 1.0)
-    shape_iters: int = 20
+    angle_weight: Sequence[float] = STAGE_DEFAULTS["angle_weight"]
+    shape_iters: int = STAGE_DEFAULTS["shape_iters"]
     #: the shape prior's: the shape stage's, then the final stage's (issue 57; the old ``final_shape_weight``
     #: still works, and a single number is the shape stage's, as the name meant before, with a warning)
-    shape_weight: Sequence[float] = (20.0, 5.0)
+    shape_weight: Sequence[float] = STAGE_DEFAULTS["shape_weight"]
     #: the final stage's L-BFGS steps; with ``branch_refine`` above 1 the hypotheses are chosen by the
     #: final energy, so this many steps bring it near its minimum (see ``branch_refine``; why this
     #: default: docs/benchmarks/defaults.md)
-    final_iters: int = 120
+    final_iters: int = STAGE_DEFAULTS["final_iters"]
     #: ... but at most this many, every one run (no ``final_tol_change``), where no branch search ran
     #: (several views fix the limbs' depth, or ``branch_search`` off): no branches to choose among, and
     #: the rigs' numbers were measured so (``None``: ``final_iters`` always)
-    final_iters_unsearched: Optional[int] = 40
+    final_iters_unsearched: Optional[int] = STAGE_DEFAULTS["final_iters_unsearched"]
     #: after a branch search, the final stage's rows stop once a step lowers their energy by less than this (relative; the
     #: optimiser's default, 1e-8, runs nearly every row all ``final_iters``); ``None``: the optimiser's default
     #: (why this default: docs/benchmarks/defaults.md)
-    final_tol_change: Optional[float] = 1e-4
-    limit_weight: float = 1e4
-    interpenetration_weight: float = 1e5
-    depth_weight: float = 1e3
+    final_tol_change: Optional[float] = STAGE_DEFAULTS["final_tol_change"]
+    limit_weight: float = STAGE_DEFAULTS["limit_weight"]
+    interpenetration_weight: float = STAGE_DEFAULTS["interpenetration_weight"]
+    depth_weight: float = STAGE_DEFAULTS["depth_weight"]
     #: several calibrated views: the ``points`` term (:class:`~silfit.fitting.terms.PointsTerm`, the
     #: keypoints triangulated from the views) in the pose stages and in the shape and final stages
     #: (0 for one view: nothing is triangulated). With two views the 2D terms alone could end with a
     #: limb in the wrong depth branch (one view agrees, the robust term bounds the other's residual),
     #: which this term holds (why this default, and ``final_points_weight``'s: docs/benchmarks/defaults.md)
-    points_weight: float = 1.0
-    final_points_weight: float = 1.0
+    points_weight: float = STAGE_DEFAULTS["points_weight"]
+    final_points_weight: float = STAGE_DEFAULTS["final_points_weight"]
     history: int = 10
     #: the floating-point type the stage computes in (``None``: the model's own). float64 by
     #: default: the optimiser amplifies last-bit differences (other SIMD kernels) into millimetres,
@@ -242,39 +441,15 @@ class KeypointFitConfig:
     #: torch threads during the fit (the per-iteration tensors are small, so one thread
     #: avoids synchronisation overhead; ``None`` leaves torch's setting alone).
     threads: Optional[int] = 1
-    #: limb-branch search (:mod:`silfit.fitting.branches`): after pose stage
-    #: ``branch_after_stage`` (0-based), every segment pointing out of the image plane by at
-    #: least ``branch_min_depth_ratio`` (|cos| to the ray) is mirrored in depth (alone, and
-    #: per whole limb), each hypothesis runs ``branch_iters`` L-BFGS steps with that pose
-    #: stage's weights plus interpenetration, and each sample keeps its lowest energy;
-    #: ``branch_rounds`` repeats the search from the kept pose.
-    branch_search: bool = True
-    branch_after_stage: int = 1
-    branch_iters: int = 20
-    branch_min_depth_ratio: float = 0.3
-    branch_whole_limbs: bool = True
-    #: a forearm or a shin is mirrored as an elbow or a knee can turn it (the upper segment twists, the
-    #: hinge flexes: :func:`~silfit.fitting.branches.flip_segment`); off: the smallest turn at the hinge,
-    #: which bends it sideways, so the priors pull the branch back before it is scored (issue 25: a hand
-    #: at the chest fitted as an arm held out to the camera; why this default: docs/benchmarks/defaults.md)
-    branch_hinge: bool = True
-    #: with ``branch_hinge``, each hinge segment flipped alone by the smallest turn at its hinge is also a
-    #: hypothesis (``<segment>/turn``; whole limbs, joint and root-turn hypotheses use the hinge flip only)
-    branch_hinge_turns: bool = True
-    #: a search's screen and its rows that go on (``carry``) take distinct poses first
-    #: (:func:`best_distinct_per_group`): a hinge flip and its ``/turn`` copy that reached the same pose take one
-    #: place, and the next distinct hypothesis the other (issue 25)
-    branch_distinct: bool = True
-    #: also the joint hypotheses (:data:`~silfit.fitting.branches.JOINT_HYPOTHESES`: both legs,
-    #: both arms, the torso's lean with the legs, the hip's tilt), screened with the others. Off by
-    #: default (why: docs/benchmarks/defaults.md)
-    branch_joint: bool = False
-    #: the last branch search keeps each sample's ``max(branch_refine, 2 * hypotheses)`` lowest-energy
+    #: the limb-branch searches (:class:`BranchSearch`; once ``branch_search``, ``branch_*``, ``late_branch_*``,
+    #: ``post_branch_iters``, which still work)
+    branches: BranchSearch = field(default_factory=BranchSearch)
+    #: the last branch search keeps each sample's ``max(branches.refine, 2 * hypotheses)`` lowest-energy
     #: hypotheses and runs the rest of the schedule on all of them; the lowest final energy is the fit,
     #: the ``hypotheses`` best distinct ones (:func:`distinct_hypotheses`) are returned as
     #: alternatives (``KeypointFitResult.hypotheses``; ``silfit fit --hypotheses K``). Choosing the
     #: branch by the final energy, not the search stage's, is itself better, at a cost in time
-    #: (docs/benchmarks/defaults.md; ``branch_refine`` does so by default)
+    #: (docs/benchmarks/defaults.md; ``branches.refine`` does so by default)
     hypotheses: int = 1
     #: :func:`distinct_hypotheses`: two solutions are distinct when their joints are
     #: :data:`DISTINCT_JOINTS_M` apart (mean) or any one joint more than this (metres; ``None``: the
@@ -285,103 +460,18 @@ class KeypointFitConfig:
     #: settled higher than the settled pick, ``stage`` ``settle``, carry their final-weight energy there and
     #: their gap to the fit's final energy)
     hypothesis_unrefined: bool = True
-    #: each sample's lowest-energy hypotheses of the last branch search that run the rest of the
-    #: schedule (at least ``2 * hypotheses`` with ``hypotheses`` > 1); the lowest final energy is the fit.
-    #: As many of the late search's go on to ``settle`` where a search from the fit follows (``post_branch_iters``)
-    #: (1: the search's own choice). The search's energies a few dozen steps in are far from converged,
-    #: so its choice follows how fast a branch converges, not where; branches refined to near their
-    #: minima (``final_iters``) are chosen by the energy a fit is judged by (why this default:
-    #: docs/benchmarks/defaults.md)
-    branch_refine: int = 4
-    branch_rounds: int = 1
-    #: hypotheses drop early: after ``branch_screen_iters`` steps only each sample's
-    #: ``branch_survivors`` lowest-energy hypotheses (the unflipped pose among them or not)
-    #: run the remaining steps (0: all run every step)
-    branch_screen_iters: int = 15
-    branch_survivors: int = 4
-    #: a second branch search just before the final stage (0 steps: none), from the pose the
-    #: earlier stages reached and with the final stage's weights (the energy a fit is judged by):
-    #: the same hypotheses (:func:`~silfit.fitting.branches.limb_hypotheses`, the joint ones with
-    #: ``branch_joint``), screened after ``branch_screen_iters`` steps, ``branch_survivors`` run on.
-    #: With ``hypotheses`` > 1 and no search from the fit (``post_branch_iters`` 0) the alternatives are its
-    #: survivors. Issue 25 (search failures: the fit's
-    #: final energy above the truth's): the first search screens at the pose stage's heavy prior
-    #: after a few steps, and the truth's branch was often cut there or never proposed (it needs a
-    #: flip on top of another); a search at the final weights from the refined pose finds it (why this
-    #: default: docs/benchmarks/defaults.md)
-    late_branch_iters: int = 30
-    #: late searches in a row (each from the one before's pick)
-    late_branch_rounds: int = 1
-    #: root-turn hypotheses in the late search(es) (:func:`~silfit.fitting.branches.turn_hypotheses`:
-    #: ``"mirror"`` the torso's yaw mirrored in depth, a number a turn in degrees), alone and with each
-    #: limb flip; empty: none
-    late_branch_turns: tuple = ()
-    #: survivors of the late search's screen (0: ``branch_survivors``)
-    late_branch_survivors: int = 0
-    #: a last branch search from the fit itself (0 steps: none): the late search's ``branch_refine`` best
-    #: run the final stage (``settle``; with no late search, the one pose the earlier stages reached)
-    #: and the lowest final energy goes on; every segment of that fit
-    #: pointing out of the image plane is mirrored (alone and per whole limb), each runs this many steps at
-    #: the final weights (screened after half), and the ``branch_refine`` best run the final stage again
-    #: (``final``); the lowest final energy is the fit. From the converged fit a single flip often reaches
-    #: the truth's basin where the late search, from an unconverged pose, cut it at its screen (issue 25's
-    #: search failures: the fit's energy above the truth's; why this default: docs/benchmarks/defaults.md).
-    #: 0: the schedule before
-    post_branch_iters: int = 40
-    #: occlusion cue (:mod:`silfit.fitting.occlusion`, the ``occlusion`` term) in choosing among the
-    #: hypotheses refined to the end (``branch_refine`` or ``2 * hypotheses`` of them): a hypothesis'
-    #: final energy counts ``1 + occlusion_weight * n`` times, ``n`` the keypoints whose depth order
-    #: disagrees with their confidence (a confident keypoint hidden behind the body, a low-confidence
-    #: one in front: confidences at or below ``occlusion_conf[0]`` expect hidden, at or above
-    #: ``occlusion_conf[1]`` visible). 0: off. Off by default (why: docs/benchmarks/defaults.md)
-    occlusion_weight: float = 0.0
-    occlusion_conf: Sequence[float] = (0.3, 0.6)
-    #: the image depth cue (:mod:`silfit.fitting.image_depth`, the ``image_depth`` term; issue 54): each limb
-    #: segment whose depth order the landmark model's 3D decides, charged where the fit turns it the other way,
-    #: in the branch searches (their hypotheses ranked by it) and in every stage at the final weights. Problems
-    #: without an image have no cue: the term is 0 and their fit is the same bit for bit. 0 (the default): off,
-    #: the cue is asked for; 100 is the weight measured (docs/benchmarks/image-depth.md; why this default:
-    #: docs/benchmarks/defaults.md)
-    image_depth_weight: float = 0.0
-    #: the term's margin: a decided segment's depth cosine (along the ray) must reach this on the cue's side
-    image_depth_margin: float = 0.1
-    #: the image depth cue as a hard choice in the branch searches: the segments the cue calls (its gates passed)
-    #: with a depth cosine of at least this are decided; each search also proposes each sample's pose with every
-    #: decided segment turned to the cue's side (``image:<segments>``), and its screen, its pick, the settled pick
-    #: and the choice among the refined branches rank the rows that agree with every decided side first (by their
-    #: energies; where none agrees, by energy alone). ``None`` (the default): off. Problems without an image:
-    #: unchanged bit for bit (docs/benchmarks/image-depth.md; why this default: docs/benchmarks/defaults.md)
-    image_depth_decide: Optional[float] = None
-    #: with ``image_depth_decide``: the searches' screens and the rows they carry on rank the agreeing rows first (on), or
-    #: keep the energy's ranking with one place for each sample's best agreeing row (off: the other branches stay
-    #: refined, as alternatives for the silhouette stage)
-    image_depth_decide_screens: bool = True
-    #: with ``image_depth_decide``: also in the search after the pose stages (``branches_<r>``, at their heavy prior, few
-    #: steps in); off: only in the late search, the settled pick, the search from the fit and the final choice
-    image_depth_decide_early: bool = True
+    #: the occlusion cue (:class:`OcclusionOptions`; once ``occlusion_weight``, ``occlusion_conf``, which still work)
+    occlusion: OcclusionOptions = field(default_factory=OcclusionOptions)
+    #: the image depth cue (:class:`ImageDepthOptions`; once ``image_depth_weight``, ``image_depth_margin``,
+    #: ``image_depth_decide``, ``image_depth_decide_screens``, ``image_depth_decide_early``, which still work)
+    image_depth: ImageDepthOptions = field(default_factory=ImageDepthOptions)
     #: temporal terms (``smooth_joints``, ``smooth_root``; weight 0 in the single-image
     #: schedule, used by :mod:`silfit.fitting.sequence`): robust scale in mm per frame^2
     #: and the penalty (``charbonnier`` or ``gm``)
     temporal_sigma: float = 10.0
     temporal_robust: str = "charbonnier"
-    #: whole-body fitting (see the module docstring): hand / face keypoint weights per pose stage
-    #: (``None``: 0 in all but the last pose stage, 1 there), in the shape stage and the final stage;
-    #: robust scales (Geman-McClure sigma, normalised pixels) of the hand and face terms
-    hand_weights: Optional[Sequence[float]] = None
-    face_weights: Optional[Sequence[float]] = None
-    final_hand_weight: float = 2.0
-    final_face_weight: float = 2.0
-    hand_sigma: float = 50.0
-    face_sigma: float = 50.0
-    #: L-BFGS steps of a ``hands`` stage before the first pose stage with hand terms: the hands
-    #: start from their best library pose and wrist turn (:func:`~silfit.fitting.hands_face.choose_hand_starts`)
-    #: and are fitted with the body (held by its keypoints and priors; 0: no such stage, the hands start
-    #: in that pose stage)
-    hand_iters: int = 30
-    #: priors of the parts, on wherever the parts are free
-    hand_prior_weight: float = 2.0
-    jaw_weight: float = 50.0
-    expression_weight: float = 2.0
+    #: whole-body fitting (:class:`HandsFace`; its fields were the config's, names that still work)
+    hands_face: HandsFace = field(default_factory=HandsFace)
     #: an explicit list of :class:`~silfit.fitting.stages.Stage` replacing the schedule
     #: the fields above describe (see :meth:`stages`)
     schedule: Optional[Sequence[Stage]] = None
@@ -403,9 +493,10 @@ class KeypointFitConfig:
         if int(self.init_poses) < 1:
             raise ValueError(f"KeypointFitConfig: init_poses must be at least 1, got {self.init_poses}")
         starts = (2 if self.flip_test else 1) * int(self.init_poses)
-        if self.branch_search and starts > 1 and min(self.branch_after_stage, n - 1) < self.flip_decision_stage:
+        b = self.branches
+        if b.search and starts > 1 and min(b.after_stage, n - 1) < self.flip_decision_stage:
             raise ValueError(
-                f"KeypointFitConfig: the branch search (after pose stage {self.branch_after_stage}) needs the start "
+                f"KeypointFitConfig: the branch search (after pose stage {b.after_stage}) needs the start "
                 f"decided first (flip_decision_stage {self.flip_decision_stage})"
             )
         for name in ("hand_weights", "face_weights"):
@@ -417,178 +508,23 @@ class KeypointFitConfig:
         if self.schedule is not None and not all(isinstance(s, Stage) for s in self.schedule):
             raise ValueError("KeypointFitConfig: schedule must be a list of silfit.fitting.stages.Stage")
 
-    def part_weights(self, hands: float, face: float) -> tuple:
-        """``(weights, free)`` the hand and face parts add to a stage with these keypoint weights."""
-        w, free = {}, ()
-        if hands:
-            w.update(hands=hands, hand_pose=self.hand_prior_weight)
-            free += WHOLEBODY_HAND_PARAMS
-        if face:
-            w.update(face=face, jaw=self.jaw_weight, expression=self.expression_weight)
-            free += WHOLEBODY_FACE_PARAMS
-        return w, free
-
     def stages(self, whole_body: bool = False) -> tuple:
-        """The schedule as data: camera, pose_1..n (annealed priors; the best start of each
-        sample is kept ``decision_iters`` steps into pose stage ``flip_decision_stage``; the branch
-        search after pose stage ``branch_after_stage``), shape, ``branches_late`` (the search again at
-        the final weights, ``late_branch_iters``), ``settle`` and ``branches_post`` (its best settle, and a search
-        from the best of them, ``post_branch_iters``), final (everything, with interpenetration); with ``whole_body`` the hand and
-        face terms and parameters join as the module docstring says. The defaults give the literal
-        tables :data:`~silfit.fitting.schedules.KEYPOINT_SCHEDULE` and ``WHOLEBODY_KEYPOINT_SCHEDULE``."""
+        """The schedule as data: the literal table (:data:`~silfit.fitting.schedules.KEYPOINT_SCHEDULE`, with
+        ``whole_body`` ``WHOLEBODY_KEYPOINT_SCHEDULE``) as it stands, or edited by the fields that differ from their
+        defaults (which are the table's cells: :mod:`silfit.fitting.schedule_edits`): camera, pose_1..n (annealed
+        priors; the best start of each sample is kept ``decision_iters`` steps into pose stage
+        ``flip_decision_stage``; the branch search after pose stage ``branch_after_stage``), shape, ``branches_late``
+        (the search again at the final weights, ``late_branch_iters``), ``settle`` and ``branches_post`` (its best
+        settle, and a search from the best of them, ``post_branch_iters``), final (everything, with
+        interpenetration); with ``whole_body`` the hand and face terms and parameters join as the module docstring
+        says. ``schedule``: that list instead."""
         if self.schedule is not None:
             return tuple(self.schedule)
-        n = len(self.pose_iters)
-        ramp = tuple(0.0 if i < n - 1 else 1.0 for i in range(n))
-        hw = tuple(self.hand_weights if self.hand_weights is not None else ramp) if whole_body else (0.0,) * n
-        fw = tuple(self.face_weights if self.face_weights is not None else ramp) if whole_body else (0.0,) * n
-        out = [
-            Stage("camera", ("global_orient", "transl"), {"torso": 1.0, "depth": self.depth_weight}, self.camera_iters)
-        ]
-        for i, (it, wp, wa) in enumerate(zip(self.pose_iters, self.pose_weight[:-1], self.angle_weight[:-1])):
-            out += self._pose_stages(i, int(it), wp, wa, hw, fw)
-        final_parts = (self.final_hand_weight, self.final_face_weight) if whole_body else (0.0, 0.0)
-        if self.shape_iters:
-            w = {"keypoints": 1.0, "shape": self.shape_weight[0]}
-            if self.final_points_weight:
-                w["points"] = float(self.final_points_weight)
-            w.update({k: v for k, v in zip(("hands", "face"), final_parts) if v})
-            out.append(Stage("shape", ("betas", "transl"), w, self.shape_iters))
-        w = self._final_weights()
-        part_w, part_free = self.part_weights(*final_parts)
-        free = ("betas",) + _POSE_FREE + part_free
-        if self.branch_search and self.late_branch_iters:
-            out += self._late_branch_stages(free, w, part_w)
-        if self.final_iters:
-            out += self._final_stages(out, free, w, part_w)
-        return tuple(out)
-
-    def _pose_stages(self, i: int, iterations: int, wp: float, wa: float, hw: tuple, fw: tuple) -> list:
-        """Pose stage ``i`` (0-based; pose and angle prior weights ``wp``, ``wa``; hand and face keypoint weights
-        ``hw``, ``fw`` per pose stage): the ``hands`` stage before it where the hands start there, the stage, and
-        the branch searches after it where they run there."""
-        out = []
-        opts = {"decide_after": int(self.decision_iters)} if i == self.flip_decision_stage else {}
-        weights = {"keypoints": 1.0, "pose": wp, "angle": wa, "limits": self.limit_weight}
-        if self.points_weight:
-            weights["points"] = float(self.points_weight)
-        if hw[i] and not any(hw[:i]):  # hands start from their best library pose, fitted alone first
-            if self.hand_iters:  # the body free too (the wrists turn), held by its keypoints and priors
-                w = {**weights, "hands": hw[i], "hand_pose": self.hand_prior_weight}
-                out.append(
-                    Stage(
-                        "hands",
-                        _POSE_FREE + WHOLEBODY_HAND_PARAMS,
-                        w,
-                        int(self.hand_iters),
-                        options={"hand_starts": True},
-                    )
-                )
-            else:
-                opts = {**opts, "hand_starts": True}
-        part_w, part_free = self.part_weights(hw[i], fw[i])
-        weights.update(part_w)
-        out.append(Stage(f"pose_{i + 1}", _POSE_FREE + part_free, weights, iterations, options=opts))
-        if self.branch_search and i == min(self.branch_after_stage, len(self.pose_iters) - 1):
-            for r in range(int(self.branch_rounds)):
-                w = {**weights, "interpenetration": self.interpenetration_weight, **self.image_depth_weights()}
-                out.append(
-                    Stage(
-                        f"branches_{r + 1}",
-                        _POSE_FREE + part_free,
-                        w,
-                        int(self.branch_iters),
-                        options=self.branch_options(),
-                    )
-                )
-        return out
-
-    def _final_weights(self) -> dict:
-        """The final stage's weights (and the late searches', settle's and the search from the fit's), without the
-        hand and face parts'."""
-        w = {
-            "keypoints": 1.0,
-            "pose": self.pose_weight[-1],
-            "angle": self.angle_weight[-1],
-            "limits": self.limit_weight,
-            "shape": self.shape_weight[-1],
-            "interpenetration": self.interpenetration_weight,
-            **self.image_depth_weights(),
-        }
-        if self.final_points_weight:
-            w["points"] = float(self.final_points_weight)
-        return w
-
-    def _late_branch_stages(self, free: tuple, w: dict, part_w: dict) -> list:
-        """The late branch searches (``branches_late``, ``branches_late_<r>``) at the final weights ``w`` and
-        ``part_w``, parameters ``free``; every one with the same options."""
-        opts = self.branch_options()
-        if self.late_branch_turns:
-            opts["branches"]["turns"] = list(self.late_branch_turns)
-        if self.late_branch_survivors:
-            opts["branches"]["survivors"] = int(self.late_branch_survivors)
-        return [
-            Stage(
-                "branches_late" if r == 0 else f"branches_late_{r + 1}",
-                free,
-                {**w, **part_w},
-                int(self.late_branch_iters),
-                options=opts,
-            )
-            for r in range(max(1, int(self.late_branch_rounds)))
-        ]
-
-    def _final_stages(self, out: list, free: tuple, w: dict, part_w: dict) -> list:
-        """``settle`` and ``branches_post`` (after a search from the fit) and ``final``, at the final weights ``w`` and
-        ``part_w``, parameters ``free``; a late search last in ``out`` gets its ``carry`` there (replaced in place)."""
-        unsearched = self.final_iters_unsearched
-        opts = (
-            {} if unsearched is None or unsearched >= self.final_iters else {"unsearched_iterations": int(unsearched)}
-        )
-        if self.final_tol_change is not None:
-            opts["tol_change"] = float(self.final_tol_change)
-        stages = []
-        if self.branch_search and self.post_branch_iters:  # the late search's best settle, the best of them
-            carry = max(int(self.branch_refine), 2 * int(self.hypotheses) if int(self.hypotheses) > 1 else 1)
-            if self.late_branch_iters and carry > 1:  # goes on to a search from the fit
-                late = out[-1]
-                out[-1] = replace(late, options={"branches": {**late.options["branches"], "carry": carry}})
-            settle = {k: v for k, v in opts.items() if k != "unsearched_iterations"}
-            stages.append(
-                Stage("settle", free, {**w, **part_w}, self.final_iters, options={**settle, "searched_only": True})
-            )
-            post = self.branch_options()
-            post["branches"]["screen_after"] = int(self.post_branch_iters) // 2
-            stages.append(Stage("branches_post", free, {**w, **part_w}, int(self.post_branch_iters), options=post))
-        stages.append(Stage("final", free, {**w, **part_w}, self.final_iters, options=opts))
-        return stages
-
-    def image_depth_weights(self) -> dict:
-        """The ``image_depth`` term's weight in the stages that carry it (none when it is off)."""
-        return {"image_depth": float(self.image_depth_weight)} if self.image_depth_weight else {}
-
-    def branch_options(self) -> dict:
-        """A branch-search stage's options (every search alike, :data:`~silfit.fitting.schedules.BRANCHES`; the late
-        search adds its ``carry`` and the search from the fit its own ``screen_after`` in :meth:`stages`)."""
-        opts = {
-            "branches": {
-                "min_depth_ratio": self.branch_min_depth_ratio,
-                "whole_limbs": self.branch_whole_limbs,
-                "joint": self.branch_joint,
-                "screen_after": self.branch_screen_iters,
-                "survivors": self.branch_survivors,
-                "hinge": self.branch_hinge,
-                "hinge_turns": self.branch_hinge_turns,
-                "distinct": self.branch_distinct,
-            }
-        }
-        if self.occlusion_weight:
-            opts["branches"]["occlusion"] = float(self.occlusion_weight)
-        return opts
+        return keypoint_stages(self, whole_body)
 
     def to_dict(self, whole_body: bool = False) -> dict:
         """The settings and the resulting schedule (saved with every fit)."""
-        d = {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items() if k != "schedule"}
+        d = flat_dict(self, skip=("schedule",))  # the groups' fields by their flat names, as before them
         d["stages"] = [stage_to_dict(s) for s in self.stages(whole_body)]
         return d
 
@@ -856,14 +792,14 @@ class KeypointFitter:
             PriorTerm("angle", angle_prior, "body_pose"),
             PriorTerm("limits", limit_violation, "body_pose"),
             PriorTerm("shape", shape_prior, "betas"),
-            OcclusionTerm(self.model, _names(layout), tuple(self.config.occlusion_conf)),
+            OcclusionTerm(self.model, _names(layout), tuple(self.config.occlusion.conf)),
             InterpenetrationTerm(self.collisions),
-            ImageDepthTerm(self.model.joint_names, self.config.image_depth_margin),
+            ImageDepthTerm(self.model.joint_names, self.config.image_depth.margin),
             JointSmoothnessTerm(sigma=self.config.temporal_sigma, kind=self.config.temporal_robust),
             RootSmoothnessTerm(sigma=self.config.temporal_sigma, kind=self.config.temporal_robust),
         ]
         if self.whole_body:
-            terms = wholebody_terms(self.model, terms, sigma, self.config, self.dtype)
+            terms = wholebody_terms(self.model, terms, sigma, self.config.hands_face, self.dtype)
         self.energy = Energy(terms)
         self.stages = self.config.stages(self.whole_body)
         check_stages(self.stages, self.energy, self.params)
@@ -1043,7 +979,7 @@ class KeypointFitter:
             progress=progress,
             start_flip=torch.as_tensor(np.repeat(facings, B), dtype=torch.bool),
             group=torch.arange(B).repeat(len(facings)),
-            calls=hard_calls(depth_cues, self.config.image_depth_decide),
+            calls=hard_calls(depth_cues, self.config.image_depth.decide),
         )
         decided = len(facings) * len(init_poses) == 1
         t_all = time.perf_counter()
@@ -1093,7 +1029,13 @@ class KeypointFitter:
         for si, stage in enumerate(self.stages):
             if stage.options.get("hand_starts") and self.whole_body:
                 sched.state = choose_hand_starts(
-                    self.model, self.body, sched.layout, sched.state, sched.views, sched.data, self.config.hand_sigma
+                    self.model,
+                    self.body,
+                    sched.layout,
+                    sched.state,
+                    sched.views,
+                    sched.data,
+                    self.config.hands_face.hand_sigma,
                 )
             if "branches" in stage.options:
                 if views_per_frame > 1:  # the views' data fixes the limbs' depth: no search (docs: rigs)
@@ -1200,7 +1142,7 @@ class _ScheduleRun:
         self.energies, self.terms, self.timings = {}, {}, {}
         self.K = max(1, int(cfg.hypotheses))
         #: rows per sample from the last search to the end
-        self.carry = max(int(cfg.branch_refine), 2 * self.K if self.K > 1 else 1)
+        self.carry = max(int(cfg.branches.refine), 2 * self.K if self.K > 1 else 1)
         self.last_search = max([i for i, s in enumerate(fitter.stages) if "branches" in s.options], default=-1)
         self.occlusion_weight = (
             fitter.stages[self.last_search].options["branches"].get("occlusion", 0.0) if self.last_search >= 0 else 0.0
@@ -1212,7 +1154,7 @@ class _ScheduleRun:
         self.searched = [[] for _ in range(B)]  # per problem and branch stage: the hypotheses that ran to its end
         self.search_rows = [[] for _ in range(B)]  # per problem: (tried entry, its joints at the search's end, ...)
         self.unrefined = [[] for _ in range(B)]  # per problem: search rows not refined to the end (hypotheses > 1)
-        self.calls = calls  # per problem the image cue's decided sides [B, S] (image_depth_decide), or None
+        self.calls = calls  # per problem the image cue's decided sides [B, S] (``image_depth.decide``), or None
         self.cue_on = True  # whether the search now running (and the choices after it) use the decided sides
 
     def info(self, hypotheses, others) -> dict:
@@ -1306,10 +1248,10 @@ class _ScheduleRun:
         return best_distinct_per_group(f, self.group, self.B, count, self.joints())
 
     def screened(self, f, count, opts):
-        """:meth:`survivors_of` with the image cue's decided sides (``image_depth_decide``): the agreeing rows first
-        (``image_depth_decide_screens``), or by ``f`` with the last place of a sample none of whose rows agrees given
+        """:meth:`survivors_of` with the image cue's decided sides (``image_depth.decide``): the agreeing rows first
+        (``image_depth.decide_screens``), or by ``f`` with the last place of a sample none of whose rows agrees given
         to its best agreeing row (where it has one)."""
-        if self.calls is None or not self.cue_on or self.fitter.config.image_depth_decide_screens:
+        if self.calls is None or not self.cue_on or self.fitter.config.image_depth.decide_screens:
             return self.survivors_of(self.demoted(f), count, opts)
         rows, against = self.survivors_of(f, count, opts).tolist(), self.disagreeing()
         best = best_per_group(torch.where(against, torch.full_like(f, math.inf), f), self.group, self.B).tolist()
@@ -1367,7 +1309,7 @@ class _ScheduleRun:
         fitter, B, cfg = self.fitter, self.B, self.fitter.config
         self.searched_any = True
         early = stage.name[len("branches_") :].isdigit()  # a search after the pose stages
-        self.cue_on = cfg.image_depth_decide_early or not early
+        self.cue_on = cfg.image_depth.decide_early or not early
         if self.carried is not None:  # an earlier search's best rows ran on (its ``carry``): the best goes on
             self.settle_pick(fitter.stages[si - 1].name)
         if not decided or self.layout.frames != 1:

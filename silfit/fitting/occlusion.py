@@ -15,7 +15,7 @@ a confident keypoint that is hidden, or a low-confidence one that is visible, co
 
 :class:`OcclusionTerm` is the named energy term (``occlusion``). It has no gradient (a hard
 depth test): the keypoint stage uses it to *choose* among its limb-branch hypotheses
-(``KeypointFitConfig.occlusion_weight``), never inside L-BFGS.
+(``KeypointFitConfig.occlusion.weight``), never inside L-BFGS.
 """
 
 from __future__ import annotations

@@ -81,7 +81,7 @@ MAX_REPROJECTION_RISE = 2.0
 MIN_REPROJECTION_RISE_PX = 3.0
 #: A mask covering at least this share of an image side runs out of the image there.
 MIN_BORDER_RUN = 0.02
-#: :func:`depth_warnings`: a branch refined to the end (``branch_refine``, ``--hypotheses K``) within this
+#: :func:`depth_warnings`: a branch refined to the end (``branches.refine``, ``--hypotheses K``) within this
 #: relative final energy of the fit ...
 HYPOTHESIS_MARGIN = 0.1
 #: ... that moves some joint at least this far from the fit (mm, its ``max_shift_mm``) ...
@@ -91,11 +91,11 @@ MIN_SHIFT_MM = 400.0
 EARLY_SEARCH_MARGIN = 0.05
 #: ... moving a joint this far from the fit: the refined branches all come from the last search, so a
 #: basin the first search weighed and dropped shows only there. With the search from the fit
-#: (``post_branch_iters``) the late search is an earlier one too, and its ``kept`` is the branch that *settled*
+#: (``branches.post_iters``) the late search is an earlier one too, and its ``kept`` is the branch that *settled*
 #: lowest: a late row the search ranked below it, or within the margin, counts (the search and the converged
 #: energies disagree). Why these defaults (this and ``EARLY_SEARCH_MARGIN``): docs/benchmarks/defaults.md
 EARLY_SEARCH_MIN_SHIFT_MM = 500.0
-#: ... and where no branch was refined to the end (``branch_refine`` 1: a video's per-frame start), a
+#: ... and where no branch was refined to the end (``branches.refine`` 1: a video's per-frame start), a
 #: branch-search survivor within this relative energy of the kept one (its search stage's energies,
 #: 20-30 steps in) ...
 SEARCH_MARGIN = 0.1
@@ -475,7 +475,7 @@ def depth_warnings(
     - with refined branches, also a survivor of an earlier search (not the last, whose best rows were
       refined) within ``early_margin`` of its kept row by that search's energies, moving a joint
       ``early_min_shift_mm``;
-    - where no branch was refined (``branch_refine`` 1, results recorded before it), a survivor of any
+    - where no branch was refined (``branches.refine`` 1, results recorded before it), a survivor of any
       search within ``search_margin`` of its kept row, moving a joint ``search_min_shift_mm``.
 
     The limbs named are the segments the close alternatives turn away from the fit (``differs``), or

@@ -69,7 +69,7 @@ class KeypointFitResult:
     #: its end (``[{"stage", "kept", "tried": [{"flip", "energy", "shift_mm", "max_shift_mm"}, ...]}]``, lowest
     #: first; ``shift_mm``/``max_shift_mm``: the mean and the largest joint distance, mm, from the row at that
     #: search's end to the fit); where the last search's best branches were refined to the end
-    #: (``branch_refine``), one more entry with ``"refined": True`` (``stage``: the last stage) lists the
+    #: (``branches.refine``), one more entry with ``"refined": True`` (``stage``: the last stage) lists the
     #: distinct ones with their final energies (``tried`` entries also with ``differs``), ordered by the
     #: score that chose (the final energy; with the occlusion cue on, times its factor), the fit first; a search
     #: whose best rows each ran the final stage before a later search (the late one, ``settle``) also lists them
@@ -81,7 +81,7 @@ class KeypointFitResult:
     #: ``stage`` and ``gap``; a row that settled higher, ``stage`` ``settle``, with its final-weight energy and its gap to the
     #: fit's) where fewer than K refined ones are distinct (:func:`~silfit.fitting.keypoint_stage.distinct_hypotheses`)
     hypotheses: Optional[list] = None
-    #: per sample, the other distinct branches refined to the end (``branch_refine``), lowest score first, in
+    #: per sample, the other distinct branches refined to the end (``branches.refine``), lowest score first, in
     #: :attr:`hypotheses`' form plus ``gap``: their final energy's relative gap to the fit's (above it, unless the
     #: occlusion cue, ``occlusion_weight``, chose the fit by more than its energy: then it can be negative); whatever
     #: ``hypotheses`` is. With a mask the close ones are refined against it too, and the mask may choose one

@@ -1,20 +1,31 @@
-"""The default schedules, as literal stage tables: one row per stage, weights by energy term.
+"""The schedules, as literal stage tables: one row per stage, weights by energy term.
 
-These are what the configs' defaults give (:meth:`KeypointFitConfig.stages`,
-:meth:`SilhouetteFitConfig.stages`, :meth:`SequenceFitConfig.stages`; a test checks each table
-against its config), written out so a schedule reads at a glance. A table is also a valid
-``schedule`` to start from: ``KeypointFitConfig(schedule=[...])`` runs any list of stages.
-Every weight has one name, the term's (``pose``: the pose prior, whose config field is
+The tables are the single source of the schedules: the configs' stage fields take their defaults
+from these cells (:class:`~silfit.fitting.keypoint_stage.KeypointFitConfig`,
+:class:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig`,
+:class:`~silfit.fitting.sequence.SequenceFitConfig`), and a config's ``stages()`` is its table,
+edited only where a field differs from its default (:mod:`silfit.fitting.schedule_edits`). A table
+is also a valid ``schedule`` to start from: ``KeypointFitConfig(schedule=[...])`` runs any list of
+stages. Every weight has one name, the term's (``pose``: the pose prior, whose config field is
 ``pose_weight`` in every config; ``angle``: ``angle_weight``; ``shape``: ``shape_weight``; ``limits``:
-``limit_weight``). Each stage runs in :func:`~silfit.fitting.stages.run_stage`,
-which dispatches on the optimiser column.
+``limit_weight``). A row's weights are in the order the energy sums them. Each stage runs in
+:func:`~silfit.fitting.stages.run_stage`, which dispatches on the optimiser column.
 """
 
 from __future__ import annotations
 
+import re
+
 from .stages import Stage
 
-__all__ = ["KEYPOINT_SCHEDULE", "SEQUENCE_SCHEDULE", "SILHOUETTE_SCHEDULE", "WHOLEBODY_KEYPOINT_SCHEDULE"]
+__all__ = [
+    "KEYPOINT_SCHEDULE",
+    "SEQUENCE_SCHEDULE",
+    "SILHOUETTE_SCHEDULE",
+    "WHOLEBODY_KEYPOINT_SCHEDULE",
+    "named",
+    "row",
+]
 
 CAMERA = ("global_orient", "transl")
 POSE = ("global_orient", "transl", "body_pose")
@@ -43,12 +54,12 @@ POST_BRANCHES = {"branches": {**BRANCHES["branches"], "screen_after": 20}}
 #: from several views) is 0 for one view
 FINAL = {
     "keypoints": 1.0,
-    "points": 1.0,
     "pose": 40.0,
     "angle": 1.0,
     "limits": 1e4,
     "shape": 5.0,
     "interpenetration": 1e5,
+    "points": 1.0,
 }
 #: single image (and the per-frame start of a video), SMPL: :class:`~silfit.fitting.keypoint_stage.KeypointFitConfig`
 KEYPOINT_SCHEDULE = (
@@ -57,20 +68,20 @@ KEYPOINT_SCHEDULE = (
     Stage(
         "pose_1",
         POSE,
-        {"keypoints": 1.0, "points": 1.0, "pose": 2000.0, "angle": 10.0, "limits": 1e4},
+        {"keypoints": 1.0, "pose": 2000.0, "angle": 10.0, "limits": 1e4, "points": 1.0},
         30,
         options={"decide_after": 20},
     ),  # each problem keeps its best start (facing x initial pose) after 20 steps
-    Stage("pose_2", POSE, {"keypoints": 1.0, "points": 1.0, "pose": 400.0, "angle": 5.0, "limits": 1e4}, 30),
+    Stage("pose_2", POSE, {"keypoints": 1.0, "pose": 400.0, "angle": 5.0, "limits": 1e4, "points": 1.0}, 30),
     Stage(
         "branches_1",
         POSE,
-        {"keypoints": 1.0, "points": 1.0, "pose": 400.0, "angle": 5.0, "limits": 1e4, "interpenetration": 1e5},
+        {"keypoints": 1.0, "pose": 400.0, "angle": 5.0, "limits": 1e4, "points": 1.0, "interpenetration": 1e5},
         20,
         options=BRANCHES,
     ),
-    Stage("pose_3", POSE, {"keypoints": 1.0, "points": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4}, 40),
-    Stage("shape", SHAPE, {"keypoints": 1.0, "points": 1.0, "shape": 20.0}, 20),
+    Stage("pose_3", POSE, {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4, "points": 1.0}, 40),
+    Stage("shape", SHAPE, {"keypoints": 1.0, "shape": 20.0, "points": 1.0}, 20),
     # the limb-branch search again, at the final weights from the refined pose (issue 25); its 4 best go on
     Stage("branches_late", ALL, FINAL, 30, options=LATE_BRANCHES),
     # run by those 4, a row stopping once a step lowers its energy by less than 1e-4 (relative); the
@@ -78,7 +89,7 @@ KEYPOINT_SCHEDULE = (
     Stage("settle", ALL, FINAL, 120, options={"tol_change": 1e-4, "searched_only": True}),
     # the search from the settled fit (issue 25: a flip of the converged fit finds what the late one cut)
     Stage("branches_post", ALL, FINAL, 40, options=POST_BRANCHES),
-    # run by branch_refine (4) hypotheses as settle; where no branch search ran (rigs, branch_search off)
+    # run by branches.refine (4) hypotheses as settle; where no branch search ran (rigs, branches.search off)
     # 40 steps, every one run
     Stage("final", ALL, FINAL, 120, options={"unsearched_iterations": 40, "tol_change": 1e-4}),
 )
@@ -89,7 +100,7 @@ WHOLEBODY_KEYPOINT_SCHEDULE = KEYPOINT_SCHEDULE[:4] + (
     Stage(
         "hands",
         POSE + HANDS,
-        {"keypoints": 1.0, "points": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4, "hands": 1.0, "hand_pose": 2.0},
+        {"keypoints": 1.0, "pose": 80.0, "angle": 2.0, "limits": 1e4, "points": 1.0, "hands": 1.0, "hand_pose": 2.0},
         30,
         options={"hand_starts": True},
     ),
@@ -98,10 +109,10 @@ WHOLEBODY_KEYPOINT_SCHEDULE = KEYPOINT_SCHEDULE[:4] + (
         POSE + HANDS + FACE,
         {
             "keypoints": 1.0,
-            "points": 1.0,
             "pose": 80.0,
             "angle": 2.0,
             "limits": 1e4,
+            "points": 1.0,
             "hands": 1.0,
             "hand_pose": 2.0,
             "face": 1.0,
@@ -110,7 +121,7 @@ WHOLEBODY_KEYPOINT_SCHEDULE = KEYPOINT_SCHEDULE[:4] + (
         },
         40,
     ),
-    Stage("shape", SHAPE, {"keypoints": 1.0, "points": 1.0, "shape": 20.0, "hands": 2.0, "face": 2.0}, 20),
+    Stage("shape", SHAPE, {"keypoints": 1.0, "shape": 20.0, "points": 1.0, "hands": 2.0, "face": 2.0}, 20),
     Stage(
         "branches_late",
         ALL + HANDS + FACE,
@@ -210,3 +221,16 @@ SEQUENCE_SCHEDULE = (
         100,
     ),
 )
+
+
+def named(table, pattern: str) -> list:
+    """The rows of ``table`` whose name matches ``pattern`` (a regular expression, whole name), in order."""
+    return [s for s in table if re.fullmatch(pattern, s.name)]
+
+
+def row(table, name: str) -> Stage:
+    """The row of ``table`` named ``name``."""
+    for s in table:
+        if s.name == name:
+            return s
+    raise KeyError(f"no stage {name!r} in the table ({', '.join(s.name for s in table)})")

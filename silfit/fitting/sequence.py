@@ -57,11 +57,11 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from ..camera import Camera, project_points
 from ..io.keypoints import KeypointSet, model_keypoints
-from .keypoint_stage import KeypointFitConfig, KeypointFitter, check_torso
+from .keypoint_stage import BranchSearch, KeypointFitConfig, KeypointFitter, check_torso
 from .problem import Observation, Problem, View
 from .refine import SilhouetteHooks, StageInputs, refine_silhouettes
 from .aliases import Alias, renamed_fields
-from .stages import Stage
+from .schedule_edits import sequence_defaults, sequence_stages
 from .threads import torch_threads
 
 __all__ = [
@@ -81,6 +81,11 @@ __all__ = [
 ROTATIONS = ("global_orient", "body_pose")
 
 
+#: the defaults of :class:`SequenceFitConfig`'s stage fields: the cells of the literal table
+#: (:data:`~silfit.fitting.schedules.SEQUENCE_SCHEDULE`)
+STAGE_DEFAULTS = sequence_defaults()
+
+
 @renamed_fields(pose_prior_weight=Alias("pose_weight"), angle_prior_weight=Alias("angle_weight"))
 @dataclass
 class SequenceFitConfig:
@@ -91,30 +96,28 @@ class SequenceFitConfig:
     #: (the single image's late branch search off and its first search's screen as before issue 25's
     #: change: the branch over time was tuned on these per-frame hypotheses)
     #: (the per-frame fit's final stage and branch choice as before issue 25's converged choice, too:
-    #: ``final_iters`` 40, ``branch_refine`` 1, every step run; the joint refinement is what converges here;
-    #: and no search from the fit, ``post_branch_iters`` 0)
+    #: ``final_iters`` 40, ``branches.refine`` 1, every step run; the joint refinement is what converges here;
+    #: and no search from the fit, ``branches.post_iters`` 0)
     #: (the single image's 4 starting poses, not 2: a squat seen from the side hides one arm in its deep frames;
     #: why these defaults: docs/benchmarks/defaults.md)
     keypoint: KeypointFitConfig = field(
         default_factory=lambda: KeypointFitConfig(
             init_poses=4,
-            late_branch_iters=0,
-            branch_screen_iters=10,
-            branch_survivors=3,
+            branches=BranchSearch(late_iters=0, screen_iters=10, survivors=3, refine=1, post_iters=0),
             final_iters=40,
-            branch_refine=1,
             final_tol_change=None,
-            post_branch_iters=0,
         )
     )
     init_stride: int = 1  # fit every n-th usable frame alone; interpolate the others
-    iterations: int = 100  # joint refinement, L-BFGS steps
-    joint_smooth_weight: float = 1.0
-    root_smooth_weight: float = 1.0
-    pose_weight: float = 40.0  # the pose prior's (one name in every config, issue 26; old name ``pose_prior_weight``)
-    angle_weight: float = 1.0  # the angle prior's (one name in every config, issue 57; old name ``angle_prior_weight``)
-    limit_weight: float = 1e4
-    shape_weight: float = 5.0
+    iterations: int = STAGE_DEFAULTS["iterations"]  # joint refinement, L-BFGS steps
+    joint_smooth_weight: float = STAGE_DEFAULTS["joint_smooth_weight"]
+    root_smooth_weight: float = STAGE_DEFAULTS["root_smooth_weight"]
+    #: the pose prior's (one name in every config, issue 26; old name ``pose_prior_weight``)
+    pose_weight: float = STAGE_DEFAULTS["pose_weight"]
+    #: the angle prior's (one name in every config, issue 57; old name ``angle_prior_weight``)
+    angle_weight: float = STAGE_DEFAULTS["angle_weight"]
+    limit_weight: float = STAGE_DEFAULTS["limit_weight"]
+    shape_weight: float = STAGE_DEFAULTS["shape_weight"]
     interpenetration_weight: float = 0.0
     temporal_sigma: float = 10.0  # mm per frame^2 (Charbonnier)
     bridge_weight: float = 0.0  # data weight of bridged frames
@@ -151,23 +154,10 @@ class SequenceFitConfig:
 
     def stages(self, free_betas: bool = True, iterations: Optional[int] = None, views: int = 1) -> tuple:
         """The joint refinement's one stage (``free_betas=False``: the windowed mode's second pass, the
-        shape held; ``views``: a rig video's, the temporal weights scaled by ``views_smooth_scale``); the
-        defaults give the literal table :data:`~silfit.fitting.schedules.SEQUENCE_SCHEDULE`."""
-        k = 1.0 if views <= 1 else self.views_smooth_scale
-        w = {
-            "keypoints": 1.0,
-            "pose": self.pose_weight,
-            "angle": self.angle_weight,
-            "limits": self.limit_weight,
-            "smooth_joints": k * self.joint_smooth_weight,
-            "smooth_root": k * self.root_smooth_weight,
-        }
-        if free_betas:
-            w["shape"] = self.shape_weight
-        if self.interpenetration_weight:
-            w["interpenetration"] = self.interpenetration_weight
-        free = (("betas",) if free_betas else ()) + ("global_orient", "transl", "body_pose")
-        return (Stage("sequence", free, w, int(self.iterations if iterations is None else iterations)),)
+        shape held; ``views``: a rig video's, the temporal weights scaled by ``views_smooth_scale``): the literal
+        table :data:`~silfit.fitting.schedules.SEQUENCE_SCHEDULE`, its cells those of the fields that differ from
+        their defaults (:func:`~silfit.fitting.schedule_edits.sequence_stages`)."""
+        return sequence_stages(self, free_betas, iterations, views)
 
     def to_dict(self) -> dict:
         d = {k: v for k, v in self.__dict__.items() if k != "keypoint"}
@@ -616,7 +606,7 @@ def _refine_jointly(model, layout, cfg, pose_prior, views, columns, start: dict,
         cfg.keypoint,
         flip_test=False,
         init_poses=1,
-        branch_search=False,
+        branches=replace(cfg.keypoint.branches, search=False),
         temporal_sigma=cfg.temporal_sigma,
         schedule=cfg.stages(views=C),
     )
@@ -842,7 +832,14 @@ def _fits_from(model, layout, config, fitter, probs, state, own, src, progress):
     again = KeypointFitter(
         model,
         layout,
-        replace(config, flip_test=False, init_poses=1, branch_search=False, hypotheses=1, final_iters_unsearched=None),
+        replace(
+            config,
+            flip_test=False,
+            init_poses=1,
+            branches=replace(config.branches, search=False),
+            hypotheses=1,
+            final_iters_unsearched=None,
+        ),
         fitter.pose_prior,
     )
     # (the final stage as the frames' own fits ran it, so their energies compare)

@@ -67,14 +67,16 @@ from ..silhouette.losses import (
 from ..body.lbs import axis_angle_to_matrix, blend_shapes, pose_correctives, skin_vertices
 from .body import BodyState, KeypointBody, MeshBody, pose_parameter_names
 from .problem import ParameterLayout, Problem, stack_views, world_to_camera
-from .aliases import Alias, renamed_fields
-from .stages import AdamSettings, PerRow, Stage, check_stages, run_schedule, stage_to_dict
+from .aliases import Alias, flat_dict, grouped, renamed_fields
+from .schedule_edits import silhouette_defaults, silhouette_stages
+from .stages import PerRow, Stage, check_stages, run_schedule, stage_to_dict
 from .terms import Energy, Evaluation, KeypointTerm, PriorTerm, StayTerm, Term, evaluate
 from .threads import torch_threads
 
 __all__ = [
     "ContourCoverTerm",
     "ContourInsideTerm",
+    "MaskHandling",
     "SilhouetteFitConfig",
     "SilhouetteFitResult",
     "SilhouetteTerm",
@@ -86,10 +88,6 @@ __all__ = [
 ]
 
 _CONTOUR_LOCK = threading.Lock()
-
-#: SMPL's parameters, the default free set (a model's own set is ``model.parameter_names``)
-from ..body.model import SMPL_PARAMETER_NAMES as PARAMS  # noqa: E402
-
 
 #: the rendered levels' samples before issue 24's sampling part (4 rays per edge pixel, 4 visibility-edge points
 #: per pixel of contour-candidate length): the benchmark's ``dense`` method
@@ -109,44 +107,18 @@ BEFORE_FOURTH_PART = {
 #: the trust region of the two-pass refit's first pass (``SilhouetteFitConfig.trust_free_ratio``): the one before
 #: issue 55, a radius of this share of the window's longer side around the detections
 FREE_TRUST_FRACTION = 0.06
+#: the defaults of :class:`SilhouetteFitConfig`'s stage fields: the cells of the literal table
+#: (:data:`~silfit.fitting.schedules.SILHOUETTE_SCHEDULE`)
+STAGE_DEFAULTS = silhouette_defaults()
 
 
-@renamed_fields(
-    w_pose=Alias("pose_weight"),
-    w_limits=Alias("limit_weight"),
-    w_angle=Alias("angle_weight"),
-    w_shape=Alias("shape_weight"),
-)
-@dataclass
-class SilhouetteFitConfig:
-    """Settings of the silhouette stage (defaults tuned on the synthetic set)."""
+@dataclass(frozen=True)
+class MaskHandling:
+    """What the silhouette stage makes of a mask (:mod:`silfit.silhouette.losses`): the pixels it leaves unknown
+    (beyond the image, leaks, holes, the keypoint fit's concavities), the clothing it trims and the robust profile of
+    the mask-not-covered side. Each field was :class:`SilhouetteFitConfig`'s own, by the same name, which still
+    works."""
 
-    resolutions: tuple = (128, 256)  # window's longer side in pixels, per rendered level
-    iterations: tuple = (30, 20)  # Adam steps per rendered level (upper bounds: plateaus stop earlier)
-    #: L-BFGS iterations of the contour level (no rendering: :class:`ContourInsideTerm` and
-    #: :class:`ContourCoverTerm`) run before the rendered levels; 0: none (:meth:`legacy`)
-    contour_iterations: int = 40
-    contour_resolution: int = 256  # the contour level's window (its distance transform's pixels)
-    contour_points: int = 256  # mask outline points per observation in the contour level
-    #: surface points the contour level poses and projects (model vertices spread over the
-    #: surface, :func:`contour_vertex_index`); ``None``: all (the render proxy's, if any)
-    contour_vertices: Optional[int] = 2000
-    w_contour_inside: float = 0.2
-    w_contour_cover: float = 0.2
-    #: primal samples per edge pixel with the ray-cast renderer (which traces one ray per constant region elsewhere;
-    #: per pixel with the projective one); 4 before issue 24's sampling part (why this default, and
-    #: ``edge_density``'s: docs/benchmarks/defaults.md)
-    spp: int = 2
-    edge_spp: int = 1  # visibility-edge samples per pixel (projective integrator's sppp)
-    #: the ray-cast renderer's visibility-edge points per pixel of contour-candidate length instead of
-    #: ``edge_spp`` per window pixel (at most that many; silfit.render.raycast: same expected gradient, fewer rays); ``None``:
-    #: ``edge_spp`` per pixel (before issue 24's speed part)
-    edge_density: Optional[float] = 3.0  # 4.0 before issue 24's sampling part
-    margin: float = 0.12  # window margin, fraction of the box on each side
-    #: window sides rounded up to a multiple of this many pixels: few distinct window sizes,
-    #: so few compiled render kernels (a new size costs Dr.Jit a trace and, the first time on
-    #: a machine, an LLVM compile of seconds)
-    window_multiple: int = 16
     #: what lies outside the image is unknown, not background (:mod:`silfit.silhouette.losses`:
     #: truncation); ``False``: the border is background, as before issue 23
     truncation_aware: bool = True
@@ -189,6 +161,66 @@ class SilhouetteFitConfig:
     #: the concavities unknown only in a mask trimmed as clothing (``trim_clothing``): a mask that
     #: matches the body has no filled concavities, and there they are the only sign of a misplaced limb
     concave_trimmed_only: bool = True
+
+
+@renamed_fields(
+    w_pose=Alias("pose_weight"),
+    w_limits=Alias("limit_weight"),
+    w_angle=Alias("angle_weight"),
+    w_shape=Alias("shape_weight"),
+    **grouped(
+        "mask",
+        truncation_aware="truncation_aware",
+        robust_cover="robust_cover",
+        cover_margin="cover_margin",
+        cover_inner="cover_inner",
+        cover_cap="cover_cap",
+        cover_weight="cover_weight",
+        trim_clothing="trim_clothing",
+        trim_min="trim_min",
+        trim_max="trim_max",
+        trim_quantile="trim_quantile",
+        leak_distance="leak_distance",
+        hole_fraction="hole_fraction",
+        concave_radius="concave_radius",
+        concave_trimmed_only="concave_trimmed_only",
+    ),
+)
+@dataclass
+class SilhouetteFitConfig:
+    """Settings of the silhouette stage (defaults tuned on the synthetic set)."""
+
+    #: window's longer side in pixels, per rendered level
+    resolutions: tuple = STAGE_DEFAULTS["resolutions"]
+    #: Adam steps per rendered level (upper bounds: plateaus stop earlier)
+    iterations: tuple = STAGE_DEFAULTS["iterations"]
+    #: L-BFGS iterations of the contour level (no rendering: :class:`ContourInsideTerm` and
+    #: :class:`ContourCoverTerm`) run before the rendered levels; 0: none (:meth:`legacy`)
+    contour_iterations: int = STAGE_DEFAULTS["contour_iterations"]
+    #: the contour level's window (its distance transform's pixels)
+    contour_resolution: int = STAGE_DEFAULTS["contour_resolution"]
+    contour_points: int = 256  # mask outline points per observation in the contour level
+    #: surface points the contour level poses and projects (model vertices spread over the
+    #: surface, :func:`contour_vertex_index`); ``None``: all (the render proxy's, if any)
+    contour_vertices: Optional[int] = 2000
+    w_contour_inside: float = STAGE_DEFAULTS["w_contour_inside"]
+    w_contour_cover: float = STAGE_DEFAULTS["w_contour_cover"]
+    #: primal samples per edge pixel with the ray-cast renderer (which traces one ray per constant region elsewhere;
+    #: per pixel with the projective one); 4 before issue 24's sampling part (why this default, and
+    #: ``edge_density``'s: docs/benchmarks/defaults.md)
+    spp: int = 2
+    edge_spp: int = 1  # visibility-edge samples per pixel (projective integrator's sppp)
+    #: the ray-cast renderer's visibility-edge points per pixel of contour-candidate length instead of
+    #: ``edge_spp`` per window pixel (at most that many; silfit.render.raycast: same expected gradient, fewer rays); ``None``:
+    #: ``edge_spp`` per pixel (before issue 24's speed part)
+    edge_density: Optional[float] = 3.0  # 4.0 before issue 24's sampling part
+    margin: float = 0.12  # window margin, fraction of the box on each side
+    #: window sides rounded up to a multiple of this many pixels: few distinct window sizes,
+    #: so few compiled render kernels (a new size costs Dr.Jit a trace and, the first time on
+    #: a machine, an LLVM compile of seconds)
+    window_multiple: int = 16
+    #: what the stage makes of the masks (:class:`MaskHandling`; its fields were the config's, names that still work)
+    mask: MaskHandling = field(default_factory=MaskHandling)
     #: after the stage, a fit less plausible than the keypoint fit (silfit.fitting.plausibility.silhouette_guard)
     #: is replaced by the keypoint fit, with a warning (image path: image_fit.ImageRefinement)
     plausibility_guard: bool = True
@@ -204,19 +236,19 @@ class SilhouetteFitConfig:
     alternatives_max: int = 2
     #: Adam's learning rates (body_pose 0.03 before issue 24's fourth part: the first steps of a rendered level
     #: knocked the contour level's IoU down)
-    lr: dict = field(default_factory=lambda: {"betas": 0.1, "body_pose": 0.015, "global_orient": 0.02, "transl": 0.01})
-    w_silhouette: float = 1.0
-    w_keypoints: float = 0.02
+    lr: dict = field(default_factory=lambda: dict(sorted(STAGE_DEFAULTS["lr"].items())))  # by name
+    w_silhouette: float = STAGE_DEFAULTS["w_silhouette"]
+    w_keypoints: float = STAGE_DEFAULTS["w_keypoints"]
     kp_sigma: float = 20.0  # Geman-McClure scale, window pixels
     #: the pose prior's (one name in every config, issue 26; old name ``w_pose``); it holds the arms a
     #: detector's keypoints barely hold (why this default: docs/benchmarks/defaults.md)
-    pose_weight: float = 0.005
+    pose_weight: float = STAGE_DEFAULTS["pose_weight"]
     #: the joint limits', the angle prior's and the shape prior's (one name in every config, issue 57; old names
     #: ``w_limits``, ``w_angle``, ``w_shape``)
-    limit_weight: float = 1.0
-    angle_weight: float = 0.001
-    shape_weight: float = 0.005
-    w_stay: float = 0.0
+    limit_weight: float = STAGE_DEFAULTS["limit_weight"]
+    angle_weight: float = STAGE_DEFAULTS["angle_weight"]
+    shape_weight: float = STAGE_DEFAULTS["shape_weight"]
+    w_stay: float = STAGE_DEFAULTS["w_stay"]
     #: trust region on the keypoints (:class:`KeypointTrustTerm`): a keypoint's projection may move up to a
     #: radius from its detection at no cost, beyond it quadratically, weighed by its confidence (issue 55:
     #: keypoints as a constraint, not a competitor). With ``trust_from_start`` (issue 55) the radius is each
@@ -228,7 +260,7 @@ class SilhouetteFitConfig:
     #: the window around the detections, confidences normalised to sum 1 (docs/benchmarks/real-photos.md).
     #: ``w_trust``: the weight; too strong, it holds a noise-free subject's keypoints so hard that the stage
     #: turns limbs in depth instead; 0: off (before issue 23; why these defaults: docs/benchmarks/defaults.md)
-    w_trust: float = 0.05
+    w_trust: float = STAGE_DEFAULTS["w_trust"]
     trust_fraction: float = 0.0
     trust_from_start: bool = True
     trust_ratio: float = 1.0
@@ -244,13 +276,16 @@ class SilhouetteFitConfig:
     #: docs/benchmarks/defaults.md)
     trust_free_ratio: Optional[float] = None
     #: shape held in the plausible range: ``(|beta| - max_abs_beta)^2`` beyond it (:func:`beta_bound`)
-    w_beta_bound: float = 10.0
+    w_beta_bound: float = STAGE_DEFAULTS["w_beta_bound"]
     max_abs_beta: float = 2.5
-    warmup: int = 10  # steps of linear learning-rate warm-up per level (5 before issue 24's fourth part)
-    plateau_window: int = 12  # steps compared for the plateau test
-    plateau_rtol: float = 0.003  # relative energy improvement below which a level stops
+    #: steps of linear learning-rate warm-up per level (5 before issue 24's fourth part)
+    warmup: int = STAGE_DEFAULTS["warmup"]
+    #: steps compared for the plateau test
+    plateau_window: int = STAGE_DEFAULTS["plateau_window"]
+    #: relative energy improvement below which a level stops
+    plateau_rtol: float = STAGE_DEFAULTS["plateau_rtol"]
     iou_collapse: float = 0.15  # IoU drop (vs best) that counts as divergence
-    optimise: tuple = PARAMS
+    optimise: tuple = STAGE_DEFAULTS["optimise"]
     seed: Optional[int] = 0  # base seed of the renderer's sampling (None: fresh seeds)
     #: render a coarser proxy mesh with this many faces (vertices a fixed linear map of the
     #: model's, :mod:`silfit.render.proxy`; IoU >= 0.995 against the full mesh at 10,000 faces);
@@ -260,7 +295,7 @@ class SilhouetteFitConfig:
     #: ``proxy_faces``; a level not listed renders ``proxy_faces``; ignored with ``proxy_faces=None`` or a
     #: caller's renderer): a window pixel spans 2-4 image pixels, so a coarser proxy does at a smaller
     #: acceleration-structure build, ray plan and trace per step (issue 24's fourth part; ``{}``: before it)
-    level_proxy_faces: dict = field(default_factory=lambda: {128: 3000, 256: 5000})
+    level_proxy_faces: dict = field(default_factory=lambda: dict(STAGE_DEFAULTS["level_proxy_faces"]))
     #: pose the render proxy's vertices directly (:class:`ContourBody` of the proxy: its rest-pose mix
     #: of the model, no full mesh per step) in the rendered levels of an SMPL-layout model; ``False``:
     #: pose the full mesh, then map it to the proxy (before issue 24's third part)
@@ -298,8 +333,8 @@ class SilhouetteFitConfig:
             raise ValueError(
                 f"SilhouetteFitConfig: trust_free_ratio must be above 0 or None, got {self.trust_free_ratio!r}"
             )
-        if not 0.0 <= float(self.trim_quantile) <= 1.0:
-            raise ValueError(f"SilhouetteFitConfig: trim_quantile must lie in [0, 1], got {self.trim_quantile!r}")
+        if not 0.0 <= float(self.mask.trim_quantile) <= 1.0:
+            raise ValueError(f"SilhouetteFitConfig: trim_quantile must lie in [0, 1], got {self.mask.trim_quantile!r}")
 
     @classmethod
     def legacy(cls, **changes) -> "SilhouetteFitConfig":
@@ -325,11 +360,12 @@ class SilhouetteFitConfig:
     def cover_profile(self, resolution: int) -> Optional[CoverProfile]:
         """The mask-not-covered profile in pixels of a window ``resolution`` pixels long
         (``None``: plain, ``robust_cover=False``)."""
-        if not self.robust_cover:
+        m = self.mask
+        if not m.robust_cover:
             return None
         r = float(resolution)
         return CoverProfile(
-            float(self.cover_margin) * r, float(self.cover_inner), float(self.cover_cap) * r, float(self.cover_weight)
+            float(m.cover_margin) * r, float(m.cover_inner), float(m.cover_cap) * r, float(m.cover_weight)
         )
 
     def weights(self) -> dict:
@@ -353,42 +389,10 @@ class SilhouetteFitConfig:
         return {"contour_inside": self.w_contour_inside, "contour_cover": self.w_contour_cover, **w}
 
     def stages(self) -> tuple:
-        """The contour level (L-BFGS, when ``contour_iterations``), then one Adam stage per
-        rendered window resolution (coarse to fine); the defaults give the literal table
-        :data:`~silfit.fitting.schedules.SILHOUETTE_SCHEDULE`."""
-        contour = ()
-        if self.contour_iterations:
-            contour = (
-                Stage(
-                    "contour",
-                    tuple(self.optimise),
-                    self.contour_weights(),
-                    int(self.contour_iterations),
-                    "lbfgs",
-                    {"resolution": int(self.contour_resolution)},
-                ),
-            )
-        faces = [self.level_faces(r) for r in self.resolutions]
-        return contour + tuple(
-            Stage(
-                f"silhouette_{int(r)}",
-                tuple(self.optimise),
-                self.weights(),
-                int(it),
-                "adam",
-                {
-                    "resolution": int(r),
-                    **({} if f is None else {"proxy_faces": f}),
-                    **AdamSettings(
-                        {k: self.lr[k] for k in self.optimise},
-                        int(self.warmup),
-                        int(self.plateau_window),
-                        float(self.plateau_rtol),
-                    ).options(),
-                },
-            )
-            for r, it, f in zip(self.resolutions, self.iterations, faces)
-        )
+        """The contour level (L-BFGS, when ``contour_iterations``), then one Adam stage per rendered window
+        resolution (coarse to fine): the literal table :data:`~silfit.fitting.schedules.SILHOUETTE_SCHEDULE`, edited by
+        the fields that differ from their defaults (:func:`~silfit.fitting.schedule_edits.silhouette_stages`)."""
+        return silhouette_stages(self)
 
     def level_faces(self, resolution: int) -> Optional[int]:
         """The render proxy's faces of a rendered level at ``resolution`` when it is not ``proxy_faces``
@@ -399,7 +403,7 @@ class SilhouetteFitConfig:
         return int(faces)
 
     def to_dict(self) -> dict:
-        d = {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
+        d = flat_dict(self)  # the groups' fields by their flat names, as before them
         d["stages"] = [stage_to_dict(s) for s in self.stages()]
         return d
 
@@ -1170,7 +1174,7 @@ class _SilhouetteRun:
                         resolution,
                         cfg.margin,
                         cfg.window_multiple,
-                        cfg.truncation_aware,
+                        cfg.mask.truncation_aware,
                         cfg.cover_profile(resolution),
                         self.known[p][f][c],
                     )

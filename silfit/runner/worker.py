@@ -16,7 +16,7 @@ import functools
 import os
 import time
 import typing
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Union
 
@@ -77,12 +77,13 @@ def config_with(cls, options: Dict[str, object], base=None, stage: str = "keypoi
     in errors) with ``options`` (field name -> value; strings are parsed by the type of the field's default in
     ``cls()``, whatever ``base`` holds (a video's ``final_tol_change`` is ``None`` there, still a float), or by the
     field's declared type where that default is ``None`` (``hand_weights``: comma-separated numbers); tuples
-    comma-separated; ``none`` for an optional field; a mapping (``lr``) cannot be given as text)."""
+    comma-separated; ``none`` for an optional field; a mapping (``lr``) cannot be given as text; a group's field as
+    ``group.field``, e.g. ``image_depth.weight``)."""
     plain = cls()
     base = plain if base is None else base
-    names = {f.name for f in fields(plain)} | set(getattr(cls, "renamed_fields", {}))  # old names too
-    values = {}
     hints = _config_hints(cls)
+    names = {f.name for f in fields(plain)} | set(getattr(cls, "renamed_fields", {})) | set(hints)  # old names too
+    values = {}
     optional = {n for n, h in hints.items() if type(None) in typing.get_args(h)}  # these also take "none"
     for key, value in options.items():
         if key not in names:
@@ -91,7 +92,9 @@ def config_with(cls, options: Dict[str, object], base=None, stage: str = "keypoi
             close = difflib.get_close_matches(key, sorted(names), n=3, cutoff=0.6)
             hint = f"did you mean {' or '.join(close)}? " if close else ""
             raise ValueError(f"unknown {stage}-stage option {key!r}: {hint}(one of {', '.join(sorted(names))})")
-        default = getattr(plain, key)
+        default = functools.reduce(getattr, key.split("."), plain)
+        if is_dataclass(default) and isinstance(value, str):
+            raise ValueError(f"{stage}-stage option {key} is a group: give its fields ({key}.<field>)")
         if isinstance(value, str) and key in optional and value.lower() == "none":
             value = None
         elif isinstance(value, str):
@@ -117,13 +120,32 @@ def config_with(cls, options: Dict[str, object], base=None, stage: str = "keypoi
             except ValueError:
                 raise ValueError(f"{stage}-stage option {key}={value!r}: expected {expected}") from None
         values[key] = value
-    return replace(base, **values)
+    return replace(base, **grouped_values(values, base))
+
+
+def grouped_values(values: dict, base) -> dict:
+    """``values`` by field of ``base``: each ``group.field`` value set in (a copy of) its group."""
+    out = {k: v for k, v in values.items() if "." not in k}
+    for key, value in values.items():
+        if "." in key:
+            group, name = key.split(".", 1)
+            out[group] = replace(out.get(group, getattr(base, group)), **{name: value})
+    return out
 
 
 @functools.lru_cache(maxsize=4)
 def _config_hints(cls) -> dict:
-    """A settings class's declared field types (read once)."""
-    return typing.get_type_hints(cls)
+    """A settings class's declared field types (read once), its groups' fields' (``group.field``) and the old flat
+    names' of those (:func:`~silfit.fitting.aliases.grouped`)."""
+    hints, plain = dict(typing.get_type_hints(cls)), cls()
+    for f in fields(plain):
+        group = getattr(plain, f.name)
+        if is_dataclass(group):
+            hints.update({f"{f.name}.{k}": h for k, h in typing.get_type_hints(type(group)).items()})
+    for old, a in getattr(cls, "renamed_fields", {}).items():
+        if a.sub is not None:
+            hints[old] = hints[f"{a.field}.{a.sub}"]
+    return hints
 
 
 def silhouette_config(options: FitOptions) -> SilhouetteFitConfig:

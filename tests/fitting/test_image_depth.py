@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from silfit.fitting import KeypointFitConfig, KeypointFitter
+from silfit.fitting import ImageDepthOptions, KeypointFitConfig, KeypointFitter
 from silfit.fitting.image_depth import SEGMENTS, DepthCue, ImageDepthConfig, ImageDepthTerm, cue_data, depth_cue
 from silfit.io.keypoints import BLAZEPOSE33_NAMES, KeypointSet
 
@@ -170,7 +170,7 @@ def test_without_an_image_the_fit_is_the_same_bit_for_bit(body_model, reaching_s
             final_iters=5,
             late_branch_iters=4,
             post_branch_iters=4,
-            image_depth_weight=100.0,
+            image_depth=ImageDepthOptions(weight=100.0),
         ),
     )
     a = fitter.fit([s.keypoints], [s.camera], progress=False)
@@ -183,7 +183,7 @@ def test_without_an_image_the_fit_is_the_same_bit_for_bit(body_model, reaching_s
 
 
 def replace_weight(cfg, w):
-    return replace(cfg, image_depth_weight=w)
+    return replace(cfg, image_depth=replace(cfg.image_depth, weight=w))
 
 
 def test_the_depth_warning_names_only_limbs_the_image_leaves_undecided():
@@ -227,15 +227,15 @@ def test_metrics_say_image_depth_none_without_an_image(body_model, reaching_subj
     cfg = replace_weight(cfg, 100.0)
     r = fit(s.keypoints, camera=s.camera, model=body_model, keypoint_config=cfg, progress=False, image=s.image)
     assert r.metrics["image_depth"]["decided"]["right_forearm"]["distal"] == "nearer"
-    cfg = replace(replace_weight(cfg, 0.0), image_depth_decide=0.6)  # the hard choice alone: the cue runs too
+    cfg = replace(cfg, image_depth=ImageDepthOptions(decide=0.6))  # the hard choice alone: the cue runs too
     r = fit(s.keypoints, camera=s.camera, model=body_model, keypoint_config=cfg, progress=False, image=s.image)
     assert r.metrics["image_depth"]["branch_choice"]["segments"]["right_forearm"] == "nearer"
 
 
 @pytest.mark.parametrize("screens,early", [(True, True), (False, True), (False, False)])
 def test_the_image_decides_the_branch_as_a_hard_choice(body_model, reaching_subject, screens, early):
-    """``image_depth_decide``: the cue's confident calls choose among the branch search's hypotheses (the term off;
-    ``image_depth_decide_screens`` and ``image_depth_decide_early`` either way); ignored, this subject's right arm is fitted reaching away (260 mm
+    """``image_depth.decide``: the cue's confident calls choose among the branch search's hypotheses (the term off;
+    ``image_depth.decide_screens`` and ``image_depth.decide_early`` either way); ignored, this subject's right arm is fitted reaching away (260 mm
     PA-PVE, measured)."""
     from silfit.eval.metrics import pa_pve
     from silfit.fitting.image_depth import cue_from_image
@@ -246,11 +246,9 @@ def test_the_image_decides_the_branch_as_a_hard_choice(body_model, reaching_subj
     assert cue.hard_signs(0.6)[[n for n, _, _ in SEGMENTS].index("right_forearm")] == -1  # nearer, confident
     fitter = KeypointFitter(
         body_model,
-        config=replace(
-            FAST, image_depth_decide=0.6, image_depth_decide_screens=screens, image_depth_decide_early=early
-        ),
+        config=replace(FAST, image_depth=ImageDepthOptions(decide=0.6, decide_screens=screens, decide_early=early)),
     )
-    assert fitter.config.image_depth_weight == 0.0
+    assert fitter.config.image_depth.weight == 0.0
     with torch.no_grad():
         r = fitter.fit([s.keypoints], [s.camera], progress=False, depth_cues=[cue])
     dz = r.joints[0, names.index("right_wrist"), 2] - r.joints[0, names.index("right_elbow"), 2]
@@ -264,9 +262,9 @@ def test_without_an_image_the_hard_choice_changes_nothing(body_model, reaching_s
     tiny = KeypointFitConfig(
         camera_iters=5, pose_iters=(5, 5, 5), shape_iters=3, final_iters=5, late_branch_iters=4, post_branch_iters=4
     )
-    a = KeypointFitter(body_model, config=replace(tiny, image_depth_decide=0.6, image_depth_decide_screens=False)).fit(
-        [s.keypoints], [s.camera], progress=False, depth_cues=[None]
-    )
+    a = KeypointFitter(
+        body_model, config=replace(tiny, image_depth=ImageDepthOptions(decide=0.6, decide_screens=False))
+    ).fit([s.keypoints], [s.camera], progress=False, depth_cues=[None])
     b = KeypointFitter(body_model, config=tiny).fit([s.keypoints], [s.camera], progress=False)
     assert np.array_equal(a.joints, b.joints) and a.energies["final"][0] == b.energies["final"][0]
     assert a.branch_search == b.branch_search

@@ -8,7 +8,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from silfit.camera import Camera, project_points
-from silfit.fitting import KeypointFitConfig, KeypointFitter, fit_keypoints
+from silfit.fitting import KeypointFitConfig, KeypointFitter, OcclusionOptions, fit_keypoints
 from silfit.io.keypoints import BODY25_NAMES, model_keypoints
 
 CAM = Camera.from_image_size(512, 512)
@@ -633,7 +633,7 @@ def test_occlusion_cue_scores_the_hypotheses_when_on(body_model):
     from silfit.io.keypoints import KeypointSet
 
     assert all("occlusion" not in s.options.get("branches", {}) for s in KeypointFitConfig().stages())
-    on = [s for s in KeypointFitConfig(occlusion_weight=0.05).stages() if "branches" in s.options]
+    on = [s for s in KeypointFitConfig(occlusion=OcclusionOptions(weight=0.05)).stages() if "branches" in s.options]
     assert on and all(s.options["branches"]["occlusion"] == 0.05 for s in on)
     kp, truth = _thigh_subject(body_model)
     kp[[0, 15, 16], 2] = 0.2  # the face marked as hidden: the front-facing fits disagree there

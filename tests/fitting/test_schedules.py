@@ -1,4 +1,5 @@
-"""The default schedules as literal tables, and one name per weight (old names kept as aliases)."""
+"""The schedules as literal tables (the single source: the configs edit them), and one name per weight (old names
+kept as aliases)."""
 
 import warnings
 from dataclasses import fields, replace
@@ -23,6 +24,36 @@ def test_the_default_configs_give_the_literal_tables():
     assert SequenceFitConfig().stages() == SEQUENCE_SCHEDULE
     # and a table is a schedule to start from
     assert KeypointFitConfig(schedule=KEYPOINT_SCHEDULE[:2]).stages() == KEYPOINT_SCHEDULE[:2]
+
+
+def test_the_table_is_the_source(monkeypatch):
+    """The stage fields' defaults are the table's cells, and a field that differs edits only the cells it names."""
+    from silfit.fitting import schedule_edits
+    from silfit.fitting.schedules import named, row
+
+    poses, cfg = named(KEYPOINT_SCHEDULE, r"pose_\d+"), KeypointFitConfig()
+    assert (
+        cfg.pose_iters == tuple(s.iterations for s in poses)
+        and cfg.final_iters == row(KEYPOINT_SCHEDULE, "final").iterations
+    )
+    assert cfg.pose_weight == tuple(s.weights["pose"] for s in poses) + (
+        row(KEYPOINT_SCHEDULE, "final").weights["pose"],
+    )
+    assert SilhouetteFitConfig().iterations == tuple(s.iterations for s in SILHOUETTE_SCHEDULE[1:])
+    assert SequenceFitConfig().iterations == SEQUENCE_SCHEDULE[0].iterations
+    table = tuple(
+        replace(s, weights={**s.weights, "limits": 5.0}) if s.name == "pose_2" else s for s in KEYPOINT_SCHEDULE
+    )
+    monkeypatch.setattr(schedule_edits, "KEYPOINT_SCHEDULE", table)
+    assert KeypointFitConfig().stages() == table
+    edited = {s.name: s for s in KeypointFitConfig(pose_iters=(1, 2, 3)).stages()}
+    assert list(edited) == [s.name for s in table] and edited["pose_2"].iterations == 2
+    assert edited["pose_2"].weights["limits"] == 5.0 and edited["pose_3"].weights["limits"] == 1e4
+    assert {
+        s.name: s.weights["limits"] for s in KeypointFitConfig(limit_weight=7.0).stages() if "limits" in s.weights
+    } == {s.name: 7.0 for s in table if "limits" in s.weights}
+    late = row(KeypointFitConfig(post_branch_iters=0, branch_search=True).stages(), "branches_late")
+    assert "carry" not in late.options["branches"]  # nothing goes on to a search from the fit
 
 
 def test_the_pose_weight_has_one_name_in_every_config():
@@ -203,3 +234,64 @@ def test_the_late_search_options_reach_its_stages():
     default = next(s for s in KeypointFitConfig().stages() if s.name == "branches_late")
     assert "turns" not in default.options["branches"]
     assert default.options["branches"]["survivors"] == KeypointFitConfig().branch_survivors
+
+
+def test_grouped_settings_keep_their_flat_names_for_one_release():
+    """The image depth and occlusion cues' settings are groups (``image_depth.weight``...); the flat names still work
+    (warned), attributes read and write through, and ``to_dict`` (metrics.json) records the flat names as before."""
+    from silfit.fitting import ImageDepthOptions, OcclusionOptions
+    from silfit.runner.worker import keypoint_config
+
+    with pytest.warns(DeprecationWarning, match="'image_depth_weight' is deprecated, use 'image_depth.weight'"):
+        old = KeypointFitConfig(image_depth_weight=100.0, image_depth_decide=0.6)
+    new = KeypointFitConfig(image_depth=ImageDepthOptions(weight=100.0, decide=0.6))
+    assert old == new and old.image_depth_weight == 100.0 and old.to_dict() == new.to_dict()
+    d = new.to_dict()
+    assert d["image_depth_weight"] == 100.0 and d["occlusion_conf"] == [0.3, 0.6] and "image_depth" not in d
+    assert replace(new, sigma=50.0).image_depth is new.image_depth  # frozen groups: shared safely
+    new.occlusion_weight = 0.5  # writes through
+    assert new.occlusion == OcclusionOptions(weight=0.5) and new.stages()[3].options["branches"]["occlusion"] == 0.5
+    kp = keypoint_config({"image_depth.weight": "100", "image_depth.decide": "none", "occlusion.conf": "0.1,0.9"})
+    assert kp.image_depth == ImageDepthOptions(weight=100.0) and kp.occlusion.conf == (0.1, 0.9)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        assert keypoint_config({"image_depth_decide": "0.6"}).image_depth.decide == 0.6
+    with pytest.raises(ValueError, match="image_depth is a group: give its fields"):
+        keypoint_config({"image_depth": "100"})
+
+
+def test_the_branch_search_settings_are_a_group():
+    """``KeypointFitConfig.branches`` (:class:`BranchSearch`): the old ``branch_*`` names still work, edit the same
+    table cells and are recorded as before."""
+    from silfit.fitting import BranchSearch
+    from silfit.fitting.schedule_edits import changed_fields
+    from silfit.runner.worker import keypoint_config
+
+    with pytest.warns(DeprecationWarning, match="'late_branch_iters' is deprecated, use 'branches.late_iters'"):
+        old = KeypointFitConfig(late_branch_iters=0, branch_survivors=3)
+    new = KeypointFitConfig(branches=BranchSearch(late_iters=0, survivors=3))
+    assert old == new and old.stages() == new.stages() and old.to_dict() == new.to_dict()
+    assert "branches_late" not in [s.name for s in new.stages()] and new.branch_survivors == 3
+    assert new.to_dict()["late_branch_iters"] == 0 and "branches" not in new.to_dict()
+    assert changed_fields(new) == {"branches", "late_branch_iters", "branch_survivors"}
+    off = keypoint_config({"branches.search": "false"})
+    assert off.branches.search is False and not any(s.name.startswith("branches") for s in off.stages())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        assert keypoint_config({"branch_search": "false"}) == off
+
+
+def test_the_mask_settings_are_a_group():
+    """``SilhouetteFitConfig.mask`` (:class:`MaskHandling`): the old flat names still work and are recorded."""
+    from silfit.fitting.silhouette_stage import MaskHandling
+    from silfit.runner.worker import FitOptions, silhouette_config
+
+    with pytest.warns(DeprecationWarning, match="'trim_clothing' is deprecated, use 'mask.trim_clothing'"):
+        old = SilhouetteFitConfig(trim_clothing=False, cover_cap=0.1)
+    new = SilhouetteFitConfig(mask=MaskHandling(trim_clothing=False, cover_cap=0.1))
+    assert old == new and new.trim_clothing is False and new.cover_profile(100).cap == 10.0
+    assert new.to_dict()["cover_cap"] == 0.1 and "mask" not in new.to_dict() and old.stages() == new.stages()
+    sil = silhouette_config(FitOptions(silhouette_options={"mask.leak_distance": "0", "mask.trim_quantile": "0.5"}))
+    assert sil.mask == MaskHandling(leak_distance=0.0, trim_quantile=0.5)
+    with pytest.raises(ValueError, match="trim_quantile must lie in"):
+        SilhouetteFitConfig(mask=MaskHandling(trim_quantile=2.0))
