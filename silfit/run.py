@@ -54,6 +54,7 @@ __all__ = [
     "keypoint_stage_fit",
     "image_job",
     "video_job",
+    "fit_sequence",
 ]
 
 
@@ -661,3 +662,44 @@ def fit(
         image=image,
     )
     return run(job).stage
+
+
+def fit_sequence(
+    frames,
+    camera,
+    model=None,
+    *,
+    masks=None,
+    config=None,
+    silhouette_config=None,
+    pose_prior=None,
+    progress: bool = False,
+    images=None,
+):
+    """Fit one person over a video's frames (a :class:`~silfit.fitting.sequence.SequenceFitResult`, as
+    :func:`silfit.fitting.sequence.fit_sequence` gives it): the same path as every other mode (:func:`run` on
+    :func:`video_job`, or for a rig's views :func:`silfit.inputs.rig_video_job`), so the frames get the checks every
+    input gets (:func:`check`: a frame whose keypoints are refused is bridged) and the result the video's
+    plausibility warnings.
+
+    ``frames``: one :class:`~silfit.io.keypoints.KeypointSet` (or ``None``) per frame with ``camera`` a
+    :class:`~silfit.camera.Camera`; or ``frames[f][c]`` per view with ``camera`` a list of
+    :class:`~silfit.fitting.problem.View` s (a rig video, in its world frame). ``masks`` (``masks[f]`` or
+    ``masks[f][c]``, ``None`` where there is none): the silhouette stage follows. ``images`` (one camera; per frame
+    an RGB array or ``None``): the image depth cue (:mod:`silfit.fitting.image_depth`)."""
+    from dataclasses import replace
+
+    from .inputs.rig import rig_video_job
+
+    if isinstance(camera, (list, tuple)):
+        if images is not None:
+            raise ValueError("fit_sequence: images (the image depth cue) are for one camera's video, not a rig's")
+        names = [str(c) for c in range(len(camera))]
+        job = rig_video_job(
+            frames, camera, names, model, masks=masks, config=config, silhouette_config=silhouette_config
+        )
+    else:
+        job = video_job(frames, camera, model, masks=masks, config=config, silhouette_config=silhouette_config)
+    job = replace(job, pose_prior=pose_prior, progress=progress)
+    pictures = {(f, 0): image for f, image in enumerate(images or []) if image is not None}
+    return run(replace(job, images=pictures)).stage
