@@ -57,7 +57,7 @@ _EXPORTS = {
     "FitResult": "fitting.image_fit",
     "fit": "run",
     "save_fit": "fitting.image_fit",
-    "fit_sequence": "fitting.sequence",
+    "fit_sequence": "run",
     "read_sequence": "io.video",
     "save_sequence_fit": "io.video",
 }
@@ -72,7 +72,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from .body import BodyModel, BodyOutput, load_body_model
     from .camera import Camera
     from .fitting import KeypointFitResult, fit_keypoints
-    from .fitting.sequence import fit_sequence
     from .fitting.image_fit import FitResult, save_fit
-    from .run import fit
+    from .run import fit, fit_sequence
     from .io.video import read_sequence, save_sequence_fit

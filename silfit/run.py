@@ -12,11 +12,15 @@
       -> write(fit, out)   the output folder (the fit file of silfit.io.fit, meshes, pictures,
                     metrics.json), written atomically
 
-The number of frames and views decides the keypoint stage's core (one image:
-:class:`~silfit.fitting.keypoint_stage.KeypointFitter`; views of one frame:
-:func:`~silfit.fitting.rig_fit.fit_rig_keypoints`, world frame; frames of one camera:
-:func:`~silfit.fitting.sequence.fit_sequence`); the keypoint layout decides the model's terms
-(body or whole body). Nothing above :func:`run` branches on the mode.
+Every group of jobs goes through the same steps (:func:`_fit_group`): the number of frames and views (the
+job's ``mode``) chooses a core (:data:`CORES`: an image batch,
+:class:`~silfit.fitting.image_fit.ImageCore`; views of one frame, :class:`~silfit.fitting.rig_pipeline.RigCore`,
+world frame; frames of one camera or of a rig, :class:`~silfit.fitting.sequence.VideoCore`), then
+:func:`~silfit.fitting.cores.run_steps` runs its keypoint stage (multi-start and branch search, triangulation,
+bridging and the temporal terms are the core's), the one silhouette driver
+(:func:`~silfit.fitting.refine.refine_silhouettes`) on the core's hooks where masks exist, and its results, each
+made a :class:`Fit`. The keypoint layout decides the model's terms (body or whole body). Nothing above :func:`run`
+branches on the mode.
 """
 
 from __future__ import annotations
@@ -30,7 +34,10 @@ import numpy as np
 
 from .errors import InputError, interruption
 from .fitting.problem import Observation, Problem
-from .fitting.image_fit import StageFailure
+from .fitting.cores import StageFailure, run_steps
+from .fitting.image_fit import ImageCore
+from .fitting.rig_pipeline import RigCore
+from .fitting.sequence import VideoCore
 from .inputs.image import image_job
 from .inputs.job import Job
 from .inputs.video import video_job
@@ -47,6 +54,7 @@ __all__ = [
     "keypoint_stage_fit",
     "image_job",
     "video_job",
+    "fit_sequence",
 ]
 
 
@@ -215,7 +223,7 @@ def run_batch(jobs: Sequence[Job], isolate: bool = False) -> List[Union[Fit, Exc
     model and settings go through the keypoint stage as one batch and through the silhouette
     stage as one batch (as ``fit-dataset`` and ``eval`` feed them); rigs and videos one by one.
     With ``isolate``, a job that fails (its checks, or a stage:
-    :class:`~silfit.fitting.image_fit.StageFailure`) gets its error in its place and the others go on;
+    :class:`~silfit.fitting.cores.StageFailure`) gets its error in its place and the others go on;
     without, the first error raises."""
     out: List[Union[Fit, Exception, None]] = [None] * len(jobs)
     checked: Dict[int, Job] = {}
@@ -249,16 +257,8 @@ def run_batch(jobs: Sequence[Job], isolate: bool = False) -> List[Union[Fit, Exc
             else (job.mode, i)
         )
         groups.setdefault(key, []).append(i)
-    for key, rows in groups.items():
-        if key[0] in ("image", "rig"):
-            results = (_run_images if key[0] == "image" else _run_rigs)([checked[i] for i in rows], isolate)
-        else:
-            try:
-                results = [_run_video(checked[rows[0]])]
-            except Exception as err:  # noqa: BLE001 - one job's failure, kept in its place
-                if not isolate or interruption(err) is not None:
-                    raise
-                results = [err]
+    for rows in groups.values():
+        results = _fit_group([checked[i] for i in rows], isolate)
         for i, fit in zip(rows, results):
             if isinstance(fit, Fit):
                 job = fit.job
@@ -280,13 +280,29 @@ def _params_per_frame(params: dict, F: int) -> Dict[str, np.ndarray]:
     return {n: _arr(v).reshape(-1) if n == "betas" else _arr(v).reshape(F, -1) for n, v in params.items()}
 
 
-def _run_images(jobs: Sequence[Job], isolate: bool) -> list:
-    """One-image jobs of one layout, model and settings, batched (:func:`silfit.fitting.image_fit.fit_problems`)."""
-    from .fitting.image_fit import fit_problems
+def _fit_group(jobs: Sequence[Job], isolate: bool) -> list:
+    """The steps every group of jobs goes through, whatever its frames x views: the core its mode needs
+    (:data:`CORES`: an image batch, a rig batch, a video), then :func:`~silfit.fitting.cores.run_steps` (the
+    keypoint stage, the silhouette stage where masks exist: the one driver, the results), then one :class:`Fit`
+    per job. With ``isolate``: an image batch's stages isolate their rows themselves (a failing image gets a
+    :class:`StageFailure`); a rig batch or a video that fails is fitted again job by job, and a job that still
+    fails gets its error in its place."""
+    build, to_fit = CORES[jobs[0].mode]
+    try:
+        core = build(jobs)
+        results = run_steps(core, isolate and core.isolates_stages)
+        return [r if isinstance(r, Exception) else to_fit(job, core, r) for job, r in zip(jobs, results)]
+    except Exception as err:  # noqa: BLE001 - which job failed is found by fitting them alone
+        if not isolate or jobs[0].mode == "image" or interruption(err) is not None:
+            raise
+        return [err] if len(jobs) == 1 else [r for job in jobs for r in _fit_group([job], isolate)]
 
+
+def _image_core(jobs: Sequence[Job]) -> ImageCore:
+    """One-image jobs of one layout, model and settings as one batch (:class:`~silfit.fitting.image_fit.ImageCore`)."""
     first = jobs[0]
     obs = [job.problem.observations[0] for job in jobs]
-    results = fit_problems(
+    return ImageCore(
         first.model,
         [o.keypoints for o in obs],
         [o.view.camera for o in obs],
@@ -297,59 +313,50 @@ def _run_images(jobs: Sequence[Job], isolate: bool) -> list:
         silhouette=first.silhouette,
         progress=first.progress,
         mask_sources=[job.mask_sources.get((0, 0), "mask") for job in jobs],
-        isolate=isolate,
         images=[job.images.get((0, 0)) for job in jobs],
         people=[job.people.get((0, 0)) for job in jobs],
         known=[o.known for o in obs],
     )
-    out = []
-    for job, r in zip(jobs, results):
-        if isinstance(r, Exception):
-            out.append(r)
-            continue
-        m = r.metrics
-        out.append(
-            Fit(
-                job,
-                _params_per_frame(r.params, 1),
-                _arr(r.vertices)[None],
-                _arr(r.joints)[None],
-                _arr(r.keypoints_2d)[None, None],
-                np.array([[m.get("reprojection_error_px", np.nan)]], dtype=np.float64),
-                np.array([[m.get("iou", np.nan)]], dtype=np.float64),
-                "camera",
-                m,
-                r,
-            )
-        )
-    return out
 
 
-def _run_rigs(jobs: Sequence[Job], isolate: bool) -> list:
-    """Rig jobs of one layout, model and settings, batched (:func:`silfit.fitting.rig_pipeline.fit_rigs`);
-    isolated: a failing batch again job by job."""
-    from .fitting.rig_pipeline import fit_rigs
+def _image_fit(job: Job, core, r) -> Fit:
+    """The :class:`Fit` of an image job's :class:`~silfit.fitting.image_fit.FitResult`."""
+    m = r.metrics
+    return Fit(
+        job,
+        _params_per_frame(r.params, 1),
+        _arr(r.vertices)[None],
+        _arr(r.joints)[None],
+        _arr(r.keypoints_2d)[None, None],
+        np.array([[m.get("reprojection_error_px", np.nan)]], dtype=np.float64),
+        np.array([[m.get("iou", np.nan)]], dtype=np.float64),
+        "camera",
+        m,
+        r,
+    )
 
+
+def _rig_core(jobs: Sequence[Job]) -> RigCore:
+    """Rig jobs of one layout, model and settings as one batch (:class:`~silfit.fitting.rig_pipeline.RigCore`)."""
     first = jobs[0]
-    try:
-        results = fit_rigs(
-            [job.problem for job in jobs],
-            [list(job.view_names) for job in jobs],
-            first.model,
-            first.pose_prior,
-            first.keypoint_config,
-            silhouette=first.silhouette,
-            silhouette_config=first.silhouette_config,
-            progress=first.progress,
-        )
-    except Exception as err:  # noqa: BLE001 - which job failed is found by fitting them alone
-        if not isolate or interruption(err) is not None:
-            raise
-        return [err] if len(jobs) == 1 else [r for job in jobs for r in _run_rigs([job], isolate)]
-    return [_rig_fit(job, r) for job, r in zip(jobs, results)]
+    return RigCore(
+        [job.problem for job in jobs],
+        [list(job.view_names) for job in jobs],
+        first.model,
+        first.pose_prior,
+        first.keypoint_config,
+        first.silhouette,
+        first.silhouette_config,
+        first.progress,
+    )
 
 
-def _rig_fit(job: Job, r, iou: str = "iou") -> Fit:
+def _rig_fit(job: Job, core, r) -> Fit:
+    """The :class:`Fit` of a rig job's :class:`~silfit.fitting.rig_pipeline.RigResult`."""
+    return _rig_views_fit(job, r, "iou")
+
+
+def _rig_views_fit(job: Job, r, iou: str) -> Fit:
     """The :class:`Fit` of a rig job's :class:`~silfit.fitting.rig_pipeline.RigResult` (``iou``: the views' IoU field)."""
     names = list(job.view_names)
     views = r.metrics["views"]
@@ -377,7 +384,7 @@ def keypoint_stage_fit(fit: Fit) -> Fit:
 
     job = fit.job
     kp = keypoint_stage_result(fit.stage.keypoint, job.problem, list(job.view_names), job.model.faces.cpu().numpy())
-    return _rig_fit(job, kp, "iou_keypoint_stage")
+    return _rig_views_fit(job, kp, "iou_keypoint_stage")
 
 
 def _video_depth_cues(job: Job, frames) -> tuple:
@@ -452,32 +459,41 @@ def _video_metrics(result, errors: np.ndarray, warnings: List[str], silhouette: 
     return metrics
 
 
-def _run_video(job: Job) -> Fit:
-    """A video of one camera (camera frame) or of a rig (world frame): the sequence fit
-    (:func:`~silfit.fitting.sequence.fit_sequence`) and, where masks exist, its silhouette stage."""
-    from .fitting.refine import refine_silhouettes
-    from .fitting.sequence import SequenceFitConfig, SequenceRefinement, fit_sequence
+def _video_core(jobs: Sequence[Job]) -> VideoCore:
+    """A video job of one camera or of a rig (:class:`~silfit.fitting.sequence.VideoCore`): its frames, cameras and
+    masks, and for one camera the frames' image depth cues (:func:`_video_depth_cues`)."""
+    from .fitting.sequence import SequenceFitConfig
 
+    (job,) = jobs
     grid = job.problem.grid()
     rig = job.rig or len(grid[0]) > 1
     frames = [[o.keypoints for o in row] for row in grid] if rig else [row[0].keypoints for row in grid]
     masks = [[o.mask for o in row] for row in grid] if rig else [row[0].mask for row in grid]
     cameras = [o.view for o in grid[0]] if rig else grid[0][0].view.camera
     cues, cue_records = (None, None) if rig else _video_depth_cues(job, frames)
-    result = fit_sequence(
+    silhouette = job.silhouette and any(o.mask is not None for o in job.problem.observations)
+    config = job.sequence_config or SequenceFitConfig()
+    return VideoCore(
         frames,
         cameras,
+        masks,
         job.model,
-        config=job.sequence_config or SequenceFitConfig(),
+        config,
         pose_prior=job.pose_prior,
         progress=job.progress,
+        silhouette=silhouette,
+        silhouette_config=job.silhouette_config,
         depth_cues=cues,
+        cue_records=cue_records,
     )
-    silhouette = job.silhouette and any(o.mask is not None for o in job.problem.observations)
-    if silhouette:
-        hooks = SequenceRefinement(result, frames, masks)
-        (result,) = refine_silhouettes(job.model, hooks, job.silhouette_config, job.pose_prior, progress=job.progress)
+
+
+def _video_fit(job: Job, core: VideoCore, result) -> Fit:
+    """The :class:`Fit` of a video job's :class:`~silfit.fitting.sequence.SequenceFitResult` (camera frame for one
+    camera, world frame for a rig): posed vertices, per-(frame, view) errors and IoU, warnings and metrics."""
+    grid = job.problem.grid()
     F, C = len(grid), len(grid[0])
+    rig = job.rig or C > 1
     params = result.params()
     vertices = _sequence_vertices(job.model, params, F)
     errors = np.asarray(result.reprojection_error, np.float64).reshape(F, C)
@@ -487,8 +503,8 @@ def _run_video(job: Job) -> Fit:
         else np.broadcast_to(np.asarray(result.silhouette_iou, np.float64).reshape(F, -1), (F, C)).copy()
     )
     numbers = list(job.frame_numbers) if job.frame_numbers is not None else list(range(F))
-    warnings = _video_warnings(job, result, frames, vertices, errors, numbers, rig)
-    metrics = _video_metrics(result, errors, warnings, silhouette, numbers, cue_records)
+    warnings = _video_warnings(job, result, core.frames, vertices, errors, numbers, rig)
+    metrics = _video_metrics(result, errors, warnings, core.silhouette, numbers, core.cue_records)
     result.warnings = metrics["warnings"]
     return Fit(
         job,
@@ -502,6 +518,10 @@ def _run_video(job: Job) -> Fit:
         metrics,
         result,
     )
+
+
+#: mode (frames x views) -> (its core from a group of jobs, a result of the core as a :class:`Fit`)
+CORES = {"image": (_image_core, _image_fit), "rig": (_rig_core, _rig_fit), "video": (_video_core, _video_fit)}
 
 
 def frame_warnings(frames, vertices, errors, numbers) -> List[str]:
@@ -642,3 +662,44 @@ def fit(
         image=image,
     )
     return run(job).stage
+
+
+def fit_sequence(
+    frames,
+    camera,
+    model=None,
+    *,
+    masks=None,
+    config=None,
+    silhouette_config=None,
+    pose_prior=None,
+    progress: bool = False,
+    images=None,
+):
+    """Fit one person over a video's frames (a :class:`~silfit.fitting.sequence.SequenceFitResult`, as
+    :func:`silfit.fitting.sequence.fit_sequence` gives it): the same path as every other mode (:func:`run` on
+    :func:`video_job`, or for a rig's views :func:`silfit.inputs.rig_video_job`), so the frames get the checks every
+    input gets (:func:`check`: a frame whose keypoints are refused is bridged) and the result the video's
+    plausibility warnings.
+
+    ``frames``: one :class:`~silfit.io.keypoints.KeypointSet` (or ``None``) per frame with ``camera`` a
+    :class:`~silfit.camera.Camera`; or ``frames[f][c]`` per view with ``camera`` a list of
+    :class:`~silfit.fitting.problem.View` s (a rig video, in its world frame). ``masks`` (``masks[f]`` or
+    ``masks[f][c]``, ``None`` where there is none): the silhouette stage follows. ``images`` (one camera; per frame
+    an RGB array or ``None``): the image depth cue (:mod:`silfit.fitting.image_depth`)."""
+    from dataclasses import replace
+
+    from .inputs.rig import rig_video_job
+
+    if isinstance(camera, (list, tuple)):
+        if images is not None:
+            raise ValueError("fit_sequence: images (the image depth cue) are for one camera's video, not a rig's")
+        names = [str(c) for c in range(len(camera))]
+        job = rig_video_job(
+            frames, camera, names, model, masks=masks, config=config, silhouette_config=silhouette_config
+        )
+    else:
+        job = video_job(frames, camera, model, masks=masks, config=config, silhouette_config=silhouette_config)
+    job = replace(job, pose_prior=pose_prior, progress=progress)
+    pictures = {(f, 0): image for f, image in enumerate(images or []) if image is not None}
+    return run(replace(job, images=pictures)).stage

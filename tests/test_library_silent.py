@@ -12,6 +12,7 @@ import pytest
         ("silfit.run", "fit"),
         ("silfit.run", "image_job"),
         ("silfit.run", "video_job"),
+        ("silfit.run", "fit_sequence"),
         ("silfit.run", "Job"),
         ("silfit.fitting.keypoint_stage", "fit_keypoints"),
         ("silfit.fitting.keypoint_stage", "KeypointFitter.fit"),

@@ -124,6 +124,23 @@ def test_a_one_frame_video_stays_a_video(open_model, subject):
     assert isinstance(fit.stage, SequenceFitResult) and fit.params["body_pose"].shape == (1, 69)
 
 
+def test_the_public_fit_sequence_goes_through_run(open_model, subject):
+    """``silfit.fit_sequence`` is run on a video job: the sequence core's result, the same fit as the core alone on
+    frames the checks leave as they are; a frame whose keypoints the checks refuse is bridged."""
+    import silfit
+    from silfit.fitting import sequence
+    from silfit.fitting.sequence import SequenceFitConfig, SequenceFitResult
+
+    ks, cam = subject.keypoints, subject.camera
+    cfg = SequenceFitConfig(keypoint=FAST, iterations=3, neighbour_starts=False)
+    fit = silfit.fit_sequence([ks, ks, ks], cam, open_model, config=cfg)
+    core = sequence.fit_sequence([ks, ks, ks], cam, open_model, config=cfg)
+    assert isinstance(fit, SequenceFitResult)
+    assert all(np.array_equal(v, core.params()[n]) for n, v in fit.params().items())
+    refused = silfit.fit_sequence([ks, _unusable(ks), ks], cam, open_model, config=cfg)
+    assert refused.bridged.tolist() == [False, True, False]
+
+
 def test_check_reindexes_a_rig_videos_pictures_when_a_view_is_set_aside(subject):
     ks, cam = subject.keypoints, subject.camera
     obs = [Observation(View(cam), k, None, f, c) for f in range(2) for c, k in enumerate([_unusable(ks), ks])]

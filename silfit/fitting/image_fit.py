@@ -41,9 +41,9 @@ import numpy as np
 import torch
 
 from ..camera import Camera, project_points
-from ..errors import interruption
 from .keypoint_stage import KeypointFitter
 from .result import KeypointFitResult
+from .cores import Core, StageFailure, run_steps
 from .refine import SilhouetteHooks, StageInputs, refine_silhouettes
 from .silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult
 from ..io.keypoints import KeypointSet, model_keypoints
@@ -59,6 +59,7 @@ __all__ = [
     "StageFailure",
     "refine",
     "refine_batch",
+    "ImageCore",
     "ImageRefinement",
     "save_fit",
     "body_mask",
@@ -743,16 +744,6 @@ def _keypoint_fitter(model, layout: str, config, pose_prior) -> KeypointFitter:
     return fitter
 
 
-class StageFailure(Exception):
-    """One image of a batch failed in ``stage`` (``"keypoints"`` or ``"silhouette"``): the
-    original error is ``error``; after a failed silhouette stage, ``partial`` holds the keypoint
-    stage's :class:`FitResult`."""
-
-    def __init__(self, stage: str, error: Exception, partial=None):
-        super().__init__(str(error))
-        self.stage, self.error, self.partial = stage, error, partial
-
-
 def _add_records(model, whole_body: bool, result: FitResult, keypoints: KeypointSet, cue, cue_record) -> None:
     """An image's fit's records and warnings, into its ``metrics``: the whole body's fitted parts, the image depth
     cue, the plausibility and depth-ambiguity warnings (limbs the image ``cue`` decides are not named), the branch
@@ -796,10 +787,10 @@ def fit_problems(
     people: Optional[Sequence] = None,
     known: Optional[Sequence[Optional[np.ndarray]]] = None,
 ) -> List[Union[FitResult, StageFailure]]:
-    """Images' cores, keypoints already checked (:func:`silfit.run.check`), one layout: the
-    keypoint stage batched over all images, the silhouette stage batched over those with a mask
-    (and ``silhouette``; ``known``: per image, the mask's pixels whose value is trusted, ``None``: all), each
-    image's plausibility warnings
+    """Images' cores, keypoints already checked (:func:`silfit.run.check`), one layout: the steps of every fit
+    (:func:`~silfit.fitting.cores.run_steps`) on an :class:`ImageCore`: the keypoint stage batched over all images,
+    the silhouette stage batched over those with a mask (and ``silhouette``; ``known``: per image, the mask's pixels
+    whose value is trusted, ``None``: all), each image's plausibility warnings
     (:func:`silfit.fitting.plausibility.fit_warnings`, depth ambiguity). With ``isolate``, a failing
     batch is fitted again image by image, and an image that still fails gets a
     :class:`StageFailure` in its place; without, the first error raises.
@@ -808,49 +799,56 @@ def fit_problems(
     (:func:`~silfit.fitting.image_depth.cue_from_image`; ``people``: per image the detection its keypoints
     came from, reused) joins the keypoint stage where the settings' ``image_depth_weight`` or ``image_depth_decide`` is on;
     ``metrics.json``'s ``image_depth`` says what it decided (``"none"`` without an image)."""
-    n = len(keypoints)
-    mask_sources = list(mask_sources or ["mask"] * n)
-    fitter = _keypoint_fitter(model, keypoints[0].layout, keypoint_config, pose_prior)
-    cues, cue_records = _depth_cues(fitter, keypoints, images, people)
-    batch = _ImageBatch(
-        model, fitter, keypoints, cameras, masks, mask_sources, known, cues, silhouette_config, progress
+    core = ImageCore(
+        model,
+        keypoints,
+        cameras,
+        masks,
+        pose_prior=pose_prior,
+        keypoint_config=keypoint_config,
+        silhouette_config=silhouette_config,
+        silhouette=silhouette,
+        progress=progress,
+        mask_sources=mask_sources,
+        images=images,
+        people=people,
+        known=known,
     )
-    kp_results = dict(_each(list(range(n)), batch.keypoint_stage, "keypoints", isolate))
-    ok = [i for i in range(n) if not isinstance(kp_results[i], StageFailure)]
-    sil = [i for i in ok if masks[i] is not None and silhouette]
-    refined = (
-        dict(_each(sil, lambda rows: batch.silhouette_stage(rows, kp_results), "silhouette", isolate)) if sil else {}
-    )
-    return [batch.result(i, kp_results[i], refined, cue_records[i]) for i in range(n)]
+    return run_steps(core, isolate)
 
 
-def _each(rows: list, call, stage: str, isolate: bool) -> list:
-    """``call(rows)`` -> one result per row; ``isolate``: again row by row where the batch fails (an image that still
-    fails gets a :class:`StageFailure` of ``stage``)."""
-    try:
-        return list(zip(rows, call(rows)))
-    except Exception as err:  # noqa: BLE001 - which row failed is found by fitting them alone
-        if not isolate or interruption(err) is not None:  # (an error on an interrupt's way out is the interrupt)
-            raise
-        if len(rows) == 1:
-            return [(rows[0], StageFailure(stage, err))]
-        return [pair for r in rows for pair in _each([r], call, stage, isolate)]
+class ImageCore(Core):
+    """Images of one layout, model and settings (:func:`fit_problems`' arguments) as the core of
+    :func:`~silfit.fitting.cores.run_steps`: the keypoint stage batched (:class:`KeypointFitter`, with each
+    image's depth cue), the silhouette stage on the images with a mask, refined as one per keypoint batch
+    (:class:`ImageRefinement`), a :class:`FitResult` per image with its records (:func:`_add_records`)."""
 
+    isolates_stages = True
 
-@dataclass
-class _ImageBatch:
-    """:func:`fit_problems`' images (``cues``: their image depth cues) and the stages it runs on rows of them."""
-
-    model: object
-    fitter: KeypointFitter
-    keypoints: Sequence[KeypointSet]
-    cameras: Sequence[Camera]
-    masks: Sequence[Optional[np.ndarray]]
-    mask_sources: list
-    known: Optional[Sequence[Optional[np.ndarray]]]
-    cues: list
-    silhouette_config: object
-    progress: bool
+    def __init__(
+        self,
+        model,
+        keypoints: Sequence[KeypointSet],
+        cameras: Sequence[Camera],
+        masks: Sequence[Optional[np.ndarray]],
+        *,
+        pose_prior=None,
+        keypoint_config=None,
+        silhouette_config=None,
+        silhouette: bool = True,
+        progress: bool = False,
+        mask_sources: Optional[Sequence[str]] = None,
+        images: Optional[Sequence[Optional[np.ndarray]]] = None,
+        people: Optional[Sequence] = None,
+        known: Optional[Sequence[Optional[np.ndarray]]] = None,
+    ):
+        n = len(keypoints)
+        self.model, self.keypoints, self.cameras, self.masks, self.size = model, keypoints, cameras, masks, n
+        self.mask_sources, self.known = list(mask_sources or ["mask"] * n), known
+        self.silhouette_config, self.silhouette, self.progress = silhouette_config, silhouette, progress
+        self.fitter = _keypoint_fitter(model, keypoints[0].layout, keypoint_config, pose_prior)
+        self.pose_prior = self.fitter.pose_prior
+        self.cues, self.cue_records = _depth_cues(self.fitter, keypoints, images, people)
 
     def keypoint_stage(self, rows: list) -> list:
         """Per row: (the batch's result, its index there); timings shared out."""
@@ -863,27 +861,30 @@ class _ImageBatch:
         kp.timings = {k: float(v) / len(rows) for k, v in kp.timings.items()}
         return [(kp, j) for j in range(len(rows))]
 
-    def silhouette_stage(self, rows: list, kp_results: dict) -> list:
-        """Per row its refined :class:`FitResult` (the one silhouette driver with :class:`ImageRefinement`); rows
-        fitted in one keypoint batch (``kp_results``: :meth:`keypoint_stage`'s) are refined as one."""
-        groups: dict = {}  # rows fitted in one keypoint batch are refined as one
+    def silhouette_rows(self, rows: list, kp: dict) -> list:
+        return [i for i in rows if self.masks[i] is not None and self.silhouette]
+
+    def silhouette_hooks(self, rows: list, kp: dict):
+        """Rows fitted in one keypoint batch (``kp``: :meth:`keypoint_stage`'s) are refined as one
+        (:class:`ImageRefinement`)."""
+        groups: dict = {}
         for i in rows:
-            groups.setdefault(id(kp_results[i][0]), []).append(i)
-        done = {}
+            groups.setdefault(id(kp[i][0]), []).append(i)
         for group in groups.values():
-            batch = kp_results[group[0]][0].select([kp_results[i][1] for i in group])
-            hooks = ImageRefinement(
-                batch,
-                [self.keypoints[i] for i in group],
-                [np.asarray(self.masks[i], dtype=bool) for i in group],
-                [self.mask_sources[i] for i in group],
-                None if self.known is None else [self.known[i] for i in group],
+            batch = kp[group[0]][0].select([kp[i][1] for i in group])
+            yield (
+                group,
+                ImageRefinement(
+                    batch,
+                    [self.keypoints[i] for i in group],
+                    [np.asarray(self.masks[i], dtype=bool) for i in group],
+                    [self.mask_sources[i] for i in group],
+                    None if self.known is None else [self.known[i] for i in group],
+                ),
             )
-            fitted = refine_silhouettes(
-                self.model, hooks, self.silhouette_config, self.fitter.pose_prior, progress=self.progress
-            )
-            done.update(zip(group, fitted))
-        return [done[i] for i in rows]
+
+    def results(self, kp: dict, refined: dict) -> list:
+        return [self.result(i, kp[i], refined, self.cue_records[i]) for i in range(self.size)]
 
     def result(self, i: int, kp, refined: dict, cue_record) -> Union[FitResult, StageFailure]:
         """Image ``i``'s result from its keypoint stage's ``kp`` and, where it ran, its silhouette stage's (in

@@ -35,11 +35,13 @@ from typing import List, Optional, Union
 import numpy as np
 
 from ..eval.metrics import mask_iou
+from .cores import Core, run_steps
 from .refine import SilhouetteHooks, StageInputs, refine_silhouettes
 from .rig_fit import RigFit, fit_rig_keypoints
 from ..outputs.folder import atomic_folder
 
 __all__ = [
+    "RigCore",
     "RigRefinement",
     "RigResult",
     "fit_rig",
@@ -161,39 +163,61 @@ def fit_rigs(
     silhouette_config=None,
     progress: bool = False,
 ) -> List[RigResult]:
-    """Fit rig problems of one keypoint layout (``names[i]``: problem ``i``'s view names): the
-    keypoint stage batched over them, then the silhouette stage batched over those with a mask
-    (with ``silhouette``); a result per problem, ``keypoint`` holding its keypoint-stage fit."""
-    from ..body import load_body_model
-    from .keypoint_stage import KeypointFitter
+    """Fit rig problems of one keypoint layout (``names[i]``: problem ``i``'s view names): the steps of every fit
+    (:func:`~silfit.fitting.cores.run_steps`) on a :class:`RigCore`: the keypoint stage batched over them, then the
+    silhouette stage batched over those with a mask (with ``silhouette``); a result per problem, ``keypoint``
+    holding its keypoint-stage fit."""
+    core = RigCore(problems, names, model, pose_prior, keypoint_config, silhouette, silhouette_config, progress)
+    return run_steps(core)
 
-    model = load_body_model() if model is None else model
-    layout = problems[0].observations[0].keypoints.layout
-    fitter = KeypointFitter(model, layout, keypoint_config, pose_prior)  # no branch search with several views:
-    # the final stage runs its ``unsearched_iterations`` (KeypointFitConfig.final_iters_unsearched)
-    t0 = time.perf_counter()
-    kps = fit_rig_keypoints(fitter, list(problems), progress=progress)
-    share = (time.perf_counter() - t0) / len(problems)
-    for kp in kps:  # the batch's seconds shared out
-        kp.timings = {**kp.timings, "total": share}
-    faces = model.faces.cpu().numpy()
-    out = [keypoint_stage_result(kp, p, n, faces) for kp, p, n in zip(kps, problems, names)]
-    todo = [i for i, p in enumerate(problems) if silhouette and any(o.mask is not None for o in p.observations)]
-    if todo:
-        hooks = RigRefinement([(names[i], problems[i], kps[i]) for i in todo])
-        refined = refine_silhouettes(model, hooks, silhouette_config, fitter.pose_prior, progress=progress)
-        for i, r in zip(todo, refined):
-            out[i] = r
-    if fitter.whole_body:  # which parts were fitted (seen in any view), which held at rest
-        from .hands_face import wholebody_summary
-        from ..io.keypoints import KeypointSet
 
-        for problem, result in zip(problems, out):
-            ks = [o.keypoints for o in problem.grid()[0]]
-            seen = KeypointSet(ks[0].xy, np.max([k.conf for k in ks], 0), ks[0].layout, ks[0].source)
-            result.metrics["whole_body"], notes = wholebody_summary(seen)
-            result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
-    return out
+class RigCore(Core):
+    """Rig problems of one keypoint layout (:func:`fit_rigs`' arguments) as the core of
+    :func:`~silfit.fitting.cores.run_steps`: the keypoint stage in the world frame, batched
+    (:func:`~silfit.fitting.rig_fit.fit_rig_keypoints`, the torso triangulated), the silhouette stage on the
+    problems with a mask (:class:`RigRefinement`), a :class:`RigResult` per problem (with the whole body's parts)."""
+
+    def __init__(self, problems, names, model, pose_prior, keypoint_config, silhouette, silhouette_config, progress):
+        from ..body import load_body_model
+        from .keypoint_stage import KeypointFitter
+
+        self.problems, self.names, self.size = list(problems), names, len(problems)
+        self.model = load_body_model() if model is None else model
+        layout = problems[0].observations[0].keypoints.layout
+        self.fitter = KeypointFitter(self.model, layout, keypoint_config, pose_prior)  # no branch search with several
+        # views: the final stage runs its ``unsearched_iterations`` (KeypointFitConfig.final_iters_unsearched)
+        self.pose_prior, self.silhouette, self.silhouette_config = self.fitter.pose_prior, silhouette, silhouette_config
+        self.progress = progress
+
+    def keypoint_stage(self, rows: list) -> list:
+        """Per row ``(RigFit, its keypoint-stage RigResult)``; the batch's seconds shared out."""
+        t0 = time.perf_counter()
+        kps = fit_rig_keypoints(self.fitter, [self.problems[i] for i in rows], progress=self.progress)
+        share = (time.perf_counter() - t0) / len(rows)
+        for kp in kps:
+            kp.timings = {**kp.timings, "total": share}
+        faces = self.model.faces.cpu().numpy()
+        return [(kp, keypoint_stage_result(kp, self.problems[i], self.names[i], faces)) for kp, i in zip(kps, rows)]
+
+    def silhouette_rows(self, rows: list, kp: dict) -> list:
+        return [i for i in rows if self.silhouette and any(o.mask is not None for o in self.problems[i].observations)]
+
+    def silhouette_hooks(self, rows: list, kp: dict):
+        yield rows, RigRefinement([(self.names[i], self.problems[i], kp[i][0]) for i in rows])
+
+    def results(self, kp: dict, refined: dict) -> List[RigResult]:
+        """Each problem's refined result, or its keypoint stage's; the whole body's parts recorded."""
+        out = [refined.get(i, kp[i][1]) for i in range(self.size)]
+        if self.fitter.whole_body:  # which parts were fitted (seen in any view), which held at rest
+            from .hands_face import wholebody_summary
+            from ..io.keypoints import KeypointSet
+
+            for problem, result in zip(self.problems, out):
+                ks = [o.keypoints for o in problem.grid()[0]]
+                seen = KeypointSet(ks[0].xy, np.max([k.conf for k in ks], 0), ks[0].layout, ks[0].source)
+                result.metrics["whole_body"], notes = wholebody_summary(seen)
+                result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
+        return out
 
 
 def _check_masks_overlap(items, before) -> None:

@@ -59,6 +59,7 @@ from ..camera import Camera, project_points
 from ..io.keypoints import KeypointSet, model_keypoints
 from .keypoint_stage import BranchSearch, KeypointFitConfig, KeypointFitter, check_torso
 from .problem import Observation, Problem, View
+from .cores import Core
 from .refine import SilhouetteHooks, StageInputs, refine_silhouettes
 from .aliases import Alias, renamed_fields
 from .schedule_edits import sequence_defaults, sequence_stages
@@ -73,6 +74,7 @@ __all__ = [
     "keypoint_outliers",
     "refine_sequence_silhouettes",
     "SequenceRefinement",
+    "VideoCore",
     "viterbi",
     "pose_distances",
     "branch_path",
@@ -1194,3 +1196,55 @@ class SequenceRefinement(SilhouetteHooks):
         ious = np.array(sil.ious, dtype=np.float64).reshape(F, len(self.views))
         out.silhouette_iou, out.silhouette_iou_start = (ious if self.rig else ious[:, 0]), float(sil.iou_start)
         return [out]
+
+
+class VideoCore(Core):
+    """A video of one camera (``frames[f]``, ``masks[f]``, ``cameras`` its camera) or of a rig (``frames[f][c]``,
+    ``masks[f][c]``, ``cameras`` the views) as the core of :func:`~silfit.fitting.cores.run_steps`: one row, the
+    keypoint stage :func:`fit_sequence` (bridging, facings, the temporal terms; ``depth_cues`` per frame, or
+    ``None``), then, with ``silhouette``, the sequence's silhouette stage (:class:`SequenceRefinement`).
+    ``cue_records``: per frame what the image depth cue decided, for ``metrics.json`` (``None``: no cue)."""
+
+    size = 1
+
+    def __init__(
+        self,
+        frames,
+        cameras,
+        masks,
+        model,
+        config: SequenceFitConfig,
+        *,
+        pose_prior=None,
+        progress: bool = False,
+        silhouette: bool = False,
+        silhouette_config=None,
+        depth_cues: Optional[list] = None,
+        cue_records: Optional[list] = None,
+    ):
+        self.frames, self.cameras, self.masks, self.model, self.config = frames, cameras, masks, model, config
+        self.pose_prior, self.progress = pose_prior, progress
+        self.silhouette, self.silhouette_config = silhouette, silhouette_config
+        self.depth_cues, self.cue_records = depth_cues, cue_records  # per frame: the cue and its metrics.json record
+
+    def keypoint_stage(self, rows: list) -> list:
+        return [
+            fit_sequence(
+                self.frames,
+                self.cameras,
+                self.model,
+                config=self.config,
+                pose_prior=self.pose_prior,
+                progress=self.progress,
+                depth_cues=self.depth_cues,
+            )
+        ]
+
+    def silhouette_rows(self, rows: list, kp: dict) -> list:
+        return list(rows) if self.silhouette else []
+
+    def silhouette_hooks(self, rows: list, kp: dict):
+        yield rows, SequenceRefinement(kp[0], self.frames, self.masks)
+
+    def results(self, kp: dict, refined: dict) -> List[SequenceFitResult]:
+        return [refined.get(0, kp[0])]

@@ -170,9 +170,9 @@ def test_fit_every_person_of_a_photo(tmp_path, capsys, monkeypatch):
     image = tmp_path / "two.png"
     Image.fromarray(np.concatenate([a, b], axis=1)).save(image)
     out = tmp_path / "fits"
-    batches, real = [], silfit.run._run_images
+    batches, real = [], silfit.run._fit_group
     monkeypatch.setattr(
-        silfit.run, "_run_images", lambda jobs, isolate: batches.append(len(jobs)) or real(jobs, isolate)
+        silfit.run, "_fit_group", lambda jobs, isolate: batches.append(len(jobs)) or real(jobs, isolate)
     )
     assert main(["fit", "--image", str(image), "--people", "all", "--no-silhouette", "--out", str(out), "--quiet"]) == 0
     assert batches == [2], batches  # before: two batches of one (each person's job had its own model object)

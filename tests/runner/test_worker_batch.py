@@ -1,5 +1,5 @@
 """The dataset worker refines a batch's masked items in one silhouette-stage call (issue 24), through the
-one path (silfit.run.run_batch -> silfit.fitting.image_fit.fit_problems)."""
+one path (silfit.run.run_batch -> silfit.fitting.cores.run_steps on an image core)."""
 
 import numpy as np
 import pytest
@@ -7,7 +7,7 @@ import pytest
 from runner.helpers import SYNTHETIC, synthetic_copy
 from silfit.runner import FitOptions
 from silfit.runner.items import list_items
-from silfit.fitting import image_fit
+from silfit.fitting import cores
 from silfit.runner.worker import DatasetFitter
 
 KP_FAST = {
@@ -28,13 +28,13 @@ def test_masked_items_are_refined_in_one_call(tmp_path, monkeypatch):
     data = synthetic_copy(tmp_path / "in", ["subject_000", "subject_001", "subject_002"])
     items = list_items(data)
     calls = []
-    real = image_fit.refine_silhouettes
+    real = cores.refine_silhouettes
 
     def counting(model, hooks, *args, **kwargs):
         calls.append(len(hooks.masks))
         return real(model, hooks, *args, **kwargs)
 
-    monkeypatch.setattr(image_fit, "refine_silhouettes", counting)
+    monkeypatch.setattr(cores, "refine_silhouettes", counting)
     records = _fitter().run_batch(items, tmp_path / "out")
     assert calls == [3]
     assert [r["status"] for r in records] == ["ok"] * 3
