@@ -396,7 +396,7 @@ def _video_depth_cues(job: Job, frames) -> tuple:
     kp_cfg = (job.sequence_config or SequenceFitConfig()).keypoint
     paths = dict(getattr(job.inputs, "images", None) or {})
     numbers = list(job.frame_numbers) if job.frame_numbers is not None else list(range(len(frames)))
-    if (not kp_cfg.image_depth_weight and kp_cfg.image_depth_decide is None) or not (job.images or paths):
+    if (not kp_cfg.image_depth.weight and kp_cfg.image_depth.decide is None) or not (job.images or paths):
         return None, None
     from .io.images import read_rgb
 

@@ -158,12 +158,12 @@ def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources, known=N
             if getattr(cfg, "trim_clothing", False) and extent > 0
             else 0.0
         )
-        trimmed.append(t > cfg.trim_min * extent)
+        trimmed.append(t > cfg.mask.trim_min * extent)
         if not trimmed[-1]:
             out.append(mask)
             notes.append([])
             continue
-        t = min(t, cfg.trim_max * extent)
+        t = min(t, cfg.mask.trim_max * extent)
         out.append(trim_clothing(mask, t))
         if seen is not None and not (out[-1] & np.asarray(seen, dtype=bool)).any():  # nothing left to fit
             out[-1], trimmed[-1] = mask, False
@@ -192,7 +192,9 @@ def _known_pixels(masks, body_masks, cfg: SilhouetteFitConfig, sources, notes, t
         concave = float(getattr(cfg, "concave_radius", 0.0)) * extent
         if getattr(cfg, "concave_trimmed_only", True) and not cloth:
             concave = 0.0
-        known = unknown_regions(mask, body, float(cfg.leak_distance) * extent, float(cfg.hole_fraction), concave)
+        known = unknown_regions(
+            mask, body, float(cfg.mask.leak_distance) * extent, float(cfg.mask.hole_fraction), concave
+        )
         far = 0 if known is None else int(np.count_nonzero(mask & ~known & ~concave_region(body, concave)))
         if far > 0.02 * len(ys):
             note.append(
@@ -914,8 +916,8 @@ def _depth_cues(fitter, keypoints, images, people) -> tuple:
     for i, (image, ks) in enumerate(zip(images, keypoints)):
         if image is None:
             continue
-        decide = fitter.config.image_depth_decide
-        if not fitter.config.image_depth_weight and decide is None:
+        decide = fitter.config.image_depth.decide
+        if not fitter.config.image_depth.weight and decide is None:
             records[i] = "off"
             continue
         t0 = time.perf_counter()
