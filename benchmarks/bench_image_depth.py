@@ -28,11 +28,13 @@ import torch
 from silfit import load_body_model
 from silfit.camera import load_camera
 from silfit.io.subjects import read_gt
-from silfit.fitting.image_depth import SEGMENTS, depth_cue
+from silfit.fitting.image_depth import SEGMENTS, ImageDepthConfig, depth_cue, mirrored_person, person_cue
 from silfit.io.images import read_rgb
 from silfit.io.keypoints import read_keypoints
 
 BINS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.6, 1.01)
+#: the "mirror" settings' gates: both readings must agree (ImageDepthConfig.mirror), so the gates can be wider
+MIRROR_GATES = ImageDepthConfig(off_below=0.3, full_at=0.5, max_disagreement=0.08, mirror=True)
 
 
 def run_seed(seed: int, n: int, size: int, poses: str, fit: bool) -> list:
@@ -82,6 +84,8 @@ def run_seed(seed: int, n: int, size: int, poses: str, fit: bool) -> list:
                 person.world, np.where(person.in_image(), person.visibility, 0.0), person.names, person.xy, ks
             )
         )
+        mirror = mirrored_person(image, ks) if person is not None else None
+        m_cue = None if mirror is None else person_cue(mirror, ks)
         for s, (seg, p, d) in enumerate(SEGMENTS):
             jp, jd = names.index(p), names.index(d)
             row = {
@@ -108,6 +112,8 @@ def run_seed(seed: int, n: int, size: int, poses: str, fit: bool) -> list:
                         )
                     ),
                     call=float(cue.sign[s] * cue.confidence[s]),
+                    m_cos=np.nan if m_cue is None else float(m_cue.ratio[s]),
+                    m_call=0.0 if m_cue is None or m_cue.refused else float(m_cue.sign[s] * m_cue.confidence[s]),
                     refused=cue.refused is not None,
                 )
             if fits is not None:
@@ -145,11 +151,18 @@ def compare_seed(
         gts = [read_gt(d / "gt.npz") for d in dirs]
         masks = [read_mask(d / "mask.png") for d in dirs]
     t0 = time.process_time()
-    cues = [cue_from_image(im, ks)[0] for im, ks in zip(images, sets)]
+    image_cues = [cue_from_image(im, ks)[0] for im, ks in zip(images, sets)]
     t_cue = (time.process_time() - t0) / len(sets)
+    oracles = [oracle_cue(gt.joints, model.joint_names) for gt in gts]
+    mirrored = None
+    if any("mirror" in v[0] for v in variants):  # the two readings' agreed calls, with wider gates
+        t0 = time.process_time()
+        mirrored = [cue_from_image(im, ks, config=MIRROR_GATES)[0] for im, ks in zip(images, sets)]
+        t_mirror = (time.process_time() - t0) / len(sets)
     rows = []
     for label, w, decide in variants:
         on = bool(w) or decide is not None
+        cues = oracles if "oracle" in label else mirrored if "mirror" in label else image_cues
         cue = ImageDepthOptions(
             float(w), decide=decide, decide_screens="reserve" not in label, decide_early="late" not in label
         )
@@ -179,7 +192,7 @@ def compare_seed(
                         "w": label,
                         "t_kp": t_kp / len(res),
                         "t_sil": t_sil / len(res),
-                        "t_cue": t_cue if on else 0.0,
+                        "t_cue": (t_mirror if "mirror" in label else t_cue) if on else 0.0,
                         "decided": 0 if c is None else len(c.decided()),
                         "hard": 0 if c is None or decide is None else int((c.hard_signs(decide) != 0).sum()),
                         "gap": choice_gap(kp.branch_search[j]),
@@ -190,6 +203,21 @@ def compare_seed(
                     }
                 )
     return rows
+
+
+def oracle_cue(joints: np.ndarray, joint_names, min_cos: float = 0.2):
+    """A perfect cue (what-if: the truth's depth signs): every segment whose true depth cosine is at least
+    ``min_cos`` decided on its true side, confidence 1; flatter ones off. Tells what the mechanisms
+    (the term, the hard choice) could do with a landmark model that never errs."""
+    from silfit.fitting.image_depth import DepthCue
+
+    names = list(joint_names)
+    ratio = np.zeros(len(SEGMENTS))
+    for s, (_, p, d) in enumerate(SEGMENTS):
+        v = joints[names.index(d)] - joints[names.index(p)]
+        ratio[s] = v[2] / max(np.linalg.norm(v), 1e-9)
+    on = np.abs(ratio) >= min_cos
+    return DepthCue(np.where(on, np.sign(ratio), 0.0), on.astype(np.float64), ratio)
 
 
 def choice_gap(search) -> float:
@@ -310,6 +338,17 @@ def main() -> None:
         "branch search (T/reserve: image_depth_decide_screens off, T/late: image_depth_decide_early off, both: T/reserve/late; implies --compare 0 where --compare is not given, "
         "--compare none: no baseline)",
     )
+    ap.add_argument(
+        "--oracle-weight",
+        metavar="W0,W1",
+        help="compare also with the truth's depth signs as the cue (a what-if: a landmark model that never errs) "
+        "through the term at these weights; T/oracle in --decide: the same through the hard choice",
+    )
+    ap.add_argument(
+        "--mirror-weight",
+        metavar="W0,W1",
+        help="compare also with the cue read twice (the image and its mirror image, MIRROR_GATES) through the term",
+    )
     ap.add_argument("--batch", type=int, default=8, help="--compare: subjects per keypoint-stage batch")
     ap.add_argument(
         "--no-silhouette",
@@ -322,11 +361,19 @@ def main() -> None:
     if args.compare or args.decide:
         compare = (args.compare or "0").split(",") if args.compare != "none" else []
         variants = tuple((f"weight {float(w):g}", float(w), None) for w in compare)
+        for w in (args.oracle_weight or "").split(","):  # the truth's signs as the cue, through the term
+            if w:
+                variants += ((f"oracle weight {float(w):g}", float(w), None),)
+        for w in (args.mirror_weight or "").split(","):  # the two readings' agreed calls, through the term
+            if w:
+                variants += ((f"mirror weight {float(w):g}", float(w), None),)
         for t in (args.decide or "").split(
             ","
         ):  # T, T/reserve (image_depth_decide_screens off), T/late (..._early off)
             if t:
                 label = " ".join([f"decide {float(t.split('/')[0]):g}"] + t.split("/")[1:])
+                label = label.replace("decide", "oracle decide") if "oracle" in t else label
+                label = label.replace(" oracle", "") if "oracle" in t else label
                 variants += ((label, 0.0, float(t.split("/")[0])),)
         weights = tuple(v[0] for v in variants)
         with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:

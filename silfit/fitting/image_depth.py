@@ -78,6 +78,9 @@ class ImageDepthConfig:
     #: the whole set is refused when its left/right pairs fit the keypoints swapped better than this share
     #: of their direct distance (a mirrored reading of the person)
     swap_ratio: float = 0.7
+    #: read the person twice, in the image and in its mirror image (:func:`mirrored_person`), and keep only the
+    #: calls both readings make (:func:`agreed_cue`): the landmark model's confident errors are rarely repeated
+    mirror: bool = False
 
 
 @dataclass
@@ -248,7 +251,69 @@ def cue_from_image(image: np.ndarray, keypoints, person=None, config: Optional[I
         else:
             return None, {"refused": "no person the landmark model found lies on the keypoints"}
     cue = person_cue(person, keypoints, config)
+    if config is not None and config.mirror and not cue.refused:
+        other = mirrored_person(image, keypoints)
+        cue = agreed_cue(cue, None if other is None else person_cue(other, keypoints, config))
     return (None if cue.refused else cue), cue.to_dict()
+
+
+def _other_side(name: str) -> str:
+    """``left_x`` <-> ``right_x`` (other names unchanged)."""
+    if name.startswith("left"):
+        return "right" + name[4:]
+    return "left" + name[5:] if name.startswith("right") else name
+
+
+def unmirror_person(person):
+    """A person detected in the horizontally flipped image, read back in the image: ``x -> W - 1 - x`` (pixel
+    centres on integers), left and right landmarks swapped, the 3D's x negated (its z, the depth, unchanged)."""
+    from dataclasses import replace
+
+    names = list(person.names)
+    swap = [names.index(_other_side(n)) for n in names]
+    W = person.image_size[0]
+    xy = person.xy[swap].copy()
+    xy[:, 0] = W - 1 - xy[:, 0]
+    world = person.world[swap].copy()
+    world[:, 0] = -world[:, 0]
+    return replace(
+        person,
+        xy=xy,
+        z=person.z[swap],
+        visibility=person.visibility[swap],
+        presence=person.presence[swap],
+        world=world,
+        mask_prob=person.mask_prob[:, ::-1],
+    )
+
+
+def mirrored_person(image: np.ndarray, keypoints) -> Optional[object]:
+    """The landmark model's second reading of the person on ``keypoints``: run on the horizontally flipped image,
+    read back (:func:`unmirror_person`) and matched to the keypoints (:func:`match_person`); ``None`` where none
+    matches. The model is not equivariant to the flip, so the two readings' errors are partly independent."""
+    from ..detect import DetectConfig, DetectionError, detect_people
+
+    flipped = np.ascontiguousarray(np.asarray(image)[:, ::-1])
+    for most in (1, 0):
+        try:
+            people = [unmirror_person(p) for p in detect_people(flipped, DetectConfig(max_people=most))]
+        except DetectionError:
+            return None
+        i = match_person(people, keypoints)
+        if i is not None:
+            return people[i]
+    return None
+
+
+def agreed_cue(a: DepthCue, b: Optional[DepthCue]) -> DepthCue:
+    """The calls two readings agree on (the same sign, both on): per segment the smaller confidence and the
+    flatter depth cosine; a segment either reading leaves off or that they call differently is off."""
+    if b is None or b.refused:
+        return DepthCue(np.zeros_like(a.sign), np.zeros_like(a.confidence), a.ratio, a.refused, list(a.notes))
+    same = (a.sign == b.sign) & (a.sign != 0) & (a.confidence > 0) & (b.confidence > 0)
+    ratio = np.where(np.abs(a.ratio) <= np.abs(b.ratio), a.ratio, b.ratio)
+    conf = np.where(same, np.minimum(a.confidence, b.confidence), 0.0)
+    return DepthCue(np.where(same, a.sign, 0.0), conf, ratio, a.refused, list(a.notes))
 
 
 def cue_data(cues: Sequence[Optional[DepthCue]], frames: int = 1) -> Optional[np.ndarray]:

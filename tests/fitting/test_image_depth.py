@@ -281,3 +281,52 @@ def test_rows_against_the_decided_sides_rank_after_those_that_agree():
     assert best_per_group(score, group, 2).tolist() == [1, 3]  # sample 1: none agrees, the energy chooses
     assert best_per_group(score, group, 2, count=3).tolist() == [1, 0, 2, 3, 4]
     assert torch.equal(score[3:], f[3:])
+
+
+def test_a_mirrored_reading_read_back_is_the_reading():
+    """unmirror_person maps the flipped image's landmarks back: x -> W - 1 - x, left and right swapped, the 3D's x
+    negated; twice is the identity, and the depth (z) of each named landmark is kept."""
+    from silfit.detect.geometry import ROI
+    from silfit.detect.person import Person
+    from silfit.fitting.image_depth import unmirror_person
+
+    xy, world, vis = landmarks(-0.2)
+    vis = np.linspace(0.3, 1.0, 33)
+    roi = ROI(100.0, 200.0, 300.0, 0.0)
+    p = Person(
+        0.9, 0.9, roi, roi, xy, world[:, 2].copy(), vis, vis, world, np.zeros((400, 200), np.float32), (200, 400)
+    )
+    m = unmirror_person(p)
+    li, ri = NAMES.index("left_wrist"), NAMES.index("right_wrist")
+    assert m.xy[li, 0] == 199 - xy[ri, 0] and m.world[li, 2] == world[ri, 2] and m.visibility[li] == vis[ri]
+    assert m.world[li, 0] == -world[ri, 0]
+    back = unmirror_person(m)
+    for a, b in ((back.xy, xy), (back.world, world), (back.visibility, vis), (back.z, world[:, 2])):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_two_readings_keep_only_the_calls_they_agree_on():
+    from silfit.fitting.image_depth import agreed_cue
+
+    S = len(SEGMENTS)
+    a = DepthCue(np.array([1.0, -1.0, 1.0, 0.0] + [1.0] * (S - 4)), np.full(S, 0.9), np.full(S, 0.7))
+    b = DepthCue(np.array([1.0, 1.0, 1.0, 1.0] + [1.0] * (S - 4)), np.full(S, 0.6), np.full(S, -0.5))
+    b.confidence[2] = 0.0  # the second reading leaves segment 2 off
+    c = agreed_cue(a, b)
+    assert list(c.sign[:4]) == [1.0, 0.0, 0.0, 0.0]  # differing signs, one reading off, one sign 0: off
+    assert c.confidence[0] == 0.6 and c.ratio[0] == -0.5  # the smaller confidence, the flatter cosine
+    assert not agreed_cue(a, None).confidence.any()  # no second reading: nothing decided
+
+
+def test_the_mirror_image_reads_the_same_confident_call(reaching_subject):
+    """The landmark model on the rendered subject and on its mirror image: both readings call the reaching forearm
+    nearer, so the agreed cue keeps it."""
+    from silfit.fitting.image_depth import cue_from_image, mirrored_person, person_cue
+
+    s = reaching_subject
+    other = mirrored_person(s.image, s.keypoints)
+    assert other is not None
+    names = [n for n, _, _ in SEGMENTS]
+    assert person_cue(other, s.keypoints).sign[names.index("right_forearm")] == -1.0
+    cue, record = cue_from_image(s.image, s.keypoints, config=ImageDepthConfig(mirror=True))
+    assert record["decided"]["right_forearm"]["distal"] == "nearer"
