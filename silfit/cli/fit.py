@@ -152,7 +152,7 @@ def _add_stage_option_flags(p) -> None:
         default=[],
         metavar="NAME=VALUE",
         help="override a KeypointFitConfig field of the keypoint stage (one image, rig, video: each "
-        "frame's start), e.g. init_poses=1 or pose_iters=10,10,10 (repeatable; as fit-dataset)",
+        "frame's start), e.g. starts.poses=1 or pose_iters=10,10,10 (repeatable; as fit-dataset)",
     )
     p.add_argument(
         "--silhouette-option",

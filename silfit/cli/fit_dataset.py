@@ -76,7 +76,7 @@ def _add_stage_option_flags(p) -> None:
         action="append",
         default=[],
         metavar="NAME=VALUE",
-        help="override a KeypointFitConfig field, e.g. init_poses=1 or pose_iters=10,10,10 (repeatable)",
+        help="override a KeypointFitConfig field, e.g. starts.poses=1 or pose_iters=10,10,10 (repeatable)",
     )
     p.add_argument(
         "--silhouette-option",

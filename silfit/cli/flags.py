@@ -55,7 +55,7 @@ EXAMPLES = {
   silfit fit --keypoints kp.json --image image.png --export glb,ply --out fit/  # + upright mesh.glb, mesh.ply
   silfit fit --rig captures/take_01 --views cam0,cam2 --out fit_rig/            # two cameras of a rig
   silfit fit --sequence openpose_json/ --masks masks/ --out fit_video/          # a video
-  silfit fit --keypoints kp.json --image image.png --keypoint-option init_poses=1 --out fit/""",
+  silfit fit --keypoints kp.json --image image.png --keypoint-option starts.poses=1 --out fit/""",
     "detect": """\
   silfit detect photo.jpg --out det/                    # keypoints.json (OpenPose BODY_25) + mask.png
   silfit detect street.jpg --people all --out det/      # every person found

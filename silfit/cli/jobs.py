@@ -175,11 +175,11 @@ def _hypotheses_base(args):
     hypotheses/<k>/), or ``None`` (the default) for K = 1."""
     base = None
     if getattr(args, "hypotheses", 1) != 1:
-        from ..fitting.keypoint_stage import KeypointFitConfig
+        from ..fitting.keypoint_stage import KeypointFitConfig, Solutions
 
         if not 1 <= args.hypotheses <= 20:
             raise CLIError(f"--hypotheses must be 1..20, got {args.hypotheses}")
-        base = KeypointFitConfig(hypotheses=args.hypotheses)
+        base = KeypointFitConfig(solutions=Solutions(count=args.hypotheses))
     return base
 
 

@@ -19,7 +19,7 @@ import functools
 import warnings
 from typing import Callable, NamedTuple, Optional
 
-__all__ = ["Alias", "flat_dict", "grouped", "renamed_fields"]
+__all__ = ["Alias", "flat_dict", "flat_value", "grouped", "renamed_fields"]
 
 
 class Alias(NamedTuple):
@@ -50,22 +50,40 @@ def listed(value):
     return list(value) if isinstance(value, tuple) else value
 
 
-def flat_dict(config, skip=()) -> dict:
-    """``config``'s fields by name (but ``skip``), tuples as lists, each group's fields under their old flat names
-    (:func:`grouped`) where the group stood."""
+def flat_dict(config, skip=(), later=None, as_lists: bool = True) -> dict:
+    """``config``'s fields by name (but ``skip``), tuples as lists (``as_lists``), each group's fields under their old flat names
+    (:func:`grouped`) where the group stood, but those ``later`` names (field -> flat names) after that field: a
+    group whose fields stood apart is recorded in the old order."""
     subs = {}
     for old, a in getattr(type(config), "renamed_fields", {}).items():
         if a.sub is not None:
             subs.setdefault(a.field, []).append((old, a.sub))
-    out = {}
+    later = later or {}
+    moved = {old for names in later.values() for old in names}
+    flat = {}
     for name, value in config.__dict__.items():
         if name in skip:
             continue
         if name in subs:
-            out.update({old: listed(getattr(value, sub)) for old, sub in subs[name]})
+            flat.update({old: getattr(value, sub) for old, sub in subs[name]})
         else:
-            out[name] = listed(value)
+            flat[name] = value
+    flat = {k: listed(v) for k, v in flat.items()} if as_lists else flat
+    out = {}
+    for name, value in flat.items():
+        if name not in moved:
+            out[name] = value
+        out.update({old: flat[old] for old in later.get(name, ())})
     return out
+
+
+def flat_value(config, name: str):
+    """``config``'s field ``name``, or a group's field by its old flat name (:func:`grouped`) read from its group, not
+    through the deprecated attribute."""
+    a = getattr(type(config), "renamed_fields", {}).get(name)
+    if a is None or a.sub is None:
+        return getattr(config, name)
+    return getattr(getattr(config, a.field), a.sub)
 
 
 def _default(cls, name):

@@ -154,8 +154,8 @@ def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources, known=N
         ys, xs = np.nonzero(mask)
         extent = float(max(np.ptp(ys), np.ptp(xs))) if len(ys) else 0.0
         t = (
-            clothing_thickness(mask, body, float(getattr(cfg, "trim_quantile", 0.25)))
-            if getattr(cfg, "trim_clothing", False) and extent > 0
+            clothing_thickness(mask, body, float(cfg.mask.trim_quantile))
+            if cfg.mask.trim_clothing and extent > 0
             else 0.0
         )
         trimmed.append(t > cfg.mask.trim_min * extent)
@@ -189,8 +189,8 @@ def _known_pixels(masks, body_masks, cfg: SilhouetteFitConfig, sources, notes, t
     for mask, body, source, note, cloth in zip(masks, body_masks, sources, notes, trimmed):
         ys, xs = np.nonzero(mask)
         extent = float(max(np.ptp(ys), np.ptp(xs))) if len(ys) else 0.0
-        concave = float(getattr(cfg, "concave_radius", 0.0)) * extent
-        if getattr(cfg, "concave_trimmed_only", True) and not cloth:
+        concave = float(cfg.mask.concave_radius) * extent
+        if cfg.mask.concave_trimmed_only and not cloth:
             concave = 0.0
         known = unknown_regions(
             mask, body, float(cfg.mask.leak_distance) * extent, float(cfg.mask.hole_fraction), concave
@@ -458,13 +458,19 @@ def refine_batch(
     return refine_silhouettes(model, hooks, config, pose_prior, renderer, progress)
 
 
+def _free_ratio(config) -> Optional[float]:
+    """The two-pass refit's ratio (``SilhouetteFitConfig.trust.free_ratio``; ``None``: one pass, as for a config
+    without a trust region)."""
+    return getattr(getattr(config, "trust", None), "free_ratio", None)
+
+
 class ImageRefinement(SilhouetteHooks):
     """An image batch's hooks of the one silhouette driver (:func:`~silfit.fitting.refine.refine_silhouettes`): all
     subjects refined together, each with the keypoint stage's alternatives it offers (:func:`_offered_alternatives`:
     ``--hypotheses K``'s, else the close ones) as more problems of the batch; per image the lowest final energy is
     kept (:func:`_choose_hypothesis`). ``known``: per image, the mask's pixels whose value is trusted (``None``: all;
     e.g. not the other people's, issue 55), joined to those the stage sets aside itself (leaks, holes, concavities).
-    With ``SilhouetteFitConfig.trust_free_ratio``, two passes: first with the trust region before issue 55
+    With ``SilhouetteFitConfig.trust.free_ratio``, two passes: first with the trust region before issue 55
     (:meth:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig.free_pass`), then the images that pass dragged off
     their keypoints (:func:`_dragged_images`), all their problems, with the trust region of the settings."""
 
@@ -506,11 +512,11 @@ class ImageRefinement(SilhouetteHooks):
         return StageInputs(problems, self.keypoints[0].layout, cfg, terms, weights, data)
 
     def first_pass(self, config: SilhouetteFitConfig) -> SilhouetteFitConfig:
-        return config if getattr(config, "trust_free_ratio", None) is None else config.free_pass()
+        return config if _free_ratio(config) is None else config.free_pass()
 
     def refit(self, model, sils: list, config: SilhouetteFitConfig) -> List[int]:
-        """With ``trust_free_ratio``: the problems of the images the free pass dragged off their keypoints."""
-        if getattr(config, "trust_free_ratio", None) is None:
+        """With ``trust.free_ratio``: the problems of the images the free pass dragged off their keypoints."""
+        if _free_ratio(config) is None:
             return []
         cameras = self.keypoint_result.cameras
         redo = _dragged_images(model, self.keypoints, cameras, self.candidates, self.inits, sils, config, self.passes)
@@ -542,9 +548,9 @@ class ImageRefinement(SilhouetteHooks):
 
 
 def _dragged_images(model, keypoints, cameras, candidates: list, inits: list, sils: list, config, passes: list) -> set:
-    """The two-pass refit's images to refit with the trust region (``SilhouetteFitConfig.trust_free_ratio``): those
+    """The two-pass refit's images to refit with the trust region (``SilhouetteFitConfig.trust.free_ratio``): those
     whose free pass's kept candidate (:func:`_choose_hypothesis`, of ``sils``) ends with a median reprojection error
-    above ``trust_free_ratio`` times their keypoint fit's (``inits[i]``); each image's errors recorded in
+    above ``trust.free_ratio`` times their keypoint fit's (``inits[i]``); each image's errors recorded in
     ``passes[i]``."""
     redo = set()
     for i, rows in enumerate(candidates):
@@ -553,7 +559,7 @@ def _dragged_images(model, keypoints, cameras, candidates: list, inits: list, si
         c, _ = _choose_hypothesis(model, [sils[r] for r in rows], [inits[r] for r in rows], k, camera, "mask", guard)
         before = _median_reprojection(_pose(model, inits[i], k.layout, camera)[2], k)
         after = _median_reprojection(_pose(model, sils[rows[c]].params(), k.layout, camera)[2], k)
-        refit = after > float(config.trust_free_ratio) * before
+        refit = after > float(config.trust.free_ratio) * before
         passes[i].update(
             free_pass_reprojection_px=after, keypoint_stage_reprojection_px=before, refit_with_trust_region=refit
         )

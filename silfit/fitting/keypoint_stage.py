@@ -11,7 +11,7 @@ Stages (each an independent per-sample L-BFGS, see :mod:`silfit.fitting.optim`):
 3. ``pose_1..3``: ``body_pose`` (+ orientation, translation) on all keypoints with the
    pose prior weight annealed from high to low. ``pose_1`` starts every placed start
    (facing / flipped) from several initial body poses (the zero pose and the pose prior's
-   most probable means, ``init_poses``), all in one batch; after ``decision_iters`` steps
+   most probable means, ``starts.poses``), all in one batch; after ``decision_iters`` steps
    each sample keeps the start with the lowest energy: the torso alone cannot tell a side
    view's facing, the nose, ears and feet can, and a good initial pose avoids the wrong
    branch of the depth ambiguity of bent limbs.
@@ -41,9 +41,9 @@ hand poses, jaw and expression are free where their terms are on, with their pri
 confident point (a missing hand, a body-only file) is held at rest in every stage by a gate
 (:func:`~silfit.fitting.stages.gated`).
 
-Data term: Geman-McClure (SMPLify's robust penalty, ``sigma`` = 100) on residuals in
+Data term: Geman-McClure (SMPLify's robust penalty, ``keypoint_term.sigma`` = 100) on residuals in
 *normalised pixels*: each sample's residuals are scaled so the extent of its confident
-keypoints is ``norm_extent`` (500) pixels, which makes the weights independent of the
+keypoints is ``keypoint_term.norm_extent`` (500) pixels, which makes the weights independent of the
 image resolution and of how large the person appears. Each keypoint is weighted by its
 confidence times a per-keypoint weight (hips 0.5: SMPL's hip joints sit higher and
 further inside than detectors' hip points). Zero-confidence keypoints contribute
@@ -97,7 +97,11 @@ __all__ = [
     "ImageDepthOptions",
     "KeypointFitConfig",
     "KeypointFitter",
+    "KeypointTermOptions",
     "OcclusionOptions",
+    "Solutions",
+    "Starts",
+    "TemporalOptions",
     "fit_keypoints",
     "prepare_keypoints",
 ]
@@ -208,7 +212,7 @@ class BranchSearch:
     #: default (why: docs/benchmarks/defaults.md)
     joint: bool = STAGE_DEFAULTS["branch_joint"]
     #: each sample's lowest-energy hypotheses of the last branch search that run the rest of the
-    #: schedule (at least ``2 * hypotheses`` with ``KeypointFitConfig.hypotheses`` > 1); the lowest final energy is
+    #: schedule (at least ``2 * count`` with ``KeypointFitConfig.solutions.count`` > 1); the lowest final energy is
     #: the fit.
     #: As many of the late search's go on to ``settle`` where a search from the fit follows (``post_iters``)
     #: (1: the search's own choice). The search's energies a few dozen steps in are far from converged,
@@ -226,7 +230,7 @@ class BranchSearch:
     #: earlier stages reached and with the final stage's weights (the energy a fit is judged by):
     #: the same hypotheses (:func:`~silfit.fitting.branches.limb_hypotheses`, the joint ones with
     #: ``joint``), screened after ``screen_iters`` steps, ``survivors`` run on.
-    #: With ``KeypointFitConfig.hypotheses`` > 1 and no search from the fit (``post_iters`` 0) the alternatives are
+    #: With ``KeypointFitConfig.solutions.count`` > 1 and no search from the fit (``post_iters`` 0) the alternatives are
     #: its survivors. Issue 25 (search failures: the fit's
     #: final energy above the truth's): the first search screens at the pose stage's heavy prior
     #: after a few steps, and the truth's branch was often cut there or never proposed (it needs a
@@ -283,7 +287,7 @@ class HandsFace:
 @dataclass(frozen=True)
 class OcclusionOptions:
     """The occlusion cue (:mod:`silfit.fitting.occlusion`, the ``occlusion`` term) in choosing among the hypotheses
-    refined to the end (``branch_refine`` or ``2 * hypotheses`` of them): a hypothesis' final energy counts
+    refined to the end (``branches.refine`` or ``2 * solutions.count`` of them): a hypothesis' final energy counts
     ``1 + weight * n`` times, ``n`` the keypoints whose depth order disagrees with their confidence (a confident
     keypoint hidden behind the body, a low-confidence one in front: confidences at or below ``conf[0]`` expect
     hidden, at or above ``conf[1]`` visible). ``weight`` 0: off. Off by default (why: docs/benchmarks/defaults.md)"""
@@ -318,6 +322,69 @@ class ImageDepthOptions:
     #: with ``decide``: also in the search after the pose stages (``branches_<r>``, at their heavy prior, few steps
     #: in); off: only in the late search, the settled pick, the search from the fit and the final choice
     decide_early: bool = True
+
+
+@dataclass(frozen=True)
+class KeypointTermOptions:
+    """The keypoint data term (:class:`~silfit.fitting.terms.KeypointTerm`; the module docstring): Geman-McClure with
+    robust scale ``sigma`` on residuals in normalised pixels (each sample's confident keypoints span ``norm_extent``
+    pixels; also the ``points`` term's unit, :data:`POINTS_STATURE_M`), each keypoint weighted by its confidence
+    times ``hip_weight`` (the hips) and its ``weights`` entry (name -> extra weight). Each field was
+    :class:`KeypointFitConfig`'s own (``weights``: ``keypoint_weights``), a name that still works."""
+
+    sigma: float = 100.0
+    norm_extent: float = 500.0
+    hip_weight: float = 0.5
+    weights: dict = field(default_factory=dict)  # name -> extra weight
+    #: the model's keypoints at its surface landmarks where the layout has them (:func:`~silfit.layouts.keypoint_sources`)
+    prefer_landmarks: bool = False
+
+
+@dataclass(frozen=True)
+class Starts:
+    """Each sample's starts (the module docstring, ``init``): facing the camera and, with ``flip``, the 180-degree
+    flipped one, each from ``poses`` initial body poses: the zero pose, then the pose prior's most probable mixture
+    means; all run as one batch (the camera stage is shared by a facing's starts) and the lowest energy is kept
+    (``KeypointFitConfig.flip_decision_stage``, ``decision_iters``); each start adds to the batched cost: ``poses``
+    1 for the fastest batched throughput (why this default: docs/benchmarks/defaults.md). The fields were
+    :class:`KeypointFitConfig`'s ``flip_test`` and ``init_poses``, names that still work."""
+
+    flip: bool = True
+    poses: int = 4
+
+
+@dataclass(frozen=True)
+class Solutions:
+    """The distinct solutions returned (``KeypointFitResult.hypotheses``; ``silfit fit --hypotheses K``): the last
+    branch search keeps each sample's ``max(branches.refine, 2 * count)`` lowest-energy hypotheses and runs the rest
+    of the schedule on all of them; the lowest final energy is the fit, the ``count`` best distinct ones
+    (:func:`distinct_hypotheses`) are returned as alternatives. Choosing the branch by the final energy, not the
+    search stage's, is itself better, at a cost in time (docs/benchmarks/defaults.md; ``branches.refine`` does so
+    by default). The fields were :class:`KeypointFitConfig`'s ``hypotheses``, ``hypothesis_joint_max_m`` and
+    ``hypothesis_unrefined``, names that still work (the group is not called ``hypotheses``: that name stays the
+    count's alias)."""
+
+    count: int = 1
+    #: :func:`distinct_hypotheses`: two solutions are distinct when their joints are
+    #: :data:`DISTINCT_JOINTS_M` apart (mean) or any one joint more than this (metres; ``None``: the
+    #: mean alone, the rule before issue 25's warnings; videos' branch choice keeps that one) ...
+    joint_max_m: Optional[float] = DISTINCT_JOINT_MAX_M
+    #: ... and where fewer than ``count`` refined ones are distinct, the branch searches' other
+    #: survivors fill the list (``refined: False``; their energy is their search stage's, not final; rows that
+    #: settled higher than the settled pick, ``stage`` ``settle``, carry their final-weight energy there and
+    #: their gap to the fit's final energy)
+    unrefined: bool = True
+
+
+@dataclass(frozen=True)
+class TemporalOptions:
+    """The temporal terms (``smooth_joints``, ``smooth_root``; weight 0 in the single-image schedule, used by
+    :mod:`silfit.fitting.sequence`): robust scale ``sigma`` in mm per frame^2 and the penalty ``robust``
+    (``charbonnier`` or ``gm``). The fields were :class:`KeypointFitConfig`'s ``temporal_sigma`` and
+    ``temporal_robust``, names that still work."""
+
+    sigma: float = 10.0
+    robust: str = "charbonnier"
 
 
 @renamed_fields(
@@ -362,6 +429,17 @@ class ImageDepthOptions:
         expression_weight="expression_weight",
     ),
     **grouped(
+        "keypoint_term",
+        sigma="sigma",
+        norm_extent="norm_extent",
+        hip_weight="hip_weight",
+        keypoint_weights="weights",
+        prefer_landmarks="prefer_landmarks",
+    ),
+    **grouped("starts", flip_test="flip", init_poses="poses"),
+    **grouped("solutions", hypotheses="count", hypothesis_joint_max_m="joint_max_m", hypothesis_unrefined="unrefined"),
+    **grouped("temporal", temporal_sigma="sigma", temporal_robust="robust"),
+    **grouped(
         "image_depth",
         image_depth_weight="weight",
         image_depth_margin="margin",
@@ -374,17 +452,11 @@ class ImageDepthOptions:
 class KeypointFitConfig:
     """Weights and iteration counts of the keypoint stage (defaults tuned on synthetic data)."""
 
-    sigma: float = 100.0
-    norm_extent: float = 500.0
-    hip_weight: float = 0.5
-    keypoint_weights: dict = field(default_factory=dict)  # name -> extra weight
-    prefer_landmarks: bool = False
-    flip_test: bool = True
-    #: initial body poses tried per sample (and per facing): the zero pose, then the pose
-    #: prior's most probable mixture means; all run as one batch (the camera stage is shared
-    #: by a facing's starts) and the lowest energy is kept; each start adds to the batched cost:
-    #: set 1 for the fastest batched throughput (why this default: docs/benchmarks/defaults.md)
-    init_poses: int = 4
+    #: the keypoint data term (:class:`KeypointTermOptions`; once ``sigma``, ``norm_extent``, ``hip_weight``,
+    #: ``keypoint_weights``, ``prefer_landmarks``, which still work)
+    keypoint_term: KeypointTermOptions = field(default_factory=KeypointTermOptions)
+    #: each sample's starts (:class:`Starts`; once ``flip_test``, ``init_poses``, which still work)
+    starts: Starts = field(default_factory=Starts)
     #: after which pose sub-stage (0-based) each sample keeps the best of its starts
     flip_decision_stage: int = STAGE_DEFAULTS["flip_decision_stage"]
     #: steps of that sub-stage run with every start before choosing (0: the whole sub-stage);
@@ -444,32 +516,16 @@ class KeypointFitConfig:
     #: the limb-branch searches (:class:`BranchSearch`; once ``branch_search``, ``branch_*``, ``late_branch_*``,
     #: ``post_branch_iters``, which still work)
     branches: BranchSearch = field(default_factory=BranchSearch)
-    #: the last branch search keeps each sample's ``max(branches.refine, 2 * hypotheses)`` lowest-energy
-    #: hypotheses and runs the rest of the schedule on all of them; the lowest final energy is the fit,
-    #: the ``hypotheses`` best distinct ones (:func:`distinct_hypotheses`) are returned as
-    #: alternatives (``KeypointFitResult.hypotheses``; ``silfit fit --hypotheses K``). Choosing the
-    #: branch by the final energy, not the search stage's, is itself better, at a cost in time
-    #: (docs/benchmarks/defaults.md; ``branches.refine`` does so by default)
-    hypotheses: int = 1
-    #: :func:`distinct_hypotheses`: two solutions are distinct when their joints are
-    #: :data:`DISTINCT_JOINTS_M` apart (mean) or any one joint more than this (metres; ``None``: the
-    #: mean alone, the rule before issue 25's warnings; videos' branch choice keeps that one) ...
-    hypothesis_joint_max_m: Optional[float] = DISTINCT_JOINT_MAX_M
-    #: ... and where fewer than ``hypotheses`` refined ones are distinct, the branch searches' other
-    #: survivors fill the list (``refined: False``; their energy is their search stage's, not final; rows that
-    #: settled higher than the settled pick, ``stage`` ``settle``, carry their final-weight energy there and
-    #: their gap to the fit's final energy)
-    hypothesis_unrefined: bool = True
+    #: the distinct solutions returned (:class:`Solutions`; once ``hypotheses`` (the count), ``hypothesis_joint_max_m``,
+    #: ``hypothesis_unrefined``, which still work)
+    solutions: Solutions = field(default_factory=Solutions)
     #: the occlusion cue (:class:`OcclusionOptions`; once ``occlusion_weight``, ``occlusion_conf``, which still work)
     occlusion: OcclusionOptions = field(default_factory=OcclusionOptions)
     #: the image depth cue (:class:`ImageDepthOptions`; once ``image_depth_weight``, ``image_depth_margin``,
     #: ``image_depth_decide``, ``image_depth_decide_screens``, ``image_depth_decide_early``, which still work)
     image_depth: ImageDepthOptions = field(default_factory=ImageDepthOptions)
-    #: temporal terms (``smooth_joints``, ``smooth_root``; weight 0 in the single-image
-    #: schedule, used by :mod:`silfit.fitting.sequence`): robust scale in mm per frame^2
-    #: and the penalty (``charbonnier`` or ``gm``)
-    temporal_sigma: float = 10.0
-    temporal_robust: str = "charbonnier"
+    #: the temporal terms (:class:`TemporalOptions`; once ``temporal_sigma``, ``temporal_robust``, which still work)
+    temporal: TemporalOptions = field(default_factory=TemporalOptions)
     #: whole-body fitting (:class:`HandsFace`; its fields were the config's, names that still work)
     hands_face: HandsFace = field(default_factory=HandsFace)
     #: an explicit list of :class:`~silfit.fitting.stages.Stage` replacing the schedule
@@ -490,9 +546,9 @@ class KeypointFitConfig:
             raise ValueError(
                 f"KeypointFitConfig: flip_decision_stage {self.flip_decision_stage} is not a pose stage (0..{n - 1})"
             )
-        if int(self.init_poses) < 1:
-            raise ValueError(f"KeypointFitConfig: init_poses must be at least 1, got {self.init_poses}")
-        starts = (2 if self.flip_test else 1) * int(self.init_poses)
+        if int(self.starts.poses) < 1:
+            raise ValueError(f"KeypointFitConfig: init_poses must be at least 1, got {self.starts.poses}")
+        starts = (2 if self.starts.flip else 1) * int(self.starts.poses)
         b = self.branches
         if b.search and starts > 1 and min(b.after_stage, n - 1) < self.flip_decision_stage:
             raise ValueError(
@@ -500,7 +556,7 @@ class KeypointFitConfig:
                 f"decided first (flip_decision_stage {self.flip_decision_stage})"
             )
         for name in ("hand_weights", "face_weights"):
-            v = getattr(self, name)
+            v = getattr(self.hands_face, name)
             if v is not None and len(v) != n:
                 raise ValueError(f"KeypointFitConfig: {name} has {len(v)} values, pose_iters {n}")
         if self.dtype not in (None, "float32", "float64"):
@@ -768,7 +824,7 @@ class KeypointFitter:
         self.layout = layout
         self.whole_body = layout == "wholebody"  # an SMPL-layout model refuses the layout (keypoint_sources)
         self.dtype = self.model.dtype
-        self.body = KeypointBody(self.model, layout, self.config.prefer_landmarks)
+        self.body = KeypointBody(self.model, layout, self.config.keypoint_term.prefer_landmarks)
         if pose_prior is None or isinstance(pose_prior, str):
             pose_prior = load_pose_prior(pose_prior, dtype=self.dtype)
         self.pose_prior = body_prior_for(self.model, pose_prior)  # SMPL-X: the marginal over its 21 body joints
@@ -778,16 +834,18 @@ class KeypointFitter:
         w = np.ones(len(names))
         for i, n in enumerate(names):
             if n.endswith("hip"):
-                w[i] = self.config.hip_weight
-            w[i] *= self.config.keypoint_weights.get(n, 1.0)
+                w[i] = self.config.keypoint_term.hip_weight
+            w[i] *= self.config.keypoint_term.weights.get(n, 1.0)
         self.kp_weights = torch.as_tensor(w, dtype=self.dtype) * self.body.kp_valid.to(self.dtype)
         self.torso_mask = torch.as_tensor([n in _TORSO_ALL for n in names], dtype=self.dtype)
-        sigma = self.config.sigma if self.config.robust else None
+        sigma = self.config.keypoint_term.sigma if self.config.robust else None
         terms = [
             KeypointTerm("keypoints", sigma),
             KeypointTerm("torso", sigma, mask=self.torso_mask),
             DepthTerm(),
-            PointsTerm(sigma, self.config.norm_extent / POINTS_STATURE_M),  # L2 as the data term with robust=False
+            PointsTerm(
+                sigma, self.config.keypoint_term.norm_extent / POINTS_STATURE_M
+            ),  # L2 as the data term with robust=False
             PriorTerm("pose", self.pose_prior, "body_pose"),
             PriorTerm("angle", angle_prior, "body_pose"),
             PriorTerm("limits", limit_violation, "body_pose"),
@@ -795,8 +853,8 @@ class KeypointFitter:
             OcclusionTerm(self.model, _names(layout), tuple(self.config.occlusion.conf)),
             InterpenetrationTerm(self.collisions),
             ImageDepthTerm(self.model.joint_names, self.config.image_depth.margin),
-            JointSmoothnessTerm(sigma=self.config.temporal_sigma, kind=self.config.temporal_robust),
-            RootSmoothnessTerm(sigma=self.config.temporal_sigma, kind=self.config.temporal_robust),
+            JointSmoothnessTerm(sigma=self.config.temporal.sigma, kind=self.config.temporal.robust),
+            RootSmoothnessTerm(sigma=self.config.temporal.sigma, kind=self.config.temporal.robust),
         ]
         if self.whole_body:
             terms = wholebody_terms(self.model, terms, sigma, self.config.hands_face, self.dtype)
@@ -892,7 +950,7 @@ class KeypointFitter:
                     for o in row:
                         vis = o.keypoints.xy[o.keypoints.conf > 0]
                         size = float((vis.max(0) - vis.min(0)).max()) if len(vis) else 1.0
-                        ext[-1].append(cfg.norm_extent / max(size, 1.0))
+                        ext[-1].append(cfg.keypoint_term.norm_extent / max(size, 1.0))
                 scale.append(ext)
                 if C == 1:
                     placed = [
@@ -1003,9 +1061,9 @@ class KeypointFitter:
         # every placed start is combined with each initial body pose in the decision stage.
         # (several calibrated views: the triangulated torso gives the facing, no flip)
         views_per_frame = problems[0].num_views
-        facings = (False, True) if cfg.flip_test and views_per_frame == 1 else (False,)
-        # a given body pose is the one start pose (with both facings when flip_test is on)
-        init_poses = self._initial_poses(1 if init and "body_pose" in init else cfg.init_poses)
+        facings = (False, True) if cfg.starts.flip and views_per_frame == 1 else (False,)
+        # a given body pose is the one start pose (with both facings when starts.flip is on)
+        init_poses = self._initial_poses(1 if init and "body_pose" in init else cfg.starts.poses)
         data, views, state = self._problem_data(problems, facings)
         if frame_weights is not None:
             fw = torch.as_tensor(np.asarray(frame_weights, dtype=np.float64), dtype=dt).reshape(B, layout.frames)
@@ -1140,7 +1198,7 @@ class _ScheduleRun:
         self.fitter, self.layout, self.B, self.progress = fitter, layout, B, progress
         self.state, self.data, self.views, self.start_flip, self.group = state, data, views, start_flip, group
         self.energies, self.terms, self.timings = {}, {}, {}
-        self.K = max(1, int(cfg.hypotheses))
+        self.K = max(1, int(cfg.solutions.count))
         #: rows per sample from the last search to the end
         self.carry = max(int(cfg.branches.refine), 2 * self.K if self.K > 1 else 1)
         self.last_search = max([i for i, s in enumerate(fitter.stages) if "branches" in s.options], default=-1)
@@ -1274,7 +1332,7 @@ class _ScheduleRun:
         group, carried = self.group, self.carried
         ranked = best_per_group(score, group, self.B, count=len(group)).tolist()  # near-ties as the pick treats them
         best = best_per_group(score, group, self.B)
-        alternatives = self.K > 1 and self.fitter.config.hypothesis_unrefined
+        alternatives = self.K > 1 and self.fitter.config.solutions.unrefined
         now, joints = self.rows_and_joints() if alternatives else (None, None)
         of = group.tolist()  # read once, not per sample and row
         for b, r in enumerate(best.tolist()):
@@ -1338,7 +1396,7 @@ class _ScheduleRun:
                 self.row_labels = [labels[r] for r in keep.tolist()]
             else:
                 self.carried = [labels[r] for r in keep.tolist()]
-        if self.K > 1 and cfg.hypothesis_unrefined:  # the rows that stop here: alternatives not refined to the end
+        if self.K > 1 and cfg.solutions.unrefined:  # the rows that stop here: alternatives not refined to the end
             self.record_unrefined(stage.name, f, keep, now)
         self.take(keep)
 
@@ -1472,8 +1530,8 @@ class _ScheduleRun:
                 self.row_labels,
                 score=score,
                 occlusion=occ,
-                max_m=cfg.hypothesis_joint_max_m,
-                unrefined=self.unrefined if cfg.hypothesis_unrefined else None,
+                max_m=cfg.solutions.joint_max_m,
+                unrefined=self.unrefined if cfg.solutions.unrefined else None,
             )
             for b, h in enumerate(hypotheses):  # the branch chosen by the final energy, not the search's
                 searched = self.searched[b]

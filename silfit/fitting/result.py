@@ -75,7 +75,7 @@ class KeypointFitResult:
     #: whose best rows each ran the final stage before a later search (the late one, ``settle``) also lists them
     #: with those energies (``"settled": [{"flip", "energy"}, ...]``, the pick first), and its ``kept`` is that pick
     branch_search: Optional[list] = None
-    #: with ``KeypointFitConfig.hypotheses > 1``: per sample, the distinct hypotheses refined to the
+    #: with ``KeypointFitConfig.solutions.count > 1``: per sample, the distinct hypotheses refined to the
     #: end, lowest energy first (the first is the fit): ``[{"label", "energy", "params", "differs", "refined",
     #: "shift_mm", "max_shift_mm"}]``, then branch-search survivors not refined (``refined: False``, with
     #: ``stage`` and ``gap``; a row that settled higher, ``stage`` ``settle``, with its final-weight energy and its gap to the

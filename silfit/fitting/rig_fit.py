@@ -260,8 +260,8 @@ def pose_from_points(
     any 2D fit; the 2D energy alone, started from the rest pose or the prior's means, can settle
     with a limb in the wrong depth branch, where one view agrees and the robust term sets the
     other view's limb aside (with four views the majority pulls it back; with two, nothing does).
-    Minimises the Geman-McClure distance (the keypoint stage's ``sigma``, in normalised pixels:
-    :data:`POINTS_STATURE_M` metres are ``norm_extent`` pixels) to the points plus the pose,
+    Minimises the Geman-McClure distance (the keypoint stage's ``keypoint_term.sigma``, in normalised pixels:
+    :data:`POINTS_STATURE_M` metres are ``keypoint_term.norm_extent`` pixels) to the points plus the pose,
     angle and limit priors, over ``global_orient``, ``transl`` and ``body_pose`` (``betas`` at 0),
     in :data:`POINTS_ROUNDS`. Returns ``{global_orient, transl, body_pose}`` rows ``[B, w]``."""
     from ..priors import angle_prior, limit_violation
@@ -274,8 +274,8 @@ def pose_from_points(
     base = {n: (v[:, 0] if v.dim() == 3 else v).detach().clone() for n, v in state.items()}
     free = ("global_orient", "transl", "body_pose")
     sizes = [base[n].shape[1] for n in free]
-    scale = cfg.norm_extent / POINTS_STATURE_M
-    sigma2 = float(cfg.sigma) ** 2
+    scale = cfg.keypoint_term.norm_extent / POINTS_STATURE_M
+    sigma2 = float(cfg.keypoint_term.sigma) ** 2
     if align:
         base["body_pose"] = align_segments(
             fitter.body,

@@ -26,6 +26,7 @@ import dataclasses
 from dataclasses import replace
 from typing import Mapping, Optional
 
+from .aliases import flat_value
 from .schedules import (
     FACE,
     HANDS,
@@ -166,10 +167,10 @@ def parts(cfg, hands, face) -> tuple:
     """``(weights, free)`` the hand and face parts add to a row whose hand and face keypoint weights are these."""
     w, free = {}, ()
     if hands:
-        w.update(hands=hands, hand_pose=cfg.hand_prior_weight)
+        w.update(hands=hands, hand_pose=cfg.hands_face.hand_prior_weight)
         free += HANDS
     if face:
-        w.update(face=face, jaw=cfg.jaw_weight, expression=cfg.expression_weight)
+        w.update(face=face, jaw=cfg.hands_face.jaw_weight, expression=cfg.hands_face.expression_weight)
         free += FACE
     return w, free
 
@@ -195,7 +196,7 @@ class Edit:
         """Field ``name``'s value (through ``convert``) where it changed, else the table's ``table_value``."""
         if name not in self.changed:
             return table_value
-        value = getattr(self.cfg, name)
+        value = flat_value(self.cfg, name)
         return value if convert is None else convert(value)
 
     def cells(self, **cells: tuple) -> dict:
@@ -220,12 +221,13 @@ def keypoint_stages(cfg, whole_body: bool = False) -> tuple:
     out = [camera_row(row(table, "camera"), e)] + pose_block(table, e)
     if cfg.shape_iters:
         out.append(shape_row(row(table, "shape"), e))
-    if cfg.branch_search and cfg.late_branch_iters:
-        hypotheses = int(cfg.hypotheses)
-        carry = max(int(cfg.branch_refine), 2 * hypotheses if hypotheses > 1 else 1)
-        out += late_rows(named(table, LATE_ROW)[0], e, carry if cfg.final_iters and cfg.post_branch_iters else 1)
+    b = cfg.branches
+    if b.search and b.late_iters:
+        hypotheses = int(cfg.solutions.count)
+        carry = max(int(b.refine), 2 * hypotheses if hypotheses > 1 else 1)
+        out += late_rows(named(table, LATE_ROW)[0], e, carry if cfg.final_iters and b.post_iters else 1)
     if cfg.final_iters:
-        if cfg.branch_search and cfg.post_branch_iters:
+        if b.search and b.post_iters:
             out += [settle_row(row(table, "settle"), e), post_row(row(table, "branches_post"), e)]
         out.append(final_row(row(table, "final"), e))
     return tuple(out)
@@ -250,7 +252,7 @@ def pose_parts(poses: list, e: Edit, n: int) -> tuple:
             return tuple(p.weights.get(term, 0.0) for p in poses)
         return (0.0,) * (n - 1) + (poses[-1].weights.get(term, 0.0),)
 
-    return per_pose(e.cfg.hand_weights, "hands"), per_pose(e.cfg.face_weights, "face")
+    return per_pose(e.cfg.hands_face.hand_weights, "hands"), per_pose(e.cfg.hands_face.face_weights, "face")
 
 
 #: the fields of the pose rows' hand and face terms, and of their options
@@ -264,14 +266,14 @@ def pose_block(table, e: Edit) -> list:
     cfg, poses = e.cfg, named(table, POSE_ROW)
     n = len(cfg.pose_iters)
     hw, fw = pose_parts(poses, e, n)
-    after = min(int(cfg.branch_after_stage), n - 1)
+    after = min(int(cfg.branches.after_stage), n - 1)
     out = []
     for i in range(n):
         p = pose_row(poses[min(i, len(poses) - 1)], i, e, (hw, fw), n != len(poses))
-        if hw[i] and not any(hw[:i]) and cfg.hand_iters:
+        if hw[i] and not any(hw[:i]) and cfg.hands_face.hand_iters:
             out.append(hands_row(row(table, "hands"), p, e, hw[i]))
         out.append(p)
-        if cfg.branch_search and i == after:
+        if cfg.branches.search and i == after:
             out += search_rows(named(table, SEARCH_ROW)[0], p, e)
     return out
 
@@ -296,7 +298,7 @@ def pose_row(t: Stage, i: int, e: Edit, part_weights: tuple, recount: bool) -> S
     if recount or e.changed & POSE_OPTION_FIELDS:
         rest = {k: v for k, v in t.options.items() if k not in ("decide_after", "hand_starts")}
         options = {**({"decide_after": int(cfg.decision_iters)} if i == cfg.flip_decision_stage else {}), **rest}
-        if hw[i] and not any(hw[:i]) and not cfg.hand_iters:
+        if hw[i] and not any(hw[:i]) and not cfg.hands_face.hand_iters:
             options["hand_starts"] = True
     iterations = int(cfg.pose_iters[i]) if "pose_iters" in e.changed else t.iterations
     return replace(t, name=f"pose_{i + 1}", free=free, weights=weights, iterations=iterations, options=options)
@@ -306,7 +308,7 @@ def hands_row(t: Stage, pose: Stage, e: Edit, hands: float) -> Stage:
     """The ``hands`` row before pose row ``pose``: its weights without parts, the hands' keypoints (``hands``) and
     prior; ``hand_iters``."""
     base, _ = without_parts(pose)
-    weights = {**base, "hands": hands, "hand_pose": e.cfg.hand_prior_weight}
+    weights = {**base, "hands": hands, "hand_pose": e.cfg.hands_face.hand_prior_weight}
     return replace(t, weights=weights, iterations=e.get("hand_iters", t.iterations, int))
 
 
@@ -329,7 +331,7 @@ def search_rows(t: Stage, pose: Stage, e: Edit) -> list:
             iterations=e.get("branch_iters", t.iterations, int),
             options={**t.options, "branches": dict(b)},
         )
-        for r in range(int(cfg.branch_rounds))
+        for r in range(int(cfg.branches.rounds))
     ]
 
 
@@ -339,7 +341,7 @@ def branch_options(table_options: Mapping, e: Edit) -> dict:
     b = {k: v for k, v in table_options.items() if k not in ("carry", "turns", "occlusion")}
     for name, key in BRANCH_KEYS.items():
         if name in e.changed:
-            b[key] = getattr(e.cfg, name)
+            b[key] = flat_value(e.cfg, name)
     if e.cfg.occlusion.weight:
         b["occlusion"] = float(e.cfg.occlusion.weight)
     return b
@@ -354,7 +356,7 @@ def shape_row(t: Stage, e: Edit) -> Stage:
         points=("final_points_weight", term_or_none(cfg.final_points_weight)),
     )
     if e.whole_body and e.changed & {"final_hand_weight", "final_face_weight"}:
-        cells.update(hands=cfg.final_hand_weight or None, face=cfg.final_face_weight or None)
+        cells.update(hands=cfg.hands_face.final_hand_weight or None, face=cfg.hands_face.final_face_weight or None)
     return replace(t, weights=with_cells(t.weights, cells), iterations=e.get("shape_iters", t.iterations))
 
 
@@ -379,7 +381,7 @@ def at_final_weights(t: Stage, e: Edit) -> Stage:
     )
     free = t.free
     if e.whole_body and e.changed & FINAL_PART_FIELDS:
-        part_w, part_free = parts(cfg, cfg.final_hand_weight, cfg.final_face_weight)
+        part_w, part_free = parts(cfg, cfg.hands_face.final_hand_weight, cfg.hands_face.final_face_weight)
         cells.update({k: part_w.get(k) for k in PART_TERMS})
         free = without_parts(t)[1] + part_free
     return replace(t, weights=with_cells(t.weights, cells), free=free)
@@ -391,11 +393,11 @@ def late_rows(t: Stage, e: Edit, carry: int) -> list:
     ``carry`` where it is above 1."""
     cfg = e.cfg
     b = branch_options(t.options["branches"], e)
-    if cfg.late_branch_turns:
-        b["turns"] = list(cfg.late_branch_turns)
-    if cfg.late_branch_survivors:
-        b["survivors"] = int(cfg.late_branch_survivors)
-    rounds = max(1, int(cfg.late_branch_rounds))
+    if cfg.branches.late_turns:
+        b["turns"] = list(cfg.branches.late_turns)
+    if cfg.branches.late_survivors:
+        b["survivors"] = int(cfg.branches.late_survivors)
+    rounds = max(1, int(cfg.branches.late_rounds))
     base = at_final_weights(t, e)
     return [
         replace(

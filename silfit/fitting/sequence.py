@@ -15,7 +15,7 @@ cameras: a rig video), one shape for all frames.
    fits (:func:`~silfit.fitting.keypoint_stage.best_per_group`: near-ties keep its own fit). A
    frame stuck alone in a poor local minimum seldom is when started from the frame beside it
    (measured: docs/benchmarks/defaults.md, ``SequenceFitConfig.neighbour_starts``).
-   With ``branch_dp`` each frame's hypotheses and neighbour refits are candidates and the branch is
+   With ``branch_choice.dp`` each frame's hypotheses and neighbour refits are candidates and the branch is
    chosen over time (:func:`branch_path`, a Viterbi programme; ``rebranched`` frames are recorded);
 3. **consistent facings**: each frame's body-forward direction in the ground plane is
    compared along the sequence; the fewest frames whose facing contradicts their
@@ -57,11 +57,11 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from ..camera import Camera, project_points
 from ..io.keypoints import KeypointSet, model_keypoints
-from .keypoint_stage import BranchSearch, KeypointFitConfig, KeypointFitter, check_torso
+from .keypoint_stage import BranchSearch, KeypointFitConfig, KeypointFitter, Solutions, Starts, check_torso
 from .problem import Observation, Problem, View
 from .cores import Core
 from .refine import SilhouetteHooks, StageInputs, refine_silhouettes
-from .aliases import Alias, renamed_fields
+from .aliases import Alias, flat_dict, grouped, renamed_fields
 from .schedule_edits import sequence_defaults, sequence_stages
 from .threads import torch_threads
 
@@ -88,7 +88,43 @@ ROTATIONS = ("global_orient", "body_pose")
 STAGE_DEFAULTS = sequence_defaults()
 
 
-@renamed_fields(pose_prior_weight=Alias("pose_weight"), angle_prior_weight=Alias("angle_weight"))
+@dataclass(frozen=True)
+class BranchChoice:
+    """The branch over time (the module docstring, step 2): with ``dp`` each frame's ``hypotheses`` best distinct
+    keypoint-stage hypotheses (``KeypointFitConfig.solutions.count``) and its refits from its neighbours are its
+    candidates, and a dynamic programme picks one per frame (:func:`branch_path`: each candidate's energy above the
+    frame's lowest, over the sequence's typical energy, plus ``temporal_weight`` times the root-relative joint
+    distance between consecutive frames' candidates over ``temporal_scale`` metres per frame) before the joint
+    refinement, instead of each frame's lowest energy; ``rounds`` of refits from the neighbours' picks (one camera
+    only; why these defaults: docs/benchmarks/defaults.md). Each field was :class:`SequenceFitConfig`'s
+    ``branch_<name>`` (``dp``: ``branch_dp``), a name that still works."""
+
+    dp: bool = True
+    hypotheses: int = 3
+    temporal_weight: float = 1.0
+    temporal_scale: float = 0.02
+    rounds: int = 2
+    #: after the per-frame pass (and its neighbour refits or branch choice), one more round refits each
+    #: frame from the picks of the frames these many away, both directions (:func:`_neighbour_sources`),
+    #: and each frame keeps the lowest energy of its pick and these refits (near-ties: its pick): a right
+    #: branch a few frames away reaches a run of frames whose own fits all took the wrong one. ``()`` or
+    #: ``None``: no such round (why this default: docs/benchmarks/defaults.md)
+    offsets: Optional[tuple] = (1, 2, 4)
+
+
+@renamed_fields(
+    pose_prior_weight=Alias("pose_weight"),
+    angle_prior_weight=Alias("angle_weight"),
+    **grouped(
+        "branch_choice",
+        branch_dp="dp",
+        branch_hypotheses="hypotheses",
+        branch_temporal_weight="temporal_weight",
+        branch_temporal_scale="temporal_scale",
+        branch_rounds="rounds",
+        branch_offsets="offsets",
+    ),
+)
 @dataclass
 class SequenceFitConfig:
     """Settings of :func:`fit_sequence` (defaults tuned on ``silfit synth --videos`` data,
@@ -104,7 +140,7 @@ class SequenceFitConfig:
     #: why these defaults: docs/benchmarks/defaults.md)
     keypoint: KeypointFitConfig = field(
         default_factory=lambda: KeypointFitConfig(
-            init_poses=4,
+            starts=Starts(poses=4),
             branches=BranchSearch(late_iters=0, screen_iters=10, survivors=3, refine=1, post_iters=0),
             final_iters=40,
             final_tol_change=None,
@@ -128,24 +164,9 @@ class SequenceFitConfig:
     facing_jump_cost: float = 10.0  # per 180-degree jump between neighbouring frames (vs 1 per re-initialised frame)
     #: fit each initialised frame again from its neighbours' fits and keep the lowest energy (module docstring)
     neighbour_starts: bool = True
-    #: the branch over time: each frame's ``branch_hypotheses`` best distinct keypoint-stage hypotheses
-    #: (``KeypointFitConfig.hypotheses``) and its refits from its neighbours are its candidates, and a
-    #: dynamic programme picks one per frame (:func:`branch_path`: each candidate's energy above the frame's
-    #: lowest, over the sequence's typical energy, plus ``branch_temporal_weight`` times the root-relative
-    #: joint distance between consecutive frames' candidates over ``branch_temporal_scale`` metres per
-    #: frame) before the joint refinement, instead of each frame's lowest energy (one camera only; why this
-    #: default: docs/benchmarks/defaults.md)
-    branch_dp: bool = True
-    branch_hypotheses: int = 3
-    branch_temporal_weight: float = 1.0
-    branch_temporal_scale: float = 0.02
-    branch_rounds: int = 2
-    #: after the per-frame pass (and its neighbour refits or branch choice), one more round refits each
-    #: frame from the picks of the frames these many away, both directions (:func:`_neighbour_sources`),
-    #: and each frame keeps the lowest energy of its pick and these refits (near-ties: its pick): a right
-    #: branch a few frames away reaches a run of frames whose own fits all took the wrong one. ``()`` or
-    #: ``None``: no such round (why this default: docs/benchmarks/defaults.md)
-    branch_offsets: Optional[tuple] = (1, 2, 4)
+    #: the branch over time (:class:`BranchChoice`; once ``branch_dp``, ``branch_hypotheses``,
+    #: ``branch_temporal_weight``, ``branch_temporal_scale``, ``branch_rounds``, ``branch_offsets``, which still work)
+    branch_choice: BranchChoice = field(default_factory=BranchChoice)
     window: int = 0  # frames per window (0: the whole sequence as one problem)
     overlap: int = 10
     window_pose_iterations: int = 40  # second pass (shared betas fixed) in windowed mode
@@ -162,7 +183,7 @@ class SequenceFitConfig:
         return sequence_stages(self, free_betas, iterations, views)
 
     def to_dict(self) -> dict:
-        d = {k: v for k, v in self.__dict__.items() if k != "keypoint"}
+        d = flat_dict(self, skip=("keypoint",), as_lists=False)  # the group's fields by their flat names, as before
         d["keypoint"] = self.keypoint.to_dict()
         return d
 
@@ -206,7 +227,7 @@ class SequenceFitResult:
     #: ``silhouette_iou`` ``[F, C]``, ``outliers`` ``[F, C, K]`` and the parameters are in world coordinates
     views: Optional[list] = None
     #: frames whose per-frame start is not their lowest-energy hypothesis: the branch chosen over time
-    #: (``SequenceFitConfig.branch_dp``); all False without it
+    #: (``SequenceFitConfig.branch_choice.dp``); all False without it
     rebranched: Optional[np.ndarray] = None
 
     @property
@@ -532,23 +553,23 @@ def _initialise_frames(
             state = {n: torch.as_tensor(np.stack([fit.params[n] for fit in fits])) for n in names}
         else:
             probs = [Problem.single(KeypointSet(xy_v[f, 0], conf_v[f, 0], layout), camera) for f in init_frames]
-            if cfg.branch_dp:  # several hypotheses per frame; the branch is chosen over time (tuned on refined
+            if cfg.branch_choice.dp:  # several hypotheses per frame; the branch is chosen over time (tuned on refined
                 # hypotheses distinct by the mean joint distance alone: the rule before issue 25's warnings)
                 fitter = KeypointFitter(
                     model,
                     layout,
                     replace(
                         cfg.keypoint,
-                        hypotheses=max(int(cfg.branch_hypotheses), 1),
-                        hypothesis_joint_max_m=None,
-                        hypothesis_unrefined=False,
+                        solutions=Solutions(
+                            count=max(int(cfg.branch_choice.hypotheses), 1), joint_max_m=None, unrefined=False
+                        ),
                     ),
                     fitter.pose_prior,
                 )
             cues = [depth_cues[f] for f in init_frames] if depth_cues is not None else None
             state, info = fitter.fit_problems(probs, progress=progress, depth_cues=cues)
             energy = info["energies"][fitter.stages[-1].name]
-            if cfg.branch_dp and len(probs) > 1:
+            if cfg.branch_choice.dp and len(probs) > 1:
                 state, rebranched[init_frames], energy = _choose_branches(
                     model, layout, cfg.keypoint, fitter, probs, state, info, cfg, init_frames, progress
                 )
@@ -556,7 +577,7 @@ def _initialise_frames(
                 state, energy = _refit_from_neighbours(
                     model, layout, cfg.keypoint, fitter, probs, state, info, progress
                 )
-            if cfg.branch_offsets and len(probs) > 1:
+            if cfg.branch_choice.offsets and len(probs) > 1:
                 state, _ = _refit_from_offsets(
                     model,
                     layout,
@@ -565,7 +586,7 @@ def _initialise_frames(
                     probs,
                     info["layout"].rows(state),
                     energy,
-                    cfg.branch_offsets,
+                    cfg.branch_choice.offsets,
                     progress,
                 )
     per = {n: np.zeros((F, fitter.params.sizes[n])) for n in names}
@@ -606,10 +627,9 @@ def _refine_jointly(model, layout, cfg, pose_prior, views, columns, start: dict,
     weights = np.where(usable, 1.0, float(cfg.bridge_weight))
     refiner_cfg = replace(
         cfg.keypoint,
-        flip_test=False,
-        init_poses=1,
+        starts=replace(cfg.keypoint.starts, flip=False, poses=1),
         branches=replace(cfg.keypoint.branches, search=False),
-        temporal_sigma=cfg.temporal_sigma,
+        temporal=replace(cfg.keypoint.temporal, sigma=cfg.temporal_sigma),
         schedule=cfg.stages(views=C),
     )
     refiner = KeypointFitter(model, layout, refiner_cfg, pose_prior)
@@ -836,10 +856,9 @@ def _fits_from(model, layout, config, fitter, probs, state, own, src, progress):
         layout,
         replace(
             config,
-            flip_test=False,
-            init_poses=1,
+            starts=replace(config.starts, flip=False, poses=1),
             branches=replace(config.branches, search=False),
-            hypotheses=1,
+            solutions=replace(config.solutions, count=1),
             final_iters_unsearched=None,
         ),
         fitter.pose_prior,
@@ -911,7 +930,7 @@ def _choose_branches(model, layout, config, fitter, probs, state, info, cfg, fra
     """The branch over time: each frame's candidates are its hypotheses (``info["hypotheses"]``, or its
     fit) and, with ``cfg.neighbour_starts``, its refits from its neighbours' fits (:func:`_neighbour_fits`);
     :func:`branch_path` picks one per frame (``frames``: the frames' indices, for the gaps). Each further
-    round of ``cfg.branch_rounds`` refits every frame from its neighbours' chosen candidates, adds those to
+    round of ``cfg.branch_choice.rounds`` refits every frame from its neighbours' chosen candidates, adds those to
     the candidates and picks again (a right branch spreads one frame per round into a run of frames whose
     own fits all took the wrong one). Returns the chosen state (``{name: [n, w]}``) and ``rebranched [n]``:
     the frame's choice is not its lowest-energy candidate (joints more than ``DISTINCT_JOINTS_M`` apart, mean),
@@ -943,7 +962,7 @@ def _choose_branches(model, layout, config, fitter, probs, state, info, cfg, fra
         ]:
             add(h["params"], h["energy"], b)
     gaps = np.r_[1, np.diff(np.asarray(frames))]
-    rounds = max(int(cfg.branch_rounds), 1) if cfg.neighbour_starts and n > 1 else 1
+    rounds = max(int(cfg.branch_choice.rounds), 1) if cfg.neighbour_starts and n > 1 else 1
     if cfg.neighbour_starts and n > 1:
         add_refits(state)
     for r in range(rounds):
@@ -957,7 +976,11 @@ def _choose_branches(model, layout, config, fitter, probs, state, info, cfg, fra
             )
         per = [np.flatnonzero(own == b) for b in range(n)]
         pick = branch_path(
-            [e[i] for i in per], [joints[i] for i in per], gaps, cfg.branch_temporal_weight, cfg.branch_temporal_scale
+            [e[i] for i in per],
+            [joints[i] for i in per],
+            gaps,
+            cfg.branch_choice.temporal_weight,
+            cfg.branch_choice.temporal_scale,
         )
         chosen = np.array([i[p] for i, p in zip(per, pick)])
         if r + 1 < rounds:

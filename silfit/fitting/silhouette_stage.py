@@ -79,7 +79,9 @@ __all__ = [
     "MaskHandling",
     "SilhouetteFitConfig",
     "SilhouetteFitResult",
+    "Rendering",
     "SilhouetteTerm",
+    "TrustRegion",
     "choose_window",
     "fit_silhouette",
     "fit_silhouette_problems",
@@ -104,7 +106,11 @@ BEFORE_FOURTH_PART = {
 }
 
 
-#: the trust region of the two-pass refit's first pass (``SilhouetteFitConfig.trust_free_ratio``): the one before
+#: :class:`Rendering`'s fields (once :class:`SilhouetteFitConfig`'s, by these names)
+RENDER_SETTINGS = ("spp", "edge_spp", "edge_density", "seed", "proxy_body", "batch_render")
+#: where ``to_dict`` records the group fields that stood apart from their group's first (field: those after it)
+RECORDED_LATER = {"optimise": ("seed",), "level_proxy_faces": ("proxy_body", "batch_render")}
+#: the trust region of the two-pass refit's first pass (``SilhouetteFitConfig.trust.free_ratio``): the one before
 #: issue 55, a radius of this share of the window's longer side around the detections
 FREE_TRUST_FRACTION = 0.06
 #: the defaults of :class:`SilhouetteFitConfig`'s stage fields: the cells of the literal table
@@ -163,6 +169,62 @@ class MaskHandling:
     concave_trimmed_only: bool = True
 
 
+@dataclass(frozen=True)
+class Rendering:
+    """How the silhouette stage's rendered levels render (:mod:`silfit.render`): the samples, their seed, the posed
+    render proxy and the batch's tiles. The proxy's faces (``SilhouetteFitConfig.proxy_faces``,
+    ``level_proxy_faces``) are the levels' table cells and stay the config's. Each field was
+    :class:`SilhouetteFitConfig`'s own, by the same name, which still works."""
+
+    #: primal samples per edge pixel with the ray-cast renderer (which traces one ray per constant region elsewhere;
+    #: per pixel with the projective one); 4 before issue 24's sampling part (why this default, and
+    #: ``edge_density``'s: docs/benchmarks/defaults.md)
+    spp: int = 2
+    edge_spp: int = 1  # visibility-edge samples per pixel (projective integrator's sppp)
+    #: the ray-cast renderer's visibility-edge points per pixel of contour-candidate length instead of
+    #: ``edge_spp`` per window pixel (at most that many; silfit.render.raycast: same expected gradient, fewer rays);
+    #: ``None``: ``edge_spp`` per pixel (before issue 24's speed part)
+    edge_density: Optional[float] = 3.0  # 4.0 before issue 24's sampling part
+    seed: Optional[int] = 0  # base seed of the renderer's sampling (None: fresh seeds)
+    #: pose the render proxy's vertices directly (:class:`ContourBody` of the proxy: its rest-pose mix
+    #: of the model, no full mesh per step) in the rendered levels of an SMPL-layout model; ``False``:
+    #: pose the full mesh, then map it to the proxy (before issue 24's third part)
+    proxy_body: bool = True
+    #: a batch's subjects rendered together in tiles of one film (:mod:`silfit.render.batch`);
+    #: off by default (why: docs/benchmarks/defaults.md)
+    batch_render: bool = False
+
+
+@dataclass(frozen=True)
+class TrustRegion:
+    """The keypoint trust region of the silhouette stage (:class:`KeypointTrustTerm`, weighed by
+    ``SilhouetteFitConfig.w_trust``): a keypoint's projection may move up to a radius from its detection at no cost,
+    beyond it quadratically, weighed by its confidence (issue 55: keypoints as a constraint, not a competitor). With
+    ``from_start`` (issue 55) the radius is each keypoint's own reprojection error after the keypoint stage times
+    ``ratio``, plus ``median`` times the median of those errors (the median error can rise by about that share), plus
+    ``fraction`` of the window's longer side; the excess counts in units of the median error plus a pixel
+    (:func:`trust_data`: the same on a photo of 4,000 pixels as on one of 256) and each keypoint weighs its confidence
+    over the observation's largest. Before issue 55 (``from_start=False, fraction=0.06``): a radius of 6 % of the
+    window around the detections, confidences normalised to sum 1 (docs/benchmarks/real-photos.md; why these
+    defaults: docs/benchmarks/defaults.md). Each field was :class:`SilhouetteFitConfig`'s ``trust_<name>``, which
+    still works."""
+
+    fraction: float = 0.0
+    from_start: bool = True
+    ratio: float = 1.0
+    median: float = 0.15
+    #: the share of the median error in the trust region's unit (``unit = unit_median * median + 1 px``;
+    #: why this default: docs/benchmarks/defaults.md)
+    unit_median: float = 1.0
+    #: two passes in the image path (image_fit.ImageRefinement): the stage runs first with the trust region
+    #: before issue 55 (a radius of ``FREE_TRUST_FRACTION`` of the window around the detections: the silhouette free
+    #: to move the keypoints a little), then every image whose kept result's median reprojection error exceeds
+    #: ``free_ratio`` times the keypoint stage's has all its branches refitted with the trust region above
+    #: (``from_start``), and keeps that. ``None``: one pass with the trust region above (why this default:
+    #: docs/benchmarks/defaults.md)
+    free_ratio: Optional[float] = None
+
+
 @renamed_fields(
     w_pose=Alias("pose_weight"),
     w_limits=Alias("limit_weight"),
@@ -185,6 +247,24 @@ class MaskHandling:
         concave_radius="concave_radius",
         concave_trimmed_only="concave_trimmed_only",
     ),
+    **grouped(
+        "render",
+        spp="spp",
+        edge_spp="edge_spp",
+        edge_density="edge_density",
+        seed="seed",
+        proxy_body="proxy_body",
+        batch_render="batch_render",
+    ),
+    **grouped(
+        "trust",
+        trust_fraction="fraction",
+        trust_from_start="from_start",
+        trust_ratio="ratio",
+        trust_median="median",
+        trust_unit_median="unit_median",
+        trust_free_ratio="free_ratio",
+    ),
 )
 @dataclass
 class SilhouetteFitConfig:
@@ -205,15 +285,9 @@ class SilhouetteFitConfig:
     contour_vertices: Optional[int] = 2000
     w_contour_inside: float = STAGE_DEFAULTS["w_contour_inside"]
     w_contour_cover: float = STAGE_DEFAULTS["w_contour_cover"]
-    #: primal samples per edge pixel with the ray-cast renderer (which traces one ray per constant region elsewhere;
-    #: per pixel with the projective one); 4 before issue 24's sampling part (why this default, and
-    #: ``edge_density``'s: docs/benchmarks/defaults.md)
-    spp: int = 2
-    edge_spp: int = 1  # visibility-edge samples per pixel (projective integrator's sppp)
-    #: the ray-cast renderer's visibility-edge points per pixel of contour-candidate length instead of
-    #: ``edge_spp`` per window pixel (at most that many; silfit.render.raycast: same expected gradient, fewer rays); ``None``:
-    #: ``edge_spp`` per pixel (before issue 24's speed part)
-    edge_density: Optional[float] = 3.0  # 4.0 before issue 24's sampling part
+    #: how the rendered levels render (:class:`Rendering`: samples, seed, the posed proxy, tiles; its fields were the
+    #: config's, names that still work)
+    render: Rendering = field(default_factory=Rendering)
     margin: float = 0.12  # window margin, fraction of the box on each side
     #: window sides rounded up to a multiple of this many pixels: few distinct window sizes,
     #: so few compiled render kernels (a new size costs Dr.Jit a trace and, the first time on
@@ -249,32 +323,13 @@ class SilhouetteFitConfig:
     angle_weight: float = STAGE_DEFAULTS["angle_weight"]
     shape_weight: float = STAGE_DEFAULTS["shape_weight"]
     w_stay: float = STAGE_DEFAULTS["w_stay"]
-    #: trust region on the keypoints (:class:`KeypointTrustTerm`): a keypoint's projection may move up to a
-    #: radius from its detection at no cost, beyond it quadratically, weighed by its confidence (issue 55:
-    #: keypoints as a constraint, not a competitor). With ``trust_from_start`` (issue 55) the radius is each
-    #: keypoint's own reprojection error after the keypoint stage times ``trust_ratio``, plus ``trust_median`` times
-    #: the median of those errors (the median error can rise by about that share), plus ``trust_fraction`` of the
-    #: window's longer side; the excess counts in units of the median error plus a pixel (:func:`trust_data`: the
-    #: same on a photo of 4,000 pixels as on one of 256) and each keypoint weighs its confidence over the
-    #: observation's largest. Before issue 55 (``trust_from_start=False, trust_fraction=0.06``): a radius of 6 % of
-    #: the window around the detections, confidences normalised to sum 1 (docs/benchmarks/real-photos.md).
-    #: ``w_trust``: the weight; too strong, it holds a noise-free subject's keypoints so hard that the stage
-    #: turns limbs in depth instead; 0: off (before issue 23; why these defaults: docs/benchmarks/defaults.md)
+    #: trust region on the keypoints (:class:`KeypointTrustTerm`, its radius and unit: :class:`TrustRegion`):
+    #: the weight; too strong, it holds a noise-free subject's keypoints so hard that the stage turns limbs in depth
+    #: instead; 0: off (before issue 23; why these defaults: docs/benchmarks/defaults.md)
     w_trust: float = STAGE_DEFAULTS["w_trust"]
-    trust_fraction: float = 0.0
-    trust_from_start: bool = True
-    trust_ratio: float = 1.0
-    trust_median: float = 0.15
-    #: the share of the median error in the trust region's unit (``unit = trust_unit_median * median + 1 px``;
-    #: why this default: docs/benchmarks/defaults.md)
-    trust_unit_median: float = 1.0
-    #: two passes in the image path (image_fit.ImageRefinement): the stage runs first with the trust region
-    #: before issue 55 (a radius of ``FREE_TRUST_FRACTION`` of the window around the detections: the silhouette free
-    #: to move the keypoints a little), then every image whose kept result's median reprojection error exceeds
-    #: ``trust_free_ratio`` times the keypoint stage's has all its branches refitted with the trust region above
-    #: (``trust_from_start``), and keeps that. ``None``: one pass with the trust region above (why this default:
-    #: docs/benchmarks/defaults.md)
-    trust_free_ratio: Optional[float] = None
+    #: the trust region's radius, unit and passes (:class:`TrustRegion`; its fields were the config's ``trust_<name>``,
+    #: names that still work)
+    trust: TrustRegion = field(default_factory=TrustRegion)
     #: shape held in the plausible range: ``(|beta| - max_abs_beta)^2`` beyond it (:func:`beta_bound`)
     w_beta_bound: float = STAGE_DEFAULTS["w_beta_bound"]
     max_abs_beta: float = 2.5
@@ -286,7 +341,6 @@ class SilhouetteFitConfig:
     plateau_rtol: float = STAGE_DEFAULTS["plateau_rtol"]
     iou_collapse: float = 0.15  # IoU drop (vs best) that counts as divergence
     optimise: tuple = STAGE_DEFAULTS["optimise"]
-    seed: Optional[int] = 0  # base seed of the renderer's sampling (None: fresh seeds)
     #: render a coarser proxy mesh with this many faces (vertices a fixed linear map of the
     #: model's, :mod:`silfit.render.proxy`; IoU >= 0.995 against the full mesh at 10,000 faces);
     #: ``None`` renders the full mesh
@@ -296,13 +350,6 @@ class SilhouetteFitConfig:
     #: caller's renderer): a window pixel spans 2-4 image pixels, so a coarser proxy does at a smaller
     #: acceleration-structure build, ray plan and trace per step (issue 24's fourth part; ``{}``: before it)
     level_proxy_faces: dict = field(default_factory=lambda: dict(STAGE_DEFAULTS["level_proxy_faces"]))
-    #: pose the render proxy's vertices directly (:class:`ContourBody` of the proxy: its rest-pose mix
-    #: of the model, no full mesh per step) in the rendered levels of an SMPL-layout model; ``False``:
-    #: pose the full mesh, then map it to the proxy (before issue 24's third part)
-    proxy_body: bool = True
-    #: a batch's subjects rendered together in tiles of one film (:mod:`silfit.render.batch`);
-    #: off by default (why: docs/benchmarks/defaults.md)
-    batch_render: bool = False
     threads: Optional[int] = 1  # torch threads during the stage (see silfit.fitting.threads)
 
     def __post_init__(self):
@@ -320,19 +367,16 @@ class SilhouetteFitConfig:
             raise ValueError(
                 f"SilhouetteFitConfig: no learning rate (lr) for optimised parameter(s) {', '.join(missing)}"
             )
-        negative = [
-            n
-            for n in ("w_trust", "trust_fraction", "trust_ratio", "trust_median", "trust_unit_median")
-            if not float(getattr(self, n)) >= 0
-        ]
+        t = self.trust
+        values = {"w_trust": self.w_trust, "trust_fraction": t.fraction, "trust_ratio": t.ratio}
+        values.update(trust_median=t.median, trust_unit_median=t.unit_median)
+        negative = [n for n, v in values.items() if not float(v) >= 0]
         if negative:
             raise ValueError(
                 f"SilhouetteFitConfig: {', '.join(negative)} must be 0 or more (the keypoint trust region)"
             )
-        if self.trust_free_ratio is not None and not float(self.trust_free_ratio) > 0:
-            raise ValueError(
-                f"SilhouetteFitConfig: trust_free_ratio must be above 0 or None, got {self.trust_free_ratio!r}"
-            )
+        if t.free_ratio is not None and not float(t.free_ratio) > 0:
+            raise ValueError(f"SilhouetteFitConfig: trust_free_ratio must be above 0 or None, got {t.free_ratio!r}")
         if not 0.0 <= float(self.mask.trim_quantile) <= 1.0:
             raise ValueError(f"SilhouetteFitConfig: trim_quantile must lie in [0, 1], got {self.mask.trim_quantile!r}")
 
@@ -341,21 +385,24 @@ class SilhouetteFitConfig:
         """The schedule before the contour level (issue 24): rendered Adam levels only, 60
         steps at 128 px and 50 at 256 px, the rendered levels' settings before its fourth part
         (:data:`BEFORE_FOURTH_PART`; the benchmark's "before")."""
+        before = {k: (dict(v) if isinstance(v, dict) else v) for k, v in BEFORE_FOURTH_PART.items()}
+        render = Rendering(**{k: before.pop(k) for k in RENDER_SETTINGS if k in before})
         return cls(
             **{
                 "resolutions": (128, 256),
                 "iterations": (60, 50),
                 "contour_iterations": 0,
                 "window_multiple": 1,
-                **{k: (dict(v) if isinstance(v, dict) else v) for k, v in BEFORE_FOURTH_PART.items()},
+                **before,
+                "render": render,
                 **changes,
             }
         )
 
     def free_pass(self) -> "SilhouetteFitConfig":
-        """The two-pass refit's first pass (``trust_free_ratio``): these settings with the trust region before issue
+        """The two-pass refit's first pass (``trust.free_ratio``): these settings with the trust region before issue
         55 (a radius of :data:`FREE_TRUST_FRACTION` of the window around the detections)."""
-        return replace(self, trust_from_start=False, trust_fraction=FREE_TRUST_FRACTION)
+        return replace(self, trust=replace(self.trust, from_start=False, fraction=FREE_TRUST_FRACTION))
 
     def cover_profile(self, resolution: int) -> Optional[CoverProfile]:
         """The mask-not-covered profile in pixels of a window ``resolution`` pixels long
@@ -403,7 +450,7 @@ class SilhouetteFitConfig:
         return int(faces)
 
     def to_dict(self) -> dict:
-        d = flat_dict(self)  # the groups' fields by their flat names, as before them
+        d = flat_dict(self, later=RECORDED_LATER)  # the groups' fields by their flat names, where they stood
         d["stages"] = [stage_to_dict(s) for s in self.stages()]
         return d
 
@@ -1095,11 +1142,11 @@ class _LevelRenders:
                 level_proxy = get_proxy(model.v_template, model.faces, int(n_faces))
                 faces = level_proxy.faces
             level_batch = None
-            if cfg.batch_render:
+            if cfg.render.batch_render:
                 from silfit.render.batch import get_batch_renderer
 
                 level_batch = get_batch_renderer(faces)
-            if level_proxy is not None and cfg.proxy_body and self.smpl_layout:
+            if level_proxy is not None and cfg.render.proxy_body and self.smpl_layout:
                 level_body = cached_contour_body(model, self.layout, ("proxy", int(n_faces)), lambda: level_proxy)
                 level_proxy = None
             self.built[n_faces] = (get_silhouette_renderer(faces), level_proxy, level_batch, level_body)
@@ -1189,7 +1236,7 @@ class _SilhouetteRun:
                         contours.append(None)
             data["windows"][p], data["targets"][p], data["contours"][p] = windows, targets, contours
         data["scale"] = scale
-        data["trust_px"] = torch.full((P,), float(cfg.trust_fraction) * resolution, dtype=dtype)
+        data["trust_px"] = torch.full((P,), float(cfg.trust.fraction) * resolution, dtype=dtype)
         rows = torch.as_tensor([p for p in range(P) if not self.failed[p]], dtype=torch.long)
         if stage.optimiser == "lbfgs":  # the contour level: deterministic, no rendering
             return {"rows": rows, "body": self.contour_body}
@@ -1207,7 +1254,7 @@ class _SilhouetteRun:
 
     def before_step(self, i, rows):
         """Each problem's renderer seed of this step (its own step count)."""
-        seed = self.cfg.seed
+        seed = self.cfg.render.seed
         self.data["seeds"] = [None if seed is None else int(seed) * 100003 + self.steps[p] for p in range(self.P)]
 
     def on_step(self, i, rows, total, parts, ev):
@@ -1332,7 +1379,7 @@ def _fit_problems(
     smpl_layout = getattr(model, "kind", "smpl") == "smpl"
     contour_body, contour_points_map = _contour_evaluators(model, layout, cfg, body, smpl_layout)
     silhouette = SilhouetteTerm(
-        None, cfg.spp, cfg.edge_spp, edge_density=cfg.edge_density
+        None, cfg.render.spp, cfg.render.edge_spp, edge_density=cfg.render.edge_density
     )  # each rendered level sets its renderer (_LevelRenders)
     energy = _silhouette_energy(silhouette, prior, cfg, contour_points_map, extra_terms)
     target_xy, target_w, any_keypoints = _keypoint_data(grids, dtype)
@@ -1435,7 +1482,7 @@ def _stage_data(
 ) -> dict:
     """The silhouette stage's data: the caller's ``extra_data`` (checked: a leading problem axis), the ``keypoints``
     (:func:`_keypoint_data`'s ``(target, weights, any)``), the start's body pose, the views' extrinsics, the per-row
-    slots the levels fill, and the trust region around the start's keypoints (``trust_from_start``)."""
+    slots the levels fill, and the trust region around the start's keypoints (``trust.from_start``)."""
     P, F, dtype = len(problems), problems[0].num_frames, start["body_pose"].dtype
     target_xy, target_w, any_keypoints = keypoints
     for k, v in extra_data.items():
@@ -1455,12 +1502,12 @@ def _stage_data(
         "contours": PerRow([None] * P),
         "trust_px": torch.zeros(P, dtype=dtype),
     }
-    if cfg.trust_from_start and any_keypoints:  # the trust region around the keypoint stage's fit (issue 55)
+    if cfg.trust.from_start and any_keypoints:  # the trust region around the keypoint stage's fit (issue 55)
         with torch.no_grad():
             start_2d = evaluate(body, params_layout, start, views, data).keypoints_2d
         data.update(
             trust_data(
-                target_xy, target_w, start_2d, cfg.trust_ratio, cfg.trust_median, unit_share=cfg.trust_unit_median
+                target_xy, target_w, start_2d, cfg.trust.ratio, cfg.trust.median, unit_share=cfg.trust.unit_median
             )
         )
     return data

@@ -248,7 +248,7 @@ def test_grouped_settings_keep_their_flat_names_for_one_release():
     assert old == new and old.image_depth_weight == 100.0 and old.to_dict() == new.to_dict()
     d = new.to_dict()
     assert d["image_depth_weight"] == 100.0 and d["occlusion_conf"] == [0.3, 0.6] and "image_depth" not in d
-    assert replace(new, sigma=50.0).image_depth is new.image_depth  # frozen groups: shared safely
+    assert replace(new, final_iters=50).image_depth is new.image_depth  # frozen groups: shared safely
     new.occlusion_weight = 0.5  # writes through
     assert new.occlusion == OcclusionOptions(weight=0.5) and new.stages()[3].options["branches"]["occlusion"] == 0.5
     kp = keypoint_config({"image_depth.weight": "100", "image_depth.decide": "none", "occlusion.conf": "0.1,0.9"})
@@ -295,3 +295,94 @@ def test_the_mask_settings_are_a_group():
     assert sil.mask == MaskHandling(leak_distance=0.0, trim_quantile=0.5)
     with pytest.raises(ValueError, match="trim_quantile must lie in"):
         SilhouetteFitConfig(mask=MaskHandling(trim_quantile=2.0))
+
+
+def test_the_keypoint_term_starts_solutions_and_temporal_settings_are_groups():
+    """``KeypointFitConfig.keypoint_term``, ``.starts``, ``.solutions`` (the count was ``hypotheses``) and
+    ``.temporal``: the old flat names still work (warned, read and written through) and are recorded as before."""
+    from silfit.fitting import KeypointTermOptions, Solutions, Starts, TemporalOptions
+    from silfit.runner.worker import keypoint_config
+
+    with pytest.warns(DeprecationWarning, match="'hypotheses' is deprecated, use 'solutions.count'"):
+        old = KeypointFitConfig(hypotheses=3, keypoint_weights={"nose": 2.0}, init_poses=1, temporal_robust="gm")
+    new = KeypointFitConfig(
+        solutions=Solutions(count=3),
+        keypoint_term=KeypointTermOptions(weights={"nose": 2.0}),
+        starts=Starts(poses=1),
+        temporal=TemporalOptions(robust="gm"),
+    )
+    assert old == new and old.stages() == new.stages() and old.to_dict() == new.to_dict()
+    d = new.to_dict()
+    assert d["hypotheses"] == 3 and d["keypoint_weights"] == {"nose": 2.0} and d["init_poses"] == 1
+    assert d["sigma"] == 100.0 and d["temporal_robust"] == "gm" and d["hypothesis_unrefined"] is True
+    assert not {"solutions", "starts", "keypoint_term", "temporal"} & set(d)
+    assert new.hypotheses == 3 and new.flip_test is True and new.sigma == 100.0
+    new.flip_test = False  # writes through
+    assert new.starts == Starts(flip=False, poses=1)
+    kp = keypoint_config({"solutions.count": "2", "starts.flip": "false", "keypoint_term.sigma": "50"})
+    assert kp.solutions.count == 2 and kp.starts.flip is False and kp.keypoint_term.sigma == 50.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        assert keypoint_config({"init_poses": "1", "hypothesis_joint_max_m": "none"}) == KeypointFitConfig(
+            starts=Starts(poses=1), solutions=Solutions(joint_max_m=None)
+        )
+    with pytest.raises(ValueError, match="init_poses must be at least 1"):
+        KeypointFitConfig(starts=Starts(poses=0))
+
+
+def test_the_trust_region_settings_are_a_group():
+    """``SilhouetteFitConfig.trust`` (:class:`TrustRegion`; ``w_trust``, a weight, stays): the old ``trust_*`` names
+    still work and are recorded as before."""
+    from silfit.fitting.silhouette_stage import TrustRegion
+    from silfit.runner.worker import FitOptions, silhouette_config
+
+    with pytest.warns(DeprecationWarning, match="'trust_free_ratio' is deprecated, use 'trust.free_ratio'"):
+        old = SilhouetteFitConfig(trust_free_ratio=1.3, trust_median=0.5)
+    new = SilhouetteFitConfig(trust=TrustRegion(free_ratio=1.3, median=0.5))
+    assert old == new and old.to_dict() == new.to_dict() and new.trust_median == 0.5
+    assert new.to_dict()["trust_free_ratio"] == 1.3 and "trust" not in new.to_dict()
+    assert new.free_pass().trust == TrustRegion(fraction=0.06, from_start=False, median=0.5, free_ratio=1.3)
+    sil = silhouette_config(FitOptions(silhouette_options={"trust.ratio": "2", "trust.free_ratio": "none"}))
+    assert sil.trust == TrustRegion(ratio=2.0)
+    with pytest.raises(ValueError, match="trust_fraction, trust_median must be 0 or more"):
+        SilhouetteFitConfig(trust=TrustRegion(fraction=-1.0, median=-1.0))
+    with pytest.raises(ValueError, match="trust_free_ratio must be above 0"):
+        SilhouetteFitConfig(trust=TrustRegion(free_ratio=0.0))
+
+
+def test_the_rendering_settings_are_a_group():
+    """``SilhouetteFitConfig.render`` (:class:`Rendering`; the proxy's faces, table cells, stay): the old names still
+    work and are recorded as before, in their old places."""
+    from silfit.fitting.silhouette_stage import BEFORE_FOURTH_PART, Rendering
+    from silfit.runner.worker import FitOptions, silhouette_config
+
+    with pytest.warns(DeprecationWarning, match="'batch_render' is deprecated, use 'render.batch_render'"):
+        old = SilhouetteFitConfig(batch_render=True, seed=None, spp=4)
+    new = SilhouetteFitConfig(render=Rendering(batch_render=True, seed=None, spp=4))
+    assert old == new and old.to_dict() == new.to_dict() and new.spp == 4 and old.stages() == new.stages()
+    keys = list(new.to_dict())
+    assert keys.index("spp") < keys.index("margin") and keys.index("optimise") + 1 == keys.index("seed")
+    assert keys[keys.index("level_proxy_faces") + 1 :][:2] == ["proxy_body", "batch_render"] and "render" not in keys
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)  # the library's own settings go by the group's names
+        legacy = SilhouetteFitConfig.legacy()
+    assert legacy.render == Rendering(spp=BEFORE_FOURTH_PART["spp"], edge_density=None)
+    sil = silhouette_config(FitOptions(silhouette_options={"render.seed": "none", "render.edge_spp": "2"}))
+    assert sil.render == Rendering(seed=None, edge_spp=2)
+
+
+def test_the_branch_choice_over_time_is_a_group():
+    """``SequenceFitConfig.branch_choice`` (:class:`BranchChoice`): the old ``branch_*`` names still work and are
+    recorded as before (tuples kept)."""
+    from silfit.fitting.sequence import BranchChoice
+
+    with pytest.warns(DeprecationWarning, match="'branch_offsets' is deprecated, use 'branch_choice.offsets'"):
+        old = SequenceFitConfig(branch_offsets=(1, 3), branch_dp=False)
+    new = SequenceFitConfig(branch_choice=BranchChoice(offsets=(1, 3), dp=False))
+    assert old == new and old.to_dict() == new.to_dict() and new.branch_dp is False
+    d = new.to_dict()
+    assert d["branch_offsets"] == (1, 3) and d["branch_hypotheses"] == 3 and "branch_choice" not in d
+    assert list(d).index("neighbour_starts") + 1 == list(d).index("branch_dp") and old.stages() == new.stages()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)
+        SequenceFitConfig()  # its keypoint settings by the groups' names
