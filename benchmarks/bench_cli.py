@@ -39,7 +39,7 @@ from silfit import load_body_model
 from silfit.camera import load_camera
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig
 from silfit.io.keypoints import read_keypoints
-from silfit.fitting.image_fit import save_fit
+from silfit.outputs.write import save_fit
 from silfit.run import fit
 from silfit.silhouette.masks import read_mask
 mark("import silfit (fitting, pipeline)")

@@ -56,10 +56,10 @@ _EXPORTS = {
     "fit_keypoints": "fitting",
     "FitResult": "fitting.image_fit",
     "fit": "run",
-    "save_fit": "fitting.image_fit",
+    "save_fit": "outputs.write",
     "fit_sequence": "run",
     "read_sequence": "io.video",
-    "save_sequence_fit": "io.video",
+    "save_sequence_fit": "outputs.write",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__"]
@@ -72,6 +72,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from .body import BodyModel, BodyOutput, load_body_model
     from .camera import Camera
     from .fitting import KeypointFitResult, fit_keypoints
-    from .fitting.image_fit import FitResult, save_fit
+    from .fitting.image_fit import FitResult
     from .run import fit, fit_sequence
-    from .io.video import read_sequence, save_sequence_fit
+    from .io.video import read_sequence
+    from .outputs.write import save_fit, save_sequence_fit

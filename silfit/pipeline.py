@@ -11,8 +11,8 @@ from .fitting.image_fit import (  # noqa: F401
     fit_problems,
     refine,
     refine_batch,
-    save_fit,
 )
+from .outputs.write import save_fit  # noqa: F401
 from .run import fit  # noqa: F401
 
 __all__ = [

@@ -10,7 +10,8 @@
       -> Fit        the one result type: shared and per-frame parameters, per-(frame, view)
                     reprojection error and IoU, metrics and warnings
       -> write(fit, out)   the output folder (the fit file of silfit.io.fit, meshes, pictures,
-                    metrics.json), written atomically
+                    metrics.json), written atomically, its parts chosen by the frames and views
+                    (:mod:`silfit.outputs.write`)
 
 Every group of jobs goes through the same steps (:func:`_fit_group`): the number of frames and views (the
 job's ``mode``) chooses a core (:data:`CORES`: an image batch,
@@ -68,7 +69,8 @@ class Fit:
     ``reprojection_error [F, C]`` (median px, NaN where a view had no keypoints) and ``iou
     [F, C]`` (NaN without a mask); ``metrics`` what ``metrics.json`` holds (with
     ``warnings``); ``stage`` the core's own result (``FitResult``, ``RigResult`` or
-    ``SequenceFitResult``), for the writer and for callers of the older functions."""
+    ``SequenceFitResult``), for callers of the older functions and for what only it holds, which the writer
+    reads in one place (:func:`silfit.outputs.write.stage_parts`)."""
 
     job: Job
     params: Dict[str, np.ndarray]
@@ -320,11 +322,20 @@ def _image_core(jobs: Sequence[Job]) -> ImageCore:
 
 
 def _image_fit(job: Job, core, r) -> Fit:
-    """The :class:`Fit` of an image job's :class:`~silfit.fitting.image_fit.FitResult`."""
+    """The :class:`Fit` of an image job's :class:`~silfit.fitting.image_fit.FitResult` (:func:`image_result_fit`)."""
+    return image_result_fit(job, r)
+
+
+def image_result_fit(job: Job, r) -> Fit:
+    """The :class:`Fit` of one image's :class:`~silfit.fitting.image_fit.FitResult` (its metrics the result's own;
+    its parameters the SMPL ones first, then a whole body's others, as the fit files of one image list them)."""
+    from .body.model import SMPL_PARAMETER_NAMES
+
     m = r.metrics
+    params = {**{n: r.params[n] for n in SMPL_PARAMETER_NAMES if n in r.params}, **r.params}
     return Fit(
         job,
-        _params_per_frame(r.params, 1),
+        _params_per_frame(params, 1),
         _arr(r.vertices)[None],
         _arr(r.joints)[None],
         _arr(r.keypoints_2d)[None, None],
@@ -491,6 +502,19 @@ def _video_core(jobs: Sequence[Job]) -> VideoCore:
 def _video_fit(job: Job, core: VideoCore, result) -> Fit:
     """The :class:`Fit` of a video job's :class:`~silfit.fitting.sequence.SequenceFitResult` (camera frame for one
     camera, world frame for a rig): posed vertices, per-(frame, view) errors and IoU, warnings and metrics."""
+    fit = sequence_result_fit(job, result, {})
+    F, C = fit.reprojection_error.shape
+    rig = job.rig or C > 1
+    numbers = list(job.frame_numbers) if job.frame_numbers is not None else list(range(F))
+    warnings = _video_warnings(job, result, core.frames, fit.vertices, fit.reprojection_error, numbers, rig)
+    fit.metrics = _video_metrics(result, fit.reprojection_error, warnings, core.silhouette, numbers, core.cue_records)
+    result.warnings = fit.metrics["warnings"]
+    return fit
+
+
+def sequence_result_fit(job: Job, result, metrics: dict) -> Fit:
+    """The :class:`Fit` of a :class:`~silfit.fitting.sequence.SequenceFitResult` over ``job``'s frames x views (its
+    vertices posed from its parameters), with ``metrics``."""
     grid = job.problem.grid()
     F, C = len(grid), len(grid[0])
     rig = job.rig or C > 1
@@ -502,10 +526,6 @@ def _video_fit(job: Job, core: VideoCore, result) -> Fit:
         if result.silhouette_iou is None
         else np.broadcast_to(np.asarray(result.silhouette_iou, np.float64).reshape(F, -1), (F, C)).copy()
     )
-    numbers = list(job.frame_numbers) if job.frame_numbers is not None else list(range(F))
-    warnings = _video_warnings(job, result, core.frames, vertices, errors, numbers, rig)
-    metrics = _video_metrics(result, errors, warnings, core.silhouette, numbers, core.cue_records)
-    result.warnings = metrics["warnings"]
     return Fit(
         job,
         _params_per_frame(params, F),
@@ -573,52 +593,10 @@ def write(
     fields (over the fit's own); ``images``: ``(frame, view)`` -> the RGB image to draw an image's
     or a rig's pictures on, over the job's (a fit run without its image; a video's come from its
     reader)."""
-    job = fit.job
-    if images and job.mode == "video":
-        raise ValueError("write: a video's pictures come from its reader (job.inputs), not from images=")
-    model = job.model
-    faces = model.faces.cpu().numpy()
-    fields = {k: v for k, v in fit.metrics.items() if k in job.record}
-    fields["warnings"] = list(fit.warnings)
-    fields.update(extra or {})
-    pictures = {**job.images, **(images or {})}
-    if job.mode == "image":
-        from .fitting.image_fit import save_fit
+    from .outputs.write import write_folder
 
-        o = job.problem.observations[0]
-        return save_fit(
-            fit.stage,
-            out,
-            faces,
-            o.keypoints,
-            pictures.get((0, 0)),
-            o.mask,
-            fields,
-            overwrite=overwrite,
-            exports=exports,
-        )
-    if job.mode == "rig":
-        from .fitting.rig_pipeline import save_rig_fit
-
-        if exports:
-            raise InputError(
-                "--export", "not available for rigs (a rig's world frame has no fixed up axis); mesh.obj holds the body"
-            )
-        views = {job.view_names[c]: img for (f, c), img in pictures.items()}
-        return save_rig_fit(fit.stage, out, faces, job.problem, views, fields, overwrite=overwrite, model=model)
-    from .io.video import save_sequence_fit
-
-    return save_sequence_fit(
-        fit.stage,
-        out,
-        model,
-        job.inputs,
-        meshes=meshes,
-        video=video,
-        fps=fps,
-        extra_metrics=fields,
-        overwrite=overwrite,
-        exports=exports,
+    return write_folder(
+        fit, out, overwrite=overwrite, exports=exports, meshes=meshes, video=video, fps=fps, extra=extra, images=images
     )
 
 

@@ -1,6 +1,7 @@
 """The one path (silfit.run): the checks every job gets, run_batch's batching and isolation,
 the one result type's shapes for an image, a rig and a video."""
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +11,7 @@ from silfit.io.subjects import load_subject
 from silfit.errors import InputError
 from silfit.fitting import KeypointFitConfig
 from silfit.fitting.problem import Observation, Problem, View
+from silfit.fitting.silhouette_stage import SilhouetteFitConfig
 from silfit.io.keypoints import KeypointSet
 from silfit.run import Job, StageFailure, check, image_job, keypoint_stage_fit, run, run_batch, video_job, write
 
@@ -193,12 +195,13 @@ def test_write_adds_metrics_fields_and_draws_on_the_images_given(open_model, sub
         keypoint_stage_fit(fit)  # a rig's keypoint stage alone; an image's keypoint fit is its own folder's stages/
 
 
-WRITERS = {"save_fit", "save_rig_fit", "save_sequence_fit"}
-#: run.write, the one writer of output folders, and the per-mode writers' own modules
-WRITER_MODULES = {"run.py", "fitting/image_fit.py", "fitting/rig_pipeline.py", "io/video.py"}
+WRITERS = {"write_folder", "save_fit", "save_sequence_fit"}
+#: run.write, the one writer of output folders, and the writer's own module (save_fit and save_sequence_fit: a
+#: core's result written without its job, through the same writer)
+WRITER_MODULES = {"run.py", "outputs/write.py"}
 
 
-def test_only_run_write_calls_the_per_mode_writers():
+def test_only_run_write_calls_the_writer():
     import ast
 
     package = Path(__file__).resolve().parents[1] / "silfit"
@@ -212,7 +215,65 @@ def test_only_run_write_calls_the_per_mode_writers():
                 name = f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else None
                 if name in WRITERS:
                     calls.append(f"{p.relative_to(package)}:{node.lineno} {name}")
-    assert not calls, f"write output folders with silfit.run.write, not the per-mode writers: {calls}"
+    assert not calls, f"write output folders with silfit.run.write: {calls}"
+
+
+def test_the_writer_reads_the_cores_result_in_one_place():
+    """The output folder is written from the Fit's fields; what only the core's own result holds is read by
+    silfit.outputs.write.stage_parts alone."""
+    import ast
+
+    source = (Path(__file__).resolve().parents[1] / "silfit" / "outputs" / "write.py").read_text(encoding="utf-8")
+    readers = set()
+    for fn in ast.parse(source).body:
+        if isinstance(fn, ast.FunctionDef):
+            if any(isinstance(n, ast.Attribute) and n.attr == "stage" for n in ast.walk(fn)):
+                readers.add(fn.name)
+    assert readers == {"stage_parts"}
+
+
+def test_save_fit_writes_the_folder_run_write_writes(open_model, subject, tmp_path):
+    """silfit.save_fit (a FitResult without its job) goes through the one writer: the same files, the same bytes."""
+    import json
+
+    from silfit import save_fit
+
+    job = image_job(subject.keypoints, subject.mask, subject.camera, model=open_model, keypoint_config=FAST)
+    fit = run(replace(job, silhouette_config=SilhouetteFitConfig(resolutions=(32,), iterations=(2,))))
+    write(fit, tmp_path / "write", images={(0, 0): subject.image})
+    save_fit(fit.stage, tmp_path / "save", open_model.faces.numpy(), subject.keypoints, subject.image, subject.mask)
+    files = sorted(p.relative_to(tmp_path / "write") for p in (tmp_path / "write").rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(tmp_path / "save") for p in (tmp_path / "save").rglob("*") if p.is_file())
+    assert "silhouette.png" in {f.name for f in files}
+    for f in files:
+        a, b = (tmp_path / d / f for d in ("write", "save"))
+        if f.suffix != ".json":
+            assert a.read_bytes() == b.read_bytes(), f
+    timings = lambda d: {k: v for k, v in d.items() if k != "timings"}  # noqa: E731
+    one, two = (json.loads((tmp_path / d / "params.json").read_text()) for d in ("write", "save"))
+    assert timings(one) == timings(two)
+
+
+def test_a_video_without_its_reader_is_written_and_save_sequence_fit_writes_the_same(open_model, subject, tmp_path):
+    """A video fitted from Python (no reader: grey canvases) goes through the one writer, as does
+    silfit.save_sequence_fit (a SequenceFitResult without its job): the same files, the same bytes."""
+    from types import SimpleNamespace
+
+    from silfit import save_sequence_fit
+    from silfit.fitting.sequence import SequenceFitConfig
+
+    ks, cam = subject.keypoints, subject.camera
+    cfg = SequenceFitConfig(keypoint=FAST, iterations=3, neighbour_starts=False)
+    fit = run(video_job([ks, None, ks], cam, open_model, config=cfg, numbers=[4, 5, 6]))
+    write(fit, tmp_path / "write", meshes=True)
+    reader = SimpleNamespace(numbers=[4, 5, 6], images={})
+    save_sequence_fit(fit.stage, tmp_path / "save", open_model, reader, meshes=True, extra_metrics={"warnings": []})
+    files = sorted(p.relative_to(tmp_path / "write") for p in (tmp_path / "write").rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(tmp_path / "save") for p in (tmp_path / "save").rglob("*") if p.is_file())
+    assert {"overlay.gif", "strip.png", "frame_000000000005.obj"} <= {f.name for f in files}
+    for f in files:
+        if f.suffix != ".json":
+            assert (tmp_path / "write" / f).read_bytes() == (tmp_path / "save" / f).read_bytes(), f
 
 
 def test_write_refuses_pictures_for_a_video():

@@ -3,8 +3,8 @@ video), refined against the person's silhouettes.
 
 The flags make a job (:mod:`silfit.cli.jobs`), :func:`silfit.run.run` fits it and
 :func:`silfit.run.write` writes the output folder into ``--out`` atomically (a failed run
-leaves no half-written output): the one image's folder of :mod:`silfit.fitting.image_fit`, the rig's
-of :mod:`silfit.fitting.rig_pipeline`, the video's of :func:`silfit.io.video.save_sequence_fit`.
+leaves no half-written output), its parts chosen by the frames and views (:mod:`silfit.outputs.write`): the one
+image's folder of :mod:`silfit.fitting.image_fit`, the rig's of :mod:`silfit.fitting.rig_pipeline`, a video's.
 """
 
 from __future__ import annotations

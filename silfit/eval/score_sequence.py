@@ -171,7 +171,7 @@ def evaluate_sequences(
     config=None,
 ) -> dict:
     """Score every sequence of ``dataset`` (fitting it first with ``run`` or when no fit
-    exists: ``FITS/<seq>/temporal/``, written by :func:`silfit.io.video.save_sequence_fit`)."""
+    exists: ``FITS/<seq>/temporal/``, written by :func:`silfit.run.write`)."""
     from ..body import load_body_model
 
     root = Path(dataset)

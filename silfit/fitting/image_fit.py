@@ -1,8 +1,9 @@
 """One image's core below :func:`silfit.run.run` (which :func:`silfit.fit` calls): keypoint
 stage, then silhouette stage, batched over images (:func:`fit_problems`); results in memory
-(:class:`FitResult`) and on disk (:func:`save_fit`).
+(:class:`FitResult`); on disk by the one writer, :func:`silfit.run.write` (:mod:`silfit.outputs.write`;
+:func:`silfit.save_fit` for a :class:`FitResult` alone).
 
-Output folder written by :func:`save_fit` (and ``silfit fit``)::
+Output folder of one image (``silfit fit``)::
 
     params.npz, params.json    final SMPL parameters (betas, body_pose, global_orient, transl),
                                camera_intrinsics, image_size, vertices, joints, keypoints_2d
@@ -31,10 +32,7 @@ the end, so a failed run leaves nothing half-written.
 
 from __future__ import annotations
 
-import json
-import os
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import List, Optional, Sequence, Union
 
 import numpy as np
@@ -47,7 +45,6 @@ from .cores import Core, StageFailure, run_steps
 from .refine import SilhouetteHooks, StageInputs, refine_silhouettes
 from .silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult
 from ..io.keypoints import KeypointSet, model_keypoints
-from ..outputs.folder import atomic_folder
 from .plausibility import depth_warnings, fit_warnings, guard_fit, mask_warnings
 from ..eval.metrics import mask_iou
 from ..silhouette.masks import validate_mask
@@ -61,7 +58,6 @@ __all__ = [
     "refine_batch",
     "ImageCore",
     "ImageRefinement",
-    "save_fit",
     "body_mask",
 ]
 
@@ -268,7 +264,7 @@ def _hypothesis_outputs(
     guard: bool = True,
 ) -> list:
     """One image's ``--hypotheses K`` solutions (``hypotheses``: :attr:`KeypointFitResult.hypotheses`' entry) as fits,
-    for :attr:`FitResult.hypotheses` (:func:`save_fit` writes them to ``hypotheses/<rank>/``): each one's parameters
+    for :attr:`FitResult.hypotheses` (:func:`silfit.run.write` writes them to ``hypotheses/<rank>/``): each one's parameters
     posed, with ``record``: :func:`~silfit.fitting.plausibility.hypothesis_summary`'s row, ``kept`` (whether the final fit
     came from it: rank ``kept``; ``None``: none) and ``params_from`` (which stage's parameters these are).
 
@@ -934,71 +930,6 @@ def _depth_cues(fitter, keypoints, images, people) -> tuple:
     return cues, records
 
 
-def _hypothesis_title(h: dict, silhouette: bool) -> str:
-    """A :func:`_save_hypotheses` tile's title: rank, what it turns, its energy gap (and the mask's IoU)."""
-    r = h["record"]
-    turns = r.get("differs") or []
-    what = (
-        "the keypoint fit's branch"
-        if r["rank"] == 1
-        else (
-            "turns " + (", ".join(turns) if len(turns) <= 2 else f"{len(turns)} segments")
-            if turns
-            else f"from branch {r['label']}, no limb turned"
-        )
-    )
-    line = f"keypoint energy {r['gap']:+.1%}" + ("" if r.get("refined", True) else " (search stage)")
-    if silhouette and r.get("silhouette_iou") is not None:
-        line += f", IoU {r['silhouette_iou']:.3f}"
-    return f"{r['rank']}{' (kept)' if r['kept'] else ''}: {what}\n{line}"
-
-
-def _save_hypotheses(
-    folder: Path, result: FitResult, faces: np.ndarray, keypoints: Optional[KeypointSet], image: Optional[np.ndarray]
-) -> None:
-    """``hypotheses/<rank>/`` (``params.npz``/``params.json`` with the hypothesis' record, ``mesh.obj``, and where the
-    silhouette stage refined it ``stages/keypoints/``, the keypoint stage's) and ``hypotheses.png``: each hypothesis
-    over the image and from the side, over the final fit (orange) where it differs."""
-    from ..outputs import figures
-    from ..io.fit import write_fit
-    from ..io.meshes import write_obj
-
-    kp_xy, kp_conf = (None, None) if keypoints is None else (keypoints.xy, keypoints.conf)
-    silhouette = result.silhouette is not None
-    tiles, titles = [], []
-    for h in result.hypotheses:
-        d = folder / "hypotheses" / str(h["rank"])
-        write_fit(
-            d,
-            h["params"],
-            [result.camera],
-            layout=result.layout,
-            model=result.keypoint.model,
-            vertices=h["vertices"],
-            keypoints_2d=h["keypoints_2d"],
-            record=h["record"],
-        )
-        write_obj(d / "mesh.obj", h["vertices"], faces)
-        if h["keypoint_params"] is not None:
-            write_fit(
-                d / "stages" / "keypoints",
-                h["keypoint_params"],
-                [result.camera],
-                layout=result.layout,
-                model=result.keypoint.model,
-                record={"rank": h["rank"], "params_from": "keypoint stage"},
-            )
-        same = np.allclose(h["vertices"], result.vertices, atol=1e-6)
-        tiles += [
-            figures.fit_overlay(image, h["vertices"], faces, result.camera, kp_xy, h["keypoints_2d"], kp_conf),
-            figures.side_view(
-                h["vertices"], faces, None if same else result.vertices, labels=(f"hypothesis {h['rank']}", "final fit")
-            ),
-        ]
-        titles += [_hypothesis_title(h, silhouette), "from the side" + ("" if same else " (orange: the final fit)")]
-    figures.contact_sheet(tiles, titles, folder / "hypotheses.png", columns=2 * min(len(result.hypotheses), 3))
-
-
 def _keypoint_only(model, kp_result: KeypointFitResult, keypoints: KeypointSet) -> FitResult:
     """The :class:`FitResult` of a one-image keypoint-stage result (no silhouette stage)."""
     vertices, joints, kp2d = _pose(model, kp_result.params(0), keypoints.layout, kp_result.camera)
@@ -1015,62 +946,3 @@ def _keypoint_only(model, kp_result: KeypointFitResult, keypoints: KeypointSet) 
     return FitResult(
         kp_result.camera, keypoints.layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d, metrics
     )
-
-
-def save_fit(
-    result: FitResult,
-    out: Union[str, os.PathLike],
-    faces: np.ndarray,
-    keypoints: Optional[KeypointSet] = None,
-    image: Optional[np.ndarray] = None,
-    mask: Optional[np.ndarray] = None,
-    extra_metrics: Optional[dict] = None,
-    overwrite: bool = False,
-    exports: Sequence[str] = (),
-) -> Path:
-    """Write the output folder described in the module docstring, atomically; ``exports``
-    (``"glb"``, ``"ply"``) adds ``mesh.glb`` / ``mesh.ply`` in the upright world frame of
-    :mod:`silfit.outputs.export`."""
-    from ..outputs import figures
-    from ..io.meshes import write_obj
-
-    out = Path(out)
-    with atomic_folder(out, overwrite) as tmp:
-        result.final.save(tmp)
-        write_obj(tmp / "mesh.obj", result.vertices, faces)
-        if exports:
-            from ..outputs.export import write_fit_exports
-
-            write_fit_exports(tmp, result.vertices, faces, result.camera, exports)
-        kp_xy = None if keypoints is None else keypoints.xy
-        kp_conf = None if keypoints is None else keypoints.conf
-        figures.write_png(
-            tmp / "overlay.png",
-            figures.fit_overlay(image, result.vertices, faces, result.camera, kp_xy, result.keypoints_2d, kp_conf),
-        )
-        stage_dir = tmp / "stages" / "keypoints"
-        result.keypoint.save(stage_dir)
-        reference = result.keypoint.vertices[0] if result.silhouette is not None else None
-        figures.write_png(tmp / "side.png", figures.side_view(result.vertices, faces, reference))
-        if result.silhouette is not None:
-            kp_verts = result.keypoint.vertices[0]
-            figures.write_png(
-                stage_dir / "overlay.png",
-                figures.fit_overlay(
-                    image, kp_verts, faces, result.camera, kp_xy, result.keypoint.keypoints_2d[0], kp_conf
-                ),
-            )
-            if mask is not None:
-                figures.write_png(
-                    tmp / "silhouette.png",
-                    figures.silhouette_comparison(result.masks["final"], mask, result.masks.get("fitted")),
-                )
-            figures.iou_curve(result.silhouette.history, tmp / "iou_curve.png")
-        if result.hypotheses:  # --hypotheses K: hypotheses/<k>/ and hypotheses.png
-            _save_hypotheses(tmp, result, faces, keypoints, image)
-        metrics = dict(result.metrics)
-        metrics["camera"] = result.camera.to_dict()
-        metrics["layout"] = result.layout
-        metrics.update(extra_metrics or {})
-        (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    return out

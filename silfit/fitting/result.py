@@ -144,6 +144,22 @@ class KeypointFitResult:
         :func:`silfit.io.fit.write_fit` (one frame, one view; the schema is described there)."""
         from ..io.fit import write_fit
 
+        pick = lambda name: None if getattr(self, name) is None else getattr(self, name)[index]  # noqa: E731
+        return write_fit(
+            directory,
+            {name: self.params(index)[name] for name in self.parameter_names},
+            [self.cameras[index]],
+            layout=self.layout,
+            model=self.model,
+            vertices=pick("vertices"),
+            joints=pick("joints"),
+            keypoints_2d=pick("keypoints_2d"),
+            record=self.record(index),
+        )
+
+    def record(self, index: int = 0) -> dict:
+        """Sample ``index``'s ``params.json`` fields beside the parameters (:meth:`save`): energies, timings,
+        the configuration, branches, facing, branch search and reprojection error."""
         record = {
             "energies": {k: float(v[index]) for k, v in self.energies.items()},
             "timings": {k: float(v) for k, v in self.timings.items()},
@@ -163,18 +179,7 @@ class KeypointFitResult:
             record["branch_search"] = self.branch_search[index]
         if self.reprojection_error is not None:
             record["reprojection_error_px"] = float(self.reprojection_error[index])
-        pick = lambda name: None if getattr(self, name) is None else getattr(self, name)[index]  # noqa: E731
-        return write_fit(
-            directory,
-            {name: self.params(index)[name] for name in self.parameter_names},
-            [self.cameras[index]],
-            layout=self.layout,
-            model=self.model,
-            vertices=pick("vertices"),
-            joints=pick("joints"),
-            keypoints_2d=pick("keypoints_2d"),
-            record=record,
-        )
+        return record
 
     @classmethod
     def load(cls, path: Union[str, os.PathLike]) -> "KeypointFitResult":

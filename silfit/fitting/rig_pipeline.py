@@ -1,7 +1,7 @@
 """The whole fit of one body seen by a calibrated rig (``silfit fit --rig``): the keypoint
 stage over all views in the world frame (:mod:`silfit.fitting.rig_fit`), then, when the
 views have masks, the silhouette stage rendering every view; results in memory
-(:func:`fit_rig`) and on disk (:func:`save_rig_fit`).
+(:func:`fit_rig`); on disk by the one writer, :func:`silfit.run.write` (:mod:`silfit.outputs.write`).
 
 Output folder (world coordinates: the frame of the rig's extrinsics)::
 
@@ -20,17 +20,14 @@ Written atomically (:func:`silfit.outputs.folder.atomic_folder`).
 
 A rig video (``silfit fit --rig DIR`` on a rig whose views are video folders,
 :func:`silfit.io.video.load_rig_sequence`; fitted by :func:`silfit.run.run`): the sequence fit of :mod:`silfit.fitting.sequence`
-over frames x views in the world frame, written by :func:`silfit.io.video.save_sequence_fit`.
+over frames x views in the world frame, written by :func:`silfit.run.write`.
 """
 
 from __future__ import annotations
 
-import json
-import os
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import List, Optional, Union
+from typing import List, Optional
 
 import numpy as np
 
@@ -38,7 +35,6 @@ from ..eval.metrics import mask_iou
 from .cores import Core, run_steps
 from .refine import SilhouetteHooks, StageInputs, refine_silhouettes
 from .rig_fit import RigFit, fit_rig_keypoints
-from ..outputs.folder import atomic_folder
 
 __all__ = [
     "RigCore",
@@ -48,7 +44,6 @@ __all__ = [
     "fit_rigs",
     "read_rig_sequence_masks",
     "refine_rig_fits",
-    "save_rig_fit",
     "view_vertices",
 ]
 
@@ -369,115 +364,6 @@ class RigRefinement(SilhouetteHooks):
             _refined_rig_result(model, self.faces, self.layout, config, it, b, sil)
             for it, b, sil in zip(self.items, self.before, sils)
         ]
-
-
-@dataclass
-class _RigFile:
-    """What every fit file of a rig's output folder shares: the views' cameras, the layout, the model."""
-
-    names: List[str]
-    cameras: list
-    extrinsics: list
-    layout: str
-    model: object = None
-
-    def write(self, folder: Path, params: dict, vertices, joints, proj, errors, record=None) -> None:
-        """One fit file (:func:`silfit.io.fit.write_fit`: world coordinates, every view) into ``folder``."""
-        from ..io.fit import write_fit
-
-        write_fit(
-            folder,
-            params,
-            self.cameras,
-            layout=self.layout,
-            model=self.model,
-            coordinates="world",
-            extrinsics=self.extrinsics,
-            views=self.names,
-            vertices=vertices,
-            joints=joints,
-            keypoints_2d=np.asarray(proj)[None],
-            reprojection_error=np.asarray(errors, np.float32)[None],
-            record=record,
-        )
-
-
-def _write_view_pictures(tmp: Path, result: RigResult, grid, faces: np.ndarray, images: dict, proj) -> None:
-    """``views/<name>/overlay.png`` per view, and ``silhouette.png`` where the view has a mask."""
-    from ..outputs import figures
-
-    for c, (name, o) in enumerate(zip(result.names, grid)):
-        folder = tmp / "views" / name
-        folder.mkdir(parents=True, exist_ok=True)
-        figures.write_png(
-            folder / "overlay.png",
-            figures.fit_overlay(
-                images.get(name),
-                view_vertices(result.vertices, o.view),
-                faces,
-                o.view.camera,
-                o.keypoints.xy,
-                np.asarray(proj)[c],
-                o.keypoints.conf,
-            ),
-        )
-        if o.mask is not None and name in result.masks:
-            figures.write_png(folder / "silhouette.png", figures.silhouette_comparison(result.masks[name], o.mask))
-
-
-def save_rig_fit(
-    result: RigResult,
-    out: Union[str, os.PathLike],
-    faces: np.ndarray,
-    problem,
-    images=None,
-    extra_metrics: Optional[dict] = None,
-    overwrite: bool = False,
-    model=None,
-) -> Path:
-    """Write the output folder described in the module docstring, atomically (``model``: the
-    body model, recorded in ``params.npz``)."""
-    from ..io.meshes import write_obj
-    from ..io.rig import write_cameras_json
-
-    out = Path(out)
-    images = images or {}
-    grid = problem.grid()[0]
-    layout = grid[0].keypoints.layout
-
-    cameras = [o.view.camera for o in grid]
-    extrinsics = [o.view.extrinsics() for o in grid]
-    fit_file = _RigFile(result.names, cameras, extrinsics, layout, model)
-
-    with atomic_folder(out, overwrite) as tmp:
-        proj = result.metrics.get("keypoints_2d", result.keypoint.keypoints_2d)
-        views = result.metrics.get("views")
-        errors = (
-            [views[n]["reprojection_error_px"] for n in result.names] if views else result.keypoint.reprojection_error
-        )
-        fit_file.write(
-            tmp,
-            result.params,
-            result.vertices,
-            result.joints,
-            proj,
-            errors,
-            {"timings": result.metrics.get("timings", {})},
-        )
-        write_obj(
-            tmp / "mesh.obj", result.vertices, faces, "silfit: posed body in world coordinates (rig extrinsics, metres)"
-        )
-        write_cameras_json(tmp / "cameras.json", [(n, o.view) for n, o in zip(result.names, grid)])
-        if result.silhouette is not None:
-            kp = result.keypoint
-            fit_file.write(
-                tmp / "stages" / "keypoints", kp.params, kp.vertices, kp.joints, kp.keypoints_2d, kp.reprojection_error
-            )
-        _write_view_pictures(tmp, result, grid, faces, images, proj)
-        metrics = {k: v for k, v in result.metrics.items() if k != "keypoints_2d"}
-        metrics.update(extra_metrics or {})
-        (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    return out
 
 
 # ----------------------------------------------------------------------------- rig videos

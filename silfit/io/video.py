@@ -22,7 +22,6 @@ frame numbers the keypoints do not have (ignored).
 
 from __future__ import annotations
 
-import json
 import os
 import re
 from dataclasses import dataclass, field
@@ -43,7 +42,6 @@ __all__ = [
     "is_rig_video",
     "load_rig_sequence",
     "read_sequence",
-    "save_sequence_fit",
     "write_overlay_video",
 ]
 
@@ -232,41 +230,7 @@ def read_sequence(
     )
 
 
-# ----------------------------------------------------------------------------- writing a sequence fit
-def _frame_pictures(result, numbers, model, images, masks, stride: int = 1):
-    """Overlay pictures (body and keypoints over each frame's image) of every ``stride``-th frame; a rig
-    video's (``result.views``; ``images`` one ``{number: path}`` per view) with its views side by side."""
-    import torch
-
-    from ..outputs import figures
-    from .images import read_rgb
-
-    faces = model.faces.cpu().numpy()
-    views = result.views
-    pics = []
-    for f in range(0, result.num_frames, stride):
-        p = result.frame_params(f)
-        with torch.no_grad():
-            out = model(**{k: torch.as_tensor(np.asarray(v)[None], dtype=model.dtype) for k, v in p.items()})
-        vertices = out.vertices[0].numpy()
-        if views is None:
-            img = read_rgb(images[numbers[f]], "image") if numbers[f] in images else None
-            pics.append(figures.fit_overlay(img, vertices, faces, result.camera, None, result.keypoints_2d[f]))
-            continue
-        row = []
-        for c, view in enumerate(views):
-            R, t = view.extrinsics()
-            img = read_rgb(images[c][numbers[f]], "image") if numbers[f] in images[c] else None
-            row.append(
-                figures.fit_overlay(
-                    img, (vertices @ R.T + t).astype(np.float32), faces, view.camera, None, result.keypoints_2d[f, c]
-                )
-            )
-        height = max(r.shape[0] for r in row)
-        pics.append(np.concatenate([np.pad(r, ((0, height - r.shape[0]), (0, 0), (0, 0))) for r in row], axis=1))
-    return pics
-
-
+# ----------------------------------------------------------------------------- a video's pictures
 def write_overlay_video(path: Path, pictures, fps: float) -> Optional[Path]:
     """An animated GIF of ``pictures`` (with imageio when installed, else with Pillow)."""
     try:
@@ -281,188 +245,6 @@ def write_overlay_video(path: Path, pictures, fps: float) -> Optional[Path]:
         return path
     iio.imwrite(path, np.stack(pictures), extension=".gif", duration=1000.0 / fps, loop=0)
     return path
-
-
-def _write_sequence_meshes(tmp: Path, result, model, numbers, meshes: bool, exports, fps: float) -> None:
-    """Every frame's posed body: ``meshes/frame_<n>.obj`` with ``meshes``, and the ``exports`` (animation.glb,
-    meshes/frame_<n>.ply; :func:`silfit.outputs.export.write_sequence_exports`)."""
-    import torch
-
-    from .meshes import write_obj
-
-    cam = result.camera
-    faces = model.faces.cpu().numpy()
-    posed = []
-    for f in range(result.num_frames):
-        with torch.no_grad():
-            v = model(
-                **{
-                    k: torch.as_tensor(np.asarray(a)[None], dtype=model.dtype)
-                    for k, a in result.frame_params(f).items()
-                }
-            )
-        posed.append(v.vertices[0].numpy())
-    if meshes:
-        (tmp / "meshes").mkdir()
-        for f, v in enumerate(posed):
-            write_obj(tmp / "meshes" / f"frame_{numbers[f]:012d}.obj", v, faces)
-    if exports:
-        from ..outputs.export import write_sequence_exports
-
-        write_sequence_exports(tmp, np.stack(posed), faces, cam, exports, numbers, fps)
-
-
-def _sequence_metrics(result, numbers, names, gif, extra_metrics) -> dict:
-    """A sequence fit's ``metrics.json``: frames, bridged, refaced and rebranched frames, outliers, reprojection
-    errors, timings, warnings, the camera (a rig video: its views and cameras, world coordinates), the overlay video,
-    the configuration and, with the silhouette stage, the IoUs."""
-    from ..fitting.sequence import finite_median
-
-    rig = result.views is not None
-    cam = result.camera
-    finite = result.reprojection_error[np.isfinite(result.reprojection_error)]
-    metrics = {
-        "frames": len(numbers),
-        "first_frame": numbers[0],
-        "last_frame": numbers[-1],
-        "bridged_frames": [numbers[i] for i in np.flatnonzero(result.bridged)],
-        "refaced_frames": [numbers[i] for i in np.flatnonzero(result.refaced)],
-        # the frames whose depth branch the choice over time changed (SequenceFitConfig.branch_dp)
-        "rebranched_frames": [numbers[i] for i in np.flatnonzero(result.rebranched)]
-        if result.rebranched is not None
-        else [],
-        "outlier_keypoints": int(result.outliers.sum()),
-        "reprojection_error_px": float(np.median(finite)) if len(finite) else None,
-        **(
-            {"reprojection_error_px_keypoint_stage": finite_median(result.reprojection_error_keypoint_stage)}
-            if result.reprojection_error_keypoint_stage is not None
-            else {}
-        ),
-        "timings": result.timings,
-        "warnings": list(result.warnings),
-        **(
-            {"views": names, "cameras": [v.camera.to_dict() for v in result.views], "coordinates": "world"}
-            if rig
-            else {"camera": cam.to_dict()}
-        ),
-        "overlay_video": gif.name if gif else None,
-        "config": result.config,
-        **(extra_metrics or {}),
-    }
-    if result.silhouette_iou is not None:
-        metrics["silhouette_iou_start"] = result.silhouette_iou_start
-        clean = lambda v: None if not np.isfinite(v) else float(v)  # noqa: E731
-        metrics["silhouette_iou"] = [[clean(v) for v in row] if rig else clean(row) for row in result.silhouette_iou]
-    return metrics
-
-
-def _sequence_flags(result) -> dict:
-    """``params.json``'s per-frame flags: ``bridged``, ``refaced`` (and ``rebranched`` where recorded)."""
-    flags = {"bridged": result.bridged.tolist(), "refaced": result.refaced.tolist()}
-    if result.rebranched is not None:
-        flags["rebranched"] = result.rebranched.tolist()
-    return flags
-
-
-def _fit_file_views(result, names: Optional[List[str]]) -> dict:
-    """The views arguments of :func:`silfit.io.fit.write_fit`: a rig video's (``names`` given) in world
-    coordinates, or the one camera."""
-    if names is not None:
-        return dict(
-            cameras=[v.camera for v in result.views],
-            coordinates="world",
-            extrinsics=[v.extrinsics() for v in result.views],
-            views=names,
-        )
-    return dict(cameras=[result.camera])
-
-
-def _write_sequence_fit_files(tmp: Path, result, model, numbers: list, where: dict, flags: dict, rig: bool) -> None:
-    """``params.npz`` / ``params.json`` and ``stages/per_frame/``'s (:func:`silfit.io.fit.write_fit`)."""
-    from .fit import write_fit
-
-    per_view = (lambda a: a) if rig else (lambda a: a[:, None])  # noqa: E731  (one camera: no view axis)
-    write_fit(
-        tmp,
-        result.params(),
-        layout=result.layout,
-        model=model,
-        frame_numbers=numbers,
-        joints=result.joints,
-        keypoints_2d=per_view(result.keypoints_2d),
-        reprojection_error=per_view(result.reprojection_error),
-        record=flags,
-        **where,
-    )
-    write_fit(
-        tmp / "stages" / "per_frame",
-        result.per_frame,
-        layout=result.layout,
-        model=model,
-        frame_numbers=numbers,
-        **where,
-    )
-
-
-def _write_sequence_pictures(tmp: Path, result, model, sequence, numbers: list, rig: bool, video: bool, fps: float):
-    """``strip.png`` and, with ``video``, ``overlay.gif`` (its path, or ``None``: returned)."""
-    from ..outputs import figures
-
-    strip_stride = max(1, -(-result.num_frames // 8))
-    images = [v.images for v in sequence.videos] if rig else sequence.images
-    pics = _frame_pictures(result, numbers, model, images, None, 1 if video else strip_stride)
-    strip = pics[::strip_stride] if video else pics
-    figures.write_png(tmp / "strip.png", np.concatenate(strip, axis=1))
-    return write_overlay_video(tmp / "overlay.gif", pics, fps) if video else None
-
-
-def save_sequence_fit(
-    result,
-    out,
-    model,
-    sequence: "SequenceInput",
-    *,
-    meshes: bool = False,
-    video: bool = True,
-    fps: float = 30.0,
-    extra_metrics: Optional[dict] = None,
-    overwrite: bool = False,
-    exports: Sequence[str] = (),
-) -> Path:
-    """Write a :class:`~silfit.fitting.sequence.SequenceFitResult` atomically: ``params.npz``
-    / ``params.json`` (the fit file of :mod:`silfit.io.fit`: ``F`` frames, one view, ``frames``
-    the frame numbers; ``params.json`` adds ``bridged``, ``refaced`` and ``rebranched`` per frame),
-    ``stages/per_frame/params.npz`` (the per-frame fits), ``metrics.json``,
-    ``strip.png`` (a frame strip of overlays), ``overlay.gif`` (every frame; with imageio)
-    and with ``meshes`` ``meshes/<frame>.obj``; ``exports`` (``"glb"``, ``"ply"``) adds
-    ``animation.glb`` (every frame, one animated glTF) / ``meshes/<frame>.ply`` in the upright
-    world frame of :mod:`silfit.outputs.export`.
-
-    A rig video (``result.views`` set, ``sequence`` a :class:`silfit.io.video.RigSequence`): the fit file in
-    world coordinates with every view (``keypoints_2d [F, C, K, 2]``, ``reprojection_error [F, C]``),
-    ``cameras.json``, meshes in world coordinates, overlays with the views side by side; ``metrics.json``
-    has ``views``, ``cameras`` and ``silhouette_iou`` per frame and view; no exports."""
-    from ..outputs.folder import atomic_folder
-
-    numbers = list(sequence.numbers)
-    flags = _sequence_flags(result)
-    rig = result.views is not None  # a rig video: world coordinates, every view (silfit.io.video.RigSequence)
-    if rig and exports:
-        raise ValueError("exports of a rig video: not available (a rig's world frame has no fixed up axis)")
-    names = list(sequence.names) if rig else None
-    where = _fit_file_views(result, names)
-    with atomic_folder(out, overwrite) as tmp:
-        _write_sequence_fit_files(tmp, result, model, numbers, where, flags, rig)
-        if rig:
-            from .rig import write_cameras_json
-
-            write_cameras_json(tmp / "cameras.json", list(zip(names, result.views)))
-        if meshes or exports:
-            _write_sequence_meshes(tmp, result, model, numbers, meshes, exports, fps)
-        gif = _write_sequence_pictures(tmp, result, model, sequence, numbers, rig, video, fps)
-        metrics = _sequence_metrics(result, numbers, names, gif, extra_metrics)
-        (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2, default=float))
-    return Path(out)
 
 
 # ----------------------------------------------------------------------------- rig videos

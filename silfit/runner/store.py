@@ -1,6 +1,6 @@
 """The output folder of a dataset run and what makes it resumable.
 
-``OUT/<item>/`` holds one fit in ``silfit fit``'s layout (:func:`silfit.save_fit` writes it
+``OUT/<item>/`` holds one fit in ``silfit fit``'s layout (:func:`silfit.run.write` writes it
 into a temporary ``OUT/.<item>.*`` folder and renames it into place). ``OUT/results.jsonl``
 has one line per item (``status`` ``ok`` or ``failed``), ``OUT/failures.jsonl`` one line per
 failed item (``item, file, field, message``). Only this process (the driver) writes the
@@ -54,7 +54,7 @@ def _rewrite(path: Path, rows: Iterable[dict]) -> None:
 
 
 def is_temporary(name: str) -> bool:
-    """A folder name :func:`silfit.save_fit` uses while writing (``.<item>.<random>``)."""
+    """A folder name :func:`silfit.run.write` uses while writing (``.<item>.<random>``)."""
     return name.startswith(".") and name.count(".") >= 2 and not name.endswith(".tmp")
 
 

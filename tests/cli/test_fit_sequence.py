@@ -167,13 +167,13 @@ def test_fit_sequence_mismatched_silhouette_levels_fail_before_fitting(sequence,
 
 
 def test_fit_sequence_failing_write_leaves_no_parent_folder(sequence, tmp_path, capsys, monkeypatch):
-    import silfit.io.video
+    import silfit.outputs.write
 
-    def failing_save(result, out, *a, **k):  # the writer made the parents, then failed
-        out.parent.mkdir(parents=True)
+    def failing_save(fit, out, *a, **k):  # the writer made the parents, then failed
+        Path(out).parent.mkdir(parents=True)
         raise OSError(f"{out}: disk full")
 
-    monkeypatch.setattr(silfit.io.video, "save_sequence_fit", failing_save)
+    monkeypatch.setattr(silfit.outputs.write, "write_folder", failing_save)
     seq, model = sequence
     out = tmp_path / "new" / "deeper" / "fit"
     rc = main(

@@ -55,7 +55,7 @@ def test_signal_leaves_no_output_folder(inputs, tmp_path, sig, phase):
         if phase == "fit":  # the keypoint stage's progress bar is up: the fit is running
             first = proc.stderr.read(1)
             ok = bool(first)
-        else:  # the temporary output folder exists: save_fit is writing
+        else:  # the temporary output folder exists: run.write is writing
             first, ok = b"", _wait_for(lambda: bool(staging()), proc)
         if ok and proc.poll() is None:
             proc.send_signal(sig)

@@ -52,7 +52,7 @@ def test_mask_of_another_size_is_an_error(open_model, subject):
 def test_save_fit_leaves_nothing_when_a_write_fails(open_model, subject, tmp_path, monkeypatch):
     from silfit.outputs import figures
     from silfit.fitting import KeypointFitConfig
-    from silfit.fitting.image_fit import save_fit
+    from silfit import save_fit
 
     cfg = KeypointFitConfig(camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branch_search=False)
     result = fit(subject.keypoints, camera=subject.camera, model=open_model, keypoint_config=cfg, progress=False)
@@ -203,7 +203,7 @@ def test_the_hypothesis_that_refines_lowest_against_the_mask_is_kept(open_model,
     from silfit.io.fit import read_fit
     from silfit.fitting import KeypointFitConfig
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
-    from silfit.fitting.image_fit import save_fit
+    from silfit import save_fit
 
     subject = load_subject(SHIPPED / "subject_004")
     result = fit(

@@ -118,7 +118,7 @@ def test_keypoint_options_whose_default_is_none_parse_by_their_declared_type():
 def test_an_interrupt_while_saving_stops_the_run_and_is_not_an_items_failure(tmp_path, monkeypatch):
     """A signal inside np.savez leaves a zip member open and closing it raises ValueError: that is the
     interrupt (the run stops), not an item that failed to save (recorded, and the run going on)."""
-    from silfit.fitting import image_fit  # the one image's writer under silfit.run.write
+    from silfit.outputs import write as writer  # the one writer under silfit.run.write
 
     data = synthetic_copy(tmp_path / "in", ["subject_000"])
 
@@ -128,7 +128,7 @@ def test_an_interrupt_while_saving_stops_the_run_and_is_not_an_items_failure(tmp
         finally:
             raise ValueError("Can't close the ZIP file while there is an open writing handle on it.")
 
-    monkeypatch.setattr(image_fit, "save_fit", interrupted)
+    monkeypatch.setattr(writer, "write_folder", interrupted)
     fitter = DatasetFitter(FitOptions(keypoint_options=KP_FAST, silhouette=False))
     with pytest.raises(ValueError) as caught:
         fitter.run_batch(list_items(data), tmp_path / "out")
@@ -145,6 +145,6 @@ def test_an_interrupt_while_saving_stops_the_run_and_is_not_an_items_failure(tmp
     def full(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(image_fit, "save_fit", full)  # (after undo: the real fit again)
+    monkeypatch.setattr(writer, "write_folder", full)  # (after undo: the real fit again)
     records = fitter.run_batch(list_items(data), tmp_path / "out2")
     assert records[0]["status"] == "failed" and records[0]["stage"] == "save"
