@@ -801,7 +801,7 @@ def fit_problems(
 
     ``images`` (per image an RGB array or ``None``): the image depth cue
     (:func:`~silfit.fitting.image_depth.cue_from_image`; ``people``: per image the detection its keypoints
-    came from, reused) joins the keypoint stage where the settings' ``image_depth_weight`` or ``image_depth_decide`` is on;
+    came from, reused) joins the keypoint stage where the settings' ``image_depth.weight`` or ``image_depth.decide`` is on;
     ``metrics.json``'s ``image_depth`` says what it decided (``"none"`` without an image)."""
     core = ImageCore(
         model,
