@@ -429,12 +429,6 @@ class SilhouetteFitConfig:
             "beta_bound": self.w_beta_bound,
         }
 
-    def contour_weights(self) -> dict:
-        """The contour level's weights: the rendered silhouette's place taken by the two
-        contour terms, the other terms as in the rendered levels."""
-        w = {k: v for k, v in self.weights().items() if k != "silhouette"}
-        return {"contour_inside": self.w_contour_inside, "contour_cover": self.w_contour_cover, **w}
-
     def stages(self) -> tuple:
         """The contour level (L-BFGS, when ``contour_iterations``), then one Adam stage per rendered window
         resolution (coarse to fine): the literal table :data:`~silfit.fitting.schedules.SILHOUETTE_SCHEDULE`, edited by
