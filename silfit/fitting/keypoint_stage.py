@@ -547,7 +547,7 @@ class KeypointFitConfig:
                 f"KeypointFitConfig: flip_decision_stage {self.flip_decision_stage} is not a pose stage (0..{n - 1})"
             )
         if int(self.starts.poses) < 1:
-            raise ValueError(f"KeypointFitConfig: init_poses must be at least 1, got {self.starts.poses}")
+            raise ValueError(f"KeypointFitConfig: starts.poses must be at least 1, got {self.starts.poses}")
         starts = (2 if self.starts.flip else 1) * int(self.starts.poses)
         b = self.branches
         if b.search and starts > 1 and min(b.after_stage, n - 1) < self.flip_decision_stage:
@@ -558,7 +558,7 @@ class KeypointFitConfig:
         for name in ("hand_weights", "face_weights"):
             v = getattr(self.hands_face, name)
             if v is not None and len(v) != n:
-                raise ValueError(f"KeypointFitConfig: {name} has {len(v)} values, pose_iters {n}")
+                raise ValueError(f"KeypointFitConfig: hands_face.{name} has {len(v)} values, pose_iters {n}")
         if self.dtype not in (None, "float32", "float64"):
             raise ValueError(f"KeypointFitConfig: dtype must be 'float32', 'float64' or None, got {self.dtype!r}")
         if self.schedule is not None and not all(isinstance(s, Stage) for s in self.schedule):
