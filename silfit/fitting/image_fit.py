@@ -946,3 +946,12 @@ def _keypoint_only(model, kp_result: KeypointFitResult, keypoints: KeypointSet) 
     return FitResult(
         kp_result.camera, keypoints.layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d, metrics
     )
+
+
+def __getattr__(name: str):
+    """``save_fit`` moved to :mod:`silfit.outputs.write` (the one writer); the old name works for one release."""
+    if name == "save_fit":
+        from .._lazy import moved_function
+
+        return moved_function(__name__, name, "silfit.outputs.write")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
