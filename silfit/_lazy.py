@@ -54,3 +54,17 @@ def alias_moved_modules(moved: dict) -> None:
     """Answer the old names in ``moved`` (old dotted name -> new one) from now on (once per process)."""
     if not any(isinstance(f, MovedModules) for f in sys.meta_path):
         sys.meta_path.append(MovedModules(moved))
+
+
+def moved_function(old_module: str, name: str, new_module: str):
+    """``new_module.name``, for a function that left ``old_module`` (kept for one release): a DeprecationWarning names
+    its new home. Called from the old module's ``__getattr__``."""
+    import importlib
+    import warnings
+
+    warnings.warn(
+        f"{old_module}.{name} moved to {new_module}.{name}; the old name goes in the next release",
+        DeprecationWarning,
+        stacklevel=3,
+    )
+    return getattr(importlib.import_module(new_module), name)

@@ -285,3 +285,18 @@ def test_write_refuses_pictures_for_a_video():
     fit = SimpleNamespace(job=SimpleNamespace(mode="video"))
     with pytest.raises(ValueError, match="a video's pictures come from its reader"):
         write(fit, "unused", images={(0, 0): np.zeros((2, 2, 3), np.uint8)})
+
+
+def test_the_removed_writers_old_homes_answer_for_one_release_with_a_warning():
+    """``silfit.fitting.image_fit.save_fit`` and ``silfit.io.video.save_sequence_fit`` left for the one writer: the
+    old names give the same functions, with a DeprecationWarning naming the new home; other names stay errors."""
+    import importlib
+
+    from silfit.outputs import write
+
+    for module, name in (("silfit.fitting.image_fit", "save_fit"), ("silfit.io.video", "save_sequence_fit")):
+        m = importlib.import_module(module)
+        with pytest.warns(DeprecationWarning, match=f"silfit.outputs.write.{name}"):
+            assert getattr(m, name) is getattr(write, name)
+        with pytest.raises(AttributeError):
+            m.no_such_writer

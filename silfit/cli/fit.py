@@ -197,7 +197,8 @@ def run(args) -> int:
 
     from .common import keypoint_options, silhouette_options
 
-    keypoint_options(args, refused=("hypotheses",))  # a bad option is one line before anything is read
+    # a bad option is one line before anything is read; the count of hypotheses is --hypotheses (its checks)
+    keypoint_options(args, refused={"hypotheses": "hypotheses", "solutions.count": "hypotheses"})
     silhouette_options(args)
     if getattr(args, "people", None) == "all":
         return _run_people(args)

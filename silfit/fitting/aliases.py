@@ -19,7 +19,7 @@ import functools
 import warnings
 from typing import Callable, NamedTuple, Optional
 
-__all__ = ["Alias", "flat_dict", "flat_value", "grouped", "renamed_fields"]
+__all__ = ["Alias", "flat_dict", "flat_names", "flat_value", "grouped", "renamed_fields"]
 
 
 class Alias(NamedTuple):
@@ -50,14 +50,20 @@ def listed(value):
     return list(value) if isinstance(value, tuple) else value
 
 
+def flat_names(cls) -> dict:
+    """Each group field of ``cls`` (:func:`grouped`) -> its fields' ``(old flat name, field in the group)``."""
+    subs: dict = {}
+    for old, a in getattr(cls, "renamed_fields", {}).items():
+        if a.sub is not None:
+            subs.setdefault(a.field, []).append((old, a.sub))
+    return subs
+
+
 def flat_dict(config, skip=(), later=None, as_lists: bool = True) -> dict:
     """``config``'s fields by name (but ``skip``), tuples as lists (``as_lists``), each group's fields under their old flat names
     (:func:`grouped`) where the group stood, but those ``later`` names (field -> flat names) after that field: a
     group whose fields stood apart is recorded in the old order."""
-    subs = {}
-    for old, a in getattr(type(config), "renamed_fields", {}).items():
-        if a.sub is not None:
-            subs.setdefault(a.field, []).append((old, a.sub))
+    subs = flat_names(type(config))
     later = later or {}
     moved = {old for names in later.values() for old in names}
     flat = {}

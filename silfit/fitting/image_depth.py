@@ -264,9 +264,17 @@ def _other_side(name: str) -> str:
     return "left" + name[5:] if name.startswith("right") else name
 
 
+def _mirrored_roi(roi, width: int):
+    """A region of the flipped image in the image (``x -> width - 1 - x``: its centre's x, its angle negated)."""
+    from ..detect.geometry import ROI
+
+    return ROI(width - 1 - roi.cx, roi.cy, roi.size, -roi.angle)
+
+
 def unmirror_person(person):
     """A person detected in the horizontally flipped image, read back in the image: ``x -> W - 1 - x`` (pixel
-    centres on integers), left and right landmarks swapped, the 3D's x negated (its z, the depth, unchanged)."""
+    centres on integers), left and right landmarks swapped, the 3D's x negated (its z, the depth, unchanged), the
+    regions mirrored too (their centres' x, their angles negated)."""
     from dataclasses import replace
 
     names = list(person.names)
@@ -284,6 +292,8 @@ def unmirror_person(person):
         presence=person.presence[swap],
         world=world,
         mask_prob=person.mask_prob[:, ::-1],
+        detector_roi=_mirrored_roi(person.detector_roi, W),
+        roi=_mirrored_roi(person.roi, W),
     )
 
 

@@ -801,7 +801,7 @@ def fit_problems(
 
     ``images`` (per image an RGB array or ``None``): the image depth cue
     (:func:`~silfit.fitting.image_depth.cue_from_image`; ``people``: per image the detection its keypoints
-    came from, reused) joins the keypoint stage where the settings' ``image_depth_weight`` or ``image_depth_decide`` is on;
+    came from, reused) joins the keypoint stage where the settings' ``image_depth.weight`` or ``image_depth.decide`` is on;
     ``metrics.json``'s ``image_depth`` says what it decided (``"none"`` without an image)."""
     core = ImageCore(
         model,
@@ -946,3 +946,12 @@ def _keypoint_only(model, kp_result: KeypointFitResult, keypoints: KeypointSet) 
     return FitResult(
         kp_result.camera, keypoints.layout, kp_result, None, kp_result.params(0), vertices, joints, kp2d, metrics
     )
+
+
+def __getattr__(name: str):
+    """``save_fit`` moved to :mod:`silfit.outputs.write` (the one writer); the old name works for one release."""
+    if name == "save_fit":
+        from .._lazy import moved_function
+
+        return moved_function(__name__, name, "silfit.outputs.write")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

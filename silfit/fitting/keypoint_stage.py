@@ -16,13 +16,13 @@ Stages (each an independent per-sample L-BFGS, see :mod:`silfit.fitting.optim`):
    view's facing, the nose, ears and feet can, and a good initial pose avoids the wrong
    branch of the depth ambiguity of bent limbs.
    ``branches_1`` (after ``pose_2``, one view): the limb-branch search
-   (:mod:`silfit.fitting.branches`, ``branch_search``).
+   (:mod:`silfit.fitting.branches`, ``branches.search``).
 4. ``shape``: ``betas`` (+ translation) with the L2 shape prior.
-5. ``branches_late`` (one view, ``late_branch_iters``): the limb-branch search again, at the
-   final stage's weights from the refined pose; its ``branch_refine`` (4) best go on (its ``carry``).
+5. ``branches_late`` (one view, ``branches.late_iters``): the limb-branch search again, at the
+   final stage's weights from the refined pose; its ``branches.refine`` (4) best go on (its ``carry``).
    ``settle`` (after a search only): each runs the final stage; the lowest energy goes on.
-   ``branches_post`` (one view, ``post_branch_iters``): the search once more, from that converged
-   fit; its ``branch_refine`` (4) best go on.
+   ``branches_post`` (one view, ``branches.post_iters``): the search once more, from that converged
+   fit; its ``branches.refine`` (4) best go on.
 6. ``final``: everything together with the interpenetration penalty on (120 steps, a row stopping
    once a step lowers its energy by less than 1e-4; 40, every one run, where no search ran), on each
    branch still in play; the lowest final energy is the fit.
@@ -547,7 +547,7 @@ class KeypointFitConfig:
                 f"KeypointFitConfig: flip_decision_stage {self.flip_decision_stage} is not a pose stage (0..{n - 1})"
             )
         if int(self.starts.poses) < 1:
-            raise ValueError(f"KeypointFitConfig: init_poses must be at least 1, got {self.starts.poses}")
+            raise ValueError(f"KeypointFitConfig: starts.poses must be at least 1, got {self.starts.poses}")
         starts = (2 if self.starts.flip else 1) * int(self.starts.poses)
         b = self.branches
         if b.search and starts > 1 and min(b.after_stage, n - 1) < self.flip_decision_stage:
@@ -558,7 +558,7 @@ class KeypointFitConfig:
         for name in ("hand_weights", "face_weights"):
             v = getattr(self.hands_face, name)
             if v is not None and len(v) != n:
-                raise ValueError(f"KeypointFitConfig: {name} has {len(v)} values, pose_iters {n}")
+                raise ValueError(f"KeypointFitConfig: hands_face.{name} has {len(v)} values, pose_iters {n}")
         if self.dtype not in (None, "float32", "float64"):
             raise ValueError(f"KeypointFitConfig: dtype must be 'float32', 'float64' or None, got {self.dtype!r}")
         if self.schedule is not None and not all(isinstance(s, Stage) for s in self.schedule):
@@ -569,9 +569,9 @@ class KeypointFitConfig:
         ``whole_body`` ``WHOLEBODY_KEYPOINT_SCHEDULE``) as it stands, or edited by the fields that differ from their
         defaults (which are the table's cells: :mod:`silfit.fitting.schedule_edits`): camera, pose_1..n (annealed
         priors; the best start of each sample is kept ``decision_iters`` steps into pose stage
-        ``flip_decision_stage``; the branch search after pose stage ``branch_after_stage``), shape, ``branches_late``
-        (the search again at the final weights, ``late_branch_iters``), ``settle`` and ``branches_post`` (its best
-        settle, and a search from the best of them, ``post_branch_iters``), final (everything, with
+        ``flip_decision_stage``; the branch search after pose stage ``branches.after_stage``), shape, ``branches_late``
+        (the search again at the final weights, ``branches.late_iters``), ``settle`` and ``branches_post`` (its best
+        settle, and a search from the best of them, ``branches.post_iters``), final (everything, with
         interpenetration); with ``whole_body`` the hand and face terms and parameters join as the module docstring
         says. ``schedule``: that list instead."""
         if self.schedule is not None:

@@ -26,7 +26,7 @@ import dataclasses
 from dataclasses import replace
 from typing import Mapping, Optional
 
-from .aliases import flat_value
+from .aliases import flat_names, flat_value
 from .schedules import (
     FACE,
     HANDS,
@@ -138,10 +138,7 @@ def differs(value, default) -> bool:
 def changed_fields(config, skip=("schedule",)) -> frozenset:
     """The names of ``config``'s (a dataclass) fields that differ from their defaults; a group's fields (a field
     holding a dataclass, its fields once flat: :func:`~silfit.fitting.aliases.grouped`) by their flat names too."""
-    flat = {}
-    for old, a in getattr(type(config), "renamed_fields", {}).items():
-        if a.sub is not None:
-            flat.setdefault(a.field, []).append((old, a.sub))
+    flat = flat_names(type(config))
     out = set()
     for f in dataclasses.fields(config):
         if f.name in skip:

@@ -368,17 +368,19 @@ class SilhouetteFitConfig:
                 f"SilhouetteFitConfig: no learning rate (lr) for optimised parameter(s) {', '.join(missing)}"
             )
         t = self.trust
-        values = {"w_trust": self.w_trust, "trust_fraction": t.fraction, "trust_ratio": t.ratio}
-        values.update(trust_median=t.median, trust_unit_median=t.unit_median)
+        values = {"w_trust": self.w_trust, "trust.fraction": t.fraction, "trust.ratio": t.ratio}
+        values.update({"trust.median": t.median, "trust.unit_median": t.unit_median})
         negative = [n for n, v in values.items() if not float(v) >= 0]
         if negative:
             raise ValueError(
                 f"SilhouetteFitConfig: {', '.join(negative)} must be 0 or more (the keypoint trust region)"
             )
         if t.free_ratio is not None and not float(t.free_ratio) > 0:
-            raise ValueError(f"SilhouetteFitConfig: trust_free_ratio must be above 0 or None, got {t.free_ratio!r}")
+            raise ValueError(f"SilhouetteFitConfig: trust.free_ratio must be above 0 or None, got {t.free_ratio!r}")
         if not 0.0 <= float(self.mask.trim_quantile) <= 1.0:
-            raise ValueError(f"SilhouetteFitConfig: trim_quantile must lie in [0, 1], got {self.mask.trim_quantile!r}")
+            raise ValueError(
+                f"SilhouetteFitConfig: mask.trim_quantile must lie in [0, 1], got {self.mask.trim_quantile!r}"
+            )
 
     @classmethod
     def legacy(cls, **changes) -> "SilhouetteFitConfig":
@@ -428,12 +430,6 @@ class SilhouetteFitConfig:
             "keypoint_trust": self.w_trust,
             "beta_bound": self.w_beta_bound,
         }
-
-    def contour_weights(self) -> dict:
-        """The contour level's weights: the rendered silhouette's place taken by the two
-        contour terms, the other terms as in the rendered levels."""
-        w = {k: v for k, v in self.weights().items() if k != "silhouette"}
-        return {"contour_inside": self.w_contour_inside, "contour_cover": self.w_contour_cover, **w}
 
     def stages(self) -> tuple:
         """The contour level (L-BFGS, when ``contour_iterations``), then one Adam stage per rendered window

@@ -340,3 +340,12 @@ def load_rig_sequence(folder: Union[str, os.PathLike], person: Union[int, str] =
         frames.append(row)
     warnings = [w for v, s in zip(views, videos) for w in list(v.warnings) + list(s.warnings)]
     return RigSequence(folder, views, videos, numbers, frames, warnings)
+
+
+def __getattr__(name: str):
+    """``save_sequence_fit`` moved to :mod:`silfit.outputs.write` (the one writer); the old name works for one release."""
+    if name == "save_sequence_fit":
+        from .._lazy import moved_function
+
+        return moved_function(__name__, name, "silfit.outputs.write")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -424,7 +424,7 @@ def video_metrics(result, fit, gif, fields: dict) -> dict:
         "last_frame": numbers[-1],
         "bridged_frames": [numbers[i] for i in np.flatnonzero(result.bridged)],
         "refaced_frames": [numbers[i] for i in np.flatnonzero(result.refaced)],
-        # the frames whose depth branch the choice over time changed (SequenceFitConfig.branch_dp)
+        # the frames whose depth branch the choice over time changed (SequenceFitConfig.branch_choice.dp)
         "rebranched_frames": [numbers[i] for i in np.flatnonzero(result.rebranched)]
         if result.rebranched is not None
         else [],

@@ -561,6 +561,7 @@ def test_keypoint_option_reaches_each_mode_and_a_bad_one_is_one_line(inputs, tmp
             ("final_iters=x", "final_iters"),
             ("final_iters", "expected NAME=VALUE"),
             ("hypotheses=2", "give --hypotheses instead"),
+            ("solutions.count=2", "give --hypotheses instead"),  # its name in the group (issue 57)
         ),
         tmp_path,
         capsys,

@@ -294,13 +294,27 @@ def test_a_mirrored_reading_read_back_is_the_reading():
     vis = np.linspace(0.3, 1.0, 33)
     roi = ROI(100.0, 200.0, 300.0, 0.0)
     p = Person(
-        0.9, 0.9, roi, roi, xy, world[:, 2].copy(), vis, vis, world, np.zeros((400, 200), np.float32), (200, 400)
+        0.9,
+        0.9,
+        roi,
+        ROI(60.0, 200.0, 300.0, 0.25),
+        xy,
+        world[:, 2].copy(),
+        vis,
+        vis,
+        world,
+        np.zeros((400, 200), np.float32),
+        (200, 400),
     )
     m = unmirror_person(p)
+    np.testing.assert_allclose(  # the region too: its corners the flipped image's, mirrored
+        sorted(map(tuple, m.roi.corners())), sorted((199 - x, y) for x, y in p.roi.corners())
+    )
     li, ri = NAMES.index("left_wrist"), NAMES.index("right_wrist")
     assert m.xy[li, 0] == 199 - xy[ri, 0] and m.world[li, 2] == world[ri, 2] and m.visibility[li] == vis[ri]
     assert m.world[li, 0] == -world[ri, 0]
     back = unmirror_person(m)
+    assert back.roi == p.roi and back.detector_roi == p.detector_roi
     for a, b in ((back.xy, xy), (back.world, world), (back.visibility, vis), (back.z, world[:, 2])):
         np.testing.assert_array_equal(a, b)
 

@@ -192,7 +192,7 @@ def test_the_clothing_trim_leaves_something_known_to_fit():
     assert not trimmed and np.array_equal(out, mask) and note == []
     with pytest.raises(ValueError, match="trim_quantile"):
         SilhouetteFitConfig(trim_quantile=1.5)
-    with pytest.raises(ValueError, match="trust_free_ratio"):
+    with pytest.raises(ValueError, match="trust.free_ratio must be above 0"):
         SilhouetteFitConfig(trust_free_ratio=0.0)
 
 

@@ -293,7 +293,7 @@ def test_the_mask_settings_are_a_group():
     assert new.to_dict()["cover_cap"] == 0.1 and "mask" not in new.to_dict() and old.stages() == new.stages()
     sil = silhouette_config(FitOptions(silhouette_options={"mask.leak_distance": "0", "mask.trim_quantile": "0.5"}))
     assert sil.mask == MaskHandling(leak_distance=0.0, trim_quantile=0.5)
-    with pytest.raises(ValueError, match="trim_quantile must lie in"):
+    with pytest.raises(ValueError, match="mask.trim_quantile must lie in"):
         SilhouetteFitConfig(mask=MaskHandling(trim_quantile=2.0))
 
 
@@ -326,7 +326,7 @@ def test_the_keypoint_term_starts_solutions_and_temporal_settings_are_groups():
         assert keypoint_config({"init_poses": "1", "hypothesis_joint_max_m": "none"}) == KeypointFitConfig(
             starts=Starts(poses=1), solutions=Solutions(joint_max_m=None)
         )
-    with pytest.raises(ValueError, match="init_poses must be at least 1"):
+    with pytest.raises(ValueError, match="starts.poses must be at least 1"):
         KeypointFitConfig(starts=Starts(poses=0))
 
 
@@ -344,9 +344,9 @@ def test_the_trust_region_settings_are_a_group():
     assert new.free_pass().trust == TrustRegion(fraction=0.06, from_start=False, median=0.5, free_ratio=1.3)
     sil = silhouette_config(FitOptions(silhouette_options={"trust.ratio": "2", "trust.free_ratio": "none"}))
     assert sil.trust == TrustRegion(ratio=2.0)
-    with pytest.raises(ValueError, match="trust_fraction, trust_median must be 0 or more"):
+    with pytest.raises(ValueError, match="trust.fraction, trust.median must be 0 or more"):
         SilhouetteFitConfig(trust=TrustRegion(fraction=-1.0, median=-1.0))
-    with pytest.raises(ValueError, match="trust_free_ratio must be above 0"):
+    with pytest.raises(ValueError, match="trust.free_ratio must be above 0"):
         SilhouetteFitConfig(trust=TrustRegion(free_ratio=0.0))
 
 
