@@ -16,7 +16,9 @@ window around the detections, the fill side as strong as the inside side, the wh
 *current* (issue 55's stage before the two-pass refit: one pass with the trust region around the keypoint stage's
 fit, ``trust_free_ratio=None``, ``trim_quantile=0.25``); *twopass* (the two-pass refit, ``trust_free_ratio=1.3``,
 ``trim_quantile=0.5``); *after* (the defaults); *after, no subtraction* (``second`` only: the defaults on the joined
-mask).
+mask); *oracle* (the defaults, but every mask trimmed by the true growth, which the bench knows:
+``clothing``'s dilation, 0 elsewhere, in place of :func:`~silfit.silhouette.losses.clothing_thickness`'s estimate;
+the estimate against the truth per subject is printed under the table).
 Printed per condition: PA-PVE and PVE (mm, against the whole true body), the median reprojection error (px),
 IoU with the given mask, how many fits the plausibility guard turned back, the gain of keypoints +
 silhouette over keypoints only in PA-PVE, and per subject the most the stage worsened a fit's PA-PVE and how many
@@ -68,6 +70,10 @@ VARIANTS = {
     "current": CURRENT,
     "twopass": dict(trust_free_ratio=1.3, trim_quantile=0.5),
     "twopass25": dict(trust_free_ratio=1.3, trim_quantile=0.25),
+    "q40": dict(trim_quantile=0.4),
+    "q50": dict(trim_quantile=0.5),
+    "c35": dict(concave_radius=0.035),
+    "q50c35": dict(trim_quantile=0.5, concave_radius=0.035),
     "w05": dict(w_trust=0.5),
     "med50": dict(trust_median=0.5),
     "w02med50": dict(w_trust=0.2, trust_median=0.5),
@@ -75,6 +81,27 @@ VARIANTS = {
 
 
 KEEP = 0.04  # as Person.own_mask: within 4 % of the person's extent of their own skeleton, a pixel stays theirs
+
+
+#: per mask (its bytes): the true growth in pixels, and the thickness estimates the stage computed (the oracle method)
+TRUTH: dict = {}
+ESTIMATES: list = []
+
+
+def oracle_thickness(on: bool):
+    """``clothing_thickness`` for the stage: it records the estimate against the truth and returns the truth when
+    ``on`` (the oracle), the estimate otherwise."""
+    from silfit.silhouette import losses
+
+    estimate_of = losses.clothing_thickness
+
+    def thickness(mask, body, quantile=0.25, points=600):
+        est = estimate_of(mask, body, quantile, points)
+        truth = TRUTH.get(np.asarray(mask, dtype=bool).tobytes())
+        ESTIMATES.append((est, truth))
+        return float(truth) if on and truth is not None else est
+
+    return estimate_of, thickness
 
 
 def shift(mask: np.ndarray, dx: int) -> np.ndarray:
@@ -109,6 +136,7 @@ def main() -> None:
     ap.add_argument("--overlap", type=float, default=0.3)
     ap.add_argument("--conditions", default="clean,clothing,cut,second")
     ap.add_argument("--methods", default="main,after")
+    ap.add_argument("--per-subject", action="store_true", help="print each subject's PA-PVE under the table")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="change a field of 'after'")
     args = ap.parse_args()
     from bench_truncation import _value
@@ -137,11 +165,15 @@ def main() -> None:
         height = np.ptp(np.nonzero(mask)[0])
         okp, omask = raw[(i + 1) % len(raw)][0], raw[(i + 1) % len(raw)][1]
         joined, moved, mkp = second_person(mask, kp, omask, okp, args.overlap)
+        grown_px = max(1, int(0.04 * height))
+        grown = grow(mask, grown_px)
+        for m, px in ((mask, 0), (grown, grown_px), (mc, 0), (joined, 0)):
+            TRUTH[np.asarray(m, dtype=bool).tobytes()] = px
         subjects.append(
             (
                 {
                     "clean": (kp, mask, cam, ()),
-                    "clothing": (kp, grow(mask, max(1, int(0.04 * height))), cam, ()),
+                    "clothing": (kp, grown, cam, ()),
                     "cut": (kc, mc, cc, ()),
                     "second": (kp, joined, cam, ((moved, mkp),)),
                 },
@@ -158,7 +190,7 @@ def main() -> None:
         "IoU mean | turned back | most worsened (mm) / fits worse by > 5 mm | s per image |"
     )
     print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|")
-    kp_cache = {}
+    kp_cache, estimates, each = {}, {}, {}
     for cond in args.conditions.split(","):
         sets, masks, cams, others = (list(x) for x in zip(*[c[cond] for c, _ in subjects]))
         gts = [g for _, g in subjects]
@@ -169,10 +201,13 @@ def main() -> None:
         base = [_score(model, kp.params(i), g, None, reproj=float(kp.reprojection_error[i])) for i, g in enumerate(gts)]
         ref = float(np.mean([r["pa"] for r in base]))
         _row(cond, "keypoints only", base, ref, None)
+        each[(cond, "keypoints only")] = [r["pa"] for r in base]
         ref_each = np.array([r["pa"] for r in base])
         runs = [
             (m, MAIN if m == "main" else {**after, **VARIANTS.get(m, {})}, m != "main") for m in args.methods.split(",")
         ]
+        from silfit.silhouette import losses
+
         if cond == "second" and "after" in args.methods.split(","):
             runs.append(("after, no subtraction", after, False))
         for name, changes, subtract in runs:
@@ -190,7 +225,13 @@ def main() -> None:
                 ]
                 known = [None if np.array_equal(o, m) else ~(m & ~o) for o, m in zip(own, masks)]
             t0 = time.perf_counter()
-            fits = refine_batch(model, kp, sets, masks, cfg, fitter.pose_prior, progress=False, known=known)
+            ESTIMATES.clear()
+            estimate_of, losses.clothing_thickness = oracle_thickness(name == "oracle")
+            try:
+                fits = refine_batch(model, kp, sets, masks, cfg, fitter.pose_prior, progress=False, known=known)
+            finally:
+                losses.clothing_thickness = estimate_of
+            estimates[(cond, name)] = list(ESTIMATES)
             seconds = (time.perf_counter() - t0) / len(fits)
             rows = [_score(model, f.params, g, f) for f, g in zip(fits, gts)]
             for r, f, m in zip(rows, fits, masks):  # IoU with the given mask (the whole of it)
@@ -198,6 +239,16 @@ def main() -> None:
 
                 r["iou"] = mask_iou(f.masks["final"], m)
             _row(cond, name, rows, ref, seconds, ref_each)
+            each[(cond, name)] = [r["pa"] for r in rows]
+    if args.per_subject:
+        print("\n| condition | method | PA-PVE per subject (mm) |\n|---|---|---|")
+        for (cond, name), pa in each.items():
+            print(f"| {cond} | {name} | {' '.join(f'{v:.1f}' for v in pa)} |")
+    print("\n| condition | method | true growth px per subject | estimate px per subject |\n|---|---|---|---|")
+    for (cond, name), pairs in estimates.items():
+        if pairs:
+            truth = " ".join("?" if t is None else str(t) for _, t in pairs)
+            print(f"| {cond} | {name} | {truth} | {' '.join(f'{e:.1f}' for e, _ in pairs)} |")
 
 
 def _extent(kp: KeypointSet) -> float:
