@@ -38,7 +38,7 @@ from silfit.camera import load_camera
 from silfit.io.subjects import read_gt
 from silfit.eval.metrics import pa_pve
 from silfit.fitting import KeypointFitter
-from silfit.fitting.keypoint_stage import KeypointFitConfig
+from silfit.fitting.keypoint_stage import KeypointFitConfig, Solutions
 from silfit.io.keypoints import read_keypoints
 from silfit.fitting.plausibility import depth_warnings
 
@@ -214,7 +214,7 @@ def main() -> None:
             0, (f"baseline: {', '.join(args.baseline)}", keypoint_config(dict(o.split("=", 1) for o in args.baseline)))
         )
     if args.k > 1:
-        runs.append((f"--hypotheses {args.k}", KeypointFitConfig(hypotheses=args.k)))
+        runs.append((f"--hypotheses {args.k}", KeypointFitConfig(solutions=Solutions(count=args.k))))
     for title, config in runs:
         t0, c0 = time.perf_counter(), time.process_time()
         rows = _fit(KeypointFitter(model, config=config), sets, cams, gts, model, args.batch)
@@ -229,7 +229,7 @@ def main() -> None:
             args.save.write_bytes(
                 pickle.dumps({**(pickle.loads(args.save.read_bytes()) if args.save.is_file() else {}), title: rows})
             )
-        _table(rows, f"{title} ({time.perf_counter() - t0:.0f} s)", config.hypotheses)
+        _table(rows, f"{title} ({time.perf_counter() - t0:.0f} s)", config.solutions.count)
         if args.sweep:
             _sweep(rows)
         _bad_fits(rows, title)

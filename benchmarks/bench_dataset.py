@@ -104,13 +104,18 @@ def uneven_batches():
 
 
 @contextlib.contextmanager
-def stage_changes(**changes):
-    """The silhouette stage's settings with ``changes`` in this process (local runs only: Ray
-    actors build their own)."""
+def stage_changes(changes: dict):
+    """The silhouette stage's settings with ``changes`` (field -> value, a group's field as ``group.field``) in this
+    process (local runs only: Ray actors build their own)."""
     from silfit.runner import worker
 
     original = worker.silhouette_config
-    worker.silhouette_config = lambda options: replace(original(options), **changes)
+
+    def changed(options):
+        config = original(options)
+        return replace(config, **worker.grouped_values(changes, config))
+
+    worker.silhouette_config = changed
     try:
         yield
     finally:
@@ -202,11 +207,12 @@ def main() -> None:
         if args.main or args.close:  # a warm-up first (model, priors, proxies, silfit.render), so neither run pays it
             run(subset(data, root, 2), root / "out_warmup", True, 8, False)
         if args.close:
-            with stage_changes(alternatives_margin=0.0):
+            with stage_changes({"alternatives_margin": 0.0}):
                 rows.append(run(sub, root / "out_sil_b8_close", True, 8, False, " (alternatives_margin=0)"))
             print(rows[-1], flush=True)
         if args.main:
-            with stage_changes(**{**BEFORE_SAMPLING_PART, "edge_density": None, "alternatives_margin": 0.0}):
+            before = {f"render.{k}": v for k, v in BEFORE_SAMPLING_PART.items()}
+            with stage_changes({**before, "render.edge_density": None, "alternatives_margin": 0.0}):
                 rows.append(
                     run(
                         sub,

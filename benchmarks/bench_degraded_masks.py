@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
@@ -45,38 +44,39 @@ from silfit.camera import load_camera
 from silfit.io.subjects import read_gt, read_mask
 from silfit.fitting import KeypointFitter
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+from silfit.runner.worker import config_with
 from silfit.fitting.image_fit import refine_batch
 from silfit.io.keypoints import KeypointSet, read_keypoints
 from silfit.silhouette.people import own_mask
 
 #: the silhouette stage before issue 55 (its trust region around the detections, 6 % of the window; the
 #: mask-not-covered side as strong as the inside side)
-MAIN = dict(
-    trust_from_start=False,
-    trust_fraction=0.06,
-    w_trust=0.05,
-    cover_weight=1.0,
-    trust_free_ratio=None,
-    trim_quantile=0.25,
-)
+MAIN = {
+    "trust.from_start": False,
+    "trust.fraction": 0.06,
+    "w_trust": 0.05,
+    "mask.cover_weight": 1.0,
+    "trust.free_ratio": None,
+    "mask.trim_quantile": 0.25,
+}
 #: the stage after issue 55, before the two-pass refit: one pass with the trust region around the keypoint stage's fit,
 #: the clothing trim at the outline distances' quartile
-CURRENT = dict(trust_free_ratio=None, trim_quantile=0.25)
+CURRENT = {"trust.free_ratio": None, "mask.trim_quantile": 0.25}
 #: the defaults with one change (tuning; ``--methods``)
 VARIANTS = {
-    "weakfill": dict(cover_weight=0.5),
-    "fill1": dict(cover_weight=1.0),
+    "weakfill": {"mask.cover_weight": 0.5},
+    "fill1": {"mask.cover_weight": 1.0},
     "oldtrust": MAIN,
     "current": CURRENT,
-    "twopass": dict(trust_free_ratio=1.3, trim_quantile=0.5),
-    "twopass25": dict(trust_free_ratio=1.3, trim_quantile=0.25),
-    "q40": dict(trim_quantile=0.4),
-    "q50": dict(trim_quantile=0.5),
-    "c35": dict(concave_radius=0.035),
-    "q50c35": dict(trim_quantile=0.5, concave_radius=0.035),
+    "twopass": {"trust.free_ratio": 1.3, "mask.trim_quantile": 0.5},
+    "twopass25": {"trust.free_ratio": 1.3, "mask.trim_quantile": 0.25},
+    "q40": {"mask.trim_quantile": 0.4},
+    "q50": {"mask.trim_quantile": 0.5},
+    "c35": {"mask.concave_radius": 0.035},
+    "q50c35": {"mask.trim_quantile": 0.5, "mask.concave_radius": 0.035},
     "w05": dict(w_trust=0.5),
-    "med50": dict(trust_median=0.5),
-    "w02med50": dict(w_trust=0.2, trust_median=0.5),
+    "med50": {"trust.median": 0.5},
+    "w02med50": {"w_trust": 0.2, "trust.median": 0.5},
 }
 
 
@@ -211,7 +211,7 @@ def main() -> None:
         if cond == "second" and "after" in args.methods.split(","):
             runs.append(("after, no subtraction", after, False))
         for name, changes, subtract in runs:
-            cfg = replace(SilhouetteFitConfig(), **changes)
+            cfg = config_with(SilhouetteFitConfig, changes, stage="silhouette")
             known = None
             if subtract:  # the other person's region of the mask unknown (Person.own_mask, as silfit fit --image)
                 own = [

@@ -37,6 +37,7 @@ from silfit import load_body_model
 from silfit.eval.metrics import pa_pve
 from silfit.fitting import KeypointFitter
 from silfit.fitting.keypoint_stage import KeypointFitConfig, prepare_keypoints
+from silfit.runner.worker import config_with
 from silfit.fitting.problem import Problem
 
 NAMES = ("betas", "body_pose", "global_orient", "transl")
@@ -52,15 +53,15 @@ def _variants():
         "final_pose20": ({"pose_weight": d[:-1] + (20.0,)}, None),
         "final_pose10": ({"pose_weight": d[:-1] + (10.0,)}, None),
         "limits": ({"pose_weight": (200.0, 40.0, 8.0, 4.0)}, "limits"),
-        "late2": ({"late_branch_rounds": 2}, None),
-        "yaw": ({"late_branch_turns": ("mirror",)}, None),
-        "turn30": ({"late_branch_turns": (30.0, -30.0)}, None),
-        "surv8": ({"late_branch_survivors": 8}, None),
-        "long60": ({"late_branch_iters": 60, "late_branch_survivors": 6}, None),
-        "refine3": ({"branch_refine": 3}, None),
-        "late2s6": ({"late_branch_rounds": 2, "late_branch_survivors": 6}, None),
-        "ratio15": ({"branch_min_depth_ratio": 0.15}, None),
-        "ratio15s6": ({"branch_min_depth_ratio": 0.15, "late_branch_survivors": 6}, None),
+        "late2": ({"branches.late_rounds": 2}, None),
+        "yaw": ({"branches.late_turns": ("mirror",)}, None),
+        "turn30": ({"branches.late_turns": (30.0, -30.0)}, None),
+        "surv8": ({"branches.late_survivors": 8}, None),
+        "long60": ({"branches.late_iters": 60, "branches.late_survivors": 6}, None),
+        "refine3": ({"branches.refine": 3}, None),
+        "late2s6": ({"branches.late_rounds": 2, "branches.late_survivors": 6}, None),
+        "ratio15": ({"branches.min_depth_ratio": 0.15}, None),
+        "ratio15s6": ({"branches.min_depth_ratio": 0.15, "branches.late_survivors": 6}, None),
     }
 
 
@@ -77,7 +78,11 @@ def _fit_rows(fitter, sets, cams, gts, model, batch, refine, diagnose=False):
     refiner = None
     if refine:
         cfg = replace(
-            fitter.config, schedule=[replace(final, iterations=refine)], flip_test=False, hypotheses=1, branch_refine=0
+            fitter.config,
+            schedule=[replace(final, iterations=refine)],
+            starts=replace(fitter.config.starts, flip=False),
+            solutions=replace(fitter.config.solutions, count=1),
+            branches=replace(fitter.config.branches, refine=0),
         )
         refiner = KeypointFitter(model, config=cfg, pose_prior=fitter.pose_prior)
     rows = []
@@ -268,7 +273,7 @@ def main() -> None:
     for v in args.variants:
         kw, prior = known[v] if v in known else ({}, v)
         t0 = time.process_time()
-        fitter = KeypointFitter(model, config=KeypointFitConfig(**kw), pose_prior=prior)
+        fitter = KeypointFitter(model, config=config_with(KeypointFitConfig, kw), pose_prior=prior)
         rows, terms = _fit_rows(fitter, sets, cams, gts, model, args.batch, args.refine, args.diagnose)
         table[v] = (rows, terms, time.process_time() - t0)
         print(f"(done {v}: {time.process_time() - t0:.0f} CPU s)", flush=True)

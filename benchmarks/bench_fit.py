@@ -56,6 +56,7 @@ from silfit.camera import Camera, load_camera, project_points
 from silfit.fitting import KeypointFitter
 from silfit.io.keypoints import model_keypoints, read_keypoints
 from silfit.priors import clamp_to_limits
+from silfit.fitting.silhouette_stage import Rendering
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -408,7 +409,11 @@ def main(argv=None):
     if args.silhouette_batches:
         from silfit.fitting.silhouette_stage import SilhouetteFitConfig
 
-        cfg = SilhouetteFitConfig(proxy_faces=None, batch_render=False) if args.full_mesh else SilhouetteFitConfig()
+        cfg = (
+            SilhouetteFitConfig(proxy_faces=None, render=Rendering(batch_render=False))
+            if args.full_mesh
+            else SilhouetteFitConfig()
+        )
         silhouette_timing(model, [int(b) for b in args.silhouette_batches.split(",")], config=cfg)
     if args.hard:
         import tempfile

@@ -41,7 +41,7 @@ from bench_ambiguity import NAMES, hard_set
 from silfit import load_body_model
 from silfit.eval.metrics import pa_pve
 from silfit.fitting import KeypointFitter
-from silfit.fitting.keypoint_stage import KeypointFitConfig
+from silfit.fitting.keypoint_stage import KeypointFitConfig, Solutions
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig, fit_silhouettes
 
 
@@ -65,7 +65,7 @@ def main() -> None:
     model = load_body_model()
     faces = model.faces.cpu().numpy()
     sets, cams, gts, masks = hard_set(args.n, args.seed, args.size, model, masks=True)
-    fitter = KeypointFitter(model, config=KeypointFitConfig(hypotheses=args.k))
+    fitter = KeypointFitter(model, config=KeypointFitConfig(solutions=Solutions(count=args.k)))
     T = lambda a: torch.as_tensor(np.asarray(a), dtype=model.dtype)  # noqa: E731
 
     rows, t_kp, t_sil = [], 0.0, 0.0

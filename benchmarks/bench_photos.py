@@ -27,13 +27,18 @@ import argparse
 import tempfile
 import time
 import zipfile
-from dataclasses import replace
 from pathlib import Path
 
 import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import numpy as np
 
-BEFORE = dict(robust_cover=False, trim_clothing=False, plausibility_guard=False, leak_distance=0.0, hole_fraction=0.0)
+BEFORE = {
+    "mask.robust_cover": False,
+    "mask.trim_clothing": False,
+    "plausibility_guard": False,
+    "mask.leak_distance": 0.0,
+    "mask.hole_fraction": 0.0,
+}
 
 
 def shipped_photos() -> list:
@@ -119,6 +124,7 @@ def main() -> None:
     from silfit.errors import InputError
     from silfit.fitting import KeypointFitter
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+    from silfit.runner.worker import config_with
     from silfit.fitting.image_fit import refine
     from silfit.fitting.plausibility import body_stature, check_keypoints, fit_warnings
 
@@ -159,7 +165,7 @@ def main() -> None:
                         kp_fit,
                         kp,
                         mask,
-                        replace(SilhouetteFitConfig(), **changes),
+                        config_with(SilhouetteFitConfig, changes, stage="silhouette"),
                         fitter.pose_prior,
                         progress=False,
                         mask_source=f"{name} mask",
@@ -172,7 +178,7 @@ def main() -> None:
                         kp_fit,
                         kp,
                         mask,
-                        replace(SilhouetteFitConfig(), **BEFORE),
+                        config_with(SilhouetteFitConfig, BEFORE, stage="silhouette"),
                         fitter.pose_prior,
                         progress=False,
                         mask_source=f"{name} mask",

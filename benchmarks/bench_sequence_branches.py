@@ -49,9 +49,9 @@ def method_config(m: str):
 
     cfg = SequenceFitConfig()
     if m in ("off", "on"):
-        return replace(cfg, branch_dp=(m == "on"), branch_offsets=())
+        return replace(cfg, branch_choice=replace(cfg.branch_choice, dp=(m == "on"), offsets=()))
     if m == "before":
-        return replace(cfg, branch_offsets=())
+        return replace(cfg, branch_choice=replace(cfg.branch_choice, offsets=()))
     if m.startswith("kp:"):  # the defaults with per-frame keypoint-stage options, as --keypoint-option
         parts = m[3:].split("+")
         if not all("=" in p and p.split("=", 1)[0] for p in parts):

@@ -70,10 +70,13 @@ from silfit import load_body_model
 from silfit.fitting.silhouette_stage import (
     BEFORE_FOURTH_PART,
     BEFORE_SAMPLING_PART,
+    RENDER_SETTINGS,
+    Rendering,
     SilhouetteFitConfig,
     fit_silhouette,
     fit_silhouette_problems,
 )
+from silfit.runner.worker import config_with
 
 #: the stage at main before issue 24's third part (a 20-iteration contour level at weights 0.05, then 40 + 25
 #: rendered steps, the full mesh posed each step and mapped to the render proxy)
@@ -90,21 +93,30 @@ HEAD = {
 THIRD = BEFORE_FOURTH_PART
 #: the default before issue 24's speed part: edge_spp visibility-edge points per window pixel
 MAIN = {**BEFORE_SAMPLING_PART, "edge_density": None}
+
+
+def flat_config(changes: dict) -> SilhouetteFitConfig:
+    """The stage's settings with ``changes``, flat as the tables above keep them (the rendering settings by their
+    names before the ``render`` group)."""
+    grouped = {(f"render.{k}" if k in RENDER_SETTINGS else k): v for k, v in changes.items()}
+    return config_with(SilhouetteFitConfig, grouped, stage="silhouette")
+
+
 METHODS = {
     "original": SilhouetteFitConfig.legacy,
     "before": SilhouetteFitConfig.legacy,
     "after": SilhouetteFitConfig,
-    "head": lambda: SilhouetteFitConfig(**HEAD),
-    "third": lambda: SilhouetteFitConfig(**THIRD),
-    "main": lambda: SilhouetteFitConfig(**MAIN),
-    "head-projective": lambda: SilhouetteFitConfig(**HEAD),
+    "head": lambda: flat_config(HEAD),
+    "third": lambda: flat_config(THIRD),
+    "main": lambda: flat_config(MAIN),
+    "head-projective": lambda: flat_config(HEAD),
     "after-1t": SilhouetteFitConfig,
     "after-stratified": SilhouetteFitConfig,
-    "head-s1": lambda: SilhouetteFitConfig(**HEAD, seed=1),
-    "after-s1": lambda: SilhouetteFitConfig(seed=1),
-    "prev": lambda: SilhouetteFitConfig(**BEFORE_SAMPLING_PART),
-    "dense": lambda: SilhouetteFitConfig(**BEFORE_SAMPLING_PART),
-    "dense-tree": lambda: SilhouetteFitConfig(**BEFORE_SAMPLING_PART),
+    "head-s1": lambda: flat_config({**HEAD, "seed": 1}),
+    "after-s1": lambda: SilhouetteFitConfig(render=Rendering(seed=1)),
+    "prev": lambda: flat_config(BEFORE_SAMPLING_PART),
+    "dense": lambda: flat_config(BEFORE_SAMPLING_PART),
+    "dense-tree": lambda: flat_config(BEFORE_SAMPLING_PART),
     "weakprior": lambda: SilhouetteFitConfig(pose_weight=0.002),
 }
 #: methods run as before issue 24's runtime part (the edge integral's vertex gradient by torch's autograd over every
@@ -362,7 +374,7 @@ def run_step(model, methods, resolutions=(128, 256), repeats=15):
         with torch_threads(METHODS[methods[0]]().threads):
             for k in range(repeats + 2):
                 for name, (cfg, _, pv, wcam, r, w, ts) in setups.items():
-                    dens = {} if cfg.edge_density is None else {"edge_density": cfg.edge_density}
+                    dens = {} if cfg.render.edge_density is None else {"edge_density": cfg.render.edge_density}
                     x = pv.clone().requires_grad_()
                     with runtime(name):
                         t = time.perf_counter()
@@ -371,8 +383,8 @@ def run_step(model, methods, resolutions=(128, 256), repeats=15):
                             [wcam],
                             [torch.eye(3)],
                             [torch.zeros(3)],
-                            spp=cfg.spp,
-                            edge_spp=cfg.edge_spp,
+                            spp=cfg.render.spp,
+                            edge_spp=cfg.render.edge_spp,
                             seeds=[k],
                             **dens,
                         )[0]

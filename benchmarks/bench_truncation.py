@@ -34,7 +34,6 @@ from __future__ import annotations
 import argparse
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
@@ -47,6 +46,7 @@ from silfit.io.subjects import read_gt, read_mask
 from silfit.eval.metrics import procrustes_align
 from silfit.fitting import KeypointFitter
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+from silfit.runner.worker import config_with
 from silfit.io.keypoints import KeypointSet, read_keypoints
 from silfit.fitting.image_fit import refine_batch
 
@@ -133,34 +133,34 @@ def conditions(d: Path):
 
 #: the silhouette stage before issue 23 (no truncation, no keypoint trust region, no bound on |beta|,
 #: the plain two-sided energy)
-ORIGINAL = dict(
-    truncation_aware=False,
-    w_trust=0.0,
-    w_beta_bound=0.0,
-    robust_cover=False,
-    trim_clothing=False,
-    plausibility_guard=False,
-    leak_distance=0.0,
-    hole_fraction=0.0,
-    alternatives_margin=0.0,
-)
+ORIGINAL = {
+    "mask.truncation_aware": False,
+    "w_trust": 0.0,
+    "w_beta_bound": 0.0,
+    "mask.robust_cover": False,
+    "mask.trim_clothing": False,
+    "plausibility_guard": False,
+    "mask.leak_distance": 0.0,
+    "mask.hole_fraction": 0.0,
+    "alternatives_margin": 0.0,
+}
 #: before the clothing/leak-robust energy (issue 23's first part: truncation, trust region, beta bound)
-BEFORE = dict(
-    robust_cover=False,
-    trim_clothing=False,
-    plausibility_guard=False,
-    leak_distance=0.0,
-    hole_fraction=0.0,
-    alternatives_margin=0.0,
-)
+BEFORE = {
+    "mask.robust_cover": False,
+    "mask.trim_clothing": False,
+    "plausibility_guard": False,
+    "mask.leak_distance": 0.0,
+    "mask.hole_fraction": 0.0,
+    "alternatives_margin": 0.0,
+}
 #: main before the leak/hole handling (issue 23's third part): no unknown leaks or holes
-MAIN = dict(leak_distance=0.0, hole_fraction=0.0)
+MAIN = {"mask.leak_distance": 0.0, "mask.hole_fraction": 0.0}
 #: the defaults before the detected-input change: the keypoint trust region at 3 % of the window
-TIGHT = dict(trust_fraction=0.03)
+TIGHT = {"trust.fraction": 0.03}
 #: the defaults before the concavity change: no mask pixel in the keypoint fit's concavities unknown
-NOCONCAVE = dict(concave_radius=0.0)
+NOCONCAVE = {"mask.concave_radius": 0.0}
 #: the concavities unknown in every mask, not only in those trimmed as clothing
-CONCAVEALL = dict(concave_trimmed_only=False)
+CONCAVEALL = {"mask.concave_trimmed_only": False}
 #: the defaults before the detected-input change: the silhouette stage's pose prior at 0.002
 WEAKPRIOR = dict(pose_weight=0.002)
 #: the defaults before issue 25's close-alternatives part: only the keypoint stage's branch refined against the mask
@@ -251,7 +251,7 @@ def main() -> None:
             None,
         )
         for name, changes in methods.items():
-            cfg = replace(SilhouetteFitConfig(), **changes)
+            cfg = config_with(SilhouetteFitConfig, changes, stage="silhouette")
             t0 = time.perf_counter()
             fits = refine_batch(model, kp, sets, masks, cfg, fitter.pose_prior, progress=False)
             seconds = (time.perf_counter() - t0) / len(fits)
