@@ -4,6 +4,7 @@
 import inspect
 
 import pytest
+from silfit.fitting.keypoint_stage import BranchSearch, Starts
 
 
 @pytest.mark.parametrize(
@@ -42,13 +43,11 @@ def test_a_library_fit_prints_nothing(capsys):
     subject = Path(__file__).resolve().parents[1] / "data" / "synthetic" / "subject_000"
     camera, _, _ = read_camera_file(subject / "camera.json")
     config = KeypointFitConfig(
-        init_poses=1,
         pose_iters=(5, 5, 5),
         shape_iters=3,
         final_iters=5,
-        post_branch_iters=0,
-        branch_search=False,
-        flip_test=False,
+        starts=Starts(poses=1, flip=False),
+        branches=BranchSearch(post_iters=0, search=False),
     )
     silfit.fit_keypoints(read_keypoints(subject / "keypoints.json"), camera, config=config)
     out = capsys.readouterr()

@@ -14,9 +14,12 @@ from silfit.fitting.problem import Observation, Problem, View
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig
 from silfit.io.keypoints import KeypointSet
 from silfit.run import Job, StageFailure, check, image_job, keypoint_stage_fit, run, run_batch, video_job, write
+from silfit.fitting.keypoint_stage import BranchSearch
 
 SHIPPED = Path(__file__).resolve().parents[1] / "data" / "synthetic"
-FAST = KeypointFitConfig(camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branch_search=False)
+FAST = KeypointFitConfig(
+    camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branches=BranchSearch(search=False)
+)
 
 
 @pytest.fixture(scope="module")

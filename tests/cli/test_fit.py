@@ -505,7 +505,7 @@ def test_keypoint_option_reaches_each_mode_and_a_bad_one_is_one_line(inputs, tmp
         )
     )
     assert job.keypoint_config.final_iters == 5 and tuple(job.keypoint_config.pose_iters) == (5, 6, 7)
-    assert job.keypoint_config.hypotheses == 2
+    assert job.keypoint_config.solutions.count == 2
     assert (
         build_job(build_parser().parse_args(image + ["--out", str(tmp_path / "x")])).keypoint_config is None
     )  # the default
@@ -534,7 +534,9 @@ def test_keypoint_option_reaches_each_mode_and_a_bad_one_is_one_line(inputs, tmp
     )
     start, default = job.sequence_config.keypoint, SequenceFitConfig().keypoint
     assert start.final_iters == 7 and start.final_tol_change == 1e-5 and isinstance(start.final_tol_change, float)
-    assert start.branch_refine == default.branch_refine and start.init_poses == default.init_poses  # the video's own
+    assert (
+        start.branches.refine == default.branches.refine and start.starts.poses == default.starts.poses
+    )  # the video's own
     out = tmp_path / "fit"
     assert (
         main(
@@ -542,7 +544,7 @@ def test_keypoint_option_reaches_each_mode_and_a_bad_one_is_one_line(inputs, tmp
             + [
                 "--no-silhouette",
                 "--keypoint-option",
-                "init_poses=1",
+                "starts.poses=1",
                 "--keypoint-option",
                 "final_iters=5",
                 "--out",

@@ -83,7 +83,7 @@ def test_body_only_file_with_the_whole_body_model(subject, tmp_path):
             str(out),
             "--quiet",  # plumbing: a short stage
             "--keypoint-option",
-            "init_poses=1",
+            "starts.poses=1",
             "--keypoint-option",
             "final_iters=10",
         ]

@@ -12,6 +12,7 @@ import sys
 import textwrap
 
 import numpy as np
+from silfit.fitting.keypoint_stage import BranchSearch, Starts
 
 # A child fits the contour level on a batch of 3 (160 px images, 64 px window, 6 iterations) ``REPEATS``
 # times, each after keeping a differently sized allocation alive (the heap's state differs,
@@ -228,11 +229,9 @@ def test_the_keypoint_fit_and_its_collision_spheres_call_no_processor_dependent_
         pose_iters=(3, 3, 3),
         shape_iters=2,
         final_iters=3,
-        init_poses=2,
         decision_iters=2,
-        branch_iters=2,
-        branch_screen_iters=2,
-        post_branch_iters=2,
+        starts=Starts(poses=2),
+        branches=BranchSearch(iters=2, screen_iters=2, post_iters=2),
     )
     fit_keypoints(s.keypoints, s.camera, model, config=cfg, progress=False)  # the spheres built or read first
     mode = _ProcessorDependentCalls()

@@ -17,6 +17,7 @@ from silfit.io.keypoints import KeypointSet, model_keypoints
 from silfit.poses.library import POSE_LIBRARY
 from silfit.priors.smplx_priors import l2, library_hand_set, padded
 from silfit.io.wholebody import part_slices
+from silfit.fitting.keypoint_stage import Starts
 
 
 @pytest.fixture(scope="module")
@@ -127,7 +128,7 @@ def test_whole_body_recovery_body_only_and_missing_hand(smplx):
     sets = [
         KeypointSet(xy, c, "wholebody", source=n) for n, c in (("full", full), ("body", body_only), ("one", one_hand))
     ]
-    fitter = KeypointFitter(smplx, "wholebody", KeypointFitConfig(init_poses=2))
+    fitter = KeypointFitter(smplx, "wholebody", KeypointFitConfig(starts=Starts(poses=2)))
     r = fitter.fit(sets, cam, progress=False)
     truth = {
         "vertices": out.vertices[0].numpy(),

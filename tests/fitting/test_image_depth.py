@@ -12,6 +12,7 @@ import torch
 from silfit.fitting import ImageDepthOptions, KeypointFitConfig, KeypointFitter
 from silfit.fitting.image_depth import SEGMENTS, DepthCue, ImageDepthConfig, ImageDepthTerm, cue_data, depth_cue
 from silfit.io.keypoints import BLAZEPOSE33_NAMES, KeypointSet
+from silfit.fitting.keypoint_stage import BranchSearch
 
 NAMES = list(BLAZEPOSE33_NAMES)
 
@@ -117,7 +118,11 @@ def test_the_term_charges_only_the_other_side_and_is_zero_without_a_cue(body_mod
 
 
 FAST = KeypointFitConfig(
-    camera_iters=20, pose_iters=(20, 20, 30), shape_iters=10, final_iters=40, late_branch_iters=20, post_branch_iters=20
+    camera_iters=20,
+    pose_iters=(20, 20, 30),
+    shape_iters=10,
+    final_iters=40,
+    branches=BranchSearch(late_iters=20, post_iters=20),
 )
 
 
@@ -168,9 +173,8 @@ def test_without_an_image_the_fit_is_the_same_bit_for_bit(body_model, reaching_s
             pose_iters=(5, 5, 5),
             shape_iters=3,
             final_iters=5,
-            late_branch_iters=4,
-            post_branch_iters=4,
             image_depth=ImageDepthOptions(weight=100.0),
+            branches=BranchSearch(late_iters=4, post_iters=4),
         ),
     )
     a = fitter.fit([s.keypoints], [s.camera], progress=False)
@@ -216,9 +220,8 @@ def test_metrics_say_image_depth_none_without_an_image(body_model, reaching_subj
         pose_iters=(3, 3, 3),
         shape_iters=2,
         final_iters=3,
-        late_branch_iters=2,
-        post_branch_iters=2,
         decision_iters=2,
+        branches=BranchSearch(late_iters=2, post_iters=2),
     )
     r = fit(s.keypoints, camera=s.camera, model=body_model, keypoint_config=cfg, progress=False)
     assert r.metrics["image_depth"] == "none"
@@ -260,7 +263,11 @@ def test_the_image_decides_the_branch_as_a_hard_choice(body_model, reaching_subj
 def test_without_an_image_the_hard_choice_changes_nothing(body_model, reaching_subject):
     s = reaching_subject
     tiny = KeypointFitConfig(
-        camera_iters=5, pose_iters=(5, 5, 5), shape_iters=3, final_iters=5, late_branch_iters=4, post_branch_iters=4
+        camera_iters=5,
+        pose_iters=(5, 5, 5),
+        shape_iters=3,
+        final_iters=5,
+        branches=BranchSearch(late_iters=4, post_iters=4),
     )
     a = KeypointFitter(
         body_model, config=replace(tiny, image_depth=ImageDepthOptions(decide=0.6, decide_screens=False))

@@ -7,6 +7,8 @@ import pytest
 
 from silfit.io.subjects import load_subject
 from silfit.run import fit
+from silfit.fitting.keypoint_stage import BranchSearch, Solutions, Starts
+from silfit.fitting.silhouette_stage import MaskHandling, TrustRegion
 
 SHIPPED = Path(__file__).resolve().parents[2] / "data" / "synthetic"
 
@@ -54,7 +56,9 @@ def test_save_fit_leaves_nothing_when_a_write_fails(open_model, subject, tmp_pat
     from silfit.fitting import KeypointFitConfig
     from silfit import save_fit
 
-    cfg = KeypointFitConfig(camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branch_search=False)
+    cfg = KeypointFitConfig(
+        camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branches=BranchSearch(search=False)
+    )
     result = fit(subject.keypoints, camera=subject.camera, model=open_model, keypoint_config=cfg, progress=False)
     faces = open_model.faces.numpy()
     old = tmp_path / "old"
@@ -147,7 +151,10 @@ def test_a_leak_far_from_the_body_is_set_aside_with_a_note(open_model, subject, 
     assert mask[y, far] and seen[-1] is not None and not seen[-1][y, far] and seen[-1][ys[0], xs[0]]
     assert any("far from the keypoint fit's body" in w for w in leaky.metrics["warnings"])
     off = SilhouetteFitConfig(
-        resolutions=(64,), iterations=(2,), contour_iterations=1, leak_distance=0.0, hole_fraction=0.0
+        resolutions=(64,),
+        iterations=(2,),
+        contour_iterations=1,
+        mask=MaskHandling(leak_distance=0.0, hole_fraction=0.0),
     )
     fit(subject.keypoints, mask, subject.camera, model=open_model, silhouette_config=off, progress=False)
     assert seen[-1] is None
@@ -164,12 +171,12 @@ def test_concavities_are_unknown_only_in_a_mask_trimmed_as_clothing():
     body[15:85, 55:62] = True
     mask = body.copy()
     mask[15:85, 50:55] = True  # clothing fills the gap
-    cfg = SilhouetteFitConfig(leak_distance=0.0, hole_fraction=0.0)
+    cfg = SilhouetteFitConfig(mask=MaskHandling(leak_distance=0.0, hole_fraction=0.0))
     notes = [[], []]
     trimmed, untouched = _known_pixels([mask, mask], [body, body], cfg, ["a", "b"], notes, [True, False])
     assert trimmed is not None and not trimmed[20:80, 50:55].any() and trimmed[body].all()
     assert untouched is None and notes == [[], []]
-    off = SilhouetteFitConfig(leak_distance=0.0, hole_fraction=0.0, concave_radius=0.0)
+    off = SilhouetteFitConfig(mask=MaskHandling(leak_distance=0.0, hole_fraction=0.0, concave_radius=0.0))
     assert _known_pixels([mask], [body], off, ["a"], [[]], [True]) == [None]
 
 
@@ -191,9 +198,9 @@ def test_the_clothing_trim_leaves_something_known_to_fit():
     (out,), (note,), (trimmed,) = _trimmed_masks([mask], [body], cfg, ["a"], [rim])
     assert not trimmed and np.array_equal(out, mask) and note == []
     with pytest.raises(ValueError, match="trim_quantile"):
-        SilhouetteFitConfig(trim_quantile=1.5)
+        SilhouetteFitConfig(mask=MaskHandling(trim_quantile=1.5))
     with pytest.raises(ValueError, match="trust.free_ratio must be above 0"):
-        SilhouetteFitConfig(trust_free_ratio=0.0)
+        SilhouetteFitConfig(trust=TrustRegion(free_ratio=0.0))
 
 
 def test_the_hypothesis_that_refines_lowest_against_the_mask_is_kept(open_model, tmp_path):
@@ -212,7 +219,7 @@ def test_the_hypothesis_that_refines_lowest_against_the_mask_is_kept(open_model,
         subject.camera,
         model=open_model,
         progress=False,
-        keypoint_config=KeypointFitConfig(hypotheses=2),
+        keypoint_config=KeypointFitConfig(solutions=Solutions(count=2)),
         silhouette_config=SilhouetteFitConfig(resolutions=(64,), iterations=(4,)),
     )
     hyps, record = result.keypoint.hypotheses[0], result.metrics["hypotheses_silhouette"]
@@ -323,7 +330,12 @@ def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
             KeypointSet(project_points(model_keypoints(model, out, "body25"), cam)[0].numpy(), np.ones(25), "body25")
         )
     cfg = KeypointFitConfig(
-        init_poses=1, camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branch_search=False
+        camera_iters=5,
+        pose_iters=(5, 5, 5),
+        shape_iters=0,
+        final_iters=0,
+        starts=Starts(poses=1),
+        branches=BranchSearch(search=False),
     )
     kp = KeypointFitter(model, config=cfg).fit(sets, [cam, cam], progress=False)
 
@@ -414,7 +426,12 @@ def test_the_kept_hypothesis_holds_the_final_fit_whatever_the_guard_did(monkeypa
     out = model(global_orient=torch.tensor([[np.pi, 0, 0]]), transl=torch.tensor([[0.0, 0.2, 3.0]]))
     sets = [KeypointSet(project_points(model_keypoints(model, out, "body25"), cam)[0].numpy(), np.ones(25), "body25")]
     cfg = KeypointFitConfig(
-        init_poses=1, camera_iters=5, pose_iters=(5, 5, 5), shape_iters=0, final_iters=0, branch_search=False
+        camera_iters=5,
+        pose_iters=(5, 5, 5),
+        shape_iters=0,
+        final_iters=0,
+        starts=Starts(poses=1),
+        branches=BranchSearch(search=False),
     )
     kp = KeypointFitter(model, config=cfg).fit(sets, [cam], progress=False)
     other = {n: np.array(v, dtype=np.float32) for n, v in kp.params(0).items()}

@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 from silfit.camera import Camera, project_points
 from silfit.fitting import KeypointFitConfig, KeypointFitter, OcclusionOptions, fit_keypoints
 from silfit.io.keypoints import BODY25_NAMES, model_keypoints
+from silfit.fitting.keypoint_stage import BranchSearch, Solutions, Starts
 
 CAM = Camera.from_image_size(512, 512)
 # A plausible pose: arms lowered and bent, one knee bent, slight lean.
@@ -117,7 +118,9 @@ def test_outlier_moves_the_robust_fit_far_less_than_l2(toy_body):
 
 def test_flip_test_off_tries_the_facing_start_only(toy_body):
     kp, _ = subject(toy_body, yaw_deg=180.0)
-    res = fit_keypoints(kp, CAM, toy_body, config=replace(FAST, flip_test=False), progress=False)
+    res = fit_keypoints(
+        kp, CAM, toy_body, config=replace(FAST, starts=replace(FAST.starts, flip=False)), progress=False
+    )
     assert not res.flipped.any() and res.config["flip_test"] is False
 
 
@@ -167,8 +170,10 @@ def test_a_sample_without_branch_hypotheses_fits_the_same_beside_one_with_them(b
     dirs = [root / f"subject_{i:03d}" for i in (0, 1)]
     sets = [read_keypoints(d / "keypoints.json") for d in dirs]
     cams = [load_camera(d / "camera.json") for d in dirs]
-    cfg = KeypointFitConfig(init_poses=1, camera_iters=10, pose_iters=(10, 10, 10), shape_iters=5, final_iters=10)
-    assert 0 < cfg.branch_screen_iters < cfg.late_branch_iters  # the late search screens
+    cfg = KeypointFitConfig(
+        camera_iters=10, pose_iters=(10, 10, 10), shape_iters=5, final_iters=10, starts=Starts(poses=1)
+    )
+    assert 0 < cfg.branches.screen_iters < cfg.branches.late_iters  # the late search screens
     fitter = KeypointFitter(body_model, config=cfg)
     batch = fitter.fit(sets, cams, progress=False)
     alone = fitter.fit(sets[:1], cams[:1], progress=False)
@@ -191,8 +196,12 @@ def test_single_image_fits_equal_the_reference(open_model64):
 
     from silfit.io.subjects import list_subjects, load_subject
 
+    from silfit.runner.worker import config_with
+
     ref = np.load(Path(__file__).parent / "data" / "keypoint_fit_reference.npz")
-    cfg = KeypointFitConfig(**json.loads(str(ref["config"])))
+    saved = json.loads(str(ref["config"]))  # by the flat names the reference was written with (init_poses...)
+    moved = {old: f"{a.field}.{a.sub}" for old, a in KeypointFitConfig.renamed_fields.items() if a.sub is not None}
+    cfg = config_with(KeypointFitConfig, {moved.get(k, k): v for k, v in saved.items()})
     root = Path(__file__).resolve().parents[2] / "data" / "synthetic"
     for path in list_subjects(root)[:3]:
         s = load_subject(path)
@@ -205,7 +214,7 @@ def test_single_image_fits_equal_the_reference(open_model64):
 def _fixed_start_fit(model, keypoints, init, stages):
     from silfit.fitting.problem import Problem
 
-    cfg = KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages)
+    cfg = KeypointFitConfig(schedule=stages, starts=Starts(flip=False, poses=1))
     fitter = KeypointFitter(model, config=cfg)
     ks = __import__("silfit.io.keypoints", fromlist=["KeypointSet"]).KeypointSet(
         keypoints[:, :2], keypoints[:, 2], "body25"
@@ -383,13 +392,8 @@ def test_the_distinct_setting_reaches_the_branch_search(body_model, monkeypatch,
         pose_iters=(5, 5, 5),
         shape_iters=3,
         final_iters=5,
-        init_poses=1,
-        branch_iters=20,
-        branch_screen_iters=15,
-        branch_refine=4,
-        late_branch_iters=6,
-        post_branch_iters=6,
-        branch_distinct=distinct,
+        starts=Starts(poses=1),
+        branches=BranchSearch(iters=20, screen_iters=15, refine=4, late_iters=6, post_iters=6, distinct=distinct),
     )
     KeypointFitter(body_model, config=cfg).fit([kp], [CAM], progress=False)
     # the first search's screen (15 of 20 steps), the late search's carry (its 6 steps: no screen), the search
@@ -501,7 +505,7 @@ def camera_stage_depth_drift(model, depth=True, jitter=None):
     (camera,) = [s for s in KeypointFitConfig().stages() if s.name == "camera"]
     if not depth:
         camera = replace(camera, weights={**camera.weights, "depth": 0.0})
-    fitter = KeypointFitter(model, config=KeypointFitConfig(init_poses=1, schedule=[camera]))
+    fitter = KeypointFitter(model, config=KeypointFitConfig(schedule=[camera], starts=Starts(poses=1)))
     state, info = fitter.fit_problems(_problems(kps))
     return np.abs(state["transl"][:, 0, 2].numpy() - info["data"]["z0"][:, 0, 0].numpy()) * 1000
 
@@ -528,7 +532,7 @@ def shape_stage_betas(model, prior=True, jitter=None):
             truths.append(truth)
     (shape,) = [s for s in KeypointFitConfig().stages() if s.name == "shape"]
     shape = replace(shape, iterations=60, weights=shape.weights if prior else {**shape.weights, "shape": 0.0})
-    fitter = KeypointFitter(model, config=KeypointFitConfig(flip_test=False, init_poses=1, schedule=[shape]))
+    fitter = KeypointFitter(model, config=KeypointFitConfig(schedule=[shape], starts=Starts(flip=False, poses=1)))
     init = {n: np.concatenate([t[n] for t in truths]) for n in truths[0]}
     state, _ = fitter.fit_problems(_problems(kps), init=init)
     return np.linalg.norm(state["betas"].numpy(), axis=1)
@@ -591,7 +595,8 @@ def test_hypotheses_keep_the_best_distinct_branches_refined_to_the_end(body_mode
         Stage("final", free, w, 8),
     ]
     fitter = KeypointFitter(
-        body_model, config=KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages, hypotheses=3)
+        body_model,
+        config=KeypointFitConfig(schedule=stages, starts=Starts(flip=False, poses=1), solutions=Solutions(count=3)),
     )
     start = dict(
         truth, body_pose=flip_segment(fitter.body, truth, "left_thigh", body_model.joint_names, body_model.parents)
@@ -645,7 +650,8 @@ def test_occlusion_cue_scores_the_hypotheses_when_on(body_model):
         Stage("final", free, w, 4),
     ]
     fitter = KeypointFitter(
-        body_model, config=KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages, hypotheses=2)
+        body_model,
+        config=KeypointFitConfig(schedule=stages, starts=Starts(flip=False, poses=1), solutions=Solutions(count=2)),
     )
     start = dict(
         truth, body_pose=flip_segment(fitter.body, truth, "left_thigh", body_model.joint_names, body_model.parents)
@@ -680,7 +686,9 @@ def test_branch_refine_chooses_by_the_final_energy_never_above_the_search_choice
     ks = KeypointSet(kp[:, :2], kp[:, 2], "body25")
     out = {}
     for refine in (1, 3):
-        cfg = KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages, branch_refine=refine)
+        cfg = KeypointFitConfig(
+            schedule=stages, starts=Starts(flip=False, poses=1), branches=BranchSearch(refine=refine)
+        )
         fitter = KeypointFitter(body_model, config=cfg)
         start = dict(
             truth, body_pose=flip_segment(fitter.body, truth, "left_thigh", body_model.joint_names, body_model.parents)
@@ -732,7 +740,10 @@ def test_a_search_from_the_settled_fit_after_the_late_searchs_best_settle(body_m
             Stage("final", free, w, 6),
         ]
         fitter = KeypointFitter(
-            body_model, config=KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages, branch_refine=2)
+            body_model,
+            config=KeypointFitConfig(
+                schedule=stages, starts=Starts(flip=False, poses=1), branches=BranchSearch(refine=2)
+            ),
         )
         start = dict(
             truth, body_pose=flip_segment(fitter.body, truth, "left_thigh", body_model.joint_names, body_model.parents)
@@ -752,7 +763,7 @@ def test_a_search_from_the_settled_fit_after_the_late_searchs_best_settle(body_m
     assert refined["kept"] == post["kept"] and refined["tried"][0]["flip"] == post["kept"]
     # a settle stage follows a search: where none ran it is skipped
     fitter = KeypointFitter(
-        body_model, config=KeypointFitConfig(flip_test=False, init_poses=1, schedule=stages[1:2] + stages[3:])
+        body_model, config=KeypointFitConfig(schedule=stages[1:2] + stages[3:], starts=Starts(flip=False, poses=1))
     )
     info = fitter.fit_problems([Problem.single(ks, CAM)], init={k: v.numpy() for k, v in truth.items()})[1]
     assert list(info["energies"]) == ["final"]
@@ -797,9 +808,7 @@ def test_the_final_stage_runs_fewer_steps_where_no_branch_search_ran(monkeypatch
         camera_iters=3,
         pose_iters=(3, 3, 3),
         shape_iters=2,
-        branch_iters=4,
-        branch_screen_iters=2,
-        late_branch_iters=4,
+        branches=BranchSearch(iters=4, screen_iters=2, late_iters=4),
         final_iters=7,
         final_iters_unsearched=2,
         decision_iters=2,
@@ -807,9 +816,8 @@ def test_the_final_stage_runs_fewer_steps_where_no_branch_search_ran(monkeypatch
     finals = {}
     for search in (True, False):
         ran.clear()
-        KeypointFitter(model, config=KeypointFitConfig(**small, branch_search=search)).fit(
-            kp[None], CAM, progress=False
-        )
+        cfg = KeypointFitConfig(**dict(small, branches=replace(small["branches"], search=search)))
+        KeypointFitter(model, config=cfg).fit(kp[None], CAM, progress=False)
         finals[search] = [n for name, n in ran if name == "final"]
     assert finals == {True: [7], False: [2]}
     small["final_tol_change"] = None
@@ -828,7 +836,13 @@ def test_a_stage_tolerance_stops_rows_once_converged():
     kps = np.stack([subject(model, yaw_deg=y)[0] for y in (0.0, 40.0)])
     its = {}
     for tol in (None, 1e-3):
-        cfg = replace(FAST, final_iters=60, branch_search=False, final_iters_unsearched=None, final_tol_change=tol)
+        cfg = replace(
+            FAST,
+            final_iters=60,
+            final_iters_unsearched=None,
+            final_tol_change=tol,
+            branches=replace(FAST.branches, search=False),
+        )
         fitter = KeypointFitter(model, config=cfg)
         both = fitter.fit(kps, CAM, progress=False)
         alone = fitter.fit(kps[1:], CAM, progress=False)
@@ -857,11 +871,8 @@ def test_the_hinge_settings_reach_the_branch_search(body_model, monkeypatch, hin
         pose_iters=(5, 5, 5),
         shape_iters=3,
         final_iters=5,
-        init_poses=1,
-        late_branch_iters=6,
-        post_branch_iters=6,
-        branch_hinge=hinge,
-        branch_hinge_turns=turns,
+        starts=Starts(poses=1),
+        branches=BranchSearch(late_iters=6, post_iters=6, hinge=hinge, hinge_turns=turns),
     )
     KeypointFitter(body_model, config=cfg).fit([kp], [CAM], progress=False)
     assert len(seen) == 3 and set(seen) == {(hinge, turns)}

@@ -12,6 +12,7 @@ from silfit.fitting.problem import Observation, ParameterLayout, Problem, View, 
 from silfit.fitting.stages import Stage, run_lbfgs_stage
 from silfit.fitting.terms import evaluate
 from silfit.io.keypoints import KeypointSet
+from silfit.fitting.keypoint_stage import Starts
 
 CAM = Camera.from_image_size(256, 256)
 
@@ -65,7 +66,7 @@ def two_frame_problem(model, fitter):
 
 def test_two_frames_share_one_shape_and_the_gradient_flows_through_it(open_model64):
     model64 = open_model64
-    fitter = KeypointFitter(model64, config=KeypointFitConfig(init_poses=1, flip_test=False))
+    fitter = KeypointFitter(model64, config=KeypointFitConfig(starts=Starts(poses=1, flip=False)))
     problem, betas, poses = two_frame_problem(model64, fitter)
     data, views, state = fitter._problem_data([problem], (False,))
     layout = ParameterLayout(fitter.params.sizes, ("betas",), 2)

@@ -8,6 +8,7 @@ import numpy as np
 import silfit.fitting.silhouette_stage as stage
 from silfit.fitting.refine import SilhouetteHooks, StageInputs, refine_silhouettes
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult
+from silfit.fitting.silhouette_stage import Rendering
 
 
 class _Hooks(SilhouetteHooks):
@@ -25,11 +26,11 @@ class _Hooks(SilhouetteHooks):
         return [{"x": np.array([float(k)])} for k in range(3)]
 
     def inputs(self, model, problems, config):
-        self.calls.append(("inputs", list(problems), config.spp))
+        self.calls.append(("inputs", list(problems), config.render.spp))
         return StageInputs([f"problem {k}" for k in problems], "body25", config)
 
     def first_pass(self, config):
-        return SilhouetteFitConfig(spp=config.spp + 1)
+        return SilhouetteFitConfig(render=Rendering(spp=config.render.spp + 1))
 
     def refit(self, model, sils, config):
         self.calls.append("refit")
@@ -49,7 +50,7 @@ def _stub(monkeypatch):
 
     def stub(model, problems, inits, layout, config, *args, **kwargs):
         seen.append((list(problems), layout))
-        return [SilhouetteFitResult(dict(init), {}, 0.0, 0.0, 0.0, config.spp, []) for init in inits]
+        return [SilhouetteFitResult(dict(init), {}, 0.0, 0.0, 0.0, config.render.spp, []) for init in inits]
 
     monkeypatch.setattr(stage, "fit_silhouette_problems", stub)
     return seen
@@ -58,7 +59,7 @@ def _stub(monkeypatch):
 def test_one_pass_asks_the_hooks_in_order(monkeypatch):
     seen = _stub(monkeypatch)
     hooks = _Hooks(again=False)
-    out = refine_silhouettes(None, hooks, SilhouetteFitConfig(spp=4))
+    out = refine_silhouettes(None, hooks, SilhouetteFitConfig(render=Rendering(spp=4)))
     assert hooks.calls == ["prepare", "starts", ("inputs", [0, 1, 2], 5), "refit", "read_back"]
     assert seen == [(["problem 0", "problem 1", "problem 2"], "body25")]
     assert out == [(0.0, 5), (1.0, 5), (2.0, 5)]  # the first pass's settings (spp 5)
@@ -67,7 +68,7 @@ def test_one_pass_asks_the_hooks_in_order(monkeypatch):
 def test_a_second_pass_replaces_the_problems_it_refits(monkeypatch):
     seen = _stub(monkeypatch)
     hooks = _Hooks(again=True)
-    out = refine_silhouettes(None, hooks, SilhouetteFitConfig(spp=4))
+    out = refine_silhouettes(None, hooks, SilhouetteFitConfig(render=Rendering(spp=4)))
     assert hooks.calls[3:] == ["refit", ("inputs", [0, 2], 4), ("refitted", [0, 2], [5, 5]), "read_back"]
     assert seen[1] == (["problem 0", "problem 2"], "body25")
     assert out == [(0.0, 4), (1.0, 5), (2.0, 4)]  # problems 0 and 2 from the second pass, with the given settings

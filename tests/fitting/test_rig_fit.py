@@ -12,8 +12,11 @@ from silfit.fitting.rig_fit import fit_rig_keypoints, rig_problem
 from silfit.io.rig import load_rig, look_at
 from silfit.synth.generate import SynthConfig
 from silfit.synth.camera_rigs import RigConfig, generate_rig_subject
+from silfit.fitting.keypoint_stage import BranchSearch, Starts
 
-FAST = KeypointFitConfig(camera_iters=20, pose_iters=(20, 20, 30), shape_iters=10, final_iters=20, init_poses=2)
+FAST = KeypointFitConfig(
+    camera_iters=20, pose_iters=(20, 20, 30), shape_iters=10, final_iters=20, starts=Starts(poses=2)
+)
 
 
 @pytest.fixture(scope="module")
@@ -190,11 +193,11 @@ def test_a_rig_runs_the_final_stage_of_no_branch_search(body_model, two_views, m
         camera_iters=3,
         pose_iters=(3, 3, 3),
         shape_iters=2,
-        late_branch_iters=4,
         final_iters=7,
         final_iters_unsearched=2,
         final_tol_change=1e-4,
-        init_poses=1,
+        branches=BranchSearch(late_iters=4),
+        starts=Starts(poses=1),
     )
     fit_rig_keypoints(KeypointFitter(body_model, config=small), [rig_problem(load_rig(two_views[0]))])
     (final,) = [s for s in ran if s.name == "final"]

@@ -6,7 +6,7 @@ from dataclasses import fields, replace
 
 import pytest
 
-from silfit.fitting import KeypointFitConfig
+from silfit.fitting import BranchSearch, KeypointFitConfig
 from silfit.fitting.schedules import (
     KEYPOINT_SCHEDULE,
     SEQUENCE_SCHEDULE,
@@ -52,7 +52,7 @@ def test_the_table_is_the_source(monkeypatch):
     assert {
         s.name: s.weights["limits"] for s in KeypointFitConfig(limit_weight=7.0).stages() if "limits" in s.weights
     } == {s.name: 7.0 for s in table if "limits" in s.weights}
-    late = row(KeypointFitConfig(post_branch_iters=0, branch_search=True).stages(), "branches_late")
+    late = row(KeypointFitConfig(branches=BranchSearch(post_iters=0, search=True)).stages(), "branches_late")
     assert "carry" not in late.options["branches"]  # nothing goes on to a search from the fit
 
 
@@ -224,7 +224,7 @@ def test_the_late_search_options_reach_its_stages():
     late = [
         s
         for s in KeypointFitConfig(
-            late_branch_rounds=2, late_branch_turns=("mirror", 30.0), late_branch_survivors=6
+            branches=BranchSearch(late_rounds=2, late_turns=("mirror", 30.0), late_survivors=6)
         ).stages()
         if s.name.startswith("branches_late")
     ]
@@ -233,7 +233,7 @@ def test_the_late_search_options_reach_its_stages():
         assert s.options["branches"]["turns"] == ["mirror", 30.0] and s.options["branches"]["survivors"] == 6
     default = next(s for s in KeypointFitConfig().stages() if s.name == "branches_late")
     assert "turns" not in default.options["branches"]
-    assert default.options["branches"]["survivors"] == KeypointFitConfig().branch_survivors
+    assert default.options["branches"]["survivors"] == KeypointFitConfig().branches.survivors
 
 
 def test_grouped_settings_keep_their_flat_names_for_one_release():

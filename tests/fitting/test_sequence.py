@@ -29,6 +29,8 @@ from silfit.fitting.sequence import (
 )
 from silfit.io.keypoints import KeypointSet, model_keypoints
 from silfit.synth.motion import motion_trajectory
+from silfit.fitting.keypoint_stage import BranchSearch, Starts
+from silfit.fitting.sequence import BranchChoice
 
 CAM = Camera.from_image_size(256, 256)
 
@@ -146,7 +148,12 @@ def motion_keypoints(model, F=8, params=False):
 
 
 FAST_INIT = KeypointFitConfig(
-    camera_iters=15, pose_iters=(15, 15, 15), shape_iters=8, final_iters=15, init_poses=1, branch_search=False
+    camera_iters=15,
+    pose_iters=(15, 15, 15),
+    shape_iters=8,
+    final_iters=15,
+    starts=Starts(poses=1),
+    branches=BranchSearch(search=False),
 )
 
 
@@ -178,8 +185,8 @@ def test_a_dropped_frame_is_bridged_and_the_sequence_has_one_shape(open_model):
 
 def test_branch_choice_over_time_fits_the_walk_and_records_its_changes(open_model):
     sets, joints, _ = motion_keypoints(open_model, F=6)
-    fast = replace(FAST_INIT, branch_search=True, branch_iters=8, branch_screen_iters=4)
-    cfg = SequenceFitConfig(keypoint=fast, iterations=40, branch_dp=True, branch_hypotheses=2)
+    fast = replace(FAST_INIT, branches=replace(FAST_INIT.branches, search=True, iters=8, screen_iters=4))
+    cfg = SequenceFitConfig(keypoint=fast, iterations=40, branch_choice=BranchChoice(dp=True, hypotheses=2))
     r = fit_sequence(sets, CAM, open_model, config=cfg)
     assert r.rebranched.shape == (6,) and r.rebranched.dtype == bool
     assert r.config["branch_dp"] is True

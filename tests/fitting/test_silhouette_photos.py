@@ -82,7 +82,7 @@ def test_trust_region_holds_the_keypoints_against_a_mask_elsewhere(open_model, t
         target_mask,
         keypoints,
         progress=False,
-        config=replace(cfg, trust_from_start=False, trust_fraction=0.06, w_trust=0.05),
+        config=replace(cfg, w_trust=0.05, trust=replace(cfg.trust, from_start=False, fraction=0.06)),
     )
     before = _median_error(open_model, POSE, keypoints)
     assert _median_error(open_model, on.params(), keypoints) <= 1.25 * before + 0.25
@@ -102,7 +102,7 @@ def test_the_body_inside_its_mask_costs_less_than_outside(tmp_path):
     outside = torch.as_tensor(_disc(96, (48, 48), 33), dtype=torch.float32)
     cfg = SilhouetteFitConfig()
     weak = MaskTarget.from_mask(mask, cover=cfg.cover_profile(96))
-    plain = MaskTarget.from_mask(mask, cover=replace(cfg, robust_cover=False).cover_profile(96))
+    plain = MaskTarget.from_mask(mask, cover=replace(cfg, mask=replace(cfg.mask, robust_cover=False)).cover_profile(96))
     assert silhouette_energy(inside, weak).item() < 0.5 * silhouette_energy(outside, weak).item()
     assert silhouette_energy(inside, plain).item() > 0.7 * silhouette_energy(outside, plain).item()
 
@@ -117,7 +117,13 @@ def test_clothing_does_not_inflate_the_body(open_model):
     cfg = replace(FAST, iterations=(40,))
     asym = fit_silhouette(open_model, POSE, CAMERA, grown, None, config=cfg, progress=False)
     plain = fit_silhouette(
-        open_model, POSE, CAMERA, grown, None, config=replace(cfg, robust_cover=False), progress=False
+        open_model,
+        POSE,
+        CAMERA,
+        grown,
+        None,
+        config=replace(cfg, mask=replace(cfg.mask, robust_cover=False)),
+        progress=False,
     )
     z0 = float(POSE["transl"][0, 2])
     closer = lambda r: z0 - float(r.params()["transl"].reshape(-1)[2])  # noqa: E731
@@ -275,11 +281,21 @@ def test_the_two_pass_refit_trusts_the_images_the_free_pass_dragged(open_model, 
     )
     kset = KeypointSet(keypoints[:, :2], keypoints[:, 2], "body25")
     # the refit alone under test: no clothing trim, no leak set aside, no guard turning the free pass's result back
-    cfg = replace(FAST, w_keypoints=0.02, trim_clothing=False, leak_distance=0.0, plausibility_guard=False)
+    cfg = replace(
+        FAST,
+        w_keypoints=0.02,
+        plausibility_guard=False,
+        mask=replace(FAST.mask, trim_clothing=False, leak_distance=0.0),
+    )
 
     def run(ratio):
         (result,) = refine_batch(
-            open_model, kp, [kset], [target_mask], replace(cfg, trust_free_ratio=ratio), progress=False
+            open_model,
+            kp,
+            [kset],
+            [target_mask],
+            replace(cfg, trust=replace(cfg.trust, free_ratio=ratio)),
+            progress=False,
         )
         return result
 

@@ -95,7 +95,9 @@ def test_gradient_moves_a_shifted_body_toward_a_shifted_mask(open_model, target_
     # measured with: this 64 px, 30-step fit ends in one of two places by the seed's noise alone (IoU 0.94 or 0.90
     # with the plain cover term: seed 0 at 4 and at 16 edge points per contour pixel alike, seed 1 at 0.94), so the
     # bounds hold one sampling (with the default 2 rays the robust cover term ends at 0.933, dz 0.075)
-    cfg = replace(FAST, robust_cover=robust, edge_density=None, spp=4)
+    cfg = replace(
+        FAST, mask=replace(FAST.mask, robust_cover=robust), render=replace(FAST.render, edge_density=None, spp=4)
+    )
     result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=cfg, progress=False)
     dx, dy, dz = result.transl[0] - POSE["transl"][0]
     # The truth is (+0.08, 0, 0) m. Measured (deterministic renderer): 0.0846, -0.0026, +0.053 m.
@@ -359,7 +361,7 @@ def test_contour_level_moves_a_shifted_body_without_rendering(open_model, target
     def no_renderer(*args, **kwargs):  # the contour level renders nothing
         raise AssertionError("the contour level rendered")
 
-    cfg = replace(CONTOUR, robust_cover=robust)
+    cfg = replace(CONTOUR, mask=replace(CONTOUR.mask, robust_cover=robust))
     result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=cfg, renderer=no_renderer, progress=False)
     assert result.steps == 0 and 0 < result.contour_iterations <= 15
     dx, dy, _ = result.transl[0] - POSE["transl"][0]
@@ -370,7 +372,13 @@ def test_contour_level_moves_a_shifted_body_without_rendering(open_model, target
 
 @pytest.mark.parametrize("robust", [False, True])
 def test_contour_level_then_rendered_level(open_model, target_mask, robust):
-    cfg = replace(FAST, iterations=(6,), contour_iterations=15, contour_resolution=64, robust_cover=robust)
+    cfg = replace(
+        FAST,
+        iterations=(6,),
+        contour_iterations=15,
+        contour_resolution=64,
+        mask=replace(FAST.mask, robust_cover=robust),
+    )
     result = fit_silhouette(open_model, POSE, CAMERA, target_mask, config=cfg, progress=False)
     assert result.steps == 6 and result.contour_iterations > 0 and len(result.history["iou"]) == 6
     # the rendered level starts where the contour level left the body: already near the mask

@@ -4,7 +4,7 @@ from dataclasses import replace
 
 import pytest
 
-from silfit.fitting import KeypointFitConfig, KeypointFitter
+from silfit.fitting import BranchSearch, KeypointFitConfig, KeypointFitter
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig
 from silfit.fitting.stages import Stage
 
@@ -28,19 +28,22 @@ def test_keypoint_schedule_is_data_with_the_decision_in_the_first_pose_stage():
     assert stages[6].options["branches"]["carry"] == 4 and "carry" not in stages[8].options["branches"]
     assert stages[7].options == {"tol_change": 1e-4, "searched_only": True} and stages[7].weights == stages[-1].weights
     assert stages[8].options["branches"]["screen_after"] == 20 and stages[8].iterations == 40
-    assert "branches_late" not in [s.name for s in KeypointFitConfig(late_branch_iters=0).stages()]
-    assert [s.name for s in KeypointFitConfig(post_branch_iters=0).stages()][6:] == ["branches_late", "final"]
-    assert "carry" not in KeypointFitConfig(post_branch_iters=0).stages()[6].options["branches"]
+    assert "branches_late" not in [s.name for s in KeypointFitConfig(branches=BranchSearch(late_iters=0)).stages()]
+    assert [s.name for s in KeypointFitConfig(branches=BranchSearch(post_iters=0)).stages()][6:] == [
+        "branches_late",
+        "final",
+    ]
+    assert "carry" not in KeypointFitConfig(branches=BranchSearch(post_iters=0)).stages()[6].options["branches"]
     assert stages[1].options == {"decide_after": 20} and not stages[2].options
     assert stages[0].weights == {"torso": 1.0, "depth": 1e3}
     assert "branches" in stages[3].options and stages[3].weights["interpenetration"] == 1e5
-    assert [s.name for s in KeypointFitConfig(branch_search=False).stages()][3] == "pose_3"
+    assert [s.name for s in KeypointFitConfig(branches=BranchSearch(search=False)).stages()][3] == "pose_3"
     assert stages[-1].weights["interpenetration"] == 1e5 and "betas" in stages[-1].free
 
 
 def test_mismatched_lengths_are_refused():
-    with pytest.raises(ValueError, match="pose_iters .3., pose_prior_weights .2."):
-        KeypointFitConfig(pose_prior_weights=(1.0, 2.0))
+    with pytest.raises(ValueError, match="pose_iters .3., pose_weight .3: one per pose stage"):
+        KeypointFitConfig(pose_weight=(1.0, 2.0, 3.0))
     with pytest.raises(ValueError, match="flip_decision_stage"):
         KeypointFitConfig(flip_decision_stage=3)
     with pytest.raises(ValueError, match="resolutions .1. and iterations .2."):

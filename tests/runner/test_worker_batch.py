@@ -11,12 +11,12 @@ from silfit.fitting import cores
 from silfit.runner.worker import DatasetFitter
 
 KP_FAST = {
-    "init_poses": "1",
+    "starts.poses": "1",
     "camera_iters": "10",
     "pose_iters": "10,10,10",
     "shape_iters": "5",
     "final_iters": "10",
-    "post_branch_iters": "0",
+    "branches.post_iters": "0",
 }
 
 
@@ -64,11 +64,11 @@ def test_keypoint_options_parse_by_the_field_and_optional_ones_take_none():
             "final_iters_unsearched": "None",
             "final_iters": "30",
             "pose_iters": "5,6,7",
-            "branch_search": "false",
+            "branches.search": "false",
         }
     )
     assert cfg.final_tol_change is None and cfg.final_iters_unsearched is None
-    assert cfg.final_iters == 30 and cfg.pose_iters == (5, 6, 7) and cfg.branch_search is False
+    assert cfg.final_iters == 30 and cfg.pose_iters == (5, 6, 7) and cfg.branches.search is False
     assert keypoint_config({"final_tol_change": "1e-3"}).final_tol_change == 1e-3
     with pytest.raises(ValueError, match="final_iters='none'"):
         keypoint_config({"final_iters": "none"})  # not optional
@@ -81,11 +81,15 @@ def test_silhouette_options_reach_the_workers_stage():
 
     cfg = silhouette_config(
         FitOptions(
-            silhouette_options={"alternatives_margin": "0", "trim_clothing": "false", "edge_density": "none"},
+            silhouette_options={
+                "alternatives_margin": "0",
+                "mask.trim_clothing": "false",
+                "render.edge_density": "none",
+            },
             silhouette_iterations=(4, 5),
         )
     )
-    assert cfg.alternatives_margin == 0.0 and cfg.trim_clothing is False and cfg.edge_density is None
+    assert cfg.alternatives_margin == 0.0 and cfg.mask.trim_clothing is False and cfg.render.edge_density is None
     assert cfg.iterations == (4, 5)
     with pytest.raises(ValueError, match="unknown silhouette-stage option 'nope'"):
         silhouette_config(FitOptions(silhouette_options={"nope": "1"}))
@@ -99,20 +103,24 @@ def test_keypoint_options_whose_default_is_none_parse_by_their_declared_type():
     from silfit.fitting.sequence import SequenceFitConfig
     from silfit.runner.worker import keypoint_config
 
-    cfg = keypoint_config({"hand_weights": "0,0.5,1", "final_iters_unsearched": "30", "hypothesis_joint_max_m": "0.4"})
+    cfg = keypoint_config(
+        {"hands_face.hand_weights": "0,0.5,1", "final_iters_unsearched": "30", "solutions.joint_max_m": "0.4"}
+    )
     assert (
-        cfg.hand_weights == (0.0, 0.5, 1.0) and cfg.final_iters_unsearched == 30 and cfg.hypothesis_joint_max_m == 0.4
+        cfg.hands_face.hand_weights == (0.0, 0.5, 1.0)
+        and cfg.final_iters_unsearched == 30
+        and cfg.solutions.joint_max_m == 0.4
     )
     video = keypoint_config({"final_tol_change": "1e-5"}, SequenceFitConfig().keypoint)
-    assert video.final_tol_change == 1e-5 and video.branch_refine == SequenceFitConfig().keypoint.branch_refine
-    assert keypoint_config({"face_weights": "1,2,3"}).face_weights == (1.0, 2.0, 3.0)
-    assert keypoint_config({"hand_weights": "none"}).hand_weights is None
+    assert video.final_tol_change == 1e-5 and video.branches.refine == SequenceFitConfig().keypoint.branches.refine
+    assert keypoint_config({"hands_face.face_weights": "1,2,3"}).hands_face.face_weights == (1.0, 2.0, 3.0)
+    assert keypoint_config({"hands_face.hand_weights": "none"}).hands_face.hand_weights is None
     with pytest.raises(ValueError, match="schedule cannot be given on the command line"):
         keypoint_config({"schedule": "x"})
     with pytest.raises(
         ValueError, match=r"hand_weights='a': expected comma-separated numbers \(e.g. 0,0.5,1\) or none"
     ):
-        keypoint_config({"hand_weights": "a"})
+        keypoint_config({"hands_face.hand_weights": "a"})
 
 
 def test_an_interrupt_while_saving_stops_the_run_and_is_not_an_items_failure(tmp_path, monkeypatch):

@@ -5,6 +5,7 @@ import pytest
 import torch
 
 from silfit.silhouette import MaskTarget, distance_transforms, silhouette_energy, soft_iou
+from silfit.fitting.silhouette_stage import MaskHandling
 
 
 def disc(size=64, centre=(32, 32), radius=12):
@@ -221,8 +222,10 @@ def test_the_stage_builds_robust_targets_and_the_plain_energy_stays_available():
     window = choose_window(mask, uv, cam, 64, 0.12)
     cfg = SilhouetteFitConfig()
     robust, _ = window_target(mask, window, cover=cfg.cover_profile(64))
-    plain, _ = window_target(mask, window, cover=SilhouetteFitConfig(robust_cover=False).cover_profile(64))
-    assert robust.cover is not None and robust.cover.margin == pytest.approx(cfg.cover_margin * 64)
+    plain, _ = window_target(
+        mask, window, cover=SilhouetteFitConfig(mask=MaskHandling(robust_cover=False)).cover_profile(64)
+    )
+    assert robust.cover is not None and robust.cover.margin == pytest.approx(cfg.mask.cover_margin * 64)
     assert plain.cover is None and plain.w_in is None
     assert (robust.w_in <= plain.dt_in + 1e-6).all() and robust.w_in.sum() < 0.7 * plain.dt_in.sum()
 
