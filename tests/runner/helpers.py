@@ -11,7 +11,7 @@ SYNTHETIC = Path(__file__).resolve().parents[2] / "data" / "synthetic"
 #: keypoint-stage options that keep a fit to about 0.1 s (tests check plumbing, not accuracy)
 FAST = [
     "--keypoint-option",
-    "init_poses=1",
+    "starts.poses=1",
     "--keypoint-option",
     "camera_iters=10",
     "--keypoint-option",
@@ -21,9 +21,9 @@ FAST = [
     "--keypoint-option",
     "final_iters=10",
     "--keypoint-option",
-    "branch_refine=1",
+    "branches.refine=1",
     "--keypoint-option",
-    "post_branch_iters=0",
+    "branches.post_iters=0",
 ]
 
 
