@@ -47,6 +47,7 @@ __all__ = [
     "depth_cue",
     "landmark_agreement",
     "match_person",
+    "matched_person",
     "person_cue",
 ]
 
@@ -236,20 +237,10 @@ def cue_from_image(image: np.ndarray, keypoints, person=None, config: Optional[I
     keypoints came from) or else the landmark model run on the image and the person whose limb landmarks lie
     nearest the keypoints (:func:`match_person`; the most confident first, then everyone found); ``record`` is
     ``metrics.json``'s ``image_depth`` (:meth:`DepthCue.to_dict`, or why there is no cue)."""
-    from ..detect import DetectConfig, DetectionError, detect_people
-
     if person is None:
-        for most in (1, 0):  # the most confident person (the landmark model's cost once), then everyone
-            try:
-                people = detect_people(image, DetectConfig(max_people=most))
-            except DetectionError as err:
-                return None, {"refused": f"no landmarks: {err}"}
-            i = match_person(people, keypoints)
-            if i is not None:
-                person = people[i]
-                break
-        else:
-            return None, {"refused": "no person the landmark model found lies on the keypoints"}
+        person, why = matched_person(image, keypoints)
+        if person is None:
+            return None, {"refused": why}
     cue = person_cue(person, keypoints, config)
     if config is not None and config.mirror and not cue.refused:
         other = mirrored_person(image, keypoints)
@@ -297,22 +288,32 @@ def unmirror_person(person):
     )
 
 
-def mirrored_person(image: np.ndarray, keypoints) -> Optional[object]:
-    """The landmark model's second reading of the person on ``keypoints``: run on the horizontally flipped image,
-    read back (:func:`unmirror_person`) and matched to the keypoints (:func:`match_person`); ``None`` where none
-    matches. The model is not equivariant to the flip, so the two readings' errors are partly independent."""
+def matched_person(image: np.ndarray, keypoints, mirror: bool = False) -> tuple:
+    """``(person, None)``: the landmark model run on ``image`` and the person whose limb landmarks lie nearest the
+    keypoints (:func:`match_person`; the most confident person first, the landmark model's cost once, then
+    everyone found), or ``(None, why)``. With ``mirror``, the model reads the horizontally flipped image and its
+    people are read back (:func:`unmirror_person`) before matching."""
     from ..detect import DetectConfig, DetectionError, detect_people
 
-    flipped = np.ascontiguousarray(np.asarray(image)[:, ::-1])
+    seen = np.ascontiguousarray(np.asarray(image)[:, ::-1]) if mirror else image
     for most in (1, 0):
         try:
-            people = [unmirror_person(p) for p in detect_people(flipped, DetectConfig(max_people=most))]
-        except DetectionError:
-            return None
+            people = detect_people(seen, DetectConfig(max_people=most))
+        except DetectionError as err:
+            return None, f"no landmarks: {err}"
+        if mirror:
+            people = [unmirror_person(p) for p in people]
         i = match_person(people, keypoints)
         if i is not None:
-            return people[i]
-    return None
+            return people[i], None
+    return None, "no person the landmark model found lies on the keypoints"
+
+
+def mirrored_person(image: np.ndarray, keypoints) -> Optional[object]:
+    """The landmark model's second reading of the person on ``keypoints``: run on the horizontally flipped image,
+    read back and matched to the keypoints (:func:`matched_person`); ``None`` where none matches. The model is not
+    equivariant to the flip, so the two readings' errors are partly independent."""
+    return matched_person(image, keypoints, mirror=True)[0]
 
 
 def agreed_cue(a: DepthCue, b: Optional[DepthCue]) -> DepthCue:
