@@ -27,7 +27,8 @@ branches on the mode.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from functools import cached_property
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Sequence, Union
 
@@ -68,9 +69,11 @@ class Fit:
     frame; ``"world"``: the rig's); ``keypoints_2d [F, C, K, 2]`` the final body's projections;
     ``reprojection_error [F, C]`` (median px, NaN where a view had no keypoints) and ``iou
     [F, C]`` (NaN without a mask); ``metrics`` what ``metrics.json`` holds (with
-    ``warnings``); ``stage`` the core's own result (``FitResult``, ``RigResult`` or
-    ``SequenceFitResult``), for callers of the older functions and for what only it holds, which the writer
-    reads in one place (:func:`silfit.outputs.write.stage_parts`)."""
+    ``warnings``); ``keypoint_fit`` the keypoint stage's result as a :class:`Fit` of its own, ``seconds`` per stage,
+    ``history`` the silhouette stage's steps and ``masks`` the final body's rendered masks: the same names for every
+    mode. ``stage`` is the core's own record (``FitResult``, ``RigResult`` or ``SequenceFitResult``): read by these
+    properties and by the writer (:func:`silfit.outputs.write.stage_parts`), by no caller; the older functions
+    (``silfit.fit``, ``silfit.fit_sequence``) return it."""
 
     job: Job
     params: Dict[str, np.ndarray]
@@ -93,6 +96,62 @@ class Fit:
 
     def frame_params(self, f: int) -> Dict[str, np.ndarray]:
         return {n: v if n == "betas" else v[f] for n, v in self.params.items()}
+
+    @property
+    def camera(self):
+        """The (first) view's camera: the frame an image's or a video's parameters are in."""
+        return self.job.problem.observations[0].view.camera
+
+    @cached_property
+    def keypoint_fit(self) -> Optional["Fit"]:
+        """The keypoint stage's result as a :class:`Fit` of its own where a silhouette stage followed it (an image,
+        a rig); ``None`` where this fit is the keypoint stage's, and for a video (whose per-frame fits are written
+        under ``stages/per_frame``). Its ``iou`` is the keypoint stage's body against the mask, its ``masks`` that
+        body's rendered masks."""
+        if self.job.mode == "video" or not self.refined:
+            return None
+        if self.job.mode == "rig":
+            return keypoint_stage_fit(self)
+        return _image_keypoint_fit(self.job, self.stage)
+
+    @property
+    def refined(self) -> bool:
+        """Whether the silhouette stage ran and its record is kept: an image's wherever it ran (the plausibility
+        guard's verdict in ``metrics["silhouette_guard"]``), a rig's only where the guard kept its result."""
+        if self.job.mode == "video":
+            return "silhouette" in self.stage.timings
+        return self.stage.silhouette is not None
+
+    @property
+    def seconds(self) -> Dict[str, float]:
+        """Seconds per stage: ``keypoints``, and ``silhouette`` where it ran (every hypothesis' share included)."""
+        if self.job.mode == "video":
+            t = self.stage.timings
+            sil = t.get("silhouette")
+            return {
+                "keypoints": float(t["total"] - (sil or 0.0)),
+                **({} if sil is None else {"silhouette": float(sil)}),
+            }
+        t = self.metrics["timings_s" if self.job.mode == "image" else "timings"]
+        return {k: float(t[k]) for k in ("keypoints", "silhouette") if k in t}
+
+    @property
+    def history(self) -> Optional[dict]:
+        """One image's silhouette stage per step (``level``, ``energy``, ``silhouette``, ``keypoints``, ``iou``
+        lists); ``None`` without that stage, and for rigs and videos (their stage is batched over views or frames)."""
+        if self.job.mode != "image" or not self.refined:
+            return None
+        return self.stage.silhouette.history
+
+    @property
+    def masks(self) -> Dict[int, np.ndarray]:
+        """Per view ``c`` (one frame) the final body's rendered mask ``[H, W]`` (bool), where a mask was fitted;
+        empty for a video."""
+        if self.job.mode == "image":
+            return {0: self.stage.masks["final"]} if "final" in self.stage.masks else {}
+        if self.job.mode == "rig":
+            return {c: self.stage.masks[n] for c, n in enumerate(self.job.view_names) if n in self.stage.masks}
+        return {}
 
     def summary(self) -> str:
         """One line for the console: frames, views, reprojection error, IoU."""
@@ -199,10 +258,7 @@ def check(job: Job) -> Job:
         images = {(f, index[c]): v for (f, c), v in job.images.items() if c in index}
         sources = {(f, index[c]): v for (f, c), v in job.mask_sources.items() if c in index}
         if len(kept) < C and hasattr(job.inputs, "select_views"):  # the reader's object follows (a rig video's)
-            from dataclasses import replace as _replace
-
-            job = _replace(job, inputs=job.inputs.select_views([c for c, _ in kept]))
-    from dataclasses import replace
+            job = replace(job, inputs=job.inputs.select_views([c for c, _ in kept]))
 
     return replace(
         job, problem=problem, view_names=names, warnings=_dedupe(warnings), images=images, mask_sources=sources
@@ -232,8 +288,6 @@ def run_batch(jobs: Sequence[Job], isolate: bool = False) -> List[Union[Fit, Exc
     for i, job in enumerate(jobs):
         try:
             if job.model is None:
-                from dataclasses import replace
-
                 from .body import load_body_model
 
                 job = replace(job, model=load_body_model())
@@ -345,6 +399,24 @@ def image_result_fit(job: Job, r) -> Fit:
         m,
         r,
     )
+
+
+def _image_keypoint_fit(job: Job, r) -> Fit:
+    """One image's keypoint stage (of its :class:`~silfit.fitting.image_fit.FitResult` ``r``) as a :class:`Fit`."""
+    kp, m = r.keypoint, r.metrics
+    fit = Fit(
+        job,
+        _params_per_frame(kp.params(0), 1),
+        _arr(kp.vertices[0])[None],
+        _arr(kp.joints[0])[None],
+        _arr(kp.keypoints_2d[0])[None, None],
+        np.array([[m.get("reprojection_error_px_keypoint_stage", np.nan)]], dtype=np.float64),
+        np.array([[m.get("iou_keypoint_stage", np.nan)]], dtype=np.float64),
+        "camera",
+        {"timings_s": {"keypoints": m["timings_s"]["keypoints"]}},
+        replace(r, silhouette=None, masks={"final": r.masks["keypoint_stage"]} if "keypoint_stage" in r.masks else {}),
+    )
+    return fit
 
 
 def _rig_core(jobs: Sequence[Job]) -> RigCore:
@@ -665,7 +737,6 @@ def fit_sequence(
     :class:`~silfit.fitting.problem.View` s (a rig video, in its world frame). ``masks`` (``masks[f]`` or
     ``masks[f][c]``, ``None`` where there is none): the silhouette stage follows. ``images`` (one camera; per frame
     an RGB array or ``None``): the image depth cue (:mod:`silfit.fitting.image_depth`)."""
-    from dataclasses import replace
 
     from .inputs.rig import rig_video_job
 

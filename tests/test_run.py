@@ -303,3 +303,39 @@ def test_the_removed_writers_old_homes_answer_for_one_release_with_a_warning():
             assert getattr(m, name) is getattr(write, name)
         with pytest.raises(AttributeError):
             m.no_such_writer
+
+
+def test_a_fit_gives_its_keypoint_stage_seconds_history_and_masks_by_the_same_names(open_model, subject):
+    """What callers read of a fit (the keypoint stage's result, seconds per stage, the silhouette steps, the
+    rendered masks) is the Fit's, whatever the mode: the core's own record stays behind ``Fit.stage``."""
+    from silfit.fitting.sequence import SequenceFitConfig
+
+    sil = SilhouetteFitConfig(resolutions=(32,), iterations=(2,))
+    make = lambda mask: image_job(  # noqa: E731
+        subject.keypoints, mask, subject.camera, model=open_model, keypoint_config=FAST, silhouette_config=sil
+    )
+    fit, alone = run_batch([make(subject.mask), make(None)])
+    kp = fit.keypoint_fit
+    assert fit.refined and kp is not None and kp.keypoint_fit is None and not kp.refined
+    for name, value in fit.stage.keypoint.params(0).items():
+        assert np.array_equal(kp.frame_params(0)[name], np.asarray(value, np.float32)), name
+    assert np.array_equal(kp.vertices[0], fit.stage.keypoint.vertices[0])
+    assert kp.iou[0, 0] == fit.metrics["iou_keypoint_stage"] and fit.iou[0, 0] == fit.metrics["iou"]
+    assert set(fit.seconds) == {"keypoints", "silhouette"} and set(alone.seconds) == {"keypoints"}
+    assert len(fit.history["iou"]) > 0 and alone.history is None
+    assert fit.masks[0].shape == subject.mask.shape and fit.masks[0].dtype == bool and alone.masks == {}
+    assert kp.masks[0].shape == subject.mask.shape and not np.array_equal(kp.masks[0], fit.masks[0])
+    assert alone.keypoint_fit is None and not alone.refined
+    assert fit.camera is fit.job.problem.observations[0].view.camera
+
+    video = run(
+        video_job(
+            [subject.keypoints] * 2,
+            subject.camera,
+            open_model,
+            progress=False,
+            config=SequenceFitConfig(keypoint=FAST, iterations=3, neighbour_starts=False),
+        )
+    )
+    assert video.keypoint_fit is None and video.history is None and video.masks == {}
+    assert set(video.seconds) == {"keypoints"} and video.seconds["keypoints"] > 0

@@ -102,32 +102,32 @@ def _crop(image: np.ndarray, box: tuple, min_size: int = 400) -> np.ndarray:
     return np.repeat(np.repeat(crop, factor, axis=0), factor, axis=1)
 
 
-def _closeups(subject, result, kp_vertices: np.ndarray, faces: np.ndarray) -> dict:
+def _closeups(subject, fitted, kp_fit, faces: np.ndarray) -> dict:
     """The close-ups ``01_input.png`` to ``05_silhouette_match.png`` of the module docstring, by file name."""
     from ..outputs import figures
 
     cam, kps = subject.camera, subject.keypoints
-    box = _person_box([subject.mask, result.masks["keypoint_stage"], result.masks["final"]])
+    box = _person_box([subject.mask, kp_fit.masks[0], fitted.masks[0]])
     close = lambda image: _crop(image, box)  # noqa: E731  (close-ups around the person)
     match = lambda body: close(figures.silhouette_comparison(body, subject.mask))  # noqa: E731
     pictures = {
         "01_input.png": close(figures.draw_keypoints(subject.image, kps.xy, figures.DETECTED, kps.conf)),
         "02_mask.png": close(np.repeat(subject.mask[..., None].astype(np.uint8) * 255, 3, axis=2)),
         "03_keypoint_fit.png": close(
-            figures.fit_overlay(subject.image, kp_vertices, faces, cam, kps.xy, None, kps.conf)
+            figures.fit_overlay(subject.image, kp_fit.vertices[0], faces, cam, kps.xy, None, kps.conf)
         ),
         "04_silhouette_fit.png": close(
-            figures.fit_overlay(subject.image, result.vertices, faces, cam, kps.xy, None, kps.conf)
+            figures.fit_overlay(subject.image, fitted.vertices[0], faces, cam, kps.xy, None, kps.conf)
         ),
     }
-    match_kp, match_sil = match(result.masks["keypoint_stage"]), match(result.masks["final"])
+    match_kp, match_sil = match(kp_fit.masks[0]), match(fitted.masks[0])
     pictures["05_silhouette_match.png"] = np.hstack(
         [match_kp, np.full((match_kp.shape[0], 6, 3), 128, np.uint8), match_sil]
     )
     return pictures
 
 
-def _write_vertex_errors(subject, result, kp_vertices: np.ndarray, kp_joints: np.ndarray, faces, path: Path) -> None:
+def _write_vertex_errors(subject, fitted, kp_fit, faces, path: Path) -> None:
     """``07_vertex_error.png``: the per-vertex error (mm, pelvis-aligned) of both fits on the ground truth."""
     from ..outputs import figures
 
@@ -135,8 +135,8 @@ def _write_vertex_errors(subject, result, kp_vertices: np.ndarray, kp_joints: np
     pelvis = lambda v, j: v - j[0]  # noqa: E731  (PVE is pelvis-aligned)
     gt_j = subject.gt.joints
     errors = [
-        1000 * np.linalg.norm(pelvis(kp_vertices, kp_joints) - pelvis(gt_v, gt_j), axis=1),
-        1000 * np.linalg.norm(pelvis(result.vertices, result.joints) - pelvis(gt_v, gt_j), axis=1),
+        1000 * np.linalg.norm(pelvis(kp_fit.vertices[0], kp_fit.joints[0]) - pelvis(gt_v, gt_j), axis=1),
+        1000 * np.linalg.norm(pelvis(fitted.vertices[0], fitted.joints[0]) - pelvis(gt_v, gt_j), axis=1),
     ]
     figures.error_heatmap(gt_v, faces, errors, ["keypoints only", "keypoints + silhouette"], path)
 
@@ -181,29 +181,26 @@ def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = Fal
     )
     job.mask_sources[(0, 0)] = str(subject.file("mask"))
     fitted = run(job)  # the path every mode takes (silfit.run)
-    result = fitted.stage
-    kp_result = result.keypoint
-    kp_seconds = float(result.metrics["timings_s"]["keypoints"])
+    kp_fit, seconds = fitted.keypoint_fit, fitted.seconds
     write(fitted, out / "fit", overwrite=True)
 
-    before = _score(model, subject, kp_result.params(0), cam, kp_seconds)
-    after = _score(model, subject, result.params, cam, kp_seconds + result.silhouette.seconds)
+    before = _score(model, subject, kp_fit.frame_params(0), cam, seconds["keypoints"])
+    after = _score(model, subject, fitted.frame_params(0), cam, seconds["keypoints"] + seconds["silhouette"])
     table = _table(before, after)
 
-    kp_vertices = kp_result.vertices[0]
-    pictures = _closeups(subject, result, kp_vertices, faces)
+    pictures = _closeups(subject, fitted, kp_fit, faces)
     for name, image in pictures.items():
         figures.write_png(out / name, image)
-    figures.iou_curve(result.silhouette.history, out / "06_iou_curve.png")
-    _write_vertex_errors(subject, result, kp_vertices, kp_result.joints[0], faces, out / "07_vertex_error.png")
+    figures.iou_curve(fitted.history, out / "06_iou_curve.png")
+    _write_vertex_errors(subject, fitted, kp_fit, faces, out / "07_vertex_error.png")
     _write_summary(out, pictures)
 
     report = {
         "subject": str(subject.path),
         "keypoints_only": before,
         "keypoints_plus_silhouette": after,
-        "silhouette_steps": result.silhouette.steps,
-        "warnings": result.metrics.get("warnings", []),
+        "silhouette_steps": fitted.metrics["silhouette_steps"],
+        "warnings": fitted.warnings,
     }
     (out / "report.json").write_text(json.dumps(report, indent=2))
     (out / "report.md").write_text(f"# silfit demo: {subject.path.name}\n\n{table}\n")

@@ -195,30 +195,29 @@ def run_wholebody_demo(
     t_body = time.perf_counter() - t0
     t0 = time.perf_counter()
     fitted = run(image_job(kps, mask, cam, model=model, silhouette_config=silhouette_config, progress=progress))
-    result = fitted.stage
     t_whole = time.perf_counter() - t0
     write(fitted, out / "fit", overwrite=True, images={(0, 0): image})  # fitted without the image, drawn on it
-    kp_stage = result.keypoint
+    kp_stage = fitted.keypoint_fit
 
     fits = {
         METHODS[0]: (body_only.vertices[0], body_only.joints[0], body_only.extra_params["expression"][0], t_body),
         METHODS[1]: (
             kp_stage.vertices[0],
             kp_stage.joints[0],
-            kp_stage.extra_params["expression"][0],
-            result.metrics["timings_s"]["keypoints"],
+            kp_stage.params["expression"][0],
+            fitted.seconds["keypoints"],
         ),
-        METHODS[2]: (result.vertices, result.joints, np.asarray(result.params["expression"]).reshape(-1), t_whole),
+        METHODS[2]: (fitted.vertices[0], fitted.joints[0], fitted.params["expression"].reshape(-1), t_whole),
     }
     scores = _score_fits(model, fits, gt)
-    _write_pictures(out, image, cam, kps, fits, result.vertices, faces)
+    _write_pictures(out, image, cam, kps, fits, fitted.vertices[0], faces)
 
     table = _score_table(scores)
     report = {
         "subject": str(d),
         "scores": scores,
-        "warnings": result.metrics.get("warnings", []),
-        "iou": {"keypoint_stage": result.metrics.get("iou_keypoint_stage"), "final": result.metrics.get("iou")},
+        "warnings": fitted.warnings,
+        "iou": {"keypoint_stage": fitted.metrics.get("iou_keypoint_stage"), "final": fitted.metrics.get("iou")},
     }
     (out / "report.json").write_text(json.dumps(report, indent=2))
     (out / "report.md").write_text(f"# silfit demo --whole-body: {d.name}\n\n{table}\n")

@@ -71,18 +71,17 @@ def run_photo_demo(
             progress=progress,
         )
     )
-    result = fitted.stage
-    warnings = photo.warnings() + [f"detection: {w}" for w in person.warnings()] + result.metrics.get("warnings", [])
+    warnings = photo.warnings() + [f"detection: {w}" for w in person.warnings()] + fitted.warnings
     extra = {"image": str(path), "camera_source": focal_source if focal else "default max(W, H)", "warnings": warnings}
     write(fitted, out / "fit", overwrite=True, extra=extra, images={(0, 0): photo.image})  # fitted without the image
 
-    cam = result.camera
+    cam, kp_vertices, vertices = fitted.camera, fitted.keypoint_fit.vertices[0], fitted.vertices[0]
     panels = [
         read_image(out / "detection" / "detection.png"),
-        figures.fit_overlay(photo.image, result.keypoint.vertices[0], faces, cam, keypoints.xy, None, keypoints.conf),
-        figures.fit_overlay(photo.image, result.vertices, faces, cam, keypoints.xy, None, keypoints.conf),
-        figures.silhouette_comparison(result.masks["final"], mask),
-        figures.side_view(result.vertices, faces, result.keypoint.vertices[0]),
+        figures.fit_overlay(photo.image, kp_vertices, faces, cam, keypoints.xy, None, keypoints.conf),
+        figures.fit_overlay(photo.image, vertices, faces, cam, keypoints.xy, None, keypoints.conf),
+        figures.silhouette_comparison(fitted.masks[0], mask),
+        figures.side_view(vertices, faces, kp_vertices),
     ]
     titles = [
         "detection",
@@ -93,7 +92,7 @@ def run_photo_demo(
     ]
     figures.contact_sheet(panels, titles, out / "summary.png", columns=5)
 
-    m = result.metrics
+    m = fitted.metrics
     rows = [
         ("photo", f"{path.name} ({photo.size[0]}x{photo.size[1]})"),
         ("people found", str(len(people))),

@@ -373,8 +373,7 @@ def _write_silhouette_fits(subjects: Sequence, fits: list, bad: dict, fits_root,
         elif isinstance(f, StageFailure):
             failed.append(f"{s.name}: {f.error}")
         else:
-            kp_total = float(f.stage.keypoint.timings.get("total", 0.0))
-            timings = {"keypoints": kp_total, "silhouette": f.stage.silhouette.seconds}
+            timings = dict(f.seconds)
             timings["total"] = sum(timings.values())
             extra = {"timings": timings, "search": search[i]}
             write(f, Path(fits_root) / s.name / "silhouette", overwrite=True, extra=extra)

@@ -134,15 +134,13 @@ def run_rig_fitter(
         if isinstance(fit, Exception):
             failed.append(f"{d.name}: {getattr(fit, 'error', fit)}")
             continue
-        r = fit.stage
-        per = float(r.keypoint.timings["total"])
+        seconds = fit.seconds
         if "keypoints" in methods:
             kp = keypoint_stage_fit(fit)
-            kp.metrics["timings"] = {"keypoints": per, "total": per}
+            kp.metrics["timings"] = {"keypoints": seconds["keypoints"], "total": seconds["keypoints"]}
             write(kp, fits_root / d.name / "keypoints", overwrite=True)
-        if "silhouette" in methods and r.silhouette is not None:
-            sil = float(r.metrics["timings"]["silhouette"])
-            r.metrics["timings"] = {"keypoints": per, "silhouette": sil, "total": per + sil}
+        if "silhouette" in methods and fit.refined:
+            fit.metrics["timings"] = {**seconds, "total": sum(seconds.values())}
             write(fit, fits_root / d.name / "silhouette", overwrite=True)
     done = [f for f in fits if not isinstance(f, Exception)]
     status = {
@@ -150,7 +148,7 @@ def run_rig_fitter(
         + (f"; failed: {'; '.join(failed)}" if failed else "")
     }
     if "silhouette" in methods:
-        status["silhouette"] = f"ran on {sum(f.stage.silhouette is not None for f in done)} subjects"
+        status["silhouette"] = f"ran on {sum(f.refined for f in done)} subjects"
     return status
 
 

@@ -25,7 +25,8 @@ import numpy as np
 from ..errors import interruption
 from ..fitting.keypoint_stage import KeypointFitConfig
 from ..fitting.silhouette_stage import SilhouetteFitConfig
-from ..fitting.image_fit import FitResult
+from ..fitting.threads import torch_threads
+from ..run import Fit, StageFailure, run_batch, write
 from .items import Item, ItemError, LoadedItem, read_component, item_error, load_item
 
 __all__ = ["FitOptions", "DatasetFitter", "keypoint_config", "silhouette_config"]
@@ -203,15 +204,10 @@ class DatasetFitter:
         stages and Ray's one-CPU actors run (the same bits: ``tests/cli/test_fit_dataset.py``): the
         small work between the stages (posing, masks, writing) gains nothing from a second thread,
         and on a loaded CPU the pool's waiting made it much slower (docs/benchmarks/defaults.md)."""
-        from ..fitting.threads import torch_threads
-
         with torch_threads(1):
             return self._run_batch(items, out)
 
     def _run_batch(self, items: Sequence[Item], out: Union[str, os.PathLike]) -> List[dict]:
-        from ..fitting.image_fit import StageFailure
-        from ..run import run_batch, write
-
         out = Path(out)
         records: Dict[str, dict] = {}
         loaded: List[LoadedItem] = []
@@ -242,10 +238,7 @@ class DatasetFitter:
                 )
                 records[key] = _failed(li.item, stage, item_error(err, source, component))
                 continue
-            res = fit.stage
-            times[key]["keypoints"] = float(res.metrics["timings_s"]["keypoints"])
-            if res.silhouette is not None:
-                times[key]["silhouette"] = float(res.silhouette.seconds)
+            times[key].update(fit.seconds)
             t0 = time.perf_counter()
             try:
                 write(
@@ -261,7 +254,7 @@ class DatasetFitter:
                 records[key] = _failed(li.item, "save", item_error(err, os.fspath(out / key), "output"))
                 continue
             times[key]["save"] = time.perf_counter() - t0
-            records[key] = self._record(li, res, len(loaded))
+            records[key] = self._record(li, fit, len(loaded))
         for it in items:
             t = times.get(it.key, {})
             t["total"] = sum(t.values())
@@ -289,8 +282,8 @@ class DatasetFitter:
         }
         return extra
 
-    def _record(self, li: LoadedItem, res: FitResult, batch: int) -> dict:
-        m = res.metrics
+    def _record(self, li: LoadedItem, fit: Fit, batch: int) -> dict:
+        m = fit.metrics
         rec = {
             "item": li.item.key,
             "status": "ok",
