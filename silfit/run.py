@@ -199,73 +199,63 @@ def _dedupe(items: Sequence[str]) -> List[str]:
 
 def check(job: Job) -> Job:
     """The checks every input gets, before anything is fitted (and all ``--check-only`` runs):
-    each observation's keypoints through :func:`silfit.fitting.plausibility.check_keypoints` (points far
-    outside the image dropped, degenerate sets refused). A refused set is an error for one
+    each view's keypoints through :func:`silfit.fitting.plausibility.check_keypoints` (points far
+    outside the image dropped, degenerate sets refused; a video's frames through
+    :func:`~silfit.fitting.plausibility.check_frames`). A refused set is an error for one
     image; a rig sets that view aside (a warning; an error if no view is left); a video fits
-    that frame as one without a detection (bridged from its neighbours). Returns the job with
-    the checked keypoints and the findings added to ``warnings``."""
-    from .fitting.plausibility import check_frames, check_keypoints
-
+    that frame as one without a detection (bridged from its neighbours), and sets aside a view with no usable
+    frame. Returns the job with the checked keypoints and the findings added to ``warnings``."""
     grid = job.problem.grid()
     F, C = len(grid), len(grid[0])
     names = list(job.view_names) if len(job.view_names) == C else [str(c) for c in range(C)]
+    numbers = list(job.frame_numbers) if job.frame_numbers is not None else list(range(F))
+    plain = job.mode == "image" or (job.mode == "video" and C == 1)  # its notes without the view's name
     warnings = list(job.warnings)
-    if job.mode != "video":
-        kept, first = [], None
-        for c, o in enumerate(grid[0]):
-            try:
-                ks, notes = check_keypoints(o.keypoints, o.view.camera.size)
-            except InputError as err:
-                if C == 1 and not job.rig:
-                    raise
-                first = first or err
-                warnings.append(f"view {names[c]} set aside: {err}")
-                continue
-            warnings += [n if job.mode == "image" else f"view {names[c]}: {n}" for n in notes]
-            kept.append((c, Observation(o.view, ks, o.mask, 0, len(kept), known=o.known)))
-        if not kept:
-            raise first
-        problem = Problem([o for _, o in kept], job.problem.shared)
-        names = [names[c] for c, _ in kept]
-        images = {(0, i): job.images[(0, c)] for i, (c, _) in enumerate(kept) if (0, c) in job.images}
-        sources = {(0, i): job.mask_sources[(0, c)] for i, (c, _) in enumerate(kept) if (0, c) in job.mask_sources}
-    else:  # a video (of one camera or a rig): each view's frames as a video's; a view with no usable frame set aside
-        numbers = list(job.frame_numbers) if job.frame_numbers is not None else list(range(F))
-        kept, first = [], None
-        for c in range(C):
-            try:
-                column, notes = check_frames([row[c].keypoints for row in grid], grid[0][c].view.camera.size, numbers)
-            except InputError as err:
-                if C == 1:
-                    raise
-                first = first or err
-                warnings.append(f"view {names[c]} set aside: {err}")
-                continue
-            warnings += [n if C == 1 else f"view {names[c]}: {n}" for n in notes]
-            kept.append((c, column))
-        if not kept:
-            raise first
-        problem = Problem(
-            [
-                Observation(grid[f][c].view, column[f], grid[f][c].mask, f, i, known=grid[f][c].known)
-                for f in range(F)
-                for i, (c, column) in enumerate(kept)
-            ],
-            job.problem.shared,
-        )
-        names = [names[c] for c, _ in kept]
-        index = {c: i for i, (c, _) in enumerate(kept)}  # a view's pictures and mask sources follow it
-        images = {(f, index[c]): v for (f, c), v in job.images.items() if c in index}
-        sources = {(f, index[c]): v for (f, c), v in job.mask_sources.items() if c in index}
-        if len(kept) < C and hasattr(job.inputs, "select_views"):  # the reader's object follows (a rig video's)
-            job = replace(job, inputs=job.inputs.select_views([c for c, _ in kept]))
-
+    kept, first = [], None
+    for c in range(C):
+        try:
+            column, notes = _checked_view(job.mode, [row[c].keypoints for row in grid], grid[0][c].view, numbers)
+        except InputError as err:
+            if C == 1:
+                raise
+            first = first or err
+            warnings.append(f"view {names[c]} set aside: {err}")
+            continue
+        warnings += [n if plain else f"view {names[c]}: {n}" for n in notes]
+        kept.append((c, column))
+    if not kept:
+        raise first
+    problem = Problem(
+        [
+            Observation(grid[f][c].view, column[f], grid[f][c].mask, f, i, known=grid[f][c].known)
+            for f in range(F)
+            for i, (c, column) in enumerate(kept)
+        ],
+        job.problem.shared,
+    )
+    names = [names[c] for c, _ in kept]
+    index = {c: i for i, (c, _) in enumerate(kept)}  # a view's pictures and mask sources follow it
+    images = {(f, index[c]): v for (f, c), v in job.images.items() if c in index}
+    sources = {(f, index[c]): v for (f, c), v in job.mask_sources.items() if c in index}
+    if len(kept) < C and hasattr(job.inputs, "select_views"):  # the reader's object follows (a rig video's)
+        job = replace(job, inputs=job.inputs.select_views([c for c, _ in kept]))
     return replace(
         job, problem=problem, view_names=names, warnings=_dedupe(warnings), images=images, mask_sources=sources
     )
 
 
 # -------------------------------------------------------------------------------- run
+
+
+def _checked_view(mode: str, column: list, view, numbers: list) -> tuple:
+    """``(keypoints per frame, notes)`` of one view's ``column`` (its keypoints per frame) after the checks: one
+    frame's set refused raises; a video's refused frames become frames without a detection."""
+    from .fitting.plausibility import check_frames, check_keypoints
+
+    if mode == "video":
+        return check_frames(column, view.camera.size, numbers)
+    ks, notes = check_keypoints(column[0], view.camera.size)
+    return [ks], notes
 
 
 def run(job: Job) -> Fit:
