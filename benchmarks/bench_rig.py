@@ -42,7 +42,8 @@ from silfit import load_body_model
 from silfit.eval.score_rig import score_rig_fit, subset_truth
 from silfit.fitting.keypoint_stage import KeypointFitConfig, KeypointFitter
 from silfit.fitting.problem import Problem
-from silfit.fitting.rig_fit import fit_rig_keypoints, rig_problem
+from silfit.fitting.rig_fit import fit_rig_keypoints
+from silfit.inputs.rig import rig_problem
 from silfit.io.rig import load_rig
 from silfit.fitting.rig_pipeline import refine_rig_fits
 from silfit.synth.generate import SynthConfig

@@ -286,7 +286,8 @@ def run_rig(model, n, seed, size, methods):
     from silfit.eval.score_rig import score_rig_fit, subset_truth
     from silfit.fitting.keypoint_stage import KeypointFitter
     from silfit.fitting.problem import Problem
-    from silfit.fitting.rig_fit import fit_rig_keypoints, rig_problem
+    from silfit.fitting.rig_fit import fit_rig_keypoints
+    from silfit.inputs.rig import rig_problem
     from silfit.io.rig import load_rig
     from silfit.synth.generate import SynthConfig
     from silfit.synth.camera_rigs import RigConfig, generate_rig_dataset

@@ -236,7 +236,7 @@ def rig_job(args) -> Job:
     ``camera.json``; each view holds ``keypoints.json`` and optionally ``mask.png`` and
     ``image.png``), fitted in world coordinates; ``--views`` picks cameras."""
     from ..errors import InputError
-    from ..fitting.rig_fit import fit_keypoints_of
+    from ..inputs.rig import fit_keypoints_of
     from ..io.images import read_rgb
     from ..io.rig import load_rig, select_views
     from ..silhouette.masks import read_mask
@@ -294,7 +294,7 @@ def rig_job(args) -> Job:
 def _rig_model(args, keypoint_files, person):
     """The model of a rig (or rig video): ``--model``, else the shipped whole-body model when any view's
     keypoint file has hand or face points (with a note), else the body model."""
-    from ..fitting.rig_fit import has_wholebody_parts
+    from ..inputs.rig import has_wholebody_parts
 
     parts = has_wholebody_parts([f for f in keypoint_files if f is not None], person)
     model, model_note = choose_model(args.model, args.gender, parts)

@@ -36,7 +36,7 @@ def is_rig_dataset(dataset) -> bool:
 
 
 def _load(subject_dir: Path):
-    from ..fitting.rig_fit import rig_problem
+    from ..inputs.rig import rig_problem
     from ..io.rig import load_rig
 
     from ..io.subjects import read_truth
@@ -106,7 +106,7 @@ def run_rig_fitter(
     over subjects, then the silhouette stage; ``views``: only the first ``views`` cameras), write
     ``fits_root/<subject>/<method>/`` (``keypoints``: the keypoint stage's fit, ``silhouette``:
     the final one); returns a status."""
-    from ..fitting.rig_fit import rig_problem
+    from ..inputs.rig import rig_problem
     from ..io.rig import load_rig
     from ..inputs import rig_job
     from ..run import keypoint_stage_fit, run_batch, write

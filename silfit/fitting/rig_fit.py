@@ -1,7 +1,8 @@
-"""Fitting one body seen by a calibrated rig: the problem from a rig folder, the keypoint
-stage over all views in the world frame, and the per-view diagnostics.
+"""Fitting one body seen by a calibrated rig: the keypoint stage over all views in the world frame, and the
+per-view diagnostics.
 
-The keypoint stage is :class:`~silfit.fitting.keypoint_stage.KeypointFitter` run on problems
+The problem comes from the rig's files through :func:`silfit.inputs.rig.rig_problem` (the fitting core reads no
+file). The keypoint stage is :class:`~silfit.fitting.keypoint_stage.KeypointFitter` run on problems
 with ``C`` views (one frame): the body is placed by triangulating its torso
 (:mod:`silfit.fitting.triangulate`), every view's keypoints enter the data term (each
 view normalised by the person's extent in it, the views averaged), the depth term pulls
@@ -28,24 +29,15 @@ from typing import Dict, List, Sequence, Tuple
 import numpy as np
 import torch
 
-from ..io.keypoints import LAYOUTS, read_keypoints
-from .problem import Observation, Problem, View, stack_views
+from ..io.keypoints import LAYOUTS
+from .problem import Problem, View, stack_views
 from .terms import evaluate
 from .branches import align_segments
 from .triangulate import placement_to_world, triangulate_views
 from .threads import torch_threads
 from .keypoint_stage import POINTS_STATURE_M
 
-__all__ = [
-    "RigFit",
-    "fit_keypoints_of",
-    "fit_rig_keypoints",
-    "has_wholebody_parts",
-    "pose_from_points",
-    "rig_problem",
-    "triangulated_keypoints",
-    "wholebody_problem_inputs",
-]
+__all__ = ["RigFit", "fit_rig_keypoints", "pose_from_points", "triangulated_keypoints", "wholebody_problem_inputs"]
 
 
 #: the 3D start (:func:`pose_from_points`): its L-BFGS rounds (pose-prior weight, steps), the prior
@@ -65,53 +57,6 @@ class RigFit:
     reprojection_error: np.ndarray
     energies: Dict[str, float] = field(default_factory=dict)
     timings: Dict[str, float] = field(default_factory=dict)
-
-
-def fit_keypoints_of(path, model=None, person="largest"):
-    """The keypoints ``model`` is fitted to from one OpenPose file: its body (BODY_25 / COCO-17) for
-    an SMPL-layout model (or no model), the ``wholebody`` layout (hands and face; absent parts at
-    confidence 0) for an SMPL-X-layout one (:func:`silfit.io.wholebody.choose_fit_keypoints`)."""
-    ks = read_keypoints(path, person=person)
-    if model is None or getattr(model, "kind", "smpl") != "smplx":
-        return ks
-    from ..io.wholebody import choose_fit_keypoints, read_wholebody_parts
-
-    return choose_fit_keypoints(ks, read_wholebody_parts(path, person), model)[0]
-
-
-def has_wholebody_parts(paths, person="largest") -> bool:
-    """Whether any of these OpenPose files holds confident hand or face points (they pick the
-    whole-body model when none is given, as for one image)."""
-    from ..errors import InputError
-    from ..io.wholebody import read_wholebody_parts
-
-    for path in paths:
-        try:
-            parts = read_wholebody_parts(path, person)
-        except InputError:  # that view's keypoints are set aside when read (e.g. no person ``person`` there)
-            continue
-        if parts is not None and parts.has_parts:
-            return True
-    return False
-
-
-def rig_problem(views, person="largest", with_masks: bool = True, model=None) -> Problem:
-    """A one-frame :class:`Problem` from :func:`silfit.io.rig.load_rig`'s views: each view's
-    keypoints (OpenPose; checked as one image's are, :func:`silfit.fitting.plausibility.check_keypoints`,
-    with the notes added to the view's warnings) and, when present and ``with_masks``, its mask
-    (checked against the camera's size). With an SMPL-X-layout ``model`` the keypoints are the
-    ``wholebody`` layout (:func:`fit_keypoints_of`)."""
-    from .plausibility import check_keypoints
-    from ..silhouette.masks import read_mask
-
-    obs = []
-    for c, v in enumerate(views):
-        cam = v.view.camera
-        ks, notes = check_keypoints(fit_keypoints_of(v.keypoints, model, person), cam.size)
-        v.warnings.extend(n for n in notes if n not in v.warnings)
-        mask = read_mask(v.mask, size=(cam.width, cam.height)) if (with_masks and v.mask is not None) else None
-        obs.append(Observation(v.view, ks, mask, frame=0, view_index=c))
-    return Problem(obs)
 
 
 def _median_errors(proj: np.ndarray, problem: Problem) -> np.ndarray:
@@ -322,3 +267,16 @@ def _fit_from(fitter, run, progress, start):
         k: torch.where(better, info_r["energies"][k], v) for k, v in info["energies"].items() if k in info_r["energies"]
     }
     return state, info
+
+
+#: the rig's file readers moved to the input builders (issue 57: the fitting core reads no file)
+MOVED_TO_INPUTS = ("fit_keypoints_of", "has_wholebody_parts", "rig_problem")
+
+
+def __getattr__(name: str):
+    """The file readers that moved to :mod:`silfit.inputs.rig`; the old names work for one release."""
+    if name in MOVED_TO_INPUTS:
+        from .._lazy import moved_function
+
+        return moved_function(__name__, name, "silfit.inputs.rig")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

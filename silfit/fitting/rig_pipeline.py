@@ -143,7 +143,7 @@ def fit_rig(
     silhouette_config=None,
     progress: bool = False,
 ) -> RigResult:
-    """Fit one rig problem (:func:`silfit.fitting.rig_fit.rig_problem`); ``names`` the views'
+    """Fit one rig problem (:func:`silfit.inputs.rig.rig_problem`); ``names`` the views'
     names. With ``silhouette`` and at least one mask, the silhouette stage follows."""
     return fit_rigs([problem], [names], model, pose_prior, keypoint_config, silhouette, silhouette_config, progress)[0]
 

@@ -3,11 +3,16 @@ fitted in the rig's world frame."""
 
 from __future__ import annotations
 
+from ..errors import InputError
+from ..fitting.plausibility import check_keypoints
 from ..fitting.problem import Observation, Problem
+from ..io.keypoints import read_keypoints
+from ..io.wholebody import choose_fit_keypoints, read_wholebody_parts
+from ..silhouette.masks import read_mask
 from .counts import one_per_frame, one_per_view
 from .job import Job
 
-__all__ = ["rig_job", "rig_video_job"]
+__all__ = ["fit_keypoints_of", "has_wholebody_parts", "rig_job", "rig_problem", "rig_video_job"]
 
 
 def rig_job(
@@ -25,7 +30,7 @@ def rig_job(
     images=None,
 ) -> Job:
     """A job for one frame seen by a calibrated rig: ``problem`` the views' observations (one frame;
-    each view's camera with its R, t: :func:`silfit.fitting.rig_fit.rig_problem` from
+    each view's camera with its R, t: :func:`rig_problem` from
     :func:`silfit.io.rig.load_rig`'s views), ``view_names`` one name per view; ``images`` maps
     ``(0, view)`` to the RGB image for the pictures. Refuses (``ValueError``) a problem of more than
     one frame (a rig video: :func:`rig_video_job`) and names that are not one per view."""
@@ -103,3 +108,42 @@ def rig_video_job(
         video=True,
         record=dict(record or {}),
     )
+
+
+def fit_keypoints_of(path, model=None, person="largest"):
+    """The keypoints ``model`` is fitted to from one OpenPose file: its body (BODY_25 / COCO-17) for
+    an SMPL-layout model (or no model), the ``wholebody`` layout (hands and face; absent parts at
+    confidence 0) for an SMPL-X-layout one (:func:`silfit.io.wholebody.choose_fit_keypoints`)."""
+    ks = read_keypoints(path, person=person)
+    if model is None or getattr(model, "kind", "smpl") != "smplx":
+        return ks
+    return choose_fit_keypoints(ks, read_wholebody_parts(path, person), model)[0]
+
+
+def has_wholebody_parts(paths, person="largest") -> bool:
+    """Whether any of these OpenPose files holds confident hand or face points (they pick the
+    whole-body model when none is given, as for one image)."""
+    for path in paths:
+        try:
+            parts = read_wholebody_parts(path, person)
+        except InputError:  # that view's keypoints are set aside when read (e.g. no person ``person`` there)
+            continue
+        if parts is not None and parts.has_parts:
+            return True
+    return False
+
+
+def rig_problem(views, person="largest", with_masks: bool = True, model=None) -> Problem:
+    """A one-frame :class:`Problem` from :func:`silfit.io.rig.load_rig`'s views: each view's
+    keypoints (OpenPose; checked as one image's are, :func:`silfit.fitting.plausibility.check_keypoints`,
+    with the notes added to the view's warnings) and, when present and ``with_masks``, its mask
+    (checked against the camera's size). With an SMPL-X-layout ``model`` the keypoints are the
+    ``wholebody`` layout (:func:`fit_keypoints_of`)."""
+    obs = []
+    for c, v in enumerate(views):
+        cam = v.view.camera
+        ks, notes = check_keypoints(fit_keypoints_of(v.keypoints, model, person), cam.size)
+        v.warnings.extend(n for n in notes if n not in v.warnings)
+        mask = read_mask(v.mask, size=(cam.width, cam.height)) if (with_masks and v.mask is not None) else None
+        obs.append(Observation(v.view, ks, mask, frame=0, view_index=c))
+    return Problem(obs)

@@ -132,7 +132,7 @@ def test_a_view_without_the_person_asked_for_is_set_aside(rigs, tmp_path, capsys
 
 
 def test_rig_fits_get_one_image_warnings_per_view(rigs):
-    from silfit.fitting.rig_fit import rig_problem
+    from silfit.inputs.rig import rig_problem
     from silfit.io.rig import load_rig
     from silfit.fitting.rig_pipeline import view_warnings
 

@@ -8,7 +8,8 @@ import pytest
 from silfit.eval.metrics import pve, shape_pve
 from silfit.fitting.keypoint_stage import KeypointFitConfig, KeypointFitter
 from silfit.fitting.problem import Problem, View
-from silfit.fitting.rig_fit import fit_rig_keypoints, rig_problem
+from silfit.fitting.rig_fit import fit_rig_keypoints
+from silfit.inputs.rig import rig_problem
 from silfit.io.rig import load_rig, look_at
 from silfit.synth.generate import SynthConfig
 from silfit.synth.camera_rigs import RigConfig, generate_rig_subject

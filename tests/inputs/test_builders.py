@@ -173,3 +173,17 @@ def test_inputs_and_run_import_in_either_order(first):
     other = {"silfit.inputs": "silfit.run", "silfit.run": "silfit.inputs"}[first]
     code = f"import {first}, {other}; assert {other}.__name__"
     subprocess.run([sys.executable, "-c", code], cwd=ROOT, check=True)
+
+
+def test_the_rig_file_readers_moved_to_the_input_builders_and_answer_at_their_old_home():
+    """The fitting core reads no file (issue 57): rig_problem and its readers live in silfit.inputs.rig; the old
+    names in silfit.fitting.rig_fit work for one release, with a DeprecationWarning naming the new home."""
+    import pytest
+    import silfit.fitting.rig_fit as old
+    import silfit.inputs.rig as new
+
+    for name in ("rig_problem", "fit_keypoints_of", "has_wholebody_parts"):
+        with pytest.warns(DeprecationWarning, match=f"silfit.inputs.rig.{name}"):
+            assert getattr(old, name) is getattr(new, name)
+    with pytest.raises(AttributeError):
+        old.no_such_name
