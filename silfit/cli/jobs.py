@@ -311,7 +311,7 @@ def rig_video_job(args) -> Job:
     frames matched across views by number), fitted over frames x views in the world frame."""
     from ..fitting.sequence import SequenceFitConfig
     from ..io.video import load_rig_sequence
-    from ..fitting.rig_pipeline import read_rig_sequence_masks
+    from ..inputs.rig import read_rig_sequence_masks
     from ..io.wholebody import choose_fit_keypoints, read_wholebody_parts
 
     for flag in ("keypoints", "mask", "camera", "focal", "image", "image_size", "masks", "images"):

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import List, Optional
+from typing import List
 
 import numpy as np
 
@@ -36,16 +36,7 @@ from .cores import Core, run_steps
 from .refine import SilhouetteHooks, StageInputs, refine_silhouettes
 from .rig_fit import RigFit, fit_rig_keypoints
 
-__all__ = [
-    "RigCore",
-    "RigRefinement",
-    "RigResult",
-    "fit_rig",
-    "fit_rigs",
-    "read_rig_sequence_masks",
-    "refine_rig_fits",
-    "view_vertices",
-]
+__all__ = ["RigCore", "RigRefinement", "RigResult", "fit_rig", "fit_rigs", "refine_rig_fits", "view_vertices"]
 
 
 @dataclass
@@ -366,22 +357,11 @@ class RigRefinement(SilhouetteHooks):
         ]
 
 
-# ----------------------------------------------------------------------------- rig videos
-def read_rig_sequence_masks(seq) -> Optional[list]:
-    """``masks[f][c]`` (bool ``[H, W]``, or ``None`` where the view has no mask for the frame; empty
-    masks allowed: no silhouette term there) of a rig video, each checked against its camera's size;
-    ``None`` when no view has masks."""
-    from ..silhouette.masks import read_mask
+def __getattr__(name: str):
+    """``read_rig_sequence_masks`` moved to :mod:`silfit.inputs.rig` (the fitting core reads no file); the old name
+    works for one release."""
+    if name == "read_rig_sequence_masks":
+        from .._lazy import moved_function
 
-    if not any(v.masks for v in seq.videos):
-        return None
-    columns = []
-    for c, view in enumerate(seq.views):
-        cam = view.view.camera
-        columns.append(
-            [
-                None if p is None else read_mask(p, size=(cam.width, cam.height), allow_empty=True)
-                for p in seq.per_view(c, "masks")
-            ]
-        )
-    return [[col[f] for col in columns] for f in range(len(seq.numbers))]
+        return moved_function(__name__, name, "silfit.inputs.rig")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,7 +1,10 @@
 """A calibrated rig's views (one frame, or a video's frames) -> a :class:`~silfit.inputs.job.Job`,
-fitted in the rig's world frame."""
+fitted in the rig's world frame; and the rig's files read into its observations (:func:`rig_problem`,
+:func:`read_rig_sequence_masks`), so the fitting core reads no file."""
 
 from __future__ import annotations
+
+from typing import Optional
 
 from ..errors import InputError
 from ..fitting.plausibility import check_keypoints
@@ -12,7 +15,14 @@ from ..silhouette.masks import read_mask
 from .counts import one_per_frame, one_per_view
 from .job import Job
 
-__all__ = ["fit_keypoints_of", "has_wholebody_parts", "rig_job", "rig_problem", "rig_video_job"]
+__all__ = [
+    "fit_keypoints_of",
+    "has_wholebody_parts",
+    "read_rig_sequence_masks",
+    "rig_job",
+    "rig_problem",
+    "rig_video_job",
+]
 
 
 def rig_job(
@@ -147,3 +157,21 @@ def rig_problem(views, person="largest", with_masks: bool = True, model=None) ->
         mask = read_mask(v.mask, size=(cam.width, cam.height)) if (with_masks and v.mask is not None) else None
         obs.append(Observation(v.view, ks, mask, frame=0, view_index=c))
     return Problem(obs)
+
+
+def read_rig_sequence_masks(seq) -> Optional[list]:
+    """``masks[f][c]`` (bool ``[H, W]``, or ``None`` where the view has no mask for the frame; empty
+    masks allowed: no silhouette term there) of a rig video, each checked against its camera's size;
+    ``None`` when no view has masks."""
+    if not any(v.masks for v in seq.videos):
+        return None
+    columns = []
+    for c, view in enumerate(seq.views):
+        cam = view.view.camera
+        columns.append(
+            [
+                None if p is None else read_mask(p, size=(cam.width, cam.height), allow_empty=True)
+                for p in seq.per_view(c, "masks")
+            ]
+        )
+    return [[col[f] for col in columns] for f in range(len(seq.numbers))]

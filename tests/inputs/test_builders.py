@@ -187,3 +187,7 @@ def test_the_rig_file_readers_moved_to_the_input_builders_and_answer_at_their_ol
             assert getattr(old, name) is getattr(new, name)
     with pytest.raises(AttributeError):
         old.no_such_name
+    import silfit.fitting.rig_pipeline as pipeline
+
+    with pytest.warns(DeprecationWarning, match="silfit.inputs.rig.read_rig_sequence_masks"):
+        assert pipeline.read_rig_sequence_masks is new.read_rig_sequence_masks
