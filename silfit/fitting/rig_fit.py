@@ -28,13 +28,20 @@ from typing import Dict, List, Sequence, Tuple
 import numpy as np
 import torch
 
+from ..errors import InputError
 from ..io.keypoints import LAYOUTS, read_keypoints
+from ..io.wholebody import choose_fit_keypoints, part_slices, read_wholebody_parts
+from ..priors import angle_prior, limit_violation
+from ..silhouette.masks import read_mask
 from .problem import Observation, Problem, View, stack_views
 from .terms import evaluate
 from .branches import align_segments
+from .hands_face import GATED_PARTS, SILHOUETTE_PART_LR, wholebody_silhouette_inputs
 from .triangulate import placement_to_world, triangulate_views
 from .threads import torch_threads
 from .keypoint_stage import POINTS_STATURE_M
+from .optim import batched_lbfgs
+from .plausibility import check_keypoints
 
 __all__ = [
     "RigFit",
@@ -74,17 +81,12 @@ def fit_keypoints_of(path, model=None, person="largest"):
     ks = read_keypoints(path, person=person)
     if model is None or getattr(model, "kind", "smpl") != "smplx":
         return ks
-    from ..io.wholebody import choose_fit_keypoints, read_wholebody_parts
-
     return choose_fit_keypoints(ks, read_wholebody_parts(path, person), model)[0]
 
 
 def has_wholebody_parts(paths, person="largest") -> bool:
     """Whether any of these OpenPose files holds confident hand or face points (they pick the
     whole-body model when none is given, as for one image)."""
-    from ..errors import InputError
-    from ..io.wholebody import read_wholebody_parts
-
     for path in paths:
         try:
             parts = read_wholebody_parts(path, person)
@@ -101,9 +103,6 @@ def rig_problem(views, person="largest", with_masks: bool = True, model=None) ->
     with the notes added to the view's warnings) and, when present and ``with_masks``, its mask
     (checked against the camera's size). With an SMPL-X-layout ``model`` the keypoints are the
     ``wholebody`` layout (:func:`fit_keypoints_of`)."""
-    from .plausibility import check_keypoints
-    from ..silhouette.masks import read_mask
-
     obs = []
     for c, v in enumerate(views):
         cam = v.view.camera
@@ -204,9 +203,6 @@ def wholebody_problem_inputs(model, problems: Sequence[Problem], config) -> tupl
     (the stage's own keypoint term), ``data["part_weights"]`` is ``[P, F, C, K]``. A part is
     optimised when every frame of every problem has it in at least one view (else it stays where the
     keypoint stage left it)."""
-    from .hands_face import GATED_PARTS, SILHOUETTE_PART_LR, wholebody_silhouette_inputs
-    from ..io.wholebody import part_slices
-
     grids = [p.grid() for p in problems]
     flat = [o for g in grids for row in g for o in row]
     if any(o.keypoints is None for o in flat):
@@ -264,9 +260,6 @@ def pose_from_points(
     :data:`POINTS_STATURE_M` metres are ``keypoint_term.norm_extent`` pixels) to the points plus the pose,
     angle and limit priors, over ``global_orient``, ``transl`` and ``body_pose`` (``betas`` at 0),
     in :data:`POINTS_ROUNDS`. Returns ``{global_orient, transl, body_pose}`` rows ``[B, w]``."""
-    from ..priors import angle_prior, limit_violation
-    from .optim import batched_lbfgs
-
     cfg, dt = fitter.config, fitter.dtype
     pts = [triangulated_keypoints(p, fitter.kp_weights.double().numpy()) for p in problems]
     X = torch.as_tensor(np.stack([q[0] for q in pts]), dtype=dt)
