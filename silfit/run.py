@@ -33,16 +33,24 @@ from pathlib import Path
 from typing import Any, Dict, List, Optional, Sequence, Union
 
 import numpy as np
+import torch
 
+from .body import load_body_model
+from .body.model import SMPL_PARAMETER_NAMES
 from .errors import InputError, interruption
 from .fitting.problem import Observation, Problem
 from .fitting.cores import StageFailure, run_steps
+from .fitting.image_depth import cue_from_image
 from .fitting.image_fit import ImageCore
-from .fitting.rig_pipeline import RigCore
-from .fitting.sequence import VideoCore
+from .fitting.plausibility import check_frames, check_keypoints, fit_warnings
+from .fitting.rig_pipeline import RigCore, disagreeing_views, keypoint_stage_result
+from .fitting.sequence import SequenceFitConfig, VideoCore, finite_median
 from .inputs.image import image_job
 from .inputs.job import Job
+from .inputs.rig import rig_video_job
 from .inputs.video import video_job
+from .io.images import read_rgb
+from .outputs.write import write_folder
 
 __all__ = [
     "Job",
@@ -250,8 +258,6 @@ def check(job: Job) -> Job:
 def _checked_view(mode: str, column: list, view, numbers: list) -> tuple:
     """``(keypoints per frame, notes)`` of one view's ``column`` (its keypoints per frame) after the checks: one
     frame's set refused raises; a video's refused frames become frames without a detection."""
-    from .fitting.plausibility import check_frames, check_keypoints
-
     if mode == "video":
         return check_frames(column, view.camera.size, numbers)
     ks, notes = check_keypoints(column[0], view.camera.size)
@@ -278,8 +284,6 @@ def run_batch(jobs: Sequence[Job], isolate: bool = False) -> List[Union[Fit, Exc
     for i, job in enumerate(jobs):
         try:
             if job.model is None:
-                from .body import load_body_model
-
                 job = replace(job, model=load_body_model())
             checked[i] = check(job)
         except InputError as err:
@@ -373,8 +377,6 @@ def _image_fit(job: Job, core, r) -> Fit:
 def image_result_fit(job: Job, r) -> Fit:
     """The :class:`Fit` of one image's :class:`~silfit.fitting.image_fit.FitResult` (its metrics the result's own;
     its parameters the SMPL ones first, then a whole body's others, as the fit files of one image list them)."""
-    from .body.model import SMPL_PARAMETER_NAMES
-
     m = r.metrics
     params = {**{n: r.params[n] for n in SMPL_PARAMETER_NAMES if n in r.params}, **r.params}
     return Fit(
@@ -453,8 +455,6 @@ def keypoint_stage_fit(fit: Fit) -> Fit:
     without a silhouette stage would have; its ``metrics`` are the stage's, without the job's ``record``)."""
     if fit.job.mode != "rig":
         raise ValueError(f"keypoint_stage_fit: a rig's fit only, not a fit of mode {fit.job.mode!r}")
-    from .fitting.rig_pipeline import keypoint_stage_result
-
     job = fit.job
     kp = keypoint_stage_result(fit.stage.keypoint, job.problem, list(job.view_names), job.model.faces.cpu().numpy())
     return _rig_views_fit(job, kp, "iou_keypoint_stage")
@@ -463,16 +463,11 @@ def keypoint_stage_fit(fit: Fit) -> Fit:
 def _video_depth_cues(job: Job, frames) -> tuple:
     """``(cues, records)`` per frame of a one-camera video: the image depth cue of each frame with keypoints and an
     image (``job.images`` or the reader's ``--images``), else ``None``; ``(None, None)`` with no image or the cue off."""
-    from .fitting.image_depth import cue_from_image
-    from .fitting.sequence import SequenceFitConfig
-
     kp_cfg = (job.sequence_config or SequenceFitConfig()).keypoint
     paths = dict(getattr(job.inputs, "images", None) or {})
     numbers = list(job.frame_numbers) if job.frame_numbers is not None else list(range(len(frames)))
     if (not kp_cfg.image_depth.weight and kp_cfg.image_depth.decide is None) or not (job.images or paths):
         return None, None
-    from .io.images import read_rgb
-
     cues, records = [None] * len(frames), ["none"] * len(frames)
     for f, (ks, number) in enumerate(zip(frames, numbers)):
         image = job.images.get((f, 0))
@@ -485,8 +480,6 @@ def _video_depth_cues(job: Job, frames) -> tuple:
 
 def _sequence_vertices(model, params: dict, F: int) -> np.ndarray:
     """The posed vertices ``[F, V, 3]`` of a sequence's parameters (``betas`` shared over the frames)."""
-    import torch
-
     with torch.no_grad():
 
         def T(n, a):
@@ -502,8 +495,6 @@ def _video_warnings(job: Job, result, frames, vertices, errors: np.ndarray, numb
     each frame's plausibility warnings (:func:`frame_warnings`)."""
     warnings = list(result.warnings)
     if rig:  # a view the fit could not agree with (the rule of one frame's rig, on each view's median)
-        from .fitting.rig_pipeline import disagreeing_views
-
         medians = [float(np.median(e[np.isfinite(e)])) if np.isfinite(e).any() else float("nan") for e in errors.T]
         warnings += disagreeing_views(list(job.view_names), medians)
     else:
@@ -513,8 +504,6 @@ def _video_warnings(job: Job, result, frames, vertices, errors: np.ndarray, numb
 
 def _video_metrics(result, errors: np.ndarray, warnings: List[str], silhouette: bool, numbers, cue_records) -> dict:
     """A video fit's ``metrics.json`` fields."""
-    from .fitting.sequence import finite_median
-
     metrics = {
         "reprojection_error_px": finite_median(errors),
         "warnings": _dedupe(warnings),
@@ -535,8 +524,6 @@ def _video_metrics(result, errors: np.ndarray, warnings: List[str], silhouette: 
 def _video_core(jobs: Sequence[Job]) -> VideoCore:
     """A video job of one camera or of a rig (:class:`~silfit.fitting.sequence.VideoCore`): its frames, cameras and
     masks, and for one camera the frames' image depth cues (:func:`_video_depth_cues`)."""
-    from .fitting.sequence import SequenceFitConfig
-
     (job,) = jobs
     grid = job.problem.grid()
     rig = job.rig or len(grid[0]) > 1
@@ -610,8 +597,6 @@ def frame_warnings(frames, vertices, errors, numbers) -> List[str]:
     """One image's plausibility warnings (:func:`silfit.fitting.plausibility.fit_warnings`: depth,
     reprojection error against the person's extent) for every frame of a video, one line per
     kind of finding with the frames it concerns."""
-    from .fitting.plausibility import fit_warnings
-
     kinds: Dict[str, list] = {}
     for f, ks in enumerate(frames):
         if ks is None:
@@ -655,8 +640,6 @@ def write(
     fields (over the fit's own); ``images``: ``(frame, view)`` -> the RGB image to draw an image's
     or a rig's pictures on, over the job's (a fit run without its image; a video's come from its
     reader)."""
-    from .outputs.write import write_folder
-
     return write_folder(
         fit, out, overwrite=overwrite, exports=exports, meshes=meshes, video=video, fps=fps, extra=extra, images=images
     )
@@ -727,8 +710,6 @@ def fit_sequence(
     :class:`~silfit.fitting.problem.View` s (a rig video, in its world frame). ``masks`` (``masks[f]`` or
     ``masks[f][c]``, ``None`` where there is none): the silhouette stage follows. ``images`` (one camera; per frame
     an RGB array or ``None``): the image depth cue (:mod:`silfit.fitting.image_depth`)."""
-
-    from .inputs.rig import rig_video_job
 
     if isinstance(camera, (list, tuple)):
         if images is not None:

@@ -22,6 +22,13 @@ from typing import Optional
 
 import numpy as np
 
+from ..body import load_body_model
+from ..eval.evaluate import FitParams, score_fit
+from ..io.subjects import load_subject, read_image
+from ..outputs import figures
+from ..run import image_job, run, write
+from ..synth import SynthConfig, generate_dataset
+
 __all__ = ["default_subject", "run_demo", "report_table"]
 
 #: The shipped synthetic set, beside the package in a source checkout.
@@ -46,17 +53,12 @@ def default_subject(out: Path, name: str = "subject_000") -> Path:
     shipped = SHIPPED_SET / name
     if (shipped / "keypoints.json").is_file():
         return shipped
-    from ..body import load_body_model
-    from ..synth import SynthConfig, generate_dataset
-
     target = out / "generated_subject"
     generate_dataset(target, 1, SynthConfig(seed=2024, size=256, noise_px=0.0), load_body_model(), progress=False)
     return target / "subject_000"
 
 
 def _score(model, subject, params: dict, camera, seconds: float) -> dict:
-    from ..eval.evaluate import FitParams, score_fit
-
     fit = FitParams(**{k: np.asarray(v).reshape(-1) for k, v in params.items()}, camera=camera)
     scores = score_fit(model, subject, fit, iou=True)
     scores["time_s"] = seconds
@@ -104,8 +106,6 @@ def _crop(image: np.ndarray, box: tuple, min_size: int = 400) -> np.ndarray:
 
 def _closeups(subject, fitted, kp_fit, faces: np.ndarray) -> dict:
     """The close-ups ``01_input.png`` to ``05_silhouette_match.png`` of the module docstring, by file name."""
-    from ..outputs import figures
-
     cam, kps = subject.camera, subject.keypoints
     box = _person_box([subject.mask, kp_fit.masks[0], fitted.masks[0]])
     close = lambda image: _crop(image, box)  # noqa: E731  (close-ups around the person)
@@ -129,8 +129,6 @@ def _closeups(subject, fitted, kp_fit, faces: np.ndarray) -> dict:
 
 def _write_vertex_errors(subject, fitted, kp_fit, faces, path: Path) -> None:
     """``07_vertex_error.png``: the per-vertex error (mm, pelvis-aligned) of both fits on the ground truth."""
-    from ..outputs import figures
-
     gt_v = subject.gt.vertices
     pelvis = lambda v, j: v - j[0]  # noqa: E731  (PVE is pelvis-aligned)
     gt_j = subject.gt.joints
@@ -143,9 +141,6 @@ def _write_vertex_errors(subject, fitted, kp_fit, faces, path: Path) -> None:
 
 def _write_summary(out: Path, pictures: dict) -> None:
     """``summary.png``: the close-ups and the two plots on one sheet."""
-    from ..outputs import figures
-    from ..io.subjects import read_image
-
     sheet = [pictures[n] for n in sorted(pictures)] + [
         read_image(out / "06_iou_curve.png"),
         read_image(out / "07_vertex_error.png"),
@@ -164,11 +159,6 @@ def _write_summary(out: Path, pictures: dict) -> None:
 
 def run_demo(out: Path, subject_dir: Optional[Path] = None, progress: bool = False, silhouette_config=None) -> dict:
     """Run the demo into ``out`` (see the module docstring); returns the report."""
-    from ..outputs import figures
-    from ..body import load_body_model
-    from ..io.subjects import load_subject
-    from ..run import image_job, run, write
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     subject = load_subject(subject_dir or default_subject(out), require=("keypoints", "camera", "mask", "gt"))

@@ -15,10 +15,24 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Optional
 
+import cv2
 import numpy as np
+
+from ..body import load_body_model
+from ..camera import load_camera
+from ..eval.score_wholebody import wholebody_errors
+from ..fitting import KeypointFitter
+from ..io.images import read_rgb
+from ..io.subjects import read_truth
+from ..io.wholebody import WholeBodyKeypoints, part_slices, read_wholebody
+from ..outputs import figures
+from ..run import image_job, run, write
+from ..silhouette.masks import read_mask
+from ..synth import SynthConfig, generate_dataset
 
 __all__ = ["run_wholebody_demo", "summary_panels"]
 
@@ -52,9 +66,6 @@ def _subject_dir(out: Path, subject_dir: Optional[Path]) -> Path:
     shipped = SHIPPED_WHOLEBODY / "subject_000"
     if (shipped / "keypoints.json").is_file():
         return shipped
-    from ..body import load_body_model
-    from ..synth import SynthConfig, generate_dataset
-
     target = out / "generated_subject"  # a pip install: the same kind of subject, generated
     generate_dataset(
         target,
@@ -68,9 +79,6 @@ def _subject_dir(out: Path, subject_dir: Optional[Path]) -> Path:
 
 def _zoom(image, camera, box, size: int = 320):
     """The ``box`` of ``image`` magnified to ``size`` pixels (longer side) and the camera that sees it."""
-    import cv2
-    from dataclasses import replace
-
     x0, y0, x1, y1 = box
     s = size / max(x1 - x0, y1 - y0)
     w, h = max(1, round((x1 - x0) * s)), max(1, round((y1 - y0) * s))
@@ -92,9 +100,6 @@ def _box(xy, conf, W, H, margin: float = 0.35, min_px: int = 12):
 def _closeup_rows(image, cam, kps, vertices: list, faces) -> tuple:
     """``(rows, labels)``: per hand and the face (where its keypoints are seen), its box from the keypoints magnified,
     the keypoints, then each of ``vertices`` drawn at that magnification."""
-    from ..outputs import figures
-    from ..io.wholebody import part_slices
-
     sl = part_slices()
     rows, labels = [], []
     for part, label in (("hand_left", "left hand"), ("hand_right", "right hand"), ("face", "face")):
@@ -126,12 +131,6 @@ def _score_table(scores: dict) -> str:
 
 def _read_subject(d: Path) -> tuple:
     """``(whole-body keypoints, camera, image, mask, ground truth)`` of a whole-body subject folder."""
-    from ..camera import load_camera
-    from ..io.subjects import read_truth
-    from ..io.images import read_rgb
-    from ..silhouette.masks import read_mask
-    from ..io.wholebody import read_wholebody
-
     wb = read_wholebody(d / "keypoints.json")
     cam = load_camera(d / "camera.json")
     image = read_rgb(d / "image.png", "image")
@@ -142,8 +141,6 @@ def _read_subject(d: Path) -> tuple:
 
 def _score_fits(model, fits: dict, gt) -> dict:
     """Per method of ``fits`` (``(vertices, joints, expression, seconds)``): its errors against ``gt`` and time."""
-    from ..eval.score_wholebody import wholebody_errors
-
     truth = {"vertices": gt["vertices"], "joints": gt["joints"], "expression": gt["expression"]}
     scores = {}
     for name, (v, j, e, t) in fits.items():
@@ -157,8 +154,6 @@ def _score_fits(model, fits: dict, gt) -> dict:
 def _write_pictures(out: Path, image, cam, kps, fits: dict, final_vertices, faces) -> None:
     """``closeups.png`` (each part's box from its keypoints, magnified, the fitted meshes drawn at that
     magnification) and ``summary.png``."""
-    from ..outputs import figures
-
     rows, labels = _closeup_rows(image, cam, kps, [v for v, _, _, _ in fits.values()], faces)
     sheet = [img for row in rows for img in row]
     titles = [f"{lab}: {col}" for lab in labels for col in ("input + keypoints",) + METHODS]
@@ -175,11 +170,6 @@ def run_wholebody_demo(
     out: Path, subject_dir: Optional[Path] = None, progress: bool = False, silhouette_config=None
 ) -> dict:
     """Run the demo into ``out`` (see the module docstring); returns the report."""
-    from ..body import load_body_model
-    from ..fitting import KeypointFitter
-    from ..run import image_job, run, write
-    from ..io.wholebody import WholeBodyKeypoints
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     d = _subject_dir(out, subject_dir)

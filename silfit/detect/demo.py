@@ -18,6 +18,12 @@ import time
 from pathlib import Path
 from typing import Optional
 
+from ..body import load_body_model
+from ..io.subjects import read_image
+from ..outputs import figures
+from ..run import image_job, run, write
+from .output import detect_photo, save_detection
+
 __all__ = ["SAMPLE_PHOTO", "sample_photo", "run_photo_demo"]
 
 SAMPLE_PHOTO = Path(__file__).resolve().parents[2] / "data" / "photos" / "astronaut.jpg"
@@ -41,12 +47,6 @@ def run_photo_demo(
     out: Path, photo_path: Optional[Path] = None, progress: bool = False, silhouette_config=None
 ) -> dict:
     """Detect, fit and draw (see the module docstring); returns the report."""
-    from ..outputs import figures
-    from ..body import load_body_model
-    from ..io.subjects import read_image
-    from ..run import image_job, run, write
-    from .output import detect_photo, save_detection
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     path = Path(photo_path) if photo_path else sample_photo()

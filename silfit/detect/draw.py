@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Sequence
 
+import cv2
 import numpy as np
 
 from .layout import BLAZEPOSE33_NAMES
@@ -47,8 +48,6 @@ _LEFT, _RIGHT = (60, 120, 255), (255, 90, 60)
 def detection_overlay(image: np.ndarray, people: Sequence, alpha: float = 0.4) -> np.ndarray:
     """RGB ``uint8`` picture: masks tinted per person, their regions outlined and the
     visible landmarks joined (left side blue, right side red)."""
-    import cv2
-
     out = np.asarray(image, dtype=np.uint8)[..., :3].astype(np.float64)
     for i, p in enumerate(people):
         m = p.mask_prob[..., None].astype(np.float64) * alpha

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 __all__ = ["ROI", "roi_from_alignment_points", "normalize_angle", "warp_to_crop", "warp_from_crop"]
@@ -83,8 +84,6 @@ def roi_from_alignment_points(center: np.ndarray, scale_point: np.ndarray, scale
 def warp_to_crop(image: np.ndarray, roi: ROI, out_size: int) -> np.ndarray:
     """Sample the ``out_size`` square crop of ``roi`` from ``image [H, W, C]`` (bilinear,
     zero outside the image). Large reductions are area-filtered first, to avoid aliasing."""
-    import cv2
-
     img = np.asarray(image)
     H, W = img.shape[:2]
     reduction = roi.size / float(out_size)
@@ -111,8 +110,6 @@ def warp_to_crop(image: np.ndarray, roi: ROI, out_size: int) -> np.ndarray:
 def warp_from_crop(crop: np.ndarray, roi: ROI, width: int, height: int) -> np.ndarray:
     """Put a square crop (e.g. a ``[S, S]`` probability map) back into an image of
     ``width x height`` pixels; zero where the crop does not reach."""
-    import cv2
-
     S = crop.shape[0]
     M = roi.crop_matrix(S)
     return cv2.warpAffine(

@@ -25,6 +25,10 @@ from typing import List, Optional, Tuple
 
 import numpy as np
 
+from ..io.keypoints import write_openpose_json
+from ..io.subjects import write_png
+from ..outputs.folder import atomic_folder
+from .draw import detection_overlay
 from .person import DetectConfig, Person, detect_people
 from .photo import Photo, read_photo
 
@@ -43,11 +47,6 @@ def detect_photo(path: os.PathLike, config: Optional[DetectConfig] = None) -> Tu
 def save_detection(
     out: os.PathLike, photo: Photo, people: List[Person], layout: str = "body25", overwrite: bool = False
 ) -> Path:
-    from ..io.subjects import write_png
-    from ..io.keypoints import write_openpose_json
-    from ..outputs.folder import atomic_folder
-    from .draw import detection_overlay
-
     out = Path(out)
     with atomic_folder(out, overwrite) as tmp:
         write_openpose_json(tmp / "keypoints.json", np.stack([p.keypoints(layout) for p in people]))

@@ -29,6 +29,8 @@ from typing import List, Optional, Sequence
 import numpy as np
 
 from ..errors import InputError
+from ..io.keypoints import KeypointSet
+from ..silhouette.people import own_mask
 from .anchors import DETECTOR_INPUT, decode_detections
 from .geometry import ROI, roi_from_alignment_points, warp_to_crop
 from .landmarks import NUM_LANDMARKS, ROI_SCALE, mask_in_image, roi_from_landmarks, run_landmark_model
@@ -129,8 +131,6 @@ class Person:
         return blazepose_to_layout(self.xy, self.confidence(), layout)
 
     def keypoint_set(self, layout: str = "body25", source: str = "<detected>"):
-        from ..io.keypoints import KeypointSet
-
         kp = self.keypoints(layout)
         return KeypointSet(kp[:, :2], kp[:, 2], layout, source=source)
 
@@ -145,8 +145,6 @@ class Person:
         each of ``others``' mask and the neighbourhood of their landmarks (``radius`` of their extent) where
         nearer their skeleton than this person's, except within ``keep`` of this person's extent of their own
         skeleton."""
-        from ..silhouette.people import own_mask
-
         own = (self.xy, self.confidence(), BLAZEPOSE33_NAMES)
         rest = [
             (p.mask(threshold), p.xy, p.confidence(), BLAZEPOSE33_NAMES, float(radius) * p.extent_px())

@@ -24,6 +24,11 @@ from dataclasses import dataclass, field
 from typing import List, Optional, Tuple
 
 import numpy as np
+from PIL import Image, ImageOps, UnidentifiedImageError
+
+from ..camera import FOCAL_RANGE
+from ..errors import InputError
+from ..io.images import image_file_size, to_rgb8
 
 __all__ = ["Photo", "read_photo", "focal_from_exif", "FULL_FRAME_DIAGONAL_MM"]
 
@@ -73,10 +78,6 @@ def _number(value) -> Optional[float]:
 def read_photo(path: os.PathLike) -> Photo:
     """Read a photo (any format Pillow reads) as upright RGB, with its focal-length EXIF tags.
     Errors name the file: not found, not a readable image, no pixels."""
-    from PIL import Image, ImageOps, UnidentifiedImageError
-
-    from ..errors import InputError
-    from ..io.images import image_file_size, to_rgb8
 
     source = os.fspath(path)
     if not os.path.isfile(source):
@@ -128,8 +129,6 @@ def focal_from_exif(exif: dict, size: Tuple[int, int], stored_width: int = 0) ->
     """The focal length in pixels from EXIF tags (see the module docstring) for an image of
     ``size = (W, H)``; ``(None, reason)`` when the tags do not give one or it lies outside
     :data:`silfit.camera.FOCAL_RANGE` times the longer side."""
-    from ..camera import FOCAL_RANGE
-
     focal, source = _exif_focal(exif, size, stored_width)
     side = max(size)
     if focal is not None and not FOCAL_RANGE[0] * side <= focal <= FOCAL_RANGE[1] * side:

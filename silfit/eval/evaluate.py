@@ -41,13 +41,23 @@ from typing import Dict, Iterable, List, Optional, Sequence
 
 import numpy as np
 import torch
+from scipy.spatial.transform import Rotation
 
+from ..body import load_body_model
 from ..camera import Camera, project_points
+from ..errors import InputError
+from ..fitting import KeypointFitter, prepare_keypoints
+from ..fitting.image_fit import StageFailure
+from ..inputs import image_job
 from ..io.subjects import SUBJECT_FILES, SubjectError, list_subjects, load_subject
 from ..io.fit import PARAM_SIZES as PARAM_FIELDS
 from ..io.fit import read_fit as read_fit_file
 from ..io.keypoints import model_keypoints
+from ..io.wholebody import choose_fit_keypoints, read_wholebody_parts
+from ..outputs.folder import atomic_folder
+from ..run import run_batch, write
 from .metrics import mask_iou, mpjpe, pa_mpjpe, pa_pve, pve, reprojection_error, shape_pve, translation_error
+from .score_wholebody import wholebody_errors
 
 __all__ = [
     "METRICS",
@@ -205,8 +215,6 @@ def score_fit(model, subject, fit: FitParams, iou: bool = True) -> Dict[str, flo
         m["pve"] = 1000 * pve(verts, gt.vertices, joints[0], gj[0])
         m["pa_pve"] = 1000 * pa_pve(verts, gt.vertices)
     if getattr(model, "kind", "smpl") == "smplx" and gt.vertices.shape == verts.shape and gj.shape == joints.shape:
-        from .score_wholebody import wholebody_errors
-
         e = wholebody_errors(
             model,
             {"vertices": verts, "joints": joints, "expression": fit.extra.get("expression")},
@@ -250,8 +258,6 @@ def score_fit(model, subject, fit: FitParams, iou: bool = True) -> Dict[str, flo
 def facing_agrees(orient, gt_orient) -> bool:
     """Whether the body's forward direction (rest +Z) is within 90 degrees of the truth's,
     in the camera's ground plane (x, z)."""
-    from scipy.spatial.transform import Rotation
-
     f = Rotation.from_rotvec(np.asarray(orient, np.float64).reshape(3)).apply([0.0, 0.0, 1.0])
     g = Rotation.from_rotvec(np.asarray(gt_orient, np.float64).reshape(3)).apply([0.0, 0.0, 1.0])
     return bool(f[0] * g[0] + f[2] * g[2] > 0)
@@ -280,11 +286,7 @@ def _search_gap(folder: Optional[Path]) -> Dict[str, float]:
 def _fit_keypoint_sets(subjects: Sequence, model) -> list:
     """The keypoints each subject is fitted to: with a whole-body (SMPL-X-layout) model, hands and face from the
     same files."""
-    from ..fitting import prepare_keypoints
-
     if getattr(model, "kind", "smpl") == "smplx":  # whole-body: hands and face from the same files
-        from ..io.wholebody import choose_fit_keypoints, read_wholebody_parts
-
         return [
             choose_fit_keypoints(s.keypoints, read_wholebody_parts(s.file("keypoints"), 0), model)[0] for s in subjects
         ]
@@ -294,8 +296,6 @@ def _fit_keypoint_sets(subjects: Sequence, model) -> list:
 def _fitter_jobs(sets: list, subjects: Sequence, methods: Sequence[str], model, progress: bool) -> list:
     """One :class:`silfit.inputs.Job` per subject (:func:`silfit.inputs.image_job`; a subject's image.png gives the
     image depth cue)."""
-    from ..inputs import image_job
-
     return [
         image_job(
             k,
@@ -314,8 +314,6 @@ def _fitter_jobs(sets: list, subjects: Sequence, methods: Sequence[str], model, 
 def _failed_keypoint_stage(fits: list) -> dict:
     """``{subject number: error}`` of the subjects whose keypoints were refused (silfit.run.check) or whose keypoint
     stage failed (a failed silhouette stage keeps its keypoint fit)."""
-    from ..fitting.image_fit import StageFailure
-
     return {
         i: (f.error if isinstance(f, StageFailure) else f)
         for i, f in enumerate(fits)
@@ -326,8 +324,6 @@ def _failed_keypoint_stage(fits: list) -> dict:
 def _search_records(subjects: Sequence, sets: list, fits: list, bad: dict, model) -> list:
     """Per subject, the keypoint-stage energy at the fit and at the truth (``None`` without ground truth for every
     subject, or where the subject failed)."""
-    from ..fitting import KeypointFitter
-
     if not all(s.gt is not None for s in subjects):
         return [None] * len(subjects)
     fitter = KeypointFitter(model, sets[0].layout)
@@ -342,8 +338,6 @@ def _search_records(subjects: Sequence, sets: list, fits: list, bad: dict, model
 
 def _write_keypoint_fits(subjects: Sequence, fits: list, bad: dict, fits_root, batched_over: int, search: list):
     """Each subject's keypoint fit into ``fits_root/<subject>/keypoints/`` (written beside its place, then moved in)."""
-    from ..outputs.folder import atomic_folder
-
     for i, s in enumerate(subjects):  # each fit folder is written beside its place, then moved in
         if i in bad:
             continue
@@ -361,9 +355,6 @@ def _write_keypoint_fits(subjects: Sequence, fits: list, bad: dict, fits_root, b
 
 def _write_silhouette_fits(subjects: Sequence, fits: list, bad: dict, fits_root, search) -> str:
     """Each subject's silhouette fit into ``fits_root/<subject>/silhouette/``; returns the method's status."""
-    from ..fitting.image_fit import StageFailure
-    from ..run import write
-
     ran, failed = 0, []
     for i, (s, f) in enumerate(zip(subjects, fits)):
         if i in bad:
@@ -395,8 +386,6 @@ def run_fitter(
     silhouette stage per subject, starting from the keypoint stage's result (run once and
     shared when both methods are asked for). Returns ``{method: status}``; raises
     :class:`FitterUnavailable` when nothing can run."""
-    from ..run import run_batch
-
     unknown = [m for m in methods if m not in ("keypoints", "silhouette")]
     if unknown:
         raise FitterUnavailable(f"unknown method(s) {', '.join(unknown)} (expected keypoints, silhouette)")
@@ -426,8 +415,6 @@ def run_fitter(
 
 def _keypoint_result(fit):
     """The keypoint stage's result of a :class:`silfit.run.Fit` (or of a failed silhouette stage)."""
-    from ..fitting.image_fit import StageFailure
-
     return (fit.partial if isinstance(fit, StageFailure) else fit.stage).keypoint
 
 
@@ -447,8 +434,6 @@ def evaluate_dataset(
     fits_root = Path(fits) if fits is not None else dataset / "fits"
     subject_dirs = list_subjects(dataset)
     if model is None:
-        from ..body import load_body_model
-
         model = load_body_model(kind="smplx" if _whole_body_dataset(subject_dirs) else None)
     if not subject_dirs:
         raise FileNotFoundError(
@@ -507,8 +492,6 @@ def evaluate_dataset(
 
 def _whole_body_dataset(subject_dirs) -> bool:
     """The first subject's keypoint file holds hand or face points (OpenPose whole-body JSON)."""
-    from ..io.wholebody import read_wholebody_parts
-
     for d in subject_dirs[:1]:
         try:
             wb = read_wholebody_parts(Path(d) / SUBJECT_FILES["keypoints"], 0)
@@ -519,8 +502,6 @@ def _whole_body_dataset(subject_dirs) -> bool:
 
 
 def _field_of(err: Exception) -> dict:
-    from ..errors import InputError
-
     if isinstance(err, InputError):
         return {"file": err.source, "field": err.field}
     return {}

@@ -117,7 +117,7 @@ def shape_pve(model, pred_betas, gt_betas, scale: bool = False) -> float:
     With ``scale`` the predicted body is first scaled uniformly about its pelvis to fit the
     true one (least squares): what is left is the error of the body's proportions and
     build, without its stature, which one image cannot tell apart from distance."""
-    import torch
+    import torch  # lazy: silfit.eval and its metrics import with numpy only (evaluate, the rest, is lazy)
 
     def rest(betas):
         b = torch.as_tensor(np.asarray(betas, dtype=np.float64), dtype=model.dtype, device=model.device)

@@ -21,9 +21,17 @@ from typing import List, Optional, Sequence
 import numpy as np
 import torch
 
-from ..io.subjects import read_index
+from ..body import load_body_model
+from ..fitting.image_fit import body_mask
+from ..fitting.problem import Problem
+from ..inputs.rig import rig_problem
+from ..fitting.rig_pipeline import view_vertices
+from ..inputs import rig_job
+from ..io.subjects import list_subjects, read_index, read_truth
 from ..io.fit import read_fit
 from ..io.keypoints import model_keypoints
+from ..io.rig import load_rig, project_world
+from ..run import keypoint_stage_fit, run_batch, write
 from .evaluate import METRICS, facing_agrees, find_fits, markdown_table, summarise  # noqa: F401  (markdown_table: re-exported)
 from .metrics import mask_iou, mpjpe, pa_mpjpe, pa_pve, pve, reprojection_error, shape_pve, translation_error
 
@@ -36,10 +44,6 @@ def is_rig_dataset(dataset) -> bool:
 
 
 def _load(subject_dir: Path):
-    from ..inputs.rig import rig_problem
-    from ..io.rig import load_rig
-
-    from ..io.subjects import read_truth
 
     views = load_rig(subject_dir)
     return views, rig_problem(views), read_truth(subject_dir / "gt.npz")
@@ -52,10 +56,6 @@ def subset_truth(gt: dict, idx) -> dict:
 
 def score_rig_fit(model, views, problem, gt: dict, params: dict, iou: bool = True, timings=None) -> dict:
     """The metrics of one rig fit (world-frame ``params``) against the subject's truth."""
-    from ..fitting.image_fit import body_mask
-    from ..io.rig import project_world
-    from ..fitting.rig_pipeline import view_vertices
-
     t = lambda a: torch.as_tensor(np.asarray(a, np.float64)[None], dtype=model.dtype)  # noqa: E731
     with torch.no_grad():
         out = model(**{k: t(params[k]) for k in ("betas", "body_pose", "global_orient", "transl")})
@@ -106,11 +106,6 @@ def run_rig_fitter(
     over subjects, then the silhouette stage; ``views``: only the first ``views`` cameras), write
     ``fits_root/<subject>/<method>/`` (``keypoints``: the keypoint stage's fit, ``silhouette``:
     the final one); returns a status."""
-    from ..inputs.rig import rig_problem
-    from ..io.rig import load_rig
-    from ..inputs import rig_job
-    from ..run import keypoint_stage_fit, run_batch, write
-
     unknown = [m for m in methods if m not in ("keypoints", "silhouette")]
     if unknown:
         raise ValueError(f"unknown method(s) {', '.join(unknown)} (expected keypoints, silhouette)")
@@ -171,13 +166,9 @@ def evaluate_rig_dataset(
     progress: bool = False,
 ) -> dict:
     """Score (and with ``run``, or when there are no fits, first run) every rig subject."""
-    from ..io.subjects import list_subjects
-
     dataset = Path(dataset)
     fits_root = Path(fits) if fits is not None else dataset / "fits"
     if model is None:
-        from ..body import load_body_model
-
         model = load_body_model()
     dirs = list_subjects(dataset)
     status = {}
@@ -225,8 +216,6 @@ def evaluate_rig_dataset(
 
 
 def _subset(problem, views):
-    from ..fitting.problem import Problem
-
     if not views:
         return problem
     return Problem([o for o in problem.observations if o.view_index < views], problem.shared)

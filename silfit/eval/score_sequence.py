@@ -19,8 +19,17 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
+from ..body import load_body_model
+from ..camera import load_camera
 from ..errors import InputError, interruption
+from ..inputs import video_job
+from ..io.fit import read_fit
+from ..io.subjects import read_truth
+from ..io.video import read_sequence
+from ..run import run as run_job, write
+from ..synth.motion import SEQUENCE_FORMAT
 from .metrics import acceleration_error, mpjpe, pa_mpjpe, shape_pve
 
 __all__ = ["SEQUENCE_METRICS", "evaluate_sequences", "is_sequence_dataset", "score_sequence", "sequence_table"]
@@ -49,8 +58,6 @@ def _index(dataset: Path) -> Optional[dict]:
 
 def is_sequence_dataset(dataset: os.PathLike) -> bool:
     """Whether ``dataset`` is a ``silfit synth --videos`` dataset (its ``index.json`` says so)."""
-    from ..synth.motion import SEQUENCE_FORMAT
-
     index = _index(Path(dataset))
     return isinstance(index, dict) and index.get("format") == SEQUENCE_FORMAT
 
@@ -97,12 +104,6 @@ def score_sequence(model, gt: Dict[str, np.ndarray], params: Dict[str, np.ndarra
 
 def _fit_sequence(d: Path, out: Path, model, config) -> None:
     """Fit the sequence in ``d`` through the one path (silfit.run), as silfit fit --sequence, into ``out``."""
-    from ..camera import load_camera
-    from ..inputs import video_job
-    from ..run import run as run_job
-    from ..run import write
-    from ..io.video import read_sequence
-
     seq = read_sequence(d)  # through the one path (silfit.run), as silfit fit --sequence
     job = video_job(
         seq.frames,
@@ -120,9 +121,6 @@ def _fit_sequence(d: Path, out: Path, model, config) -> None:
 def _read_sequence_fit(d: Path, out: Path, model, run: bool, config) -> tuple:
     """``(truth, metrics.json, temporal fit, per-frame fit)`` of the sequence in ``d`` (fitted first with ``run`` or
     when ``out`` holds no fit)."""
-    from ..io.subjects import read_truth
-    from ..io.fit import read_fit
-
     gt = read_truth(d / "gt.npz")
     if run or not (out / "params.npz").is_file():
         _fit_sequence(d, out, model, config)
@@ -172,8 +170,6 @@ def evaluate_sequences(
 ) -> dict:
     """Score every sequence of ``dataset`` (fitting it first with ``run`` or when no fit
     exists: ``FITS/<seq>/temporal/``, written by :func:`silfit.run.write`)."""
-    from ..body import load_body_model
-
     root = Path(dataset)
     index = _index(root)
     if not is_sequence_dataset(root):
@@ -187,8 +183,6 @@ def evaluate_sequences(
     names = [s["name"] for s in index.get("sequences", [])]
     iterator = names
     if progress:
-        from tqdm import tqdm
-
         iterator = tqdm(names, desc="silfit eval (sequences)", unit="sequence")
     for name in iterator:
         try:

@@ -16,7 +16,7 @@ import torch
 from torch import nn
 
 from ..body.lbs import axis_angle_to_matrix, blend_shapes, forward_kinematics, per_row, pose_feature, vertices_to_joints
-from ..io.keypoints import keypoint_sources
+from ..io.keypoints import keypoint_sources, model_keypoints
 
 __all__ = ["BodyState", "KeypointBody", "MeshBody", "body_transforms", "pose_parameter_names"]
 
@@ -167,8 +167,6 @@ class MeshBody(nn.Module):
         self.prefer_landmarks = prefer_landmarks
 
     def forward(self, **params) -> BodyState:
-        from ..io.keypoints import model_keypoints
-
         out = self.model(**params)
         kp = model_keypoints(self.model, out, self.layout, self.prefer_landmarks)
         return BodyState(kp, out.joints, None, out.vertices)

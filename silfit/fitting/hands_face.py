@@ -10,13 +10,17 @@ masks of it: ``keypoints`` (the body's 25, as for BODY_25), ``hands`` (both hand
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Dict, List
 
 import numpy as np
 import torch
+from scipy.spatial.transform import Rotation
 
+from ..io.keypoints import KeypointSet
 from ..priors.smplx_priors import HandPosePrior, l2, library_hand_set
 from ..io.wholebody import part_slices
+from .losses import reprojection_energy
 from .terms import KeypointTerm, PointsTerm, PriorTerm, Term, evaluate
 
 __all__ = ["GATED_PARTS", "choose_hand_starts", "hand_priors", "part_gates", "part_masks", "wholebody_terms"]
@@ -91,8 +95,6 @@ WRIST_FLEX_DEG = (-40.0, 0.0, 40.0)
 def _wrist_offsets(side: str, dtype) -> torch.Tensor:
     """``[R, 3, 3]`` local wrist rotations: twists about the rest forearm axis (+-X) times flexions
     about the rest palm's side axis (Z), in the joint's rest frame (SMPL-X's rest hands are flat, palm down)."""
-    from scipy.spatial.transform import Rotation
-
     sign = 1.0 if side == "left" else -1.0
     mats = [
         (
@@ -106,8 +108,6 @@ def _wrist_offsets(side: str, dtype) -> torch.Tensor:
 
 def _compose_wrist(body_pose: torch.Tensor, j: int, offset: torch.Tensor) -> torch.Tensor:
     """``body_pose`` with joint ``j``'s rotation ``R`` replaced by ``R @ offset``."""
-    from scipy.spatial.transform import Rotation
-
     shape = body_pose.shape
     flat = body_pose.reshape(-1, shape[-1]).clone()
     sl = slice(3 * (j - 1), 3 * j)
@@ -122,8 +122,6 @@ def choose_hand_starts(model, body, layout, state, views, data, sigma) -> dict:
     rotation (the current one turned by :data:`WRIST_TWIST_DEG` x :data:`WRIST_FLEX_DEG`) whose
     keypoints fit that hand's 2D points best, each hand on its own (one batched evaluation per
     candidate); hands without confident points keep their values. Returns the new state."""
-    from .losses import reprojection_energy
-
     sl = part_slices()
     dt = state["body_pose"].dtype
     sides = (("left", "left_hand_pose", "hand_left"), ("right", "right_hand_pose", "hand_right"))
@@ -212,9 +210,6 @@ def wholebody_silhouette_inputs(model, keypoints, config, dtype) -> tuple:
     terms read ``part_weights`` (confidence / the observation's body confidence sum). The parts are
     optimised only when every problem of the batch has them (a part that is absent anywhere stays
     where the keypoint stage left it: at rest for the problems without it)."""
-    from dataclasses import replace
-
-    from ..io.keypoints import KeypointSet
 
     sl = part_slices()
     conf = torch.as_tensor(np.stack([k.conf for k in keypoints]), dtype=dtype)  # [P, K]

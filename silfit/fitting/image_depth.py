@@ -23,12 +23,14 @@ Pure functions of arrays, except the term (torch).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import List, Optional, Sequence
 
 import numpy as np
 import torch
 
+from ..detect import DetectConfig, DetectionError, detect_people
+from ..detect.geometry import ROI
 from .branches import LIMB_SEGMENTS, LIMBS, depth_ratios, flip_segment
 from .problem import world_to_camera
 from .terms import Evaluation, Term
@@ -257,8 +259,6 @@ def _other_side(name: str) -> str:
 
 def _mirrored_roi(roi, width: int):
     """A region of the flipped image in the image (``x -> width - 1 - x``: its centre's x, its angle negated)."""
-    from ..detect.geometry import ROI
-
     return ROI(width - 1 - roi.cx, roi.cy, roi.size, -roi.angle)
 
 
@@ -266,8 +266,6 @@ def unmirror_person(person):
     """A person detected in the horizontally flipped image, read back in the image: ``x -> W - 1 - x`` (pixel
     centres on integers), left and right landmarks swapped, the 3D's x negated (its z, the depth, unchanged), the
     regions mirrored too (their centres' x, their angles negated)."""
-    from dataclasses import replace
-
     names = list(person.names)
     swap = [names.index(_other_side(n)) for n in names]
     W = person.image_size[0]
@@ -293,8 +291,6 @@ def matched_person(image: np.ndarray, keypoints, mirror: bool = False) -> tuple:
     keypoints (:func:`match_person`; the most confident person first, the landmark model's cost once, then
     everyone found), or ``(None, why)``. With ``mirror``, the model reads the horizontally flipped image and its
     people are read back (:func:`unmirror_person`) before matching."""
-    from ..detect import DetectConfig, DetectionError, detect_people
-
     seen = np.ascontiguousarray(np.asarray(image)[:, ::-1]) if mirror else image
     for most in (1, 0):
         try:

@@ -32,12 +32,17 @@ the end, so a failed run leaves nothing half-written.
 
 from __future__ import annotations
 
+import copy
+import time
 from dataclasses import dataclass, field, replace
 from typing import List, Optional, Sequence, Union
 
 import numpy as np
 import torch
 
+from silfit.render.offscreen import render_mask
+
+from .._lazy import moved_function
 from ..camera import Camera, project_points
 from .keypoint_stage import KeypointFitter
 from .result import KeypointFitResult
@@ -45,9 +50,13 @@ from .cores import Core, StageFailure, run_steps
 from .refine import SilhouetteHooks, StageInputs, refine_silhouettes
 from .silhouette_stage import SilhouetteFitConfig, SilhouetteFitResult
 from ..io.keypoints import KeypointSet, model_keypoints
-from .plausibility import depth_warnings, fit_warnings, guard_fit, mask_warnings
+from .plausibility import depth_warnings, fit_warnings, guard_fit, hypothesis_summary, label_segments, mask_warnings
 from ..eval.metrics import mask_iou
+from ..silhouette.losses import clothing_thickness, concave_region, trim_clothing, unknown_regions
 from ..silhouette.masks import validate_mask
+from .hands_face import silhouette_inputs, wholebody_summary
+from .image_depth import cue_from_image
+from .problem import Problem
 
 __all__ = [
     "FitResult",
@@ -103,8 +112,6 @@ class FitResult:
 
 def body_mask(vertices: np.ndarray, faces: np.ndarray, camera: Camera) -> np.ndarray:
     """Binary mask of a camera-frame mesh (offscreen rasteriser, pixel-centre coverage)."""
-    from silfit.render.offscreen import render_mask
-
     return render_mask(vertices, faces, camera)
 
 
@@ -143,8 +150,6 @@ def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources, known=N
     """``(masks for the stage, notes per mask)``: a mask reaching beyond the keypoint fit's body
     all around (clothing) trimmed by that thickness (``SilhouetteFitConfig.trim_clothing``), unless
     that leaves none of its pixels the caller's ``known`` trusts (per mask; ``None``: all)."""
-    from ..silhouette.losses import clothing_thickness, trim_clothing
-
     out, notes, trimmed = [], [], []
     for mask, body, source, seen in zip(masks, body_masks, sources, known or [None] * len(masks)):
         ys, xs = np.nonzero(mask)
@@ -179,8 +184,6 @@ def _known_pixels(masks, body_masks, cfg: SilhouetteFitConfig, sources, notes, t
     the keypoint fit's body, small holes and the concavities of its body are unknown
     (``SilhouetteFitConfig.leak_distance``, ``hole_fraction``, ``concave_radius``: only for the masks
     ``trimmed`` as clothing with ``concave_trimmed_only``); a note in ``notes`` where a leak is set aside."""
-    from ..silhouette.losses import concave_region, unknown_regions
-
     out = []
     for mask, body, source, note, cloth in zip(masks, body_masks, sources, notes, trimmed):
         ys, xs = np.nonzero(mask)
@@ -274,8 +277,6 @@ def _hypothesis_outputs(
     keypoint fit: then that, as for the fit itself (the kept one holds the final fit either way), and the discarded
     refinement's energy and IoU under ``silhouette_discarded``. ``keypoint_params``: the keypoint stage's (with
     ``refined``; else ``None``)."""
-    from .plausibility import hypothesis_summary
-
     out = []
     for k, (h, row) in enumerate(zip(hypotheses, hypothesis_summary(hypotheses))):
         start = {n: np.asarray(v) for n, v in h["params"].items()}
@@ -327,8 +328,6 @@ def _mask_choice_warning(hypotheses: bool, alternative: dict, c: int, choice: di
     """The warning of a fit whose depth branch the mask chose over the keypoint stage's: ``alternative`` (one of
     ``--hypotheses K``'s, ``hypotheses``, as ``hypotheses/<c + 1>``, or one of the close alternatives, named by the
     limbs it turns)."""
-    from .plausibility import label_segments
-
     if hypotheses:
         which = f"hypothesis {c + 1} (hypotheses/{c + 1})"
         prefer = "preferred hypothesis 1"
@@ -496,9 +495,6 @@ class ImageRefinement(SilhouetteHooks):
     def inputs(self, model, problems: List[int], config: SilhouetteFitConfig) -> StageInputs:
         """Each problem with its image's mask and known pixels; the layout decides the terms (a whole-body mesh keeps
         its hand and face keypoints)."""
-        from .problem import Problem
-        from .hands_face import silhouette_inputs
-
         _, _, fit_masks, _, known = self.masks_of
         rows, cameras = [self.rows[k] for k in problems], self.keypoint_result.cameras
         cfg, sets, terms, weights, data = silhouette_inputs(
@@ -737,8 +733,6 @@ def _keypoint_fitter(model, layout: str, config, pose_prior) -> KeypointFitter:
     the same (``fit-dataset`` fits batch after batch with them: building one costs its keypoint
     body's reductions, docs/benchmarks/defaults.md; a fitter holds no state from one fit to the next,
     so the fits are the same)."""
-    import copy
-
     if _LAST_FITTER:
         (m, lay, cfg, prior), fitter = _LAST_FITTER
         if m is model and lay == layout and prior is pose_prior and cfg == config:  # settings by value (a copy)
@@ -753,8 +747,6 @@ def _add_records(model, whole_body: bool, result: FitResult, keypoints: Keypoint
     cue, the plausibility and depth-ambiguity warnings (limbs the image ``cue`` decides are not named), the branch
     search and the hypotheses (posed for ``hypotheses/<k>/`` where no silhouette stage refined them)."""
     if whole_body:  # which parts were fitted, which held at rest
-        from .hands_face import wholebody_summary
-
         result.metrics["whole_body"], notes = wholebody_summary(keypoints)
         result.metrics["warnings"] = notes + result.metrics.get("warnings", [])
     hyps = (result.keypoint.hypotheses or [None])[0]
@@ -767,8 +759,6 @@ def _add_records(model, whole_body: bool, result: FitResult, keypoints: Keypoint
     if search:  # every hypothesis the branch search ran to its end, with its energy
         result.metrics["branch_search"] = search
     if hyps is not None:  # hypotheses=K: every alternative's energy and the limbs it turns (metrics.json)
-        from .plausibility import hypothesis_summary
-
         result.metrics["hypotheses"] = hypothesis_summary(hyps)
         if not result.hypotheses:  # no silhouette stage: the keypoint stage's, posed (hypotheses/<k>/)
             result.hypotheses = _hypothesis_outputs(model, hyps, keypoints, result.camera)
@@ -907,9 +897,6 @@ def _depth_cues(fitter, keypoints, images, people) -> tuple:
     """``(cues, records)`` per image: the image depth cue (``None`` without an image, or with the cue off or
     refused) and ``metrics.json``'s ``image_depth`` (``"none"`` without an image; ``"off"`` where the settings turn
     it off), with the landmark model's seconds."""
-    import time
-
-    from .image_depth import cue_from_image
 
     n = len(keypoints)
     images = list(images) if images is not None else [None] * n
@@ -951,7 +938,5 @@ def _keypoint_only(model, kp_result: KeypointFitResult, keypoints: KeypointSet) 
 def __getattr__(name: str):
     """``save_fit`` moved to :mod:`silfit.outputs.write` (the one writer); the old name works for one release."""
     if name == "save_fit":
-        from .._lazy import moved_function
-
         return moved_function(__name__, name, "silfit.outputs.write")
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

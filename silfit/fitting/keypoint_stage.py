@@ -62,6 +62,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
+from ..body import load_body_model, model_in_dtype
 from ..camera import UPRIGHT_BACK_TO_CAMERA, UPRIGHT_FACING_CAMERA, Camera
 from ..io.fit import model_record
 from ..io.keypoints import LAYOUTS, KeypointSet
@@ -71,7 +72,7 @@ from .body import KeypointBody
 from .hands_face import choose_hand_starts, part_gates, wholebody_terms
 from .image_depth import ImageDepthTerm, cue_data, cue_disagrees, cue_hypotheses, demote_disagreeing, hard_calls
 from .occlusion import OcclusionTerm
-from .branches import LIMB_SEGMENTS, limb_hypotheses, turn_hypotheses
+from .branches import LIMB_SEGMENTS, TORSO_SEGMENT, limb_hypotheses, turn_hypotheses
 from .problem import ParameterLayout, Problem, stack_views
 from .result import PARAM_NAMES, KeypointFitResult
 from .aliases import Alias, flat_dict, grouped, renamed_fields
@@ -713,8 +714,6 @@ def is_distinct(joints, other, min_m: float = DISTINCT_JOINTS_M, max_m: Optional
 def differing_segments(joints, reference, names) -> list:
     """The limb and torso segments whose direction differs by more than :data:`DIFFERS_DEG`
     between joints ``[J, 3]`` and ``reference`` (``names``: the model's joint names)."""
-    from .branches import LIMB_SEGMENTS, TORSO_SEGMENT
-
     out = []
     for n, p, d in LIMB_SEGMENTS + (TORSO_SEGMENT,):
         a, c = names.index(p), names.index(d)
@@ -814,8 +813,6 @@ class KeypointFitter:
             self._setup(model, layout, config, pose_prior)
 
     def _setup(self, model, layout: str, config: KeypointFitConfig, pose_prior) -> None:
-        from ..body import load_body_model, model_in_dtype
-
         if model is None:
             model = load_body_model(kind="smplx" if layout == "wholebody" else None)
         self.config = config

@@ -33,9 +33,11 @@ from dataclasses import dataclass, field
 from typing import Optional, Sequence
 
 import numpy as np
+import torch
 
 from ..errors import InputError
 from ..io.keypoints import KeypointSet
+from .branches import JOINT_HYPOTHESES, LIMB_SEGMENTS, TORSO_SEGMENT
 
 __all__ = [
     "GuardDecision",
@@ -348,8 +350,6 @@ def moves_a_joint(alternative, min_shift_mm: float = MIN_SHIFT_MM) -> bool:
 def label_segments(label: str) -> list:
     """The limb and torso segments a hypothesis' label flips (``keep``: none; a root turn, ``yaw`` or
     ``turn+30``, is named ``facing``; ``/turn`` says how a hinge segment was flipped)."""
-    from .branches import JOINT_HYPOTHESES, LIMB_SEGMENTS, TORSO_SEGMENT
-
     joint = dict(JOINT_HYPOTHESES)
     if label in joint:
         return [seg for part in joint[label] for seg in part]
@@ -528,8 +528,6 @@ class GuardDecision:
 def body_stature(model, betas) -> float:
     """Standing height (metres) of the body with shape ``betas`` in the rest pose: the
     vertical extent of the shaped template (no pose, so no fitting is involved)."""
-    import torch
-
     b = torch.as_tensor(np.asarray(betas, dtype=np.float64).reshape(1, -1), dtype=model.v_template.dtype)
     dirs = model.shapedirs[..., : b.shape[1]]
     v = model.v_template + torch.einsum("bl,vcl->bvc", b, dirs)[0]

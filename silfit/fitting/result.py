@@ -8,9 +8,12 @@ from pathlib import Path
 from typing import List, Optional, Union
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ..body.model import SMPL_PARAMETER_NAMES as PARAM_NAMES
 from ..camera import Camera
+from ..io.fit import read_fit, write_fit
+from ..io.subjects import SubjectError
 
 __all__ = ["KeypointFitResult", "PARAM_NAMES", "WHOLEBODY_EXTRA_NAMES", "faces_camera"]
 
@@ -21,8 +24,6 @@ WHOLEBODY_EXTRA_NAMES = ("expression", "jaw_pose", "leye_pose", "reye_pose", "le
 def faces_camera(global_orient, transl) -> bool:
     """Whether a body (camera-frame ``global_orient [3]``, ``transl [3]``) faces the camera:
     its forward axis (+Z of the model) points toward the camera centre rather than away."""
-    from scipy.spatial.transform import Rotation
-
     forward = Rotation.from_rotvec(np.asarray(global_orient, dtype=np.float64).reshape(3)).apply([0.0, 0.0, 1.0])
     return float(forward @ -np.asarray(transl, dtype=np.float64).reshape(3)) > 0.0
 
@@ -142,8 +143,6 @@ class KeypointFitResult:
     def save(self, directory: Union[str, os.PathLike], index: int = 0) -> Path:
         """Write sample ``index`` as ``params.npz`` and ``params.json`` into ``directory`` with
         :func:`silfit.io.fit.write_fit` (one frame, one view; the schema is described there)."""
-        from ..io.fit import write_fit
-
         pick = lambda name: None if getattr(self, name) is None else getattr(self, name)[index]  # noqa: E731
         return write_fit(
             directory,
@@ -185,9 +184,6 @@ class KeypointFitResult:
     def load(cls, path: Union[str, os.PathLike]) -> "KeypointFitResult":
         """Read one image's fit (``params.npz`` or ``params.json``, a file or the folder holding
         them) with :func:`silfit.io.fit.read_fit` (all four parameters and the camera are required)."""
-        from ..io.subjects import SubjectError
-        from ..io.fit import read_fit
-
         fit = read_fit(path, require=PARAM_NAMES, require_camera=True)
         if fit.num_frames != 1 or len(fit.cameras) != 1:
             raise SubjectError(

@@ -30,12 +30,16 @@ import numpy as np
 import torch
 
 from ..io.keypoints import LAYOUTS
+from ..io.wholebody import part_slices
+from ..priors import angle_prior, limit_violation
 from .problem import Problem, View, stack_views
 from .terms import evaluate
 from .branches import align_segments
+from .hands_face import GATED_PARTS, SILHOUETTE_PART_LR, wholebody_silhouette_inputs
 from .triangulate import placement_to_world, triangulate_views
 from .threads import torch_threads
 from .keypoint_stage import POINTS_STATURE_M
+from .optim import batched_lbfgs
 
 __all__ = ["RigFit", "fit_rig_keypoints", "pose_from_points", "triangulated_keypoints", "wholebody_problem_inputs"]
 
@@ -149,9 +153,6 @@ def wholebody_problem_inputs(model, problems: Sequence[Problem], config) -> tupl
     (the stage's own keypoint term), ``data["part_weights"]`` is ``[P, F, C, K]``. A part is
     optimised when every frame of every problem has it in at least one view (else it stays where the
     keypoint stage left it)."""
-    from .hands_face import GATED_PARTS, SILHOUETTE_PART_LR, wholebody_silhouette_inputs
-    from ..io.wholebody import part_slices
-
     grids = [p.grid() for p in problems]
     flat = [o for g in grids for row in g for o in row]
     if any(o.keypoints is None for o in flat):
@@ -209,9 +210,6 @@ def pose_from_points(
     :data:`POINTS_STATURE_M` metres are ``keypoint_term.norm_extent`` pixels) to the points plus the pose,
     angle and limit priors, over ``global_orient``, ``transl`` and ``body_pose`` (``betas`` at 0),
     in :data:`POINTS_ROUNDS`. Returns ``{global_orient, transl, body_pose}`` rows ``[B, w]``."""
-    from ..priors import angle_prior, limit_violation
-    from .optim import batched_lbfgs
-
     cfg, dt = fitter.config, fitter.dtype
     pts = [triangulated_keypoints(p, fitter.kp_weights.double().numpy()) for p in problems]
     X = torch.as_tensor(np.stack([q[0] for q in pts]), dtype=dt)

@@ -30,11 +30,20 @@ from dataclasses import dataclass, field
 from typing import List
 
 import numpy as np
+import torch
 
+from ..body import load_body_model
 from ..eval.metrics import mask_iou
+from ..io.keypoints import KeypointSet, model_keypoints
+from ..io.rig import project_world, to_camera
 from .cores import Core, run_steps
+from .hands_face import wholebody_summary
+from .image_fit import body_mask
+from .keypoint_stage import KeypointFitter
+from .plausibility import fit_warnings, guard_fit, mask_warnings, shape_warnings
 from .refine import SilhouetteHooks, StageInputs, refine_silhouettes
-from .rig_fit import RigFit, fit_rig_keypoints
+from .rig_fit import RigFit, fit_rig_keypoints, wholebody_problem_inputs
+from .silhouette_stage import SilhouetteFitConfig
 
 __all__ = ["RigCore", "RigRefinement", "RigResult", "fit_rig", "fit_rigs", "refine_rig_fits", "view_vertices"]
 
@@ -56,14 +65,10 @@ class RigResult:
 
 def view_vertices(vertices: np.ndarray, view) -> np.ndarray:
     """World-frame vertices in a view's camera frame (``R x + t``)."""
-    from ..io.rig import to_camera
-
     return to_camera(vertices, view).astype(np.float32)
 
 
 def _view_ious(vertices, faces, problem, names):
-    from .image_fit import body_mask
-
     ious, masks = {}, {}
     for name, o in zip(names, problem.grid()[0]):
         if o.mask is None:
@@ -98,8 +103,6 @@ def disagreeing_views(names, errors, factor: float = 4.0, floor_px: float = 10.0
 def view_warnings(names, problem, vertices, per_view: dict, betas=None) -> List[str]:
     """One image's fit warnings (:func:`silfit.fitting.plausibility.fit_warnings`: IoU, depth,
     reprojection error) for each view of a rig fit, from its metrics in ``per_view``."""
-    from .plausibility import fit_warnings, shape_warnings
-
     out = []
     for name, o in zip(names, problem.grid()[0]):
         for w in fit_warnings(per_view[name], o.keypoints, view_vertices(vertices, o.view)):
@@ -164,9 +167,6 @@ class RigCore(Core):
     problems with a mask (:class:`RigRefinement`), a :class:`RigResult` per problem (with the whole body's parts)."""
 
     def __init__(self, problems, names, model, pose_prior, keypoint_config, silhouette, silhouette_config, progress):
-        from ..body import load_body_model
-        from .keypoint_stage import KeypointFitter
-
         self.problems, self.names, self.size = list(problems), names, len(problems)
         self.model = load_body_model() if model is None else model
         layout = problems[0].observations[0].keypoints.layout
@@ -195,9 +195,6 @@ class RigCore(Core):
         """Each problem's refined result, or its keypoint stage's; the whole body's parts recorded."""
         out = [refined.get(i, kp[i][1]) for i in range(self.size)]
         if self.fitter.whole_body:  # which parts were fitted (seen in any view), which held at rest
-            from .hands_face import wholebody_summary
-            from ..io.keypoints import KeypointSet
-
             for problem, result in zip(self.problems, out):
                 ks = [o.keypoints for o in problem.grid()[0]]
                 seen = KeypointSet(ks[0].xy, np.max([k.conf for k in ks], 0), ks[0].layout, ks[0].source)
@@ -221,9 +218,6 @@ def _silhouette_inputs(model, problems, layout: str, config):
     inputs (hand and face keypoints kept, as for one image)."""
     extra = {}
     if layout == "wholebody":
-        from .rig_fit import wholebody_problem_inputs
-        from .silhouette_stage import SilhouetteFitConfig
-
         config, problems, *rest = wholebody_problem_inputs(model, problems, config or SilhouetteFitConfig())
         extra = dict(zip(("terms", "weights", "data"), rest))
     return config, problems, extra
@@ -231,9 +225,6 @@ def _silhouette_inputs(model, problems, layout: str, config):
 
 def _posed_body(model, params: dict, layout: str):
     """``(body, world keypoints [K, 3] float64, vertices [V, 3] float32)`` of one parameter set."""
-    import torch
-
-    from ..io.keypoints import model_keypoints
 
     t = lambda a: torch.as_tensor(np.asarray(a, np.float64)[None], dtype=model.dtype)  # noqa: E731
     with torch.no_grad():
@@ -246,8 +237,6 @@ def _posed_body(model, params: dict, layout: str):
 def _rig_reprojection(kp3: np.ndarray, problem):
     """``(projections, median errors)``: the world keypoints projected into each view, and each view's median
     reprojection error (px; NaN without a confident keypoint)."""
-    from ..io.rig import project_world
-
     proj, errs = [], []
     for o in problem.grid()[0]:
         uv = project_world(kp3, o.view)
@@ -267,8 +256,6 @@ def _kept_keypoint_result(b: RigResult, sil, guard) -> RigResult:
 
 def _refined_metrics(metrics: dict, names, p, sil, guard, ious: dict, errs, proj, vertices, betas) -> dict:
     """The keypoint stage's ``metrics`` updated in place with the refined fit's: errors, IoUs, warnings."""
-    from .plausibility import mask_warnings
-
     metrics["silhouette_guard"] = {"kept": "silhouette", "less_plausible": list(guard.reasons)}
     for n, e in zip(names, errs):
         metrics["views"][n]["reprojection_error_px_keypoint_stage"] = metrics["views"][n]["reprojection_error_px"]
@@ -294,8 +281,6 @@ def _refined_metrics(metrics: dict, names, p, sil, guard, ious: dict, errs, proj
 
 def _refined_rig_result(model, faces, layout: str, config, item, b: RigResult, sil) -> RigResult:
     """One rig problem's result after the silhouette stage ``sil``, from its keypoint-stage result ``b``."""
-    from .plausibility import guard_fit
-
     names, p, kp = item
     params = {n: np.asarray(v, np.float32).reshape(-1) for n, v in sil.parameters.items()}
     body, kp3, vertices = _posed_body(model, params, layout)

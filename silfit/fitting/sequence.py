@@ -55,14 +55,28 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation, Slerp
 
+from ..body import load_body_model
 from ..camera import Camera, project_points
 from ..io.keypoints import KeypointSet, model_keypoints
-from .keypoint_stage import BranchSearch, KeypointFitConfig, KeypointFitter, Solutions, Starts, check_torso
+from ..io.wholebody import part_slices
+from .keypoint_stage import (
+    DISTINCT_JOINTS_M,
+    BranchSearch,
+    KeypointFitConfig,
+    KeypointFitter,
+    Solutions,
+    Starts,
+    best_per_group,
+    check_torso,
+)
 from .problem import Observation, Problem, View
 from .cores import Core
 from .refine import SilhouetteHooks, StageInputs, refine_silhouettes
 from .aliases import Alias, flat_dict, grouped, renamed_fields
+from .plausibility import guard_fit, mask_warnings, reprojection_rise_warnings, shape_warnings
+from .rig_fit import fit_rig_keypoints
 from .schedule_edits import sequence_defaults, sequence_stages
+from .terms import JointSmoothnessTerm, RootSmoothnessTerm
 from .threads import torch_threads
 
 __all__ = [
@@ -536,8 +550,6 @@ def _initialise_frames(
     names = tuple(fitter.params.sizes)
     with torch_threads(cfg.keypoint.threads):
         if rig:  # each frame as a one-frame rig (world frame); the triangulated torso starts it: no neighbour starts
-            from .rig_fit import fit_rig_keypoints
-
             probs = [
                 Problem(
                     [
@@ -797,8 +809,6 @@ def fit_sequence(
     (the fit in their world frame: every frame's initialisation the rig's keypoint stage,
     :func:`~silfit.fitting.rig_fit.fit_rig_keypoints`; the refinement over frames x views). At least
     one frame must have usable keypoints (in some view)."""
-    from ..body import load_body_model
-
     cfg = config or SequenceFitConfig()
     model = load_body_model() if model is None else model
     rig, views, grid, layout = _frame_grid(frames, camera)
@@ -886,8 +896,6 @@ def _refit_from_neighbours(model, layout, config, fitter, probs, state, info, pr
     """Each frame fitted again from its previous and next frame's fit (:func:`_neighbour_fits`); each
     frame keeps the lowest final energy of its own fit and these (near-ties: its own). Returns the kept
     state and its energies ``[n]``."""
-    from .keypoint_stage import best_per_group
-
     n = len(probs)
     own, nb_state, nb_energy = _neighbour_fits(model, layout, config, fitter, probs, state, progress)
     energy = torch.cat([info["energies"][fitter.stages[-1].name], nb_energy])
@@ -910,8 +918,6 @@ def _refit_from_offsets(model, layout, config, fitter, probs, state, energy, off
     """Each frame fitted again from the picks of the frames ``offsets`` away (:func:`_neighbour_sources`,
     one batch); each keeps the lowest final energy of its pick (``state`` ``{name: [n, w]}``, ``energy [n]``)
     and these refits (near-ties: its pick). Returns the kept state ``{name: [n, w]}`` and its energies ``[n]``."""
-    from .keypoint_stage import best_per_group
-
     n = len(probs)
     pairs = [(i, j) for i in range(n) for j in _neighbour_sources(i, n, offsets)]
     if not pairs:
@@ -935,8 +941,6 @@ def _choose_branches(model, layout, config, fitter, probs, state, info, cfg, fra
     own fits all took the wrong one). Returns the chosen state (``{name: [n, w]}``) and ``rebranched [n]``:
     the frame's choice is not its lowest-energy candidate (joints more than ``DISTINCT_JOINTS_M`` apart, mean),
     and the chosen candidates' energies ``[n]``."""
-    from .keypoint_stage import DISTINCT_JOINTS_M
-
     n = len(probs)
     last = fitter.stages[-1].name
     rows = info["layout"].rows(state)
@@ -1018,8 +1022,6 @@ SILHOUETTE_TEMPORAL_WEIGHT = 5e-5
 def _cut_off_frames(masks, views: int = 1) -> List[str]:
     """One warning naming the frames whose mask runs out of the image (:func:`silfit.fitting.plausibility.mask_warnings`);
     ``masks`` frame-major over ``views`` views."""
-    from .plausibility import mask_warnings
-
     cut = sorted({i // views for i, m in enumerate(masks) if m is not None and mask_warnings(m)})
     if not cut:
         return []
@@ -1054,8 +1056,6 @@ def _silhouette_observations(grid, mgrid, views, outliers, bridged) -> list:
             if ks is not None and not bridged[f]:
                 conf = np.where(outliers[f, c], 0.0, ks.conf)
                 if ks.layout == "wholebody":  # hands and face stay as the keypoint fit left them (not optimised here)
-                    from ..io.wholebody import part_slices
-
                     conf = conf.copy()
                     conf[part_slices()["body"].stop :] = 0.0
                 ks = KeypointSet(ks.xy, conf, ks.layout, ks.source) if (conf > 0).any() else None
@@ -1117,8 +1117,6 @@ def _posed_sequence(model, result: SequenceFitResult, p: dict, betas, names: lis
 def _refined_sequence_warnings(result: SequenceFitResult, sil, reproj, betas, mgrid, C: int, empty: list) -> list:
     """:func:`refine_sequence_silhouettes`' warnings where its result is kept: the keypoint fit's, the silhouette
     stage's, a risen reprojection error, the shape's, masks cut off at the image border, frames with an empty mask."""
-    from .plausibility import reprojection_rise_warnings, shape_warnings
-
     return (
         list(result.warnings)
         + list(sil.warnings)
@@ -1187,8 +1185,6 @@ class SequenceRefinement(SilhouetteHooks):
     def inputs(self, model, problems: List[int], config) -> StageInputs:
         """The one problem (:func:`_silhouette_observations`) with the temporal terms (``result``'s
         ``temporal_sigma``)."""
-        from .terms import JointSmoothnessTerm, RootSmoothnessTerm
-
         obs = _silhouette_observations(self.grid, self.mgrid, self.views, self.outliers, self.result.bridged)
         sigma, w = self.result.config.get("temporal_sigma", 10.0), self.temporal_weight
         terms = (JointSmoothnessTerm(sigma=sigma), RootSmoothnessTerm(sigma=sigma))
@@ -1196,8 +1192,6 @@ class SequenceRefinement(SilhouetteHooks):
 
     def read_back(self, model, sils: list, config, seconds: float) -> List[SequenceFitResult]:
         """The refined sequence, or (the plausibility guard) the keypoint fit's with the guard's warnings."""
-        from .plausibility import guard_fit
-
         (sil,), result, F = sils, self.result, self.result.num_frames
         p = sil.params()
         betas = np.asarray(p["betas"], dtype=np.float32).reshape(-1)

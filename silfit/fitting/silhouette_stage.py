@@ -50,8 +50,14 @@ import weakref
 from dataclasses import dataclass, field, replace
 from typing import Callable, List, Optional, Sequence
 
+import cv2
 import numpy as np
 import torch
+from tqdm.auto import tqdm
+
+from silfit.render.batch import get_batch_renderer
+from silfit.render.proxy import get_proxy
+from silfit.render.silhouette import RoiWindow, get_silhouette_renderer
 
 from ..camera import Camera, project_points
 from ..priors import angle_prior, limit_violation, load_pose_prior, shape_prior
@@ -65,6 +71,7 @@ from ..silhouette.losses import (
     soft_iou,
 )
 from ..body.lbs import axis_angle_to_matrix, blend_shapes, pose_correctives, skin_vertices
+from ..priors.smplx_priors import body_prior_for
 from .body import BodyState, KeypointBody, MeshBody, pose_parameter_names
 from .problem import ParameterLayout, Problem, stack_views, world_to_camera
 from .aliases import Alias, flat_dict, grouped, renamed_fields
@@ -505,8 +512,6 @@ def choose_window(mask: np.ndarray, uv: np.ndarray, camera: Camera, resolution: 
     body ``uv [N, 2]`` with ``margin``, rendered with ``resolution`` pixels along its longer
     side (aspect ratio kept); the shorter side is rounded up to a ``multiple`` of pixels (more
     margin), so windows come in a few sizes and the renderer reuses its compiled kernels."""
-    from silfit.render.silhouette import RoiWindow
-
     ys, xs = np.nonzero(mask)
     lo = np.minimum([xs.min() - 0.5, ys.min() - 0.5], uv.min(0) - 0.5)
     hi = np.maximum([xs.max() + 0.5, ys.max() + 0.5], uv.max(0) + 0.5)
@@ -539,8 +544,6 @@ def window_target(
     :func:`~silfit.silhouette.losses.unknown_regions`) are unknown like those beyond the image,
     whatever ``truncation_aware``.
     """
-    import cv2
-
     cam = window.camera
     ss = int(supersample)
     s = window.scale * ss
@@ -733,8 +736,6 @@ def contour_vertex_index(model, count: int) -> np.ndarray:
     vertex of a render proxy of ``2 * count`` faces (:func:`silfit.render.proxy.get_proxy`)
     replaced by the model vertex that weighs most in it; every vertex of a model with no more
     than ``2 * count`` faces (nothing to reduce)."""
-    from silfit.render.proxy import get_proxy
-
     if 2 * int(count) >= int(model.faces.shape[0]):
         return np.arange(int(model.v_template.shape[0]))
     proxy = get_proxy(model.v_template, model.faces, 2 * int(count))
@@ -982,8 +983,6 @@ def fit_silhouette_problems(
     if len({tuple(p.shared) for p in problems}) != 1:
         raise ValueError("problems of one batch must share the same parameters across frames")
     if pose_prior is not None:  # an SMPL-X-layout model: the prior's marginal over its body joints
-        from ..priors.smplx_priors import body_prior_for
-
         pose_prior = body_prior_for(model, pose_prior)
     with torch_threads(cfg.threads):
         return _fit_problems(
@@ -1129,18 +1128,12 @@ class _LevelRenders:
         if n_faces is None or not cfg.proxy_faces:
             n_faces = cfg.proxy_faces
         if n_faces not in self.built:
-            from silfit.render.silhouette import get_silhouette_renderer
-
             level_proxy, faces, level_body = None, model.faces, self.body
             if n_faces:
-                from silfit.render.proxy import get_proxy
-
                 level_proxy = get_proxy(model.v_template, model.faces, int(n_faces))
                 faces = level_proxy.faces
             level_batch = None
             if cfg.render.batch_render:
-                from silfit.render.batch import get_batch_renderer
-
                 level_batch = get_batch_renderer(faces)
             if level_proxy is not None and cfg.render.proxy_body and self.smpl_layout:
                 level_body = cached_contour_body(model, self.layout, ("proxy", int(n_faces)), lambda: level_proxy)
@@ -1359,8 +1352,6 @@ def _fit_problems(
     extra_weights,
     extra_data,
 ):
-    from tqdm.auto import tqdm
-
     dtype = model.dtype
     P, F = len(problems), problems[0].num_frames
     grids = [p.grid() for p in problems]
@@ -1430,8 +1421,6 @@ def _contour_evaluators(model, layout, cfg, body, smpl_layout: bool) -> tuple:
             lambda: contour_vertex_index(model, cfg.contour_vertices),
         )
     elif cfg.proxy_faces:  # the full body, its points read at the proxy's vertices
-        from silfit.render.proxy import get_proxy
-
         contour_points_map = get_proxy(model.v_template, model.faces, int(cfg.proxy_faces))
     return contour_body, contour_points_map
 

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Dict, List, Mapping, Optional, Sequence
 
 import torch
+from tqdm.auto import tqdm
 
 from .optim import BatchedAdam, Plateau, batched_lbfgs, learning_rate_factor
 from .problem import ParameterLayout
@@ -200,8 +201,6 @@ def run_lbfgs_stage(
 
     bar = None
     if progress:
-        from tqdm.auto import tqdm
-
         bar = tqdm(total=iters, desc=f"keypoint fit: {stage.name}", leave=False)
     cb = (lambda it, f: bar.update(1)) if bar is not None else None
     tol = {"tol_change": float(stage.options["tol_change"])} if "tol_change" in stage.options else {}

@@ -27,7 +27,7 @@ from typing import Dict, Iterable, Mapping, Optional
 
 import torch
 
-from ..body.lbs import sqrt
+from ..body.lbs import axis_angle_to_matrix, sqrt
 from ..camera import project_points
 from .losses import reprojection_energy
 from .problem import ParameterLayout, world_to_camera
@@ -268,8 +268,6 @@ class RootSmoothnessTerm(Term):
         self.scale, self.rotation_scale = float(scale), float(rotation_scale)
 
     def __call__(self, ev: Evaluation) -> torch.Tensor:
-        from ..body.lbs import axis_angle_to_matrix
-
         transl, orient = ev.params["transl"], ev.params["global_orient"]  # [P, F, 3]
         if ev.F < 3:
             return transl.new_zeros(ev.P)

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
+from ..camera import Camera
+from ..fitting.keypoint_stage import prepare_keypoints
 from ..fitting.problem import Problem
 from .job import Job
 
@@ -40,9 +44,6 @@ def image_job(
     errors); ``detected_person``: the :class:`~silfit.detect.Person` the keypoints came from.
     Refuses (``ValueError``) keypoints of more than one person and a job without a camera or a
     size to derive it from."""
-    from ..camera import Camera
-    from ..fitting.keypoint_stage import prepare_keypoints
-
     sets = prepare_keypoints(keypoints)
     if len(sets) != 1:
         raise ValueError(f"one person's keypoints, got {len(sets)}; use fit_keypoints for batches")
@@ -53,8 +54,6 @@ def image_job(
             raise ValueError("no camera: give a camera (intrinsics) or the image size to derive the default one")
         camera = Camera.from_image_size(int(image_size[0]), int(image_size[1]), focal)
     elif focal is not None:
-        from dataclasses import replace
-
         camera = replace(camera, fx=float(focal), fy=float(focal))
     mask = None if mask is None else np.asarray(mask, dtype=bool)
     return Job(

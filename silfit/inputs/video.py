@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from ..fitting.problem import Observation, Problem
+from ..fitting.problem import Observation, Problem, View
 from .counts import one_per_frame
 from .job import Job
 
@@ -32,8 +32,6 @@ def video_job(
     ``inputs`` the reader's :class:`~silfit.io.video.SequenceInput` (for the writer's pictures);
     ``silhouette=False``: no silhouette stage even where masks exist. Refuses (``ValueError``) a
     video without frames and masks or numbers that are not one per frame."""
-    from ..fitting.problem import View
-
     frames = list(frames)
     if not frames:
         raise ValueError("a video without frames")

@@ -45,8 +45,12 @@ from typing import Dict, Iterable, List, Mapping, Optional, Sequence, Tuple, Uni
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import quoted
+from ..body.io import load_model_arrays
+from ..camera import Camera, camera_from_dict
+from ..errors import InputError, quoted
+from .keypoints import LAYOUTS
+from .limits import read_json
+from .safe_pickle import load_npz
 from .subjects import SubjectError
 
 __all__ = ["FIT_FILES", "PARAM_SIZES", "SCHEMA", "FitFile", "find_fit_file", "model_record", "read_fit", "write_fit"]
@@ -186,8 +190,6 @@ def read_fit(
     out = FitFile(path=f, params=params, cameras=cameras, extrinsics=extrinsics, views=views, model=model)
     if "layout" in raw:
         layout = _text(raw["layout"])
-        from .keypoints import LAYOUTS
-
         if layout not in LAYOUTS:
             raise SubjectError(f, "layout", f"unknown keypoint layout {quoted(layout)} (expected {', '.join(LAYOUTS)})")
         out.layout = layout
@@ -250,8 +252,6 @@ def _hand_pca(source: str, sha256: str) -> Optional[Dict[str, np.ndarray]]:
     the file); ``sha256`` keys the cache to the file's content."""
     if not sha256:
         return None
-    from ..body.io import load_model_arrays
-
     extras = load_model_arrays(source).extras
     if "hands_componentsl" not in extras:
         return None
@@ -401,9 +401,6 @@ def _as_subject_error(f: Path, err) -> SubjectError:
 
 def _read_npz(f: Path) -> dict:
     """Through :func:`silfit.io.safe_pickle.load_npz`: size limits, no pickled objects."""
-    from ..errors import InputError
-    from .safe_pickle import load_npz
-
     try:
         return load_npz(f, what="fit parameters")
     except SubjectError:
@@ -416,9 +413,6 @@ def _read_npz(f: Path) -> dict:
 
 def _read_json(f: Path) -> dict:
     """Through :func:`silfit.io.limits.read_json`: size and nesting limits."""
-    from ..errors import InputError
-    from .limits import read_json
-
     try:
         raw = read_json(f, "fit parameters")
     except InputError as err:
@@ -549,9 +543,6 @@ def _npz_cameras(f: Path, raw: dict):
 
 
 def _json_cameras(f: Path, raw: dict):
-    from ..camera import camera_from_dict
-    from ..errors import InputError
-
     docs = raw.get("cameras") if isinstance(raw.get("cameras"), list) and raw.get("cameras") else None
     if docs is None:
         if "camera" not in raw:

@@ -20,6 +20,7 @@ import warnings
 from typing import Union
 
 import numpy as np
+from PIL import Image
 
 from ..errors import InputError
 from .limits import check_image_size
@@ -34,8 +35,6 @@ _SIXTEEN_BIT = ("I;16", "I;16L", "I;16B", "I;16N")
 
 
 def _open(source: str, what: str):
-    from PIL import Image
-
     if not os.path.isfile(source):
         raise FileNotFoundError(f"{source}: {what} file not found")
     try:

@@ -27,13 +27,16 @@ folder instead (per-frame OpenPose JSON, ``masks/``, ``images/``: :func:`silfit.
 
 from __future__ import annotations
 
+import json
 import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import List, Optional, Tuple, Union
 
+import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ..camera import (  # noqa: F401  (extrinsics_from_dict: re-exported, rig manifests name it)
     check_translation,
@@ -44,6 +47,7 @@ from ..camera import (  # noqa: F401  (extrinsics_from_dict: re-exported, rig ma
 )
 from ..errors import InputError, quoted
 from ..fitting.problem import View
+from .images import IMAGE_EXTENSIONS, image_file_size
 from .limits import check_file_size, read_json
 from .keypoints import KEYPOINT_FOLDERS
 
@@ -133,8 +137,6 @@ def read_cameras_json(path: PathLike) -> List[RigView]:
 
 def write_cameras_json(path: PathLike, views: List[Tuple[str, View]]) -> None:
     """Write a ``cameras.json`` manifest for ``(name, view)`` pairs (files in ``<name>/``)."""
-    import json
-
     Path(path).write_text(
         json.dumps({"views": [{"name": n, **view_to_dict(v)} for n, v in views]}, indent=2) + "\n", encoding="utf-8"
     )
@@ -142,8 +144,6 @@ def write_cameras_json(path: PathLike, views: List[Tuple[str, View]]) -> None:
 
 # ----------------------------------------------------------------------------- EasyMocap
 def _fs_open(path: Path):
-    import cv2
-
     check_file_size(path, what="calibration")
     fs = cv2.FileStorage()
     try:
@@ -156,8 +156,6 @@ def _fs_open(path: Path):
 
 
 def _fs_matrix(fs, path: Path, key: str, sizes) -> np.ndarray:
-    import cv2
-
     node = fs.getNode(key)
     if node.empty() or node.isNone():
         raise InputError(path, f"field '{key}' missing", field=key)
@@ -194,20 +192,14 @@ def _fs_names(fs, path: Path) -> List[str]:
 
 
 def _rodrigues(r: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
     return Rotation.from_rotvec(r.reshape(3)).as_matrix()
 
 
 def _image_size_of(folder: Path) -> Optional[Tuple[int, int]]:
-    from .images import image_file_size
-
     for name in ("image.png", "image.jpg", "mask.png"):
         f = folder / name
         if f.is_file():
             return image_file_size(f, "image")
-    from .images import IMAGE_EXTENSIONS
-
     for sub in ("images", "masks"):  # a rig video's view: its first frame's image or mask
         if (folder / sub).is_dir():
             first = next((p for p in sorted((folder / sub).iterdir()) if p.suffix.lower() in IMAGE_EXTENSIONS), None)

@@ -33,6 +33,8 @@ as the standard unpickler does.
 from __future__ import annotations
 
 import _compat_pickle
+import builtins
+import copyreg
 import importlib
 import io
 import os
@@ -43,6 +45,7 @@ import zipfile
 from typing import Any, Optional, Union
 
 import numpy as np
+import scipy.sparse
 
 from ..errors import InputError, UnsafeFileError, cut_quotes, quoted
 
@@ -89,8 +92,6 @@ class SparseStandIn(_StandIn):
     format = ""
 
     def to_array(self, _depth: int = 0) -> np.ndarray:
-        import scipy.sparse
-
         state = self.__dict__.get("_state")
         if not isinstance(state, dict):
             raise ValueError(f"a sparse {self.format} matrix in the file has no readable state")
@@ -157,9 +158,6 @@ def _reconstruct(subtype, shape, dtype):
 
 
 def _allowed() -> dict:
-    import builtins
-    import copyreg
-
     table = {
         ("copyreg", "_reconstructor"): copyreg._reconstructor,
         ("_codecs", "encode"): _latin1_encode,

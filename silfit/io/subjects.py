@@ -39,11 +39,15 @@ from pathlib import Path
 from typing import Dict, Iterable, List, Mapping, Optional, Sequence, Union
 
 import numpy as np
+from PIL import Image
 
 from ..errors import InputError
 
 from ..camera import Camera, load_camera
+from ..silhouette.masks import read_mask as read_person_mask
+from .images import pixels_to_rgb8, read_pixels
 from .keypoints import KeypointSet, read_keypoints
+from .safe_pickle import load_npz
 
 __all__ = [
     "SUBJECT_FILES",
@@ -133,8 +137,6 @@ class Subject:
 def write_png(path: PathLike, array: np.ndarray) -> None:
     """Write a uint8 grey ``[H, W]`` or RGB ``[H, W, 3]`` PNG with no metadata (byte-identical for
     identical pixels), atomically (a temporary file renamed into place)."""
-    from PIL import Image
-
     arr = np.ascontiguousarray(array)
     if arr.dtype == bool:
         arr = arr.astype(np.uint8) * 255
@@ -168,8 +170,6 @@ def save_npz(path: PathLike, arrays: Mapping[str, np.ndarray], compress: bool = 
 def read_mask(path: PathLike, size: Optional[Sequence[int]] = None) -> np.ndarray:
     """Read a person mask as ``bool [H, W]`` with :func:`silfit.silhouette.read_mask`'s rules;
     ``size = (width, height)`` checks the image size. Errors are :class:`SubjectError`."""
-    from ..silhouette.masks import read_mask as read_person_mask
-
     try:
         return read_person_mask(path, size)
     except (ValueError, FileNotFoundError) as err:
@@ -180,8 +180,6 @@ def read_mask(path: PathLike, size: Optional[Sequence[int]] = None) -> np.ndarra
 
 def read_image(path: PathLike, size: Optional[Sequence[int]] = None) -> np.ndarray:
     """Read an image as ``uint8 [H, W, 3]`` RGB."""
-    from .images import pixels_to_rgb8
-
     arr = pixels_to_rgb8(_read_png(path, "image"))
     _check_size(path, "image", arr, size)
     return arr
@@ -190,8 +188,6 @@ def read_image(path: PathLike, size: Optional[Sequence[int]] = None) -> np.ndarr
 def _read_png(path: PathLike, what: str) -> np.ndarray:
     """The shared image reader (:mod:`silfit.io.images`: size limits from the header, every
     decoding error one line), its errors as :class:`SubjectError`."""
-    from .images import read_pixels
-
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise FileNotFoundError(f"{path}: {what} file not found")
@@ -217,8 +213,6 @@ def read_truth(path: PathLike) -> Dict[str, np.ndarray]:
     """Every array of a ``gt.npz`` (any kind: one image's, a rig's, a sequence's), numeric and
     read without pickles and within the size limits of :func:`silfit.io.safe_pickle.load_npz`; the one
     reader of ground-truth files (:func:`read_gt` checks one image's fields on top)."""
-    from .safe_pickle import load_npz
-
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise FileNotFoundError(f"{path}: ground-truth file not found")

@@ -24,12 +24,13 @@ from __future__ import annotations
 
 import os
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Union
 
 import numpy as np
 
+from .._lazy import moved_function
 from ..errors import InputError
 from .images import IMAGE_EXTENSIONS
 from .keypoints import KEYPOINT_FOLDERS, KeypointSet, read_keypoints
@@ -285,8 +286,6 @@ class RigSequence:
 
     def select_views(self, indices: Sequence[int]) -> "RigSequence":
         """Only the views ``indices`` (in that order), e.g. after views were set aside."""
-        from dataclasses import replace
-
         idx = list(indices)
         return replace(
             self,
@@ -345,7 +344,5 @@ def load_rig_sequence(folder: Union[str, os.PathLike], person: Union[int, str] =
 def __getattr__(name: str):
     """``save_sequence_fit`` moved to :mod:`silfit.outputs.write` (the one writer); the old name works for one release."""
     if name == "save_sequence_fit":
-        from .._lazy import moved_function
-
         return moved_function(__name__, name, "silfit.outputs.write")
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

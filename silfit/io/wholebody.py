@@ -13,6 +13,7 @@ from typing import Optional, Union
 
 import numpy as np
 
+from ..errors import InputError
 from .keypoints import KeypointSet, keypoint_triplets
 from ..layouts import (  # noqa: F401  (re-exported: silfit.io.wholebody's names kept)
     BODY25_NAMES,
@@ -27,6 +28,7 @@ from ..layouts import (  # noqa: F401  (re-exported: silfit.io.wholebody's names
     wholebody_keypoints,
     wholebody_sources,
 )
+from .limits import read_json
 
 __all__ = [
     "FINGERS",
@@ -115,8 +117,6 @@ def read_wholebody(
     ``hand_left_keypoints_2d`` / ``hand_right_keypoints_2d`` (21 each) and ``face_keypoints_2d`` (70)).
     Parts that are absent or ``[]`` are ``None``; the parts in ``require`` must be present with a
     confident point. ``person``: an index or ``"largest"`` (by the body's confident extent)."""
-    from .limits import read_json
-
     source = os.fspath(path)
     data = read_json(source, "keypoint")  # size limit, UTF-8, nesting depth: one line naming the file
     if not isinstance(data, dict) or not isinstance(data.get("people"), list):
@@ -176,9 +176,6 @@ def read_wholebody_parts(path, person: Union[int, str] = "largest") -> Optional[
     """The file's whole-body parts when it is OpenPose JSON with ``pose_keypoints_2d`` of BODY_25
     (hand / face fields may be absent), else ``None`` (another format: read it with
     :func:`silfit.io.keypoints.read_keypoints`)."""
-    from ..errors import InputError
-
-    from .limits import read_json
 
     try:
         data = read_json(path, "keypoint")

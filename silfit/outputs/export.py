@@ -25,6 +25,8 @@ from typing import Iterable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from ..io.meshes import write_ply
+
 __all__ = [
     "EXPORT_FORMATS",
     "WORLD_FRAME",
@@ -197,8 +199,6 @@ def write_fit_exports(
     folder: os.PathLike, vertices: np.ndarray, faces: np.ndarray, camera, formats: Iterable[str]
 ) -> List[Path]:
     """One fit's ``mesh.glb`` / ``mesh.ply`` (``formats``) in ``folder``, from camera-frame ``vertices [V, 3]``."""
-    from ..io.meshes import write_ply
-
     folder, written = Path(folder), []
     for fmt in formats:
         if fmt == "glb":
@@ -223,8 +223,6 @@ def write_sequence_exports(
 ) -> List[Path]:
     """A video fit's exports from camera-frame ``frames [N, V, 3]``: ``animation.glb`` (all frames) and
     ``meshes/frame_<n>.ply`` per frame."""
-    from ..io.meshes import write_ply
-
     folder, written = Path(folder), []
     for fmt in formats:
         if fmt == "glb":

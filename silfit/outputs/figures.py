@@ -9,7 +9,10 @@ import os
 import sys
 from typing import Optional, Sequence
 
+import cv2
 import numpy as np
+
+from silfit.render.offscreen import framing_camera, overlay, rotate_about_vertical
 
 from ..camera import Camera
 from ..io.subjects import write_png
@@ -43,8 +46,6 @@ def draw_keypoints(
     image: np.ndarray, xy: np.ndarray, color, conf: Optional[np.ndarray] = None, radius: int = 0
 ) -> np.ndarray:
     """Dots at ``xy [K, 2]`` (skipping zero-confidence ones and those off the image), radius scaled to the image."""
-    import cv2
-
     out = np.ascontiguousarray(image.copy())
     r = radius or max(2, round(max(out.shape[:2]) / 160))
     h, w = out.shape[:2]
@@ -75,8 +76,6 @@ def fit_overlay(
     if not 0.0 <= alpha <= 1.0:
         raise ValueError(f"alpha must be in [0, 1], got {alpha}")
     if "pyrender" in sys.modules:
-        from silfit.render.offscreen import overlay
-
         out = overlay(canvas, vertices, faces, camera, alpha=alpha)
     else:
         rgba = paint_mesh(vertices, faces, camera)
@@ -98,8 +97,6 @@ def paint_mesh(vertices, faces, camera: Camera, color=BODY_RGB) -> np.ndarray:
     camera painted far to near (painter's algorithm) with flat shading ``0.3 + 0.7 |cos|``
     of the angle to the viewing ray; alpha 255 where a face touches the pixel (the
     outline is about half a pixel wider than pixel-centre coverage)."""
-    import cv2
-
     v = np.asarray(vertices.detach().cpu().numpy() if hasattr(vertices, "detach") else vertices, dtype=np.float64)
     f = np.asarray(faces.detach().cpu().numpy() if hasattr(faces, "detach") else faces, dtype=np.int64)
     out = np.zeros((camera.height, camera.width, 4), np.uint8)
@@ -146,9 +143,6 @@ def side_view(
     framed by one camera so their placement in depth compares; the original camera looks from
     the left (an arrow). Failures a front view hides show here: legs folded into the frame,
     a body pushed in depth, a swollen belly. ``size`` is ``(W, H)``; RGB uint8."""
-    import cv2
-
-    from silfit.render.offscreen import framing_camera, rotate_about_vertical
 
     v = np.asarray(vertices, dtype=np.float64)
     centre = (v.min(0) + v.max(0)) / 2
@@ -199,8 +193,6 @@ def iou_curve(history: dict, path: os.PathLike, title: str = "silhouette stage")
     """IoU (window, soft; left axis) and energy (log scale; right axis) per step; dashed
     lines where the resolution changes.  Drawn with OpenCV (no matplotlib import: this
     picture is written by every ``silfit fit`` with a silhouette stage)."""
-    import cv2
-
     W, H, left, right, top, bottom = 600, 340, 62, 70, 34, 44
     img = np.full((H, W, 3), 255, np.uint8)
     x0, x1, y0, y1 = left, W - right, top, H - bottom  # plot box (y0 top)
@@ -285,8 +277,6 @@ def error_heatmap(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.collections import PolyCollection
-
-    from silfit.render.offscreen import rotate_about_vertical
 
     vmax = vmax or float(max(np.percentile(e, 99) for e in errors_mm))
     centre = vertices.mean(0)

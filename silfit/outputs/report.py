@@ -22,6 +22,13 @@ from typing import List, Optional, Union
 from urllib.parse import quote
 
 import numpy as np
+import trimesh
+
+from ..camera import Camera
+from ..io.limits import read_json
+from ..io.subjects import write_png
+from ..runner.store import read_jsonl
+from .figures import paint_mesh
 
 __all__ = ["Card", "collect_cards", "side_view", "write_report", "SORT_KEYS"]
 
@@ -76,8 +83,6 @@ def _card(item: str, folder: Optional[Path], record: dict) -> Card:
 
 
 def _metrics(folder: Path) -> dict:
-    from ..io.limits import read_json
-
     try:
         metrics = read_json(folder / "metrics.json", "metrics")
     except (OSError, ValueError) as err:
@@ -87,8 +92,6 @@ def _metrics(folder: Path) -> dict:
 
 def collect_cards(folder: Union[str, os.PathLike]) -> List[Card]:
     """The fits under ``folder`` (see the module docstring), in the order found."""
-    from ..runner.store import read_jsonl
-
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: not a folder")
@@ -134,9 +137,6 @@ def collect_cards(folder: Union[str, os.PathLike]) -> List[Card]:
 def side_view(vertices: np.ndarray, faces: np.ndarray, size=(120, 180)) -> np.ndarray:
     """``[H, W, 3]`` uint8: the camera-frame body turned 90 degrees about the camera's vertical (y)
     axis through its centre, seen from far away (near orthographic), on a light grey canvas."""
-    from ..camera import Camera
-    from .figures import paint_mesh
-
     v = np.asarray(vertices, dtype=np.float64)
     centre = (v.max(0) + v.min(0)) / 2
     turn = np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])  # the body's right side to the viewer
@@ -153,8 +153,6 @@ def side_view(vertices: np.ndarray, faces: np.ndarray, size=(120, 180)) -> np.nd
 
 def _mesh(folder: Path):
     """``(vertices, faces)`` of a fit's ``mesh.obj`` (camera frame), or ``None``."""
-    import trimesh
-
     path = folder / "mesh.obj"
     if not path.is_file() or path.stat().st_size > MAX_MESH_BYTES:
         return None
@@ -292,8 +290,6 @@ def write_report(
 ) -> Path:
     """Write the gallery of the fits under ``folder`` into ``out`` (default ``folder/report``);
     returns its ``index.html``."""
-    from ..io.subjects import write_png
-
     folder = Path(folder)
     cards = collect_cards(folder)
     report = Path(out) if out is not None else folder / "report"

@@ -31,8 +31,20 @@ from pathlib import Path
 from typing import Any, Dict, List, Optional, Sequence
 
 import numpy as np
+import torch
 
 from ..errors import InputError
+from ..fitting.problem import Observation, Problem, View
+from ..fitting.rig_pipeline import view_vertices
+from ..fitting.sequence import finite_median
+from ..inputs.job import Job
+from ..io.fit import write_fit
+from ..io.images import read_rgb
+from ..io.meshes import write_obj
+from ..io.rig import write_cameras_json
+from ..io.video import write_overlay_video
+from . import figures
+from .export import write_fit_exports, write_sequence_exports
 from .folder import atomic_folder
 
 __all__ = ["StageFit", "StageParts", "save_fit", "save_sequence_fit", "stage_parts", "write_folder"]
@@ -146,8 +158,6 @@ def write_folder(
     with atomic_folder(out, overwrite) as tmp:
         write_fit_files(tmp, fit, parts, model, layout)
         if world:
-            from ..io.rig import write_cameras_json
-
             write_cameras_json(tmp / "cameras.json", list(zip(job.view_names, views_of(fit))))
         if job.mode == "video":
             gif = write_frames(tmp, fit, job.model, faces, meshes, video, exports, fps)
@@ -167,8 +177,6 @@ def views_of(fit) -> list:
 def write_fit_files(tmp: Path, fit, parts: StageParts, model, layout: str) -> None:
     """``params.npz`` / ``params.json`` (:func:`silfit.io.fit.write_fit`) from the Fit's fields, and the stages' fit
     files with the same views: one image's error is in its record (as the keypoint stage's is), not an array."""
-    from ..io.fit import write_fit
-
     job, views = fit.job, views_of(fit)
     where = dict(cameras=[v.camera for v in views], layout=layout, model=model)
     if fit.coordinates == "world":
@@ -219,16 +227,12 @@ def one_frame_metrics(fit, layout: str, fields: dict) -> dict:
 # ----------------------------------------------------------------------------- one frame: an image, a rig
 def write_frame(tmp: Path, fit, faces: np.ndarray, model, layout: str, pictures: dict, parts: StageParts, exports):
     """One frame's ``mesh.obj`` (and one view's ``exports``), each view's pictures and one image's own."""
-    from ..io.meshes import write_obj
-
     vertices = fit.vertices[0]
     if fit.coordinates == "world":
         write_obj(tmp / "mesh.obj", vertices, faces, "silfit: posed body in world coordinates (rig extrinsics, metres)")
     else:
         write_obj(tmp / "mesh.obj", vertices, faces)
     if exports:
-        from .export import write_fit_exports
-
         write_fit_exports(tmp, vertices, faces, views_of(fit)[0].camera, exports)
     write_view_pictures(tmp, fit, faces, pictures, parts)
     if fit.job.mode == "image":
@@ -238,9 +242,6 @@ def write_frame(tmp: Path, fit, faces: np.ndarray, model, layout: str, pictures:
 def write_view_pictures(tmp: Path, fit, faces: np.ndarray, pictures: dict, parts: StageParts) -> None:
     """Each view's ``overlay.png`` (the body over its image, or a grey canvas, with its keypoints) and, where it has a
     mask, ``silhouette.png``: in the folder for one image, in ``views/<name>/`` for a rig's views."""
-    from ..fitting.rig_pipeline import view_vertices
-    from . import figures
-
     world = fit.coordinates == "world"
     for c, o in enumerate(fit.job.problem.grid()[0]):
         folder = tmp / "views" / fit.job.view_names[c] if world else tmp
@@ -265,8 +266,6 @@ def write_view_pictures(tmp: Path, fit, faces: np.ndarray, pictures: dict, parts
 def write_image_pictures(tmp: Path, fit, faces: np.ndarray, model, layout: str, image, parts: StageParts) -> None:
     """One image's ``side.png`` (over the keypoint-stage body, orange, with a silhouette stage); with a silhouette
     stage the keypoint stage's ``stages/keypoints/overlay.png`` and ``iou_curve.png``; ``hypotheses/``."""
-    from . import figures
-
     o, vertices = fit.job.problem.observations[0], fit.vertices[0]
     reference = None if parts.keypoint_body is None else parts.keypoint_body[0]
     figures.write_png(tmp / "side.png", figures.side_view(vertices, faces, reference))
@@ -303,10 +302,6 @@ def write_hypotheses(tmp: Path, fit, faces: np.ndarray, model, layout: str, imag
     """``hypotheses/<rank>/`` (``params.npz``/``params.json`` with the hypothesis' record, ``mesh.obj``, and where the
     silhouette stage refined it ``stages/keypoints/``, the keypoint stage's) and ``hypotheses.png``: each hypothesis
     over the image and from the side, over the final fit (orange) where it differs."""
-    from ..io.fit import write_fit
-    from ..io.meshes import write_obj
-    from . import figures
-
     o, final = fit.job.problem.observations[0], fit.vertices[0]
     camera = o.view.camera
     kp_xy, kp_conf = (None, None) if o.keypoints is None else (o.keypoints.xy, o.keypoints.conf)
@@ -345,8 +340,6 @@ def write_hypotheses(tmp: Path, fit, faces: np.ndarray, model, layout: str, imag
 def posed_frames(fit, model) -> List[np.ndarray]:
     """Each frame's posed vertices ``[V, 3]``, the model run on one frame's parameters at a time (as the video's
     pictures and meshes have always been drawn: a batch of frames may differ in the last bits)."""
-    import torch
-
     posed = []
     for f in range(fit.num_frames):
         p = fit.frame_params(f)
@@ -360,9 +353,6 @@ def write_frames(tmp: Path, fit, model, faces: np.ndarray, meshes: bool, video: 
     """A video's ``meshes/frame_<n>.obj`` (``meshes``), ``exports`` (animation.glb, meshes/frame_<n>.ply;
     :func:`silfit.outputs.export.write_sequence_exports`), ``strip.png`` and with ``video`` ``overlay.gif`` (its path,
     or ``None``: returned)."""
-    from ..io.meshes import write_obj
-    from . import figures
-
     numbers = frame_numbers(fit)
     posed = posed_frames(fit, model)
     if meshes:
@@ -370,8 +360,6 @@ def write_frames(tmp: Path, fit, model, faces: np.ndarray, meshes: bool, video: 
         for f, v in enumerate(posed):
             write_obj(tmp / "meshes" / f"frame_{numbers[f]:012d}.obj", v, faces)
     if exports:
-        from .export import write_sequence_exports
-
         write_sequence_exports(tmp, np.stack(posed), faces, views_of(fit)[0].camera, exports, numbers, fps)
     strip_stride = max(1, -(-fit.num_frames // 8))
     pics = [frame_picture(fit, f, posed[f], faces) for f in range(0, fit.num_frames, 1 if video else strip_stride)]
@@ -379,17 +367,12 @@ def write_frames(tmp: Path, fit, model, faces: np.ndarray, meshes: bool, video: 
     figures.write_png(tmp / "strip.png", np.concatenate(strip, axis=1))
     if not video:
         return None
-    from ..io.video import write_overlay_video
-
     return write_overlay_video(tmp / "overlay.gif", pics, fps)
 
 
 def frame_picture(fit, f: int, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Frame ``f``'s overlay (the body and its keypoints' projections over the frame's image, or a grey canvas; a
     rig's views side by side), the images read from the video's reader (``job.inputs``; none without one)."""
-    from ..io.images import read_rgb
-    from . import figures
-
     seq, number = fit.job.inputs, frame_numbers(fit)[f]
     world = fit.coordinates == "world"
     if seq is None:  # a job made in Python, without a reader: no images
@@ -413,8 +396,6 @@ def video_metrics(result, fit, gif, fields: dict) -> dict:
     """A video's ``metrics.json``: frames, bridged, refaced and rebranched frames, outliers, reprojection errors,
     timings, warnings, the camera (a rig video: its views and cameras, world coordinates), the overlay video, the
     configuration and, with the silhouette stage, the IoUs (``result``: the sequence fit, the stage's own)."""
-    from ..fitting.sequence import finite_median
-
     rig, views = fit.coordinates == "world", views_of(fit)
     numbers = frame_numbers(fit)
     finite = result.reprojection_error[np.isfinite(result.reprojection_error)]
@@ -468,8 +449,6 @@ def save_fit(
     """One image's :class:`~silfit.fitting.image_fit.FitResult` (``silfit.fit``'s) written by :func:`write_folder`
     (the folder of ``silfit fit``, :mod:`silfit.fitting.image_fit`'s docstring), atomically: ``keypoints``,
     ``image`` and ``mask`` the fit's inputs; ``exports`` (``"glb"``, ``"ply"``) adds ``mesh.glb`` / ``mesh.ply``."""
-    from ..fitting.problem import Observation, Problem, View
-    from ..inputs.job import Job
     from ..run import image_result_fit
 
     job = Job(
@@ -504,8 +483,6 @@ def save_sequence_fit(
     :func:`write_folder`, atomically: ``sequence`` its reader's :class:`~silfit.io.video.SequenceInput` (a rig
     video's :class:`~silfit.io.video.RigSequence`: the frames' numbers and images); ``meshes``, ``video``, ``fps``
     and ``exports`` as :func:`silfit.run.write`'s."""
-    from ..fitting.problem import Observation, Problem, View
-    from ..inputs.job import Job
     from ..run import sequence_result_fit
 
     rig = result.views is not None

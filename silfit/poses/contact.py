@@ -21,7 +21,9 @@ from typing import Sequence, Tuple
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 
+from ..priors.interpenetration import vertex_normals
 from .library import BODY_JOINTS, POSE_LIBRARY, arm, blend_poses, elbow
 
 __all__ = ["Contact", "part_contact", "settle_contact", "posed_vertices", "contact_examples", "intersecting_examples"]
@@ -35,8 +37,6 @@ class Contact:
 
 
 def _vertex_normals(v: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    from ..priors.interpenetration import vertex_normals
-
     return vertex_normals(v, faces)
 
 
@@ -66,8 +66,6 @@ def part_contact(
     touch: float = 0.012,
 ) -> Contact:
     """Gap and penetration of joint group ``a`` into joint group ``b`` on posed ``vertices [V, 3]``."""
-    from scipy.spatial import cKDTree
-
     v = np.asarray(vertices, dtype=np.float64)
     ia, ib = _group(model, a), _group(model, b)
     normals = _vertex_normals(v, model.faces.cpu().numpy())

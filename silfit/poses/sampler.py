@@ -36,6 +36,11 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 import numpy as np
 import torch
 
+from ..body import load_body_model
+from ..body.lbs import axis_angle_to_matrix, blend_shapes, forward_kinematics, vertices_to_joints
+from ..priors.interpenetration import SphereCollisionModel
+from ..priors.limits import clamp_to_limits
+from .contact import part_contact, posed_vertices, settle_contact
 from .library import (
     BODY_JOINTS,
     PERTURB_SCALE,
@@ -347,11 +352,7 @@ class PoseSampler:
         max_depth: float = 0.015,
         max_tries: int = 30,
     ):
-        from ..priors.interpenetration import SphereCollisionModel
-
         if model is None:
-            from ..body import load_body_model
-
             model = load_body_model()
         names = list(ARCHETYPES) if archetypes is None else list(archetypes)
         unknown = [n for n in names if n not in ARCHETYPES]
@@ -371,8 +372,6 @@ class PoseSampler:
 
     def interpenetration(self, body_pose: np.ndarray) -> float:
         """Sphere interpenetration (m^2) of ``body_pose [69]`` on the mean shape."""
-        from ..body.lbs import axis_angle_to_matrix, blend_shapes, forward_kinematics, vertices_to_joints
-
         m = self.model
         betas = torch.zeros(1, m.num_betas, dtype=m.dtype)
         full = torch.cat([torch.zeros(1, 3, dtype=m.dtype), torch.as_tensor(body_pose, dtype=m.dtype)[None]], 1)
@@ -383,14 +382,10 @@ class PoseSampler:
 
     def mesh_depth(self, body_pose: np.ndarray) -> float:
         """Deepest forearm / hand vertex (m) inside the torso, a thigh, the head or the other arm."""
-        from .contact import part_contact, posed_vertices
-
         v = posed_vertices(self.model, body_pose)
         return max(part_contact(self.model, v, a, b).depth for a, b in _MESH_PAIRS)
 
     def _draw(self, rng, name: str) -> SampledPose:
-        from ..priors.limits import clamp_to_limits
-
         spec, root, params = ARCHETYPES[name][1](rng)
         pose = build_pose(spec) + rng.normal(0.0, 1.0, 69) * self._sigma
         pose = clamp_to_limits(torch.as_tensor(pose, dtype=torch.float64)).numpy()
@@ -405,8 +400,6 @@ class PoseSampler:
     def _settle(self, pose: np.ndarray, target: List[str]) -> Tuple[np.ndarray, float]:
         """Bend the right elbow (and bring the arm in) from ``pose`` back toward a bent-less
         arm until the right hand just touches ``target``."""
-        from .contact import part_contact, posed_vertices, settle_contact
-
         apart = pose.reshape(23, 3).copy()
         e = BODY_JOINTS.index("right_elbow")
         apart[e] = elbow("R", 40.0)

@@ -46,9 +46,22 @@ from typing import Dict, Optional
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 from torch import nn
 
-from ..body.lbs import padded_nonzeros, blend_shapes, per_row, sqrt
+from ..body import lbs, model as body_model
+from ..body.lbs import (
+    axis_angle_to_matrix,
+    blend_shapes,
+    forward_kinematics,
+    padded_nonzeros,
+    per_row,
+    pose_correctives,
+    skin_vertices,
+    sqrt,
+    vertices_to_joints,
+)
+from ..poses.library import POSE_LIBRARY, arm, build_pose, elbow, knee, leg, mirror_pose, trunk
 
 __all__ = ["SphereCollisionModel", "tree_distances", "vertex_normals"]
 
@@ -90,8 +103,6 @@ def shrinking_balls(vertices: np.ndarray, normals: np.ndarray, max_radius: float
     """Maximal inscribed ball touching each vertex (the shrinking-ball medial-axis method):
     ``(centres [V, 3], radii [V])``; a ball centred ``r`` behind the vertex along its
     inward normal, shrunk until no other vertex lies inside it."""
-    from scipy.spatial import cKDTree
-
     tree = cKDTree(vertices)
     V = len(vertices)
     r = np.full(V, float(max_radius))
@@ -139,8 +150,6 @@ def _select_balls(centres, radii, label, min_radius: float, relative_radius: flo
 
 def _nearest(points: np.ndarray, vertices: np.ndarray, k: int):
     """``(indices [Q, k], distances [Q, k])`` of the ``k`` vertices nearest each point."""
-    from scipy.spatial import cKDTree
-
     d, i = cKDTree(vertices).query(points, k=k)
     return i, d
 
@@ -149,8 +158,6 @@ def calibration_poses() -> np.ndarray:
     """``[P, 69]`` poses the spheres are checked on at construction: the pose library and
     its mirror images, plus deep flexion of every limb (knees, hips with knees, elbows,
     arms down / across / overhead, trunk bent)."""
-    from ..poses.library import POSE_LIBRARY, arm, build_pose, elbow, knee, leg, mirror_pose, trunk
-
     lib = [p.body_pose for p in POSE_LIBRARY.values()]
     spine = lambda f: {f"spine{i}": trunk(f / 3) for i in (1, 2, 3)}  # noqa: E731
     extremes = [
@@ -184,8 +191,6 @@ def _mean_shape_posed(model, body_pose: torch.Tensor, chunk: int = 16) -> tuple:
     without BLAS (``blas=False``: :mod:`silfit.body.lbs`, "No BLAS"): MKL's GEMMs round the skinned
     vertices otherwise on an Intel Xeon with AVX-512 than on an AMD EPYC, which changed the spheres' radius
     scales in their last bits and so a float64 keypoint fit (docs/benchmarks/defaults.md)."""
-    from ..body.lbs import axis_angle_to_matrix, forward_kinematics, pose_correctives, skin_vertices, vertices_to_joints
-
     v = model.v_template.double()[None]
     joints = vertices_to_joints(model.J_regressor.double(), v)
     full = torch.cat([torch.zeros(len(body_pose), 3, dtype=torch.float64), body_pose], 1)
@@ -328,8 +333,6 @@ def _disk_key(key: tuple) -> str:
     module and the body model's, so any change to them rebuilds) and torch's version."""
     h = hashlib.blake2b(digest_size=16)
     h.update(repr((key, torch.__version__)).encode())
-    from ..body import lbs, model as body_model
-
     for module in (__file__, lbs.__file__, body_model.__file__):
         h.update(Path(module).read_bytes())
     return h.hexdigest()

@@ -33,6 +33,11 @@ import math
 from typing import Dict, Optional, Sequence
 
 import numpy as np
+import torch
+from scipy.spatial.transform import Rotation
+
+from ..poses.library import BODY_JOINTS, PERTURB_SCALE, POSE_LIBRARY, mirror_pose
+from .limits import clamp_to_limits
 
 __all__ = ["BUILD_DEFAULTS", "sample_library_poses", "fit_gaussian_mixture", "build_library_mixture", "split_library"]
 
@@ -54,8 +59,6 @@ BUILD_DEFAULTS = dict(
 def split_library(seed: int = 0):
     """A deterministic split of the library's pose names into two halves ``(a, b)``
     (for the held-out check). ``t_pose`` is always in ``a``."""
-    from ..poses.library import POSE_LIBRARY
-
     names = [n for n in POSE_LIBRARY if n != "t_pose"]
     order = np.random.default_rng(seed).permutation(len(names))
     half = len(names) // 2
@@ -65,8 +68,6 @@ def split_library(seed: int = 0):
 
 
 def _slerp(a: np.ndarray, b: np.ndarray, w: float) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
     ra, rb = Rotation.from_rotvec(a.reshape(-1, 3)), Rotation.from_rotvec(b.reshape(-1, 3))
     return (ra * Rotation.from_rotvec((ra.inv() * rb).as_rotvec() * w)).as_rotvec().reshape(a.shape)
 
@@ -82,10 +83,6 @@ def sample_library_poses(
 ) -> np.ndarray:
     """``[n, 69]`` body poses sampled around the library poses ``names`` (default all);
     see the module docstring. Blend partners are drawn from ``names`` too."""
-    import torch
-
-    from ..poses.library import BODY_JOINTS, PERTURB_SCALE, POSE_LIBRARY, mirror_pose
-    from .limits import clamp_to_limits
 
     names = list(POSE_LIBRARY) if names is None else list(names)
     unknown = [m for m in names if m not in POSE_LIBRARY]
@@ -179,8 +176,6 @@ def build_library_mixture(names: Optional[Sequence[str]] = None, **settings) -> 
     gmm = fit_gaussian_mixture(
         X, s["components"], seed=s["seed"], reg=math.radians(s["reg_deg"]) ** 2, shrink=s["shrink"], iters=s["em_iters"]
     )
-    from ..poses.library import POSE_LIBRARY
-
     used = list(POSE_LIBRARY) if names is None else list(names)
     meta = {f"setting_{k}": np.float64(v) for k, v in s.items()}
     return {**gmm, **meta, "pose_names": np.array(used, dtype="U64")}

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from ..synth.hands import HAND_LIBRARY, hand_axes, hand_pose_to_axis_angle, sample_hand_pose
 from . import spd
 from .pose import MaxMixturePrior, quadratic_forms
 
@@ -86,8 +87,6 @@ def body_prior_for(model, prior):
 def library_hand_poses(model, side: str, count: int = 800, seed: int = 0) -> np.ndarray:
     """``[count, 45]`` axis-angle hand poses (the model's parameter convention: its mean hand
     subtracted) sampled around the hand-pose library on ``model``'s rest hand."""
-    from ..synth.hands import hand_axes, hand_pose_to_axis_angle, sample_hand_pose
-
     with torch.no_grad():
         joints = model(**model.zero_params(1)).joints[0].double().cpu().numpy()
     axes = hand_axes(joints, model.joint_names, side)
@@ -136,8 +135,6 @@ class HandPosePrior(nn.Module):
 def library_hand_set(model, side: str) -> torch.Tensor:
     """``[N, w]`` the hand-pose library's named poses (unperturbed) in ``model``'s hand parameter
     space (axis-angle minus the mean hand, or PCA coefficients with ``use_pca``)."""
-    from ..synth.hands import HAND_LIBRARY, hand_axes, hand_pose_to_axis_angle
-
     with torch.no_grad():
         joints = model(**model.zero_params(1)).joints[0].double().cpu().numpy()
     axes = hand_axes(joints, model.joint_names, side)

@@ -21,6 +21,8 @@ imported lazily, so importing :mod:`silfit.render` costs nothing until the first
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import math
 import os
 import sys
@@ -84,9 +86,6 @@ OSMESA_MESSAGE = (
 
 def _osmesa_present() -> bool:
     """Whether the dynamic loader finds libOSMesa (as PyOpenGL's osmesa platform looks it up)."""
-    import ctypes
-    import ctypes.util
-
     if ctypes.util.find_library("OSMesa"):
         return True
     for name in ("libOSMesa.so.8", "libOSMesa.so.6", "libOSMesa.so"):  # a library on LD_LIBRARY_PATH only

@@ -48,6 +48,7 @@ import threading
 from dataclasses import dataclass
 from typing import List, Optional, Sequence
 
+import cv2
 import numpy as np
 import torch
 
@@ -359,8 +360,6 @@ class RaycastScene:
     def _components(marked: torch.Tensor, W: int, H: int):
         """4-connected components of the pixels that are not edge pixels: labels per pixel
         (``-1`` on edge pixels), their count and one pixel of each (flat indices)."""
-        import cv2
-
         free = (~marked).reshape(H, W).numpy().astype(np.uint8)
         n, lab = cv2.connectedComponents(free, connectivity=4, ltype=cv2.CV_32S)
         lab = torch.as_tensor(lab.reshape(-1).astype(np.int64)) - 1  # edge pixels -> -1

@@ -59,9 +59,10 @@ from typing import Optional, Sequence, Union
 import numpy as np
 import torch
 
-from silfit.camera import Camera
+from silfit.camera import Camera, project_points
 
 from ._llvm import import_mitsuba
+from .raycast import MeshEdges, NonManifoldMeshError, RaycastScene, render_views
 
 #: Dr.Jit's thread count for ray-cast silfit.render made with ``threads="auto"`` (``None``: leave the pool as the
 #: process has it, by default one thread per core); a Ray actor that reserves ``num_cpus`` CPUs sets it to that, and
@@ -165,8 +166,6 @@ def roi_window(
     """A window around the projected vertices with ``margin`` (fraction of the box) on each
     side, rendered at ``size`` (int or ``(width, height)``).  The window keeps the output's
     aspect ratio; ``scale`` (output pixels per image pixel) is chosen to fit unless given."""
-    from silfit.camera import project_points
-
     camera = check_camera(camera)
     out_w, out_h = (size, size) if isinstance(size, int) else (int(size[0]), int(size[1]))
     if out_w <= 0 or out_h <= 0:
@@ -382,8 +381,6 @@ class SilhouetteRenderer:
         if method not in METHODS:
             raise ValueError(f"unknown silhouette method {method!r}; choose one of {', '.join(METHODS)}")
         if method == "raycast":
-            from .raycast import MeshEdges, NonManifoldMeshError
-
             try:
                 MeshEdges(self.faces)
             except NonManifoldMeshError:
@@ -407,8 +404,6 @@ class SilhouetteRenderer:
         self._ray_scenes: dict = {}
 
     def _ray_scene(self, n_vertices: int):
-        from .raycast import RaycastScene
-
         with self._lock:
             scene = self._ray_scenes.get(n_vertices)
             if scene is None:
@@ -544,8 +539,6 @@ class SilhouetteRenderer:
                 R, t = torch.as_tensor(R).to(vertices.dtype), torch.as_tensor(t).to(vertices.dtype)
                 out.append(self(vertices @ R.T + t, cam, spp=spp, edge_spp=edge_spp, seed=s, sampler=sampler))
             return out
-        from .raycast import render_views
-
         views = [
             (
                 cam,

@@ -11,8 +11,11 @@ from pathlib import Path
 from typing import Optional, Union
 
 from .items import InputError, Item, list_items
+from .ray_backend import run_ray
+from .run import available_cpus, run_local, run_pool
 from .store import RunStore
-from .worker import FitOptions
+from .summary import plot_summary, summarise, summary_table
+from .worker import DatasetFitter, FitOptions, keypoint_config, silhouette_config
 
 __all__ = ["FitOptions", "InputError", "Item", "fit_dataset", "list_items"]
 
@@ -42,9 +45,6 @@ def fit_dataset(
     ``workers``: local worker processes (one CPU each; ``"auto"``: one per CPU this process may use), the
     same fits bit for bit as one (:func:`silfit.runner.run.run_pool`); 1 fits in this process. With
     ``ray``, ``actors`` plays that part."""
-    from .run import available_cpus, run_local, run_pool
-    from .summary import plot_summary, summarise, summary_table
-
     if Path(out).exists() and not Path(out).is_dir():
         raise InputError(f"{out}: output path exists and is not a folder")
     if ray and workers != 1:
@@ -55,19 +55,13 @@ def fit_dataset(
         raise InputError(f"workers {workers!r}: expected a positive number of processes or 'auto'")
     items = list_items(input, people, masks=masks, images=images, camera=camera)
     options = options or FitOptions()
-    from .worker import keypoint_config, silhouette_config
-
     keypoint_config(options.keypoint_options)  # bad options fail here, before any output
     silhouette_config(options)
-    from .worker import DatasetFitter
-
     fitter = DatasetFitter(options)  # so do the model and the pose prior (read and checked here)
     keys = [it.key for it in items]
     store = RunStore.open(out, keys, retry_failed=retry_failed)
     pending = [it for it in items if not store.done(it.key)]
     if ray:
-        from .ray_backend import run_ray
-
         wall = run_ray(store, pending, options, batch_size, ray_address, actors, num_cpus, num_gpus, progress=progress)
     elif workers > 1 and len(pending) > 1:
         del fitter  # each worker builds its own: this process need not hold one too

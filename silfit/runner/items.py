@@ -41,6 +41,7 @@ from ..camera import Camera, load_camera
 from ..errors import InputError, cut_quotes, quoted  # InputError: the dataset input as a whole is unusable
 from ..io.subjects import SUBJECT_FILES, SubjectError, list_subjects, read_image, read_mask
 from ..io.keypoints import KeypointSet, read_keypoints
+from ..io.limits import MAX_JSON_BYTES, check_file_size
 
 __all__ = ["InputError", "ItemError", "Item", "LoadedItem", "list_items", "load_item", "read_people", "parse_people"]
 
@@ -313,8 +314,6 @@ def _synthetic_items(subjects: List[Path], people):
 
 
 def _manifest_rows(path: Path) -> List[dict]:
-    from ..io.limits import MAX_JSON_BYTES, check_file_size
-
     check_file_size(path, MAX_JSON_BYTES, "the manifest")
     data = path.read_bytes()
     try:

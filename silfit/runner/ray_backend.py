@@ -27,6 +27,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from ..errors import interrupt_cleanup
+from ..kernels import KERNEL_PINS
 from .items import Item
 from .run import drive, shared_batch_size
 from .store import RunStore
@@ -54,8 +55,6 @@ def _init(address: Optional[str], local_cpus: int):
     if ray.is_initialized():
         return False
     # the pinned CPU kernels too (silfit.kernels): a cluster's raylet was not started by this process
-    from ..kernels import KERNEL_PINS
-
     passed = (
         "PYTHONPATH",
         "DRJIT_LIBLLVM_PATH",

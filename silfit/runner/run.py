@@ -6,13 +6,23 @@ local worker processes (:func:`run_pool`, ``--workers``) or on a Ray cluster
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import multiprocessing
 import os
+import signal
+import sys
+import threading
 import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from typing import Callable, Iterable, List, Optional, Sequence
 
+from tqdm.auto import tqdm
+
+from ..errors import interrupt_cleanup
 from .items import Item
 from .store import RunStore
-from .worker import DatasetFitter, FitOptions
+from .worker import DatasetFitter, FitOptions, process_fitter
 
 __all__ = [
     "available_cpus",
@@ -68,8 +78,6 @@ def progress_bar(total: int, enabled: bool):
     """A tqdm bar in items with rate and ETA (``None`` when disabled)."""
     if not enabled:
         return None
-    from tqdm.auto import tqdm
-
     return tqdm(total=total, unit="item", desc="fit-dataset", dynamic_ncols=True, smoothing=0.1)
 
 
@@ -118,15 +126,8 @@ def _die_with_parent(parent: int) -> None:
     """End this worker when the driver dies, even by SIGKILL, so none goes on writing into ``OUT`` while a
     restarted run fits the same items: on Linux the kernel kills it (``PR_SET_PDEATHSIG``); everywhere, a
     thread waits on the driver (multiprocessing's parent sentinel) and ends the process when it is gone."""
-    import multiprocessing
-    import signal
-    import sys
-    import threading
-
     if sys.platform.startswith("linux"):
         try:
-            import ctypes
-
             ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
         except Exception:  # noqa: BLE001 - the watch below still ends it
             pass
@@ -146,21 +147,15 @@ def _die_with_parent(parent: int) -> None:
 
 
 def _start_process(options: dict, out: str, parent: int) -> None:
-    import signal
-
     _die_with_parent(parent)
     # Ctrl-C reaches the whole process group: the driver alone handles it (it stops the workers)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
-        import threading
-
-        from tqdm.std import tqdm
+        from tqdm.std import tqdm  # the base class's lock (the module's tqdm is tqdm.auto's)
 
         # the stages' (disabled) progress bars would take a multiprocessing lock, a named semaphore the driver's
         # resource tracker then reports as leaked when the worker is killed; a worker's bars need a thread lock only
         tqdm.set_lock(threading.RLock())
-        from .worker import process_fitter
-
         _PROCESS["fitter"], _PROCESS["out"] = process_fitter(options, render_threads=1), out
     except Exception as err:  # noqa: BLE001 - reported with the first batch, as the driver's own error
         _PROCESS["error"] = " ".join(f"{type(err).__name__}: {err}".split())
@@ -176,10 +171,6 @@ def _fit_in_process(items: List[dict]) -> List[dict]:
 def _sigint_ignored():
     """SIGINT ignored within the block (the main thread only; elsewhere nothing changes). The handler before
     it comes back, unless an interrupt ends the block whose handler set SIGINT and SIGTERM aside for the cleanup."""
-    import signal
-    import threading
-
-    from ..errors import interrupt_cleanup
 
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -230,10 +221,6 @@ def run_pool(
     ``if __name__ == "__main__":`` guard."""
     if not pending:
         return 0.0
-    import multiprocessing
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-    from concurrent.futures.process import BrokenProcessPool
-
     parts = shared_batches(pending, batch_size, min(int(workers), len(pending)))
     pool = ProcessPoolExecutor(
         max_workers=max(1, min(int(workers), len(parts))),

@@ -12,6 +12,7 @@ lines, see :mod:`silfit.runner.store`); recording them is the caller's job.
 from __future__ import annotations
 
 import collections.abc
+import difflib
 import functools
 import os
 import time
@@ -22,10 +23,16 @@ from typing import Dict, List, Optional, Sequence, Union
 
 import numpy as np
 
+import silfit.render.silhouette
+
+from ..body import load_body_model
 from ..errors import interruption
 from ..fitting.keypoint_stage import KeypointFitConfig
 from ..fitting.silhouette_stage import SilhouetteFitConfig
 from ..fitting.threads import torch_threads
+from ..inputs import item_job
+from ..io.wholebody import choose_fit_keypoints, read_wholebody_parts
+from ..priors import load_pose_prior
 from ..run import Fit, StageFailure, run_batch, write
 from .items import Item, ItemError, LoadedItem, read_component, item_error, load_item
 
@@ -88,8 +95,6 @@ def config_with(cls, options: Dict[str, object], base=None, stage: str = "keypoi
     optional = {n for n, h in hints.items() if type(None) in typing.get_args(h)}  # these also take "none"
     for key, value in options.items():
         if key not in names:
-            import difflib
-
             close = difflib.get_close_matches(key, sorted(names), n=3, cutoff=0.6)
             hint = f"did you mean {' or '.join(close)}? " if close else ""
             raise ValueError(f"unknown {stage}-stage option {key!r}: {hint}(one of {', '.join(sorted(names))})")
@@ -168,9 +173,6 @@ class DatasetFitter:
     """The per-process fitting state (see the module docstring)."""
 
     def __init__(self, options: Union[FitOptions, dict, None] = None):
-        from ..body import load_body_model
-        from ..priors import load_pose_prior
-
         options = FitOptions(**options) if isinstance(options, dict) else (options or FitOptions())
         self.options = options
         if options.model == "open-smplx":  # the shipped open whole-body model: whole-body OpenPose items
@@ -185,8 +187,6 @@ class DatasetFitter:
     def job(self, li: LoadedItem):
         """The :class:`silfit.inputs.Job` of a loaded item (:func:`silfit.inputs.item_job`: one image; ``--focal``
         applied)."""
-        from ..inputs import item_job
-
         return item_job(
             li,
             self.model,
@@ -217,8 +217,6 @@ class DatasetFitter:
             try:
                 li = load_item(it, read_masks=self.options.silhouette)
                 if getattr(self.model, "kind", "smpl") == "smplx":  # hands and face from the same file
-                    from ..io.wholebody import choose_fit_keypoints, read_wholebody_parts
-
                     parts = read_component("keypoints", it.keypoints, read_wholebody_parts, it.keypoints, li.person)
                     li.keypoints = read_component(
                         "keypoints", it.keypoints, choose_fit_keypoints, li.keypoints, parts, self.model
@@ -308,8 +306,6 @@ def process_fitter(options: dict, render_threads: int = 1) -> DatasetFitter:
     the CPUs the worker has (``render_threads``), not every core of the machine (the fits are the same bits for any
     count: :class:`silfit.render.silhouette.SilhouetteRenderer`), then :class:`DatasetFitter` from ``options``
     (:meth:`FitOptions.to_dict`)."""
-    import silfit.render.silhouette
-
     silfit.render.silhouette.AUTO_THREADS = max(1, int(render_threads))
     return DatasetFitter(FitOptions(**options))
 

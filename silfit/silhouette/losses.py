@@ -57,8 +57,10 @@ import math
 from dataclasses import dataclass
 from typing import Optional
 
+import cv2
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 
 from ..body.lbs import sqrt
 
@@ -82,8 +84,6 @@ __all__ = [
 def distance_transforms(mask: np.ndarray, valid=None) -> tuple[np.ndarray, np.ndarray]:
     """``(DT_out, DT_in)`` float32 ``[H, W]`` of a boolean mask (see the module docstring);
     ``valid`` (bool ``[H, W]``, default everywhere): the pixels that were seen (the image)."""
-    import cv2
-
     mask = np.asarray(mask, dtype=bool)
     unseen = np.zeros_like(mask) if valid is None else ~np.asarray(valid, dtype=bool)
     # OpenCV's IPP path of the precise transform rounds by the input buffer's address (1-2 ulp:
@@ -203,8 +203,6 @@ def contour_points(mask: np.ndarray, count: int, valid=None) -> np.ndarray:
     outlines of a boolean mask (outer outlines and holes, OpenCV's contour order; the
     same mask gives the same points). With ``valid`` (bool ``[H, W]``: the image's pixels)
     the outline where the mask is cut by the image's border is left out: it is not the body's."""
-    import cv2
-
     if int(count) <= 0:
         raise ValueError(f"contour point count must be positive, got {count}")
     m = np.asarray(mask, dtype=bool)
@@ -259,8 +257,6 @@ def _nearest(u: torch.Tensor, pts: torch.Tensor) -> torch.Tensor:
     contour level's sizes: docs/benchmarks/defaults.md), or, with a point of either that is not
     finite or :data:`NEAREST_BY_TREE` off, the smallest ``|u|^2 - 2 p.u`` from one product (its float32 rounding
     decides near ties)."""
-    from scipy.spatial import cKDTree
-
     with torch.no_grad():
         if NEAREST_BY_TREE:
             u64, p64 = u.to("cpu", torch.float64).numpy(), pts.to("cpu", torch.float64).numpy()
@@ -292,8 +288,6 @@ def clothing_thickness(mask: np.ndarray, body: np.ndarray, quantile: float = 0.2
     border left out: a cut is no edge) to the nearest ``body`` pixel. Loose clothing, hair or a
     mask grown by the segmenter widen the whole outline, so even a low quantile is large; a
     leak or a misplaced limb widens a part of it only, and a mask that matches gives about 0."""
-    import cv2
-
     m, b = np.asarray(mask, dtype=bool), np.asarray(body, dtype=bool)
     if not m.any() or not b.any():
         return 0.0
@@ -310,8 +304,6 @@ def trim_clothing(mask: np.ndarray, thickness: float) -> np.ndarray:
     clothing removed; along the image's border nothing is eroded (a cut is no edge). Parts
     thinner than twice the thickness vanish (a limb in clothing is at least that wide); a mask
     that would vanish entirely is returned unchanged."""
-    import cv2
-
     m = np.asarray(mask, dtype=bool)
     r = int(round(float(thickness)))
     if r <= 0:
@@ -326,8 +318,6 @@ def concave_region(body: np.ndarray, radius: float) -> np.ndarray:
     disc of ``radius`` pixels minus the body itself -- the armpits, the gaps between the arms and
     the torso and between the thighs narrower than ``2 * radius``; empty for ``radius <= 0``.
     Loose clothing (or a grown segmentation) fills exactly these in a person mask."""
-    import cv2
-
     b = np.asarray(body, dtype=bool)
     r = int(round(float(radius)))
     if r <= 0 or not b.any():
@@ -349,8 +339,6 @@ def unknown_regions(
     smaller than ``hole_fraction`` of the mask's area (``<= 0``: none) and the mask's pixels in the
     concavities of ``body`` (:func:`concave_region` with radius ``concave`` pixels; ``<= 0``: none:
     clothing fills them, so a mask there says nothing about the body) are unknown."""
-    import cv2
-
     m = np.asarray(mask, dtype=bool)
     unknown = np.zeros_like(m)
     if body is not None and concave > 0:

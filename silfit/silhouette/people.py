@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from typing import Optional, Sequence
 
+import cv2
 import numpy as np
 
 __all__ = ["BONES", "own_mask", "skeleton_distance"]
@@ -66,8 +67,6 @@ def skeleton_distance(
     """Distance (pixels, float32 ``[H, W]`` for ``shape = (H, W)``) from every pixel to a person's skeleton:
     the segments of :data:`BONES` between keypoints of confidence above ``min_conf`` and those keypoints;
     ``None`` when none is confident."""
-    import cv2
-
     H, W = int(shape[0]), int(shape[1])
     xy, conf = np.asarray(xy, dtype=np.float64), np.asarray(conf, dtype=np.float64)
     ok = (conf > float(min_conf)) & np.isfinite(xy).all(1)

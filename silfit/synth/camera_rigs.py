@@ -30,22 +30,27 @@ from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
+from .. import __version__
 from ..camera import project_points
-from ..io.subjects import save_npz, write_png
+from ..io.subjects import INDEX_NAME, save_npz, write_png
 from ..fitting.problem import View
 from ..io.keypoints import BODY25_NAMES, model_keypoints, write_openpose_json
 from ..io.rig import look_at, view_to_dict, write_cameras_json
+from ..io.wholebody import wholebody_keypoints, write_wholebody_json
 from .generate import (
+    BODY_COLOURS,
     WHOLEBODY_DEPTH_TOLERANCE,
     WHOLEBODY_PARTS,
     SynthConfig,
     background_image,
-    BODY_COLOURS,
-    render_subject,
+    generation_start,
     keypoint_visibility,
     noisy_keypoints,
+    render_subject,
     sample_wholebody_params,
+    subject_name,
     wholebody_names,
 )
 from .sampler import global_orientation, sample_betas, sample_intrinsics, sample_pose
@@ -122,8 +127,6 @@ def _write_view_files(folder: Path, view, image, mask, kp, parts: dict) -> None:
     write_png(folder / "image.png", image)
     write_png(folder / "mask.png", mask)
     if parts:
-        from ..io.wholebody import write_wholebody_json
-
         write_wholebody_json(folder / "keypoints.json", kp, parts["hand_left"], parts["hand_right"], parts["face"])
     else:
         write_openpose_json(folder / "keypoints.json", kp)
@@ -179,8 +182,6 @@ def _posed_rig_body(model, whole_body: bool, pose: dict, extra: dict) -> RigBody
         kp3d = model_keypoints(model, out, "body25")[0].double().cpu().numpy()
         parts3d = {}
         if whole_body:
-            from ..io.wholebody import wholebody_keypoints
-
             wb = wholebody_keypoints(model, out)
             parts3d = {p: wb[p][0].double().cpu().numpy() for p in WHOLEBODY_PARTS}
         rest = model.rest_vertices(as_t(betas))[0]
@@ -265,16 +266,10 @@ def generate_rig_dataset(
 ) -> dict:
     """``n`` rig subjects into ``out`` and ``out/index.json`` (``"rig": views``)."""
 
-    from .. import __version__
-    from ..io.subjects import INDEX_NAME
-    from .generate import generation_start, subject_name
-
     cfg, rig = config.validate(), rig.validate()
     model, out = generation_start(cfg, n, model, out)
     it: Sequence[int] = range(int(n))
     if progress:
-        from tqdm import tqdm
-
         it = tqdm(it, desc="silfit synth --cameras", unit="subject")
     records = [generate_rig_subject(model, i, cfg, rig, out / subject_name(i)) for i in it]
     views = len(rig.layout) if rig.layout is not None else int(rig.views)

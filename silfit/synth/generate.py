@@ -36,8 +36,13 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 import torch
+from PIL import Image
+from tqdm import tqdm
+
+from silfit.render.offscreen import render_mesh
 
 from .. import __version__
+from ..body import load_body_model
 from ..camera import Camera, project_points, save_camera
 from ..io.subjects import INDEX_NAME, save_npz, write_png
 from ..io.keypoints import BODY25_NAMES, COCO17_NAMES, model_keypoints, write_openpose_json
@@ -45,6 +50,7 @@ from ..layouts import DEFAULT_DEPTH_TOLERANCE, KEYPOINT_DEPTH_TOLERANCE
 from ..io.wholebody import FACE70_NAMES, hand_names, wholebody_keypoints, write_wholebody_json
 from .hands import hand_axes, hand_pose_to_axis_angle, sample_hand_pose
 from ..poses.library import FRONTAL_POSES
+from .hard import hard_pose_and_yaw
 from .sampler import global_orientation, place_body, sample_betas, sample_intrinsics, sample_pose
 
 __all__ = [
@@ -223,8 +229,6 @@ def background_image(rng: np.random.Generator, kind: str, h: int, w: int) -> Tup
         label = "tiles"
     else:  # smooth blobs (low-frequency noise from a coarse grid)
         g = rng.uniform(0, 1, (6, 6, 3))
-        from PIL import Image
-
         coarse = Image.fromarray((g * 255).astype(np.uint8)).resize((w, h), Image.BICUBIC)
         t = np.asarray(coarse, dtype=np.float64) / 255.0
         img = base * 0.7 + t * 0.3
@@ -246,8 +250,6 @@ BODY_COLOURS = (
 
 
 def render_subject(vertices: np.ndarray, faces: np.ndarray, camera: Camera, colour):
-    from silfit.render.offscreen import render_mesh
-
     return render_mesh(vertices, faces, camera, color=colour)
 
 
@@ -311,8 +313,6 @@ def _sample_pose_and_view(model, rng: np.random.Generator, cfg: SynthConfig, fro
         elev = float(rng.uniform(-5, 5))
         return ps, yaw, elev, 0.0
     if cfg.poses == "hard":
-        from .hard import hard_pose_and_yaw
-
         ps, yaw = hard_pose_and_yaw(model, rng, cfg.yaw_range_deg)
     else:
         ps = sample_pose(rng, perturb_deg=cfg.perturb_deg, blend_prob=cfg.blend_prob, mirror_prob=cfg.mirror_prob)
@@ -560,8 +560,6 @@ def generation_start(cfg: "SynthConfig", n, model, out) -> tuple:
     if int(n) <= 0:
         raise ValueError(f"--n must be a positive number of subjects, got {n}")
     if model is None:
-        from ..body import load_body_model
-
         model = load_body_model(kind="smplx" if cfg.whole_body else None)
     if cfg.whole_body and getattr(model, "kind", "smpl") != "smplx":
         raise ValueError(f"{model.source}: --whole-body needs an SMPL-X-layout model (this one is {model.kind})")
@@ -585,8 +583,6 @@ def generate_dataset(
     records: List[SubjectRecord] = []
     iterator = range(int(n))
     if progress:
-        from tqdm import tqdm
-
         iterator = tqdm(iterator, desc="silfit synth", unit="subject")
     for i in iterator:
         records.append(generate_subject(model, i, cfg, out / subject_name(i)))

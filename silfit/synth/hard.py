@@ -22,6 +22,9 @@ from typing import Tuple
 
 import numpy as np
 
+from ..body import load_body_model
+from ..poses.sampler import DEEP_FLEXION, PoseSampler
+
 __all__ = ["hard_pose_and_yaw", "hard_yaw", "FRONTAL_BACK_PROB", "YAW_JITTER_DEG"]
 
 FRONTAL_BACK_PROB = 0.7
@@ -31,8 +34,6 @@ YAW_JITTER_DEG = 15.0
 def hard_yaw(rng: np.random.Generator, archetype: str, yaw_range_deg: Tuple[float, float] = (-180.0, 180.0)) -> float:
     """Body yaw (degrees, in [-180, 180)) for a pose of ``archetype``: front or back views
     over-represented for the deep-flexion archetypes (see the module docstring)."""
-    from ..poses.sampler import DEEP_FLEXION
-
     if archetype in DEEP_FLEXION and rng.random() < FRONTAL_BACK_PROB:
         yaw = (0.0 if rng.random() < 0.5 else 180.0) + float(rng.normal(0.0, YAW_JITTER_DEG))
         return (yaw + 180.0) % 360.0 - 180.0
@@ -41,8 +42,6 @@ def hard_yaw(rng: np.random.Generator, archetype: str, yaw_range_deg: Tuple[floa
 
 def hard_pose_and_yaw(model, rng: np.random.Generator, yaw_range_deg: Tuple[float, float] = (-180.0, 180.0)):
     """``(SampledPose, yaw_deg)`` for one subject of the hard set."""
-    from ..poses.sampler import PoseSampler
-
     ps = PoseSampler(_screening_model(model)).sample(rng)
     return ps, hard_yaw(rng, ps.archetype, yaw_range_deg)
 
@@ -56,6 +55,4 @@ def _screening_model(model):
 
 @functools.lru_cache(maxsize=1)
 def _open_smpl():
-    from ..body import load_body_model
-
     return load_body_model()

@@ -53,13 +53,17 @@ import numpy as np
 import torch
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation
+from tqdm import tqdm
 
 from .. import __version__
+from ..body import load_body_model
 from ..camera import UPRIGHT_FACING_CAMERA, project_points, save_camera
 from ..io.subjects import INDEX_NAME, save_npz, write_png
 from ..io.keypoints import BODY25_NAMES, model_keypoints, write_openpose_json
-from ..poses.library import BODY_JOINTS, get_pose, mirror_pose
-from .generate import BODY_COLOURS, background_image, render_subject, keypoint_visibility, noisy_keypoints
+from ..io.rig import view_to_dict, write_cameras_json
+from ..poses.library import BODY_JOINTS, PERTURB_SCALE, get_pose, mirror_pose
+from .camera_rigs import RigConfig, rig_layout, view_name
+from .generate import BODY_COLOURS, SynthConfig, background_image, keypoint_visibility, noisy_keypoints, render_subject
 from .sampler import place_body, sample_betas, sample_intrinsics
 
 __all__ = [
@@ -182,8 +186,6 @@ def frame_stem(sequence: str, frame: int) -> str:
 
 
 def _perturbation(rng, deg: float) -> np.ndarray:
-    from ..poses.library import PERTURB_SCALE
-
     scale = np.repeat([PERTURB_SCALE.get(j, 1.0) for j in BODY_JOINTS], 3)
     return rng.normal(0.0, math.radians(deg), 69) * scale
 
@@ -372,9 +374,6 @@ def _rig_world_params(wm: dict) -> dict:
 def _trajectory_layout(rng, vertices: np.ndarray, cfg: SequenceConfig, views: int) -> list:
     """``views`` cameras on a ring framing the whole trajectory (its box's largest side stands in for the body's
     height)."""
-    from .camera_rigs import RigConfig, rig_layout
-    from .generate import SynthConfig
-
     box = vertices.reshape(-1, 3)
     extent = float((box.max(0) - box.min(0)).max())
     synth = SynthConfig(seed=cfg.seed, size=int(cfg.size), fov_deg=tuple(cfg.fov_deg), fill=tuple(cfg.fill))
@@ -386,8 +385,6 @@ def _write_rig_video_view(
 ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One view of a rig sequence: its video folder (camera.json, keypoints/, masks/, images/) written; returns
     ``(clean 2D keypoints [F, 25, 2], visibility [F, 25], frames dropped [F])``."""
-    from ..io.rig import view_to_dict
-
     F, W = len(vertices), int(cfg.size)
     name = folder.name
     for sub in ("keypoints", "masks", "images"):
@@ -415,9 +412,6 @@ def _write_rig_video_view(
 def generate_rig_sequence(model, index: int, cfg: SequenceConfig, views: int, out_dir: Path) -> dict:
     """Sample, render and write rig sequence ``index`` (``views`` cameras, module docstring) into
     ``out_dir``; returns its index record."""
-    from ..io.rig import write_cameras_json
-    from .camera_rigs import view_name
-
     rng = np.random.default_rng([int(cfg.seed), int(index), 11])
     F = int(cfg.frames)
     wm = _world_motion(model, rng, cfg, index)
@@ -477,15 +471,11 @@ def generate_sequence_dataset(
     if int(n) <= 0:
         raise ValueError(f"--n must be a positive number of sequences, got {n}")
     if model is None:
-        from ..body import load_body_model
-
         model = load_body_model()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     iterator = range(int(n))
     if progress:
-        from tqdm import tqdm
-
         iterator = tqdm(iterator, desc="silfit synth --videos", unit="sequence")
     if views is not None and not 1 <= int(views) <= 64:
         raise ValueError(f"--cameras must be 1..64, got {views}")

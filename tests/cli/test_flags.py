@@ -7,6 +7,8 @@ Cheap: the toy body of ``tests/fitting`` for ``fit`` (keypoint stage only), tiny
 import json
 import math
 import shutil
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -238,6 +240,26 @@ def test_no_subcommand_prints_help_and_exits_2(capsys):
     assert main([]) == 2
     err = capsys.readouterr().err
     assert "usage: silfit" in err and "fit-dataset" in err
+
+
+#: what a ``--help`` must not load: the fitting and rendering stacks (numpy is allowed: ``cli/render.py`` uses it)
+HEAVY = ("torch", "scipy", "cv2", "mitsuba", "drjit", "pyrender", "matplotlib", "trimesh", "silfit.fitting")
+
+
+@pytest.mark.parametrize(
+    "command", ["", "demo", "fit", "detect", "synth", "eval", "render", "fit-dataset", "export-model", "report"]
+)
+def test_help_starts_without_the_heavy_packages(command):
+    """``silfit --help`` and every subcommand's ``--help`` start fast: the CLI imports torch, scipy, OpenCV, Mitsuba
+    and the fitting code inside the commands, never at the top of a module that ``--help`` loads."""
+    code = (
+        "import sys\nfrom silfit.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\n"
+        f"print(sorted(m for m in {HEAVY!r} if m in sys.modules), file=sys.stderr)"
+    )
+    argv = [command, "--help"] if command else ["--help"]
+    out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True)
+    assert out.returncode == 0 and "usage: silfit" in out.stdout, out.stderr
+    assert out.stderr.strip().splitlines()[-1] == "[]", out.stderr
 
 
 def test_quiet_hides_progress_only_and_warnings_go_to_stderr(inputs, tmp_path, capsys):  # noqa: F811

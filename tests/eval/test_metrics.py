@@ -1,6 +1,8 @@
 """Metrics: known answers."""
 
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -84,3 +86,10 @@ def test_shape_pve_is_zero_for_the_same_shape_and_stature_alignment_removes_scal
     scaled = shape_pve(open_model, taller, betas, scale=True)
     print(f"beta0 = 2 vs 0: shape PVE {1000 * plain:.1f} mm, stature aligned {1000 * scaled:.1f} mm")
     assert plain > 0.03 and scaled < 0.5 * plain
+
+
+def test_the_metrics_import_with_numpy_only():
+    """``silfit.eval`` and its metrics load no torch (``shape_pve`` imports it when called; ``evaluate`` is lazy)."""
+    code = "import sys, silfit.eval, silfit.eval.metrics; print('torch' in sys.modules, 'scipy' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.split() == ["False", "False"], out.stderr

@@ -475,7 +475,7 @@ def test_known_pixels_of_another_size_are_refused(open_model, target_mask):
 def test_level_proxy_faces_pick_each_rendered_levels_proxy(open_model, target_mask, monkeypatch):
     """Issue 24's fourth part: a rendered level listed in ``level_proxy_faces`` renders that coarser
     proxy (at most ``proxy_faces``; a level not listed, the legacy schedule and a full-mesh config: none)."""
-    import silfit.render.silhouette as rs
+    import silfit.fitting.silhouette_stage as rs  # the stage calls the renderer by this name
 
     cfg = replace(FAST, iterations=(2,), proxy_faces=10000, level_proxy_faces={64: 2000})
     assert [s.options.get("proxy_faces") for s in cfg.stages()] == [2000]

@@ -108,7 +108,7 @@ def test_available_cpus_is_the_affinity_capped_by_the_quota(tmp_path):
 def test_workers_auto_runs_one_process_per_available_cpu(tmp_path, monkeypatch):
     """``fit_dataset(workers="auto")`` hands the pool :func:`available_cpus`' count (here 3)."""
     from silfit.runner import FitOptions, fit_dataset
-    from silfit.runner import run as runmod
+    import silfit.runner as runmod  # fit_dataset calls them by these names
 
     from .helpers import synthetic_copy
 
