@@ -15,8 +15,9 @@ Methods: *keypoints only*; *main* (the silhouette stage before issue 55: the tru
 window around the detections, the fill side as strong as the inside side, the whole mask);
 *current* (issue 55's stage before the two-pass refit: one pass with the trust region around the keypoint stage's
 fit, ``trust_free_ratio=None``, ``trim_quantile=0.25``); *twopass* (the two-pass refit, ``trust_free_ratio=1.3``,
-``trim_quantile=0.5``); *after* (the defaults); *after, no subtraction* (``second`` only: the defaults on the joined
-mask); *oracle* (the defaults, but every mask trimmed by the true growth, which the bench knows:
+``trim_quantile=0.5``); *after* (the defaults); *prev* (the defaults before the demo's IoU change: every small hole
+of the mask unknown, the shallow fill side near the edge of every mask); *after, no subtraction* (``second`` only: the
+defaults on the joined mask); *oracle* (the defaults, but every mask trimmed by the true growth, which the bench knows:
 ``clothing``'s dilation, 0 elsewhere, in place of :func:`~silfit.silhouette.losses.clothing_thickness`'s estimate;
 the estimate against the truth per subject is printed under the table).
 Printed per condition: PA-PVE and PVE (mm, against the whole true body), the median reprojection error (px),
@@ -77,6 +78,14 @@ VARIANTS = {
     "w05": dict(w_trust=0.5),
     "med50": {"trust.median": 0.5},
     "w02med50": {"w_trust": 0.2, "trust.median": 0.5},
+    # the demo's IoU (issue 55, docs/benchmarks/real-photos.md "`silfit demo` IoU"): ``prev``, the defaults before
+    # it (every small hole unknown, ``cover_inner`` for every mask); the tries: every mask's small holes known
+    # (background), the mask-not-covered side at full slope near the edge of every mask, both, and 10 more steps
+    "prev": {"mask.hole_covered": 0.0, "mask.untrimmed_inner": None},
+    "holes0": {"mask.hole_fraction": 0.0, "mask.hole_covered": 0.0, "mask.untrimmed_inner": None},
+    "h0i1": {"mask.hole_fraction": 0.0, "mask.cover_inner": 1.0, "mask.hole_covered": 0.0},
+    "h0i1it": {"mask.hole_fraction": 0.0, "mask.cover_inner": 1.0, "mask.hole_covered": 0.0, "iterations": (30, 30)},
+    "it30": {"iterations": (30, 30)},
 }
 
 

@@ -181,9 +181,9 @@ def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources, known=N
 
 def _known_pixels(masks, body_masks, cfg: SilhouetteFitConfig, sources, notes, trimmed) -> list:
     """Per mask, the pixels whose value the silhouette stage trusts (``None``: all): leaks far from
-    the keypoint fit's body, small holes and the concavities of its body are unknown
-    (``SilhouetteFitConfig.leak_distance``, ``hole_fraction``, ``concave_radius``: only for the masks
-    ``trimmed`` as clothing with ``concave_trimmed_only``); a note in ``notes`` where a leak is set aside."""
+    the keypoint fit's body, small holes it covers and the concavities of its body are unknown
+    (``SilhouetteFitConfig.leak_distance``, ``hole_fraction``, ``hole_covered``, ``concave_radius``: only for the
+    masks ``trimmed`` as clothing with ``concave_trimmed_only``); a note in ``notes`` where a leak is set aside."""
     out = []
     for mask, body, source, note, cloth in zip(masks, body_masks, sources, notes, trimmed):
         ys, xs = np.nonzero(mask)
@@ -192,7 +192,12 @@ def _known_pixels(masks, body_masks, cfg: SilhouetteFitConfig, sources, notes, t
         if cfg.mask.concave_trimmed_only and not cloth:
             concave = 0.0
         known = unknown_regions(
-            mask, body, float(cfg.mask.leak_distance) * extent, float(cfg.mask.hole_fraction), concave
+            mask,
+            body,
+            float(cfg.mask.leak_distance) * extent,
+            float(cfg.mask.hole_fraction),
+            concave,
+            float(cfg.mask.hole_covered),
         )
         far = 0 if known is None else int(np.count_nonzero(mask & ~known & ~concave_region(body, concave)))
         if far > 0.02 * len(ys):
@@ -495,12 +500,15 @@ class ImageRefinement(SilhouetteHooks):
     def inputs(self, model, problems: List[int], config: SilhouetteFitConfig) -> StageInputs:
         """Each problem with its image's mask and known pixels; the layout decides the terms (a whole-body mesh keeps
         its hand and face keypoints)."""
-        _, _, fit_masks, _, known = self.masks_of
+        _, ious_before, fit_masks, _, known, trimmed = self.masks_of
         rows, cameras = [self.rows[k] for k in problems], self.keypoint_result.cameras
         cfg, sets, terms, weights, data = silhouette_inputs(
             model, [self.keypoints[r] for r in rows], config, model.dtype
         )
-        problems = [Problem.single(k, cameras[r], fit_masks[r], known[r]) for k, r in zip(sets, rows)]
+        problems = [
+            Problem.single(k, cameras[r], fit_masks[r], known[r], _cover_inner(config, trimmed[r], ious_before[r]))
+            for k, r in zip(sets, rows)
+        ]
         return StageInputs(problems, self.keypoints[0].layout, cfg, terms, weights, data)
 
     def first_pass(self, config: SilhouetteFitConfig) -> SilhouetteFitConfig:
@@ -569,10 +577,20 @@ def _with_passes(result: FitResult, passes: dict) -> FitResult:
     return result
 
 
+def _cover_inner(config: SilhouetteFitConfig, trimmed: bool, iou_before: float) -> Optional[float]:
+    """A mask's own ``cover_inner`` (``Observation.cover_inner``; ``None``: the config's): ``mask.untrimmed_inner``
+    for a mask the clothing trim ran on and left whole, which the keypoint fit's body already matches (IoU at least
+    ``mask.whole_iou``): the body's own silhouette, nothing near its edge to forgive."""
+    m = config.mask
+    whole = m.trim_clothing and not trimmed and float(iou_before) >= float(m.whole_iou)
+    return m.untrimmed_inner if whole else None
+
+
 def _batch_masks(keypoint_result, masks: list, mask_sources: list, config, known, faces) -> tuple:
-    """:class:`ImageRefinement`'s masks per image: ``(kp_masks, ious_before, fit_masks, trim_notes, known)``, the
-    keypoint fit's rendered masks and their IoUs with ``masks``, the masks fitted (trimmed) and the trim's notes, and
-    the pixels whose value is trusted (the stage's own, joined to the caller's ``known``; ``None``: all)."""
+    """:class:`ImageRefinement`'s masks per image: ``(kp_masks, ious_before, fit_masks, trim_notes, known,
+    trimmed)``, the keypoint fit's rendered masks and their IoUs with ``masks``, the masks fitted (trimmed) and the
+    trim's notes, the pixels whose value is trusted (the stage's own, joined to the caller's ``known``; ``None``:
+    all) and whether each mask was trimmed as clothing."""
     n = len(masks)
     kp_masks, ious_before = _keypoint_fit_masks(keypoint_result, masks, mask_sources, faces)
     fit_masks, trim_notes, trimmed = _trimmed_masks(masks, kp_masks, config, mask_sources, known)
@@ -581,13 +599,13 @@ def _batch_masks(keypoint_result, masks: list, mask_sources: list, config, known
         k if g is None else (np.asarray(g, dtype=bool) if k is None else k & np.asarray(g, dtype=bool))
         for k, g in zip(own, list(known) if known is not None else [None] * n)
     ]
-    return kp_masks, ious_before, fit_masks, trim_notes, known
+    return kp_masks, ious_before, fit_masks, trim_notes, known, trimmed
 
 
 class _RefinedBatch:
     """:class:`ImageRefinement`'s batch after the silhouette stage: per image its inputs, masks (``masks_of``:
-    ``(kp_masks, ious_before, fit_masks, trim_notes, known)``, :func:`_batch_masks`) and its candidates' refined
-    fits (``candidates[i]``: the rows of ``inits`` and ``sils``, its start first, then the ``offered``
+    ``(kp_masks, ious_before, fit_masks, trim_notes, known, trimmed)``, :func:`_batch_masks`) and its candidates'
+    refined fits (``candidates[i]``: the rows of ``inits`` and ``sils``, its start first, then the ``offered``
     alternatives); :meth:`result` makes an image's :class:`FitResult`."""
 
     def __init__(
@@ -611,7 +629,7 @@ class _RefinedBatch:
             guarded,
             keypoint_result.cameras,
         )
-        self.kp_masks, self.ious_before, self.fit_masks, self.trim_notes, self.known = masks_of
+        self.kp_masks, self.ious_before, self.fit_masks, self.trim_notes, self.known, _ = masks_of
         self.inits, self.offered, self.candidates, self.sils = inits, offered, candidates, sils
 
     def result(self, i: int) -> FitResult:

@@ -48,7 +48,9 @@ class Observation:
     :class:`~silfit.io.keypoints.KeypointSet` or ``None``) and an optional mask ``[H, W]``;
     ``known`` (bool ``[H, W]``, ``None``: everywhere): the pixels whose mask value is trusted;
     the silhouette stage treats the others like those beyond the image: unknown, no cost either
-    way (:func:`silfit.silhouette.losses.unknown_regions`: leaks, small holes)."""
+    way (:func:`silfit.silhouette.losses.unknown_regions`: leaks, small holes). ``cover_inner``: the
+    mask-not-covered side's slope near the mask's edge for this mask (``None``: the config's
+    ``mask.cover_inner``; the image path gives ``mask.untrimmed_inner`` to a mask not trimmed as clothing)."""
 
     view: View
     keypoints: object = None
@@ -56,6 +58,7 @@ class Observation:
     frame: int = 0
     view_index: int = 0
     known: Optional[np.ndarray] = None
+    cover_inner: Optional[float] = None
 
 
 @dataclass
@@ -67,9 +70,9 @@ class Problem:
     shared: Tuple[str, ...] = ("betas",)
 
     @classmethod
-    def single(cls, keypoints, camera: Camera, mask=None, known=None) -> "Problem":
+    def single(cls, keypoints, camera: Camera, mask=None, known=None, cover_inner=None) -> "Problem":
         """One image: one frame, one view, identity extrinsics."""
-        return cls([Observation(View(camera), keypoints, mask, known=known)])
+        return cls([Observation(View(camera), keypoints, mask, known=known, cover_inner=cover_inner)])
 
     @property
     def num_frames(self) -> int:

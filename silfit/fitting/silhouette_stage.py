@@ -165,6 +165,10 @@ class MaskHandling:
     #: image_fit.ImageRefinement); 0: off
     leak_distance: float = 0.03
     hole_fraction: float = 0.02
+    #: a small hole is unknown only where the keypoint fit's body covers at least this share of it (a gap in the
+    #: segmentation of the body); a hole the body leaves open (between an arm and the torso of a clean mask) is
+    #: background; 0: every small hole (before the demo's IoU change, issue 55: docs/benchmarks/real-photos.md)
+    hole_covered: float = 0.5
     #: mask pixels in the concavities of the keypoint fit's silhouette (its closing by a disc of
     #: ``concave_radius`` of the mask's extent, minus itself: armpits, between the arms and the torso,
     #: between the thighs) are unknown (:func:`~silfit.silhouette.losses.concave_region`): loose
@@ -174,6 +178,14 @@ class MaskHandling:
     #: the concavities unknown only in a mask trimmed as clothing (``trim_clothing``): a mask that
     #: matches the body has no filled concavities, and there they are the only sign of a misplaced limb
     concave_trimmed_only: bool = True
+    #: ``cover_inner`` for a mask the clothing trim (``trim_clothing``) left whole and the keypoint fit's body already
+    #: matches (IoU at least ``whole_iou``): the body's own silhouette, no clothing near its edge to forgive, so the
+    #: mask not covered there costs as much as the body outside it; ``None``, or the trim off: ``cover_inner`` for
+    #: every mask (before the demo's IoU change, issue 55: docs/benchmarks/real-photos.md; a photo's masks, IoU
+    #: 0.48-0.84 with the keypoint fit, fitted this way raised the reprojection error). Image path only
+    #: (image_fit.ImageRefinement: :attr:`~silfit.fitting.problem.Observation.cover_inner`)
+    untrimmed_inner: Optional[float] = 1.0
+    whole_iou: float = 0.9
 
 
 @dataclass(frozen=True)
@@ -413,16 +425,16 @@ class SilhouetteFitConfig:
         55 (a radius of :data:`FREE_TRUST_FRACTION` of the window around the detections)."""
         return replace(self, trust=replace(self.trust, from_start=False, fraction=FREE_TRUST_FRACTION))
 
-    def cover_profile(self, resolution: int) -> Optional[CoverProfile]:
+    def cover_profile(self, resolution: int, inner: Optional[float] = None) -> Optional[CoverProfile]:
         """The mask-not-covered profile in pixels of a window ``resolution`` pixels long
-        (``None``: plain, ``robust_cover=False``)."""
+        (``None``: plain, ``robust_cover=False``); ``inner``: its slope within the margin in place of
+        ``mask.cover_inner`` (an observation's own, :attr:`~silfit.fitting.problem.Observation.cover_inner`)."""
         m = self.mask
         if not m.robust_cover:
             return None
         r = float(resolution)
-        return CoverProfile(
-            float(m.cover_margin) * r, float(m.cover_inner), float(m.cover_cap) * r, float(m.cover_weight)
-        )
+        inner = float(m.cover_inner) if inner is None else float(inner)
+        return CoverProfile(float(m.cover_margin) * r, inner, float(m.cover_cap) * r, float(m.cover_weight))
 
     def weights(self) -> dict:
         """The rendered levels' weights."""
@@ -1211,7 +1223,7 @@ class _SilhouetteRun:
                         cfg.margin,
                         cfg.window_multiple,
                         cfg.mask.truncation_aware,
-                        cfg.cover_profile(resolution),
+                        cfg.cover_profile(resolution, getattr(self.grids[p][f][c], "cover_inner", None)),
                         self.known[p][f][c],
                     )
                     windows.append(window)

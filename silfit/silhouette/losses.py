@@ -331,12 +331,19 @@ def concave_region(body: np.ndarray, radius: float) -> np.ndarray:
 
 
 def unknown_regions(
-    mask: np.ndarray, body: Optional[np.ndarray], far: float, hole_fraction: float, concave: float = 0.0
+    mask: np.ndarray,
+    body: Optional[np.ndarray],
+    far: float,
+    hole_fraction: float,
+    concave: float = 0.0,
+    hole_covered: float = 0.0,
 ) -> Optional[np.ndarray]:
     """``known`` (bool ``[H, W]``) of a person ``mask``, or ``None`` when all of it is: the mask's
     pixels farther than ``far`` pixels from ``body`` (the keypoint fit's silhouette; ``far <= 0`` or
     ``body None``: none), the mask's holes (background regions not touching the image's border)
-    smaller than ``hole_fraction`` of the mask's area (``<= 0``: none) and the mask's pixels in the
+    smaller than ``hole_fraction`` of the mask's area (``<= 0``: none) of which ``body`` covers at least
+    ``hole_covered`` (a gap in the segmentation of the body; a hole the body leaves open, between an arm
+    and the torso, is background; ``<= 0`` or ``body None``: every small hole) and the mask's pixels in the
     concavities of ``body`` (:func:`concave_region` with radius ``concave`` pixels; ``<= 0``: none:
     clothing fills them, so a mask there says nothing about the body) are unknown."""
     m = np.asarray(mask, dtype=bool)
@@ -354,6 +361,9 @@ def unknown_regions(
         x, y, w, h, area = stats.T
         small = (x > 0) & (y > 0) & (x + w < W) & (y + h < H) & (area < float(hole_fraction) * np.count_nonzero(m))
         small[0] = False  # label 0: the mask itself
+        if body is not None and hole_covered > 0:
+            covered = np.bincount(labels[np.asarray(body, dtype=bool)], minlength=count)
+            small &= covered >= float(hole_covered) * area
         unknown |= small[labels]
     if not unknown.any() or not (m & ~unknown).any():  # nothing unknown, or nothing known left: all of it
         return None

@@ -160,6 +160,45 @@ def test_a_leak_far_from_the_body_is_set_aside_with_a_note(open_model, subject, 
     assert seen[-1] is None
 
 
+def test_a_mask_left_whole_by_the_trim_is_fitted_at_full_slope_near_its_edge(open_model, subject, monkeypatch):
+    """``MaskHandling.untrimmed_inner`` (issue 55, the demo's IoU): a mask the clothing trim leaves whole and the
+    keypoint fit's body matches (IoU at least ``whole_iou``: the clean render's) reaches the stage with its own
+    ``cover_inner`` (``Observation.cover_inner``), a mask trimmed as clothing (grown all around) with none (the
+    config's ``cover_inner``); ``None``, the trim off or a lower IoU: none."""
+    import cv2
+    import silfit.fitting.silhouette_stage as stage
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+
+    seen = []
+    real = stage.fit_silhouette_problems
+
+    def spy(model, problems, *args, **kwargs):
+        seen.extend(o.cover_inner for p in problems for o in p.observations)
+        return real(model, problems, *args, **kwargs)
+
+    monkeypatch.setattr(stage, "fit_silhouette_problems", spy)
+    quick = dict(resolutions=(64,), iterations=(2,), contour_iterations=1, alternatives_margin=0.0)
+    run = lambda person, **c: fit(  # noqa: E731
+        subject.keypoints,
+        person,
+        subject.camera,
+        model=open_model,
+        silhouette_config=SilhouetteFitConfig(**quick, **c),
+        progress=False,
+    )
+    run(subject.mask)
+    assert seen[-1] == 1.0 != SilhouetteFitConfig().mask.cover_inner
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (13, 13))
+    run(cv2.dilate(subject.mask.astype(np.uint8), disc).astype(bool))  # 6 px of clothing all around: trimmed
+    assert seen[-1] is None
+    run(subject.mask, mask=MaskHandling(untrimmed_inner=None))
+    assert seen[-1] is None
+    run(subject.mask, mask=MaskHandling(trim_clothing=False))  # the trim off: no mask judged whole
+    assert seen[-1] is None
+    run(subject.mask, mask=MaskHandling(whole_iou=0.99))  # the keypoint fit's body matches it less (IoU 0.92)
+    assert seen[-1] is None
+
+
 def test_concavities_are_unknown_only_in_a_mask_trimmed_as_clothing():
     """``SilhouetteFitConfig.concave_radius``: the keypoint fit's concavities are unknown in a mask
     trimmed as clothing (pure: no fitting)."""

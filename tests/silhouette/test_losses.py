@@ -226,6 +226,7 @@ def test_the_stage_builds_robust_targets_and_the_plain_energy_stays_available():
         mask, window, cover=SilhouetteFitConfig(mask=MaskHandling(robust_cover=False)).cover_profile(64)
     )
     assert robust.cover is not None and robust.cover.margin == pytest.approx(cfg.mask.cover_margin * 64)
+    assert cfg.cover_profile(64).inner == cfg.mask.cover_inner and cfg.cover_profile(64, 1.0).inner == 1.0
     assert plain.cover is None and plain.w_in is None
     assert (robust.w_in <= plain.dt_in + 1e-6).all() and robust.w_in.sum() < 0.7 * plain.dt_in.sum()
 
@@ -248,6 +249,23 @@ def test_leaks_far_from_the_body_and_small_holes_are_unknown():
     assert known[body & mask].all()
     assert unknown_regions(body, body, far=5.0, hole_fraction=0.02) is None
     assert unknown_regions(mask, body, far=0.0, hole_fraction=0.0) is None
+
+
+def test_a_small_hole_the_body_leaves_open_is_background():
+    """``hole_covered`` (issue 55, the demo's IoU): a small hole of the mask is unknown (a gap in the segmentation)
+    only where the keypoint fit's body covers that share of it; one it leaves open (a clean render's gap between an
+    arm and the torso) stays background; 0: every small hole unknown."""
+    from silfit.silhouette.losses import unknown_regions
+
+    body = disc(size=96, centre=(48, 48), radius=20)
+    mask = body.copy()
+    mask[46:49, 46:49] = False  # a hole inside the body: a segmentation gap
+    body_open = body.copy()
+    body_open[44:53, 44:53] = False  # the body leaves the same place open: a real gap
+    known = unknown_regions(mask, body, far=0.0, hole_fraction=0.02, hole_covered=0.5)
+    assert known is not None and not known[47, 47] and known[body & mask].all()
+    assert unknown_regions(mask, body_open, far=0.0, hole_fraction=0.02, hole_covered=0.5) is None
+    assert not unknown_regions(mask, body_open, far=0.0, hole_fraction=0.02)[47, 47]  # 0: every small hole
 
 
 def test_unknown_pixels_cost_nothing_and_pull_nothing():
