@@ -38,7 +38,7 @@ import torch
 from .body import load_body_model
 from .body.model import SMPL_PARAMETER_NAMES
 from .errors import InputError, interruption
-from .fitting.problem import Observation, Problem
+from .fitting.problem import Problem
 from .fitting.cores import StageFailure, run_steps
 from .fitting.image_depth import cue_from_image
 from .fitting.image_fit import ImageCore
@@ -80,8 +80,8 @@ class Fit:
     ``warnings``); ``keypoint_fit`` the keypoint stage's result as a :class:`Fit` of its own, ``seconds`` per stage,
     ``history`` the silhouette stage's steps and ``masks`` the final body's rendered masks: the same names for every
     mode. ``stage`` is the core's own record (``FitResult``, ``RigResult`` or ``SequenceFitResult``): read by these
-    properties and by the writer (:func:`silfit.outputs.write.stage_parts`), by no caller; the older functions
-    (``silfit.fit``, ``silfit.fit_sequence``) return it."""
+    properties, by the writer (:func:`silfit.outputs.write.stage_parts`) and by the evaluator for the keypoint
+    stage's energies; the older functions (``silfit.fit``, ``silfit.fit_sequence``) return it."""
 
     job: Job
     params: Dict[str, np.ndarray]
@@ -107,15 +107,16 @@ class Fit:
 
     @property
     def camera(self):
-        """The (first) view's camera: the frame an image's or a video's parameters are in."""
+        """The first view's camera: the frame an image's or a one-camera video's parameters are in (a rig's are in
+        the world frame, ``coordinates == "world"``: this is then its first view's intrinsics only)."""
         return self.job.problem.observations[0].view.camera
 
     @cached_property
     def keypoint_fit(self) -> Optional["Fit"]:
-        """The keypoint stage's result as a :class:`Fit` of its own where a silhouette stage followed it (an image,
-        a rig); ``None`` where this fit is the keypoint stage's, and for a video (whose per-frame fits are written
-        under ``stages/per_frame``). Its ``iou`` is the keypoint stage's body against the mask, its ``masks`` that
-        body's rendered masks."""
+        """The keypoint stage's result as a :class:`Fit` of its own where :attr:`refined` (an image, a rig);
+        ``None`` where this fit is the keypoint stage's (no mask; a rig whose guard kept the keypoint fit), and for
+        a video (whose per-frame fits are written under ``stages/per_frame``). Its ``iou`` is the keypoint stage's
+        body against the mask, its ``masks`` that body's rendered masks."""
         if self.job.mode == "video" or not self.refined:
             return None
         if self.job.mode == "rig":
@@ -124,8 +125,9 @@ class Fit:
 
     @property
     def refined(self) -> bool:
-        """Whether the silhouette stage ran and its record is kept: an image's wherever it ran (the plausibility
-        guard's verdict in ``metrics["silhouette_guard"]``), a rig's only where the guard kept its result."""
+        """Whether the silhouette stage ran and its record is kept, by mode: an image's wherever it ran (the
+        plausibility guard's verdict in ``metrics["silhouette_guard"]``: this fit may be the keypoint stage's), a
+        rig's only where the guard kept its result, a video's wherever it ran."""
         if self.job.mode == "video":
             return "silhouette" in self.stage.timings
         return self.stage.silhouette is not None
@@ -235,7 +237,7 @@ def check(job: Job) -> Job:
         raise first
     problem = Problem(
         [
-            Observation(grid[f][c].view, column[f], grid[f][c].mask, f, i, known=grid[f][c].known)
+            replace(grid[f][c], keypoints=column[f], frame=f, view_index=i)  # (its other fields as they were)
             for f in range(F)
             for i, (c, column) in enumerate(kept)
         ],
@@ -405,7 +407,13 @@ def _image_keypoint_fit(job: Job, r) -> Fit:
         np.array([[m.get("reprojection_error_px_keypoint_stage", np.nan)]], dtype=np.float64),
         np.array([[m.get("iou_keypoint_stage", np.nan)]], dtype=np.float64),
         "camera",
-        {"timings_s": {"keypoints": m["timings_s"]["keypoints"]}},
+        {
+            "stages": ["keypoints"],
+            "timings_s": {"keypoints": m["timings_s"]["keypoints"]},
+            "reprojection_error_px": m.get("reprojection_error_px_keypoint_stage", np.nan),
+            "iou": m.get("iou_keypoint_stage", np.nan),
+            "warnings": [],
+        },
         replace(r, silhouette=None, masks={"final": r.masks["keypoint_stage"]} if "keypoint_stage" in r.masks else {}),
     )
     return fit

@@ -339,3 +339,12 @@ def test_a_fit_gives_its_keypoint_stage_seconds_history_and_masks_by_the_same_na
     )
     assert video.keypoint_fit is None and video.history is None and video.masks == {}
     assert set(video.seconds) == {"keypoints"} and video.seconds["keypoints"] > 0
+
+
+def test_check_keeps_every_field_of_an_observation_but_the_keypoints_it_checks(subject):
+    ks, cam = subject.keypoints, subject.camera
+    obs = [Observation(View(cam), ks, subject.mask, 0, c, known=subject.mask, cover_inner=0.7) for c in range(2)]
+    checked = check(Job(Problem(obs), None, ["a", "b"], rig=True))
+    for o in checked.problem.observations:
+        assert o.cover_inner == 0.7 and o.known is subject.mask and o.mask is subject.mask
+        assert isinstance(o.keypoints, KeypointSet)

@@ -61,7 +61,7 @@ def flat_names(cls) -> dict:
 
 def flat_dict(config, skip=(), later=None, as_lists: bool = True) -> dict:
     """``config``'s fields by name (but ``skip``), tuples as lists (``as_lists``), each group's fields under their old flat names
-    (:func:`grouped`) where the group stood, but those ``later`` names (field -> flat names) after that field: a
+    (:func:`grouped`; a field without one as ``group.field``) where the group stood, but those ``later`` names (field -> flat names) after that field: a
     group whose fields stood apart is recorded in the old order."""
     subs = flat_names(type(config))
     later = later or {}
@@ -72,6 +72,10 @@ def flat_dict(config, skip=(), later=None, as_lists: bool = True) -> dict:
             continue
         if name in subs:
             flat.update({old: getattr(value, sub) for old, sub in subs[name]})
+            named = {sub for _, sub in subs[name]}  # a field added to the group since has no flat name: group.field
+            flat.update(
+                {f"{name}.{f.name}": getattr(value, f.name) for f in dataclasses.fields(value) if f.name not in named}
+            )
         else:
             flat[name] = value
     flat = {k: listed(v) for k, v in flat.items()} if as_lists else flat

@@ -386,3 +386,14 @@ def test_the_branch_choice_over_time_is_a_group():
     with warnings.catch_warnings():
         warnings.simplefilter("error", DeprecationWarning)
         SequenceFitConfig()  # its keypoint settings by the groups' names
+
+
+def test_the_record_holds_every_field_of_a_group_a_field_without_a_flat_name_by_its_group():
+    """``to_dict`` (metrics.json's record of the settings) leaves no group field out: one added after the flat names
+    were grouped (the mask handling's hole and cover settings, issue 55) is recorded as ``group.field``."""
+    cfg = SilhouetteFitConfig()
+    d = cfg.to_dict()
+    assert d["mask.hole_covered"] == 0.5 and d["mask.untrimmed_inner"] == 1.0 and d["mask.whole_iou"] == 0.9
+    off = replace(cfg, mask=replace(cfg.mask, hole_covered=0.0, untrimmed_inner=None))
+    assert off.to_dict() != d and off.to_dict()["mask.untrimmed_inner"] is None
+    assert d["hole_fraction"] == cfg.mask.hole_fraction and "mask.hole_fraction" not in d  # the flat name stays
