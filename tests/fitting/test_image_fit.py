@@ -119,15 +119,16 @@ def test_the_guard_keeps_the_keypoint_fit_when_the_silhouette_fit_is_less_plausi
     assert not np.allclose(off.params["body_pose"], result.params["body_pose"])
 
 
-def _known_seen_by_the_stage(monkeypatch) -> list:
-    """The ``known`` map of every observation the silhouette stage is given, in order (a spy on it)."""
+def _known_seen_by_the_stage(monkeypatch, field: str = "known") -> list:
+    """The ``field`` (``known``, ``cover_inner``) of every observation the silhouette stage is given, in order (a spy
+    on it)."""
     import silfit.fitting.silhouette_stage as stage
 
     seen = []
     real = stage.fit_silhouette_problems
 
     def spy(model, problems, *args, **kwargs):
-        seen.extend(o.known for p in problems for o in p.observations)
+        seen.extend(getattr(o, field) for p in problems for o in p.observations)
         return real(model, problems, *args, **kwargs)
 
     monkeypatch.setattr(stage, "fit_silhouette_problems", spy)
@@ -166,17 +167,9 @@ def test_a_mask_left_whole_by_the_trim_is_fitted_at_full_slope_near_its_edge(ope
     ``cover_inner`` (``Observation.cover_inner``), a mask trimmed as clothing (grown all around) with none (the
     config's ``cover_inner``); ``None``, the trim off or a lower IoU: none."""
     import cv2
-    import silfit.fitting.silhouette_stage as stage
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
 
-    seen = []
-    real = stage.fit_silhouette_problems
-
-    def spy(model, problems, *args, **kwargs):
-        seen.extend(o.cover_inner for p in problems for o in p.observations)
-        return real(model, problems, *args, **kwargs)
-
-    monkeypatch.setattr(stage, "fit_silhouette_problems", spy)
+    seen = _known_seen_by_the_stage(monkeypatch, "cover_inner")
     quick = dict(resolutions=(64,), iterations=(2,), contour_iterations=1, alternatives_margin=0.0)
     run = lambda person, **c: fit(  # noqa: E731
         subject.keypoints,
