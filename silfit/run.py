@@ -41,7 +41,7 @@ from .errors import InputError, interruption
 from .fitting.problem import Problem
 from .fitting.cores import StageFailure, run_steps
 from .fitting.image_depth import cue_from_image
-from .fitting.image_fit import ImageCore
+from .fitting.image_fit import FitResult, ImageCore
 from .fitting.plausibility import check_frames, check_keypoints, fit_warnings
 from .fitting.rig_pipeline import RigCore, disagreeing_views, keypoint_stage_result
 from .fitting.sequence import SequenceFitConfig, VideoCore, finite_median
@@ -396,27 +396,21 @@ def image_result_fit(job: Job, r) -> Fit:
 
 
 def _image_keypoint_fit(job: Job, r) -> Fit:
-    """One image's keypoint stage (of its :class:`~silfit.fitting.image_fit.FitResult` ``r``) as a :class:`Fit`."""
+    """One image's keypoint stage (of its :class:`~silfit.fitting.image_fit.FitResult` ``r``) as a :class:`Fit`:
+    :func:`image_result_fit` of a ``FitResult`` whose parameters, body and record are the keypoint stage's."""
     kp, m = r.keypoint, r.metrics
-    fit = Fit(
-        job,
-        _params_per_frame(kp.params(0), 1),
-        _arr(kp.vertices[0])[None],
-        _arr(kp.joints[0])[None],
-        _arr(kp.keypoints_2d[0])[None, None],
-        np.array([[m.get("reprojection_error_px_keypoint_stage", np.nan)]], dtype=np.float64),
-        np.array([[m.get("iou_keypoint_stage", np.nan)]], dtype=np.float64),
-        "camera",
-        {
-            "stages": ["keypoints"],
-            "timings_s": {"keypoints": m["timings_s"]["keypoints"]},
-            "reprojection_error_px": m.get("reprojection_error_px_keypoint_stage", np.nan),
-            "iou": m.get("iou_keypoint_stage", np.nan),
-            "warnings": [],
-        },
-        replace(r, silhouette=None, masks={"final": r.masks["keypoint_stage"]} if "keypoint_stage" in r.masks else {}),
+    metrics = {
+        "stages": ["keypoints"],
+        "timings_s": {"keypoints": m["timings_s"]["keypoints"]},
+        "reprojection_error_px": m.get("reprojection_error_px_keypoint_stage", np.nan),
+        "iou": m.get("iou_keypoint_stage", np.nan),
+        "warnings": [],
+    }
+    masks = {"final": r.masks["keypoint_stage"]} if "keypoint_stage" in r.masks else {}
+    stage = FitResult(
+        r.camera, r.layout, kp, None, kp.params(0), kp.vertices[0], kp.joints[0], kp.keypoints_2d[0], metrics, masks
     )
-    return fit
+    return image_result_fit(job, stage)
 
 
 def _rig_core(jobs: Sequence[Job]) -> RigCore:

@@ -320,6 +320,9 @@ def test_a_fit_gives_its_keypoint_stage_seconds_history_and_masks_by_the_same_na
     for name, value in fit.stage.keypoint.params(0).items():
         assert np.array_equal(kp.frame_params(0)[name], np.asarray(value, np.float32)), name
     assert np.array_equal(kp.vertices[0], fit.stage.keypoint.vertices[0])
+    # its record (what write() puts in params.json) is the keypoint stage's too, not the final fit's
+    assert np.array_equal(kp.stage.final.body_pose, fit.stage.keypoint.body_pose)
+    assert not np.array_equal(kp.stage.final.body_pose, fit.stage.final.body_pose)
     assert kp.iou[0, 0] == fit.metrics["iou_keypoint_stage"] and fit.iou[0, 0] == fit.metrics["iou"]
     assert set(fit.seconds) == {"keypoints", "silhouette"} and set(alone.seconds) == {"keypoints"}
     assert len(fit.history["iou"]) > 0 and alone.history is None

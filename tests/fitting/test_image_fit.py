@@ -7,10 +7,19 @@ import pytest
 
 from silfit.io.subjects import load_subject
 from silfit.run import fit
-from silfit.fitting.keypoint_stage import BranchSearch, Solutions, Starts
+from silfit.fitting.keypoint_stage import BranchSearch, KeypointFitConfig, Solutions, Starts
 from silfit.fitting.silhouette_stage import MaskHandling, TrustRegion
 
 SHIPPED = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+#: a few keypoint steps from one start, no branch search (the keypoint fit is only a start for these tests)
+FEW_STEPS = KeypointFitConfig(
+    camera_iters=5,
+    pose_iters=(5, 5, 5),
+    shape_iters=0,
+    final_iters=0,
+    starts=Starts(poses=1),
+    branches=BranchSearch(search=False),
+)
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +62,6 @@ def test_mask_of_another_size_is_an_error(open_model, subject):
 
 def test_save_fit_leaves_nothing_when_a_write_fails(open_model, subject, tmp_path, monkeypatch):
     from silfit.outputs import figures
-    from silfit.fitting import KeypointFitConfig
     from silfit import save_fit
 
     cfg = KeypointFitConfig(
@@ -240,7 +248,6 @@ def test_the_hypothesis_that_refines_lowest_against_the_mask_is_kept(open_model,
     lowest final energy is kept; metrics.json records each one's energy and which was kept (shipped subject 4:
     two distinct hypotheses, a few per cent apart by the keypoint stage's energy)."""
     from silfit.io.fit import read_fit
-    from silfit.fitting import KeypointFitConfig
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
     from silfit import save_fit
 
@@ -349,7 +356,7 @@ def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
 
     import silfit.fitting.silhouette_stage as stage
     from silfit.camera import Camera, project_points
-    from silfit.fitting import KeypointFitConfig, KeypointFitter
+    from silfit.fitting import KeypointFitter
     from silfit.fitting.image_fit import body_mask, refine_batch
     from silfit.io.keypoints import KeypointSet, model_keypoints
 
@@ -361,14 +368,7 @@ def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
         sets.append(
             KeypointSet(project_points(model_keypoints(model, out, "body25"), cam)[0].numpy(), np.ones(25), "body25")
         )
-    cfg = KeypointFitConfig(
-        camera_iters=5,
-        pose_iters=(5, 5, 5),
-        shape_iters=0,
-        final_iters=0,
-        starts=Starts(poses=1),
-        branches=BranchSearch(search=False),
-    )
+    cfg = FEW_STEPS
     kp = KeypointFitter(model, config=cfg).fit(sets, [cam, cam], progress=False)
 
     def marked(i, k):  # sample i's fit with body_pose[0] = 0.01 k: which candidate a result came from
@@ -448,7 +448,7 @@ def test_the_kept_hypothesis_holds_the_final_fit_whatever_the_guard_did(monkeypa
 
     import silfit.fitting.silhouette_stage as stage
     from silfit.camera import Camera, project_points
-    from silfit.fitting import KeypointFitConfig, KeypointFitter
+    from silfit.fitting import KeypointFitter
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
     from silfit.fitting.image_fit import body_mask, refine_batch
     from silfit.io.keypoints import KeypointSet, model_keypoints
@@ -457,14 +457,7 @@ def test_the_kept_hypothesis_holds_the_final_fit_whatever_the_guard_did(monkeypa
     cam = Camera.from_image_size(320, 240)
     out = model(global_orient=torch.tensor([[np.pi, 0, 0]]), transl=torch.tensor([[0.0, 0.2, 3.0]]))
     sets = [KeypointSet(project_points(model_keypoints(model, out, "body25"), cam)[0].numpy(), np.ones(25), "body25")]
-    cfg = KeypointFitConfig(
-        camera_iters=5,
-        pose_iters=(5, 5, 5),
-        shape_iters=0,
-        final_iters=0,
-        starts=Starts(poses=1),
-        branches=BranchSearch(search=False),
-    )
+    cfg = FEW_STEPS
     kp = KeypointFitter(model, config=cfg).fit(sets, [cam], progress=False)
     other = {n: np.array(v, dtype=np.float32) for n, v in kp.params(0).items()}
     other["body_pose"][0] += 0.01
