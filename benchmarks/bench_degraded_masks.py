@@ -19,7 +19,9 @@ fit, ``trust_free_ratio=None``, ``trim_quantile=0.25``); *twopass* (the two-pass
 of the mask unknown, the shallow fill side near the edge of every mask); *after, no subtraction* (``second`` only: the
 defaults on the joined mask); *oracle* (the defaults, but every mask trimmed by the true growth, which the bench knows:
 ``clothing``'s dilation, 0 elsewhere, in place of :func:`~silfit.silhouette.losses.clothing_thickness`'s estimate;
-the estimate against the truth per subject is printed under the table).
+the estimate against the truth per subject is printed under the table); *margin0* (the defaults, but the lowest final
+energy chooses between the keypoint fit's depth branch and its close alternatives, ``choice_margin=0``: before issue
+55's depth-branch part).
 Printed per condition: PA-PVE and PVE (mm, against the whole true body), the median reprojection error (px),
 IoU with the given mask, how many fits the plausibility guard turned back, the gain of keypoints +
 silhouette over keypoints only in PA-PVE, and per subject the most the stage worsened a fit's PA-PVE and how many
@@ -86,6 +88,8 @@ VARIANTS = {
     "h0i1": {"mask.hole_fraction": 0.0, "mask.cover_inner": 1.0, "mask.hole_covered": 0.0},
     "h0i1it": {"mask.hole_fraction": 0.0, "mask.cover_inner": 1.0, "mask.hole_covered": 0.0, "iterations": (30, 30)},
     "it30": {"iterations": (30, 30)},
+    # the depth-branch choice (issue 55): ``margin0``, before it (the lowest final energy keeps its branch)
+    "margin0": {"choice_margin": 0.0},
 }
 
 

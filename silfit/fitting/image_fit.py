@@ -224,7 +224,7 @@ def _guard(model, start: dict, params: dict, keypoints: KeypointSet, camera: Cam
 
 
 def _choose_hypothesis(
-    model, sils, starts, keypoints: KeypointSet, camera: Camera, where: str, guard: bool = True
+    model, sils, starts, keypoints: KeypointSet, camera: Camera, where: str, guard: bool = True, margin: float = 0.0
 ) -> tuple:
     """``(index, record)``: which of one image's hypotheses, each refined by the silhouette stage (``sils``, from
     ``starts``; the keypoint fit first), is kept: the lowest final energy of the stage
@@ -233,7 +233,9 @@ def _choose_hypothesis(
     (``guard``) finds it less plausible than its own start or than the keypoint fit (then the keypoint fit's, as
     without hypotheses). ``record`` (``metrics.json``'s ``hypotheses_silhouette``; ``{}`` for one hypothesis): each
     one's final energy (``None``: not comparable) and IoU, the kept rank, its energy's gap below the keypoint fit's,
-    and ``guard_reverted``: the rank the guard set aside, if any. A person mask hardly sees a limb mirrored in
+    ``guard_reverted``: the rank the guard set aside, if any, and ``margin_held``: the rank whose energy was lowest
+    but not lower than the keypoint fit's by more than ``margin`` (``SilhouetteFitConfig.choice_margin``, relative),
+    if any: then the keypoint fit's branch is kept. A person mask hardly sees a limb mirrored in
     depth, yet on generated hard sets the branch that refines lowest against it is the better choice
     (``benchmarks/bench_hypothesis_silhouette.py``; the numbers: docs/benchmarks/defaults.md)."""
     if len(sils) == 1:
@@ -244,7 +246,9 @@ def _choose_hypothesis(
         for s in sils
     ]
     c = min(range(len(sils)), key=lambda k: (np.inf if energies[k] is None else energies[k], k))
-    reverted = None
+    reverted = held = None
+    if c and energies[0] is not None and energies[0] - energies[c] <= float(margin) * abs(energies[0]):
+        c, held = 0, c + 1
     if c and guard:
         params = sils[c].params()
         _, _, kp2d = _pose(model, params, keypoints.layout, camera)
@@ -257,6 +261,7 @@ def _choose_hypothesis(
         "kept": c + 1,
         "gap": float(gap),
         "guard_reverted": reverted,
+        "margin_held": held,
     }
 
 
@@ -543,6 +548,7 @@ class ImageRefinement(SilhouetteHooks):
             self.offered,
             self.candidates,
             sils,
+            float(getattr(config, "choice_margin", 0.0)),
         )
         return [_with_passes(batch.result(i), self.passes[i]) for i in range(len(self.keypoints))]
 
@@ -556,7 +562,10 @@ def _dragged_images(model, keypoints, cameras, candidates: list, inits: list, si
     for i, rows in enumerate(candidates):
         k, camera = keypoints[i], cameras[i]
         guard = getattr(config, "plausibility_guard", True)
-        c, _ = _choose_hypothesis(model, [sils[r] for r in rows], [inits[r] for r in rows], k, camera, "mask", guard)
+        margin = float(getattr(config, "choice_margin", 0.0))
+        c, _ = _choose_hypothesis(
+            model, [sils[r] for r in rows], [inits[r] for r in rows], k, camera, "mask", guard, margin
+        )
         before = _median_reprojection(_pose(model, inits[i], k.layout, camera)[2], k)
         after = _median_reprojection(_pose(model, sils[rows[c]].params(), k.layout, camera)[2], k)
         refit = after > float(config.trust.free_ratio) * before
@@ -621,8 +630,10 @@ class _RefinedBatch:
         offered,
         candidates,
         sils,
+        choice_margin: float = 0.0,
     ):
         self.model, self.keypoint_result, self.keypoints = model, keypoint_result, keypoints
+        self.choice_margin = choice_margin
         self.masks, self.mask_sources, self.guarded, self.cameras = (
             masks,
             mask_sources,
@@ -701,6 +712,7 @@ class _RefinedBatch:
             self.cameras[i],
             self.mask_sources[i],
             self.guarded,
+            self.choice_margin,
         )
         if choice and self.keypoint_result.hypotheses is None:  # the close alternatives: which branches were refined
             choice["alternatives"] = [

@@ -327,6 +327,12 @@ class SilhouetteFitConfig:
     alternatives_margin: float = 0.1
     #: at most this many close alternatives per image, the closest in energy first (each costs one more problem)
     alternatives_max: int = 2
+    #: an alternative (or ``--hypotheses K``'s hypothesis) replaces the keypoint stage's fit only where its final
+    #: energy is lower than the fit's by more than this share of it: a mask hardly sees a limb mirrored in depth, and
+    #: the render seed alone moves the gap between two refined branches by 2.1 % (standard deviation), so a smaller
+    #: gap is a coin toss; 0.04 is about twice that (image path: image_fit._choose_hypothesis; 0: the lowest energy,
+    #: before issue 55's depth-branch part; the measurements: docs/benchmarks/real-photos.md)
+    choice_margin: float = 0.04
     #: Adam's learning rates (body_pose 0.03 before issue 24's fourth part: the first steps of a rendered level
     #: knocked the contour level's IoU down)
     lr: dict = field(default_factory=lambda: dict(sorted(STAGE_DEFAULTS["lr"].items())))  # by name

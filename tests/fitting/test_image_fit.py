@@ -340,8 +340,18 @@ def test_choosing_a_hypothesis_by_the_silhouette_stage():
     moved = {**start, "transl": start["transl"] + np.array([0.5, 0, 0], np.float32)}
     assert choose(refined(2.0), refined(1.0, transl_x=0.5), starts=[start, moved]) == (
         0,
-        {"energies": [2.0, 1.0], "iou": [0.9, 0.9], "kept": 1, "gap": 0.0, "guard_reverted": 2},
+        {"energies": [2.0, 1.0], "iou": [0.9, 0.9], "kept": 1, "gap": 0.0, "guard_reverted": 2, "margin_held": None},
     )
+    # the margin (SilhouetteFitConfig.choice_margin): an alternative 2 % below the keypoint fit keeps the fit's branch,
+    # one 25 % below replaces it; at 0 the lowest energy wins
+    def margin(m, *sils):
+        return _choose_hypothesis(toy_body, list(sils), [start] * len(sils), kps, cam, "mask", True, m)
+
+    c, record = margin(0.04, refined(2.0), refined(1.96))
+    assert c == 0 and record["kept"] == 1 and record["margin_held"] == 2 and record["gap"] == 0.0
+    assert margin(0.0, refined(2.0), refined(1.96))[0] == 1
+    c, record = margin(0.04, refined(2.0), refined(1.96), refined(1.5))
+    assert c == 2 and record["margin_held"] is None and record["gap"] == pytest.approx(0.25)
 
 
 def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
