@@ -17,6 +17,9 @@ option) and *after* with today's defaults, and prints per run:
 Seeds run in parallel processes (``--workers``, one torch thread each), so every fit is the same as in one.
 
     python benchmarks/bench_hard_set.py --seeds 15300,15301 --baseline branch_hinge=False
+    python benchmarks/bench_hard_set.py --seeds 15400,15401 --silhouette-baseline choice_margin=0
+
+``--silhouette-baseline``: the before run's :class:`SilhouetteFitConfig` settings instead (today's keypoint stage).
 """
 
 from __future__ import annotations
@@ -37,12 +40,13 @@ from silfit.fitting import KeypointFitter
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig
 from silfit.fitting.image_fit import refine_batch
 from silfit.fitting.plausibility import depth_warnings
-from silfit.runner.worker import keypoint_config
+from silfit.runner.worker import config_with, keypoint_config
 
 
-def run_seed(seed: int, n: int, size: int, batch: int, settings: dict) -> list:
+def run_seed(seed: int, n: int, size: int, batch: int, settings: dict, silhouette: dict = None) -> list:
     """Per subject of seed ``seed``: PA-PVE of the keypoint fit and with silhouettes (mm), the depth
-    warning, fit and truth energies and CPU seconds, with the keypoint ``settings`` (``{}``: defaults)."""
+    warning, fit and truth energies and CPU seconds, with the keypoint ``settings`` and the silhouette stage's
+    ``silhouette`` settings (``{}``/``None``: defaults)."""
     torch.set_num_threads(1)
     model = load_body_model()
     sets, cams, gts, masks = hard_set(n, seed, size, model, masks=True)
@@ -58,7 +62,13 @@ def run_seed(seed: int, n: int, size: int, batch: int, settings: dict) -> list:
         )
         t0 = time.process_time()
         res = refine_batch(
-            model, kp, sets[sl], masks[sl], SilhouetteFitConfig(), pose_prior=fitter.pose_prior, progress=False
+            model,
+            kp,
+            sets[sl],
+            masks[sl],
+            config_with(SilhouetteFitConfig, dict(silhouette or {}), stage="silhouette"),
+            pose_prior=fitter.pose_prior,
+            progress=False,
         )
         t_sil = time.process_time() - t0
         for j, r in enumerate(res):
@@ -109,18 +119,27 @@ def main() -> None:
         metavar="NAME=VALUE",
         help="the before run's KeypointFitConfig settings (repeatable); none: today's defaults only",
     )
+    ap.add_argument(
+        "--silhouette-baseline",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="the before run's SilhouetteFitConfig settings (repeatable), with today's keypoint stage",
+    )
     ap.add_argument("--workers", type=int, default=2, help="parallel processes (one seed and run each)")
     args = ap.parse_args()
-    if any("=" not in o for o in args.baseline):
-        ap.error("--baseline takes NAME=VALUE")
+    if any("=" not in o for o in args.baseline + args.silhouette_baseline):
+        ap.error("--baseline and --silhouette-baseline take NAME=VALUE")
     seeds = [int(s) for s in args.seeds.split(",")]
-    runs = {"after (today's defaults)": {}}
-    if args.baseline:
-        runs = {f"before ({', '.join(args.baseline)})": dict(o.split("=", 1) for o in args.baseline), **runs}
+    runs = {"after (today's defaults)": ({}, {})}
+    if args.baseline or args.silhouette_baseline:
+        name = f"before ({', '.join(args.baseline + args.silhouette_baseline)})"
+        split = lambda opts: dict(o.split("=", 1) for o in opts)  # noqa: E731
+        runs = {name: (split(args.baseline), split(args.silhouette_baseline)), **runs}
     t0 = time.perf_counter()
     with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
         jobs = {
-            (name, s): pool.submit(run_seed, s, args.n, args.size, args.batch, settings)
+            (name, s): pool.submit(run_seed, s, args.n, args.size, args.batch, *settings)
             for name, settings in runs.items()
             for s in seeds
         }

@@ -229,7 +229,9 @@ def _choose_hypothesis(
     """``(index, record)``: which of one image's hypotheses, each refined by the silhouette stage (``sils``, from
     ``starts``; the keypoint fit first), is kept: the lowest final energy of the stage
     (:attr:`~silfit.fitting.silhouette_stage.SilhouetteFitResult.final_energy`) among those that ran to the
-    last level without failing (energies of different resolutions do not compare), unless the plausibility guard
+    last level without failing (energies of different resolutions do not compare), where it is more than ``margin``
+    (relative) below the keypoint fit's (a keypoint fit whose energy does not compare is not held by it), unless the
+    plausibility guard
     (``guard``) finds it less plausible than its own start or than the keypoint fit (then the keypoint fit's, as
     without hypotheses). ``record`` (``metrics.json``'s ``hypotheses_silhouette``; ``{}`` for one hypothesis): each
     one's final energy (``None``: not comparable) and IoU, the kept rank, its energy's gap below the keypoint fit's,
@@ -473,7 +475,7 @@ class ImageRefinement(SilhouetteHooks):
     """An image batch's hooks of the one silhouette driver (:func:`~silfit.fitting.refine.refine_silhouettes`): all
     subjects refined together, each with the keypoint stage's alternatives it offers (:func:`_offered_alternatives`:
     ``--hypotheses K``'s, else the close ones) as more problems of the batch; per image the lowest final energy is
-    kept (:func:`_choose_hypothesis`). ``known``: per image, the mask's pixels whose value is trusted (``None``: all;
+    kept where it is more than ``choice_margin`` below the keypoint fit's (:func:`_choose_hypothesis`). ``known``: per image, the mask's pixels whose value is trusted (``None``: all;
     e.g. not the other people's, issue 55), joined to those the stage sets aside itself (leaks, holes, concavities).
     With ``SilhouetteFitConfig.trust.free_ratio``, two passes: first with the trust region before issue 55
     (:meth:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig.free_pass`), then the images that pass dragged off
@@ -644,7 +646,8 @@ class _RefinedBatch:
         self.inits, self.offered, self.candidates, self.sils = inits, offered, candidates, sils
 
     def result(self, i: int) -> FitResult:
-        """Image ``i``'s fit: its candidate with the lowest final energy, under the plausibility guard."""
+        """Image ``i``'s fit: its candidate with the lowest final energy (beyond ``choice_margin``), under the
+        plausibility guard."""
         model, keypoints, cameras, masks = self.model, self.keypoints, self.cameras, self.masks
         kr, candidates, inits, sils = self.keypoint_result, self.candidates, self.inits, self.sils
         one = kr[i]

@@ -320,7 +320,8 @@ class SilhouetteFitConfig:
     #: the keypoint stage's other distinct branches refined to the end (``KeypointFitResult.alternatives``) whose
     #: final energy lies within this relative margin of the fit's (the same 10 % as the depth warning's
     #: ``silfit.fitting.plausibility.HYPOTHESIS_MARGIN``, which also asks that they move a joint 400 mm) are refined against
-    #: the mask too, as more problems of the batch, and the lowest final energy of the stage is kept (image path:
+    #: the mask too, as more problems of the batch, and the lowest final energy of the stage is kept, beyond
+    #: ``choice_margin`` (image path:
     #: image_fit.ImageRefinement; ``--hypotheses K`` refines its K hypotheses instead, whatever this is); 0: off,
     #: the keypoint stage's branch only (before issue 25's close-alternatives part; README "By default, the close
     #: alternatives too")
@@ -402,6 +403,9 @@ class SilhouetteFitConfig:
             )
         if t.free_ratio is not None and not float(t.free_ratio) > 0:
             raise ValueError(f"SilhouetteFitConfig: trust.free_ratio must be above 0 or None, got {t.free_ratio!r}")
+        bad = [n for n in ("alternatives_margin", "choice_margin") if not float(getattr(self, n)) >= 0]  # NaN too
+        if bad:
+            raise ValueError(f"SilhouetteFitConfig: {', '.join(bad)} must be 0 or more")
         if not 0.0 <= float(self.mask.trim_quantile) <= 1.0:
             raise ValueError(
                 f"SilhouetteFitConfig: mask.trim_quantile must lie in [0, 1], got {self.mask.trim_quantile!r}"

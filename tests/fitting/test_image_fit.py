@@ -342,6 +342,7 @@ def test_choosing_a_hypothesis_by_the_silhouette_stage():
         0,
         {"energies": [2.0, 1.0], "iou": [0.9, 0.9], "kept": 1, "gap": 0.0, "guard_reverted": 2, "margin_held": None},
     )
+
     # the margin (SilhouetteFitConfig.choice_margin): an alternative 2 % below the keypoint fit keeps the fit's branch,
     # one 25 % below replaces it; at 0 the lowest energy wins
     def margin(m, *sils):
@@ -352,6 +353,8 @@ def test_choosing_a_hypothesis_by_the_silhouette_stage():
     assert margin(0.0, refined(2.0), refined(1.96))[0] == 1
     c, record = margin(0.04, refined(2.0), refined(1.96), refined(1.5))
     assert c == 2 and record["margin_held"] is None and record["gap"] == pytest.approx(0.25)
+    # a keypoint fit whose energy does not compare (it failed) holds nothing back
+    assert margin(0.04, refined(2.0, failed=True), refined(1.96))[0] == 1
 
 
 def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
@@ -443,6 +446,18 @@ def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
         {"label": "left_shin", "differs": ["left_shin"], "gap": 0.05, "max_shift_mm": None}
     ]
     assert not any("chosen by the mask" in w for w in res[1].metrics["warnings"])
+
+    # the alternative only 2 % lower: the config's choice_margin (0.04) keeps the keypoint fit's branch; at 0 it wins
+    finals[:] = [2.0, 2.0, 1.96]
+    res = refine_batch(model, kp, sets, masks, progress=False)
+    record = res[0].metrics["hypotheses_silhouette"]
+    assert record["kept"] == 1 and record["margin_held"] == 2
+    assert res[0].params["body_pose"].reshape(-1)[0] == pytest.approx(
+        np.asarray(kp.params(0)["body_pose"]).reshape(-1)[0]
+    )
+    assert not any("chosen by the mask" in w for w in res[0].metrics["warnings"])
+    res = refine_batch(model, kp, sets, masks, stage.SilhouetteFitConfig(choice_margin=0), progress=False)
+    assert res[0].metrics["hypotheses_silhouette"]["kept"] == 2
 
 
 def test_the_kept_hypothesis_holds_the_final_fit_whatever_the_guard_did(monkeypatch):
