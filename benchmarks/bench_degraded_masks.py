@@ -5,7 +5,8 @@ Subjects from silfit's generator (fully visible, all yaws, 1 px keypoint noise),
 (the helpers of ``bench_truncation.py``): ``clean`` masks; ``clothing``: the mask dilated by 4 % of the
 person's height; ``cut``: the image cut at mid-thigh; ``second``: a second person (the next subject's mask
 and keypoints, shifted sideways so that their box overlaps this person's by ``--overlap`` of its width)
-joined to the mask, as a segmenter run around one of two people standing close marks both. The second
+joined to the mask, as a segmenter run around one of two people standing close marks both; ``closed`` (not in the
+default ``--conditions``): the clean mask grown as ``clothing`` and eroded back by the same disc, a perfect trim. The second
 person is detected too: the methods that take other people out (``after``) get their mask and keypoints, and the
 pixels of the joined mask that are the second person's are unknown to the stage
 (:func:`silfit.silhouette.people.own_mask`, the radius 6 % of their extent, this person's own skeleton kept
@@ -117,6 +118,15 @@ def oracle_thickness(on: bool):
     return estimate_of, thickness
 
 
+def shrink(mask: np.ndarray, px: int) -> np.ndarray:
+    """``mask`` eroded by the disc of :func:`grow`: ``shrink(grow(m, px), px)`` is ``m`` closed, what a perfect trim of
+    the ``clothing`` condition's growth gives back (the gaps narrower than the growth stay filled)."""
+    import cv2
+
+    k = 2 * int(px) + 1
+    return cv2.erode(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))).astype(bool)
+
+
 def shift(mask: np.ndarray, dx: int) -> np.ndarray:
     out = np.zeros_like(mask)
     if dx >= 0:
@@ -180,7 +190,8 @@ def main() -> None:
         joined, moved, mkp = second_person(mask, kp, omask, okp, args.overlap)
         grown_px = max(1, int(0.04 * height))
         grown = grow(mask, grown_px)
-        for m, px in ((mask, 0), (grown, grown_px), (mc, 0), (joined, 0)):
+        closed = shrink(grown, grown_px)
+        for m, px in ((mask, 0), (grown, grown_px), (mc, 0), (joined, 0), (closed, 0)):
             TRUTH[np.asarray(m, dtype=bool).tobytes()] = px
         subjects.append(
             (
@@ -189,6 +200,7 @@ def main() -> None:
                     "clothing": (kp, grown, cam, ()),
                     "cut": (kc, mc, cc, ()),
                     "second": (kp, joined, cam, ((moved, mkp),)),
+                    "closed": (kp, closed, cam, ()),
                 },
                 gt,
             )
