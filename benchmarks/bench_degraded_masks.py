@@ -5,12 +5,13 @@ Subjects from silfit's generator (fully visible, all yaws, 1 px keypoint noise),
 (the helpers of ``bench_truncation.py``): ``clean`` masks; ``clothing``: the mask dilated by 4 % of the
 person's height; ``cut``: the image cut at mid-thigh; ``second``: a second person (the next subject's mask
 and keypoints, shifted sideways so that their box overlaps this person's by ``--overlap`` of its width)
-joined to the mask, as a segmenter run around one of two people standing close marks both; ``closed`` (not in the
-default ``--conditions``): the clean mask grown as ``clothing`` and eroded back by the same disc, a perfect trim. The second
+joined to the mask, as a segmenter run around one of two people standing close marks both. The second
 person is detected too: the methods that take other people out (``after``) get their mask and keypoints, and the
 pixels of the joined mask that are the second person's are unknown to the stage
 (:func:`silfit.silhouette.people.own_mask`, the radius 6 % of their extent, this person's own skeleton kept
-within 4 % of theirs, as ``Person.own_mask``).
+within 4 % of theirs, as ``Person.own_mask``). A fifth condition, not in the default ``--conditions``: ``closed``,
+the clean mask grown as ``clothing`` and eroded back by the same disc (a perfect trim: the gaps narrower than the
+growth stay filled).
 
 Methods: *keypoints only*; *main* (the silhouette stage before issue 55: the trust region of 6 % of the
 window around the detections, the fill side as strong as the inside side, the whole mask);
@@ -49,6 +50,7 @@ from silfit.io.subjects import read_gt, read_mask
 from silfit.fitting import KeypointFitter
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig
 from silfit.runner.worker import config_with
+from silfit.fitting import image_fit
 from silfit.fitting.image_fit import refine_batch
 from silfit.io.keypoints import KeypointSet, read_keypoints
 from silfit.silhouette.people import own_mask
@@ -251,11 +253,13 @@ def main() -> None:
                 known = [None if np.array_equal(o, m) else ~(m & ~o) for o, m in zip(own, masks)]
             t0 = time.perf_counter()
             ESTIMATES.clear()
-            estimate_of, losses.clothing_thickness = oracle_thickness(name == "oracle")
+            # the stage reads the estimate through silfit.fitting.image_fit's own name (imported from losses)
+            estimate_of, patched = losses.clothing_thickness, oracle_thickness(name == "oracle")[1]
+            losses.clothing_thickness = image_fit.clothing_thickness = patched
             try:
                 fits = refine_batch(model, kp, sets, masks, cfg, fitter.pose_prior, progress=False, known=known)
             finally:
-                losses.clothing_thickness = estimate_of
+                losses.clothing_thickness = image_fit.clothing_thickness = estimate_of
             estimates[(cond, name)] = list(ESTIMATES)
             seconds = (time.perf_counter() - t0) / len(fits)
             rows = [_score(model, f.params, g, f) for f, g in zip(fits, gts)]

@@ -136,6 +136,12 @@ def main() -> None:
         name = f"before ({', '.join(args.baseline + args.silhouette_baseline)})"
         split = lambda opts: dict(o.split("=", 1) for o in opts)  # noqa: E731
         runs = {name: (split(args.baseline), split(args.silhouette_baseline)), **runs}
+    for settings, silhouette in runs.values():  # a bad setting: one line now, not after the other runs
+        try:
+            keypoint_config(dict(settings))
+            config_with(SilhouetteFitConfig, dict(silhouette), stage="silhouette")
+        except ValueError as e:
+            ap.error(str(e))
     t0 = time.perf_counter()
     with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
         jobs = {
