@@ -43,14 +43,13 @@ from pathlib import Path
 import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import numpy as np
 
-from bench_truncation import _score, cut_subject, grow
+from bench_truncation import _score, cut_subject, grow, shrink
 from silfit import load_body_model
 from silfit.camera import load_camera
 from silfit.io.subjects import read_gt, read_mask
-from silfit.fitting import KeypointFitter
+from silfit.fitting import KeypointFitter, image_fit
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig
 from silfit.runner.worker import config_with
-from silfit.fitting import image_fit
 from silfit.fitting.image_fit import refine_batch
 from silfit.io.keypoints import KeypointSet, read_keypoints
 from silfit.silhouette.people import own_mask
@@ -118,15 +117,6 @@ def oracle_thickness(on: bool):
         return float(truth) if on and truth is not None else est
 
     return estimate_of, thickness
-
-
-def shrink(mask: np.ndarray, px: int) -> np.ndarray:
-    """``mask`` eroded by the disc of :func:`grow`: ``shrink(grow(m, px), px)`` is ``m`` closed, what a perfect trim of
-    the ``clothing`` condition's growth gives back (the gaps narrower than the growth stay filled)."""
-    import cv2
-
-    k = 2 * int(px) + 1
-    return cv2.erode(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))).astype(bool)
 
 
 def shift(mask: np.ndarray, dx: int) -> np.ndarray:
@@ -254,7 +244,7 @@ def main() -> None:
             t0 = time.perf_counter()
             ESTIMATES.clear()
             # the stage reads the estimate through silfit.fitting.image_fit's own name (imported from losses)
-            estimate_of, patched = losses.clothing_thickness, oracle_thickness(name == "oracle")[1]
+            estimate_of, patched = oracle_thickness(name == "oracle")
             losses.clothing_thickness = image_fit.clothing_thickness = patched
             try:
                 fits = refine_batch(model, kp, sets, masks, cfg, fitter.pose_prior, progress=False, known=known)

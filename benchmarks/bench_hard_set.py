@@ -51,6 +51,7 @@ def run_seed(seed: int, n: int, size: int, batch: int, settings: dict, silhouett
     model = load_body_model()
     sets, cams, gts, masks = hard_set(n, seed, size, model, masks=True)
     fitter = KeypointFitter(model, config=keypoint_config(dict(settings)))
+    sil_config = config_with(SilhouetteFitConfig, dict(silhouette or {}), stage="silhouette")
     rows = []
     for b in range(0, n, batch):
         sl = slice(b, b + batch)
@@ -61,15 +62,7 @@ def run_seed(seed: int, n: int, size: int, batch: int, settings: dict, silhouett
             {k: np.stack([getattr(g, k) for g in gts[sl]]) for k in NAMES}, sets[sl], cams[sl]
         )
         t0 = time.process_time()
-        res = refine_batch(
-            model,
-            kp,
-            sets[sl],
-            masks[sl],
-            config_with(SilhouetteFitConfig, dict(silhouette or {}), stage="silhouette"),
-            pose_prior=fitter.pose_prior,
-            progress=False,
-        )
+        res = refine_batch(model, kp, sets[sl], masks[sl], sil_config, pose_prior=fitter.pose_prior, progress=False)
         t_sil = time.process_time() - t0
         for j, r in enumerate(res):
             gt = gts[b + j]

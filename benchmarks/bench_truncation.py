@@ -67,11 +67,26 @@ def cut_subject(d: Path):
     return KeypointSet(kp.xy, conf, kp.layout, source=str(d)), mask, short, gt
 
 
-def grow(mask: np.ndarray, px: int) -> np.ndarray:
+def _disc(px: int):
+    """The elliptic structuring element of radius ``px`` that :func:`grow` and :func:`shrink` use."""
     import cv2
 
     k = 2 * int(px) + 1
-    return cv2.dilate(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))).astype(bool)
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+
+
+def grow(mask: np.ndarray, px: int) -> np.ndarray:
+    import cv2
+
+    return cv2.dilate(mask.astype(np.uint8), _disc(px)).astype(bool)
+
+
+def shrink(mask: np.ndarray, px: int) -> np.ndarray:
+    """``mask`` eroded by :func:`grow`'s disc: ``shrink(grow(m, px), px)`` is ``m`` closed, what a perfect trim of a
+    growth gives back (the gaps narrower than the growth stay filled)."""
+    import cv2
+
+    return cv2.erode(mask.astype(np.uint8), _disc(px)).astype(bool)
 
 
 def leak(mask: np.ndarray, kp: KeypointSet, holes: int = 3) -> np.ndarray:

@@ -231,14 +231,14 @@ def _choose_hypothesis(
     (:attr:`~silfit.fitting.silhouette_stage.SilhouetteFitResult.final_energy`) among those that ran to the
     last level without failing (energies of different resolutions do not compare), where it is more than ``margin``
     (relative) below the keypoint fit's (a keypoint fit whose energy does not compare is not held by it), unless the
-    plausibility guard
-    (``guard``) finds it less plausible than its own start or than the keypoint fit (then the keypoint fit's, as
-    without hypotheses). ``record`` (``metrics.json``'s ``hypotheses_silhouette``; ``{}`` for one hypothesis): each
-    one's final energy (``None``: not comparable) and IoU, the kept rank, its energy's gap below the keypoint fit's,
-    ``guard_reverted``: the rank the guard set aside, if any, and ``margin_held``: the rank whose energy was lowest
-    but not lower than the keypoint fit's by more than ``margin`` (``SilhouetteFitConfig.choice_margin``, relative),
-    if any: then the keypoint fit's branch is kept. A person mask hardly sees a limb mirrored in
-    depth, yet on generated hard sets the branch that refines lowest against it is the better choice
+    plausibility guard (``guard``) finds it less plausible than its own start or than the keypoint fit (then the
+    keypoint fit's, as without hypotheses). ``record`` (``metrics.json``'s ``hypotheses_silhouette``; ``{}`` for one
+    hypothesis): each one's final energy (``None``: not comparable) and IoU, the kept rank, its energy's gap below the
+    keypoint fit's, ``guard_reverted``: the rank the guard set aside, if any, and ``margin_held``: the rank whose
+    energy was lowest but not lower than the keypoint fit's by more than ``margin``
+    (``SilhouetteFitConfig.choice_margin``, relative), if any: then the keypoint fit's branch is kept. A person mask
+    hardly sees a limb mirrored in depth, yet on generated hard sets the branch that refines lowest against it is
+    the better choice (on library poses only beyond ``margin``)
     (``benchmarks/bench_hypothesis_silhouette.py``; the numbers: docs/benchmarks/defaults.md)."""
     if len(sils) == 1:
         return 0, {}
@@ -475,9 +475,10 @@ class ImageRefinement(SilhouetteHooks):
     """An image batch's hooks of the one silhouette driver (:func:`~silfit.fitting.refine.refine_silhouettes`): all
     subjects refined together, each with the keypoint stage's alternatives it offers (:func:`_offered_alternatives`:
     ``--hypotheses K``'s, else the close ones) as more problems of the batch; per image the lowest final energy is
-    kept where it is more than ``choice_margin`` below the keypoint fit's (:func:`_choose_hypothesis`). ``known``: per image, the mask's pixels whose value is trusted (``None``: all;
-    e.g. not the other people's, issue 55), joined to those the stage sets aside itself (leaks, holes, concavities).
-    With ``SilhouetteFitConfig.trust.free_ratio``, two passes: first with the trust region before issue 55
+    kept where it is more than ``choice_margin`` below the keypoint fit's (:func:`_choose_hypothesis`). ``known``:
+    per image, the mask's pixels whose value is trusted (``None``: all; e.g. not the other people's, issue 55),
+    joined to those the stage sets aside itself (leaks, holes, concavities). With
+    ``SilhouetteFitConfig.trust.free_ratio``, two passes: first with the trust region before issue 55
     (:meth:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig.free_pass`), then the images that pass dragged off
     their keypoints (:func:`_dragged_images`), all their problems, with the trust region of the settings."""
 

@@ -321,10 +321,9 @@ class SilhouetteFitConfig:
     #: final energy lies within this relative margin of the fit's (the same 10 % as the depth warning's
     #: ``silfit.fitting.plausibility.HYPOTHESIS_MARGIN``, which also asks that they move a joint 400 mm) are refined against
     #: the mask too, as more problems of the batch, and the lowest final energy of the stage is kept, beyond
-    #: ``choice_margin`` (image path:
-    #: image_fit.ImageRefinement; ``--hypotheses K`` refines its K hypotheses instead, whatever this is); 0: off,
-    #: the keypoint stage's branch only (before issue 25's close-alternatives part; README "By default, the close
-    #: alternatives too")
+    #: ``choice_margin`` (image path: image_fit.ImageRefinement; ``--hypotheses K`` refines its K hypotheses instead,
+    #: whatever this is); 0: off, the keypoint stage's branch only (before issue 25's close-alternatives part; README
+    #: "By default, the close alternatives too")
     alternatives_margin: float = 0.1
     #: at most this many close alternatives per image, the closest in energy first (each costs one more problem)
     alternatives_max: int = 2
