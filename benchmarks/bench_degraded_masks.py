@@ -92,6 +92,9 @@ VARIANTS = {
     "it30": {"iterations": (30, 30)},
     # the depth-branch choice (issue 55): ``margin0``, before it (the lowest final energy keeps its branch)
     "margin0": {"choice_margin": 0.0},
+    # the trim's depth (issue 55): ``quartile``, before it (the trim as deep as the outline distances' quartile)
+    "quartile": {"mask.trim_upper": None},
+    "out50": {"mask.outline_quantile": 0.5},
 }
 
 

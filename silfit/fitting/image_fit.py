@@ -164,6 +164,9 @@ def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources, known=N
             out.append(mask)
             notes.append([])
             continue
+        if cfg.mask.trim_upper is not None:  # deeper, by the upper quantile, within a share of the extent
+            upper = clothing_thickness(mask, body, float(cfg.mask.trim_upper))
+            t = max(t, min(upper, t + float(cfg.mask.trim_upper_max) * extent))
         t = min(t, cfg.mask.trim_max * extent)
         out.append(trim_clothing(mask, t))
         if seen is not None and not (out[-1] & np.asarray(seen, dtype=bool)).any():  # nothing left to fit

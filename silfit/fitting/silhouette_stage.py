@@ -158,6 +158,12 @@ class MaskHandling:
     #: (:func:`~silfit.silhouette.losses.clothing_thickness`); 0.25 before the two-pass refit (why this default:
     #: docs/benchmarks/defaults.md)
     trim_quantile: float = 0.25
+    #: the trim's depth: the outline distances' ``trim_upper`` quantile, at most ``trim_upper_max`` of the mask's
+    #: extent beyond the ``trim_quantile`` one (which decides whether a mask is clothing at all and is biased low
+    #: by the keypoint fit's own misplacement: about 1 px on a 256 px render grown by 6); ``None``: the
+    #: ``trim_quantile`` one (before issue 55's deeper trim: docs/benchmarks/real-photos.md)
+    trim_upper: Optional[float] = 0.5
+    trim_upper_max: float = 0.01
     #: mask pixels farther than ``leak_distance`` of the mask's extent from the keypoint fit's
     #: silhouette (a leak into an object or the background) and the mask's holes smaller than
     #: ``hole_fraction`` of its area (segmentation gaps) are unknown, like the pixels beyond the
@@ -408,6 +414,12 @@ class SilhouetteFitConfig:
         if not 0.0 <= float(self.mask.trim_quantile) <= 1.0:
             raise ValueError(
                 f"SilhouetteFitConfig: mask.trim_quantile must lie in [0, 1], got {self.mask.trim_quantile!r}"
+            )
+        upper = self.mask.trim_upper
+        if (upper is not None and not 0.0 <= float(upper) <= 1.0) or not float(self.mask.trim_upper_max) >= 0:
+            raise ValueError(
+                "SilhouetteFitConfig: mask.trim_upper must lie in [0, 1] (or be None) and mask.trim_upper_max be 0 "
+                f"or more, got {upper!r} and {self.mask.trim_upper_max!r}"
             )
 
     @classmethod

@@ -220,6 +220,37 @@ def test_concavities_are_unknown_only_in_a_mask_trimmed_as_clothing():
     assert _known_pixels([mask], [body], off, ["a"], [[]], [True]) == [None]
 
 
+def test_the_clothing_trim_reaches_the_upper_quantile_within_its_share_of_the_extent():
+    """``mask.trim_upper``: the keypoint fit's body misplaced sideways puts the outline distances' quartile below the
+    clothing's true thickness (24 px here, 16 by the quartile); the trim goes deeper, to their median, but at most
+    ``trim_upper_max`` of the mask's extent (287 px) beyond the quartile (pure: no fitting)."""
+    from silfit.fitting.silhouette_stage import SilhouetteFitConfig
+    from silfit.fitting.image_fit import _trimmed_masks
+    from silfit.silhouette import clothing_thickness, trim_clothing
+
+    truth = np.zeros((400, 400), bool)
+    truth[80:320, 160:240] = True
+    mask = np.zeros_like(truth)
+    mask[56:344, 136:264] = True  # 24 px of clothing all around
+    body = np.roll(truth, 8, axis=1)  # the keypoint fit 8 px to the side
+    quartile, median = clothing_thickness(mask, body, 0.25), clothing_thickness(mask, body, 0.5)
+    assert quartile == pytest.approx(16, abs=1.0) and median == pytest.approx(24, abs=1.0)
+
+    def trimmed(**changes):
+        (out,), _, (was,) = _trimmed_masks([mask], [body], SilhouetteFitConfig(mask=MaskHandling(**changes)), ["a"])
+        assert was
+        return out
+
+    assert np.array_equal(trimmed(), trim_clothing(mask, quartile + 0.01 * 287))
+    assert np.array_equal(trimmed(trim_upper_max=0.05, trim_max=0.1), trim_clothing(mask, median))
+    assert np.array_equal(trimmed(trim_upper=None), trim_clothing(mask, quartile))
+    assert np.array_equal(trimmed(trim_upper_max=0.0), trim_clothing(mask, quartile))
+    assert len({int(round(t)) for t in (median, quartile, quartile + 0.01 * 287)}) == 3
+    for bad in ({"trim_upper": 1.5}, {"trim_upper_max": -0.1}, {"trim_upper": float("nan")}):
+        with pytest.raises(ValueError, match="mask.trim_upper"):
+            SilhouetteFitConfig(mask=MaskHandling(**bad))
+
+
 def test_the_clothing_trim_leaves_something_known_to_fit():
     """A mask grown all around is trimmed (``trim_quantile``: the outline distances' quantile taken as its thickness),
     unless the trimmed mask keeps none of the pixels the caller trusts (``known``): then it is fitted untrimmed (the
