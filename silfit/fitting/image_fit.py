@@ -164,9 +164,10 @@ def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources, known=N
             out.append(mask)
             notes.append([])
             continue
-        if cfg.mask.trim_upper is not None:  # deeper, by the upper quantile, within a share of the extent
+        if cfg.mask.trim_upper is not None:  # a layer about even all around: as deep as the upper quantile
             upper = clothing_thickness(mask, body, float(cfg.mask.trim_upper))
-            t = max(t, min(upper, t + float(cfg.mask.trim_upper_max) * extent))
+            if upper - t <= float(cfg.mask.trim_upper_max) * extent:
+                t = max(t, upper)
         t = min(t, cfg.mask.trim_max * extent)
         out.append(trim_clothing(mask, t))
         if seen is not None and not (out[-1] & np.asarray(seen, dtype=bool)).any():  # nothing left to fit

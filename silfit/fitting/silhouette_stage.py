@@ -158,10 +158,12 @@ class MaskHandling:
     #: (:func:`~silfit.silhouette.losses.clothing_thickness`); 0.25 before the two-pass refit (why this default:
     #: docs/benchmarks/defaults.md)
     trim_quantile: float = 0.25
-    #: the trim's depth: the outline distances' ``trim_upper`` quantile, at most ``trim_upper_max`` of the mask's
-    #: extent beyond the ``trim_quantile`` one (which decides whether a mask is clothing at all and is biased low
-    #: by the keypoint fit's own misplacement: about 1 px on a 256 px render grown by 6); ``None``: the
-    #: ``trim_quantile`` one (before issue 55's deeper trim: docs/benchmarks/real-photos.md)
+    #: the trim's depth: the outline distances' ``trim_upper`` quantile where it lies at most ``trim_upper_max`` of
+    #: the mask's extent beyond the ``trim_quantile`` one (a layer about even all around: a grown mask, tight
+    #: clothing, whose quartile the keypoint fit's own misplacement biases low, about 1 px on a 256 px render grown
+    #: by 6), else the ``trim_quantile`` one (uneven clothing, a suit: its thinner quarter; the head and hands
+    #: have none); ``None``: the ``trim_quantile`` one always (before issue 55's deeper trim:
+    #: docs/benchmarks/real-photos.md)
     trim_upper: Optional[float] = 0.5
     trim_upper_max: float = 0.01
     #: mask pixels farther than ``leak_distance`` of the mask's extent from the keypoint fit's

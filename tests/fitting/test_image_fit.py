@@ -220,10 +220,11 @@ def test_concavities_are_unknown_only_in_a_mask_trimmed_as_clothing():
     assert _known_pixels([mask], [body], off, ["a"], [[]], [True]) == [None]
 
 
-def test_the_clothing_trim_reaches_the_upper_quantile_within_its_share_of_the_extent():
+def test_an_even_layer_of_clothing_is_trimmed_by_the_outline_distances_median():
     """``mask.trim_upper``: the keypoint fit's body misplaced sideways puts the outline distances' quartile below the
-    clothing's true thickness (24 px here, 16 by the quartile); the trim goes deeper, to their median, but at most
-    ``trim_upper_max`` of the mask's extent (287 px) beyond the quartile (pure: no fitting)."""
+    clothing's true thickness (24 px all around here). Misplaced by 2 px (quartile 22, median 24: within
+    ``trim_upper_max`` of the mask's extent, 287 px, an even layer) the trim goes to the median; by 8 px (quartile
+    16) the spread is taken for uneven clothing and the trim stays at the quartile (pure: no fitting)."""
     from silfit.fitting.silhouette_stage import SilhouetteFitConfig
     from silfit.fitting.image_fit import _trimmed_masks
     from silfit.silhouette import clothing_thickness, trim_clothing
@@ -232,20 +233,21 @@ def test_the_clothing_trim_reaches_the_upper_quantile_within_its_share_of_the_ex
     truth[80:320, 160:240] = True
     mask = np.zeros_like(truth)
     mask[56:344, 136:264] = True  # 24 px of clothing all around
-    body = np.roll(truth, 8, axis=1)  # the keypoint fit 8 px to the side
-    quartile, median = clothing_thickness(mask, body, 0.25), clothing_thickness(mask, body, 0.5)
-    assert quartile == pytest.approx(16, abs=1.0) and median == pytest.approx(24, abs=1.0)
 
-    def trimmed(**changes):
-        (out,), _, (was,) = _trimmed_masks([mask], [body], SilhouetteFitConfig(mask=MaskHandling(**changes)), ["a"])
+    def trimmed(body, **changes):
+        cfg = SilhouetteFitConfig(mask=MaskHandling(**{"trim_max": 0.1, **changes}))  # 24 px within the cap
+        (out,), _, (was,) = _trimmed_masks([mask], [body], cfg, ["a"])
         assert was
         return out
 
-    assert np.array_equal(trimmed(), trim_clothing(mask, quartile + 0.01 * 287))
-    assert np.array_equal(trimmed(trim_upper_max=0.05, trim_max=0.1), trim_clothing(mask, median))
-    assert np.array_equal(trimmed(trim_upper=None), trim_clothing(mask, quartile))
-    assert np.array_equal(trimmed(trim_upper_max=0.0), trim_clothing(mask, quartile))
-    assert len({int(round(t)) for t in (median, quartile, quartile + 0.01 * 287)}) == 3
+    near, far = np.roll(truth, 2, axis=1), np.roll(truth, 8, axis=1)
+    (q_near, m_near), (q_far, m_far) = ([clothing_thickness(mask, b, q) for q in (0.25, 0.5)] for b in (near, far))
+    assert (q_near, m_near, q_far, m_far) == pytest.approx((22, 24, 16, 24), abs=1.0)
+    assert np.array_equal(trimmed(near), trim_clothing(mask, m_near))
+    assert not np.array_equal(trimmed(near), trim_clothing(mask, q_near))
+    assert np.array_equal(trimmed(near, trim_upper=None), trim_clothing(mask, q_near))
+    assert np.array_equal(trimmed(far), trim_clothing(mask, q_far))
+    assert np.array_equal(trimmed(far, trim_upper_max=0.05), trim_clothing(mask, m_far))
     for bad in ({"trim_upper": 1.5}, {"trim_upper_max": -0.1}, {"trim_upper": float("nan")}):
         with pytest.raises(ValueError, match="mask.trim_upper"):
             SilhouetteFitConfig(mask=MaskHandling(**bad))
