@@ -23,7 +23,8 @@ defaults on the joined mask); *oracle* (the defaults, but every mask trimmed by 
 ``clothing``'s dilation, 0 elsewhere, in place of :func:`~silfit.silhouette.losses.clothing_thickness`'s estimate;
 the estimate against the truth per subject is printed under the table); *margin0* (the defaults, but the lowest final
 energy chooses between the keypoint fit's depth branch and its close alternatives, ``choice_margin=0``: before issue
-55's depth-branch part).
+55's depth-branch part); *quartile* (the defaults, but every clothing trim as deep as the outline distances' quartile,
+``mask.trim_upper=None``: before the even layer's deeper trim).
 Printed per condition: PA-PVE and PVE (mm, against the whole true body), the median reprojection error (px),
 IoU with the given mask, how many fits the plausibility guard turned back, the gain of keypoints +
 silhouette over keypoints only in PA-PVE, and per subject the most the stage worsened a fit's PA-PVE and how many
