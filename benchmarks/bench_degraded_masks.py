@@ -64,10 +64,11 @@ MAIN = {
     "mask.cover_weight": 1.0,
     "trust.free_ratio": None,
     "mask.trim_quantile": 0.25,
+    "mask.trim_upper": None,
 }
 #: the stage after issue 55, before the two-pass refit: one pass with the trust region around the keypoint stage's fit,
 #: the clothing trim at the outline distances' quartile
-CURRENT = {"trust.free_ratio": None, "mask.trim_quantile": 0.25}
+CURRENT = {"trust.free_ratio": None, "mask.trim_quantile": 0.25, "mask.trim_upper": None}
 #: the defaults with one change (tuning; ``--methods``)
 VARIANTS = {
     "weakfill": {"mask.cover_weight": 0.5},
@@ -95,7 +96,6 @@ VARIANTS = {
     "margin0": {"choice_margin": 0.0},
     # the trim's depth (issue 55): ``quartile``, before it (the trim as deep as the outline distances' quartile)
     "quartile": {"mask.trim_upper": None},
-    "out50": {"mask.outline_quantile": 0.5},
 }
 
 
@@ -117,8 +117,10 @@ def oracle_thickness(on: bool):
     def thickness(mask, body, quantile=0.25, points=600):
         est = estimate_of(mask, body, quantile, points)
         truth = TRUTH.get(np.asarray(mask, dtype=bool).tobytes())
-        ESTIMATES.append((est, truth))
-        return float(truth) if on and truth is not None else est
+        ESTIMATES.append((est if np.ndim(est) == 0 else est[0], truth))  # the first quantile's (trim_quantile)
+        if not on or truth is None:
+            return est
+        return float(truth) if np.ndim(est) == 0 else tuple(float(truth) for _ in est)
 
     return estimate_of, thickness
 

@@ -154,20 +154,16 @@ def _trimmed_masks(masks, body_masks, cfg: SilhouetteFitConfig, sources, known=N
     for mask, body, source, seen in zip(masks, body_masks, sources, known or [None] * len(masks)):
         ys, xs = np.nonzero(mask)
         extent = float(max(np.ptp(ys), np.ptp(xs))) if len(ys) else 0.0
-        t = (
-            clothing_thickness(mask, body, float(cfg.mask.trim_quantile))
-            if cfg.mask.trim_clothing and extent > 0
-            else 0.0
-        )
+        upper = cfg.mask.trim_upper
+        quantiles = (float(cfg.mask.trim_quantile),) + (() if upper is None else (float(upper),))
+        t, *deeper = clothing_thickness(mask, body, quantiles) if cfg.mask.trim_clothing and extent > 0 else (0.0,)
         trimmed.append(t > cfg.mask.trim_min * extent)
         if not trimmed[-1]:
             out.append(mask)
             notes.append([])
             continue
-        if cfg.mask.trim_upper is not None:  # a layer about even all around: as deep as the upper quantile
-            upper = clothing_thickness(mask, body, float(cfg.mask.trim_upper))
-            if upper - t <= float(cfg.mask.trim_upper_max) * extent:
-                t = max(t, upper)
+        if deeper and deeper[0] - t <= float(cfg.mask.trim_upper_max) * extent:  # an even layer: the upper quantile
+            t = max(t, deeper[0])
         t = min(t, cfg.mask.trim_max * extent)
         out.append(trim_clothing(mask, t))
         if seen is not None and not (out[-1] & np.asarray(seen, dtype=bool)).any():  # nothing left to fit

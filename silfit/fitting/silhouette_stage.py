@@ -165,6 +165,7 @@ class MaskHandling:
     #: have none); ``None``: the ``trim_quantile`` one always (before issue 55's deeper trim:
     #: docs/benchmarks/real-photos.md)
     trim_upper: Optional[float] = 0.5
+    #: how close (a share of the mask's extent) the two quantiles must lie for the layer to count as even
     trim_upper_max: float = 0.01
     #: mask pixels farther than ``leak_distance`` of the mask's extent from the keypoint fit's
     #: silhouette (a leak into an object or the background) and the mask's holes smaller than

@@ -282,21 +282,23 @@ def cover_energy(uv: torch.Tensor, points: torch.Tensor, profile: Optional[Cover
     return profile(dist).square().mean()
 
 
-def clothing_thickness(mask: np.ndarray, body: np.ndarray, quantile: float = 0.25, points: int = 600) -> float:
+def clothing_thickness(mask: np.ndarray, body: np.ndarray, quantile=0.25, points: int = 600):
     """How far (pixels) a person mask reaches beyond a fitted body's mask all around: the
     ``quantile`` of the distances from the mask's outline points (those along the image's
     border left out: a cut is no edge) to the nearest ``body`` pixel. Loose clothing, hair or a
     mask grown by the segmenter widen the whole outline, so even a low quantile is large; a
-    leak or a misplaced limb widens a part of it only, and a mask that matches gives about 0."""
+    leak or a misplaced limb widens a part of it only, and a mask that matches gives about 0.
+    ``quantile`` a sequence: a tuple, one thickness per quantile (one pass over the outline)."""
+    many = np.ndim(quantile) > 0
     m, b = np.asarray(mask, dtype=bool), np.asarray(body, dtype=bool)
-    if not m.any() or not b.any():
-        return 0.0
-    seen = np.ones_like(m)
-    pts = contour_points(m, points, seen).astype(np.int64)
+    pts = contour_points(m, points, np.ones_like(m)).astype(np.int64) if m.any() and b.any() else []
     if not len(pts):
-        return 0.0
+        return tuple(0.0 for _ in quantile) if many else 0.0
     dist = cv2.distanceTransform((~b).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    return float(np.quantile(dist[pts[:, 1], pts[:, 0]], float(quantile)))
+    at = dist[pts[:, 1], pts[:, 0]]
+    if many:
+        return tuple(float(np.quantile(at, float(q))) for q in quantile)
+    return float(np.quantile(at, float(quantile)))
 
 
 def trim_clothing(mask: np.ndarray, thickness: float) -> np.ndarray:

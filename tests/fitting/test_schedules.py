@@ -293,6 +293,8 @@ def test_the_mask_settings_are_a_group():
     assert new.to_dict()["cover_cap"] == 0.1 and "mask" not in new.to_dict() and old.stages() == new.stages()
     sil = silhouette_config(FitOptions(silhouette_options={"mask.leak_distance": "0", "mask.trim_quantile": "0.5"}))
     assert sil.mask == MaskHandling(leak_distance=0.0, trim_quantile=0.5)
+    sil = silhouette_config(FitOptions(silhouette_options={"mask.trim_upper": "none", "mask.trim_upper_max": "0.02"}))
+    assert sil.mask == MaskHandling(trim_upper=None, trim_upper_max=0.02)
     with pytest.raises(ValueError, match="mask.trim_quantile must lie in"):
         SilhouetteFitConfig(mask=MaskHandling(trim_quantile=2.0))
 

@@ -203,6 +203,9 @@ def test_clothing_thickness_tells_a_grown_mask_from_a_leak_and_trim_undoes_it():
     assert clothing_thickness(body, body) == pytest.approx(0.0, abs=0.5)
     assert clothing_thickness(grown, body) == pytest.approx(4.0, abs=1.0)
     assert clothing_thickness(leak, body) < 1.0
+    both = clothing_thickness(leak, body, (0.25, 0.9))  # several quantiles in one pass: a tuple
+    assert both == (clothing_thickness(leak, body, 0.25), clothing_thickness(leak, body, 0.9)) and both[1] > 5.0
+    assert clothing_thickness(leak, np.zeros_like(body), (0.25, 0.5)) == (0.0, 0.0)
     trimmed = trim_clothing(grown, clothing_thickness(grown, body))
     iou = (trimmed & body).sum() / (trimmed | body).sum()
     assert iou > 0.85 and (trimmed & body).sum() / (grown & body).sum() > 0.85
