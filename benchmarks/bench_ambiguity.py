@@ -196,7 +196,7 @@ def main() -> None:
         action="append",
         default=[],
         metavar="NAME=VALUE",
-        help="first fit with these KeypointFitConfig settings (repeatable; e.g. post_branch_iters=0: the "
+        help="first fit with these KeypointFitConfig settings (repeatable; e.g. branches.post_iters=0: the "
         "schedule before the search from the fit)",
     )
     args = ap.parse_args()

@@ -16,7 +16,7 @@ option) and *after* with today's defaults, and prints per run:
 
 Seeds run in parallel processes (``--workers``, one torch thread each), so every fit is the same as in one.
 
-    python benchmarks/bench_hard_set.py --seeds 15300,15301 --baseline branch_hinge=False
+    python benchmarks/bench_hard_set.py --seeds 15300,15301 --baseline branches.hinge=False
     python benchmarks/bench_hard_set.py --seeds 15400,15401 --silhouette-baseline choice_margin=0
 
 ``--silhouette-baseline``: the before run's :class:`SilhouetteFitConfig` settings instead (today's keypoint stage).

@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT))
 
 FAST = [
     "--keypoint-option",
-    "init_poses=1",
+    "starts.poses=1",
     "--keypoint-option",
     "camera_iters=20",
     "--keypoint-option",

@@ -4,19 +4,19 @@ Generates fresh sequences of ``--motions`` (``silfit synth --videos``; ``--frame
 30 fps, ``--noise`` px keypoint noise, ``--drop`` of the keypoints dropped, seed ``--seed``) and fits
 each with :func:`silfit.fitting.sequence.fit_sequence` once per ``--methods`` entry:
 
-* ``before`` / ``after``: the defaults without / with the offsets round (``branch_offsets=()`` / the
+* ``before`` / ``after``: the defaults without / with the offsets round (``branch_choice.offsets=()`` / the
   default ``(1, 2, 4)``: each frame refitted from the picks of the frames 1, 2 and 4 away);
-* ``off`` / ``on``: ``branch_dp`` off (one per-frame answer refined) / on (a dynamic programme over each
+* ``off`` / ``on``: ``branch_choice.dp`` off (one per-frame answer refined) / on (a dynamic programme over each
   frame's hypotheses picks the branch sequence before the refinement), both without the offsets round;
 * ``kp:NAME=VALUE+NAME=VALUE``: the defaults with the per-frame keypoint stage's options changed (as ``silfit fit
-  --keypoint-option``), e.g. ``kp:init_poses=2``: the per-frame start before issue 25's squat change (options
+  --keypoint-option``), e.g. ``kp:starts.poses=2``: the per-frame start before issue 25's squat change (options
   whose values are lists cannot be given: ``--methods`` is split at commas).
 
 Prints per sequence the PA-MPJPE median and worst frame, the frames above 2x the sequence's median, the
 frames the programme changed, the CPU seconds of each fit, and the last method's CPU time over the first's.
 
     python benchmarks/bench_sequence_branches.py --motions squat,walk,run --seed 2031 --methods before,after
-    python benchmarks/bench_sequence_branches.py --motions squat,walk,run --seed 2101 --methods kp:init_poses=2,after
+    python benchmarks/bench_sequence_branches.py --motions squat,walk,run --seed 2101 --methods kp:starts.poses=2,after
 """
 
 from __future__ import annotations

@@ -22,12 +22,12 @@ from silfit.cli import main
 KP_SHORT = [
     f"--keypoint-option={o}"
     for o in (
-        "init_poses=1",
+        "starts.poses=1",
         "camera_iters=10",
         "pose_iters=10,10,10",
         "shape_iters=5",
         "final_iters=10",
-        "post_branch_iters=0",
+        "branches.post_iters=0",
     )
 ]
 

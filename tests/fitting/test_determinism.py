@@ -119,12 +119,13 @@ KEYPOINT_CHILD = textwrap.dedent("""
     import numpy as np, torch
     from silfit import load_body_model
     from silfit.io.subjects import list_subjects, load_subject
-    from silfit.fitting import KeypointFitConfig
+    from silfit.fitting import BranchSearch, KeypointFitConfig, Starts
     from silfit.fitting.keypoint_stage import fit_keypoints
 
     s = load_subject(list_subjects(sys.argv[1])[2])
-    cfg = KeypointFitConfig(camera_iters=8, pose_iters=(8, 8, 8), shape_iters=5, final_iters=8, init_poses=2,
-                            decision_iters=5, branch_iters=6, branch_screen_iters=4)
+    cfg = KeypointFitConfig(camera_iters=8, pose_iters=(8, 8, 8), shape_iters=5, final_iters=8,
+                            starts=Starts(poses=2), decision_iters=5,
+                            branches=BranchSearch(iters=6, screen_iters=4))
     r = fit_keypoints(s.keypoints, s.camera, load_body_model(dtype=torch.float64), config=cfg, progress=False)
     print("RESULT " + json.dumps({k: np.asarray(v, np.float64).tolist() for k, v in r.params(0).items()}))
 """)
