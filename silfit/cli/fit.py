@@ -139,8 +139,8 @@ def _add_result_flags(p) -> None:
         "hypotheses/<k>/ (params.npz, mesh.obj; 1: the keypoint stage's best) and hypotheses.png (each "
         "over the image and from the side), their energies and differing segments in metrics.json "
         "(default 1: none); with a mask, each goes through the silhouette stage, hypotheses/<k>/ holds "
-        "it refined, and the lowest final energy (each evaluated alike: choice_spp) is kept where it is more "
-        "than choice_margin (4 %%) below the keypoint fit's (K times its cost; metrics.json: "
+        "it refined, and the lowest final energy is kept where it is more than choice_margin (4 %%) below the "
+        "keypoint fit's (K times its cost; metrics.json: "
         "hypotheses_silhouette)",
     )
 

@@ -299,16 +299,6 @@ def test_the_mask_settings_are_a_group():
         SilhouetteFitConfig(mask=MaskHandling(trim_quantile=2.0))
 
 
-def test_choice_spp_is_read_from_the_silhouette_options():
-    """``--silhouette-option choice_spp=N`` (how an image's candidates are evaluated alike; ``none``: the stage's own
-    energies, before) reaches the config and its evaluation settings."""
-    from silfit.runner.worker import FitOptions, silhouette_config
-
-    assert silhouette_config(FitOptions(silhouette_options={"choice_spp": "none"})).choice_spp is None
-    sil = silhouette_config(FitOptions(silhouette_options={"choice_spp": "8"}))
-    assert sil.choice_spp == 8 and sil.evaluation().render.spp == 8 and SilhouetteFitConfig().choice_spp == 16
-
-
 def test_the_keypoint_term_starts_solutions_and_temporal_settings_are_groups():
     """``KeypointFitConfig.keypoint_term``, ``.starts``, ``.solutions`` (the count was ``hypotheses``) and
     ``.temporal``: the old flat names still work (warned, read and written through) and are recorded as before."""
