@@ -223,25 +223,17 @@ def _guard(model, start: dict, params: dict, keypoints: KeypointSet, camera: Cam
     )
 
 
-def _choice_energy(sil) -> Optional[float]:
-    """What :func:`_choose_hypothesis` compares of a refined candidate: its energy evaluated alike with its image's
-    other candidates (``evaluated_energy``, ``SilhouetteFitConfig.choice_spp``), else the stage's own lowest energy of
-    its last level (``final_energy``); ``None`` where not finite."""
-    e = sil.final_energy if sil.evaluated_energy is None else sil.evaluated_energy
-    return float(e) if np.isfinite(e) else None
-
-
 def _choose_hypothesis(
     model, sils, starts, keypoints: KeypointSet, camera: Camera, where: str, guard: bool = True, margin: float = 0.0
 ) -> tuple:
     """``(index, record)``: which of one image's hypotheses, each refined by the silhouette stage (``sils``, from
-    ``starts``; the keypoint fit first), is kept: the lowest final energy (:func:`_choice_energy`: evaluated alike
-    for every candidate, else the stage's own) among those that ran to the last level without failing (energies of different resolutions do not compare), where it is more than ``margin``
+    ``starts``; the keypoint fit first), is kept: the lowest final energy of the stage
+    (:attr:`~silfit.fitting.silhouette_stage.SilhouetteFitResult.final_energy`) among those that ran to the
+    last level without failing (energies of different resolutions do not compare), where it is more than ``margin``
     (relative) below the keypoint fit's (a keypoint fit whose energy does not compare is not held by it), unless the
     plausibility guard (``guard``) finds it less plausible than its own start or than the keypoint fit (then the
     keypoint fit's, as without hypotheses). ``record`` (``metrics.json``'s ``hypotheses_silhouette``; ``{}`` for one
-    hypothesis): each one's final energy (``None``: not comparable; ``stage_energies``: the stage's own, where they
-    were evaluated alike) and IoU, the kept rank, its energy's gap below the
+    hypothesis): each one's final energy (``None``: not comparable) and IoU, the kept rank, its energy's gap below the
     keypoint fit's, ``guard_reverted``: the rank the guard set aside, if any, and ``margin_held``: the rank whose
     energy was lowest but not lower than the keypoint fit's by more than ``margin``
     (``SilhouetteFitConfig.choice_margin``, relative), if any: then the keypoint fit's branch is kept. A person mask
@@ -251,7 +243,10 @@ def _choose_hypothesis(
     if len(sils) == 1:
         return 0, {}
     last = max((s.final_level for s in sils if s.final_level is not None), default=None)
-    energies = [_choice_energy(s) if not s.failed and s.final_level == last else None for s in sils]
+    energies = [
+        s.final_energy if (not s.failed and s.final_level == last and np.isfinite(s.final_energy)) else None
+        for s in sils
+    ]
     c = min(range(len(sils)), key=lambda k: (np.inf if energies[k] is None else energies[k], k))
     reverted = held = None
     if c and energies[0] is not None and energies[0] - energies[c] <= float(margin) * abs(energies[0]):
@@ -262,10 +257,8 @@ def _choose_hypothesis(
         if any(_guard(model, s, params, keypoints, camera, kp2d, where).reverted for s in (starts[c], starts[0])):
             c, reverted = 0, c + 1
     gap = (energies[0] - energies[c]) / abs(energies[0]) if energies[0] and energies[c] is not None else 0.0
-    evaluated = any(s.evaluated_energy is not None for s in sils)
     return c, {
         "energies": energies,
-        **({"stage_energies": [float(s.final_energy) for s in sils]} if evaluated else {}),
         "iou": [float(s.iou_end) for s in sils],
         "kept": c + 1,
         "gap": float(gap),
@@ -542,13 +535,6 @@ class ImageRefinement(SilhouetteHooks):
             self.passes[self.rows[k]]["free_pass_seconds"] = (
                 self.passes[self.rows[k]].get("free_pass_seconds", 0.0) + sil.seconds
             )
-
-    def settle(self, sils: list, config: SilhouetteFitConfig) -> List[int]:
-        """With ``SilhouetteFitConfig.choice_spp``: every candidate of the images that have several, to be evaluated
-        alike before :func:`_choose_hypothesis` compares them."""
-        if getattr(config, "choice_spp", None) is None:
-            return []
-        return [k for rows in self.candidates if len(rows) > 1 for k in rows]
 
     def read_back(self, model, sils: list, config: SilhouetteFitConfig, seconds: float) -> List[FitResult]:
         """Per image its :class:`FitResult` (:class:`_RefinedBatch`), with the two passes' record."""

@@ -68,12 +68,6 @@ class SilhouetteHooks:
     def refitted(self, problems: List[int], first: list) -> None:
         """Told which problems were fitted again, with their first pass's results ``first``."""
 
-    def settle(self, sils: list, config: SilhouetteFitConfig) -> List[int]:
-        """The problems whose kept parameters are evaluated once more, all alike
-        (:meth:`~silfit.fitting.silhouette_stage.SilhouetteFitConfig.evaluation`; their results'
-        ``evaluated_energy``); none by default."""
-        return []
-
     def read_back(self, model, sils: list, config: SilhouetteFitConfig, seconds: float) -> list:
         """The mode's results from the stage's (one per problem; ``seconds``: the stage's wall time)."""
         raise NotImplementedError
@@ -101,20 +95,12 @@ def refine_silhouettes(
         for k, sil in zip(again, refitted):
             sils[k] = sil
         seconds += more
-    alike = hooks.settle(sils, config)
-    if alike:
-        kept = {k: sils[k].params() for k in alike}
-        evaluated, more = _stage(model, hooks, alike, kept, config.evaluation(), run)
-        for k, e in zip(alike, evaluated):
-            sils[k].evaluated_energy = e.final_energy
-            sils[k].seconds += e.seconds
-        seconds += more
     return hooks.read_back(model, sils, config, seconds)
 
 
 def _stage(model, hooks: SilhouetteHooks, problems: List[int], starts: list, config, run: tuple) -> tuple:
     """``(results, seconds)``: the silhouette stage on the problems numbered ``problems`` from their ``starts``
-    (indexed by problem number; ``run``: ``(pose_prior, renderer, progress)``)."""
+    (``run``: ``(pose_prior, renderer, progress)``)."""
     pose_prior, renderer, progress = run
     s = hooks.inputs(model, problems, config)
     t0 = time.perf_counter()

@@ -342,13 +342,6 @@ class SilhouetteFitConfig:
     #: gap is a coin toss; 0.04 is about twice that (image path: image_fit._choose_hypothesis; 0: the lowest energy,
     #: before issue 55's depth-branch part; the measurements: docs/benchmarks/real-photos.md)
     choice_margin: float = 0.04
-    #: where an image has several candidates (alternatives or hypotheses), each one's kept parameters are evaluated
-    #: once more, all alike (the last level, one render of this many samples per pixel from one seed, each window
-    #: around its body and the mask), and those energies choose: the stage's own lowest energy of a level is a
-    #: minimum over noisy renders (2 samples, a new seed each step) whose windows were framed at the level's start,
-    #: and it moves by as much as 10 % between render seeds where the evaluations agree within 1 %
-    #: (image path: image_fit.ImageRefinement.settle; None: the stage's own, before; docs/benchmarks/real-photos.md)
-    choice_spp: Optional[int] = 16
     #: Adam's learning rates (body_pose 0.03 before issue 24's fourth part: the first steps of a rendered level
     #: knocked the contour level's IoU down)
     lr: dict = field(default_factory=lambda: dict(sorted(STAGE_DEFAULTS["lr"].items())))  # by name
@@ -421,10 +414,6 @@ class SilhouetteFitConfig:
         bad = [n for n in ("alternatives_margin", "choice_margin") if not float(getattr(self, n)) >= 0]  # NaN too
         if bad:
             raise ValueError(f"SilhouetteFitConfig: {', '.join(bad)} must be 0 or more")
-        if self.choice_spp is not None and (int(self.choice_spp) != self.choice_spp or self.choice_spp < 1):
-            raise ValueError(
-                f"SilhouetteFitConfig: choice_spp must be a positive integer or None, got {self.choice_spp!r}"
-            )
         if not 0.0 <= float(self.mask.trim_quantile) <= 1.0:
             raise ValueError(
                 f"SilhouetteFitConfig: mask.trim_quantile must lie in [0, 1], got {self.mask.trim_quantile!r}"
@@ -459,20 +448,6 @@ class SilhouetteFitConfig:
         """The two-pass refit's first pass (``trust.free_ratio``): these settings with the trust region before issue
         55 (a radius of :data:`FREE_TRUST_FRACTION` of the window around the detections)."""
         return replace(self, trust=replace(self.trust, from_start=False, fraction=FREE_TRUST_FRACTION))
-
-    def evaluation(self) -> "SilhouetteFitConfig":
-        """Settings that evaluate the energy at the starts without moving them (``choice_spp``): one step of the last
-        rendered level with every learning rate 0, ``choice_spp`` samples per pixel from one seed for every problem,
-        no contour level."""
-        seed = self.render.seed if self.render.seed is not None else 0
-        return replace(
-            self,
-            contour_iterations=0,
-            resolutions=self.resolutions[-1:],
-            iterations=(1,),
-            lr={k: 0.0 for k in self.lr},
-            render=replace(self.render, spp=int(self.choice_spp or self.render.spp), seed=seed),
-        )
 
     def cover_profile(self, resolution: int, inner: Optional[float] = None) -> Optional[CoverProfile]:
         """The mask-not-covered profile in pixels of a window ``resolution`` pixels long
@@ -543,9 +518,6 @@ class SilhouetteFitResult:
     contour_iterations: int = 0
     #: the stage stopped this problem early (a non-finite energy or a collapsed IoU; see ``warnings``)
     failed: bool = False
-    #: the energy at the kept parameters evaluated alike with the other candidates of its image
-    #: (``SilhouetteFitConfig.choice_spp``; ``None``: not evaluated)
-    evaluated_energy: Optional[float] = None
 
     def params(self) -> dict:
         return dict(self.parameters)

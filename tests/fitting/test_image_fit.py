@@ -388,11 +388,6 @@ def test_choosing_a_hypothesis_by_the_silhouette_stage():
     assert c == 2 and record["margin_held"] is None and record["gap"] == pytest.approx(0.25)
     # a keypoint fit whose energy does not compare (it failed) holds nothing back
     assert margin(0.04, refined(2.0, failed=True), refined(1.96))[0] == 1
-    # energies evaluated alike (SilhouetteFitConfig.choice_spp) compare where they are given, not the stage's own
-    evaluated = [refined(1.5), refined(2.0)]
-    evaluated[0].evaluated_energy, evaluated[1].evaluated_energy = 2.0, 1.5
-    c, record = choose(*evaluated)
-    assert c == 1 and record["energies"] == [2.0, 1.5] and record["stage_energies"] == [1.5, 2.0]
 
 
 def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
@@ -430,34 +425,20 @@ def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
     kp.hypotheses = [[marked(0, 0), marked(0, 1)], [marked(1, 0), marked(1, 1), marked(1, 2)]]
     finals = [2.0, 2.0, 1.0, 1.5, 1.2]  # problems: image 0, image 1, then 0's alternative, 1's two
 
-    evaluated = {}  # candidate (its body_pose[0] and transl x) -> its evaluated energy; absent: as the stage's
-    calls = []
-
-    def key(init):  # a candidate: its body_pose[0] (which one) and transl x (which image)
-        return round(float(np.ravel(init["body_pose"])[0]), 3), round(float(np.ravel(init["transl"])[0]), 2)
-
-    def stub(model, problems, inits, layout, config, *args, **kwargs):
-        calls.append((len(problems), config.iterations, config.render.spp))
-        if config.iterations == (1,):  # the candidates of an image evaluated alike (choice_spp)
-            energies, seconds = [evaluated.get(key(i), stage_energy[key(i)]) for i in inits], 0.5
-        else:
-            assert len(problems) == len(inits) == len(finals)
-            energies, seconds = finals, 1.0
-            stage_energy.update({key(i): e for i, e in zip(inits, finals)})
+    def stub(model, problems, inits, *args, **kwargs):
+        assert len(problems) == len(inits) == len(finals)
         return [
             stage.SilhouetteFitResult(
                 {n: np.asarray(v, np.float32).reshape(1, -1) for n, v in init.items()},
                 {"level": [1, 1], "energy": [3.0, e]},
                 0.8,
                 0.9,
-                seconds,
+                1.0,
                 2,
                 [],
             )
-            for init, e in zip(inits, energies)
+            for init, e in zip(inits, finals)
         ]
-
-    stage_energy = {}
 
     monkeypatch.setattr(stage, "fit_silhouette_problems", stub)
     faces = model.faces.cpu().numpy()
@@ -467,9 +448,7 @@ def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
     assert res[0].params["body_pose"].reshape(-1)[0] == pytest.approx(0.01)
     assert res[1].params["body_pose"].reshape(-1)[0] == pytest.approx(0.02)
     assert res[1].metrics["hypotheses_silhouette"]["energies"] == [2.0, 1.5, 1.2]
-    # the stage, then each image's candidates evaluated alike (choice_spp): its time joins the image's
-    assert calls == [(5, (30, 20), 2), (5, (1,), 16)]
-    assert res[0].metrics["timings_s"]["silhouette"] == 3.0 and res[1].metrics["timings_s"]["silhouette"] == 4.5
+    assert res[0].metrics["timings_s"]["silhouette"] == 2.0 and res[1].metrics["timings_s"]["silhouette"] == 3.0
     for r, k in zip(res, (2, 3)):
         assert any(w.startswith(f"depth branch chosen by the mask: hypothesis {k} ") for w in r.metrics["warnings"])
     # each image's own hypotheses as fits (hypotheses/<k>/), the kept one marked, with its stage energy
@@ -512,19 +491,6 @@ def test_refine_batch_keeps_each_images_own_lowest_hypothesis(monkeypatch):
     assert not any("chosen by the mask" in w for w in res[0].metrics["warnings"])
     res = refine_batch(model, kp, sets, masks, stage.SilhouetteFitConfig(choice_margin=0), progress=False)
     assert res[0].metrics["hypotheses_silhouette"]["kept"] == 2
-
-    # the alternative lowest in the stage but not where the candidates are evaluated alike: the keypoint fit's branch
-    # stays; with choice_spp=None (before) the stage's own energies choose and nothing is evaluated
-    finals[:] = [2.0, 2.0, 1.0]
-    evaluated[(0.01, round(float(np.ravel(kp.params(0)["transl"])[0]), 2))] = 2.5
-    calls.clear()
-    res = refine_batch(model, kp, sets, masks, progress=False)
-    record = res[0].metrics["hypotheses_silhouette"]
-    assert record["kept"] == 1 and record["energies"] == [2.0, 2.5] and record["stage_energies"] == [2.0, 1.0]
-    assert calls == [(3, (30, 20), 2), (2, (1,), 16)]
-    calls.clear()
-    res = refine_batch(model, kp, sets, masks, stage.SilhouetteFitConfig(choice_spp=None), progress=False)
-    assert res[0].metrics["hypotheses_silhouette"]["kept"] == 2 and calls == [(3, (30, 20), 2)]
 
 
 def test_the_kept_hypothesis_holds_the_final_fit_whatever_the_guard_did(monkeypatch):

@@ -129,21 +129,6 @@ def test_divergence_keeps_the_best_parameters(open_model, target_mask):
     assert np.all(np.isfinite(result.transl)) and abs(result.transl[0, 0] - POSE["transl"][0, 0]) < 1.0
 
 
-def test_evaluation_measures_each_body_where_it_stands(open_model, target_mask):
-    """``SilhouetteFitConfig.evaluation`` (``choice_spp``, how an image's candidates are compared): one step of the last
-    rendered level that moves nothing, ``choice_spp`` samples from one seed; the body the mask was rendered from
-    costs less than one 8 cm beside it, and the same body costs the same twice."""
-    cfg = replace(FAST, resolutions=(32, 64), iterations=(3, 30), choice_spp=8)
-    ev = cfg.evaluation()
-    assert (ev.resolutions, ev.iterations, ev.contour_iterations, ev.render.spp) == ((64,), (1,), 0, 8)
-    truth = dict(POSE, transl=POSE["transl"] + np.array([[0.08, 0.0, 0.0]], np.float32))
-    off, on, again = (fit_silhouette(open_model, p, CAMERA, target_mask, config=ev) for p in (POSE, truth, truth))
-    assert off.steps == on.steps == 1 and np.array_equal(off.transl, POSE["transl"])
-    assert on.final_energy < 0.5 * off.final_energy and on.final_energy == again.final_energy
-    with pytest.raises(ValueError, match="choice_spp must be a positive integer or None"):
-        SilhouetteFitConfig(choice_spp=0)
-
-
 def test_plateau_stops_a_level_early(open_model, target_mask):
     # an improvement threshold no step can meet: the level stops after 2 x window steps
     cfg = replace(FAST, plateau_window=3, plateau_rtol=10.0)
