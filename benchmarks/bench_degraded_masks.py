@@ -25,6 +25,9 @@ the estimate against the truth per subject is printed under the table); *margin0
 energy chooses between the keypoint fit's depth branch and its close alternatives, ``choice_margin=0``: before issue
 55's depth-branch part); *quartile* (the defaults, but every clothing trim as deep as the outline distances' quartile,
 ``mask.trim_upper=None``: before the even layer's deeper trim).
+``--decompose`` adds a table of where each method's error lies: PA-PVE with the fit's pose and the true shape
+(``betas``), with the true pose (``global_orient``, ``body_pose``) and the fit's shape, and the mean distance in
+pixels between the fit's and the truth's vertices projected into the image (what a mask can show at most).
 Printed per condition: PA-PVE and PVE (mm, against the whole true body), the median reprojection error (px),
 IoU with the given mask, how many fits the plausibility guard turned back, the gain of keypoints +
 silhouette over keypoints only in PA-PVE, and per subject the most the stage worsened a fit's PA-PVE and how many
@@ -43,10 +46,11 @@ from pathlib import Path
 
 import silfit  # noqa: F401  (first: the CPU kernels are pinned before numpy and torch load, silfit.kernels)
 import numpy as np
+import torch
 
 from bench_truncation import _score, cut_subject, grow, shrink
 from silfit import load_body_model
-from silfit.camera import load_camera
+from silfit.camera import load_camera, project_points
 from silfit.io.subjects import read_gt, read_mask
 from silfit.fitting import KeypointFitter, image_fit
 from silfit.fitting.silhouette_stage import SilhouetteFitConfig
@@ -158,6 +162,11 @@ def main() -> None:
     ap.add_argument("--conditions", default="clean,clothing,cut,second")
     ap.add_argument("--methods", default="main,after")
     ap.add_argument("--per-subject", action="store_true", help="print each subject's PA-PVE under the table")
+    ap.add_argument(
+        "--decompose",
+        action="store_true",
+        help="print each method's PA-PVE with the true shape, with the true pose, and its vertices' error in the image",
+    )
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="change a field of 'after'")
     args = ap.parse_args()
     from bench_truncation import _value
@@ -213,7 +222,7 @@ def main() -> None:
         "IoU mean | turned back | most worsened (mm) / fits worse by > 5 mm | s per image |"
     )
     print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|")
-    kp_cache, estimates, each = {}, {}, {}
+    kp_cache, estimates, each, parts = {}, {}, {}, {}
     for cond in args.conditions.split(","):
         sets, masks, cams, others = (list(x) for x in zip(*[c[cond] for c, _ in subjects]))
         gts = [g for _, g in subjects]
@@ -225,6 +234,10 @@ def main() -> None:
         ref = float(np.mean([r["pa"] for r in base]))
         _row(cond, "keypoints only", base, ref, None)
         each[(cond, "keypoints only")] = [r["pa"] for r in base]
+        if args.decompose:
+            parts[(cond, "keypoints only")] = [
+                decompose(model, kp.params(i), g, c) for i, (g, c) in enumerate(zip(gts, cams))
+            ]
         ref_each = np.array([r["pa"] for r in base])
         runs = [
             (m, MAIN if m == "main" else {**after, **VARIANTS.get(m, {})}, m != "main") for m in args.methods.split(",")
@@ -265,15 +278,51 @@ def main() -> None:
                 r["iou"] = mask_iou(f.masks["final"], m)
             _row(cond, name, rows, ref, seconds, ref_each)
             each[(cond, name)] = [r["pa"] for r in rows]
+            if args.decompose:
+                parts[(cond, name)] = [decompose(model, f.params, g, c) for f, g, c in zip(fits, gts, cams)]
     if args.per_subject:
         print("\n| condition | method | PA-PVE per subject (mm) |\n|---|---|---|")
         for (cond, name), pa in each.items():
             print(f"| {cond} | {name} | {' '.join(f'{v:.1f}' for v in pa)} |")
+    if parts:
+        print(
+            "\n| condition | method | PA-PVE (mm) | with the true shape | with the true pose | vertices in the image "
+            "(px) |\n|---|---|---:|---:|---:|---:|"
+        )
+        for (cond, name), p in parts.items():
+            a = np.mean(np.array(p), axis=0)
+            print(f"| {cond} | {name} | {a[0]:.1f} | {a[1]:.1f} | {a[2]:.1f} | {a[3]:.2f} |")
     print("\n| condition | method | true growth px per subject | estimate px per subject |\n|---|---|---|---|")
     for (cond, name), pairs in estimates.items():
         if pairs:
             truth = " ".join("?" if t is None else str(t) for _, t in pairs)
             print(f"| {cond} | {name} | {truth} | {' '.join(f'{e:.1f}' for e, _ in pairs)} |")
+
+
+def decompose(model, params: dict, gt, camera) -> tuple:
+    """(PA-PVE, PA-PVE with the true ``betas``, PA-PVE with the true ``global_orient`` and ``body_pose``, mean
+    distance in pixels between the fit's and the truth's vertices projected by ``camera``) of one fit."""
+    from silfit.eval.metrics import procrustes_align
+
+    def vertices(p):
+        T = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64).reshape(1, -1), dtype=model.dtype)  # noqa: E731
+        with torch.no_grad():
+            names = ("betas", "body_pose", "global_orient", "transl")
+            return model(**{k: T(p[k]) for k in names}).vertices[0].double()
+
+    g = gt.vertices
+    pa = lambda v: 1000 * np.linalg.norm(procrustes_align(v.numpy(), g) - g, axis=-1).mean()  # noqa: E731
+    betas = np.zeros(np.size(params["betas"]))
+    n = min(betas.size, np.size(gt.betas))
+    betas[:n] = np.ravel(gt.betas)[:n]
+    v = vertices(params)
+    image = project_points(v, camera) - project_points(torch.as_tensor(g, dtype=v.dtype), camera)
+    return (
+        pa(v),
+        pa(vertices({**params, "betas": betas})),
+        pa(vertices({**params, "global_orient": gt.global_orient, "body_pose": gt.body_pose})),
+        float(image.norm(dim=-1).mean()),
+    )
 
 
 def _extent(kp: KeypointSet) -> float:
