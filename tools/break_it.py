@@ -141,8 +141,8 @@ BREAKAGES = (
     ),
     Breakage(
         "flip_off",
-        "flip test off by default (KeypointFitConfig.flip_test = False)",
-        ((KP, "flip_test: bool = True", "flip_test: bool = False"),),
+        "flip test off by default (Starts.flip = False, once KeypointFitConfig.flip_test)",
+        ((KP, "flip: bool = True", "flip: bool = False"),),
         ("tests/fitting/test_keypoint_stage.py::test_back_facing_subject_is_fitted_facing_away",),
     ),
     # issue 22: breakages that passed every behaviour test before these tests (each runs only its new test)
