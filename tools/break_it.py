@@ -43,18 +43,18 @@ SIL = "silfit/fitting/silhouette_stage.py"
 OPTIM = "silfit/fitting/optim.py"
 TERMS = "silfit/fitting/terms.py"
 KP = "silfit/fitting/keypoint_stage.py"
-SEQ = "silfit/fitting/sequence.py"
 TRI = "silfit/fitting/triangulate.py"
+SCHED = "silfit/fitting/schedules.py"
 
 BREAKAGES = (
     Breakage(
         "translation_only",
-        "silhouette stage optimises the translation only",
+        "silhouette stage optimises the translation only (its free parameters, free_names in _fit_problems)",
         (
             (
                 SIL,
-                "free = {k: params[k] for k in cfg.optimise}",
-                'free = {k: params[k] for k in cfg.optimise if k == "transl"}',
+                "free_names = tuple(n for n in cfg.optimise if n in params_layout.sizes)",
+                'free_names = tuple(n for n in cfg.optimise if n in params_layout.sizes and n == "transl")',
             ),
         ),
         ("tests/fitting/test_recovery.py::test_silhouette_stage_recovers_the_truth",),
@@ -78,12 +78,12 @@ BREAKAGES = (
     ),
     Breakage(
         "l2",
-        "robust (Geman-McClure) keypoint term replaced by plain L2",
+        "robust (Geman-McClure) keypoint term replaced by plain L2 (KeypointTerm's constructor drops sigma)",
         (
             (
                 TERMS,
-                "self.name, self.sigma, self.mask = name, sigma, mask",
-                "self.name, self.sigma, self.mask = name, None, mask",
+                "self.name, self.sigma, self.mask, self.weights_key = name, sigma, mask, weights_key",
+                "self.name, self.sigma, self.mask, self.weights_key = name, None, mask, weights_key",
             ),
         ),
         (
@@ -129,12 +129,12 @@ BREAKAGES = (
     ),
     Breakage(
         "confidence_ignored",
-        "keypoint confidences ignored (every visible keypoint weighted 1)",
+        "keypoint confidences ignored (every visible keypoint weighted 1, in KeypointFitter._problem_data)",
         (
             (
                 KP,
-                "weights.append([[o.keypoints.conf] for o in rows])",
-                "weights.append([[(o.keypoints.conf > 0).astype(float)] for o in rows])",
+                "weights.append([[o.keypoints.conf for o in row] for row in grid])",
+                "weights.append([[(o.keypoints.conf > 0).astype(float) for o in row] for row in grid])",
             ),
         ),
         ("tests/fitting/test_keypoint_stage.py::test_low_confidence_keypoints_count_less",),
@@ -148,10 +148,11 @@ BREAKAGES = (
     # issue 22: breakages that passed every behaviour test before these tests (each runs only its new test)
     Breakage(
         "temporal_off",
-        "sequence refinement's temporal smoothness terms off (joint and root smoothness weights 0)",
+        "sequence refinement's temporal smoothness terms off (SEQUENCE_SCHEDULE's smooth_joints and smooth_root "
+        "weights 0, so SequenceFitConfig.joint_smooth_weight and root_smooth_weight default to 0)",
         (
-            (SEQ, "joint_smooth_weight: float = 1.0", "joint_smooth_weight: float = 0.0"),
-            (SEQ, "root_smooth_weight: float = 1.0", "root_smooth_weight: float = 0.0"),
+            (SCHED, '"smooth_joints": 1.0,', '"smooth_joints": 0.0,'),
+            (SCHED, '"smooth_root": 1.0,', '"smooth_root": 0.0,'),
         ),
         ("tests/fitting/test_sequence.py::test_temporal_terms_smooth_a_noisy_sequence",),
     ),
@@ -163,14 +164,18 @@ BREAKAGES = (
     ),
     Breakage(
         "interpenetration_off",
-        "interpenetration off in the keypoint stage (KeypointFitConfig.interpenetration_weight = 0)",
-        ((KP, "interpenetration_weight: float = 1e5", "interpenetration_weight: float = 0.0"),),
+        "interpenetration off in the keypoint stage (KEYPOINT_SCHEDULE's interpenetration weights 0: the FINAL rows' "
+        "and branches_1's, so KeypointFitConfig.interpenetration_weight defaults to 0)",
+        (
+            (SCHED, '"interpenetration": 1e5,', '"interpenetration": 0.0,'),
+            (SCHED, '"interpenetration": 1e5}', '"interpenetration": 0.0}'),
+        ),
         ("tests/fitting/test_keypoint_stage.py::test_self_contact_poses_are_fitted_without_the_arms_inside_the_body",),
     ),
     Breakage(
         "camera_depth_nothing",
-        "the camera stage's depth term scaled to nothing (weight x 1e-9)",
-        ((KP, '{"torso": 1.0, "depth": self.depth_weight}', '{"torso": 1.0, "depth": 1e-9 * self.depth_weight}'),),
+        "the camera stage's depth term scaled to nothing (KEYPOINT_SCHEDULE's camera row: weight x 1e-9)",
+        ((SCHED, '{"torso": 1.0, "depth": 1e3}', '{"torso": 1.0, "depth": 1e-9 * 1e3}'),),
         ("tests/fitting/test_keypoint_stage.py::test_camera_stage_keeps_the_root_near_the_similar_triangles_depth",),
     ),
     Breakage(
