@@ -166,7 +166,7 @@ def main() -> None:
     ap.add_argument(
         "--decompose",
         action="store_true",
-        help="print each method's PA-PVE with the true shape, with the true pose, and its vertices' error in the image",
+        help="print each method's PA-PVE with the true shape, with the true body_pose, and its vertices' error in the image",
     )
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="change a field of 'after'")
     args = ap.parse_args()
