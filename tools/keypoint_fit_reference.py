@@ -18,18 +18,17 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-#: the short schedule of the reference fits (a group's field as ``group.field``:
-#: :func:`silfit.runner.worker.config_with`)
+#: the short schedule of the reference fits
 CONFIG = {
     "camera_iters": 15,
     "pose_iters": [15, 15, 15],
     "shape_iters": 8,
     "final_iters": 15,
-    "starts.poses": 2,
+    "init_poses": 2,
     "decision_iters": 8,
-    "branches.iters": 10,
-    "branches.screen_iters": 5,
-    "branches.post_iters": 10,
+    "branch_iters": 10,
+    "branch_screen_iters": 5,
+    "post_branch_iters": 10,
 }
 
 
@@ -39,11 +38,10 @@ def main() -> None:
     from silfit import fit_keypoints, load_body_model
     from silfit.io.subjects import list_subjects, load_subject
     from silfit.fitting import KeypointFitConfig
-    from silfit.runner.worker import config_with
 
     root = Path(__file__).resolve().parents[1]
     model = load_body_model(dtype=torch.float64)
-    cfg = config_with(KeypointFitConfig, CONFIG)
+    cfg = KeypointFitConfig(**CONFIG)
     out = {"config": np.asarray(json.dumps(CONFIG))}
     for path in list_subjects(root / "data" / "synthetic")[:3]:
         s = load_subject(path)
